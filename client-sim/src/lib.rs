@@ -1,0 +1,1 @@
+//! Headless Strata client. Filled by the client-simulator issue (#5).

@@ -1,0 +1,16 @@
+//! Strata's terrain core: pure, deterministic, and free of I/O.
+//!
+//! Everything here gives the same bytes on every run, thread count and
+//! platform: chunks, world generation, edits, the delta codec, meshing and
+//! hashing. The server and the client simulator both build on it.
+
+pub mod chunk;
+pub mod hash;
+pub mod material;
+pub mod pos;
+pub mod world;
+
+pub use chunk::{Chunk, DenseChunk, Voxel, SOLID_THRESHOLD};
+pub use material::{MaterialId, MaterialTable};
+pub use pos::{ChunkPos, VoxelBox, VoxelPos, CHUNK_SIZE, CHUNK_VOLUME};
+pub use world::{ChunkGenerator, VersionedChunk, VoxelRead, World};

@@ -1,0 +1,157 @@
+//! An in-memory chunked world: generated chunks on demand, plus versions.
+//!
+//! This is the I/O-free core the server's sequencer drives: feed an edit in,
+//! get changed chunks and their new versions out.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use crate::chunk::{Chunk, Voxel};
+use crate::pos::{ChunkPos, VoxelPos};
+
+/// Produces the unmodified (version 0) state of any chunk.
+///
+/// Implementations must be pure: the same position gives the same chunk on
+/// every call, run, thread count and platform.
+pub trait ChunkGenerator: Send + Sync + std::fmt::Debug {
+    fn generate(&self, pos: ChunkPos) -> Chunk;
+}
+
+/// A generator that fills every chunk below `y = 0` with one voxel and
+/// leaves the rest air. Used by tests and as a trivial flat world.
+#[derive(Debug, Clone, Copy)]
+pub struct FlatGenerator {
+    pub ground: Voxel,
+}
+
+impl ChunkGenerator for FlatGenerator {
+    fn generate(&self, pos: ChunkPos) -> Chunk {
+        if pos.y < 0 {
+            Chunk::uniform(self.ground)
+        } else {
+            Chunk::uniform(Voxel::AIR)
+        }
+    }
+}
+
+/// A chunk plus its version: 0 means "as generated", and every edit that
+/// changes the chunk raises it by one.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct VersionedChunk {
+    pub chunk: Chunk,
+    pub version: u64,
+}
+
+/// Read access to voxels by world position.
+pub trait VoxelRead {
+    fn voxel(&self, p: VoxelPos) -> Voxel;
+}
+
+/// Chunks by position, generating missing ones on first use.
+#[derive(Debug, Clone)]
+pub struct World {
+    generator: Arc<dyn ChunkGenerator>,
+    chunks: HashMap<ChunkPos, VersionedChunk>,
+}
+
+impl World {
+    pub fn new(generator: Arc<dyn ChunkGenerator>) -> Self {
+        Self { generator, chunks: HashMap::new() }
+    }
+
+    pub fn generator(&self) -> &Arc<dyn ChunkGenerator> {
+        &self.generator
+    }
+
+    /// The chunk at `pos`, generating and caching it at version 0 if absent.
+    pub fn chunk(&mut self, pos: ChunkPos) -> &VersionedChunk {
+        self.entry(pos)
+    }
+
+    fn entry(&mut self, pos: ChunkPos) -> &mut VersionedChunk {
+        let generator = &self.generator;
+        self.chunks
+            .entry(pos)
+            .or_insert_with(|| VersionedChunk { chunk: generator.generate(pos), version: 0 })
+    }
+
+    /// The chunk at `pos` if it is loaded.
+    pub fn peek(&self, pos: ChunkPos) -> Option<&VersionedChunk> {
+        self.chunks.get(&pos)
+    }
+
+    /// Makes sure every listed chunk is loaded.
+    pub fn load(&mut self, positions: impl IntoIterator<Item = ChunkPos>) {
+        for p in positions {
+            self.entry(p);
+        }
+    }
+
+    /// Replaces a chunk and its version (restore, store load, replication).
+    pub fn insert(&mut self, pos: ChunkPos, chunk: Chunk, version: u64) {
+        self.chunks.insert(pos, VersionedChunk { chunk, version });
+    }
+
+    /// Sets a chunk to a new state and bumps its version; returns the new version.
+    pub fn commit(&mut self, pos: ChunkPos, mut chunk: Chunk) -> u64 {
+        chunk.compact();
+        let e = self.entry(pos);
+        e.chunk = chunk;
+        e.version += 1;
+        e.version
+    }
+
+    /// The voxel at `p`, generating its chunk if needed.
+    pub fn voxel_mut_load(&mut self, p: VoxelPos) -> Voxel {
+        let (x, y, z) = p.local();
+        self.entry(p.chunk()).chunk.get(x, y, z)
+    }
+
+    /// Loaded chunks whose version is above 0 (they differ from generation).
+    pub fn modified(&self) -> impl Iterator<Item = (ChunkPos, &VersionedChunk)> {
+        self.chunks.iter().filter(|(_, c)| c.version > 0).map(|(p, c)| (*p, c))
+    }
+
+    /// Number of loaded chunks.
+    pub fn loaded(&self) -> usize {
+        self.chunks.len()
+    }
+
+    /// Drops unmodified chunks for which `keep` is false; they regenerate on demand.
+    pub fn evict_generated(&mut self, keep: impl Fn(ChunkPos) -> bool) {
+        self.chunks.retain(|p, c| c.version > 0 || keep(*p));
+    }
+}
+
+impl VoxelRead for World {
+    /// Reads a loaded voxel, or generates its chunk without caching it.
+    fn voxel(&self, p: VoxelPos) -> Voxel {
+        let (x, y, z) = p.local();
+        match self.chunks.get(&p.chunk()) {
+            Some(c) => c.chunk.get(x, y, z),
+            None => self.generator.generate(p.chunk()).get(x, y, z),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::material::ids;
+
+    #[test]
+    fn generates_on_demand_and_versions() {
+        let mut w = World::new(Arc::new(FlatGenerator { ground: Voxel::solid(ids::STONE) }));
+        let p = ChunkPos::new(0, -1, 0);
+        assert_eq!(w.chunk(p).version, 0);
+        assert_eq!(w.voxel(VoxelPos::new(0, -1, 0)), Voxel::solid(ids::STONE));
+        assert_eq!(w.voxel(VoxelPos::new(0, 0, 0)), Voxel::AIR);
+        let mut c = w.chunk(p).chunk.clone();
+        c.set(0, 0, 0, Voxel::AIR);
+        assert_eq!(w.commit(p, c), 1);
+        assert_eq!(w.modified().count(), 1);
+        w.load([ChunkPos::new(5, 5, 5)]);
+        w.evict_generated(|_| false);
+        assert_eq!(w.loaded(), 1);
+    }
+}
