@@ -5,12 +5,14 @@
 //! hashing. The server and the client simulator both build on it.
 
 pub mod chunk;
+pub mod edit;
 pub mod hash;
 pub mod material;
 pub mod pos;
 pub mod world;
 
 pub use chunk::{Chunk, DenseChunk, Voxel, SOLID_THRESHOLD};
+pub use edit::{Edit, EditContext, EditError, EditKind, EditOutcome, Fixed, FixedVec3};
 pub use material::{MaterialId, MaterialTable};
 pub use pos::{ChunkPos, VoxelBox, VoxelPos, CHUNK_SIZE, CHUNK_VOLUME};
 pub use world::{ChunkGenerator, VersionedChunk, VoxelRead, World};

@@ -1,0 +1,189 @@
+//! Per-voxel rules of each edit, in integer arithmetic.
+//!
+//! A kernel maps (position, old voxel, read access to the pre-edit world)
+//! to the new voxel. Chunked and whole-array application share it, which is
+//! what makes them agree voxel for voxel.
+
+use super::fixed::{isqrt, FixedVec3, FRAC_BITS};
+use super::limits::SPHERE_RIM;
+use super::structure::Structure;
+use super::Edit;
+use crate::chunk::Voxel;
+use crate::material::{MaterialTable, REFERENCE_HARDNESS};
+use crate::pos::VoxelPos;
+use crate::world::VoxelRead;
+
+/// Q16 one.
+const Q16: i64 = 1 << 16;
+
+/// Distance from a fixed-point centre to voxel `p`, in Q16 voxels.
+fn distance_q16(c: FixedVec3, p: VoxelPos) -> i64 {
+    let d = |v: i32, c: i32| ((v as i64) << FRAC_BITS) - c as i64;
+    let (dx, dy, dz) = (d(p.x, c.x.0), d(p.y, c.y.0), d(p.z, c.z.0));
+    // Q8 squared is Q16; shift to Q32 so the root is Q16.
+    let sq = (dx * dx + dy * dy + dz * dz) as u64;
+    isqrt(sq << 16) as i64
+}
+
+/// Rim weight in Q16: 1 inside `r - rim/2`, 0 beyond `r + rim/2`, linear between.
+fn rim_weight(d: i64, r_q16: i64) -> i64 {
+    let half = (SPHERE_RIM as i64) * Q16 / 2;
+    ((r_q16 + half - d) * Q16 / (2 * half)).clamp(0, Q16)
+}
+
+/// Linear falloff `1 - d/r` in Q16, 0 outside.
+fn falloff(d: i64, r_q16: i64) -> i64 {
+    if d >= r_q16 {
+        0
+    } else {
+        (r_q16 - d) * Q16 / r_q16
+    }
+}
+
+fn q8_to_q16(v: i32) -> i64 {
+    (v as i64) << 8
+}
+
+/// Applies an edit to one voxel. `src` shows the world before the edit.
+pub(crate) fn apply_voxel(
+    edit: &Edit,
+    structure: Option<&Structure>,
+    materials: &MaterialTable,
+    p: VoxelPos,
+    old: Voxel,
+    src: &dyn VoxelRead,
+    footprint_min: VoxelPos,
+) -> Voxel {
+    if materials.is_indestructible(old.material) {
+        return old;
+    }
+    match *edit {
+        Edit::Mine {
+            center,
+            radius,
+            strength,
+        } => {
+            let w = rim_weight(distance_q16(center, p), q8_to_q16(radius.0));
+            let hardness = materials.hardness(old.material).max(1) as i64;
+            let amount = strength as i64 * w * REFERENCE_HARDNESS as i64 / hardness / Q16;
+            Voxel::new(
+                (old.density as i64 - amount.min(255)).max(0) as u8,
+                old.material,
+            )
+        }
+        Edit::Explode {
+            center,
+            radius,
+            power,
+        } => {
+            let f = falloff(distance_q16(center, p), q8_to_q16(radius.0));
+            let damage = (power as i64 * f * f) >> 32;
+            Voxel::new((old.density as i64 - damage).max(0) as u8, old.material)
+        }
+        Edit::Build {
+            center,
+            radius,
+            material,
+            strength,
+        } => {
+            let w = rim_weight(distance_q16(center, p), q8_to_q16(radius.0));
+            let amount = strength as i64 * w / Q16;
+            if amount == 0 {
+                return old;
+            }
+            let density = (old.density as i64 + amount).min(255) as u8;
+            let material = if old.is_solid() {
+                old.material
+            } else {
+                material
+            };
+            Voxel::new(density, material)
+        }
+        Edit::FillBox { material, .. } => Voxel::solid(material),
+        Edit::ClearBox { .. } => Voxel::AIR,
+        Edit::PlaceStructure { rotation, .. } => {
+            let s = structure.expect("validated: structure exists");
+            let t = s.rotated_voxel(
+                rotation,
+                (p.x - footprint_min.x) as u16,
+                (p.y - footprint_min.y) as u16,
+                (p.z - footprint_min.z) as u16,
+            );
+            if t.density == 0 {
+                old
+            } else {
+                t
+            }
+        }
+        Edit::Smooth {
+            center,
+            radius,
+            strength,
+        } => {
+            let f = falloff(distance_q16(center, p), q8_to_q16(radius.0));
+            if f == 0 {
+                return old;
+            }
+            smooth_voxel(p, old, src, strength as i64 * f / 255)
+        }
+    }
+}
+
+/// Moves density toward the 3×3×3 mean by `weight` (Q16).
+fn smooth_voxel(p: VoxelPos, old: Voxel, src: &dyn VoxelRead, weight: i64) -> Voxel {
+    let mut sum = 0i64;
+    let mut counts = [0u16; 256];
+    for dz in -1..=1 {
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let n = src.voxel(VoxelPos::new(p.x + dx, p.y + dy, p.z + dz));
+                sum += n.density as i64;
+                if n.is_solid() {
+                    counts[n.material as usize] += 1;
+                }
+            }
+        }
+    }
+    // Round the mean to nearest; truncate the step toward zero.
+    let mean = (sum * 2 + 27) / 54;
+    let density =
+        (old.density as i64 + (mean - old.density as i64) * weight / Q16).clamp(0, 255) as u8;
+    let mut material = old.material;
+    if !old.is_solid() && density >= crate::chunk::SOLID_THRESHOLD as u8 {
+        // Newly solid: take the most common solid neighbour material (lowest id on ties).
+        if let Some((m, _)) = counts
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| **c > 0)
+            .max_by_key(|(i, c)| (**c, usize::MAX - i))
+        {
+            material = m as u8;
+        }
+    }
+    Voxel::new(density, material)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weights() {
+        let r = 4 * Q16;
+        assert_eq!(rim_weight(0, r), Q16);
+        assert_eq!(rim_weight(3 * Q16, r), Q16);
+        assert_eq!(rim_weight(4 * Q16, r), Q16 / 2);
+        assert_eq!(rim_weight(5 * Q16, r), 0);
+        assert_eq!(falloff(0, r), Q16);
+        assert_eq!(falloff(2 * Q16, r), Q16 / 2);
+        assert_eq!(falloff(r, r), 0);
+    }
+
+    #[test]
+    fn distance_is_exact_on_axes() {
+        let c = FixedVec3::from_voxels(0, 0, 0);
+        assert_eq!(distance_q16(c, VoxelPos::new(3, 0, 0)), 3 * Q16);
+        assert_eq!(distance_q16(c, VoxelPos::new(3, 4, 0)), 5 * Q16);
+        assert_eq!(distance_q16(c, VoxelPos::new(-3, 0, -4)), 5 * Q16);
+    }
+}

@@ -1,0 +1,597 @@
+//! Edits on a chunked world give exactly the voxels of the flat reference,
+//! never touch indestructible voxels, and refuse bad input without changes.
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+
+use proptest::prelude::*;
+use strata_terrain::edit::{structure::Structure, Region, StructureLibrary, MAX_POWER, MAX_RADIUS};
+use strata_terrain::material::ids;
+use strata_terrain::world::FlatGenerator;
+use strata_terrain::{
+    Chunk, ChunkGenerator, ChunkPos, Edit, EditContext, EditError, Fixed, FixedVec3, MaterialTable,
+    Voxel, VoxelBox, VoxelPos, VoxelRead, World,
+};
+
+/// Rolling ground near y = 0 with layers, scattered bedrock voxels and a
+/// uniform sky, so edits cross uniform and dense chunks alike.
+#[derive(Debug)]
+struct TestGround;
+
+fn ground_voxel(p: VoxelPos) -> Voxel {
+    let h = 2 + ((p.x.rem_euclid(13) * 3 + p.z.rem_euclid(7) * 5) % 9) - 4;
+    let depth = h - p.y;
+    let density = (128 + depth * 40).clamp(0, 255) as u8;
+    let scatter =
+        (p.x.wrapping_mul(73856093) ^ p.y.wrapping_mul(19349663) ^ p.z.wrapping_mul(83492791)) & 63;
+    let material = if density == 0 {
+        ids::AIR
+    } else if scatter == 0 {
+        ids::BEDROCK
+    } else if depth <= 1 {
+        ids::GRASS
+    } else if depth <= 4 {
+        ids::DIRT
+    } else {
+        ids::STONE
+    };
+    Voxel::new(density, material)
+}
+
+impl ChunkGenerator for TestGround {
+    fn generate(&self, pos: ChunkPos) -> Chunk {
+        if pos.y >= 1 {
+            return Chunk::uniform(Voxel::AIR);
+        }
+        let mut c = Chunk::uniform(Voxel::AIR);
+        let o = pos.origin();
+        for z in 0..32 {
+            for y in 0..32 {
+                for x in 0..32 {
+                    c.set(
+                        x,
+                        y,
+                        z,
+                        ground_voxel(VoxelPos::new(
+                            o.x + x as i32,
+                            o.y + y as i32,
+                            o.z + z as i32,
+                        )),
+                    );
+                }
+            }
+        }
+        c.compact();
+        c
+    }
+}
+
+fn world() -> World {
+    World::new(Arc::new(TestGround))
+}
+
+fn flat(ground: Voxel) -> World {
+    World::new(Arc::new(FlatGenerator { ground }))
+}
+
+fn library() -> StructureLibrary {
+    let mut lib = StructureLibrary::default();
+    // An asymmetric arch so every rotation gives a different footprint.
+    let arch = Structure::from_fn("arch", [7, 5, 3], |x, y, z| {
+        if y == 4 || x == 0 || (x == 6 && z != 1) {
+            Voxel::new(255, ids::BRICK)
+        } else if y == 0 && x < 3 {
+            Voxel::new(160, ids::STONE)
+        } else {
+            Voxel::new(0, 0)
+        }
+    })
+    .unwrap();
+    lib.insert(1, arch);
+    lib
+}
+
+fn c(x: f64, y: f64, z: f64) -> FixedVec3 {
+    FixedVec3::from_f64([x, y, z]).unwrap()
+}
+
+fn r(v: f64) -> Fixed {
+    Fixed::from_f64(v).unwrap()
+}
+
+fn vp(p: VoxelPos, dx: i32, dy: i32, dz: i32) -> VoxelPos {
+    p.checked_offset(dx, dy, dz).unwrap()
+}
+
+/// Edits centred on chunk faces, edges, corners and negative coordinates.
+fn border_edits() -> Vec<Edit> {
+    let mut v = Vec::new();
+    for (x, y, z) in [
+        (32.0, 0.0, 5.0),
+        (31.5, -0.5, 31.5),
+        (0.0, 0.0, 0.0),
+        (-32.25, -1.0, -33.0),
+        (-0.5, 2.0, 64.0),
+    ] {
+        v.push(Edit::Mine {
+            center: c(x, y, z),
+            radius: r(3.0),
+            strength: 255,
+        });
+        v.push(Edit::Explode {
+            center: c(x, y, z),
+            radius: r(8.0),
+            power: 600,
+        });
+        v.push(Edit::Build {
+            center: c(x, y + 3.0, z),
+            radius: r(4.0),
+            material: ids::BRICK,
+            strength: 200,
+        });
+        v.push(Edit::Smooth {
+            center: c(x, y, z),
+            radius: r(5.5),
+            strength: 255,
+        });
+        let p = VoxelPos::new(x.floor() as i32, y.floor() as i32, z.floor() as i32);
+        v.push(Edit::FillBox {
+            min: vp(p, -3, -2, -4),
+            max: vp(p, 2, 3, 1),
+            material: ids::SAND,
+        });
+        v.push(Edit::ClearBox {
+            min: vp(p, -1, -5, -2),
+            max: vp(p, 4, 0, 3),
+        });
+        for rotation in 0..4 {
+            v.push(Edit::PlaceStructure {
+                structure: 1,
+                origin: vp(p, -3, -1, -2),
+                rotation,
+            });
+        }
+    }
+    v
+}
+
+fn check_equivalent(edit: &Edit) {
+    let materials = MaterialTable::default();
+    let structures = library();
+    let ctx = EditContext {
+        materials: &materials,
+        structures: &structures,
+    };
+    let mut w = world();
+    let bbox = edit.validate(&ctx).unwrap();
+    let around = VoxelBox {
+        min: vp(bbox.min, -3, -3, -3),
+        max: vp(bbox.max, 3, 3, 3),
+    };
+    w.load(around.chunks());
+    let original = Region::from_source(&w, around, Voxel::AIR);
+    let mut reference = original.clone();
+    let (rbox, rcount) = edit.apply_region(&mut reference, &ctx).unwrap();
+    let out = edit.apply(&mut w, &ctx).unwrap();
+    assert_eq!(out.bbox, rbox);
+    assert_eq!(out.voxels_changed, rcount, "{edit:?}");
+    let mut differing_chunks = BTreeSet::new();
+    for z in around.min.z..=around.max.z {
+        for y in around.min.y..=around.max.y {
+            for x in around.min.x..=around.max.x {
+                let p = VoxelPos::new(x, y, z);
+                assert_eq!(w.voxel(p), reference.voxel(p), "{edit:?} at {p:?}");
+                if original.voxel(p) != reference.voxel(p) {
+                    differing_chunks.insert(p.chunk());
+                }
+            }
+        }
+    }
+    assert_eq!(
+        w.loaded(),
+        around.chunks().count(),
+        "the edit loads no chunk outside its box"
+    );
+    let changed: BTreeSet<_> = out.changed.iter().map(|c| c.pos).collect();
+    assert_eq!(changed, differing_chunks, "{edit:?}");
+    for ch in &out.changed {
+        assert_eq!((ch.from_version, ch.to_version), (0, 1));
+        assert_eq!(w.peek(ch.pos).unwrap().version, 1);
+        assert_eq!(ch.before, TestGround.generate(ch.pos));
+    }
+}
+
+#[test]
+fn chunked_equals_flat_across_borders_corners_and_negatives() {
+    let edits = border_edits();
+    assert_eq!(edits.len(), 50);
+    for e in &edits {
+        check_equivalent(e);
+    }
+}
+
+#[test]
+fn edits_reach_every_touched_chunk() {
+    // An explosion on a chunk corner changes all eight chunks around it.
+    let materials = MaterialTable::default();
+    let structures = library();
+    let ctx = EditContext {
+        materials: &materials,
+        structures: &structures,
+    };
+    let mut w = flat(Voxel::solid(ids::DIRT));
+    let e = Edit::Explode {
+        center: c(0.0, 0.0, 0.0),
+        radius: r(8.0),
+        power: 1024,
+    };
+    let out = e.apply(&mut w, &ctx).unwrap();
+    assert_eq!(
+        out.bbox,
+        VoxelBox::from_corners(VoxelPos::new(-8, -8, -8), VoxelPos::new(8, 8, 8))
+    );
+    // Only the four chunks below y = 0 hold solid voxels to destroy.
+    assert_eq!(out.changed.len(), 4);
+    assert!(out.changed.iter().all(|c| c.pos.y == -1));
+}
+
+#[test]
+fn seed_explosion_formula() {
+    let materials = MaterialTable::default();
+    let structures = library();
+    let ctx = EditContext {
+        materials: &materials,
+        structures: &structures,
+    };
+    let mut w = flat(Voxel::solid(ids::STONE));
+    let e = Edit::Explode {
+        center: c(0.0, -16.0, 0.0),
+        radius: r(8.0),
+        power: 200,
+    };
+    e.apply(&mut w, &ctx).unwrap();
+    // damage = power * (1 - d/r)^2: centre 200, d=4 -> 50, d=8 -> 0.
+    assert_eq!(w.voxel(VoxelPos::new(0, -16, 0)).density, 55);
+    assert_eq!(w.voxel(VoxelPos::new(4, -16, 0)).density, 205);
+    assert_eq!(w.voxel(VoxelPos::new(0, -16, 8)).density, 255);
+    assert_eq!(w.voxel(VoxelPos::new(0, -16, 0)).material, ids::STONE);
+}
+
+#[test]
+fn mine_and_build_shapes() {
+    let materials = MaterialTable::default();
+    let structures = library();
+    let ctx = EditContext {
+        materials: &materials,
+        structures: &structures,
+    };
+    let dirt = Voxel::solid(ids::DIRT);
+    let mut w = flat(dirt);
+    Edit::Mine {
+        center: c(0.0, -10.0, 0.0),
+        radius: r(4.0),
+        strength: 255,
+    }
+    .apply(&mut w, &ctx)
+    .unwrap();
+    assert_eq!(
+        w.voxel(VoxelPos::new(0, -10, 0)).density,
+        0,
+        "inside is cleared"
+    );
+    let rim = w.voxel(VoxelPos::new(4, -10, 0)).density;
+    assert!(
+        (120..=135).contains(&rim),
+        "surface sits at the radius: {rim}"
+    );
+    assert_eq!(w.voxel(VoxelPos::new(6, -10, 0)), dirt, "outside untouched");
+    // Stone is 40/16 as hard as dirt: one full-strength mine leaves it solid.
+    let mut s = flat(Voxel::solid(ids::STONE));
+    Edit::Mine {
+        center: c(0.0, -10.0, 0.0),
+        radius: r(4.0),
+        strength: 255,
+    }
+    .apply(&mut s, &ctx)
+    .unwrap();
+    assert_eq!(
+        s.voxel(VoxelPos::new(0, -10, 0)).density as i32,
+        255 - 255 * 16 / 40
+    );
+    // Build in the air makes a solid ball of the building material.
+    Edit::Build {
+        center: c(0.0, 10.0, 0.0),
+        radius: r(3.0),
+        material: ids::BRICK,
+        strength: 255,
+    }
+    .apply(&mut w, &ctx)
+    .unwrap();
+    assert_eq!(w.voxel(VoxelPos::new(0, 10, 0)), Voxel::solid(ids::BRICK));
+    assert!(!w.voxel(VoxelPos::new(0, 15, 0)).is_solid());
+}
+
+#[test]
+fn smooth_relaxes_a_step() {
+    let materials = MaterialTable::default();
+    let structures = library();
+    let ctx = EditContext {
+        materials: &materials,
+        structures: &structures,
+    };
+    let mut w = flat(Voxel::solid(ids::DIRT));
+    let out = Edit::Smooth {
+        center: c(0.0, 0.0, 0.0),
+        radius: r(4.0),
+        strength: 255,
+    }
+    .apply(&mut w, &ctx)
+    .unwrap();
+    assert!(out.voxels_changed > 0);
+    // The voxel just above the step gains density; the one below loses some.
+    let above = w.voxel(VoxelPos::new(0, 0, 0));
+    let below = w.voxel(VoxelPos::new(0, -1, 0));
+    assert!(above.density > 0 && above.density < 128, "{above:?}");
+    assert!(below.density > 128 && below.density < 255, "{below:?}");
+}
+
+#[test]
+fn indestructible_voxels_never_change() {
+    let materials = MaterialTable::default();
+    let structures = library();
+    let ctx = EditContext {
+        materials: &materials,
+        structures: &structures,
+    };
+    let bedrock = Voxel::solid(ids::BEDROCK);
+    let mut w = flat(bedrock);
+    let edits = [
+        Edit::Mine {
+            center: c(0.0, -1.0, 0.0),
+            radius: MAX_RADIUS,
+            strength: 255,
+        },
+        Edit::Explode {
+            center: c(0.0, -1.0, 0.0),
+            radius: MAX_RADIUS,
+            power: MAX_POWER,
+        },
+        Edit::Smooth {
+            center: c(0.0, 0.0, 0.0),
+            radius: r(6.0),
+            strength: 255,
+        },
+        Edit::ClearBox {
+            min: VoxelPos::new(-5, -5, -5),
+            max: VoxelPos::new(5, 5, 5),
+        },
+        Edit::FillBox {
+            min: VoxelPos::new(-5, -5, -5),
+            max: VoxelPos::new(5, 5, 5),
+            material: ids::SAND,
+        },
+        Edit::PlaceStructure {
+            structure: 1,
+            origin: VoxelPos::new(-2, -3, -1),
+            rotation: 1,
+        },
+    ];
+    for e in &edits {
+        e.apply(&mut w, &ctx).unwrap();
+    }
+    for p in [
+        VoxelPos::new(0, -1, 0),
+        VoxelPos::new(-5, -5, -5),
+        VoxelPos::new(3, -32, 7),
+        VoxelPos::new(-1, -2, 0),
+    ] {
+        assert_eq!(w.voxel(p), bedrock, "{p:?}");
+    }
+    // The fill above ground did change air, so the edits did run.
+    assert_eq!(w.voxel(VoxelPos::new(0, 3, 0)), Voxel::solid(ids::SAND));
+}
+
+#[test]
+fn bad_edits_are_refused_and_change_nothing() {
+    let materials = MaterialTable::default();
+    let structures = library();
+    let ctx = EditContext {
+        materials: &materials,
+        structures: &structures,
+    };
+    let mut w = world();
+    let far = Fixed::from_voxels(1 << 22);
+    let origin = c(0.0, 0.0, 0.0);
+    type Check = fn(&EditError) -> bool;
+    let cases: Vec<(Edit, Check)> = vec![
+        (
+            Edit::Mine {
+                center: FixedVec3::new(far, Fixed(0), Fixed(0)),
+                radius: r(2.0),
+                strength: 9,
+            },
+            |e| matches!(e, EditError::CoordinateOutOfRange { .. }),
+        ),
+        (
+            Edit::Mine {
+                center: FixedVec3::new(Fixed(i32::MAX), Fixed(0), Fixed(0)),
+                radius: r(2.0),
+                strength: 9,
+            },
+            |e| matches!(e, EditError::CoordinateOutOfRange { .. }),
+        ),
+        (
+            Edit::Mine {
+                center: origin,
+                radius: Fixed(MAX_RADIUS.0 + 1),
+                strength: 9,
+            },
+            |e| matches!(e, EditError::RadiusOutOfRange { .. }),
+        ),
+        (
+            Edit::Build {
+                center: origin,
+                radius: Fixed(0),
+                material: ids::DIRT,
+                strength: 9,
+            },
+            |e| matches!(e, EditError::RadiusOutOfRange { .. }),
+        ),
+        (
+            Edit::Smooth {
+                center: origin,
+                radius: Fixed(-256),
+                strength: 9,
+            },
+            |e| matches!(e, EditError::RadiusOutOfRange { .. }),
+        ),
+        (
+            Edit::Explode {
+                center: origin,
+                radius: r(4.0),
+                power: MAX_POWER + 1,
+            },
+            |e| matches!(e, EditError::PowerOutOfRange { .. }),
+        ),
+        (
+            Edit::Mine {
+                center: origin,
+                radius: r(4.0),
+                strength: 0,
+            },
+            |e| *e == EditError::ZeroStrength,
+        ),
+        (
+            Edit::Build {
+                center: origin,
+                radius: r(4.0),
+                material: 99,
+                strength: 9,
+            },
+            |e| *e == EditError::UnknownMaterial(99),
+        ),
+        (
+            Edit::Build {
+                center: origin,
+                radius: r(4.0),
+                material: ids::BEDROCK,
+                strength: 9,
+            },
+            |e| *e == EditError::IndestructibleMaterial(ids::BEDROCK),
+        ),
+        (
+            Edit::FillBox {
+                min: VoxelPos::new(0, 0, 0),
+                max: VoxelPos::new(200, 0, 0),
+                material: ids::SAND,
+            },
+            |e| matches!(e, EditError::BoxTooLarge { .. }),
+        ),
+        (
+            Edit::ClearBox {
+                min: VoxelPos::new(1, 0, 0),
+                max: VoxelPos::new(0, 0, 0),
+            },
+            |e| *e == EditError::InvertedBox,
+        ),
+        (
+            Edit::ClearBox {
+                min: VoxelPos::new(i32::MAX - 1, 0, 0),
+                max: VoxelPos::new(i32::MAX, 0, 0),
+            },
+            |e| matches!(e, EditError::CoordinateOutOfRange { .. }),
+        ),
+        (
+            Edit::PlaceStructure {
+                structure: 7,
+                origin: VoxelPos::new(0, 0, 0),
+                rotation: 0,
+            },
+            |e| *e == EditError::UnknownStructure(7),
+        ),
+        (
+            Edit::PlaceStructure {
+                structure: 1,
+                origin: VoxelPos::new(0, 0, 0),
+                rotation: 4,
+            },
+            |e| *e == EditError::BadRotation(4),
+        ),
+        (
+            Edit::PlaceStructure {
+                structure: 1,
+                origin: VoxelPos::new((1 << 22) - 3, 0, 0),
+                rotation: 0,
+            },
+            |e| matches!(e, EditError::CoordinateOutOfRange { .. }),
+        ),
+    ];
+    w.load(
+        VoxelBox::from_corners(VoxelPos::new(-40, -40, -40), VoxelPos::new(40, 40, 40)).chunks(),
+    );
+    let snapshot = |w: &World| -> Vec<_> {
+        (-2..=1)
+            .map(|x| w.peek(ChunkPos::new(x, -1, 0)).cloned())
+            .collect()
+    };
+    let before = snapshot(&w);
+    for (edit, expect) in cases {
+        let err = edit.apply(&mut w, &ctx).expect_err("must be refused");
+        assert!(expect(&err), "{edit:?} gave {err:?}");
+        assert!(!err.to_string().is_empty());
+    }
+    assert_eq!(w.modified().count(), 0);
+    assert_eq!(before, snapshot(&w));
+}
+
+#[test]
+fn structure_rotation_places_expected_voxels() {
+    let materials = MaterialTable::default();
+    let structures = library();
+    let ctx = EditContext {
+        materials: &materials,
+        structures: &structures,
+    };
+    let mut w = flat(Voxel::AIR);
+    let origin = VoxelPos::new(100, 40, -60);
+    let out = Edit::PlaceStructure {
+        structure: 1,
+        origin,
+        rotation: 1,
+    }
+    .apply(&mut w, &ctx)
+    .unwrap();
+    // The rotated footprint is 3 (x) by 5 (y) by 7 (z).
+    assert_eq!(out.bbox.max, VoxelPos::new(102, 44, -54));
+    // Template (0, 0, 0) lands at footprint (u=0, v=6) under rotation 1.
+    assert_eq!(
+        w.voxel(VoxelPos::new(100, 40, -54)),
+        Voxel::new(255, ids::BRICK)
+    );
+    // Template (1, 0, 0) is stone at density 160, one step toward -z.
+    assert_eq!(
+        w.voxel(VoxelPos::new(100, 40, -55)),
+        Voxel::new(160, ids::STONE)
+    );
+    // Template density 0 leaves the world alone.
+    assert_eq!(w.voxel(VoxelPos::new(101, 42, -57)), Voxel::AIR);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+    #[test]
+    fn random_sphere_edits_match_reference(
+        x in -70.0f64..70.0, y in -40.0f64..10.0, z in -70.0f64..70.0,
+        radius in 0.5f64..9.0, kind in 0u8..4, amount in 1u8..=255,
+    ) {
+        let center = c(x, y, z);
+        let radius = r(radius);
+        let e = match kind {
+            0 => Edit::Mine { center, radius, strength: amount },
+            1 => Edit::Explode { center, radius, power: amount as u16 * 4 },
+            2 => Edit::Build { center, radius, material: ids::ORE, strength: amount },
+            _ => Edit::Smooth { center, radius, strength: amount },
+        };
+        check_equivalent(&e);
+    }
+}
