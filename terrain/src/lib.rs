@@ -5,6 +5,8 @@
 //! hashing. The server and the client simulator both build on it.
 
 pub mod chunk;
+pub mod chunk_codec;
+pub mod delta;
 pub mod edit;
 pub mod hash;
 pub mod material;
