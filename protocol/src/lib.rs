@@ -1,5 +1,14 @@
-//! Strata's wire protocol. Filled by the server issue (#4): messages,
-//! the bincode codec and framing. Nothing about game rules lives here.
+//! Strata's wire protocol: messages, the codec, framing and version
+//! constants. Nothing about game rules lives here. PROTOCOL.md documents the
+//! byte layout for clients in other languages.
 
-/// ALPN protocol id for QUIC connections.
-pub const ALPN: &[u8] = b"strata/1";
+pub mod codec;
+pub mod frame;
+pub mod limits;
+pub mod messages;
+pub mod version;
+
+pub use codec::{decode, encode, CodecError, Direction};
+pub use frame::{encode_frame, FrameBuffer, FrameError};
+pub use messages::*;
+pub use version::{ALPN, PROTOCOL_VERSION};

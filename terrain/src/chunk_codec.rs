@@ -144,7 +144,9 @@ fn decompress_frame(data: &[u8]) -> Result<Vec<u8>, CodecError> {
     let planes = zstd::bulk::decompress(data, PLANES_LEN)
         .map_err(|e| CodecError::Decompress(e.to_string()))?;
     if planes.len() != PLANES_LEN {
-        return Err(CodecError::WrongLength { actual: planes.len() as u64 });
+        return Err(CodecError::WrongLength {
+            actual: planes.len() as u64,
+        });
     }
     Ok(planes)
 }
@@ -152,8 +154,9 @@ fn decompress_frame(data: &[u8]) -> Result<Vec<u8>, CodecError> {
 /// Builds a compacted chunk from exactly [`PLANES_LEN`] bytes.
 fn from_planes(planes: &[u8]) -> Result<Chunk, CodecError> {
     let (density, material) = planes.split_at(CHUNK_VOLUME.min(planes.len()));
-    let d = DenseChunk::from_planes(density, material)
-        .ok_or(CodecError::WrongLength { actual: planes.len() as u64 })?;
+    let d = DenseChunk::from_planes(density, material).ok_or(CodecError::WrongLength {
+        actual: planes.len() as u64,
+    })?;
     let mut c = Chunk::Dense(d);
     c.compact();
     Ok(c)

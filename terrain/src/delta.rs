@@ -120,7 +120,9 @@ pub enum DeltaError {
     VarintTooLarge { value: usize, max: usize },
     #[error("run literal of length 0 at stream offset {0}")]
     EmptyLiteral(usize),
-    #[error("runs overrun the {XOR_STREAM_LEN}-byte stream: literal of {len} bytes at offset {offset}")]
+    #[error(
+        "runs overrun the {XOR_STREAM_LEN}-byte stream: literal of {len} bytes at offset {offset}"
+    )]
     RunOverflow { offset: usize, len: usize },
     #[error("declared runs length {declared} is outside 1..={max}")]
     DeclaredLength { declared: usize, max: usize },
@@ -140,12 +142,22 @@ impl ChunkDelta {
         target: &Chunk,
     ) -> Result<ChunkDelta, DeltaError> {
         if to_version <= from_version {
-            return Err(DeltaError::VersionOrder { from: from_version, to: to_version });
+            return Err(DeltaError::VersionOrder {
+                from: from_version,
+                to: to_version,
+            });
         }
         let base_hash = chunk_hash(base);
         let target_hash = chunk_hash(target);
         let payload = encode_payload(base, target, base_hash == target_hash);
-        Ok(ChunkDelta { pos, from_version, to_version, base_hash, target_hash, payload })
+        Ok(ChunkDelta {
+            pos,
+            from_version,
+            to_version,
+            base_hash,
+            target_hash,
+            payload,
+        })
     }
 
     /// Applies the delta to `base`, returning the compacted target chunk.
@@ -156,13 +168,19 @@ impl ChunkDelta {
     pub fn apply(&self, base: &Chunk) -> Result<Chunk, DeltaError> {
         let actual = chunk_hash(base);
         if actual != self.base_hash {
-            return Err(DeltaError::BaseMismatch { expected: self.base_hash, actual });
+            return Err(DeltaError::BaseMismatch {
+                expected: self.base_hash,
+                actual,
+            });
         }
         let mut target = decode_payload(&self.payload, base)?;
         target.compact();
         let actual = chunk_hash(&target);
         if actual != self.target_hash {
-            return Err(DeltaError::TargetMismatch { expected: self.target_hash, actual });
+            return Err(DeltaError::TargetMismatch {
+                expected: self.target_hash,
+                actual,
+            });
         }
         Ok(target)
     }
@@ -330,7 +348,10 @@ fn decode_payload(payload: &[u8], base: &Chunk) -> Result<Chunk, DeltaError> {
             let mut at = 0;
             let declared = read_varint(body, &mut at, MAX_RUNS_LEN)?;
             if declared == 0 || declared > MAX_RUNS_LEN {
-                return Err(DeltaError::DeclaredLength { declared, max: MAX_RUNS_LEN });
+                return Err(DeltaError::DeclaredLength {
+                    declared,
+                    max: MAX_RUNS_LEN,
+                });
             }
             let data = &body[at..];
             decompressed = if method == METHOD_RUNS_LZ4 {
@@ -397,13 +418,20 @@ fn apply_runs(runs: &[u8], base: &Chunk) -> Result<Chunk, DeltaError> {
 /// XORs `lit` into the stream at `offset`, which may straddle the planes.
 /// The caller has checked `offset + lit.len() <= XOR_STREAM_LEN`.
 fn xor_literal(d: &mut DenseChunk, offset: usize, lit: &[u8]) {
-    let (to_density, to_material) = lit.split_at(CHUNK_VOLUME.saturating_sub(offset).min(lit.len()));
+    let (to_density, to_material) =
+        lit.split_at(CHUNK_VOLUME.saturating_sub(offset).min(lit.len()));
     if !to_density.is_empty() {
-        xor_slice(&mut d.density[offset..offset + to_density.len()], to_density);
+        xor_slice(
+            &mut d.density[offset..offset + to_density.len()],
+            to_density,
+        );
     }
     if !to_material.is_empty() {
         let start = offset + to_density.len() - CHUNK_VOLUME;
-        xor_slice(&mut d.material[start..start + to_material.len()], to_material);
+        xor_slice(
+            &mut d.material[start..start + to_material.len()],
+            to_material,
+        );
     }
 }
 
@@ -460,7 +488,10 @@ mod tests {
         let mut target = base.clone();
         target.set_index(200, Voxel::solid(ids::ORE));
         let d = ChunkDelta::encode(POS, 0, 1, &base, &target).unwrap();
-        assert_eq!(d.payload, vec![METHOD_RUNS, 0xc8, 0x81, 0x02, 1, ids::STONE ^ ids::ORE]);
+        assert_eq!(
+            d.payload,
+            vec![METHOD_RUNS, 0xc8, 0x81, 0x02, 1, ids::STONE ^ ids::ORE]
+        );
         assert_eq!(d.apply(&base).unwrap(), target);
     }
 
@@ -487,7 +518,10 @@ mod tests {
         assert_eq!(d.apply(&base).unwrap(), target);
         // The last density byte (offset 32767 = varint ff ff 01) and the
         // first material byte are adjacent in the stream: one literal.
-        assert_eq!(d.payload, vec![METHOD_RUNS, 0xff, 0xff, 0x01, 2, 0xff ^ 7, ids::STONE ^ 9]);
+        assert_eq!(
+            d.payload,
+            vec![METHOD_RUNS, 0xff, 0xff, 0x01, 2, 0xff ^ 7, ids::STONE ^ 9]
+        );
     }
 
     #[test]
@@ -532,7 +566,11 @@ mod tests {
         }
         let d = ChunkDelta::encode(POS, 0, 1, &base, &target).unwrap();
         assert!(matches!(d.payload[0], METHOD_RUNS_LZ4 | METHOD_RUNS_ZSTD));
-        assert!(d.payload.len() < 1000, "periodic data compresses: {}", d.payload.len());
+        assert!(
+            d.payload.len() < 1000,
+            "periodic data compresses: {}",
+            d.payload.len()
+        );
         assert_eq!(d.apply(&base).unwrap(), target);
     }
 
@@ -546,7 +584,10 @@ mod tests {
         let e = d.apply(&wrong).unwrap_err();
         assert_eq!(
             e,
-            DeltaError::BaseMismatch { expected: chunk_hash(&base), actual: chunk_hash(&wrong) }
+            DeltaError::BaseMismatch {
+                expected: chunk_hash(&base),
+                actual: chunk_hash(&wrong)
+            }
         );
     }
 
@@ -557,49 +598,95 @@ mod tests {
         target.set(4, 4, 4, Voxel::AIR);
         let mut d = ChunkDelta::encode(POS, 0, 1, &base, &target).unwrap();
         d.target_hash ^= 1;
-        assert!(matches!(d.apply(&base), Err(DeltaError::TargetMismatch { .. })));
+        assert!(matches!(
+            d.apply(&base),
+            Err(DeltaError::TargetMismatch { .. })
+        ));
     }
 
     #[test]
     fn malformed_payloads_give_typed_errors() {
         let base = stone();
         let target = Chunk::uniform(Voxel::AIR);
-        let err = |payload: Vec<u8>| with_payload(&base, &target, payload).apply(&base).unwrap_err();
+        let err = |payload: Vec<u8>| {
+            with_payload(&base, &target, payload)
+                .apply(&base)
+                .unwrap_err()
+        };
 
         assert_eq!(err(vec![]), DeltaError::EmptyPayload);
         assert_eq!(err(vec![0x00]), DeltaError::UnknownMethod(0));
         assert_eq!(err(vec![0x09, 1, 2]), DeltaError::UnknownMethod(9));
-        assert!(matches!(err(vec![METHOD_UNIFORM, 0]), DeltaError::Truncated(_)));
-        assert_eq!(err(vec![METHOD_UNIFORM, 0, 0, 0]), DeltaError::TrailingBytes(1));
-        assert!(matches!(err(vec![METHOD_RUNS, 0x80]), DeltaError::Truncated(_)));
-        assert!(matches!(err(vec![METHOD_RUNS, 0x80, 0x80, 0x80, 0x01]), DeltaError::BadVarint(_)));
+        assert!(matches!(
+            err(vec![METHOD_UNIFORM, 0]),
+            DeltaError::Truncated(_)
+        ));
+        assert_eq!(
+            err(vec![METHOD_UNIFORM, 0, 0, 0]),
+            DeltaError::TrailingBytes(1)
+        );
+        assert!(matches!(
+            err(vec![METHOD_RUNS, 0x80]),
+            DeltaError::Truncated(_)
+        ));
+        assert!(matches!(
+            err(vec![METHOD_RUNS, 0x80, 0x80, 0x80, 0x01]),
+            DeltaError::BadVarint(_)
+        ));
         // 0x84 0x80 0x04 = 65540 > 65536.
         assert_eq!(
             err(vec![METHOD_RUNS, 0x84, 0x80, 0x04, 1, 0]),
-            DeltaError::VarintTooLarge { value: 65540, max: XOR_STREAM_LEN }
+            DeltaError::VarintTooLarge {
+                value: 65540,
+                max: XOR_STREAM_LEN
+            }
         );
         assert_eq!(err(vec![METHOD_RUNS, 3, 0]), DeltaError::EmptyLiteral(3));
-        assert!(matches!(err(vec![METHOD_RUNS, 0, 2, 1]), DeltaError::Truncated(_)));
+        assert!(matches!(
+            err(vec![METHOD_RUNS, 0, 2, 1]),
+            DeltaError::Truncated(_)
+        ));
         // zero_run 65535, then a 2-byte literal: one byte past the end.
         assert_eq!(
             err(vec![METHOD_RUNS, 0xff, 0xff, 0x03, 2, 1, 1]),
-            DeltaError::RunOverflow { offset: 65535, len: 2 }
+            DeltaError::RunOverflow {
+                offset: 65535,
+                len: 2
+            }
         );
         assert_eq!(
             err(vec![METHOD_RUNS_LZ4, 0]),
-            DeltaError::DeclaredLength { declared: 0, max: MAX_RUNS_LEN }
+            DeltaError::DeclaredLength {
+                declared: 0,
+                max: MAX_RUNS_LEN
+            }
         );
-        assert!(matches!(err(vec![METHOD_RUNS_LZ4, 4, 0xff, 0xff]), DeltaError::Decompress(_)));
-        assert!(matches!(err(vec![METHOD_RUNS_ZSTD, 4, 1, 2, 3]), DeltaError::Decompress(_)));
+        assert!(matches!(
+            err(vec![METHOD_RUNS_LZ4, 4, 0xff, 0xff]),
+            DeltaError::Decompress(_)
+        ));
+        assert!(matches!(
+            err(vec![METHOD_RUNS_ZSTD, 4, 1, 2, 3]),
+            DeltaError::Decompress(_)
+        ));
 
         // A declared length that disagrees with the compressed data.
         let runs = [0u8, 1, 7];
         let mut p = vec![METHOD_RUNS_LZ4, 5];
         p.extend(lz4_flex::block::compress(&runs));
-        assert_eq!(err(p), DeltaError::WrongLength { expected: 5, actual: 3 });
+        assert_eq!(
+            err(p),
+            DeltaError::WrongLength {
+                expected: 5,
+                actual: 3
+            }
+        );
         let mut p = vec![METHOD_RUNS_ZSTD, 2];
         p.extend(zstd::bulk::compress(&runs, 3).unwrap());
-        assert!(matches!(err(p), DeltaError::Decompress(_)), "output larger than declared");
+        assert!(
+            matches!(err(p), DeltaError::Decompress(_)),
+            "output larger than declared"
+        );
 
         // Bytes after the zstd frame.
         let mut p = vec![METHOD_RUNS_ZSTD, 3];
@@ -624,16 +711,28 @@ mod tests {
         write_varint(&mut p, MAX_RUNS_LEN + 1);
         p.extend(lz4_flex::block::compress(&huge));
         let e = with_payload(&base, &base, p).apply(&base).unwrap_err();
-        assert_eq!(e, DeltaError::VarintTooLarge { value: MAX_RUNS_LEN + 1, max: MAX_RUNS_LEN });
+        assert_eq!(
+            e,
+            DeltaError::VarintTooLarge {
+                value: MAX_RUNS_LEN + 1,
+                max: MAX_RUNS_LEN
+            }
+        );
     }
 
     #[test]
     fn worst_case_runs_stay_under_the_bound() {
         // Alternating patterns that defeat merging, and a full rewrite.
         for period in [1usize, 2, 3, 4, 5, 200, 16385] {
-            let x: Vec<u8> = (0..XOR_STREAM_LEN).map(|i| u8::from(i % period == 0)).collect();
+            let x: Vec<u8> = (0..XOR_STREAM_LEN)
+                .map(|i| u8::from(i % period == 0))
+                .collect();
             let runs = encode_runs(&x);
-            assert!(runs.len() <= XOR_STREAM_LEN + 8, "period {period}: {}", runs.len());
+            assert!(
+                runs.len() <= XOR_STREAM_LEN + 8,
+                "period {period}: {}",
+                runs.len()
+            );
         }
         let full = vec![0xa5u8; XOR_STREAM_LEN];
         assert_eq!(encode_runs(&full).len(), XOR_STREAM_LEN + 4);
@@ -641,7 +740,17 @@ mod tests {
 
     #[test]
     fn varints_round_trip_at_the_limits() {
-        for v in [0usize, 1, 127, 128, 16383, 16384, 65535, 65536, MAX_RUNS_LEN] {
+        for v in [
+            0usize,
+            1,
+            127,
+            128,
+            16383,
+            16384,
+            65535,
+            65536,
+            MAX_RUNS_LEN,
+        ] {
             let mut buf = Vec::new();
             write_varint(&mut buf, v);
             assert!(buf.len() <= MAX_VARINT_BYTES);
@@ -660,6 +769,9 @@ mod tests {
         target.set(0, 31, 0, Voxel::new(201, ids::GRASS));
         let d = ChunkDelta::encode(POS, 0, 1, &base, &target).unwrap();
         assert_eq!(d.apply(&base).unwrap(), target);
-        assert_eq!(d.apply(&base).unwrap().get_index(local_index(31, 31, 31)), Voxel::AIR);
+        assert_eq!(
+            d.apply(&base).unwrap().get_index(local_index(31, 31, 31)),
+            Voxel::AIR
+        );
     }
 }

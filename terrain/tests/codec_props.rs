@@ -117,9 +117,20 @@ fn base_chunk() -> impl Strategy<Value = Chunk> {
 /// One edit, applied to a chunk in place.
 #[derive(Debug, Clone)]
 enum Edit {
-    Sphere { centre: (i32, i32, i32), r: i32, v: Voxel },
-    SmoothMine { centre: (i32, i32, i32), r: i32 },
-    Box { a: (usize, usize, usize), b: (usize, usize, usize), v: Voxel },
+    Sphere {
+        centre: (i32, i32, i32),
+        r: i32,
+        v: Voxel,
+    },
+    SmoothMine {
+        centre: (i32, i32, i32),
+        r: i32,
+    },
+    Box {
+        a: (usize, usize, usize),
+        b: (usize, usize, usize),
+        v: Voxel,
+    },
     Voxels(Vec<(usize, Voxel)>),
     Rewrite(u64),
     Fill(Voxel),
@@ -335,7 +346,9 @@ fn mining_radius_3_fits_the_payload_budget() {
     for (name, carve, centre) in cases {
         let mut target = base.clone();
         carve(&mut target, centre, 3);
-        let changed = (0..CHUNK_VOLUME).filter(|&i| base.get_index(i) != target.get_index(i)).count();
+        let changed = (0..CHUNK_VOLUME)
+            .filter(|&i| base.get_index(i) != target.get_index(i))
+            .count();
         let d = ChunkDelta::encode(POS, 0, 1, &base, &target).unwrap();
         println!(
             "{name}: {changed} voxels changed, payload {} bytes (method {:#04x}), snapshot {snapshot} bytes",
@@ -343,7 +356,11 @@ fn mining_radius_3_fits_the_payload_budget() {
             d.payload[0]
         );
         assert!(changed > 50, "{name}: the edit must change something real");
-        assert!(d.payload.len() <= MINE_R3_BUDGET, "{name}: {} bytes", d.payload.len());
+        assert!(
+            d.payload.len() <= MINE_R3_BUDGET,
+            "{name}: {} bytes",
+            d.payload.len()
+        );
         assert_eq!(d.apply(&base).unwrap(), target);
     }
 }
@@ -357,5 +374,9 @@ fn terrain_fixture_is_a_real_surface() {
     // The surface crosses 127.5 within a voxel or two of the computed height.
     let y = SURFACE.1 as usize;
     assert!(c.get(x, y - 2, z).is_solid() && !c.get(x, y + 2, z).is_solid());
-    assert_ne!(c.get_index(local_index(x, y, z)).density % 255, 0, "a smooth ramp voxel");
+    assert_ne!(
+        c.get_index(local_index(x, y, z)).density % 255,
+        0,
+        "a smooth ramp voxel"
+    );
 }

@@ -1,0 +1,10 @@
+//! Frame and message size caps, fixed by the protocol.
+
+/// Largest frame payload a client may send (16 KiB).
+pub const MAX_CLIENT_FRAME: usize = 16 * 1024;
+/// Largest frame payload the server may send (1 MiB).
+pub const MAX_SERVER_FRAME: usize = 1024 * 1024;
+/// Largest datagram payload: QUIC's 1200-byte initial MTU minus headers.
+pub const MAX_DATAGRAM: usize = 1100;
+/// Bytes of the frame length prefix.
+pub const FRAME_HEADER: usize = 4;

@@ -1,0 +1,216 @@
+//! Every message of the protocol. Field order is wire order (bincode).
+//!
+//! * Control stream (bidirectional, opened by the client): the client sends
+//!   [`ClientMessage`], the server answers with [`ServerMessage`].
+//! * Updates stream (unidirectional, opened by the server after `Welcome`):
+//!   [`WorldUpdate`], in the order the server's sequencer produced them.
+//! * Datagrams (client to server): [`PositionUpdate`], unframed.
+
+use serde::{Deserialize, Serialize};
+use strata_terrain::delta::ChunkDelta;
+use strata_terrain::edit::{Edit, EditKind, Fixed, FixedVec3};
+use strata_terrain::ChunkPos;
+
+/// A player's permission level, carried in the signed token.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Role {
+    Player,
+    Admin,
+}
+
+impl Role {
+    pub const fn name(self) -> &'static str {
+        match self {
+            Role::Player => "player",
+            Role::Admin => "admin",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Self> {
+        match s {
+            "player" => Some(Role::Player),
+            "admin" => Some(Role::Admin),
+            _ => None,
+        }
+    }
+}
+
+/// First message on the control stream.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Hello {
+    pub protocol_version: u32,
+    /// An auth token minted by `strata-admin token issue`.
+    pub token: String,
+}
+
+/// The server's answer to a valid `Hello`.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Welcome {
+    pub session: u64,
+    pub player: String,
+    pub role: Role,
+    pub world_seed: u64,
+    pub generator_version: u32,
+    /// Generator parameters as TOML, so a client can regenerate version-0
+    /// chunks exactly.
+    pub generator_params: String,
+    /// Milliseconds since the Unix epoch.
+    pub server_time: u64,
+    /// View radius in chunks (Chebyshev distance).
+    pub view_radius: u8,
+    /// Sequence number of the last durable edit.
+    pub last_seq: u64,
+}
+
+/// An edit the client wants applied.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct EditRequest {
+    /// Chosen by the client; echoed in the verdict.
+    pub client_edit_id: u64,
+    pub edit: Edit,
+}
+
+/// Client-to-server control messages.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ClientMessage {
+    Hello(Hello),
+    /// Explicit interest: chunks within `radius` (Chebyshev) of `center`.
+    /// Without it, interest follows the last accepted position.
+    Subscribe {
+        center: ChunkPos,
+        radius: u8,
+    },
+    Edit(EditRequest),
+    /// The client saw a version gap or a hash mismatch: resend the chunk.
+    ResyncRequest {
+        pos: ChunkPos,
+    },
+    /// For clients that cannot run the generator: always send full data,
+    /// even for version-0 chunks.
+    FullSnapshotRequest {
+        pos: ChunkPos,
+    },
+    Ping {
+        nonce: u64,
+    },
+}
+
+/// Why an edit was refused. Nothing changed.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum RejectReason {
+    /// The role may not use this edit kind.
+    NotPermitted {
+        kind: EditKind,
+    },
+    RadiusTooLarge {
+        max: Fixed,
+    },
+    PowerTooLarge {
+        max: u16,
+    },
+    /// The target is farther than `max` from the last validated position.
+    OutOfReach {
+        distance: Fixed,
+        max: Fixed,
+    },
+    /// A ray from the eye to the target hits terrain first.
+    NoLineOfSight,
+    /// Too many edits per second.
+    RateLimited,
+    /// Too many voxels changed per second.
+    VolumeRateLimited,
+    /// Outside the world's vertical bounds.
+    OutOfBounds,
+    /// Inside a protected zone.
+    ProtectedZone {
+        zone: String,
+    },
+    /// No validated position yet: send a position first.
+    NoPosition,
+    /// The terrain core refused it (bad numbers, unknown material...).
+    Invalid {
+        message: String,
+    },
+    /// The sequencer queue is full; try again.
+    Busy,
+}
+
+/// Errors that end the connection (sent just before closing it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ErrorCode {
+    UnsupportedVersion,
+    BadToken,
+    ExpiredToken,
+    NotAuthenticated,
+    Malformed,
+    FrameTooLarge,
+    Forbidden,
+    Kicked,
+    ShuttingDown,
+    TooManyConnections,
+    Internal,
+}
+
+/// Server-to-client control messages.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ServerMessage {
+    Welcome(Welcome),
+    /// The edit is durable and has global sequence number `seq`.
+    EditAccepted {
+        client_edit_id: u64,
+        seq: u64,
+    },
+    EditRejected {
+        client_edit_id: u64,
+        reason: RejectReason,
+    },
+    Error {
+        code: ErrorCode,
+        message: String,
+    },
+    Pong {
+        nonce: u64,
+        server_time: u64,
+    },
+}
+
+/// A chunk change, as broadcast after its edit is durable.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DeltaUpdate {
+    pub delta: ChunkDelta,
+    /// Hash of the server's LOD-0 collision mesh of the new version.
+    pub mesh_hash: u64,
+    /// Sequence number of the edit that made this change.
+    pub seq: u64,
+}
+
+/// Messages on the server's updates stream.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum WorldUpdate {
+    /// The chunk was never modified: regenerate it from the seed (version 0).
+    Generated {
+        pos: ChunkPos,
+    },
+    /// A full chunk in the chunk codec's format.
+    Snapshot {
+        pos: ChunkPos,
+        version: u64,
+        hash: u64,
+        mesh_hash: u64,
+        data: Vec<u8>,
+    },
+    Delta(DeltaUpdate),
+    /// The chunk left the view range; the client may drop it.
+    Unsubscribed {
+        pos: ChunkPos,
+    },
+}
+
+/// A position report, sent as an unreliable datagram.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PositionUpdate {
+    /// Increases per report; older reports are ignored.
+    pub seq: u32,
+    /// Feet position in fixed-point voxels.
+    pub pos: FixedVec3,
+}

@@ -1,0 +1,6 @@
+//! Version constants. A client whose `protocol_version` differs is refused.
+
+/// ALPN protocol id for QUIC connections.
+pub const ALPN: &[u8] = b"strata/1";
+/// Wire protocol version carried in `Hello`.
+pub const PROTOCOL_VERSION: u32 = 1;

@@ -1,0 +1,242 @@
+//! Every message round-trips; framing splits at any byte boundary; caps,
+//! garbage and trailing bytes are typed errors, never panics.
+
+use strata_protocol::limits::{MAX_CLIENT_FRAME, MAX_SERVER_FRAME};
+use strata_protocol::*;
+use strata_terrain::chunk_codec::encode_chunk;
+use strata_terrain::delta::ChunkDelta;
+use strata_terrain::edit::{Edit, EditKind, Fixed, FixedVec3};
+use strata_terrain::{Chunk, ChunkPos, Voxel};
+
+fn client_messages() -> Vec<ClientMessage> {
+    vec![
+        ClientMessage::Hello(Hello {
+            protocol_version: PROTOCOL_VERSION,
+            token: "v1.abc.def".into(),
+        }),
+        ClientMessage::Subscribe {
+            center: ChunkPos::new(-3, 0, 7),
+            radius: 4,
+        },
+        ClientMessage::Edit(EditRequest {
+            client_edit_id: 42,
+            edit: Edit::Mine {
+                center: FixedVec3::from_voxels(-5, 3, 9),
+                radius: Fixed(768),
+                strength: 200,
+            },
+        }),
+        ClientMessage::ResyncRequest {
+            pos: ChunkPos::new(1, 2, 3),
+        },
+        ClientMessage::FullSnapshotRequest {
+            pos: ChunkPos::new(-1, -2, -3),
+        },
+        ClientMessage::Ping { nonce: u64::MAX },
+    ]
+}
+
+fn server_messages() -> Vec<ServerMessage> {
+    vec![
+        ServerMessage::Welcome(Welcome {
+            session: 7,
+            player: "ana".into(),
+            role: Role::Admin,
+            world_seed: 99,
+            generator_version: 1,
+            generator_params: "seed = 99\n".into(),
+            server_time: 1_700_000_000_000,
+            view_radius: 6,
+            last_seq: 12,
+        }),
+        ServerMessage::EditAccepted {
+            client_edit_id: 1,
+            seq: 2,
+        },
+        ServerMessage::EditRejected {
+            client_edit_id: 3,
+            reason: RejectReason::OutOfReach {
+                distance: Fixed(9000),
+                max: Fixed(2048),
+            },
+        },
+        ServerMessage::EditRejected {
+            client_edit_id: 4,
+            reason: RejectReason::NotPermitted {
+                kind: EditKind::Explode,
+            },
+        },
+        ServerMessage::Error {
+            code: ErrorCode::BadToken,
+            message: "signature mismatch".into(),
+        },
+        ServerMessage::Pong {
+            nonce: 5,
+            server_time: 6,
+        },
+    ]
+}
+
+fn updates() -> Vec<WorldUpdate> {
+    let base = Chunk::uniform(Voxel::solid(3));
+    let mut target = base.clone();
+    target.set(4, 5, 6, Voxel::AIR);
+    let delta = ChunkDelta::encode(ChunkPos::new(0, -1, 0), 0, 1, &base, &target).unwrap();
+    vec![
+        WorldUpdate::Generated {
+            pos: ChunkPos::new(1, 1, 1),
+        },
+        WorldUpdate::Snapshot {
+            pos: ChunkPos::new(0, 0, 0),
+            version: 3,
+            hash: 4,
+            mesh_hash: 5,
+            data: encode_chunk(&target),
+        },
+        WorldUpdate::Delta(DeltaUpdate {
+            delta,
+            mesh_hash: 77,
+            seq: 8,
+        }),
+        WorldUpdate::Unsubscribed {
+            pos: ChunkPos::new(9, 9, 9),
+        },
+    ]
+}
+
+#[test]
+fn messages_round_trip() {
+    for m in client_messages() {
+        let b = encode(&m, Direction::ClientToServer).unwrap();
+        assert_eq!(
+            decode::<ClientMessage>(&b, Direction::ClientToServer).unwrap(),
+            m
+        );
+    }
+    for m in server_messages() {
+        let b = encode(&m, Direction::ServerToClient).unwrap();
+        assert_eq!(
+            decode::<ServerMessage>(&b, Direction::ServerToClient).unwrap(),
+            m
+        );
+    }
+    for m in updates() {
+        let b = encode(&m, Direction::ServerToClient).unwrap();
+        assert_eq!(
+            decode::<WorldUpdate>(&b, Direction::ServerToClient).unwrap(),
+            m
+        );
+    }
+    let p = PositionUpdate {
+        seq: 3,
+        pos: FixedVec3::from_voxels(1, -2, 3),
+    };
+    let b = encode(&p, Direction::ClientToServer).unwrap();
+    assert!(b.len() <= limits::MAX_DATAGRAM);
+    assert_eq!(
+        decode::<PositionUpdate>(&b, Direction::ClientToServer).unwrap(),
+        p
+    );
+}
+
+#[test]
+fn golden_bytes_pin_the_wire_format() {
+    // PROTOCOL.md walks through these bytes; changing them breaks clients.
+    let hello = ClientMessage::Hello(Hello {
+        protocol_version: 1,
+        token: "t".into(),
+    });
+    assert_eq!(
+        encode_frame(&hello, Direction::ClientToServer).unwrap(),
+        [4, 0, 0, 0, 0, 1, 1, b't']
+    );
+    let ping = ClientMessage::Ping { nonce: 300 };
+    // Variant 5, then varint 300 = 0xfb + u16 LE.
+    assert_eq!(
+        encode(&ping, Direction::ClientToServer).unwrap(),
+        [5, 0xfb, 0x2c, 0x01]
+    );
+    let sub = ClientMessage::Subscribe {
+        center: ChunkPos::new(-1, 0, 1),
+        radius: 2,
+    };
+    // Signed varints are zigzag encoded: -1 -> 1, 1 -> 2.
+    assert_eq!(
+        encode(&sub, Direction::ClientToServer).unwrap(),
+        [1, 1, 0, 2, 2]
+    );
+}
+
+#[test]
+fn frames_split_at_every_boundary() {
+    let mut stream = Vec::new();
+    for m in updates() {
+        stream.extend(encode_frame(&m, Direction::ServerToClient).unwrap());
+    }
+    for step in [1, 2, 3, 7, 64, stream.len()] {
+        let mut fb = FrameBuffer::new(Direction::ServerToClient);
+        let mut got = Vec::new();
+        for piece in stream.chunks(step) {
+            fb.extend(piece);
+            while let Some(m) = fb.next_message::<WorldUpdate>().unwrap() {
+                got.push(m);
+            }
+        }
+        assert_eq!(got, updates(), "step {step}");
+        assert_eq!(fb.pending(), 0);
+    }
+}
+
+#[test]
+fn oversized_frames_fail_at_the_header() {
+    let mut fb = FrameBuffer::new(Direction::ClientToServer);
+    fb.extend(&((MAX_CLIENT_FRAME + 1) as u32).to_le_bytes());
+    assert!(
+        matches!(fb.next_frame(), Err(FrameError::Oversized { len, max }) if len == MAX_CLIENT_FRAME + 1 && max == MAX_CLIENT_FRAME)
+    );
+    let mut fb = FrameBuffer::new(Direction::ServerToClient);
+    fb.extend(&(MAX_SERVER_FRAME as u32).to_le_bytes());
+    assert!(
+        fb.next_frame().unwrap().is_none(),
+        "a frame at the cap is allowed, waiting for its body"
+    );
+    let mut fb = FrameBuffer::new(Direction::ClientToServer);
+    fb.extend(&[0, 0, 0, 0]);
+    assert!(matches!(fb.next_frame(), Err(FrameError::Empty)));
+    // A message too large for its direction does not encode.
+    let big = ClientMessage::Hello(Hello {
+        protocol_version: 1,
+        token: "x".repeat(MAX_CLIENT_FRAME),
+    });
+    assert!(matches!(
+        encode(&big, Direction::ClientToServer),
+        Err(CodecError::TooLarge { .. }) | Err(CodecError::Encode(_))
+    ));
+}
+
+#[test]
+fn garbage_and_trailing_bytes_are_errors() {
+    let mut b = encode(&ClientMessage::Ping { nonce: 1 }, Direction::ClientToServer).unwrap();
+    b.push(0);
+    assert!(matches!(
+        decode::<ClientMessage>(&b, Direction::ClientToServer),
+        Err(CodecError::Trailing(1))
+    ));
+    // Deterministic pseudo-random garbage: decode must return, not panic.
+    let mut x = 0x9e3779b97f4a7c15u64;
+    for len in 0..400usize {
+        let bytes: Vec<u8> = (0..len)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                x as u8
+            })
+            .collect();
+        let _ = decode::<ClientMessage>(&bytes, Direction::ClientToServer);
+        let _ = decode::<WorldUpdate>(&bytes, Direction::ServerToClient);
+    }
+    // A length prefix claiming a huge string is refused by the size limit.
+    let lie = [0u8, 1, 0xfc, 0xff, 0xff, 0xff, 0x7f];
+    assert!(decode::<ClientMessage>(&lie, Direction::ClientToServer).is_err());
+}
