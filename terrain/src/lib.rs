@@ -8,6 +8,7 @@ pub mod chunk;
 pub mod chunk_codec;
 pub mod delta;
 pub mod edit;
+pub mod gen;
 pub mod hash;
 pub mod material;
 pub mod pos;
