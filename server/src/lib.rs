@@ -1,2 +1,4 @@
-//! Strata's server library. Networking, sessions and storage arrive with
-//! the server issue (#4); the admin CLI's offline commands live here now.
+//! Strata's server library: the admin CLI's commands now; networking,
+//! sessions and storage arrive with the server issue (#4).
+
+pub mod admin;
