@@ -12,3 +12,5 @@ pub use codec::{decode, encode, CodecError, Direction};
 pub use frame::{encode_frame, FrameBuffer, FrameError};
 pub use messages::*;
 pub use version::{ALPN, PROTOCOL_VERSION};
+#[cfg(feature = "tokio")]
+pub mod io;

@@ -46,22 +46,41 @@ pub struct RegionStats {
 }
 
 /// Generates every chunk of the region in parallel and gathers statistics.
-pub fn generate_region(params: GenParams, region: [i32; 4], threads: Option<usize>, progress: bool) -> anyhow::Result<RegionStats> {
+pub fn generate_region(
+    params: GenParams,
+    region: [i32; 4],
+    threads: Option<usize>,
+    progress: bool,
+) -> anyhow::Result<RegionStats> {
     let [x0, z0, x1, z1] = region;
-    anyhow::ensure!(x0 <= x1 && z0 <= z1, "region X0 Z0 X1 Z1 must have X0 <= X1 and Z0 <= Z1");
+    anyhow::ensure!(
+        x0 <= x1 && z0 <= z1,
+        "region X0 Z0 X1 Z1 must have X0 <= X1 and Z0 <= Z1"
+    );
     anyhow::ensure!(
         x1 - x0 < MAX_REGION_CHUNKS && z1 - z0 < MAX_REGION_CHUNKS,
         "region is larger than {MAX_REGION_CHUNKS} chunks on a side"
     );
     let seed = params.seed;
     let generator = Generator::fractal(params.clone())?;
-    let (y0, y1) = (params.min_y.div_euclid(CHUNK_SIZE) - 1, params.max_y.div_euclid(CHUNK_SIZE));
+    let (y0, y1) = (
+        params.min_y.div_euclid(CHUNK_SIZE) - 1,
+        params.max_y.div_euclid(CHUNK_SIZE),
+    );
     let positions: Vec<ChunkPos> = (z0..=z1)
         .flat_map(|z| (x0..=x1).flat_map(move |x| (y0..=y1).map(move |y| ChunkPos::new(x, y, z))))
         .collect();
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads.unwrap_or(0)).build()?;
-    let bar = if progress { ProgressBar::new(positions.len() as u64) } else { ProgressBar::hidden() };
-    bar.set_style(ProgressStyle::with_template("{bar:40} {pos}/{len} chunks {elapsed}")?);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.unwrap_or(0))
+        .build()?;
+    let bar = if progress {
+        ProgressBar::new(positions.len() as u64)
+    } else {
+        ProgressBar::hidden()
+    };
+    bar.set_style(ProgressStyle::with_template(
+        "{bar:40} {pos}/{len} chunks {elapsed}",
+    )?);
     let start = Instant::now();
     let per_chunk: Vec<(bool, [u32; 256])> = pool.install(|| {
         positions
@@ -86,7 +105,14 @@ pub fn generate_region(params: GenParams, region: [i32; 4], threads: Option<usiz
         .iter()
         .enumerate()
         .filter(|(_, n)| **n > 0)
-        .map(|(id, n)| (table.get(id as u8).map_or(format!("#{id}"), |m| m.name.clone()), *n))
+        .map(|(id, n)| {
+            (
+                table
+                    .get(id as u8)
+                    .map_or(format!("#{id}"), |m| m.name.clone()),
+                *n,
+            )
+        })
         .collect();
     materials.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
     let mut min_surface_y = f64::INFINITY;
@@ -118,13 +144,20 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
     if let Some(seed) = args.seed {
         params.seed = seed;
     }
-    let region: [i32; 4] = args.region.as_slice().try_into().map_err(|_| anyhow::anyhow!("--region takes 4 numbers"))?;
+    let region: [i32; 4] = args
+        .region
+        .as_slice()
+        .try_into()
+        .map_err(|_| anyhow::anyhow!("--region takes 4 numbers"))?;
     let stats = generate_region(params, region, args.threads, !args.json)?;
     if args.json {
         println!("{}", serde_json::to_string(&stats)?);
         return Ok(());
     }
-    println!("seed {} (generator v{})", stats.seed, stats.generator_version);
+    println!(
+        "seed {} (generator v{})",
+        stats.seed, stats.generator_version
+    );
     println!(
         "{} chunks in {:.3} s on {} threads ({:.0} µs per chunk per thread)",
         stats.chunks,
@@ -141,7 +174,10 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
     );
     println!("solid voxels by material:");
     for (name, n) in &stats.materials {
-        println!("  {name:<10} {n:>12} ({:.2}%)", 100.0 * *n as f64 / stats.solid_voxels.max(1) as f64);
+        println!(
+            "  {name:<10} {n:>12} ({:.2}%)",
+            100.0 * *n as f64 / stats.solid_voxels.max(1) as f64
+        );
     }
     Ok(())
 }
@@ -154,11 +190,17 @@ mod tests {
     fn region_stats_are_plausible_and_deterministic() {
         let a = generate_region(GenParams::default(), [0, 0, 1, 1], Some(1), false).unwrap();
         let b = generate_region(GenParams::default(), [0, 0, 1, 1], Some(2), false).unwrap();
-        assert_eq!((a.chunks, a.uniform_chunks, &a.materials), (b.chunks, b.uniform_chunks, &b.materials));
+        assert_eq!(
+            (a.chunks, a.uniform_chunks, &a.materials),
+            (b.chunks, b.uniform_chunks, &b.materials)
+        );
         assert!(a.uniform_chunks > 0 && a.uniform_chunks < a.chunks);
         let names: Vec<_> = a.materials.iter().map(|(n, _)| n.as_str()).collect();
         for expected in ["stone", "bedrock", "dirt", "grass"] {
-            assert!(names.contains(&expected), "{expected} missing from {names:?}");
+            assert!(
+                names.contains(&expected),
+                "{expected} missing from {names:?}"
+            );
         }
         assert!(a.min_surface_y < a.max_surface_y);
     }
@@ -166,6 +208,12 @@ mod tests {
     #[test]
     fn bad_regions_are_refused() {
         assert!(generate_region(GenParams::default(), [1, 0, 0, 0], None, false).is_err());
-        assert!(generate_region(GenParams::default(), [0, 0, MAX_REGION_CHUNKS, 0], None, false).is_err());
+        assert!(generate_region(
+            GenParams::default(),
+            [0, 0, MAX_REGION_CHUNKS, 0],
+            None,
+            false
+        )
+        .is_err());
     }
 }
