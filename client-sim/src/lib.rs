@@ -1,1 +1,10 @@
-//! Headless Strata client. Filled by the client-simulator issue (#5).
+//! Headless Strata client: a real QUIC client with a replica of the chunks
+//! it sees, which re-meshes changed chunks and compares mesh hashes with the
+//! server's. The `strata-bots` load tester builds on it.
+
+pub mod client;
+pub mod replica;
+pub mod tls;
+
+pub use client::{Arrival, Client, ClientError, Verdict};
+pub use replica::{MeshMismatch, Replica, ReplicaStats, Request};

@@ -1,0 +1,354 @@
+//! A headless Strata client over real QUIC: handshake, edits with their
+//! verdicts, position datagrams, and a replica kept current in the
+//! background.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use strata_protocol::io::FramedReader;
+use strata_protocol::{
+    encode, encode_frame, ClientMessage, Direction, EditRequest, ErrorCode, FrameBuffer, Hello, PositionUpdate,
+    RejectReason, ServerMessage, Welcome, WorldUpdate, PROTOCOL_VERSION,
+};
+use strata_terrain::gen::{GenParams, Generator};
+use strata_terrain::{ChunkGenerator, ChunkPos, Edit, FixedVec3};
+use thiserror::Error;
+use tokio::sync::{mpsc, oneshot};
+use tokio::task::JoinHandle;
+use tracing::debug;
+
+use crate::replica::{Replica, Request};
+use crate::tls::{client_config_pinned, TlsError};
+
+/// How long `connect` waits for the handshake and `Welcome`.
+pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long `edit` waits for its verdict.
+pub const EDIT_TIMEOUT: Duration = Duration::from_secs(30);
+/// Frames the client may queue on its control stream.
+pub const CONTROL_QUEUE: usize = 256;
+/// Delta arrival records kept for latency reports.
+pub const MAX_ARRIVALS: usize = 1 << 20;
+
+#[derive(Debug, Error)]
+pub enum ClientError {
+    #[error(transparent)]
+    Tls(#[from] TlsError),
+    #[error("cannot connect: {0}")]
+    Connect(String),
+    #[error("server refused: {code:?}: {message}")]
+    Refused { code: ErrorCode, message: String },
+    #[error("protocol violation: {0}")]
+    Protocol(String),
+    #[error("connection closed: {0}")]
+    Closed(String),
+    #[error("timed out waiting for {0}")]
+    Timeout(&'static str),
+}
+
+/// The server's answer to an edit.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Verdict {
+    Accepted { seq: u64 },
+    Rejected(RejectReason),
+}
+
+/// When a delta of edit `seq` reached this client.
+#[derive(Debug, Clone, Copy)]
+pub struct Arrival {
+    pub seq: u64,
+    pub pos: ChunkPos,
+    pub at: Instant,
+}
+
+#[derive(Debug, Default)]
+struct Shared {
+    pending: Mutex<HashMap<u64, oneshot::Sender<Verdict>>>,
+    error: Mutex<Option<(ErrorCode, String)>>,
+    arrivals: Mutex<Vec<Arrival>>,
+    bytes_in: AtomicU64,
+}
+
+/// One connected session.
+#[derive(Debug)]
+pub struct Client {
+    endpoint: quinn::Endpoint,
+    conn: quinn::Connection,
+    welcome: Welcome,
+    control: mpsc::Sender<Bytes>,
+    shared: Arc<Shared>,
+    replica: Arc<Mutex<Replica>>,
+    next_edit: AtomicU64,
+    next_position: AtomicU32,
+    bytes_out: AtomicU64,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+/// Maps a close code chosen by the server back to its error code.
+fn code_from_close(code: u64) -> Option<ErrorCode> {
+    use ErrorCode::*;
+    const ALL: [ErrorCode; 11] = [
+        UnsupportedVersion,
+        BadToken,
+        ExpiredToken,
+        NotAuthenticated,
+        Malformed,
+        FrameTooLarge,
+        Forbidden,
+        Kicked,
+        ShuttingDown,
+        TooManyConnections,
+        Internal,
+    ];
+    ALL.into_iter().find(|c| 1 + *c as u64 == code)
+}
+
+fn closed_error(e: &quinn::ConnectionError) -> ClientError {
+    if let quinn::ConnectionError::ApplicationClosed(a) = e {
+        if let Some(code) = code_from_close(a.error_code.into_inner()) {
+            return ClientError::Refused { code, message: String::from_utf8_lossy(&a.reason).into_owned() };
+        }
+    }
+    ClientError::Closed(e.to_string())
+}
+
+impl Client {
+    /// Connects to `addr`, trusting only `server_cert` (DER), and logs in.
+    pub async fn connect(addr: SocketAddr, server_cert: &[u8], token: &str) -> Result<Client, ClientError> {
+        Self::connect_with(addr, client_config_pinned(server_cert)?, token, PROTOCOL_VERSION).await
+    }
+
+    /// Connects with any client config and protocol version (for tests).
+    pub async fn connect_with(
+        addr: SocketAddr,
+        config: quinn::ClientConfig,
+        token: &str,
+        protocol_version: u32,
+    ) -> Result<Client, ClientError> {
+        let bind: SocketAddr = if addr.is_ipv6() { "[::1]:0" } else { "127.0.0.1:0" }.parse().expect("literal");
+        let mut endpoint = quinn::Endpoint::client(bind).map_err(|e| ClientError::Connect(e.to_string()))?;
+        endpoint.set_default_client_config(config);
+        let handshake = async {
+            let conn = endpoint
+                .connect(addr, "localhost")
+                .map_err(|e| ClientError::Connect(e.to_string()))?
+                .await
+                .map_err(|e| closed_error(&e))?;
+            let (mut send, recv) = conn.open_bi().await.map_err(|e| closed_error(&e))?;
+            let hello = ClientMessage::Hello(Hello { protocol_version, token: token.to_string() });
+            let frame = encode_frame(&hello, Direction::ClientToServer).map_err(|e| ClientError::Protocol(e.to_string()))?;
+            send.write_all(&frame).await.map_err(|e| ClientError::Closed(e.to_string()))?;
+            let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient));
+            match reader.next::<ServerMessage>().await {
+                Ok(Some(ServerMessage::Welcome(w))) => Ok((conn, send, reader, w)),
+                Ok(Some(ServerMessage::Error { code, message })) => Err(ClientError::Refused { code, message }),
+                Ok(Some(other)) => Err(ClientError::Protocol(format!("expected Welcome, got {other:?}"))),
+                Ok(None) | Err(_) => Err(conn.closed().await).map_err(|e| closed_error(&e)),
+            }
+        };
+        let (conn, send, reader, welcome) = tokio::time::timeout(CONNECT_TIMEOUT, handshake)
+            .await
+            .map_err(|_| ClientError::Timeout("Welcome"))??;
+        let updates = tokio::time::timeout(CONNECT_TIMEOUT, conn.accept_uni())
+            .await
+            .map_err(|_| ClientError::Timeout("updates stream"))?
+            .map_err(|e| closed_error(&e))?;
+        let replica = Arc::new(Mutex::new(Replica::new(generator_from(&welcome))));
+        let shared = Arc::new(Shared::default());
+        let (control, control_rx) = mpsc::channel(CONTROL_QUEUE);
+        let tasks = vec![
+            tokio::spawn(write_control(send, control_rx)),
+            tokio::spawn(read_control(reader, shared.clone())),
+            tokio::spawn(read_updates(updates, replica.clone(), shared.clone(), control.clone())),
+        ];
+        Ok(Client {
+            endpoint,
+            conn,
+            welcome,
+            control,
+            shared,
+            replica,
+            next_edit: AtomicU64::new(1),
+            next_position: AtomicU32::new(1),
+            bytes_out: AtomicU64::new(0),
+            tasks,
+        })
+    }
+
+    pub fn welcome(&self) -> &Welcome {
+        &self.welcome
+    }
+
+    async fn send(&self, msg: &ClientMessage) -> Result<(), ClientError> {
+        let frame = encode_frame(msg, Direction::ClientToServer).map_err(|e| ClientError::Protocol(e.to_string()))?;
+        self.bytes_out.fetch_add(frame.len() as u64, Ordering::Relaxed);
+        self.control.send(Bytes::from(frame)).await.map_err(|_| self.gone())
+    }
+
+    fn gone(&self) -> ClientError {
+        match self.shared.error.lock().expect("not poisoned").clone() {
+            Some((code, message)) => ClientError::Refused { code, message },
+            None => self.conn.close_reason().map_or(ClientError::Closed("control stream ended".into()), |e| closed_error(&e)),
+        }
+    }
+
+    /// Sends an edit and waits for the server's verdict.
+    pub async fn edit(&self, edit: Edit) -> Result<Verdict, ClientError> {
+        let id = self.next_edit.fetch_add(1, Ordering::Relaxed);
+        let (tx, rx) = oneshot::channel();
+        self.shared.pending.lock().expect("not poisoned").insert(id, tx);
+        self.send(&ClientMessage::Edit(EditRequest { client_edit_id: id, edit })).await?;
+        match tokio::time::timeout(EDIT_TIMEOUT, rx).await {
+            Ok(Ok(v)) => Ok(v),
+            Ok(Err(_)) => Err(self.gone()),
+            Err(_) => Err(ClientError::Timeout("edit verdict")),
+        }
+    }
+
+    /// Reports the player's feet position (unreliable datagram).
+    pub fn send_position(&self, pos: FixedVec3) -> Result<(), ClientError> {
+        let seq = self.next_position.fetch_add(1, Ordering::Relaxed);
+        let bytes = encode(&PositionUpdate { seq, pos }, Direction::ClientToServer)
+            .map_err(|e| ClientError::Protocol(e.to_string()))?;
+        self.bytes_out.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+        self.conn.send_datagram(Bytes::from(bytes)).map_err(|e| ClientError::Closed(e.to_string()))
+    }
+
+    pub async fn subscribe(&self, center: ChunkPos, radius: u8) -> Result<(), ClientError> {
+        self.send(&ClientMessage::Subscribe { center, radius }).await
+    }
+
+    pub async fn ping(&self, nonce: u64) -> Result<(), ClientError> {
+        self.send(&ClientMessage::Ping { nonce }).await
+    }
+
+    /// Sends raw bytes on the control stream (malformed-input tests).
+    pub async fn send_raw(&self, bytes: Vec<u8>) -> Result<(), ClientError> {
+        self.control.send(Bytes::from(bytes)).await.map_err(|_| self.gone())
+    }
+
+    /// The replica, locked. Keep the guard short: updates wait on it.
+    pub fn replica(&self) -> std::sync::MutexGuard<'_, Replica> {
+        self.replica.lock().expect("not poisoned")
+    }
+
+    /// The error the server sent before closing, if any.
+    pub fn server_error(&self) -> Option<(ErrorCode, String)> {
+        self.shared.error.lock().expect("not poisoned").clone()
+    }
+
+    /// Takes the recorded delta arrivals.
+    pub fn take_arrivals(&self) -> Vec<Arrival> {
+        std::mem::take(&mut *self.shared.arrivals.lock().expect("not poisoned"))
+    }
+
+    pub fn bytes_in(&self) -> u64 {
+        self.shared.bytes_in.load(Ordering::Relaxed)
+    }
+
+    pub fn bytes_out(&self) -> u64 {
+        self.bytes_out.load(Ordering::Relaxed)
+    }
+
+    /// True once the connection has ended.
+    pub fn is_closed(&self) -> bool {
+        self.conn.close_reason().is_some()
+    }
+
+    /// Waits for the connection to end and returns why.
+    pub async fn closed(&self) -> ClientError {
+        closed_error(&self.conn.closed().await)
+    }
+
+    /// Closes the connection politely and waits briefly for it to finish.
+    pub async fn close(self) {
+        self.conn.close(quinn::VarInt::from_u32(0), b"bye");
+        let _ = tokio::time::timeout(Duration::from_secs(2), self.endpoint.wait_idle()).await;
+        for t in self.tasks {
+            t.abort();
+        }
+    }
+}
+
+/// A generator from the Welcome's parameters, if the client can run it.
+fn generator_from(w: &Welcome) -> Option<Arc<dyn ChunkGenerator>> {
+    let params: GenParams = toml::from_str(&w.generator_params).ok()?;
+    if params.seed != w.world_seed || w.generator_version != strata_terrain::gen::GENERATOR_VERSION {
+        return None;
+    }
+    let g = Generator::fractal(params).ok()?;
+    Some(Arc::new(g))
+}
+
+async fn write_control(mut send: quinn::SendStream, mut rx: mpsc::Receiver<Bytes>) {
+    while let Some(frame) = rx.recv().await {
+        if send.write_all(&frame).await.is_err() {
+            return;
+        }
+    }
+    let _ = send.finish();
+}
+
+async fn read_control(mut reader: FramedReader<quinn::RecvStream>, shared: Arc<Shared>) {
+    loop {
+        match reader.next::<ServerMessage>().await {
+            Ok(Some(ServerMessage::EditAccepted { client_edit_id, seq })) => resolve(&shared, client_edit_id, Verdict::Accepted { seq }),
+            Ok(Some(ServerMessage::EditRejected { client_edit_id, reason })) => {
+                resolve(&shared, client_edit_id, Verdict::Rejected(reason))
+            }
+            Ok(Some(ServerMessage::Error { code, message })) => {
+                *shared.error.lock().expect("not poisoned") = Some((code, message));
+            }
+            Ok(Some(ServerMessage::Pong { .. } | ServerMessage::Welcome(_))) => {}
+            Ok(None) | Err(_) => break,
+        }
+    }
+    // Anyone still waiting learns the connection is gone.
+    shared.pending.lock().expect("not poisoned").clear();
+}
+
+fn resolve(shared: &Shared, id: u64, v: Verdict) {
+    if let Some(tx) = shared.pending.lock().expect("not poisoned").remove(&id) {
+        let _ = tx.send(v);
+    }
+}
+
+async fn read_updates(
+    recv: quinn::RecvStream,
+    replica: Arc<Mutex<Replica>>,
+    shared: Arc<Shared>,
+    control: mpsc::Sender<Bytes>,
+) {
+    let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient));
+    loop {
+        let update = match reader.next::<WorldUpdate>().await {
+            Ok(Some(u)) => u,
+            Ok(None) => break,
+            Err(e) => {
+                debug!(error = %e, "updates stream failed");
+                break;
+            }
+        };
+        if let WorldUpdate::Delta(d) = &update {
+            let mut a = shared.arrivals.lock().expect("not poisoned");
+            if a.len() < MAX_ARRIVALS {
+                a.push(Arrival { seq: d.seq, pos: d.delta.pos, at: Instant::now() });
+            }
+            shared.bytes_in.fetch_add(d.delta.payload.len() as u64, Ordering::Relaxed);
+        }
+        let request = replica.lock().expect("not poisoned").apply(update);
+        let msg = match request {
+            Some(Request::Resync(pos)) => ClientMessage::ResyncRequest { pos },
+            Some(Request::FullSnapshot(pos)) => ClientMessage::FullSnapshotRequest { pos },
+            None => continue,
+        };
+        if let Ok(frame) = encode_frame(&msg, Direction::ClientToServer) {
+            if control.send(Bytes::from(frame)).await.is_err() {
+                break;
+            }
+        }
+    }
+}

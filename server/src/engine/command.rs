@@ -1,0 +1,35 @@
+//! Messages from connection tasks to the engine thread.
+
+use strata_protocol::{EditRequest, PositionUpdate, Role};
+use strata_terrain::ChunkPos;
+use tokio::sync::oneshot;
+
+use crate::net::writer::FrameSender;
+
+/// What a session learns when it joins.
+#[derive(Debug, Clone, Copy)]
+pub struct JoinReply {
+    pub last_seq: u64,
+}
+
+/// A request to the engine. Sessions `try_send` these; a full engine
+/// queue means the server is overloaded.
+#[derive(Debug)]
+pub enum Command {
+    Join {
+        session: u64,
+        player: String,
+        role: Role,
+        control: FrameSender,
+        updates: FrameSender,
+        reply: oneshot::Sender<JoinReply>,
+    },
+    Leave { session: u64 },
+    Edit { session: u64, request: EditRequest },
+    Position { session: u64, update: PositionUpdate },
+    Subscribe { session: u64, center: ChunkPos, radius: u8 },
+    Resync { session: u64, pos: ChunkPos },
+    FullSnapshot { session: u64, pos: ChunkPos },
+    /// Finish the batch in flight, flush, and stop.
+    Stop,
+}

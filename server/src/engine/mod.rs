@@ -1,0 +1,281 @@
+//! The engine: one thread that owns the [`Sequencer`], the store handle and
+//! every session's streaming state. It is the only writer of the world.
+//!
+//! Each tick: apply queued edits ([`Sequencer::tick`]), make them durable
+//! with one group commit, and only then acknowledge them and fan their
+//! deltas out; then stream snapshots to sessions under a byte budget. The
+//! engine never blocks on a client: it `try_send`s encoded frames to each
+//! connection's bounded writer, and a client whose queue is full loses its
+//! pending deltas and gets fresh snapshots later.
+
+mod command;
+mod fanout;
+mod peer;
+mod residency;
+mod stream;
+
+pub use command::{Command, JoinReply};
+pub use fanout::encode_control as fanout_control;
+
+use std::collections::HashMap;
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender};
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use serde::{Deserialize, Serialize};
+use strata_protocol::{ServerMessage, WorldUpdate};
+use strata_terrain::ChunkPos;
+use tracing::{debug, error, info};
+
+use crate::interest::{Interest, InterestConfig};
+use crate::metrics as m;
+use crate::sequencer::Sequencer;
+use crate::store::ChunkStore;
+use crate::validate::bounds::WorldBounds;
+use peer::Peer;
+
+/// Default tick period.
+pub const DEFAULT_TICK_MS: u64 = 10;
+/// Default snapshot bytes per session per tick.
+pub const DEFAULT_SEND_BUDGET: usize = 64 * 1024;
+/// Default capacity of the session-to-engine command queue.
+pub const DEFAULT_COMMAND_QUEUE: usize = 8192;
+
+/// Engine limits (`[engine]` in the config).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EngineConfig {
+    /// Milliseconds between ticks.
+    pub tick_ms: u64,
+    /// Snapshot bytes each session may be sent per tick.
+    pub send_budget_bytes: usize,
+    /// Commands queued from sessions before new ones are refused.
+    pub command_queue: usize,
+}
+
+impl Default for EngineConfig {
+    fn default() -> Self {
+        Self { tick_ms: DEFAULT_TICK_MS, send_budget_bytes: DEFAULT_SEND_BUDGET, command_queue: DEFAULT_COMMAND_QUEUE }
+    }
+}
+
+/// Milliseconds since the Unix epoch.
+pub fn now_ms() -> u64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
+}
+
+/// Everything the engine thread owns.
+pub struct Engine {
+    seq: Sequencer,
+    store: Arc<dyn ChunkStore>,
+    cfg: EngineConfig,
+    interest: InterestConfig,
+    bounds: WorldBounds,
+    peers: HashMap<u64, Peer>,
+    /// Durable version of every modified chunk (absent = version 0).
+    versions: HashMap<ChunkPos, u64>,
+    snapshots: stream::SnapshotCache,
+}
+
+impl std::fmt::Debug for Engine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Engine").field("peers", &self.peers.len()).finish_non_exhaustive()
+    }
+}
+
+/// Handle for sending commands to a running engine.
+#[derive(Debug, Clone)]
+pub struct EngineHandle(SyncSender<Command>);
+
+impl EngineHandle {
+    /// Queues a command without waiting; false if the engine is busy or gone.
+    pub fn try_send(&self, c: Command) -> bool {
+        self.0.try_send(c).is_ok()
+    }
+}
+
+impl Engine {
+    pub fn new(
+        seq: Sequencer,
+        store: Arc<dyn ChunkStore>,
+        cfg: EngineConfig,
+        interest: InterestConfig,
+        bounds: WorldBounds,
+        versions: HashMap<ChunkPos, u64>,
+    ) -> Self {
+        Self { seq, store, cfg, interest, bounds, peers: HashMap::new(), versions, snapshots: Default::default() }
+    }
+
+    /// Starts the engine thread. It stops on [`Command::Stop`] or when
+    /// every handle is dropped, after flushing the batch in flight.
+    pub fn spawn(self) -> std::io::Result<(EngineHandle, std::thread::JoinHandle<anyhow::Result<()>>)> {
+        let (tx, rx) = std::sync::mpsc::sync_channel(self.cfg.command_queue);
+        let handle = std::thread::Builder::new().name("strata-engine".into()).spawn(move || self.run(rx))?;
+        Ok((EngineHandle(tx), handle))
+    }
+
+    fn run(mut self, rx: Receiver<Command>) -> anyhow::Result<()> {
+        let period = Duration::from_millis(self.cfg.tick_ms.max(1));
+        let mut next_tick = Instant::now() + period;
+        loop {
+            let wait = next_tick.saturating_duration_since(Instant::now());
+            match rx.recv_timeout(wait) {
+                Ok(Command::Stop) | Err(RecvTimeoutError::Disconnected) => {
+                    info!("engine stopping: final tick and flush");
+                    self.tick()?;
+                    self.close_all();
+                    return Ok(());
+                }
+                Ok(cmd) => self.handle(cmd),
+                Err(RecvTimeoutError::Timeout) => {}
+            }
+            if Instant::now() >= next_tick {
+                self.tick()?;
+                next_tick = Instant::now() + period;
+            }
+        }
+    }
+
+    fn handle(&mut self, cmd: Command) {
+        let now = now_ms();
+        match cmd {
+            Command::Join { session, player, role, control, updates, reply } => {
+                self.seq.session_joined(session, player, role);
+                let interest = Interest::new(self.interest, self.bounds);
+                self.peers.insert(session, Peer::new(control, updates, interest));
+                let _ = reply.send(JoinReply { last_seq: self.seq.last_seq() });
+            }
+            Command::Leave { session } => {
+                self.seq.session_left(session);
+                self.peers.remove(&session);
+            }
+            Command::Edit { session, request } => self.submit(session, request, now),
+            Command::Position { session, update } => self.position(session, update, now),
+            Command::Subscribe { session, center, radius } => {
+                if let Some(p) = self.peers.get_mut(&session) {
+                    let change = p.interest.subscribe(center, radius);
+                    self.apply_interest(session, change);
+                }
+            }
+            Command::Resync { session, pos } | Command::FullSnapshot { session, pos } => {
+                let full = matches!(cmd, Command::FullSnapshot { .. });
+                if let Some(p) = self.peers.get_mut(&session) {
+                    if p.interest.covers(pos) {
+                        metrics::counter!(m::RESYNCS).increment(1);
+                        if full {
+                            p.full_data.insert(pos);
+                        }
+                        p.resend(pos);
+                    }
+                }
+            }
+            Command::Stop => unreachable!("handled by the loop"),
+        }
+        metrics::gauge!(m::QUEUE_DEPTH).set(self.seq.queued() as f64);
+    }
+
+    fn submit(&mut self, session: u64, request: strata_protocol::EditRequest, now: u64) {
+        let id = request.client_edit_id;
+        let needed = self.seq.chunks_needed(session, &request.edit);
+        if let Err(e) = self.make_resident(&needed) {
+            error!(error = %e, "store read failed");
+        }
+        if let Err(reason) = self.seq.submit(session, request, now) {
+            metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&reason)).increment(1);
+            self.send_control(session, &ServerMessage::EditRejected { client_edit_id: id, reason });
+        }
+    }
+
+    fn position(&mut self, session: u64, update: strata_protocol::PositionUpdate, now: u64) {
+        let needed = self.seq.chunks_needed_for_position(&update);
+        if let Err(e) = self.make_resident(&needed) {
+            error!(error = %e, "store read failed");
+            return;
+        }
+        match self.seq.update_position(session, update, now) {
+            Ok(()) => {
+                if let Some(p) = self.peers.get_mut(&session) {
+                    let change = p.interest.follow_position(update.pos);
+                    self.apply_interest(session, change);
+                }
+            }
+            Err(reason) => debug!(session, ?reason, "position refused"),
+        }
+    }
+
+    fn apply_interest(&mut self, session: u64, change: crate::interest::InterestChange) {
+        let Some(p) = self.peers.get_mut(&session) else { return };
+        for pos in p.apply_interest(change) {
+            let frame = fanout::encode_update(&WorldUpdate::Unsubscribed { pos });
+            if p.updates.try_send(frame).is_err() {
+                p.failed = true;
+            }
+        }
+    }
+
+    fn send_control(&mut self, session: u64, msg: &ServerMessage) {
+        if let Some(p) = self.peers.get_mut(&session) {
+            if p.control.try_send(fanout::encode_control(msg)).is_err() {
+                // Control messages are never dropped silently: a client this
+                // far behind is disconnected.
+                p.failed = true;
+            }
+        }
+    }
+
+    /// One tick: apply, commit, acknowledge, broadcast, stream.
+    fn tick(&mut self) -> anyhow::Result<()> {
+        let started = Instant::now();
+        let out = self.seq.tick(now_ms());
+        for r in &out.rejected {
+            metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&r.reason)).increment(1);
+            let msg = ServerMessage::EditRejected { client_edit_id: r.client_edit_id, reason: r.reason.clone() };
+            self.send_control(r.session_id, &msg);
+        }
+        if !out.batch.is_empty() {
+            let flush = Instant::now();
+            // Nothing is acknowledged or broadcast unless this succeeds.
+            if let Err(e) = self.store.commit(&out.batch) {
+                error!(error = %e, "group commit failed; stopping without acknowledging");
+                self.close_all();
+                return Err(e.into());
+            }
+            metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
+            for c in &out.batch.chunks {
+                self.versions.insert(c.pos, c.version);
+            }
+            for a in &out.applied {
+                metrics::counter!(m::EDITS_ACCEPTED).increment(1);
+                let msg = ServerMessage::EditAccepted { client_edit_id: a.client_edit_id, seq: a.seq };
+                self.send_control(a.session_id, &msg);
+            }
+            fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq);
+        }
+        self.stream_snapshots();
+        self.drop_failed();
+        metrics::histogram!(m::TICK_SECONDS).record(started.elapsed().as_secs_f64());
+        Ok(())
+    }
+
+    fn drop_failed(&mut self) {
+        let failed: Vec<u64> = self.peers.iter().filter(|(_, p)| p.failed).map(|(id, _)| *id).collect();
+        for id in failed {
+            info!(session = id, "dropping a session whose queues overflowed");
+            // Dropping the senders ends its writers; the session task sees
+            // its control writer gone and closes the connection.
+            self.peers.remove(&id);
+            self.seq.session_left(id);
+        }
+    }
+
+    fn close_all(&mut self) {
+        for (id, p) in self.peers.drain() {
+            let msg = ServerMessage::Error {
+                code: strata_protocol::ErrorCode::ShuttingDown,
+                message: "server is shutting down".into(),
+            };
+            let _ = p.control.try_send(fanout::encode_control(&msg));
+            self.seq.session_left(id);
+        }
+    }
+}

@@ -1,0 +1,64 @@
+//! The engine's view of one connected session: what it sees, what it has,
+//! and what it still needs to be sent.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+
+use strata_terrain::ChunkPos;
+
+use crate::interest::{Interest, InterestChange};
+use crate::net::writer::FrameSender;
+
+#[derive(Debug)]
+pub struct Peer {
+    pub control: FrameSender,
+    pub updates: FrameSender,
+    pub interest: Interest,
+    /// Chunk versions the client holds (sent to it, in order).
+    pub known: HashMap<ChunkPos, u64>,
+    /// Chunks to send as snapshots, nearest first.
+    pub pending: VecDeque<ChunkPos>,
+    /// Chunks the client asked to receive as full data even at version 0.
+    pub full_data: HashSet<ChunkPos>,
+    /// Set when a queue overflowed and the connection should be closed.
+    pub failed: bool,
+}
+
+impl Peer {
+    pub fn new(control: FrameSender, updates: FrameSender, interest: Interest) -> Self {
+        Self {
+            control,
+            updates,
+            interest,
+            known: HashMap::new(),
+            pending: VecDeque::new(),
+            full_data: HashSet::new(),
+            failed: false,
+        }
+    }
+
+    /// Queues new chunks (already nearest first) and forgets dropped ones.
+    /// Returns the chunks the client should be told to unload.
+    pub fn apply_interest(&mut self, change: InterestChange) -> Vec<ChunkPos> {
+        for pos in &change.unsubscribe {
+            self.known.remove(pos);
+            self.full_data.remove(pos);
+        }
+        self.pending.retain(|p| !change.unsubscribe.contains(p));
+        // Re-queue the whole subscription so it stays sorted nearest first.
+        let mut queued: HashSet<ChunkPos> = self.pending.iter().copied().collect();
+        for pos in change.subscribe {
+            if !self.known.contains_key(&pos) && queued.insert(pos) {
+                self.pending.push_back(pos);
+            }
+        }
+        change.unsubscribe
+    }
+
+    /// Forgets the client's copy of `pos` and sends it again first.
+    pub fn resend(&mut self, pos: ChunkPos) {
+        self.known.remove(&pos);
+        if !self.pending.contains(&pos) {
+            self.pending.push_front(pos);
+        }
+    }
+}

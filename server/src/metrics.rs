@@ -1,0 +1,47 @@
+//! Prometheus metrics: names in one place, exporter on a configurable port.
+
+use std::net::SocketAddr;
+
+use metrics_exporter_prometheus::PrometheusBuilder;
+
+pub const CONNECTIONS: &str = "strata_connections";
+pub const SESSIONS_TOTAL: &str = "strata_sessions_total";
+pub const EDITS_ACCEPTED: &str = "strata_edits_accepted_total";
+pub const EDITS_REJECTED: &str = "strata_edits_rejected_total";
+pub const QUEUE_DEPTH: &str = "strata_sequencer_queue_depth";
+pub const FLUSH_SECONDS: &str = "strata_flush_seconds";
+pub const TICK_SECONDS: &str = "strata_tick_seconds";
+pub const BYTES_SENT: &str = "strata_bytes_sent_total";
+pub const DELTAS_DROPPED: &str = "strata_deltas_dropped_total";
+pub const RESYNCS: &str = "strata_resyncs_total";
+
+/// Serves `/metrics` on `addr` from a background thread of the exporter.
+pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
+    PrometheusBuilder::new().with_http_listener(addr).install()?;
+    metrics::describe_gauge!(CONNECTIONS, "Open QUIC connections");
+    metrics::describe_counter!(EDITS_ACCEPTED, "Edits acknowledged after they were durable");
+    metrics::describe_counter!(EDITS_REJECTED, "Edits refused, by reason");
+    metrics::describe_gauge!(QUEUE_DEPTH, "Edits waiting for the sequencer");
+    metrics::describe_histogram!(FLUSH_SECONDS, "Group-commit latency");
+    metrics::describe_counter!(BYTES_SENT, "Bytes written to clients");
+    Ok(())
+}
+
+/// Metric label for a rejection reason.
+pub fn reject_label(r: &strata_protocol::RejectReason) -> &'static str {
+    use strata_protocol::RejectReason::*;
+    match r {
+        NotPermitted { .. } => "not_permitted",
+        RadiusTooLarge { .. } => "radius",
+        PowerTooLarge { .. } => "power",
+        OutOfReach { .. } => "reach",
+        NoLineOfSight => "line_of_sight",
+        RateLimited => "rate",
+        VolumeRateLimited => "volume_rate",
+        OutOfBounds => "bounds",
+        ProtectedZone { .. } => "protected_zone",
+        NoPosition => "no_position",
+        Invalid { .. } => "invalid",
+        Busy => "busy",
+    }
+}

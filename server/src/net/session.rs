@@ -1,0 +1,232 @@
+//! One connection: handshake (Hello, token, version), then a loop that
+//! routes control messages and position datagrams to the engine.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use bytes::Bytes;
+use strata_protocol::io::{FramedReader, ReadError};
+use strata_protocol::{
+    decode, ClientMessage, Direction, ErrorCode, FrameBuffer, FrameError, PositionUpdate, RejectReason, ServerMessage,
+    Welcome, PROTOCOL_VERSION,
+};
+use tokio::sync::oneshot;
+use tracing::{debug, info, warn, Instrument};
+
+use super::writer::{spawn_writer, FrameSender};
+use crate::auth::{self, AuthError, Secret};
+use crate::engine::{fanout_control, now_ms, Command, EngineHandle};
+use crate::shutdown::Shutdown;
+
+/// How long a client has to open its control stream and say Hello.
+pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long a closing connection waits for its last frames to drain.
+pub const DRAIN_TIMEOUT: Duration = Duration::from_secs(2);
+/// Capacity of each connection's control writer queue.
+pub const CONTROL_QUEUE: usize = 1024;
+
+/// What every connection task shares.
+#[derive(Debug)]
+pub struct SessionContext {
+    pub secret: Secret,
+    pub engine: EngineHandle,
+    pub world_seed: u64,
+    pub generator_version: u32,
+    pub generator_params: String,
+    pub view_radius: u8,
+    /// Per-connection queue of world updates.
+    pub writer_queue: usize,
+}
+
+/// Application close codes (QUIC `CONNECTION_CLOSE` error codes).
+pub fn close_code(code: ErrorCode) -> quinn::VarInt {
+    quinn::VarInt::from_u32(1 + code as u32)
+}
+
+/// Sends `Error`, lets it drain, and closes the connection with the same code.
+async fn refuse(conn: &quinn::Connection, control: FrameSender, task: tokio::task::JoinHandle<()>, code: ErrorCode, message: &str) {
+    let _ = control.try_send(fanout_control(&ServerMessage::Error { code, message: message.to_string() }));
+    drop(control);
+    let _ = tokio::time::timeout(DRAIN_TIMEOUT, task).await;
+    conn.close(close_code(code), message.as_bytes());
+}
+
+/// Runs one connection to completion.
+pub async fn run(conn: quinn::Connection, session: u64, ctx: Arc<SessionContext>, shutdown: Shutdown) {
+    let (send, recv) = match tokio::time::timeout(HANDSHAKE_TIMEOUT, conn.accept_bi()).await {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => return debug!(error = %e, "connection closed before its control stream"),
+        Err(_) => return conn.close(close_code(ErrorCode::NotAuthenticated), b"no control stream"),
+    };
+    let (control, control_task) = spawn_writer(send, CONTROL_QUEUE, "control");
+    let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ClientToServer));
+    let hello = match tokio::time::timeout(HANDSHAKE_TIMEOUT, reader.next::<ClientMessage>()).await {
+        Ok(Ok(Some(ClientMessage::Hello(h)))) => h,
+        Ok(Ok(Some(_))) => return refuse(&conn, control, control_task, ErrorCode::NotAuthenticated, "first message must be Hello").await,
+        Ok(Ok(None)) => return,
+        Ok(Err(e)) => return refuse(&conn, control, control_task, read_error_code(&e), &e.to_string()).await,
+        Err(_) => return refuse(&conn, control, control_task, ErrorCode::NotAuthenticated, "no Hello in time").await,
+    };
+    if hello.protocol_version != PROTOCOL_VERSION {
+        let msg = format!("protocol version {} is not supported; this server speaks {PROTOCOL_VERSION}", hello.protocol_version);
+        return refuse(&conn, control, control_task, ErrorCode::UnsupportedVersion, &msg).await;
+    }
+    let claims = match auth::verify(&ctx.secret, &hello.token, auth::unix_now()) {
+        Ok(c) => c,
+        Err(e) => {
+            let code = if matches!(e, AuthError::Expired { .. }) { ErrorCode::ExpiredToken } else { ErrorCode::BadToken };
+            warn!(error = %e, "refused a token");
+            return refuse(&conn, control, control_task, code, &e.to_string()).await;
+        }
+    };
+    let span = tracing::info_span!("session", id = session, player = %claims.player, role = claims.role.name());
+    joined(conn, session, ctx, shutdown, control, control_task, reader, claims).instrument(span).await
+}
+
+#[allow(clippy::too_many_arguments)]
+async fn joined(
+    conn: quinn::Connection,
+    session: u64,
+    ctx: Arc<SessionContext>,
+    mut shutdown: Shutdown,
+    control: FrameSender,
+    control_task: tokio::task::JoinHandle<()>,
+    mut reader: FramedReader<quinn::RecvStream>,
+    claims: auth::Claims,
+) {
+    let uni = match conn.open_uni().await {
+        Ok(u) => u,
+        Err(e) => return debug!(error = %e, "could not open the updates stream"),
+    };
+    let (updates, updates_task) = spawn_writer(uni, ctx.writer_queue, "updates");
+    let (reply_tx, reply_rx) = oneshot::channel();
+    let join = Command::Join {
+        session,
+        player: claims.player.clone(),
+        role: claims.role,
+        control: control.clone(),
+        updates,
+        reply: reply_tx,
+    };
+    if !ctx.engine.try_send(join) {
+        return refuse(&conn, control, control_task, ErrorCode::TooManyConnections, "server is overloaded").await;
+    }
+    let Ok(joined) = reply_rx.await else {
+        return refuse(&conn, control, control_task, ErrorCode::ShuttingDown, "server is shutting down").await;
+    };
+    let welcome = Welcome {
+        session,
+        player: claims.player.clone(),
+        role: claims.role,
+        world_seed: ctx.world_seed,
+        generator_version: ctx.generator_version,
+        generator_params: ctx.generator_params.clone(),
+        server_time: now_ms(),
+        view_radius: ctx.view_radius,
+        last_seq: joined.last_seq,
+    };
+    let _ = control.try_send(fanout_control(&ServerMessage::Welcome(welcome)));
+    info!("session started");
+    let end = serve(&conn, session, &ctx, &control, &mut reader, &mut shutdown).await;
+    let _ = ctx.engine.try_send(Command::Leave { session });
+    match end {
+        End::ClientClosed => conn.close(quinn::VarInt::from_u32(0), b"bye"),
+        End::Refused(code, message) => refuse(&conn, control, control_task, code, &message).await,
+        End::Gone => {}
+    }
+    updates_task.abort();
+    info!("session ended");
+}
+
+enum End {
+    ClientClosed,
+    Gone,
+    Refused(ErrorCode, String),
+}
+
+fn read_error_code(e: &ReadError) -> ErrorCode {
+    match e {
+        ReadError::Frame(FrameError::Oversized { .. }) => ErrorCode::FrameTooLarge,
+        _ => ErrorCode::Malformed,
+    }
+}
+
+async fn serve(
+    conn: &quinn::Connection,
+    session: u64,
+    ctx: &SessionContext,
+    control: &FrameSender,
+    reader: &mut FramedReader<quinn::RecvStream>,
+    shutdown: &mut Shutdown,
+) -> End {
+    loop {
+        tokio::select! {
+            msg = reader.next::<ClientMessage>() => match msg {
+                Ok(Some(m)) => {
+                    if let Err(end) = route(session, ctx, control, m) {
+                        return end;
+                    }
+                }
+                Ok(None) => return End::ClientClosed,
+                Err(ReadError::Io(e)) => {
+                    debug!(error = %e, "control stream ended");
+                    return End::Gone;
+                }
+                Err(e) => return End::Refused(read_error_code(&e), e.to_string()),
+            },
+            dg = conn.read_datagram() => match dg {
+                Ok(bytes) => position(session, ctx, bytes),
+                Err(e) => {
+                    debug!(error = %e, "connection ended");
+                    return End::Gone;
+                }
+            },
+            _ = shutdown.wait() => {
+                return End::Refused(ErrorCode::ShuttingDown, "server is shutting down".into());
+            }
+            _ = control_closed(control) => {
+                return End::Refused(ErrorCode::Internal, "client too slow: its queue overflowed".into());
+            }
+        }
+    }
+}
+
+/// Resolves when the engine dropped this session (its writer closed).
+async fn control_closed(control: &FrameSender) {
+    while !control.is_closed() {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+fn position(session: u64, ctx: &SessionContext, bytes: Bytes) {
+    // Datagrams are unreliable: a bad or unqueued one is simply dropped.
+    match decode::<PositionUpdate>(&bytes, Direction::ClientToServer) {
+        Ok(update) => {
+            ctx.engine.try_send(Command::Position { session, update });
+        }
+        Err(e) => debug!(error = %e, "bad position datagram"),
+    }
+}
+
+fn route(session: u64, ctx: &SessionContext, control: &FrameSender, m: ClientMessage) -> Result<(), End> {
+    let cmd = match m {
+        ClientMessage::Hello(_) => return Err(End::Refused(ErrorCode::Malformed, "Hello was already received".into())),
+        ClientMessage::Edit(request) => {
+            let id = request.client_edit_id;
+            if !ctx.engine.try_send(Command::Edit { session, request }) {
+                let msg = ServerMessage::EditRejected { client_edit_id: id, reason: RejectReason::Busy };
+                let _ = control.try_send(fanout_control(&msg));
+            }
+            return Ok(());
+        }
+        ClientMessage::Subscribe { center, radius } => Command::Subscribe { session, center, radius },
+        ClientMessage::ResyncRequest { pos } => Command::Resync { session, pos },
+        ClientMessage::FullSnapshotRequest { pos } => Command::FullSnapshot { session, pos },
+        ClientMessage::Ping { nonce } => {
+            let _ = control.try_send(fanout_control(&ServerMessage::Pong { nonce, server_time: now_ms() }));
+            return Ok(());
+        }
+    };
+    ctx.engine.try_send(cmd);
+    Ok(())
+}
