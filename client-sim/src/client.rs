@@ -337,8 +337,8 @@ async fn read_updates(
             if a.len() < MAX_ARRIVALS {
                 a.push(Arrival { seq: d.seq, pos: d.delta.pos, at: Instant::now() });
             }
-            shared.bytes_in.fetch_add(d.delta.payload.len() as u64, Ordering::Relaxed);
         }
+        shared.bytes_in.store(reader.bytes_read(), Ordering::Relaxed);
         let request = replica.lock().expect("not poisoned").apply(update);
         let msg = match request {
             Some(Request::Resync(pos)) => ClientMessage::ResyncRequest { pos },

@@ -25,6 +25,7 @@ pub struct FramedReader<R> {
     inner: R,
     buf: FrameBuffer,
     scratch: Vec<u8>,
+    total: u64,
 }
 
 impl<R: AsyncRead + Unpin> FramedReader<R> {
@@ -49,8 +50,14 @@ impl<R: AsyncRead + Unpin> FramedReader<R> {
                     p => Err(ReadError::Truncated(p)),
                 };
             }
+            self.total += n as u64;
             self.buf.extend(&self.scratch[..n]);
         }
+    }
+
+    /// Bytes read from the stream so far.
+    pub fn bytes_read(&self) -> u64 {
+        self.total
     }
 
     pub fn into_inner(self) -> R {
