@@ -54,8 +54,8 @@ fn lerp(a: f64, b: f64, t: f64) -> f64 {
     a + (b - a) * t
 }
 
-/// 1/√2, written out so no platform-dependent function computes it.
-const FRAC_1_SQRT_2: f64 = 0.707_106_781_186_547_6;
+/// 1/√2: a compile-time constant, so no platform function computes it.
+const FRAC_1_SQRT_2: f64 = std::f64::consts::FRAC_1_SQRT_2;
 
 /// The eight 2D gradient directions (unit length).
 const GRAD2: [(f64, f64); 8] = [

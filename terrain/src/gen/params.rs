@@ -160,7 +160,9 @@ impl GenParams {
             Err(GenError::InvalidParam { field, reason })
         };
         let in_range = |v: f64, lo: f64, hi: f64| v.is_finite() && v >= lo && v <= hi;
-        if self.min_y.abs() > WORLD_Y_LIMIT || self.max_y.abs() > WORLD_Y_LIMIT {
+        if self.min_y.unsigned_abs() > WORLD_Y_LIMIT as u32
+            || self.max_y.unsigned_abs() > WORLD_Y_LIMIT as u32
+        {
             return bad("min_y/max_y", "must be within ±2^20");
         }
         if self.max_y - self.min_y < MIN_WORLD_HEIGHT {
