@@ -161,3 +161,201 @@ fn from_planes(planes: &[u8]) -> Result<Chunk, CodecError> {
     c.compact();
     Ok(c)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::hash::chunk_hash;
+    use crate::material::ids;
+    use crate::pos::local_index;
+
+    /// A layered chunk: solid stone below y = 10, a ramp, air above.
+    fn layered() -> Chunk {
+        let mut c = Chunk::uniform(Voxel::AIR);
+        for z in 0..32 {
+            for y in 0..14 {
+                for x in 0..32 {
+                    let density = if y < 10 {
+                        255
+                    } else {
+                        255 - 60 * (y as u8 - 9)
+                    };
+                    c.set(
+                        x,
+                        y,
+                        z,
+                        Voxel::new(density, if y < 8 { ids::STONE } else { ids::DIRT }),
+                    );
+                }
+            }
+        }
+        c
+    }
+
+    fn zstd_planes(planes: &[u8]) -> Vec<u8> {
+        zstd::bulk::compress(planes, SNAPSHOT_ZSTD_LEVEL).unwrap()
+    }
+
+    #[test]
+    fn uniform_chunks_are_three_bytes_in_either_form() {
+        let v = Voxel::new(255, ids::STONE);
+        assert_eq!(
+            encode_chunk(&Chunk::uniform(v)),
+            vec![TAG_UNIFORM, 255, ids::STONE]
+        );
+        assert_eq!(
+            encode_chunk(&Chunk::Dense(DenseChunk::filled(v))),
+            vec![TAG_UNIFORM, 255, 3]
+        );
+        let back = decode_chunk(&[TAG_UNIFORM, 255, 3]).unwrap();
+        assert!(back.is_uniform());
+        assert_eq!(back, Chunk::uniform(v));
+    }
+
+    #[test]
+    fn dense_chunks_round_trip_through_zstd() {
+        let c = layered();
+        let bytes = encode_chunk(&c);
+        assert_eq!(bytes[0], TAG_ZSTD);
+        assert!(
+            bytes.len() < 1000,
+            "layered chunk compresses well: {}",
+            bytes.len()
+        );
+        let back = decode_chunk(&bytes).unwrap();
+        assert_eq!(back, c);
+        assert_eq!(chunk_hash(&back), chunk_hash(&c));
+        assert_eq!(encode_chunk(&back), bytes, "deterministic");
+    }
+
+    #[test]
+    fn incompressible_chunks_are_stored_raw() {
+        let mut c = Chunk::uniform(Voxel::AIR);
+        let mut s = 0x9e37_79b9_7f4a_7c15u64;
+        for i in 0..CHUNK_VOLUME {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            c.set_index(i, Voxel::new(s as u8, (s >> 8) as u8));
+        }
+        let bytes = encode_chunk(&c);
+        assert_eq!(bytes[0], TAG_RAW);
+        assert_eq!(bytes.len(), 1 + PLANES_LEN);
+        assert_eq!(decode_chunk(&bytes).unwrap(), c);
+    }
+
+    #[test]
+    fn uniform_content_under_other_tags_decodes_compacted() {
+        let mut raw = vec![TAG_RAW];
+        raw.extend(vec![7u8; PLANES_LEN]);
+        let c = decode_chunk(&raw).unwrap();
+        assert!(c.is_uniform());
+        assert_eq!(c, Chunk::uniform(Voxel::new(7, 7)));
+        let mut z = vec![TAG_ZSTD];
+        z.extend(zstd_planes(&raw[1..]));
+        assert_eq!(decode_chunk(&z).unwrap(), c);
+    }
+
+    #[test]
+    fn malformed_bytes_give_typed_errors() {
+        assert_eq!(decode_chunk(&[]), Err(CodecError::Empty));
+        assert_eq!(decode_chunk(&[0]), Err(CodecError::UnknownTag(0)));
+        assert_eq!(decode_chunk(&[9, 1, 2]), Err(CodecError::UnknownTag(9)));
+        assert_eq!(
+            decode_chunk(&[TAG_UNIFORM, 1]),
+            Err(CodecError::Truncated {
+                tag: TAG_UNIFORM,
+                needed: 2,
+                got: 1
+            })
+        );
+        assert_eq!(
+            decode_chunk(&[TAG_UNIFORM, 1, 2, 3]),
+            Err(CodecError::TrailingBytes(1))
+        );
+        assert_eq!(
+            decode_chunk(&[TAG_RAW, 1, 2]),
+            Err(CodecError::Truncated {
+                tag: TAG_RAW,
+                needed: PLANES_LEN,
+                got: 2
+            })
+        );
+        assert!(matches!(
+            decode_chunk(&[TAG_ZSTD]),
+            Err(CodecError::Decompress(_))
+        ));
+        assert!(matches!(
+            decode_chunk(&[TAG_ZSTD, 1, 2, 3, 4]),
+            Err(CodecError::Decompress(_))
+        ));
+    }
+
+    #[test]
+    fn zstd_frames_of_the_wrong_size_or_with_extras_are_refused() {
+        let planes = encode_planes_of(&layered());
+        // Too short.
+        let mut b = vec![TAG_ZSTD];
+        b.extend(zstd_planes(&planes[..1000]));
+        assert_eq!(
+            decode_chunk(&b),
+            Err(CodecError::WrongLength { actual: 1000 })
+        );
+        // A bomb: a frame declaring 64 MiB of zeros is refused up front.
+        let mut b = vec![TAG_ZSTD];
+        b.extend(zstd_planes(&vec![0u8; 64 << 20]));
+        assert!(b.len() < 10_000);
+        assert_eq!(
+            decode_chunk(&b),
+            Err(CodecError::WrongLength { actual: 64 << 20 })
+        );
+        // Trailing garbage after a good frame.
+        let mut b = vec![TAG_ZSTD];
+        b.extend(zstd_planes(&planes));
+        b.push(0);
+        assert_eq!(decode_chunk(&b), Err(CodecError::TrailingBytes(1)));
+        // Two frames of half the planes each.
+        let mut b = vec![TAG_ZSTD];
+        b.extend(zstd_planes(&planes[..CHUNK_VOLUME]));
+        let second = zstd_planes(&planes[CHUNK_VOLUME..]);
+        b.extend(&second);
+        assert_eq!(
+            decode_chunk(&b),
+            Err(CodecError::TrailingBytes(second.len()))
+        );
+    }
+
+    #[test]
+    fn frames_without_a_declared_size_are_still_bounded() {
+        // A streaming frame has no content size in its header; the capped
+        // output buffer still refuses more than 64 KiB.
+        let mut enc = zstd::stream::Encoder::new(Vec::new(), 3).unwrap();
+        std::io::Write::write_all(&mut enc, &vec![1u8; 4 * PLANES_LEN]).unwrap();
+        let frame = enc.finish().unwrap();
+        assert!(matches!(
+            zstd::zstd_safe::get_frame_content_size(&frame),
+            Ok(None)
+        ));
+        let mut b = vec![TAG_ZSTD];
+        b.extend(frame);
+        assert!(matches!(decode_chunk(&b), Err(CodecError::Decompress(_))));
+    }
+
+    fn encode_planes_of(c: &Chunk) -> Vec<u8> {
+        let mut p = c.density_plane().to_vec();
+        p.extend_from_slice(&c.material_plane()[..]);
+        p
+    }
+
+    #[test]
+    fn plane_order_is_density_then_material_in_local_index_order() {
+        let mut c = layered();
+        c.set(3, 20, 5, Voxel::new(77, ids::ORE));
+        let bytes = encode_chunk(&c);
+        let planes = zstd::bulk::decompress(&bytes[1..], PLANES_LEN).unwrap();
+        let i = local_index(3, 20, 5);
+        assert_eq!(planes[i], 77);
+        assert_eq!(planes[CHUNK_VOLUME + i], ids::ORE);
+        assert_eq!(crate::hash::hash_bytes(&planes), chunk_hash(&c));
+    }
+}
