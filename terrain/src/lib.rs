@@ -5,6 +5,7 @@
 //! hashing. The server and the client simulator both build on it.
 
 pub mod chunk;
+pub mod contour;
 pub mod hash;
 pub mod material;
 pub mod pos;
