@@ -107,8 +107,9 @@ fn tile_index(x: i32, y: i32) -> usize {
 
 /// A field over a region, stored as the 32x32 tiles that touch it.
 ///
-/// Tile slots outside the region hold `T::default()` and are never read.
-#[derive(Debug, Clone, PartialEq)]
+/// Tile slots outside the region hold `T::default()` (so equal fields
+/// compare equal) and are never read.
+#[derive(Clone, PartialEq)]
 pub struct TiledField<T> {
     region: Rect,
     first: TilePos,
@@ -116,6 +117,16 @@ pub struct TiledField<T> {
     tiles_y: usize,
     /// Tiles in row order (x fastest), each [`TILE_AREA`] samples.
     tiles: Vec<Box<[T]>>,
+}
+
+impl<T> std::fmt::Debug for TiledField<T> {
+    /// Shape only: the samples would drown any message.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TiledField")
+            .field("region", &self.region)
+            .field("tiles", &(self.tiles_x, self.tiles_y))
+            .finish_non_exhaustive()
+    }
 }
 
 impl<T: Sample> TiledField<T> {
@@ -175,6 +186,7 @@ impl<T: Sample> TiledField<T> {
         }
         for (k, tile) in tiles.into_iter().enumerate() {
             field.tiles[k] = tile.into_boxed_slice();
+            field.clear_outside(k);
         }
         for y in region.min[1]..=region.max[1] {
             for x in region.min[0]..=region.max[0] {
@@ -184,6 +196,23 @@ impl<T: Sample> TiledField<T> {
             }
         }
         Ok(field)
+    }
+
+    /// Resets tile `k`'s slots outside the region to the default value.
+    fn clear_outside(&mut self, k: usize) {
+        let [x0, y0] = self.tile_at(k).origin();
+        let r = self.region;
+        let inside = r.contains(x0, y0) && r.contains(x0 + (TILE_SIZE - 1), y0 + (TILE_SIZE - 1));
+        if inside {
+            return;
+        }
+        for y in y0..=y0 + (TILE_SIZE - 1) {
+            for x in x0..=x0 + (TILE_SIZE - 1) {
+                if !r.contains(x, y) {
+                    self.tiles[k][tile_index(x, y)] = T::default();
+                }
+            }
+        }
     }
 
     /// Re-tiles a grid (region = the grid's rectangle).
