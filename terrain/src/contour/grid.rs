@@ -100,21 +100,27 @@ impl<'a, T: Sample> GridView<'a, T> {
         out: &mut Vec<Segment>,
     ) {
         let w = self.width as usize;
+        let (i0, i1) = (i0 as usize, i1 as usize);
         for j in j0..j1 {
-            let row = j as usize * w;
-            let up = row + w;
+            let lo = &self.values[j as usize * w..][..w];
+            let hi = &self.values[(j as usize + 1) * w..][..w];
+            // Both coordinates fit in i32: checked in `new`.
+            let y = self.origin[1] + j as i32;
+            // Slide along the row so each sample is read and classified
+            // once; left corners are a (bit 1) and c (bit 4), right corners
+            // b (bit 2) and d (bit 8).
+            let mut left = [lo[i0].value(), hi[i0].value()];
+            let mut left_in = u8::from(left[0] > iso) | u8::from(left[1] > iso) << 2;
             for i in i0..i1 {
-                let i = i as usize;
-                let v = [
-                    self.values[row + i].value(),
-                    self.values[row + i + 1].value(),
-                    self.values[up + i].value(),
-                    self.values[up + i + 1].value(),
-                ];
-                // Both coordinates fit in i32: checked in `new`.
-                let x = self.origin[0] + i as i32;
-                let y = self.origin[1] + j as i32;
-                emit_cell(x, y, v, iso, out);
+                let right = [lo[i + 1].value(), hi[i + 1].value()];
+                let right_in = u8::from(right[0] > iso) | u8::from(right[1] > iso) << 2;
+                let case = left_in | right_in << 1;
+                if case != 0 && case != 15 {
+                    let x = self.origin[0] + i as i32;
+                    emit_cell(x, y, case, [left[0], right[0], left[1], right[1]], iso, out);
+                }
+                left = right;
+                left_in = right_in;
             }
         }
     }
