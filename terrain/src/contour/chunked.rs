@@ -146,7 +146,8 @@ impl<T: Sample> TiledField<T> {
         }
     }
 
-    /// Samples `f(x, y)` at every position of the region, once each.
+    /// Samples `f(x, y)` at every position of the region, once each, in
+    /// row order (x fastest).
     pub fn from_fn(region: Rect, mut f: impl FnMut(i32, i32) -> T) -> Result<Self, ContourError> {
         let mut field = Self::empty(region);
         for y in region.min[1]..=region.max[1] {
@@ -155,10 +156,10 @@ impl<T: Sample> TiledField<T> {
                 if !v.is_finite() {
                     return Err(ContourError::NonFiniteSample { x, y });
                 }
-                let slot = field
-                    .slot(TilePos::of(x, y))
-                    .expect("inside the region's tiles");
-                field.tiles[slot][tile_index(x, y)] = v;
+                // Every region position has a tile slot (see `empty`).
+                if let Some(slot) = field.slot(TilePos::of(x, y)) {
+                    field.tiles[slot][tile_index(x, y)] = v;
+                }
             }
         }
         Ok(field)
@@ -225,8 +226,9 @@ impl<T: Sample> TiledField<T> {
             oy + (grid.height() - 1) as i32,
         )?;
         Self::from_fn(region, |x, y| {
+            // In range by construction of the region.
             grid.get((x - ox) as u32, (y - oy) as u32)
-                .expect("inside the grid")
+                .unwrap_or_default()
         })
     }
 

@@ -128,6 +128,9 @@ pub struct Segment {
 }
 
 /// A contour line in grid units.
+///
+/// Points are f32: exact to about 1/256 of a cell within ±32768 of the
+/// origin, coarser far out (f32 has 24 significant bits).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Polyline {
     /// Points in order; for a closed loop the first point is not repeated.

@@ -163,6 +163,9 @@ fn plane_index(u: i32, v: i32) -> usize {
 }
 
 /// Samples a slice through any voxel reader, reading each sample once.
+///
+/// For a [`World`] prefer [`slice_grid_chunks`]: `World::voxel` generates
+/// an unloaded chunk anew for every voxel it is asked for.
 pub fn slice_grid(src: &impl VoxelRead, spec: SliceSpec) -> Result<SliceGrid, ContourError> {
     let r = spec.region;
     build(spec, |tp, d, m| {
