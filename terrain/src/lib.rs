@@ -6,6 +6,7 @@
 
 pub mod chunk;
 pub mod chunk_codec;
+pub mod contour;
 pub mod delta;
 pub mod edit;
 pub mod gen;
