@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use bytes::Bytes;
 use strata_protocol::io::FramedReader;
 use strata_protocol::{
-    encode, encode_frame, ClientMessage, Direction, EditRequest, ErrorCode, FrameBuffer, Hello, PositionUpdate,
-    RejectReason, ServerMessage, Welcome, WorldUpdate, PROTOCOL_VERSION,
+    encode, encode_frame, ClientMessage, Direction, EditRequest, ErrorCode, FrameBuffer, Hello,
+    PositionUpdate, RejectReason, ServerMessage, Welcome, WorldUpdate, PROTOCOL_VERSION,
 };
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::{ChunkGenerator, ChunkPos, Edit, FixedVec3};
@@ -109,7 +109,10 @@ fn code_from_close(code: u64) -> Option<ErrorCode> {
 fn closed_error(e: &quinn::ConnectionError) -> ClientError {
     if let quinn::ConnectionError::ApplicationClosed(a) = e {
         if let Some(code) = code_from_close(a.error_code.into_inner()) {
-            return ClientError::Refused { code, message: String::from_utf8_lossy(&a.reason).into_owned() };
+            return ClientError::Refused {
+                code,
+                message: String::from_utf8_lossy(&a.reason).into_owned(),
+            };
         }
     }
     ClientError::Closed(e.to_string())
@@ -117,8 +120,18 @@ fn closed_error(e: &quinn::ConnectionError) -> ClientError {
 
 impl Client {
     /// Connects to `addr`, trusting only `server_cert` (DER), and logs in.
-    pub async fn connect(addr: SocketAddr, server_cert: &[u8], token: &str) -> Result<Client, ClientError> {
-        Self::connect_with(addr, client_config_pinned(server_cert)?, token, PROTOCOL_VERSION).await
+    pub async fn connect(
+        addr: SocketAddr,
+        server_cert: &[u8],
+        token: &str,
+    ) -> Result<Client, ClientError> {
+        Self::connect_with(
+            addr,
+            client_config_pinned(server_cert)?,
+            token,
+            PROTOCOL_VERSION,
+        )
+        .await
     }
 
     /// Connects with any client config and protocol version (for tests).
@@ -128,8 +141,15 @@ impl Client {
         token: &str,
         protocol_version: u32,
     ) -> Result<Client, ClientError> {
-        let bind: SocketAddr = if addr.is_ipv6() { "[::1]:0" } else { "127.0.0.1:0" }.parse().expect("literal");
-        let mut endpoint = quinn::Endpoint::client(bind).map_err(|e| ClientError::Connect(e.to_string()))?;
+        let bind: SocketAddr = if addr.is_ipv6() {
+            "[::1]:0"
+        } else {
+            "127.0.0.1:0"
+        }
+        .parse()
+        .expect("literal");
+        let mut endpoint =
+            quinn::Endpoint::client(bind).map_err(|e| ClientError::Connect(e.to_string()))?;
         endpoint.set_default_client_config(config);
         let handshake = async {
             let conn = endpoint
@@ -138,14 +158,24 @@ impl Client {
                 .await
                 .map_err(|e| closed_error(&e))?;
             let (mut send, recv) = conn.open_bi().await.map_err(|e| closed_error(&e))?;
-            let hello = ClientMessage::Hello(Hello { protocol_version, token: token.to_string() });
-            let frame = encode_frame(&hello, Direction::ClientToServer).map_err(|e| ClientError::Protocol(e.to_string()))?;
-            send.write_all(&frame).await.map_err(|e| ClientError::Closed(e.to_string()))?;
+            let hello = ClientMessage::Hello(Hello {
+                protocol_version,
+                token: token.to_string(),
+            });
+            let frame = encode_frame(&hello, Direction::ClientToServer)
+                .map_err(|e| ClientError::Protocol(e.to_string()))?;
+            send.write_all(&frame)
+                .await
+                .map_err(|e| ClientError::Closed(e.to_string()))?;
             let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient));
             match reader.next::<ServerMessage>().await {
                 Ok(Some(ServerMessage::Welcome(w))) => Ok((conn, send, reader, w)),
-                Ok(Some(ServerMessage::Error { code, message })) => Err(ClientError::Refused { code, message }),
-                Ok(Some(other)) => Err(ClientError::Protocol(format!("expected Welcome, got {other:?}"))),
+                Ok(Some(ServerMessage::Error { code, message })) => {
+                    Err(ClientError::Refused { code, message })
+                }
+                Ok(Some(other)) => Err(ClientError::Protocol(format!(
+                    "expected Welcome, got {other:?}"
+                ))),
                 Ok(None) | Err(_) => Err(conn.closed().await).map_err(|e| closed_error(&e)),
             }
         };
@@ -162,7 +192,12 @@ impl Client {
         let tasks = vec![
             tokio::spawn(write_control(send, control_rx)),
             tokio::spawn(read_control(reader, shared.clone())),
-            tokio::spawn(read_updates(updates, replica.clone(), shared.clone(), control.clone())),
+            tokio::spawn(read_updates(
+                updates,
+                replica.clone(),
+                shared.clone(),
+                control.clone(),
+            )),
         ];
         Ok(Client {
             endpoint,
@@ -183,15 +218,25 @@ impl Client {
     }
 
     async fn send(&self, msg: &ClientMessage) -> Result<(), ClientError> {
-        let frame = encode_frame(msg, Direction::ClientToServer).map_err(|e| ClientError::Protocol(e.to_string()))?;
-        self.bytes_out.fetch_add(frame.len() as u64, Ordering::Relaxed);
-        self.control.send(Bytes::from(frame)).await.map_err(|_| self.gone())
+        let frame = encode_frame(msg, Direction::ClientToServer)
+            .map_err(|e| ClientError::Protocol(e.to_string()))?;
+        self.bytes_out
+            .fetch_add(frame.len() as u64, Ordering::Relaxed);
+        self.control
+            .send(Bytes::from(frame))
+            .await
+            .map_err(|_| self.gone())
     }
 
     fn gone(&self) -> ClientError {
         match self.shared.error.lock().expect("not poisoned").clone() {
             Some((code, message)) => ClientError::Refused { code, message },
-            None => self.conn.close_reason().map_or(ClientError::Closed("control stream ended".into()), |e| closed_error(&e)),
+            None => self
+                .conn
+                .close_reason()
+                .map_or(ClientError::Closed("control stream ended".into()), |e| {
+                    closed_error(&e)
+                }),
         }
     }
 
@@ -199,8 +244,16 @@ impl Client {
     pub async fn edit(&self, edit: Edit) -> Result<Verdict, ClientError> {
         let id = self.next_edit.fetch_add(1, Ordering::Relaxed);
         let (tx, rx) = oneshot::channel();
-        self.shared.pending.lock().expect("not poisoned").insert(id, tx);
-        self.send(&ClientMessage::Edit(EditRequest { client_edit_id: id, edit })).await?;
+        self.shared
+            .pending
+            .lock()
+            .expect("not poisoned")
+            .insert(id, tx);
+        self.send(&ClientMessage::Edit(EditRequest {
+            client_edit_id: id,
+            edit,
+        }))
+        .await?;
         match tokio::time::timeout(EDIT_TIMEOUT, rx).await {
             Ok(Ok(v)) => Ok(v),
             Ok(Err(_)) => Err(self.gone()),
@@ -213,12 +266,16 @@ impl Client {
         let seq = self.next_position.fetch_add(1, Ordering::Relaxed);
         let bytes = encode(&PositionUpdate { seq, pos }, Direction::ClientToServer)
             .map_err(|e| ClientError::Protocol(e.to_string()))?;
-        self.bytes_out.fetch_add(bytes.len() as u64, Ordering::Relaxed);
-        self.conn.send_datagram(Bytes::from(bytes)).map_err(|e| ClientError::Closed(e.to_string()))
+        self.bytes_out
+            .fetch_add(bytes.len() as u64, Ordering::Relaxed);
+        self.conn
+            .send_datagram(Bytes::from(bytes))
+            .map_err(|e| ClientError::Closed(e.to_string()))
     }
 
     pub async fn subscribe(&self, center: ChunkPos, radius: u8) -> Result<(), ClientError> {
-        self.send(&ClientMessage::Subscribe { center, radius }).await
+        self.send(&ClientMessage::Subscribe { center, radius })
+            .await
     }
 
     pub async fn ping(&self, nonce: u64) -> Result<(), ClientError> {
@@ -227,7 +284,10 @@ impl Client {
 
     /// Sends raw bytes on the control stream (malformed-input tests).
     pub async fn send_raw(&self, bytes: Vec<u8>) -> Result<(), ClientError> {
-        self.control.send(Bytes::from(bytes)).await.map_err(|_| self.gone())
+        self.control
+            .send(Bytes::from(bytes))
+            .await
+            .map_err(|_| self.gone())
     }
 
     /// The replica, locked. Keep the guard short: updates wait on it.
@@ -276,7 +336,8 @@ impl Client {
 /// A generator from the Welcome's parameters, if the client can run it.
 fn generator_from(w: &Welcome) -> Option<Arc<dyn ChunkGenerator>> {
     let params: GenParams = toml::from_str(&w.generator_params).ok()?;
-    if params.seed != w.world_seed || w.generator_version != strata_terrain::gen::GENERATOR_VERSION {
+    if params.seed != w.world_seed || w.generator_version != strata_terrain::gen::GENERATOR_VERSION
+    {
         return None;
     }
     let g = Generator::fractal(params).ok()?;
@@ -295,10 +356,14 @@ async fn write_control(mut send: quinn::SendStream, mut rx: mpsc::Receiver<Bytes
 async fn read_control(mut reader: FramedReader<quinn::RecvStream>, shared: Arc<Shared>) {
     loop {
         match reader.next::<ServerMessage>().await {
-            Ok(Some(ServerMessage::EditAccepted { client_edit_id, seq })) => resolve(&shared, client_edit_id, Verdict::Accepted { seq }),
-            Ok(Some(ServerMessage::EditRejected { client_edit_id, reason })) => {
-                resolve(&shared, client_edit_id, Verdict::Rejected(reason))
-            }
+            Ok(Some(ServerMessage::EditAccepted {
+                client_edit_id,
+                seq,
+            })) => resolve(&shared, client_edit_id, Verdict::Accepted { seq }),
+            Ok(Some(ServerMessage::EditRejected {
+                client_edit_id,
+                reason,
+            })) => resolve(&shared, client_edit_id, Verdict::Rejected(reason)),
             Ok(Some(ServerMessage::Error { code, message })) => {
                 *shared.error.lock().expect("not poisoned") = Some((code, message));
             }
@@ -335,10 +400,16 @@ async fn read_updates(
         if let WorldUpdate::Delta(d) = &update {
             let mut a = shared.arrivals.lock().expect("not poisoned");
             if a.len() < MAX_ARRIVALS {
-                a.push(Arrival { seq: d.seq, pos: d.delta.pos, at: Instant::now() });
+                a.push(Arrival {
+                    seq: d.seq,
+                    pos: d.delta.pos,
+                    at: Instant::now(),
+                });
             }
         }
-        shared.bytes_in.store(reader.bytes_read(), Ordering::Relaxed);
+        shared
+            .bytes_in
+            .store(reader.bytes_read(), Ordering::Relaxed);
         let request = replica.lock().expect("not poisoned").apply(update);
         let msg = match request {
             Some(Request::Resync(pos)) => ClientMessage::ResyncRequest { pos },

@@ -135,7 +135,13 @@ impl Replica {
                 }
                 None => Some(Request::FullSnapshot(pos)),
             },
-            WorldUpdate::Snapshot { pos, version, hash, mesh_hash, data } => {
+            WorldUpdate::Snapshot {
+                pos,
+                version,
+                hash,
+                mesh_hash,
+                data,
+            } => {
                 let chunk = match decode_chunk(&data) {
                     Ok(c) if chunk_hash(&c) == hash => c,
                     _ => {
@@ -181,7 +187,8 @@ impl Replica {
                 self.stats.deltas += 1;
                 self.stats.delta_payload_bytes += d.delta.payload.len() as u64;
                 self.hold(pos, chunk, d.delta.to_version);
-                self.pending_mesh.insert(pos, (d.delta.to_version, d.mesh_hash));
+                self.pending_mesh
+                    .insert(pos, (d.delta.to_version, d.mesh_hash));
                 None
             }
             Err(_) => {
@@ -209,7 +216,12 @@ impl Replica {
             self.stats.meshes_checked += 1;
             if client != server {
                 self.stats.mesh_mismatches += 1;
-                self.mismatches.push(MeshMismatch { pos, version, server, client });
+                self.mismatches.push(MeshMismatch {
+                    pos,
+                    version,
+                    server,
+                    client,
+                });
             }
         }
     }
@@ -225,7 +237,9 @@ impl Replica {
                 }
             }
         }
-        let nb = Neighborhood::from_fn(pos.origin(), |p: VoxelPos| self.voxel(p).unwrap_or(Voxel::AIR));
+        let nb = Neighborhood::from_fn(pos.origin(), |p: VoxelPos| {
+            self.voxel(p).unwrap_or(Voxel::AIR)
+        });
         Some(mesh_chunk(&nb, &MeshOptions::default()).hash())
     }
 

@@ -28,7 +28,10 @@ pub fn client_config_pinned(cert_der: &[u8]) -> Result<quinn::ClientConfig, TlsE
 }
 
 /// Like [`client_config_pinned`] with any ALPN (tests use a wrong one).
-pub fn client_config_with_alpn(roots: rustls::RootCertStore, alpn: &[u8]) -> Result<quinn::ClientConfig, TlsError> {
+pub fn client_config_with_alpn(
+    roots: rustls::RootCertStore,
+    alpn: &[u8],
+) -> Result<quinn::ClientConfig, TlsError> {
     let provider = Arc::new(rustls::crypto::ring::default_provider());
     let mut crypto = rustls::ClientConfig::builder_with_provider(provider)
         .with_protocol_versions(&[&rustls::version::TLS13])
@@ -36,7 +39,8 @@ pub fn client_config_with_alpn(roots: rustls::RootCertStore, alpn: &[u8]) -> Res
         .with_root_certificates(roots)
         .with_no_client_auth();
     crypto.alpn_protocols = vec![alpn.to_vec()];
-    let quic = quinn::crypto::rustls::QuicClientConfig::try_from(crypto).map_err(|e| TlsError::Setup(e.to_string()))?;
+    let quic = quinn::crypto::rustls::QuicClientConfig::try_from(crypto)
+        .map_err(|e| TlsError::Setup(e.to_string()))?;
     let mut cfg = quinn::ClientConfig::new(Arc::new(quic));
     let mut transport = quinn::TransportConfig::default();
     transport.keep_alive_interval(Some(KEEP_ALIVE));

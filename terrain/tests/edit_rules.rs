@@ -279,12 +279,16 @@ fn mine_and_build_shapes() {
         0,
         "inside is cleared"
     );
-    let rim = w.voxel(VoxelPos::new(4, -10, 0)).density;
+    let rim = w.voxel(VoxelPos::new(3, -10, 0)).density;
     assert!(
         (120..=135).contains(&rim),
-        "surface sits at the radius: {rim}"
+        "the surface sits one rim-half inside the radius: {rim}"
     );
-    assert_eq!(w.voxel(VoxelPos::new(6, -10, 0)), dirt, "outside untouched");
+    assert_eq!(
+        w.voxel(VoxelPos::new(4, -10, 0)),
+        dirt,
+        "nothing at or beyond the radius changes"
+    );
     // Stone is 40/16 as hard as dirt: one full-strength mine leaves it solid.
     let mut s = flat(Voxel::solid(ids::STONE));
     Edit::Mine {

@@ -51,7 +51,7 @@ fn check_coord(p: VoxelPos) -> Result<(), EditError> {
     }
 }
 
-fn sphere_box(center: FixedVec3, radius: Fixed, extra: Fixed) -> Result<VoxelBox, EditError> {
+fn sphere_box(center: FixedVec3, radius: Fixed) -> Result<VoxelBox, EditError> {
     if !center.in_coord_range() {
         return Err(EditError::CoordinateOutOfRange {
             limit: COORD_LIMIT_VOXELS,
@@ -64,9 +64,8 @@ fn sphere_box(center: FixedVec3, radius: Fixed, extra: Fixed) -> Result<VoxelBox
             max: MAX_RADIUS,
         });
     }
-    let reach = Fixed(radius.0 + extra.0);
-    let lo = |c: Fixed| Fixed(c.0 - reach.0).ceil_voxel();
-    let hi = |c: Fixed| Fixed(c.0 + reach.0).floor_voxel();
+    let lo = |c: Fixed| Fixed(c.0 - radius.0).ceil_voxel();
+    let hi = |c: Fixed| Fixed(c.0 + radius.0).floor_voxel();
     let b = VoxelBox {
         min: VoxelPos::new(lo(center.x), lo(center.y), lo(center.z)),
         max: VoxelPos::new(hi(center.x), hi(center.y), hi(center.z)),
@@ -90,7 +89,6 @@ impl Edit {
     /// Checks the edit against the core limits and returns the box of voxels
     /// it may change. A refused edit changes nothing.
     pub fn validate(&self, ctx: &EditContext<'_>) -> Result<VoxelBox, EditError> {
-        let rim = Fixed(SPHERE_RIM * super::fixed::ONE / 2);
         match *self {
             Edit::Mine {
                 center,
@@ -105,12 +103,7 @@ impl Edit {
                 if strength == 0 {
                     return Err(EditError::ZeroStrength);
                 }
-                let extra = if matches!(self, Edit::Mine { .. }) {
-                    rim
-                } else {
-                    Fixed(0)
-                };
-                sphere_box(center, radius, extra)
+                sphere_box(center, radius)
             }
             Edit::Explode {
                 center,
@@ -126,7 +119,7 @@ impl Edit {
                 if power == 0 {
                     return Err(EditError::ZeroStrength);
                 }
-                sphere_box(center, radius, Fixed(0))
+                sphere_box(center, radius)
             }
             Edit::Build {
                 center,
@@ -138,7 +131,7 @@ impl Edit {
                     return Err(EditError::ZeroStrength);
                 }
                 check_placeable(material, ctx.materials)?;
-                sphere_box(center, radius, rim)
+                sphere_box(center, radius)
             }
             Edit::FillBox { min, max, .. } | Edit::ClearBox { min, max } => {
                 if let Edit::FillBox { material, .. } = *self {

@@ -25,10 +25,11 @@ fn distance_q16(c: FixedVec3, p: VoxelPos) -> i64 {
     isqrt(sq << 16) as i64
 }
 
-/// Rim weight in Q16: 1 inside `r - rim/2`, 0 beyond `r + rim/2`, linear between.
+/// Rim weight in Q16: 1 inside `r - rim`, 0 from `r` on, linear between.
+/// The radius is the brush's outer extent, so nothing beyond it changes.
 fn rim_weight(d: i64, r_q16: i64) -> i64 {
-    let half = (SPHERE_RIM as i64) * Q16 / 2;
-    ((r_q16 + half - d) * Q16 / (2 * half)).clamp(0, Q16)
+    let rim = SPHERE_RIM as i64 * Q16;
+    ((r_q16 - d) * Q16 / rim).clamp(0, Q16)
 }
 
 /// Linear falloff `1 - d/r` in Q16, 0 outside.
@@ -171,9 +172,9 @@ mod tests {
     fn weights() {
         let r = 4 * Q16;
         assert_eq!(rim_weight(0, r), Q16);
-        assert_eq!(rim_weight(3 * Q16, r), Q16);
-        assert_eq!(rim_weight(4 * Q16, r), Q16 / 2);
-        assert_eq!(rim_weight(5 * Q16, r), 0);
+        assert_eq!(rim_weight(2 * Q16, r), Q16);
+        assert_eq!(rim_weight(3 * Q16, r), Q16 / 2);
+        assert_eq!(rim_weight(4 * Q16, r), 0);
         assert_eq!(falloff(0, r), Q16);
         assert_eq!(falloff(2 * Q16, r), Q16 / 2);
         assert_eq!(falloff(r, r), 0);

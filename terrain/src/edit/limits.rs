@@ -11,5 +11,5 @@ pub const MIN_RADIUS: Fixed = Fixed(ONE / 4);
 pub const MAX_POWER: u16 = 2048;
 /// Largest edge of a fill/clear box, in voxels.
 pub const MAX_BOX_EDGE: i32 = 128;
-/// Width of the smooth rim of Mine and Build, in voxels.
+/// Width of the smooth rim just inside the radius of Mine and Build, in voxels.
 pub const SPHERE_RIM: i32 = 2;

@@ -28,8 +28,8 @@ use crate::pos::VoxelPos;
 /// voxel `(i, j, k)` sits at the point `(i, j, k)`.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Edit {
-    /// Removes density in a sphere with a smooth two-voxel rim; harder
-    /// materials lose less (`strength * 16 / hardness`).
+    /// Removes density in a sphere with a smooth rim just inside the
+    /// radius; harder materials lose less (`strength * 16 / hardness`).
     Mine {
         center: FixedVec3,
         radius: Fixed,
@@ -41,7 +41,8 @@ pub enum Edit {
         radius: Fixed,
         power: u16,
     },
-    /// Adds density of `material` in a sphere with a smooth rim.
+    /// Adds density of `material` in a sphere with a smooth rim just inside
+    /// the radius.
     Build {
         center: FixedVec3,
         radius: Fixed,
