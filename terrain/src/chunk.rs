@@ -14,20 +14,14 @@ pub struct Voxel {
 }
 
 impl Voxel {
-    pub const AIR: Voxel = Voxel {
-        density: 0,
-        material: ids::AIR,
-    };
+    pub const AIR: Voxel = Voxel { density: 0, material: ids::AIR };
 
     pub const fn new(density: u8, material: MaterialId) -> Self {
         Self { density, material }
     }
 
     pub const fn solid(material: MaterialId) -> Self {
-        Self {
-            density: 255,
-            material,
-        }
+        Self { density: 255, material }
     }
 
     #[inline]
@@ -50,18 +44,12 @@ impl std::fmt::Debug for DenseChunk {
 }
 
 fn filled_plane(v: u8) -> Box<[u8; CHUNK_VOLUME]> {
-    vec![v; CHUNK_VOLUME]
-        .into_boxed_slice()
-        .try_into()
-        .expect("exact length")
+    vec![v; CHUNK_VOLUME].into_boxed_slice().try_into().expect("exact length")
 }
 
 impl DenseChunk {
     pub fn filled(v: Voxel) -> Self {
-        Self {
-            density: filled_plane(v.density),
-            material: filled_plane(v.material),
-        }
+        Self { density: filled_plane(v.density), material: filled_plane(v.material) }
     }
 
     /// Builds a chunk from planes; `None` if either is not exactly 32³ bytes.
@@ -74,10 +62,7 @@ impl DenseChunk {
 
     #[inline]
     pub fn get(&self, i: usize) -> Voxel {
-        Voxel {
-            density: self.density[i],
-            material: self.material[i],
-        }
+        Voxel { density: self.density[i], material: self.material[i] }
     }
 
     #[inline]

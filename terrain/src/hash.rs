@@ -58,10 +58,7 @@ mod tests {
     fn golden_values() {
         // Pinned: the hash is part of the wire protocol.
         assert_eq!(hash_bytes(b""), 0x2d06800538d394c2);
-        assert_eq!(
-            chunk_hash(&Chunk::uniform(Voxel::AIR)),
-            chunk_hash(&Chunk::default())
-        );
+        assert_eq!(chunk_hash(&Chunk::uniform(Voxel::AIR)), chunk_hash(&Chunk::default()));
         let a = chunk_hash(&Chunk::uniform(Voxel::AIR));
         let mut c = Chunk::uniform(Voxel::AIR);
         c.set(31, 31, 31, Voxel::new(1, 0));

@@ -79,18 +79,14 @@ impl Default for MaterialTable {
 impl MaterialTable {
     /// Parses a table from TOML text (`[[material]]` entries).
     pub fn from_toml(text: &str) -> Result<Self, MaterialError> {
-        let file: TableFile =
-            toml::from_str(text).map_err(|e| MaterialError::Parse(e.to_string()))?;
+        let file: TableFile = toml::from_str(text).map_err(|e| MaterialError::Parse(e.to_string()))?;
         let mut by_id: Vec<Option<Material>> = vec![None; 256];
         for m in file.material {
             if m.hardness == 0 {
                 return Err(MaterialError::ZeroHardness { name: m.name });
             }
             if parse_color(&m.color).is_none() {
-                return Err(MaterialError::BadColor {
-                    name: m.name,
-                    color: m.color,
-                });
+                return Err(MaterialError::BadColor { name: m.name, color: m.color });
             }
             let slot = &mut by_id[m.id as usize];
             if slot.is_some() {
@@ -138,23 +134,17 @@ impl MaterialTable {
 
     #[inline]
     pub fn is_indestructible(&self, id: MaterialId) -> bool {
-        self.by_id[id as usize]
-            .as_ref()
-            .is_some_and(|m| m.indestructible)
+        self.by_id[id as usize].as_ref().is_some_and(|m| m.indestructible)
     }
 
     #[inline]
     pub fn hardness(&self, id: MaterialId) -> u8 {
-        self.by_id[id as usize]
-            .as_ref()
-            .map_or(REFERENCE_HARDNESS, |m| m.hardness)
+        self.by_id[id as usize].as_ref().map_or(REFERENCE_HARDNESS, |m| m.hardness)
     }
 
     /// RGBA colour of a material; magenta for unknown ids.
     pub fn rgba(&self, id: MaterialId) -> [u8; 4] {
-        self.get(id)
-            .and_then(|m| parse_color(&m.color))
-            .unwrap_or([255, 0, 255, 255])
+        self.get(id).and_then(|m| parse_color(&m.color)).unwrap_or([255, 0, 255, 255])
     }
 }
 
@@ -184,31 +174,18 @@ mod tests {
 
     #[test]
     fn rejects_bad_tables() {
-        let dup =
-            format!("{DEFAULT_TABLE_TOML}\n[[material]]\nid = 3\nname = \"x\"\nhardness = 1\n");
-        assert_eq!(
-            MaterialTable::from_toml(&dup),
-            Err(MaterialError::DuplicateId(3))
-        );
+        let dup = format!("{DEFAULT_TABLE_TOML}\n[[material]]\nid = 3\nname = \"x\"\nhardness = 1\n");
+        assert_eq!(MaterialTable::from_toml(&dup), Err(MaterialError::DuplicateId(3)));
         let renamed = DEFAULT_TABLE_TOML.replace("\"bedrock\"", "\"rock\"");
         assert_eq!(
             MaterialTable::from_toml(&renamed),
             Err(MaterialError::MissingDefault("bedrock", ids::BEDROCK))
         );
         let zero = DEFAULT_TABLE_TOML.replace("hardness = 8", "hardness = 0");
-        assert!(matches!(
-            MaterialTable::from_toml(&zero),
-            Err(MaterialError::ZeroHardness { .. })
-        ));
-        assert!(matches!(
-            MaterialTable::from_toml("not toml ["),
-            Err(MaterialError::Parse(_))
-        ));
+        assert!(matches!(MaterialTable::from_toml(&zero), Err(MaterialError::ZeroHardness { .. })));
+        assert!(matches!(MaterialTable::from_toml("not toml ["), Err(MaterialError::Parse(_))));
         let color = DEFAULT_TABLE_TOML.replace("#d8c88a", "sandy");
-        assert!(matches!(
-            MaterialTable::from_toml(&color),
-            Err(MaterialError::BadColor { .. })
-        ));
+        assert!(matches!(MaterialTable::from_toml(&color), Err(MaterialError::BadColor { .. })));
     }
 
     #[test]

@@ -42,11 +42,7 @@ impl VoxelPos {
     /// Coordinates inside its chunk, each in `0..32`.
     pub const fn local(self) -> (usize, usize, usize) {
         let m = CHUNK_SIZE - 1;
-        (
-            (self.x & m) as usize,
-            (self.y & m) as usize,
-            (self.z & m) as usize,
-        )
+        ((self.x & m) as usize, (self.y & m) as usize, (self.z & m) as usize)
     }
 
     /// Checked component-wise offset; `None` on i32 overflow.
@@ -174,11 +170,7 @@ impl VoxelBox {
         let o = c.origin();
         let chunk = VoxelBox {
             min: o,
-            max: VoxelPos::new(
-                o.x + CHUNK_SIZE - 1,
-                o.y + CHUNK_SIZE - 1,
-                o.z + CHUNK_SIZE - 1,
-            ),
+            max: VoxelPos::new(o.x + CHUNK_SIZE - 1, o.y + CHUNK_SIZE - 1, o.z + CHUNK_SIZE - 1),
         };
         self.intersect(&chunk)
     }
@@ -191,10 +183,7 @@ mod tests {
     #[test]
     fn floor_division_for_negatives() {
         assert_eq!(VoxelPos::new(-1, 0, 31).chunk(), ChunkPos::new(-1, 0, 0));
-        assert_eq!(
-            VoxelPos::new(-32, -33, 32).chunk(),
-            ChunkPos::new(-1, -2, 1)
-        );
+        assert_eq!(VoxelPos::new(-32, -33, 32).chunk(), ChunkPos::new(-1, -2, 1));
         assert_eq!(VoxelPos::new(-1, -32, 5).local(), (31, 0, 5));
         assert_eq!(ChunkPos::new(-2, 0, 1).origin(), VoxelPos::new(-64, 0, 32));
     }

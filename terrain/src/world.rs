@@ -56,10 +56,7 @@ pub struct World {
 
 impl World {
     pub fn new(generator: Arc<dyn ChunkGenerator>) -> Self {
-        Self {
-            generator,
-            chunks: HashMap::new(),
-        }
+        Self { generator, chunks: HashMap::new() }
     }
 
     pub fn generator(&self) -> &Arc<dyn ChunkGenerator> {
@@ -73,10 +70,9 @@ impl World {
 
     fn entry(&mut self, pos: ChunkPos) -> &mut VersionedChunk {
         let generator = &self.generator;
-        self.chunks.entry(pos).or_insert_with(|| VersionedChunk {
-            chunk: generator.generate(pos),
-            version: 0,
-        })
+        self.chunks
+            .entry(pos)
+            .or_insert_with(|| VersionedChunk { chunk: generator.generate(pos), version: 0 })
     }
 
     /// The chunk at `pos` if it is loaded.
@@ -113,10 +109,7 @@ impl World {
 
     /// Loaded chunks whose version is above 0 (they differ from generation).
     pub fn modified(&self) -> impl Iterator<Item = (ChunkPos, &VersionedChunk)> {
-        self.chunks
-            .iter()
-            .filter(|(_, c)| c.version > 0)
-            .map(|(p, c)| (*p, c))
+        self.chunks.iter().filter(|(_, c)| c.version > 0).map(|(p, c)| (*p, c))
     }
 
     /// Number of loaded chunks.
@@ -148,9 +141,7 @@ mod tests {
 
     #[test]
     fn generates_on_demand_and_versions() {
-        let mut w = World::new(Arc::new(FlatGenerator {
-            ground: Voxel::solid(ids::STONE),
-        }));
+        let mut w = World::new(Arc::new(FlatGenerator { ground: Voxel::solid(ids::STONE) }));
         let p = ChunkPos::new(0, -1, 0);
         assert_eq!(w.chunk(p).version, 0);
         assert_eq!(w.voxel(VoxelPos::new(0, -1, 0)), Voxel::solid(ids::STONE));
