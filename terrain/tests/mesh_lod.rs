@@ -38,7 +38,37 @@ fn interior(p: [f64; 3], chunks: &[ChunkPos]) -> bool {
     })
 }
 
-/// Open edges of the welded union whose midpoints lie inside the union of the chunks.
+/// The triangles of a LOD `k` neighbour mesh with a vertex within one cell (plus one voxel) of
+/// the centre chunk (0,0,0), compacted. Speeds the welds up; edges opened by the crop lie
+/// outside the centre chunk, and only open edges inside the centre chunk's box are counted.
+fn crop(chunk: ChunkPos, m: &Mesh, k: u8) -> Mesh {
+    let o = origin_f(chunk);
+    let margin = f64::from(1u32 << k) + 1.0;
+    let near = |i: u32| {
+        let p = m.positions[i as usize];
+        (0..3).all(|a| (-margin..=32.0 + margin).contains(&(o[a] + f64::from(p[a]))))
+    };
+    let mut out = Mesh::default();
+    let mut remap = vec![u32::MAX; m.vertex_count()];
+    for t in m.indices.chunks_exact(3) {
+        if t.iter().any(|&i| near(i)) {
+            for &i in t {
+                if remap[i as usize] == u32::MAX {
+                    remap[i as usize] = out.positions.len() as u32;
+                    out.positions.push(m.positions[i as usize]);
+                    out.normals.push(m.normals[i as usize]);
+                    out.materials.push(m.materials[i as usize]);
+                    out.keys.push(m.keys[i as usize]);
+                }
+                out.indices.push(remap[i as usize]);
+            }
+        }
+    }
+    out
+}
+
+/// Open edges of the welded union whose midpoints lie inside the union of the chunks and
+/// within the centre chunk's box.
 fn interior_cracks(parts: &[(ChunkPos, &Mesh)]) -> usize {
     let w = weld(parts);
     let chunks: Vec<ChunkPos> = parts.iter().map(|p| p.0).collect();
@@ -46,7 +76,8 @@ fn interior_cracks(parts: &[(ChunkPos, &Mesh)]) -> usize {
         .into_iter()
         .filter(|&(a, b)| {
             let (pa, pb) = (w.positions[a as usize], w.positions[b as usize]);
-            interior([0, 1, 2].map(|k| (pa[k] + pb[k]) / 2.0), &chunks)
+            let mid = [0, 1, 2].map(|k| (pa[k] + pb[k]) / 2.0);
+            mid.iter().all(|c| (-1e-3..=32.0 + 1e-3).contains(c)) && interior(mid, &chunks)
         })
         .count()
 }
@@ -115,12 +146,12 @@ fn every_transition_face_subset_is_crack_free_at_every_lod() {
             let fine: Vec<Mesh> = s
                 .around
                 .iter()
-                .map(|(_, nb)| mesh_chunk(nb, &lod(k - 1, 0)))
+                .map(|(p, nb)| crop(*p, &mesh_chunk(nb, &lod(k - 1, 0)), k - 1))
                 .collect();
             let same: Vec<Mesh> = s
                 .around
                 .iter()
-                .map(|(_, nb)| mesh_chunk(nb, &lod(k, 0)))
+                .map(|(p, nb)| crop(*p, &mesh_chunk(nb, &lod(k, 0)), k))
                 .collect();
             // Control: without transition cells, finer neighbours leave cracks.
             let plain = mesh_chunk(&s.centre, &lod(k, 0));
