@@ -12,6 +12,7 @@ pub mod edit;
 pub mod gen;
 pub mod hash;
 pub mod material;
+pub mod mesh;
 pub mod pos;
 pub mod world;
 
