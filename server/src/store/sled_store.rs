@@ -80,7 +80,11 @@ impl SledStore {
             blobs: db.open_tree(TREE_BLOBS)?,
             db,
         };
-        if let Some(m) = store.load_meta()? {
+        // Only a readable record of another format stops the open: a
+        // corrupt one must still open so `check` can report it (and
+        // `load_meta` returns the error to anyone else).
+        let world = store.meta.get(META_WORLD)?;
+        if let Some(Ok(m)) = world.map(|w| decode_meta(&w, 0)) {
             if m.format_version != STORE_FORMAT_VERSION {
                 return Err(StoreError::UnsupportedFormat {
                     found: m.format_version,
