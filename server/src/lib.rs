@@ -1,4 +1,5 @@
-//! Strata's server library: the admin CLI's commands now; networking,
-//! sessions and storage arrive with the server issue (#4).
+//! Strata's authoritative server: validation, ordering, durable storage,
+//! deltas, collision meshes, and the admin CLI's commands.
 
 pub mod admin;
+pub mod store;

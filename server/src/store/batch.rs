@@ -1,0 +1,109 @@
+//! Checks a commit batch against itself before anything is written.
+//!
+//! The store refuses a batch that would break the invariants `check`
+//! verifies, so a sequencer bug surfaces as a typed error at the commit
+//! that caused it instead of as a corrupt world found days later.
+
+use std::collections::BTreeMap;
+
+use strata_terrain::ChunkPos;
+
+use super::error::StoreError;
+use super::keys::show_pos;
+use super::types::CommitBatch;
+
+/// Most entries one batch may hold (a sequencer tick is far smaller).
+pub const MAX_BATCH_ENTRIES: usize = 65_536;
+/// Most chunks one batch may write.
+pub const MAX_BATCH_CHUNKS: usize = 65_536;
+
+/// Validates the batch on its own and returns, per changed chunk, the
+/// lowest version the batch moves it to (the store must hold an older one).
+pub fn validate(b: &CommitBatch) -> Result<BTreeMap<ChunkPos, u64>, StoreError> {
+    if b.entries.len() > MAX_BATCH_ENTRIES {
+        return Err(StoreError::batch(format!(
+            "{} entries, limit {MAX_BATCH_ENTRIES}",
+            b.entries.len()
+        )));
+    }
+    if b.chunks.len() > MAX_BATCH_CHUNKS {
+        return Err(StoreError::batch(format!(
+            "{} chunks, limit {MAX_BATCH_CHUNKS}",
+            b.chunks.len()
+        )));
+    }
+    let Some(first) = b.entries.first() else {
+        if !b.chunks.is_empty() {
+            return Err(StoreError::batch("chunks without any log entry"));
+        }
+        return Ok(BTreeMap::new());
+    };
+    // (lowest, highest) to_version per chunk across the batch.
+    let mut span: BTreeMap<ChunkPos, (u64, u64)> = BTreeMap::new();
+    for (i, e) in b.entries.iter().enumerate() {
+        let want = first.seq.checked_add(i as u64);
+        if want != Some(e.seq) {
+            return Err(StoreError::batch(format!(
+                "entry {i} has seq {}, expected consecutive seqs from {}",
+                e.seq, first.seq
+            )));
+        }
+        for &(pos, v) in &e.changes {
+            if v == 0 {
+                return Err(StoreError::batch(format!(
+                    "seq {} moves {} to version 0",
+                    e.seq,
+                    show_pos(pos)
+                )));
+            }
+            match span.get_mut(&pos) {
+                Some((_, hi)) if v <= *hi => {
+                    return Err(StoreError::batch(format!(
+                        "seq {} moves {} to version {v}, not above {hi}",
+                        e.seq,
+                        show_pos(pos)
+                    )))
+                }
+                Some((_, hi)) => *hi = v,
+                None => {
+                    span.insert(pos, (v, v));
+                }
+            }
+        }
+    }
+    let last = b.entries.last().map_or(0, |e| e.seq);
+    if b.last_seq != last {
+        return Err(StoreError::batch(format!(
+            "last_seq {} but the last entry is seq {last}",
+            b.last_seq
+        )));
+    }
+    let mut seen = BTreeMap::new();
+    for (pos, v, _) in &b.chunks {
+        if seen.insert(*pos, *v).is_some() {
+            return Err(StoreError::batch(format!("{} written twice", show_pos(*pos))));
+        }
+        match span.get(pos) {
+            None => {
+                return Err(StoreError::batch(format!(
+                    "{} is written but no entry changed it",
+                    show_pos(*pos)
+                )))
+            }
+            Some(&(_, hi)) if hi != *v => {
+                return Err(StoreError::batch(format!(
+                    "{} written at version {v}, but the entries end it at {hi}",
+                    show_pos(*pos)
+                )))
+            }
+            Some(_) => {}
+        }
+    }
+    if let Some(pos) = span.keys().find(|p| !seen.contains_key(p)) {
+        return Err(StoreError::batch(format!(
+            "{} changed by an entry but its state is missing",
+            show_pos(*pos)
+        )));
+    }
+    Ok(span.into_iter().map(|(p, (lo, _))| (p, lo)).collect())
+}

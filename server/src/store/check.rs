@@ -1,0 +1,226 @@
+//! Offline consistency check of a store: what `strata-admin check` runs.
+//!
+//! The [`Checker`] is fed every record of the log and chunk trees (in key
+//! order) and reports each one that breaks an invariant:
+//! - every log record decodes, its key equals its seq, seqs run 1, 2, 3, ...
+//!   without gaps, and the meta `last_seq` is the last of them;
+//! - a chunk's `to_version`s rise with seq;
+//! - every chunk record decodes, and its version is the highest
+//!   `to_version` the log gives it (no chunk without a log entry, no log
+//!   entry whose chunk is missing).
+
+use std::collections::BTreeMap;
+use std::fmt;
+
+use strata_terrain::chunk_codec::decode_chunk;
+use strata_terrain::ChunkPos;
+
+use super::keys::{chunk_pos_from_key, seq_from_key, show_pos, show_raw};
+use super::record::{decode_log_entry, split_chunk_value};
+
+/// Issues kept in a report; past this only the count grows, so checking a
+/// badly broken store cannot exhaust memory.
+pub const MAX_REPORTED_ISSUES: usize = 1000;
+
+/// One record that breaks an invariant.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CheckIssue {
+    /// The store has log or chunk records but no world metadata.
+    MissingMeta,
+    /// Metadata or `last_seq` does not decode.
+    BadMeta { reason: String },
+    BadLogKey { key: String },
+    BadLogRecord { seq: u64, reason: String },
+    /// Seqs must run 1, 2, 3, ... with nothing missing.
+    LogGap { expected: u64, found: u64 },
+    /// A chunk's version did not rise at this seq.
+    VersionNotIncreasing { seq: u64, pos: ChunkPos, to_version: u64, previous: u64 },
+    LastSeqMismatch { meta: u64, log: u64 },
+    BadChunkKey { key: String },
+    BadChunkRecord { pos: ChunkPos, reason: String },
+    /// A stored chunk that no log entry changed.
+    OrphanChunk { pos: ChunkPos, version: u64 },
+    /// The log changed this chunk but the store does not hold it.
+    MissingChunk { pos: ChunkPos, logged_version: u64, seq: u64 },
+    VersionMismatch { pos: ChunkPos, stored: u64, logged: u64, seq: u64 },
+}
+
+impl fmt::Display for CheckIssue {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        use CheckIssue::*;
+        match self {
+            MissingMeta => write!(f, "meta: no world metadata, but the store holds records"),
+            BadMeta { reason } => write!(f, "meta: {reason}"),
+            BadLogKey { key } => write!(f, "log key {key}: not an 8-byte seq"),
+            BadLogRecord { seq, reason } => write!(f, "log seq {seq}: {reason}"),
+            LogGap { expected, found } => {
+                write!(f, "log seq {found}: expected seq {expected} next (gap)")
+            }
+            VersionNotIncreasing { seq, pos, to_version, previous } => write!(
+                f,
+                "log seq {seq}: {} moved to version {to_version}, not above {previous}",
+                show_pos(*pos)
+            ),
+            LastSeqMismatch { meta, log } => {
+                write!(f, "meta: last_seq is {meta} but the last log seq is {log}")
+            }
+            BadChunkKey { key } => write!(f, "chunk key {key}: not a 12-byte position"),
+            BadChunkRecord { pos, reason } => write!(f, "{}: {reason}", show_pos(*pos)),
+            OrphanChunk { pos, version } => write!(
+                f,
+                "{} (version {version}): stored but no log entry changed it",
+                show_pos(*pos)
+            ),
+            MissingChunk { pos, logged_version, seq } => write!(
+                f,
+                "{}: log seq {seq} moved it to version {logged_version} but it is not stored",
+                show_pos(*pos)
+            ),
+            VersionMismatch { pos, stored, logged, seq } => write!(
+                f,
+                "{}: stored at version {stored} but log seq {seq} moved it to {logged}",
+                show_pos(*pos)
+            ),
+        }
+    }
+}
+
+/// What `check` found.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct CheckReport {
+    pub log_entries: u64,
+    pub chunks: u64,
+    /// The first [`MAX_REPORTED_ISSUES`] issues, in the order found.
+    pub issues: Vec<CheckIssue>,
+    /// Issues beyond those kept in `issues`.
+    pub issues_dropped: u64,
+}
+
+impl CheckReport {
+    pub fn is_ok(&self) -> bool {
+        self.issues.is_empty() && self.issues_dropped == 0
+    }
+}
+
+/// Accumulates a [`CheckReport`]; feed all log records, then all chunk
+/// records, then call [`Checker::finish`].
+#[derive(Debug, Default)]
+pub struct Checker {
+    report: CheckReport,
+    last_log_seq: u64,
+    /// Highest to_version per chunk, and the seq that set it.
+    logged: BTreeMap<ChunkPos, (u64, u64)>,
+}
+
+impl Checker {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    fn issue(&mut self, i: CheckIssue) {
+        if self.report.issues.len() < MAX_REPORTED_ISSUES {
+            self.report.issues.push(i);
+        } else {
+            self.report.issues_dropped += 1;
+        }
+    }
+
+    pub fn meta_issue(&mut self, reason: String) {
+        self.issue(CheckIssue::BadMeta { reason });
+    }
+
+    /// One log record, in key order.
+    pub fn log_record(&mut self, key: &[u8], value: &[u8]) {
+        self.report.log_entries += 1;
+        let Some(seq) = seq_from_key(key) else {
+            return self.issue(CheckIssue::BadLogKey { key: show_raw(key) });
+        };
+        let expected = self.last_log_seq + 1;
+        if seq != expected {
+            self.issue(CheckIssue::LogGap { expected, found: seq });
+        }
+        self.last_log_seq = seq;
+        let entry = match decode_log_entry(seq, value) {
+            Ok(e) => e,
+            Err(e) => {
+                return self.issue(CheckIssue::BadLogRecord {
+                    seq,
+                    reason: e.to_string(),
+                })
+            }
+        };
+        for (pos, v) in entry.changes {
+            match self.logged.insert(pos, (v, seq)) {
+                Some((previous, _)) if previous >= v => {
+                    // Keep the highest version as the one the chunk must have.
+                    self.logged.insert(pos, (previous, seq));
+                    self.issue(CheckIssue::VersionNotIncreasing {
+                        seq,
+                        pos,
+                        to_version: v,
+                        previous,
+                    });
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// One chunk record, after all log records.
+    pub fn chunk_record(&mut self, key: &[u8], value: &[u8]) {
+        self.report.chunks += 1;
+        let Some(pos) = chunk_pos_from_key(key) else {
+            return self.issue(CheckIssue::BadChunkKey { key: show_raw(key) });
+        };
+        let logged = self.logged.remove(&pos);
+        let (version, body) = match split_chunk_value(pos, value) {
+            Ok(x) => x,
+            Err(e) => {
+                return self.issue(CheckIssue::BadChunkRecord {
+                    pos,
+                    reason: e.to_string(),
+                })
+            }
+        };
+        if let Err(e) = decode_chunk(body) {
+            self.issue(CheckIssue::BadChunkRecord {
+                pos,
+                reason: format!("snapshot does not decode: {e}"),
+            });
+        }
+        match logged {
+            None => self.issue(CheckIssue::OrphanChunk { pos, version }),
+            Some((logged, seq)) if logged != version => self.issue(CheckIssue::VersionMismatch {
+                pos,
+                stored: version,
+                logged,
+                seq,
+            }),
+            Some(_) => {}
+        }
+    }
+
+    /// Closes the check. `meta_last_seq` is `None` when the store has no
+    /// world metadata.
+    pub fn finish(mut self, meta_last_seq: Option<u64>) -> CheckReport {
+        for (pos, (logged_version, seq)) in std::mem::take(&mut self.logged) {
+            self.issue(CheckIssue::MissingChunk {
+                pos,
+                logged_version,
+                seq,
+            });
+        }
+        match meta_last_seq {
+            Some(meta) if meta != self.last_log_seq => self.issue(CheckIssue::LastSeqMismatch {
+                meta,
+                log: self.last_log_seq,
+            }),
+            Some(_) => {}
+            None if self.report.log_entries > 0 || self.report.chunks > 0 => {
+                self.issue(CheckIssue::MissingMeta)
+            }
+            None => {}
+        }
+        self.report
+    }
+}

@@ -1,0 +1,63 @@
+//! The store's one error type: every failure says which record and why.
+
+use strata_terrain::chunk_codec::CodecError;
+use thiserror::Error;
+
+/// Why a store operation failed. A failed write changes nothing.
+#[derive(Debug, Error)]
+pub enum StoreError {
+    #[error("sled: {0}")]
+    Sled(#[from] sled::Error),
+    #[error("i/o: {0}")]
+    Io(#[from] std::io::Error),
+    /// A record on disk does not have the layout this version writes.
+    #[error("corrupt {what} at key {key}")]
+    Corrupt { what: String, key: String },
+    /// A stored chunk's snapshot bytes do not decode.
+    #[error("chunk {key} does not decode: {source}")]
+    Codec {
+        key: String,
+        #[source]
+        source: CodecError,
+    },
+    /// The world on disk was made with different generation inputs.
+    #[error("world metadata mismatch: stored {field} is {stored}, given {given}")]
+    MetaMismatch {
+        field: &'static str,
+        stored: String,
+        given: String,
+    },
+    /// The store was written by an unknown format version.
+    #[error("store format version {found} is not supported (this build reads {supported})")]
+    UnsupportedFormat { found: u32, supported: u32 },
+    /// A write needs the world metadata, which `init_meta` has not written.
+    #[error("the store has no world metadata; call init_meta first")]
+    NoMeta,
+    /// Caller-supplied metadata is not acceptable.
+    #[error("invalid world metadata: {reason}")]
+    InvalidMeta { reason: String },
+    /// A commit batch is inconsistent with itself or with the store.
+    #[error("invalid commit batch: {reason}")]
+    InvalidBatch { reason: String },
+    /// A blob name or body breaks a limit.
+    #[error("invalid blob: {reason}")]
+    InvalidBlob { reason: String },
+    /// A record could not be serialized (too large for its limit, usually).
+    #[error("cannot encode {what}: {reason}")]
+    Encode { what: &'static str, reason: String },
+}
+
+impl StoreError {
+    pub(crate) fn corrupt(what: impl Into<String>, key: impl Into<String>) -> Self {
+        StoreError::Corrupt {
+            what: what.into(),
+            key: key.into(),
+        }
+    }
+
+    pub(crate) fn batch(reason: impl Into<String>) -> Self {
+        StoreError::InvalidBatch {
+            reason: reason.into(),
+        }
+    }
+}

@@ -1,0 +1,92 @@
+//! Key layout of the store's trees.
+//!
+//! All keys are big-endian so sled's byte order is the numeric order and
+//! range scans work:
+//!
+//! | tree | key | value |
+//! |---|---|---|
+//! | `meta` | `b"world"` | JSON of the world metadata without `last_seq` |
+//! | `meta` | `b"last_seq"` | `u64` big-endian: seq of the last committed edit |
+//! | `chunks` | [`chunk_key`]: 12 bytes | `version: u64 BE` then [`encode_chunk`] bytes |
+//! | `log` | [`seq_key`]: 8 bytes, `u64` BE | bincode 2 (serde, standard config) of a `LogEntry` |
+//! | `blobs` | the blob name, UTF-8 | the blob bytes |
+//!
+//! A chunk key is `x, y, z`, each an `i32` with its sign bit flipped and
+//! written big-endian: flipping the sign bit maps `i32::MIN..=i32::MAX`
+//! monotonically onto `0..=u32::MAX`, so byte order equals [`ChunkPos`]'s
+//! derived order (x, then y, then z) including negative coordinates. All
+//! chunks of one x-slab, or one (x, y) column of z, are a contiguous range.
+//!
+//! [`encode_chunk`]: strata_terrain::chunk_codec::encode_chunk
+
+use strata_terrain::ChunkPos;
+
+/// Bytes of a chunk key.
+pub const CHUNK_KEY_LEN: usize = 12;
+/// Bytes of a log (seq) key.
+pub const SEQ_KEY_LEN: usize = 8;
+
+const SIGN_BIT: u32 = 0x8000_0000;
+
+fn ordered(v: i32) -> [u8; 4] {
+    ((v as u32) ^ SIGN_BIT).to_be_bytes()
+}
+
+fn unordered(b: [u8; 4]) -> i32 {
+    (u32::from_be_bytes(b) ^ SIGN_BIT) as i32
+}
+
+/// The order-preserving key of a chunk position.
+pub fn chunk_key(pos: ChunkPos) -> [u8; CHUNK_KEY_LEN] {
+    let mut k = [0u8; CHUNK_KEY_LEN];
+    k[0..4].copy_from_slice(&ordered(pos.x));
+    k[4..8].copy_from_slice(&ordered(pos.y));
+    k[8..12].copy_from_slice(&ordered(pos.z));
+    k
+}
+
+/// Inverse of [`chunk_key`]; `None` if the key has the wrong length.
+pub fn chunk_pos_from_key(key: &[u8]) -> Option<ChunkPos> {
+    let k: [u8; CHUNK_KEY_LEN] = key.try_into().ok()?;
+    let part = |i: usize| unordered([k[i], k[i + 1], k[i + 2], k[i + 3]]);
+    Some(ChunkPos::new(part(0), part(4), part(8)))
+}
+
+/// The key of a log entry: its seq, big-endian.
+pub fn seq_key(seq: u64) -> [u8; SEQ_KEY_LEN] {
+    seq.to_be_bytes()
+}
+
+/// Inverse of [`seq_key`]; `None` if the key has the wrong length.
+pub fn seq_from_key(key: &[u8]) -> Option<u64> {
+    Some(u64::from_be_bytes(key.try_into().ok()?))
+}
+
+/// Printable form of a key that did not parse: UTF-8 if it is, else hex.
+pub fn show_raw(key: &[u8]) -> String {
+    match std::str::from_utf8(key) {
+        Ok(s) => format!("{s:?}"),
+        Err(_) => format!("0x{}", key.iter().map(|b| format!("{b:02x}")).collect::<String>()),
+    }
+}
+
+/// Printable form of a chunk position, for error messages.
+pub fn show_pos(p: ChunkPos) -> String {
+    format!("chunk ({}, {}, {})", p.x, p.y, p.z)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chunk_keys_round_trip_extremes() {
+        for v in [i32::MIN, -1, 0, 1, i32::MAX] {
+            let p = ChunkPos::new(v, -v.wrapping_add(1), v / 2);
+            assert_eq!(chunk_pos_from_key(&chunk_key(p)), Some(p));
+        }
+        assert_eq!(chunk_pos_from_key(&[0u8; 11]), None);
+        assert_eq!(seq_from_key(&seq_key(u64::MAX)), Some(u64::MAX));
+        assert_eq!(seq_from_key(&[1, 2, 3]), None);
+    }
+}

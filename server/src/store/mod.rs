@@ -1,0 +1,99 @@
+//! Durable storage of the authoritative world, behind [`ChunkStore`].
+//!
+//! The store holds only what generation cannot recreate: the world's
+//! generation inputs ([`WorldMeta`]), every chunk an edit has modified (at
+//! its version), the edit log in seq order, and small named blobs the
+//! server keeps (protected zones). A chunk the store does not hold is the
+//! generator's output at version 0.
+//!
+//! Writes happen once per sequencer tick through [`ChunkStore::commit_batch`]
+//! (group commit): chunk states, log entries and `last_seq` go in one
+//! atomic transaction, then one flush makes them durable, and only then may
+//! the server acknowledge the edits. The call blocks on fsync, so the async
+//! shell runs it through `tokio::task::spawn_blocking` (the store is `Send +
+//! Sync`; share it as `Arc<dyn ChunkStore>`). The key layout is documented
+//! in [`keys`].
+
+mod batch;
+mod check;
+mod config;
+mod error;
+pub mod keys;
+mod record;
+mod sled_store;
+mod types;
+
+use std::ops::RangeInclusive;
+
+use strata_terrain::ChunkPos;
+
+pub use batch::{MAX_BATCH_CHUNKS, MAX_BATCH_ENTRIES};
+pub use check::{CheckIssue, CheckReport, Checker, MAX_REPORTED_ISSUES};
+pub use config::{StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_FLUSH_EVERY_MS};
+pub use error::StoreError;
+pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
+pub use sled_store::{
+    SledStore, MAX_BLOB_BYTES, MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES, META_LAST_SEQ,
+    META_WORLD, TREE_BLOBS, TREE_CHUNKS, TREE_LOG, TREE_META,
+};
+pub use types::{
+    CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta, STORE_FORMAT_VERSION,
+};
+
+/// A fallible iterator over store records.
+pub type StoreIter<'a, T> = Box<dyn Iterator<Item = Result<T, StoreError>> + Send + 'a>;
+
+/// Durable world storage. Every method that writes returns only once the
+/// write is durable; a write that fails changes nothing.
+pub trait ChunkStore: Send + Sync {
+    /// The world metadata, or `None` for a new store.
+    fn load_meta(&self) -> Result<Option<WorldMeta>, StoreError>;
+
+    /// Writes the metadata of a new world (`last_seq` must be 0). If the
+    /// store already has metadata with the same seed, generator version and
+    /// parameters it is returned unchanged; any difference is
+    /// [`StoreError::MetaMismatch`].
+    fn init_meta(&self, meta: &WorldMeta) -> Result<WorldMeta, StoreError>;
+
+    /// Seq of the last committed edit (0 for none).
+    fn last_seq(&self) -> Result<u64, StoreError>;
+
+    /// A modified chunk, or `None` if it was never modified.
+    fn load_chunk(&self, pos: ChunkPos) -> Result<Option<StoredChunk>, StoreError>;
+
+    /// Atomically writes one tick's edits, chunk states and `last_seq`,
+    /// then flushes. Refuses (changing nothing) a batch whose seqs do not
+    /// follow `last_seq`, whose chunk versions do not rise, or whose chunks
+    /// and entries disagree. Blocks on fsync.
+    fn commit_batch(&self, batch: &CommitBatch) -> Result<CommitStats, StoreError>;
+
+    /// One log entry.
+    fn log_entry(&self, seq: u64) -> Result<Option<LogEntry>, StoreError>;
+
+    /// Log entries with seq in `seqs`, ascending.
+    fn edit_log(&self, seqs: RangeInclusive<u64>) -> StoreIter<'_, LogEntry>;
+
+    /// `(pos, version)` of every modified chunk, in key ([`ChunkPos`]) order.
+    fn modified_chunks(&self) -> StoreIter<'_, (ChunkPos, u64)>;
+
+    /// Every modified chunk with its snapshot bytes, undecoded, in key order.
+    fn raw_chunks(&self) -> StoreIter<'_, RawChunk>;
+
+    /// Number of modified chunks (a scan: O(chunks)).
+    fn chunk_count(&self) -> Result<u64, StoreError>;
+
+    /// Bytes the store occupies on disk.
+    fn size_on_disk(&self) -> Result<u64, StoreError>;
+
+    fn get_blob(&self, name: &str) -> Result<Option<Vec<u8>>, StoreError>;
+
+    /// Stores a named blob durably, replacing any previous one.
+    fn put_blob(&self, name: &str, bytes: &[u8]) -> Result<(), StoreError>;
+
+    /// Removes a blob durably; returns whether it existed.
+    fn delete_blob(&self, name: &str) -> Result<bool, StoreError>;
+
+    /// Verifies every record (see [`Checker`]). Run it while nothing
+    /// commits: records are scanned, not snapshotted.
+    fn check(&self) -> Result<CheckReport, StoreError>;
+}

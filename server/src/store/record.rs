@@ -1,0 +1,124 @@
+//! Byte encodings of the store's values (the key layout is in `keys`).
+//!
+//! The log uses bincode 2 through serde with the standard configuration
+//! (varint integers, compact) and a size limit, so a corrupt length prefix
+//! can never make a decoder allocate without bound. World metadata is JSON
+//! so an operator can read it with any sled dump tool.
+
+use serde::{Deserialize, Serialize};
+use strata_terrain::chunk_codec::{decode_chunk, encode_chunk};
+use strata_terrain::{Chunk, ChunkPos};
+
+use super::error::StoreError;
+use super::keys::show_pos;
+use super::types::{LogEntry, WorldMeta};
+
+/// Largest log record accepted when writing and reading: a generous bound
+/// for an edit plus a few hundred chunk changes.
+pub const MAX_LOG_RECORD_BYTES: usize = 1 << 20;
+/// Bytes of the version prefix of a chunk value.
+pub const CHUNK_VERSION_LEN: usize = 8;
+
+type LogConfig = bincode::config::Configuration<
+    bincode::config::LittleEndian,
+    bincode::config::Varint,
+    bincode::config::Limit<MAX_LOG_RECORD_BYTES>,
+>;
+
+fn log_config() -> LogConfig {
+    bincode::config::standard().with_limit::<MAX_LOG_RECORD_BYTES>()
+}
+
+/// A chunk value: its version big-endian, then its snapshot bytes.
+pub fn encode_chunk_value(version: u64, chunk: &Chunk) -> Vec<u8> {
+    let snapshot = encode_chunk(chunk);
+    let mut v = Vec::with_capacity(CHUNK_VERSION_LEN + snapshot.len());
+    v.extend_from_slice(&version.to_be_bytes());
+    v.extend_from_slice(&snapshot);
+    v
+}
+
+/// Splits a chunk value into its version and snapshot bytes, undecoded.
+pub fn split_chunk_value(pos: ChunkPos, value: &[u8]) -> Result<(u64, &[u8]), StoreError> {
+    if value.len() <= CHUNK_VERSION_LEN {
+        return Err(StoreError::corrupt(
+            format!("chunk value of {} bytes (needs a version and a body)", value.len()),
+            show_pos(pos),
+        ));
+    }
+    let (v, body) = value.split_at(CHUNK_VERSION_LEN);
+    let version = u64::from_be_bytes(v.try_into().expect("split at CHUNK_VERSION_LEN"));
+    Ok((version, body))
+}
+
+/// Decodes a chunk value fully.
+pub fn decode_chunk_value(pos: ChunkPos, value: &[u8]) -> Result<(u64, Chunk), StoreError> {
+    let (version, body) = split_chunk_value(pos, value)?;
+    let chunk = decode_chunk(body).map_err(|source| StoreError::Codec {
+        key: show_pos(pos),
+        source,
+    })?;
+    Ok((version, chunk))
+}
+
+pub fn encode_log_entry(e: &LogEntry) -> Result<Vec<u8>, StoreError> {
+    bincode::serde::encode_to_vec(e, log_config()).map_err(|err| StoreError::Encode {
+        what: "log entry",
+        reason: format!("seq {}: {err}", e.seq),
+    })
+}
+
+pub fn decode_log_entry(seq: u64, bytes: &[u8]) -> Result<LogEntry, StoreError> {
+    let corrupt = |why: String| StoreError::corrupt(format!("log entry ({why})"), format!("seq {seq}"));
+    let (e, used): (LogEntry, usize) =
+        bincode::serde::decode_from_slice(bytes, log_config()).map_err(|e| corrupt(e.to_string()))?;
+    if used != bytes.len() {
+        return Err(corrupt(format!("{} trailing bytes", bytes.len() - used)));
+    }
+    if e.seq != seq {
+        return Err(corrupt(format!("record says seq {}", e.seq)));
+    }
+    Ok(e)
+}
+
+/// The metadata record: [`WorldMeta`] without `last_seq`, which lives in
+/// its own key so a commit rewrites 8 bytes, not the generator parameters.
+#[derive(Debug, Serialize, Deserialize)]
+struct MetaRecord {
+    format_version: u32,
+    seed: u64,
+    generator_version: u32,
+    generator_params: String,
+}
+
+pub fn encode_meta(m: &WorldMeta) -> Result<Vec<u8>, StoreError> {
+    let r = MetaRecord {
+        format_version: m.format_version,
+        seed: m.seed,
+        generator_version: m.generator_version,
+        generator_params: m.generator_params.clone(),
+    };
+    serde_json::to_vec(&r).map_err(|e| StoreError::Encode {
+        what: "world metadata",
+        reason: e.to_string(),
+    })
+}
+
+pub fn decode_meta(bytes: &[u8], last_seq: u64) -> Result<WorldMeta, StoreError> {
+    let r: MetaRecord = serde_json::from_slice(bytes)
+        .map_err(|e| StoreError::corrupt(format!("world metadata ({e})"), "meta/world"))?;
+    Ok(WorldMeta {
+        format_version: r.format_version,
+        seed: r.seed,
+        generator_version: r.generator_version,
+        generator_params: r.generator_params,
+        last_seq,
+    })
+}
+
+pub fn decode_last_seq(bytes: &[u8]) -> Result<u64, StoreError> {
+    let b: [u8; 8] = bytes.try_into().map_err(|_| {
+        StoreError::corrupt(format!("last_seq of {} bytes", bytes.len()), "meta/last_seq")
+    })?;
+    Ok(u64::from_be_bytes(b))
+}

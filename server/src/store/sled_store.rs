@@ -1,0 +1,400 @@
+//! [`ChunkStore`] on sled 0.34.
+//!
+//! Crash safety: a commit is one sled transaction across the `meta`,
+//! `chunks` and `log` trees. sled writes a transaction's updates to its log
+//! as one batch and on recovery replays all of it or none of it, so after a
+//! crash the store holds exactly the batches before some point: never a log
+//! entry beyond `last_seq`, never a chunk without its log entry. sled only
+//! fsyncs every `flush_every_ms` on its own, so every write method calls
+//! [`sled::Db::flush`] and returns after it: data from a completed flush
+//! survives a crash, and the caller acknowledges nothing before that.
+
+use std::ops::RangeInclusive;
+use std::path::Path;
+use std::time::Instant;
+
+use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
+use strata_terrain::ChunkPos;
+
+use super::batch;
+use super::check::{CheckReport, Checker};
+use super::config::StoreConfig;
+use super::error::StoreError;
+use super::keys::{chunk_key, chunk_pos_from_key, seq_from_key, seq_key, show_pos, show_raw};
+use super::record::{
+    decode_chunk_value, decode_last_seq, decode_log_entry, decode_meta, encode_chunk_value,
+    encode_log_entry, encode_meta, split_chunk_value, MAX_LOG_RECORD_BYTES,
+};
+use super::types::{
+    CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta, STORE_FORMAT_VERSION,
+};
+use super::{ChunkStore, StoreIter};
+
+/// Tree of world metadata.
+pub const TREE_META: &str = "meta";
+/// Tree of modified chunks.
+pub const TREE_CHUNKS: &str = "chunks";
+/// Tree of the edit log.
+pub const TREE_LOG: &str = "log";
+/// Tree of named blobs.
+pub const TREE_BLOBS: &str = "blobs";
+/// Key of the metadata record in [`TREE_META`].
+pub const META_WORLD: &[u8] = b"world";
+/// Key of `last_seq` in [`TREE_META`].
+pub const META_LAST_SEQ: &[u8] = b"last_seq";
+/// Longest generator parameter text accepted.
+pub const MAX_GENERATOR_PARAMS_BYTES: usize = 64 * 1024;
+/// Longest blob name.
+pub const MAX_BLOB_NAME_BYTES: usize = 256;
+/// Largest blob.
+pub const MAX_BLOB_BYTES: usize = 16 * 1024 * 1024;
+
+/// The sled-backed store. Cheap to share by reference across threads.
+#[derive(Debug)]
+pub struct SledStore {
+    db: sled::Db,
+    meta: sled::Tree,
+    chunks: sled::Tree,
+    log: sled::Tree,
+    blobs: sled::Tree,
+}
+
+impl SledStore {
+    /// Opens (or creates) the store in `dir` with the default config.
+    pub fn open(dir: &Path) -> Result<Self, StoreError> {
+        Self::open_with(dir, &StoreConfig::default())
+    }
+
+    /// Opens (or creates) the store in `dir`. Refuses a store written by an
+    /// unknown format version.
+    pub fn open_with(dir: &Path, config: &StoreConfig) -> Result<Self, StoreError> {
+        let db = sled::Config::new()
+            .path(dir)
+            .cache_capacity(config.cache_capacity_bytes)
+            .flush_every_ms(config.flush_every_ms)
+            .open()?;
+        let store = Self {
+            meta: db.open_tree(TREE_META)?,
+            chunks: db.open_tree(TREE_CHUNKS)?,
+            log: db.open_tree(TREE_LOG)?,
+            blobs: db.open_tree(TREE_BLOBS)?,
+            db,
+        };
+        // Only a readable record of another format stops the open: a
+        // corrupt one must still open so `check` can report it (and
+        // `load_meta` returns the error to anyone else).
+        let world = store.meta.get(META_WORLD)?;
+        if let Some(Ok(m)) = world.map(|w| decode_meta(&w, 0)) {
+            if m.format_version != STORE_FORMAT_VERSION {
+                return Err(StoreError::UnsupportedFormat {
+                    found: m.format_version,
+                    supported: STORE_FORMAT_VERSION,
+                });
+            }
+        }
+        Ok(store)
+    }
+
+    fn flush(&self) -> Result<(), StoreError> {
+        self.db.flush()?;
+        Ok(())
+    }
+}
+
+fn check_blob_name(name: &str) -> Result<(), StoreError> {
+    if name.is_empty() || name.len() > MAX_BLOB_NAME_BYTES {
+        return Err(StoreError::InvalidBlob {
+            reason: format!(
+                "name is {} bytes, must be 1..={MAX_BLOB_NAME_BYTES}",
+                name.len()
+            ),
+        });
+    }
+    Ok(())
+}
+
+fn check_new_meta(m: &WorldMeta) -> Result<(), StoreError> {
+    if m.format_version != STORE_FORMAT_VERSION {
+        return Err(StoreError::UnsupportedFormat {
+            found: m.format_version,
+            supported: STORE_FORMAT_VERSION,
+        });
+    }
+    if m.last_seq != 0 {
+        return Err(StoreError::InvalidMeta {
+            reason: format!("a new world starts at last_seq 0, got {}", m.last_seq),
+        });
+    }
+    if m.generator_params.len() > MAX_GENERATOR_PARAMS_BYTES {
+        return Err(StoreError::InvalidMeta {
+            reason: format!(
+                "generator params are {} bytes, limit {MAX_GENERATOR_PARAMS_BYTES}",
+                m.generator_params.len()
+            ),
+        });
+    }
+    Ok(())
+}
+
+fn compare_meta(stored: &WorldMeta, given: &WorldMeta) -> Result<(), StoreError> {
+    let mismatch = |field, stored: String, given: String| StoreError::MetaMismatch {
+        field,
+        stored,
+        given,
+    };
+    if stored.seed != given.seed {
+        return Err(mismatch("seed", stored.seed.to_string(), given.seed.to_string()));
+    }
+    if stored.generator_version != given.generator_version {
+        return Err(mismatch(
+            "generator_version",
+            stored.generator_version.to_string(),
+            given.generator_version.to_string(),
+        ));
+    }
+    if stored.generator_params != given.generator_params {
+        return Err(mismatch(
+            "generator_params",
+            format!("{:?}", stored.generator_params),
+            format!("{:?}", given.generator_params),
+        ));
+    }
+    Ok(())
+}
+
+/// A batch chunk ready to write.
+struct EncodedChunk {
+    key: [u8; 12],
+    pos: ChunkPos,
+    /// The lowest version the batch gives it: the stored one must be below.
+    lowest: u64,
+    value: Vec<u8>,
+}
+
+fn abort(e: StoreError) -> ConflictableTransactionError<StoreError> {
+    ConflictableTransactionError::Abort(e)
+}
+
+impl ChunkStore for SledStore {
+    fn load_meta(&self) -> Result<Option<WorldMeta>, StoreError> {
+        let Some(world) = self.meta.get(META_WORLD)? else {
+            return Ok(None);
+        };
+        let last_seq = self.last_seq()?;
+        decode_meta(&world, last_seq).map(Some)
+    }
+
+    fn init_meta(&self, meta: &WorldMeta) -> Result<WorldMeta, StoreError> {
+        check_new_meta(meta)?;
+        if let Some(stored) = self.load_meta()? {
+            compare_meta(&stored, meta)?;
+            return Ok(stored);
+        }
+        let record = encode_meta(meta)?;
+        // Both keys in one batch: a crash leaves both or neither.
+        let mut b = sled::Batch::default();
+        b.insert(META_WORLD, record);
+        b.insert(META_LAST_SEQ, &0u64.to_be_bytes()[..]);
+        self.meta.apply_batch(b)?;
+        self.flush()?;
+        Ok(meta.clone())
+    }
+
+    fn last_seq(&self) -> Result<u64, StoreError> {
+        match self.meta.get(META_LAST_SEQ)? {
+            Some(v) => decode_last_seq(&v),
+            None => Ok(0),
+        }
+    }
+
+    fn load_chunk(&self, pos: ChunkPos) -> Result<Option<StoredChunk>, StoreError> {
+        let Some(v) = self.chunks.get(chunk_key(pos))? else {
+            return Ok(None);
+        };
+        let (version, chunk) = decode_chunk_value(pos, &v)?;
+        Ok(Some(StoredChunk { chunk, version }))
+    }
+
+    fn commit_batch(&self, b: &CommitBatch) -> Result<CommitStats, StoreError> {
+        let lowest = batch::validate(b)?;
+        let Some(first_seq) = b.entries.first().map(|e| e.seq) else {
+            return Ok(CommitStats::default());
+        };
+        let started = Instant::now();
+        // Encode outside the transaction: its closure may run again on conflict.
+        let mut logs = Vec::with_capacity(b.entries.len());
+        for e in &b.entries {
+            let bytes = encode_log_entry(e)?;
+            if bytes.len() > MAX_LOG_RECORD_BYTES {
+                return Err(StoreError::Encode {
+                    what: "log entry",
+                    reason: format!(
+                        "seq {} is {} bytes, limit {MAX_LOG_RECORD_BYTES}",
+                        e.seq,
+                        bytes.len()
+                    ),
+                });
+            }
+            logs.push((seq_key(e.seq), bytes));
+        }
+        let chunks: Vec<EncodedChunk> = b
+            .chunks
+            .iter()
+            .map(|(pos, version, chunk)| EncodedChunk {
+                key: chunk_key(*pos),
+                pos: *pos,
+                lowest: lowest.get(pos).copied().unwrap_or(*version),
+                value: encode_chunk_value(*version, chunk),
+            })
+            .collect();
+        let bytes_written = logs.iter().map(|(_, v)| v.len() as u64).sum::<u64>()
+            + chunks.iter().map(|c| c.value.len() as u64).sum::<u64>();
+
+        let result = (&self.meta, &self.chunks, &self.log).transaction(|(meta, tchunks, log)| {
+            if meta.get(META_WORLD)?.is_none() {
+                return Err(abort(StoreError::NoMeta));
+            }
+            let last = match meta.get(META_LAST_SEQ)? {
+                Some(v) => decode_last_seq(&v).map_err(abort)?,
+                None => 0,
+            };
+            if Some(first_seq) != last.checked_add(1) {
+                return Err(abort(StoreError::batch(format!(
+                    "first seq {first_seq} does not follow the stored last_seq {last}"
+                ))));
+            }
+            for c in &chunks {
+                if let Some(old) = tchunks.insert(&c.key[..], c.value.as_slice())? {
+                    let (old_version, _) = split_chunk_value(c.pos, &old).map_err(abort)?;
+                    if old_version >= c.lowest {
+                        return Err(abort(StoreError::batch(format!(
+                            "{} is stored at version {old_version}, the batch moves it to {}",
+                            show_pos(c.pos),
+                            c.lowest
+                        ))));
+                    }
+                }
+            }
+            for (key, value) in &logs {
+                if log.insert(&key[..], value.as_slice())?.is_some() {
+                    return Err(abort(StoreError::corrupt(
+                        "log record beyond last_seq",
+                        show_raw(key),
+                    )));
+                }
+            }
+            meta.insert(META_LAST_SEQ, &b.last_seq.to_be_bytes()[..])?;
+            Ok(())
+        });
+        result.map_err(|e| match e {
+            TransactionError::Abort(e) => e,
+            TransactionError::Storage(e) => StoreError::Sled(e),
+        })?;
+        let apply = started.elapsed();
+        let flushing = Instant::now();
+        self.flush()?;
+        Ok(CommitStats {
+            bytes_written,
+            apply,
+            flush: flushing.elapsed(),
+        })
+    }
+
+    fn log_entry(&self, seq: u64) -> Result<Option<LogEntry>, StoreError> {
+        match self.log.get(seq_key(seq))? {
+            Some(v) => decode_log_entry(seq, &v).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    fn edit_log(&self, seqs: RangeInclusive<u64>) -> StoreIter<'_, LogEntry> {
+        if seqs.is_empty() {
+            return Box::new(std::iter::empty());
+        }
+        let range = seq_key(*seqs.start())..=seq_key(*seqs.end());
+        Box::new(self.log.range(range).map(|r| {
+            let (k, v) = r?;
+            let seq = seq_from_key(&k)
+                .ok_or_else(|| StoreError::corrupt("log key", show_raw(&k)))?;
+            decode_log_entry(seq, &v)
+        }))
+    }
+
+    fn modified_chunks(&self) -> StoreIter<'_, (ChunkPos, u64)> {
+        Box::new(self.raw_chunks().map(|r| r.map(|c| (c.pos, c.version))))
+    }
+
+    fn raw_chunks(&self) -> StoreIter<'_, RawChunk> {
+        Box::new(self.chunks.iter().map(|r| {
+            let (k, v) = r?;
+            let pos = chunk_pos_from_key(&k)
+                .ok_or_else(|| StoreError::corrupt("chunk key", show_raw(&k)))?;
+            let (version, body) = split_chunk_value(pos, &v)?;
+            Ok(RawChunk {
+                pos,
+                version,
+                encoded: body.to_vec(),
+            })
+        }))
+    }
+
+    fn chunk_count(&self) -> Result<u64, StoreError> {
+        Ok(self.chunks.len() as u64)
+    }
+
+    fn size_on_disk(&self) -> Result<u64, StoreError> {
+        Ok(self.db.size_on_disk()?)
+    }
+
+    fn get_blob(&self, name: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        check_blob_name(name)?;
+        Ok(self.blobs.get(name.as_bytes())?.map(|v| v.to_vec()))
+    }
+
+    fn put_blob(&self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        check_blob_name(name)?;
+        if bytes.len() > MAX_BLOB_BYTES {
+            return Err(StoreError::InvalidBlob {
+                reason: format!("{name:?} is {} bytes, limit {MAX_BLOB_BYTES}", bytes.len()),
+            });
+        }
+        self.blobs.insert(name.as_bytes(), bytes)?;
+        self.flush()
+    }
+
+    fn delete_blob(&self, name: &str) -> Result<bool, StoreError> {
+        check_blob_name(name)?;
+        let existed = self.blobs.remove(name.as_bytes())?.is_some();
+        self.flush()?;
+        Ok(existed)
+    }
+
+    fn check(&self) -> Result<CheckReport, StoreError> {
+        let mut checker = Checker::new();
+        let world = self.meta.get(META_WORLD)?;
+        let last_seq = match self.meta.get(META_LAST_SEQ)? {
+            Some(v) => match decode_last_seq(&v) {
+                Ok(s) => s,
+                Err(e) => {
+                    checker.meta_issue(e.to_string());
+                    0
+                }
+            },
+            None => 0,
+        };
+        if let Some(w) = &world {
+            if let Err(e) = decode_meta(w, last_seq) {
+                checker.meta_issue(e.to_string());
+            }
+        }
+        for r in self.log.iter() {
+            let (k, v) = r?;
+            checker.log_record(&k, &v);
+        }
+        for r in self.chunks.iter() {
+            let (k, v) = r?;
+            checker.chunk_record(&k, &v);
+        }
+        Ok(checker.finish(world.map(|_| last_seq)))
+    }
+}

@@ -1,0 +1,93 @@
+//! Records the store keeps: world metadata, chunks, the edit log and batches.
+
+use serde::{Deserialize, Serialize};
+use std::time::Duration;
+use strata_terrain::{Chunk, ChunkPos, Edit};
+
+/// Layout version of the store written by this build; bumped on any change
+/// to [`crate::store::keys`] or to a record's encoding.
+pub const STORE_FORMAT_VERSION: u32 = 1;
+
+/// What a world was generated from, plus how far its edit log goes.
+///
+/// A world must never be reopened with a different seed, generator version
+/// or generator parameters: unmodified chunks are regenerated on load, so
+/// the world would silently change under the stored edits.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct WorldMeta {
+    /// [`STORE_FORMAT_VERSION`] of the build that created the store.
+    pub format_version: u32,
+    pub seed: u64,
+    pub generator_version: u32,
+    /// The generator parameters as TOML text, compared byte for byte.
+    pub generator_params: String,
+    /// Seq of the last committed edit; 0 before the first one.
+    pub last_seq: u64,
+}
+
+impl WorldMeta {
+    /// Metadata for a new world at the current store format, no edits yet.
+    pub fn new(seed: u64, generator_version: u32, generator_params: impl Into<String>) -> Self {
+        Self {
+            format_version: STORE_FORMAT_VERSION,
+            seed,
+            generator_version,
+            generator_params: generator_params.into(),
+            last_seq: 0,
+        }
+    }
+}
+
+/// A modified chunk and its version (the count of edits that changed it).
+/// A chunk the store does not hold was never modified: it is the
+/// generator's output at version 0.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StoredChunk {
+    pub chunk: Chunk,
+    pub version: u64,
+}
+
+/// A stored chunk without decoding: what a snapshot streams.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RawChunk {
+    pub pos: ChunkPos,
+    pub version: u64,
+    /// [`strata_terrain::chunk_codec::encode_chunk`] bytes.
+    pub encoded: Vec<u8>,
+}
+
+/// One accepted edit, as the sequencer ordered it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LogEntry {
+    pub seq: u64,
+    pub player: String,
+    /// Server wall-clock time of acceptance, ms since the Unix epoch.
+    pub time_ms: u64,
+    pub edit: Edit,
+    /// Each chunk the edit changed and the version it moved that chunk to.
+    pub changes: Vec<(ChunkPos, u64)>,
+}
+
+/// Everything one sequencer tick commits, written atomically and made
+/// durable together (group commit).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct CommitBatch {
+    /// Consecutive seqs, the first one just after the store's `last_seq`.
+    pub entries: Vec<LogEntry>,
+    /// The final state of every chunk the entries changed, once each, at
+    /// the highest version the entries gave it.
+    pub chunks: Vec<(ChunkPos, u64, Chunk)>,
+    /// The seq of the last entry.
+    pub last_seq: u64,
+}
+
+/// What one commit cost, for metrics.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct CommitStats {
+    /// Encoded bytes written (chunk values plus log records).
+    pub bytes_written: u64,
+    /// Time to encode the batch and apply the transaction in memory.
+    pub apply: Duration,
+    /// Time `flush` took to make it durable (the fsyncs).
+    pub flush: Duration,
+}

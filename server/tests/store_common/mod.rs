@@ -1,0 +1,89 @@
+//! Helpers shared by the store tests: realistic chunks and a tiny stand-in
+//! for the sequencer that numbers edits and versions chunks.
+#![allow(dead_code)]
+
+use std::collections::BTreeMap;
+
+use strata_server::store::{CommitBatch, LogEntry};
+use strata_terrain::chunk::DenseChunk;
+use strata_terrain::material::ids;
+use strata_terrain::{Chunk, ChunkPos, Edit, Fixed, FixedVec3, Voxel, CHUNK_SIZE};
+
+/// A dense chunk with a rolling surface: grass over dirt over stone, a
+/// density ramp at the surface, varied by `salt` so chunks differ.
+pub fn terrain_chunk(salt: u32) -> Chunk {
+    let mut d = DenseChunk::filled(Voxel::AIR);
+    let n = CHUNK_SIZE as usize;
+    for z in 0..n {
+        for x in 0..n {
+            let h = 12 + ((x as u32 * 7 + z as u32 * 3 + salt * 5) % 9) as usize;
+            for y in 0..n {
+                let i = x | (y << 5) | (z << 10);
+                let density = if y + 1 < h {
+                    255
+                } else if y < h + 1 {
+                    (128 + salt % 100) as u8
+                } else {
+                    0
+                };
+                let material = match h.saturating_sub(y) {
+                    0 => ids::AIR,
+                    1 => ids::GRASS,
+                    2..=4 => ids::DIRT,
+                    _ => ids::STONE,
+                };
+                d.set(i, Voxel::new(density, if density == 0 { ids::AIR } else { material }));
+            }
+        }
+    }
+    Chunk::Dense(d)
+}
+
+pub fn mine_at(x: i32, y: i32, z: i32) -> Edit {
+    Edit::Mine {
+        center: FixedVec3::from_voxels(x, y, z),
+        radius: Fixed::from_voxels(3),
+        strength: 200,
+    }
+}
+
+/// Numbers edits and versions chunks the way the sequencer does.
+#[derive(Debug, Default)]
+pub struct Seq {
+    pub last_seq: u64,
+    pub versions: BTreeMap<ChunkPos, u64>,
+}
+
+impl Seq {
+    /// A batch of edits; edit `i` changes the chunks in `edits[i]` to the
+    /// given states. The batch holds each chunk's last state.
+    pub fn batch(&mut self, edits: &[Vec<(ChunkPos, Chunk)>]) -> CommitBatch {
+        let mut latest: BTreeMap<ChunkPos, (u64, Chunk)> = BTreeMap::new();
+        let mut entries = Vec::new();
+        for changes in edits {
+            self.last_seq += 1;
+            let mut logged = Vec::new();
+            for (pos, chunk) in changes {
+                let v = self.versions.entry(*pos).or_insert(0);
+                *v += 1;
+                logged.push((*pos, *v));
+                latest.insert(*pos, (*v, chunk.clone()));
+            }
+            // Aim the edit at the first chunk (clamped: any centre will do).
+            let p = changes.first().map_or(ChunkPos::new(0, 0, 0), |c| c.0);
+            let at = |v: i32| v.clamp(-1000, 1000) * 32 + 5;
+            entries.push(LogEntry {
+                seq: self.last_seq,
+                player: format!("player-{}", self.last_seq % 3),
+                time_ms: 1_700_000_000_000 + self.last_seq,
+                edit: mine_at(at(p.x), at(p.y), at(p.z)),
+                changes: logged,
+            });
+        }
+        CommitBatch {
+            entries,
+            chunks: latest.into_iter().map(|(p, (v, c))| (p, v, c)).collect(),
+            last_seq: self.last_seq,
+        }
+    }
+}

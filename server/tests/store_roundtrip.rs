@@ -1,0 +1,192 @@
+//! Round trips through a real sled store in a tempdir.
+
+mod store_common;
+
+use store_common::{terrain_chunk, Seq};
+use strata_server::store::keys::{chunk_key, chunk_pos_from_key};
+use strata_server::store::{ChunkStore, SledStore, StoreError, WorldMeta, STORE_FORMAT_VERSION};
+use strata_terrain::chunk_codec::decode_chunk;
+use strata_terrain::material::ids;
+use strata_terrain::{Chunk, ChunkPos, Voxel};
+
+const PARAMS: &str = "[terrain]\nsea_level = 0\n";
+
+fn new_store() -> (tempfile::TempDir, SledStore) {
+    let dir = tempfile::tempdir().unwrap();
+    let store = SledStore::open(dir.path()).unwrap();
+    store.init_meta(&WorldMeta::new(42, 3, PARAMS)).unwrap();
+    (dir, store)
+}
+
+#[test]
+fn meta_round_trips_and_is_idempotent() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = SledStore::open(dir.path()).unwrap();
+    assert_eq!(store.load_meta().unwrap(), None);
+    let meta = WorldMeta::new(0xDEAD_BEEF_F00D_u64, 7, PARAMS);
+    assert_eq!(store.init_meta(&meta).unwrap(), meta);
+    assert_eq!(store.load_meta().unwrap(), Some(meta.clone()));
+    // Same inputs again: accepted, unchanged.
+    assert_eq!(store.init_meta(&meta).unwrap(), meta);
+    drop(store);
+    let store = SledStore::open(dir.path()).unwrap();
+    let loaded = store.load_meta().unwrap().unwrap();
+    assert_eq!(loaded, meta);
+    assert_eq!(loaded.format_version, STORE_FORMAT_VERSION);
+}
+
+#[test]
+fn init_meta_refuses_different_generation_inputs() {
+    let (_dir, store) = new_store();
+    let err = store.init_meta(&WorldMeta::new(43, 3, PARAMS)).unwrap_err();
+    assert!(
+        matches!(&err, StoreError::MetaMismatch { field: "seed", stored, given } if stored == "42" && given == "43"),
+        "{err}"
+    );
+    let err = store.init_meta(&WorldMeta::new(42, 4, PARAMS)).unwrap_err();
+    assert!(matches!(err, StoreError::MetaMismatch { field: "generator_version", .. }));
+    let err = store.init_meta(&WorldMeta::new(42, 3, "other")).unwrap_err();
+    assert!(matches!(err, StoreError::MetaMismatch { field: "generator_params", .. }));
+    let mut bad = WorldMeta::new(42, 3, PARAMS);
+    bad.last_seq = 5;
+    assert!(matches!(store.init_meta(&bad), Err(StoreError::InvalidMeta { .. })));
+    bad = WorldMeta::new(42, 3, PARAMS);
+    bad.format_version = 99;
+    assert!(matches!(store.init_meta(&bad), Err(StoreError::UnsupportedFormat { found: 99, .. })));
+    assert_eq!(store.load_meta().unwrap().unwrap().seed, 42);
+}
+
+#[test]
+fn chunks_round_trip_uniform_and_dense() {
+    let (_dir, store) = new_store();
+    let mut seq = Seq::default();
+    let rock = Chunk::uniform(Voxel::solid(ids::STONE));
+    let dense = terrain_chunk(1);
+    let a = ChunkPos::new(-1, 0, 7);
+    let b = ChunkPos::new(3, -2, -9);
+    assert!(store.load_chunk(a).unwrap().is_none());
+    let stats = store
+        .commit_batch(&seq.batch(&[vec![(a, rock.clone()), (b, dense.clone())]]))
+        .unwrap();
+    assert!(stats.bytes_written > 0);
+    let got_a = store.load_chunk(a).unwrap().unwrap();
+    assert_eq!((got_a.chunk, got_a.version), (rock.clone(), 1));
+    let got_b = store.load_chunk(b).unwrap().unwrap();
+    assert_eq!((got_b.chunk, got_b.version), (dense.clone(), 1));
+    // The raw stream carries the codec bytes: tiny for uniform, decodable for dense.
+    let raw: Vec<_> = store.raw_chunks().collect::<Result<_, _>>().unwrap();
+    assert_eq!(raw.len(), 2);
+    let raw_a = raw.iter().find(|r| r.pos == a).unwrap();
+    assert_eq!(raw_a.encoded.len(), 3);
+    let raw_b = raw.iter().find(|r| r.pos == b).unwrap();
+    assert!(raw_b.encoded.len() < 16 * 1024, "dense chunk {} bytes", raw_b.encoded.len());
+    assert_eq!(decode_chunk(&raw_b.encoded).unwrap(), dense);
+    assert_eq!(store.chunk_count().unwrap(), 2);
+    assert!(store.size_on_disk().unwrap() > 0);
+}
+
+#[test]
+fn batches_and_log_ranges_round_trip_across_reopen() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut seq = Seq::default();
+    let p = |i: i32| ChunkPos::new(i, -i, i * 2);
+    let mut batches = Vec::new();
+    {
+        let store = SledStore::open(dir.path()).unwrap();
+        store.init_meta(&WorldMeta::new(1, 1, PARAMS)).unwrap();
+        for round in 0..4u32 {
+            // Three edits per tick; edits 0 and 2 touch the same chunk.
+            let b = seq.batch(&[
+                vec![(p(0), terrain_chunk(round * 3))],
+                vec![(p(1), terrain_chunk(round * 3 + 1)), (p(2), Chunk::default())],
+                vec![(p(0), terrain_chunk(round * 3 + 2))],
+            ]);
+            store.commit_batch(&b).unwrap();
+            batches.push(b);
+        }
+        assert_eq!(store.last_seq().unwrap(), 12);
+    }
+    let store = SledStore::open(dir.path()).unwrap();
+    assert_eq!(store.load_meta().unwrap().unwrap().last_seq, 12);
+    let all: Vec<_> = batches.iter().flat_map(|b| b.entries.clone()).collect();
+    let log: Vec<_> = store.edit_log(1..=12).collect::<Result<_, _>>().unwrap();
+    assert_eq!(log, all);
+    let mid: Vec<_> = store.edit_log(5..=7).collect::<Result<_, _>>().unwrap();
+    assert_eq!(mid, all[4..7].to_vec());
+    assert_eq!(store.edit_log(11..=100).count(), 2);
+    #[allow(clippy::reversed_empty_ranges)]
+    let empty = store.edit_log(9..=3).count();
+    assert_eq!(empty, 0);
+    assert_eq!(store.log_entry(4).unwrap().as_ref(), Some(&all[3]));
+    assert_eq!(store.log_entry(13).unwrap(), None);
+    // p(0) changed twice per tick: version 8, holding the last state.
+    let c0 = store.load_chunk(p(0)).unwrap().unwrap();
+    assert_eq!((c0.version, c0.chunk), (8, terrain_chunk(11)));
+    let versions: Vec<_> = store.modified_chunks().collect::<Result<_, _>>().unwrap();
+    let mut expected = vec![(p(0), 8), (p(1), 4), (p(2), 4)];
+    expected.sort();
+    assert_eq!(versions, expected);
+    assert!(store.check().unwrap().is_ok(), "{:?}", store.check().unwrap());
+}
+
+#[test]
+fn key_order_matches_chunk_pos_order_including_negatives() {
+    let (_dir, store) = new_store();
+    let vals = [i32::MIN, -70_000, -33, -1, 0, 1, 32, 70_000, i32::MAX];
+    let mut positions = Vec::new();
+    for (i, &x) in vals.iter().enumerate() {
+        let y = vals[(i * 4) % vals.len()];
+        let z = vals[(i * 7 + 3) % vals.len()];
+        positions.push(ChunkPos::new(x, y, z));
+        positions.push(ChunkPos::new(-7, y, z));
+        positions.push(ChunkPos::new(x, -7, z));
+    }
+    positions.sort();
+    positions.dedup();
+    for w in positions.windows(2) {
+        assert!(chunk_key(w[0]) < chunk_key(w[1]), "{:?} {:?}", w[0], w[1]);
+    }
+    // Commit in a scrambled order; the store iterates in ChunkPos order.
+    let mut seq = Seq::default();
+    let mut scrambled = positions.clone();
+    scrambled.reverse();
+    scrambled.rotate_left(5);
+    let edits: Vec<_> = scrambled
+        .iter()
+        .map(|p| vec![(*p, Chunk::uniform(Voxel::solid(ids::DIRT)))])
+        .collect();
+    store.commit_batch(&seq.batch(&edits)).unwrap();
+    let stored: Vec<_> = store
+        .modified_chunks()
+        .map(|r| r.unwrap().0)
+        .collect();
+    assert_eq!(stored, positions);
+    for p in &positions {
+        assert_eq!(chunk_pos_from_key(&chunk_key(*p)), Some(*p));
+    }
+}
+
+#[test]
+fn blobs_round_trip_and_enforce_limits() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let store = SledStore::open(dir.path()).unwrap();
+        assert_eq!(store.get_blob("zones").unwrap(), None);
+        store.put_blob("zones", b"[[zone]]\nname = \"spawn\"").unwrap();
+        store.put_blob("other", &[0, 1, 2]).unwrap();
+        assert!(store.delete_blob("other").unwrap());
+        assert!(!store.delete_blob("other").unwrap());
+        assert!(matches!(store.put_blob("", b"x"), Err(StoreError::InvalidBlob { .. })));
+        let long = "n".repeat(strata_server::store::MAX_BLOB_NAME_BYTES + 1);
+        assert!(matches!(store.get_blob(&long), Err(StoreError::InvalidBlob { .. })));
+        let big = vec![0u8; strata_server::store::MAX_BLOB_BYTES + 1];
+        assert!(matches!(store.put_blob("big", &big), Err(StoreError::InvalidBlob { .. })));
+        assert_eq!(store.get_blob("big").unwrap(), None);
+    }
+    let store = SledStore::open(dir.path()).unwrap();
+    assert_eq!(
+        store.get_blob("zones").unwrap().as_deref(),
+        Some(&b"[[zone]]\nname = \"spawn\""[..])
+    );
+    assert_eq!(store.get_blob("other").unwrap(), None);
+}
