@@ -299,7 +299,12 @@ impl ServerConfig {
     /// Checks every value's range; the error names the first bad field.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let s = &self.server;
-        range("server.max_connections", s.max_connections, 1, MAX_CONNECTIONS_CAP)?;
+        range(
+            "server.max_connections",
+            s.max_connections,
+            1,
+            MAX_CONNECTIONS_CAP,
+        )?;
         if s.data_dir.as_os_str().is_empty() {
             return Err(invalid("server.data_dir", "must not be empty"));
         }
@@ -342,8 +347,18 @@ impl ServerConfig {
                 ),
             )
         })?;
-        range("net.send_window", n.send_window, MIN_SEND_WINDOW, MAX_SEND_WINDOW)?;
-        range("net.max_uni_streams", n.max_uni_streams, 0, MAX_UNI_STREAMS_CAP)?;
+        range(
+            "net.send_window",
+            n.send_window,
+            MIN_SEND_WINDOW,
+            MAX_SEND_WINDOW,
+        )?;
+        range(
+            "net.max_uni_streams",
+            n.max_uni_streams,
+            0,
+            MAX_UNI_STREAMS_CAP,
+        )?;
         range(
             "net.idle_timeout_ms",
             n.idle_timeout_ms,
@@ -428,10 +443,7 @@ fn range<T: PartialOrd + std::fmt::Display>(
     max: T,
 ) -> Result<(), ConfigError> {
     if value < min || value > max {
-        return Err(invalid(
-            field,
-            format!("{value} is outside {min}..={max}"),
-        ));
+        return Err(invalid(field, format!("{value} is outside {min}..={max}")));
     }
     Ok(())
 }

@@ -272,7 +272,8 @@ pub(crate) fn read_private_file(path: &Path) -> io::Result<Vec<u8>> {
 pub(crate) fn read_capped_file(path: &Path) -> io::Result<Vec<u8>> {
     let file = fs::File::open(path)?;
     let mut bytes = Vec::new();
-    file.take(MAX_PRIVATE_FILE_LEN + 1).read_to_end(&mut bytes)?;
+    file.take(MAX_PRIVATE_FILE_LEN + 1)
+        .read_to_end(&mut bytes)?;
     if bytes.len() as u64 > MAX_PRIVATE_FILE_LEN {
         return Err(io::Error::new(
             io::ErrorKind::InvalidData,

@@ -84,7 +84,10 @@ fn durations_format_and_round_trip() {
         assert_eq!(parse_duration(text), Ok(d));
         assert_eq!(HumanDuration(d).to_string(), text);
     }
-    assert_eq!(parse_duration(&format_duration(MAX_DURATION)), Ok(MAX_DURATION));
+    assert_eq!(
+        parse_duration(&format_duration(MAX_DURATION)),
+        Ok(MAX_DURATION)
+    );
 }
 
 #[test]

@@ -108,19 +108,28 @@ fn forged_payload_is_a_bad_signature() {
     let mut payload = URL_SAFE_NO_PAD.decode(parts[1]).unwrap();
     payload[0] = 1;
     let forged = format!("v1.{}.{}", URL_SAFE_NO_PAD.encode(&payload), parts[2]);
-    assert_eq!(verify(&secret(), &forged, NOW), Err(AuthError::BadSignature));
+    assert_eq!(
+        verify(&secret(), &forged, NOW),
+        Err(AuthError::BadSignature)
+    );
 
     // Extend the expiry.
     let mut payload = URL_SAFE_NO_PAD.decode(parts[1]).unwrap();
     payload[9..17].copy_from_slice(&u64::MAX.to_be_bytes());
     let forged = format!("v1.{}.{}", URL_SAFE_NO_PAD.encode(&payload), parts[2]);
-    assert_eq!(verify(&secret(), &forged, NOW), Err(AuthError::BadSignature));
+    assert_eq!(
+        verify(&secret(), &forged, NOW),
+        Err(AuthError::BadSignature)
+    );
 
     // Alter the tag itself (same length, different bytes).
     let mut tag = URL_SAFE_NO_PAD.decode(parts[2]).unwrap();
     tag[0] ^= 1;
     let forged = format!("v1.{}.{}", parts[1], URL_SAFE_NO_PAD.encode(&tag));
-    assert_eq!(verify(&secret(), &forged, NOW), Err(AuthError::BadSignature));
+    assert_eq!(
+        verify(&secret(), &forged, NOW),
+        Err(AuthError::BadSignature)
+    );
 }
 
 #[test]

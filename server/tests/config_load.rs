@@ -59,16 +59,17 @@ fn deploy_example_mentions_every_option() {
     // Serializing the defaults lists every key; each must appear in the
     // example, so a new option cannot be added without documenting it.
     let text = std::fs::read_to_string(deploy_example()).unwrap();
-    let defaults: toml::Table = toml::from_str(
-        &ServerConfig::default().to_toml_string().unwrap(),
-    )
-    .unwrap();
+    let defaults: toml::Table =
+        toml::from_str(&ServerConfig::default().to_toml_string().unwrap()).unwrap();
     let example: toml::Table = toml::from_str(&text).unwrap();
     for (section, table) in &defaults {
         let Some(table) = table.as_table() else {
             panic!("top-level key {section} is not a section");
         };
-        assert!(text.contains(&format!("[{section}]")), "[{section}] missing");
+        assert!(
+            text.contains(&format!("[{section}]")),
+            "[{section}] missing"
+        );
         for key in table.keys() {
             assert!(
                 example[section].as_table().unwrap().contains_key(key),
@@ -118,11 +119,17 @@ fn unknown_sections_are_kept_but_unknown_keys_are_errors() {
 fn bad_values_name_their_field() {
     let cases = [
         ("[server]\nmax_connections = 0", "server.max_connections"),
-        ("[server]\nmax_connections = 70000", "server.max_connections"),
+        (
+            "[server]\nmax_connections = 70000",
+            "server.max_connections",
+        ),
         ("[server]\ndata_dir = \"\"", "server.data_dir"),
         ("[tls]\nextra_names = [\"bad name!\"]", "tls.extra_names"),
         ("[tls]\nextra_names = [\"\"]", "tls.extra_names"),
-        ("[net]\nstream_receive_window = 0", "net.stream_receive_window"),
+        (
+            "[net]\nstream_receive_window = 0",
+            "net.stream_receive_window",
+        ),
         (
             "[net]\nstream_receive_window = 1000",
             "net.stream_receive_window",
@@ -145,15 +152,24 @@ fn bad_values_name_their_field() {
             "[net]\ndatagram_receive_buffer = 100",
             "net.datagram_receive_buffer",
         ),
-        ("[net]\ndatagram_send_buffer = 0", "net.datagram_send_buffer"),
+        (
+            "[net]\ndatagram_send_buffer = 0",
+            "net.datagram_send_buffer",
+        ),
         ("[net]\nwriter_queue = 0", "net.writer_queue"),
         (
             "[net]\nsend_budget_bytes_per_tick = 0",
             "net.send_budget_bytes_per_tick",
         ),
         ("[auth]\ntoken_max_ttl = \"400d\"", "auth.token_max_ttl"),
-        ("[world]\nview_radius_chunks = 0", "world.view_radius_chunks"),
-        ("[world]\nview_radius_chunks = 17", "world.view_radius_chunks"),
+        (
+            "[world]\nview_radius_chunks = 0",
+            "world.view_radius_chunks",
+        ),
+        (
+            "[world]\nview_radius_chunks = 17",
+            "world.view_radius_chunks",
+        ),
         ("[world]\nmin_y = -2000000", "world.min_y"),
         ("[world]\nmax_y = 2000000", "world.max_y"),
         ("[world]\nmin_y = 0\nmax_y = 63", "world.max_y"),

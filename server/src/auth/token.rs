@@ -53,7 +53,9 @@ pub enum AuthError {
     BadSignature,
     #[error("token expired at {expired_at} (unix seconds)")]
     Expired { expired_at: u64 },
-    #[error("token issued at {issued_at} (unix seconds), in the future beyond the allowed clock skew")]
+    #[error(
+        "token issued at {issued_at} (unix seconds), in the future beyond the allowed clock skew"
+    )]
     NotYetValid { issued_at: u64 },
     #[error("bad player name: {0}")]
     BadPlayerName(&'static str),
@@ -232,8 +234,7 @@ fn parse_payload(payload: &[u8]) -> Result<Claims, AuthError> {
     if expires_at <= issued_at {
         return Err(AuthError::Malformed("expires_at is not after issued_at"));
     }
-    let player =
-        std::str::from_utf8(name).map_err(|_| AuthError::BadPlayerName("not ASCII"))?;
+    let player = std::str::from_utf8(name).map_err(|_| AuthError::BadPlayerName("not ASCII"))?;
     validate_player_name(player)?;
     Ok(Claims {
         player: player.to_owned(),
