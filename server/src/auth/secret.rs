@@ -1,0 +1,115 @@
+//! The server's token-signing key and its on-disk form.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use ring::hmac;
+use ring::rand::{SecureRandom, SystemRandom};
+use thiserror::Error;
+
+use crate::datadir::{read_private_file, write_private_file};
+
+/// Bytes of key material.
+pub const SECRET_LEN: usize = 32;
+
+/// The 32-byte HMAC-SHA256 key that signs and verifies tokens.
+///
+/// On disk it is 64 lowercase hex characters and a newline, mode 0600, so an
+/// operator can inspect or back it up as text. `Debug` never prints it.
+pub struct Secret {
+    bytes: [u8; SECRET_LEN],
+    key: hmac::Key,
+}
+
+/// Why a secret could not be made, read or written.
+#[derive(Debug, Error)]
+pub enum SecretError {
+    #[error("cannot read auth secret {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("cannot write auth secret {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("auth secret {path} is invalid: {reason}")]
+    Invalid { path: PathBuf, reason: &'static str },
+    #[error("the system random number generator failed")]
+    Rng,
+}
+
+impl Secret {
+    /// Wraps known key bytes (tests, or keys from elsewhere).
+    pub fn from_bytes(bytes: [u8; SECRET_LEN]) -> Self {
+        let key = hmac::Key::new(hmac::HMAC_SHA256, &bytes);
+        Secret { bytes, key }
+    }
+
+    /// A fresh key from the OS random number generator.
+    pub fn generate() -> Result<Self, SecretError> {
+        let mut bytes = [0u8; SECRET_LEN];
+        SystemRandom::new()
+            .fill(&mut bytes)
+            .map_err(|_| SecretError::Rng)?;
+        Ok(Self::from_bytes(bytes))
+    }
+
+    /// Reads a key file written by [`Secret::save`]. Surrounding whitespace is
+    /// ignored so a hand-edited file with a trailing newline still loads.
+    pub fn load(path: &Path) -> Result<Self, SecretError> {
+        let raw = read_private_file(path).map_err(|source| SecretError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        let invalid = |reason| SecretError::Invalid {
+            path: path.to_owned(),
+            reason,
+        };
+        let text = std::str::from_utf8(&raw).map_err(|_| invalid("not text"))?;
+        let hex = text.trim();
+        if hex.len() != SECRET_LEN * 2 {
+            return Err(invalid("expected 64 hex characters"));
+        }
+        let mut bytes = [0u8; SECRET_LEN];
+        for (i, pair) in hex.as_bytes().chunks_exact(2).enumerate() {
+            let hi = hex_value(pair[0]).ok_or_else(|| invalid("not hexadecimal"))?;
+            let lo = hex_value(pair[1]).ok_or_else(|| invalid("not hexadecimal"))?;
+            bytes[i] = hi << 4 | lo;
+        }
+        Ok(Self::from_bytes(bytes))
+    }
+
+    /// Writes the key atomically with owner-only permissions (0600 on Unix).
+    pub fn save(&self, path: &Path) -> Result<(), SecretError> {
+        let mut text = String::with_capacity(SECRET_LEN * 2 + 1);
+        for b in self.bytes {
+            text.push_str(&format!("{b:02x}"));
+        }
+        text.push('\n');
+        write_private_file(path, text.as_bytes()).map_err(|source| SecretError::Write {
+            path: path.to_owned(),
+            source,
+        })
+    }
+
+    pub(crate) fn key(&self) -> &hmac::Key {
+        &self.key
+    }
+}
+
+impl fmt::Debug for Secret {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("Secret(..)")
+    }
+}
+
+fn hex_value(c: u8) -> Option<u8> {
+    match c {
+        b'0'..=b'9' => Some(c - b'0'),
+        b'a'..=b'f' => Some(c - b'a' + 10),
+        b'A'..=b'F' => Some(c - b'A' + 10),
+        _ => None,
+    }
+}

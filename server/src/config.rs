@@ -1,0 +1,449 @@
+//! Server configuration: a TOML file where every field is optional.
+//!
+//! With no file at all the defaults run a local server, so `strata-server`
+//! needs no arguments. `deploy/strata.toml` lists every option with its
+//! default. Unknown keys inside a known section are errors (typos); unknown
+//! top-level sections are kept in [`ServerConfig::unknown`] and logged, so
+//! newer configs still load. Values are range-checked by
+//! [`ServerConfig::validate`], whose errors name the offending field.
+
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use rustls::pki_types::ServerName;
+use serde::{Deserialize, Serialize};
+use strata_protocol::limits::{FRAME_HEADER, MAX_CLIENT_FRAME, MAX_DATAGRAM, MAX_SERVER_FRAME};
+use thiserror::Error;
+
+use crate::auth::{HumanDuration, MAX_TOKEN_TTL};
+
+/// Default QUIC listen address: loopback only, so a fresh server is private.
+pub const DEFAULT_LISTEN: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 4433);
+/// Default data directory, relative to the working directory.
+pub const DEFAULT_DATA_DIR: &str = "strata-data";
+/// Default and cap of simultaneous client connections.
+pub const DEFAULT_MAX_CONNECTIONS: u32 = 256;
+pub const MAX_CONNECTIONS_CAP: u32 = 65_536;
+
+/// Cap on `tls.extra_names`.
+pub const MAX_EXTRA_NAMES: usize = 32;
+/// GSO is on by default (quinn's default); some virtual NICs reject it.
+pub const DEFAULT_SEGMENTATION_OFFLOAD: bool = true;
+
+/// Per-stream receive window: deliberately low, a client only sends small
+/// control frames, and it bounds per-connection buffered input.
+pub const DEFAULT_STREAM_RECEIVE_WINDOW: u32 = 256 * 1024;
+/// Whole-connection receive window.
+pub const DEFAULT_CONNECTION_RECEIVE_WINDOW: u32 = 1024 * 1024;
+/// Smallest stream window: one maximal client frame must fit.
+pub const MIN_STREAM_RECEIVE_WINDOW: u32 = (MAX_CLIENT_FRAME + FRAME_HEADER) as u32;
+/// Cap on either receive window.
+pub const MAX_RECEIVE_WINDOW: u32 = 64 * 1024 * 1024;
+/// Unacknowledged bytes the server may have in flight per connection.
+pub const DEFAULT_SEND_WINDOW: u64 = 4 * 1024 * 1024;
+/// Smallest send window: one maximal server frame must fit.
+pub const MIN_SEND_WINDOW: u64 = (MAX_SERVER_FRAME + FRAME_HEADER) as u64;
+pub const MAX_SEND_WINDOW: u64 = 256 * 1024 * 1024;
+/// Client-initiated unidirectional streams allowed at once (the protocol
+/// uses none today; a few leave room without inviting abuse).
+pub const DEFAULT_MAX_UNI_STREAMS: u32 = 4;
+pub const MAX_UNI_STREAMS_CAP: u32 = 64;
+/// Client-initiated bidirectional streams: exactly the control stream.
+/// A protocol fact, hence not configurable.
+pub const CONTROL_BIDI_STREAMS: u32 = 1;
+pub const DEFAULT_IDLE_TIMEOUT_MS: u64 = 30_000;
+pub const MIN_IDLE_TIMEOUT_MS: u64 = 1_000;
+pub const MAX_IDLE_TIMEOUT_MS: u64 = 600_000;
+pub const DEFAULT_KEEP_ALIVE_MS: u64 = 5_000;
+pub const MIN_KEEP_ALIVE_MS: u64 = 100;
+/// Incoming datagram bytes buffered per connection before drops.
+pub const DEFAULT_DATAGRAM_RECEIVE_BUFFER: usize = 64 * 1024;
+/// Outgoing datagram bytes buffered per connection before the oldest drop.
+pub const DEFAULT_DATAGRAM_SEND_BUFFER: usize = 256 * 1024;
+pub const MAX_DATAGRAM_BUFFER: usize = 16 * 1024 * 1024;
+/// Frames queued per connection writer before the session is dropped as
+/// too slow.
+pub const DEFAULT_WRITER_QUEUE: usize = 256;
+pub const MAX_WRITER_QUEUE: usize = 65_536;
+/// Bytes of world data sent per connection per tick.
+pub const DEFAULT_SEND_BUDGET_BYTES_PER_TICK: usize = 256 * 1024;
+pub const MIN_SEND_BUDGET_BYTES_PER_TICK: usize = 1024;
+pub const MAX_SEND_BUDGET_BYTES_PER_TICK: usize = 64 * 1024 * 1024;
+
+/// Longest lifetime `strata-admin token issue` may grant by default.
+pub const DEFAULT_TOKEN_MAX_TTL: Duration = Duration::from_secs(30 * 24 * 3600);
+
+/// Default world seed ("STRATA" in ASCII; same as the generator's).
+pub const DEFAULT_WORLD_SEED: u64 = 0x5354_5241_5441;
+pub const DEFAULT_VIEW_RADIUS_CHUNKS: u8 = 8;
+pub const MAX_VIEW_RADIUS_CHUNKS: u8 = 16;
+/// Default world bottom and top, in voxels (same as the generator's).
+pub const DEFAULT_MIN_Y: i32 = -128;
+pub const DEFAULT_MAX_Y: i32 = 255;
+/// Cap on `|min_y|` and `|max_y|`.
+pub const WORLD_Y_LIMIT: i32 = 1 << 20;
+/// Smallest `max_y - min_y`.
+pub const MIN_WORLD_HEIGHT: i32 = 64;
+
+/// Why a configuration could not be loaded.
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("cannot parse config {path}: {source}")]
+    Parse {
+        path: PathBuf,
+        source: Box<toml::de::Error>,
+    },
+    #[error("config field `{field}` is invalid: {reason}")]
+    Invalid { field: &'static str, reason: String },
+}
+
+/// The whole server configuration.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ServerConfig {
+    pub server: ServerSection,
+    pub tls: TlsSection,
+    pub net: NetSection,
+    pub auth: AuthSection,
+    pub metrics: MetricsSection,
+    pub world: WorldSection,
+    /// Top-level sections this build does not know; logged, not fatal.
+    #[serde(flatten, skip_serializing)]
+    pub unknown: toml::Table,
+}
+
+/// `[server]`: where to listen and keep data.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ServerSection {
+    /// UDP address for QUIC.
+    pub listen: SocketAddr,
+    /// World database, certificate and auth secret live here.
+    pub data_dir: PathBuf,
+    /// Connections beyond this are refused.
+    pub max_connections: u32,
+}
+
+/// `[tls]`: the self-signed certificate and UDP offload.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TlsSection {
+    /// DNS names or IPs added to the certificate's subject alternative names
+    /// (localhost, 127.0.0.1 and ::1 are always present). Only used when the
+    /// certificate is generated: delete cert.der and key.der to regenerate.
+    pub extra_names: Vec<String>,
+    /// Generic segmentation offload for UDP sends; turn off if sends fail on
+    /// a virtual NIC.
+    pub enable_segmentation_offload: bool,
+}
+
+/// `[net]`: QUIC transport limits and per-connection send queues.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NetSection {
+    pub stream_receive_window: u32,
+    pub connection_receive_window: u32,
+    pub send_window: u64,
+    pub max_uni_streams: u32,
+    pub idle_timeout_ms: u64,
+    pub keep_alive_ms: u64,
+    pub datagram_receive_buffer: usize,
+    pub datagram_send_buffer: usize,
+    pub writer_queue: usize,
+    pub send_budget_bytes_per_tick: usize,
+}
+
+/// `[auth]`: token policy.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AuthSection {
+    /// Longest `--ttl` that `strata-admin token issue` accepts ("30d").
+    pub token_max_ttl: HumanDuration,
+}
+
+/// `[metrics]`: optional Prometheus endpoint.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MetricsSection {
+    /// TCP address for `/metrics`; absent means no endpoint.
+    pub listen: Option<SocketAddr>,
+}
+
+/// `[world]`: which world to serve and how much of it each player sees.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct WorldSection {
+    pub seed: u64,
+    /// Chebyshev radius, in chunks, of what each player receives.
+    pub view_radius_chunks: u8,
+    /// Lowest voxel layer (bedrock).
+    pub min_y: i32,
+    /// Highest voxel layer (air above).
+    pub max_y: i32,
+}
+
+impl Default for ServerSection {
+    fn default() -> Self {
+        ServerSection {
+            listen: DEFAULT_LISTEN,
+            data_dir: PathBuf::from(DEFAULT_DATA_DIR),
+            max_connections: DEFAULT_MAX_CONNECTIONS,
+        }
+    }
+}
+
+impl Default for TlsSection {
+    fn default() -> Self {
+        TlsSection {
+            extra_names: Vec::new(),
+            enable_segmentation_offload: DEFAULT_SEGMENTATION_OFFLOAD,
+        }
+    }
+}
+
+impl Default for NetSection {
+    fn default() -> Self {
+        NetSection {
+            stream_receive_window: DEFAULT_STREAM_RECEIVE_WINDOW,
+            connection_receive_window: DEFAULT_CONNECTION_RECEIVE_WINDOW,
+            send_window: DEFAULT_SEND_WINDOW,
+            max_uni_streams: DEFAULT_MAX_UNI_STREAMS,
+            idle_timeout_ms: DEFAULT_IDLE_TIMEOUT_MS,
+            keep_alive_ms: DEFAULT_KEEP_ALIVE_MS,
+            datagram_receive_buffer: DEFAULT_DATAGRAM_RECEIVE_BUFFER,
+            datagram_send_buffer: DEFAULT_DATAGRAM_SEND_BUFFER,
+            writer_queue: DEFAULT_WRITER_QUEUE,
+            send_budget_bytes_per_tick: DEFAULT_SEND_BUDGET_BYTES_PER_TICK,
+        }
+    }
+}
+
+impl NetSection {
+    pub fn idle_timeout(&self) -> Duration {
+        Duration::from_millis(self.idle_timeout_ms)
+    }
+    pub fn keep_alive(&self) -> Duration {
+        Duration::from_millis(self.keep_alive_ms)
+    }
+}
+
+impl Default for AuthSection {
+    fn default() -> Self {
+        AuthSection {
+            token_max_ttl: HumanDuration(DEFAULT_TOKEN_MAX_TTL),
+        }
+    }
+}
+
+impl Default for WorldSection {
+    fn default() -> Self {
+        WorldSection {
+            seed: DEFAULT_WORLD_SEED,
+            view_radius_chunks: DEFAULT_VIEW_RADIUS_CHUNKS,
+            min_y: DEFAULT_MIN_Y,
+            max_y: DEFAULT_MAX_Y,
+        }
+    }
+}
+
+impl ServerConfig {
+    /// Loads and validates `path`, or returns the defaults when `path` is
+    /// `None`. Unknown top-level sections are logged as warnings.
+    pub fn load(path: Option<&Path>) -> Result<ServerConfig, ConfigError> {
+        let Some(path) = path else {
+            return Ok(ServerConfig::default());
+        };
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        let config = ServerConfig::from_toml_str(&text).map_err(|e| match e {
+            ConfigError::Parse { source, .. } => ConfigError::Parse {
+                path: path.to_owned(),
+                source,
+            },
+            other => other,
+        })?;
+        for name in config.unknown.keys() {
+            tracing::warn!(config = %path.display(), section = %name, "ignoring unknown config section");
+        }
+        Ok(config)
+    }
+
+    /// Parses and validates TOML text (errors carry an empty path).
+    pub fn from_toml_str(text: &str) -> Result<ServerConfig, ConfigError> {
+        let config: ServerConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: PathBuf::new(),
+            source: Box::new(e),
+        })?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Command-line flags win over the file.
+    pub fn apply_overrides(&mut self, data_dir: Option<PathBuf>, listen: Option<SocketAddr>) {
+        if let Some(dir) = data_dir {
+            self.server.data_dir = dir;
+        }
+        if let Some(addr) = listen {
+            self.server.listen = addr;
+        }
+    }
+
+    /// Checks every value's range; the error names the first bad field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let s = &self.server;
+        range(
+            "server.max_connections",
+            s.max_connections,
+            1,
+            MAX_CONNECTIONS_CAP,
+        )?;
+        if s.data_dir.as_os_str().is_empty() {
+            return Err(invalid("server.data_dir", "must not be empty"));
+        }
+
+        let t = &self.tls;
+        if t.extra_names.len() > MAX_EXTRA_NAMES {
+            return Err(invalid(
+                "tls.extra_names",
+                format!("at most {MAX_EXTRA_NAMES} names"),
+            ));
+        }
+        for name in &t.extra_names {
+            if ServerName::try_from(name.as_str()).is_err() {
+                return Err(invalid(
+                    "tls.extra_names",
+                    format!("{name:?} is neither a DNS name nor an IP address"),
+                ));
+            }
+        }
+
+        let n = &self.net;
+        range(
+            "net.stream_receive_window",
+            n.stream_receive_window,
+            MIN_STREAM_RECEIVE_WINDOW,
+            MAX_RECEIVE_WINDOW,
+        )?;
+        range(
+            "net.connection_receive_window",
+            n.connection_receive_window,
+            n.stream_receive_window,
+            MAX_RECEIVE_WINDOW,
+        )
+        .map_err(|_| {
+            invalid(
+                "net.connection_receive_window",
+                format!(
+                    "must be between net.stream_receive_window ({}) and {MAX_RECEIVE_WINDOW}",
+                    n.stream_receive_window
+                ),
+            )
+        })?;
+        range(
+            "net.send_window",
+            n.send_window,
+            MIN_SEND_WINDOW,
+            MAX_SEND_WINDOW,
+        )?;
+        range(
+            "net.max_uni_streams",
+            n.max_uni_streams,
+            0,
+            MAX_UNI_STREAMS_CAP,
+        )?;
+        range(
+            "net.idle_timeout_ms",
+            n.idle_timeout_ms,
+            MIN_IDLE_TIMEOUT_MS,
+            MAX_IDLE_TIMEOUT_MS,
+        )?;
+        if n.keep_alive_ms < MIN_KEEP_ALIVE_MS || n.keep_alive_ms >= n.idle_timeout_ms {
+            return Err(invalid(
+                "net.keep_alive_ms",
+                format!(
+                    "must be at least {MIN_KEEP_ALIVE_MS} and below net.idle_timeout_ms ({})",
+                    n.idle_timeout_ms
+                ),
+            ));
+        }
+        range(
+            "net.datagram_receive_buffer",
+            n.datagram_receive_buffer,
+            MAX_DATAGRAM,
+            MAX_DATAGRAM_BUFFER,
+        )?;
+        range(
+            "net.datagram_send_buffer",
+            n.datagram_send_buffer,
+            MAX_DATAGRAM,
+            MAX_DATAGRAM_BUFFER,
+        )?;
+        range("net.writer_queue", n.writer_queue, 1, MAX_WRITER_QUEUE)?;
+        range(
+            "net.send_budget_bytes_per_tick",
+            n.send_budget_bytes_per_tick,
+            MIN_SEND_BUDGET_BYTES_PER_TICK,
+            MAX_SEND_BUDGET_BYTES_PER_TICK,
+        )?;
+
+        if self.auth.token_max_ttl.0 > MAX_TOKEN_TTL {
+            return Err(invalid(
+                "auth.token_max_ttl",
+                format!("must be at most {}", HumanDuration(MAX_TOKEN_TTL)),
+            ));
+        }
+
+        let w = &self.world;
+        range(
+            "world.view_radius_chunks",
+            w.view_radius_chunks,
+            1,
+            MAX_VIEW_RADIUS_CHUNKS,
+        )?;
+        range("world.min_y", w.min_y, -WORLD_Y_LIMIT, WORLD_Y_LIMIT)?;
+        range("world.max_y", w.max_y, -WORLD_Y_LIMIT, WORLD_Y_LIMIT)?;
+        if i64::from(w.max_y) - i64::from(w.min_y) < i64::from(MIN_WORLD_HEIGHT) {
+            return Err(invalid(
+                "world.max_y",
+                format!(
+                    "must be at least {MIN_WORLD_HEIGHT} above world.min_y ({})",
+                    w.min_y
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The effective configuration as TOML (e.g. for `--print-config`).
+    /// Fails only for values TOML cannot hold (a seed above `i64::MAX`).
+    pub fn to_toml_string(&self) -> Result<String, toml::ser::Error> {
+        toml::to_string(self)
+    }
+}
+
+fn invalid(field: &'static str, reason: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid {
+        field,
+        reason: reason.into(),
+    }
+}
+
+fn range<T: PartialOrd + std::fmt::Display>(
+    field: &'static str,
+    value: T,
+    min: T,
+    max: T,
+) -> Result<(), ConfigError> {
+    if value < min || value > max {
+        return Err(invalid(field, format!("{value} is outside {min}..={max}")));
+    }
+    Ok(())
+}

@@ -1,0 +1,219 @@
+//! Server config: defaults, the deploy example, overrides, and validation
+//! errors that name the offending field.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use strata_server::auth::HumanDuration;
+use strata_server::config::{ConfigError, ServerConfig, DEFAULT_LISTEN};
+
+fn deploy_example() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/strata.toml")
+}
+
+fn invalid_field(text: &str) -> &'static str {
+    match ServerConfig::from_toml_str(text) {
+        Err(ConfigError::Invalid { field, .. }) => field,
+        other => panic!("expected an Invalid error for {text:?}, got {other:?}"),
+    }
+}
+
+#[test]
+fn no_file_means_valid_defaults() {
+    let config = ServerConfig::load(None).unwrap();
+    assert_eq!(config, ServerConfig::default());
+    config.validate().unwrap();
+    assert_eq!(config.server.listen, DEFAULT_LISTEN);
+    assert_eq!(config.server.data_dir, PathBuf::from("strata-data"));
+    assert_eq!(config.metrics.listen, None);
+    assert_eq!(
+        config.auth.token_max_ttl,
+        HumanDuration(Duration::from_secs(30 * 86_400))
+    );
+}
+
+#[test]
+fn empty_and_partial_files_fill_in_defaults() {
+    assert_eq!(
+        ServerConfig::from_toml_str("").unwrap(),
+        ServerConfig::default()
+    );
+    let c = ServerConfig::from_toml_str("[world]\nview_radius_chunks = 4\n").unwrap();
+    let mut expected = ServerConfig::default();
+    expected.world.view_radius_chunks = 4;
+    assert_eq!(c, expected);
+}
+
+#[test]
+fn deploy_example_is_the_defaults_plus_metrics() {
+    let loaded = ServerConfig::load(Some(&deploy_example())).unwrap();
+    let mut expected = ServerConfig::default();
+    // The one deliberate change: the example enables the metrics endpoint.
+    expected.metrics.listen = Some("127.0.0.1:9464".parse().unwrap());
+    assert_eq!(loaded, expected);
+}
+
+#[test]
+fn deploy_example_mentions_every_option() {
+    // Serializing the defaults lists every key; each must appear in the
+    // example, so a new option cannot be added without documenting it.
+    let text = std::fs::read_to_string(deploy_example()).unwrap();
+    let defaults: toml::Table =
+        toml::from_str(&ServerConfig::default().to_toml_string().unwrap()).unwrap();
+    let example: toml::Table = toml::from_str(&text).unwrap();
+    for (section, table) in &defaults {
+        let Some(table) = table.as_table() else {
+            panic!("top-level key {section} is not a section");
+        };
+        assert!(
+            text.contains(&format!("[{section}]")),
+            "[{section}] missing"
+        );
+        for key in table.keys() {
+            assert!(
+                example[section].as_table().unwrap().contains_key(key),
+                "{section}.{key} missing from deploy/strata.toml"
+            );
+        }
+    }
+    assert!(text.contains("[metrics]") && example["metrics"].get("listen").is_some());
+}
+
+#[test]
+fn serialized_config_round_trips() {
+    let mut c = ServerConfig::default();
+    c.tls.extra_names = vec!["strata.example".into(), "10.1.2.3".into()];
+    c.metrics.listen = Some("127.0.0.1:9000".parse().unwrap());
+    c.auth.token_max_ttl = HumanDuration(Duration::from_secs(7200));
+    let text = c.to_toml_string().unwrap();
+    assert!(text.contains("token_max_ttl = \"2h\""), "{text}");
+    assert_eq!(ServerConfig::from_toml_str(&text).unwrap(), c);
+}
+
+#[test]
+fn overrides_win_over_the_file() {
+    let mut c = ServerConfig::from_toml_str(
+        "[server]\nlisten = \"0.0.0.0:5000\"\ndata_dir = \"/srv/strata\"\n",
+    )
+    .unwrap();
+    c.apply_overrides(None, None);
+    assert_eq!(c.server.data_dir, PathBuf::from("/srv/strata"));
+    let addr: SocketAddr = "127.0.0.1:6000".parse().unwrap();
+    c.apply_overrides(Some(PathBuf::from("/tmp/x")), Some(addr));
+    assert_eq!(c.server.data_dir, PathBuf::from("/tmp/x"));
+    assert_eq!(c.server.listen, addr);
+}
+
+#[test]
+fn unknown_sections_are_kept_but_unknown_keys_are_errors() {
+    let c = ServerConfig::from_toml_str("[sequencer]\ntick_ms = 50\n").unwrap();
+    assert!(c.unknown.contains_key("sequencer"));
+    assert!(matches!(
+        ServerConfig::from_toml_str("[net]\nstream_window = 5\n"),
+        Err(ConfigError::Parse { .. })
+    ));
+}
+
+#[test]
+fn bad_values_name_their_field() {
+    let cases = [
+        ("[server]\nmax_connections = 0", "server.max_connections"),
+        (
+            "[server]\nmax_connections = 70000",
+            "server.max_connections",
+        ),
+        ("[server]\ndata_dir = \"\"", "server.data_dir"),
+        ("[tls]\nextra_names = [\"bad name!\"]", "tls.extra_names"),
+        ("[tls]\nextra_names = [\"\"]", "tls.extra_names"),
+        (
+            "[net]\nstream_receive_window = 0",
+            "net.stream_receive_window",
+        ),
+        (
+            "[net]\nstream_receive_window = 1000",
+            "net.stream_receive_window",
+        ),
+        (
+            "[net]\nconnection_receive_window = 0",
+            "net.connection_receive_window",
+        ),
+        (
+            "[net]\nstream_receive_window = 524288\nconnection_receive_window = 262144",
+            "net.connection_receive_window",
+        ),
+        ("[net]\nsend_window = 1024", "net.send_window"),
+        ("[net]\nmax_uni_streams = 65", "net.max_uni_streams"),
+        ("[net]\nidle_timeout_ms = 0", "net.idle_timeout_ms"),
+        ("[net]\nidle_timeout_ms = 600001", "net.idle_timeout_ms"),
+        ("[net]\nkeep_alive_ms = 30000", "net.keep_alive_ms"),
+        ("[net]\nkeep_alive_ms = 0", "net.keep_alive_ms"),
+        (
+            "[net]\ndatagram_receive_buffer = 100",
+            "net.datagram_receive_buffer",
+        ),
+        (
+            "[net]\ndatagram_send_buffer = 0",
+            "net.datagram_send_buffer",
+        ),
+        ("[net]\nwriter_queue = 0", "net.writer_queue"),
+        (
+            "[net]\nsend_budget_bytes_per_tick = 0",
+            "net.send_budget_bytes_per_tick",
+        ),
+        ("[auth]\ntoken_max_ttl = \"400d\"", "auth.token_max_ttl"),
+        (
+            "[world]\nview_radius_chunks = 0",
+            "world.view_radius_chunks",
+        ),
+        (
+            "[world]\nview_radius_chunks = 17",
+            "world.view_radius_chunks",
+        ),
+        ("[world]\nmin_y = -2000000", "world.min_y"),
+        ("[world]\nmax_y = 2000000", "world.max_y"),
+        ("[world]\nmin_y = 0\nmax_y = 63", "world.max_y"),
+    ];
+    for (text, field) in cases {
+        assert_eq!(invalid_field(text), field, "config {text:?}");
+    }
+}
+
+#[test]
+fn invalid_error_message_names_field_and_reason() {
+    let err = ServerConfig::from_toml_str("[world]\nview_radius_chunks = 17").unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "config field `world.view_radius_chunks` is invalid: 17 is outside 1..=16"
+    );
+}
+
+#[test]
+fn type_errors_and_bad_durations_are_parse_errors_with_the_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.toml");
+    for text in [
+        "[auth]\ntoken_max_ttl = \"soon\"",
+        "[auth]\ntoken_max_ttl = \"0s\"",
+        "[server]\nlisten = \"not an address\"",
+        "[world]\nseed = -1",
+        "[world]\nview_radius_chunks = 300",
+        "[net\n",
+    ] {
+        std::fs::write(&path, text).unwrap();
+        match ServerConfig::load(Some(&path)) {
+            Err(ConfigError::Parse { path: p, .. }) => assert_eq!(p, path),
+            other => panic!("expected a Parse error for {text:?}, got {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn missing_file_is_a_read_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("absent.toml");
+    assert!(matches!(
+        ServerConfig::load(Some(&path)),
+        Err(ConfigError::Read { .. })
+    ));
+}
