@@ -278,6 +278,11 @@ impl Client {
             .await
     }
 
+    /// Asks for a fresh snapshot of one chunk.
+    pub async fn resync(&self, pos: ChunkPos) -> Result<(), ClientError> {
+        self.send(&ClientMessage::ResyncRequest { pos }).await
+    }
+
     pub async fn ping(&self, nonce: u64) -> Result<(), ClientError> {
         self.send(&ClientMessage::Ping { nonce }).await
     }

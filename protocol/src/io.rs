@@ -34,6 +34,7 @@ impl<R: AsyncRead + Unpin> FramedReader<R> {
             inner,
             buf,
             scratch: vec![0; READ_CHUNK],
+            total: 0,
         }
     }
 

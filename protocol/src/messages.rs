@@ -204,6 +204,12 @@ pub enum WorldUpdate {
     Unsubscribed {
         pos: ChunkPos,
     },
+    /// Every delta of the sequencer tick that ended with `last_seq` has been
+    /// sent. Mesh hashes in that tick's deltas describe the world as it is
+    /// now, so a client meshes its changed chunks here.
+    TickEnd {
+        last_seq: u64,
+    },
 }
 
 /// A position report, sent as an unreliable datagram.

@@ -101,6 +101,7 @@ fn updates() -> Vec<WorldUpdate> {
         WorldUpdate::Unsubscribed {
             pos: ChunkPos::new(9, 9, 9),
         },
+        WorldUpdate::TickEnd { last_seq: 41 },
     ]
 }
 

@@ -92,6 +92,11 @@ impl EngineHandle {
     pub fn try_send(&self, c: Command) -> bool {
         self.0.try_send(c).is_ok()
     }
+
+    /// Asks the engine to finish and stop, waiting for queue space (blocking).
+    pub fn stop(&self) {
+        let _ = self.0.send(Command::Stop);
+    }
 }
 
 impl Engine {

@@ -1,0 +1,144 @@
+//! Building a running server from its config: data dir, store, world,
+//! engine thread and QUIC endpoint.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::Context;
+use strata_terrain::edit::StructureLibrary;
+use strata_terrain::gen::{Generator, GENERATOR_VERSION};
+use strata_terrain::{MaterialTable, World};
+use tracing::info;
+
+use crate::config::ServerConfig;
+use crate::datadir::DataDir;
+use crate::engine::{Engine, EngineHandle};
+use crate::net::endpoint::Listener;
+use crate::net::session::SessionContext;
+use crate::sequencer::Sequencer;
+use crate::shutdown::{self, Shutdown, ShutdownTrigger};
+use crate::store::{ChunkStore, SledStore, WorldMeta, STORE_FORMAT_VERSION};
+use crate::structures::load_structures;
+use crate::validate::zones::Zone;
+
+/// Blob name under which protected zones are stored.
+pub const ZONES_BLOB: &str = "zones";
+
+/// A server that is listening.
+#[derive(Debug)]
+pub struct Running {
+    pub addr: SocketAddr,
+    /// DER bytes of the certificate clients must pin.
+    pub cert_der: Vec<u8>,
+    pub data_dir: DataDir,
+    trigger: ShutdownTrigger,
+    listener: tokio::task::JoinHandle<()>,
+    engine: EngineHandle,
+    engine_thread: std::thread::JoinHandle<anyhow::Result<()>>,
+}
+
+fn load_zones(store: &dyn ChunkStore, cfg: &ServerConfig) -> anyhow::Result<Vec<Zone>> {
+    match store.get_blob(ZONES_BLOB)? {
+        Some(bytes) => serde_json::from_slice(&bytes).context("stored protected zones do not parse"),
+        None => Ok(Sequencer::default_zones(&cfg.validation)),
+    }
+}
+
+/// Opens the data dir and store, checks the world metadata against the
+/// config, and binds the endpoint. Nothing is accepted until [`Running`]
+/// exists; call [`Running::shutdown`] to stop.
+pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
+    cfg.validate()?;
+    let (data_dir, report) = DataDir::open_or_init(&cfg.server.data_dir, &cfg.tls.extra_names)
+        .with_context(|| format!("opening data dir {}", cfg.server.data_dir.display()))?;
+    for (what, path) in [("data dir", &report.created_dir), ("certificate", &report.created_cert), ("auth secret", &report.created_secret)] {
+        if let Some(p) = path {
+            info!(path = %p.display(), "generated {what}");
+        }
+    }
+    let store: Arc<dyn ChunkStore> = Arc::new(SledStore::open(&data_dir.world_db_path())?);
+    let params = cfg.world.generator.clone();
+    let generator_params = toml::to_string(&params)?;
+    let meta = store.init_meta(&WorldMeta {
+        format_version: STORE_FORMAT_VERSION,
+        seed: params.seed,
+        generator_version: GENERATOR_VERSION,
+        generator_params: generator_params.clone(),
+        last_seq: 0,
+    })?;
+    let generator = Generator::fractal(params.clone())?;
+    let structures = match &cfg.world.structures_dir {
+        Some(dir) => load_structures(Path::new(dir))?,
+        None => StructureLibrary::default(),
+    };
+    let zones = load_zones(&*store, &cfg)?;
+    let seq = Sequencer::new(
+        World::new(Arc::new(generator)),
+        cfg.sequencer,
+        cfg.validation.clone(),
+        meta.last_seq,
+        MaterialTable::default(),
+        structures,
+        zones,
+    );
+    let mut versions = HashMap::new();
+    for item in store.modified_chunks() {
+        let (pos, version) = item?;
+        versions.insert(pos, version);
+    }
+    info!(last_seq = meta.last_seq, modified_chunks = versions.len(), "world loaded");
+    let bounds = cfg.validation.bounds();
+    let engine = Engine::new(seq, store, cfg.engine, cfg.interest, bounds, versions);
+    let (engine, engine_thread) = engine.spawn()?;
+    let server_config = crate::tls::server_config(data_dir.cert(), &cfg.net, &cfg.tls)?;
+    let endpoint = quinn::Endpoint::server(server_config, cfg.server.listen)
+        .with_context(|| format!("binding {}", cfg.server.listen))?;
+    let addr = endpoint.local_addr()?;
+    let ctx = SessionContext {
+        secret: data_dir.secret().clone(),
+        engine: engine.clone(),
+        world_seed: meta.seed,
+        generator_version: meta.generator_version,
+        generator_params: meta.generator_params.clone(),
+        view_radius: cfg.interest.radius(),
+        writer_queue: cfg.net.writer_queue,
+    };
+    let (trigger, shutdown) = shutdown::channel();
+    let listener = Listener::new(endpoint, Arc::new(ctx), cfg.server.max_connections as usize);
+    let listener = tokio::spawn(listener.run(shutdown));
+    Ok(Running {
+        addr,
+        cert_der: data_dir.cert().cert_der().to_vec(),
+        data_dir,
+        trigger,
+        listener,
+        engine,
+        engine_thread,
+    })
+}
+
+impl Running {
+    /// A listener for this server's shutdown signal.
+    pub fn shutdown_signal(&self) -> Shutdown {
+        self.trigger.subscribe()
+    }
+
+    /// Finishes and flushes the batch in flight and acknowledges it, then
+    /// stops accepting and closes every session with a reason.
+    pub async fn shutdown(self) -> anyhow::Result<()> {
+        let engine = self.engine;
+        let engine_thread = self.engine_thread;
+        tokio::task::spawn_blocking(move || {
+            engine.stop();
+            engine_thread.join()
+        })
+        .await?
+        .map_err(|_| anyhow::anyhow!("engine thread panicked"))??;
+        self.trigger.trigger();
+        let _ = self.listener.await;
+        info!("server stopped");
+        Ok(())
+    }
+}

@@ -1,0 +1,62 @@
+//! `strata-server`: the authoritative Strata server.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Parser;
+use strata_server::app;
+use strata_server::config::ServerConfig;
+use tracing_subscriber::EnvFilter;
+
+/// Authoritative multiplayer terrain server for smooth voxel worlds.
+///
+/// With no arguments it runs on its embedded defaults: 127.0.0.1:4433 and
+/// ./strata-data (created on first run, with a self-signed certificate and
+/// an auth secret).
+#[derive(Debug, Parser)]
+#[command(version)]
+struct Args {
+    /// TOML config file (see deploy/strata.toml); flags override it.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Data directory: world database, certificate, auth secret.
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// UDP address to listen on, e.g. 0.0.0.0:4433 (port 0 picks one).
+    #[arg(long)]
+    listen: Option<SocketAddr>,
+}
+
+async fn wait_for_signal() -> anyhow::Result<&'static str> {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    tokio::select! {
+        r = tokio::signal::ctrl_c() => { r?; Ok("SIGINT") }
+        _ = term.recv() => Ok("SIGTERM"),
+    }
+}
+
+#[tokio::main]
+async fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")))
+        .with_writer(std::io::stderr)
+        .init();
+    let args = Args::parse();
+    let mut cfg = ServerConfig::load(args.config.as_deref()).context("loading config")?;
+    cfg.apply_overrides(args.data_dir, args.listen);
+    if let Some(addr) = cfg.metrics.listen {
+        strata_server::metrics::install(addr)?;
+    }
+    let running = app::start(cfg).await?;
+    // One machine-readable line on stdout: tests and scripts read the port.
+    println!(
+        "strata-server listening on {} (certificate {})",
+        running.addr,
+        running.data_dir.cert_path().display()
+    );
+    let signal = wait_for_signal().await?;
+    tracing::info!(signal, "shutting down");
+    running.shutdown().await?;
+    Ok(())
+}

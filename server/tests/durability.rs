@@ -1,0 +1,155 @@
+//! Acknowledged edits survive SIGKILL and graceful shutdown: the server runs
+//! as a real child process, and the store is checked offline afterwards.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use common::*;
+use strata_client_sim::{Client, Verdict};
+use strata_protocol::Role;
+use strata_server::auth;
+use strata_server::datadir::DataDir;
+use strata_server::store::{ChunkStore, SledStore};
+use strata_terrain::gen::{GenParams, Generator};
+use strata_terrain::{Edit, FixedVec3};
+
+/// Starts `strata-server` on a fresh port and returns it with its address.
+fn spawn_server(data_dir: &Path) -> (Child, SocketAddr) {
+    let config = data_dir.parent().unwrap().join("strata.toml");
+    std::fs::write(&config, "[validation]\nspawn_protection_radius = 0\n[validation.edit_rate]\nper_second = 1000\nburst = 1000\n").unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_strata-server"))
+        .arg("--config")
+        .arg(&config)
+        .arg("--data-dir")
+        .arg(data_dir)
+        .arg("--listen")
+        .arg("127.0.0.1:0")
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("strata-server starts");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    let addr = line
+        .split_whitespace()
+        .find_map(|w| w.parse::<SocketAddr>().ok())
+        .unwrap_or_else(|| panic!("no address in {line:?}"));
+    (child, addr)
+}
+
+async fn client(data_dir: &Path, addr: SocketAddr, player: &str) -> Client {
+    let dd = DataDir::open_existing(data_dir).unwrap();
+    let token = auth::issue(dd.secret(), player, Role::Player, Duration::from_secs(600), auth::unix_now()).unwrap();
+    Client::connect(addr, dd.cert().cert_der(), &token).await.unwrap()
+}
+
+fn feet() -> (FixedVec3, i32, i32, i32) {
+    let g = Generator::fractal(GenParams::default()).unwrap();
+    let (x, z) = (70, 40);
+    let y = g.surface_height(x, z);
+    (at(x as f64, y + 1.0, z as f64), x, y.floor() as i32, z)
+}
+
+#[tokio::test]
+async fn acknowledged_edits_survive_sigkill() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let root = tempfile::tempdir().unwrap();
+        let data = root.path().join("data");
+        let (mut child, addr) = spawn_server(&data);
+        let c = Arc::new(client(&data, addr, "ana").await);
+        let (pos, x, y, z) = feet();
+        c.send_position(pos).unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let acked = Arc::new(Mutex::new(Vec::new()));
+        let worker = {
+            let (c, acked) = (c.clone(), acked.clone());
+            tokio::spawn(async move {
+                for i in 0..10_000 {
+                    let edit = Edit::Build {
+                        center: FixedVec3::from_voxels(x + i % 5 - 2, y + 2, z + (i / 5) % 5 - 2),
+                        radius: r(1.5),
+                        material: 7,
+                        strength: 20,
+                    };
+                    match c.edit(edit).await {
+                        Ok(Verdict::Accepted { seq }) => acked.lock().unwrap().push(seq),
+                        Ok(v) => panic!("refused: {v:?}"),
+                        Err(_) => return,
+                    }
+                }
+            })
+        };
+        assert!(eventually(Duration::from_secs(20), || acked.lock().unwrap().len() >= 20).await);
+        child.kill().unwrap();
+        child.wait().unwrap();
+        let _ = worker.await;
+        let acked = acked.lock().unwrap().clone();
+        let store = SledStore::open(&data.join("world.sled")).unwrap();
+        let last = store.last_seq().unwrap();
+        for seq in &acked {
+            let entry = store.log_entry(*seq).unwrap().unwrap_or_else(|| panic!("acknowledged seq {seq} was lost"));
+            for (pos, version) in entry.changes {
+                assert!(store.load_chunk(pos).unwrap().unwrap().version >= version);
+            }
+        }
+        assert!(last >= *acked.iter().max().unwrap());
+        let report = store.check().unwrap();
+        assert!(report.is_clean(), "{report:?}");
+        drop(store);
+        // A restarted server continues after the last durable edit.
+        let (mut child, addr) = spawn_server(&data);
+        let c = client(&data, addr, "bo").await;
+        assert_eq!(c.welcome().last_seq, last);
+        c.close().await;
+        child.kill().unwrap();
+        child.wait().unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn graceful_shutdown_loses_nothing() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.validation.edit_rate.per_second = 1000;
+        cfg.validation.edit_rate.burst = 1000;
+        let server = strata_server::app::start(cfg).await.unwrap();
+        let c = Arc::new(connect(&server, "ana", Role::Player).await);
+        let (pos, x, y, z) = feet();
+        c.send_position(pos).unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let acked = Arc::new(Mutex::new(Vec::new()));
+        let worker = {
+            let (c, acked) = (c.clone(), acked.clone());
+            tokio::spawn(async move {
+                for i in 0..10_000 {
+                    let edit = Edit::Mine { center: FixedVec3::from_voxels(x + i % 7 - 3, y, z), radius: r(1.5), strength: 10 };
+                    match c.edit(edit).await {
+                        Ok(Verdict::Accepted { seq }) => acked.lock().unwrap().push(seq),
+                        Ok(_) | Err(_) => return,
+                    }
+                }
+            })
+        };
+        assert!(eventually(Duration::from_secs(20), || acked.lock().unwrap().len() >= 10).await);
+        server.shutdown().await.unwrap();
+        let _ = worker.await;
+        let err = c.server_error();
+        assert!(matches!(err, Some((strata_protocol::ErrorCode::ShuttingDown, _))), "{err:?}");
+        let store = SledStore::open(&dir.path().join("world.sled")).unwrap();
+        for seq in acked.lock().unwrap().iter() {
+            assert!(store.log_entry(*seq).unwrap().is_some(), "acknowledged seq {seq} was lost");
+        }
+    })
+    .await
+    .expect("test finished in time");
+}
