@@ -10,6 +10,7 @@ pub mod delta;
 pub mod edit;
 pub mod hash;
 pub mod material;
+pub mod mesh;
 pub mod pos;
 pub mod world;
 
