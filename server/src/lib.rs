@@ -1,2 +1,7 @@
 //! Strata's server library. Networking, sessions and storage arrive with
 //! the server issue (#4); the admin CLI's offline commands live here now.
+
+pub mod collision;
+pub mod interest;
+pub mod sequencer;
+pub mod validate;
