@@ -1,9 +1,22 @@
 //! Strata's authoritative server: validation, ordering, durable storage,
-//! deltas, collision meshes, and the admin CLI's commands.
+//! deltas, collision meshes, networking and the admin CLI's commands.
+//!
+//! The `sequencer` is the synchronous core; the `engine` thread drives it
+//! and the `store`; `net` moves bytes between QUIC and the engine.
 
 pub mod admin;
+pub mod app;
 pub mod auth;
+pub mod collision;
 pub mod config;
 pub mod datadir;
+pub mod engine;
+pub mod interest;
+pub mod metrics;
+pub mod net;
+pub mod sequencer;
+pub mod shutdown;
 pub mod store;
+pub mod structures;
 pub mod tls;
+pub mod validate;

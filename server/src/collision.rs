@@ -1,0 +1,496 @@
+//! LOD-0 collision meshes by chunk, and raycasts against them.
+//!
+//! The cache holds one mesh per chunk, tagged with the chunk version it was
+//! built from, and drops the least recently used mesh past its capacity. A
+//! mesh also depends on the neighbours' voxels (the apron), so whoever changes
+//! a chunk calls [`CollisionCache::invalidate_around`] to drop the meshes of
+//! the chunk and its 26 neighbours. Meshes build in parallel on the rayon
+//! pool ([`CollisionCache::mesh_chunks`]); each chunk's mesh is a pure function
+//! of its neighbourhood, so the output does not depend on the thread count.
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
+
+use rayon::prelude::*;
+use strata_terrain::mesh::{mesh_chunk, Mesh, MeshOptions, Neighborhood};
+use strata_terrain::{ChunkPos, World, CHUNK_SIZE};
+
+/// Meshes kept by default (a LOD-0 chunk mesh is tens of KiB).
+pub const DEFAULT_COLLISION_CACHE_CAPACITY: usize = 2048;
+/// Most chunks one raycast walks through; bounds the work of a long ray.
+pub const MAX_RAY_CHUNKS: usize = 256;
+/// Hits closer than this to the origin are ignored (the ray starts on a surface).
+const MIN_HIT_T: f64 = 1e-9;
+
+/// A chunk's LOD-0 mesh with the version it was built from and its hash.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CollisionMesh {
+    pub pos: ChunkPos,
+    pub version: u64,
+    /// [`Mesh::hash`], sent to clients so they can check their own meshes.
+    pub hash: u64,
+    pub mesh: Mesh,
+    /// Chunk-local bounding box of the vertices (`None` for an empty mesh).
+    bounds: Option<([f64; 3], [f64; 3])>,
+}
+
+impl CollisionMesh {
+    /// Meshes one chunk at LOD 0.
+    pub fn build(pos: ChunkPos, version: u64, nb: &Neighborhood) -> Self {
+        let mesh = mesh_chunk(nb, &MeshOptions::default());
+        let bounds = mesh.positions.first().map(|first| {
+            let f = first.map(f64::from);
+            mesh.positions.iter().fold((f, f), |(lo, hi), p| {
+                (
+                    std::array::from_fn(|i| lo[i].min(p[i] as f64)),
+                    std::array::from_fn(|i| hi[i].max(p[i] as f64)),
+                )
+            })
+        });
+        Self {
+            pos,
+            version,
+            hash: mesh.hash(),
+            mesh,
+            bounds,
+        }
+    }
+
+    /// Nearest triangle hit in chunk-local coordinates: `(t, triangle index)`.
+    fn raycast_local(&self, o: [f64; 3], d: [f64; 3], max_t: f64) -> Option<(f64, u32)> {
+        let (lo, hi) = self.bounds?;
+        slab(o, d, lo, hi).filter(|(t0, _)| *t0 <= max_t)?;
+        let p = |i: u32| self.mesh.positions[i as usize].map(f64::from);
+        let mut best: Option<(f64, u32)> = None;
+        for (n, tri) in self.mesh.indices.chunks_exact(3).enumerate() {
+            let limit = best.map_or(max_t, |b| b.0);
+            if let Some(t) = moller_trumbore(o, d, p(tri[0]), p(tri[1]), p(tri[2])) {
+                if t <= limit && t > MIN_HIT_T {
+                    best = Some((t, n as u32));
+                }
+            }
+        }
+        best
+    }
+}
+
+/// Where a ray first hit terrain.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    /// Distance from the origin along the (normalized) direction, in voxels.
+    pub t: f64,
+    pub chunk: ChunkPos,
+    /// Triangle index in that chunk's mesh.
+    pub triangle: u32,
+}
+
+#[derive(Debug)]
+struct Entry {
+    mesh: Arc<CollisionMesh>,
+    stamp: u64,
+}
+
+/// LRU-bounded cache of collision meshes by chunk.
+#[derive(Debug)]
+pub struct CollisionCache {
+    capacity: usize,
+    entries: HashMap<ChunkPos, Entry>,
+    /// Use stamp -> chunk, oldest first.
+    lru: BTreeMap<u64, ChunkPos>,
+    clock: u64,
+}
+
+impl Default for CollisionCache {
+    fn default() -> Self {
+        Self::new(DEFAULT_COLLISION_CACHE_CAPACITY)
+    }
+}
+
+impl CollisionCache {
+    /// A cache holding at most `capacity` meshes (at least one).
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            capacity: capacity.max(1),
+            entries: HashMap::new(),
+            lru: BTreeMap::new(),
+            clock: 0,
+        }
+    }
+
+    /// Builds meshes in parallel on the current rayon pool, in input order.
+    pub fn mesh_chunks(jobs: &[(ChunkPos, u64, Neighborhood)]) -> Vec<CollisionMesh> {
+        jobs.par_iter()
+            .map(|(pos, version, nb)| CollisionMesh::build(*pos, *version, nb))
+            .collect()
+    }
+
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// The cached mesh of `pos` if it was built from `version`.
+    pub fn get(&self, pos: ChunkPos, version: u64) -> Option<&Arc<CollisionMesh>> {
+        self.entries
+            .get(&pos)
+            .map(|e| &e.mesh)
+            .filter(|m| m.version == version)
+    }
+
+    /// Adds (or replaces) a mesh as the most recently used; evicts the oldest past capacity.
+    pub fn insert(&mut self, mesh: CollisionMesh) -> Arc<CollisionMesh> {
+        let pos = mesh.pos;
+        let mesh = Arc::new(mesh);
+        self.clock += 1;
+        if let Some(old) = self.entries.insert(
+            pos,
+            Entry {
+                mesh: mesh.clone(),
+                stamp: self.clock,
+            },
+        ) {
+            self.lru.remove(&old.stamp);
+        }
+        self.lru.insert(self.clock, pos);
+        while self.entries.len() > self.capacity {
+            let Some((_, oldest)) = self.lru.pop_first() else {
+                break;
+            };
+            self.entries.remove(&oldest);
+        }
+        mesh
+    }
+
+    fn touch(&mut self, pos: ChunkPos) {
+        if let Some(e) = self.entries.get_mut(&pos) {
+            self.clock += 1;
+            self.lru.remove(&e.stamp);
+            e.stamp = self.clock;
+            self.lru.insert(self.clock, pos);
+        }
+    }
+
+    /// Drops the mesh of `pos`.
+    pub fn invalidate(&mut self, pos: ChunkPos) {
+        if let Some(e) = self.entries.remove(&pos) {
+            self.lru.remove(&e.stamp);
+        }
+    }
+
+    /// Drops the meshes of `pos` and its 26 neighbours: all of them read
+    /// `pos`'s voxels (their aprons), so a change to `pos` may change them.
+    pub fn invalidate_around(&mut self, pos: ChunkPos) {
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    if let Some(p) = pos.offset(dx, dy, dz) {
+                        self.invalidate(p);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Makes sure each listed chunk has a mesh for its current version in
+    /// `world` (unloaded chunks count as generated, version 0), building the
+    /// missing ones in parallel. Load the chunks and their neighbours first:
+    /// unloaded voxels are generated on the fly, which is slow.
+    pub fn ensure(&mut self, world: &World, chunks: &[ChunkPos]) {
+        let version = |p: ChunkPos| world.peek(p).map_or(0, |c| c.version);
+        let mut jobs = Vec::new();
+        for &p in chunks {
+            if self.get(p, version(p)).is_some() {
+                self.touch(p);
+            } else if !jobs.iter().any(|(q, _, _)| *q == p) {
+                jobs.push((p, version(p), Neighborhood::from_world(world, p)));
+            }
+        }
+        for m in Self::mesh_chunks(&jobs) {
+            self.insert(m);
+        }
+    }
+
+    /// The first terrain hit along the ray within `max_dist` voxels, looking
+    /// only at cached meshes (call [`Self::ensure`] with [`ray_chunks`] first).
+    /// `dir` need not be normalized; a zero direction hits nothing.
+    pub fn raycast(&self, origin: [f64; 3], dir: [f64; 3], max_dist: f64) -> Option<Hit> {
+        let d = normalize(dir)?;
+        for step in ChunkWalk::new(origin, d, max_dist) {
+            let Some(e) = self.entries.get(&step.chunk) else {
+                continue;
+            };
+            let o = step.chunk.origin();
+            let local = [
+                origin[0] - o.x as f64,
+                origin[1] - o.y as f64,
+                origin[2] - o.z as f64,
+            ];
+            if let Some((t, triangle)) = e.mesh.raycast_local(local, d, max_dist) {
+                // A chunk's triangles lie inside its box, so a hit here is
+                // nearer than anything in the chunks the ray enters later.
+                return Some(Hit {
+                    t,
+                    chunk: step.chunk,
+                    triangle,
+                });
+            }
+        }
+        None
+    }
+}
+
+/// Chunks a ray passes through within `max_dist`, in the order it enters them.
+pub fn ray_chunks(origin: [f64; 3], dir: [f64; 3], max_dist: f64) -> Vec<ChunkPos> {
+    match normalize(dir) {
+        Some(d) => ChunkWalk::new(origin, d, max_dist)
+            .map(|s| s.chunk)
+            .collect(),
+        None => vec![chunk_of(origin)],
+    }
+}
+
+fn normalize(d: [f64; 3]) -> Option<[f64; 3]> {
+    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    (len.is_finite() && len > 0.0).then(|| d.map(|v| v / len))
+}
+
+fn chunk_of(p: [f64; 3]) -> ChunkPos {
+    let c = |v: f64| (v / CHUNK_SIZE as f64).floor() as i32;
+    ChunkPos::new(c(p[0]), c(p[1]), c(p[2]))
+}
+
+#[derive(Debug)]
+struct WalkStep {
+    chunk: ChunkPos,
+}
+
+/// Amanatides–Woo 3D DDA over 32-voxel cells.
+#[derive(Debug)]
+struct ChunkWalk {
+    cell: [i32; 3],
+    step: [i32; 3],
+    t_max: [f64; 3],
+    t_delta: [f64; 3],
+    max_dist: f64,
+    visited: usize,
+    done: bool,
+}
+
+impl ChunkWalk {
+    fn new(origin: [f64; 3], d: [f64; 3], max_dist: f64) -> Self {
+        let size = CHUNK_SIZE as f64;
+        let c = chunk_of(origin);
+        let cell = [c.x, c.y, c.z];
+        let mut step = [0; 3];
+        let mut t_max = [f64::INFINITY; 3];
+        let mut t_delta = [f64::INFINITY; 3];
+        for i in 0..3 {
+            if d[i] > 0.0 {
+                step[i] = 1;
+                t_max[i] = ((cell[i] as f64 + 1.0) * size - origin[i]) / d[i];
+                t_delta[i] = size / d[i];
+            } else if d[i] < 0.0 {
+                step[i] = -1;
+                t_max[i] = (cell[i] as f64 * size - origin[i]) / d[i];
+                t_delta[i] = -size / d[i];
+            }
+        }
+        let valid = origin.iter().all(|v| v.is_finite()) && max_dist >= 0.0;
+        Self {
+            cell,
+            step,
+            t_max,
+            t_delta,
+            max_dist,
+            visited: 0,
+            done: !valid,
+        }
+    }
+}
+
+impl Iterator for ChunkWalk {
+    type Item = WalkStep;
+
+    fn next(&mut self) -> Option<WalkStep> {
+        if self.done || self.visited >= MAX_RAY_CHUNKS {
+            return None;
+        }
+        self.visited += 1;
+        let chunk = ChunkPos::new(self.cell[0], self.cell[1], self.cell[2]);
+        // Advance along the axis whose boundary comes first.
+        let axis = (0..3)
+            .min_by(|&a, &b| self.t_max[a].total_cmp(&self.t_max[b]))
+            .unwrap_or(0);
+        if self.t_max[axis] > self.max_dist || self.step[axis] == 0 {
+            self.done = true;
+        } else {
+            match self.cell[axis].checked_add(self.step[axis]) {
+                Some(c) => self.cell[axis] = c,
+                None => self.done = true,
+            }
+            self.t_max[axis] += self.t_delta[axis];
+        }
+        Some(WalkStep { chunk })
+    }
+}
+
+/// Ray/box slab test: the `[t_enter, t_exit]` range inside the box, if any (t >= 0).
+fn slab(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> Option<(f64, f64)> {
+    let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+    for i in 0..3 {
+        if d[i] == 0.0 {
+            if o[i] < lo[i] || o[i] > hi[i] {
+                return None;
+            }
+        } else {
+            let a = (lo[i] - o[i]) / d[i];
+            let b = (hi[i] - o[i]) / d[i];
+            t0 = t0.max(a.min(b));
+            t1 = t1.min(a.max(b));
+        }
+    }
+    (t0 <= t1).then_some((t0, t1))
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Möller–Trumbore ray/triangle intersection, both faces; returns `t`.
+fn moller_trumbore(o: [f64; 3], d: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> Option<f64> {
+    const EPS: f64 = 1e-12;
+    let e1 = sub(b, a);
+    let e2 = sub(c, a);
+    let p = cross(d, e2);
+    let det = dot(e1, p);
+    if det.abs() < EPS {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = sub(o, a);
+    let u = dot(s, p) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let q = cross(s, e1);
+    let v = dot(d, q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    let t = dot(e2, q) * inv;
+    (t >= 0.0).then_some(t)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Arc;
+    use strata_terrain::material::ids;
+    use strata_terrain::world::FlatGenerator;
+    use strata_terrain::Voxel;
+
+    fn flat() -> World {
+        World::new(Arc::new(FlatGenerator {
+            ground: Voxel::solid(ids::STONE),
+        }))
+    }
+
+    #[test]
+    fn triangle_hit_and_miss() {
+        let (a, b, c) = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
+        let t = moller_trumbore([0.2, 5.0, 0.2], [0.0, -1.0, 0.0], a, b, c);
+        assert_eq!(t, Some(5.0));
+        assert_eq!(
+            moller_trumbore([0.9, 5.0, 0.9], [0.0, -1.0, 0.0], a, b, c),
+            None
+        );
+    }
+
+    #[test]
+    fn dda_visits_chunks_in_order() {
+        let c = ray_chunks([1.0, 1.0, 1.0], [1.0, 0.0, 0.0], 70.0);
+        assert_eq!(
+            c,
+            vec![
+                ChunkPos::new(0, 0, 0),
+                ChunkPos::new(1, 0, 0),
+                ChunkPos::new(2, 0, 0)
+            ]
+        );
+        let diag = ray_chunks([31.0, 31.0, 0.5], [1.0, 1.0, 0.0], 4.0);
+        assert_eq!(diag.first(), Some(&ChunkPos::new(0, 0, 0)));
+        assert!(diag.contains(&ChunkPos::new(1, 1, 0)));
+        assert_eq!(ray_chunks([0.0; 3], [0.0; 3], 5.0).len(), 1);
+        assert!(ray_chunks([0.0; 3], [1.0, 0.0, 0.0], 1e12).len() <= MAX_RAY_CHUNKS);
+    }
+
+    #[test]
+    fn ray_hits_flat_ground_across_chunks() {
+        let world = flat();
+        let mut cache = CollisionCache::new(64);
+        // Straight down from y = 10 onto the surface at y = -0.5.
+        let origin = [40.5, 10.0, 3.5];
+        let chunks = ray_chunks(origin, [0.0, -1.0, 0.0], 20.0);
+        cache.ensure(&world, &chunks);
+        let hit = cache.raycast(origin, [0.0, -1.0, 0.0], 20.0).unwrap();
+        assert!((hit.t - 10.5).abs() < 1e-6, "t = {}", hit.t);
+        assert_eq!(hit.chunk, ChunkPos::new(1, -1, 0));
+        assert!(cache.raycast(origin, [0.0, 1.0, 0.0], 20.0).is_none());
+        assert!(cache.raycast(origin, [0.0, -1.0, 0.0], 10.0).is_none());
+    }
+
+    #[test]
+    fn lru_evicts_oldest_and_versions_gate_hits() {
+        let world = flat();
+        let mut cache = CollisionCache::new(2);
+        let (a, b, c) = (
+            ChunkPos::new(0, -1, 0),
+            ChunkPos::new(1, -1, 0),
+            ChunkPos::new(2, -1, 0),
+        );
+        cache.ensure(&world, &[a, b]);
+        cache.ensure(&world, &[a]); // a becomes most recent
+        cache.ensure(&world, &[c]);
+        assert_eq!(cache.len(), 2);
+        assert!(cache.get(a, 0).is_some());
+        assert!(cache.get(b, 0).is_none());
+        assert!(cache.get(a, 1).is_none(), "other version is a miss");
+        cache.invalidate_around(ChunkPos::new(1, 0, 0));
+        assert!(cache.is_empty());
+    }
+
+    #[test]
+    fn parallel_meshing_matches_serial() {
+        let world = flat();
+        let jobs: Vec<_> = (0..4)
+            .map(|x| {
+                let p = ChunkPos::new(x, -1, 0);
+                (p, 0, Neighborhood::from_world(&world, p))
+            })
+            .collect();
+        let par = CollisionCache::mesh_chunks(&jobs);
+        for ((p, v, nb), m) in jobs.iter().zip(&par) {
+            assert_eq!(*m, CollisionMesh::build(*p, *v, nb));
+            assert!(m.mesh.triangle_count() > 0);
+        }
+    }
+}

@@ -1,0 +1,175 @@
+//! Which chunks each session receives: a cube of chunks around its centre.
+//!
+//! The centre follows the last accepted position unless the client sent an
+//! explicit `Subscribe`. New chunks come nearest first (the shell sends them
+//! under its per-tick byte budget); chunks are dropped only once they are
+//! beyond `radius + hysteresis`, so walking back and forth over a chunk
+//! border does not resend the same chunks. Rows outside the world's vertical
+//! bounds are never subscribed.
+
+use std::collections::BTreeSet;
+
+use serde::{Deserialize, Serialize};
+use strata_terrain::edit::FixedVec3;
+use strata_terrain::{ChunkPos, VoxelPos};
+
+use crate::validate::WorldBounds;
+
+/// Default view radius in chunks (Chebyshev), also the cap for `Subscribe`.
+pub const DEFAULT_VIEW_RADIUS: u8 = 8;
+/// Extra chunks beyond the radius before a chunk is unsubscribed.
+pub const DEFAULT_HYSTERESIS: u8 = 2;
+/// Largest view radius a config may set (a radius-32 cube is 274,625 chunks).
+pub const MAX_VIEW_RADIUS: u8 = 32;
+
+/// The `[interest]` config section.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct InterestConfig {
+    /// See [`DEFAULT_VIEW_RADIUS`]; clamped to [`MAX_VIEW_RADIUS`].
+    pub view_radius: u8,
+    /// See [`DEFAULT_HYSTERESIS`].
+    pub hysteresis: u8,
+}
+
+impl Default for InterestConfig {
+    fn default() -> Self {
+        Self {
+            view_radius: DEFAULT_VIEW_RADIUS,
+            hysteresis: DEFAULT_HYSTERESIS,
+        }
+    }
+}
+
+impl InterestConfig {
+    pub fn radius(&self) -> u8 {
+        self.view_radius.min(MAX_VIEW_RADIUS)
+    }
+}
+
+/// What changed in a session's interest set.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct InterestChange {
+    /// Newly covered chunks, nearest to the centre first.
+    pub subscribe: Vec<ChunkPos>,
+    /// Chunks no longer covered, in position order.
+    pub unsubscribe: Vec<ChunkPos>,
+}
+
+impl InterestChange {
+    pub fn is_empty(&self) -> bool {
+        self.subscribe.is_empty() && self.unsubscribe.is_empty()
+    }
+}
+
+/// One session's interest set.
+#[derive(Debug, Clone)]
+pub struct Interest {
+    cfg: InterestConfig,
+    bounds: WorldBounds,
+    center: Option<ChunkPos>,
+    radius: u8,
+    /// Set by an explicit `Subscribe`; positions then no longer move the centre.
+    explicit: bool,
+    subscribed: BTreeSet<ChunkPos>,
+}
+
+impl Interest {
+    pub fn new(cfg: InterestConfig, bounds: WorldBounds) -> Self {
+        Self {
+            cfg,
+            bounds,
+            center: None,
+            radius: cfg.radius(),
+            explicit: false,
+            subscribed: BTreeSet::new(),
+        }
+    }
+
+    pub fn center(&self) -> Option<ChunkPos> {
+        self.center
+    }
+
+    pub fn radius(&self) -> u8 {
+        self.radius
+    }
+
+    /// Follows an accepted feet position (ignored after an explicit subscribe).
+    pub fn follow_position(&mut self, feet: FixedVec3) -> InterestChange {
+        if self.explicit {
+            return InterestChange::default();
+        }
+        let chunk = VoxelPos::new(
+            feet.x.floor_voxel(),
+            feet.y.floor_voxel(),
+            feet.z.floor_voxel(),
+        )
+        .chunk();
+        let r = self.cfg.radius();
+        self.recenter(chunk, r)
+    }
+
+    /// An explicit `Subscribe`; the radius is capped by the config's view radius.
+    pub fn subscribe(&mut self, center: ChunkPos, radius: u8) -> InterestChange {
+        self.explicit = true;
+        let r = radius.min(self.cfg.radius());
+        self.recenter(center, r)
+    }
+
+    /// Whether deltas of `pos` go to this session.
+    pub fn covers(&self, pos: ChunkPos) -> bool {
+        self.subscribed.contains(&pos)
+    }
+
+    /// Every covered chunk, in position order.
+    pub fn subscribed(&self) -> impl Iterator<Item = ChunkPos> + '_ {
+        self.subscribed.iter().copied()
+    }
+
+    fn recenter(&mut self, center: ChunkPos, radius: u8) -> InterestChange {
+        if self.center == Some(center) && self.radius == radius {
+            return InterestChange::default();
+        }
+        self.center = Some(center);
+        self.radius = radius;
+        let keep = radius as u32 + self.cfg.hysteresis as u32;
+        let unsubscribe: Vec<ChunkPos> = self
+            .subscribed
+            .iter()
+            .copied()
+            .filter(|p| p.chebyshev(center) > keep)
+            .collect();
+        for p in &unsubscribe {
+            self.subscribed.remove(p);
+        }
+        let mut subscribe: Vec<ChunkPos> = cube(center, radius, self.bounds)
+            .filter(|p| !self.subscribed.contains(p))
+            .collect();
+        subscribe.sort_by_key(|p| (dist2(*p, center), p.y, p.z, p.x));
+        self.subscribed.extend(subscribe.iter().copied());
+        InterestChange {
+            subscribe,
+            unsubscribe,
+        }
+    }
+}
+
+/// Squared Euclidean distance between chunk positions.
+fn dist2(a: ChunkPos, b: ChunkPos) -> i64 {
+    let d = |p: i32, q: i32| (p as i64 - q as i64).pow(2);
+    d(a.x, b.x) + d(a.y, b.y) + d(a.z, b.z)
+}
+
+/// Chunks within Chebyshev `radius` of `center`, clipped to the vertical bounds.
+fn cube(center: ChunkPos, radius: u8, bounds: WorldBounds) -> impl Iterator<Item = ChunkPos> {
+    let r = radius as i32;
+    let (lo, hi) = bounds.chunk_y_range();
+    let span = |c: i32| (c.saturating_sub(r), c.saturating_add(r));
+    let (x0, x1) = span(center.x);
+    let (y0, y1) = span(center.y);
+    let (z0, z1) = span(center.z);
+    let (y0, y1) = (y0.max(lo), y1.min(hi));
+    (z0..=z1).flat_map(move |z| {
+        (y0..=y1).flat_map(move |y| (x0..=x1).map(move |x| ChunkPos::new(x, y, z)))
+    })
+}

@@ -1,0 +1,273 @@
+//! The sequencer: the single writer that validates, orders and applies edits.
+//!
+//! Synchronous and I/O-free: the async shell feeds it sessions, positions
+//! and edit requests, calls [`Sequencer::tick`] on its timer, writes the
+//! returned [`CommitBatch`] to the store, and only then acknowledges edits
+//! and broadcasts deltas. Time arrives as `now_ms` so tests are deterministic.
+
+pub mod batch;
+pub mod config;
+pub mod residency;
+pub mod session;
+mod submit;
+mod tick;
+
+pub use batch::{
+    AppliedEdit, ChunkUpdate, CommitBatch, CommitEntry, RejectedEdit, StoredChunk, TickOutput,
+};
+pub use config::{SequencerConfig, DEFAULT_MAX_EDITS_PER_TICK, DEFAULT_QUEUE_CAPACITY};
+
+use std::collections::{HashMap, VecDeque};
+
+use strata_protocol::{EditRequest, PositionUpdate, Role};
+use strata_terrain::edit::{EditContext, StructureLibrary};
+use strata_terrain::{Chunk, ChunkPos, MaterialTable, World};
+
+use crate::collision::CollisionCache;
+use crate::validate::position::{self, PositionReject, ValidatedPosition};
+use crate::validate::zones::{self, Zone, ZoneError};
+use crate::validate::ValidationConfig;
+use residency::Residency;
+use session::{PlayerLimits, Session};
+
+/// An accepted edit waiting for the next tick.
+#[derive(Debug, Clone)]
+struct Queued {
+    session_id: u64,
+    player: String,
+    request: EditRequest,
+}
+
+/// Owns the authoritative world and everything edits are checked against.
+#[derive(Debug)]
+pub struct Sequencer {
+    world: World,
+    cfg: SequencerConfig,
+    validation: ValidationConfig,
+    materials: MaterialTable,
+    structures: StructureLibrary,
+    zones: Vec<Zone>,
+    sessions: HashMap<u64, Session>,
+    limits: HashMap<String, PlayerLimits>,
+    queue: VecDeque<Queued>,
+    next_seq: u64,
+    collision: CollisionCache,
+    residency: Residency,
+}
+
+impl Sequencer {
+    /// A sequencer continuing after `last_seq` (the store's last durable edit).
+    /// Chunks it has not been given are unknown until the shell either
+    /// inserts them ([`Self::insert_stored_chunk`]) or marks them absent
+    /// ([`Self::mark_absent`]); see [`Self::chunks_needed`].
+    pub fn new(
+        world: World,
+        cfg: SequencerConfig,
+        validation: ValidationConfig,
+        last_seq: u64,
+        materials: MaterialTable,
+        structures: StructureLibrary,
+        zones: Vec<Zone>,
+    ) -> Self {
+        Self {
+            world,
+            collision: CollisionCache::new(cfg.collision_cache_capacity),
+            cfg,
+            validation,
+            materials,
+            structures,
+            zones,
+            sessions: HashMap::new(),
+            limits: HashMap::new(),
+            queue: VecDeque::new(),
+            next_seq: last_seq.saturating_add(1),
+            residency: Residency::default(),
+        }
+    }
+
+    /// Treats every chunk not loaded as generated: for worlds without a
+    /// store (tests, offline tools).
+    pub fn without_store(mut self) -> Self {
+        self.residency = Residency::storeless();
+        self
+    }
+
+    /// The default zones for a world with none stored: spawn protection.
+    pub fn default_zones(validation: &ValidationConfig) -> Vec<Zone> {
+        vec![Zone::spawn(validation.spawn_protection_radius)]
+    }
+
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    pub fn config(&self) -> &SequencerConfig {
+        &self.cfg
+    }
+
+    pub fn validation(&self) -> &ValidationConfig {
+        &self.validation
+    }
+
+    /// The sequence number the next applied edit gets.
+    pub fn next_seq(&self) -> u64 {
+        self.next_seq
+    }
+
+    /// The last sequence number handed out (or loaded from the store).
+    pub fn last_seq(&self) -> u64 {
+        self.next_seq - 1
+    }
+
+    /// Accepted edits waiting for the next tick.
+    pub fn queued(&self) -> usize {
+        self.queue.len()
+    }
+
+    pub fn collision(&self) -> &CollisionCache {
+        &self.collision
+    }
+
+    fn ctx(&self) -> EditContext<'_> {
+        EditContext {
+            materials: &self.materials,
+            structures: &self.structures,
+        }
+    }
+
+    // ------------------------------------------------------------ chunks
+
+    /// A chunk loaded from the store. Drops collision meshes that read it.
+    pub fn insert_stored_chunk(&mut self, pos: ChunkPos, chunk: Chunk, version: u64) {
+        self.world.insert(pos, chunk, version);
+        self.residency.mark_present(pos);
+        self.collision.invalidate_around(pos);
+    }
+
+    /// The store has no such chunk: it is generated (version 0).
+    pub fn mark_absent(&mut self, pos: ChunkPos) {
+        self.residency.mark_absent(pos);
+    }
+
+    /// Whether the sequencer may read `pos` without asking the store.
+    pub fn is_resident(&self, pos: ChunkPos) -> bool {
+        self.residency.is_resident(&self.world, pos)
+    }
+
+    /// Chunks the shell must load (or mark absent) before submitting
+    /// `edit` for `session_id`: the chunks the edit reads plus their
+    /// neighbours, and those the line-of-sight check meshes. Empty when the
+    /// edit is invalid (it will be rejected without reading anything).
+    pub fn chunks_needed(&self, session_id: u64, edit: &strata_terrain::Edit) -> Vec<ChunkPos> {
+        let eye = self
+            .sessions
+            .get(&session_id)
+            .and_then(|s| s.position)
+            .map(|p| position::eye(p.feet, &self.validation));
+        match self.read_set(edit, eye) {
+            Some(set) => self.residency.missing(&self.world, set),
+            None => Vec::new(),
+        }
+    }
+
+    /// Chunks the shell must load before [`Self::update_position`] can check `upd`.
+    pub fn chunks_needed_for_position(&self, upd: &PositionUpdate) -> Vec<ChunkPos> {
+        let voxels = position::body_voxels(upd.pos, &self.validation);
+        self.residency
+            .missing(&self.world, voxels.iter().map(|v| v.chunk()))
+    }
+
+    /// Drops unmodified chunks for which `keep` is false (they regenerate).
+    pub fn evict_generated(&mut self, keep: impl Fn(ChunkPos) -> bool) {
+        self.world.evict_generated(keep);
+    }
+
+    // ------------------------------------------------------------ sessions
+
+    pub fn session_joined(&mut self, session_id: u64, player: String, role: Role) {
+        if let Some(old) = self.sessions.remove(&session_id) {
+            self.release_limits(&old.player);
+        }
+        self.limits
+            .entry(player.clone())
+            .or_insert_with(|| PlayerLimits::new(&self.validation, 0))
+            .sessions += 1;
+        self.sessions.insert(
+            session_id,
+            Session {
+                player,
+                role,
+                position: None,
+            },
+        );
+    }
+
+    /// Forgets the session. Its queued edits still apply at the next tick.
+    pub fn session_left(&mut self, session_id: u64) {
+        if let Some(old) = self.sessions.remove(&session_id) {
+            self.release_limits(&old.player);
+        }
+    }
+
+    fn release_limits(&mut self, player: &str) {
+        if let Some(l) = self.limits.get_mut(player) {
+            l.sessions = l.sessions.saturating_sub(1);
+            if l.sessions == 0 {
+                self.limits.remove(player);
+            }
+        }
+    }
+
+    pub fn session(&self, session_id: u64) -> Option<&Session> {
+        self.sessions.get(&session_id)
+    }
+
+    /// The session's last validated position.
+    pub fn position(&self, session_id: u64) -> Option<ValidatedPosition> {
+        self.sessions.get(&session_id)?.position
+    }
+
+    /// Checks and records a position report. A rejected report changes
+    /// nothing; a stale one is rejected as [`PositionReject::Stale`] and the
+    /// shell should drop it silently.
+    pub fn update_position(
+        &mut self,
+        session_id: u64,
+        upd: PositionUpdate,
+        now_ms: u64,
+    ) -> Result<(), PositionReject> {
+        let prev = self
+            .sessions
+            .get(&session_id)
+            .ok_or(PositionReject::UnknownSession)?
+            .position;
+        if let Some(pos) = self.chunks_needed_for_position(&upd).first() {
+            return Err(PositionReject::ChunkNotLoaded { pos: *pos });
+        }
+        let voxels = position::body_voxels(upd.pos, &self.validation);
+        self.world.load(voxels.iter().map(|v| v.chunk()));
+        let ok = position::check(prev.as_ref(), &upd, now_ms, &self.validation, &self.world)?;
+        if let Some(s) = self.sessions.get_mut(&session_id) {
+            s.position = Some(ok);
+        }
+        Ok(())
+    }
+
+    // ------------------------------------------------------------ zones
+
+    pub fn zones(&self) -> &[Zone] {
+        &self.zones
+    }
+
+    pub fn add_zone(&mut self, zone: Zone) -> Result<(), ZoneError> {
+        zones::check_new(&self.zones, &zone)?;
+        self.zones.push(zone);
+        Ok(())
+    }
+
+    /// Removes the zone named `name`, returning it.
+    pub fn remove_zone(&mut self, name: &str) -> Option<Zone> {
+        let i = self.zones.iter().position(|z| z.name == name)?;
+        Some(self.zones.remove(i))
+    }
+}

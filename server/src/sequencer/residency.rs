@@ -1,0 +1,79 @@
+//! Which chunks the sequencer may read: loaded ones, and ones the store
+//! said it does not have (those are generated). Anything else must be
+//! loaded from the store first, or an edit would build on a stale
+//! generated chunk and overwrite the stored one.
+
+use std::collections::HashSet;
+
+use strata_terrain::{ChunkPos, VoxelBox, VoxelPos, World, CHUNK_SIZE};
+
+/// Chunks an edit's box reads, grown by one chunk on each side: the
+/// neighbours' voxels feed the collision meshes of the changed chunks.
+pub fn edit_chunks(bbox: &VoxelBox, margin: i32) -> impl Iterator<Item = ChunkPos> {
+    let grow = margin + CHUNK_SIZE;
+    VoxelBox {
+        min: VoxelPos::new(
+            bbox.min.x.saturating_sub(grow),
+            bbox.min.y.saturating_sub(grow),
+            bbox.min.z.saturating_sub(grow),
+        ),
+        max: VoxelPos::new(
+            bbox.max.x.saturating_add(grow),
+            bbox.max.y.saturating_add(grow),
+            bbox.max.z.saturating_add(grow),
+        ),
+    }
+    .chunks()
+}
+
+/// A chunk and its 26 neighbours.
+pub fn with_neighbours(c: ChunkPos) -> impl Iterator<Item = ChunkPos> {
+    (-1..=1).flat_map(move |dz| {
+        (-1..=1).flat_map(move |dy| (-1..=1).filter_map(move |dx| c.offset(dx, dy, dz)))
+    })
+}
+
+/// Tracks chunks known to be absent from the store.
+#[derive(Debug, Clone, Default)]
+pub struct Residency {
+    absent: HashSet<ChunkPos>,
+    /// No store at all: every chunk not loaded is generated.
+    storeless: bool,
+}
+
+impl Residency {
+    pub fn storeless() -> Self {
+        Self {
+            absent: HashSet::new(),
+            storeless: true,
+        }
+    }
+
+    pub fn mark_absent(&mut self, pos: ChunkPos) {
+        self.absent.insert(pos);
+    }
+
+    /// A chunk that is stored now no longer needs its absent mark.
+    pub fn mark_present(&mut self, pos: ChunkPos) {
+        self.absent.remove(&pos);
+    }
+
+    pub fn is_resident(&self, world: &World, pos: ChunkPos) -> bool {
+        self.storeless || world.peek(pos).is_some() || self.absent.contains(&pos)
+    }
+
+    /// The chunks of `wanted` that still need loading, sorted and deduplicated.
+    pub fn missing(
+        &self,
+        world: &World,
+        wanted: impl IntoIterator<Item = ChunkPos>,
+    ) -> Vec<ChunkPos> {
+        let mut v: Vec<ChunkPos> = wanted
+            .into_iter()
+            .filter(|p| !self.is_resident(world, *p))
+            .collect();
+        v.sort();
+        v.dedup();
+        v
+    }
+}

@@ -1,0 +1,131 @@
+//! The `[validation]` config section: every limit of the edit and position rules.
+
+use serde::{Deserialize, Serialize};
+use strata_terrain::edit::{Fixed, MAX_POWER, MAX_RADIUS};
+
+use super::bounds::WorldBounds;
+use super::permissions::PlayerKinds;
+use super::ratelimit::BucketConfig;
+
+/// Largest sphere radius a client may ask for, in voxels (terrain's hard cap is 64).
+pub const DEFAULT_MAX_RADIUS: u16 = 8;
+/// Largest explosion power a client may ask for (terrain's hard cap is 2048).
+pub const DEFAULT_MAX_POWER: u16 = 512;
+/// How far from the eye an edit's target may be, in voxels.
+pub const DEFAULT_REACH: f64 = 10.0;
+/// How far before the target a ray may first hit terrain and still see it,
+/// in voxels, on top of the edit's radius (the surface sits up to a voxel
+/// in front of a target on it).
+pub const DEFAULT_LOS_TOLERANCE: f64 = 1.0;
+/// Eye height above the feet, in voxels.
+pub const DEFAULT_EYE_HEIGHT: f64 = 1.6;
+/// Fastest legal movement, in voxels per second (running and falling).
+pub const DEFAULT_MAX_SPEED: f64 = 20.0;
+/// Extra fraction of the speed-limited distance allowed for jitter.
+pub const DEFAULT_SPEED_SLACK_FACTOR: f64 = 0.25;
+/// Extra voxels allowed on every move (datagram timing, rounding).
+pub const DEFAULT_SPEED_SLACK_VOXELS: f64 = 2.0;
+/// Half-width of the default spawn protection cube around the origin, in voxels.
+pub const DEFAULT_SPAWN_PROTECTION_RADIUS: i32 = 32;
+/// Burst of edits per player.
+pub const DEFAULT_EDIT_BURST: u64 = 10;
+/// Sustained edits per second per player.
+pub const DEFAULT_EDITS_PER_SECOND: u64 = 5;
+/// Burst of edited voxels (bounding-box volume) per player.
+pub const DEFAULT_VOLUME_BURST: u64 = 100_000;
+/// Sustained edited voxels per second per player.
+pub const DEFAULT_VOLUME_PER_SECOND: u64 = 50_000;
+
+/// Limits of the validation rules (`[validation]` in the server config).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ValidationConfig {
+    /// Edit kinds players may use (lowercase names); admins may use all.
+    pub player_kinds: PlayerKinds,
+    /// See [`DEFAULT_MAX_RADIUS`]; clamped to the terrain's hard cap.
+    pub max_radius: u16,
+    /// See [`DEFAULT_MAX_POWER`]; clamped to the terrain's hard cap.
+    pub max_power: u16,
+    /// See [`DEFAULT_REACH`].
+    pub reach: f64,
+    /// See [`DEFAULT_LOS_TOLERANCE`].
+    pub los_tolerance: f64,
+    /// See [`DEFAULT_EYE_HEIGHT`].
+    pub eye_height: f64,
+    /// See [`DEFAULT_MAX_SPEED`].
+    pub max_speed: f64,
+    /// See [`DEFAULT_SPEED_SLACK_FACTOR`].
+    pub speed_slack_factor: f64,
+    /// See [`DEFAULT_SPEED_SLACK_VOXELS`].
+    pub speed_slack_voxels: f64,
+    /// Vertical world bounds for edits and positions.
+    pub bounds: WorldBounds,
+    /// See [`DEFAULT_SPAWN_PROTECTION_RADIUS`]; used when no zones are stored.
+    pub spawn_protection_radius: i32,
+    /// Edits per player: burst and refill per second.
+    pub edit_rate: BucketConfig,
+    /// Edited voxels per player: burst and refill per second. An edit costs
+    /// its bounding-box volume, capped at the burst so any legal edit can pass.
+    pub volume_rate: BucketConfig,
+}
+
+impl Default for ValidationConfig {
+    fn default() -> Self {
+        Self {
+            player_kinds: PlayerKinds::default(),
+            max_radius: DEFAULT_MAX_RADIUS,
+            max_power: DEFAULT_MAX_POWER,
+            reach: DEFAULT_REACH,
+            los_tolerance: DEFAULT_LOS_TOLERANCE,
+            eye_height: DEFAULT_EYE_HEIGHT,
+            max_speed: DEFAULT_MAX_SPEED,
+            speed_slack_factor: DEFAULT_SPEED_SLACK_FACTOR,
+            speed_slack_voxels: DEFAULT_SPEED_SLACK_VOXELS,
+            bounds: WorldBounds::default(),
+            spawn_protection_radius: DEFAULT_SPAWN_PROTECTION_RADIUS,
+            edit_rate: BucketConfig {
+                capacity: DEFAULT_EDIT_BURST,
+                per_second: DEFAULT_EDITS_PER_SECOND,
+            },
+            volume_rate: BucketConfig {
+                capacity: DEFAULT_VOLUME_BURST,
+                per_second: DEFAULT_VOLUME_PER_SECOND,
+            },
+        }
+    }
+}
+
+impl ValidationConfig {
+    /// The radius cap in fixed point, never above the terrain's hard cap.
+    pub fn max_radius_fixed(&self) -> Fixed {
+        Fixed::from_voxels(self.max_radius as i32).min(MAX_RADIUS)
+    }
+
+    /// The power cap, never above the terrain's hard cap.
+    pub fn max_power_capped(&self) -> u16 {
+        self.max_power.min(MAX_POWER)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn caps_clamp_to_terrain_and_json_round_trips() {
+        let mut c = ValidationConfig {
+            max_radius: 1000,
+            max_power: u16::MAX,
+            ..Default::default()
+        };
+        assert_eq!(c.max_radius_fixed(), MAX_RADIUS);
+        assert_eq!(c.max_power_capped(), MAX_POWER);
+        c.max_radius = 3;
+        let back: ValidationConfig =
+            serde_json::from_str(&serde_json::to_string(&c).unwrap()).unwrap();
+        assert_eq!(back, c);
+        let partial: ValidationConfig = serde_json::from_str(r#"{"reach": 4.0}"#).unwrap();
+        assert_eq!(partial.reach, 4.0);
+        assert_eq!(partial.max_radius, DEFAULT_MAX_RADIUS);
+    }
+}

@@ -1,0 +1,111 @@
+//! Position rules: stale reports, world bounds, speed, and not inside solid terrain.
+
+use strata_protocol::PositionUpdate;
+use strata_terrain::edit::FixedVec3;
+use strata_terrain::{ChunkPos, VoxelPos, VoxelRead};
+use thiserror::Error;
+
+use super::config::ValidationConfig;
+
+/// The last position a session reported that passed every rule.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ValidatedPosition {
+    pub feet: FixedVec3,
+    pub at_ms: u64,
+    pub seq: u32,
+}
+
+/// Why a position report was not accepted. The previous position stays.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum PositionReject {
+    #[error("no such session")]
+    UnknownSession,
+    #[error("stale report {seq} (last accepted {last}); ignored")]
+    Stale { seq: u32, last: u32 },
+    #[error("position outside the world bounds")]
+    OutOfBounds,
+    #[error("moved {distance:.2} voxels, at most {allowed:.2} allowed")]
+    TooFast { distance: f64, allowed: f64 },
+    #[error("body inside solid terrain at {voxel:?}")]
+    InsideSolid { voxel: VoxelPos },
+    #[error("chunk {pos:?} must be loaded from the store first")]
+    ChunkNotLoaded { pos: ChunkPos },
+}
+
+/// Voxel whose sample point is nearest to `(x, y, z)` (voxel `i` sits at point `i`).
+pub fn nearest_voxel(p: [f64; 3]) -> VoxelPos {
+    let r = |v: f64| (v + 0.5).floor() as i32;
+    VoxelPos::new(r(p[0]), r(p[1]), r(p[2]))
+}
+
+/// Eye position in world voxel units.
+pub fn eye(feet: FixedVec3, cfg: &ValidationConfig) -> [f64; 3] {
+    let [x, y, z] = feet.to_f64();
+    [x, y + cfg.eye_height, z]
+}
+
+/// The voxels the body occupies that must not be solid: one above the feet, and the eye.
+pub fn body_voxels(feet: FixedVec3, cfg: &ValidationConfig) -> [VoxelPos; 2] {
+    let [x, y, z] = feet.to_f64();
+    [
+        nearest_voxel([x, y + 1.0, z]),
+        nearest_voxel(eye(feet, cfg)),
+    ]
+}
+
+fn in_bounds(feet: FixedVec3, cfg: &ValidationConfig) -> bool {
+    feet.in_coord_range()
+        && body_voxels(feet, cfg)
+            .iter()
+            .chain([&nearest_voxel(feet.to_f64())])
+            .all(|v| cfg.bounds.contains_y(v.y))
+}
+
+/// Largest distance legal between two reports `elapsed_ms` apart.
+pub fn allowed_distance(elapsed_ms: u64, cfg: &ValidationConfig) -> f64 {
+    let base = cfg.max_speed * (elapsed_ms as f64 / 1000.0);
+    base * (1.0 + cfg.speed_slack_factor) + cfg.speed_slack_voxels
+}
+
+/// Checks a report against the previous validated position (none right after
+/// joining: then any in-bounds, not-inside-solid position is fine).
+pub fn check(
+    prev: Option<&ValidatedPosition>,
+    upd: &PositionUpdate,
+    now_ms: u64,
+    cfg: &ValidationConfig,
+    voxels: &impl VoxelRead,
+) -> Result<ValidatedPosition, PositionReject> {
+    if let Some(p) = prev {
+        if upd.seq <= p.seq {
+            return Err(PositionReject::Stale {
+                seq: upd.seq,
+                last: p.seq,
+            });
+        }
+    }
+    if !in_bounds(upd.pos, cfg) {
+        return Err(PositionReject::OutOfBounds);
+    }
+    if let Some(p) = prev {
+        let (a, b) = (p.feet.to_f64(), upd.pos.to_f64());
+        let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+        let allowed = allowed_distance(now_ms.saturating_sub(p.at_ms), cfg);
+        if d > allowed {
+            return Err(PositionReject::TooFast {
+                distance: d,
+                allowed,
+            });
+        }
+    }
+    for v in body_voxels(upd.pos, cfg) {
+        if voxels.voxel(v).is_solid() {
+            return Err(PositionReject::InsideSolid { voxel: v });
+        }
+    }
+    Ok(ValidatedPosition {
+        feet: upd.pos,
+        at_ms: now_ms,
+        seq: upd.seq,
+    })
+}

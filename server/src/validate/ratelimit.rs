@@ -1,0 +1,99 @@
+//! Token buckets: a burst capacity that refills at a steady rate.
+//!
+//! Tokens are counted in thousandths so refill from integer milliseconds is
+//! exact: `rate` tokens per second is `rate` milli-tokens per millisecond.
+
+use serde::{Deserialize, Serialize};
+
+/// Milli-tokens per token.
+const MILLI: u64 = 1000;
+
+/// Capacity and refill rate of one bucket.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BucketConfig {
+    /// Largest burst, in tokens.
+    pub capacity: u64,
+    /// Tokens added per second.
+    pub per_second: u64,
+}
+
+/// One bucket; starts full.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TokenBucket {
+    cfg: BucketConfig,
+    milli_tokens: u64,
+    last_ms: u64,
+}
+
+impl TokenBucket {
+    pub fn new(cfg: BucketConfig, now_ms: u64) -> Self {
+        Self {
+            cfg,
+            milli_tokens: cfg.capacity.saturating_mul(MILLI),
+            last_ms: now_ms,
+        }
+    }
+
+    /// Adds the tokens earned since the last refill. Time never runs backwards
+    /// here: an earlier `now_ms` earns nothing.
+    pub fn refill(&mut self, now_ms: u64) {
+        let elapsed = now_ms.saturating_sub(self.last_ms);
+        self.last_ms = self.last_ms.max(now_ms);
+        let cap = self.cfg.capacity.saturating_mul(MILLI);
+        self.milli_tokens = self
+            .milli_tokens
+            .saturating_add(elapsed.saturating_mul(self.cfg.per_second))
+            .min(cap);
+    }
+
+    /// Whole tokens available (after the last refill).
+    pub fn available(&self) -> u64 {
+        self.milli_tokens / MILLI
+    }
+
+    /// Whether `n` tokens could be taken now, without taking them.
+    pub fn can_take(&self, n: u64) -> bool {
+        self.milli_tokens >= n.saturating_mul(MILLI)
+    }
+
+    /// Takes `n` tokens; returns false and takes nothing if there are too few.
+    pub fn take(&mut self, n: u64) -> bool {
+        let need = n.saturating_mul(MILLI);
+        if self.milli_tokens >= need {
+            self.milli_tokens -= need;
+            true
+        } else {
+            false
+        }
+    }
+
+    pub fn capacity(&self) -> u64 {
+        self.cfg.capacity
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn drains_and_refills_with_time() {
+        let mut b = TokenBucket::new(
+            BucketConfig {
+                capacity: 3,
+                per_second: 2,
+            },
+            1_000,
+        );
+        assert!(b.take(3));
+        assert!(!b.take(1));
+        b.refill(1_499);
+        assert!(!b.can_take(1), "0.998 tokens after 499 ms");
+        b.refill(1_500);
+        assert!(b.take(1));
+        b.refill(100_000);
+        assert_eq!(b.available(), 3, "capped at capacity");
+        b.refill(50);
+        assert_eq!(b.available(), 3, "time going backwards adds nothing");
+    }
+}

@@ -1,0 +1,214 @@
+//! Ordering, versions, delta chains, commit batches and store residency.
+
+mod sequencer_common;
+
+use std::collections::HashMap;
+
+use sequencer_common::*;
+use strata_protocol::{RejectReason, Role};
+use strata_server::collision::CollisionMesh;
+use strata_server::sequencer::{Sequencer, SequencerConfig, TickOutput};
+use strata_server::validate::ValidationConfig;
+use strata_terrain::edit::StructureLibrary;
+use strata_terrain::mesh::Neighborhood;
+use strata_terrain::{Chunk, ChunkPos, MaterialTable, Voxel};
+
+const X: i32 = HOME.0;
+const Z: i32 = HOME.1;
+
+/// Replays every delta of `outs` onto generated chunks and checks each step
+/// and the end state against the sequencer's world.
+fn replay_matches_world(s: &Sequencer, outs: &[TickOutput]) {
+    let gen = s.world().generator().clone();
+    let mut replica: HashMap<ChunkPos, (Chunk, u64)> = HashMap::new();
+    for a in outs.iter().flat_map(|o| &o.applied) {
+        for c in &a.changes {
+            let (base, version) = replica
+                .entry(c.pos)
+                .or_insert_with(|| (gen.generate(c.pos), 0));
+            assert_eq!(c.from_version, *version, "chain has no gaps");
+            assert_eq!(c.to_version, c.from_version + 1);
+            let next = c
+                .delta
+                .apply(base)
+                .expect("delta applies to previous state");
+            assert_eq!(next, c.new_chunk);
+            *base = next;
+            *version = c.to_version;
+        }
+    }
+    assert!(!replica.is_empty());
+    for (pos, (chunk, version)) in &replica {
+        let w = s.world().peek(*pos).unwrap();
+        assert_eq!((&w.chunk, w.version), (chunk, *version), "{pos:?}");
+    }
+}
+
+#[test]
+fn consecutive_seqs_rising_versions_and_delta_chains() {
+    let mut s = Sequencer::new(
+        world(),
+        SequencerConfig::default(),
+        ValidationConfig::default(),
+        41,
+        MaterialTable::default(),
+        StructureLibrary::default(),
+        vec![],
+    )
+    .without_store();
+    assert_eq!(s.next_seq(), 42, "continues after the stored last_seq");
+    join_at(&mut s, PLAYER, Role::Player, X, Z);
+    // Two edits on the same chunk in one tick, then a third in the next.
+    s.submit(PLAYER, req(1, mine(X, -1, Z + 4, 2)), 0).unwrap();
+    s.submit(PLAYER, req(2, mine(X + 1, -2, Z + 4, 2)), 0)
+        .unwrap();
+    let t1 = s.tick(10);
+    assert_eq!(s.queued(), 0);
+    let seqs: Vec<u64> = t1.applied.iter().map(|a| a.seq).collect();
+    assert_eq!(seqs, vec![42, 43]);
+    assert_eq!(t1.applied[0].client_edit_id, 1);
+    assert_eq!(t1.applied[1].session_id, PLAYER);
+    let home = ChunkPos::new(3, -1, 3);
+    let steps: Vec<(u64, u64)> = t1
+        .applied
+        .iter()
+        .flat_map(|a| a.changes.iter().filter(|c| c.pos == home))
+        .map(|c| (c.from_version, c.to_version))
+        .collect();
+    assert_eq!(steps, vec![(0, 1), (1, 2)], "two-step chain in one tick");
+
+    s.submit(PLAYER, req(3, mine(X, -1, Z + 5, 3)), 1_000)
+        .unwrap();
+    let t2 = s.tick(1_000);
+    assert_eq!(t2.applied[0].seq, 44);
+    assert_eq!(s.last_seq(), 44);
+    assert_eq!(s.world().peek(home).unwrap().version, 3);
+    replay_matches_world(&s, &[t1, t2]);
+}
+
+#[test]
+fn commit_batch_matches_the_world() {
+    let mut s = ready(ValidationConfig::default());
+    s.submit(PLAYER, req(1, mine(X, -1, Z + 4, 2)), 0).unwrap();
+    s.submit(ADMIN, req(2, fill((X - 3, 0, Z + 6), (X + 3, 3, Z + 6))), 0)
+        .unwrap();
+    s.submit(PLAYER, req(3, mine(X, -1, Z + 5, 2)), 0).unwrap();
+    let out = s.tick(777);
+    let b = &out.batch;
+    assert_eq!(b.entries.len(), 3);
+    assert_eq!(b.last_seq, 3);
+    for (e, a) in b.entries.iter().zip(&out.applied) {
+        assert_eq!(
+            (e.seq, &e.player, &e.edit, e.time_ms),
+            (a.seq, &a.player, &a.edit, 777)
+        );
+        let ch: Vec<_> = a.changes.iter().map(|c| (c.pos, c.to_version)).collect();
+        assert_eq!(e.changes, ch);
+    }
+    assert_eq!(b.entries[1].player, "p2");
+    let mut changed: Vec<ChunkPos> = out
+        .applied
+        .iter()
+        .flat_map(|a| a.changes.iter().map(|c| c.pos))
+        .collect();
+    changed.sort();
+    changed.dedup();
+    let stored: Vec<ChunkPos> = b.chunks.iter().map(|c| c.pos).collect();
+    assert_eq!(
+        stored, changed,
+        "every changed chunk once, in position order"
+    );
+    for c in &b.chunks {
+        let w = s.world().peek(c.pos).unwrap();
+        assert_eq!((&c.chunk, c.version), (&w.chunk, w.version), "final state");
+    }
+    let modified = s.world().modified().count();
+    assert_eq!(modified, b.chunks.len());
+    assert!(s.tick(800).batch.is_empty());
+    assert_eq!(s.tick(800).batch.last_seq, 3);
+}
+
+#[test]
+fn mesh_hashes_match_fresh_meshes_and_fill_the_cache() {
+    let mut s = ready(ValidationConfig::default());
+    s.submit(PLAYER, req(1, mine(X, -1, Z + 4, 3)), 0).unwrap();
+    let out = s.tick(0);
+    for c in &out.applied[0].changes {
+        let nb = Neighborhood::from_world(s.world(), c.pos);
+        let fresh = CollisionMesh::build(c.pos, c.to_version, &nb);
+        assert_eq!(c.mesh_hash, fresh.hash);
+        let cached = s.collision().get(c.pos, c.to_version).expect("cached");
+        assert_eq!(cached.hash, c.mesh_hash);
+    }
+}
+
+#[test]
+fn max_edits_per_tick_leaves_the_rest_queued() {
+    let cfg = SequencerConfig {
+        max_edits_per_tick: 2,
+        ..Default::default()
+    };
+    let mut s = sequencer(cfg, ValidationConfig::default());
+    join_at(&mut s, PLAYER, Role::Player, X, Z);
+    for i in 0..3 {
+        s.submit(PLAYER, req(i, mine(X, -1, Z + 4, 1)), 0).unwrap();
+    }
+    assert_eq!(s.tick(0).applied.len(), 2);
+    assert_eq!(s.queued(), 1);
+    assert_eq!(s.tick(0).applied[0].seq, 3);
+}
+
+#[test]
+fn store_backed_chunks_must_be_resident() {
+    let mut s = Sequencer::new(
+        world(),
+        SequencerConfig::default(),
+        ValidationConfig::default(),
+        10,
+        MaterialTable::default(),
+        StructureLibrary::default(),
+        vec![],
+    );
+    s.session_joined(PLAYER, "p".into(), Role::Player);
+    let p = at(1, X, 0, Z);
+    let need = s.chunks_needed_for_position(&p);
+    assert_eq!(need, vec![ChunkPos::new(3, 0, 3)]);
+    assert!(s.update_position(PLAYER, p, 0).is_err());
+    for c in need {
+        s.mark_absent(c);
+    }
+    s.update_position(PLAYER, p, 0).unwrap();
+
+    let edit = mine(X, -1, Z + 4, 2);
+    let need = s.chunks_needed(PLAYER, &edit);
+    let home = ChunkPos::new(3, -1, 3);
+    assert!(need.contains(&home) && need.contains(&ChunkPos::new(4, 0, 4)));
+    let before = snapshot(&s);
+    assert_eq!(
+        s.submit(PLAYER, req(1, edit.clone()), 0),
+        Err(RejectReason::Busy)
+    );
+    assert_eq!(snapshot(&s), before);
+    // The store has the home chunk at version 5 (one voxel already dug).
+    let mut stored = Chunk::uniform(Voxel::solid(3));
+    stored.set(0, 0, 0, Voxel::AIR);
+    for c in need {
+        if c == home {
+            s.insert_stored_chunk(c, stored.clone(), 5);
+        } else {
+            s.mark_absent(c);
+        }
+    }
+    assert!(s.chunks_needed(PLAYER, &edit).is_empty());
+    s.submit(PLAYER, req(1, edit), 0).unwrap();
+    let out = s.tick(0);
+    assert_eq!(out.applied[0].seq, 11);
+    let c = out.applied[0]
+        .changes
+        .iter()
+        .find(|c| c.pos == home)
+        .unwrap();
+    assert_eq!((c.from_version, c.to_version), (5, 6));
+    assert_eq!(c.delta.apply(&stored).unwrap(), c.new_chunk);
+    assert_eq!(s.world().peek(home).unwrap().chunk.get(0, 0, 0), Voxel::AIR);
+}

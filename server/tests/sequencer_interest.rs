@@ -1,0 +1,106 @@
+//! Interest sets: nearest-first ordering, hysteresis, caps, vertical bounds.
+
+use strata_server::interest::{Interest, InterestConfig};
+use strata_server::validate::WorldBounds;
+use strata_terrain::edit::FixedVec3;
+use strata_terrain::ChunkPos;
+
+fn d2(a: ChunkPos, b: ChunkPos) -> i64 {
+    let d = |p: i32, q: i32| (p as i64 - q as i64).pow(2);
+    d(a.x, b.x) + d(a.y, b.y) + d(a.z, b.z)
+}
+
+fn interest(radius: u8, hysteresis: u8) -> Interest {
+    Interest::new(
+        InterestConfig {
+            view_radius: radius,
+            hysteresis,
+        },
+        WorldBounds::default(),
+    )
+}
+
+#[test]
+fn nearest_first_with_fixed_tiebreak() {
+    let mut i = interest(2, 1);
+    let c = i.follow_position(FixedVec3::from_voxels(40, 5, -1));
+    let center = ChunkPos::new(1, 0, -1);
+    assert_eq!(i.center(), Some(center));
+    assert_eq!(c.subscribe.len(), 125);
+    assert!(c.unsubscribe.is_empty());
+    assert_eq!(c.subscribe[0], center);
+    for w in c.subscribe.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let ka = (d2(a, center), a.y, a.z, a.x);
+        let kb = (d2(b, center), b.y, b.z, b.x);
+        assert!(ka < kb, "{a:?} before {b:?}");
+    }
+    // The same input gives the same order.
+    let mut j = interest(2, 1);
+    assert_eq!(j.follow_position(FixedVec3::from_voxels(40, 5, -1)), c);
+    assert!(i.covers(ChunkPos::new(3, 2, 1)));
+    assert!(!i.covers(ChunkPos::new(4, 0, -1)));
+}
+
+#[test]
+fn hysteresis_keeps_chunks_until_far_enough() {
+    let mut i = interest(2, 1);
+    i.follow_position(FixedVec3::from_voxels(0, 0, 0));
+    // One chunk east: the west column (x = -2) is 3 away, within 2 + 1.
+    let c = i.follow_position(FixedVec3::from_voxels(32, 0, 0));
+    assert!(c.unsubscribe.is_empty());
+    assert_eq!(c.subscribe.len(), 25, "only the new east face");
+    assert!(c.subscribe.iter().all(|p| p.x == 3));
+    assert!(i.covers(ChunkPos::new(-2, 0, 0)));
+    // Walking back resends nothing.
+    assert!(i
+        .follow_position(FixedVec3::from_voxels(0, 0, 0))
+        .subscribe
+        .is_empty());
+    // Two chunks east of the start: x = -2 is now 4 away and goes.
+    let c = i.follow_position(FixedVec3::from_voxels(64, 0, 0));
+    assert_eq!(c.unsubscribe.len(), 25);
+    assert!(c.unsubscribe.iter().all(|p| p.x == -2));
+    assert!(!i.covers(ChunkPos::new(-2, 0, 0)));
+    assert!(c.unsubscribe.windows(2).all(|w| w[0] < w[1]));
+    // Same chunk, different voxel: nothing changes.
+    assert!(i
+        .follow_position(FixedVec3::from_voxels(70, 3, 3))
+        .is_empty());
+}
+
+#[test]
+fn explicit_subscribe_is_capped_and_overrides_position() {
+    let mut i = interest(2, 0);
+    let c = i.subscribe(ChunkPos::new(10, 0, 10), 200);
+    assert_eq!(i.radius(), 2, "capped by the view radius");
+    assert_eq!(c.subscribe.len(), 125);
+    assert!(i
+        .follow_position(FixedVec3::from_voxels(0, 0, 0))
+        .is_empty());
+    assert_eq!(i.center(), Some(ChunkPos::new(10, 0, 10)));
+    let c = i.subscribe(ChunkPos::new(10, 0, 10), 0);
+    assert!(c.subscribe.is_empty());
+    assert_eq!(c.unsubscribe.len(), 124);
+    assert_eq!(
+        i.subscribed().collect::<Vec<_>>(),
+        vec![ChunkPos::new(10, 0, 10)]
+    );
+}
+
+#[test]
+fn vertical_range_follows_world_bounds() {
+    let mut i = Interest::new(
+        InterestConfig {
+            view_radius: 3,
+            hysteresis: 1,
+        },
+        WorldBounds {
+            min_y: -32,
+            max_y: 31,
+        },
+    );
+    let c = i.follow_position(FixedVec3::from_voxels(0, 0, 0));
+    assert!(c.subscribe.iter().all(|p| (-1..=0).contains(&p.y)));
+    assert_eq!(c.subscribe.len(), 7 * 7 * 2);
+}

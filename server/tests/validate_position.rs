@@ -1,0 +1,112 @@
+//! Position rules: first position, speed with slack, not inside solid, bounds, staleness.
+
+mod sequencer_common;
+
+use sequencer_common::*;
+use strata_protocol::{PositionUpdate, Role};
+use strata_server::sequencer::SequencerConfig;
+use strata_server::validate::{PositionReject, ValidationConfig};
+use strata_terrain::edit::{Fixed, FixedVec3};
+use strata_terrain::VoxelPos;
+
+fn fresh() -> strata_server::sequencer::Sequencer {
+    let mut s = sequencer(SequencerConfig::default(), ValidationConfig::default());
+    s.session_joined(PLAYER, "p".into(), Role::Player);
+    s
+}
+
+#[test]
+fn first_position_anywhere_not_solid() {
+    let mut s = fresh();
+    assert_eq!(s.position(PLAYER), None);
+    // Feet deep in rock: the voxel above the feet is solid.
+    assert_eq!(
+        s.update_position(PLAYER, at(1, 5000, -10, -7000), 0),
+        Err(PositionReject::InsideSolid {
+            voxel: VoxelPos::new(5000, -9, -7000)
+        })
+    );
+    assert_eq!(s.position(PLAYER), None, "rejected reports change nothing");
+    // Far away but in the air: fine as a first position.
+    s.update_position(PLAYER, at(2, 5000, 40, -7000), 0)
+        .unwrap();
+    assert_eq!(
+        s.position(PLAYER).unwrap().feet,
+        FixedVec3::from_voxels(5000, 40, -7000)
+    );
+}
+
+#[test]
+fn speed_limit_with_slack() {
+    let mut s = fresh();
+    s.update_position(PLAYER, at(1, 0, 0, 0), 0).unwrap();
+    // Default: 20 voxels/s, +25 %, +2 voxels: 27 voxels allowed after 1 s.
+    s.update_position(PLAYER, at(2, 26, 0, 0), 1_000).unwrap();
+    match s.update_position(PLAYER, at(3, 36, 0, 0), 1_100) {
+        Err(PositionReject::TooFast { distance, allowed }) => {
+            assert!((distance - 10.0).abs() < 1e-9);
+            assert!((allowed - 4.5).abs() < 1e-9);
+        }
+        other => panic!("expected TooFast, got {other:?}"),
+    }
+    assert_eq!(
+        s.position(PLAYER).unwrap().feet,
+        FixedVec3::from_voxels(26, 0, 0)
+    );
+    // Measured from the last validated position and its time.
+    s.update_position(PLAYER, at(4, 36, 0, 0), 1_500).unwrap();
+}
+
+#[test]
+fn stale_reports_are_ignored() {
+    let mut s = fresh();
+    s.update_position(PLAYER, at(5, 0, 0, 0), 0).unwrap();
+    assert_eq!(
+        s.update_position(PLAYER, at(5, 1, 0, 0), 100),
+        Err(PositionReject::Stale { seq: 5, last: 5 })
+    );
+    assert_eq!(
+        s.update_position(PLAYER, at(4, 1, 0, 0), 100),
+        Err(PositionReject::Stale { seq: 4, last: 5 })
+    );
+    assert_eq!(s.position(PLAYER).unwrap().seq, 5);
+}
+
+#[test]
+fn bounds_and_unknown_sessions() {
+    let mut s = fresh();
+    assert_eq!(
+        s.update_position(PLAYER, at(1, 0, 100_000, 0), 0),
+        Err(PositionReject::OutOfBounds)
+    );
+    let wild = PositionUpdate {
+        seq: 2,
+        pos: FixedVec3::new(Fixed(i32::MAX), Fixed(0), Fixed(0)),
+    };
+    assert_eq!(
+        s.update_position(PLAYER, wild, 0),
+        Err(PositionReject::OutOfBounds)
+    );
+    assert_eq!(
+        s.update_position(42, at(1, 0, 0, 0), 0),
+        Err(PositionReject::UnknownSession)
+    );
+}
+
+#[test]
+fn eye_inside_a_wall_is_solid() {
+    let mut s = ready(ValidationConfig::default());
+    let (x, z) = HOME;
+    // A brick slab at eye height only (y = 2), above the player's next spot.
+    s.submit(ADMIN, req(1, fill((x + 3, 2, z), (x + 3, 2, z))), 0)
+        .unwrap();
+    s.tick(0);
+    assert_eq!(
+        s.update_position(PLAYER, at(2, x + 3, 0, z), 1_000),
+        Err(PositionReject::InsideSolid {
+            voxel: VoxelPos::new(x + 3, 2, z)
+        })
+    );
+    s.update_position(PLAYER, at(3, x + 2, 0, z), 1_000)
+        .unwrap();
+}

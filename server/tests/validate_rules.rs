@@ -1,0 +1,277 @@
+//! Each edit rule rejects with its own reason and changes nothing.
+
+mod sequencer_common;
+
+use sequencer_common::*;
+use strata_protocol::{RejectReason, Role};
+use strata_server::sequencer::SequencerConfig;
+use strata_server::validate::ratelimit::BucketConfig;
+use strata_server::validate::{ValidationConfig, WorldBounds, Zone};
+use strata_terrain::edit::{Fixed, FixedVec3};
+use strata_terrain::{Edit, EditKind, VoxelPos};
+
+const X: i32 = HOME.0;
+const Z: i32 = HOME.1;
+
+/// Submits, expects `reason`, and checks that nothing changed, even after a tick.
+fn rejects(
+    s: &mut strata_server::sequencer::Sequencer,
+    sid: u64,
+    edit: Edit,
+    reason: RejectReason,
+) {
+    let before = snapshot(s);
+    assert_eq!(s.submit(sid, req(9, edit), 0), Err(reason));
+    assert_eq!(snapshot(s), before);
+    let out = s.tick(0);
+    assert!(out.applied.is_empty() && out.batch.is_empty());
+    assert_eq!(snapshot(s), before);
+}
+
+#[test]
+fn permission_caps_and_core_validation() {
+    let mut s = ready(ValidationConfig::default());
+    rejects(
+        &mut s,
+        PLAYER,
+        fill((X, 0, Z + 3), (X + 1, 1, Z + 3)),
+        RejectReason::NotPermitted {
+            kind: EditKind::FillBox,
+        },
+    );
+    rejects(
+        &mut s,
+        PLAYER,
+        mine(X, -1, Z + 3, 9),
+        RejectReason::RadiusTooLarge {
+            max: Fixed::from_voxels(8),
+        },
+    );
+    rejects(
+        &mut s,
+        PLAYER,
+        Edit::Explode {
+            center: FixedVec3::from_voxels(X, -1, Z + 3),
+            radius: Fixed::from_voxels(2),
+            power: 513,
+        },
+        RejectReason::PowerTooLarge { max: 512 },
+    );
+    rejects(
+        &mut s,
+        PLAYER,
+        Edit::Build {
+            center: FixedVec3::from_voxels(X, 1, Z + 3),
+            radius: Fixed::from_voxels(2),
+            material: 200,
+            strength: 10,
+        },
+        RejectReason::Invalid {
+            message: "unknown material id 200".into(),
+        },
+    );
+    // The same edits pass for an admin where only the role differed.
+    assert!(s
+        .submit(ADMIN, req(1, fill((X, 0, Z + 3), (X + 1, 1, Z + 3))), 0)
+        .is_ok());
+}
+
+#[test]
+fn no_position_and_reach() {
+    let mut s = ready(ValidationConfig::default());
+    s.session_joined(7, "newcomer".into(), Role::Player);
+    rejects(&mut s, 7, mine(X, -1, Z + 3, 2), RejectReason::NoPosition);
+    // Eye at (X, 1.6, Z); target 12 voxels away, reach 10.
+    let far = mine(X, -1, Z + 12, 2);
+    let before = snapshot(&s);
+    match s.submit(PLAYER, req(1, far), 0) {
+        Err(RejectReason::OutOfReach { distance, max }) => {
+            assert_eq!(max, Fixed::from_voxels(10));
+            assert!((distance.to_f64() - (144.0f64 + 2.6 * 2.6).sqrt()).abs() < 0.01);
+        }
+        other => panic!("expected OutOfReach, got {other:?}"),
+    }
+    assert_eq!(snapshot(&s), before);
+    assert!(s.submit(PLAYER, req(2, mine(X, -1, Z + 6, 2)), 0).is_ok());
+}
+
+#[test]
+fn line_of_sight_blocked_by_a_wall_and_clear_without_it() {
+    let mut s = ready(ValidationConfig::default());
+    let target = mine(X, -1, Z + 6, 2);
+    assert!(
+        s.submit(PLAYER, req(1, target.clone()), 0).is_ok(),
+        "clear view"
+    );
+    s.tick(0);
+    // A one-voxel brick wall between the player and the next target.
+    let wall = ((X - 4, 0, Z + 3), (X + 4, 4, Z + 3));
+    s.submit(ADMIN, req(2, fill(wall.0, wall.1)), 0).unwrap();
+    s.tick(0);
+    let next = mine(X + 1, -1, Z + 6, 2);
+    rejects(&mut s, PLAYER, next.clone(), RejectReason::NoLineOfSight);
+    let clear = Edit::ClearBox {
+        min: VoxelPos::new(wall.0 .0, wall.0 .1, wall.0 .2),
+        max: VoxelPos::new(wall.1 .0, wall.1 .1, wall.1 .2),
+    };
+    s.submit(ADMIN, req(3, clear), 0).unwrap();
+    s.tick(0);
+    assert!(s.submit(PLAYER, req(4, next), 0).is_ok(), "wall gone");
+}
+
+#[test]
+fn vertical_bounds() {
+    let v = ValidationConfig {
+        bounds: WorldBounds {
+            min_y: -3,
+            max_y: 64,
+        },
+        ..Default::default()
+    };
+    let mut s = ready(v);
+    // Box reaches y = -1 - 3 = -4 with radius 2 and rim 1.
+    rejects(
+        &mut s,
+        PLAYER,
+        mine(X, -1, Z + 3, 2),
+        RejectReason::OutOfBounds,
+    );
+    assert!(s.submit(PLAYER, req(1, mine(X, 0, Z + 3, 2)), 0).is_ok());
+}
+
+#[test]
+fn spawn_protection_with_admin_exemption_and_zone_management() {
+    let mut s = sequencer(SequencerConfig::default(), ValidationConfig::default());
+    join_at(&mut s, PLAYER, Role::Player, 10, 10);
+    join_at(&mut s, ADMIN, Role::Admin, 8, 10);
+    let spawn = RejectReason::ProtectedZone {
+        zone: "spawn".into(),
+    };
+    rejects(&mut s, PLAYER, mine(10, -1, 13, 2), spawn);
+    assert!(s.submit(ADMIN, req(1, mine(10, -1, 13, 2)), 0).is_ok());
+
+    // Zones are managed at run time and serialize for the store's blob.
+    let mut s = ready(ValidationConfig::default());
+    let castle = Zone {
+        name: "castle".into(),
+        min: VoxelPos::new(X - 5, -10, Z + 2),
+        max: VoxelPos::new(X + 5, 10, Z + 8),
+    };
+    s.add_zone(castle.clone()).unwrap();
+    assert!(s.add_zone(castle.clone()).is_err(), "duplicate name");
+    let blob = serde_json::to_string(s.zones()).unwrap();
+    let back: Vec<Zone> = serde_json::from_str(&blob).unwrap();
+    assert_eq!(back, s.zones());
+    rejects(
+        &mut s,
+        PLAYER,
+        mine(X, -1, Z + 4, 2),
+        RejectReason::ProtectedZone {
+            zone: "castle".into(),
+        },
+    );
+    assert_eq!(s.remove_zone("castle"), Some(castle));
+    assert!(s.submit(PLAYER, req(1, mine(X, -1, Z + 4, 2)), 0).is_ok());
+}
+
+#[test]
+fn edit_bucket_refills_with_time() {
+    let v = ValidationConfig {
+        edit_rate: BucketConfig {
+            capacity: 2,
+            per_second: 1,
+        },
+        ..Default::default()
+    };
+    let mut s = ready(v);
+    let e = || mine(X, -1, Z + 4, 1);
+    assert!(s.submit(PLAYER, req(1, e()), 1_000).is_ok());
+    assert!(s.submit(PLAYER, req(2, e()), 1_000).is_ok());
+    let before = snapshot(&s);
+    assert_eq!(
+        s.submit(PLAYER, req(3, e()), 1_500),
+        Err(RejectReason::RateLimited)
+    );
+    assert_eq!(snapshot(&s), before);
+    assert!(
+        s.submit(PLAYER, req(4, e()), 2_000).is_ok(),
+        "one token after 1 s"
+    );
+    assert_eq!(
+        s.submit(PLAYER, req(5, e()), 2_000),
+        Err(RejectReason::RateLimited)
+    );
+    // The admin has a bucket of their own.
+    assert!(s.submit(ADMIN, req(6, e()), 2_000).is_ok());
+}
+
+#[test]
+fn volume_bucket_refills_with_time() {
+    let v = ValidationConfig {
+        volume_rate: BucketConfig {
+            capacity: 1_000,
+            per_second: 1_000,
+        },
+        ..Default::default()
+    };
+    let mut s = ready(v);
+    // Radius 2 plus the one-voxel rim: a 7³ = 343-voxel box.
+    let e = || mine(X, -1, Z + 4, 2);
+    assert!(s.submit(PLAYER, req(1, e()), 0).is_ok());
+    assert!(s.submit(PLAYER, req(2, e()), 0).is_ok());
+    assert_eq!(
+        s.submit(PLAYER, req(3, e()), 0),
+        Err(RejectReason::VolumeRateLimited)
+    );
+    assert_eq!(
+        s.submit(PLAYER, req(3, e()), 28),
+        Err(RejectReason::VolumeRateLimited)
+    );
+    assert!(
+        s.submit(PLAYER, req(4, e()), 29).is_ok(),
+        "314 + 29 = 343 voxels"
+    );
+    // A box bigger than the burst costs the whole burst, so it can still pass.
+    let big = Edit::ClearBox {
+        min: VoxelPos::new(X - 10, 0, Z + 2),
+        max: VoxelPos::new(X + 10, 6, Z + 12),
+    };
+    assert!(s.submit(ADMIN, req(5, big), 0).is_ok());
+}
+
+#[test]
+fn full_queue_is_busy_and_keeps_tokens() {
+    let cfg = SequencerConfig {
+        queue_capacity: 2,
+        ..Default::default()
+    };
+    let mut s = sequencer(cfg, ValidationConfig::default());
+    join_at(&mut s, PLAYER, Role::Player, X, Z);
+    let e = || mine(X, -1, Z + 4, 1);
+    assert!(s.submit(PLAYER, req(1, e()), 0).is_ok());
+    assert!(s.submit(PLAYER, req(2, e()), 0).is_ok());
+    let before = snapshot(&s);
+    assert_eq!(s.submit(PLAYER, req(3, e()), 0), Err(RejectReason::Busy));
+    assert_eq!(snapshot(&s), before);
+    assert_eq!(s.tick(0).applied.len(), 2);
+    // 10-edit burst: 2 spent, the Busy one was not charged, so 8 remain.
+    for round in 0..4 {
+        for i in 0..2 {
+            assert!(s.submit(PLAYER, req(10 * round + i, e()), 0).is_ok());
+        }
+        s.tick(0);
+    }
+    assert_eq!(
+        s.submit(PLAYER, req(99, e()), 0),
+        Err(RejectReason::RateLimited)
+    );
+}
+
+#[test]
+fn unknown_session_is_invalid() {
+    let mut s = ready(ValidationConfig::default());
+    assert!(matches!(
+        s.submit(99, req(1, mine(X, -1, Z + 4, 1)), 0),
+        Err(RejectReason::Invalid { .. })
+    ));
+}
