@@ -22,6 +22,7 @@ use crate::shutdown::{self, Shutdown, ShutdownTrigger};
 use crate::store::{ChunkStore, SledStore, WorldMeta, STORE_FORMAT_VERSION};
 use crate::structures::load_structures;
 use crate::validate::zones::Zone;
+use crate::validate::WorldBounds;
 
 /// Blob name under which protected zones are stored.
 pub const ZONES_BLOB: &str = "zones";
@@ -60,6 +61,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     }
     let store: Arc<dyn ChunkStore> = Arc::new(SledStore::open(&data_dir.world_db_path())?);
     let params = cfg.world.generator.clone();
+    let mut validation = cfg.validation.clone();
+    validation.bounds = WorldBounds { min_y: params.min_y, max_y: params.max_y };
     let generator_params = toml::to_string(&params)?;
     let meta = store.init_meta(&WorldMeta {
         format_version: STORE_FORMAT_VERSION,
@@ -77,7 +80,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     let seq = Sequencer::new(
         World::new(Arc::new(generator)),
         cfg.sequencer,
-        cfg.validation.clone(),
+        validation.clone(),
         meta.last_seq,
         MaterialTable::default(),
         structures,
@@ -89,8 +92,15 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         versions.insert(pos, version);
     }
     info!(last_seq = meta.last_seq, modified_chunks = versions.len(), "world loaded");
-    let bounds = cfg.validation.bounds();
-    let engine = Engine::new(seq, store, cfg.engine, cfg.interest, bounds, versions);
+    let engine = Engine::new(
+        seq,
+        store,
+        cfg.engine,
+        cfg.net.send_budget_bytes_per_tick,
+        cfg.interest,
+        validation.bounds,
+        versions,
+    );
     let (engine, engine_thread) = engine.spawn()?;
     let server_config = crate::tls::server_config(data_dir.cert(), &cfg.net, &cfg.tls)?;
     let endpoint = quinn::Endpoint::server(server_config, cfg.server.listen)

@@ -17,6 +17,11 @@ use strata_protocol::limits::{FRAME_HEADER, MAX_CLIENT_FRAME, MAX_DATAGRAM, MAX_
 use thiserror::Error;
 
 use crate::auth::{HumanDuration, MAX_TOKEN_TTL};
+use crate::engine::{EngineConfig, MAX_COMMAND_QUEUE, MAX_TICK_MS};
+use crate::interest::{InterestConfig, MAX_VIEW_RADIUS};
+use crate::sequencer::SequencerConfig;
+use crate::validate::ValidationConfig;
+use strata_terrain::gen::GenParams;
 
 /// Default QUIC listen address: loopback only, so a fresh server is private.
 pub const DEFAULT_LISTEN: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 4433);
@@ -74,18 +79,6 @@ pub const MAX_SEND_BUDGET_BYTES_PER_TICK: usize = 64 * 1024 * 1024;
 /// Longest lifetime `strata-admin token issue` may grant by default.
 pub const DEFAULT_TOKEN_MAX_TTL: Duration = Duration::from_secs(30 * 24 * 3600);
 
-/// Default world seed ("STRATA" in ASCII; same as the generator's).
-pub const DEFAULT_WORLD_SEED: u64 = 0x5354_5241_5441;
-pub const DEFAULT_VIEW_RADIUS_CHUNKS: u8 = 8;
-pub const MAX_VIEW_RADIUS_CHUNKS: u8 = 16;
-/// Default world bottom and top, in voxels (same as the generator's).
-pub const DEFAULT_MIN_Y: i32 = -128;
-pub const DEFAULT_MAX_Y: i32 = 255;
-/// Cap on `|min_y|` and `|max_y|`.
-pub const WORLD_Y_LIMIT: i32 = 1 << 20;
-/// Smallest `max_y - min_y`.
-pub const MIN_WORLD_HEIGHT: i32 = 64;
-
 /// Why a configuration could not be loaded.
 #[derive(Debug, Error)]
 pub enum ConfigError {
@@ -113,6 +106,10 @@ pub struct ServerConfig {
     pub auth: AuthSection,
     pub metrics: MetricsSection,
     pub world: WorldSection,
+    pub sequencer: SequencerConfig,
+    pub validation: ValidationConfig,
+    pub interest: InterestConfig,
+    pub engine: EngineConfig,
     /// Top-level sections this build does not know; logged, not fatal.
     #[serde(flatten, skip_serializing)]
     pub unknown: toml::Table,
@@ -175,17 +172,15 @@ pub struct MetricsSection {
     pub listen: Option<SocketAddr>,
 }
 
-/// `[world]`: which world to serve and how much of it each player sees.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// `[world]`: which world to serve. `[world.generator]` holds every
+/// generation parameter (seed, vertical bounds, hills, caves, layers); the
+/// world's vertical bounds for edits are the generator's `min_y..=max_y`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct WorldSection {
-    pub seed: u64,
-    /// Chebyshev radius, in chunks, of what each player receives.
-    pub view_radius_chunks: u8,
-    /// Lowest voxel layer (bedrock).
-    pub min_y: i32,
-    /// Highest voxel layer (air above).
-    pub max_y: i32,
+    /// Directory of structure templates (`<id>.strs` / `<id>-<name>.strs`).
+    pub structures_dir: Option<PathBuf>,
+    pub generator: GenParams,
 }
 
 impl Default for ServerSection {
@@ -237,17 +232,6 @@ impl Default for AuthSection {
     fn default() -> Self {
         AuthSection {
             token_max_ttl: HumanDuration(DEFAULT_TOKEN_MAX_TTL),
-        }
-    }
-}
-
-impl Default for WorldSection {
-    fn default() -> Self {
-        WorldSection {
-            seed: DEFAULT_WORLD_SEED,
-            view_radius_chunks: DEFAULT_VIEW_RADIUS_CHUNKS,
-            min_y: DEFAULT_MIN_Y,
-            max_y: DEFAULT_MAX_Y,
         }
     }
 }
@@ -401,24 +385,15 @@ impl ServerConfig {
             ));
         }
 
-        let w = &self.world;
-        range(
-            "world.view_radius_chunks",
-            w.view_radius_chunks,
-            1,
-            MAX_VIEW_RADIUS_CHUNKS,
-        )?;
-        range("world.min_y", w.min_y, -WORLD_Y_LIMIT, WORLD_Y_LIMIT)?;
-        range("world.max_y", w.max_y, -WORLD_Y_LIMIT, WORLD_Y_LIMIT)?;
-        if i64::from(w.max_y) - i64::from(w.min_y) < i64::from(MIN_WORLD_HEIGHT) {
-            return Err(invalid(
-                "world.max_y",
-                format!(
-                    "must be at least {MIN_WORLD_HEIGHT} above world.min_y ({})",
-                    w.min_y
-                ),
-            ));
-        }
+        self.world
+            .generator
+            .validate()
+            .map_err(|e| invalid("world.generator", e.to_string()))?;
+        range("interest.view_radius", self.interest.view_radius, 1, MAX_VIEW_RADIUS)?;
+        range("engine.tick_ms", self.engine.tick_ms, 1, MAX_TICK_MS)?;
+        range("engine.command_queue", self.engine.command_queue, 1, MAX_COMMAND_QUEUE)?;
+        range("sequencer.queue_capacity", self.sequencer.queue_capacity, 1, MAX_COMMAND_QUEUE)?;
+        range("sequencer.max_edits_per_tick", self.sequencer.max_edits_per_tick, 1, MAX_COMMAND_QUEUE)?;
         Ok(())
     }
 

@@ -113,7 +113,7 @@ fn commit_batch_matches_the_world() {
         .collect();
     changed.sort();
     changed.dedup();
-    let stored: Vec<ChunkPos> = b.chunks.iter().map(|c| c.pos).collect();
+    let stored: Vec<ChunkPos> = b.chunks.iter().map(|c| c.0).collect();
     assert_eq!(
         stored, changed,
         "every changed chunk once, in position order"

@@ -36,10 +36,12 @@ use peer::Peer;
 
 /// Default tick period.
 pub const DEFAULT_TICK_MS: u64 = 10;
-/// Default snapshot bytes per session per tick.
-pub const DEFAULT_SEND_BUDGET: usize = 64 * 1024;
+/// Longest allowed tick period.
+pub const MAX_TICK_MS: u64 = 1000;
 /// Default capacity of the session-to-engine command queue.
 pub const DEFAULT_COMMAND_QUEUE: usize = 8192;
+/// Largest allowed command or edit queue.
+pub const MAX_COMMAND_QUEUE: usize = 1 << 20;
 
 /// Engine limits (`[engine]` in the config).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -47,15 +49,13 @@ pub const DEFAULT_COMMAND_QUEUE: usize = 8192;
 pub struct EngineConfig {
     /// Milliseconds between ticks.
     pub tick_ms: u64,
-    /// Snapshot bytes each session may be sent per tick.
-    pub send_budget_bytes: usize,
     /// Commands queued from sessions before new ones are refused.
     pub command_queue: usize,
 }
 
 impl Default for EngineConfig {
     fn default() -> Self {
-        Self { tick_ms: DEFAULT_TICK_MS, send_budget_bytes: DEFAULT_SEND_BUDGET, command_queue: DEFAULT_COMMAND_QUEUE }
+        Self { tick_ms: DEFAULT_TICK_MS, command_queue: DEFAULT_COMMAND_QUEUE }
     }
 }
 
@@ -69,6 +69,8 @@ pub struct Engine {
     seq: Sequencer,
     store: Arc<dyn ChunkStore>,
     cfg: EngineConfig,
+    /// Snapshot bytes each session may be sent per tick (`net.send_budget_bytes_per_tick`).
+    send_budget: usize,
     interest: InterestConfig,
     bounds: WorldBounds,
     peers: HashMap<u64, Peer>,
@@ -104,11 +106,22 @@ impl Engine {
         seq: Sequencer,
         store: Arc<dyn ChunkStore>,
         cfg: EngineConfig,
+        send_budget: usize,
         interest: InterestConfig,
         bounds: WorldBounds,
         versions: HashMap<ChunkPos, u64>,
     ) -> Self {
-        Self { seq, store, cfg, interest, bounds, peers: HashMap::new(), versions, snapshots: Default::default() }
+        Self {
+            seq,
+            store,
+            cfg,
+            send_budget,
+            interest,
+            bounds,
+            peers: HashMap::new(),
+            versions,
+            snapshots: Default::default(),
+        }
     }
 
     /// Starts the engine thread. It stops on [`Command::Stop`] or when
@@ -240,14 +253,14 @@ impl Engine {
         if !out.batch.is_empty() {
             let flush = Instant::now();
             // Nothing is acknowledged or broadcast unless this succeeds.
-            if let Err(e) = self.store.commit(&out.batch) {
+            if let Err(e) = self.store.commit_batch(&out.batch) {
                 error!(error = %e, "group commit failed; stopping without acknowledging");
                 self.close_all();
                 return Err(e.into());
             }
             metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
-            for c in &out.batch.chunks {
-                self.versions.insert(c.pos, c.version);
+            for (pos, version, _) in &out.batch.chunks {
+                self.versions.insert(*pos, *version);
             }
             for a in &out.applied {
                 metrics::counter!(m::EDITS_ACCEPTED).increment(1);

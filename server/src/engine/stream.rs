@@ -39,7 +39,7 @@ impl SnapshotCache {
 
 impl Engine {
     pub(super) fn stream_snapshots(&mut self) {
-        let budget = self.cfg.send_budget_bytes;
+        let budget = self.send_budget;
         let ids: Vec<u64> = self.peers.keys().copied().collect();
         for id in ids {
             let mut spent = 0usize;

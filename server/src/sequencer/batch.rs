@@ -5,6 +5,8 @@ use strata_protocol::RejectReason;
 use strata_terrain::delta::ChunkDelta;
 use strata_terrain::{Chunk, ChunkPos, Edit};
 
+use crate::store::CommitBatch;
+
 /// One chunk changed by one edit.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ChunkUpdate {
@@ -39,48 +41,12 @@ pub struct RejectedEdit {
     pub reason: RejectReason,
 }
 
-/// One edit-log entry for the store.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CommitEntry {
-    pub seq: u64,
-    pub player: String,
-    /// Milliseconds (the tick's `now_ms`).
-    pub time_ms: u64,
-    pub edit: Edit,
-    /// Changed chunks and the versions this edit gave them.
-    pub changes: Vec<(ChunkPos, u64)>,
-}
-
-/// A chunk's final state after the tick.
-#[derive(Debug, Clone, PartialEq)]
-pub struct StoredChunk {
-    pub pos: ChunkPos,
-    pub version: u64,
-    pub chunk: Chunk,
-}
-
-/// Everything one tick made durable-worthy: written in one store transaction.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct CommitBatch {
-    /// In sequence order.
-    pub entries: Vec<CommitEntry>,
-    /// Final state of every chunk changed this tick, in position order.
-    pub chunks: Vec<StoredChunk>,
-    /// Sequence number of the last entry (the previous last seq if none).
-    pub last_seq: u64,
-}
-
-impl CommitBatch {
-    pub fn is_empty(&self) -> bool {
-        self.entries.is_empty()
-    }
-}
-
 /// The result of one [`super::Sequencer::tick`].
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TickOutput {
     /// In sequence order.
     pub applied: Vec<AppliedEdit>,
     pub rejected: Vec<RejectedEdit>,
+    /// What the store must make durable before anything is acknowledged.
     pub batch: CommitBatch,
 }

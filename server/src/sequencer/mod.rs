@@ -6,6 +6,8 @@
 //! and broadcasts deltas. Time arrives as `now_ms` so tests are deterministic.
 
 pub mod batch;
+pub use crate::store::{CommitBatch, LogEntry};
+
 pub mod config;
 pub mod residency;
 pub mod session;
@@ -13,7 +15,7 @@ mod submit;
 mod tick;
 
 pub use batch::{
-    AppliedEdit, ChunkUpdate, CommitBatch, CommitEntry, RejectedEdit, StoredChunk, TickOutput,
+    AppliedEdit, ChunkUpdate, RejectedEdit, TickOutput,
 };
 pub use config::{SequencerConfig, DEFAULT_MAX_EDITS_PER_TICK, DEFAULT_QUEUE_CAPACITY};
 

@@ -8,6 +8,8 @@ use strata_terrain::mesh::Neighborhood;
 use strata_terrain::ChunkPos;
 
 use super::batch::*;
+use super::{CommitBatch, LogEntry};
+use strata_terrain::Chunk;
 use super::residency::with_neighbours;
 use super::Sequencer;
 use crate::collision::CollisionCache;
@@ -27,7 +29,7 @@ impl Sequencer {
         let mut out = TickOutput::default();
         let mut jobs: Vec<(ChunkPos, u64, Neighborhood)> = Vec::new();
         let mut slots: Vec<MeshJob> = Vec::new();
-        let mut finals: BTreeMap<ChunkPos, StoredChunk> = BTreeMap::new();
+        let mut finals: BTreeMap<ChunkPos, (u64, Chunk)> = BTreeMap::new();
         let take = self.queue.len().min(self.cfg.max_edits_per_tick);
         for q in self.queue.drain(..take).collect::<Vec<_>>() {
             let ctx = strata_terrain::EditContext {
@@ -73,14 +75,7 @@ impl Sequencer {
                     applied: out.applied.len(),
                     change: changes.len(),
                 });
-                finals.insert(
-                    c.pos,
-                    StoredChunk {
-                        pos: c.pos,
-                        version: c.to_version,
-                        chunk: new_chunk.clone(),
-                    },
-                );
+                finals.insert(c.pos, (c.to_version, new_chunk.clone()));
                 changes.push(ChunkUpdate {
                     pos: c.pos,
                     from_version: c.from_version,
@@ -90,7 +85,7 @@ impl Sequencer {
                     mesh_hash: 0,
                 });
             }
-            out.batch.entries.push(CommitEntry {
+            out.batch.entries.push(LogEntry {
                 seq,
                 player: q.player.clone(),
                 time_ms: now_ms,
@@ -114,7 +109,7 @@ impl Sequencer {
                 self.collision.insert(mesh);
             }
         }
-        out.batch.chunks = finals.into_values().collect();
+        out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
         out.batch.last_seq = self.last_seq();
         out
     }
