@@ -100,52 +100,62 @@ impl DataDir {
     /// Opens `root`, creating it and any missing secret or certificate
     /// (with SANs localhost, 127.0.0.1, ::1 and `extra_names`). Existing
     /// files are reused untouched, so clients' pinned certificates and
-    /// issued tokens stay valid across restarts.
+    /// issued tokens stay valid across restarts. Everything is loaded or
+    /// generated in memory before anything is written, so a failure (a
+    /// corrupt key, a bad extra name) leaves the disk as it was.
     pub fn open_or_init(
         root: &Path,
         extra_names: &[String],
     ) -> Result<(DataDir, InitReport), DataDirError> {
-        let mut report = InitReport::default();
-        match fs::metadata(root) {
-            Ok(meta) if meta.is_dir() => {}
+        let dir_exists = match fs::metadata(root) {
+            Ok(meta) if meta.is_dir() => true,
             Ok(_) => return Err(DataDirError::NotADirectory(root.to_owned())),
-            Err(e) if e.kind() == io::ErrorKind::NotFound => {
-                create_private_dir(root).map_err(|source| DataDirError::Create {
-                    path: root.to_owned(),
-                    source,
-                })?;
-                report.created_dir = Some(root.to_owned());
-            }
+            Err(e) if e.kind() == io::ErrorKind::NotFound => false,
             Err(source) => {
                 return Err(DataDirError::Create {
                     path: root.to_owned(),
                     source,
                 })
             }
-        }
-
-        let secret_path = root.join(SECRET_NAME);
-        let secret = if secret_path.exists() {
-            Secret::load(&secret_path)?
-        } else {
-            let secret = Secret::generate()?;
-            secret.save(&secret_path)?;
-            report.created_secret = Some(secret_path);
-            secret
         };
-
+        let secret_path = root.join(SECRET_NAME);
         let (cert_path, key_path) = (root.join(CERT_NAME), root.join(KEY_NAME));
-        let cert = match (cert_path.exists(), key_path.exists()) {
-            (true, true) => CertPair::load(&cert_path, &key_path)?,
-            (false, false) => {
-                let pair = CertPair::generate(extra_names)?;
-                pair.save(&cert_path, &key_path)?;
-                report.created_cert = Some(cert_path);
-                pair
-            }
+
+        let existing_secret = match dir_exists && secret_path.exists() {
+            true => Some(Secret::load(&secret_path)?),
+            false => None,
+        };
+        let existing_cert = match (dir_exists && cert_path.exists(), key_path.exists()) {
+            (true, true) => Some(CertPair::load(&cert_path, &key_path)?),
+            (false, false) => None,
             (true, false) => return Err(half(cert_path, key_path)),
             (false, true) => return Err(half(key_path, cert_path)),
         };
+        let (secret, secret_is_new) = match existing_secret {
+            Some(secret) => (secret, false),
+            None => (Secret::generate()?, true),
+        };
+        let (cert, cert_is_new) = match existing_cert {
+            Some(pair) => (pair, false),
+            None => (CertPair::generate(extra_names)?, true),
+        };
+
+        let mut report = InitReport::default();
+        if !dir_exists {
+            create_private_dir(root).map_err(|source| DataDirError::Create {
+                path: root.to_owned(),
+                source,
+            })?;
+            report.created_dir = Some(root.to_owned());
+        }
+        if secret_is_new {
+            secret.save(&secret_path)?;
+            report.created_secret = Some(secret_path);
+        }
+        if cert_is_new {
+            cert.save(&cert_path, &key_path)?;
+            report.created_cert = Some(cert_path);
+        }
 
         let dir = DataDir {
             root: root.to_owned(),

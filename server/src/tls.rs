@@ -17,7 +17,7 @@ use std::time::Duration;
 use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
 use quinn::{IdleTimeout, TransportConfig, VarInt};
 use rustls::crypto::CryptoProvider;
-use rustls::pki_types::{CertificateDer, PrivateKeyDer, PrivatePkcs8KeyDer};
+use rustls::pki_types::{CertificateDer, PrivateKeyDer, PrivatePkcs8KeyDer, ServerName};
 use strata_protocol::ALPN;
 use thiserror::Error;
 
@@ -50,6 +50,8 @@ pub enum TlsError {
     Rustls(#[from] rustls::Error),
     #[error("the ring provider lacks QUIC's initial cipher suite")]
     NoInitialCipherSuite,
+    #[error("{0:?} is neither a DNS name nor an IP address")]
+    BadName(String),
     #[error("idle timeout {0:?} is too large for QUIC")]
     IdleTimeout(Duration),
 }
@@ -68,6 +70,11 @@ impl CertPair {
     pub fn generate(extra_names: &[String]) -> Result<Self, TlsError> {
         let mut names: Vec<String> = BASE_SUBJECT_ALT_NAMES.map(String::from).to_vec();
         for name in extra_names {
+            // rcgen accepts any ASCII as a DNS name; hold names to what a
+            // client could actually ask for.
+            if ServerName::try_from(name.as_str()).is_err() {
+                return Err(TlsError::BadName(name.clone()));
+            }
             if !names.contains(name) {
                 names.push(name.clone());
             }

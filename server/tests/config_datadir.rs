@@ -171,3 +171,46 @@ fn mismatched_or_corrupt_files_are_refused() {
         Err(DataDirError::Secret(SecretError::Invalid { .. }))
     ));
 }
+
+#[test]
+fn a_failed_init_writes_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("data");
+    let bad = vec!["not a name!".to_string()];
+    assert!(matches!(
+        DataDir::open_or_init(&root, &bad),
+        Err(DataDirError::Tls(TlsError::BadName(n))) if n == "not a name!"
+    ));
+    assert!(!root.exists());
+
+    // Same with an existing, empty dir: no secret appears.
+    std::fs::create_dir(&root).unwrap();
+    assert!(DataDir::open_or_init(&root, &bad).is_err());
+    assert_eq!(std::fs::read_dir(&root).unwrap().count(), 0);
+}
+
+#[test]
+fn only_missing_pieces_are_generated() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("data");
+    DataDir::open_or_init(&root, &[]).unwrap();
+    let secret_before = std::fs::read(root.join(SECRET_NAME)).unwrap();
+    std::fs::remove_file(root.join(CERT_NAME)).unwrap();
+    std::fs::remove_file(root.join(KEY_NAME)).unwrap();
+
+    let (_, report) = DataDir::open_or_init(&root, &[]).unwrap();
+    assert_eq!(report.created_dir, None);
+    assert_eq!(report.created_secret, None);
+    assert_eq!(report.created_cert, Some(root.join(CERT_NAME)));
+    assert_eq!(
+        report.to_string(),
+        format!(
+            "generated certificate at {}",
+            root.join(CERT_NAME).display()
+        )
+    );
+    assert_eq!(
+        std::fs::read(root.join(SECRET_NAME)).unwrap(),
+        secret_before
+    );
+}

@@ -16,6 +16,7 @@ pub const SECRET_LEN: usize = 32;
 ///
 /// On disk it is 64 lowercase hex characters and a newline, mode 0600, so an
 /// operator can inspect or back it up as text. `Debug` never prints it.
+#[derive(Clone)]
 pub struct Secret {
     bytes: [u8; SECRET_LEN],
     key: hmac::Key,

@@ -99,6 +99,20 @@ impl Sequencer {
         vec![Zone::spawn(validation.spawn_protection_radius)]
     }
 
+    /// The chunk's current state; a chunk never loaded is generated
+    /// (make stored chunks resident first).
+    pub fn chunk(&mut self, pos: ChunkPos) -> Chunk {
+        self.world.chunk(pos).chunk.clone()
+    }
+
+    /// Hash of the chunk's LOD-0 mesh at its current version, built and
+    /// cached if missing. Its neighbours must be resident.
+    pub fn mesh_hash(&mut self, pos: ChunkPos) -> u64 {
+        let version = self.world.chunk(pos).version;
+        self.collision.ensure(&self.world, &[pos]);
+        self.collision.get(pos, version).map_or(0, |m| m.hash)
+    }
+
     pub fn world(&self) -> &World {
         &self.world
     }

@@ -8,7 +8,7 @@ use strata_terrain::mesh::Neighborhood;
 use strata_terrain::ChunkPos;
 
 use super::batch::*;
-use super::{CommitBatch, LogEntry};
+use super::LogEntry;
 use strata_terrain::Chunk;
 use super::residency::with_neighbours;
 use super::Sequencer;

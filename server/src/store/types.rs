@@ -81,6 +81,13 @@ pub struct CommitBatch {
     pub last_seq: u64,
 }
 
+impl CommitBatch {
+    /// True when the tick accepted no edit (nothing to write).
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+}
+
 /// What one commit cost, for metrics.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct CommitStats {
