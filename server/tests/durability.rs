@@ -22,7 +22,7 @@ use strata_terrain::{Edit, FixedVec3};
 /// Starts `strata-server` on a fresh port and returns it with its address.
 fn spawn_server(data_dir: &Path) -> (Child, SocketAddr) {
     let config = data_dir.parent().unwrap().join("strata.toml");
-    std::fs::write(&config, "[validation]\nspawn_protection_radius = 0\n[validation.edit_rate]\nper_second = 1000\nburst = 1000\n").unwrap();
+    std::fs::write(&config, "[validation]\nspawn_protection_radius = 0\n[validation.edit_rate]\nper_second = 1000\ncapacity = 1000\n").unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_strata-server"))
         .arg("--config")
         .arg(&config)
@@ -121,7 +121,7 @@ async fn graceful_shutdown_loses_nothing() {
         let dir = tempfile::tempdir().unwrap();
         let mut cfg = test_config(dir.path());
         cfg.validation.edit_rate.per_second = 1000;
-        cfg.validation.edit_rate.burst = 1000;
+        cfg.validation.edit_rate.capacity = 1000;
         let server = strata_server::app::start(cfg).await.unwrap();
         let c = Arc::new(connect(&server, "ana", Role::Player).await);
         let (pos, x, y, z) = feet();

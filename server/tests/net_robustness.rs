@@ -88,7 +88,7 @@ async fn a_stalled_client_does_not_delay_the_others() {
         let mut cfg = test_config(dir.path());
         cfg.net.writer_queue = 8;
         cfg.validation.edit_rate.per_second = 1000;
-        cfg.validation.edit_rate.burst = 1000;
+        cfg.validation.edit_rate.capacity = 1000;
         let server = app::start(cfg).await.unwrap();
         let g = Generator::fractal(GenParams::default()).unwrap();
         let (x, z) = (70, 40);
