@@ -35,7 +35,10 @@ fn inconsistent_batches_are_refused_and_change_nothing() {
     let (_dir, store) = open();
     store.init_meta(&WorldMeta::new(9, 1, "")).unwrap();
     let mut seq = Seq::default();
-    let good = seq.batch(&[vec![(P, terrain_chunk(0))], vec![(P, terrain_chunk(1)), (Q, Chunk::default())]]);
+    let good = seq.batch(&[
+        vec![(P, terrain_chunk(0))],
+        vec![(P, terrain_chunk(1)), (Q, Chunk::default())],
+    ]);
 
     let mut b = good.clone();
     b.last_seq = 7;
