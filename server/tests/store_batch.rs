@@ -35,7 +35,10 @@ fn inconsistent_batches_are_refused_and_change_nothing() {
     let (_dir, store) = open();
     store.init_meta(&WorldMeta::new(9, 1, "")).unwrap();
     let mut seq = Seq::default();
-    let good = seq.batch(&[vec![(P, terrain_chunk(0))], vec![(P, terrain_chunk(1)), (Q, Chunk::default())]]);
+    let good = seq.batch(&[
+        vec![(P, terrain_chunk(0))],
+        vec![(P, terrain_chunk(1)), (Q, Chunk::default())],
+    ]);
 
     let mut b = good.clone();
     b.last_seq = 7;
@@ -95,4 +98,19 @@ fn inconsistent_batches_are_refused_and_change_nothing() {
     let p = store.load_chunk(P).unwrap().unwrap();
     assert_eq!((p.version, p.chunk), (2, terrain_chunk(1)));
     assert!(store.check().unwrap().is_ok());
+}
+
+#[test]
+fn oversized_log_record_is_refused() {
+    let (_dir, store) = open();
+    store.init_meta(&WorldMeta::new(9, 1, "")).unwrap();
+    let mut b = Seq::default().batch(&[vec![(P, Chunk::default())]]);
+    b.entries[0].player = "x".repeat(strata_server::store::MAX_LOG_RECORD_BYTES);
+    let err = store.commit_batch(&b).unwrap_err();
+    assert!(
+        matches!(&err, StoreError::Encode { what: "log entry", reason } if reason.contains("seq 1")),
+        "{err}"
+    );
+    assert_eq!(store.last_seq().unwrap(), 0);
+    assert_eq!(store.chunk_count().unwrap(), 0);
 }

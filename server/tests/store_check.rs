@@ -30,7 +30,9 @@ fn healthy() -> tempfile::TempDir {
             vec![(A, terrain_chunk(2)), (B, Chunk::default())],
         ]))
         .unwrap();
-    store.commit_batch(&seq.batch(&[vec![(C, terrain_chunk(3))]])).unwrap();
+    store
+        .commit_batch(&seq.batch(&[vec![(C, terrain_chunk(3))]]))
+        .unwrap();
     let report = store.check().unwrap();
     assert!(report.is_ok(), "{report:?}");
     assert_eq!((report.log_entries, report.chunks), (3, 3));
@@ -68,13 +70,20 @@ fn garbage_chunk_bytes_are_reported_by_position() {
         chunks.insert(chunk_key(B), &[1, 2, 3][..]).unwrap();
     });
     assert_eq!(issues.len(), 2, "{issues:?}");
-    assert!(matches!(&issues[0], CheckIssue::BadChunkRecord { pos, reason } if *pos == B && reason.contains("3 bytes")));
-    assert!(matches!(&issues[1], CheckIssue::BadChunkRecord { pos, reason } if *pos == A && reason.contains("does not decode")));
+    assert!(
+        matches!(&issues[0], CheckIssue::BadChunkRecord { pos, reason } if *pos == B && reason.contains("3 bytes"))
+    );
+    assert!(
+        matches!(&issues[1], CheckIssue::BadChunkRecord { pos, reason } if *pos == A && reason.contains("does not decode"))
+    );
     assert!(issues[0].to_string().contains("chunk (-1, 2, -3)"));
     // Loading the damaged chunk is a typed error, not a panic.
     let store = SledStore::open(dir.path()).unwrap();
     assert!(matches!(store.load_chunk(A), Err(StoreError::Codec { .. })));
-    assert!(matches!(store.load_chunk(B), Err(StoreError::Corrupt { .. })));
+    assert!(matches!(
+        store.load_chunk(B),
+        Err(StoreError::Corrupt { .. })
+    ));
     assert!(store.raw_chunks().any(|r| r.is_err()));
 }
 
@@ -87,17 +96,30 @@ fn orphan_chunk_is_reported() {
             .insert(chunk_key(orphan), encode_chunk_value(1, &terrain_chunk(9)))
             .unwrap();
     });
-    assert_eq!(issues, vec![CheckIssue::OrphanChunk { pos: orphan, version: 1 }]);
+    assert_eq!(
+        issues,
+        vec![CheckIssue::OrphanChunk {
+            pos: orphan,
+            version: 1
+        }]
+    );
 }
 
 #[test]
 fn missing_chunk_is_reported() {
     let (_dir, issues) = damaged(|db| {
-        db.open_tree(TREE_CHUNKS).unwrap().remove(chunk_key(C)).unwrap();
+        db.open_tree(TREE_CHUNKS)
+            .unwrap()
+            .remove(chunk_key(C))
+            .unwrap();
     });
     assert_eq!(
         issues,
-        vec![CheckIssue::MissingChunk { pos: C, logged_version: 1, seq: 3 }]
+        vec![CheckIssue::MissingChunk {
+            pos: C,
+            logged_version: 1,
+            seq: 3
+        }]
     );
 }
 
@@ -111,7 +133,12 @@ fn version_mismatch_is_reported() {
     });
     assert_eq!(
         issues,
-        vec![CheckIssue::VersionMismatch { pos: A, stored: 5, logged: 2, seq: 2 }]
+        vec![CheckIssue::VersionMismatch {
+            pos: A,
+            stored: 5,
+            logged: 2,
+            seq: 2
+        }]
     );
 }
 
@@ -121,13 +148,25 @@ fn log_damage_is_reported_by_seq() {
         let log = db.open_tree(TREE_LOG).unwrap();
         log.insert(seq_key(2), &[0xff; 5][..]).unwrap();
         log.remove(seq_key(3)).unwrap();
-        log.insert(seq_key(5), log.get(seq_key(1)).unwrap().unwrap()).unwrap();
+        log.insert(seq_key(5), log.get(seq_key(1)).unwrap().unwrap())
+            .unwrap();
     });
     // seq 2 garbage, seq 5 after a gap and holding seq 1's record, C no
     // longer logged, B never logged, and meta last_seq 3 vs log 5.
-    assert!(matches!(&issues[0], CheckIssue::BadLogRecord { seq: 2, .. }), "{issues:?}");
-    assert_eq!(issues[1], CheckIssue::LogGap { expected: 3, found: 5 });
-    assert!(matches!(&issues[2], CheckIssue::BadLogRecord { seq: 5, reason } if reason.contains("record says seq 1")));
+    assert!(
+        matches!(&issues[0], CheckIssue::BadLogRecord { seq: 2, .. }),
+        "{issues:?}"
+    );
+    assert_eq!(
+        issues[1],
+        CheckIssue::LogGap {
+            expected: 3,
+            found: 5
+        }
+    );
+    assert!(
+        matches!(&issues[2], CheckIssue::BadLogRecord { seq: 5, reason } if reason.contains("record says seq 1"))
+    );
     assert!(issues.contains(&CheckIssue::OrphanChunk { pos: B, version: 1 }));
     assert!(issues.contains(&CheckIssue::OrphanChunk { pos: C, version: 1 }));
     assert!(issues.contains(&CheckIssue::LastSeqMismatch { meta: 3, log: 5 }));
@@ -139,12 +178,18 @@ fn last_seq_mismatch_and_bad_meta_are_reported() {
         let meta = db.open_tree(TREE_META).unwrap();
         meta.insert(META_LAST_SEQ, &9u64.to_be_bytes()[..]).unwrap();
     });
-    assert_eq!(issues, vec![CheckIssue::LastSeqMismatch { meta: 9, log: 3 }]);
+    assert_eq!(
+        issues,
+        vec![CheckIssue::LastSeqMismatch { meta: 9, log: 3 }]
+    );
     let (dir, issues) = damaged(|db| {
         let meta = db.open_tree(TREE_META).unwrap();
         meta.insert(META_LAST_SEQ, &[1u8, 2][..]).unwrap();
     });
-    assert!(matches!(&issues[0], CheckIssue::BadMeta { reason } if reason.contains("last_seq")), "{issues:?}");
+    assert!(
+        matches!(&issues[0], CheckIssue::BadMeta { reason } if reason.contains("last_seq")),
+        "{issues:?}"
+    );
     // The store still opens (so check can run); reading the meta is an error.
     let store = SledStore::open(dir.path()).unwrap();
     assert!(matches!(store.load_meta(), Err(StoreError::Corrupt { .. })));
@@ -163,12 +208,59 @@ fn unknown_format_version_refuses_to_open() {
             "generator_version": m.generator_version,
             "generator_params": m.generator_params,
         });
-        meta.insert(strata_server::store::META_WORLD, serde_json::to_vec(&json).unwrap())
-            .unwrap();
+        meta.insert(
+            strata_server::store::META_WORLD,
+            serde_json::to_vec(&json).unwrap(),
+        )
+        .unwrap();
     });
     let r = SledStore::open(dir.path());
     assert!(
-        matches!(r, Err(StoreError::UnsupportedFormat { found: 99, supported: 1 })),
+        matches!(
+            r,
+            Err(StoreError::UnsupportedFormat {
+                found: 99,
+                supported: 1
+            })
+        ),
         "{r:?}"
+    );
+}
+
+#[test]
+fn falling_versions_and_bad_keys_are_reported() {
+    let (_dir, issues) = damaged(|db| {
+        // Seq 4 moves A back to version 1 (the log format is documented as
+        // bincode 2 serde standard config, so a test can write it).
+        let entry = strata_server::store::LogEntry {
+            seq: 4,
+            player: "mallory".into(),
+            time_ms: 0,
+            edit: store_common::mine_at(0, 0, 0),
+            changes: vec![(A, 1)],
+        };
+        let bytes = bincode::serde::encode_to_vec(&entry, bincode::config::standard()).unwrap();
+        db.open_tree(TREE_LOG)
+            .unwrap()
+            .insert(seq_key(4), bytes)
+            .unwrap();
+        let meta = db.open_tree(TREE_META).unwrap();
+        meta.insert(META_LAST_SEQ, &4u64.to_be_bytes()[..]).unwrap();
+        let chunks = db.open_tree(TREE_CHUNKS).unwrap();
+        chunks.insert(&b"short"[..], &b"x"[..]).unwrap();
+    });
+    assert_eq!(
+        issues,
+        vec![
+            CheckIssue::VersionNotIncreasing {
+                seq: 4,
+                pos: A,
+                to_version: 1,
+                previous: 2
+            },
+            CheckIssue::BadChunkKey {
+                key: "\"short\"".into()
+            },
+        ]
     );
 }

@@ -96,12 +96,19 @@ fn acknowledged_commits_survive_sigkill() {
     child.wait().unwrap();
     reader.join().unwrap();
     let acked = acked.lock().unwrap().clone();
-    assert!(acked.len() >= 3, "child acknowledged only {} batches", acked.len());
+    assert!(
+        acked.len() >= 3,
+        "child acknowledged only {} batches",
+        acked.len()
+    );
     let max_acked = *acked.last().unwrap();
 
     let store = SledStore::open(dir.path()).unwrap();
     let last = store.last_seq().unwrap();
-    assert!(last >= max_acked, "store ends at seq {last}, child acked {max_acked}");
+    assert!(
+        last >= max_acked,
+        "store ends at seq {last}, child acked {max_acked}"
+    );
     for &s in &acked {
         assert!(store.log_entry(s).unwrap().is_some(), "acked seq {s} lost");
     }
@@ -120,7 +127,10 @@ fn acknowledged_commits_survive_sigkill() {
         k += 1;
     }
     assert_eq!(seq.last_seq, last, "store ends inside batch {k}");
-    let log: Vec<_> = store.edit_log(1..=u64::MAX).collect::<Result<_, _>>().unwrap();
+    let log: Vec<_> = store
+        .edit_log(1..=u64::MAX)
+        .collect::<Result<_, _>>()
+        .unwrap();
     assert_eq!(log, entries);
     for (p, (v, c)) in &expected {
         let got = store.load_chunk(*p).unwrap().unwrap();
@@ -129,5 +139,8 @@ fn acknowledged_commits_survive_sigkill() {
     assert_eq!(store.chunk_count().unwrap(), expected.len() as u64);
     let report = store.check().unwrap();
     assert!(report.is_ok(), "{report:?}");
-    eprintln!("crash test: {} batches acked, store at seq {last}", acked.len());
+    eprintln!(
+        "crash test: {} batches acked, store at seq {last}",
+        acked.len()
+    );
 }

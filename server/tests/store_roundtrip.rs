@@ -44,15 +44,35 @@ fn init_meta_refuses_different_generation_inputs() {
         "{err}"
     );
     let err = store.init_meta(&WorldMeta::new(42, 4, PARAMS)).unwrap_err();
-    assert!(matches!(err, StoreError::MetaMismatch { field: "generator_version", .. }));
-    let err = store.init_meta(&WorldMeta::new(42, 3, "other")).unwrap_err();
-    assert!(matches!(err, StoreError::MetaMismatch { field: "generator_params", .. }));
+    assert!(matches!(
+        err,
+        StoreError::MetaMismatch {
+            field: "generator_version",
+            ..
+        }
+    ));
+    let err = store
+        .init_meta(&WorldMeta::new(42, 3, "other"))
+        .unwrap_err();
+    assert!(matches!(
+        err,
+        StoreError::MetaMismatch {
+            field: "generator_params",
+            ..
+        }
+    ));
     let mut bad = WorldMeta::new(42, 3, PARAMS);
     bad.last_seq = 5;
-    assert!(matches!(store.init_meta(&bad), Err(StoreError::InvalidMeta { .. })));
+    assert!(matches!(
+        store.init_meta(&bad),
+        Err(StoreError::InvalidMeta { .. })
+    ));
     bad = WorldMeta::new(42, 3, PARAMS);
     bad.format_version = 99;
-    assert!(matches!(store.init_meta(&bad), Err(StoreError::UnsupportedFormat { found: 99, .. })));
+    assert!(matches!(
+        store.init_meta(&bad),
+        Err(StoreError::UnsupportedFormat { found: 99, .. })
+    ));
     assert_eq!(store.load_meta().unwrap().unwrap().seed, 42);
 }
 
@@ -79,7 +99,11 @@ fn chunks_round_trip_uniform_and_dense() {
     let raw_a = raw.iter().find(|r| r.pos == a).unwrap();
     assert_eq!(raw_a.encoded.len(), 3);
     let raw_b = raw.iter().find(|r| r.pos == b).unwrap();
-    assert!(raw_b.encoded.len() < 16 * 1024, "dense chunk {} bytes", raw_b.encoded.len());
+    assert!(
+        raw_b.encoded.len() < 16 * 1024,
+        "dense chunk {} bytes",
+        raw_b.encoded.len()
+    );
     assert_eq!(decode_chunk(&raw_b.encoded).unwrap(), dense);
     assert_eq!(store.chunk_count().unwrap(), 2);
     assert!(store.size_on_disk().unwrap() > 0);
@@ -98,7 +122,10 @@ fn batches_and_log_ranges_round_trip_across_reopen() {
             // Three edits per tick; edits 0 and 2 touch the same chunk.
             let b = seq.batch(&[
                 vec![(p(0), terrain_chunk(round * 3))],
-                vec![(p(1), terrain_chunk(round * 3 + 1)), (p(2), Chunk::default())],
+                vec![
+                    (p(1), terrain_chunk(round * 3 + 1)),
+                    (p(2), Chunk::default()),
+                ],
                 vec![(p(0), terrain_chunk(round * 3 + 2))],
             ]);
             store.commit_batch(&b).unwrap();
@@ -126,7 +153,11 @@ fn batches_and_log_ranges_round_trip_across_reopen() {
     let mut expected = vec![(p(0), 8), (p(1), 4), (p(2), 4)];
     expected.sort();
     assert_eq!(versions, expected);
-    assert!(store.check().unwrap().is_ok(), "{:?}", store.check().unwrap());
+    assert!(
+        store.check().unwrap().is_ok(),
+        "{:?}",
+        store.check().unwrap()
+    );
 }
 
 #[test]
@@ -156,10 +187,7 @@ fn key_order_matches_chunk_pos_order_including_negatives() {
         .map(|p| vec![(*p, Chunk::uniform(Voxel::solid(ids::DIRT)))])
         .collect();
     store.commit_batch(&seq.batch(&edits)).unwrap();
-    let stored: Vec<_> = store
-        .modified_chunks()
-        .map(|r| r.unwrap().0)
-        .collect();
+    let stored: Vec<_> = store.modified_chunks().map(|r| r.unwrap().0).collect();
     assert_eq!(stored, positions);
     for p in &positions {
         assert_eq!(chunk_pos_from_key(&chunk_key(*p)), Some(*p));
@@ -172,15 +200,26 @@ fn blobs_round_trip_and_enforce_limits() {
     {
         let store = SledStore::open(dir.path()).unwrap();
         assert_eq!(store.get_blob("zones").unwrap(), None);
-        store.put_blob("zones", b"[[zone]]\nname = \"spawn\"").unwrap();
+        store
+            .put_blob("zones", b"[[zone]]\nname = \"spawn\"")
+            .unwrap();
         store.put_blob("other", &[0, 1, 2]).unwrap();
         assert!(store.delete_blob("other").unwrap());
         assert!(!store.delete_blob("other").unwrap());
-        assert!(matches!(store.put_blob("", b"x"), Err(StoreError::InvalidBlob { .. })));
+        assert!(matches!(
+            store.put_blob("", b"x"),
+            Err(StoreError::InvalidBlob { .. })
+        ));
         let long = "n".repeat(strata_server::store::MAX_BLOB_NAME_BYTES + 1);
-        assert!(matches!(store.get_blob(&long), Err(StoreError::InvalidBlob { .. })));
+        assert!(matches!(
+            store.get_blob(&long),
+            Err(StoreError::InvalidBlob { .. })
+        ));
         let big = vec![0u8; strata_server::store::MAX_BLOB_BYTES + 1];
-        assert!(matches!(store.put_blob("big", &big), Err(StoreError::InvalidBlob { .. })));
+        assert!(matches!(
+            store.put_blob("big", &big),
+            Err(StoreError::InvalidBlob { .. })
+        ));
         assert_eq!(store.get_blob("big").unwrap(), None);
     }
     let store = SledStore::open(dir.path()).unwrap();

@@ -81,7 +81,10 @@ pub fn validate(b: &CommitBatch) -> Result<BTreeMap<ChunkPos, u64>, StoreError> 
     let mut seen = BTreeMap::new();
     for (pos, v, _) in &b.chunks {
         if seen.insert(*pos, *v).is_some() {
-            return Err(StoreError::batch(format!("{} written twice", show_pos(*pos))));
+            return Err(StoreError::batch(format!(
+                "{} written twice",
+                show_pos(*pos)
+            )));
         }
         match span.get(pos) {
             None => {

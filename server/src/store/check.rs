@@ -28,21 +28,56 @@ pub enum CheckIssue {
     /// The store has log or chunk records but no world metadata.
     MissingMeta,
     /// Metadata or `last_seq` does not decode.
-    BadMeta { reason: String },
-    BadLogKey { key: String },
-    BadLogRecord { seq: u64, reason: String },
+    BadMeta {
+        reason: String,
+    },
+    BadLogKey {
+        key: String,
+    },
+    BadLogRecord {
+        seq: u64,
+        reason: String,
+    },
     /// Seqs must run 1, 2, 3, ... with nothing missing.
-    LogGap { expected: u64, found: u64 },
+    LogGap {
+        expected: u64,
+        found: u64,
+    },
     /// A chunk's version did not rise at this seq.
-    VersionNotIncreasing { seq: u64, pos: ChunkPos, to_version: u64, previous: u64 },
-    LastSeqMismatch { meta: u64, log: u64 },
-    BadChunkKey { key: String },
-    BadChunkRecord { pos: ChunkPos, reason: String },
+    VersionNotIncreasing {
+        seq: u64,
+        pos: ChunkPos,
+        to_version: u64,
+        previous: u64,
+    },
+    LastSeqMismatch {
+        meta: u64,
+        log: u64,
+    },
+    BadChunkKey {
+        key: String,
+    },
+    BadChunkRecord {
+        pos: ChunkPos,
+        reason: String,
+    },
     /// A stored chunk that no log entry changed.
-    OrphanChunk { pos: ChunkPos, version: u64 },
+    OrphanChunk {
+        pos: ChunkPos,
+        version: u64,
+    },
     /// The log changed this chunk but the store does not hold it.
-    MissingChunk { pos: ChunkPos, logged_version: u64, seq: u64 },
-    VersionMismatch { pos: ChunkPos, stored: u64, logged: u64, seq: u64 },
+    MissingChunk {
+        pos: ChunkPos,
+        logged_version: u64,
+        seq: u64,
+    },
+    VersionMismatch {
+        pos: ChunkPos,
+        stored: u64,
+        logged: u64,
+        seq: u64,
+    },
 }
 
 impl fmt::Display for CheckIssue {
@@ -56,7 +91,12 @@ impl fmt::Display for CheckIssue {
             LogGap { expected, found } => {
                 write!(f, "log seq {found}: expected seq {expected} next (gap)")
             }
-            VersionNotIncreasing { seq, pos, to_version, previous } => write!(
+            VersionNotIncreasing {
+                seq,
+                pos,
+                to_version,
+                previous,
+            } => write!(
                 f,
                 "log seq {seq}: {} moved to version {to_version}, not above {previous}",
                 show_pos(*pos)
@@ -71,12 +111,21 @@ impl fmt::Display for CheckIssue {
                 "{} (version {version}): stored but no log entry changed it",
                 show_pos(*pos)
             ),
-            MissingChunk { pos, logged_version, seq } => write!(
+            MissingChunk {
+                pos,
+                logged_version,
+                seq,
+            } => write!(
                 f,
                 "{}: log seq {seq} moved it to version {logged_version} but it is not stored",
                 show_pos(*pos)
             ),
-            VersionMismatch { pos, stored, logged, seq } => write!(
+            VersionMismatch {
+                pos,
+                stored,
+                logged,
+                seq,
+            } => write!(
                 f,
                 "{}: stored at version {stored} but log seq {seq} moved it to {logged}",
                 show_pos(*pos)
@@ -137,7 +186,10 @@ impl Checker {
         };
         let expected = self.last_log_seq + 1;
         if seq != expected {
-            self.issue(CheckIssue::LogGap { expected, found: seq });
+            self.issue(CheckIssue::LogGap {
+                expected,
+                found: seq,
+            });
         }
         self.last_log_seq = seq;
         let entry = match decode_log_entry(seq, value) {

@@ -66,7 +66,10 @@ pub fn seq_from_key(key: &[u8]) -> Option<u64> {
 pub fn show_raw(key: &[u8]) -> String {
     match std::str::from_utf8(key) {
         Ok(s) => format!("{s:?}"),
-        Err(_) => format!("0x{}", key.iter().map(|b| format!("{b:02x}")).collect::<String>()),
+        Err(_) => format!(
+            "0x{}",
+            key.iter().map(|b| format!("{b:02x}")).collect::<String>()
+        ),
     }
 }
 
@@ -82,7 +85,7 @@ mod tests {
     #[test]
     fn chunk_keys_round_trip_extremes() {
         for v in [i32::MIN, -1, 0, 1, i32::MAX] {
-            let p = ChunkPos::new(v, -v.wrapping_add(1), v / 2);
+            let p = ChunkPos::new(v, v.wrapping_neg().wrapping_add(1), v / 2);
             assert_eq!(chunk_pos_from_key(&chunk_key(p)), Some(p));
         }
         assert_eq!(chunk_pos_from_key(&[0u8; 11]), None);

@@ -42,7 +42,10 @@ pub fn encode_chunk_value(version: u64, chunk: &Chunk) -> Vec<u8> {
 pub fn split_chunk_value(pos: ChunkPos, value: &[u8]) -> Result<(u64, &[u8]), StoreError> {
     if value.len() <= CHUNK_VERSION_LEN {
         return Err(StoreError::corrupt(
-            format!("chunk value of {} bytes (needs a version and a body)", value.len()),
+            format!(
+                "chunk value of {} bytes (needs a version and a body)",
+                value.len()
+            ),
             show_pos(pos),
         ));
     }
@@ -69,9 +72,10 @@ pub fn encode_log_entry(e: &LogEntry) -> Result<Vec<u8>, StoreError> {
 }
 
 pub fn decode_log_entry(seq: u64, bytes: &[u8]) -> Result<LogEntry, StoreError> {
-    let corrupt = |why: String| StoreError::corrupt(format!("log entry ({why})"), format!("seq {seq}"));
-    let (e, used): (LogEntry, usize) =
-        bincode::serde::decode_from_slice(bytes, log_config()).map_err(|e| corrupt(e.to_string()))?;
+    let corrupt =
+        |why: String| StoreError::corrupt(format!("log entry ({why})"), format!("seq {seq}"));
+    let (e, used): (LogEntry, usize) = bincode::serde::decode_from_slice(bytes, log_config())
+        .map_err(|e| corrupt(e.to_string()))?;
     if used != bytes.len() {
         return Err(corrupt(format!("{} trailing bytes", bytes.len() - used)));
     }
@@ -118,7 +122,10 @@ pub fn decode_meta(bytes: &[u8], last_seq: u64) -> Result<WorldMeta, StoreError>
 
 pub fn decode_last_seq(bytes: &[u8]) -> Result<u64, StoreError> {
     let b: [u8; 8] = bytes.try_into().map_err(|_| {
-        StoreError::corrupt(format!("last_seq of {} bytes", bytes.len()), "meta/last_seq")
+        StoreError::corrupt(
+            format!("last_seq of {} bytes", bytes.len()),
+            "meta/last_seq",
+        )
     })?;
     Ok(u64::from_be_bytes(b))
 }

@@ -93,7 +93,9 @@ impl CommitBatch {
 pub struct CommitStats {
     /// Encoded bytes written (chunk values plus log records).
     pub bytes_written: u64,
-    /// Time to encode the batch and apply the transaction in memory.
+    /// Time to encode the batch (zstd of the chunks, bincode of the log).
+    pub encode: Duration,
+    /// Time to apply the transaction in memory.
     pub apply: Duration,
     /// Time `flush` took to make it durable (the fsyncs).
     pub flush: Duration,

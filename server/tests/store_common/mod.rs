@@ -32,7 +32,10 @@ pub fn terrain_chunk(salt: u32) -> Chunk {
                     2..=4 => ids::DIRT,
                     _ => ids::STONE,
                 };
-                d.set(i, Voxel::new(density, if density == 0 { ids::AIR } else { material }));
+                d.set(
+                    i,
+                    Voxel::new(density, if density == 0 { ids::AIR } else { material }),
+                );
             }
         }
     }
