@@ -257,6 +257,13 @@ impl Sequencer {
             .get(&session_id)
             .ok_or(PositionReject::UnknownSession)?
             .position;
+        // Stale reports are dropped before anything else, even loading.
+        if let Some(p) = prev.filter(|p| upd.seq <= p.seq) {
+            return Err(PositionReject::Stale {
+                seq: upd.seq,
+                last: p.seq,
+            });
+        }
         if let Some(pos) = self.chunks_needed_for_position(&upd).first() {
             return Err(PositionReject::ChunkNotLoaded { pos: *pos });
         }

@@ -12,7 +12,7 @@ use super::LogEntry;
 use strata_terrain::Chunk;
 use super::residency::with_neighbours;
 use super::Sequencer;
-use crate::collision::CollisionCache;
+use crate::collision::{neighborhood, CollisionCache};
 
 /// Where a change's mesh hash goes once the meshes are built.
 struct MeshJob {
@@ -66,11 +66,7 @@ impl Sequencer {
                 self.residency.mark_present(c.pos);
                 // Neighbours feed the mesh apron; they are resident (submit checked).
                 self.world.load(with_neighbours(c.pos));
-                jobs.push((
-                    c.pos,
-                    c.to_version,
-                    Neighborhood::from_world(&self.world, c.pos),
-                ));
+                jobs.push((c.pos, c.to_version, neighborhood(&self.world, c.pos)));
                 slots.push(MeshJob {
                     applied: out.applied.len(),
                     change: changes.len(),
