@@ -187,12 +187,12 @@ impl Generator {
                     let depth = c.h - y as f64;
                     let mut v = k * depth;
                     if cave.is_some() {
-                        let g = guard * (1.0 - (depth * inv_guard_depth).max(0.0).min(1.0));
+                        let g = guard * (1.0 - (depth * inv_guard_depth).clamp(0.0, 1.0));
                         v = v.min(kc * (threshold + g - column_at(&c.cave, ly)));
                     }
                     // floor(128 + v) clamped to 0..=255: on the clamped,
                     // non-negative range truncation equals floor (no libm call).
-                    let density = (128.0 + v).max(0.0).min(255.0) as u8;
+                    let density = (128.0 + v).clamp(0.0, 255.0) as u8;
                     let is_ore = ore.is_some() && column_at(&c.ore, ly) > ore_threshold;
                     let material = self.layers.material(c.y_top - y, is_ore);
                     let bedrock = y < c.bedrock_top;
