@@ -48,48 +48,51 @@ impl NoiseField {
     }
 }
 
-/// One chunk's lattice of field values, index `(z * N + y) * N + x`.
+const N: usize = LATTICE_POINTS;
+const SIZE: usize = CHUNK_SIZE as usize;
+
+/// One chunk's lattice of field values, already interpolated along x: for
+/// every lattice (z, y) pair, the 32 voxel values of that x row, index
+/// `(z * N + y) * SIZE + lx`. Interpolating x once per row (instead of once
+/// per column) does the same arithmetic in the same order, so the values are
+/// bit-identical to a direct trilinear interpolation, at a third of the cost.
 #[derive(Debug, Clone)]
 pub(crate) struct Lattice {
-    values: [f64; LATTICE_POINTS * LATTICE_POINTS * LATTICE_POINTS],
+    rows: Vec<f64>,
 }
 
 impl Lattice {
     /// Samples `field` at the lattice points of the chunk with minimum voxel `origin`.
     pub(crate) fn sample(field: &NoiseField, origin: (i64, i64, i64)) -> Self {
-        let mut values = [0.0; LATTICE_POINTS * LATTICE_POINTS * LATTICE_POINTS];
         let step = LATTICE_STEP as i64;
-        let mut i = 0;
-        for z in 0..LATTICE_POINTS as i64 {
-            for y in 0..LATTICE_POINTS as i64 {
-                for x in 0..LATTICE_POINTS as i64 {
-                    values[i] = field.at(
-                        origin.0 + x * step,
-                        origin.1 + y * step,
-                        origin.2 + z * step,
-                    );
-                    i += 1;
-                }
+        let mut rows = vec![0.0; N * N * SIZE];
+        let mut points = [0.0; N];
+        for (zy, row) in rows.chunks_exact_mut(SIZE).enumerate() {
+            let (z, y) = ((zy / N) as i64, (zy % N) as i64);
+            for (x, p) in points.iter_mut().enumerate() {
+                *p = field.at(
+                    origin.0 + x as i64 * step,
+                    origin.1 + y * step,
+                    origin.2 + z * step,
+                );
+            }
+            for (lx, v) in row.iter_mut().enumerate() {
+                let (cx, tx) = (lx / LATTICE_STEP, FRACTIONS[lx % LATTICE_STEP]);
+                *v = lerp(points[cx], points[cx + 1], tx);
             }
         }
-        Self { values }
+        Self { rows }
     }
 
-    #[inline]
-    fn get(&self, x: usize, y: usize, z: usize) -> f64 {
-        self.values[(z * LATTICE_POINTS + y) * LATTICE_POINTS + x]
-    }
-
-    /// Bilinear interpolation in x and z at every lattice height, for the
-    /// voxel column `(lx, lz)`; [`column_at`] then finishes along y.
+    /// Values at every lattice height for the voxel column `(lx, lz)`
+    /// (x and z interpolated); [`column_at`] then finishes along y.
     pub(crate) fn column(&self, lx: usize, lz: usize) -> [f64; LATTICE_POINTS] {
-        let (cx, tx) = (lx / LATTICE_STEP, FRACTIONS[lx % LATTICE_STEP]);
         let (cz, tz) = (lz / LATTICE_STEP, FRACTIONS[lz % LATTICE_STEP]);
+        let near = &self.rows[cz * N * SIZE..(cz + 1) * N * SIZE];
+        let far = &self.rows[(cz + 1) * N * SIZE..(cz + 2) * N * SIZE];
         let mut out = [0.0; LATTICE_POINTS];
         for (y, o) in out.iter_mut().enumerate() {
-            let a = lerp(self.get(cx, y, cz), self.get(cx + 1, y, cz), tx);
-            let b = lerp(self.get(cx, y, cz + 1), self.get(cx + 1, y, cz + 1), tx);
-            *o = lerp(a, b, tz);
+            *o = lerp(near[y * SIZE + lx], far[y * SIZE + lx], tz);
         }
         out
     }

@@ -90,11 +90,26 @@ const GRAD3: [(f64, f64, f64); 16] = [
     (0.0, -1.0, -1.0),
 ];
 
+/// `floor` as an integer, exact for |v| < 2^53 (all the generator uses).
+///
+/// `f64::floor` is a libm call on baseline x86-64 and showed up as 15% of
+/// generation time; truncation plus a correction is one instruction pair
+/// and gives the same value.
+#[inline]
+pub fn floor_i64(v: f64) -> i64 {
+    let t = v as i64;
+    if (t as f64) > v {
+        t - 1
+    } else {
+        t
+    }
+}
+
 /// Splits a noise-space coordinate into its lattice cell and the fraction.
 #[inline]
 fn cell(v: f64) -> (i64, f64) {
-    let f = v.floor();
-    (f as i64, v - f)
+    let f = floor_i64(v);
+    (f, v - f as f64)
 }
 
 #[inline]
@@ -221,6 +236,25 @@ mod tests {
         assert_ne!(sub_seed(5, 0), sub_seed(5, 1));
         assert_ne!(hash3(0, 1, 0, 0), hash3(0, 0, 1, 0));
         assert_ne!(hash2(0, 1, 0), hash2(0, 0, 1));
+    }
+
+    #[test]
+    fn floor_i64_matches_floor() {
+        for v in [
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            2.999,
+            -2.999,
+            1e15 + 0.5,
+            -1e15 - 0.5,
+            -3.0,
+        ] {
+            assert_eq!(floor_i64(v), v.floor() as i64, "{v}");
+        }
     }
 
     #[test]
