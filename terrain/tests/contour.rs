@@ -481,6 +481,18 @@ fn vertical_slices_show_ground_line_and_cavity() {
         .unwrap();
         let (u, v) = if axis == Axis::X { (-16, 0) } else { (0, -16) };
         assert_eq!(cave.voxel(u, v).map(|v| v.material), Some(ids::AIR));
+        // Chunk-wise and per-voxel reading agree on dense chunks at any depth
+        // inside the chunk, on both sides of the chunk border at 0.
+        for level in [-4, -1, 0, 3] {
+            let spec = SliceSpec {
+                level,
+                ..cave.spec()
+            };
+            assert_eq!(
+                slice_grid(&world, spec).unwrap(),
+                slice_grid_chunks(&world, spec).unwrap()
+            );
+        }
     }
 }
 
