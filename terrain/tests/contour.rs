@@ -297,6 +297,10 @@ proptest! {
             (k >> 56) as u8
         });
         assert_tiled_matches(&f, w, h, [ox, oy], DENSITY_ISO);
+        // Small integer heights with an integer iso: samples equal to the iso
+        // level (outside, crossing at t = 0) everywhere.
+        let heights: Vec<f32> = f.iter().map(|&v| f32::from(v >> 5)).collect();
+        assert_tiled_matches(&heights, w, h, [ox, oy], 3.0);
     }
 }
 
