@@ -297,6 +297,10 @@ proptest! {
             (k >> 56) as u8
         });
         assert_tiled_matches(&f, w, h, [ox, oy], DENSITY_ISO);
+        // Small integer heights with an integer iso: samples equal to the iso
+        // level (outside, crossing at t = 0) everywhere.
+        let heights: Vec<f32> = f.iter().map(|&v| f32::from(v >> 5)).collect();
+        assert_tiled_matches(&heights, w, h, [ox, oy], 3.0);
     }
 }
 
@@ -338,6 +342,33 @@ fn tiled_equals_single_across_tile_corners() {
         });
         assert_tiled_matches(&f, w, h, origin, DENSITY_ISO);
     }
+}
+
+#[test]
+fn stitching_far_apart_pieces_matches_compact_stitching() {
+    // Far-apart keys take the hash index instead of the dense one; both
+    // must join segments identically.
+    let f = sample([0, 0], 30, 30, |x, y| {
+        (127.5 + (8.0 - dist(f64::from(x), f64::from(y), [14.2, 15.1])) * 20.0).clamp(0.0, 255.0)
+            as u8
+    });
+    let segs = grid_segments(&GridView::new(&f, 30, 30, [0, 0]).unwrap(), DENSITY_ISO).unwrap();
+    let near = stitch(segs.clone()).unwrap();
+    assert_eq!(near.len(), 1);
+    let shift = |k: EdgeKey| EdgeKey {
+        x: k.x + (1 << 30),
+        ..k
+    };
+    let far: Vec<Segment> = segs
+        .iter()
+        .map(|s| Segment {
+            from: shift(s.from),
+            to: shift(s.to),
+            ..*s
+        })
+        .collect();
+    let both = stitch(segs.iter().copied().chain(far).collect()).unwrap();
+    assert_eq!(both, vec![near[0].clone(), near[0].clone()]);
 }
 
 #[test]
@@ -481,6 +512,18 @@ fn vertical_slices_show_ground_line_and_cavity() {
         .unwrap();
         let (u, v) = if axis == Axis::X { (-16, 0) } else { (0, -16) };
         assert_eq!(cave.voxel(u, v).map(|v| v.material), Some(ids::AIR));
+        // Chunk-wise and per-voxel reading agree on dense chunks at any depth
+        // inside the chunk, on both sides of the chunk border at 0.
+        for level in [-4, -1, 0, 3] {
+            let spec = SliceSpec {
+                level,
+                ..cave.spec()
+            };
+            assert_eq!(
+                slice_grid(&world, spec).unwrap(),
+                slice_grid_chunks(&world, spec).unwrap()
+            );
+        }
     }
 }
 
@@ -596,6 +639,16 @@ fn bad_input_is_refused_with_reasons() {
     assert_eq!(
         stitch(vec![seg(0, 2), seg(1, 2)]).unwrap_err(),
         ContourError::DuplicateEdge(k(2))
+    );
+    // The same checks when the keys are far apart (hash index).
+    let far = 1 << 30;
+    assert_eq!(
+        stitch(vec![seg(0, far), seg(0, 2)]).unwrap_err(),
+        ContourError::DuplicateEdge(k(0))
+    );
+    assert_eq!(
+        stitch(vec![seg(0, far), seg(1, far)]).unwrap_err(),
+        ContourError::DuplicateEdge(k(far))
     );
     // A consistent set stitches: a 3-cycle and an open chain.
     let lines = stitch(vec![seg(5, 6), seg(1, 2), seg(6, 4), seg(2, 3), seg(4, 5)]).unwrap();

@@ -20,7 +20,7 @@ use std::borrow::Cow;
 use super::chunked::{contour_tiled, Rect, TilePos, TiledField, TILE_AREA, TILE_SIZE};
 use super::{ContourError, Polyline};
 use crate::chunk::{Chunk, Voxel};
-use crate::pos::{ChunkPos, VoxelPos};
+use crate::pos::{local_index, ChunkPos, VoxelPos};
 use crate::world::{VoxelRead, World};
 
 /// A world axis, naming the slice plane's normal.
@@ -190,19 +190,43 @@ pub fn slice_grid_chunks(
     let r = spec.region;
     build(spec, |tp, d, m| {
         let chunk = src.chunk_at(tile_chunk(spec.axis, spec.level, tp));
-        if let Chunk::Uniform(vox) = *chunk {
-            d.fill(vox.density);
-            m.fill(vox.material);
-            return;
-        }
+        let dense = match &*chunk {
+            Chunk::Uniform(vox) => {
+                d.fill(vox.density);
+                m.fill(vox.material);
+                return;
+            }
+            Chunk::Dense(dense) => dense,
+        };
+        // Index steps in the chunk's planes (x fastest, then y, then z) for
+        // one step along u and along v, and the fixed level's offset.
+        let level = spec.level & (TILE_SIZE - 1);
+        let (base, su, sv) = match spec.axis {
+            Axis::X => (
+                local_index(level as usize, 0, 0),
+                local_index(0, 1, 0),
+                local_index(0, 0, 1),
+            ),
+            Axis::Y => (
+                local_index(0, level as usize, 0),
+                local_index(1, 0, 0),
+                local_index(0, 0, 1),
+            ),
+            Axis::Z => (
+                local_index(0, 0, level as usize),
+                local_index(1, 0, 0),
+                local_index(0, 1, 0),
+            ),
+        };
         let (lo, hi) = tile_span(&r, tp);
+        let m32 = TILE_SIZE - 1;
         for v in lo[1]..=hi[1] {
+            let row = base + (v & m32) as usize * sv;
             for u in lo[0]..=hi[0] {
-                let (x, y, z) = spec.axis.voxel(spec.level, u, v).local();
-                let vox = chunk.get(x, y, z);
+                let src_i = row + (u & m32) as usize * su;
                 let i = plane_index(u, v);
-                d[i] = vox.density;
-                m[i] = vox.material;
+                d[i] = dense.density[src_i];
+                m[i] = dense.material[src_i];
             }
         }
     })

@@ -10,7 +10,7 @@
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
-use super::{ContourError, EdgeKey, Polyline, Segment};
+use super::{ContourError, EdgeAxis, EdgeKey, Polyline, Segment};
 
 /// A fast multiplicative hasher for edge keys (FxHash's mixing step). Only
 /// used for lookups, never iterated, so it cannot affect output order.
@@ -60,30 +60,109 @@ impl Hasher for KeyHasher {
 
 type KeyMap<V> = HashMap<EdgeKey, V, BuildHasherDefault<KeyHasher>>;
 
+/// Largest dense edge index, in edge slots (16 bytes each: 32 MiB).
+const DENSE_INDEX_MAX_SLOTS: u64 = 1 << 21;
+/// A dense index is used only while it has at most this many slots per
+/// segment; sparser key sets (a few far-apart pieces) use a hash map.
+const DENSE_SLOTS_PER_SEGMENT: u64 = 64;
+
+const NONE: usize = usize::MAX;
+
+/// Per edge: the segment starting there and the one ending there.
+///
+/// Contours of a grid cover a compact key range, so a flat array over the
+/// keys' bounding box is the fast path; the hash map covers the rest. Both
+/// are only looked up, so the choice never changes the output.
+enum EdgeIndex {
+    Dense {
+        min: [i64; 2],
+        width: u64,
+        slots: Vec<[usize; 2]>,
+    },
+    Hash(KeyMap<[usize; 2]>),
+}
+
+impl EdgeIndex {
+    fn for_segments(segments: &[Segment]) -> Self {
+        let mut min = [i64::MAX; 2];
+        let mut max = [i64::MIN; 2];
+        for k in segments.iter().flat_map(|s| [s.from, s.to]) {
+            let p = [i64::from(k.x), i64::from(k.y)];
+            for a in 0..2 {
+                min[a] = min[a].min(p[a]);
+                max[a] = max[a].max(p[a]);
+            }
+        }
+        let n = segments.len() as u64;
+        if n > 0 {
+            // Spans fit in u64: both ends are i32.
+            let width = (max[0] - min[0] + 1) as u64;
+            let height = (max[1] - min[1] + 1) as u64;
+            let count = width.saturating_mul(height).saturating_mul(2);
+            if count <= DENSE_INDEX_MAX_SLOTS && count <= n.saturating_mul(DENSE_SLOTS_PER_SEGMENT)
+            {
+                return EdgeIndex::Dense {
+                    min,
+                    width,
+                    slots: vec![[NONE; 2]; count as usize],
+                };
+            }
+        }
+        let mut map = KeyMap::default();
+        map.reserve(segments.len() + segments.len() / 8);
+        EdgeIndex::Hash(map)
+    }
+
+    /// Slot of a key inside the dense box (all keys are, by construction).
+    #[inline]
+    fn dense_slot(min: [i64; 2], width: u64, k: EdgeKey) -> usize {
+        let dx = (i64::from(k.x) - min[0]) as u64;
+        let dy = (i64::from(k.y) - min[1]) as u64;
+        ((dy * width + dx) * 2 + u64::from(k.axis == EdgeAxis::Y)) as usize
+    }
+
+    fn entry(&mut self, k: EdgeKey) -> Option<&mut [usize; 2]> {
+        match self {
+            EdgeIndex::Dense { min, width, slots } => {
+                slots.get_mut(Self::dense_slot(*min, *width, k))
+            }
+            EdgeIndex::Hash(map) => Some(map.entry(k).or_insert([NONE; 2])),
+        }
+    }
+
+    fn get(&self, k: EdgeKey) -> [usize; 2] {
+        let found = match self {
+            EdgeIndex::Dense { min, width, slots } => slots.get(Self::dense_slot(*min, *width, k)),
+            EdgeIndex::Hash(map) => map.get(&k),
+        };
+        found.copied().unwrap_or([NONE; 2])
+    }
+}
+
 /// Stitches segments into polylines.
 ///
 /// Every edge may start at most one segment and end at most one (true of
 /// any Marching Squares output); otherwise [`ContourError::DuplicateEdge`].
 pub fn stitch(segments: Vec<Segment>) -> Result<Vec<Polyline>, ContourError> {
-    const NONE: usize = usize::MAX;
     let n = segments.len();
-    // Per edge: the segment starting there and the one ending there.
-    let mut ends: KeyMap<[usize; 2]> = KeyMap::default();
-    ends.reserve(n + n / 8);
+    let mut ends = EdgeIndex::for_segments(&segments);
     for (i, s) in segments.iter().enumerate() {
         for (key, side) in [(s.from, 0), (s.to, 1)] {
-            let slot = &mut ends.entry(key).or_insert([NONE; 2])[side];
-            if *slot != NONE {
-                return Err(ContourError::DuplicateEdge(key));
+            // Every key lies in the index (dense box or map).
+            if let Some(slot) = ends.entry(key) {
+                if slot[side] != NONE {
+                    return Err(ContourError::DuplicateEdge(key));
+                }
+                slot[side] = i;
             }
-            *slot = i;
         }
     }
     // Each segment's successor, and whether something leads into it.
-    // (Every key was inserted above; `get` just keeps this panic-free.)
-    let at = |key: &EdgeKey, side: usize| ends.get(key).map_or(NONE, |e| e[side]);
-    let next: Vec<usize> = segments.iter().map(|s| at(&s.to, 0)).collect();
-    let has_pred: Vec<bool> = segments.iter().map(|s| at(&s.from, 1) != NONE).collect();
+    let next: Vec<usize> = segments.iter().map(|s| ends.get(s.to)[0]).collect();
+    let has_pred: Vec<bool> = segments
+        .iter()
+        .map(|s| ends.get(s.from)[1] != NONE)
+        .collect();
     drop(ends);
 
     let mut visited = vec![false; n];
