@@ -39,9 +39,10 @@ fn empty_and_partial_files_fill_in_defaults() {
         ServerConfig::from_toml_str("").unwrap(),
         ServerConfig::default()
     );
-    let c = ServerConfig::from_toml_str("[world]\nview_radius_chunks = 4\n").unwrap();
+    let c = ServerConfig::from_toml_str("[interest]\nview_radius = 4\n[world.generator]\nseed = 7\n").unwrap();
     let mut expected = ServerConfig::default();
-    expected.world.view_radius_chunks = 4;
+    expected.interest.view_radius = 4;
+    expected.world.generator.seed = 7;
     assert_eq!(c, expected);
 }
 
@@ -107,8 +108,8 @@ fn overrides_win_over_the_file() {
 
 #[test]
 fn unknown_sections_are_kept_but_unknown_keys_are_errors() {
-    let c = ServerConfig::from_toml_str("[sequencer]\ntick_ms = 50\n").unwrap();
-    assert!(c.unknown.contains_key("sequencer"));
+    let c = ServerConfig::from_toml_str("[future]\ntick_ms = 50\n").unwrap();
+    assert!(c.unknown.contains_key("future"));
     assert!(matches!(
         ServerConfig::from_toml_str("[net]\nstream_window = 5\n"),
         Err(ConfigError::Parse { .. })
@@ -162,17 +163,14 @@ fn bad_values_name_their_field() {
             "net.send_budget_bytes_per_tick",
         ),
         ("[auth]\ntoken_max_ttl = \"400d\"", "auth.token_max_ttl"),
-        (
-            "[world]\nview_radius_chunks = 0",
-            "world.view_radius_chunks",
-        ),
-        (
-            "[world]\nview_radius_chunks = 17",
-            "world.view_radius_chunks",
-        ),
-        ("[world]\nmin_y = -2000000", "world.min_y"),
-        ("[world]\nmax_y = 2000000", "world.max_y"),
-        ("[world]\nmin_y = 0\nmax_y = 63", "world.max_y"),
+        ("[interest]\nview_radius = 0", "interest.view_radius"),
+        ("[interest]\nview_radius = 33", "interest.view_radius"),
+        ("[world.generator]\nmin_y = -2000000", "world.generator"),
+        ("[world.generator]\nmax_y = 2000000", "world.generator"),
+        ("[world.generator]\nmin_y = 0\nmax_y = 63", "world.generator"),
+        ("[engine]\ntick_ms = 0", "engine.tick_ms"),
+        ("[engine]\ncommand_queue = 0", "engine.command_queue"),
+        ("[sequencer]\nqueue_capacity = 0", "sequencer.queue_capacity"),
     ];
     for (text, field) in cases {
         assert_eq!(invalid_field(text), field, "config {text:?}");
@@ -181,10 +179,10 @@ fn bad_values_name_their_field() {
 
 #[test]
 fn invalid_error_message_names_field_and_reason() {
-    let err = ServerConfig::from_toml_str("[world]\nview_radius_chunks = 17").unwrap_err();
+    let err = ServerConfig::from_toml_str("[interest]\nview_radius = 33").unwrap_err();
     assert_eq!(
         err.to_string(),
-        "config field `world.view_radius_chunks` is invalid: 17 is outside 1..=16"
+        "config field `interest.view_radius` is invalid: 33 is outside 1..=32"
     );
 }
 
@@ -196,8 +194,8 @@ fn type_errors_and_bad_durations_are_parse_errors_with_the_path() {
         "[auth]\ntoken_max_ttl = \"soon\"",
         "[auth]\ntoken_max_ttl = \"0s\"",
         "[server]\nlisten = \"not an address\"",
-        "[world]\nseed = -1",
-        "[world]\nview_radius_chunks = 300",
+        "[world.generator]\nseed = -1",
+        "[interest]\nview_radius = 300",
         "[net\n",
     ] {
         std::fs::write(&path, text).unwrap();

@@ -59,6 +59,7 @@ pub struct ValidationConfig {
     /// See [`DEFAULT_SPEED_SLACK_VOXELS`].
     pub speed_slack_voxels: f64,
     /// Vertical world bounds for edits and positions.
+    #[serde(skip)]
     pub bounds: WorldBounds,
     /// See [`DEFAULT_SPAWN_PROTECTION_RADIUS`]; used when no zones are stored.
     pub spawn_protection_radius: i32,
