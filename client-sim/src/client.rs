@@ -182,10 +182,6 @@ impl Client {
         let (conn, send, reader, welcome) = tokio::time::timeout(CONNECT_TIMEOUT, handshake)
             .await
             .map_err(|_| ClientError::Timeout("Welcome"))??;
-        let updates = tokio::time::timeout(CONNECT_TIMEOUT, conn.accept_uni())
-            .await
-            .map_err(|_| ClientError::Timeout("updates stream"))?
-            .map_err(|e| closed_error(&e))?;
         let replica = Arc::new(Mutex::new(Replica::new(generator_from(&welcome))));
         let shared = Arc::new(Shared::default());
         let (control, control_rx) = mpsc::channel(CONTROL_QUEUE);
@@ -193,7 +189,7 @@ impl Client {
             tokio::spawn(write_control(send, control_rx)),
             tokio::spawn(read_control(reader, shared.clone())),
             tokio::spawn(read_updates(
-                updates,
+                conn.clone(),
                 replica.clone(),
                 shared.clone(),
                 control.clone(),
@@ -386,12 +382,15 @@ fn resolve(shared: &Shared, id: u64, v: Verdict) {
     }
 }
 
+/// Accepts the server's updates stream (QUIC opens it with its first
+/// frame) and applies every update to the replica.
 async fn read_updates(
-    recv: quinn::RecvStream,
+    conn: quinn::Connection,
     replica: Arc<Mutex<Replica>>,
     shared: Arc<Shared>,
     control: mpsc::Sender<Bytes>,
 ) {
+    let Ok(recv) = conn.accept_uni().await else { return };
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient));
     loop {
         let update = match reader.next::<WorldUpdate>().await {

@@ -89,6 +89,8 @@ async fn acknowledged_edits_survive_sigkill() {
         assert!(eventually(Duration::from_secs(20), || acked.lock().unwrap().len() >= 20).await);
         child.kill().unwrap();
         child.wait().unwrap();
+        // The client would only notice the dead peer at its idle timeout.
+        worker.abort();
         let _ = worker.await;
         let acked = acked.lock().unwrap().clone();
         let store = SledStore::open(&data.join("world.sled")).unwrap();

@@ -119,8 +119,9 @@ fn commit_batch_matches_the_world() {
         "every changed chunk once, in position order"
     );
     for c in &b.chunks {
-        let w = s.world().peek(c.pos).unwrap();
-        assert_eq!((&c.chunk, c.version), (&w.chunk, w.version), "final state");
+        let (pos, version, chunk) = c;
+        let w = s.world().peek(*pos).unwrap();
+        assert_eq!((chunk, *version), (&w.chunk, w.version), "final state");
     }
     let modified = s.world().modified().count();
     assert_eq!(modified, b.chunks.len());
