@@ -23,8 +23,9 @@ pub(crate) const T_ONE: u32 = 1 << T_BITS;
 pub(crate) fn quantize_t(a: u8, b: u8, iso: f64) -> u32 {
     let (a, b) = (f64::from(a), f64::from(b));
     let t = (iso - a) / (b - a);
-    let q = (t * f64::from(T_ONE) + 0.5).floor();
-    q.clamp(1.0, f64::from(T_ONE - 1)) as u32
+    // t is in [0, 1] (the endpoints straddle iso), so truncation is floor here.
+    let q = (t * f64::from(T_ONE) + 0.5) as u32;
+    q.clamp(1, T_ONE - 1)
 }
 
 /// Accumulates one chunk's mesh.
@@ -82,6 +83,16 @@ impl<'a> Builder<'a> {
         self.mesh.materials.push(material);
         self.mesh.keys.push(key);
         id
+    }
+
+    /// Makes room for about `vertices` more vertices and `triangles` more triangles.
+    pub(crate) fn reserve(&mut self, vertices: usize, triangles: usize) {
+        let m = &mut self.mesh;
+        m.positions.reserve(vertices);
+        m.normals.reserve(vertices);
+        m.materials.reserve(vertices);
+        m.keys.reserve(vertices);
+        m.indices.reserve(triangles * 3);
     }
 
     #[inline]
