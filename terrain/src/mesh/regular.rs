@@ -194,9 +194,13 @@ mod tests {
     fn swar_compare_matches_scalar_for_every_byte_pair() {
         for c in 0..=255u8 {
             for base in (0..=255u8).step_by(8) {
-                let bytes: [u8; 8] = std::array::from_fn(|i| base.wrapping_add((i as u8).wrapping_mul(37)));
+                let bytes: [u8; 8] =
+                    std::array::from_fn(|i| base.wrapping_add((i as u8).wrapping_mul(37)));
                 let got = bytes_at_least(u64::from_le_bytes(bytes), u64::from_le_bytes([c; 8]));
-                let want = bytes.iter().enumerate().fold(0, |m, (i, &d)| m | (u64::from(d >= c) << i));
+                let want = bytes
+                    .iter()
+                    .enumerate()
+                    .fold(0, |m, (i, &d)| m | (u64::from(d >= c) << i));
                 assert_eq!(got, want, "bytes {bytes:?} vs {c}");
             }
         }
