@@ -75,8 +75,38 @@ fn row_bits(density: &[u8], start: usize, stride: usize, n: usize, t: u8) -> u64
     }
 }
 
+/// Working memory of one meshing call, kept per thread between calls: allocating and freeing
+/// it every chunk made the allocator hand pages back to the kernel and fault them in again.
+/// Contents never leak between calls (each is cleared or fully rewritten first), so output
+/// does not depend on what the thread meshed before.
+#[derive(Default)]
+struct Scratch {
+    rows: Vec<u64>,
+    slots: [Vec<u32>; 2],
+    written: [Vec<usize>; 2],
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::default();
+}
+
 /// Meshes `cells[a]` cells of `stride` voxels per axis from local 0 into `b`.
 pub(crate) fn mesh_regular(
+    b: &mut Builder,
+    nb: &Neighborhood,
+    iso: f32,
+    stride: i32,
+    cells: [usize; 3],
+) {
+    SCRATCH.with(|s| match s.try_borrow_mut() {
+        Ok(mut scratch) => mesh_regular_in(&mut scratch, b, nb, iso, stride, cells),
+        // Only reachable by re-entrancy; fresh memory gives the same result.
+        Err(_) => mesh_regular_in(&mut Scratch::default(), b, nb, iso, stride, cells),
+    })
+}
+
+fn mesh_regular_in(
+    scratch: &mut Scratch,
     b: &mut Builder,
     nb: &Neighborhood,
     iso: f32,
@@ -96,7 +126,9 @@ pub(crate) fn mesh_regular(
     let density = nb.densities();
     let s = stride as usize;
     let full = (1u64 << gx) - 1;
-    let mut rows = vec![0u64; gy * gz];
+    let rows = &mut scratch.rows;
+    rows.clear();
+    rows.resize(gy * gz, 0);
     let (mut any, mut all) = (0u64, full);
     for z in 0..gz {
         for y in 0..gy {
@@ -129,8 +161,13 @@ pub(crate) fn mesh_regular(
     b.reserve(mixed, mixed * 2);
 
     let layer = gx * gy * 3;
-    let mut slots = [vec![NO_VERTEX; layer], vec![NO_VERTEX; layer]];
-    let mut written: [Vec<usize>; 2] = [Vec::new(), Vec::new()];
+    let slots = &mut scratch.slots;
+    let written = &mut scratch.written;
+    for (s, w) in slots.iter_mut().zip(written.iter_mut()) {
+        s.clear();
+        s.resize(layer, NO_VERTEX);
+        w.clear();
+    }
     let cell_mask = (1u64 << cells[0]) - 1;
     let mut verts = [0u32; 12];
     for z in 0..cells[2] {
