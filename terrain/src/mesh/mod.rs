@@ -54,6 +54,7 @@ pub fn try_mesh_chunk(nb: &Neighborhood, opts: &MeshOptions) -> Result<Mesh, Mes
     let cells = opts.cell_extent.map(|e| (e / stride) as usize);
     let mut b = Builder::new(nb, opts.iso);
     regular::mesh_regular(&mut b, nb, opts.iso, stride as i32, cells);
+    b.flush();
     if opts.transition_faces != 0 {
         transition::mesh_transitions(&mut b, nb, opts.iso, stride as i32, opts.transition_faces);
     }

@@ -205,7 +205,7 @@ fn mesh_regular_in(
                     let i = (oy * gx + ox) * 3 + axis;
                     if slots[l][i] == NO_VERTEX {
                         let lower = [(ox * s) as i32, (oy * s) as i32, (oz * s) as i32];
-                        slots[l][i] = b.add_vertex(lower, axis, s as u32);
+                        slots[l][i] = b.defer_vertex(lower, axis, s as u32);
                         written[l].push(i);
                     }
                     *v = slots[l][i];
