@@ -180,3 +180,29 @@ pub(crate) fn mesh_transitions(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn push_is_full_on_the_face_zero_one_cell_in_and_tapered_at_other_faces() {
+        let s = 4.0;
+        // -X transition: a vertex on the face moves in by the full width, one cell in not at all.
+        assert_eq!(displaced([0.0, 10.0, 10.0], 0b1, s), [2.0, 10.0, 10.0]);
+        assert_eq!(displaced([4.0, 10.0, 10.0], 0b1, s), [4.0, 10.0, 10.0]);
+        assert_eq!(displaced([2.0, 10.0, 10.0], 0b1, s), [3.0, 10.0, 10.0]);
+        // +X transition pushes towards -x.
+        assert_eq!(displaced([32.0, 10.0, 10.0], 0b10, s), [30.0, 10.0, 10.0]);
+        // On a non-transition face (+Y here) nothing moves; halfway into its cell, half the push.
+        assert_eq!(displaced([0.0, 32.0, 10.0], 0b1, s), [0.0, 32.0, 10.0]);
+        assert_eq!(displaced([0.0, 30.0, 10.0], 0b1, s), [1.0, 30.0, 10.0]);
+        // Two transition faces meeting at an edge: both pushes apply.
+        assert_eq!(displaced([0.0, 0.0, 10.0], 0b101, s), [2.0, 2.0, 10.0]);
+        // Order along the pushed axis is kept (no fold-over).
+        let xs: Vec<f32> = (0..=8)
+            .map(|i| displaced([i as f32 * 0.5, 9.0, 9.0], 0b1, s)[0])
+            .collect();
+        assert!(xs.windows(2).all(|w| w[0] < w[1]), "{xs:?}");
+    }
+}
