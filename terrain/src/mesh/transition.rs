@@ -93,11 +93,29 @@ pub(crate) fn mesh_transitions(
     for p in b.mesh.positions.iter_mut() {
         *p = displaced(*p, faces, s);
     }
+    // Transition cells reuse regular vertices only on the coarse edges lying in their face
+    // plane; index just those (keys of edges on a transition face plane).
+    let o = nb.origin();
+    let on_face = |k: &VertexKey| {
+        let lower = [
+            k.base.x.wrapping_sub(o.x),
+            k.base.y.wrapping_sub(o.y),
+            k.base.z.wrapping_sub(o.z),
+        ];
+        FACE_FRAMES
+            .iter()
+            .enumerate()
+            .any(|(f, &(frame, max_side))| {
+                let plane = if max_side { CHUNK_SIZE } else { 0 };
+                faces & (1 << f) != 0 && usize::from(k.axis) != frame[2] && lower[frame[2]] == plane
+            })
+    };
     let mut ids: HashMap<VertexKey, u32> = b
         .mesh
         .keys
         .iter()
         .enumerate()
+        .filter(|(_, k)| on_face(k))
         .map(|(i, k)| (*k, i as u32))
         .collect();
     let density = nb.densities();
