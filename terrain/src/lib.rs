@@ -7,6 +7,7 @@
 pub mod chunk;
 pub mod hash;
 pub mod material;
+pub mod mesh;
 pub mod pos;
 pub mod world;
 

@@ -1,0 +1,91 @@
+//! Turns sign-changing sample edges into mesh vertices (position, normal, material, key).
+//!
+//! Exactness rule (makes chunk seams bit-identical): the edge parameter
+//! `t = (iso - a) / (b - a)`, measured from the lower endpoint, is computed in f64, rounded to a
+//! multiple of `1 / T_ONE` and clamped to `[1 / T_ONE, 1 - 1 / T_ONE]`. A chunk-local position
+//! (integer + t * len) is then exact in f32, and world = chunk origin + local is exact too.
+//! Clamping away from the endpoints also means a vertex never lands on a sample, so plateau
+//! data (samples equal to or next to the isovalue) cannot collapse triangles to zero area.
+
+use super::material::vertex_material;
+use super::neighborhood::{index, Neighborhood};
+use super::normals::{edge_normal, gradient};
+use super::types::{Mesh, VertexKey};
+
+/// Fractional bits of a quantized edge parameter.
+pub(crate) const T_BITS: u32 = 16;
+/// Quantized value of t = 1.
+pub(crate) const T_ONE: u32 = 1 << T_BITS;
+
+/// Quantized edge parameter between samples `a` (lower end) and `b` (upper end), which lie on
+/// opposite sides of `iso`.
+#[inline]
+pub(crate) fn quantize_t(a: u8, b: u8, iso: f64) -> u32 {
+    let (a, b) = (f64::from(a), f64::from(b));
+    let t = (iso - a) / (b - a);
+    let q = (t * f64::from(T_ONE) + 0.5).floor();
+    q.clamp(1.0, f64::from(T_ONE - 1)) as u32
+}
+
+/// Accumulates one chunk's mesh.
+pub(crate) struct Builder<'a> {
+    nb: &'a Neighborhood,
+    iso: f32,
+    pub(crate) mesh: Mesh,
+}
+
+impl<'a> Builder<'a> {
+    pub(crate) fn new(nb: &'a Neighborhood, iso: f32) -> Self {
+        Self {
+            nb,
+            iso,
+            mesh: Mesh::default(),
+        }
+    }
+
+    /// Adds the vertex on the edge from local sample `lower` running `len` voxels along `axis`.
+    /// The caller guarantees the endpoints lie on opposite sides of the isovalue.
+    pub(crate) fn add_vertex(&mut self, lower: [i32; 3], axis: usize, len: u32) -> u32 {
+        let density = self.nb.densities();
+        let mut upper = lower;
+        upper[axis] += len as i32;
+        let a = density[index(lower[0], lower[1], lower[2])];
+        let b = density[index(upper[0], upper[1], upper[2])];
+        let q = quantize_t(a, b, f64::from(self.iso));
+        let mut pos = lower.map(|c| c as f32);
+        pos[axis] =
+            (f64::from(lower[axis]) + f64::from(q) * f64::from(len) / f64::from(T_ONE)) as f32;
+        let lower_solid = f32::from(a) > self.iso;
+        let normal = edge_normal(
+            gradient(density, lower),
+            gradient(density, upper),
+            q,
+            T_ONE,
+            axis,
+            lower_solid,
+        );
+        let solid_at = if lower_solid { lower } else { upper };
+        let material = vertex_material(density, self.nb.materials(), self.iso, solid_at, len);
+        let o = self.nb.origin();
+        let key = VertexKey {
+            base: crate::VoxelPos::new(
+                o.x.wrapping_add(lower[0]),
+                o.y.wrapping_add(lower[1]),
+                o.z.wrapping_add(lower[2]),
+            ),
+            axis: axis as u8,
+            len: len as u8,
+        };
+        let id = self.mesh.positions.len() as u32;
+        self.mesh.positions.push(pos);
+        self.mesh.normals.push(normal);
+        self.mesh.materials.push(material);
+        self.mesh.keys.push(key);
+        id
+    }
+
+    #[inline]
+    pub(crate) fn triangle(&mut self, a: u32, b: u32, c: u32) {
+        self.mesh.indices.extend_from_slice(&[a, b, c]);
+    }
+}
