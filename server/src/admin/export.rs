@@ -75,7 +75,6 @@ pub struct MeshRef<'a> {
     pub indices: &'a [u32],
 }
 
-#[cfg(any())] // MESHFROM
 impl<'a> From<&'a strata_terrain::mesh::Mesh> for MeshRef<'a> {
     fn from(m: &'a strata_terrain::mesh::Mesh) -> Self {
         MeshRef {

@@ -3,6 +3,6 @@
 //! tested without a process.
 
 pub mod export;
-// pub mod mesh_cmd;
+pub mod mesh_cmd;
 pub mod obj;
 pub mod ply;
