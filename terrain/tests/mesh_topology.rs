@@ -6,7 +6,7 @@ use mesh_common::*;
 use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood};
 use strata_terrain::{ChunkPos, Voxel, VoxelPos};
 
-const PI: f64 = 3.141_592_653_589_793;
+use std::f64::consts::PI;
 const C: [f64; 3] = [16.0, 16.0, 16.0];
 const SLOPE: f64 = 16.0;
 

@@ -30,12 +30,14 @@ mod neighborhood;
 mod normals;
 mod regular;
 mod tables;
+mod transition;
 mod types;
 pub mod volume;
 
 pub use neighborhood::{
     Neighborhood, APRON_HIGH, APRON_LOW, LOCAL_MAX, LOCAL_MAX_Y, LOCAL_MIN, MAX_SURFACE_SCAN,
 };
+pub use transition::TRANSITION_WIDTH;
 pub use types::{faces, Mesh, MeshError, MeshOptions, VertexKey, ALL_FACES, DEFAULT_ISO, MAX_LOD};
 
 use builder::Builder;
@@ -53,5 +55,8 @@ pub fn try_mesh_chunk(nb: &Neighborhood, opts: &MeshOptions) -> Result<Mesh, Mes
     let cells = opts.cell_extent.map(|e| (e / stride) as usize);
     let mut b = Builder::new(nb, opts.iso);
     regular::mesh_regular(&mut b, nb, opts.iso, stride as i32, cells);
+    if opts.transition_faces != 0 {
+        transition::mesh_transitions(&mut b, nb, opts.iso, stride as i32, opts.transition_faces);
+    }
     Ok(b.mesh)
 }

@@ -16,6 +16,9 @@
 pub(crate) use transvoxel_data::regular_cell_data::{
     REGULAR_CELL_CLASS, REGULAR_CELL_DATA, REGULAR_VERTEX_DATA,
 };
+pub(crate) use transvoxel_data::transition_cell_data::{
+    TRANSITION_CELL_CLASS, TRANSITION_CELL_DATA, TRANSITION_VERTEX_DATA,
+};
 
 /// Sample index of each transition case bit, bit 0 first.
 pub(crate) const TRANSITION_CASE_SAMPLES: [usize; 9] = [0, 1, 2, 5, 8, 7, 6, 3, 4];

@@ -204,6 +204,7 @@ pub fn assert_normals_agree(m: &Mesh) {
 pub struct Welded {
     pub positions: Vec<[f64; 3]>,
     pub normals: Vec<[f32; 3]>,
+    pub materials: Vec<u8>,
     pub keys: Vec<VertexKey>,
     pub indices: Vec<u32>,
     pub shared: usize,
@@ -214,6 +215,7 @@ pub fn weld(parts: &[(ChunkPos, &Mesh)]) -> Welded {
     let mut w = Welded {
         positions: vec![],
         normals: vec![],
+        materials: vec![],
         keys: vec![],
         indices: vec![],
         shared: 0,
@@ -237,6 +239,10 @@ pub fn weld(parts: &[(ChunkPos, &Mesh)]) -> Welded {
                             w.normals[id as usize], m.normals[i],
                             "normal differs for {key:?}"
                         );
+                        assert_eq!(
+                            w.materials[id as usize], m.materials[i],
+                            "material differs for {key:?}"
+                        );
                         w.shared += 1;
                         id
                     }
@@ -245,6 +251,7 @@ pub fn weld(parts: &[(ChunkPos, &Mesh)]) -> Welded {
                         ids.insert(key, id);
                         w.positions.push(world64);
                         w.normals.push(m.normals[i]);
+                        w.materials.push(m.materials[i]);
                         w.keys.push(key);
                         id
                     }

@@ -1,0 +1,186 @@
+//! Stride LOD and Transvoxel: no cracks against finer neighbours on any face subset.
+
+mod mesh_common;
+
+use mesh_common::*;
+use strata_terrain::mesh::{mesh_chunk, Mesh, MeshOptions, Neighborhood};
+use strata_terrain::ChunkPos;
+
+const SLOPE: f64 = 16.0;
+const ISO: f64 = 127.5;
+/// Face neighbour offsets in face-bit order -X,+X,-Y,+Y,-Z,+Z.
+const DIRS: [[i32; 3]; 6] = [
+    [-1, 0, 0],
+    [1, 0, 0],
+    [0, -1, 0],
+    [0, 1, 0],
+    [0, 0, -1],
+    [0, 0, 1],
+];
+
+fn lod(lod: u8, faces: u8) -> MeshOptions {
+    MeshOptions {
+        lod,
+        transition_faces: faces,
+        ..MeshOptions::default()
+    }
+}
+
+/// Is `p` inside the union of the given chunk boxes with some margin on every side?
+fn interior(p: [f64; 3], chunks: &[ChunkPos]) -> bool {
+    const EPS: f64 = 1e-3;
+    (0..8).all(|corner| {
+        let q = [0, 1, 2].map(|a| p[a] + if corner >> a & 1 == 1 { EPS } else { -EPS });
+        chunks.iter().any(|c| {
+            let o = origin_f(*c);
+            (0..3).all(|a| q[a] >= o[a] && q[a] <= o[a] + 32.0)
+        })
+    })
+}
+
+/// The triangles of a LOD `k` neighbour mesh with a vertex within one cell (plus one voxel) of
+/// the centre chunk (0,0,0), compacted. Speeds the welds up; edges opened by the crop lie
+/// outside the centre chunk, and only open edges inside the centre chunk's box are counted.
+fn crop(chunk: ChunkPos, m: &Mesh, k: u8) -> Mesh {
+    let o = origin_f(chunk);
+    let margin = f64::from(1u32 << k) + 1.0;
+    let near = |i: u32| {
+        let p = m.positions[i as usize];
+        (0..3).all(|a| (-margin..=32.0 + margin).contains(&(o[a] + f64::from(p[a]))))
+    };
+    let mut out = Mesh::default();
+    let mut remap = vec![u32::MAX; m.vertex_count()];
+    for t in m.indices.chunks_exact(3) {
+        if t.iter().any(|&i| near(i)) {
+            for &i in t {
+                if remap[i as usize] == u32::MAX {
+                    remap[i as usize] = out.positions.len() as u32;
+                    out.positions.push(m.positions[i as usize]);
+                    out.normals.push(m.normals[i as usize]);
+                    out.materials.push(m.materials[i as usize]);
+                    out.keys.push(m.keys[i as usize]);
+                }
+                out.indices.push(remap[i as usize]);
+            }
+        }
+    }
+    out
+}
+
+/// Open edges of the welded union whose midpoints lie inside the union of the chunks and
+/// within the centre chunk's box.
+fn interior_cracks(parts: &[(ChunkPos, &Mesh)]) -> usize {
+    let w = weld(parts);
+    let chunks: Vec<ChunkPos> = parts.iter().map(|p| p.0).collect();
+    open_edges(&w.indices)
+        .into_iter()
+        .filter(|&(a, b)| {
+            let (pa, pb) = (w.positions[a as usize], w.positions[b as usize]);
+            let mid = [0, 1, 2].map(|k| (pa[k] + pb[k]) / 2.0);
+            mid.iter().all(|c| (-1e-3..=32.0 + 1e-3).contains(c)) && interior(mid, &chunks)
+        })
+        .count()
+}
+
+/// Zero-area triangles may only appear in transition cells (a third of Lengyel's transition
+/// triangles lie in the full-resolution face, and linear data makes their vertices collinear);
+/// every such triangle touches a transition face and they stay rare.
+fn assert_degenerates_only_on_transition_faces(m: &Mesh, mask: u8) {
+    let pos = positions64(m);
+    let mut bad = 0;
+    for t in m.indices.chunks_exact(3) {
+        if min_double_area(&pos, t) > 0.0 {
+            continue;
+        }
+        bad += 1;
+        let on_face = t.iter().any(|&i| {
+            let p = pos[i as usize];
+            (0..6).any(|f| mask >> f & 1 == 1 && p[f / 2] == if f % 2 == 0 { 0.0 } else { 32.0 })
+        });
+        assert!(
+            on_face,
+            "zero-area triangle away from the transition faces {mask:06b}"
+        );
+    }
+    assert!(
+        bad * 100 <= m.triangle_count(),
+        "{bad} zero-area triangles of {}",
+        m.triangle_count()
+    );
+}
+
+struct Scene {
+    centre: Neighborhood,
+    around: Vec<(ChunkPos, Neighborhood)>,
+}
+
+fn scene(f: &Field) -> Scene {
+    let c = ChunkPos::new(0, 0, 0);
+    Scene {
+        centre: neighborhood(c, f, ISO, SLOPE),
+        around: DIRS
+            .iter()
+            .map(|d| {
+                let p = ChunkPos::new(d[0], d[1], d[2]);
+                (p, neighborhood(p, f, ISO, SLOPE))
+            })
+            .collect(),
+    }
+}
+
+fn fields() -> Vec<Box<Field>> {
+    let noise = value_noise(11, 5.0);
+    let ball = sphere([16.0, 16.0, 16.0], 21.0);
+    let wobbly = value_noise(3, 7.0);
+    vec![
+        Box::new(noise),
+        Box::new(move |p| ball(p) + 4.0 * wobbly(p)),
+    ]
+}
+
+#[test]
+fn every_transition_face_subset_is_crack_free_at_every_lod() {
+    for f in fields() {
+        let s = scene(&*f);
+        for k in 1..=3u8 {
+            let fine: Vec<Mesh> = s
+                .around
+                .iter()
+                .map(|(p, nb)| crop(*p, &mesh_chunk(nb, &lod(k - 1, 0)), k - 1))
+                .collect();
+            let same: Vec<Mesh> = s
+                .around
+                .iter()
+                .map(|(p, nb)| crop(*p, &mesh_chunk(nb, &lod(k, 0)), k))
+                .collect();
+            // Control: without transition cells, finer neighbours leave cracks.
+            let plain = mesh_chunk(&s.centre, &lod(k, 0));
+            let mut parts = vec![(ChunkPos::new(0, 0, 0), &plain)];
+            parts.extend(s.around.iter().zip(&fine).map(|((p, _), m)| (*p, m)));
+            assert!(interior_cracks(&parts) > 0, "control at lod {k} must crack");
+
+            for mask in 1..64u8 {
+                let m = mesh_chunk(&s.centre, &lod(k, mask));
+                assert!(
+                    m.triangle_count() > plain.triangle_count(),
+                    "lod {k} mask {mask:06b}"
+                );
+                assert_degenerates_only_on_transition_faces(&m, mask);
+                let mut parts = vec![(ChunkPos::new(0, 0, 0), &m)];
+                for (i, (p, _)) in s.around.iter().enumerate() {
+                    let n = if mask >> i & 1 == 1 {
+                        &fine[i]
+                    } else {
+                        &same[i]
+                    };
+                    parts.push((*p, n));
+                }
+                let cracks = interior_cracks(&parts);
+                assert_eq!(
+                    cracks, 0,
+                    "lod {k} mask {mask:06b}: {cracks} open interior edges"
+                );
+            }
+        }
+    }
+}
