@@ -14,7 +14,7 @@ use std::hash::{BuildHasherDefault, Hasher};
 use rayon::prelude::*;
 use thiserror::Error;
 
-use super::{mesh_chunk, Mesh, MeshOptions, Neighborhood, VertexKey};
+use super::{try_mesh_chunk, Mesh, MeshError, MeshOptions, Neighborhood, VertexKey};
 use crate::material::{ids, MaterialId};
 use crate::{Voxel, VoxelPos, CHUNK_SIZE};
 
@@ -49,6 +49,8 @@ pub enum VolumeError {
     BadIso(f32),
     #[error("mesh has {count} vertices, more than {max} (u32 indices)")]
     TooManyVertices { count: u64, max: u64 },
+    #[error("chunk mesher rejected the options: {0}")]
+    Mesh(#[from] MeshError),
 }
 
 /// A borrowed raw density volume: one u8 per sample, x fastest, then y, then z.
@@ -200,7 +202,7 @@ pub fn mesh_volume_with_progress(
             progress();
             m
         })
-        .collect();
+        .collect::<Result<_, _>>()?;
 
     let empty_chunks = meshes.iter().filter(|m| m.is_none()).count() as u64;
     let mesh = weld(&chunks, meshes)?;
@@ -270,9 +272,13 @@ fn chunk_is_empty(grid: &VolumeGrid<'_>, iso: f32, job: &ChunkJob) -> bool {
     (hi as f32 > iso) == (lo as f32 > iso)
 }
 
-fn mesh_one_chunk(grid: &VolumeGrid<'_>, opts: &VolumeMeshOptions, job: &ChunkJob) -> Option<Mesh> {
+fn mesh_one_chunk(
+    grid: &VolumeGrid<'_>,
+    opts: &VolumeMeshOptions,
+    job: &ChunkJob,
+) -> Result<Option<Mesh>, MeshError> {
     if chunk_is_empty(grid, opts.iso, job) {
-        return None;
+        return Ok(None);
     }
     let [dx, dy, dz] = grid.dims.map(|d| d as i32 - 1);
     let origin = VoxelPos::new(
@@ -297,8 +303,8 @@ fn mesh_one_chunk(grid: &VolumeGrid<'_>, opts: &VolumeMeshOptions, job: &ChunkJo
         transition_faces: 0,
         cell_extent: job.extent,
     };
-    let mesh = mesh_chunk(&nb, &mesh_opts);
-    (!mesh.indices.is_empty()).then_some(mesh)
+    let mesh = try_mesh_chunk(&nb, &mesh_opts)?;
+    Ok((!mesh.indices.is_empty()).then_some(mesh))
 }
 
 /// FxHash-style multiplicative hasher: the weld map holds only seam keys and
