@@ -20,6 +20,8 @@ use crate::{Voxel, VoxelPos, CHUNK_SIZE};
 
 /// Cells per chunk edge: the chunk mesher's size.
 const CELLS: u32 = CHUNK_SIZE as u32;
+/// Samples in one row of a chunk's cells (both ends).
+const ROW: usize = CELLS as usize + 1;
 /// Largest accepted volume edge in samples. Keeps every voxel coordinate
 /// (plus the apron) far inside `i32`, and f32 positions within 1/16 voxel.
 pub const MAX_VOLUME_DIM: u64 = 1 << 20;
@@ -255,21 +257,30 @@ fn chunk_list(grid: &VolumeGrid<'_>, lod: u8) -> Vec<ChunkJob> {
 fn chunk_is_empty(grid: &VolumeGrid<'_>, iso: f32, job: &ChunkJob) -> bool {
     let [ox, oy, oz] = job.origin;
     let [ex, ey, ez] = job.extent;
-    let (mut lo, mut hi) = (u8::MAX, u8::MIN);
+    let len = ex as usize + 1;
+    // Element-wise min/max over whole rows (vectorises), reduced once per
+    // z-slice: reducing every short row to a scalar cost more than reading it.
+    let (mut lo, mut hi) = ([u8::MAX; ROW], [u8::MIN; ROW]);
+    let (lo, hi) = (&mut lo[..len], &mut hi[..len]);
+    let (mut any_in, mut any_out) = (false, false);
     for z in oz..=oz + ez {
         for y in oy..=oy + ey {
             let row = grid.index(ox, y, z);
-            for &d in &grid.density[row..=row + ex as usize] {
-                lo = lo.min(d);
-                hi = hi.max(d);
+            let samples = &grid.density[row..row + len];
+            for ((l, h), &d) in lo.iter_mut().zip(hi.iter_mut()).zip(samples) {
+                *l = (*l).min(d);
+                *h = (*h).max(d);
             }
         }
+        let (slice_lo, slice_hi) = (lo.iter().min(), hi.iter().max());
+        any_in |= slice_hi.is_some_and(|&h| h as f32 > iso);
+        any_out |= slice_lo.is_some_and(|&l| l as f32 <= iso);
         // Early out once both sides of the surface have been seen.
-        if (hi as f32 > iso) && (lo as f32 <= iso) {
+        if any_in && any_out {
             return false;
         }
     }
-    (hi as f32 > iso) == (lo as f32 > iso)
+    true
 }
 
 fn mesh_one_chunk(
