@@ -681,6 +681,27 @@ mod tests {
     }
 
     #[test]
+    fn lone_sample_on_a_chunk_corner_is_meshed_by_all_eight_chunks() {
+        // Sample (32, 32, 32) is the far corner of chunk 0 and the near corner
+        // of seven others: the empty-chunk pre-scan must include both ends.
+        let dims = [70, 70, 70];
+        let data = volume(
+            dims,
+            |x, y, z| if (x, y, z) == (32, 32, 32) { 255 } else { 0 },
+        );
+        let vm = mesh(dims, &data, &Default::default());
+        assert_eq!(vm.stats.empty_chunks, 27 - 8);
+        assert_eq!(
+            (vm.mesh.positions.len(), vm.stats.triangles),
+            (6, 8),
+            "an octahedron"
+        );
+        for (_, (uses, orient)) in edge_uses(&vm.mesh) {
+            assert_eq!((uses, orient), (2, 0));
+        }
+    }
+
+    #[test]
     fn uniform_and_tiny_volumes_give_empty_meshes() {
         let air = mesh([40, 40, 40], &[0u8; 64000], &Default::default());
         assert_eq!(
