@@ -1,0 +1,85 @@
+//! Per-chunk meshing speed. Target: <= 60 µs median for a terrain surface chunk at LOD 0
+//! (welded, with normals). Fields are analytic so this does not depend on world generation.
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood, ALL_FACES};
+use strata_terrain::ChunkPos;
+
+#[path = "../tests/mesh_common/mod.rs"]
+mod mesh_common;
+use mesh_common::{neighborhood, sphere, value_noise};
+
+fn terrain() -> Neighborhood {
+    let n = value_noise(1, 24.0);
+    let d = value_noise(2, 7.0);
+    let f = move |p: [f64; 3]| {
+        let xz = [p[0], 0.0, p[2]];
+        16.0 + 9.0 * n(xz) + 2.0 * d(xz) - p[1]
+    };
+    neighborhood(ChunkPos::new(0, 0, 0), &f, 127.5, 16.0)
+}
+
+fn cave() -> Neighborhood {
+    let n = value_noise(3, 9.0);
+    let f = move |p: [f64; 3]| 6.0 * n(p) + 1.5;
+    neighborhood(ChunkPos::new(0, -2, 0), &f, 127.5, 16.0)
+}
+
+fn ball() -> Neighborhood {
+    neighborhood(
+        ChunkPos::new(0, 0, 0),
+        &sphere([16.0, 16.0, 16.0], 13.0),
+        127.5,
+        16.0,
+    )
+}
+
+fn worst() -> Neighborhood {
+    let n = value_noise(4, 1.5);
+    neighborhood(
+        ChunkPos::new(0, 0, 0),
+        &(move |p: [f64; 3]| 8.0 * n(p)),
+        127.5,
+        16.0,
+    )
+}
+
+fn bench(c: &mut Criterion) {
+    let mut g = c.benchmark_group("mesh_chunk");
+    g.measurement_time(Duration::from_secs(3))
+        .warm_up_time(Duration::from_secs(1));
+    let lod0 = MeshOptions::default();
+    let fields = [
+        ("terrain", terrain()),
+        ("cave", cave()),
+        ("sphere", ball()),
+        ("noise", worst()),
+    ];
+    for (name, nb) in &fields {
+        let tris = mesh_chunk(nb, &lod0).triangle_count();
+        g.bench_function(format!("lod0/{name} ({tris} tris)"), |b| {
+            b.iter(|| mesh_chunk(black_box(nb), &lod0))
+        });
+    }
+    let nb = &fields[0].1;
+    for lod in 1..=3u8 {
+        for (label, faces) in [("plain", 0), ("6 transitions", ALL_FACES)] {
+            let o = MeshOptions {
+                lod,
+                transition_faces: faces,
+                ..MeshOptions::default()
+            };
+            g.bench_function(format!("lod{lod}/terrain {label}"), |b| {
+                b.iter(|| mesh_chunk(black_box(nb), &o))
+            });
+        }
+    }
+    g.bench_function("neighborhood/from_fn terrain", |b| b.iter(terrain));
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
