@@ -358,49 +358,103 @@ fn on_chunk_seam(key: &VertexKey) -> bool {
     (0..3).any(|a| a != key.axis as usize && b[a] & m == 0)
 }
 
+/// Where one chunk's mesh lands in the welded mesh.
+struct Placement {
+    /// Global index of each of the chunk's vertices.
+    remap: Vec<u32>,
+    /// Local indices of the vertices this chunk adds (seam vertices seen in
+    /// an earlier chunk are reused instead); they get consecutive global ids.
+    fresh: Vec<u32>,
+}
+
 /// Concatenates chunk meshes in chunk order, merging seam vertices by key.
+///
+/// Two passes: a sequential one that only assigns global vertex ids (so ids
+/// follow chunk order whatever the thread count), then a parallel one that
+/// copies each chunk's vertices and remapped triangles into its own disjoint
+/// ranges of the output.
 fn weld(jobs: &[ChunkJob], meshes: Vec<Option<Mesh>>) -> Result<Mesh, VolumeError> {
-    let (nv, ni) = meshes.iter().flatten().fold((0usize, 0usize), |(v, i), m| {
-        (v + m.positions.len(), i + m.indices.len())
-    });
-    let mut out = Mesh {
-        positions: Vec::with_capacity(nv),
-        normals: Vec::with_capacity(nv),
-        materials: Vec::with_capacity(nv),
-        indices: Vec::with_capacity(ni),
-        keys: Vec::with_capacity(nv),
-    };
     let mut seam = SeamMap::default();
-    let mut remap: Vec<u32> = Vec::new();
+    let mut next: u64 = 0;
+    let mut placed = Vec::with_capacity(meshes.len());
     for (job, mesh) in jobs.iter().zip(meshes) {
         let Some(mesh) = mesh else { continue };
-        let o = job.origin.map(|c| c as f32);
-        remap.clear();
+        let mut remap = Vec::with_capacity(mesh.keys.len());
+        let mut fresh = Vec::new();
         for (i, key) in mesh.keys.iter().enumerate() {
-            let next = out.positions.len() as u32;
+            let id = next as u32;
             let global = if on_chunk_seam(key) {
-                *seam.entry(*key).or_insert(next)
+                *seam.entry(*key).or_insert(id)
             } else {
-                next
+                id
             };
-            if global == next {
-                if out.positions.len() as u64 >= MAX_VOLUME_VERTICES {
+            if global == id {
+                if next >= MAX_VOLUME_VERTICES {
                     return Err(VolumeError::TooManyVertices {
-                        count: out.positions.len() as u64 + 1,
+                        count: next + 1,
                         max: MAX_VOLUME_VERTICES,
                     });
                 }
-                let p = mesh.positions[i];
-                out.positions.push([p[0] + o[0], p[1] + o[1], p[2] + o[2]]);
-                out.normals.push(mesh.normals[i]);
-                out.materials.push(mesh.materials[i]);
-                out.keys.push(*key);
+                fresh.push(i as u32);
+                next += 1;
             }
             remap.push(global);
         }
-        out.indices
-            .extend(mesh.indices.iter().map(|&i| remap[i as usize]));
+        placed.push((job.origin, mesh, Placement { remap, fresh }));
     }
+
+    let nv = next as usize;
+    let ni = placed.iter().map(|(_, m, _)| m.indices.len()).sum();
+    let placeholder = VertexKey {
+        base: VoxelPos::new(0, 0, 0),
+        axis: 0,
+        len: 0,
+    };
+    let mut out = Mesh {
+        positions: vec![[0.0; 3]; nv],
+        normals: vec![[0.0; 3]; nv],
+        materials: vec![0; nv],
+        indices: vec![0; ni],
+        keys: vec![placeholder; nv],
+    };
+    // Cut the output into each chunk's ranges, in chunk order.
+    let mut work = Vec::with_capacity(placed.len());
+    let (mut pos, mut nrm, mut mat, mut key, mut idx) = (
+        &mut out.positions[..],
+        &mut out.normals[..],
+        &mut out.materials[..],
+        &mut out.keys[..],
+        &mut out.indices[..],
+    );
+    for (origin, mesh, place) in placed {
+        let (n, t) = (place.fresh.len(), mesh.indices.len());
+        let (p, rest) = std::mem::take(&mut pos).split_at_mut(n);
+        pos = rest;
+        let (q, rest) = std::mem::take(&mut nrm).split_at_mut(n);
+        nrm = rest;
+        let (m, rest) = std::mem::take(&mut mat).split_at_mut(n);
+        mat = rest;
+        let (k, rest) = std::mem::take(&mut key).split_at_mut(n);
+        key = rest;
+        let (x, rest) = std::mem::take(&mut idx).split_at_mut(t);
+        idx = rest;
+        work.push((origin, mesh, place, (p, q, m, k, x)));
+    }
+    work.into_par_iter()
+        .for_each(|(origin, mesh, place, (p, q, m, k, x))| {
+            let o = origin.map(|c| c as f32);
+            for (slot, &i) in place.fresh.iter().enumerate() {
+                let i = i as usize;
+                let v = mesh.positions[i];
+                p[slot] = [v[0] + o[0], v[1] + o[1], v[2] + o[2]];
+                q[slot] = mesh.normals[i];
+                m[slot] = mesh.materials[i];
+                k[slot] = mesh.keys[i];
+            }
+            for (dst, &i) in x.iter_mut().zip(&mesh.indices) {
+                *dst = place.remap[i as usize];
+            }
+        });
     Ok(out)
 }
 
