@@ -113,6 +113,16 @@ fn obj_output_matches_ply_and_thread_counts_agree() {
     for k in ["cells", "vertices", "triangles"] {
         assert_eq!(one[k], two[k], "{k}");
     }
+    let ply2 = dir.path().join("c.ply");
+    stats_of(&mesh(
+        &vol,
+        &["--threads", "2", "--stats", "--out", ply2.to_str().unwrap()],
+    ));
+    assert_eq!(
+        std::fs::read(&ply).unwrap(),
+        std::fs::read(&ply2).unwrap(),
+        "1 and 2 threads write identical bytes"
+    );
     let p = read_ply(&std::fs::read(&ply).unwrap()).unwrap();
     let o = read_obj(&std::fs::read_to_string(&obj).unwrap()).expect("OBJ parses");
     assert_eq!(
