@@ -3,7 +3,7 @@
 mod mesh_common;
 
 use mesh_common::*;
-use strata_terrain::mesh::{mesh_chunk, Mesh, MeshOptions, Neighborhood};
+use strata_terrain::mesh::{mesh_chunk, Mesh, MeshOptions, Neighborhood, TRANSITION_WIDTH};
 use strata_terrain::ChunkPos;
 
 const SLOPE: f64 = 16.0;
@@ -109,6 +109,57 @@ fn assert_degenerates_only_on_transition_faces(m: &Mesh, mask: u8) {
     );
 }
 
+/// On a smooth field, facets facing away from their vertex normals may only sit in the
+/// transition slabs (Lengyel's cells fold part of the surface into the full-resolution face),
+/// never among the shrunk regular cells, and they stay a minority.
+fn assert_flips_only_in_transition_slabs(m: &Mesh, plain: &Mesh, k: u8, mask: u8) {
+    let s = f64::from(1u32 << k);
+    let pos = positions64(m);
+    let mut flipped = 0;
+    for t in m.indices.chunks_exact(3) {
+        let p = [0, 1, 2].map(|i| pos[t[i] as usize]);
+        let e1 = [0, 1, 2].map(|a| p[1][a] - p[0][a]);
+        let e2 = [0, 1, 2].map(|a| p[2][a] - p[0][a]);
+        let g = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ];
+        let n = [0, 1, 2].map(|a| {
+            t.iter()
+                .map(|&i| f64::from(m.normals[i as usize][a]))
+                .sum::<f64>()
+        });
+        if g[0] * n[0] + g[1] * n[1] + g[2] * n[2] > 0.0 {
+            continue;
+        }
+        flipped += 1;
+        let in_slab = p.iter().all(|q| {
+            (0..6).any(|f| {
+                let d = if f % 2 == 0 {
+                    q[f / 2]
+                } else {
+                    32.0 - q[f / 2]
+                };
+                mask >> f & 1 == 1 && d <= s * TRANSITION_WIDTH
+            })
+        });
+        assert!(
+            in_slab,
+            "lod {k} mask {mask:06b}: flipped facet outside the slabs: {p:?}"
+        );
+    }
+    assert!(
+        flipped < m.triangle_count() / 4,
+        "lod {k} mask {mask:06b}: {flipped} flipped"
+    );
+    assert_eq!(
+        normal_agreement(plain),
+        1.0,
+        "lod {k}: without transitions no facet flips"
+    );
+}
+
 struct Scene {
     centre: Neighborhood,
     around: Vec<(ChunkPos, Neighborhood)>,
@@ -140,7 +191,7 @@ fn fields() -> Vec<Box<Field>> {
 
 #[test]
 fn every_transition_face_subset_is_crack_free_at_every_lod() {
-    for f in fields() {
+    for (smooth, f) in [false, true].into_iter().zip(fields()) {
         let s = scene(&*f);
         for k in 1..=3u8 {
             let fine: Vec<Mesh> = s
@@ -166,6 +217,9 @@ fn every_transition_face_subset_is_crack_free_at_every_lod() {
                     "lod {k} mask {mask:06b}"
                 );
                 assert_degenerates_only_on_transition_faces(&m, mask);
+                if smooth {
+                    assert_flips_only_in_transition_slabs(&m, &plain, k, mask);
+                }
                 let mut parts = vec![(ChunkPos::new(0, 0, 0), &m)];
                 for (i, (p, _)) in s.around.iter().enumerate() {
                     let n = if mask >> i & 1 == 1 {

@@ -23,8 +23,9 @@ pub(crate) const T_ONE: u32 = 1 << T_BITS;
 pub(crate) fn quantize_t(a: u8, b: u8, iso: f64) -> u32 {
     let (a, b) = (f64::from(a), f64::from(b));
     let t = (iso - a) / (b - a);
-    let q = (t * f64::from(T_ONE) + 0.5).floor();
-    q.clamp(1.0, f64::from(T_ONE - 1)) as u32
+    // t is in [0, 1] (the endpoints straddle iso), so truncation is floor here.
+    let q = (t * f64::from(T_ONE) + 0.5) as u32;
+    q.clamp(1, T_ONE - 1)
 }
 
 /// Accumulates one chunk's mesh.
@@ -43,9 +44,10 @@ impl<'a> Builder<'a> {
         }
     }
 
-    /// Adds the vertex on the edge from local sample `lower` running `len` voxels along `axis`.
-    /// The caller guarantees the endpoints lie on opposite sides of the isovalue.
-    pub(crate) fn add_vertex(&mut self, lower: [i32; 3], axis: usize, len: u32) -> u32 {
+    /// Position, normal and material of the vertex on the edge from local sample `lower`
+    /// running `len` voxels along `axis`, whose endpoints straddle the isovalue.
+    #[inline(always)]
+    fn vertex_data(&self, lower: [i32; 3], axis: usize, len: u32) -> ([f32; 3], [f32; 3], u8) {
         let density = self.nb.densities();
         let mut upper = lower;
         upper[axis] += len as i32;
@@ -66,8 +68,13 @@ impl<'a> Builder<'a> {
         );
         let solid_at = if lower_solid { lower } else { upper };
         let material = vertex_material(density, self.nb.materials(), self.iso, solid_at, len);
+        (pos, normal, material)
+    }
+
+    /// World key of an edge given by its local lower endpoint.
+    fn key(&self, lower: [i32; 3], axis: usize, len: u32) -> VertexKey {
         let o = self.nb.origin();
-        let key = VertexKey {
+        VertexKey {
             base: crate::VoxelPos::new(
                 o.x.wrapping_add(lower[0]),
                 o.y.wrapping_add(lower[1]),
@@ -75,13 +82,53 @@ impl<'a> Builder<'a> {
             ),
             axis: axis as u8,
             len: len as u8,
-        };
-        let id = self.mesh.positions.len() as u32;
-        self.mesh.positions.push(pos);
-        self.mesh.normals.push(normal);
-        self.mesh.materials.push(material);
+        }
+    }
+
+    /// Registers the vertex on an edge (endpoints straddling the isovalue) and returns its
+    /// index; its data is computed by the next [`Builder::flush`]. Deferring lets that pass
+    /// run as one tight loop whose divisions and square roots overlap.
+    #[inline]
+    pub(crate) fn defer_vertex(&mut self, lower: [i32; 3], axis: usize, len: u32) -> u32 {
+        let id = self.mesh.keys.len() as u32;
+        let key = self.key(lower, axis, len);
         self.mesh.keys.push(key);
         id
+    }
+
+    /// Computes the data of every deferred vertex.
+    pub(crate) fn flush(&mut self) {
+        let o = self.nb.origin();
+        for i in self.mesh.positions.len()..self.mesh.keys.len() {
+            let k = self.mesh.keys[i];
+            let lower = [
+                k.base.x.wrapping_sub(o.x),
+                k.base.y.wrapping_sub(o.y),
+                k.base.z.wrapping_sub(o.z),
+            ];
+            let (p, n, m) = self.vertex_data(lower, usize::from(k.axis), u32::from(k.len));
+            self.mesh.positions.push(p);
+            self.mesh.normals.push(n);
+            self.mesh.materials.push(m);
+        }
+    }
+
+    /// Adds a vertex with its data right away (deferred ones are flushed first).
+    pub(crate) fn add_vertex(&mut self, lower: [i32; 3], axis: usize, len: u32) -> u32 {
+        self.flush();
+        let id = self.defer_vertex(lower, axis, len);
+        self.flush();
+        id
+    }
+
+    /// Makes room for about `vertices` more vertices and `triangles` more triangles.
+    pub(crate) fn reserve(&mut self, vertices: usize, triangles: usize) {
+        let m = &mut self.mesh;
+        m.positions.reserve(vertices);
+        m.normals.reserve(vertices);
+        m.materials.reserve(vertices);
+        m.keys.reserve(vertices);
+        m.indices.reserve(triangles * 3);
     }
 
     #[inline]

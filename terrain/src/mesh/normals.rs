@@ -8,7 +8,7 @@
 use super::neighborhood::{index, STEP_Y, STEP_Z};
 
 /// Density gradient at a local sample (uses the samples one voxel away on each axis).
-#[inline]
+#[inline(always)]
 pub(crate) fn gradient(density: &[u8], p: [i32; 3]) -> [i32; 3] {
     let i = index(p[0], p[1], p[2]);
     let d = |j: usize| density[j] as i32;
@@ -37,8 +37,9 @@ pub(crate) fn edge_normal(
     let n = [0, 1, 2].map(|a| -(i64::from(g0[a]) * w0 + i64::from(g1[a]) * w1) as f64);
     let len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
     if len2 > 0.0 {
-        let len = len2.sqrt();
-        n.map(|c| (c / len) as f32)
+        // One division, then multiplies: the normal is on the hot path.
+        let inv = 1.0 / len2.sqrt();
+        n.map(|c| (c * inv) as f32)
     } else {
         let mut f = [0.0f32; 3];
         f[axis] = if lower_solid { 1.0 } else { -1.0 };

@@ -37,14 +37,37 @@ impl Threshold {
     }
 }
 
-/// Solid bits of one row of `n` samples `stride` apart starting at internal index `start`.
+/// High bit of every byte of a word.
+const HIGH_BITS: u64 = 0x8080_8080_8080_8080;
+/// Gathers bit 0 of each byte into the top byte (byte i lands on bit 56 + i).
+const GATHER: u64 = 0x0102_0408_1020_4080;
+
+/// Bit i set iff byte i of `d` is >= byte i of `c` (unsigned), for 8 bytes at once (SWAR).
+#[inline]
+fn bytes_at_least(d: u64, c: u64) -> u64 {
+    // Compare the low 7 bits without borrows crossing bytes, then settle by the high bits.
+    let low = (d | HIGH_BITS).wrapping_sub(c & !HIGH_BITS);
+    let ge = ((d & !c) | (!(d ^ c) & low)) & HIGH_BITS;
+    (ge >> 7).wrapping_mul(GATHER) >> 56
+}
+
+/// Solid bits (`density > t`) of one row of `n` samples `stride` apart from index `start`.
 #[inline]
 fn row_bits(density: &[u8], start: usize, stride: usize, n: usize, t: u8) -> u64 {
     if stride == 1 {
-        density[start..start + n]
-            .iter()
-            .enumerate()
-            .fold(0u64, |m, (x, &d)| m | (u64::from(d > t) << x))
+        let row = &density[start..start + n];
+        let c = u64::from_le_bytes([t + 1; 8]);
+        let mut m = 0u64;
+        let mut words = row.chunks_exact(8);
+        for (k, w) in words.by_ref().enumerate() {
+            let d = u64::from_le_bytes([w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7]]);
+            m |= bytes_at_least(d, c) << (8 * k);
+        }
+        let done = n - words.remainder().len();
+        for (x, &d) in words.remainder().iter().enumerate() {
+            m |= u64::from(d > t) << (done + x);
+        }
+        m
     } else {
         (0..n).fold(0u64, |m, x| {
             m | (u64::from(density[start + x * stride] > t) << x)
@@ -52,8 +75,38 @@ fn row_bits(density: &[u8], start: usize, stride: usize, n: usize, t: u8) -> u64
     }
 }
 
+/// Working memory of one meshing call, kept per thread between calls: allocating and freeing
+/// it every chunk made the allocator hand pages back to the kernel and fault them in again.
+/// Contents never leak between calls (each is cleared or fully rewritten first), so output
+/// does not depend on what the thread meshed before.
+#[derive(Default)]
+struct Scratch {
+    rows: Vec<u64>,
+    slots: [Vec<u32>; 2],
+    written: [Vec<usize>; 2],
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::default();
+}
+
 /// Meshes `cells[a]` cells of `stride` voxels per axis from local 0 into `b`.
 pub(crate) fn mesh_regular(
+    b: &mut Builder,
+    nb: &Neighborhood,
+    iso: f32,
+    stride: i32,
+    cells: [usize; 3],
+) {
+    SCRATCH.with(|s| match s.try_borrow_mut() {
+        Ok(mut scratch) => mesh_regular_in(&mut scratch, b, nb, iso, stride, cells),
+        // Only reachable by re-entrancy; fresh memory gives the same result.
+        Err(_) => mesh_regular_in(&mut Scratch::default(), b, nb, iso, stride, cells),
+    })
+}
+
+fn mesh_regular_in(
+    scratch: &mut Scratch,
     b: &mut Builder,
     nb: &Neighborhood,
     iso: f32,
@@ -68,11 +121,14 @@ pub(crate) fn mesh_regular(
         // Every sample on the same side: no surface.
         Threshold::AllSolid | Threshold::NoneSolid => return,
     };
+    debug_assert!(t < u8::MAX, "Threshold::new keeps t below 255");
     let [gx, gy, gz] = cells.map(|c| c + 1);
     let density = nb.densities();
     let s = stride as usize;
     let full = (1u64 << gx) - 1;
-    let mut rows = vec![0u64; gy * gz];
+    let rows = &mut scratch.rows;
+    rows.clear();
+    rows.resize(gy * gz, 0);
     let (mut any, mut all) = (0u64, full);
     for z in 0..gz {
         for y in 0..gy {
@@ -86,9 +142,32 @@ pub(crate) fn mesh_regular(
         return; // no sign change anywhere: no surface
     }
 
+    // Reserve output space: about one vertex and two triangles per mixed cell.
+    let mut mixed = 0usize;
+    for z in 0..cells[2] {
+        for y in 0..cells[1] {
+            let r = [
+                rows[z * gy + y],
+                rows[z * gy + y + 1],
+                rows[(z + 1) * gy + y],
+                rows[(z + 1) * gy + y + 1],
+            ];
+            let any = r[0] | r[1] | r[2] | r[3];
+            let all = r[0] & r[1] & r[2] & r[3];
+            mixed += ((any | (any >> 1)) & !(all & (all >> 1)) & ((1u64 << cells[0]) - 1))
+                .count_ones() as usize;
+        }
+    }
+    b.reserve(mixed, mixed * 2);
+
     let layer = gx * gy * 3;
-    let mut slots = [vec![NO_VERTEX; layer], vec![NO_VERTEX; layer]];
-    let mut written: [Vec<usize>; 2] = [Vec::new(), Vec::new()];
+    let slots = &mut scratch.slots;
+    let written = &mut scratch.written;
+    for (s, w) in slots.iter_mut().zip(written.iter_mut()) {
+        s.clear();
+        s.resize(layer, NO_VERTEX);
+        w.clear();
+    }
     let cell_mask = (1u64 << cells[0]) - 1;
     let mut verts = [0u32; 12];
     for z in 0..cells[2] {
@@ -126,7 +205,7 @@ pub(crate) fn mesh_regular(
                     let i = (oy * gx + ox) * 3 + axis;
                     if slots[l][i] == NO_VERTEX {
                         let lower = [(ox * s) as i32, (oy * s) as i32, (oz * s) as i32];
-                        slots[l][i] = b.add_vertex(lower, axis, s as u32);
+                        slots[l][i] = b.defer_vertex(lower, axis, s as u32);
                         written[l].push(i);
                     }
                     *v = slots[l][i];
@@ -139,6 +218,42 @@ pub(crate) fn mesh_regular(
                         verts[tri[2] as usize],
                     );
                 }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn swar_compare_matches_scalar_for_every_byte_pair() {
+        for c in 0..=255u8 {
+            for base in (0..=255u8).step_by(8) {
+                let bytes: [u8; 8] =
+                    std::array::from_fn(|i| base.wrapping_add((i as u8).wrapping_mul(37)));
+                let got = bytes_at_least(u64::from_le_bytes(bytes), u64::from_le_bytes([c; 8]));
+                let want = bytes
+                    .iter()
+                    .enumerate()
+                    .fold(0, |m, (i, &d)| m | (u64::from(d >= c) << i));
+                assert_eq!(got, want, "bytes {bytes:?} vs {c}");
+            }
+        }
+    }
+
+    #[test]
+    fn threshold_matches_the_float_rule() {
+        for iso in [-3.0f32, 0.0, 0.5, 99.0, 100.0, 127.5, 254.5, 255.0, 300.0] {
+            for d in 0..=255u8 {
+                let want = f32::from(d) > iso;
+                let got = match Threshold::new(iso) {
+                    Threshold::AllSolid => true,
+                    Threshold::NoneSolid => false,
+                    Threshold::Above(t) => d > t,
+                };
+                assert_eq!(got, want, "iso {iso} density {d}");
             }
         }
     }

@@ -170,6 +170,22 @@ pub fn min_double_area(pos: &[[f64; 3]], indices: &[u32]) -> f64 {
 
 /// Normals are unit length and face the same side as their triangles' geometric normals.
 pub fn assert_normals_agree(m: &Mesh) {
+    assert_normals_agree_pct(m, 99);
+}
+
+/// Like [`assert_normals_agree`], for at least `pct` percent of the triangles.
+pub fn assert_normals_agree_pct(m: &Mesh, pct: usize) {
+    let r = normal_agreement(m);
+    assert!(
+        r * 100.0 >= pct as f64,
+        "only {:.2}% of triangles face their normals",
+        r * 100.0
+    );
+}
+
+/// Checks normals are unit length; returns the fraction of triangles whose geometric normal
+/// faces the same side as their vertex normals.
+pub fn normal_agreement(m: &Mesh) -> f64 {
     let pos = positions64(m);
     for n in &m.normals {
         let l = n
@@ -192,11 +208,7 @@ pub fn assert_normals_agree(m: &Mesh) {
             agree += 1;
         }
     }
-    let total = m.triangle_count();
-    assert!(
-        agree * 100 >= total * 99,
-        "only {agree}/{total} triangles face their normals"
-    );
+    agree as f64 / m.triangle_count().max(1) as f64
 }
 
 /// Welds meshes of several chunks by vertex key. Returns world positions, normals, materials
