@@ -137,6 +137,47 @@ fn from_world_reads_the_apron_from_neighbour_chunks() {
     );
 }
 
+#[test]
+fn from_chunks_matches_from_world() {
+    let mut world = World::new(std::sync::Arc::new(FlatGenerator {
+        ground: Voxel::solid(ids::STONE),
+    }));
+    let centre = ChunkPos::new(2, -1, -3);
+    let mut n = 0u32;
+    for dz in -1..=1 {
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let p = centre.offset(dx, dy, dz).unwrap();
+                world.chunk(p);
+                // Distinct voxels near every face, edge and corner of the centre chunk.
+                let mut c = world.chunk(p).chunk.clone();
+                for i in 0..40 {
+                    n += 1;
+                    let (x, y, z) = ((i * 7 + n as usize) % 32, (i * 13) % 32, (i * 29 + 3) % 32);
+                    c.set(x, y, z, Voxel::new((n * 37 % 256) as u8, (n % 8) as u8));
+                    c.set(0, y, z, Voxel::new(200, 5));
+                    c.set(31, 31, z, Voxel::new(150, 6));
+                    c.set(x, 0, 31, Voxel::new(129, 7));
+                }
+                world.insert(p, c, 1);
+            }
+        }
+    }
+    let a = Neighborhood::from_world(&world, centre);
+    let b = Neighborhood::from_chunks(centre, |p| world.peek(p).map(|v| &v.chunk));
+    assert_eq!(a, b);
+    assert_eq!(
+        mesh_chunk(&a, &MeshOptions::default()).hash(),
+        mesh_chunk(&b, &MeshOptions::default()).hash()
+    );
+    // Missing chunks read as air.
+    let lonely = Neighborhood::from_chunks(centre, |p| {
+        (p == centre).then(|| &world.peek(p).unwrap().chunk)
+    });
+    assert_eq!(lonely.voxel(-1, 5, 5), Some(Voxel::AIR));
+    assert_eq!(lonely.voxel(3, 5, 5), a.voxel(3, 5, 5));
+}
+
 /// Hills: grass one voxel thick on dirt three thick on stone.
 fn hills_voxel(p: VoxelPos) -> Voxel {
     let noise = value_noise(77, 9.0);

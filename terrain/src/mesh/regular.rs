@@ -3,17 +3,14 @@
 //! Speed comes from bit rows: the solid flags of each row of strided samples are packed into
 //! one `u64` (at most 33 samples), so the four sample rows under a row of cells tell with a
 //! few word operations which cells have mixed corners; only those are visited, and each
-//! cell's case is assembled from two bits of each row. Vertices are welded through two
-//! z-layers of per-sample slots (one per axis): a vertex is made the first time any cell
-//! touches its edge and reused by the other cells sharing that edge, so each sign-changing
-//! edge yields exactly one vertex, without a hash map in the hot loop.
+//! cell's case is assembled from two bits of each row. Welding: an edge pass first gives
+//! every sign-changing sample edge exactly one vertex (found with the same word operations:
+//! XOR of neighbouring bits or rows) and stores its index in two z-layers of per-sample slots
+//! (one per axis); cells then only read slots. No hash map, no per-cell "seen?" branch.
 
 use super::builder::Builder;
 use super::neighborhood::{index, Neighborhood};
 use super::tables::{edge_endpoints, REGULAR_CELL_CLASS, REGULAR_CELL_DATA, REGULAR_VERTEX_DATA};
-
-/// Marker of an empty vertex slot.
-const NO_VERTEX: u32 = u32::MAX;
 
 /// How a u8 density compares with the isovalue: solid iff `density > iso`.
 #[derive(Clone, Copy)]
@@ -83,7 +80,6 @@ fn row_bits(density: &[u8], start: usize, stride: usize, n: usize, t: u8) -> u64
 struct Scratch {
     rows: Vec<u64>,
     slots: [Vec<u32>; 2],
-    written: [Vec<usize>; 2],
 }
 
 thread_local! {
@@ -162,23 +158,26 @@ fn mesh_regular_in(
 
     let layer = gx * gy * 3;
     let slots = &mut scratch.slots;
-    let written = &mut scratch.written;
-    for (s, w) in slots.iter_mut().zip(written.iter_mut()) {
-        s.clear();
-        s.resize(layer, NO_VERTEX);
-        w.clear();
+    for sl in slots.iter_mut() {
+        sl.clear();
+        sl.resize(layer, 0);
     }
-    let cell_mask = (1u64 << cells[0]) - 1;
+    let grid = Grid {
+        rows,
+        gx,
+        gy,
+        stride: s,
+        cell_mask: (1u64 << cells[0]) - 1,
+        full,
+    };
+    // Edge pass first (flying-edges style): every sign-changing edge of a sample layer gets
+    // its vertex before the cells that use it, so the cell loop only reads slots. Slots of
+    // edges without a sign change keep stale values, but no cell case reads them.
+    grid.emit_xy(b, &mut slots[0], 0, cells[1]);
     let mut verts = [0u32; 12];
     for z in 0..cells[2] {
-        if z > 0 {
-            // Layer z+1 reuses the buffer of layer z-1: clear what that layer wrote.
-            let l = (z + 1) & 1;
-            for &i in &written[l] {
-                slots[l][i] = NO_VERTEX;
-            }
-            written[l].clear();
-        }
+        grid.emit_z(b, &mut slots[z & 1], z);
+        grid.emit_xy(b, &mut slots[(z + 1) & 1], z + 1, cells[1]);
         for y in 0..cells[1] {
             let m00 = rows[z * gy + y];
             let m10 = rows[z * gy + y + 1];
@@ -186,7 +185,7 @@ fn mesh_regular_in(
             let m11 = rows[(z + 1) * gy + y + 1];
             let any = m00 | m10 | m01 | m11;
             let all = m00 & m10 & m01 & m11;
-            let mut active = (any | (any >> 1)) & !(all & (all >> 1)) & cell_mask;
+            let mut active = (any | (any >> 1)) & !(all & (all >> 1)) & grid.cell_mask;
             while active != 0 {
                 let x = active.trailing_zeros() as usize;
                 active &= active - 1;
@@ -201,14 +200,7 @@ fn mesh_regular_in(
                     let (ca, cb) = edge_endpoints(entry);
                     let axis = (ca ^ cb).trailing_zeros() as usize;
                     let (ox, oy, oz) = (x + (ca & 1), y + ((ca >> 1) & 1), z + ((ca >> 2) & 1));
-                    let l = oz & 1;
-                    let i = (oy * gx + ox) * 3 + axis;
-                    if slots[l][i] == NO_VERTEX {
-                        let lower = [(ox * s) as i32, (oy * s) as i32, (oz * s) as i32];
-                        slots[l][i] = b.defer_vertex(lower, axis, s as u32);
-                        written[l].push(i);
-                    }
-                    *v = slots[l][i];
+                    *v = slots[oz & 1][(oy * gx + ox) * 3 + axis];
                 }
                 let tris = data.get_triangle_count() as usize;
                 for tri in data.vertex_index[..tris * 3].chunks_exact(3) {
@@ -218,6 +210,58 @@ fn mesh_regular_in(
                         verts[tri[2] as usize],
                     );
                 }
+            }
+        }
+    }
+}
+
+/// The packed sign grid and its shape, for the edge pass.
+struct Grid<'r> {
+    rows: &'r [u64],
+    gx: usize,
+    gy: usize,
+    stride: usize,
+    /// Bits of the x positions that start a cell (and an x edge).
+    cell_mask: u64,
+    /// Bits of all samples in a row.
+    full: u64,
+}
+
+impl Grid<'_> {
+    /// Vertices on the sign-changing x and y edges of sample layer `z`.
+    fn emit_xy(&self, b: &mut Builder, slots: &mut [u32], z: usize, cells_y: usize) {
+        let s = self.stride;
+        for y in 0..self.gy {
+            let m = self.rows[z * self.gy + y];
+            let mut e = (m ^ (m >> 1)) & self.cell_mask;
+            while e != 0 {
+                let x = e.trailing_zeros() as usize;
+                e &= e - 1;
+                let lower = [(x * s) as i32, (y * s) as i32, (z * s) as i32];
+                slots[(y * self.gx + x) * 3] = b.defer_vertex(lower, 0, s as u32);
+            }
+            if y < cells_y {
+                let mut e = (m ^ self.rows[z * self.gy + y + 1]) & self.full;
+                while e != 0 {
+                    let x = e.trailing_zeros() as usize;
+                    e &= e - 1;
+                    let lower = [(x * s) as i32, (y * s) as i32, (z * s) as i32];
+                    slots[(y * self.gx + x) * 3 + 1] = b.defer_vertex(lower, 1, s as u32);
+                }
+            }
+        }
+    }
+
+    /// Vertices on the sign-changing z edges from sample layer `z` to `z + 1`.
+    fn emit_z(&self, b: &mut Builder, slots: &mut [u32], z: usize) {
+        let s = self.stride;
+        for y in 0..self.gy {
+            let mut e = (self.rows[z * self.gy + y] ^ self.rows[(z + 1) * self.gy + y]) & self.full;
+            while e != 0 {
+                let x = e.trailing_zeros() as usize;
+                e &= e - 1;
+                let lower = [(x * s) as i32, (y * s) as i32, (z * s) as i32];
+                slots[(y * self.gx + x) * 3 + 2] = b.defer_vertex(lower, 2, s as u32);
             }
         }
     }

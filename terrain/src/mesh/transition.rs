@@ -93,11 +93,29 @@ pub(crate) fn mesh_transitions(
     for p in b.mesh.positions.iter_mut() {
         *p = displaced(*p, faces, s);
     }
+    // Transition cells reuse regular vertices only on the coarse edges lying in their face
+    // plane; index just those (keys of edges on a transition face plane).
+    let o = nb.origin();
+    let on_face = |k: &VertexKey| {
+        let lower = [
+            k.base.x.wrapping_sub(o.x),
+            k.base.y.wrapping_sub(o.y),
+            k.base.z.wrapping_sub(o.z),
+        ];
+        FACE_FRAMES
+            .iter()
+            .enumerate()
+            .any(|(f, &(frame, max_side))| {
+                let plane = if max_side { CHUNK_SIZE } else { 0 };
+                faces & (1 << f) != 0 && usize::from(k.axis) != frame[2] && lower[frame[2]] == plane
+            })
+    };
     let mut ids: HashMap<VertexKey, u32> = b
         .mesh
         .keys
         .iter()
         .enumerate()
+        .filter(|(_, k)| on_face(k))
         .map(|(i, k)| (*k, i as u32))
         .collect();
     let density = nb.densities();
@@ -178,5 +196,31 @@ pub(crate) fn mesh_transitions(
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn push_is_full_on_the_face_zero_one_cell_in_and_tapered_at_other_faces() {
+        let s = 4.0;
+        // -X transition: a vertex on the face moves in by the full width, one cell in not at all.
+        assert_eq!(displaced([0.0, 10.0, 10.0], 0b1, s), [2.0, 10.0, 10.0]);
+        assert_eq!(displaced([4.0, 10.0, 10.0], 0b1, s), [4.0, 10.0, 10.0]);
+        assert_eq!(displaced([2.0, 10.0, 10.0], 0b1, s), [3.0, 10.0, 10.0]);
+        // +X transition pushes towards -x.
+        assert_eq!(displaced([32.0, 10.0, 10.0], 0b10, s), [30.0, 10.0, 10.0]);
+        // On a non-transition face (+Y here) nothing moves; halfway into its cell, half the push.
+        assert_eq!(displaced([0.0, 32.0, 10.0], 0b1, s), [0.0, 32.0, 10.0]);
+        assert_eq!(displaced([0.0, 30.0, 10.0], 0b1, s), [1.0, 30.0, 10.0]);
+        // Two transition faces meeting at an edge: both pushes apply.
+        assert_eq!(displaced([0.0, 0.0, 10.0], 0b101, s), [2.0, 2.0, 10.0]);
+        // Order along the pushed axis is kept (no fold-over).
+        let xs: Vec<f32> = (0..=8)
+            .map(|i| displaced([i as f32 * 0.5, 9.0, 9.0], 0b1, s)[0])
+            .collect();
+        assert!(xs.windows(2).all(|w| w[0] < w[1]), "{xs:?}");
     }
 }
