@@ -49,6 +49,7 @@ mod regular;
 mod tables;
 mod transition;
 mod types;
+pub mod volume;
 
 pub use neighborhood::{
     Neighborhood, APRON_HIGH, APRON_LOW, LOCAL_MAX, LOCAL_MAX_Y, LOCAL_MIN, MAX_SURFACE_SCAN,
