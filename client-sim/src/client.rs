@@ -390,7 +390,9 @@ async fn read_updates(
     shared: Arc<Shared>,
     control: mpsc::Sender<Bytes>,
 ) {
-    let Ok(recv) = conn.accept_uni().await else { return };
+    let Ok(recv) = conn.accept_uni().await else {
+        return;
+    };
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient));
     loop {
         let update = match reader.next::<WorldUpdate>().await {

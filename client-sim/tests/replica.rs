@@ -11,7 +11,9 @@ use strata_terrain::edit::StructureLibrary;
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::hash::chunk_hash;
 use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood};
-use strata_terrain::{ChunkGenerator, ChunkPos, Edit, EditContext, Fixed, FixedVec3, MaterialTable, World};
+use strata_terrain::{
+    ChunkGenerator, ChunkPos, Edit, EditContext, Fixed, FixedVec3, MaterialTable, World,
+};
 
 fn generator() -> Arc<Generator> {
     Arc::new(Generator::fractal(GenParams::default()).unwrap())
@@ -30,7 +32,11 @@ fn subscribe(replica: &mut Replica, center: ChunkPos) {
 }
 
 fn server_mesh_hash(world: &World, pos: ChunkPos) -> u64 {
-    mesh_chunk(&Neighborhood::from_world(world, pos), &MeshOptions::default()).hash()
+    mesh_chunk(
+        &Neighborhood::from_world(world, pos),
+        &MeshOptions::default(),
+    )
+    .hash()
 }
 
 #[test]
@@ -44,12 +50,17 @@ fn deltas_and_meshes_follow_the_server() {
     replica.record_history();
     subscribe(&mut replica, center);
     let around: Vec<ChunkPos> = (-2..=2)
-        .flat_map(|dz| (-2..=2).flat_map(move |dy| (-2..=2).map(move |dx| center.offset(dx, dy, dz).unwrap())))
+        .flat_map(|dz| {
+            (-2..=2).flat_map(move |dy| (-2..=2).map(move |dx| center.offset(dx, dy, dz).unwrap()))
+        })
         .collect();
     world.load(around);
     let materials = MaterialTable::default();
     let structures = StructureLibrary::default();
-    let ctx = EditContext { materials: &materials, structures: &structures };
+    let ctx = EditContext {
+        materials: &materials,
+        structures: &structures,
+    };
     for (seq, dx) in [(1u64, 0), (2, 2)] {
         let edit = Edit::Mine {
             center: FixedVec3::from_voxels(x + dx, y, z),
@@ -59,9 +70,18 @@ fn deltas_and_meshes_follow_the_server() {
         let out = edit.apply(&mut world, &ctx).unwrap();
         for ch in &out.changed {
             let after = world.peek(ch.pos).unwrap().chunk.clone();
-            let delta = ChunkDelta::encode(ch.pos, ch.from_version, ch.to_version, &ch.before, &after).unwrap();
+            let delta =
+                ChunkDelta::encode(ch.pos, ch.from_version, ch.to_version, &ch.before, &after)
+                    .unwrap();
             let mesh_hash = server_mesh_hash(&world, ch.pos);
-            assert_eq!(replica.apply(WorldUpdate::Delta(DeltaUpdate { delta, mesh_hash, seq })), None);
+            assert_eq!(
+                replica.apply(WorldUpdate::Delta(DeltaUpdate {
+                    delta,
+                    mesh_hash,
+                    seq
+                })),
+                None
+            );
         }
         assert_eq!(replica.apply(WorldUpdate::TickEnd { last_seq: seq }), None);
     }
@@ -71,7 +91,10 @@ fn deltas_and_meshes_follow_the_server() {
     assert!(stats.meshes_checked >= 1, "{stats:?}");
     let held = replica.get(center).unwrap();
     assert_eq!(held.version, 2);
-    assert_eq!(chunk_hash(&held.chunk), chunk_hash(&world.peek(center).unwrap().chunk));
+    assert_eq!(
+        chunk_hash(&held.chunk),
+        chunk_hash(&world.peek(center).unwrap().chunk)
+    );
     assert_eq!(replica.history().unwrap()[&center], vec![0, 1, 2]);
     assert_eq!(replica.last_seq(), 2);
 }
@@ -89,11 +112,18 @@ fn a_wrong_mesh_hash_is_reported_with_both_hashes() {
     world.commit(center, after.clone());
     let delta = ChunkDelta::encode(center, 0, 1, &before, &after).unwrap();
     let good = server_mesh_hash(&world, center);
-    replica.apply(WorldUpdate::Delta(DeltaUpdate { delta, mesh_hash: good ^ 1, seq: 1 }));
+    replica.apply(WorldUpdate::Delta(DeltaUpdate {
+        delta,
+        mesh_hash: good ^ 1,
+        seq: 1,
+    }));
     replica.apply(WorldUpdate::TickEnd { last_seq: 1 });
     let m = replica.mesh_mismatches();
     assert_eq!(m.len(), 1);
-    assert_eq!((m[0].pos, m[0].version, m[0].server, m[0].client), (center, 1, good ^ 1, good));
+    assert_eq!(
+        (m[0].pos, m[0].version, m[0].server, m[0].client),
+        (center, 1, good ^ 1, good)
+    );
 }
 
 #[test]
@@ -109,20 +139,42 @@ fn gaps_and_bad_data_ask_for_a_resync() {
     v2.set(2, 2, 2, strata_terrain::Voxel::solid(7));
     // A delta from version 1 while the replica holds version 0: a gap.
     let skip = ChunkDelta::encode(pos, 1, 2, &v1, &v2).unwrap();
-    let r = replica.apply(WorldUpdate::Delta(DeltaUpdate { delta: skip, mesh_hash: 0, seq: 9 }));
+    let r = replica.apply(WorldUpdate::Delta(DeltaUpdate {
+        delta: skip,
+        mesh_hash: 0,
+        seq: 9,
+    }));
     assert_eq!(r, Some(Request::Resync(pos)));
-    assert!(replica.get(pos).is_none(), "a stale chunk is dropped until resent");
+    assert!(
+        replica.get(pos).is_none(),
+        "a stale chunk is dropped until resent"
+    );
     // A snapshot whose data does not match its hash is refused.
-    let bad = WorldUpdate::Snapshot { pos, version: 2, hash: chunk_hash(&v2) ^ 1, mesh_hash: 0, data: encode_chunk(&v2) };
+    let bad = WorldUpdate::Snapshot {
+        pos,
+        version: 2,
+        hash: chunk_hash(&v2) ^ 1,
+        mesh_hash: 0,
+        data: encode_chunk(&v2),
+    };
     assert_eq!(replica.apply(bad), Some(Request::Resync(pos)));
-    let good = WorldUpdate::Snapshot { pos, version: 2, hash: chunk_hash(&v2), mesh_hash: 0, data: encode_chunk(&v2) };
+    let good = WorldUpdate::Snapshot {
+        pos,
+        version: 2,
+        hash: chunk_hash(&v2),
+        mesh_hash: 0,
+        data: encode_chunk(&v2),
+    };
     assert_eq!(replica.apply(good), None);
     assert_eq!(replica.get(pos).unwrap().version, 2);
     assert_eq!(replica.stats.gaps, 1);
     assert_eq!(replica.stats.hash_mismatches, 1);
     // Without a generator, version-0 chunks need full data.
     let mut blind = Replica::new(None);
-    assert_eq!(blind.apply(WorldUpdate::Generated { pos }), Some(Request::FullSnapshot(pos)));
+    assert_eq!(
+        blind.apply(WorldUpdate::Generated { pos }),
+        Some(Request::FullSnapshot(pos))
+    );
     blind.apply(WorldUpdate::Unsubscribed { pos });
     assert!(blind.is_empty());
 }

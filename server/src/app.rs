@@ -42,7 +42,9 @@ pub struct Running {
 
 fn load_zones(store: &dyn ChunkStore, cfg: &ServerConfig) -> anyhow::Result<Vec<Zone>> {
     match store.get_blob(ZONES_BLOB)? {
-        Some(bytes) => serde_json::from_slice(&bytes).context("stored protected zones do not parse"),
+        Some(bytes) => {
+            serde_json::from_slice(&bytes).context("stored protected zones do not parse")
+        }
         None => Ok(Sequencer::default_zones(&cfg.validation)),
     }
 }
@@ -54,7 +56,11 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     cfg.validate()?;
     let (data_dir, report) = DataDir::open_or_init(&cfg.server.data_dir, &cfg.tls.extra_names)
         .with_context(|| format!("opening data dir {}", cfg.server.data_dir.display()))?;
-    for (what, path) in [("data dir", &report.created_dir), ("certificate", &report.created_cert), ("auth secret", &report.created_secret)] {
+    for (what, path) in [
+        ("data dir", &report.created_dir),
+        ("certificate", &report.created_cert),
+        ("auth secret", &report.created_secret),
+    ] {
         if let Some(p) = path {
             info!(path = %p.display(), "generated {what}");
         }
@@ -62,7 +68,10 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     let store: Arc<dyn ChunkStore> = Arc::new(SledStore::open(&data_dir.world_db_path())?);
     let params = cfg.world.generator.clone();
     let mut validation = cfg.validation.clone();
-    validation.bounds = WorldBounds { min_y: params.min_y, max_y: params.max_y };
+    validation.bounds = WorldBounds {
+        min_y: params.min_y,
+        max_y: params.max_y,
+    };
     let generator_params = toml::to_string(&params)?;
     let meta = store.init_meta(&WorldMeta {
         format_version: STORE_FORMAT_VERSION,
@@ -91,7 +100,11 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         let (pos, version) = item?;
         versions.insert(pos, version);
     }
-    info!(last_seq = meta.last_seq, modified_chunks = versions.len(), "world loaded");
+    info!(
+        last_seq = meta.last_seq,
+        modified_chunks = versions.len(),
+        "world loaded"
+    );
     let engine = Engine::new(
         seq,
         store,

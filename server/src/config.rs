@@ -389,11 +389,31 @@ impl ServerConfig {
             .generator
             .validate()
             .map_err(|e| invalid("world.generator", e.to_string()))?;
-        range("interest.view_radius", self.interest.view_radius, 1, MAX_VIEW_RADIUS)?;
+        range(
+            "interest.view_radius",
+            self.interest.view_radius,
+            1,
+            MAX_VIEW_RADIUS,
+        )?;
         range("engine.tick_ms", self.engine.tick_ms, 1, MAX_TICK_MS)?;
-        range("engine.command_queue", self.engine.command_queue, 1, MAX_COMMAND_QUEUE)?;
-        range("sequencer.queue_capacity", self.sequencer.queue_capacity, 1, MAX_COMMAND_QUEUE)?;
-        range("sequencer.max_edits_per_tick", self.sequencer.max_edits_per_tick, 1, MAX_COMMAND_QUEUE)?;
+        range(
+            "engine.command_queue",
+            self.engine.command_queue,
+            1,
+            MAX_COMMAND_QUEUE,
+        )?;
+        range(
+            "sequencer.queue_capacity",
+            self.sequencer.queue_capacity,
+            1,
+            MAX_COMMAND_QUEUE,
+        )?;
+        range(
+            "sequencer.max_edits_per_tick",
+            self.sequencer.max_edits_per_tick,
+            1,
+            MAX_COMMAND_QUEUE,
+        )?;
         Ok(())
     }
 

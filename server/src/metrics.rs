@@ -17,7 +17,9 @@ pub const RESYNCS: &str = "strata_resyncs_total";
 
 /// Serves `/metrics` on `addr` from a background thread of the exporter.
 pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
-    PrometheusBuilder::new().with_http_listener(addr).install()?;
+    PrometheusBuilder::new()
+        .with_http_listener(addr)
+        .install()?;
     metrics::describe_gauge!(CONNECTIONS, "Open QUIC connections");
     metrics::describe_counter!(EDITS_ACCEPTED, "Edits acknowledged after they were durable");
     metrics::describe_counter!(EDITS_REJECTED, "Edits refused, by reason");

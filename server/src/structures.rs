@@ -12,23 +12,35 @@ pub const MAX_STRUCTURE_FILE: u64 = 8 * 1024 * 1024;
 /// Every template in `dir`, keyed by the number its file name starts with.
 pub fn load_structures(dir: &Path) -> anyhow::Result<StructureLibrary> {
     let mut lib = StructureLibrary::default();
-    let entries = std::fs::read_dir(dir).with_context(|| format!("reading structures dir {}", dir.display()))?;
+    let entries = std::fs::read_dir(dir)
+        .with_context(|| format!("reading structures dir {}", dir.display()))?;
     for entry in entries {
         let path = entry?.path();
         if path.extension().and_then(|e| e.to_str()) != Some("strs") {
             continue;
         }
-        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
+        let stem = path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or_default();
         let id: u32 = stem
             .split('-')
             .next()
             .and_then(|n| n.parse().ok())
             .with_context(|| format!("{}: name must start with a numeric id", path.display()))?;
         let len = std::fs::metadata(&path)?.len();
-        anyhow::ensure!(len <= MAX_STRUCTURE_FILE, "{}: {len} bytes is over the {MAX_STRUCTURE_FILE}-byte cap", path.display());
+        anyhow::ensure!(
+            len <= MAX_STRUCTURE_FILE,
+            "{}: {len} bytes is over the {MAX_STRUCTURE_FILE}-byte cap",
+            path.display()
+        );
         let bytes = std::fs::read(&path)?;
         let s = Structure::from_bytes(&bytes).with_context(|| format!("{}", path.display()))?;
-        anyhow::ensure!(lib.get(id).is_none(), "{}: structure id {id} is defined twice", path.display());
+        anyhow::ensure!(
+            lib.get(id).is_none(),
+            "{}: structure id {id} is defined twice",
+            path.display()
+        );
         lib.insert(id, s);
     }
     Ok(lib)
@@ -49,7 +61,10 @@ mod tests {
         assert_eq!(lib.len(), 1);
         assert_eq!(lib.get(12).unwrap().name, "post");
         std::fs::write(dir.path().join("12.strs"), s.to_bytes()).unwrap();
-        assert!(load_structures(dir.path()).unwrap_err().to_string().contains("twice"));
+        assert!(load_structures(dir.path())
+            .unwrap_err()
+            .to_string()
+            .contains("twice"));
         std::fs::remove_file(dir.path().join("12.strs")).unwrap();
         std::fs::write(dir.path().join("x-bad.strs"), s.to_bytes()).unwrap();
         assert!(load_structures(dir.path()).is_err());

@@ -39,7 +39,9 @@ fn empty_and_partial_files_fill_in_defaults() {
         ServerConfig::from_toml_str("").unwrap(),
         ServerConfig::default()
     );
-    let c = ServerConfig::from_toml_str("[interest]\nview_radius = 4\n[world.generator]\nseed = 7\n").unwrap();
+    let c =
+        ServerConfig::from_toml_str("[interest]\nview_radius = 4\n[world.generator]\nseed = 7\n")
+            .unwrap();
     let mut expected = ServerConfig::default();
     expected.interest.view_radius = 4;
     expected.world.generator.seed = 7;
@@ -167,10 +169,16 @@ fn bad_values_name_their_field() {
         ("[interest]\nview_radius = 33", "interest.view_radius"),
         ("[world.generator]\nmin_y = -2000000", "world.generator"),
         ("[world.generator]\nmax_y = 2000000", "world.generator"),
-        ("[world.generator]\nmin_y = 0\nmax_y = 63", "world.generator"),
+        (
+            "[world.generator]\nmin_y = 0\nmax_y = 63",
+            "world.generator",
+        ),
         ("[engine]\ntick_ms = 0", "engine.tick_ms"),
         ("[engine]\ncommand_queue = 0", "engine.command_queue"),
-        ("[sequencer]\nqueue_capacity = 0", "sequencer.queue_capacity"),
+        (
+            "[sequencer]\nqueue_capacity = 0",
+            "sequencer.queue_capacity",
+        ),
     ];
     for (text, field) in cases {
         assert_eq!(invalid_field(text), field, "config {text:?}");

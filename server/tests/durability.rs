@@ -36,7 +36,9 @@ fn spawn_server(data_dir: &Path) -> (Child, SocketAddr) {
         .spawn()
         .expect("strata-server starts");
     let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
     let addr = line
         .split_whitespace()
         .find_map(|w| w.parse::<SocketAddr>().ok())
@@ -46,8 +48,17 @@ fn spawn_server(data_dir: &Path) -> (Child, SocketAddr) {
 
 async fn client(data_dir: &Path, addr: SocketAddr, player: &str) -> Client {
     let dd = DataDir::open_existing(data_dir).unwrap();
-    let token = auth::issue(dd.secret(), player, Role::Player, Duration::from_secs(600), auth::unix_now()).unwrap();
-    Client::connect(addr, dd.cert().cert_der(), &token).await.unwrap()
+    let token = auth::issue(
+        dd.secret(),
+        player,
+        Role::Player,
+        Duration::from_secs(600),
+        auth::unix_now(),
+    )
+    .unwrap();
+    Client::connect(addr, dd.cert().cert_der(), &token)
+        .await
+        .unwrap()
 }
 
 fn feet() -> (FixedVec3, i32, i32, i32) {
@@ -86,7 +97,11 @@ async fn acknowledged_edits_survive_sigkill() {
                 }
             })
         };
-        assert!(eventually(Duration::from_secs(20), || acked.lock().unwrap().len() >= 20).await);
+        assert!(
+            eventually(Duration::from_secs(20), || acked.lock().unwrap().len()
+                >= 20)
+            .await
+        );
         child.kill().unwrap();
         child.wait().unwrap();
         // The client would only notice the dead peer at its idle timeout.
@@ -96,7 +111,10 @@ async fn acknowledged_edits_survive_sigkill() {
         let store = SledStore::open(&data.join("world.sled")).unwrap();
         let last = store.last_seq().unwrap();
         for seq in &acked {
-            let entry = store.log_entry(*seq).unwrap().unwrap_or_else(|| panic!("acknowledged seq {seq} was lost"));
+            let entry = store
+                .log_entry(*seq)
+                .unwrap()
+                .unwrap_or_else(|| panic!("acknowledged seq {seq} was lost"));
             for (pos, version) in entry.changes {
                 assert!(store.load_chunk(pos).unwrap().unwrap().version >= version);
             }
@@ -134,7 +152,11 @@ async fn graceful_shutdown_loses_nothing() {
             let (c, acked) = (c.clone(), acked.clone());
             tokio::spawn(async move {
                 for i in 0..10_000 {
-                    let edit = Edit::Mine { center: FixedVec3::from_voxels(x + i % 7 - 3, y, z), radius: r(1.5), strength: 10 };
+                    let edit = Edit::Mine {
+                        center: FixedVec3::from_voxels(x + i % 7 - 3, y, z),
+                        radius: r(1.5),
+                        strength: 10,
+                    };
                     match c.edit(edit).await {
                         Ok(Verdict::Accepted { seq }) => acked.lock().unwrap().push(seq),
                         Ok(_) | Err(_) => return,
@@ -142,14 +164,24 @@ async fn graceful_shutdown_loses_nothing() {
                 }
             })
         };
-        assert!(eventually(Duration::from_secs(20), || acked.lock().unwrap().len() >= 10).await);
+        assert!(
+            eventually(Duration::from_secs(20), || acked.lock().unwrap().len()
+                >= 10)
+            .await
+        );
         server.shutdown().await.unwrap();
         let _ = worker.await;
         let err = c.server_error();
-        assert!(matches!(err, Some((strata_protocol::ErrorCode::ShuttingDown, _))), "{err:?}");
+        assert!(
+            matches!(err, Some((strata_protocol::ErrorCode::ShuttingDown, _))),
+            "{err:?}"
+        );
         let store = SledStore::open(&dir.path().join("world.sled")).unwrap();
         for seq in acked.lock().unwrap().iter() {
-            assert!(store.log_entry(*seq).unwrap().is_some(), "acknowledged seq {seq} was lost");
+            assert!(
+                store.log_entry(*seq).unwrap().is_some(),
+                "acknowledged seq {seq} was lost"
+            );
         }
     })
     .await

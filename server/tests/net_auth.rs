@@ -26,24 +26,56 @@ async fn tokens_versions_and_alpn() {
             Err(e) => panic!("expected a refusal, got {e}"),
             Ok(_) => panic!("expected a refusal, got a session"),
         };
-        let forged = auth::issue(&Secret::from_bytes([7; 32]), "eve", Role::Admin, Duration::from_secs(60), auth::unix_now())
-            .unwrap();
+        let forged = auth::issue(
+            &Secret::from_bytes([7; 32]),
+            "eve",
+            Role::Admin,
+            Duration::from_secs(60),
+            auth::unix_now(),
+        )
+        .unwrap();
         let (code, _) = refused(Client::connect(server.addr, &server.cert_der, &forged).await);
         assert_eq!(code, ErrorCode::BadToken);
-        let (code, message) = refused(Client::connect(server.addr, &server.cert_der, "not-a-token").await);
+        let (code, message) =
+            refused(Client::connect(server.addr, &server.cert_der, "not-a-token").await);
         assert_eq!(code, ErrorCode::BadToken);
         assert!(!message.is_empty());
-        let old = auth::issue(server.data_dir.secret(), "bob", Role::Player, Duration::from_secs(1), 1_000).unwrap();
+        let old = auth::issue(
+            server.data_dir.secret(),
+            "bob",
+            Role::Player,
+            Duration::from_secs(1),
+            1_000,
+        )
+        .unwrap();
         let (code, _) = refused(Client::connect(server.addr, &server.cert_der, &old).await);
         assert_eq!(code, ErrorCode::ExpiredToken);
         let cfg = client_config_pinned(&server.cert_der).unwrap();
-        let (code, _) = refused(Client::connect_with(server.addr, cfg, &token(&server, "cy", Role::Player), PROTOCOL_VERSION + 1).await);
+        let (code, _) = refused(
+            Client::connect_with(
+                server.addr,
+                cfg,
+                &token(&server, "cy", Role::Player),
+                PROTOCOL_VERSION + 1,
+            )
+            .await,
+        );
         assert_eq!(code, ErrorCode::UnsupportedVersion);
 
         let mut roots = rustls::RootCertStore::empty();
-        roots.add(rustls::pki_types::CertificateDer::from(server.cert_der.clone())).unwrap();
+        roots
+            .add(rustls::pki_types::CertificateDer::from(
+                server.cert_der.clone(),
+            ))
+            .unwrap();
         let wrong_alpn = client_config_with_alpn(roots, b"strata/0").unwrap();
-        let r = Client::connect_with(server.addr, wrong_alpn, &token(&server, "dee", Role::Player), PROTOCOL_VERSION).await;
+        let r = Client::connect_with(
+            server.addr,
+            wrong_alpn,
+            &token(&server, "dee", Role::Player),
+            PROTOCOL_VERSION,
+        )
+        .await;
         assert!(r.is_err(), "a wrong ALPN must fail the handshake");
 
         // The good session is unaffected by all of that.

@@ -19,7 +19,10 @@ fn spot() -> (FixedVec3, VoxelPos) {
     let g = Generator::fractal(GenParams::default()).unwrap();
     let (x, z) = (70, 40);
     let y = g.surface_height(x, z);
-    (at(x as f64, y + 1.0, z as f64), VoxelPos::new(x, y.floor() as i32, z))
+    (
+        at(x as f64, y + 1.0, z as f64),
+        VoxelPos::new(x, y.floor() as i32, z),
+    )
 }
 
 #[tokio::test]
@@ -39,15 +42,39 @@ async fn two_clients_see_one_history() {
             radius: r(2.5),
             strength: 255,
         };
-        assert_eq!(a.edit(mine(0)).await.unwrap(), Verdict::Rejected(RejectReason::NoPosition));
+        assert_eq!(
+            a.edit(mine(0)).await.unwrap(),
+            Verdict::Rejected(RejectReason::NoPosition)
+        );
         a.send_position(feet).unwrap();
         b.send_position(feet).unwrap();
         let target = ground.chunk();
-        assert!(eventually(Duration::from_secs(10), || a.replica().get(target).is_some() && b.replica().get(target).is_some()).await);
-        let far = Edit::Mine { center: FixedVec3::from_voxels(ground.x + 40, ground.y, ground.z), radius: r(2.0), strength: 255 };
-        assert!(matches!(a.edit(far).await.unwrap(), Verdict::Rejected(RejectReason::OutOfReach { .. })));
-        let huge = Edit::Mine { center: FixedVec3::from_voxels(ground.x, ground.y, ground.z), radius: r(30.0), strength: 255 };
-        assert!(matches!(a.edit(huge).await.unwrap(), Verdict::Rejected(RejectReason::RadiusTooLarge { .. })));
+        assert!(
+            eventually(Duration::from_secs(10), || a
+                .replica()
+                .get(target)
+                .is_some()
+                && b.replica().get(target).is_some())
+            .await
+        );
+        let far = Edit::Mine {
+            center: FixedVec3::from_voxels(ground.x + 40, ground.y, ground.z),
+            radius: r(2.0),
+            strength: 255,
+        };
+        assert!(matches!(
+            a.edit(far).await.unwrap(),
+            Verdict::Rejected(RejectReason::OutOfReach { .. })
+        ));
+        let huge = Edit::Mine {
+            center: FixedVec3::from_voxels(ground.x, ground.y, ground.z),
+            radius: r(30.0),
+            strength: 255,
+        };
+        assert!(matches!(
+            a.edit(huge).await.unwrap(),
+            Verdict::Rejected(RejectReason::RadiusTooLarge { .. })
+        ));
 
         let mut seqs = Vec::new();
         for (i, c) in [&a, &b, &a].iter().enumerate() {
@@ -56,11 +83,25 @@ async fn two_clients_see_one_history() {
                 v => panic!("edit {i} refused: {v:?}"),
             }
         }
-        assert!(seqs.windows(2).all(|w| w[1] > w[0]), "sequence numbers rise: {seqs:?}");
+        assert!(
+            seqs.windows(2).all(|w| w[1] > w[0]),
+            "sequence numbers rise: {seqs:?}"
+        );
         let last = *seqs.last().unwrap();
-        assert!(eventually(Duration::from_secs(10), || a.replica().last_seq() >= last && b.replica().last_seq() >= last).await);
-        let (ha, hb) = (a.replica().history().unwrap().clone(), b.replica().history().unwrap().clone());
-        assert_eq!(ha.get(&target), hb.get(&target), "both clients saw the same versions in the same order");
+        assert!(
+            eventually(Duration::from_secs(10), || a.replica().last_seq() >= last
+                && b.replica().last_seq() >= last)
+            .await
+        );
+        let (ha, hb) = (
+            a.replica().history().unwrap().clone(),
+            b.replica().history().unwrap().clone(),
+        );
+        assert_eq!(
+            ha.get(&target),
+            hb.get(&target),
+            "both clients saw the same versions in the same order"
+        );
         assert!(ha[&target].len() >= 2);
         let held: Vec<_> = [&a, &b]
             .iter()
@@ -73,7 +114,12 @@ async fn two_clients_see_one_history() {
         assert_eq!(held[0], held[1]);
         for c in [&a, &b] {
             let stats = c.replica().stats;
-            assert_eq!(stats.mesh_mismatches, 0, "{:?}", c.replica().mesh_mismatches());
+            assert_eq!(
+                stats.mesh_mismatches,
+                0,
+                "{:?}",
+                c.replica().mesh_mismatches()
+            );
             assert_eq!(stats.hash_mismatches, 0);
         }
         a.close().await;
@@ -98,13 +144,37 @@ async fn resync_request_sends_a_fresh_snapshot() {
         let (feet, ground) = spot();
         a.send_position(feet).unwrap();
         let target = ground.chunk();
-        assert!(eventually(Duration::from_secs(10), || a.replica().get(target).is_some()).await);
-        let edit = Edit::Build { center: FixedVec3::from_voxels(ground.x, ground.y + 2, ground.z), radius: r(2.0), material: 7, strength: 255 };
-        assert!(matches!(a.edit(edit).await.unwrap(), Verdict::Accepted { .. }));
-        assert!(eventually(Duration::from_secs(10), || a.replica().get(target).is_some_and(|h| h.version == 1)).await);
+        assert!(
+            eventually(Duration::from_secs(10), || a
+                .replica()
+                .get(target)
+                .is_some())
+            .await
+        );
+        let edit = Edit::Build {
+            center: FixedVec3::from_voxels(ground.x, ground.y + 2, ground.z),
+            radius: r(2.0),
+            material: 7,
+            strength: 255,
+        };
+        assert!(matches!(
+            a.edit(edit).await.unwrap(),
+            Verdict::Accepted { .. }
+        ));
+        assert!(
+            eventually(Duration::from_secs(10), || a
+                .replica()
+                .get(target)
+                .is_some_and(|h| h.version == 1))
+            .await
+        );
         let before = a.replica().stats.snapshots;
         a.resync(target).await.unwrap();
-        assert!(eventually(Duration::from_secs(10), || a.replica().stats.snapshots > before).await);
+        assert!(
+            eventually(Duration::from_secs(10), || a.replica().stats.snapshots
+                > before)
+            .await
+        );
         assert_eq!(a.replica().get(target).unwrap().version, 1);
         a.close().await;
         server.shutdown().await.unwrap();

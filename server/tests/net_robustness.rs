@@ -9,13 +9,19 @@ use std::time::Duration;
 use common::*;
 use strata_client_sim::{ClientError, Verdict};
 use strata_protocol::limits::MAX_CLIENT_FRAME;
-use strata_protocol::{encode_frame, ClientMessage, Direction, ErrorCode, Hello, PositionUpdate, Role, PROTOCOL_VERSION};
+use strata_protocol::{
+    encode_frame, ClientMessage, Direction, ErrorCode, Hello, PositionUpdate, Role,
+    PROTOCOL_VERSION,
+};
 use strata_server::app;
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::{Edit, FixedVec3};
 
 async fn expect_closed_with(c: strata_client_sim::Client, want: ErrorCode) {
-    match tokio::time::timeout(Duration::from_secs(10), c.closed()).await.expect("server closes the connection") {
+    match tokio::time::timeout(Duration::from_secs(10), c.closed())
+        .await
+        .expect("server closes the connection")
+    {
         ClientError::Refused { code, .. } => assert_eq!(code, want),
         e => panic!("expected {want:?}, got {e}"),
     }
@@ -29,16 +35,27 @@ async fn malformed_oversized_and_garbage_frames_close_only_their_connection() {
         let good = connect(&server, "good", Role::Player).await;
 
         let garbage = connect(&server, "g1", Role::Player).await;
-        garbage.send_raw(vec![5, 0, 0, 0, 0xff, 0xfe, 0xfd, 0xfc, 0xfb]).await.unwrap();
+        garbage
+            .send_raw(vec![5, 0, 0, 0, 0xff, 0xfe, 0xfd, 0xfc, 0xfb])
+            .await
+            .unwrap();
         expect_closed_with(garbage, ErrorCode::Malformed).await;
 
         let big = connect(&server, "g2", Role::Player).await;
-        big.send_raw(((MAX_CLIENT_FRAME + 1) as u32).to_le_bytes().to_vec()).await.unwrap();
+        big.send_raw(((MAX_CLIENT_FRAME + 1) as u32).to_le_bytes().to_vec())
+            .await
+            .unwrap();
         expect_closed_with(big, ErrorCode::FrameTooLarge).await;
 
         let again = connect(&server, "g3", Role::Player).await;
-        let hello = ClientMessage::Hello(Hello { protocol_version: PROTOCOL_VERSION, token: "x".into() });
-        again.send_raw(encode_frame(&hello, Direction::ClientToServer).unwrap()).await.unwrap();
+        let hello = ClientMessage::Hello(Hello {
+            protocol_version: PROTOCOL_VERSION,
+            token: "x".into(),
+        });
+        again
+            .send_raw(encode_frame(&hello, Direction::ClientToServer).unwrap())
+            .await
+            .unwrap();
         expect_closed_with(again, ErrorCode::Malformed).await;
 
         let empty = connect(&server, "g4", Role::Player).await;
@@ -48,8 +65,15 @@ async fn malformed_oversized_and_garbage_frames_close_only_their_connection() {
         // Garbage datagrams are dropped; the session lives on.
         // The good client never noticed any of it.
         good.ping(7).await.unwrap();
-        let edit = Edit::Mine { center: FixedVec3::from_voxels(70, 0, 40), radius: r(2.0), strength: 255 };
-        assert!(matches!(good.edit(edit).await.unwrap(), Verdict::Rejected(_) | Verdict::Accepted { .. }));
+        let edit = Edit::Mine {
+            center: FixedVec3::from_voxels(70, 0, 40),
+            radius: r(2.0),
+            strength: 255,
+        };
+        assert!(matches!(
+            good.edit(edit).await.unwrap(),
+            Verdict::Rejected(_) | Verdict::Accepted { .. }
+        ));
         assert!(!good.is_closed());
         good.close().await;
         server.shutdown().await.unwrap();
@@ -59,20 +83,41 @@ async fn malformed_oversized_and_garbage_frames_close_only_their_connection() {
 }
 
 /// Connects with a tiny receive window and never reads the updates stream.
-async fn stalled_session(server: &app::Running, feet: FixedVec3) -> (quinn::Endpoint, quinn::Connection) {
+async fn stalled_session(
+    server: &app::Running,
+    feet: FixedVec3,
+) -> (quinn::Endpoint, quinn::Connection) {
     let mut roots = rustls::RootCertStore::empty();
-    roots.add(rustls::pki_types::CertificateDer::from(server.cert_der.clone())).unwrap();
-    let mut cfg = strata_client_sim::tls::client_config_with_alpn(roots, strata_protocol::ALPN).unwrap();
+    roots
+        .add(rustls::pki_types::CertificateDer::from(
+            server.cert_der.clone(),
+        ))
+        .unwrap();
+    let mut cfg =
+        strata_client_sim::tls::client_config_with_alpn(roots, strata_protocol::ALPN).unwrap();
     let mut transport = quinn::TransportConfig::default();
     transport.stream_receive_window(quinn::VarInt::from_u32(1024));
     cfg.transport_config(Arc::new(transport));
     let mut endpoint = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
     endpoint.set_default_client_config(cfg);
-    let conn = endpoint.connect(server.addr, "localhost").unwrap().await.unwrap();
+    let conn = endpoint
+        .connect(server.addr, "localhost")
+        .unwrap()
+        .await
+        .unwrap();
     let (mut send, _recv) = conn.open_bi().await.unwrap();
-    let hello = ClientMessage::Hello(Hello { protocol_version: PROTOCOL_VERSION, token: token(server, "slow", Role::Player) });
-    send.write_all(&encode_frame(&hello, Direction::ClientToServer).unwrap()).await.unwrap();
-    let pos = strata_protocol::encode(&PositionUpdate { seq: 1, pos: feet }, Direction::ClientToServer).unwrap();
+    let hello = ClientMessage::Hello(Hello {
+        protocol_version: PROTOCOL_VERSION,
+        token: token(server, "slow", Role::Player),
+    });
+    send.write_all(&encode_frame(&hello, Direction::ClientToServer).unwrap())
+        .await
+        .unwrap();
+    let pos = strata_protocol::encode(
+        &PositionUpdate { seq: 1, pos: feet },
+        Direction::ClientToServer,
+    )
+    .unwrap();
     tokio::time::sleep(Duration::from_millis(200)).await;
     conn.send_datagram(pos.into()).unwrap();
     // Keep the streams alive without reading them.
@@ -100,11 +145,21 @@ async fn a_stalled_client_does_not_delay_the_others() {
         a.send_position(feet).unwrap();
         b.send_position(feet).unwrap();
         let target = strata_terrain::VoxelPos::new(x, y.floor() as i32, z).chunk();
-        assert!(eventually(Duration::from_secs(10), || b.replica().get(target).is_some()).await);
+        assert!(
+            eventually(Duration::from_secs(10), || b
+                .replica()
+                .get(target)
+                .is_some())
+            .await
+        );
         let mut last = 0;
         for i in 0..40 {
             let edit = Edit::Build {
-                center: FixedVec3::from_voxels(x + (i % 5) - 2, y.floor() as i32 + 2, z + (i / 5) % 5 - 2),
+                center: FixedVec3::from_voxels(
+                    x + (i % 5) - 2,
+                    y.floor() as i32 + 2,
+                    z + (i / 5) % 5 - 2,
+                ),
                 radius: r(1.5),
                 material: 7,
                 strength: 40,
@@ -114,7 +169,10 @@ async fn a_stalled_client_does_not_delay_the_others() {
                 v => panic!("edit {i} refused: {v:?}"),
             }
         }
-        assert!(eventually(Duration::from_secs(10), || b.replica().last_seq() >= last).await, "b saw every tick");
+        assert!(
+            eventually(Duration::from_secs(10), || b.replica().last_seq() >= last).await,
+            "b saw every tick"
+        );
         // Had the stalled writer blocked the engine, no ack would arrive and
         // the test would hit its timeout instead.
         assert_eq!(b.replica().stats.gaps, 0);

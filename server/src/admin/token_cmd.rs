@@ -31,12 +31,24 @@ pub struct TokenIssueArgs {
 
 /// Mints a token; the data dir must already exist (run the server once).
 pub fn issue(args: &TokenIssueArgs) -> anyhow::Result<String> {
-    let role = Role::from_name(&args.role).with_context(|| format!("role must be player or admin, not {:?}", args.role))?;
+    let role = Role::from_name(&args.role)
+        .with_context(|| format!("role must be player or admin, not {:?}", args.role))?;
     let ttl = parse_duration(&args.ttl).with_context(|| format!("--ttl {:?}", args.ttl))?;
     let cfg = ServerConfig::load(args.config.as_deref())?;
-    let dir = DataDir::open_existing(&args.data_dir)
-        .with_context(|| format!("opening data dir {} (start the server once to create it)", args.data_dir.display()))?;
-    let token = auth::issue_with_max_ttl(dir.secret(), &args.player, role, ttl, cfg.auth.token_max_ttl.0, auth::unix_now())?;
+    let dir = DataDir::open_existing(&args.data_dir).with_context(|| {
+        format!(
+            "opening data dir {} (start the server once to create it)",
+            args.data_dir.display()
+        )
+    })?;
+    let token = auth::issue_with_max_ttl(
+        dir.secret(),
+        &args.player,
+        role,
+        ttl,
+        cfg.auth.token_max_ttl.0,
+        auth::unix_now(),
+    )?;
     Ok(token)
 }
 
@@ -49,16 +61,28 @@ mod tests {
         let tmp = tempfile::tempdir().unwrap();
         let root = tmp.path().join("data");
         let (dir, _) = DataDir::open_or_init(&root, &[]).unwrap();
-        let mut args = TokenIssueArgs { data_dir: root.clone(), player: "ana".into(), role: "admin".into(), ttl: "1h".into(), config: None };
+        let mut args = TokenIssueArgs {
+            data_dir: root.clone(),
+            player: "ana".into(),
+            role: "admin".into(),
+            ttl: "1h".into(),
+            config: None,
+        };
         let token = issue(&args).unwrap();
         let claims = auth::verify(dir.secret(), &token, auth::unix_now()).unwrap();
         assert_eq!((claims.player.as_str(), claims.role), ("ana", Role::Admin));
         assert_eq!(claims.expires_at - claims.issued_at, 3600);
         args.role = "god".into();
-        assert!(issue(&args).unwrap_err().to_string().contains("player or admin"));
+        assert!(issue(&args)
+            .unwrap_err()
+            .to_string()
+            .contains("player or admin"));
         args.role = "player".into();
         args.ttl = "400d".into();
-        assert!(issue(&args).is_err(), "over the configured maximum lifetime");
+        assert!(
+            issue(&args).is_err(),
+            "over the configured maximum lifetime"
+        );
         args.ttl = "1h".into();
         args.player = "bad name".into();
         assert!(issue(&args).is_err());

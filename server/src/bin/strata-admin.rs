@@ -59,7 +59,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
         }
         Command::Generate(args) => generate::run(&args).context("strata-admin generate")?,
-        Command::Token(TokenCommand::Issue(args)) => println!("{}", token_cmd::issue(&args).context("strata-admin token issue")?),
+        Command::Token(TokenCommand::Issue(args)) => println!(
+            "{}",
+            token_cmd::issue(&args).context("strata-admin token issue")?
+        ),
     }
     Ok(())
 }

@@ -24,12 +24,30 @@ pub enum Command {
         updates: FrameSender,
         reply: oneshot::Sender<JoinReply>,
     },
-    Leave { session: u64 },
-    Edit { session: u64, request: EditRequest },
-    Position { session: u64, update: PositionUpdate },
-    Subscribe { session: u64, center: ChunkPos, radius: u8 },
-    Resync { session: u64, pos: ChunkPos },
-    FullSnapshot { session: u64, pos: ChunkPos },
+    Leave {
+        session: u64,
+    },
+    Edit {
+        session: u64,
+        request: EditRequest,
+    },
+    Position {
+        session: u64,
+        update: PositionUpdate,
+    },
+    Subscribe {
+        session: u64,
+        center: ChunkPos,
+        radius: u8,
+    },
+    Resync {
+        session: u64,
+        pos: ChunkPos,
+    },
+    FullSnapshot {
+        session: u64,
+        pos: ChunkPos,
+    },
     /// Finish the batch in flight, flush, and stop.
     Stop,
 }

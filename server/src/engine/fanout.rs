@@ -13,11 +13,15 @@ use crate::sequencer::AppliedEdit;
 /// Encodes an updates-stream frame. Server messages are built from
 /// validated state, so a failure here is a bug, not bad input.
 pub fn encode_update(u: &WorldUpdate) -> Bytes {
-    Bytes::from(encode_frame(u, Direction::ServerToClient).expect("server updates fit the frame cap"))
+    Bytes::from(
+        encode_frame(u, Direction::ServerToClient).expect("server updates fit the frame cap"),
+    )
 }
 
 pub fn encode_control(msg: &ServerMessage) -> Bytes {
-    Bytes::from(encode_frame(msg, Direction::ServerToClient).expect("control messages fit the frame cap"))
+    Bytes::from(
+        encode_frame(msg, Direction::ServerToClient).expect("control messages fit the frame cap"),
+    )
 }
 
 /// Sends each change to every session that holds the chunk at the delta's

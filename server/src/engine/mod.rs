@@ -55,13 +55,18 @@ pub struct EngineConfig {
 
 impl Default for EngineConfig {
     fn default() -> Self {
-        Self { tick_ms: DEFAULT_TICK_MS, command_queue: DEFAULT_COMMAND_QUEUE }
+        Self {
+            tick_ms: DEFAULT_TICK_MS,
+            command_queue: DEFAULT_COMMAND_QUEUE,
+        }
     }
 }
 
 /// Milliseconds since the Unix epoch.
 pub fn now_ms() -> u64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
 }
 
 /// Everything the engine thread owns.
@@ -81,7 +86,9 @@ pub struct Engine {
 
 impl std::fmt::Debug for Engine {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Engine").field("peers", &self.peers.len()).finish_non_exhaustive()
+        f.debug_struct("Engine")
+            .field("peers", &self.peers.len())
+            .finish_non_exhaustive()
     }
 }
 
@@ -126,9 +133,13 @@ impl Engine {
 
     /// Starts the engine thread. It stops on [`Command::Stop`] or when
     /// every handle is dropped, after flushing the batch in flight.
-    pub fn spawn(self) -> std::io::Result<(EngineHandle, std::thread::JoinHandle<anyhow::Result<()>>)> {
+    pub fn spawn(
+        self,
+    ) -> std::io::Result<(EngineHandle, std::thread::JoinHandle<anyhow::Result<()>>)> {
         let (tx, rx) = std::sync::mpsc::sync_channel(self.cfg.command_queue);
-        let handle = std::thread::Builder::new().name("strata-engine".into()).spawn(move || self.run(rx))?;
+        let handle = std::thread::Builder::new()
+            .name("strata-engine".into())
+            .spawn(move || self.run(rx))?;
         Ok((EngineHandle(tx), handle))
     }
 
@@ -157,11 +168,21 @@ impl Engine {
     fn handle(&mut self, cmd: Command) {
         let now = now_ms();
         match cmd {
-            Command::Join { session, player, role, control, updates, reply } => {
+            Command::Join {
+                session,
+                player,
+                role,
+                control,
+                updates,
+                reply,
+            } => {
                 self.seq.session_joined(session, player, role);
                 let interest = Interest::new(self.interest, self.bounds);
-                self.peers.insert(session, Peer::new(control, updates, interest));
-                let _ = reply.send(JoinReply { last_seq: self.seq.last_seq() });
+                self.peers
+                    .insert(session, Peer::new(control, updates, interest));
+                let _ = reply.send(JoinReply {
+                    last_seq: self.seq.last_seq(),
+                });
             }
             Command::Leave { session } => {
                 self.seq.session_left(session);
@@ -169,7 +190,11 @@ impl Engine {
             }
             Command::Edit { session, request } => self.submit(session, request, now),
             Command::Position { session, update } => self.position(session, update, now),
-            Command::Subscribe { session, center, radius } => {
+            Command::Subscribe {
+                session,
+                center,
+                radius,
+            } => {
                 if let Some(p) = self.peers.get_mut(&session) {
                     let change = p.interest.subscribe(center, radius);
                     self.apply_interest(session, change);
@@ -200,7 +225,13 @@ impl Engine {
         }
         if let Err(reason) = self.seq.submit(session, request, now) {
             metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&reason)).increment(1);
-            self.send_control(session, &ServerMessage::EditRejected { client_edit_id: id, reason });
+            self.send_control(
+                session,
+                &ServerMessage::EditRejected {
+                    client_edit_id: id,
+                    reason,
+                },
+            );
         }
     }
 
@@ -222,7 +253,9 @@ impl Engine {
     }
 
     fn apply_interest(&mut self, session: u64, change: crate::interest::InterestChange) {
-        let Some(p) = self.peers.get_mut(&session) else { return };
+        let Some(p) = self.peers.get_mut(&session) else {
+            return;
+        };
         for pos in p.apply_interest(change) {
             let frame = fanout::encode_update(&WorldUpdate::Unsubscribed { pos });
             if p.updates.try_send(frame).is_err() {
@@ -246,8 +279,12 @@ impl Engine {
         let started = Instant::now();
         let out = self.seq.tick(now_ms());
         for r in &out.rejected {
-            metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&r.reason)).increment(1);
-            let msg = ServerMessage::EditRejected { client_edit_id: r.client_edit_id, reason: r.reason.clone() };
+            metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&r.reason))
+                .increment(1);
+            let msg = ServerMessage::EditRejected {
+                client_edit_id: r.client_edit_id,
+                reason: r.reason.clone(),
+            };
             self.send_control(r.session_id, &msg);
         }
         if !out.batch.is_empty() {
@@ -264,7 +301,10 @@ impl Engine {
             }
             for a in &out.applied {
                 metrics::counter!(m::EDITS_ACCEPTED).increment(1);
-                let msg = ServerMessage::EditAccepted { client_edit_id: a.client_edit_id, seq: a.seq };
+                let msg = ServerMessage::EditAccepted {
+                    client_edit_id: a.client_edit_id,
+                    seq: a.seq,
+                };
                 self.send_control(a.session_id, &msg);
             }
             fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq);
@@ -276,7 +316,12 @@ impl Engine {
     }
 
     fn drop_failed(&mut self) {
-        let failed: Vec<u64> = self.peers.iter().filter(|(_, p)| p.failed).map(|(id, _)| *id).collect();
+        let failed: Vec<u64> = self
+            .peers
+            .iter()
+            .filter(|(_, p)| p.failed)
+            .map(|(id, _)| *id)
+            .collect();
         for id in failed {
             info!(session = id, "dropping a session whose queues overflowed");
             // Dropping the senders ends its writers; the session task sees

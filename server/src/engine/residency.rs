@@ -18,7 +18,9 @@ impl Engine {
                 continue;
             }
             match self.store.load_chunk(pos)? {
-                Some(stored) => self.seq.insert_stored_chunk(pos, stored.chunk, stored.version),
+                Some(stored) => self
+                    .seq
+                    .insert_stored_chunk(pos, stored.chunk, stored.version),
                 None => self.seq.mark_absent(pos),
             }
         }

@@ -44,11 +44,15 @@ impl Engine {
         for id in ids {
             let mut spent = 0usize;
             while spent < budget {
-                let Some(p) = self.peers.get_mut(&id) else { break };
+                let Some(p) = self.peers.get_mut(&id) else {
+                    break;
+                };
                 if p.failed || p.updates.capacity() == 0 {
                     break;
                 }
-                let Some(pos) = p.pending.pop_front() else { break };
+                let Some(pos) = p.pending.pop_front() else {
+                    break;
+                };
                 if !p.interest.covers(pos) {
                     continue;
                 }
@@ -85,15 +89,24 @@ impl Engine {
         if version == 0 && !full {
             return Ok((encode_update(&WorldUpdate::Generated { pos }), 0));
         }
-        if let Some(f) = self.snapshots.get(pos, version).filter(|_| !full || version > 0) {
+        if let Some(f) = self
+            .snapshots
+            .get(pos, version)
+            .filter(|_| !full || version > 0)
+        {
             return Ok((f, version));
         }
         let around: Vec<ChunkPos> = crate::sequencer::residency::with_neighbours(pos).collect();
         self.make_resident(&around)?;
         let mesh_hash = self.seq.mesh_hash(pos);
         let chunk = self.seq.chunk(pos);
-        let update =
-            WorldUpdate::Snapshot { pos, version, hash: chunk_hash(&chunk), mesh_hash, data: encode_chunk(&chunk) };
+        let update = WorldUpdate::Snapshot {
+            pos,
+            version,
+            hash: chunk_hash(&chunk),
+            mesh_hash,
+            data: encode_chunk(&chunk),
+        };
         let frame = encode_update(&update);
         if version > 0 {
             self.snapshots.put(pos, version, frame.clone());

@@ -23,8 +23,16 @@ pub struct Listener {
 }
 
 impl Listener {
-    pub fn new(endpoint: quinn::Endpoint, ctx: Arc<SessionContext>, max_connections: usize) -> Self {
-        Self { endpoint, ctx, max_connections }
+    pub fn new(
+        endpoint: quinn::Endpoint,
+        ctx: Arc<SessionContext>,
+        max_connections: usize,
+    ) -> Self {
+        Self {
+            endpoint,
+            ctx,
+            max_connections,
+        }
     }
 
     pub fn local_addr(&self) -> std::io::Result<SocketAddr> {

@@ -7,8 +7,8 @@ use std::time::Duration;
 use bytes::Bytes;
 use strata_protocol::io::{FramedReader, ReadError};
 use strata_protocol::{
-    decode, ClientMessage, Direction, ErrorCode, FrameBuffer, FrameError, PositionUpdate, RejectReason, ServerMessage,
-    Welcome, PROTOCOL_VERSION,
+    decode, ClientMessage, Direction, ErrorCode, FrameBuffer, FrameError, PositionUpdate,
+    RejectReason, ServerMessage, Welcome, PROTOCOL_VERSION,
 };
 use tokio::sync::oneshot;
 use tracing::{debug, info, warn, Instrument};
@@ -44,43 +44,115 @@ pub fn close_code(code: ErrorCode) -> quinn::VarInt {
 }
 
 /// Sends `Error`, lets it drain, and closes the connection with the same code.
-async fn refuse(conn: &quinn::Connection, control: FrameSender, task: tokio::task::JoinHandle<()>, code: ErrorCode, message: &str) {
-    let _ = control.try_send(fanout_control(&ServerMessage::Error { code, message: message.to_string() }));
+async fn refuse(
+    conn: &quinn::Connection,
+    control: FrameSender,
+    task: tokio::task::JoinHandle<()>,
+    code: ErrorCode,
+    message: &str,
+) {
+    let _ = control.try_send(fanout_control(&ServerMessage::Error {
+        code,
+        message: message.to_string(),
+    }));
     drop(control);
     let _ = tokio::time::timeout(DRAIN_TIMEOUT, task).await;
     conn.close(close_code(code), message.as_bytes());
 }
 
 /// Runs one connection to completion.
-pub async fn run(conn: quinn::Connection, session: u64, ctx: Arc<SessionContext>, shutdown: Shutdown) {
+pub async fn run(
+    conn: quinn::Connection,
+    session: u64,
+    ctx: Arc<SessionContext>,
+    shutdown: Shutdown,
+) {
     let (send, recv) = match tokio::time::timeout(HANDSHAKE_TIMEOUT, conn.accept_bi()).await {
         Ok(Ok(s)) => s,
         Ok(Err(e)) => return debug!(error = %e, "connection closed before its control stream"),
-        Err(_) => return conn.close(close_code(ErrorCode::NotAuthenticated), b"no control stream"),
+        Err(_) => {
+            return conn.close(
+                close_code(ErrorCode::NotAuthenticated),
+                b"no control stream",
+            )
+        }
     };
     let (control, control_task) = spawn_writer(send, CONTROL_QUEUE, "control");
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ClientToServer));
-    let hello = match tokio::time::timeout(HANDSHAKE_TIMEOUT, reader.next::<ClientMessage>()).await {
+    let hello = match tokio::time::timeout(HANDSHAKE_TIMEOUT, reader.next::<ClientMessage>()).await
+    {
         Ok(Ok(Some(ClientMessage::Hello(h)))) => h,
-        Ok(Ok(Some(_))) => return refuse(&conn, control, control_task, ErrorCode::NotAuthenticated, "first message must be Hello").await,
+        Ok(Ok(Some(_))) => {
+            return refuse(
+                &conn,
+                control,
+                control_task,
+                ErrorCode::NotAuthenticated,
+                "first message must be Hello",
+            )
+            .await
+        }
         Ok(Ok(None)) => return,
-        Ok(Err(e)) => return refuse(&conn, control, control_task, read_error_code(&e), &e.to_string()).await,
-        Err(_) => return refuse(&conn, control, control_task, ErrorCode::NotAuthenticated, "no Hello in time").await,
+        Ok(Err(e)) => {
+            return refuse(
+                &conn,
+                control,
+                control_task,
+                read_error_code(&e),
+                &e.to_string(),
+            )
+            .await
+        }
+        Err(_) => {
+            return refuse(
+                &conn,
+                control,
+                control_task,
+                ErrorCode::NotAuthenticated,
+                "no Hello in time",
+            )
+            .await
+        }
     };
     if hello.protocol_version != PROTOCOL_VERSION {
-        let msg = format!("protocol version {} is not supported; this server speaks {PROTOCOL_VERSION}", hello.protocol_version);
-        return refuse(&conn, control, control_task, ErrorCode::UnsupportedVersion, &msg).await;
+        let msg = format!(
+            "protocol version {} is not supported; this server speaks {PROTOCOL_VERSION}",
+            hello.protocol_version
+        );
+        return refuse(
+            &conn,
+            control,
+            control_task,
+            ErrorCode::UnsupportedVersion,
+            &msg,
+        )
+        .await;
     }
     let claims = match auth::verify(&ctx.secret, &hello.token, auth::unix_now()) {
         Ok(c) => c,
         Err(e) => {
-            let code = if matches!(e, AuthError::Expired { .. }) { ErrorCode::ExpiredToken } else { ErrorCode::BadToken };
+            let code = if matches!(e, AuthError::Expired { .. }) {
+                ErrorCode::ExpiredToken
+            } else {
+                ErrorCode::BadToken
+            };
             warn!(error = %e, "refused a token");
             return refuse(&conn, control, control_task, code, &e.to_string()).await;
         }
     };
     let span = tracing::info_span!("session", id = session, player = %claims.player, role = claims.role.name());
-    joined(conn, session, ctx, shutdown, control, control_task, reader, claims).instrument(span).await
+    joined(
+        conn,
+        session,
+        ctx,
+        shutdown,
+        control,
+        control_task,
+        reader,
+        claims,
+    )
+    .instrument(span)
+    .await
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -109,10 +181,24 @@ async fn joined(
         reply: reply_tx,
     };
     if !ctx.engine.try_send(join) {
-        return refuse(&conn, control, control_task, ErrorCode::TooManyConnections, "server is overloaded").await;
+        return refuse(
+            &conn,
+            control,
+            control_task,
+            ErrorCode::TooManyConnections,
+            "server is overloaded",
+        )
+        .await;
     }
     let Ok(joined) = reply_rx.await else {
-        return refuse(&conn, control, control_task, ErrorCode::ShuttingDown, "server is shutting down").await;
+        return refuse(
+            &conn,
+            control,
+            control_task,
+            ErrorCode::ShuttingDown,
+            "server is shutting down",
+        )
+        .await;
     };
     let welcome = Welcome {
         session,
@@ -208,22 +294,42 @@ fn position(session: u64, ctx: &SessionContext, bytes: Bytes) {
     }
 }
 
-fn route(session: u64, ctx: &SessionContext, control: &FrameSender, m: ClientMessage) -> Result<(), End> {
+fn route(
+    session: u64,
+    ctx: &SessionContext,
+    control: &FrameSender,
+    m: ClientMessage,
+) -> Result<(), End> {
     let cmd = match m {
-        ClientMessage::Hello(_) => return Err(End::Refused(ErrorCode::Malformed, "Hello was already received".into())),
+        ClientMessage::Hello(_) => {
+            return Err(End::Refused(
+                ErrorCode::Malformed,
+                "Hello was already received".into(),
+            ))
+        }
         ClientMessage::Edit(request) => {
             let id = request.client_edit_id;
             if !ctx.engine.try_send(Command::Edit { session, request }) {
-                let msg = ServerMessage::EditRejected { client_edit_id: id, reason: RejectReason::Busy };
+                let msg = ServerMessage::EditRejected {
+                    client_edit_id: id,
+                    reason: RejectReason::Busy,
+                };
                 let _ = control.try_send(fanout_control(&msg));
             }
             return Ok(());
         }
-        ClientMessage::Subscribe { center, radius } => Command::Subscribe { session, center, radius },
+        ClientMessage::Subscribe { center, radius } => Command::Subscribe {
+            session,
+            center,
+            radius,
+        },
         ClientMessage::ResyncRequest { pos } => Command::Resync { session, pos },
         ClientMessage::FullSnapshotRequest { pos } => Command::FullSnapshot { session, pos },
         ClientMessage::Ping { nonce } => {
-            let _ = control.try_send(fanout_control(&ServerMessage::Pong { nonce, server_time: now_ms() }));
+            let _ = control.try_send(fanout_control(&ServerMessage::Pong {
+                nonce,
+                server_time: now_ms(),
+            }));
             return Ok(());
         }
     };

@@ -42,7 +42,11 @@ impl FrameSender {
 
 /// Spawns a task that writes queued frames to `stream` in order, then
 /// finishes the stream when every sender is dropped.
-pub fn spawn_writer(mut stream: quinn::SendStream, capacity: usize, name: &'static str) -> (FrameSender, JoinHandle<()>) {
+pub fn spawn_writer(
+    mut stream: quinn::SendStream,
+    capacity: usize,
+    name: &'static str,
+) -> (FrameSender, JoinHandle<()>) {
     let (tx, mut rx) = mpsc::channel::<Bytes>(capacity);
     let task = tokio::spawn(
         async move {

@@ -14,9 +14,7 @@ pub mod session;
 mod submit;
 mod tick;
 
-pub use batch::{
-    AppliedEdit, ChunkUpdate, RejectedEdit, TickOutput,
-};
+pub use batch::{AppliedEdit, ChunkUpdate, RejectedEdit, TickOutput};
 pub use config::{SequencerConfig, DEFAULT_MAX_EDITS_PER_TICK, DEFAULT_QUEUE_CAPACITY};
 
 use std::collections::{HashMap, VecDeque};

@@ -8,11 +8,11 @@ use strata_terrain::mesh::Neighborhood;
 use strata_terrain::ChunkPos;
 
 use super::batch::*;
-use super::LogEntry;
-use strata_terrain::Chunk;
 use super::residency::with_neighbours;
+use super::LogEntry;
 use super::Sequencer;
 use crate::collision::{neighborhood, CollisionCache};
+use strata_terrain::Chunk;
 
 /// Where a change's mesh hash goes once the meshes are built.
 struct MeshJob {

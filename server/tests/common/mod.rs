@@ -26,15 +26,26 @@ pub fn test_config(data_dir: &Path) -> ServerConfig {
 }
 
 pub async fn start(data_dir: &Path) -> Running {
-    app::start(test_config(data_dir)).await.expect("server starts")
+    app::start(test_config(data_dir))
+        .await
+        .expect("server starts")
 }
 
 pub fn token(server: &Running, player: &str, role: Role) -> String {
-    auth::issue(server.data_dir.secret(), player, role, Duration::from_secs(3600), auth::unix_now()).unwrap()
+    auth::issue(
+        server.data_dir.secret(),
+        player,
+        role,
+        Duration::from_secs(3600),
+        auth::unix_now(),
+    )
+    .unwrap()
 }
 
 pub async fn connect(server: &Running, player: &str, role: Role) -> Client {
-    Client::connect(server.addr, &server.cert_der, &token(server, player, role)).await.expect("client connects")
+    Client::connect(server.addr, &server.cert_der, &token(server, player, role))
+        .await
+        .expect("client connects")
 }
 
 /// Feet position in fixed point.

@@ -26,7 +26,7 @@ impl Fixed {
     /// Nearest fixed value to `v` (ties away from zero); `None` if not finite or out of range.
     pub fn from_f64(v: f64) -> Option<Self> {
         let scaled = (v * ONE as f64).round();
-        (scaled.is_finite() && scaled.abs() <= i32::MAX as f64).then(|| Fixed(scaled as i32))
+        (scaled.is_finite() && scaled.abs() <= i32::MAX as f64).then_some(Fixed(scaled as i32))
     }
 
     pub fn to_f64(self) -> f64 {

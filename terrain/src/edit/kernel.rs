@@ -150,7 +150,7 @@ fn smooth_voxel(p: VoxelPos, old: Voxel, src: &dyn VoxelRead, weight: i64) -> Vo
     let density =
         (old.density as i64 + (mean - old.density as i64) * weight / Q16).clamp(0, 255) as u8;
     let mut material = old.material;
-    if !old.is_solid() && density >= crate::chunk::SOLID_THRESHOLD as u8 {
+    if !old.is_solid() && density >= crate::chunk::SOLID_THRESHOLD {
         // Newly solid: take the most common solid neighbour material (lowest id on ties).
         if let Some((m, _)) = counts
             .iter()
