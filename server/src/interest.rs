@@ -24,7 +24,7 @@ pub const MAX_VIEW_RADIUS: u8 = 32;
 
 /// The `[interest]` config section.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct InterestConfig {
     /// See [`DEFAULT_VIEW_RADIUS`]; clamped to [`MAX_VIEW_RADIUS`].
     pub view_radius: u8,

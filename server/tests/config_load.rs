@@ -116,6 +116,11 @@ fn unknown_sections_are_kept_but_unknown_keys_are_errors() {
         ServerConfig::from_toml_str("[net]\nstream_window = 5\n"),
         Err(ConfigError::Parse { .. })
     ));
+    // Edit bounds come from [world.generator]; they are not a validation key.
+    assert!(matches!(
+        ServerConfig::from_toml_str("[validation.bounds]\nmin_y = 0\n"),
+        Err(ConfigError::Parse { .. })
+    ));
 }
 
 #[test]

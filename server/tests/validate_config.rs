@@ -31,10 +31,6 @@ fn sections_parse_with_defaults() {
         reach = 6.5
         edit_rate = { capacity = 3, per_second = 1 }
 
-        [validation.bounds]
-        min_y = -64
-        max_y = 255
-
         [interest]
         hysteresis = 4
         "#,
@@ -44,7 +40,6 @@ fn sections_parse_with_defaults() {
     assert_eq!(f.sequencer.queue_capacity, DEFAULT_QUEUE_CAPACITY);
     assert_eq!(f.validation.reach, 6.5);
     assert_eq!(f.validation.edit_rate.capacity, 3);
-    assert_eq!(f.validation.bounds.min_y, -64);
     assert!(
         permissions::check(Role::Player, EditKind::FillBox, &f.validation.player_kinds).is_ok()
     );

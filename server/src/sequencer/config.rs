@@ -12,7 +12,7 @@ pub const DEFAULT_MAX_EDITS_PER_TICK: usize = 256;
 
 /// Limits of the sequencer (`[sequencer]` in the server config).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct SequencerConfig {
     /// See [`DEFAULT_QUEUE_CAPACITY`].
     pub queue_capacity: usize,

@@ -38,7 +38,7 @@ pub const DEFAULT_VOLUME_PER_SECOND: u64 = 50_000;
 
 /// Limits of the validation rules (`[validation]` in the server config).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ValidationConfig {
     /// Edit kinds players may use (lowercase names); admins may use all.
     pub player_kinds: PlayerKinds,
