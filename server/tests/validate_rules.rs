@@ -129,11 +129,11 @@ fn vertical_bounds() {
         ..Default::default()
     };
     let mut s = ready(v);
-    // Box reaches y = -1 - 3 = -4 with radius 2 and rim 1.
+    // A radius-2 sphere's box reaches y = -2 - 2 = -4, below the bottom.
     rejects(
         &mut s,
         PLAYER,
-        mine(X, -1, Z + 3, 2),
+        mine(X, -2, Z + 3, 2),
         RejectReason::OutOfBounds,
     );
     assert!(s.submit(PLAYER, req(1, mine(X, 0, Z + 3, 2)), 0).is_ok());
@@ -209,13 +209,13 @@ fn edit_bucket_refills_with_time() {
 fn volume_bucket_refills_with_time() {
     let v = ValidationConfig {
         volume_rate: BucketConfig {
-            capacity: 1_000,
+            capacity: 300,
             per_second: 1_000,
         },
         ..Default::default()
     };
     let mut s = ready(v);
-    // Radius 2 plus the one-voxel rim: a 7³ = 343-voxel box.
+    // Radius 2: a 5³ = 125-voxel box.
     let e = || mine(X, -1, Z + 4, 2);
     assert!(s.submit(PLAYER, req(1, e()), 0).is_ok());
     assert!(s.submit(PLAYER, req(2, e()), 0).is_ok());
@@ -224,12 +224,12 @@ fn volume_bucket_refills_with_time() {
         Err(RejectReason::VolumeRateLimited)
     );
     assert_eq!(
-        s.submit(PLAYER, req(3, e()), 28),
+        s.submit(PLAYER, req(3, e()), 74),
         Err(RejectReason::VolumeRateLimited)
     );
     assert!(
-        s.submit(PLAYER, req(4, e()), 29).is_ok(),
-        "314 + 29 = 343 voxels"
+        s.submit(PLAYER, req(4, e()), 75).is_ok(),
+        "50 + 75 = 125 voxels"
     );
     // A box bigger than the burst costs the whole burst, so it can still pass.
     let big = Edit::ClearBox {
