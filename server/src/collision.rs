@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 use strata_terrain::mesh::{mesh_chunk, Mesh, MeshOptions, Neighborhood};
-use strata_terrain::{ChunkPos, VoxelRead, World, CHUNK_SIZE};
+use strata_terrain::{ChunkPos, World, CHUNK_SIZE};
 
 /// Meshes kept by default (a LOD-0 chunk mesh is tens of KiB).
 pub const DEFAULT_COLLISION_CACHE_CAPACITY: usize = 2048;
@@ -209,7 +209,7 @@ impl CollisionCache {
             if self.get(p, version(p)).is_some() {
                 self.touch(p);
             } else if !jobs.iter().any(|(q, _, _)| *q == p) {
-                jobs.push((p, version(p), neighborhood(world, p)));
+                jobs.push((p, version(p), Neighborhood::from_world(world, p)));
             }
         }
         for m in Self::mesh_chunks(&jobs) {
@@ -244,31 +244,6 @@ impl CollisionCache {
         }
         None
     }
-}
-
-/// A chunk's neighbourhood sampled from `world`, looking each chunk up once
-/// per run of voxels instead of once per voxel (the apron spans 27 chunks).
-/// Unloaded chunks read as generated.
-pub fn neighborhood(world: &World, pos: ChunkPos) -> Neighborhood {
-    let mut last: Option<(ChunkPos, Option<&strata_terrain::Chunk>)> = None;
-    Neighborhood::from_fn(pos.origin(), |p| {
-        let c = p.chunk();
-        let chunk = match last {
-            Some((lp, ch)) if lp == c => ch,
-            _ => {
-                let ch = world.peek(c).map(|v| &v.chunk);
-                last = Some((c, ch));
-                ch
-            }
-        };
-        match chunk {
-            Some(ch) => {
-                let (x, y, z) = p.local();
-                ch.get(x, y, z)
-            }
-            None => world.voxel(p),
-        }
-    })
 }
 
 /// Chunks a ray passes through within `max_dist`, in the order it enters them.
@@ -501,17 +476,6 @@ mod tests {
         assert!(cache.get(a, 1).is_none(), "other version is a miss");
         cache.invalidate_around(ChunkPos::new(1, 0, 0));
         assert!(cache.is_empty());
-    }
-
-    #[test]
-    fn fast_neighborhood_matches_per_voxel_sampling() {
-        let mut world = flat();
-        let p = ChunkPos::new(0, -1, 0);
-        world.load([p, ChunkPos::new(1, 0, 0)]);
-        let mut c = world.chunk(p).chunk.clone();
-        c.set(31, 31, 0, Voxel::AIR);
-        world.commit(p, c);
-        assert_eq!(neighborhood(&world, p), Neighborhood::from_world(&world, p));
     }
 
     #[test]

@@ -20,4 +20,4 @@ pub use chunk::{Chunk, DenseChunk, Voxel, SOLID_THRESHOLD};
 pub use edit::{Edit, EditContext, EditError, EditKind, EditOutcome, Fixed, FixedVec3};
 pub use material::{MaterialId, MaterialTable};
 pub use pos::{ChunkPos, VoxelBox, VoxelPos, CHUNK_SIZE, CHUNK_VOLUME};
-pub use world::{ChunkGenerator, VersionedChunk, VoxelRead, World};
+pub use world::{ChunkGenerator, ChunkRead, VersionedChunk, VoxelRead, World};

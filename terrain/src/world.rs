@@ -3,6 +3,7 @@
 //! This is the I/O-free core the server's sequencer drives: feed an edit in,
 //! get changed chunks and their new versions out.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::sync::Arc;
 
@@ -45,6 +46,13 @@ pub struct VersionedChunk {
 /// Read access to voxels by world position.
 pub trait VoxelRead {
     fn voxel(&self, p: VoxelPos) -> Voxel;
+}
+
+/// Whole-chunk reads, for bulk readers (mesh aprons, map slices) that would
+/// otherwise pay a lookup, or a generation, per voxel.
+pub trait ChunkRead: VoxelRead {
+    /// The chunk at `pos`: borrowed if held, else generated (not cached).
+    fn chunk_at(&self, pos: ChunkPos) -> Cow<'_, Chunk>;
 }
 
 /// Chunks by position, generating missing ones on first use.
@@ -127,6 +135,15 @@ impl World {
     /// Drops unmodified chunks for which `keep` is false; they regenerate on demand.
     pub fn evict_generated(&mut self, keep: impl Fn(ChunkPos) -> bool) {
         self.chunks.retain(|p, c| c.version > 0 || keep(*p));
+    }
+}
+
+impl ChunkRead for World {
+    fn chunk_at(&self, pos: ChunkPos) -> Cow<'_, Chunk> {
+        match self.chunks.get(&pos) {
+            Some(c) => Cow::Borrowed(&c.chunk),
+            None => Cow::Owned(self.generator.generate(pos)),
+        }
     }
 }
 

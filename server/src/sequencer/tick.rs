@@ -11,7 +11,7 @@ use super::batch::*;
 use super::residency::with_neighbours;
 use super::LogEntry;
 use super::Sequencer;
-use crate::collision::{neighborhood, CollisionCache};
+use crate::collision::CollisionCache;
 use strata_terrain::Chunk;
 
 /// Where a change's mesh hash goes once the meshes are built.
@@ -66,7 +66,11 @@ impl Sequencer {
                 self.residency.mark_present(c.pos);
                 // Neighbours feed the mesh apron; they are resident (submit checked).
                 self.world.load(with_neighbours(c.pos));
-                jobs.push((c.pos, c.to_version, neighborhood(&self.world, c.pos)));
+                jobs.push((
+                    c.pos,
+                    c.to_version,
+                    Neighborhood::from_world(&self.world, c.pos),
+                ));
                 slots.push(MeshJob {
                     applied: out.applied.len(),
                     change: changes.len(),

@@ -36,9 +36,7 @@ mod stitch;
 
 pub use chunked::{contour_tiled, tile_segments, Rect, TilePos, TiledField, TILE_AREA, TILE_SIZE};
 pub use grid::{contour, contour_levels, grid_segments, GridView, LevelContours};
-pub use slice::{
-    slice_contours, slice_grid, slice_grid_chunks, Axis, ChunkSource, SliceGrid, SliceSpec,
-};
+pub use slice::{slice_contours, slice_grid, slice_grid_chunks, Axis, SliceGrid, SliceSpec};
 pub use stitch::stitch;
 
 use thiserror::Error;

@@ -15,13 +15,11 @@
 //! that means seen from below, since `x × z = -y`. Because the slice's tiles
 //! are exactly the chunks it crosses, each chunk is read once.
 
-use std::borrow::Cow;
-
 use super::chunked::{contour_tiled, Rect, TilePos, TiledField, TILE_AREA, TILE_SIZE};
 use super::{ContourError, Polyline};
 use crate::chunk::{Chunk, Voxel};
 use crate::pos::{local_index, ChunkPos, VoxelPos};
-use crate::world::{VoxelRead, World};
+use crate::world::{ChunkRead, VoxelRead};
 
 /// A world axis, naming the slice plane's normal.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -48,23 +46,6 @@ pub struct SliceSpec {
     pub axis: Axis,
     pub level: i32,
     pub region: Rect,
-}
-
-/// Whole chunks by position, for reading a slice one chunk at a time.
-pub trait ChunkSource {
-    /// The chunk at `pos` (borrowed if loaded, else generated).
-    fn chunk_at(&self, pos: ChunkPos) -> Cow<'_, Chunk>;
-}
-
-impl ChunkSource for World {
-    /// A loaded chunk as is, or a freshly generated one (not cached: the
-    /// world is borrowed immutably), generated once per slice tile.
-    fn chunk_at(&self, pos: ChunkPos) -> Cow<'_, Chunk> {
-        match self.peek(pos) {
-            Some(c) => Cow::Borrowed(&c.chunk),
-            None => Cow::Owned(self.generator().generate(pos)),
-        }
-    }
 }
 
 /// The sampled slice: density and material at every `(u, v)` of the region,
@@ -183,10 +164,7 @@ pub fn slice_grid(src: &impl VoxelRead, spec: SliceSpec) -> Result<SliceGrid, Co
 
 /// Samples a slice by whole chunks: each chunk the slice crosses is fetched
 /// once, and a uniform chunk fills its tile without per-voxel reads.
-pub fn slice_grid_chunks(
-    src: &impl ChunkSource,
-    spec: SliceSpec,
-) -> Result<SliceGrid, ContourError> {
+pub fn slice_grid_chunks(src: &impl ChunkRead, spec: SliceSpec) -> Result<SliceGrid, ContourError> {
     let r = spec.region;
     build(spec, |tp, d, m| {
         let chunk = src.chunk_at(tile_chunk(spec.axis, spec.level, tp));

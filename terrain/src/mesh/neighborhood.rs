@@ -1,8 +1,25 @@
 //! A chunk's voxels plus the read-only apron the mesher needs around them.
 
+use std::borrow::Cow;
+
 use crate::chunk::{Chunk, Voxel};
-use crate::pos::{ChunkPos, VoxelPos, CHUNK_SIZE};
-use crate::world::VoxelRead;
+use crate::pos::{local_index, ChunkPos, VoxelPos, CHUNK_SIZE};
+use crate::world::ChunkRead;
+
+/// The 27 chunk offsets of a neighbourhood, z slowest then y then x.
+const NEIGHBOURS: [(i32, i32, i32); 27] = {
+    let mut out = [(0, 0, 0); 27];
+    let mut i = 0;
+    while i < 27 {
+        out[i] = (
+            (i % 3) as i32 - 1,
+            ((i / 3) % 3) as i32 - 1,
+            (i / 9) as i32 - 1,
+        );
+        i += 1;
+    }
+    out
+};
 
 /// Samples below local 0 on each axis: central-difference normals at sample 0 read local -1.
 pub const APRON_LOW: i32 = 1;
@@ -19,7 +36,7 @@ pub const LOCAL_MAX: i32 = CHUNK_SIZE + APRON_HIGH;
 pub const LOCAL_MAX_Y: i32 = CHUNK_SIZE + MAX_SURFACE_SCAN;
 
 /// Samples per row (x).
-pub(crate) const DIM_X: usize = (LOCAL_MAX - LOCAL_MIN + 1) as usize;
+pub const DIM_X: usize = (LOCAL_MAX - LOCAL_MIN + 1) as usize;
 /// Rows per slice (y).
 pub(crate) const DIM_Y: usize = (LOCAL_MAX_Y - LOCAL_MIN + 1) as usize;
 /// Slices (z).
@@ -52,30 +69,60 @@ impl std::fmt::Debug for Neighborhood {
 }
 
 impl Neighborhood {
-    /// Samples the chunk at `chunk` plus its apron (faces, edges, corners) from any voxel source.
-    pub fn from_world(src: &impl VoxelRead, chunk: ChunkPos) -> Self {
-        Self::from_fn(chunk.origin(), |p| src.voxel(p))
+    /// Samples the chunk at `chunk` plus its apron (faces, edges, corners). Each of the 27
+    /// chunks around it is read once (loaded ones borrowed, missing ones generated), and
+    /// copied a row at a time.
+    pub fn from_world(src: &impl ChunkRead, chunk: ChunkPos) -> Self {
+        let around: Vec<Option<Cow<'_, Chunk>>> = NEIGHBOURS
+            .iter()
+            .map(|&(dx, dy, dz)| chunk.offset(dx, dy, dz).map(|p| src.chunk_at(p)))
+            .collect();
+        Self::from_chunks(chunk, |p| {
+            let d = (p.x - chunk.x, p.y - chunk.y, p.z - chunk.z);
+            let i = NEIGHBOURS.iter().position(|n| *n == d)?;
+            around[i].as_deref()
+        })
     }
 
     /// Samples by callback; `origin` is the world position of local (0,0,0). World positions
-    /// wrap at the i32 limits instead of overflowing.
+    /// wrap at the i32 limits instead of overflowing. One call per sample: prefer
+    /// [`Self::from_rows`] or [`Self::from_chunks`] for bulk sources.
     pub fn from_fn(origin: VoxelPos, mut f: impl FnMut(VoxelPos) -> Voxel) -> Self {
+        Self::from_rows(origin, |start, density, material| {
+            for (k, (d, m)) in density.iter_mut().zip(material.iter_mut()).enumerate() {
+                let v = f(VoxelPos::new(
+                    start.x.wrapping_add(k as i32),
+                    start.y,
+                    start.z,
+                ));
+                *d = v.density;
+                *m = v.material;
+            }
+        })
+    }
+
+    /// Samples a row at a time: `fill(start, density, material)` fills the
+    /// [`DIM_X`]-sample row of x values beginning at world position `start`.
+    pub fn from_rows(
+        origin: VoxelPos,
+        mut fill: impl FnMut(VoxelPos, &mut [u8], &mut [u8]),
+    ) -> Self {
         let mut density = vec![0u8; SAMPLES].into_boxed_slice();
         let mut material = vec![0u8; SAMPLES].into_boxed_slice();
-        let mut i = 0;
-        for z in LOCAL_MIN..=LOCAL_MAX {
-            for y in LOCAL_MIN..=LOCAL_MAX_Y {
-                for x in LOCAL_MIN..=LOCAL_MAX {
-                    let v = f(VoxelPos::new(
-                        origin.x.wrapping_add(x),
-                        origin.y.wrapping_add(y),
-                        origin.z.wrapping_add(z),
-                    ));
-                    density[i] = v.density;
-                    material[i] = v.material;
-                    i += 1;
-                }
-            }
+        let rows = density
+            .chunks_exact_mut(DIM_X)
+            .zip(material.chunks_exact_mut(DIM_X));
+        for (r, (drow, mrow)) in rows.enumerate() {
+            let (y, z) = (
+                (r % DIM_Y) as i32 + LOCAL_MIN,
+                (r / DIM_Y) as i32 + LOCAL_MIN,
+            );
+            let start = VoxelPos::new(
+                origin.x.wrapping_add(LOCAL_MIN),
+                origin.y.wrapping_add(y),
+                origin.z.wrapping_add(z),
+            );
+            fill(start, drow, mrow);
         }
         Self {
             origin,
@@ -85,49 +132,49 @@ impl Neighborhood {
     }
 
     /// Samples the chunk at `chunk` and its apron straight from chunk storage: each of the
-    /// (up to) 27 chunks around it is fetched once, instead of once per voxel as through
-    /// [`VoxelRead`]. Chunks that `get` does not return read as air.
+    /// (up to) 27 chunks around it is fetched once and copied in row runs. Chunks that `get`
+    /// does not return read as air.
     pub fn from_chunks<'c>(
         chunk: ChunkPos,
         mut get: impl FnMut(ChunkPos) -> Option<&'c Chunk>,
     ) -> Self {
-        let origin = chunk.origin();
-        let mut density = vec![0u8; SAMPLES].into_boxed_slice();
-        let mut material = vec![0u8; SAMPLES].into_boxed_slice();
-        // Local range [lo, hi] of each neighbour offset -1, 0, +1 per axis (y reaches further).
-        let span = |d: i32, max: i32| match d {
-            -1 => (LOCAL_MIN, -1),
-            0 => (0, CHUNK_SIZE - 1),
-            _ => (CHUNK_SIZE, max),
-        };
-        for dz in -1..=1 {
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    let Some(c) = chunk.offset(dx, dy, dz).and_then(&mut get) else {
-                        continue; // air: the planes start zeroed
-                    };
-                    let (x0, x1) = span(dx, LOCAL_MAX);
-                    let (y0, y1) = span(dy, LOCAL_MAX_Y);
-                    let (z0, z1) = span(dz, LOCAL_MAX);
-                    for z in z0..=z1 {
-                        for y in y0..=y1 {
-                            for x in x0..=x1 {
-                                let m = CHUNK_SIZE - 1;
-                                let v = c.get((x & m) as usize, (y & m) as usize, (z & m) as usize);
-                                let i = index(x, y, z);
-                                density[i] = v.density;
-                                material[i] = v.material;
-                            }
-                        }
+        let around: Vec<Option<&'c Chunk>> = NEIGHBOURS
+            .iter()
+            .map(|&(dx, dy, dz)| chunk.offset(dx, dy, dz).and_then(&mut get))
+            .collect();
+        let m = CHUNK_SIZE - 1;
+        // Each row crosses three chunks along x: local -1, 0..=31 and 32..=33.
+        let pieces = [
+            (LOCAL_MIN, -1, -1),
+            (0, CHUNK_SIZE - 1, 0),
+            (CHUNK_SIZE, LOCAL_MAX, 1),
+        ];
+        Self::from_rows(chunk.origin(), |start, density, material| {
+            let (y, z) = (
+                start.y.wrapping_sub(chunk.origin().y),
+                start.z.wrapping_sub(chunk.origin().z),
+            );
+            let (dy, dz) = (y.div_euclid(CHUNK_SIZE), z.div_euclid(CHUNK_SIZE));
+            for &(x0, x1, dx) in &pieces {
+                let (a, b) = ((x0 - LOCAL_MIN) as usize, (x1 - LOCAL_MIN) as usize + 1);
+                let slot = NEIGHBOURS.iter().position(|n| *n == (dx, dy, dz));
+                match slot.and_then(|i| around[i]) {
+                    None => {
+                        density[a..b].fill(0);
+                        material[a..b].fill(0);
+                    }
+                    Some(Chunk::Uniform(v)) => {
+                        density[a..b].fill(v.density);
+                        material[a..b].fill(v.material);
+                    }
+                    Some(Chunk::Dense(d)) => {
+                        let i = local_index((x0 & m) as usize, (y & m) as usize, (z & m) as usize);
+                        density[a..b].copy_from_slice(&d.density[i..i + (b - a)]);
+                        material[a..b].copy_from_slice(&d.material[i..i + (b - a)]);
                     }
                 }
             }
-        }
-        Self {
-            origin,
-            density,
-            material,
-        }
+        })
     }
 
     /// World position of local (0,0,0).

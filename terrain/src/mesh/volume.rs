@@ -16,7 +16,7 @@ use thiserror::Error;
 
 use super::{try_mesh_chunk, Mesh, MeshError, MeshOptions, Neighborhood, VertexKey};
 use crate::material::{ids, MaterialId};
-use crate::{Voxel, VoxelPos, CHUNK_SIZE};
+use crate::{VoxelPos, CHUNK_SIZE};
 
 /// Cells per chunk edge: the chunk mesher's size.
 const CELLS: u32 = CHUNK_SIZE as u32;
@@ -300,22 +300,29 @@ fn mesh_one_chunk(
     let material = opts.material;
     // Apron samples outside the volume repeat the nearest face sample: cells
     // never reach them (cell_extent stops at the last sample), only the
-    // central-difference normals at the volume's faces do.
-    //
-    // The closure owns copies of everything it reads: captured by reference,
-    // each value would be reloaded after every byte the constructor stores
-    // (u8 stores may alias anything), which tripled the cost per sample.
+    // central-difference normals at the volume's faces do. Rows are copied
+    // whole, with only their ends clamped.
     let (row, slice) = (
         grid.dims[0] as usize,
         grid.dims[0] as usize * grid.dims[1] as usize,
     );
     let density: &[u8] = grid.density;
-    let nb = Neighborhood::from_fn(origin, move |p| {
-        // max/min rather than clamp: no panic path to check per sample.
-        let x = p.x.max(0).min(dx) as usize;
-        let y = p.y.max(0).min(dy) as usize;
-        let z = p.z.max(0).min(dz) as usize;
-        Voxel::new(density[z * slice + y * row + x], material)
+    let nb = Neighborhood::from_rows(origin, |start, drow, mrow| {
+        mrow.fill(material);
+        let y = start.y.clamp(0, dy) as usize;
+        let z = start.z.clamp(0, dz) as usize;
+        let line = &density[z * slice + y * row..z * slice + y * row + row];
+        let n = drow.len() as i32;
+        // drow[k] samples x = start.x + k; [a, b) lies inside the volume.
+        let a = (-start.x).clamp(0, n);
+        let b = (dx + 1 - start.x).clamp(a, n);
+        let (a, b) = (a as usize, b as usize);
+        drow[..a].fill(line[0]);
+        if b > a {
+            let x0 = (start.x + a as i32) as usize;
+            drow[a..b].copy_from_slice(&line[x0..x0 + (b - a)]);
+        }
+        drow[b..].fill(line[dx as usize]);
     });
     let mesh_opts = MeshOptions {
         iso: opts.iso,
