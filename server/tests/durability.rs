@@ -3,63 +3,15 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
-use std::net::SocketAddr;
-use std::path::Path;
-use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use common::*;
-use strata_client_sim::{Client, Verdict};
+use strata_client_sim::Verdict;
 use strata_protocol::Role;
-use strata_server::auth;
-use strata_server::datadir::DataDir;
 use strata_server::store::{ChunkStore, SledStore};
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::{Edit, FixedVec3};
-
-/// Starts `strata-server` on a fresh port and returns it with its address.
-fn spawn_server(data_dir: &Path) -> (Child, SocketAddr) {
-    let config = data_dir.parent().unwrap().join("strata.toml");
-    std::fs::write(&config, "[validation]\nspawn_protection_radius = 0\n[validation.edit_rate]\nper_second = 1000\ncapacity = 1000\n").unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_strata-server"))
-        .arg("--config")
-        .arg(&config)
-        .arg("--data-dir")
-        .arg(data_dir)
-        .arg("--listen")
-        .arg("127.0.0.1:0")
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("strata-server starts");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line
-        .split_whitespace()
-        .find_map(|w| w.parse::<SocketAddr>().ok())
-        .unwrap_or_else(|| panic!("no address in {line:?}"));
-    (child, addr)
-}
-
-async fn client(data_dir: &Path, addr: SocketAddr, player: &str) -> Client {
-    let dd = DataDir::open_existing(data_dir).unwrap();
-    let token = auth::issue(
-        dd.secret(),
-        player,
-        Role::Player,
-        Duration::from_secs(600),
-        auth::unix_now(),
-    )
-    .unwrap();
-    Client::connect(addr, dd.cert().cert_der(), &token)
-        .await
-        .unwrap()
-}
 
 fn feet() -> (FixedVec3, i32, i32, i32) {
     let g = Generator::fractal(GenParams::default()).unwrap();
@@ -73,8 +25,8 @@ async fn acknowledged_edits_survive_sigkill() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let root = tempfile::tempdir().unwrap();
         let data = root.path().join("data");
-        let (mut child, addr) = spawn_server(&data);
-        let c = Arc::new(client(&data, addr, "ana").await);
+        let (mut child, addr) = spawn_server(&data, FAST_EDITS);
+        let c = Arc::new(process_client(&data, addr, "ana").await);
         let (pos, x, y, z) = feet();
         c.send_position(pos).unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
@@ -124,8 +76,8 @@ async fn acknowledged_edits_survive_sigkill() {
         assert!(report.is_ok(), "{report:?}");
         drop(store);
         // A restarted server continues after the last durable edit.
-        let (mut child, addr) = spawn_server(&data);
-        let c = client(&data, addr, "bo").await;
+        let (mut child, addr) = spawn_server(&data, FAST_EDITS);
+        let c = process_client(&data, addr, "bo").await;
         assert_eq!(c.welcome().last_seq, last);
         c.close().await;
         child.kill().unwrap();

@@ -1,7 +1,10 @@
 //! A real server on 127.0.0.1 with port 0 and a temp data dir, plus tokens.
 #![allow(dead_code)]
 
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
 use std::path::Path;
+use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use strata_client_sim::Client;
@@ -9,6 +12,7 @@ use strata_protocol::Role;
 use strata_server::app::{self, Running};
 use strata_server::auth;
 use strata_server::config::ServerConfig;
+use strata_server::datadir::DataDir;
 use strata_terrain::{Fixed, FixedVec3};
 
 /// Every network test gives up after this long.
@@ -67,4 +71,52 @@ pub async fn eventually(limit: Duration, mut f: impl FnMut() -> bool) -> bool {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     f()
+}
+
+/// Config for child-process servers: no spawn protection, a high edit rate.
+pub const FAST_EDITS: &str =
+    "[validation]\nspawn_protection_radius = 0\n[validation.edit_rate]\nper_second = 1000\ncapacity = 1000\n";
+
+/// Starts the real `strata-server` binary on 127.0.0.1 port 0 with `config`
+/// and returns it with the address it printed.
+pub fn spawn_server(data_dir: &Path, config: &str) -> (Child, SocketAddr) {
+    let path = data_dir.with_extension("toml");
+    std::fs::write(&path, config).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_strata-server"))
+        .arg("--config")
+        .arg(&path)
+        .arg("--data-dir")
+        .arg(data_dir)
+        .arg("--listen")
+        .arg("127.0.0.1:0")
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("strata-server starts");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line
+        .split_whitespace()
+        .find_map(|w| w.parse::<SocketAddr>().ok())
+        .unwrap_or_else(|| panic!("no address in {line:?}"));
+    (child, addr)
+}
+
+/// A client of a child-process server, with a token from its data dir.
+pub async fn process_client(data_dir: &Path, addr: SocketAddr, player: &str) -> Client {
+    let dd = DataDir::open_existing(data_dir).unwrap();
+    let token = auth::issue(
+        dd.secret(),
+        player,
+        Role::Player,
+        Duration::from_secs(600),
+        auth::unix_now(),
+    )
+    .unwrap();
+    Client::connect(addr, dd.cert().cert_der(), &token)
+        .await
+        .unwrap()
 }

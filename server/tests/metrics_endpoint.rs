@@ -1,0 +1,75 @@
+//! The Prometheus endpoint of a real server process reports connections,
+//! edits by outcome and reason, flush latency and bytes sent.
+
+mod common;
+
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::time::Duration;
+
+use common::*;
+use strata_client_sim::Verdict;
+use strata_terrain::gen::{GenParams, Generator};
+use strata_terrain::{Edit, FixedVec3};
+
+fn scrape(addr: std::net::SocketAddr) -> String {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n")
+        .unwrap();
+    let mut body = String::new();
+    s.read_to_string(&mut body).unwrap();
+    body
+}
+
+#[tokio::test]
+async fn metrics_count_what_happened() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let root = tempfile::tempdir().unwrap();
+        let data = root.path().join("data");
+        // A free port for the exporter (it takes a fixed address).
+        let metrics = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap();
+        let config = format!("{FAST_EDITS}[metrics]\nlisten = \"{metrics}\"\n");
+        let (mut child, addr) = spawn_server(&data, &config);
+        let c = process_client(&data, addr, "ana").await;
+        let g = Generator::fractal(GenParams::default()).unwrap();
+        let (x, z) = (70, 40);
+        let y = g.surface_height(x, z);
+        c.send_position(at(x as f64, y + 1.0, z as f64)).unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let near = Edit::Mine {
+            center: FixedVec3::from_voxels(x, y.floor() as i32, z),
+            radius: r(2.0),
+            strength: 255,
+        };
+        assert!(matches!(
+            c.edit(near).await.unwrap(),
+            Verdict::Accepted { .. }
+        ));
+        let far = Edit::Mine {
+            center: FixedVec3::from_voxels(x + 50, y.floor() as i32, z),
+            radius: r(2.0),
+            strength: 255,
+        };
+        assert!(matches!(c.edit(far).await.unwrap(), Verdict::Rejected(_)));
+        let text = scrape(metrics);
+        for needle in [
+            "strata_connections 1",
+            "strata_edits_accepted_total 1",
+            "strata_edits_rejected_total{reason=\"reach\"} 1",
+            "strata_flush_seconds",
+            "strata_bytes_sent_total",
+            "strata_sequencer_queue_depth",
+        ] {
+            assert!(text.contains(needle), "{needle:?} missing from:\n{text}");
+        }
+        c.close().await;
+        child.kill().unwrap();
+        child.wait().unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
