@@ -87,28 +87,9 @@ pub struct Client {
     tasks: Vec<JoinHandle<()>>,
 }
 
-/// Maps a close code chosen by the server back to its error code.
-fn code_from_close(code: u64) -> Option<ErrorCode> {
-    use ErrorCode::*;
-    const ALL: [ErrorCode; 11] = [
-        UnsupportedVersion,
-        BadToken,
-        ExpiredToken,
-        NotAuthenticated,
-        Malformed,
-        FrameTooLarge,
-        Forbidden,
-        Kicked,
-        ShuttingDown,
-        TooManyConnections,
-        Internal,
-    ];
-    ALL.into_iter().find(|c| 1 + *c as u64 == code)
-}
-
 fn closed_error(e: &quinn::ConnectionError) -> ClientError {
     if let quinn::ConnectionError::ApplicationClosed(a) = e {
-        if let Some(code) = code_from_close(a.error_code.into_inner()) {
+        if let Some(code) = ErrorCode::from_close_code(a.error_code.into_inner()) {
             return ClientError::Refused {
                 code,
                 message: String::from_utf8_lossy(&a.reason).into_owned(),

@@ -20,18 +20,18 @@ pub enum TlsError {
 
 /// A QUIC client config that trusts only `cert_der` and speaks `strata/1`.
 pub fn client_config_pinned(cert_der: &[u8]) -> Result<quinn::ClientConfig, TlsError> {
+    client_config_pinned_with_alpn(cert_der, ALPN)
+}
+
+/// Like [`client_config_pinned`] with any ALPN (tests use a wrong one).
+pub fn client_config_pinned_with_alpn(
+    cert_der: &[u8],
+    alpn: &[u8],
+) -> Result<quinn::ClientConfig, TlsError> {
     let mut roots = rustls::RootCertStore::empty();
     roots
         .add(rustls::pki_types::CertificateDer::from(cert_der.to_vec()))
         .map_err(|e| TlsError::BadCertificate(e.to_string()))?;
-    client_config_with_alpn(roots, ALPN)
-}
-
-/// Like [`client_config_pinned`] with any ALPN (tests use a wrong one).
-pub fn client_config_with_alpn(
-    roots: rustls::RootCertStore,
-    alpn: &[u8],
-) -> Result<quinn::ClientConfig, TlsError> {
     let provider = Arc::new(rustls::crypto::ring::default_provider());
     let mut crypto = rustls::ClientConfig::builder_with_provider(provider)
         .with_protocol_versions(&[&rustls::version::TLS13])

@@ -151,6 +151,35 @@ pub enum ErrorCode {
     Internal,
 }
 
+impl ErrorCode {
+    pub const ALL: [ErrorCode; 11] = [
+        ErrorCode::UnsupportedVersion,
+        ErrorCode::BadToken,
+        ErrorCode::ExpiredToken,
+        ErrorCode::NotAuthenticated,
+        ErrorCode::Malformed,
+        ErrorCode::FrameTooLarge,
+        ErrorCode::Forbidden,
+        ErrorCode::Kicked,
+        ErrorCode::ShuttingDown,
+        ErrorCode::TooManyConnections,
+        ErrorCode::Internal,
+    ];
+
+    /// The QUIC application close code the server uses for this error
+    /// (`1 + index`; 0 is a normal close).
+    pub const fn close_code(self) -> u32 {
+        1 + self as u32
+    }
+
+    /// The error behind a close code, if it is one of ours.
+    pub fn from_close_code(code: u64) -> Option<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|c| c.close_code() as u64 == code)
+    }
+}
+
 /// Server-to-client control messages.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ServerMessage {

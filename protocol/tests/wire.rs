@@ -241,3 +241,19 @@ fn garbage_and_trailing_bytes_are_errors() {
     let lie = [0u8, 1, 0xfc, 0xff, 0xff, 0xff, 0x7f];
     assert!(decode::<ClientMessage>(&lie, Direction::ClientToServer).is_err());
 }
+
+#[test]
+fn close_codes_round_trip() {
+    for code in ErrorCode::ALL {
+        assert_eq!(
+            ErrorCode::from_close_code(code.close_code() as u64),
+            Some(code)
+        );
+        assert_ne!(code.close_code(), 0, "0 is a normal close");
+    }
+    assert_eq!(ErrorCode::from_close_code(0), None);
+    assert_eq!(
+        ErrorCode::from_close_code(ErrorCode::ALL.len() as u64 + 1),
+        None
+    );
+}

@@ -14,16 +14,14 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
-use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
+use quinn::crypto::rustls::QuicServerConfig;
 use quinn::{IdleTimeout, TransportConfig, VarInt};
 use rustls::crypto::CryptoProvider;
 use rustls::pki_types::{CertificateDer, PrivateKeyDer, PrivatePkcs8KeyDer, ServerName};
 use strata_protocol::ALPN;
 use thiserror::Error;
 
-use crate::config::{
-    NetSection, TlsSection, CONTROL_BIDI_STREAMS, DEFAULT_IDLE_TIMEOUT_MS, DEFAULT_KEEP_ALIVE_MS,
-};
+use crate::config::{NetSection, TlsSection, CONTROL_BIDI_STREAMS};
 use crate::datadir::{read_capped_file, read_private_file, write_private_file, write_public_file};
 
 /// Names every generated certificate covers, so local clients always work.
@@ -185,38 +183,5 @@ pub fn server_config(
     let quic = QuicServerConfig::try_from(crypto).map_err(|_| TlsError::NoInitialCipherSuite)?;
     let mut config = quinn::ServerConfig::with_crypto(Arc::new(quic));
     config.transport_config(Arc::new(transport_config(net, tls)?));
-    Ok(config)
-}
-
-/// A quinn client config that trusts exactly `cert` (and nothing else) and
-/// offers ALPN [`ALPN`]. Used by bots and admin tools.
-pub fn client_config_pinned(
-    cert: &CertificateDer<'static>,
-) -> Result<quinn::ClientConfig, TlsError> {
-    client_config_pinned_with_alpn(cert, ALPN)
-}
-
-/// [`client_config_pinned`] with another ALPN id (tests of ALPN refusal).
-pub fn client_config_pinned_with_alpn(
-    cert: &CertificateDer<'static>,
-    alpn: &[u8],
-) -> Result<quinn::ClientConfig, TlsError> {
-    let mut roots = rustls::RootCertStore::empty();
-    roots.add(cert.clone())?;
-    let mut crypto = rustls::ClientConfig::builder_with_provider(Arc::new(ring_provider()))
-        .with_protocol_versions(&[&rustls::version::TLS13])?
-        .with_root_certificates(roots)
-        .with_no_client_auth();
-    crypto.alpn_protocols = vec![alpn.to_vec()];
-    let quic = QuicClientConfig::try_from(crypto).map_err(|_| TlsError::NoInitialCipherSuite)?;
-    let mut config = quinn::ClientConfig::new(Arc::new(quic));
-    // Keep idle clients (e.g. bots waiting for a tick) connected.
-    let mut transport = TransportConfig::default();
-    transport
-        .keep_alive_interval(Some(Duration::from_millis(DEFAULT_KEEP_ALIVE_MS)))
-        .max_idle_timeout(Some(idle_timeout(Duration::from_millis(
-            DEFAULT_IDLE_TIMEOUT_MS,
-        ))?));
-    config.transport_config(Arc::new(transport));
     Ok(config)
 }

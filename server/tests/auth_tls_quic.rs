@@ -7,11 +7,10 @@ use std::time::Duration;
 
 use quinn::crypto::rustls::HandshakeData;
 use quinn::{ClientConfig, Connection, ConnectionError, Endpoint};
+use strata_client_sim::tls::{client_config_pinned, client_config_pinned_with_alpn};
 use strata_protocol::ALPN;
 use strata_server::config::{NetSection, TlsSection};
-use strata_server::tls::{
-    client_config_pinned, client_config_pinned_with_alpn, server_config, CertPair,
-};
+use strata_server::tls::{server_config, CertPair};
 
 /// Upper bound on any single network step of these tests.
 const STEP: Duration = Duration::from_secs(10);
@@ -81,7 +80,7 @@ fn assert_certificate_refused(err: &ConnectionError, why: &str) {
 async fn pinned_client_connects_and_exchanges_a_message() {
     let pair = CertPair::generate(&["strata.example".into()]).unwrap();
     let (_server, addr) = start_server(&pair, &TlsSection::default());
-    let config = client_config_pinned(pair.cert_der()).unwrap();
+    let config = client_config_pinned(pair.cert_der().as_ref()).unwrap();
     for name in ["localhost", "127.0.0.1", "strata.example"] {
         let conn = connect(config.clone(), addr, name).await.unwrap();
         let alpn = conn
@@ -103,7 +102,7 @@ async fn segmentation_offload_can_be_disabled() {
         ..TlsSection::default()
     };
     let (_server, addr) = start_server(&pair, &tls);
-    let config = client_config_pinned(pair.cert_der()).unwrap();
+    let config = client_config_pinned(pair.cert_der().as_ref()).unwrap();
     let conn = connect(config, addr, "localhost").await.unwrap();
     assert_eq!(ping(&conn, b"no-gso").await, b"pong:no-gso");
 }
@@ -113,7 +112,7 @@ async fn only_one_bidi_stream_at_a_time() {
     let pair = CertPair::generate(&[]).unwrap();
     let (_server, addr) = start_server(&pair, &TlsSection::default());
     let conn = connect(
-        client_config_pinned(pair.cert_der()).unwrap(),
+        client_config_pinned(pair.cert_der().as_ref()).unwrap(),
         addr,
         "localhost",
     )
@@ -146,7 +145,7 @@ async fn client_pinning_another_certificate_is_refused() {
     let pair = CertPair::generate(&[]).unwrap();
     let impostor = CertPair::generate(&[]).unwrap();
     let (_server, addr) = start_server(&pair, &TlsSection::default());
-    let config = client_config_pinned(impostor.cert_der()).unwrap();
+    let config = client_config_pinned(impostor.cert_der().as_ref()).unwrap();
     let err = connect(config, addr, "localhost").await.unwrap_err();
     assert_certificate_refused(&err, "BadSignature");
 }
@@ -155,7 +154,7 @@ async fn client_pinning_another_certificate_is_refused() {
 async fn name_outside_the_certificate_is_refused() {
     let pair = CertPair::generate(&[]).unwrap();
     let (_server, addr) = start_server(&pair, &TlsSection::default());
-    let config = client_config_pinned(pair.cert_der()).unwrap();
+    let config = client_config_pinned(pair.cert_der().as_ref()).unwrap();
     let err = connect(config, addr, "other.example").await.unwrap_err();
     assert_certificate_refused(&err, "not valid for name");
 }
@@ -164,7 +163,7 @@ async fn name_outside_the_certificate_is_refused() {
 async fn wrong_alpn_is_refused() {
     let pair = CertPair::generate(&[]).unwrap();
     let (_server, addr) = start_server(&pair, &TlsSection::default());
-    let config = client_config_pinned_with_alpn(pair.cert_der(), b"h3").unwrap();
+    let config = client_config_pinned_with_alpn(pair.cert_der().as_ref(), b"h3").unwrap();
     let err = connect(config, addr, "localhost").await.unwrap_err();
     assert!(
         matches!(err, ConnectionError::ConnectionClosed(_)),

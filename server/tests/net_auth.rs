@@ -7,7 +7,7 @@ mod common;
 use std::time::Duration;
 
 use common::*;
-use strata_client_sim::tls::{client_config_pinned, client_config_with_alpn};
+use strata_client_sim::tls::{client_config_pinned, client_config_pinned_with_alpn};
 use strata_client_sim::{Client, ClientError};
 use strata_protocol::{ErrorCode, Role, PROTOCOL_VERSION};
 use strata_server::auth::{self, Secret};
@@ -62,13 +62,7 @@ async fn tokens_versions_and_alpn() {
         );
         assert_eq!(code, ErrorCode::UnsupportedVersion);
 
-        let mut roots = rustls::RootCertStore::empty();
-        roots
-            .add(rustls::pki_types::CertificateDer::from(
-                server.cert_der.clone(),
-            ))
-            .unwrap();
-        let wrong_alpn = client_config_with_alpn(roots, b"strata/0").unwrap();
+        let wrong_alpn = client_config_pinned_with_alpn(&server.cert_der, b"strata/0").unwrap();
         let r = Client::connect_with(
             server.addr,
             wrong_alpn,

@@ -87,14 +87,7 @@ async fn stalled_session(
     server: &app::Running,
     feet: FixedVec3,
 ) -> (quinn::Endpoint, quinn::Connection) {
-    let mut roots = rustls::RootCertStore::empty();
-    roots
-        .add(rustls::pki_types::CertificateDer::from(
-            server.cert_der.clone(),
-        ))
-        .unwrap();
-    let mut cfg =
-        strata_client_sim::tls::client_config_with_alpn(roots, strata_protocol::ALPN).unwrap();
+    let mut cfg = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
     let mut transport = quinn::TransportConfig::default();
     transport.stream_receive_window(quinn::VarInt::from_u32(1024));
     cfg.transport_config(Arc::new(transport));

@@ -40,7 +40,7 @@ pub struct SessionContext {
 
 /// Application close codes (QUIC `CONNECTION_CLOSE` error codes).
 pub fn close_code(code: ErrorCode) -> quinn::VarInt {
-    quinn::VarInt::from_u32(1 + code as u32)
+    quinn::VarInt::from_u32(code.close_code())
 }
 
 /// Sends `Error`, lets it drain, and closes the connection with the same code.
