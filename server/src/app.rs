@@ -14,7 +14,7 @@ use tracing::info;
 
 use crate::config::ServerConfig;
 use crate::datadir::DataDir;
-use crate::engine::{Engine, EngineHandle};
+use crate::engine::{Engine, EngineHandle, StreamPolicy};
 use crate::net::endpoint::Listener;
 use crate::net::session::SessionContext;
 use crate::sequencer::Sequencer;
@@ -72,7 +72,17 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         min_y: params.min_y,
         max_y: params.max_y,
     };
-    let generator_params = toml::to_string(&params)?;
+    let (generator, generator_params) = match &cfg.world.heightmap {
+        Some(section) => {
+            let (g, fingerprint) = crate::heightmap::load(section, &params)?;
+            // The fingerprint makes the data dir refuse a different map.
+            (g, format!("{}# {fingerprint}\n", toml::to_string(&params)?))
+        }
+        None => (
+            Generator::fractal(params.clone())?,
+            toml::to_string(&params)?,
+        ),
+    };
     let meta = store.init_meta(&WorldMeta {
         format_version: STORE_FORMAT_VERSION,
         seed: params.seed,
@@ -80,7 +90,6 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         generator_params: generator_params.clone(),
         last_seq: 0,
     })?;
-    let generator = Generator::fractal(params.clone())?;
     let structures = match &cfg.world.structures_dir {
         Some(dir) => load_structures(Path::new(dir))?,
         None => StructureLibrary::default(),
@@ -109,7 +118,10 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         seq,
         store,
         cfg.engine,
-        cfg.net.send_budget_bytes_per_tick,
+        StreamPolicy {
+            send_budget: cfg.net.send_budget_bytes_per_tick,
+            regenerable: cfg.world.heightmap.is_none(),
+        },
         cfg.interest,
         validation.bounds,
         versions,

@@ -18,6 +18,7 @@ use thiserror::Error;
 
 use crate::auth::{HumanDuration, MAX_TOKEN_TTL};
 use crate::engine::{EngineConfig, MAX_COMMAND_QUEUE, MAX_TICK_MS};
+use crate::heightmap::HeightmapSection;
 use crate::interest::{InterestConfig, MAX_VIEW_RADIUS};
 use crate::sequencer::SequencerConfig;
 use crate::validate::ValidationConfig;
@@ -181,6 +182,8 @@ pub struct WorldSection {
     /// Directory of structure templates (`<id>.strs` / `<id>-<name>.strs`).
     pub structures_dir: Option<PathBuf>,
     pub generator: GenParams,
+    /// A height image instead of the fractal hills.
+    pub heightmap: Option<HeightmapSection>,
 }
 
 impl Default for ServerSection {

@@ -11,6 +11,7 @@ pub mod collision;
 pub mod config;
 pub mod datadir;
 pub mod engine;
+pub mod heightmap;
 pub mod interest;
 pub mod metrics;
 pub mod net;

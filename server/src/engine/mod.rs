@@ -62,6 +62,16 @@ impl Default for EngineConfig {
     }
 }
 
+/// How chunks are streamed to sessions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StreamPolicy {
+    /// Snapshot bytes each session may be sent per tick (`net.send_budget_bytes_per_tick`).
+    pub send_budget: usize,
+    /// Clients can regenerate version-0 chunks from `Welcome`'s parameters;
+    /// false for heightmap worlds, which then get full snapshots.
+    pub regenerable: bool,
+}
+
 /// Milliseconds since the Unix epoch.
 pub fn now_ms() -> u64 {
     SystemTime::now()
@@ -74,8 +84,7 @@ pub struct Engine {
     seq: Sequencer,
     store: Arc<dyn ChunkStore>,
     cfg: EngineConfig,
-    /// Snapshot bytes each session may be sent per tick (`net.send_budget_bytes_per_tick`).
-    send_budget: usize,
+    stream: StreamPolicy,
     interest: InterestConfig,
     bounds: WorldBounds,
     peers: HashMap<u64, Peer>,
@@ -113,7 +122,7 @@ impl Engine {
         seq: Sequencer,
         store: Arc<dyn ChunkStore>,
         cfg: EngineConfig,
-        send_budget: usize,
+        stream: StreamPolicy,
         interest: InterestConfig,
         bounds: WorldBounds,
         versions: HashMap<ChunkPos, u64>,
@@ -122,7 +131,7 @@ impl Engine {
             seq,
             store,
             cfg,
-            send_budget,
+            stream,
             interest,
             bounds,
             peers: HashMap::new(),

@@ -39,7 +39,7 @@ impl SnapshotCache {
 
 impl Engine {
     pub(super) fn stream_snapshots(&mut self) {
-        let budget = self.send_budget;
+        let budget = self.stream.send_budget;
         let ids: Vec<u64> = self.peers.keys().copied().collect();
         for id in ids {
             let mut spent = 0usize;
@@ -86,6 +86,7 @@ impl Engine {
     /// The frame that brings a client to the chunk's current version.
     fn snapshot_frame(&mut self, pos: ChunkPos, full: bool) -> anyhow::Result<(Bytes, u64)> {
         let version = self.versions.get(&pos).copied().unwrap_or(0);
+        let full = full || !self.stream.regenerable;
         if version == 0 && !full {
             return Ok((encode_update(&WorldUpdate::Generated { pos }), 0));
         }
