@@ -231,9 +231,16 @@ impl Client {
             edit,
         }))
         .await?;
-        match tokio::time::timeout(EDIT_TIMEOUT, rx).await {
-            Ok(Ok(v)) => Ok(v),
-            Ok(Err(_)) => Err(self.gone()),
+        // A verdict, or the connection's end: an edit sent as the server
+        // closes may register after the reader has given up on its waiters.
+        let verdict = async {
+            tokio::select! {
+                v = rx => v.map_err(|_| self.gone()),
+                e = self.conn.closed() => Err(closed_error(&e)),
+            }
+        };
+        match tokio::time::timeout(EDIT_TIMEOUT, verdict).await {
+            Ok(v) => v,
             Err(_) => Err(ClientError::Timeout("edit verdict")),
         }
     }

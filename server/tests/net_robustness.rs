@@ -177,3 +177,75 @@ async fn a_stalled_client_does_not_delay_the_others() {
     .await
     .expect("test finished in time");
 }
+
+#[tokio::test]
+async fn a_client_that_never_reads_its_verdicts_is_disconnected() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let good = connect(&server, "good", Role::Player).await;
+        // Tiny receive windows and no reading: verdicts pile up in the
+        // server's bounded control queue until it overflows.
+        let mut cfg = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
+        let mut transport = quinn::TransportConfig::default();
+        transport.stream_receive_window(quinn::VarInt::from_u32(1024));
+        cfg.transport_config(Arc::new(transport));
+        let mut endpoint = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+        endpoint.set_default_client_config(cfg);
+        let conn = endpoint
+            .connect(server.addr, "localhost")
+            .unwrap()
+            .await
+            .unwrap();
+        let (mut send, _recv) = conn.open_bi().await.unwrap();
+        let hello = ClientMessage::Hello(Hello {
+            protocol_version: PROTOCOL_VERSION,
+            token: token(&server, "flood", Role::Player),
+        });
+        send.write_all(&encode_frame(&hello, Direction::ClientToServer).unwrap())
+            .await
+            .unwrap();
+        let flood = async {
+            // Refused at once (no position yet), each answered by a verdict.
+            for id in 0..20_000u64 {
+                let edit = Edit::Mine {
+                    center: FixedVec3::from_voxels(0, 0, 0),
+                    radius: r(1.0),
+                    strength: 1,
+                };
+                let msg = ClientMessage::Edit(strata_protocol::EditRequest {
+                    client_edit_id: id,
+                    edit,
+                });
+                if send
+                    .write_all(&encode_frame(&msg, Direction::ClientToServer).unwrap())
+                    .await
+                    .is_err()
+                {
+                    return;
+                }
+            }
+        };
+        let _ = tokio::time::timeout(Duration::from_secs(30), flood).await;
+        let reason = tokio::time::timeout(Duration::from_secs(10), conn.closed())
+            .await
+            .expect("server closes the flooder");
+        match reason {
+            quinn::ConnectionError::ApplicationClosed(a) => {
+                assert_eq!(
+                    ErrorCode::from_close_code(a.error_code.into_inner()),
+                    Some(ErrorCode::Internal),
+                    "{a:?}"
+                );
+            }
+            other => panic!("expected an application close, got {other}"),
+        }
+        // Everyone else is fine.
+        good.ping(1).await.unwrap();
+        assert!(!good.is_closed());
+        good.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

@@ -1,6 +1,6 @@
 //! Messages from connection tasks to the engine thread.
 
-use strata_protocol::{EditRequest, PositionUpdate, Role};
+use strata_protocol::{EditRequest, ErrorCode, PositionUpdate, Role};
 use strata_terrain::ChunkPos;
 use tokio::sync::oneshot;
 
@@ -11,6 +11,9 @@ use crate::net::writer::FrameSender;
 pub struct JoinReply {
     pub last_seq: u64,
 }
+
+/// Why the engine ended a session; the session closes its connection with it.
+pub type Kick = (ErrorCode, String);
 
 /// A request to the engine. Sessions `try_send` these; a full engine
 /// queue means the server is overloaded.
@@ -23,6 +26,8 @@ pub enum Command {
         control: FrameSender,
         updates: FrameSender,
         reply: oneshot::Sender<JoinReply>,
+        /// Fired (or dropped) when the engine ends the session.
+        kick: oneshot::Sender<Kick>,
     },
     Leave {
         session: u64,

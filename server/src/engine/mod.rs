@@ -14,7 +14,7 @@ mod peer;
 mod residency;
 mod stream;
 
-pub use command::{Command, JoinReply};
+pub use command::{Command, JoinReply, Kick};
 pub use fanout::encode_control as fanout_control;
 
 use std::collections::HashMap;
@@ -184,11 +184,12 @@ impl Engine {
                 control,
                 updates,
                 reply,
+                kick,
             } => {
                 self.seq.session_joined(session, player, role);
                 let interest = Interest::new(self.interest, self.bounds);
                 self.peers
-                    .insert(session, Peer::new(control, updates, interest));
+                    .insert(session, Peer::new(control, updates, interest, kick));
                 let _ = reply.send(JoinReply {
                     last_seq: self.seq.last_seq(),
                 });
@@ -333,20 +334,22 @@ impl Engine {
             .collect();
         for id in failed {
             info!(session = id, "dropping a session whose queues overflowed");
-            // Dropping the senders ends its writers; the session task sees
-            // its control writer gone and closes the connection.
-            self.peers.remove(&id);
+            if let Some(mut p) = self.peers.remove(&id) {
+                p.kick(
+                    strata_protocol::ErrorCode::Internal,
+                    "client too slow: its control queue overflowed",
+                );
+            }
             self.seq.session_left(id);
         }
     }
 
     fn close_all(&mut self) {
-        for (id, p) in self.peers.drain() {
-            let msg = ServerMessage::Error {
-                code: strata_protocol::ErrorCode::ShuttingDown,
-                message: "server is shutting down".into(),
-            };
-            let _ = p.control.try_send(fanout::encode_control(&msg));
+        for (id, mut p) in self.peers.drain() {
+            p.kick(
+                strata_protocol::ErrorCode::ShuttingDown,
+                "server is shutting down",
+            );
             self.seq.session_left(id);
         }
     }

@@ -5,6 +5,10 @@ use std::collections::{HashMap, HashSet, VecDeque};
 
 use strata_terrain::ChunkPos;
 
+use strata_protocol::ErrorCode;
+use tokio::sync::oneshot;
+
+use super::command::Kick;
 use crate::interest::{Interest, InterestChange};
 use crate::net::writer::FrameSender;
 
@@ -21,10 +25,16 @@ pub struct Peer {
     pub full_data: HashSet<ChunkPos>,
     /// Set when a queue overflowed and the connection should be closed.
     pub failed: bool,
+    kick: Option<oneshot::Sender<Kick>>,
 }
 
 impl Peer {
-    pub fn new(control: FrameSender, updates: FrameSender, interest: Interest) -> Self {
+    pub fn new(
+        control: FrameSender,
+        updates: FrameSender,
+        interest: Interest,
+        kick: oneshot::Sender<Kick>,
+    ) -> Self {
         Self {
             control,
             updates,
@@ -33,6 +43,14 @@ impl Peer {
             pending: VecDeque::new(),
             full_data: HashSet::new(),
             failed: false,
+            kick: Some(kick),
+        }
+    }
+
+    /// Tells the session to close its connection with `code`.
+    pub fn kick(&mut self, code: ErrorCode, message: &str) {
+        if let Some(k) = self.kick.take() {
+            let _ = k.send((code, message.to_string()));
         }
     }
 

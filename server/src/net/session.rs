@@ -172,6 +172,7 @@ async fn joined(
     };
     let (updates, updates_task) = spawn_writer(uni, ctx.writer_queue, "updates");
     let (reply_tx, reply_rx) = oneshot::channel();
+    let (kick_tx, mut kick_rx) = oneshot::channel();
     let join = Command::Join {
         session,
         player: claims.player.clone(),
@@ -179,6 +180,7 @@ async fn joined(
         control: control.clone(),
         updates,
         reply: reply_tx,
+        kick: kick_tx,
     };
     if !ctx.engine.try_send(join) {
         return refuse(
@@ -213,7 +215,16 @@ async fn joined(
     };
     let _ = control.try_send(fanout_control(&ServerMessage::Welcome(welcome)));
     info!("session started");
-    let end = serve(&conn, session, &ctx, &control, &mut reader, &mut shutdown).await;
+    let end = serve(
+        &conn,
+        session,
+        &ctx,
+        &control,
+        &mut reader,
+        &mut shutdown,
+        &mut kick_rx,
+    )
+    .await;
     let _ = ctx.engine.try_send(Command::Leave { session });
     match end {
         End::ClientClosed => conn.close(quinn::VarInt::from_u32(0), b"bye"),
@@ -244,6 +255,7 @@ async fn serve(
     control: &FrameSender,
     reader: &mut FramedReader<quinn::RecvStream>,
     shutdown: &mut Shutdown,
+    kicked: &mut oneshot::Receiver<crate::engine::Kick>,
 ) -> End {
     loop {
         tokio::select! {
@@ -270,17 +282,11 @@ async fn serve(
             _ = shutdown.wait() => {
                 return End::Refused(ErrorCode::ShuttingDown, "server is shutting down".into());
             }
-            _ = control_closed(control) => {
-                return End::Refused(ErrorCode::Internal, "client too slow: its queue overflowed".into());
+            kick = &mut *kicked => {
+                let (code, message) = kick.unwrap_or((ErrorCode::Internal, "the server ended this session".into()));
+                return End::Refused(code, message);
             }
         }
-    }
-}
-
-/// Resolves when the engine dropped this session (its writer closed).
-async fn control_closed(control: &FrameSender) {
-    while !control.is_closed() {
-        tokio::time::sleep(Duration::from_millis(50)).await;
     }
 }
 
