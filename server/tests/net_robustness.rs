@@ -82,11 +82,16 @@ async fn malformed_oversized_and_garbage_frames_close_only_their_connection() {
     .expect("test finished in time");
 }
 
-/// Connects with a tiny receive window and never reads the updates stream.
-async fn stalled_session(
-    server: &app::Running,
-    feet: FixedVec3,
-) -> (quinn::Endpoint, quinn::Connection) {
+/// A raw session that has said Hello but reads nothing: its receive window
+/// is 1 KiB per stream, so the server's writers soon block on it.
+struct RawSession {
+    _endpoint: quinn::Endpoint,
+    conn: quinn::Connection,
+    send: quinn::SendStream,
+    _recv: quinn::RecvStream,
+}
+
+async fn raw_session(server: &app::Running, player: &str) -> RawSession {
     let mut cfg = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
     let mut transport = quinn::TransportConfig::default();
     transport.stream_receive_window(quinn::VarInt::from_u32(1024));
@@ -98,25 +103,20 @@ async fn stalled_session(
         .unwrap()
         .await
         .unwrap();
-    let (mut send, _recv) = conn.open_bi().await.unwrap();
+    let (mut send, recv) = conn.open_bi().await.unwrap();
     let hello = ClientMessage::Hello(Hello {
         protocol_version: PROTOCOL_VERSION,
-        token: token(server, "slow", Role::Player),
+        token: token(server, player, Role::Player),
     });
     send.write_all(&encode_frame(&hello, Direction::ClientToServer).unwrap())
         .await
         .unwrap();
-    let pos = strata_protocol::encode(
-        &PositionUpdate { seq: 1, pos: feet },
-        Direction::ClientToServer,
-    )
-    .unwrap();
-    tokio::time::sleep(Duration::from_millis(200)).await;
-    conn.send_datagram(pos.into()).unwrap();
-    // Keep the streams alive without reading them.
-    std::mem::forget(send);
-    std::mem::forget(_recv);
-    (endpoint, conn)
+    RawSession {
+        _endpoint: endpoint,
+        conn,
+        send,
+        _recv: recv,
+    }
 }
 
 #[tokio::test]
@@ -132,7 +132,14 @@ async fn a_stalled_client_does_not_delay_the_others() {
         let (x, z) = (70, 40);
         let y = g.surface_height(x, z);
         let feet = at(x as f64, y + 1.0, z as f64);
-        let (_endpoint, stalled) = stalled_session(&server, feet).await;
+        let stalled = raw_session(&server, "slow").await;
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let pos = strata_protocol::encode(
+            &PositionUpdate { seq: 1, pos: feet },
+            Direction::ClientToServer,
+        )
+        .unwrap();
+        stalled.conn.send_datagram(pos.into()).unwrap();
         let a = connect(&server, "ana", Role::Player).await;
         let b = connect(&server, "bo", Role::Player).await;
         a.send_position(feet).unwrap();
@@ -184,27 +191,9 @@ async fn a_client_that_never_reads_its_verdicts_is_disconnected() {
         let dir = tempfile::tempdir().unwrap();
         let server = start(dir.path()).await;
         let good = connect(&server, "good", Role::Player).await;
-        // Tiny receive windows and no reading: verdicts pile up in the
-        // server's bounded control queue until it overflows.
-        let mut cfg = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
-        let mut transport = quinn::TransportConfig::default();
-        transport.stream_receive_window(quinn::VarInt::from_u32(1024));
-        cfg.transport_config(Arc::new(transport));
-        let mut endpoint = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
-        endpoint.set_default_client_config(cfg);
-        let conn = endpoint
-            .connect(server.addr, "localhost")
-            .unwrap()
-            .await
-            .unwrap();
-        let (mut send, _recv) = conn.open_bi().await.unwrap();
-        let hello = ClientMessage::Hello(Hello {
-            protocol_version: PROTOCOL_VERSION,
-            token: token(&server, "flood", Role::Player),
-        });
-        send.write_all(&encode_frame(&hello, Direction::ClientToServer).unwrap())
-            .await
-            .unwrap();
+        // No reading: verdicts pile up in the server's bounded control queue
+        // until it overflows.
+        let RawSession { conn, mut send, .. } = raw_session(&server, "flood").await;
         let flood = async {
             // Refused at once (no position yet), each answered by a verdict.
             for id in 0..20_000u64 {
