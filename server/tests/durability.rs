@@ -20,6 +20,27 @@ fn feet() -> (FixedVec3, i32, i32, i32) {
     (at(x as f64, y + 1.0, z as f64), x, y.floor() as i32, z)
 }
 
+type Acked = Arc<Mutex<Vec<u64>>>;
+
+/// Sends edits one after another until one is refused or the connection
+/// ends, recording the sequence number of every acknowledged one.
+fn keep_editing(
+    c: Arc<strata_client_sim::Client>,
+    edit: impl Fn(i32) -> Edit + Send + 'static,
+) -> (Acked, tokio::task::JoinHandle<()>) {
+    let acked: Acked = Arc::default();
+    let log = acked.clone();
+    let worker = tokio::spawn(async move {
+        for i in 0..10_000 {
+            match c.edit(edit(i)).await {
+                Ok(Verdict::Accepted { seq }) => log.lock().unwrap().push(seq),
+                Ok(_) | Err(_) => return,
+            }
+        }
+    });
+    (acked, worker)
+}
+
 #[tokio::test]
 async fn acknowledged_edits_survive_sigkill() {
     tokio::time::timeout(TEST_TIMEOUT, async {
@@ -30,25 +51,12 @@ async fn acknowledged_edits_survive_sigkill() {
         let (pos, x, y, z) = feet();
         c.send_position(pos).unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
-        let acked = Arc::new(Mutex::new(Vec::new()));
-        let worker = {
-            let (c, acked) = (c.clone(), acked.clone());
-            tokio::spawn(async move {
-                for i in 0..10_000 {
-                    let edit = Edit::Build {
-                        center: FixedVec3::from_voxels(x + i % 5 - 2, y + 2, z + (i / 5) % 5 - 2),
-                        radius: r(1.5),
-                        material: 7,
-                        strength: 20,
-                    };
-                    match c.edit(edit).await {
-                        Ok(Verdict::Accepted { seq }) => acked.lock().unwrap().push(seq),
-                        Ok(v) => panic!("refused: {v:?}"),
-                        Err(_) => return,
-                    }
-                }
-            })
-        };
+        let (acked, worker) = keep_editing(c.clone(), move |i| Edit::Build {
+            center: FixedVec3::from_voxels(x + i % 5 - 2, y + 2, z + (i / 5) % 5 - 2),
+            radius: r(1.5),
+            material: 7,
+            strength: 20,
+        });
         assert!(
             eventually(Duration::from_secs(20), || acked.lock().unwrap().len()
                 >= 20)
@@ -99,23 +107,11 @@ async fn graceful_shutdown_loses_nothing() {
         let (pos, x, y, z) = feet();
         c.send_position(pos).unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
-        let acked = Arc::new(Mutex::new(Vec::new()));
-        let worker = {
-            let (c, acked) = (c.clone(), acked.clone());
-            tokio::spawn(async move {
-                for i in 0..10_000 {
-                    let edit = Edit::Mine {
-                        center: FixedVec3::from_voxels(x + i % 7 - 3, y, z),
-                        radius: r(1.5),
-                        strength: 10,
-                    };
-                    match c.edit(edit).await {
-                        Ok(Verdict::Accepted { seq }) => acked.lock().unwrap().push(seq),
-                        Ok(_) | Err(_) => return,
-                    }
-                }
-            })
-        };
+        let (acked, worker) = keep_editing(c.clone(), move |i| Edit::Mine {
+            center: FixedVec3::from_voxels(x + i % 7 - 3, y, z),
+            radius: r(1.5),
+            strength: 10,
+        });
         assert!(
             eventually(Duration::from_secs(20), || acked.lock().unwrap().len()
                 >= 10)

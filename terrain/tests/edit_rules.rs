@@ -91,6 +91,28 @@ fn library() -> StructureLibrary {
     lib
 }
 
+/// The material table and template library every edit here runs against.
+struct Setup {
+    materials: MaterialTable,
+    structures: StructureLibrary,
+}
+
+impl Setup {
+    fn new() -> Self {
+        Self {
+            materials: MaterialTable::default(),
+            structures: library(),
+        }
+    }
+
+    fn ctx(&self) -> EditContext<'_> {
+        EditContext {
+            materials: &self.materials,
+            structures: &self.structures,
+        }
+    }
+}
+
 fn c(x: f64, y: f64, z: f64) -> FixedVec3 {
     FixedVec3::from_f64([x, y, z]).unwrap()
 }
@@ -156,12 +178,8 @@ fn border_edits() -> Vec<Edit> {
 }
 
 fn check_equivalent(edit: &Edit) {
-    let materials = MaterialTable::default();
-    let structures = library();
-    let ctx = EditContext {
-        materials: &materials,
-        structures: &structures,
-    };
+    let setup = Setup::new();
+    let ctx = setup.ctx();
     let mut w = world();
     let bbox = edit.validate(&ctx).unwrap();
     let around = VoxelBox {
@@ -213,12 +231,8 @@ fn chunked_equals_flat_across_borders_corners_and_negatives() {
 #[test]
 fn edits_reach_every_touched_chunk() {
     // An explosion on a chunk corner changes all eight chunks around it.
-    let materials = MaterialTable::default();
-    let structures = library();
-    let ctx = EditContext {
-        materials: &materials,
-        structures: &structures,
-    };
+    let setup = Setup::new();
+    let ctx = setup.ctx();
     let mut w = flat(Voxel::solid(ids::DIRT));
     let e = Edit::Explode {
         center: c(0.0, 0.0, 0.0),
@@ -237,12 +251,8 @@ fn edits_reach_every_touched_chunk() {
 
 #[test]
 fn seed_explosion_formula() {
-    let materials = MaterialTable::default();
-    let structures = library();
-    let ctx = EditContext {
-        materials: &materials,
-        structures: &structures,
-    };
+    let setup = Setup::new();
+    let ctx = setup.ctx();
     let mut w = flat(Voxel::solid(ids::STONE));
     let e = Edit::Explode {
         center: c(0.0, -16.0, 0.0),
@@ -259,12 +269,8 @@ fn seed_explosion_formula() {
 
 #[test]
 fn mine_and_build_shapes() {
-    let materials = MaterialTable::default();
-    let structures = library();
-    let ctx = EditContext {
-        materials: &materials,
-        structures: &structures,
-    };
+    let setup = Setup::new();
+    let ctx = setup.ctx();
     let dirt = Voxel::solid(ids::DIRT);
     let mut w = flat(dirt);
     Edit::Mine {
@@ -317,12 +323,8 @@ fn mine_and_build_shapes() {
 
 #[test]
 fn smooth_relaxes_a_step() {
-    let materials = MaterialTable::default();
-    let structures = library();
-    let ctx = EditContext {
-        materials: &materials,
-        structures: &structures,
-    };
+    let setup = Setup::new();
+    let ctx = setup.ctx();
     let mut w = flat(Voxel::solid(ids::DIRT));
     let out = Edit::Smooth {
         center: c(0.0, 0.0, 0.0),
@@ -341,12 +343,8 @@ fn smooth_relaxes_a_step() {
 
 #[test]
 fn indestructible_voxels_never_change() {
-    let materials = MaterialTable::default();
-    let structures = library();
-    let ctx = EditContext {
-        materials: &materials,
-        structures: &structures,
-    };
+    let setup = Setup::new();
+    let ctx = setup.ctx();
     let bedrock = Voxel::solid(ids::BEDROCK);
     let mut w = flat(bedrock);
     let edits = [
@@ -397,12 +395,8 @@ fn indestructible_voxels_never_change() {
 
 #[test]
 fn bad_edits_are_refused_and_change_nothing() {
-    let materials = MaterialTable::default();
-    let structures = library();
-    let ctx = EditContext {
-        materials: &materials,
-        structures: &structures,
-    };
+    let setup = Setup::new();
+    let ctx = setup.ctx();
     let mut w = world();
     let far = Fixed::from_voxels(1 << 22);
     let origin = c(0.0, 0.0, 0.0);
@@ -550,12 +544,8 @@ fn bad_edits_are_refused_and_change_nothing() {
 
 #[test]
 fn structure_rotation_places_expected_voxels() {
-    let materials = MaterialTable::default();
-    let structures = library();
-    let ctx = EditContext {
-        materials: &materials,
-        structures: &structures,
-    };
+    let setup = Setup::new();
+    let ctx = setup.ctx();
     let mut w = flat(Voxel::AIR);
     let origin = VoxelPos::new(100, 40, -60);
     let out = Edit::PlaceStructure {
