@@ -33,8 +33,8 @@ pub use config::{StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_FLUSH_EVERY_
 pub use error::StoreError;
 pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
 pub use sled_store::{
-    SledStore, MAX_BLOB_BYTES, MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES, META_LAST_SEQ,
-    META_WORLD, TREE_BLOBS, TREE_CHUNKS, TREE_LOG, TREE_META,
+    open_when_unlocked, SledStore, MAX_BLOB_BYTES, MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES,
+    META_LAST_SEQ, META_WORLD, TREE_BLOBS, TREE_CHUNKS, TREE_LOG, TREE_META,
 };
 pub use types::{
     CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta, STORE_FORMAT_VERSION,

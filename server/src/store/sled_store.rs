@@ -69,11 +69,11 @@ impl SledStore {
     /// Opens (or creates) the store in `dir`. Refuses a store written by an
     /// unknown format version.
     pub fn open_with(dir: &Path, config: &StoreConfig) -> Result<Self, StoreError> {
-        let db = sled::Config::new()
+        let cfg = sled::Config::new()
             .path(dir)
             .cache_capacity(config.cache_capacity_bytes)
-            .flush_every_ms(config.flush_every_ms)
-            .open()?;
+            .flush_every_ms(config.flush_every_ms);
+        let db = open_when_unlocked(|| cfg.open())?;
         let store = Self {
             meta: db.open_tree(TREE_META)?,
             chunks: db.open_tree(TREE_CHUNKS)?,
@@ -404,5 +404,47 @@ impl ChunkStore for SledStore {
             checker.chunk_record(&k, &v);
         }
         Ok(checker.finish(world.map(|_| last_seq)))
+    }
+}
+
+/// How long an open waits for a just-closed handle's lock to go away: sled
+/// releases its file lock from background threads shortly after a drop.
+pub const LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Runs `open` until it stops failing on the database's file lock, for at
+/// most [`LOCK_WAIT`]. A lock held by a live process fails after that.
+pub fn open_when_unlocked<T>(mut open: impl FnMut() -> sled::Result<T>) -> sled::Result<T> {
+    let start = std::time::Instant::now();
+    loop {
+        match open() {
+            Err(sled::Error::Io(e))
+                if e.to_string().contains("could not acquire lock")
+                    && start.elapsed() < LOCK_WAIT =>
+            {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            other => return other,
+        }
+    }
+}
+
+#[cfg(test)]
+mod lock_tests {
+    use super::*;
+
+    #[test]
+    fn waits_for_a_released_lock_but_not_a_held_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let held = sled::open(dir.path()).unwrap();
+        // Still held for the whole wait: the open fails with the lock error.
+        let err = open_when_unlocked(|| sled::open(dir.path())).unwrap_err();
+        assert!(err.to_string().contains("could not acquire lock"), "{err}");
+        // Released shortly after: the open waits and succeeds.
+        let releaser = std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(200));
+            drop(held);
+        });
+        assert!(open_when_unlocked(|| sled::open(dir.path())).is_ok());
+        releaser.join().unwrap();
     }
 }
