@@ -35,12 +35,8 @@ pub fn issue(args: &TokenIssueArgs) -> anyhow::Result<String> {
         .with_context(|| format!("role must be player or admin, not {:?}", args.role))?;
     let ttl = parse_duration(&args.ttl).with_context(|| format!("--ttl {:?}", args.ttl))?;
     let cfg = ServerConfig::load(args.config.as_deref())?;
-    let dir = DataDir::open_existing(&args.data_dir).with_context(|| {
-        format!(
-            "opening data dir {} (start the server once to create it)",
-            args.data_dir.display()
-        )
-    })?;
+    let dir = DataDir::open_existing(&args.data_dir)
+        .with_context(|| format!("opening data dir {}", args.data_dir.display()))?;
     let token = auth::issue_with_max_ttl(
         dir.secret(),
         &args.player,
@@ -88,6 +84,6 @@ mod tests {
         assert!(issue(&args).is_err());
         args.player = "ana".into();
         args.data_dir = tmp.path().join("missing");
-        assert!(format!("{:#}", issue(&args).unwrap_err()).contains("start the server once"));
+        assert!(format!("{:#}", issue(&args).unwrap_err()).contains("start strata-server once"));
     }
 }
