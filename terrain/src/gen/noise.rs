@@ -175,25 +175,20 @@ pub fn octave_seeds(seed: u64, layer: u64, octaves: u32) -> Vec<u64> {
 /// twice the frequency and half the amplitude of the last (both exact in
 /// f64), normalised by the amplitude sum so the result stays in `[-1, 1]`.
 pub fn fbm2(seeds: &[u64], x: f64, z: f64) -> f64 {
-    let (mut sum, mut amp, mut freq, mut norm) = (0.0, 1.0, 1.0, 0.0);
-    for &s in seeds {
-        sum += amp * gradient2(s, x * freq, z * freq);
-        norm += amp;
-        amp *= 0.5;
-        freq *= 2.0;
-    }
-    if norm == 0.0 {
-        0.0
-    } else {
-        sum / norm
-    }
+    octaves(seeds, |s, freq| gradient2(s, x * freq, z * freq))
 }
 
 /// The 3D counterpart of [`fbm2`], also in `[-1, 1]`.
 pub fn fbm3(seeds: &[u64], x: f64, y: f64, z: f64) -> f64 {
+    octaves(seeds, |s, freq| gradient3(s, x * freq, y * freq, z * freq))
+}
+
+/// Sums one noise octave per seed, halving the amplitude and doubling the
+/// frequency each time, normalised to the noise's own range.
+fn octaves(seeds: &[u64], noise: impl Fn(u64, f64) -> f64) -> f64 {
     let (mut sum, mut amp, mut freq, mut norm) = (0.0, 1.0, 1.0, 0.0);
     for &s in seeds {
-        sum += amp * gradient3(s, x * freq, y * freq, z * freq);
+        sum += amp * noise(s, freq);
         norm += amp;
         amp *= 0.5;
         freq *= 2.0;

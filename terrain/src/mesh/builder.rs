@@ -73,16 +73,7 @@ impl<'a> Builder<'a> {
 
     /// World key of an edge given by its local lower endpoint.
     fn key(&self, lower: [i32; 3], axis: usize, len: u32) -> VertexKey {
-        let o = self.nb.origin();
-        VertexKey {
-            base: crate::VoxelPos::new(
-                o.x.wrapping_add(lower[0]),
-                o.y.wrapping_add(lower[1]),
-                o.z.wrapping_add(lower[2]),
-            ),
-            axis: axis as u8,
-            len: len as u8,
-        }
+        VertexKey::from_local(self.nb.origin(), lower, axis, len)
     }
 
     /// Registers the vertex on an edge (endpoints straddling the isovalue) and returns its

@@ -160,16 +160,7 @@ pub(crate) fn mesh_transitions(
                     let axis = if pa[au] != pb[au] { au } else { av };
                     let lower = if pa[axis] < pb[axis] { pa } else { pb };
                     let len = (pa[axis] - pb[axis]).unsigned_abs();
-                    let o = nb.origin();
-                    let key = VertexKey {
-                        base: crate::VoxelPos::new(
-                            o.x.wrapping_add(lower[0]),
-                            o.y.wrapping_add(lower[1]),
-                            o.z.wrapping_add(lower[2]),
-                        ),
-                        axis: axis as u8,
-                        len: len as u8,
-                    };
+                    let key = VertexKey::from_local(nb.origin(), lower, axis, len);
                     *v = *ids.entry(key).or_insert_with(|| {
                         let id = b.add_vertex(lower, axis, len);
                         if len == stride as u32 {

@@ -114,6 +114,22 @@ pub struct VertexKey {
     pub len: u8,
 }
 
+impl VertexKey {
+    /// The key of an edge given by its chunk-local lower endpoint, for a
+    /// chunk whose local (0, 0, 0) is `origin` (wrapping at the i32 limits).
+    pub fn from_local(origin: VoxelPos, lower: [i32; 3], axis: usize, len: u32) -> Self {
+        VertexKey {
+            base: VoxelPos::new(
+                origin.x.wrapping_add(lower[0]),
+                origin.y.wrapping_add(lower[1]),
+                origin.z.wrapping_add(lower[2]),
+            ),
+            axis: axis as u8,
+            len: len as u8,
+        }
+    }
+}
+
 /// An indexed triangle mesh of one chunk, in chunk-local voxel units.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Mesh {
