@@ -125,7 +125,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         cfg.interest,
         validation.bounds,
         versions,
-    );
+    )?;
     let (engine, engine_thread) = engine.spawn()?;
     let server_config = crate::tls::server_config(data_dir.cert(), &cfg.net, &cfg.tls)?;
     let endpoint = quinn::Endpoint::server(server_config, cfg.server.listen)

@@ -17,7 +17,7 @@ use strata_protocol::limits::{FRAME_HEADER, MAX_CLIENT_FRAME, MAX_DATAGRAM, MAX_
 use thiserror::Error;
 
 use crate::auth::{HumanDuration, MAX_TOKEN_TTL};
-use crate::engine::{EngineConfig, MAX_COMMAND_QUEUE, MAX_TICK_MS};
+use crate::engine::{EngineConfig, MAX_COMMAND_QUEUE, MAX_PREMESH_RADIUS, MAX_TICK_MS};
 use crate::heightmap::HeightmapSection;
 use crate::interest::{InterestConfig, MAX_VIEW_RADIUS};
 use crate::sequencer::SequencerConfig;
@@ -402,6 +402,18 @@ impl ServerConfig {
         range(
             "engine.command_queue",
             self.engine.command_queue,
+            1,
+            MAX_COMMAND_QUEUE,
+        )?;
+        range(
+            "engine.premesh_radius",
+            self.engine.premesh_radius,
+            0,
+            MAX_PREMESH_RADIUS,
+        )?;
+        range(
+            "engine.premesh_inflight",
+            self.engine.premesh_inflight,
             1,
             MAX_COMMAND_QUEUE,
         )?;

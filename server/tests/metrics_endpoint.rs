@@ -66,6 +66,21 @@ async fn metrics_count_what_happened() {
         ] {
             assert!(text.contains(needle), "{needle:?} missing from:\n{text}");
         }
+        // The chunks around the player were meshed in the background.
+        let deadline = std::time::Instant::now() + Duration::from_secs(20);
+        let premeshed = loop {
+            let text = scrape(metrics);
+            let n = text
+                .lines()
+                .find_map(|l| l.strip_prefix("strata_premesh_meshes_total "))
+                .and_then(|v| v.trim().parse::<f64>().ok());
+            match n {
+                Some(n) if n >= 20.0 => break n,
+                _ if std::time::Instant::now() > deadline => panic!("no premeshing:\n{text}"),
+                _ => tokio::time::sleep(Duration::from_millis(100)).await,
+            }
+        };
+        assert!(premeshed <= 27.0 + 2.0, "{premeshed} meshes for one player");
         c.close().await;
         child.kill().unwrap();
         child.wait().unwrap();

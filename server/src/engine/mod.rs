@@ -11,11 +11,13 @@
 mod command;
 mod fanout;
 mod peer;
+mod premesh;
 mod residency;
 mod stream;
 
 pub use command::{Command, JoinReply, Kick};
 pub use fanout::encode_control as fanout_control;
+pub use premesh::{DEFAULT_PREMESH_INFLIGHT, DEFAULT_PREMESH_RADIUS, MAX_PREMESH_RADIUS};
 
 use std::collections::HashMap;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender};
@@ -29,7 +31,7 @@ use tracing::{debug, error, info};
 
 use crate::interest::{Interest, InterestConfig};
 use crate::metrics as m;
-use crate::sequencer::Sequencer;
+use crate::sequencer::{BuiltMeshes, PendingMeshes, Sequencer};
 use crate::store::ChunkStore;
 use crate::validate::bounds::WorldBounds;
 use peer::Peer;
@@ -51,6 +53,10 @@ pub struct EngineConfig {
     pub tick_ms: u64,
     /// Commands queued from sessions before new ones are refused.
     pub command_queue: usize,
+    /// Chunks around each player meshed in the background ([`DEFAULT_PREMESH_RADIUS`]).
+    pub premesh_radius: u8,
+    /// Background mesh jobs in flight at most ([`DEFAULT_PREMESH_INFLIGHT`]).
+    pub premesh_inflight: usize,
 }
 
 impl Default for EngineConfig {
@@ -58,6 +64,8 @@ impl Default for EngineConfig {
         Self {
             tick_ms: DEFAULT_TICK_MS,
             command_queue: DEFAULT_COMMAND_QUEUE,
+            premesh_radius: DEFAULT_PREMESH_RADIUS,
+            premesh_inflight: DEFAULT_PREMESH_INFLIGHT,
         }
     }
 }
@@ -91,6 +99,7 @@ pub struct Engine {
     /// Durable version of every modified chunk (absent = version 0).
     versions: HashMap<ChunkPos, u64>,
     snapshots: stream::SnapshotCache,
+    premesh: premesh::Premesher,
 }
 
 impl std::fmt::Debug for Engine {
@@ -126,8 +135,9 @@ impl Engine {
         interest: InterestConfig,
         bounds: WorldBounds,
         versions: HashMap<ChunkPos, u64>,
-    ) -> Self {
-        Self {
+    ) -> std::io::Result<Self> {
+        Ok(Self {
+            premesh: premesh::Premesher::new(cfg.premesh_inflight)?,
             seq,
             store,
             cfg,
@@ -137,7 +147,7 @@ impl Engine {
             peers: HashMap::new(),
             versions,
             snapshots: Default::default(),
-        }
+        })
     }
 
     /// Starts the engine thread. It stops on [`Command::Stop`] or when
@@ -167,6 +177,7 @@ impl Engine {
                 Ok(cmd) => self.handle(cmd),
                 Err(RecvTimeoutError::Timeout) => {}
             }
+            self.collect_premeshed();
             if Instant::now() >= next_tick {
                 self.tick()?;
                 next_tick = Instant::now() + period;
@@ -257,6 +268,7 @@ impl Engine {
                     let change = p.interest.follow_position(update.pos);
                     self.apply_interest(session, change);
                 }
+                self.premesh_around(session, update.pos);
             }
             Err(reason) => debug!(session, ?reason, "position refused"),
         }
@@ -287,7 +299,9 @@ impl Engine {
     /// One tick: apply, commit, acknowledge, broadcast, stream.
     fn tick(&mut self) -> anyhow::Result<()> {
         let started = Instant::now();
-        let out = self.seq.tick(now_ms());
+        let (mut out, pending) = self.seq.tick_apply(now_ms());
+        // Collision meshes build on the rayon pool while the batch commits.
+        let meshing = spawn_meshing(pending);
         for r in &out.rejected {
             metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&r.reason))
                 .increment(1);
@@ -306,6 +320,10 @@ impl Engine {
                 return Err(e.into());
             }
             metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
+            let built = meshing
+                .recv()
+                .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
+            self.seq.finish_tick(&mut out, built);
             for (pos, version, _) in &out.batch.chunks {
                 self.versions.insert(*pos, *version);
             }
@@ -353,4 +371,14 @@ impl Engine {
             self.seq.session_left(id);
         }
     }
+}
+
+/// Builds a tick's collision meshes on the rayon pool; the receiver yields
+/// them once done.
+fn spawn_meshing(pending: PendingMeshes) -> Receiver<BuiltMeshes> {
+    let (tx, rx) = std::sync::mpsc::sync_channel(1);
+    rayon::spawn(move || {
+        let _ = tx.send(pending.build());
+    });
+    rx
 }

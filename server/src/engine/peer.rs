@@ -25,6 +25,8 @@ pub struct Peer {
     pub full_data: HashSet<ChunkPos>,
     /// Set when a queue overflowed and the connection should be closed.
     pub failed: bool,
+    /// The chunk around which collision meshes were last queued.
+    pub premeshed: Option<ChunkPos>,
     kick: Option<oneshot::Sender<Kick>>,
 }
 
@@ -43,6 +45,7 @@ impl Peer {
             pending: VecDeque::new(),
             full_data: HashSet::new(),
             failed: false,
+            premeshed: None,
             kick: Some(kick),
         }
     }

@@ -16,6 +16,7 @@ mod tick;
 
 pub use batch::{AppliedEdit, ChunkUpdate, RejectedEdit, TickOutput};
 pub use config::{SequencerConfig, DEFAULT_MAX_EDITS_PER_TICK, DEFAULT_QUEUE_CAPACITY};
+pub use tick::{BuiltMeshes, PendingMeshes};
 
 use std::collections::{HashMap, VecDeque};
 
@@ -23,7 +24,7 @@ use strata_protocol::{EditRequest, PositionUpdate, Role};
 use strata_terrain::edit::{EditContext, StructureLibrary};
 use strata_terrain::{Chunk, ChunkPos, MaterialTable, World};
 
-use crate::collision::CollisionCache;
+use crate::collision::{CollisionCache, CollisionMesh};
 use crate::validate::position::{self, PositionReject, ValidatedPosition};
 use crate::validate::zones::{self, Zone, ZoneError};
 use crate::validate::ValidationConfig;
@@ -140,6 +141,11 @@ impl Sequencer {
 
     pub fn collision(&self) -> &CollisionCache {
         &self.collision
+    }
+
+    /// Caches a mesh built elsewhere; the caller checked it is current.
+    pub fn insert_collision_mesh(&mut self, mesh: CollisionMesh) {
+        self.collision.insert(mesh);
     }
 
     fn ctx(&self) -> EditContext<'_> {

@@ -11,24 +11,66 @@ use super::batch::*;
 use super::residency::with_neighbours;
 use super::LogEntry;
 use super::Sequencer;
-use crate::collision::CollisionCache;
+use crate::collision::{CollisionCache, CollisionMesh};
 use strata_terrain::Chunk;
 
 /// Where a change's mesh hash goes once the meshes are built.
-struct MeshJob {
+#[derive(Debug)]
+struct MeshSlot {
     applied: usize,
     change: usize,
+}
+
+/// The collision meshes one tick's changes need. Building them is pure
+/// ([`Self::build`]), so the shell runs it on the rayon pool while the
+/// store commits, then hands the result to [`Sequencer::finish_tick`].
+#[derive(Debug, Default)]
+pub struct PendingMeshes {
+    jobs: Vec<(ChunkPos, u64, Neighborhood)>,
+    slots: Vec<MeshSlot>,
+}
+
+/// Meshes built from a [`PendingMeshes`].
+#[derive(Debug)]
+pub struct BuiltMeshes {
+    meshes: Vec<CollisionMesh>,
+    keep: Vec<bool>,
+    slots: Vec<MeshSlot>,
+}
+
+impl PendingMeshes {
+    pub fn is_empty(&self) -> bool {
+        self.jobs.is_empty()
+    }
+
+    /// Meshes every job in parallel on the current rayon pool.
+    pub fn build(self) -> BuiltMeshes {
+        BuiltMeshes {
+            meshes: CollisionCache::mesh_chunks(&self.jobs),
+            keep: still_current(&self.jobs),
+            slots: self.slots,
+        }
+    }
 }
 
 impl Sequencer {
     /// Applies up to `max_edits_per_tick` queued edits in order. Each gets
     /// the next sequence number; each changed chunk gets a delta from its
     /// previous version, so two edits on one chunk make a two-step chain.
-    /// `now_ms` stamps the edit-log entries.
+    /// `now_ms` stamps the edit-log entries. Builds the collision meshes
+    /// on this thread; the engine uses [`Self::tick_apply`] instead.
     pub fn tick(&mut self, now_ms: u64) -> TickOutput {
+        let (mut out, pending) = self.tick_apply(now_ms);
+        self.finish_tick(&mut out, pending.build());
+        out
+    }
+
+    /// [`Self::tick`] without the meshes: every `mesh_hash` is 0 until
+    /// [`Self::finish_tick`] gets the built [`PendingMeshes`].
+    pub fn tick_apply(&mut self, now_ms: u64) -> (TickOutput, PendingMeshes) {
         let mut out = TickOutput::default();
         let mut jobs: Vec<(ChunkPos, u64, Neighborhood)> = Vec::new();
-        let mut slots: Vec<MeshJob> = Vec::new();
+        let mut slots: Vec<MeshSlot> = Vec::new();
         let mut finals: BTreeMap<ChunkPos, (u64, Chunk)> = BTreeMap::new();
         let take = self.queue.len().min(self.cfg.max_edits_per_tick);
         for q in self.queue.drain(..take).collect::<Vec<_>>() {
@@ -71,7 +113,7 @@ impl Sequencer {
                     c.to_version,
                     Neighborhood::from_world(&self.world, c.pos),
                 ));
-                slots.push(MeshJob {
+                slots.push(MeshSlot {
                     applied: out.applied.len(),
                     change: changes.len(),
                 });
@@ -101,17 +143,25 @@ impl Sequencer {
                 changes,
             });
         }
-        let meshes = CollisionCache::mesh_chunks(&jobs);
-        let current = still_current(&jobs);
-        for ((slot, mesh), keep) in slots.iter().zip(meshes).zip(current) {
+        out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
+        out.batch.last_seq = self.last_seq();
+        (out, PendingMeshes { jobs, slots })
+    }
+
+    /// Fills in the mesh hashes of `out` and caches the meshes that still
+    /// match the world.
+    pub fn finish_tick(&mut self, out: &mut TickOutput, built: BuiltMeshes) {
+        let BuiltMeshes {
+            meshes,
+            keep,
+            slots,
+        } = built;
+        for ((slot, mesh), keep) in slots.iter().zip(meshes).zip(keep) {
             out.applied[slot.applied].changes[slot.change].mesh_hash = mesh.hash;
             if keep {
                 self.collision.insert(mesh);
             }
         }
-        out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
-        out.batch.last_seq = self.last_seq();
-        out
     }
 }
 

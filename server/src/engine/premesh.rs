@@ -1,0 +1,385 @@
+//! Collision meshes for the chunks around players, built in the background
+//! so line-of-sight checks rarely mesh on the engine thread.
+//!
+//! When a player enters a new chunk, the engine queues jobs for the chunks
+//! within `premesh_radius` that have no current mesh. A job carries copies
+//! of the modified chunks it reads and regenerates the rest, so the engine
+//! thread only copies what the store holds. Jobs run on their own small
+//! rayon pool, never ahead of a tick's meshes. A finished mesh is cached
+//! only if none of the 27 chunks it read changed version meanwhile.
+
+use std::collections::{HashMap, HashSet};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
+use std::sync::{Arc, Mutex};
+
+use strata_terrain::mesh::Neighborhood;
+use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, FixedVec3, VoxelPos};
+
+use crate::collision::CollisionMesh;
+use crate::metrics as m;
+use crate::sequencer::residency::with_neighbours;
+
+/// Chunks around a player's chunk meshed ahead of need (0 disables).
+pub const DEFAULT_PREMESH_RADIUS: u8 = 1;
+/// Largest allowed premesh radius.
+pub const MAX_PREMESH_RADIUS: u8 = 3;
+/// Chunks being meshed in the background at most; more requests wait for a later move.
+pub const DEFAULT_PREMESH_INFLIGHT: usize = 64;
+/// Threads of the background meshing pool.
+pub const PREMESH_THREADS: usize = 1;
+/// Generated chunks the background mesher keeps for reuse (about 64 KiB each at most).
+pub const GENERATED_CACHE_CHUNKS: usize = 512;
+
+/// One chunk to mesh and what it reads.
+pub struct PremeshTarget {
+    pub pos: ChunkPos,
+    pub version: u64,
+    /// Version of each of the 27 chunks the mesh reads, when queued.
+    pub stamp: Vec<(ChunkPos, u64)>,
+}
+
+/// Chunks to mesh off the engine thread, together.
+pub struct PremeshJob {
+    pub targets: Vec<PremeshTarget>,
+    /// Copies of the modified chunks they read; the rest are generated.
+    pub modified: HashMap<ChunkPos, Arc<Chunk>>,
+    pub generator: Arc<dyn ChunkGenerator>,
+}
+
+/// Recently generated chunks, oldest first out. Generation is a pure
+/// function of the position, so entries never go stale.
+#[derive(Default)]
+pub struct GeneratedCache {
+    chunks: HashMap<ChunkPos, Arc<Chunk>>,
+    order: std::collections::VecDeque<ChunkPos>,
+}
+
+impl GeneratedCache {
+    fn get(&mut self, pos: ChunkPos, generator: &dyn ChunkGenerator) -> Arc<Chunk> {
+        if let Some(c) = self.chunks.get(&pos) {
+            return c.clone();
+        }
+        let c = Arc::new(generator.generate(pos));
+        self.chunks.insert(pos, c.clone());
+        self.order.push_back(pos);
+        while self.order.len() > GENERATED_CACHE_CHUNKS {
+            if let Some(old) = self.order.pop_front() {
+                self.chunks.remove(&old);
+            }
+        }
+        c
+    }
+}
+
+impl PremeshJob {
+    /// Meshes every target exactly as [`CollisionMesh::build`] on the world would.
+    pub fn build(self, cache: &mut GeneratedCache) -> Vec<PremeshResult> {
+        self.targets
+            .into_iter()
+            .map(|t| {
+                let reads: HashMap<ChunkPos, Arc<Chunk>> = t
+                    .stamp
+                    .iter()
+                    .map(|(p, _)| match self.modified.get(p) {
+                        Some(c) => (*p, c.clone()),
+                        None => (*p, cache.get(*p, &*self.generator)),
+                    })
+                    .collect();
+                let nb = Neighborhood::from_chunks(t.pos, |p| reads.get(&p).map(|c| &**c));
+                PremeshResult {
+                    mesh: CollisionMesh::build(t.pos, t.version, &nb),
+                    stamp: t.stamp,
+                }
+            })
+            .collect()
+    }
+}
+
+/// A built mesh and the chunk versions it was built from.
+pub struct PremeshResult {
+    pub mesh: CollisionMesh,
+    pub stamp: Vec<(ChunkPos, u64)>,
+}
+
+impl PremeshResult {
+    /// Whether every chunk the mesh read still has the version it had.
+    pub fn is_current(&self, version_of: impl Fn(ChunkPos) -> u64) -> bool {
+        self.stamp.iter().all(|(p, v)| version_of(*p) == *v)
+    }
+}
+
+/// Bounded background meshing: queue jobs, collect results.
+pub struct Premesher {
+    pool: rayon::ThreadPool,
+    inflight: HashSet<ChunkPos>,
+    max_inflight: usize,
+    tx: SyncSender<PremeshResult>,
+    rx: Receiver<PremeshResult>,
+    cache: Arc<Mutex<GeneratedCache>>,
+}
+
+impl std::fmt::Debug for Premesher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Premesher")
+            .field("inflight", &self.inflight())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Premesher {
+    pub fn new(max_inflight: usize) -> std::io::Result<Self> {
+        let max_inflight = max_inflight.max(1);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(PREMESH_THREADS)
+            .thread_name(|i| format!("strata-premesh-{i}"))
+            .build()
+            .map_err(std::io::Error::other)?;
+        // One slot per job in flight, so a worker never blocks on send.
+        let (tx, rx) = sync_channel(max_inflight);
+        Ok(Self {
+            pool,
+            inflight: HashSet::new(),
+            max_inflight,
+            tx,
+            rx,
+            cache: Arc::default(),
+        })
+    }
+
+    /// Whether a job for `pos` is running or queued.
+    pub fn is_inflight(&self, pos: ChunkPos) -> bool {
+        self.inflight.contains(&pos)
+    }
+
+    /// Room for `n` more chunks.
+    pub fn has_room(&self, n: usize) -> bool {
+        self.inflight.len() + n <= self.max_inflight
+    }
+
+    /// Queues `job`; false (and nothing queued) if it does not fit or a
+    /// target is already queued.
+    pub fn submit(&mut self, job: PremeshJob) -> bool {
+        if !self.has_room(job.targets.len())
+            || job.targets.iter().any(|t| self.inflight.contains(&t.pos))
+        {
+            return false;
+        }
+        self.inflight.extend(job.targets.iter().map(|t| t.pos));
+        let (tx, cache) = (self.tx.clone(), self.cache.clone());
+        self.pool.spawn(move || {
+            // A poisoned lock only means an earlier job panicked; the cache is still valid.
+            let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
+            for r in job.build(&mut cache) {
+                let _ = tx.send(r);
+            }
+        });
+        true
+    }
+
+    /// Results finished so far, without waiting.
+    pub fn drain(&mut self) -> Vec<PremeshResult> {
+        let done: Vec<PremeshResult> = self.rx.try_iter().collect();
+        for r in &done {
+            self.inflight.remove(&r.mesh.pos);
+        }
+        done
+    }
+
+    /// Jobs not yet drained.
+    pub fn inflight(&self) -> usize {
+        self.inflight.len()
+    }
+}
+
+/// The chunks within `radius` of `center`, nearest first.
+pub fn around(center: ChunkPos, radius: u8) -> Vec<ChunkPos> {
+    let r = i32::from(radius);
+    let mut v: Vec<(i32, ChunkPos)> = Vec::new();
+    for dz in -r..=r {
+        for dy in -r..=r {
+            for dx in -r..=r {
+                if let Some(p) = center.offset(dx, dy, dz) {
+                    v.push((dx * dx + dy * dy + dz * dz, p));
+                }
+            }
+        }
+    }
+    v.sort();
+    v.into_iter().map(|(_, p)| p).collect()
+}
+
+/// The 27 chunks a mesh of `pos` reads, with their versions.
+pub fn stamp(pos: ChunkPos, version_of: impl Fn(ChunkPos) -> u64) -> Vec<(ChunkPos, u64)> {
+    with_neighbours(pos).map(|p| (p, version_of(p))).collect()
+}
+
+impl super::Engine {
+    /// Queues background meshes around a player who entered a new chunk.
+    pub(super) fn premesh_around(&mut self, session: u64, feet: FixedVec3) {
+        let radius = self.cfg.premesh_radius;
+        let center = VoxelPos::new(
+            feet.x.floor_voxel(),
+            feet.y.floor_voxel(),
+            feet.z.floor_voxel(),
+        )
+        .chunk();
+        let Some(peer) = self.peers.get_mut(&session) else {
+            return;
+        };
+        if radius == 0 || peer.premeshed == Some(center) {
+            return;
+        }
+        peer.premeshed = Some(center);
+        let version_of =
+            |versions: &HashMap<ChunkPos, u64>, p: ChunkPos| versions.get(&p).copied().unwrap_or(0);
+        let targets: Vec<PremeshTarget> = around(center, radius)
+            .into_iter()
+            .filter(|p| !self.premesh.is_inflight(*p))
+            .filter(|p| {
+                let v = version_of(&self.versions, *p);
+                self.seq.collision().get(*p, v).is_none()
+            })
+            .map(|pos| PremeshTarget {
+                pos,
+                version: version_of(&self.versions, pos),
+                stamp: stamp(pos, |p| version_of(&self.versions, p)),
+            })
+            .collect();
+        if targets.is_empty() {
+            return;
+        }
+        if !self.premesh.has_room(targets.len()) {
+            metrics::counter!(m::PREMESH_SKIPPED).increment(targets.len() as u64);
+            return;
+        }
+        let mut reads: Vec<ChunkPos> = targets
+            .iter()
+            .flat_map(|t| t.stamp.iter().map(|(p, _)| *p))
+            .filter(|p| self.versions.contains_key(p))
+            .collect();
+        reads.sort();
+        reads.dedup();
+        if let Err(e) = self.make_resident(&reads) {
+            tracing::error!(error = %e, "store read failed");
+            return;
+        }
+        let modified = reads
+            .iter()
+            .filter_map(|p| Some((*p, Arc::new(self.seq.world().peek(*p)?.chunk.clone()))))
+            .collect();
+        self.premesh.submit(PremeshJob {
+            targets,
+            modified,
+            generator: self.seq.world().generator().clone(),
+        });
+    }
+
+    /// Caches finished background meshes that are still current.
+    pub(super) fn collect_premeshed(&mut self) {
+        for r in self.premesh.drain() {
+            let versions = &self.versions;
+            if r.is_current(|p| versions.get(&p).copied().unwrap_or(0)) {
+                metrics::counter!(m::PREMESH_BUILT).increment(1);
+                self.seq.insert_collision_mesh(r.mesh);
+            } else {
+                metrics::counter!(m::PREMESH_STALE).increment(1);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::{Duration, Instant};
+
+    use super::*;
+    use strata_terrain::gen::{GenParams, Generator};
+    use strata_terrain::World;
+
+    fn generator() -> Arc<dyn ChunkGenerator> {
+        Arc::new(Generator::fractal(GenParams::default()).expect("default params are valid"))
+    }
+
+    fn wait_for(p: &mut Premesher, n: usize) -> Vec<PremeshResult> {
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let mut out = Vec::new();
+        while out.len() < n && Instant::now() < deadline {
+            out.extend(p.drain());
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        out
+    }
+
+    #[test]
+    fn background_mesh_equals_world_mesh_and_goes_stale_on_change() {
+        let g = generator();
+        let mut world = World::new(g.clone());
+        let surface = (0..16)
+            .map(|y| ChunkPos::new(0, y - 8, 0))
+            .find(|p| !matches!(world.chunk(*p).chunk, Chunk::Uniform(_)))
+            .expect("a surface chunk near the origin");
+        // One modified neighbour: its copy must be what the job meshes.
+        let above = surface.offset(0, 1, 0).unwrap();
+        let mut edited = world.chunk(above).chunk.clone();
+        edited.set(3, 0, 3, strata_terrain::Voxel::solid(3));
+        let v = world.commit(above, edited.clone());
+        let version_of = |p: ChunkPos| world.peek(p).map_or(0, |c| c.version);
+        let job = PremeshJob {
+            targets: vec![PremeshTarget {
+                pos: surface,
+                version: 0,
+                stamp: stamp(surface, version_of),
+            }],
+            modified: HashMap::from([(above, Arc::new(edited))]),
+            generator: g.clone(),
+        };
+        let mut pm = Premesher::new(4).unwrap();
+        assert!(pm.submit(job));
+        assert!(pm.is_inflight(surface));
+        let done = wait_for(&mut pm, 1);
+        assert_eq!(done.len(), 1, "the job finishes");
+        assert_eq!(pm.inflight(), 0);
+        let expected = CollisionMesh::build(surface, 0, &Neighborhood::from_world(&world, surface));
+        assert_eq!(done[0].mesh.hash, expected.hash);
+        assert!(!done[0].mesh.mesh.indices.is_empty());
+        assert!(done[0].is_current(version_of));
+        // The neighbour moves on: the result is stale.
+        assert!(!done[0].is_current(|p| if p == above { v + 1 } else { version_of(p) }));
+    }
+
+    #[test]
+    fn submit_is_bounded_and_deduplicated() {
+        let g = generator();
+        let mut pm = Premesher::new(2).unwrap();
+        let job = |pos: ChunkPos| PremeshJob {
+            targets: vec![PremeshTarget {
+                pos,
+                version: 0,
+                stamp: stamp(pos, |_| 0),
+            }],
+            modified: HashMap::new(),
+            generator: g.clone(),
+        };
+        let (a, b, c) = (
+            ChunkPos::new(0, 0, 0),
+            ChunkPos::new(1, 0, 0),
+            ChunkPos::new(2, 0, 0),
+        );
+        assert!(pm.submit(job(a)));
+        assert!(!pm.submit(job(a)), "already in flight");
+        assert!(pm.submit(job(b)));
+        assert!(!pm.submit(job(c)), "full");
+        assert_eq!(wait_for(&mut pm, 2).len(), 2);
+        assert!(pm.submit(job(c)), "room again after draining");
+        assert_eq!(wait_for(&mut pm, 1).len(), 1);
+    }
+
+    #[test]
+    fn around_is_nearest_first() {
+        let c = ChunkPos::new(5, 5, 5);
+        let v = around(c, 1);
+        assert_eq!(v.len(), 27);
+        assert_eq!(v[0], c);
+        assert!(around(c, 0) == vec![c]);
+    }
+}
