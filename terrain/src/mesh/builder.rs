@@ -8,7 +8,7 @@
 //! data (samples equal to or next to the isovalue) cannot collapse triangles to zero area.
 
 use super::material::vertex_material;
-use super::neighborhood::{index, Neighborhood};
+use super::neighborhood::{index, Neighborhood, STEP_Y, STEP_Z};
 use super::normals::{edge_normal, gradient};
 use super::types::{Mesh, VertexKey};
 
@@ -49,24 +49,23 @@ impl<'a> Builder<'a> {
     #[inline(always)]
     fn vertex_data(&self, lower: [i32; 3], axis: usize, len: u32) -> ([f32; 3], [f32; 3], u8) {
         let density = self.nb.densities();
-        let mut upper = lower;
-        upper[axis] += len as i32;
-        let a = density[index(lower[0], lower[1], lower[2])];
-        let b = density[index(upper[0], upper[1], upper[2])];
+        let il = index(lower[0], lower[1], lower[2]);
+        let iu = il + [1, STEP_Y, STEP_Z][axis] * len as usize;
+        let (a, b) = (density[il], density[iu]);
         let q = quantize_t(a, b, f64::from(self.iso));
         let mut pos = lower.map(|c| c as f32);
         pos[axis] =
             (f64::from(lower[axis]) + f64::from(q) * f64::from(len) / f64::from(T_ONE)) as f32;
         let lower_solid = f32::from(a) > self.iso;
         let normal = edge_normal(
-            gradient(density, lower),
-            gradient(density, upper),
+            gradient(density, il),
+            gradient(density, iu),
             q,
             T_ONE,
             axis,
             lower_solid,
         );
-        let solid_at = if lower_solid { lower } else { upper };
+        let solid_at = if lower_solid { il } else { iu };
         let material = vertex_material(density, self.nb.materials(), self.iso, solid_at, len);
         (pos, normal, material)
     }

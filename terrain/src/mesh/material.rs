@@ -11,18 +11,19 @@
 //! grass stays grass at coarse LOD. With one solid corner per vertex, "the highest surface among
 //! the solid corners" is this single scan.
 
-use super::neighborhood::{index, MAX_SURFACE_SCAN, STEP_Y};
+use super::neighborhood::{MAX_SURFACE_SCAN, STEP_Y};
 
-/// Material of a vertex whose edge has solid endpoint `solid_at` and length `len` voxels.
+/// Material of a vertex whose edge has its solid endpoint at neighbourhood index `solid_at`
+/// and is `len` voxels long.
 #[inline]
 pub(crate) fn vertex_material(
     density: &[u8],
     material: &[u8],
     iso: f32,
-    solid_at: [i32; 3],
+    solid_at: usize,
     len: u32,
 ) -> u8 {
-    let mut i = index(solid_at[0], solid_at[1], solid_at[2]);
+    let mut i = solid_at;
     let mut last = material[i];
     if len > 1 {
         for _ in 0..MAX_SURFACE_SCAN {

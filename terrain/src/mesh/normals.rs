@@ -5,12 +5,12 @@
 //! f64. So a vertex's normal depends only on its edge's two endpoints and their six
 //! neighbours, and is bit-identical in every chunk that shares the edge: no lighting seams.
 
-use super::neighborhood::{index, STEP_Y, STEP_Z};
+use super::neighborhood::{STEP_Y, STEP_Z};
 
-/// Density gradient at a local sample (uses the samples one voxel away on each axis).
+/// Density gradient at the sample with neighbourhood index `i` (uses the samples one voxel
+/// away on each axis).
 #[inline(always)]
-pub(crate) fn gradient(density: &[u8], p: [i32; 3]) -> [i32; 3] {
-    let i = index(p[0], p[1], p[2]);
+pub(crate) fn gradient(density: &[u8], i: usize) -> [i32; 3] {
     let d = |j: usize| density[j] as i32;
     [
         d(i + 1) - d(i - 1),

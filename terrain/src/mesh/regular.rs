@@ -154,12 +154,13 @@ fn mesh_regular_in(
                 .count_ones() as usize;
         }
     }
-    b.reserve(mixed, mixed * 2);
+    // With slack: growing a vector mid-pass copies it.
+    b.reserve(mixed + mixed / 4, mixed * 2 + mixed / 2);
 
     let layer = gx * gy * 3;
     let slots = &mut scratch.slots;
     for sl in slots.iter_mut() {
-        sl.clear();
+        // No need to clear: every slot a cell reads is written first in this call.
         sl.resize(layer, 0);
     }
     let grid = Grid {
@@ -174,6 +175,7 @@ fn mesh_regular_in(
     // its vertex before the cells that use it, so the cell loop only reads slots. Slots of
     // edges without a sign change keep stale values, but no cell case reads them.
     grid.emit_xy(b, &mut slots[0], 0, cells[1]);
+    let edge_slots = edge_slot_table(gx);
     let mut verts = [0u32; 12];
     for z in 0..cells[2] {
         grid.emit_z(b, &mut slots[z & 1], z);
@@ -196,11 +198,11 @@ fn mesh_regular_in(
                 let data = &REGULAR_CELL_DATA[REGULAR_CELL_CLASS[case as usize] as usize];
                 let entries = &REGULAR_VERTEX_DATA[case as usize];
                 let n = data.get_vertex_count() as usize;
+                let base = (y * gx + x) * 3;
                 for (v, &entry) in verts.iter_mut().zip(entries.iter()).take(n) {
-                    let (ca, cb) = edge_endpoints(entry);
-                    let axis = (ca ^ cb).trailing_zeros() as usize;
-                    let (ox, oy, oz) = (x + (ca & 1), y + ((ca >> 1) & 1), z + ((ca >> 2) & 1));
-                    *v = slots[oz & 1][(oy * gx + ox) * 3 + axis];
+                    let e = edge_slots[usize::from(entry as u8)];
+                    let layer = (z + (e >> EDGE_LAYER_SHIFT) as usize) & 1;
+                    *v = slots[layer][base + (e & EDGE_OFFSET_MASK) as usize];
                 }
                 let tris = data.get_triangle_count() as usize;
                 for tri in data.vertex_index[..tris * 3].chunks_exact(3) {
@@ -213,6 +215,27 @@ fn mesh_regular_in(
             }
         }
     }
+}
+
+/// Bit of an [`edge_slot_table`] entry telling that the edge's slot is in the next z-layer.
+const EDGE_LAYER_SHIFT: u32 = 31;
+/// Bits of an [`edge_slot_table`] entry holding the slot offset from the cell's base slot.
+const EDGE_OFFSET_MASK: u32 = (1 << EDGE_LAYER_SHIFT) - 1;
+
+/// For each vertex entry's low byte (its edge's two corners), where the edge's vertex slot is
+/// relative to the cell's lower corner in rows of `gx` samples: offset, plus a layer bit.
+fn edge_slot_table(gx: usize) -> [u32; 256] {
+    let mut t = [0u32; 256];
+    for (low, slot) in t.iter_mut().enumerate() {
+        let (ca, cb) = edge_endpoints(low as u16);
+        if (ca ^ cb).count_ones() != 1 || ca > 7 || cb > 7 {
+            continue; // not a cube edge; no table entry uses it
+        }
+        let axis = (ca ^ cb).trailing_zeros() as usize;
+        let (dx, dy, dz) = (ca & 1, (ca >> 1) & 1, (ca >> 2) & 1);
+        *slot = ((dy * gx + dx) * 3 + axis) as u32 | ((dz as u32) << EDGE_LAYER_SHIFT);
+    }
+    t
 }
 
 /// The packed sign grid and its shape, for the edge pass.
