@@ -275,3 +275,34 @@ fn unknown_session_is_invalid() {
         Err(RejectReason::Invalid { .. })
     ));
 }
+
+#[test]
+fn reconnecting_does_not_refill_the_bucket() {
+    let v = ValidationConfig {
+        edit_rate: BucketConfig {
+            capacity: 2,
+            per_second: 1,
+        },
+        ..Default::default()
+    };
+    let mut s = ready(v);
+    let e = || mine(X, -1, Z + 4, 1);
+    assert!(s.submit(PLAYER, req(1, e()), 1_000).is_ok());
+    assert!(s.submit(PLAYER, req(2, e()), 1_000).is_ok());
+    s.tick(1_000);
+    // Same player, new session: the spent budget follows them.
+    s.session_left(PLAYER);
+    s.tick(1_100);
+    assert_eq!(s.tracked_players(), 2, "the spent player is remembered");
+    s.session_joined(PLAYER + 200, format!("p{PLAYER}"), Role::Player);
+    s.update_position(PLAYER + 200, at(1, X, 0, Z), 1_200)
+        .expect("standing on flat ground");
+    assert_eq!(
+        s.submit(PLAYER + 200, req(3, e()), 1_200),
+        Err(RejectReason::RateLimited)
+    );
+    // Once the bucket is full again and nobody is connected, it is forgotten.
+    s.session_left(PLAYER + 200);
+    s.tick(10_000);
+    assert_eq!(s.tracked_players(), 1, "only the admin is left");
+}

@@ -229,13 +229,24 @@ impl Sequencer {
         }
     }
 
+    /// A session ended. The player's buckets stay until they have refilled
+    /// ([`Self::prune_limits`]), so reconnecting gives no fresh budget.
     fn release_limits(&mut self, player: &str) {
         if let Some(l) = self.limits.get_mut(player) {
             l.sessions = l.sessions.saturating_sub(1);
-            if l.sessions == 0 {
-                self.limits.remove(player);
-            }
         }
+    }
+
+    /// Forgets the limits of players with no session whose buckets are full
+    /// again at `now_ms`: they carry no information any more.
+    pub fn prune_limits(&mut self, now_ms: u64) {
+        self.limits
+            .retain(|_, l| l.sessions > 0 || !l.is_full(now_ms));
+    }
+
+    /// Players whose rate limits are tracked (connected, or recently spent).
+    pub fn tracked_players(&self) -> usize {
+        self.limits.len()
     }
 
     pub fn session(&self, session_id: u64) -> Option<&Session> {

@@ -20,7 +20,7 @@ pub struct Session {
 pub struct PlayerLimits {
     pub edits: TokenBucket,
     pub volume: TokenBucket,
-    /// Sessions of this player still connected; the limits are dropped at 0.
+    /// Sessions of this player still connected.
     pub sessions: u32,
 }
 
@@ -31,5 +31,15 @@ impl PlayerLimits {
             volume: TokenBucket::new(cfg.volume_rate, now_ms),
             sessions: 0,
         }
+    }
+}
+
+impl PlayerLimits {
+    /// Whether both buckets are full at `now_ms` (refilling them).
+    pub fn is_full(&mut self, now_ms: u64) -> bool {
+        self.edits.refill(now_ms);
+        self.volume.refill(now_ms);
+        self.edits.available() == self.edits.capacity()
+            && self.volume.available() == self.volume.capacity()
     }
 }

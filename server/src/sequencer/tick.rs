@@ -68,6 +68,7 @@ impl Sequencer {
     /// [`Self::tick`] without the meshes: every `mesh_hash` is 0 until
     /// [`Self::finish_tick`] gets the built [`PendingMeshes`].
     pub fn tick_apply(&mut self, now_ms: u64) -> (TickOutput, PendingMeshes) {
+        self.prune_limits(now_ms);
         let mut out = TickOutput::default();
         let mut jobs: Vec<(ChunkPos, u64, Neighborhood)> = Vec::new();
         let mut slots: Vec<MeshSlot> = Vec::new();
