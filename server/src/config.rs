@@ -17,7 +17,9 @@ use strata_protocol::limits::{FRAME_HEADER, MAX_CLIENT_FRAME, MAX_DATAGRAM, MAX_
 use thiserror::Error;
 
 use crate::auth::{HumanDuration, MAX_TOKEN_TTL};
-use crate::engine::{EngineConfig, MAX_COMMAND_QUEUE, MAX_PREMESH_RADIUS, MAX_TICK_MS};
+use crate::engine::{
+    EngineConfig, MAX_COMMAND_QUEUE, MAX_PREMESH_RADIUS, MAX_TICK_MS, MIN_RESIDENT_CHUNKS,
+};
 use crate::heightmap::HeightmapSection;
 use crate::interest::{InterestConfig, MAX_VIEW_RADIUS};
 use crate::sequencer::SequencerConfig;
@@ -416,6 +418,12 @@ impl ServerConfig {
             self.engine.premesh_inflight,
             1,
             MAX_COMMAND_QUEUE,
+        )?;
+        range(
+            "engine.resident_chunks",
+            self.engine.resident_chunks,
+            MIN_RESIDENT_CHUNKS,
+            usize::MAX,
         )?;
         range(
             "sequencer.queue_capacity",

@@ -11,7 +11,7 @@ use std::collections::BTreeSet;
 
 use serde::{Deserialize, Serialize};
 use strata_terrain::edit::FixedVec3;
-use strata_terrain::{ChunkPos, VoxelPos};
+use strata_terrain::ChunkPos;
 
 use crate::validate::WorldBounds;
 
@@ -99,12 +99,7 @@ impl Interest {
         if self.explicit {
             return InterestChange::default();
         }
-        let chunk = VoxelPos::new(
-            feet.x.floor_voxel(),
-            feet.y.floor_voxel(),
-            feet.z.floor_voxel(),
-        )
-        .chunk();
+        let chunk = crate::validate::position::feet_voxel(feet).chunk();
         let r = self.cfg.radius();
         self.recenter(chunk, r)
     }

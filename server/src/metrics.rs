@@ -14,6 +14,7 @@ pub const TICK_SECONDS: &str = "strata_tick_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
 pub const DELTAS_DROPPED: &str = "strata_deltas_dropped_total";
 pub const RESYNCS: &str = "strata_resyncs_total";
+pub const RESIDENT_CHUNKS: &str = "strata_resident_chunks";
 pub const PREMESH_BUILT: &str = "strata_premesh_meshes_total";
 pub const PREMESH_STALE: &str = "strata_premesh_stale_total";
 pub const PREMESH_SKIPPED: &str = "strata_premesh_skipped_total";
@@ -29,6 +30,7 @@ pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
     metrics::describe_gauge!(QUEUE_DEPTH, "Edits waiting for the sequencer");
     metrics::describe_histogram!(FLUSH_SECONDS, "Group-commit latency");
     metrics::describe_counter!(BYTES_SENT, "Bytes written to clients");
+    metrics::describe_gauge!(RESIDENT_CHUNKS, "Chunks held in the sequencer's memory");
     metrics::describe_counter!(PREMESH_BUILT, "Collision meshes built ahead of need");
     metrics::describe_counter!(PREMESH_STALE, "Background meshes dropped as outdated");
     metrics::describe_counter!(

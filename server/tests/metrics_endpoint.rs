@@ -3,8 +3,6 @@
 
 mod common;
 
-use std::io::{Read, Write};
-use std::net::TcpStream;
 use std::time::Duration;
 
 use common::*;
@@ -12,26 +10,13 @@ use strata_client_sim::Verdict;
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::{Edit, FixedVec3};
 
-fn scrape(addr: std::net::SocketAddr) -> String {
-    let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n")
-        .unwrap();
-    let mut body = String::new();
-    s.read_to_string(&mut body).unwrap();
-    body
-}
-
 #[tokio::test]
 async fn metrics_count_what_happened() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let root = tempfile::tempdir().unwrap();
         let data = root.path().join("data");
         // A free port for the exporter (it takes a fixed address).
-        let metrics = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap();
+        let metrics = free_metrics_addr();
         let config = format!("{FAST_EDITS}[metrics]\nlisten = \"{metrics}\"\n");
         let (mut child, addr) = spawn_server(&data, &config);
         let c = process_client(&data, addr, "ana").await;
@@ -70,11 +55,7 @@ async fn metrics_count_what_happened() {
         let deadline = std::time::Instant::now() + Duration::from_secs(20);
         let premeshed = loop {
             let text = scrape(metrics);
-            let n = text
-                .lines()
-                .find_map(|l| l.strip_prefix("strata_premesh_meshes_total "))
-                .and_then(|v| v.trim().parse::<f64>().ok());
-            match n {
+            match metric(&text, "strata_premesh_meshes_total") {
                 Some(n) if n >= 20.0 => break n,
                 _ if std::time::Instant::now() > deadline => panic!("no premeshing:\n{text}"),
                 _ => tokio::time::sleep(Duration::from_millis(100)).await,

@@ -136,6 +136,15 @@ impl World {
     pub fn evict_generated(&mut self, keep: impl Fn(ChunkPos) -> bool) {
         self.chunks.retain(|p, c| c.version > 0 || keep(*p));
     }
+
+    /// Drops every chunk for which `keep` is false, modified ones too: only
+    /// for callers that hold the modified chunks elsewhere (a store) and
+    /// load them again before reading. Returns how many were dropped.
+    pub fn evict(&mut self, keep: impl Fn(ChunkPos) -> bool) -> usize {
+        let before = self.chunks.len();
+        self.chunks.retain(|p, _| keep(*p));
+        before - self.chunks.len()
+    }
 }
 
 impl ChunkRead for World {

@@ -18,6 +18,7 @@ mod stream;
 pub use command::{Command, JoinReply, Kick};
 pub use fanout::encode_control as fanout_control;
 pub use premesh::{DEFAULT_PREMESH_INFLIGHT, DEFAULT_PREMESH_RADIUS, MAX_PREMESH_RADIUS};
+pub use residency::{DEFAULT_RESIDENT_CHUNKS, MIN_RESIDENT_CHUNKS};
 
 use std::collections::HashMap;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender};
@@ -57,6 +58,8 @@ pub struct EngineConfig {
     pub premesh_radius: u8,
     /// Background mesh jobs in flight at most ([`DEFAULT_PREMESH_INFLIGHT`]).
     pub premesh_inflight: usize,
+    /// Chunks held in memory before cold ones are dropped ([`DEFAULT_RESIDENT_CHUNKS`]).
+    pub resident_chunks: usize,
 }
 
 impl Default for EngineConfig {
@@ -66,6 +69,7 @@ impl Default for EngineConfig {
             command_queue: DEFAULT_COMMAND_QUEUE,
             premesh_radius: DEFAULT_PREMESH_RADIUS,
             premesh_inflight: DEFAULT_PREMESH_INFLIGHT,
+            resident_chunks: DEFAULT_RESIDENT_CHUNKS,
         }
     }
 }
@@ -100,6 +104,7 @@ pub struct Engine {
     versions: HashMap<ChunkPos, u64>,
     snapshots: stream::SnapshotCache,
     premesh: premesh::Premesher,
+    last_evict: Option<Instant>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -147,6 +152,7 @@ impl Engine {
             peers: HashMap::new(),
             versions,
             snapshots: Default::default(),
+            last_evict: None,
         })
     }
 
@@ -338,6 +344,7 @@ impl Engine {
             fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq);
         }
         self.stream_snapshots();
+        self.evict_cold();
         self.drop_failed();
         metrics::histogram!(m::TICK_SECONDS).record(started.elapsed().as_secs_f64());
         Ok(())

@@ -13,11 +13,12 @@ use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::sync::{Arc, Mutex};
 
 use strata_terrain::mesh::Neighborhood;
-use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, FixedVec3, VoxelPos};
+use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, FixedVec3};
 
 use crate::collision::CollisionMesh;
 use crate::metrics as m;
 use crate::sequencer::residency::with_neighbours;
+use crate::validate::position::feet_voxel;
 
 /// Chunks around a player's chunk meshed ahead of need (0 disables).
 pub const DEFAULT_PREMESH_RADIUS: u8 = 1;
@@ -217,12 +218,7 @@ impl super::Engine {
     /// Queues background meshes around a player who entered a new chunk.
     pub(super) fn premesh_around(&mut self, session: u64, feet: FixedVec3) {
         let radius = self.cfg.premesh_radius;
-        let center = VoxelPos::new(
-            feet.x.floor_voxel(),
-            feet.y.floor_voxel(),
-            feet.z.floor_voxel(),
-        )
-        .chunk();
+        let center = feet_voxel(feet).chunk();
         let Some(peer) = self.peers.get_mut(&session) else {
             return;
         };

@@ -1,9 +1,24 @@
-//! Loading stored chunks into the sequencer before anything reads them.
+//! Loading stored chunks into the sequencer before anything reads them,
+//! and dropping them again when memory holds too many.
+
+use std::collections::HashSet;
+use std::time::{Duration, Instant};
 
 use strata_terrain::ChunkPos;
 
+use super::premesh::around;
 use super::Engine;
+use crate::metrics as m;
 use crate::store::StoreError;
+
+/// Chunks held in memory (loaded plus known-absent) before cold ones are dropped.
+pub const DEFAULT_RESIDENT_CHUNKS: usize = 8192;
+/// Smallest allowed `engine.resident_chunks`.
+pub const MIN_RESIDENT_CHUNKS: usize = 27;
+/// Chunks within this many chunks of a player are never dropped.
+pub const HOT_RADIUS: u8 = 2;
+/// Least time between two eviction passes.
+pub const EVICT_INTERVAL: Duration = Duration::from_secs(1);
 
 impl Engine {
     /// Makes every listed chunk resident: stored ones are loaded, the rest
@@ -25,5 +40,37 @@ impl Engine {
             }
         }
         Ok(())
+    }
+}
+
+impl Engine {
+    /// Drops chunks far from every player once more than
+    /// `engine.resident_chunks` are held. Modified chunks are durable in the
+    /// store by now (this runs after the tick's commit) and load again when
+    /// needed. Skipped while edits are queued.
+    pub(super) fn evict_cold(&mut self) {
+        let resident = self.seq.resident();
+        metrics::gauge!(m::RESIDENT_CHUNKS).set(resident as f64);
+        if resident <= self.cfg.resident_chunks
+            || self
+                .last_evict
+                .is_some_and(|t| t.elapsed() < EVICT_INTERVAL)
+        {
+            return;
+        }
+        let hot: HashSet<ChunkPos> = self
+            .seq
+            .player_chunks()
+            .flat_map(|c| around(c, HOT_RADIUS))
+            .collect();
+        if let Some(n) = self.seq.evict_cold(|p| hot.contains(&p)) {
+            self.last_evict = Some(Instant::now());
+            tracing::debug!(
+                dropped = n,
+                kept = self.seq.resident(),
+                "evicted cold chunks"
+            );
+            metrics::gauge!(m::RESIDENT_CHUNKS).set(self.seq.resident() as f64);
+        }
     }
 }

@@ -202,6 +202,38 @@ impl Sequencer {
         self.world.evict_generated(keep);
     }
 
+    /// Chunks held in memory: loaded ones plus absent marks.
+    pub fn resident(&self) -> usize {
+        self.world.loaded() + self.residency.absent_len()
+    }
+
+    /// Drops chunks and absent marks for which `keep` is false. Modified
+    /// chunks go too when there is a store (it holds them durably; they are
+    /// loaded again before use). Only between ticks with an empty queue:
+    /// queued edits rely on what was resident when they were submitted.
+    /// Returns how many chunks were dropped, or `None` if edits are queued.
+    pub fn evict_cold(&mut self, keep: impl Fn(ChunkPos) -> bool) -> Option<usize> {
+        if !self.queue.is_empty() {
+            return None;
+        }
+        let before = self.world.loaded();
+        if self.residency.is_storeless() {
+            self.world.evict_generated(&keep);
+        } else {
+            self.world.evict(&keep);
+        }
+        self.residency.retain_absent(&keep);
+        Some(before - self.world.loaded())
+    }
+
+    /// Chunks each session stands in (sessions with a validated position).
+    pub fn player_chunks(&self) -> impl Iterator<Item = ChunkPos> + '_ {
+        self.sessions
+            .values()
+            .filter_map(|s| s.position)
+            .map(|p| position::feet_voxel(p.feet).chunk())
+    }
+
     // ------------------------------------------------------------ sessions
 
     pub fn session_joined(&mut self, session_id: u64, player: String, role: Role) {

@@ -58,6 +58,20 @@ impl Residency {
         self.absent.remove(&pos);
     }
 
+    /// Forgets absent marks for which `keep` is false.
+    pub fn retain_absent(&mut self, keep: impl Fn(ChunkPos) -> bool) {
+        self.absent.retain(|p| keep(*p));
+    }
+
+    /// Chunks marked absent.
+    pub fn absent_len(&self) -> usize {
+        self.absent.len()
+    }
+
+    pub fn is_storeless(&self) -> bool {
+        self.storeless
+    }
+
     pub fn is_resident(&self, world: &World, pos: ChunkPos) -> bool {
         self.storeless || world.peek(pos).is_some() || self.absent.contains(&pos)
     }

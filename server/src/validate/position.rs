@@ -38,6 +38,15 @@ pub fn nearest_voxel(p: [f64; 3]) -> VoxelPos {
     VoxelPos::new(r(p[0]), r(p[1]), r(p[2]))
 }
 
+/// The voxel containing the feet.
+pub fn feet_voxel(feet: FixedVec3) -> VoxelPos {
+    VoxelPos::new(
+        feet.x.floor_voxel(),
+        feet.y.floor_voxel(),
+        feet.z.floor_voxel(),
+    )
+}
+
 /// Eye position in world voxel units.
 pub fn eye(feet: FixedVec3, cfg: &ValidationConfig) -> [f64; 3] {
     let [x, y, z] = feet.to_f64();
