@@ -105,6 +105,12 @@ fn lod0_chunk_hashes_are_the_servers_and_the_weld_is_closed() {
     assert_eq!(stats["triangles"].as_u64().unwrap(), triangles);
     assert_eq!(stats["chunks"], 3 * 3 * 13);
 
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(&out).unwrap().permissions().mode();
+        assert_eq!(mode & 0o777, 0o644, "an ordinary readable file");
+    }
     let mesh = read_ply(&std::fs::read(&out).unwrap()).unwrap();
     assert_eq!(
         mesh.positions.len() as u64,

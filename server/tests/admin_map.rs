@@ -99,11 +99,19 @@ fn slice_png_and_svg_show_the_stored_world() {
     let (bx, bz, _) = BRICK;
     assert_eq!(img.at_world(bx, bz), rgb(ids::BRICK));
     let colours = img.colours();
-    assert!(colours.contains(&palette::AIR), "air around the box");
+    assert!(colours.contains(&palette::AIR), "open air around the box");
     assert!(colours.contains(&palette::SOLID_OUTLINE), "outlines drawn");
     assert!(colours.len() >= 4, "not blank: {colours:?}");
     let lines = r["lines"].as_u64().unwrap();
     assert!(lines >= 1);
+
+    // Deep down every air pocket is a cave: solid ground above it.
+    let deep = fx.data_dir().join("deep.png");
+    report(&render(&fx, &deep, &["--y", "-40"], &[]));
+    let colours = Png::read(&deep).colours();
+    assert!(colours.contains(&palette::CAVE_AIR), "caves at y = -40");
+    assert!(colours.contains(&palette::CAVE_OUTLINE));
+    assert!(!colours.contains(&palette::AIR), "no open air underground");
 
     let svg_path = fx.data_dir().join("slice.svg");
     let r2 = report(&render(&fx, &svg_path, &["--y", &level], &[]));

@@ -158,6 +158,10 @@ pub fn write_mesh(
     }
 }
 
+/// Mode of exported files: readable by everyone, like any file a user saves
+/// (temporary files start private).
+pub const OUTPUT_MODE: u32 = 0o644;
+
 /// A temporary file next to `out` (same directory, so it can be renamed
 /// onto `out` once complete): outputs never appear half-written.
 pub fn stage_output(out: &Path) -> std::io::Result<tempfile::NamedTempFile> {
@@ -165,9 +169,16 @@ pub fn stage_output(out: &Path) -> std::io::Result<tempfile::NamedTempFile> {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
-    tempfile::Builder::new()
+    let tmp = tempfile::Builder::new()
         .prefix(".strata-out-")
-        .tempfile_in(dir)
+        .tempfile_in(dir)?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        tmp.as_file()
+            .set_permissions(std::fs::Permissions::from_mode(OUTPUT_MODE))?;
+    }
+    Ok(tmp)
 }
 
 #[cfg(test)]

@@ -2,8 +2,9 @@
 //! the Marching Squares contours of `strata_terrain::contour`.
 //!
 //! - `--y LEVEL`: the horizontal slice at that height. Solid voxels take
-//!   their material's colour, air is dark; the solid/air boundary is drawn
-//!   black, and loops around air enclosed by rock (caves) yellow.
+//!   their material's colour; open air is dark blue and cave air (air with
+//!   solid ground above it) dark brown; the solid/air boundary is drawn
+//!   black where it borders open air and yellow around caves.
 //! - `--top-down`: the surface seen from above, coloured by its material and
 //!   shaded by height, with height contours every `--interval` voxels (every
 //!   fifth heavier).
@@ -31,8 +32,10 @@ use super::world_source::{
     progress_bar, ChunkBox, OfflineArgs, OfflineWorld, RegionArgs, WorldSourceError,
 };
 
+/// Samples along a chunk column's side.
+const COLUMN_SIDE: usize = CHUNK_SIZE as usize;
 /// Samples per chunk column (32 x 32).
-const COLUMN_AREA: usize = (CHUNK_SIZE * CHUNK_SIZE) as usize;
+const COLUMN_AREA: usize = COLUMN_SIDE * COLUMN_SIDE;
 /// Largest `--interval`.
 pub const MAX_INTERVAL: u32 = 4096;
 
@@ -42,8 +45,8 @@ pub const MAX_INTERVAL: u32 = 4096;
 pub struct RenderMapArgs {
     #[command(flatten)]
     pub world: OfflineArgs,
-    /// Horizontal slice at this height (voxels): solid by material, air dark,
-    /// ground outlines black and cave outlines yellow.
+    /// Horizontal slice at this height (voxels): solid by material, open air
+    /// and cave air dark, ground outlines black and cave outlines yellow.
     #[arg(long, value_name = "LEVEL", allow_negative_numbers = true)]
     pub y: Option<i32>,
     /// Top-down view: the surface by material, shaded by height, with height
@@ -125,7 +128,10 @@ pub fn run(args: &RenderMapArgs, show_progress: bool) -> Result<MapReport, Rende
     let cols = args.region.columns()?;
     let world = OfflineWorld::open(&args.world)?;
     let (map, levels) = match args.y {
-        Some(level) => (slice_map(&world, cols, level, args.scale)?, Vec::new()),
+        Some(level) => (
+            slice_map(&world, cols, level, args.scale, show_progress)?,
+            Vec::new(),
+        ),
         None => top_down_map(&world, cols, args.interval, args.scale, show_progress)?,
     };
     let (width_px, height_px) = map.pixel_size()?;
@@ -183,12 +189,15 @@ fn material_legend(table: &MaterialTable, mut ids: Vec<u8>) -> Vec<(String, Rgb)
         .collect()
 }
 
-/// The horizontal slice at `level`.
+/// The horizontal slice at `level`. Air under the surface (solid somewhere
+/// above it in its column) is cave air, and an outline bordering cave air
+/// is a cave outline.
 fn slice_map(
     world: &OfflineWorld,
     cols: [i32; 4],
     level: i32,
     scale: u32,
+    show_progress: bool,
 ) -> Result<MapImage, RenderMapError> {
     let [x0, z0, x1, z1] = cols;
     let row = level.div_euclid(CHUNK_SIZE);
@@ -206,27 +215,50 @@ fn slice_map(
             region,
         },
     )?;
+    let surface = region_surface(world, cols, row, show_progress)?;
     let table = MaterialTable::default();
     let (width, height) = (region.width(), region.height());
+    let index = |u: i32, v: i32| -> Option<usize> {
+        let (i, j) = (u - region.min[0], v - region.min[1]);
+        let inside = (0..width as i32).contains(&i) && (0..height as i32).contains(&j);
+        inside.then(|| j as usize * width as usize + i as usize)
+    };
+    let is_solid = |u: i32, v: i32| {
+        grid.voxel(u, v)
+            .is_some_and(|vox| f32::from(vox.density) > DENSITY_ISO)
+    };
+    let is_cave_air = |u: i32, v: i32| {
+        !is_solid(u, v)
+            && index(u, v)
+                .and_then(|k| surface[k])
+                .is_some_and(|(h, _)| h > level as f32)
+    };
     let mut fill = Vec::with_capacity(width as usize * height as usize);
     let mut present = Vec::new();
     for v in region.min[1]..=region.max[1] {
         for u in region.min[0]..=region.max[0] {
             let vox = grid.voxel(u, v).unwrap_or_default();
-            if f32::from(vox.density) > DENSITY_ISO {
+            fill.push(if is_solid(u, v) {
                 present.push(vox.material);
-                fill.push(palette::material(&table, vox.material));
+                palette::material(&table, vox.material)
+            } else if is_cave_air(u, v) {
+                palette::CAVE_AIR
             } else {
-                fill.push(palette::AIR);
-            }
+                palette::AIR
+            });
         }
     }
     let lines = grid
         .contours(DENSITY_ISO)?
         .into_iter()
         .map(|p| {
-            // Inside (solid) is on the left: a negative loop encloses air.
-            let cave = p.closed && p.signed_area() < 0.0;
+            // The samples at the corners of the cell holding the first point.
+            let cave = p.points.first().is_some_and(|&[x, z]| {
+                let (u, v) = (x.floor() as i32, z.floor() as i32);
+                [(u, v), (u + 1, v), (u, v + 1), (u + 1, v + 1)]
+                    .iter()
+                    .any(|&(u, v)| is_cave_air(u, v))
+            });
             MapLine {
                 color: if cave {
                     palette::CAVE_OUTLINE
@@ -240,7 +272,8 @@ fn slice_map(
         })
         .collect();
     let mut legend = material_legend(&table, present);
-    legend.push(("air".into(), palette::AIR));
+    legend.push(("open air".into(), palette::AIR));
+    legend.push(("cave air".into(), palette::CAVE_AIR));
     legend.push(("ground outline".into(), palette::SOLID_OUTLINE));
     legend.push(("cave outline".into(), palette::CAVE_OUTLINE));
     Ok(MapImage {
@@ -298,7 +331,7 @@ pub fn column_surface(
                 if surface[col].is_some() {
                     continue;
                 }
-                let v = chunk.get(col % 32, ly, col / 32);
+                let v = chunk.get(col % COLUMN_SIDE, ly, col / COLUMN_SIDE);
                 if f32::from(v.density) > DENSITY_ISO {
                     let y = cy * CHUNK_SIZE + ly as i32;
                     surface[col] = Some((crossing(y, v.density, above[col]), v.material));
@@ -312,16 +345,17 @@ pub fn column_surface(
     surface
 }
 
-/// The top-down view with height contours every `interval` voxels.
-fn top_down_map(
+/// The surface of every column of the region (see [`column_surface`]),
+/// row-major with x fastest, scanning down to chunk row `lowest_row`.
+fn region_surface(
     world: &OfflineWorld,
     cols: [i32; 4],
-    interval: u32,
-    scale: u32,
+    lowest_row: i32,
     show_progress: bool,
-) -> Result<(MapImage, Vec<f32>), RenderMapError> {
+) -> Result<Vec<Option<(f32, u8)>>, RenderMapError> {
     let [x0, z0, x1, z1] = cols;
-    let rows = world.rows();
+    let top = *world.rows().end();
+    let rows = lowest_row.min(top)..=top;
     let w: World = world.world(ChunkBox {
         min: ChunkPos::new(x0, *rows.start(), z0),
         max: ChunkPos::new(x1, *rows.end(), z1),
@@ -339,17 +373,29 @@ fn top_down_map(
         })
         .collect();
     bar.finish_and_clear();
-
-    let region = voxel_rect(cols)?;
-    let (width, height) = (region.width() as usize, region.height() as usize);
+    let width = (x1 - x0 + 1) as usize * COLUMN_SIDE;
     let nx = (x1 - x0 + 1) as usize;
-    let mut cells: Vec<Option<(f32, u8)>> = vec![None; width * height];
+    let mut cells = vec![None; width * (z1 - z0 + 1) as usize * COLUMN_SIDE];
     for (k, s) in surfaces.iter().enumerate() {
-        let (ox, oz) = ((k % nx) * 32, (k / nx) * 32);
+        let (ox, oz) = ((k % nx) * COLUMN_SIDE, (k / nx) * COLUMN_SIDE);
         for (col, v) in s.iter().enumerate() {
-            cells[(oz + col / 32) * width + ox + col % 32] = *v;
+            cells[(oz + col / COLUMN_SIDE) * width + ox + col % COLUMN_SIDE] = *v;
         }
     }
+    Ok(cells)
+}
+
+/// The top-down view with height contours every `interval` voxels.
+fn top_down_map(
+    world: &OfflineWorld,
+    cols: [i32; 4],
+    interval: u32,
+    scale: u32,
+    show_progress: bool,
+) -> Result<(MapImage, Vec<f32>), RenderMapError> {
+    let cells = region_surface(world, cols, *world.rows().start(), show_progress)?;
+    let region = voxel_rect(cols)?;
+    let (width, height) = (region.width() as usize, region.height() as usize);
     let found = cells.iter().flatten().map(|c| c.0);
     let (lo, hi) = found.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), h| {
         (lo.min(h), hi.max(h))

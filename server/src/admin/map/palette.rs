@@ -4,13 +4,15 @@ use strata_terrain::{MaterialId, MaterialTable};
 
 use super::Rgb;
 
-/// Air in a horizontal slice.
+/// Open air (nothing solid above it) in a horizontal slice.
 pub const AIR: Rgb = [0x1b, 0x20, 0x2b];
+/// Cave air (solid somewhere above it) in a horizontal slice.
+pub const CAVE_AIR: Rgb = [0x3a, 0x24, 0x18];
 /// Columns without any ground in a top-down map.
 pub const VOID: Rgb = [0x10, 0x10, 0x14];
 /// Outline of solid ground in a slice.
 pub const SOLID_OUTLINE: Rgb = [0x0a, 0x0a, 0x0a];
-/// Outline of a cave (air enclosed by rock) in a slice.
+/// Outline of a cave (rock bordering cave air) in a slice.
 pub const CAVE_OUTLINE: Rgb = [0xff, 0xc4, 0x1f];
 /// Ordinary height contour.
 pub const CONTOUR: Rgb = [0x3b, 0x2a, 0x1a];
