@@ -37,8 +37,9 @@ enum Command {
     /// Draw a map of a stopped server's world (PNG or SVG).
     ///
     /// `--y LEVEL` draws the horizontal slice at that height: solid voxels
-    /// by material, air dark, ground outlines black and cave outlines
-    /// yellow (Marching Squares contours). `--top-down` draws the surface
+    /// by material, open air dark blue, cave air (solid above it) dark
+    /// brown, ground outlines black and cave outlines yellow (Marching
+    /// Squares contours). `--top-down` draws the surface
     /// by material, shaded by height, with height contours every
     /// `--interval` voxels. The world is the data dir's stored chunks over
     /// its generator; the server must be stopped.
