@@ -49,6 +49,24 @@ fn load_zones(store: &dyn ChunkStore, cfg: &ServerConfig) -> anyhow::Result<Vec<
     }
 }
 
+/// The world's generator from the config, and the generator parameter text
+/// its store records (compared on every start, so a data dir refuses a
+/// changed generator).
+pub fn world_generator(cfg: &ServerConfig) -> anyhow::Result<(Generator, String)> {
+    let params = &cfg.world.generator;
+    Ok(match &cfg.world.heightmap {
+        Some(section) => {
+            let (g, fingerprint) = crate::heightmap::load(section, params)?;
+            // The fingerprint makes the data dir refuse a different map.
+            (g, format!("{}# {fingerprint}\n", toml::to_string(params)?))
+        }
+        None => (
+            Generator::fractal(params.clone())?,
+            toml::to_string(params)?,
+        ),
+    })
+}
+
 /// Opens the data dir and store, checks the world metadata against the
 /// config, and binds the endpoint. Nothing is accepted until [`Running`]
 /// exists; call [`Running::shutdown`] to stop.
@@ -72,17 +90,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         min_y: params.min_y,
         max_y: params.max_y,
     };
-    let (generator, generator_params) = match &cfg.world.heightmap {
-        Some(section) => {
-            let (g, fingerprint) = crate::heightmap::load(section, &params)?;
-            // The fingerprint makes the data dir refuse a different map.
-            (g, format!("{}# {fingerprint}\n", toml::to_string(&params)?))
-        }
-        None => (
-            Generator::fractal(params.clone())?,
-            toml::to_string(&params)?,
-        ),
-    };
+    let (generator, generator_params) = world_generator(&cfg)?;
     let meta = store.init_meta(&WorldMeta {
         format_version: STORE_FORMAT_VERSION,
         seed: params.seed,

@@ -12,14 +12,16 @@ pub enum ExportFormat {
     Ply,
     /// Wavefront OBJ text (positions, normals, faces; no materials).
     Obj,
+    /// glTF 2.0 binary: positions, normals, material colours and ids.
+    Glb,
 }
 
 /// Why a mesh could not be exported or read back.
 #[derive(Debug, Error)]
 pub enum ExportError {
-    #[error("output file {path:?} has no extension; use .ply or .obj")]
+    #[error("output file {path:?} has no extension; use .ply, .obj or .glb")]
     NoExtension { path: String },
-    #[error("output file {path:?} has unknown extension {ext:?}; use .ply or .obj")]
+    #[error("output file {path:?} has unknown extension {ext:?}; use .ply, .obj or .glb")]
     UnknownExtension { path: String, ext: String },
     #[error(
         "mesh arrays disagree: {positions} positions, {normals} normals, {materials} materials"
@@ -44,6 +46,16 @@ pub enum ExportError {
     Io(#[from] std::io::Error),
 }
 
+impl ExportError {
+    /// Bytes that are not in the layout `format`'s reader expects.
+    pub fn malformed(format: &'static str, reason: impl Into<String>) -> Self {
+        ExportError::Malformed {
+            format,
+            reason: reason.into(),
+        }
+    }
+}
+
 impl ExportFormat {
     /// Picks the format from the file extension (case-insensitive).
     pub fn from_path(path: &Path) -> Result<Self, ExportError> {
@@ -57,6 +69,7 @@ impl ExportFormat {
         match ext.to_ascii_lowercase().as_str() {
             "ply" => Ok(ExportFormat::Ply),
             "obj" => Ok(ExportFormat::Obj),
+            "glb" => Ok(ExportFormat::Glb),
             _ => Err(ExportError::UnknownExtension {
                 path: shown,
                 ext: ext.to_string(),
@@ -141,7 +154,31 @@ pub fn write_mesh(
     match format {
         ExportFormat::Ply => super::ply::write_ply(mesh, out),
         ExportFormat::Obj => super::obj::write_obj(mesh, out),
+        ExportFormat::Glb => super::glb::write_glb(mesh, out),
     }
+}
+
+/// Mode of exported files: readable by everyone, like any file a user saves
+/// (temporary files start private).
+pub const OUTPUT_MODE: u32 = 0o644;
+
+/// A temporary file next to `out` (same directory, so it can be renamed
+/// onto `out` once complete): outputs never appear half-written.
+pub fn stage_output(out: &Path) -> std::io::Result<tempfile::NamedTempFile> {
+    let dir = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let tmp = tempfile::Builder::new()
+        .prefix(".strata-out-")
+        .tempfile_in(dir)?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        tmp.as_file()
+            .set_permissions(std::fs::Permissions::from_mode(OUTPUT_MODE))?;
+    }
+    Ok(tmp)
 }
 
 #[cfg(test)]

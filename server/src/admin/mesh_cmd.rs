@@ -45,8 +45,8 @@ pub struct MeshArgs {
     /// Worker threads for meshing [default: all cores].
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=MAX_THREADS as i64))]
     pub threads: Option<u32>,
-    /// Output mesh; the format follows the extension: .ply (binary) or .obj.
-    #[arg(long, value_name = "FILE.ply|FILE.obj")]
+    /// Output mesh; the format follows the extension: .ply (binary), .obj or .glb.
+    #[arg(long, value_name = "FILE.ply|FILE.obj|FILE.glb")]
     pub out: Option<PathBuf>,
     /// Print one JSON line of statistics on stdout.
     #[arg(long)]
@@ -207,17 +207,10 @@ pub fn run(args: &MeshArgs, show_progress: bool) -> Result<MeshReport, MeshCmdEr
 
 /// A temporary file next to `out`, renamed onto it once complete.
 fn stage_output(out: &Path) -> Result<tempfile::NamedTempFile, MeshCmdError> {
-    let dir = match out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    tempfile::Builder::new()
-        .prefix(".strata-mesh-")
-        .tempfile_in(dir)
-        .map_err(|error| MeshCmdError::WriteOutput {
-            path: out.to_path_buf(),
-            error,
-        })
+    super::export::stage_output(out).map_err(|error| MeshCmdError::WriteOutput {
+        path: out.to_path_buf(),
+        error,
+    })
 }
 
 fn progress_bar(wanted: bool, chunks: u64) -> ProgressBar {

@@ -1,9 +1,15 @@
 //! `strata-admin` commands. The binary only parses arguments and prints;
 //! the work lives here so it can be tested without a process.
 
+pub mod check;
 pub mod export;
+pub mod export_mesh;
 pub mod generate;
+pub mod glb;
+pub mod map;
 pub mod mesh_cmd;
 pub mod obj;
 pub mod ply;
+pub mod render_map;
 pub mod token_cmd;
+pub mod world_source;

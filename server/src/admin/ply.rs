@@ -68,10 +68,7 @@ pub fn write_ply(mesh: MeshRef<'_>, out: &mut impl Write) -> Result<(), ExportEr
 }
 
 fn malformed(reason: impl Into<String>) -> ExportError {
-    ExportError::Malformed {
-        format: FORMAT,
-        reason: reason.into(),
-    }
+    ExportError::malformed(FORMAT, reason)
 }
 
 /// Reads back a PLY file in exactly the layout [`write_ply`] produces. Other

@@ -7,7 +7,10 @@
 //! - a chunk's `to_version`s rise with seq;
 //! - every chunk record decodes, and its version is the highest
 //!   `to_version` the log gives it (no chunk without a log entry, no log
-//!   entry whose chunk is missing).
+//!   entry whose chunk is missing);
+//! - nothing else is stored: no meta key besides the world record and
+//!   `last_seq`, and no tree besides meta, chunks, log and blobs (records
+//!   there are orphans no code reads).
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -78,6 +81,15 @@ pub enum CheckIssue {
         logged: u64,
         seq: u64,
     },
+    /// A meta record this version does not write.
+    UnknownMetaKey {
+        key: String,
+    },
+    /// A tree this version does not use, with its record count.
+    UnknownTree {
+        name: String,
+        records: u64,
+    },
 }
 
 impl fmt::Display for CheckIssue {
@@ -130,6 +142,16 @@ impl fmt::Display for CheckIssue {
                 "{}: stored at version {stored} but log seq {seq} moved it to {logged}",
                 show_pos(*pos)
             ),
+            UnknownMetaKey { key } => {
+                write!(
+                    f,
+                    "meta key {key}: orphaned record (not written by this version)"
+                )
+            }
+            UnknownTree { name, records } => write!(
+                f,
+                "tree {name}: {records} orphaned records in a tree this version does not use"
+            ),
         }
     }
 }
@@ -176,6 +198,19 @@ impl Checker {
 
     pub fn meta_issue(&mut self, reason: String) {
         self.issue(CheckIssue::BadMeta { reason });
+    }
+
+    /// A meta key other than the world record and `last_seq`.
+    pub fn unknown_meta_key(&mut self, key: &[u8]) {
+        self.issue(CheckIssue::UnknownMetaKey { key: show_raw(key) });
+    }
+
+    /// A tree other than the store's own, holding `records` records.
+    pub fn unknown_tree(&mut self, name: &[u8], records: u64) {
+        self.issue(CheckIssue::UnknownTree {
+            name: show_raw(name),
+            records,
+        });
     }
 
     /// One log record, in key order.

@@ -378,6 +378,21 @@ impl ChunkStore for SledStore {
     }
 
     fn check(&self) -> Result<CheckReport, StoreError> {
+        self.check_with_progress(&|| {})
+    }
+}
+
+/// sled's own default tree, present in every database.
+const SLED_DEFAULT_TREE: &[u8] = b"__sled__default";
+
+impl SledStore {
+    /// Number of named blobs.
+    pub fn blob_count(&self) -> Result<u64, StoreError> {
+        Ok(self.blobs.len() as u64)
+    }
+
+    /// [`ChunkStore::check`], calling `tick` once per record scanned.
+    pub fn check_with_progress(&self, tick: &dyn Fn()) -> Result<CheckReport, StoreError> {
         let mut checker = Checker::new();
         let world = self.meta.get(META_WORLD)?;
         let last_seq = match self.meta.get(META_LAST_SEQ)? {
@@ -395,13 +410,32 @@ impl ChunkStore for SledStore {
                 checker.meta_issue(e.to_string());
             }
         }
+        for k in self.meta.iter().keys() {
+            let k = k?;
+            if k != META_WORLD && k != META_LAST_SEQ {
+                checker.unknown_meta_key(&k);
+            }
+        }
+        let known = [TREE_META, TREE_CHUNKS, TREE_LOG, TREE_BLOBS].map(str::as_bytes);
+        for name in self.db.tree_names() {
+            if name == SLED_DEFAULT_TREE || known.contains(&&name[..]) {
+                continue;
+            }
+            // An empty tree holds no orphan; sled keeps names it was asked for.
+            let records = self.db.open_tree(&name)?.len() as u64;
+            if records > 0 {
+                checker.unknown_tree(&name, records);
+            }
+        }
         for r in self.log.iter() {
             let (k, v) = r?;
             checker.log_record(&k, &v);
+            tick();
         }
         for r in self.chunks.iter() {
             let (k, v) = r?;
             checker.chunk_record(&k, &v);
+            tick();
         }
         Ok(checker.finish(world.map(|_| last_seq)))
     }

@@ -207,7 +207,11 @@ pub fn mesh_volume_with_progress(
         .collect::<Result<_, _>>()?;
 
     let empty_chunks = meshes.iter().filter(|m| m.is_none()).count() as u64;
-    let mesh = weld(&chunks, meshes)?;
+    let pieces = chunks.iter().zip(meshes).filter_map(|(job, mesh)| {
+        let [x, y, z] = job.origin.map(|c| c as i32);
+        mesh.map(|m| (VoxelPos::new(x, y, z), m))
+    });
+    let mesh = weld(pieces)?;
     let stats = VolumeStats {
         cells: grid.cell_count(opts.lod),
         vertices: mesh.positions.len() as u64,
@@ -383,18 +387,21 @@ struct Placement {
     fresh: Vec<u32>,
 }
 
-/// Concatenates chunk meshes in chunk order, merging seam vertices by key.
+/// Concatenates chunk meshes in the given order, merging seam vertices by
+/// key, and moves each chunk's positions by its origin (the world position
+/// of its local (0, 0, 0)). Keys must be in the same world coordinates with
+/// chunk seams at multiples of 32, as [`super::mesh_chunk`] gives them, so
+/// meshes of neighbouring world chunks weld exactly.
 ///
 /// Two passes: a sequential one that only assigns global vertex ids (so ids
 /// follow chunk order whatever the thread count), then a parallel one that
 /// copies each chunk's vertices and remapped triangles into its own disjoint
 /// ranges of the output.
-fn weld(jobs: &[ChunkJob], meshes: Vec<Option<Mesh>>) -> Result<Mesh, VolumeError> {
+pub fn weld(pieces: impl IntoIterator<Item = (VoxelPos, Mesh)>) -> Result<Mesh, VolumeError> {
     let mut seam = SeamMap::default();
     let mut next: u64 = 0;
-    let mut placed = Vec::with_capacity(meshes.len());
-    for (job, mesh) in jobs.iter().zip(meshes) {
-        let Some(mesh) = mesh else { continue };
+    let mut placed = Vec::new();
+    for (origin, mesh) in pieces {
         let mut remap = Vec::with_capacity(mesh.keys.len());
         let mut fresh = Vec::new();
         for (i, key) in mesh.keys.iter().enumerate() {
@@ -416,7 +423,7 @@ fn weld(jobs: &[ChunkJob], meshes: Vec<Option<Mesh>>) -> Result<Mesh, VolumeErro
             }
             remap.push(global);
         }
-        placed.push((job.origin, mesh, Placement { remap, fresh }));
+        placed.push((origin, mesh, Placement { remap, fresh }));
     }
 
     let nv = next as usize;
@@ -458,7 +465,7 @@ fn weld(jobs: &[ChunkJob], meshes: Vec<Option<Mesh>>) -> Result<Mesh, VolumeErro
     }
     work.into_par_iter()
         .for_each(|(origin, mesh, place, (p, q, m, k, x))| {
-            let o = origin.map(|c| c as f32);
+            let o = [origin.x as f32, origin.y as f32, origin.z as f32];
             for (slot, &i) in place.fresh.iter().enumerate() {
                 let i = i as usize;
                 let v = mesh.positions[i];
