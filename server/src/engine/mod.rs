@@ -8,10 +8,12 @@
 //! connection's bounded writer, and a client whose queue is full loses its
 //! pending deltas and gets fresh snapshots later.
 
+pub mod admin;
 mod command;
 mod fanout;
 mod peer;
 mod residency;
+pub mod snapshot;
 mod stream;
 
 pub use command::{Command, JoinReply, Kick};
@@ -91,6 +93,8 @@ pub struct Engine {
     /// Durable version of every modified chunk (absent = version 0).
     versions: HashMap<ChunkPos, u64>,
     snapshots: stream::SnapshotCache,
+    /// Online snapshots in progress (their copy-on-write pre-images).
+    snapshots_running: Vec<Arc<snapshot::PreImages>>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -137,6 +141,7 @@ impl Engine {
             peers: HashMap::new(),
             versions,
             snapshots: Default::default(),
+            snapshots_running: Vec::new(),
         }
     }
 
@@ -222,6 +227,7 @@ impl Engine {
                     }
                 }
             }
+            Command::Admin(c) => self.admin(c),
             Command::Stop => unreachable!("handled by the loop"),
         }
         metrics::gauge!(m::QUEUE_DEPTH).set(self.seq.queued() as f64);
@@ -298,6 +304,7 @@ impl Engine {
             self.send_control(r.session_id, &msg);
         }
         if !out.batch.is_empty() {
+            self.capture_preimages(&out.batch);
             let flush = Instant::now();
             // Nothing is acknowledged or broadcast unless this succeeds.
             if let Err(e) = self.store.commit_batch(&out.batch) {
