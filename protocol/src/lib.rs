@@ -2,6 +2,7 @@
 //! constants. Nothing about game rules lives here. PROTOCOL.md documents the
 //! byte layout for clients in other languages.
 
+pub mod admin;
 pub mod codec;
 pub mod frame;
 pub mod limits;

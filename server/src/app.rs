@@ -124,7 +124,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     );
     let engine = Engine::new(
         seq,
-        store,
+        store.clone(),
         cfg.engine,
         StreamPolicy {
             send_budget: cfg.net.send_budget_bytes_per_tick,
@@ -142,6 +142,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     let ctx = SessionContext {
         secret: data_dir.secret().clone(),
         engine: engine.clone(),
+        store: store.clone(),
         world_seed: meta.seed,
         generator_version: meta.generator_version,
         generator_params: meta.generator_params.clone(),

@@ -18,6 +18,7 @@ pub mod metrics;
 pub mod net;
 pub mod sequencer;
 pub mod shutdown;
+pub mod snapshot;
 pub mod store;
 pub mod structures;
 pub mod tls;

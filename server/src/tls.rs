@@ -168,7 +168,8 @@ fn idle_timeout(d: Duration) -> Result<IdleTimeout, TlsError> {
     IdleTimeout::try_from(d).map_err(|_| TlsError::IdleTimeout(d))
 }
 
-/// A quinn server config serving `pair` with ALPN [`ALPN`] and the
+/// A quinn server config serving `pair` with ALPNs [`ALPN`] (players) and
+/// `strata-admin/1` (admin sessions), and the
 /// transport limits of `net` and `tls`.
 pub fn server_config(
     pair: &CertPair,
@@ -179,7 +180,7 @@ pub fn server_config(
         .with_protocol_versions(&[&rustls::version::TLS13])?
         .with_no_client_auth()
         .with_single_cert(vec![pair.cert.clone()], pair.private_key())?;
-    crypto.alpn_protocols = vec![ALPN.to_vec()];
+    crypto.alpn_protocols = vec![ALPN.to_vec(), strata_protocol::admin::ADMIN_ALPN.to_vec()];
     let quic = QuicServerConfig::try_from(crypto).map_err(|_| TlsError::NoInitialCipherSuite)?;
     let mut config = quinn::ServerConfig::with_crypto(Arc::new(quic));
     config.transport_config(Arc::new(transport_config(net, tls)?));

@@ -11,6 +11,7 @@ use strata_server::admin::generate::{self, GenerateArgs};
 use strata_server::admin::mesh_cmd::{self, MeshArgs};
 use strata_server::admin::render_map::{self, RenderMapArgs};
 use strata_server::admin::token_cmd::{self, TokenIssueArgs};
+use strata_server::admin::{inspect, players, snapshot_cmd, stats, zones_cmd};
 
 /// Administration tools for Strata.
 #[derive(Debug, Parser)]
@@ -59,6 +60,34 @@ enum Command {
     /// records exist. Prints one line per problem and exits non-zero when
     /// the store is not clean.
     Check(CheckArgs),
+    /// Snapshots: create (online or offline), verify, restore, diff.
+    #[command(subcommand)]
+    Snapshot(snapshot_cmd::SnapshotCommand),
+    /// Look at one piece of the world.
+    #[command(subcommand)]
+    Inspect(InspectCommand),
+    /// World size, modified chunks, sequence, store size (and live sessions online).
+    Stats(stats::StatsArgs),
+    /// Protected zones, where players may not edit.
+    #[command(subcommand)]
+    Zones(zones_cmd::ZonesCommand),
+    /// Live sessions of a running server.
+    #[command(subcommand)]
+    Players(PlayersCommand),
+    /// Close every session of a player on a running server.
+    Kick(players::KickArgs),
+}
+
+#[derive(Debug, Subcommand)]
+enum InspectCommand {
+    /// A chunk's version, hash, material histogram, and generated or modified.
+    Chunk(inspect::InspectChunkArgs),
+}
+
+#[derive(Debug, Subcommand)]
+enum PlayersCommand {
+    /// One line per session: id, player, role, position.
+    List(players::PlayersArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -115,6 +144,70 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 outcome.problem_count()
             );
         }
+        Command::Snapshot(cmd) => snapshot(cmd)?,
+        Command::Inspect(InspectCommand::Chunk(args)) => print!(
+            "{}",
+            inspect::run(&args).context("strata-admin inspect chunk")?
+        ),
+        Command::Stats(args) => print!("{}", stats::run(&args).context("strata-admin stats")?),
+        Command::Zones(cmd) => print!(
+            "{}",
+            zones_cmd::render(&zones_cmd::run(&cmd).context("strata-admin zones")?)
+        ),
+        Command::Players(PlayersCommand::List(args)) => print!(
+            "{}",
+            players::render(&players::list(&args).context("strata-admin players list")?)
+        ),
+        Command::Kick(args) => {
+            let n = players::kick(&args).context("strata-admin kick")?;
+            println!("kicked {n} session(s) of {}", args.name);
+        }
+    }
+    Ok(())
+}
+
+fn snapshot(cmd: snapshot_cmd::SnapshotCommand) -> anyhow::Result<()> {
+    use snapshot_cmd::SnapshotCommand as S;
+    match cmd {
+        S::Create(args) => {
+            let c = snapshot_cmd::create(&args).context("strata-admin snapshot create")?;
+            println!(
+                "snapshot at seq {}: {} chunks, {} bytes, written to {}",
+                c.seq,
+                c.chunks,
+                c.bytes,
+                args.out.display()
+            );
+        }
+        S::Verify(args) => {
+            let r =
+                snapshot_cmd::verify_file(&args.file).context("strata-admin snapshot verify")?;
+            if !r.is_ok() {
+                for issue in &r.issues {
+                    println!("{issue}");
+                }
+                if r.issues_dropped > 0 {
+                    println!("... and {} more", r.issues_dropped);
+                }
+                anyhow::bail!(
+                    "{} is corrupt: {} problem(s)",
+                    args.file.display(),
+                    r.issues.len() as u64 + r.issues_dropped
+                );
+            }
+            let seq = r.header.map_or(0, |h| h.seq);
+            println!("ok: seq {seq}, {} chunks, every checksum matches", r.chunks);
+        }
+        S::Restore(args) => {
+            let n = snapshot_cmd::restore(&args).context("strata-admin snapshot restore")?;
+            println!("restored {n} chunks into {}", args.data_dir.display());
+        }
+        S::Diff(args) => print!(
+            "{}",
+            snapshot_cmd::render_diff(
+                &snapshot_cmd::diff_files(&args).context("strata-admin snapshot diff")?
+            )
+        ),
     }
     Ok(())
 }

@@ -53,6 +53,8 @@ pub enum Command {
         session: u64,
         pos: ChunkPos,
     },
+    /// From an admin session only.
+    Admin(super::admin::AdminCommand),
     /// Finish the batch in flight, flush, and stop.
     Stop,
 }

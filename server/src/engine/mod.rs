@@ -8,11 +8,13 @@
 //! connection's bounded writer, and a client whose queue is full loses its
 //! pending deltas and gets fresh snapshots later.
 
+pub mod admin;
 mod command;
 mod fanout;
 mod peer;
 mod premesh;
 mod residency;
+pub mod snapshot;
 mod stream;
 
 pub use command::{Command, JoinReply, Kick};
@@ -105,6 +107,8 @@ pub struct Engine {
     snapshots: stream::SnapshotCache,
     premesh: premesh::Premesher,
     last_evict: Option<Instant>,
+    /// Online snapshots in progress (their copy-on-write pre-images).
+    snapshots_running: Vec<Arc<snapshot::PreImages>>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -153,6 +157,7 @@ impl Engine {
             versions,
             snapshots: Default::default(),
             last_evict: None,
+            snapshots_running: Vec::new(),
         })
     }
 
@@ -239,6 +244,7 @@ impl Engine {
                     }
                 }
             }
+            Command::Admin(c) => self.admin(c),
             Command::Stop => unreachable!("handled by the loop"),
         }
         metrics::gauge!(m::QUEUE_DEPTH).set(self.seq.queued() as f64);
@@ -318,6 +324,7 @@ impl Engine {
             self.send_control(r.session_id, &msg);
         }
         if !out.batch.is_empty() {
+            self.capture_preimages(&out.batch);
             let flush = Instant::now();
             // Nothing is acknowledged or broadcast unless this succeeds.
             if let Err(e) = self.store.commit_batch(&out.batch) {

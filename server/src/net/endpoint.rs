@@ -8,6 +8,7 @@ use std::time::Duration;
 use tokio::sync::Semaphore;
 use tracing::{debug, info, Instrument};
 
+use super::admin_session;
 use super::session::{self, SessionContext};
 use crate::shutdown::Shutdown;
 
@@ -62,6 +63,9 @@ impl Listener {
                     tokio::spawn(async move {
                         metrics::gauge!(crate::metrics::CONNECTIONS).increment(1.0);
                         match incoming.await {
+                            Ok(conn) if is_admin(&conn) => {
+                                admin_session::run(conn, id, ctx, shutdown).await
+                            }
                             Ok(conn) => session::run(conn, id, ctx, shutdown).await,
                             Err(e) => debug!(error = %e, "handshake failed"),
                         }
@@ -78,4 +82,12 @@ impl Listener {
         let _ = tokio::time::timeout(SHUTDOWN_GRACE, limit.acquire_many(all)).await;
         let _ = tokio::time::timeout(SHUTDOWN_GRACE, self.endpoint.wait_idle()).await;
     }
+}
+
+/// Whether the client negotiated the admin ALPN (`strata-admin/1`).
+fn is_admin(conn: &quinn::Connection) -> bool {
+    conn.handshake_data()
+        .and_then(|d| d.downcast::<quinn::crypto::rustls::HandshakeData>().ok())
+        .and_then(|h| h.protocol)
+        .is_some_and(|p| p == strata_protocol::admin::ADMIN_ALPN)
 }

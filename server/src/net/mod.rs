@@ -1,6 +1,7 @@
 //! The async shell: QUIC endpoint, one task per connection, bounded
 //! writers. It moves bytes between sockets and the engine, nothing more.
 
+pub mod admin_session;
 pub mod endpoint;
 pub mod session;
 pub mod writer;

@@ -30,6 +30,8 @@ pub const CONTROL_QUEUE: usize = 1024;
 pub struct SessionContext {
     pub secret: Secret,
     pub engine: EngineHandle,
+    /// Read-only use by admin sessions (snapshots, stats).
+    pub store: std::sync::Arc<dyn crate::store::ChunkStore>,
     pub world_seed: u64,
     pub generator_version: u32,
     pub generator_params: String,
@@ -128,16 +130,10 @@ pub async fn run(
         )
         .await;
     }
-    let claims = match auth::verify(&ctx.secret, &hello.token, auth::unix_now()) {
+    let claims = match check_token(&ctx, &hello.token) {
         Ok(c) => c,
-        Err(e) => {
-            let code = if matches!(e, AuthError::Expired { .. }) {
-                ErrorCode::ExpiredToken
-            } else {
-                ErrorCode::BadToken
-            };
-            warn!(error = %e, "refused a token");
-            return refuse(&conn, control, control_task, code, &e.to_string()).await;
+        Err((code, message)) => {
+            return refuse(&conn, control, control_task, code, &message).await;
         }
     };
     let span = tracing::info_span!("session", id = session, player = %claims.player, role = claims.role.name());
@@ -241,7 +237,23 @@ enum End {
     Refused(ErrorCode, String),
 }
 
-fn read_error_code(e: &ReadError) -> ErrorCode {
+/// Verifies a Hello's token; a refusal comes with its error code.
+pub(super) fn check_token(
+    ctx: &SessionContext,
+    token: &str,
+) -> Result<auth::Claims, (ErrorCode, String)> {
+    auth::verify(&ctx.secret, token, auth::unix_now()).map_err(|e| {
+        warn!(error = %e, "refused a token");
+        let code = if matches!(e, AuthError::Expired { .. }) {
+            ErrorCode::ExpiredToken
+        } else {
+            ErrorCode::BadToken
+        };
+        (code, e.to_string())
+    })
+}
+
+pub(super) fn read_error_code(e: &ReadError) -> ErrorCode {
     match e {
         ReadError::Frame(FrameError::Oversized { .. }) => ErrorCode::FrameTooLarge,
         _ => ErrorCode::Malformed,

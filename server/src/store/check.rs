@@ -181,11 +181,23 @@ pub struct Checker {
     last_log_seq: u64,
     /// Highest to_version per chunk, and the seq that set it.
     logged: BTreeMap<ChunkPos, (u64, u64)>,
+    /// Seq of the snapshot the store was restored from (0: none).
+    log_base: u64,
 }
 
 impl Checker {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A checker for a store restored from a snapshot at seq `base`: its
+    /// log starts at `base + 1`, and chunks stored at restore have no entry.
+    pub fn with_log_base(base: u64) -> Self {
+        Self {
+            last_log_seq: base,
+            log_base: base,
+            ..Self::default()
+        }
     }
 
     fn issue(&mut self, i: CheckIssue) {
@@ -200,7 +212,7 @@ impl Checker {
         self.issue(CheckIssue::BadMeta { reason });
     }
 
-    /// A meta key other than the world record and `last_seq`.
+    /// A meta key other than the world record, `last_seq` and `log_base`.
     pub fn unknown_meta_key(&mut self, key: &[u8]) {
         self.issue(CheckIssue::UnknownMetaKey { key: show_raw(key) });
     }
@@ -276,6 +288,7 @@ impl Checker {
             });
         }
         match logged {
+            None if self.log_base > 0 => {}
             None => self.issue(CheckIssue::OrphanChunk { pos, version }),
             Some((logged, seq)) if logged != version => self.issue(CheckIssue::VersionMismatch {
                 pos,

@@ -18,6 +18,7 @@ mod batch;
 mod check;
 mod config;
 mod error;
+mod import;
 pub mod keys;
 mod record;
 mod sled_store;
@@ -34,7 +35,7 @@ pub use error::StoreError;
 pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
 pub use sled_store::{
     open_when_unlocked, SledStore, MAX_BLOB_BYTES, MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES,
-    META_LAST_SEQ, META_WORLD, TREE_BLOBS, TREE_CHUNKS, TREE_LOG, TREE_META,
+    META_LAST_SEQ, META_LOG_BASE, META_WORLD, TREE_BLOBS, TREE_CHUNKS, TREE_LOG, TREE_META,
 };
 pub use types::{
     CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta, STORE_FORMAT_VERSION,
@@ -45,7 +46,7 @@ pub type StoreIter<'a, T> = Box<dyn Iterator<Item = Result<T, StoreError>> + Sen
 
 /// Durable world storage. Every method that writes returns only once the
 /// write is durable; a write that fails changes nothing.
-pub trait ChunkStore: Send + Sync {
+pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// The world metadata, or `None` for a new store.
     fn load_meta(&self) -> Result<Option<WorldMeta>, StoreError>;
 
@@ -72,6 +73,9 @@ pub trait ChunkStore: Send + Sync {
 
     /// Log entries with seq in `seqs`, ascending.
     fn edit_log(&self, seqs: RangeInclusive<u64>) -> StoreIter<'_, LogEntry>;
+
+    /// A modified chunk's stored bytes, undecoded, or `None` if never modified.
+    fn raw_chunk(&self, pos: ChunkPos) -> Result<Option<RawChunk>, StoreError>;
 
     /// `(pos, version)` of every modified chunk, in key ([`ChunkPos`]) order.
     fn modified_chunks(&self) -> StoreIter<'_, (ChunkPos, u64)>;

@@ -43,6 +43,10 @@ pub const TREE_BLOBS: &str = "blobs";
 pub const META_WORLD: &[u8] = b"world";
 /// Key of `last_seq` in [`TREE_META`].
 pub const META_LAST_SEQ: &[u8] = b"last_seq";
+/// Key of the log base in [`TREE_META`] (only in stores restored from a
+/// snapshot): the snapshot's seq. The log starts after it, and chunks
+/// stored at restore have no log entry.
+pub const META_LOG_BASE: &[u8] = b"log_base";
 /// Longest generator parameter text accepted.
 pub const MAX_GENERATOR_PARAMS_BYTES: usize = 64 * 1024;
 /// Longest blob name.
@@ -53,11 +57,11 @@ pub const MAX_BLOB_BYTES: usize = 16 * 1024 * 1024;
 /// The sled-backed store. Cheap to share by reference across threads.
 #[derive(Debug)]
 pub struct SledStore {
-    db: sled::Db,
-    meta: sled::Tree,
-    chunks: sled::Tree,
-    log: sled::Tree,
-    blobs: sled::Tree,
+    pub(super) db: sled::Db,
+    pub(super) meta: sled::Tree,
+    pub(super) chunks: sled::Tree,
+    pub(super) log: sled::Tree,
+    pub(super) blobs: sled::Tree,
 }
 
 impl SledStore {
@@ -96,7 +100,7 @@ impl SledStore {
         Ok(store)
     }
 
-    fn flush(&self) -> Result<(), StoreError> {
+    pub(super) fn flush(&self) -> Result<(), StoreError> {
         self.db.flush()?;
         Ok(())
     }
@@ -328,6 +332,18 @@ impl ChunkStore for SledStore {
         }))
     }
 
+    fn raw_chunk(&self, pos: ChunkPos) -> Result<Option<RawChunk>, StoreError> {
+        let Some(v) = self.chunks.get(chunk_key(pos))? else {
+            return Ok(None);
+        };
+        let (version, body) = split_chunk_value(pos, &v)?;
+        Ok(Some(RawChunk {
+            pos,
+            version,
+            encoded: body.to_vec(),
+        }))
+    }
+
     fn modified_chunks(&self) -> StoreIter<'_, (ChunkPos, u64)> {
         Box::new(self.raw_chunks().map(|r| r.map(|c| (c.pos, c.version))))
     }
@@ -394,6 +410,12 @@ impl SledStore {
     /// [`ChunkStore::check`], calling `tick` once per record scanned.
     pub fn check_with_progress(&self, tick: &dyn Fn()) -> Result<CheckReport, StoreError> {
         let mut checker = Checker::new();
+        if let Some(v) = self.meta.get(META_LOG_BASE)? {
+            match decode_last_seq(&v) {
+                Ok(base) => checker = Checker::with_log_base(base),
+                Err(e) => checker.meta_issue(format!("log_base: {e}")),
+            }
+        }
         let world = self.meta.get(META_WORLD)?;
         let last_seq = match self.meta.get(META_LAST_SEQ)? {
             Some(v) => match decode_last_seq(&v) {
@@ -412,7 +434,7 @@ impl SledStore {
         }
         for k in self.meta.iter().keys() {
             let k = k?;
-            if k != META_WORLD && k != META_LAST_SEQ {
+            if ![META_WORLD, META_LAST_SEQ, META_LOG_BASE].contains(&&*k) {
                 checker.unknown_meta_key(&k);
             }
         }

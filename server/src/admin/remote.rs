@@ -1,0 +1,261 @@
+//! The online side of `strata-admin`: a QUIC client of the admin protocol
+//! (ALPN `strata-admin/1`), pinned to the server's certificate, and the
+//! arguments that choose between online and offline.
+
+use std::io::IsTerminal;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{bail, Context};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use strata_protocol::admin::{
+    AdminRequest, AdminResponse, AdminWelcome, ADMIN_ALPN, ADMIN_PROTOCOL_VERSION,
+};
+use strata_protocol::io::FramedReader;
+use strata_protocol::{encode_frame, Direction, ErrorCode, FrameBuffer, Hello};
+
+use crate::client_tls::client_config_pinned_with_alpn;
+use crate::datadir::DataDir;
+use crate::store::SledStore;
+
+/// How long connecting and each non-streaming answer may take.
+pub const REMOTE_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Where a command runs: a stopped server's data dir, or a running server.
+#[derive(Debug, Clone, Args)]
+pub struct TargetArgs {
+    /// Data dir of a stopped server (offline).
+    #[arg(long, conflicts_with = "server", required_unless_present = "server")]
+    pub data_dir: Option<PathBuf>,
+    /// Address of a running server (online), e.g. 127.0.0.1:4433.
+    #[arg(long, requires_all = ["cert", "token"])]
+    pub server: Option<SocketAddr>,
+    /// The server's certificate (DER, `<data-dir>/cert.der`) to pin.
+    #[arg(long, requires = "server")]
+    pub cert: Option<PathBuf>,
+    /// An admin-role token (`strata-admin token issue --role admin`).
+    #[arg(long, requires = "server")]
+    pub token: Option<String>,
+}
+
+/// A resolved target.
+#[derive(Debug)]
+pub enum Target {
+    Offline(PathBuf),
+    Online {
+        server: SocketAddr,
+        cert: PathBuf,
+        token: String,
+    },
+}
+
+impl TargetArgs {
+    pub fn target(&self) -> anyhow::Result<Target> {
+        match (&self.data_dir, self.server, &self.cert, &self.token) {
+            (Some(d), None, _, _) => Ok(Target::Offline(d.clone())),
+            (None, Some(server), Some(cert), Some(token)) => Ok(Target::Online {
+                server,
+                cert: cert.clone(),
+                token: token.clone(),
+            }),
+            _ => bail!("give either --data-dir, or --server with --cert and --token"),
+        }
+    }
+}
+
+/// Opens the store of a stopped server's data dir.
+pub fn open_offline_store(dir: &Path) -> anyhow::Result<SledStore> {
+    let dd = DataDir::open_existing(dir)
+        .with_context(|| format!("opening data dir {}", dir.display()))?;
+    SledStore::open(&dd.world_db_path()).with_context(|| {
+        format!(
+            "opening the world store in {} (is the server still running? stop it or use --server)",
+            dir.display()
+        )
+    })
+}
+
+/// Runs an online command on a small runtime of its own.
+pub fn block_on<T>(f: impl std::future::Future<Output = anyhow::Result<T>>) -> anyhow::Result<T> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?
+        .block_on(f)
+}
+
+/// A progress bar on stderr, hidden when stderr is not a terminal.
+pub fn progress(len: Option<u64>, template: &str) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::with_draw_target(len, ProgressDrawTarget::stderr());
+    if let Ok(style) = ProgressStyle::with_template(template) {
+        bar.set_style(style);
+    }
+    bar
+}
+
+/// A logged-in admin connection.
+#[derive(Debug)]
+pub struct AdminClient {
+    endpoint: quinn::Endpoint,
+    conn: quinn::Connection,
+    send: quinn::SendStream,
+    reader: FramedReader<quinn::RecvStream>,
+    welcome: AdminWelcome,
+}
+
+impl AdminClient {
+    /// Connects to `server`, trusting only the certificate in `cert`, and logs in.
+    pub async fn connect_with_files(
+        server: SocketAddr,
+        cert: &Path,
+        token: &str,
+    ) -> anyhow::Result<Self> {
+        let der = std::fs::read(cert).with_context(|| format!("reading {}", cert.display()))?;
+        Self::connect(server, &der, token).await
+    }
+
+    /// Connects with the certificate's DER bytes and an admin token.
+    pub async fn connect(server: SocketAddr, cert_der: &[u8], token: &str) -> anyhow::Result<Self> {
+        Self::connect_version(server, cert_der, token, ADMIN_PROTOCOL_VERSION).await
+    }
+
+    /// Like [`Self::connect`] with any protocol version (tests).
+    pub async fn connect_version(
+        server: SocketAddr,
+        cert_der: &[u8],
+        token: &str,
+        version: u32,
+    ) -> anyhow::Result<Self> {
+        let bind: SocketAddr = if server.is_ipv6() {
+            "[::]:0"
+        } else {
+            "0.0.0.0:0"
+        }
+        .parse()
+        .expect("literal");
+        let mut endpoint = quinn::Endpoint::client(bind).context("binding a UDP socket")?;
+        endpoint.set_default_client_config(client_config_pinned_with_alpn(cert_der, ADMIN_ALPN)?);
+        let login = async {
+            let conn = endpoint
+                .connect(server, "localhost")?
+                .await
+                .with_context(|| format!("connecting to {server}"))?;
+            let (send, recv) = conn.open_bi().await?;
+            let mut c = AdminClient {
+                endpoint: endpoint.clone(),
+                conn,
+                send,
+                reader: FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient)),
+                welcome: AdminWelcome {
+                    admin: String::new(),
+                    last_seq: 0,
+                    world_seed: 0,
+                    generator_version: 0,
+                },
+            };
+            let hello = AdminRequest::Hello(Hello {
+                protocol_version: version,
+                token: token.to_string(),
+            });
+            match c.request(&hello).await? {
+                AdminResponse::Welcome(w) => c.welcome = w,
+                other => bail!("expected Welcome, got {other:?}"),
+            }
+            anyhow::Ok(c)
+        };
+        tokio::time::timeout(REMOTE_TIMEOUT, login)
+            .await
+            .context("timed out logging in")?
+    }
+
+    pub fn welcome(&self) -> &AdminWelcome {
+        &self.welcome
+    }
+
+    /// Sends one request (no wait).
+    pub async fn send(&mut self, req: &AdminRequest) -> anyhow::Result<()> {
+        let frame = encode_frame(req, Direction::ClientToServer)?;
+        self.send
+            .write_all(&frame)
+            .await
+            .map_err(|e| self.gone(e.into()))
+    }
+
+    /// The next response. A server `Error` (or a close with a reason)
+    /// becomes an error naming the code.
+    pub async fn next(&mut self) -> anyhow::Result<AdminResponse> {
+        match self.reader.next::<AdminResponse>().await {
+            Ok(Some(AdminResponse::Error { code, message })) => {
+                bail!("server refused ({code:?}): {message}")
+            }
+            Ok(Some(r)) => Ok(r),
+            Ok(None) => Err(self.gone(anyhow::anyhow!("the server ended the stream"))),
+            Err(e) => Err(self.gone(e.into())),
+        }
+    }
+
+    /// Sends a request and waits for its (first) response.
+    pub async fn request(&mut self, req: &AdminRequest) -> anyhow::Result<AdminResponse> {
+        self.send(req).await?;
+        tokio::time::timeout(REMOTE_TIMEOUT, self.next())
+            .await
+            .context("timed out waiting for the server")?
+    }
+
+    /// The close reason, if the server closed the connection with one.
+    fn gone(&self, fallback: anyhow::Error) -> anyhow::Error {
+        if let Some(quinn::ConnectionError::ApplicationClosed(a)) = self.conn.close_reason() {
+            if let Some(code) = ErrorCode::from_close_code(a.error_code.into_inner()) {
+                return anyhow::anyhow!(
+                    "server refused ({code:?}): {}",
+                    String::from_utf8_lossy(&a.reason)
+                );
+            }
+        }
+        fallback
+    }
+
+    /// Closes politely.
+    pub async fn close(mut self) {
+        let _ = self.send.finish();
+        self.conn.close(quinn::VarInt::from_u32(0), b"bye");
+        let _ = tokio::time::timeout(Duration::from_secs(2), self.endpoint.wait_idle()).await;
+    }
+}
+
+/// Connects for a command's online form.
+pub async fn connect_target(
+    server: SocketAddr,
+    cert: &Path,
+    token: &str,
+) -> anyhow::Result<AdminClient> {
+    AdminClient::connect_with_files(server, cert, token).await
+}
+
+/// Connects, sends one request, and returns its accepted answer.
+pub fn request_once(
+    server: SocketAddr,
+    cert: &Path,
+    token: &str,
+    req: &AdminRequest,
+) -> anyhow::Result<AdminResponse> {
+    block_on(async move {
+        let mut c = connect_target(server, cert, token).await?;
+        let r = accepted(c.request(req).await?)?;
+        c.close().await;
+        Ok(r)
+    })
+}
+
+/// Turns a `Refused` answer into an error, passing others through.
+pub fn accepted(r: AdminResponse) -> anyhow::Result<AdminResponse> {
+    match r {
+        AdminResponse::Refused { message } => bail!("server refused the request: {message}"),
+        other => Ok(other),
+    }
+}

@@ -1,0 +1,313 @@
+//! `strata-admin snapshot create|verify|restore|diff`.
+
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use clap::{Args, Subcommand};
+use strata_protocol::admin::{AdminRequest, AdminResponse, ZoneSpec};
+
+use super::remote::{block_on, connect_target, open_offline_store, progress, Target, TargetArgs};
+use crate::app::ZONES_BLOB;
+use crate::datadir::DataDir;
+use crate::engine::admin::zone_spec;
+use crate::snapshot::diff::{diff, DiffReport};
+use crate::snapshot::restore::import;
+use crate::snapshot::{verify, SnapshotHeader, SnapshotWriter, VerifyReport};
+use crate::store::{ChunkStore, SledStore};
+use crate::validate::zones::Zone;
+
+#[derive(Debug, Subcommand)]
+pub enum SnapshotCommand {
+    /// Write a consistent snapshot of the world at one sequence number.
+    /// Online, edits keep flowing while it runs; offline, the server must be stopped.
+    Create(CreateArgs),
+    /// Check every checksum and decode every chunk; names each bad record.
+    Verify(VerifyArgs),
+    /// Turn a snapshot into a data dir a server can start on.
+    Restore(RestoreArgs),
+    /// List the chunks that differ between two snapshots.
+    Diff(DiffArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct CreateArgs {
+    /// Snapshot file to write (replaced only once complete).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub target: TargetArgs,
+    /// Online: abort if more chunks than this change while the snapshot
+    /// runs (0: the server's default).
+    #[arg(long, default_value_t = 0)]
+    pub max_pending_chunks: u32,
+}
+
+#[derive(Debug, Args)]
+pub struct VerifyArgs {
+    pub file: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct RestoreArgs {
+    pub file: PathBuf,
+    /// Data dir to create. Its certificate and auth secret are kept if present.
+    #[arg(long)]
+    pub data_dir: PathBuf,
+    /// Replace the world of a data dir that already has one.
+    #[arg(long)]
+    pub force: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct DiffArgs {
+    pub a: PathBuf,
+    pub b: PathBuf,
+}
+
+/// What `create` wrote.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Created {
+    pub seq: u64,
+    pub chunks: u64,
+    pub bytes: u64,
+}
+
+fn partial_path(out: &Path) -> PathBuf {
+    let mut name = out.file_name().unwrap_or_default().to_os_string();
+    name.push(".partial");
+    out.with_file_name(name)
+}
+
+/// Writes through a `.partial` file renamed into place only on success.
+fn write_atomically(
+    out: &Path,
+    f: impl FnOnce(BufWriter<File>) -> anyhow::Result<(BufWriter<File>, Created)>,
+) -> anyhow::Result<Created> {
+    let tmp = partial_path(out);
+    let file = File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let result = f(BufWriter::new(file)).and_then(|(w, created)| {
+        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        Ok(created)
+    });
+    settle(&tmp, out, result)
+}
+
+/// Renames a complete `.partial` file into place, or removes a failed one.
+fn settle(tmp: &Path, out: &Path, result: anyhow::Result<Created>) -> anyhow::Result<Created> {
+    match result {
+        Ok(created) => {
+            std::fs::rename(tmp, out)
+                .with_context(|| format!("renaming into {}", out.display()))?;
+            Ok(created)
+        }
+        Err(e) => {
+            let _ = std::fs::remove_file(tmp);
+            Err(e)
+        }
+    }
+}
+
+/// Snapshot of a stopped server's store.
+pub fn create_offline(store: &dyn ChunkStore, out: &Path) -> anyhow::Result<Created> {
+    let Some(meta) = store.load_meta()? else {
+        bail!("the store has no world yet (start the server once)");
+    };
+    let zones: Vec<ZoneSpec> = match store.get_blob(ZONES_BLOB)? {
+        Some(b) => serde_json::from_slice::<Vec<Zone>>(&b)
+            .context("stored protected zones do not parse")?
+            .iter()
+            .map(zone_spec)
+            .collect(),
+        None => Vec::new(),
+    };
+    let header = SnapshotHeader {
+        seed: meta.seed,
+        generator_version: meta.generator_version,
+        seq: meta.last_seq,
+        generator_params: meta.generator_params,
+        zones,
+    };
+    let bar = progress(
+        Some(store.chunk_count()?),
+        "snapshot {bar:40} {pos}/{len} chunks {eta}",
+    );
+    write_atomically(out, |file| {
+        let mut w = SnapshotWriter::new(file, &header)?;
+        for c in store.raw_chunks() {
+            let c = c?;
+            w.chunk(c.pos, c.version, &c.encoded)?;
+            bar.inc(1);
+        }
+        let chunks = w.records();
+        let (file, bytes) = w.finish()?;
+        bar.finish_and_clear();
+        Ok((
+            file,
+            Created {
+                seq: header.seq,
+                chunks,
+                bytes,
+            },
+        ))
+    })
+}
+
+/// Snapshot of a running server over the admin protocol.
+pub async fn create_online(
+    c: &mut super::remote::AdminClient,
+    out: &Path,
+    max_pending_chunks: u32,
+) -> anyhow::Result<Created> {
+    let req = AdminRequest::Snapshot { max_pending_chunks };
+    let info = match c.request(&req).await? {
+        AdminResponse::SnapshotBegin(i) => i,
+        AdminResponse::Refused { message } => bail!("server refused the snapshot: {message}"),
+        other => bail!("unexpected answer {other:?}"),
+    };
+    let header = SnapshotHeader {
+        seed: info.world_seed,
+        generator_version: info.generator_version,
+        seq: info.seq,
+        generator_params: info.generator_params,
+        zones: info.zones,
+    };
+    let bar = progress(
+        Some(info.modified_chunks),
+        "snapshot {bar:40} {pos}/{len} chunks {eta}",
+    );
+    let tmp = partial_path(out);
+    let file = File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let result = async {
+        let mut w = SnapshotWriter::new(BufWriter::new(file), &header)?;
+        loop {
+            match c.next().await? {
+                AdminResponse::SnapshotChunk { pos, version, data } => {
+                    w.chunk(pos, version, &data)?;
+                    bar.inc(1);
+                }
+                AdminResponse::SnapshotEnd { chunks } => {
+                    if chunks != w.records() {
+                        bail!("server sent {} chunks but says {chunks}", w.records());
+                    }
+                    break;
+                }
+                AdminResponse::Refused { message } => bail!("{message}"),
+                other => bail!("unexpected answer {other:?}"),
+            }
+        }
+        let chunks = w.records();
+        let (file, bytes) = w.finish()?;
+        file.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        anyhow::Ok(Created {
+            seq: header.seq,
+            chunks,
+            bytes,
+        })
+    }
+    .await;
+    bar.finish_and_clear();
+    settle(&tmp, out, result)
+}
+
+pub fn create(args: &CreateArgs) -> anyhow::Result<Created> {
+    match args.target.target()? {
+        Target::Offline(dir) => create_offline(&open_offline_store(&dir)?, &args.out),
+        Target::Online {
+            server,
+            cert,
+            token,
+        } => block_on(async move {
+            let mut c = connect_target(server, &cert, &token).await?;
+            let created = create_online(&mut c, &args.out, args.max_pending_chunks).await?;
+            c.close().await;
+            Ok(created)
+        }),
+    }
+}
+
+/// Verifies with a progress bar over the file's bytes.
+pub fn verify_file(path: &Path) -> anyhow::Result<VerifyReport> {
+    let len = std::fs::metadata(path)
+        .with_context(|| format!("reading {}", path.display()))?
+        .len();
+    let bar = progress(Some(len), "verify {bar:40} {bytes}/{total_bytes} {eta}");
+    let report = verify(path, |at| bar.set_position(at))?;
+    bar.finish_and_clear();
+    Ok(report)
+}
+
+fn is_empty_dir(dir: &Path) -> anyhow::Result<bool> {
+    match std::fs::read_dir(dir) {
+        Ok(mut entries) => Ok(entries.next().is_none()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(true),
+        Err(e) => Err(e).with_context(|| format!("reading {}", dir.display())),
+    }
+}
+
+/// Verifies the snapshot, then writes its world into the data dir. Returns
+/// the chunks imported.
+pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
+    let report = verify_file(&args.file)?;
+    if !report.is_ok() {
+        bail!(
+            "{} is corrupt, nothing restored:\n{}",
+            args.file.display(),
+            report.issues.join("\n")
+        );
+    }
+    if !is_empty_dir(&args.data_dir)? && !args.force {
+        bail!(
+            "{} is not empty; pass --force to replace its world (its certificate and secret are kept)",
+            args.data_dir.display()
+        );
+    }
+    let (dd, _) = DataDir::open_or_init(&args.data_dir, &[])
+        .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
+    let db = dd.world_db_path();
+    if db.exists() {
+        std::fs::remove_dir_all(&db).with_context(|| format!("removing {}", db.display()))?;
+    }
+    let store = SledStore::open(&db)?;
+    let total = report.chunks;
+    let bar = progress(Some(total), "restore {bar:40} {pos}/{len} chunks {eta}");
+    let n = import(&args.file, &store, ZONES_BLOB, |n| bar.set_position(n))?;
+    bar.finish_and_clear();
+    Ok(n)
+}
+
+pub fn diff_files(args: &DiffArgs) -> anyhow::Result<DiffReport> {
+    Ok(diff(&args.a, &args.b)?)
+}
+
+/// One line per differing chunk: `x y z a_version a_hash b_version b_hash`,
+/// `-` for a chunk a side does not store.
+pub fn render_diff(d: &DiffReport) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::new();
+    if !d.same_world {
+        out.push_str("warning: the snapshots are of different worlds (seed or generator)\n");
+    }
+    let _ = writeln!(
+        out,
+        "seq {} vs {}: {} chunks differ",
+        d.seq_a,
+        d.seq_b,
+        d.chunks.len()
+    );
+    let side =
+        |s: Option<(u64, u64)>| s.map_or("- -".to_string(), |(v, h)| format!("{v} {h:016x}"));
+    for c in &d.chunks {
+        let _ = writeln!(
+            out,
+            "{} {} {} {} {}",
+            c.pos.x,
+            c.pos.y,
+            c.pos.z,
+            side(c.a),
+            side(c.b)
+        );
+    }
+    out
+}

@@ -1,0 +1,171 @@
+//! `strata-admin zones add|remove|list`. Online changes take effect in the
+//! running sequencer at once and persist in the store; offline ones edit
+//! the stored zones of a stopped server.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+use clap::{Args, Subcommand};
+use strata_protocol::admin::{AdminRequest, AdminResponse, ZoneSpec};
+use strata_terrain::VoxelPos;
+
+use super::remote::{open_offline_store, request_once, Target, TargetArgs};
+use crate::app::ZONES_BLOB;
+use crate::config::ServerConfig;
+use crate::engine::admin::zone_spec;
+use crate::sequencer::Sequencer;
+use crate::store::ChunkStore;
+use crate::validate::zones::{check_new, Zone};
+
+#[derive(Debug, Subcommand)]
+pub enum ZonesCommand {
+    /// List the protected zones.
+    List(ZonesListArgs),
+    /// Add a protected box (inclusive voxel corners) where players may not edit.
+    Add(ZoneAddArgs),
+    /// Remove a protected zone by name.
+    Remove(ZoneRemoveArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ZonesListArgs {
+    #[command(flatten)]
+    pub target: TargetArgs,
+    /// Offline: server config whose spawn protection applies when no zones are stored.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+pub struct ZoneAddArgs {
+    /// Zone name (1 to 64 bytes).
+    pub name: String,
+    /// Minimum corner: X Y Z (voxels).
+    #[arg(long, num_args = 3, value_names = ["X", "Y", "Z"], allow_negative_numbers = true)]
+    pub min: Vec<i32>,
+    /// Maximum corner: X Y Z (voxels, inclusive).
+    #[arg(long, num_args = 3, value_names = ["X", "Y", "Z"], allow_negative_numbers = true)]
+    pub max: Vec<i32>,
+    #[command(flatten)]
+    pub target: TargetArgs,
+    /// Offline: server config whose spawn protection applies when no zones are stored.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+pub struct ZoneRemoveArgs {
+    pub name: String,
+    #[command(flatten)]
+    pub target: TargetArgs,
+    /// Offline: server config whose spawn protection applies when no zones are stored.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+}
+
+fn voxel(v: &[i32]) -> anyhow::Result<VoxelPos> {
+    match v {
+        [x, y, z] => Ok(VoxelPos::new(*x, *y, *z)),
+        _ => bail!("a corner needs three coordinates"),
+    }
+}
+
+/// One line per zone.
+pub fn render(zones: &[ZoneSpec]) -> String {
+    let mut out = String::new();
+    for z in zones {
+        let _ = writeln!(
+            out,
+            "{} ({}, {}, {}) to ({}, {}, {})",
+            z.name, z.min.x, z.min.y, z.min.z, z.max.x, z.max.y, z.max.z
+        );
+    }
+    out
+}
+
+/// The zones a stopped server would load: the stored ones, else its defaults.
+fn stored_zones(
+    store: &dyn ChunkStore,
+    config: Option<&std::path::Path>,
+) -> anyhow::Result<Vec<Zone>> {
+    match store.get_blob(ZONES_BLOB)? {
+        Some(b) => serde_json::from_slice(&b).context("stored protected zones do not parse"),
+        None => Ok(Sequencer::default_zones(
+            &ServerConfig::load(config)?.validation,
+        )),
+    }
+}
+
+fn save(store: &dyn ChunkStore, zones: &[Zone]) -> anyhow::Result<Vec<ZoneSpec>> {
+    store.put_blob(ZONES_BLOB, &serde_json::to_vec(zones)?)?;
+    Ok(zones.iter().map(zone_spec).collect())
+}
+
+fn online(target: &TargetArgs, req: AdminRequest) -> anyhow::Result<Option<Vec<ZoneSpec>>> {
+    let Target::Online {
+        server,
+        cert,
+        token,
+    } = target.target()?
+    else {
+        return Ok(None);
+    };
+    match request_once(server, &cert, &token, &req)? {
+        AdminResponse::Zones(z) => Ok(Some(z)),
+        other => bail!("unexpected answer {other:?}"),
+    }
+}
+
+fn offline_store(target: &TargetArgs) -> anyhow::Result<crate::store::SledStore> {
+    match target.target()? {
+        Target::Offline(dir) => open_offline_store(&dir),
+        Target::Online { .. } => unreachable!("online handled first"),
+    }
+}
+
+/// Runs a zones command; returns the zones after it.
+pub fn run(cmd: &ZonesCommand) -> anyhow::Result<Vec<ZoneSpec>> {
+    match cmd {
+        ZonesCommand::List(a) => {
+            if let Some(z) = online(&a.target, AdminRequest::Zones)? {
+                return Ok(z);
+            }
+            let store = offline_store(&a.target)?;
+            Ok(stored_zones(&store, a.config.as_deref())?
+                .iter()
+                .map(zone_spec)
+                .collect())
+        }
+        ZonesCommand::Add(a) => {
+            let zone = Zone {
+                name: a.name.clone(),
+                min: voxel(&a.min)?,
+                max: voxel(&a.max)?,
+            };
+            if let Some(z) = online(&a.target, AdminRequest::ZoneAdd(zone_spec(&zone)))? {
+                return Ok(z);
+            }
+            let store = offline_store(&a.target)?;
+            let mut zones = stored_zones(&store, a.config.as_deref())?;
+            check_new(&zones, &zone)?;
+            zones.push(zone);
+            save(&store, &zones)
+        }
+        ZonesCommand::Remove(a) => {
+            let req = AdminRequest::ZoneRemove {
+                name: a.name.clone(),
+            };
+            if let Some(z) = online(&a.target, req)? {
+                return Ok(z);
+            }
+            let store = offline_store(&a.target)?;
+            let mut zones = stored_zones(&store, a.config.as_deref())?;
+            let Some(i) = zones.iter().position(|z| z.name == a.name) else {
+                bail!("no zone named {:?}", a.name);
+            };
+            zones.remove(i);
+            save(&store, &zones)
+        }
+    }
+}

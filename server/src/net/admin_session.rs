@@ -1,0 +1,346 @@
+//! One admin connection (ALPN `strata-admin/1`): Hello with an admin-role
+//! token, then requests answered in order on the same stream. A token of
+//! any other role is refused before anything else is read or sent.
+//!
+//! Player connections never come here: the endpoint routes by ALPN, and
+//! the player session decodes only `ClientMessage`.
+
+use std::sync::Arc;
+
+use strata_protocol::admin::{
+    AdminRequest, AdminResponse, AdminWelcome, ServerStats, ADMIN_PROTOCOL_VERSION,
+};
+use strata_protocol::io::{FramedReader, ReadError};
+use strata_protocol::{encode_frame, Direction, ErrorCode, FrameBuffer, FrameError, Role};
+use tokio::sync::{mpsc, oneshot};
+use tracing::{debug, info, warn, Instrument};
+
+use super::session::{
+    check_token, close_code, read_error_code, SessionContext, DRAIN_TIMEOUT, HANDSHAKE_TIMEOUT,
+};
+use crate::engine::admin::{AdminCommand, SnapshotStart};
+use crate::engine::snapshot::PreImages;
+use crate::engine::Command;
+use crate::shutdown::Shutdown;
+use crate::store::{ChunkStore, StoreError};
+
+/// Encoded snapshot frames buffered between the store reader and the socket.
+pub const SNAPSHOT_STREAM_QUEUE: usize = 64;
+
+type Send = quinn::SendStream;
+
+fn frame(msg: &AdminResponse) -> Result<Vec<u8>, FrameError> {
+    encode_frame(msg, Direction::ServerToClient)
+}
+
+async fn send(stream: &mut Send, msg: &AdminResponse) -> Result<(), String> {
+    let bytes = frame(msg).map_err(|e| e.to_string())?;
+    stream.write_all(&bytes).await.map_err(|e| e.to_string())
+}
+
+/// Sends `Error`, lets it drain, and closes with the matching code.
+async fn refuse(conn: &quinn::Connection, mut stream: Send, code: ErrorCode, message: &str) {
+    let msg = AdminResponse::Error {
+        code,
+        message: message.to_string(),
+    };
+    let _ = tokio::time::timeout(DRAIN_TIMEOUT, async {
+        let _ = send(&mut stream, &msg).await;
+        let _ = stream.finish();
+        let _ = stream.stopped().await;
+    })
+    .await;
+    conn.close(close_code(code), message.as_bytes());
+}
+
+/// Runs one admin connection to completion.
+pub async fn run(
+    conn: quinn::Connection,
+    session: u64,
+    ctx: Arc<SessionContext>,
+    shutdown: Shutdown,
+) {
+    let (stream, recv) = match tokio::time::timeout(HANDSHAKE_TIMEOUT, conn.accept_bi()).await {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => return debug!(error = %e, "admin connection closed before its stream"),
+        Err(_) => return conn.close(close_code(ErrorCode::NotAuthenticated), b"no admin stream"),
+    };
+    let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ClientToServer));
+    let hello = match tokio::time::timeout(HANDSHAKE_TIMEOUT, reader.next::<AdminRequest>()).await {
+        Ok(Ok(Some(AdminRequest::Hello(h)))) => h,
+        Ok(Ok(Some(_))) => {
+            let msg = "first message must be Hello";
+            return refuse(&conn, stream, ErrorCode::NotAuthenticated, msg).await;
+        }
+        Ok(Ok(None)) => return,
+        Ok(Err(e)) => return refuse(&conn, stream, read_error_code(&e), &e.to_string()).await,
+        Err(_) => {
+            return refuse(
+                &conn,
+                stream,
+                ErrorCode::NotAuthenticated,
+                "no Hello in time",
+            )
+            .await
+        }
+    };
+    if hello.protocol_version != ADMIN_PROTOCOL_VERSION {
+        let msg = format!(
+            "admin protocol version {} is not supported; this server speaks {ADMIN_PROTOCOL_VERSION}",
+            hello.protocol_version
+        );
+        return refuse(&conn, stream, ErrorCode::UnsupportedVersion, &msg).await;
+    }
+    let claims = match check_token(&ctx, &hello.token) {
+        Ok(c) => c,
+        Err((code, message)) => return refuse(&conn, stream, code, &message).await,
+    };
+    if claims.role != Role::Admin {
+        warn!(player = %claims.player, "refused a non-admin token on the admin protocol");
+        let msg = format!(
+            "{}'s token has role {}; the admin protocol needs role admin",
+            claims.player,
+            claims.role.name()
+        );
+        return refuse(&conn, stream, ErrorCode::Forbidden, &msg).await;
+    }
+    let span = tracing::info_span!("admin", id = session, admin = %claims.player);
+    serve(conn, ctx, shutdown, stream, reader, claims.player)
+        .instrument(span)
+        .await
+}
+
+async fn serve(
+    conn: quinn::Connection,
+    ctx: Arc<SessionContext>,
+    mut shutdown: Shutdown,
+    mut stream: Send,
+    mut reader: FramedReader<quinn::RecvStream>,
+    admin: String,
+) {
+    let last_seq = match ask(&ctx, AdminCommand::Stats).await {
+        Ok(s) => s.last_seq,
+        Err(m) => return refuse(&conn, stream, ErrorCode::TooManyConnections, &m).await,
+    };
+    let welcome = AdminResponse::Welcome(AdminWelcome {
+        admin,
+        last_seq,
+        world_seed: ctx.world_seed,
+        generator_version: ctx.generator_version,
+    });
+    if send(&mut stream, &welcome).await.is_err() {
+        return;
+    }
+    info!("admin session started");
+    loop {
+        let req = tokio::select! {
+            r = reader.next::<AdminRequest>() => r,
+            _ = shutdown.wait() => {
+                return refuse(&conn, stream, ErrorCode::ShuttingDown, "server is shutting down").await;
+            }
+        };
+        let req = match req {
+            Ok(Some(r)) => r,
+            Ok(None) => break,
+            Err(ReadError::Io(e)) => return debug!(error = %e, "admin stream ended"),
+            Err(e) => return refuse(&conn, stream, read_error_code(&e), &e.to_string()).await,
+        };
+        let result = match req {
+            AdminRequest::Hello(_) => {
+                let msg = "Hello was already received";
+                return refuse(&conn, stream, ErrorCode::Malformed, msg).await;
+            }
+            AdminRequest::Snapshot { max_pending_chunks } => {
+                snapshot(&ctx, &mut stream, max_pending_chunks as usize).await
+            }
+            other => match answer(&ctx, other).await {
+                Ok(resp) => send(&mut stream, &resp).await,
+                Err(e) => Err(e),
+            },
+        };
+        if let Err(e) = result {
+            return debug!(error = %e, "admin session ends");
+        }
+    }
+    let _ = stream.finish();
+    let _ = tokio::time::timeout(DRAIN_TIMEOUT, stream.stopped()).await;
+    conn.close(quinn::VarInt::from_u32(0), b"bye");
+    info!("admin session ended");
+}
+
+/// Sends a command to the engine and waits for its answer.
+async fn ask<T>(
+    ctx: &SessionContext,
+    make: impl FnOnce(oneshot::Sender<T>) -> AdminCommand,
+) -> Result<T, String> {
+    let (tx, rx) = oneshot::channel();
+    if !ctx.engine.try_send(Command::Admin(make(tx))) {
+        return Err("server is overloaded".into());
+    }
+    rx.await.map_err(|_| "server is shutting down".to_string())
+}
+
+fn refused(message: String) -> AdminResponse {
+    AdminResponse::Refused { message }
+}
+
+/// Answers one non-streaming request. `Err` ends the session.
+async fn answer(ctx: &Arc<SessionContext>, req: AdminRequest) -> Result<AdminResponse, String> {
+    Ok(match req {
+        AdminRequest::Stats => {
+            let engine = ask(ctx, AdminCommand::Stats).await?;
+            let store = ctx.store.clone();
+            let stored = tokio::task::spawn_blocking(move || store_figures(&*store))
+                .await
+                .map_err(|e| e.to_string())?;
+            match stored {
+                Ok((extent, store_bytes)) => AdminResponse::Stats(ServerStats {
+                    last_seq: engine.last_seq,
+                    modified_chunks: engine.modified_chunks,
+                    modified_extent: extent,
+                    resident_chunks: engine.resident_chunks,
+                    store_bytes,
+                    sessions: engine.sessions,
+                    queued_edits: engine.queued_edits,
+                    world_seed: ctx.world_seed,
+                    generator_version: ctx.generator_version,
+                }),
+                Err(e) => refused(format!("store read failed: {e}")),
+            }
+        }
+        AdminRequest::Players => AdminResponse::Players(ask(ctx, AdminCommand::Players).await?),
+        AdminRequest::Kick { player } => AdminResponse::Kicked {
+            sessions: ask(ctx, |reply| AdminCommand::Kick { player, reply }).await?,
+        },
+        AdminRequest::Zones => AdminResponse::Zones(ask(ctx, AdminCommand::Zones).await?),
+        AdminRequest::ZoneAdd(zone) => {
+            match ask(ctx, |reply| AdminCommand::ZoneAdd { zone, reply }).await? {
+                Ok(z) => AdminResponse::Zones(z),
+                Err(m) => refused(m),
+            }
+        }
+        AdminRequest::ZoneRemove { name } => {
+            match ask(ctx, |reply| AdminCommand::ZoneRemove { name, reply }).await? {
+                Ok(z) => AdminResponse::Zones(z),
+                Err(m) => refused(m),
+            }
+        }
+        AdminRequest::InspectChunk { pos } => {
+            match ask(ctx, |reply| AdminCommand::Chunk { pos, reply }).await? {
+                Ok((version, data)) => AdminResponse::Chunk { pos, version, data },
+                Err(m) => refused(m),
+            }
+        }
+        AdminRequest::Hello(_) | AdminRequest::Snapshot { .. } => {
+            unreachable!("handled by the session loop")
+        }
+    })
+}
+
+/// Extent of the modified chunks and the store's size on disk.
+pub fn store_figures(
+    store: &dyn ChunkStore,
+) -> Result<
+    (
+        Option<(strata_terrain::ChunkPos, strata_terrain::ChunkPos)>,
+        u64,
+    ),
+    StoreError,
+> {
+    let mut extent: Option<(strata_terrain::ChunkPos, strata_terrain::ChunkPos)> = None;
+    for item in store.modified_chunks() {
+        let (p, _) = item?;
+        extent = Some(match extent {
+            None => (p, p),
+            Some((lo, hi)) => (
+                strata_terrain::ChunkPos::new(lo.x.min(p.x), lo.y.min(p.y), lo.z.min(p.z)),
+                strata_terrain::ChunkPos::new(hi.x.max(p.x), hi.y.max(p.y), hi.z.max(p.z)),
+            ),
+        });
+    }
+    Ok((extent, store.size_on_disk()?))
+}
+
+/// Streams a consistent snapshot: registers it with the engine, reads the
+/// store on a blocking thread through the pre-images, and writes each
+/// chunk as it comes (bounded queue). A refusal is a `Refused` response.
+async fn snapshot(
+    ctx: &Arc<SessionContext>,
+    stream: &mut Send,
+    limit: usize,
+) -> Result<(), String> {
+    let start: Result<SnapshotStart, String> = ask(ctx, |reply| AdminCommand::SnapshotBegin {
+        max_pending_chunks: limit,
+        world_seed: ctx.world_seed,
+        generator_version: ctx.generator_version,
+        generator_params: ctx.generator_params.clone(),
+        reply,
+    })
+    .await?;
+    let start = match start {
+        Ok(s) => s,
+        Err(m) => return send(stream, &refused(m)).await,
+    };
+    send(stream, &AdminResponse::SnapshotBegin(start.info)).await?;
+    let (tx, mut rx) = mpsc::channel::<Vec<u8>>(SNAPSHOT_STREAM_QUEUE);
+    let store = ctx.store.clone();
+    let pre = start.preimages;
+    let reader = tokio::task::spawn_blocking(move || read_snapshot(&*store, &pre, &tx));
+    let mut write_error = None;
+    while let Some(bytes) = rx.recv().await {
+        if let Err(e) = stream.write_all(&bytes).await {
+            // Dropping the receiver stops the reader at its next send.
+            write_error = Some(e.to_string());
+            break;
+        }
+    }
+    drop(rx);
+    let outcome = reader.await.map_err(|e| e.to_string())?;
+    if let Some(e) = write_error {
+        return Err(e);
+    }
+    match outcome {
+        Ok(chunks) => {
+            info!(chunks, "snapshot sent");
+            send(stream, &AdminResponse::SnapshotEnd { chunks }).await
+        }
+        Err(m) => {
+            warn!(reason = %m, "snapshot aborted");
+            send(stream, &refused(format!("snapshot aborted: {m}"))).await
+        }
+    }
+}
+
+/// Walks the store's chunk records, resolving each through the pre-images,
+/// and queues encoded `SnapshotChunk` frames. Returns the chunk count.
+fn read_snapshot(
+    store: &dyn ChunkStore,
+    pre: &Arc<PreImages>,
+    tx: &mpsc::Sender<Vec<u8>>,
+) -> Result<u64, String> {
+    let mut count = 0u64;
+    for item in store.raw_chunks() {
+        let read = item.map_err(|e| format!("store read failed: {e}"))?;
+        if let Some(reason) = pre.aborted() {
+            return Err(reason);
+        }
+        let Some(c) = pre.resolve(read) else {
+            continue; // first written after the snapshot's seq
+        };
+        let msg = AdminResponse::SnapshotChunk {
+            pos: c.pos,
+            version: c.version,
+            data: c.encoded,
+        };
+        let bytes = frame(&msg).map_err(|e| e.to_string())?;
+        if tx.blocking_send(bytes).is_err() {
+            return Err("the admin connection went away".into());
+        }
+        count += 1;
+    }
+    // A chunk may have been aborted after its last read: report it.
+    match pre.aborted() {
+        Some(reason) => Err(reason),
+        None => Ok(count),
+    }
+}
