@@ -420,6 +420,12 @@ impl ServerConfig {
             MAX_COMMAND_QUEUE,
         )?;
         range(
+            "engine.snapshot_preimages",
+            self.engine.snapshot_preimages,
+            1,
+            crate::engine::snapshot::MAX_SNAPSHOT_PREIMAGES,
+        )?;
+        range(
             "engine.resident_chunks",
             self.engine.resident_chunks,
             MIN_RESIDENT_CHUNKS,

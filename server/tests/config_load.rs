@@ -180,6 +180,13 @@ fn bad_values_name_their_field() {
         ),
         ("[engine]\ntick_ms = 0", "engine.tick_ms"),
         ("[engine]\ncommand_queue = 0", "engine.command_queue"),
+        ("[engine]\npremesh_radius = 9", "engine.premesh_radius"),
+        ("[engine]\npremesh_inflight = 0", "engine.premesh_inflight"),
+        ("[engine]\nresident_chunks = 3", "engine.resident_chunks"),
+        (
+            "[engine]\nsnapshot_preimages = 0",
+            "engine.snapshot_preimages",
+        ),
         (
             "[sequencer]\nqueue_capacity = 0",
             "sequencer.queue_capacity",

@@ -62,6 +62,9 @@ pub struct EngineConfig {
     pub premesh_inflight: usize,
     /// Chunks held in memory before cold ones are dropped ([`DEFAULT_RESIDENT_CHUNKS`]).
     pub resident_chunks: usize,
+    /// Pre-images one online snapshot may hold when its request names no
+    /// limit ([`snapshot::DEFAULT_SNAPSHOT_PREIMAGES`]).
+    pub snapshot_preimages: usize,
 }
 
 impl Default for EngineConfig {
@@ -72,6 +75,7 @@ impl Default for EngineConfig {
             premesh_radius: DEFAULT_PREMESH_RADIUS,
             premesh_inflight: DEFAULT_PREMESH_INFLIGHT,
             resident_chunks: DEFAULT_RESIDENT_CHUNKS,
+            snapshot_preimages: snapshot::DEFAULT_SNAPSHOT_PREIMAGES,
         }
     }
 }

@@ -123,7 +123,7 @@ impl Engine {
             ));
         }
         let limit = match limit {
-            0 => DEFAULT_SNAPSHOT_PREIMAGES,
+            0 => self.cfg.snapshot_preimages,
             n => n.min(MAX_SNAPSHOT_PREIMAGES),
         };
         let pre = Arc::new(PreImages::new(self.seq.last_seq(), limit));
