@@ -7,3 +7,4 @@ pub mod mesh_cmd;
 pub mod obj;
 pub mod ply;
 pub mod token_cmd;
+pub mod verify_acks;

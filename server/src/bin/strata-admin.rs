@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 use strata_server::admin::generate::{self, GenerateArgs};
 use strata_server::admin::mesh_cmd::{self, MeshArgs};
 use strata_server::admin::token_cmd::{self, TokenIssueArgs};
+use strata_server::admin::verify_acks::{self, VerifyAcksArgs};
 
 /// Administration tools for Strata.
 #[derive(Debug, Parser)]
@@ -31,6 +32,15 @@ enum Command {
     /// Auth tokens.
     #[command(subcommand)]
     Token(TokenCommand),
+    /// Check that the stored world holds every edit in an ack log.
+    ///
+    /// The ack log (from `strata-bots --ack-log`) has one JSON object per
+    /// line: {"seq":17,"chunks":[{"x":16,"y":1,"z":16,"version":4}]}. Each
+    /// edit must be in the store's edit log with those chunk versions, and
+    /// each chunk stored at that version or later. Prints one JSON report
+    /// line; exits non-zero if anything acknowledged is missing. Stop the
+    /// server first.
+    VerifyAcks(VerifyAcksArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -63,6 +73,18 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             "{}",
             token_cmd::issue(&args).context("strata-admin token issue")?
         ),
+        Command::VerifyAcks(args) => {
+            let report = verify_acks::run(&args).context("strata-admin verify-acks")?;
+            println!("{}", serde_json::to_string(&report)?);
+            if !report.ok() {
+                anyhow::bail!(
+                    "{} of {} acknowledged edits are not in the stored world (first: {:?})",
+                    report.failure_count,
+                    report.records,
+                    report.failures.first()
+                );
+            }
+        }
     }
     Ok(())
 }

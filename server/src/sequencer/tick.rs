@@ -101,8 +101,27 @@ impl Sequencer {
                 changes,
             });
         }
-        let meshes = CollisionCache::mesh_chunks(&jobs);
-        let current = still_current(&jobs);
+        let mut meshes = CollisionCache::mesh_chunks(&jobs);
+        let mut current = still_current(&jobs);
+        // Clients compare mesh hashes at the tick's end: a chunk whose
+        // neighbour changed later in the tick is meshed again from the world
+        // as it now stands (its last change carries that hash).
+        let mut last: BTreeMap<ChunkPos, usize> = BTreeMap::new();
+        for (i, (pos, _, _)) in jobs.iter().enumerate() {
+            last.insert(*pos, i);
+        }
+        let stale: Vec<usize> = last.into_values().filter(|&i| !current[i]).collect();
+        let redo: Vec<_> = stale
+            .iter()
+            .map(|&i| {
+                let (pos, version, _) = &jobs[i];
+                (*pos, *version, Neighborhood::from_world(&self.world, *pos))
+            })
+            .collect();
+        for (&i, mesh) in stale.iter().zip(CollisionCache::mesh_chunks(&redo)) {
+            meshes[i] = mesh;
+            current[i] = true;
+        }
         for ((slot, mesh), keep) in slots.iter().zip(meshes).zip(current) {
             out.applied[slot.applied].changes[slot.change].mesh_hash = mesh.hash;
             if keep {
