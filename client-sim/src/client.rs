@@ -88,6 +88,20 @@ struct Shared {
     error: Mutex<Option<(ErrorCode, String)>>,
     arrivals: Mutex<Vec<Arrival>>,
     bytes_in: AtomicU64,
+    /// When the server was last heard from (ms since the Unix epoch).
+    heard_ms: AtomicU64,
+}
+
+impl Shared {
+    fn heard(&self) {
+        self.heard_ms.store(unix_ms(), Ordering::Relaxed);
+    }
+}
+
+fn unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
 }
 
 /// One connected session.
@@ -215,6 +229,7 @@ impl Client {
         }
         let replica = Arc::new(Mutex::new(replica));
         let shared = Arc::new(Shared::default());
+        shared.heard();
         let (control, control_rx) = mpsc::channel(CONTROL_QUEUE);
         let tasks = vec![
             tokio::spawn(write_control(send, control_rx)),
@@ -369,6 +384,22 @@ impl Client {
         self.bytes_out.load(Ordering::Relaxed)
     }
 
+    /// How long since the server last sent anything (any control message
+    /// or update). With regular pings, a long silence means a dead server
+    /// whose connection QUIC has not timed out yet.
+    pub fn silent_for(&self) -> Duration {
+        let heard = self.shared.heard_ms.load(Ordering::Relaxed);
+        Duration::from_millis(unix_ms().saturating_sub(heard))
+    }
+
+    /// Closes the connection at once, without waiting for the peer.
+    pub fn abandon(self) {
+        self.conn.close(quinn::VarInt::from_u32(0), b"abandoned");
+        for t in self.tasks {
+            t.abort();
+        }
+    }
+
     /// True once the connection has ended.
     pub fn is_closed(&self) -> bool {
         self.conn.close_reason().is_some()
@@ -411,7 +442,11 @@ async fn write_control(mut send: quinn::SendStream, mut rx: mpsc::Receiver<Bytes
 
 async fn read_control(mut reader: FramedReader<quinn::RecvStream>, shared: Arc<Shared>) {
     loop {
-        match reader.next::<ServerMessage>().await {
+        let msg = reader.next::<ServerMessage>().await;
+        if let Ok(Some(_)) = &msg {
+            shared.heard();
+        }
+        match msg {
             Ok(Some(ServerMessage::EditAccepted {
                 client_edit_id,
                 seq,
@@ -471,6 +506,7 @@ async fn read_updates(
                 break;
             }
         };
+        shared.heard();
         if let WorldUpdate::Delta(d) = &update {
             let mut a = shared.arrivals.lock().expect("not poisoned");
             if a.len() < MAX_ARRIVALS {

@@ -46,9 +46,11 @@ pub fn binary(name: &str) -> PathBuf {
             ])
             .arg("--target-dir")
             .arg(target);
-            if dir.file_name().is_some_and(|n| n == "release") {
-                cmd.arg("--release");
-            }
+            // The profile the tests were built with: `test` lives in debug/.
+            match dir.file_name().and_then(|n| n.to_str()) {
+                Some("release") => cmd.arg("--release"),
+                _ => cmd.args(["--profile", "test"]),
+            };
             let status = cmd.status().expect("cargo runs");
             assert!(status.success(), "building the binaries failed");
         });

@@ -42,4 +42,14 @@ fn twenty_mixed_bots_converge_in_one_global_order() {
     let (status, report) = verify_acks(&data, &acks);
     assert!(status.success(), "verify-acks: {report}");
     assert_eq!(num(&report, "records"), accepted, "{report}");
+    // An acknowledgement the store never saw fails the check.
+    let mut log = std::fs::read_to_string(&acks).unwrap();
+    log.push_str(&format!(
+        "{{\"seq\":{},\"chunks\":[]}}\n",
+        num(&report, "last_seq") + 1
+    ));
+    std::fs::write(&acks, log).unwrap();
+    let (status, report) = verify_acks(&data, &acks);
+    assert!(!status.success(), "{report}");
+    assert_eq!(num(&report, "failure_count"), 1, "{report}");
 }

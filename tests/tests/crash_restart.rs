@@ -19,14 +19,16 @@ fn killed_server_loses_no_acknowledged_edit_and_bots_converge() {
             "--bots",
             "8",
             "--duration",
-            "12s",
+            "14s",
+            "--silence-limit",
+            "2s",
             "--edit-rate",
             "3",
             "--ack-log",
             acks.to_str().unwrap(),
         ],
     );
-    std::thread::sleep(Duration::from_secs(5));
+    std::thread::sleep(Duration::from_secs(4));
     let before_kill = std::fs::read_to_string(&acks).unwrap().lines().count();
     server.kill();
     std::thread::sleep(Duration::from_millis(500));

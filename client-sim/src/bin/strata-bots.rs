@@ -81,6 +81,11 @@ struct Args {
     /// client); they keep editing and are left out of the comparison.
     #[arg(long, default_value_t = 0)]
     stalled: usize,
+    /// Reconnect when the server has been silent this long despite pings
+    /// (a killed server's connections otherwise linger until QUIC's idle
+    /// timeout).
+    #[arg(long, default_value = "5s", value_parser = parse_run_duration)]
+    silence_limit: std::time::Duration,
     /// Seed of the bots' choices.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -178,6 +183,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         ack_log: args.ack_log,
         progress: true,
         area_origin: bots::DEFAULT_AREA_ORIGIN,
+        silence_limit: args.silence_limit,
     };
     let summary = bots::run(cfg).await?;
     if args.json {

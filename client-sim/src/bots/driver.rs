@@ -2,13 +2,15 @@
 //! role, and at the end compare its replica with the server's world.
 
 use std::collections::HashMap;
+use std::future::Future;
+use std::pin::Pin;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use strata_protocol::ErrorCode;
 use strata_server::metrics::reject_label;
-use strata_terrain::{ChunkPos, FixedVec3, VoxelPos};
+use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
 use tokio::sync::watch;
 use tracing::debug;
 
@@ -16,13 +18,15 @@ use super::footing::{self, MAX_STEP};
 use super::rng::Rng;
 use super::stats::Stats;
 use super::{Fleet, Phase, Role, VerifyMode};
-use crate::client::{Arrival, Client, ClientError, ClientOptions, Verdict};
+use crate::client::{Acked, Arrival, Client, ClientError, ClientOptions, Verdict};
 use crate::replica::{Replica, ReplicaStats};
 
 /// Time between a bot's steps.
 pub const STEP: Duration = Duration::from_millis(100);
 /// Steps between position reports.
 pub const POSITION_EVERY: u32 = 2;
+/// Steps between pings (the server answers each with a pong).
+pub const PING_EVERY: u32 = 5;
 /// Steps between matching delta arrivals with edits.
 pub const DRAIN_EVERY: u32 = 10;
 /// How long a bot waits for the ground under it to arrive.
@@ -37,6 +41,26 @@ pub const RECONNECT_DELAY: Duration = Duration::from_millis(250);
 pub const ARRIVAL_MATCH_WINDOW: Duration = Duration::from_secs(30);
 /// Longest wait for the server's copies of a bot's chunks.
 pub const CHECK_TIMEOUT: Duration = Duration::from_secs(45);
+
+/// An edit in flight: its verdict and when it was sent.
+type PendingEdit<'a> = dyn Future<Output = (Result<Acked, ClientError>, Instant)> + Send + 'a;
+
+/// What the session loop does after a step.
+enum Next {
+    Continue,
+    Edit,
+    Done,
+}
+
+/// The session loop's state.
+struct Loop {
+    steps: u32,
+    subscribed: ChunkPos,
+    last_bytes: u64,
+    next_edit: Instant,
+    interval: Option<Duration>,
+    pings: u64,
+}
 
 /// What one bot reports at the end, over all its connections.
 #[derive(Debug, Default)]
@@ -173,7 +197,7 @@ pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
             Err(e) => {
                 debug!(bot = id, error = %e, "connection lost; reconnecting");
                 Stats::add(&stats.reconnects, 1);
-                drop(client);
+                client.abandon();
                 tokio::time::sleep(RECONNECT_DELAY).await;
             }
         }
@@ -292,7 +316,7 @@ impl Bot {
         if let Some(p) = FixedVec3::from_f64(feet) {
             client.send_position(p)?;
         }
-        let mut subscribed = walker.chunk();
+        let subscribed = walker.chunk();
         if subscribed != start_chunk {
             client.subscribe(subscribed, radius).await?;
         }
@@ -301,60 +325,109 @@ impl Bot {
         }
         let interval = (self.fleet.cfg.edit_rate > 0.0)
             .then(|| Duration::from_secs_f64(1.0 / self.fleet.cfg.edit_rate));
-        // Spread the bots' edits over the first interval.
-        let mut next_edit =
-            Instant::now() + interval.map_or(Duration::ZERO, |i| i.mul_f64(self.rng.unit()));
+        let mut st = Loop {
+            steps: 0,
+            subscribed,
+            last_bytes: client.bytes_in(),
+            // Spread the bots' edits over the first interval.
+            next_edit: Instant::now()
+                + interval.map_or(Duration::ZERO, |i| i.mul_f64(self.rng.unit())),
+            interval,
+            pings: 0,
+        };
         let mut ticker = tokio::time::interval(STEP);
         ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-        let mut steps: u32 = 0;
-        let mut last_bytes = client.bytes_in();
-        loop {
-            ticker.tick().await;
-            steps = steps.wrapping_add(1);
-            if client.is_closed() {
-                return Err(client.closed().await);
-            }
-            if steps % DRAIN_EVERY == 0 {
-                self.drain_arrivals(client);
-            }
-            match self.phase() {
-                Phase::Run => {
-                    let walker = self.walker.as_mut().expect("set above");
-                    walker.step(&client.replica(), STEP.as_secs_f64(), &mut self.rng);
-                    if steps % POSITION_EVERY == 0 {
-                        let [x, y, z] = walker.feet;
-                        if let Some(p) = FixedVec3::from_f64([x, y, z]) {
-                            client.send_position(p)?;
+        // The edit awaiting its verdict: the bot keeps walking and pinging.
+        let mut pending: Option<Pin<Box<PendingEdit<'_>>>> = None;
+        let result = loop {
+            tokio::select! {
+                (verdict, sent_at) = async { pending.as_mut().expect("guarded").await },
+                    if pending.is_some() =>
+                {
+                    pending = None;
+                    self.fleet.in_flight.fetch_sub(1, Ordering::Relaxed);
+                    if let Err(e) = self.verdict(verdict, sent_at) {
+                        break Err(e);
+                    }
+                }
+                _ = ticker.tick() => match self.tick(client, &mut st).await {
+                    Ok(Next::Continue) => {}
+                    Ok(Next::Edit) if pending.is_none() => {
+                        if let Some(edit) = self.prepare_edit(client) {
+                            self.fleet.in_flight.fetch_add(1, Ordering::Relaxed);
+                            let sent_at = Instant::now();
+                            pending = Some(Box::pin(async move {
+                                (client.edit_acked(edit).await, sent_at)
+                            }));
                         }
                     }
-                    let chunk = walker.chunk();
-                    if chunk != subscribed {
-                        subscribed = chunk;
-                        client.subscribe(chunk, radius).await?;
-                    }
-                    if let Some(i) = interval {
-                        if Instant::now() >= next_edit {
-                            next_edit = (next_edit + i).max(Instant::now());
-                            self.edit(client).await?;
-                        }
-                    }
-                }
-                Phase::Quiesce => {
-                    let b = client.bytes_in();
-                    if b != last_bytes {
-                        last_bytes = b;
-                        self.fleet.touch();
-                    }
-                }
-                Phase::Verify => {
-                    if !self.out.verified && !self.out.stalled {
-                        self.verify(client).await?;
-                    }
-                    self.finish();
-                }
-                Phase::Done => return Ok(()),
+                    Ok(Next::Edit) => {}
+                    Ok(Next::Done) => break Ok(()),
+                    Err(e) => break Err(e),
+                },
             }
+        };
+        if pending.is_some() {
+            self.fleet.in_flight.fetch_sub(1, Ordering::Relaxed);
+            Stats::add(&self.fleet.stats.edits_unanswered, 1);
         }
+        result
+    }
+
+    /// One step of the session loop.
+    async fn tick(&mut self, client: &Client, st: &mut Loop) -> Result<Next, ClientError> {
+        st.steps = st.steps.wrapping_add(1);
+        if client.is_closed() {
+            return Err(client.closed().await);
+        }
+        if client.silent_for() > self.fleet.cfg.silence_limit {
+            return Err(ClientError::Timeout("a sign of life from the server"));
+        }
+        if st.steps % PING_EVERY == 0 {
+            st.pings += 1;
+            client.ping(st.pings).await?;
+        }
+        if st.steps % DRAIN_EVERY == 0 {
+            self.drain_arrivals(client);
+        }
+        let radius = self.fleet.cfg.view_radius;
+        match self.phase() {
+            Phase::Run => {
+                let walker = self.walker.as_mut().expect("set by session");
+                walker.step(&client.replica(), STEP.as_secs_f64(), &mut self.rng);
+                if st.steps % POSITION_EVERY == 0 {
+                    if let Some(p) = FixedVec3::from_f64(walker.feet) {
+                        client.send_position(p)?;
+                    }
+                }
+                let chunk = walker.chunk();
+                if chunk != st.subscribed {
+                    st.subscribed = chunk;
+                    client.subscribe(chunk, radius).await?;
+                }
+                if let Some(i) = st.interval {
+                    if Instant::now() >= st.next_edit {
+                        st.next_edit = (st.next_edit + i).max(Instant::now());
+                        return Ok(Next::Edit);
+                    }
+                }
+            }
+            Phase::Quiesce => {
+                let b = client.bytes_in();
+                if b != st.last_bytes {
+                    st.last_bytes = b;
+                    self.fleet.touch();
+                }
+            }
+            Phase::Verify => {
+                if !self.out.verified && !self.out.stalled {
+                    self.verify(client).await?;
+                }
+                self.finish();
+            }
+            Phase::Done => return Ok(Next::Done),
+        }
+        Ok(Next::Continue)
     }
 
     /// Waits until the replica holds ground under `(x, z)`.
@@ -380,26 +453,32 @@ impl Bot {
         }
     }
 
-    async fn edit(&mut self, client: &Client) -> Result<(), ClientError> {
-        let fleet = self.fleet.clone();
-        let stats = &fleet.stats;
+    /// The next edit aimed from the bot's position, if a target is in
+    /// reach and sight.
+    fn prepare_edit(&mut self, client: &Client) -> Option<Edit> {
+        let stats = &self.fleet.stats;
         let feet = self.walker.as_ref().expect("walking").feet;
         let target = footing::pick_target(&client.replica(), feet, &mut self.rng);
         let Some(target) = target else {
             Stats::add(&stats.edits_skipped, 1);
-            return Ok(());
+            return None;
         };
-        let edit = self.role.edit(target, &mut self.rng);
         Stats::add(&stats.edits_sent, 1);
-        fleet.in_flight.fetch_add(1, Ordering::Relaxed);
-        let sent_at = Instant::now();
-        let result = client.edit_acked(edit).await;
-        fleet.in_flight.fetch_sub(1, Ordering::Relaxed);
+        Some(self.role.edit(target, &mut self.rng))
+    }
+
+    /// Records an edit's verdict; an error means the connection is lost.
+    fn verdict(
+        &self,
+        result: Result<Acked, ClientError>,
+        sent_at: Instant,
+    ) -> Result<(), ClientError> {
+        let stats = &self.fleet.stats;
         match result {
             Ok((Verdict::Accepted { seq }, changes)) => {
                 stats.ack.record(sent_at.elapsed());
                 Stats::add(&stats.edits_accepted, 1);
-                fleet.accepted(seq, sent_at, self.id, &changes);
+                self.fleet.accepted(seq, sent_at, self.id, &changes);
                 Ok(())
             }
             Ok((Verdict::Rejected(reason), _)) => {

@@ -52,6 +52,8 @@ pub const QUIET_PERIOD: Duration = Duration::from_millis(750);
 pub const QUIET_TIMEOUT: Duration = Duration::from_secs(30);
 /// Longest wait for every bot to finish its end-of-run check.
 pub const VERIFY_TIMEOUT: Duration = Duration::from_secs(60);
+/// Default of [`BotsConfig::silence_limit`].
+pub const DEFAULT_SILENCE_LIMIT: Duration = Duration::from_secs(5);
 /// Largest view radius a bot subscribes with.
 pub const MAX_BOT_VIEW_RADIUS: u8 = 8;
 /// Accepted edits remembered for broadcast-latency matching.
@@ -140,6 +142,10 @@ pub struct BotsConfig {
     pub ack_log: Option<PathBuf>,
     pub progress: bool,
     pub area_origin: (i32, i32),
+    /// A server silent this long, despite pings, is taken for dead and the
+    /// bot reconnects. QUIC's idle timeout is much longer, and a restarted
+    /// server cannot reset the old connections (its reset key is new).
+    pub silence_limit: Duration,
 }
 
 impl BotsConfig {

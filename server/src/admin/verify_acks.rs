@@ -258,6 +258,9 @@ mod tests {
         use strata_terrain::{Chunk, Edit, FixedVec3, Voxel};
         let tmp = tempfile::tempdir().unwrap();
         let store = SledStore::open(tmp.path()).unwrap();
+        store
+            .init_meta(&crate::store::WorldMeta::new(1, 1, "seed = 1\n"))
+            .unwrap();
         let pos = ChunkPos::new(3, 0, -2);
         let entry = |seq, version| LogEntry {
             seq,
