@@ -30,6 +30,15 @@ pub struct MeshMismatch {
     pub client: u64,
 }
 
+/// A server mesh hash to compare at the next tick end.
+#[derive(Debug, Clone, Copy)]
+struct PendingMesh {
+    version: u64,
+    hash: u64,
+    /// The edit whose delta carried it; `None` for a snapshot.
+    seq: Option<u64>,
+}
+
 /// What the client must ask the server for after an update.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Request {
@@ -63,7 +72,7 @@ pub struct Replica {
     generator: Option<Arc<dyn ChunkGenerator>>,
     chunks: HashMap<ChunkPos, Held>,
     /// Server mesh hashes to check at the next tick end: pos -> (version, hash).
-    pending_mesh: HashMap<ChunkPos, (u64, u64)>,
+    pending_mesh: HashMap<ChunkPos, PendingMesh>,
     mismatches: Vec<MeshMismatch>,
     /// Every version each chunk passed through, when recording.
     history: Option<HashMap<ChunkPos, Vec<u64>>>,
@@ -125,6 +134,11 @@ impl Replica {
     /// Checks asked for and not answered yet.
     pub fn checks_pending(&self) -> usize {
         self.checks.len()
+    }
+
+    /// Whether the check of `pos` is still waiting for the server.
+    pub fn is_checking(&self, pos: ChunkPos) -> bool {
+        self.checks.contains(&pos)
     }
 
     fn check(&mut self, pos: ChunkPos, version: u64, hash: Option<u64>) {
@@ -218,10 +232,18 @@ impl Replica {
                 };
                 self.stats.snapshots += 1;
                 self.check(pos, version, Some(hash));
+                if self.chunks.get(&pos).is_none_or(|h| h.version != version) {
+                    self.neighbour_changed(pos, None);
+                }
                 let chunk = self.pool.intern(pos, version, hash, chunk);
                 self.hold(pos, chunk, version, hash);
                 if version > 0 {
-                    self.pending_mesh.insert(pos, (version, mesh_hash));
+                    let p = PendingMesh {
+                        version,
+                        hash: mesh_hash,
+                        seq: None,
+                    };
+                    self.pending_mesh.insert(pos, p);
                 }
                 None
             }
@@ -258,8 +280,13 @@ impl Replica {
                 let (version, hash) = (d.delta.to_version, d.delta.target_hash);
                 let chunk = self.pool.intern(pos, version, hash, chunk);
                 self.hold(pos, chunk, version, hash);
-                self.pending_mesh
-                    .insert(pos, (d.delta.to_version, d.mesh_hash));
+                self.neighbour_changed(pos, Some(d.seq));
+                let p = PendingMesh {
+                    version,
+                    hash: d.mesh_hash,
+                    seq: Some(d.seq),
+                };
+                self.pending_mesh.insert(pos, p);
                 None
             }
             Err(_) => {
@@ -270,12 +297,42 @@ impl Replica {
         }
     }
 
+    /// `pos` changed (by edit `seq`, or to a snapshot): a pending check of
+    /// a neighbour expects the mesh before this change unless the same edit
+    /// made both, so it is dropped. (The server hashes meshes at its tick's
+    /// end, but a lost `TickEnd` or a snapshot can let a later change in.)
+    fn neighbour_changed(&mut self, pos: ChunkPos, seq: Option<u64>) {
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let Some(n) = pos.offset(dx, dy, dz).filter(|n| *n != pos) else {
+                        continue;
+                    };
+                    if let Some(p) = self.pending_mesh.get(&n) {
+                        if seq.is_none() || p.seq != seq {
+                            self.pending_mesh.remove(&n);
+                            self.stats.meshes_unverifiable += 1;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Meshes every chunk that changed this tick and compares hashes. A
     /// chunk is checked only when the client holds its 26 neighbours, since
     /// the mesh reads them.
     fn verify_meshes(&mut self) {
         let pending: Vec<_> = self.pending_mesh.drain().collect();
-        for (pos, (version, server)) in pending {
+        for (
+            pos,
+            PendingMesh {
+                version,
+                hash: server,
+                ..
+            },
+        ) in pending
+        {
             match self.chunks.get(&pos) {
                 Some(h) if h.version == version => {}
                 _ => continue,

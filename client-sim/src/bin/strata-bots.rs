@@ -84,7 +84,7 @@ struct Args {
     /// Reconnect when the server has been silent this long despite pings
     /// (a killed server's connections otherwise linger until QUIC's idle
     /// timeout).
-    #[arg(long, default_value = "5s", value_parser = parse_run_duration)]
+    #[arg(long, default_value = "10s", value_parser = parse_run_duration)]
     silence_limit: std::time::Duration,
     /// Seed of the bots' choices.
     #[arg(long, default_value_t = 1)]

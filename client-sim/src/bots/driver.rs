@@ -39,6 +39,11 @@ pub const RECONNECT_WINDOW: Duration = Duration::from_secs(60);
 pub const RECONNECT_DELAY: Duration = Duration::from_millis(250);
 /// Delta arrivals whose edit is not acknowledged yet are kept this long.
 pub const ARRIVAL_MATCH_WINDOW: Duration = Duration::from_secs(30);
+/// Chunk requests a bot has in flight during its end-of-run check.
+pub const CHECK_WINDOW: usize = 4;
+/// A chunk request unanswered this long is sent again (a full server
+/// command queue drops requests).
+pub const CHECK_RETRY: Duration = Duration::from_secs(3);
 /// Longest wait for the server's copies of a bot's chunks.
 pub const CHECK_TIMEOUT: Duration = Duration::from_secs(45);
 
@@ -514,14 +519,16 @@ impl Bot {
         });
     }
 
-    /// Asks the server for every held chunk and compares.
+    /// Asks the server for every held chunk and compares, a few requests
+    /// at a time (the server's command queue is shared by every bot), and
+    /// asks again for any the server has not answered after a while.
     async fn verify(&mut self, client: &Client) -> Result<(), ClientError> {
         let mode = self.fleet.cfg.verify;
         if mode == VerifyMode::Off {
             self.out.verified = true;
             return Ok(());
         }
-        let positions: Vec<ChunkPos> = {
+        let mut queue: Vec<ChunkPos> = {
             let mut r = client.replica();
             let list: Vec<ChunkPos> = r
                 .chunks()
@@ -533,24 +540,43 @@ impl Bot {
             }
             list
         };
-        for pos in positions {
+        let ask = |pos| async move {
             match mode {
-                VerifyMode::All => client.full_snapshot(pos).await?,
-                _ => client.resync(pos).await?,
+                VerifyMode::All => client.full_snapshot(pos).await,
+                _ => client.resync(pos).await,
             }
-        }
+        };
+        let mut outstanding: Vec<(ChunkPos, Instant)> = Vec::new();
         let start = Instant::now();
-        let pending = loop {
-            let pending = client.replica().checks_pending();
-            if pending == 0 || start.elapsed() > CHECK_TIMEOUT || self.phase() == Phase::Done {
-                break pending;
+        loop {
+            {
+                let r = client.replica();
+                outstanding.retain(|(p, _)| r.is_checking(*p));
+                queue.retain(|p| r.is_checking(*p));
+            }
+            while outstanding.len() < CHECK_WINDOW {
+                let Some(pos) = queue.pop() else { break };
+                ask(pos).await?;
+                outstanding.push((pos, Instant::now()));
+            }
+            if outstanding.is_empty() && queue.is_empty() {
+                break;
+            }
+            if start.elapsed() > CHECK_TIMEOUT || self.phase() == Phase::Done {
+                break;
             }
             if client.is_closed() {
                 return Err(client.closed().await);
             }
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        };
-        self.out.unverified += pending as u64;
+            for (pos, asked) in outstanding.iter_mut() {
+                if asked.elapsed() > CHECK_RETRY {
+                    ask(*pos).await?;
+                    *asked = Instant::now();
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        self.out.unverified += client.replica().checks_pending() as u64;
         self.out.verified = true;
         Ok(())
     }

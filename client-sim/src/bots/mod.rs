@@ -53,7 +53,7 @@ pub const QUIET_TIMEOUT: Duration = Duration::from_secs(30);
 /// Longest wait for every bot to finish its end-of-run check.
 pub const VERIFY_TIMEOUT: Duration = Duration::from_secs(60);
 /// Default of [`BotsConfig::silence_limit`].
-pub const DEFAULT_SILENCE_LIMIT: Duration = Duration::from_secs(5);
+pub const DEFAULT_SILENCE_LIMIT: Duration = Duration::from_secs(10);
 /// Largest view radius a bot subscribes with.
 pub const MAX_BOT_VIEW_RADIUS: u8 = 8;
 /// Accepted edits remembered for broadcast-latency matching.
