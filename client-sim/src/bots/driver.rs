@@ -14,12 +14,13 @@ use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
 use tokio::sync::watch;
 use tracing::debug;
 
-use super::footing::{self, MAX_STEP};
+use super::footing;
 use super::rng::Rng;
 use super::stats::Stats;
+use super::walker::Walker;
 use super::{Fleet, Phase, Role, VerifyMode};
 use crate::client::{Acked, Arrival, Client, ClientError, ClientOptions, Verdict};
-use crate::replica::{Replica, ReplicaStats};
+use crate::replica::ReplicaStats;
 
 /// Time between a bot's steps.
 pub const STEP: Duration = Duration::from_millis(100);
@@ -118,51 +119,6 @@ impl BotOutcome {
             }
         }
         self.final_versions = r.chunks().map(|(p, h)| (p, h.version)).collect();
-    }
-}
-
-/// A bot's position and where it is walking to.
-#[derive(Debug, Clone)]
-struct Walker {
-    feet: [f64; 3],
-    waypoint: [f64; 2],
-    /// min x, max x, min z, max z.
-    bounds: [f64; 4],
-    speed: f64,
-}
-
-impl Walker {
-    fn new_waypoint(&mut self, rng: &mut Rng) {
-        let [x0, x1, z0, z1] = self.bounds;
-        self.waypoint = [x0 + rng.unit() * (x1 - x0), z0 + rng.unit() * (z1 - z0)];
-    }
-
-    /// Moves toward the waypoint over walkable ground, or stays and picks
-    /// another waypoint. Either way the feet follow the ground below.
-    fn step(&mut self, replica: &Replica, dt: f64, rng: &mut Rng) {
-        let [x, y, z] = self.feet;
-        let (dx, dz) = (self.waypoint[0] - x, self.waypoint[1] - z);
-        let dist = (dx * dx + dz * dz).sqrt();
-        if dist < 0.5 {
-            self.new_waypoint(rng);
-        } else {
-            let k = (self.speed * dt / dist).min(1.0);
-            match footing::stand(replica, x + dx * k, z + dz * k, y) {
-                Some(f) if (f[1] - y).abs() <= MAX_STEP => {
-                    self.feet = f;
-                    return;
-                }
-                _ => self.new_waypoint(rng),
-            }
-        }
-        if let Some(f) = footing::stand(replica, x, z, y) {
-            self.feet = f;
-        }
-    }
-
-    fn chunk(&self) -> ChunkPos {
-        let [x, y, z] = self.feet;
-        VoxelPos::new(x.floor() as i32, y.floor() as i32, z.floor() as i32).chunk()
     }
 }
 

@@ -4,7 +4,8 @@
 //! world to go quiet, and compare every replica chunk with the server's.
 //!
 //! - [`profile`]: what each bot does; [`footing`]: where it stands and aims.
-//! - [`driver`]: one bot's life (connect, walk, edit, reconnect, verify).
+//! - [`driver`]: one bot's life (connect, walk, edit, reconnect, verify);
+//!   `walker`: how it moves.
 //! - [`stats`], [`summary`], [`progress`], [`ack_log`]: what a run reports.
 
 pub mod ack_log;
@@ -16,6 +17,7 @@ mod progress;
 pub mod rng;
 pub mod stats;
 pub mod summary;
+mod walker;
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
