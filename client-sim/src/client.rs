@@ -4,15 +4,16 @@
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 use strata_protocol::io::FramedReader;
 use strata_protocol::{
-    encode, encode_frame, ClientMessage, Direction, EditRequest, ErrorCode, FrameBuffer, Hello,
-    PositionUpdate, RejectReason, ServerMessage, Welcome, WorldUpdate, PROTOCOL_VERSION,
+    encode, encode_frame, ChunkVersion, ClientMessage, Direction, EditRequest, ErrorCode,
+    FrameBuffer, Hello, PositionUpdate, RejectReason, ServerMessage, Welcome, WorldUpdate,
+    PROTOCOL_VERSION,
 };
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::{ChunkGenerator, ChunkPos, Edit, FixedVec3};
@@ -21,6 +22,7 @@ use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
 use tracing::debug;
 
+use crate::pool::ChunkPool;
 use crate::replica::{Replica, Request};
 use crate::tls::{client_config_pinned, TlsError};
 
@@ -56,6 +58,20 @@ pub enum Verdict {
     Rejected(RejectReason),
 }
 
+/// An accepted edit: its sequence number and the chunk versions it made
+/// durable (empty for a rejected edit).
+pub type Acked = (Verdict, Vec<ChunkVersion>);
+
+/// How a client keeps its replica.
+#[derive(Debug, Clone, Default)]
+pub struct ClientOptions {
+    /// Shared with other clients of this process.
+    pub pool: Arc<ChunkPool>,
+    /// Record every version (and hash) each chunk passes through from the
+    /// first update on.
+    pub record_history: bool,
+}
+
 /// When a delta of edit `seq` reached this client.
 #[derive(Debug, Clone, Copy)]
 pub struct Arrival {
@@ -66,10 +82,26 @@ pub struct Arrival {
 
 #[derive(Debug, Default)]
 struct Shared {
-    pending: Mutex<HashMap<u64, oneshot::Sender<Verdict>>>,
+    pending: Mutex<HashMap<u64, oneshot::Sender<Acked>>>,
+    /// Set to stop reading the updates stream (a frozen client).
+    stalled: AtomicBool,
     error: Mutex<Option<(ErrorCode, String)>>,
     arrivals: Mutex<Vec<Arrival>>,
     bytes_in: AtomicU64,
+    /// When the server was last heard from (ms since the Unix epoch).
+    heard_ms: AtomicU64,
+}
+
+impl Shared {
+    fn heard(&self) {
+        self.heard_ms.store(unix_ms(), Ordering::Relaxed);
+    }
+}
+
+fn unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
 }
 
 /// One connected session.
@@ -115,12 +147,40 @@ impl Client {
         .await
     }
 
+    /// Like [`Self::connect`], with replica options.
+    pub async fn connect_opts(
+        addr: SocketAddr,
+        server_cert: &[u8],
+        token: &str,
+        opts: ClientOptions,
+    ) -> Result<Client, ClientError> {
+        let config = client_config_pinned(server_cert)?;
+        Self::open(addr, config, token, PROTOCOL_VERSION, opts).await
+    }
+
     /// Connects with any client config and protocol version (for tests).
     pub async fn connect_with(
         addr: SocketAddr,
         config: quinn::ClientConfig,
         token: &str,
         protocol_version: u32,
+    ) -> Result<Client, ClientError> {
+        Self::open(
+            addr,
+            config,
+            token,
+            protocol_version,
+            ClientOptions::default(),
+        )
+        .await
+    }
+
+    async fn open(
+        addr: SocketAddr,
+        config: quinn::ClientConfig,
+        token: &str,
+        protocol_version: u32,
+        opts: ClientOptions,
     ) -> Result<Client, ClientError> {
         let bind: SocketAddr = if addr.is_ipv6() {
             "[::1]:0"
@@ -163,8 +223,13 @@ impl Client {
         let (conn, send, reader, welcome) = tokio::time::timeout(CONNECT_TIMEOUT, handshake)
             .await
             .map_err(|_| ClientError::Timeout("Welcome"))??;
-        let replica = Arc::new(Mutex::new(Replica::new(generator_from(&welcome))));
+        let mut replica = Replica::with_pool(generator_from(&welcome), opts.pool);
+        if opts.record_history {
+            replica.record_history();
+        }
+        let replica = Arc::new(Mutex::new(replica));
         let shared = Arc::new(Shared::default());
+        shared.heard();
         let (control, control_rx) = mpsc::channel(CONTROL_QUEUE);
         let tasks = vec![
             tokio::spawn(write_control(send, control_rx)),
@@ -219,6 +284,12 @@ impl Client {
 
     /// Sends an edit and waits for the server's verdict.
     pub async fn edit(&self, edit: Edit) -> Result<Verdict, ClientError> {
+        Ok(self.edit_acked(edit).await?.0)
+    }
+
+    /// Sends an edit and waits for the verdict and, if accepted, the chunk
+    /// versions it made durable.
+    pub async fn edit_acked(&self, edit: Edit) -> Result<Acked, ClientError> {
         let id = self.next_edit.fetch_add(1, Ordering::Relaxed);
         let (tx, rx) = oneshot::channel();
         self.shared
@@ -267,6 +338,11 @@ impl Client {
         self.send(&ClientMessage::ResyncRequest { pos }).await
     }
 
+    /// Asks for a chunk's full data, even at version 0.
+    pub async fn full_snapshot(&self, pos: ChunkPos) -> Result<(), ClientError> {
+        self.send(&ClientMessage::FullSnapshotRequest { pos }).await
+    }
+
     pub async fn ping(&self, nonce: u64) -> Result<(), ClientError> {
         self.send(&ClientMessage::Ping { nonce }).await
     }
@@ -282,6 +358,12 @@ impl Client {
     /// The replica, locked. Keep the guard short: updates wait on it.
     pub fn replica(&self) -> std::sync::MutexGuard<'_, Replica> {
         self.replica.lock().expect("not poisoned")
+    }
+
+    /// Stops reading the updates stream for good, as a frozen client
+    /// would; the control stream (verdicts) keeps working.
+    pub fn stop_reading_updates(&self) {
+        self.shared.stalled.store(true, Ordering::Relaxed);
     }
 
     /// The error the server sent before closing, if any.
@@ -300,6 +382,22 @@ impl Client {
 
     pub fn bytes_out(&self) -> u64 {
         self.bytes_out.load(Ordering::Relaxed)
+    }
+
+    /// How long since the server last sent anything (any control message
+    /// or update). With regular pings, a long silence means a dead server
+    /// whose connection QUIC has not timed out yet.
+    pub fn silent_for(&self) -> Duration {
+        let heard = self.shared.heard_ms.load(Ordering::Relaxed);
+        Duration::from_millis(unix_ms().saturating_sub(heard))
+    }
+
+    /// Closes the connection at once, without waiting for the peer.
+    pub fn abandon(self) {
+        self.conn.close(quinn::VarInt::from_u32(0), b"abandoned");
+        for t in self.tasks {
+            t.abort();
+        }
     }
 
     /// True once the connection has ended.
@@ -344,15 +442,28 @@ async fn write_control(mut send: quinn::SendStream, mut rx: mpsc::Receiver<Bytes
 
 async fn read_control(mut reader: FramedReader<quinn::RecvStream>, shared: Arc<Shared>) {
     loop {
-        match reader.next::<ServerMessage>().await {
+        let msg = reader.next::<ServerMessage>().await;
+        if let Ok(Some(_)) = &msg {
+            shared.heard();
+        }
+        match msg {
             Ok(Some(ServerMessage::EditAccepted {
                 client_edit_id,
                 seq,
-            })) => resolve(&shared, client_edit_id, Verdict::Accepted { seq }),
+                changes,
+            })) => resolve(
+                &shared,
+                client_edit_id,
+                (Verdict::Accepted { seq }, changes),
+            ),
             Ok(Some(ServerMessage::EditRejected {
                 client_edit_id,
                 reason,
-            })) => resolve(&shared, client_edit_id, Verdict::Rejected(reason)),
+            })) => resolve(
+                &shared,
+                client_edit_id,
+                (Verdict::Rejected(reason), Vec::new()),
+            ),
             Ok(Some(ServerMessage::Error { code, message })) => {
                 *shared.error.lock().expect("not poisoned") = Some((code, message));
             }
@@ -364,7 +475,7 @@ async fn read_control(mut reader: FramedReader<quinn::RecvStream>, shared: Arc<S
     shared.pending.lock().expect("not poisoned").clear();
 }
 
-fn resolve(shared: &Shared, id: u64, v: Verdict) {
+fn resolve(shared: &Shared, id: u64, v: Acked) {
     if let Some(tx) = shared.pending.lock().expect("not poisoned").remove(&id) {
         let _ = tx.send(v);
     }
@@ -383,6 +494,10 @@ async fn read_updates(
     };
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient));
     loop {
+        if shared.stalled.load(Ordering::Relaxed) {
+            // Hold the stream unread until the connection is dropped.
+            std::future::pending::<()>().await;
+        }
         let update = match reader.next::<WorldUpdate>().await {
             Ok(Some(u)) => u,
             Ok(None) => break,
@@ -391,6 +506,7 @@ async fn read_updates(
                 break;
             }
         };
+        shared.heard();
         if let WorldUpdate::Delta(d) = &update {
             let mut a = shared.arrivals.lock().expect("not poisoned");
             if a.len() < MAX_ARRIVALS {

@@ -2,9 +2,12 @@
 //! it sees, which re-meshes changed chunks and compares mesh hashes with the
 //! server's. The `strata-bots` load tester builds on it.
 
+pub mod bots;
 pub mod client;
+pub mod pool;
 pub mod replica;
 pub mod tls;
 
-pub use client::{Arrival, Client, ClientError, Verdict};
+pub use client::{Acked, Arrival, Client, ClientError, ClientOptions, Verdict};
+pub use pool::ChunkPool;
 pub use replica::{MeshMismatch, Replica, ReplicaStats, Request};

@@ -2,7 +2,7 @@
 //! with version and hash checks, version-0 chunks regenerated from the seed,
 //! and mesh hashes compared with the server's.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 
 use strata_protocol::{DeltaUpdate, WorldUpdate};
@@ -11,10 +11,13 @@ use strata_terrain::hash::chunk_hash;
 use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood};
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, Voxel, VoxelPos};
 
+use crate::pool::ChunkPool;
+
 /// A chunk as held by the client.
 #[derive(Debug, Clone)]
 pub struct Held {
-    pub chunk: Chunk,
+    /// Shared with other replicas holding the same version (see [`ChunkPool`]).
+    pub chunk: Arc<Chunk>,
     pub version: u64,
 }
 
@@ -25,6 +28,15 @@ pub struct MeshMismatch {
     pub version: u64,
     pub server: u64,
     pub client: u64,
+}
+
+/// A server mesh hash to compare at the next tick end.
+#[derive(Debug, Clone, Copy)]
+struct PendingMesh {
+    version: u64,
+    hash: u64,
+    /// The edit whose delta carried it; `None` for a snapshot.
+    seq: Option<u64>,
 }
 
 /// What the client must ask the server for after an update.
@@ -48,6 +60,10 @@ pub struct ReplicaStats {
     pub meshes_checked: u64,
     pub mesh_mismatches: u64,
     pub meshes_unverifiable: u64,
+    /// Chunks compared with the server's copy on request ([`Replica::expect_check`]).
+    pub checks_ok: u64,
+    /// Checked chunks whose version or hash differed from the server's.
+    pub checks_failed: u64,
 }
 
 /// Chunks held by one client.
@@ -56,10 +72,15 @@ pub struct Replica {
     generator: Option<Arc<dyn ChunkGenerator>>,
     chunks: HashMap<ChunkPos, Held>,
     /// Server mesh hashes to check at the next tick end: pos -> (version, hash).
-    pending_mesh: HashMap<ChunkPos, (u64, u64)>,
+    pending_mesh: HashMap<ChunkPos, PendingMesh>,
     mismatches: Vec<MeshMismatch>,
     /// Every version each chunk passed through, when recording.
     history: Option<HashMap<ChunkPos, Vec<u64>>>,
+    /// The hash of every (chunk, version) held, when recording.
+    version_hashes: Option<HashMap<(ChunkPos, u64), u64>>,
+    /// Chunks whose next snapshot is compared with the held copy.
+    checks: HashSet<ChunkPos>,
+    pool: Arc<ChunkPool>,
     pub stats: ReplicaStats,
     last_seq: u64,
 }
@@ -68,24 +89,70 @@ impl Replica {
     /// `generator` regenerates version-0 chunks; without one, the replica
     /// asks for full snapshots instead.
     pub fn new(generator: Option<Arc<dyn ChunkGenerator>>) -> Self {
+        Self::with_pool(generator, Arc::default())
+    }
+
+    /// A replica sharing chunks and mesh hashes with others through `pool`.
+    pub fn with_pool(generator: Option<Arc<dyn ChunkGenerator>>, pool: Arc<ChunkPool>) -> Self {
         Self {
             generator,
             chunks: HashMap::new(),
             pending_mesh: HashMap::new(),
             mismatches: Vec::new(),
             history: None,
+            version_hashes: None,
+            checks: HashSet::new(),
+            pool,
             stats: ReplicaStats::default(),
             last_seq: 0,
         }
     }
 
-    /// Records every version each chunk passes through (ordering tests).
+    /// Records every version each chunk passes through, and its hash
+    /// (ordering tests).
     pub fn record_history(&mut self) {
         self.history.get_or_insert_with(HashMap::new);
+        self.version_hashes.get_or_insert_with(HashMap::new);
     }
 
     pub fn history(&self) -> Option<&HashMap<ChunkPos, Vec<u64>>> {
         self.history.as_ref()
+    }
+
+    /// The chunk hash of every `(pos, version)` held while recording.
+    pub fn version_hashes(&self) -> Option<&HashMap<(ChunkPos, u64), u64>> {
+        self.version_hashes.as_ref()
+    }
+
+    /// Compares the held copy of `pos` with the next `Snapshot` (or
+    /// `Generated`) of it: the caller then asks the server for the chunk.
+    /// Results land in `stats.checks_ok` / `stats.checks_failed`.
+    pub fn expect_check(&mut self, pos: ChunkPos) {
+        self.checks.insert(pos);
+    }
+
+    /// Checks asked for and not answered yet.
+    pub fn checks_pending(&self) -> usize {
+        self.checks.len()
+    }
+
+    /// Whether the check of `pos` is still waiting for the server.
+    pub fn is_checking(&self, pos: ChunkPos) -> bool {
+        self.checks.contains(&pos)
+    }
+
+    fn check(&mut self, pos: ChunkPos, version: u64, hash: Option<u64>) {
+        if !self.checks.remove(&pos) {
+            return;
+        }
+        let same = self.chunks.get(&pos).is_some_and(|h| {
+            h.version == version && hash.is_none_or(|hash| chunk_hash(&h.chunk) == hash)
+        });
+        if same {
+            self.stats.checks_ok += 1;
+        } else {
+            self.stats.checks_failed += 1;
+        }
     }
 
     pub fn get(&self, pos: ChunkPos) -> Option<&Held> {
@@ -113,24 +180,37 @@ impl Replica {
         &self.mismatches
     }
 
-    fn hold(&mut self, pos: ChunkPos, chunk: Chunk, version: u64) {
+    fn hold(&mut self, pos: ChunkPos, chunk: Arc<Chunk>, version: u64, hash: u64) {
         if let Some(h) = self.history.as_mut() {
             let seen = h.entry(pos).or_default();
             if seen.last() != Some(&version) {
                 seen.push(version);
             }
         }
+        if let Some(h) = self.version_hashes.as_mut() {
+            h.insert((pos, version), hash);
+        }
         self.chunks.insert(pos, Held { chunk, version });
+    }
+
+    /// The generator's chunk, shared through the pool.
+    fn generated(&self, g: &Arc<dyn ChunkGenerator>, pos: ChunkPos) -> (Arc<Chunk>, u64) {
+        self.pool.get(pos, 0).unwrap_or_else(|| {
+            let chunk = g.generate(pos);
+            let hash = chunk_hash(&chunk);
+            (self.pool.intern(pos, 0, hash, chunk), hash)
+        })
     }
 
     /// Applies one update; returns what must be requested from the server.
     pub fn apply(&mut self, update: WorldUpdate) -> Option<Request> {
         match update {
-            WorldUpdate::Generated { pos } => match &self.generator {
+            WorldUpdate::Generated { pos } => match self.generator.clone() {
                 Some(g) => {
-                    let chunk = g.generate(pos);
+                    self.check(pos, 0, None);
+                    let (chunk, hash) = self.generated(&g, pos);
                     self.stats.generated += 1;
-                    self.hold(pos, chunk, 0);
+                    self.hold(pos, chunk, 0, hash);
                     None
                 }
                 None => Some(Request::FullSnapshot(pos)),
@@ -151,14 +231,25 @@ impl Replica {
                     }
                 };
                 self.stats.snapshots += 1;
-                self.hold(pos, chunk, version);
+                self.check(pos, version, Some(hash));
+                if self.chunks.get(&pos).is_none_or(|h| h.version != version) {
+                    self.neighbour_changed(pos, None);
+                }
+                let chunk = self.pool.intern(pos, version, hash, chunk);
+                self.hold(pos, chunk, version, hash);
                 if version > 0 {
-                    self.pending_mesh.insert(pos, (version, mesh_hash));
+                    let p = PendingMesh {
+                        version,
+                        hash: mesh_hash,
+                        seq: None,
+                    };
+                    self.pending_mesh.insert(pos, p);
                 }
                 None
             }
             WorldUpdate::Delta(d) => self.apply_delta(d),
             WorldUpdate::Unsubscribed { pos } => {
+                self.checks.remove(&pos);
                 self.chunks.remove(&pos);
                 self.pending_mesh.remove(&pos);
                 None
@@ -186,9 +277,16 @@ impl Replica {
             Ok(chunk) => {
                 self.stats.deltas += 1;
                 self.stats.delta_payload_bytes += d.delta.payload.len() as u64;
-                self.hold(pos, chunk, d.delta.to_version);
-                self.pending_mesh
-                    .insert(pos, (d.delta.to_version, d.mesh_hash));
+                let (version, hash) = (d.delta.to_version, d.delta.target_hash);
+                let chunk = self.pool.intern(pos, version, hash, chunk);
+                self.hold(pos, chunk, version, hash);
+                self.neighbour_changed(pos, Some(d.seq));
+                let p = PendingMesh {
+                    version,
+                    hash: d.mesh_hash,
+                    seq: Some(d.seq),
+                };
+                self.pending_mesh.insert(pos, p);
                 None
             }
             Err(_) => {
@@ -199,12 +297,42 @@ impl Replica {
         }
     }
 
+    /// `pos` changed (by edit `seq`, or to a snapshot): a pending check of
+    /// a neighbour expects the mesh before this change unless the same edit
+    /// made both, so it is dropped. (The server hashes meshes at its tick's
+    /// end, but a lost `TickEnd` or a snapshot can let a later change in.)
+    fn neighbour_changed(&mut self, pos: ChunkPos, seq: Option<u64>) {
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let Some(n) = pos.offset(dx, dy, dz).filter(|n| *n != pos) else {
+                        continue;
+                    };
+                    if let Some(p) = self.pending_mesh.get(&n) {
+                        if seq.is_none() || p.seq != seq {
+                            self.pending_mesh.remove(&n);
+                            self.stats.meshes_unverifiable += 1;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Meshes every chunk that changed this tick and compares hashes. A
     /// chunk is checked only when the client holds its 26 neighbours, since
     /// the mesh reads them.
     fn verify_meshes(&mut self) {
         let pending: Vec<_> = self.pending_mesh.drain().collect();
-        for (pos, (version, server)) in pending {
+        for (
+            pos,
+            PendingMesh {
+                version,
+                hash: server,
+                ..
+            },
+        ) in pending
+        {
             match self.chunks.get(&pos) {
                 Some(h) if h.version == version => {}
                 _ => continue,
@@ -226,24 +354,33 @@ impl Replica {
         }
     }
 
-    /// The LOD-0 mesh hash of a chunk from held chunks only.
+    /// The LOD-0 mesh hash of a chunk from held chunks only (memoized in
+    /// the pool by the 27 chunk versions it reads).
     pub fn mesh_hash(&self, pos: ChunkPos) -> Option<u64> {
+        let mut versions = [0u64; 27];
+        let mut i = 0;
         for dz in -1..=1 {
             for dy in -1..=1 {
                 for dx in -1..=1 {
-                    if !self.chunks.contains_key(&pos.offset(dx, dy, dz)?) {
-                        return None;
-                    }
+                    versions[i] = self.chunks.get(&pos.offset(dx, dy, dz)?)?.version;
+                    i += 1;
                 }
             }
+        }
+        let key = (pos, versions);
+        if let Some(h) = self.pool.mesh_hash(&key) {
+            return Some(h);
         }
         let nb = Neighborhood::from_fn(pos.origin(), |p: VoxelPos| {
             self.voxel(p).unwrap_or(Voxel::AIR)
         });
-        Some(mesh_chunk(&nb, &MeshOptions::default()).hash())
+        let hash = mesh_chunk(&nb, &MeshOptions::default()).hash();
+        self.pool.put_mesh_hash(key, hash);
+        Some(hash)
     }
 
-    fn voxel(&self, p: VoxelPos) -> Option<Voxel> {
+    /// One held voxel; `None` when its chunk is not held.
+    pub fn voxel(&self, p: VoxelPos) -> Option<Voxel> {
         let (x, y, z) = p.local();
         self.chunks.get(&p.chunk()).map(|h| h.chunk.get(x, y, z))
     }

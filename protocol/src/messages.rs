@@ -180,6 +180,13 @@ impl ErrorCode {
     }
 }
 
+/// A chunk at a version: what an accepted edit made durable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct ChunkVersion {
+    pub pos: ChunkPos,
+    pub version: u64,
+}
+
 /// Server-to-client control messages.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ServerMessage {
@@ -188,6 +195,9 @@ pub enum ServerMessage {
     EditAccepted {
         client_edit_id: u64,
         seq: u64,
+        /// Every chunk the edit changed and the version it moved it to
+        /// (empty when the edit changed no voxel).
+        changes: Vec<ChunkVersion>,
     },
     EditRejected {
         client_edit_id: u64,

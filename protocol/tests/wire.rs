@@ -52,6 +52,10 @@ fn server_messages() -> Vec<ServerMessage> {
         ServerMessage::EditAccepted {
             client_edit_id: 1,
             seq: 2,
+            changes: vec![ChunkVersion {
+                pos: ChunkPos::new(-1, 0, 2),
+                version: 300,
+            }],
         },
         ServerMessage::EditRejected {
             client_edit_id: 3,
@@ -165,6 +169,19 @@ fn golden_bytes_pin_the_wire_format() {
     assert_eq!(
         encode(&sub, Direction::ClientToServer).unwrap(),
         [1, 1, 0, 2, 2]
+    );
+    let accepted = ServerMessage::EditAccepted {
+        client_edit_id: 1,
+        seq: 2,
+        changes: vec![ChunkVersion {
+            pos: ChunkPos::new(-1, 0, 2),
+            version: 300,
+        }],
+    };
+    // Variant 1, id, seq, one change: pos (-1, 0, 2) zigzagged, version 300.
+    assert_eq!(
+        encode(&accepted, Direction::ServerToClient).unwrap(),
+        [1, 1, 2, 1, 1, 0, 4, 0xfb, 0x2c, 0x01]
     );
 }
 

@@ -144,6 +144,44 @@ fn mesh_hashes_match_fresh_meshes_and_fill_the_cache() {
 }
 
 #[test]
+fn mesh_hashes_describe_the_world_at_the_tick_end() {
+    // Two edits in one tick: the second changes only the neighbour across
+    // x = 96, inside the first chunk's mesh apron. Clients mesh at TickEnd,
+    // so each chunk's last change must carry the final mesh's hash.
+    let mut s = ready(ValidationConfig::default());
+    s.submit(PLAYER, req(1, mine(98, -1, Z + 4, 2)), 0).unwrap();
+    let apron_only = strata_terrain::Edit::Mine {
+        center: strata_terrain::FixedVec3::from_f64([93.5, -1.0, (Z + 4) as f64]).unwrap(),
+        radius: strata_terrain::Fixed::from_voxels(2),
+        strength: 255,
+    };
+    s.submit(PLAYER, req(2, apron_only), 0).unwrap();
+    let out = s.tick(0);
+    let a = ChunkPos::new(3, -1, 3);
+    let changed: Vec<Vec<ChunkPos>> = out
+        .applied
+        .iter()
+        .map(|e| e.changes.iter().map(|c| c.pos).collect())
+        .collect();
+    assert!(
+        changed[0].contains(&a) && !changed[1].contains(&a),
+        "{changed:?}"
+    );
+    let mut last = HashMap::new();
+    for c in out.applied.iter().flat_map(|e| &e.changes) {
+        last.insert(c.pos, (c.to_version, c.mesh_hash));
+    }
+    for (pos, (version, hash)) in last {
+        let nb = Neighborhood::from_world(s.world(), pos);
+        assert_eq!(
+            hash,
+            CollisionMesh::build(pos, version, &nb).hash,
+            "{pos:?}"
+        );
+    }
+}
+
+#[test]
 fn max_edits_per_tick_leaves_the_rest_queued() {
     let cfg = SequencerConfig {
         max_edits_per_tick: 2,

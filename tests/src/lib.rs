@@ -1,1 +1,231 @@
-//! End-to-end tests live in `tests/`; this crate has no library code.
+//! Helpers for the end-to-end tests in `tests/tests/`: they run the real
+//! `strata-server`, `strata-bots` and `strata-admin` binaries as child
+//! processes, bounded in time and killed if a test fails.
+//!
+//! The binaries belong to other packages, so they are looked up next to the
+//! test executable (`target/<profile>/`) and built with cargo if missing.
+
+use std::io::{BufRead, BufReader, Read};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+/// Longest any child process may run before the test fails.
+pub const PROCESS_TIMEOUT: Duration = Duration::from_secs(120);
+/// Longest wait for a server to print its address.
+pub const SERVER_START_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Server config for the tests: small and fast, loopback only.
+pub const SERVER_CONFIG: &str = "[engine]\ntick_ms = 10\n";
+
+/// `target/<profile>/`, where cargo puts the workspace binaries.
+fn bin_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    let deps = exe.parent().expect("deps dir");
+    deps.parent().expect("profile dir").to_path_buf()
+}
+
+/// The path of a workspace binary, building its package once if absent.
+pub fn binary(name: &str) -> PathBuf {
+    static BUILT: OnceLock<()> = OnceLock::new();
+    let dir = bin_dir();
+    let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
+    if !path.exists() {
+        BUILT.get_or_init(|| {
+            let target = dir.parent().expect("target dir");
+            let mut cmd = Command::new(env!("CARGO"));
+            cmd.args([
+                "build",
+                "-p",
+                "strata-server",
+                "-p",
+                "strata-client-sim",
+                "--bins",
+            ])
+            .arg("--target-dir")
+            .arg(target);
+            // The profile the tests were built with: `test` lives in debug/.
+            match dir.file_name().and_then(|n| n.to_str()) {
+                Some("release") => cmd.arg("--release"),
+                _ => cmd.args(["--profile", "test"]),
+            };
+            let status = cmd.status().expect("cargo runs");
+            assert!(status.success(), "building the binaries failed");
+        });
+    }
+    assert!(path.exists(), "{} was not built", path.display());
+    path
+}
+
+/// A child process killed when dropped (a failing test leaves nothing behind).
+#[derive(Debug)]
+pub struct Guard(pub Child);
+
+impl Guard {
+    /// Waits for the process to exit, killing it after `limit`.
+    pub fn wait_timeout(&mut self, limit: Duration) -> ExitStatus {
+        let start = Instant::now();
+        loop {
+            if let Some(status) = self.0.try_wait().expect("try_wait") {
+                return status;
+            }
+            if start.elapsed() > limit {
+                let _ = self.0.kill();
+                panic!("process {} ran longer than {limit:?}", self.0.id());
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+impl Drop for Guard {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+/// A `strata-server` child process.
+#[derive(Debug)]
+pub struct Server {
+    pub proc: Guard,
+    pub addr: SocketAddr,
+    pub data_dir: PathBuf,
+}
+
+impl Server {
+    /// Starts the server on `listen` (port 0 picks one) and reads the
+    /// address it prints.
+    pub fn start(data_dir: &Path, listen: &str) -> Server {
+        let config = data_dir.with_extension("toml");
+        std::fs::write(&config, SERVER_CONFIG).expect("write config");
+        let child = Command::new(binary("strata-server"))
+            .arg("--config")
+            .arg(&config)
+            .arg("--data-dir")
+            .arg(data_dir)
+            .arg("--listen")
+            .arg(listen)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("strata-server starts");
+        let mut proc = Guard(child);
+        let stdout = proc.0.stdout.take().expect("stdout");
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            let _ = BufReader::new(stdout).read_line(&mut line);
+            let _ = tx.send(line);
+        });
+        let line = rx
+            .recv_timeout(SERVER_START_TIMEOUT)
+            .expect("strata-server printed its address");
+        let addr = line
+            .split_whitespace()
+            .find_map(|w| w.parse::<SocketAddr>().ok())
+            .unwrap_or_else(|| panic!("no address in {line:?}"));
+        Server {
+            proc,
+            addr,
+            data_dir: data_dir.to_path_buf(),
+        }
+    }
+
+    /// SIGKILL: no shutdown, no final flush.
+    pub fn kill(mut self) {
+        self.proc.0.kill().expect("kill strata-server");
+        self.proc.0.wait().expect("reap strata-server");
+    }
+
+    /// SIGTERM: the server finishes its batch and exits.
+    pub fn stop(mut self) {
+        let pid = self.proc.0.id().to_string();
+        let ok = Command::new("kill")
+            .args(["-TERM", &pid])
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "sending SIGTERM to {pid}");
+        let status = self.proc.wait_timeout(Duration::from_secs(30));
+        assert!(status.success(), "strata-server exited with {status}");
+    }
+}
+
+/// Starts `strata-bots` against `server` with extra arguments; stdout is
+/// piped (the `--json` summary).
+pub fn spawn_bots(server: &Server, args: &[&str]) -> Guard {
+    let child = Command::new(binary("strata-bots"))
+        .arg("--server")
+        .arg(server.addr.to_string())
+        .arg("--data-dir")
+        .arg(&server.data_dir)
+        .arg("--json")
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("strata-bots starts");
+    Guard(child)
+}
+
+/// Waits (bounded) for a child whose stdout is piped; returns its status
+/// and the last line it printed, parsed as JSON.
+pub fn json_result(mut child: Guard, limit: Duration) -> (ExitStatus, serde_json::Value) {
+    let mut stdout = child.0.stdout.take().expect("stdout is piped");
+    let reader = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = stdout.read_to_string(&mut s);
+        s
+    });
+    let status = child.wait_timeout(limit);
+    let out = reader.join().expect("reader thread");
+    let line = out.lines().last().unwrap_or_default();
+    let value = serde_json::from_str(line)
+        .unwrap_or_else(|e| panic!("bad JSON line {out:?} (exit {status}): {e}"));
+    (status, value)
+}
+
+/// Waits for a bots run and parses its summary line.
+pub fn bots_summary(bots: Guard) -> (ExitStatus, serde_json::Value) {
+    json_result(bots, PROCESS_TIMEOUT)
+}
+
+/// Runs `strata-admin verify-acks`; returns its status and report line.
+pub fn verify_acks(data_dir: &Path, ack_log: &Path) -> (ExitStatus, serde_json::Value) {
+    let child = Command::new(binary("strata-admin"))
+        .arg("verify-acks")
+        .arg("--data-dir")
+        .arg(data_dir)
+        .arg(ack_log)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("strata-admin starts");
+    json_result(Guard(child), Duration::from_secs(60))
+}
+
+/// A counter from a summary or report (0 when absent).
+pub fn num(v: &serde_json::Value, key: &str) -> u64 {
+    v[key].as_u64().unwrap_or(0)
+}
+
+/// Asserts every replica converged on the server's world.
+pub fn assert_converged(s: &serde_json::Value) {
+    for key in [
+        "replica_mismatches",
+        "mesh_mismatches",
+        "chunks_unverified",
+        "order_violations",
+        "ack_missing",
+    ] {
+        assert_eq!(num(s, key), 0, "{key} in {s}");
+    }
+    assert_eq!(s["quiet"], true, "the world went quiet: {s}");
+    assert!(num(s, "chunks_verified") > 0, "{s}");
+}

@@ -17,5 +17,6 @@ pub mod render_map;
 pub mod snapshot_cmd;
 pub mod stats;
 pub mod token_cmd;
+pub mod verify_acks;
 pub mod world_source;
 pub mod zones_cmd;

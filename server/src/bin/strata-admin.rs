@@ -11,6 +11,7 @@ use strata_server::admin::generate::{self, GenerateArgs};
 use strata_server::admin::mesh_cmd::{self, MeshArgs};
 use strata_server::admin::render_map::{self, RenderMapArgs};
 use strata_server::admin::token_cmd::{self, TokenIssueArgs};
+use strata_server::admin::verify_acks::{self, VerifyAcksArgs};
 use strata_server::admin::{inspect, players, snapshot_cmd, stats, zones_cmd};
 
 /// Administration tools for Strata.
@@ -76,6 +77,15 @@ enum Command {
     Players(PlayersCommand),
     /// Close every session of a player on a running server.
     Kick(players::KickArgs),
+    /// Check that the stored world holds every edit in an ack log.
+    ///
+    /// The ack log (from `strata-bots --ack-log`) has one JSON object per
+    /// line: {"seq":17,"chunks":[{"x":16,"y":1,"z":16,"version":4}]}. Each
+    /// edit must be in the store's edit log with those chunk versions, and
+    /// each chunk stored at that version or later. Prints one JSON report
+    /// line; exits non-zero if anything acknowledged is missing. Stop the
+    /// server first.
+    VerifyAcks(VerifyAcksArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -161,6 +171,18 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Kick(args) => {
             let n = players::kick(&args).context("strata-admin kick")?;
             println!("kicked {n} session(s) of {}", args.name);
+        }
+        Command::VerifyAcks(args) => {
+            let report = verify_acks::run(&args).context("strata-admin verify-acks")?;
+            println!("{}", serde_json::to_string(&report)?);
+            if !report.ok() {
+                anyhow::bail!(
+                    "{} of {} acknowledged edits are not in the stored world (first: {:?})",
+                    report.failure_count,
+                    report.records,
+                    report.failures.first()
+                );
+            }
         }
     }
     Ok(())

@@ -28,7 +28,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
-use strata_protocol::{ServerMessage, WorldUpdate};
+use strata_protocol::{ChunkVersion, ServerMessage, WorldUpdate};
 use strata_terrain::ChunkPos;
 use tracing::{debug, error, info};
 
@@ -349,6 +349,14 @@ impl Engine {
                 let msg = ServerMessage::EditAccepted {
                     client_edit_id: a.client_edit_id,
                     seq: a.seq,
+                    changes: a
+                        .changes
+                        .iter()
+                        .map(|c| ChunkVersion {
+                            pos: c.pos,
+                            version: c.to_version,
+                        })
+                        .collect(),
                 };
                 self.send_control(a.session_id, &msg);
             }

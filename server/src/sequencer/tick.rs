@@ -28,6 +28,8 @@ struct MeshSlot {
 pub struct PendingMeshes {
     jobs: Vec<(ChunkPos, u64, Neighborhood)>,
     slots: Vec<MeshSlot>,
+    /// Whether each job's mesh matches the world at the tick's end.
+    keep: Vec<bool>,
 }
 
 /// Meshes built from a [`PendingMeshes`].
@@ -47,7 +49,7 @@ impl PendingMeshes {
     pub fn build(self) -> BuiltMeshes {
         BuiltMeshes {
             meshes: CollisionCache::mesh_chunks(&self.jobs),
-            keep: still_current(&self.jobs),
+            keep: self.keep,
             slots: self.slots,
         }
     }
@@ -144,9 +146,21 @@ impl Sequencer {
                 changes,
             });
         }
+        // Clients compare mesh hashes at the tick's end: a chunk whose
+        // neighbour changed later in the tick is meshed from the world as it
+        // now stands (its last change carries that hash).
+        let mut keep = still_current(&jobs);
+        let last: BTreeMap<ChunkPos, usize> =
+            jobs.iter().enumerate().map(|(i, j)| (j.0, i)).collect();
+        for i in last.into_values() {
+            if !keep[i] {
+                jobs[i].2 = Neighborhood::from_world(&self.world, jobs[i].0);
+                keep[i] = true;
+            }
+        }
         out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
         out.batch.last_seq = self.last_seq();
-        (out, PendingMeshes { jobs, slots })
+        (out, PendingMeshes { jobs, slots, keep })
     }
 
     /// Fills in the mesh hashes of `out` and caches the meshes that still

@@ -1,0 +1,198 @@
+//! `strata-bots`: load-test a Strata server with many real QUIC clients.
+//! Argument parsing and printing only; the bots live in
+//! `strata_client_sim::bots`.
+
+use std::io::IsTerminal;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{bail, Context};
+use clap::Parser;
+use strata_client_sim::bots::duration::parse_run_duration;
+use strata_client_sim::bots::{self, BotsConfig, Profile, Tokens, VerifyMode};
+use strata_server::app;
+use strata_server::config::ServerConfig;
+use strata_server::datadir::DataDir;
+use tracing_subscriber::EnvFilter;
+
+/// Load-test a Strata server with many bots, each a real QUIC client.
+///
+/// Every bot connects, subscribes to the chunks around it, walks (position
+/// datagrams), edits by profile and keeps a replica whose meshes it checks
+/// against the server's mesh hashes. After `--duration` the bots stop
+/// editing, wait until the world is quiet, and compare every replica chunk
+/// with the server's copy. A progress bar (stderr, terminals only) shows
+/// connected bots, accepted edits per second and the ack p99.
+///
+/// Bots live in a square area starting at x = z = 512 (away from the
+/// protected spawn), 24 × 24 voxels per bot. With `--data-dir` each bot gets
+/// its own token (player `bot-<i>`) signed with the server's secret; with
+/// `--token` all bots are one player and share its rate limits. The server's
+/// `server.max_connections` (default 256) must allow `--bots` connections.
+///
+/// The summary reports edits sent, accepted and rejected by reason, ack and
+/// broadcast latency (edit sent → its delta at another bot), bytes in and
+/// out, mean delta size, resyncs, replica and mesh mismatches. The exit
+/// code is non-zero if any replica ended different from the server.
+///
+/// `--ack-log FILE` writes one JSON line per accepted edit, as soon as it
+/// is acknowledged: {"seq":17,"chunks":[{"x":16,"y":1,"z":16,"version":4}]}
+/// (the edit's sequence number and every chunk it changed with its new
+/// version). `strata-admin verify-acks --data-dir DIR FILE` then checks the
+/// stored world holds all of them.
+#[derive(Debug, Parser)]
+#[command(name = "strata-bots", version, about, verbatim_doc_comment)]
+struct Args {
+    /// Server address, e.g. 127.0.0.1:4433 (not with --spawn-server).
+    #[arg(long, required_unless_present = "spawn_server")]
+    server: Option<SocketAddr>,
+    /// The server's certificate (DER) to pin; defaults to DIR/cert.der with --data-dir.
+    #[arg(long)]
+    cert: Option<PathBuf>,
+    /// One token for every bot (from `strata-admin token issue`).
+    #[arg(long, conflicts_with = "data_dir")]
+    token: Option<String>,
+    /// The server's data dir: mint a token per bot with its secret.
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Start a server in this process on a temporary data dir.
+    #[arg(long, conflicts_with_all = ["server", "cert", "token", "data_dir"])]
+    spawn_server: bool,
+    /// Number of bots.
+    #[arg(long, default_value_t = 10)]
+    bots: usize,
+    /// How long the bots edit: 500ms, 30s, 2m...
+    #[arg(long, default_value = "30s", value_parser = parse_run_duration)]
+    duration: std::time::Duration,
+    /// miners, builders, demolition, explorers or mixed (a quarter of each).
+    #[arg(long, default_value = "mixed")]
+    profile: Profile,
+    /// Edits per second per bot (0 = walk only).
+    #[arg(long, default_value_t = 1.0)]
+    edit_rate: f64,
+    /// Chunks around each bot it subscribes to (Chebyshev radius, 1..=8).
+    #[arg(long, default_value_t = 2)]
+    view_radius: u8,
+    /// End-of-run comparison: all held chunks, only modified ones, or off.
+    #[arg(long, default_value = "all")]
+    verify: VerifyMode,
+    /// The first N bots stop reading their updates once spawned (a frozen
+    /// client); they keep editing and are left out of the comparison.
+    #[arg(long, default_value_t = 0)]
+    stalled: usize,
+    /// Reconnect when the server has been silent this long despite pings
+    /// (a killed server's connections otherwise linger until QUIC's idle
+    /// timeout).
+    #[arg(long, default_value = "10s", value_parser = parse_run_duration)]
+    silence_limit: std::time::Duration,
+    /// Seed of the bots' choices.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Write one JSON line per accepted edit to FILE (format above).
+    #[arg(long)]
+    ack_log: Option<PathBuf>,
+    /// Print the summary as one JSON line on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .init();
+    let args = Args::parse();
+    let runtime = match tokio::runtime::Runtime::new() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("error: cannot start the runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(run(args)) {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::from(2),
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Runs the bots; `Ok(false)` when the replicas did not converge.
+async fn run(args: Args) -> anyhow::Result<bool> {
+    let mut spawned = None;
+    let (server, cert_der, tokens) = if args.spawn_server {
+        let dir = tempfile::tempdir().context("creating a temp data dir")?;
+        let mut cfg = ServerConfig::default();
+        cfg.server.listen = "127.0.0.1:0".parse()?;
+        cfg.server.data_dir = dir.path().join("data");
+        cfg.server.max_connections = cfg.server.max_connections.max(args.bots as u32 + 16);
+        let running = app::start(cfg).await.context("starting the server")?;
+        eprintln!(
+            "strata-bots: server listening on {} (data in {})",
+            running.addr,
+            running.data_dir.root().display()
+        );
+        let out = (
+            running.addr,
+            running.cert_der.clone(),
+            Tokens::Minted(running.data_dir.secret().clone()),
+        );
+        spawned = Some((running, dir));
+        out
+    } else {
+        let server = args.server.context("--server is required")?;
+        let dir = match &args.data_dir {
+            Some(d) => Some(
+                DataDir::open_existing(d)
+                    .with_context(|| format!("opening data dir {}", d.display()))?,
+            ),
+            None => None,
+        };
+        let cert = match (&args.cert, &dir) {
+            (Some(p), _) => {
+                std::fs::read(p).with_context(|| format!("reading certificate {}", p.display()))?
+            }
+            (None, Some(d)) => d.cert().cert_der().to_vec(),
+            (None, None) => bail!("--cert is required without --data-dir"),
+        };
+        let tokens = match (args.token, dir) {
+            (Some(t), _) => Tokens::Shared(t),
+            (None, Some(d)) => Tokens::Minted(d.secret().clone()),
+            (None, None) => bail!("give --token or --data-dir"),
+        };
+        (server, cert, tokens)
+    };
+    let cfg = BotsConfig {
+        server,
+        cert_der,
+        tokens,
+        bots: args.bots,
+        duration: args.duration,
+        profile: args.profile,
+        edit_rate: args.edit_rate,
+        view_radius: args.view_radius,
+        verify: args.verify,
+        seed: args.seed,
+        stalled: args.stalled,
+        ack_log: args.ack_log,
+        progress: true,
+        area_origin: bots::DEFAULT_AREA_ORIGIN,
+        silence_limit: args.silence_limit,
+    };
+    let summary = bots::run(cfg).await?;
+    if args.json {
+        println!("{}", summary.to_json());
+    } else {
+        print!("{}", summary.human());
+    }
+    if let Some((running, _dir)) = spawned {
+        running.shutdown().await?;
+    }
+    Ok(summary.consistent())
+}

@@ -1,0 +1,539 @@
+//! One bot's life: connect (and reconnect), find footing, walk, edit by
+//! role, and at the end compare its replica with the server's world.
+
+use std::collections::HashMap;
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use strata_protocol::ErrorCode;
+use strata_server::metrics::reject_label;
+use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
+use tokio::sync::watch;
+use tracing::debug;
+
+use super::footing;
+use super::rng::Rng;
+use super::stats::Stats;
+use super::walker::Walker;
+use super::{Fleet, Phase, Role, VerifyMode};
+use crate::client::{Acked, Arrival, Client, ClientError, ClientOptions, Verdict};
+use crate::replica::ReplicaStats;
+
+/// Time between a bot's steps.
+pub const STEP: Duration = Duration::from_millis(100);
+/// Steps between position reports.
+pub const POSITION_EVERY: u32 = 2;
+/// Steps between pings (the server answers each with a pong).
+pub const PING_EVERY: u32 = 5;
+/// Steps between matching delta arrivals with edits.
+pub const DRAIN_EVERY: u32 = 10;
+/// How long a bot waits for the ground under it to arrive.
+pub const SPAWN_TIMEOUT: Duration = Duration::from_secs(30);
+/// One connection attempt, handshake included.
+pub const CONNECT_ATTEMPT_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long a bot keeps trying to reconnect.
+pub const RECONNECT_WINDOW: Duration = Duration::from_secs(60);
+/// Pause between connection attempts.
+pub const RECONNECT_DELAY: Duration = Duration::from_millis(250);
+/// Delta arrivals whose edit is not acknowledged yet are kept this long.
+pub const ARRIVAL_MATCH_WINDOW: Duration = Duration::from_secs(30);
+/// Chunk requests a bot has in flight during its end-of-run check.
+pub const CHECK_WINDOW: usize = 4;
+/// A chunk request unanswered this long is sent again (a full server
+/// command queue drops requests).
+pub const CHECK_RETRY: Duration = Duration::from_secs(3);
+/// Longest wait for the server's copies of a bot's chunks.
+pub const CHECK_TIMEOUT: Duration = Duration::from_secs(45);
+
+/// An edit in flight: its verdict and when it was sent.
+type PendingEdit<'a> = dyn Future<Output = (Result<Acked, ClientError>, Instant)> + Send + 'a;
+
+/// What the session loop does after a step.
+enum Next {
+    Continue,
+    Edit,
+    Done,
+}
+
+/// The session loop's state.
+struct Loop {
+    steps: u32,
+    subscribed: ChunkPos,
+    last_bytes: u64,
+    next_edit: Instant,
+    interval: Option<Duration>,
+    pings: u64,
+}
+
+/// What one bot reports at the end, over all its connections.
+#[derive(Debug, Default)]
+pub struct BotOutcome {
+    pub stalled: bool,
+    pub connected_at_end: bool,
+    pub replica: ReplicaStats,
+    pub bytes_in: u64,
+    pub bytes_out: u64,
+    /// Hash of every (chunk, version) any of its replicas held.
+    pub version_hashes: HashMap<(ChunkPos, u64), u64>,
+    /// Steps where a chunk's version went backwards in one replica.
+    pub history_regressions: u64,
+    /// Versions held by the last replica.
+    pub final_versions: HashMap<ChunkPos, u64>,
+    /// Chunks (or, for a bot that never checked, 1) not compared at the end.
+    pub unverified: u64,
+    verified: bool,
+    counted_finished: bool,
+}
+
+fn add_stats(a: &mut ReplicaStats, b: &ReplicaStats) {
+    a.snapshots += b.snapshots;
+    a.generated += b.generated;
+    a.deltas += b.deltas;
+    a.delta_payload_bytes += b.delta_payload_bytes;
+    a.gaps += b.gaps;
+    a.hash_mismatches += b.hash_mismatches;
+    a.meshes_checked += b.meshes_checked;
+    a.mesh_mismatches += b.mesh_mismatches;
+    a.meshes_unverifiable += b.meshes_unverifiable;
+    a.checks_ok += b.checks_ok;
+    a.checks_failed += b.checks_failed;
+}
+
+impl BotOutcome {
+    /// Folds a finished connection in.
+    fn absorb(&mut self, client: &Client) {
+        self.bytes_in += client.bytes_in();
+        self.bytes_out += client.bytes_out();
+        let r = client.replica();
+        add_stats(&mut self.replica, &r.stats);
+        if let Some(h) = r.version_hashes() {
+            self.version_hashes.extend(h.iter().map(|(k, v)| (*k, *v)));
+        }
+        if let Some(h) = r.history() {
+            for versions in h.values() {
+                self.history_regressions +=
+                    versions.windows(2).filter(|w| w[1] <= w[0]).count() as u64;
+            }
+        }
+        self.final_versions = r.chunks().map(|(p, h)| (p, h.version)).collect();
+    }
+}
+
+/// Runs bot `id` until the run is done.
+pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
+    let stalled = id < fleet.cfg.stalled;
+    let mut bot = Bot {
+        role: fleet.cfg.profile.role_of(id),
+        phase: fleet.phase.subscribe(),
+        rng: Rng::new(fleet.cfg.seed, id as u64),
+        out: BotOutcome {
+            stalled,
+            ..Default::default()
+        },
+        walker: None,
+        arrivals: Vec::new(),
+        fleet,
+        id,
+    };
+    loop {
+        let Some(client) = bot.connect().await else {
+            break;
+        };
+        let fleet = bot.fleet.clone();
+        let stats = &fleet.stats;
+        stats.connected.fetch_add(1, Ordering::Relaxed);
+        let result = bot.session(&client).await;
+        stats.connected.fetch_sub(1, Ordering::Relaxed);
+        bot.drain_arrivals(&client);
+        bot.out.absorb(&client);
+        match result {
+            Ok(()) => {
+                bot.out.connected_at_end = !client.is_closed();
+                client.close().await;
+                break;
+            }
+            Err(e) => {
+                debug!(bot = id, error = %e, "connection lost; reconnecting");
+                Stats::add(&stats.reconnects, 1);
+                client.abandon();
+                tokio::time::sleep(RECONNECT_DELAY).await;
+            }
+        }
+    }
+    bot.finish();
+    if !bot.out.verified && !stalled && bot.fleet.cfg.verify != VerifyMode::Off {
+        bot.out.unverified = bot.out.unverified.max(1);
+    }
+    bot.out
+}
+
+struct Bot {
+    fleet: Arc<Fleet>,
+    id: usize,
+    role: Role,
+    phase: watch::Receiver<Phase>,
+    rng: Rng,
+    out: BotOutcome,
+    walker: Option<Walker>,
+    /// Delta arrivals not yet matched with their edit.
+    arrivals: Vec<Arrival>,
+}
+
+impl Bot {
+    fn phase(&self) -> Phase {
+        *self.phase.borrow()
+    }
+
+    /// Counts this bot as done with the end-of-run check, once.
+    fn finish(&mut self) {
+        if !self.out.counted_finished {
+            self.out.counted_finished = true;
+            self.fleet.finished.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Connects, retrying within [`RECONNECT_WINDOW`]; `None` gives up.
+    async fn connect(&mut self) -> Option<Client> {
+        let start = Instant::now();
+        let cfg = &self.fleet.cfg;
+        loop {
+            if self.phase() == Phase::Done || start.elapsed() > RECONNECT_WINDOW {
+                return None;
+            }
+            let token = match cfg.tokens.token(self.id) {
+                Ok(t) => t,
+                Err(e) => {
+                    tracing::error!(bot = self.id, error = %e, "no token");
+                    return None;
+                }
+            };
+            let opts = ClientOptions {
+                pool: self.fleet.pool.clone(),
+                record_history: true,
+            };
+            let attempt = {
+                let _slot = self.fleet.connect_slots.acquire().await.ok()?;
+                tokio::time::timeout(
+                    CONNECT_ATTEMPT_TIMEOUT,
+                    Client::connect_opts(cfg.server, &cfg.cert_der, &token, opts),
+                )
+                .await
+            };
+            match attempt {
+                Ok(Ok(c)) => return Some(c),
+                Ok(Err(ClientError::Refused { code, message }))
+                    if matches!(
+                        code,
+                        ErrorCode::BadToken
+                            | ErrorCode::ExpiredToken
+                            | ErrorCode::UnsupportedVersion
+                    ) =>
+                {
+                    tracing::error!(bot = self.id, ?code, message, "server refused the bot");
+                    return None;
+                }
+                Ok(Err(e)) => debug!(bot = self.id, error = %e, "connect failed"),
+                Err(_) => debug!(bot = self.id, "connect timed out"),
+            }
+            tokio::time::sleep(RECONNECT_DELAY).await;
+        }
+    }
+
+    /// One connection: `Ok` when the run is done, `Err` when it was lost.
+    async fn session(&mut self, client: &Client) -> Result<(), ClientError> {
+        let radius = self.fleet.cfg.view_radius;
+        let (hx, hz) = self.fleet.cfg.home(self.id);
+        let (sx, sz, hint) = match &self.walker {
+            Some(w) => (w.feet[0], w.feet[2], w.feet[1]),
+            None => (hx, hz, self.fleet.surface_hint(client.welcome(), hx, hz)),
+        };
+        let start_chunk = VoxelPos::new(sx as i32, hint as i32, sz as i32).chunk();
+        client.subscribe(start_chunk, radius).await?;
+        let feet = self.await_footing(client, sx, sz, hint).await?;
+        let walker = self.walker.get_or_insert_with(|| {
+            let half = if self.role.roams() {
+                self.fleet.cfg.area_side() as f64 / 2.0
+            } else {
+                super::CELL as f64 / 2.0
+            };
+            let (cx, cz) = if self.role.roams() {
+                let o = self.fleet.cfg.area_origin;
+                (o.0 as f64 + half, o.1 as f64 + half)
+            } else {
+                (hx, hz)
+            };
+            Walker {
+                feet,
+                waypoint: [sx, sz],
+                bounds: [cx - half, cx + half, cz - half, cz + half],
+                speed: self.role.walk_speed(),
+            }
+        });
+        walker.feet = feet;
+        // Report a position before the first edit (edits need one).
+        if let Some(p) = FixedVec3::from_f64(feet) {
+            client.send_position(p)?;
+        }
+        let subscribed = walker.chunk();
+        if subscribed != start_chunk {
+            client.subscribe(subscribed, radius).await?;
+        }
+        if self.out.stalled {
+            client.stop_reading_updates();
+        }
+        let interval = (self.fleet.cfg.edit_rate > 0.0)
+            .then(|| Duration::from_secs_f64(1.0 / self.fleet.cfg.edit_rate));
+        let mut st = Loop {
+            steps: 0,
+            subscribed,
+            last_bytes: client.bytes_in(),
+            // Spread the bots' edits over the first interval.
+            next_edit: Instant::now()
+                + interval.map_or(Duration::ZERO, |i| i.mul_f64(self.rng.unit())),
+            interval,
+            pings: 0,
+        };
+        let mut ticker = tokio::time::interval(STEP);
+        ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        // The edit awaiting its verdict: the bot keeps walking and pinging.
+        let mut pending: Option<Pin<Box<PendingEdit<'_>>>> = None;
+        let result = loop {
+            tokio::select! {
+                (verdict, sent_at) = async { pending.as_mut().expect("guarded").await },
+                    if pending.is_some() =>
+                {
+                    pending = None;
+                    self.fleet.in_flight.fetch_sub(1, Ordering::Relaxed);
+                    if let Err(e) = self.verdict(verdict, sent_at) {
+                        break Err(e);
+                    }
+                }
+                _ = ticker.tick() => match self.tick(client, &mut st).await {
+                    Ok(Next::Continue) => {}
+                    Ok(Next::Edit) if pending.is_none() => {
+                        if let Some(edit) = self.prepare_edit(client) {
+                            self.fleet.in_flight.fetch_add(1, Ordering::Relaxed);
+                            let sent_at = Instant::now();
+                            pending = Some(Box::pin(async move {
+                                (client.edit_acked(edit).await, sent_at)
+                            }));
+                        }
+                    }
+                    Ok(Next::Edit) => {}
+                    Ok(Next::Done) => break Ok(()),
+                    Err(e) => break Err(e),
+                },
+            }
+        };
+        if pending.is_some() {
+            self.fleet.in_flight.fetch_sub(1, Ordering::Relaxed);
+            Stats::add(&self.fleet.stats.edits_unanswered, 1);
+        }
+        result
+    }
+
+    /// One step of the session loop.
+    async fn tick(&mut self, client: &Client, st: &mut Loop) -> Result<Next, ClientError> {
+        st.steps = st.steps.wrapping_add(1);
+        if client.is_closed() {
+            return Err(client.closed().await);
+        }
+        if client.silent_for() > self.fleet.cfg.silence_limit {
+            return Err(ClientError::Timeout("a sign of life from the server"));
+        }
+        if st.steps % PING_EVERY == 0 {
+            st.pings += 1;
+            client.ping(st.pings).await?;
+        }
+        if st.steps % DRAIN_EVERY == 0 {
+            self.drain_arrivals(client);
+        }
+        let radius = self.fleet.cfg.view_radius;
+        match self.phase() {
+            Phase::Run => {
+                let walker = self.walker.as_mut().expect("set by session");
+                walker.step(&client.replica(), STEP.as_secs_f64(), &mut self.rng);
+                if st.steps % POSITION_EVERY == 0 {
+                    if let Some(p) = FixedVec3::from_f64(walker.feet) {
+                        client.send_position(p)?;
+                    }
+                }
+                let chunk = walker.chunk();
+                if chunk != st.subscribed {
+                    st.subscribed = chunk;
+                    client.subscribe(chunk, radius).await?;
+                }
+                if let Some(i) = st.interval {
+                    if Instant::now() >= st.next_edit {
+                        st.next_edit = (st.next_edit + i).max(Instant::now());
+                        return Ok(Next::Edit);
+                    }
+                }
+            }
+            Phase::Quiesce => {
+                let b = client.bytes_in();
+                if b != st.last_bytes {
+                    st.last_bytes = b;
+                    self.fleet.touch();
+                }
+            }
+            Phase::Verify => {
+                if !self.out.verified && !self.out.stalled {
+                    self.verify(client).await?;
+                }
+                self.finish();
+            }
+            Phase::Done => return Ok(Next::Done),
+        }
+        Ok(Next::Continue)
+    }
+
+    /// Waits until the replica holds ground under `(x, z)`.
+    async fn await_footing(
+        &self,
+        client: &Client,
+        x: f64,
+        z: f64,
+        hint: f64,
+    ) -> Result<[f64; 3], ClientError> {
+        let start = Instant::now();
+        loop {
+            if let Some(f) = footing::stand(&client.replica(), x, z, hint) {
+                return Ok(f);
+            }
+            if client.is_closed() {
+                return Err(client.closed().await);
+            }
+            if start.elapsed() > SPAWN_TIMEOUT {
+                return Err(ClientError::Timeout("the ground under the bot"));
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+
+    /// The next edit aimed from the bot's position, if a target is in
+    /// reach and sight.
+    fn prepare_edit(&mut self, client: &Client) -> Option<Edit> {
+        let stats = &self.fleet.stats;
+        let feet = self.walker.as_ref().expect("walking").feet;
+        let target = footing::pick_target(&client.replica(), feet, &mut self.rng);
+        let Some(target) = target else {
+            Stats::add(&stats.edits_skipped, 1);
+            return None;
+        };
+        Stats::add(&stats.edits_sent, 1);
+        Some(self.role.edit(target, &mut self.rng))
+    }
+
+    /// Records an edit's verdict; an error means the connection is lost.
+    fn verdict(
+        &self,
+        result: Result<Acked, ClientError>,
+        sent_at: Instant,
+    ) -> Result<(), ClientError> {
+        let stats = &self.fleet.stats;
+        match result {
+            Ok((Verdict::Accepted { seq }, changes)) => {
+                stats.ack.record(sent_at.elapsed());
+                Stats::add(&stats.edits_accepted, 1);
+                self.fleet.accepted(seq, sent_at, self.id, &changes);
+                Ok(())
+            }
+            Ok((Verdict::Rejected(reason), _)) => {
+                debug!(bot = self.id, ?reason, "edit rejected");
+                stats.reject(reject_label(&reason));
+                Ok(())
+            }
+            Err(e) => {
+                Stats::add(&stats.edits_unanswered, 1);
+                Err(e)
+            }
+        }
+    }
+
+    /// Matches delta arrivals with the edits that caused them.
+    fn drain_arrivals(&mut self, client: &Client) {
+        self.arrivals.extend(client.take_arrivals());
+        if self.arrivals.is_empty() {
+            return;
+        }
+        self.fleet.touch();
+        let sent = self.fleet.sent.lock().expect("not poisoned");
+        let me = self.id;
+        let broadcast = &self.fleet.stats.broadcast;
+        self.arrivals.retain(|a| match sent.get(&a.seq) {
+            Some((at, author)) => {
+                if *author != me {
+                    broadcast.record(a.at.saturating_duration_since(*at));
+                }
+                false
+            }
+            None => a.at.elapsed() < ARRIVAL_MATCH_WINDOW,
+        });
+    }
+
+    /// Asks the server for every held chunk and compares, a few requests
+    /// at a time (the server's command queue is shared by every bot), and
+    /// asks again for any the server has not answered after a while.
+    async fn verify(&mut self, client: &Client) -> Result<(), ClientError> {
+        let mode = self.fleet.cfg.verify;
+        if mode == VerifyMode::Off {
+            self.out.verified = true;
+            return Ok(());
+        }
+        let mut queue: Vec<ChunkPos> = {
+            let mut r = client.replica();
+            let list: Vec<ChunkPos> = r
+                .chunks()
+                .filter(|(_, h)| mode == VerifyMode::All || h.version > 0)
+                .map(|(p, _)| p)
+                .collect();
+            for p in &list {
+                r.expect_check(*p);
+            }
+            list
+        };
+        let ask = |pos| async move {
+            match mode {
+                VerifyMode::All => client.full_snapshot(pos).await,
+                _ => client.resync(pos).await,
+            }
+        };
+        let mut outstanding: Vec<(ChunkPos, Instant)> = Vec::new();
+        let start = Instant::now();
+        loop {
+            {
+                let r = client.replica();
+                outstanding.retain(|(p, _)| r.is_checking(*p));
+                queue.retain(|p| r.is_checking(*p));
+            }
+            while outstanding.len() < CHECK_WINDOW {
+                let Some(pos) = queue.pop() else { break };
+                ask(pos).await?;
+                outstanding.push((pos, Instant::now()));
+            }
+            if outstanding.is_empty() && queue.is_empty() {
+                break;
+            }
+            if start.elapsed() > CHECK_TIMEOUT || self.phase() == Phase::Done {
+                break;
+            }
+            if client.is_closed() {
+                return Err(client.closed().await);
+            }
+            for (pos, asked) in outstanding.iter_mut() {
+                if asked.elapsed() > CHECK_RETRY {
+                    ask(*pos).await?;
+                    *asked = Instant::now();
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        self.out.unverified += client.replica().checks_pending() as u64;
+        self.out.verified = true;
+        Ok(())
+    }
+}

@@ -1,0 +1,407 @@
+//! `strata-bots`: many headless clients in one process, each a real QUIC
+//! connection that walks, subscribes, edits by profile and keeps a
+//! mesh-checked replica. At the end the bots stop editing, wait for the
+//! world to go quiet, and compare every replica chunk with the server's.
+//!
+//! - [`profile`]: what each bot does; [`footing`]: where it stands and aims.
+//! - [`driver`]: one bot's life (connect, walk, edit, reconnect, verify);
+//!   `walker`: how it moves.
+//! - [`stats`], [`summary`], [`progress`], [`ack_log`]: what a run reports.
+
+pub mod ack_log;
+mod driver;
+pub mod duration;
+pub mod footing;
+pub mod profile;
+mod progress;
+pub mod rng;
+pub mod stats;
+pub mod summary;
+mod walker;
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+use strata_protocol::{ChunkVersion, Role as AuthRole};
+use strata_server::auth::{self, Secret};
+use strata_terrain::gen::{GenParams, Generator};
+use strata_terrain::ChunkPos;
+use thiserror::Error;
+use tokio::sync::{watch, Semaphore};
+
+use crate::pool::ChunkPool;
+use ack_log::AckLog;
+use driver::BotOutcome;
+pub use profile::{Profile, Role};
+use stats::Stats;
+pub use summary::Summary;
+
+/// Side of the square each bot calls home, in voxels.
+pub const CELL: i32 = 24;
+/// Default south-west corner of the bots' area: far from the protected spawn.
+pub const DEFAULT_AREA_ORIGIN: (i32, i32) = (512, 512);
+/// Lifetime of minted bot tokens.
+pub const TOKEN_TTL: Duration = Duration::from_secs(24 * 3600);
+/// Handshakes in flight at once.
+pub const CONNECT_CONCURRENCY: usize = 32;
+/// The world counts as quiet after this long without an update at any bot.
+pub const QUIET_PERIOD: Duration = Duration::from_millis(750);
+/// Longest wait for quiet before checking anyway.
+pub const QUIET_TIMEOUT: Duration = Duration::from_secs(30);
+/// Longest wait for every bot to finish its end-of-run check.
+pub const VERIFY_TIMEOUT: Duration = Duration::from_secs(60);
+/// Default of [`BotsConfig::silence_limit`].
+pub const DEFAULT_SILENCE_LIMIT: Duration = Duration::from_secs(10);
+/// Largest view radius a bot subscribes with.
+pub const MAX_BOT_VIEW_RADIUS: u8 = 8;
+/// Accepted edits remembered for broadcast-latency matching.
+pub const MAX_TRACKED_EDITS: usize = 1 << 21;
+
+#[derive(Debug, Error)]
+pub enum BotsError {
+    #[error("invalid setting: {0}")]
+    Config(String),
+    #[error("cannot create ack log {path}: {source}")]
+    AckLog {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("cannot mint a token: {0}")]
+    Token(String),
+}
+
+/// Where bots get their tokens.
+#[derive(Debug, Clone)]
+pub enum Tokens {
+    /// One token for every bot: they share one player's rate limits.
+    Shared(String),
+    /// A token per bot (`bot-<index>`), signed with the server's secret.
+    Minted(Secret),
+}
+
+impl Tokens {
+    pub fn token(&self, bot: usize) -> Result<String, BotsError> {
+        match self {
+            Tokens::Shared(t) => Ok(t.clone()),
+            Tokens::Minted(secret) => auth::issue(
+                secret,
+                &format!("bot-{bot}"),
+                AuthRole::Player,
+                TOKEN_TTL,
+                auth::unix_now(),
+            )
+            .map_err(|e| BotsError::Token(e.to_string())),
+        }
+    }
+}
+
+/// Which replica chunks are compared with the server's at the end.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VerifyMode {
+    /// Every held chunk (full snapshots, version 0 included).
+    All,
+    /// Only chunks some edit changed (cheaper for big runs).
+    Modified,
+    /// No end-of-run comparison.
+    Off,
+}
+
+impl std::str::FromStr for VerifyMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "all" => Ok(VerifyMode::All),
+            "modified" => Ok(VerifyMode::Modified),
+            "off" => Ok(VerifyMode::Off),
+            _ => Err(format!("expected all, modified or off, not {s:?}")),
+        }
+    }
+}
+
+/// Everything a run needs.
+#[derive(Debug, Clone)]
+pub struct BotsConfig {
+    pub server: SocketAddr,
+    /// DER certificate the bots pin.
+    pub cert_der: Vec<u8>,
+    pub tokens: Tokens,
+    pub bots: usize,
+    /// How long the bots edit.
+    pub duration: Duration,
+    pub profile: Profile,
+    /// Edits per second per bot (0: walk only).
+    pub edit_rate: f64,
+    /// Chunks around each bot it subscribes to (Chebyshev radius).
+    pub view_radius: u8,
+    pub verify: VerifyMode,
+    pub seed: u64,
+    /// The first `stalled` bots stop reading their updates once spawned.
+    pub stalled: usize,
+    pub ack_log: Option<PathBuf>,
+    pub progress: bool,
+    pub area_origin: (i32, i32),
+    /// A server silent this long, despite pings, is taken for dead and the
+    /// bot reconnects. QUIC's idle timeout is much longer, and a restarted
+    /// server cannot reset the old connections (its reset key is new).
+    pub silence_limit: Duration,
+}
+
+impl BotsConfig {
+    fn check(&self) -> Result<(), BotsError> {
+        let bad = |m: &str| Err(BotsError::Config(m.to_string()));
+        if self.bots == 0 {
+            return bad("--bots must be at least 1");
+        }
+        if self.stalled > self.bots {
+            return bad("--stalled cannot exceed --bots");
+        }
+        if !self.edit_rate.is_finite() || self.edit_rate < 0.0 {
+            return bad("--edit-rate must be a number >= 0");
+        }
+        if !(1..=MAX_BOT_VIEW_RADIUS).contains(&self.view_radius) {
+            return bad("--view-radius must be 1..=8");
+        }
+        Ok(())
+    }
+
+    /// Side of the square area the bots share, in voxels.
+    pub fn area_side(&self) -> i32 {
+        (self.bots as f64).sqrt().ceil() as i32 * CELL
+    }
+
+    /// Centre of bot `i`'s home cell.
+    pub fn home(&self, i: usize) -> (f64, f64) {
+        let per_row = (self.bots as f64).sqrt().ceil() as usize;
+        let (cx, cz) = ((i % per_row) as i32, (i / per_row) as i32);
+        (
+            (self.area_origin.0 + cx * CELL + CELL / 2) as f64,
+            (self.area_origin.1 + cz * CELL + CELL / 2) as f64,
+        )
+    }
+}
+
+/// Phases of a run, in order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Phase {
+    /// Walk and edit.
+    Run,
+    /// Stop editing and moving; wait for the world to go quiet.
+    Quiesce,
+    /// Compare replicas with the server.
+    Verify,
+    /// Close.
+    Done,
+}
+
+/// What the bots share.
+#[derive(Debug)]
+pub struct Fleet {
+    pub cfg: BotsConfig,
+    pub stats: Stats,
+    pub pool: Arc<ChunkPool>,
+    phase: watch::Sender<Phase>,
+    ack_log: Option<AckLog>,
+    connect_slots: Semaphore,
+    /// Accepted edits: seq -> (sent at, author bot).
+    sent: Mutex<HashMap<u64, (Instant, usize)>>,
+    /// Highest acknowledged version of every chunk.
+    acked: Mutex<HashMap<ChunkPos, u64>>,
+    /// Edits awaiting a verdict right now.
+    in_flight: AtomicUsize,
+    /// When some bot last received an update (ms since the run's start).
+    last_activity_ms: AtomicU64,
+    /// Bots that finished their end-of-run check (or gave up).
+    finished: AtomicUsize,
+    generator: OnceLock<Option<Generator>>,
+    started: Instant,
+}
+
+impl Fleet {
+    fn phase_name(&self) -> &'static str {
+        match *self.phase.borrow() {
+            Phase::Run => "editing",
+            Phase::Quiesce => "waiting for quiet",
+            Phase::Verify => "verifying",
+            Phase::Done => "done",
+        }
+    }
+
+    fn touch(&self) {
+        let ms = self.started.elapsed().as_millis() as u64;
+        self.last_activity_ms.fetch_max(ms, Ordering::Relaxed);
+    }
+
+    fn quiet_for(&self) -> Duration {
+        let last = Duration::from_millis(self.last_activity_ms.load(Ordering::Relaxed));
+        self.started.elapsed().saturating_sub(last)
+    }
+
+    /// Surface height hint from the world's generator, when clients can run it.
+    fn surface_hint(&self, welcome: &strata_protocol::Welcome, x: f64, z: f64) -> f64 {
+        let g = self.generator.get_or_init(|| {
+            let params: GenParams = toml::from_str(&welcome.generator_params).ok()?;
+            Generator::fractal(params).ok()
+        });
+        g.as_ref()
+            .map_or(0.0, |g| g.surface_height(x as i32, z as i32).floor())
+    }
+
+    fn accepted(&self, seq: u64, sent_at: Instant, bot: usize, changes: &[ChunkVersion]) {
+        {
+            let mut sent = self.sent.lock().expect("not poisoned");
+            if sent.len() < MAX_TRACKED_EDITS {
+                sent.insert(seq, (sent_at, bot));
+            }
+        }
+        {
+            let mut acked = self.acked.lock().expect("not poisoned");
+            for c in changes {
+                let v = acked.entry(c.pos).or_default();
+                *v = (*v).max(c.version);
+            }
+        }
+        if let Some(log) = &self.ack_log {
+            if let Err(e) = log.write(seq, changes) {
+                tracing::error!(error = %e, "ack log write failed");
+            }
+        }
+    }
+}
+
+/// Runs the bots against a server and returns the summary.
+pub async fn run(cfg: BotsConfig) -> Result<Summary, BotsError> {
+    cfg.check()?;
+    let ack_log = match &cfg.ack_log {
+        Some(p) => Some(AckLog::create(p).map_err(|source| BotsError::AckLog {
+            path: p.display().to_string(),
+            source,
+        })?),
+        None => None,
+    };
+    // Fail early on a token problem rather than in every bot.
+    cfg.tokens.token(0)?;
+    let (phase, _) = watch::channel(Phase::Run);
+    let fleet = Arc::new(Fleet {
+        cfg: cfg.clone(),
+        stats: Stats::default(),
+        pool: Arc::default(),
+        phase,
+        ack_log,
+        connect_slots: Semaphore::new(CONNECT_CONCURRENCY),
+        sent: Mutex::default(),
+        acked: Mutex::default(),
+        in_flight: AtomicUsize::new(0),
+        last_activity_ms: AtomicU64::new(0),
+        finished: AtomicUsize::new(0),
+        generator: OnceLock::new(),
+        started: Instant::now(),
+    });
+    let progress = cfg
+        .progress
+        .then(|| progress::spawn(fleet.clone(), cfg.bots, cfg.duration));
+    let bots: Vec<_> = (0..cfg.bots)
+        .map(|i| tokio::spawn(driver::run_bot(fleet.clone(), i)))
+        .collect();
+    tokio::time::sleep(cfg.duration).await;
+    let edit_time = fleet.started.elapsed();
+
+    fleet.phase.send_replace(Phase::Quiesce);
+    fleet.touch();
+    let quiet_start = Instant::now();
+    let quiet = loop {
+        if fleet.in_flight.load(Ordering::Relaxed) == 0 && fleet.quiet_for() >= QUIET_PERIOD {
+            break true;
+        }
+        if quiet_start.elapsed() > QUIET_TIMEOUT {
+            break false;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+
+    fleet.phase.send_replace(Phase::Verify);
+    let verify_start = Instant::now();
+    while fleet.finished.load(Ordering::Relaxed) < cfg.bots
+        && verify_start.elapsed() < VERIFY_TIMEOUT
+    {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    fleet.phase.send_replace(Phase::Done);
+    let timings = (
+        quiet_start.elapsed() - verify_start.elapsed(),
+        verify_start.elapsed(),
+    );
+    let mut outcomes = Vec::with_capacity(bots.len());
+    for b in bots {
+        match b.await {
+            Ok(o) => outcomes.push(o),
+            Err(e) => tracing::error!(error = %e, "a bot task failed"),
+        }
+    }
+    if let Some((bar, task)) = progress {
+        task.abort();
+        bar.finish_and_clear();
+    }
+    let mut summary = summarize(&fleet, &outcomes, edit_time, quiet);
+    summary.quiet_wait_s = timings.0.as_secs_f64();
+    summary.verify_s = timings.1.as_secs_f64();
+    Ok(summary)
+}
+
+fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet: bool) -> Summary {
+    let s = &fleet.stats;
+    let mut sum = Summary {
+        bots: fleet.cfg.bots,
+        profile: fleet.cfg.profile.name().to_string(),
+        duration_s: fleet.cfg.duration.as_secs_f64(),
+        stalled: fleet.cfg.stalled,
+        reconnects: Stats::get(&s.reconnects),
+        edits_sent: Stats::get(&s.edits_sent),
+        edits_accepted: Stats::get(&s.edits_accepted),
+        edits_rejected: s.rejected(),
+        edits_unanswered: Stats::get(&s.edits_unanswered),
+        edits_skipped: Stats::get(&s.edits_skipped),
+        ack_latency_ms: s.ack.summary(),
+        broadcast_latency_ms: s.broadcast.summary(),
+        quiet,
+        ..Default::default()
+    };
+    sum.edits_accepted_per_second = sum.edits_accepted as f64 / edit_time.as_secs_f64().max(1e-3);
+    let acked = fleet.acked.lock().expect("not poisoned");
+    let mut seen: HashMap<(ChunkPos, u64), u64> = HashMap::new();
+    let mut delta_bytes = 0;
+    for o in outcomes {
+        sum.connected_at_end += o.connected_at_end as usize;
+        sum.bytes_in += o.bytes_in;
+        sum.bytes_out += o.bytes_out;
+        let r = &o.replica;
+        sum.deltas += r.deltas;
+        delta_bytes += r.delta_payload_bytes;
+        sum.snapshots += r.snapshots;
+        sum.resyncs += r.gaps + r.hash_mismatches;
+        sum.meshes_checked += r.meshes_checked;
+        sum.mesh_mismatches += r.mesh_mismatches;
+        sum.order_violations += o.history_regressions;
+        for (k, h) in &o.version_hashes {
+            if *seen.entry(*k).or_insert(*h) != *h {
+                sum.order_violations += 1;
+            }
+        }
+        if o.stalled || fleet.cfg.verify == VerifyMode::Off {
+            continue;
+        }
+        sum.chunks_verified += r.checks_ok + r.checks_failed;
+        sum.replica_mismatches += r.checks_failed;
+        sum.chunks_unverified += o.unverified;
+        for (pos, v) in &o.final_versions {
+            if acked.get(pos).is_some_and(|a| a > v) {
+                sum.ack_missing += 1;
+            }
+        }
+    }
+    sum.mean_delta_bytes = delta_bytes as f64 / sum.deltas.max(1) as f64;
+    sum
+}

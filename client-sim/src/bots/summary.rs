@@ -1,0 +1,170 @@
+//! The end-of-run summary: one JSON line with `--json`, else a short table.
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+
+use serde::Serialize;
+
+use super::stats::LatencyMs;
+
+/// What a run measured and whether every replica converged.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Summary {
+    pub bots: usize,
+    pub profile: String,
+    /// Seconds of editing (the `--duration`).
+    pub duration_s: f64,
+    /// Bots that stopped reading their updates (`--stalled`).
+    pub stalled: usize,
+    pub connected_at_end: usize,
+    /// Connections a bot had to open again after losing one.
+    pub reconnects: u64,
+    pub edits_sent: u64,
+    pub edits_accepted: u64,
+    /// Rejections by reason (snake_case names of `RejectReason`).
+    pub edits_rejected: BTreeMap<String, u64>,
+    /// Edits whose connection ended before the verdict arrived.
+    pub edits_unanswered: u64,
+    /// Edit slots skipped: no target in reach and sight.
+    pub edits_skipped: u64,
+    pub edits_accepted_per_second: f64,
+    /// From sending an edit to its `EditAccepted`.
+    pub ack_latency_ms: LatencyMs,
+    /// From sending an edit to the arrival of its delta at another bot.
+    pub broadcast_latency_ms: LatencyMs,
+    /// Updates-stream bytes received, summed over bots.
+    pub bytes_in: u64,
+    /// Control-stream and datagram bytes sent, summed over bots.
+    pub bytes_out: u64,
+    pub deltas: u64,
+    /// Mean delta payload, in bytes.
+    pub mean_delta_bytes: f64,
+    pub snapshots: u64,
+    /// Resync requests the replicas sent (version gaps, bad hashes).
+    pub resyncs: u64,
+    pub meshes_checked: u64,
+    pub mesh_mismatches: u64,
+    /// Replica chunks compared with the server's copy at the end.
+    pub chunks_verified: u64,
+    /// Compared chunks whose version or hash differed from the server's.
+    pub replica_mismatches: u64,
+    /// Chunks the server did not answer for before the timeout.
+    pub chunks_unverified: u64,
+    /// Two bots holding different contents for one chunk version, or a
+    /// replica whose versions of a chunk went backwards.
+    pub order_violations: u64,
+    /// Final replica chunks older than an acknowledged version.
+    pub ack_missing: u64,
+    /// The world went quiet before the end-of-run check.
+    pub quiet: bool,
+    /// Seconds spent waiting for quiet, then comparing with the server.
+    pub quiet_wait_s: f64,
+    pub verify_s: f64,
+}
+
+impl Summary {
+    /// True when every replica converged on the server's world.
+    pub fn consistent(&self) -> bool {
+        self.quiet
+            && self.replica_mismatches == 0
+            && self.mesh_mismatches == 0
+            && self.chunks_unverified == 0
+            && self.order_violations == 0
+            && self.ack_missing == 0
+    }
+
+    pub fn to_json(&self) -> String {
+        serde_json::to_string(self).expect("plain data serializes")
+    }
+
+    /// A few human-readable lines.
+    pub fn human(&self) -> String {
+        let mut s = String::new();
+        let l = |x: &LatencyMs| {
+            format!(
+                "p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms",
+                x.p50, x.p99, x.max
+            )
+        };
+        let _ = writeln!(
+            s,
+            "{} bots ({}) for {:.0} s, {} connected at the end, {} reconnects",
+            self.bots, self.profile, self.duration_s, self.connected_at_end, self.reconnects
+        );
+        let rejected: u64 = self.edits_rejected.values().sum();
+        let _ = writeln!(
+            s,
+            "edits: {} sent, {} accepted ({:.1}/s), {} rejected {:?}, {} unanswered",
+            self.edits_sent,
+            self.edits_accepted,
+            self.edits_accepted_per_second,
+            rejected,
+            self.edits_rejected,
+            self.edits_unanswered
+        );
+        let _ = writeln!(s, "ack latency: {}", l(&self.ack_latency_ms));
+        let _ = writeln!(s, "broadcast latency: {}", l(&self.broadcast_latency_ms));
+        let _ = writeln!(
+            s,
+            "traffic: {} B in, {} B out, {} deltas (mean {:.0} B), {} snapshots, {} resyncs",
+            self.bytes_in,
+            self.bytes_out,
+            self.deltas,
+            self.mean_delta_bytes,
+            self.snapshots,
+            self.resyncs
+        );
+        let _ = writeln!(
+            s,
+            "consistency: {} chunks verified, {} replica mismatches, {} unverified, {} of {} meshes mismatched, {} order violations, {} acked versions missing{}",
+            self.chunks_verified,
+            self.replica_mismatches,
+            self.chunks_unverified,
+            self.mesh_mismatches,
+            self.meshes_checked,
+            self.order_violations,
+            self.ack_missing,
+            if self.quiet { "" } else { " (world never went quiet)" }
+        );
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn json_has_the_documented_keys() {
+        let s = Summary {
+            bots: 2,
+            quiet: true,
+            ..Default::default()
+        };
+        assert!(s.consistent());
+        let v: serde_json::Value = serde_json::from_str(&s.to_json()).unwrap();
+        for key in [
+            "bots",
+            "edits_sent",
+            "edits_accepted",
+            "edits_rejected",
+            "ack_latency_ms",
+            "broadcast_latency_ms",
+            "bytes_in",
+            "bytes_out",
+            "mean_delta_bytes",
+            "resyncs",
+            "replica_mismatches",
+            "mesh_mismatches",
+        ] {
+            assert!(v.get(key).is_some(), "{key}");
+        }
+        assert!(v["ack_latency_ms"].get("p99").is_some());
+        assert!(s.human().contains("2 bots"));
+        let bad = Summary {
+            mesh_mismatches: 1,
+            ..s
+        };
+        assert!(!bad.consistent());
+    }
+}

@@ -1,0 +1,86 @@
+//! The bots library against an in-process server over real QUIC: edits are
+//! accepted and broadcast, replicas converge, and the ack log matches the
+//! store once the server has stopped.
+
+use std::time::Duration;
+
+use strata_client_sim::bots::{self, BotsConfig, Profile, Tokens, VerifyMode};
+use strata_server::admin::verify_acks::{read_ack_log, verify};
+use strata_server::app;
+use strata_server::config::ServerConfig;
+use strata_server::store::SledStore;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn builders_converge_and_every_ack_is_stored() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut cfg = ServerConfig::default();
+    cfg.server.listen = "127.0.0.1:0".parse().unwrap();
+    cfg.server.data_dir = tmp.path().join("data");
+    let server = app::start(cfg).await.unwrap();
+    let acks = tmp.path().join("acks.jsonl");
+    let run = BotsConfig {
+        server: server.addr,
+        cert_der: server.cert_der.clone(),
+        tokens: Tokens::Minted(server.data_dir.secret().clone()),
+        bots: 4,
+        duration: Duration::from_secs(3),
+        profile: Profile::Builders,
+        edit_rate: 2.0,
+        view_radius: 2,
+        verify: VerifyMode::Modified,
+        seed: 7,
+        stalled: 0,
+        ack_log: Some(acks.clone()),
+        progress: false,
+        area_origin: bots::DEFAULT_AREA_ORIGIN,
+        silence_limit: bots::DEFAULT_SILENCE_LIMIT,
+    };
+    let s = tokio::time::timeout(Duration::from_secs(90), bots::run(run))
+        .await
+        .expect("the run ends")
+        .unwrap();
+    assert!(s.consistent(), "{}", s.human());
+    assert_eq!(s.connected_at_end, 4);
+    assert!(s.edits_accepted >= 10, "{}", s.human());
+    assert!(
+        s.chunks_verified > 0 && s.broadcast_latency_ms.count > 0,
+        "{s:?}"
+    );
+    let db = server.data_dir.world_db_path();
+    server.shutdown().await.unwrap();
+    let records = read_ack_log(&acks).unwrap();
+    assert_eq!(records.len() as u64, s.edits_accepted);
+    let report = verify(&SledStore::open(&db).unwrap(), &records).unwrap();
+    assert!(report.ok(), "{report:?}");
+}
+
+#[tokio::test]
+async fn bad_settings_are_refused_before_connecting() {
+    let run = BotsConfig {
+        server: "127.0.0.1:9".parse().unwrap(),
+        cert_der: Vec::new(),
+        tokens: Tokens::Shared("t".into()),
+        bots: 2,
+        duration: Duration::from_secs(1),
+        profile: Profile::Mixed,
+        edit_rate: 1.0,
+        view_radius: 2,
+        verify: VerifyMode::All,
+        seed: 1,
+        stalled: 3,
+        ack_log: None,
+        progress: false,
+        area_origin: bots::DEFAULT_AREA_ORIGIN,
+        silence_limit: bots::DEFAULT_SILENCE_LIMIT,
+    };
+    let e = bots::run(run.clone()).await.unwrap_err();
+    assert!(e.to_string().contains("--stalled"), "{e}");
+    let e = bots::run(BotsConfig {
+        stalled: 0,
+        view_radius: 0,
+        ..run
+    })
+    .await
+    .unwrap_err();
+    assert!(e.to_string().contains("--view-radius"), "{e}");
+}

@@ -1,0 +1,308 @@
+//! `strata-admin verify-acks`: proves that every edit a client saw
+//! acknowledged is in the stored world.
+//!
+//! The ack log is written by `strata-bots --ack-log FILE`: one JSON object
+//! per line, an [`AckRecord`]:
+//!
+//! ```text
+//! {"seq":17,"chunks":[{"x":16,"y":1,"z":16,"version":4}]}
+//! ```
+//!
+//! `seq` is the edit's global sequence number and `chunks` every chunk it
+//! changed with the version it moved that chunk to (from `EditAccepted`).
+//! The check passes when, for every record, the store's edit log reaches
+//! `seq` and holds that entry with the same chunk versions, and every chunk
+//! is stored at that version or later. Run it while the server is stopped.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use serde::{Deserialize, Serialize};
+use strata_protocol::ChunkVersion;
+use strata_terrain::ChunkPos;
+use thiserror::Error;
+
+use crate::datadir::DataDir;
+use crate::store::{ChunkStore, SledStore, StoreError};
+
+/// Failures listed in a report; the count covers all of them.
+pub const MAX_REPORTED_FAILURES: usize = 32;
+/// Longest ack-log line accepted, in bytes.
+pub const MAX_ACK_LINE_BYTES: usize = 64 * 1024;
+
+/// One chunk an acknowledged edit changed, at the version it reached.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AckChunk {
+    pub x: i32,
+    pub y: i32,
+    pub z: i32,
+    pub version: u64,
+}
+
+impl AckChunk {
+    pub fn pos(&self) -> ChunkPos {
+        ChunkPos::new(self.x, self.y, self.z)
+    }
+}
+
+/// One line of an ack log: an acknowledged edit.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AckRecord {
+    pub seq: u64,
+    pub chunks: Vec<AckChunk>,
+}
+
+impl AckRecord {
+    /// The record of an `EditAccepted { seq, changes }`.
+    pub fn new(seq: u64, changes: &[ChunkVersion]) -> Self {
+        Self {
+            seq,
+            chunks: changes
+                .iter()
+                .map(|c| AckChunk {
+                    x: c.pos.x,
+                    y: c.pos.y,
+                    z: c.pos.z,
+                    version: c.version,
+                })
+                .collect(),
+        }
+    }
+
+    /// The record as one JSON line, without the newline.
+    pub fn to_line(&self) -> String {
+        serde_json::to_string(self).expect("plain integers serialize")
+    }
+
+    pub fn parse_line(line: &str) -> Result<Self, serde_json::Error> {
+        serde_json::from_str(line)
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct VerifyAcksArgs {
+    /// The server's data directory (stop the server first).
+    #[arg(long)]
+    pub data_dir: PathBuf,
+    /// The ack log written by `strata-bots --ack-log`.
+    pub file: PathBuf,
+}
+
+/// Why verification could not run (as opposed to finding lost edits).
+#[derive(Debug, Error)]
+pub enum VerifyError {
+    #[error("cannot read ack log {path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("ack log line {line}: {reason}")]
+    Parse { line: usize, reason: String },
+    #[error("opening data dir: {0}")]
+    DataDir(String),
+    #[error(transparent)]
+    Store(#[from] StoreError),
+}
+
+/// An acknowledged edit the store does not hold.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum AckFailure {
+    /// The store's log ends before the edit.
+    SeqNotLogged { seq: u64, last_seq: u64 },
+    /// The log entry exists but names other chunk versions.
+    LogDiffers { seq: u64 },
+    /// A chunk is stored at an older version than acknowledged.
+    ChunkBehind {
+        seq: u64,
+        x: i32,
+        y: i32,
+        z: i32,
+        acked: u64,
+        stored: u64,
+    },
+}
+
+/// What verification found.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+pub struct VerifyReport {
+    pub records: u64,
+    pub chunks: u64,
+    pub last_seq: u64,
+    /// Every failure counted; the first [`MAX_REPORTED_FAILURES`] listed.
+    pub failure_count: u64,
+    pub failures: Vec<AckFailure>,
+}
+
+impl VerifyReport {
+    pub fn ok(&self) -> bool {
+        self.failure_count == 0
+    }
+
+    fn fail(&mut self, f: AckFailure) {
+        self.failure_count += 1;
+        if self.failures.len() < MAX_REPORTED_FAILURES {
+            self.failures.push(f);
+        }
+    }
+}
+
+/// Reads an ack log; blank lines are skipped.
+pub fn read_ack_log(path: &Path) -> Result<Vec<AckRecord>, VerifyError> {
+    let io = |source| VerifyError::Io {
+        path: path.display().to_string(),
+        source,
+    };
+    let file = std::fs::File::open(path).map_err(io)?;
+    let mut out = Vec::new();
+    for (i, line) in BufReader::new(file).lines().enumerate() {
+        let line = line.map_err(io)?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        if line.len() > MAX_ACK_LINE_BYTES {
+            return Err(VerifyError::Parse {
+                line: i + 1,
+                reason: format!("longer than {MAX_ACK_LINE_BYTES} bytes"),
+            });
+        }
+        let rec = AckRecord::parse_line(&line).map_err(|e| VerifyError::Parse {
+            line: i + 1,
+            reason: e.to_string(),
+        })?;
+        out.push(rec);
+    }
+    Ok(out)
+}
+
+/// Checks every record against a store.
+pub fn verify(store: &dyn ChunkStore, records: &[AckRecord]) -> Result<VerifyReport, StoreError> {
+    let last_seq = store.last_seq()?;
+    let mut report = VerifyReport {
+        last_seq,
+        ..Default::default()
+    };
+    for rec in records {
+        report.records += 1;
+        report.chunks += rec.chunks.len() as u64;
+        let Some(entry) = store.log_entry(rec.seq)?.filter(|_| rec.seq <= last_seq) else {
+            report.fail(AckFailure::SeqNotLogged {
+                seq: rec.seq,
+                last_seq,
+            });
+            continue;
+        };
+        let mut logged = entry.changes.clone();
+        let mut acked: Vec<(ChunkPos, u64)> =
+            rec.chunks.iter().map(|c| (c.pos(), c.version)).collect();
+        logged.sort();
+        acked.sort();
+        if logged != acked {
+            report.fail(AckFailure::LogDiffers { seq: rec.seq });
+        }
+        for c in &rec.chunks {
+            let stored = store.load_chunk(c.pos())?.map_or(0, |s| s.version);
+            if stored < c.version {
+                report.fail(AckFailure::ChunkBehind {
+                    seq: rec.seq,
+                    x: c.x,
+                    y: c.y,
+                    z: c.z,
+                    acked: c.version,
+                    stored,
+                });
+            }
+        }
+    }
+    Ok(report)
+}
+
+/// Opens the data dir's store and verifies the ack log against it.
+pub fn run(args: &VerifyAcksArgs) -> Result<VerifyReport, VerifyError> {
+    let records = read_ack_log(&args.file)?;
+    let dir =
+        DataDir::open_existing(&args.data_dir).map_err(|e| VerifyError::DataDir(e.to_string()))?;
+    let store = SledStore::open(&dir.world_db_path())?;
+    Ok(verify(&store, &records)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_round_trip_and_refuse_junk() {
+        let rec = AckRecord::new(
+            17,
+            &[ChunkVersion {
+                pos: ChunkPos::new(16, -1, 2),
+                version: 4,
+            }],
+        );
+        let line = rec.to_line();
+        assert_eq!(
+            line,
+            r#"{"seq":17,"chunks":[{"x":16,"y":-1,"z":2,"version":4}]}"#
+        );
+        assert_eq!(AckRecord::parse_line(&line).unwrap(), rec);
+        assert!(AckRecord::parse_line(r#"{"seq":1}"#).is_err());
+        assert!(AckRecord::parse_line(r#"{"seq":1,"chunks":[],"extra":2}"#).is_err());
+    }
+
+    #[test]
+    fn a_real_store_passes_what_it_holds_and_fails_what_it_lost() {
+        use crate::store::{CommitBatch, LogEntry};
+        use strata_terrain::{Chunk, Edit, FixedVec3, Voxel};
+        let tmp = tempfile::tempdir().unwrap();
+        let store = SledStore::open(tmp.path()).unwrap();
+        store
+            .init_meta(&crate::store::WorldMeta::new(1, 1, "seed = 1\n"))
+            .unwrap();
+        let pos = ChunkPos::new(3, 0, -2);
+        let entry = |seq, version| LogEntry {
+            seq,
+            player: "bot-0".into(),
+            time_ms: 1,
+            edit: Edit::Mine {
+                center: FixedVec3::from_voxels(100, 5, -60),
+                radius: strata_terrain::Fixed::from_voxels(2),
+                strength: 255,
+            },
+            changes: vec![(pos, version)],
+        };
+        store
+            .commit_batch(&CommitBatch {
+                entries: vec![entry(1, 1), entry(2, 2)],
+                chunks: vec![(pos, 2, Chunk::uniform(Voxel::AIR))],
+                last_seq: 2,
+            })
+            .unwrap();
+        let ack = |seq, version| AckRecord::new(seq, &[ChunkVersion { pos, version }]);
+        let good = verify(&store, &[ack(1, 1), ack(2, 2)]).unwrap();
+        assert!(good.ok(), "{good:?}");
+        assert_eq!((good.records, good.chunks, good.last_seq), (2, 2, 2));
+        let bad = verify(&store, &[ack(2, 3), ack(3, 3)]).unwrap();
+        assert_eq!(bad.failure_count, 3);
+        assert_eq!(
+            bad.failures,
+            vec![
+                AckFailure::LogDiffers { seq: 2 },
+                AckFailure::ChunkBehind {
+                    seq: 2,
+                    x: 3,
+                    y: 0,
+                    z: -2,
+                    acked: 3,
+                    stored: 2
+                },
+                AckFailure::SeqNotLogged {
+                    seq: 3,
+                    last_seq: 2
+                },
+            ]
+        );
+    }
+}
