@@ -3,13 +3,14 @@
 //! player tokens that can reach no admin request.
 
 mod common;
+mod snapshot_common;
 
-use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
 use common::*;
+use snapshot_common::{assert_snapshot_is_log_at, spot};
 use strata_client_sim::{Client, Verdict};
 use strata_protocol::admin::{
     AdminRequest, AdminResponse, ZoneSpec, ADMIN_ALPN, ADMIN_PROTOCOL_VERSION,
@@ -20,13 +21,10 @@ use strata_server::admin::remote::AdminClient;
 use strata_server::admin::snapshot_cmd::{self, RestoreArgs};
 use strata_server::app;
 use strata_server::client_tls::client_config_pinned_with_alpn;
-use strata_server::snapshot::{verify, SnapshotReader};
+use strata_server::snapshot::verify;
 use strata_server::store::{ChunkStore, SledStore};
-use strata_terrain::chunk_codec::decode_chunk;
-use strata_terrain::edit::{EditContext, StructureLibrary};
-use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::hash::chunk_hash;
-use strata_terrain::{ChunkPos, Edit, FixedVec3, MaterialTable, VoxelPos, World};
+use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
 
 /// Edits per second each test player may make (the default is far lower).
 const EDIT_RATE: u64 = 1000;
@@ -38,16 +36,6 @@ async fn start_fast(dir: &std::path::Path) -> app::Running {
     cfg.validation.volume_rate.capacity = 1 << 30;
     cfg.validation.volume_rate.per_second = 1 << 30;
     app::start(cfg).await.expect("server starts")
-}
-
-/// A ground voxel at (x, z) and the feet position standing on it.
-fn spot(x: i32, z: i32) -> (FixedVec3, VoxelPos) {
-    let g = Generator::fractal(GenParams::default()).unwrap();
-    let y = g.surface_height(x, z);
-    (
-        at(x as f64, y + 1.0, z as f64),
-        VoxelPos::new(x, y.floor() as i32, z),
-    )
 }
 
 /// Edits near `ground` until `stop`, alternating mining and building so
@@ -78,33 +66,6 @@ async fn keep_editing(c: Arc<Client>, ground: VoxelPos, stop: Arc<AtomicBool>) -
         i += 1;
     }
     seqs
-}
-
-/// The world after replaying the store's log up to `seq` on a fresh world.
-fn replay(store: &SledStore, seq: u64) -> (World, BTreeMap<ChunkPos, u64>) {
-    let g = Generator::fractal(GenParams::default()).unwrap();
-    let mut world = World::new(Arc::new(g));
-    let materials = MaterialTable::default();
-    let structures = StructureLibrary::default();
-    let ctx = EditContext {
-        materials: &materials,
-        structures: &structures,
-    };
-    let mut versions = BTreeMap::new();
-    for e in store.edit_log(1..=seq) {
-        let e = e.unwrap();
-        e.edit.apply(&mut world, &ctx).unwrap();
-        for (pos, v) in e.changes {
-            assert_eq!(
-                world.chunk(pos).version,
-                v,
-                "replay of seq {} diverged",
-                e.seq
-            );
-            versions.insert(pos, v);
-        }
-    }
-    (world, versions)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -150,22 +111,12 @@ async fn online_snapshot_under_load_restores_the_world_at_its_seq() {
         assert_eq!(report.header.as_ref().unwrap().zones.last(), Some(&zone));
 
         // The snapshot equals the log replayed to S, chunk hash for chunk hash.
-        let dd = strata_server::datadir::DataDir::open_existing(&data).unwrap();
-        let store = SledStore::open(&dd.world_db_path()).unwrap();
-        let (mut world, versions) = replay(&store, s);
-        let mut reader = SnapshotReader::open(&file).unwrap();
-        let mut in_snapshot = BTreeMap::new();
-        while let Some(c) = reader.next_chunk().unwrap() {
-            let chunk = decode_chunk(&c.payload).unwrap();
-            assert_eq!(chunk_hash(&chunk), chunk_hash(&world.chunk(c.pos).chunk), "{:?}", c.pos);
-            in_snapshot.insert(c.pos, c.version);
-        }
-        assert_eq!(in_snapshot, versions, "versions at S");
+        let (store, mut world, versions) = assert_snapshot_is_log_at(&data, &file, s);
         // No acknowledged edit after S appears in it.
         for q in acked.iter().filter(|&&q| q > s) {
             let e = store.log_entry(*q).unwrap().unwrap();
             for (pos, v) in e.changes {
-                assert!(in_snapshot.get(&pos).is_none_or(|&have| have < v), "seq {q} leaked into the snapshot");
+                assert!(versions.get(&pos).is_none_or(|&have| have < v), "seq {q} leaked into the snapshot");
             }
         }
         drop(store);
@@ -173,7 +124,7 @@ async fn online_snapshot_under_load_restores_the_world_at_its_seq() {
         // Restore into a new data dir; a server there serves exactly that world.
         let restored = tmp.path().join("restored");
         let n = snapshot_cmd::restore(&RestoreArgs { file: file.clone(), data_dir: restored.clone(), force: false }).unwrap();
-        assert_eq!(n, in_snapshot.len() as u64);
+        assert_eq!(n, versions.len() as u64);
         let again = snapshot_cmd::restore(&RestoreArgs { file: file.clone(), data_dir: restored.clone(), force: false });
         assert!(again.unwrap_err().to_string().contains("--force"));
         let server = start_fast(&restored).await;

@@ -3,7 +3,6 @@
 
 mod common;
 
-use std::sync::Arc;
 use std::time::Duration;
 
 use common::*;
@@ -92,17 +91,8 @@ struct RawSession {
 }
 
 async fn raw_session(server: &app::Running, player: &str) -> RawSession {
-    let mut cfg = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
-    let mut transport = quinn::TransportConfig::default();
-    transport.stream_receive_window(quinn::VarInt::from_u32(1024));
-    cfg.transport_config(Arc::new(transport));
-    let mut endpoint = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
-    endpoint.set_default_client_config(cfg);
-    let conn = endpoint
-        .connect(server.addr, "localhost")
-        .unwrap()
-        .await
-        .unwrap();
+    let cfg = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
+    let (endpoint, conn) = connect_small_window(server.addr, cfg, 1024).await;
     let (mut send, recv) = conn.open_bi().await.unwrap();
     let hello = ClientMessage::Hello(Hello {
         protocol_version: PROTOCOL_VERSION,

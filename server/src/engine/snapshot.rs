@@ -164,3 +164,138 @@ impl Engine {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{ChunkStore, LogEntry, SledStore, WorldMeta};
+    use strata_terrain::chunk_codec::encode_chunk;
+    use strata_terrain::material::ids;
+    use strata_terrain::{Chunk, Edit, Fixed, FixedVec3, MaterialId, Voxel};
+
+    /// Commits edit `seq`, which moves each chunk to a version and material.
+    fn commit(store: &SledStore, seq: u64, chunks: &[(ChunkPos, u64, MaterialId)]) {
+        let batch = CommitBatch {
+            entries: vec![LogEntry {
+                seq,
+                player: "p".into(),
+                time_ms: seq,
+                edit: Edit::Mine {
+                    center: FixedVec3::from_voxels(0, 0, 0),
+                    radius: Fixed::from_voxels(1),
+                    strength: 1,
+                },
+                changes: chunks.iter().map(|&(p, v, _)| (p, v)).collect(),
+            }],
+            chunks: chunks
+                .iter()
+                .map(|&(p, v, m)| (p, v, Chunk::Uniform(Voxel::solid(m))))
+                .collect(),
+            last_seq: seq,
+        };
+        store.commit_batch(&batch).unwrap();
+    }
+
+    fn raw(pos: ChunkPos, version: u64, m: MaterialId) -> RawChunk {
+        RawChunk {
+            pos,
+            version,
+            encoded: encode_chunk(&Chunk::Uniform(Voxel::solid(m))),
+        }
+    }
+
+    /// What the engine does before a commit, for one snapshot.
+    fn capture(store: &SledStore, pre: &PreImages, chunks: &[(ChunkPos, u64, MaterialId)]) {
+        for &(pos, _, _) in chunks {
+            if !pre.has(pos) {
+                pre.record(pos, &store.raw_chunk(pos).unwrap());
+            }
+        }
+    }
+
+    #[test]
+    fn a_store_walk_through_pre_images_sees_the_world_at_the_seq() {
+        let tmp = tempfile::tempdir().unwrap();
+        let store = SledStore::open(tmp.path()).unwrap();
+        store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+        let [a, b, c, new] =
+            [(0, 0, 0), (1, 0, 0), (2, 0, 0), (1, 5, 0)].map(|(x, y, z)| ChunkPos::new(x, y, z));
+        commit(
+            &store,
+            1,
+            &[(a, 1, ids::STONE), (b, 1, ids::DIRT), (c, 1, ids::STONE)],
+        );
+
+        let pre = PreImages::new(1, 8);
+        assert_eq!(pre.seq(), 1);
+        // Seq 2 changes `a` and creates `new`; seq 3 changes both again.
+        let seq2 = [(a, 2, ids::DIRT), (new, 1, ids::DIRT)];
+        capture(&store, &pre, &seq2);
+        commit(&store, 2, &seq2);
+        let seq3 = [(a, 3, ids::STONE), (new, 2, ids::STONE)];
+        capture(&store, &pre, &seq3);
+        // A late record of a chunk already saved keeps the first pre-image.
+        pre.record(a, &Some(raw(a, 2, ids::DIRT)));
+        commit(&store, 3, &seq3);
+        assert_eq!(pre.len(), 2);
+        assert!(pre.aborted().is_none());
+
+        // New chunks resolve to nothing, changed ones to their seq-1 state,
+        // untouched ones to the record read.
+        assert_eq!(pre.resolve(raw(new, 2, ids::STONE)), None);
+        assert_eq!(
+            pre.resolve(raw(a, 3, ids::STONE)),
+            Some(raw(a, 1, ids::STONE))
+        );
+        assert_eq!(
+            pre.resolve(raw(b, 1, ids::DIRT)),
+            Some(raw(b, 1, ids::DIRT))
+        );
+        let walked: Vec<RawChunk> = store
+            .raw_chunks()
+            .filter_map(|r| pre.resolve(r.unwrap()))
+            .collect();
+        assert_eq!(
+            walked,
+            vec![
+                raw(a, 1, ids::STONE),
+                raw(b, 1, ids::DIRT),
+                raw(c, 1, ids::STONE)
+            ]
+        );
+    }
+
+    #[test]
+    fn past_its_limit_a_snapshot_aborts_with_a_reason_and_saves_nothing() {
+        let tmp = tempfile::tempdir().unwrap();
+        let store = SledStore::open(tmp.path()).unwrap();
+        store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+        let pos: Vec<ChunkPos> = (0..4).map(|x| ChunkPos::new(x, 0, 0)).collect();
+        commit(
+            &store,
+            1,
+            &[(pos[0], 1, ids::STONE), (pos[1], 1, ids::STONE)],
+        );
+
+        let pre = PreImages::new(1, 3);
+        let seq2: Vec<_> = pos
+            .iter()
+            .map(|&p| (p, if p.x < 2 { 2 } else { 1 }, ids::DIRT))
+            .collect();
+        capture(&store, &pre, &seq2[..3]);
+        assert_eq!(pre.len(), 3);
+        assert!(pre.aborted().is_none());
+        // The fourth distinct chunk is one past the limit.
+        capture(&store, &pre, &seq2[3..]);
+        let reason = pre.aborted().expect("aborted");
+        assert!(reason.contains("more than 3 chunks changed"), "{reason}");
+        assert!(pre.is_empty(), "the saved pre-images are dropped");
+        // Nothing more is saved, and the engine no longer reads for it.
+        assert!(pre.has(ChunkPos::new(9, 9, 9)));
+        pre.record(ChunkPos::new(9, 9, 9), &None);
+        assert!(pre.is_empty());
+        // The first reason stays.
+        pre.abort("store read failed".into());
+        assert_eq!(pre.aborted(), Some(reason));
+    }
+}

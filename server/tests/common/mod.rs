@@ -61,6 +61,23 @@ pub fn r(v: f64) -> Fixed {
     Fixed::from_f64(v).unwrap()
 }
 
+/// A QUIC connection to `addr` whose streams each hold at most `window`
+/// unread bytes, so the server's writes to a stream it does not read soon
+/// block on flow control.
+pub async fn connect_small_window(
+    addr: SocketAddr,
+    mut cfg: quinn::ClientConfig,
+    window: u32,
+) -> (quinn::Endpoint, quinn::Connection) {
+    let mut transport = quinn::TransportConfig::default();
+    transport.stream_receive_window(quinn::VarInt::from_u32(window));
+    cfg.transport_config(std::sync::Arc::new(transport));
+    let mut endpoint = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+    endpoint.set_default_client_config(cfg);
+    let conn = endpoint.connect(addr, "localhost").unwrap().await.unwrap();
+    (endpoint, conn)
+}
+
 /// Polls `f` every 20 ms until it is true or `limit` passes.
 pub async fn eventually(limit: Duration, mut f: impl FnMut() -> bool) -> bool {
     let start = std::time::Instant::now();
