@@ -10,6 +10,7 @@
 
 pub mod admin;
 mod command;
+mod commit;
 mod fanout;
 mod peer;
 mod premesh;
@@ -113,6 +114,8 @@ pub struct Engine {
     last_evict: Option<Instant>,
     /// Online snapshots in progress (their copy-on-write pre-images).
     snapshots_running: Vec<Arc<snapshot::PreImages>>,
+    /// Commands that arrived during a commit and must wait for it.
+    deferred: commit::Deferred,
 }
 
 impl std::fmt::Debug for Engine {
@@ -162,6 +165,7 @@ impl Engine {
             snapshots: Default::default(),
             last_evict: None,
             snapshots_running: Vec::new(),
+            deferred: Default::default(),
         })
     }
 
@@ -182,10 +186,14 @@ impl Engine {
         let mut next_tick = Instant::now() + period;
         loop {
             let wait = next_tick.saturating_duration_since(Instant::now());
-            match rx.recv_timeout(wait) {
+            let next = match self.deferred.pop() {
+                Some(cmd) => Ok(cmd),
+                None => rx.recv_timeout(wait),
+            };
+            match next {
                 Ok(Command::Stop) | Err(RecvTimeoutError::Disconnected) => {
                     info!("engine stopping: final tick and flush");
-                    self.tick()?;
+                    self.tick(None)?;
                     self.close_all();
                     return Ok(());
                 }
@@ -194,7 +202,7 @@ impl Engine {
             }
             self.collect_premeshed();
             if Instant::now() >= next_tick {
-                self.tick()?;
+                self.tick(Some(&rx))?;
                 next_tick = Instant::now() + period;
             }
         }
@@ -312,8 +320,9 @@ impl Engine {
         }
     }
 
-    /// One tick: apply, commit, acknowledge, broadcast, stream.
-    fn tick(&mut self) -> anyhow::Result<()> {
+    /// One tick: apply, commit, acknowledge, broadcast, stream. While the
+    /// commit runs, safe commands from `rx` are served.
+    fn tick(&mut self, rx: Option<&Receiver<Command>>) -> anyhow::Result<()> {
         let started = Instant::now();
         let (mut out, pending) = self.seq.tick_apply(now_ms());
         // Collision meshes build on the rayon pool while the batch commits.
@@ -331,7 +340,7 @@ impl Engine {
             self.capture_preimages(&out.batch);
             let flush = Instant::now();
             // Nothing is acknowledged or broadcast unless this succeeds.
-            if let Err(e) = self.store.commit_batch(&out.batch) {
+            if let Err(e) = self.commit_serving(&out.batch, rx) {
                 error!(error = %e, "group commit failed; stopping without acknowledging");
                 self.close_all();
                 return Err(e.into());

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Load test: a release strata-server process and strata-bots on this machine.
+# Usage: scripts/bots_bench.sh BOTS [DURATION] [EXTRA strata-bots ARGS...]
+# Prints the bots' JSON summary, then one JSON line with the server's CPU
+# seconds (user+system, during the run), CPU share of one core, and peak RSS.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bots=${1:?bots}; duration=${2:-30s}; shift $(( $# >= 2 ? 2 : 1 ))
+target=${CARGO_TARGET_DIR:-target}
+cargo build --release --locked -q -p strata-server -p strata-client-sim --bins
+dir=$(mktemp -d)
+trap 'kill $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
+cat > "$dir/strata.toml" <<TOML
+[server]
+listen = "127.0.0.1:0"
+max_connections = $((bots + 64))
+TOML
+"$target/release/strata-server" --config "$dir/strata.toml" --data-dir "$dir/data" \
+    > "$dir/out" 2> "$dir/log" &
+pid=$!
+for _ in $(seq 100); do grep -q listening "$dir/out" 2>/dev/null && break; sleep 0.1; done
+addr=$(grep -oE '127\.0\.0\.1:[0-9]+' "$dir/out" | head -1)
+ticks() { awk '{print $14 + $15}' "/proc/$pid/stat"; }
+hz=$(getconf CLK_TCK)
+t0=$(ticks); s0=$(date +%s.%N)
+"$target/release/strata-bots" --server "$addr" --data-dir "$dir/data" --bots "$bots" \
+    --duration "$duration" --json "$@"
+t1=$(ticks); s1=$(date +%s.%N)
+rss=$(awk '/VmHWM/ {print $2}' "/proc/$pid/status")
+awk -v t0="$t0" -v t1="$t1" -v hz="$hz" -v s0="$s0" -v s1="$s1" -v rss="$rss" 'BEGIN {
+    cpu = (t1 - t0) / hz; wall = s1 - s0;
+    printf "{\"server_cpu_seconds\":%.2f,\"wall_seconds\":%.2f,\"server_cpu_share\":%.2f,\"server_peak_rss_mib\":%.1f}\n",
+        cpu, wall, cpu / wall, rss / 1024 }'
