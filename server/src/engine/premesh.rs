@@ -29,7 +29,7 @@ pub const DEFAULT_PREMESH_INFLIGHT: usize = 64;
 /// Threads of the background meshing pool.
 pub const PREMESH_THREADS: usize = 1;
 /// Generated chunks the background mesher keeps for reuse (about 64 KiB each at most).
-pub const GENERATED_CACHE_CHUNKS: usize = 512;
+pub const GENERATED_CACHE_CHUNKS: usize = 2048;
 
 /// One chunk to mesh and what it reads.
 pub struct PremeshTarget {
