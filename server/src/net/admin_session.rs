@@ -16,7 +16,8 @@ use tokio::sync::{mpsc, oneshot};
 use tracing::{debug, info, warn, Instrument};
 
 use super::session::{
-    check_token, close_code, read_error_code, SessionContext, DRAIN_TIMEOUT, HANDSHAKE_TIMEOUT,
+    accept_first_stream, check_token, close_code, read_error_code, SessionContext, DRAIN_TIMEOUT,
+    HANDSHAKE_TIMEOUT,
 };
 use crate::engine::admin::{AdminCommand, SnapshotStart};
 use crate::engine::snapshot::PreImages;
@@ -60,10 +61,8 @@ pub async fn run(
     ctx: Arc<SessionContext>,
     shutdown: Shutdown,
 ) {
-    let (stream, recv) = match tokio::time::timeout(HANDSHAKE_TIMEOUT, conn.accept_bi()).await {
-        Ok(Ok(s)) => s,
-        Ok(Err(e)) => return debug!(error = %e, "admin connection closed before its stream"),
-        Err(_) => return conn.close(close_code(ErrorCode::NotAuthenticated), b"no admin stream"),
+    let Some((stream, recv)) = accept_first_stream(&conn, "admin stream").await else {
+        return;
     };
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ClientToServer));
     let hello = match tokio::time::timeout(HANDSHAKE_TIMEOUT, reader.next::<AdminRequest>()).await {

@@ -62,6 +62,28 @@ async fn refuse(
     conn.close(close_code(code), message.as_bytes());
 }
 
+/// The connection's first bidirectional stream, opened by the client within
+/// [`HANDSHAKE_TIMEOUT`]; otherwise the connection is closed (or was).
+pub(super) async fn accept_first_stream(
+    conn: &quinn::Connection,
+    what: &str,
+) -> Option<(quinn::SendStream, quinn::RecvStream)> {
+    match tokio::time::timeout(HANDSHAKE_TIMEOUT, conn.accept_bi()).await {
+        Ok(Ok(s)) => Some(s),
+        Ok(Err(e)) => {
+            debug!(error = %e, "connection closed before its {what}");
+            None
+        }
+        Err(_) => {
+            conn.close(
+                close_code(ErrorCode::NotAuthenticated),
+                format!("no {what}").as_bytes(),
+            );
+            None
+        }
+    }
+}
+
 /// Runs one connection to completion.
 pub async fn run(
     conn: quinn::Connection,
@@ -69,15 +91,8 @@ pub async fn run(
     ctx: Arc<SessionContext>,
     shutdown: Shutdown,
 ) {
-    let (send, recv) = match tokio::time::timeout(HANDSHAKE_TIMEOUT, conn.accept_bi()).await {
-        Ok(Ok(s)) => s,
-        Ok(Err(e)) => return debug!(error = %e, "connection closed before its control stream"),
-        Err(_) => {
-            return conn.close(
-                close_code(ErrorCode::NotAuthenticated),
-                b"no control stream",
-            )
-        }
+    let Some((send, recv)) = accept_first_stream(&conn, "control stream").await else {
+        return;
     };
     let (control, control_task) = spawn_writer(send, CONTROL_QUEUE, "control");
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ClientToServer));
