@@ -2,7 +2,9 @@
 # Load test: a release strata-server process and strata-bots on this machine.
 # Usage: scripts/bots_bench.sh BOTS [DURATION] [EXTRA strata-bots ARGS...]
 # Prints the bots' JSON summary, then one JSON line with the server's CPU
-# seconds (user+system, during the run), CPU share of one core, and peak RSS.
+# seconds (user+system, during the run), CPU share of one core, and peak RSS,
+# and the bots process's CPU seconds. BENCH_SERVER_TOML appends lines to the
+# server's config (e.g. $'[engine]\ntick_ms = 20').
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bots=${1:?bots}; duration=${2:-30s}; shift $(( $# >= 2 ? 2 : 1 ))
@@ -14,6 +16,7 @@ cat > "$dir/strata.toml" <<TOML
 [server]
 listen = "127.0.0.1:0"
 max_connections = $((bots + 64))
+${BENCH_SERVER_TOML:-}
 TOML
 "$target/release/strata-server" --config "$dir/strata.toml" --data-dir "$dir/data" \
     > "$dir/out" 2> "$dir/log" &
@@ -23,11 +26,13 @@ addr=$(grep -oE '127\.0\.0\.1:[0-9]+' "$dir/out" | head -1)
 ticks() { awk '{print $14 + $15}' "/proc/$pid/stat"; }
 hz=$(getconf CLK_TCK)
 t0=$(ticks); s0=$(date +%s.%N)
-"$target/release/strata-bots" --server "$addr" --data-dir "$dir/data" --bots "$bots" \
+/usr/bin/time -f "%U %S" -o "$dir/bots_time" \
+    "$target/release/strata-bots" --server "$addr" --data-dir "$dir/data" --bots "$bots" \
     --duration "$duration" --json "$@"
 t1=$(ticks); s1=$(date +%s.%N)
 rss=$(awk '/VmHWM/ {print $2}' "/proc/$pid/status")
-awk -v t0="$t0" -v t1="$t1" -v hz="$hz" -v s0="$s0" -v s1="$s1" -v rss="$rss" 'BEGIN {
+bots_cpu=$(awk '{print $1 + $2}' "$dir/bots_time")
+awk -v t0="$t0" -v t1="$t1" -v hz="$hz" -v s0="$s0" -v s1="$s1" -v rss="$rss" -v b="$bots_cpu" 'BEGIN {
     cpu = (t1 - t0) / hz; wall = s1 - s0;
-    printf "{\"server_cpu_seconds\":%.2f,\"wall_seconds\":%.2f,\"server_cpu_share\":%.2f,\"server_peak_rss_mib\":%.1f}\n",
-        cpu, wall, cpu / wall, rss / 1024 }'
+    printf "{\"server_cpu_seconds\":%.2f,\"bots_cpu_seconds\":%.2f,\"wall_seconds\":%.2f,\"server_cpu_share\":%.2f,\"server_peak_rss_mib\":%.1f}\n",
+        cpu, b, wall, cpu / wall, rss / 1024 }'

@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use strata_protocol::{DeltaUpdate, WorldUpdate};
 use strata_terrain::chunk_codec::decode_chunk;
+use strata_terrain::delta::{ChunkDelta, DeltaError};
 use strata_terrain::hash::chunk_hash;
 use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood};
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, Voxel, VoxelPos};
@@ -19,6 +20,8 @@ pub struct Held {
     /// Shared with other replicas holding the same version (see [`ChunkPool`]).
     pub chunk: Arc<Chunk>,
     pub version: u64,
+    /// `chunk_hash(&chunk)`, checked when the chunk was taken in.
+    pub hash: u64,
 }
 
 /// A mesh whose hash differs from the server's: a consistency bug.
@@ -51,7 +54,10 @@ pub enum Request {
 /// Counters a load test reports.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ReplicaStats {
+    /// Whole chunks taken in: snapshots and patches.
     pub snapshots: u64,
+    /// Of those, patches (deltas from the generated chunk).
+    pub patched: u64,
     pub generated: u64,
     pub deltas: u64,
     pub delta_payload_bytes: u64,
@@ -145,9 +151,10 @@ impl Replica {
         if !self.checks.remove(&pos) {
             return;
         }
-        let same = self.chunks.get(&pos).is_some_and(|h| {
-            h.version == version && hash.is_none_or(|hash| chunk_hash(&h.chunk) == hash)
-        });
+        let same = self
+            .chunks
+            .get(&pos)
+            .is_some_and(|h| h.version == version && hash.is_none_or(|hash| h.hash == hash));
         if same {
             self.stats.checks_ok += 1;
         } else {
@@ -190,7 +197,14 @@ impl Replica {
         if let Some(h) = self.version_hashes.as_mut() {
             h.insert((pos, version), hash);
         }
-        self.chunks.insert(pos, Held { chunk, version });
+        self.chunks.insert(
+            pos,
+            Held {
+                chunk,
+                version,
+                hash,
+            },
+        );
     }
 
     /// The generator's chunk, shared through the pool.
@@ -222,30 +236,17 @@ impl Replica {
                 mesh_hash,
                 data,
             } => {
-                let chunk = match decode_chunk(&data) {
-                    Ok(c) if chunk_hash(&c) == hash => c,
-                    _ => {
-                        self.stats.hash_mismatches += 1;
-                        self.chunks.remove(&pos);
-                        return Some(Request::Resync(pos));
-                    }
+                let chunk = self.snapshot_chunk(pos, version, hash, &data);
+                self.take_whole(pos, version, hash, mesh_hash, chunk)
+            }
+            WorldUpdate::Patched { delta, mesh_hash } => {
+                let Some(g) = self.generator.clone() else {
+                    return Some(Request::FullSnapshot(delta.pos));
                 };
-                self.stats.snapshots += 1;
-                self.check(pos, version, Some(hash));
-                if self.chunks.get(&pos).is_none_or(|h| h.version != version) {
-                    self.neighbour_changed(pos, None);
-                }
-                let chunk = self.pool.intern(pos, version, hash, chunk);
-                self.hold(pos, chunk, version, hash);
-                if version > 0 {
-                    let p = PendingMesh {
-                        version,
-                        hash: mesh_hash,
-                        seq: None,
-                    };
-                    self.pending_mesh.insert(pos, p);
-                }
-                None
+                self.stats.patched += 1;
+                let (pos, version, hash) = (delta.pos, delta.to_version, delta.target_hash);
+                let chunk = self.patched_chunk(&g, &delta);
+                self.take_whole(pos, version, hash, mesh_hash, chunk)
             }
             WorldUpdate::Delta(d) => self.apply_delta(d),
             WorldUpdate::Unsubscribed { pos } => {
@@ -273,12 +274,11 @@ impl Replica {
             self.chunks.remove(&pos);
             return Some(Request::Resync(pos));
         }
-        match d.delta.apply(&held.chunk) {
+        match self.apply_checked(&d, held) {
             Ok(chunk) => {
                 self.stats.deltas += 1;
                 self.stats.delta_payload_bytes += d.delta.payload.len() as u64;
                 let (version, hash) = (d.delta.to_version, d.delta.target_hash);
-                let chunk = self.pool.intern(pos, version, hash, chunk);
                 self.hold(pos, chunk, version, hash);
                 self.neighbour_changed(pos, Some(d.seq));
                 let p = PendingMesh {
@@ -295,6 +295,102 @@ impl Replica {
                 Some(Request::Resync(pos))
             }
         }
+    }
+
+    /// Holds a whole chunk sent by the server (a snapshot or a patch), or
+    /// asks for it again if it failed its checks (`None`).
+    fn take_whole(
+        &mut self,
+        pos: ChunkPos,
+        version: u64,
+        hash: u64,
+        mesh_hash: u64,
+        chunk: Option<Arc<Chunk>>,
+    ) -> Option<Request> {
+        let Some(chunk) = chunk else {
+            self.stats.hash_mismatches += 1;
+            self.chunks.remove(&pos);
+            return Some(Request::Resync(pos));
+        };
+        self.stats.snapshots += 1;
+        self.check(pos, version, Some(hash));
+        if self.chunks.get(&pos).is_none_or(|h| h.version != version) {
+            self.neighbour_changed(pos, None);
+        }
+        self.hold(pos, chunk, version, hash);
+        if version > 0 {
+            let p = PendingMesh {
+                version,
+                hash: mesh_hash,
+                seq: None,
+            };
+            self.pending_mesh.insert(pos, p);
+        }
+        None
+    }
+
+    /// The chunk a patch makes of the generated chunk, if the patch starts
+    /// at version 0 and passes the delta's hash checks; a copy another
+    /// replica of this process checked is shared instead.
+    fn patched_chunk(&self, g: &Arc<dyn ChunkGenerator>, delta: &ChunkDelta) -> Option<Arc<Chunk>> {
+        if delta.from_version != 0 {
+            return None;
+        }
+        if let Some((chunk, h)) = self.pool.get(delta.pos, delta.to_version) {
+            if h == delta.target_hash {
+                return Some(chunk);
+            }
+        }
+        let (base, base_hash) = self.generated(g, delta.pos);
+        if base_hash != delta.base_hash {
+            return None;
+        }
+        let chunk = delta.apply_to_checked_base(&base).ok()?;
+        Some(
+            self.pool
+                .intern(delta.pos, delta.to_version, delta.target_hash, chunk),
+        )
+    }
+
+    /// The chunk a snapshot carries, if it decodes and hashes to `hash`; a
+    /// copy another replica of this process checked is shared instead.
+    fn snapshot_chunk(
+        &self,
+        pos: ChunkPos,
+        version: u64,
+        hash: u64,
+        data: &[u8],
+    ) -> Option<Arc<Chunk>> {
+        if let Some((chunk, h)) = self.pool.get(pos, version) {
+            if h == hash {
+                return Some(chunk);
+            }
+        }
+        let chunk = decode_chunk(data).ok().filter(|c| chunk_hash(c) == hash)?;
+        Some(self.pool.intern(pos, version, hash, chunk))
+    }
+
+    /// The chunk `d` makes of `held`. When another replica of this process
+    /// already took the same base (by hash) to the same target (version and
+    /// hash), its checked result is shared instead of decoded again: the
+    /// delta and both hashes are identical, so the result would be too.
+    fn apply_checked(&self, d: &DeltaUpdate, held: &Held) -> Result<Arc<Chunk>, DeltaError> {
+        let delta = &d.delta;
+        if held.hash != delta.base_hash {
+            return Err(DeltaError::BaseMismatch {
+                expected: delta.base_hash,
+                actual: held.hash,
+            });
+        }
+        if let Some((chunk, hash)) = self.pool.get(delta.pos, delta.to_version) {
+            if hash == delta.target_hash {
+                return Ok(chunk);
+            }
+        }
+        let chunk = delta.apply_to_checked_base(&held.chunk)?;
+        Ok(self
+            .pool
+            .intern(delta.pos, delta.to_version, delta.target_hash, chunk))
     }
 
     /// `pos` changed (by edit `seq`, or to a snapshot): a pending check of
@@ -357,22 +453,25 @@ impl Replica {
     /// The LOD-0 mesh hash of a chunk from held chunks only (memoized in
     /// the pool by the 27 chunk versions it reads).
     pub fn mesh_hash(&self, pos: ChunkPos) -> Option<u64> {
-        let mut versions = [0u64; 27];
+        // The 27 chunks around `pos`, x fastest then y then z.
+        let mut held: [Option<&Held>; 27] = [None; 27];
         let mut i = 0;
         for dz in -1..=1 {
             for dy in -1..=1 {
                 for dx in -1..=1 {
-                    versions[i] = self.chunks.get(&pos.offset(dx, dy, dz)?)?.version;
+                    held[i] = Some(self.chunks.get(&pos.offset(dx, dy, dz)?)?);
                     i += 1;
                 }
             }
         }
-        let key = (pos, versions);
+        let key = (pos, held.map(|h| h.map_or(0, |h| h.version)));
         if let Some(h) = self.pool.mesh_hash(&key) {
             return Some(h);
         }
-        let nb = Neighborhood::from_fn(pos.origin(), |p: VoxelPos| {
-            self.voxel(p).unwrap_or(Voxel::AIR)
+        let nb = Neighborhood::from_chunks(pos, |p| {
+            let d = |a: i32, b: i32| (a.wrapping_sub(b) + 1) as usize;
+            let i = d(p.x, pos.x) + 3 * d(p.y, pos.y) + 9 * d(p.z, pos.z);
+            held[i].map(|h| &*h.chunk)
         });
         let hash = mesh_chunk(&nb, &MeshOptions::default()).hash();
         self.pool.put_mesh_hash(key, hash);

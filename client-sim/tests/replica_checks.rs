@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use strata_client_sim::{ChunkPool, Replica};
+use strata_client_sim::{ChunkPool, Replica, Request};
 use strata_protocol::{DeltaUpdate, WorldUpdate};
 use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::delta::ChunkDelta;
@@ -100,4 +100,32 @@ fn replicas_share_chunks_through_a_pool() {
     a.apply(snapshot(pos, 1, &v1, 0));
     assert_eq!(a.version_hashes().unwrap()[&(pos, 1)], chunk_hash(&v1));
     assert_eq!(a.history().unwrap()[&pos], vec![1]);
+}
+
+#[test]
+fn patches_rebuild_modified_chunks_from_the_generator_and_refuse_bad_bases() {
+    let g = generator();
+    let pos = ChunkPos::new(2, 1, 1);
+    let base = g.generate(pos);
+    let mut edited = base.clone();
+    edited.set(4, 5, 6, Voxel::solid(3));
+    let patch = |base: &Chunk| WorldUpdate::Patched {
+        delta: ChunkDelta::encode(pos, 0, 3, base, &edited).unwrap(),
+        mesh_hash: 0,
+    };
+    let mut r = Replica::new(Some(g.clone()));
+    assert_eq!(r.apply(patch(&base)), None);
+    let held = r.get(pos).unwrap();
+    assert_eq!((held.version, &*held.chunk), (3, &edited));
+    assert_eq!((r.stats.snapshots, r.stats.patched), (1, 1));
+    // A patch built on another base fails its base-hash check: resync.
+    let mut other = base.clone();
+    other.set(0, 0, 0, Voxel::solid(9));
+    let mut fresh = Replica::new(Some(g.clone()));
+    assert_eq!(fresh.apply(patch(&other)), Some(Request::Resync(pos)));
+    assert!(fresh.get(pos).is_none());
+    assert_eq!(fresh.stats.hash_mismatches, 1);
+    // A client without the generator asks for the full chunk instead.
+    let mut blind = Replica::new(None);
+    assert_eq!(blind.apply(patch(&base)), Some(Request::FullSnapshot(pos)));
 }

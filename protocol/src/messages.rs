@@ -249,6 +249,14 @@ pub enum WorldUpdate {
     TickEnd {
         last_seq: u64,
     },
+    /// A modified chunk as a delta from its generated form: regenerate
+    /// version 0 from the seed, check `delta.base_hash`, apply, and hold the
+    /// chunk at `delta.to_version`. Sent instead of `Snapshot` to clients
+    /// that can regenerate; usually tens of times smaller.
+    Patched {
+        delta: ChunkDelta,
+        mesh_hash: u64,
+    },
 }
 
 /// A position report, sent as an unreliable datagram.

@@ -2,5 +2,5 @@
 
 /// ALPN protocol id for QUIC connections.
 pub const ALPN: &[u8] = b"strata/1";
-/// Wire protocol version carried in `Hello`.
-pub const PROTOCOL_VERSION: u32 = 1;
+/// Wire protocol version carried in `Hello` (2 added `WorldUpdate::Patched`).
+pub const PROTOCOL_VERSION: u32 = 2;

@@ -3,8 +3,8 @@
 //! The cache holds one mesh per chunk, tagged with the chunk version it was
 //! built from, and drops the least recently used mesh past its capacity. A
 //! mesh also depends on the neighbours' voxels (the apron), so whoever changes
-//! a chunk calls [`CollisionCache::invalidate_around`] to drop the meshes of
-//! the chunk and its 26 neighbours. Meshes build in parallel on the rayon
+//! a chunk calls [`CollisionCache::invalidate_touched`] to drop the meshes of
+//! the chunk and of the neighbours whose apron holds a changed voxel. Meshes build in parallel on the rayon
 //! pool ([`CollisionCache::mesh_chunks`]); each chunk's mesh is a pure function
 //! of its neighbourhood, so the output does not depend on the thread count.
 
@@ -12,8 +12,10 @@ use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 
 use rayon::prelude::*;
-use strata_terrain::mesh::{mesh_chunk, Mesh, MeshOptions, Neighborhood};
-use strata_terrain::{ChunkPos, World, CHUNK_SIZE};
+use strata_terrain::mesh::{
+    mesh_chunk, Mesh, MeshOptions, Neighborhood, LOCAL_MAX, LOCAL_MAX_Y, LOCAL_MIN,
+};
+use strata_terrain::{ChunkPos, VoxelBox, World, CHUNK_SIZE};
 
 /// Meshes kept by default (a LOD-0 chunk mesh is tens of KiB).
 pub const DEFAULT_COLLISION_CACHE_CAPACITY: usize = 2048;
@@ -191,6 +193,41 @@ impl CollisionCache {
             for dy in -1..=1 {
                 for dx in -1..=1 {
                     if let Some(p) = pos.offset(dx, dy, dz) {
+                        self.invalidate(p);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Drops the meshes that read any voxel of `pos` inside `changed` (world
+    /// coordinates): `pos`'s own, and each neighbour's whose apron overlaps
+    /// the box. A small edit in a chunk's middle keeps every neighbour's mesh.
+    pub fn invalidate_touched(&mut self, pos: ChunkPos, changed: VoxelBox) {
+        let o = pos.origin();
+        let lo = [
+            changed.min.x - o.x,
+            changed.min.y - o.y,
+            changed.min.z - o.z,
+        ];
+        let hi = [
+            changed.max.x - o.x,
+            changed.max.y - o.y,
+            changed.max.z - o.z,
+        ];
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    // The neighbour holds its local LOCAL_MIN..=LOCAL_MAX (y: ..=LOCAL_MAX_Y);
+                    // in `pos`'s local frame that range moves by one chunk per step.
+                    let reads = [(dx, LOCAL_MAX), (dy, LOCAL_MAX_Y), (dz, LOCAL_MAX)]
+                        .iter()
+                        .zip(lo.iter().zip(&hi))
+                        .all(|(&(d, max), (&l, &h))| {
+                            let shift = d * CHUNK_SIZE;
+                            l <= max + shift && h >= LOCAL_MIN + shift
+                        });
+                    if let Some(p) = pos.offset(dx, dy, dz).filter(|_| reads) {
                         self.invalidate(p);
                     }
                 }
@@ -407,6 +444,7 @@ mod tests {
     use strata_terrain::material::ids;
     use strata_terrain::world::FlatGenerator;
     use strata_terrain::Voxel;
+    use strata_terrain::VoxelPos;
 
     fn flat() -> World {
         World::new(Arc::new(FlatGenerator {
@@ -476,6 +514,50 @@ mod tests {
         assert!(cache.get(a, 1).is_none(), "other version is a miss");
         cache.invalidate_around(ChunkPos::new(1, 0, 0));
         assert!(cache.is_empty());
+    }
+
+    #[test]
+    fn touched_invalidation_drops_only_neighbours_reading_the_change() {
+        let world = flat();
+        let mut cache = CollisionCache::new(64);
+        let centre = ChunkPos::new(0, -1, 0);
+        let around: Vec<ChunkPos> = (-1..=1)
+            .flat_map(|dz| (-1..=1).flat_map(move |dy| (-1..=1).map(move |dx| (dx, dy, dz))))
+            .filter_map(|(dx, dy, dz)| centre.offset(dx, dy, dz))
+            .collect();
+        let o = centre.origin();
+        let boxed = |a: [i32; 3], b: [i32; 3]| VoxelBox {
+            min: VoxelPos::new(o.x + a[0], o.y + a[1], o.z + a[2]),
+            max: VoxelPos::new(o.x + b[0], o.y + b[1], o.z + b[2]),
+        };
+        let held = |cache: &CollisionCache| {
+            around
+                .iter()
+                .filter(|p| cache.get(**p, 0).is_some())
+                .count()
+        };
+        // A change deep inside (y 10..=20, away from every apron) drops only the chunk.
+        cache.ensure(&world, &around);
+        cache.invalidate_touched(centre, boxed([10, 10, 10], [20, 20, 20]));
+        assert!(cache.get(centre, 0).is_none());
+        assert_eq!(held(&cache), 26);
+        // Local x = 1 is in the -x neighbour's apron (its local 33); y = 8 in the
+        // chunk below's (its surface-scan rows reach local 40).
+        cache.ensure(&world, &around);
+        cache.invalidate_touched(centre, boxed([1, 8, 10], [5, 12, 20]));
+        let dropped: Vec<_> = around
+            .iter()
+            .filter(|p| cache.get(**p, 0).is_none())
+            .collect();
+        let want = |d: (i32, i32, i32)| dropped.contains(&&centre.offset(d.0, d.1, d.2).unwrap());
+        assert_eq!(dropped.len(), 4, "{dropped:?}");
+        for d in [(0, 0, 0), (-1, 0, 0), (0, -1, 0), (-1, -1, 0)] {
+            assert!(want(d), "{d:?} dropped");
+        }
+        // y = 9 is beyond the reach of the chunk below; x = 31 reaches +x.
+        cache.ensure(&world, &around);
+        cache.invalidate_touched(centre, boxed([31, 9, 31], [31, 9, 31]));
+        assert_eq!(held(&cache), 27 - 4, "self, +x, +z, +x+z");
     }
 
     #[test]

@@ -11,6 +11,7 @@ pub const EDITS_REJECTED: &str = "strata_edits_rejected_total";
 pub const QUEUE_DEPTH: &str = "strata_sequencer_queue_depth";
 pub const FLUSH_SECONDS: &str = "strata_flush_seconds";
 pub const TICK_SECONDS: &str = "strata_tick_seconds";
+pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
 pub const DELTAS_DROPPED: &str = "strata_deltas_dropped_total";
 pub const RESYNCS: &str = "strata_resyncs_total";
@@ -18,6 +19,8 @@ pub const RESIDENT_CHUNKS: &str = "strata_resident_chunks";
 pub const PREMESH_BUILT: &str = "strata_premesh_meshes_total";
 pub const PREMESH_STALE: &str = "strata_premesh_stale_total";
 pub const PREMESH_SKIPPED: &str = "strata_premesh_skipped_total";
+pub const PATCH_BYTES: &str = "strata_patch_payload_bytes_total";
+pub const SNAPSHOTS_SENT: &str = "strata_snapshots_sent_total";
 
 /// Serves `/metrics` on `addr` from a background thread of the exporter.
 pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
@@ -29,6 +32,11 @@ pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
     metrics::describe_counter!(EDITS_REJECTED, "Edits refused, by reason");
     metrics::describe_gauge!(QUEUE_DEPTH, "Edits waiting for the sequencer");
     metrics::describe_histogram!(FLUSH_SECONDS, "Group-commit latency");
+    metrics::describe_histogram!(TICK_SECONDS, "Sequencer tick duration");
+    metrics::describe_histogram!(
+        TICK_PHASE_SECONDS,
+        "Tick time by phase: apply, commit, mesh_wait, fanout, stream, evict"
+    );
     metrics::describe_counter!(BYTES_SENT, "Bytes written to clients");
     metrics::describe_gauge!(RESIDENT_CHUNKS, "Chunks held in the sequencer's memory");
     metrics::describe_counter!(PREMESH_BUILT, "Collision meshes built ahead of need");
@@ -37,6 +45,11 @@ pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
         PREMESH_SKIPPED,
         "Background mesh requests refused (queue full)"
     );
+    metrics::describe_counter!(
+        PATCH_BYTES,
+        "Payload bytes of patches built (modified chunks sent as deltas from generated)"
+    );
+    metrics::describe_counter!(SNAPSHOTS_SENT, "Chunk frames streamed, by kind");
     Ok(())
 }
 

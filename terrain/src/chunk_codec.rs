@@ -74,7 +74,7 @@ pub fn encode_chunk(c: &Chunk) -> Vec<u8> {
     planes.extend_from_slice(&d.material[..]);
     // zstd only fails on allocation or internal errors; the raw form is a
     // correct fallback for those, so encoding never fails.
-    match zstd::bulk::compress(&planes, SNAPSHOT_ZSTD_LEVEL) {
+    match crate::zstd_ctx::compress(&planes, SNAPSHOT_ZSTD_LEVEL) {
         Ok(z) if z.len() < PLANES_LEN => {
             let mut out = Vec::with_capacity(1 + z.len());
             out.push(TAG_ZSTD);
@@ -141,7 +141,7 @@ fn decompress_frame(data: &[u8]) -> Result<Vec<u8>, CodecError> {
     }
     // The output buffer is capped at PLANES_LEN: a frame that would write
     // more fails instead of allocating (no zip bombs).
-    let planes = zstd::bulk::decompress(data, PLANES_LEN)
+    let planes = crate::zstd_ctx::decompress(data, PLANES_LEN)
         .map_err(|e| CodecError::Decompress(e.to_string()))?;
     if planes.len() != PLANES_LEN {
         return Err(CodecError::WrongLength {

@@ -15,6 +15,7 @@ pub mod material;
 pub mod mesh;
 pub mod pos;
 pub mod world;
+mod zstd_ctx;
 
 pub use chunk::{Chunk, DenseChunk, Voxel, SOLID_THRESHOLD};
 pub use edit::{Edit, EditContext, EditError, EditKind, EditOutcome, Fixed, FixedVec3};

@@ -90,6 +90,7 @@ pub struct BotOutcome {
 
 fn add_stats(a: &mut ReplicaStats, b: &ReplicaStats) {
     a.snapshots += b.snapshots;
+    a.patched += b.patched;
     a.generated += b.generated;
     a.deltas += b.deltas;
     a.delta_payload_bytes += b.delta_payload_bytes;

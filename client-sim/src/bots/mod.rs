@@ -366,6 +366,7 @@ fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet:
         edits_skipped: Stats::get(&s.edits_skipped),
         ack_latency_ms: s.ack.summary(),
         broadcast_latency_ms: s.broadcast.summary(),
+        latency_by_second: summary::timeline(&s.ack, &s.broadcast),
         quiet,
         ..Default::default()
     };
@@ -381,6 +382,7 @@ fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet:
         sum.deltas += r.deltas;
         delta_bytes += r.delta_payload_bytes;
         sum.snapshots += r.snapshots;
+        sum.patched += r.patched;
         sum.resyncs += r.gaps + r.hash_mismatches;
         sum.meshes_checked += r.meshes_checked;
         sum.mesh_mismatches += r.mesh_mismatches;

@@ -3,7 +3,7 @@
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Mutex;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use hdrhistogram::Histogram;
 use serde::Serialize;
@@ -11,15 +11,28 @@ use serde::Serialize;
 /// Longest latency a histogram records (longer ones are clamped), in µs.
 pub const MAX_LATENCY_US: u64 = 3_600_000_000;
 
-/// A latency histogram in microseconds.
+/// Seconds of a run the per-second latency timeline covers.
+pub const TIMELINE_SECONDS: usize = 3600;
+
+fn histogram() -> Histogram<u64> {
+    Histogram::new_with_bounds(1, MAX_LATENCY_US, 3).expect("valid bounds")
+}
+
+/// A latency histogram in microseconds, overall and per second of the run.
 #[derive(Debug)]
-pub struct Latencies(Mutex<Histogram<u64>>);
+pub struct Latencies {
+    start: Instant,
+    all: Mutex<Histogram<u64>>,
+    by_second: Mutex<Vec<Histogram<u64>>>,
+}
 
 impl Default for Latencies {
     fn default() -> Self {
-        Self(Mutex::new(
-            Histogram::new_with_bounds(1, MAX_LATENCY_US, 3).expect("valid bounds"),
-        ))
+        Self {
+            start: Instant::now(),
+            all: Mutex::new(histogram()),
+            by_second: Mutex::new(Vec::new()),
+        }
     }
 }
 
@@ -32,24 +45,43 @@ pub struct LatencyMs {
     pub max: f64,
 }
 
-impl Latencies {
-    pub fn record(&self, d: Duration) {
-        let us = (d.as_micros() as u64).clamp(1, MAX_LATENCY_US);
-        self.0.lock().expect("not poisoned").saturating_record(us);
-    }
-
-    pub fn summary(&self) -> LatencyMs {
-        let h = self.0.lock().expect("not poisoned");
+impl LatencyMs {
+    fn of(h: &Histogram<u64>) -> Self {
         if h.is_empty() {
-            return LatencyMs::default();
+            return Self::default();
         }
         let ms = |us: u64| us as f64 / 1000.0;
-        LatencyMs {
+        Self {
             count: h.len(),
             p50: ms(h.value_at_quantile(0.50)),
             p99: ms(h.value_at_quantile(0.99)),
             max: ms(h.max()),
         }
+    }
+}
+
+impl Latencies {
+    /// Records a latency observed now.
+    pub fn record(&self, d: Duration) {
+        let us = (d.as_micros() as u64).clamp(1, MAX_LATENCY_US);
+        self.all.lock().expect("not poisoned").saturating_record(us);
+        let second = (self.start.elapsed().as_secs() as usize).min(TIMELINE_SECONDS - 1);
+        let mut by = self.by_second.lock().expect("not poisoned");
+        if by.len() <= second {
+            by.resize_with(second + 1, histogram);
+        }
+        by[second].saturating_record(us);
+    }
+
+    pub fn summary(&self) -> LatencyMs {
+        LatencyMs::of(&self.all.lock().expect("not poisoned"))
+    }
+
+    /// Percentiles of the latencies observed in each second since the run
+    /// started (seconds with none give zeros).
+    pub fn timeline(&self) -> Vec<LatencyMs> {
+        let by = self.by_second.lock().expect("not poisoned");
+        by.iter().map(LatencyMs::of).collect()
     }
 }
 
@@ -108,6 +140,9 @@ mod tests {
         assert!((s.p50 - 50.0).abs() < 0.1, "{s:?}");
         assert!((s.p99 - 99.0).abs() < 0.1, "{s:?}");
         assert!((s.max - 100.0).abs() < 0.1, "{s:?}");
+        let t = l.timeline();
+        assert_eq!(t.iter().map(|s| s.count).sum::<u64>(), 100, "{t:?}");
+        assert!(t.last().unwrap().max > 99.0);
         let st = Stats::default();
         st.reject("rate_limited");
         st.reject("rate_limited");

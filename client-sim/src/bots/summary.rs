@@ -5,7 +5,27 @@ use std::fmt::Write;
 
 use serde::Serialize;
 
-use super::stats::LatencyMs;
+use super::stats::{Latencies, LatencyMs};
+
+/// Pairs the per-second ack and broadcast latencies of a run.
+pub fn timeline(ack: &Latencies, broadcast: &Latencies) -> Vec<SecondLatency> {
+    let (a, b) = (ack.timeline(), broadcast.timeline());
+    (0..a.len().max(b.len()))
+        .map(|second| SecondLatency {
+            second,
+            ack: a.get(second).copied().unwrap_or_default(),
+            broadcast: b.get(second).copied().unwrap_or_default(),
+        })
+        .collect()
+}
+
+/// Latencies observed in one second of a run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct SecondLatency {
+    pub second: usize,
+    pub ack: LatencyMs,
+    pub broadcast: LatencyMs,
+}
 
 /// What a run measured and whether every replica converged.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
@@ -32,6 +52,9 @@ pub struct Summary {
     pub ack_latency_ms: LatencyMs,
     /// From sending an edit to the arrival of its delta at another bot.
     pub broadcast_latency_ms: LatencyMs,
+    /// Ack and broadcast latency per second of the run (by the second the
+    /// latency was observed), to tell ramp-up from steady state.
+    pub latency_by_second: Vec<SecondLatency>,
     /// Updates-stream bytes received, summed over bots.
     pub bytes_in: u64,
     /// Control-stream and datagram bytes sent, summed over bots.
@@ -39,7 +62,10 @@ pub struct Summary {
     pub deltas: u64,
     /// Mean delta payload, in bytes.
     pub mean_delta_bytes: f64,
+    /// Whole chunks received: snapshots and patches.
     pub snapshots: u64,
+    /// Of those, patches (modified chunks as deltas from generated).
+    pub patched: u64,
     /// Resync requests the replicas sent (version gaps, bad hashes).
     pub resyncs: u64,
     pub meshes_checked: u64,
@@ -106,12 +132,13 @@ impl Summary {
         let _ = writeln!(s, "broadcast latency: {}", l(&self.broadcast_latency_ms));
         let _ = writeln!(
             s,
-            "traffic: {} B in, {} B out, {} deltas (mean {:.0} B), {} snapshots, {} resyncs",
+            "traffic: {} B in, {} B out, {} deltas (mean {:.0} B), {} snapshots ({} patches), {} resyncs",
             self.bytes_in,
             self.bytes_out,
             self.deltas,
             self.mean_delta_bytes,
             self.snapshots,
+            self.patched,
             self.resyncs
         );
         let _ = writeln!(

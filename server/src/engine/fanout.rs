@@ -2,8 +2,9 @@
 
 use std::collections::HashMap;
 
-use bytes::Bytes;
+use bytes::{Bytes, BytesMut};
 use strata_protocol::{encode_frame, DeltaUpdate, Direction, ServerMessage, WorldUpdate};
+use strata_terrain::ChunkPos;
 
 use super::peer::Peer;
 use crate::metrics as m;
@@ -25,10 +26,13 @@ pub fn encode_control(msg: &ServerMessage) -> Bytes {
 }
 
 /// Sends each change to every session that holds the chunk at the delta's
-/// base version. A session whose queue is full loses the delta and gets a
-/// snapshot later; it never slows the others down.
+/// base version. Each session gets its deltas of the tick and the `TickEnd`
+/// marker as one frame batch (one queue slot, one write, few packets). A
+/// session whose queue is full loses the batch and gets snapshots of its
+/// chunks later; it never slows the others down.
 pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_seq: u64) {
-    let mut touched: Vec<u64> = Vec::new();
+    // Per session: the frames of its deltas, and the chunks they change.
+    let mut out: HashMap<u64, (BytesMut, Vec<ChunkPos>)> = HashMap::new();
     for a in applied {
         for c in &a.changes {
             let frame = encode_update(&WorldUpdate::Delta(DeltaUpdate {
@@ -37,30 +41,32 @@ pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_s
                 seq: a.seq,
             }));
             for (id, p) in peers.iter_mut() {
-                if !p.interest.covers(c.pos) || p.known.get(&c.pos) != Some(&c.from_version) {
+                // `known` holds only covered chunks; it is the cheaper test.
+                if p.known.get(&c.pos) != Some(&c.from_version) || !p.interest.covers(c.pos) {
                     continue;
                 }
-                match p.updates.try_send(frame.clone()) {
-                    Ok(()) => {
-                        p.known.insert(c.pos, c.to_version);
-                        if !touched.contains(id) {
-                            touched.push(*id);
-                        }
-                    }
-                    Err(SendRefused::Full) => {
-                        metrics::counter!(m::DELTAS_DROPPED).increment(1);
-                        p.resend(c.pos);
-                    }
-                    Err(SendRefused::Closed) => p.failed = true,
-                }
+                p.known.insert(c.pos, c.to_version);
+                let (buf, chunks) = out.entry(*id).or_default();
+                buf.extend_from_slice(&frame);
+                chunks.push(c.pos);
             }
         }
     }
     let end = encode_update(&WorldUpdate::TickEnd { last_seq });
-    for id in touched {
-        if let Some(p) = peers.get_mut(&id) {
-            // A lost marker only delays the client's meshing to the next one.
-            let _ = p.updates.try_send(end.clone());
+    for (id, (mut buf, chunks)) in out {
+        let Some(p) = peers.get_mut(&id) else {
+            continue;
+        };
+        buf.extend_from_slice(&end);
+        match p.updates.try_send(buf.freeze()) {
+            Ok(()) => {}
+            Err(SendRefused::Full) => {
+                metrics::counter!(m::DELTAS_DROPPED).increment(chunks.len() as u64);
+                for pos in chunks {
+                    p.resend(pos);
+                }
+            }
+            Err(SendRefused::Closed) => p.failed = true,
         }
     }
 }

@@ -12,6 +12,8 @@ pub mod admin;
 mod command;
 mod commit;
 mod fanout;
+mod generated;
+mod patch;
 mod peer;
 mod premesh;
 mod residency;
@@ -110,6 +112,7 @@ pub struct Engine {
     /// Durable version of every modified chunk (absent = version 0).
     versions: HashMap<ChunkPos, u64>,
     snapshots: stream::SnapshotCache,
+    patch_bases: generated::GeneratedCache,
     premesh: premesh::Premesher,
     last_evict: Option<Instant>,
     /// Online snapshots in progress (their copy-on-write pre-images).
@@ -163,6 +166,7 @@ impl Engine {
             peers: HashMap::new(),
             versions,
             snapshots: Default::default(),
+            patch_bases: generated::GeneratedCache::new(patch::PATCH_BASE_CHUNKS),
             last_evict: None,
             snapshots_running: Vec::new(),
             deferred: Default::default(),
@@ -201,9 +205,12 @@ impl Engine {
                 Err(RecvTimeoutError::Timeout) => {}
             }
             self.collect_premeshed();
-            if Instant::now() >= next_tick {
+            let now = Instant::now();
+            if now >= next_tick {
                 self.tick(Some(&rx))?;
-                next_tick = Instant::now() + period;
+                // A fixed rate: a long tick shortens the wait for the next
+                // one instead of adding to it (no catching up past now).
+                next_tick = (next_tick + period).max(now);
             }
         }
     }
@@ -324,6 +331,7 @@ impl Engine {
     /// commit runs, safe commands from `rx` are served.
     fn tick(&mut self, rx: Option<&Receiver<Command>>) -> anyhow::Result<()> {
         let started = Instant::now();
+        let mut phase = Phases::new();
         let (mut out, pending) = self.seq.tick_apply(now_ms());
         // Collision meshes build on the rayon pool while the batch commits.
         let meshing = spawn_meshing(pending);
@@ -336,6 +344,7 @@ impl Engine {
             };
             self.send_control(r.session_id, &msg);
         }
+        phase.end("apply");
         if !out.batch.is_empty() {
             self.capture_preimages(&out.batch);
             let flush = Instant::now();
@@ -346,12 +355,19 @@ impl Engine {
                 return Err(e.into());
             }
             metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
+            phase.end("commit");
             let built = meshing
                 .recv()
                 .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
+            phase.end("mesh_wait");
             self.seq.finish_tick(&mut out, built);
             for (pos, version, _) in &out.batch.chunks {
                 self.versions.insert(*pos, *version);
+            }
+            for (pos, _, _) in &out.batch.chunks {
+                let versions = &self.versions;
+                self.snapshots
+                    .forget_around(*pos, |p| versions.get(&p).copied().unwrap_or(0));
             }
             for a in &out.applied {
                 metrics::counter!(m::EDITS_ACCEPTED).increment(1);
@@ -370,10 +386,13 @@ impl Engine {
                 self.send_control(a.session_id, &msg);
             }
             fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq);
+            phase.end("fanout");
         }
         self.stream_snapshots();
+        phase.end("stream");
         self.evict_cold();
         self.drop_failed();
+        phase.end("evict");
         metrics::histogram!(m::TICK_SECONDS).record(started.elapsed().as_secs_f64());
         Ok(())
     }
@@ -405,6 +424,23 @@ impl Engine {
             );
             self.seq.session_left(id);
         }
+    }
+}
+
+/// Times the phases of a tick into [`m::TICK_PHASE_SECONDS`].
+struct Phases(Instant);
+
+impl Phases {
+    fn new() -> Self {
+        Self(Instant::now())
+    }
+
+    /// Records the time since the previous phase ended as `name`.
+    fn end(&mut self, name: &'static str) {
+        let now = Instant::now();
+        metrics::histogram!(m::TICK_PHASE_SECONDS, "phase" => name)
+            .record((now - self.0).as_secs_f64());
+        self.0 = now;
     }
 }
 

@@ -15,6 +15,7 @@ use std::sync::{Arc, Mutex};
 use strata_terrain::mesh::Neighborhood;
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, FixedVec3};
 
+use super::generated::GeneratedCache;
 use crate::collision::CollisionMesh;
 use crate::metrics as m;
 use crate::sequencer::residency::with_neighbours;
@@ -45,31 +46,6 @@ pub struct PremeshJob {
     /// Copies of the modified chunks they read; the rest are generated.
     pub modified: HashMap<ChunkPos, Arc<Chunk>>,
     pub generator: Arc<dyn ChunkGenerator>,
-}
-
-/// Recently generated chunks, oldest first out. Generation is a pure
-/// function of the position, so entries never go stale.
-#[derive(Default)]
-pub struct GeneratedCache {
-    chunks: HashMap<ChunkPos, Arc<Chunk>>,
-    order: std::collections::VecDeque<ChunkPos>,
-}
-
-impl GeneratedCache {
-    fn get(&mut self, pos: ChunkPos, generator: &dyn ChunkGenerator) -> Arc<Chunk> {
-        if let Some(c) = self.chunks.get(&pos) {
-            return c.clone();
-        }
-        let c = Arc::new(generator.generate(pos));
-        self.chunks.insert(pos, c.clone());
-        self.order.push_back(pos);
-        while self.order.len() > GENERATED_CACHE_CHUNKS {
-            if let Some(old) = self.order.pop_front() {
-                self.chunks.remove(&old);
-            }
-        }
-        c
-    }
 }
 
 impl PremeshJob {
@@ -143,7 +119,7 @@ impl Premesher {
             max_inflight,
             tx,
             rx,
-            cache: Arc::default(),
+            cache: Arc::new(Mutex::new(GeneratedCache::new(GENERATED_CACHE_CHUNKS))),
         })
     }
 

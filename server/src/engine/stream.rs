@@ -12,28 +12,42 @@ use tracing::error;
 
 use super::fanout::encode_update;
 use super::Engine;
+use crate::metrics as m;
 use crate::net::writer::SendRefused;
 
 /// Encoded snapshots kept for reuse: many sessions near one spot ask for
 /// the same chunks.
 pub const SNAPSHOT_CACHE_ENTRIES: usize = 4096;
 
-/// Encoded snapshot frames by (chunk, version).
+/// Encoded snapshot frames by (chunk, version, full data rather than a patch).
 #[derive(Debug, Default)]
 pub struct SnapshotCache {
-    frames: HashMap<(ChunkPos, u64), Bytes>,
+    frames: HashMap<(ChunkPos, u64, bool), Bytes>,
 }
 
 impl SnapshotCache {
-    fn get(&self, pos: ChunkPos, version: u64) -> Option<Bytes> {
-        self.frames.get(&(pos, version)).cloned()
+    fn get(&self, pos: ChunkPos, version: u64, full: bool) -> Option<Bytes> {
+        self.frames.get(&(pos, version, full)).cloned()
     }
 
-    fn put(&mut self, pos: ChunkPos, version: u64, frame: Bytes) {
+    /// Drops the frames of the chunks around `pos`, which just changed: a
+    /// frame carries its chunk's mesh hash, and that mesh reads `pos`.
+    pub(super) fn forget_around(&mut self, pos: ChunkPos, version_of: impl Fn(ChunkPos) -> u64) {
+        if self.frames.is_empty() {
+            return;
+        }
+        for n in crate::sequencer::residency::with_neighbours(pos) {
+            let v = version_of(n);
+            self.frames.remove(&(n, v, false));
+            self.frames.remove(&(n, v, true));
+        }
+    }
+
+    fn put(&mut self, pos: ChunkPos, version: u64, full: bool, frame: Bytes) {
         if self.frames.len() >= SNAPSHOT_CACHE_ENTRIES {
             self.frames.clear();
         }
-        self.frames.insert((pos, version), frame);
+        self.frames.insert((pos, version, full), frame);
     }
 }
 
@@ -57,7 +71,7 @@ impl Engine {
                     continue;
                 }
                 let full = p.full_data.contains(&pos);
-                let (frame, version) = match self.snapshot_frame(pos, full) {
+                let (frame, version, kind) = match self.snapshot_frame(pos, full) {
                     Ok(f) => f,
                     Err(e) => {
                         error!(error = %e, ?pos, "cannot build a snapshot");
@@ -69,6 +83,7 @@ impl Engine {
                 match p.updates.try_send(frame) {
                     Ok(()) => {
                         p.known.insert(pos, version);
+                        metrics::counter!(m::SNAPSHOTS_SENT, "kind" => kind).increment(1);
                     }
                     Err(SendRefused::Full) => {
                         p.pending.push_front(pos);
@@ -83,35 +98,46 @@ impl Engine {
         }
     }
 
-    /// The frame that brings a client to the chunk's current version.
-    fn snapshot_frame(&mut self, pos: ChunkPos, full: bool) -> anyhow::Result<(Bytes, u64)> {
+    /// The frame that brings a client to the chunk's current version: a
+    /// patch against the generated chunk when the client can regenerate,
+    /// else (or when it asked for full data) the whole chunk.
+    fn snapshot_frame(
+        &mut self,
+        pos: ChunkPos,
+        full: bool,
+    ) -> anyhow::Result<(Bytes, u64, &'static str)> {
         let version = self.versions.get(&pos).copied().unwrap_or(0);
         let full = full || !self.stream.regenerable;
         if version == 0 && !full {
-            return Ok((encode_update(&WorldUpdate::Generated { pos }), 0));
+            let frame = encode_update(&WorldUpdate::Generated { pos });
+            return Ok((frame, 0, "generated"));
         }
-        if let Some(f) = self
-            .snapshots
-            .get(pos, version)
-            .filter(|_| !full || version > 0)
-        {
-            return Ok((f, version));
+        let kind = if full { "full" } else { "patched" };
+        if let Some(f) = self.snapshots.get(pos, version, full) {
+            return Ok((f, version, kind));
         }
         let around: Vec<ChunkPos> = crate::sequencer::residency::with_neighbours(pos).collect();
         self.make_resident(&around)?;
         let mesh_hash = self.seq.mesh_hash(pos);
         let chunk = self.seq.chunk(pos);
-        let update = WorldUpdate::Snapshot {
-            pos,
-            version,
-            hash: chunk_hash(&chunk),
-            mesh_hash,
-            data: encode_chunk(&chunk),
+        let update = if full {
+            WorldUpdate::Snapshot {
+                pos,
+                version,
+                hash: chunk_hash(&chunk),
+                mesh_hash,
+                data: encode_chunk(&chunk),
+            }
+        } else {
+            let base = self.patch_bases.get(pos, &**self.seq.world().generator());
+            let delta = super::patch::patch(pos, &base, &chunk, version)?;
+            metrics::counter!(m::PATCH_BYTES).increment(delta.payload.len() as u64);
+            WorldUpdate::Patched { delta, mesh_hash }
         };
         let frame = encode_update(&update);
         if version > 0 {
-            self.snapshots.put(pos, version, frame.clone());
+            self.snapshots.put(pos, version, full, frame.clone());
         }
-        Ok((frame, version))
+        Ok((frame, version, kind))
     }
 }

@@ -8,6 +8,9 @@ use tracing::{debug, Instrument};
 
 use crate::metrics::BYTES_SENT;
 
+/// Most queued frames one write takes.
+pub const WRITE_BATCH_FRAMES: usize = 64;
+
 /// Why a frame was not queued.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SendRefused {
@@ -50,12 +53,17 @@ pub fn spawn_writer(
     let (tx, mut rx) = mpsc::channel::<Bytes>(capacity);
     let task = tokio::spawn(
         async move {
-            while let Some(frame) = rx.recv().await {
-                if let Err(e) = stream.write_all(&frame).await {
+            // Frames queued together go out in one write, so QUIC packs them
+            // into as few packets as their size allows.
+            let mut batch: Vec<Bytes> = Vec::with_capacity(WRITE_BATCH_FRAMES);
+            while rx.recv_many(&mut batch, WRITE_BATCH_FRAMES).await > 0 {
+                let bytes: usize = batch.iter().map(Bytes::len).sum();
+                if let Err(e) = stream.write_all_chunks(&mut batch).await {
                     debug!(error = %e, "write failed; writer stops");
                     return;
                 }
-                metrics::counter!(BYTES_SENT).increment(frame.len() as u64);
+                batch.clear();
+                metrics::counter!(BYTES_SENT).increment(bytes as u64);
             }
             let _ = stream.finish();
         }

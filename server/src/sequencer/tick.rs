@@ -94,7 +94,7 @@ impl Sequencer {
                     continue;
                 }
             };
-            let seq = self.next_seq;
+            let (seq, bbox) = (self.next_seq, outcome.bbox);
             self.next_seq += 1;
             let mut changes = Vec::with_capacity(outcome.changed.len());
             for c in outcome.changed {
@@ -107,7 +107,7 @@ impl Sequencer {
                 let delta =
                     ChunkDelta::encode(c.pos, c.from_version, c.to_version, &c.before, &new_chunk)
                         .expect("apply raises the version");
-                self.collision.invalidate_around(c.pos);
+                self.collision.invalidate_touched(c.pos, bbox);
                 self.residency.mark_present(c.pos);
                 // Neighbours feed the mesh apron; they are resident (submit checked).
                 self.world.load(with_neighbours(c.pos));

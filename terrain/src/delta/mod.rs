@@ -215,6 +215,13 @@ impl ChunkDelta {
                 actual,
             });
         }
+        self.apply_to_checked_base(base)
+    }
+
+    /// [`Self::apply`] for a caller that already knows `base` hashes to
+    /// `base_hash` (it checked the chunk when it took it in): skips hashing
+    /// the base again. The result is still checked against `target_hash`.
+    pub fn apply_to_checked_base(&self, base: &Chunk) -> Result<Chunk, DeltaError> {
         let mut target = decode_payload(&self.payload, base)?;
         target.compact();
         let actual = chunk_hash(&target);
@@ -248,11 +255,10 @@ fn encode_payload(base: &Chunk, target: &Chunk, same: bool) -> Vec<u8> {
     debug_assert!(runs.len() <= MAX_BODY_LEN && masked.len() <= MAX_BODY_LEN);
 
     // A compressor error just drops that candidate.
-    let mut zstd = zstd::bulk::Compressor::new(DELTA_ZSTD_LEVEL).ok();
     let mut best: Option<Vec<u8>> = None;
     for (layout, body) in [(LAYOUT_RUNS, &runs), (LAYOUT_MASKED, &masked)] {
         let lz4 = Some(lz4_flex::block::compress(body));
-        let zst = zstd.as_mut().and_then(|z| z.compress(body).ok());
+        let zst = crate::zstd_ctx::compress(body, DELTA_ZSTD_LEVEL).ok();
         let mut raw = Vec::with_capacity(1 + body.len());
         raw.push(layout | COMPRESSION_NONE);
         raw.extend_from_slice(body);
@@ -352,7 +358,7 @@ fn zstd_one_frame(data: &[u8], capacity: usize) -> Result<Vec<u8>, DeltaError> {
     if frame_len != data.len() {
         return Err(DeltaError::TrailingBytes(data.len() - frame_len));
     }
-    zstd::bulk::decompress(data, capacity).map_err(|e| DeltaError::Decompress(e.to_string()))
+    crate::zstd_ctx::decompress(data, capacity).map_err(|e| DeltaError::Decompress(e.to_string()))
 }
 
 #[cfg(test)]

@@ -37,6 +37,8 @@ pub const LOCAL_MAX_Y: i32 = CHUNK_SIZE + MAX_SURFACE_SCAN;
 
 /// Samples per row (x).
 pub const DIM_X: usize = (LOCAL_MAX - LOCAL_MIN + 1) as usize;
+// `from_chunks` copies each row as 1 + 32 + 2 samples.
+const _: () = assert!(DIM_X == 1 + CHUNK_SIZE as usize + 2);
 /// Rows per slice (y).
 pub(crate) const DIM_Y: usize = (LOCAL_MAX_Y - LOCAL_MIN + 1) as usize;
 /// Slices (z).
@@ -138,43 +140,38 @@ impl Neighborhood {
         chunk: ChunkPos,
         mut get: impl FnMut(ChunkPos) -> Option<&'c Chunk>,
     ) -> Self {
-        let around: Vec<Option<&'c Chunk>> = NEIGHBOURS
-            .iter()
-            .map(|&(dx, dy, dz)| chunk.offset(dx, dy, dz).and_then(&mut get))
-            .collect();
+        let around: [Option<&'c Chunk>; 27] = std::array::from_fn(|i| {
+            let (dx, dy, dz) = NEIGHBOURS[i];
+            chunk.offset(dx, dy, dz).and_then(&mut get)
+        });
+        let mut density = vec![0u8; SAMPLES].into_boxed_slice();
+        let mut material = vec![0u8; SAMPLES].into_boxed_slice();
         let m = CHUNK_SIZE - 1;
-        // Each row crosses three chunks along x: local -1, 0..=31 and 32..=33.
-        let pieces = [
-            (LOCAL_MIN, -1, -1),
-            (0, CHUNK_SIZE - 1, 0),
-            (CHUNK_SIZE, LOCAL_MAX, 1),
-        ];
-        Self::from_rows(chunk.origin(), |start, density, material| {
+        for r in 0..DIM_Y * DIM_Z {
+            // Local y and z of this row, and the chunk layer each falls in.
             let (y, z) = (
-                start.y.wrapping_sub(chunk.origin().y),
-                start.z.wrapping_sub(chunk.origin().z),
+                (r % DIM_Y) as i32 + LOCAL_MIN,
+                (r / DIM_Y) as i32 + LOCAL_MIN,
             );
             let (dy, dz) = (y.div_euclid(CHUNK_SIZE), z.div_euclid(CHUNK_SIZE));
-            for &(x0, x1, dx) in &pieces {
-                let (a, b) = ((x0 - LOCAL_MIN) as usize, (x1 - LOCAL_MIN) as usize + 1);
-                let slot = NEIGHBOURS.iter().position(|n| *n == (dx, dy, dz));
-                match slot.and_then(|i| around[i]) {
-                    None => {
-                        density[a..b].fill(0);
-                        material[a..b].fill(0);
-                    }
-                    Some(Chunk::Uniform(v)) => {
-                        density[a..b].fill(v.density);
-                        material[a..b].fill(v.material);
-                    }
-                    Some(Chunk::Dense(d)) => {
-                        let i = local_index((x0 & m) as usize, (y & m) as usize, (z & m) as usize);
-                        density[a..b].copy_from_slice(&d.density[i..i + (b - a)]);
-                        material[a..b].copy_from_slice(&d.material[i..i + (b - a)]);
-                    }
-                }
-            }
-        })
+            let slot = |dx: i32| (dx + 1 + 3 * (dy + 1) + 9 * (dz + 1)) as usize;
+            let row = r * DIM_X;
+            let base = local_index(0, (y & m) as usize, (z & m) as usize);
+            let (drow, mrow) = (
+                &mut density[row..row + DIM_X],
+                &mut material[row..row + DIM_X],
+            );
+            // Each row crosses three chunks along x: local -1, 0..=31 and 32..=33.
+            // Fixed-size pieces compile to a few moves instead of memcpy calls.
+            copy_piece::<1>(around[slot(-1)], base + m as usize, drow, mrow, 0);
+            copy_piece::<32>(around[slot(0)], base, drow, mrow, 1);
+            copy_piece::<2>(around[slot(1)], base, drow, mrow, 33);
+        }
+        Self {
+            origin: chunk.origin(),
+            density,
+            material,
+        }
     }
 
     /// World position of local (0,0,0).
@@ -203,6 +200,36 @@ impl Neighborhood {
     #[inline]
     pub(crate) fn materials(&self) -> &[u8] {
         &self.material
+    }
+}
+
+/// Copies `N` voxels of one chunk row starting at chunk index `from` into `drow` / `mrow` at
+/// `at` (air when the chunk is missing).
+#[inline(always)]
+fn copy_piece<const N: usize>(
+    c: Option<&Chunk>,
+    from: usize,
+    drow: &mut [u8],
+    mrow: &mut [u8],
+    at: usize,
+) {
+    let (d, m): (&mut [u8; N], &mut [u8; N]) = (
+        (&mut drow[at..at + N]).try_into().expect("N samples"),
+        (&mut mrow[at..at + N]).try_into().expect("N samples"),
+    );
+    match c {
+        None => {
+            *d = [0; N];
+            *m = [0; N];
+        }
+        Some(Chunk::Uniform(v)) => {
+            *d = [v.density; N];
+            *m = [v.material; N];
+        }
+        Some(Chunk::Dense(dc)) => {
+            *d = dc.density[from..from + N].try_into().expect("N samples");
+            *m = dc.material[from..from + N].try_into().expect("N samples");
+        }
     }
 }
 
