@@ -198,12 +198,11 @@ fn mesh_regular_in(
                     | ((m11 >> x) & 3) << 6;
                 let tris = &CASE_TRIANGLES[case as usize];
                 let base = (y * gx + x) * 3;
-                let edges = &tris.edges[..usize::from(tris.len)];
-                b.mesh.indices.extend(
-                    edges.iter().map(|&e| {
-                        slots[corner_slot[usize::from(e >> 2)] + base + usize::from(e & 3)]
-                    }),
-                );
+                // A plain push loop: `extend` here compiled to an out-of-line call per cell.
+                for &e in &tris.edges[..usize::from(tris.len)] {
+                    let slot = corner_slot[usize::from(e >> 2)] + base + usize::from(e & 3);
+                    b.mesh.indices.push(slots[slot]);
+                }
             }
         }
     }
