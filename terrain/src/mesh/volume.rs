@@ -14,6 +14,7 @@ use std::hash::{BuildHasherDefault, Hasher};
 use rayon::prelude::*;
 use thiserror::Error;
 
+use super::neighborhood::DIM_X;
 use super::{try_mesh_chunk, Mesh, MeshError, MeshOptions, Neighborhood, VertexKey};
 use crate::material::{ids, MaterialId};
 use crate::{VoxelPos, CHUNK_SIZE};
@@ -139,6 +140,9 @@ pub struct VolumeMeshOptions {
     pub lod: u8,
     /// Material given to every sample (raw volumes carry density only).
     pub material: MaterialId,
+    /// Fill [`Mesh::keys`] of the result. Off by default: the mesh is already
+    /// welded, and the keys would be a quarter of its memory.
+    pub keys: bool,
 }
 
 impl Default for VolumeMeshOptions {
@@ -147,6 +151,7 @@ impl Default for VolumeMeshOptions {
             iso: super::DEFAULT_ISO,
             lod: 0,
             material: ids::STONE,
+            keys: false,
         }
     }
 }
@@ -165,7 +170,8 @@ pub struct VolumeStats {
 }
 
 /// One welded mesh of a whole volume. Positions are in voxel units: sample
-/// `(i, j, k)` sits at `(i, j, k)`; keys are in the same coordinates.
+/// `(i, j, k)` sits at `(i, j, k)`; keys (only with [`VolumeMeshOptions::keys`],
+/// else empty) are in the same coordinates.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VolumeMesh {
     pub mesh: Mesh,
@@ -213,7 +219,7 @@ pub fn mesh_volume_with_progress(
             .collect::<Result<_, _>>()
             .map_err(VolumeError::from)
     };
-    let mut welder = Welder::default();
+    let mut welder = Welder::new(opts.keys);
     let mut empty_chunks = 0u64;
     let mut weld_slab = |slab: &[ChunkJob], meshes: Vec<Option<Mesh>>| {
         for (job, mesh) in slab.iter().zip(meshes) {
@@ -222,13 +228,18 @@ pub fn mesh_volume_with_progress(
                 None => empty_chunks += 1,
             }
         }
+        // Later slabs can only share vertices on this slab's top face.
+        if let Some(job) = slab.first() {
+            welder.forget_seams_below(job.origin[2] + job.extent[2]);
+        }
         Ok::<(), VolumeError>(())
     };
     let mut pending: Option<(&[ChunkJob], Vec<Option<Mesh>>)> = None;
     for slab in chunks.chunk_by(|a, b| a.origin[2] == b.origin[2]) {
-        let (meshed, welded) = rayon::join(
-            || mesh_slab(slab),
+        // Welding first: on one thread the previous slab's meshes are still in cache.
+        let (welded, meshed) = rayon::join(
             || pending.take().map(|(s, m)| weld_slab(s, m)),
+            || mesh_slab(slab),
         );
         welded.transpose()?;
         pending = Some((slab, meshed?));
@@ -298,15 +309,22 @@ fn chunk_is_empty(grid: &VolumeGrid<'_>, iso: f32, job: &ChunkJob) -> bool {
     // Element-wise min/max over whole rows (vectorises), reduced once per
     // z-slice: reducing every short row to a scalar cost more than reading it.
     let (mut lo, mut hi) = ([u8::MAX; ROW], [u8::MIN; ROW]);
-    let (lo, hi) = (&mut lo[..len], &mut hi[..len]);
     let (mut any_in, mut any_out) = (false, false);
     for z in oz..=oz + ez {
         for y in oy..=oy + ey {
             let row = grid.index(ox, y, z);
             let samples = &grid.density[row..row + len];
-            for ((l, h), &d) in lo.iter_mut().zip(hi.iter_mut()).zip(samples) {
-                *l = (*l).min(d);
-                *h = (*h).max(d);
+            if let Ok(full) = <&[u8; ROW]>::try_from(samples) {
+                // A whole chunk row: fixed length, so the loop is straight vector code.
+                for ((l, h), &d) in lo.iter_mut().zip(hi.iter_mut()).zip(full) {
+                    *l = (*l).min(d);
+                    *h = (*h).max(d);
+                }
+            } else {
+                for ((l, h), &d) in lo.iter_mut().zip(hi.iter_mut()).zip(samples) {
+                    *l = (*l).min(d);
+                    *h = (*h).max(d);
+                }
             }
         }
         let (slice_lo, slice_hi) = (lo.iter().min(), hi.iter().max());
@@ -351,8 +369,14 @@ fn mesh_one_chunk(
         let b = (dx + 1 - start.x).clamp(a, n);
         let (a, b) = (a as usize, b as usize);
         drow[..a].fill(line[0]);
+        let x0 = (start.x + a as i32) as usize;
+        if let (0, Ok(inner)) = (a, <&mut [u8; DIM_X]>::try_from(&mut drow[..b])) {
+            // The usual case, a row wholly inside the volume: a fixed-length copy.
+            inner.copy_from_slice(&line[x0..x0 + DIM_X]);
+            return;
+        }
+        drow[..a].fill(line[0]);
         if b > a {
-            let x0 = (start.x + a as i32) as usize;
             drow[a..b].copy_from_slice(&line[x0..x0 + (b - a)]);
         }
         drow[b..].fill(line[dx as usize]);
@@ -416,7 +440,7 @@ fn on_chunk_seam(key: &VertexKey) -> bool {
 /// Vertex ids follow chunk order (a seam vertex takes the id of its first
 /// appearance), so the result does not depend on how the meshes were made.
 pub fn weld(pieces: impl IntoIterator<Item = (VoxelPos, Mesh)>) -> Result<Mesh, VolumeError> {
-    let mut welder = Welder::default();
+    let mut welder = Welder::new(true);
     for (origin, mesh) in pieces {
         welder.add(origin, &mesh)?;
     }
@@ -425,22 +449,34 @@ pub fn weld(pieces: impl IntoIterator<Item = (VoxelPos, Mesh)>) -> Result<Mesh, 
 
 /// Incremental [`weld`]: chunk meshes are appended in order, each copied once
 /// straight into the output (no pre-sized, zeroed output to fill later).
-#[derive(Default)]
 struct Welder {
     out: Mesh,
+    /// Whether `out.keys` is filled.
+    keys: bool,
     seam: SeamMap,
     /// Global id of each vertex of the chunk being added (reused).
     remap: Vec<u32>,
 }
 
 impl Welder {
+    fn new(keys: bool) -> Self {
+        Self {
+            out: Mesh::default(),
+            keys,
+            seam: SeamMap::default(),
+            remap: Vec::new(),
+        }
+    }
+
     fn add(&mut self, origin: VoxelPos, mesh: &Mesh) -> Result<(), VolumeError> {
         let out = &mut self.out;
         let n = mesh.keys.len();
         out.positions.reserve(n);
         out.normals.reserve(n);
         out.materials.reserve(n);
-        out.keys.reserve(n);
+        if self.keys {
+            out.keys.reserve(n);
+        }
         self.remap.clear();
         let o = [origin.x as f32, origin.y as f32, origin.z as f32];
         for (i, key) in mesh.keys.iter().enumerate() {
@@ -462,7 +498,9 @@ impl Welder {
                 out.positions.push([v[0] + o[0], v[1] + o[1], v[2] + o[2]]);
                 out.normals.push(mesh.normals[i]);
                 out.materials.push(mesh.materials[i]);
-                out.keys.push(*key);
+                if self.keys {
+                    out.keys.push(*key);
+                }
             }
             self.remap.push(global);
         }
@@ -470,6 +508,13 @@ impl Welder {
         out.indices
             .extend(mesh.indices.iter().map(|&i| remap[i as usize]));
         Ok(())
+    }
+
+    /// Drops seam entries of vertices below the plane `z`, which no chunk
+    /// still to come can share: keeps the map small and in cache.
+    fn forget_seams_below(&mut self, z: u32) {
+        let z = z as i32;
+        self.seam.retain(|k, _| k.base.z >= z);
     }
 
     fn finish(self) -> Mesh {
@@ -539,11 +584,11 @@ mod tests {
     fn sphere_across_seams_is_closed_with_euler_two() {
         let dims = [70, 70, 70];
         // Radius 26 around ~35 crosses the seams at 32 and 64 on every axis.
-        let vm = mesh(
-            dims,
-            &sphere(dims, [35.3, 34.6, 35.2], 26.0),
-            &Default::default(),
-        );
+        let keys = VolumeMeshOptions {
+            keys: true,
+            ..Default::default()
+        };
+        let vm = mesh(dims, &sphere(dims, [35.3, 34.6, 35.2], 26.0), &keys);
         let m = &vm.mesh;
         let edges = edge_uses(m);
         for (e, (uses, orient)) in &edges {
@@ -566,6 +611,22 @@ mod tests {
         assert_eq!(keys.len(), m.positions.len());
         assert_eq!(vm.stats.chunks, 27);
         assert!(vm.stats.empty_chunks > 0, "corner chunks hold no surface");
+    }
+
+    #[test]
+    fn keys_are_optional_and_change_nothing_else() {
+        let dims = [45, 37, 50];
+        let data = terrain(dims);
+        let plain = mesh(dims, &data, &Default::default());
+        let keyed = VolumeMeshOptions {
+            keys: true,
+            ..Default::default()
+        };
+        let mut with_keys = mesh(dims, &data, &keyed);
+        assert!(plain.mesh.keys.is_empty());
+        assert_eq!(with_keys.mesh.keys.len(), with_keys.mesh.positions.len());
+        with_keys.mesh.keys.clear();
+        assert_eq!(plain, with_keys);
     }
 
     /// Canonical triangles (rotated to start at the smallest corner, so the
@@ -732,6 +793,7 @@ mod tests {
             &data,
             &VolumeMeshOptions {
                 lod: 1,
+                keys: true,
                 ..Default::default()
             },
         );
