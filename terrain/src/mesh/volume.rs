@@ -504,7 +504,8 @@ impl Welder {
             }
             self.remap.push(global);
         }
-        let remap = &self.remap;
+        // A plain slice: through `&Vec` its length was reloaded for every index.
+        let remap: &[u32] = &self.remap;
         out.indices
             .extend(mesh.indices.iter().map(|&i| remap[i as usize]));
         Ok(())
