@@ -176,7 +176,7 @@ impl<'a> Builder<'a> {
             mat[j] = vertex_material(density, materials, self.iso, solid_at, len);
         }
         let mut normals = [[0.0f32; 3]; BATCH];
-        normalise(&raw, &flat, &mut normals);
+        normalise(&raw, &flat, &mut normals, n);
         let m = &mut self.mesh;
         m.positions.extend_from_slice(&pos[..n]);
         m.normals.extend_from_slice(&normals[..n]);

@@ -38,8 +38,9 @@ pub(crate) fn fallback_normal(axis: usize, lower_solid: bool) -> [f32; 3] {
     [0, 1, 2].map(|a| if a == axis { sign } else { 0.0 })
 }
 
-/// Normalises a batch of raw normals (`raw[axis][vertex]`, from [`raw_normal`]) once in f64:
-/// `c * (1 / sqrt(len2))`, rounded to f32. Zero vectors take their `flat` normal instead.
+/// Normalises the first `n` raw normals of a batch (`raw[axis][vertex]`, from [`raw_normal`])
+/// once in f64: `c * (1 / sqrt(len2))`, rounded to f32. Zero vectors take their `flat` normal
+/// instead.
 ///
 /// The square roots and reciprocals run as one loop over plain arrays, so they vectorise
 /// and overlap; each lane gives the same bits as the scalar formula.
@@ -48,15 +49,17 @@ pub(crate) fn normalise<const N: usize>(
     raw: &[[f64; N]; 3],
     flat: &[[f32; 3]; N],
     out: &mut [[f32; 3]; N],
+    n: usize,
 ) {
     let [x, y, z] = raw;
     let mut inv = [0.0f64; N];
-    for j in 0..N {
+    let n = n.min(N);
+    for j in 0..n {
         let len2 = x[j] * x[j] + y[j] * y[j] + z[j] * z[j];
         // One division, then multiplies. A zero length gives infinity, replaced below.
         inv[j] = 1.0 / len2.sqrt();
     }
-    for j in 0..N {
+    for j in 0..n {
         out[j] = if inv[j].is_finite() {
             [x[j], y[j], z[j]].map(|c| (c * inv[j]) as f32)
         } else {
