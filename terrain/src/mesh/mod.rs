@@ -11,8 +11,11 @@
 //!   states their corner/edge numbering and winding; triangles come out CCW seen from air).
 //! * Speed (`regular.rs`): solid flags of each sample row are packed into a `u64` (SWAR
 //!   compare, 8 samples per step); word operations on the four rows under a row of cells find
-//!   the mixed cells, and only those are visited. Vertex data is computed afterwards in one
-//!   tight pass (`builder.rs`). Scratch memory is reused per thread.
+//!   the mixed cells, and only those are visited; a compile-time table flattens Lengyel's
+//!   class, vertex and triangle tables to "case -> triangle corners as cell edges". Vertex
+//!   data is computed afterwards in batches (`builder.rs`): the edge parameter in exact
+//!   integer arithmetic for half-integer isovalues, square roots and divisions of a batch
+//!   in one vectorisable loop. Scratch memory is reused per thread.
 //! * Welding: each sign-changing sample edge yields exactly one vertex, cached per sample and
 //!   axis over two z-layers. A vertex's position, normal and material depend only on its edge
 //!   (`builder.rs` gives the exact quantized interpolation: t rounded to 1/65536 and kept off

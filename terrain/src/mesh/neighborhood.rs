@@ -115,21 +115,36 @@ impl Neighborhood {
             .chunks_exact_mut(DIM_X)
             .zip(material.chunks_exact_mut(DIM_X));
         for (r, (drow, mrow)) in rows.enumerate() {
-            let (y, z) = (
-                (r % DIM_Y) as i32 + LOCAL_MIN,
-                (r / DIM_Y) as i32 + LOCAL_MIN,
-            );
-            let start = VoxelPos::new(
-                origin.x.wrapping_add(LOCAL_MIN),
-                origin.y.wrapping_add(y),
-                origin.z.wrapping_add(z),
-            );
-            fill(start, drow, mrow);
+            fill(row_start(origin, r), drow, mrow);
         }
         Self {
             origin,
             density,
             material,
+        }
+    }
+
+    /// An all-air neighbourhood at the world origin whose every sample has material
+    /// `material`: a reusable buffer for [`Self::refill_densities`].
+    pub(crate) fn with_material(material: u8) -> Self {
+        Self {
+            origin: VoxelPos::new(0, 0, 0),
+            density: vec![0u8; SAMPLES].into_boxed_slice(),
+            material: vec![material; SAMPLES].into_boxed_slice(),
+        }
+    }
+
+    /// Moves this neighbourhood to `origin` and refills every density row as
+    /// [`Self::from_rows`] does (`fill(start, density)`), keeping the materials: bulk
+    /// meshers reuse one buffer instead of allocating and zeroing two per chunk.
+    pub(crate) fn refill_densities(
+        &mut self,
+        origin: VoxelPos,
+        mut fill: impl FnMut(VoxelPos, &mut [u8]),
+    ) {
+        self.origin = origin;
+        for (r, drow) in self.density.chunks_exact_mut(DIM_X).enumerate() {
+            fill(row_start(origin, r), drow);
         }
     }
 
@@ -231,6 +246,20 @@ fn copy_piece<const N: usize>(
             *m = dc.material[from..from + N].try_into().expect("N samples");
         }
     }
+}
+
+/// World position of the first sample of row `r` (rows run y fastest, then z) of the
+/// neighbourhood whose local (0, 0, 0) is `origin`.
+fn row_start(origin: VoxelPos, r: usize) -> VoxelPos {
+    let (y, z) = (
+        (r % DIM_Y) as i32 + LOCAL_MIN,
+        (r / DIM_Y) as i32 + LOCAL_MIN,
+    );
+    VoxelPos::new(
+        origin.x.wrapping_add(LOCAL_MIN),
+        origin.y.wrapping_add(y),
+        origin.z.wrapping_add(z),
+    )
 }
 
 /// Internal index of a local position; callers keep it inside the held range.

@@ -19,30 +19,51 @@ pub(crate) fn gradient(density: &[u8], i: usize) -> [i32; 3] {
     ]
 }
 
-/// Unit normal pointing into air for a vertex at quantized parameter `q / T_ONE` along an edge
-/// whose endpoint gradients are `g0` (lower) and `g1` (upper).
-///
-/// When the interpolated gradient vanishes (flat plateaus), the normal is the edge direction
-/// from its solid end towards its air end, so it is still unit length and deterministic.
-pub(crate) fn edge_normal(
-    g0: [i32; 3],
-    g1: [i32; 3],
-    q: u32,
-    t_one: u32,
-    axis: usize,
-    lower_solid: bool,
-) -> [f32; 3] {
+/// Unnormalised normal (pointing into air) at quantized parameter `q / t_one` along an edge
+/// whose endpoint gradients are `g0` (lower) and `g1` (upper): the gradient interpolated in
+/// exact integer arithmetic, negated. Each component is below 2^24 in magnitude, so the f64
+/// values and the sum of their squares are exact.
+#[inline(always)]
+pub(crate) fn raw_normal(g0: [i32; 3], g1: [i32; 3], q: u32, t_one: u32) -> [f64; 3] {
     let (w0, w1) = (i64::from(t_one - q), i64::from(q));
     // The gradient points towards higher density (into solid); the normal points out of it.
-    let n = [0, 1, 2].map(|a| -(i64::from(g0[a]) * w0 + i64::from(g1[a]) * w1) as f64);
-    let len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
-    if len2 > 0.0 {
-        // One division, then multiplies: the normal is on the hot path.
-        let inv = 1.0 / len2.sqrt();
-        n.map(|c| (c * inv) as f32)
-    } else {
-        let mut f = [0.0f32; 3];
-        f[axis] = if lower_solid { 1.0 } else { -1.0 };
-        f
+    [0, 1, 2].map(|a| -(i64::from(g0[a]) * w0 + i64::from(g1[a]) * w1) as f64)
+}
+
+/// Normal used when the interpolated gradient vanishes (flat plateaus): the edge direction
+/// from its solid end towards its air end, so it is still unit length and deterministic.
+#[inline(always)]
+pub(crate) fn fallback_normal(axis: usize, lower_solid: bool) -> [f32; 3] {
+    let sign = if lower_solid { 1.0 } else { -1.0 };
+    [0, 1, 2].map(|a| if a == axis { sign } else { 0.0 })
+}
+
+/// Normalises the first `n` raw normals of a batch (`raw[axis][vertex]`, from [`raw_normal`])
+/// once in f64: `c * (1 / sqrt(len2))`, rounded to f32. Zero vectors take their `flat` normal
+/// instead.
+///
+/// The square roots and reciprocals run as one loop over plain arrays, so they vectorise
+/// and overlap; each lane gives the same bits as the scalar formula.
+#[inline(always)]
+pub(crate) fn normalise<const N: usize>(
+    raw: &[[f64; N]; 3],
+    flat: &[[f32; 3]; N],
+    out: &mut [[f32; 3]; N],
+    n: usize,
+) {
+    let [x, y, z] = raw;
+    let mut inv = [0.0f64; N];
+    let n = n.min(N);
+    for j in 0..n {
+        let len2 = x[j] * x[j] + y[j] * y[j] + z[j] * z[j];
+        // One division, then multiplies. A zero length gives infinity, replaced below.
+        inv[j] = 1.0 / len2.sqrt();
+    }
+    for j in 0..n {
+        out[j] = if inv[j].is_finite() {
+            [x[j], y[j], z[j]].map(|c| (c * inv[j]) as f32)
+        } else {
+            flat[j]
+        };
     }
 }

@@ -79,7 +79,7 @@ fn row_bits(density: &[u8], start: usize, stride: usize, n: usize, t: u8) -> u64
 #[derive(Default)]
 struct Scratch {
     rows: Vec<u64>,
-    slots: [Vec<u32>; 2],
+    slots: Vec<u32>,
 }
 
 thread_local! {
@@ -157,12 +157,11 @@ fn mesh_regular_in(
     // With slack: growing a vector mid-pass copies it.
     b.reserve(mixed + mixed / 4, mixed * 2 + mixed / 2);
 
+    // Vertex slots of two sample z-layers, one after the other: layer `z & 1` holds layer z.
     let layer = gx * gy * 3;
     let slots = &mut scratch.slots;
-    for sl in slots.iter_mut() {
-        // No need to clear: every slot a cell reads is written first in this call.
-        sl.resize(layer, 0);
-    }
+    // No need to clear: every slot a cell reads is written first in this call.
+    slots.resize(2 * layer, 0);
     let grid = Grid {
         rows,
         gx,
@@ -171,15 +170,17 @@ fn mesh_regular_in(
         cell_mask: (1u64 << cells[0]) - 1,
         full,
     };
+    let part = |z: usize| (z & 1) * layer..(z & 1) * layer + layer;
     // Edge pass first (flying-edges style): every sign-changing edge of a sample layer gets
     // its vertex before the cells that use it, so the cell loop only reads slots. Slots of
     // edges without a sign change keep stale values, but no cell case reads them.
-    grid.emit_xy(b, &mut slots[0], 0, cells[1]);
-    let edge_slots = edge_slot_table(gx);
-    let mut verts = [0u32; 12];
+    grid.emit_xy(b, &mut slots[part(0)], 0, cells[1]);
     for z in 0..cells[2] {
-        grid.emit_z(b, &mut slots[z & 1], z);
-        grid.emit_xy(b, &mut slots[(z + 1) & 1], z + 1, cells[1]);
+        grid.emit_z(b, &mut slots[part(z)], z);
+        grid.emit_xy(b, &mut slots[part(z + 1)], z + 1, cells[1]);
+        // Slot of the x edge at each cell corner, relative to the cell's lower corner.
+        let corner_slot: [usize; 8] =
+            std::array::from_fn(|c| part(z + (c >> 2)).start + (((c >> 1) & 1) * gx + (c & 1)) * 3);
         for y in 0..cells[1] {
             let m00 = rows[z * gy + y];
             let m10 = rows[z * gy + y + 1];
@@ -195,48 +196,51 @@ fn mesh_regular_in(
                     | ((m10 >> x) & 3) << 2
                     | ((m01 >> x) & 3) << 4
                     | ((m11 >> x) & 3) << 6;
-                let data = &REGULAR_CELL_DATA[REGULAR_CELL_CLASS[case as usize] as usize];
-                let entries = &REGULAR_VERTEX_DATA[case as usize];
-                let n = data.get_vertex_count() as usize;
+                let tris = &CASE_TRIANGLES[case as usize];
                 let base = (y * gx + x) * 3;
-                for (v, &entry) in verts.iter_mut().zip(entries.iter()).take(n) {
-                    let e = edge_slots[usize::from(entry as u8)];
-                    let layer = (z + (e >> EDGE_LAYER_SHIFT) as usize) & 1;
-                    *v = slots[layer][base + (e & EDGE_OFFSET_MASK) as usize];
-                }
-                let tris = data.get_triangle_count() as usize;
-                for tri in data.vertex_index[..tris * 3].chunks_exact(3) {
-                    b.triangle(
-                        verts[tri[0] as usize],
-                        verts[tri[1] as usize],
-                        verts[tri[2] as usize],
-                    );
+                // A plain push loop: `extend` here compiled to an out-of-line call per cell.
+                for &e in &tris.edges[..usize::from(tris.len)] {
+                    let slot = corner_slot[usize::from(e >> 2)] + base + usize::from(e & 3);
+                    b.mesh.indices.push(slots[slot]);
                 }
             }
         }
     }
 }
 
-/// Bit of an [`edge_slot_table`] entry telling that the edge's slot is in the next z-layer.
-const EDGE_LAYER_SHIFT: u32 = 31;
-/// Bits of an [`edge_slot_table`] entry holding the slot offset from the cell's base slot.
-const EDGE_OFFSET_MASK: u32 = (1 << EDGE_LAYER_SHIFT) - 1;
-
-/// For each vertex entry's low byte (its edge's two corners), where the edge's vertex slot is
-/// relative to the cell's lower corner in rows of `gx` samples: offset, plus a layer bit.
-fn edge_slot_table(gx: usize) -> [u32; 256] {
-    let mut t = [0u32; 256];
-    for (low, slot) in t.iter_mut().enumerate() {
-        let (ca, cb) = edge_endpoints(low as u16);
-        if (ca ^ cb).count_ones() != 1 || ca > 7 || cb > 7 {
-            continue; // not a cube edge; no table entry uses it
-        }
-        let axis = (ca ^ cb).trailing_zeros() as usize;
-        let (dx, dy, dz) = (ca & 1, (ca >> 1) & 1, (ca >> 2) & 1);
-        *slot = ((dy * gx + dx) * 3 + axis) as u32 | ((dz as u32) << EDGE_LAYER_SHIFT);
-    }
-    t
+/// One regular case's triangles with each vertex named by its cell edge, as
+/// `lower corner << 2 | axis` (Lengyel's corner numbering, see `tables.rs`).
+struct CaseTriangles {
+    /// Entries used: three per triangle.
+    len: u8,
+    edges: [u8; 15],
 }
+
+/// [`CaseTriangles`] of every regular case, flattened from Lengyel's class, vertex and
+/// triangle tables at compile time so the cell loop does one lookup per triangle corner.
+static CASE_TRIANGLES: [CaseTriangles; 256] = {
+    let mut out = [const {
+        CaseTriangles {
+            len: 0,
+            edges: [0; 15],
+        }
+    }; 256];
+    let mut case = 0;
+    while case < 256 {
+        let data = &REGULAR_CELL_DATA[REGULAR_CELL_CLASS[case] as usize];
+        let mut k = 0;
+        // Unused entries of `vertex_index` hold the padding value 0xFF.
+        while k < 15 && data.vertex_index[k] != 0xFF {
+            let (ca, cb) = edge_endpoints(REGULAR_VERTEX_DATA[case][data.vertex_index[k] as usize]);
+            let axis = (ca ^ cb).trailing_zeros();
+            out[case].edges[k] = ((ca & cb) << 2) as u8 | axis as u8;
+            k += 1;
+        }
+        out[case].len = k as u8;
+        case += 1;
+    }
+    out
+};
 
 /// The packed sign grid and its shape, for the edge pass.
 struct Grid<'r> {
@@ -306,6 +310,26 @@ mod tests {
                     .enumerate()
                     .fold(0, |m, (i, &d)| m | (u64::from(d >= c) << i));
                 assert_eq!(got, want, "bytes {bytes:?} vs {c}");
+            }
+        }
+    }
+
+    #[test]
+    fn flattened_case_table_matches_lengyels_tables() {
+        for case in 0..256 {
+            let data = &REGULAR_CELL_DATA[REGULAR_CELL_CLASS[case] as usize];
+            let tris = &CASE_TRIANGLES[case];
+            assert_eq!(
+                usize::from(tris.len),
+                3 * data.get_triangle_count() as usize
+            );
+            for (k, &e) in tris.edges[..usize::from(tris.len)].iter().enumerate() {
+                let entry = REGULAR_VERTEX_DATA[case][data.vertex_index[k] as usize];
+                let (ca, cb) = edge_endpoints(entry);
+                assert_eq!((ca ^ cb).count_ones(), 1, "case {case}: not a cube edge");
+                let (corner, axis) = (usize::from(e >> 2), usize::from(e & 3));
+                assert_eq!(1 << axis, ca ^ cb, "case {case} entry {k}");
+                assert_eq!(corner, ca.min(cb), "case {case} entry {k}");
             }
         }
     }

@@ -7,6 +7,14 @@
 //! meshes are welded in chunk order by [`VertexKey`] into one indexed mesh.
 //! Because a vertex depends only on its own edge (the mesher's exactness
 //! rule), welding is exact and the result is the same for any thread count.
+//!
+//! Speed: a min/max pre-scan skips chunks with no sign change before any
+//! copying; each worker refills one reused [`Neighborhood`] (materials set
+//! once); chunks go one z-slab at a time, and a slab is welded (copied once
+//! into the growing output) while the next one is meshed, so only two slabs
+//! of chunk meshes are ever alive. Output keys are optional
+//! ([`VolumeMeshOptions::keys`]): they are a quarter of the output memory, and
+//! first-touch page faults on fresh output are a large share of the time.
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
@@ -14,6 +22,7 @@ use std::hash::{BuildHasherDefault, Hasher};
 use rayon::prelude::*;
 use thiserror::Error;
 
+use super::neighborhood::DIM_X;
 use super::{try_mesh_chunk, Mesh, MeshError, MeshOptions, Neighborhood, VertexKey};
 use crate::material::{ids, MaterialId};
 use crate::{VoxelPos, CHUNK_SIZE};
@@ -139,6 +148,9 @@ pub struct VolumeMeshOptions {
     pub lod: u8,
     /// Material given to every sample (raw volumes carry density only).
     pub material: MaterialId,
+    /// Fill [`Mesh::keys`] of the result. Off by default: the mesh is already
+    /// welded, and the keys would be a quarter of its memory.
+    pub keys: bool,
 }
 
 impl Default for VolumeMeshOptions {
@@ -147,6 +159,7 @@ impl Default for VolumeMeshOptions {
             iso: super::DEFAULT_ISO,
             lod: 0,
             material: ids::STONE,
+            keys: false,
         }
     }
 }
@@ -165,7 +178,8 @@ pub struct VolumeStats {
 }
 
 /// One welded mesh of a whole volume. Positions are in voxel units: sample
-/// `(i, j, k)` sits at `(i, j, k)`; keys are in the same coordinates.
+/// `(i, j, k)` sits at `(i, j, k)`; keys (only with [`VolumeMeshOptions::keys`],
+/// else empty) are in the same coordinates.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VolumeMesh {
     pub mesh: Mesh,
@@ -197,21 +211,51 @@ pub fn mesh_volume_with_progress(
         return Err(VolumeError::BadIso(opts.iso));
     }
     let chunks = chunk_list(grid, opts.lod);
-    let meshes: Vec<Option<Mesh>> = chunks
-        .par_iter()
-        .map(|c| {
-            let m = mesh_one_chunk(grid, opts, c);
-            progress();
-            m
-        })
-        .collect::<Result<_, _>>()?;
-
-    let empty_chunks = meshes.iter().filter(|m| m.is_none()).count() as u64;
-    let pieces = chunks.iter().zip(meshes).filter_map(|(job, mesh)| {
-        let [x, y, z] = job.origin.map(|c| c as i32);
-        mesh.map(|m| (VoxelPos::new(x, y, z), m))
-    });
-    let mesh = weld(pieces)?;
+    // Chunks are meshed one z-slab (a layer of chunks) at a time, and each slab is welded
+    // while the next one is meshed: only two slabs of chunk meshes are alive at once, so
+    // their memory is reused instead of growing by the whole volume's worth.
+    let mesh_slab = |slab: &[ChunkJob]| -> Result<Vec<Option<Mesh>>, VolumeError> {
+        slab.par_iter()
+            .map_init(
+                || Neighborhood::with_material(opts.material),
+                |nb, c| {
+                    let m = mesh_one_chunk(grid, opts, c, nb);
+                    progress();
+                    m
+                },
+            )
+            .collect::<Result<_, _>>()
+            .map_err(VolumeError::from)
+    };
+    let mut welder = Welder::new(opts.keys);
+    let mut empty_chunks = 0u64;
+    let mut weld_slab = |slab: &[ChunkJob], meshes: Vec<Option<Mesh>>| {
+        for (job, mesh) in slab.iter().zip(meshes) {
+            match mesh {
+                Some(m) => welder.add(job.voxel_origin(), &m)?,
+                None => empty_chunks += 1,
+            }
+        }
+        // Later slabs can only share vertices on this slab's top face.
+        if let Some(job) = slab.first() {
+            welder.forget_seams_below(job.origin[2] + job.extent[2]);
+        }
+        Ok::<(), VolumeError>(())
+    };
+    let mut pending: Option<(&[ChunkJob], Vec<Option<Mesh>>)> = None;
+    for slab in chunks.chunk_by(|a, b| a.origin[2] == b.origin[2]) {
+        // Welding first: on one thread the previous slab's meshes are still in cache.
+        let (welded, meshed) = rayon::join(
+            || pending.take().map(|(s, m)| weld_slab(s, m)),
+            || mesh_slab(slab),
+        );
+        welded.transpose()?;
+        pending = Some((slab, meshed?));
+    }
+    if let Some((s, m)) = pending {
+        weld_slab(s, m)?;
+    }
+    let mesh = welder.finish();
     let stats = VolumeStats {
         cells: grid.cell_count(opts.lod),
         vertices: mesh.positions.len() as u64,
@@ -228,6 +272,14 @@ pub fn mesh_volume_with_progress(
 struct ChunkJob {
     origin: [u32; 3],
     extent: [u32; 3],
+}
+
+impl ChunkJob {
+    /// World position of the chunk's local (0, 0, 0).
+    fn voxel_origin(&self) -> VoxelPos {
+        let [x, y, z] = self.origin.map(|c| c as i32);
+        VoxelPos::new(x, y, z)
+    }
 }
 
 /// Chunks in z, then y, then x order (the weld order). An axis with fewer
@@ -265,15 +317,22 @@ fn chunk_is_empty(grid: &VolumeGrid<'_>, iso: f32, job: &ChunkJob) -> bool {
     // Element-wise min/max over whole rows (vectorises), reduced once per
     // z-slice: reducing every short row to a scalar cost more than reading it.
     let (mut lo, mut hi) = ([u8::MAX; ROW], [u8::MIN; ROW]);
-    let (lo, hi) = (&mut lo[..len], &mut hi[..len]);
     let (mut any_in, mut any_out) = (false, false);
     for z in oz..=oz + ez {
         for y in oy..=oy + ey {
             let row = grid.index(ox, y, z);
             let samples = &grid.density[row..row + len];
-            for ((l, h), &d) in lo.iter_mut().zip(hi.iter_mut()).zip(samples) {
-                *l = (*l).min(d);
-                *h = (*h).max(d);
+            if let Ok(full) = <&[u8; ROW]>::try_from(samples) {
+                // A whole chunk row: fixed length, so the loop is straight vector code.
+                for ((l, h), &d) in lo.iter_mut().zip(hi.iter_mut()).zip(full) {
+                    *l = (*l).min(d);
+                    *h = (*h).max(d);
+                }
+            } else {
+                for ((l, h), &d) in lo.iter_mut().zip(hi.iter_mut()).zip(samples) {
+                    *l = (*l).min(d);
+                    *h = (*h).max(d);
+                }
             }
         }
         let (slice_lo, slice_hi) = (lo.iter().min(), hi.iter().max());
@@ -287,21 +346,18 @@ fn chunk_is_empty(grid: &VolumeGrid<'_>, iso: f32, job: &ChunkJob) -> bool {
     true
 }
 
+/// Meshes one chunk, refilling the worker's reusable neighbourhood `nb` (whose materials
+/// are already `opts.material`). `None` when the chunk has no triangles.
 fn mesh_one_chunk(
     grid: &VolumeGrid<'_>,
     opts: &VolumeMeshOptions,
     job: &ChunkJob,
+    nb: &mut Neighborhood,
 ) -> Result<Option<Mesh>, MeshError> {
     if chunk_is_empty(grid, opts.iso, job) {
         return Ok(None);
     }
     let [dx, dy, dz] = grid.dims.map(|d| d as i32 - 1);
-    let origin = VoxelPos::new(
-        job.origin[0] as i32,
-        job.origin[1] as i32,
-        job.origin[2] as i32,
-    );
-    let material = opts.material;
     // Apron samples outside the volume repeat the nearest face sample: cells
     // never reach them (cell_extent stops at the last sample), only the
     // central-difference normals at the volume's faces do. Rows are copied
@@ -311,8 +367,7 @@ fn mesh_one_chunk(
         grid.dims[0] as usize * grid.dims[1] as usize,
     );
     let density: &[u8] = grid.density;
-    let nb = Neighborhood::from_rows(origin, |start, drow, mrow| {
-        mrow.fill(material);
+    nb.refill_densities(job.voxel_origin(), |start, drow| {
         let y = start.y.clamp(0, dy) as usize;
         let z = start.z.clamp(0, dz) as usize;
         let line = &density[z * slice + y * row..z * slice + y * row + row];
@@ -322,8 +377,14 @@ fn mesh_one_chunk(
         let b = (dx + 1 - start.x).clamp(a, n);
         let (a, b) = (a as usize, b as usize);
         drow[..a].fill(line[0]);
+        let x0 = (start.x + a as i32) as usize;
+        if let (0, Ok(inner)) = (a, <&mut [u8; DIM_X]>::try_from(&mut drow[..b])) {
+            // The usual case, a row wholly inside the volume: a fixed-length copy.
+            inner.copy_from_slice(&line[x0..x0 + DIM_X]);
+            return;
+        }
+        drow[..a].fill(line[0]);
         if b > a {
-            let x0 = (start.x + a as i32) as usize;
             drow[a..b].copy_from_slice(&line[x0..x0 + (b - a)]);
         }
         drow[b..].fill(line[dx as usize]);
@@ -334,7 +395,7 @@ fn mesh_one_chunk(
         transition_faces: 0,
         cell_extent: job.extent,
     };
-    let mesh = try_mesh_chunk(&nb, &mesh_opts)?;
+    let mesh = try_mesh_chunk(nb, &mesh_opts)?;
     Ok((!mesh.indices.is_empty()).then_some(mesh))
 }
 
@@ -378,36 +439,59 @@ fn on_chunk_seam(key: &VertexKey) -> bool {
     (0..3).any(|a| a != key.axis as usize && b[a] & m == 0)
 }
 
-/// Where one chunk's mesh lands in the welded mesh.
-struct Placement {
-    /// Global index of each of the chunk's vertices.
-    remap: Vec<u32>,
-    /// Local indices of the vertices this chunk adds (seam vertices seen in
-    /// an earlier chunk are reused instead); they get consecutive global ids.
-    fresh: Vec<u32>,
-}
-
 /// Concatenates chunk meshes in the given order, merging seam vertices by
 /// key, and moves each chunk's positions by its origin (the world position
 /// of its local (0, 0, 0)). Keys must be in the same world coordinates with
 /// chunk seams at multiples of 32, as [`super::mesh_chunk`] gives them, so
 /// meshes of neighbouring world chunks weld exactly.
 ///
-/// Two passes: a sequential one that only assigns global vertex ids (so ids
-/// follow chunk order whatever the thread count), then a parallel one that
-/// copies each chunk's vertices and remapped triangles into its own disjoint
-/// ranges of the output.
+/// Vertex ids follow chunk order (a seam vertex takes the id of its first
+/// appearance), so the result does not depend on how the meshes were made.
 pub fn weld(pieces: impl IntoIterator<Item = (VoxelPos, Mesh)>) -> Result<Mesh, VolumeError> {
-    let mut seam = SeamMap::default();
-    let mut next: u64 = 0;
-    let mut placed = Vec::new();
+    let mut welder = Welder::new(true);
     for (origin, mesh) in pieces {
-        let mut remap = Vec::with_capacity(mesh.keys.len());
-        let mut fresh = Vec::new();
+        welder.add(origin, &mesh)?;
+    }
+    Ok(welder.finish())
+}
+
+/// Incremental [`weld`]: chunk meshes are appended in order, each copied once
+/// straight into the output (no pre-sized, zeroed output to fill later).
+struct Welder {
+    out: Mesh,
+    /// Whether `out.keys` is filled.
+    keys: bool,
+    seam: SeamMap,
+    /// Global id of each vertex of the chunk being added (reused).
+    remap: Vec<u32>,
+}
+
+impl Welder {
+    fn new(keys: bool) -> Self {
+        Self {
+            out: Mesh::default(),
+            keys,
+            seam: SeamMap::default(),
+            remap: Vec::new(),
+        }
+    }
+
+    fn add(&mut self, origin: VoxelPos, mesh: &Mesh) -> Result<(), VolumeError> {
+        let out = &mut self.out;
+        let n = mesh.keys.len();
+        out.positions.reserve(n);
+        out.normals.reserve(n);
+        out.materials.reserve(n);
+        if self.keys {
+            out.keys.reserve(n);
+        }
+        self.remap.clear();
+        let o = [origin.x as f32, origin.y as f32, origin.z as f32];
         for (i, key) in mesh.keys.iter().enumerate() {
+            let next = out.positions.len() as u64;
             let id = next as u32;
             let global = if on_chunk_seam(key) {
-                *seam.entry(*key).or_insert(id)
+                *self.seam.entry(*key).or_insert(id)
             } else {
                 id
             };
@@ -418,67 +502,33 @@ pub fn weld(pieces: impl IntoIterator<Item = (VoxelPos, Mesh)>) -> Result<Mesh, 
                         max: MAX_VOLUME_VERTICES,
                     });
                 }
-                fresh.push(i as u32);
-                next += 1;
+                let v = mesh.positions[i];
+                out.positions.push([v[0] + o[0], v[1] + o[1], v[2] + o[2]]);
+                out.normals.push(mesh.normals[i]);
+                out.materials.push(mesh.materials[i]);
+                if self.keys {
+                    out.keys.push(*key);
+                }
             }
-            remap.push(global);
+            self.remap.push(global);
         }
-        placed.push((origin, mesh, Placement { remap, fresh }));
+        // A plain slice: through `&Vec` its length was reloaded for every index.
+        let remap: &[u32] = &self.remap;
+        out.indices
+            .extend(mesh.indices.iter().map(|&i| remap[i as usize]));
+        Ok(())
     }
 
-    let nv = next as usize;
-    let ni = placed.iter().map(|(_, m, _)| m.indices.len()).sum();
-    let placeholder = VertexKey {
-        base: VoxelPos::new(0, 0, 0),
-        axis: 0,
-        len: 0,
-    };
-    let mut out = Mesh {
-        positions: vec![[0.0; 3]; nv],
-        normals: vec![[0.0; 3]; nv],
-        materials: vec![0; nv],
-        indices: vec![0; ni],
-        keys: vec![placeholder; nv],
-    };
-    // Cut the output into each chunk's ranges, in chunk order.
-    let mut work = Vec::with_capacity(placed.len());
-    let (mut pos, mut nrm, mut mat, mut key, mut idx) = (
-        &mut out.positions[..],
-        &mut out.normals[..],
-        &mut out.materials[..],
-        &mut out.keys[..],
-        &mut out.indices[..],
-    );
-    for (origin, mesh, place) in placed {
-        let (n, t) = (place.fresh.len(), mesh.indices.len());
-        let (p, rest) = std::mem::take(&mut pos).split_at_mut(n);
-        pos = rest;
-        let (q, rest) = std::mem::take(&mut nrm).split_at_mut(n);
-        nrm = rest;
-        let (m, rest) = std::mem::take(&mut mat).split_at_mut(n);
-        mat = rest;
-        let (k, rest) = std::mem::take(&mut key).split_at_mut(n);
-        key = rest;
-        let (x, rest) = std::mem::take(&mut idx).split_at_mut(t);
-        idx = rest;
-        work.push((origin, mesh, place, (p, q, m, k, x)));
+    /// Drops seam entries of vertices below the plane `z`, which no chunk
+    /// still to come can share: keeps the map small and in cache.
+    fn forget_seams_below(&mut self, z: u32) {
+        let z = z as i32;
+        self.seam.retain(|k, _| k.base.z >= z);
     }
-    work.into_par_iter()
-        .for_each(|(origin, mesh, place, (p, q, m, k, x))| {
-            let o = [origin.x as f32, origin.y as f32, origin.z as f32];
-            for (slot, &i) in place.fresh.iter().enumerate() {
-                let i = i as usize;
-                let v = mesh.positions[i];
-                p[slot] = [v[0] + o[0], v[1] + o[1], v[2] + o[2]];
-                q[slot] = mesh.normals[i];
-                m[slot] = mesh.materials[i];
-                k[slot] = mesh.keys[i];
-            }
-            for (dst, &i) in x.iter_mut().zip(&mesh.indices) {
-                *dst = place.remap[i as usize];
-            }
-        });
-    Ok(out)
+
+    fn finish(self) -> Mesh {
+        self.out
+    }
 }
 
 #[cfg(test)]
@@ -543,11 +593,11 @@ mod tests {
     fn sphere_across_seams_is_closed_with_euler_two() {
         let dims = [70, 70, 70];
         // Radius 26 around ~35 crosses the seams at 32 and 64 on every axis.
-        let vm = mesh(
-            dims,
-            &sphere(dims, [35.3, 34.6, 35.2], 26.0),
-            &Default::default(),
-        );
+        let keys = VolumeMeshOptions {
+            keys: true,
+            ..Default::default()
+        };
+        let vm = mesh(dims, &sphere(dims, [35.3, 34.6, 35.2], 26.0), &keys);
         let m = &vm.mesh;
         let edges = edge_uses(m);
         for (e, (uses, orient)) in &edges {
@@ -570,6 +620,22 @@ mod tests {
         assert_eq!(keys.len(), m.positions.len());
         assert_eq!(vm.stats.chunks, 27);
         assert!(vm.stats.empty_chunks > 0, "corner chunks hold no surface");
+    }
+
+    #[test]
+    fn keys_are_optional_and_change_nothing_else() {
+        let dims = [45, 37, 50];
+        let data = terrain(dims);
+        let plain = mesh(dims, &data, &Default::default());
+        let keyed = VolumeMeshOptions {
+            keys: true,
+            ..Default::default()
+        };
+        let mut with_keys = mesh(dims, &data, &keyed);
+        assert!(plain.mesh.keys.is_empty());
+        assert_eq!(with_keys.mesh.keys.len(), with_keys.mesh.positions.len());
+        with_keys.mesh.keys.clear();
+        assert_eq!(plain, with_keys);
     }
 
     /// Canonical triangles (rotated to start at the smallest corner, so the
@@ -736,6 +802,7 @@ mod tests {
             &data,
             &VolumeMeshOptions {
                 lod: 1,
+                keys: true,
                 ..Default::default()
             },
         );
