@@ -364,11 +364,6 @@ impl Engine {
             for (pos, version, _) in &out.batch.chunks {
                 self.versions.insert(*pos, *version);
             }
-            for (pos, _, _) in &out.batch.chunks {
-                let versions = &self.versions;
-                self.snapshots
-                    .forget_around(*pos, |p| versions.get(&p).copied().unwrap_or(0));
-            }
             for a in &out.applied {
                 metrics::counter!(m::EDITS_ACCEPTED).increment(1);
                 let msg = ServerMessage::EditAccepted {

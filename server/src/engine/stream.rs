@@ -19,35 +19,50 @@ use crate::net::writer::SendRefused;
 /// the same chunks.
 pub const SNAPSHOT_CACHE_ENTRIES: usize = 4096;
 
-/// Encoded snapshot frames by (chunk, version, full data rather than a patch).
+/// An encoded snapshot or patch and the update it encodes.
+#[derive(Debug)]
+struct Cached {
+    update: WorldUpdate,
+    frame: Bytes,
+}
+
+/// Snapshot frames by (chunk, version, full data rather than a patch).
+///
+/// A frame carries its chunk's mesh hash, which also depends on the
+/// neighbours, so a hit is reused only if that hash is still current; else
+/// only the (small) frame is re-encoded, not the chunk or the patch.
 #[derive(Debug, Default)]
 pub struct SnapshotCache {
-    frames: HashMap<(ChunkPos, u64, bool), Bytes>,
+    frames: HashMap<(ChunkPos, u64, bool), Cached>,
+}
+
+/// The mesh hash a snapshot or patch carries.
+fn mesh_hash_of(u: &mut WorldUpdate) -> Option<&mut u64> {
+    match u {
+        WorldUpdate::Snapshot { mesh_hash, .. } | WorldUpdate::Patched { mesh_hash, .. } => {
+            Some(mesh_hash)
+        }
+        _ => None,
+    }
 }
 
 impl SnapshotCache {
-    fn get(&self, pos: ChunkPos, version: u64, full: bool) -> Option<Bytes> {
-        self.frames.get(&(pos, version, full)).cloned()
+    /// The cached frame, re-encoded first if `mesh_hash` changed.
+    fn get(&mut self, key: (ChunkPos, u64, bool), mesh_hash: u64) -> Option<Bytes> {
+        let c = self.frames.get_mut(&key)?;
+        let held = mesh_hash_of(&mut c.update)?;
+        if *held != mesh_hash {
+            *held = mesh_hash;
+            c.frame = encode_update(&c.update);
+        }
+        Some(c.frame.clone())
     }
 
-    /// Drops the frames of the chunks around `pos`, which just changed: a
-    /// frame carries its chunk's mesh hash, and that mesh reads `pos`.
-    pub(super) fn forget_around(&mut self, pos: ChunkPos, version_of: impl Fn(ChunkPos) -> u64) {
-        if self.frames.is_empty() {
-            return;
-        }
-        for n in crate::sequencer::residency::with_neighbours(pos) {
-            let v = version_of(n);
-            self.frames.remove(&(n, v, false));
-            self.frames.remove(&(n, v, true));
-        }
-    }
-
-    fn put(&mut self, pos: ChunkPos, version: u64, full: bool, frame: Bytes) {
+    fn put(&mut self, key: (ChunkPos, u64, bool), update: WorldUpdate, frame: Bytes) {
         if self.frames.len() >= SNAPSHOT_CACHE_ENTRIES {
             self.frames.clear();
         }
-        self.frames.insert((pos, version, full), frame);
+        self.frames.insert(key, Cached { update, frame });
     }
 }
 
@@ -113,12 +128,13 @@ impl Engine {
             return Ok((frame, 0, "generated"));
         }
         let kind = if full { "full" } else { "patched" };
-        if let Some(f) = self.snapshots.get(pos, version, full) {
-            return Ok((f, version, kind));
-        }
         let around: Vec<ChunkPos> = crate::sequencer::residency::with_neighbours(pos).collect();
         self.make_resident(&around)?;
         let mesh_hash = self.seq.mesh_hash(pos);
+        let key = (pos, version, full);
+        if let Some(f) = self.snapshots.get(key, mesh_hash) {
+            return Ok((f, version, kind));
+        }
         let chunk = self.seq.chunk(pos);
         let update = if full {
             WorldUpdate::Snapshot {
@@ -136,7 +152,7 @@ impl Engine {
         };
         let frame = encode_update(&update);
         if version > 0 {
-            self.snapshots.put(pos, version, full, frame.clone());
+            self.snapshots.put(key, update, frame.clone());
         }
         Ok((frame, version, kind))
     }
