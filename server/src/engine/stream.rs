@@ -17,7 +17,7 @@ use crate::net::writer::SendRefused;
 
 /// Encoded snapshots kept for reuse: many sessions near one spot ask for
 /// the same chunks.
-pub const SNAPSHOT_CACHE_ENTRIES: usize = 4096;
+pub const SNAPSHOT_CACHE_ENTRIES: usize = 8192;
 
 /// An encoded snapshot or patch and the update it encodes.
 #[derive(Debug)]
@@ -151,9 +151,9 @@ impl Engine {
             WorldUpdate::Patched { delta, mesh_hash }
         };
         let frame = encode_update(&update);
-        if version > 0 {
-            self.snapshots.put(key, update, frame.clone());
-        }
+        // Full frames of version 0 are as costly to build (generate, compress,
+        // mesh) as any; end-of-run checks ask many sessions for the same ones.
+        self.snapshots.put(key, update, frame.clone());
         Ok((frame, version, kind))
     }
 }
