@@ -243,9 +243,9 @@ impl Replica {
                 let Some(g) = self.generator.clone() else {
                     return Some(Request::FullSnapshot(delta.pos));
                 };
-                self.stats.patched += 1;
                 let (pos, version, hash) = (delta.pos, delta.to_version, delta.target_hash);
                 let chunk = self.patched_chunk(&g, &delta);
+                self.stats.patched += u64::from(chunk.is_some());
                 self.take_whole(pos, version, hash, mesh_hash, chunk)
             }
             WorldUpdate::Delta(d) => self.apply_delta(d),

@@ -13,7 +13,6 @@ mod command;
 mod commit;
 mod fanout;
 mod generated;
-mod patch;
 mod peer;
 mod premesh;
 mod residency;
@@ -166,7 +165,7 @@ impl Engine {
             peers: HashMap::new(),
             versions,
             snapshots: Default::default(),
-            patch_bases: generated::GeneratedCache::new(patch::PATCH_BASE_CHUNKS),
+            patch_bases: generated::GeneratedCache::new(stream::PATCH_BASE_CHUNKS),
             last_evict: None,
             snapshots_running: Vec::new(),
             deferred: Default::default(),

@@ -1,11 +1,14 @@
 //! Streaming chunk snapshots to sessions, nearest first, under a per-tick
-//! byte budget per session.
+//! byte budget per session. A modified chunk goes to a client that can
+//! regenerate as a patch: a delta from its generated form, usually tens of
+//! times smaller than the chunk.
 
 use std::collections::HashMap;
 
 use bytes::Bytes;
 use strata_protocol::WorldUpdate;
 use strata_terrain::chunk_codec::encode_chunk;
+use strata_terrain::delta::ChunkDelta;
 use strata_terrain::hash::chunk_hash;
 use strata_terrain::ChunkPos;
 use tracing::error;
@@ -14,6 +17,9 @@ use super::fanout::encode_update;
 use super::Engine;
 use crate::metrics as m;
 use crate::net::writer::SendRefused;
+
+/// Generated chunks kept as patch bases (at most 64 KiB each).
+pub const PATCH_BASE_CHUNKS: usize = 512;
 
 /// Encoded snapshots kept for reuse: many sessions near one spot ask for
 /// the same chunks.
@@ -146,7 +152,8 @@ impl Engine {
             }
         } else {
             let base = self.patch_bases.get(pos, &**self.seq.world().generator());
-            let delta = super::patch::patch(pos, &base, &chunk, version)?;
+            // A patch: the delta from the generated chunk (version 0).
+            let delta = ChunkDelta::encode(pos, 0, version, &base, &chunk)?;
             metrics::counter!(m::PATCH_BYTES).increment(delta.payload.len() as u64);
             WorldUpdate::Patched { delta, mesh_hash }
         };
