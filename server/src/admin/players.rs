@@ -7,7 +7,7 @@ use clap::Args;
 use strata_protocol::admin::{AdminRequest, AdminResponse, PlayerInfo};
 use strata_terrain::Fixed;
 
-use super::remote::{request_once, Target, TargetArgs};
+use super::remote::TargetArgs;
 
 #[derive(Debug, Args)]
 pub struct PlayersArgs {
@@ -24,15 +24,9 @@ pub struct KickArgs {
 }
 
 fn online(target: &TargetArgs, req: AdminRequest) -> anyhow::Result<AdminResponse> {
-    let Target::Online {
-        server,
-        cert,
-        token,
-    } = target.target()?
-    else {
-        bail!("sessions exist only on a running server: use --server, --cert and --token");
-    };
-    request_once(server, &cert, &token, &req)
+    target.request_if_online(&req)?.ok_or_else(|| {
+        anyhow::anyhow!("sessions exist only on a running server: use --server, --cert and --token")
+    })
 }
 
 /// One line per session: id, player, role, position.

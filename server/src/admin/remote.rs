@@ -63,6 +63,19 @@ impl TargetArgs {
             _ => bail!("give either --data-dir, or --server with --cert and --token"),
         }
     }
+
+    /// Sends `req` to the server when the target is online and returns its
+    /// accepted answer; `None` when the target is a data dir.
+    pub fn request_if_online(&self, req: &AdminRequest) -> anyhow::Result<Option<AdminResponse>> {
+        match self.target()? {
+            Target::Online {
+                server,
+                cert,
+                token,
+            } => request_once(server, &cert, &token, req).map(Some),
+            Target::Offline(_) => Ok(None),
+        }
+    }
 }
 
 /// Opens the store of a stopped server's data dir.

@@ -10,7 +10,7 @@ use clap::{Args, Subcommand};
 use strata_protocol::admin::{AdminRequest, AdminResponse, ZoneSpec};
 use strata_terrain::VoxelPos;
 
-use super::remote::{open_offline_store, request_once, Target, TargetArgs};
+use super::remote::{open_offline_store, Target, TargetArgs};
 use crate::app::ZONES_BLOB;
 use crate::config::ServerConfig;
 use crate::engine::admin::zone_spec;
@@ -103,17 +103,10 @@ fn save(store: &dyn ChunkStore, zones: &[Zone]) -> anyhow::Result<Vec<ZoneSpec>>
 }
 
 fn online(target: &TargetArgs, req: AdminRequest) -> anyhow::Result<Option<Vec<ZoneSpec>>> {
-    let Target::Online {
-        server,
-        cert,
-        token,
-    } = target.target()?
-    else {
-        return Ok(None);
-    };
-    match request_once(server, &cert, &token, &req)? {
-        AdminResponse::Zones(z) => Ok(Some(z)),
-        other => bail!("unexpected answer {other:?}"),
+    match target.request_if_online(&req)? {
+        None => Ok(None),
+        Some(AdminResponse::Zones(z)) => Ok(Some(z)),
+        Some(other) => bail!("unexpected answer {other:?}"),
     }
 }
 
