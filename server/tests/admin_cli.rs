@@ -128,6 +128,9 @@ async fn admin_cli_online_then_offline() {
     let fresh = tmp.path().join("fresh");
     ok(&["snapshot", "restore", p(&snap), "--data-dir", p(&fresh)]);
     assert!(ok(&["zones", "list", "--data-dir", p(&fresh)]).contains("vault"));
+    // Sessions exist only on a running server.
+    let msg = fails(&["players", "list", "--data-dir", p(&fresh)]);
+    assert!(msg.contains("only on a running server"), "{msg}");
 
     // One corrupt byte in the header's zones: verify names it, restore refuses.
     let mut bytes = std::fs::read(&snap).unwrap();
