@@ -10,37 +10,63 @@ use strata_server::app;
 use strata_server::config::ServerConfig;
 use strata_server::store::SledStore;
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn builders_converge_and_every_ack_is_stored() {
-    let tmp = tempfile::tempdir().unwrap();
+async fn start_server(tmp: &tempfile::TempDir) -> app::Running {
     let mut cfg = ServerConfig::default();
     cfg.server.listen = "127.0.0.1:0".parse().unwrap();
     cfg.server.data_dir = tmp.path().join("data");
-    let server = app::start(cfg).await.unwrap();
-    let acks = tmp.path().join("acks.jsonl");
-    let run = BotsConfig {
+    app::start(cfg).await.unwrap()
+}
+
+/// A short run against `server` with minted tokens; tests override fields.
+fn config_for(server: &app::Running) -> BotsConfig {
+    BotsConfig {
         server: server.addr,
         cert_der: server.cert_der.clone(),
         tokens: Tokens::Minted(server.data_dir.secret().clone()),
-        bots: 4,
-        duration: Duration::from_secs(3),
-        profile: Profile::Builders,
+        bots: 2,
+        duration: Duration::from_secs(2),
+        profile: Profile::Mixed,
         edit_rate: 2.0,
         view_radius: 2,
         verify: VerifyMode::Modified,
-        seed: 7,
+        seed: 1,
         stalled: 0,
-        ack_log: Some(acks.clone()),
+        ramp: true,
+        ack_log: None,
         progress: false,
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
-    };
+    }
+}
+
+/// Runs the bots to the end and checks every replica converged.
+async fn run_consistent(run: BotsConfig) -> bots::Summary {
     let s = tokio::time::timeout(Duration::from_secs(90), bots::run(run))
         .await
         .expect("the run ends")
         .unwrap();
     assert!(s.consistent(), "{}", s.human());
+    s
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn builders_converge_and_every_ack_is_stored() {
+    let tmp = tempfile::tempdir().unwrap();
+    let server = start_server(&tmp).await;
+    let acks = tmp.path().join("acks.jsonl");
+    let run = BotsConfig {
+        bots: 4,
+        duration: Duration::from_secs(3),
+        profile: Profile::Builders,
+        seed: 7,
+        ack_log: Some(acks.clone()),
+        ..config_for(&server)
+    };
+    let s = run_consistent(run).await;
     assert_eq!(s.connected_at_end, 4);
+    // Every bot joined before the edits started.
+    assert_eq!(s.ready_at_start, 4);
+    assert!(s.ramp_s > 0.0);
     assert!(s.edits_accepted >= 10, "{}", s.human());
     assert!(
         s.chunks_verified > 0 && s.broadcast_latency_ms.count > 0,
@@ -52,6 +78,24 @@ async fn builders_converge_and_every_ack_is_stored() {
     assert_eq!(records.len() as u64, s.edits_accepted);
     let report = verify(&SledStore::open(&db).unwrap(), &records).unwrap();
     assert!(report.ok(), "{report:?}");
+}
+
+#[tokio::test]
+async fn without_a_ramp_bots_edit_while_others_join() {
+    let tmp = tempfile::tempdir().unwrap();
+    let server = start_server(&tmp).await;
+    let run = BotsConfig {
+        bots: 3,
+        duration: Duration::from_secs(2),
+        profile: Profile::Miners,
+        seed: 3,
+        ramp: false,
+        ..config_for(&server)
+    };
+    let s = run_consistent(run).await;
+    assert_eq!((s.ready_at_start, s.ramp_s), (0, 0.0), "no ramp phase");
+    assert!(s.edits_accepted > 0, "{}", s.human());
+    server.shutdown().await.unwrap();
 }
 
 #[tokio::test]
@@ -68,6 +112,7 @@ async fn bad_settings_are_refused_before_connecting() {
         verify: VerifyMode::All,
         seed: 1,
         stalled: 3,
+        ramp: true,
         ack_log: None,
         progress: false,
         area_origin: bots::DEFAULT_AREA_ORIGIN,
@@ -77,6 +122,7 @@ async fn bad_settings_are_refused_before_connecting() {
     assert!(e.to_string().contains("--stalled"), "{e}");
     let e = bots::run(BotsConfig {
         stalled: 0,
+        ramp: true,
         view_radius: 0,
         ..run
     })

@@ -402,6 +402,12 @@ impl ServerConfig {
         )?;
         range("engine.tick_ms", self.engine.tick_ms, 1, MAX_TICK_MS)?;
         range(
+            "engine.stream_us",
+            self.engine.stream_us,
+            1,
+            crate::engine::MAX_STREAM_US,
+        )?;
+        range(
             "engine.command_queue",
             self.engine.command_queue,
             1,

@@ -113,7 +113,10 @@ impl Interest {
 
     /// Whether deltas of `pos` go to this session.
     pub fn covers(&self, pos: ChunkPos) -> bool {
-        self.subscribed.contains(&pos)
+        // Every subscribed chunk is within the keep distance of the center:
+        // most sessions are ruled out without a set lookup.
+        let keep = self.radius as u32 + self.cfg.hysteresis as u32;
+        self.center.is_some_and(|c| pos.chebyshev(c) <= keep) && self.subscribed.contains(&pos)
     }
 
     /// Every covered chunk, in position order.

@@ -11,6 +11,7 @@ pub const EDITS_REJECTED: &str = "strata_edits_rejected_total";
 pub const QUEUE_DEPTH: &str = "strata_sequencer_queue_depth";
 pub const FLUSH_SECONDS: &str = "strata_flush_seconds";
 pub const TICK_SECONDS: &str = "strata_tick_seconds";
+pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
 pub const DELTAS_DROPPED: &str = "strata_deltas_dropped_total";
@@ -28,11 +29,16 @@ pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
         .with_http_listener(addr)
         .install()?;
     metrics::describe_gauge!(CONNECTIONS, "Open QUIC connections");
+    metrics::describe_counter!(SESSIONS_TOTAL, "Sessions that joined the world");
     metrics::describe_counter!(EDITS_ACCEPTED, "Edits acknowledged after they were durable");
     metrics::describe_counter!(EDITS_REJECTED, "Edits refused, by reason");
     metrics::describe_gauge!(QUEUE_DEPTH, "Edits waiting for the sequencer");
     metrics::describe_histogram!(FLUSH_SECONDS, "Group-commit latency");
     metrics::describe_histogram!(TICK_SECONDS, "Sequencer tick duration");
+    metrics::describe_histogram!(
+        EDIT_LATENCY_SECONDS,
+        "From the engine taking an edit to its acknowledgement (durable)"
+    );
     metrics::describe_histogram!(
         TICK_PHASE_SECONDS,
         "Tick time by phase: apply, commit, mesh_wait, fanout, stream, evict"
@@ -43,7 +49,7 @@ pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
     metrics::describe_counter!(PREMESH_STALE, "Background meshes dropped as outdated");
     metrics::describe_counter!(
         PREMESH_SKIPPED,
-        "Background mesh requests refused (queue full)"
+        "Player chunks dropped from the full background-mesh backlog"
     );
     metrics::describe_counter!(
         PATCH_BYTES,

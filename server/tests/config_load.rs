@@ -182,6 +182,7 @@ fn bad_values_name_their_field() {
         ("[engine]\ncommand_queue = 0", "engine.command_queue"),
         ("[engine]\npremesh_radius = 9", "engine.premesh_radius"),
         ("[engine]\npremesh_inflight = 0", "engine.premesh_inflight"),
+        ("[engine]\nstream_us = 0", "engine.stream_us"),
         ("[engine]\nresident_chunks = 3", "engine.resident_chunks"),
         (
             "[engine]\nsnapshot_preimages = 0",

@@ -1,5 +1,6 @@
 //! The Prometheus endpoint of a real server process reports connections,
-//! edits by outcome and reason, flush latency and bytes sent.
+//! sessions, edits by outcome and reason, edit and flush latency, bytes
+//! sent and background meshing.
 
 mod common;
 
@@ -17,7 +18,11 @@ async fn metrics_count_what_happened() {
         let data = root.path().join("data");
         // A free port for the exporter (it takes a fixed address).
         let metrics = free_metrics_addr();
-        let config = format!("{FAST_EDITS}[metrics]\nlisten = \"{metrics}\"\n");
+        // Room for 4 background meshes: the other 23 around the player wait
+        // in the backlog and are meshed as room frees up.
+        let config = format!(
+            "{FAST_EDITS}[metrics]\nlisten = \"{metrics}\"\n[engine]\npremesh_inflight = 4\n"
+        );
         let (mut child, addr) = spawn_server(&data, &config);
         let c = process_client(&data, addr, "ana").await;
         let g = Generator::fractal(GenParams::default()).unwrap();
@@ -43,6 +48,8 @@ async fn metrics_count_what_happened() {
         let text = scrape(metrics);
         for needle in [
             "strata_connections 1",
+            "strata_sessions_total 1",
+            "strata_edit_latency_seconds_count 1",
             "strata_edits_accepted_total 1",
             "strata_edits_rejected_total{reason=\"reach\"} 1",
             "strata_flush_seconds",

@@ -81,6 +81,11 @@ struct Args {
     /// client); they keep editing and are left out of the comparison.
     #[arg(long, default_value_t = 0)]
     stalled: usize,
+    /// Let each bot edit as soon as it stands in the world, while the others
+    /// still join (a join storm under load). By default the edits, and the
+    /// DURATION, start once every bot has joined and loaded its surroundings.
+    #[arg(long)]
+    no_ramp: bool,
     /// Reconnect when the server has been silent this long despite pings
     /// (a killed server's connections otherwise linger until QUIC's idle
     /// timeout).
@@ -180,6 +185,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         verify: args.verify,
         seed: args.seed,
         stalled: args.stalled,
+        ramp: !args.no_ramp,
         ack_log: args.ack_log,
         progress: true,
         area_origin: bots::DEFAULT_AREA_ORIGIN,

@@ -65,6 +65,11 @@ struct Loop {
     last_bytes: u64,
     next_edit: Instant,
     interval: Option<Duration>,
+    /// This bot's offset into each edit interval, so edits spread out.
+    edit_offset: Duration,
+    /// When this bot starts walking and editing: the bots start one by one
+    /// over the first interval, not all at the same instant.
+    active_from: Instant,
     pings: u64,
 }
 
@@ -86,6 +91,7 @@ pub struct BotOutcome {
     pub unverified: u64,
     verified: bool,
     counted_finished: bool,
+    counted_ready: bool,
 }
 
 fn add_stats(a: &mut ReplicaStats, b: &ReplicaStats) {
@@ -287,14 +293,16 @@ impl Bot {
         }
         let interval = (self.fleet.cfg.edit_rate > 0.0)
             .then(|| Duration::from_secs_f64(1.0 / self.fleet.cfg.edit_rate));
+        // Spread the bots' edits over the first interval.
+        let edit_offset = interval.map_or(Duration::ZERO, |i| i.mul_f64(self.rng.unit()));
         let mut st = Loop {
             steps: 0,
             subscribed,
             last_bytes: client.bytes_in(),
-            // Spread the bots' edits over the first interval.
-            next_edit: Instant::now()
-                + interval.map_or(Duration::ZERO, |i| i.mul_f64(self.rng.unit())),
+            next_edit: Instant::now() + edit_offset,
             interval,
+            edit_offset,
+            active_from: Instant::now() + edit_offset,
             pings: 0,
         };
         let mut ticker = tokio::time::interval(STEP);
@@ -354,6 +362,20 @@ impl Bot {
         }
         let radius = self.fleet.cfg.view_radius;
         match self.phase() {
+            Phase::Ramp => {
+                if !self.out.counted_ready {
+                    self.out.counted_ready = true;
+                    self.fleet.ready.fetch_add(1, Ordering::Relaxed);
+                }
+                let b = client.bytes_in();
+                if b != st.last_bytes {
+                    st.last_bytes = b;
+                    self.fleet.touch();
+                }
+                st.next_edit = Instant::now() + st.edit_offset;
+                st.active_from = st.next_edit;
+            }
+            Phase::Run if Instant::now() < st.active_from => {}
             Phase::Run => {
                 let walker = self.walker.as_mut().expect("set by session");
                 walker.step(&client.replica(), STEP.as_secs_f64(), &mut self.rng);

@@ -50,6 +50,9 @@ pub const TOKEN_TTL: Duration = Duration::from_secs(24 * 3600);
 pub const CONNECT_CONCURRENCY: usize = 32;
 /// The world counts as quiet after this long without an update at any bot.
 pub const QUIET_PERIOD: Duration = Duration::from_millis(750);
+/// Longest wait for every bot to join and load its surroundings before the
+/// edits start anyway.
+pub const RAMP_TIMEOUT: Duration = Duration::from_secs(60);
 /// Longest wait for quiet before checking anyway.
 pub const QUIET_TIMEOUT: Duration = Duration::from_secs(30);
 /// Longest wait for every bot to finish its end-of-run check.
@@ -141,6 +144,9 @@ pub struct BotsConfig {
     pub seed: u64,
     /// The first `stalled` bots stop reading their updates once spawned.
     pub stalled: usize,
+    /// Hold the edits until every bot has joined ([`Phase::Ramp`]); false
+    /// lets each bot edit as soon as it stands, while others still join.
+    pub ramp: bool,
     pub ack_log: Option<PathBuf>,
     pub progress: bool,
     pub area_origin: (i32, i32),
@@ -187,6 +193,9 @@ impl BotsConfig {
 /// Phases of a run, in order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Phase {
+    /// Join, find footing and load the surroundings; no edits yet, so the
+    /// measured run is 'N players online', not a join storm.
+    Ramp,
     /// Walk and edit.
     Run,
     /// Stop editing and moving; wait for the world to go quiet.
@@ -216,6 +225,8 @@ pub struct Fleet {
     last_activity_ms: AtomicU64,
     /// Bots that finished their end-of-run check (or gave up).
     finished: AtomicUsize,
+    /// Bots that joined and found footing during the ramp.
+    ready: AtomicUsize,
     generator: OnceLock<Option<Generator>>,
     started: Instant,
 }
@@ -223,6 +234,7 @@ pub struct Fleet {
 impl Fleet {
     fn phase_name(&self) -> &'static str {
         match *self.phase.borrow() {
+            Phase::Ramp => "joining",
             Phase::Run => "editing",
             Phase::Quiesce => "waiting for quiet",
             Phase::Verify => "verifying",
@@ -284,7 +296,8 @@ pub async fn run(cfg: BotsConfig) -> Result<Summary, BotsError> {
     };
     // Fail early on a token problem rather than in every bot.
     cfg.tokens.token(0)?;
-    let (phase, _) = watch::channel(Phase::Run);
+    let first = if cfg.ramp { Phase::Ramp } else { Phase::Run };
+    let (phase, _) = watch::channel(first);
     let fleet = Arc::new(Fleet {
         cfg: cfg.clone(),
         stats: Stats::default(),
@@ -297,6 +310,7 @@ pub async fn run(cfg: BotsConfig) -> Result<Summary, BotsError> {
         in_flight: AtomicUsize::new(0),
         last_activity_ms: AtomicU64::new(0),
         finished: AtomicUsize::new(0),
+        ready: AtomicUsize::new(0),
         generator: OnceLock::new(),
         started: Instant::now(),
     });
@@ -306,8 +320,27 @@ pub async fn run(cfg: BotsConfig) -> Result<Summary, BotsError> {
     let bots: Vec<_> = (0..cfg.bots)
         .map(|i| tokio::spawn(driver::run_bot(fleet.clone(), i)))
         .collect();
+    // Edits start once every bot stands in the world and snapshots have
+    // stopped arriving.
+    let ramp_start = Instant::now();
+    while cfg.ramp
+        && (fleet.ready.load(Ordering::Relaxed) < cfg.bots || fleet.quiet_for() < QUIET_PERIOD)
+        && ramp_start.elapsed() < RAMP_TIMEOUT
+    {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let ramp = if cfg.ramp {
+        ramp_start.elapsed()
+    } else {
+        Duration::ZERO
+    };
+    let ready_at_start = fleet.ready.load(Ordering::Relaxed);
+    fleet.stats.ack.restart_timeline();
+    fleet.stats.broadcast.restart_timeline();
+    fleet.phase.send_replace(Phase::Run);
+    let edit_start = Instant::now();
     tokio::time::sleep(cfg.duration).await;
-    let edit_time = fleet.started.elapsed();
+    let edit_time = edit_start.elapsed();
 
     fleet.phase.send_replace(Phase::Quiesce);
     fleet.touch();
@@ -346,6 +379,8 @@ pub async fn run(cfg: BotsConfig) -> Result<Summary, BotsError> {
         bar.finish_and_clear();
     }
     let mut summary = summarize(&fleet, &outcomes, edit_time, quiet);
+    summary.ramp_s = ramp.as_secs_f64();
+    summary.ready_at_start = ready_at_start;
     summary.quiet_wait_s = timings.0.as_secs_f64();
     summary.verify_s = timings.1.as_secs_f64();
     Ok(summary)

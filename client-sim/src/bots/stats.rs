@@ -21,7 +21,8 @@ fn histogram() -> Histogram<u64> {
 /// A latency histogram in microseconds, overall and per second of the run.
 #[derive(Debug)]
 pub struct Latencies {
-    start: Instant,
+    /// Second 0 of the timeline: the start of the edits.
+    start: Mutex<Instant>,
     all: Mutex<Histogram<u64>>,
     by_second: Mutex<Vec<Histogram<u64>>>,
 }
@@ -29,7 +30,7 @@ pub struct Latencies {
 impl Default for Latencies {
     fn default() -> Self {
         Self {
-            start: Instant::now(),
+            start: Mutex::new(Instant::now()),
             all: Mutex::new(histogram()),
             by_second: Mutex::new(Vec::new()),
         }
@@ -65,12 +66,19 @@ impl Latencies {
     pub fn record(&self, d: Duration) {
         let us = (d.as_micros() as u64).clamp(1, MAX_LATENCY_US);
         self.all.lock().expect("not poisoned").saturating_record(us);
-        let second = (self.start.elapsed().as_secs() as usize).min(TIMELINE_SECONDS - 1);
+        let start = *self.start.lock().expect("not poisoned");
+        let second = (start.elapsed().as_secs() as usize).min(TIMELINE_SECONDS - 1);
         let mut by = self.by_second.lock().expect("not poisoned");
         if by.len() <= second {
             by.resize_with(second + 1, histogram);
         }
         by[second].saturating_record(us);
+    }
+
+    /// Starts the per-second timeline now.
+    pub fn restart_timeline(&self) {
+        *self.start.lock().expect("not poisoned") = Instant::now();
+        self.by_second.lock().expect("not poisoned").clear();
     }
 
     pub fn summary(&self) -> LatencyMs {

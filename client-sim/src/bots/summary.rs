@@ -83,6 +83,11 @@ pub struct Summary {
     pub ack_missing: u64,
     /// The world went quiet before the end-of-run check.
     pub quiet: bool,
+    /// Seconds from the start until every bot had joined and loaded its
+    /// surroundings (at most the ramp timeout); edits start after it.
+    pub ramp_s: f64,
+    /// Bots ready when the edits started.
+    pub ready_at_start: usize,
     /// Seconds spent waiting for quiet, then comparing with the server.
     pub quiet_wait_s: f64,
     pub verify_s: f64,

@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 
 use bytes::{Bytes, BytesMut};
+use rustc_hash::FxHashMap;
 use strata_protocol::{encode_frame, DeltaUpdate, Direction, ServerMessage, WorldUpdate};
 use strata_terrain::ChunkPos;
 
@@ -32,7 +33,7 @@ pub fn encode_control(msg: &ServerMessage) -> Bytes {
 /// chunks later; it never slows the others down.
 pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_seq: u64) {
     // Per session: the frames of its deltas, and the chunks they change.
-    let mut out: HashMap<u64, (BytesMut, Vec<ChunkPos>)> = HashMap::new();
+    let mut out: FxHashMap<u64, (BytesMut, Vec<ChunkPos>)> = FxHashMap::default();
     for a in applied {
         for c in &a.changes {
             let frame = encode_update(&WorldUpdate::Delta(DeltaUpdate {
@@ -41,8 +42,8 @@ pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_s
                 seq: a.seq,
             }));
             for (id, p) in peers.iter_mut() {
-                // `known` holds only covered chunks; it is the cheaper test.
-                if p.known.get(&c.pos) != Some(&c.from_version) || !p.interest.covers(c.pos) {
+                // `covers` rules most sessions out by distance alone.
+                if !p.interest.covers(c.pos) || p.known.get(&c.pos) != Some(&c.from_version) {
                     continue;
                 }
                 p.known.insert(c.pos, c.to_version);

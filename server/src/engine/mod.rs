@@ -43,6 +43,10 @@ use peer::Peer;
 
 /// Default tick period.
 pub const DEFAULT_TICK_MS: u64 = 10;
+/// Default microseconds of snapshot streaming per tick, for all sessions.
+pub const DEFAULT_STREAM_US: u64 = 2_000;
+/// Longest allowed streaming time per tick.
+pub const MAX_STREAM_US: u64 = 1_000_000;
 /// Longest allowed tick period.
 pub const MAX_TICK_MS: u64 = 1000;
 /// Default capacity of the session-to-engine command queue.
@@ -56,6 +60,9 @@ pub const MAX_COMMAND_QUEUE: usize = 1 << 20;
 pub struct EngineConfig {
     /// Milliseconds between ticks.
     pub tick_ms: u64,
+    /// Microseconds of snapshot streaming per tick, for all sessions
+    /// ([`DEFAULT_STREAM_US`]); the rest waits for later ticks.
+    pub stream_us: u64,
     /// Commands queued from sessions before new ones are refused.
     pub command_queue: usize,
     /// Chunks around each player meshed in the background ([`DEFAULT_PREMESH_RADIUS`]).
@@ -73,6 +80,7 @@ impl Default for EngineConfig {
     fn default() -> Self {
         Self {
             tick_ms: DEFAULT_TICK_MS,
+            stream_us: DEFAULT_STREAM_US,
             command_queue: DEFAULT_COMMAND_QUEUE,
             premesh_radius: DEFAULT_PREMESH_RADIUS,
             premesh_inflight: DEFAULT_PREMESH_INFLIGHT,
@@ -111,6 +119,8 @@ pub struct Engine {
     /// Durable version of every modified chunk (absent = version 0).
     versions: HashMap<ChunkPos, u64>,
     snapshots: stream::SnapshotCache,
+    /// The session last streamed to; the next tick starts after it.
+    stream_cursor: u64,
     patch_bases: generated::GeneratedCache,
     premesh: premesh::Premesher,
     last_evict: Option<Instant>,
@@ -165,6 +175,7 @@ impl Engine {
             peers: HashMap::new(),
             versions,
             snapshots: Default::default(),
+            stream_cursor: 0,
             patch_bases: generated::GeneratedCache::new(stream::PATCH_BASE_CHUNKS),
             last_evict: None,
             snapshots_running: Vec::new(),
@@ -227,6 +238,7 @@ impl Engine {
                 kick,
             } => {
                 self.seq.session_joined(session, player, role);
+                metrics::counter!(m::SESSIONS_TOTAL).increment(1);
                 let interest = Interest::new(self.interest, self.bounds);
                 self.peers
                     .insert(session, Peer::new(control, updates, interest, kick));
@@ -365,6 +377,8 @@ impl Engine {
             }
             for a in &out.applied {
                 metrics::counter!(m::EDITS_ACCEPTED).increment(1);
+                metrics::histogram!(m::EDIT_LATENCY_SECONDS)
+                    .record(a.queued_at.elapsed().as_secs_f64());
                 let msg = ServerMessage::EditAccepted {
                     client_edit_id: a.client_edit_id,
                     seq: a.seq,

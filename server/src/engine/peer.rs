@@ -1,7 +1,9 @@
 //! The engine's view of one connected session: what it sees, what it has,
 //! and what it still needs to be sent.
 
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::{HashSet, VecDeque};
+
+use rustc_hash::FxHashMap;
 
 use strata_terrain::ChunkPos;
 
@@ -17,8 +19,9 @@ pub struct Peer {
     pub control: FrameSender,
     pub updates: FrameSender,
     pub interest: Interest,
-    /// Chunk versions the client holds (sent to it, in order).
-    pub known: HashMap<ChunkPos, u64>,
+    /// Chunk versions the client holds (sent to it, in order). Fx-hashed:
+    /// fanout looks up every change in every nearby session's map.
+    pub known: FxHashMap<ChunkPos, u64>,
     /// Chunks to send as snapshots, nearest first.
     pub pending: VecDeque<ChunkPos>,
     /// Chunks the client asked to receive as full data even at version 0.
@@ -41,7 +44,7 @@ impl Peer {
             control,
             updates,
             interest,
-            known: HashMap::new(),
+            known: FxHashMap::default(),
             pending: VecDeque::new(),
             full_data: HashSet::new(),
             failed: false,

@@ -8,7 +8,7 @@
 //! rayon pool, never ahead of a tick's meshes. A finished mesh is cached
 //! only if none of the 27 chunks it read changed version meanwhile.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::sync::{Arc, Mutex};
 
@@ -25,8 +25,11 @@ use crate::validate::position::feet_voxel;
 pub const DEFAULT_PREMESH_RADIUS: u8 = 1;
 /// Largest allowed premesh radius.
 pub const MAX_PREMESH_RADIUS: u8 = 3;
-/// Chunks being meshed in the background at most; more requests wait for a later move.
+/// Chunks being meshed in the background at most; the rest wait in the backlog.
 pub const DEFAULT_PREMESH_INFLIGHT: usize = 64;
+/// Player chunks whose surroundings wait for room in the background mesher;
+/// past this, the oldest are dropped (they are meshed on demand instead).
+pub const PREMESH_BACKLOG: usize = 4096;
 /// Threads of the background meshing pool.
 pub const PREMESH_THREADS: usize = 1;
 /// Generated chunks the background mesher keeps for reuse (about 64 KiB each at most).
@@ -93,6 +96,8 @@ pub struct Premesher {
     tx: SyncSender<PremeshResult>,
     rx: Receiver<PremeshResult>,
     cache: Arc<Mutex<GeneratedCache>>,
+    /// Centers waiting for room, oldest first.
+    backlog: VecDeque<ChunkPos>,
 }
 
 impl std::fmt::Debug for Premesher {
@@ -120,6 +125,7 @@ impl Premesher {
             tx,
             rx,
             cache: Arc::new(Mutex::new(GeneratedCache::new(GENERATED_CACHE_CHUNKS))),
+            backlog: VecDeque::new(),
         })
     }
 
@@ -131,6 +137,35 @@ impl Premesher {
     /// Room for `n` more chunks.
     pub fn has_room(&self, n: usize) -> bool {
         self.inflight.len() + n <= self.max_inflight
+    }
+
+    /// Chunks that can still be queued.
+    pub fn room(&self) -> usize {
+        self.max_inflight.saturating_sub(self.inflight.len())
+    }
+
+    /// Remembers `center` until there is room; false if the backlog was
+    /// full and its oldest center was dropped.
+    pub fn defer(&mut self, center: ChunkPos) -> bool {
+        if self.backlog.contains(&center) {
+            return true;
+        }
+        let dropped = self.backlog.len() >= PREMESH_BACKLOG;
+        if dropped {
+            self.backlog.pop_front();
+        }
+        self.backlog.push_back(center);
+        !dropped
+    }
+
+    /// Centers waiting for room.
+    pub fn backlog_len(&self) -> usize {
+        self.backlog.len()
+    }
+
+    /// The oldest center waiting for room.
+    pub fn next_deferred(&mut self) -> Option<ChunkPos> {
+        self.backlog.pop_front()
     }
 
     /// Queues `job`; false (and nothing queued) if it does not fit or a
@@ -202,9 +237,15 @@ impl super::Engine {
             return;
         }
         peer.premeshed = Some(center);
+        self.premesh_center(center);
+    }
+
+    /// Queues meshes for the chunks around `center` that have none, nearest
+    /// first, as many as there is room for; the rest wait in the backlog.
+    fn premesh_center(&mut self, center: ChunkPos) {
         let version_of =
             |versions: &HashMap<ChunkPos, u64>, p: ChunkPos| versions.get(&p).copied().unwrap_or(0);
-        let targets: Vec<PremeshTarget> = around(center, radius)
+        let mut targets: Vec<PremeshTarget> = around(center, self.cfg.premesh_radius)
             .into_iter()
             .filter(|p| !self.premesh.is_inflight(*p))
             .filter(|p| {
@@ -220,9 +261,15 @@ impl super::Engine {
         if targets.is_empty() {
             return;
         }
-        if !self.premesh.has_room(targets.len()) {
-            metrics::counter!(m::PREMESH_SKIPPED).increment(targets.len() as u64);
-            return;
+        let room = self.premesh.room();
+        if room < targets.len() {
+            targets.truncate(room);
+            if !self.premesh.defer(center) {
+                metrics::counter!(m::PREMESH_SKIPPED).increment(1);
+            }
+            if targets.is_empty() {
+                return;
+            }
         }
         let mut reads: Vec<ChunkPos> = targets
             .iter()
@@ -255,6 +302,15 @@ impl super::Engine {
                 self.seq.insert_collision_mesh(r.mesh);
             } else {
                 metrics::counter!(m::PREMESH_STALE).increment(1);
+            }
+        }
+        // Refill from the backlog; a center not fully queued goes back.
+        let mut waiting = self.premesh.backlog_len();
+        while waiting > 0 && self.premesh.room() > 0 {
+            waiting -= 1;
+            match self.premesh.next_deferred() {
+                Some(center) => self.premesh_center(center),
+                None => break,
             }
         }
     }

@@ -1,11 +1,12 @@
 //! Streaming chunk snapshots to sessions, nearest first, under a per-tick
-//! byte budget per session. A modified chunk goes to a client that can
+//! byte budget per session and a time budget per tick for all of them. A modified chunk goes to a client that can
 //! regenerate as a patch: a delta from its generated form, usually tens of
 //! times smaller than the chunk.
 
 use std::collections::HashMap;
+use std::time::{Duration, Instant};
 
-use bytes::Bytes;
+use bytes::{Bytes, BytesMut};
 use strata_protocol::WorldUpdate;
 use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::delta::ChunkDelta;
@@ -73,49 +74,88 @@ impl SnapshotCache {
 }
 
 impl Engine {
+    /// Streams pending snapshots, one batch (one queue slot) per session,
+    /// until the tick's streaming time is spent. Sessions are served in turn
+    /// from where the last tick stopped, so a join storm delays snapshots,
+    /// never the tick's edits.
     pub(super) fn stream_snapshots(&mut self) {
+        let deadline = Instant::now() + Duration::from_micros(self.cfg.stream_us);
+        let mut ids: Vec<u64> = self
+            .peers
+            .iter()
+            .filter(|(_, p)| !p.pending.is_empty())
+            .map(|(id, _)| *id)
+            .collect();
+        ids.sort_unstable();
+        // Resume after the session served last.
+        let start = ids.partition_point(|id| *id <= self.stream_cursor);
+        ids.rotate_left(start);
+        for (i, id) in ids.into_iter().enumerate() {
+            // At least one session per tick, however small the budget.
+            if i > 0 && Instant::now() >= deadline {
+                break;
+            }
+            self.stream_cursor = id;
+            self.stream_batch(id, deadline);
+        }
+    }
+
+    /// Sends one session up to its byte budget of snapshots (and until
+    /// `deadline`) as one batch, once its previous batch went to the writer.
+    fn stream_batch(&mut self, id: u64, deadline: Instant) {
         let budget = self.stream.send_budget;
-        let ids: Vec<u64> = self.peers.keys().copied().collect();
-        for id in ids {
-            let mut spent = 0usize;
-            while spent < budget {
-                let Some(p) = self.peers.get_mut(&id) else {
-                    break;
-                };
-                if p.failed || p.updates.capacity() == 0 {
-                    break;
+        let mut batch = BytesMut::new();
+        let mut sent: Vec<(ChunkPos, u64, &'static str)> = Vec::new();
+        while batch.len() < budget && (batch.is_empty() || Instant::now() < deadline) {
+            let Some(p) = self.peers.get_mut(&id) else {
+                return;
+            };
+            // One batch in flight at most: a delta queued after it then
+            // waits behind one batch of snapshots, not many.
+            if p.failed || (batch.is_empty() && !p.updates.is_idle()) {
+                break;
+            }
+            let Some(pos) = p.pending.pop_front() else {
+                break;
+            };
+            if !p.interest.covers(pos) {
+                continue;
+            }
+            let full = p.full_data.contains(&pos);
+            match self.snapshot_frame(pos, full) {
+                Ok((frame, version, kind)) => {
+                    batch.extend_from_slice(&frame);
+                    sent.push((pos, version, kind));
                 }
-                let Some(pos) = p.pending.pop_front() else {
+                Err(e) => {
+                    error!(error = %e, ?pos, "cannot build a snapshot");
+                    // Tried again after the session's other chunks.
+                    if let Some(p) = self.peers.get_mut(&id) {
+                        p.pending.push_back(pos);
+                    }
                     break;
-                };
-                if !p.interest.covers(pos) {
-                    continue;
-                }
-                let full = p.full_data.contains(&pos);
-                let (frame, version, kind) = match self.snapshot_frame(pos, full) {
-                    Ok(f) => f,
-                    Err(e) => {
-                        error!(error = %e, ?pos, "cannot build a snapshot");
-                        break;
-                    }
-                };
-                spent += frame.len();
-                let p = self.peers.get_mut(&id).expect("checked above");
-                match p.updates.try_send(frame) {
-                    Ok(()) => {
-                        p.known.insert(pos, version);
-                        metrics::counter!(m::SNAPSHOTS_SENT, "kind" => kind).increment(1);
-                    }
-                    Err(SendRefused::Full) => {
-                        p.pending.push_front(pos);
-                        break;
-                    }
-                    Err(SendRefused::Closed) => {
-                        p.failed = true;
-                        break;
-                    }
                 }
             }
+        }
+        let Some(p) = self.peers.get_mut(&id) else {
+            return;
+        };
+        if sent.is_empty() {
+            return;
+        }
+        match p.updates.try_send(batch.freeze()) {
+            Ok(()) => {
+                for (pos, version, kind) in sent {
+                    p.known.insert(pos, version);
+                    metrics::counter!(m::SNAPSHOTS_SENT, "kind" => kind).increment(1);
+                }
+            }
+            Err(SendRefused::Full) => {
+                for (pos, _, _) in sent.into_iter().rev() {
+                    p.pending.push_front(pos);
+                }
+            }
+            Err(SendRefused::Closed) => p.failed = true,
         }
     }
 

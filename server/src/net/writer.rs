@@ -38,6 +38,11 @@ impl FrameSender {
         self.0.capacity()
     }
 
+    /// Whether every queued frame has been taken by the writer.
+    pub fn is_idle(&self) -> bool {
+        self.0.capacity() == self.0.max_capacity()
+    }
+
     pub fn is_closed(&self) -> bool {
         self.0.is_closed()
     }

@@ -31,6 +31,8 @@ pub struct AppliedEdit {
     pub edit: Edit,
     /// Chunks whose voxels changed, in (z, y, x) order; may be empty.
     pub changes: Vec<ChunkUpdate>,
+    /// When the engine took the request.
+    pub queued_at: std::time::Instant,
 }
 
 /// A queued edit that failed when applied (validation should prevent this).

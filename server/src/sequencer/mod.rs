@@ -37,6 +37,8 @@ struct Queued {
     session_id: u64,
     player: String,
     request: EditRequest,
+    /// When the engine took the request, for the edit latency metric.
+    queued_at: std::time::Instant,
 }
 
 /// Owns the authoritative world and everything edits are checked against.

@@ -90,6 +90,7 @@ impl Sequencer {
             session_id,
             player,
             request,
+            queued_at: std::time::Instant::now(),
         });
         Ok(())
     }

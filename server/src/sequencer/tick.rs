@@ -144,6 +144,7 @@ impl Sequencer {
                 player: q.player,
                 edit: q.request.edit,
                 changes,
+                queued_at: q.queued_at,
             });
         }
         // Clients compare mesh hashes at the tick's end: a chunk whose
