@@ -15,14 +15,16 @@ use strata_protocol::{
     FrameBuffer, Hello, PositionUpdate, RejectReason, ServerMessage, Welcome, WorldUpdate,
     PROTOCOL_VERSION,
 };
+use strata_terrain::edit::StructureLibrary;
 use strata_terrain::gen::{GenParams, Generator};
-use strata_terrain::{ChunkGenerator, ChunkPos, Edit, FixedVec3};
+use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, Edit, FixedVec3, Voxel, VoxelPos};
 use thiserror::Error;
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{mpsc, oneshot, Notify};
 use tokio::task::JoinHandle;
 use tracing::debug;
 
 use crate::pool::ChunkPool;
+use crate::prediction::{Prediction, PredictionStats, Touched, MAX_PENDING_PREDICTIONS};
 use crate::replica::{Replica, Request};
 use crate::tls::{client_config_pinned, TlsError};
 
@@ -70,6 +72,12 @@ pub struct ClientOptions {
     /// Record every version (and hash) each chunk passes through from the
     /// first update on.
     pub record_history: bool,
+    /// Apply our own edits to a predicted view at once and reconcile it
+    /// with the server's verdicts and deltas (see [`crate::prediction`]).
+    pub predict: bool,
+    /// The server's structure templates, to predict `PlaceStructure` edits
+    /// (empty: those are sent unpredicted).
+    pub structures: Arc<StructureLibrary>,
 }
 
 /// When a delta of edit `seq` reached this client.
@@ -85,6 +93,11 @@ struct Shared {
     pending: Mutex<HashMap<u64, oneshot::Sender<Acked>>>,
     /// Set to stop reading the updates stream (a frozen client).
     stalled: AtomicBool,
+    /// Set to hold received updates unapplied until resumed.
+    paused: AtomicBool,
+    resumed: Notify,
+    /// The predicted view, when predicting (lock the replica first).
+    prediction: Option<Mutex<Prediction>>,
     error: Mutex<Option<(ErrorCode, String)>>,
     arrivals: Mutex<Vec<Arrival>>,
     bytes_in: AtomicU64,
@@ -95,6 +108,35 @@ struct Shared {
 impl Shared {
     fn heard(&self) {
         self.heard_ms.store(unix_ms(), Ordering::Relaxed);
+    }
+
+    /// Returns once updates are not paused.
+    async fn unpaused(&self) {
+        while self.paused.load(Ordering::SeqCst) {
+            let resumed = self.resumed.notified();
+            tokio::pin!(resumed);
+            resumed.as_mut().enable();
+            if !self.paused.load(Ordering::SeqCst) {
+                break;
+            }
+            resumed.await;
+        }
+    }
+
+    fn prediction(&self) -> Option<std::sync::MutexGuard<'_, Prediction>> {
+        self.prediction
+            .as_ref()
+            .map(|p| p.lock().expect("not poisoned"))
+    }
+
+    /// Runs `f` on the prediction and the replica, when predicting.
+    fn with_prediction(&self, replica: &Mutex<Replica>, f: impl FnOnce(&mut Prediction, &Replica)) {
+        if self.prediction.is_some() {
+            let r = replica.lock().expect("not poisoned");
+            if let Some(mut p) = self.prediction() {
+                f(&mut p, &r);
+            }
+        }
     }
 }
 
@@ -228,12 +270,21 @@ impl Client {
             replica.record_history();
         }
         let replica = Arc::new(Mutex::new(replica));
-        let shared = Arc::new(Shared::default());
+        let prediction = opts.predict.then(|| {
+            Mutex::new(Prediction::new(
+                opts.structures.clone(),
+                MAX_PENDING_PREDICTIONS,
+            ))
+        });
+        let shared = Arc::new(Shared {
+            prediction,
+            ..Shared::default()
+        });
         shared.heard();
         let (control, control_rx) = mpsc::channel(CONTROL_QUEUE);
         let tasks = vec![
             tokio::spawn(write_control(send, control_rx)),
-            tokio::spawn(read_control(reader, shared.clone())),
+            tokio::spawn(read_control(reader, shared.clone(), replica.clone())),
             tokio::spawn(read_updates(
                 conn.clone(),
                 replica.clone(),
@@ -291,6 +342,19 @@ impl Client {
     /// versions it made durable.
     pub async fn edit_acked(&self, edit: Edit) -> Result<Acked, ClientError> {
         let id = self.next_edit.fetch_add(1, Ordering::Relaxed);
+        self.shared.with_prediction(&self.replica, |p, r| {
+            p.predict(id, edit.clone(), r);
+        });
+        let result = self.send_edit(id, edit).await;
+        if result.is_err() {
+            // No verdict will come: drop the prediction.
+            self.shared
+                .with_prediction(&self.replica, |p, r| p.abandon(id, r));
+        }
+        result
+    }
+
+    async fn send_edit(&self, id: u64, edit: Edit) -> Result<Acked, ClientError> {
         let (tx, rx) = oneshot::channel();
         self.shared
             .pending
@@ -364,6 +428,45 @@ impl Client {
     /// would; the control stream (verdicts) keeps working.
     pub fn stop_reading_updates(&self) {
         self.shared.stalled.store(true, Ordering::Relaxed);
+    }
+
+    /// Holds updates unapplied (a lagging client) until
+    /// [`Self::resume_updates`]; verdicts keep arriving.
+    pub fn pause_updates(&self) {
+        self.shared.paused.store(true, Ordering::SeqCst);
+    }
+
+    pub fn resume_updates(&self) {
+        self.shared.paused.store(false, Ordering::SeqCst);
+        self.shared.resumed.notify_waiters();
+    }
+
+    /// A chunk as the player should see it: with this client's pending
+    /// predicted edits when predicting, else the replica's.
+    pub fn predicted_chunk(&self, pos: ChunkPos) -> Option<Arc<Chunk>> {
+        let r = self.replica();
+        match self.shared.prediction() {
+            Some(p) => p.chunk(pos, &r),
+            None => r.get(pos).map(|h| h.chunk.clone()),
+        }
+    }
+
+    /// One voxel of [`Self::predicted_chunk`].
+    pub fn predicted_voxel(&self, p: VoxelPos) -> Option<Voxel> {
+        let (x, y, z) = p.local();
+        self.predicted_chunk(p.chunk()).map(|c| c.get(x, y, z))
+    }
+
+    /// Chunks whose predicted copy differs from the replica's.
+    pub fn predicted_chunks(&self) -> Vec<ChunkPos> {
+        self.shared
+            .prediction()
+            .map_or(Vec::new(), |p| p.predicted_chunks().collect())
+    }
+
+    /// How the predictions fared; `None` when not predicting.
+    pub fn prediction_stats(&self) -> Option<PredictionStats> {
+        self.shared.prediction().map(|p| p.stats())
     }
 
     /// The error the server sent before closing, if any.
@@ -440,7 +543,11 @@ async fn write_control(mut send: quinn::SendStream, mut rx: mpsc::Receiver<Bytes
     let _ = send.finish();
 }
 
-async fn read_control(mut reader: FramedReader<quinn::RecvStream>, shared: Arc<Shared>) {
+async fn read_control(
+    mut reader: FramedReader<quinn::RecvStream>,
+    shared: Arc<Shared>,
+    replica: Arc<Mutex<Replica>>,
+) {
     loop {
         let msg = reader.next::<ServerMessage>().await;
         if let Ok(Some(_)) = &msg {
@@ -453,6 +560,7 @@ async fn read_control(mut reader: FramedReader<quinn::RecvStream>, shared: Arc<S
                 changes,
             })) => resolve(
                 &shared,
+                &replica,
                 client_edit_id,
                 (Verdict::Accepted { seq }, changes),
             ),
@@ -461,6 +569,7 @@ async fn read_control(mut reader: FramedReader<quinn::RecvStream>, shared: Arc<S
                 reason,
             })) => resolve(
                 &shared,
+                &replica,
                 client_edit_id,
                 (Verdict::Rejected(reason), Vec::new()),
             ),
@@ -475,7 +584,10 @@ async fn read_control(mut reader: FramedReader<quinn::RecvStream>, shared: Arc<S
     shared.pending.lock().expect("not poisoned").clear();
 }
 
-fn resolve(shared: &Shared, id: u64, v: Acked) {
+/// Reconciles the prediction (before the caller sees the verdict) and
+/// hands the verdict to the waiting `edit`.
+fn resolve(shared: &Shared, replica: &Mutex<Replica>, id: u64, v: Acked) {
+    shared.with_prediction(replica, |p, r| p.verdict(id, &v.0, &v.1, r));
     if let Some(tx) = shared.pending.lock().expect("not poisoned").remove(&id) {
         let _ = tx.send(v);
     }
@@ -507,6 +619,7 @@ async fn read_updates(
             }
         };
         shared.heard();
+        shared.unpaused().await;
         if let WorldUpdate::Delta(d) = &update {
             let mut a = shared.arrivals.lock().expect("not poisoned");
             if a.len() < MAX_ARRIVALS {
@@ -520,7 +633,15 @@ async fn read_updates(
         shared
             .bytes_in
             .store(reader.bytes_read(), Ordering::Relaxed);
-        let request = replica.lock().expect("not poisoned").apply(update);
+        let touched = Touched::of(&update);
+        let request = {
+            let mut r = replica.lock().expect("not poisoned");
+            let request = r.apply(update);
+            if let (Some(mut p), Some(t)) = (shared.prediction(), touched) {
+                p.after_update(t, &r);
+            }
+            request
+        };
         let msg = match request {
             Some(Request::Resync(pos)) => ClientMessage::ResyncRequest { pos },
             Some(Request::FullSnapshot(pos)) => ClientMessage::FullSnapshotRequest { pos },

@@ -5,9 +5,11 @@
 pub mod bots;
 pub mod client;
 pub mod pool;
+pub mod prediction;
 pub mod replica;
 pub mod tls;
 
 pub use client::{Acked, Arrival, Client, ClientError, ClientOptions, Verdict};
 pub use pool::ChunkPool;
+pub use prediction::{Prediction, PredictionStats, MAX_PENDING_PREDICTIONS};
 pub use replica::{MeshMismatch, Replica, ReplicaStats, Request};

@@ -36,6 +36,7 @@ fn config_for(server: &app::Running) -> BotsConfig {
         progress: false,
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
+        predict: false,
     }
 }
 
@@ -117,6 +118,7 @@ async fn bad_settings_are_refused_before_connecting() {
         progress: false,
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
+        predict: false,
     };
     let e = bots::run(run.clone()).await.unwrap_err();
     assert!(e.to_string().contains("--stalled"), "{e}");
@@ -129,4 +131,52 @@ async fn bad_settings_are_refused_before_connecting() {
     .await
     .unwrap_err();
     assert!(e.to_string().contains("--view-radius"), "{e}");
+}
+
+/// `strata-bots --predict` (the real binary, with its own server): the
+/// JSON summary carries the bots' summed prediction counts.
+#[test]
+fn the_binary_reports_predictions() {
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_strata-bots"))
+        .args(["--spawn-server", "--bots", "3", "--duration", "2s"])
+        .args([
+            "--profile",
+            "mixed",
+            "--edit-rate",
+            "4",
+            "--verify",
+            "modified",
+        ])
+        .args(["--predict", "--json"])
+        .env("RUST_LOG", "error")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("strata-bots starts");
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(90) {
+            child.kill().unwrap();
+            panic!("strata-bots did not finish");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let mut out = String::new();
+    std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut out).unwrap();
+    assert!(status.success(), "{status}: {out}");
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    let p = &v["prediction"];
+    let n = |k: &str| p[k].as_u64().unwrap_or_else(|| panic!("{k} in {p}"));
+    assert!(n("made") > 0, "{p}");
+    assert!(n("exact") > 0, "{p}");
+    assert!(
+        n("exact") + n("mispredicted") + n("rolled_back") + n("unverified") + n("pending")
+            == n("made"),
+        "{p}"
+    );
+    assert_eq!(n("pending"), 0, "{p}");
+    assert!(v["edits_accepted"].as_u64().unwrap() > 0, "{v}");
 }

@@ -100,6 +100,11 @@ struct Args {
     /// Print the summary as one JSON line on stdout.
     #[arg(long)]
     json: bool,
+    /// Bots predict their own edits (apply them at once to a predicted
+    /// view, then reconcile with the server); the summary adds how often
+    /// the prediction was exact.
+    #[arg(long)]
+    predict: bool,
 }
 
 fn main() -> ExitCode {
@@ -190,6 +195,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         progress: true,
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: args.silence_limit,
+        predict: args.predict,
     };
     let summary = bots::run(cfg).await?;
     if args.json {

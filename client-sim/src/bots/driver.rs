@@ -20,6 +20,7 @@ use super::stats::Stats;
 use super::walker::Walker;
 use super::{Fleet, Phase, Role, VerifyMode};
 use crate::client::{Acked, Arrival, Client, ClientError, ClientOptions, Verdict};
+use crate::prediction::PredictionStats;
 use crate::replica::ReplicaStats;
 
 /// Time between a bot's steps.
@@ -89,6 +90,8 @@ pub struct BotOutcome {
     pub final_versions: HashMap<ChunkPos, u64>,
     /// Chunks (or, for a bot that never checked, 1) not compared at the end.
     pub unverified: u64,
+    /// Its predictions, over all its connections (with `predict`).
+    pub prediction: PredictionStats,
     verified: bool,
     counted_finished: bool,
     counted_ready: bool,
@@ -126,6 +129,10 @@ impl BotOutcome {
             }
         }
         self.final_versions = r.chunks().map(|(p, h)| (p, h.version)).collect();
+        drop(r);
+        if let Some(p) = client.prediction_stats() {
+            self.prediction.add(&p);
+        }
     }
 }
 
@@ -220,6 +227,8 @@ impl Bot {
             let opts = ClientOptions {
                 pool: self.fleet.pool.clone(),
                 record_history: true,
+                predict: cfg.predict,
+                structures: Default::default(),
             };
             let attempt = {
                 let _slot = self.fleet.connect_slots.acquire().await.ok()?;

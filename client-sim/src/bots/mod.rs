@@ -34,6 +34,7 @@ use thiserror::Error;
 use tokio::sync::{watch, Semaphore};
 
 use crate::pool::ChunkPool;
+use crate::prediction::PredictionStats;
 use ack_log::AckLog;
 use driver::BotOutcome;
 pub use profile::{Profile, Role};
@@ -154,6 +155,8 @@ pub struct BotsConfig {
     /// bot reconnects. QUIC's idle timeout is much longer, and a restarted
     /// server cannot reset the old connections (its reset key is new).
     pub silence_limit: Duration,
+    /// Bots predict their own edits (client-side prediction).
+    pub predict: bool,
 }
 
 impl BotsConfig {
@@ -403,6 +406,7 @@ fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet:
         broadcast_latency_ms: s.broadcast.summary(),
         latency_by_second: summary::timeline(&s.ack, &s.broadcast),
         quiet,
+        prediction: fleet.cfg.predict.then(PredictionStats::default),
         ..Default::default()
     };
     sum.edits_accepted_per_second = sum.edits_accepted as f64 / edit_time.as_secs_f64().max(1e-3);
@@ -422,6 +426,9 @@ fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet:
         sum.meshes_checked += r.meshes_checked;
         sum.mesh_mismatches += r.mesh_mismatches;
         sum.order_violations += o.history_regressions;
+        if let Some(p) = sum.prediction.as_mut() {
+            p.add(&o.prediction);
+        }
         for (k, h) in &o.version_hashes {
             if *seen.entry(*k).or_insert(*h) != *h {
                 sum.order_violations += 1;

@@ -6,6 +6,7 @@ use std::fmt::Write;
 use serde::Serialize;
 
 use super::stats::{Latencies, LatencyMs};
+use crate::prediction::PredictionStats;
 
 /// Pairs the per-second ack and broadcast latencies of a run.
 pub fn timeline(ack: &Latencies, broadcast: &Latencies) -> Vec<SecondLatency> {
@@ -91,6 +92,8 @@ pub struct Summary {
     /// Seconds spent waiting for quiet, then comparing with the server.
     pub quiet_wait_s: f64,
     pub verify_s: f64,
+    /// The bots' client-side predictions, summed (`null` without `--predict`).
+    pub prediction: Option<PredictionStats>,
 }
 
 impl Summary {
@@ -158,6 +161,21 @@ impl Summary {
             self.ack_missing,
             if self.quiet { "" } else { " (world never went quiet)" }
         );
+        if let Some(p) = &self.prediction {
+            let _ = writeln!(
+                s,
+                "prediction: {} made, {} exact ({:.1}%), {} mispredicted ({} only outside the edit's box), {} rolled back, {} unverified, {} pending, {} skipped",
+                p.made,
+                p.exact,
+                100.0 * p.exact as f64 / p.made.max(1) as f64,
+                p.mispredicted,
+                p.mispredicted_outside_box,
+                p.rolled_back,
+                p.unverified,
+                p.pending,
+                p.skipped
+            );
+        }
         s
     }
 }
@@ -193,6 +211,18 @@ mod tests {
         }
         assert!(v["ack_latency_ms"].get("p99").is_some());
         assert!(s.human().contains("2 bots"));
+        assert!(v["prediction"].is_null() && !s.human().contains("prediction"));
+        let predicted = Summary {
+            prediction: Some(PredictionStats {
+                made: 4,
+                exact: 3,
+                ..Default::default()
+            }),
+            ..s.clone()
+        };
+        let v: serde_json::Value = serde_json::from_str(&predicted.to_json()).unwrap();
+        assert_eq!(v["prediction"]["exact"], 3);
+        assert!(predicted.human().contains("3 exact (75.0%)"));
         let bad = Summary {
             mesh_mismatches: 1,
             ..s
