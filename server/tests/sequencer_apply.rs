@@ -182,6 +182,27 @@ fn mesh_hashes_describe_the_world_at_the_tick_end() {
 }
 
 #[test]
+fn adopted_generated_chunks_never_replace_loaded_ones() {
+    let mut s = ready(ValidationConfig::default());
+    let gen = s.world().generator().clone();
+    let fresh = ChunkPos::new(40, 0, 40);
+    assert!(s.world().peek(fresh).is_none());
+    s.adopt_generated(fresh, &gen.generate(fresh));
+    let held = s.world().peek(fresh).expect("adopted");
+    assert_eq!((held.version, &held.chunk), (0, &gen.generate(fresh)));
+    assert!(s.is_resident(fresh));
+    // A loaded chunk (here edited) is kept as it is.
+    let home = ChunkPos::new(X.div_euclid(32), 0, Z.div_euclid(32));
+    s.insert_stored_chunk(home, Chunk::Uniform(Voxel::solid(7)), 3);
+    s.adopt_generated(home, &gen.generate(home));
+    let kept = s.world().peek(home).unwrap();
+    assert_eq!(
+        (kept.version, &kept.chunk),
+        (3, &Chunk::Uniform(Voxel::solid(7)))
+    );
+}
+
+#[test]
 fn max_edits_per_tick_leaves_the_rest_queued() {
     let cfg = SequencerConfig {
         max_edits_per_tick: 2,

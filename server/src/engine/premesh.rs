@@ -66,9 +66,14 @@ impl PremeshJob {
                     })
                     .collect();
                 let nb = Neighborhood::from_chunks(t.pos, |p| reads.get(&p).map(|c| &**c));
+                let generated = reads
+                    .into_iter()
+                    .filter(|(p, _)| !self.modified.contains_key(p))
+                    .collect();
                 PremeshResult {
                     mesh: CollisionMesh::build(t.pos, t.version, &nb),
                     stamp: t.stamp,
+                    generated,
                 }
             })
             .collect()
@@ -79,6 +84,9 @@ impl PremeshJob {
 pub struct PremeshResult {
     pub mesh: CollisionMesh,
     pub stamp: Vec<(ChunkPos, u64)>,
+    /// The unmodified chunks it generated: the engine keeps those it does
+    /// not hold, so the first edits near a player need not generate them.
+    pub generated: Vec<(ChunkPos, Arc<Chunk>)>,
 }
 
 impl PremeshResult {
@@ -296,6 +304,11 @@ impl super::Engine {
     /// Caches finished background meshes that are still current.
     pub(super) fn collect_premeshed(&mut self) {
         for r in self.premesh.drain() {
+            for (p, chunk) in &r.generated {
+                if !self.versions.contains_key(p) {
+                    self.seq.adopt_generated(*p, chunk);
+                }
+            }
             let versions = &self.versions;
             if r.is_current(|p| versions.get(&p).copied().unwrap_or(0)) {
                 metrics::counter!(m::PREMESH_BUILT).increment(1);
@@ -371,6 +384,12 @@ mod tests {
         assert_eq!(done[0].mesh.hash, expected.hash);
         assert!(!done[0].mesh.mesh.indices.is_empty());
         assert!(done[0].is_current(version_of));
+        // It hands back the 26 chunks it generated (not the modified one).
+        assert_eq!(done[0].generated.len(), 26);
+        for (p, c) in &done[0].generated {
+            assert_ne!(*p, above);
+            assert_eq!(**c, g.generate(*p));
+        }
         // The neighbour moves on: the result is stale.
         assert!(!done[0].is_current(|p| if p == above { v + 1 } else { version_of(p) }));
     }

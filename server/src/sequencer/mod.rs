@@ -166,6 +166,16 @@ impl Sequencer {
         self.collision.invalidate_around(pos);
     }
 
+    /// Holds `chunk`, generated off this thread, as the version-0 chunk at
+    /// `pos` unless a chunk is loaded there. The caller has checked that
+    /// the store has no version of `pos`.
+    pub fn adopt_generated(&mut self, pos: ChunkPos, chunk: &Chunk) {
+        if self.world.peek(pos).is_none() {
+            self.world.insert(pos, chunk.clone(), 0);
+            self.residency.mark_absent(pos);
+        }
+    }
+
     /// The store has no such chunk: it is generated (version 0).
     pub fn mark_absent(&mut self, pos: ChunkPos) {
         self.residency.mark_absent(pos);
