@@ -11,7 +11,7 @@ bots=${1:?bots}; duration=${2:-30s}; shift $(( $# >= 2 ? 2 : 1 ))
 target=${CARGO_TARGET_DIR:-target}
 cargo build --release --locked -q -p strata-server -p strata-client-sim --bins
 dir=$(mktemp -d)
-trap 'kill $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
+trap 'kill $pid 2>/dev/null || true; [ -n "${BENCH_LOG:-}" ] && cp "$dir/log" "$BENCH_LOG"; rm -rf "$dir"' EXIT
 cat > "$dir/strata.toml" <<TOML
 [server]
 listen = "127.0.0.1:0"

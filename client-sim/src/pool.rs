@@ -7,12 +7,13 @@
 //! the 27 chunk versions around it. Bots that disagree on a version's hash
 //! are reported by the load tester, not hidden: the pool compares hashes.
 
-use std::collections::HashMap;
 use std::sync::{Arc, Mutex, Weak};
 
+use rustc_hash::FxHashMap as HashMap;
 use strata_terrain::{Chunk, ChunkPos};
 
-/// Mesh hashes remembered before the memo is cleared.
+/// Mesh hashes in each of the memo's two generations: when the young one
+/// is full it becomes the old one, and the old one is forgotten.
 pub const MESH_MEMO_ENTRIES: usize = 1 << 16;
 /// Chunk entries after which dead ones are swept.
 pub const CHUNK_SWEEP_ENTRIES: usize = 1 << 14;
@@ -30,7 +31,15 @@ struct Chunks {
 #[derive(Debug, Default)]
 pub struct ChunkPool {
     chunks: Mutex<Chunks>,
-    meshes: Mutex<HashMap<MeshKey, u64>>,
+    meshes: Mutex<MeshMemo>,
+}
+
+/// Two generations of mesh hashes, so a full memo never forgets everything
+/// at once (every replica would re-mesh at the same moment).
+#[derive(Debug, Default)]
+struct MeshMemo {
+    young: HashMap<MeshKey, u64>,
+    old: HashMap<MeshKey, u64>,
 }
 
 impl ChunkPool {
@@ -62,15 +71,16 @@ impl ChunkPool {
     }
 
     pub fn mesh_hash(&self, key: &MeshKey) -> Option<u64> {
-        self.meshes.lock().expect("not poisoned").get(key).copied()
+        let m = self.meshes.lock().expect("not poisoned");
+        m.young.get(key).or_else(|| m.old.get(key)).copied()
     }
 
     pub fn put_mesh_hash(&self, key: MeshKey, hash: u64) {
         let mut m = self.meshes.lock().expect("not poisoned");
-        if m.len() >= MESH_MEMO_ENTRIES {
-            m.clear();
+        if m.young.len() >= MESH_MEMO_ENTRIES {
+            m.old = std::mem::take(&mut m.young);
         }
-        m.insert(key, hash);
+        m.young.insert(key, hash);
     }
 
     /// Live pooled chunks (for reports).
@@ -100,5 +110,27 @@ mod tests {
         let key = (pos, [0; 27]);
         pool.put_mesh_hash(key, 77);
         assert_eq!(pool.mesh_hash(&key), Some(77));
+    }
+
+    #[test]
+    fn mesh_memo_forgets_one_generation_at_a_time() {
+        let pool = ChunkPool::default();
+        let key = |i: usize| (ChunkPos::new(i as i32, 0, 0), [i as u64; 27]);
+        for i in 0..MESH_MEMO_ENTRIES {
+            pool.put_mesh_hash(key(i), i as u64);
+        }
+        // The young generation is full: the next insert ages it, it stays readable.
+        pool.put_mesh_hash(key(MESH_MEMO_ENTRIES), 1);
+        assert_eq!(pool.mesh_hash(&key(0)), Some(0));
+        assert_eq!(pool.mesh_hash(&key(MESH_MEMO_ENTRIES)), Some(1));
+        for i in MESH_MEMO_ENTRIES + 1..=2 * MESH_MEMO_ENTRIES {
+            pool.put_mesh_hash(key(i), i as u64);
+        }
+        assert_eq!(
+            pool.mesh_hash(&key(0)),
+            None,
+            "two generations ago: forgotten"
+        );
+        assert_eq!(pool.mesh_hash(&key(MESH_MEMO_ENTRIES)), Some(1));
     }
 }

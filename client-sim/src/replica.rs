@@ -2,7 +2,7 @@
 //! with version and hash checks, version-0 chunks regenerated from the seed,
 //! and mesh hashes compared with the server's.
 
-use std::collections::{HashMap, HashSet};
+use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 use std::sync::Arc;
 
 use strata_protocol::{DeltaUpdate, WorldUpdate};
@@ -102,12 +102,12 @@ impl Replica {
     pub fn with_pool(generator: Option<Arc<dyn ChunkGenerator>>, pool: Arc<ChunkPool>) -> Self {
         Self {
             generator,
-            chunks: HashMap::new(),
-            pending_mesh: HashMap::new(),
+            chunks: HashMap::default(),
+            pending_mesh: HashMap::default(),
             mismatches: Vec::new(),
             history: None,
             version_hashes: None,
-            checks: HashSet::new(),
+            checks: HashSet::default(),
             pool,
             stats: ReplicaStats::default(),
             last_seq: 0,
@@ -117,8 +117,8 @@ impl Replica {
     /// Records every version each chunk passes through, and its hash
     /// (ordering tests).
     pub fn record_history(&mut self) {
-        self.history.get_or_insert_with(HashMap::new);
-        self.version_hashes.get_or_insert_with(HashMap::new);
+        self.history.get_or_insert_with(HashMap::default);
+        self.version_hashes.get_or_insert_with(HashMap::default);
     }
 
     pub fn history(&self) -> Option<&HashMap<ChunkPos, Vec<u64>>> {

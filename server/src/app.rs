@@ -83,7 +83,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
             info!(path = %p.display(), "generated {what}");
         }
     }
-    let store: Arc<dyn ChunkStore> = Arc::new(SledStore::open(&data_dir.world_db_path())?);
+    let store: Arc<dyn ChunkStore> =
+        Arc::new(SledStore::open_with(&data_dir.world_db_path(), &cfg.store)?);
     let params = cfg.world.generator.clone();
     let mut validation = cfg.validation.clone();
     validation.bounds = WorldBounds {

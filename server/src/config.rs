@@ -23,6 +23,7 @@ use crate::engine::{
 use crate::heightmap::HeightmapSection;
 use crate::interest::{InterestConfig, MAX_VIEW_RADIUS};
 use crate::sequencer::SequencerConfig;
+use crate::store::{StoreConfig, MAX_FLUSH_EVERY_MS, MIN_CACHE_CAPACITY_BYTES};
 use crate::validate::ValidationConfig;
 use strata_terrain::gen::GenParams;
 
@@ -113,6 +114,7 @@ pub struct ServerConfig {
     pub validation: ValidationConfig,
     pub interest: InterestConfig,
     pub engine: EngineConfig,
+    pub store: StoreConfig,
     /// Top-level sections this build does not know; logged, not fatal.
     #[serde(flatten, skip_serializing)]
     pub unknown: toml::Table,
@@ -436,6 +438,18 @@ impl ServerConfig {
             self.engine.resident_chunks,
             MIN_RESIDENT_CHUNKS,
             usize::MAX,
+        )?;
+        range(
+            "store.cache_capacity_bytes",
+            self.store.cache_capacity_bytes,
+            MIN_CACHE_CAPACITY_BYTES,
+            u64::MAX,
+        )?;
+        range(
+            "store.flush_every_ms",
+            self.store.flush_every_ms,
+            0,
+            MAX_FLUSH_EVERY_MS,
         )?;
         range(
             "sequencer.queue_capacity",

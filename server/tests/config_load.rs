@@ -192,6 +192,11 @@ fn bad_values_name_their_field() {
             "[sequencer]\nqueue_capacity = 0",
             "sequencer.queue_capacity",
         ),
+        (
+            "[store]\ncache_capacity_bytes = 1000",
+            "store.cache_capacity_bytes",
+        ),
+        ("[store]\nflush_every_ms = 60001", "store.flush_every_ms"),
     ];
     for (text, field) in cases {
         assert_eq!(invalid_field(text), field, "config {text:?}");

@@ -229,3 +229,33 @@ fn blobs_round_trip_and_enforce_limits() {
     );
     assert_eq!(store.get_blob("other").unwrap(), None);
 }
+
+#[test]
+fn every_background_setting_keeps_overwritten_chunks() {
+    // Off (no segment cleaning), the default slice, and sled's own period,
+    // each with the smallest page cache so overwrites page in and out.
+    for flush_every_ms in [0, strata_server::store::DEFAULT_FLUSH_EVERY_MS, 500] {
+        let dir = tempfile::tempdir().unwrap();
+        let config = strata_server::store::StoreConfig {
+            cache_capacity_bytes: strata_server::store::MIN_CACHE_CAPACITY_BYTES,
+            flush_every_ms,
+        };
+        let store = SledStore::open_with(dir.path(), &config).unwrap();
+        store.init_meta(&WorldMeta::new(42, 3, PARAMS)).unwrap();
+        let mut seq = Seq::default();
+        for round in 0..40u32 {
+            let edits: Vec<Vec<(ChunkPos, Chunk)>> = (0..8)
+                .map(|i| vec![(ChunkPos::new(i, 0, 0), terrain_chunk(round * 8 + i as u32))])
+                .collect();
+            store.commit_batch(&seq.batch(&edits)).unwrap();
+        }
+        drop(store);
+        let store = SledStore::open_with(dir.path(), &config).unwrap();
+        for i in 0..8 {
+            let stored = store.load_chunk(ChunkPos::new(i, 0, 0)).unwrap().unwrap();
+            assert_eq!(stored.version, 40, "flush_every_ms = {flush_every_ms}");
+            assert_eq!(stored.chunk, terrain_chunk(39 * 8 + i as u32));
+        }
+        assert_eq!(store.last_seq().unwrap(), seq.last_seq);
+    }
+}

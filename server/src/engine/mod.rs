@@ -32,7 +32,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use serde::{Deserialize, Serialize};
 use strata_protocol::{ChunkVersion, ServerMessage, WorldUpdate};
 use strata_terrain::ChunkPos;
-use tracing::{debug, error, info};
+use tracing::{debug, error, info, warn};
 
 use crate::interest::{Interest, InterestConfig};
 use crate::metrics as m;
@@ -43,6 +43,8 @@ use peer::Peer;
 
 /// Default tick period.
 pub const DEFAULT_TICK_MS: u64 = 10;
+/// A tick longer than this many periods is logged with its phases.
+pub const SLOW_TICK_PERIODS: u64 = 3;
 /// Default microseconds of snapshot streaming per tick, for all sessions.
 pub const DEFAULT_STREAM_US: u64 = 2_000;
 /// Longest allowed streaming time per tick.
@@ -360,13 +362,24 @@ impl Engine {
             self.capture_preimages(&out.batch);
             let flush = Instant::now();
             // Nothing is acknowledged or broadcast unless this succeeds.
-            if let Err(e) = self.commit_serving(&out.batch, rx) {
-                error!(error = %e, "group commit failed; stopping without acknowledging");
-                self.close_all();
-                return Err(e.into());
-            }
+            let stats = match self.commit_serving(&out.batch, rx) {
+                Ok(stats) => stats,
+                Err(e) => {
+                    error!(error = %e, "group commit failed; stopping without acknowledging");
+                    self.close_all();
+                    return Err(e.into());
+                }
+            };
             metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
             phase.end("commit");
+            phase.note(format!(
+                "(encode={:.1}ms write={:.1}ms flush={:.1}ms chunks={} bytes={})",
+                stats.encode.as_secs_f64() * 1e3,
+                stats.apply.as_secs_f64() * 1e3,
+                stats.flush.as_secs_f64() * 1e3,
+                out.batch.chunks.len(),
+                stats.bytes_written
+            ));
             let built = meshing
                 .recv()
                 .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
@@ -401,7 +414,11 @@ impl Engine {
         self.evict_cold();
         self.drop_failed();
         phase.end("evict");
-        metrics::histogram!(m::TICK_SECONDS).record(started.elapsed().as_secs_f64());
+        let took = started.elapsed();
+        metrics::histogram!(m::TICK_SECONDS).record(took.as_secs_f64());
+        if took > Duration::from_millis(self.cfg.tick_ms.max(1) * SLOW_TICK_PERIODS) {
+            warn!(ms = took.as_millis() as u64, phases = %phase.describe(), "slow tick");
+        }
         Ok(())
     }
 
@@ -435,20 +452,46 @@ impl Engine {
     }
 }
 
-/// Times the phases of a tick into [`m::TICK_PHASE_SECONDS`].
-struct Phases(Instant);
+/// Times the phases of a tick into [`m::TICK_PHASE_SECONDS`], keeping
+/// them for the slow-tick warning.
+struct Phases {
+    last: Instant,
+    took: Vec<(&'static str, Duration)>,
+    notes: Vec<String>,
+}
 
 impl Phases {
     fn new() -> Self {
-        Self(Instant::now())
+        Self {
+            last: Instant::now(),
+            took: Vec::with_capacity(8),
+            notes: Vec::new(),
+        }
+    }
+
+    /// Adds detail to the slow-tick warning.
+    fn note(&mut self, note: String) {
+        self.notes.push(note);
     }
 
     /// Records the time since the previous phase ended as `name`.
     fn end(&mut self, name: &'static str) {
         let now = Instant::now();
-        metrics::histogram!(m::TICK_PHASE_SECONDS, "phase" => name)
-            .record((now - self.0).as_secs_f64());
-        self.0 = now;
+        let took = now - self.last;
+        metrics::histogram!(m::TICK_PHASE_SECONDS, "phase" => name).record(took.as_secs_f64());
+        self.took.push((name, took));
+        self.last = now;
+    }
+
+    /// "apply=0.4ms commit=12.0ms ..." for a log line.
+    fn describe(&self) -> String {
+        let mut parts: Vec<String> = self
+            .took
+            .iter()
+            .map(|(n, d)| format!("{n}={:.1}ms", d.as_secs_f64() * 1e3))
+            .collect();
+        parts.extend(self.notes.iter().cloned());
+        parts.join(" ")
     }
 }
 

@@ -30,7 +30,10 @@ use strata_terrain::ChunkPos;
 
 pub use batch::{MAX_BATCH_CHUNKS, MAX_BATCH_ENTRIES};
 pub use check::{CheckIssue, CheckReport, Checker, MAX_REPORTED_ISSUES};
-pub use config::{StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_FLUSH_EVERY_MS};
+pub use config::{
+    StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_FLUSH_EVERY_MS, MAX_FLUSH_EVERY_MS,
+    MIN_CACHE_CAPACITY_BYTES,
+};
 pub use error::StoreError;
 pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
 pub use sled_store::{

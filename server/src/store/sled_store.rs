@@ -76,7 +76,7 @@ impl SledStore {
         let cfg = sled::Config::new()
             .path(dir)
             .cache_capacity(config.cache_capacity_bytes)
-            .flush_every_ms(config.flush_every_ms);
+            .flush_every_ms(config.flush_period());
         let db = open_when_unlocked(|| cfg.open())?;
         let store = Self {
             meta: db.open_tree(TREE_META)?,
