@@ -15,6 +15,7 @@ pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
 pub const DELTAS_DROPPED: &str = "strata_deltas_dropped_total";
+pub const POSITIONS_DROPPED: &str = "strata_positions_dropped_total";
 pub const RESYNCS: &str = "strata_resyncs_total";
 pub const RESIDENT_CHUNKS: &str = "strata_resident_chunks";
 pub const PREMESH_BUILT: &str = "strata_premesh_meshes_total";
@@ -30,6 +31,10 @@ pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
         .install()?;
     metrics::describe_gauge!(CONNECTIONS, "Open QUIC connections");
     metrics::describe_counter!(SESSIONS_TOTAL, "Sessions that joined the world");
+    metrics::describe_counter!(
+        POSITIONS_DROPPED,
+        "Position datagrams dropped because the engine's queue was full"
+    );
     metrics::describe_counter!(EDITS_ACCEPTED, "Edits acknowledged after they were durable");
     metrics::describe_counter!(EDITS_REJECTED, "Edits refused, by reason");
     metrics::describe_gauge!(QUEUE_DEPTH, "Edits waiting for the sequencer");

@@ -3,14 +3,13 @@
 use std::collections::HashMap;
 
 use bytes::{Bytes, BytesMut};
-use rustc_hash::FxHashMap;
 use strata_protocol::{encode_frame, DeltaUpdate, Direction, ServerMessage, WorldUpdate};
 use strata_terrain::ChunkPos;
 
 use super::peer::Peer;
 use crate::metrics as m;
 use crate::net::writer::SendRefused;
-use crate::sequencer::AppliedEdit;
+use crate::sequencer::{AppliedEdit, ChunkUpdate};
 
 /// Encodes an updates-stream frame. Server messages are built from
 /// validated state, so a failure here is a bug, not bad input.
@@ -32,32 +31,40 @@ pub fn encode_control(msg: &ServerMessage) -> Bytes {
 /// session whose queue is full loses the batch and gets snapshots of its
 /// chunks later; it never slows the others down.
 pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_seq: u64) {
-    // Per session: the frames of its deltas, and the chunks they change.
-    let mut out: FxHashMap<u64, (BytesMut, Vec<ChunkPos>)> = FxHashMap::default();
-    for a in applied {
-        for c in &a.changes {
-            let frame = encode_update(&WorldUpdate::Delta(DeltaUpdate {
-                delta: c.delta.clone(),
-                mesh_hash: c.mesh_hash,
-                seq: a.seq,
-            }));
-            for (id, p) in peers.iter_mut() {
-                // `covers` rules most sessions out by distance alone.
-                if !p.interest.covers(c.pos) || p.known.get(&c.pos) != Some(&c.from_version) {
-                    continue;
-                }
-                p.known.insert(c.pos, c.to_version);
-                let (buf, chunks) = out.entry(*id).or_default();
-                buf.extend_from_slice(&frame);
-                chunks.push(c.pos);
-            }
-        }
+    // Each change's frame, encoded once, in order.
+    let changes: Vec<(&ChunkUpdate, Bytes)> = applied
+        .iter()
+        .flat_map(|a| {
+            a.changes.iter().map(move |c| {
+                let frame = encode_update(&WorldUpdate::Delta(DeltaUpdate {
+                    delta: c.delta.clone(),
+                    mesh_hash: c.mesh_hash,
+                    seq: a.seq,
+                }));
+                (c, frame)
+            })
+        })
+        .collect();
+    if changes.is_empty() {
+        return;
     }
     let end = encode_update(&WorldUpdate::TickEnd { last_seq });
-    for (id, (mut buf, chunks)) in out {
-        let Some(p) = peers.get_mut(&id) else {
+    // Peers outside, changes inside: each session is visited once per tick.
+    for p in peers.values_mut() {
+        let mut buf = BytesMut::new();
+        let mut chunks: Vec<ChunkPos> = Vec::new();
+        for (c, frame) in &changes {
+            // `covers` rules most sessions out by distance alone.
+            if !p.interest.covers(c.pos) || p.known.get(&c.pos) != Some(&c.from_version) {
+                continue;
+            }
+            p.known.insert(c.pos, c.to_version);
+            buf.extend_from_slice(frame);
+            chunks.push(c.pos);
+        }
+        if chunks.is_empty() {
             continue;
-        };
+        }
         buf.extend_from_slice(&end);
         match p.updates.try_send(buf.freeze()) {
             Ok(()) => {}

@@ -150,6 +150,18 @@ impl EngineHandle {
         self.0.try_send(c).is_ok()
     }
 
+    /// Queues a command without waiting, handing it back when the queue is
+    /// full (or `Disconnected` when the engine is gone).
+    pub fn offer(&self, c: Command) -> Result<(), std::sync::mpsc::TrySendError<Command>> {
+        self.0.try_send(c)
+    }
+
+    /// A handle over `tx`, for tests of the session side.
+    #[doc(hidden)]
+    pub fn from_sender(tx: SyncSender<Command>) -> Self {
+        Self(tx)
+    }
+
     /// Asks the engine to finish and stop, waiting for queue space (blocking).
     pub fn stop(&self) {
         let _ = self.0.send(Command::Stop);

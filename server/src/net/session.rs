@@ -1,6 +1,7 @@
 //! One connection: handshake (Hello, token, version), then a loop that
 //! routes control messages and position datagrams to the engine.
 
+use std::sync::mpsc::TrySendError;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -24,6 +25,11 @@ pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 pub const DRAIN_TIMEOUT: Duration = Duration::from_secs(2);
 /// Capacity of each connection's control writer queue.
 pub const CONTROL_QUEUE: usize = 1024;
+/// How long a session waits for room in the engine's queue for a command
+/// its client relies on before closing as overloaded.
+pub const ENGINE_WAIT_TIMEOUT: Duration = Duration::from_secs(2);
+/// Pause between attempts while the engine's queue is full.
+pub const ENGINE_RETRY: Duration = Duration::from_millis(1);
 
 /// What every connection task shares.
 #[derive(Debug)]
@@ -288,7 +294,12 @@ async fn serve(
         tokio::select! {
             msg = reader.next::<ClientMessage>() => match msg {
                 Ok(Some(m)) => {
-                    if let Err(end) = route(session, ctx, control, m) {
+                    let routed = match route(session, ctx, control, m) {
+                        Ok(Some(cmd)) => deliver(&ctx.engine, cmd, ENGINE_WAIT_TIMEOUT).await,
+                        Ok(None) => Ok(()),
+                        Err(end) => Err(end),
+                    };
+                    if let Err(end) = routed {
                         return end;
                     }
                 }
@@ -318,21 +329,48 @@ async fn serve(
 }
 
 fn position(session: u64, ctx: &SessionContext, bytes: Bytes) {
-    // Datagrams are unreliable: a bad or unqueued one is simply dropped.
+    // Datagrams are unreliable and the next one supersedes this one: a bad
+    // or unqueued one is dropped (and counted).
     match decode::<PositionUpdate>(&bytes, Direction::ClientToServer) {
         Ok(update) => {
-            ctx.engine.try_send(Command::Position { session, update });
+            if !ctx.engine.try_send(Command::Position { session, update }) {
+                metrics::counter!(crate::metrics::POSITIONS_DROPPED).increment(1);
+            }
         }
         Err(e) => debug!(error = %e, "bad position datagram"),
     }
 }
 
+/// Queues a command the client relies on (subscriptions, resyncs). While
+/// the engine's queue is full the session waits, and stops reading its
+/// control stream, so QUIC flow control slows the client down; after
+/// `patience` ([`ENGINE_WAIT_TIMEOUT`]) the session is closed as overloaded.
+async fn deliver(engine: &EngineHandle, mut cmd: Command, patience: Duration) -> Result<(), End> {
+    let deadline = tokio::time::Instant::now() + patience;
+    loop {
+        match engine.offer(cmd) {
+            Ok(()) => return Ok(()),
+            Err(TrySendError::Disconnected(_)) => return Err(End::Gone),
+            Err(TrySendError::Full(back)) => cmd = back,
+        }
+        if tokio::time::Instant::now() >= deadline {
+            warn!("engine queue full; closing the session");
+            return Err(End::Refused(
+                ErrorCode::TooManyConnections,
+                "server is overloaded".into(),
+            ));
+        }
+        tokio::time::sleep(ENGINE_RETRY).await;
+    }
+}
+
+/// Handles a control message; returns the command the engine must get.
 fn route(
     session: u64,
     ctx: &SessionContext,
     control: &FrameSender,
     m: ClientMessage,
-) -> Result<(), End> {
+) -> Result<Option<Command>, End> {
     let cmd = match m {
         ClientMessage::Hello(_) => {
             return Err(End::Refused(
@@ -349,7 +387,7 @@ fn route(
                 };
                 let _ = control.try_send(fanout_control(&msg));
             }
-            return Ok(());
+            return Ok(None);
         }
         ClientMessage::Subscribe { center, radius } => Command::Subscribe {
             session,
@@ -363,9 +401,62 @@ fn route(
                 nonce,
                 server_time: now_ms(),
             }));
-            return Ok(());
+            return Ok(None);
         }
     };
-    ctx.engine.try_send(cmd);
-    Ok(())
+    Ok(Some(cmd))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn leave(session: u64) -> Command {
+        Command::Leave { session }
+    }
+
+    #[tokio::test]
+    async fn deliver_waits_for_room_in_the_engine_queue() {
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
+        let engine = EngineHandle::from_sender(tx);
+        assert!(engine.try_send(leave(1)), "the queue has one slot");
+        let drain = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(30));
+            let mut got = Vec::new();
+            while let Ok(Command::Leave { session }) = rx.recv_timeout(Duration::from_secs(2)) {
+                got.push(session);
+            }
+            got
+        });
+        let waited = std::time::Instant::now();
+        assert!(deliver(&engine, leave(2), Duration::from_secs(5))
+            .await
+            .is_ok());
+        assert!(
+            waited.elapsed() >= Duration::from_millis(20),
+            "it waited for room"
+        );
+        drop(engine);
+        assert_eq!(drain.join().unwrap(), vec![1, 2], "nothing lost, in order");
+    }
+
+    #[tokio::test]
+    async fn deliver_gives_up_on_a_stuck_engine_and_notices_a_gone_one() {
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
+        let engine = EngineHandle::from_sender(tx);
+        assert!(engine.try_send(leave(1)));
+        match deliver(&engine, leave(2), Duration::from_millis(50)).await {
+            Err(End::Refused(ErrorCode::TooManyConnections, m)) => {
+                assert!(m.contains("overloaded"))
+            }
+            _ => panic!("expected an overloaded refusal"),
+        }
+        assert!(matches!(rx.try_recv(), Ok(Command::Leave { session: 1 })));
+        assert!(rx.try_recv().is_err(), "the refused command was not queued");
+        drop(rx);
+        assert!(matches!(
+            deliver(&engine, leave(3), Duration::from_millis(50)).await,
+            Err(End::Gone)
+        ));
+    }
 }
