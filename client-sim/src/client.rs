@@ -78,6 +78,9 @@ pub struct ClientOptions {
     /// The server's structure templates, to predict `PlaceStructure` edits
     /// (empty: those are sent unpredicted).
     pub structures: Arc<StructureLibrary>,
+    /// Connect through this endpoint (one UDP socket shared with other
+    /// clients of the process) instead of binding one of its own.
+    pub endpoint: Option<quinn::Endpoint>,
 }
 
 /// When a delta of edit `seq` reached this client.
@@ -150,6 +153,8 @@ fn unix_ms() -> u64 {
 #[derive(Debug)]
 pub struct Client {
     endpoint: quinn::Endpoint,
+    /// False when the endpoint is shared: closing waits only for our connection.
+    own_endpoint: bool,
     conn: quinn::Connection,
     welcome: Welcome,
     control: mpsc::Sender<Bytes>,
@@ -224,19 +229,14 @@ impl Client {
         protocol_version: u32,
         opts: ClientOptions,
     ) -> Result<Client, ClientError> {
-        let bind: SocketAddr = if addr.is_ipv6() {
-            "[::1]:0"
-        } else {
-            "127.0.0.1:0"
-        }
-        .parse()
-        .expect("literal");
-        let mut endpoint =
-            quinn::Endpoint::client(bind).map_err(|e| ClientError::Connect(e.to_string()))?;
-        endpoint.set_default_client_config(config);
+        let own_endpoint = opts.endpoint.is_none();
+        let endpoint = match opts.endpoint.clone() {
+            Some(shared) => shared,
+            None => client_endpoint(addr)?,
+        };
         let handshake = async {
             let conn = endpoint
-                .connect(addr, "localhost")
+                .connect_with(config, addr, "localhost")
                 .map_err(|e| ClientError::Connect(e.to_string()))?
                 .await
                 .map_err(|e| closed_error(&e))?;
@@ -294,6 +294,7 @@ impl Client {
         ];
         Ok(Client {
             endpoint,
+            own_endpoint,
             conn,
             welcome,
             control,
@@ -516,11 +517,26 @@ impl Client {
     /// Closes the connection politely and waits briefly for it to finish.
     pub async fn close(self) {
         self.conn.close(quinn::VarInt::from_u32(0), b"bye");
-        let _ = tokio::time::timeout(Duration::from_secs(2), self.endpoint.wait_idle()).await;
+        if self.own_endpoint {
+            let _ = tokio::time::timeout(Duration::from_secs(2), self.endpoint.wait_idle()).await;
+        }
         for t in self.tasks {
             t.abort();
         }
     }
+}
+
+/// A client endpoint (one UDP socket on loopback) for reaching `server`;
+/// several clients may share it through [`ClientOptions::endpoint`].
+pub fn client_endpoint(server: SocketAddr) -> Result<quinn::Endpoint, ClientError> {
+    let bind: SocketAddr = if server.is_ipv6() {
+        "[::1]:0"
+    } else {
+        "127.0.0.1:0"
+    }
+    .parse()
+    .expect("literal");
+    quinn::Endpoint::client(bind).map_err(|e| ClientError::Connect(e.to_string()))
 }
 
 /// A generator from the Welcome's parameters, if the client can run it.
