@@ -54,8 +54,9 @@ pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_s
         let mut buf = BytesMut::new();
         let mut chunks: Vec<ChunkPos> = Vec::new();
         for (c, frame) in &changes {
-            // `covers` rules most sessions out by distance alone.
-            if !p.interest.covers(c.pos) || p.known.get(&c.pos) != Some(&c.from_version) {
+            // The Fx-hashed `known` lookup rules most sessions out; `covers`
+            // (a tree lookup) only confirms the few that hold the base.
+            if p.known.get(&c.pos) != Some(&c.from_version) || !p.interest.covers(c.pos) {
                 continue;
             }
             p.known.insert(c.pos, c.to_version);
