@@ -3,7 +3,7 @@
 //! background.
 
 use std::collections::HashMap;
-use std::net::SocketAddr;
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -526,17 +526,16 @@ impl Client {
     }
 }
 
-/// A client endpoint (one UDP socket on loopback) for reaching `server`;
-/// several clients may share it through [`ClientOptions::endpoint`].
+/// A client endpoint (one UDP socket, on loopback for a loopback server)
+/// for reaching `server`; clients may share it ([`ClientOptions::endpoint`]).
 pub fn client_endpoint(server: SocketAddr) -> Result<quinn::Endpoint, ClientError> {
-    let bind: SocketAddr = if server.is_ipv6() {
-        "[::1]:0"
-    } else {
-        "127.0.0.1:0"
-    }
-    .parse()
-    .expect("literal");
-    quinn::Endpoint::client(bind).map_err(|e| ClientError::Connect(e.to_string()))
+    let ip: IpAddr = match (server.is_ipv6(), server.ip().is_loopback()) {
+        (false, true) => Ipv4Addr::LOCALHOST.into(),
+        (false, false) => Ipv4Addr::UNSPECIFIED.into(),
+        (true, true) => Ipv6Addr::LOCALHOST.into(),
+        (true, false) => Ipv6Addr::UNSPECIFIED.into(),
+    };
+    quinn::Endpoint::client(SocketAddr::new(ip, 0)).map_err(|e| ClientError::Connect(e.to_string()))
 }
 
 /// A generator from the Welcome's parameters, if the client can run it.
@@ -668,5 +667,22 @@ async fn read_updates(
                 break;
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn endpoints_bind_loopback_only_for_a_loopback_server() {
+        let local = |server: &str| {
+            let e = client_endpoint(server.parse().unwrap()).unwrap();
+            e.local_addr().unwrap().ip()
+        };
+        assert!(local("127.0.0.1:4433").is_loopback());
+        assert!(local("[::1]:4433").is_loopback());
+        // Nothing is sent: binding is enough to see the socket's address.
+        assert!(local("192.0.2.7:4433").is_unspecified());
     }
 }
