@@ -23,7 +23,10 @@ use crate::engine::{
 use crate::heightmap::HeightmapSection;
 use crate::interest::{InterestConfig, MAX_VIEW_RADIUS};
 use crate::sequencer::SequencerConfig;
-use crate::store::{StoreConfig, MAX_FLUSH_EVERY_MS, MIN_CACHE_CAPACITY_BYTES};
+use crate::store::{
+    StoreConfig, MAX_FLUSH_EVERY_MS, MAX_SEGMENT_SIZE_BYTES, MIN_CACHE_CAPACITY_BYTES,
+    MIN_SEGMENT_SIZE_BYTES,
+};
 use crate::validate::ValidationConfig;
 use strata_terrain::gen::GenParams;
 
@@ -451,6 +454,18 @@ impl ServerConfig {
             0,
             MAX_FLUSH_EVERY_MS,
         )?;
+        range(
+            "store.segment_size_bytes",
+            self.store.segment_size_bytes,
+            MIN_SEGMENT_SIZE_BYTES,
+            MAX_SEGMENT_SIZE_BYTES,
+        )?;
+        if !self.store.segment_size_bytes.is_power_of_two() {
+            return Err(invalid(
+                "store.segment_size_bytes",
+                "must be a power of two",
+            ));
+        }
         range(
             "sequencer.queue_capacity",
             self.sequencer.queue_capacity,

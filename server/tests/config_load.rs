@@ -197,6 +197,14 @@ fn bad_values_name_their_field() {
             "store.cache_capacity_bytes",
         ),
         ("[store]\nflush_every_ms = 60001", "store.flush_every_ms"),
+        (
+            "[store]\nsegment_size_bytes = 65536",
+            "store.segment_size_bytes",
+        ),
+        (
+            "[store]\nsegment_size_bytes = 3000000",
+            "store.segment_size_bytes",
+        ),
     ];
     for (text, field) in cases {
         assert_eq!(invalid_field(text), field, "config {text:?}");

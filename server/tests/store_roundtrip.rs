@@ -239,6 +239,7 @@ fn every_background_setting_keeps_overwritten_chunks() {
         let config = strata_server::store::StoreConfig {
             cache_capacity_bytes: strata_server::store::MIN_CACHE_CAPACITY_BYTES,
             flush_every_ms,
+            ..Default::default()
         };
         let store = SledStore::open_with(dir.path(), &config).unwrap();
         store.init_meta(&WorldMeta::new(42, 3, PARAMS)).unwrap();
@@ -258,4 +259,85 @@ fn every_background_setting_keeps_overwritten_chunks() {
         }
         assert_eq!(store.last_seq().unwrap(), seq.last_seq);
     }
+}
+
+/// A dense chunk of pseudo-random densities 1..=16: about 16 KB compressed,
+/// so a leaf of 16 is over a 512 KiB segment's inline limit (128 KiB) and
+/// under the default's (512 KiB).
+fn noisy_chunk(salt: u64) -> Chunk {
+    let mut x = salt.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut d = strata_terrain::chunk::DenseChunk::filled(Voxel::AIR);
+    for i in 0..strata_terrain::CHUNK_VOLUME {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        d.set(i, Voxel::new((x % 16) as u8 + 1, ids::STONE));
+    }
+    Chunk::Dense(d)
+}
+
+/// Most files in sled's `blobs` dir seen after each of `rounds` commits of
+/// 32 large chunk records into a store with `segment_size_bytes`.
+fn most_blob_files(segment_size_bytes: usize, rounds: u64) -> usize {
+    let dir = tempfile::tempdir().unwrap();
+    let config = strata_server::store::StoreConfig {
+        segment_size_bytes,
+        ..Default::default()
+    };
+    let store = SledStore::open_with(dir.path(), &config).unwrap();
+    store.init_meta(&WorldMeta::new(42, 3, PARAMS)).unwrap();
+    let mut seq = Seq::default();
+    let mut most = 0;
+    for round in 0..rounds {
+        let edits: Vec<Vec<(ChunkPos, Chunk)>> = (0..32)
+            .map(|i| vec![(ChunkPos::new(i, 0, 0), noisy_chunk(round * 32 + i as u64))])
+            .collect();
+        store.commit_batch(&seq.batch(&edits)).unwrap();
+        let blobs = std::fs::read_dir(dir.path().join("blobs")).map_or(0, |d| d.count());
+        most = most.max(blobs);
+    }
+    most
+}
+
+#[test]
+fn leaves_of_large_chunks_stay_inline_with_the_default_segments() {
+    // sled's own 512 KiB segments push a leaf of big records to a blob file
+    // (created and fsynced inside the commit); the default keeps them inline.
+    assert!(
+        most_blob_files(512 * 1024, 6) > 0,
+        "the old size makes blob files"
+    );
+    assert_eq!(
+        most_blob_files(strata_server::store::DEFAULT_SEGMENT_SIZE_BYTES, 6),
+        0
+    );
+}
+
+#[test]
+fn an_existing_store_keeps_its_segment_size() {
+    use strata_server::store::{persisted_segment_size, StoreConfig, DEFAULT_SEGMENT_SIZE_BYTES};
+    let dir = tempfile::tempdir().unwrap();
+    let old = StoreConfig {
+        segment_size_bytes: 512 * 1024,
+        ..Default::default()
+    };
+    let store = SledStore::open_with(dir.path(), &old).unwrap();
+    store.init_meta(&WorldMeta::new(42, 3, PARAMS)).unwrap();
+    let mut seq = Seq::default();
+    let batch = seq.batch(&[vec![(ChunkPos::new(1, 2, 3), terrain_chunk(5))]]);
+    store.commit_batch(&batch).unwrap();
+    drop(store);
+    assert_eq!(persisted_segment_size(dir.path()), Some(512 * 1024));
+    // The default asks for another size; the store opens with its own.
+    let store = SledStore::open_with(dir.path(), &StoreConfig::default()).unwrap();
+    let stored = store.load_chunk(ChunkPos::new(1, 2, 3)).unwrap().unwrap();
+    assert_eq!((stored.version, stored.chunk), (1, terrain_chunk(5)));
+    drop(store);
+    assert_eq!(persisted_segment_size(dir.path()), Some(512 * 1024));
+    let fresh = tempfile::tempdir().unwrap();
+    drop(SledStore::open(fresh.path()).unwrap());
+    assert_eq!(
+        persisted_segment_size(fresh.path()),
+        Some(DEFAULT_SEGMENT_SIZE_BYTES)
+    );
 }

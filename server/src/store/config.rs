@@ -16,6 +16,15 @@ pub const MIN_CACHE_CAPACITY_BYTES: u64 = 1024 * 1024;
 pub const DEFAULT_FLUSH_EVERY_MS: u64 = 20;
 /// Longest allowed background flush period.
 pub const MAX_FLUSH_EVERY_MS: u64 = 60_000;
+/// sled's log segment size for new stores. sled writes any page larger
+/// than a quarter segment to a file of its own, created and fsynced inside
+/// the commit that wrote it; a leaf of 16 chunk records (about 8 KiB each
+/// on terrain) passes the 128 KiB of sled's own 512 KiB default. 2 MiB
+/// keeps such leaves inline; 8 MiB made commits slower (BENCHMARKS.md).
+pub const DEFAULT_SEGMENT_SIZE_BYTES: usize = 2 * 1024 * 1024;
+/// Smallest and largest allowed segment size (a power of two, as sled wants).
+pub const MIN_SEGMENT_SIZE_BYTES: usize = 512 * 1024;
+pub const MAX_SEGMENT_SIZE_BYTES: usize = 16 * 1024 * 1024;
 
 /// The `[store]` section of the server config.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -26,6 +35,9 @@ pub struct StoreConfig {
     /// Period of sled's background thread in ms; 0 turns it off (and with
     /// it segment cleaning: the file then only grows).
     pub flush_every_ms: u64,
+    /// sled's log segment size for a new store; an existing store keeps the
+    /// size it was created with.
+    pub segment_size_bytes: usize,
 }
 
 impl StoreConfig {
@@ -40,6 +52,7 @@ impl Default for StoreConfig {
         Self {
             cache_capacity_bytes: DEFAULT_CACHE_CAPACITY_BYTES,
             flush_every_ms: DEFAULT_FLUSH_EVERY_MS,
+            segment_size_bytes: DEFAULT_SEGMENT_SIZE_BYTES,
         }
     }
 }

@@ -31,14 +31,15 @@ use strata_terrain::ChunkPos;
 pub use batch::{MAX_BATCH_CHUNKS, MAX_BATCH_ENTRIES};
 pub use check::{CheckIssue, CheckReport, Checker, MAX_REPORTED_ISSUES};
 pub use config::{
-    StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_FLUSH_EVERY_MS, MAX_FLUSH_EVERY_MS,
-    MIN_CACHE_CAPACITY_BYTES,
+    StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_FLUSH_EVERY_MS, DEFAULT_SEGMENT_SIZE_BYTES,
+    MAX_FLUSH_EVERY_MS, MAX_SEGMENT_SIZE_BYTES, MIN_CACHE_CAPACITY_BYTES, MIN_SEGMENT_SIZE_BYTES,
 };
 pub use error::StoreError;
 pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
 pub use sled_store::{
-    open_when_unlocked, SledStore, MAX_BLOB_BYTES, MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES,
-    META_LAST_SEQ, META_LOG_BASE, META_WORLD, TREE_BLOBS, TREE_CHUNKS, TREE_LOG, TREE_META,
+    open_when_unlocked, persisted_segment_size, SledStore, MAX_BLOB_BYTES, MAX_BLOB_NAME_BYTES,
+    MAX_GENERATOR_PARAMS_BYTES, META_LAST_SEQ, META_LOG_BASE, META_WORLD, TREE_BLOBS, TREE_CHUNKS,
+    TREE_LOG, TREE_META,
 };
 pub use types::{
     CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta, STORE_FORMAT_VERSION,

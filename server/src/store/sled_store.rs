@@ -73,10 +73,12 @@ impl SledStore {
     /// Opens (or creates) the store in `dir`. Refuses a store written by an
     /// unknown format version.
     pub fn open_with(dir: &Path, config: &StoreConfig) -> Result<Self, StoreError> {
+        let segment = persisted_segment_size(dir).unwrap_or(config.segment_size_bytes);
         let cfg = sled::Config::new()
             .path(dir)
             .cache_capacity(config.cache_capacity_bytes)
-            .flush_every_ms(config.flush_period());
+            .flush_every_ms(config.flush_period())
+            .segment_size(segment);
         let db = open_when_unlocked(|| cfg.open())?;
         let store = Self {
             meta: db.open_tree(TREE_META)?,
@@ -469,6 +471,15 @@ pub const LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(2);
 
 /// Runs `open` until it stops failing on the database's file lock, for at
 /// most [`LOCK_WAIT`]. A lock held by a live process fails after that.
+/// The segment size an existing store was created with: sled refuses to
+/// open it with another. Read from sled's `conf` file ("segment_size: N").
+pub fn persisted_segment_size(dir: &Path) -> Option<usize> {
+    let conf = std::fs::read(dir.join("conf")).ok()?;
+    String::from_utf8_lossy(&conf)
+        .lines()
+        .find_map(|l| l.strip_prefix("segment_size: ")?.trim().parse().ok())
+}
+
 pub fn open_when_unlocked<T>(mut open: impl FnMut() -> sled::Result<T>) -> sled::Result<T> {
     let start = std::time::Instant::now();
     loop {
