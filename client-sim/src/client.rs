@@ -78,9 +78,6 @@ pub struct ClientOptions {
     /// The server's structure templates, to predict `PlaceStructure` edits
     /// (empty: those are sent unpredicted).
     pub structures: Arc<StructureLibrary>,
-    /// Connect through this endpoint (one UDP socket shared with other
-    /// clients of the process) instead of binding one of its own.
-    pub endpoint: Option<quinn::Endpoint>,
 }
 
 /// When a delta of edit `seq` reached this client.
@@ -153,8 +150,6 @@ fn unix_ms() -> u64 {
 #[derive(Debug)]
 pub struct Client {
     endpoint: quinn::Endpoint,
-    /// False when the endpoint is shared: closing waits only for our connection.
-    own_endpoint: bool,
     conn: quinn::Connection,
     welcome: Welcome,
     control: mpsc::Sender<Bytes>,
@@ -229,11 +224,7 @@ impl Client {
         protocol_version: u32,
         opts: ClientOptions,
     ) -> Result<Client, ClientError> {
-        let own_endpoint = opts.endpoint.is_none();
-        let endpoint = match opts.endpoint.clone() {
-            Some(shared) => shared,
-            None => client_endpoint(addr)?,
-        };
+        let endpoint = client_endpoint(addr)?;
         let handshake = async {
             let conn = endpoint
                 .connect_with(config, addr, "localhost")
@@ -294,7 +285,6 @@ impl Client {
         ];
         Ok(Client {
             endpoint,
-            own_endpoint,
             conn,
             welcome,
             control,
@@ -517,9 +507,7 @@ impl Client {
     /// Closes the connection politely and waits briefly for it to finish.
     pub async fn close(self) {
         self.conn.close(quinn::VarInt::from_u32(0), b"bye");
-        if self.own_endpoint {
-            let _ = tokio::time::timeout(Duration::from_secs(2), self.endpoint.wait_idle()).await;
-        }
+        let _ = tokio::time::timeout(Duration::from_secs(2), self.endpoint.wait_idle()).await;
         for t in self.tasks {
             t.abort();
         }
@@ -527,7 +515,7 @@ impl Client {
 }
 
 /// A client endpoint (one UDP socket, on loopback for a loopback server)
-/// for reaching `server`; clients may share it ([`ClientOptions::endpoint`]).
+/// for reaching `server`.
 pub fn client_endpoint(server: SocketAddr) -> Result<quinn::Endpoint, ClientError> {
     let ip: IpAddr = match (server.is_ipv6(), server.ip().is_loopback()) {
         (false, true) => Ipv4Addr::LOCALHOST.into(),

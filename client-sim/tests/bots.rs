@@ -37,7 +37,6 @@ fn config_for(server: &app::Running) -> BotsConfig {
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
         predict: false,
-        sockets: bots::DEFAULT_SOCKETS,
     }
 }
 
@@ -92,8 +91,6 @@ async fn without_a_ramp_bots_edit_while_others_join() {
         profile: Profile::Miners,
         seed: 3,
         ramp: false,
-        // A socket per bot here; the other runs share `DEFAULT_SOCKETS`.
-        sockets: 0,
         ..config_for(&server)
     };
     let s = run_consistent(run).await;
@@ -122,7 +119,6 @@ async fn bad_settings_are_refused_before_connecting() {
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
         predict: false,
-        sockets: 0,
     };
     let e = bots::run(run.clone()).await.unwrap_err();
     assert!(e.to_string().contains("--stalled"), "{e}");

@@ -105,10 +105,6 @@ struct Args {
     /// the prediction was exact.
     #[arg(long)]
     predict: bool,
-    /// UDP sockets the bots share (bot i uses socket i mod N); 0 gives each
-    /// bot a socket of its own. Every bot is its own QUIC connection either way.
-    #[arg(long, default_value_t = bots::DEFAULT_SOCKETS)]
-    sockets: usize,
 }
 
 fn main() -> ExitCode {
@@ -200,7 +196,6 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: args.silence_limit,
         predict: args.predict,
-        sockets: args.sockets,
     };
     let summary = bots::run(cfg).await?;
     if args.json {

@@ -229,7 +229,6 @@ impl Bot {
                 record_history: true,
                 predict: cfg.predict,
                 structures: Default::default(),
-                endpoint: self.fleet.endpoint(self.id),
             };
             let attempt = {
                 let _slot = self.fleet.connect_slots.acquire().await.ok()?;

@@ -33,7 +33,6 @@ use strata_terrain::ChunkPos;
 use thiserror::Error;
 use tokio::sync::{watch, Semaphore};
 
-use crate::client::client_endpoint;
 use crate::pool::ChunkPool;
 use crate::prediction::PredictionStats;
 use ack_log::AckLog;
@@ -63,8 +62,7 @@ pub const VERIFY_TIMEOUT: Duration = Duration::from_secs(60);
 pub const DEFAULT_SILENCE_LIMIT: Duration = Duration::from_secs(10);
 /// Largest view radius a bot subscribes with.
 pub const MAX_BOT_VIEW_RADIUS: u8 = 8;
-/// Default UDP sockets shared by the bots (`--sockets`).
-pub const DEFAULT_SOCKETS: usize = 4;
+
 /// Accepted edits remembered for broadcast-latency matching.
 pub const MAX_TRACKED_EDITS: usize = 1 << 21;
 
@@ -79,8 +77,6 @@ pub enum BotsError {
     },
     #[error("cannot mint a token: {0}")]
     Token(String),
-    #[error("cannot open a client socket: {0}")]
-    Socket(#[from] crate::client::ClientError),
 }
 
 /// Where bots get their tokens.
@@ -162,11 +158,6 @@ pub struct BotsConfig {
     pub silence_limit: Duration,
     /// Bots predict their own edits (client-side prediction).
     pub predict: bool,
-    /// UDP sockets the bots share, bot `i` on socket `i % sockets`; 0 gives
-    /// every bot a socket of its own. Each bot is its own QUIC connection
-    /// either way; sharing saves the load tester a driver task and a wakeup
-    /// per packet per bot.
-    pub sockets: usize,
 }
 
 impl BotsConfig {
@@ -225,8 +216,6 @@ pub struct Fleet {
     pub cfg: BotsConfig,
     pub stats: Stats,
     pub pool: Arc<ChunkPool>,
-    /// The shared client endpoints (empty: one per bot).
-    endpoints: Vec<quinn::Endpoint>,
     phase: watch::Sender<Phase>,
     ack_log: Option<AckLog>,
     connect_slots: Semaphore,
@@ -247,11 +236,6 @@ pub struct Fleet {
 }
 
 impl Fleet {
-    /// The shared endpoint bot `id` connects through, if sockets are shared.
-    fn endpoint(&self, id: usize) -> Option<quinn::Endpoint> {
-        (!self.endpoints.is_empty()).then(|| self.endpoints[id % self.endpoints.len()].clone())
-    }
-
     fn phase_name(&self) -> &'static str {
         match *self.phase.borrow() {
             Phase::Ramp => "joining",
@@ -322,9 +306,6 @@ pub async fn run(cfg: BotsConfig) -> Result<Summary, BotsError> {
         cfg: cfg.clone(),
         stats: Stats::default(),
         pool: Arc::default(),
-        endpoints: (0..cfg.sockets.min(cfg.bots))
-            .map(|_| client_endpoint(cfg.server))
-            .collect::<Result<_, _>>()?,
         phase,
         ack_log,
         connect_slots: Semaphore::new(CONNECT_CONCURRENCY),
