@@ -29,7 +29,7 @@ fn clean_store_passes_and_planted_damage_is_named() {
     let victim = *fx.deltas.keys().next().unwrap();
     let orphan = ChunkPos::new(50, 0, 50);
     {
-        let db = sled::open(dir.join("world.sled")).unwrap();
+        let db = strata_server::store::open_raw(&dir.join("world.sled")).unwrap();
         let chunks = db.open_tree(TREE_CHUNKS).unwrap();
         let stone = Chunk::uniform(Voxel::solid(ids::STONE));
         chunks

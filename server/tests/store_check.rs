@@ -55,7 +55,7 @@ fn damaged(damage: impl FnOnce(&sled::Db)) -> (tempfile::TempDir, Vec<CheckIssue
 }
 
 fn plant(dir: &Path, damage: impl FnOnce(&sled::Db)) {
-    let db = strata_server::store::open_when_unlocked(|| sled::open(dir)).unwrap();
+    let db = strata_server::store::open_raw(dir).unwrap();
     damage(&db);
     db.flush().unwrap();
 }

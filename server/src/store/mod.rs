@@ -37,9 +37,9 @@ pub use config::{
 pub use error::StoreError;
 pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
 pub use sled_store::{
-    open_when_unlocked, persisted_segment_size, SledStore, MAX_BLOB_BYTES, MAX_BLOB_NAME_BYTES,
-    MAX_GENERATOR_PARAMS_BYTES, META_LAST_SEQ, META_LOG_BASE, META_WORLD, TREE_BLOBS, TREE_CHUNKS,
-    TREE_LOG, TREE_META,
+    open_raw, open_when_unlocked, persisted_segment_size, SledStore, MAX_BLOB_BYTES,
+    MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES, META_LAST_SEQ, META_LOG_BASE, META_WORLD,
+    TREE_BLOBS, TREE_CHUNKS, TREE_LOG, TREE_META,
 };
 pub use types::{
     CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta, STORE_FORMAT_VERSION,

@@ -480,6 +480,14 @@ pub fn persisted_segment_size(dir: &Path) -> Option<usize> {
         .find_map(|l| l.strip_prefix("segment_size: ")?.trim().parse().ok())
 }
 
+/// The raw sled database under a store, for tools and tests that look
+/// below [`ChunkStore`]: opened with the store's persisted segment size
+/// (sled refuses any other), waiting briefly for a released lock.
+pub fn open_raw(dir: &Path) -> sled::Result<sled::Db> {
+    let segment = persisted_segment_size(dir).unwrap_or(StoreConfig::default().segment_size_bytes);
+    open_when_unlocked(|| sled::Config::new().path(dir).segment_size(segment).open())
+}
+
 pub fn open_when_unlocked<T>(mut open: impl FnMut() -> sled::Result<T>) -> sled::Result<T> {
     let start = std::time::Instant::now();
     loop {
