@@ -157,8 +157,8 @@ impl EngineHandle {
     }
 
     /// A handle over `tx`, for tests of the session side.
-    #[doc(hidden)]
-    pub fn from_sender(tx: SyncSender<Command>) -> Self {
+    #[cfg(test)]
+    pub(crate) fn from_sender(tx: SyncSender<Command>) -> Self {
         Self(tx)
     }
 
