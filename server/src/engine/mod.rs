@@ -384,14 +384,7 @@ impl Engine {
             };
             metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
             phase.end("commit");
-            phase.note(format!(
-                "(encode={:.1}ms write={:.1}ms flush={:.1}ms chunks={} bytes={})",
-                stats.encode.as_secs_f64() * 1e3,
-                stats.apply.as_secs_f64() * 1e3,
-                stats.flush.as_secs_f64() * 1e3,
-                out.batch.chunks.len(),
-                stats.bytes_written
-            ));
+            phase.commit = Some((stats, out.batch.chunks.len()));
             let built = meshing
                 .recv()
                 .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
@@ -469,7 +462,8 @@ impl Engine {
 struct Phases {
     last: Instant,
     took: Vec<(&'static str, Duration)>,
-    notes: Vec<String>,
+    /// The tick's commit and how many chunks it wrote, if it had one.
+    commit: Option<(crate::store::CommitStats, usize)>,
 }
 
 impl Phases {
@@ -477,13 +471,8 @@ impl Phases {
         Self {
             last: Instant::now(),
             took: Vec::with_capacity(8),
-            notes: Vec::new(),
+            commit: None,
         }
-    }
-
-    /// Adds detail to the slow-tick warning.
-    fn note(&mut self, note: String) {
-        self.notes.push(note);
     }
 
     /// Records the time since the previous phase ended as `name`.
@@ -502,7 +491,16 @@ impl Phases {
             .iter()
             .map(|(n, d)| format!("{n}={:.1}ms", d.as_secs_f64() * 1e3))
             .collect();
-        parts.extend(self.notes.iter().cloned());
+        if let Some((c, chunks)) = &self.commit {
+            let ms = |d: Duration| d.as_secs_f64() * 1e3;
+            parts.push(format!(
+                "(encode={:.1}ms write={:.1}ms flush={:.1}ms chunks={chunks} bytes={})",
+                ms(c.encode),
+                ms(c.apply),
+                ms(c.flush),
+                c.bytes_written
+            ));
+        }
         parts.join(" ")
     }
 }

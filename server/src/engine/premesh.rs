@@ -5,8 +5,8 @@
 //! within `premesh_radius` that have no current mesh. A job carries copies
 //! of the modified chunks it reads and regenerates the rest, so the engine
 //! thread only copies what the store holds. Jobs run on a thread of their
-//! own that sleeps while it has none (a rayon pool's idle spinning cost 5 %
-//! of the server's CPU at 500 players). A finished mesh is cached
+//! own that sleeps while it has none (a rayon pool spins between jobs).
+//! A finished mesh is cached
 //! only if none of the 27 chunks it read changed version meanwhile.
 
 use std::collections::{HashMap, HashSet, VecDeque};
