@@ -212,13 +212,12 @@ fn half(present: PathBuf, missing: PathBuf) -> DataDirError {
 
 fn create_private_dir(path: &Path) -> io::Result<()> {
     let mut builder = fs::DirBuilder::new();
-    builder.recursive(true);
     #[cfg(unix)]
     {
         use std::os::unix::fs::DirBuilderExt;
         builder.mode(0o700);
     }
-    builder.create(path)
+    crate::durable::create_dir_all(&builder, path)
 }
 
 /// Writes `bytes` to `path` readable by the owner only (0600 on Unix).
@@ -231,8 +230,9 @@ pub(crate) fn write_public_file(path: &Path, bytes: &[u8]) -> io::Result<()> {
     write_file_atomic(path, bytes, 0o644)
 }
 
-/// Writes atomically: a temporary file in the same directory is synced and
-/// renamed over `path`, so a crash never leaves a truncated key behind.
+/// Writes atomically and durably: a temporary file in the same directory is
+/// synced and renamed over `path`, and the directory synced, so a power cut
+/// leaves either the old file or the whole new one, never a truncated key.
 #[cfg_attr(not(unix), allow(unused_variables))]
 fn write_file_atomic(path: &Path, bytes: &[u8], mode: u32) -> io::Result<()> {
     let mut tmp_name = path.file_name().unwrap_or_default().to_owned();
@@ -255,9 +255,7 @@ fn write_file_atomic(path: &Path, bytes: &[u8], mode: u32) -> io::Result<()> {
         file.set_permissions(fs::Permissions::from_mode(mode))?;
     }
     file.write_all(bytes)?;
-    file.sync_all()?;
-    drop(file);
-    fs::rename(&tmp, path)
+    crate::durable::persist_file(&file, &tmp, path)
 }
 
 /// Reads a private file (key, secret), warning if others can read it.

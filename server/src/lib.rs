@@ -11,6 +11,7 @@ pub mod client_tls;
 pub mod collision;
 pub mod config;
 pub mod datadir;
+pub mod durable;
 pub mod engine;
 pub mod heightmap;
 pub mod interest;

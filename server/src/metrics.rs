@@ -10,6 +10,7 @@ pub const EDITS_ACCEPTED: &str = "strata_edits_accepted_total";
 pub const EDITS_REJECTED: &str = "strata_edits_rejected_total";
 pub const QUEUE_DEPTH: &str = "strata_sequencer_queue_depth";
 pub const FLUSH_SECONDS: &str = "strata_flush_seconds";
+pub const FSYNC_SECONDS: &str = "strata_fsync_seconds";
 pub const TICK_SECONDS: &str = "strata_tick_seconds";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
@@ -39,6 +40,10 @@ pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
     metrics::describe_counter!(EDITS_REJECTED, "Edits refused, by reason");
     metrics::describe_gauge!(QUEUE_DEPTH, "Edits waiting for the sequencer");
     metrics::describe_histogram!(FLUSH_SECONDS, "Group-commit latency");
+    metrics::describe_histogram!(
+        FSYNC_SECONDS,
+        "The fsyncs that end a group commit (part of its latency)"
+    );
     metrics::describe_histogram!(TICK_SECONDS, "Sequencer tick duration");
     metrics::describe_histogram!(
         EDIT_LATENCY_SECONDS,

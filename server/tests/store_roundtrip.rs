@@ -2,7 +2,7 @@
 
 mod store_common;
 
-use store_common::{terrain_chunk, Seq};
+use store_common::{noisy_chunk, terrain_chunk, Seq};
 use strata_server::store::keys::{chunk_key, chunk_pos_from_key};
 use strata_server::store::{ChunkStore, SledStore, StoreError, WorldMeta, STORE_FORMAT_VERSION};
 use strata_terrain::chunk_codec::decode_chunk;
@@ -261,21 +261,6 @@ fn every_background_setting_keeps_overwritten_chunks() {
     }
 }
 
-/// A dense chunk of pseudo-random densities 1..=16: about 16 KB compressed,
-/// so a leaf of 16 is over a 512 KiB segment's inline limit (128 KiB) and
-/// under the default's (512 KiB).
-fn noisy_chunk(salt: u64) -> Chunk {
-    let mut x = salt.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-    let mut d = strata_terrain::chunk::DenseChunk::filled(Voxel::AIR);
-    for i in 0..strata_terrain::CHUNK_VOLUME {
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        d.set(i, Voxel::new((x % 16) as u8 + 1, ids::STONE));
-    }
-    Chunk::Dense(d)
-}
-
 /// Most files in sled's `blobs` dir seen after each of `rounds` commits of
 /// 32 large chunk records into a store with `segment_size_bytes`.
 fn most_blob_files(segment_size_bytes: usize, rounds: u64) -> usize {
@@ -302,7 +287,8 @@ fn most_blob_files(segment_size_bytes: usize, rounds: u64) -> usize {
 #[test]
 fn leaves_of_large_chunks_stay_inline_with_the_default_segments() {
     // sled's own 512 KiB segments push a leaf of big records to a blob file
-    // (created and fsynced inside the commit); the default keeps them inline.
+    // (created inside the commit, which must fsync it); the default keeps
+    // them inline.
     assert!(
         most_blob_files(512 * 1024, 6) > 0,
         "the old size makes blob files"

@@ -12,6 +12,8 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
+pub mod lazyfs;
+
 /// Longest any child process may run before the test fails.
 pub const PROCESS_TIMEOUT: Duration = Duration::from_secs(120);
 /// Longest wait for a server to print its address.
@@ -101,8 +103,13 @@ impl Server {
     /// Starts the server on `listen` (port 0 picks one) and reads the
     /// address it prints.
     pub fn start(data_dir: &Path, listen: &str) -> Server {
+        Self::start_with(data_dir, listen, SERVER_CONFIG)
+    }
+
+    /// [`Server::start`] with the config file's text.
+    pub fn start_with(data_dir: &Path, listen: &str, config_text: &str) -> Server {
         let config = data_dir.with_extension("toml");
-        std::fs::write(&config, SERVER_CONFIG).expect("write config");
+        std::fs::write(&config, config_text).expect("write config");
         let child = Command::new(binary("strata-server"))
             .arg("--config")
             .arg(&config)

@@ -195,7 +195,7 @@ pub fn run(args: &ExportMeshArgs, show_progress: bool) -> Result<ExportReport, E
     let mut w = BufWriter::new(tmp.as_file());
     write_mesh(format, MeshRef::from(&mesh), &mut w)?;
     drop(w);
-    tmp.persist(&args.out).map_err(|e| write_err(e.error))?;
+    crate::durable::persist_temp(tmp, &args.out).map_err(write_err)?;
     let stats = ExportStats {
         chunks: bx.count(),
         empty_chunks: chunks.iter().filter(|c| c.triangles == 0).count() as u64,

@@ -185,7 +185,7 @@ pub fn run(args: &MeshArgs, show_progress: bool) -> Result<MeshReport, MeshCmdEr
             let mut w = BufWriter::new(tmp.as_file());
             write_mesh(format, MeshRef::from(&meshed.mesh), &mut w)?;
             drop(w);
-            tmp.persist(out).map_err(|e| write_err(e.error))?;
+            crate::durable::persist_temp(tmp, out).map_err(write_err)?;
             Some(out.clone())
         }
         None => None,

@@ -146,7 +146,7 @@ pub fn run(args: &RenderMapArgs, show_progress: bool) -> Result<MapReport, Rende
         MapFormat::Svg => write_svg(&map, &mut w).map_err(write_err)?,
     }
     drop(w);
-    tmp.persist(&args.out).map_err(|e| write_err(e.error))?;
+    crate::durable::persist_temp(tmp, &args.out).map_err(write_err)?;
     Ok(MapReport {
         width_px,
         height_px,

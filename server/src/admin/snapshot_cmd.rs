@@ -94,11 +94,12 @@ fn write_atomically(
     settle(&tmp, out, result)
 }
 
-/// Renames a complete `.partial` file into place, or removes a failed one.
+/// Renames a complete (synced) `.partial` file into place and syncs its
+/// directory, or removes a failed one.
 fn settle(tmp: &Path, out: &Path, result: anyhow::Result<Created>) -> anyhow::Result<Created> {
     match result {
         Ok(created) => {
-            std::fs::rename(tmp, out)
+            crate::durable::rename(tmp, out)
                 .with_context(|| format!("renaming into {}", out.display()))?;
             Ok(created)
         }

@@ -130,6 +130,9 @@ pub struct Engine {
     snapshots_running: Vec<Arc<snapshot::PreImages>>,
     /// Commands that arrived during a commit and must wait for it.
     deferred: commit::Deferred,
+    /// The last seq the store holds durably. The sequencer's own runs
+    /// ahead of it while a commit is in flight; clients are told only this.
+    durable_seq: u64,
 }
 
 impl std::fmt::Debug for Engine {
@@ -180,6 +183,7 @@ impl Engine {
     ) -> std::io::Result<Self> {
         Ok(Self {
             premesh: premesh::Premesher::new(cfg.premesh_inflight)?,
+            durable_seq: seq.last_seq(),
             seq,
             store,
             cfg,
@@ -256,8 +260,10 @@ impl Engine {
                 let interest = Interest::new(self.interest, self.bounds);
                 self.peers
                     .insert(session, Peer::new(control, updates, interest, kick));
+                // A join may arrive mid-commit: name no seq a power cut could
+                // still take back.
                 let _ = reply.send(JoinReply {
-                    last_seq: self.seq.last_seq(),
+                    last_seq: self.durable_seq,
                 });
             }
             Command::Leave { session } => {
@@ -382,7 +388,9 @@ impl Engine {
                     return Err(e.into());
                 }
             };
+            self.durable_seq = out.batch.last_seq;
             metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
+            metrics::histogram!(m::FSYNC_SECONDS).record(stats.fsync.as_secs_f64());
             phase.end("commit");
             phase.commit = Some((stats, out.batch.chunks.len()));
             let built = meshing
@@ -494,10 +502,11 @@ impl Phases {
         if let Some((c, chunks)) = &self.commit {
             let ms = |d: Duration| d.as_secs_f64() * 1e3;
             parts.push(format!(
-                "(encode={:.1}ms write={:.1}ms flush={:.1}ms chunks={chunks} bytes={})",
+                "(encode={:.1}ms write={:.1}ms flush={:.1}ms fsync={:.1}ms chunks={chunks} bytes={})",
                 ms(c.encode),
                 ms(c.apply),
                 ms(c.flush),
+                ms(c.fsync),
                 c.bytes_written
             ));
         }

@@ -7,9 +7,9 @@ use serde::{Deserialize, Serialize};
 pub const DEFAULT_CACHE_CAPACITY_BYTES: u64 = 64 * 1024 * 1024;
 /// Smallest allowed page cache.
 pub const MIN_CACHE_CAPACITY_BYTES: u64 = 1024 * 1024;
-/// sled's background flush period. Every write of the store flushes
-/// explicitly before returning, so this thread only cleans segments (and
-/// syncs). Each pass may rewrite pages for half a period, and a group
+/// sled's background flush period. Every write of the store flushes and
+/// fsyncs explicitly before returning, so this thread only cleans segments
+/// and is not the durability boundary. Each pass may rewrite pages for half a period, and a group
 /// commit waits for whatever it wrote: a short period keeps that work in
 /// small slices. sled's own default, 500 ms, stalled commits for up to
 /// 140 ms at 500 edits/s (BENCHMARKS.md).
@@ -17,8 +17,8 @@ pub const DEFAULT_FLUSH_EVERY_MS: u64 = 20;
 /// Longest allowed background flush period.
 pub const MAX_FLUSH_EVERY_MS: u64 = 60_000;
 /// sled's log segment size for new stores. sled writes any page larger
-/// than a quarter segment to a file of its own, created and fsynced inside
-/// the commit that wrote it; a leaf of 16 chunk records (about 8 KiB each
+/// than a quarter segment to a file of its own, created inside the commit
+/// that wrote it (and fsynced by `disk_sync`); a leaf of 16 chunk records (about 8 KiB each
 /// on terrain) passes the 128 KiB of sled's own 512 KiB default. 2 MiB
 /// keeps such leaves inline; 8 MiB made commits slower (BENCHMARKS.md).
 pub const DEFAULT_SEGMENT_SIZE_BYTES: usize = 2 * 1024 * 1024;

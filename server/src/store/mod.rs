@@ -8,8 +8,9 @@
 //!
 //! Writes happen once per sequencer tick through [`ChunkStore::commit_batch`]
 //! (group commit): chunk states, log entries and `last_seq` go in one
-//! atomic transaction, then one flush makes them durable, and only then may
-//! the server acknowledge the edits. The call blocks on fsync, so the async
+//! atomic transaction, then one flush and the fsyncs sled leaves out
+//! (`disk_sync`) make them durable, and only then may the server
+//! acknowledge the edits. The call blocks on fsync, so the async
 //! shell runs it through `tokio::task::spawn_blocking` (the store is `Send +
 //! Sync`; share it as `Arc<dyn ChunkStore>`). The key layout is documented
 //! in [`keys`].
@@ -17,6 +18,7 @@
 mod batch;
 mod check;
 mod config;
+mod disk_sync;
 mod error;
 mod import;
 pub mod keys;
@@ -34,6 +36,7 @@ pub use config::{
     StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_FLUSH_EVERY_MS, DEFAULT_SEGMENT_SIZE_BYTES,
     MAX_FLUSH_EVERY_MS, MAX_SEGMENT_SIZE_BYTES, MIN_CACHE_CAPACITY_BYTES, MIN_SEGMENT_SIZE_BYTES,
 };
+pub use disk_sync::MAX_TRACKED_BLOBS;
 pub use error::StoreError;
 pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
 pub use sled_store::{

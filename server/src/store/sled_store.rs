@@ -4,10 +4,12 @@
 //! `chunks` and `log` trees. sled writes a transaction's updates to its log
 //! as one batch and on recovery replays all of it or none of it, so after a
 //! crash the store holds exactly the batches before some point: never a log
-//! entry beyond `last_seq`, never a chunk without its log entry. sled only
-//! fsyncs every `flush_every_ms` on its own, so every write method calls
-//! [`sled::Db::flush`] and returns after it: data from a completed flush
-//! survives a crash, and the caller acknowledges nothing before that.
+//! entry beyond `last_seq`, never a chunk without its log entry. sled's
+//! `flush` is not a durability barrier on Linux (`sync_file_range`), and
+//! its own `sync_all` runs only every `flush_every_ms`; so every write
+//! method flushes and then fsyncs through [`DiskSync`] before returning:
+//! data from a completed write survives a power cut, and the caller
+//! acknowledges nothing before that.
 
 use std::ops::RangeInclusive;
 use std::path::Path;
@@ -20,6 +22,7 @@ use strata_terrain::ChunkPos;
 use super::batch;
 use super::check::{CheckReport, Checker};
 use super::config::StoreConfig;
+use super::disk_sync::DiskSync;
 use super::error::StoreError;
 use super::keys::{chunk_key, chunk_pos_from_key, seq_from_key, seq_key, show_pos, show_raw};
 use super::record::{
@@ -62,6 +65,7 @@ pub struct SledStore {
     pub(super) chunks: sled::Tree,
     pub(super) log: sled::Tree,
     pub(super) blobs: sled::Tree,
+    disk: DiskSync,
 }
 
 impl SledStore {
@@ -85,6 +89,7 @@ impl SledStore {
             chunks: db.open_tree(TREE_CHUNKS)?,
             log: db.open_tree(TREE_LOG)?,
             blobs: db.open_tree(TREE_BLOBS)?,
+            disk: DiskSync::open(dir)?,
             db,
         };
         // Only a readable record of another format stops the open: a
@@ -102,8 +107,11 @@ impl SledStore {
         Ok(store)
     }
 
+    /// Makes every write so far durable: sled's flush, then the fsyncs it
+    /// leaves out.
     pub(super) fn flush(&self) -> Result<(), StoreError> {
         self.db.flush()?;
+        self.disk.sync()?;
         Ok(())
     }
 }
@@ -305,12 +313,15 @@ impl ChunkStore for SledStore {
         })?;
         let apply = started.elapsed() - encode;
         let flushing = Instant::now();
-        self.flush()?;
+        self.db.flush()?;
+        let syncing = Instant::now();
+        self.disk.sync()?;
         Ok(CommitStats {
             bytes_written,
             encode,
             apply,
-            flush: flushing.elapsed(),
+            flush: syncing - flushing,
+            fsync: syncing.elapsed(),
         })
     }
 

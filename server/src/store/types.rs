@@ -97,6 +97,9 @@ pub struct CommitStats {
     pub encode: Duration,
     /// Time to apply the transaction in memory.
     pub apply: Duration,
-    /// Time `flush` took to make it durable (the fsyncs).
+    /// Time sled's `flush` took (its writes and `sync_file_range`).
     pub flush: Duration,
+    /// Time the fsyncs after it took (see `disk_sync`): the commit is
+    /// durable only once they return.
+    pub fsync: Duration,
 }

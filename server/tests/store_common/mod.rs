@@ -90,3 +90,18 @@ impl Seq {
         }
     }
 }
+
+/// A dense chunk of pseudo-random densities 1..=16: about 16 KB compressed,
+/// so a leaf of 16 is over a 512 KiB segment's inline limit (128 KiB) and
+/// under the default's (512 KiB).
+pub fn noisy_chunk(salt: u64) -> Chunk {
+    let mut x = salt.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut d = strata_terrain::chunk::DenseChunk::filled(Voxel::AIR);
+    for i in 0..strata_terrain::CHUNK_VOLUME {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        d.set(i, Voxel::new((x % 16) as u8 + 1, ids::STONE));
+    }
+    Chunk::Dense(d)
+}

@@ -1,0 +1,164 @@
+//! The fsyncs sled 0.34 leaves out.
+//!
+//! On Linux `sled::Db::flush` writes its log with `sync_file_range`, which
+//! saves neither the file's size nor the drive's write cache: a power cut
+//! can lose a "flushed" commit. sled also writes blob files (pages over a
+//! quarter segment) without any sync, and renames snapshot files without
+//! syncing the directory. [`DiskSync::sync`] runs after every flush:
+//! `fdatasync` of the `db` file, of each blob file not yet synced at its
+//! current length, and an fsync of each directory whose entries changed.
+//! Only then is a write durable.
+
+use std::collections::{BTreeSet, HashMap};
+use std::ffi::OsString;
+use std::fs::{self, File};
+use std::io;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use crate::durable::{sync_dir, sync_parent};
+
+/// sled's log file inside the store directory.
+const DB_FILE: &str = "db";
+/// sled's config file, written once at creation.
+const CONF_FILE: &str = "conf";
+/// sled's directory of blob files.
+const BLOBS_DIR: &str = "blobs";
+
+/// Most blob files remembered as synced; past it the set starts over (and
+/// the next sync fsyncs them all again). sled removes blobs as it cleans.
+pub const MAX_TRACKED_BLOBS: usize = 4096;
+
+#[derive(Debug)]
+pub(super) struct DiskSync {
+    dir: PathBuf,
+    /// A second handle on sled's log file (fsync on any handle syncs the file).
+    db: File,
+    state: Mutex<Seen>,
+}
+
+/// What the last sync saw, to sync only what changed since.
+#[derive(Debug, Default)]
+struct Seen {
+    /// Blob file name → length it was synced at.
+    blobs: HashMap<OsString, u64>,
+    /// Names in the store directory (sled's snapshot files come and go).
+    entries: BTreeSet<OsString>,
+}
+
+impl DiskSync {
+    /// Opens the handles and makes everything sled created so far durable:
+    /// its files, its directories and the store directory's own entry.
+    pub(super) fn open(dir: &Path) -> io::Result<Self> {
+        let db = File::open(dir.join(DB_FILE))?;
+        if let Ok(conf) = File::open(dir.join(CONF_FILE)) {
+            conf.sync_all()?;
+        }
+        let me = Self {
+            dir: dir.to_path_buf(),
+            db,
+            state: Mutex::new(Seen::default()),
+        };
+        // The first sync sees every entry as new and syncs the directory.
+        me.sync()?;
+        sync_parent(dir)?;
+        Ok(me)
+    }
+
+    /// Makes everything sled has written so far durable. Call it after
+    /// `flush`, before acknowledging anything.
+    pub(super) fn sync(&self) -> io::Result<()> {
+        let mut seen = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        // Blobs first: the log may point at them.
+        let blob_dir = self.dir.join(BLOBS_DIR);
+        let mut present = Vec::new();
+        let mut changed = false;
+        for entry in fs::read_dir(&blob_dir)? {
+            let entry = entry?;
+            let name = entry.file_name();
+            let len = match entry.metadata() {
+                Ok(m) => m.len(),
+                // sled removed it meanwhile.
+                Err(e) if e.kind() == io::ErrorKind::NotFound => continue,
+                Err(e) => return Err(e),
+            };
+            if seen.blobs.get(&name) != Some(&len) {
+                match File::open(entry.path()) {
+                    Ok(f) => f.sync_data()?,
+                    Err(e) if e.kind() == io::ErrorKind::NotFound => continue,
+                    Err(e) => return Err(e),
+                }
+                changed |= !seen.blobs.contains_key(&name);
+            }
+            present.push((name, len));
+        }
+        changed |= present.len() != seen.blobs.len();
+        if changed {
+            sync_dir(&blob_dir)?;
+        }
+        seen.blobs = present.into_iter().take(MAX_TRACKED_BLOBS).collect();
+        self.db.sync_data()?;
+        let entries = fs::read_dir(&self.dir)?
+            .map(|e| e.map(|e| e.file_name()))
+            .collect::<io::Result<BTreeSet<_>>>()?;
+        if entries != seen.entries {
+            sync_dir(&self.dir)?;
+            seen.entries = entries;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn synced_blobs(s: &DiskSync) -> Vec<(String, u64)> {
+        let seen = s.state.lock().unwrap();
+        let mut v: Vec<_> = seen
+            .blobs
+            .iter()
+            .map(|(n, l)| (n.to_string_lossy().into_owned(), *l))
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn remembers_each_blob_file_at_the_length_it_was_synced() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("store");
+        fs::create_dir_all(dir.join(BLOBS_DIR)).unwrap();
+        fs::write(dir.join(DB_FILE), b"log").unwrap();
+        let s = DiskSync::open(&dir).unwrap();
+        assert!(synced_blobs(&s).is_empty());
+        fs::write(dir.join(BLOBS_DIR).join("17"), b"abc").unwrap();
+        s.sync().unwrap();
+        assert_eq!(synced_blobs(&s), [("17".to_string(), 3)]);
+        // A blob still being written is synced again once it grew.
+        fs::write(dir.join(BLOBS_DIR).join("17"), b"abcdef").unwrap();
+        fs::write(dir.join(BLOBS_DIR).join("40"), b"x").unwrap();
+        s.sync().unwrap();
+        assert_eq!(
+            synced_blobs(&s),
+            [("17".to_string(), 6), ("40".to_string(), 1)]
+        );
+        // Removed blobs are forgotten; a new snapshot file is a new entry.
+        fs::remove_file(dir.join(BLOBS_DIR).join("17")).unwrap();
+        fs::write(dir.join("snap.0000000000000001"), b"s").unwrap();
+        s.sync().unwrap();
+        assert_eq!(synced_blobs(&s), [("40".to_string(), 1)]);
+        assert!(s
+            .state
+            .lock()
+            .unwrap()
+            .entries
+            .contains(std::ffi::OsStr::new("snap.0000000000000001")));
+    }
+
+    #[test]
+    fn a_store_without_its_log_file_does_not_open() {
+        let tmp = tempfile::tempdir().unwrap();
+        assert!(DiskSync::open(tmp.path()).is_err());
+    }
+}

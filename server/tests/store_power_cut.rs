@@ -1,0 +1,86 @@
+//! Power cuts on LazyFS below the store and the data dir: whatever a
+//! write method returned from is still there after every write that was
+//! never fsynced is dropped. sled's `flush` alone fails these (its
+//! `sync_file_range` leaves the data in LazyFS's cache, and its blob files
+//! are never synced at all).
+
+mod store_common;
+
+use store_common::{noisy_chunk, Seq};
+use strata_server::datadir::DataDir;
+use strata_server::store::{ChunkStore, SledStore, StoreConfig, WorldMeta};
+use strata_terrain::ChunkPos;
+use strata_tests::lazyfs::LazyFs;
+
+const PARAMS: &str = "kind = \"hills\"";
+
+#[test]
+fn commits_blob_files_and_blobs_survive_a_power_cut() {
+    let Some(mut fs) = LazyFs::for_test("commits_blob_files_and_blobs_survive_a_power_cut") else {
+        return;
+    };
+    let dir = fs.mount_dir().join("world.sled");
+    // No background thread (nothing syncs behind the store's back), and
+    // sled's old 512 KiB segments, whose big leaves go to blob files.
+    let config = StoreConfig {
+        flush_every_ms: 0,
+        segment_size_bytes: 512 * 1024,
+        ..Default::default()
+    };
+    let store = SledStore::open_with(&dir, &config).unwrap();
+    store.init_meta(&WorldMeta::new(7, 3, PARAMS)).unwrap();
+    let mut seq = Seq::default();
+    let mut blob_files = 0;
+    for round in 0..4u64 {
+        let edits: Vec<_> = (0..32)
+            .map(|i| vec![(ChunkPos::new(i, 0, 0), noisy_chunk(round * 32 + i as u64))])
+            .collect();
+        store.commit_batch(&seq.batch(&edits)).unwrap();
+        let files = std::fs::read_dir(dir.join("blobs")).map_or(0, |d| d.count());
+        blob_files = blob_files.max(files);
+    }
+    assert!(blob_files > 0, "the commits wrote sled blob files");
+    store.put_blob("zones", b"[1,2,3]").unwrap();
+    store.put_blob("scratch", b"gone").unwrap();
+    assert!(store.delete_blob("scratch").unwrap());
+    // The process "dies": no drop, no last flush.
+    std::mem::forget(store);
+    fs.power_cut();
+
+    let store = SledStore::open_with(&dir, &config).unwrap();
+    assert_eq!(store.last_seq().unwrap(), seq.last_seq);
+    assert_eq!(store.load_meta().unwrap().unwrap().seed, 7);
+    for i in 0..32 {
+        let stored = store.load_chunk(ChunkPos::new(i, 0, 0)).unwrap().unwrap();
+        assert_eq!(stored.version, 4);
+        assert_eq!(stored.chunk, noisy_chunk(3 * 32 + i as u64));
+    }
+    assert_eq!(
+        store.get_blob("zones").unwrap().as_deref(),
+        Some(&b"[1,2,3]"[..])
+    );
+    assert_eq!(store.get_blob("scratch").unwrap(), None);
+    let report = store.check().unwrap();
+    assert!(report.is_ok(), "{report:?}");
+}
+
+#[test]
+fn a_new_data_dir_keeps_its_identity_through_a_power_cut() {
+    let Some(mut fs) = LazyFs::for_test("a_new_data_dir_keeps_its_identity_through_a_power_cut")
+    else {
+        return;
+    };
+    let root = fs.mount_dir().join("data");
+    let (made, report) = DataDir::open_or_init(&root, &[]).unwrap();
+    assert!(report.created_secret.is_some() && report.created_cert.is_some());
+    let cert = std::fs::read(made.cert_path()).unwrap();
+    let secret = std::fs::read(made.secret_path()).unwrap();
+    drop(made);
+    fs.power_cut();
+
+    // Nothing is generated again: tokens and pinned clients stay valid.
+    let (kept, report) = DataDir::open_or_init(&root, &[]).unwrap();
+    assert!(!report.created_anything(), "{report}");
+    assert_eq!(std::fs::read(kept.cert_path()).unwrap(), cert);
+    assert_eq!(std::fs::read(kept.secret_path()).unwrap(), secret);
+}
