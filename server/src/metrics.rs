@@ -24,6 +24,7 @@ pub const PREMESH_STALE: &str = "strata_premesh_stale_total";
 pub const PREMESH_SKIPPED: &str = "strata_premesh_skipped_total";
 pub const PATCH_BYTES: &str = "strata_patch_payload_bytes_total";
 pub const SNAPSHOTS_SENT: &str = "strata_snapshots_sent_total";
+pub const SESSIONS_KICKED: &str = "strata_sessions_kicked_total";
 
 /// Serves `/metrics` on `addr` from a background thread of the exporter.
 pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
@@ -32,6 +33,10 @@ pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
         .install()?;
     metrics::describe_gauge!(CONNECTIONS, "Open QUIC connections");
     metrics::describe_counter!(SESSIONS_TOTAL, "Sessions that joined the world");
+    metrics::describe_counter!(
+        SESSIONS_KICKED,
+        "Sessions the server disconnected for misbehaving, by reason"
+    );
     metrics::describe_counter!(
         POSITIONS_DROPPED,
         "Position datagrams dropped because the engine's queue was full"

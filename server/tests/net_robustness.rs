@@ -179,7 +179,10 @@ async fn a_stalled_client_does_not_delay_the_others() {
 async fn a_client_that_never_reads_its_verdicts_is_disconnected() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        let server = start(dir.path()).await;
+        // Refusals without limit, so the control queue overflows first.
+        let mut cfg = test_config(dir.path());
+        cfg.validation.reject_rate.capacity = u64::MAX / 2000;
+        let server = app::start(cfg).await.expect("server starts");
         let good = connect(&server, "good", Role::Player).await;
         // No reading: verdicts pile up in the server's bounded control queue
         // until it overflows.
@@ -220,6 +223,40 @@ async fn a_client_that_never_reads_its_verdicts_is_disconnected() {
             other => panic!("expected an application close, got {other}"),
         }
         // Everyone else is fine.
+        good.ping(1).await.unwrap();
+        assert!(!good.is_closed());
+        good.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn a_player_whose_edits_keep_being_refused_is_disconnected() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.validation.reject_rate.capacity = 20;
+        let server = app::start(cfg).await.expect("server starts");
+        let good = connect(&server, "good", Role::Player).await;
+        let bad = connect(&server, "bad", Role::Player).await;
+        // Refused at once: no position yet.
+        let edit = Edit::Mine {
+            center: FixedVec3::from_voxels(0, 0, 0),
+            radius: r(1.0),
+            strength: 1,
+        };
+        let mut refused = 0;
+        for _ in 0..40 {
+            match bad.edit(edit.clone()).await {
+                Ok(Verdict::Rejected(_)) => refused += 1,
+                Ok(v) => panic!("unexpected verdict {v:?}"),
+                Err(_) => break,
+            }
+        }
+        assert!((20..40).contains(&refused), "{refused} refusals before the kick");
+        expect_closed_with(bad, ErrorCode::Kicked).await;
         good.ping(1).await.unwrap();
         assert!(!good.is_closed());
         good.close().await;

@@ -110,3 +110,32 @@ fn eye_inside_a_wall_is_solid() {
     s.update_position(PLAYER, at(3, x + 2, 0, z), 1_000)
         .unwrap();
 }
+
+#[test]
+fn the_precheck_refuses_far_jumps_without_touching_terrain() {
+    let mut s = fresh();
+    s.update_position(PLAYER, at(1, 100, 40, 100), 0).unwrap();
+    let resident = s.resident();
+    // 5000 voxels in 50 ms, then a stale report, then below the world.
+    assert!(matches!(
+        s.precheck_position(PLAYER, &at(2, 5100, 40, 100), 50),
+        Err(PositionReject::TooFast { .. })
+    ));
+    assert!(matches!(
+        s.precheck_position(PLAYER, &at(1, 101, 40, 100), 50),
+        Err(PositionReject::Stale { .. })
+    ));
+    assert_eq!(
+        s.precheck_position(PLAYER, &at(3, 100, -100_000, 100), 50),
+        Err(PositionReject::OutOfBounds)
+    );
+    assert_eq!(s.resident(), resident, "nothing was loaded or generated");
+    assert_eq!(
+        s.precheck_position(PLAYER, &at(4, 101, 40, 100), 50),
+        Ok(())
+    );
+    assert_eq!(
+        s.precheck_position(99, &at(1, 0, 40, 0), 0),
+        Err(PositionReject::UnknownSession)
+    );
+}

@@ -306,3 +306,84 @@ fn reconnecting_does_not_refill_the_bucket() {
     s.tick(10_000);
     assert_eq!(s.tracked_players(), 1, "only the admin is left");
 }
+
+#[test]
+fn refused_edits_cost_an_edit_token() {
+    let v = ValidationConfig {
+        edit_rate: BucketConfig {
+            capacity: 3,
+            per_second: 1,
+        },
+        ..Default::default()
+    };
+    let mut s = ready(v);
+    for i in 0..3 {
+        assert!(matches!(
+            s.submit(PLAYER, req(i, mine(X, -1, Z + 3, 9)), 0),
+            Err(RejectReason::RadiusTooLarge { .. })
+        ));
+    }
+    // The three refusals spent the burst: a good edit must wait.
+    assert_eq!(
+        s.submit(PLAYER, req(5, mine(X, -1, Z + 4, 1)), 0),
+        Err(RejectReason::RateLimited)
+    );
+    assert!(s
+        .submit(PLAYER, req(6, mine(X, -1, Z + 4, 1)), 1000)
+        .is_ok());
+}
+
+#[test]
+fn a_player_out_of_rejection_tokens_is_disconnected_once() {
+    let v = ValidationConfig {
+        reject_rate: BucketConfig {
+            capacity: 5,
+            per_second: 1,
+        },
+        ..Default::default()
+    };
+    let mut s = ready(v);
+    let refuse = |s: &mut strata_server::sequencer::Sequencer, i: u64, now: u64| {
+        assert!(s
+            .submit(PLAYER, req(i, mine(X, -1, Z + 3, 9)), now)
+            .is_err());
+    };
+    for i in 0..5 {
+        refuse(&mut s, i, 0);
+    }
+    assert!(
+        s.take_disconnects().is_empty(),
+        "five refusals are within the burst"
+    );
+    refuse(&mut s, 5, 0);
+    refuse(&mut s, 6, 0);
+    assert_eq!(s.take_disconnects(), vec![PLAYER]);
+    assert!(s.take_disconnects().is_empty());
+    // The admin's refusals are its own budget.
+    assert!(s.submit(ADMIN, req(7, mine(X, 500, Z, 1)), 0).is_err());
+    assert!(s.take_disconnects().is_empty());
+    // Time refills the budget.
+    refuse(&mut s, 8, 10_000);
+    assert!(s.take_disconnects().is_empty());
+}
+
+#[test]
+fn precheck_refuses_without_loading_anything() {
+    let mut s = ready(ValidationConfig::default());
+    let resident = s.resident();
+    let far = Edit::Explode {
+        center: FixedVec3::from_voxels(X + 5000, -1, Z),
+        radius: Fixed::from_voxels(8),
+        power: 100,
+    };
+    assert!(matches!(
+        s.precheck(PLAYER, &far, 0),
+        Err(RejectReason::OutOfReach { .. })
+    ));
+    assert!(matches!(
+        s.precheck(PLAYER, &mine(X, -1, Z + 3, 9), 0),
+        Err(RejectReason::RadiusTooLarge { .. })
+    ));
+    assert_eq!(s.resident(), resident, "no chunk was loaded or generated");
+    assert_eq!(s.precheck(PLAYER, &mine(X, -1, Z + 4, 1), 0), Ok(()));
+}

@@ -1,6 +1,8 @@
 //! Messages from connection tasks to the engine thread.
 
-use strata_protocol::{EditRequest, ErrorCode, PositionUpdate, Role};
+use std::sync::Arc;
+
+use strata_protocol::{EditRequest, ErrorCode, Role};
 use strata_terrain::ChunkPos;
 use tokio::sync::oneshot;
 
@@ -28,6 +30,8 @@ pub enum Command {
         reply: oneshot::Sender<JoinReply>,
         /// Fired (or dropped) when the engine ends the session.
         kick: oneshot::Sender<Kick>,
+        /// The session's pending position (see [`super::LatestPosition`]).
+        position: Arc<super::LatestPosition>,
     },
     Leave {
         session: u64,
@@ -36,9 +40,9 @@ pub enum Command {
         session: u64,
         request: EditRequest,
     },
+    /// The session's [`super::LatestPosition`] holds an update.
     Position {
         session: u64,
-        update: PositionUpdate,
     },
     Subscribe {
         session: u64,

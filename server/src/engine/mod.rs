@@ -13,6 +13,7 @@ mod command;
 mod commit;
 mod fanout;
 mod generated;
+mod latest;
 mod peer;
 mod premesh;
 mod residency;
@@ -21,6 +22,7 @@ mod stream;
 
 pub use command::{Command, JoinReply, Kick};
 pub use fanout::encode_control as fanout_control;
+pub use latest::LatestPosition;
 pub use premesh::{DEFAULT_PREMESH_INFLIGHT, DEFAULT_PREMESH_RADIUS, MAX_PREMESH_RADIUS};
 pub use residency::{DEFAULT_RESIDENT_CHUNKS, MIN_RESIDENT_CHUNKS};
 
@@ -254,12 +256,13 @@ impl Engine {
                 updates,
                 reply,
                 kick,
+                position,
             } => {
                 self.seq.session_joined(session, player, role);
                 metrics::counter!(m::SESSIONS_TOTAL).increment(1);
                 let interest = Interest::new(self.interest, self.bounds);
-                self.peers
-                    .insert(session, Peer::new(control, updates, interest, kick));
+                let peer = Peer::new(control, updates, interest, kick, position);
+                self.peers.insert(session, peer);
                 // A join may arrive mid-commit: name no seq a power cut could
                 // still take back.
                 let _ = reply.send(JoinReply {
@@ -271,7 +274,12 @@ impl Engine {
                 self.peers.remove(&session);
             }
             Command::Edit { session, request } => self.submit(session, request, now),
-            Command::Position { session, update } => self.position(session, update, now),
+            Command::Position { session } => {
+                let update = self.peers.get(&session).and_then(|p| p.position.take());
+                if let Some(update) = update {
+                    self.position(session, update, now);
+                }
+            }
             Command::Subscribe {
                 session,
                 center,
@@ -302,11 +310,19 @@ impl Engine {
 
     fn submit(&mut self, session: u64, request: strata_protocol::EditRequest, now: u64) {
         let id = request.client_edit_id;
-        let needed = self.seq.chunks_needed(session, &request.edit);
-        if let Err(e) = self.make_resident(&needed) {
-            error!(error = %e, "store read failed");
-        }
-        if let Err(reason) = self.seq.submit(session, request, now) {
+        // Every rule that reads no terrain first: a refused edit loads,
+        // generates and meshes nothing.
+        let result = self
+            .seq
+            .precheck(session, &request.edit, now)
+            .and_then(|()| {
+                let needed = self.seq.chunks_needed(session, &request.edit);
+                if let Err(e) = self.make_resident(&needed) {
+                    error!(error = %e, "store read failed");
+                }
+                self.seq.submit(session, request, now)
+            });
+        if let Err(reason) = result {
             metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&reason)).increment(1);
             self.send_control(
                 session,
@@ -316,9 +332,24 @@ impl Engine {
                 },
             );
         }
+        for s in self.seq.take_disconnects() {
+            if let Some(p) = self.peers.get_mut(&s) {
+                warn!(session = s, "disconnecting: too many refused edits");
+                metrics::counter!(m::SESSIONS_KICKED, "reason" => "rejected_edits").increment(1);
+                p.kick(
+                    strata_protocol::ErrorCode::Kicked,
+                    "too many refused edits; slow down",
+                );
+            }
+        }
     }
 
     fn position(&mut self, session: u64, update: strata_protocol::PositionUpdate, now: u64) {
+        // Stale, out of bounds or too fast: refused before any chunk is
+        // loaded or generated.
+        if let Err(reason) = self.seq.precheck_position(session, &update, now) {
+            return debug!(session, ?reason, "position refused");
+        }
         let needed = self.seq.chunks_needed_for_position(&update);
         if let Err(e) = self.make_resident(&needed) {
             error!(error = %e, "store read failed");

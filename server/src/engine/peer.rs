@@ -2,6 +2,7 @@
 //! and what it still needs to be sent.
 
 use std::collections::{HashSet, VecDeque};
+use std::sync::Arc;
 
 use rustc_hash::FxHashMap;
 
@@ -11,6 +12,7 @@ use strata_protocol::ErrorCode;
 use tokio::sync::oneshot;
 
 use super::command::Kick;
+use super::LatestPosition;
 use crate::interest::{Interest, InterestChange};
 use crate::net::writer::FrameSender;
 
@@ -30,6 +32,8 @@ pub struct Peer {
     pub failed: bool,
     /// The chunk around which collision meshes were last queued.
     pub premeshed: Option<ChunkPos>,
+    /// The newest position report not yet handled.
+    pub position: Arc<LatestPosition>,
     kick: Option<oneshot::Sender<Kick>>,
 }
 
@@ -39,6 +43,7 @@ impl Peer {
         updates: FrameSender,
         interest: Interest,
         kick: oneshot::Sender<Kick>,
+        position: Arc<LatestPosition>,
     ) -> Self {
         Self {
             control,
@@ -49,6 +54,7 @@ impl Peer {
             full_data: HashSet::new(),
             failed: false,
             premeshed: None,
+            position,
             kick: Some(kick),
         }
     }

@@ -16,7 +16,7 @@ use tracing::{debug, info, warn, Instrument};
 
 use super::writer::{spawn_writer, FrameSender};
 use crate::auth::{self, AuthError, Secret};
-use crate::engine::{fanout_control, now_ms, Command, EngineHandle};
+use crate::engine::{fanout_control, now_ms, Command, EngineHandle, LatestPosition};
 use crate::shutdown::Shutdown;
 
 /// How long a client has to open its control stream and say Hello.
@@ -190,6 +190,7 @@ async fn joined(
     let (updates, updates_task) = spawn_writer(uni, ctx.writer_queue, "updates");
     let (reply_tx, reply_rx) = oneshot::channel();
     let (kick_tx, mut kick_rx) = oneshot::channel();
+    let latest = Arc::new(LatestPosition::default());
     let join = Command::Join {
         session,
         player: claims.player.clone(),
@@ -198,6 +199,7 @@ async fn joined(
         updates,
         reply: reply_tx,
         kick: kick_tx,
+        position: latest.clone(),
     };
     if !ctx.engine.try_send(join) {
         return refuse(
@@ -240,6 +242,7 @@ async fn joined(
         &mut reader,
         &mut shutdown,
         &mut kick_rx,
+        &latest,
     )
     .await;
     let _ = ctx.engine.try_send(Command::Leave { session });
@@ -289,6 +292,7 @@ async fn serve(
     reader: &mut FramedReader<quinn::RecvStream>,
     shutdown: &mut Shutdown,
     kicked: &mut oneshot::Receiver<crate::engine::Kick>,
+    latest: &LatestPosition,
 ) -> End {
     loop {
         tokio::select! {
@@ -311,7 +315,7 @@ async fn serve(
                 Err(e) => return End::Refused(read_error_code(&e), e.to_string()),
             },
             dg = conn.read_datagram() => match dg {
-                Ok(bytes) => position(session, ctx, bytes),
+                Ok(bytes) => position(session, &ctx.engine, latest, bytes),
                 Err(e) => {
                     debug!(error = %e, "connection ended");
                     return End::Gone;
@@ -328,12 +332,14 @@ async fn serve(
     }
 }
 
-fn position(session: u64, ctx: &SessionContext, bytes: Bytes) {
-    // Datagrams are unreliable and the next one supersedes this one: a bad
-    // or unqueued one is dropped (and counted).
+/// Datagrams are unreliable and the next one supersedes this one: it
+/// replaces the session's pending update, and only an update into an empty
+/// slot queues a command. A bad or unqueued one is dropped (and counted).
+fn position(session: u64, engine: &EngineHandle, latest: &LatestPosition, bytes: Bytes) {
     match decode::<PositionUpdate>(&bytes, Direction::ClientToServer) {
         Ok(update) => {
-            if !ctx.engine.try_send(Command::Position { session, update }) {
+            if latest.offer(update) && !engine.try_send(Command::Position { session }) {
+                latest.clear();
                 metrics::counter!(crate::metrics::POSITIONS_DROPPED).increment(1);
             }
         }
@@ -457,6 +463,42 @@ mod tests {
         assert!(matches!(
             deliver(&engine, leave(3), Duration::from_millis(50)).await,
             Err(End::Gone)
+        ));
+    }
+
+    #[test]
+    fn a_position_flood_queues_one_command_per_session_and_keeps_the_newest() {
+        let (tx, rx) = std::sync::mpsc::sync_channel(8);
+        let engine = EngineHandle::from_sender(tx);
+        let latest = LatestPosition::default();
+        for seq in 1..=10_000u32 {
+            let update = PositionUpdate {
+                seq,
+                pos: strata_terrain::edit::FixedVec3::from_voxels(seq as i32 * 1000, 40, 0),
+            };
+            let bytes = strata_protocol::encode(&update, Direction::ClientToServer).unwrap();
+            position(7, &engine, &latest, Bytes::from(bytes));
+        }
+        assert!(matches!(
+            rx.try_recv(),
+            Ok(Command::Position { session: 7 })
+        ));
+        assert!(rx.try_recv().is_err(), "one command for 10,000 datagrams");
+        assert_eq!(latest.take().map(|u| u.seq), Some(10_000));
+        // Once the engine took it, the next datagram asks again.
+        let next = PositionUpdate {
+            seq: 10_001,
+            pos: strata_terrain::edit::FixedVec3::from_voxels(0, 40, 0),
+        };
+        position(
+            7,
+            &engine,
+            &latest,
+            Bytes::from(strata_protocol::encode(&next, Direction::ClientToServer).unwrap()),
+        );
+        assert!(matches!(
+            rx.try_recv(),
+            Ok(Command::Position { session: 7 })
         ));
     }
 }

@@ -56,6 +56,8 @@ pub struct Sequencer {
     next_seq: u64,
     collision: CollisionCache,
     residency: Residency,
+    /// Sessions to disconnect for too many refused edits (see `submit`).
+    disconnect: Vec<u64>,
 }
 
 impl Sequencer {
@@ -85,6 +87,7 @@ impl Sequencer {
             queue: VecDeque::new(),
             next_seq: last_seq.saturating_add(1),
             residency: Residency::default(),
+            disconnect: Vec::new(),
         }
     }
 
@@ -305,6 +308,22 @@ impl Sequencer {
     /// Checks and records a position report. A rejected report changes
     /// nothing; a stale one is rejected as [`PositionReject::Stale`] and the
     /// shell should drop it silently.
+    /// The rules of [`Self::update_position`] that read no terrain (order,
+    /// bounds, speed): the engine runs them before loading any chunk.
+    pub fn precheck_position(
+        &self,
+        session_id: u64,
+        upd: &PositionUpdate,
+        now_ms: u64,
+    ) -> Result<(), PositionReject> {
+        let prev = self
+            .sessions
+            .get(&session_id)
+            .ok_or(PositionReject::UnknownSession)?
+            .position;
+        position::check_motion(prev.as_ref(), upd, now_ms, &self.validation)
+    }
+
     pub fn update_position(
         &mut self,
         session_id: u64,

@@ -20,6 +20,8 @@ pub struct Session {
 pub struct PlayerLimits {
     pub edits: TokenBucket,
     pub volume: TokenBucket,
+    /// Refused edits; when it runs dry the player's session is disconnected.
+    pub rejections: TokenBucket,
     /// Sessions of this player still connected.
     pub sessions: u32,
 }
@@ -29,17 +31,25 @@ impl PlayerLimits {
         Self {
             edits: TokenBucket::new(cfg.edit_rate, now_ms),
             volume: TokenBucket::new(cfg.volume_rate, now_ms),
+            rejections: TokenBucket::new(cfg.reject_rate, now_ms),
             sessions: 0,
         }
     }
 }
 
 impl PlayerLimits {
-    /// Whether both buckets are full at `now_ms` (refilling them).
-    pub fn is_full(&mut self, now_ms: u64) -> bool {
+    /// Adds what every bucket earned since the last refill.
+    pub fn refill(&mut self, now_ms: u64) {
         self.edits.refill(now_ms);
         self.volume.refill(now_ms);
-        self.edits.available() == self.edits.capacity()
-            && self.volume.available() == self.volume.capacity()
+        self.rejections.refill(now_ms);
+    }
+
+    /// Whether every bucket is full at `now_ms` (refilling them).
+    pub fn is_full(&mut self, now_ms: u64) -> bool {
+        self.refill(now_ms);
+        [&self.edits, &self.volume, &self.rejections]
+            .iter()
+            .all(|b| b.available() == b.capacity())
     }
 }

@@ -8,6 +8,13 @@ use super::session::PlayerLimits;
 use super::{Queued, Sequencer};
 use crate::validate::{caps, line_of_sight, permissions, position, reach, zones};
 
+/// What the cheap rules worked out, for the rest of the checks.
+struct Cheap {
+    eye: [f64; 3],
+    target: [f64; 3],
+    volume_cost: u64,
+}
+
 impl Sequencer {
     /// Everything validating and applying `edit` reads, given the eye (if any).
     /// `None` if the terrain core refuses the edit.
@@ -27,30 +34,70 @@ impl Sequencer {
         Some(set)
     }
 
+    /// The rules of [`Self::submit`] that read no terrain: role permission,
+    /// radius/power caps, the terrain core's own validation, a validated
+    /// position, reach, vertical bounds, protected zones, the rate buckets
+    /// and queue capacity. The engine runs them before it loads or
+    /// generates any chunk the edit would read. A refusal costs the player
+    /// an edit token (see [`Self::submit`]).
+    pub fn precheck(
+        &mut self,
+        session_id: u64,
+        edit: &Edit,
+        now_ms: u64,
+    ) -> Result<(), RejectReason> {
+        let checked = self.cheap_checks(session_id, edit, now_ms);
+        checked
+            .map(|_| ())
+            .map_err(|r| self.rejected(session_id, r, now_ms))
+    }
+
     /// Validates an edit request and queues it for the next tick.
     ///
-    /// Rules, in order (the first failure names the reason): role permission,
-    /// radius/power caps, the terrain core's own validation, a validated
-    /// position, reach, line of sight, vertical bounds, protected zones,
-    /// edits-per-second and voxels-per-second buckets, queue capacity. A
-    /// rejected request changes nothing (not even the buckets). Chunks from
-    /// [`Self::chunks_needed`] must be resident, or the request is `Busy`.
+    /// Rules, in order (the first failure names the reason): everything
+    /// [`Self::precheck`] checks, then line of sight, whose chunks from
+    /// [`Self::chunks_needed`] must be resident (or the request is `Busy`).
+    /// A rejected request changes nothing but the player's budgets: it
+    /// costs one edit token (if any is left), so a stream of refused edits
+    /// is throttled like accepted ones, and one rejection token; a player
+    /// out of rejection tokens is listed by [`Self::take_disconnects`].
+    /// `Busy` (a full queue or chunks still loading) costs nothing.
     pub fn submit(
         &mut self,
         session_id: u64,
         request: EditRequest,
         now_ms: u64,
     ) -> Result<(), RejectReason> {
+        match self.checks(session_id, &request.edit, now_ms) {
+            Ok(cost) => {
+                self.queue_edit(session_id, request, cost);
+                Ok(())
+            }
+            Err(r) => Err(self.rejected(session_id, r, now_ms)),
+        }
+    }
+
+    /// Every rule; returns the edit's volume cost.
+    fn checks(&mut self, session_id: u64, edit: &Edit, now_ms: u64) -> Result<u64, RejectReason> {
+        let c = self.cheap_checks(session_id, edit, now_ms)?;
+        self.check_sight(edit, c.eye, c.target)?;
+        Ok(c.volume_cost)
+    }
+
+    fn cheap_checks(
+        &mut self,
+        session_id: u64,
+        edit: &Edit,
+        now_ms: u64,
+    ) -> Result<Cheap, RejectReason> {
         let session = self
             .sessions
             .get(&session_id)
             .ok_or_else(|| RejectReason::Invalid {
                 message: "unknown session".to_string(),
             })?;
-        let (role, player, feet) = (session.role, session.player.clone(), session.position);
-        let edit = &request.edit;
+        let (role, feet) = (session.role, session.position);
         let v = &self.validation;
-
         permissions::check(role, edit.kind(), &v.player_kinds)?;
         caps::check(edit, v.max_radius_fixed(), v.max_power_capped())?;
         let bbox = edit
@@ -62,19 +109,10 @@ impl Sequencer {
         let eye = position::eye(feet.feet, v);
         let target = reach::target_point(edit, &bbox, eye);
         reach::check(eye, target, v.reach)?;
-
-        self.check_sight(edit, eye, target)?;
-
-        let v = &self.validation;
         v.bounds.check_box(&bbox)?;
         zones::check(&self.zones, role, &bbox)?;
         let volume_cost = bbox.volume().min(v.volume_rate.capacity);
-        let limits = self
-            .limits
-            .entry(player.clone())
-            .or_insert_with(|| PlayerLimits::new(v, now_ms));
-        limits.edits.refill(now_ms);
-        limits.volume.refill(now_ms);
+        let limits = self.limits_of(session_id, now_ms);
         if !limits.edits.can_take(1) {
             return Err(RejectReason::RateLimited);
         }
@@ -84,15 +122,59 @@ impl Sequencer {
         if self.queue.len() >= self.cfg.queue_capacity {
             return Err(RejectReason::Busy);
         }
+        Ok(Cheap {
+            eye,
+            target,
+            volume_cost,
+        })
+    }
+
+    /// The player's buckets, refilled to `now_ms`.
+    fn limits_of(&mut self, session_id: u64, now_ms: u64) -> &mut PlayerLimits {
+        let player = self.sessions.get(&session_id).map(|s| s.player.as_str());
+        let v = &self.validation;
+        let limits = self
+            .limits
+            .entry(player.unwrap_or_default().to_string())
+            .or_insert_with(|| PlayerLimits::new(v, now_ms));
+        limits.refill(now_ms);
+        limits
+    }
+
+    /// Charges a refusal to the player's budgets; returns `reason`. `Busy`
+    /// is the server's state, not the player's doing, and costs nothing.
+    fn rejected(&mut self, session_id: u64, reason: RejectReason, now_ms: u64) -> RejectReason {
+        if reason == RejectReason::Busy || !self.sessions.contains_key(&session_id) {
+            return reason;
+        }
+        let limits = self.limits_of(session_id, now_ms);
         limits.edits.take(1);
-        limits.volume.take(volume_cost);
+        if !limits.rejections.take(1) && !self.disconnect.contains(&session_id) {
+            self.disconnect.push(session_id);
+        }
+        reason
+    }
+
+    fn queue_edit(&mut self, session_id: u64, request: EditRequest, volume_cost: u64) {
+        let Some(player) = self.sessions.get(&session_id).map(|s| s.player.clone()) else {
+            return;
+        };
+        if let Some(limits) = self.limits.get_mut(&player) {
+            limits.edits.take(1);
+            limits.volume.take(volume_cost);
+        }
         self.queue.push_back(Queued {
             session_id,
             player,
             request,
             queued_at: std::time::Instant::now(),
         });
-        Ok(())
+    }
+
+    /// Sessions whose player ran out of rejection tokens since the last
+    /// call: the shell disconnects them.
+    pub fn take_disconnects(&mut self) -> Vec<u64> {
+        std::mem::take(&mut self.disconnect)
     }
 
     /// Residency of everything the edit reads, then the line-of-sight ray

@@ -35,6 +35,10 @@ pub const DEFAULT_EDITS_PER_SECOND: u64 = 5;
 pub const DEFAULT_VOLUME_BURST: u64 = 100_000;
 /// Sustained edited voxels per second per player.
 pub const DEFAULT_VOLUME_PER_SECOND: u64 = 50_000;
+/// Refused edits a player may pile up before the session is disconnected.
+pub const DEFAULT_REJECT_BURST: u64 = 100;
+/// Refused edits per second that never add up to a disconnect.
+pub const DEFAULT_REJECTS_PER_SECOND: u64 = 10;
 
 /// Limits of the validation rules (`[validation]` in the server config).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -68,6 +72,9 @@ pub struct ValidationConfig {
     /// Edited voxels per player: burst and refill per second. An edit costs
     /// its bounding-box volume, capped at the burst so any legal edit can pass.
     pub volume_rate: BucketConfig,
+    /// Refused edits per player: burst and refill per second. Each refusal
+    /// takes one token; a player with none left is disconnected and logged.
+    pub reject_rate: BucketConfig,
 }
 
 impl Default for ValidationConfig {
@@ -91,6 +98,10 @@ impl Default for ValidationConfig {
             volume_rate: BucketConfig {
                 capacity: DEFAULT_VOLUME_BURST,
                 per_second: DEFAULT_VOLUME_PER_SECOND,
+            },
+            reject_rate: BucketConfig {
+                capacity: DEFAULT_REJECT_BURST,
+                per_second: DEFAULT_REJECTS_PER_SECOND,
             },
         }
     }

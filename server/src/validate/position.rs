@@ -76,15 +76,14 @@ pub fn allowed_distance(elapsed_ms: u64, cfg: &ValidationConfig) -> f64 {
     base * (1.0 + cfg.speed_slack_factor) + cfg.speed_slack_voxels
 }
 
-/// Checks a report against the previous validated position (none right after
-/// joining: then any in-bounds, not-inside-solid position is fine).
-pub fn check(
+/// The rules that need no terrain: order, bounds and speed against the
+/// previous validated position. Run before any chunk is loaded.
+pub fn check_motion(
     prev: Option<&ValidatedPosition>,
     upd: &PositionUpdate,
     now_ms: u64,
     cfg: &ValidationConfig,
-    voxels: &impl VoxelRead,
-) -> Result<ValidatedPosition, PositionReject> {
+) -> Result<(), PositionReject> {
     if let Some(p) = prev {
         if upd.seq <= p.seq {
             return Err(PositionReject::Stale {
@@ -107,6 +106,19 @@ pub fn check(
             });
         }
     }
+    Ok(())
+}
+
+/// Checks a report against the previous validated position (none right after
+/// joining: then any in-bounds, not-inside-solid position is fine).
+pub fn check(
+    prev: Option<&ValidatedPosition>,
+    upd: &PositionUpdate,
+    now_ms: u64,
+    cfg: &ValidationConfig,
+    voxels: &impl VoxelRead,
+) -> Result<ValidatedPosition, PositionReject> {
+    check_motion(prev, upd, now_ms, cfg)?;
     for v in body_voxels(upd.pos, cfg) {
         if voxels.voxel(v).is_solid() {
             return Err(PositionReject::InsideSolid { voxel: v });
