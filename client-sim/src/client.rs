@@ -636,6 +636,18 @@ async fn read_updates(
         shared
             .bytes_in
             .store(reader.bytes_read(), Ordering::Relaxed);
+        if let WorldUpdate::UnsubscribedMany { chunks } = update {
+            let mut r = replica.lock().expect("not poisoned");
+            for pos in chunks {
+                let one = WorldUpdate::Unsubscribed { pos };
+                let touched = Touched::of(&one);
+                r.apply(one);
+                if let (Some(mut p), Some(t)) = (shared.prediction(), touched) {
+                    p.after_update(t, &r);
+                }
+            }
+            continue;
+        }
         let touched = Touched::of(&update);
         let request = {
             let mut r = replica.lock().expect("not poisoned");

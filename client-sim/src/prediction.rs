@@ -102,7 +102,7 @@ pub enum Touched {
 }
 
 impl Touched {
-    /// What `u` touches; `None` for a tick end.
+    /// What `u` touches; `None` for a tick end (and a list of chunks).
     pub fn of(u: &WorldUpdate) -> Option<Touched> {
         Some(match u {
             WorldUpdate::Delta(d) => Touched::Delta {
@@ -115,7 +115,8 @@ impl Touched {
             }
             WorldUpdate::Patched { delta, .. } => Touched::Whole(delta.pos),
             WorldUpdate::Unsubscribed { pos } => Touched::Gone(*pos),
-            WorldUpdate::TickEnd { .. } => return None,
+            // Many chunks: the client passes them on one `Unsubscribed` each.
+            WorldUpdate::TickEnd { .. } | WorldUpdate::UnsubscribedMany { .. } => return None,
         })
     }
 

@@ -92,6 +92,13 @@ pub struct Replica {
 }
 
 impl Replica {
+    /// Drops a chunk that left the view.
+    fn forget(&mut self, pos: ChunkPos) {
+        self.checks.remove(&pos);
+        self.chunks.remove(&pos);
+        self.pending_mesh.remove(&pos);
+    }
+
     /// `generator` regenerates version-0 chunks; without one, the replica
     /// asks for full snapshots instead.
     pub fn new(generator: Option<Arc<dyn ChunkGenerator>>) -> Self {
@@ -250,9 +257,13 @@ impl Replica {
             }
             WorldUpdate::Delta(d) => self.apply_delta(d),
             WorldUpdate::Unsubscribed { pos } => {
-                self.checks.remove(&pos);
-                self.chunks.remove(&pos);
-                self.pending_mesh.remove(&pos);
+                self.forget(pos);
+                None
+            }
+            WorldUpdate::UnsubscribedMany { chunks } => {
+                for pos in chunks {
+                    self.forget(pos);
+                }
                 None
             }
             WorldUpdate::TickEnd { last_seq } => {

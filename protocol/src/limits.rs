@@ -8,3 +8,6 @@ pub const MAX_SERVER_FRAME: usize = 1024 * 1024;
 pub const MAX_DATAGRAM: usize = 1100;
 /// Bytes of the frame length prefix.
 pub const FRAME_HEADER: usize = 4;
+/// Most chunks in one `UnsubscribedMany` (12 bytes each: 48 KiB at most);
+/// a larger re-centring is split over several.
+pub const MAX_UNSUBSCRIBED_PER_UPDATE: usize = 4096;

@@ -257,6 +257,12 @@ pub enum WorldUpdate {
         delta: ChunkDelta,
         mesh_hash: u64,
     },
+    /// These chunks left the view range (at most
+    /// [`crate::limits::MAX_UNSUBSCRIBED_PER_UPDATE`]); the client may drop
+    /// them. Servers send this instead of one `Unsubscribed` per chunk.
+    UnsubscribedMany {
+        chunks: Vec<ChunkPos>,
+    },
 }
 
 /// A position report, sent as an unreliable datagram.

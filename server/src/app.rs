@@ -15,6 +15,7 @@ use tracing::info;
 use crate::config::ServerConfig;
 use crate::datadir::DataDir;
 use crate::engine::{Engine, EngineHandle, StreamPolicy};
+use crate::health::Health;
 use crate::net::endpoint::Listener;
 use crate::net::session::SessionContext;
 use crate::sequencer::Sequencer;
@@ -38,6 +39,9 @@ pub struct Running {
     listener: tokio::task::JoinHandle<()>,
     engine: EngineHandle,
     engine_thread: std::thread::JoinHandle<anyhow::Result<()>>,
+    health: Arc<Health>,
+    /// Becomes true when the engine thread ends.
+    engine_exit: tokio::sync::watch::Receiver<bool>,
 }
 
 fn load_zones(store: &dyn ChunkStore, cfg: &ServerConfig) -> anyhow::Result<Vec<Zone>> {
@@ -135,7 +139,16 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         validation.bounds,
         versions,
     )?;
-    let (engine, engine_thread) = engine.spawn()?;
+    let health = Arc::new(Health::default());
+    let (exit_tx, engine_exit) = tokio::sync::watch::channel(false);
+    let on_exit = {
+        let health = health.clone();
+        move || {
+            health.engine_stopped();
+            let _ = exit_tx.send(true);
+        }
+    };
+    let (engine, engine_thread) = engine.spawn(on_exit)?;
     let server_config = crate::tls::server_config(data_dir.cert(), &cfg.net, &cfg.tls)?;
     let endpoint = quinn::Endpoint::server(server_config, cfg.server.listen)
         .with_context(|| format!("binding {}", cfg.server.listen))?;
@@ -153,6 +166,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     let (trigger, shutdown) = shutdown::channel();
     let listener = Listener::new(endpoint, Arc::new(ctx), cfg.server.max_connections as usize);
     let listener = tokio::spawn(listener.run(shutdown));
+    health.set_accepting(true);
     Ok(Running {
         addr,
         cert_der: data_dir.cert().cert_der().to_vec(),
@@ -161,6 +175,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         listener,
         engine,
         engine_thread,
+        health,
+        engine_exit,
     })
 }
 
@@ -170,19 +186,35 @@ impl Running {
         self.trigger.subscribe()
     }
 
+    /// Readiness, for `/healthz`.
+    pub fn health(&self) -> Arc<Health> {
+        self.health.clone()
+    }
+
+    /// Resolves when the engine thread has ended (on its own, it only does
+    /// so when a commit failed or it panicked): the server can serve no
+    /// one and should [`Self::shutdown`] and exit non-zero.
+    pub async fn engine_stopped(&self) {
+        let mut rx = self.engine_exit.clone();
+        let _ = rx.wait_for(|stopped| *stopped).await;
+    }
+
     /// Finishes and flushes the batch in flight and acknowledges it, then
-    /// stops accepting and closes every session with a reason.
+    /// stops accepting and closes every session with a reason. Returns the
+    /// engine's error if it had stopped on one (the sessions are closed
+    /// all the same).
     pub async fn shutdown(self) -> anyhow::Result<()> {
+        self.health.set_accepting(false);
         let engine = self.engine;
         let engine_thread = self.engine_thread;
-        tokio::task::spawn_blocking(move || {
+        let engine_result = tokio::task::spawn_blocking(move || {
             engine.stop();
             engine_thread.join()
         })
-        .await?
-        .map_err(|_| anyhow::anyhow!("engine thread panicked"))??;
+        .await;
         self.trigger.trigger();
         let _ = self.listener.await;
+        engine_result?.map_err(|_| anyhow::anyhow!("engine thread panicked"))??;
         info!("server stopped");
         Ok(())
     }

@@ -2,10 +2,10 @@
 //!
 //! With no file at all the defaults run a local server, so `strata-server`
 //! needs no arguments. `deploy/strata.toml` lists every option with its
-//! default. Unknown keys inside a known section are errors (typos); unknown
-//! top-level sections are kept in [`ServerConfig::unknown`] and logged, so
-//! newer configs still load. Values are range-checked by
-//! [`ServerConfig::validate`], whose errors name the offending field.
+//! default. An unknown key or section anywhere is an error naming it and its
+//! line, so a typo cannot silently fall back to a default. Values are
+//! range-checked by [`ServerConfig::validate`], whose errors name the
+//! offending field.
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::path::{Path, PathBuf};
@@ -94,10 +94,13 @@ pub enum ConfigError {
         path: PathBuf,
         source: std::io::Error,
     },
-    #[error("cannot parse config {path}: {source}")]
+    /// Bad TOML, a wrong type, or an unknown key or section; `line` is
+    /// 1-based, `None` when the error has no position.
+    #[error("cannot parse config {}: {message}", location(.path, .line))]
     Parse {
         path: PathBuf,
-        source: Box<toml::de::Error>,
+        line: Option<usize>,
+        message: String,
     },
     #[error("config field `{field}` is invalid: {reason}")]
     Invalid { field: &'static str, reason: String },
@@ -105,7 +108,7 @@ pub enum ConfigError {
 
 /// The whole server configuration.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ServerConfig {
     pub server: ServerSection,
     pub tls: TlsSection,
@@ -118,9 +121,6 @@ pub struct ServerConfig {
     pub interest: InterestConfig,
     pub engine: EngineConfig,
     pub store: StoreConfig,
-    /// Top-level sections this build does not know; logged, not fatal.
-    #[serde(flatten, skip_serializing)]
-    pub unknown: toml::Table,
 }
 
 /// `[server]`: where to listen and keep data.
@@ -141,7 +141,8 @@ pub struct ServerSection {
 pub struct TlsSection {
     /// DNS names or IPs added to the certificate's subject alternative names
     /// (localhost, 127.0.0.1 and ::1 are always present). Only used when the
-    /// certificate is generated: delete cert.der and key.der to regenerate.
+    /// certificate is generated, on the first start (to re-issue it, see
+    /// "Certificates" in deploy/OPERATIONS.md).
     pub extra_names: Vec<String>,
     /// Generic segmentation offload for UDP sends; turn off if sends fail on
     /// a virtual NIC.
@@ -248,7 +249,7 @@ impl Default for AuthSection {
 
 impl ServerConfig {
     /// Loads and validates `path`, or returns the defaults when `path` is
-    /// `None`. Unknown top-level sections are logged as warnings.
+    /// `None`.
     pub fn load(path: Option<&Path>) -> Result<ServerConfig, ConfigError> {
         let Some(path) = path else {
             return Ok(ServerConfig::default());
@@ -257,24 +258,22 @@ impl ServerConfig {
             path: path.to_owned(),
             source,
         })?;
-        let config = ServerConfig::from_toml_str(&text).map_err(|e| match e {
-            ConfigError::Parse { source, .. } => ConfigError::Parse {
+        ServerConfig::from_toml_str(&text).map_err(|e| match e {
+            ConfigError::Parse { line, message, .. } => ConfigError::Parse {
                 path: path.to_owned(),
-                source,
+                line,
+                message,
             },
             other => other,
-        })?;
-        for name in config.unknown.keys() {
-            tracing::warn!(config = %path.display(), section = %name, "ignoring unknown config section");
-        }
-        Ok(config)
+        })
     }
 
     /// Parses and validates TOML text (errors carry an empty path).
     pub fn from_toml_str(text: &str) -> Result<ServerConfig, ConfigError> {
         let config: ServerConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: PathBuf::new(),
-            source: Box::new(e),
+            line: e.span().map(|s| line_of(text, s.start)),
+            message: e.message().to_owned(),
         })?;
         config.validate()?;
         Ok(config)
@@ -419,6 +418,12 @@ impl ServerConfig {
             MAX_COMMAND_QUEUE,
         )?;
         range(
+            "engine.control_queue",
+            self.engine.control_queue,
+            1,
+            MAX_COMMAND_QUEUE,
+        )?;
+        range(
             "engine.premesh_radius",
             self.engine.premesh_radius,
             0,
@@ -485,6 +490,26 @@ impl ServerConfig {
     /// Fails only for values TOML cannot hold (a seed above `i64::MAX`).
     pub fn to_toml_string(&self) -> Result<String, toml::ser::Error> {
         toml::to_string(self)
+    }
+}
+
+/// 1-based line of byte `offset` in `text`.
+fn line_of(text: &str, offset: usize) -> usize {
+    let end = offset.min(text.len());
+    text.as_bytes()[..end]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+/// `PATH, line N`, leaving out what is unknown.
+fn location(path: &Path, line: &Option<usize>) -> String {
+    let path = path.display().to_string();
+    match line {
+        Some(n) if path.is_empty() => format!("line {n}"),
+        Some(n) => format!("{path}, line {n}"),
+        None => path,
     }
 }
 

@@ -10,6 +10,10 @@
 //!   key.der              its private key, PKCS#8 DER, mode 0600
 //!   auth.secret          token-signing key, 64 hex chars, mode 0600
 //! ```
+//!
+//! Once `world.sled` exists the identity files are never generated again: a
+//! missing one is an error, since a new secret would invalidate every issued
+//! token and a new certificate every client that pinned the old one.
 
 use std::fmt;
 use std::fs;
@@ -88,8 +92,16 @@ pub enum DataDirError {
     Missing(PathBuf),
     #[error("cannot create data dir {path}: {source}")]
     Create { path: PathBuf, source: io::Error },
-    #[error("{present} exists but {missing} does not; restore it or delete both to generate a new certificate")]
+    #[error("{present} exists but {missing} does not; restore {missing} from a backup")]
     HalfCertificate { present: PathBuf, missing: PathBuf },
+    #[error("{missing} is missing but {world} exists; a new auth secret would invalidate every token already issued, so none is generated. Restore {missing} from a backup, or see \"Tokens\" in deploy/OPERATIONS.md to replace it on purpose")]
+    MissingSecret { missing: PathBuf, world: PathBuf },
+    #[error("{cert} and {key} are missing but {world} exists; a new certificate would be rejected by every client that pinned the old one, so none is generated. Restore both from a backup, or see \"Certificates\" in deploy/OPERATIONS.md to replace them on purpose")]
+    MissingCertificate {
+        cert: PathBuf,
+        key: PathBuf,
+        world: PathBuf,
+    },
     #[error(transparent)]
     Secret(#[from] SecretError),
     #[error(transparent)]
@@ -98,7 +110,8 @@ pub enum DataDirError {
 
 impl DataDir {
     /// Opens `root`, creating it and any missing secret or certificate
-    /// (with SANs localhost, 127.0.0.1, ::1 and `extra_names`). Existing
+    /// (with SANs localhost, 127.0.0.1, ::1 and `extra_names`) unless it
+    /// already holds a world, where a missing one is an error. Existing
     /// files are reused untouched, so clients' pinned certificates and
     /// issued tokens stay valid across restarts. Everything is loaded or
     /// generated in memory before anything is written, so a failure (a
@@ -120,13 +133,28 @@ impl DataDir {
         };
         let secret_path = root.join(SECRET_NAME);
         let (cert_path, key_path) = (root.join(CERT_NAME), root.join(KEY_NAME));
+        let world_path = root.join(WORLD_DB_NAME);
+        let has_world = dir_exists && world_path.exists();
 
         let existing_secret = match dir_exists && secret_path.exists() {
             true => Some(Secret::load(&secret_path)?),
+            false if has_world => {
+                return Err(DataDirError::MissingSecret {
+                    missing: secret_path,
+                    world: world_path,
+                })
+            }
             false => None,
         };
         let existing_cert = match (dir_exists && cert_path.exists(), key_path.exists()) {
             (true, true) => Some(CertPair::load(&cert_path, &key_path)?),
+            (false, false) if has_world => {
+                return Err(DataDirError::MissingCertificate {
+                    cert: cert_path,
+                    key: key_path,
+                    world: world_path,
+                })
+            }
             (false, false) => None,
             (true, false) => return Err(half(cert_path, key_path)),
             (false, true) => return Err(half(key_path, cert_path)),

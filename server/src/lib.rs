@@ -13,6 +13,7 @@ pub mod config;
 pub mod datadir;
 pub mod durable;
 pub mod engine;
+pub mod health;
 pub mod heightmap;
 pub mod interest;
 pub mod metrics;

@@ -2,7 +2,14 @@
 
 use std::net::SocketAddr;
 
-use metrics_exporter_prometheus::PrometheusBuilder;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::http::StatusCode;
+use axum::routing::get;
+use metrics_exporter_prometheus::{PrometheusBuilder, PrometheusHandle};
+
+use crate::health::Health;
 
 pub const CONNECTIONS: &str = "strata_connections";
 pub const SESSIONS_TOTAL: &str = "strata_sessions_total";
@@ -26,11 +33,12 @@ pub const PATCH_BYTES: &str = "strata_patch_payload_bytes_total";
 pub const SNAPSHOTS_SENT: &str = "strata_snapshots_sent_total";
 pub const SESSIONS_KICKED: &str = "strata_sessions_kicked_total";
 
-/// Serves `/metrics` on `addr` from a background thread of the exporter.
-pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
-    PrometheusBuilder::new()
-        .with_http_listener(addr)
-        .install()?;
+/// How often the recorder's rolling summaries are advanced.
+pub const UPKEEP_EVERY: Duration = Duration::from_secs(5);
+
+/// Installs the Prometheus recorder (call once, before anything records).
+pub fn install() -> anyhow::Result<PrometheusHandle> {
+    let handle = PrometheusBuilder::new().install_recorder()?;
     metrics::describe_gauge!(CONNECTIONS, "Open QUIC connections");
     metrics::describe_counter!(SESSIONS_TOTAL, "Sessions that joined the world");
     metrics::describe_counter!(
@@ -71,7 +79,43 @@ pub fn install(addr: SocketAddr) -> anyhow::Result<()> {
         "Payload bytes of patches built (modified chunks sent as deltas from generated)"
     );
     metrics::describe_counter!(SNAPSHOTS_SENT, "Chunk frames streamed, by kind");
-    Ok(())
+    Ok(handle)
+}
+
+/// Binds the metrics listener (`[metrics] listen`); fails early if taken.
+pub async fn bind(addr: SocketAddr) -> anyhow::Result<tokio::net::TcpListener> {
+    Ok(tokio::net::TcpListener::bind(addr).await?)
+}
+
+/// Serves `GET /metrics` (Prometheus text) and `GET /healthz` (200 `ready`,
+/// or 503 with the reason) until the task is dropped.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    handle: PrometheusHandle,
+    health: Arc<Health>,
+) {
+    let upkeep = handle.clone();
+    tokio::spawn(async move {
+        let mut every = tokio::time::interval(UPKEEP_EVERY);
+        loop {
+            every.tick().await;
+            upkeep.run_upkeep();
+        }
+    });
+    let app = axum::Router::new()
+        .route("/metrics", get(move || std::future::ready(handle.render())))
+        .route(
+            "/healthz",
+            get(move || {
+                std::future::ready(match health.check() {
+                    Ok(()) => (StatusCode::OK, "ready\n"),
+                    Err(why) => (StatusCode::SERVICE_UNAVAILABLE, why),
+                })
+            }),
+        );
+    if let Err(e) = axum::serve(listener, app).await {
+        tracing::error!(error = %e, "metrics listener failed");
+    }
 }
 
 /// Metric label for a rejection reason.
@@ -90,5 +134,49 @@ pub fn reject_label(r: &strata_protocol::RejectReason) -> &'static str {
         NoPosition => "no_position",
         Invalid { .. } => "invalid",
         Busy => "busy",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    async fn get(addr: SocketAddr, path: &str) -> String {
+        let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+        let req = format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+        s.write_all(req.as_bytes()).await.unwrap();
+        let mut out = String::new();
+        s.read_to_string(&mut out).await.unwrap();
+        out
+    }
+
+    #[tokio::test]
+    async fn healthz_follows_the_server_and_metrics_render() {
+        let listener = bind("127.0.0.1:0".parse().unwrap()).await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let handle = PrometheusBuilder::new().build_recorder().handle();
+        let health = Arc::new(Health::default());
+        let server = tokio::spawn(serve(listener, handle, health.clone()));
+        let r = get(addr, "/healthz").await;
+        assert!(
+            r.starts_with("HTTP/1.1 503") && r.ends_with("not accepting connections"),
+            "{r}"
+        );
+        health.set_accepting(true);
+        let r = get(addr, "/healthz").await;
+        assert!(
+            r.starts_with("HTTP/1.1 200") && r.ends_with("ready\n"),
+            "{r}"
+        );
+        health.engine_stopped();
+        let r = get(addr, "/healthz").await;
+        assert!(
+            r.starts_with("HTTP/1.1 503") && r.ends_with("engine stopped"),
+            "{r}"
+        );
+        assert!(get(addr, "/metrics").await.starts_with("HTTP/1.1 200"));
+        assert!(get(addr, "/nothing").await.starts_with("HTTP/1.1 404"));
+        server.abort();
     }
 }

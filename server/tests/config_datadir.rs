@@ -1,11 +1,18 @@
 //! Data dir: first-run generation, reuse on later runs, permissions, and
-//! refusal of broken layouts.
+//! refusal of broken layouts, including a world whose identity files are
+//! missing.
 
 use std::time::Duration;
 
 use strata_protocol::Role;
+use strata_server::admin::snapshot_cmd::{self, RestoreArgs};
+use strata_server::app;
 use strata_server::auth::{issue, verify, SecretError};
-use strata_server::datadir::{DataDir, DataDirError, CERT_NAME, KEY_NAME, SECRET_NAME};
+use strata_server::config::ServerConfig;
+use strata_server::datadir::{
+    DataDir, DataDirError, CERT_NAME, KEY_NAME, SECRET_NAME, WORLD_DB_NAME,
+};
+use strata_server::store::{ChunkStore, SledStore, WorldMeta};
 use strata_server::tls::{CertPair, TlsError};
 
 #[test]
@@ -213,4 +220,118 @@ fn only_missing_pieces_are_generated() {
         std::fs::read(root.join(SECRET_NAME)).unwrap(),
         secret_before
     );
+}
+
+/// A data dir as a server leaves it: identity files and a world store.
+fn data_dir_with_world(root: &std::path::Path) {
+    let (dir, _) = DataDir::open_or_init(root, &[]).unwrap();
+    let store = SledStore::open(&dir.world_db_path()).unwrap();
+    store.init_meta(&WorldMeta::new(7, 1, "params")).unwrap();
+}
+
+fn files(root: &std::path::Path) -> Vec<std::ffi::OsString> {
+    let mut names: Vec<_> = std::fs::read_dir(root)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn a_world_without_its_secret_is_refused_not_given_a_new_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("data");
+    data_dir_with_world(&root);
+    std::fs::remove_file(root.join(SECRET_NAME)).unwrap();
+    let before = files(&root);
+    let err = DataDir::open_or_init(&root, &[]).unwrap_err();
+    assert!(
+        matches!(&err, DataDirError::MissingSecret { missing, world }
+            if *missing == root.join(SECRET_NAME) && *world == root.join(WORLD_DB_NAME)),
+        "{err:?}"
+    );
+    let msg = err.to_string();
+    for part in [SECRET_NAME, "every token", "Restore", "from a backup"] {
+        assert!(msg.contains(part), "{part:?} not in {msg}");
+    }
+    assert_eq!(files(&root), before, "nothing was written");
+}
+
+#[test]
+fn a_world_without_its_certificate_is_refused_not_given_a_new_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("data");
+    data_dir_with_world(&root);
+    std::fs::remove_file(root.join(CERT_NAME)).unwrap();
+    std::fs::remove_file(root.join(KEY_NAME)).unwrap();
+    let before = files(&root);
+    let err = DataDir::open_or_init(&root, &["x.example".into()]).unwrap_err();
+    assert!(
+        matches!(&err, DataDirError::MissingCertificate { cert, key, .. }
+            if *cert == root.join(CERT_NAME) && *key == root.join(KEY_NAME)),
+        "{err:?}"
+    );
+    let msg = err.to_string();
+    for part in [CERT_NAME, KEY_NAME, "pinned", "from a backup"] {
+        assert!(msg.contains(part), "{part:?} not in {msg}");
+    }
+    assert_eq!(files(&root), before, "nothing was written");
+
+    // With the files back the world opens as before.
+    data_dir_with_world(&tmp.path().join("other"));
+    for name in [CERT_NAME, KEY_NAME] {
+        std::fs::copy(tmp.path().join("other").join(name), root.join(name)).unwrap();
+    }
+    let (_, report) = DataDir::open_or_init(&root, &[]).unwrap();
+    assert!(!report.created_anything(), "{report}");
+}
+
+#[test]
+fn the_server_refuses_to_start_on_a_world_without_its_secret() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("data");
+    data_dir_with_world(&root);
+    std::fs::remove_file(root.join(SECRET_NAME)).unwrap();
+    let mut cfg = ServerConfig::default();
+    cfg.apply_overrides(Some(root.clone()), Some("127.0.0.1:0".parse().unwrap()));
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let err = match rt.block_on(app::start(cfg)) {
+        Ok(_) => panic!("started without auth.secret"),
+        Err(e) => format!("{e:#}"),
+    };
+    assert!(err.contains("auth.secret is missing"), "{err}");
+    assert!(!root.join(SECRET_NAME).exists());
+}
+
+#[test]
+fn forced_restore_into_a_data_dir_keeps_its_identity() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("data");
+    data_dir_with_world(&root);
+    let snap = tmp.path().join("w.snap");
+    {
+        let store = SledStore::open(&root.join(WORLD_DB_NAME)).unwrap();
+        snapshot_cmd::create_offline(&store, &snap).unwrap();
+    }
+    let identity = |root: &std::path::Path| {
+        [CERT_NAME, KEY_NAME, SECRET_NAME].map(|n| std::fs::read(root.join(n)).unwrap())
+    };
+    let before = identity(&root);
+    let args = RestoreArgs {
+        file: snap,
+        data_dir: root.clone(),
+        force: true,
+    };
+    snapshot_cmd::restore(&args).unwrap();
+    assert_eq!(identity(&root), before);
+    assert!(DataDir::open_or_init(&root, &[]).is_ok());
+
+    // Without its secret the world is not replaced and no secret appears.
+    std::fs::remove_file(root.join(SECRET_NAME)).unwrap();
+    let err = format!("{:#}", snapshot_cmd::restore(&args).unwrap_err());
+    assert!(err.contains("auth.secret is missing"), "{err}");
+    assert!(!root.join(SECRET_NAME).exists());
+    let store = SledStore::open(&root.join(WORLD_DB_NAME)).unwrap();
+    assert_eq!(store.load_meta().unwrap().unwrap().seed, 7);
 }

@@ -108,19 +108,72 @@ fn overrides_win_over_the_file() {
     assert_eq!(c.server.listen, addr);
 }
 
+/// Loads `text` from a file and returns the Parse error's line and message.
+fn load_error(text: &str) -> (Option<usize>, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("strata.toml");
+    std::fs::write(&path, text).unwrap();
+    match ServerConfig::load(Some(&path)) {
+        Err(e @ ConfigError::Parse { .. }) => {
+            let shown = e.to_string();
+            let ConfigError::Parse { path: p, line, .. } = e else {
+                unreachable!()
+            };
+            assert_eq!(p, path);
+            assert!(shown.contains(&path.display().to_string()), "{shown}");
+            (line, shown)
+        }
+        other => panic!("expected a Parse error for {text:?}, got {other:?}"),
+    }
+}
+
 #[test]
-fn unknown_sections_are_kept_but_unknown_keys_are_errors() {
-    let c = ServerConfig::from_toml_str("[future]\ntick_ms = 50\n").unwrap();
-    assert!(c.unknown.contains_key("future"));
-    assert!(matches!(
-        ServerConfig::from_toml_str("[net]\nstream_window = 5\n"),
-        Err(ConfigError::Parse { .. })
-    ));
+fn a_misspelled_section_is_an_error_naming_it_and_its_line() {
+    let (line, msg) =
+        load_error("[server]\nmax_connections = 10\n\n[metric]\nlisten = \"127.0.0.1:9464\"\n");
+    assert_eq!(line, Some(4));
+    assert!(msg.contains("line 4") && msg.contains("`metric`"), "{msg}");
+    // A misspelled nested section, and a key inside an inline table.
+    let (line, msg) = load_error("[world]\n[world.generatr]\nseed = 7\n");
+    assert_eq!(line, Some(2));
+    assert!(
+        msg.contains("line 2") && msg.contains("`generatr`"),
+        "{msg}"
+    );
+    let (_, msg) = load_error("world = { generator = { sead = 7 } }\n");
+    assert!(msg.contains("line 1") && msg.contains("`sead`"), "{msg}");
+}
+
+#[test]
+fn a_misspelled_key_in_a_known_section_is_an_error_naming_it_and_its_line() {
+    let (line, msg) = load_error("# comment\n[net]\nwriter_queue = 8\nstream_window = 5\n");
+    assert_eq!(line, Some(4));
+    assert!(
+        msg.contains("line 4") && msg.contains("`stream_window`"),
+        "{msg}"
+    );
     // Edit bounds come from [world.generator]; they are not a validation key.
-    assert!(matches!(
-        ServerConfig::from_toml_str("[validation.bounds]\nmin_y = 0\n"),
-        Err(ConfigError::Parse { .. })
-    ));
+    let (_, msg) = load_error("[validation.bounds]\nmin_y = 0\n");
+    assert!(msg.contains("line 1") && msg.contains("`bounds`"), "{msg}");
+}
+
+#[test]
+fn an_unknown_top_level_key_is_an_error_naming_it_and_its_line() {
+    let (line, msg) = load_error("\n\ntick_ms = 50\n[engine]\ntick_ms = 50\n");
+    assert_eq!(line, Some(3));
+    assert!(msg.contains("line 3") && msg.contains("`tick_ms`"), "{msg}");
+    // Without a file, the message still names the line.
+    let err = ServerConfig::from_toml_str("[server]\nlisten = \"127.0.0.1:1\"\ndata = \"x\"\n")
+        .unwrap_err();
+    assert!(
+        matches!(err, ConfigError::Parse { line: Some(3), .. }),
+        "{err:?}"
+    );
+    assert!(
+        err.to_string()
+            .starts_with("cannot parse config line 3: unknown field `data`"),
+        "{err}"
+    );
 }
 
 #[test]

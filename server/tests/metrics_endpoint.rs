@@ -24,6 +24,9 @@ async fn metrics_count_what_happened() {
             "{FAST_EDITS}[metrics]\nlisten = \"{metrics}\"\n[engine]\npremesh_inflight = 4\n"
         );
         let (mut child, addr) = spawn_server(&data, &config);
+        let health = http_get(metrics, "/healthz");
+        assert!(health.starts_with("HTTP/1.1 200"), "{health}");
+        assert!(health.ends_with("ready\n"), "{health}");
         let c = process_client(&data, addr, "ana").await;
         let g = Generator::fractal(GenParams::default()).unwrap();
         let (x, z) = (70, 40);

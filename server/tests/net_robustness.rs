@@ -6,7 +6,7 @@ mod common;
 use std::time::Duration;
 
 use common::*;
-use strata_client_sim::{ClientError, Verdict};
+use strata_client_sim::{Client, ClientError, Verdict};
 use strata_protocol::limits::MAX_CLIENT_FRAME;
 use strata_protocol::{
     encode_frame, ClientMessage, Direction, ErrorCode, Hello, PositionUpdate, Role,
@@ -255,11 +255,115 @@ async fn a_player_whose_edits_keep_being_refused_is_disconnected() {
                 Err(_) => break,
             }
         }
-        assert!((20..40).contains(&refused), "{refused} refusals before the kick");
+        assert!(
+            (20..40).contains(&refused),
+            "{refused} refusals before the kick"
+        );
         expect_closed_with(bad, ErrorCode::Kicked).await;
         good.ping(1).await.unwrap();
         assert!(!good.is_closed());
         good.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// Live sessions, from the admin protocol.
+async fn live_sessions(server: &app::Running) -> u32 {
+    use strata_protocol::admin::{AdminRequest, AdminResponse};
+    let token = token(server, "ops", Role::Admin);
+    let mut admin =
+        strata_server::admin::remote::AdminClient::connect(server.addr, &server.cert_der, &token)
+            .await
+            .unwrap();
+    let n = match admin.request(&AdminRequest::Stats).await.unwrap() {
+        AdminResponse::Stats(s) => s.sessions,
+        other => panic!("unexpected {other:?}"),
+    };
+    admin.close().await;
+    n
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_session_end_reaches_a_busy_engine_and_its_tasks_end() {
+    tokio::time::timeout(TEST_TIMEOUT * 2, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        // One slot for players' commands: flooders keep it full.
+        cfg.engine.command_queue = 1;
+        let server = app::start(cfg).await.expect("server starts");
+        let metrics = tokio::runtime::Handle::current().metrics();
+        let idle_tasks = metrics.num_alive_tasks();
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let mut flooders = Vec::new();
+        for f in 0..4 {
+            let mut raw = raw_session(&server, &format!("flood{f}")).await;
+            let stop = stop.clone();
+            flooders.push(tokio::spawn(async move {
+                for i in 0..200_000i32 {
+                    if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        break;
+                    }
+                    let center = strata_terrain::ChunkPos::new(i % 2 * 50, 0, f * 50);
+                    let msg = ClientMessage::Subscribe { center, radius: 2 };
+                    let frame = encode_frame(&msg, Direction::ClientToServer).unwrap();
+                    if raw.send.write_all(&frame).await.is_err() {
+                        break;
+                    }
+                }
+                raw.conn.close(0u32.into(), b"done");
+            }));
+        }
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let mut joined = 0;
+        for round in 0..10 {
+            let mut batch = tokio::task::JoinSet::new();
+            for i in 0..20 {
+                let (addr, cert) = (server.addr, server.cert_der.clone());
+                let token = token(&server, &format!("p{round}-{i}"), Role::Player);
+                batch.spawn(async move {
+                    match Client::connect(addr, &cert, &token).await {
+                        Ok(c) => {
+                            c.close().await;
+                            1
+                        }
+                        Err(_) => 0,
+                    }
+                });
+            }
+            while let Some(r) = batch.join_next().await {
+                joined += r.unwrap();
+            }
+        }
+        assert!(joined >= 150, "{joined} of 200 sessions joined");
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for f in flooders {
+            f.await.unwrap();
+        }
+        // Every leave arrives; the engine forgets every peer.
+        let mut sessions = u32::MAX;
+        for _ in 0..100 {
+            sessions = live_sessions(&server).await;
+            if sessions == 0 {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        assert_eq!(sessions, 0, "sessions left behind");
+        // And every task of those sessions ended.
+        let mut tasks = usize::MAX;
+        for _ in 0..100 {
+            tasks = metrics.num_alive_tasks();
+            if tasks <= idle_tasks {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        assert!(
+            tasks <= idle_tasks,
+            "{tasks} tasks alive, {idle_tasks} before any session"
+        );
         server.shutdown().await.unwrap();
     })
     .await

@@ -4,7 +4,9 @@ mod store_common;
 
 use store_common::{noisy_chunk, terrain_chunk, Seq};
 use strata_server::store::keys::{chunk_key, chunk_pos_from_key};
-use strata_server::store::{ChunkStore, SledStore, StoreError, WorldMeta, STORE_FORMAT_VERSION};
+use strata_server::store::{
+    ChunkStore, SledStore, StoreError, WorldMeta, STORE_FORMAT_VERSION, TREE_CHUNKS,
+};
 use strata_terrain::chunk_codec::decode_chunk;
 use strata_terrain::material::ids;
 use strata_terrain::{Chunk, ChunkPos, Voxel};
@@ -158,6 +160,56 @@ fn batches_and_log_ranges_round_trip_across_reopen() {
         "{:?}",
         store.check().unwrap()
     );
+}
+
+#[test]
+fn modified_chunks_reads_versions_without_decoding_bodies() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut seq = Seq::default();
+    let (a, b, c) = (
+        ChunkPos::new(0, 0, 0),
+        ChunkPos::new(-4, 1, 9),
+        ChunkPos::new(2, -3, 1),
+    );
+    {
+        let store = SledStore::open(dir.path()).unwrap();
+        store.init_meta(&WorldMeta::new(1, 1, PARAMS)).unwrap();
+        let dense = noisy_chunk(5);
+        store
+            .commit_batch(&seq.batch(&[vec![(a, dense.clone()), (b, terrain_chunk(2))]]))
+            .unwrap();
+        store.commit_batch(&seq.batch(&[vec![(a, dense)]])).unwrap();
+    }
+    // Replace b's body with bytes that do not decode, keeping its version.
+    {
+        let db = strata_server::store::open_raw(dir.path()).unwrap();
+        let chunks = db.open_tree(TREE_CHUNKS).unwrap();
+        let mut garbage = 1u64.to_be_bytes().to_vec();
+        garbage.extend_from_slice(b"\x28\xb5\x2f\xfd not zstd");
+        chunks.insert(chunk_key(b), garbage).unwrap();
+        db.flush().unwrap();
+    }
+    let store = SledStore::open(dir.path()).unwrap();
+    assert!(store.load_chunk(b).is_err(), "b's body is corrupt");
+    let versions: Vec<_> = store.modified_chunks().collect::<Result<_, _>>().unwrap();
+    let mut expected = vec![(a, 2), (b, 1)];
+    expected.sort();
+    assert_eq!(versions, expected);
+    drop(store);
+
+    // A value too short to hold a version is corruption, named by position.
+    {
+        let db = strata_server::store::open_raw(dir.path()).unwrap();
+        let chunks = db.open_tree(TREE_CHUNKS).unwrap();
+        chunks.insert(chunk_key(c), &[0u8, 1, 2][..]).unwrap();
+        db.flush().unwrap();
+    }
+    let store = SledStore::open(dir.path()).unwrap();
+    let results: Vec<_> = store.modified_chunks().collect();
+    assert_eq!(results.len(), 3);
+    let err = results.into_iter().find_map(Result::err).unwrap();
+    assert!(matches!(err, StoreError::Corrupt { .. }), "{err}");
+    assert!(err.to_string().contains("(2, -3, 1)"), "{err}");
 }
 
 #[test]

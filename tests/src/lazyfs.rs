@@ -160,6 +160,12 @@ impl LazyFs {
         self.start();
     }
 
+    /// The file system dies and stays dead: every later I/O on it fails
+    /// (a disk that went away).
+    pub fn fail(&mut self) {
+        self.kill();
+    }
+
     fn kill(&mut self) {
         if let Some(mut p) = self.proc.take() {
             let _ = p.0.kill();

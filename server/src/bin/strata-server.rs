@@ -49,18 +49,40 @@ async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     let mut cfg = ServerConfig::load(args.config.as_deref()).context("loading config")?;
     cfg.apply_overrides(args.data_dir, args.listen);
-    if let Some(addr) = cfg.metrics.listen {
-        strata_server::metrics::install(addr)?;
-    }
+    let metrics = match cfg.metrics.listen {
+        Some(addr) => {
+            let handle = strata_server::metrics::install()?;
+            let listener = strata_server::metrics::bind(addr)
+                .await
+                .with_context(|| format!("binding the metrics listener {addr}"))?;
+            Some((listener, handle))
+        }
+        None => None,
+    };
     let running = app::start(cfg).await?;
+    if let Some((listener, handle)) = metrics {
+        tokio::spawn(strata_server::metrics::serve(
+            listener,
+            handle,
+            running.health(),
+        ));
+    }
     // One machine-readable line on stdout: tests and scripts read the port.
     println!(
         "strata-server listening on {} (certificate {})",
         running.addr,
         running.data_dir.cert_path().display()
     );
-    let signal = wait_for_signal().await?;
-    tracing::info!(signal, "shutting down");
-    running.shutdown().await?;
-    Ok(())
+    tokio::select! {
+        signal = wait_for_signal() => {
+            tracing::info!(signal = signal?, "shutting down");
+            running.shutdown().await
+        }
+        () = running.engine_stopped() => {
+            tracing::error!("the engine stopped; closing every session and exiting");
+            // The engine's error, or this one should it have returned Ok.
+            running.shutdown().await?;
+            anyhow::bail!("the engine stopped")
+        }
+    }
 }

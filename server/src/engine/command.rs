@@ -61,4 +61,6 @@ pub enum Command {
     Admin(super::admin::AdminCommand),
     /// Finish the batch in flight, flush, and stop.
     Stop,
+    /// Look at the control queue (see `inbox.rs`); carries nothing.
+    Wake,
 }

@@ -8,10 +8,10 @@
 //! Admin requests, which read the store, and `Stop` wait until it is done.
 
 use std::collections::VecDeque;
-use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::sync::mpsc::RecvTimeoutError;
 use std::time::Duration;
 
-use super::{Command, Engine};
+use super::{Command, Engine, Inbox};
 use crate::store::{CommitBatch, CommitStats, StoreError};
 
 /// How often the engine checks whether a running commit has finished.
@@ -37,7 +37,7 @@ impl Engine {
     pub(super) fn commit_serving(
         &mut self,
         batch: &CommitBatch,
-        rx: Option<&Receiver<Command>>,
+        rx: Option<&Inbox>,
     ) -> Result<CommitStats, StoreError> {
         let store = self.store.clone();
         std::thread::scope(|s| {

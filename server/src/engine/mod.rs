@@ -13,6 +13,7 @@ mod command;
 mod commit;
 mod fanout;
 mod generated;
+mod inbox;
 mod latest;
 mod peer;
 mod premesh;
@@ -22,12 +23,13 @@ mod stream;
 
 pub use command::{Command, JoinReply, Kick};
 pub use fanout::encode_control as fanout_control;
+pub use inbox::{channel as inbox_channel, EngineHandle, Inbox};
 pub use latest::LatestPosition;
 pub use premesh::{DEFAULT_PREMESH_INFLIGHT, DEFAULT_PREMESH_RADIUS, MAX_PREMESH_RADIUS};
 pub use residency::{DEFAULT_RESIDENT_CHUNKS, MIN_RESIDENT_CHUNKS};
 
 use std::collections::HashMap;
-use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -53,8 +55,11 @@ pub const DEFAULT_STREAM_US: u64 = 2_000;
 pub const MAX_STREAM_US: u64 = 1_000_000;
 /// Longest allowed tick period.
 pub const MAX_TICK_MS: u64 = 1000;
-/// Default capacity of the session-to-engine command queue.
+/// Default capacity of the session-to-engine queue of players' traffic.
 pub const DEFAULT_COMMAND_QUEUE: usize = 8192;
+/// Default capacity of the queue of joins, leaves and admin requests,
+/// which the engine serves first (see `inbox.rs`).
+pub const DEFAULT_CONTROL_QUEUE: usize = 4096;
 /// Largest allowed command or edit queue.
 pub const MAX_COMMAND_QUEUE: usize = 1 << 20;
 
@@ -67,8 +72,12 @@ pub struct EngineConfig {
     /// Microseconds of snapshot streaming per tick, for all sessions
     /// ([`DEFAULT_STREAM_US`]); the rest waits for later ticks.
     pub stream_us: u64,
-    /// Commands queued from sessions before new ones are refused.
+    /// Player commands (edits, positions, subscriptions) queued from
+    /// sessions before new ones are refused.
     pub command_queue: usize,
+    /// Joins, leaves and admin requests queued ([`DEFAULT_CONTROL_QUEUE`]);
+    /// served before any player command.
+    pub control_queue: usize,
     /// Chunks around each player meshed in the background ([`DEFAULT_PREMESH_RADIUS`]).
     pub premesh_radius: u8,
     /// Background mesh jobs in flight at most ([`DEFAULT_PREMESH_INFLIGHT`]).
@@ -86,6 +95,7 @@ impl Default for EngineConfig {
             tick_ms: DEFAULT_TICK_MS,
             stream_us: DEFAULT_STREAM_US,
             command_queue: DEFAULT_COMMAND_QUEUE,
+            control_queue: DEFAULT_CONTROL_QUEUE,
             premesh_radius: DEFAULT_PREMESH_RADIUS,
             premesh_inflight: DEFAULT_PREMESH_INFLIGHT,
             resident_chunks: DEFAULT_RESIDENT_CHUNKS,
@@ -145,34 +155,6 @@ impl std::fmt::Debug for Engine {
     }
 }
 
-/// Handle for sending commands to a running engine.
-#[derive(Debug, Clone)]
-pub struct EngineHandle(SyncSender<Command>);
-
-impl EngineHandle {
-    /// Queues a command without waiting; false if the engine is busy or gone.
-    pub fn try_send(&self, c: Command) -> bool {
-        self.0.try_send(c).is_ok()
-    }
-
-    /// Queues a command without waiting, handing it back when the queue is
-    /// full (or `Disconnected` when the engine is gone).
-    pub fn offer(&self, c: Command) -> Result<(), std::sync::mpsc::TrySendError<Command>> {
-        self.0.try_send(c)
-    }
-
-    /// A handle over `tx`, for tests of the session side.
-    #[cfg(test)]
-    pub(crate) fn from_sender(tx: SyncSender<Command>) -> Self {
-        Self(tx)
-    }
-
-    /// Asks the engine to finish and stop, waiting for queue space (blocking).
-    pub fn stop(&self) {
-        let _ = self.0.send(Command::Stop);
-    }
-}
-
 impl Engine {
     pub fn new(
         seq: Sequencer,
@@ -204,18 +186,24 @@ impl Engine {
     }
 
     /// Starts the engine thread. It stops on [`Command::Stop`] or when
-    /// every handle is dropped, after flushing the batch in flight.
+    /// every handle is dropped, after flushing the batch in flight, or on a
+    /// failed commit. `on_exit` runs when the thread ends, however it ends
+    /// (a panic included).
     pub fn spawn(
         self,
+        on_exit: impl FnOnce() + Send + 'static,
     ) -> std::io::Result<(EngineHandle, std::thread::JoinHandle<anyhow::Result<()>>)> {
-        let (tx, rx) = std::sync::mpsc::sync_channel(self.cfg.command_queue);
+        let (tx, rx) = inbox::channel(self.cfg.command_queue, self.cfg.control_queue);
         let handle = std::thread::Builder::new()
             .name("strata-engine".into())
-            .spawn(move || self.run(rx))?;
-        Ok((EngineHandle(tx), handle))
+            .spawn(move || {
+                let _exit = OnExit(Some(on_exit));
+                self.run(rx)
+            })?;
+        Ok((tx, handle))
     }
 
-    fn run(mut self, rx: Receiver<Command>) -> anyhow::Result<()> {
+    fn run(mut self, rx: Inbox) -> anyhow::Result<()> {
         let period = Duration::from_millis(self.cfg.tick_ms.max(1));
         let mut next_tick = Instant::now() + period;
         loop {
@@ -303,7 +291,7 @@ impl Engine {
                 }
             }
             Command::Admin(c) => self.admin(c),
-            Command::Stop => unreachable!("handled by the loop"),
+            Command::Stop | Command::Wake => {}
         }
         metrics::gauge!(m::QUEUE_DEPTH).set(self.seq.queued() as f64);
     }
@@ -371,9 +359,14 @@ impl Engine {
         let Some(p) = self.peers.get_mut(&session) else {
             return;
         };
-        for pos in p.apply_interest(change) {
-            let frame = fanout::encode_update(&WorldUpdate::Unsubscribed { pos });
-            if p.updates.try_send(frame).is_err() {
+        // One frame for a whole re-centring: per-chunk frames (thousands at
+        // view radius 8) would overflow the writer queue of a prompt client.
+        let gone = p.apply_interest(change);
+        for chunks in gone.chunks(strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE) {
+            let update = WorldUpdate::UnsubscribedMany {
+                chunks: chunks.to_vec(),
+            };
+            if p.updates.try_send(fanout::encode_update(&update)).is_err() {
                 p.failed = true;
             }
         }
@@ -391,7 +384,7 @@ impl Engine {
 
     /// One tick: apply, commit, acknowledge, broadcast, stream. While the
     /// commit runs, safe commands from `rx` are served.
-    fn tick(&mut self, rx: Option<&Receiver<Command>>) -> anyhow::Result<()> {
+    fn tick(&mut self, rx: Option<&Inbox>) -> anyhow::Result<()> {
         let started = Instant::now();
         let mut phase = Phases::new();
         let (mut out, pending) = self.seq.tick_apply(now_ms());
@@ -478,7 +471,7 @@ impl Engine {
             if let Some(mut p) = self.peers.remove(&id) {
                 p.kick(
                     strata_protocol::ErrorCode::Internal,
-                    "client too slow: its control queue overflowed",
+                    "client too slow: a queue of its outgoing frames overflowed",
                 );
             }
             self.seq.session_left(id);
@@ -492,6 +485,18 @@ impl Engine {
                 "server is shutting down",
             );
             self.seq.session_left(id);
+        }
+    }
+}
+
+/// Calls its function when dropped: at the end of the engine thread,
+/// whether it returned or unwound.
+struct OnExit<F: FnOnce()>(Option<F>);
+
+impl<F: FnOnce()> Drop for OnExit<F> {
+    fn drop(&mut self) {
+        if let Some(f) = self.0.take() {
+            f();
         }
     }
 }

@@ -245,11 +245,14 @@ async fn joined(
         &latest,
     )
     .await;
-    let _ = ctx.engine.try_send(Command::Leave { session });
+    leave(&ctx.engine, session).await;
     match end {
-        End::ClientClosed => conn.close(quinn::VarInt::from_u32(0), b"bye"),
+        End::ClientClosed => {
+            conn.close(quinn::VarInt::from_u32(0), b"bye");
+            control_task.abort();
+        }
         End::Refused(code, message) => refuse(&conn, control, control_task, code, &message).await,
-        End::Gone => {}
+        End::Gone => control_task.abort(),
     }
     updates_task.abort();
     info!("session ended");
@@ -284,6 +287,7 @@ pub(super) fn read_error_code(e: &ReadError) -> ErrorCode {
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 async fn serve(
     conn: &quinn::Connection,
     session: u64,
@@ -344,6 +348,20 @@ fn position(session: u64, engine: &EngineHandle, latest: &LatestPosition, bytes:
             }
         }
         Err(e) => debug!(error = %e, "bad position datagram"),
+    }
+}
+
+/// Tells the engine the session ended. It must arrive, or the engine keeps
+/// a ghost peer (and its chunks hot): it waits for room in the control
+/// queue for as long as the engine runs.
+async fn leave(engine: &EngineHandle, session: u64) {
+    let mut cmd = Command::Leave { session };
+    loop {
+        match engine.offer(cmd) {
+            Ok(()) | Err(TrySendError::Disconnected(_)) => return,
+            Err(TrySendError::Full(back)) => cmd = back,
+        }
+        tokio::time::sleep(ENGINE_RETRY).await;
     }
 }
 
@@ -423,8 +441,7 @@ mod tests {
 
     #[tokio::test]
     async fn deliver_waits_for_room_in_the_engine_queue() {
-        let (tx, rx) = std::sync::mpsc::sync_channel(1);
-        let engine = EngineHandle::from_sender(tx);
+        let (engine, rx) = crate::engine::inbox_channel(1, 1);
         assert!(engine.try_send(leave(1)), "the queue has one slot");
         let drain = std::thread::spawn(move || {
             std::thread::sleep(Duration::from_millis(30));
@@ -448,8 +465,7 @@ mod tests {
 
     #[tokio::test]
     async fn deliver_gives_up_on_a_stuck_engine_and_notices_a_gone_one() {
-        let (tx, rx) = std::sync::mpsc::sync_channel(1);
-        let engine = EngineHandle::from_sender(tx);
+        let (engine, rx) = crate::engine::inbox_channel(1, 1);
         assert!(engine.try_send(leave(1)));
         match deliver(&engine, leave(2), Duration::from_millis(50)).await {
             Err(End::Refused(ErrorCode::TooManyConnections, m)) => {
@@ -457,8 +473,14 @@ mod tests {
             }
             _ => panic!("expected an overloaded refusal"),
         }
-        assert!(matches!(rx.try_recv(), Ok(Command::Leave { session: 1 })));
-        assert!(rx.try_recv().is_err(), "the refused command was not queued");
+        assert!(matches!(
+            rx.recv_timeout(Duration::ZERO),
+            Ok(Command::Leave { session: 1 })
+        ));
+        assert!(
+            rx.recv_timeout(Duration::ZERO).is_err(),
+            "the refused command was not queued"
+        );
         drop(rx);
         assert!(matches!(
             deliver(&engine, leave(3), Duration::from_millis(50)).await,
@@ -468,8 +490,7 @@ mod tests {
 
     #[test]
     fn a_position_flood_queues_one_command_per_session_and_keeps_the_newest() {
-        let (tx, rx) = std::sync::mpsc::sync_channel(8);
-        let engine = EngineHandle::from_sender(tx);
+        let (engine, rx) = crate::engine::inbox_channel(8, 8);
         let latest = LatestPosition::default();
         for seq in 1..=10_000u32 {
             let update = PositionUpdate {
@@ -479,14 +500,12 @@ mod tests {
             let bytes = strata_protocol::encode(&update, Direction::ClientToServer).unwrap();
             position(7, &engine, &latest, Bytes::from(bytes));
         }
-        assert!(matches!(
-            rx.try_recv(),
-            Ok(Command::Position { session: 7 })
-        ));
-        assert!(rx.try_recv().is_err(), "one command for 10,000 datagrams");
+        let next = || rx.recv_timeout(Duration::ZERO);
+        assert!(matches!(next(), Ok(Command::Position { session: 7 })));
+        assert!(next().is_err(), "one command for 10,000 datagrams");
         assert_eq!(latest.take().map(|u| u.seq), Some(10_000));
         // Once the engine took it, the next datagram asks again.
-        let next = PositionUpdate {
+        let again = PositionUpdate {
             seq: 10_001,
             pos: strata_terrain::edit::FixedVec3::from_voxels(0, 40, 0),
         };
@@ -494,11 +513,8 @@ mod tests {
             7,
             &engine,
             &latest,
-            Bytes::from(strata_protocol::encode(&next, Direction::ClientToServer).unwrap()),
+            Bytes::from(strata_protocol::encode(&again, Direction::ClientToServer).unwrap()),
         );
-        assert!(matches!(
-            rx.try_recv(),
-            Ok(Command::Position { session: 7 })
-        ));
+        assert!(matches!(next(), Ok(Command::Position { session: 7 })));
     }
 }

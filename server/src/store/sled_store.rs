@@ -190,6 +190,17 @@ struct EncodedChunk {
     value: Vec<u8>,
 }
 
+/// A chunk record's position, version and undecoded body.
+fn split_chunk_entry<'v>(
+    key: &[u8],
+    value: &'v [u8],
+) -> Result<(ChunkPos, u64, &'v [u8]), StoreError> {
+    let pos =
+        chunk_pos_from_key(key).ok_or_else(|| StoreError::corrupt("chunk key", show_raw(key)))?;
+    let (version, body) = split_chunk_value(pos, value)?;
+    Ok((pos, version, body))
+}
+
 fn abort(e: StoreError) -> ConflictableTransactionError<StoreError> {
     ConflictableTransactionError::Abort(e)
 }
@@ -358,15 +369,18 @@ impl ChunkStore for SledStore {
     }
 
     fn modified_chunks(&self) -> StoreIter<'_, (ChunkPos, u64)> {
-        Box::new(self.raw_chunks().map(|r| r.map(|c| (c.pos, c.version))))
+        // Key and version prefix only: bodies are neither copied nor decoded.
+        Box::new(self.chunks.iter().map(|r| {
+            let (k, v) = r?;
+            let (pos, version, _) = split_chunk_entry(&k, &v)?;
+            Ok((pos, version))
+        }))
     }
 
     fn raw_chunks(&self) -> StoreIter<'_, RawChunk> {
         Box::new(self.chunks.iter().map(|r| {
             let (k, v) = r?;
-            let pos = chunk_pos_from_key(&k)
-                .ok_or_else(|| StoreError::corrupt("chunk key", show_raw(&k)))?;
-            let (version, body) = split_chunk_value(pos, &v)?;
+            let (pos, version, body) = split_chunk_entry(&k, &v)?;
             Ok(RawChunk {
                 pos,
                 version,

@@ -140,11 +140,16 @@ pub async fn process_client(data_dir: &Path, addr: SocketAddr, player: &str) -> 
 
 /// The text of a Prometheus endpoint's `/metrics`.
 pub fn scrape(addr: SocketAddr) -> String {
+    http_get(addr, "/metrics")
+}
+
+/// The whole HTTP/1.1 response (status line, headers, body) to `GET path`.
+pub fn http_get(addr: SocketAddr, path: &str) -> String {
     use std::io::{Read, Write};
     let mut s = std::net::TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n")
-        .unwrap();
+    let request = format!("GET {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n");
+    s.write_all(request.as_bytes()).unwrap();
     let mut body = String::new();
     s.read_to_string(&mut body).unwrap();
     body

@@ -1,0 +1,172 @@
+//! The engine's two bounded queues. Players' traffic (edits, positions,
+//! subscriptions, resyncs) goes in one; joins, leaves, admin requests and
+//! `Stop` in the other, which the engine always empties first, so no amount
+//! of player traffic delays them.
+//!
+//! std's channels cannot wait on two queues at once: the engine blocks on
+//! the player queue, and a sender of a control command also queues one
+//! `Wake` there (at most one is ever pending) so the engine looks.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::Arc;
+use std::time::Duration;
+
+use super::Command;
+
+/// Handle for sending commands to a running engine.
+#[derive(Debug, Clone)]
+pub struct EngineHandle {
+    player: SyncSender<Command>,
+    control: SyncSender<Command>,
+    /// A `Wake` is queued on the player lane and not yet taken.
+    wake_pending: Arc<AtomicBool>,
+}
+
+/// The engine's end of both queues.
+#[derive(Debug)]
+pub struct Inbox {
+    player: Receiver<Command>,
+    control: Receiver<Command>,
+    wake_pending: Arc<AtomicBool>,
+}
+
+/// A handle and inbox with room for `player` and `control` commands.
+pub fn channel(player: usize, control: usize) -> (EngineHandle, Inbox) {
+    let (ptx, prx) = sync_channel(player);
+    let (ctx, crx) = sync_channel(control);
+    let wake_pending = Arc::new(AtomicBool::new(false));
+    let handle = EngineHandle {
+        player: ptx,
+        control: ctx,
+        wake_pending: wake_pending.clone(),
+    };
+    let inbox = Inbox {
+        player: prx,
+        control: crx,
+        wake_pending,
+    };
+    (handle, inbox)
+}
+
+/// Whether `c` travels on the control lane.
+fn is_control(c: &Command) -> bool {
+    matches!(
+        c,
+        Command::Join { .. } | Command::Leave { .. } | Command::Admin(_) | Command::Stop
+    )
+}
+
+impl EngineHandle {
+    /// Queues a command without waiting; false if its queue is full or the
+    /// engine is gone.
+    pub fn try_send(&self, c: Command) -> bool {
+        self.offer(c).is_ok()
+    }
+
+    /// Queues a command without waiting, handing it back when its queue is
+    /// full (or `Disconnected` when the engine is gone).
+    pub fn offer(&self, c: Command) -> Result<(), TrySendError<Command>> {
+        if !is_control(&c) {
+            return self.player.try_send(c);
+        }
+        self.control.try_send(c)?;
+        self.wake();
+        Ok(())
+    }
+
+    /// Asks the engine to finish and stop, waiting for queue space (blocking).
+    pub fn stop(&self) {
+        if self.control.send(Command::Stop).is_ok() {
+            self.wake();
+        }
+    }
+
+    fn wake(&self) {
+        // A full player queue needs no wake: the engine is busy draining it
+        // and looks at the control lane before each command.
+        if !self.wake_pending.swap(true, Ordering::AcqRel)
+            && self.player.try_send(Command::Wake).is_err()
+        {
+            self.wake_pending.store(false, Ordering::Release);
+        }
+    }
+}
+
+impl Inbox {
+    /// The next command, control lane first, waiting at most `wait`.
+    /// `Disconnected` once every handle is gone.
+    pub fn recv_timeout(&self, wait: Duration) -> Result<Command, RecvTimeoutError> {
+        let deadline = std::time::Instant::now() + wait;
+        loop {
+            if let Ok(c) = self.control.try_recv() {
+                return Ok(c);
+            }
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            match self.player.recv_timeout(left) {
+                Ok(Command::Wake) => self.wake_pending.store(false, Ordering::Release),
+                Err(RecvTimeoutError::Disconnected) => {
+                    return self
+                        .control
+                        .try_recv()
+                        .map_err(|_| RecvTimeoutError::Disconnected)
+                }
+                other => return other,
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn leave(session: u64) -> Command {
+        Command::Leave { session }
+    }
+
+    #[test]
+    fn control_commands_pass_a_full_player_queue() {
+        let (handle, inbox) = channel(2, 4);
+        let pos = |session| Command::Position { session };
+        assert!(handle.try_send(pos(1)));
+        assert!(handle.try_send(pos(2)));
+        assert!(!handle.try_send(pos(3)), "the player lane is full");
+        assert!(handle.try_send(leave(7)), "a leave still gets in");
+        let order: Vec<String> = (0..3)
+            .map(
+                |_| match inbox.recv_timeout(Duration::from_secs(1)).unwrap() {
+                    Command::Leave { session } => format!("leave {session}"),
+                    Command::Position { session } => format!("pos {session}"),
+                    other => panic!("{other:?}"),
+                },
+            )
+            .collect();
+        assert_eq!(order, ["leave 7", "pos 1", "pos 2"]);
+    }
+
+    #[test]
+    fn a_control_command_wakes_a_waiting_engine_once() {
+        let (handle, inbox) = channel(8, 8);
+        let engine = std::thread::spawn(move || {
+            let first = inbox.recv_timeout(Duration::from_secs(5));
+            let second = inbox.recv_timeout(Duration::from_secs(5));
+            (first.is_ok(), second.is_ok(), inbox)
+        });
+        std::thread::sleep(Duration::from_millis(50));
+        assert!(handle.try_send(leave(1)));
+        assert!(handle.try_send(leave(2)));
+        let (a, b, inbox) = engine.join().unwrap();
+        assert!(a && b);
+        // No stray wakes are left behind: the queue is empty now.
+        assert_eq!(
+            inbox.recv_timeout(Duration::from_millis(20)).err(),
+            Some(RecvTimeoutError::Timeout)
+        );
+        drop(handle);
+        assert_eq!(
+            inbox.recv_timeout(Duration::from_millis(20)).err(),
+            Some(RecvTimeoutError::Disconnected)
+        );
+    }
+}
