@@ -19,6 +19,8 @@ cat > "$dir/strata.toml" <<TOML
 [server]
 listen = "127.0.0.1:0"
 max_connections = $((bots + 64))
+max_handshakes = $((bots + 64))
+max_handshakes_per_address = $((bots + 64))
 ${BENCH_SERVER_TOML:-}
 TOML
 if [ -n "${BENCH_METRICS_PORT:-}" ]; then

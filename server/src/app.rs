@@ -164,7 +164,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         writer_queue: cfg.net.writer_queue,
     };
     let (trigger, shutdown) = shutdown::channel();
-    let listener = Listener::new(endpoint, Arc::new(ctx), cfg.server.max_connections as usize);
+    let listener = Listener::new(endpoint, Arc::new(ctx), cfg.server.admission());
     let listener = tokio::spawn(listener.run(shutdown));
     health.set_accepting(true);
     Ok(Running {

@@ -34,9 +34,20 @@ use strata_terrain::gen::GenParams;
 pub const DEFAULT_LISTEN: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 4433);
 /// Default data directory, relative to the working directory.
 pub const DEFAULT_DATA_DIR: &str = "strata-data";
-/// Default and cap of simultaneous client connections.
+/// Default and cap of authenticated player sessions at once (and the cap
+/// of every other connection limit).
 pub const DEFAULT_MAX_CONNECTIONS: u32 = 256;
 pub const MAX_CONNECTIONS_CAP: u32 = 65_536;
+/// Default admin sessions at once, kept apart from the players'.
+pub const DEFAULT_MAX_ADMIN_CONNECTIONS: u32 = 8;
+/// Default connections in their handshake (TLS and Hello) at once.
+pub const DEFAULT_MAX_HANDSHAKES: u32 = 128;
+/// Default handshakes in progress from one IP address.
+pub const DEFAULT_MAX_HANDSHAKES_PER_ADDRESS: u32 = 16;
+/// Default time from a connection's first packet to its verified Hello.
+pub const DEFAULT_HANDSHAKE_TIMEOUT_MS: u64 = 5_000;
+/// Longest allowed handshake time.
+pub const MAX_HANDSHAKE_TIMEOUT_MS: u64 = 60_000;
 
 /// Cap on `tls.extra_names`.
 pub const MAX_EXTRA_NAMES: usize = 32;
@@ -131,8 +142,32 @@ pub struct ServerSection {
     pub listen: SocketAddr,
     /// World database, certificate and auth secret live here.
     pub data_dir: PathBuf,
-    /// Connections beyond this are refused.
+    /// Authenticated player sessions at once; more are refused
+    /// (`TooManyConnections`, "server is full").
     pub max_connections: u32,
+    /// Authenticated admin sessions at once, beside the players' (so
+    /// operators always get in).
+    pub max_admin_connections: u32,
+    /// Connections in their handshake (TLS, then a Hello with a valid
+    /// token) at once; more are refused before TLS.
+    pub max_handshakes: u32,
+    /// Handshakes in progress from one IP address at once.
+    pub max_handshakes_per_address: u32,
+    /// Milliseconds from a connection's first packet to its verified Hello.
+    pub handshake_timeout_ms: u64,
+}
+
+impl ServerSection {
+    /// The connection limits for [`crate::net::admission`].
+    pub fn admission(&self) -> crate::net::admission::Limits {
+        crate::net::admission::Limits {
+            sessions: self.max_connections,
+            admin_sessions: self.max_admin_connections,
+            handshakes: self.max_handshakes,
+            handshakes_per_address: self.max_handshakes_per_address,
+            handshake_timeout: std::time::Duration::from_millis(self.handshake_timeout_ms),
+        }
+    }
 }
 
 /// `[tls]`: the self-signed certificate and UDP offload.
@@ -200,6 +235,10 @@ impl Default for ServerSection {
             listen: DEFAULT_LISTEN,
             data_dir: PathBuf::from(DEFAULT_DATA_DIR),
             max_connections: DEFAULT_MAX_CONNECTIONS,
+            max_admin_connections: DEFAULT_MAX_ADMIN_CONNECTIONS,
+            max_handshakes: DEFAULT_MAX_HANDSHAKES,
+            max_handshakes_per_address: DEFAULT_MAX_HANDSHAKES_PER_ADDRESS,
+            handshake_timeout_ms: DEFAULT_HANDSHAKE_TIMEOUT_MS,
         }
     }
 }
@@ -297,6 +336,22 @@ impl ServerConfig {
             s.max_connections,
             1,
             MAX_CONNECTIONS_CAP,
+        )?;
+        for (field, value) in [
+            ("server.max_admin_connections", s.max_admin_connections),
+            ("server.max_handshakes", s.max_handshakes),
+            (
+                "server.max_handshakes_per_address",
+                s.max_handshakes_per_address,
+            ),
+        ] {
+            range(field, value, 1, MAX_CONNECTIONS_CAP)?;
+        }
+        range(
+            "server.handshake_timeout_ms",
+            s.handshake_timeout_ms,
+            100,
+            MAX_HANDSHAKE_TIMEOUT_MS,
         )?;
         if s.data_dir.as_os_str().is_empty() {
             return Err(invalid("server.data_dir", "must not be empty"));

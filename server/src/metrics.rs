@@ -32,6 +32,7 @@ pub const PREMESH_SKIPPED: &str = "strata_premesh_skipped_total";
 pub const PATCH_BYTES: &str = "strata_patch_payload_bytes_total";
 pub const SNAPSHOTS_SENT: &str = "strata_snapshots_sent_total";
 pub const SESSIONS_KICKED: &str = "strata_sessions_kicked_total";
+pub const CONNECTIONS_REFUSED: &str = "strata_connections_refused_total";
 
 /// How often the recorder's rolling summaries are advanced.
 pub const UPKEEP_EVERY: Duration = Duration::from_secs(5);
@@ -41,6 +42,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     let handle = PrometheusBuilder::new().install_recorder()?;
     metrics::describe_gauge!(CONNECTIONS, "Open QUIC connections");
     metrics::describe_counter!(SESSIONS_TOTAL, "Sessions that joined the world");
+    metrics::describe_counter!(
+        CONNECTIONS_REFUSED,
+        "Connections turned away, by reason (handshakes, per_address, sessions, admin_sessions)"
+    );
     metrics::describe_counter!(
         SESSIONS_KICKED,
         "Sessions the server disconnected for misbehaving, by reason"

@@ -17,7 +17,6 @@ use tracing::{debug, info, warn, Instrument};
 
 use super::session::{
     accept_first_stream, check_token, close_code, read_error_code, SessionContext, DRAIN_TIMEOUT,
-    HANDSHAKE_TIMEOUT,
 };
 use crate::engine::admin::{AdminCommand, SnapshotStart};
 use crate::engine::snapshot::PreImages;
@@ -60,12 +59,14 @@ pub async fn run(
     session: u64,
     ctx: Arc<SessionContext>,
     shutdown: Shutdown,
+    handshake: super::admission::Handshake,
 ) {
-    let Some((stream, recv)) = accept_first_stream(&conn, "admin stream").await else {
+    let deadline = handshake.deadline;
+    let Some((stream, recv)) = accept_first_stream(&conn, "admin stream", deadline).await else {
         return;
     };
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ClientToServer));
-    let hello = match tokio::time::timeout(HANDSHAKE_TIMEOUT, reader.next::<AdminRequest>()).await {
+    let hello = match tokio::time::timeout_at(deadline, reader.next::<AdminRequest>()).await {
         Ok(Ok(Some(AdminRequest::Hello(h)))) => h,
         Ok(Ok(Some(_))) => {
             let msg = "first message must be Hello";
@@ -103,6 +104,14 @@ pub async fn run(
         );
         return refuse(&conn, stream, ErrorCode::Forbidden, &msg).await;
     }
+    // Held until the session ends; players cannot take these.
+    let _slot = match handshake.admit(true) {
+        Ok(slot) => slot,
+        Err(why) => {
+            let code = ErrorCode::TooManyConnections;
+            return refuse(&conn, stream, code, why.message()).await;
+        }
+    };
     let span = tracing::info_span!("admin", id = session, admin = %claims.player);
     serve(conn, ctx, shutdown, stream, reader, claims.player)
         .instrument(span)

@@ -1,14 +1,14 @@
-//! The QUIC endpoint: accepts connections under a cap and runs a session
-//! task for each, until shutdown.
+//! The QUIC endpoint: admits connections (see [`super::admission`]) and
+//! runs a session task for each, until shutdown.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::Semaphore;
 use tracing::{debug, info, Instrument};
 
 use super::admin_session;
+use super::admission::{Admission, Limits};
 use super::session::{self, SessionContext};
 use crate::shutdown::Shutdown;
 
@@ -20,19 +20,15 @@ pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 pub struct Listener {
     endpoint: quinn::Endpoint,
     ctx: Arc<SessionContext>,
-    max_connections: usize,
+    admission: Arc<Admission>,
 }
 
 impl Listener {
-    pub fn new(
-        endpoint: quinn::Endpoint,
-        ctx: Arc<SessionContext>,
-        max_connections: usize,
-    ) -> Self {
+    pub fn new(endpoint: quinn::Endpoint, ctx: Arc<SessionContext>, limits: Limits) -> Self {
         Self {
             endpoint,
             ctx,
-            max_connections,
+            admission: Admission::new(limits),
         }
     }
 
@@ -43,34 +39,35 @@ impl Listener {
     /// Accepts until `shutdown` fires, then stops accepting, lets sessions
     /// close with a reason, and waits for the endpoint to go idle.
     pub async fn run(self, mut shutdown: Shutdown) {
-        let limit = Arc::new(Semaphore::new(self.max_connections));
         let mut next_session = 1u64;
         loop {
             tokio::select! {
                 incoming = self.endpoint.accept() => {
                     let Some(incoming) = incoming else { break };
-                    let Ok(permit) = limit.clone().try_acquire_owned() else {
-                        debug!(remote = %incoming.remote_address(), "refused: connection limit");
-                        incoming.refuse();
-                        continue;
+                    let remote = incoming.remote_address();
+                    let handshake = match self.admission.begin(remote.ip()) {
+                        Ok(h) => h,
+                        Err(_) => {
+                            incoming.refuse();
+                            continue;
+                        }
                     };
                     let id = next_session;
                     next_session += 1;
-                    let remote = incoming.remote_address();
                     let ctx = self.ctx.clone();
                     let shutdown = shutdown.clone();
                     let span = tracing::info_span!("conn", %remote, session = id);
                     tokio::spawn(async move {
                         metrics::gauge!(crate::metrics::CONNECTIONS).increment(1.0);
-                        match incoming.await {
-                            Ok(conn) if is_admin(&conn) => {
-                                admin_session::run(conn, id, ctx, shutdown).await
+                        match tokio::time::timeout_at(handshake.deadline, incoming).await {
+                            Ok(Ok(conn)) if is_admin(&conn) => {
+                                admin_session::run(conn, id, ctx, shutdown, handshake).await
                             }
-                            Ok(conn) => session::run(conn, id, ctx, shutdown).await,
-                            Err(e) => debug!(error = %e, "handshake failed"),
+                            Ok(Ok(conn)) => session::run(conn, id, ctx, shutdown, handshake).await,
+                            Ok(Err(e)) => debug!(error = %e, "handshake failed"),
+                            Err(_) => debug!("TLS handshake timed out"),
                         }
                         metrics::gauge!(crate::metrics::CONNECTIONS).decrement(1.0);
-                        drop(permit);
                     }.instrument(span));
                 }
                 _ = shutdown.wait() => break,
@@ -78,8 +75,7 @@ impl Listener {
         }
         info!("no longer accepting connections");
         self.endpoint.set_server_config(None);
-        let all = self.max_connections as u32;
-        let _ = tokio::time::timeout(SHUTDOWN_GRACE, limit.acquire_many(all)).await;
+        self.admission.drained(SHUTDOWN_GRACE).await;
         let _ = tokio::time::timeout(SHUTDOWN_GRACE, self.endpoint.wait_idle()).await;
     }
 }

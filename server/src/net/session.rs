@@ -14,13 +14,12 @@ use strata_protocol::{
 use tokio::sync::oneshot;
 use tracing::{debug, info, warn, Instrument};
 
+use super::admission::Handshake;
 use super::writer::{spawn_writer, FrameSender};
 use crate::auth::{self, AuthError, Secret};
 use crate::engine::{fanout_control, now_ms, Command, EngineHandle, LatestPosition};
 use crate::shutdown::Shutdown;
 
-/// How long a client has to open its control stream and say Hello.
-pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long a closing connection waits for its last frames to drain.
 pub const DRAIN_TIMEOUT: Duration = Duration::from_secs(2);
 /// Capacity of each connection's control writer queue.
@@ -68,13 +67,15 @@ async fn refuse(
     conn.close(close_code(code), message.as_bytes());
 }
 
-/// The connection's first bidirectional stream, opened by the client within
-/// [`HANDSHAKE_TIMEOUT`]; otherwise the connection is closed (or was).
+/// The connection's first bidirectional stream, opened by the client
+/// before the handshake's `deadline`; otherwise the connection is closed
+/// (or was).
 pub(super) async fn accept_first_stream(
     conn: &quinn::Connection,
     what: &str,
+    deadline: tokio::time::Instant,
 ) -> Option<(quinn::SendStream, quinn::RecvStream)> {
-    match tokio::time::timeout(HANDSHAKE_TIMEOUT, conn.accept_bi()).await {
+    match tokio::time::timeout_at(deadline, conn.accept_bi()).await {
         Ok(Ok(s)) => Some(s),
         Ok(Err(e)) => {
             debug!(error = %e, "connection closed before its {what}");
@@ -91,19 +92,22 @@ pub(super) async fn accept_first_stream(
 }
 
 /// Runs one connection to completion.
+/// `handshake` holds the connection's handshake slot until Hello is
+/// verified; the session then needs a session slot.
 pub async fn run(
     conn: quinn::Connection,
     session: u64,
     ctx: Arc<SessionContext>,
     shutdown: Shutdown,
+    handshake: Handshake,
 ) {
-    let Some((send, recv)) = accept_first_stream(&conn, "control stream").await else {
+    let deadline = handshake.deadline;
+    let Some((send, recv)) = accept_first_stream(&conn, "control stream", deadline).await else {
         return;
     };
     let (control, control_task) = spawn_writer(send, CONTROL_QUEUE, "control");
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ClientToServer));
-    let hello = match tokio::time::timeout(HANDSHAKE_TIMEOUT, reader.next::<ClientMessage>()).await
-    {
+    let hello = match tokio::time::timeout_at(deadline, reader.next::<ClientMessage>()).await {
         Ok(Ok(Some(ClientMessage::Hello(h)))) => h,
         Ok(Ok(Some(_))) => {
             return refuse(
@@ -155,6 +159,14 @@ pub async fn run(
         Ok(c) => c,
         Err((code, message)) => {
             return refuse(&conn, control, control_task, code, &message).await;
+        }
+    };
+    // Held until the session ends.
+    let _slot = match handshake.admit(false) {
+        Ok(slot) => slot,
+        Err(why) => {
+            let code = ErrorCode::TooManyConnections;
+            return refuse(&conn, control, control_task, code, why.message()).await;
         }
     };
     let span = tracing::info_span!("session", id = session, player = %claims.player, role = claims.role.name());
