@@ -49,6 +49,27 @@ pub enum AdminRequest {
     /// `max_pending_chunks` bounds the server's copy-on-write pre-images
     /// (0: the server's default); past it the snapshot is aborted.
     Snapshot { max_pending_chunks: u32 },
+    /// Bans and token revocations: answered with `Access`.
+    Access,
+    /// Bans `player` until unix second `until` (`None`: for good), persisted,
+    /// and ends the player's live sessions: answered with `Access`.
+    Ban { player: String, until: Option<u64> },
+    /// Lifts a ban: answered with `Access`.
+    Unban { player: String },
+    /// Refuses every token of `player` issued until now, persisted, and
+    /// ends the player's live sessions: answered with `Access`.
+    RevokeTokens { player: String },
+}
+
+/// The server's bans and revocations, and what a change did.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct AccessSpec {
+    /// Player and the unix second the ban ends (`None`: never).
+    pub bans: Vec<(String, Option<u64>)>,
+    /// Player and the unix second at or before which its tokens are refused.
+    pub revoked_before: Vec<(String, u64)>,
+    /// Live sessions the request ended.
+    pub kicked: u32,
 }
 
 /// The server's answer to an admin `Hello`.
@@ -134,4 +155,5 @@ pub enum AdminResponse {
     SnapshotEnd {
         chunks: u64,
     },
+    Access(AccessSpec),
 }

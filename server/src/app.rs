@@ -108,6 +108,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         None => StructureLibrary::default(),
     };
     let zones = load_zones(&*store, &cfg)?;
+    let access =
+        crate::auth::AccessList::from_blob(store.get_blob(crate::auth::ACCESS_BLOB)?.as_deref())?;
     let seq = Sequencer::new(
         World::new(Arc::new(generator)),
         cfg.sequencer,
@@ -162,6 +164,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         generator_params: meta.generator_params.clone(),
         view_radius: cfg.interest.radius(),
         writer_queue: cfg.net.writer_queue,
+        access: std::sync::RwLock::new(access),
+        access_writes: tokio::sync::Mutex::new(()),
     };
     let (trigger, shutdown) = shutdown::channel();
     let listener = Listener::new(endpoint, Arc::new(ctx), cfg.server.admission());

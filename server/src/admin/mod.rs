@@ -1,6 +1,7 @@
 //! `strata-admin` commands. The binary only parses arguments and prints;
 //! the work lives here so it can be tested without a process.
 
+pub mod access_cmd;
 pub mod check;
 pub mod export;
 pub mod export_mesh;

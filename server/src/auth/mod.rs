@@ -29,10 +29,12 @@
 //! A token is valid at time `now` iff the tag verifies, the payload parses,
 //! `now < expires_at` and `issued_at <= now + MAX_CLOCK_SKEW_SECS`.
 
+pub mod access;
 mod duration;
 mod secret;
 mod token;
 
+pub use access::{AccessError, AccessList, Denied, ACCESS_BLOB, MAX_ACCESS_ENTRIES};
 pub use duration::{format_duration, parse_duration, DurationError, HumanDuration, MAX_DURATION};
 pub use secret::{Secret, SecretError, SECRET_LEN};
 pub use token::{

@@ -12,7 +12,7 @@ use strata_server::admin::mesh_cmd::{self, MeshArgs};
 use strata_server::admin::render_map::{self, RenderMapArgs};
 use strata_server::admin::token_cmd::{self, TokenIssueArgs};
 use strata_server::admin::verify_acks::{self, VerifyAcksArgs};
-use strata_server::admin::{inspect, players, snapshot_cmd, stats, zones_cmd};
+use strata_server::admin::{access_cmd, inspect, players, snapshot_cmd, stats, zones_cmd};
 
 /// Administration tools for Strata.
 #[derive(Debug, Parser)]
@@ -77,6 +77,14 @@ enum Command {
     Players(PlayersCommand),
     /// Close every session of a player on a running server.
     Kick(players::KickArgs),
+    /// Ban a player: refused at every Hello until the ban ends (`--until`)
+    /// or is lifted, and (online) the player's live sessions end now.
+    /// Works on a running server or a stopped one's data dir.
+    Ban(access_cmd::BanArgs),
+    /// Lift a player's ban.
+    Unban(access_cmd::PlayerArgs),
+    /// List bans and token revocations.
+    Bans(access_cmd::ListArgs),
     /// Check that the stored world holds every edit in an ack log.
     ///
     /// The ack log (from `strata-bots --ack-log`) has one JSON object per
@@ -104,6 +112,10 @@ enum PlayersCommand {
 enum TokenCommand {
     /// Mint a token signed with the data dir's secret; prints it on stdout.
     Issue(TokenIssueArgs),
+    /// Refuse every token of a player issued until now (a leaked token);
+    /// tokens issued from the next second on work. Online, the player's
+    /// live sessions end now.
+    Revoke(access_cmd::PlayerArgs),
 }
 
 fn main() -> ExitCode {
@@ -167,6 +179,22 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Players(PlayersCommand::List(args)) => print!(
             "{}",
             players::render(&players::list(&args).context("strata-admin players list")?)
+        ),
+        Command::Ban(args) => print!(
+            "{}",
+            access_cmd::render(&access_cmd::ban(&args).context("strata-admin ban")?)
+        ),
+        Command::Unban(args) => print!(
+            "{}",
+            access_cmd::render(&access_cmd::unban(&args).context("strata-admin unban")?)
+        ),
+        Command::Bans(args) => print!(
+            "{}",
+            access_cmd::render(&access_cmd::list(&args).context("strata-admin bans")?)
+        ),
+        Command::Token(TokenCommand::Revoke(args)) => print!(
+            "{}",
+            access_cmd::render(&access_cmd::revoke(&args).context("strata-admin token revoke")?)
         ),
         Command::Kick(args) => {
             let n = players::kick(&args).context("strata-admin kick")?;

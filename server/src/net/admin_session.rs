@@ -8,7 +8,7 @@
 use std::sync::Arc;
 
 use strata_protocol::admin::{
-    AdminRequest, AdminResponse, AdminWelcome, ServerStats, ADMIN_PROTOCOL_VERSION,
+    AccessSpec, AdminRequest, AdminResponse, AdminWelcome, ServerStats, ADMIN_PROTOCOL_VERSION,
 };
 use strata_protocol::io::{FramedReader, ReadError};
 use strata_protocol::{encode_frame, Direction, ErrorCode, FrameBuffer, FrameError, Role};
@@ -18,6 +18,7 @@ use tracing::{debug, info, warn, Instrument};
 use super::session::{
     accept_first_stream, check_token, close_code, read_error_code, SessionContext, DRAIN_TIMEOUT,
 };
+use crate::auth::{unix_now, AccessError, AccessList, ACCESS_BLOB};
 use crate::engine::admin::{AdminCommand, SnapshotStart};
 use crate::engine::snapshot::PreImages;
 use crate::engine::Command;
@@ -103,6 +104,10 @@ pub async fn run(
             claims.role.name()
         );
         return refuse(&conn, stream, ErrorCode::Forbidden, &msg).await;
+    }
+    if let Err(denied) = ctx.admitted(&claims) {
+        warn!(admin = %claims.player, %denied, "refused a denied admin");
+        return refuse(&conn, stream, ErrorCode::Forbidden, &denied.to_string()).await;
     }
     // Held until the session ends; players cannot take these.
     let _slot = match handshake.admit(true) {
@@ -239,10 +244,77 @@ async fn answer(ctx: &Arc<SessionContext>, req: AdminRequest) -> Result<AdminRes
                 Err(m) => refused(m),
             }
         }
+        AdminRequest::Access => access_answer(ctx, |_, _| Ok(None)).await?,
+        AdminRequest::Ban { player, until } => {
+            access_answer(ctx, |list, now| {
+                list.ban(&player, until, now)?;
+                Ok(Some(player.clone()))
+            })
+            .await?
+        }
+        AdminRequest::Unban { player } => {
+            access_answer(ctx, |list, _| {
+                list.unban(&player);
+                Ok(None)
+            })
+            .await?
+        }
+        AdminRequest::RevokeTokens { player } => {
+            access_answer(ctx, |list, now| {
+                list.revoke(&player, now)?;
+                Ok(Some(player.clone()))
+            })
+            .await?
+        }
         AdminRequest::Hello(_) | AdminRequest::Snapshot { .. } => {
             unreachable!("handled by the session loop")
         }
     })
+}
+
+/// Applies `change` to a copy of the access list, persists it (fsynced),
+/// makes it current, and ends the live sessions of the player `change`
+/// names. A refused or failed change leaves everything as it was.
+async fn access_answer(
+    ctx: &Arc<SessionContext>,
+    change: impl FnOnce(&mut AccessList, u64) -> Result<Option<String>, AccessError>,
+) -> Result<AdminResponse, String> {
+    let _one_writer = ctx.access_writes.lock().await;
+    let mut list = ctx.access.read().unwrap_or_else(|e| e.into_inner()).clone();
+    let before = list.clone();
+    let kick = match change(&mut list, unix_now()) {
+        Ok(k) => k,
+        Err(e) => return Ok(refused(e.to_string())),
+    };
+    if list != before {
+        let store = ctx.store.clone();
+        let blob = list.to_blob();
+        let saved = tokio::task::spawn_blocking(move || store.put_blob(ACCESS_BLOB, &blob))
+            .await
+            .map_err(|e| e.to_string())?;
+        if let Err(e) = saved {
+            return Ok(refused(format!("store write failed: {e}")));
+        }
+        *ctx.access.write().unwrap_or_else(|e| e.into_inner()) = list.clone();
+    }
+    let kicked = match kick {
+        Some(player) => ask(ctx, |reply| AdminCommand::Kick { player, reply }).await?,
+        None => 0,
+    };
+    Ok(AdminResponse::Access(access_spec(&list, kicked)))
+}
+
+/// The wire form of an access list.
+pub fn access_spec(list: &AccessList, kicked: u32) -> AccessSpec {
+    AccessSpec {
+        bans: list.bans.iter().map(|(p, u)| (p.clone(), *u)).collect(),
+        revoked_before: list
+            .revoked_before
+            .iter()
+            .map(|(p, t)| (p.clone(), *t))
+            .collect(),
+        kicked,
+    }
 }
 
 /// Extent of the modified chunks and the store's size on disk.

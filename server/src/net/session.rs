@@ -43,6 +43,18 @@ pub struct SessionContext {
     pub view_radius: u8,
     /// Per-connection queue of world updates.
     pub writer_queue: usize,
+    /// Bans and revocations, checked at every Hello; admin sessions change
+    /// it (one at a time, under `access_writes`) and persist it first.
+    pub access: std::sync::RwLock<auth::AccessList>,
+    pub access_writes: tokio::sync::Mutex<()>,
+}
+
+impl SessionContext {
+    /// Whether verified `claims` may join now.
+    pub fn admitted(&self, claims: &auth::Claims) -> Result<(), auth::Denied> {
+        let list = self.access.read().unwrap_or_else(|e| e.into_inner());
+        list.check(claims, auth::unix_now())
+    }
 }
 
 /// Application close codes (QUIC `CONNECTION_CLOSE` error codes).
@@ -161,6 +173,11 @@ pub async fn run(
             return refuse(&conn, control, control_task, code, &message).await;
         }
     };
+    if let Err(denied) = ctx.admitted(&claims) {
+        warn!(player = %claims.player, %denied, "refused a denied player");
+        let code = ErrorCode::Forbidden;
+        return refuse(&conn, control, control_task, code, &denied.to_string()).await;
+    }
     // Held until the session ends.
     let _slot = match handshake.admit(false) {
         Ok(slot) => slot,

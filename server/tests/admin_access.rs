@@ -1,0 +1,123 @@
+//! Bans and token revocations through `strata-admin`, online (the change
+//! ends live sessions and is refused at the next Hello) and offline (a
+//! stopped server's stored list), and both survive a restart.
+
+mod common;
+
+use std::process::Command;
+use std::time::Duration;
+
+use common::*;
+use strata_client_sim::{Client, ClientError};
+use strata_protocol::{ErrorCode, Role};
+use strata_server::app;
+
+fn admin(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_strata-admin"))
+        .args(args)
+        .output()
+        .expect("strata-admin runs");
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// `strata-admin ARGS --server ... --cert ... --token ...`.
+fn online(server: &app::Running, args: &[&str]) -> String {
+    let token = token(server, "root", Role::Admin);
+    let cert = server.data_dir.cert_path();
+    let addr = server.addr.to_string();
+    let mut all = args.to_vec();
+    all.extend([
+        "--server",
+        &addr,
+        "--cert",
+        cert.to_str().unwrap(),
+        "--token",
+        &token,
+    ]);
+    admin(&all)
+}
+
+async fn refused(server: &app::Running, token: &str) -> String {
+    match Client::connect(server.addr, &server.cert_der, token).await {
+        Err(ClientError::Refused { code, message }) => {
+            assert_eq!(code, ErrorCode::Forbidden, "{message}");
+            message
+        }
+        other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn online_bans_and_revocations_end_sessions_and_refuse_hellos() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let eve = connect(&server, "eve", Role::Player).await;
+        let ana = connect(&server, "ana", Role::Player).await;
+        let out = online(&server, &["ban", "eve", "--until", "1h"]);
+        assert!(out.contains("banned eve until unix time"), "{out}");
+        assert!(out.contains("ended 1 live session"), "{out}");
+        assert!(matches!(
+            tokio::time::timeout(Duration::from_secs(5), eve.closed()).await,
+            Ok(ClientError::Refused { .. })
+        ));
+        let eve_token = token(&server, "eve", Role::Player);
+        assert!(refused(&server, &eve_token).await.contains("banned"));
+        assert!(online(&server, &["bans"]).contains("banned eve"));
+        online(&server, &["unban", "eve"]);
+        let eve = Client::connect(server.addr, &server.cert_der, &eve_token)
+            .await
+            .expect("unbanned");
+        // A revocation ends the session and refuses every older token.
+        let out = online(&server, &["token", "revoke", "eve"]);
+        assert!(out.contains("revoked eve's tokens"), "{out}");
+        let _ = tokio::time::timeout(Duration::from_secs(5), eve.closed()).await;
+        assert!(refused(&server, &eve_token).await.contains("revoked"));
+        tokio::time::sleep(Duration::from_millis(1100)).await;
+        let fresh = token(&server, "eve", Role::Player);
+        let eve = Client::connect(server.addr, &server.cert_der, &fresh)
+            .await
+            .expect("a token issued after the revocation works");
+        // Nobody else was touched.
+        ana.ping(1).await.unwrap();
+        eve.close().await;
+        ana.close().await;
+        server.shutdown().await.unwrap();
+        // The list was persisted: it holds after a restart.
+        let server = start(dir.path()).await;
+        assert!(refused(&server, &eve_token).await.contains("revoked"));
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn an_offline_ban_holds_when_the_server_starts() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        start(dir.path()).await.shutdown().await.unwrap();
+        let data = dir.path().to_str().unwrap();
+        let out = admin(&["ban", "mal", "--data-dir", data]);
+        assert!(out.contains("banned mal until unbanned"), "{out}");
+        let server = start(dir.path()).await;
+        let mal = token(&server, "mal", Role::Player);
+        assert!(refused(&server, &mal).await.contains("banned"));
+        server.shutdown().await.unwrap();
+        admin(&["unban", "mal", "--data-dir", data]);
+        assert!(admin(&["bans", "--data-dir", data]).contains("no bans"));
+        let server = start(dir.path()).await;
+        let c = Client::connect(server.addr, &server.cert_der, &mal)
+            .await
+            .expect("unbanned offline");
+        c.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
