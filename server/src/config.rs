@@ -479,6 +479,12 @@ impl ServerConfig {
             MAX_COMMAND_QUEUE,
         )?;
         range(
+            "engine.sessions_per_player",
+            self.engine.sessions_per_player,
+            1,
+            MAX_CONNECTIONS_CAP as usize,
+        )?;
+        range(
             "engine.premesh_radius",
             self.engine.premesh_radius,
             0,

@@ -118,3 +118,77 @@ async fn the_cap_counts_sessions_and_admins_have_their_own_room() {
     .await
     .expect("test finished in time");
 }
+
+#[tokio::test]
+async fn a_new_login_replaces_the_old_session_unless_more_are_allowed() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let shared = token(&server, "ana", Role::Player);
+        let first = Client::connect(server.addr, &server.cert_der, &shared)
+            .await
+            .unwrap();
+        let second = Client::connect(server.addr, &server.cert_der, &shared)
+            .await
+            .unwrap();
+        match tokio::time::timeout(Duration::from_secs(5), first.closed()).await {
+            Ok(ClientError::Refused { code, message }) => {
+                assert_eq!(code, ErrorCode::Kicked);
+                assert!(message.contains("newer login"), "{message}");
+            }
+            other => panic!("expected the first session to end, got {other:?}"),
+        }
+        second.ping(1).await.unwrap();
+        // 30 logins with one token leave exactly one session.
+        let mut last = None;
+        for _ in 0..30 {
+            last = Some(
+                Client::connect(server.addr, &server.cert_der, &shared)
+                    .await
+                    .unwrap(),
+            );
+        }
+        let mut admin = AdminClient::connect(
+            server.addr,
+            &server.cert_der,
+            &token(&server, "root", Role::Admin),
+        )
+        .await
+        .unwrap();
+        let mut sessions = 0;
+        for _ in 0..50 {
+            sessions = match admin.request(&AdminRequest::Stats).await.unwrap() {
+                AdminResponse::Stats(s) => s.sessions,
+                other => panic!("{other:?}"),
+            };
+            if sessions == 1 {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        assert_eq!(sessions, 1);
+        admin.close().await;
+        last.unwrap().ping(2).await.unwrap();
+        server.shutdown().await.unwrap();
+
+        // Allowed more, both stay.
+        let mut cfg = test_config(dir.path());
+        cfg.engine.sessions_per_player = 2;
+        let server = app::start(cfg).await.unwrap();
+        let a = Client::connect(server.addr, &server.cert_der, &shared)
+            .await
+            .unwrap();
+        let b = Client::connect(server.addr, &server.cert_der, &shared)
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        a.ping(1).await.unwrap();
+        b.ping(1).await.unwrap();
+        assert!(!a.is_closed() && !b.is_closed());
+        a.close().await;
+        b.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

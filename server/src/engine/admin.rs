@@ -105,17 +105,9 @@ impl Engine {
                 let _ = reply.send(list);
             }
             AdminCommand::Kick { player, reply } => {
-                let ids: Vec<u64> = self
-                    .peers
-                    .keys()
-                    .copied()
-                    .filter(|&id| self.seq.session(id).is_some_and(|s| s.player == player))
-                    .collect();
+                let ids = self.sessions_of(&player);
                 for &id in &ids {
-                    if let Some(mut p) = self.peers.remove(&id) {
-                        p.kick(ErrorCode::Kicked, "kicked by an administrator");
-                    }
-                    self.seq.session_left(id);
+                    self.end_session(id, ErrorCode::Kicked, "kicked by an administrator");
                 }
                 info!(%player, sessions = ids.len(), "kicked");
                 let _ = reply.send(ids.len() as u32);

@@ -34,7 +34,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
-use strata_protocol::{ChunkVersion, ServerMessage, WorldUpdate};
+use strata_protocol::{ChunkVersion, ErrorCode, ServerMessage, WorldUpdate};
 use strata_terrain::ChunkPos;
 use tracing::{debug, error, info, warn};
 
@@ -55,6 +55,8 @@ pub const DEFAULT_STREAM_US: u64 = 2_000;
 pub const MAX_STREAM_US: u64 = 1_000_000;
 /// Longest allowed tick period.
 pub const MAX_TICK_MS: u64 = 1000;
+/// Default live sessions per player: a new login replaces the old one.
+pub const DEFAULT_SESSIONS_PER_PLAYER: usize = 1;
 /// Default capacity of the session-to-engine queue of players' traffic.
 pub const DEFAULT_COMMAND_QUEUE: usize = 8192;
 /// Default capacity of the queue of joins, leaves and admin requests,
@@ -78,6 +80,9 @@ pub struct EngineConfig {
     /// Joins, leaves and admin requests queued ([`DEFAULT_CONTROL_QUEUE`]);
     /// served before any player command.
     pub control_queue: usize,
+    /// Live sessions one player may have ([`DEFAULT_SESSIONS_PER_PLAYER`]);
+    /// a new login past it ends the player's oldest session.
+    pub sessions_per_player: usize,
     /// Chunks around each player meshed in the background ([`DEFAULT_PREMESH_RADIUS`]).
     pub premesh_radius: u8,
     /// Background mesh jobs in flight at most ([`DEFAULT_PREMESH_INFLIGHT`]).
@@ -96,6 +101,7 @@ impl Default for EngineConfig {
             stream_us: DEFAULT_STREAM_US,
             command_queue: DEFAULT_COMMAND_QUEUE,
             control_queue: DEFAULT_CONTROL_QUEUE,
+            sessions_per_player: DEFAULT_SESSIONS_PER_PLAYER,
             premesh_radius: DEFAULT_PREMESH_RADIUS,
             premesh_inflight: DEFAULT_PREMESH_INFLIGHT,
             resident_chunks: DEFAULT_RESIDENT_CHUNKS,
@@ -246,6 +252,14 @@ impl Engine {
                 kick,
                 position,
             } => {
+                // A new login replaces the player's oldest sessions past the cap.
+                let mut older = self.sessions_of(&player);
+                older.sort_unstable();
+                let excess = (older.len() + 1).saturating_sub(self.cfg.sessions_per_player.max(1));
+                for &id in &older[..excess] {
+                    info!(session = id, %player, "replaced by a newer login");
+                    self.end_session(id, ErrorCode::Kicked, "replaced by a newer login");
+                }
                 self.seq.session_joined(session, player, role);
                 metrics::counter!(m::SESSIONS_TOTAL).increment(1);
                 let interest = Interest::new(self.interest, self.bounds);
@@ -324,10 +338,7 @@ impl Engine {
             if let Some(p) = self.peers.get_mut(&s) {
                 warn!(session = s, "disconnecting: too many refused edits");
                 metrics::counter!(m::SESSIONS_KICKED, "reason" => "rejected_edits").increment(1);
-                p.kick(
-                    strata_protocol::ErrorCode::Kicked,
-                    "too many refused edits; slow down",
-                );
+                p.kick(ErrorCode::Kicked, "too many refused edits; slow down");
             }
         }
     }
@@ -468,22 +479,32 @@ impl Engine {
             .collect();
         for id in failed {
             info!(session = id, "dropping a session whose queues overflowed");
-            if let Some(mut p) = self.peers.remove(&id) {
-                p.kick(
-                    strata_protocol::ErrorCode::Internal,
-                    "client too slow: a queue of its outgoing frames overflowed",
-                );
-            }
-            self.seq.session_left(id);
+            let why = "client too slow: a queue of its outgoing frames overflowed";
+            self.end_session(id, ErrorCode::Internal, why);
         }
+    }
+
+    /// Live sessions of `player`.
+    fn sessions_of(&self, player: &str) -> Vec<u64> {
+        self.peers
+            .keys()
+            .copied()
+            .filter(|&id| self.seq.session(id).is_some_and(|s| s.player == player))
+            .collect()
+    }
+
+    /// Ends a session now: its connection closes with `code`, and the
+    /// engine forgets it (its later `Leave` finds nothing).
+    fn end_session(&mut self, id: u64, code: ErrorCode, message: &str) {
+        if let Some(mut p) = self.peers.remove(&id) {
+            p.kick(code, message);
+        }
+        self.seq.session_left(id);
     }
 
     fn close_all(&mut self) {
         for (id, mut p) in self.peers.drain() {
-            p.kick(
-                strata_protocol::ErrorCode::ShuttingDown,
-                "server is shutting down",
-            );
+            p.kick(ErrorCode::ShuttingDown, "server is shutting down");
             self.seq.session_left(id);
         }
     }
