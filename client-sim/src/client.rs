@@ -12,7 +12,7 @@ use bytes::Bytes;
 use strata_protocol::io::FramedReader;
 use strata_protocol::{
     encode, encode_frame, ChunkVersion, ClientMessage, Direction, EditRequest, ErrorCode,
-    FrameBuffer, Hello, PositionUpdate, RejectReason, ServerMessage, Welcome, WorldUpdate,
+    FrameBuffer, Hello, PositionUpdate, Refusal, RejectReason, ServerMessage, Welcome, WorldUpdate,
     PROTOCOL_VERSION,
 };
 use strata_terrain::edit::StructureLibrary;
@@ -36,6 +36,8 @@ pub const EDIT_TIMEOUT: Duration = Duration::from_secs(30);
 pub const CONTROL_QUEUE: usize = 256;
 /// Delta arrival records kept for latency reports.
 pub const MAX_ARRIVALS: usize = 1 << 20;
+/// `RequestRefused` answers a client keeps.
+pub const MAX_REFUSALS_KEPT: usize = 1024;
 
 #[derive(Debug, Error)]
 pub enum ClientError {
@@ -103,6 +105,8 @@ struct Shared {
     bytes_in: AtomicU64,
     /// When the server was last heard from (ms since the Unix epoch).
     heard_ms: AtomicU64,
+    /// `RequestRefused` answers received.
+    refusals: Mutex<Vec<Refusal>>,
 }
 
 impl Shared {
@@ -494,6 +498,12 @@ impl Client {
         }
     }
 
+    /// The server's `RequestRefused` answers so far (the first
+    /// [`MAX_REFUSALS_KEPT`]).
+    pub fn refusals(&self) -> Vec<Refusal> {
+        self.shared.refusals.lock().expect("not poisoned").clone()
+    }
+
     /// True once the connection has ended.
     pub fn is_closed(&self) -> bool {
         self.conn.close_reason().is_some()
@@ -578,6 +588,12 @@ async fn read_control(
             ),
             Ok(Some(ServerMessage::Error { code, message })) => {
                 *shared.error.lock().expect("not poisoned") = Some((code, message));
+            }
+            Ok(Some(ServerMessage::RequestRefused(r))) => {
+                let mut all = shared.refusals.lock().expect("not poisoned");
+                if all.len() < MAX_REFUSALS_KEPT {
+                    all.push(r);
+                }
             }
             Ok(Some(ServerMessage::Pong { .. } | ServerMessage::Welcome(_))) => {}
             Ok(None) | Err(_) => break,

@@ -211,6 +211,20 @@ pub enum ServerMessage {
         nonce: u64,
         server_time: u64,
     },
+    /// A `Subscribe`, `ResyncRequest` or `FullSnapshotRequest` was refused;
+    /// nothing changed and the session goes on.
+    RequestRefused(Refusal),
+}
+
+/// Why a request other than an edit was refused.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Refusal {
+    /// The `Subscribe` centre is more than `max` chunks (Chebyshev) from
+    /// the chunk of the player's last accepted position, or, before any,
+    /// from the session's first subscription centre.
+    SubscribeTooFar { center: ChunkPos, max: u8 },
+    /// A resync or full snapshot of a chunk outside the session's view.
+    NotInInterest { pos: ChunkPos },
 }
 
 /// A chunk change, as broadcast after its edit is durable.

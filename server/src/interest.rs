@@ -72,6 +72,9 @@ pub struct Interest {
     /// Set by an explicit `Subscribe`; positions then no longer move the centre.
     explicit: bool,
     subscribed: BTreeSet<ChunkPos>,
+    /// The first `Subscribe` centre: before the player has a position,
+    /// later centres must stay near it.
+    anchor: Option<ChunkPos>,
 }
 
 impl Interest {
@@ -83,6 +86,7 @@ impl Interest {
             radius: cfg.radius(),
             explicit: false,
             subscribed: BTreeSet::new(),
+            anchor: None,
         }
     }
 
@@ -105,6 +109,22 @@ impl Interest {
     }
 
     /// An explicit `Subscribe`; the radius is capped by the config's view radius.
+    /// Whether a `Subscribe` may centre on `center`: within radius plus
+    /// hysteresis (Chebyshev, in chunks) of `player`, the chunk of the
+    /// player's last accepted position, or before any, of the session's
+    /// first centre. `Err` carries that distance.
+    pub fn check_centre(&mut self, center: ChunkPos, player: Option<ChunkPos>) -> Result<(), u8> {
+        let max = self.cfg.radius().saturating_add(self.cfg.hysteresis);
+        match player.or(self.anchor) {
+            Some(near) if center.chebyshev(near) > u32::from(max) => Err(max),
+            Some(_) => Ok(()),
+            None => {
+                self.anchor = Some(center);
+                Ok(())
+            }
+        }
+    }
+
     pub fn subscribe(&mut self, center: ChunkPos, radius: u8) -> InterestChange {
         self.explicit = true;
         let r = radius.min(self.cfg.radius());

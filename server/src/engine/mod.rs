@@ -34,7 +34,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
-use strata_protocol::{ChunkVersion, ErrorCode, ServerMessage, WorldUpdate};
+use strata_protocol::{ChunkVersion, ErrorCode, Refusal, ServerMessage, WorldUpdate};
 use strata_terrain::ChunkPos;
 use tracing::{debug, error, info, warn};
 
@@ -287,21 +287,48 @@ impl Engine {
                 center,
                 radius,
             } => {
-                if let Some(p) = self.peers.get_mut(&session) {
-                    let change = p.interest.subscribe(center, radius);
-                    self.apply_interest(session, change);
+                // Admins may look anywhere; players only around themselves.
+                let player = match self.seq.session(session) {
+                    Some(s) if s.role == strata_protocol::Role::Admin => None,
+                    Some(_) => Some(
+                        self.seq
+                            .position(session)
+                            .map(|p| crate::validate::position::feet_voxel(p.feet).chunk()),
+                    ),
+                    None => return,
+                };
+                let Some(p) = self.peers.get_mut(&session) else {
+                    return;
+                };
+                let allowed = match player {
+                    None => Ok(()),
+                    Some(at) => p.interest.check_centre(center, at),
+                };
+                match allowed {
+                    Ok(()) => {
+                        let change = p.interest.subscribe(center, radius);
+                        self.apply_interest(session, change);
+                    }
+                    Err(max) => {
+                        let refusal = Refusal::SubscribeTooFar { center, max };
+                        self.send_control(session, &ServerMessage::RequestRefused(refusal));
+                    }
                 }
             }
             Command::Resync { session, pos } | Command::FullSnapshot { session, pos } => {
                 let full = matches!(cmd, Command::FullSnapshot { .. });
-                if let Some(p) = self.peers.get_mut(&session) {
-                    if p.interest.covers(pos) {
-                        metrics::counter!(m::RESYNCS).increment(1);
-                        if full {
-                            p.full_data.insert(pos);
-                        }
-                        p.resend(pos);
+                let Some(p) = self.peers.get_mut(&session) else {
+                    return;
+                };
+                if p.interest.covers(pos) {
+                    metrics::counter!(m::RESYNCS).increment(1);
+                    if full {
+                        p.full_data.insert(pos);
                     }
+                    p.resend(pos);
+                } else {
+                    let refusal = Refusal::NotInInterest { pos };
+                    self.send_control(session, &ServerMessage::RequestRefused(refusal));
                 }
             }
             Command::Admin(c) => self.admin(c),
