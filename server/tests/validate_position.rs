@@ -139,3 +139,29 @@ fn the_precheck_refuses_far_jumps_without_touching_terrain() {
         Err(PositionReject::UnknownSession)
     );
 }
+
+#[test]
+fn a_reconnect_resumes_where_the_player_left() {
+    let mut s = fresh();
+    s.update_position(PLAYER, at(1, 100, 40, 100), 0).unwrap();
+    s.session_left(PLAYER);
+    // A new session of the same player, 10 s later: it starts where the
+    // player was, and its first report is a move from there.
+    let again = 7;
+    s.session_joined(again, "p".into(), Role::Player);
+    s.resume_position(again, 10_000);
+    assert_eq!(
+        s.position(again).unwrap().feet,
+        FixedVec3::from_voxels(100, 40, 100)
+    );
+    assert!(matches!(
+        s.update_position(again, at(1, 5100, 40, 100), 10_050),
+        Err(PositionReject::TooFast { .. })
+    ));
+    s.update_position(again, at(2, 101, 40, 100), 10_050)
+        .unwrap();
+    // A player never seen may start anywhere.
+    s.session_joined(8, "new".into(), Role::Player);
+    s.resume_position(8, 10_000);
+    assert_eq!(s.position(8), None);
+}

@@ -3,14 +3,17 @@
 //! `strata_client_sim::bots`.
 
 use std::io::IsTerminal;
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{bail, Context};
 use clap::Parser;
 use strata_client_sim::bots::duration::parse_run_duration;
-use strata_client_sim::bots::{self, BotsConfig, Profile, Tokens, VerifyMode};
+use strata_client_sim::bots::hostile::{DEFAULT_CONNECTIONS, DEFAULT_REACH, DEFAULT_SESSIONS};
+use strata_client_sim::bots::{
+    self, Attack, BotsConfig, HostileConfig, Profile, Tokens, VerifyMode,
+};
 use strata_server::app;
 use strata_server::config::ServerConfig;
 use strata_server::datadir::DataDir;
@@ -28,8 +31,11 @@ use tracing_subscriber::EnvFilter;
 /// Bots live in a square area starting at x = z = 512 (away from the
 /// protected spawn), 24 × 24 voxels per bot. With `--data-dir` each bot gets
 /// its own token (player `bot-<i>`) signed with the server's secret; with
-/// `--token` all bots are one player and share its rate limits. The server's
-/// `server.max_connections` (default 256) must allow `--bots` connections.
+/// `--token` all bots are one player and share its rate limits (the server's
+/// `engine.sessions_per_player`, default 1, must then allow `--bots`). The
+/// server's `server.max_connections` (default 256) must allow `--bots`
+/// sessions, and `server.max_handshakes_per_address` (default 16) limits how
+/// many connect at once from this machine (refused ones retry).
 ///
 /// The summary reports edits sent, accepted and rejected by reason, ack and
 /// broadcast latency (edit sent → its delta at another bot), bytes in and
@@ -41,6 +47,18 @@ use tracing_subscriber::EnvFilter;
 /// (the edit's sequence number and every chunk it changed with its new
 /// version). `strata-admin verify-acks --data-dir DIR FILE` then checks the
 /// stored world holds all of them.
+///
+/// `--hostile N --attack KIND` adds N hostile players (tokens `hostile-<i>`,
+/// so --data-dir or --spawn-server) that attack through the real protocol
+/// while the bots edit, from connections bound to --hostile-bind:
+/// position-flood (far-apart position datagrams, --hostile-rate per second),
+/// rejected-edits (edits always refused, --hostile-rate per second; kicked
+/// players reconnect), far-subscribe (subscriptions and full-chunk requests
+/// 150+ chunks away), teleport (edit, reconnect thousands of voxels away,
+/// edit), handshake-flood (--hostile-connections connections that never
+/// say Hello) or token-share (--hostile-sessions sessions of one token).
+/// The summary's "hostile" object holds their counters; every other field
+/// counts the honest bots only.
 #[derive(Debug, Parser)]
 #[command(name = "strata-bots", version, about, verbatim_doc_comment)]
 struct Args {
@@ -105,6 +123,31 @@ struct Args {
     /// the prediction was exact.
     #[arg(long)]
     predict: bool,
+    /// Hostile players beside the bots (each runs --attack).
+    #[arg(long, default_value_t = 0)]
+    hostile: usize,
+    /// position-flood, rejected-edits, far-subscribe, teleport,
+    /// handshake-flood or token-share.
+    #[arg(long)]
+    attack: Option<Attack>,
+    /// Local address of every hostile connection [default: 127.0.0.2 for a
+    /// server on 127.0.0.1, ::1 for [::1], else any].
+    #[arg(long)]
+    hostile_bind: Option<IpAddr>,
+    /// Position datagrams (position-flood, default 50000) or edits
+    /// (rejected-edits, default 1000) per second per hostile player.
+    #[arg(long)]
+    hostile_rate: Option<u32>,
+    /// Sessions a token-share player opens with its one token.
+    #[arg(long, default_value_t = DEFAULT_SESSIONS)]
+    hostile_sessions: usize,
+    /// Connections a handshake-flood player holds open at once.
+    #[arg(long, default_value_t = DEFAULT_CONNECTIONS)]
+    hostile_connections: usize,
+    /// The server's reach in voxels ([validation] reach), for teleport's
+    /// count of edits accepted beyond it.
+    #[arg(long, default_value_t = DEFAULT_REACH)]
+    hostile_reach: f64,
 }
 
 fn main() -> ExitCode {
@@ -135,13 +178,21 @@ fn main() -> ExitCode {
 
 /// Runs the bots; `Ok(false)` when the replicas did not converge.
 async fn run(args: Args) -> anyhow::Result<bool> {
+    match (args.hostile, args.attack) {
+        (0, Some(_)) => bail!("--attack needs --hostile N (N > 0)"),
+        (n, None) if n > 0 => bail!("--hostile needs --attack KIND"),
+        _ => {}
+    }
     let mut spawned = None;
     let (server, cert_der, tokens) = if args.spawn_server {
         let dir = tempfile::tempdir().context("creating a temp data dir")?;
         let mut cfg = ServerConfig::default();
         cfg.server.listen = "127.0.0.1:0".parse()?;
         cfg.server.data_dir = dir.path().join("data");
-        cfg.server.max_connections = cfg.server.max_connections.max(args.bots as u32 + 16);
+        let room = args.bots as u32 + 16;
+        cfg.server.max_connections = cfg.server.max_connections.max(room);
+        cfg.server.max_handshakes = cfg.server.max_handshakes.max(room);
+        cfg.server.max_handshakes_per_address = cfg.server.max_handshakes_per_address.max(room);
         let running = app::start(cfg).await.context("starting the server")?;
         eprintln!(
             "strata-bots: server listening on {} (data in {})",
@@ -197,7 +248,17 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         silence_limit: args.silence_limit,
         predict: args.predict,
     };
-    let summary = bots::run(cfg).await?;
+    let hostile = args.attack.map(|attack| HostileConfig {
+        bind: args
+            .hostile_bind
+            .unwrap_or_else(|| HostileConfig::default_bind(server)),
+        rate: args.hostile_rate,
+        sessions: args.hostile_sessions,
+        connections: args.hostile_connections,
+        reach: args.hostile_reach,
+        ..HostileConfig::new(attack, args.hostile, server)
+    });
+    let summary = bots::run_with(cfg, hostile).await?;
     if args.json {
         println!("{}", summary.to_json());
     } else {

@@ -7,13 +7,17 @@
 //! - [`driver`]: one bot's life (connect, walk, edit, reconnect, verify);
 //!   `walker`: how it moves.
 //! - [`stats`], [`summary`], [`progress`], [`ack_log`]: what a run reports.
+//! - [`hostile`]: hostile players beside the bots (`--hostile N --attack
+//!   KIND`), on bare sessions ([`raw_session`]).
 
 pub mod ack_log;
 mod driver;
 pub mod duration;
 pub mod footing;
+pub mod hostile;
 pub mod profile;
 mod progress;
+pub mod raw_session;
 pub mod rng;
 pub mod stats;
 pub mod summary;
@@ -37,9 +41,10 @@ use crate::pool::ChunkPool;
 use crate::prediction::PredictionStats;
 use ack_log::AckLog;
 use driver::BotOutcome;
+pub use hostile::{Attack, HostileConfig};
 pub use profile::{Profile, Role};
 use stats::Stats;
-pub use summary::Summary;
+pub use summary::{HostileSummary, Summary};
 
 /// Side of the square each bot calls home, in voxels.
 pub const CELL: i32 = 24;
@@ -90,16 +95,17 @@ pub enum Tokens {
 
 impl Tokens {
     pub fn token(&self, bot: usize) -> Result<String, BotsError> {
+        self.token_for(&format!("bot-{bot}"))
+    }
+
+    /// The token of player `name` (the shared one with [`Tokens::Shared`]).
+    pub fn token_for(&self, name: &str) -> Result<String, BotsError> {
         match self {
             Tokens::Shared(t) => Ok(t.clone()),
-            Tokens::Minted(secret) => auth::issue(
-                secret,
-                &format!("bot-{bot}"),
-                AuthRole::Player,
-                TOKEN_TTL,
-                auth::unix_now(),
-            )
-            .map_err(|e| BotsError::Token(e.to_string())),
+            Tokens::Minted(secret) => {
+                auth::issue(secret, name, AuthRole::Player, TOKEN_TTL, auth::unix_now())
+                    .map_err(|e| BotsError::Token(e.to_string()))
+            }
         }
     }
 }
@@ -290,7 +296,20 @@ impl Fleet {
 
 /// Runs the bots against a server and returns the summary.
 pub async fn run(cfg: BotsConfig) -> Result<Summary, BotsError> {
+    run_with(cfg, None).await
+}
+
+/// Like [`run`], with hostile players attacking during the edit phase
+/// (from its start to its end; see [`hostile`]).
+pub async fn run_with(
+    cfg: BotsConfig,
+    hostile: Option<HostileConfig>,
+) -> Result<Summary, BotsError> {
     cfg.check()?;
+    let hostile = match &hostile {
+        Some(h) => Some(hostile::prepare(h, &cfg)?),
+        None => None,
+    };
     let ack_log = match &cfg.ack_log {
         Some(p) => Some(AckLog::create(p).map_err(|source| BotsError::AckLog {
             path: p.display().to_string(),
@@ -343,8 +362,13 @@ pub async fn run(cfg: BotsConfig) -> Result<Summary, BotsError> {
     fleet.stats.broadcast.restart_timeline();
     fleet.phase.send_replace(Phase::Run);
     let edit_start = Instant::now();
+    let hostiles = hostile.map(|h| h.start(edit_start + cfg.duration));
     tokio::time::sleep(cfg.duration).await;
     let edit_time = edit_start.elapsed();
+    let hostile_summary = match hostiles {
+        Some(h) => Some(h.finish().await),
+        None => None,
+    };
 
     fleet.phase.send_replace(Phase::Quiesce);
     fleet.touch();
@@ -387,6 +411,7 @@ pub async fn run(cfg: BotsConfig) -> Result<Summary, BotsError> {
     summary.ready_at_start = ready_at_start;
     summary.quiet_wait_s = timings.0.as_secs_f64();
     summary.verify_s = timings.1.as_secs_f64();
+    summary.hostile = hostile_summary;
     Ok(summary)
 }
 

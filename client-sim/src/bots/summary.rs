@@ -94,6 +94,29 @@ pub struct Summary {
     pub verify_s: f64,
     /// The bots' client-side predictions, summed (`null` without `--predict`).
     pub prediction: Option<PredictionStats>,
+    /// What the hostile players did and what got through (`null` without
+    /// `--hostile`). Everything above counts the honest bots only.
+    pub hostile: Option<HostileSummary>,
+}
+
+/// The hostile players of a run (`--hostile N --attack KIND`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct HostileSummary {
+    /// The attack's name (`position-flood`, `rejected-edits`...).
+    pub attack: String,
+    /// Hostile players that ran it.
+    pub players: usize,
+    /// Seconds from the hostiles' start until the last one stopped.
+    pub duration_s: f64,
+    /// The attack's counters, summed over its players; every counter the
+    /// attack documents (`Attack::counters`) is present, zeros included.
+    pub counters: BTreeMap<String, u64>,
+    /// Refused edits by reason (snake_case names of `RejectReason`).
+    pub rejected: BTreeMap<String, u64>,
+    /// Connections the server closed or refused, by reason: the
+    /// `ErrorCode` name (`Kicked`, `NotAuthenticated`...) or the kind of
+    /// QUIC close (`refused`, `timed_out`, `transport`...).
+    pub closed_by_server: BTreeMap<String, u64>,
 }
 
 impl Summary {
@@ -176,6 +199,13 @@ impl Summary {
                 p.skipped
             );
         }
+        if let Some(h) = &self.hostile {
+            let _ = writeln!(
+                s,
+                "hostile: {} x {} for {:.1} s: {:?}, rejected {:?}, closed by the server {:?}",
+                h.players, h.attack, h.duration_s, h.counters, h.rejected, h.closed_by_server
+            );
+        }
         s
     }
 }
@@ -212,6 +242,20 @@ mod tests {
         assert!(v["ack_latency_ms"].get("p99").is_some());
         assert!(s.human().contains("2 bots"));
         assert!(v["prediction"].is_null() && !s.human().contains("prediction"));
+        assert!(v["hostile"].is_null() && !s.human().contains("hostile"));
+        let hostile = Summary {
+            hostile: Some(HostileSummary {
+                attack: "teleport".into(),
+                players: 1,
+                counters: [("jumps".to_string(), 3)].into(),
+                ..Default::default()
+            }),
+            ..s.clone()
+        };
+        let v: serde_json::Value = serde_json::from_str(&hostile.to_json()).unwrap();
+        assert_eq!(v["hostile"]["attack"], "teleport");
+        assert_eq!(v["hostile"]["counters"]["jumps"], 3);
+        assert!(hostile.human().contains("hostile: 1 x teleport"));
         let predicted = Summary {
             prediction: Some(PredictionStats {
                 made: 4,

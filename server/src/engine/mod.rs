@@ -261,6 +261,7 @@ impl Engine {
                     self.end_session(id, ErrorCode::Kicked, "replaced by a newer login");
                 }
                 self.seq.session_joined(session, player, role);
+                self.seq.resume_position(session, now);
                 metrics::counter!(m::SESSIONS_TOTAL).increment(1);
                 let interest = Interest::new(self.interest, self.bounds);
                 let peer = Peer::new(control, updates, interest, kick, position);

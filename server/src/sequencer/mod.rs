@@ -21,7 +21,7 @@ pub use tick::{BuiltMeshes, PendingMeshes};
 use std::collections::{HashMap, VecDeque};
 
 use strata_protocol::{EditRequest, PositionUpdate, Role};
-use strata_terrain::edit::{EditContext, StructureLibrary};
+use strata_terrain::edit::{EditContext, FixedVec3, StructureLibrary};
 use strata_terrain::{Chunk, ChunkPos, MaterialTable, World};
 
 use crate::collision::{CollisionCache, CollisionMesh};
@@ -58,6 +58,10 @@ pub struct Sequencer {
     residency: Residency,
     /// Sessions to disconnect for too many refused edits (see `submit`).
     disconnect: Vec<u64>,
+    /// Each player's last validated feet position, kept after its sessions
+    /// end (at most `validation.remembered_players`): a new session starts
+    /// from it, so the speed check spans reconnects.
+    last_positions: HashMap<String, FixedVec3>,
 }
 
 impl Sequencer {
@@ -88,6 +92,7 @@ impl Sequencer {
             next_seq: last_seq.saturating_add(1),
             residency: Residency::default(),
             disconnect: Vec::new(),
+            last_positions: HashMap::new(),
         }
     }
 
@@ -272,7 +277,37 @@ impl Sequencer {
     /// Forgets the session. Its queued edits still apply at the next tick.
     pub fn session_left(&mut self, session_id: u64) {
         if let Some(old) = self.sessions.remove(&session_id) {
+            self.remember_position(&old.player, old.position.map(|p| p.feet));
             self.release_limits(&old.player);
+        }
+    }
+
+    fn remember_position(&mut self, player: &str, feet: Option<FixedVec3>) {
+        let Some(feet) = feet else { return };
+        let cap = self.validation.remembered_players.max(1);
+        if !self.last_positions.contains_key(player) && self.last_positions.len() >= cap {
+            // Full: forget one player (any) to keep the map bounded.
+            if let Some(k) = self.last_positions.keys().next().cloned() {
+                self.last_positions.remove(&k);
+            }
+        }
+        self.last_positions.insert(player.to_string(), feet);
+    }
+
+    /// Starts a new session of a known player where the player last was:
+    /// its first report must be a legal move from there, timed from
+    /// `now_ms` (a reconnect teleports nowhere). A player never seen since
+    /// the server started may report any first position.
+    pub fn resume_position(&mut self, session_id: u64, now_ms: u64) {
+        let Some(s) = self.sessions.get_mut(&session_id) else {
+            return;
+        };
+        if let Some(&feet) = self.last_positions.get(&s.player) {
+            s.position = Some(ValidatedPosition {
+                feet,
+                at_ms: now_ms,
+                seq: 0,
+            });
         }
     }
 

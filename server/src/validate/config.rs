@@ -39,6 +39,8 @@ pub const DEFAULT_VOLUME_PER_SECOND: u64 = 50_000;
 pub const DEFAULT_REJECT_BURST: u64 = 100;
 /// Refused edits per second that never add up to a disconnect.
 pub const DEFAULT_REJECTS_PER_SECOND: u64 = 10;
+/// Players whose last position the server remembers after they leave.
+pub const DEFAULT_REMEMBERED_PLAYERS: usize = 100_000;
 
 /// Limits of the validation rules (`[validation]` in the server config).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -75,6 +77,9 @@ pub struct ValidationConfig {
     /// Refused edits per player: burst and refill per second. Each refusal
     /// takes one token; a player with none left is disconnected and logged.
     pub reject_rate: BucketConfig,
+    /// Players whose last position is kept after their sessions end, so a
+    /// reconnect resumes there ([`DEFAULT_REMEMBERED_PLAYERS`]).
+    pub remembered_players: usize,
 }
 
 impl Default for ValidationConfig {
@@ -103,6 +108,7 @@ impl Default for ValidationConfig {
                 capacity: DEFAULT_REJECT_BURST,
                 per_second: DEFAULT_REJECTS_PER_SECOND,
             },
+            remembered_players: DEFAULT_REMEMBERED_PLAYERS,
         }
     }
 }
