@@ -5,7 +5,10 @@
 # seconds (user+system, during the run), CPU share of one core, and peak RSS,
 # and the bots process's CPU seconds. BENCH_SERVER_TOML appends lines to the
 # server's config (e.g. $'[engine]\ntick_ms = 20'). STRATA_SERVER_BIN runs
-# another server binary (A/B runs). BENCH_METRICS_PORT turns on the metrics
+# another server binary (A/B runs). BENCH_PER_ADDRESS sets the server's
+# handshakes per address (default: room for every bot, which all connect
+# from 127.0.0.1); BENCH_OLD_SERVER=1 leaves the admission settings out for
+# a server older than them. BENCH_METRICS_PORT turns on the metrics
 # endpoint and prints one more JSON line: the group-commit latency
 # (strata_flush_seconds) and its fsync part, p50/p99/max in ms.
 set -euo pipefail
@@ -19,10 +22,12 @@ cat > "$dir/strata.toml" <<TOML
 [server]
 listen = "127.0.0.1:0"
 max_connections = $((bots + 64))
-max_handshakes = $((bots + 64))
-max_handshakes_per_address = $((bots + 64))
 ${BENCH_SERVER_TOML:-}
 TOML
+# Servers before the admission limits (issue #14) refuse these keys.
+if [ -z "${BENCH_OLD_SERVER:-}" ]; then
+    sed -i "/^max_connections/a max_handshakes = $((bots + 64))\nmax_handshakes_per_address = ${BENCH_PER_ADDRESS:-$((bots + 64))}" "$dir/strata.toml"
+fi
 if [ -n "${BENCH_METRICS_PORT:-}" ]; then
     printf '[metrics]\nlisten = "127.0.0.1:%s"\n' "$BENCH_METRICS_PORT" >> "$dir/strata.toml"
 fi

@@ -177,6 +177,37 @@ fn closed_error(e: &quinn::ConnectionError) -> ClientError {
     ClientError::Closed(e.to_string())
 }
 
+/// Opens the control stream, sends `Hello` and waits for `Welcome`;
+/// `closed` names a connection the server ended instead.
+pub async fn say_hello(
+    conn: &quinn::Connection,
+    token: &str,
+    protocol_version: u32,
+    closed: impl Fn(quinn::ConnectionError) -> ClientError,
+) -> Result<(quinn::SendStream, FramedReader<quinn::RecvStream>, Welcome), ClientError> {
+    let (mut send, recv) = conn.open_bi().await.map_err(&closed)?;
+    let hello = ClientMessage::Hello(Hello {
+        protocol_version,
+        token: token.to_string(),
+    });
+    let frame = encode_frame(&hello, Direction::ClientToServer)
+        .map_err(|e| ClientError::Protocol(e.to_string()))?;
+    send.write_all(&frame)
+        .await
+        .map_err(|e| ClientError::Closed(e.to_string()))?;
+    let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient));
+    match reader.next::<ServerMessage>().await {
+        Ok(Some(ServerMessage::Welcome(w))) => Ok((send, reader, w)),
+        Ok(Some(ServerMessage::Error { code, message })) => {
+            Err(ClientError::Refused { code, message })
+        }
+        Ok(Some(other)) => Err(ClientError::Protocol(format!(
+            "expected Welcome, got {other:?}"
+        ))),
+        Ok(None) | Err(_) => Err(closed(conn.closed().await)),
+    }
+}
+
 impl Client {
     /// Connects to `addr`, trusting only `server_cert` (DER), and logs in.
     pub async fn connect(
@@ -235,27 +266,9 @@ impl Client {
                 .map_err(|e| ClientError::Connect(e.to_string()))?
                 .await
                 .map_err(|e| closed_error(&e))?;
-            let (mut send, recv) = conn.open_bi().await.map_err(|e| closed_error(&e))?;
-            let hello = ClientMessage::Hello(Hello {
-                protocol_version,
-                token: token.to_string(),
-            });
-            let frame = encode_frame(&hello, Direction::ClientToServer)
-                .map_err(|e| ClientError::Protocol(e.to_string()))?;
-            send.write_all(&frame)
-                .await
-                .map_err(|e| ClientError::Closed(e.to_string()))?;
-            let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient));
-            match reader.next::<ServerMessage>().await {
-                Ok(Some(ServerMessage::Welcome(w))) => Ok((conn, send, reader, w)),
-                Ok(Some(ServerMessage::Error { code, message })) => {
-                    Err(ClientError::Refused { code, message })
-                }
-                Ok(Some(other)) => Err(ClientError::Protocol(format!(
-                    "expected Welcome, got {other:?}"
-                ))),
-                Ok(None) | Err(_) => Err(conn.closed().await).map_err(|e| closed_error(&e)),
-            }
+            let (send, reader, w) =
+                say_hello(&conn, token, protocol_version, |e| closed_error(&e)).await?;
+            Ok::<_, ClientError>((conn, send, reader, w))
         };
         let (conn, send, reader, welcome) = tokio::time::timeout(CONNECT_TIMEOUT, handshake)
             .await

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use bytes::Bytes;
 use strata_protocol::io::FramedReader;
 use strata_protocol::{
-    encode, encode_frame, ClientMessage, Direction, EditRequest, ErrorCode, FrameBuffer, Hello,
+    encode, encode_frame, ClientMessage, Direction, EditRequest, ErrorCode, FrameBuffer,
     PositionUpdate, ServerMessage, Welcome, WorldUpdate, PROTOCOL_VERSION,
 };
 use strata_terrain::{ChunkPos, Edit, FixedVec3};
@@ -93,27 +93,9 @@ impl RawSession {
                 .map_err(|e| ClientError::Connect(e.to_string()))?
                 .await
                 .map_err(closed)?;
-            let (mut send, recv) = conn.open_bi().await.map_err(closed)?;
-            let hello = ClientMessage::Hello(Hello {
-                protocol_version: PROTOCOL_VERSION,
-                token: token.to_string(),
-            });
-            let frame = encode_frame(&hello, Direction::ClientToServer)
-                .map_err(|e| ClientError::Protocol(e.to_string()))?;
-            send.write_all(&frame)
-                .await
-                .map_err(|e| ClientError::Closed(e.to_string()))?;
-            let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient));
-            match reader.next::<ServerMessage>().await {
-                Ok(Some(ServerMessage::Welcome(w))) => Ok((conn, send, reader, w)),
-                Ok(Some(ServerMessage::Error { code, message })) => {
-                    Err(ClientError::Refused { code, message })
-                }
-                Ok(Some(other)) => Err(ClientError::Protocol(format!(
-                    "expected Welcome, got {other:?}"
-                ))),
-                Ok(None) | Err(_) => Err(closed(conn.closed().await)),
-            }
+            let (send, control, welcome) =
+                crate::client::say_hello(&conn, token, PROTOCOL_VERSION, closed).await?;
+            Ok::<_, ClientError>((conn, send, control, welcome))
         };
         let (conn, send, control, welcome) = tokio::time::timeout(CONNECT_TIMEOUT, handshake)
             .await

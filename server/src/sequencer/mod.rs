@@ -340,9 +340,15 @@ impl Sequencer {
         self.sessions.get(&session_id)?.position
     }
 
-    /// Checks and records a position report. A rejected report changes
-    /// nothing; a stale one is rejected as [`PositionReject::Stale`] and the
-    /// shell should drop it silently.
+    /// The session's last validated position, or `UnknownSession`.
+    fn previous(&self, session_id: u64) -> Result<Option<ValidatedPosition>, PositionReject> {
+        Ok(self
+            .sessions
+            .get(&session_id)
+            .ok_or(PositionReject::UnknownSession)?
+            .position)
+    }
+
     /// The rules of [`Self::update_position`] that read no terrain (order,
     /// bounds, speed): the engine runs them before loading any chunk.
     pub fn precheck_position(
@@ -351,25 +357,20 @@ impl Sequencer {
         upd: &PositionUpdate,
         now_ms: u64,
     ) -> Result<(), PositionReject> {
-        let prev = self
-            .sessions
-            .get(&session_id)
-            .ok_or(PositionReject::UnknownSession)?
-            .position;
+        let prev = self.previous(session_id)?;
         position::check_motion(prev.as_ref(), upd, now_ms, &self.validation)
     }
 
+    /// Checks and records a position report. A rejected report changes
+    /// nothing; a stale one is rejected as [`PositionReject::Stale`] and the
+    /// shell should drop it silently.
     pub fn update_position(
         &mut self,
         session_id: u64,
         upd: PositionUpdate,
         now_ms: u64,
     ) -> Result<(), PositionReject> {
-        let prev = self
-            .sessions
-            .get(&session_id)
-            .ok_or(PositionReject::UnknownSession)?
-            .position;
+        let prev = self.previous(session_id)?;
         // Stale reports are dropped before anything else, even loading.
         if let Some(p) = prev.filter(|p| upd.seq <= p.seq) {
             return Err(PositionReject::Stale {
