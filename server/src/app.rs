@@ -110,7 +110,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     let zones = load_zones(&*store, &cfg)?;
     let access =
         crate::auth::AccessList::from_blob(store.get_blob(crate::auth::ACCESS_BLOB)?.as_deref())?;
-    let seq = Sequencer::new(
+    let mut seq = Sequencer::new(
         World::new(Arc::new(generator)),
         cfg.sequencer,
         validation.clone(),
@@ -118,6 +118,12 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         MaterialTable::default(),
         structures,
         zones,
+    );
+    seq.restore_positions(
+        store
+            .player_positions()
+            .collect::<Result<Vec<_>, _>>()
+            .context("reading stored player positions")?,
     );
     let mut versions = HashMap::new();
     for item in store.modified_chunks() {

@@ -9,6 +9,7 @@ mod store_common;
 use store_common::{noisy_chunk, Seq};
 use strata_server::datadir::DataDir;
 use strata_server::store::{ChunkStore, SledStore, StoreConfig, WorldMeta};
+use strata_terrain::edit::FixedVec3;
 use strata_terrain::ChunkPos;
 use strata_tests::lazyfs::LazyFs;
 
@@ -43,6 +44,8 @@ fn commits_blob_files_and_blobs_survive_a_power_cut() {
     store.put_blob("zones", b"[1,2,3]").unwrap();
     store.put_blob("scratch", b"gone").unwrap();
     assert!(store.delete_blob("scratch").unwrap());
+    let ana = FixedVec3::from_voxels(70, 12, -40);
+    store.save_positions(&[("ana".to_string(), ana)]).unwrap();
     // The process "dies": no drop, no last flush.
     std::mem::forget(store);
     fs.power_cut();
@@ -60,6 +63,8 @@ fn commits_blob_files_and_blobs_survive_a_power_cut() {
         Some(&b"[1,2,3]"[..])
     );
     assert_eq!(store.get_blob("scratch").unwrap(), None);
+    let positions: Vec<_> = store.player_positions().map(|r| r.unwrap()).collect();
+    assert_eq!(positions, vec![("ana".to_string(), ana)]);
     let report = store.check().unwrap();
     assert!(report.is_ok(), "{report:?}");
 }

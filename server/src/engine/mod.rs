@@ -55,6 +55,9 @@ pub const DEFAULT_STREAM_US: u64 = 2_000;
 pub const MAX_STREAM_US: u64 = 1_000_000;
 /// Longest allowed tick period.
 pub const MAX_TICK_MS: u64 = 1000;
+/// How often the positions of players who moved are stored (fsynced): a
+/// crash loses at most this much of anyone's movement.
+pub const POSITION_SAVE_EVERY: Duration = Duration::from_secs(1);
 /// Default live sessions per player: a new login replaces the old one.
 pub const DEFAULT_SESSIONS_PER_PLAYER: usize = 1;
 /// Default capacity of the session-to-engine queue of players' traffic.
@@ -212,6 +215,7 @@ impl Engine {
     fn run(mut self, rx: Inbox) -> anyhow::Result<()> {
         let period = Duration::from_millis(self.cfg.tick_ms.max(1));
         let mut next_tick = Instant::now() + period;
+        let mut next_position_save = Instant::now() + POSITION_SAVE_EVERY;
         loop {
             let wait = next_tick.saturating_duration_since(Instant::now());
             let next = match self.deferred.pop() {
@@ -223,6 +227,7 @@ impl Engine {
                     info!("engine stopping: final tick and flush");
                     self.tick(None)?;
                     self.close_all();
+                    self.save_positions();
                     return Ok(());
                 }
                 Ok(cmd) => self.handle(cmd),
@@ -236,6 +241,23 @@ impl Engine {
                 // one instead of adding to it (no catching up past now).
                 next_tick = (next_tick + period).max(now);
             }
+            if now >= next_position_save {
+                self.save_positions();
+                next_position_save = now + POSITION_SAVE_EVERY;
+            }
+        }
+    }
+
+    /// Stores the positions of players who moved since the last save. A
+    /// failure is logged: positions are recoverable state (the next save
+    /// retries), unlike edits.
+    fn save_positions(&mut self) {
+        let moved = self.seq.take_moved();
+        if moved.is_empty() {
+            return;
+        }
+        if let Err(e) = self.store.save_positions(&moved) {
+            error!(error = %e, players = moved.len(), "saving player positions failed");
         }
     }
 

@@ -62,6 +62,8 @@ pub struct Sequencer {
     /// end (at most `validation.remembered_players`): a new session starts
     /// from it, so the speed check spans reconnects.
     last_positions: HashMap<String, FixedVec3>,
+    /// Players whose position changed since [`Self::take_moved`].
+    moved: std::collections::HashSet<String>,
 }
 
 impl Sequencer {
@@ -93,6 +95,7 @@ impl Sequencer {
             residency: Residency::default(),
             disconnect: Vec::new(),
             last_positions: HashMap::new(),
+            moved: Default::default(),
         }
     }
 
@@ -292,6 +295,7 @@ impl Sequencer {
             }
         }
         self.last_positions.insert(player.to_string(), feet);
+        self.moved.insert(player.to_string());
     }
 
     /// Starts a new session of a known player where the player last was:
@@ -386,8 +390,41 @@ impl Sequencer {
         let ok = position::check(prev.as_ref(), &upd, now_ms, &self.validation, &self.world)?;
         if let Some(s) = self.sessions.get_mut(&session_id) {
             s.position = Some(ok);
+            if !self.moved.contains(&s.player) {
+                self.moved.insert(s.player.clone());
+            }
         }
         Ok(())
+    }
+
+    /// Players whose position changed since the last call, with it: the
+    /// shell stores them durably.
+    pub fn take_moved(&mut self) -> Vec<(String, FixedVec3)> {
+        let mut out = Vec::with_capacity(self.moved.len());
+        for s in self.sessions.values() {
+            if let Some(p) = s.position.filter(|_| self.moved.contains(&s.player)) {
+                out.push((s.player.clone(), p.feet));
+            }
+        }
+        for player in self.moved.drain() {
+            if !out.iter().any(|(p, _)| *p == player) {
+                if let Some(&feet) = self.last_positions.get(&player) {
+                    out.push((player, feet));
+                }
+            }
+        }
+        out
+    }
+
+    /// Last positions loaded from the store at start (at most
+    /// `validation.remembered_players`).
+    pub fn restore_positions(&mut self, positions: impl IntoIterator<Item = (String, FixedVec3)>) {
+        for (player, feet) in positions
+            .into_iter()
+            .take(self.validation.remembered_players)
+        {
+            self.last_positions.insert(player, feet);
+        }
     }
 
     // ------------------------------------------------------------ zones

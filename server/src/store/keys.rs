@@ -10,6 +10,7 @@
 //! | `chunks` | [`chunk_key`]: 12 bytes | `version: u64 BE` then [`encode_chunk`] bytes |
 //! | `log` | [`seq_key`]: 8 bytes, `u64` BE | bincode 2 (serde, standard config) of a `LogEntry` |
 //! | `blobs` | the blob name, UTF-8 | the blob bytes |
+//! | `players` | the player name, UTF-8 | feet x, y, z: fixed-point i32, big-endian (12 bytes) |
 //!
 //! A chunk key is `x, y, z`, each an `i32` with its sign bit flipped and
 //! written big-endian: flipping the sign bit maps `i32::MIN..=i32::MAX`

@@ -28,6 +28,7 @@ mod types;
 
 use std::ops::RangeInclusive;
 
+use strata_terrain::edit::FixedVec3;
 use strata_terrain::ChunkPos;
 
 pub use batch::{MAX_BATCH_CHUNKS, MAX_BATCH_ENTRIES};
@@ -42,7 +43,7 @@ pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
 pub use sled_store::{
     open_raw, open_when_unlocked, persisted_segment_size, SledStore, MAX_BLOB_BYTES,
     MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES, META_LAST_SEQ, META_LOG_BASE, META_WORLD,
-    TREE_BLOBS, TREE_CHUNKS, TREE_LOG, TREE_META,
+    TREE_BLOBS, TREE_CHUNKS, TREE_LOG, TREE_META, TREE_PLAYERS,
 };
 pub use types::{
     CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta, STORE_FORMAT_VERSION,
@@ -103,6 +104,13 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
 
     /// Removes a blob durably; returns whether it existed.
     fn delete_blob(&self, name: &str) -> Result<bool, StoreError>;
+
+    /// Stores players' last feet positions, replacing older ones; durable
+    /// on return.
+    fn save_positions(&self, positions: &[(String, FixedVec3)]) -> Result<(), StoreError>;
+
+    /// Every stored player position.
+    fn player_positions(&self) -> StoreIter<'_, (String, FixedVec3)>;
 
     /// Verifies every record (see [`Checker`]). Run it while nothing
     /// commits: records are scanned, not snapshotted.

@@ -17,6 +17,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
+use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::ChunkPos;
 
 use super::batch;
@@ -42,6 +43,8 @@ pub const TREE_CHUNKS: &str = "chunks";
 pub const TREE_LOG: &str = "log";
 /// Tree of named blobs.
 pub const TREE_BLOBS: &str = "blobs";
+/// Tree of players' last positions: name → x, y, z (fixed point, i32 BE).
+pub const TREE_PLAYERS: &str = "players";
 /// Key of the metadata record in [`TREE_META`].
 pub const META_WORLD: &[u8] = b"world";
 /// Key of `last_seq` in [`TREE_META`].
@@ -65,6 +68,7 @@ pub struct SledStore {
     pub(super) chunks: sled::Tree,
     pub(super) log: sled::Tree,
     pub(super) blobs: sled::Tree,
+    players: sled::Tree,
     disk: DiskSync,
 }
 
@@ -89,6 +93,7 @@ impl SledStore {
             chunks: db.open_tree(TREE_CHUNKS)?,
             log: db.open_tree(TREE_LOG)?,
             blobs: db.open_tree(TREE_BLOBS)?,
+            players: db.open_tree(TREE_PLAYERS)?,
             disk: DiskSync::open(dir)?,
             db,
         };
@@ -420,6 +425,40 @@ impl ChunkStore for SledStore {
         Ok(existed)
     }
 
+    fn save_positions(&self, positions: &[(String, FixedVec3)]) -> Result<(), StoreError> {
+        let mut b = sled::Batch::default();
+        for (player, p) in positions {
+            let mut v = [0u8; 12];
+            for (i, c) in [p.x, p.y, p.z].iter().enumerate() {
+                v[i * 4..i * 4 + 4].copy_from_slice(&c.0.to_be_bytes());
+            }
+            b.insert(player.as_bytes(), &v[..]);
+        }
+        self.players.apply_batch(b)?;
+        self.flush()
+    }
+
+    fn player_positions(&self) -> StoreIter<'_, (String, FixedVec3)> {
+        Box::new(self.players.iter().map(|r| {
+            let (k, v) = r?;
+            let name = std::str::from_utf8(&k)
+                .map_err(|_| StoreError::corrupt("player name", show_raw(&k)))?;
+            let coords: [u8; 12] = v
+                .as_ref()
+                .try_into()
+                .map_err(|_| StoreError::corrupt("player position", show_raw(&k)))?;
+            let c = |i: usize| {
+                Fixed(i32::from_be_bytes([
+                    coords[i],
+                    coords[i + 1],
+                    coords[i + 2],
+                    coords[i + 3],
+                ]))
+            };
+            Ok((name.to_string(), FixedVec3::new(c(0), c(4), c(8))))
+        }))
+    }
+
     fn check(&self) -> Result<CheckReport, StoreError> {
         self.check_with_progress(&|| {})
     }
@@ -465,7 +504,7 @@ impl SledStore {
                 checker.unknown_meta_key(&k);
             }
         }
-        let known = [TREE_META, TREE_CHUNKS, TREE_LOG, TREE_BLOBS].map(str::as_bytes);
+        let known = [TREE_META, TREE_CHUNKS, TREE_LOG, TREE_BLOBS, TREE_PLAYERS].map(str::as_bytes);
         for name in self.db.tree_names() {
             if name == SLED_DEFAULT_TREE || known.contains(&&name[..]) {
                 continue;
