@@ -148,26 +148,15 @@ async fn a_new_login_replaces_the_old_session_unless_more_are_allowed() {
                     .unwrap(),
             );
         }
-        let mut admin = AdminClient::connect(
-            server.addr,
-            &server.cert_der,
-            &token(&server, "root", Role::Admin),
-        )
-        .await
-        .unwrap();
         let mut sessions = 0;
         for _ in 0..50 {
-            sessions = match admin.request(&AdminRequest::Stats).await.unwrap() {
-                AdminResponse::Stats(s) => s.sessions,
-                other => panic!("{other:?}"),
-            };
+            sessions = live_sessions(&server).await;
             if sessions == 1 {
                 break;
             }
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
         assert_eq!(sessions, 1);
-        admin.close().await;
         last.unwrap().ping(2).await.unwrap();
         server.shutdown().await.unwrap();
 

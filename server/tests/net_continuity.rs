@@ -10,18 +10,7 @@ use std::time::Duration;
 use common::*;
 use strata_client_sim::Verdict;
 use strata_protocol::{RejectReason, Role};
-use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::{Edit, FixedVec3, VoxelPos};
-
-/// Feet standing on the surface at (x, z), and the ground voxel.
-fn spot(x: i32, z: i32) -> (FixedVec3, VoxelPos) {
-    let g = Generator::fractal(GenParams::default()).unwrap();
-    let y = g.surface_height(x, z);
-    (
-        at(x as f64, y + 1.0, z as f64),
-        VoxelPos::new(x, y.floor() as i32, z),
-    )
-}
 
 fn mine(ground: VoxelPos) -> Edit {
     Edit::Mine {

@@ -269,22 +269,6 @@ async fn a_player_whose_edits_keep_being_refused_is_disconnected() {
     .expect("test finished in time");
 }
 
-/// Live sessions, from the admin protocol.
-async fn live_sessions(server: &app::Running) -> u32 {
-    use strata_protocol::admin::{AdminRequest, AdminResponse};
-    let token = token(server, "ops", Role::Admin);
-    let mut admin =
-        strata_server::admin::remote::AdminClient::connect(server.addr, &server.cert_der, &token)
-            .await
-            .unwrap();
-    let n = match admin.request(&AdminRequest::Stats).await.unwrap() {
-        AdminResponse::Stats(s) => s.sessions,
-        other => panic!("unexpected {other:?}"),
-    };
-    admin.close().await;
-    n
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_session_end_reaches_a_busy_engine_and_its_tasks_end() {
     tokio::time::timeout(TEST_TIMEOUT * 2, async {

@@ -169,3 +169,29 @@ pub fn free_metrics_addr() -> SocketAddr {
         .local_addr()
         .unwrap()
 }
+
+/// A surface voxel at (x, z) and the feet position standing on it.
+pub fn spot(x: i32, z: i32) -> (FixedVec3, strata_terrain::VoxelPos) {
+    let g = strata_terrain::gen::Generator::fractal(Default::default()).unwrap();
+    let y = g.surface_height(x, z);
+    (
+        at(x as f64, y + 1.0, z as f64),
+        strata_terrain::VoxelPos::new(x, y.floor() as i32, z),
+    )
+}
+
+/// Live sessions, from the admin protocol.
+pub async fn live_sessions(server: &Running) -> u32 {
+    use strata_protocol::admin::{AdminRequest, AdminResponse};
+    let token = token(server, "ops", Role::Admin);
+    let mut admin =
+        strata_server::admin::remote::AdminClient::connect(server.addr, &server.cert_der, &token)
+            .await
+            .unwrap();
+    let n = match admin.request(&AdminRequest::Stats).await.unwrap() {
+        AdminResponse::Stats(s) => s.sessions,
+        other => panic!("unexpected {other:?}"),
+    };
+    admin.close().await;
+    n
+}
