@@ -400,20 +400,24 @@ impl Sequencer {
     /// Players whose position changed since the last call, with it: the
     /// shell stores them durably.
     pub fn take_moved(&mut self) -> Vec<(String, FixedVec3)> {
-        let mut out = Vec::with_capacity(self.moved.len());
-        for s in self.sessions.values() {
-            if let Some(p) = s.position.filter(|_| self.moved.contains(&s.player)) {
-                out.push((s.player.clone(), p.feet));
-            }
-        }
-        for player in self.moved.drain() {
-            if !out.iter().any(|(p, _)| *p == player) {
-                if let Some(&feet) = self.last_positions.get(&player) {
-                    out.push((player, feet));
-                }
-            }
-        }
-        out
+        // A live session's position is newer than the remembered one.
+        let live: HashMap<&str, FixedVec3> = self
+            .sessions
+            .values()
+            .filter(|s| self.moved.contains(&s.player))
+            .filter_map(|s| Some((s.player.as_str(), s.position?.feet)))
+            .collect();
+        let moved = std::mem::take(&mut self.moved);
+        moved
+            .into_iter()
+            .filter_map(|player| {
+                let feet = live
+                    .get(player.as_str())
+                    .or_else(|| self.last_positions.get(&player))
+                    .copied()?;
+                Some((player, feet))
+            })
+            .collect()
     }
 
     /// Last positions loaded from the store at start (at most
