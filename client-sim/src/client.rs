@@ -523,8 +523,16 @@ impl Client {
     }
 
     /// Waits for the connection to end and returns why.
+    /// A close whose frame was lost (a stateless reset, a timeout) still
+    /// reports the Error the server sent first on the control stream.
     pub async fn closed(&self) -> ClientError {
-        closed_error(&self.conn.closed().await)
+        match closed_error(&self.conn.closed().await) {
+            ClientError::Closed(why) => match self.server_error() {
+                Some((code, message)) => ClientError::Refused { code, message },
+                None => ClientError::Closed(why),
+            },
+            refused => refused,
+        }
     }
 
     /// Closes the connection politely and waits briefly for it to finish.

@@ -49,7 +49,8 @@ impl FrameSender {
 }
 
 /// Spawns a task that writes queued frames to `stream` in order, then
-/// finishes the stream when every sender is dropped.
+/// finishes the stream when every sender is dropped and ends once the peer
+/// has acknowledged all of it.
 pub fn spawn_writer(
     mut stream: quinn::SendStream,
     capacity: usize,
@@ -70,7 +71,12 @@ pub fn spawn_writer(
                 batch.clear();
                 metrics::counter!(BYTES_SENT).increment(bytes as u64);
             }
-            let _ = stream.finish();
+            // Finished: wait (bounded by whoever awaits this task) until the
+            // peer has every byte, so a close that follows cannot drop the
+            // last frames (a refusal's Error) still in QUIC's send buffer.
+            if stream.finish().is_ok() {
+                let _ = stream.stopped().await;
+            }
         }
         .instrument(tracing::debug_span!("writer", stream = name)),
     );
