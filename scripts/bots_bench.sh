@@ -1,23 +1,61 @@
 #!/usr/bin/env bash
 # Load test: a release strata-server process and strata-bots on this machine.
 # Usage: scripts/bots_bench.sh BOTS [DURATION] [EXTRA strata-bots ARGS...]
+#        scripts/bots_bench.sh --help
 # Prints the bots' JSON summary, then one JSON line with the server's CPU
-# seconds (user+system, during the run), CPU share of one core, and peak RSS,
-# and the bots process's CPU seconds. BENCH_SERVER_TOML appends lines to the
-# server's config (e.g. $'[engine]\ntick_ms = 20'). STRATA_SERVER_BIN runs
-# another server binary (A/B runs). BENCH_PER_ADDRESS sets the server's
-# handshakes per address (default: room for every bot, which all connect
-# from 127.0.0.1); BENCH_OLD_SERVER=1 leaves the admission settings out for
-# a server older than them. BENCH_METRICS_PORT turns on the metrics
-# endpoint and prints one more JSON line: the group-commit latency
-# (strata_flush_seconds) and its fsync part, p50/p99/max in ms.
+# seconds (user+system, all threads, during the run), CPU share of one core,
+# and peak RSS, and the bots process's CPU seconds. BENCH_SERVER_TOML appends
+# lines to the server's config (e.g. $'[engine]\ntick_ms = 20').
+# STRATA_SERVER_BIN runs another server binary (A/B runs). BENCH_PER_ADDRESS
+# sets the server's handshakes per address (default: room for every bot,
+# which all connect from 127.0.0.1); BENCH_OLD_SERVER=1 leaves the admission
+# settings out for a server older than them. BENCH_METRICS_PORT turns on the
+# metrics endpoint and prints one more JSON line: the group-commit latency
+# (strata_flush_seconds) and its fsync part, p50/p99/max in ms, and the
+# server's own strata_edits_accepted_total (hostile players' edits included).
+# BENCH_LOG=FILE keeps the server's log. Binaries come from
+# ${CARGO_TARGET_DIR:-target}/release, built first.
+#
+# BENCH_SERVER_CPUS and BENCH_BOT_CPUS pin the server and the bots to CPU
+# lists (taskset -c syntax: 0,1 or 2-7); unset, both run anywhere.
+#
+# The server line also has, per run:
+#   edits_accepted          the bots' accepted edits (EditAccepted acks the
+#                           honest bots received; the bots' JSON)
+#   server_cpu_ms_per_edit  server CPU ms (whole run: ramp-up, editing,
+#                           end-of-run check) per accepted edit
+#   server_cpu_share        server CPU s / wall s: cores in use on average
+#   deltas                  deltas the bots' replicas applied (the bots' JSON)
+#   deltas_per_second       deltas / the editing time (--duration)
+#   edit_*                  the same server figures over the editing window
+#                           only (from ramp_s to ramp_s + duration_s of the
+#                           bots' JSON; server CPU sampled every 0.1 s):
+#                           edit_window_seconds, edit_server_cpu_seconds,
+#                           edit_server_cores, edit_server_cpu_ms_per_edit
+#   server_cpus, bots_cpus  the pins (null: none)
+# and one human-readable line of them goes to stderr. BENCH_CSV=FILE appends
+# the same figures as a CSV row (header first when FILE is new or empty).
 set -euo pipefail
+if [ "${1:-}" = -h ] || [ "${1:-}" = --help ]; then
+    sed -n '2,/^set -euo/{/^set -euo/d; s/^# \{0,1\}//; p}' "$0"
+    exit 0
+fi
 cd "$(dirname "$0")/.."
 bots=${1:?bots}; duration=${2:-30s}; shift $(( $# >= 2 ? 2 : 1 ))
 target=${CARGO_TARGET_DIR:-target}
+server_pin=(); bots_pin=()
+if [ -n "${BENCH_SERVER_CPUS:-}" ]; then
+    taskset -c "$BENCH_SERVER_CPUS" true   # fails here on a bad list
+    server_pin=(taskset -c "$BENCH_SERVER_CPUS")
+fi
+if [ -n "${BENCH_BOT_CPUS:-}" ]; then
+    taskset -c "$BENCH_BOT_CPUS" true
+    bots_pin=(taskset -c "$BENCH_BOT_CPUS")
+fi
 cargo build --release --locked -q -p strata-server -p strata-client-sim --bins
 dir=$(mktemp -d)
-trap 'kill $pid 2>/dev/null || true; [ -n "${BENCH_LOG:-}" ] && cp "$dir/log" "$BENCH_LOG"; rm -rf "$dir"' EXIT
+pid=; sampler=
+trap 'kill ${sampler:-} ${pid:-} 2>/dev/null || true; [ -n "${BENCH_LOG:-}" ] && cp "$dir/log" "$BENCH_LOG"; rm -rf "$dir"' EXIT
 cat > "$dir/strata.toml" <<TOML
 [server]
 listen = "127.0.0.1:0"
@@ -31,29 +69,86 @@ fi
 if [ -n "${BENCH_METRICS_PORT:-}" ]; then
     printf '[metrics]\nlisten = "127.0.0.1:%s"\n' "$BENCH_METRICS_PORT" >> "$dir/strata.toml"
 fi
-"${STRATA_SERVER_BIN:-$target/release/strata-server}" --config "$dir/strata.toml" --data-dir "$dir/data" \
-    > "$dir/out" 2> "$dir/log" &
+# taskset execs the server: $! is the server's pid either way.
+"${server_pin[@]}" "${STRATA_SERVER_BIN:-$target/release/strata-server}" \
+    --config "$dir/strata.toml" --data-dir "$dir/data" > "$dir/out" 2> "$dir/log" &
 pid=$!
 for _ in $(seq 100); do grep -q listening "$dir/out" 2>/dev/null && break; sleep 0.1; done
 addr=$(grep -oE '127\.0\.0\.1:[0-9]+' "$dir/out" | head -1)
-ticks() { awk '{print $14 + $15}' "/proc/$pid/stat"; }
+# utime + stime (fields 14 and 15) in clock ticks; the fields are counted
+# after the command name, which may hold spaces.
+ticks() { local s; read -r s < "/proc/$pid/stat"; s=${s##*) }; set -- $s; echo $(( ${12} + ${13} )); }
 hz=$(getconf CLK_TCK)
+# "epoch-seconds ticks" every 0.1 s, for the editing window.
+sample() { local t; while t=$(ticks 2>/dev/null); do echo "$EPOCHREALTIME $t"; sleep 0.1; done; }
+sample > "$dir/samples" 2>/dev/null &
+sampler=$!
 t0=$(ticks); s0=$(date +%s.%N)
 /usr/bin/time -f "%U %S" -o "$dir/bots_time" \
-    "$target/release/strata-bots" --server "$addr" --data-dir "$dir/data" --bots "$bots" \
-    --duration "$duration" --json "$@"
+    "${bots_pin[@]}" "$target/release/strata-bots" --server "$addr" --data-dir "$dir/data" \
+    --bots "$bots" --duration "$duration" --json "$@" | tee "$dir/bots.json"
 t1=$(ticks); s1=$(date +%s.%N)
+kill "$sampler" 2>/dev/null || true; wait "$sampler" 2>/dev/null || true; sampler=
 rss=$(awk '/VmHWM/ {print $2}' "/proc/$pid/status")
 bots_cpu=$(awk '{print $1 + $2}' "$dir/bots_time")
-awk -v t0="$t0" -v t1="$t1" -v hz="$hz" -v s0="$s0" -v s1="$s1" -v rss="$rss" -v b="$bots_cpu" 'BEGIN {
-    cpu = (t1 - t0) / hz; wall = s1 - s0;
-    printf "{\"server_cpu_seconds\":%.2f,\"bots_cpu_seconds\":%.2f,\"wall_seconds\":%.2f,\"server_cpu_share\":%.2f,\"server_peak_rss_mib\":%.1f}\n",
-        cpu, b, wall, cpu / wall, rss / 1024 }'
+# Top-level numbers of the bots' JSON (serde writes them before any nested
+# object that could repeat a name).
+field() { grep -oE "\"$1\":[-0-9.eE+]+" "$dir/bots.json" | head -1 | cut -d: -f2; }
+edits=$(field edits_accepted); deltas=$(field deltas)
+duration_s=$(field duration_s); ramp_s=$(field ramp_s)
+awk -v t0="$t0" -v t1="$t1" -v hz="$hz" -v s0="$s0" -v s1="$s1" -v rss="$rss" -v b="$bots_cpu" \
+    -v edits="${edits:-0}" -v deltas="${deltas:-0}" -v dur="${duration_s:-0}" -v ramp="${ramp_s:-0}" \
+    -v bots="$bots" -v scpus="${BENCH_SERVER_CPUS:-}" -v bcpus="${BENCH_BOT_CPUS:-}" \
+    -v csv="${BENCH_CSV:-}" -v samples="$dir/samples" '
+    function at(t,   i) {  # server ticks at epoch t, interpolated
+        if (n == 0) return 0
+        if (t <= ts[1]) return tk[1]
+        for (i = 2; i <= n; i++)
+            if (t <= ts[i]) return tk[i-1] + (tk[i] - tk[i-1]) * (t - ts[i-1]) / (ts[i] - ts[i-1])
+        return tk[n]
+    }
+    function orn(x) { return x == "" ? "null" : x }   # JSON: empty is null
+    function ord(x) { return x == "" ? "-" : x }      # text: empty is -
+    function str(x) { return x == "" ? "null" : "\"" x "\"" }
+    BEGIN {
+        while ((getline line < samples) > 0) { split(line, a, " "); ts[++n] = a[1]; tk[n] = a[2] }
+        cpu = (t1 - t0) / hz; wall = s1 - s0
+        per_edit = edits > 0 ? sprintf("%.3f", 1000 * cpu / edits) : ""
+        dps = dur > 0 ? sprintf("%.1f", deltas / dur) : ""
+        # The editing window, in epoch seconds (the bots start at about s0).
+        w0 = s0 + ramp; w1 = w0 + dur
+        if (n >= 2 && dur > 0 && w1 <= ts[n] + 0.2) {
+            ecpu = sprintf("%.2f", (at(w1) - at(w0)) / hz)
+            ecores = sprintf("%.2f", ecpu / dur)
+            eper = edits > 0 ? sprintf("%.3f", 1000 * ecpu / edits) : ""
+            ewin = sprintf("%.2f", dur)
+        }
+        printf "{\"server_cpu_seconds\":%.2f,\"bots_cpu_seconds\":%.2f,\"wall_seconds\":%.2f,\"server_cpu_share\":%.2f,\"server_peak_rss_mib\":%.1f", \
+            cpu, b, wall, cpu / wall, rss / 1024
+        printf ",\"edits_accepted\":%d,\"server_cpu_ms_per_edit\":%s,\"deltas\":%d,\"deltas_per_second\":%s", \
+            edits, orn(per_edit), deltas, orn(dps)
+        printf ",\"edit_window_seconds\":%s,\"edit_server_cpu_seconds\":%s,\"edit_server_cores\":%s,\"edit_server_cpu_ms_per_edit\":%s", \
+            orn(ewin), orn(ecpu), orn(ecores), orn(eper)
+        printf ",\"server_cpus\":%s,\"bots_cpus\":%s}\n", str(scpus), str(bcpus)
+        printf "bots_bench: %d bots, %s s editing: %d edits accepted, %d deltas delivered (%s/s); server %.2f CPU s in %.2f s = %.2f cores, %s ms/edit", \
+            bots, dur, edits, deltas, ord(dps), cpu, wall, cpu / wall, ord(per_edit) > "/dev/stderr"
+        if (ecpu != "")
+            printf "; editing window %.2f CPU s = %s cores, %s ms/edit", ecpu, ecores, ord(eper) > "/dev/stderr"
+        printf "; bots %.2f CPU s; pins server %s, bots %s\n", b, ord(scpus), ord(bcpus) > "/dev/stderr"
+        if (csv != "") {
+            if ((getline line < csv) <= 0)
+                print "bots,duration_s,server_cpus,bots_cpus,edits_accepted,deltas,deltas_per_second,server_cpu_seconds,wall_seconds,server_cpu_share,server_cpu_ms_per_edit,edit_server_cpu_seconds,edit_server_cores,edit_server_cpu_ms_per_edit,bots_cpu_seconds,server_peak_rss_mib" >> csv
+            close(csv)
+            printf "%d,%s,\"%s\",\"%s\",%d,%d,%s,%.2f,%.2f,%.2f,%s,%s,%s,%s,%.2f,%.1f\n", bots, dur, scpus, bcpus, edits, deltas, dps, \
+                cpu, wall, cpu / wall, per_edit, ecpu, ecores, eper, b, rss / 1024 >> csv
+        }
+    }'
 if [ -n "${BENCH_METRICS_PORT:-}" ]; then
     curl -s "http://127.0.0.1:$BENCH_METRICS_PORT/metrics" | awk '
         /^strata_(flush|fsync)_seconds\{quantile="(0.5|0.99|1)"\}/ {
             split($1, a, "[{\"]"); q[a[1] "_" a[3]] = $2 * 1000 }
-        END { printf "{\"commit_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"fsync_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f}}\n",
+        /^strata_edits_accepted_total[ {]/ { accepted += $NF }
+        END { printf "{\"commit_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"fsync_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"server_edits_accepted\":%d}\n",
             q["strata_flush_seconds_0.5"], q["strata_flush_seconds_0.99"], q["strata_flush_seconds_1"],
-            q["strata_fsync_seconds_0.5"], q["strata_fsync_seconds_0.99"], q["strata_fsync_seconds_1"] }'
+            q["strata_fsync_seconds_0.5"], q["strata_fsync_seconds_0.99"], q["strata_fsync_seconds_1"], accepted }'
 fi

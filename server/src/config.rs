@@ -544,6 +544,18 @@ impl ServerConfig {
             1,
             MAX_COMMAND_QUEUE,
         )?;
+        range(
+            "sequencer.region_chunks",
+            self.sequencer.region_chunks,
+            1,
+            crate::sequencer::regions::MAX_REGION_CHUNKS,
+        )?;
+        range(
+            "engine.workers",
+            self.engine.workers,
+            0,
+            crate::engine::MAX_WORKERS,
+        )?;
         Ok(())
     }
 

@@ -19,10 +19,12 @@ pub const QUEUE_DEPTH: &str = "strata_sequencer_queue_depth";
 pub const FLUSH_SECONDS: &str = "strata_flush_seconds";
 pub const FSYNC_SECONDS: &str = "strata_fsync_seconds";
 pub const TICK_SECONDS: &str = "strata_tick_seconds";
+pub const TICK_LANES: &str = "strata_tick_lanes";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
 pub const DELTAS_DROPPED: &str = "strata_deltas_dropped_total";
+pub const DELTAS_SENT: &str = "strata_deltas_sent_total";
 pub const POSITIONS_DROPPED: &str = "strata_positions_dropped_total";
 pub const RESYNCS: &str = "strata_resyncs_total";
 pub const RESIDENT_CHUNKS: &str = "strata_resident_chunks";
@@ -54,6 +56,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
         POSITIONS_DROPPED,
         "Position datagrams dropped because the engine's queue was full"
     );
+    metrics::describe_counter!(
+        DELTAS_SENT,
+        "Chunk deltas queued to sessions (one per session that sees the chunk)"
+    );
     metrics::describe_counter!(EDITS_ACCEPTED, "Edits acknowledged after they were durable");
     metrics::describe_counter!(EDITS_REJECTED, "Edits refused, by reason");
     metrics::describe_gauge!(QUEUE_DEPTH, "Edits waiting for the sequencer");
@@ -63,6 +69,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
         "The fsyncs that end a group commit (part of its latency)"
     );
     metrics::describe_histogram!(TICK_SECONDS, "Sequencer tick duration");
+    metrics::describe_histogram!(
+        TICK_LANES,
+        "Lanes of joined regions a tick with edits applied in parallel"
+    );
     metrics::describe_histogram!(
         EDIT_LATENCY_SECONDS,
         "From the engine taking an edit to its acknowledgement (durable)"

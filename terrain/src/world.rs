@@ -105,12 +105,17 @@ impl World {
     }
 
     /// Sets a chunk to a new state and bumps its version; returns the new version.
-    pub fn commit(&mut self, pos: ChunkPos, mut chunk: Chunk) -> u64 {
+    pub fn commit(&mut self, pos: ChunkPos, chunk: Chunk) -> u64 {
+        self.commit_replace(pos, chunk).0
+    }
+
+    /// [`Self::commit`] that also hands back the state it replaced.
+    pub fn commit_replace(&mut self, pos: ChunkPos, mut chunk: Chunk) -> (u64, Chunk) {
         chunk.compact();
         let e = self.entry(pos);
-        e.chunk = chunk;
+        let before = std::mem::replace(&mut e.chunk, chunk);
         e.version += 1;
-        e.version
+        (e.version, before)
     }
 
     /// The voxel at `p`, generating its chunk if needed.
@@ -125,6 +130,25 @@ impl World {
             .iter()
             .filter(|(_, c)| c.version > 0)
             .map(|(p, c)| (*p, c))
+    }
+
+    /// Moves the listed chunks that are loaded into a new world with the
+    /// same generator, so disjoint parts of a world can be edited on
+    /// different threads; [`Self::absorb`] puts them back.
+    pub fn extract(&mut self, positions: impl IntoIterator<Item = ChunkPos>) -> World {
+        let mut part = World::new(self.generator.clone());
+        for p in positions {
+            if let Some(c) = self.chunks.remove(&p) {
+                part.chunks.insert(p, c);
+            }
+        }
+        part
+    }
+
+    /// Moves every chunk of `part` (extracted, then edited or generated)
+    /// into this world, replacing what is here.
+    pub fn absorb(&mut self, part: World) {
+        self.chunks.extend(part.chunks);
     }
 
     /// Number of loaded chunks.
@@ -172,6 +196,30 @@ impl VoxelRead for World {
 mod tests {
     use super::*;
     use crate::material::ids;
+
+    #[test]
+    fn extract_moves_loaded_chunks_and_absorb_puts_back_edits() {
+        let mut w = World::new(Arc::new(FlatGenerator {
+            ground: Voxel::solid(ids::STONE),
+        }));
+        let (a, b, c) = (
+            ChunkPos::new(0, -1, 0),
+            ChunkPos::new(1, -1, 0),
+            ChunkPos::new(5, -1, 0),
+        );
+        w.load([a, b]);
+        w.commit(a, Chunk::uniform(Voxel::AIR));
+        // `c` is not loaded: the part generates it on demand.
+        let mut part = w.extract([a, c]);
+        assert_eq!((w.loaded(), part.loaded()), (1, 1));
+        assert!(w.peek(a).is_none() && part.peek(a).unwrap().version == 1);
+        part.commit(c, Chunk::uniform(Voxel::AIR));
+        w.absorb(part);
+        assert_eq!(w.loaded(), 3);
+        assert_eq!(w.peek(a).unwrap().version, 1);
+        assert_eq!(w.peek(c).unwrap().version, 1);
+        assert_eq!(w.peek(b).unwrap().version, 0);
+    }
 
     #[test]
     fn generates_on_demand_and_versions() {

@@ -40,10 +40,12 @@ impl Engine {
         rx: Option<&Inbox>,
     ) -> Result<CommitStats, StoreError> {
         let store = self.store.clone();
+        let pool = self.pool.clone();
         std::thread::scope(|s| {
+            // Its chunk encoding runs on the engine's workers.
             let commit = std::thread::Builder::new()
                 .name("strata-commit".into())
-                .spawn_scoped(s, move || store.commit_batch(batch));
+                .spawn_scoped(s, move || pool.install(|| store.commit_batch(batch)));
             let commit = match commit {
                 Ok(h) => h,
                 // No thread to spare: commit here, serving nothing meanwhile.

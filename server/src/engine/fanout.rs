@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 
 use bytes::{Bytes, BytesMut};
+use rayon::prelude::*;
 use strata_protocol::{encode_frame, DeltaUpdate, Direction, ServerMessage, WorldUpdate};
 use strata_terrain::ChunkPos;
 
@@ -49,33 +50,44 @@ pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_s
         return;
     }
     let end = encode_update(&WorldUpdate::TickEnd { last_seq });
-    // Peers outside, changes inside: each session is visited once per tick.
-    for p in peers.values_mut() {
-        let mut buf = BytesMut::new();
-        let mut chunks: Vec<ChunkPos> = Vec::new();
-        for (c, frame) in &changes {
-            // The Fx-hashed `known` lookup rules most sessions out; `covers`
-            // (a tree lookup) only confirms the few that hold the base.
-            if p.known.get(&c.pos) != Some(&c.from_version) || !p.interest.covers(c.pos) {
-                continue;
-            }
-            p.known.insert(c.pos, c.to_version);
-            buf.extend_from_slice(frame);
-            chunks.push(c.pos);
-        }
-        if chunks.is_empty() {
+    // Peers outside, changes inside: each session is visited once per
+    // tick, sessions on every worker of the current pool.
+    let mut all: Vec<&mut Peer> = peers.values_mut().collect();
+    all.par_iter_mut()
+        .with_min_len(PEERS_PER_TASK)
+        .for_each(|p| send_tick(p, &changes, &end));
+}
+
+/// Sessions one fan-out task visits at least: fewer would cost more in
+/// scheduling than the lookups they save.
+const PEERS_PER_TASK: usize = 64;
+
+/// Queues the tick's frames `p` holds the base of, then `end`, as one batch.
+fn send_tick(p: &mut Peer, changes: &[(&ChunkUpdate, Bytes)], end: &Bytes) {
+    let mut buf = BytesMut::new();
+    let mut chunks: Vec<ChunkPos> = Vec::new();
+    for (c, frame) in changes {
+        // The Fx-hashed `known` lookup rules most sessions out; `covers`
+        // (a tree lookup) only confirms the few that hold the base.
+        if p.known.get(&c.pos) != Some(&c.from_version) || !p.interest.covers(c.pos) {
             continue;
         }
-        buf.extend_from_slice(&end);
-        match p.updates.try_send(buf.freeze()) {
-            Ok(()) => {}
-            Err(SendRefused::Full) => {
-                metrics::counter!(m::DELTAS_DROPPED).increment(chunks.len() as u64);
-                for pos in chunks {
-                    p.resend(pos);
-                }
+        p.known.insert(c.pos, c.to_version);
+        buf.extend_from_slice(frame);
+        chunks.push(c.pos);
+    }
+    if chunks.is_empty() {
+        return;
+    }
+    buf.extend_from_slice(end);
+    match p.updates.try_send(buf.freeze()) {
+        Ok(()) => metrics::counter!(m::DELTAS_SENT).increment(chunks.len() as u64),
+        Err(SendRefused::Full) => {
+            metrics::counter!(m::DELTAS_DROPPED).increment(chunks.len() as u64);
+            for pos in chunks {
+                p.resend(pos);
             }
-            Err(SendRefused::Closed) => p.failed = true,
         }
+        Err(SendRefused::Closed) => p.failed = true,
     }
 }

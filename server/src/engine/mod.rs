@@ -67,6 +67,8 @@ pub const DEFAULT_COMMAND_QUEUE: usize = 8192;
 pub const DEFAULT_CONTROL_QUEUE: usize = 4096;
 /// Largest allowed command or edit queue.
 pub const MAX_COMMAND_QUEUE: usize = 1 << 20;
+/// Most worker threads `[engine] workers` may ask for.
+pub const MAX_WORKERS: usize = 256;
 
 /// Engine limits (`[engine]` in the config).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -95,6 +97,9 @@ pub struct EngineConfig {
     /// Pre-images one online snapshot may hold when its request names no
     /// limit ([`snapshot::DEFAULT_SNAPSHOT_PREIMAGES`]).
     pub snapshot_preimages: usize,
+    /// Threads that apply region lanes, mesh, encode for the store and fan
+    /// deltas out; 0 means one per available core.
+    pub workers: usize,
 }
 
 impl Default for EngineConfig {
@@ -109,6 +114,7 @@ impl Default for EngineConfig {
             premesh_inflight: DEFAULT_PREMESH_INFLIGHT,
             resident_chunks: DEFAULT_RESIDENT_CHUNKS,
             snapshot_preimages: snapshot::DEFAULT_SNAPSHOT_PREIMAGES,
+            workers: 0,
         }
     }
 }
@@ -154,6 +160,8 @@ pub struct Engine {
     /// The last seq the store holds durably. The sequencer's own runs
     /// ahead of it while a commit is in flight; clients are told only this.
     durable_seq: u64,
+    /// The `[engine] workers` threads.
+    pool: Arc<rayon::ThreadPool>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -174,7 +182,17 @@ impl Engine {
         bounds: WorldBounds,
         versions: HashMap<ChunkPos, u64>,
     ) -> std::io::Result<Self> {
+        let workers = match cfg.workers {
+            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            n => n.min(MAX_WORKERS),
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(workers)
+            .thread_name(|i| format!("strata-worker-{i}"))
+            .build()
+            .map_err(std::io::Error::other)?;
         Ok(Self {
+            pool: Arc::new(pool),
             premesh: premesh::Premesher::new(cfg.premesh_inflight)?,
             durable_seq: seq.last_seq(),
             seq,
@@ -448,9 +466,10 @@ impl Engine {
     fn tick(&mut self, rx: Option<&Inbox>) -> anyhow::Result<()> {
         let started = Instant::now();
         let mut phase = Phases::new();
-        let (mut out, pending) = self.seq.tick_apply(now_ms());
-        // Collision meshes build on the rayon pool while the batch commits.
-        let meshing = spawn_meshing(pending);
+        let pool = self.pool.clone();
+        let (mut out, pending) = pool.install(|| self.seq.tick_apply(now_ms()));
+        // Collision meshes build on the workers while the batch commits.
+        let meshing = spawn_meshing(&pool, pending);
         for r in &out.rejected {
             metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&r.reason))
                 .increment(1);
@@ -462,6 +481,7 @@ impl Engine {
         }
         phase.end("apply");
         if !out.batch.is_empty() {
+            metrics::histogram!(m::TICK_LANES).record(out.lanes as f64);
             self.capture_preimages(&out.batch);
             let flush = Instant::now();
             // Nothing is acknowledged or broadcast unless this succeeds.
@@ -504,7 +524,7 @@ impl Engine {
                 };
                 self.send_control(a.session_id, &msg);
             }
-            fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq);
+            pool.install(|| fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq));
             phase.end("fanout");
         }
         self.stream_snapshots();
@@ -621,11 +641,11 @@ impl Phases {
     }
 }
 
-/// Builds a tick's collision meshes on the rayon pool; the receiver yields
+/// Builds a tick's collision meshes on the workers; the receiver yields
 /// them once done.
-fn spawn_meshing(pending: PendingMeshes) -> Receiver<BuiltMeshes> {
+fn spawn_meshing(pool: &rayon::ThreadPool, pending: PendingMeshes) -> Receiver<BuiltMeshes> {
     let (tx, rx) = std::sync::mpsc::sync_channel(1);
-    rayon::spawn(move || {
+    pool.spawn(move || {
         let _ = tx.send(pending.build());
     });
     rx

@@ -25,6 +25,13 @@ pub enum SendRefused {
 pub struct FrameSender(mpsc::Sender<Bytes>);
 
 impl FrameSender {
+    /// A queue of `capacity` frames whose other end is not a stream (the
+    /// in-process pipeline bench reads it directly).
+    pub fn channel(capacity: usize) -> (FrameSender, mpsc::Receiver<Bytes>) {
+        let (tx, rx) = mpsc::channel(capacity.max(1));
+        (FrameSender(tx), rx)
+    }
+
     /// Queues a frame without waiting.
     pub fn try_send(&self, frame: Bytes) -> Result<(), SendRefused> {
         self.0.try_send(frame).map_err(|e| match e {

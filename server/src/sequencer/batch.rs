@@ -3,7 +3,7 @@
 
 use strata_protocol::RejectReason;
 use strata_terrain::delta::ChunkDelta;
-use strata_terrain::{Chunk, ChunkPos, Edit};
+use strata_terrain::{ChunkPos, Edit};
 
 use crate::store::CommitBatch;
 
@@ -15,8 +15,6 @@ pub struct ChunkUpdate {
     pub to_version: u64,
     /// Takes the chunk from `from_version` to `to_version`.
     pub delta: ChunkDelta,
-    /// The chunk at `to_version`.
-    pub new_chunk: Chunk,
     /// Hash of the LOD-0 collision mesh right after this edit.
     pub mesh_hash: u64,
 }
@@ -51,4 +49,6 @@ pub struct TickOutput {
     pub rejected: Vec<RejectedEdit>,
     /// What the store must make durable before anything is acknowledged.
     pub batch: CommitBatch,
+    /// Lanes the tick's edits were applied in (see `regions.rs`).
+    pub lanes: usize,
 }

@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::regions::DEFAULT_REGION_CHUNKS;
 use crate::collision::DEFAULT_COLLISION_CACHE_CAPACITY;
 
 /// Accepted edits waiting for the next tick; a full queue answers `Busy`.
@@ -20,6 +21,9 @@ pub struct SequencerConfig {
     pub max_edits_per_tick: usize,
     /// Collision meshes kept (see [`DEFAULT_COLLISION_CACHE_CAPACITY`]).
     pub collision_cache_capacity: usize,
+    /// Side of a region in chunks ([`DEFAULT_REGION_CHUNKS`]): the unit of
+    /// ordering; edits of regions no edit joins apply in parallel.
+    pub region_chunks: u32,
 }
 
 impl Default for SequencerConfig {
@@ -28,6 +32,7 @@ impl Default for SequencerConfig {
             queue_capacity: DEFAULT_QUEUE_CAPACITY,
             max_edits_per_tick: DEFAULT_MAX_EDITS_PER_TICK,
             collision_cache_capacity: DEFAULT_COLLISION_CACHE_CAPACITY,
+            region_chunks: DEFAULT_REGION_CHUNKS,
         }
     }
 }

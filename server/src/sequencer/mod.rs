@@ -9,6 +9,7 @@ pub mod batch;
 pub use crate::store::{CommitBatch, LogEntry};
 
 pub mod config;
+pub mod regions;
 pub mod residency;
 pub mod session;
 mod submit;

@@ -10,6 +10,12 @@ use strata_terrain::{ChunkPos, VoxelBox, VoxelPos, World, CHUNK_SIZE};
 /// Chunks an edit's box reads, grown by one chunk on each side: the
 /// neighbours' voxels feed the collision meshes of the changed chunks.
 pub fn edit_chunks(bbox: &VoxelBox, margin: i32) -> impl Iterator<Item = ChunkPos> {
+    edit_footprint(bbox, margin).chunks()
+}
+
+/// The voxels whose chunks [`edit_chunks`] names: the box grown by the
+/// edit's read margin and one chunk.
+pub fn edit_footprint(bbox: &VoxelBox, margin: i32) -> VoxelBox {
     let grow = margin + CHUNK_SIZE;
     VoxelBox {
         min: VoxelPos::new(
@@ -23,7 +29,6 @@ pub fn edit_chunks(bbox: &VoxelBox, margin: i32) -> impl Iterator<Item = ChunkPo
             bbox.max.z.saturating_add(grow),
         ),
     }
-    .chunks()
 }
 
 /// A chunk and its 26 neighbours.

@@ -7,36 +7,39 @@ use strata_terrain::delta::ChunkDelta;
 use strata_terrain::mesh::Neighborhood;
 use strata_terrain::ChunkPos;
 
-use super::batch::*;
-use super::residency::with_neighbours;
-use super::LogEntry;
-use super::Sequencer;
-use crate::collision::{CollisionCache, CollisionMesh};
-use strata_terrain::Chunk;
+use rayon::prelude::*;
+use strata_terrain::{VoxelBox, World};
 
-/// Where a change's mesh hash goes once the meshes are built.
+use super::batch::*;
+use super::regions::{self, RegionSpan};
+use super::residency::{edit_footprint, with_neighbours};
+use super::{LogEntry, Queued, Sequencer};
+use crate::collision::{CollisionCache, CollisionMesh};
+
+/// Where a change's mesh hash comes from once the meshes are built.
 #[derive(Debug)]
 struct MeshSlot {
     applied: usize,
     change: usize,
+    job: usize,
 }
 
-/// The collision meshes one tick's changes need. Building them is pure
-/// ([`Self::build`]), so the shell runs it on the rayon pool while the
-/// store commits, then hands the result to [`Sequencer::finish_tick`].
+/// The collision meshes one tick's changes need: one per changed chunk, of
+/// its state at the tick's end, which is what clients compare at `TickEnd`
+/// (every change of the chunk in the tick carries that mesh's hash).
+/// Building them is pure ([`Self::build`]), so the shell runs it on the
+/// rayon pool while the store commits, then hands the result to
+/// [`Sequencer::finish_tick`].
 #[derive(Debug, Default)]
 pub struct PendingMeshes {
     jobs: Vec<(ChunkPos, u64, Neighborhood)>,
     slots: Vec<MeshSlot>,
-    /// Whether each job's mesh matches the world at the tick's end.
-    keep: Vec<bool>,
 }
 
 /// Meshes built from a [`PendingMeshes`].
 #[derive(Debug)]
 pub struct BuiltMeshes {
     meshes: Vec<CollisionMesh>,
-    keep: Vec<bool>,
     slots: Vec<MeshSlot>,
 }
 
@@ -49,7 +52,6 @@ impl PendingMeshes {
     pub fn build(self) -> BuiltMeshes {
         BuiltMeshes {
             meshes: CollisionCache::mesh_chunks(&self.jobs),
-            keep: self.keep,
             slots: self.slots,
         }
     }
@@ -69,66 +71,105 @@ impl Sequencer {
 
     /// [`Self::tick`] without the meshes: every `mesh_hash` is 0 until
     /// [`Self::finish_tick`] gets the built [`PendingMeshes`].
+    ///
+    /// The edits are grouped into lanes of joined regions (`regions.rs`);
+    /// each lane applies its edits in queue order to its own chunks, moved
+    /// out of the world, on the current rayon pool. Seqs are then given in
+    /// queue order, so the output is the same for any number of threads.
     pub fn tick_apply(&mut self, now_ms: u64) -> (TickOutput, PendingMeshes) {
         self.prune_limits(now_ms);
-        let mut out = TickOutput::default();
-        let mut jobs: Vec<(ChunkPos, u64, Neighborhood)> = Vec::new();
-        let mut slots: Vec<MeshSlot> = Vec::new();
-        let mut finals: BTreeMap<ChunkPos, (u64, Chunk)> = BTreeMap::new();
         let take = self.queue.len().min(self.cfg.max_edits_per_tick);
-        for q in self.queue.drain(..take).collect::<Vec<_>>() {
-            let ctx = strata_terrain::EditContext {
-                materials: &self.materials,
-                structures: &self.structures,
-            };
-            let outcome = match q.request.edit.apply(&mut self.world, &ctx) {
-                Ok(o) => o,
-                Err(e) => {
+        let queued: Vec<Queued> = self.queue.drain(..take).collect();
+        let ctx = strata_terrain::EditContext {
+            materials: &self.materials,
+            structures: &self.structures,
+        };
+        let side = self.cfg.region_chunks;
+        // What each edit reads: its box grown by the read margin and one
+        // chunk (the mesh apron). An invalid edit reads nothing.
+        let footprints: Vec<Option<VoxelBox>> = queued
+            .iter()
+            .map(|q| {
+                let e = &q.request.edit;
+                e.validate(&ctx)
+                    .ok()
+                    .map(|b| edit_footprint(&b, e.read_margin()))
+            })
+            .collect();
+        let spans: Vec<Option<RegionSpan>> = footprints
+            .iter()
+            .map(|f| f.map(|b| RegionSpan::of_chunks(b.min.chunk(), b.max.chunk(), side)))
+            .collect();
+        let parts: Vec<(Vec<usize>, World)> = regions::lanes(&spans)
+            .into_iter()
+            .map(|members| {
+                let chunks: Vec<ChunkPos> = members
+                    .iter()
+                    .filter_map(|&i| footprints[i])
+                    .flat_map(|b| b.chunks())
+                    .collect();
+                let part = self.world.extract(chunks);
+                (members, part)
+            })
+            .collect();
+        let lanes: Vec<Lane> = if parts.len() > 1 {
+            parts
+                .into_par_iter()
+                .map(|(members, part)| Lane::run(&queued, members, part, &ctx))
+                .collect()
+        } else {
+            parts
+                .into_iter()
+                .map(|(members, part)| Lane::run(&queued, members, part, &ctx))
+                .collect()
+        };
+        let count = lanes.len();
+        let (mut out, pending) = self.merge(queued, lanes, now_ms);
+        out.lanes = count;
+        (out, pending)
+    }
+
+    /// Numbers the lanes' edits in queue order and gathers the tick's
+    /// output, commit batch and mesh jobs; puts the lanes' chunks back.
+    fn merge(
+        &mut self,
+        queued: Vec<Queued>,
+        lanes: Vec<Lane>,
+        now_ms: u64,
+    ) -> (TickOutput, PendingMeshes) {
+        let mut out = TickOutput::default();
+        let mut results: Vec<Option<LaneResult>> = (0..queued.len()).map(|_| None).collect();
+        let mut jobs = Vec::new();
+        let mut job_slots = Vec::new();
+        let mut finals: BTreeMap<ChunkPos, u64> = BTreeMap::new();
+        for lane in lanes {
+            for (i, r) in lane.results {
+                results[i] = Some(r);
+            }
+            let base = jobs.len();
+            jobs.extend(lane.jobs);
+            job_slots.extend(lane.slots.into_iter().map(|(i, c, j)| (i, c, base + j)));
+            finals.extend(lane.finals);
+            self.world.absorb(lane.world);
+        }
+        let mut applied_at = vec![usize::MAX; queued.len()];
+        for (i, (q, r)) in queued.into_iter().zip(results).enumerate() {
+            let (bbox, changes) = match r.expect("every queued edit is in one lane") {
+                Ok(done) => done,
+                Err(message) => {
                     out.rejected.push(RejectedEdit {
                         session_id: q.session_id,
                         client_edit_id: q.request.client_edit_id,
-                        reason: RejectReason::Invalid {
-                            message: e.to_string(),
-                        },
+                        reason: RejectReason::Invalid { message },
                     });
                     continue;
                 }
             };
-            let (seq, bbox) = (self.next_seq, outcome.bbox);
+            let seq = self.next_seq;
             self.next_seq += 1;
-            let mut changes = Vec::with_capacity(outcome.changed.len());
-            for c in outcome.changed {
-                let new_chunk = self
-                    .world
-                    .peek(c.pos)
-                    .map(|v| v.chunk.clone())
-                    .unwrap_or_default();
-                // `apply` raised the version, so the order check cannot fail.
-                let delta =
-                    ChunkDelta::encode(c.pos, c.from_version, c.to_version, &c.before, &new_chunk)
-                        .expect("apply raises the version");
+            for c in &changes {
                 self.collision.invalidate_touched(c.pos, bbox);
                 self.residency.mark_present(c.pos);
-                // Neighbours feed the mesh apron; they are resident (submit checked).
-                self.world.load(with_neighbours(c.pos));
-                jobs.push((
-                    c.pos,
-                    c.to_version,
-                    Neighborhood::from_world(&self.world, c.pos),
-                ));
-                slots.push(MeshSlot {
-                    applied: out.applied.len(),
-                    change: changes.len(),
-                });
-                finals.insert(c.pos, (c.to_version, new_chunk.clone()));
-                changes.push(ChunkUpdate {
-                    pos: c.pos,
-                    from_version: c.from_version,
-                    to_version: c.to_version,
-                    delta,
-                    new_chunk,
-                    mesh_hash: 0,
-                });
             }
             out.batch.entries.push(LogEntry {
                 seq,
@@ -137,6 +178,7 @@ impl Sequencer {
                 edit: q.request.edit.clone(),
                 changes: changes.iter().map(|c| (c.pos, c.to_version)).collect(),
             });
+            applied_at[i] = out.applied.len();
             out.applied.push(AppliedEdit {
                 seq,
                 session_id: q.session_id,
@@ -147,48 +189,117 @@ impl Sequencer {
                 queued_at: q.queued_at,
             });
         }
-        // Clients compare mesh hashes at the tick's end: a chunk whose
-        // neighbour changed later in the tick is meshed from the world as it
-        // now stands (its last change carries that hash).
-        let mut keep = still_current(&jobs);
-        let last: BTreeMap<ChunkPos, usize> =
-            jobs.iter().enumerate().map(|(i, j)| (j.0, i)).collect();
-        for i in last.into_values() {
-            if !keep[i] {
-                jobs[i].2 = Neighborhood::from_world(&self.world, jobs[i].0);
-                keep[i] = true;
-            }
-        }
-        out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
+        let slots = job_slots
+            .into_iter()
+            .map(|(i, change, job)| MeshSlot {
+                applied: applied_at[i],
+                change,
+                job,
+            })
+            .collect();
+        // The final states, copied for the store (from the world, where
+        // every lane's chunks are back).
+        out.batch.chunks = finals
+            .into_iter()
+            .map(|(p, v)| {
+                let c = self.world.peek(p).expect("a changed chunk is loaded");
+                (p, v, c.chunk.clone())
+            })
+            .collect();
         out.batch.last_seq = self.last_seq();
-        (out, PendingMeshes { jobs, slots, keep })
+        (out, PendingMeshes { jobs, slots })
     }
 
     /// Fills in the mesh hashes of `out` and caches the meshes that still
     /// match the world.
     pub fn finish_tick(&mut self, out: &mut TickOutput, built: BuiltMeshes) {
-        let BuiltMeshes {
-            meshes,
-            keep,
-            slots,
-        } = built;
-        for ((slot, mesh), keep) in slots.iter().zip(meshes).zip(keep) {
-            out.applied[slot.applied].changes[slot.change].mesh_hash = mesh.hash;
-            if keep {
-                self.collision.insert(mesh);
-            }
+        let BuiltMeshes { meshes, slots } = built;
+        for slot in &slots {
+            out.applied[slot.applied].changes[slot.change].mesh_hash = meshes[slot.job].hash;
+        }
+        for mesh in meshes {
+            self.collision.insert(mesh);
         }
     }
 }
 
-/// Whether each job's mesh still matches the world at the end of the tick:
-/// no later change in the tick touched its chunk or a neighbour.
-fn still_current(jobs: &[(ChunkPos, u64, Neighborhood)]) -> Vec<bool> {
-    let mut seen: std::collections::HashSet<ChunkPos> = std::collections::HashSet::new();
-    let mut keep = vec![false; jobs.len()];
-    for (i, (pos, _, _)) in jobs.iter().enumerate().rev() {
-        keep[i] = !with_neighbours(*pos).any(|n| seen.contains(&n));
-        seen.insert(*pos);
+/// An applied edit's box and chunk updates, or why it failed.
+type LaneResult = Result<(VoxelBox, Vec<ChunkUpdate>), String>;
+
+/// One lane's edits applied in order to its own chunks.
+struct Lane {
+    /// By queue index.
+    results: Vec<(usize, LaneResult)>,
+    /// One per changed chunk, of its final state.
+    jobs: Vec<(ChunkPos, u64, Neighborhood)>,
+    /// Each change's (queue index, change index, job index).
+    slots: Vec<(usize, usize, usize)>,
+    /// Each changed chunk's final version.
+    finals: BTreeMap<ChunkPos, u64>,
+    /// The lane's chunks, to be put back in the world.
+    world: World,
+}
+
+impl Lane {
+    fn run(
+        queued: &[Queued],
+        members: Vec<usize>,
+        mut world: World,
+        ctx: &strata_terrain::EditContext<'_>,
+    ) -> Lane {
+        let mut lane = Lane {
+            results: Vec::with_capacity(members.len()),
+            jobs: Vec::new(),
+            slots: Vec::new(),
+            finals: BTreeMap::new(),
+            world: World::new(world.generator().clone()),
+        };
+        let mut changed: Vec<(usize, usize, ChunkPos)> = Vec::new();
+        for i in members {
+            let edit = &queued[i].request.edit;
+            let outcome = match edit.apply(&mut world, ctx) {
+                Ok(o) => o,
+                Err(e) => {
+                    lane.results.push((i, Err(e.to_string())));
+                    continue;
+                }
+            };
+            let mut changes = Vec::with_capacity(outcome.changed.len());
+            for c in outcome.changed {
+                let delta = {
+                    let now = world.peek(c.pos).map(|v| &v.chunk);
+                    let now = now.expect("apply leaves changed chunks loaded");
+                    // `apply` raised the version, so the order check cannot fail.
+                    ChunkDelta::encode(c.pos, c.from_version, c.to_version, &c.before, now)
+                        .expect("apply raises the version")
+                };
+                // Meshed once, after the lane's last edit.
+                changed.push((i, changes.len(), c.pos));
+                lane.finals.insert(c.pos, c.to_version);
+                changes.push(ChunkUpdate {
+                    pos: c.pos,
+                    from_version: c.from_version,
+                    to_version: c.to_version,
+                    delta,
+                    mesh_hash: 0,
+                });
+            }
+            lane.results.push((i, Ok((outcome.bbox, changes))));
+        }
+        // One mesh per changed chunk, of the world as the tick leaves it;
+        // the neighbours (its apron) lie in the footprint.
+        let mut job_of: BTreeMap<ChunkPos, usize> = BTreeMap::new();
+        for (&pos, &version) in &lane.finals {
+            world.load(with_neighbours(pos));
+            job_of.insert(pos, lane.jobs.len());
+            lane.jobs
+                .push((pos, version, Neighborhood::from_world(&world, pos)));
+        }
+        lane.slots = changed
+            .into_iter()
+            .map(|(i, change, pos)| (i, change, job_of[&pos]))
+            .collect();
+        lane.world = world;
+        lane
     }
-    keep
 }

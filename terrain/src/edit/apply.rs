@@ -225,14 +225,15 @@ impl Edit {
             });
             if n > 0 {
                 voxels_changed += n;
-                pending.push((cpos, before.clone(), after));
+                pending.push((cpos, after));
             }
         }
+        // The world's own copy becomes each change's `before`: no clone.
         let changed = pending
             .into_iter()
-            .map(|(pos, before, after)| {
+            .map(|(pos, after)| {
                 let from_version = world.peek(pos).expect("loaded").version;
-                let to_version = world.commit(pos, after);
+                let (to_version, before) = world.commit_replace(pos, after);
                 ChunkChange {
                     pos,
                     from_version,

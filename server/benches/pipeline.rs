@@ -1,0 +1,357 @@
+//! The edit pipeline in process: the engine thread with its sequencer,
+//! worker pool and real sled store in a temp dir; no QUIC. Sessions are
+//! the engine's own bounded queues, drained by one thread.
+//!
+//! `SPOTS` places far apart (one region each), each with one editor and
+//! `WATCHERS` watchers subscribed around it, so every chunk an edit changes
+//! is watched by `WATCHERS` sessions. Editors keep `IN_FLIGHT` edits
+//! (mine and build, radius 4, alternating, so each one changes voxels)
+//! queued, as fast as the engine takes them. For each worker count it
+//! prints durable (acknowledged) edits/s, deltas queued to sessions per
+//! second, and CPU ms of this process per edit.
+//!
+//! `cargo bench -p strata-server --bench pipeline` (1, 2, 4 and 8 workers)
+//! or `... -- 1 2` for chosen counts; `STRATA_BENCH_SECONDS` sets the
+//! measured time per count (default 6).
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use strata_protocol::{EditRequest, PositionUpdate, Role};
+use strata_server::engine::{
+    Command, Engine, EngineConfig, EngineHandle, LatestPosition, StreamPolicy,
+};
+use strata_server::interest::InterestConfig;
+use strata_server::net::writer::FrameSender;
+use strata_server::sequencer::{Sequencer, SequencerConfig};
+use strata_server::store::{ChunkStore, SledStore, WorldMeta, STORE_FORMAT_VERSION};
+use strata_server::validate::bounds::WorldBounds;
+use strata_server::validate::ratelimit::BucketConfig;
+use strata_server::validate::ValidationConfig;
+use strata_terrain::edit::StructureLibrary;
+use strata_terrain::material::ids;
+use strata_terrain::world::FlatGenerator;
+use strata_terrain::{ChunkPos, Edit, Fixed, FixedVec3, MaterialTable, Voxel, World};
+use tokio::sync::mpsc::Receiver;
+
+const SPOTS: i32 = 16;
+const WATCHERS: usize = 50;
+/// Edits sent but not yet acknowledged or refused, at most.
+const IN_FLIGHT: u64 = 768;
+const WARMUP: Duration = Duration::from_secs(2);
+/// Each session's update queue, as `[net] writer_queue`'s default.
+const SESSION_QUEUE: usize = 1024;
+
+fn main() -> anyhow::Result<()> {
+    let metrics = strata_server::metrics::install()?;
+    let mut counts: Vec<usize> = std::env::args()
+        .skip(1)
+        .filter_map(|a| a.parse().ok())
+        .collect();
+    if counts.is_empty() {
+        counts = vec![1, 2, 4, 8];
+    }
+    let seconds: u64 = std::env::var("STRATA_BENCH_SECONDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(6);
+    println!(
+        "pipeline: {SPOTS} spots x ({WATCHERS} watchers + 1 editor), {seconds} s each, {} cores",
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    );
+    println!("| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick |");
+    println!("|---|---|---|---|---|---|");
+    for workers in counts {
+        let r = run(workers, Duration::from_secs(seconds), &metrics)?;
+        println!(
+            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} |",
+            r.edits / r.secs,
+            r.deltas / r.secs,
+            r.deltas / r.edits.max(1.0),
+            r.cpu_ms / r.edits.max(1.0),
+            r.lanes
+        );
+    }
+    Ok(())
+}
+
+struct Result {
+    edits: f64,
+    deltas: f64,
+    secs: f64,
+    cpu_ms: f64,
+    lanes: f64,
+}
+
+/// One session's end of the engine's queues.
+struct Session {
+    id: u64,
+    spot: (i32, i32),
+}
+
+fn run(
+    workers: usize,
+    measure: Duration,
+    metrics: &metrics_exporter_prometheus::PrometheusHandle,
+) -> anyhow::Result<Result> {
+    let tmp = tempfile::tempdir()?;
+    let store: Arc<dyn ChunkStore> = Arc::new(SledStore::open(&tmp.path().join("world.sled"))?);
+    store.init_meta(&WorldMeta {
+        format_version: STORE_FORMAT_VERSION,
+        seed: 0,
+        generator_version: 0,
+        generator_params: "flat stone below y = 0".into(),
+        last_seq: 0,
+    })?;
+    let lots = BucketConfig {
+        capacity: 1 << 40,
+        per_second: 0,
+    };
+    let validation = ValidationConfig {
+        edit_rate: lots,
+        volume_rate: lots,
+        ..Default::default()
+    };
+    let world = World::new(Arc::new(FlatGenerator {
+        ground: Voxel::solid(ids::STONE),
+    }));
+    let seq = Sequencer::new(
+        world,
+        SequencerConfig::default(),
+        validation.clone(),
+        0,
+        MaterialTable::default(),
+        StructureLibrary::default(),
+        Vec::new(),
+    );
+    let engine = Engine::new(
+        seq,
+        store,
+        EngineConfig {
+            workers,
+            ..Default::default()
+        },
+        StreamPolicy {
+            send_budget: 1 << 20,
+            regenerable: true,
+        },
+        InterestConfig::default(),
+        WorldBounds::default(),
+        Default::default(),
+    )?;
+    let (engine, thread) = engine.spawn(|| {})?;
+
+    let mut queues: Vec<(Receiver<Bytes>, bool)> = Vec::new();
+    let mut kicks = Vec::new();
+    let mut editors = Vec::new();
+    let mut next_id = 1;
+    for s in 0..SPOTS {
+        // 512 voxels apart: two 8-chunk regions.
+        let spot = ((s % 4) * 512 + 100, (s / 4) * 512 + 100);
+        for w in 0..=WATCHERS {
+            let id = next_id;
+            next_id += 1;
+            let session = join(&engine, id, spot, w == 0, &mut queues, &mut kicks)?;
+            if w == 0 {
+                editors.push(session);
+            }
+        }
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    let verdicts = Arc::new(AtomicU64::new(0));
+    let drain = {
+        let (stop, verdicts) = (stop.clone(), verdicts.clone());
+        std::thread::spawn(move || drain(queues, &stop, &verdicts))
+    };
+
+    let mut sent = 0u64;
+    let mut feed = |until: Instant| {
+        while Instant::now() < until {
+            let done = verdicts.load(Ordering::Relaxed);
+            while sent < done + IN_FLIGHT {
+                let e = &editors[(sent % editors.len() as u64) as usize];
+                if !engine.try_send(Command::Edit {
+                    session: e.id,
+                    request: edit(e.spot, sent),
+                }) {
+                    break;
+                }
+                sent += 1;
+            }
+            std::thread::sleep(Duration::from_micros(500));
+        }
+    };
+    feed(Instant::now() + WARMUP);
+    let before = Counters::read(metrics);
+    let started = Instant::now();
+    feed(started + measure);
+    let after = Counters::read(metrics);
+    let secs = started.elapsed().as_secs_f64();
+
+    engine.stop();
+    thread
+        .join()
+        .map_err(|_| anyhow::anyhow!("engine panicked"))??;
+    stop.store(true, Ordering::Relaxed);
+    drain
+        .join()
+        .map_err(|_| anyhow::anyhow!("drain panicked"))?;
+    drop(kicks);
+    Ok(Result {
+        edits: after.accepted - before.accepted,
+        deltas: after.deltas - before.deltas,
+        secs,
+        cpu_ms: (after.cpu - before.cpu) * 1e3,
+        lanes: (after.lanes_sum - before.lanes_sum)
+            / (after.lanes_count - before.lanes_count).max(1.0),
+    })
+}
+
+/// Joins a session at `spot`: an editor stands there, a watcher subscribes
+/// around the chunk its edits change.
+fn join(
+    engine: &EngineHandle,
+    id: u64,
+    spot: (i32, i32),
+    editor: bool,
+    queues: &mut Vec<(Receiver<Bytes>, bool)>,
+    kicks: &mut Vec<tokio::sync::oneshot::Receiver<strata_server::engine::Kick>>,
+) -> anyhow::Result<Session> {
+    let (control, control_rx) = FrameSender::channel(SESSION_QUEUE);
+    let (updates, updates_rx) = FrameSender::channel(SESSION_QUEUE);
+    // An editor's control queue carries only its edits' verdicts.
+    queues.extend([(control_rx, editor), (updates_rx, false)]);
+    let (reply, reply_rx) = tokio::sync::oneshot::channel();
+    let (kick, kick_rx) = tokio::sync::oneshot::channel();
+    kicks.push(kick_rx);
+    let position = Arc::new(LatestPosition::default());
+    send(
+        engine,
+        Command::Join {
+            session: id,
+            player: format!("{}{id}", if editor { "e" } else { "w" }),
+            role: Role::Player,
+            control,
+            updates,
+            reply,
+            kick,
+            position: position.clone(),
+        },
+    );
+    reply_rx.blocking_recv()?;
+    if editor {
+        position.offer(PositionUpdate {
+            seq: 1,
+            pos: FixedVec3::from_voxels(spot.0, 0, spot.1),
+        });
+        send(engine, Command::Position { session: id });
+    } else {
+        send(
+            engine,
+            Command::Subscribe {
+                session: id,
+                center: ChunkPos::new(spot.0.div_euclid(32), 0, (spot.1 + 5).div_euclid(32)),
+                radius: 1,
+            },
+        );
+    }
+    Ok(Session { id, spot })
+}
+
+fn send(engine: &EngineHandle, mut cmd: Command) {
+    loop {
+        match engine.offer(cmd) {
+            Ok(()) => return,
+            Err(std::sync::mpsc::TrySendError::Full(back)) => cmd = back,
+            Err(e) => panic!("engine gone: {e}"),
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// Mine and build in turn at one place in front of the editor.
+fn edit(spot: (i32, i32), n: u64) -> EditRequest {
+    let center = FixedVec3::from_voxels(spot.0, 0, spot.1 + 5);
+    let radius = Fixed::from_voxels(4);
+    let edit = if (n / SPOTS as u64) % 2 == 0 {
+        Edit::Mine {
+            center,
+            radius,
+            strength: 255,
+        }
+    } else {
+        Edit::Build {
+            center,
+            radius,
+            material: ids::DIRT,
+            strength: 255,
+        }
+    };
+    EditRequest {
+        client_edit_id: n,
+        edit,
+    }
+}
+
+/// Empties every session queue until `stop`, counting the frames of
+/// queues marked as verdicts.
+fn drain(mut queues: Vec<(Receiver<Bytes>, bool)>, stop: &AtomicBool, verdicts: &AtomicU64) {
+    while !stop.load(Ordering::Relaxed) {
+        for (q, counted) in &mut queues {
+            let mut n = 0;
+            while q.try_recv().is_ok() {
+                n += 1;
+            }
+            if *counted && n > 0 {
+                verdicts.fetch_add(n, Ordering::Relaxed);
+            }
+        }
+        // A session gets at most one frame batch per 10 ms tick.
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+struct Counters {
+    accepted: f64,
+    deltas: f64,
+    cpu: f64,
+    lanes_sum: f64,
+    lanes_count: f64,
+}
+
+impl Counters {
+    fn read(m: &metrics_exporter_prometheus::PrometheusHandle) -> Self {
+        Counters {
+            accepted: counter(m, "strata_edits_accepted_total"),
+            deltas: counter(m, "strata_deltas_sent_total"),
+            cpu: process_cpu_seconds(),
+            lanes_sum: counter(m, "strata_tick_lanes_sum"),
+            lanes_count: counter(m, "strata_tick_lanes_count"),
+        }
+    }
+}
+
+/// The sum of every series of `name` in the Prometheus text.
+fn counter(m: &metrics_exporter_prometheus::PrometheusHandle, name: &str) -> f64 {
+    m.render()
+        .lines()
+        .filter(|l| {
+            l.strip_prefix(name)
+                .is_some_and(|rest| rest.starts_with(' ') || rest.starts_with('{'))
+        })
+        .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+        .sum()
+}
+
+/// User plus system CPU seconds of this process, all threads.
+fn process_cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the command name (which may hold spaces) start at ')'.
+    let rest = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    // utime and stime: fields 14 and 15 of the line, 11 and 12 after ')'.
+    (ticks(11) + ticks(12)) / 100.0
+}
