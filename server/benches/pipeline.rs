@@ -12,7 +12,10 @@
 //!
 //! `cargo bench -p strata-server --bench pipeline` (1, 2, 4 and 8 workers)
 //! or `... -- 1 2` for chosen counts; `STRATA_BENCH_SECONDS` sets the
-//! measured time per count (default 6).
+//! measured time per count (default 6), `STRATA_BENCH_IN_FLIGHT` the edits
+//! in flight (default 768). The last columns split the mean tick into the
+//! engine's phases (apply: the region lanes; commit: encode, write, fsync;
+//! fanout: acks and deltas).
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -61,17 +64,25 @@ fn main() -> anyhow::Result<()> {
         "pipeline: {SPOTS} spots x ({WATCHERS} watchers + 1 editor), {seconds} s each, {} cores",
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );
-    println!("| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick |");
-    println!("|---|---|---|---|---|---|");
+    println!(
+        "| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick | edits/tick | tick ms | apply / commit / fanout ms |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
     for workers in counts {
         let r = run(workers, Duration::from_secs(seconds), &metrics)?;
+        let per_tick = |ms: f64| ms / r.ticks.max(1.0);
         println!(
-            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} |",
+            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} | {:.0} | {:.1} | {:.1} / {:.1} / {:.1} |",
             r.edits / r.secs,
             r.deltas / r.secs,
             r.deltas / r.edits.max(1.0),
             r.cpu_ms / r.edits.max(1.0),
-            r.lanes
+            r.lanes,
+            r.edits / r.ticks.max(1.0),
+            per_tick(r.phase_ms[0]),
+            per_tick(r.phase_ms[1]),
+            per_tick(r.phase_ms[2]),
+            per_tick(r.phase_ms[3]),
         );
     }
     Ok(())
@@ -83,6 +94,10 @@ struct Result {
     secs: f64,
     cpu_ms: f64,
     lanes: f64,
+    /// Ticks that committed edits.
+    ticks: f64,
+    /// Whole tick, apply, commit, fanout: ms summed over `ticks`.
+    phase_ms: [f64; 4],
 }
 
 /// One session's end of the engine's queues.
@@ -166,11 +181,15 @@ fn run(
         std::thread::spawn(move || drain(queues, &stop, &verdicts))
     };
 
+    let in_flight: u64 = std::env::var("STRATA_BENCH_IN_FLIGHT")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(IN_FLIGHT);
     let mut sent = 0u64;
     let mut feed = |until: Instant| {
         while Instant::now() < until {
             let done = verdicts.load(Ordering::Relaxed);
-            while sent < done + IN_FLIGHT {
+            while sent < done + in_flight {
                 let e = &editors[(sent % editors.len() as u64) as usize];
                 if !engine.try_send(Command::Edit {
                     session: e.id,
@@ -206,6 +225,8 @@ fn run(
         cpu_ms: (after.cpu - before.cpu) * 1e3,
         lanes: (after.lanes_sum - before.lanes_sum)
             / (after.lanes_count - before.lanes_count).max(1.0),
+        ticks: after.lanes_count - before.lanes_count,
+        phase_ms: std::array::from_fn(|i| (after.phases[i] - before.phases[i]) * 1e3),
     })
 }
 
@@ -319,7 +340,16 @@ struct Counters {
     cpu: f64,
     lanes_sum: f64,
     lanes_count: f64,
+    phases: [f64; 4],
 }
+
+/// Series summed into [`Counters::phases`].
+const PHASES: [&str; 4] = [
+    "strata_tick_seconds_sum",
+    "strata_tick_phase_seconds_sum{phase=\"apply\"}",
+    "strata_tick_phase_seconds_sum{phase=\"commit\"}",
+    "strata_tick_phase_seconds_sum{phase=\"fanout\"}",
+];
 
 impl Counters {
     fn read(m: &metrics_exporter_prometheus::PrometheusHandle) -> Self {
@@ -329,6 +359,7 @@ impl Counters {
             cpu: process_cpu_seconds(),
             lanes_sum: counter(m, "strata_tick_lanes_sum"),
             lanes_count: counter(m, "strata_tick_lanes_count"),
+            phases: PHASES.map(|p| counter(m, p)),
         }
     }
 }
@@ -338,8 +369,9 @@ fn counter(m: &metrics_exporter_prometheus::PrometheusHandle, name: &str) -> f64
     m.render()
         .lines()
         .filter(|l| {
-            l.strip_prefix(name)
-                .is_some_and(|rest| rest.starts_with(' ') || rest.starts_with('{'))
+            l.strip_prefix(name).is_some_and(|rest| {
+                rest.starts_with(' ') || (rest.starts_with('{') && !name.ends_with('}'))
+            })
         })
         .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
         .sum()

@@ -8,7 +8,7 @@ use strata_terrain::mesh::Neighborhood;
 use strata_terrain::ChunkPos;
 
 use rayon::prelude::*;
-use strata_terrain::{VoxelBox, World};
+use strata_terrain::{Chunk, VoxelBox, World};
 
 use super::batch::*;
 use super::regions::{self, RegionSpan};
@@ -141,7 +141,7 @@ impl Sequencer {
         let mut results: Vec<Option<LaneResult>> = (0..queued.len()).map(|_| None).collect();
         let mut jobs = Vec::new();
         let mut job_slots = Vec::new();
-        let mut finals: BTreeMap<ChunkPos, u64> = BTreeMap::new();
+        let mut finals: BTreeMap<ChunkPos, (u64, Chunk)> = BTreeMap::new();
         for lane in lanes {
             for (i, r) in lane.results {
                 results[i] = Some(r);
@@ -197,15 +197,7 @@ impl Sequencer {
                 job,
             })
             .collect();
-        // The final states, copied for the store (from the world, where
-        // every lane's chunks are back).
-        out.batch.chunks = finals
-            .into_iter()
-            .map(|(p, v)| {
-                let c = self.world.peek(p).expect("a changed chunk is loaded");
-                (p, v, c.chunk.clone())
-            })
-            .collect();
+        out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
         out.batch.last_seq = self.last_seq();
         (out, PendingMeshes { jobs, slots })
     }
@@ -234,8 +226,8 @@ struct Lane {
     jobs: Vec<(ChunkPos, u64, Neighborhood)>,
     /// Each change's (queue index, change index, job index).
     slots: Vec<(usize, usize, usize)>,
-    /// Each changed chunk's final version.
-    finals: BTreeMap<ChunkPos, u64>,
+    /// Each changed chunk's final version and state (the store's copy).
+    finals: BTreeMap<ChunkPos, (u64, Chunk)>,
     /// The lane's chunks, to be put back in the world.
     world: World,
 }
@@ -255,6 +247,7 @@ impl Lane {
             world: World::new(world.generator().clone()),
         };
         let mut changed: Vec<(usize, usize, ChunkPos)> = Vec::new();
+        let mut versions: BTreeMap<ChunkPos, u64> = BTreeMap::new();
         for i in members {
             let edit = &queued[i].request.edit;
             let outcome = match edit.apply(&mut world, ctx) {
@@ -275,7 +268,7 @@ impl Lane {
                 };
                 // Meshed once, after the lane's last edit.
                 changed.push((i, changes.len(), c.pos));
-                lane.finals.insert(c.pos, c.to_version);
+                versions.insert(c.pos, c.to_version);
                 changes.push(ChunkUpdate {
                     pos: c.pos,
                     from_version: c.from_version,
@@ -288,12 +281,15 @@ impl Lane {
         }
         // One mesh per changed chunk, of the world as the tick leaves it;
         // the neighbours (its apron) lie in the footprint.
+        // The store's copy of each final state is made here too.
         let mut job_of: BTreeMap<ChunkPos, usize> = BTreeMap::new();
-        for (&pos, &version) in &lane.finals {
+        for (pos, version) in versions {
             world.load(with_neighbours(pos));
             job_of.insert(pos, lane.jobs.len());
             lane.jobs
                 .push((pos, version, Neighborhood::from_world(&world, pos)));
+            let state = world.peek(pos).expect("loaded above").chunk.clone();
+            lane.finals.insert(pos, (version, state));
         }
         lane.slots = changed
             .into_iter()
