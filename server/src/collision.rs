@@ -180,9 +180,14 @@ impl CollisionCache {
     }
 
     /// Drops the mesh of `pos`.
-    pub fn invalidate(&mut self, pos: ChunkPos) {
-        if let Some(e) = self.entries.remove(&pos) {
-            self.lru.remove(&e.stamp);
+    /// Drops the mesh of `pos`; returns whether there was one.
+    pub fn invalidate(&mut self, pos: ChunkPos) -> bool {
+        match self.entries.remove(&pos) {
+            Some(e) => {
+                self.lru.remove(&e.stamp);
+                true
+            }
+            None => false,
         }
     }
 
@@ -202,8 +207,10 @@ impl CollisionCache {
 
     /// Drops the meshes that read any voxel of `pos` inside `changed` (world
     /// coordinates): `pos`'s own, and each neighbour's whose apron overlaps
-    /// the box. A small edit in a chunk's middle keeps every neighbour's mesh.
-    pub fn invalidate_touched(&mut self, pos: ChunkPos, changed: VoxelBox) {
+    /// the box. A small edit in a chunk's middle keeps every neighbour's
+    /// mesh. Returns the chunks whose mesh was dropped.
+    pub fn invalidate_touched(&mut self, pos: ChunkPos, changed: VoxelBox) -> Vec<ChunkPos> {
+        let mut dropped = Vec::new();
         let o = pos.origin();
         let lo = [
             changed.min.x - o.x,
@@ -228,11 +235,14 @@ impl CollisionCache {
                             l <= max + shift && h >= LOCAL_MIN + shift
                         });
                     if let Some(p) = pos.offset(dx, dy, dz).filter(|_| reads) {
-                        self.invalidate(p);
+                        if self.invalidate(p) {
+                            dropped.push(p);
+                        }
                     }
                 }
             }
         }
+        dropped
     }
 
     /// Makes sure each listed chunk has a mesh for its current version in

@@ -181,6 +181,24 @@ fn mesh_hashes_describe_the_world_at_the_tick_end() {
 }
 
 #[test]
+fn stale_neighbour_meshes_in_use_are_rebuilt_by_the_tick() {
+    // A mine at x = 98 changes chunk x 3 (voxels 96..) and so the apron of
+    // chunk x 2, whose voxels stay as they were.
+    let mut s = ready(ValidationConfig::default());
+    let (used, unused) = (ChunkPos::new(2, -1, 3), ChunkPos::new(2, 0, 3));
+    s.mesh_hash(used);
+    assert!(s.collision().get(unused, 0).is_none());
+    s.submit(PLAYER, req(1, mine(98, -1, Z + 4, 2)), 0).unwrap();
+    let out = s.tick(0);
+    assert!(out.applied[0].changes.iter().all(|c| c.pos.x == 3));
+    let nb = Neighborhood::from_world(s.world(), used);
+    let fresh = CollisionMesh::build(used, 0, &nb);
+    let cached = s.collision().get(used, 0).expect("rebuilt, not left stale");
+    assert_eq!(cached.hash, fresh.hash);
+    assert!(s.collision().get(unused, 0).is_none(), "only meshes in use");
+}
+
+#[test]
 fn adopted_generated_chunks_never_replace_loaded_ones() {
     let mut s = ready(ValidationConfig::default());
     let gen = s.world().generator().clone();

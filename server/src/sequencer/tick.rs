@@ -1,6 +1,6 @@
 //! `Sequencer::tick`: apply queued edits in order, number them, build deltas.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use strata_protocol::RejectReason;
 use strata_terrain::delta::ChunkDelta;
@@ -26,7 +26,8 @@ struct MeshSlot {
 
 /// The collision meshes one tick's changes need: one per changed chunk, of
 /// its state at the tick's end, which is what clients compare at `TickEnd`
-/// (every change of the chunk in the tick carries that mesh's hash).
+/// (every change of the chunk in the tick carries that mesh's hash), and
+/// one per cached neighbour mesh the changes made stale (`rewarm`).
 /// Building them is pure ([`Self::build`]), so the shell runs it on the
 /// rayon pool while the store commits, then hands the result to
 /// [`Sequencer::finish_tick`].
@@ -153,6 +154,8 @@ impl Sequencer {
             self.world.absorb(lane.world);
         }
         let mut applied_at = vec![usize::MAX; queued.len()];
+        // Cached meshes the tick's changes made stale.
+        let mut dropped: BTreeSet<ChunkPos> = BTreeSet::new();
         for (i, (q, r)) in queued.into_iter().zip(results).enumerate() {
             let (bbox, changes) = match r.expect("every queued edit is in one lane") {
                 Ok(done) => done,
@@ -168,7 +171,7 @@ impl Sequencer {
             let seq = self.next_seq;
             self.next_seq += 1;
             for c in &changes {
-                self.collision.invalidate_touched(c.pos, bbox);
+                dropped.extend(self.collision.invalidate_touched(c.pos, bbox));
                 self.residency.mark_present(c.pos);
             }
             out.batch.entries.push(LogEntry {
@@ -197,13 +200,34 @@ impl Sequencer {
                 job,
             })
             .collect();
+        self.rewarm(dropped, &finals, &mut jobs);
         out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
         out.batch.last_seq = self.last_seq();
         (out, PendingMeshes { jobs, slots })
     }
 
-    /// Fills in the mesh hashes of `out` and caches the meshes that still
-    /// match the world.
+    /// Adds a job for each unchanged chunk whose cached mesh the tick made
+    /// stale (its apron changed): it was in use, and otherwise the next
+    /// line-of-sight check through it would mesh it on the engine thread.
+    /// Only chunks whose 27 chunks are all resident: anything else would be
+    /// meshed from generated stand-ins.
+    fn rewarm(
+        &self,
+        dropped: BTreeSet<ChunkPos>,
+        changed: &BTreeMap<ChunkPos, (u64, Chunk)>,
+        jobs: &mut Vec<(ChunkPos, u64, Neighborhood)>,
+    ) {
+        for pos in dropped {
+            let resident = || self.residency.missing(&self.world, with_neighbours(pos));
+            if changed.contains_key(&pos) || !resident().is_empty() {
+                continue;
+            }
+            let version = self.world.peek(pos).map_or(0, |c| c.version);
+            jobs.push((pos, version, Neighborhood::from_world(&self.world, pos)));
+        }
+    }
+
+    /// Fills in the mesh hashes of `out` and caches the built meshes.
     pub fn finish_tick(&mut self, out: &mut TickOutput, built: BuiltMeshes) {
         let BuiltMeshes { meshes, slots } = built;
         for slot in &slots {

@@ -90,7 +90,7 @@ impl EdgeParam {
 
 /// Vertices finished together by [`Builder::flush`]: enough for the normalisation loop to run
 /// on full vectors and for independent square roots and divisions to overlap.
-const BATCH: usize = 32;
+pub(crate) const BATCH: usize = 32;
 
 /// Accumulates one chunk's mesh.
 pub(crate) struct Builder<'a> {
@@ -176,7 +176,7 @@ impl<'a> Builder<'a> {
             mat[j] = vertex_material(density, materials, self.iso, solid_at, len);
         }
         let mut normals = [[0.0f32; 3]; BATCH];
-        normalise(&raw, &flat, &mut normals, n);
+        normalise(&raw, |j| flat[j], &mut normals, n);
         let m = &mut self.mesh;
         m.positions.extend_from_slice(&pos[..n]);
         m.normals.extend_from_slice(&normals[..n]);

@@ -12,7 +12,8 @@
 //! * Speed (`regular.rs`): solid flags of each sample row are packed into a `u64` (SWAR
 //!   compare, 8 samples per step); word operations on the four rows under a row of cells find
 //!   the mixed cells, and only those are visited; a compile-time table flattens Lengyel's
-//!   class, vertex and triangle tables to "case -> triangle corners as cell edges". Vertex
+//!   class, vertex and triangle tables to "case -> triangle corners as cell edges", and a
+//!   fixed slot layout makes each cell edge's slot offset a constant. Vertex
 //!   data is computed afterwards in batches (`builder.rs`): the edge parameter in exact
 //!   integer arithmetic for half-integer isovalues, square roots and divisions of a batch
 //!   in one vectorisable loop. Scratch memory is reused per thread.

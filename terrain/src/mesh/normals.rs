@@ -27,7 +27,9 @@ pub(crate) fn gradient(density: &[u8], i: usize) -> [i32; 3] {
 pub(crate) fn raw_normal(g0: [i32; 3], g1: [i32; 3], q: u32, t_one: u32) -> [f64; 3] {
     let (w0, w1) = (i64::from(t_one - q), i64::from(q));
     // The gradient points towards higher density (into solid); the normal points out of it.
-    [0, 1, 2].map(|a| -(i64::from(g0[a]) * w0 + i64::from(g1[a]) * w1) as f64)
+    // Explicit lanes: `array::map` was sometimes left as an out-of-line call.
+    let n = |a: usize| -(i64::from(g0[a]) * w0 + i64::from(g1[a]) * w1) as f64;
+    [n(0), n(1), n(2)]
 }
 
 /// Normal used when the interpolated gradient vanishes (flat plateaus): the edge direction
@@ -35,25 +37,40 @@ pub(crate) fn raw_normal(g0: [i32; 3], g1: [i32; 3], q: u32, t_one: u32) -> [f64
 #[inline(always)]
 pub(crate) fn fallback_normal(axis: usize, lower_solid: bool) -> [f32; 3] {
     let sign = if lower_solid { 1.0 } else { -1.0 };
-    [0, 1, 2].map(|a| if a == axis { sign } else { 0.0 })
+    let c = |a: usize| if a == axis { sign } else { 0.0 };
+    [c(0), c(1), c(2)]
 }
 
-/// Normalises the first `n` raw normals of a batch (`raw[axis][vertex]`, from [`raw_normal`])
-/// once in f64: `c * (1 / sqrt(len2))`, rounded to f32. Zero vectors take their `flat` normal
-/// instead.
+/// Normalises the first `n` raw normals of a batch (`raw[axis][vertex]`, from
+/// [`raw_normal`]) once in f64: `c * (1 / sqrt(len2))`, rounded to f32. Zero vectors take
+/// `flat(vertex)` instead.
 ///
 /// The square roots and reciprocals run as one loop over plain arrays, so they vectorise
-/// and overlap; each lane gives the same bits as the scalar formula.
+/// and overlap; each lane gives the same bits as the scalar formula. A full batch takes a
+/// fixed-length path (no remainder loop).
 #[inline(always)]
 pub(crate) fn normalise<const N: usize>(
     raw: &[[f64; N]; 3],
-    flat: &[[f32; 3]; N],
+    flat: impl Fn(usize) -> [f32; 3],
+    out: &mut [[f32; 3]; N],
+    n: usize,
+) {
+    if n >= N {
+        normalise_lanes(raw, flat, out, N);
+    } else {
+        normalise_lanes(raw, flat, out, n);
+    }
+}
+
+#[inline(always)]
+fn normalise_lanes<const N: usize>(
+    raw: &[[f64; N]; 3],
+    flat: impl Fn(usize) -> [f32; 3],
     out: &mut [[f32; 3]; N],
     n: usize,
 ) {
     let [x, y, z] = raw;
     let mut inv = [0.0f64; N];
-    let n = n.min(N);
     for j in 0..n {
         let len2 = x[j] * x[j] + y[j] * y[j] + z[j] * z[j];
         // One division, then multiplies. A zero length gives infinity, replaced below.
@@ -61,9 +78,13 @@ pub(crate) fn normalise<const N: usize>(
     }
     for j in 0..n {
         out[j] = if inv[j].is_finite() {
-            [x[j], y[j], z[j]].map(|c| (c * inv[j]) as f32)
+            [
+                (x[j] * inv[j]) as f32,
+                (y[j] * inv[j]) as f32,
+                (z[j] * inv[j]) as f32,
+            ]
         } else {
-            flat[j]
+            flat(j)
         };
     }
 }

@@ -50,7 +50,7 @@ fn bytes_at_least(d: u64, c: u64) -> u64 {
 
 /// Solid bits (`density > t`) of one row of `n` samples `stride` apart from index `start`.
 #[inline]
-fn row_bits(density: &[u8], start: usize, stride: usize, n: usize, t: u8) -> u64 {
+pub(crate) fn row_bits(density: &[u8], start: usize, stride: usize, n: usize, t: u8) -> u64 {
     if stride == 1 {
         let row = &density[start..start + n];
         let c = u64::from_le_bytes([t + 1; 8]);
@@ -80,6 +80,31 @@ fn row_bits(density: &[u8], start: usize, stride: usize, n: usize, t: u8) -> u64
 struct Scratch {
     rows: Vec<u64>,
     slots: Vec<u32>,
+    cells: CellScratch,
+}
+
+/// Slots per sample row, whatever the chunk's size: with a fixed layout the slot offset of
+/// every cell edge is a compile-time constant ([`EDGE_SLOTS`]).
+pub(crate) const PITCH: usize = 33;
+/// Slots of one sample layer (three axes per sample).
+pub(crate) const LAYER: usize = PITCH * PITCH * 3;
+/// Slots of two sample layers, rounded up to a power of two so that masked indices need no
+/// bounds checks.
+pub(crate) const SLOTS: usize = 8192;
+const _: () = assert!(SLOTS >= 2 * LAYER);
+
+/// Indices of one layer of cells before they are appended (at most 32 x 32 cells of five
+/// triangles; a power of two, for masked indices).
+pub(crate) const CELL_INDICES: usize = 16384;
+const _: () = assert!(CELL_INDICES >= 32 * 32 * 15);
+
+/// Buffer of [`CELL_INDICES`] indices.
+pub(crate) struct CellScratch(pub(crate) Box<[u32; CELL_INDICES]>);
+
+impl Default for CellScratch {
+    fn default() -> Self {
+        Self(Box::new([0; CELL_INDICES]))
+    }
 }
 
 thread_local! {
@@ -158,19 +183,17 @@ fn mesh_regular_in(
     b.reserve(mixed + mixed / 4, mixed * 2 + mixed / 2);
 
     // Vertex slots of two sample z-layers, one after the other: layer `z & 1` holds layer z.
-    let layer = gx * gy * 3;
-    let slots = &mut scratch.slots;
     // No need to clear: every slot a cell reads is written first in this call.
-    slots.resize(2 * layer, 0);
+    scratch.slots.resize(SLOTS, 0);
+    let slots: &mut [u32; SLOTS] = (&mut scratch.slots[..]).try_into().expect("SLOTS long");
     let grid = Grid {
         rows,
-        gx,
         gy,
         stride: s,
         cell_mask: (1u64 << cells[0]) - 1,
         full,
     };
-    let part = |z: usize| (z & 1) * layer..(z & 1) * layer + layer;
+    let part = |z: usize| (z & 1) * LAYER..(z & 1) * LAYER + LAYER;
     // Edge pass first (flying-edges style): every sign-changing edge of a sample layer gets
     // its vertex before the cells that use it, so the cell loop only reads slots. Slots of
     // edges without a sign change keep stale values, but no cell case reads them.
@@ -178,35 +201,71 @@ fn mesh_regular_in(
     for z in 0..cells[2] {
         grid.emit_z(b, &mut slots[part(z)], z);
         grid.emit_xy(b, &mut slots[part(z + 1)], z + 1, cells[1]);
-        // Slot of the x edge at each cell corner, relative to the cell's lower corner.
-        let corner_slot: [usize; 8] =
-            std::array::from_fn(|c| part(z + (c >> 2)).start + (((c >> 1) & 1) * gx + (c & 1)) * 3);
-        for y in 0..cells[1] {
-            let m00 = rows[z * gy + y];
-            let m10 = rows[z * gy + y + 1];
-            let m01 = rows[(z + 1) * gy + y];
-            let m11 = rows[(z + 1) * gy + y + 1];
-            let any = m00 | m10 | m01 | m11;
-            let all = m00 & m10 & m01 & m11;
-            let mut active = (any | (any >> 1)) & !(all & (all >> 1)) & grid.cell_mask;
-            while active != 0 {
-                let x = active.trailing_zeros() as usize;
-                active &= active - 1;
-                let case = ((m00 >> x) & 3)
-                    | ((m10 >> x) & 3) << 2
-                    | ((m01 >> x) & 3) << 4
-                    | ((m11 >> x) & 3) << 6;
-                let tris = &CASE_TRIANGLES[case as usize];
-                let base = (y * gx + x) * 3;
-                // A plain push loop: `extend` here compiled to an out-of-line call per cell.
-                for &e in &tris.edges[..usize::from(tris.len)] {
-                    let slot = corner_slot[usize::from(e >> 2)] + base + usize::from(e & 3);
-                    b.mesh.indices.push(slots[slot]);
+        cell_layer(&grid, z, slots, &mut scratch.cells.0, &mut b.mesh.indices);
+    }
+}
+
+/// Pushes the triangles of the mixed cells of cell layer `z`, reading vertex ids from
+/// `slots` (two sample layers; layer `z & 1` holds sample layer z).
+pub(crate) fn cell_layer(
+    grid: &Grid,
+    z: usize,
+    slots: &[u32; SLOTS],
+    buf: &mut [u32; CELL_INDICES],
+    out: &mut Vec<u32>,
+) {
+    let (rows, gy) = (grid.rows, grid.gy);
+    let edge_slots = &EDGE_SLOTS[z & 1];
+    // Indices go to a local buffer, appended once per layer: pushing each one reloaded the
+    // vector's length and capacity from memory. Masks stand in for bounds checks.
+    let mut n = 0;
+    for y in 0..gy - 1 {
+        let m00 = rows[z * gy + y];
+        let m10 = rows[z * gy + y + 1];
+        let m01 = rows[(z + 1) * gy + y];
+        let m11 = rows[(z + 1) * gy + y + 1];
+        let any = m00 | m10 | m01 | m11;
+        let all = m00 & m10 & m01 & m11;
+        let mut active = (any | (any >> 1)) & !(all & (all >> 1)) & grid.cell_mask;
+        while active != 0 {
+            let x = active.trailing_zeros() as usize;
+            active &= active - 1;
+            let case = ((m00 >> x) & 3)
+                | ((m10 >> x) & 3) << 2
+                | ((m01 >> x) & 3) << 4
+                | ((m11 >> x) & 3) << 6;
+            let tris = &CASE_TRIANGLES[case as usize];
+            let base = (y * PITCH + x) * 3;
+            for tri in tris.edges[..usize::from(tris.len)].chunks_exact(3) {
+                for &e in tri {
+                    let at = base + usize::from(edge_slots[usize::from(e & 31)]);
+                    buf[n & (CELL_INDICES - 1)] = slots[at & (SLOTS - 1)];
+                    n += 1;
                 }
             }
         }
     }
+    out.extend_from_slice(&buf[..n]);
 }
+
+/// Slot offset of each cell edge (`lower corner << 2 | axis`, see [`CaseTriangles`]) from the
+/// cell's lower corner, for cells whose lower sample layer is slot layer 0 and 1.
+static EDGE_SLOTS: [[u16; 32]; 2] = {
+    let mut out = [[0; 32]; 2];
+    let mut e = 0;
+    while e < 32 {
+        let (corner, axis) = (e >> 2, e & 3);
+        let mut parity = 0;
+        while parity < 2 {
+            let layer = ((corner >> 2) + parity) & 1;
+            let at = layer * LAYER + (((corner >> 1) & 1) * PITCH + (corner & 1)) * 3 + axis;
+            out[parity][e] = at as u16;
+            parity += 1;
+        }
+        e += 1;
+    }
+    out
+};
 
 /// One regular case's triangles with each vertex named by its cell edge, as
 /// `lower corner << 2 | axis` (Lengyel's corner numbering, see `tables.rs`).
@@ -242,16 +301,15 @@ static CASE_TRIANGLES: [CaseTriangles; 256] = {
     out
 };
 
-/// The packed sign grid and its shape, for the edge pass.
-struct Grid<'r> {
-    rows: &'r [u64],
-    gx: usize,
-    gy: usize,
-    stride: usize,
+/// The packed sign grid of one chunk (`gy` rows per layer, one bit per sample) and its shape.
+pub(crate) struct Grid<'r> {
+    pub(crate) rows: &'r [u64],
+    pub(crate) gy: usize,
+    pub(crate) stride: usize,
     /// Bits of the x positions that start a cell (and an x edge).
-    cell_mask: u64,
+    pub(crate) cell_mask: u64,
     /// Bits of all samples in a row.
-    full: u64,
+    pub(crate) full: u64,
 }
 
 impl Grid<'_> {
@@ -265,7 +323,7 @@ impl Grid<'_> {
                 let x = e.trailing_zeros() as usize;
                 e &= e - 1;
                 let lower = [(x * s) as i32, (y * s) as i32, (z * s) as i32];
-                slots[(y * self.gx + x) * 3] = b.defer_vertex(lower, 0, s as u32);
+                slots[(y * PITCH + x) * 3] = b.defer_vertex(lower, 0, s as u32);
             }
             if y < cells_y {
                 let mut e = (m ^ self.rows[z * self.gy + y + 1]) & self.full;
@@ -273,7 +331,7 @@ impl Grid<'_> {
                     let x = e.trailing_zeros() as usize;
                     e &= e - 1;
                     let lower = [(x * s) as i32, (y * s) as i32, (z * s) as i32];
-                    slots[(y * self.gx + x) * 3 + 1] = b.defer_vertex(lower, 1, s as u32);
+                    slots[(y * PITCH + x) * 3 + 1] = b.defer_vertex(lower, 1, s as u32);
                 }
             }
         }
@@ -288,7 +346,7 @@ impl Grid<'_> {
                 let x = e.trailing_zeros() as usize;
                 e &= e - 1;
                 let lower = [(x * s) as i32, (y * s) as i32, (z * s) as i32];
-                slots[(y * self.gx + x) * 3 + 2] = b.defer_vertex(lower, 2, s as u32);
+                slots[(y * PITCH + x) * 3 + 2] = b.defer_vertex(lower, 2, s as u32);
             }
         }
     }

@@ -15,6 +15,10 @@
 //! of chunk meshes are ever alive. Output keys are optional
 //! ([`VolumeMeshOptions::keys`]): they are a quarter of the output memory, and
 //! first-touch page faults on fresh output are a large share of the time.
+//!
+//! On a one-thread pool the same chunks are meshed by `direct.rs` instead:
+//! straight from the volume into the output, with no neighbourhoods, chunk
+//! meshes or weld map, and the same bytes (tests compare both paths).
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
@@ -26,6 +30,8 @@ use super::neighborhood::DIM_X;
 use super::{try_mesh_chunk, Mesh, MeshError, MeshOptions, Neighborhood, VertexKey};
 use crate::material::{ids, MaterialId};
 use crate::{VoxelPos, CHUNK_SIZE};
+
+mod direct;
 
 /// Cells per chunk edge: the chunk mesher's size.
 const CELLS: u32 = CHUNK_SIZE as u32;
@@ -186,7 +192,7 @@ pub struct VolumeMesh {
     pub stats: VolumeStats,
 }
 
-/// Meshes `grid` with the current rayon pool.
+/// Meshes `grid` with the current rayon pool (on one thread: the direct sweep).
 pub fn mesh_volume(
     grid: &VolumeGrid<'_>,
     opts: &VolumeMeshOptions,
@@ -211,6 +217,13 @@ pub fn mesh_volume_with_progress(
         return Err(VolumeError::BadIso(opts.iso));
     }
     let chunks = chunk_list(grid, opts.lod);
+    if rayon::current_num_threads() == 1 {
+        let (mesh, empty_chunks) = direct::mesh_direct(grid, opts, &chunks, progress)?;
+        return Ok(VolumeMesh {
+            stats: stats_of(grid, opts, &mesh, chunks.len(), empty_chunks),
+            mesh,
+        });
+    }
     // Chunks are meshed one z-slab (a layer of chunks) at a time, and each slab is welded
     // while the next one is meshed: only two slabs of chunk meshes are alive at once, so
     // their memory is reused instead of growing by the whole volume's worth.
@@ -256,14 +269,24 @@ pub fn mesh_volume_with_progress(
         weld_slab(s, m)?;
     }
     let mesh = welder.finish();
-    let stats = VolumeStats {
+    let stats = stats_of(grid, opts, &mesh, chunks.len(), empty_chunks);
+    Ok(VolumeMesh { mesh, stats })
+}
+
+fn stats_of(
+    grid: &VolumeGrid<'_>,
+    opts: &VolumeMeshOptions,
+    mesh: &Mesh,
+    chunks: usize,
+    empty_chunks: u64,
+) -> VolumeStats {
+    VolumeStats {
         cells: grid.cell_count(opts.lod),
         vertices: mesh.positions.len() as u64,
         triangles: mesh.triangle_count() as u64,
-        chunks: chunks.len() as u64,
+        chunks: chunks as u64,
         empty_chunks,
-    };
-    Ok(VolumeMesh { mesh, stats })
+    }
 }
 
 /// One chunk of cells: its origin sample and how many voxels of cells it
@@ -316,28 +339,33 @@ fn chunk_is_empty(grid: &VolumeGrid<'_>, iso: f32, job: &ChunkJob) -> bool {
     let len = ex as usize + 1;
     // Element-wise min/max over whole rows (vectorises), reduced once per
     // z-slice: reducing every short row to a scalar cost more than reading it.
-    let (mut lo, mut hi) = ([u8::MAX; ROW], [u8::MIN; ROW]);
+    // 32 lanes stay in registers (33 spilled to the stack); the rest is scalar.
+    let (mut lo, mut hi) = ([u8::MAX; 32], [u8::MIN; 32]);
+    let (mut lo_end, mut hi_end) = (u8::MAX, u8::MIN);
     let (mut any_in, mut any_out) = (false, false);
     for z in oz..=oz + ez {
         for y in oy..=oy + ey {
             let row = grid.index(ox, y, z);
             let samples = &grid.density[row..row + len];
-            if let Ok(full) = <&[u8; ROW]>::try_from(samples) {
-                // A whole chunk row: fixed length, so the loop is straight vector code.
-                for ((l, h), &d) in lo.iter_mut().zip(hi.iter_mut()).zip(full) {
-                    *l = (*l).min(d);
-                    *h = (*h).max(d);
+            let tail = match samples.split_first_chunk::<32>() {
+                Some((head, tail)) => {
+                    for ((l, h), &d) in lo.iter_mut().zip(hi.iter_mut()).zip(head) {
+                        *l = (*l).min(d);
+                        *h = (*h).max(d);
+                    }
+                    tail
                 }
-            } else {
-                for ((l, h), &d) in lo.iter_mut().zip(hi.iter_mut()).zip(samples) {
-                    *l = (*l).min(d);
-                    *h = (*h).max(d);
-                }
+                None => samples,
+            };
+            for &d in tail {
+                lo_end = lo_end.min(d);
+                hi_end = hi_end.max(d);
             }
         }
-        let (slice_lo, slice_hi) = (lo.iter().min(), hi.iter().max());
-        any_in |= slice_hi.is_some_and(|&h| h as f32 > iso);
-        any_out |= slice_lo.is_some_and(|&l| l as f32 <= iso);
+        let slice_lo = lo.iter().fold(lo_end, |a, &b| a.min(b));
+        let slice_hi = hi.iter().fold(hi_end, |a, &b| a.max(b));
+        any_in |= slice_hi as f32 > iso;
+        any_out |= slice_lo as f32 <= iso;
         // Early out once both sides of the surface have been seen.
         if any_in && any_out {
             return false;
@@ -570,9 +598,53 @@ mod tests {
         })
     }
 
+    fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(f)
+    }
+
+    /// Meshes on one thread (the direct sweep) and on two (chunks and welder), and checks
+    /// that both give the same bytes.
     fn mesh(dims: [u32; 3], data: &[u8], opts: &VolumeMeshOptions) -> VolumeMesh {
         let grid = VolumeGrid::new(dims.map(u64::from), data).unwrap();
-        mesh_volume(&grid, opts).unwrap()
+        let one = on_threads(1, || mesh_volume(&grid, opts)).unwrap();
+        let two = on_threads(2, || mesh_volume(&grid, opts)).unwrap();
+        assert_eq!(one, two, "one-thread sweep differs from the chunk path");
+        one
+    }
+
+    #[test]
+    fn sweep_matches_the_chunk_path_at_every_lod_and_size() {
+        // Sizes below, at and around chunk multiples, so chunks are partial, single or
+        // cut on every axis; keys on, so vertex identity is compared too.
+        for dims in [
+            [70, 70, 70],
+            [33, 65, 34],
+            [97, 12, 40],
+            [2, 2, 2],
+            [130, 9, 66],
+        ] {
+            let c = dims.map(|d| d as f64 * 0.45);
+            let data = [
+                sphere(dims, c, dims[0].min(dims[2]) as f64 * 0.4),
+                terrain(dims),
+            ];
+            for (data, lod, iso) in (data.iter())
+                .flat_map(|d| (0..=3).map(move |lod| (d, lod)))
+                .flat_map(|(d, lod)| [127.5, 100.25, 3.0].map(|iso| (d, lod, iso)))
+            {
+                let opts = VolumeMeshOptions {
+                    iso,
+                    lod,
+                    keys: true,
+                    ..Default::default()
+                };
+                mesh(dims, data, &opts);
+            }
+        }
     }
 
     /// Undirected edge -> (uses, signed orientation sum).
