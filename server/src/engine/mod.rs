@@ -233,6 +233,11 @@ impl Engine {
     fn run(mut self, rx: Inbox) -> anyhow::Result<()> {
         let period = Duration::from_millis(self.cfg.tick_ms.max(1));
         let mut next_tick = Instant::now() + period;
+        // When ticks overrun their period, commands already queued still
+        // get until this (half a period after the last tick ended) before
+        // the next tick: else a busy engine would take one command per tick
+        // and submit edits only while commits run.
+        let mut commands_until = Instant::now();
         let mut next_position_save = Instant::now() + POSITION_SAVE_EVERY;
         loop {
             let wait = next_tick.saturating_duration_since(Instant::now());
@@ -240,6 +245,7 @@ impl Engine {
                 Some(cmd) => Ok(cmd),
                 None => rx.recv_timeout(wait),
             };
+            let mut handled = false;
             match next {
                 Ok(Command::Stop) | Err(RecvTimeoutError::Disconnected) => {
                     info!("engine stopping: final tick and flush");
@@ -248,16 +254,20 @@ impl Engine {
                     self.save_positions();
                     return Ok(());
                 }
-                Ok(cmd) => self.handle(cmd),
+                Ok(cmd) => {
+                    self.handle(cmd);
+                    handled = true;
+                }
                 Err(RecvTimeoutError::Timeout) => {}
             }
             self.collect_premeshed();
             let now = Instant::now();
-            if now >= next_tick {
+            if now >= next_tick && !(handled && now < commands_until) {
                 self.tick(Some(&rx))?;
                 // A fixed rate: a long tick shortens the wait for the next
                 // one instead of adding to it (no catching up past now).
                 next_tick = (next_tick + period).max(now);
+                commands_until = Instant::now() + period / 2;
             }
             if now >= next_position_save {
                 self.save_positions();
