@@ -60,6 +60,36 @@ pub struct Welcome {
     pub view_radius: u8,
     /// Sequence number of the last durable edit.
     pub last_seq: u64,
+    /// Where the player's first position report must be.
+    pub start: Start,
+}
+
+/// Where a new session starts (`Welcome::start`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Start {
+    /// The server remembers where the player last stood: the first report
+    /// must be a legal move from `feet`, timed from the `Welcome`.
+    Resume { feet: FixedVec3 },
+    /// A player the server does not remember: the first report's column must
+    /// lie within `radius` voxels (on x and on z) of column (`x`, `z`), at any
+    /// height not inside solid terrain.
+    Spawn { x: i32, z: i32, radius: u32 },
+}
+
+impl Start {
+    /// Whether a first report at `feet` fits this start, by its column alone
+    /// (a resumed player is checked by speed instead).
+    pub fn admits_column(&self, feet: FixedVec3) -> bool {
+        match *self {
+            Start::Resume { .. } => true,
+            Start::Spawn { x, z, radius } => {
+                let r = i64::from(radius);
+                let dx = i64::from(feet.x.floor_voxel()) - i64::from(x);
+                let dz = i64::from(feet.z.floor_voxel()) - i64::from(z);
+                dx.abs() <= r && dz.abs() <= r
+            }
+        }
+    }
 }
 
 /// An edit the client wants applied.

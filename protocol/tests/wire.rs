@@ -48,6 +48,25 @@ fn server_messages() -> Vec<ServerMessage> {
             server_time: 1_700_000_000_000,
             view_radius: 6,
             last_seq: 12,
+            start: Start::Spawn {
+                x: -5,
+                z: 9,
+                radius: 2048,
+            },
+        }),
+        ServerMessage::Welcome(Welcome {
+            session: 8,
+            player: "bo".into(),
+            role: Role::Player,
+            world_seed: 99,
+            generator_version: 1,
+            generator_params: String::new(),
+            server_time: 1,
+            view_radius: 2,
+            last_seq: 0,
+            start: Start::Resume {
+                feet: FixedVec3::from_voxels(3, -4, 5),
+            },
         }),
         ServerMessage::EditAccepted {
             client_edit_id: 1,

@@ -550,6 +550,11 @@ impl ServerConfig {
             1,
             crate::sequencer::regions::MAX_REGION_CHUNKS,
         )?;
+        let spawn = &self.validation.spawn;
+        let max = crate::validate::spawn::MAX_SPAWN_COORD;
+        range("validation.spawn.x", spawn.x, -max, max)?;
+        range("validation.spawn.z", spawn.z, -max, max)?;
+        range("validation.spawn.radius", spawn.radius, 0, max as u32)?;
         range(
             "engine.workers",
             self.engine.workers,

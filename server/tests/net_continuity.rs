@@ -1,7 +1,8 @@
 //! A player's place in the world outlives its sessions and the server: a
 //! reconnect, even after a restart, resumes where the player last stood,
 //! so a far first report is refused as too fast and edits there are out
-//! of reach (no teleport by reconnecting).
+//! of reach (no teleport by reconnecting). A player the server does not
+//! remember starts in the configured spawn area.
 
 mod common;
 
@@ -9,7 +10,8 @@ use std::time::Duration;
 
 use common::*;
 use strata_client_sim::Verdict;
-use strata_protocol::{RejectReason, Role};
+use strata_protocol::{RejectReason, Role, Start};
+use strata_server::validate::SpawnArea;
 use strata_terrain::{Edit, FixedVec3, VoxelPos};
 
 fn mine(ground: VoxelPos) -> Edit {
@@ -20,6 +22,24 @@ fn mine(ground: VoxelPos) -> Edit {
     }
 }
 
+/// Reports `feet`, waits until the chunk under it arrives, and mines there:
+/// accepted only if the server took `feet` as the player's position.
+async fn stand_and_mine(
+    client: &strata_client_sim::Client,
+    feet: FixedVec3,
+    ground: VoxelPos,
+) -> Verdict {
+    client.send_position(feet).unwrap();
+    assert!(
+        eventually(Duration::from_secs(10), || client
+            .replica()
+            .get(ground.chunk())
+            .is_some())
+        .await
+    );
+    client.edit(mine(ground)).await.unwrap()
+}
+
 #[tokio::test]
 async fn a_restarted_server_resumes_players_where_they_stood() {
     tokio::time::timeout(TEST_TIMEOUT, async {
@@ -28,16 +48,8 @@ async fn a_restarted_server_resumes_players_where_they_stood() {
         let (far, far_ground) = spot(5070, 40);
         let server = start(dir.path()).await;
         let ana = connect(&server, "ana", Role::Player).await;
-        ana.send_position(home).unwrap();
-        assert!(
-            eventually(Duration::from_secs(10), || ana
-                .replica()
-                .get(home_ground.chunk())
-                .is_some())
-            .await
-        );
         assert!(matches!(
-            ana.edit(mine(home_ground)).await.unwrap(),
+            stand_and_mine(&ana, home, home_ground).await,
             Verdict::Accepted { .. }
         ));
         ana.close().await;
@@ -46,6 +58,11 @@ async fn a_restarted_server_resumes_players_where_they_stood() {
 
         let server = start(dir.path()).await;
         let ana = connect(&server, "ana", Role::Player).await;
+        assert_eq!(
+            ana.welcome().start,
+            Start::Resume { feet: home },
+            "Welcome names where ana stood"
+        );
         // 5000 voxels from where ana stood: refused, so ana is still home.
         ana.send_position(far).unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
@@ -53,19 +70,62 @@ async fn a_restarted_server_resumes_players_where_they_stood() {
             Verdict::Rejected(RejectReason::OutOfReach { .. }) => {}
             other => panic!("a teleport by restart and reconnect: {other:?}"),
         }
-        // A player never seen before may start anywhere.
+        // A player never seen before starts in the spawn area, not anywhere.
         let bo = connect(&server, "bo", Role::Player).await;
+        let spawn = SpawnArea::default();
+        assert_eq!(bo.welcome().start, spawn.start());
         bo.send_position(far).unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
+        match bo.edit(mine(far_ground)).await.unwrap() {
+            Verdict::Rejected(RejectReason::NoPosition) => {}
+            other => panic!("a new player appeared outside the spawn area: {other:?}"),
+        }
+        let (inside, inside_ground) = spot(spawn.radius as i32 - 10, -(spawn.radius as i32) + 10);
         assert!(
-            !matches!(
-                bo.edit(mine(far_ground)).await.unwrap(),
-                Verdict::Rejected(RejectReason::OutOfReach { .. } | RejectReason::NoPosition)
+            matches!(
+                stand_and_mine(&bo, inside, inside_ground).await,
+                Verdict::Accepted { .. }
             ),
-            "a new player's first position is accepted"
+            "a new player's first position inside the spawn area is accepted"
         );
         ana.close().await;
         bo.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn new_players_appear_at_the_configured_spawn() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let (near, _) = spot(70, 40);
+        let (far, far_ground) = spot(5070, 40);
+        let mut cfg = test_config(dir.path());
+        cfg.validation.spawn = SpawnArea {
+            x: 5000,
+            z: 0,
+            radius: 100,
+        };
+        let server = strata_server::app::start(cfg).await.unwrap();
+        let cy = connect(&server, "cy", Role::Player).await;
+        assert_eq!(
+            cy.welcome().start,
+            Start::Spawn {
+                x: 5000,
+                z: 0,
+                radius: 100
+            }
+        );
+        // Near the origin is outside this world's spawn: ignored.
+        cy.send_position(near).unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(matches!(
+            stand_and_mine(&cy, far, far_ground).await,
+            Verdict::Accepted { .. }
+        ));
+        cy.close().await;
         server.shutdown().await.unwrap();
     })
     .await

@@ -1,11 +1,11 @@
-//! Position rules: first position, speed with slack, not inside solid, bounds, staleness.
+//! Position rules: first position in the spawn area, resume, speed with slack, not inside solid, bounds, staleness.
 
 mod sequencer_common;
 
 use sequencer_common::*;
-use strata_protocol::{PositionUpdate, Role};
+use strata_protocol::{PositionUpdate, Role, Start};
 use strata_server::sequencer::SequencerConfig;
-use strata_server::validate::{PositionReject, ValidationConfig};
+use strata_server::validate::{PositionReject, SpawnArea, ValidationConfig};
 use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::VoxelPos;
 
@@ -16,23 +16,77 @@ fn fresh() -> strata_server::sequencer::Sequencer {
 }
 
 #[test]
-fn first_position_anywhere_not_solid() {
+fn first_position_in_the_spawn_area_not_solid() {
     let mut s = fresh();
     assert_eq!(s.position(PLAYER), None);
+    assert_eq!(s.resume_position(PLAYER, 0), SpawnArea::default().start());
+    // Far outside the default spawn square (2048 voxels around 0, 0).
+    assert_eq!(
+        s.update_position(PLAYER, at(1, 5000, 40, -7000), 0),
+        Err(PositionReject::OutsideSpawn {
+            x: 0,
+            z: 0,
+            radius: 2048
+        })
+    );
+    assert_eq!(
+        s.update_position(PLAYER, at(2, 2049, 40, 0), 0),
+        Err(PositionReject::OutsideSpawn {
+            x: 0,
+            z: 0,
+            radius: 2048
+        }),
+        "the square's edge is exact"
+    );
     // Feet deep in rock: the voxel above the feet is solid.
     assert_eq!(
-        s.update_position(PLAYER, at(1, 5000, -10, -7000), 0),
+        s.update_position(PLAYER, at(3, 2000, -10, -2000), 0),
         Err(PositionReject::InsideSolid {
-            voxel: VoxelPos::new(5000, -9, -7000)
+            voxel: VoxelPos::new(2000, -9, -2000)
         })
     );
     assert_eq!(s.position(PLAYER), None, "rejected reports change nothing");
-    // Far away but in the air: fine as a first position.
-    s.update_position(PLAYER, at(2, 5000, 40, -7000), 0)
+    // At the spawn square's corner, in the air: fine as a first position.
+    s.update_position(PLAYER, at(4, 2048, 40, -2048), 0)
         .unwrap();
     assert_eq!(
         s.position(PLAYER).unwrap().feet,
-        FixedVec3::from_voxels(5000, 40, -7000)
+        FixedVec3::from_voxels(2048, 40, -2048)
+    );
+}
+
+#[test]
+fn the_spawn_area_is_configurable_and_reconnects_resume() {
+    let cfg = ValidationConfig {
+        spawn: SpawnArea {
+            x: 5000,
+            z: -7000,
+            radius: 0,
+        },
+        ..ValidationConfig::default()
+    };
+    let mut s = sequencer(SequencerConfig::default(), cfg);
+    s.session_joined(PLAYER, "p".into(), Role::Player);
+    assert!(matches!(
+        s.update_position(PLAYER, at(1, 5001, 40, -7000), 0),
+        Err(PositionReject::OutsideSpawn { radius: 0, .. })
+    ));
+    s.update_position(PLAYER, at(2, 5000, 40, -7000), 0)
+        .unwrap();
+    // The player leaves and comes back: it resumes where it stood, and a
+    // second live session of it starts from the first one's position.
+    s.session_left(PLAYER);
+    s.session_joined(PLAYER + 1, "p".into(), Role::Player);
+    let feet = FixedVec3::from_voxels(5000, 40, -7000);
+    assert_eq!(s.resume_position(PLAYER + 1, 10), Start::Resume { feet });
+    s.update_position(PLAYER + 1, at(1, 5010, 40, -7000), 1_000)
+        .unwrap();
+    s.session_joined(PLAYER + 2, "p".into(), Role::Player);
+    assert_eq!(
+        s.resume_position(PLAYER + 2, 1_000),
+        Start::Resume {
+            feet: FixedVec3::from_voxels(5010, 40, -7000)
+        }
     );
 }
 

@@ -8,7 +8,7 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use strata_protocol::ErrorCode;
+use strata_protocol::{ErrorCode, Start};
 use strata_server::metrics::reject_label;
 use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
 use tokio::sync::watch;
@@ -239,7 +239,20 @@ impl Bot {
                 .await
             };
             match attempt {
-                Ok(Ok(c)) => return Some(c),
+                Ok(Ok(c)) => {
+                    let (hx, hz) = cfg.home(self.id);
+                    let home = FixedVec3::from_f64([hx, 0.0, hz])?;
+                    if self.walker.is_none() && !c.welcome().start.admits_column(home) {
+                        tracing::error!(
+                            bot = self.id,
+                            start = ?c.welcome().start,
+                            "the bot's home lies outside the server's spawn area \
+                             (widen [validation.spawn])"
+                        );
+                        return None;
+                    }
+                    return Some(c);
+                }
                 Ok(Err(ClientError::Refused { code, message }))
                     if matches!(
                         code,
@@ -262,9 +275,16 @@ impl Bot {
     async fn session(&mut self, client: &Client) -> Result<(), ClientError> {
         let radius = self.fleet.cfg.view_radius;
         let (hx, hz) = self.fleet.cfg.home(self.id);
-        let (sx, sz, hint) = match &self.walker {
-            Some(w) => (w.feet[0], w.feet[2], w.feet[1]),
-            None => (hx, hz, self.fleet.surface_hint(client.welcome(), hx, hz)),
+        let (sx, sz, hint) = match (&self.walker, client.welcome().start) {
+            (Some(w), _) => (w.feet[0], w.feet[2], w.feet[1]),
+            // The server remembers this player: start where it stood.
+            (None, Start::Resume { feet }) => {
+                let [x, y, z] = feet.to_f64();
+                (x, z, y)
+            }
+            (None, Start::Spawn { .. }) => {
+                (hx, hz, self.fleet.surface_hint(client.welcome(), hx, hz))
+            }
         };
         let start_chunk = VoxelPos::new(sx as i32, hint as i32, sz as i32).chunk();
         client.subscribe(start_chunk, radius).await?;

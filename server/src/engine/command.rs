@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use strata_protocol::{EditRequest, ErrorCode, Role};
+use strata_protocol::{EditRequest, ErrorCode, Role, Start};
 use strata_terrain::ChunkPos;
 use tokio::sync::oneshot;
 
@@ -12,6 +12,8 @@ use crate::net::writer::FrameSender;
 #[derive(Debug, Clone, Copy)]
 pub struct JoinReply {
     pub last_seq: u64,
+    /// Where the player's first position report must be.
+    pub start: Start,
 }
 
 /// Why the engine ended a session; the session closes its connection with it.

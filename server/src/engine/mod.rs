@@ -311,7 +311,7 @@ impl Engine {
                     self.end_session(id, ErrorCode::Kicked, "replaced by a newer login");
                 }
                 self.seq.session_joined(session, player, role);
-                self.seq.resume_position(session, now);
+                let start = self.seq.resume_position(session, now);
                 metrics::counter!(m::SESSIONS_TOTAL).increment(1);
                 let interest = Interest::new(self.interest, self.bounds);
                 let peer = Peer::new(control, updates, interest, kick, position);
@@ -320,6 +320,7 @@ impl Engine {
                 // still take back.
                 let _ = reply.send(JoinReply {
                     last_seq: self.durable_seq,
+                    start,
                 });
             }
             Command::Leave { session } => {

@@ -260,6 +260,7 @@ async fn joined(
         server_time: now_ms(),
         view_radius: ctx.view_radius,
         last_seq: joined.last_seq,
+        start: joined.start,
     };
     let _ = control.try_send(fanout_control(&ServerMessage::Welcome(welcome)));
     info!("session started");

@@ -21,7 +21,7 @@ pub use tick::{BuiltMeshes, PendingMeshes};
 
 use std::collections::{HashMap, VecDeque};
 
-use strata_protocol::{EditRequest, PositionUpdate, Role};
+use strata_protocol::{EditRequest, PositionUpdate, Role, Start};
 use strata_terrain::edit::{EditContext, FixedVec3, StructureLibrary};
 use strata_terrain::{Chunk, ChunkPos, MaterialTable, World};
 
@@ -301,18 +301,36 @@ impl Sequencer {
 
     /// Starts a new session of a known player where the player last was:
     /// its first report must be a legal move from there, timed from
-    /// `now_ms` (a reconnect teleports nowhere). A player never seen since
-    /// the server started may report any first position.
-    pub fn resume_position(&mut self, session_id: u64, now_ms: u64) {
-        let Some(s) = self.sessions.get_mut(&session_id) else {
-            return;
+    /// `now_ms` (a reconnect teleports nowhere). A player the server does
+    /// not remember starts in the spawn area. Returns where it starts.
+    pub fn resume_position(&mut self, session_id: u64, now_ms: u64) -> Start {
+        let spawn = self.validation.spawn.start();
+        let Some(player) = self.sessions.get(&session_id).map(|s| s.player.clone()) else {
+            return spawn;
         };
-        if let Some(&feet) = self.last_positions.get(&s.player) {
-            s.position = Some(ValidatedPosition {
-                feet,
-                at_ms: now_ms,
-                seq: 0,
-            });
+        // Another live session of the player (sessions_per_player > 1) knows
+        // a newer position than the remembered one.
+        let live = self
+            .sessions
+            .iter()
+            .filter(|(&id, s)| id != session_id && s.player == player)
+            .filter_map(|(_, s)| s.position)
+            .max_by_key(|p| p.at_ms)
+            .map(|p| p.feet);
+        let known = live.or_else(|| self.last_positions.get(&player).copied());
+        let Some(s) = self.sessions.get_mut(&session_id) else {
+            return spawn;
+        };
+        match known {
+            Some(feet) => {
+                s.position = Some(ValidatedPosition {
+                    feet,
+                    at_ms: now_ms,
+                    seq: 0,
+                });
+                Start::Resume { feet }
+            }
+            None => spawn,
         }
     }
 

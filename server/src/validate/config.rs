@@ -6,6 +6,7 @@ use strata_terrain::edit::{Fixed, MAX_POWER, MAX_RADIUS};
 use super::bounds::WorldBounds;
 use super::permissions::PlayerKinds;
 use super::ratelimit::BucketConfig;
+use super::spawn::SpawnArea;
 
 /// Largest sphere radius a client may ask for, in voxels (terrain's hard cap is 64).
 pub const DEFAULT_MAX_RADIUS: u16 = 8;
@@ -69,6 +70,8 @@ pub struct ValidationConfig {
     pub bounds: WorldBounds,
     /// See [`DEFAULT_SPAWN_PROTECTION_RADIUS`]; used when no zones are stored.
     pub spawn_protection_radius: i32,
+    /// Where players the server does not remember may appear.
+    pub spawn: SpawnArea,
     /// Edits per player: burst and refill per second.
     pub edit_rate: BucketConfig,
     /// Edited voxels per player: burst and refill per second. An edit costs
@@ -96,6 +99,7 @@ impl Default for ValidationConfig {
             speed_slack_voxels: DEFAULT_SPEED_SLACK_VOXELS,
             bounds: WorldBounds::default(),
             spawn_protection_radius: DEFAULT_SPAWN_PROTECTION_RADIUS,
+            spawn: SpawnArea::default(),
             edit_rate: BucketConfig {
                 capacity: DEFAULT_EDIT_BURST,
                 per_second: DEFAULT_EDITS_PER_SECOND,

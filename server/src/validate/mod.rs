@@ -12,10 +12,12 @@ pub mod permissions;
 pub mod position;
 pub mod ratelimit;
 pub mod reach;
+pub mod spawn;
 pub mod zones;
 
 pub use bounds::WorldBounds;
 pub use config::ValidationConfig;
 pub use position::{PositionReject, ValidatedPosition};
 pub use ratelimit::TokenBucket;
+pub use spawn::SpawnArea;
 pub use zones::{Zone, ZoneError};

@@ -24,6 +24,10 @@ pub enum PositionReject {
     Stale { seq: u32, last: u32 },
     #[error("position outside the world bounds")]
     OutOfBounds,
+    #[error(
+        "a first position must lie in the spawn area ({radius} voxels around column {x}, {z})"
+    )]
+    OutsideSpawn { x: i32, z: i32, radius: u32 },
     #[error("moved {distance:.2} voxels, at most {allowed:.2} allowed")]
     TooFast { distance: f64, allowed: f64 },
     #[error("body inside solid terrain at {voxel:?}")]
@@ -95,22 +99,33 @@ pub fn check_motion(
     if !in_bounds(upd.pos, cfg) {
         return Err(PositionReject::OutOfBounds);
     }
-    if let Some(p) = prev {
-        let (a, b) = (p.feet.to_f64(), upd.pos.to_f64());
-        let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
-        let allowed = allowed_distance(now_ms.saturating_sub(p.at_ms), cfg);
-        if d > allowed {
-            return Err(PositionReject::TooFast {
-                distance: d,
-                allowed,
+    let Some(p) = prev else {
+        // A player the server does not remember appears in the spawn area.
+        let spawn = cfg.spawn;
+        if !spawn.start().admits_column(upd.pos) {
+            return Err(PositionReject::OutsideSpawn {
+                x: spawn.x,
+                z: spawn.z,
+                radius: spawn.radius,
             });
         }
+        return Ok(());
+    };
+    let (a, b) = (p.feet.to_f64(), upd.pos.to_f64());
+    let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    let allowed = allowed_distance(now_ms.saturating_sub(p.at_ms), cfg);
+    if d > allowed {
+        return Err(PositionReject::TooFast {
+            distance: d,
+            allowed,
+        });
     }
     Ok(())
 }
 
-/// Checks a report against the previous validated position (none right after
-/// joining: then any in-bounds, not-inside-solid position is fine).
+/// Checks a report against the previous validated position (none when the
+/// server does not remember the player: then any in-bounds position in the
+/// spawn area not inside solid terrain is fine).
 pub fn check(
     prev: Option<&ValidatedPosition>,
     upd: &PositionUpdate,

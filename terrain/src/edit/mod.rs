@@ -14,7 +14,7 @@ pub mod structure;
 
 pub use apply::{ChunkChange, EditContext, EditOutcome};
 pub use error::EditError;
-pub use fixed::{Fixed, FixedVec3};
+pub use fixed::{Fixed, FixedVec3, COORD_LIMIT_VOXELS};
 pub use limits::*;
 pub use region::Region;
 pub use structure::{Structure, StructureError, StructureId, StructureLibrary};

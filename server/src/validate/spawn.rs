@@ -1,0 +1,42 @@
+//! Where players the server does not remember may appear: a square of
+//! columns around a spawn column (`[validation.spawn]`).
+
+use serde::{Deserialize, Serialize};
+use strata_protocol::Start;
+use strata_terrain::edit::COORD_LIMIT_VOXELS;
+
+/// Default half-width of the spawn square, in voxels: room for a large
+/// crowd of new players (the bots' default area fits inside).
+pub const DEFAULT_SPAWN_RADIUS: u32 = 2048;
+/// Largest accepted centre coordinate or half-width: the position range.
+pub const MAX_SPAWN_COORD: i32 = COORD_LIMIT_VOXELS - 1;
+
+/// The spawn square: columns within `radius` voxels of (`x`, `z`) on both axes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SpawnArea {
+    pub x: i32,
+    pub z: i32,
+    pub radius: u32,
+}
+
+impl Default for SpawnArea {
+    fn default() -> Self {
+        Self {
+            x: 0,
+            z: 0,
+            radius: DEFAULT_SPAWN_RADIUS,
+        }
+    }
+}
+
+impl SpawnArea {
+    /// The `Welcome::start` of a player with no remembered position.
+    pub fn start(&self) -> Start {
+        Start::Spawn {
+            x: self.x,
+            z: self.z,
+            radius: self.radius,
+        }
+    }
+}
