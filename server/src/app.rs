@@ -20,7 +20,7 @@ use crate::net::endpoint::Listener;
 use crate::net::session::SessionContext;
 use crate::sequencer::Sequencer;
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
-use crate::store::{ChunkStore, SledStore, WorldMeta, STORE_FORMAT_VERSION};
+use crate::store::{Checkpointer, ChunkStore, SledStore, WorldMeta, STORE_FORMAT_VERSION};
 use crate::structures::load_structures;
 use crate::validate::zones::Zone;
 use crate::validate::WorldBounds;
@@ -39,6 +39,7 @@ pub struct Running {
     listener: tokio::task::JoinHandle<()>,
     engine: EngineHandle,
     engine_thread: std::thread::JoinHandle<anyhow::Result<()>>,
+    checkpointer: Checkpointer,
     health: Arc<Health>,
     /// Becomes true when the engine thread ends.
     engine_exit: tokio::sync::watch::Receiver<bool>,
@@ -157,6 +158,11 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         }
     };
     let (engine, engine_thread) = engine.spawn(on_exit)?;
+    let checkpointer = Checkpointer::spawn(
+        store.clone(),
+        std::time::Duration::from_millis(cfg.store.checkpoint_ms),
+        cfg.store.checkpoint_chunks,
+    )?;
     let server_config = crate::tls::server_config(data_dir.cert(), &cfg.net, &cfg.tls)?;
     let endpoint = quinn::Endpoint::server(server_config, cfg.server.listen)
         .with_context(|| format!("binding {}", cfg.server.listen))?;
@@ -185,6 +191,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         listener,
         engine,
         engine_thread,
+        checkpointer,
         health,
         engine_exit,
     })
@@ -217,9 +224,15 @@ impl Running {
         self.health.set_accepting(false);
         let engine = self.engine;
         let engine_thread = self.engine_thread;
+        let checkpointer = self.checkpointer;
         let engine_result = tokio::task::spawn_blocking(move || {
             engine.stop();
-            engine_thread.join()
+            let joined = engine_thread.join();
+            // Nothing commits now: fold the deltas left into chunk records.
+            if let Err(e) = checkpointer.stop() {
+                tracing::error!(error = %e, "final checkpoint failed; the deltas stay for the next start");
+            }
+            joined
         })
         .await;
         self.trigger.trigger();

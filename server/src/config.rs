@@ -521,6 +521,18 @@ impl ServerConfig {
             MAX_FLUSH_EVERY_MS,
         )?;
         range(
+            "store.checkpoint_ms",
+            self.store.checkpoint_ms,
+            0,
+            crate::store::MAX_CHECKPOINT_MS,
+        )?;
+        range(
+            "store.checkpoint_chunks",
+            self.store.checkpoint_chunks,
+            1,
+            crate::store::MAX_CHECKPOINT_CHUNKS,
+        )?;
+        range(
             "store.segment_size_bytes",
             self.store.segment_size_bytes,
             MIN_SEGMENT_SIZE_BYTES,

@@ -18,6 +18,8 @@ pub const EDITS_REJECTED: &str = "strata_edits_rejected_total";
 pub const QUEUE_DEPTH: &str = "strata_sequencer_queue_depth";
 pub const FLUSH_SECONDS: &str = "strata_flush_seconds";
 pub const FSYNC_SECONDS: &str = "strata_fsync_seconds";
+pub const CHECKPOINT_SECONDS: &str = "strata_checkpoint_seconds";
+pub const CHECKPOINT_CHUNKS_TOTAL: &str = "strata_checkpoint_chunks_total";
 pub const TICK_SECONDS: &str = "strata_tick_seconds";
 pub const TICK_LANES: &str = "strata_tick_lanes";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
@@ -67,6 +69,14 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_histogram!(
         FSYNC_SECONDS,
         "The fsyncs that end a group commit (part of its latency)"
+    );
+    metrics::describe_histogram!(
+        CHECKPOINT_SECONDS,
+        "Background checkpoint passes (folding committed deltas into chunk records)"
+    );
+    metrics::describe_counter!(
+        CHECKPOINT_CHUNKS_TOTAL,
+        "Chunks whose deltas a checkpoint folded into their records"
     );
     metrics::describe_histogram!(TICK_SECONDS, "Sequencer tick duration");
     metrics::describe_histogram!(

@@ -7,10 +7,10 @@ mod store_common;
 use std::path::Path;
 
 use store_common::{terrain_chunk, Seq};
-use strata_server::store::keys::{chunk_key, seq_key};
+use strata_server::store::keys::{chunk_key, delta_key, seq_key};
 use strata_server::store::{
     encode_chunk_value, CheckIssue, ChunkStore, SledStore, StoreError, WorldMeta, META_LAST_SEQ,
-    TREE_CHUNKS, TREE_LOG, TREE_META,
+    STORE_FORMAT_VERSION, TREE_CHUNKS, TREE_DELTAS, TREE_LOG, TREE_META,
 };
 use strata_terrain::{Chunk, ChunkPos};
 
@@ -195,15 +195,13 @@ fn last_seq_mismatch_and_bad_meta_are_reported() {
     assert!(matches!(store.load_meta(), Err(StoreError::Corrupt { .. })));
 }
 
-#[test]
-fn unknown_format_version_refuses_to_open() {
-    let dir = healthy();
-    plant(dir.path(), |db| {
+/// Rewrites the world record of the store in `dir` with `format_version`.
+fn set_format(dir: &std::path::Path, format_version: u32) {
+    plant(dir, |db| {
         let meta = db.open_tree(TREE_META).unwrap();
-        let mut m = WorldMeta::new(5, 1, "");
-        m.format_version = 99;
+        let m = WorldMeta::new(5, 1, "");
         let json = serde_json::json!({
-            "format_version": m.format_version,
+            "format_version": format_version,
             "seed": m.seed,
             "generator_version": m.generator_version,
             "generator_params": m.generator_params,
@@ -214,17 +212,33 @@ fn unknown_format_version_refuses_to_open() {
         )
         .unwrap();
     });
+}
+
+#[test]
+fn unknown_format_version_refuses_to_open() {
+    let dir = healthy();
+    set_format(dir.path(), 99);
     let r = SledStore::open(dir.path());
     assert!(
         matches!(
             r,
             Err(StoreError::UnsupportedFormat {
                 found: 99,
-                supported: 1
+                supported: STORE_FORMAT_VERSION
             })
         ),
         "{r:?}"
     );
+}
+
+#[test]
+fn a_store_of_format_1_is_upgraded_when_opened() {
+    let dir = healthy();
+    set_format(dir.path(), 1);
+    let store = SledStore::open(dir.path()).unwrap();
+    let meta = store.load_meta().unwrap().unwrap();
+    assert_eq!(meta.format_version, STORE_FORMAT_VERSION);
+    assert!(store.check().unwrap().is_ok());
 }
 
 #[test]
@@ -262,5 +276,58 @@ fn falling_versions_and_bad_keys_are_reported() {
                 key: "\"short\"".into()
             },
         ]
+    );
+}
+
+#[test]
+fn a_broken_delta_chain_is_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let store = SledStore::open(dir.path()).unwrap();
+        store.init_meta(&WorldMeta::new(5, 1, "")).unwrap();
+        let mut seq = Seq::default();
+        for salt in 1..=3 {
+            store
+                .commit_batch(&seq.delta_batch(&[vec![(A, terrain_chunk(salt))]]))
+                .unwrap();
+        }
+        assert_eq!(store.delta_count(), 2);
+        assert!(store.check().unwrap().is_ok());
+    }
+    // Lose the delta to version 2: the one to 3 no longer continues the chain.
+    plant(dir.path(), |db| {
+        db.open_tree(TREE_DELTAS)
+            .unwrap()
+            .remove(delta_key(A, 2))
+            .unwrap();
+    });
+    let store = SledStore::open(dir.path()).unwrap();
+    let issues = store.check().unwrap().issues;
+    assert!(
+        issues.iter().any(|i| matches!(
+            i,
+            CheckIssue::BadDelta {
+                pos: A,
+                to_version: 3,
+                ..
+            }
+        )),
+        "{issues:?}"
+    );
+    assert!(
+        issues.iter().any(|i| matches!(
+            i,
+            CheckIssue::VersionMismatch {
+                pos: A,
+                stored: 1,
+                logged: 3,
+                ..
+            }
+        )),
+        "{issues:?}"
+    );
+    assert!(
+        store.load_chunk(A).is_err(),
+        "a read refuses the broken chain"
     );
 }

@@ -36,7 +36,7 @@ fn commits_blob_files_and_blobs_survive_a_power_cut() {
         let edits: Vec<_> = (0..32)
             .map(|i| vec![(ChunkPos::new(i, 0, 0), noisy_chunk(round * 32 + i as u64))])
             .collect();
-        store.commit_batch(&seq.batch(&edits)).unwrap();
+        store.commit_batch(&seq.delta_batch(&edits)).unwrap();
         let files = std::fs::read_dir(dir.join("blobs")).map_or(0, |d| d.count());
         blob_files = blob_files.max(files);
     }

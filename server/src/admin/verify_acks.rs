@@ -277,6 +277,7 @@ mod tests {
             .commit_batch(&CommitBatch {
                 entries: vec![entry(1, 1), entry(2, 2)],
                 chunks: vec![(pos, 2, Chunk::uniform(Voxel::AIR))],
+                deltas: Vec::new(),
                 last_seq: 2,
             })
             .unwrap();

@@ -514,8 +514,8 @@ impl Engine {
                 .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
             phase.end("mesh_wait");
             self.seq.finish_tick(&mut out, built);
-            for (pos, version, _) in &out.batch.chunks {
-                self.versions.insert(*pos, *version);
+            for e in &out.batch.entries {
+                self.versions.extend(e.changes.iter().copied());
             }
             for a in &out.applied {
                 metrics::counter!(m::EDITS_ACCEPTED).increment(1);

@@ -11,7 +11,7 @@
 //! while edits keep committing. The map is bounded; past its limit the
 //! snapshot is aborted (with a reason) rather than delaying edits.
 
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 use std::sync::{Arc, Mutex};
 
 use strata_terrain::ChunkPos;
@@ -132,19 +132,25 @@ impl Engine {
     }
 
     /// Before a commit: saves the state at each running snapshot's seq of
-    /// every chunk the batch changes for the first time since then.
+    /// every chunk the batch changes (whole or by delta) for the first time
+    /// since then.
     pub(super) fn capture_preimages(&mut self, batch: &CommitBatch) {
         self.snapshots_running
             .retain(|s| Arc::strong_count(s) > 1 && s.aborted().is_none());
         if self.snapshots_running.is_empty() {
             return;
         }
-        for (pos, _, _) in &batch.chunks {
+        let changed: BTreeSet<ChunkPos> = batch
+            .entries
+            .iter()
+            .flat_map(|e| e.changes.iter().map(|&(p, _)| p))
+            .collect();
+        for pos in &changed {
             if self.snapshots_running.iter().all(|s| s.has(*pos)) {
                 continue;
             }
             // Not yet recorded, so unchanged since the snapshot's seq: the
-            // store's current record is its state then.
+            // store's newest state (record plus deltas) is its state then.
             let before = if self.versions.contains_key(pos) {
                 match self.store.raw_chunk(*pos) {
                     Ok(b) => b,
@@ -191,6 +197,7 @@ mod tests {
                 .iter()
                 .map(|&(p, v, m)| (p, v, Chunk::Uniform(Voxel::solid(m))))
                 .collect(),
+            deltas: Vec::new(),
             last_seq: seq,
         };
         store.commit_batch(&batch).unwrap();

@@ -143,6 +143,7 @@ impl Sequencer {
         let mut jobs = Vec::new();
         let mut job_slots = Vec::new();
         let mut finals: BTreeMap<ChunkPos, (u64, Chunk)> = BTreeMap::new();
+        let mut changed: BTreeSet<ChunkPos> = BTreeSet::new();
         for lane in lanes {
             for (i, r) in lane.results {
                 results[i] = Some(r);
@@ -151,6 +152,7 @@ impl Sequencer {
             jobs.extend(lane.jobs);
             job_slots.extend(lane.slots.into_iter().map(|(i, c, j)| (i, c, base + j)));
             finals.extend(lane.finals);
+            changed.extend(lane.changed);
             self.world.absorb(lane.world);
         }
         let mut applied_at = vec![usize::MAX; queued.len()];
@@ -173,6 +175,10 @@ impl Sequencer {
             for c in &changes {
                 dropped.extend(self.collision.invalidate_touched(c.pos, bbox));
                 self.residency.mark_present(c.pos);
+                // A chunk the store holds already gets its deltas stored.
+                if !finals.contains_key(&c.pos) {
+                    out.batch.deltas.push(c.delta.clone());
+                }
             }
             out.batch.entries.push(LogEntry {
                 seq,
@@ -200,7 +206,7 @@ impl Sequencer {
                 job,
             })
             .collect();
-        self.rewarm(dropped, &finals, &mut jobs);
+        self.rewarm(dropped, &changed, &mut jobs);
         out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
         out.batch.last_seq = self.last_seq();
         (out, PendingMeshes { jobs, slots })
@@ -214,12 +220,12 @@ impl Sequencer {
     fn rewarm(
         &self,
         dropped: BTreeSet<ChunkPos>,
-        changed: &BTreeMap<ChunkPos, (u64, Chunk)>,
+        changed: &BTreeSet<ChunkPos>,
         jobs: &mut Vec<(ChunkPos, u64, Neighborhood)>,
     ) {
         for pos in dropped {
             let resident = || self.residency.missing(&self.world, with_neighbours(pos));
-            if changed.contains_key(&pos) || !resident().is_empty() {
+            if changed.contains(&pos) || !resident().is_empty() {
                 continue;
             }
             let version = self.world.peek(pos).map_or(0, |c| c.version);
@@ -250,8 +256,12 @@ struct Lane {
     jobs: Vec<(ChunkPos, u64, Neighborhood)>,
     /// Each change's (queue index, change index, job index).
     slots: Vec<(usize, usize, usize)>,
-    /// Each changed chunk's final version and state (the store's copy).
+    /// Final version and state of each changed chunk the store does not
+    /// hold yet (version 0 before the tick): stored whole, the others as
+    /// their deltas.
     finals: BTreeMap<ChunkPos, (u64, Chunk)>,
+    /// Every chunk the lane changed.
+    changed: BTreeSet<ChunkPos>,
     /// The lane's chunks, to be put back in the world.
     world: World,
 }
@@ -268,10 +278,12 @@ impl Lane {
             jobs: Vec::new(),
             slots: Vec::new(),
             finals: BTreeMap::new(),
+            changed: BTreeSet::new(),
             world: World::new(world.generator().clone()),
         };
         let mut changed: Vec<(usize, usize, ChunkPos)> = Vec::new();
         let mut versions: BTreeMap<ChunkPos, u64> = BTreeMap::new();
+        let mut new_in_store: BTreeSet<ChunkPos> = BTreeSet::new();
         for i in members {
             let edit = &queued[i].request.edit;
             let outcome = match edit.apply(&mut world, ctx) {
@@ -293,6 +305,9 @@ impl Lane {
                 // Meshed once, after the lane's last edit.
                 changed.push((i, changes.len(), c.pos));
                 versions.insert(c.pos, c.to_version);
+                if c.from_version == 0 {
+                    new_in_store.insert(c.pos);
+                }
                 changes.push(ChunkUpdate {
                     pos: c.pos,
                     from_version: c.from_version,
@@ -305,15 +320,18 @@ impl Lane {
         }
         // One mesh per changed chunk, of the world as the tick leaves it;
         // the neighbours (its apron) lie in the footprint.
-        // The store's copy of each final state is made here too.
+        // The store's copy of each new chunk's final state is made here too.
         let mut job_of: BTreeMap<ChunkPos, usize> = BTreeMap::new();
         for (pos, version) in versions {
             world.load(with_neighbours(pos));
             job_of.insert(pos, lane.jobs.len());
             lane.jobs
                 .push((pos, version, Neighborhood::from_world(&world, pos)));
-            let state = world.peek(pos).expect("loaded above").chunk.clone();
-            lane.finals.insert(pos, (version, state));
+            if new_in_store.contains(&pos) {
+                let state = world.peek(pos).expect("loaded above").chunk.clone();
+                lane.finals.insert(pos, (version, state));
+            }
+            lane.changed.insert(pos);
         }
         lane.slots = changed
             .into_iter()

@@ -26,6 +26,12 @@ pub fn validate(b: &CommitBatch) -> Result<BTreeMap<ChunkPos, u64>, StoreError> 
             b.entries.len()
         )));
     }
+    if b.deltas.len() > MAX_BATCH_ENTRIES {
+        return Err(StoreError::batch(format!(
+            "{} deltas, limit {MAX_BATCH_ENTRIES}",
+            b.deltas.len()
+        )));
+    }
     if b.chunks.len() > MAX_BATCH_CHUNKS {
         return Err(StoreError::batch(format!(
             "{} chunks, limit {MAX_BATCH_CHUNKS}",
@@ -33,7 +39,7 @@ pub fn validate(b: &CommitBatch) -> Result<BTreeMap<ChunkPos, u64>, StoreError> 
         )));
     }
     let Some(first) = b.entries.first() else {
-        if !b.chunks.is_empty() {
+        if !b.chunks.is_empty() || !b.deltas.is_empty() {
             return Err(StoreError::batch("chunks without any log entry"));
         }
         return Ok(BTreeMap::new());
@@ -102,11 +108,40 @@ pub fn validate(b: &CommitBatch) -> Result<BTreeMap<ChunkPos, u64>, StoreError> 
             Some(_) => {}
         }
     }
-    if let Some(pos) = span.keys().find(|p| !seen.contains_key(p)) {
-        return Err(StoreError::batch(format!(
-            "{} changed by an entry but its state is missing",
-            show_pos(*pos)
-        )));
+    // Every other changed chunk: its deltas, exactly one per change, in order.
+    let mut next: BTreeMap<ChunkPos, u64> = BTreeMap::new();
+    for d in &b.deltas {
+        let Some(&(lo, hi)) = span.get(&d.pos) else {
+            return Err(StoreError::batch(format!(
+                "a delta for {}, which no entry changed",
+                show_pos(d.pos)
+            )));
+        };
+        if seen.contains_key(&d.pos) {
+            return Err(StoreError::batch(format!(
+                "{} is written whole and as a delta",
+                show_pos(d.pos)
+            )));
+        }
+        let want = *next.get(&d.pos).unwrap_or(&lo);
+        if d.to_version != want || d.from_version + 1 != want || want > hi {
+            return Err(StoreError::batch(format!(
+                "delta for {} from version {} to {}, expected to {want}",
+                show_pos(d.pos),
+                d.from_version,
+                d.to_version
+            )));
+        }
+        next.insert(d.pos, want + 1);
+    }
+    for (pos, &(_, hi)) in &span {
+        let complete = seen.contains_key(pos) || next.get(pos) == Some(&(hi + 1));
+        if !complete {
+            return Err(StoreError::batch(format!(
+                "{} changed by an entry but its state is missing",
+                show_pos(*pos)
+            )));
+        }
     }
     Ok(span.into_iter().map(|(p, (lo, _))| (p, lo)).collect())
 }

@@ -5,9 +5,11 @@
 //! - every log record decodes, its key equals its seq, seqs run 1, 2, 3, ...
 //!   without gaps, and the meta `last_seq` is the last of them;
 //! - a chunk's `to_version`s rise with seq;
-//! - every chunk record decodes, and its version is the highest
-//!   `to_version` the log gives it (no chunk without a log entry, no log
-//!   entry whose chunk is missing);
+//! - every chunk record decodes; its deltas (those past its version)
+//!   decode and chain from it, version by version, hash by hash; and the
+//!   newest of the two is the highest `to_version` the log gives the chunk
+//!   (no chunk without a log entry, no log entry whose chunk is missing,
+//!   no delta without its chunk record);
 //! - nothing else is stored: no meta key besides the world record and
 //!   `last_seq`, and no tree besides meta, chunks, log and blobs (records
 //!   there are orphans no code reads).
@@ -18,8 +20,8 @@ use std::fmt;
 use strata_terrain::chunk_codec::decode_chunk;
 use strata_terrain::ChunkPos;
 
-use super::keys::{chunk_pos_from_key, seq_from_key, show_pos, show_raw};
-use super::record::{decode_log_entry, split_chunk_value};
+use super::keys::{chunk_pos_from_key, delta_from_key, seq_from_key, show_pos, show_raw};
+use super::record::{decode_delta, decode_log_entry, split_chunk_value};
 
 /// Issues kept in a report; past this only the count grows, so checking a
 /// badly broken store cannot exhaust memory.
@@ -80,6 +82,15 @@ pub enum CheckIssue {
         stored: u64,
         logged: u64,
         seq: u64,
+    },
+    BadDeltaKey {
+        key: String,
+    },
+    /// A delta that does not decode or does not continue its chunk's chain.
+    BadDelta {
+        pos: ChunkPos,
+        to_version: u64,
+        reason: String,
     },
     /// A meta record this version does not write.
     UnknownMetaKey {
@@ -142,6 +153,16 @@ impl fmt::Display for CheckIssue {
                 "{}: stored at version {stored} but log seq {seq} moved it to {logged}",
                 show_pos(*pos)
             ),
+            BadDeltaKey { key } => write!(f, "delta key {key}: not a position and a version"),
+            BadDelta {
+                pos,
+                to_version,
+                reason,
+            } => write!(
+                f,
+                "{} delta to version {to_version}: {reason}",
+                show_pos(*pos)
+            ),
             UnknownMetaKey { key } => {
                 write!(
                     f,
@@ -181,6 +202,9 @@ pub struct Checker {
     last_log_seq: u64,
     /// Highest to_version per chunk, and the seq that set it.
     logged: BTreeMap<ChunkPos, (u64, u64)>,
+    /// Per stored chunk: its newest version so far (record, then deltas)
+    /// and the target hash of its last delta.
+    stored: BTreeMap<ChunkPos, (u64, Option<u64>)>,
     /// Seq of the snapshot the store was restored from (0: none).
     log_base: u64,
 }
@@ -271,14 +295,14 @@ impl Checker {
         let Some(pos) = chunk_pos_from_key(key) else {
             return self.issue(CheckIssue::BadChunkKey { key: show_raw(key) });
         };
-        let logged = self.logged.remove(&pos);
         let (version, body) = match split_chunk_value(pos, value) {
             Ok(x) => x,
             Err(e) => {
+                self.logged.remove(&pos);
                 return self.issue(CheckIssue::BadChunkRecord {
                     pos,
                     reason: e.to_string(),
-                })
+                });
             }
         };
         if let Err(e) = decode_chunk(body) {
@@ -287,22 +311,56 @@ impl Checker {
                 reason: format!("snapshot does not decode: {e}"),
             });
         }
-        match logged {
-            None if self.log_base > 0 => {}
-            None => self.issue(CheckIssue::OrphanChunk { pos, version }),
-            Some((logged, seq)) if logged != version => self.issue(CheckIssue::VersionMismatch {
-                pos,
-                stored: version,
-                logged,
-                seq,
-            }),
-            Some(_) => {}
+        self.stored.insert(pos, (version, None));
+    }
+
+    /// One delta record, after all chunk records, in key order.
+    pub fn delta_record(&mut self, key: &[u8], value: &[u8]) {
+        let Some((pos, to_version)) = delta_from_key(key) else {
+            return self.issue(CheckIssue::BadDeltaKey { key: show_raw(key) });
+        };
+        let bad = |reason: String| CheckIssue::BadDelta {
+            pos,
+            to_version,
+            reason,
+        };
+        let d = match decode_delta(pos, to_version, value) {
+            Ok(d) => d,
+            Err(e) => return self.issue(bad(e.to_string())),
+        };
+        let Some((head, last_hash)) = self.stored.get(&pos).copied() else {
+            return self.issue(bad("no chunk record to apply to".into()));
+        };
+        if to_version <= head && last_hash.is_none() {
+            return; // already in the record: a fold will remove it
         }
+        if d.from_version != head || last_hash.is_some_and(|h| h != d.base_hash) {
+            return self.issue(bad(format!(
+                "the chain is at version {head}, this delta starts at {}",
+                d.from_version
+            )));
+        }
+        self.stored.insert(pos, (to_version, Some(d.target_hash)));
     }
 
     /// Closes the check. `meta_last_seq` is `None` when the store has no
     /// world metadata.
     pub fn finish(mut self, meta_last_seq: Option<u64>) -> CheckReport {
+        for (pos, (version, _)) in std::mem::take(&mut self.stored) {
+            match self.logged.remove(&pos) {
+                None if self.log_base > 0 => {}
+                None => self.issue(CheckIssue::OrphanChunk { pos, version }),
+                Some((logged, seq)) if logged != version => {
+                    self.issue(CheckIssue::VersionMismatch {
+                        pos,
+                        stored: version,
+                        logged,
+                        seq,
+                    })
+                }
+                Some(_) => {}
+            }
+        }
         for (pos, (logged_version, seq)) in std::mem::take(&mut self.logged) {
             self.issue(CheckIssue::MissingChunk {
                 pos,

@@ -26,6 +26,17 @@ pub const DEFAULT_SEGMENT_SIZE_BYTES: usize = 2 * 1024 * 1024;
 pub const MIN_SEGMENT_SIZE_BYTES: usize = 512 * 1024;
 pub const MAX_SEGMENT_SIZE_BYTES: usize = 16 * 1024 * 1024;
 
+/// How often the background checkpoint folds committed deltas into chunk
+/// records. Commits store only the log and deltas, so this bounds how much
+/// a read (or a restart) replays, not what is durable.
+pub const DEFAULT_CHECKPOINT_MS: u64 = 1000;
+/// Longest allowed checkpoint period.
+pub const MAX_CHECKPOINT_MS: u64 = 3_600_000;
+/// Chunks one checkpoint pass folds at most (a pass then fsyncs once).
+pub const DEFAULT_CHECKPOINT_CHUNKS: usize = 4096;
+/// Largest allowed `checkpoint_chunks`.
+pub const MAX_CHECKPOINT_CHUNKS: usize = 1 << 20;
+
 /// The `[store]` section of the server config.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -38,6 +49,10 @@ pub struct StoreConfig {
     /// sled's log segment size for a new store; an existing store keeps the
     /// size it was created with.
     pub segment_size_bytes: usize,
+    /// See [`DEFAULT_CHECKPOINT_MS`]; 0 folds only at shutdown.
+    pub checkpoint_ms: u64,
+    /// See [`DEFAULT_CHECKPOINT_CHUNKS`].
+    pub checkpoint_chunks: usize,
 }
 
 impl StoreConfig {
@@ -53,6 +68,8 @@ impl Default for StoreConfig {
             cache_capacity_bytes: DEFAULT_CACHE_CAPACITY_BYTES,
             flush_every_ms: DEFAULT_FLUSH_EVERY_MS,
             segment_size_bytes: DEFAULT_SEGMENT_SIZE_BYTES,
+            checkpoint_ms: DEFAULT_CHECKPOINT_MS,
+            checkpoint_chunks: DEFAULT_CHECKPOINT_CHUNKS,
         }
     }
 }

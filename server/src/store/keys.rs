@@ -9,6 +9,7 @@
 //! | `meta` | `b"last_seq"` | `u64` big-endian: seq of the last committed edit |
 //! | `chunks` | [`chunk_key`]: 12 bytes | `version: u64 BE` then [`encode_chunk`] bytes |
 //! | `log` | [`seq_key`]: 8 bytes, `u64` BE | bincode 2 (serde, standard config) of a `LogEntry` |
+//! | `deltas` | [`delta_key`]: chunk key then `to_version: u64 BE` (20 bytes) | bincode 2 (as the log) of the `ChunkDelta` |
 //! | `blobs` | the blob name, UTF-8 | the blob bytes |
 //! | `players` | the player name, UTF-8 | feet x, y, z: fixed-point i32, big-endian (12 bytes) |
 //!
@@ -26,6 +27,8 @@ use strata_terrain::ChunkPos;
 pub const CHUNK_KEY_LEN: usize = 12;
 /// Bytes of a log (seq) key.
 pub const SEQ_KEY_LEN: usize = 8;
+/// Bytes of a delta key: a chunk key and a version.
+pub const DELTA_KEY_LEN: usize = CHUNK_KEY_LEN + 8;
 
 const SIGN_BIT: u32 = 0x8000_0000;
 
@@ -51,6 +54,25 @@ pub fn chunk_pos_from_key(key: &[u8]) -> Option<ChunkPos> {
     let k: [u8; CHUNK_KEY_LEN] = key.try_into().ok()?;
     let part = |i: usize| unordered([k[i], k[i + 1], k[i + 2], k[i + 3]]);
     Some(ChunkPos::new(part(0), part(4), part(8)))
+}
+
+/// The key of a chunk's delta to `to_version`: all of one chunk's deltas
+/// are one contiguous range (prefix [`chunk_key`]), in version order.
+pub fn delta_key(pos: ChunkPos, to_version: u64) -> [u8; DELTA_KEY_LEN] {
+    let mut k = [0u8; DELTA_KEY_LEN];
+    k[..CHUNK_KEY_LEN].copy_from_slice(&chunk_key(pos));
+    k[CHUNK_KEY_LEN..].copy_from_slice(&to_version.to_be_bytes());
+    k
+}
+
+/// Inverse of [`delta_key`]; `None` if the key has the wrong length.
+pub fn delta_from_key(key: &[u8]) -> Option<(ChunkPos, u64)> {
+    if key.len() != DELTA_KEY_LEN {
+        return None;
+    }
+    let pos = chunk_pos_from_key(&key[..CHUNK_KEY_LEN])?;
+    let v = u64::from_be_bytes(key[CHUNK_KEY_LEN..].try_into().ok()?);
+    Some((pos, v))
 }
 
 /// The key of a log entry: its seq, big-endian.

@@ -7,17 +7,21 @@
 //! generator's output at version 0.
 //!
 //! Writes happen once per sequencer tick through [`ChunkStore::commit_batch`]
-//! (group commit): chunk states, log entries and `last_seq` go in one
-//! atomic transaction, then one flush and the fsyncs sled leaves out
+//! (group commit): log entries, the deltas of chunks already stored (whole
+//! states only for chunks stored for the first time) and `last_seq` go in
+//! one atomic transaction, then one flush and the fsyncs sled leaves out
 //! (`disk_sync`) make them durable, and only then may the server
 //! acknowledge the edits. The call blocks on fsync, so the async
 //! shell runs it through `tokio::task::spawn_blocking` (the store is `Send +
 //! Sync`; share it as `Arc<dyn ChunkStore>`). The key layout is documented
-//! in [`keys`].
+//! in [`keys`]. A background checkpoint ([`ChunkStore::checkpoint`],
+//! `deltas.rs`) folds deltas into chunk records; reads replay the rest.
 
 mod batch;
 mod check;
+mod checkpointer;
 mod config;
+mod deltas;
 mod disk_sync;
 mod error;
 mod import;
@@ -33,8 +37,10 @@ use strata_terrain::ChunkPos;
 
 pub use batch::{MAX_BATCH_CHUNKS, MAX_BATCH_ENTRIES};
 pub use check::{CheckIssue, CheckReport, Checker, MAX_REPORTED_ISSUES};
+pub use checkpointer::Checkpointer;
 pub use config::{
-    StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_FLUSH_EVERY_MS, DEFAULT_SEGMENT_SIZE_BYTES,
+    StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_CHECKPOINT_CHUNKS, DEFAULT_CHECKPOINT_MS,
+    DEFAULT_FLUSH_EVERY_MS, DEFAULT_SEGMENT_SIZE_BYTES, MAX_CHECKPOINT_CHUNKS, MAX_CHECKPOINT_MS,
     MAX_FLUSH_EVERY_MS, MAX_SEGMENT_SIZE_BYTES, MIN_CACHE_CAPACITY_BYTES, MIN_SEGMENT_SIZE_BYTES,
 };
 pub use disk_sync::MAX_TRACKED_BLOBS;
@@ -43,10 +49,11 @@ pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
 pub use sled_store::{
     open_raw, open_when_unlocked, persisted_segment_size, SledStore, MAX_BLOB_BYTES,
     MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES, META_LAST_SEQ, META_LOG_BASE, META_WORLD,
-    TREE_BLOBS, TREE_CHUNKS, TREE_LOG, TREE_META, TREE_PLAYERS,
+    TREE_BLOBS, TREE_CHUNKS, TREE_DELTAS, TREE_LOG, TREE_META, TREE_PLAYERS,
 };
 pub use types::{
-    CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta, STORE_FORMAT_VERSION,
+    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta,
+    STORE_FORMAT_VERSION,
 };
 
 /// A fallible iterator over store records.
@@ -67,11 +74,12 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Seq of the last committed edit (0 for none).
     fn last_seq(&self) -> Result<u64, StoreError>;
 
-    /// A modified chunk, or `None` if it was never modified.
+    /// A modified chunk at its newest durable version (its record plus the
+    /// deltas committed since), or `None` if it was never modified.
     fn load_chunk(&self, pos: ChunkPos) -> Result<Option<StoredChunk>, StoreError>;
 
-    /// Atomically writes one tick's edits, chunk states and `last_seq`,
-    /// then flushes. Refuses (changing nothing) a batch whose seqs do not
+    /// Atomically writes one tick's edits, whole chunk states, deltas and
+    /// `last_seq`, then flushes. Refuses (changing nothing) a batch whose seqs do not
     /// follow `last_seq`, whose chunk versions do not rise, or whose chunks
     /// and entries disagree. Blocks on fsync.
     fn commit_batch(&self, batch: &CommitBatch) -> Result<CommitStats, StoreError>;
@@ -111,6 +119,11 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
 
     /// Every stored player position.
     fn player_positions(&self) -> StoreIter<'_, (String, FixedVec3)>;
+
+    /// Folds the committed deltas of up to `max_chunks` chunks into their
+    /// records (a checkpoint), durably. Runs beside commits; reads see the
+    /// same states before and after.
+    fn checkpoint(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError>;
 
     /// Verifies every record (see [`Checker`]). Run it while nothing
     /// commits: records are scanned, not snapshotted.

@@ -7,6 +7,7 @@
 
 use serde::{Deserialize, Serialize};
 use strata_terrain::chunk_codec::{decode_chunk, encode_chunk};
+use strata_terrain::delta::ChunkDelta;
 use strata_terrain::{Chunk, ChunkPos};
 
 use super::error::StoreError;
@@ -83,6 +84,42 @@ pub fn decode_log_entry(seq: u64, bytes: &[u8]) -> Result<LogEntry, StoreError> 
         return Err(corrupt(format!("record says seq {}", e.seq)));
     }
     Ok(e)
+}
+
+/// A delta record (the whole [`ChunkDelta`], bincode as the log).
+pub fn encode_delta(d: &ChunkDelta) -> Result<Vec<u8>, StoreError> {
+    bincode::serde::encode_to_vec(d, log_config()).map_err(|err| StoreError::Encode {
+        what: "chunk delta",
+        reason: format!("{} to version {}: {err}", show_pos(d.pos), d.to_version),
+    })
+}
+
+/// Decodes a delta record and checks it against its key.
+pub fn decode_delta(
+    pos: ChunkPos,
+    to_version: u64,
+    bytes: &[u8],
+) -> Result<ChunkDelta, StoreError> {
+    let corrupt = |why: String| {
+        StoreError::corrupt(
+            format!("chunk delta ({why})"),
+            format!("{} to version {to_version}", show_pos(pos)),
+        )
+    };
+    let (d, used): (ChunkDelta, usize) = bincode::serde::decode_from_slice(bytes, log_config())
+        .map_err(|e| corrupt(e.to_string()))?;
+    if used != bytes.len() {
+        return Err(corrupt(format!("{} trailing bytes", bytes.len() - used)));
+    }
+    if d.pos != pos || d.to_version != to_version || d.from_version + 1 != to_version {
+        return Err(corrupt(format!(
+            "record says {} from version {} to {}",
+            show_pos(d.pos),
+            d.from_version,
+            d.to_version
+        )));
+    }
+    Ok(d)
 }
 
 /// The metadata record: [`WorldMeta`] without `last_seq`, which lives in

@@ -1,7 +1,7 @@
 //! [`ChunkStore`] on sled 0.34.
 //!
 //! Crash safety: a commit is one sled transaction across the `meta`,
-//! `chunks` and `log` trees. sled writes a transaction's updates to its log
+//! `chunks`, `log` and `deltas` trees. sled writes a transaction's updates to its log
 //! as one batch and on recovery replays all of it or none of it, so after a
 //! crash the store holds exactly the batches before some point: never a log
 //! entry beyond `last_seq`, never a chunk without its log entry. sled's
@@ -25,13 +25,16 @@ use super::check::{CheckReport, Checker};
 use super::config::StoreConfig;
 use super::disk_sync::DiskSync;
 use super::error::StoreError;
-use super::keys::{chunk_key, chunk_pos_from_key, seq_from_key, seq_key, show_pos, show_raw};
+use super::keys::{
+    chunk_key, chunk_pos_from_key, delta_key, seq_from_key, seq_key, show_pos, show_raw,
+};
 use super::record::{
-    decode_chunk_value, decode_last_seq, decode_log_entry, decode_meta, encode_chunk_value,
+    decode_last_seq, decode_log_entry, decode_meta, encode_chunk_value, encode_delta,
     encode_log_entry, encode_meta, split_chunk_value, MAX_LOG_RECORD_BYTES,
 };
 use super::types::{
-    CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta, STORE_FORMAT_VERSION,
+    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta,
+    STORE_FORMAT_VERSION,
 };
 use super::{ChunkStore, StoreIter};
 
@@ -43,6 +46,10 @@ pub const TREE_CHUNKS: &str = "chunks";
 pub const TREE_LOG: &str = "log";
 /// Tree of named blobs.
 pub const TREE_BLOBS: &str = "blobs";
+/// Tree of chunk deltas committed since each chunk's record was written.
+pub const TREE_DELTAS: &str = "deltas";
+/// The store format that had no `deltas` tree; opened, it is upgraded.
+const FORMAT_WITHOUT_DELTAS: u32 = 1;
 /// Tree of players' last positions: name → x, y, z (fixed point, i32 BE).
 pub const TREE_PLAYERS: &str = "players";
 /// Key of the metadata record in [`TREE_META`].
@@ -68,6 +75,7 @@ pub struct SledStore {
     pub(super) chunks: sled::Tree,
     pub(super) log: sled::Tree,
     pub(super) blobs: sled::Tree,
+    pub(super) deltas: sled::Tree,
     players: sled::Tree,
     disk: DiskSync,
 }
@@ -93,6 +101,7 @@ impl SledStore {
             chunks: db.open_tree(TREE_CHUNKS)?,
             log: db.open_tree(TREE_LOG)?,
             blobs: db.open_tree(TREE_BLOBS)?,
+            deltas: db.open_tree(TREE_DELTAS)?,
             players: db.open_tree(TREE_PLAYERS)?,
             disk: DiskSync::open(dir)?,
             db,
@@ -101,8 +110,13 @@ impl SledStore {
         // corrupt one must still open so `check` can report it (and
         // `load_meta` returns the error to anyone else).
         let world = store.meta.get(META_WORLD)?;
-        if let Some(Ok(m)) = world.map(|w| decode_meta(&w, 0)) {
-            if m.format_version != STORE_FORMAT_VERSION {
+        if let Some(Ok(mut m)) = world.map(|w| decode_meta(&w, 0)) {
+            if m.format_version == FORMAT_WITHOUT_DELTAS {
+                // Nothing to convert: such a store simply has no deltas.
+                m.format_version = STORE_FORMAT_VERSION;
+                store.meta.insert(META_WORLD, encode_meta(&m)?)?;
+                store.flush()?;
+            } else if m.format_version != STORE_FORMAT_VERSION {
                 return Err(StoreError::UnsupportedFormat {
                     found: m.format_version,
                     supported: STORE_FORMAT_VERSION,
@@ -243,11 +257,9 @@ impl ChunkStore for SledStore {
     }
 
     fn load_chunk(&self, pos: ChunkPos) -> Result<Option<StoredChunk>, StoreError> {
-        let Some(v) = self.chunks.get(chunk_key(pos))? else {
-            return Ok(None);
-        };
-        let (version, chunk) = decode_chunk_value(pos, &v)?;
-        Ok(Some(StoredChunk { chunk, version }))
+        Ok(self
+            .latest(pos)?
+            .map(|(version, chunk)| StoredChunk { chunk, version }))
     }
 
     fn commit_batch(&self, b: &CommitBatch) -> Result<CommitStats, StoreError> {
@@ -283,11 +295,22 @@ impl ChunkStore for SledStore {
                 value: encode_chunk_value(*version, chunk),
             })
             .collect();
+        let mut deltas = Vec::with_capacity(b.deltas.len());
+        for d in &b.deltas {
+            deltas.push((
+                d.pos,
+                d.from_version,
+                delta_key(d.pos, d.to_version),
+                encode_delta(d)?,
+            ));
+        }
         let bytes_written = logs.iter().map(|(_, v)| v.len() as u64).sum::<u64>()
-            + chunks.iter().map(|c| c.value.len() as u64).sum::<u64>();
+            + chunks.iter().map(|c| c.value.len() as u64).sum::<u64>()
+            + deltas.iter().map(|d| d.3.len() as u64).sum::<u64>();
 
         let encode = started.elapsed();
-        let result = (&self.meta, &self.chunks, &self.log).transaction(|(meta, tchunks, log)| {
+        let trees = (&self.meta, &self.chunks, &self.log, &self.deltas);
+        let result = trees.transaction(|(meta, tchunks, log, tdeltas)| {
             if meta.get(META_WORLD)?.is_none() {
                 return Err(abort(StoreError::NoMeta));
             }
@@ -310,6 +333,21 @@ impl ChunkStore for SledStore {
                             c.lowest
                         ))));
                     }
+                }
+            }
+            for (pos, from, key, value) in &deltas {
+                // The chain goes on from the newest stored version: the
+                // previous delta's, or else the record's.
+                let follows = tdeltas.get(delta_key(*pos, *from))?.is_some()
+                    || match tchunks.get(chunk_key(*pos))? {
+                        Some(v) => split_chunk_value(*pos, &v).map_err(abort)?.0 == *from,
+                        None => false,
+                    };
+                if !follows || tdeltas.insert(&key[..], value.as_slice())?.is_some() {
+                    return Err(abort(StoreError::batch(format!(
+                        "{} is not stored at version {from}, the batch's delta starts there",
+                        show_pos(*pos)
+                    ))));
                 }
             }
             for (key, value) in &logs {
@@ -365,12 +403,7 @@ impl ChunkStore for SledStore {
         let Some(v) = self.chunks.get(chunk_key(pos))? else {
             return Ok(None);
         };
-        let (version, body) = split_chunk_value(pos, &v)?;
-        Ok(Some(RawChunk {
-            pos,
-            version,
-            encoded: body.to_vec(),
-        }))
+        self.raw_latest(pos, &v).map(Some)
     }
 
     fn modified_chunks(&self) -> StoreIter<'_, (ChunkPos, u64)> {
@@ -378,19 +411,15 @@ impl ChunkStore for SledStore {
         Box::new(self.chunks.iter().map(|r| {
             let (k, v) = r?;
             let (pos, version, _) = split_chunk_entry(&k, &v)?;
-            Ok((pos, version))
+            Ok((pos, self.head_version(pos, version)?))
         }))
     }
 
     fn raw_chunks(&self) -> StoreIter<'_, RawChunk> {
         Box::new(self.chunks.iter().map(|r| {
             let (k, v) = r?;
-            let (pos, version, body) = split_chunk_entry(&k, &v)?;
-            Ok(RawChunk {
-                pos,
-                version,
-                encoded: body.to_vec(),
-            })
+            let (pos, _, _) = split_chunk_entry(&k, &v)?;
+            self.raw_latest(pos, &v)
         }))
     }
 
@@ -459,6 +488,10 @@ impl ChunkStore for SledStore {
         }))
     }
 
+    fn checkpoint(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
+        self.fold_deltas(max_chunks)
+    }
+
     fn check(&self) -> Result<CheckReport, StoreError> {
         self.check_with_progress(&|| {})
     }
@@ -468,6 +501,32 @@ impl ChunkStore for SledStore {
 const SLED_DEFAULT_TREE: &[u8] = b"__sled__default";
 
 impl SledStore {
+    /// A chunk's newest durable state, undecoded when it has no deltas
+    /// past its record `value`, else replayed and encoded again.
+    fn raw_latest(&self, pos: ChunkPos, value: &[u8]) -> Result<RawChunk, StoreError> {
+        let (version, body) = split_chunk_value(pos, value)?;
+        if self.head_version(pos, version)? == version {
+            return Ok(RawChunk {
+                pos,
+                version,
+                encoded: body.to_vec(),
+            });
+        }
+        let (version, chunk) = self
+            .latest(pos)?
+            .ok_or_else(|| StoreError::corrupt("chunk record vanished", show_pos(pos)))?;
+        Ok(RawChunk {
+            pos,
+            version,
+            encoded: strata_terrain::chunk_codec::encode_chunk(&chunk),
+        })
+    }
+
+    /// Number of delta records not yet folded into chunk records.
+    pub fn delta_count(&self) -> u64 {
+        self.deltas.len() as u64
+    }
+
     /// Number of named blobs.
     pub fn blob_count(&self) -> Result<u64, StoreError> {
         Ok(self.blobs.len() as u64)
@@ -504,7 +563,15 @@ impl SledStore {
                 checker.unknown_meta_key(&k);
             }
         }
-        let known = [TREE_META, TREE_CHUNKS, TREE_LOG, TREE_BLOBS, TREE_PLAYERS].map(str::as_bytes);
+        let known = [
+            TREE_META,
+            TREE_CHUNKS,
+            TREE_LOG,
+            TREE_BLOBS,
+            TREE_PLAYERS,
+            TREE_DELTAS,
+        ]
+        .map(str::as_bytes);
         for name in self.db.tree_names() {
             if name == SLED_DEFAULT_TREE || known.contains(&&name[..]) {
                 continue;
@@ -523,6 +590,11 @@ impl SledStore {
         for r in self.chunks.iter() {
             let (k, v) = r?;
             checker.chunk_record(&k, &v);
+            tick();
+        }
+        for r in self.deltas.iter() {
+            let (k, v) = r?;
+            checker.delta_record(&k, &v);
             tick();
         }
         Ok(checker.finish(world.map(|_| last_seq)))

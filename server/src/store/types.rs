@@ -2,11 +2,13 @@
 
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
+use strata_terrain::delta::ChunkDelta;
 use strata_terrain::{Chunk, ChunkPos, Edit};
 
 /// Layout version of the store written by this build; bumped on any change
-/// to [`crate::store::keys`] or to a record's encoding.
-pub const STORE_FORMAT_VERSION: u32 = 1;
+/// to [`crate::store::keys`] or to a record's encoding. 2 added the `deltas`
+/// tree; a version-1 store is upgraded when opened (it has no deltas).
+pub const STORE_FORMAT_VERSION: u32 = 2;
 
 /// What a world was generated from, plus how far its edit log goes.
 ///
@@ -74,9 +76,14 @@ pub struct LogEntry {
 pub struct CommitBatch {
     /// Consecutive seqs, the first one just after the store's `last_seq`.
     pub entries: Vec<LogEntry>,
-    /// The final state of every chunk the entries changed, once each, at
-    /// the highest version the entries gave it.
+    /// The final state, at the highest version the entries gave it, of
+    /// each changed chunk written whole: at least every chunk the store
+    /// does not hold yet (version 0 before the batch).
     pub chunks: Vec<(ChunkPos, u64, Chunk)>,
+    /// For every other changed chunk, one delta per change, in version
+    /// order: the tick's durable record is the log plus these, and a
+    /// checkpoint later folds them into the chunk's record.
+    pub deltas: Vec<ChunkDelta>,
     /// The seq of the last entry.
     pub last_seq: u64,
 }
@@ -102,4 +109,15 @@ pub struct CommitStats {
     /// Time the fsyncs after it took (see `disk_sync`): the commit is
     /// durable only once they return.
     pub fsync: Duration,
+}
+
+/// What one checkpoint pass did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct CheckpointStats {
+    /// Chunks whose deltas were folded into their records.
+    pub chunks: u64,
+    /// Delta records removed.
+    pub deltas: u64,
+    /// Chunk record bytes written.
+    pub bytes_written: u64,
 }

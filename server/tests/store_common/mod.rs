@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 
 use strata_server::store::{CommitBatch, LogEntry};
 use strata_terrain::chunk::DenseChunk;
+use strata_terrain::delta::ChunkDelta;
 use strata_terrain::material::ids;
 use strata_terrain::{Chunk, ChunkPos, Edit, Fixed, FixedVec3, Voxel, CHUNK_SIZE};
 
@@ -55,12 +56,26 @@ pub fn mine_at(x: i32, y: i32, z: i32) -> Edit {
 pub struct Seq {
     pub last_seq: u64,
     pub versions: BTreeMap<ChunkPos, u64>,
+    /// Each chunk's last state, for [`Seq::delta_batch`].
+    pub states: BTreeMap<ChunkPos, Chunk>,
 }
 
 impl Seq {
     /// A batch of edits; edit `i` changes the chunks in `edits[i]` to the
     /// given states. The batch holds each chunk's last state.
     pub fn batch(&mut self, edits: &[Vec<(ChunkPos, Chunk)>]) -> CommitBatch {
+        self.build(edits, false)
+    }
+
+    /// Like [`Seq::batch`], but as the server commits: chunks stored before
+    /// the batch go as one delta per change, only new ones whole.
+    pub fn delta_batch(&mut self, edits: &[Vec<(ChunkPos, Chunk)>]) -> CommitBatch {
+        self.build(edits, true)
+    }
+
+    fn build(&mut self, edits: &[Vec<(ChunkPos, Chunk)>], as_deltas: bool) -> CommitBatch {
+        let stored_before: BTreeMap<ChunkPos, u64> = self.versions.clone();
+        let mut deltas = Vec::new();
         let mut latest: BTreeMap<ChunkPos, (u64, Chunk)> = BTreeMap::new();
         let mut entries = Vec::new();
         for changes in edits {
@@ -70,7 +85,13 @@ impl Seq {
                 let v = self.versions.entry(*pos).or_insert(0);
                 *v += 1;
                 logged.push((*pos, *v));
-                latest.insert(*pos, (*v, chunk.clone()));
+                if as_deltas && stored_before.get(pos).is_some_and(|&b| b > 0) {
+                    let before = &self.states[pos];
+                    deltas.push(ChunkDelta::encode(*pos, *v - 1, *v, before, chunk).unwrap());
+                } else {
+                    latest.insert(*pos, (*v, chunk.clone()));
+                }
+                self.states.insert(*pos, chunk.clone());
             }
             // Aim the edit at the first chunk (clamped: any centre will do).
             let p = changes.first().map_or(ChunkPos::new(0, 0, 0), |c| c.0);
@@ -86,6 +107,7 @@ impl Seq {
         CommitBatch {
             entries,
             chunks: latest.into_iter().map(|(p, (v, c))| (p, v, c)).collect(),
+            deltas,
             last_seq: self.last_seq,
         }
     }

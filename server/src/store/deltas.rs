@@ -1,0 +1,200 @@
+//! The small durable record: a commit stores each change of an already
+//! stored chunk as its delta (the bytes clients receive), and a checkpoint
+//! later folds a chunk's deltas into its record. Every read replays the
+//! deltas past the record, so readers always see the newest durable state,
+//! and recovery after a crash is just that replay.
+
+use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
+use strata_terrain::delta::ChunkDelta;
+use strata_terrain::{Chunk, ChunkPos};
+
+use super::error::StoreError;
+use super::keys::{chunk_key, delta_from_key, delta_key, show_pos, show_raw, CHUNK_KEY_LEN};
+use super::record::{decode_chunk_value, decode_delta, encode_chunk_value, split_chunk_value};
+use super::sled_store::SledStore;
+use super::types::CheckpointStats;
+
+/// Reads of a record and its deltas retried when a checkpoint moved the
+/// record between the two reads.
+const READ_RETRIES: usize = 8;
+
+/// Why a checkpoint left a chunk alone this pass.
+struct Moved;
+
+impl SledStore {
+    /// `pos`'s deltas, in version order.
+    fn deltas_of(&self, pos: ChunkPos) -> Result<Vec<ChunkDelta>, StoreError> {
+        self.deltas
+            .scan_prefix(chunk_key(pos))
+            .map(|r| {
+                let (k, v) = r?;
+                let (p, to) = delta_from_key(&k)
+                    .ok_or_else(|| StoreError::corrupt("delta key", show_raw(&k)))?;
+                decode_delta(p, to, &v)
+            })
+            .collect()
+    }
+
+    /// The newest durable version of `pos` given its record's version: the
+    /// last delta's, if any.
+    pub(super) fn head_version(&self, pos: ChunkPos, record: u64) -> Result<u64, StoreError> {
+        match self.deltas.scan_prefix(chunk_key(pos)).keys().next_back() {
+            Some(k) => {
+                let k = k?;
+                let (_, to) = delta_from_key(&k)
+                    .ok_or_else(|| StoreError::corrupt("delta key", show_raw(&k)))?;
+                Ok(to.max(record))
+            }
+            None => Ok(record),
+        }
+    }
+
+    /// `pos`'s newest durable state: its record with the deltas past it
+    /// applied (each checked against its base and target hashes). `None`
+    /// for a chunk the store does not hold.
+    pub(super) fn latest(&self, pos: ChunkPos) -> Result<Option<(u64, Chunk)>, StoreError> {
+        for _ in 0..READ_RETRIES {
+            let record = self.chunks.get(chunk_key(pos))?;
+            let deltas = self.deltas_of(pos)?;
+            let Some(record) = record else {
+                if deltas.is_empty() {
+                    return Ok(None);
+                }
+                return Err(StoreError::corrupt(
+                    "deltas without a chunk record",
+                    show_pos(pos),
+                ));
+            };
+            let (version, chunk) = decode_chunk_value(pos, &record)?;
+            match replay(pos, version, chunk, &deltas)? {
+                Ok(state) => return Ok(Some(state)),
+                Err(Moved) => continue,
+            }
+        }
+        Err(StoreError::corrupt(
+            "delta chain does not start at the chunk record's version",
+            show_pos(pos),
+        ))
+    }
+
+    /// Folds the deltas of up to `max_chunks` chunks into their records,
+    /// then makes that durable. Safe beside commits: each chunk's record
+    /// and the deltas folded into it change in one transaction, and a
+    /// commit's deltas past them stay.
+    pub(super) fn fold_deltas(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
+        let mut stats = CheckpointStats::default();
+        let mut last: Option<[u8; CHUNK_KEY_LEN]> = None;
+        let mut todo = Vec::new();
+        for k in self.deltas.iter().keys() {
+            let k = k?;
+            let (pos, _) =
+                delta_from_key(&k).ok_or_else(|| StoreError::corrupt("delta key", show_raw(&k)))?;
+            if last != Some(chunk_key(pos)) {
+                if todo.len() >= max_chunks {
+                    break;
+                }
+                last = Some(chunk_key(pos));
+                todo.push(pos);
+            }
+        }
+        for pos in todo {
+            if let Some((folded, bytes)) = self.fold_one(pos)? {
+                stats.chunks += 1;
+                stats.deltas += folded;
+                stats.bytes_written += bytes;
+            }
+        }
+        if stats.chunks > 0 {
+            self.flush()?;
+        }
+        Ok(stats)
+    }
+
+    /// Folds `pos`'s deltas into its record: (deltas removed, bytes written),
+    /// or `None` when a concurrent fold got there first.
+    fn fold_one(&self, pos: ChunkPos) -> Result<Option<(u64, u64)>, StoreError> {
+        let key = chunk_key(pos);
+        let Some(record) = self.chunks.get(key)? else {
+            return Err(StoreError::corrupt(
+                "deltas without a chunk record",
+                show_pos(pos),
+            ));
+        };
+        let (base, chunk) = decode_chunk_value(pos, &record)?;
+        let deltas = self.deltas_of(pos)?;
+        let Ok((head, state)) = replay(pos, base, chunk, &deltas)? else {
+            return Ok(None);
+        };
+        let value = encode_chunk_value(head, &state);
+        let folded: Vec<_> = deltas
+            .iter()
+            .filter(|d| d.to_version <= head)
+            .map(|d| delta_key(pos, d.to_version))
+            .collect();
+        let result = (&self.chunks, &self.deltas).transaction(|(tchunks, tdeltas)| {
+            // Only over the record this fold started from.
+            let now = tchunks.get(key)?;
+            let same = now
+                .as_ref()
+                .and_then(|v| split_chunk_value(pos, v).ok())
+                .is_some_and(|(v, _)| v == base);
+            if !same {
+                return Err(ConflictableTransactionError::Abort(()));
+            }
+            tchunks.insert(&key[..], value.as_slice())?;
+            for k in &folded {
+                tdeltas.remove(&k[..])?;
+            }
+            Ok(())
+        });
+        match result {
+            Ok(()) => Ok(Some((folded.len() as u64, value.len() as u64))),
+            Err(TransactionError::Abort(())) => Ok(None),
+            Err(TransactionError::Storage(e)) => Err(e.into()),
+        }
+    }
+}
+
+/// Applies the deltas past `version` to `chunk` in order. `Err(Moved)`
+/// when they do not start at `version` (a fold ran between the reads).
+fn replay(
+    pos: ChunkPos,
+    version: u64,
+    chunk: Chunk,
+    deltas: &[ChunkDelta],
+) -> Result<Result<(u64, Chunk), Moved>, StoreError> {
+    let past: Vec<&ChunkDelta> = deltas.iter().filter(|d| d.to_version > version).collect();
+    let Some(first) = past.first() else {
+        return Ok(Ok((version, chunk)));
+    };
+    if first.from_version != version {
+        return Ok(Err(Moved));
+    }
+    let mut state = chunk;
+    for (i, d) in past.iter().enumerate() {
+        let next = match i.checked_sub(1).map(|j| past[j]) {
+            None => d.apply(&state),
+            // The previous delta's target hash was checked: the chain must
+            // continue from it.
+            Some(prev) if prev.to_version == d.from_version && prev.target_hash == d.base_hash => {
+                d.apply_to_checked_base(&state)
+            }
+            Some(prev) => {
+                return Err(StoreError::corrupt(
+                    format!(
+                        "delta chain breaks after version {} (next goes from {})",
+                        prev.to_version, d.from_version
+                    ),
+                    show_pos(pos),
+                ))
+            }
+        };
+        state = next.map_err(|e| {
+            StoreError::corrupt(
+                format!("delta to version {} does not apply ({e})", d.to_version),
+                show_pos(pos),
+            )
+        })?;
+    }
+    Ok(Ok((past.last().map_or(version, |d| d.to_version), state)))
+}

@@ -1,0 +1,161 @@
+//! The small durable record: commits store deltas for chunks already
+//! stored, reads replay them, a checkpoint folds them into chunk records
+//! (also while commits run), and a reopened store replays what was not
+//! folded. A delta that does not continue the stored chain is refused.
+
+mod store_common;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use store_common::{terrain_chunk, Seq};
+use strata_server::store::{ChunkStore, SledStore, WorldMeta};
+use strata_terrain::chunk_codec::encode_chunk;
+use strata_terrain::{Chunk, ChunkPos};
+
+const A: ChunkPos = ChunkPos { x: 1, y: 0, z: -2 };
+const B: ChunkPos = ChunkPos { x: -4, y: 1, z: 3 };
+
+fn open(dir: &std::path::Path) -> SledStore {
+    let store = SledStore::open(dir).unwrap();
+    store.init_meta(&WorldMeta::new(5, 1, "")).unwrap();
+    store
+}
+
+/// What every read of `pos` must say.
+fn assert_reads(store: &SledStore, pos: ChunkPos, version: u64, chunk: &Chunk) {
+    let loaded = store.load_chunk(pos).unwrap().unwrap();
+    assert_eq!((loaded.version, &loaded.chunk), (version, chunk));
+    let raw = store.raw_chunk(pos).unwrap().unwrap();
+    assert_eq!((raw.version, raw.encoded), (version, encode_chunk(chunk)));
+    let listed: Vec<_> = store.modified_chunks().map(|r| r.unwrap()).collect();
+    assert!(listed.contains(&(pos, version)), "{listed:?}");
+    let walked: Vec<_> = store.raw_chunks().map(|r| r.unwrap()).collect();
+    assert!(walked
+        .iter()
+        .any(|r| r.pos == pos && r.version == version && r.encoded == encode_chunk(chunk)));
+}
+
+#[test]
+fn deltas_replay_on_read_and_reopen_and_fold_at_a_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut seq = Seq::default();
+    {
+        let store = open(dir.path());
+        // New chunks go whole, then each change of them as a delta.
+        let first = seq.delta_batch(&[vec![(A, terrain_chunk(1)), (B, terrain_chunk(2))]]);
+        assert_eq!((first.chunks.len(), first.deltas.len()), (2, 0));
+        store.commit_batch(&first).unwrap();
+        let next = seq.delta_batch(&[
+            vec![(A, terrain_chunk(3))],
+            vec![(A, terrain_chunk(4)), (B, terrain_chunk(5))],
+        ]);
+        assert_eq!((next.chunks.len(), next.deltas.len()), (0, 3));
+        store.commit_batch(&next).unwrap();
+        assert_eq!(store.delta_count(), 3);
+        assert_reads(&store, A, 3, &terrain_chunk(4));
+        assert_reads(&store, B, 2, &terrain_chunk(5));
+        assert!(store.check().unwrap().is_ok(), "{:?}", store.check());
+        // Closed with nothing folded (store_crash kills a process
+        // mid-commit): the reopened store replays the deltas.
+        drop(store);
+    }
+    let store = SledStore::open(dir.path()).unwrap();
+    assert_eq!(store.delta_count(), 3);
+    assert_reads(&store, A, 3, &terrain_chunk(4));
+    assert_reads(&store, B, 2, &terrain_chunk(5));
+
+    let stats = store.checkpoint(1).unwrap();
+    assert_eq!(stats.chunks, 1, "at most the chunks asked for");
+    let stats = store.checkpoint(usize::MAX).unwrap();
+    assert_eq!(stats.chunks, 1);
+    assert_eq!(store.delta_count(), 0);
+    assert_eq!(store.checkpoint(usize::MAX).unwrap().chunks, 0);
+    assert_reads(&store, A, 3, &terrain_chunk(4));
+    assert_reads(&store, B, 2, &terrain_chunk(5));
+    assert!(store.check().unwrap().is_ok());
+
+    // The chain goes on from the folded record.
+    store
+        .commit_batch(&seq.delta_batch(&[vec![(A, terrain_chunk(6))]]))
+        .unwrap();
+    assert_reads(&store, A, 4, &terrain_chunk(6));
+    assert!(store.check().unwrap().is_ok());
+}
+
+#[test]
+fn a_delta_that_does_not_continue_the_stored_chain_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = open(dir.path());
+    let mut seq = Seq::default();
+    store
+        .commit_batch(&seq.delta_batch(&[vec![(A, terrain_chunk(1))]]))
+        .unwrap();
+    // Built from a version the store does not hold (as if one was lost).
+    let mut ahead = Seq {
+        last_seq: 1,
+        versions: [(A, 2)].into(),
+        states: [(A, terrain_chunk(9))].into(),
+    };
+    let gap = ahead.delta_batch(&[vec![(A, terrain_chunk(2))]]);
+    let err = store.commit_batch(&gap).unwrap_err().to_string();
+    assert!(err.contains("not stored at version 2"), "{err}");
+    // A delta for a chunk the store never held.
+    let mut stranger = Seq {
+        last_seq: 1,
+        versions: [(B, 1)].into(),
+        states: [(B, terrain_chunk(9))].into(),
+    };
+    let err = store
+        .commit_batch(&stranger.delta_batch(&[vec![(B, terrain_chunk(2))]]))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("not stored at version 1"), "{err}");
+    assert_eq!(store.last_seq().unwrap(), 1);
+    assert_eq!(store.delta_count(), 0);
+    assert_reads(&store, A, 1, &terrain_chunk(1));
+    assert!(store.check().unwrap().is_ok());
+}
+
+#[test]
+fn checkpoints_beside_commits_change_no_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Arc::new(open(dir.path()));
+    let chunks: Vec<ChunkPos> = (0..6).map(|i| ChunkPos::new(i, 0, i % 2)).collect();
+    let mut seq = Seq::default();
+    let done = Arc::new(AtomicBool::new(false));
+    let folder = {
+        let (store, done) = (store.clone(), done.clone());
+        std::thread::spawn(move || {
+            let mut folded = 0;
+            while !done.load(Ordering::Relaxed) {
+                folded += store.checkpoint(2).unwrap().chunks;
+            }
+            folded
+        })
+    };
+    for round in 0..60u32 {
+        let edits: Vec<_> = chunks
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| (*i as u32 + round) % 3 != 0)
+            .map(|(i, &p)| vec![(p, terrain_chunk(round * 10 + i as u32))])
+            .collect();
+        store.commit_batch(&seq.delta_batch(&edits)).unwrap();
+        for (p, v) in &seq.versions {
+            let loaded = store.load_chunk(*p).unwrap().unwrap();
+            assert_eq!((loaded.version, &loaded.chunk), (*v, &seq.states[p]));
+        }
+    }
+    done.store(true, Ordering::Relaxed);
+    assert!(
+        folder.join().unwrap() > 0,
+        "the checkpoint ran during the commits"
+    );
+    assert!(store.check().unwrap().is_ok(), "{:?}", store.check());
+    while store.checkpoint(usize::MAX).unwrap().chunks > 0 {}
+    assert_eq!(store.delta_count(), 0);
+    for (p, v) in &seq.versions {
+        assert_reads(&store, *p, *v, &seq.states[p]);
+    }
+}
