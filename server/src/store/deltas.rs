@@ -16,7 +16,7 @@ use super::types::CheckpointStats;
 
 /// Reads of a record and its deltas retried when a checkpoint moved the
 /// record between the two reads.
-const READ_RETRIES: usize = 8;
+const READ_RETRIES: usize = 32;
 
 /// Why a checkpoint left a chunk alone this pass.
 struct Moved;
@@ -35,23 +35,47 @@ impl SledStore {
             .collect()
     }
 
-    /// The newest durable version of `pos` given its record's version: the
-    /// last delta's, if any.
+    /// The version of `pos`'s record, `None` when the store lacks it.
+    fn record_version(&self, pos: ChunkPos) -> Result<Option<u64>, StoreError> {
+        self.chunks
+            .get(chunk_key(pos))?
+            .map(|v| split_chunk_value(pos, &v).map(|(version, _)| version))
+            .transpose()
+    }
+
+    /// The newest durable version of `pos` given the version of its record
+    /// as read earlier: the last delta's, if any. A scan is no snapshot, so
+    /// the record is read again after it; a fold that committed in between
+    /// moved the record's version, and the scan runs again.
     pub(super) fn head_version(&self, pos: ChunkPos, record: u64) -> Result<u64, StoreError> {
-        match self.deltas.scan_prefix(chunk_key(pos)).keys().next_back() {
-            Some(k) => {
-                let k = k?;
-                let (_, to) = delta_from_key(&k)
-                    .ok_or_else(|| StoreError::corrupt("delta key", show_raw(&k)))?;
-                Ok(to.max(record))
+        let mut record = record;
+        for _ in 0..READ_RETRIES {
+            let last = match self.deltas.scan_prefix(chunk_key(pos)).keys().next_back() {
+                Some(k) => {
+                    let k = k?;
+                    let (_, to) = delta_from_key(&k)
+                        .ok_or_else(|| StoreError::corrupt("delta key", show_raw(&k)))?;
+                    to
+                }
+                None => 0,
+            };
+            let now = self.record_version(pos)?.unwrap_or(record);
+            if now == record {
+                return Ok(last.max(record));
             }
-            None => Ok(record),
+            record = now;
         }
+        Err(StoreError::corrupt(
+            "chunk record kept moving under a read",
+            show_pos(pos),
+        ))
     }
 
     /// `pos`'s newest durable state: its record with the deltas past it
     /// applied (each checked against its base and target hashes). `None`
-    /// for a chunk the store does not hold.
+    /// for a chunk the store does not hold. Safe beside folds: a fold that
+    /// commits during the deltas' scan (which is no snapshot) moves the
+    /// record, and the read starts again.
     pub(super) fn latest(&self, pos: ChunkPos) -> Result<Option<(u64, Chunk)>, StoreError> {
         for _ in 0..READ_RETRIES {
             let record = self.chunks.get(chunk_key(pos))?;
@@ -67,8 +91,10 @@ impl SledStore {
             };
             let (version, chunk) = decode_chunk_value(pos, &record)?;
             match replay(pos, version, chunk, &deltas)? {
-                Ok(state) => return Ok(Some(state)),
-                Err(Moved) => continue,
+                // The deltas were scanned from this record only if no fold
+                // moved it during the scan.
+                Ok(state) if self.record_version(pos)? == Some(version) => return Ok(Some(state)),
+                Ok(_) | Err(Moved) => continue,
             }
         }
         Err(StoreError::corrupt(
