@@ -51,7 +51,7 @@ async fn main() -> anyhow::Result<()> {
     cfg.apply_overrides(args.data_dir, args.listen);
     let metrics = match cfg.metrics.listen {
         Some(addr) => {
-            let handle = strata_server::metrics::install()?;
+            let handle = strata_server::metrics::shared()?;
             let listener = strata_server::metrics::bind(addr)
                 .await
                 .with_context(|| format!("binding the metrics listener {addr}"))?;
@@ -73,6 +73,9 @@ async fn main() -> anyhow::Result<()> {
         running.addr,
         running.data_dir.cert_path().display()
     );
+    if let Some(addr) = running.console_addr {
+        println!("strata-console on http://{addr}/");
+    }
     tokio::select! {
         signal = wait_for_signal() => {
             tracing::info!(signal = signal?, "shutting down");
