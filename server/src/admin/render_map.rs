@@ -132,7 +132,7 @@ pub fn run(args: &RenderMapArgs, show_progress: bool) -> Result<MapReport, Rende
             slice_map(&world, cols, level, args.scale, show_progress)?,
             Vec::new(),
         ),
-        None => top_down_map(&world, cols, args.interval, args.scale, show_progress)?,
+        None => top_down_map(&world, cols, args.interval, args.scale, None, show_progress)?,
     };
     let (width_px, height_px) = map.pixel_size()?;
     let write_err = |source| RenderMapError::Write {
@@ -387,12 +387,15 @@ fn region_surface(
 }
 
 /// The top-down view of the chunk columns `cols` (x0, z0, x1, z1) with
-/// height contours every `interval` voxels.
+/// height contours every `interval` voxels. Heights are shaded over
+/// `shade` (low, high), or over the region's own range when `None`: maps
+/// drawn in tiles pass one range so the tiles' shades agree.
 pub fn top_down_map(
     world: &dyn WorldView,
     cols: [i32; 4],
     interval: u32,
     scale: u32,
+    shade: Option<(f32, f32)>,
     show_progress: bool,
 ) -> Result<(MapImage, Vec<f32>), RenderMapError> {
     let cells = region_surface(world, cols, *world.rows().start(), show_progress)?;
@@ -411,7 +414,8 @@ pub fn top_down_map(
     let heights: Vec<f32> = cells.iter().map(|c| c.map_or(floor, |c| c.0)).collect();
 
     let table = MaterialTable::default();
-    let span = (hi - lo).max(1.0);
+    let (shade_lo, shade_hi) = shade.unwrap_or((lo, hi));
+    let span = (shade_hi - shade_lo).max(1.0);
     let fill = (0..height)
         .flat_map(|j| (0..width).map(move |i| (i, j)))
         .map(|(i, j)| {
@@ -424,7 +428,9 @@ pub fn top_down_map(
             } else {
                 h
             };
-            let relief = 0.7 + 0.45 * (h - lo) / span + 0.08 * (h - nw).clamp(-3.0, 3.0);
+            let relief = 0.7
+                + 0.45 * ((h - shade_lo) / span).clamp(0.0, 1.0)
+                + 0.08 * (h - nw).clamp(-3.0, 3.0);
             palette::shade(palette::material(&table, m), relief)
         })
         .collect();

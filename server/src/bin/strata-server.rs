@@ -67,15 +67,16 @@ async fn main() -> anyhow::Result<()> {
             running.health(),
         ));
     }
-    // One machine-readable line on stdout: tests and scripts read the port.
+    // One machine-readable line on stdout: tests and scripts read the port
+    // (and may close the pipe after it: nothing else is printed there).
+    let console = running
+        .console_addr
+        .map_or(String::new(), |a| format!("; console http://{a}/"));
     println!(
-        "strata-server listening on {} (certificate {})",
+        "strata-server listening on {} (certificate {}){console}",
         running.addr,
         running.data_dir.cert_path().display()
     );
-    if let Some(addr) = running.console_addr {
-        println!("strata-console on http://{addr}/");
-    }
     tokio::select! {
         signal = wait_for_signal() => {
             tracing::info!(signal = signal?, "shutting down");

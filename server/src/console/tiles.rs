@@ -97,7 +97,13 @@ pub fn render(world: &dyn WorldView, key: TileKey) -> Result<Vec<u8>, RenderMapE
     let (x0, z0) = key.first_column();
     let cols = [x0, z0, x0 + TILE_COLUMNS - 1, z0 + TILE_COLUMNS - 1];
     let map = match key.view {
-        View::Top => top_down_map(world, cols, TILE_CONTOUR_INTERVAL, 1, false)?.0,
+        View::Top => {
+            // One shading range for every tile: the hills' own.
+            let p = world.params();
+            let (base, amp) = (p.base_height as f32, p.hill_amplitude as f32);
+            let shade = Some((base - amp, base + amp));
+            top_down_map(world, cols, TILE_CONTOUR_INTERVAL, 1, shade, false)?.0
+        }
         View::Slice(y) => slice_map(world, cols, y, 1, false)?,
     };
     let mut png = Vec::new();

@@ -68,6 +68,10 @@ async function watch() {
         StrataCharts.onSample(s);
         showPlayers(s.players);
         showSnapshot(s.snapshot);
+        if (!Console.sceneShown && s.players.some((p) => p.at)) {
+          Console.sceneShown = true;
+          StrataView3d.around(s.players);
+        }
       });
       setStatus("error", "event stream ended; reconnecting");
     } catch (e) {

@@ -120,9 +120,10 @@ const StrataView3d = (() => {
 
   async function load() {
     if (!region) { state("idle", "pick a region: shift-drag on the map"); return; }
-    const [x0, z0, x1, z1] = region;
+    const [x0, z0, x1, z1, y0, y1] = region;
+    const rows = y0 === undefined ? "" : `&y0=${y0}&y1=${y1}`;
     state("loading");
-    const resp = await api(`/api/scene.glb?x0=${x0}&z0=${z0}&x1=${x1}&z1=${z1}`);
+    const resp = await api(`/api/scene.glb?x0=${x0}&z0=${z0}&x1=${x1}&z1=${z1}${rows}`);
     if (!resp.ok) {
       const body = await resp.json().catch(() => ({}));
       state("error", "refused: " + (body.error || resp.status));
@@ -135,9 +136,20 @@ const StrataView3d = (() => {
     draw();
   }
 
-  function setRegion(x0, z0, x1, z1) {
-    region = [x0, z0, x1, z1];
-    document.getElementById("scene-box").textContent = `x ${x0}..${x1}, z ${z0}..${z1}`;
+  function setRegion(x0, z0, x1, z1, y0, y1) {
+    region = [x0, z0, x1, z1, y0, y1];
+    const ys = y0 === undefined ? "" : `, y ${y0}..${y1}`;
+    document.getElementById("scene-box").textContent = `x ${x0}..${x1}, z ${z0}..${z1}${ys}`;
+  }
+
+  // The 3x3 chunk columns around the players, a few rows about their feet.
+  function around(players) {
+    const placed = players.filter((p) => p.at);
+    if (!placed.length) return;
+    const mean = (i) => placed.reduce((a, p) => a + p.at[i], 0) / placed.length;
+    const [cx, cy, cz] = [0, 1, 2].map((i) => Math.floor(mean(i) / 32));
+    setRegion(cx - 1, cz - 1, cx + 1, cz + 1, cy - 2, cy + 1);
+    load();
   }
 
   function start(w) {
@@ -173,5 +185,5 @@ const StrataView3d = (() => {
     });
   }
 
-  return { start, setRegion };
+  return { start, setRegion, around };
 })();
