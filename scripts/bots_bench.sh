@@ -177,5 +177,5 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
             q["strata_flush_seconds_0.5"], q["strata_flush_seconds_0.99"], q["strata_flush_seconds_1"],
             q["strata_fsync_seconds_0.5"], q["strata_fsync_seconds_0.99"], q["strata_fsync_seconds_1"], accepted
               printf ",\"tick_ms\":{\"mean\":%.3f,\"p50\":%.3f,\"p99\":%.3f,\"count\":%d}}\n",
-            tcount > 0 ? 1000 * tsum / tcount : 0, q["strata_tick_seconds_0.5"], q["strata_tick_seconds_0.99"], tcount }'
+            (tcount > 0 ? 1000 * tsum / tcount : 0), q["strata_tick_seconds_0.5"], q["strata_tick_seconds_0.99"], tcount }'
 fi
