@@ -259,6 +259,10 @@ fn bad_values_name_their_field() {
         ),
         ("[console]\nsample_ms = 10", "console.sample_ms"),
         (
+            "[console]\nidle_timeout_ms = 500",
+            "console.idle_timeout_ms",
+        ),
+        (
             "[console]\nscene_max_chunks = 0",
             "console.scene_max_chunks",
         ),

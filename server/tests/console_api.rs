@@ -187,16 +187,28 @@ async fn standing_player(server: &app::Running, name: &str, feet: FixedVec3) -> 
 
 use strata_server::app;
 
+/// A server with its console on a free loopback port, `[console]` set by `f`.
+async fn start_console(
+    dir: &std::path::Path,
+    f: impl FnOnce(&mut strata_server::console::ConsoleConfig),
+) -> (app::Running, SocketAddr) {
+    let mut cfg = test_config(dir);
+    cfg.console.listen = Some("127.0.0.1:0".parse().unwrap());
+    f(&mut cfg.console);
+    let server = app::start(cfg).await.unwrap();
+    let web = server.console_addr.expect("console address");
+    (server, web)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn console_serves_admins_the_live_world_and_their_actions() {
     tokio::time::timeout(Duration::from_secs(120), async {
         let dir = tempfile::tempdir().unwrap();
-        let mut cfg = test_config(dir.path());
-        cfg.console.listen = Some("127.0.0.1:0".parse().unwrap());
-        cfg.console.max_watchers = 2;
-        cfg.console.sample_ms = 100;
-        let server = app::start(cfg).await.unwrap();
-        let web = server.console_addr.expect("console address");
+        let (server, web) = start_console(dir.path(), |c| {
+            c.max_watchers = 2;
+            c.sample_ms = 100;
+        })
+        .await;
         let admin = token(&server, "ops", Role::Admin);
         let player = token(&server, "ana", Role::Player);
 
@@ -353,6 +365,55 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
         assert_eq!(report.header.unwrap().seq, seq);
 
         cli.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test timed out");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn console_bounds_connections_and_closes_silent_ones() {
+    tokio::time::timeout(Duration::from_secs(60), async {
+        let dir = tempfile::tempdir().unwrap();
+        let (server, web) = start_console(dir.path(), |c| {
+            c.max_connections = 2;
+            c.idle_timeout_ms = 2000;
+            c.sample_ms = 200;
+        })
+        .await;
+        // Two idle connections take both slots ...
+        let first = TcpStream::connect(web).await.unwrap();
+        let _second = TcpStream::connect(web).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        // ... so a third is not served while they stay (under the 2 s idle
+        // timeout) ...
+        let mut third = TcpStream::connect(web).await.unwrap();
+        third
+            .write_all(&request_text("GET", "/api/world", None, b""))
+            .await
+            .unwrap();
+        let mut buf = [0u8; 64];
+        let waited = tokio::time::timeout(Duration::from_millis(600), third.read(&mut buf)).await;
+        assert!(waited.is_err(), "served past max_connections");
+        // ... and is, once one of them leaves.
+        drop(first);
+        let n = tokio::time::timeout(Duration::from_secs(10), third.read(&mut buf))
+            .await
+            .expect("served once a slot is free")
+            .unwrap();
+        assert!(buf[..n].starts_with(b"HTTP/1.1 401"), "{:?}", &buf[..n]);
+        drop(third);
+        // A silent connection is closed after idle_timeout_ms; an open
+        // event stream is not (its keep-alives are traffic).
+        let admin = token(&server, "ops", Role::Admin);
+        let mut events = Events::open(web, &admin).await;
+        let mut silent = TcpStream::connect(web).await.unwrap();
+        let closed = tokio::time::timeout(Duration::from_secs(10), silent.read(&mut buf))
+            .await
+            .expect("a silent connection is closed");
+        assert!(matches!(closed, Ok(0) | Err(_)), "{closed:?}");
+        events.seen.clear();
+        events.until("event: sample", Duration::from_secs(10)).await;
         server.shutdown().await.unwrap();
     })
     .await

@@ -40,6 +40,13 @@ use crate::store::ChunkStore;
 pub const DEFAULT_MAX_WATCHERS: usize = 8;
 /// Default HTTP connections at once.
 pub const DEFAULT_MAX_CONNECTIONS: usize = 64;
+/// Default milliseconds a connection may stay silent both ways.
+pub const DEFAULT_IDLE_TIMEOUT_MS: u64 = 60_000;
+/// Shortest idle timeout (event streams send a keep-alive every half of it).
+pub const MIN_IDLE_TIMEOUT_MS: u64 = 1_000;
+/// Longest pause between an event stream's keep-alive comments.
+pub const MAX_KEEP_ALIVE: std::time::Duration = std::time::Duration::from_secs(15);
+pub const MAX_IDLE_TIMEOUT_MS: u64 = 3_600_000;
 /// Default map tiles kept rendered.
 pub const DEFAULT_TILE_CACHE: usize = 1024;
 /// Default largest request body (admin actions are small JSON).
@@ -76,6 +83,10 @@ pub struct ConsoleConfig {
     pub max_watchers: usize,
     /// HTTP connections at once; more wait to be accepted.
     pub max_connections: usize,
+    /// Milliseconds a connection may stay silent both ways before it is
+    /// closed (an open event stream is never silent: it gets a keep-alive
+    /// every half of this at least). Keep it above the longest render.
+    pub idle_timeout_ms: u64,
     /// Map tiles kept rendered (oldest dropped first).
     pub tile_cache: usize,
     /// Largest request body in bytes; larger ones are answered 413.
@@ -99,6 +110,7 @@ impl Default for ConsoleConfig {
             listen: None,
             max_watchers: DEFAULT_MAX_WATCHERS,
             max_connections: DEFAULT_MAX_CONNECTIONS,
+            idle_timeout_ms: DEFAULT_IDLE_TIMEOUT_MS,
             tile_cache: DEFAULT_TILE_CACHE,
             max_body_bytes: DEFAULT_MAX_BODY_BYTES,
             max_renders: DEFAULT_MAX_RENDERS,
@@ -111,8 +123,13 @@ impl Default for ConsoleConfig {
 }
 
 impl ConsoleConfig {
+    /// How often an event stream sends a keep-alive comment.
+    pub fn keep_alive(&self) -> std::time::Duration {
+        MAX_KEEP_ALIVE.min(std::time::Duration::from_millis(self.idle_timeout_ms / 2))
+    }
+
     /// Range checks: `(field, value, min, max)` for each limit.
-    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 8] {
+    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 9] {
         let cap = MAX_CONSOLE_LIMIT as u64;
         [
             ("console.max_watchers", self.max_watchers as u64, 1, cap),
@@ -141,6 +158,12 @@ impl ConsoleConfig {
                 self.sample_ms,
                 MIN_SAMPLE_MS,
                 MAX_SAMPLE_MS,
+            ),
+            (
+                "console.idle_timeout_ms",
+                self.idle_timeout_ms,
+                MIN_IDLE_TIMEOUT_MS,
+                MAX_IDLE_TIMEOUT_MS,
             ),
             (
                 "console.edits_per_sample",
@@ -222,7 +245,11 @@ pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<Ru
         cfg,
     });
     let hub = tokio::spawn(events::run_hub(console.clone()));
-    let limited = conn_limit::LimitedListener::new(listener, console.cfg.max_connections);
+    let limited = conn_limit::LimitedListener::new(
+        listener,
+        console.cfg.max_connections,
+        std::time::Duration::from_millis(console.cfg.idle_timeout_ms),
+    );
     let app = routes::router(console);
     let server = tokio::spawn(async move {
         if let Err(e) = axum::serve(limited, app).await {

@@ -258,7 +258,7 @@ async fn events(State(c): State<Arc<Console>>, headers: HeaderMap) -> ApiResult 
     })?;
     info!(%admin, "console watcher connected");
     Ok(Sse::new(stream)
-        .keep_alive(KeepAlive::default())
+        .keep_alive(KeepAlive::new().interval(c.cfg.keep_alive()))
         .into_response())
 }
 

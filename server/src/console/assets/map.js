@@ -157,22 +157,31 @@ const StrataMap = (() => {
   function bind() {
     let drag = null;
     canvas.addEventListener("mousedown", (e) => {
-      drag = { x: e.offsetX, y: e.offsetY, shift: e.shiftKey, cx, cz };
+      drag = { x: e.offsetX, y: e.offsetY, shift: e.shiftKey, ctrl: e.ctrlKey, cx, cz };
     });
     window.addEventListener("mouseup", (e) => {
-      if (drag && drag.shift) {
+      if (drag && (drag.shift || drag.ctrl)) {
         const [ax, az] = toWorld(drag.x, drag.y);
         const [bx, bz] = toWorld(e.offsetX, e.offsetY);
-        const ch = (v) => Math.floor(v / 32);
-        StrataView3d.setRegion(ch(Math.min(ax, bx)), ch(Math.min(az, bz)),
-          ch(Math.max(ax, bx)), ch(Math.max(az, bz)));
+        const [x0, z0, x1, z1] = [Math.min(ax, bx), Math.min(az, bz), Math.max(ax, bx), Math.max(az, bz)]
+          .map(Math.floor);
+        if (drag.ctrl) {
+          // A zone drawn on the map, over the world's whole height: the
+          // operator names it and confirms with "Add zone".
+          document.getElementById("zone-box").value =
+            `${x0} ${world.min_y} ${z0} ${x1} ${world.max_y} ${z1}`;
+          document.getElementById("zone-name").focus();
+        } else {
+          const ch = (v) => Math.floor(v / 32);
+          StrataView3d.setRegion(ch(x0), ch(z0), ch(x1), ch(z1));
+        }
       }
       drag = null;
     });
     canvas.addEventListener("mousemove", (e) => {
       const [x, z] = toWorld(e.offsetX, e.offsetY);
       document.getElementById("cursor").textContent = `x ${x.toFixed(0)} z ${z.toFixed(0)}`;
-      if (drag && !drag.shift) {
+      if (drag && !drag.shift && !drag.ctrl) {
         follow = false;
         cx = drag.cx - (e.offsetX - drag.x) / scale;
         cz = drag.cz - (e.offsetY - drag.y) / scale;
