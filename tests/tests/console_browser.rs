@@ -2,7 +2,8 @@
 //! from a `strata-server` process that bots are playing on, signs in with
 //! an admin token in the URL fragment, and the test checks what it drew:
 //! map tiles on the canvas (a screenshot that is not blank), a marker per
-//! player, and charts that gained points from successive samples.
+//! player, charts that gained points from successive samples, and the 3-D
+//! view's glTF of the chunks around the players, fetched and parsed.
 
 use std::path::Path;
 use std::process::Command;
@@ -13,6 +14,8 @@ use strata_tests::{binary, spawn_bots, Server};
 
 /// How long the page runs per load, in Chromium's virtual time.
 const BUDGET_MS: u32 = 15_000;
+/// Charts that must have drawn two samples or more.
+const CHARTS: [&str; 3] = ["c-players", "c-latency", "c-phases"];
 /// How long the bots may take to join and the page to show them.
 const SHOW_TIMEOUT: Duration = Duration::from_secs(90);
 
@@ -97,8 +100,14 @@ fn chromium_shows_the_live_map_players_and_charts() {
     let start = Instant::now();
     let dom = loop {
         let dom = chromium::run(&chrome, &profile, &url, "--dump-dom", BUDGET_MS);
+        // Edits (and so the latency chart) start once every bot has joined.
         let markers = number(&dom, "id=\"map\"", "data-markers");
-        if markers >= 4 || start.elapsed() > SHOW_TIMEOUT {
+        let scene = attribute(&dom, "id=\"scene-state\"", "data-state");
+        let settled = matches!(scene.as_deref(), Some("drawn" | "no-webgl2"));
+        let charted = CHARTS
+            .iter()
+            .all(|c| number(&dom, &format!("id=\"{c}\""), "data-points") >= 2);
+        if (markers >= 4 && settled && charted) || start.elapsed() > SHOW_TIMEOUT {
             break dom;
         }
         std::thread::sleep(Duration::from_secs(2));
@@ -118,10 +127,17 @@ fn chromium_shows_the_live_map_players_and_charts() {
         "map tiles drawn"
     );
     // Each sample adds a point per series: two or more means it updated.
-    for chart in ["c-players", "c-latency", "c-phases"] {
+    for chart in CHARTS {
         let points = number(&dom, &format!("id=\"{chart}\""), "data-points");
         assert!(points >= 2, "{chart} has {points} points");
     }
+    // The 3-D view fetched and parsed the glTF of the chunks around the
+    // bots (drawn with WebGL2 where the browser has it).
+    let scene = attribute(&dom, "id=\"scene-state\"", "data-state");
+    assert!(
+        matches!(scene.as_deref(), Some("drawn" | "no-webgl2")),
+        "3-D view: {scene:?}"
+    );
     let edits = number(&dom, "id=\"c-edits\"", "data-points");
     assert!(
         edits >= 1,
