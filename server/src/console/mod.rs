@@ -64,8 +64,9 @@ pub const MAX_CONSOLE_LIMIT: usize = 65_536;
 pub const MAX_SCENE_CHUNKS: u64 = 16_384;
 pub const MIN_SAMPLE_MS: u64 = 100;
 pub const MAX_SAMPLE_MS: u64 = 60_000;
-/// Events buffered per watcher before a slow one skips ahead.
-pub const EVENT_QUEUE: usize = 64;
+/// Samples buffered per watcher before a slow one misses some (16 are
+/// 8 s at the default period; older samples are stale anyway).
+pub const EVENT_QUEUE: usize = 16;
 /// Chunk columns along a map tile's side (128 voxels, one pixel each).
 pub const TILE_COLUMNS: i32 = 4;
 /// Largest tile coordinate asked for (keeps voxel coordinates in i32).
