@@ -234,6 +234,7 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
         let world = get(web, "/api/world", Some(&admin)).await;
         assert_eq!(world.status, 200);
         assert_eq!(world.json()["admin"], "ops");
+        assert_eq!(world.json()["samples"], 0, "nothing sampled before anyone watched");
 
         // A tile before and after an edit in it.
         let (feet, ground) = spot(70, 40);
@@ -414,6 +415,19 @@ async fn console_bounds_connections_and_closes_silent_ones() {
         assert!(matches!(closed, Ok(0) | Err(_)), "{closed:?}");
         events.seen.clear();
         events.until("event: sample", Duration::from_secs(10)).await;
+
+        // Nobody watching, no sampling: the sampler sleeps once the last
+        // stream is gone (it may take one more sample to notice).
+        drop(events);
+        let samples = || async {
+            get(web, "/api/world", Some(&admin)).await.json()["samples"]
+                .as_u64()
+                .unwrap()
+        };
+        tokio::time::sleep(Duration::from_millis(1000)).await;
+        let after_close = samples().await;
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        assert_eq!(samples().await, after_close, "sampled with nobody watching");
         server.shutdown().await.unwrap();
     })
     .await

@@ -13,6 +13,7 @@
 use std::collections::VecDeque;
 use std::convert::Infallible;
 use std::pin::Pin;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::Duration;
@@ -36,6 +37,8 @@ const ENGINE_ANSWER_TIMEOUT: Duration = Duration::from_secs(2);
 pub struct Hub {
     watchers: Mutex<Vec<mpsc::Sender<Arc<str>>>>,
     wake: Notify,
+    /// Samples taken since the start (none while nobody watches).
+    samples: AtomicU64,
 }
 
 impl Hub {
@@ -59,6 +62,11 @@ impl Hub {
         drop(w);
         self.wake.notify_one();
         Some(EventStream { rx })
+    }
+
+    /// Samples taken so far.
+    pub fn samples(&self) -> u64 {
+        self.samples.load(Ordering::Relaxed)
     }
 
     /// Connected watchers.
@@ -105,6 +113,7 @@ pub async fn run_hub(console: Arc<Console>) {
             console.hub.wake.notified().await;
             continue;
         }
+        console.hub.samples.fetch_add(1, Ordering::Relaxed);
         match take_sample(&console, &mut cursor).await {
             Ok(data) => console.hub.publish(data.into()),
             Err(e) => tracing::warn!(error = %e, "console sample failed"),

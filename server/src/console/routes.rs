@@ -135,6 +135,7 @@ async fn world(State(c): State<Arc<Console>>, headers: HeaderMap) -> ApiResult {
         "scene_max_chunks": c.cfg.scene_max_chunks,
         "tiles_cached": c.tiles.len(),
         "watchers": c.hub.watchers(),
+        "samples": c.hub.samples(),
     })))
 }
 
