@@ -13,6 +13,12 @@
 # metrics endpoint and prints one more JSON line: the group-commit latency
 # (strata_flush_seconds) and its fsync part, p50/p99/max in ms, and the
 # server's own strata_edits_accepted_total (hostile players' edits included).
+# The same line has the tick: tick_ms mean (strata_tick_seconds sum over
+# count, whole run), p50 and p99 (the registry's rolling window, the run's
+# last minute) and the count of ticks. BENCH_CONSOLE_PORT turns on the web
+# console; BENCH_WATCHERS=N then connects N watching consoles once the
+# server is up, each like a browser tab: the first screen of map tiles
+# (3 x 3 around the bots), then the live event stream to the end.
 # BENCH_LOG=FILE keeps the server's log. Binaries come from
 # ${CARGO_TARGET_DIR:-target}/release, built first.
 #
@@ -54,8 +60,8 @@ if [ -n "${BENCH_BOT_CPUS:-}" ]; then
 fi
 cargo build --release --locked -q -p strata-server -p strata-client-sim --bins
 dir=$(mktemp -d)
-pid=; sampler=
-trap 'kill ${sampler:-} ${pid:-} 2>/dev/null || true; [ -n "${BENCH_LOG:-}" ] && cp "$dir/log" "$BENCH_LOG"; rm -rf "$dir"' EXIT
+pid=; sampler=; watchers=()
+trap 'kill ${watchers[*]:-} ${sampler:-} ${pid:-} 2>/dev/null || true; [ -n "${BENCH_LOG:-}" ] && cp "$dir/log" "$BENCH_LOG"; rm -rf "$dir"' EXIT
 cat > "$dir/strata.toml" <<TOML
 [server]
 listen = "127.0.0.1:0"
@@ -69,12 +75,27 @@ fi
 if [ -n "${BENCH_METRICS_PORT:-}" ]; then
     printf '[metrics]\nlisten = "127.0.0.1:%s"\n' "$BENCH_METRICS_PORT" >> "$dir/strata.toml"
 fi
+if [ -n "${BENCH_CONSOLE_PORT:-}" ]; then
+    printf '[console]\nlisten = "127.0.0.1:%s"\n' "$BENCH_CONSOLE_PORT" >> "$dir/strata.toml"
+fi
 # taskset execs the server: $! is the server's pid either way.
 "${server_pin[@]}" "${STRATA_SERVER_BIN:-$target/release/strata-server}" \
     --config "$dir/strata.toml" --data-dir "$dir/data" > "$dir/out" 2> "$dir/log" &
 pid=$!
 for _ in $(seq 100); do grep -q listening "$dir/out" 2>/dev/null && break; sleep 0.1; done
 addr=$(grep -oE '127\.0\.0\.1:[0-9]+' "$dir/out" | head -1)
+if [ "${BENCH_WATCHERS:-0}" -gt 0 ]; then
+    token=$("$target/release/strata-admin" token issue --data-dir "$dir/data" \
+        --player bench --role admin --ttl 1h | tail -1)
+    console="http://127.0.0.1:${BENCH_CONSOLE_PORT:?BENCH_WATCHERS needs BENCH_CONSOLE_PORT}"
+    for _ in $(seq "$BENCH_WATCHERS"); do
+        ( for tz in 3 4 5; do for tx in 3 4 5; do
+              curl -s -o /dev/null -H "Authorization: Bearer $token" "$console/api/tile?tx=$tx&tz=$tz"
+          done; done
+          exec curl -s -N -o /dev/null -H "Authorization: Bearer $token" "$console/api/events" ) &
+        watchers+=($!)
+    done
+fi
 # utime + stime (fields 14 and 15) in clock ticks; the fields are counted
 # after the command name, which may hold spaces.
 ticks() { local s; read -r s < "/proc/$pid/stat"; s=${s##*) }; set -- $s; echo $(( ${12} + ${13} )); }
@@ -148,7 +169,13 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
         /^strata_(flush|fsync)_seconds\{quantile="(0.5|0.99|1)"\}/ {
             split($1, a, "[{\"]"); q[a[1] "_" a[3]] = $2 * 1000 }
         /^strata_edits_accepted_total[ {]/ { accepted += $NF }
-        END { printf "{\"commit_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"fsync_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"server_edits_accepted\":%d}\n",
+        /^strata_tick_seconds\{quantile="(0.5|0.99)"\}/ {
+            split($1, a, "[{\"]"); q[a[1] "_" a[3]] = $2 * 1000 }
+        /^strata_tick_seconds_sum / { tsum = $2 }
+        /^strata_tick_seconds_count / { tcount = $2 }
+        END { printf "{\"commit_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"fsync_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"server_edits_accepted\":%d",
             q["strata_flush_seconds_0.5"], q["strata_flush_seconds_0.99"], q["strata_flush_seconds_1"],
-            q["strata_fsync_seconds_0.5"], q["strata_fsync_seconds_0.99"], q["strata_fsync_seconds_1"], accepted }'
+            q["strata_fsync_seconds_0.5"], q["strata_fsync_seconds_0.99"], q["strata_fsync_seconds_1"], accepted
+              printf ",\"tick_ms\":{\"mean\":%.3f,\"p50\":%.3f,\"p99\":%.3f,\"count\":%d}}\n",
+            (tcount > 0 ? 1000 * tsum / tcount : 0), q["strata_tick_seconds_0.5"], q["strata_tick_seconds_0.99"], tcount }'
 fi

@@ -43,6 +43,9 @@ pub struct Running {
     health: Arc<Health>,
     /// Becomes true when the engine thread ends.
     engine_exit: tokio::sync::watch::Receiver<bool>,
+    /// The web console's address, when `[console] listen` is set.
+    pub console_addr: Option<SocketAddr>,
+    console: Option<crate::console::RunningConsole>,
 }
 
 fn load_zones(store: &dyn ChunkStore, cfg: &ServerConfig) -> anyhow::Result<Vec<Zone>> {
@@ -97,6 +100,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         max_y: params.max_y,
     };
     let (generator, generator_params) = world_generator(&cfg)?;
+    let generator = Arc::new(generator);
     let meta = store.init_meta(&WorldMeta {
         format_version: STORE_FORMAT_VERSION,
         seed: params.seed,
@@ -112,7 +116,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     let access =
         crate::auth::AccessList::from_blob(store.get_blob(crate::auth::ACCESS_BLOB)?.as_deref())?;
     let mut seq = Sequencer::new(
-        World::new(Arc::new(generator)),
+        World::new(generator.clone()),
         cfg.sequencer,
         validation.clone(),
         meta.last_seq,
@@ -179,8 +183,27 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         access: std::sync::RwLock::new(access),
         access_writes: tokio::sync::Mutex::new(()),
     };
+    let ctx = Arc::new(ctx);
+    // Bound before anything is accepted, so a taken port fails the start.
+    let console = match cfg.console.listen {
+        Some(_) => Some(
+            crate::console::start(
+                cfg.console.clone(),
+                crate::console::ConsoleParts {
+                    ctx: ctx.clone(),
+                    store: store.clone(),
+                    generator,
+                    metrics: crate::metrics::shared()?,
+                    data_dir: cfg.server.data_dir.clone(),
+                },
+            )
+            .await
+            .with_context(|| format!("starting the console on {:?}", cfg.console.listen))?,
+        ),
+        None => None,
+    };
     let (trigger, shutdown) = shutdown::channel();
-    let listener = Listener::new(endpoint, Arc::new(ctx), cfg.server.admission());
+    let listener = Listener::new(endpoint, ctx, cfg.server.admission());
     let listener = tokio::spawn(listener.run(shutdown));
     health.set_accepting(true);
     Ok(Running {
@@ -194,6 +217,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         checkpointer,
         health,
         engine_exit,
+        console_addr: console.as_ref().map(|c| c.addr),
+        console,
     })
 }
 
@@ -222,6 +247,9 @@ impl Running {
     /// all the same).
     pub async fn shutdown(self) -> anyhow::Result<()> {
         self.health.set_accepting(false);
+        if let Some(console) = self.console {
+            console.stop();
+        }
         let engine = self.engine;
         let engine_thread = self.engine_thread;
         let checkpointer = self.checkpointer;

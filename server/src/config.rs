@@ -126,6 +126,7 @@ pub struct ServerConfig {
     pub net: NetSection,
     pub auth: AuthSection,
     pub metrics: MetricsSection,
+    pub console: crate::console::ConsoleConfig,
     pub world: WorldSection,
     pub sequencer: SequencerConfig,
     pub validation: ValidationConfig,
@@ -447,6 +448,10 @@ impl ServerConfig {
                 "auth.token_max_ttl",
                 format!("must be at most {}", HumanDuration(MAX_TOKEN_TTL)),
             ));
+        }
+
+        for (field, value, min, max) in self.console.limits() {
+            range(field, value, min, max)?;
         }
 
         self.world

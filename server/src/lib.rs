@@ -10,6 +10,7 @@ pub mod auth;
 pub mod client_tls;
 pub mod collision;
 pub mod config;
+pub mod console;
 pub mod datadir;
 pub mod durable;
 pub mod engine;

@@ -41,7 +41,21 @@ pub const CONNECTIONS_REFUSED: &str = "strata_connections_refused_total";
 /// How often the recorder's rolling summaries are advanced.
 pub const UPKEEP_EVERY: Duration = Duration::from_secs(5);
 
-/// Installs the Prometheus recorder (call once, before anything records).
+/// The process's Prometheus recorder, installed by the first call (the
+/// metrics listener and the web console read the same one).
+pub fn shared() -> anyhow::Result<PrometheusHandle> {
+    static HANDLE: std::sync::Mutex<Option<PrometheusHandle>> = std::sync::Mutex::new(None);
+    let mut slot = HANDLE.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some(h) = &*slot {
+        return Ok(h.clone());
+    }
+    let h = install()?;
+    *slot = Some(h.clone());
+    Ok(h)
+}
+
+/// Installs the Prometheus recorder (call once, before anything records;
+/// [`shared`] does so once per process).
 pub fn install() -> anyhow::Result<PrometheusHandle> {
     let handle = PrometheusBuilder::new().install_recorder()?;
     metrics::describe_gauge!(CONNECTIONS, "Open QUIC connections");

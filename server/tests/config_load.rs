@@ -49,11 +49,13 @@ fn empty_and_partial_files_fill_in_defaults() {
 }
 
 #[test]
-fn deploy_example_is_the_defaults_plus_metrics() {
+fn deploy_example_is_the_defaults_plus_metrics_and_console() {
     let loaded = ServerConfig::load(Some(&deploy_example())).unwrap();
     let mut expected = ServerConfig::default();
-    // The one deliberate change: the example enables the metrics endpoint.
+    // The deliberate changes: the example enables the metrics endpoint and
+    // the console, both on loopback.
     expected.metrics.listen = Some("127.0.0.1:9464".parse().unwrap());
+    expected.console.listen = Some("127.0.0.1:9465".parse().unwrap());
     assert_eq!(loaded, expected);
 }
 
@@ -250,6 +252,24 @@ fn bad_values_name_their_field() {
             "store.cache_capacity_bytes",
         ),
         ("[store]\nflush_every_ms = 60001", "store.flush_every_ms"),
+        ("[console]\nmax_watchers = 0", "console.max_watchers"),
+        (
+            "[console]\nmax_body_bytes = 9999999",
+            "console.max_body_bytes",
+        ),
+        ("[console]\nsample_ms = 10", "console.sample_ms"),
+        (
+            "[console]\nidle_timeout_ms = 500",
+            "console.idle_timeout_ms",
+        ),
+        (
+            "[console]\nscene_max_chunks = 0",
+            "console.scene_max_chunks",
+        ),
+        (
+            "[console]\nedits_per_sample = 0",
+            "console.edits_per_sample",
+        ),
         (
             "[store]\nsegment_size_bytes = 65536",
             "store.segment_size_bytes",

@@ -12,6 +12,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
+pub mod chromium;
 pub mod lazyfs;
 
 /// Longest any child process may run before the test fails.
@@ -59,6 +60,16 @@ pub fn binary(name: &str) -> PathBuf {
     }
     assert!(path.exists(), "{} was not built", path.display());
     path
+}
+
+/// Says that `test` did not run for want of `what` (and why) and returns
+/// `None`; under `CI=true` the test fails instead.
+pub fn not_run<T>(test: &str, what: &str, why: &str) -> Option<T> {
+    if std::env::var("CI").is_ok_and(|v| v == "true") {
+        panic!("{test} needs {what} under CI: {why}");
+    }
+    eprintln!("NOT RUN: {test} needs {what}: {why}");
+    None
 }
 
 /// A child process killed when dropped (a failing test leaves nothing behind).
@@ -182,8 +193,8 @@ pub fn spawn_bots(server: &Server, args: &[&str]) -> Guard {
 }
 
 /// Waits (bounded) for a child whose stdout is piped; returns its status
-/// and the last line it printed, parsed as JSON.
-pub fn json_result(mut child: Guard, limit: Duration) -> (ExitStatus, serde_json::Value) {
+/// and everything it printed.
+pub fn wait_with_output(mut child: Guard, limit: Duration) -> (ExitStatus, String) {
     let mut stdout = child.0.stdout.take().expect("stdout is piped");
     let reader = std::thread::spawn(move || {
         let mut s = String::new();
@@ -191,7 +202,13 @@ pub fn json_result(mut child: Guard, limit: Duration) -> (ExitStatus, serde_json
         s
     });
     let status = child.wait_timeout(limit);
-    let out = reader.join().expect("reader thread");
+    (status, reader.join().expect("reader thread"))
+}
+
+/// Waits (bounded) for a child whose stdout is piped; returns its status
+/// and the last line it printed, parsed as JSON.
+pub fn json_result(child: Guard, limit: Duration) -> (ExitStatus, serde_json::Value) {
+    let (status, out) = wait_with_output(child, limit);
     let line = out.lines().last().unwrap_or_default();
     let value = serde_json::from_str(line)
         .unwrap_or_else(|e| panic!("bad JSON line {out:?} (exit {status}): {e}"));

@@ -25,7 +25,7 @@ use thiserror::Error;
 
 use super::export::{stage_output, write_mesh, ExportError, ExportFormat, MeshRef};
 use super::world_source::{
-    progress_bar, ChunkBox, OfflineArgs, OfflineWorld, RegionArgs, WorldSourceError,
+    progress_bar, ChunkBox, OfflineArgs, OfflineWorld, RegionArgs, WorldSourceError, WorldView,
 };
 
 /// Arguments of `strata-admin export-mesh`.
@@ -129,7 +129,7 @@ fn export_box(args: &ExportMeshArgs, world: &OfflineWorld) -> Result<ChunkBox, E
 /// Meshes every chunk of `bx` at `lod`; returns the meshes (empty ones
 /// too) with their positions and versions, in z, y, x order.
 pub fn mesh_region(
-    world: &OfflineWorld,
+    world: &dyn WorldView,
     bx: ChunkBox,
     lod: u8,
     show_progress: bool,

@@ -29,7 +29,7 @@ use super::map::png::write_png;
 use super::map::svg::write_svg;
 use super::map::{palette, MapError, MapImage, MapLine, Rgb, MAX_SCALE};
 use super::world_source::{
-    progress_bar, ChunkBox, OfflineArgs, OfflineWorld, RegionArgs, WorldSourceError,
+    progress_bar, ChunkBox, OfflineArgs, OfflineWorld, RegionArgs, WorldSourceError, WorldView,
 };
 
 /// Samples along a chunk column's side.
@@ -132,7 +132,7 @@ pub fn run(args: &RenderMapArgs, show_progress: bool) -> Result<MapReport, Rende
             slice_map(&world, cols, level, args.scale, show_progress)?,
             Vec::new(),
         ),
-        None => top_down_map(&world, cols, args.interval, args.scale, show_progress)?,
+        None => top_down_map(&world, cols, args.interval, args.scale, None, show_progress)?,
     };
     let (width_px, height_px) = map.pixel_size()?;
     let write_err = |source| RenderMapError::Write {
@@ -167,7 +167,7 @@ fn voxel_rect(cols: [i32; 4]) -> Result<Rect, ContourError> {
     )
 }
 
-fn title(world: &OfflineWorld, cols: [i32; 4], view: &str) -> String {
+fn title(world: &dyn WorldView, cols: [i32; 4], view: &str) -> String {
     let [x0, z0, x1, z1] = cols;
     format!(
         "Strata world (seed {}): {view}; chunk columns x {x0}..={x1}, z {z0}..={z1}; x right, z down",
@@ -189,11 +189,12 @@ fn material_legend(table: &MaterialTable, mut ids: Vec<u8>) -> Vec<(String, Rgb)
         .collect()
 }
 
-/// The horizontal slice at `level`. Air under the surface (solid somewhere
+/// The horizontal slice at `level` of the chunk columns `cols` (x0, z0,
+/// x1, z1). Air under the surface (solid somewhere
 /// above it in its column) is cave air, and an outline bordering cave air
 /// is a cave outline.
-fn slice_map(
-    world: &OfflineWorld,
+pub fn slice_map(
+    world: &dyn WorldView,
     cols: [i32; 4],
     level: i32,
     scale: u32,
@@ -348,7 +349,7 @@ pub fn column_surface(
 /// The surface of every column of the region (see [`column_surface`]),
 /// row-major with x fastest, scanning down to chunk row `lowest_row`.
 fn region_surface(
-    world: &OfflineWorld,
+    world: &dyn WorldView,
     cols: [i32; 4],
     lowest_row: i32,
     show_progress: bool,
@@ -385,12 +386,16 @@ fn region_surface(
     Ok(cells)
 }
 
-/// The top-down view with height contours every `interval` voxels.
-fn top_down_map(
-    world: &OfflineWorld,
+/// The top-down view of the chunk columns `cols` (x0, z0, x1, z1) with
+/// height contours every `interval` voxels. Heights are shaded over
+/// `shade` (low, high), or over the region's own range when `None`: maps
+/// drawn in tiles pass one range so the tiles' shades agree.
+pub fn top_down_map(
+    world: &dyn WorldView,
     cols: [i32; 4],
     interval: u32,
     scale: u32,
+    shade: Option<(f32, f32)>,
     show_progress: bool,
 ) -> Result<(MapImage, Vec<f32>), RenderMapError> {
     let cells = region_surface(world, cols, *world.rows().start(), show_progress)?;
@@ -409,7 +414,8 @@ fn top_down_map(
     let heights: Vec<f32> = cells.iter().map(|c| c.map_or(floor, |c| c.0)).collect();
 
     let table = MaterialTable::default();
-    let span = (hi - lo).max(1.0);
+    let (shade_lo, shade_hi) = shade.unwrap_or((lo, hi));
+    let span = (shade_hi - shade_lo).max(1.0);
     let fill = (0..height)
         .flat_map(|j| (0..width).map(move |i| (i, j)))
         .map(|(i, j)| {
@@ -422,7 +428,9 @@ fn top_down_map(
             } else {
                 h
             };
-            let relief = 0.7 + 0.45 * (h - lo) / span + 0.08 * (h - nw).clamp(-3.0, 3.0);
+            let relief = 0.7
+                + 0.45 * ((h - shade_lo) / span).clamp(0.0, 1.0)
+                + 0.08 * (h - nw).clamp(-3.0, 3.0);
             palette::shade(palette::material(&table, m), relief)
         })
         .collect();

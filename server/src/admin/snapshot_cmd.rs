@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
-use strata_protocol::admin::{AdminRequest, AdminResponse, ZoneSpec};
+use strata_protocol::admin::{AdminRequest, AdminResponse, SnapshotInfo, ZoneSpec};
 
 use super::remote::{block_on, connect_target, open_offline_store, progress, Target, TargetArgs};
 use crate::app::ZONES_BLOB;
@@ -66,6 +66,19 @@ pub struct DiffArgs {
     pub b: PathBuf,
 }
 
+/// The file header of an online snapshot the server registered.
+impl From<SnapshotInfo> for SnapshotHeader {
+    fn from(info: SnapshotInfo) -> Self {
+        SnapshotHeader {
+            seed: info.world_seed,
+            generator_version: info.generator_version,
+            seq: info.seq,
+            generator_params: info.generator_params,
+            zones: info.zones,
+        }
+    }
+}
+
 /// What `create` wrote.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Created {
@@ -74,14 +87,14 @@ pub struct Created {
     pub bytes: u64,
 }
 
-fn partial_path(out: &Path) -> PathBuf {
+pub(crate) fn partial_path(out: &Path) -> PathBuf {
     let mut name = out.file_name().unwrap_or_default().to_os_string();
     name.push(".partial");
     out.with_file_name(name)
 }
 
 /// Writes through a `.partial` file renamed into place only on success.
-fn write_atomically(
+pub(crate) fn write_atomically(
     out: &Path,
     f: impl FnOnce(BufWriter<File>) -> anyhow::Result<(BufWriter<File>, Created)>,
 ) -> anyhow::Result<Created> {
@@ -167,15 +180,10 @@ pub async fn create_online(
         AdminResponse::Refused { message } => bail!("server refused the snapshot: {message}"),
         other => bail!("unexpected answer {other:?}"),
     };
-    let header = SnapshotHeader {
-        seed: info.world_seed,
-        generator_version: info.generator_version,
-        seq: info.seq,
-        generator_params: info.generator_params,
-        zones: info.zones,
-    };
+    let modified_chunks = info.modified_chunks;
+    let header = SnapshotHeader::from(info);
     let bar = progress(
-        Some(info.modified_chunks),
+        Some(modified_chunks),
         "snapshot {bar:40} {pos}/{len} chunks {eta}",
     );
     let tmp = partial_path(out);

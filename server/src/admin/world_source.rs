@@ -24,7 +24,7 @@ use thiserror::Error;
 
 use crate::config::{ConfigError, ServerConfig};
 use crate::datadir::WORLD_DB_NAME;
-use crate::store::{ChunkStore, SledStore, StoreError, WorldMeta};
+use crate::store::{ChunkStore, RawChunk, SledStore, StoreError, WorldMeta};
 
 /// A config file in the data dir that offline commands read by default.
 pub const DATA_DIR_CONFIG_NAME: &str = "strata.toml";
@@ -240,21 +240,62 @@ impl OfflineWorld {
             meta,
         })
     }
+}
 
-    pub fn params(&self) -> &GenParams {
-        self.generator.params()
+/// A world to read chunks of: stored chunks over the generator. The
+/// offline commands read a stopped server's store ([`OfflineWorld`]); the
+/// web console reads a running server's (`console::live_world`).
+pub trait WorldView {
+    /// The world's generator.
+    fn generator(&self) -> &Arc<Generator>;
+
+    /// A world holding every stored chunk inside `within` at its version;
+    /// the rest is generated when read ([`strata_terrain::ChunkRead`]).
+    fn world(&self, within: ChunkBox) -> Result<World, WorldSourceError>;
+
+    fn params(&self) -> &GenParams {
+        self.generator().params()
     }
 
     /// Chunk rows holding the world's height, from the row under `min_y`
     /// (the bedrock floor's underside) to the row of `max_y`.
-    pub fn rows(&self) -> RangeInclusive<i32> {
+    fn rows(&self) -> RangeInclusive<i32> {
         let p = self.params();
         p.min_y.div_euclid(CHUNK_SIZE) - 1..=p.max_y.div_euclid(CHUNK_SIZE)
     }
 
-    /// A world holding every stored chunk inside `within` at its version;
-    /// the rest is generated when read ([`strata_terrain::ChunkRead`]).
-    pub fn world(&self, within: ChunkBox) -> Result<World, WorldSourceError> {
+    /// Generates (in parallel) every chunk of `positions` that `world` does
+    /// not hold yet, and keeps it at version 0.
+    fn pregenerate(&self, world: &mut World, positions: &[ChunkPos]) {
+        let missing: Vec<ChunkPos> = positions
+            .iter()
+            .copied()
+            .filter(|p| world.peek(*p).is_none())
+            .collect();
+        let generator = self.generator();
+        let chunks: Vec<_> = missing.par_iter().map(|p| generator.generate(*p)).collect();
+        for (p, c) in missing.into_iter().zip(chunks) {
+            world.insert(p, c, 0);
+        }
+    }
+}
+
+/// Puts one stored chunk record into `world`.
+pub fn insert_raw(world: &mut World, raw: RawChunk) -> Result<(), WorldSourceError> {
+    let chunk = decode_chunk(&raw.encoded).map_err(|e| WorldSourceError::BadChunk {
+        pos: raw.pos,
+        reason: e.to_string(),
+    })?;
+    world.insert(raw.pos, chunk, raw.version);
+    Ok(())
+}
+
+impl WorldView for OfflineWorld {
+    fn generator(&self) -> &Arc<Generator> {
+        &self.generator
+    }
+
+    fn world(&self, within: ChunkBox) -> Result<World, WorldSourceError> {
         let generator: Arc<dyn ChunkGenerator> = self.generator.clone();
         let mut world = World::new(generator);
         for raw in self.store.raw_chunks() {
@@ -262,33 +303,11 @@ impl OfflineWorld {
                 path: self.db_path.clone(),
                 source,
             })?;
-            if !within.contains(raw.pos) {
-                continue;
+            if within.contains(raw.pos) {
+                insert_raw(&mut world, raw)?;
             }
-            let chunk = decode_chunk(&raw.encoded).map_err(|e| WorldSourceError::BadChunk {
-                pos: raw.pos,
-                reason: e.to_string(),
-            })?;
-            world.insert(raw.pos, chunk, raw.version);
         }
         Ok(world)
-    }
-
-    /// Generates (in parallel) every chunk of `positions` that `world` does
-    /// not hold yet, and keeps it at version 0.
-    pub fn pregenerate(&self, world: &mut World, positions: &[ChunkPos]) {
-        let missing: Vec<ChunkPos> = positions
-            .iter()
-            .copied()
-            .filter(|p| world.peek(*p).is_none())
-            .collect();
-        let chunks: Vec<_> = missing
-            .par_iter()
-            .map(|p| self.generator.generate(*p))
-            .collect();
-        for (p, c) in missing.into_iter().zip(chunks) {
-            world.insert(p, c, 0);
-        }
     }
 }
 

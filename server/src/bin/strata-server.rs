@@ -51,7 +51,7 @@ async fn main() -> anyhow::Result<()> {
     cfg.apply_overrides(args.data_dir, args.listen);
     let metrics = match cfg.metrics.listen {
         Some(addr) => {
-            let handle = strata_server::metrics::install()?;
+            let handle = strata_server::metrics::shared()?;
             let listener = strata_server::metrics::bind(addr)
                 .await
                 .with_context(|| format!("binding the metrics listener {addr}"))?;
@@ -67,9 +67,13 @@ async fn main() -> anyhow::Result<()> {
             running.health(),
         ));
     }
-    // One machine-readable line on stdout: tests and scripts read the port.
+    // One machine-readable line on stdout: tests and scripts read the port
+    // (and may close the pipe after it: nothing else is printed there).
+    let console = running
+        .console_addr
+        .map_or(String::new(), |a| format!("; console http://{a}/"));
     println!(
-        "strata-server listening on {} (certificate {})",
+        "strata-server listening on {} (certificate {}){console}",
         running.addr,
         running.data_dir.cert_path().display()
     );

@@ -23,7 +23,7 @@ use crate::engine::admin::{AdminCommand, SnapshotStart};
 use crate::engine::snapshot::PreImages;
 use crate::engine::Command;
 use crate::shutdown::Shutdown;
-use crate::store::{ChunkStore, StoreError};
+use crate::store::{ChunkStore, RawChunk, StoreError};
 
 /// Encoded snapshot frames buffered between the store reader and the socket.
 pub const SNAPSHOT_STREAM_QUEUE: usize = 64;
@@ -182,7 +182,7 @@ async fn serve(
 }
 
 /// Sends a command to the engine and waits for its answer.
-async fn ask<T>(
+pub(crate) async fn ask<T>(
     ctx: &SessionContext,
     make: impl FnOnce(oneshot::Sender<T>) -> AdminCommand,
 ) -> Result<T, String> {
@@ -197,8 +197,12 @@ fn refused(message: String) -> AdminResponse {
     AdminResponse::Refused { message }
 }
 
-/// Answers one non-streaming request. `Err` ends the session.
-async fn answer(ctx: &Arc<SessionContext>, req: AdminRequest) -> Result<AdminResponse, String> {
+/// Answers one non-streaming request. `Err` ends the session. The web
+/// console's admin actions come through here too, so both behave alike.
+pub(crate) async fn answer(
+    ctx: &Arc<SessionContext>,
+    req: AdminRequest,
+) -> Result<AdminResponse, String> {
     Ok(match req {
         AdminRequest::Stats => {
             let engine = ask(ctx, AdminCommand::Stats).await?;
@@ -341,6 +345,22 @@ pub fn store_figures(
     Ok((extent, store.size_on_disk()?))
 }
 
+/// Registers a snapshot with the engine: the outer `Err` when the engine
+/// cannot be asked, the inner one when it refuses.
+pub(crate) async fn begin_snapshot(
+    ctx: &SessionContext,
+    limit: usize,
+) -> Result<Result<SnapshotStart, String>, String> {
+    ask(ctx, |reply| AdminCommand::SnapshotBegin {
+        max_pending_chunks: limit,
+        world_seed: ctx.world_seed,
+        generator_version: ctx.generator_version,
+        generator_params: ctx.generator_params.clone(),
+        reply,
+    })
+    .await
+}
+
 /// Streams a consistent snapshot: registers it with the engine, reads the
 /// store on a blocking thread through the pre-images, and writes each
 /// chunk as it comes (bounded queue). A refusal is a `Refused` response.
@@ -349,15 +369,7 @@ async fn snapshot(
     stream: &mut Send,
     limit: usize,
 ) -> Result<(), String> {
-    let start: Result<SnapshotStart, String> = ask(ctx, |reply| AdminCommand::SnapshotBegin {
-        max_pending_chunks: limit,
-        world_seed: ctx.world_seed,
-        generator_version: ctx.generator_version,
-        generator_params: ctx.generator_params.clone(),
-        reply,
-    })
-    .await?;
-    let start = match start {
+    let start = match begin_snapshot(ctx, limit).await? {
         Ok(s) => s,
         Err(m) => return send(stream, &refused(m)).await,
     };
@@ -398,6 +410,26 @@ fn read_snapshot(
     pre: &Arc<PreImages>,
     tx: &mpsc::Sender<Vec<u8>>,
 ) -> Result<u64, String> {
+    walk_snapshot(store, pre, |c| {
+        let msg = AdminResponse::SnapshotChunk {
+            pos: c.pos,
+            version: c.version,
+            data: c.encoded,
+        };
+        let bytes = frame(&msg).map_err(|e| e.to_string())?;
+        tx.blocking_send(bytes)
+            .map_err(|_| "the admin connection went away".to_string())
+    })
+}
+
+/// Walks the store's chunk records, resolving each through the pre-images,
+/// and hands each chunk of the snapshot to `each` (an `Err` stops the
+/// walk). Returns the chunk count.
+pub(crate) fn walk_snapshot(
+    store: &dyn ChunkStore,
+    pre: &Arc<PreImages>,
+    mut each: impl FnMut(RawChunk) -> Result<(), String>,
+) -> Result<u64, String> {
     let mut count = 0u64;
     for item in store.raw_chunks() {
         let read = item.map_err(|e| format!("store read failed: {e}"))?;
@@ -407,15 +439,7 @@ fn read_snapshot(
         let Some(c) = pre.resolve(read) else {
             continue; // first written after the snapshot's seq
         };
-        let msg = AdminResponse::SnapshotChunk {
-            pos: c.pos,
-            version: c.version,
-            data: c.encoded,
-        };
-        let bytes = frame(&msg).map_err(|e| e.to_string())?;
-        if tx.blocking_send(bytes).is_err() {
-            return Err("the admin connection went away".into());
-        }
+        each(c)?;
         count += 1;
     }
     // A chunk may have been aborted after its last read: report it.

@@ -1,0 +1,58 @@
+//! Who gets in: `Authorization: Bearer <token>` with a valid, unrevoked
+//! admin-role token of a player who is not banned. Player tokens are
+//! refused like on the admin protocol.
+
+use axum::http::{header, HeaderMap, StatusCode};
+use strata_protocol::Role;
+use thiserror::Error;
+use tracing::warn;
+
+use crate::auth;
+use crate::net::session::SessionContext;
+
+/// Why a request was turned away.
+#[derive(Debug, Error)]
+pub enum Refused {
+    #[error("an admin token is needed: send Authorization: Bearer <token>")]
+    NoToken,
+    #[error("bad token: {0}")]
+    BadToken(#[from] auth::AuthError),
+    #[error("{player}'s token has role {role}; the console needs role admin")]
+    NotAdmin { player: String, role: &'static str },
+    #[error("{0}")]
+    Denied(#[from] auth::Denied),
+}
+
+impl Refused {
+    pub fn status(&self) -> StatusCode {
+        match self {
+            Refused::NoToken | Refused::BadToken(_) => StatusCode::UNAUTHORIZED,
+            Refused::NotAdmin { .. } | Refused::Denied(_) => StatusCode::FORBIDDEN,
+        }
+    }
+}
+
+/// The admin a request comes from, or why it is refused.
+pub fn admin(ctx: &SessionContext, headers: &HeaderMap) -> Result<String, Refused> {
+    let token = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .map(str::trim)
+        .filter(|t| !t.is_empty() && t.len() <= auth::MAX_TOKEN_LEN)
+        .ok_or(Refused::NoToken)?;
+    let claims = auth::verify(&ctx.secret, token, auth::unix_now()).inspect_err(|e| {
+        warn!(error = %e, "console refused a token");
+    })?;
+    if claims.role != Role::Admin {
+        warn!(player = %claims.player, "console refused a non-admin token");
+        return Err(Refused::NotAdmin {
+            player: claims.player,
+            role: claims.role.name(),
+        });
+    }
+    ctx.admitted(&claims).inspect_err(|d| {
+        warn!(admin = %claims.player, denied = %d, "console refused a denied admin");
+    })?;
+    Ok(claims.player)
+}

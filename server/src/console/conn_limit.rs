@@ -1,0 +1,155 @@
+//! A TCP listener that holds at most `[console] max_connections`
+//! connections: each accepted stream carries a semaphore permit, released
+//! when the connection closes, and accepting waits while none is free.
+//! A connection that neither sends nor receives a byte for
+//! `[console] idle_timeout_ms` is closed, so idle or stalled clients cannot
+//! keep the slots (an open event stream is never idle: it gets a
+//! keep-alive comment every half of the timeout at least).
+
+use std::io;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::task::{Context, Poll};
+use std::time::Duration;
+
+use std::future::Future;
+
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+use tokio::time::{Instant, Sleep};
+
+/// Pause after a failed accept (e.g. out of file descriptors).
+const ACCEPT_RETRY: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// [`TcpListener`] with a connection cap, for `axum::serve`.
+#[derive(Debug)]
+pub struct LimitedListener {
+    inner: TcpListener,
+    slots: Arc<Semaphore>,
+    idle: Duration,
+}
+
+impl LimitedListener {
+    pub fn new(inner: TcpListener, max: usize, idle: Duration) -> Self {
+        Self {
+            inner,
+            slots: Arc::new(Semaphore::new(max)),
+            idle,
+        }
+    }
+}
+
+/// A connection, its slot and its idle deadline.
+#[derive(Debug)]
+pub struct LimitedStream {
+    stream: TcpStream,
+    _slot: OwnedSemaphorePermit,
+    idle: Duration,
+    last_active: Instant,
+    deadline: Pin<Box<Sleep>>,
+}
+
+impl LimitedStream {
+    fn new(stream: TcpStream, slot: OwnedSemaphorePermit, idle: Duration) -> Self {
+        let now = Instant::now();
+        Self {
+            stream,
+            _slot: slot,
+            idle,
+            last_active: now,
+            deadline: Box::pin(tokio::time::sleep_until(now + idle)),
+        }
+    }
+
+    /// An error once nothing moved for `idle`; else arms the timer.
+    fn check_idle(&mut self, cx: &mut Context<'_>) -> io::Result<()> {
+        let due = self.last_active + self.idle;
+        if self.deadline.deadline() != due {
+            self.deadline.as_mut().reset(due);
+        }
+        match self.deadline.as_mut().poll(cx) {
+            Poll::Ready(()) => Err(io::Error::new(
+                io::ErrorKind::TimedOut,
+                "console connection idle",
+            )),
+            Poll::Pending => Ok(()),
+        }
+    }
+}
+
+impl axum::serve::Listener for LimitedListener {
+    type Io = LimitedStream;
+    type Addr = std::net::SocketAddr;
+
+    async fn accept(&mut self) -> (Self::Io, Self::Addr) {
+        loop {
+            let Ok(slot) = self.slots.clone().acquire_owned().await else {
+                // The semaphore is never closed; wait as if it were full.
+                std::future::pending::<()>().await;
+                continue;
+            };
+            match self.inner.accept().await {
+                Ok((stream, addr)) => {
+                    let _ = stream.set_nodelay(true);
+                    return (LimitedStream::new(stream, slot, self.idle), addr);
+                }
+                Err(e) => {
+                    tracing::debug!(error = %e, "console accept failed");
+                    tokio::time::sleep(ACCEPT_RETRY).await;
+                }
+            }
+        }
+    }
+
+    fn local_addr(&self) -> io::Result<Self::Addr> {
+        self.inner.local_addr()
+    }
+}
+
+impl AsyncRead for LimitedStream {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        let before = buf.filled().len();
+        match Pin::new(&mut self.stream).poll_read(cx, buf) {
+            Poll::Ready(Ok(())) => {
+                if buf.filled().len() > before {
+                    self.last_active = Instant::now();
+                }
+                Poll::Ready(Ok(()))
+            }
+            Poll::Pending => match self.check_idle(cx) {
+                Ok(()) => Poll::Pending,
+                Err(e) => Poll::Ready(Err(e)),
+            },
+            other => other,
+        }
+    }
+}
+
+impl AsyncWrite for LimitedStream {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        let r = Pin::new(&mut self.stream).poll_write(cx, buf);
+        if let Poll::Ready(Ok(n)) = r {
+            if n > 0 {
+                self.last_active = Instant::now();
+            }
+        }
+        r
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_flush(cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_shutdown(cx)
+    }
+}

@@ -1,0 +1,250 @@
+//! Live updates for watching consoles, as server-sent events.
+//!
+//! One hub task samples every `[console] sample_ms` while at least one
+//! watcher is connected, and sleeps otherwise: then it reads nothing and
+//! asks the engine nothing, so an unwatched console costs the tick nothing.
+//! A sample holds the players (from the engine's admin request, served
+//! between ticks), the zones, the edits committed since the last sample
+//! (read from the store's edit log, not from the tick), the chunk columns
+//! they changed (the page redraws those tiles), the chart figures (from the
+//! metrics registry) and any snapshot in progress. Each watcher has a
+//! bounded queue; a watcher too slow to take a sample misses it.
+
+use std::collections::VecDeque;
+use std::convert::Infallible;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
+use std::time::Duration;
+
+use axum::response::sse::Event;
+use serde::Serialize;
+use serde_json::json;
+use strata_terrain::Edit;
+use tokio::sync::{mpsc, oneshot, Notify};
+
+use super::{stats, Console, EVENT_QUEUE};
+use crate::engine::admin::AdminCommand;
+use crate::net::admin_session::ask;
+use crate::store::{ChunkStore, LogEntry, StoreError};
+
+/// Longest wait for the engine's answer within a sample.
+const ENGINE_ANSWER_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// The watchers' queues.
+#[derive(Debug, Default)]
+pub struct Hub {
+    watchers: Mutex<Vec<mpsc::Sender<Arc<str>>>>,
+    wake: Notify,
+    /// Samples taken since the start (none while nobody watches).
+    samples: AtomicU64,
+}
+
+impl Hub {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<mpsc::Sender<Arc<str>>>> {
+        self.watchers.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// A new watcher's stream, or `None` when `max` are connected.
+    pub fn subscribe(&self, max: usize) -> Option<EventStream> {
+        let mut w = self.lock();
+        w.retain(|s| !s.is_closed());
+        if w.len() >= max {
+            return None;
+        }
+        let (tx, rx) = mpsc::channel(EVENT_QUEUE);
+        w.push(tx);
+        drop(w);
+        self.wake.notify_one();
+        Some(EventStream { rx })
+    }
+
+    /// Samples taken so far.
+    pub fn samples(&self) -> u64 {
+        self.samples.load(Ordering::Relaxed)
+    }
+
+    /// Connected watchers.
+    pub fn watchers(&self) -> usize {
+        let mut w = self.lock();
+        w.retain(|s| !s.is_closed());
+        w.len()
+    }
+
+    /// Queues `data` to every watcher that has room.
+    fn publish(&self, data: Arc<str>) {
+        self.lock().retain(|s| match s.try_send(data.clone()) {
+            Ok(()) => true,
+            Err(mpsc::error::TrySendError::Full(_)) => true,
+            Err(mpsc::error::TrySendError::Closed(_)) => false,
+        });
+    }
+}
+
+/// One watcher's events.
+#[derive(Debug)]
+pub struct EventStream {
+    rx: mpsc::Receiver<Arc<str>>,
+}
+
+impl futures_core::Stream for EventStream {
+    type Item = Result<Event, Infallible>;
+
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
+        self.rx
+            .poll_recv(cx)
+            .map(|o| o.map(|data| Ok(Event::default().event("sample").data(&*data))))
+    }
+}
+
+/// Samples while anyone watches; sleeps otherwise.
+pub async fn run_hub(console: Arc<Console>) {
+    let period = Duration::from_millis(console.cfg.sample_ms);
+    // The hub's own place in the edit log; `None` while nobody watches.
+    let mut cursor: Option<u64> = None;
+    loop {
+        if console.hub.watchers() == 0 {
+            cursor = None;
+            console.hub.wake.notified().await;
+            continue;
+        }
+        console.hub.samples.fetch_add(1, Ordering::Relaxed);
+        match take_sample(&console, &mut cursor).await {
+            Ok(data) => console.hub.publish(data.into()),
+            Err(e) => tracing::warn!(error = %e, "console sample failed"),
+        }
+        tokio::time::sleep(period).await;
+    }
+}
+
+/// An edit as the map shows it.
+#[derive(Debug, Serialize)]
+struct EditView {
+    seq: u64,
+    player: String,
+    kind: &'static str,
+    /// Where it happened (centre, box middle or structure origin).
+    at: [f64; 3],
+    time_ms: u64,
+}
+
+/// The point an edit is drawn at.
+fn anchor(edit: &Edit) -> [f64; 3] {
+    let mid = |a: i32, b: i32| (f64::from(a) + f64::from(b)) / 2.0;
+    match edit {
+        Edit::Mine { center, .. }
+        | Edit::Explode { center, .. }
+        | Edit::Build { center, .. }
+        | Edit::Smooth { center, .. } => center.to_f64(),
+        Edit::FillBox { min, max, .. } | Edit::ClearBox { min, max } => {
+            [mid(min.x, max.x), mid(min.y, max.y), mid(min.z, max.z)]
+        }
+        Edit::PlaceStructure { origin, .. } => [origin.x, origin.y, origin.z].map(f64::from),
+    }
+}
+
+/// Edits since `cursor`: the newest `limit` of them, how many more there
+/// were, and every chunk column they changed.
+struct NewEdits {
+    last_seq: u64,
+    edits: VecDeque<EditView>,
+    skipped: u64,
+    columns: Vec<(i32, i32)>,
+}
+
+fn read_edits(store: &dyn ChunkStore, from: u64, limit: usize) -> Result<NewEdits, StoreError> {
+    let last_seq = store.last_seq()?;
+    let mut out = NewEdits {
+        last_seq,
+        edits: VecDeque::new(),
+        skipped: 0,
+        columns: Vec::new(),
+    };
+    if last_seq <= from {
+        return Ok(out);
+    }
+    for entry in store.edit_log(from + 1..=last_seq) {
+        let LogEntry {
+            seq,
+            player,
+            time_ms,
+            edit,
+            changes,
+        } = entry?;
+        out.columns.extend(changes.iter().map(|(p, _)| (p.x, p.z)));
+        out.edits.push_back(EditView {
+            seq,
+            player,
+            kind: edit.kind().name(),
+            at: anchor(&edit),
+            time_ms,
+        });
+        if out.edits.len() > limit {
+            out.edits.pop_front();
+            out.skipped += 1;
+        }
+    }
+    out.columns.sort_unstable();
+    out.columns.dedup();
+    Ok(out)
+}
+
+/// An engine admin request, given up after [`ENGINE_ANSWER_TIMEOUT`].
+async fn ask_in_time<T>(
+    console: &Console,
+    make: impl FnOnce(oneshot::Sender<T>) -> AdminCommand,
+) -> anyhow::Result<T> {
+    tokio::time::timeout(ENGINE_ANSWER_TIMEOUT, ask(&console.ctx, make))
+        .await
+        .map_err(|_| anyhow::anyhow!("the engine did not answer in time"))?
+        .map_err(anyhow::Error::msg)
+}
+
+async fn take_sample(console: &Arc<Console>, cursor: &mut Option<u64>) -> anyhow::Result<String> {
+    let c = console.clone();
+    let from = *cursor;
+    let limit = console.cfg.edits_per_sample;
+    let edits = tokio::task::spawn_blocking(move || {
+        let store = c.world.store().as_ref();
+        c.versions.catch_up(store)?;
+        // A new watcher starts from now.
+        let from = match from {
+            Some(seq) => seq,
+            None => store.last_seq()?,
+        };
+        read_edits(store, from, limit)
+    })
+    .await??;
+    *cursor = Some(edits.last_seq);
+    let players = ask_in_time(console, AdminCommand::Players).await?;
+    let zones = ask_in_time(console, AdminCommand::Zones).await?;
+    let players: Vec<_> = players
+        .into_iter()
+        .map(|p| {
+            json!({
+                "session": p.session,
+                "player": p.player,
+                "role": p.role.name(),
+                "at": p.position.map(|f| f.to_f64()),
+            })
+        })
+        .collect();
+    let sample = json!({
+        "time_ms": crate::engine::now_ms(),
+        "seq": edits.last_seq,
+        "players": players,
+        "zones": zones,
+        "edits": edits.edits,
+        "edits_skipped": edits.skipped,
+        "columns": edits.columns,
+        "stats": stats::sample(&console.metrics.render()),
+        "snapshot": console.snapshots.status(),
+        "watchers": console.hub.watchers(),
+    });
+    Ok(serde_json::to_string(&sample)?)
+}

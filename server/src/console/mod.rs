@@ -1,0 +1,262 @@
+//! The web console: a live view of the running world for operators, on an
+//! HTTP listener of its own (`[console] listen`, off by default).
+//!
+//! Every request but the page and its assets needs an admin-role bearer
+//! token (`auth.rs`). The console only reads what the server already
+//! keeps: the store (tiles, 3-D scenes and the edit log, off the engine
+//! thread), the metrics registry (charts) and, while someone watches, the
+//! engine's player list once per sample. Admin actions go through the
+//! admin protocol's own request handler (`actions.rs`).
+//!
+//! Nothing here runs inside a tick: with no console connected the hub task
+//! sleeps and the engine is never asked anything (`events.rs`).
+
+mod actions;
+mod assets;
+mod auth;
+mod conn_limit;
+mod events;
+mod live_world;
+mod query;
+mod routes;
+mod scene;
+mod snapshot_job;
+mod stats;
+mod tiles;
+mod versions;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use metrics_exporter_prometheus::PrometheusHandle;
+use serde::{Deserialize, Serialize};
+use strata_terrain::gen::Generator;
+
+use crate::net::session::SessionContext;
+use crate::store::ChunkStore;
+
+/// Default watchers (live event streams) at once.
+pub const DEFAULT_MAX_WATCHERS: usize = 8;
+/// Default HTTP connections at once.
+pub const DEFAULT_MAX_CONNECTIONS: usize = 64;
+/// Default milliseconds a connection may stay silent both ways.
+pub const DEFAULT_IDLE_TIMEOUT_MS: u64 = 60_000;
+/// Shortest idle timeout (event streams send a keep-alive every half of it).
+pub const MIN_IDLE_TIMEOUT_MS: u64 = 1_000;
+/// Longest pause between an event stream's keep-alive comments.
+pub const MAX_KEEP_ALIVE: std::time::Duration = std::time::Duration::from_secs(15);
+pub const MAX_IDLE_TIMEOUT_MS: u64 = 3_600_000;
+/// Default map tiles kept rendered.
+pub const DEFAULT_TILE_CACHE: usize = 1024;
+/// Default largest request body (admin actions are small JSON).
+pub const DEFAULT_MAX_BODY_BYTES: usize = 4096;
+/// Default tile or scene renders at once.
+pub const DEFAULT_MAX_RENDERS: usize = 2;
+/// Default chunks one 3-D view may mesh.
+pub const DEFAULT_SCENE_MAX_CHUNKS: u64 = 512;
+/// Default milliseconds between samples sent to watchers.
+pub const DEFAULT_SAMPLE_MS: u64 = 500;
+/// Default edits one sample reports at most (the rest are counted).
+pub const DEFAULT_EDITS_PER_SAMPLE: usize = 256;
+/// Caps on the limits above.
+pub const MAX_CONSOLE_LIMIT: usize = 65_536;
+pub const MAX_SCENE_CHUNKS: u64 = 16_384;
+pub const MIN_SAMPLE_MS: u64 = 100;
+pub const MAX_SAMPLE_MS: u64 = 60_000;
+/// Samples buffered per watcher before a slow one misses some (16 are
+/// 8 s at the default period; older samples are stale anyway).
+pub const EVENT_QUEUE: usize = 16;
+/// Chunk columns along a map tile's side (128 voxels, one pixel each).
+pub const TILE_COLUMNS: i32 = 4;
+/// Largest tile coordinate asked for (keeps voxel coordinates in i32).
+pub const MAX_TILE_COORD: i32 = 1 << 20;
+/// Voxels between height contours on the map tiles.
+pub const TILE_CONTOUR_INTERVAL: u32 = 8;
+
+/// `[console]` in the config.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ConsoleConfig {
+    /// TCP address of the console; absent means no console.
+    pub listen: Option<SocketAddr>,
+    /// Live event streams at once; more are answered 503.
+    pub max_watchers: usize,
+    /// HTTP connections at once; more wait to be accepted.
+    pub max_connections: usize,
+    /// Milliseconds a connection may stay silent both ways before it is
+    /// closed (an open event stream is never silent: it gets a keep-alive
+    /// every half of this at least). Keep it above the longest render.
+    pub idle_timeout_ms: u64,
+    /// Map tiles kept rendered (oldest dropped first).
+    pub tile_cache: usize,
+    /// Largest request body in bytes; larger ones are answered 413.
+    pub max_body_bytes: usize,
+    /// Tile and 3-D scene renders at once; more are answered 503.
+    pub max_renders: usize,
+    /// Chunks one 3-D scene request may mesh.
+    pub scene_max_chunks: u64,
+    /// Milliseconds between samples (players, edits, charts) to watchers.
+    pub sample_ms: u64,
+    /// Edits one sample lists at most.
+    pub edits_per_sample: usize,
+    /// Where snapshots started from the console are written (default:
+    /// `snapshots/` in the data dir).
+    pub snapshot_dir: Option<PathBuf>,
+}
+
+impl Default for ConsoleConfig {
+    fn default() -> Self {
+        Self {
+            listen: None,
+            max_watchers: DEFAULT_MAX_WATCHERS,
+            max_connections: DEFAULT_MAX_CONNECTIONS,
+            idle_timeout_ms: DEFAULT_IDLE_TIMEOUT_MS,
+            tile_cache: DEFAULT_TILE_CACHE,
+            max_body_bytes: DEFAULT_MAX_BODY_BYTES,
+            max_renders: DEFAULT_MAX_RENDERS,
+            scene_max_chunks: DEFAULT_SCENE_MAX_CHUNKS,
+            sample_ms: DEFAULT_SAMPLE_MS,
+            edits_per_sample: DEFAULT_EDITS_PER_SAMPLE,
+            snapshot_dir: None,
+        }
+    }
+}
+
+impl ConsoleConfig {
+    /// How often an event stream sends a keep-alive comment.
+    pub fn keep_alive(&self) -> std::time::Duration {
+        MAX_KEEP_ALIVE.min(std::time::Duration::from_millis(self.idle_timeout_ms / 2))
+    }
+
+    /// Range checks: `(field, value, min, max)` for each limit.
+    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 9] {
+        let cap = MAX_CONSOLE_LIMIT as u64;
+        [
+            ("console.max_watchers", self.max_watchers as u64, 1, cap),
+            (
+                "console.max_connections",
+                self.max_connections as u64,
+                1,
+                cap,
+            ),
+            ("console.tile_cache", self.tile_cache as u64, 1, cap),
+            (
+                "console.max_body_bytes",
+                self.max_body_bytes as u64,
+                256,
+                1 << 20,
+            ),
+            ("console.max_renders", self.max_renders as u64, 1, 64),
+            (
+                "console.scene_max_chunks",
+                self.scene_max_chunks,
+                1,
+                MAX_SCENE_CHUNKS,
+            ),
+            (
+                "console.sample_ms",
+                self.sample_ms,
+                MIN_SAMPLE_MS,
+                MAX_SAMPLE_MS,
+            ),
+            (
+                "console.idle_timeout_ms",
+                self.idle_timeout_ms,
+                MIN_IDLE_TIMEOUT_MS,
+                MAX_IDLE_TIMEOUT_MS,
+            ),
+            (
+                "console.edits_per_sample",
+                self.edits_per_sample as u64,
+                1,
+                cap,
+            ),
+        ]
+    }
+}
+
+/// What the console reads and acts through, shared by every request.
+pub struct Console {
+    cfg: ConsoleConfig,
+    ctx: Arc<SessionContext>,
+    world: live_world::LiveWorld,
+    metrics: PrometheusHandle,
+    tiles: tiles::TileCache,
+    versions: versions::VersionIndex,
+    hub: events::Hub,
+    renders: Arc<tokio::sync::Semaphore>,
+    snapshots: snapshot_job::SnapshotJobs,
+}
+
+impl std::fmt::Debug for Console {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Console")
+            .field("cfg", &self.cfg)
+            .finish_non_exhaustive()
+    }
+}
+
+/// What a running server hands the console.
+#[derive(Debug)]
+pub struct ConsoleParts {
+    pub ctx: Arc<SessionContext>,
+    pub store: Arc<dyn ChunkStore>,
+    pub generator: Arc<Generator>,
+    pub metrics: PrometheusHandle,
+    pub data_dir: PathBuf,
+}
+
+/// A console that is serving; dropping it does not stop it, [`Self::stop`] does.
+#[derive(Debug)]
+pub struct RunningConsole {
+    pub addr: SocketAddr,
+    server: tokio::task::JoinHandle<()>,
+    hub: tokio::task::JoinHandle<()>,
+}
+
+impl RunningConsole {
+    /// Stops serving and ends every event stream.
+    pub fn stop(self) {
+        self.server.abort();
+        self.hub.abort();
+    }
+}
+
+/// Binds `[console] listen` (failing early if taken) and starts serving.
+pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<RunningConsole> {
+    let Some(listen) = cfg.listen else {
+        anyhow::bail!("the console has no listen address");
+    };
+    let listener = tokio::net::TcpListener::bind(listen).await?;
+    let addr = listener.local_addr()?;
+    let snapshot_dir = cfg
+        .snapshot_dir
+        .clone()
+        .unwrap_or_else(|| parts.data_dir.join("snapshots"));
+    let console = Arc::new(Console {
+        world: live_world::LiveWorld::new(parts.store.clone(), parts.generator),
+        tiles: tiles::TileCache::new(cfg.tile_cache),
+        versions: versions::VersionIndex::default(),
+        hub: events::Hub::new(),
+        renders: Arc::new(tokio::sync::Semaphore::new(cfg.max_renders)),
+        snapshots: snapshot_job::SnapshotJobs::new(snapshot_dir),
+        metrics: parts.metrics,
+        ctx: parts.ctx,
+        cfg,
+    });
+    let hub = tokio::spawn(events::run_hub(console.clone()));
+    let limited = conn_limit::LimitedListener::new(
+        listener,
+        console.cfg.max_connections,
+        std::time::Duration::from_millis(console.cfg.idle_timeout_ms),
+    );
+    let app = routes::router(console);
+    let server = tokio::spawn(async move {
+        if let Err(e) = axum::serve(limited, app).await {
+            tracing::error!(error = %e, "console listener failed");
+        }
+    });
+    tracing::info!(%addr, "console listening");
+    Ok(RunningConsole { addr, server, hub })
+}

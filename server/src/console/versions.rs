@@ -1,0 +1,90 @@
+//! Which chunk columns changed: a stamp per column (the sum of its stored
+//! chunks' versions, so it grows with every change), kept current by
+//! reading the store's edit log from the last seq seen. Tiles are cached
+//! under the stamps of their columns.
+//!
+//! It is built on first use (one scan of the modified chunks) and caught up
+//! only when a tile is asked for or a watcher's sample is taken: with no
+//! console in use it does nothing.
+
+use std::collections::HashMap;
+use std::sync::Mutex;
+
+use strata_terrain::ChunkPos;
+
+use crate::store::{ChunkStore, StoreError};
+
+/// Column stamps and the log position they reflect.
+#[derive(Debug, Default)]
+pub struct VersionIndex {
+    state: Mutex<Option<State>>,
+}
+
+#[derive(Debug)]
+struct State {
+    seen_seq: u64,
+    versions: HashMap<ChunkPos, u64>,
+    columns: HashMap<(i32, i32), u64>,
+}
+
+impl State {
+    fn set(&mut self, pos: ChunkPos, version: u64) {
+        let old = self.versions.entry(pos).or_insert(0);
+        if version > *old {
+            *self.columns.entry((pos.x, pos.z)).or_insert(0) += version - *old;
+            *old = version;
+        }
+    }
+}
+
+impl VersionIndex {
+    /// Applies the log entries past the last seen seq (building the index
+    /// first if needed); returns the seq it now reflects.
+    pub fn catch_up(&self, store: &dyn ChunkStore) -> Result<u64, StoreError> {
+        let mut guard = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        let state = match &mut *guard {
+            Some(s) => s,
+            None => {
+                // The seq first: chunks read after it are at least that new,
+                // and versions only grow, so replaying later entries is safe.
+                let seen_seq = store.last_seq()?;
+                let mut s = State {
+                    seen_seq,
+                    versions: HashMap::new(),
+                    columns: HashMap::new(),
+                };
+                for item in store.modified_chunks() {
+                    let (pos, version) = item?;
+                    s.set(pos, version);
+                }
+                guard.insert(s)
+            }
+        };
+        let last = store.last_seq()?;
+        if last > state.seen_seq {
+            for entry in store.edit_log(state.seen_seq + 1..=last) {
+                let entry = entry?;
+                for &(pos, version) in &entry.changes {
+                    state.set(pos, version);
+                }
+                state.seen_seq = state.seen_seq.max(entry.seq);
+            }
+        }
+        Ok(state.seen_seq)
+    }
+
+    /// The stamp of the columns `x0..x0+n`, `z0..z0+n` (0 if never read).
+    pub fn stamp(&self, x0: i32, z0: i32, n: i32) -> u64 {
+        let guard = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        let Some(s) = &*guard else {
+            return 0;
+        };
+        let mut sum = 0u64;
+        for z in z0..z0 + n {
+            for x in x0..x0 + n {
+                sum = sum.wrapping_add(s.columns.get(&(x, z)).copied().unwrap_or(0));
+            }
+        }
+        sum
+    }
+}

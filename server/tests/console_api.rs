@@ -1,0 +1,435 @@
+//! The web console's HTTP API against a real server on 127.0.0.1: who gets
+//! in, map tiles that change after an edit, server-sent events that carry
+//! it, the 3-D scene as glTF, the named limits, and the confirmed admin
+//! actions (which take the admin protocol's own path).
+
+mod common;
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use common::*;
+use serde_json::Value;
+use strata_client_sim::{Client, Verdict};
+use strata_protocol::admin::{AdminRequest, AdminResponse};
+use strata_protocol::Role;
+use strata_server::admin::glb::read_glb;
+use strata_server::admin::remote::AdminClient;
+use strata_terrain::{Edit, FixedVec3};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+/// One HTTP/1.1 exchange: status, headers (lower-case names), body.
+struct Reply {
+    status: u16,
+    headers: String,
+    body: Vec<u8>,
+}
+
+impl Reply {
+    fn json(&self) -> Value {
+        serde_json::from_slice(&self.body)
+            .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&self.body)))
+    }
+}
+
+fn request_text(method: &str, path: &str, token: Option<&str>, body: &[u8]) -> Vec<u8> {
+    let auth = token.map_or(String::new(), |t| format!("Authorization: Bearer {t}\r\n"));
+    let mut req = format!(
+        "{method} {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n{auth}\
+         Content-Type: application/json\r\nContent-Length: {}\r\n\r\n",
+        body.len()
+    )
+    .into_bytes();
+    req.extend_from_slice(body);
+    req
+}
+
+/// Decodes a chunked body.
+fn dechunk(mut raw: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    while let Some(end) = raw.windows(2).position(|w| w == b"\r\n") {
+        let size = usize::from_str_radix(std::str::from_utf8(&raw[..end]).unwrap().trim(), 16)
+            .expect("chunk size");
+        if size == 0 {
+            break;
+        }
+        out.extend_from_slice(&raw[end + 2..end + 2 + size]);
+        raw = &raw[end + 2 + size + 2..];
+    }
+    out
+}
+
+async fn http(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    token: Option<&str>,
+    body: &[u8],
+) -> Reply {
+    let mut s = TcpStream::connect(addr).await.unwrap();
+    s.write_all(&request_text(method, path, token, body))
+        .await
+        .unwrap();
+    let mut raw = Vec::new();
+    tokio::time::timeout(Duration::from_secs(30), s.read_to_end(&mut raw))
+        .await
+        .expect("reply in time")
+        .unwrap();
+    let split = raw
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .expect("headers end");
+    let head = String::from_utf8_lossy(&raw[..split]).to_ascii_lowercase();
+    let status = head[9..12].parse().unwrap();
+    let mut body = raw[split + 4..].to_vec();
+    if head.contains("transfer-encoding: chunked") {
+        body = dechunk(&body);
+    }
+    Reply {
+        status,
+        headers: head,
+        body,
+    }
+}
+
+async fn get(addr: SocketAddr, path: &str, token: Option<&str>) -> Reply {
+    http(addr, "GET", path, token, b"").await
+}
+
+async fn action(addr: SocketAddr, token: &str, body: Value) -> Reply {
+    http(
+        addr,
+        "POST",
+        "/api/action",
+        Some(token),
+        body.to_string().as_bytes(),
+    )
+    .await
+}
+
+/// An open event stream; [`Self::until`] reads it until a text appears.
+struct Events {
+    stream: TcpStream,
+    seen: String,
+}
+
+impl Events {
+    async fn open(addr: SocketAddr, token: &str) -> Events {
+        let mut stream = TcpStream::connect(addr).await.unwrap();
+        stream
+            .write_all(&request_text("GET", "/api/events", Some(token), b""))
+            .await
+            .unwrap();
+        let mut ev = Events {
+            stream,
+            seen: String::new(),
+        };
+        ev.until("\r\n\r\n", Duration::from_secs(10)).await;
+        assert!(ev.seen.starts_with("HTTP/1.1 200"), "{}", ev.seen);
+        assert!(ev.seen.contains("text/event-stream"), "{}", ev.seen);
+        ev
+    }
+
+    /// Reads until `text` has arrived (panics after `limit`).
+    async fn until(&mut self, text: &str, limit: Duration) {
+        let deadline = Instant::now() + limit;
+        let mut buf = [0u8; 16384];
+        while !self.seen.contains(text) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let n = tokio::time::timeout(left, self.stream.read(&mut buf))
+                .await
+                .unwrap_or_else(|_| panic!("no {text:?} in time; got {}", self.tail()))
+                .unwrap();
+            assert!(n > 0, "the stream ended before {text:?}");
+            self.seen.push_str(&String::from_utf8_lossy(&buf[..n]));
+        }
+    }
+
+    /// The last sample whose text holds `text`, parsed.
+    fn sample_with(&self, text: &str) -> Value {
+        let line = self
+            .seen
+            .lines()
+            .rfind(|l| l.starts_with("data:") && l.contains(text))
+            .unwrap_or_else(|| panic!("no sample with {text:?}"));
+        serde_json::from_str(line["data:".len()..].trim()).unwrap()
+    }
+
+    fn tail(&self) -> &str {
+        &self.seen[self.seen.len().saturating_sub(2000)..]
+    }
+}
+
+fn decode_png(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
+/// A player standing at `feet` whose view has arrived.
+async fn standing_player(server: &app::Running, name: &str, feet: FixedVec3) -> Client {
+    let c = connect(server, name, Role::Player).await;
+    c.send_position(feet).unwrap();
+    let here = strata_terrain::VoxelPos::new(
+        feet.x.to_f64().floor() as i32,
+        feet.y.to_f64().floor() as i32,
+        feet.z.to_f64().floor() as i32,
+    )
+    .chunk();
+    assert!(eventually(Duration::from_secs(20), || c.replica().get(here).is_some()).await);
+    c
+}
+
+use strata_server::app;
+
+/// A server with its console on a free loopback port, `[console]` set by `f`.
+async fn start_console(
+    dir: &std::path::Path,
+    f: impl FnOnce(&mut strata_server::console::ConsoleConfig),
+) -> (app::Running, SocketAddr) {
+    let mut cfg = test_config(dir);
+    cfg.console.listen = Some("127.0.0.1:0".parse().unwrap());
+    f(&mut cfg.console);
+    let server = app::start(cfg).await.unwrap();
+    let web = server.console_addr.expect("console address");
+    (server, web)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn console_serves_admins_the_live_world_and_their_actions() {
+    tokio::time::timeout(Duration::from_secs(120), async {
+        let dir = tempfile::tempdir().unwrap();
+        let (server, web) = start_console(dir.path(), |c| {
+            c.max_watchers = 2;
+            c.sample_ms = 100;
+        })
+        .await;
+        let admin = token(&server, "ops", Role::Admin);
+        let player = token(&server, "ana", Role::Player);
+
+        // Who gets in: nobody without a token, no player token, no forgery.
+        for path in [
+            "/api/world",
+            "/api/tile?tx=0&tz=0",
+            "/api/events",
+            "/api/scene.glb?x0=0&z0=0&x1=0&z1=0",
+        ] {
+            assert_eq!(get(web, path, None).await.status, 401, "{path}");
+            assert_eq!(get(web, path, Some(&player)).await.status, 403, "{path}");
+            let forged = format!("{}x", &admin[..admin.len() - 1]);
+            assert_eq!(get(web, path, Some(&forged)).await.status, 401, "{path}");
+        }
+        let kick = serde_json::json!({"confirm": true, "action": {"kick": {"player": "ana"}}});
+        assert_eq!(action(web, &player, kick.clone()).await.status, 403);
+        // The page is public (it holds no data) and names no other origin.
+        let page = get(web, "/", None).await;
+        assert_eq!(page.status, 200);
+        assert!(page.headers.contains("content-security-policy: default-src 'self'"));
+        assert!(String::from_utf8_lossy(&page.body).contains("<canvas id=\"map\""));
+        let world = get(web, "/api/world", Some(&admin)).await;
+        assert_eq!(world.status, 200);
+        assert_eq!(world.json()["admin"], "ops");
+        assert_eq!(world.json()["samples"], 0, "nothing sampled before anyone watched");
+
+        // A tile before and after an edit in it.
+        let (feet, ground) = spot(70, 40);
+        let voxels = 128;
+        let tile = format!(
+            "/api/tile?view=top&tx={}&tz={}",
+            ground.x.div_euclid(voxels),
+            ground.z.div_euclid(voxels)
+        );
+        let before = get(web, &tile, Some(&admin)).await;
+        assert_eq!(before.status, 200);
+        assert!(before.headers.contains("content-type: image/png"));
+        let (w, h, pixels) = decode_png(&before.body);
+        assert_eq!((w, h), (128, 128));
+        let mut colours: Vec<&[u8]> = pixels.chunks(3).collect();
+        colours.sort_unstable();
+        colours.dedup();
+        assert!(colours.len() > 20, "a drawn map, not a blank: {} colours", colours.len());
+        let again = get(web, &tile, Some(&admin)).await;
+        assert_eq!(again.body, before.body, "cached while nothing changed");
+        let slice = get(web, &format!("{tile}&view=slice&y=-20"), Some(&admin)).await;
+        assert_eq!(slice.status, 200, "{}", String::from_utf8_lossy(&slice.body));
+        assert_ne!(slice.body, before.body);
+
+        let mut events = Events::open(web, &admin).await;
+        events.until("event: sample", Duration::from_secs(10)).await;
+        let ana = standing_player(&server, "ana", feet).await;
+        events.until("\"player\":\"ana\"", Duration::from_secs(10)).await;
+        let mine = Edit::Mine {
+            center: FixedVec3::from_voxels(ground.x, ground.y, ground.z),
+            radius: r(3.0),
+            strength: 255,
+        };
+        let seq = match ana.edit(mine).await.unwrap() {
+            Verdict::Accepted { seq } => seq,
+            other => panic!("{other:?}"),
+        };
+        // The event stream delivers the edit, where it happened.
+        events
+            .until("\"kind\":\"mine\"", Duration::from_secs(10))
+            .await;
+        let sample = events.sample_with("\"kind\":\"mine\"");
+        let edit = &sample["edits"][0];
+        assert_eq!((edit["seq"].as_u64(), edit["player"].as_str()), (Some(seq), Some("ana")));
+        assert_eq!(edit["at"][0].as_f64(), Some(f64::from(ground.x)));
+        assert!(!sample["columns"].as_array().unwrap().is_empty(), "{sample}");
+        let after = get(web, &tile, Some(&admin)).await;
+        assert_eq!(after.status, 200);
+        assert_ne!(after.body, before.body, "the tile was redrawn after the edit");
+
+        // The 3-D view: glTF of the edited chunk and its neighbours above
+        // and below, from the same meshes the server builds.
+        let c = ground.chunk();
+        let scene = get(
+            web,
+            &format!(
+                "/api/scene.glb?x0={}&z0={}&x1={}&z1={}&y0={}&y1={}",
+                c.x,
+                c.z,
+                c.x,
+                c.z,
+                c.y - 1,
+                c.y + 1
+            ),
+            Some(&admin),
+        )
+        .await;
+        assert_eq!(scene.status, 200, "{}", String::from_utf8_lossy(&scene.body));
+        assert!(scene.headers.contains("content-type: model/gltf-binary"));
+        let glb = read_glb(&scene.body).unwrap();
+        let acc = &glb.json["accessors"];
+        assert_eq!(acc[0]["count"], glb.mesh.positions.len());
+        assert_eq!(acc[4]["count"], glb.mesh.indices.len());
+        assert!(glb.mesh.indices.len() >= 3 * 100, "a surface was meshed");
+        assert_eq!(glb.json["meshes"].as_array().unwrap().len(), 1);
+        let huge = get(web, "/api/scene.glb?x0=-20&z0=-20&x1=20&z1=20", Some(&admin)).await;
+        assert_eq!(huge.status, 400, "scene_max_chunks");
+        assert_eq!(get(web, "/api/tile?tx=0&tz=0&evil=1", Some(&admin)).await.status, 400);
+        assert_eq!(get(web, "/api/tile?tx=99999999&tz=0", Some(&admin)).await.status, 400);
+
+        // At most max_watchers event streams.
+        let _second = Events::open(web, &admin).await;
+        assert_eq!(get(web, "/api/events", Some(&admin)).await.status, 503);
+
+        // Actions need confirmation, a small body and a known shape.
+        let unconfirmed = serde_json::json!({"confirm": false, "action": {"kick": {"player": "ana"}}});
+        assert_eq!(action(web, &admin, unconfirmed).await.status, 400);
+        let big = format!("{{\"confirm\":true,\"pad\":\"{}\"}}", "x".repeat(8192));
+        let r = http(web, "POST", "/api/action", Some(&admin), big.as_bytes()).await;
+        assert_eq!(r.status, 413);
+        let odd = serde_json::json!({"confirm": true, "action": {"format_disk": {}}});
+        assert_eq!(action(web, &admin, odd).await.status, 400);
+
+        // A zone drawn from the console is the server's zone.
+        let zone = serde_json::json!({"confirm": true, "action": {"zone_add": {
+            "name": "plaza", "min": [0, -10, 0], "max": [9, 10, 9]}}});
+        let r = action(web, &admin, zone).await;
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        let mut cli = AdminClient::connect(server.addr, &server.cert_der, &admin)
+            .await
+            .unwrap();
+        match cli.request(&AdminRequest::Zones).await.unwrap() {
+            AdminResponse::Zones(z) => assert!(z.iter().any(|z| z.name == "plaza"), "{z:?}"),
+            other => panic!("{other:?}"),
+        }
+        events.until("\"name\":\"plaza\"", Duration::from_secs(10)).await;
+        let remove = serde_json::json!({"confirm": true, "action": {"zone_remove": {"name": "plaza"}}});
+        assert_eq!(action(web, &admin, remove.clone()).await.status, 200);
+        assert_eq!(action(web, &admin, remove).await.status, 409, "already gone");
+
+        // Kick, then ban: the player's session ends and it cannot return.
+        let r = action(web, &admin, kick).await;
+        assert_eq!(r.status, 200);
+        assert_eq!(r.json()["ok"]["Kicked"]["sessions"], 1);
+        ana.closed().await;
+        let ban = serde_json::json!({"confirm": true, "action": {"ban": {"player": "ana", "until": null}}});
+        assert_eq!(action(web, &admin, ban).await.status, 200);
+        let refused = Client::connect(server.addr, &server.cert_der, &player).await;
+        assert!(refused.is_err(), "a banned player cannot connect");
+
+        // A snapshot started from the console, watched to its end.
+        let snap = serde_json::json!({"confirm": true, "action": "snapshot"});
+        let r = action(web, &admin, snap).await;
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        let file = r.json()["ok"]["file"].as_str().unwrap().to_string();
+        events.until("\"state\":\"done\"", Duration::from_secs(30)).await;
+        let report = strata_server::snapshot::verify(std::path::Path::new(&file), |_| {}).unwrap();
+        assert!(report.is_ok(), "{:?}", report.issues);
+        assert_eq!(report.header.unwrap().seq, seq);
+
+        cli.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test timed out");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn console_bounds_connections_and_closes_silent_ones() {
+    tokio::time::timeout(Duration::from_secs(60), async {
+        let dir = tempfile::tempdir().unwrap();
+        let (server, web) = start_console(dir.path(), |c| {
+            c.max_connections = 2;
+            c.idle_timeout_ms = 2000;
+            c.sample_ms = 200;
+        })
+        .await;
+        // Two idle connections take both slots ...
+        let first = TcpStream::connect(web).await.unwrap();
+        let _second = TcpStream::connect(web).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        // ... so a third is not served while they stay (under the 2 s idle
+        // timeout) ...
+        let mut third = TcpStream::connect(web).await.unwrap();
+        third
+            .write_all(&request_text("GET", "/api/world", None, b""))
+            .await
+            .unwrap();
+        let mut buf = [0u8; 64];
+        let waited = tokio::time::timeout(Duration::from_millis(600), third.read(&mut buf)).await;
+        assert!(waited.is_err(), "served past max_connections");
+        // ... and is, once one of them leaves.
+        drop(first);
+        let n = tokio::time::timeout(Duration::from_secs(10), third.read(&mut buf))
+            .await
+            .expect("served once a slot is free")
+            .unwrap();
+        assert!(buf[..n].starts_with(b"HTTP/1.1 401"), "{:?}", &buf[..n]);
+        drop(third);
+        // A silent connection is closed after idle_timeout_ms; an open
+        // event stream is not (its keep-alives are traffic).
+        let admin = token(&server, "ops", Role::Admin);
+        let mut events = Events::open(web, &admin).await;
+        let mut silent = TcpStream::connect(web).await.unwrap();
+        let closed = tokio::time::timeout(Duration::from_secs(10), silent.read(&mut buf))
+            .await
+            .expect("a silent connection is closed");
+        assert!(matches!(closed, Ok(0) | Err(_)), "{closed:?}");
+        events.seen.clear();
+        events.until("event: sample", Duration::from_secs(10)).await;
+
+        // Nobody watching, no sampling: the sampler sleeps once the last
+        // stream is gone (it may take one more sample to notice).
+        drop(events);
+        let samples = || async {
+            get(web, "/api/world", Some(&admin)).await.json()["samples"]
+                .as_u64()
+                .unwrap()
+        };
+        tokio::time::sleep(Duration::from_millis(1000)).await;
+        let after_close = samples().await;
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        assert_eq!(samples().await, after_close, "sampled with nobody watching");
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test timed out");
+}

@@ -1,0 +1,163 @@
+//! The web console in a real browser: headless Chromium loads the page
+//! from a `strata-server` process that bots are playing on, signs in with
+//! an admin token in the URL fragment, and the test checks what it drew:
+//! map tiles on the canvas (a screenshot that is not blank), a marker per
+//! player, charts that gained points from successive samples, and the 3-D
+//! view's glTF of the chunks around the players, fetched and parsed.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use strata_tests::chromium::{self, attribute};
+use strata_tests::{binary, spawn_bots, Server};
+
+/// How long the page runs per load, in Chromium's virtual time.
+const BUDGET_MS: u32 = 15_000;
+/// Charts that must have drawn two samples or more.
+const CHARTS: [&str; 3] = ["c-players", "c-latency", "c-phases"];
+/// How long the bots may take to join and the page to show them.
+const SHOW_TIMEOUT: Duration = Duration::from_secs(90);
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn admin_token(data_dir: &Path) -> String {
+    let out = Command::new(binary("strata-admin"))
+        .args([
+            "token", "issue", "--player", "ops", "--role", "admin", "--ttl", "1h",
+        ])
+        .arg("--data-dir")
+        .arg(data_dir)
+        .output()
+        .expect("strata-admin runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .last()
+        .unwrap()
+        .trim()
+        .to_string()
+}
+
+fn number(dom: &str, marker: &str, attr: &str) -> u64 {
+    attribute(dom, marker, attr)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0)
+}
+
+/// Distinct colours in the screenshot's map canvas area (its top-left
+/// 800 x 560 CSS pixels, below the header).
+fn map_colours(png_path: &Path) -> usize {
+    let file = std::fs::File::open(png_path).unwrap();
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let channels = info.color_type.samples();
+    let mut colours = std::collections::HashSet::new();
+    for y in 80..620.min(info.height as usize) {
+        for x in 10..800.min(info.width as usize) {
+            let i = (y * info.width as usize + x) * channels;
+            colours.insert([buf[i], buf[i + 1], buf[i + 2]]);
+        }
+    }
+    colours.len()
+}
+
+#[test]
+fn chromium_shows_the_live_map_players_and_charts() {
+    let Some(chrome) = chromium::binary_or_skip("chromium_shows_the_live_map_players_and_charts")
+    else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let port = free_port();
+    let config = format!(
+        "[engine]\ntick_ms = 10\n[console]\nlisten = \"127.0.0.1:{port}\"\nsample_ms = 250\n"
+    );
+    let server = Server::start_with(&data, "127.0.0.1:0", &config);
+    let bots = spawn_bots(
+        &server,
+        &["--bots", "4", "--profile", "mixed", "--duration", "60s"],
+    );
+    let url = format!("http://127.0.0.1:{port}/#token={}", admin_token(&data));
+    let profile = tmp.path().join("chromium");
+
+    // The page shows every bot once they stand in the world.
+    let start = Instant::now();
+    let dom = loop {
+        let dom = chromium::run(&chrome, &profile, &url, "--dump-dom", BUDGET_MS);
+        // Edits (and so the latency chart) start once every bot has joined.
+        let markers = number(&dom, "id=\"map\"", "data-markers");
+        let scene = attribute(&dom, "id=\"scene-state\"", "data-state");
+        let settled = matches!(scene.as_deref(), Some("drawn" | "no-webgl2"));
+        let charted = CHARTS
+            .iter()
+            .all(|c| number(&dom, &format!("id=\"{c}\""), "data-points") >= 2);
+        if (markers >= 4 && settled && charted) || start.elapsed() > SHOW_TIMEOUT {
+            break dom;
+        }
+        std::thread::sleep(Duration::from_secs(2));
+    };
+    assert_eq!(
+        attribute(&dom, "id=\"status\"", "data-state").as_deref(),
+        Some("live"),
+        "signed in and watching: {dom} {}",
+        std::fs::read_to_string(profile.with_extension("log")).unwrap_or_default()
+    );
+    assert!(
+        number(&dom, "id=\"map\"", "data-markers") >= 4,
+        "a marker per bot"
+    );
+    assert!(
+        number(&dom, "id=\"map\"", "data-tiles-drawn") > 0,
+        "map tiles drawn"
+    );
+    // Each sample adds a point per series: two or more means it updated.
+    for chart in CHARTS {
+        let points = number(&dom, &format!("id=\"{chart}\""), "data-points");
+        assert!(points >= 2, "{chart} has {points} points");
+    }
+    // The 3-D view fetched and parsed the glTF of the chunks around the
+    // bots (drawn with WebGL2 where the browser has it).
+    let scene = attribute(&dom, "id=\"scene-state\"", "data-state");
+    assert!(
+        matches!(scene.as_deref(), Some("drawn" | "no-webgl2")),
+        "3-D view: {scene:?}"
+    );
+    let edits = number(&dom, "id=\"c-edits\"", "data-points");
+    assert!(
+        edits >= 1,
+        "edit rates are charted from the second sample on"
+    );
+
+    // The screenshot's map area is a drawn map, not a blank canvas.
+    let shot = tmp.path().join("console.png");
+    chromium::run(
+        &chrome,
+        &profile,
+        &url,
+        &format!("--screenshot={}", shot.display()),
+        BUDGET_MS,
+    );
+    let colours = map_colours(&shot);
+    assert!(colours > 100, "the map canvas shows {colours} colours");
+    if let Some(keep) = std::env::var_os("STRATA_CONSOLE_SCREENSHOT") {
+        std::fs::copy(&shot, keep).unwrap();
+    }
+    drop(bots);
+    server.stop();
+}
