@@ -3,7 +3,11 @@
 mod mesh_common;
 
 use mesh_common::*;
-use strata_terrain::mesh::{mesh_chunk, Mesh, MeshOptions, Neighborhood, TRANSITION_WIDTH};
+use std::collections::HashMap;
+use strata_terrain::mesh::volume::weld as key_weld;
+use strata_terrain::mesh::{
+    mesh_chunk, Mesh, MeshOptions, Neighborhood, VertexKey, TRANSITION_WIDTH,
+};
 use strata_terrain::ChunkPos;
 
 const SLOPE: f64 = 16.0;
@@ -237,4 +241,91 @@ fn every_transition_face_subset_is_crack_free_at_every_lod() {
             }
         }
     }
+}
+
+/// `p` of a mesh of `chunk` in world units, as the weld computes it.
+fn world(chunk: ChunkPos, p: [f32; 3]) -> [f32; 3] {
+    let o = chunk.origin();
+    [o.x as f32 + p[0], o.y as f32 + p[1], o.z as f32 + p[2]]
+}
+
+/// Triangles of the meshes welded by exact world position alone.
+fn position_weld(parts: &[(ChunkPos, &Mesh)]) -> Vec<u32> {
+    let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
+    let mut out = Vec::new();
+    for (c, m) in parts {
+        for &i in &m.indices {
+            let p = world(*c, m.positions[i as usize]).map(f32::to_bits);
+            let next = ids.len() as u32;
+            out.push(*ids.entry(p).or_insert(next));
+        }
+    }
+    out
+}
+
+/// Keys that two meshes put at different world positions.
+fn key_conflicts(parts: &[(ChunkPos, &Mesh)]) -> usize {
+    let mut seen: HashMap<VertexKey, [f32; 3]> = HashMap::new();
+    let mut conflicts = 0;
+    for (c, m) in parts {
+        for (k, p) in m.keys.iter().zip(&m.positions) {
+            let p = world(*c, *p);
+            if *seen.entry(*k).or_insert(p) != p {
+                conflicts += 1;
+            }
+        }
+    }
+    conflicts
+}
+
+/// Coarse chunks that touch along a face, an edge or a corner push their
+/// shared vertices by transition faces of their own, so one key can name
+/// two positions. `volume::weld` keeps those apart: it never moves a
+/// vertex, and its seams are no less manifold than an exact-position weld.
+#[test]
+fn key_weld_of_mixed_lod_meshes_never_moves_a_vertex() {
+    let f = value_noise(11, 5.0);
+    let a = ChunkPos::new(0, 0, 0);
+    let na = neighborhood(a, &f, ISO, SLOPE);
+    let few = [
+        0u8, 0b000001, 0b000100, 0b010000, 0b101010, 0b010101, 0b111111,
+    ];
+    let mut conflicts = 0;
+    for k in 1..=2u8 {
+        let ma: Vec<Mesh> = (0..64).map(|m| mesh_chunk(&na, &lod(k, m))).collect();
+        for b in [
+            ChunkPos::new(1, 0, 0),
+            ChunkPos::new(1, 1, 0),
+            ChunkPos::new(0, 1, 1),
+            ChunkPos::new(1, 1, 1),
+        ] {
+            let nb = neighborhood(b, &f, ISO, SLOPE);
+            for mask_b in few {
+                let mb = mesh_chunk(&nb, &lod(k, mask_b));
+                for (mask_a, x) in ma.iter().enumerate() {
+                    let parts = [(a, x), (b, &mb)];
+                    conflicts += key_conflicts(&parts);
+                    let w =
+                        key_weld(parts.iter().map(|(c, m)| (c.origin(), (*m).clone()))).unwrap();
+                    let inputs = parts.iter().flat_map(|(c, m)| {
+                        m.indices
+                            .iter()
+                            .map(|&i| world(*c, m.positions[i as usize]))
+                    });
+                    for (j, p) in inputs.enumerate() {
+                        assert_eq!(
+                            w.positions[w.indices[j] as usize], p,
+                            "lod {k} {b:?} masks {mask_a:06b}/{mask_b:06b}: a vertex moved"
+                        );
+                    }
+                    assert!(
+                        non_manifold_edges(&w.indices)
+                            <= non_manifold_edges(&position_weld(&parts)),
+                        "lod {k} {b:?} masks {mask_a:06b}/{mask_b:06b}"
+                    );
+                }
+            }
+        }
+    }
+    assert!(conflicts > 0, "the layouts put one key at two positions");
 }

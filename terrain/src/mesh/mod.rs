@@ -38,6 +38,9 @@
 //!   face meets a non-transition face, the push tapers to zero on the latter, so a same-LOD
 //!   neighbour there still matches. Any subset of the 6 faces works, including chunk edges
 //!   and corners where 2 or 3 transition faces meet (tested on all 63 subsets at LOD 1..=3).
+//!   The push is the chunk's own, so with transitions a key no longer names one position:
+//!   two coarse chunks touching along an edge or a corner can put one key at different
+//!   places. [`volume::weld`] therefore joins vertices only on equal key AND position.
 //!   Caveat: about a quarter of Lengyel's transition triangles lie in the full-resolution
 //!   face, so transition cells can emit zero-area triangles when their vertices happen to be
 //!   collinear or coincide (linear data, and where the slab tapers to zero); they are kept,

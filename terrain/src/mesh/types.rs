@@ -106,7 +106,9 @@ impl MeshOptions {
 
 /// Identity of a sample edge in WORLD voxel coordinates: `base` is the lower endpoint, the edge
 /// runs `len` voxels along `axis` (0=x, 1=y, 2=z). Two chunk meshes that share a vertex give it
-/// the same key, so meshes can be welded by key.
+/// the same key. Without transition faces a key names one position, so meshes weld by key;
+/// with them a chunk pushes vertices near its faces by its own amounts, and one key may sit at
+/// different positions in two chunks: weld by key and position ([`super::volume::weld`] does).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct VertexKey {
     pub base: VoxelPos,

@@ -467,16 +467,24 @@ fn on_chunk_seam(key: &VertexKey) -> bool {
     (0..3).any(|a| a != key.axis as usize && b[a] & m == 0)
 }
 
-/// Concatenates chunk meshes in the given order, merging seam vertices by
-/// key, and moves each chunk's positions by its origin (the world position
-/// of its local (0, 0, 0)). Keys must be in the same world coordinates with
-/// chunk seams at multiples of 32, as [`super::mesh_chunk`] gives them, so
-/// meshes of neighbouring world chunks weld exactly.
+/// Concatenates chunk meshes in the given order, merging seam vertices that
+/// share both key and world position, and moves each chunk's positions by its
+/// origin (the world position of its local (0, 0, 0)). Keys must be in the
+/// same world coordinates with chunk seams at multiples of 32, as
+/// [`super::mesh_chunk`] gives them, so meshes of neighbouring world chunks
+/// weld exactly.
+///
+/// Meshes with transition faces may mix: a transition pushes a chunk's
+/// vertices near its faces inward by amounts of its own, so two chunks (two
+/// diagonal coarse ones, say) can put one key at different positions. Such
+/// vertices stay apart; the weld never moves a vertex and never joins
+/// triangles that did not meet.
 ///
 /// Vertex ids follow chunk order (a seam vertex takes the id of its first
 /// appearance), so the result does not depend on how the meshes were made.
 pub fn weld(pieces: impl IntoIterator<Item = (VoxelPos, Mesh)>) -> Result<Mesh, VolumeError> {
     let mut welder = Welder::new(true);
+    welder.exact = true;
     for (origin, mesh) in pieces {
         welder.add(origin, &mesh)?;
     }
@@ -490,6 +498,14 @@ struct Welder {
     /// Whether `out.keys` is filled.
     keys: bool,
     seam: SeamMap,
+    /// Whether a seam vertex joins an earlier one of its key only at the same
+    /// position ([`weld`]: meshes may carry transition faces). The volume
+    /// mesher's chunks are all one LOD with no transitions, where a key
+    /// names one position.
+    exact: bool,
+    /// Seam vertices whose key an earlier chunk put elsewhere, by key and
+    /// position bits (only when `exact`).
+    moved: HashMap<(VertexKey, [u32; 3]), u32>,
     /// Global id of each vertex of the chunk being added (reused).
     remap: Vec<u32>,
 }
@@ -500,6 +516,8 @@ impl Welder {
             out: Mesh::default(),
             keys,
             seam: SeamMap::default(),
+            exact: false,
+            moved: HashMap::new(),
             remap: Vec::new(),
         }
     }
@@ -518,10 +536,20 @@ impl Welder {
         for (i, key) in mesh.keys.iter().enumerate() {
             let next = out.positions.len() as u64;
             let id = next as u32;
-            let global = if on_chunk_seam(key) {
-                *self.seam.entry(*key).or_insert(id)
-            } else {
+            let v = mesh.positions[i];
+            let world = [v[0] + o[0], v[1] + o[1], v[2] + o[2]];
+            let global = if !on_chunk_seam(key) {
                 id
+            } else {
+                let first = *self.seam.entry(*key).or_insert(id);
+                if self.exact && first != id && out.positions[first as usize] != world {
+                    *self
+                        .moved
+                        .entry((*key, world.map(f32::to_bits)))
+                        .or_insert(id)
+                } else {
+                    first
+                }
             };
             if global == id {
                 if next >= MAX_VOLUME_VERTICES {
@@ -530,8 +558,7 @@ impl Welder {
                         max: MAX_VOLUME_VERTICES,
                     });
                 }
-                let v = mesh.positions[i];
-                out.positions.push([v[0] + o[0], v[1] + o[1], v[2] + o[2]]);
+                out.positions.push(world);
                 out.normals.push(mesh.normals[i]);
                 out.materials.push(mesh.materials[i]);
                 if self.keys {

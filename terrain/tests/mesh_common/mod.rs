@@ -111,6 +111,14 @@ pub fn open_edges(indices: &[u32]) -> Vec<(u32, u32)> {
     v
 }
 
+/// Edges used by more than two triangles.
+pub fn non_manifold_edges(indices: &[u32]) -> usize {
+    edge_uses(indices)
+        .values()
+        .filter(|(f, b)| f + b > 2)
+        .count()
+}
+
 /// V - E + F over the vertices the triangles use.
 pub fn euler(indices: &[u32]) -> i64 {
     let mut verts: Vec<u32> = indices.to_vec();
