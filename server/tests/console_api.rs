@@ -379,6 +379,7 @@ async fn console_bounds_connections_and_closes_silent_ones() {
         let (server, web) = start_console(dir.path(), |c| {
             c.max_connections = 2;
             c.idle_timeout_ms = 2000;
+            c.request_timeout_ms = 1500;
             c.sample_ms = 200;
         })
         .await;
@@ -415,6 +416,33 @@ async fn console_bounds_connections_and_closes_silent_ones() {
         assert!(matches!(closed, Ok(0) | Err(_)), "{closed:?}");
         events.seen.clear();
         events.until("event: sample", Duration::from_secs(10)).await;
+
+        // A request trickled in a byte at a time, never silent for long, is
+        // closed after request_timeout_ms all the same.
+        let mut trickle = TcpStream::connect(web).await.unwrap();
+        let text = request_text("GET", "/api/world", None, b"");
+        let started = Instant::now();
+        let mut closed_after = None;
+        for b in text.iter().cycle().take(200) {
+            if trickle.write_all(&[*b]).await.is_err() {
+                closed_after = Some(started.elapsed());
+                break;
+            }
+            let mut probe = [0u8; 64];
+            match tokio::time::timeout(Duration::from_millis(150), trickle.read(&mut probe)).await {
+                Ok(Ok(0)) | Ok(Err(_)) => {
+                    closed_after = Some(started.elapsed());
+                    break;
+                }
+                Ok(Ok(n)) => panic!("answered a trickled request: {:?}", &probe[..n]),
+                Err(_) => {}
+            }
+        }
+        let closed_after = closed_after.expect("a trickled request is closed");
+        assert!(
+            closed_after >= Duration::from_millis(1400) && closed_after < Duration::from_secs(10),
+            "closed after {closed_after:?}"
+        );
 
         // Nobody watching, no sampling: the sampler sleeps once the last
         // stream is gone (it may take one more sample to notice).

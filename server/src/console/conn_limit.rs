@@ -4,7 +4,10 @@
 //! A connection that neither sends nor receives a byte for
 //! `[console] idle_timeout_ms` is closed, so idle or stalled clients cannot
 //! keep the slots (an open event stream is never idle: it gets a
-//! keep-alive comment every half of the timeout at least).
+//! keep-alive comment every half of the timeout at least). Nor may a request
+//! take longer than `[console] request_timeout_ms` from its first byte to
+//! its answer's first byte, so a client trickling a byte now and then
+//! cannot keep a slot either.
 
 use std::io;
 use std::pin::Pin;
@@ -22,56 +25,73 @@ use tokio::time::{Instant, Sleep};
 /// Pause after a failed accept (e.g. out of file descriptors).
 const ACCEPT_RETRY: std::time::Duration = std::time::Duration::from_millis(50);
 
+/// How long a connection may stay silent, and a request unanswered.
+#[derive(Debug, Clone, Copy)]
+pub struct Deadlines {
+    pub idle: Duration,
+    pub request: Duration,
+}
+
 /// [`TcpListener`] with a connection cap, for `axum::serve`.
 #[derive(Debug)]
 pub struct LimitedListener {
     inner: TcpListener,
     slots: Arc<Semaphore>,
-    idle: Duration,
+    deadlines: Deadlines,
 }
 
 impl LimitedListener {
-    pub fn new(inner: TcpListener, max: usize, idle: Duration) -> Self {
+    pub fn new(inner: TcpListener, max: usize, deadlines: Deadlines) -> Self {
         Self {
             inner,
             slots: Arc::new(Semaphore::new(max)),
-            idle,
+            deadlines,
         }
     }
 }
 
-/// A connection, its slot and its idle deadline.
+/// A connection, its slot and its deadlines.
 #[derive(Debug)]
 pub struct LimitedStream {
     stream: TcpStream,
     _slot: OwnedSemaphorePermit,
-    idle: Duration,
+    deadlines: Deadlines,
     last_active: Instant,
+    /// When the first byte of a request not answered yet arrived.
+    request_since: Option<Instant>,
     deadline: Pin<Box<Sleep>>,
 }
 
 impl LimitedStream {
-    fn new(stream: TcpStream, slot: OwnedSemaphorePermit, idle: Duration) -> Self {
+    fn new(stream: TcpStream, slot: OwnedSemaphorePermit, deadlines: Deadlines) -> Self {
         let now = Instant::now();
         Self {
             stream,
             _slot: slot,
-            idle,
+            deadlines,
             last_active: now,
-            deadline: Box::pin(tokio::time::sleep_until(now + idle)),
+            request_since: None,
+            deadline: Box::pin(tokio::time::sleep_until(now + deadlines.idle)),
         }
     }
 
-    /// An error once nothing moved for `idle`; else arms the timer.
-    fn check_idle(&mut self, cx: &mut Context<'_>) -> io::Result<()> {
-        let due = self.last_active + self.idle;
+    /// An error once nothing moved for the idle time, or a request went
+    /// unanswered for the request time; else arms the timer.
+    fn check_deadlines(&mut self, cx: &mut Context<'_>) -> io::Result<()> {
+        let idle = self.last_active + self.deadlines.idle;
+        let request = self.request_since.map(|t| t + self.deadlines.request);
+        let due = request.map_or(idle, |r| r.min(idle));
         if self.deadline.deadline() != due {
             self.deadline.as_mut().reset(due);
         }
         match self.deadline.as_mut().poll(cx) {
             Poll::Ready(()) => Err(io::Error::new(
                 io::ErrorKind::TimedOut,
-                "console connection idle",
+                if request == Some(due) {
+                    "console request too slow"
+                } else {
+                    "console connection idle"
+                },
             )),
             Poll::Pending => Ok(()),
         }
@@ -92,7 +112,7 @@ impl axum::serve::Listener for LimitedListener {
             match self.inner.accept().await {
                 Ok((stream, addr)) => {
                     let _ = stream.set_nodelay(true);
-                    return (LimitedStream::new(stream, slot, self.idle), addr);
+                    return (LimitedStream::new(stream, slot, self.deadlines), addr);
                 }
                 Err(e) => {
                     tracing::debug!(error = %e, "console accept failed");
@@ -117,11 +137,13 @@ impl AsyncRead for LimitedStream {
         match Pin::new(&mut self.stream).poll_read(cx, buf) {
             Poll::Ready(Ok(())) => {
                 if buf.filled().len() > before {
-                    self.last_active = Instant::now();
+                    let now = Instant::now();
+                    self.last_active = now;
+                    self.request_since.get_or_insert(now);
                 }
                 Poll::Ready(Ok(()))
             }
-            Poll::Pending => match self.check_idle(cx) {
+            Poll::Pending => match self.check_deadlines(cx) {
                 Ok(()) => Poll::Pending,
                 Err(e) => Poll::Ready(Err(e)),
             },
@@ -140,6 +162,8 @@ impl AsyncWrite for LimitedStream {
         if let Poll::Ready(Ok(n)) = r {
             if n > 0 {
                 self.last_active = Instant::now();
+                // Answered: the next byte read starts the next request.
+                self.request_since = None;
             }
         }
         r

@@ -47,6 +47,13 @@ pub const MIN_IDLE_TIMEOUT_MS: u64 = 1_000;
 /// Longest pause between an event stream's keep-alive comments.
 pub const MAX_KEEP_ALIVE: std::time::Duration = std::time::Duration::from_secs(15);
 pub const MAX_IDLE_TIMEOUT_MS: u64 = 3_600_000;
+/// Default time from a request's first byte to its answer's first byte.
+/// A client that trickles a request (a byte now and then, never idle) is
+/// closed after this, so it cannot hold a connection slot.
+pub const DEFAULT_REQUEST_TIMEOUT_MS: u64 = 30_000;
+/// Range of `request_timeout_ms`.
+pub const MIN_REQUEST_TIMEOUT_MS: u64 = 100;
+pub const MAX_REQUEST_TIMEOUT_MS: u64 = 600_000;
 /// Default map tiles kept rendered.
 pub const DEFAULT_TILE_CACHE: usize = 1024;
 /// Default largest request body (admin actions are small JSON).
@@ -88,6 +95,11 @@ pub struct ConsoleConfig {
     /// closed (an open event stream is never silent: it gets a keep-alive
     /// every half of this at least). Keep it above the longest render.
     pub idle_timeout_ms: u64,
+    /// Milliseconds from a request's first byte to the first byte of its
+    /// answer; a connection still sending or waiting past this is closed
+    /// (a trickled request cannot hold a slot). Keep it above the longest
+    /// render.
+    pub request_timeout_ms: u64,
     /// Map tiles kept rendered (oldest dropped first).
     pub tile_cache: usize,
     /// Largest request body in bytes; larger ones are answered 413.
@@ -112,6 +124,7 @@ impl Default for ConsoleConfig {
             max_watchers: DEFAULT_MAX_WATCHERS,
             max_connections: DEFAULT_MAX_CONNECTIONS,
             idle_timeout_ms: DEFAULT_IDLE_TIMEOUT_MS,
+            request_timeout_ms: DEFAULT_REQUEST_TIMEOUT_MS,
             tile_cache: DEFAULT_TILE_CACHE,
             max_body_bytes: DEFAULT_MAX_BODY_BYTES,
             max_renders: DEFAULT_MAX_RENDERS,
@@ -130,7 +143,7 @@ impl ConsoleConfig {
     }
 
     /// Range checks: `(field, value, min, max)` for each limit.
-    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 9] {
+    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 10] {
         let cap = MAX_CONSOLE_LIMIT as u64;
         [
             ("console.max_watchers", self.max_watchers as u64, 1, cap),
@@ -165,6 +178,12 @@ impl ConsoleConfig {
                 self.idle_timeout_ms,
                 MIN_IDLE_TIMEOUT_MS,
                 MAX_IDLE_TIMEOUT_MS,
+            ),
+            (
+                "console.request_timeout_ms",
+                self.request_timeout_ms,
+                MIN_REQUEST_TIMEOUT_MS,
+                MAX_REQUEST_TIMEOUT_MS,
             ),
             (
                 "console.edits_per_sample",
@@ -249,7 +268,10 @@ pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<Ru
     let limited = conn_limit::LimitedListener::new(
         listener,
         console.cfg.max_connections,
-        std::time::Duration::from_millis(console.cfg.idle_timeout_ms),
+        conn_limit::Deadlines {
+            idle: std::time::Duration::from_millis(console.cfg.idle_timeout_ms),
+            request: std::time::Duration::from_millis(console.cfg.request_timeout_ms),
+        },
     );
     let app = routes::router(console);
     let server = tokio::spawn(async move {
