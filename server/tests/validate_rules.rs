@@ -4,7 +4,7 @@ mod sequencer_common;
 
 use sequencer_common::*;
 use strata_protocol::{RejectReason, Role};
-use strata_server::sequencer::SequencerConfig;
+use strata_server::sequencer::{Sequencer, SequencerConfig};
 use strata_server::validate::ratelimit::BucketConfig;
 use strata_server::validate::{ValidationConfig, WorldBounds, Zone};
 use strata_terrain::edit::{Fixed, FixedVec3};
@@ -149,6 +149,16 @@ fn spawn_protection_with_admin_exemption_and_zone_management() {
     };
     rejects(&mut s, PLAYER, mine(10, -1, 13, 2), spawn);
     assert!(s.submit(ADMIN, req(1, mine(10, -1, 13, 2)), 0).is_ok());
+
+    // Radius 0 turns spawn protection off: the same edit is a player's to make.
+    let open = ValidationConfig {
+        spawn_protection_radius: 0,
+        ..ValidationConfig::default()
+    };
+    assert!(Sequencer::default_zones(&open).is_empty());
+    let mut s = sequencer(SequencerConfig::default(), open);
+    join_at(&mut s, PLAYER, Role::Player, 10, 10);
+    assert!(s.submit(PLAYER, req(1, mine(10, -1, 13, 2)), 0).is_ok());
 
     // Zones are managed at run time and serialize for the store's blob.
     let mut s = ready(ValidationConfig::default());

@@ -1,5 +1,8 @@
 //! One pending position per session. A datagram's update replaces any
-//! older one the engine has not taken yet, and only an update that found
+//! older one (lower seq) the engine has not taken yet; a late datagram
+//! older than the pending one is dropped, so reordering on the network
+//! cannot make the engine see an old position after a newer one was sent.
+//! Only an update that found
 //! the slot empty queues a command: a flood of datagrams costs the engine's
 //! queue one slot per session, and the engine sees only the newest.
 
@@ -11,10 +14,23 @@ use strata_protocol::PositionUpdate;
 pub struct LatestPosition(Mutex<Option<PositionUpdate>>);
 
 impl LatestPosition {
-    /// Stores `update` over any pending one. True when the engine must be
-    /// told (nothing was pending, so no command is queued for this slot).
+    /// Stores `update` over any pending one with a lower seq (one with a
+    /// higher seq stays). True when the engine must be told (nothing was
+    /// pending, so no command is queued for this slot).
     pub fn offer(&self, update: PositionUpdate) -> bool {
-        self.lock().replace(update).is_none()
+        let mut slot = self.lock();
+        match slot.as_ref() {
+            None => {
+                *slot = Some(update);
+                true
+            }
+            Some(pending) => {
+                if update.seq > pending.seq {
+                    *slot = Some(update);
+                }
+                false
+            }
+        }
     }
 
     /// The pending update, leaving the slot empty.
@@ -56,5 +72,14 @@ mod tests {
         assert!(slot.offer(at(4)));
         slot.clear();
         assert!(slot.offer(at(5)), "a cleared slot asks again");
+    }
+
+    #[test]
+    fn a_late_older_datagram_does_not_replace_a_newer_pending_one() {
+        let slot = LatestPosition::default();
+        assert!(slot.offer(at(7)));
+        assert!(!slot.offer(at(6)));
+        assert!(!slot.offer(at(7)));
+        assert_eq!(slot.take().map(|u| u.seq), Some(7));
     }
 }

@@ -107,8 +107,12 @@ impl Sequencer {
         self
     }
 
-    /// The default zones for a world with none stored: spawn protection.
+    /// The default zones for a world with none stored: spawn protection,
+    /// or none when `spawn_protection_radius` is 0.
     pub fn default_zones(validation: &ValidationConfig) -> Vec<Zone> {
+        if validation.spawn_protection_radius == 0 {
+            return Vec::new();
+        }
         vec![Zone::spawn(validation.spawn_protection_radius)]
     }
 
