@@ -166,13 +166,14 @@ fn messages_round_trip() {
 #[test]
 fn golden_bytes_pin_the_wire_format() {
     // PROTOCOL.md walks through these bytes; changing them breaks clients.
+    assert_eq!(PROTOCOL_VERSION, 3, "PROTOCOL.md names version 3");
     let hello = ClientMessage::Hello(Hello {
-        protocol_version: 1,
+        protocol_version: PROTOCOL_VERSION,
         token: "t".into(),
     });
     assert_eq!(
         encode_frame(&hello, Direction::ClientToServer).unwrap(),
-        [4, 0, 0, 0, 0, 1, 1, b't']
+        [4, 0, 0, 0, 0, 3, 1, b't']
     );
     let ping = ClientMessage::Ping { nonce: 300 };
     // Variant 5, then varint 300 = 0xfb + u16 LE.
@@ -201,6 +202,28 @@ fn golden_bytes_pin_the_wire_format() {
     assert_eq!(
         encode(&accepted, Direction::ServerToClient).unwrap(),
         [1, 1, 2, 1, 1, 0, 4, 0xfb, 0x2c, 0x01]
+    );
+    let mine = ClientMessage::Edit(EditRequest {
+        client_edit_id: 7,
+        edit: Edit::Mine {
+            center: FixedVec3::new(Fixed(2688), Fixed(10240), Fixed(-768)),
+            radius: Fixed(768),
+            strength: 255,
+        },
+    });
+    // Variant 2, id 7, Mine (0); each Fixed zigzagged (2688 -> 5376 =
+    // fb 00 15, ...); strength is a u8, one raw byte.
+    assert_eq!(
+        encode(&mine, Direction::ClientToServer).unwrap(),
+        [2, 7, 0, 0xfb, 0x00, 0x15, 0xfb, 0x00, 0x50, 0xfb, 0xff, 0x05, 0xfb, 0x00, 0x06, 0xff]
+    );
+    let position = PositionUpdate {
+        seq: 1,
+        pos: FixedVec3::new(Fixed(384), Fixed(10240), Fixed(-512)),
+    };
+    assert_eq!(
+        encode(&position, Direction::ClientToServer).unwrap(),
+        [1, 0xfb, 0x00, 0x03, 0xfb, 0x00, 0x50, 0xfb, 0xff, 0x03]
     );
 }
 
