@@ -20,7 +20,7 @@ use crate::net::endpoint::Listener;
 use crate::net::session::SessionContext;
 use crate::sequencer::Sequencer;
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
-use crate::store::{Checkpointer, ChunkStore, SledStore, WorldMeta, STORE_FORMAT_VERSION};
+use crate::store::{Checkpointer, ChunkStore, WorldMeta, STORE_FORMAT_VERSION};
 use crate::structures::load_structures;
 use crate::validate::zones::Zone;
 use crate::validate::WorldBounds;
@@ -91,8 +91,11 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
             info!(path = %p.display(), "generated {what}");
         }
     }
-    let store: Arc<dyn ChunkStore> =
-        Arc::new(SledStore::open_with(&data_dir.world_db_path(), &cfg.store)?);
+    let store = crate::store::open_store(
+        &cfg.store,
+        &data_dir.world_db_path(),
+        cfg.sequencer.region_chunks,
+    )?;
     let params = cfg.world.generator.clone();
     let mut validation = cfg.validation.clone();
     validation.bounds = WorldBounds {

@@ -549,6 +549,7 @@ impl ServerConfig {
                 "must be a power of two",
             ));
         }
+        self.validate_postgres()?;
         range(
             "sequencer.queue_capacity",
             self.sequencer.queue_capacity,
@@ -578,6 +579,34 @@ impl ServerConfig {
             0,
             crate::engine::MAX_WORKERS,
         )?;
+        Ok(())
+    }
+
+    /// `[store.postgres]`: limits always, the connection string only when
+    /// it is the backend.
+    fn validate_postgres(&self) -> Result<(), ConfigError> {
+        use crate::store::pg;
+        let p = &self.store.postgres;
+        range(
+            "store.postgres.max_connections",
+            p.max_connections,
+            1,
+            pg::MAX_PG_MAX_CONNECTIONS,
+        )?;
+        for (field, ms) in [
+            ("store.postgres.connect_timeout_ms", p.connect_timeout_ms),
+            ("store.postgres.pool_wait_ms", p.pool_wait_ms),
+            (
+                "store.postgres.statement_timeout_ms",
+                p.statement_timeout_ms,
+            ),
+        ] {
+            range(field, ms, 1, pg::MAX_PG_TIMEOUT_MS)?;
+        }
+        if self.store.backend == crate::store::StoreBackend::Postgres {
+            p.client_config()
+                .map_err(|reason| invalid("store.postgres.url", reason))?;
+        }
         Ok(())
     }
 

@@ -322,3 +322,27 @@ fn missing_file_is_a_read_error() {
         Err(ConfigError::Read { .. })
     ));
 }
+
+#[test]
+fn the_postgres_store_needs_a_url_and_sane_limits() {
+    assert_eq!(
+        invalid_field("[store]\nbackend = \"postgres\"\n"),
+        "store.postgres.url"
+    );
+    assert_eq!(
+        invalid_field("[store.postgres]\nmax_connections = 0\n"),
+        "store.postgres.max_connections"
+    );
+    assert_eq!(
+        invalid_field("[store.postgres]\nstatement_timeout_ms = 0\n"),
+        "store.postgres.statement_timeout_ms"
+    );
+    let c = ServerConfig::from_toml_str(
+        "[store]\nbackend = \"postgres\"\n[store.postgres]\nurl = \"host=127.0.0.1 dbname=w\"\n",
+    )
+    .unwrap();
+    assert_eq!(
+        c.store.backend,
+        strata_server::store::StoreBackend::Postgres
+    );
+}

@@ -1,6 +1,7 @@
 //! Acknowledged edits survive SIGKILL and graceful shutdown: the server runs
 //! as a real child process, and the store is checked offline afterwards.
 
+#[macro_use]
 mod common;
 
 use std::sync::{Arc, Mutex};
@@ -9,7 +10,6 @@ use std::time::Duration;
 use common::*;
 use strata_client_sim::Verdict;
 use strata_protocol::Role;
-use strata_server::store::{ChunkStore, SledStore};
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::{Edit, FixedVec3};
 
@@ -41,12 +41,18 @@ fn keep_editing(
     (acked, worker)
 }
 
-#[tokio::test]
-async fn acknowledged_edits_survive_sigkill() {
+on_both_backends!(
+    acknowledged_edits_survive_sigkill,
+    acknowledged_edits_survive_sigkill_on_postgres,
+    acknowledged_edits_survive_sigkill_on
+);
+
+async fn acknowledged_edits_survive_sigkill_on(backend: Backend) {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let root = tempfile::tempdir().unwrap();
         let data = root.path().join("data");
-        let (mut child, addr) = spawn_server(&data, FAST_EDITS);
+        let config = format!("{FAST_EDITS}{}", backend.toml());
+        let (mut child, addr) = spawn_server(&data, &config);
         let c = Arc::new(process_client(&data, addr, "ana").await);
         let (pos, x, y, z) = feet();
         c.send_position(pos).unwrap();
@@ -68,7 +74,7 @@ async fn acknowledged_edits_survive_sigkill() {
         worker.abort();
         let _ = worker.await;
         let acked = acked.lock().unwrap().clone();
-        let store = SledStore::open(&data.join("world.sled")).unwrap();
+        let store = backend.open_store(&data);
         let last = store.last_seq().unwrap();
         for seq in &acked {
             let entry = store
@@ -84,7 +90,7 @@ async fn acknowledged_edits_survive_sigkill() {
         assert!(report.is_ok(), "{report:?}");
         drop(store);
         // A restarted server continues after the last durable edit.
-        let (mut child, addr) = spawn_server(&data, FAST_EDITS);
+        let (mut child, addr) = spawn_server(&data, &config);
         let c = process_client(&data, addr, "bo").await;
         assert_eq!(c.welcome().last_seq, last);
         c.close().await;
@@ -95,11 +101,17 @@ async fn acknowledged_edits_survive_sigkill() {
     .expect("test finished in time");
 }
 
-#[tokio::test]
-async fn graceful_shutdown_loses_nothing() {
+on_both_backends!(
+    graceful_shutdown_loses_nothing,
+    graceful_shutdown_loses_nothing_on_postgres,
+    graceful_shutdown_loses_nothing_on
+);
+
+async fn graceful_shutdown_loses_nothing_on(backend: Backend) {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
         let mut cfg = test_config(dir.path());
+        backend.apply(&mut cfg);
         cfg.validation.edit_rate.per_second = 1000;
         cfg.validation.edit_rate.capacity = 1000;
         let server = strata_server::app::start(cfg).await.unwrap();
@@ -124,7 +136,7 @@ async fn graceful_shutdown_loses_nothing() {
             matches!(err, Some((strata_protocol::ErrorCode::ShuttingDown, _))),
             "{err:?}"
         );
-        let store = SledStore::open(&dir.path().join("world.sled")).unwrap();
+        let store = backend.open_store(dir.path());
         for seq in acked.lock().unwrap().iter() {
             assert!(
                 store.log_entry(*seq).unwrap().is_some(),

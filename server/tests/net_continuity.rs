@@ -4,6 +4,7 @@
 //! of reach (no teleport by reconnecting). A player the server does not
 //! remember starts in the configured spawn area.
 
+#[macro_use]
 mod common;
 
 use std::time::Duration;
@@ -40,13 +41,18 @@ async fn stand_and_mine(
     client.edit(mine(ground)).await.unwrap()
 }
 
-#[tokio::test]
-async fn a_restarted_server_resumes_players_where_they_stood() {
+on_both_backends!(
+    a_restarted_server_resumes_players_where_they_stood,
+    a_restarted_server_resumes_players_where_they_stood_on_postgres,
+    a_restarted_server_resumes_players_where_they_stood_on
+);
+
+async fn a_restarted_server_resumes_players_where_they_stood_on(backend: Backend) {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
         let (home, home_ground) = spot(70, 40);
         let (far, far_ground) = spot(5070, 40);
-        let server = start(dir.path()).await;
+        let server = start_on(dir.path(), &backend).await;
         let ana = connect(&server, "ana", Role::Player).await;
         assert!(matches!(
             stand_and_mine(&ana, home, home_ground).await,
@@ -56,7 +62,7 @@ async fn a_restarted_server_resumes_players_where_they_stood() {
         // Positions are saved every second and at shutdown.
         server.shutdown().await.unwrap();
 
-        let server = start(dir.path()).await;
+        let server = start_on(dir.path(), &backend).await;
         let ana = connect(&server, "ana", Role::Player).await;
         assert_eq!(
             ana.welcome().start,

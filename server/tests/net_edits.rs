@@ -2,6 +2,7 @@
 //! nothing; accepted edits are acknowledged after they are durable, and two
 //! clients receive the same deltas in the same order as the server's store.
 
+#[macro_use]
 mod common;
 
 use std::time::Duration;
@@ -9,7 +10,6 @@ use std::time::Duration;
 use common::*;
 use strata_client_sim::Verdict;
 use strata_protocol::{RejectReason, Role};
-use strata_server::store::{ChunkStore, SledStore};
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::hash::chunk_hash;
 use strata_terrain::{Edit, FixedVec3, VoxelPos};
@@ -25,11 +25,16 @@ fn spot() -> (FixedVec3, VoxelPos) {
     )
 }
 
-#[tokio::test]
-async fn two_clients_see_one_history() {
+on_both_backends!(
+    two_clients_see_one_history,
+    two_clients_see_one_history_on_postgres,
+    two_clients_see_one_history_on
+);
+
+async fn two_clients_see_one_history_on(backend: Backend) {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        let server = start(dir.path()).await;
+        let server = start_on(dir.path(), &backend).await;
         let a = connect(&server, "ana", Role::Player).await;
         let b = connect(&server, "bo", Role::Player).await;
         for c in [&a, &b] {
@@ -126,7 +131,7 @@ async fn two_clients_see_one_history() {
         b.close().await;
         server.shutdown().await.unwrap();
         // The store holds exactly what the clients hold.
-        let store = SledStore::open(&dir.path().join("world.sled")).unwrap();
+        let store = backend.open_store(dir.path());
         let stored = store.load_chunk(target).unwrap().unwrap();
         assert_eq!((stored.version, chunk_hash(&stored.chunk)), held[0]);
         assert_eq!(store.last_seq().unwrap(), last);
@@ -135,11 +140,16 @@ async fn two_clients_see_one_history() {
     .expect("test finished in time");
 }
 
-#[tokio::test]
-async fn resync_request_sends_a_fresh_snapshot() {
+on_both_backends!(
+    resync_request_sends_a_fresh_snapshot,
+    resync_request_sends_a_fresh_snapshot_on_postgres,
+    resync_request_sends_a_fresh_snapshot_on
+);
+
+async fn resync_request_sends_a_fresh_snapshot_on(backend: Backend) {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        let server = start(dir.path()).await;
+        let server = start_on(dir.path(), &backend).await;
         let a = connect(&server, "ana", Role::Player).await;
         let (feet, ground) = spot();
         a.send_position(feet).unwrap();

@@ -1,16 +1,11 @@
-//! Bad commit batches are refused with a reason and change nothing.
+//! Bad commit batches are refused with a reason and change nothing, on
+//! every backend.
 
 mod store_common;
 
-use store_common::{terrain_chunk, Seq};
-use strata_server::store::{ChunkStore, CommitBatch, SledStore, StoreError, WorldMeta};
+use store_common::{places, terrain_chunk, Seq};
+use strata_server::store::{ChunkStore, CommitBatch, StoreError, WorldMeta};
 use strata_terrain::{Chunk, ChunkPos};
-
-fn open() -> (tempfile::TempDir, SledStore) {
-    let dir = tempfile::tempdir().unwrap();
-    let store = SledStore::open(dir.path()).unwrap();
-    (dir, store)
-}
 
 fn reason(r: Result<impl std::fmt::Debug, StoreError>) -> String {
     match r {
@@ -24,7 +19,12 @@ const Q: ChunkPos = ChunkPos::new(-5, 1, 0);
 
 #[test]
 fn commit_needs_metadata() {
-    let (_dir, store) = open();
+    for place in places("commit_needs_metadata") {
+        commit_needs_metadata_on(&*place.open());
+    }
+}
+
+fn commit_needs_metadata_on(store: &dyn ChunkStore) {
     let b = Seq::default().batch(&[vec![(P, Chunk::default())]]);
     assert!(matches!(store.commit_batch(&b), Err(StoreError::NoMeta)));
     assert_eq!(store.chunk_count().unwrap(), 0);
@@ -32,7 +32,12 @@ fn commit_needs_metadata() {
 
 #[test]
 fn inconsistent_batches_are_refused_and_change_nothing() {
-    let (_dir, store) = open();
+    for place in places("inconsistent_batches") {
+        inconsistent_batches_on(&*place.open());
+    }
+}
+
+fn inconsistent_batches_on(store: &dyn ChunkStore) {
     store.init_meta(&WorldMeta::new(9, 1, "")).unwrap();
     let mut seq = Seq::default();
     let good = seq.batch(&[
@@ -102,7 +107,12 @@ fn inconsistent_batches_are_refused_and_change_nothing() {
 
 #[test]
 fn oversized_log_record_is_refused() {
-    let (_dir, store) = open();
+    for place in places("oversized_log_record") {
+        oversized_log_record_on(&*place.open());
+    }
+}
+
+fn oversized_log_record_on(store: &dyn ChunkStore) {
     store.init_meta(&WorldMeta::new(9, 1, "")).unwrap();
     let mut b = Seq::default().batch(&[vec![(P, Chunk::default())]]);
     b.entries[0].player = "x".repeat(strata_server::store::MAX_LOG_RECORD_BYTES);

@@ -291,7 +291,7 @@ fn a_broken_delta_chain_is_reported() {
                 .commit_batch(&seq.delta_batch(&[vec![(A, terrain_chunk(salt))]]))
                 .unwrap();
         }
-        assert_eq!(store.delta_count(), 2);
+        assert_eq!(store.delta_count().unwrap(), 2);
         assert!(store.check().unwrap().is_ok());
     }
     // Lose the delta to version 2: the one to 3 no longer continues the chain.

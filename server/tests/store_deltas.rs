@@ -2,28 +2,29 @@
 //! stored, reads replay them, a checkpoint folds them into chunk records
 //! (also while commits run), and a reopened store replays what was not
 //! folded. A delta that does not continue the stored chain is refused.
+//! Every test runs on every backend.
 
 mod store_common;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-use store_common::{terrain_chunk, Seq};
-use strata_server::store::{ChunkStore, SledStore, WorldMeta};
+use store_common::{places, terrain_chunk, Place, Seq};
+use strata_server::store::{ChunkStore, WorldMeta};
 use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::{Chunk, ChunkPos};
 
 const A: ChunkPos = ChunkPos { x: 1, y: 0, z: -2 };
 const B: ChunkPos = ChunkPos { x: -4, y: 1, z: 3 };
 
-fn open(dir: &std::path::Path) -> SledStore {
-    let store = SledStore::open(dir).unwrap();
+fn open(place: &Place) -> Box<dyn ChunkStore> {
+    let store = place.open();
     store.init_meta(&WorldMeta::new(5, 1, "")).unwrap();
     store
 }
 
 /// What every read of `pos` must say.
-fn assert_reads(store: &SledStore, pos: ChunkPos, version: u64, chunk: &Chunk) {
+fn assert_reads(store: &dyn ChunkStore, pos: ChunkPos, version: u64, chunk: &Chunk) {
     let loaded = store.load_chunk(pos).unwrap().unwrap();
     assert_eq!((loaded.version, &loaded.chunk), (version, chunk));
     let raw = store.raw_chunk(pos).unwrap().unwrap();
@@ -38,10 +39,15 @@ fn assert_reads(store: &SledStore, pos: ChunkPos, version: u64, chunk: &Chunk) {
 
 #[test]
 fn deltas_replay_on_read_and_reopen_and_fold_at_a_checkpoint() {
-    let dir = tempfile::tempdir().unwrap();
+    for place in places("deltas_replay") {
+        deltas_replay_on(&place);
+    }
+}
+
+fn deltas_replay_on(place: &Place) {
     let mut seq = Seq::default();
     {
-        let store = open(dir.path());
+        let store = open(place);
         // New chunks go whole, then each change of them as a delta.
         let first = seq.delta_batch(&[vec![(A, terrain_chunk(1)), (B, terrain_chunk(2))]]);
         assert_eq!((first.chunks.len(), first.deltas.len()), (2, 0));
@@ -52,41 +58,45 @@ fn deltas_replay_on_read_and_reopen_and_fold_at_a_checkpoint() {
         ]);
         assert_eq!((next.chunks.len(), next.deltas.len()), (0, 3));
         store.commit_batch(&next).unwrap();
-        assert_eq!(store.delta_count(), 3);
-        assert_reads(&store, A, 3, &terrain_chunk(4));
-        assert_reads(&store, B, 2, &terrain_chunk(5));
+        assert_eq!(store.delta_count().unwrap(), 3);
+        assert_reads(&*store, A, 3, &terrain_chunk(4));
+        assert_reads(&*store, B, 2, &terrain_chunk(5));
         assert!(store.check().unwrap().is_ok(), "{:?}", store.check());
         // Closed with nothing folded (store_crash kills a process
         // mid-commit): the reopened store replays the deltas.
         drop(store);
     }
-    let store = SledStore::open(dir.path()).unwrap();
-    assert_eq!(store.delta_count(), 3);
-    assert_reads(&store, A, 3, &terrain_chunk(4));
-    assert_reads(&store, B, 2, &terrain_chunk(5));
+    let store = place.open();
+    assert_eq!(store.delta_count().unwrap(), 3);
+    assert_reads(&*store, A, 3, &terrain_chunk(4));
+    assert_reads(&*store, B, 2, &terrain_chunk(5));
 
     let stats = store.checkpoint(1).unwrap();
     assert_eq!(stats.chunks, 1, "at most the chunks asked for");
     let stats = store.checkpoint(usize::MAX).unwrap();
     assert_eq!(stats.chunks, 1);
-    assert_eq!(store.delta_count(), 0);
+    assert_eq!(store.delta_count().unwrap(), 0);
     assert_eq!(store.checkpoint(usize::MAX).unwrap().chunks, 0);
-    assert_reads(&store, A, 3, &terrain_chunk(4));
-    assert_reads(&store, B, 2, &terrain_chunk(5));
+    assert_reads(&*store, A, 3, &terrain_chunk(4));
+    assert_reads(&*store, B, 2, &terrain_chunk(5));
     assert!(store.check().unwrap().is_ok());
 
     // The chain goes on from the folded record.
     store
         .commit_batch(&seq.delta_batch(&[vec![(A, terrain_chunk(6))]]))
         .unwrap();
-    assert_reads(&store, A, 4, &terrain_chunk(6));
+    assert_reads(&*store, A, 4, &terrain_chunk(6));
     assert!(store.check().unwrap().is_ok());
 }
 
 #[test]
 fn a_delta_that_does_not_continue_the_stored_chain_is_refused() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = open(dir.path());
+    for place in places("delta_chain_refused") {
+        delta_chain_refused_on(&*open(&place));
+    }
+}
+
+fn delta_chain_refused_on(store: &dyn ChunkStore) {
     let mut seq = Seq::default();
     store
         .commit_batch(&seq.delta_batch(&[vec![(A, terrain_chunk(1))]]))
@@ -112,15 +122,20 @@ fn a_delta_that_does_not_continue_the_stored_chain_is_refused() {
         .to_string();
     assert!(err.contains("not stored at version 1"), "{err}");
     assert_eq!(store.last_seq().unwrap(), 1);
-    assert_eq!(store.delta_count(), 0);
-    assert_reads(&store, A, 1, &terrain_chunk(1));
+    assert_eq!(store.delta_count().unwrap(), 0);
+    assert_reads(store, A, 1, &terrain_chunk(1));
     assert!(store.check().unwrap().is_ok());
 }
 
 #[test]
 fn checkpoints_beside_commits_change_no_read() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = Arc::new(open(dir.path()));
+    for place in places("checkpoints_beside_commits") {
+        checkpoints_beside_commits_on(&place);
+    }
+}
+
+fn checkpoints_beside_commits_on(place: &Place) {
+    let store: Arc<dyn ChunkStore> = Arc::from(open(place));
     let chunks: Vec<ChunkPos> = (0..6).map(|i| ChunkPos::new(i, 0, i % 2)).collect();
     let mut seq = Seq::default();
     let done = Arc::new(AtomicBool::new(false));
@@ -154,8 +169,8 @@ fn checkpoints_beside_commits_change_no_read() {
     );
     assert!(store.check().unwrap().is_ok(), "{:?}", store.check());
     while store.checkpoint(usize::MAX).unwrap().chunks > 0 {}
-    assert_eq!(store.delta_count(), 0);
+    assert_eq!(store.delta_count().unwrap(), 0);
     for (p, v) in &seq.versions {
-        assert_reads(&store, *p, *v, &seq.states[p]);
+        assert_reads(&*store, *p, *v, &seq.states[p]);
     }
 }

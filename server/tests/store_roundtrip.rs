@@ -1,8 +1,9 @@
-//! Round trips through a real sled store in a tempdir.
+//! Round trips through a real store: sled in a tempdir, and PostgreSQL
+//! where a test is not about sled's own files.
 
 mod store_common;
 
-use store_common::{noisy_chunk, terrain_chunk, Seq};
+use store_common::{noisy_chunk, places, terrain_chunk, Place, Seq};
 use strata_server::store::keys::{chunk_key, chunk_pos_from_key};
 use strata_server::store::{
     ChunkStore, SledStore, StoreError, WorldMeta, STORE_FORMAT_VERSION, TREE_CHUNKS,
@@ -13,17 +14,27 @@ use strata_terrain::{Chunk, ChunkPos, Voxel};
 
 const PARAMS: &str = "[terrain]\nsea_level = 0\n";
 
-fn new_store() -> (tempfile::TempDir, SledStore) {
-    let dir = tempfile::tempdir().unwrap();
-    let store = SledStore::open(dir.path()).unwrap();
-    store.init_meta(&WorldMeta::new(42, 3, PARAMS)).unwrap();
-    (dir, store)
+/// Each backend's store with a world's metadata.
+fn new_stores(test: &str) -> Vec<(Place, Box<dyn ChunkStore>)> {
+    places(test)
+        .into_iter()
+        .map(|place| {
+            let store = place.open();
+            store.init_meta(&WorldMeta::new(42, 3, PARAMS)).unwrap();
+            (place, store)
+        })
+        .collect()
 }
 
 #[test]
 fn meta_round_trips_and_is_idempotent() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = SledStore::open(dir.path()).unwrap();
+    for place in places("meta_round_trips") {
+        meta_round_trips_on(&place);
+    }
+}
+
+fn meta_round_trips_on(place: &Place) {
+    let store = place.open();
     assert_eq!(store.load_meta().unwrap(), None);
     let meta = WorldMeta::new(0xDEAD_BEEF_F00D_u64, 7, PARAMS);
     assert_eq!(store.init_meta(&meta).unwrap(), meta);
@@ -31,7 +42,7 @@ fn meta_round_trips_and_is_idempotent() {
     // Same inputs again: accepted, unchanged.
     assert_eq!(store.init_meta(&meta).unwrap(), meta);
     drop(store);
-    let store = SledStore::open(dir.path()).unwrap();
+    let store = place.open();
     let loaded = store.load_meta().unwrap().unwrap();
     assert_eq!(loaded, meta);
     assert_eq!(loaded.format_version, STORE_FORMAT_VERSION);
@@ -39,7 +50,12 @@ fn meta_round_trips_and_is_idempotent() {
 
 #[test]
 fn init_meta_refuses_different_generation_inputs() {
-    let (_dir, store) = new_store();
+    for (_place, store) in new_stores("init_meta_refuses") {
+        init_meta_refuses_on(&*store);
+    }
+}
+
+fn init_meta_refuses_on(store: &dyn ChunkStore) {
     let err = store.init_meta(&WorldMeta::new(43, 3, PARAMS)).unwrap_err();
     assert!(
         matches!(&err, StoreError::MetaMismatch { field: "seed", stored, given } if stored == "42" && given == "43"),
@@ -80,7 +96,12 @@ fn init_meta_refuses_different_generation_inputs() {
 
 #[test]
 fn chunks_round_trip_uniform_and_dense() {
-    let (_dir, store) = new_store();
+    for (_place, store) in new_stores("chunks_round_trip") {
+        chunks_round_trip_on(&*store);
+    }
+}
+
+fn chunks_round_trip_on(store: &dyn ChunkStore) {
     let mut seq = Seq::default();
     let rock = Chunk::uniform(Voxel::solid(ids::STONE));
     let dense = terrain_chunk(1);
@@ -113,12 +134,17 @@ fn chunks_round_trip_uniform_and_dense() {
 
 #[test]
 fn batches_and_log_ranges_round_trip_across_reopen() {
-    let dir = tempfile::tempdir().unwrap();
+    for place in places("batches_and_log_ranges") {
+        batches_and_log_ranges_on(&place);
+    }
+}
+
+fn batches_and_log_ranges_on(place: &Place) {
     let mut seq = Seq::default();
     let p = |i: i32| ChunkPos::new(i, -i, i * 2);
     let mut batches = Vec::new();
     {
-        let store = SledStore::open(dir.path()).unwrap();
+        let store = place.open();
         store.init_meta(&WorldMeta::new(1, 1, PARAMS)).unwrap();
         for round in 0..4u32 {
             // Three edits per tick; edits 0 and 2 touch the same chunk.
@@ -135,7 +161,7 @@ fn batches_and_log_ranges_round_trip_across_reopen() {
         }
         assert_eq!(store.last_seq().unwrap(), 12);
     }
-    let store = SledStore::open(dir.path()).unwrap();
+    let store = place.open();
     assert_eq!(store.load_meta().unwrap().unwrap().last_seq, 12);
     let all: Vec<_> = batches.iter().flat_map(|b| b.entries.clone()).collect();
     let log: Vec<_> = store.edit_log(1..=12).collect::<Result<_, _>>().unwrap();
@@ -214,7 +240,12 @@ fn modified_chunks_reads_versions_without_decoding_bodies() {
 
 #[test]
 fn key_order_matches_chunk_pos_order_including_negatives() {
-    let (_dir, store) = new_store();
+    for (_place, store) in new_stores("key_order") {
+        key_order_on(&*store);
+    }
+}
+
+fn key_order_on(store: &dyn ChunkStore) {
     let vals = [i32::MIN, -70_000, -33, -1, 0, 1, 32, 70_000, i32::MAX];
     let mut positions = Vec::new();
     for (i, &x) in vals.iter().enumerate() {
@@ -248,9 +279,14 @@ fn key_order_matches_chunk_pos_order_including_negatives() {
 
 #[test]
 fn blobs_round_trip_and_enforce_limits() {
-    let dir = tempfile::tempdir().unwrap();
+    for place in places("blobs_round_trip") {
+        blobs_round_trip_on(&place);
+    }
+}
+
+fn blobs_round_trip_on(place: &Place) {
     {
-        let store = SledStore::open(dir.path()).unwrap();
+        let store = place.open();
         assert_eq!(store.get_blob("zones").unwrap(), None);
         store
             .put_blob("zones", b"[[zone]]\nname = \"spawn\"")
@@ -274,7 +310,7 @@ fn blobs_round_trip_and_enforce_limits() {
         ));
         assert_eq!(store.get_blob("big").unwrap(), None);
     }
-    let store = SledStore::open(dir.path()).unwrap();
+    let store = place.open();
     assert_eq!(
         store.get_blob("zones").unwrap().as_deref(),
         Some(&b"[[zone]]\nname = \"spawn\""[..])

@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 
 pub mod chromium;
 pub mod lazyfs;
+pub mod postgres;
 
 /// Longest any child process may run before the test fails.
 pub const PROCESS_TIMEOUT: Duration = Duration::from_secs(120);

@@ -12,7 +12,6 @@ use strata_protocol::admin::{AccessSpec, AdminRequest, AdminResponse};
 use super::remote::{open_offline_store, Target, TargetArgs};
 use crate::auth::{parse_duration, unix_now, validate_player_name, AccessList, ACCESS_BLOB};
 use crate::net::admin_session::access_spec;
-use crate::store::ChunkStore;
 
 #[derive(Debug, Args)]
 pub struct BanArgs {

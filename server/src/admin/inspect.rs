@@ -122,7 +122,7 @@ pub fn offline(store: &dyn ChunkStore, pos: ChunkPos) -> anyhow::Result<ChunkRep
 pub fn run(args: &InspectChunkArgs) -> anyhow::Result<ChunkReport> {
     let pos = ChunkPos::new(args.x, args.y, args.z);
     match args.target.target()? {
-        Target::Offline(dir) => offline(&open_offline_store(&dir)?, pos),
+        Target::Offline(dir) => offline(&*open_offline_store(&dir)?, pos),
         Target::Online {
             server,
             cert,

@@ -5,6 +5,7 @@
 use std::io::IsTerminal;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
@@ -16,9 +17,11 @@ use strata_protocol::admin::{
 use strata_protocol::io::FramedReader;
 use strata_protocol::{encode_frame, Direction, ErrorCode, FrameBuffer, Hello};
 
+use crate::admin::world_source::DATA_DIR_CONFIG_NAME;
 use crate::client_tls::client_config_pinned_with_alpn;
+use crate::config::ServerConfig;
 use crate::datadir::DataDir;
-use crate::store::SledStore;
+use crate::store::{open_store, ChunkStore};
 
 /// How long connecting and each non-streaming answer may take.
 pub const REMOTE_TIMEOUT: Duration = Duration::from_secs(30);
@@ -78,16 +81,27 @@ impl TargetArgs {
     }
 }
 
-/// Opens the store of a stopped server's data dir.
-pub fn open_offline_store(dir: &Path) -> anyhow::Result<SledStore> {
+/// Opens the store of a stopped server's data dir: the `[store]` backend
+/// that `DIR/strata.toml` names, else sled's `DIR/world.sled`.
+pub fn open_offline_store(dir: &Path) -> anyhow::Result<Arc<dyn ChunkStore>> {
     let dd = DataDir::open_existing(dir)
         .with_context(|| format!("opening data dir {}", dir.display()))?;
-    SledStore::open(&dd.world_db_path()).with_context(|| {
+    let cfg = data_dir_config(dir)?;
+    open_store(&cfg.store, &dd.world_db_path(), cfg.sequencer.region_chunks).with_context(|| {
         format!(
-            "opening the world store in {} (is the server still running? stop it or use --server)",
+            "opening the world store of {} (is the server still running? stop it or use --server)",
             dir.display()
         )
     })
+}
+
+/// `DIR/strata.toml` when the data dir has one, else the defaults.
+pub fn data_dir_config(dir: &Path) -> anyhow::Result<ServerConfig> {
+    let path = dir.join(DATA_DIR_CONFIG_NAME);
+    if !path.is_file() {
+        return Ok(ServerConfig::default());
+    }
+    ServerConfig::load(Some(&path)).with_context(|| format!("loading {}", path.display()))
 }
 
 /// Runs an online command on a small runtime of its own.

@@ -222,7 +222,7 @@ pub async fn create_online(
 
 pub fn create(args: &CreateArgs) -> anyhow::Result<Created> {
     match args.target.target()? {
-        Target::Offline(dir) => create_offline(&open_offline_store(&dir)?, &args.out),
+        Target::Offline(dir) => create_offline(&*open_offline_store(&dir)?, &args.out),
         Target::Online {
             server,
             cert,

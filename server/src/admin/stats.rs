@@ -100,7 +100,7 @@ pub fn offline(store: &dyn ChunkStore) -> anyhow::Result<Stats> {
 
 pub fn run(args: &StatsArgs) -> anyhow::Result<Stats> {
     match args.target.target()? {
-        Target::Offline(dir) => offline(&open_offline_store(&dir)?),
+        Target::Offline(dir) => offline(&*open_offline_store(&dir)?),
         Target::Online {
             server,
             cert,

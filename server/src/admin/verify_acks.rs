@@ -23,8 +23,9 @@ use strata_protocol::ChunkVersion;
 use strata_terrain::ChunkPos;
 use thiserror::Error;
 
+use super::remote::open_offline_store;
 use crate::datadir::DataDir;
-use crate::store::{ChunkStore, SledStore, StoreError};
+use crate::store::{ChunkStore, StoreError};
 
 /// Failures listed in a report; the count covers all of them.
 pub const MAX_REPORTED_FAILURES: usize = 32;
@@ -105,6 +106,9 @@ pub enum VerifyError {
     DataDir(String),
     #[error(transparent)]
     Store(#[from] StoreError),
+    /// The data dir's store (the backend its `strata.toml` names) did not open.
+    #[error("opening the store: {0}")]
+    Open(String),
 }
 
 /// An acknowledged edit the store does not hold.
@@ -225,13 +229,14 @@ pub fn run(args: &VerifyAcksArgs) -> Result<VerifyReport, VerifyError> {
     let records = read_ack_log(&args.file)?;
     let dir =
         DataDir::open_existing(&args.data_dir).map_err(|e| VerifyError::DataDir(e.to_string()))?;
-    let store = SledStore::open(&dir.world_db_path())?;
-    Ok(verify(&store, &records)?)
+    let store = open_offline_store(dir.root()).map_err(|e| VerifyError::Open(format!("{e:#}")))?;
+    Ok(verify(&*store, &records)?)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::store::SledStore;
 
     #[test]
     fn lines_round_trip_and_refuse_junk() {

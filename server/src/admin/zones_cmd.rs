@@ -110,7 +110,9 @@ fn online(target: &TargetArgs, req: AdminRequest) -> anyhow::Result<Option<Vec<Z
     }
 }
 
-fn offline_store(target: &TargetArgs) -> anyhow::Result<crate::store::SledStore> {
+fn offline_store(
+    target: &TargetArgs,
+) -> anyhow::Result<std::sync::Arc<dyn crate::store::ChunkStore>> {
     match target.target()? {
         Target::Offline(dir) => open_offline_store(&dir),
         Target::Online { .. } => unreachable!("online handled first"),
@@ -125,7 +127,7 @@ pub fn run(cmd: &ZonesCommand) -> anyhow::Result<Vec<ZoneSpec>> {
                 return Ok(z);
             }
             let store = offline_store(&a.target)?;
-            Ok(stored_zones(&store, a.config.as_deref())?
+            Ok(stored_zones(&*store, a.config.as_deref())?
                 .iter()
                 .map(zone_spec)
                 .collect())
@@ -140,10 +142,10 @@ pub fn run(cmd: &ZonesCommand) -> anyhow::Result<Vec<ZoneSpec>> {
                 return Ok(z);
             }
             let store = offline_store(&a.target)?;
-            let mut zones = stored_zones(&store, a.config.as_deref())?;
+            let mut zones = stored_zones(&*store, a.config.as_deref())?;
             check_new(&zones, &zone)?;
             zones.push(zone);
-            save(&store, &zones)
+            save(&*store, &zones)
         }
         ZonesCommand::Remove(a) => {
             let req = AdminRequest::ZoneRemove {
@@ -153,12 +155,12 @@ pub fn run(cmd: &ZonesCommand) -> anyhow::Result<Vec<ZoneSpec>> {
                 return Ok(z);
             }
             let store = offline_store(&a.target)?;
-            let mut zones = stored_zones(&store, a.config.as_deref())?;
+            let mut zones = stored_zones(&*store, a.config.as_deref())?;
             let Some(i) = zones.iter().position(|z| z.name == a.name) else {
                 bail!("no zone named {:?}", a.name);
             };
             zones.remove(i);
-            save(&store, &zones)
+            save(&*store, &zones)
         }
     }
 }

@@ -1,6 +1,20 @@
-//! Tunables of the sled-backed store (`[store]` in the server config).
+//! Tunables of the store (`[store]` in the server config): which backend,
+//! sled's settings, and `[store.postgres]`.
 
 use serde::{Deserialize, Serialize};
+
+use super::pg::PgConfig;
+
+/// Where the world lives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StoreBackend {
+    /// Embedded sled in the data dir (`world.sled`): the single-node default.
+    #[default]
+    Sled,
+    /// A PostgreSQL database (`[store.postgres]`), the cluster's store.
+    Postgres,
+}
 
 /// Default page cache: enough for the hot chunks of a busy server while
 /// staying small next to the in-memory world.
@@ -41,6 +55,8 @@ pub const MAX_CHECKPOINT_CHUNKS: usize = 1 << 20;
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct StoreConfig {
+    /// `"sled"` (default) or `"postgres"`.
+    pub backend: StoreBackend,
     /// sled's page cache in bytes.
     pub cache_capacity_bytes: u64,
     /// Period of sled's background thread in ms; 0 turns it off (and with
@@ -53,6 +69,8 @@ pub struct StoreConfig {
     pub checkpoint_ms: u64,
     /// See [`DEFAULT_CHECKPOINT_CHUNKS`].
     pub checkpoint_chunks: usize,
+    /// The PostgreSQL store's settings, read when `backend = "postgres"`.
+    pub postgres: PgConfig,
 }
 
 impl StoreConfig {
@@ -65,11 +83,13 @@ impl StoreConfig {
 impl Default for StoreConfig {
     fn default() -> Self {
         Self {
+            backend: StoreBackend::Sled,
             cache_capacity_bytes: DEFAULT_CACHE_CAPACITY_BYTES,
             flush_every_ms: DEFAULT_FLUSH_EVERY_MS,
             segment_size_bytes: DEFAULT_SEGMENT_SIZE_BYTES,
             checkpoint_ms: DEFAULT_CHECKPOINT_MS,
             checkpoint_chunks: DEFAULT_CHECKPOINT_CHUNKS,
+            postgres: PgConfig::default(),
         }
     }
 }

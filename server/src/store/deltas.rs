@@ -19,7 +19,7 @@ use super::types::CheckpointStats;
 const READ_RETRIES: usize = 32;
 
 /// Why a checkpoint left a chunk alone this pass.
-struct Moved;
+pub(super) struct Moved;
 
 impl SledStore {
     /// `pos`'s deltas, in version order.
@@ -183,7 +183,7 @@ impl SledStore {
 
 /// Applies the deltas past `version` to `chunk` in order. `Err(Moved)`
 /// when they do not start at `version` (a fold ran between the reads).
-fn replay(
+pub(super) fn replay(
     pos: ChunkPos,
     version: u64,
     chunk: Chunk,

@@ -8,6 +8,15 @@ use thiserror::Error;
 pub enum StoreError {
     #[error("sled: {0}")]
     Sled(#[from] sled::Error),
+    /// PostgreSQL refused a statement or the connection failed.
+    #[error("postgres: {}", pg_reason(.0))]
+    Postgres(#[from] tokio_postgres::Error),
+    /// A PostgreSQL call ran past its limit (`[store.postgres]`).
+    #[error("postgres: {what} took longer than {limit_ms} ms")]
+    PgTimeout { what: &'static str, limit_ms: u64 },
+    /// The PostgreSQL store cannot be used as configured or found.
+    #[error("postgres: {reason}")]
+    PgSetup { reason: String },
     #[error("i/o: {0}")]
     Io(#[from] std::io::Error),
     /// A record on disk does not have the layout this version writes.
@@ -47,7 +56,20 @@ pub enum StoreError {
     Encode { what: &'static str, reason: String },
 }
 
+/// The server's message and SQLSTATE when it sent one, else the client's.
+fn pg_reason(e: &tokio_postgres::Error) -> String {
+    match e.as_db_error() {
+        Some(db) => format!("{} ({})", db.message(), db.code().code()),
+        None => e.to_string(),
+    }
+}
+
 impl StoreError {
+    /// An error from PostgreSQL itself (the connection may be unusable).
+    pub fn is_postgres(&self) -> bool {
+        matches!(self, StoreError::Postgres(_))
+    }
+
     pub(crate) fn corrupt(what: impl Into<String>, key: impl Into<String>) -> Self {
         StoreError::Corrupt {
             what: what.into(),

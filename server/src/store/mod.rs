@@ -26,7 +26,10 @@ mod disk_sync;
 mod error;
 mod import;
 pub mod keys;
+mod open;
+pub mod pg;
 mod record;
+mod rules;
 mod sled_store;
 mod types;
 
@@ -39,12 +42,15 @@ pub use batch::{MAX_BATCH_CHUNKS, MAX_BATCH_ENTRIES};
 pub use check::{CheckIssue, CheckReport, Checker, MAX_REPORTED_ISSUES};
 pub use checkpointer::Checkpointer;
 pub use config::{
-    StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_CHECKPOINT_CHUNKS, DEFAULT_CHECKPOINT_MS,
-    DEFAULT_FLUSH_EVERY_MS, DEFAULT_SEGMENT_SIZE_BYTES, MAX_CHECKPOINT_CHUNKS, MAX_CHECKPOINT_MS,
-    MAX_FLUSH_EVERY_MS, MAX_SEGMENT_SIZE_BYTES, MIN_CACHE_CAPACITY_BYTES, MIN_SEGMENT_SIZE_BYTES,
+    StoreBackend, StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_CHECKPOINT_CHUNKS,
+    DEFAULT_CHECKPOINT_MS, DEFAULT_FLUSH_EVERY_MS, DEFAULT_SEGMENT_SIZE_BYTES,
+    MAX_CHECKPOINT_CHUNKS, MAX_CHECKPOINT_MS, MAX_FLUSH_EVERY_MS, MAX_SEGMENT_SIZE_BYTES,
+    MIN_CACHE_CAPACITY_BYTES, MIN_SEGMENT_SIZE_BYTES,
 };
 pub use disk_sync::MAX_TRACKED_BLOBS;
 pub use error::StoreError;
+pub use open::open_store;
+pub use pg::PgStore;
 pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
 pub use sled_store::{
     open_raw, open_when_unlocked, persisted_segment_size, SledStore, MAX_BLOB_BYTES,
@@ -101,6 +107,9 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
 
     /// Number of modified chunks (a scan: O(chunks)).
     fn chunk_count(&self) -> Result<u64, StoreError>;
+
+    /// Delta records not yet folded into chunk records.
+    fn delta_count(&self) -> Result<u64, StoreError>;
 
     /// Bytes the store occupies on disk.
     fn size_on_disk(&self) -> Result<u64, StoreError>;

@@ -72,6 +72,22 @@ pub fn encode_log_entry(e: &LogEntry) -> Result<Vec<u8>, StoreError> {
     })
 }
 
+/// A log record as stored: refused past [`MAX_LOG_RECORD_BYTES`].
+pub fn encode_log_record(e: &LogEntry) -> Result<Vec<u8>, StoreError> {
+    let bytes = encode_log_entry(e)?;
+    if bytes.len() > MAX_LOG_RECORD_BYTES {
+        return Err(StoreError::Encode {
+            what: "log entry",
+            reason: format!(
+                "seq {} is {} bytes, limit {MAX_LOG_RECORD_BYTES}",
+                e.seq,
+                bytes.len()
+            ),
+        });
+    }
+    Ok(bytes)
+}
+
 pub fn decode_log_entry(seq: u64, bytes: &[u8]) -> Result<LogEntry, StoreError> {
     let corrupt =
         |why: String| StoreError::corrupt(format!("log entry ({why})"), format!("seq {seq}"));

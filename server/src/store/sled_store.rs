@@ -30,8 +30,9 @@ use super::keys::{
 };
 use super::record::{
     decode_last_seq, decode_log_entry, decode_meta, encode_chunk_value, encode_delta,
-    encode_log_entry, encode_meta, split_chunk_value, MAX_LOG_RECORD_BYTES,
+    encode_log_record, encode_meta, split_chunk_value,
 };
+use super::rules::{check_blob, check_blob_name, check_new_meta, compare_meta};
 use super::types::{
     CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta,
     STORE_FORMAT_VERSION,
@@ -135,71 +136,6 @@ impl SledStore {
     }
 }
 
-fn check_blob_name(name: &str) -> Result<(), StoreError> {
-    if name.is_empty() || name.len() > MAX_BLOB_NAME_BYTES {
-        return Err(StoreError::InvalidBlob {
-            reason: format!(
-                "name is {} bytes, must be 1..={MAX_BLOB_NAME_BYTES}",
-                name.len()
-            ),
-        });
-    }
-    Ok(())
-}
-
-fn check_new_meta(m: &WorldMeta) -> Result<(), StoreError> {
-    if m.format_version != STORE_FORMAT_VERSION {
-        return Err(StoreError::UnsupportedFormat {
-            found: m.format_version,
-            supported: STORE_FORMAT_VERSION,
-        });
-    }
-    if m.last_seq != 0 {
-        return Err(StoreError::InvalidMeta {
-            reason: format!("a new world starts at last_seq 0, got {}", m.last_seq),
-        });
-    }
-    if m.generator_params.len() > MAX_GENERATOR_PARAMS_BYTES {
-        return Err(StoreError::InvalidMeta {
-            reason: format!(
-                "generator params are {} bytes, limit {MAX_GENERATOR_PARAMS_BYTES}",
-                m.generator_params.len()
-            ),
-        });
-    }
-    Ok(())
-}
-
-fn compare_meta(stored: &WorldMeta, given: &WorldMeta) -> Result<(), StoreError> {
-    let mismatch = |field, stored: String, given: String| StoreError::MetaMismatch {
-        field,
-        stored,
-        given,
-    };
-    if stored.seed != given.seed {
-        return Err(mismatch(
-            "seed",
-            stored.seed.to_string(),
-            given.seed.to_string(),
-        ));
-    }
-    if stored.generator_version != given.generator_version {
-        return Err(mismatch(
-            "generator_version",
-            stored.generator_version.to_string(),
-            given.generator_version.to_string(),
-        ));
-    }
-    if stored.generator_params != given.generator_params {
-        return Err(mismatch(
-            "generator_params",
-            format!("{:?}", stored.generator_params),
-            format!("{:?}", given.generator_params),
-        ));
-    }
-    Ok(())
-}
-
 /// A batch chunk ready to write.
 struct EncodedChunk {
     key: [u8; 12],
@@ -271,18 +207,7 @@ impl ChunkStore for SledStore {
         // Encode outside the transaction: its closure may run again on conflict.
         let mut logs = Vec::with_capacity(b.entries.len());
         for e in &b.entries {
-            let bytes = encode_log_entry(e)?;
-            if bytes.len() > MAX_LOG_RECORD_BYTES {
-                return Err(StoreError::Encode {
-                    what: "log entry",
-                    reason: format!(
-                        "seq {} is {} bytes, limit {MAX_LOG_RECORD_BYTES}",
-                        e.seq,
-                        bytes.len()
-                    ),
-                });
-            }
-            logs.push((seq_key(e.seq), bytes));
+            logs.push((seq_key(e.seq), encode_log_record(e)?));
         }
         // zstd dominates a big batch's cost; chunks compress independently.
         let chunks: Vec<EncodedChunk> = b
@@ -427,6 +352,10 @@ impl ChunkStore for SledStore {
         Ok(self.chunks.len() as u64)
     }
 
+    fn delta_count(&self) -> Result<u64, StoreError> {
+        Ok(self.deltas.len() as u64)
+    }
+
     fn size_on_disk(&self) -> Result<u64, StoreError> {
         Ok(self.db.size_on_disk()?)
     }
@@ -437,12 +366,7 @@ impl ChunkStore for SledStore {
     }
 
     fn put_blob(&self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
-        check_blob_name(name)?;
-        if bytes.len() > MAX_BLOB_BYTES {
-            return Err(StoreError::InvalidBlob {
-                reason: format!("{name:?} is {} bytes, limit {MAX_BLOB_BYTES}", bytes.len()),
-            });
-        }
+        check_blob(name, bytes)?;
         self.blobs.insert(name.as_bytes(), bytes)?;
         self.flush()
     }
@@ -520,11 +444,6 @@ impl SledStore {
             version,
             encoded: strata_terrain::chunk_codec::encode_chunk(&chunk),
         })
-    }
-
-    /// Number of delta records not yet folded into chunk records.
-    pub fn delta_count(&self) -> u64 {
-        self.deltas.len() as u64
     }
 
     /// Number of named blobs.

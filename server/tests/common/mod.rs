@@ -15,6 +15,72 @@ use strata_server::config::ServerConfig;
 use strata_server::datadir::DataDir;
 use strata_terrain::{Fixed, FixedVec3};
 
+/// The store a test's server runs on: sled in its data dir, or a
+/// PostgreSQL database of the test's own ([`Backend::postgres`]).
+#[derive(Debug)]
+pub enum Backend {
+    Sled,
+    Postgres(strata_tests::postgres::PgDb),
+}
+
+impl Backend {
+    /// PostgreSQL for `test`; `None` (said) when it is missing outside CI.
+    pub fn postgres(test: &str) -> Option<Backend> {
+        strata_tests::postgres::database(test).map(Backend::Postgres)
+    }
+
+    /// Points a server config at this store.
+    pub fn apply(&self, cfg: &mut ServerConfig) {
+        if let Backend::Postgres(db) = self {
+            cfg.store.backend = strata_server::store::StoreBackend::Postgres;
+            cfg.store.postgres.url = db.url();
+        }
+    }
+
+    /// The `[store]` TOML of a child-process server's config.
+    pub fn toml(&self) -> String {
+        match self {
+            Backend::Sled => String::new(),
+            Backend::Postgres(db) => db.store_toml(),
+        }
+    }
+
+    /// The store a (stopped) server of `data_dir` wrote, opened offline.
+    pub fn open_store(
+        &self,
+        data_dir: &Path,
+    ) -> std::sync::Arc<dyn strata_server::store::ChunkStore> {
+        let mut cfg = test_config(data_dir);
+        self.apply(&mut cfg);
+        strata_server::store::open_store(
+            &cfg.store,
+            &data_dir.join("world.sled"),
+            cfg.sequencer.region_chunks,
+        )
+        .unwrap()
+    }
+}
+
+/// Two tests of one body, `async fn $on(backend: Backend)`: `$sled` on
+/// sled and `$pg` on PostgreSQL (not run, and said, when it is missing
+/// outside CI). Needs `#[macro_use] mod common;`.
+#[allow(unused_macros)]
+macro_rules! on_both_backends {
+    ($sled:ident, $pg:ident, $on:ident) => {
+        #[tokio::test]
+        async fn $sled() {
+            $on(Backend::Sled).await;
+        }
+
+        #[tokio::test]
+        async fn $pg() {
+            if let Some(b) = Backend::postgres(stringify!($pg)) {
+                $on(b).await;
+            }
+        }
+    };
+}
+
 /// Every network test gives up after this long.
 pub const TEST_TIMEOUT: Duration = Duration::from_secs(60);
 
@@ -30,9 +96,14 @@ pub fn test_config(data_dir: &Path) -> ServerConfig {
 }
 
 pub async fn start(data_dir: &Path) -> Running {
-    app::start(test_config(data_dir))
-        .await
-        .expect("server starts")
+    start_on(data_dir, &Backend::Sled).await
+}
+
+/// [`start`] with the store on `backend`.
+pub async fn start_on(data_dir: &Path, backend: &Backend) -> Running {
+    let mut cfg = test_config(data_dir);
+    backend.apply(&mut cfg);
+    app::start(cfg).await.expect("server starts")
 }
 
 pub fn token(server: &Running, player: &str, role: Role) -> String {

@@ -1,14 +1,17 @@
-//! Helpers shared by the store tests: realistic chunks and a tiny stand-in
-//! for the sequencer that numbers edits and versions chunks.
+//! Helpers shared by the store tests: realistic chunks, a tiny stand-in
+//! for the sequencer that numbers edits and versions chunks, and the
+//! backends a conformance test runs on ([`places`]).
 #![allow(dead_code)]
 
 use std::collections::BTreeMap;
 
-use strata_server::store::{CommitBatch, LogEntry};
+use strata_server::store::pg::PgConfig;
+use strata_server::store::{ChunkStore, CommitBatch, LogEntry, PgStore, SledStore};
 use strata_terrain::chunk::DenseChunk;
 use strata_terrain::delta::ChunkDelta;
 use strata_terrain::material::ids;
 use strata_terrain::{Chunk, ChunkPos, Edit, Fixed, FixedVec3, Voxel, CHUNK_SIZE};
+use strata_tests::postgres::PgDb;
 
 /// A dense chunk with a rolling surface: grass over dirt over stone, a
 /// density ramp at the surface, varied by `salt` so chunks differ.
@@ -126,4 +129,49 @@ pub fn noisy_chunk(salt: u64) -> Chunk {
         d.set(i, Voxel::new((x % 16) as u8 + 1, ids::STONE));
     }
     Chunk::Dense(d)
+}
+
+/// Where a store under test lives; [`Place::open`] opens it (again).
+#[derive(Debug)]
+pub enum Place {
+    Sled(tempfile::TempDir),
+    Postgres(PgDb),
+}
+
+impl Place {
+    /// A new handle on the same store (a reopen, as after a restart).
+    pub fn open(&self) -> Box<dyn ChunkStore> {
+        match self {
+            Place::Sled(dir) => Box::new(SledStore::open(dir.path()).unwrap()),
+            Place::Postgres(db) => Box::new(pg_store(db)),
+        }
+    }
+
+    pub fn backend(&self) -> &'static str {
+        match self {
+            Place::Sled(_) => "sled",
+            Place::Postgres(_) => "postgres",
+        }
+    }
+}
+
+/// The PostgreSQL store on `db`, with the default region size.
+pub fn pg_store(db: &PgDb) -> PgStore {
+    let cfg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    PgStore::open(
+        &cfg,
+        strata_server::sequencer::regions::DEFAULT_REGION_CHUNKS,
+    )
+    .unwrap()
+}
+
+/// An empty store of every backend: sled, and PostgreSQL (a database of
+/// its own in the test process's cluster) unless it is missing outside CI.
+pub fn places(test: &str) -> Vec<Place> {
+    let mut v = vec![Place::Sled(tempfile::tempdir().unwrap())];
+    v.extend(strata_tests::postgres::database(test).map(Place::Postgres));
+    v
 }

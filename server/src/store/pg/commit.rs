@@ -1,0 +1,271 @@
+//! One tick's commit: one PostgreSQL transaction, durable when `COMMIT`
+//! returns (`synchronous_commit = on`).
+//!
+//! The transaction locks the world row first, so commits run one at a
+//! time, then the rows of the chunks the batch changes (in key order), so
+//! a checkpoint cannot fold them meanwhile. It refuses, changing nothing,
+//! what the sled store refuses: seqs that do not follow `last_seq`, chunk
+//! versions at or below the stored ones, and deltas that do not continue
+//! the stored chain.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use rayon::prelude::*;
+use strata_terrain::chunk_codec::encode_chunk;
+use strata_terrain::ChunkPos;
+
+use super::pool::Conn;
+use super::{to_sql, PgStore};
+use crate::store::batch;
+use crate::store::keys::show_pos;
+use crate::store::record::{encode_delta, encode_log_record};
+use crate::store::types::{CommitBatch, CommitStats};
+use crate::store::StoreError;
+
+/// A batch encoded as column arrays, ready for `unnest`.
+#[derive(Debug, Default)]
+struct Columns {
+    first_seq: i64,
+    last_seq: i64,
+    seqs: Vec<i64>,
+    entries: Vec<Vec<u8>>,
+    /// Whole chunks: position, region, version, chunk codec bytes.
+    chunks: Rows,
+    /// Deltas: position, region, to_version, bincode delta.
+    deltas: Rows,
+    /// The lowest version the batch gives each chunk, and for a chunk
+    /// changed by deltas the version its chain must start from.
+    lowest: BTreeMap<ChunkPos, u64>,
+    starts: BTreeMap<ChunkPos, u64>,
+    bytes: u64,
+}
+
+#[derive(Debug, Default)]
+struct Rows {
+    x: Vec<i32>,
+    y: Vec<i32>,
+    z: Vec<i32>,
+    rx: Vec<i32>,
+    rz: Vec<i32>,
+    version: Vec<i64>,
+    body: Vec<Vec<u8>>,
+}
+
+impl Rows {
+    fn push(&mut self, store: &PgStore, pos: ChunkPos, version: i64, body: Vec<u8>) {
+        let r = store.region(pos);
+        self.x.push(pos.x);
+        self.y.push(pos.y);
+        self.z.push(pos.z);
+        self.rx.push(r.x);
+        self.rz.push(r.z);
+        self.version.push(version);
+        self.body.push(body);
+    }
+}
+
+impl PgStore {
+    pub(super) fn commit(&self, b: &CommitBatch) -> Result<CommitStats, StoreError> {
+        let lowest = batch::validate(b)?;
+        let Some(first) = b.entries.first() else {
+            return Ok(CommitStats::default());
+        };
+        let started = Instant::now();
+        let mut cols = Columns {
+            first_seq: to_sql(first.seq, "seq")?,
+            last_seq: to_sql(b.last_seq, "seq")?,
+            lowest,
+            ..Columns::default()
+        };
+        for e in &b.entries {
+            cols.seqs.push(to_sql(e.seq, "seq")?);
+            cols.entries.push(encode_log_record(e)?);
+        }
+        // zstd dominates a big batch's cost; chunks compress independently.
+        let bodies: Vec<Vec<u8>> = b.chunks.par_iter().map(|c| encode_chunk(&c.2)).collect();
+        for ((pos, version, _), body) in b.chunks.iter().zip(bodies) {
+            cols.chunks
+                .push(self, *pos, to_sql(*version, "chunk version")?, body);
+        }
+        for d in &b.deltas {
+            cols.starts.entry(d.pos).or_insert(d.from_version);
+            cols.deltas.push(
+                self,
+                d.pos,
+                to_sql(d.to_version, "chunk version")?,
+                encode_delta(d)?,
+            );
+        }
+        cols.bytes = [&cols.entries, &cols.chunks.body, &cols.deltas.body]
+            .iter()
+            .flat_map(|v| v.iter())
+            .map(|v| v.len() as u64)
+            .sum();
+        let encode = started.elapsed();
+        let (apply, commit) = self.pool.run("committing a batch", async |c: &mut Conn| {
+            c.batch("BEGIN").await?;
+            let applying = Instant::now();
+            match write(c, &cols).await {
+                Ok(()) => {
+                    let apply = applying.elapsed();
+                    let committing = Instant::now();
+                    c.batch("COMMIT").await?;
+                    Ok((apply, committing.elapsed()))
+                }
+                Err(e) => {
+                    if !e.is_postgres() {
+                        c.batch("ROLLBACK").await?;
+                    }
+                    Err(e)
+                }
+            }
+        })?;
+        Ok(CommitStats {
+            bytes_written: cols.bytes,
+            encode,
+            apply,
+            flush: std::time::Duration::ZERO,
+            // COMMIT returns after the WAL flush: that is the fsync.
+            fsync: commit,
+        })
+    }
+}
+
+/// The transaction's statements, between `BEGIN` and `COMMIT`.
+async fn write(c: &mut Conn, cols: &Columns) -> Result<(), StoreError> {
+    let Some(row) = c
+        .query_opt("SELECT last_seq FROM world WHERE id = 1 FOR UPDATE", &[])
+        .await?
+    else {
+        return Err(StoreError::NoMeta);
+    };
+    let last: i64 = row.get(0);
+    if last.checked_add(1) != Some(cols.first_seq) {
+        return Err(StoreError::batch(format!(
+            "first seq {} does not follow the stored last_seq {last}",
+            cols.first_seq
+        )));
+    }
+    let heads = lock_heads(c, cols).await?;
+    for (pos, &lowest) in &cols.lowest {
+        let head = heads.get(pos).copied();
+        match cols.starts.get(pos) {
+            Some(&from) if head != Some(from) => {
+                return Err(StoreError::batch(format!(
+                    "{} is not stored at version {from}, the batch's delta starts there",
+                    show_pos(*pos)
+                )))
+            }
+            None => {
+                if let Some(head) = head.filter(|&h| h >= lowest) {
+                    return Err(StoreError::batch(format!(
+                        "{} is stored at version {head}, the batch moves it to {lowest}",
+                        show_pos(*pos)
+                    )));
+                }
+            }
+            Some(_) => {}
+        }
+    }
+    if let Some(row) = c
+        .query_opt(
+            "SELECT seq FROM edit_log WHERE seq >= $1 LIMIT 1",
+            &[&cols.first_seq],
+        )
+        .await?
+    {
+        return Err(StoreError::corrupt(
+            "log record beyond last_seq",
+            format!("seq {}", row.get::<_, i64>(0)),
+        ));
+    }
+    let ch = &cols.chunks;
+    if !ch.x.is_empty() {
+        c.execute(
+            "INSERT INTO chunks (x, y, z, region_x, region_z, version, body) \
+             SELECT * FROM unnest($1::int4[], $2::int4[], $3::int4[], $4::int4[], \
+                                  $5::int4[], $6::int8[], $7::bytea[]) \
+             ON CONFLICT (x, y, z) DO UPDATE SET version = EXCLUDED.version, body = EXCLUDED.body",
+            &[&ch.x, &ch.y, &ch.z, &ch.rx, &ch.rz, &ch.version, &ch.body],
+        )
+        .await?;
+        // Deltas a whole state replaces are no longer part of any chain.
+        c.execute(
+            "DELETE FROM chunk_deltas d \
+             USING unnest($1::int4[], $2::int4[], $3::int4[], $4::int8[]) AS u(x, y, z, v) \
+             WHERE d.x = u.x AND d.y = u.y AND d.z = u.z AND d.to_version <= u.v",
+            &[&ch.x, &ch.y, &ch.z, &ch.version],
+        )
+        .await?;
+    }
+    let d = &cols.deltas;
+    if !d.x.is_empty() {
+        c.execute(
+            "INSERT INTO chunk_deltas (x, y, z, region_x, region_z, to_version, body) \
+             SELECT * FROM unnest($1::int4[], $2::int4[], $3::int4[], $4::int4[], \
+                                  $5::int4[], $6::int8[], $7::bytea[])",
+            &[&d.x, &d.y, &d.z, &d.rx, &d.rz, &d.version, &d.body],
+        )
+        .await?;
+    }
+    c.execute(
+        "INSERT INTO edit_log (seq, entry) SELECT * FROM unnest($1::int8[], $2::bytea[])",
+        &[&cols.seqs, &cols.entries],
+    )
+    .await?;
+    c.execute(
+        "UPDATE world SET last_seq = $1 WHERE id = 1",
+        &[&cols.last_seq],
+    )
+    .await?;
+    Ok(())
+}
+
+/// Locks the stored records of the batch's chunks (in key order, so two
+/// lockers never wait on each other crosswise) and reads each one's
+/// newest version: its record's, or its last delta's.
+async fn lock_heads(c: &mut Conn, cols: &Columns) -> Result<BTreeMap<ChunkPos, u64>, StoreError> {
+    let (mut x, mut y, mut z) = (Vec::new(), Vec::new(), Vec::new());
+    for p in cols.lowest.keys() {
+        x.push(p.x);
+        y.push(p.y);
+        z.push(p.z);
+    }
+    let mut heads = BTreeMap::new();
+    for r in c
+        .query(
+            "SELECT c.x, c.y, c.z, c.version FROM chunks c \
+             JOIN unnest($1::int4[], $2::int4[], $3::int4[]) AS u(x, y, z) \
+               ON c.x = u.x AND c.y = u.y AND c.z = u.z \
+             ORDER BY c.x, c.y, c.z FOR UPDATE OF c",
+            &[&x, &y, &z],
+        )
+        .await?
+    {
+        heads.insert(
+            ChunkPos::new(r.get(0), r.get(1), r.get(2)),
+            r.get::<_, i64>(3),
+        );
+    }
+    // Read after the locks: a fold that held one has committed by now.
+    for r in c
+        .query(
+            "SELECT d.x, d.y, d.z, max(d.to_version) FROM chunk_deltas d \
+             JOIN unnest($1::int4[], $2::int4[], $3::int4[]) AS u(x, y, z) \
+               ON d.x = u.x AND d.y = u.y AND d.z = u.z \
+             GROUP BY d.x, d.y, d.z",
+            &[&x, &y, &z],
+        )
+        .await?
+    {
+        let pos = ChunkPos::new(r.get(0), r.get(1), r.get(2));
+        let v: i64 = r.get(3);
+        let head = heads.entry(pos).or_insert(v);
+        *head = (*head).max(v);
+    }
+    heads
+        .into_iter()
+        .map(|(p, v)| Ok((p, super::from_sql(v, "chunk version", show_pos(p))?)))
+        .collect()
+}

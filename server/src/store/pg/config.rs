@@ -1,0 +1,60 @@
+//! `[store.postgres]`: where the PostgreSQL store lives and how long it
+//! may wait for it.
+
+use serde::{Deserialize, Serialize};
+
+/// Connections the store keeps at most: the commit thread, the checkpoint
+/// thread, the engine's chunk loads and a few admin or console readers.
+pub const DEFAULT_PG_MAX_CONNECTIONS: usize = 8;
+/// Largest allowed `max_connections`.
+pub const MAX_PG_MAX_CONNECTIONS: usize = 256;
+/// How long opening one connection may take.
+pub const DEFAULT_PG_CONNECT_TIMEOUT_MS: u64 = 5_000;
+/// How long a caller waits for a free connection when all are busy.
+pub const DEFAULT_PG_POOL_WAIT_MS: u64 = 5_000;
+/// How long one store call (one transaction) may run, enforced by the
+/// server (`statement_timeout`) and by the client's wait.
+pub const DEFAULT_PG_STATEMENT_TIMEOUT_MS: u64 = 30_000;
+/// Longest allowed timeout of each kind.
+pub const MAX_PG_TIMEOUT_MS: u64 = 600_000;
+
+/// The `[store.postgres]` section (used when `[store] backend = "postgres"`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PgConfig {
+    /// A libpq connection string, key-value (`host=127.0.0.1 port=5432
+    /// user=strata dbname=strata`) or URL (`postgresql://strata@host/strata`).
+    pub url: String,
+    /// Connections kept at most.
+    pub max_connections: usize,
+    pub connect_timeout_ms: u64,
+    pub pool_wait_ms: u64,
+    pub statement_timeout_ms: u64,
+}
+
+impl Default for PgConfig {
+    fn default() -> Self {
+        Self {
+            url: String::new(),
+            max_connections: DEFAULT_PG_MAX_CONNECTIONS,
+            connect_timeout_ms: DEFAULT_PG_CONNECT_TIMEOUT_MS,
+            pool_wait_ms: DEFAULT_PG_POOL_WAIT_MS,
+            statement_timeout_ms: DEFAULT_PG_STATEMENT_TIMEOUT_MS,
+        }
+    }
+}
+
+impl PgConfig {
+    /// The parsed connection string with the connect timeout applied.
+    pub fn client_config(&self) -> Result<tokio_postgres::Config, String> {
+        if self.url.trim().is_empty() {
+            return Err("is empty; name the PostgreSQL database to use".into());
+        }
+        let mut c: tokio_postgres::Config = self.url.parse().map_err(|e| format!("{e}"))?;
+        c.connect_timeout(std::time::Duration::from_millis(self.connect_timeout_ms));
+        if c.get_application_name().is_none() {
+            c.application_name("strata-server");
+        }
+        Ok(c)
+    }
+}

@@ -1,0 +1,106 @@
+//! The checkpoint: folds each chunk's deltas into its record, one
+//! transaction per chunk beside commits.
+//!
+//! A fold locks the chunk's record row first and reads its deltas after
+//! the lock, so it never overwrites a record a commit moved meanwhile, and
+//! a commit that wants the row waits for the fold. Folds commit without
+//! waiting for the WAL flush (a lost fold only leaves the deltas to
+//! replay, and the WAL is flushed in order, so any later durable commit
+//! carries it) except the pass's last, which makes the pass durable.
+
+use strata_terrain::chunk_codec::encode_chunk;
+use strata_terrain::ChunkPos;
+
+use super::pool::Conn;
+use super::read::Stored;
+use super::{from_sql, PgStore};
+use crate::store::keys::show_pos;
+use crate::store::record::decode_delta;
+use crate::store::types::CheckpointStats;
+use crate::store::StoreError;
+
+const BEGIN_LAZY: &str = "BEGIN; SET LOCAL synchronous_commit = off";
+
+impl PgStore {
+    pub(super) fn fold_deltas(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
+        let limit = i64::try_from(max_chunks).unwrap_or(i64::MAX);
+        let todo: Vec<ChunkPos> = self
+            .pool
+            .run("listing deltas to fold", async |c: &mut Conn| {
+                c.query(
+                    "SELECT DISTINCT x, y, z FROM chunk_deltas ORDER BY x, y, z LIMIT $1",
+                    &[&limit],
+                )
+                .await
+            })?
+            .iter()
+            .map(|r| ChunkPos::new(r.get(0), r.get(1), r.get(2)))
+            .collect();
+        let mut stats = CheckpointStats::default();
+        for (i, &pos) in todo.iter().enumerate() {
+            let begin = if i + 1 == todo.len() {
+                "BEGIN"
+            } else {
+                BEGIN_LAZY
+            };
+            let (deltas, bytes) =
+                self.pool
+                    .run_tx("folding a chunk", begin, async |c: &mut Conn| {
+                        fold_one(c, pos).await
+                    })?;
+            stats.chunks += 1;
+            stats.deltas += deltas;
+            stats.bytes_written += bytes;
+        }
+        Ok(stats)
+    }
+}
+
+/// Folds `pos`'s deltas into its record: (deltas removed, bytes written).
+async fn fold_one(c: &mut Conn, pos: ChunkPos) -> Result<(u64, u64), StoreError> {
+    let Some(record) = c
+        .query_opt(
+            "SELECT version, body FROM chunks WHERE x = $1 AND y = $2 AND z = $3 FOR UPDATE",
+            &[&pos.x, &pos.y, &pos.z],
+        )
+        .await?
+    else {
+        return Err(StoreError::corrupt(
+            "deltas without a chunk record",
+            show_pos(pos),
+        ));
+    };
+    let version = from_sql(record.get(0), "chunk version", show_pos(pos))?;
+    let mut deltas = Vec::new();
+    for r in c
+        .query(
+            "SELECT to_version, body FROM chunk_deltas \
+             WHERE x = $1 AND y = $2 AND z = $3 ORDER BY to_version",
+            &[&pos.x, &pos.y, &pos.z],
+        )
+        .await?
+    {
+        let to = from_sql(r.get(0), "delta version", show_pos(pos))?;
+        deltas.push(decode_delta(pos, to, r.get(1))?);
+    }
+    let removed = deltas.len() as u64;
+    let (head, state) = Stored {
+        version,
+        body: record.get(1),
+        deltas,
+    }
+    .replayed(pos)?;
+    let body = encode_chunk(&state);
+    let head_sql = super::to_sql(head, "chunk version")?;
+    c.execute(
+        "UPDATE chunks SET version = $4, body = $5 WHERE x = $1 AND y = $2 AND z = $3",
+        &[&pos.x, &pos.y, &pos.z, &head_sql, &body],
+    )
+    .await?;
+    c.execute(
+        "DELETE FROM chunk_deltas WHERE x = $1 AND y = $2 AND z = $3 AND to_version <= $4",
+        &[&pos.x, &pos.y, &pos.z, &head_sql],
+    )
+    .await?;
+    Ok((removed, body.len() as u64))
+}

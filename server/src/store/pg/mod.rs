@@ -1,0 +1,338 @@
+//! [`ChunkStore`] on PostgreSQL: the store a cluster of nodes shares.
+//!
+//! The layout is in `server/migrations/` (applied at open, see
+//! `migrate`). It mirrors the sled store: a world row, chunk records,
+//! deltas past them, the edit log by seq, blobs and player positions.
+//! Every chunk and delta row carries its region (`[sequencer]
+//! region_chunks`, fixed in the `layout` row when the database is first
+//! opened), the unit a cluster will lease to one node.
+//!
+//! Durability: a commit is one transaction (`commit.rs`) whose `COMMIT`
+//! returns only after PostgreSQL flushed its WAL: every connection runs
+//! with `synchronous_commit = on`, and the store refuses a server that
+//! runs with `fsync = off`.
+//!
+//! Why `tokio-postgres` and not the synchronous `postgres` crate: that
+//! crate runs a runtime per client and panics when called from inside a
+//! tokio runtime, and the server calls its store from tokio tasks
+//! (`app::start`, admin sessions). Here one small runtime of the store's
+//! own drives the connections, and calls wait on their futures from any
+//! thread (`wait.rs`).
+
+mod commit;
+mod config;
+mod fold;
+mod migrate;
+mod pages;
+mod pool;
+mod read;
+mod scan_check;
+mod wait;
+
+use std::ops::RangeInclusive;
+
+use strata_terrain::edit::{Fixed, FixedVec3};
+use strata_terrain::ChunkPos;
+
+use super::check::CheckReport;
+use super::error::StoreError;
+use super::rules::{check_blob, check_blob_name, check_new_meta, compare_meta};
+use super::types::{
+    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta,
+};
+use super::{ChunkStore, StoreIter};
+use crate::sequencer::regions::RegionId;
+
+pub use config::{
+    PgConfig, DEFAULT_PG_CONNECT_TIMEOUT_MS, DEFAULT_PG_MAX_CONNECTIONS, DEFAULT_PG_POOL_WAIT_MS,
+    DEFAULT_PG_STATEMENT_TIMEOUT_MS, MAX_PG_MAX_CONNECTIONS, MAX_PG_TIMEOUT_MS,
+};
+pub use migrate::{MIGRATIONS, MIGRATIONS_TABLE};
+use pool::{Conn, Pool};
+
+/// Rows one page of a scan fetches (chunk bodies are a few KiB each).
+const PAGE_ROWS: i64 = 256;
+
+/// The PostgreSQL-backed store. Cheap to share by reference across threads.
+#[derive(Debug)]
+pub struct PgStore {
+    pool: Pool,
+    /// Region side in chunks, as the `layout` row records it.
+    region_chunks: u32,
+}
+
+impl PgStore {
+    /// Connects, applies the migrations this build has and the database
+    /// lacks, and checks that commits will be durable. A new database
+    /// records `region_chunks`; an existing one must have been made with
+    /// the same.
+    pub fn open(cfg: &PgConfig, region_chunks: u32) -> Result<Self, StoreError> {
+        let pool = Pool::open(cfg)?;
+        migrate::apply(&pool)?;
+        let fsync: String = pool.run("reading fsync", async |c: &mut Conn| {
+            Ok(c.query("SHOW fsync", &[]).await?[0].get(0))
+        })?;
+        if fsync != "on" {
+            return Err(StoreError::PgSetup {
+                reason: format!(
+                    "the server runs with fsync = {fsync}: a commit would not survive a power cut"
+                ),
+            });
+        }
+        let side = i32::try_from(region_chunks.max(1)).map_err(|_| StoreError::PgSetup {
+            reason: format!("region_chunks {region_chunks} does not fit the layout"),
+        })?;
+        let stored: i32 = pool.run_tx("recording the layout", "BEGIN", async |c: &mut Conn| {
+            c.execute(
+                "INSERT INTO layout (id, region_chunks) VALUES (1, $1) ON CONFLICT (id) DO NOTHING",
+                &[&side],
+            )
+            .await?;
+            Ok(
+                c.query("SELECT region_chunks FROM layout WHERE id = 1", &[])
+                    .await?[0]
+                    .get(0),
+            )
+        })?;
+        if stored != side {
+            return Err(StoreError::MetaMismatch {
+                field: "region_chunks",
+                stored: stored.to_string(),
+                given: side.to_string(),
+            });
+        }
+        Ok(Self {
+            pool,
+            region_chunks: region_chunks.max(1),
+        })
+    }
+
+    /// The region a chunk row belongs to.
+    fn region(&self, pos: ChunkPos) -> RegionId {
+        RegionId::of(pos, self.region_chunks)
+    }
+
+    /// Number of named blobs.
+    pub fn blob_count(&self) -> Result<u64, StoreError> {
+        let n: i64 = self.pool.run("counting blobs", async |c: &mut Conn| {
+            Ok(c.query("SELECT count(*) FROM blobs", &[]).await?[0].get(0))
+        })?;
+        from_sql(n, "blob count", "blobs")
+    }
+}
+
+/// A seq, version or count for a bigint column.
+fn to_sql(v: u64, what: &str) -> Result<i64, StoreError> {
+    i64::try_from(v).map_err(|_| StoreError::batch(format!("{what} {v} is past 2^63")))
+}
+
+/// A bigint column read back as the unsigned value it holds.
+fn from_sql(v: i64, what: &str, key: impl Into<String>) -> Result<u64, StoreError> {
+    u64::try_from(v).map_err(|_| StoreError::corrupt(format!("negative {what} {v}"), key))
+}
+
+fn meta_from_row(row: &tokio_postgres::Row) -> Result<WorldMeta, StoreError> {
+    let format: i32 = row.get(0);
+    let generator: i64 = row.get(2);
+    let corrupt = |what: &str| StoreError::corrupt(what.to_string(), "world");
+    Ok(WorldMeta {
+        format_version: u32::try_from(format).map_err(|_| corrupt("format_version"))?,
+        // The seed's 64 bits, stored two's complement.
+        seed: row.get::<_, i64>(1) as u64,
+        generator_version: u32::try_from(generator).map_err(|_| corrupt("generator_version"))?,
+        generator_params: row.get(3),
+        last_seq: from_sql(row.get(4), "last_seq", "world")?,
+    })
+}
+
+const SELECT_META: &str = "SELECT format_version, seed, generator_version, generator_params, \
+     last_seq FROM world WHERE id = 1";
+
+impl ChunkStore for PgStore {
+    fn load_meta(&self) -> Result<Option<WorldMeta>, StoreError> {
+        let row = self.pool.run("reading the world", async |c: &mut Conn| {
+            c.query_opt(SELECT_META, &[]).await
+        })?;
+        let Some(row) = row else {
+            return Ok(None);
+        };
+        let meta = meta_from_row(&row)?;
+        if meta.format_version != super::STORE_FORMAT_VERSION {
+            return Err(StoreError::UnsupportedFormat {
+                found: meta.format_version,
+                supported: super::STORE_FORMAT_VERSION,
+            });
+        }
+        Ok(Some(meta))
+    }
+
+    fn init_meta(&self, meta: &WorldMeta) -> Result<WorldMeta, StoreError> {
+        check_new_meta(meta)?;
+        let format = meta.format_version as i32;
+        let seed = meta.seed as i64;
+        let generator = i64::from(meta.generator_version);
+        // Inserted only if absent, in one statement: two nodes starting at
+        // once agree on one world row.
+        self.pool.run("writing the world", async |c: &mut Conn| {
+            c.execute(
+                "INSERT INTO world (id, format_version, seed, generator_version, \
+                     generator_params, last_seq) VALUES (1, $1, $2, $3, $4, 0) \
+                     ON CONFLICT (id) DO NOTHING",
+                &[&format, &seed, &generator, &meta.generator_params],
+            )
+            .await
+        })?;
+        let stored = self.load_meta()?.ok_or(StoreError::NoMeta)?;
+        compare_meta(&stored, meta)?;
+        Ok(stored)
+    }
+
+    fn last_seq(&self) -> Result<u64, StoreError> {
+        let row = self.pool.run("reading last_seq", async |c: &mut Conn| {
+            c.query_opt("SELECT last_seq FROM world WHERE id = 1", &[])
+                .await
+        })?;
+        row.map_or(Ok(0), |r| from_sql(r.get(0), "last_seq", "world"))
+    }
+
+    fn load_chunk(&self, pos: ChunkPos) -> Result<Option<StoredChunk>, StoreError> {
+        Ok(self
+            .latest(pos)?
+            .map(|(version, chunk)| StoredChunk { chunk, version }))
+    }
+
+    fn commit_batch(&self, batch: &CommitBatch) -> Result<CommitStats, StoreError> {
+        self.commit(batch)
+    }
+
+    fn log_entry(&self, seq: u64) -> Result<Option<LogEntry>, StoreError> {
+        let Ok(key) = i64::try_from(seq) else {
+            return Ok(None);
+        };
+        let row = self.pool.run("reading a log entry", async |c: &mut Conn| {
+            c.query_opt("SELECT entry FROM edit_log WHERE seq = $1", &[&key])
+                .await
+        })?;
+        row.map(|r| super::record::decode_log_entry(seq, r.get(0)))
+            .transpose()
+    }
+
+    fn edit_log(&self, seqs: RangeInclusive<u64>) -> StoreIter<'_, LogEntry> {
+        self.log_pages(seqs)
+    }
+
+    fn raw_chunk(&self, pos: ChunkPos) -> Result<Option<RawChunk>, StoreError> {
+        self.raw_latest(pos)
+    }
+
+    fn modified_chunks(&self) -> StoreIter<'_, (ChunkPos, u64)> {
+        self.version_pages()
+    }
+
+    fn raw_chunks(&self) -> StoreIter<'_, RawChunk> {
+        self.raw_pages()
+    }
+
+    fn chunk_count(&self) -> Result<u64, StoreError> {
+        let n: i64 = self.pool.run("counting chunks", async |c: &mut Conn| {
+            Ok(c.query("SELECT count(*) FROM chunks", &[]).await?[0].get(0))
+        })?;
+        from_sql(n, "chunk count", "chunks")
+    }
+
+    fn delta_count(&self) -> Result<u64, StoreError> {
+        let n: i64 = self.pool.run("counting deltas", async |c: &mut Conn| {
+            Ok(c.query("SELECT count(*) FROM chunk_deltas", &[]).await?[0].get(0))
+        })?;
+        from_sql(n, "delta count", "chunk_deltas")
+    }
+
+    fn size_on_disk(&self) -> Result<u64, StoreError> {
+        let n: i64 = self
+            .pool
+            .run("reading the database size", async |c: &mut Conn| {
+                Ok(c.query("SELECT pg_database_size(current_database())", &[])
+                    .await?[0]
+                    .get(0))
+            })?;
+        from_sql(n, "database size", "database")
+    }
+
+    fn get_blob(&self, name: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        check_blob_name(name)?;
+        let row = self.pool.run("reading a blob", async |c: &mut Conn| {
+            c.query_opt("SELECT body FROM blobs WHERE name = $1", &[&name])
+                .await
+        })?;
+        Ok(row.map(|r| r.get(0)))
+    }
+
+    fn put_blob(&self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        check_blob(name, bytes)?;
+        self.pool.run("writing a blob", async |c: &mut Conn| {
+            c.execute(
+                "INSERT INTO blobs (name, body) VALUES ($1, $2) \
+                 ON CONFLICT (name) DO UPDATE SET body = EXCLUDED.body",
+                &[&name, &bytes],
+            )
+            .await
+        })?;
+        Ok(())
+    }
+
+    fn delete_blob(&self, name: &str) -> Result<bool, StoreError> {
+        check_blob_name(name)?;
+        let n = self.pool.run("deleting a blob", async |c: &mut Conn| {
+            c.execute("DELETE FROM blobs WHERE name = $1", &[&name])
+                .await
+        })?;
+        Ok(n > 0)
+    }
+
+    fn save_positions(&self, positions: &[(String, FixedVec3)]) -> Result<(), StoreError> {
+        // One row per player (an upsert may not touch a row twice): the last wins.
+        let latest: std::collections::BTreeMap<&str, FixedVec3> = positions
+            .iter()
+            .map(|(name, p)| (name.as_str(), *p))
+            .collect();
+        if latest.is_empty() {
+            return Ok(());
+        }
+        let names: Vec<&str> = latest.keys().copied().collect();
+        let axis = |f: fn(&FixedVec3) -> Fixed| latest.values().map(|p| f(p).0).collect();
+        let (xs, ys, zs): (Vec<i32>, Vec<i32>, Vec<i32>) =
+            (axis(|p| p.x), axis(|p| p.y), axis(|p| p.z));
+        self.pool.run("saving positions", async |c: &mut Conn| {
+            c.execute(
+                "INSERT INTO players (name, x, y, z) \
+                 SELECT * FROM unnest($1::text[], $2::int4[], $3::int4[], $4::int4[]) \
+                 ON CONFLICT (name) DO UPDATE SET x = EXCLUDED.x, y = EXCLUDED.y, z = EXCLUDED.z",
+                &[&names, &xs, &ys, &zs],
+            )
+            .await
+        })?;
+        Ok(())
+    }
+
+    fn player_positions(&self) -> StoreIter<'_, (String, FixedVec3)> {
+        let rows = self.pool.run("reading positions", async |c: &mut Conn| {
+            c.query("SELECT name, x, y, z FROM players ORDER BY name", &[])
+                .await
+        });
+        match rows {
+            Ok(rows) => Box::new(rows.into_iter().map(|r| {
+                let c = |i: usize| Fixed(r.get::<_, i32>(i));
+                Ok((r.get::<_, String>(0), FixedVec3::new(c(1), c(2), c(3))))
+            })),
+            Err(e) => Box::new(std::iter::once(Err(e))),
+        }
+    }
+
+    fn checkpoint(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
+        self.fold_deltas(max_chunks)
+    }
+
+    fn check(&self) -> Result<CheckReport, StoreError> {
+        self.check_with_progress(&|| {})
+    }
+}

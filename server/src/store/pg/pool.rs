@@ -1,0 +1,293 @@
+//! A small pool of PostgreSQL connections, each with its cached prepared
+//! statements, and the one way the store talks to them: [`Pool::run`]
+//! (one call) and [`Pool::run_tx`] (one transaction), each under the
+//! statement timeout.
+
+use std::collections::HashMap;
+use std::sync::{Condvar, Mutex};
+use std::time::{Duration, Instant};
+
+use tokio_postgres::types::ToSql;
+use tokio_postgres::{Client, NoTls, Row, Statement};
+use tracing::warn;
+
+use super::config::PgConfig;
+use super::wait::wait;
+use crate::store::StoreError;
+
+/// SQL parameters, as `tokio-postgres` takes them.
+pub type Params<'a> = &'a [&'a (dyn ToSql + Sync)];
+
+/// One connection and the statements it has prepared.
+#[derive(Debug)]
+pub struct Conn {
+    client: Client,
+    statements: HashMap<&'static str, Statement>,
+}
+
+impl Conn {
+    /// `sql` prepared once per connection: later calls skip the parse.
+    async fn statement(&mut self, sql: &'static str) -> Result<Statement, StoreError> {
+        if let Some(s) = self.statements.get(sql) {
+            return Ok(s.clone());
+        }
+        let s = self.client.prepare(sql).await?;
+        self.statements.insert(sql, s.clone());
+        Ok(s)
+    }
+
+    pub async fn query(
+        &mut self,
+        sql: &'static str,
+        p: Params<'_>,
+    ) -> Result<Vec<Row>, StoreError> {
+        let s = self.statement(sql).await?;
+        Ok(self.client.query(&s, p).await?)
+    }
+
+    pub async fn query_opt(
+        &mut self,
+        sql: &'static str,
+        p: Params<'_>,
+    ) -> Result<Option<Row>, StoreError> {
+        let s = self.statement(sql).await?;
+        Ok(self.client.query_opt(&s, p).await?)
+    }
+
+    pub async fn execute(&mut self, sql: &'static str, p: Params<'_>) -> Result<u64, StoreError> {
+        let s = self.statement(sql).await?;
+        Ok(self.client.execute(&s, p).await?)
+    }
+
+    /// The first column of the first row of a statement built at run
+    /// time (simple protocol: nothing is prepared or cached).
+    pub async fn simple_value(&mut self, sql: &str) -> Result<Option<String>, StoreError> {
+        for m in self.client.simple_query(sql).await? {
+            if let tokio_postgres::SimpleQueryMessage::Row(r) = m {
+                return Ok(r.get(0).map(str::to_string));
+            }
+        }
+        Ok(None)
+    }
+
+    /// Statements without parameters, in one round trip (simple protocol).
+    pub async fn batch(&mut self, sql: &str) -> Result<(), StoreError> {
+        Ok(self.client.batch_execute(sql).await?)
+    }
+}
+
+#[derive(Debug, Default)]
+struct Idle {
+    conns: Vec<Conn>,
+    /// Connections open, idle or lent.
+    open: usize,
+}
+
+/// The store's connections and the runtime that drives them.
+#[derive(Debug)]
+pub struct Pool {
+    config: tokio_postgres::Config,
+    /// Runs each connection's I/O task; the store's calls only wait on
+    /// channels to them (see `wait`). `None` once dropped.
+    runtime: Option<tokio::runtime::Runtime>,
+    idle: Mutex<Idle>,
+    freed: Condvar,
+    max: usize,
+    connect_timeout: Duration,
+    pool_wait: Duration,
+    statement_timeout: Duration,
+}
+
+impl Pool {
+    /// A pool for `cfg`; opens one connection to prove the server answers.
+    pub fn open(cfg: &PgConfig) -> Result<Self, StoreError> {
+        let config = cfg.client_config().map_err(|reason| StoreError::PgSetup {
+            reason: format!("store.postgres.url {reason}"),
+        })?;
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .thread_name("strata-pg")
+            .enable_all()
+            .build()?;
+        let pool = Self {
+            config,
+            runtime: Some(runtime),
+            idle: Mutex::new(Idle::default()),
+            freed: Condvar::new(),
+            max: cfg.max_connections.max(1),
+            connect_timeout: Duration::from_millis(cfg.connect_timeout_ms),
+            pool_wait: Duration::from_millis(cfg.pool_wait_ms),
+            statement_timeout: Duration::from_millis(cfg.statement_timeout_ms),
+        };
+        let first = pool.take()?;
+        pool.give(Some(first));
+        Ok(pool)
+    }
+
+    /// One call on a pooled connection, under the statement timeout. A
+    /// connection that failed or timed out is closed, not pooled again.
+    pub fn run<T>(
+        &self,
+        what: &'static str,
+        f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
+        let mut conn = self.take()?;
+        match wait(f(&mut conn), self.statement_timeout) {
+            Ok(Ok(v)) => {
+                self.give(Some(conn));
+                Ok(v)
+            }
+            Ok(Err(e)) => {
+                // Our own refusals leave the connection clean; a database
+                // error may leave it mid-transaction.
+                self.give((!e.is_postgres()).then_some(conn));
+                Err(e)
+            }
+            Err(_) => {
+                self.give(None);
+                Err(StoreError::PgTimeout {
+                    what,
+                    limit_ms: self.statement_timeout.as_millis() as u64,
+                })
+            }
+        }
+    }
+
+    /// [`Pool::run`] inside `begin` ... `COMMIT`; rolled back when `f`
+    /// refuses. `COMMIT` returns once PostgreSQL made it durable (every
+    /// session runs with `synchronous_commit = on` unless `begin` says
+    /// otherwise for its own transaction).
+    pub fn run_tx<T>(
+        &self,
+        what: &'static str,
+        begin: &'static str,
+        f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
+        self.run(what, async |c: &mut Conn| {
+            c.batch(begin).await?;
+            match f(c).await {
+                Ok(v) => {
+                    c.batch("COMMIT").await?;
+                    Ok(v)
+                }
+                Err(e) => {
+                    if !e.is_postgres() {
+                        c.batch("ROLLBACK").await?;
+                    }
+                    Err(e)
+                }
+            }
+        })
+    }
+
+    /// An idle connection, a new one while under the limit, or the next
+    /// one given back within `pool_wait`.
+    fn take(&self) -> Result<Conn, StoreError> {
+        let deadline = Instant::now() + self.pool_wait;
+        let mut idle = self.idle.lock().unwrap_or_else(|p| p.into_inner());
+        loop {
+            while let Some(c) = idle.conns.pop() {
+                if !c.client.is_closed() {
+                    return Ok(c);
+                }
+                idle.open -= 1;
+            }
+            if idle.open < self.max {
+                idle.open += 1;
+                drop(idle);
+                let made = self.connect();
+                if made.is_err() {
+                    self.give(None);
+                }
+                return made;
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(StoreError::PgTimeout {
+                    what: "waiting for a free connection",
+                    limit_ms: self.pool_wait.as_millis() as u64,
+                });
+            }
+            idle = self
+                .freed
+                .wait_timeout(idle, left)
+                .unwrap_or_else(|p| p.into_inner())
+                .0;
+        }
+    }
+
+    /// Returns a connection to the pool, or (`None`) forgets a closed one.
+    fn give(&self, conn: Option<Conn>) {
+        let mut idle = self.idle.lock().unwrap_or_else(|p| p.into_inner());
+        match conn {
+            Some(c) => idle.conns.push(c),
+            None => idle.open -= 1,
+        }
+        self.freed.notify_one();
+    }
+
+    fn connect(&self) -> Result<Conn, StoreError> {
+        let runtime = self.runtime.as_ref().ok_or_else(|| StoreError::PgSetup {
+            reason: "the store is closed".into(),
+        })?;
+        let config = self.config.clone();
+        let task = runtime.spawn(async move {
+            let (client, connection) = config.connect(NoTls).await?;
+            tokio::spawn(async move {
+                if let Err(e) = connection.await {
+                    warn!(error = %e, "postgres connection ended");
+                }
+            });
+            Ok::<_, tokio_postgres::Error>(client)
+        });
+        let abort = task.abort_handle();
+        let client = match wait(task, self.connect_timeout) {
+            Ok(Ok(r)) => r?,
+            Ok(Err(join)) => {
+                return Err(StoreError::PgSetup {
+                    reason: format!("connecting: {join}"),
+                })
+            }
+            Err(_) => {
+                abort.abort();
+                return Err(StoreError::PgTimeout {
+                    what: "connecting",
+                    limit_ms: self.connect_timeout.as_millis() as u64,
+                });
+            }
+        };
+        let mut conn = Conn {
+            client,
+            statements: HashMap::new(),
+        };
+        // Every commit waits for the WAL flush; no statement runs forever.
+        let settings = format!(
+            "SET synchronous_commit = on; SET statement_timeout = {}",
+            self.statement_timeout.as_millis()
+        );
+        match wait(conn.batch(&settings), self.connect_timeout) {
+            Ok(r) => r?,
+            Err(_) => {
+                return Err(StoreError::PgTimeout {
+                    what: "setting up a connection",
+                    limit_ms: self.connect_timeout.as_millis() as u64,
+                })
+            }
+        }
+        Ok(conn)
+    }
+}
+
+impl Drop for Pool {
+    fn drop(&mut self) {
+        self.idle
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .conns
+            .clear();
+        // Callable anywhere, a tokio task included (a plain drop is not).
+        if let Some(rt) = self.runtime.take() {
+            rt.shutdown_background();
+        }
+    }
+}

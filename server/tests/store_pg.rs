@@ -1,0 +1,145 @@
+//! What only the PostgreSQL store has: migrations applied once and
+//! tracked, a region layout fixed per database, region columns on chunk
+//! rows, calls from inside a tokio runtime, and `check` naming tables this
+//! layout does not have.
+
+mod store_common;
+
+use store_common::{pg_store, terrain_chunk, Seq};
+use strata_server::store::pg::{PgConfig, MIGRATIONS};
+use strata_server::store::{ChunkStore, PgStore, StoreError, WorldMeta};
+use strata_terrain::edit::{Fixed, FixedVec3};
+use strata_terrain::ChunkPos;
+use strata_tests::postgres::{database, PgDb};
+
+/// Runs `sql` on `db` with a plain client; returns each row's first
+/// column as text.
+fn sql(db: &PgDb, sql: &str) -> Vec<String> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let (client, conn) = tokio_postgres::connect(&db.url(), tokio_postgres::NoTls)
+            .await
+            .unwrap();
+        let driver = tokio::spawn(conn);
+        let rows = client.simple_query(sql).await.unwrap();
+        drop(client);
+        let _ = driver.await;
+        rows.into_iter()
+            .filter_map(|m| match m {
+                tokio_postgres::SimpleQueryMessage::Row(r) => r.get(0).map(str::to_string),
+                _ => None,
+            })
+            .collect()
+    })
+}
+
+#[test]
+fn migrations_are_applied_once_and_recorded() {
+    let Some(db) = database("migrations_once") else {
+        return;
+    };
+    drop(pg_store(&db));
+    drop(pg_store(&db));
+    let applied = sql(&db, "SELECT version || ' ' || name FROM schema_migrations");
+    let known: Vec<String> = MIGRATIONS
+        .iter()
+        .map(|(v, name, _)| format!("{v} {name}"))
+        .collect();
+    assert_eq!(applied, known);
+    // A database a newer build migrated further is refused, not written.
+    sql(
+        &db,
+        "INSERT INTO schema_migrations (version, name) VALUES (999, 'future')",
+    );
+    let cfg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let err = PgStore::open(&cfg, 8).unwrap_err();
+    assert!(
+        matches!(err, StoreError::UnsupportedFormat { found: 999, .. }),
+        "{err}"
+    );
+}
+
+#[test]
+fn the_region_layout_is_fixed_and_rows_carry_their_region() {
+    let Some(db) = database("region_layout") else {
+        return;
+    };
+    let store = pg_store(&db);
+    store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
+    let mut seq = Seq::default();
+    let a = ChunkPos::new(-1, 0, 17);
+    store
+        .commit_batch(&seq.delta_batch(&[vec![(a, terrain_chunk(1))]]))
+        .unwrap();
+    store
+        .commit_batch(&seq.delta_batch(&[vec![(a, terrain_chunk(2))]]))
+        .unwrap();
+    // Side 8: chunk x -1 is in region -1, z 17 in region 2.
+    assert_eq!(
+        sql(&db, "SELECT region_x || ',' || region_z FROM chunks"),
+        ["-1,2"]
+    );
+    assert_eq!(
+        sql(&db, "SELECT region_x || ',' || region_z FROM chunk_deltas"),
+        ["-1,2"]
+    );
+    drop(store);
+    let cfg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let err = PgStore::open(&cfg, 16).unwrap_err();
+    assert!(
+        matches!(&err, StoreError::MetaMismatch { field: "region_chunks", stored, given }
+            if stored == "8" && given == "16"),
+        "{err}"
+    );
+}
+
+#[tokio::test]
+async fn calls_from_a_tokio_task_wait_without_a_nested_runtime() {
+    let Some(db) = database("inside_tokio") else {
+        return;
+    };
+    // The server's start and its admin sessions call the store from tasks.
+    let store = pg_store(&db);
+    store.init_meta(&WorldMeta::new(3, 1, "")).unwrap();
+    let p = |v: i32| FixedVec3::new(Fixed(v), Fixed(-v), Fixed(2 * v));
+    store
+        .save_positions(&[
+            ("ana".into(), p(1)),
+            ("bo".into(), p(2)),
+            ("ana".into(), p(3)),
+        ])
+        .unwrap();
+    let got: Vec<_> = store.player_positions().map(|r| r.unwrap()).collect();
+    assert_eq!(got, [("ana".to_string(), p(3)), ("bo".to_string(), p(2))]);
+    // Dropped in the task as well.
+    drop(store);
+}
+
+#[test]
+fn check_names_tables_this_layout_does_not_have() {
+    let Some(db) = database("check_tables") else {
+        return;
+    };
+    let store = pg_store(&db);
+    store.init_meta(&WorldMeta::new(3, 1, "")).unwrap();
+    assert!(store.check().unwrap().is_ok());
+    sql(
+        &db,
+        "CREATE TABLE leftovers (v int); INSERT INTO leftovers VALUES (1), (2)",
+    );
+    let report = store.check().unwrap();
+    let text: Vec<String> = report.issues.iter().map(|i| i.to_string()).collect();
+    assert_eq!(
+        text,
+        ["tree \"leftovers\": 2 orphaned records in a tree this version does not use"]
+    );
+}
