@@ -42,6 +42,16 @@ impl ChunkMesh {
     pub fn triangle_count(&self) -> usize {
         self.indices.len() / 3
     }
+
+    /// Positions as one flat array, x y z per vertex (a vertex buffer).
+    pub fn positions_flat(&self) -> &[f32] {
+        self.positions.as_flattened()
+    }
+
+    /// Normals as one flat array, x y z per vertex.
+    pub fn normals_flat(&self) -> &[f32] {
+        self.normals.as_flattened()
+    }
 }
 
 /// Meshes `pos` at `lod`, with transition cells on the faces set in
@@ -120,6 +130,8 @@ mod tests {
         assert_eq!(m.hash, expected.hash());
         assert_eq!(m.positions, expected.positions);
         assert_eq!(m.origin, IVec3::new(0, -32, 0));
+        assert_eq!(m.positions_flat().len(), 3 * m.vertex_count());
+        assert_eq!(&m.normals_flat()[..3], &m.normals[0]);
 
         let coarse = mesh_at(pos, 1, faces::NEG_X, get).unwrap().unwrap();
         assert!(coarse.triangle_count() > 0);

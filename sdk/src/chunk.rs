@@ -146,9 +146,8 @@ pub unsafe extern "C" fn strata_mesh_data(
         // SAFETY: the caller's contract above.
         let StrataMesh(m) = unsafe { shared(mesh, "mesh") }?;
         let data = StrataMeshData {
-            // `[f32; 3]` is three f32 in a row, so the arrays are flat.
-            positions: m.positions.as_ptr().cast(),
-            normals: m.normals.as_ptr().cast(),
+            positions: m.positions_flat().as_ptr(),
+            normals: m.normals_flat().as_ptr(),
             materials: m.materials.as_ptr(),
             indices: m.indices.as_ptr(),
             vertex_count: m.vertex_count(),

@@ -7,6 +7,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use strata_protocol::Role;
@@ -74,24 +75,45 @@ pub fn root() -> PathBuf {
         .to_path_buf()
 }
 
-/// The directory holding libstrata.so and libstrata.a, built with this
-/// test's profile (building them once if absent).
+/// The directory holding libstrata.so and libstrata.a, built once per test
+/// process with this test's profile: `cargo test` builds the crate as an
+/// rlib only, so the C libraries could be stale or missing.
 pub fn lib_dir() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
-    if !dir.join("libstrata.so").exists() || !dir.join("libstrata.a").exists() {
-        let target = dir.parent().unwrap();
-        let mut cmd = Command::new(env!("CARGO"));
-        cmd.args(["build", "--locked", "-p", "strata-sdk", "--lib"])
-            .arg("--target-dir")
-            .arg(target);
-        match dir.file_name().and_then(|n| n.to_str()) {
-            Some("release") => cmd.arg("--release"),
-            _ => cmd.args(["--profile", "test"]),
-        };
-        assert!(cmd.status().unwrap().success(), "building libstrata failed");
-    }
-    dir
+    static BUILT: OnceLock<PathBuf> = OnceLock::new();
+    BUILT
+        .get_or_init(|| {
+            let exe = std::env::current_exe().unwrap();
+            let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
+            let mut cmd = Command::new(env!("CARGO"));
+            cmd.args(["build", "--locked", "-p", "strata-sdk", "--lib"])
+                .arg("--target-dir")
+                .arg(dir.parent().unwrap());
+            match dir.file_name().and_then(|n| n.to_str()) {
+                Some("release") => cmd.arg("--release"),
+                _ => cmd.args(["--profile", "test"]),
+            };
+            // Cargo gives this test its package's variables; build scripts
+            // (ring's) rerun when they see them, which would rebuild half
+            // the tree on every run.
+            for (key, _) in std::env::vars_os() {
+                let k = key.to_string_lossy();
+                let ours = [
+                    "CARGO_PKG_",
+                    "CARGO_MANIFEST_",
+                    "CARGO_CRATE_",
+                    "CARGO_PRIMARY_",
+                ];
+                if ours.iter().any(|p| k.starts_with(p)) || k == "OUT_DIR" {
+                    cmd.env_remove(&key);
+                }
+            }
+            assert!(cmd.status().unwrap().success(), "building libstrata failed");
+            for lib in ["libstrata.so", "libstrata.a"] {
+                assert!(dir.join(lib).exists(), "{lib} was not built");
+            }
+            dir
+        })
+        .clone()
 }
 
 /// Runs `cmd`, killing it after [`EXAMPLE_TIMEOUT`]; returns its output.
