@@ -1,15 +1,10 @@
-//! Headless Strata client: a real QUIC client with a replica of the chunks
-//! it sees, which re-meshes changed chunks and compares mesh hashes with the
-//! server's. The `strata-bots` load tester builds on it.
+//! The `strata-bots` load tester, built on the `strata-client` library
+//! (re-exported here under its old paths).
 
 pub mod bots;
-pub mod client;
-pub mod pool;
-pub mod prediction;
-pub mod replica;
-pub mod tls;
 
-pub use client::{Acked, Arrival, Client, ClientError, ClientOptions, Verdict};
-pub use pool::ChunkPool;
-pub use prediction::{Prediction, PredictionStats, MAX_PENDING_PREDICTIONS};
-pub use replica::{MeshMismatch, Replica, ReplicaStats, Request};
+pub use strata_client::{client, pool, prediction, replica, tls};
+pub use strata_client::{
+    Acked, Arrival, ChunkPool, Client, ClientError, ClientOptions, MeshMismatch, Prediction,
+    PredictionStats, Replica, ReplicaStats, Request, Verdict, MAX_PENDING_PREDICTIONS,
+};

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 
 use thiserror::Error;
 
-use crate::auth::{Secret, SecretError};
+use crate::auth::{Secret, SecretError, SecretFile};
 use crate::tls::{CertPair, TlsError};
 
 /// File name of the chunk store inside the data dir.

@@ -7,7 +7,7 @@
 pub mod admin;
 pub mod app;
 pub mod auth;
-pub mod client_tls;
+pub use strata_protocol::client_tls;
 pub mod collision;
 pub mod config;
 pub mod console;

@@ -157,24 +157,7 @@ pub async fn serve(
     }
 }
 
-/// Metric label for a rejection reason.
-pub fn reject_label(r: &strata_protocol::RejectReason) -> &'static str {
-    use strata_protocol::RejectReason::*;
-    match r {
-        NotPermitted { .. } => "not_permitted",
-        RadiusTooLarge { .. } => "radius",
-        PowerTooLarge { .. } => "power",
-        OutOfReach { .. } => "reach",
-        NoLineOfSight => "line_of_sight",
-        RateLimited => "rate",
-        VolumeRateLimited => "volume_rate",
-        OutOfBounds => "bounds",
-        ProtectedZone { .. } => "protected_zone",
-        NoPosition => "no_position",
-        Invalid { .. } => "invalid",
-        Busy => "busy",
-    }
-}
+pub use strata_protocol::reject_label;
 
 #[cfg(test)]
 mod tests {

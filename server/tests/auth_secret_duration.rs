@@ -5,7 +5,7 @@ use std::time::Duration;
 use strata_protocol::Role;
 use strata_server::auth::{
     format_duration, issue, parse_duration, verify, DurationError, HumanDuration, Secret,
-    SecretError, MAX_DURATION,
+    SecretError, SecretFile, MAX_DURATION,
 };
 
 #[test]

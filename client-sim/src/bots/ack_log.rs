@@ -7,8 +7,8 @@ use std::io::{BufWriter, Write};
 use std::path::Path;
 use std::sync::Mutex;
 
+pub use strata_protocol::ack::AckRecord;
 use strata_protocol::ChunkVersion;
-pub use strata_server::admin::verify_acks::AckRecord;
 
 #[derive(Debug)]
 pub struct AckLog(Mutex<BufWriter<File>>);

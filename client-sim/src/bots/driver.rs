@@ -8,8 +8,8 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use strata_protocol::reject_label;
 use strata_protocol::{ErrorCode, Start};
-use strata_server::metrics::reject_label;
 use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
 use tokio::sync::watch;
 use tracing::debug;
@@ -229,6 +229,7 @@ impl Bot {
                 record_history: true,
                 predict: cfg.predict,
                 structures: Default::default(),
+                track_changes: false,
             };
             let attempt = {
                 let _slot = self.fleet.connect_slots.acquire().await.ok()?;

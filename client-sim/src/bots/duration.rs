@@ -1,9 +1,9 @@
-//! `--duration` values: `500ms`, or anything `strata_server::auth::parse_duration`
+//! `--duration` values: `500ms`, or anything `strata_auth::parse_duration`
 //! accepts (`30s`, `2m`, `1h`).
 
 use std::time::Duration;
 
-use strata_server::auth::{parse_duration, DurationError};
+use strata_auth::{parse_duration, DurationError};
 use thiserror::Error;
 
 #[derive(Debug, Clone, PartialEq, Eq, Error)]

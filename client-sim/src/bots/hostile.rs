@@ -18,8 +18,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
+use strata_protocol::reject_label;
 use strata_protocol::{ErrorCode, RejectReason, ServerMessage, Welcome, WorldUpdate};
-use strata_server::metrics::reject_label;
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::{ChunkPos, Edit, Fixed, FixedVec3, VoxelPos};
 use tokio::sync::{mpsc, Semaphore};

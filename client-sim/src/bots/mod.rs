@@ -30,8 +30,8 @@ use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
+use strata_auth::{self as auth, Secret};
 use strata_protocol::{ChunkVersion, Role as AuthRole};
-use strata_server::auth::{self, Secret};
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::ChunkPos;
 use thiserror::Error;

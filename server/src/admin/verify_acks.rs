@@ -18,8 +18,8 @@ use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use serde::{Deserialize, Serialize};
-use strata_protocol::ChunkVersion;
+use serde::Serialize;
+pub use strata_protocol::ack::{AckChunk, AckRecord};
 use strata_terrain::ChunkPos;
 use thiserror::Error;
 
@@ -31,57 +31,6 @@ use crate::store::{ChunkStore, StoreError};
 pub const MAX_REPORTED_FAILURES: usize = 32;
 /// Longest ack-log line accepted, in bytes.
 pub const MAX_ACK_LINE_BYTES: usize = 64 * 1024;
-
-/// One chunk an acknowledged edit changed, at the version it reached.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AckChunk {
-    pub x: i32,
-    pub y: i32,
-    pub z: i32,
-    pub version: u64,
-}
-
-impl AckChunk {
-    pub fn pos(&self) -> ChunkPos {
-        ChunkPos::new(self.x, self.y, self.z)
-    }
-}
-
-/// One line of an ack log: an acknowledged edit.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AckRecord {
-    pub seq: u64,
-    pub chunks: Vec<AckChunk>,
-}
-
-impl AckRecord {
-    /// The record of an `EditAccepted { seq, changes }`.
-    pub fn new(seq: u64, changes: &[ChunkVersion]) -> Self {
-        Self {
-            seq,
-            chunks: changes
-                .iter()
-                .map(|c| AckChunk {
-                    x: c.pos.x,
-                    y: c.pos.y,
-                    z: c.pos.z,
-                    version: c.version,
-                })
-                .collect(),
-        }
-    }
-
-    /// The record as one JSON line, without the newline.
-    pub fn to_line(&self) -> String {
-        serde_json::to_string(self).expect("plain integers serialize")
-    }
-
-    pub fn parse_line(line: &str) -> Result<Self, serde_json::Error> {
-        serde_json::from_str(line)
-    }
-}
 
 #[derive(Debug, Args)]
 pub struct VerifyAcksArgs {
@@ -237,6 +186,7 @@ pub fn run(args: &VerifyAcksArgs) -> Result<VerifyReport, VerifyError> {
 mod tests {
     use super::*;
     use crate::store::SledStore;
+    use strata_protocol::ChunkVersion;
 
     #[test]
     fn lines_round_trip_and_refuse_junk() {

@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use super::token::Claims;
+use strata_auth::Claims;
 
 /// Blob name under which the access list is stored.
 pub const ACCESS_BLOB: &str = "access";
@@ -119,7 +119,7 @@ mod tests {
             role: Role::Player,
             issued_at,
             expires_at: issued_at + 3600,
-            nonce: [0; super::super::token::NONCE_LEN],
+            nonce: [0; strata_auth::NONCE_LEN],
         }
     }
 

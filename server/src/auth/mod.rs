@@ -1,44 +1,16 @@
-//! Player authentication: HMAC-signed bearer tokens minted by
-//! `strata-admin token issue` and checked by the server on `Hello`.
-//!
-//! # Token format (version 1)
-//!
-//! A token is ASCII text of three dot-separated parts:
-//!
-//! ```text
-//! v1.<base64url-no-pad(payload)>.<base64url-no-pad(tag)>
-//! ```
-//!
-//! `payload` is 34 + n bytes (integers big-endian):
-//!
-//! | offset | size | field                                              |
-//! |--------|------|----------------------------------------------------|
-//! | 0      | 1    | role: 0 = player, 1 = admin                        |
-//! | 1      | 8    | issued_at, unix seconds (u64)                      |
-//! | 9      | 8    | expires_at, unix seconds (u64), > issued_at        |
-//! | 17     | 16   | nonce, random bytes                                |
-//! | 33     | 1    | n, player name length, 1..=32                      |
-//! | 34     | n    | player name, ASCII `[A-Za-z0-9_-]`                 |
-//!
-//! `tag` is HMAC-SHA256 (32 bytes) keyed with the server's 32-byte secret over
-//! the ASCII bytes of `v1.<base64url-no-pad(payload)>`, i.e. everything before
-//! the second dot. Base64 is the URL-safe alphabet without padding and with
-//! canonical trailing bits, so each token has exactly one spelling. A token is
-//! at most [`MAX_TOKEN_LEN`] bytes (the longest valid one is 135).
-//!
-//! A token is valid at time `now` iff the tag verifies, the payload parses,
-//! `now < expires_at` and `issued_at <= now + MAX_CLOCK_SKEW_SECS`.
+//! Player authentication: tokens (format and code in the `strata-auth`
+//! crate, re-exported here), the secret's file, and the access list.
 
 pub mod access;
-mod duration;
-mod secret;
-mod token;
+mod secret_file;
 
 pub use access::{AccessError, AccessList, Denied, ACCESS_BLOB, MAX_ACCESS_ENTRIES};
-pub use duration::{format_duration, parse_duration, DurationError, HumanDuration, MAX_DURATION};
-pub use secret::{Secret, SecretError, SECRET_LEN};
-pub use token::{
-    issue, issue_with_max_ttl, unix_now, validate_player_name, verify, AuthError, Claims,
-    MAX_CLOCK_SKEW_SECS, MAX_PLAYER_NAME_LEN, MAX_TOKEN_LEN, MAX_TOKEN_TTL, NONCE_LEN,
-    TOKEN_VERSION,
+pub use secret_file::SecretFile;
+pub use strata_auth::{
+    format_duration, parse_duration, DurationError, HumanDuration, MAX_DURATION,
+};
+pub use strata_auth::{
+    issue, issue_with_max_ttl, unix_now, validate_player_name, verify, AuthError, Claims, Secret,
+    SecretError, MAX_CLOCK_SKEW_SECS, MAX_PLAYER_NAME_LEN, MAX_TOKEN_LEN, MAX_TOKEN_TTL, NONCE_LEN,
+    SECRET_LEN, TOKEN_VERSION,
 };

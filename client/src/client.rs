@@ -23,6 +23,7 @@ use tokio::sync::{mpsc, oneshot, Notify};
 use tokio::task::JoinHandle;
 use tracing::debug;
 
+use crate::changes::ChangedChunks;
 use crate::pool::ChunkPool;
 use crate::prediction::{Prediction, PredictionStats, Touched, MAX_PENDING_PREDICTIONS};
 use crate::replica::{Replica, Request};
@@ -80,6 +81,17 @@ pub struct ClientOptions {
     /// The server's structure templates, to predict `PlaceStructure` edits
     /// (empty: those are sent unpredicted).
     pub structures: Arc<StructureLibrary>,
+    /// Queue every chunk whose visible copy (replica, or predicted view)
+    /// changes, for [`Client::pop_changed`].
+    pub track_changes: bool,
+}
+
+/// An edit on its way to the server, from [`Client::submit`].
+#[derive(Debug)]
+pub struct SentEdit {
+    /// The `client_edit_id` it was sent with.
+    pub id: u64,
+    verdict: oneshot::Receiver<Acked>,
 }
 
 /// When a delta of edit `seq` reached this client.
@@ -107,6 +119,8 @@ struct Shared {
     heard_ms: AtomicU64,
     /// `RequestRefused` answers received.
     refusals: Mutex<Vec<Refusal>>,
+    /// Chunks changed since the game last asked, when tracking.
+    changed: Option<Mutex<ChangedChunks>>,
 }
 
 impl Shared {
@@ -138,9 +152,44 @@ impl Shared {
         if self.prediction.is_some() {
             let r = replica.lock().expect("not poisoned");
             if let Some(mut p) = self.prediction() {
-                f(&mut p, &r);
+                self.reshape_prediction(&mut p, |p| f(p, &r));
             }
         }
+    }
+
+    /// Runs `f` on the prediction; when tracking changes, every chunk
+    /// predicted before or after may look different now.
+    fn reshape_prediction(&self, p: &mut Prediction, f: impl FnOnce(&mut Prediction)) {
+        let Some(changed) = &self.changed else {
+            return f(p);
+        };
+        let before: Vec<ChunkPos> = p.predicted_chunks().collect();
+        f(p);
+        let mut c = changed.lock().expect("not poisoned");
+        for pos in before.into_iter().chain(p.predicted_chunks()) {
+            c.mark(pos);
+        }
+    }
+
+    fn mark_changed(&self, pos: ChunkPos) {
+        if let Some(c) = &self.changed {
+            c.lock().expect("not poisoned").mark(pos);
+        }
+    }
+
+    /// Applies `update` to the replica and keeps the prediction and the
+    /// change queue in step; returns what to ask the server for.
+    fn apply(&self, replica: &Mutex<Replica>, update: WorldUpdate) -> Option<Request> {
+        let touched = Touched::of(&update);
+        let mut r = replica.lock().expect("not poisoned");
+        let request = r.apply(update);
+        if let Some(t) = touched {
+            self.mark_changed(t.pos());
+            if let Some(mut p) = self.prediction() {
+                self.reshape_prediction(&mut p, |p| p.after_update(t, &r));
+            }
+        }
+        request
     }
 }
 
@@ -286,6 +335,7 @@ impl Client {
         });
         let shared = Arc::new(Shared {
             prediction,
+            changed: opts.track_changes.then(Mutex::default),
             ..Shared::default()
         });
         shared.heard();
@@ -349,43 +399,69 @@ impl Client {
     /// Sends an edit and waits for the verdict and, if accepted, the chunk
     /// versions it made durable.
     pub async fn edit_acked(&self, edit: Edit) -> Result<Acked, ClientError> {
+        let sent = self.submit(edit).await?;
+        self.verdict(sent).await
+    }
+
+    /// Sends an edit (predicting it, when predicting) without waiting for
+    /// its verdict: edits submitted one after another reach the server in
+    /// that order. Pass the result to [`Self::verdict`].
+    pub async fn submit(&self, edit: Edit) -> Result<SentEdit, ClientError> {
         let id = self.next_edit.fetch_add(1, Ordering::Relaxed);
         self.shared.with_prediction(&self.replica, |p, r| {
             p.predict(id, edit.clone(), r);
         });
-        let result = self.send_edit(id, edit).await;
-        if result.is_err() {
-            // No verdict will come: drop the prediction.
-            self.shared
-                .with_prediction(&self.replica, |p, r| p.abandon(id, r));
-        }
-        result
-    }
-
-    async fn send_edit(&self, id: u64, edit: Edit) -> Result<Acked, ClientError> {
         let (tx, rx) = oneshot::channel();
         self.shared
             .pending
             .lock()
             .expect("not poisoned")
             .insert(id, tx);
-        self.send(&ClientMessage::Edit(EditRequest {
-            client_edit_id: id,
-            edit,
-        }))
-        .await?;
+        let sent = self
+            .send(&ClientMessage::Edit(EditRequest {
+                client_edit_id: id,
+                edit,
+            }))
+            .await;
+        match sent {
+            Ok(()) => Ok(SentEdit { id, verdict: rx }),
+            Err(e) => {
+                self.shared
+                    .pending
+                    .lock()
+                    .expect("not poisoned")
+                    .remove(&id);
+                self.abandon_prediction(id);
+                Err(e)
+            }
+        }
+    }
+
+    /// Waits for the verdict of a submitted edit and, if accepted, the
+    /// chunk versions it made durable.
+    pub async fn verdict(&self, sent: SentEdit) -> Result<Acked, ClientError> {
         // A verdict, or the connection's end: an edit sent as the server
         // closes may register after the reader has given up on its waiters.
         let verdict = async {
             tokio::select! {
-                v = rx => v.map_err(|_| self.gone()),
+                v = sent.verdict => v.map_err(|_| self.gone()),
                 e = self.conn.closed() => Err(closed_error(&e)),
             }
         };
-        match tokio::time::timeout(EDIT_TIMEOUT, verdict).await {
+        let result = match tokio::time::timeout(EDIT_TIMEOUT, verdict).await {
             Ok(v) => v,
             Err(_) => Err(ClientError::Timeout("edit verdict")),
+        };
+        if result.is_err() {
+            self.abandon_prediction(sent.id);
         }
+        result
+    }
+
+    /// No verdict will come for edit `id`: drop its prediction.
+    fn abandon_prediction(&self, id: u64) {
+        self.shared
+            .with_prediction(&self.replica, |p, r| p.abandon(id, r));
     }
 
     /// Reports the player's feet position (unreliable datagram).
@@ -459,10 +535,32 @@ impl Client {
         }
     }
 
+    /// [`Self::predicted_chunk`] with the replica's version of it and
+    /// whether pending predicted edits changed it, read at one instant.
+    pub fn visible_chunk(&self, pos: ChunkPos) -> Option<(Arc<Chunk>, u64, bool)> {
+        let r = self.replica();
+        let version = r.get(pos)?.version;
+        let predicted = self.shared.prediction().and_then(|p| {
+            let chunk = p.chunk(pos, &r)?;
+            p.predicted_chunks().any(|c| c == pos).then_some(chunk)
+        });
+        match predicted {
+            Some(chunk) => Some((chunk, version, true)),
+            None => Some((r.get(pos)?.chunk.clone(), version, false)),
+        }
+    }
+
     /// One voxel of [`Self::predicted_chunk`].
     pub fn predicted_voxel(&self, p: VoxelPos) -> Option<Voxel> {
         let (x, y, z) = p.local();
         self.predicted_chunk(p.chunk()).map(|c| c.get(x, y, z))
+    }
+
+    /// The chunk whose visible copy changed first since the last call,
+    /// when tracking changes ([`ClientOptions::track_changes`]).
+    pub fn pop_changed(&self) -> Option<ChunkPos> {
+        let changed = self.shared.changed.as_ref()?;
+        changed.lock().expect("not poisoned").pop()
     }
 
     /// Chunks whose predicted copy differs from the replica's.
@@ -504,6 +602,11 @@ impl Client {
     }
 
     /// Closes the connection at once, without waiting for the peer.
+    pub fn disconnect(&self) {
+        self.conn.close(quinn::VarInt::from_u32(0), b"bye");
+    }
+
+    /// Closes the connection at once, without waiting for the peer.
     pub fn abandon(self) {
         self.conn.close(quinn::VarInt::from_u32(0), b"abandoned");
         for t in self.tasks {
@@ -537,11 +640,17 @@ impl Client {
 
     /// Closes the connection politely and waits briefly for it to finish.
     pub async fn close(self) {
-        self.conn.close(quinn::VarInt::from_u32(0), b"bye");
-        let _ = tokio::time::timeout(Duration::from_secs(2), self.endpoint.wait_idle()).await;
+        self.shutdown().await;
         for t in self.tasks {
             t.abort();
         }
+    }
+
+    /// Like [`Self::close`] for a shared client; its tasks end with the
+    /// connection.
+    pub async fn shutdown(&self) {
+        self.conn.close(quinn::VarInt::from_u32(0), b"bye");
+        let _ = tokio::time::timeout(Duration::from_secs(2), self.endpoint.wait_idle()).await;
     }
 }
 
@@ -674,27 +783,12 @@ async fn read_updates(
             .bytes_in
             .store(reader.bytes_read(), Ordering::Relaxed);
         if let WorldUpdate::UnsubscribedMany { chunks } = update {
-            let mut r = replica.lock().expect("not poisoned");
             for pos in chunks {
-                let one = WorldUpdate::Unsubscribed { pos };
-                let touched = Touched::of(&one);
-                r.apply(one);
-                if let (Some(mut p), Some(t)) = (shared.prediction(), touched) {
-                    p.after_update(t, &r);
-                }
+                shared.apply(&replica, WorldUpdate::Unsubscribed { pos });
             }
             continue;
         }
-        let touched = Touched::of(&update);
-        let request = {
-            let mut r = replica.lock().expect("not poisoned");
-            let request = r.apply(update);
-            if let (Some(mut p), Some(t)) = (shared.prediction(), touched) {
-                p.after_update(t, &r);
-            }
-            request
-        };
-        let msg = match request {
+        let msg = match shared.apply(&replica, update) {
             Some(Request::Resync(pos)) => ClientMessage::ResyncRequest { pos },
             Some(Request::FullSnapshot(pos)) => ClientMessage::FullSnapshotRequest { pos },
             None => continue,

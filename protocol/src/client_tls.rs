@@ -1,11 +1,11 @@
 //! Client TLS: trust exactly the server's certificate (pinning), with full
-//! verification still on. Used by `strata-admin`'s online commands and,
-//! re-exported as `strata_client_sim::tls`, by the headless client.
+//! verification still on. Used by `strata-admin`'s online commands and by
+//! `strata-client` (feature `quic`).
 
 use std::sync::Arc;
 use std::time::Duration;
 
-use strata_protocol::ALPN;
+use crate::ALPN;
 use thiserror::Error;
 
 /// Keep-alive interval so idle sessions survive the server's idle timeout.

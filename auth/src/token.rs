@@ -9,7 +9,7 @@ use ring::rand::{SecureRandom, SystemRandom};
 use strata_protocol::Role;
 use thiserror::Error;
 
-use super::secret::Secret;
+use crate::secret::Secret;
 
 /// Version prefix of every token this module mints.
 pub const TOKEN_VERSION: &str = "v1";

@@ -120,7 +120,8 @@ impl Touched {
         })
     }
 
-    fn pos(self) -> ChunkPos {
+    /// The chunk it touches.
+    pub fn pos(self) -> ChunkPos {
         match self {
             Touched::Delta { pos, .. } | Touched::Whole(pos) | Touched::Gone(pos) => pos,
         }

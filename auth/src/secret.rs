@@ -1,20 +1,18 @@
-//! The server's token-signing key and its on-disk form.
+//! The server's token-signing key and its text form.
 
 use std::fmt;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use ring::hmac;
 use ring::rand::{SecureRandom, SystemRandom};
 use thiserror::Error;
-
-use crate::datadir::{read_private_file, write_private_file};
 
 /// Bytes of key material.
 pub const SECRET_LEN: usize = 32;
 
 /// The 32-byte HMAC-SHA256 key that signs and verifies tokens.
 ///
-/// On disk it is 64 lowercase hex characters and a newline, mode 0600, so an
+/// On disk (the server's `secret_file`) it is its hex text, mode 0600, so an
 /// operator can inspect or back it up as text. `Debug` never prints it.
 #[derive(Clone)]
 pub struct Secret {
@@ -57,42 +55,30 @@ impl Secret {
         Ok(Self::from_bytes(bytes))
     }
 
-    /// Reads a key file written by [`Secret::save`]. Surrounding whitespace is
-    /// ignored so a hand-edited file with a trailing newline still loads.
-    pub fn load(path: &Path) -> Result<Self, SecretError> {
-        let raw = read_private_file(path).map_err(|source| SecretError::Read {
-            path: path.to_owned(),
-            source,
-        })?;
-        let invalid = |reason| SecretError::Invalid {
-            path: path.to_owned(),
-            reason,
-        };
-        let text = std::str::from_utf8(&raw).map_err(|_| invalid("not text"))?;
+    /// Parses the key's text form: 64 hex characters, surrounding
+    /// whitespace ignored (a hand-edited file with a trailing newline).
+    pub fn from_hex(text: &str) -> Result<Self, &'static str> {
         let hex = text.trim();
         if hex.len() != SECRET_LEN * 2 {
-            return Err(invalid("expected 64 hex characters"));
+            return Err("expected 64 hex characters");
         }
         let mut bytes = [0u8; SECRET_LEN];
         for (i, pair) in hex.as_bytes().chunks_exact(2).enumerate() {
-            let hi = hex_value(pair[0]).ok_or_else(|| invalid("not hexadecimal"))?;
-            let lo = hex_value(pair[1]).ok_or_else(|| invalid("not hexadecimal"))?;
+            let hi = hex_value(pair[0]).ok_or("not hexadecimal")?;
+            let lo = hex_value(pair[1]).ok_or("not hexadecimal")?;
             bytes[i] = hi << 4 | lo;
         }
         Ok(Self::from_bytes(bytes))
     }
 
-    /// Writes the key atomically with owner-only permissions (0600 on Unix).
-    pub fn save(&self, path: &Path) -> Result<(), SecretError> {
+    /// The key's text form: 64 lowercase hex characters and a newline.
+    pub fn to_hex(&self) -> String {
         let mut text = String::with_capacity(SECRET_LEN * 2 + 1);
         for b in self.bytes {
             text.push_str(&format!("{b:02x}"));
         }
         text.push('\n');
-        write_private_file(path, text.as_bytes()).map_err(|source| SecretError::Write {
-            path: path.to_owned(),
-            source,
-        })
+        text
     }
 
     pub(crate) fn key(&self) -> &hmac::Key {

@@ -1,0 +1,32 @@
+//! What [`super::Session::poll`] hands the game loop.
+
+use strata_protocol::{ChunkVersion, ErrorCode, RejectReason};
+use strata_terrain::ChunkPos;
+
+/// One thing that happened since the last poll. Every edit the session
+/// took gets exactly one of `EditAccepted`, `EditRejected` or
+/// `EditFailed`, and `Disconnected` comes once, last.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Event {
+    /// The server sequenced edit `ticket` as `seq`; `changes` are the
+    /// chunk versions it made durable (empty when it changed nothing).
+    EditAccepted {
+        ticket: u64,
+        seq: u64,
+        changes: Vec<ChunkVersion>,
+    },
+    /// The server refused edit `ticket`.
+    EditRejected { ticket: u64, reason: RejectReason },
+    /// No verdict will come for edit `ticket`: the connection ended, or the
+    /// verdict took longer than [`crate::client::EDIT_TIMEOUT`].
+    EditFailed { ticket: u64, error: String },
+    /// The visible copy of a chunk changed, or it left the view (then
+    /// [`super::Session::chunk`] returns `None`). A mesh reads its 26
+    /// neighbours' border voxels, so theirs may change too.
+    ChunkChanged { pos: ChunkPos },
+    /// The connection ended: `code` is the server's reason when it gave one.
+    Disconnected {
+        code: Option<ErrorCode>,
+        message: String,
+    },
+}

@@ -1,0 +1,253 @@
+//! A session for a game loop: the connection runs on its own thread (a
+//! one-worker tokio runtime owned by the session), and the game calls plain
+//! functions that never wait on the network, except [`Session::connect`].
+//! Edits return a ticket at once; their verdicts, chunk changes and the
+//! end of the connection come out of [`Session::poll`].
+
+mod dispatch;
+mod error;
+mod event;
+
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{mpsc as std_mpsc, Arc, Mutex};
+
+use glam::{DVec3, IVec3};
+use strata_protocol::Welcome;
+use strata_terrain::edit::StructureLibrary;
+use strata_terrain::{ChunkPos, Edit, CHUNK_VOLUME};
+use tokio::runtime::Runtime;
+use tokio::sync::mpsc;
+
+use crate::client::{Client, ClientError, ClientOptions};
+use crate::coords::to_fixed;
+use crate::mesh::{mesh_at, ChunkMesh};
+use crate::prediction::PredictionStats;
+use crate::replica::ReplicaStats;
+use dispatch::{dispatch, watch_close, Command};
+pub use error::SessionError;
+pub use event::Event;
+
+/// Edits and subscriptions queued for the connection thread, and edits
+/// whose verdict the game has not polled yet: past it, calls say `Busy`.
+pub const MAX_IN_FLIGHT: usize = 1024;
+
+/// How a session keeps its view.
+#[derive(Debug, Clone, Default)]
+pub struct SessionOptions {
+    /// Show the player's own edits at once, before the server's verdict,
+    /// and reconcile (see [`crate::prediction`]).
+    pub predict: bool,
+    /// The server's structure templates, to predict `PlaceStructure`.
+    pub structures: Arc<StructureLibrary>,
+}
+
+/// A chunk's voxels as the player should see them.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ChunkData {
+    pub pos: ChunkPos,
+    /// The server's version of the chunk this view starts from.
+    pub version: u64,
+    /// Whether the player's pending predicted edits changed it.
+    pub predicted: bool,
+    /// One byte per voxel, index `x + 32 * (y + 32 * z)`; solid from 128.
+    pub density: Box<[u8; CHUNK_VOLUME]>,
+    /// Material ids, same layout.
+    pub material: Box<[u8; CHUNK_VOLUME]>,
+}
+
+/// One connected player, driven from a game loop. Every method takes
+/// `&self` and may be called from any thread.
+#[derive(Debug)]
+pub struct Session {
+    client: Arc<Client>,
+    commands: mpsc::Sender<Command>,
+    events: Mutex<std_mpsc::Receiver<Event>>,
+    /// Set once the connection has ended, with why.
+    closed: Arc<Mutex<Option<ClientError>>>,
+    disconnect_reported: Mutex<bool>,
+    /// Edits taken whose verdict event has not been polled.
+    unpolled: AtomicUsize,
+    next_ticket: AtomicU64,
+    // Last, so it is dropped after the client it drives.
+    runtime: Runtime,
+}
+
+impl Session {
+    /// Connects to `addr`, trusting only the server certificate
+    /// `server_cert` (DER), and logs in with `token`. Blocks until the
+    /// server's `Welcome` (at most [`crate::client::CONNECT_TIMEOUT`]).
+    /// Must not be called from inside a tokio runtime.
+    pub fn connect(
+        addr: SocketAddr,
+        server_cert: &[u8],
+        token: &str,
+        opts: SessionOptions,
+    ) -> Result<Session, SessionError> {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .thread_name("strata-client")
+            .enable_all()
+            .build()
+            .map_err(SessionError::Runtime)?;
+        let client_opts = ClientOptions {
+            predict: opts.predict,
+            structures: opts.structures,
+            track_changes: true,
+            ..ClientOptions::default()
+        };
+        let client =
+            runtime.block_on(Client::connect_opts(addr, server_cert, token, client_opts))?;
+        let client = Arc::new(client);
+        let (commands, rx) = mpsc::channel(MAX_IN_FLIGHT);
+        let (events_tx, events) = std_mpsc::channel();
+        let closed = Arc::default();
+        runtime.spawn(dispatch(client.clone(), rx, events_tx));
+        runtime.spawn(watch_close(client.clone(), Arc::clone(&closed)));
+        Ok(Session {
+            client,
+            commands,
+            events: Mutex::new(events),
+            closed,
+            disconnect_reported: Mutex::new(false),
+            unpolled: AtomicUsize::new(0),
+            next_ticket: AtomicU64::new(1),
+            runtime,
+        })
+    }
+
+    /// The server's greeting: world seed, view radius, spawn and so on.
+    pub fn welcome(&self) -> &Welcome {
+        self.client.welcome()
+    }
+
+    /// Reports the player's feet position, in voxels (an unreliable
+    /// datagram: send it every frame or so). Interest follows it.
+    pub fn set_position(&self, feet: DVec3) -> Result<(), SessionError> {
+        let pos = to_fixed(feet).ok_or(SessionError::BadPosition)?;
+        Ok(self.client.send_position(pos)?)
+    }
+
+    /// Asks for the cube of chunks within `radius` of `center` (capped by
+    /// the server's view radius); interest stops following positions.
+    pub fn subscribe(&self, center: IVec3, radius: u8) -> Result<(), SessionError> {
+        let center = ChunkPos::new(center.x, center.y, center.z);
+        self.queue(Command::Subscribe { center, radius })
+    }
+
+    /// Sends an edit (build one with [`crate::edits`]) and returns its
+    /// ticket at once; its verdict comes from [`Self::poll`]. Edits reach
+    /// the server in the order they were taken.
+    pub fn edit(&self, edit: Edit) -> Result<u64, SessionError> {
+        if self.unpolled.fetch_add(1, Ordering::SeqCst) >= MAX_IN_FLIGHT {
+            self.unpolled.fetch_sub(1, Ordering::SeqCst);
+            return Err(SessionError::Busy);
+        }
+        let ticket = self.next_ticket.fetch_add(1, Ordering::Relaxed);
+        self.queue(Command::Edit { ticket, edit })
+            .inspect_err(|_| {
+                self.unpolled.fetch_sub(1, Ordering::SeqCst);
+            })?;
+        Ok(ticket)
+    }
+
+    fn queue(&self, c: Command) -> Result<(), SessionError> {
+        self.commands.try_send(c).map_err(|e| match e {
+            mpsc::error::TrySendError::Full(_) => SessionError::Busy,
+            mpsc::error::TrySendError::Closed(_) => {
+                SessionError::Client(ClientError::Closed("session stopped".into()))
+            }
+        })
+    }
+
+    /// The next event, or `None` when nothing new happened. Never waits.
+    pub fn poll(&self) -> Option<Event> {
+        if let Ok(e) = self.events.lock().expect("not poisoned").try_recv() {
+            self.unpolled.fetch_sub(1, Ordering::SeqCst);
+            return Some(e);
+        }
+        if let Some(pos) = self.client.pop_changed() {
+            return Some(Event::ChunkChanged { pos });
+        }
+        // Disconnected comes last: after every edit's verdict or failure.
+        if self.unpolled.load(Ordering::SeqCst) > 0 {
+            return None;
+        }
+        let mut reported = self.disconnect_reported.lock().expect("not poisoned");
+        let closed = self.closed.lock().expect("not poisoned");
+        let why = closed.as_ref().filter(|_| !*reported)?;
+        *reported = true;
+        Some(match why {
+            ClientError::Refused { code, message } => Event::Disconnected {
+                code: Some(*code),
+                message: message.clone(),
+            },
+            other => Event::Disconnected {
+                code: None,
+                message: other.to_string(),
+            },
+        })
+    }
+
+    /// Whether the connection has ended (the `Disconnected` event may still
+    /// be waiting behind others).
+    pub fn is_closed(&self) -> bool {
+        self.client.is_closed()
+    }
+
+    /// A held chunk's densities and materials, with the player's pending
+    /// predicted edits applied when predicting; `None` when not held.
+    pub fn chunk(&self, pos: ChunkPos) -> Option<ChunkData> {
+        let (chunk, version, predicted) = self.client.visible_chunk(pos)?;
+        Some(ChunkData {
+            pos,
+            version,
+            predicted,
+            density: chunk.density_plane(),
+            material: chunk.material_plane(),
+        })
+    }
+
+    /// The mesh of a held chunk as the player sees it, at `lod` (0..=3),
+    /// with transition cells on `transition_faces` (bits -X, +X, -Y, +Y,
+    /// -Z, +Z: faces bordering a finer chunk; 0 at LOD 0). `None` when the
+    /// chunk is not held.
+    pub fn mesh(
+        &self,
+        pos: ChunkPos,
+        lod: u8,
+        transition_faces: u8,
+    ) -> Result<Option<ChunkMesh>, SessionError> {
+        Ok(mesh_at(pos, lod, transition_faces, |p| {
+            self.client.predicted_chunk(p)
+        })?)
+    }
+
+    /// Chunks held now.
+    pub fn held_chunks(&self) -> usize {
+        self.client.replica().len()
+    }
+
+    /// The replica's counters: chunks taken in, deltas applied, meshes
+    /// checked against the server's hashes and mismatches.
+    pub fn stats(&self) -> ReplicaStats {
+        self.client.replica().stats
+    }
+
+    /// How predictions fared; `None` when not predicting.
+    pub fn prediction_stats(&self) -> Option<PredictionStats> {
+        self.client.prediction_stats()
+    }
+
+    /// Closes the connection politely (waiting at most two seconds) and
+    /// stops its thread. Dropping a session does the same without waiting.
+    pub fn close(self) {
+        self.runtime.block_on(self.client.shutdown());
+    }
+}
+
+impl Drop for Session {
+    fn drop(&mut self) {
+        self.client.disconnect();
+    }
+}

@@ -1,0 +1,57 @@
+//! Reading the caller's pointers. Each helper turns null into
+//! `STRATA_STATUS_INVALID_ARGUMENT` instead of undefined behaviour; the rest of
+//! each pointer's contract is the caller's, as the header states.
+
+use std::ffi::{c_char, CStr};
+
+use crate::status::Failure;
+
+/// A NUL-terminated UTF-8 string.
+///
+/// # Safety
+/// `p` is null or points to a NUL-terminated string valid for the call.
+pub(crate) unsafe fn text<'a>(p: *const c_char, what: &str) -> Result<&'a str, Failure> {
+    if p.is_null() {
+        return Err(Failure::invalid(format!("{what} is null")));
+    }
+    // SAFETY: non-null, and the caller promises a NUL-terminated string.
+    let s = unsafe { CStr::from_ptr(p) };
+    s.to_str()
+        .map_err(|_| Failure::invalid(format!("{what} is not UTF-8")))
+}
+
+/// A shared reference.
+///
+/// # Safety
+/// `p` is null or points to a live, initialised `T` not written during the call.
+pub(crate) unsafe fn shared<'a, T>(p: *const T, what: &str) -> Result<&'a T, Failure> {
+    // SAFETY: the caller promises a live `T` when non-null.
+    unsafe { p.as_ref() }.ok_or_else(|| Failure::invalid(format!("{what} is null")))
+}
+
+/// Where to write a result.
+///
+/// # Safety
+/// `p` is null or points to writable memory for a `T`, not accessed
+/// otherwise during the call.
+pub(crate) unsafe fn out<T>(p: *mut T, what: &str, value: T) -> Result<(), Failure> {
+    if p.is_null() {
+        return Err(Failure::invalid(format!("{what} is null")));
+    }
+    // SAFETY: non-null and writable, as the caller promises; `write` does
+    // not read or drop the (possibly uninitialised) old value.
+    unsafe { p.write(value) };
+    Ok(())
+}
+
+/// A byte slice.
+///
+/// # Safety
+/// `p` is null (then `len` must be 0) or points to `len` readable bytes.
+pub(crate) unsafe fn bytes<'a>(p: *const u8, len: usize, what: &str) -> Result<&'a [u8], Failure> {
+    if p.is_null() {
+        return Err(Failure::invalid(format!("{what} is null")));
+    }
+    // SAFETY: non-null and `len` readable bytes, as the caller promises.
+    Ok(unsafe { std::slice::from_raw_parts(p, len) })
+}

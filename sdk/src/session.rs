@@ -1,0 +1,361 @@
+//! Sessions: connect, position, interest, edits, events, welcome, stats.
+
+use std::ffi::c_char;
+use std::net::{SocketAddr, ToSocketAddrs};
+use std::sync::Mutex;
+
+use strata_client::glam::{DVec3, IVec3};
+use strata_client::protocol::{RejectReason, Start};
+use strata_client::terrain::Edit;
+use strata_client::{edits, Event, Session, SessionOptions};
+
+use crate::ptr::{bytes, out, shared, text};
+use crate::status::{call, Failure, StrataStatus};
+use crate::types::*;
+
+/// One connected player. Opaque: made by `strata_connect`, freed by
+/// `strata_session_free`.
+#[derive(Debug)]
+pub struct StrataSession {
+    pub(crate) session: Session,
+    /// The changes of the last EDIT_ACCEPTED event polled, which the event
+    /// points into.
+    last_changes: Mutex<Vec<StrataChunkVersion>>,
+}
+
+// The header promises calls from any thread.
+const _: () = {
+    const fn shareable<T: Send + Sync>() {}
+    shareable::<StrataSession>();
+};
+
+/// # Safety
+/// `p` is null or a live session from `strata_connect`.
+pub(crate) unsafe fn session<'a>(p: *const StrataSession) -> Result<&'a Session, Failure> {
+    // SAFETY: forwarded from the caller.
+    Ok(&unsafe { shared(p, "session") }?.session)
+}
+
+fn resolve(address: &str) -> Result<SocketAddr, Failure> {
+    let fail = |why: String| Failure::new(StrataStatus::Connect, why);
+    address
+        .to_socket_addrs()
+        .map_err(|e| fail(format!("cannot resolve {address}: {e}")))?
+        .next()
+        .ok_or_else(|| fail(format!("{address} resolves to no address")))
+}
+
+/// Connects to `address` ("host:port"), trusting only the server
+/// certificate `cert_der` (`cert_len` bytes of DER, e.g. the server's
+/// data/cert.der), and logs in with `token`. With `predict`, the player's
+/// own edits show at once and are reconciled with the server's verdicts.
+/// Blocks until the server welcomes the player (10 s at most). On success
+/// `*out` is a new session the caller owns.
+///
+/// # Safety
+/// `address` and `token` are NUL-terminated strings, `cert_der` points to
+/// `cert_len` bytes, `out` is writable.
+#[no_mangle]
+pub unsafe extern "C" fn strata_connect(
+    address: *const c_char,
+    cert_der: *const u8,
+    cert_len: usize,
+    token: *const c_char,
+    predict: bool,
+    out_session: *mut *mut StrataSession,
+) -> StrataStatus {
+    call(|| {
+        // SAFETY: the caller's contract above.
+        let (address, cert, token) = unsafe {
+            (
+                text(address, "address")?,
+                bytes(cert_der, cert_len, "cert_der")?,
+                text(token, "token")?,
+            )
+        };
+        let opts = SessionOptions {
+            predict,
+            ..SessionOptions::default()
+        };
+        let session = Session::connect(resolve(address)?, cert, token, opts)?;
+        let boxed = Box::new(StrataSession {
+            session,
+            last_changes: Mutex::default(),
+        });
+        let raw = Box::into_raw(boxed);
+        // SAFETY: the caller's contract above.
+        unsafe { out(out_session, "out_session", raw) }.inspect_err(|_| {
+            // SAFETY: `raw` came from `Box::into_raw` just above.
+            drop(unsafe { Box::from_raw(raw) });
+        })
+    })
+}
+
+/// Closes the connection politely (waiting at most 2 s) and frees the
+/// session. Null is ignored. No other call on the session may be running
+/// or follow.
+///
+/// # Safety
+/// `s` is null or a live session from `strata_connect`, not used again.
+#[no_mangle]
+pub unsafe extern "C" fn strata_session_free(s: *mut StrataSession) {
+    if s.is_null() {
+        return;
+    }
+    call(|| {
+        // SAFETY: a live session from `Box::into_raw`, given back once.
+        let boxed = unsafe { Box::from_raw(s) };
+        boxed.session.close();
+        Ok(())
+    });
+}
+
+/// The server's greeting.
+///
+/// # Safety
+/// `s` is a live session; `out` is writable.
+#[no_mangle]
+pub unsafe extern "C" fn strata_welcome(
+    s: *const StrataSession,
+    out_welcome: *mut StrataWelcome,
+) -> StrataStatus {
+    call(|| {
+        // SAFETY: the caller's contract above.
+        let w = unsafe { session(s) }?.welcome();
+        let mut welcome = StrataWelcome {
+            session: w.session,
+            world_seed: w.world_seed,
+            last_seq: w.last_seq,
+            view_radius: w.view_radius,
+            resume: false,
+            resume_feet: [0.0; 3],
+            spawn_x: 0,
+            spawn_z: 0,
+            spawn_radius: 0,
+        };
+        match w.start {
+            Start::Resume { feet } => {
+                welcome.resume = true;
+                welcome.resume_feet = feet.to_f64();
+            }
+            Start::Spawn { x, z, radius } => {
+                (welcome.spawn_x, welcome.spawn_z, welcome.spawn_radius) = (x, z, radius);
+            }
+        }
+        // SAFETY: the caller's contract above.
+        unsafe { out(out_welcome, "out_welcome", welcome) }
+    })
+}
+
+/// Reports the player's feet position in voxels (an unreliable datagram:
+/// send it every frame or so). Interest follows it until `strata_subscribe`.
+///
+/// # Safety
+/// `s` is a live session.
+#[no_mangle]
+pub unsafe extern "C" fn strata_set_position(
+    s: *const StrataSession,
+    x: f64,
+    y: f64,
+    z: f64,
+) -> StrataStatus {
+    call(|| {
+        // SAFETY: the caller's contract above.
+        let session = unsafe { session(s) }?;
+        Ok(session.set_position(DVec3::new(x, y, z))?)
+    })
+}
+
+/// Asks for the chunks within `radius` chunks of chunk (`cx`, `cy`, `cz`)
+/// (capped at the view radius); interest stops following positions.
+///
+/// # Safety
+/// `s` is a live session.
+#[no_mangle]
+pub unsafe extern "C" fn strata_subscribe(
+    s: *const StrataSession,
+    cx: i32,
+    cy: i32,
+    cz: i32,
+    radius: u8,
+) -> StrataStatus {
+    call(|| {
+        // SAFETY: the caller's contract above.
+        let session = unsafe { session(s) }?;
+        Ok(session.subscribe(IVec3::new(cx, cy, cz), radius)?)
+    })
+}
+
+fn to_edit(e: &StrataEdit) -> Result<Edit, Failure> {
+    let center = DVec3::from_array(e.center);
+    let (min, max) = (IVec3::from_array(e.min), IVec3::from_array(e.max));
+    let bad = |e: edits::EditBuildError| Failure::invalid(e.to_string());
+    Ok(match e.kind {
+        k if k == StrataEditKind::Mine as u32 => {
+            edits::mine(center, e.radius, e.strength).map_err(bad)?
+        }
+        k if k == StrataEditKind::Explode as u32 => {
+            edits::explode(center, e.radius, e.power).map_err(bad)?
+        }
+        k if k == StrataEditKind::Build as u32 => {
+            edits::build(center, e.radius, e.material, e.strength).map_err(bad)?
+        }
+        k if k == StrataEditKind::FillBox as u32 => edits::fill_box(min, max, e.material),
+        k if k == StrataEditKind::ClearBox as u32 => edits::clear_box(min, max),
+        k if k == StrataEditKind::PlaceStructure as u32 => {
+            edits::place_structure(e.structure, min, e.rotation)
+        }
+        k if k == StrataEditKind::Smooth as u32 => {
+            edits::smooth(center, e.radius, e.strength).map_err(bad)?
+        }
+        k => return Err(Failure::invalid(format!("unknown edit kind {k}"))),
+    })
+}
+
+/// Sends an edit without waiting: `*out_ticket` names it in the
+/// EDIT_ACCEPTED, EDIT_REJECTED or EDIT_FAILED event that `strata_poll`
+/// will return for it (exactly one). Edits reach the server in call order.
+///
+/// # Safety
+/// `s` is a live session; `edit` points to a `StrataEdit`; `out_ticket`
+/// is writable.
+#[no_mangle]
+pub unsafe extern "C" fn strata_edit(
+    s: *const StrataSession,
+    edit: *const StrataEdit,
+    out_ticket: *mut u64,
+) -> StrataStatus {
+    call(|| {
+        // SAFETY: the caller's contract above.
+        let (session, edit) = unsafe { (session(s)?, shared(edit, "edit")?) };
+        let ticket = session.edit(to_edit(edit)?)?;
+        // SAFETY: the caller's contract above.
+        unsafe { out(out_ticket, "out_ticket", ticket) }
+    })
+}
+
+fn reject_code(r: &RejectReason) -> StrataReject {
+    match r {
+        RejectReason::NotPermitted { .. } => StrataReject::NotPermitted,
+        RejectReason::RadiusTooLarge { .. } => StrataReject::RadiusTooLarge,
+        RejectReason::PowerTooLarge { .. } => StrataReject::PowerTooLarge,
+        RejectReason::OutOfReach { .. } => StrataReject::OutOfReach,
+        RejectReason::NoLineOfSight => StrataReject::NoLineOfSight,
+        RejectReason::RateLimited => StrataReject::RateLimited,
+        RejectReason::VolumeRateLimited => StrataReject::VolumeRateLimited,
+        RejectReason::OutOfBounds => StrataReject::OutOfBounds,
+        RejectReason::ProtectedZone { .. } => StrataReject::ProtectedZone,
+        RejectReason::NoPosition => StrataReject::NoPosition,
+        RejectReason::Invalid { .. } => StrataReject::Invalid,
+        RejectReason::Busy => StrataReject::Busy,
+    }
+}
+
+fn empty_event() -> StrataEvent {
+    StrataEvent {
+        kind: StrataEventKind::None,
+        ticket: 0,
+        seq: 0,
+        changes: std::ptr::null(),
+        changes_len: 0,
+        reject: StrataReject::None,
+        chunk: [0; 3],
+        error_code: 0,
+        message: [0; STRATA_MESSAGE_LEN],
+    }
+}
+
+/// Copies `text` into the event's message, truncated and NUL-terminated.
+fn set_message(ev: &mut StrataEvent, text: &str) {
+    let n = text.len().min(STRATA_MESSAGE_LEN - 1);
+    for (dst, &b) in ev.message.iter_mut().zip(&text.as_bytes()[..n]) {
+        *dst = b as c_char;
+    }
+    ev.message[n] = 0;
+}
+
+/// Takes the next event into `*out_event`, or sets its kind to
+/// STRATA_EVENT_KIND_NONE when nothing happened. Never waits: call it every
+/// frame until it returns NONE.
+///
+/// # Safety
+/// `s` is a live session; `out_event` is writable.
+#[no_mangle]
+pub unsafe extern "C" fn strata_poll(
+    s: *const StrataSession,
+    out_event: *mut StrataEvent,
+) -> StrataStatus {
+    call(|| {
+        // SAFETY: the caller's contract above.
+        let handle = unsafe { shared(s, "session") }?;
+        let mut ev = empty_event();
+        let mut last = handle.last_changes.lock().expect("not poisoned");
+        last.clear();
+        match handle.session.poll() {
+            None => {}
+            Some(Event::EditAccepted {
+                ticket,
+                seq,
+                changes,
+            }) => {
+                last.extend(changes.iter().map(|c| StrataChunkVersion {
+                    chunk: [c.pos.x, c.pos.y, c.pos.z],
+                    version: c.version,
+                }));
+                ev.kind = StrataEventKind::EditAccepted;
+                (ev.ticket, ev.seq) = (ticket, seq);
+                (ev.changes, ev.changes_len) = (last.as_ptr(), last.len());
+            }
+            Some(Event::EditRejected { ticket, reason }) => {
+                ev.kind = StrataEventKind::EditRejected;
+                ev.ticket = ticket;
+                ev.reject = reject_code(&reason);
+                let label = strata_client::protocol::reject_label(&reason);
+                set_message(&mut ev, &format!("{label}: {reason:?}"));
+            }
+            Some(Event::EditFailed { ticket, error }) => {
+                ev.kind = StrataEventKind::EditFailed;
+                ev.ticket = ticket;
+                set_message(&mut ev, &error);
+            }
+            Some(Event::ChunkChanged { pos }) => {
+                ev.kind = StrataEventKind::ChunkChanged;
+                ev.chunk = [pos.x, pos.y, pos.z];
+            }
+            Some(Event::Disconnected { code, message }) => {
+                ev.kind = StrataEventKind::Disconnected;
+                ev.error_code = code.map_or(0, |c| c.close_code());
+                set_message(&mut ev, &message);
+            }
+        }
+        // SAFETY: the caller's contract above.
+        unsafe { out(out_event, "out_event", ev) }
+    })
+}
+
+/// The replica's counters.
+///
+/// # Safety
+/// `s` is a live session; `out_stats` is writable.
+#[no_mangle]
+pub unsafe extern "C" fn strata_stats(
+    s: *const StrataSession,
+    out_stats: *mut StrataStats,
+) -> StrataStatus {
+    call(|| {
+        // SAFETY: the caller's contract above.
+        let session = unsafe { session(s) }?;
+        let r = session.stats();
+        let stats = StrataStats {
+            chunks_held: session.held_chunks() as u64,
+            deltas: r.deltas,
+            snapshots: r.snapshots,
+            generated: r.generated,
+            meshes_checked: r.meshes_checked,
+            mesh_mismatches: r.mesh_mismatches,
+            hash_mismatches: r.hash_mismatches,
+        };
+        // SAFETY: the caller's contract above.
+        unsafe { out(out_stats, "out_stats", stats) }
+    })
+}

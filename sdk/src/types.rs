@@ -1,0 +1,182 @@
+//! The plain C structs and enums of the API.
+
+use std::ffi::c_char;
+
+/// A chunk and the version an edit moved it to.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StrataChunkVersion {
+    pub chunk: [i32; 3],
+    pub version: u64,
+}
+
+/// What a `StrataEvent` reports.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StrataEventKind {
+    /// Nothing happened since the last poll.
+    None = 0,
+    /// `ticket` was sequenced as `seq`; `changes` lists the chunk versions.
+    EditAccepted = 1,
+    /// `ticket` was refused: `reject` says why, `message` in words.
+    EditRejected = 2,
+    /// No verdict will come for `ticket` (connection ended, timeout).
+    EditFailed = 3,
+    /// The visible copy of `chunk` changed, or it left the view.
+    ChunkChanged = 4,
+    /// The connection ended; `error_code` is the server's reason (0: none).
+    /// Always the last event.
+    Disconnected = 5,
+}
+
+/// Why the server refused an edit.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StrataReject {
+    None = 0,
+    NotPermitted = 1,
+    RadiusTooLarge = 2,
+    PowerTooLarge = 3,
+    OutOfReach = 4,
+    NoLineOfSight = 5,
+    RateLimited = 6,
+    VolumeRateLimited = 7,
+    OutOfBounds = 8,
+    ProtectedZone = 9,
+    /// No validated position yet: send one, then edit again.
+    NoPosition = 10,
+    Invalid = 11,
+    /// The server is busy: edit again.
+    Busy = 12,
+}
+
+/// Bytes of `StrataEvent.message`, its NUL included.
+pub const STRATA_MESSAGE_LEN: usize = 256;
+
+/// One event from `strata_poll`. Fields that do not apply to `kind` are 0.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct StrataEvent {
+    pub kind: StrataEventKind,
+    /// The edit's ticket, from `strata_edit`.
+    pub ticket: u64,
+    /// EDIT_ACCEPTED: the edit's global sequence number.
+    pub seq: u64,
+    /// EDIT_ACCEPTED: the chunk versions the edit made durable, owned by
+    /// the session and valid until the next `strata_poll` on it.
+    pub changes: *const StrataChunkVersion,
+    pub changes_len: usize,
+    /// EDIT_REJECTED: why.
+    pub reject: StrataReject,
+    /// CHUNK_CHANGED: the chunk.
+    pub chunk: [i32; 3],
+    /// DISCONNECTED: the server's error code (its QUIC close code), or 0.
+    pub error_code: u32,
+    /// REJECTED, FAILED, DISCONNECTED: a NUL-terminated explanation,
+    /// truncated to fit.
+    pub message: [c_char; STRATA_MESSAGE_LEN],
+}
+
+/// Kinds of `StrataEdit`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StrataEditKind {
+    /// Sphere at `center`, `radius`, removing `strength` (harder materials less).
+    Mine = 0,
+    /// Crater at `center`, `radius`, `power`.
+    Explode = 1,
+    /// Sphere of `material` at `center`, `radius`, `strength`.
+    Build = 2,
+    /// Inclusive voxel box `min..=max` filled with `material`.
+    FillBox = 3,
+    /// Inclusive voxel box `min..=max` emptied to air.
+    ClearBox = 4,
+    /// Structure `structure` at `min`, turned `rotation` quarter turns.
+    PlaceStructure = 5,
+    /// Relaxes density at `center`, `radius`, `strength`.
+    Smooth = 6,
+}
+
+/// An edit to send. `kind` is a `StrataEditKind` value; each kind reads
+/// only its own fields (listed there). Positions are in voxels, rounded to
+/// 1/256 voxel on the wire.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct StrataEdit {
+    pub kind: u32,
+    pub center: [f64; 3],
+    pub radius: f64,
+    pub strength: u8,
+    pub power: u16,
+    pub material: u8,
+    pub min: [i32; 3],
+    pub max: [i32; 3],
+    pub structure: u32,
+    pub rotation: u8,
+}
+
+/// The server's greeting, from `strata_welcome`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct StrataWelcome {
+    pub session: u64,
+    pub world_seed: u64,
+    /// The last durable edit's sequence number at login.
+    pub last_seq: u64,
+    /// View radius in chunks.
+    pub view_radius: u8,
+    /// 1: the server remembers the player at `resume_feet`, and the first
+    /// position must be a legal move from there. 0: the first position's
+    /// column must lie within `spawn_radius` voxels of (`spawn_x`, `spawn_z`)
+    /// on both axes, at any height not inside terrain.
+    pub resume: bool,
+    pub resume_feet: [f64; 3],
+    pub spawn_x: i32,
+    pub spawn_z: i32,
+    pub spawn_radius: u32,
+}
+
+/// The replica's counters, from `strata_stats`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct StrataStats {
+    pub chunks_held: u64,
+    /// Deltas applied (after their version and hash checks).
+    pub deltas: u64,
+    /// Whole chunks taken in (snapshots and patches).
+    pub snapshots: u64,
+    /// Chunks regenerated from the seed.
+    pub generated: u64,
+    /// Changed chunks re-meshed and compared with the server's mesh hash.
+    pub meshes_checked: u64,
+    /// Of those, the ones whose hash differed (a bug: report it).
+    pub mesh_mismatches: u64,
+    /// Deltas or snapshots that failed their hash check (resynced).
+    pub hash_mismatches: u64,
+}
+
+/// A mesh's arrays, from `strata_mesh_data`: owned by the `StrataMesh`
+/// and valid until `strata_mesh_free`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct StrataMeshData {
+    /// `vertex_count * 3` floats: x, y, z in chunk-local voxels.
+    pub positions: *const f32,
+    /// `vertex_count * 3` floats: unit normals pointing into air.
+    pub normals: *const f32,
+    /// `vertex_count` material ids.
+    pub materials: *const u8,
+    /// `index_count` indices, three per triangle, counter-clockwise seen
+    /// from air.
+    pub indices: *const u32,
+    pub vertex_count: usize,
+    pub index_count: usize,
+    /// World voxel coordinates of the chunk's local (0, 0, 0).
+    pub origin: [i32; 3],
+    pub lod: u8,
+    /// Whether all 26 neighbours were held (if not, faces on the missing
+    /// sides are provisional).
+    pub complete: bool,
+    /// The mesh hash (at LOD 0 the server's, for the same chunk versions).
+    pub hash: u64,
+}

@@ -1,0 +1,70 @@
+//! The boundary without a server: null pointers, a refused connection and
+//! bad arguments are status codes with messages, never crashes.
+
+use std::ffi::{CStr, CString};
+use std::ptr::{null, null_mut};
+
+use strata::*;
+
+fn last_error() -> String {
+    // SAFETY: the library's NUL-terminated string, read at once.
+    unsafe { CStr::from_ptr(strata_last_error_message()) }
+        .to_string_lossy()
+        .into_owned()
+}
+
+#[test]
+fn null_pointers_are_invalid_arguments() {
+    let mut ev = std::mem::MaybeUninit::<StrataEvent>::uninit();
+    // SAFETY: a null session is what is being tested; `ev` is writable.
+    let st = unsafe { strata_poll(null(), ev.as_mut_ptr()) };
+    assert_eq!(st, StrataStatus::InvalidArgument);
+    assert_eq!(last_error(), "session is null");
+    // SAFETY: null out pointers are what is being tested.
+    let st = unsafe { strata_chunk_of(1.0, 2.0, 3.0, null_mut()) };
+    assert_eq!(st, StrataStatus::InvalidArgument);
+    let mut c = [0i32; 3];
+    // SAFETY: `c` holds 3 writable i32.
+    let st = unsafe { strata_chunk_of(-0.5, 40.0, 70.0, c.as_mut_ptr()) };
+    assert_eq!((st, c), (StrataStatus::Ok, [-1, 1, 2]));
+    // SAFETY: null is ignored by both.
+    unsafe {
+        strata_session_free(null_mut());
+        strata_mesh_free(null_mut());
+    }
+}
+
+#[test]
+fn a_bad_certificate_or_address_is_a_status_with_a_message() {
+    let addr = CString::new("127.0.0.1:9").unwrap();
+    let token = CString::new("v1.x.y").unwrap();
+    let junk = [1u8, 2, 3];
+    let mut s = null_mut();
+    // SAFETY: valid strings, 3 readable bytes, a writable out pointer.
+    let st = unsafe {
+        strata_connect(
+            addr.as_ptr(),
+            junk.as_ptr(),
+            3,
+            token.as_ptr(),
+            false,
+            &mut s,
+        )
+    };
+    assert_eq!(st, StrataStatus::Tls, "{}", last_error());
+    assert!(s.is_null());
+    let nowhere = CString::new("no-such-host.invalid:4433").unwrap();
+    // SAFETY: as above.
+    let st = unsafe {
+        strata_connect(
+            nowhere.as_ptr(),
+            junk.as_ptr(),
+            3,
+            token.as_ptr(),
+            false,
+            &mut s,
+        )
+    };
+    assert_eq!(st, StrataStatus::Connect, "{}", last_error());
+    assert!(last_error().contains("no-such-host.invalid"));
+}

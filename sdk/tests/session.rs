@@ -1,0 +1,176 @@
+//! `strata_client::Session`, the Rust API under the C ABI, against a real
+//! server: predicted edits show at once, verdicts carry tickets, chunk
+//! changes are reported, meshes match the server's hashes, and the end of
+//! the connection comes last.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use common::Server;
+use strata_client::glam::{DVec3, IVec3};
+use strata_client::protocol::RejectReason;
+use strata_client::terrain::ChunkPos;
+use strata_client::{edits, Event, Session, SessionOptions};
+
+const WAIT: Duration = Duration::from_secs(10);
+
+/// Polls until `want` picks an event out (others are kept), or panics.
+fn wait_for<T>(s: &Session, seen: &mut Vec<Event>, mut want: impl FnMut(&Event) -> Option<T>) -> T {
+    let start = Instant::now();
+    while start.elapsed() < WAIT {
+        while let Some(e) = s.poll() {
+            let found = want(&e);
+            seen.push(e);
+            if let Some(t) = found {
+                return t;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    panic!("timed out; events so far: {seen:?}");
+}
+
+/// The highest solid voxel of column (`x`, `z`), read from held chunks.
+fn ground(s: &Session, x: i32, z: i32) -> Option<i32> {
+    let (lx, lz) = ((x & 31) as usize, (z & 31) as usize);
+    for cy in (-1..=3).rev() {
+        let c = s.chunk(ChunkPos::new(x >> 5, cy, z >> 5))?;
+        if let Some(ly) = (0..32)
+            .rev()
+            .find(|&ly| c.density[lx + 32 * (ly + 32 * lz)] >= 128)
+        {
+            return Some(cy * 32 + ly as i32);
+        }
+    }
+    None
+}
+
+#[test]
+fn a_session_edits_sees_its_changes_and_ends_with_disconnected() {
+    let server = Server::start();
+    let opts = SessionOptions {
+        predict: true,
+        ..SessionOptions::default()
+    };
+    let token = server.token("rust-session");
+    let s = Session::connect(server.running.addr, &server.running.cert_der, &token, opts).unwrap();
+    let radius = s.welcome().view_radius;
+    s.subscribe(IVec3::new(0, 1, 0), radius).unwrap();
+    let mut seen = Vec::new();
+    let start = Instant::now();
+    let y = loop {
+        while let Some(e) = s.poll() {
+            seen.push(e);
+        }
+        if let Some(y) = ground(&s, 3, 3) {
+            break y;
+        }
+        assert!(start.elapsed() < WAIT, "the column never arrived");
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    assert!(seen.iter().any(|e| matches!(e, Event::ChunkChanged { .. })));
+
+    // A far edit is refused with its own ticket.
+    let feet = DVec3::new(3.5, f64::from(y) + 1.0, 3.5);
+    let target = DVec3::new(3.5, f64::from(y) + 0.5, 3.5);
+    let (accepted, changes) = loop {
+        s.set_position(feet).unwrap();
+        std::thread::sleep(Duration::from_millis(20));
+        let ticket = s.edit(edits::mine(target, 2.0, 255).unwrap()).unwrap();
+        let verdict = wait_for(&s, &mut seen, |e| match e {
+            Event::EditAccepted {
+                ticket: t, changes, ..
+            } if *t == ticket => Some(Ok(changes.clone())),
+            Event::EditRejected { ticket: t, reason } if *t == ticket => Some(Err(reason.clone())),
+            _ => None,
+        });
+        match verdict {
+            Ok(changes) => break (ticket, changes),
+            Err(RejectReason::NoPosition) => continue,
+            Err(other) => panic!("dig refused: {other:?}"),
+        }
+    };
+    assert!(accepted > 0 && !changes.is_empty());
+    let far = s
+        .edit(edits::mine(DVec3::new(3000.5, 10.0, 3.5), 2.0, 255).unwrap())
+        .unwrap();
+    let reason = wait_for(&s, &mut seen, |e| match e {
+        Event::EditRejected { ticket, reason } if *ticket == far => Some(reason.clone()),
+        _ => None,
+    });
+    assert!(
+        matches!(reason, RejectReason::OutOfReach { .. }),
+        "{reason:?}"
+    );
+
+    // Our own delta: the chunk reaches the version the server gave, is
+    // reported changed, and its mesh is checked against the server's hash.
+    let changed = changes[0];
+    let start = Instant::now();
+    while s.chunk(changed.pos).map(|c| c.version) != Some(changed.version) {
+        while let Some(e) = s.poll() {
+            seen.push(e);
+        }
+        assert!(start.elapsed() < WAIT, "our delta never came");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // The change was queued before the replica showed the new version.
+    while let Some(e) = s.poll() {
+        seen.push(e);
+    }
+    let verdict_at = seen
+        .iter()
+        .position(|e| matches!(e, Event::EditAccepted { ticket, .. } if *ticket == accepted))
+        .unwrap();
+    assert!(
+        seen[verdict_at..].contains(&Event::ChunkChanged { pos: changed.pos }),
+        "{seen:?}"
+    );
+    let data = s.chunk(changed.pos).unwrap();
+    assert!(!data.predicted, "settled: the view is the server's");
+    let mesh = s.mesh(changed.pos, 0, 0).unwrap().unwrap();
+    assert!(mesh.triangle_count() > 0 && mesh.complete);
+    let start = Instant::now();
+    while s.stats().meshes_checked == 0 {
+        assert!(start.elapsed() < WAIT, "no mesh was checked");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(s.stats().mesh_mismatches, 0);
+    let p = s.prediction_stats().unwrap();
+    assert_eq!(
+        p.made,
+        p.exact + p.rolled_back + p.mispredicted + p.unverified + p.pending
+    );
+    assert!(p.made >= 1);
+
+    // The server goes away: edits taken meanwhile fail, then Disconnected
+    // comes once, last.
+    let Server {
+        running,
+        dir: _dir,
+        runtime,
+    } = server;
+    runtime.block_on(running.shutdown()).unwrap();
+    let start = Instant::now();
+    while !s.is_closed() {
+        assert!(
+            start.elapsed() < WAIT,
+            "the session did not see the server go"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let late = s.edit(edits::mine(target, 2.0, 255).unwrap()).unwrap();
+    let mut tail = Vec::new();
+    wait_for(&s, &mut tail, |e| {
+        matches!(e, Event::Disconnected { .. }).then_some(())
+    });
+    assert!(
+        tail.iter()
+            .any(|e| matches!(e, Event::EditFailed { ticket, .. } if *ticket == late)),
+        "{tail:?}"
+    );
+    std::thread::sleep(Duration::from_millis(50));
+    assert_eq!(s.poll(), None, "nothing after Disconnected");
+    s.close();
+}
