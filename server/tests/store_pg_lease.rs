@@ -421,3 +421,24 @@ fn open_node_refuses_bad_cluster_settings() {
         assert!(err.to_string().contains(field), "{err}");
     }
 }
+
+#[test]
+fn the_regions_table_lists_owners_epochs_and_expiry() {
+    let Some(db) = database("lease_listing") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let (r0, r1) = (region(-2, 0), region(1, 1));
+    a.claim_regions(&[r1, r0]).unwrap();
+    expire(&db, r1);
+    a.release_leases().unwrap();
+    let rows = a.region_leases().unwrap();
+    let got: Vec<_> = rows
+        .iter()
+        .map(|l| (l.region, l.owner.clone(), l.epoch))
+        .collect();
+    assert_eq!(got, [(r0, None, 1), (r1, None, 1)]);
+    // r0's lease had most of a minute left, r1's ran out a second ago.
+    assert!(rows[0].expires_in_ms > 50_000, "{rows:?}");
+    assert!((-5_000..=-900).contains(&rows[1].expires_in_ms), "{rows:?}");
+}

@@ -86,6 +86,18 @@ fn columns<'a>(regions: impl Iterator<Item = &'a RegionId>) -> (Vec<i32>, Vec<i3
     regions.map(|r| (r.x, r.z)).unzip()
 }
 
+/// One row of the `regions` table, as every node sees it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RegionLease {
+    pub region: RegionId,
+    /// `None` once released.
+    pub owner: Option<String>,
+    pub epoch: u64,
+    /// Milliseconds until the lease runs out on the database's clock
+    /// (negative: expired that long ago).
+    pub expires_in_ms: i64,
+}
+
 /// Column arrays of held regions and their epochs.
 type HeldColumns = (Vec<i32>, Vec<i32>, Vec<i64>);
 
@@ -319,6 +331,35 @@ impl PgStore {
     /// Releases every lease held (at shutdown, after the last commit).
     pub fn release_leases(&self) -> Result<u64, StoreError> {
         release(&self.pool, self.cluster_leases()?)
+    }
+
+    /// Every region ever claimed, in key order.
+    pub fn region_leases(&self) -> Result<Vec<RegionLease>, StoreError> {
+        let rows = self
+            .pool
+            .run("reading region leases", async |c: &mut Conn| {
+                c.query(
+                    "SELECT region_x, region_z, owner, epoch, \
+                 (extract(epoch FROM lease_expires - now()) * 1000)::int8 \
+                 FROM regions ORDER BY region_x, region_z",
+                    &[],
+                )
+                .await
+            })?;
+        rows.iter()
+            .map(|r| {
+                let region = RegionId {
+                    x: r.get(0),
+                    z: r.get(1),
+                };
+                Ok(RegionLease {
+                    region,
+                    owner: r.get(2),
+                    epoch: from_sql(r.get(3), "epoch", show(region))?,
+                    expires_in_ms: r.get(4),
+                })
+            })
+            .collect()
     }
 
     fn cluster_leases(&self) -> Result<&NodeLeases, StoreError> {

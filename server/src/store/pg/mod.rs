@@ -54,7 +54,7 @@ pub use config::{
     PgConfig, DEFAULT_PG_CONNECT_TIMEOUT_MS, DEFAULT_PG_MAX_CONNECTIONS, DEFAULT_PG_POOL_WAIT_MS,
     DEFAULT_PG_STATEMENT_TIMEOUT_MS, MAX_PG_MAX_CONNECTIONS, MAX_PG_TIMEOUT_MS,
 };
-pub use lease::NodeLeases;
+pub use lease::{NodeLeases, RegionLease};
 pub use migrate::{MIGRATIONS, MIGRATIONS_TABLE};
 use pool::{Conn, Pool};
 
