@@ -95,6 +95,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         &cfg.store,
         &data_dir.world_db_path(),
         cfg.sequencer.region_chunks,
+        cfg.cluster.as_ref(),
     )?;
     let params = cfg.world.generator.clone();
     let mut validation = cfg.validation.clone();

@@ -133,6 +133,10 @@ pub struct ServerConfig {
     pub interest: InterestConfig,
     pub engine: EngineConfig,
     pub store: StoreConfig,
+    /// Present: this node is one of a cluster on PostgreSQL (leases and
+    /// fenced commits). Absent: a single node.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cluster: Option<crate::cluster::ClusterConfig>,
 }
 
 /// `[server]`: where to listen and keep data.
@@ -550,6 +554,16 @@ impl ServerConfig {
             ));
         }
         self.validate_postgres()?;
+        if let Some(c) = &self.cluster {
+            c.check()
+                .map_err(|(field, reason)| invalid(field, reason))?;
+            if self.store.backend != crate::store::StoreBackend::Postgres {
+                return Err(invalid(
+                    "cluster.node_id",
+                    "a cluster needs [store] backend = \"postgres\"",
+                ));
+            }
+        }
         range(
             "sequencer.queue_capacity",
             self.sequencer.queue_capacity,

@@ -8,6 +8,7 @@ pub mod admin;
 pub mod app;
 pub mod auth;
 pub use strata_protocol::client_tls;
+pub mod cluster;
 pub mod collision;
 pub mod config;
 pub mod console;

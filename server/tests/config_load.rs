@@ -346,3 +346,43 @@ fn the_postgres_store_needs_a_url_and_sane_limits() {
         strata_server::store::StoreBackend::Postgres
     );
 }
+
+#[test]
+fn a_cluster_node_needs_postgres_a_name_and_a_renewal_inside_its_lease() {
+    let pg =
+        "[store]\nbackend = \"postgres\"\n[store.postgres]\nurl = \"host=127.0.0.1 dbname=w\"\n";
+    assert_eq!(
+        invalid_field("[cluster]\nnode_id = \"a\"\n"),
+        "cluster.node_id",
+        "sled cannot be shared"
+    );
+    for (cluster, field) in [
+        ("[cluster]\n", "cluster.node_id"),
+        ("[cluster]\nnode_id = \"a/b\"\n", "cluster.node_id"),
+        (
+            "[cluster]\nnode_id = \"a\"\nlease_ms = 100\n",
+            "cluster.lease_ms",
+        ),
+        (
+            "[cluster]\nnode_id = \"a\"\nlease_ms = 1000\nrenew_ms = 501\n",
+            "cluster.renew_ms",
+        ),
+        (
+            "[cluster]\nnode_id = \"a\"\nrenew_ms = 0\n",
+            "cluster.renew_ms",
+        ),
+    ] {
+        assert_eq!(invalid_field(&format!("{pg}{cluster}")), field, "{cluster}");
+    }
+    let c = ServerConfig::from_toml_str(&format!("{pg}[cluster]\nnode_id = \"node-1\"\n")).unwrap();
+    let cluster = c.cluster.unwrap();
+    assert_eq!(cluster.node_id, "node-1");
+    assert_eq!(
+        (cluster.lease_ms, cluster.renew_ms),
+        (
+            strata_server::cluster::DEFAULT_LEASE_MS,
+            strata_server::cluster::DEFAULT_RENEW_MS
+        )
+    );
+    assert_eq!(ServerConfig::default().cluster, None);
+}

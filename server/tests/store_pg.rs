@@ -5,36 +5,12 @@
 
 mod store_common;
 
-use store_common::{pg_store, terrain_chunk, Seq};
+use store_common::{pg_store, sql, terrain_chunk, Seq};
 use strata_server::store::pg::{PgConfig, MIGRATIONS};
 use strata_server::store::{ChunkStore, PgStore, StoreError, WorldMeta};
 use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::ChunkPos;
-use strata_tests::postgres::{database, PgDb};
-
-/// Runs `sql` on `db` with a plain client; returns each row's first
-/// column as text.
-fn sql(db: &PgDb, sql: &str) -> Vec<String> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let (client, conn) = tokio_postgres::connect(&db.url(), tokio_postgres::NoTls)
-            .await
-            .unwrap();
-        let driver = tokio::spawn(conn);
-        let rows = client.simple_query(sql).await.unwrap();
-        drop(client);
-        let _ = driver.await;
-        rows.into_iter()
-            .filter_map(|m| match m {
-                tokio_postgres::SimpleQueryMessage::Row(r) => r.get(0).map(str::to_string),
-                _ => None,
-            })
-            .collect()
-    })
-}
+use strata_tests::postgres::database;
 
 #[test]
 fn migrations_are_applied_once_and_recorded() {

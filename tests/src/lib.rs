@@ -120,6 +120,16 @@ impl Server {
 
     /// [`Server::start`] with the config file's text.
     pub fn start_with(data_dir: &Path, listen: &str, config_text: &str) -> Server {
+        Self::start_logging(data_dir, listen, config_text, Stdio::inherit())
+    }
+
+    /// [`Server::start_with`], its log (stderr) going to `stderr`.
+    pub fn start_logging(
+        data_dir: &Path,
+        listen: &str,
+        config_text: &str,
+        stderr: Stdio,
+    ) -> Server {
         let config = data_dir.with_extension("toml");
         std::fs::write(&config, config_text).expect("write config");
         let child = Command::new(binary("strata-server"))
@@ -131,7 +141,7 @@ impl Server {
             .arg(listen)
             .env("RUST_LOG", "warn")
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
+            .stderr(stderr)
             .spawn()
             .expect("strata-server starts");
         let mut proc = Guard(child);

@@ -82,12 +82,14 @@ impl TargetArgs {
 }
 
 /// Opens the store of a stopped server's data dir: the `[store]` backend
-/// that `DIR/strata.toml` names, else sled's `DIR/world.sled`.
+/// that `DIR/strata.toml` names, else sled's `DIR/world.sled`. It holds no
+/// leases (its writes are not fenced): a cluster's nodes must be stopped.
 pub fn open_offline_store(dir: &Path) -> anyhow::Result<Arc<dyn ChunkStore>> {
     let dd = DataDir::open_existing(dir)
         .with_context(|| format!("opening data dir {}", dir.display()))?;
     let cfg = data_dir_config(dir)?;
-    open_store(&cfg.store, &dd.world_db_path(), cfg.sequencer.region_chunks).with_context(|| {
+    let world_db = dd.world_db_path();
+    open_store(&cfg.store, &world_db, cfg.sequencer.region_chunks, None).with_context(|| {
         format!(
             "opening the world store of {} (is the server still running? stop it or use --server)",
             dir.display()

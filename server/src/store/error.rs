@@ -3,6 +3,8 @@
 use strata_terrain::chunk_codec::CodecError;
 use thiserror::Error;
 
+use crate::sequencer::regions::RegionId;
+
 /// Why a store operation failed. A failed write changes nothing.
 #[derive(Debug, Error)]
 pub enum StoreError {
@@ -48,12 +50,30 @@ pub enum StoreError {
     /// A commit batch is inconsistent with itself or with the store.
     #[error("invalid commit batch: {reason}")]
     InvalidBatch { reason: String },
+    /// This node does not hold `region` at the epoch the store has (a
+    /// cluster node's commit; see `store::pg::fence`): the batch was
+    /// refused and changed nothing.
+    #[error(
+        "region ({}, {}) is fenced: this node holds epoch {}, the store has epoch {} owned by {}",
+        .region.x, .region.z, show_epoch(.held_epoch), show_epoch(.current_epoch),
+        .owner.as_deref().unwrap_or("no node")
+    )]
+    Fenced {
+        region: RegionId,
+        held_epoch: Option<u64>,
+        current_epoch: Option<u64>,
+        owner: Option<String>,
+    },
     /// A blob name or body breaks a limit.
     #[error("invalid blob: {reason}")]
     InvalidBlob { reason: String },
     /// A record could not be serialized (too large for its limit, usually).
     #[error("cannot encode {what}: {reason}")]
     Encode { what: &'static str, reason: String },
+}
+
+fn show_epoch(e: &Option<u64>) -> String {
+    e.map_or_else(|| "none".into(), |e| e.to_string())
 }
 
 /// The server's message and SQLSTATE when it sent one, else the client's.

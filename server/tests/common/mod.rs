@@ -56,6 +56,7 @@ impl Backend {
             &cfg.store,
             &data_dir.join("world.sled"),
             cfg.sequencer.region_chunks,
+            None,
         )
         .unwrap()
     }

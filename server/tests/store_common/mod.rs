@@ -175,3 +175,27 @@ pub fn places(test: &str) -> Vec<Place> {
     v.extend(strata_tests::postgres::database(test).map(Place::Postgres));
     v
 }
+
+/// Runs `sql` on `db` with a plain client; returns each row's first
+/// column as text.
+pub fn sql(db: &PgDb, sql: &str) -> Vec<String> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let (client, conn) = tokio_postgres::connect(&db.url(), tokio_postgres::NoTls)
+            .await
+            .unwrap();
+        let driver = tokio::spawn(conn);
+        let rows = client.simple_query(sql).await.unwrap();
+        drop(client);
+        let _ = driver.await;
+        rows.into_iter()
+            .filter_map(|m| match m {
+                tokio_postgres::SimpleQueryMessage::Row(r) => r.get(0).map(str::to_string),
+                _ => None,
+            })
+            .collect()
+    })
+}

@@ -6,17 +6,20 @@
 //! a checkpoint cannot fold them meanwhile. It refuses, changing nothing,
 //! what the sled store refuses: seqs that do not follow `last_seq`, chunk
 //! versions at or below the stored ones, and deltas that do not continue
-//! the stored chain.
+//! the stored chain. A cluster node's commit is also fenced (`fence.rs`):
+//! it writes only regions it holds at the epoch the store has.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
 
 use rayon::prelude::*;
 use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::ChunkPos;
 
+use super::fence::{self, Fence};
 use super::pool::Conn;
 use super::{to_sql, PgStore};
+use crate::sequencer::regions::RegionId;
 use crate::store::batch;
 use crate::store::keys::show_pos;
 use crate::store::record::{encode_delta, encode_log_record};
@@ -50,6 +53,17 @@ struct Rows {
     rz: Vec<i32>,
     version: Vec<i64>,
     body: Vec<Vec<u8>>,
+}
+
+impl Columns {
+    /// Every region the batch writes a chunk or delta of.
+    fn regions(&self) -> BTreeSet<RegionId> {
+        [&self.chunks, &self.deltas]
+            .iter()
+            .flat_map(|r| r.rx.iter().zip(&r.rz))
+            .map(|(&x, &z)| RegionId { x, z })
+            .collect()
+    }
 }
 
 impl Rows {
@@ -102,11 +116,15 @@ impl PgStore {
             .flat_map(|v| v.iter())
             .map(|v| v.len() as u64)
             .sum();
+        let fence = match &self.leases {
+            Some(leases) => Some(fence::prepare(&self.pool, leases, &cols.regions())?),
+            None => None,
+        };
         let encode = started.elapsed();
-        let (apply, commit) = self.pool.run("committing a batch", async |c: &mut Conn| {
+        let committed = self.pool.run("committing a batch", async |c: &mut Conn| {
             c.batch("BEGIN").await?;
             let applying = Instant::now();
-            match write(c, &cols).await {
+            match write(c, &cols, fence.as_ref()).await {
                 Ok(()) => {
                     let apply = applying.elapsed();
                     let committing = Instant::now();
@@ -120,7 +138,11 @@ impl PgStore {
                     Err(e)
                 }
             }
-        })?;
+        });
+        if let (Err(StoreError::Fenced { region, .. }), Some(leases)) = (&committed, &self.leases) {
+            leases.lose(*region);
+        }
+        let (apply, commit) = committed?;
         Ok(CommitStats {
             bytes_written: cols.bytes,
             encode,
@@ -133,13 +155,16 @@ impl PgStore {
 }
 
 /// The transaction's statements, between `BEGIN` and `COMMIT`.
-async fn write(c: &mut Conn, cols: &Columns) -> Result<(), StoreError> {
+async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<(), StoreError> {
     let Some(row) = c
         .query_opt("SELECT last_seq FROM world WHERE id = 1 FOR UPDATE", &[])
         .await?
     else {
         return Err(StoreError::NoMeta);
     };
+    if let Some(fence) = fence {
+        fence::check(c, fence).await?;
+    }
     let last: i64 = row.get(0);
     if last.checked_add(1) != Some(cols.first_seq) {
         return Err(StoreError::batch(format!(

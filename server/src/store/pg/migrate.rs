@@ -11,11 +11,18 @@ use crate::store::StoreError;
 pub const MIGRATIONS_TABLE: &str = "schema_migrations";
 
 /// Every migration this build knows: (version, name, SQL), versions rising.
-pub const MIGRATIONS: &[(i32, &str, &str)] = &[(
-    1,
-    "0001_init",
-    include_str!("../../../migrations/0001_init.sql"),
-)];
+pub const MIGRATIONS: &[(i32, &str, &str)] = &[
+    (
+        1,
+        "0001_init",
+        include_str!("../../../migrations/0001_init.sql"),
+    ),
+    (
+        2,
+        "0002_regions",
+        include_str!("../../../migrations/0002_regions.sql"),
+    ),
+];
 
 /// Key of the advisory lock migrations take ("strata" in ASCII).
 const MIGRATION_LOCK: i64 = 0x7374_7261_7461;

@@ -12,6 +12,11 @@
 //! with `synchronous_commit = on`, and the store refuses a server that
 //! runs with `fsync = off`.
 //!
+//! Clustered (`open_node`, `[cluster]`), a node leases the regions it
+//! writes (`lease.rs`) and every commit checks, inside its transaction,
+//! the epoch it holds for each region of the batch (`fence.rs`). Opened
+//! with `open`, the store is not fenced: one node alone on its database.
+//!
 //! Why `tokio-postgres` and not the synchronous `postgres` crate: that
 //! crate runs a runtime per client and panics when called from inside a
 //! tokio runtime, and the server calls its store from tokio tasks
@@ -21,7 +26,9 @@
 
 mod commit;
 mod config;
+mod fence;
 mod fold;
+mod lease;
 mod migrate;
 mod pages;
 mod pool;
@@ -47,6 +54,7 @@ pub use config::{
     PgConfig, DEFAULT_PG_CONNECT_TIMEOUT_MS, DEFAULT_PG_MAX_CONNECTIONS, DEFAULT_PG_POOL_WAIT_MS,
     DEFAULT_PG_STATEMENT_TIMEOUT_MS, MAX_PG_MAX_CONNECTIONS, MAX_PG_TIMEOUT_MS,
 };
+pub use lease::{NodeLeases, RegionLease};
 pub use migrate::{MIGRATIONS, MIGRATIONS_TABLE};
 use pool::{Conn, Pool};
 
@@ -56,7 +64,11 @@ const PAGE_ROWS: i64 = 256;
 /// The PostgreSQL-backed store. Cheap to share by reference across threads.
 #[derive(Debug)]
 pub struct PgStore {
-    pool: Pool,
+    /// Renews `leases` (first, so it stops before the pool goes).
+    renewer: Option<lease::Renewer>,
+    pool: std::sync::Arc<Pool>,
+    /// This node's leases when it is one of a cluster: commits are fenced.
+    leases: Option<std::sync::Arc<NodeLeases>>,
     /// Region side in chunks, as the `layout` row records it.
     region_chunks: u32,
 }
@@ -102,7 +114,9 @@ impl PgStore {
             });
         }
         Ok(Self {
-            pool,
+            renewer: None,
+            pool: std::sync::Arc::new(pool),
+            leases: None,
             region_chunks: region_chunks.max(1),
         })
     }

@@ -21,6 +21,7 @@ const TABLES: &[&str] = &[
     "edit_log",
     "blobs",
     "players",
+    "regions",
 ];
 
 impl PgStore {

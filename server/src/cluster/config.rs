@@ -1,0 +1,86 @@
+//! `[cluster]`: this node's name and its lease timing.
+
+use serde::{Deserialize, Serialize};
+
+/// How long a claim or renewal keeps a region this node's. A node paused or
+/// cut off longer than this loses its regions to the first node that claims
+/// them; takeover after a crash waits at most this long.
+pub const DEFAULT_LEASE_MS: u64 = 10_000;
+/// How often the node renews its leases: a fifth of the default lease, so a
+/// few renewals may fail before a lease runs out.
+pub const DEFAULT_RENEW_MS: u64 = 2_000;
+/// Shortest allowed lease (a tick's commit must fit well inside it).
+pub const MIN_LEASE_MS: u64 = 200;
+/// Longest allowed lease.
+pub const MAX_LEASE_MS: u64 = 600_000;
+/// Shortest allowed renewal period.
+pub const MIN_RENEW_MS: u64 = 20;
+/// Longest node name.
+pub const MAX_NODE_ID_LEN: usize = 64;
+
+/// The `[cluster]` section. Without it a node on PostgreSQL takes no leases
+/// and its commits are not fenced: it must be the only one on its database.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ClusterConfig {
+    /// This node's name in the `regions` table: unique in the cluster. A
+    /// node restarted under the same name takes its regions back at once
+    /// (fencing its previous process).
+    pub node_id: String,
+    /// See [`DEFAULT_LEASE_MS`].
+    pub lease_ms: u64,
+    /// See [`DEFAULT_RENEW_MS`]; at most half of `lease_ms`.
+    pub renew_ms: u64,
+}
+
+impl Default for ClusterConfig {
+    fn default() -> Self {
+        Self {
+            node_id: String::new(),
+            lease_ms: DEFAULT_LEASE_MS,
+            renew_ms: DEFAULT_RENEW_MS,
+        }
+    }
+}
+
+impl ClusterConfig {
+    /// The first bad field and why.
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        let id = &self.node_id;
+        if id.is_empty() || id.len() > MAX_NODE_ID_LEN {
+            return Err((
+                "cluster.node_id",
+                format!("must be 1..={MAX_NODE_ID_LEN} characters"),
+            ));
+        }
+        if !id
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+        {
+            return Err((
+                "cluster.node_id",
+                format!("{id:?} may hold only ASCII letters, digits, '-', '_' and '.'"),
+            ));
+        }
+        if !(MIN_LEASE_MS..=MAX_LEASE_MS).contains(&self.lease_ms) {
+            return Err((
+                "cluster.lease_ms",
+                format!(
+                    "{} is outside {MIN_LEASE_MS}..={MAX_LEASE_MS}",
+                    self.lease_ms
+                ),
+            ));
+        }
+        let most = self.lease_ms / 2;
+        if !(MIN_RENEW_MS..=most).contains(&self.renew_ms) {
+            return Err((
+                "cluster.renew_ms",
+                format!(
+                    "{} is outside {MIN_RENEW_MS}..={most} (half of cluster.lease_ms)",
+                    self.renew_ms
+                ),
+            ));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,10 @@
+//! Running as one node of a cluster that shares a PostgreSQL store
+//! (`[cluster]`). A node leases the regions it writes (see
+//! `store::pg::lease`); every commit is fenced by the epochs it holds.
+
+mod config;
+
+pub use config::{
+    ClusterConfig, DEFAULT_LEASE_MS, DEFAULT_RENEW_MS, MAX_LEASE_MS, MAX_NODE_ID_LEN, MIN_LEASE_MS,
+    MIN_RENEW_MS,
+};

@@ -1,0 +1,116 @@
+//! Fencing: a commit writes a region only while the `regions` row still
+//! names this node as owner at the epoch it holds.
+//!
+//! Before the transaction the node claims the regions of the batch it does
+//! not hold yet (`lease.rs`); inside it, after the world row's lock, it
+//! locks the batch's region rows `FOR SHARE` (a claim by another node waits
+//! for the commit, or the commit sees the claim) and compares. Any
+//! mismatch refuses the whole batch with [`StoreError::Fenced`] and the
+//! transaction is rolled back. The lease's expiry is not checked here: an
+//! epoch only moves when another claim succeeded, and that is what makes
+//! a write unsafe.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use super::lease::{claim, NodeLeases};
+use super::pool::{Conn, Pool};
+use super::{from_sql, to_sql};
+use crate::sequencer::regions::RegionId;
+use crate::store::StoreError;
+
+/// The regions a commit writes and the epoch held for each.
+#[derive(Debug)]
+pub(super) struct Fence {
+    node_id: String,
+    held: BTreeMap<RegionId, u64>,
+}
+
+/// Claims what the batch needs and this node does not hold; refuses at
+/// once a region it lost or another node holds.
+pub(super) fn prepare(
+    pool: &Pool,
+    leases: &NodeLeases,
+    regions: &BTreeSet<RegionId>,
+) -> Result<Fence, StoreError> {
+    claim(pool, leases, regions)?;
+    let held = leases.held();
+    let lost = leases.lost();
+    let mut fence = Fence {
+        node_id: leases.node_id().to_string(),
+        held: BTreeMap::new(),
+    };
+    for &r in regions {
+        match held.get(&r) {
+            Some(&epoch) => {
+                fence.held.insert(r, epoch);
+            }
+            None => return Err(current_holder(pool, r, lost.get(&r).copied())?),
+        }
+    }
+    Ok(fence)
+}
+
+/// The refusal for `region`, naming who holds it now.
+fn current_holder(
+    pool: &Pool,
+    region: RegionId,
+    held_epoch: Option<u64>,
+) -> Result<StoreError, StoreError> {
+    let row = pool.run("reading a region's lease", async |c: &mut Conn| {
+        c.query_opt(
+            "SELECT owner, epoch FROM regions WHERE region_x = $1 AND region_z = $2",
+            &[&region.x, &region.z],
+        )
+        .await
+    })?;
+    let (owner, current_epoch) = match row {
+        Some(r) => (
+            r.get::<_, Option<String>>(0),
+            Some(from_sql(r.get(1), "epoch", super::lease::show(region))?),
+        ),
+        None => (None, None),
+    };
+    Ok(StoreError::Fenced {
+        region,
+        held_epoch,
+        current_epoch,
+        owner,
+    })
+}
+
+/// Inside the commit transaction: locks the fence's region rows and
+/// refuses the batch unless each still has this node's owner and epoch.
+pub(super) async fn check(c: &mut Conn, fence: &Fence) -> Result<(), StoreError> {
+    let (xs, zs): (Vec<i32>, Vec<i32>) = fence.held.keys().map(|r| (r.x, r.z)).unzip();
+    let rows = c
+        .query(
+            "SELECT r.region_x, r.region_z, r.owner, r.epoch FROM regions r \
+             JOIN unnest($1::int4[], $2::int4[]) AS u(x, z) \
+               ON r.region_x = u.x AND r.region_z = u.z \
+             ORDER BY r.region_x, r.region_z FOR SHARE OF r",
+            &[&xs, &zs],
+        )
+        .await?;
+    let mut current: BTreeMap<RegionId, (Option<String>, i64)> = BTreeMap::new();
+    for r in rows {
+        current.insert(
+            RegionId {
+                x: r.get(0),
+                z: r.get(1),
+            },
+            (r.get(2), r.get(3)),
+        );
+    }
+    for (&region, &held) in &fence.held {
+        let (owner, epoch) = current.remove(&region).unwrap_or((None, 0));
+        if owner.as_deref() != Some(&fence.node_id) || epoch != to_sql(held, "epoch")? {
+            return Err(StoreError::Fenced {
+                region,
+                held_epoch: Some(held),
+                current_epoch: u64::try_from(epoch).ok().filter(|&e| e > 0),
+                owner,
+            });
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,370 @@
+//! Region leases: which regions this node may write, and with which epoch.
+//!
+//! A row of `regions` (migration 0002) names a region's owner, its epoch
+//! and when its lease runs out, on the database's clock. A node claims a
+//! region that is free (never claimed, released, or its lease expired) or
+//! that its own node id holds (a restart under the same name); every claim
+//! bumps the epoch. It renews what it holds every `renew_ms` while owner
+//! and epoch are still its own. A region whose epoch moved on is lost for
+//! good: this process never claims it back, since its copy of the region
+//! may be stale. Commits check the epochs held (`fence.rs`).
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::Duration;
+
+use tracing::{info, warn};
+
+use super::pool::{Conn, Pool};
+use super::{from_sql, PgStore};
+use crate::cluster::ClusterConfig;
+use crate::sequencer::regions::RegionId;
+use crate::store::StoreError;
+
+/// This node's leases: its name, its lease length, and what it holds.
+#[derive(Debug)]
+pub struct NodeLeases {
+    node_id: String,
+    lease_ms: f64,
+    book: Mutex<Book>,
+}
+
+#[derive(Debug, Default)]
+struct Book {
+    /// Regions held, by the epoch this node claimed them with.
+    held: BTreeMap<RegionId, u64>,
+    /// Regions lost, by the epoch this node held them with.
+    lost: BTreeMap<RegionId, u64>,
+}
+
+impl NodeLeases {
+    fn new(cfg: &ClusterConfig) -> Self {
+        Self {
+            node_id: cfg.node_id.clone(),
+            lease_ms: cfg.lease_ms as f64,
+            book: Mutex::new(Book::default()),
+        }
+    }
+
+    fn book(&self) -> std::sync::MutexGuard<'_, Book> {
+        self.book.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    pub fn node_id(&self) -> &str {
+        &self.node_id
+    }
+
+    /// Regions held, with their epochs.
+    pub fn held(&self) -> BTreeMap<RegionId, u64> {
+        self.book().held.clone()
+    }
+
+    /// Regions lost since this process claimed them, with the epochs held.
+    pub fn lost(&self) -> BTreeMap<RegionId, u64> {
+        self.book().lost.clone()
+    }
+
+    /// Moves `region` from held to lost (a commit or renewal found its
+    /// epoch changed).
+    pub(super) fn lose(&self, region: RegionId) {
+        let mut book = self.book();
+        if let Some(epoch) = book.held.remove(&region) {
+            warn!(
+                node = %self.node_id,
+                region_x = region.x,
+                region_z = region.z,
+                epoch,
+                "region lease lost; this node no longer writes it"
+            );
+            book.lost.insert(region, epoch);
+        }
+    }
+}
+
+/// Column arrays of regions for `unnest`.
+fn columns<'a>(regions: impl Iterator<Item = &'a RegionId>) -> (Vec<i32>, Vec<i32>) {
+    regions.map(|r| (r.x, r.z)).unzip()
+}
+
+/// One row of the `regions` table, as every node sees it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RegionLease {
+    pub region: RegionId,
+    /// `None` once released.
+    pub owner: Option<String>,
+    pub epoch: u64,
+    /// Milliseconds until the lease runs out on the database's clock
+    /// (negative: expired that long ago).
+    pub expires_in_ms: i64,
+}
+
+/// Column arrays of held regions and their epochs.
+type HeldColumns = (Vec<i32>, Vec<i32>, Vec<i64>);
+
+fn held_columns(held: &BTreeMap<RegionId, u64>) -> Result<HeldColumns, StoreError> {
+    let (xs, zs) = columns(held.keys());
+    let epochs = held
+        .values()
+        .map(|&e| super::to_sql(e, "epoch"))
+        .collect::<Result<_, _>>()?;
+    Ok((xs, zs, epochs))
+}
+
+/// Claims those of `wanted` that are free, expired or this node's by
+/// name, in one statement (rows in key order). Returns what it claimed.
+pub(super) fn claim(
+    pool: &Pool,
+    leases: &NodeLeases,
+    wanted: &BTreeSet<RegionId>,
+) -> Result<BTreeMap<RegionId, u64>, StoreError> {
+    let todo: Vec<RegionId> = {
+        let book = leases.book();
+        wanted
+            .iter()
+            .filter(|r| !book.held.contains_key(r) && !book.lost.contains_key(r))
+            .copied()
+            .collect()
+    };
+    if todo.is_empty() {
+        return Ok(BTreeMap::new());
+    }
+    let (xs, zs) = columns(todo.iter());
+    let rows = pool.run("claiming regions", async |c: &mut Conn| {
+        c.query(
+            "INSERT INTO regions AS r (region_x, region_z, owner, epoch, lease_expires) \
+             SELECT x, z, $3, 1, now() + $4::float8 * interval '1 millisecond' \
+             FROM unnest($1::int4[], $2::int4[]) AS u(x, z) ORDER BY x, z \
+             ON CONFLICT (region_x, region_z) DO UPDATE \
+             SET owner = EXCLUDED.owner, epoch = r.epoch + 1, \
+                 lease_expires = EXCLUDED.lease_expires \
+             WHERE r.owner IS NULL OR r.owner = EXCLUDED.owner OR r.lease_expires < now() \
+             RETURNING region_x, region_z, epoch",
+            &[&xs, &zs, &leases.node_id, &leases.lease_ms],
+        )
+        .await
+    })?;
+    let mut got = BTreeMap::new();
+    for r in rows {
+        let region = RegionId {
+            x: r.get(0),
+            z: r.get(1),
+        };
+        got.insert(region, from_sql(r.get(2), "epoch", show(region))?);
+    }
+    let mut book = leases.book();
+    for (&region, &epoch) in &got {
+        info!(node = %leases.node_id, region_x = region.x, region_z = region.z, epoch, "region claimed");
+        book.held.insert(region, epoch);
+    }
+    Ok(got)
+}
+
+/// Extends every lease still this node's at the epoch it holds; those
+/// whose owner or epoch changed are lost. Returns the regions lost now.
+pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
+    let held = leases.held();
+    if held.is_empty() {
+        return Ok(Vec::new());
+    }
+    let (xs, zs, epochs) = held_columns(&held)?;
+    let rows = pool.run("renewing leases", async |c: &mut Conn| {
+        c.query(
+            "UPDATE regions AS r SET lease_expires = now() + $5::float8 * interval '1 millisecond' \
+             FROM unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
+             WHERE r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e AND r.owner = $4 \
+             RETURNING r.region_x, r.region_z",
+            &[&xs, &zs, &epochs, &leases.node_id, &leases.lease_ms],
+        )
+        .await
+    })?;
+    let renewed: BTreeSet<RegionId> = rows
+        .iter()
+        .map(|r| RegionId {
+            x: r.get(0),
+            z: r.get(1),
+        })
+        .collect();
+    let lost: Vec<RegionId> = held
+        .keys()
+        .filter(|r| !renewed.contains(r))
+        .copied()
+        .collect();
+    for &r in &lost {
+        leases.lose(r);
+    }
+    Ok(lost)
+}
+
+/// Gives up every lease still this node's (owner set to NULL, epoch
+/// kept): another node may claim them at once. Returns how many.
+pub(super) fn release(pool: &Pool, leases: &NodeLeases) -> Result<u64, StoreError> {
+    let held = std::mem::take(&mut leases.book().held);
+    if held.is_empty() {
+        return Ok(0);
+    }
+    let (xs, zs, epochs) = held_columns(&held)?;
+    let n = pool.run("releasing leases", async |c: &mut Conn| {
+        c.execute(
+            "UPDATE regions AS r SET owner = NULL \
+             FROM unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
+             WHERE r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e AND r.owner = $4",
+            &[&xs, &zs, &epochs, &leases.node_id],
+        )
+        .await
+    })?;
+    leases.book().lost.extend(held);
+    Ok(n)
+}
+
+/// A region as error messages and logs name it.
+pub(super) fn show(r: RegionId) -> String {
+    format!("region ({}, {})", r.x, r.z)
+}
+
+#[derive(Debug, Default)]
+struct Stop {
+    flag: Mutex<bool>,
+    wake: Condvar,
+}
+
+/// The thread that renews this node's leases every `renew_ms`; stopped
+/// and joined on drop.
+#[derive(Debug)]
+pub(super) struct Renewer {
+    stop: Arc<Stop>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Renewer {
+    fn spawn(pool: Arc<Pool>, leases: Arc<NodeLeases>, every: Duration) -> std::io::Result<Self> {
+        let stop = Arc::new(Stop::default());
+        let flag = stop.clone();
+        let thread = std::thread::Builder::new()
+            .name("strata-leases".into())
+            .spawn(move || {
+                let mut stopped = flag.flag.lock().unwrap_or_else(|p| p.into_inner());
+                while !*stopped {
+                    stopped = flag
+                        .wake
+                        .wait_timeout(stopped, every)
+                        .unwrap_or_else(|p| p.into_inner())
+                        .0;
+                    if *stopped {
+                        break;
+                    }
+                    drop(stopped);
+                    if let Err(e) = renew(&pool, &leases) {
+                        warn!(error = %e, "renewing region leases failed; retrying");
+                    }
+                    stopped = flag.flag.lock().unwrap_or_else(|p| p.into_inner());
+                }
+            })?;
+        Ok(Self {
+            stop,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for Renewer {
+    fn drop(&mut self) {
+        *self.stop.flag.lock().unwrap_or_else(|p| p.into_inner()) = true;
+        self.stop.wake.notify_all();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl PgStore {
+    /// [`PgStore::open`] for one node of a cluster: commits are fenced by
+    /// the leases this node holds, claimed as it first writes a region (or
+    /// by [`PgStore::claim_regions`]) and renewed every `renew_ms`.
+    pub fn open_node(
+        cfg: &super::PgConfig,
+        region_chunks: u32,
+        cluster: &ClusterConfig,
+    ) -> Result<Self, StoreError> {
+        cluster
+            .check()
+            .map_err(|(field, reason)| StoreError::PgSetup {
+                reason: format!("{field} {reason}"),
+            })?;
+        let mut store = Self::open(cfg, region_chunks)?;
+        let leases = Arc::new(NodeLeases::new(cluster));
+        store.renewer = Some(Renewer::spawn(
+            store.pool.clone(),
+            leases.clone(),
+            Duration::from_millis(cluster.renew_ms),
+        )?);
+        store.leases = Some(leases);
+        Ok(store)
+    }
+
+    /// This node's leases; `None` when the store is not fenced (no `[cluster]`).
+    pub fn leases(&self) -> Option<&NodeLeases> {
+        self.leases.as_deref()
+    }
+
+    /// Claims those of `regions` that are free or expired; returns every
+    /// one of them this node now holds, with its epoch.
+    pub fn claim_regions(
+        &self,
+        regions: &[RegionId],
+    ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
+        let leases = self.cluster_leases()?;
+        let wanted: BTreeSet<RegionId> = regions.iter().copied().collect();
+        claim(&self.pool, leases, &wanted)?;
+        let held = leases.held();
+        Ok(held
+            .into_iter()
+            .filter(|(r, _)| wanted.contains(r))
+            .collect())
+    }
+
+    /// Renews now (the renewal thread does it every `renew_ms`); returns
+    /// the regions found lost.
+    pub fn renew_leases(&self) -> Result<Vec<RegionId>, StoreError> {
+        renew(&self.pool, self.cluster_leases()?)
+    }
+
+    /// Releases every lease held (at shutdown, after the last commit).
+    pub fn release_leases(&self) -> Result<u64, StoreError> {
+        release(&self.pool, self.cluster_leases()?)
+    }
+
+    /// Every region ever claimed, in key order.
+    pub fn region_leases(&self) -> Result<Vec<RegionLease>, StoreError> {
+        let rows = self
+            .pool
+            .run("reading region leases", async |c: &mut Conn| {
+                c.query(
+                    "SELECT region_x, region_z, owner, epoch, \
+                 (extract(epoch FROM lease_expires - now()) * 1000)::int8 \
+                 FROM regions ORDER BY region_x, region_z",
+                    &[],
+                )
+                .await
+            })?;
+        rows.iter()
+            .map(|r| {
+                let region = RegionId {
+                    x: r.get(0),
+                    z: r.get(1),
+                };
+                Ok(RegionLease {
+                    region,
+                    owner: r.get(2),
+                    epoch: from_sql(r.get(3), "epoch", show(region))?,
+                    expires_in_ms: r.get(4),
+                })
+            })
+            .collect()
+    }
+
+    fn cluster_leases(&self) -> Result<&NodeLeases, StoreError> {
+        self.leases.as_deref().ok_or_else(|| StoreError::PgSetup {
+            reason: "this store was opened without [cluster]: it holds no leases".into(),
+        })
+    }
+}

@@ -1,0 +1,444 @@
+//! Region leases and fenced commits on a real PostgreSQL: claims and
+//! renewals, takeover of an expired lease with a new epoch, commits with
+//! a stale epoch refused and changing nothing, and nodes racing.
+
+mod store_common;
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Barrier};
+use std::time::Duration;
+
+use store_common::{sql, terrain_chunk, Seq};
+use strata_server::cluster::ClusterConfig;
+use strata_server::sequencer::regions::{RegionId, DEFAULT_REGION_CHUNKS};
+use strata_server::store::pg::PgConfig;
+use strata_server::store::{ChunkStore, CommitBatch, PgStore, StoreError, WorldMeta};
+use strata_terrain::ChunkPos;
+use strata_tests::postgres::{database, PgDb};
+
+const SIDE: i32 = DEFAULT_REGION_CHUNKS as i32;
+
+/// A node on `db` named `id`, leases of `lease_ms` renewed every `renew_ms`.
+fn node_with(db: &PgDb, id: &str, lease_ms: u64, renew_ms: u64) -> PgStore {
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let cluster = ClusterConfig {
+        node_id: id.into(),
+        lease_ms,
+        renew_ms,
+    };
+    let store = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap();
+    store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+    store
+}
+
+/// A node with a long lease: only the tests expire it.
+fn node(db: &PgDb, id: &str) -> PgStore {
+    node_with(db, id, 60_000, 10_000)
+}
+
+fn region(x: i32, z: i32) -> RegionId {
+    RegionId { x, z }
+}
+
+/// A chunk of region `r`.
+fn chunk_in(r: RegionId, y: i32) -> ChunkPos {
+    ChunkPos::new(r.x * SIDE, y, r.z * SIDE)
+}
+
+/// Runs the lease of `r` out, as if its owner stopped renewing long ago.
+fn expire(db: &PgDb, r: RegionId) {
+    sql(
+        db,
+        &format!(
+            "UPDATE regions SET lease_expires = now() - interval '1 second' \
+             WHERE region_x = {} AND region_z = {}",
+            r.x, r.z
+        ),
+    );
+}
+
+/// A copy of the sequencer state, to build a batch that may be refused.
+fn fork(s: &Seq) -> Seq {
+    Seq {
+        last_seq: s.last_seq,
+        versions: s.versions.clone(),
+        states: s.states.clone(),
+    }
+}
+
+/// What a refused commit must leave as it was.
+#[derive(Debug, PartialEq)]
+struct Footprint {
+    last_seq: u64,
+    log: Vec<String>,
+    chunks: Vec<String>,
+    deltas: Vec<String>,
+}
+
+fn footprint(db: &PgDb, store: &PgStore) -> Footprint {
+    Footprint {
+        last_seq: store.last_seq().unwrap(),
+        log: sql(db, "SELECT seq FROM edit_log ORDER BY seq"),
+        chunks: sql(
+            db,
+            "SELECT x || ',' || y || ',' || z || '@' || version || ':' || md5(body) \
+             FROM chunks ORDER BY x, y, z",
+        ),
+        deltas: sql(
+            db,
+            "SELECT x || ',' || y || ',' || z || '@' || to_version FROM chunk_deltas \
+             ORDER BY x, y, z, to_version",
+        ),
+    }
+}
+
+fn edit(seq: &mut Seq, chunks: &[ChunkPos], salt: u32) -> CommitBatch {
+    let changes = chunks.iter().map(|&p| (p, terrain_chunk(salt))).collect();
+    seq.delta_batch(&[changes])
+}
+
+fn fenced(err: StoreError) -> (RegionId, Option<u64>, Option<u64>, Option<String>) {
+    match err {
+        StoreError::Fenced {
+            region,
+            held_epoch,
+            current_epoch,
+            owner,
+        } => (region, held_epoch, current_epoch, owner),
+        other => panic!("expected Fenced, got {other}"),
+    }
+}
+
+#[test]
+fn claims_are_exclusive_and_renewals_extend_the_lease() {
+    let Some(db) = database("lease_claims") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let b = node(&db, "b");
+    let (r0, r1) = (region(0, 0), region(-1, 3));
+    let got = a.claim_regions(&[r0, r1]).unwrap();
+    assert_eq!(got, BTreeMap::from([(r0, 1), (r1, 1)]));
+    // Held live by a: b gets nothing, and a's claim again changes nothing.
+    assert!(b.claim_regions(&[r0, r1]).unwrap().is_empty());
+    assert_eq!(a.claim_regions(&[r0]).unwrap(), BTreeMap::from([(r0, 1)]));
+    let expiry = "SELECT lease_expires FROM regions WHERE region_x = 0 AND region_z = 0";
+    let before = sql(&db, expiry);
+    std::thread::sleep(Duration::from_millis(20));
+    assert!(a.renew_leases().unwrap().is_empty());
+    assert!(sql(&db, expiry) > before, "the renewal moved the expiry on");
+    assert_eq!(
+        sql(
+            &db,
+            "SELECT owner || ' ' || epoch FROM regions ORDER BY region_x"
+        ),
+        ["a 1", "a 1"]
+    );
+    let leases = a.leases().unwrap();
+    assert_eq!(leases.node_id(), "a");
+    assert_eq!(leases.held(), BTreeMap::from([(r0, 1), (r1, 1)]));
+    assert!(leases.lost().is_empty());
+}
+
+#[test]
+fn an_expired_lease_goes_to_the_next_claimer_and_fences_the_old_owner() {
+    let Some(db) = database("lease_takeover") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let b = node(&db, "b");
+    let r = region(2, -1);
+    let pos = chunk_in(r, 0);
+    let mut world = Seq::default();
+    // a's first write claims the region.
+    a.commit_batch(&edit(&mut world, &[pos], 1)).unwrap();
+    a.commit_batch(&edit(&mut world, &[pos], 2)).unwrap();
+    assert_eq!(a.leases().unwrap().held(), BTreeMap::from([(r, 1)]));
+    expire(&db, r);
+    assert_eq!(b.claim_regions(&[r]).unwrap(), BTreeMap::from([(r, 2)]));
+
+    // a wakes up with epoch 1: its batch is refused whole.
+    let before = footprint(&db, &a);
+    let err = a
+        .commit_batch(&edit(&mut fork(&world), &[pos], 3))
+        .unwrap_err();
+    assert_eq!(fenced(err), (r, Some(1), Some(2), Some("b".into())));
+    assert_eq!(footprint(&db, &a), before);
+    assert!(a.leases().unwrap().held().is_empty());
+    assert_eq!(a.leases().unwrap().lost(), BTreeMap::from([(r, 1)]));
+
+    // b writes on from what is stored.
+    b.commit_batch(&edit(&mut world, &[pos], 4)).unwrap();
+    assert_eq!(b.load_chunk(pos).unwrap().unwrap().version, 3);
+    // Lost for good: even once b lets go, a does not take the region back.
+    assert_eq!(b.release_leases().unwrap(), 1);
+    let before = footprint(&db, &a);
+    let err = a
+        .commit_batch(&edit(&mut fork(&world), &[pos], 5))
+        .unwrap_err();
+    assert_eq!(fenced(err), (r, Some(1), Some(2), None));
+    assert_eq!(footprint(&db, &a), before);
+}
+
+#[test]
+fn a_region_another_node_holds_is_not_written() {
+    let Some(db) = database("lease_live_other") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let b = node(&db, "b");
+    let r = region(0, 5);
+    let mut world = Seq::default();
+    a.commit_batch(&edit(&mut world, &[chunk_in(r, 1)], 1))
+        .unwrap();
+    let before = footprint(&db, &b);
+    let err = b
+        .commit_batch(&edit(&mut fork(&world), &[chunk_in(r, 1)], 2))
+        .unwrap_err();
+    assert_eq!(fenced(err), (r, None, Some(1), Some("a".into())));
+    assert_eq!(footprint(&db, &b), before);
+    assert!(b.leases().unwrap().held().is_empty());
+}
+
+#[test]
+fn a_batch_across_regions_is_refused_whole_when_one_is_lost() {
+    let Some(db) = database("lease_across") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let b = node(&db, "b");
+    let (r0, r1) = (region(0, 0), region(1, 0));
+    let (p0, p1) = (chunk_in(r0, 0), chunk_in(r1, 0));
+    let mut world = Seq::default();
+    a.commit_batch(&edit(&mut world, &[p0, p1], 1)).unwrap();
+    expire(&db, r1);
+    b.claim_regions(&[r1]).unwrap();
+    let before = footprint(&db, &a);
+    let err = a
+        .commit_batch(&edit(&mut fork(&world), &[p0, p1], 2))
+        .unwrap_err();
+    assert_eq!(fenced(err), (r1, Some(1), Some(2), Some("b".into())));
+    // Nothing of it, r0's chunk included.
+    assert_eq!(footprint(&db, &a), before);
+    assert_eq!(a.leases().unwrap().held(), BTreeMap::from([(r0, 1)]));
+    // The region still held stays writable.
+    a.commit_batch(&edit(&mut world, &[p0], 3)).unwrap();
+}
+
+#[test]
+fn a_node_restarted_under_its_name_fences_its_previous_process() {
+    let Some(db) = database("lease_restart") else {
+        return;
+    };
+    let old = node(&db, "a");
+    let r = region(3, 3);
+    let mut world = Seq::default();
+    old.commit_batch(&edit(&mut world, &[chunk_in(r, 0)], 1))
+        .unwrap();
+    // The lease is live, but the name is the same: a new epoch at once.
+    let new = node(&db, "a");
+    assert_eq!(new.claim_regions(&[r]).unwrap(), BTreeMap::from([(r, 2)]));
+    let before = footprint(&db, &new);
+    let err = old
+        .commit_batch(&edit(&mut fork(&world), &[chunk_in(r, 0)], 2))
+        .unwrap_err();
+    assert_eq!(fenced(err), (r, Some(1), Some(2), Some("a".into())));
+    assert_eq!(footprint(&db, &new), before);
+    new.commit_batch(&edit(&mut world, &[chunk_in(r, 0)], 3))
+        .unwrap();
+}
+
+#[test]
+fn nodes_racing_for_the_same_regions_get_one_owner_each() {
+    let Some(db) = database("lease_race") else {
+        return;
+    };
+    let regions: Vec<RegionId> = (0..6)
+        .flat_map(|x| (0..6).map(move |z| region(x, z)))
+        .collect();
+    for round in 1..=3u64 {
+        // Fresh nodes each round, after every lease of the last ran out.
+        let names: Vec<String> = ["a", "b", "c"]
+            .iter()
+            .map(|n| format!("{n}{round}"))
+            .collect();
+        let nodes: Vec<PgStore> = names.iter().map(|id| node(&db, id)).collect();
+        let start = Barrier::new(nodes.len());
+        let claims: Vec<BTreeMap<RegionId, u64>> = std::thread::scope(|s| {
+            let handles: Vec<_> = nodes
+                .iter()
+                .enumerate()
+                .map(|(i, n)| {
+                    let (start, regions) = (&start, &regions);
+                    s.spawn(move || {
+                        start.wait();
+                        // Batches of five, each node from another end.
+                        let mut got = BTreeMap::new();
+                        let mut batches: Vec<&[RegionId]> = regions.chunks(5).collect();
+                        let turn = i * 3 % batches.len();
+                        batches.rotate_left(turn);
+                        for batch in batches {
+                            got.extend(n.claim_regions(batch).unwrap());
+                        }
+                        got
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        let mut owners: BTreeMap<RegionId, usize> = BTreeMap::new();
+        for (i, got) in claims.iter().enumerate() {
+            assert_eq!(&nodes[i].leases().unwrap().held(), got);
+            for (&r, &epoch) in got {
+                assert_eq!(epoch, round, "one claim per region and round");
+                assert_eq!(owners.insert(r, i), None, "{r:?} claimed twice");
+            }
+        }
+        assert_eq!(owners.len(), regions.len(), "every region has an owner");
+        let table = sql(
+            &db,
+            "SELECT owner || ':' || region_x || ',' || region_z || ':' || epoch \
+             FROM regions ORDER BY 1",
+        );
+        let mut believed: Vec<String> = owners
+            .iter()
+            .map(|(r, &i)| format!("{}:{},{}:{round}", names[i], r.x, r.z))
+            .collect();
+        believed.sort();
+        assert_eq!(table, believed);
+        sql(
+            &db,
+            "UPDATE regions SET lease_expires = now() - interval '1 second'",
+        );
+    }
+}
+
+#[test]
+fn a_commit_racing_a_takeover_is_either_before_it_or_refused() {
+    let Some(db) = database("lease_commit_race") else {
+        return;
+    };
+    let a = Arc::new(node(&db, "a"));
+    let b = node(&db, "b");
+    let r = region(0, 0);
+    let pos = chunk_in(r, 2);
+    let mut world = Seq::default();
+    a.commit_batch(&edit(&mut world, &[pos], 1)).unwrap();
+    let taken = Arc::new(AtomicBool::new(false));
+    let writer = {
+        let (a, taken) = (a.clone(), taken.clone());
+        std::thread::spawn(move || {
+            let (mut acked, mut late) = (Vec::new(), 0);
+            for salt in 2..2000 {
+                let started_after = taken.load(Ordering::SeqCst);
+                let mut next = fork(&world);
+                let batch = edit(&mut next, &[pos], salt);
+                match a.commit_batch(&batch) {
+                    Ok(_) => {
+                        assert!(
+                            !started_after,
+                            "a commit begun after the takeover succeeded"
+                        );
+                        world = next;
+                        acked.push(world.last_seq);
+                    }
+                    Err(e) => {
+                        fenced(e);
+                        late += 1;
+                        if late > 3 {
+                            break;
+                        }
+                    }
+                }
+            }
+            acked
+        })
+    };
+    std::thread::sleep(Duration::from_millis(100));
+    expire(&db, r);
+    assert_eq!(b.claim_regions(&[r]).unwrap(), BTreeMap::from([(r, 2)]));
+    taken.store(true, Ordering::SeqCst);
+    let acked = writer.join().unwrap();
+    assert!(!acked.is_empty(), "a wrote before the takeover");
+    // The log holds exactly the first commit and what a was told succeeded.
+    let mut want = vec!["1".to_string()];
+    want.extend(acked.iter().map(u64::to_string));
+    assert_eq!(sql(&db, "SELECT seq FROM edit_log ORDER BY seq"), want);
+    assert_eq!(b.last_seq().unwrap(), *acked.last().unwrap());
+}
+
+#[test]
+fn the_renewal_thread_keeps_leases_alive_until_the_node_is_gone() {
+    let Some(db) = database("lease_renewer") else {
+        return;
+    };
+    let (lease_ms, renew_ms) = (400, 50);
+    let a = node_with(&db, "a", lease_ms, renew_ms);
+    let b = node(&db, "b");
+    let r = region(4, 4);
+    a.claim_regions(&[r]).unwrap();
+    // Three leases long: only the thread's renewals keep it a's.
+    std::thread::sleep(Duration::from_millis(3 * lease_ms));
+    assert!(b.claim_regions(&[r]).unwrap().is_empty());
+    assert_eq!(a.leases().unwrap().held(), BTreeMap::from([(r, 1)]));
+    drop(a);
+    std::thread::sleep(Duration::from_millis(lease_ms + 200));
+    assert_eq!(b.claim_regions(&[r]).unwrap(), BTreeMap::from([(r, 2)]));
+}
+
+#[test]
+fn open_node_refuses_bad_cluster_settings() {
+    let Some(db) = database("lease_settings") else {
+        return;
+    };
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    for (cluster, field) in [
+        (ClusterConfig::default(), "cluster.node_id"),
+        (
+            ClusterConfig {
+                node_id: "a b".into(),
+                ..ClusterConfig::default()
+            },
+            "cluster.node_id",
+        ),
+        (
+            ClusterConfig {
+                node_id: "a".into(),
+                lease_ms: 1000,
+                renew_ms: 600,
+            },
+            "cluster.renew_ms",
+        ),
+    ] {
+        let err = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap_err();
+        assert!(err.to_string().contains(field), "{err}");
+    }
+}
+
+#[test]
+fn the_regions_table_lists_owners_epochs_and_expiry() {
+    let Some(db) = database("lease_listing") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let (r0, r1) = (region(-2, 0), region(1, 1));
+    a.claim_regions(&[r1, r0]).unwrap();
+    expire(&db, r1);
+    a.release_leases().unwrap();
+    let rows = a.region_leases().unwrap();
+    let got: Vec<_> = rows
+        .iter()
+        .map(|l| (l.region, l.owner.clone(), l.epoch))
+        .collect();
+    assert_eq!(got, [(r0, None, 1), (r1, None, 1)]);
+    // r0's lease had most of a minute left, r1's ran out a second ago.
+    assert!(rows[0].expires_in_ms > 50_000, "{rows:?}");
+    assert!((-5_000..=-900).contains(&rows[1].expires_in_ms), "{rows:?}");
+}
