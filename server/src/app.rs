@@ -40,6 +40,7 @@ pub struct Running {
     engine: EngineHandle,
     engine_thread: std::thread::JoinHandle<anyhow::Result<()>>,
     checkpointer: Checkpointer,
+    store: Arc<dyn ChunkStore>,
     health: Arc<Health>,
     /// Becomes true when the engine thread ends.
     engine_exit: tokio::sync::watch::Receiver<bool>,
@@ -219,6 +220,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         engine,
         engine_thread,
         checkpointer,
+        store,
         health,
         engine_exit,
         console_addr: console.as_ref().map(|c| c.addr),
@@ -257,12 +259,17 @@ impl Running {
         let engine = self.engine;
         let engine_thread = self.engine_thread;
         let checkpointer = self.checkpointer;
+        let store = self.store;
         let engine_result = tokio::task::spawn_blocking(move || {
             engine.stop();
             let joined = engine_thread.join();
             // Nothing commits now: fold the deltas left into chunk records.
             if let Err(e) = checkpointer.stop() {
                 tracing::error!(error = %e, "final checkpoint failed; the deltas stay for the next start");
+            }
+            // A cluster node hands its regions over at once.
+            if let Err(e) = store.close() {
+                tracing::warn!(error = %e, "closing the store failed; leases run out on their own");
             }
             joined
         })

@@ -322,6 +322,7 @@ fn forced_restore_into_a_data_dir_keeps_its_identity() {
         file: snap,
         data_dir: root.clone(),
         force: true,
+        config: None,
     };
     snapshot_cmd::restore(&args).unwrap();
     assert_eq!(identity(&root), before);

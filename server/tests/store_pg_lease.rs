@@ -442,3 +442,115 @@ fn the_regions_table_lists_owners_epochs_and_expiry() {
     assert!(rows[0].expires_in_ms > 50_000, "{rows:?}");
     assert!((-5_000..=-900).contains(&rows[1].expires_in_ms), "{rows:?}");
 }
+
+#[test]
+fn fenced_commits_count_edits_per_region_and_refused_ones_count_nothing() {
+    let Some(db) = database("lease_edit_counts") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let (r0, r1) = (region(0, 0), region(1, 0));
+    let mut world = Seq::default();
+    // Two edits in r0, one across the border of r0 and r1, in one batch.
+    let (c0, c1) = (chunk_in(r0, 0), chunk_in(r1, 0));
+    let batch = world.delta_batch(&[
+        vec![(c0, terrain_chunk(1))],
+        vec![(c0, terrain_chunk(2))],
+        vec![(c0, terrain_chunk(3)), (c1, terrain_chunk(3))],
+    ]);
+    a.commit_batch(&batch).unwrap();
+    let counts = |s: &PgStore| -> Vec<(RegionId, u64)> {
+        s.region_leases()
+            .unwrap()
+            .iter()
+            .map(|l| (l.region, l.edits))
+            .collect()
+    };
+    assert_eq!(counts(&a), [(r0, 3), (r1, 1)]);
+    let rows = a.region_leases().unwrap();
+    assert!(
+        rows.iter().all(|l| (0..5_000).contains(&l.renewed_ms_ago)),
+        "{rows:?}"
+    );
+
+    // b takes r1 over; a's next batch across the border is refused whole
+    // and counts nothing anywhere.
+    expire(&db, r1);
+    let b = node(&db, "b");
+    b.claim_regions(&[r1]).unwrap();
+    let mut stale = fork(&world);
+    let refused = stale.delta_batch(&[vec![(c0, terrain_chunk(4)), (c1, terrain_chunk(4))]]);
+    fenced(a.commit_batch(&refused).unwrap_err());
+    assert_eq!(counts(&b), [(r0, 3), (r1, 1)]);
+}
+
+#[test]
+fn renewals_do_not_wait_behind_a_commit_holding_the_pool() {
+    let Some(db) = database("lease_own_connection") else {
+        return;
+    };
+    let (lease_ms, renew_ms) = (600, 50);
+    let pg = PgConfig {
+        url: db.url(),
+        max_connections: 1,
+        ..PgConfig::default()
+    };
+    let cluster = ClusterConfig {
+        node_id: "a".into(),
+        lease_ms,
+        renew_ms,
+    };
+    let a = Arc::new(PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap());
+    a.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+    let r = region(2, 2);
+    a.claim_regions(&[r]).unwrap();
+    let mut world = Seq::default();
+    let batch = world.delta_batch(&[vec![(chunk_in(r, 0), terrain_chunk(9))]]);
+
+    // Another session holds the world row for three leases: a's commit
+    // waits on it with the pool's only connection.
+    let url = db.url();
+    let locked = Arc::new(Barrier::new(2));
+    let holder = {
+        let locked = locked.clone();
+        std::thread::spawn(move || {
+            let rt = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+                .unwrap();
+            rt.block_on(async {
+                let (client, conn) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
+                    .await
+                    .unwrap();
+                tokio::spawn(conn);
+                client
+                    .batch_execute("BEGIN; SELECT 1 FROM world WHERE id = 1 FOR UPDATE")
+                    .await
+                    .unwrap();
+                locked.wait();
+                tokio::time::sleep(Duration::from_millis(3 * lease_ms)).await;
+                client.batch_execute("COMMIT").await.unwrap();
+            })
+        })
+    };
+    locked.wait();
+    let committing = {
+        let a = a.clone();
+        std::thread::spawn(move || a.commit_batch(&batch))
+    };
+    // Three leases later the lease is still a's: renewed meanwhile.
+    std::thread::sleep(Duration::from_millis(3 * lease_ms - 200));
+    assert!(!committing.is_finished(), "the commit still waits");
+    let row = sql(
+        &db,
+        &format!(
+            "SELECT owner || ':' || (lease_expires > now()) FROM regions \
+             WHERE region_x = {} AND region_z = {}",
+            r.x, r.z
+        ),
+    );
+    assert_eq!(row, ["a:true"], "renewed while the commit waited");
+    holder.join().unwrap();
+    committing.join().unwrap().unwrap();
+    assert_eq!(a.leases().unwrap().held(), BTreeMap::from([(r, 1)]));
+}

@@ -3,6 +3,11 @@
 //! node takes its regions, and the node is SIGCONTed. Nothing it commits
 //! after the takeover reaches the store and nothing is acknowledged past
 //! what the store held then; the node stops, closing its sessions.
+//!
+//! And the graceful side: a node stopped with SIGTERM releases its leases,
+//! `strata-admin cluster status` reports a running node's regions, and
+//! the offline tools (check, render-map, snapshot create and restore)
+//! work on the PostgreSQL store.
 
 use std::io::{BufRead, BufReader, Read};
 use std::process::Command;
@@ -42,6 +47,30 @@ fn acked_seqs(path: &std::path::Path) -> Vec<u64> {
         .collect()
 }
 
+/// `n` bots editing 5 times a second, logging acks to `acks`, once they
+/// have 10 acknowledged.
+fn editing_bots(server: &Server, acks: &std::path::Path, n: u32) -> strata_tests::Guard {
+    let bots = spawn_bots(
+        server,
+        &[
+            "--bots",
+            &n.to_string(),
+            "--duration",
+            "60s",
+            "--edit-rate",
+            "5",
+            "--ack-log",
+            acks.to_str().unwrap(),
+        ],
+    );
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while std::fs::read_to_string(acks).map_or(0, |s| s.lines().count()) < 10 {
+        assert!(Instant::now() < deadline, "no edits acknowledged");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    bots
+}
+
 /// What the store holds: last seq, the log's seqs, each chunk's version.
 fn state(store: &PgStore) -> (u64, Vec<u64>, Vec<String>) {
     let log = store
@@ -74,24 +103,7 @@ fn a_node_paused_past_its_lease_stores_and_acknowledges_nothing_after_a_takeover
     let mut server = Server::start_logging(&data, "127.0.0.1:0", &config, stderr.into());
     // For the offline verify-acks: the store, not the node.
     std::fs::write(data.join("strata.toml"), &store_config).unwrap();
-    let bots = spawn_bots(
-        &server,
-        &[
-            "--bots",
-            "4",
-            "--duration",
-            "60s",
-            "--edit-rate",
-            "5",
-            "--ack-log",
-            acks.to_str().unwrap(),
-        ],
-    );
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while std::fs::read_to_string(&acks).map_or(0, |s| s.lines().count()) < 10 {
-        assert!(Instant::now() < deadline, "no edits acknowledged");
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let bots = editing_bots(&server, &acks, 4);
 
     // The other node: a store handle of its own, with its own name.
     let pg = PgConfig {
@@ -154,4 +166,163 @@ fn a_node_paused_past_its_lease_stores_and_acknowledges_nothing_after_a_takeover
             assert_eq!(l.owner.as_deref(), Some("node-b"));
         }
     }
+}
+
+/// Runs `strata-admin` with `args`; returns its status and stdout.
+fn admin(args: &[&str]) -> (std::process::ExitStatus, String) {
+    let child = Command::new(strata_tests::binary("strata-admin"))
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::inherit())
+        .spawn()
+        .expect("strata-admin starts");
+    strata_tests::wait_with_output(strata_tests::Guard(child), Duration::from_secs(60))
+}
+
+#[test]
+fn a_node_stopped_gracefully_hands_its_regions_over_and_the_admin_tools_read_postgres() {
+    let Some(db) = database("graceful_handover") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, acks) = (tmp.path().join("data"), tmp.path().join("acks.jsonl"));
+    let store_config = format!("{SERVER_CONFIG}{}", db.store_toml());
+    // A long lease: only the release at shutdown can free the regions soon.
+    let config = format!(
+        "{store_config}[cluster]\nnode_id = \"node-a\"\nlease_ms = 60000\nrenew_ms = 10000\n"
+    );
+    let server = Server::start_with(&data, "127.0.0.1:0", &config);
+    std::fs::write(data.join("strata.toml"), &store_config).unwrap();
+    let data_arg = data.to_str().unwrap();
+    let bots = editing_bots(&server, &acks, 3);
+
+    // While it runs: the node's regions, live, with edits and a rate.
+    let (status, out) = admin(&[
+        "cluster",
+        "status",
+        "--data-dir",
+        data_arg,
+        "--sample-ms",
+        "1000",
+        "--json",
+    ]);
+    assert!(status.success(), "cluster status: {out}");
+    let rows: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let mine: Vec<_> = rows
+        .iter()
+        .filter(|r| r["owner"] == "node-a" && r["state"] == "live")
+        .collect();
+    assert!(!mine.is_empty(), "node-a's regions listed: {out}");
+    assert!(mine.iter().all(|r| r["epoch"].as_u64() >= Some(1)));
+    assert!(mine
+        .iter()
+        .all(|r| r["lease_age_ms"].as_i64() < Some(60_000)));
+    assert!(
+        mine.iter().any(|r| num(r, "edits") > 0),
+        "edits counted: {out}"
+    );
+    assert!(
+        mine.iter()
+            .any(|r| r["edits_per_s"].as_f64().is_some_and(|v| v > 0.0)),
+        "edits/s over the sample: {out}"
+    );
+    let (status, table) = admin(&[
+        "cluster",
+        "status",
+        "--data-dir",
+        data_arg,
+        "--sample-ms",
+        "0",
+    ]);
+    assert!(
+        status.success() && table.contains("node node-a:"),
+        "{table}"
+    );
+
+    drop(bots);
+    server.stop();
+
+    // Released at shutdown: another node claims them at once, well
+    // inside the 60 s lease.
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let b = PgStore::open(&pg, DEFAULT_REGION_CHUNKS).unwrap();
+    let leases = b.region_leases().unwrap();
+    assert!(!leases.is_empty());
+    assert!(
+        leases.iter().all(|l| l.owner.is_none()),
+        "every lease released: {leases:?}"
+    );
+    let before = state(&b);
+    let acked = acked_seqs(&acks);
+    assert!(acked.iter().all(|&s| s <= before.0));
+
+    // The offline tools read the PostgreSQL store through the data dir's
+    // strata.toml: check, a map, a snapshot, and a restore over it.
+    let (status, out) = admin(&["check", "--data-dir", data_arg]);
+    assert!(status.success() && out.contains("OK"), "check: {out}");
+    let map = tmp.path().join("map.png");
+    let (status, out) = admin(&[
+        "render-map",
+        "--data-dir",
+        data_arg,
+        "--region",
+        "-2",
+        "-2",
+        "2",
+        "2",
+        "--top-down",
+        "--out",
+        map.to_str().unwrap(),
+    ]);
+    assert!(status.success(), "render-map: {out}");
+    assert!(std::fs::metadata(&map).unwrap().len() > 100);
+    let snap = tmp.path().join("world.snap");
+    let (status, out) = admin(&[
+        "snapshot",
+        "create",
+        "--data-dir",
+        data_arg,
+        "--out",
+        snap.to_str().unwrap(),
+    ]);
+    assert!(status.success(), "snapshot create: {out}");
+    let cfg = data.join("strata.toml");
+    let restore = |force: bool| {
+        let mut args = vec![
+            "snapshot",
+            "restore",
+            snap.to_str().unwrap(),
+            "--data-dir",
+            data_arg,
+            "--config",
+            cfg.to_str().unwrap(),
+        ];
+        if force {
+            args.push("--force");
+        }
+        admin(&args)
+    };
+    let (status, _) = restore(false);
+    assert!(
+        !status.success(),
+        "a store with a world is not replaced without --force"
+    );
+    assert_eq!(state(&b), before, "the refused restore changed nothing");
+    let (status, out) = restore(true);
+    assert!(status.success(), "restore --force: {out}");
+    let after = state(&b);
+    assert_eq!(after.0, before.0, "last_seq is the snapshot's seq");
+    assert!(after.1.is_empty(), "the restored world starts past its log");
+    assert_eq!(after.2, before.2, "every chunk at its version");
+    let (status, out) = admin(&["check", "--data-dir", data_arg]);
+    assert!(
+        status.success() && out.contains("OK"),
+        "check after restore: {out}"
+    );
 }

@@ -1,6 +1,7 @@
 //! `strata-admin check`: verifies a stopped server's whole store offline.
 //!
-//! Runs [`SledStore::check_with_progress`] (every chunk decodes, chunk
+//! Runs the store's `check_with_progress` (sled's or PostgreSQL's, as the
+//! data dir's config names: every chunk decodes, chunk
 //! versions agree with the edit log, the log has no gaps and ends at the
 //! metadata's `last_seq`, no orphaned records or trees) and adds what only
 //! the server's code knows: the world metadata was written by this
@@ -12,11 +13,10 @@ use std::path::PathBuf;
 use strata_terrain::gen::GENERATOR_VERSION;
 
 use crate::app::ZONES_BLOB;
-use crate::datadir::WORLD_DB_NAME;
-use crate::store::{CheckReport, ChunkStore, SledStore};
+use crate::store::{CheckReport, ChunkStore};
 use crate::validate::zones::Zone;
 
-use super::world_source::{open_store, progress_bar, WorldSourceError};
+use super::world_source::{open_offline, progress_bar, WorldSourceError};
 
 /// Arguments of `strata-admin check`.
 #[derive(Debug, Clone, clap::Args)]
@@ -24,6 +24,11 @@ pub struct CheckArgs {
     /// Data directory of a STOPPED server (its world.sled is opened directly).
     #[arg(long, value_name = "DIR")]
     pub data_dir: PathBuf,
+    /// Server config naming the store [default: DIR/strata.toml if
+    /// present, else the data dir's world.sled]. With `[store] backend =
+    /// "postgres"` its database is checked; stop every node first.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
 }
 
 /// The store's report plus the world-level findings.
@@ -76,7 +81,7 @@ impl fmt::Display for CheckOutcome {
 }
 
 /// World-level checks on a store whose records were scanned.
-fn world_findings(store: &SledStore) -> Vec<String> {
+fn world_findings(store: &dyn ChunkStore) -> Vec<String> {
     let mut out = Vec::new();
     match store.load_meta() {
         Ok(Some(meta)) if meta.generator_version != GENERATOR_VERSION => out.push(format!(
@@ -103,9 +108,9 @@ fn world_findings(store: &SledStore) -> Vec<String> {
 
 /// Runs the check; `show_progress` allows a spinner on stderr.
 pub fn run(args: &CheckArgs, show_progress: bool) -> Result<CheckOutcome, WorldSourceError> {
-    let store = open_store(&args.data_dir)?;
+    let (store, path) = open_offline(&args.data_dir, args.config.as_deref())?;
     let store_err = |source| WorldSourceError::Store {
-        path: args.data_dir.join(WORLD_DB_NAME),
+        path: path.clone(),
         source,
     };
     let bar = progress_bar(show_progress, None, "checked records");
@@ -116,7 +121,7 @@ pub fn run(args: &CheckArgs, show_progress: bool) -> Result<CheckOutcome, WorldS
     let blobs = store.blob_count().map_err(store_err)?;
     Ok(CheckOutcome {
         store: report,
-        world: world_findings(&store),
+        world: world_findings(store.as_store()),
         blobs,
     })
 }

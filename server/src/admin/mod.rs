@@ -3,6 +3,7 @@
 
 pub mod access_cmd;
 pub mod check;
+pub mod cluster_cmd;
 pub mod export;
 pub mod export_mesh;
 pub mod generate;

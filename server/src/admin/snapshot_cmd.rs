@@ -10,12 +10,13 @@ use strata_protocol::admin::{AdminRequest, AdminResponse, SnapshotInfo, ZoneSpec
 
 use super::remote::{block_on, connect_target, open_offline_store, progress, Target, TargetArgs};
 use crate::app::ZONES_BLOB;
+use crate::config::ServerConfig;
 use crate::datadir::DataDir;
 use crate::engine::admin::zone_spec;
 use crate::snapshot::diff::{diff, DiffReport};
 use crate::snapshot::restore::import;
 use crate::snapshot::{verify, SnapshotHeader, SnapshotWriter, VerifyReport};
-use crate::store::{ChunkStore, SledStore};
+use crate::store::{ChunkStore, ImportTarget, PgStore, SledStore, StoreBackend};
 use crate::validate::zones::Zone;
 
 #[derive(Debug, Subcommand)]
@@ -55,9 +56,17 @@ pub struct RestoreArgs {
     /// Data dir to create. Its certificate and auth secret are kept if present.
     #[arg(long)]
     pub data_dir: PathBuf,
-    /// Replace the world of a data dir that already has one.
+    /// Replace the world of a data dir (or PostgreSQL store) that already
+    /// has one.
     #[arg(long)]
     pub force: bool,
+    /// Server config naming the store to restore into. With `[store]
+    /// backend = "postgres"` the world goes into that database (every
+    /// node stopped; `--force` empties its world and leases first) and the
+    /// data dir keeps only the certificate and secret [default: the data
+    /// dir's world.sled].
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -266,6 +275,13 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
             report.issues.join("\n")
         );
     }
+    if let Some(path) = &args.config {
+        let cfg = ServerConfig::load(Some(path))
+            .with_context(|| format!("loading {}", path.display()))?;
+        if cfg.store.backend == StoreBackend::Postgres {
+            return restore_postgres(args, &cfg, report.chunks);
+        }
+    }
     if !is_empty_dir(&args.data_dir)? && !args.force {
         bail!(
             "{} is not empty; pass --force to replace its world (its certificate and secret are kept)",
@@ -280,6 +296,26 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
     }
     let store = SledStore::open(&db)?;
     let total = report.chunks;
+    let bar = progress(Some(total), "restore {bar:40} {pos}/{len} chunks {eta}");
+    let n = import(&args.file, &store, ZONES_BLOB, |n| bar.set_position(n))?;
+    bar.finish_and_clear();
+    Ok(n)
+}
+
+/// `restore` into the PostgreSQL store `cfg` names.
+fn restore_postgres(args: &RestoreArgs, cfg: &ServerConfig, total: u64) -> anyhow::Result<u64> {
+    DataDir::open_or_init(&args.data_dir, &[])
+        .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
+    let store = PgStore::open(&cfg.store.postgres, cfg.sequencer.region_chunks)
+        .context("opening the PostgreSQL store")?;
+    if let Err(e) = store.begin_import() {
+        if !args.force {
+            bail!("the PostgreSQL store already holds a world ({e}); pass --force to replace it (stop every node first)");
+        }
+        store
+            .clear_world()
+            .context("emptying the PostgreSQL store")?;
+    }
     let bar = progress(Some(total), "restore {bar:40} {pos}/{len} chunks {eta}");
     let n = import(&args.file, &store, ZONES_BLOB, |n| bar.set_position(n))?;
     bar.finish_and_clear();

@@ -1,9 +1,12 @@
 //! The world of a stopped server, read offline: the data dir's stored
 //! chunks over the generator its config (or its store) names.
 //!
-//! Offline commands (`render-map`, `export-mesh`, `check`) open the data
-//! dir's `world.sled` directly, so the server must be stopped: sled locks
-//! the database, and a held lock is reported as such. The generator comes
+//! Offline commands (`render-map`, `export-mesh`, `check`) open the store
+//! that the config (`--config`, else `DIR/strata.toml`) names: the data
+//! dir's `world.sled` directly, so the server must be stopped (sled locks
+//! the database, and a held lock is reported as such), or the PostgreSQL
+//! store of `[store] backend = "postgres"`, which they only read (stop
+//! the nodes for a view of one moment: a scan is not a snapshot). The generator comes
 //! from `--config FILE`, else `DIR/strata.toml` if present, else the
 //! generator parameters recorded in the store's metadata (a fractal world
 //! needs nothing else; a heightmap world needs its config for the map file).
@@ -24,7 +27,9 @@ use thiserror::Error;
 
 use crate::config::{ConfigError, ServerConfig};
 use crate::datadir::WORLD_DB_NAME;
-use crate::store::{ChunkStore, RawChunk, SledStore, StoreError, WorldMeta};
+use crate::store::{
+    CheckReport, ChunkStore, PgStore, RawChunk, SledStore, StoreBackend, StoreError, WorldMeta,
+};
 
 /// A config file in the data dir that offline commands read by default.
 pub const DATA_DIR_CONFIG_NAME: &str = "strata.toml";
@@ -37,8 +42,9 @@ pub struct OfflineArgs {
     /// Data directory of a STOPPED server (its world.sled is opened directly).
     #[arg(long, value_name = "DIR")]
     pub data_dir: PathBuf,
-    /// Server config naming the world generator [default: DIR/strata.toml if
-    /// present, else the generator recorded in the world database].
+    /// Server config naming the world generator and the store (sled, or
+    /// PostgreSQL) [default: DIR/strata.toml if present, else the data
+    /// dir's world.sled and the generator recorded in it].
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
 }
@@ -63,6 +69,7 @@ pub enum WorldSourceError {
     Locked(PathBuf),
     #[error("world database {path}: {source}")]
     Store {
+        /// The sled directory, or the PostgreSQL store's name.
         path: PathBuf,
         #[source]
         source: StoreError,
@@ -150,10 +157,75 @@ impl RegionArgs {
     }
 }
 
+/// A stopped server's store, of the backend its config names.
+#[derive(Debug)]
+pub enum OfflineStore {
+    Sled(SledStore),
+    Postgres(PgStore),
+}
+
+impl OfflineStore {
+    pub fn as_store(&self) -> &dyn ChunkStore {
+        match self {
+            OfflineStore::Sled(s) => s,
+            OfflineStore::Postgres(s) => s,
+        }
+    }
+
+    /// Every record verified, `tick` called per record.
+    pub fn check_with_progress(&self, tick: &dyn Fn()) -> Result<CheckReport, StoreError> {
+        match self {
+            OfflineStore::Sled(s) => s.check_with_progress(tick),
+            OfflineStore::Postgres(s) => s.check_with_progress(tick),
+        }
+    }
+
+    pub fn blob_count(&self) -> Result<u64, StoreError> {
+        match self {
+            OfflineStore::Sled(s) => s.blob_count(),
+            OfflineStore::Postgres(s) => s.blob_count(),
+        }
+    }
+}
+
+/// How errors name the PostgreSQL store (its URL may hold a password).
+pub const POSTGRES_STORE_NAME: &str = "[store.postgres]";
+
+/// Opens the store `config` (else `DIR/strata.toml`) names; without
+/// either, or for sled, the data dir's `world.sled`. Returns it with the
+/// name errors give it.
+pub fn open_offline(
+    data_dir: &Path,
+    config: Option<&Path>,
+) -> Result<(OfflineStore, PathBuf), WorldSourceError> {
+    if !data_dir.is_dir() {
+        return Err(WorldSourceError::NoDataDir(data_dir.to_path_buf()));
+    }
+    let config = config.map(Path::to_path_buf).or_else(|| {
+        let p = data_dir.join(DATA_DIR_CONFIG_NAME);
+        p.is_file().then_some(p)
+    });
+    if let Some(path) = config {
+        let cfg = ServerConfig::load(Some(&path))?;
+        if cfg.store.backend == StoreBackend::Postgres {
+            let name = PathBuf::from(POSTGRES_STORE_NAME);
+            let store = PgStore::open(&cfg.store.postgres, cfg.sequencer.region_chunks).map_err(
+                |source| WorldSourceError::Store {
+                    path: name.clone(),
+                    source,
+                },
+            )?;
+            return Ok((OfflineStore::Postgres(store), name));
+        }
+    }
+    let store = open_store(data_dir)?;
+    Ok((OfflineStore::Sled(store), data_dir.join(WORLD_DB_NAME)))
+}
+
 /// A stopped server's store and the generator of its world.
 #[derive(Debug)]
 pub struct OfflineWorld {
-    pub store: SledStore,
+    pub store: OfflineStore,
     /// Where the store lives, for error messages.
     pub db_path: PathBuf,
     pub generator: Arc<Generator>,
@@ -204,13 +276,12 @@ fn recorded_generator(meta: &WorldMeta) -> Result<Generator, WorldSourceError> {
 
 impl OfflineWorld {
     pub fn open(args: &OfflineArgs) -> Result<Self, WorldSourceError> {
-        let store = open_store(&args.data_dir)?;
-        let db_path = args.data_dir.join(WORLD_DB_NAME);
+        let (store, db_path) = open_offline(&args.data_dir, args.config.as_deref())?;
         let store_err = |source| WorldSourceError::Store {
             path: db_path.clone(),
             source,
         };
-        let meta = store.load_meta().map_err(store_err)?;
+        let meta = store.as_store().load_meta().map_err(store_err)?;
         if let Some(m) = &meta {
             if m.generator_version != GENERATOR_VERSION {
                 return Err(WorldSourceError::GeneratorVersion {
@@ -298,7 +369,7 @@ impl WorldView for OfflineWorld {
     fn world(&self, within: ChunkBox) -> Result<World, WorldSourceError> {
         let generator: Arc<dyn ChunkGenerator> = self.generator.clone();
         let mut world = World::new(generator);
-        for raw in self.store.raw_chunks() {
+        for raw in self.store.as_store().raw_chunks() {
             let raw = raw.map_err(|source| WorldSourceError::Store {
                 path: self.db_path.clone(),
                 source,

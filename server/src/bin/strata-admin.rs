@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use strata_server::admin::check::{self, CheckArgs};
+use strata_server::admin::cluster_cmd::{self, ClusterCommand};
 use strata_server::admin::export_mesh::{self, ExportMeshArgs};
 use strata_server::admin::generate::{self, GenerateArgs};
 use strata_server::admin::mesh_cmd::{self, MeshArgs};
@@ -94,6 +95,13 @@ enum Command {
     /// line; exits non-zero if anything acknowledged is missing. Stop the
     /// server first.
     VerifyAcks(VerifyAcksArgs),
+    /// A cluster of nodes sharing a PostgreSQL store.
+    ///
+    /// `status` lists every region ever claimed: its owner, epoch, lease
+    /// state, seconds since its last renewal, and edits per second over a
+    /// short sample. The nodes keep running.
+    #[command(subcommand)]
+    Cluster(ClusterCommand),
 }
 
 #[derive(Debug, Subcommand)]
@@ -200,6 +208,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let n = players::kick(&args).context("strata-admin kick")?;
             println!("kicked {n} session(s) of {}", args.name);
         }
+        Command::Cluster(ClusterCommand::Status(args)) => print!(
+            "{}",
+            cluster_cmd::render(
+                &cluster_cmd::run(&args).context("strata-admin cluster status")?,
+                args.json
+            )
+        ),
         Command::VerifyAcks(args) => {
             let report = verify_acks::run(&args).context("strata-admin verify-acks")?;
             println!("{}", serde_json::to_string(&report)?);

@@ -6,7 +6,7 @@ use strata_terrain::chunk_codec::decode_chunk;
 
 use super::error::SnapshotError;
 use super::reader::SnapshotReader;
-use crate::store::{RawChunk, SledStore, StoreError, WorldMeta};
+use crate::store::{ImportTarget, RawChunk, StoreError, WorldMeta};
 use crate::validate::zones::Zone;
 
 /// Why a restore failed.
@@ -29,7 +29,7 @@ pub const RESTORE_BATCH_CHUNKS: usize = 1024;
 /// is refused before anything is written. `progress` gets chunks imported.
 pub fn import(
     snapshot: &Path,
-    store: &SledStore,
+    store: &dyn ImportTarget,
     zones_blob: &str,
     mut progress: impl FnMut(u64),
 ) -> Result<u64, RestoreError> {

@@ -12,9 +12,36 @@ use super::sled_store::{META_LAST_SEQ, META_LOG_BASE, META_WORLD};
 use super::types::{RawChunk, WorldMeta, STORE_FORMAT_VERSION};
 use super::SledStore;
 
-impl SledStore {
+/// A store a snapshot can be restored into: sled's, or PostgreSQL's
+/// (`pg/import.rs`).
+pub trait ImportTarget {
+    /// Refuses a store that holds a world.
+    fn begin_import(&self) -> Result<(), StoreError>;
+    /// Writes chunk records as they are.
+    fn import_chunks(&self, chunks: &[RawChunk]) -> Result<(), StoreError>;
+    /// Writes the zones blob and the metadata at `meta.last_seq`, durably.
+    fn finish_import(
+        &self,
+        meta: &WorldMeta,
+        zones_blob: &str,
+        zones: &[u8],
+    ) -> Result<(), StoreError>;
+}
+
+/// Refuses metadata of a store format this build does not write.
+pub(super) fn check_import_format(meta: &WorldMeta) -> Result<(), StoreError> {
+    if meta.format_version != STORE_FORMAT_VERSION {
+        return Err(StoreError::UnsupportedFormat {
+            found: meta.format_version,
+            supported: STORE_FORMAT_VERSION,
+        });
+    }
+    Ok(())
+}
+
+impl ImportTarget for SledStore {
     /// Refuses a store that holds anything.
-    pub fn begin_import(&self) -> Result<(), StoreError> {
+    fn begin_import(&self) -> Result<(), StoreError> {
         for (name, tree) in [
             ("meta", &self.meta),
             ("chunks", &self.chunks),
@@ -31,7 +58,7 @@ impl SledStore {
     }
 
     /// Writes chunk records as they are (made durable by [`Self::finish_import`]).
-    pub fn import_chunks(&self, chunks: &[RawChunk]) -> Result<(), StoreError> {
+    fn import_chunks(&self, chunks: &[RawChunk]) -> Result<(), StoreError> {
         let mut b = sled::Batch::default();
         for c in chunks {
             if c.version == 0 {
@@ -46,18 +73,13 @@ impl SledStore {
     }
 
     /// Writes the zones blob and the metadata at `meta.last_seq`, then flushes.
-    pub fn finish_import(
+    fn finish_import(
         &self,
         meta: &WorldMeta,
         zones_blob: &str,
         zones: &[u8],
     ) -> Result<(), StoreError> {
-        if meta.format_version != STORE_FORMAT_VERSION {
-            return Err(StoreError::UnsupportedFormat {
-                found: meta.format_version,
-                supported: STORE_FORMAT_VERSION,
-            });
-        }
+        check_import_format(meta)?;
         self.blobs.insert(zones_blob.as_bytes(), zones)?;
         let mut b = sled::Batch::default();
         b.insert(META_WORLD, encode_meta(meta)?);

@@ -49,6 +49,7 @@ pub use config::{
 };
 pub use disk_sync::MAX_TRACKED_BLOBS;
 pub use error::StoreError;
+pub use import::ImportTarget;
 pub use open::open_store;
 pub use pg::PgStore;
 pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
@@ -137,4 +138,12 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Verifies every record (see [`Checker`]). Run it while nothing
     /// commits: records are scanned, not snapshotted.
     fn check(&self) -> Result<CheckReport, StoreError>;
+
+    /// Called once at shutdown, after the last commit and checkpoint: a
+    /// cluster node gives up its region leases, so another node may take
+    /// them over at once instead of after the lease runs out. No commit
+    /// follows it.
+    fn close(&self) -> Result<(), StoreError> {
+        Ok(())
+    }
 }

@@ -44,15 +44,16 @@ struct Columns {
     bytes: u64,
 }
 
+/// Chunk or delta rows as column arrays for `unnest`.
 #[derive(Debug, Default)]
-struct Rows {
-    x: Vec<i32>,
-    y: Vec<i32>,
-    z: Vec<i32>,
-    rx: Vec<i32>,
-    rz: Vec<i32>,
-    version: Vec<i64>,
-    body: Vec<Vec<u8>>,
+pub(super) struct Rows {
+    pub(super) x: Vec<i32>,
+    pub(super) y: Vec<i32>,
+    pub(super) z: Vec<i32>,
+    pub(super) rx: Vec<i32>,
+    pub(super) rz: Vec<i32>,
+    pub(super) version: Vec<i64>,
+    pub(super) body: Vec<Vec<u8>>,
 }
 
 impl Columns {
@@ -67,7 +68,7 @@ impl Columns {
 }
 
 impl Rows {
-    fn push(&mut self, store: &PgStore, pos: ChunkPos, version: i64, body: Vec<u8>) {
+    pub(super) fn push(&mut self, store: &PgStore, pos: ChunkPos, version: i64, body: Vec<u8>) {
         let r = store.region(pos);
         self.x.push(pos.x);
         self.y.push(pos.y);
@@ -117,7 +118,16 @@ impl PgStore {
             .map(|v| v.len() as u64)
             .sum();
         let fence = match &self.leases {
-            Some(leases) => Some(fence::prepare(&self.pool, leases, &cols.regions())?),
+            Some(leases) => {
+                let mut f = fence::prepare(&self.pool, leases, &cols.regions())?;
+                f.count_edits(b.entries.iter().map(|e| {
+                    e.changes
+                        .iter()
+                        .map(|(pos, _)| self.region(*pos))
+                        .collect::<BTreeSet<_>>()
+                }));
+                Some(f)
+            }
             None => None,
         };
         let encode = started.elapsed();

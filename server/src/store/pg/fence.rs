@@ -3,10 +3,11 @@
 //!
 //! Before the transaction the node claims the regions of the batch it does
 //! not hold yet (`lease.rs`); inside it, after the world row's lock, it
-//! locks the batch's region rows `FOR SHARE` (a claim by another node waits
-//! for the commit, or the commit sees the claim) and compares. Any
+//! locks the batch's region rows `FOR UPDATE` (a claim by another node
+//! waits for the commit, or the commit sees the claim) and compares. Any
 //! mismatch refuses the whole batch with [`StoreError::Fenced`] and the
-//! transaction is rolled back. The lease's expiry is not checked here: an
+//! transaction is rolled back. A batch that passes adds its edits to each
+//! region's `edits` count in the same transaction (`cluster status`). The lease's expiry is not checked here: an
 //! epoch only moves when another claim succeeded, and that is what makes
 //! a write unsafe.
 
@@ -23,6 +24,20 @@ use crate::store::StoreError;
 pub(super) struct Fence {
     node_id: String,
     held: BTreeMap<RegionId, u64>,
+    /// Accepted edits of the batch that changed each region.
+    edits: BTreeMap<RegionId, i64>,
+}
+
+impl Fence {
+    /// Counts, per region, the edits whose changes touch it (an edit
+    /// across a border counts in each of its regions).
+    pub(super) fn count_edits(&mut self, edits: impl Iterator<Item = BTreeSet<RegionId>>) {
+        for regions in edits {
+            for r in regions {
+                *self.edits.entry(r).or_default() += 1;
+            }
+        }
+    }
 }
 
 /// Claims what the batch needs and this node does not hold; refuses at
@@ -38,6 +53,7 @@ pub(super) fn prepare(
     let mut fence = Fence {
         node_id: leases.node_id().to_string(),
         held: BTreeMap::new(),
+        edits: BTreeMap::new(),
     };
     for &r in regions {
         match held.get(&r) {
@@ -79,7 +95,8 @@ fn current_holder(
 }
 
 /// Inside the commit transaction: locks the fence's region rows and
-/// refuses the batch unless each still has this node's owner and epoch.
+/// refuses the batch unless each still has this node's owner and epoch,
+/// then counts the batch's edits in them.
 pub(super) async fn check(c: &mut Conn, fence: &Fence) -> Result<(), StoreError> {
     let (xs, zs): (Vec<i32>, Vec<i32>) = fence.held.keys().map(|r| (r.x, r.z)).unzip();
     let rows = c
@@ -87,7 +104,7 @@ pub(super) async fn check(c: &mut Conn, fence: &Fence) -> Result<(), StoreError>
             "SELECT r.region_x, r.region_z, r.owner, r.epoch FROM regions r \
              JOIN unnest($1::int4[], $2::int4[]) AS u(x, z) \
                ON r.region_x = u.x AND r.region_z = u.z \
-             ORDER BY r.region_x, r.region_z FOR SHARE OF r",
+             ORDER BY r.region_x, r.region_z FOR UPDATE OF r",
             &[&xs, &zs],
         )
         .await?;
@@ -111,6 +128,17 @@ pub(super) async fn check(c: &mut Conn, fence: &Fence) -> Result<(), StoreError>
                 owner,
             });
         }
+    }
+    if !fence.edits.is_empty() {
+        let (xs, zs): (Vec<i32>, Vec<i32>) = fence.edits.keys().map(|r| (r.x, r.z)).unzip();
+        let ns: Vec<i64> = fence.edits.values().copied().collect();
+        c.execute(
+            "UPDATE regions AS r SET edits = r.edits + u.n \
+             FROM unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, n) \
+             WHERE r.region_x = u.x AND r.region_z = u.z",
+            &[&xs, &zs, &ns],
+        )
+        .await?;
     }
     Ok(())
 }

@@ -96,6 +96,10 @@ pub struct RegionLease {
     /// Milliseconds until the lease runs out on the database's clock
     /// (negative: expired that long ago).
     pub expires_in_ms: i64,
+    /// Milliseconds since the lease was last claimed or renewed.
+    pub renewed_ms_ago: i64,
+    /// Accepted edits that changed the region, since it was first claimed.
+    pub edits: u64,
 }
 
 /// Column arrays of held regions and their epochs.
@@ -136,7 +140,7 @@ pub(super) fn claim(
              FROM unnest($1::int4[], $2::int4[]) AS u(x, z) ORDER BY x, z \
              ON CONFLICT (region_x, region_z) DO UPDATE \
              SET owner = EXCLUDED.owner, epoch = r.epoch + 1, \
-                 lease_expires = EXCLUDED.lease_expires \
+                 lease_expires = EXCLUDED.lease_expires, renewed_at = now() \
              WHERE r.owner IS NULL OR r.owner = EXCLUDED.owner OR r.lease_expires < now() \
              RETURNING region_x, region_z, epoch",
             &[&xs, &zs, &leases.node_id, &leases.lease_ms],
@@ -169,7 +173,8 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
     let (xs, zs, epochs) = held_columns(&held)?;
     let rows = pool.run("renewing leases", async |c: &mut Conn| {
         c.query(
-            "UPDATE regions AS r SET lease_expires = now() + $5::float8 * interval '1 millisecond' \
+            "UPDATE regions AS r SET lease_expires = now() + $5::float8 * interval '1 millisecond', \
+                 renewed_at = now() \
              FROM unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
              WHERE r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e AND r.owner = $4 \
              RETURNING r.region_x, r.region_z",
@@ -227,8 +232,8 @@ struct Stop {
     wake: Condvar,
 }
 
-/// The thread that renews this node's leases every `renew_ms`; stopped
-/// and joined on drop.
+/// The thread that renews this node's leases every `renew_ms`, on a
+/// connection of its own; stopped and joined on drop.
 #[derive(Debug)]
 pub(super) struct Renewer {
     stop: Arc<Stop>,
@@ -292,8 +297,14 @@ impl PgStore {
             })?;
         let mut store = Self::open(cfg, region_chunks)?;
         let leases = Arc::new(NodeLeases::new(cluster));
+        // A connection of its own: renewals never wait behind commits or
+        // scans for a pooled one.
+        let renewals = Pool::open(&super::PgConfig {
+            max_connections: 1,
+            ..cfg.clone()
+        })?;
         store.renewer = Some(Renewer::spawn(
-            store.pool.clone(),
+            Arc::new(renewals),
             leases.clone(),
             Duration::from_millis(cluster.renew_ms),
         )?);
@@ -340,7 +351,8 @@ impl PgStore {
             .run("reading region leases", async |c: &mut Conn| {
                 c.query(
                     "SELECT region_x, region_z, owner, epoch, \
-                 (extract(epoch FROM lease_expires - now()) * 1000)::int8 \
+                 (extract(epoch FROM lease_expires - now()) * 1000)::int8, \
+                 (extract(epoch FROM now() - renewed_at) * 1000)::int8, edits \
                  FROM regions ORDER BY region_x, region_z",
                     &[],
                 )
@@ -357,6 +369,8 @@ impl PgStore {
                     owner: r.get(2),
                     epoch: from_sql(r.get(3), "epoch", show(region))?,
                     expires_in_ms: r.get(4),
+                    renewed_ms_ago: r.get(5),
+                    edits: from_sql(r.get(6), "edits", show(region))?,
                 })
             })
             .collect()

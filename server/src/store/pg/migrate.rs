@@ -22,6 +22,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0002_regions",
         include_str!("../../../migrations/0002_regions.sql"),
     ),
+    (
+        3,
+        "0003_region_stats",
+        include_str!("../../../migrations/0003_region_stats.sql"),
+    ),
 ];
 
 /// Key of the advisory lock migrations take ("strata" in ASCII).

@@ -28,6 +28,7 @@ mod commit;
 mod config;
 mod fence;
 mod fold;
+mod import;
 mod lease;
 mod migrate;
 mod pages;
@@ -348,5 +349,13 @@ impl ChunkStore for PgStore {
 
     fn check(&self) -> Result<CheckReport, StoreError> {
         self.check_with_progress(&|| {})
+    }
+
+    fn close(&self) -> Result<(), StoreError> {
+        if let Some(leases) = &self.leases {
+            let n = lease::release(&self.pool, leases)?;
+            tracing::info!(node = %leases.node_id(), regions = n, "region leases released");
+        }
+        Ok(())
     }
 }
