@@ -1,21 +1,31 @@
 //! Group commit without stalling sessions: the tick's batch is written and
-//! flushed on a helper thread while the engine keeps taking commands.
+//! flushed on the engine's commit thread while the engine keeps taking
+//! commands.
 //!
 //! While the commit runs, the world is one batch ahead of the store, so
 //! only commands that cannot observe the difference are served: positions,
 //! edit submissions (they queue for a later tick), subscriptions, resyncs
 //! (the snapshot itself is built after the commit) and joins and leaves.
 //! Admin requests, which read the store, and `Stop` wait until it is done.
+//!
+//! The commit thread lives as long as the engine. It hands each result
+//! back on a channel and then wakes the engine through its inbox
+//! ([`super::inbox::Waker`]), so the engine sleeps until a command or the
+//! result arrives instead of polling.
 
 use std::collections::VecDeque;
-use std::sync::mpsc::RecvTimeoutError;
+use std::sync::mpsc::{self, RecvTimeoutError};
+use std::sync::Arc;
 use std::time::Duration;
 
+use super::inbox::Waker;
 use super::{Command, Engine, Inbox};
-use crate::store::{CommitBatch, CommitStats, StoreError};
+use crate::store::{ChunkStore, CommitBatch, CommitStats, StoreError};
 
-/// How often the engine checks whether a running commit has finished.
-pub const COMMIT_POLL: Duration = Duration::from_micros(250);
+/// Longest the engine sleeps between looks at a running commit, should a
+/// wake be lost (a full player queue skips it; draining that queue looks
+/// anyway).
+pub const COMMIT_LOOK: Duration = Duration::from_millis(5);
 
 /// Commands held back while a commit runs.
 #[derive(Debug, Default)]
@@ -32,36 +42,104 @@ fn safe_during_commit(cmd: &Command) -> bool {
     !matches!(cmd, Command::Admin(_) | Command::Stop)
 }
 
+type Done = (CommitBatch, Result<CommitStats, StoreError>);
+
+/// The engine's commit thread: one batch at a time, in order.
+#[derive(Debug)]
+pub struct Committer {
+    jobs: Option<mpsc::Sender<CommitBatch>>,
+    done: mpsc::Receiver<Done>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Committer {
+    /// Starts the thread; its chunk encoding runs on `pool`, and `waker`
+    /// wakes the engine after each result.
+    pub fn spawn(
+        store: Arc<dyn ChunkStore>,
+        pool: Arc<rayon::ThreadPool>,
+        waker: Waker,
+    ) -> std::io::Result<Self> {
+        let (jobs, todo) = mpsc::channel::<CommitBatch>();
+        let (finished, done) = mpsc::channel::<Done>();
+        let thread = std::thread::Builder::new()
+            .name("strata-commit".into())
+            .spawn(move || {
+                for batch in todo {
+                    let result = pool.install(|| store.commit_batch(&batch));
+                    if finished.send((batch, result)).is_err() {
+                        return;
+                    }
+                    waker.wake();
+                }
+            })?;
+        Ok(Self {
+            jobs: Some(jobs),
+            done,
+            thread: Some(thread),
+        })
+    }
+
+    /// Hands `batch` to the thread; gives it back if the thread is gone.
+    fn start(&self, batch: CommitBatch) -> Result<(), CommitBatch> {
+        match &self.jobs {
+            Some(jobs) => jobs.send(batch).map_err(|e| e.0),
+            None => Err(batch),
+        }
+    }
+}
+
+impl Drop for Committer {
+    fn drop(&mut self) {
+        self.jobs = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
 impl Engine {
-    /// Commits `batch`, serving safe commands from `rx` until it is durable.
-    pub(super) fn commit_serving(
-        &mut self,
-        batch: &CommitBatch,
-        rx: Option<&Inbox>,
-    ) -> Result<CommitStats, StoreError> {
-        let store = self.store.clone();
-        let pool = self.pool.clone();
-        std::thread::scope(|s| {
-            // Its chunk encoding runs on the engine's workers.
-            let commit = std::thread::Builder::new()
-                .name("strata-commit".into())
-                .spawn_scoped(s, move || pool.install(|| store.commit_batch(batch)));
-            let commit = match commit {
-                Ok(h) => h,
-                // No thread to spare: commit here, serving nothing meanwhile.
-                Err(_) => return self.store.commit_batch(batch),
-            };
-            while let Some(rx) = rx.filter(|_| !commit.is_finished()) {
-                match rx.recv_timeout(COMMIT_POLL) {
-                    Ok(cmd) if safe_during_commit(&cmd) => self.handle(cmd),
-                    Ok(cmd) => self.deferred.0.push_back(cmd),
-                    Err(RecvTimeoutError::Timeout) => {}
-                    Err(RecvTimeoutError::Disconnected) => break,
+    /// Commits `batch` on the commit thread, serving safe commands from
+    /// `rx` until it is durable; returns the batch with the result.
+    pub(super) fn commit_serving(&mut self, batch: CommitBatch, rx: Option<&Inbox>) -> Done {
+        let Some(committer) = self.committer.take() else {
+            let result = self.store.commit_batch(&batch);
+            return (batch, result);
+        };
+        let done = match committer.start(batch) {
+            Ok(()) => self.serve_until_done(&committer, rx),
+            // No thread: commit here, serving nothing meanwhile.
+            Err(batch) => {
+                let result = self.store.commit_batch(&batch);
+                (batch, result)
+            }
+        };
+        self.committer = Some(committer);
+        done
+    }
+
+    fn serve_until_done(&mut self, committer: &Committer, rx: Option<&Inbox>) -> Done {
+        let lost = || {
+            let err = std::io::Error::other("commit thread panicked");
+            (CommitBatch::default(), Err(err.into()))
+        };
+        let Some(rx) = rx else {
+            return committer.done.recv().unwrap_or_else(|_| lost());
+        };
+        loop {
+            match committer.done.try_recv() {
+                Ok(done) => return done,
+                Err(mpsc::TryRecvError::Disconnected) => return lost(),
+                Err(mpsc::TryRecvError::Empty) => {}
+            }
+            match rx.recv_or_wake(COMMIT_LOOK) {
+                Ok(Some(cmd)) if safe_during_commit(&cmd) => self.handle(cmd),
+                Ok(Some(cmd)) => self.deferred.0.push_back(cmd),
+                Ok(None) => {}
+                Err(RecvTimeoutError::Disconnected | RecvTimeoutError::Timeout) => {
+                    return committer.done.recv().unwrap_or_else(|_| lost());
                 }
             }
-            commit
-                .join()
-                .unwrap_or_else(|_| Err(std::io::Error::other("commit thread panicked").into()))
-        })
+        }
     }
 }

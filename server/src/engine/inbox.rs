@@ -5,11 +5,14 @@
 //!
 //! std's channels cannot wait on two queues at once: the engine blocks on
 //! the player queue, and a sender of a control command also queues one
-//! `Wake` there (at most one is ever pending) so the engine looks.
+//! `Wake` there (at most one is ever pending) so the engine looks. The
+//! commit thread wakes it the same way through a [`Waker`], which holds
+//! the player lane only weakly: the queues still disconnect once every
+//! handle is gone.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError, SyncSender, TrySendError};
-use std::sync::Arc;
+use std::sync::{Arc, Weak};
 use std::time::Duration;
 
 use super::Command;
@@ -17,7 +20,8 @@ use super::Command;
 /// Handle for sending commands to a running engine.
 #[derive(Debug, Clone)]
 pub struct EngineHandle {
-    player: SyncSender<Command>,
+    /// Shared by the clones; the [`Waker`] holds it weakly.
+    player: Arc<SyncSender<Command>>,
     control: SyncSender<Command>,
     /// A `Wake` is queued on the player lane and not yet taken.
     wake_pending: Arc<AtomicBool>,
@@ -29,6 +33,32 @@ pub struct Inbox {
     player: Receiver<Command>,
     control: Receiver<Command>,
     wake_pending: Arc<AtomicBool>,
+    waker: Waker,
+}
+
+/// Wakes a waiting engine without keeping its queues open.
+#[derive(Debug, Clone)]
+pub struct Waker {
+    player: Weak<SyncSender<Command>>,
+    wake_pending: Arc<AtomicBool>,
+}
+
+impl Waker {
+    /// Queues a `Wake` unless one is pending or every handle is gone.
+    pub fn wake(&self) {
+        if let Some(player) = self.player.upgrade() {
+            wake(&player, &self.wake_pending);
+        }
+    }
+}
+
+/// Queues one `Wake` on `player` unless one is pending. A full player
+/// queue needs no wake: the engine is busy draining it and looks at the
+/// control lane (and a running commit) between commands.
+fn wake(player: &SyncSender<Command>, pending: &AtomicBool) {
+    if !pending.swap(true, Ordering::AcqRel) && player.try_send(Command::Wake).is_err() {
+        pending.store(false, Ordering::Release);
+    }
 }
 
 /// A handle and inbox with room for `player` and `control` commands.
@@ -36,6 +66,11 @@ pub fn channel(player: usize, control: usize) -> (EngineHandle, Inbox) {
     let (ptx, prx) = sync_channel(player);
     let (ctx, crx) = sync_channel(control);
     let wake_pending = Arc::new(AtomicBool::new(false));
+    let ptx = Arc::new(ptx);
+    let waker = Waker {
+        player: Arc::downgrade(&ptx),
+        wake_pending: wake_pending.clone(),
+    };
     let handle = EngineHandle {
         player: ptx,
         control: ctx,
@@ -45,6 +80,7 @@ pub fn channel(player: usize, control: usize) -> (EngineHandle, Inbox) {
         player: prx,
         control: crx,
         wake_pending,
+        waker,
     };
     (handle, inbox)
 }
@@ -83,13 +119,7 @@ impl EngineHandle {
     }
 
     fn wake(&self) {
-        // A full player queue needs no wake: the engine is busy draining it
-        // and looks at the control lane before each command.
-        if !self.wake_pending.swap(true, Ordering::AcqRel)
-            && self.player.try_send(Command::Wake).is_err()
-        {
-            self.wake_pending.store(false, Ordering::Release);
-        }
+        wake(&self.player, &self.wake_pending);
     }
 }
 
@@ -99,21 +129,41 @@ impl Inbox {
     pub fn recv_timeout(&self, wait: Duration) -> Result<Command, RecvTimeoutError> {
         let deadline = std::time::Instant::now() + wait;
         loop {
-            if let Ok(c) = self.control.try_recv() {
-                return Ok(c);
-            }
             let left = deadline.saturating_duration_since(std::time::Instant::now());
-            match self.player.recv_timeout(left) {
-                Ok(Command::Wake) => self.wake_pending.store(false, Ordering::Release),
-                Err(RecvTimeoutError::Disconnected) => {
-                    return self
-                        .control
-                        .try_recv()
-                        .map_err(|_| RecvTimeoutError::Disconnected)
-                }
-                other => return other,
+            match self.recv_or_wake(left) {
+                Ok(Some(c)) => return Ok(c),
+                Ok(None) if left.is_zero() => return Err(RecvTimeoutError::Timeout),
+                Ok(None) => {}
+                Err(e) => return Err(e),
             }
         }
+    }
+
+    /// The next command, control lane first; `None` when woken (by a
+    /// [`Waker`] or a control sender) or after `wait`.
+    pub fn recv_or_wake(&self, wait: Duration) -> Result<Option<Command>, RecvTimeoutError> {
+        if let Ok(c) = self.control.try_recv() {
+            return Ok(Some(c));
+        }
+        match self.player.recv_timeout(wait) {
+            Ok(Command::Wake) => {
+                self.wake_pending.store(false, Ordering::Release);
+                // A control sender wakes after queueing its command.
+                Ok(self.control.try_recv().ok())
+            }
+            Ok(c) => Ok(Some(c)),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
+            Err(RecvTimeoutError::Disconnected) => self
+                .control
+                .try_recv()
+                .map(Some)
+                .map_err(|_| RecvTimeoutError::Disconnected),
+        }
+    }
+
+    /// A waker for this inbox's engine.
+    pub fn waker(&self) -> Waker {
+        self.waker.clone()
     }
 }
 
@@ -164,6 +214,30 @@ mod tests {
             Some(RecvTimeoutError::Timeout)
         );
         drop(handle);
+        assert_eq!(
+            inbox.recv_timeout(Duration::from_millis(20)).err(),
+            Some(RecvTimeoutError::Disconnected)
+        );
+    }
+
+    #[test]
+    fn a_waker_wakes_a_waiting_engine_but_keeps_no_queue_open() {
+        let (handle, inbox) = channel(8, 8);
+        let waker = inbox.waker();
+        let engine = std::thread::spawn(move || {
+            let started = std::time::Instant::now();
+            let woke = inbox.recv_or_wake(Duration::from_secs(10));
+            (woke, started.elapsed(), inbox)
+        });
+        std::thread::sleep(Duration::from_millis(50));
+        waker.wake();
+        let (woke, took, inbox) = engine.join().unwrap();
+        assert!(matches!(woke, Ok(None)), "woken with no command");
+        assert!(took < Duration::from_secs(5), "woken, not timed out");
+        // Once every handle is gone the waker neither wakes nor holds the
+        // queue open.
+        drop(handle);
+        waker.wake();
         assert_eq!(
             inbox.recv_timeout(Duration::from_millis(20)).err(),
             Some(RecvTimeoutError::Disconnected)

@@ -157,6 +157,9 @@ pub struct Engine {
     snapshots_running: Vec<Arc<snapshot::PreImages>>,
     /// Commands that arrived during a commit and must wait for it.
     deferred: commit::Deferred,
+    /// The commit thread (started with the engine's loop; `None` before,
+    /// or if no thread could be had: then ticks commit inline).
+    committer: Option<commit::Committer>,
     /// The last seq the store holds durably. The sequencer's own runs
     /// ahead of it while a commit is in flight; clients are told only this.
     durable_seq: u64,
@@ -209,6 +212,7 @@ impl Engine {
             last_evict: None,
             snapshots_running: Vec::new(),
             deferred: Default::default(),
+            committer: None,
         })
     }
 
@@ -231,6 +235,10 @@ impl Engine {
     }
 
     fn run(mut self, rx: Inbox) -> anyhow::Result<()> {
+        match commit::Committer::spawn(self.store.clone(), self.pool.clone(), rx.waker()) {
+            Ok(c) => self.committer = Some(c),
+            Err(e) => warn!(error = %e, "no commit thread; ticks commit inline"),
+        }
         let period = Duration::from_millis(self.cfg.tick_ms.max(1));
         let mut next_tick = Instant::now() + period;
         // When ticks overrun their period, commands already queued still
@@ -496,7 +504,9 @@ impl Engine {
             self.capture_preimages(&out.batch);
             let flush = Instant::now();
             // Nothing is acknowledged or broadcast unless this succeeds.
-            let stats = match self.commit_serving(&out.batch, rx) {
+            let (batch, committed) = self.commit_serving(std::mem::take(&mut out.batch), rx);
+            out.batch = batch;
+            let stats = match committed {
                 Ok(stats) => stats,
                 Err(e) => {
                     error!(error = %e, "group commit failed; stopping without acknowledging");
