@@ -427,52 +427,43 @@ mod wire_bytes {
         (out.changed.len(), deltas, op)
     }
 
+    fn mine(center: FixedVec3) -> Edit {
+        let radius = Fixed::from_voxels(3);
+        Edit::Mine {
+            center,
+            radius,
+            strength: 255,
+        }
+    }
+
+    fn explode(center: FixedVec3) -> Edit {
+        let radius = Fixed::from_voxels(8);
+        Edit::Explode {
+            center,
+            radius,
+            power: 512,
+        }
+    }
+
+    fn smooth(center: FixedVec3) -> Edit {
+        let radius = Fixed::from_voxels(4);
+        Edit::Smooth {
+            center,
+            radius,
+            strength: 255,
+        }
+    }
+
     #[test]
     fn op_frames_are_smaller_than_the_deltas_they_replace() {
-        let r = Fixed::from_voxels;
         println!("| edit | chunks | Delta frames | Op frame | ratio |");
         println!("|---|---|---|---|---|");
-        let cases: [(&str, Box<dyn Fn(FixedVec3) -> Edit>, i32, i32); 4] = [
-            (
-                "Mine r=3",
-                Box::new(|c| Edit::Mine {
-                    center: c,
-                    radius: r(3),
-                    strength: 255,
-                }),
-                10,
-                10,
-            ),
-            (
-                "Mine r=3 on a chunk border",
-                Box::new(|c| Edit::Mine {
-                    center: c,
-                    radius: r(3),
-                    strength: 255,
-                }),
-                96,
-                40,
-            ),
-            (
-                "Explode r=8 on a chunk corner",
-                Box::new(|c| Edit::Explode {
-                    center: c,
-                    radius: r(8),
-                    power: 512,
-                }),
-                64,
-                64,
-            ),
-            (
-                "Smooth r=4",
-                Box::new(|c| Edit::Smooth {
-                    center: c,
-                    radius: r(4),
-                    strength: 255,
-                }),
-                10,
-                10,
-            ),
+        type EditAt = fn(FixedVec3) -> Edit;
+        let cases: [(&str, EditAt, i32, i32); 4] = [
+            ("Mine r=3", mine, 10, 10),
+            ("Mine r=3 on a chunk border", mine, 96, 40),
+            ("Explode r=8 on a chunk corner", explode, 64, 64),
+            ("Smooth r=4", smooth, 10, 10),
         ];
         for (name, edit, x, z) in cases {
             let (n, deltas, op) = edit_bytes(edit, x, z);

@@ -210,10 +210,8 @@ fn a_thin_op_replay_session_through_the_c_abi() {
     let stats = || {
         let mut out = std::mem::MaybeUninit::<StrataStats>::uninit();
         // SAFETY: `c` is live; `out` is writable.
-        assert_eq!(
-            unsafe { strata_stats(c, out.as_mut_ptr()) },
-            StrataStatus::Ok
-        );
+        let st = unsafe { strata_stats(c, out.as_mut_ptr()) };
+        assert_eq!(st, StrataStatus::Ok);
         // SAFETY: written by the call above.
         unsafe { out.assume_init() }
     };
