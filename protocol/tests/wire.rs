@@ -427,30 +427,25 @@ mod wire_bytes {
         (out.changed.len(), deltas, op)
     }
 
-    fn mine(center: FixedVec3) -> Edit {
-        let radius = Fixed::from_voxels(3);
-        Edit::Mine {
-            center,
-            radius,
-            strength: 255,
-        }
-    }
-
-    fn explode(center: FixedVec3) -> Edit {
-        let radius = Fixed::from_voxels(8);
-        Edit::Explode {
-            center,
-            radius,
-            power: 512,
-        }
-    }
-
-    fn smooth(center: FixedVec3) -> Edit {
-        let radius = Fixed::from_voxels(4);
-        Edit::Smooth {
-            center,
-            radius,
-            strength: 255,
+    /// The edit a benchmark case names, centred on `center`.
+    fn edit_at(name: &str, center: FixedVec3) -> Edit {
+        let r = Fixed::from_voxels;
+        match name.split(' ').next() {
+            Some("Mine") => Edit::Mine {
+                center,
+                radius: r(3),
+                strength: 255,
+            },
+            Some("Explode") => Edit::Explode {
+                center,
+                radius: r(8),
+                power: 512,
+            },
+            _ => Edit::Smooth {
+                center,
+                radius: r(4),
+                strength: 255,
+            },
         }
     }
 
@@ -458,15 +453,14 @@ mod wire_bytes {
     fn op_frames_are_smaller_than_the_deltas_they_replace() {
         println!("| edit | chunks | Delta frames | Op frame | ratio |");
         println!("|---|---|---|---|---|");
-        type EditAt = fn(FixedVec3) -> Edit;
-        let cases: [(&str, EditAt, i32, i32); 4] = [
-            ("Mine r=3", mine, 10, 10),
-            ("Mine r=3 on a chunk border", mine, 96, 40),
-            ("Explode r=8 on a chunk corner", explode, 64, 64),
-            ("Smooth r=4", smooth, 10, 10),
+        let cases = [
+            ("Mine r=3", 10, 10),
+            ("Mine r=3 on a chunk border", 96, 40),
+            ("Explode r=8 on a chunk corner", 64, 64),
+            ("Smooth r=4", 10, 10),
         ];
-        for (name, edit, x, z) in cases {
-            let (n, deltas, op) = edit_bytes(edit, x, z);
+        for (name, x, z) in cases {
+            let (n, deltas, op) = edit_bytes(|c| edit_at(name, c), x, z);
             println!(
                 "| {name} | {n} | {deltas} B | {op} B | {:.1}× |",
                 deltas as f64 / op as f64
