@@ -37,6 +37,7 @@ fn config_for(server: &app::Running) -> BotsConfig {
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
         predict: false,
+        capabilities: 0,
     }
 }
 
@@ -99,6 +100,27 @@ async fn without_a_ramp_bots_edit_while_others_join() {
     server.shutdown().await.unwrap();
 }
 
+/// `--thin --op-replay`: bots load their views as snapshots (nothing
+/// regenerated), take edits as ops, and still converge on the server.
+#[tokio::test]
+async fn thin_op_replay_bots_converge() {
+    let tmp = tempfile::tempdir().unwrap();
+    let server = start_server(&tmp).await;
+    let run = BotsConfig {
+        bots: 3,
+        duration: Duration::from_secs(2),
+        profile: Profile::Miners,
+        seed: 11,
+        capabilities: strata_protocol::CAP_SNAPSHOTS | strata_protocol::CAP_OP_REPLAY,
+        ..config_for(&server)
+    };
+    let s = run_consistent(run).await;
+    assert_eq!((s.generated, s.patched), (0, 0), "{}", s.human());
+    assert!(s.edits_accepted > 0 && s.op_chunks > 0, "{}", s.human());
+    assert_eq!(s.op_mismatches, 0, "{}", s.human());
+    server.shutdown().await.unwrap();
+}
+
 #[tokio::test]
 async fn bad_settings_are_refused_before_connecting() {
     let run = BotsConfig {
@@ -119,6 +141,7 @@ async fn bad_settings_are_refused_before_connecting() {
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
         predict: false,
+        capabilities: 0,
     };
     let e = bots::run(run.clone()).await.unwrap_err();
     assert!(e.to_string().contains("--stalled"), "{e}");

@@ -43,6 +43,7 @@ async fn run_attack(attack: Attack, ramp: bool) -> (Summary, HostileSummary) {
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
         predict: false,
+        capabilities: 0,
     };
     let hostile = HostileConfig::new(attack, 1, server.addr);
     assert_eq!(hostile.bind.to_string(), "127.0.0.2");

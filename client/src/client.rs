@@ -13,7 +13,7 @@ use strata_protocol::io::FramedReader;
 use strata_protocol::{
     encode, encode_frame, ChunkVersion, ClientMessage, Direction, EditRequest, ErrorCode,
     FrameBuffer, Hello, PositionUpdate, Refusal, RejectReason, ServerMessage, Welcome, WorldUpdate,
-    PROTOCOL_VERSION,
+    CAP_SNAPSHOTS, PROTOCOL_VERSION,
 };
 use strata_terrain::edit::StructureLibrary;
 use strata_terrain::gen::{GenParams, Generator};
@@ -84,6 +84,10 @@ pub struct ClientOptions {
     /// Queue every chunk whose visible copy (replica, or predicted view)
     /// changes, for [`Client::pop_changed`].
     pub track_changes: bool,
+    /// `Hello::capabilities` (`strata_protocol::capabilities`):
+    /// `CAP_SNAPSHOTS` makes a thin client (whole chunks, never
+    /// regenerated), `CAP_OP_REPLAY` replays edits instead of taking deltas.
+    pub capabilities: u32,
 }
 
 /// An edit on its way to the server, from [`Client::submit`].
@@ -180,10 +184,22 @@ impl Shared {
     /// Applies `update` to the replica and keeps the prediction and the
     /// change queue in step; returns what to ask the server for.
     fn apply(&self, replica: &Mutex<Replica>, update: WorldUpdate) -> Option<Request> {
-        let touched = Touched::of(&update);
+        let touched: Vec<Touched> = match &update {
+            // Each chunk an op lists, as if its delta had come.
+            WorldUpdate::Op(op) => op
+                .chunks
+                .iter()
+                .map(|c| Touched::Delta {
+                    pos: c.pos,
+                    seq: op.seq,
+                    to_version: c.version,
+                })
+                .collect(),
+            u => Touched::of(u).into_iter().collect(),
+        };
         let mut r = replica.lock().expect("not poisoned");
         let request = r.apply(update);
-        if let Some(t) = touched {
+        for t in touched {
             self.mark_changed(t.pos());
             if let Some(mut p) = self.prediction() {
                 self.reshape_prediction(&mut p, |p| p.after_update(t, &r));
@@ -232,12 +248,14 @@ pub async fn say_hello(
     conn: &quinn::Connection,
     token: &str,
     protocol_version: u32,
+    capabilities: u32,
     closed: impl Fn(quinn::ConnectionError) -> ClientError,
 ) -> Result<(quinn::SendStream, FramedReader<quinn::RecvStream>, Welcome), ClientError> {
     let (mut send, recv) = conn.open_bi().await.map_err(&closed)?;
     let hello = ClientMessage::Hello(Hello {
         protocol_version,
         token: token.to_string(),
+        capabilities,
     });
     let frame = encode_frame(&hello, Direction::ClientToServer)
         .map_err(|e| ClientError::Protocol(e.to_string()))?;
@@ -316,13 +334,19 @@ impl Client {
                 .await
                 .map_err(|e| closed_error(&e))?;
             let (send, reader, w) =
-                say_hello(&conn, token, protocol_version, |e| closed_error(&e)).await?;
+                say_hello(&conn, token, protocol_version, opts.capabilities, |e| {
+                    closed_error(&e)
+                })
+                .await?;
             Ok::<_, ClientError>((conn, send, reader, w))
         };
         let (conn, send, reader, welcome) = tokio::time::timeout(CONNECT_TIMEOUT, handshake)
             .await
             .map_err(|_| ClientError::Timeout("Welcome"))??;
-        let mut replica = Replica::with_pool(generator_from(&welcome), opts.pool);
+        // A thin client never regenerates: it takes whole chunks only.
+        let thin = strata_protocol::capabilities::has(opts.capabilities, CAP_SNAPSHOTS);
+        let generator = if thin { None } else { generator_from(&welcome) };
+        let mut replica = Replica::with_pool(generator, opts.pool);
         if opts.record_history {
             replica.record_history();
         }
@@ -769,14 +793,21 @@ async fn read_updates(
         };
         shared.heard();
         shared.unpaused().await;
-        if let WorldUpdate::Delta(d) = &update {
+        let arrived: Vec<(u64, ChunkPos)> = match &update {
+            WorldUpdate::Delta(d) => vec![(d.seq, d.delta.pos)],
+            WorldUpdate::Op(op) => op.chunks.iter().map(|c| (op.seq, c.pos)).collect(),
+            _ => Vec::new(),
+        };
+        if !arrived.is_empty() {
             let mut a = shared.arrivals.lock().expect("not poisoned");
-            if a.len() < MAX_ARRIVALS {
-                a.push(Arrival {
-                    seq: d.seq,
-                    pos: d.delta.pos,
-                    at: Instant::now(),
-                });
+            for (seq, pos) in arrived {
+                if a.len() < MAX_ARRIVALS {
+                    a.push(Arrival {
+                        seq,
+                        pos,
+                        at: Instant::now(),
+                    });
+                }
             }
         }
         shared
@@ -788,14 +819,20 @@ async fn read_updates(
             }
             continue;
         }
-        let msg = match shared.apply(&replica, update) {
-            Some(Request::Resync(pos)) => ClientMessage::ResyncRequest { pos },
-            Some(Request::FullSnapshot(pos)) => ClientMessage::FullSnapshotRequest { pos },
+        let msgs = match shared.apply(&replica, update) {
+            Some(Request::Resync(pos)) => vec![ClientMessage::ResyncRequest { pos }],
+            Some(Request::FullSnapshot(pos)) => vec![ClientMessage::FullSnapshotRequest { pos }],
+            Some(Request::ResyncMany(chunks)) => chunks
+                .into_iter()
+                .map(|pos| ClientMessage::ResyncRequest { pos })
+                .collect(),
             None => continue,
         };
-        if let Ok(frame) = encode_frame(&msg, Direction::ClientToServer) {
-            if control.send(Bytes::from(frame)).await.is_err() {
-                break;
+        for msg in msgs {
+            if let Ok(frame) = encode_frame(&msg, Direction::ClientToServer) {
+                if control.send(Bytes::from(frame)).await.is_err() {
+                    return;
+                }
             }
         }
     }

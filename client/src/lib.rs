@@ -16,6 +16,7 @@ pub mod edits;
 pub mod mesh;
 pub mod pool;
 pub mod prediction;
+pub mod replay;
 pub mod replica;
 pub mod session;
 pub use strata_protocol::client_tls as tls;

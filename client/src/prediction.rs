@@ -116,7 +116,10 @@ impl Touched {
             WorldUpdate::Patched { delta, .. } => Touched::Whole(delta.pos),
             WorldUpdate::Unsubscribed { pos } => Touched::Gone(*pos),
             // Many chunks: the client passes them on one `Unsubscribed` each.
-            WorldUpdate::TickEnd { .. } | WorldUpdate::UnsubscribedMany { .. } => return None,
+            // Many chunks: the client passes an op's chunks one by one.
+            WorldUpdate::TickEnd { .. }
+            | WorldUpdate::UnsubscribedMany { .. }
+            | WorldUpdate::Op(_) => return None,
         })
     }
 

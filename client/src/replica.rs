@@ -5,7 +5,7 @@
 use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 use std::sync::Arc;
 
-use strata_protocol::{DeltaUpdate, WorldUpdate};
+use strata_protocol::{DeltaUpdate, OpUpdate, WorldUpdate};
 use strata_terrain::chunk_codec::decode_chunk;
 use strata_terrain::delta::{ChunkDelta, DeltaError};
 use strata_terrain::hash::chunk_hash;
@@ -13,6 +13,7 @@ use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood};
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, Voxel, VoxelPos};
 
 use crate::pool::ChunkPool;
+use crate::replay::{replay, ReplayFailure};
 
 /// A chunk as held by the client.
 #[derive(Debug, Clone)]
@@ -43,12 +44,14 @@ struct PendingMesh {
 }
 
 /// What the client must ask the server for after an update.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Request {
     /// A version gap or hash mismatch: resend the chunk.
     Resync(ChunkPos),
     /// The client cannot regenerate: send full data.
     FullSnapshot(ChunkPos),
+    /// An op that did not replay on these chunks: resend each.
+    ResyncMany(Vec<ChunkPos>),
 }
 
 /// Counters a load test reports.
@@ -61,6 +64,14 @@ pub struct ReplicaStats {
     pub generated: u64,
     pub deltas: u64,
     pub delta_payload_bytes: u64,
+    /// Ops replayed (`WorldUpdate::Op`), and the chunks they took forward.
+    pub ops: u64,
+    pub op_chunks: u64,
+    /// Op chunks not held at the op's base version (or a chunk the edit
+    /// reads not held): resynced.
+    pub op_gaps: u64,
+    /// Op chunks whose replayed hash was not the server's: resynced.
+    pub op_mismatches: u64,
     pub gaps: u64,
     pub hash_mismatches: u64,
     pub meshes_checked: u64,
@@ -256,6 +267,7 @@ impl Replica {
                 self.take_whole(pos, version, hash, mesh_hash, chunk)
             }
             WorldUpdate::Delta(d) => self.apply_delta(d),
+            WorldUpdate::Op(op) => self.apply_op(&op),
             WorldUpdate::Unsubscribed { pos } => {
                 self.forget(pos);
                 None
@@ -306,6 +318,40 @@ impl Replica {
                 Some(Request::Resync(pos))
             }
         }
+    }
+
+    /// Replays an op on the held chunks (see [`crate::replay`]); chunks it
+    /// could not take forward are dropped and asked for again.
+    fn apply_op(&mut self, op: &OpUpdate) -> Option<Request> {
+        self.stats.ops += 1;
+        let results = replay(op, |p| self.chunks.get(&p).cloned());
+        let mut resync = Vec::new();
+        for (c, result) in results {
+            match result {
+                Ok(chunk) => {
+                    self.stats.op_chunks += 1;
+                    let chunk = self.pool.intern(c.pos, c.version, c.hash, chunk);
+                    self.hold(c.pos, chunk, c.version, c.hash);
+                    self.neighbour_changed(c.pos, Some(op.seq));
+                    let p = PendingMesh {
+                        version: c.version,
+                        hash: c.mesh_hash,
+                        seq: Some(op.seq),
+                    };
+                    self.pending_mesh.insert(c.pos, p);
+                }
+                Err(f) => {
+                    match f {
+                        ReplayFailure::MissingBase => self.stats.op_gaps += 1,
+                        ReplayFailure::Mismatch => self.stats.op_mismatches += 1,
+                    }
+                    self.chunks.remove(&c.pos);
+                    self.pending_mesh.remove(&c.pos);
+                    resync.push(c.pos);
+                }
+            }
+        }
+        (!resync.is_empty()).then_some(Request::ResyncMany(resync))
     }
 
     /// Holds a whole chunk sent by the server (a snapshot or a patch), or

@@ -11,12 +11,20 @@
 use serde::{Deserialize, Serialize};
 use strata_terrain::{ChunkPos, FixedVec3, VoxelPos};
 
-use crate::messages::{ErrorCode, Hello, Role};
+use crate::messages::{ErrorCode, Role};
 
 /// ALPN protocol id of admin connections.
 pub const ADMIN_ALPN: &[u8] = b"strata-admin/1";
 /// Admin protocol version carried in the admin `Hello`.
 pub const ADMIN_PROTOCOL_VERSION: u32 = 1;
+
+/// First admin message. The player `Hello` grew capabilities in player
+/// protocol 4; the admin protocol keeps its own, unchanged, layout.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct AdminHello {
+    pub protocol_version: u32,
+    pub token: String,
+}
 
 /// A protected zone as the admin protocol carries it (inclusive corners).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -30,7 +38,7 @@ pub struct ZoneSpec {
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub enum AdminRequest {
     /// First message: protocol version and an admin-role token.
-    Hello(Hello),
+    Hello(AdminHello),
     /// World and server statistics: answered with `Stats`.
     Stats,
     /// Live sessions: answered with `Players`.

@@ -4,6 +4,7 @@
 
 pub mod ack;
 pub mod admin;
+pub mod capabilities;
 pub mod codec;
 pub mod frame;
 pub mod limits;
@@ -11,6 +12,7 @@ pub mod messages;
 mod reject;
 pub mod version;
 
+pub use capabilities::{CAP_OP_REPLAY, CAP_SNAPSHOTS};
 pub use codec::{decode, encode, CodecError, Direction};
 pub use frame::{encode_frame, FrameBuffer, FrameError};
 pub use messages::*;

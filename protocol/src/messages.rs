@@ -41,6 +41,8 @@ pub struct Hello {
     pub protocol_version: u32,
     /// An auth token minted by `strata-admin token issue`.
     pub token: String,
+    /// Bit flags (`crate::capabilities`); unknown bits are ignored.
+    pub capabilities: u32,
 }
 
 /// The server's answer to a valid `Hello`.
@@ -307,6 +309,34 @@ pub enum WorldUpdate {
     UnsubscribedMany {
         chunks: Vec<ChunkPos>,
     },
+    /// An accepted edit, for sessions with `CAP_OP_REPLAY`: apply `edit` to
+    /// the held chunks and check each listed chunk's result. Replaces the
+    /// `Delta`s of exactly the listed chunks.
+    Op(OpUpdate),
+}
+
+/// One edit as an operation (`WorldUpdate::Op`): the client replays it with
+/// the terrain core and checks the results against `chunks`.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OpUpdate {
+    /// Sequence number of the edit.
+    pub seq: u64,
+    pub edit: Edit,
+    /// The chunks of this session the edit changed, in (z, y, x) order.
+    pub chunks: Vec<OpChunk>,
+}
+
+/// One chunk an op changed: the edit takes it from `version - 1` to
+/// `version`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OpChunk {
+    pub pos: ChunkPos,
+    /// The version after the edit (the base is `version - 1`).
+    pub version: u64,
+    /// Chunk hash after the edit.
+    pub hash: u64,
+    /// LOD-0 mesh hash at the tick's end, as in `Delta`.
+    pub mesh_hash: u64,
 }
 
 /// A position report, sent as an unreliable datagram.

@@ -13,6 +13,7 @@ fn client_messages() -> Vec<ClientMessage> {
         ClientMessage::Hello(Hello {
             protocol_version: PROTOCOL_VERSION,
             token: "v1.abc.def".into(),
+            capabilities: CAP_SNAPSHOTS | CAP_OP_REPLAY,
         }),
         ClientMessage::Subscribe {
             center: ChunkPos::new(-3, 0, 7),
@@ -125,6 +126,20 @@ fn updates() -> Vec<WorldUpdate> {
             pos: ChunkPos::new(9, 9, 9),
         },
         WorldUpdate::TickEnd { last_seq: 41 },
+        WorldUpdate::Op(OpUpdate {
+            seq: 42,
+            edit: Edit::Smooth {
+                center: FixedVec3::from_voxels(-5, 3, 9),
+                radius: Fixed(1024),
+                strength: 128,
+            },
+            chunks: vec![OpChunk {
+                pos: ChunkPos::new(-1, 0, 0),
+                version: 7,
+                hash: u64::MAX,
+                mesh_hash: 1,
+            }],
+        }),
     ]
 }
 
@@ -166,14 +181,38 @@ fn messages_round_trip() {
 #[test]
 fn golden_bytes_pin_the_wire_format() {
     // PROTOCOL.md walks through these bytes; changing them breaks clients.
-    assert_eq!(PROTOCOL_VERSION, 3, "PROTOCOL.md names version 3");
+    assert_eq!(PROTOCOL_VERSION, 4, "PROTOCOL.md names version 4");
     let hello = ClientMessage::Hello(Hello {
         protocol_version: PROTOCOL_VERSION,
         token: "t".into(),
+        capabilities: CAP_SNAPSHOTS | CAP_OP_REPLAY,
     });
+    // Capabilities come last: varint 3.
     assert_eq!(
         encode_frame(&hello, Direction::ClientToServer).unwrap(),
-        [4, 0, 0, 0, 0, 3, 1, b't']
+        [5, 0, 0, 0, 0, 4, 1, b't', 3]
+    );
+    // Op: variant 7, seq, the edit as in `Edit`, then the chunk list.
+    let op = WorldUpdate::Op(OpUpdate {
+        seq: 9,
+        edit: Edit::Mine {
+            center: FixedVec3::from_voxels(1, 2, 3),
+            radius: Fixed(768),
+            strength: 255,
+        },
+        chunks: vec![OpChunk {
+            pos: ChunkPos::new(0, -1, 0),
+            version: 2,
+            hash: 5,
+            mesh_hash: 300,
+        }],
+    });
+    assert_eq!(
+        encode(&op, Direction::ServerToClient).unwrap(),
+        [
+            7, 9, 0, 0xfb, 0, 2, 0xfb, 0, 4, 0xfb, 0, 6, 0xfb, 0, 6, 0xff, 1, 0, 1, 0, 2, 5, 0xfb,
+            0x2c, 1
+        ]
     );
     let ping = ClientMessage::Ping { nonce: 300 };
     // Variant 5, then varint 300 = 0xfb + u16 LE.
@@ -267,6 +306,7 @@ fn oversized_frames_fail_at_the_header() {
     let big = ClientMessage::Hello(Hello {
         protocol_version: 1,
         token: "x".repeat(MAX_CLIENT_FRAME),
+        capabilities: 0,
     });
     assert!(matches!(
         encode(&big, Direction::ClientToServer),
@@ -315,4 +355,158 @@ fn close_codes_round_trip() {
         ErrorCode::from_close_code(ErrorCode::ALL.len() as u64 + 1),
         None
     );
+}
+
+/// Frame bytes on the updates stream, through the real codec, on the
+/// default world's surface: an edit's `Delta` frames against its `Op`
+/// frame, and a view's `Generated` frames against thin clients'
+/// `Snapshot`s. `cargo test -p strata-protocol --test wire -- --nocapture
+/// wire_bytes` prints the tables in BENCHMARKS.md.
+mod wire_bytes {
+    use std::sync::Arc;
+
+    use strata_protocol::*;
+    use strata_terrain::chunk_codec::encode_chunk;
+    use strata_terrain::delta::ChunkDelta;
+    use strata_terrain::edit::StructureLibrary;
+    use strata_terrain::gen::{GenParams, Generator};
+    use strata_terrain::hash::chunk_hash;
+    use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood};
+    use strata_terrain::{ChunkPos, Edit, EditContext, Fixed, FixedVec3, MaterialTable, World};
+
+    fn frame(u: &WorldUpdate) -> usize {
+        encode_frame(u, Direction::ServerToClient).unwrap().len()
+    }
+
+    fn mesh_hash(world: &mut World, pos: ChunkPos) -> u64 {
+        let around: Vec<ChunkPos> = (0..27)
+            .filter_map(|i| pos.offset(i % 3 - 1, i / 3 % 3 - 1, i / 9 - 1))
+            .collect();
+        world.load(around.iter().copied());
+        let nb = Neighborhood::from_chunks(pos, |p| world.peek(p).map(|v| &v.chunk));
+        mesh_chunk(&nb, &MeshOptions::default()).hash()
+    }
+
+    /// (chunks, delta frame bytes, op frame bytes) of `edit` at the surface.
+    fn edit_bytes(edit: impl Fn(FixedVec3) -> Edit, x: i32, z: i32) -> (usize, usize, usize) {
+        let g = Generator::fractal(GenParams::default()).unwrap();
+        let y = g.surface_height(x, z).floor() as i32;
+        let mut world = World::new(Arc::new(g));
+        let (materials, structures) = (MaterialTable::default(), StructureLibrary::default());
+        let ctx = EditContext {
+            materials: &materials,
+            structures: &structures,
+        };
+        let edit = edit(FixedVec3::from_voxels(x, y, z));
+        let out = edit.apply(&mut world, &ctx).unwrap();
+        let (mut deltas, mut chunks) = (0, Vec::new());
+        for ch in &out.changed {
+            let after = world.peek(ch.pos).unwrap().chunk.clone();
+            // As the sequencer encodes it.
+            let delta =
+                ChunkDelta::encode(ch.pos, ch.from_version, ch.to_version, &ch.before, &after)
+                    .unwrap();
+            let mesh_hash = mesh_hash(&mut world, ch.pos);
+            chunks.push(OpChunk {
+                pos: ch.pos,
+                version: ch.to_version,
+                hash: chunk_hash(&after),
+                mesh_hash,
+            });
+            deltas += frame(&WorldUpdate::Delta(DeltaUpdate {
+                delta,
+                mesh_hash,
+                seq: 123_456,
+            }));
+        }
+        let op = frame(&WorldUpdate::Op(OpUpdate {
+            seq: 123_456,
+            edit,
+            chunks,
+        }));
+        (out.changed.len(), deltas, op)
+    }
+
+    /// The edit a benchmark case names, centred on `center`.
+    fn edit_at(name: &str, center: FixedVec3) -> Edit {
+        let r = Fixed::from_voxels;
+        match name.split(' ').next() {
+            Some("Mine") => Edit::Mine {
+                center,
+                radius: r(3),
+                strength: 255,
+            },
+            Some("Explode") => Edit::Explode {
+                center,
+                radius: r(8),
+                power: 512,
+            },
+            _ => Edit::Smooth {
+                center,
+                radius: r(4),
+                strength: 255,
+            },
+        }
+    }
+
+    #[test]
+    fn op_frames_are_smaller_than_the_deltas_they_replace() {
+        println!("| edit | chunks | Delta frames | Op frame | ratio |");
+        println!("|---|---|---|---|---|");
+        let cases = [
+            ("Mine r=3", 10, 10),
+            ("Mine r=3 on a chunk border", 96, 40),
+            ("Explode r=8 on a chunk corner", 64, 64),
+            ("Smooth r=4", 10, 10),
+        ];
+        for (name, x, z) in cases {
+            let (n, deltas, op) = edit_bytes(|c| edit_at(name, c), x, z);
+            println!(
+                "| {name} | {n} | {deltas} B | {op} B | {:.1}× |",
+                deltas as f64 / op as f64
+            );
+            assert!(op < deltas, "{name}: op {op} B, deltas {deltas} B");
+        }
+    }
+
+    /// Chunks of a view of Chebyshev `radius` around the surface at
+    /// (70, 40), clipped to the default rows -4..=7.
+    fn view(radius: i32) -> Vec<ChunkPos> {
+        let g = Generator::fractal(GenParams::default()).unwrap();
+        let c = strata_terrain::VoxelPos::new(70, g.surface_height(70, 40) as i32 + 1, 40).chunk();
+        let mut v = Vec::new();
+        for y in (c.y - radius).max(-4)..=(c.y + radius).min(7) {
+            for z in c.z - radius..=c.z + radius {
+                for x in c.x - radius..=c.x + radius {
+                    v.push(ChunkPos::new(x, y, z));
+                }
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn thin_view_loads_cost_whole_chunks() {
+        println!("| view radius | chunks | normal (Generated) | thin (Snapshot) |");
+        println!("|---|---|---|---|");
+        for radius in [2, 4] {
+            let mut world = World::new(Arc::new(Generator::fractal(GenParams::default()).unwrap()));
+            let chunks = view(radius);
+            let (mut normal, mut thin) = (0, 0);
+            for &pos in &chunks {
+                normal += frame(&WorldUpdate::Generated { pos });
+                let mesh_hash = mesh_hash(&mut world, pos);
+                let chunk = &world.peek(pos).unwrap().chunk;
+                thin += frame(&WorldUpdate::Snapshot {
+                    pos,
+                    version: 0,
+                    hash: chunk_hash(chunk),
+                    mesh_hash,
+                    data: encode_chunk(chunk),
+                });
+            }
+            println!("| {radius} | {} | {normal} B | {thin} B |", chunks.len());
+            assert!(normal < thin);
+        }
+    }
 }

@@ -52,6 +52,15 @@
 // Bytes of `StrataEvent.message`, its NUL included.
 #define STRATA_MESSAGE_LEN 256
 
+// Capability bit: every chunk arrives whole (the server's snapshot, hash
+// checked), so the client never runs the world generator.
+#define STRATA_CAP_SNAPSHOTS 1
+
+// Capability bit: accepted edits arrive as the edit itself, replayed by
+// the library with the server's terrain code and hash-checked, instead
+// of per-chunk deltas.
+#define STRATA_CAP_OP_REPLAY 2
+
 // What a call did.
 typedef enum {
   STRATA_STATUS_OK = 0,
@@ -168,6 +177,14 @@ typedef struct {
   uint64_t hash;
 } StrataMeshData;
 
+// Options of `strata_connect_with`.
+typedef struct {
+  // Show the player's own edits at once (as `strata_connect`'s `predict`).
+  bool predict;
+  // `STRATA_CAP_*` bits; unknown bits are ignored by the server.
+  uint32_t capabilities;
+} StrataConnectOptions;
+
 // The server's greeting, from `strata_welcome`.
 typedef struct {
   uint64_t session;
@@ -246,6 +263,11 @@ typedef struct {
   uint64_t mesh_mismatches;
   // Deltas or snapshots that failed their hash check (resynced).
   uint64_t hash_mismatches;
+  // Chunks taken forward by replaying an edit (`STRATA_CAP_OP_REPLAY`).
+  uint64_t op_chunks;
+  // Op chunks that did not replay (missing base or another hash) and
+  // were resynced instead.
+  uint64_t op_fallbacks;
 } StrataStats;
 
 #ifdef __cplusplus
@@ -321,6 +343,19 @@ StrataStatus strata_connect(const char *address,
                             const char *token,
                             bool predict,
                             StrataSession **out_session);
+
+// `strata_connect` with options: prediction and capability bits
+// (`STRATA_CAP_SNAPSHOTS` for a client that never runs the generator,
+// `STRATA_CAP_OP_REPLAY` to replay edits instead of taking deltas).
+//
+// # Safety
+// As `strata_connect`; `options` points to a readable `StrataConnectOptions`.
+StrataStatus strata_connect_with(const char *address,
+                                 const uint8_t *cert_der,
+                                 size_t cert_len,
+                                 const char *token,
+                                 const StrataConnectOptions *options,
+                                 StrataSession **out_session);
 
 // Closes the connection politely (waiting at most 2 s) and frees the
 // session. Null is ignored. No other call on the session may be running

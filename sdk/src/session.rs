@@ -77,17 +77,67 @@ pub unsafe extern "C" fn strata_connect(
             predict,
             ..SessionOptions::default()
         };
-        let session = Session::connect(resolve(address)?, cert, token, opts)?;
-        let boxed = Box::new(StrataSession {
-            session,
-            last_changes: Mutex::default(),
-        });
-        let raw = Box::into_raw(boxed);
         // SAFETY: the caller's contract above.
-        unsafe { out(out_session, "out_session", raw) }.inspect_err(|_| {
-            // SAFETY: `raw` came from `Box::into_raw` just above.
-            drop(unsafe { Box::from_raw(raw) });
-        })
+        unsafe { connect(address, cert, token, opts, out_session) }
+    })
+}
+
+/// `strata_connect` with options: prediction and capability bits
+/// (`STRATA_CAP_SNAPSHOTS` for a client that never runs the generator,
+/// `STRATA_CAP_OP_REPLAY` to replay edits instead of taking deltas).
+///
+/// # Safety
+/// As `strata_connect`; `options` points to a readable `StrataConnectOptions`.
+#[no_mangle]
+pub unsafe extern "C" fn strata_connect_with(
+    address: *const c_char,
+    cert_der: *const u8,
+    cert_len: usize,
+    token: *const c_char,
+    options: *const StrataConnectOptions,
+    out_session: *mut *mut StrataSession,
+) -> StrataStatus {
+    call(|| {
+        // SAFETY: the caller's contract above.
+        let (address, cert, token, o) = unsafe {
+            (
+                text(address, "address")?,
+                bytes(cert_der, cert_len, "cert_der")?,
+                text(token, "token")?,
+                *shared(options, "options")?,
+            )
+        };
+        let opts = SessionOptions {
+            predict: o.predict,
+            capabilities: o.capabilities,
+            ..SessionOptions::default()
+        };
+        // SAFETY: the caller's contract above.
+        unsafe { connect(address, cert, token, opts, out_session) }
+    })
+}
+
+/// Connects and hands the new session to `*out_session`.
+///
+/// # Safety
+/// `out_session` is null or writable.
+unsafe fn connect(
+    address: &str,
+    cert: &[u8],
+    token: &str,
+    opts: SessionOptions,
+    out_session: *mut *mut StrataSession,
+) -> Result<(), Failure> {
+    let session = Session::connect(resolve(address)?, cert, token, opts)?;
+    let boxed = Box::new(StrataSession {
+        session,
+        last_changes: Mutex::default(),
+    });
+    let raw = Box::into_raw(boxed);
+    // SAFETY: the caller's contract above.
+    unsafe { out(out_session, "out_session", raw) }.inspect_err(|_| {
+        // SAFETY: `raw` came from `Box::into_raw` just above.
+        drop(unsafe { Box::from_raw(raw) });
     })
 }
 
@@ -354,6 +404,8 @@ pub unsafe extern "C" fn strata_stats(
             meshes_checked: r.meshes_checked,
             mesh_mismatches: r.mesh_mismatches,
             hash_mismatches: r.hash_mismatches,
+            op_chunks: r.op_chunks,
+            op_fallbacks: r.op_gaps + r.op_mismatches,
         };
         // SAFETY: the caller's contract above.
         unsafe { out(out_stats, "out_stats", stats) }

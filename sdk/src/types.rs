@@ -153,6 +153,29 @@ pub struct StrataStats {
     pub mesh_mismatches: u64,
     /// Deltas or snapshots that failed their hash check (resynced).
     pub hash_mismatches: u64,
+    /// Chunks taken forward by replaying an edit (`STRATA_CAP_OP_REPLAY`).
+    pub op_chunks: u64,
+    /// Op chunks that did not replay (missing base or another hash) and
+    /// were resynced instead.
+    pub op_fallbacks: u64,
+}
+
+/// Capability bit: every chunk arrives whole (the server's snapshot, hash
+/// checked), so the client never runs the world generator.
+pub const STRATA_CAP_SNAPSHOTS: u32 = 1;
+/// Capability bit: accepted edits arrive as the edit itself, replayed by
+/// the library with the server's terrain code and hash-checked, instead
+/// of per-chunk deltas.
+pub const STRATA_CAP_OP_REPLAY: u32 = 2;
+
+/// Options of `strata_connect_with`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct StrataConnectOptions {
+    /// Show the player's own edits at once (as `strata_connect`'s `predict`).
+    pub predict: bool,
+    /// `STRATA_CAP_*` bits; unknown bits are ignored by the server.
+    pub capabilities: u32,
 }
 
 /// A mesh's arrays, from `strata_mesh_data`: owned by the `StrataMesh`

@@ -27,6 +27,22 @@ fn null_pointers_are_invalid_arguments() {
     // SAFETY: `c` holds 3 writable i32.
     let st = unsafe { strata_chunk_of(-0.5, 40.0, 70.0, c.as_mut_ptr()) };
     assert_eq!((st, c), (StrataStatus::Ok, [-1, 1, 2]));
+    let (addr, token, cert) = (c"127.0.0.1:9", c"v1.x.y", [1u8, 2, 3]);
+    let mut s = null_mut();
+    // SAFETY: valid strings, bytes and out pointer; null options are what
+    // is tested.
+    let st = unsafe {
+        strata_connect_with(
+            addr.as_ptr(),
+            cert.as_ptr(),
+            3,
+            token.as_ptr(),
+            null(),
+            &mut s,
+        )
+    };
+    assert_eq!(st, StrataStatus::InvalidArgument);
+    assert_eq!(last_error(), "options is null");
     // SAFETY: null is ignored by both.
     unsafe {
         strata_session_free(null_mut());

@@ -174,3 +174,86 @@ fn a_session_edits_sees_its_changes_and_ends_with_disconnected() {
     assert_eq!(s.poll(), None, "nothing after Disconnected");
     s.close();
 }
+
+/// `strata_connect_with` through the C ABI: a thin, op-replaying session
+/// loads its view as whole chunks (no generator) and takes another
+/// player's edit as an op, replayed and hash-checked.
+#[test]
+fn a_thin_op_replay_session_through_the_c_abi() {
+    use std::ffi::CString;
+    use strata::*;
+
+    let server = Server::start();
+    let addr = CString::new(server.address()).unwrap();
+    let token = CString::new(server.token("c-thin")).unwrap();
+    let cert = &server.running.cert_der;
+    let options = StrataConnectOptions {
+        predict: false,
+        capabilities: STRATA_CAP_SNAPSHOTS | STRATA_CAP_OP_REPLAY,
+    };
+    let mut c = std::ptr::null_mut();
+    // SAFETY: NUL-terminated strings, `cert.len()` readable bytes, a live
+    // options struct and a writable out pointer.
+    let st = unsafe {
+        strata_connect_with(
+            addr.as_ptr(),
+            cert.as_ptr(),
+            cert.len(),
+            token.as_ptr(),
+            &options,
+            &mut c,
+        )
+    };
+    assert_eq!(st, StrataStatus::Ok);
+    // SAFETY: `c` is the live session made above.
+    assert_eq!(unsafe { strata_subscribe(c, 0, 1, 0, 2) }, StrataStatus::Ok);
+    let stats = || {
+        let mut out = std::mem::MaybeUninit::<StrataStats>::uninit();
+        // SAFETY: `c` is live; `out` is writable.
+        let st = unsafe { strata_stats(c, out.as_mut_ptr()) };
+        assert_eq!(st, StrataStatus::Ok);
+        // SAFETY: written by the call above.
+        unsafe { out.assume_init() }
+    };
+    let start = Instant::now();
+    while stats().chunks_held < 125 {
+        assert!(
+            start.elapsed() < WAIT,
+            "the view never arrived: {:?}",
+            stats()
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let loaded = stats();
+    assert_eq!(loaded.generated, 0, "{loaded:?}");
+    assert_eq!(loaded.snapshots, loaded.chunks_held, "{loaded:?}");
+
+    // Another player digs in the view; the C session replays the edit.
+    let t = server.token("rust-digger");
+    let opts = SessionOptions::default();
+    let s = Session::connect(server.running.addr, cert, &t, opts).unwrap();
+    s.subscribe(IVec3::new(0, 1, 0), 2).unwrap();
+    let start = Instant::now();
+    let y = loop {
+        while s.poll().is_some() {}
+        if let Some(y) = ground(&s, 3, 3) {
+            break y;
+        }
+        assert!(start.elapsed() < WAIT, "the column never arrived");
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let feet = DVec3::new(3.5, f64::from(y) + 1.0, 3.5);
+    let target = DVec3::new(3.5, f64::from(y) + 0.5, 3.5);
+    let start = Instant::now();
+    while stats().op_chunks == 0 {
+        assert!(start.elapsed() < WAIT, "no op was replayed: {:?}", stats());
+        s.set_position(feet).unwrap();
+        s.edit(edits::mine(target, 2.0, 255).unwrap()).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let end = stats();
+    assert_eq!((end.op_fallbacks, end.hash_mismatches), (0, 0), "{end:?}");
+    assert_eq!(end.mesh_mismatches, 0, "{end:?}");
+    // SAFETY: `c` is live and nothing else uses it.
+    unsafe { strata_session_free(c) };
+}

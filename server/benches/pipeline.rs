@@ -259,6 +259,7 @@ fn join(
             reply,
             kick,
             position: position.clone(),
+            capabilities: 0,
         },
     );
     reply_rx.blocking_recv()?;

@@ -27,6 +27,7 @@ pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
 pub const DELTAS_DROPPED: &str = "strata_deltas_dropped_total";
 pub const DELTAS_SENT: &str = "strata_deltas_sent_total";
+pub const OPS_SENT: &str = "strata_ops_sent_total";
 pub const POSITIONS_DROPPED: &str = "strata_positions_dropped_total";
 pub const RESYNCS: &str = "strata_resyncs_total";
 pub const RESIDENT_CHUNKS: &str = "strata_resident_chunks";
@@ -75,6 +76,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         DELTAS_SENT,
         "Chunk deltas queued to sessions (one per session that sees the chunk)"
+    );
+    metrics::describe_counter!(
+        OPS_SENT,
+        "Edits sent as one op instead of deltas (one per session that replays it)"
     );
     metrics::describe_counter!(EDITS_ACCEPTED, "Edits acknowledged after they were durable");
     metrics::describe_counter!(EDITS_REJECTED, "Edits refused, by reason");

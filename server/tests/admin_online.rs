@@ -13,10 +13,10 @@ use common::*;
 use snapshot_common::{assert_snapshot_is_log_at, spot};
 use strata_client_sim::{Client, Verdict};
 use strata_protocol::admin::{
-    AdminRequest, AdminResponse, ZoneSpec, ADMIN_ALPN, ADMIN_PROTOCOL_VERSION,
+    AdminHello, AdminRequest, AdminResponse, ZoneSpec, ADMIN_ALPN, ADMIN_PROTOCOL_VERSION,
 };
 use strata_protocol::io::FramedReader;
-use strata_protocol::{encode_frame, Direction, ErrorCode, FrameBuffer, Hello, Role};
+use strata_protocol::{encode_frame, Direction, ErrorCode, FrameBuffer, Role};
 use strata_server::admin::remote::AdminClient;
 use strata_server::admin::snapshot_cmd::{self, RestoreArgs};
 use strata_server::app;
@@ -189,7 +189,7 @@ async fn player_tokens_reach_no_admin_request() {
         let victim = connect(&server, "victim", Role::Player).await;
         let player_token = token(&server, "mallory", Role::Player);
         for req in all_requests() {
-            let hello = AdminRequest::Hello(Hello { protocol_version: ADMIN_PROTOCOL_VERSION, token: player_token.clone() });
+            let hello = AdminRequest::Hello(AdminHello { protocol_version: ADMIN_PROTOCOL_VERSION, token: player_token.clone() });
             let frames = vec![
                 encode_frame(&hello, Direction::ClientToServer).unwrap(),
                 encode_frame(&req, Direction::ClientToServer).unwrap(),

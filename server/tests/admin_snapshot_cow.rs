@@ -16,9 +16,11 @@ use std::time::Duration;
 use common::*;
 use snapshot_common::{assert_snapshot_is_log_at, spot};
 use strata_client_sim::{Client, Verdict};
-use strata_protocol::admin::{AdminRequest, AdminResponse, ADMIN_ALPN, ADMIN_PROTOCOL_VERSION};
+use strata_protocol::admin::{
+    AdminHello, AdminRequest, AdminResponse, ADMIN_ALPN, ADMIN_PROTOCOL_VERSION,
+};
 use strata_protocol::io::FramedReader;
-use strata_protocol::{encode_frame, Direction, FrameBuffer, Hello, Role};
+use strata_protocol::{encode_frame, Direction, FrameBuffer, Role};
 use strata_server::app;
 use strata_server::client_tls::client_config_pinned_with_alpn;
 use strata_server::net::admin_session::SNAPSHOT_STREAM_QUEUE;
@@ -125,7 +127,7 @@ impl SlowAdmin {
         let cfg = client_config_pinned_with_alpn(&server.cert_der, ADMIN_ALPN).unwrap();
         let (endpoint, conn) = connect_small_window(server.addr, cfg, SLOW_WINDOW).await;
         let (mut send, recv) = conn.open_bi().await.unwrap();
-        let hello = AdminRequest::Hello(Hello {
+        let hello = AdminRequest::Hello(AdminHello {
             protocol_version: ADMIN_PROTOCOL_VERSION,
             token: token.to_string(),
         });

@@ -8,11 +8,11 @@ mod common;
 use std::time::Duration;
 
 use common::*;
-use strata_client_sim::Verdict;
+use strata_client_sim::{Client, Verdict};
 use strata_protocol::{RejectReason, Role};
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::hash::chunk_hash;
-use strata_terrain::{Edit, FixedVec3, VoxelPos};
+use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
 
 /// A surface point away from spawn, and the feet position standing on it.
 fn spot() -> (FixedVec3, VoxelPos) {
@@ -187,6 +187,132 @@ async fn resync_request_sends_a_fresh_snapshot_on(backend: Backend) {
         );
         assert_eq!(a.replica().get(target).unwrap().version, 1);
         a.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// Two clients standing on the chunk border x = 96, each holding the
+/// chunks on both sides: `ana` (deltas) and `bo` (`CAP_OP_REPLAY`). Returns
+/// them, the ground voxel and the two chunks.
+async fn at_the_border(
+    server: &strata_server::app::Running,
+) -> (Client, Client, VoxelPos, [ChunkPos; 2]) {
+    let g = Generator::fractal(GenParams::default()).unwrap();
+    let (x, z) = (96, 40);
+    let y = g.surface_height(x, z);
+    let ground = VoxelPos::new(x, y.floor() as i32, z);
+    let sides = [VoxelPos::new(x - 3, ground.y, z).chunk(), ground.chunk()];
+    let a = connect(server, "ana", Role::Player).await;
+    let b = connect_caps(server, "bo", strata_protocol::CAP_OP_REPLAY).await;
+    for c in [&a, &b] {
+        c.send_position(at(x as f64 + 0.5, y + 1.0, z as f64))
+            .unwrap();
+    }
+    let holds = |c: &Client| sides.iter().all(|p| c.replica().get(*p).is_some());
+    assert!(eventually(Duration::from_secs(20), || holds(&a) && holds(&b)).await);
+    (a, b, ground, sides)
+}
+
+/// A Mine or Smooth of radius `radius` centred on `ground`, accepted.
+async fn dig(c: &Client, ground: VoxelPos, smooth: bool, radius: f64) -> u64 {
+    let (center, radius) = (at(96.0, ground.y as f64, 40.0), r(radius));
+    let edit = if smooth {
+        Edit::Smooth {
+            center,
+            radius,
+            strength: 255,
+        }
+    } else {
+        Edit::Mine {
+            center,
+            radius,
+            strength: 255,
+        }
+    };
+    match c.edit(edit).await.unwrap() {
+        Verdict::Accepted { seq } => seq,
+        v => panic!("edit refused: {v:?}"),
+    }
+}
+
+/// A client with `CAP_OP_REPLAY` takes accepted edits (Mine, Smooth) as
+/// ops, replays them with the terrain core, and ends with the server's
+/// versions and hashes, and its mesh hashes.
+#[tokio::test]
+async fn op_replay_clients_replay_accepted_edits() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let (a, b, ground, sides) = at_the_border(&server).await;
+        dig(&a, ground, false, 3.0).await;
+        let seq = dig(&a, ground, true, 4.0).await;
+        assert!(eventually(Duration::from_secs(10), || b.replica().last_seq() >= seq).await);
+        let s = b.replica().stats;
+        assert!(s.ops >= 2 && s.op_chunks >= 2, "{s:?}");
+        assert_eq!((s.deltas, s.op_gaps, s.op_mismatches), (0, 0, 0), "{s:?}");
+        assert!(s.meshes_checked >= 1, "{s:?}");
+        assert_eq!(s.mesh_mismatches, 0, "{:?}", b.replica().mesh_mismatches());
+        for pos in sides {
+            let (version, hash) = server_chunk(&server, pos).await;
+            assert!(version >= 1, "{pos:?} changed");
+            let held = b.replica().get(pos).cloned().unwrap();
+            assert_eq!((held.version, held.hash), (version, hash), "{pos:?}");
+        }
+        for c in [a, b] {
+            c.close().await;
+        }
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// An op whose base the client lacks (it dropped the chunk) or whose
+/// replay gives another hash (its copy was wrong) is not applied: the
+/// client asks for those chunks again and converges on the server's.
+#[tokio::test]
+async fn op_replay_falls_back_to_resync_and_converges() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let (a, b, ground, [dropped, wrong]) = at_the_border(&server).await;
+        {
+            let mut r = b.replica();
+            r.apply(strata_protocol::WorldUpdate::Unsubscribed { pos: dropped });
+            // A copy that hashes right for itself but is not the server's.
+            let fake = strata_terrain::Chunk::uniform(strata_terrain::Voxel::solid(3));
+            let version = r.get(wrong).unwrap().version;
+            r.apply(strata_protocol::WorldUpdate::Snapshot {
+                pos: wrong,
+                version,
+                hash: chunk_hash(&fake),
+                mesh_hash: 0,
+                data: strata_terrain::chunk_codec::encode_chunk(&fake),
+            });
+        }
+        let before = b.replica().stats;
+        let seq = dig(&a, ground, false, 3.0).await;
+        assert!(eventually(Duration::from_secs(10), || b.replica().last_seq() >= seq).await);
+        let s = b.replica().stats;
+        assert!(s.op_gaps > before.op_gaps, "{s:?}");
+        assert!(s.op_mismatches > before.op_mismatches, "{s:?}");
+        for pos in [dropped, wrong] {
+            let (version, hash) = server_chunk(&server, pos).await;
+            assert!(
+                eventually(Duration::from_secs(10), || b
+                    .replica()
+                    .get(pos)
+                    .is_some_and(|h| (h.version, h.hash) == (version, hash)))
+                .await,
+                "{pos:?} converged"
+            );
+        }
+        assert!(b.replica().stats.snapshots >= before.snapshots + 2);
+        for c in [a, b] {
+            c.close().await;
+        }
         server.shutdown().await.unwrap();
     })
     .await

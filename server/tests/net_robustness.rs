@@ -50,6 +50,7 @@ async fn malformed_oversized_and_garbage_frames_close_only_their_connection() {
         let hello = ClientMessage::Hello(Hello {
             protocol_version: PROTOCOL_VERSION,
             token: "x".into(),
+            capabilities: 0,
         });
         again
             .send_raw(encode_frame(&hello, Direction::ClientToServer).unwrap())
@@ -97,6 +98,7 @@ async fn raw_session(server: &app::Running, player: &str) -> RawSession {
     let hello = ClientMessage::Hello(Hello {
         protocol_version: PROTOCOL_VERSION,
         token: token(server, player, Role::Player),
+        capabilities: 0,
     });
     send.write_all(&encode_frame(&hello, Direction::ClientToServer).unwrap())
         .await

@@ -84,3 +84,74 @@ async fn tiny_stream_budgets_serve_sessions_in_turn_and_deliver_every_chunk() {
     .await
     .expect("test finished in time");
 }
+
+/// A thin client (`CAP_SNAPSHOTS`, no generator) loads its whole view as
+/// snapshots, a modified chunk included, each hash-checked; an unknown
+/// capability bit beside it is ignored; deltas still flow to it.
+#[tokio::test]
+async fn thin_clients_load_their_view_as_verified_snapshots() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = test_config(dir.path());
+        let radius = i32::from(cfg.interest.view_radius);
+        let server = app::start(cfg).await.expect("server starts");
+        let (feet, surface) = spot(70, 40);
+        let view = cube(VoxelPos::new(70, surface.y + 1, 40).chunk(), radius);
+        let edit = |x: f64| strata_terrain::Edit::Mine {
+            center: at(x, surface.y as f64, 40.0),
+            radius: r(2.0),
+            strength: 255,
+        };
+        // A normal client modifies a chunk first: it would come as a patch.
+        let full = connect(&server, "ana", Role::Player).await;
+        full.send_position(feet).unwrap();
+        // Chunks flow once the position is accepted.
+        let pos = surface.chunk();
+        assert!(
+            eventually(Duration::from_secs(20), || full
+                .replica()
+                .get(pos)
+                .is_some())
+            .await
+        );
+        let v = full.edit(edit(70.0)).await.unwrap();
+        assert!(
+            matches!(v, strata_client_sim::Verdict::Accepted { .. }),
+            "{v:?}"
+        );
+        let caps = strata_protocol::CAP_SNAPSHOTS | 1 << 31;
+        let thin = connect_caps(&server, "bo", caps).await;
+        thin.send_position(feet).unwrap();
+        assert!(
+            eventually(Duration::from_secs(20), || thin.replica().len()
+                >= view.len())
+            .await
+        );
+        let s = thin.replica().stats;
+        assert_eq!((s.generated, s.patched), (0, 0), "{s:?}");
+        assert_eq!(s.snapshots, view.len() as u64, "{s:?}");
+        assert_eq!(s.hash_mismatches, 0);
+        let (version, hash) = server_chunk(&server, pos).await;
+        assert!(version >= 1);
+        let held = thin.replica().get(pos).cloned().unwrap();
+        assert_eq!((held.version, held.hash), (version, hash));
+        // Deltas flow as usual, hash-checked and meshed at the tick end.
+        let seq = match full.edit(edit(72.0)).await.unwrap() {
+            strata_client_sim::Verdict::Accepted { seq } => seq,
+            v => panic!("{v:?}"),
+        };
+        assert!(eventually(Duration::from_secs(10), || thin.replica().last_seq() >= seq).await);
+        let s = thin.replica().stats;
+        assert!(s.deltas >= 1 && s.meshes_checked >= 1, "{s:?}");
+        assert_eq!(
+            (s.hash_mismatches, s.mesh_mismatches, s.generated),
+            (0, 0, 0)
+        );
+        for c in [full, thin] {
+            c.close().await;
+        }
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

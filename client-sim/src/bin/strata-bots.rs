@@ -123,6 +123,13 @@ struct Args {
     /// the prediction was exact.
     #[arg(long)]
     predict: bool,
+    /// Thin clients: ask for every chunk whole (`CAP_SNAPSHOTS`) and never
+    /// run the generator.
+    #[arg(long)]
+    thin: bool,
+    /// Replay accepted edits from ops (`CAP_OP_REPLAY`) instead of deltas.
+    #[arg(long)]
+    op_replay: bool,
     /// Hostile players beside the bots (each runs --attack).
     #[arg(long, default_value_t = 0)]
     hostile: usize,
@@ -247,6 +254,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         area_origin: bots::DEFAULT_AREA_ORIGIN,
         silence_limit: args.silence_limit,
         predict: args.predict,
+        capabilities: capabilities(args.thin, args.op_replay),
     };
     let hostile = args.attack.map(|attack| HostileConfig {
         bind: args
@@ -268,4 +276,10 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         running.shutdown().await?;
     }
     Ok(summary.consistent())
+}
+
+/// The `Hello` capability bits the flags ask for.
+fn capabilities(thin: bool, op_replay: bool) -> u32 {
+    use strata_protocol::{CAP_OP_REPLAY, CAP_SNAPSHOTS};
+    (if thin { CAP_SNAPSHOTS } else { 0 }) | (if op_replay { CAP_OP_REPLAY } else { 0 })
 }

@@ -110,6 +110,10 @@ fn add_stats(a: &mut ReplicaStats, b: &ReplicaStats) {
     a.meshes_unverifiable += b.meshes_unverifiable;
     a.checks_ok += b.checks_ok;
     a.checks_failed += b.checks_failed;
+    a.ops += b.ops;
+    a.op_chunks += b.op_chunks;
+    a.op_gaps += b.op_gaps;
+    a.op_mismatches += b.op_mismatches;
 }
 
 impl BotOutcome {
@@ -230,6 +234,7 @@ impl Bot {
                 predict: cfg.predict,
                 structures: Default::default(),
                 track_changes: false,
+                capabilities: cfg.capabilities,
             };
             let attempt = {
                 let _slot = self.fleet.connect_slots.acquire().await.ok()?;

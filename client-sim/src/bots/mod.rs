@@ -164,6 +164,8 @@ pub struct BotsConfig {
     pub silence_limit: Duration,
     /// Bots predict their own edits (client-side prediction).
     pub predict: bool,
+    /// `Hello::capabilities` of every bot (`--thin`, `--op-replay`).
+    pub capabilities: u32,
 }
 
 impl BotsConfig {
@@ -448,7 +450,10 @@ fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet:
         delta_bytes += r.delta_payload_bytes;
         sum.snapshots += r.snapshots;
         sum.patched += r.patched;
-        sum.resyncs += r.gaps + r.hash_mismatches;
+        sum.resyncs += r.gaps + r.hash_mismatches + r.op_gaps + r.op_mismatches;
+        sum.generated += r.generated;
+        sum.op_chunks += r.op_chunks;
+        sum.op_mismatches += r.op_mismatches;
         sum.meshes_checked += r.meshes_checked;
         sum.mesh_mismatches += r.mesh_mismatches;
         sum.order_violations += o.history_regressions;

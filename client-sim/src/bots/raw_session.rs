@@ -94,7 +94,7 @@ impl RawSession {
                 .await
                 .map_err(closed)?;
             let (send, control, welcome) =
-                crate::client::say_hello(&conn, token, PROTOCOL_VERSION, closed).await?;
+                crate::client::say_hello(&conn, token, PROTOCOL_VERSION, 0, closed).await?;
             Ok::<_, ClientError>((conn, send, control, welcome))
         };
         let (conn, send, control, welcome) = tokio::time::timeout(CONNECT_TIMEOUT, handshake)

@@ -67,6 +67,13 @@ pub struct Summary {
     pub snapshots: u64,
     /// Of those, patches (modified chunks as deltas from generated).
     pub patched: u64,
+    /// Chunks regenerated from the seed (`Generated`; 0 with `--thin`).
+    pub generated: u64,
+    /// Chunks taken forward by replaying ops (`--op-replay`).
+    pub op_chunks: u64,
+    /// Op chunks whose replayed hash differed from the server's (each
+    /// resynced; also in `resyncs`).
+    pub op_mismatches: u64,
     /// Resync requests the replicas sent (version gaps, bad hashes).
     pub resyncs: u64,
     pub meshes_checked: u64,
@@ -163,13 +170,16 @@ impl Summary {
         let _ = writeln!(s, "broadcast latency: {}", l(&self.broadcast_latency_ms));
         let _ = writeln!(
             s,
-            "traffic: {} B in, {} B out, {} deltas (mean {:.0} B), {} snapshots ({} patches), {} resyncs",
+            "traffic: {} B in, {} B out, {} deltas (mean {:.0} B), {} snapshots ({} patches), {} generated, {} op chunks ({} mismatched), {} resyncs",
             self.bytes_in,
             self.bytes_out,
             self.deltas,
             self.mean_delta_bytes,
             self.snapshots,
             self.patched,
+            self.generated,
+            self.op_chunks,
+            self.op_mismatches,
             self.resyncs
         );
         let _ = writeln!(

@@ -40,6 +40,9 @@ pub struct SessionOptions {
     pub predict: bool,
     /// The server's structure templates, to predict `PlaceStructure`.
     pub structures: Arc<StructureLibrary>,
+    /// `Hello::capabilities`: `CAP_SNAPSHOTS` (whole chunks, no generator
+    /// needed), `CAP_OP_REPLAY` (edits replayed here instead of deltas).
+    pub capabilities: u32,
 }
 
 /// A chunk's voxels as the player should see them.
@@ -94,6 +97,7 @@ impl Session {
             predict: opts.predict,
             structures: opts.structures,
             track_changes: true,
+            capabilities: opts.capabilities,
             ..ClientOptions::default()
         };
         let client =

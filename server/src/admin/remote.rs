@@ -12,10 +12,10 @@ use anyhow::{bail, Context};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use strata_protocol::admin::{
-    AdminRequest, AdminResponse, AdminWelcome, ADMIN_ALPN, ADMIN_PROTOCOL_VERSION,
+    AdminHello, AdminRequest, AdminResponse, AdminWelcome, ADMIN_ALPN, ADMIN_PROTOCOL_VERSION,
 };
 use strata_protocol::io::FramedReader;
-use strata_protocol::{encode_frame, Direction, ErrorCode, FrameBuffer, Hello};
+use strata_protocol::{encode_frame, Direction, ErrorCode, FrameBuffer};
 
 use crate::admin::world_source::DATA_DIR_CONFIG_NAME;
 use crate::client_tls::client_config_pinned_with_alpn;
@@ -187,7 +187,7 @@ impl AdminClient {
                     generator_version: 0,
                 },
             };
-            let hello = AdminRequest::Hello(Hello {
+            let hello = AdminRequest::Hello(AdminHello {
                 protocol_version: version,
                 token: token.to_string(),
             });

@@ -34,6 +34,8 @@ pub enum Command {
         kick: oneshot::Sender<Kick>,
         /// The session's pending position (see [`super::LatestPosition`]).
         position: Arc<super::LatestPosition>,
+        /// `Hello::capabilities`, unknown bits already dropped.
+        capabilities: u32,
     },
     Leave {
         session: u64,

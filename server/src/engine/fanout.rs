@@ -4,13 +4,16 @@ use std::collections::HashMap;
 
 use bytes::{Bytes, BytesMut};
 use rayon::prelude::*;
-use strata_protocol::{encode_frame, DeltaUpdate, Direction, ServerMessage, WorldUpdate};
+use strata_protocol::{
+    encode_frame, DeltaUpdate, Direction, ServerMessage, WorldUpdate, CAP_OP_REPLAY,
+};
 use strata_terrain::ChunkPos;
 
+use super::ops;
 use super::peer::Peer;
 use crate::metrics as m;
 use crate::net::writer::SendRefused;
-use crate::sequencer::{AppliedEdit, ChunkUpdate};
+use crate::sequencer::AppliedEdit;
 
 /// Encodes an updates-stream frame. Server messages are built from
 /// validated state, so a failure here is a bug, not bad input.
@@ -27,26 +30,19 @@ pub fn encode_control(msg: &ServerMessage) -> Bytes {
 }
 
 /// Sends each change to every session that holds the chunk at the delta's
-/// base version. Each session gets its deltas of the tick and the `TickEnd`
-/// marker as one frame batch (one queue slot, one write, few packets). A
-/// session whose queue is full loses the batch and gets snapshots of its
-/// chunks later; it never slows the others down.
+/// base version: as `Delta`s, or as one `Op` per edit to sessions with
+/// `CAP_OP_REPLAY` (see [`super::ops`]). Each session gets its updates of
+/// the tick and the `TickEnd` marker as one frame batch (one queue slot,
+/// one write, few packets). A session whose queue is full loses the batch
+/// and gets snapshots of its chunks later; it never slows the others down.
 pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_seq: u64) {
-    // Each change's frame, encoded once, in order.
-    let changes: Vec<(&ChunkUpdate, Bytes)> = applied
+    // Each edit's delta frames, encoded once, in order.
+    let edits: Vec<TickEdit<'_>> = applied
         .iter()
-        .flat_map(|a| {
-            a.changes.iter().map(move |c| {
-                let frame = encode_update(&WorldUpdate::Delta(DeltaUpdate {
-                    delta: c.delta.clone(),
-                    mesh_hash: c.mesh_hash,
-                    seq: a.seq,
-                }));
-                (c, frame)
-            })
-        })
+        .filter(|a| !a.changes.is_empty())
+        .map(TickEdit::new)
         .collect();
-    if changes.is_empty() {
+    if edits.is_empty() {
         return;
     }
     let end = encode_update(&WorldUpdate::TickEnd { last_seq });
@@ -55,7 +51,36 @@ pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_s
     let mut all: Vec<&mut Peer> = peers.values_mut().collect();
     all.par_iter_mut()
         .with_min_len(PEERS_PER_TASK)
-        .for_each(|p| send_tick(p, &changes, &end));
+        .for_each(|p| send_tick(p, &edits, &end));
+}
+
+/// One applied edit of the tick with its changes' `Delta` frames.
+struct TickEdit<'a> {
+    edit: &'a AppliedEdit,
+    deltas: Vec<Bytes>,
+    /// How the edit goes out as an op, if it can be one.
+    op: Option<ops::OpPlan>,
+}
+
+impl<'a> TickEdit<'a> {
+    fn new(a: &'a AppliedEdit) -> Self {
+        let deltas = a
+            .changes
+            .iter()
+            .map(|c| {
+                encode_update(&WorldUpdate::Delta(DeltaUpdate {
+                    delta: c.delta.clone(),
+                    mesh_hash: c.mesh_hash,
+                    seq: a.seq,
+                }))
+            })
+            .collect();
+        Self {
+            edit: a,
+            deltas,
+            op: ops::OpPlan::new(a),
+        }
+    }
 }
 
 /// Sessions one fan-out task visits at least: fewer would cost more in
@@ -63,18 +88,42 @@ pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_s
 const PEERS_PER_TASK: usize = 64;
 
 /// Queues the tick's frames `p` holds the base of, then `end`, as one batch.
-fn send_tick(p: &mut Peer, changes: &[(&ChunkUpdate, Bytes)], end: &Bytes) {
+fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], end: &Bytes) {
     let mut buf = BytesMut::new();
     let mut chunks: Vec<ChunkPos> = Vec::new();
-    for (c, frame) in changes {
+    let replay = p.has(CAP_OP_REPLAY);
+    for e in edits {
         // The Fx-hashed `known` lookup rules most sessions out; `covers`
         // (a tree lookup) only confirms the few that hold the base.
-        if p.known.get(&c.pos) != Some(&c.from_version) || !p.interest.covers(c.pos) {
+        let held: Vec<usize> = e
+            .edit
+            .changes
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| {
+                p.known.get(&c.pos) == Some(&c.from_version) && p.interest.covers(c.pos)
+            })
+            .map(|(i, _)| i)
+            .collect();
+        if held.is_empty() {
             continue;
         }
-        p.known.insert(c.pos, c.to_version);
-        buf.extend_from_slice(frame);
-        chunks.push(c.pos);
+        match e.op.as_ref().filter(|op| replay && op.replayable_by(p)) {
+            Some(op) => {
+                buf.extend_from_slice(&op.frame(e.edit, &held));
+                metrics::counter!(m::OPS_SENT).increment(1);
+            }
+            None => {
+                for &i in &held {
+                    buf.extend_from_slice(&e.deltas[i]);
+                }
+            }
+        }
+        for &i in &held {
+            let c = &e.edit.changes[i];
+            p.known.insert(c.pos, c.to_version);
+            chunks.push(c.pos);
+        }
     }
     if chunks.is_empty() {
         return;

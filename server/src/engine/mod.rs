@@ -15,6 +15,7 @@ mod fanout;
 mod generated;
 mod inbox;
 mod latest;
+mod ops;
 mod peer;
 mod premesh;
 mod residency;
@@ -309,6 +310,7 @@ impl Engine {
                 reply,
                 kick,
                 position,
+                capabilities,
             } => {
                 // A new login replaces the player's oldest sessions past the cap.
                 let mut older = self.sessions_of(&player);
@@ -322,7 +324,8 @@ impl Engine {
                 let start = self.seq.resume_position(session, now);
                 metrics::counter!(m::SESSIONS_TOTAL).increment(1);
                 let interest = Interest::new(self.interest, self.bounds);
-                let peer = Peer::new(control, updates, interest, kick, position);
+                let mut peer = Peer::new(control, updates, interest, kick, position);
+                peer.capabilities = capabilities;
                 self.peers.insert(session, peer);
                 // A join may arrive mid-commit: name no seq a power cut could
                 // still take back.

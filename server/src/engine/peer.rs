@@ -34,6 +34,8 @@ pub struct Peer {
     pub premeshed: Option<ChunkPos>,
     /// The newest position report not yet handled.
     pub position: Arc<LatestPosition>,
+    /// `Hello::capabilities` bits this server knows (the rest dropped).
+    pub capabilities: u32,
     kick: Option<oneshot::Sender<Kick>>,
 }
 
@@ -55,6 +57,7 @@ impl Peer {
             failed: false,
             premeshed: None,
             position,
+            capabilities: 0,
             kick: Some(kick),
         }
     }
@@ -82,6 +85,11 @@ impl Peer {
             }
         }
         change.unsubscribe
+    }
+
+    /// Whether the client asked for `cap` (`strata_protocol::capabilities`).
+    pub fn has(&self, cap: u32) -> bool {
+        strata_protocol::capabilities::has(self.capabilities, cap)
     }
 
     /// Forgets the client's copy of `pos` and sends it again first.

@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 use bytes::{Bytes, BytesMut};
-use strata_protocol::WorldUpdate;
+use strata_protocol::{WorldUpdate, CAP_SNAPSHOTS};
 use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::delta::ChunkDelta;
 use strata_terrain::hash::chunk_hash;
@@ -121,7 +121,8 @@ impl Engine {
             if !p.interest.covers(pos) {
                 continue;
             }
-            let full = p.full_data.contains(&pos);
+            // A thin client (no generator) gets every chunk whole.
+            let full = p.full_data.contains(&pos) || p.has(CAP_SNAPSHOTS);
             match self.snapshot_frame(pos, full) {
                 Ok((frame, version, kind)) => {
                     batch.extend_from_slice(&frame);

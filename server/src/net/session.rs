@@ -196,6 +196,8 @@ pub async fn run(
         control_task,
         reader,
         claims,
+        // Untrusted bits: only the ones this server knows are kept.
+        strata_protocol::capabilities::known(hello.capabilities),
     )
     .instrument(span)
     .await
@@ -211,6 +213,7 @@ async fn joined(
     control_task: tokio::task::JoinHandle<()>,
     mut reader: FramedReader<quinn::RecvStream>,
     claims: auth::Claims,
+    capabilities: u32,
 ) {
     let uni = match conn.open_uni().await {
         Ok(u) => u,
@@ -229,6 +232,7 @@ async fn joined(
         reply: reply_tx,
         kick: kick_tx,
         position: latest.clone(),
+        capabilities,
     };
     if !ctx.engine.try_send(join) {
         return refuse(

@@ -267,3 +267,38 @@ pub async fn live_sessions(server: &Running) -> u32 {
     admin.close().await;
     n
 }
+
+/// [`connect`] with `Hello` capability bits.
+pub async fn connect_caps(server: &Running, player: &str, capabilities: u32) -> Client {
+    let opts = strata_client_sim::ClientOptions {
+        capabilities,
+        ..Default::default()
+    };
+    let t = token(server, player, Role::Player);
+    Client::connect_opts(server.addr, &server.cert_der, &t, opts)
+        .await
+        .expect("client connects")
+}
+
+/// The server's version and chunk hash of `pos`, from the admin protocol.
+pub async fn server_chunk(server: &Running, pos: strata_terrain::ChunkPos) -> (u64, u64) {
+    use strata_protocol::admin::{AdminRequest, AdminResponse};
+    let token = token(server, "ops", Role::Admin);
+    let mut admin =
+        strata_server::admin::remote::AdminClient::connect(server.addr, &server.cert_der, &token)
+            .await
+            .unwrap();
+    let r = match admin
+        .request(&AdminRequest::InspectChunk { pos })
+        .await
+        .unwrap()
+    {
+        AdminResponse::Chunk { version, data, .. } => {
+            let chunk = strata_terrain::chunk_codec::decode_chunk(&data).unwrap();
+            (version, strata_terrain::hash::chunk_hash(&chunk))
+        }
+        other => panic!("unexpected {other:?}"),
+    };
+    admin.close().await;
+    r
+}
