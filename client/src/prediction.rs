@@ -116,7 +116,9 @@ impl Touched {
             WorldUpdate::Patched { delta, .. } => Touched::Whole(delta.pos),
             WorldUpdate::Unsubscribed { pos } => Touched::Gone(*pos),
             // Many chunks: the client passes them on one `Unsubscribed` each.
-            WorldUpdate::TickEnd { .. } | WorldUpdate::UnsubscribedMany { .. } => return None,
+            WorldUpdate::TickEnd { .. }
+            | WorldUpdate::UnsubscribedMany { .. }
+            | WorldUpdate::InterestComplete { .. } => return None,
         })
     }
 

@@ -38,11 +38,12 @@ use strata_protocol::{ChunkVersion, ErrorCode, Refusal, ServerMessage, WorldUpda
 use strata_terrain::ChunkPos;
 use tracing::{debug, error, info, warn};
 
-use crate::interest::{Interest, InterestConfig};
+use crate::interest::{Anchor, Interest, InterestConfig};
 use crate::metrics as m;
 use crate::sequencer::{BuiltMeshes, PendingMeshes, Sequencer};
 use crate::store::ChunkStore;
 use crate::validate::bounds::WorldBounds;
+use crate::validate::position::PositionReject;
 use peer::Peer;
 
 /// Default tick period.
@@ -314,7 +315,7 @@ impl Engine {
                 let start = self.seq.resume_position(session, now);
                 metrics::counter!(m::SESSIONS_TOTAL).increment(1);
                 let interest = Interest::new(self.interest, self.bounds);
-                let peer = Peer::new(control, updates, interest, kick, position);
+                let peer = Peer::new(control, updates, interest, kick, position, start);
                 self.peers.insert(session, peer);
                 // A join may arrive mid-commit: name no seq a power cut could
                 // still take back.
@@ -339,14 +340,13 @@ impl Engine {
                 center,
                 radius,
             } => {
-                // Admins may look anywhere; players only around themselves.
+                // Admins may look anywhere; players only around themselves,
+                // or before any position, around their start.
                 let player = match self.seq.session(session) {
                     Some(s) if s.role == strata_protocol::Role::Admin => None,
-                    Some(_) => Some(
-                        self.seq
-                            .position(session)
-                            .map(|p| crate::validate::position::feet_voxel(p.feet).chunk()),
-                    ),
+                    Some(_) => Some(self.seq.position(session).map(|p| {
+                        Anchor::Chunk(crate::validate::position::feet_voxel(p.feet).chunk())
+                    })),
                     None => return,
                 };
                 let Some(p) = self.peers.get_mut(&session) else {
@@ -354,7 +354,10 @@ impl Engine {
                 };
                 let allowed = match player {
                     None => Ok(()),
-                    Some(at) => p.interest.check_centre(center, at),
+                    Some(at) => {
+                        let anchor = at.unwrap_or_else(|| p.start_anchor());
+                        p.interest.check_centre(center, anchor)
+                    }
                 };
                 match allowed {
                     Ok(()) => {
@@ -381,6 +384,11 @@ impl Engine {
                 } else {
                     let refusal = Refusal::NotInInterest { pos };
                     self.send_control(session, &ServerMessage::RequestRefused(refusal));
+                }
+            }
+            Command::Forget { session, chunks } => {
+                if let Some(p) = self.peers.get_mut(&session) {
+                    p.forget(&chunks);
                 }
             }
             Command::Admin(c) => self.admin(c),
@@ -426,7 +434,7 @@ impl Engine {
         // Stale, out of bounds or too fast: refused before any chunk is
         // loaded or generated.
         if let Err(reason) = self.seq.precheck_position(session, &update, now) {
-            return debug!(session, ?reason, "position refused");
+            return self.refuse_position(session, update.seq, &reason, now);
         }
         let needed = self.seq.chunks_needed_for_position(&update);
         if let Err(e) = self.make_resident(&needed) {
@@ -441,7 +449,29 @@ impl Engine {
                 }
                 self.premesh_around(session, update.pos);
             }
-            Err(reason) => debug!(session, ?reason, "position refused"),
+            Err(reason) => self.refuse_position(session, update.seq, &reason, now),
+        }
+    }
+
+    /// Tells the client its report was refused, at most once per
+    /// `[validation] position_refusal_ms` per session, and only if its
+    /// control queue has room: a flood of bad datagrams costs one frame
+    /// an interval and never blocks or fails the session.
+    fn refuse_position(&mut self, session: u64, seq: u32, reason: &PositionReject, now: u64) {
+        debug!(session, ?reason, "position refused");
+        let interval = self.seq.validation().position_refusal_ms;
+        let (Some(reason), Some(p)) = (reason.refusal(), self.peers.get_mut(&session)) else {
+            return;
+        };
+        let quiet = p
+            .refused_at
+            .is_some_and(|at| now.saturating_sub(at) < interval);
+        if interval == 0 || quiet {
+            return;
+        }
+        let msg = ServerMessage::PositionRefused { seq, reason };
+        if p.control.try_send(fanout::encode_control(&msg)).is_ok() {
+            p.refused_at = Some(now);
         }
     }
 
