@@ -16,6 +16,7 @@ mod generated;
 mod inbox;
 mod latest;
 mod peer;
+mod position_refusal;
 mod premesh;
 mod residency;
 pub mod snapshot;
@@ -36,14 +37,13 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use serde::{Deserialize, Serialize};
 use strata_protocol::{ChunkVersion, ErrorCode, Refusal, ServerMessage, WorldUpdate};
 use strata_terrain::ChunkPos;
-use tracing::{debug, error, info, warn};
+use tracing::{error, info, warn};
 
 use crate::interest::{Anchor, Interest, InterestConfig};
 use crate::metrics as m;
 use crate::sequencer::{BuiltMeshes, PendingMeshes, Sequencer};
 use crate::store::ChunkStore;
 use crate::validate::bounds::WorldBounds;
-use crate::validate::position::PositionReject;
 use peer::Peer;
 
 /// Default tick period.
@@ -450,28 +450,6 @@ impl Engine {
                 self.premesh_around(session, update.pos);
             }
             Err(reason) => self.refuse_position(session, update.seq, &reason, now),
-        }
-    }
-
-    /// Tells the client its report was refused, at most once per
-    /// `[validation] position_refusal_ms` per session, and only if its
-    /// control queue has room: a flood of bad datagrams costs one frame
-    /// an interval and never blocks or fails the session.
-    fn refuse_position(&mut self, session: u64, seq: u32, reason: &PositionReject, now: u64) {
-        debug!(session, ?reason, "position refused");
-        let interval = self.seq.validation().position_refusal_ms;
-        let (Some(reason), Some(p)) = (reason.refusal(), self.peers.get_mut(&session)) else {
-            return;
-        };
-        let quiet = p
-            .refused_at
-            .is_some_and(|at| now.saturating_sub(at) < interval);
-        if interval == 0 || quiet {
-            return;
-        }
-        let msg = ServerMessage::PositionRefused { seq, reason };
-        if p.control.try_send(fanout::encode_control(&msg)).is_ok() {
-            p.refused_at = Some(now);
         }
     }
 

@@ -118,6 +118,9 @@ impl Peer {
             .copied()
             .filter(|p| self.interest.covers(*p))
             .collect();
+        if dropped.is_empty() {
+            return;
+        }
         for pos in &dropped {
             self.known.remove(pos);
         }
