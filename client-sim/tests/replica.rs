@@ -178,3 +178,34 @@ fn gaps_and_bad_data_ask_for_a_resync() {
     blind.apply(WorldUpdate::Unsubscribed { pos });
     assert!(blind.is_empty());
 }
+
+#[test]
+fn late_deltas_of_a_forgotten_chunk_are_dropped_not_resynced() {
+    let g = generator();
+    let mut replica = Replica::new(Some(g.clone() as Arc<dyn ChunkGenerator>));
+    let pos = ChunkPos::new(1, 0, 1);
+    assert_eq!(replica.apply(WorldUpdate::Generated { pos }), None);
+    let base = g.generate(pos);
+    let mut target = base.clone();
+    target.set(3, 3, 3, strata_terrain::Voxel::AIR);
+    let delta = ChunkDelta::encode(pos, 0, 1, &base, &target).unwrap();
+    let update = || {
+        WorldUpdate::Delta(DeltaUpdate {
+            delta: delta.clone(),
+            mesh_hash: 0,
+            seq: 1,
+        })
+    };
+    // Forgotten: a delta the server sent before it handled the Forget.
+    replica.drop_chunk(pos);
+    assert!(replica.get(pos).is_none());
+    assert_eq!(replica.apply(update()), None, "no resync for it");
+    assert_eq!(replica.stats.gaps, 0);
+    // Sent again, it is held and takes deltas as usual.
+    assert_eq!(replica.apply(WorldUpdate::Generated { pos }), None);
+    assert_eq!(replica.apply(update()), None);
+    assert_eq!(replica.get(pos).map(|h| h.version), Some(1));
+    // A chunk dropped without Forget (it left the view) is asked for again.
+    assert_eq!(replica.apply(WorldUpdate::Unsubscribed { pos }), None);
+    assert_eq!(replica.apply(update()), Some(Request::Resync(pos)));
+}

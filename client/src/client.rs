@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 use strata_protocol::io::FramedReader;
+use strata_protocol::limits::MAX_FORGET_CHUNKS;
 use strata_protocol::{
     encode, encode_frame, ChunkVersion, ClientMessage, Direction, EditRequest, ErrorCode,
     FrameBuffer, Hello, PositionUpdate, Refusal, RejectReason, ServerMessage, Welcome, WorldUpdate,
@@ -24,6 +25,7 @@ use tokio::task::JoinHandle;
 use tracing::debug;
 
 use crate::changes::ChangedChunks;
+use crate::notice::{Notice, Notices};
 use crate::pool::ChunkPool;
 use crate::prediction::{Prediction, PredictionStats, Touched, MAX_PENDING_PREDICTIONS};
 use crate::replica::{Replica, Request};
@@ -54,6 +56,8 @@ pub enum ClientError {
     Closed(String),
     #[error("timed out waiting for {0}")]
     Timeout(&'static str),
+    #[error("cannot forget {chunks} chunks at once; at most {max}")]
+    TooManyChunks { chunks: usize, max: usize },
 }
 
 /// The server's answer to an edit.
@@ -125,6 +129,10 @@ struct Shared {
     refusals: Mutex<Vec<Refusal>>,
     /// Chunks changed since the game last asked, when tracking.
     changed: Option<Mutex<ChangedChunks>>,
+    /// Refused positions and loaded views, for the game to take.
+    notices: Mutex<Notices>,
+    /// The last `InterestComplete`: (centre, radius).
+    view_loaded: Mutex<Option<(ChunkPos, u8)>>,
 }
 
 impl Shared {
@@ -173,6 +181,13 @@ impl Shared {
         for pos in before.into_iter().chain(p.predicted_chunks()) {
             c.mark(pos);
         }
+    }
+
+    fn notice(&self, n: Notice) {
+        if let Notice::ViewLoaded { center, radius } = n {
+            *self.view_loaded.lock().expect("not poisoned") = Some((center, radius));
+        }
+        self.notices.lock().expect("not poisoned").push(n);
     }
 
     fn mark_changed(&self, pos: ChunkPos) {
@@ -510,6 +525,30 @@ impl Client {
         self.send(&ClientMessage::ResyncRequest { pos }).await
     }
 
+    /// Drops chunks the client no longer wants: they leave the replica at
+    /// once, and the server stops sending their updates (chunks outside
+    /// the view are ignored there). A [`Self::resync`], or the chunk
+    /// leaving the view and coming back, brings one back. At most
+    /// [`MAX_FORGET_CHUNKS`] at once.
+    pub async fn forget(&self, chunks: &[ChunkPos]) -> Result<(), ClientError> {
+        if chunks.len() > MAX_FORGET_CHUNKS {
+            return Err(ClientError::TooManyChunks {
+                chunks: chunks.len(),
+                max: MAX_FORGET_CHUNKS,
+            });
+        }
+        // Dropped first: deltas arriving meanwhile are ignored, not resynced.
+        for &pos in chunks {
+            self.shared
+                .apply(&self.replica, WorldUpdate::Unsubscribed { pos });
+            self.replica().drop_chunk(pos);
+        }
+        self.send(&ClientMessage::Forget {
+            chunks: chunks.to_vec(),
+        })
+        .await
+    }
+
     /// Asks for a chunk's full data, even at version 0.
     pub async fn full_snapshot(&self, pos: ChunkPos) -> Result<(), ClientError> {
         self.send(&ClientMessage::FullSnapshotRequest { pos }).await
@@ -644,6 +683,16 @@ impl Client {
         self.shared.refusals.lock().expect("not poisoned").clone()
     }
 
+    /// The oldest notice not taken yet (refused positions, loaded views).
+    pub fn pop_notice(&self) -> Option<Notice> {
+        self.shared.notices.lock().expect("not poisoned").pop()
+    }
+
+    /// The last view the server said was wholly sent: (centre, radius).
+    pub fn view_loaded(&self) -> Option<(ChunkPos, u8)> {
+        *self.shared.view_loaded.lock().expect("not poisoned")
+    }
+
     /// True once the connection has ended.
     pub fn is_closed(&self) -> bool {
         self.conn.close_reason().is_some()
@@ -749,6 +798,9 @@ async fn read_control(
                     all.push(r);
                 }
             }
+            Ok(Some(ServerMessage::PositionRefused { seq, reason })) => {
+                shared.notice(Notice::PositionRefused { seq, reason });
+            }
             Ok(Some(ServerMessage::Pong { .. } | ServerMessage::Welcome(_))) => {}
             Ok(None) | Err(_) => break,
         }
@@ -817,6 +869,10 @@ async fn read_updates(
             for pos in chunks {
                 shared.apply(&replica, WorldUpdate::Unsubscribed { pos });
             }
+            continue;
+        }
+        if let WorldUpdate::InterestComplete { center, radius } = update {
+            shared.notice(Notice::ViewLoaded { center, radius });
             continue;
         }
         let msgs = match shared.apply(&replica, update) {

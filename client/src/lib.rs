@@ -14,6 +14,7 @@ pub mod client;
 pub mod coords;
 pub mod edits;
 pub mod mesh;
+pub mod notice;
 pub mod pool;
 pub mod prediction;
 pub mod replay;
@@ -23,6 +24,7 @@ pub use strata_protocol::client_tls as tls;
 
 pub use client::{Acked, Arrival, Client, ClientError, ClientOptions, SentEdit, Verdict};
 pub use mesh::ChunkMesh;
+pub use notice::Notice;
 pub use pool::ChunkPool;
 pub use prediction::{Prediction, PredictionStats, MAX_PENDING_PREDICTIONS};
 pub use replica::{MeshMismatch, Replica, ReplicaStats, Request};

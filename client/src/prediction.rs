@@ -119,7 +119,8 @@ impl Touched {
             // Many chunks: the client passes an op's chunks one by one.
             WorldUpdate::TickEnd { .. }
             | WorldUpdate::UnsubscribedMany { .. }
-            | WorldUpdate::Op(_) => return None,
+            | WorldUpdate::Op(_)
+            | WorldUpdate::InterestComplete { .. } => return None,
         })
     }
 

@@ -100,11 +100,15 @@ pub struct Replica {
     pool: Arc<ChunkPool>,
     pub stats: ReplicaStats,
     last_seq: u64,
+    /// Chunks the client forgot (`Forget`): deltas still in flight for
+    /// them are dropped, not answered with a resync.
+    dropped: HashSet<ChunkPos>,
 }
 
 impl Replica {
     /// Drops a chunk that left the view.
     fn forget(&mut self, pos: ChunkPos) {
+        self.dropped.remove(&pos);
         self.checks.remove(&pos);
         self.chunks.remove(&pos);
         self.pending_mesh.remove(&pos);
@@ -129,7 +133,15 @@ impl Replica {
             pool,
             stats: ReplicaStats::default(),
             last_seq: 0,
+            dropped: HashSet::default(),
         }
+    }
+
+    /// Drops a chunk the client no longer wants (it sends `Forget`): it is
+    /// not held, and late deltas for it are ignored until it is sent again.
+    pub fn drop_chunk(&mut self, pos: ChunkPos) {
+        self.forget(pos);
+        self.dropped.insert(pos);
     }
 
     /// Records every version each chunk passes through, and its hash
@@ -206,6 +218,7 @@ impl Replica {
     }
 
     fn hold(&mut self, pos: ChunkPos, chunk: Arc<Chunk>, version: u64, hash: u64) {
+        self.dropped.remove(&pos);
         if let Some(h) = self.history.as_mut() {
             let seen = h.entry(pos).or_default();
             if seen.last() != Some(&version) {
@@ -283,12 +296,16 @@ impl Replica {
                 self.verify_meshes();
                 None
             }
+            WorldUpdate::InterestComplete { .. } => None,
         }
     }
 
     fn apply_delta(&mut self, d: DeltaUpdate) -> Option<Request> {
         let pos = d.delta.pos;
         let Some(held) = self.chunks.get(&pos) else {
+            if self.dropped.contains(&pos) {
+                return None;
+            }
             self.stats.gaps += 1;
             return Some(Request::Resync(pos));
         };

@@ -36,6 +36,8 @@ class Event(C.Structure):
         ("chunk", C.c_int32 * 3),
         ("error_code", C.c_uint32),
         ("message", C.c_char * 256),
+        ("position_refusal", C.c_int),
+        ("radius", C.c_uint8),
     ]
 
 

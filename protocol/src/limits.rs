@@ -11,3 +11,6 @@ pub const FRAME_HEADER: usize = 4;
 /// Most chunks in one `UnsubscribedMany` (12 bytes each: 48 KiB at most);
 /// a larger re-centring is split over several.
 pub const MAX_UNSUBSCRIBED_PER_UPDATE: usize = 4096;
+/// Most chunks in one `Forget` (at most 15 bytes each, so a full one
+/// still fits a client frame); a larger one is refused as a whole.
+pub const MAX_FORGET_CHUNKS: usize = 1024;

@@ -9,7 +9,7 @@
 use serde::{Deserialize, Serialize};
 use strata_terrain::delta::ChunkDelta;
 use strata_terrain::edit::{Edit, EditKind, Fixed, FixedVec3};
-use strata_terrain::ChunkPos;
+use strata_terrain::{ChunkPos, VoxelPos};
 
 /// A player's permission level, carried in the signed token.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -124,6 +124,13 @@ pub enum ClientMessage {
     },
     Ping {
         nonce: u64,
+    },
+    /// The client dropped these chunks: the server stops sending their
+    /// updates until a `ResyncRequest`/`FullSnapshotRequest`, or until they
+    /// leave the view and come back. At most
+    /// [`crate::limits::MAX_FORGET_CHUNKS`]; chunks not in view are ignored.
+    Forget {
+        chunks: Vec<ChunkPos>,
     },
 }
 
@@ -243,9 +250,31 @@ pub enum ServerMessage {
         nonce: u64,
         server_time: u64,
     },
-    /// A `Subscribe`, `ResyncRequest` or `FullSnapshotRequest` was refused;
-    /// nothing changed and the session goes on.
+    /// A `Subscribe`, `ResyncRequest`, `FullSnapshotRequest` or `Forget`
+    /// was refused; nothing changed and the session goes on.
     RequestRefused(Refusal),
+    /// The position report `seq` was refused; the previous position stays.
+    /// Rate-bounded by the server: not every refused report is answered,
+    /// and stale (older-seq) reports never are.
+    PositionRefused {
+        seq: u32,
+        reason: PositionRefusal,
+    },
+}
+
+/// Why a position report was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum PositionRefusal {
+    /// Moved `distance` voxels since the last accepted report, more than
+    /// the `allowed` distance for the time between them.
+    TooFast { distance: Fixed, allowed: Fixed },
+    /// The body would be inside solid terrain at `voxel`.
+    InsideSolid { voxel: VoxelPos },
+    /// A first report outside the spawn square (`Welcome::start`).
+    OutsideSpawn { x: i32, z: i32, radius: u32 },
+    /// A coordinate beyond 2^22 voxels, or a body voxel outside the
+    /// world's vertical bounds.
+    OutOfBounds,
 }
 
 /// Why a request other than an edit was refused.
@@ -257,6 +286,9 @@ pub enum Refusal {
     SubscribeTooFar { center: ChunkPos, max: u8 },
     /// A resync or full snapshot of a chunk outside the session's view.
     NotInInterest { pos: ChunkPos },
+    /// A `Forget` naming more than `max` chunks
+    /// ([`crate::limits::MAX_FORGET_CHUNKS`]); nothing was forgotten.
+    ForgetTooLarge { chunks: u32, max: u32 },
 }
 
 /// A chunk change, as broadcast after its edit is durable.
@@ -313,6 +345,13 @@ pub enum WorldUpdate {
     /// the held chunks and check each listed chunk's result. Replaces the
     /// `Delta`s of exactly the listed chunks.
     Op(OpUpdate),
+    /// Every chunk of the view around `center` at `radius` (the session's
+    /// interest after a `Subscribe` or a re-centre on a position) has been
+    /// sent, except those the client forgot: the view is loaded.
+    InterestComplete {
+        center: ChunkPos,
+        radius: u8,
+    },
 }
 
 /// One edit as an operation (`WorldUpdate::Op`): the client replays it with

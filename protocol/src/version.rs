@@ -3,6 +3,6 @@
 /// ALPN protocol id for QUIC connections.
 pub const ALPN: &[u8] = b"strata/1";
 /// Wire protocol version carried in `Hello` (2 added `WorldUpdate::Patched`,
-/// 3 added `Welcome::start`, 4 added `Hello::capabilities` and
-/// `WorldUpdate::Op`).
+/// 3 added `Welcome::start`, 4 added `Hello::capabilities`,
+/// `WorldUpdate::Op`, `PositionRefused`, `Forget` and `InterestComplete`).
 pub const PROTOCOL_VERSION: u32 = 4;

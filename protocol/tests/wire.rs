@@ -34,6 +34,12 @@ fn client_messages() -> Vec<ClientMessage> {
             pos: ChunkPos::new(-1, -2, -3),
         },
         ClientMessage::Ping { nonce: u64::MAX },
+        ClientMessage::Forget {
+            chunks: vec![
+                ChunkPos::new(1, -2, 3),
+                ChunkPos::new(i32::MIN, 0, i32::MAX),
+            ],
+        },
     ]
 }
 
@@ -98,6 +104,22 @@ fn server_messages() -> Vec<ServerMessage> {
             nonce: 5,
             server_time: 6,
         },
+        ServerMessage::RequestRefused(Refusal::ForgetTooLarge {
+            chunks: 5000,
+            max: 1024,
+        }),
+        ServerMessage::PositionRefused {
+            seq: u32::MAX,
+            reason: PositionRefusal::OutsideSpawn {
+                x: -4,
+                z: 4,
+                radius: 2048,
+            },
+        },
+        ServerMessage::PositionRefused {
+            seq: 1,
+            reason: PositionRefusal::OutOfBounds,
+        },
     ]
 }
 
@@ -140,6 +162,10 @@ fn updates() -> Vec<WorldUpdate> {
                 mesh_hash: 1,
             }],
         }),
+        WorldUpdate::InterestComplete {
+            center: ChunkPos::new(-7, 2, 0),
+            radius: 32,
+        },
     ]
 }
 
@@ -264,6 +290,64 @@ fn golden_bytes_pin_the_wire_format() {
         encode(&position, Direction::ClientToServer).unwrap(),
         [1, 0xfb, 0x00, 0x03, 0xfb, 0x00, 0x50, 0xfb, 0xff, 0x03]
     );
+}
+
+#[test]
+fn golden_bytes_of_version_4_messages() {
+    // Added at the end of their enums: earlier variant indices are unchanged.
+    let forget = ClientMessage::Forget {
+        chunks: vec![ChunkPos::new(-1, 0, 1)],
+    };
+    // Variant 6, one chunk, zigzagged coordinates.
+    assert_eq!(
+        encode(&forget, Direction::ClientToServer).unwrap(),
+        [6, 1, 1, 0, 2]
+    );
+    let too_fast = ServerMessage::PositionRefused {
+        seq: 9,
+        reason: PositionRefusal::TooFast {
+            distance: Fixed(2560),
+            allowed: Fixed(768),
+        },
+    };
+    // Variant 6, seq 9, TooFast (0), 2560 -> 5120 = fb 00 14, 768 -> 1536.
+    assert_eq!(
+        encode(&too_fast, Direction::ServerToClient).unwrap(),
+        [6, 9, 0, 0xfb, 0x00, 0x14, 0xfb, 0x00, 0x06]
+    );
+    let solid = ServerMessage::PositionRefused {
+        seq: 2,
+        reason: PositionRefusal::InsideSolid {
+            voxel: strata_terrain::VoxelPos::new(1, -1, 0),
+        },
+    };
+    assert_eq!(
+        encode(&solid, Direction::ServerToClient).unwrap(),
+        [6, 2, 1, 2, 1, 0]
+    );
+    let too_large = ServerMessage::RequestRefused(Refusal::ForgetTooLarge {
+        chunks: 2000,
+        max: 1024,
+    });
+    // Variant 5, Refusal 2, then two varints (2000 = fb d0 07).
+    assert_eq!(
+        encode(&too_large, Direction::ServerToClient).unwrap(),
+        [5, 2, 0xfb, 0xd0, 0x07, 0xfb, 0x00, 0x04]
+    );
+    let complete = WorldUpdate::InterestComplete {
+        center: ChunkPos::new(0, -1, 2),
+        radius: 8,
+    };
+    // Variant 8 (after `Op`), centre zigzagged, radius a raw u8.
+    assert_eq!(
+        encode(&complete, Direction::ServerToClient).unwrap(),
+        [8, 0, 1, 4, 8]
+    );
+    // The largest Forget fits one client frame.
+    let widest = ClientMessage::Forget {
+        chunks: vec![ChunkPos::new(i32::MIN, i32::MIN, i32::MIN); limits::MAX_FORGET_CHUNKS],
+    };
+    assert!(encode_frame(&widest, Direction::ClientToServer).is_ok());
 }
 
 #[test]

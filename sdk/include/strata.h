@@ -105,6 +105,13 @@ typedef enum {
   // The connection ended; `error_code` is the server's reason (0: none).
   // Always the last event.
   STRATA_EVENT_KIND_DISCONNECTED = 5,
+  // Position report `seq` was refused: `position_refusal` says why,
+  // `message` in words. The server keeps the previous position and
+  // answers at most a few refused reports a second.
+  STRATA_EVENT_KIND_POSITION_REFUSED = 6,
+  // Every chunk within `radius` of chunk `chunk` (the view's centre) has
+  // arrived, except forgotten ones: the view is loaded.
+  STRATA_EVENT_KIND_VIEW_LOADED = 7,
 } StrataEventKind;
 
 // Why the server refused an edit.
@@ -125,6 +132,19 @@ typedef enum {
   // The server is busy: edit again.
   STRATA_REJECT_BUSY = 12,
 } StrataReject;
+
+// Why the server refused a position report.
+typedef enum {
+  STRATA_POSITION_REFUSAL_NONE = 0,
+  // Farther from the last accepted position than the speed limit allows.
+  STRATA_POSITION_REFUSAL_TOO_FAST = 1,
+  // The body would be inside solid terrain.
+  STRATA_POSITION_REFUSAL_INSIDE_SOLID = 2,
+  // A first position outside the spawn square (see `StrataWelcome`).
+  STRATA_POSITION_REFUSAL_OUTSIDE_SPAWN = 3,
+  // Outside the world's bounds.
+  STRATA_POSITION_REFUSAL_OUT_OF_BOUNDS = 4,
+} StrataPositionRefusal;
 
 // Kinds of `StrataEdit`.
 typedef enum {
@@ -239,13 +259,17 @@ typedef struct {
   size_t changes_len;
   // EDIT_REJECTED: why.
   StrataReject reject;
-  // CHUNK_CHANGED: the chunk.
+  // CHUNK_CHANGED: the chunk; VIEW_LOADED: the view's centre chunk.
   int32_t chunk[3];
   // DISCONNECTED: the server's error code (its QUIC close code), or 0.
   uint32_t error_code;
-  // REJECTED, FAILED, DISCONNECTED: a NUL-terminated explanation,
-  // truncated to fit.
+  // REJECTED, FAILED, DISCONNECTED, POSITION_REFUSED: a NUL-terminated
+  // explanation, truncated to fit.
   char message[STRATA_MESSAGE_LEN];
+  // POSITION_REFUSED: why (`seq` is the refused report's).
+  StrataPositionRefusal position_refusal;
+  // VIEW_LOADED: the view's radius in chunks (`chunk` is its centre).
+  uint8_t radius;
 } StrataEvent;
 
 // The replica's counters, from `strata_stats`.
@@ -388,6 +412,22 @@ StrataStatus strata_subscribe(const StrataSession *s,
                               int32_t cy,
                               int32_t cz,
                               uint8_t radius);
+
+// Drops `count` chunks the game no longer wants (at most 1024):
+// `chunks` holds `count` (x, y, z) chunk coordinates. They stop being
+// held at once, and the server stops sending their updates until
+// `strata_resync`, or until they leave the view and come back.
+//
+// # Safety
+// `s` is a live session; `chunks` points to `count` `int32_t[3]`.
+StrataStatus strata_forget(const StrataSession *s, const int32_t (*chunks)[3], size_t count);
+
+// Asks the server to send chunk (`cx`, `cy`, `cz`) again: one forgotten
+// with `strata_forget`, or one whose copy looks wrong. It must be in view.
+//
+// # Safety
+// `s` is a live session.
+StrataStatus strata_resync(const StrataSession *s, int32_t cx, int32_t cy, int32_t cz);
 
 // Sends an edit without waiting: `*out_ticket` names it in the
 // EDIT_ACCEPTED, EDIT_REJECTED or EDIT_FAILED event that `strata_poll`

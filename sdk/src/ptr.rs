@@ -55,3 +55,15 @@ pub(crate) unsafe fn bytes<'a>(p: *const u8, len: usize, what: &str) -> Result<&
     // SAFETY: non-null and `len` readable bytes, as the caller promises.
     Ok(unsafe { std::slice::from_raw_parts(p, len) })
 }
+
+/// A slice of `len` values.
+///
+/// # Safety
+/// `p` is null (then `len` must be 0) or points to `len` readable `T`s.
+pub(crate) unsafe fn items<'a, T>(p: *const T, len: usize, what: &str) -> Result<&'a [T], Failure> {
+    if p.is_null() {
+        return Err(Failure::invalid(format!("{what} is null")));
+    }
+    // SAFETY: non-null and `len` readable values, as the caller promises.
+    Ok(unsafe { std::slice::from_raw_parts(p, len) })
+}

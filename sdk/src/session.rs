@@ -5,11 +5,11 @@ use std::net::{SocketAddr, ToSocketAddrs};
 use std::sync::Mutex;
 
 use strata_client::glam::{DVec3, IVec3};
-use strata_client::protocol::{RejectReason, Start};
+use strata_client::protocol::{PositionRefusal, RejectReason, Start};
 use strata_client::terrain::Edit;
 use strata_client::{edits, Event, Session, SessionOptions};
 
-use crate::ptr::{bytes, out, shared, text};
+use crate::ptr::{bytes, items, out, shared, text};
 use crate::status::{call, Failure, StrataStatus};
 use crate::types::*;
 
@@ -236,6 +236,46 @@ pub unsafe extern "C" fn strata_subscribe(
     })
 }
 
+/// Drops `count` chunks the game no longer wants (at most 1024):
+/// `chunks` holds `count` (x, y, z) chunk coordinates. They stop being
+/// held at once, and the server stops sending their updates until
+/// `strata_resync`, or until they leave the view and come back.
+///
+/// # Safety
+/// `s` is a live session; `chunks` points to `count` `int32_t[3]`.
+#[no_mangle]
+pub unsafe extern "C" fn strata_forget(
+    s: *const StrataSession,
+    chunks: *const [i32; 3],
+    count: usize,
+) -> StrataStatus {
+    call(|| {
+        // SAFETY: the caller's contract above.
+        let (session, chunks) = unsafe { (session(s)?, items(chunks, count, "chunks")?) };
+        let chunks: Vec<IVec3> = chunks.iter().map(|c| IVec3::from_array(*c)).collect();
+        Ok(session.forget(&chunks)?)
+    })
+}
+
+/// Asks the server to send chunk (`cx`, `cy`, `cz`) again: one forgotten
+/// with `strata_forget`, or one whose copy looks wrong. It must be in view.
+///
+/// # Safety
+/// `s` is a live session.
+#[no_mangle]
+pub unsafe extern "C" fn strata_resync(
+    s: *const StrataSession,
+    cx: i32,
+    cy: i32,
+    cz: i32,
+) -> StrataStatus {
+    call(|| {
+        // SAFETY: the caller's contract above.
+        let session = unsafe { session(s) }?;
+        Ok(session.resync(IVec3::new(cx, cy, cz))?)
+    })
+}
+
 fn to_edit(e: &StrataEdit) -> Result<Edit, Failure> {
     let center = DVec3::from_array(e.center);
     let (min, max) = (IVec3::from_array(e.min), IVec3::from_array(e.max));
@@ -301,6 +341,15 @@ fn reject_code(r: &RejectReason) -> StrataReject {
     }
 }
 
+fn refusal_code(r: &PositionRefusal) -> StrataPositionRefusal {
+    match r {
+        PositionRefusal::TooFast { .. } => StrataPositionRefusal::TooFast,
+        PositionRefusal::InsideSolid { .. } => StrataPositionRefusal::InsideSolid,
+        PositionRefusal::OutsideSpawn { .. } => StrataPositionRefusal::OutsideSpawn,
+        PositionRefusal::OutOfBounds => StrataPositionRefusal::OutOfBounds,
+    }
+}
+
 fn empty_event() -> StrataEvent {
     StrataEvent {
         kind: StrataEventKind::None,
@@ -312,6 +361,8 @@ fn empty_event() -> StrataEvent {
         chunk: [0; 3],
         error_code: 0,
         message: [0; STRATA_MESSAGE_LEN],
+        position_refusal: StrataPositionRefusal::None,
+        radius: 0,
     }
 }
 
@@ -371,6 +422,17 @@ pub unsafe extern "C" fn strata_poll(
             Some(Event::ChunkChanged { pos }) => {
                 ev.kind = StrataEventKind::ChunkChanged;
                 ev.chunk = [pos.x, pos.y, pos.z];
+            }
+            Some(Event::PositionRefused { seq, reason }) => {
+                ev.kind = StrataEventKind::PositionRefused;
+                ev.seq = u64::from(seq);
+                ev.position_refusal = refusal_code(&reason);
+                set_message(&mut ev, &format!("{reason:?}"));
+            }
+            Some(Event::ViewLoaded { center, radius }) => {
+                ev.kind = StrataEventKind::ViewLoaded;
+                ev.chunk = [center.x, center.y, center.z];
+                ev.radius = radius;
             }
             Some(Event::Disconnected { code, message }) => {
                 ev.kind = StrataEventKind::Disconnected;

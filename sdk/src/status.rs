@@ -86,6 +86,7 @@ fn client_status(e: &ClientError) -> StrataStatus {
         ClientError::Protocol(_) => StrataStatus::Protocol,
         ClientError::Closed(_) => StrataStatus::Closed,
         ClientError::Timeout(_) => StrataStatus::Timeout,
+        ClientError::TooManyChunks { .. } => StrataStatus::InvalidArgument,
     }
 }
 

@@ -27,6 +27,28 @@ pub enum StrataEventKind {
     /// The connection ended; `error_code` is the server's reason (0: none).
     /// Always the last event.
     Disconnected = 5,
+    /// Position report `seq` was refused: `position_refusal` says why,
+    /// `message` in words. The server keeps the previous position and
+    /// answers at most a few refused reports a second.
+    PositionRefused = 6,
+    /// Every chunk within `radius` of chunk `chunk` (the view's centre) has
+    /// arrived, except forgotten ones: the view is loaded.
+    ViewLoaded = 7,
+}
+
+/// Why the server refused a position report.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StrataPositionRefusal {
+    None = 0,
+    /// Farther from the last accepted position than the speed limit allows.
+    TooFast = 1,
+    /// The body would be inside solid terrain.
+    InsideSolid = 2,
+    /// A first position outside the spawn square (see `StrataWelcome`).
+    OutsideSpawn = 3,
+    /// Outside the world's bounds.
+    OutOfBounds = 4,
 }
 
 /// Why the server refused an edit.
@@ -68,13 +90,17 @@ pub struct StrataEvent {
     pub changes_len: usize,
     /// EDIT_REJECTED: why.
     pub reject: StrataReject,
-    /// CHUNK_CHANGED: the chunk.
+    /// CHUNK_CHANGED: the chunk; VIEW_LOADED: the view's centre chunk.
     pub chunk: [i32; 3],
     /// DISCONNECTED: the server's error code (its QUIC close code), or 0.
     pub error_code: u32,
-    /// REJECTED, FAILED, DISCONNECTED: a NUL-terminated explanation,
-    /// truncated to fit.
+    /// REJECTED, FAILED, DISCONNECTED, POSITION_REFUSED: a NUL-terminated
+    /// explanation, truncated to fit.
     pub message: [c_char; STRATA_MESSAGE_LEN],
+    /// POSITION_REFUSED: why (`seq` is the refused report's).
+    pub position_refusal: StrataPositionRefusal,
+    /// VIEW_LOADED: the view's radius in chunks (`chunk` is its centre).
+    pub radius: u8,
 }
 
 /// Kinds of `StrataEdit`.

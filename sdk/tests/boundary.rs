@@ -84,3 +84,14 @@ fn a_bad_certificate_or_address_is_a_status_with_a_message() {
     assert_eq!(st, StrataStatus::Connect, "{}", last_error());
     assert!(last_error().contains("no-such-host.invalid"));
 }
+
+#[test]
+fn forget_and_resync_check_their_pointers() {
+    // SAFETY: a null session is what is being tested.
+    let st = unsafe { strata_forget(null(), null(), 0) };
+    assert_eq!(st, StrataStatus::InvalidArgument);
+    assert_eq!(last_error(), "session is null");
+    // SAFETY: as above.
+    let st = unsafe { strata_resync(null(), 0, 0, 0) };
+    assert_eq!(st, StrataStatus::InvalidArgument);
+}

@@ -257,3 +257,59 @@ fn a_thin_op_replay_session_through_the_c_abi() {
     // SAFETY: `c` is live and nothing else uses it.
     unsafe { strata_session_free(c) };
 }
+
+#[test]
+fn a_session_hears_its_view_loaded_its_refused_positions_and_forgets_chunks() {
+    let server = Server::start();
+    let token = server.token("rust-viewer");
+    let opts = SessionOptions::default();
+    let s = Session::connect(server.running.addr, &server.running.cert_der, &token, opts).unwrap();
+    let mut seen = Vec::new();
+    let center = ChunkPos::new(0, 1, 0);
+    s.subscribe(IVec3::new(0, 1, 0), 1).unwrap();
+    wait_for(&s, &mut seen, |e| {
+        (*e == Event::ViewLoaded { center, radius: 1 }).then_some(())
+    });
+    assert!(
+        s.chunk(center).is_some(),
+        "the view is held when it is loaded"
+    );
+
+    // Far outside the spawn square: refused, and told why.
+    s.set_position(DVec3::new(90_000.5, 40.0, 0.5)).unwrap();
+    let reason = wait_for(&s, &mut seen, |e| match e {
+        Event::PositionRefused { seq: 1, reason } => Some(*reason),
+        _ => None,
+    });
+    assert!(
+        matches!(
+            reason,
+            strata_client::protocol::PositionRefusal::OutsideSpawn { .. }
+        ),
+        "{reason:?}"
+    );
+
+    // A forgotten chunk is dropped at once, and a resync brings it back.
+    s.forget(&[IVec3::new(0, 1, 0)]).unwrap();
+    let start = Instant::now();
+    while s.chunk(center).is_some() {
+        assert!(start.elapsed() < WAIT, "the chunk was never dropped");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // Reported as changed: it left the view.
+    wait_for(&s, &mut seen, |e| {
+        (*e == Event::ChunkChanged { pos: center }).then_some(())
+    });
+    let too_many = vec![IVec3::ZERO; strata_client::protocol::limits::MAX_FORGET_CHUNKS + 1];
+    assert!(s.forget(&too_many).is_err(), "refused before sending");
+    s.resync(IVec3::new(0, 1, 0)).unwrap();
+    let start = Instant::now();
+    while s.chunk(center).is_none() {
+        while let Some(e) = s.poll() {
+            seen.push(e);
+        }
+        assert!(start.elapsed() < WAIT, "the resync never came");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    s.close();
+}

@@ -5,13 +5,15 @@
 //! under its per-tick byte budget); chunks are dropped only once they are
 //! beyond `radius + hysteresis`, so walking back and forth over a chunk
 //! border does not resend the same chunks. Rows outside the world's vertical
-//! bounds are never subscribed.
+//! bounds are never subscribed. A player's subscription stays near its
+//! last accepted position or, before one, near its start ([`Anchor`]).
 
 use std::collections::BTreeSet;
 
 use serde::{Deserialize, Serialize};
+use strata_protocol::Start;
 use strata_terrain::edit::FixedVec3;
-use strata_terrain::ChunkPos;
+use strata_terrain::{ChunkPos, CHUNK_SIZE};
 
 use crate::validate::WorldBounds;
 
@@ -54,11 +56,53 @@ pub struct InterestChange {
     pub subscribe: Vec<ChunkPos>,
     /// Chunks no longer covered, in position order.
     pub unsubscribe: Vec<ChunkPos>,
+    /// The centre or radius changed: a new view is owed its
+    /// `InterestComplete` once its chunks are sent.
+    pub recentred: bool,
 }
 
 impl InterestChange {
     pub fn is_empty(&self) -> bool {
         self.subscribe.is_empty() && self.unsubscribe.is_empty()
+    }
+}
+
+/// What a player's `Subscribe` centre must stay near.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Anchor {
+    /// The chunk of the last accepted position (or a resumed one).
+    Chunk(ChunkPos),
+    /// No position yet: the chunk columns of the spawn square, where the
+    /// first position may be (any row).
+    Spawn { x: i32, z: i32, radius: u32 },
+}
+
+impl Anchor {
+    /// The anchor of a session with no accepted position, from its start.
+    pub fn of_start(start: Start) -> Self {
+        match start {
+            Start::Resume { feet } => {
+                Anchor::Chunk(crate::validate::position::feet_voxel(feet).chunk())
+            }
+            Start::Spawn { x, z, radius } => Anchor::Spawn { x, z, radius },
+        }
+    }
+
+    /// Chebyshev distance in chunks from `c` to the anchor.
+    fn distance(self, c: ChunkPos) -> u64 {
+        match self {
+            Anchor::Chunk(near) => u64::from(c.chebyshev(near)),
+            Anchor::Spawn { x, z, radius } => {
+                // Distance from a coordinate to the chunks spanning a range of voxels.
+                let to_span = |v: i32, mid: i32| {
+                    let chunk = |w: i64| w.div_euclid(CHUNK_SIZE as i64);
+                    let (lo, hi) = (mid as i64 - radius as i64, mid as i64 + radius as i64);
+                    let v = v as i64;
+                    (chunk(lo) - v).max(v - chunk(hi)).max(0) as u64
+                };
+                to_span(c.x, x).max(to_span(c.z, z))
+            }
+        }
     }
 }
 
@@ -72,9 +116,6 @@ pub struct Interest {
     /// Set by an explicit `Subscribe`; positions then no longer move the centre.
     explicit: bool,
     subscribed: BTreeSet<ChunkPos>,
-    /// The first `Subscribe` centre: before the player has a position,
-    /// later centres must stay near it.
-    anchor: Option<ChunkPos>,
 }
 
 impl Interest {
@@ -86,7 +127,6 @@ impl Interest {
             radius: cfg.radius(),
             explicit: false,
             subscribed: BTreeSet::new(),
-            anchor: None,
         }
     }
 
@@ -108,23 +148,19 @@ impl Interest {
         self.recenter(chunk, r)
     }
 
-    /// An explicit `Subscribe`; the radius is capped by the config's view radius.
-    /// Whether a `Subscribe` may centre on `center`: within radius plus
-    /// hysteresis (Chebyshev, in chunks) of `player`, the chunk of the
-    /// player's last accepted position, or before any, of the session's
-    /// first centre. `Err` carries that distance.
-    pub fn check_centre(&mut self, center: ChunkPos, player: Option<ChunkPos>) -> Result<(), u8> {
+    /// Whether a player's `Subscribe` may centre on `center`: within radius
+    /// plus hysteresis (Chebyshev, in chunks) of `anchor`. `Err` carries
+    /// that distance.
+    pub fn check_centre(&self, center: ChunkPos, anchor: Anchor) -> Result<(), u8> {
         let max = self.cfg.radius().saturating_add(self.cfg.hysteresis);
-        match player.or(self.anchor) {
-            Some(near) if center.chebyshev(near) > u32::from(max) => Err(max),
-            Some(_) => Ok(()),
-            None => {
-                self.anchor = Some(center);
-                Ok(())
-            }
+        if anchor.distance(center) > u64::from(max) {
+            Err(max)
+        } else {
+            Ok(())
         }
     }
 
+    /// An explicit `Subscribe`; the radius is capped by the config's view radius.
     pub fn subscribe(&mut self, center: ChunkPos, radius: u8) -> InterestChange {
         self.explicit = true;
         let r = radius.min(self.cfg.radius());
@@ -163,19 +199,22 @@ impl Interest {
         let mut subscribe: Vec<ChunkPos> = cube(center, radius, self.bounds)
             .filter(|p| !self.subscribed.contains(p))
             .collect();
-        subscribe.sort_by_key(|p| (dist2(*p, center), p.y, p.z, p.x));
+        subscribe.sort_by_key(|p| nearest_first(*p, center));
         self.subscribed.extend(subscribe.iter().copied());
         InterestChange {
             subscribe,
             unsubscribe,
+            recentred: true,
         }
     }
 }
 
-/// Squared Euclidean distance between chunk positions.
-fn dist2(a: ChunkPos, b: ChunkPos) -> i64 {
-    let d = |p: i32, q: i32| (p as i64 - q as i64).pow(2);
-    d(a.x, b.x) + d(a.y, b.y) + d(a.z, b.z)
+/// The sort key of the chunk stream: squared Euclidean distance in chunks
+/// from `center`, ties by `y`, then `z`, then `x`.
+pub fn nearest_first(p: ChunkPos, center: ChunkPos) -> (i64, i32, i32, i32) {
+    let d = |a: i32, b: i32| (a as i64 - b as i64).pow(2);
+    let dist2 = d(p.x, center.x) + d(p.y, center.y) + d(p.z, center.z);
+    (dist2, p.y, p.z, p.x)
 }
 
 /// Chunks within Chebyshev `radius` of `center`, clipped to the vertical bounds.

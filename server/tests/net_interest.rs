@@ -1,16 +1,48 @@
 //! Interest: a prompt client at view radius 8 that re-centres its
 //! subscription is told which chunks left in a few frames, not thousands,
 //! and stays connected; a player cannot subscribe or ask for chunks far
-//! from itself (map hack), and each refusal is answered.
+//! from itself (map hack), even before its first position, and each
+//! refusal is answered. Each view ends with `InterestComplete`, after a
+//! re-centre the whole queue is nearest first from the new centre, and a
+//! forgotten chunk gets no updates until it is asked for again.
 
 mod common;
 
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use common::*;
-use strata_protocol::{Refusal, Role};
+use strata_client_sim::bots::raw_session::RawSession;
+use strata_client_sim::{Client, Verdict};
+use strata_protocol::limits::MAX_FORGET_CHUNKS;
+use strata_protocol::{encode_frame, ClientMessage, Direction, Refusal, Role, WorldUpdate};
 use strata_server::app;
-use strata_terrain::ChunkPos;
+use strata_server::interest::nearest_first;
+use strata_terrain::{ChunkPos, Edit};
+
+/// The chunks a view covers at the test world's default bounds (rows -4..=7).
+fn view(c: ChunkPos, r: i32) -> Vec<ChunkPos> {
+    let mut v = Vec::new();
+    for z in -r..=r {
+        for y in (c.y - r).max(-4)..=(c.y + r).min(7) {
+            for x in -r..=r {
+                v.push(ChunkPos::new(c.x + x, y, c.z + z));
+            }
+        }
+    }
+    v
+}
+
+/// Waits until the client's last `InterestComplete` names `center`, `radius`.
+async fn loaded(c: &Client, center: ChunkPos, radius: u8) {
+    assert!(
+        eventually(Duration::from_secs(10), || c.view_loaded()
+            == Some((center, radius)))
+        .await,
+        "no InterestComplete for {center:?}: {:?}",
+        c.view_loaded()
+    );
+}
 
 #[tokio::test]
 async fn a_far_re_centre_at_view_radius_8_keeps_the_client() {
@@ -85,6 +117,211 @@ async fn far_subscriptions_and_snapshot_requests_are_refused() {
         assert!(admin.refusals().is_empty());
         c.close().await;
         admin.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn a_positionless_player_subscribes_only_near_its_start() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        // Spawn square x, z in -16..=16 voxels: chunk columns -1..=0.
+        cfg.validation.spawn.radius = 16;
+        let server = app::start(cfg).await.expect("server starts");
+        let c = connect(&server, "early", Role::Player).await;
+        // View radius 2 + hysteresis 2: at most 4 chunks from the square.
+        let far = ChunkPos::new(175, 0, 0);
+        let edge = ChunkPos::new(5, 0, -5);
+        c.subscribe(far, 2).await.unwrap();
+        c.subscribe(edge, 2).await.unwrap();
+        // Accepted first subscriptions no longer anchor later ones: near
+        // the square is fine, and so is the other side of it.
+        c.subscribe(ChunkPos::new(4, 0, 0), 2).await.unwrap();
+        c.subscribe(ChunkPos::new(-5, 3, 3), 2).await.unwrap();
+        c.subscribe(ChunkPos::new(0, 0, 0), 2).await.unwrap();
+        loaded(&c, ChunkPos::new(0, 0, 0), 2).await;
+        assert_eq!(
+            c.refusals(),
+            vec![
+                Refusal::SubscribeTooFar {
+                    center: far,
+                    max: 4
+                },
+                Refusal::SubscribeTooFar {
+                    center: edge,
+                    max: 4
+                },
+            ]
+        );
+        let outside = c.replica().chunks().filter(|(p, _)| p.x.abs() > 9).count();
+        assert_eq!(outside, 0, "nothing was sent from far away");
+        c.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn interest_complete_follows_the_last_chunk_of_each_view() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let c = connect(&server, "viewer", Role::Player).await;
+        for center in [ChunkPos::new(0, 6, 0), ChunkPos::new(3, 6, 1)] {
+            c.subscribe(center, 2).await.unwrap();
+            loaded(&c, center, 2).await;
+            // Updates apply in order: when the marker is seen, the view is
+            // held, its rows clipped at the world's top (row 7).
+            let r = c.replica();
+            let missing: Vec<_> = view(center, 2)
+                .into_iter()
+                .filter(|p| r.get(*p).is_none())
+                .collect();
+            assert!(missing.is_empty(), "not held at the marker: {missing:?}");
+            assert!(r.chunks().all(|(p, _)| p.y <= 7));
+        }
+        c.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn after_a_re_centre_the_whole_queue_is_nearest_first_from_the_new_centre() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let seen: Arc<Mutex<Vec<WorldUpdate>>> = Arc::default();
+        let on_update = {
+            let seen = seen.clone();
+            Arc::new(move |u: &WorldUpdate| seen.lock().unwrap().push(u.clone()))
+        };
+        let endpoint = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+        let tls = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
+        let token = token(&server, "mover", Role::Player);
+        let mut s = RawSession::open(&endpoint, server.addr, tls, &token, None, Some(on_update))
+            .await
+            .unwrap();
+        // Two subscriptions back to back: the first view's chunks are still
+        // queued when the second arrives.
+        let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(2, 1, 0));
+        s.subscribe(a, 2).await.unwrap();
+        s.subscribe(b, 2).await.unwrap();
+        let done = || {
+            seen.lock()
+                .unwrap()
+                .iter()
+                .any(|u| matches!(u, WorldUpdate::InterestComplete { center, .. } if *center == b))
+        };
+        assert!(eventually(Duration::from_secs(10), done).await);
+        let chunks: Vec<ChunkPos> = seen
+            .lock()
+            .unwrap()
+            .iter()
+            .filter_map(|u| match u {
+                WorldUpdate::Generated { pos } => Some(*pos),
+                _ => None,
+            })
+            .collect();
+        let keys: Vec<_> = chunks.iter().map(|p| nearest_first(*p, b)).collect();
+        let first_out = keys.windows(2).position(|w| w[0] > w[1]);
+        assert_eq!(
+            first_out,
+            None,
+            "not nearest first from {b:?}; the first {} chunks: {:?}",
+            chunks.len().min(12),
+            &chunks[..chunks.len().min(12)]
+        );
+        // Every chunk of the new view, and the old view's chunks still
+        // within hysteresis, each once.
+        let mut want: Vec<ChunkPos> = view(b, 2);
+        want.extend(view(a, 2).into_iter().filter(|p| p.chebyshev(b) <= 4));
+        want.sort();
+        want.dedup();
+        let mut got = chunks.clone();
+        got.sort();
+        assert_eq!(got, want);
+        drop(s);
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn a_forgotten_chunk_gets_no_deltas_until_it_is_resynced() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let (feet, surface) = spot(20, 20);
+        let target = surface.chunk();
+        let editor = connect(&server, "digger", Role::Player).await;
+        editor.send_position(feet).unwrap();
+        // Its view follows the accepted position and holds the target.
+        assert!(eventually(Duration::from_secs(10), || editor.view_loaded().is_some()).await);
+        let watcher = connect(&server, "watcher", Role::Player).await;
+        watcher.subscribe(target, 1).await.unwrap();
+        loaded(&watcher, target, 1).await;
+        watcher.forget(&[target]).await.unwrap();
+        assert!(watcher.replica().get(target).is_none(), "dropped at once");
+        // Forgetting a chunk outside the view is ignored.
+        watcher.forget(&[ChunkPos::new(90, 0, 0)]).await.unwrap();
+        let mine = Edit::Mine {
+            center: strata_terrain::FixedVec3::from_voxels(surface.x, surface.y, surface.z),
+            radius: r(2.0),
+            strength: 255,
+        };
+        let seq = match editor.edit(mine).await.unwrap() {
+            Verdict::Accepted { seq } => seq,
+            other => panic!("the edit was refused: {other:?}"),
+        };
+        // The same tick's fan-out brought the editor its delta.
+        assert!(
+            eventually(Duration::from_secs(5), || editor.replica().last_seq()
+                >= seq)
+            .await
+        );
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(
+            watcher.take_arrivals().iter().all(|a| a.pos != target),
+            "a delta of the forgotten chunk was sent"
+        );
+        assert!(watcher.replica().get(target).is_none());
+        assert_eq!(watcher.replica().stats.gaps, 0, "nothing to resync");
+        // Asking again brings it back at its new version.
+        watcher.resync(target).await.unwrap();
+        assert!(
+            eventually(Duration::from_secs(5), || watcher
+                .replica()
+                .get(target)
+                .is_some_and(|h| h.version >= 1))
+            .await
+        );
+        // An oversized Forget is refused as a whole.
+        let too_many = ClientMessage::Forget {
+            chunks: vec![target; MAX_FORGET_CHUNKS + 1],
+        };
+        let frame = encode_frame(&too_many, Direction::ClientToServer).unwrap();
+        watcher.send_raw(frame).await.unwrap();
+        assert!(eventually(Duration::from_secs(5), || !watcher.refusals().is_empty()).await);
+        assert_eq!(
+            watcher.refusals(),
+            vec![Refusal::ForgetTooLarge {
+                chunks: MAX_FORGET_CHUNKS as u32 + 1,
+                max: MAX_FORGET_CHUNKS as u32
+            }]
+        );
+        assert!(
+            watcher.replica().get(target).is_some(),
+            "nothing was forgotten"
+        );
+        editor.close().await;
+        watcher.close().await;
         server.shutdown().await.unwrap();
     })
     .await

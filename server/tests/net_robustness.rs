@@ -1,5 +1,6 @@
 //! Bad input closes only the offending connection; a client that stops
-//! reading loses deltas instead of slowing anyone down.
+//! reading loses deltas instead of slowing anyone down; refused positions
+//! are answered, at a bounded rate however many come.
 
 mod common;
 
@@ -9,8 +10,8 @@ use common::*;
 use strata_client_sim::{Client, ClientError, Verdict};
 use strata_protocol::limits::MAX_CLIENT_FRAME;
 use strata_protocol::{
-    encode_frame, ClientMessage, Direction, ErrorCode, Hello, PositionUpdate, Role,
-    PROTOCOL_VERSION,
+    encode_frame, ClientMessage, Direction, ErrorCode, Hello, PositionRefusal, PositionUpdate,
+    Role, PROTOCOL_VERSION,
 };
 use strata_server::app;
 use strata_terrain::gen::{GenParams, Generator};
@@ -350,6 +351,87 @@ async fn every_session_end_reaches_a_busy_engine_and_its_tasks_end() {
             tasks <= idle_tasks,
             "{tasks} tasks alive, {idle_tasks} before any session"
         );
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// Refused-position notices taken from `c`.
+fn refused(c: &Client) -> Vec<(u32, PositionRefusal)> {
+    std::iter::from_fn(|| c.pop_notice())
+        .filter_map(|n| match n {
+            strata_client_sim::Notice::PositionRefused { seq, reason } => Some((seq, reason)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[tokio::test]
+async fn refused_positions_are_answered_at_a_bounded_rate() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.validation.position_refusal_ms = 400;
+        let server = app::start(cfg).await.expect("server starts");
+        let c = connect(&server, "lost", Role::Player).await;
+        let outside = at(100_000.0, 40.0, 0.0);
+        c.send_position(outside).unwrap();
+        let mut got = Vec::new();
+        assert!(
+            eventually(Duration::from_secs(5), || {
+                got.extend(refused(&c));
+                !got.is_empty()
+            })
+            .await
+        );
+        let spawn = PositionRefusal::OutsideSpawn {
+            x: 0,
+            z: 0,
+            radius: 2048,
+        };
+        assert_eq!(got, vec![(1, spawn)]);
+        // A flood of 3000 bad reports over about 0.6 s.
+        let started = std::time::Instant::now();
+        for _ in 0..60 {
+            for _ in 0..50 {
+                let _ = c.send_position(outside);
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let flood = refused(&c);
+        let most = started.elapsed().as_millis() as usize / 400 + 2;
+        assert!(
+            !flood.is_empty() && flood.len() <= most,
+            "{} answers to 3000 refused reports (at most {most})",
+            flood.len()
+        );
+        assert!(flood.iter().all(|(_, r)| *r == spawn));
+        c.ping(1).await.unwrap();
+        assert!(!c.is_closed(), "the flood cost the session nothing");
+        // A legal position, then a jump far too fast for the time since.
+        let (feet, _) = spot(10, 10);
+        c.send_position(feet).unwrap();
+        assert!(eventually(Duration::from_secs(10), || c.view_loaded().is_some()).await);
+        tokio::time::sleep(Duration::from_millis(450)).await;
+        let mut jump = feet;
+        jump.x = strata_terrain::Fixed::from_voxels(10 + 500);
+        c.send_position(jump).unwrap();
+        let mut late = Vec::new();
+        assert!(
+            eventually(Duration::from_secs(5), || {
+                late.extend(refused(&c));
+                !late.is_empty()
+            })
+            .await
+        );
+        assert!(
+            matches!(late[..], [(_, PositionRefusal::TooFast { distance, allowed })]
+                if distance > allowed),
+            "{late:?}"
+        );
+        c.close().await;
         server.shutdown().await.unwrap();
     })
     .await

@@ -219,3 +219,40 @@ fn a_reconnect_resumes_where_the_player_left() {
     s.resume_position(8, 10_000);
     assert_eq!(s.position(8), None);
 }
+
+#[test]
+fn refusals_name_the_rule_and_stale_reports_get_none() {
+    use strata_protocol::PositionRefusal;
+    let mut s = fresh();
+    let far = s
+        .update_position(PLAYER, at(1, 5000, 40, 0), 0)
+        .unwrap_err();
+    assert_eq!(
+        far.refusal(),
+        Some(PositionRefusal::OutsideSpawn {
+            x: 0,
+            z: 0,
+            radius: 2048
+        })
+    );
+    let high = s
+        .update_position(PLAYER, at(2, 0, 100_000, 0), 0)
+        .unwrap_err();
+    assert_eq!(high.refusal(), Some(PositionRefusal::OutOfBounds));
+    s.update_position(PLAYER, at(5, 0, 40, 0), 0).unwrap();
+    let fast = s
+        .update_position(PLAYER, at(6, 100, 40, 0), 1000)
+        .unwrap_err();
+    assert_eq!(
+        fast.refusal(),
+        Some(PositionRefusal::TooFast {
+            distance: Fixed(100 * 256),
+            allowed: Fixed::from_f64(20.0 * 1.25 + 2.0).unwrap(),
+        })
+    );
+    let stale = s
+        .update_position(PLAYER, at(5, 0, 40, 0), 2000)
+        .unwrap_err();
+    assert_eq!(stale.refusal(), None, "stale reports get no answer");
+    assert_eq!(PositionReject::UnknownSession.refusal(), None);
+}

@@ -15,6 +15,8 @@ use crate::client::{Client, ClientError, Verdict};
 pub(super) enum Command {
     Edit { ticket: u64, edit: Edit },
     Subscribe { center: ChunkPos, radius: u8 },
+    Forget { chunks: Vec<ChunkPos> },
+    Resync { pos: ChunkPos },
 }
 
 pub(super) async fn dispatch(
@@ -38,6 +40,12 @@ pub(super) async fn dispatch(
             // A failure here is the connection's end, reported by `watch_close`.
             Command::Subscribe { center, radius } => {
                 let _ = client.subscribe(center, radius).await;
+            }
+            Command::Forget { chunks } => {
+                let _ = client.forget(&chunks).await;
+            }
+            Command::Resync { pos } => {
+                let _ = client.resync(pos).await;
             }
         }
     }

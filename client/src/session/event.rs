@@ -1,6 +1,6 @@
 //! What [`super::Session::poll`] hands the game loop.
 
-use strata_protocol::{ChunkVersion, ErrorCode, RejectReason};
+use strata_protocol::{ChunkVersion, ErrorCode, PositionRefusal, RejectReason};
 use strata_terrain::ChunkPos;
 
 /// One thing that happened since the last poll. Every edit the session
@@ -24,6 +24,13 @@ pub enum Event {
     /// [`super::Session::chunk`] returns `None`). A mesh reads its 26
     /// neighbours' border voxels, so theirs may change too.
     ChunkChanged { pos: ChunkPos },
+    /// The server refused position report `seq` and keeps the previous
+    /// position (rate-bounded: not every refused report is answered).
+    PositionRefused { seq: u32, reason: PositionRefusal },
+    /// Every chunk of the view around chunk `center` at `radius` has
+    /// arrived (except forgotten ones): the view is loaded. Its chunks are
+    /// held now; their `ChunkChanged` events may still follow.
+    ViewLoaded { center: ChunkPos, radius: u8 },
     /// The connection ended: `code` is the server's reason when it gave one.
     Disconnected {
         code: Option<ErrorCode>,

@@ -22,6 +22,7 @@ use tokio::sync::mpsc;
 use crate::client::{Client, ClientError, ClientOptions};
 use crate::coords::to_fixed;
 use crate::mesh::{mesh_at, ChunkMesh};
+use crate::notice::Notice;
 use crate::prediction::PredictionStats;
 use crate::replica::ReplicaStats;
 use dispatch::{dispatch, watch_close, Command};
@@ -139,6 +140,30 @@ impl Session {
         self.queue(Command::Subscribe { center, radius })
     }
 
+    /// Drops chunks the game no longer wants (chunk coordinates, at most
+    /// `MAX_FORGET_CHUNKS`): they stop being held at once and the server
+    /// stops sending their updates. [`Self::resync`], or a chunk leaving the
+    /// view and coming back, brings one back.
+    pub fn forget(&self, chunks: &[IVec3]) -> Result<(), SessionError> {
+        let max = strata_protocol::limits::MAX_FORGET_CHUNKS;
+        if chunks.len() > max {
+            let chunks = chunks.len();
+            return Err(ClientError::TooManyChunks { chunks, max }.into());
+        }
+        let chunks = chunks
+            .iter()
+            .map(|c| ChunkPos::new(c.x, c.y, c.z))
+            .collect();
+        self.queue(Command::Forget { chunks })
+    }
+
+    /// Asks the server to send a chunk again (one forgotten, or one whose
+    /// copy looks wrong); it must be in the view.
+    pub fn resync(&self, chunk: IVec3) -> Result<(), SessionError> {
+        let pos = ChunkPos::new(chunk.x, chunk.y, chunk.z);
+        self.queue(Command::Resync { pos })
+    }
+
     /// Sends an edit (build one with [`crate::edits`]) and returns its
     /// ticket at once; its verdict comes from [`Self::poll`]. Edits reach
     /// the server in the order they were taken.
@@ -169,6 +194,15 @@ impl Session {
         if let Ok(e) = self.events.lock().expect("not poisoned").try_recv() {
             self.unpolled.fetch_sub(1, Ordering::SeqCst);
             return Some(e);
+        }
+        match self.client.pop_notice() {
+            Some(Notice::PositionRefused { seq, reason }) => {
+                return Some(Event::PositionRefused { seq, reason })
+            }
+            Some(Notice::ViewLoaded { center, radius }) => {
+                return Some(Event::ViewLoaded { center, radius })
+            }
+            None => {}
         }
         if let Some(pos) = self.client.pop_changed() {
             return Some(Event::ChunkChanged { pos });

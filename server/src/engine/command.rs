@@ -61,6 +61,11 @@ pub enum Command {
         session: u64,
         pos: ChunkPos,
     },
+    /// The client dropped these chunks (at most `MAX_FORGET_CHUNKS`).
+    Forget {
+        session: u64,
+        chunks: Vec<ChunkPos>,
+    },
     /// From an admin session only.
     Admin(super::admin::AdminCommand),
     /// Finish the batch in flight, flush, and stop.

@@ -17,6 +17,7 @@ mod inbox;
 mod latest;
 mod ops;
 mod peer;
+mod position_refusal;
 mod premesh;
 mod residency;
 pub mod snapshot;
@@ -37,9 +38,9 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use serde::{Deserialize, Serialize};
 use strata_protocol::{ChunkVersion, ErrorCode, Refusal, ServerMessage, WorldUpdate};
 use strata_terrain::ChunkPos;
-use tracing::{debug, error, info, warn};
+use tracing::{error, info, warn};
 
-use crate::interest::{Interest, InterestConfig};
+use crate::interest::{Anchor, Interest, InterestConfig};
 use crate::metrics as m;
 use crate::sequencer::{BuiltMeshes, PendingMeshes, Sequencer};
 use crate::store::ChunkStore;
@@ -324,7 +325,7 @@ impl Engine {
                 let start = self.seq.resume_position(session, now);
                 metrics::counter!(m::SESSIONS_TOTAL).increment(1);
                 let interest = Interest::new(self.interest, self.bounds);
-                let mut peer = Peer::new(control, updates, interest, kick, position);
+                let mut peer = Peer::new(control, updates, interest, kick, position, start);
                 peer.capabilities = capabilities;
                 self.peers.insert(session, peer);
                 // A join may arrive mid-commit: name no seq a power cut could
@@ -350,14 +351,13 @@ impl Engine {
                 center,
                 radius,
             } => {
-                // Admins may look anywhere; players only around themselves.
+                // Admins may look anywhere; players only around themselves,
+                // or before any position, around their start.
                 let player = match self.seq.session(session) {
                     Some(s) if s.role == strata_protocol::Role::Admin => None,
-                    Some(_) => Some(
-                        self.seq
-                            .position(session)
-                            .map(|p| crate::validate::position::feet_voxel(p.feet).chunk()),
-                    ),
+                    Some(_) => Some(self.seq.position(session).map(|p| {
+                        Anchor::Chunk(crate::validate::position::feet_voxel(p.feet).chunk())
+                    })),
                     None => return,
                 };
                 let Some(p) = self.peers.get_mut(&session) else {
@@ -365,7 +365,10 @@ impl Engine {
                 };
                 let allowed = match player {
                     None => Ok(()),
-                    Some(at) => p.interest.check_centre(center, at),
+                    Some(at) => {
+                        let anchor = at.unwrap_or_else(|| p.start_anchor());
+                        p.interest.check_centre(center, anchor)
+                    }
                 };
                 match allowed {
                     Ok(()) => {
@@ -392,6 +395,11 @@ impl Engine {
                 } else {
                     let refusal = Refusal::NotInInterest { pos };
                     self.send_control(session, &ServerMessage::RequestRefused(refusal));
+                }
+            }
+            Command::Forget { session, chunks } => {
+                if let Some(p) = self.peers.get_mut(&session) {
+                    p.forget(&chunks);
                 }
             }
             Command::Admin(c) => self.admin(c),
@@ -437,7 +445,7 @@ impl Engine {
         // Stale, out of bounds or too fast: refused before any chunk is
         // loaded or generated.
         if let Err(reason) = self.seq.precheck_position(session, &update, now) {
-            return debug!(session, ?reason, "position refused");
+            return self.refuse_position(session, update.seq, &reason, now);
         }
         let needed = self.seq.chunks_needed_for_position(&update);
         if let Err(e) = self.make_resident(&needed) {
@@ -452,7 +460,7 @@ impl Engine {
                 }
                 self.premesh_around(session, update.pos);
             }
-            Err(reason) => debug!(session, ?reason, "position refused"),
+            Err(reason) => self.refuse_position(session, update.seq, &reason, now),
         }
     }
 

@@ -8,12 +8,12 @@ use rustc_hash::FxHashMap;
 
 use strata_terrain::ChunkPos;
 
-use strata_protocol::ErrorCode;
+use strata_protocol::{ErrorCode, Start};
 use tokio::sync::oneshot;
 
 use super::command::Kick;
 use super::LatestPosition;
-use crate::interest::{Interest, InterestChange};
+use crate::interest::{nearest_first, Anchor, Interest, InterestChange};
 use crate::net::writer::FrameSender;
 
 #[derive(Debug)]
@@ -36,6 +36,14 @@ pub struct Peer {
     pub position: Arc<LatestPosition>,
     /// `Hello::capabilities` bits this server knows (the rest dropped).
     pub capabilities: u32,
+    /// Where the session started (`Welcome::start`): before an accepted
+    /// position, its subscriptions stay near it.
+    pub start: Start,
+    /// The view changed and its `InterestComplete` is owed once `pending`
+    /// is empty.
+    pub complete_due: bool,
+    /// When (ms) the last `PositionRefused` was sent, for its rate bound.
+    pub refused_at: Option<u64>,
     kick: Option<oneshot::Sender<Kick>>,
 }
 
@@ -46,6 +54,7 @@ impl Peer {
         interest: Interest,
         kick: oneshot::Sender<Kick>,
         position: Arc<LatestPosition>,
+        start: Start,
     ) -> Self {
         Self {
             control,
@@ -58,8 +67,16 @@ impl Peer {
             premeshed: None,
             position,
             capabilities: 0,
+            start,
+            complete_due: false,
+            refused_at: None,
             kick: Some(kick),
         }
+    }
+
+    /// What a `Subscribe` centre must stay near before any accepted position.
+    pub fn start_anchor(&self) -> Anchor {
+        Anchor::of_start(self.start)
     }
 
     /// Tells the session to close its connection with `code`.
@@ -69,20 +86,28 @@ impl Peer {
         }
     }
 
-    /// Queues new chunks (already nearest first) and forgets dropped ones.
-    /// Returns the chunks the client should be told to unload.
+    /// Queues new chunks and forgets dropped ones; the whole queue (chunks
+    /// still waiting from earlier views included) is then nearest first
+    /// from the new centre. Returns the chunks the client should be told
+    /// to unload.
     pub fn apply_interest(&mut self, change: InterestChange) -> Vec<ChunkPos> {
-        for pos in &change.unsubscribe {
+        let gone: HashSet<ChunkPos> = change.unsubscribe.iter().copied().collect();
+        for pos in &gone {
             self.known.remove(pos);
             self.full_data.remove(pos);
         }
-        self.pending.retain(|p| !change.unsubscribe.contains(p));
-        // Re-queue the whole subscription so it stays sorted nearest first.
+        self.pending.retain(|p| !gone.contains(p));
         let mut queued: HashSet<ChunkPos> = self.pending.iter().copied().collect();
         for pos in change.subscribe {
             if !self.known.contains_key(&pos) && queued.insert(pos) {
                 self.pending.push_back(pos);
             }
+        }
+        if let Some(center) = self.interest.center().filter(|_| change.recentred) {
+            self.pending
+                .make_contiguous()
+                .sort_by_key(|p| nearest_first(*p, center));
+            self.complete_due = true;
         }
         change.unsubscribe
     }
@@ -90,6 +115,24 @@ impl Peer {
     /// Whether the client asked for `cap` (`strata_protocol::capabilities`).
     pub fn has(&self, cap: u32) -> bool {
         strata_protocol::capabilities::has(self.capabilities, cap)
+    }
+
+    /// The client dropped `chunks`: those in view are no longer held, so
+    /// no update of them is sent until a resync or until they leave the
+    /// view and come back. Others are ignored.
+    pub fn forget(&mut self, chunks: &[ChunkPos]) {
+        let dropped: HashSet<ChunkPos> = chunks
+            .iter()
+            .copied()
+            .filter(|p| self.interest.covers(*p))
+            .collect();
+        if dropped.is_empty() {
+            return;
+        }
+        for pos in &dropped {
+            self.known.remove(pos);
+        }
+        self.pending.retain(|p| !dropped.contains(p));
     }
 
     /// Forgets the client's copy of `pos` and sends it again first.

@@ -1,5 +1,6 @@
 //! Streaming chunk snapshots to sessions, nearest first, under a per-tick
-//! byte budget per session and a time budget per tick for all of them. A modified chunk goes to a client that can
+//! byte budget per session and a time budget per tick for all of them;
+//! `InterestComplete` follows a view's last chunk. A modified chunk goes to a client that can
 //! regenerate as a patch: a delta from its generated form, usually tens of
 //! times smaller than the chunk.
 
@@ -83,7 +84,7 @@ impl Engine {
         let mut ids: Vec<u64> = self
             .peers
             .iter()
-            .filter(|(_, p)| !p.pending.is_empty())
+            .filter(|(_, p)| !p.pending.is_empty() || p.complete_due)
             .map(|(id, _)| *id)
             .collect();
         ids.sort_unstable();
@@ -141,11 +142,24 @@ impl Engine {
         let Some(p) = self.peers.get_mut(&id) else {
             return;
         };
-        if sent.is_empty() {
+        // The view's end marker goes after its last chunk, in the same batch.
+        let completes = p.complete_due
+            && p.pending.is_empty()
+            && !p.failed
+            && (!batch.is_empty() || p.updates.is_idle());
+        if let (true, Some(center)) = (completes, p.interest.center()) {
+            let radius = p.interest.radius();
+            batch.extend_from_slice(&encode_update(&WorldUpdate::InterestComplete {
+                center,
+                radius,
+            }));
+        }
+        if batch.is_empty() {
             return;
         }
         match p.updates.try_send(batch.freeze()) {
             Ok(()) => {
+                p.complete_due &= !completes;
                 for (pos, version, kind) in sent {
                     p.known.insert(pos, version);
                     metrics::counter!(m::SNAPSHOTS_SENT, "kind" => kind).increment(1);

@@ -7,8 +7,9 @@ use std::time::Duration;
 
 use bytes::Bytes;
 use strata_protocol::io::{FramedReader, ReadError};
+use strata_protocol::limits::MAX_FORGET_CHUNKS;
 use strata_protocol::{
-    decode, ClientMessage, Direction, ErrorCode, FrameBuffer, FrameError, PositionUpdate,
+    decode, ClientMessage, Direction, ErrorCode, FrameBuffer, FrameError, PositionUpdate, Refusal,
     RejectReason, ServerMessage, Welcome, PROTOCOL_VERSION,
 };
 use tokio::sync::oneshot;
@@ -452,6 +453,18 @@ fn route(
             center,
             radius,
         },
+        ClientMessage::Forget { chunks } => {
+            // Cheap-checked here: an oversized list never reaches the engine.
+            if chunks.len() > MAX_FORGET_CHUNKS {
+                let refusal = Refusal::ForgetTooLarge {
+                    chunks: u32::try_from(chunks.len()).unwrap_or(u32::MAX),
+                    max: MAX_FORGET_CHUNKS as u32,
+                };
+                let _ = control.try_send(fanout_control(&ServerMessage::RequestRefused(refusal)));
+                return Ok(None);
+            }
+            Command::Forget { session, chunks }
+        }
         ClientMessage::ResyncRequest { pos } => Command::Resync { session, pos },
         ClientMessage::FullSnapshotRequest { pos } => Command::FullSnapshot { session, pos },
         ClientMessage::Ping { nonce } => {

@@ -10,20 +10,20 @@ use crate::validate::{caps, line_of_sight, permissions, position, reach, zones};
 
 /// What the cheap rules worked out, for the rest of the checks.
 struct Cheap {
-    eye: [f64; 3],
-    target: [f64; 3],
+    eye: glam::DVec3,
+    target: glam::DVec3,
     volume_cost: u64,
 }
 
 impl Sequencer {
     /// Everything validating and applying `edit` reads, given the eye (if any).
     /// `None` if the terrain core refuses the edit.
-    pub(super) fn read_set(&self, edit: &Edit, eye: Option<[f64; 3]>) -> Option<Vec<ChunkPos>> {
+    pub(super) fn read_set(&self, edit: &Edit, eye: Option<glam::DVec3>) -> Option<Vec<ChunkPos>> {
         let bbox = edit.validate(&self.ctx()).ok()?;
         let mut set: Vec<ChunkPos> = edit_chunks(&bbox, edit.read_margin()).collect();
         if let Some(eye) = eye {
             let target = reach::target_point(edit, &bbox, eye);
-            if reach::distance(eye, target) <= self.validation.reach {
+            if eye.distance(target) <= self.validation.reach {
                 for c in line_of_sight::sight_chunks(eye, target) {
                     set.extend(with_neighbours(c));
                 }
@@ -182,8 +182,8 @@ impl Sequencer {
     fn check_sight(
         &mut self,
         edit: &Edit,
-        eye: [f64; 3],
-        target: [f64; 3],
+        eye: glam::DVec3,
+        target: glam::DVec3,
     ) -> Result<(), RejectReason> {
         let needed = self.read_set(edit, Some(eye)).unwrap_or_default();
         if !self

@@ -40,6 +40,8 @@ pub const DEFAULT_VOLUME_PER_SECOND: u64 = 50_000;
 pub const DEFAULT_REJECT_BURST: u64 = 100;
 /// Refused edits per second that never add up to a disconnect.
 pub const DEFAULT_REJECTS_PER_SECOND: u64 = 10;
+/// Least milliseconds between two `PositionRefused` answers to one session.
+pub const DEFAULT_POSITION_REFUSAL_MS: u64 = 500;
 /// Players whose last position the server remembers after they leave.
 pub const DEFAULT_REMEMBERED_PLAYERS: usize = 100_000;
 
@@ -83,6 +85,10 @@ pub struct ValidationConfig {
     /// Players whose last position is kept after their sessions end, so a
     /// reconnect resumes there ([`DEFAULT_REMEMBERED_PLAYERS`]).
     pub remembered_players: usize,
+    /// A refused position report is answered with `PositionRefused` at most
+    /// once per this many milliseconds per session
+    /// ([`DEFAULT_POSITION_REFUSAL_MS`]); 0 never answers.
+    pub position_refusal_ms: u64,
 }
 
 impl Default for ValidationConfig {
@@ -113,6 +119,7 @@ impl Default for ValidationConfig {
                 per_second: DEFAULT_REJECTS_PER_SECOND,
             },
             remembered_players: DEFAULT_REMEMBERED_PLAYERS,
+            position_refusal_ms: DEFAULT_POSITION_REFUSAL_MS,
         }
     }
 }

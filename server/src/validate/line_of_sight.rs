@@ -1,15 +1,15 @@
 //! Line of sight: a ray from the eye must reach the target before terrain.
 
+use glam::DVec3;
 use strata_protocol::RejectReason;
 use strata_terrain::ChunkPos;
 
-use super::reach::distance;
 use crate::collision::{ray_chunks, CollisionCache};
 
 /// Chunks whose meshes the sight line from `eye` to `target` needs.
-pub fn sight_chunks(eye: [f64; 3], target: [f64; 3]) -> Vec<ChunkPos> {
-    let d = [target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]];
-    ray_chunks(eye, d, distance(eye, target))
+pub fn sight_chunks(eye: DVec3, target: DVec3) -> Vec<ChunkPos> {
+    let d = target - eye;
+    ray_chunks(eye.to_array(), d.to_array(), d.length())
 }
 
 /// Rejects when the first hit lies more than `tolerance` voxels before the
@@ -18,16 +18,16 @@ pub fn sight_chunks(eye: [f64; 3], target: [f64; 3]) -> Vec<ChunkPos> {
 /// Meshes of [`sight_chunks`] must be in `cache`.
 pub fn check(
     cache: &CollisionCache,
-    eye: [f64; 3],
-    target: [f64; 3],
+    eye: DVec3,
+    target: DVec3,
     tolerance: f64,
 ) -> Result<(), RejectReason> {
-    let dist = distance(eye, target);
+    let d = target - eye;
+    let dist = d.length();
     if dist <= tolerance {
         return Ok(());
     }
-    let d = [target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]];
-    match cache.raycast(eye, d, dist) {
+    match cache.raycast(eye.to_array(), d.to_array(), dist) {
         Some(hit) if hit.t < dist - tolerance => Err(RejectReason::NoLineOfSight),
         _ => Ok(()),
     }

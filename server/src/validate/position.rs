@@ -1,7 +1,8 @@
 //! Position rules: stale reports, world bounds, speed, and not inside solid terrain.
 
-use strata_protocol::PositionUpdate;
-use strata_terrain::edit::FixedVec3;
+use glam::DVec3;
+use strata_protocol::{PositionRefusal, PositionUpdate};
+use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::{ChunkPos, VoxelPos, VoxelRead};
 use thiserror::Error;
 
@@ -36,10 +37,37 @@ pub enum PositionReject {
     ChunkNotLoaded { pos: ChunkPos },
 }
 
-/// Voxel whose sample point is nearest to `(x, y, z)` (voxel `i` sits at point `i`).
-pub fn nearest_voxel(p: [f64; 3]) -> VoxelPos {
-    let r = |v: f64| (v + 0.5).floor() as i32;
-    VoxelPos::new(r(p[0]), r(p[1]), r(p[2]))
+impl PositionReject {
+    /// What the client is told, if anything: stale reports and the
+    /// server's own conditions get no answer.
+    pub fn refusal(&self) -> Option<PositionRefusal> {
+        let fixed = |v: f64| Fixed::from_f64(v).unwrap_or(Fixed(i32::MAX));
+        match *self {
+            PositionReject::OutOfBounds => Some(PositionRefusal::OutOfBounds),
+            PositionReject::OutsideSpawn { x, z, radius } => {
+                Some(PositionRefusal::OutsideSpawn { x, z, radius })
+            }
+            PositionReject::TooFast { distance, allowed } => Some(PositionRefusal::TooFast {
+                distance: fixed(distance),
+                allowed: fixed(allowed),
+            }),
+            PositionReject::InsideSolid { voxel } => Some(PositionRefusal::InsideSolid { voxel }),
+            PositionReject::UnknownSession
+            | PositionReject::Stale { .. }
+            | PositionReject::ChunkNotLoaded { .. } => None,
+        }
+    }
+}
+
+/// A fixed-point position as a glam vector, in voxels (exact).
+pub fn to_dvec3(p: FixedVec3) -> DVec3 {
+    DVec3::from_array(p.to_f64())
+}
+
+/// Voxel whose sample point is nearest to `p` (voxel `i` sits at point `i`).
+pub fn nearest_voxel(p: DVec3) -> VoxelPos {
+    let v = (p + 0.5).floor().as_ivec3();
+    VoxelPos::new(v.x, v.y, v.z)
 }
 
 /// The voxel containing the feet.
@@ -52,16 +80,14 @@ pub fn feet_voxel(feet: FixedVec3) -> VoxelPos {
 }
 
 /// Eye position in world voxel units.
-pub fn eye(feet: FixedVec3, cfg: &ValidationConfig) -> [f64; 3] {
-    let [x, y, z] = feet.to_f64();
-    [x, y + cfg.eye_height, z]
+pub fn eye(feet: FixedVec3, cfg: &ValidationConfig) -> DVec3 {
+    to_dvec3(feet) + DVec3::Y * cfg.eye_height
 }
 
 /// The voxels the body occupies that must not be solid: one above the feet, and the eye.
 pub fn body_voxels(feet: FixedVec3, cfg: &ValidationConfig) -> [VoxelPos; 2] {
-    let [x, y, z] = feet.to_f64();
     [
-        nearest_voxel([x, y + 1.0, z]),
+        nearest_voxel(to_dvec3(feet) + DVec3::Y),
         nearest_voxel(eye(feet, cfg)),
     ]
 }
@@ -70,7 +96,7 @@ fn in_bounds(feet: FixedVec3, cfg: &ValidationConfig) -> bool {
     feet.in_coord_range()
         && body_voxels(feet, cfg)
             .iter()
-            .chain([&nearest_voxel(feet.to_f64())])
+            .chain([&nearest_voxel(to_dvec3(feet))])
             .all(|v| cfg.bounds.contains_y(v.y))
 }
 
@@ -111,8 +137,7 @@ pub fn check_motion(
         }
         return Ok(());
     };
-    let (a, b) = (p.feet.to_f64(), upd.pos.to_f64());
-    let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    let d = to_dvec3(p.feet).distance(to_dvec3(upd.pos));
     let allowed = allowed_distance(now_ms.saturating_sub(p.at_ms), cfg);
     if d > allowed {
         return Err(PositionReject::TooFast {

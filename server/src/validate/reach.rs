@@ -1,32 +1,33 @@
 //! Reach: the edit's target must be near the player's eye.
 
+use glam::DVec3;
 use strata_protocol::RejectReason;
 use strata_terrain::edit::Fixed;
-use strata_terrain::{Edit, VoxelBox};
+use strata_terrain::{Edit, VoxelBox, VoxelPos};
+
+use super::position::to_dvec3;
+
+fn voxel_point(v: VoxelPos) -> DVec3 {
+    DVec3::new(v.x as f64, v.y as f64, v.z as f64)
+}
 
 /// The point an edit aims at, seen from `eye`: a sphere's centre, or the
 /// point of the edit's box nearest the eye.
-pub fn target_point(edit: &Edit, bbox: &VoxelBox, eye: [f64; 3]) -> [f64; 3] {
+pub fn target_point(edit: &Edit, bbox: &VoxelBox, eye: DVec3) -> DVec3 {
     match edit {
         Edit::Mine { center, .. }
         | Edit::Explode { center, .. }
         | Edit::Build { center, .. }
-        | Edit::Smooth { center, .. } => center.to_f64(),
+        | Edit::Smooth { center, .. } => to_dvec3(*center),
         Edit::FillBox { .. } | Edit::ClearBox { .. } | Edit::PlaceStructure { .. } => {
-            let lo = [bbox.min.x, bbox.min.y, bbox.min.z];
-            let hi = [bbox.max.x, bbox.max.y, bbox.max.z];
-            std::array::from_fn(|i| eye[i].clamp(lo[i] as f64, hi[i] as f64))
+            eye.clamp(voxel_point(bbox.min), voxel_point(bbox.max))
         }
     }
 }
 
-pub fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
 /// Rejects a target farther than `max` voxels from the eye.
-pub fn check(eye: [f64; 3], target: [f64; 3], max: f64) -> Result<(), RejectReason> {
-    let d = distance(eye, target);
+pub fn check(eye: DVec3, target: DVec3, max: f64) -> Result<(), RejectReason> {
+    let d = eye.distance(target);
     if d <= max {
         Ok(())
     } else {
@@ -41,7 +42,6 @@ pub fn check(eye: [f64; 3], target: [f64; 3], max: f64) -> Result<(), RejectReas
 #[cfg(test)]
 mod tests {
     use super::*;
-    use strata_terrain::VoxelPos;
 
     #[test]
     fn box_target_is_nearest_point() {
@@ -50,10 +50,12 @@ mod tests {
             min: b.min,
             max: b.max,
         };
-        assert_eq!(target_point(&e, &b, [0.0, 1.0, 1.0]), [5.0, 1.0, 1.0]);
-        assert!(check([0.0, 1.0, 1.0], [5.0, 1.0, 1.0], 5.0).is_ok());
+        let eye = DVec3::new(0.0, 1.0, 1.0);
+        let target = DVec3::new(5.0, 1.0, 1.0);
+        assert_eq!(target_point(&e, &b, eye), target);
+        assert!(check(eye, target, 5.0).is_ok());
         assert!(matches!(
-            check([0.0, 1.0, 1.0], [5.0, 1.0, 1.0], 4.5),
+            check(eye, target, 4.5),
             Err(RejectReason::OutOfReach { .. })
         ));
     }

@@ -1,0 +1,39 @@
+//! What the server tells a client about its session besides verdicts and
+//! chunks, kept in a bounded queue for the game to take.
+
+use std::collections::VecDeque;
+
+use strata_protocol::PositionRefusal;
+use strata_terrain::ChunkPos;
+
+/// Notices a client keeps untaken; past it the oldest goes.
+pub const MAX_NOTICES: usize = 1024;
+
+/// One notice from the server.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Notice {
+    /// Position report `seq` was refused; the server keeps the previous
+    /// position. Not every refused report is answered (the server bounds
+    /// the rate), and stale ones never are.
+    PositionRefused { seq: u32, reason: PositionRefusal },
+    /// Every chunk of the view around `center` (chunk coordinates) at
+    /// `radius` has arrived, except those the client forgot.
+    ViewLoaded { center: ChunkPos, radius: u8 },
+}
+
+/// The untaken notices, oldest first, at most [`MAX_NOTICES`].
+#[derive(Debug, Default)]
+pub(crate) struct Notices(VecDeque<Notice>);
+
+impl Notices {
+    pub(crate) fn push(&mut self, n: Notice) {
+        if self.0.len() >= MAX_NOTICES {
+            self.0.pop_front();
+        }
+        self.0.push_back(n);
+    }
+
+    pub(crate) fn pop(&mut self) -> Option<Notice> {
+        self.0.pop_front()
+    }
+}
