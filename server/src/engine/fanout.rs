@@ -36,11 +36,13 @@ pub fn encode_control(msg: &ServerMessage) -> Bytes {
 /// one write, few packets). A session whose queue is full loses the batch
 /// and gets snapshots of its chunks later; it never slows the others down.
 pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_seq: u64) {
-    // Each edit's delta frames, encoded once, in order.
+    // Each edit's delta frames (and op, when a session replays ops),
+    // encoded once, in order.
+    let ops = peers.values().any(|p| p.has(CAP_OP_REPLAY));
     let edits: Vec<TickEdit<'_>> = applied
         .iter()
         .filter(|a| !a.changes.is_empty())
-        .map(TickEdit::new)
+        .map(|a| TickEdit::new(a, ops))
         .collect();
     if edits.is_empty() {
         return;
@@ -63,7 +65,8 @@ struct TickEdit<'a> {
 }
 
 impl<'a> TickEdit<'a> {
-    fn new(a: &'a AppliedEdit) -> Self {
+    /// `ops`: some session replays ops, so plan the edit's.
+    fn new(a: &'a AppliedEdit, ops: bool) -> Self {
         let deltas = a
             .changes
             .iter()
@@ -78,7 +81,7 @@ impl<'a> TickEdit<'a> {
         Self {
             edit: a,
             deltas,
-            op: ops::OpPlan::new(a),
+            op: ops.then(|| ops::OpPlan::new(a)).flatten(),
         }
     }
 }
@@ -92,19 +95,23 @@ fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], end: &Bytes) {
     let mut buf = BytesMut::new();
     let mut chunks: Vec<ChunkPos> = Vec::new();
     let replay = p.has(CAP_OP_REPLAY);
+    // Indices of an edit's changes `p` holds the base of (one buffer per
+    // session and tick, not one per edit).
+    let mut held: Vec<usize> = Vec::new();
     for e in edits {
         // The Fx-hashed `known` lookup rules most sessions out; `covers`
         // (a tree lookup) only confirms the few that hold the base.
-        let held: Vec<usize> = e
-            .edit
-            .changes
-            .iter()
-            .enumerate()
-            .filter(|(_, c)| {
-                p.known.get(&c.pos) == Some(&c.from_version) && p.interest.covers(c.pos)
-            })
-            .map(|(i, _)| i)
-            .collect();
+        held.clear();
+        held.extend(
+            e.edit
+                .changes
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| {
+                    p.known.get(&c.pos) == Some(&c.from_version) && p.interest.covers(c.pos)
+                })
+                .map(|(i, _)| i),
+        );
         if held.is_empty() {
             continue;
         }
