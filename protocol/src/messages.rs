@@ -172,6 +172,15 @@ pub enum RejectReason {
     },
     /// The sequencer queue is full; try again.
     Busy,
+    /// The edit touches a region this server does not hold: node `owner`
+    /// does (empty: no live node, retry later), reachable at `addr` (may
+    /// be empty). Regions are `region_chunks` chunks on a side.
+    RegionElsewhere {
+        region_x: i32,
+        region_z: i32,
+        owner: String,
+        addr: String,
+    },
 }
 
 /// Errors that end the connection (sent just before closing it).

@@ -19,5 +19,6 @@ pub fn reject_label(r: &RejectReason) -> &'static str {
         NoPosition => "no_position",
         Invalid { .. } => "invalid",
         Busy => "busy",
+        RegionElsewhere { .. } => "region_elsewhere",
     }
 }

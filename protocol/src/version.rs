@@ -5,4 +5,4 @@ pub const ALPN: &[u8] = b"strata/1";
 /// Wire protocol version carried in `Hello` (2 added `WorldUpdate::Patched`,
 /// 3 added `Welcome::start`, 4 added `Hello::capabilities`,
 /// `WorldUpdate::Op`, `PositionRefused`, `Forget` and `InterestComplete`).
-pub const PROTOCOL_VERSION: u32 = 4;
+pub const PROTOCOL_VERSION: u32 = 5;

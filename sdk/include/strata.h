@@ -131,6 +131,9 @@ typedef enum {
   STRATA_REJECT_INVALID = 11,
   // The server is busy: edit again.
   STRATA_REJECT_BUSY = 12,
+  // Another server of the cluster holds the region: the message names
+  // the node and its address.
+  STRATA_REJECT_REGION_ELSEWHERE = 13,
 } StrataReject;
 
 // Why the server refused a position report.

@@ -338,6 +338,7 @@ fn reject_code(r: &RejectReason) -> StrataReject {
         RejectReason::NoPosition => StrataReject::NoPosition,
         RejectReason::Invalid { .. } => StrataReject::Invalid,
         RejectReason::Busy => StrataReject::Busy,
+        RejectReason::RegionElsewhere { .. } => StrataReject::RegionElsewhere,
     }
 }
 

@@ -70,6 +70,9 @@ pub enum StrataReject {
     Invalid = 11,
     /// The server is busy: edit again.
     Busy = 12,
+    /// Another server of the cluster holds the region: the message names
+    /// the node and its address.
+    RegionElsewhere = 13,
 }
 
 /// Bytes of `StrataEvent.message`, its NUL included.

@@ -120,11 +120,13 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     let zones = load_zones(&*store, &cfg)?;
     let access =
         crate::auth::AccessList::from_blob(store.get_blob(crate::auth::ACCESS_BLOB)?.as_deref())?;
+    // A cluster node numbers its edits from a seq block of its own.
+    let start_seq = store.reserve_seqs(meta.last_seq)?;
     let mut seq = Sequencer::new(
         World::new(generator.clone()),
         cfg.sequencer,
         validation.clone(),
-        meta.last_seq,
+        start_seq,
         MaterialTable::default(),
         structures,
         zones,
@@ -176,6 +178,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     let endpoint = quinn::Endpoint::server(server_config, cfg.server.listen)
         .with_context(|| format!("binding {}", cfg.server.listen))?;
     let addr = endpoint.local_addr()?;
+    store.bound_at(&addr.to_string());
     let ctx = SessionContext {
         secret: data_dir.secret().clone(),
         engine: engine.clone(),

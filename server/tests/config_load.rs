@@ -371,12 +371,17 @@ fn a_cluster_node_needs_postgres_a_name_and_a_renewal_inside_its_lease() {
             "[cluster]\nnode_id = \"a\"\nrenew_ms = 0\n",
             "cluster.renew_ms",
         ),
+        (
+            "[cluster]\nnode_id = \"a\"\nadvertise = \"host :1\"\n",
+            "cluster.advertise",
+        ),
     ] {
         assert_eq!(invalid_field(&format!("{pg}{cluster}")), field, "{cluster}");
     }
     let c = ServerConfig::from_toml_str(&format!("{pg}[cluster]\nnode_id = \"node-1\"\n")).unwrap();
     let cluster = c.cluster.unwrap();
     assert_eq!(cluster.node_id, "node-1");
+    assert!(cluster.adopt && cluster.advertise.is_empty());
     assert_eq!(
         (cluster.lease_ms, cluster.renew_ms),
         (

@@ -12,8 +12,8 @@ use std::time::Duration;
 use store_common::{sql, terrain_chunk, Seq};
 use strata_server::cluster::ClusterConfig;
 use strata_server::sequencer::regions::{RegionId, DEFAULT_REGION_CHUNKS};
-use strata_server::store::pg::PgConfig;
-use strata_server::store::{ChunkStore, CommitBatch, PgStore, StoreError, WorldMeta};
+use strata_server::store::pg::{PgConfig, SEQ_BLOCK};
+use strata_server::store::{ChunkStore, CommitBatch, PgStore, RegionAccess, StoreError, WorldMeta};
 use strata_terrain::ChunkPos;
 use strata_tests::postgres::{database, PgDb};
 
@@ -29,6 +29,9 @@ fn node_with(db: &PgDb, id: &str, lease_ms: u64, renew_ms: u64) -> PgStore {
         node_id: id.into(),
         lease_ms,
         renew_ms,
+        // Adoption is tested on its own (`adopt_regions`).
+        adopt: false,
+        ..ClusterConfig::default()
     };
     let store = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap();
     store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
@@ -413,6 +416,7 @@ fn open_node_refuses_bad_cluster_settings() {
                 node_id: "a".into(),
                 lease_ms: 1000,
                 renew_ms: 600,
+                ..ClusterConfig::default()
             },
             "cluster.renew_ms",
         ),
@@ -499,6 +503,9 @@ fn renewals_do_not_wait_behind_a_commit_holding_the_pool() {
         node_id: "a".into(),
         lease_ms,
         renew_ms,
+        // Adoption is tested on its own (`adopt_regions`).
+        adopt: false,
+        ..ClusterConfig::default()
     };
     let a = Arc::new(PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap());
     a.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
@@ -553,4 +560,155 @@ fn renewals_do_not_wait_behind_a_commit_holding_the_pool() {
     holder.join().unwrap();
     committing.join().unwrap().unwrap();
     assert_eq!(a.leases().unwrap().held(), BTreeMap::from([(r, 1)]));
+}
+
+fn regions(rs: &[RegionId]) -> std::collections::BTreeSet<RegionId> {
+    rs.iter().copied().collect()
+}
+
+/// A plain handle on `db`, as the admin tools open it.
+fn plain(db: &PgDb) -> PgStore {
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    PgStore::open(&pg, DEFAULT_REGION_CHUNKS).unwrap()
+}
+
+#[test]
+fn nodes_writing_at_once_number_from_their_own_seq_blocks_in_order_per_region() {
+    let Some(db) = database("lease_seq_blocks") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let b = node(&db, "b");
+    let fa = a.reserve_seqs(0).unwrap();
+    let fb = b.reserve_seqs(0).unwrap();
+    assert_eq!((fa, fb), (0, SEQ_BLOCK), "blocks one after the other");
+    assert_eq!((a.seq_floor(), b.seq_floor()), (fa, fb));
+    let (ra, rb) = (region(0, 0), region(1, 0));
+    let mut wa = Seq {
+        last_seq: fa,
+        ..Seq::default()
+    };
+    let mut wb = Seq {
+        last_seq: fb,
+        ..Seq::default()
+    };
+    // Interleaved commits of two nodes, each in its own region.
+    for i in 0..3 {
+        a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], i))
+            .unwrap();
+        b.commit_batch(&edit(&mut wb, &[chunk_in(rb, 0)], 10 + i))
+            .unwrap();
+    }
+    assert_eq!(a.last_seq().unwrap(), fb + 3, "last_seq is the highest");
+    assert_eq!(
+        sql(&db, "SELECT seq FROM edit_log ORDER BY seq"),
+        ["1", "2", "3"]
+            .into_iter()
+            .map(String::from)
+            .chain((1..=3).map(|i| (fb + i).to_string()))
+            .collect::<Vec<_>>()
+    );
+    // A batch not above its region's last seq is refused, changing nothing.
+    let before = footprint(&db, &b);
+    let mut stale = fork(&wb);
+    stale.last_seq = fb + 1;
+    let err = b
+        .commit_batch(&edit(&mut stale, &[chunk_in(rb, 1)], 20))
+        .unwrap_err();
+    assert!(
+        err.to_string()
+            .contains("is not above region (1, 0)'s last seq"),
+        "{err}"
+    );
+    assert_eq!(footprint(&db, &b), before);
+
+    // The log's jump to b's block is no gap; any other jump still is.
+    let report = plain(&db).check().unwrap();
+    assert!(report.is_ok(), "{report:?}");
+    sql(&db, "DELETE FROM edit_log WHERE seq = 2");
+    let report = plain(&db).check().unwrap();
+    assert!(
+        format!("{report:?}").contains("LogGap"),
+        "a lost record is still found: {report:?}"
+    );
+}
+
+#[test]
+fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adopted() {
+    let Some(db) = database("lease_adopt") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let b = node(&db, "b");
+    a.bound_at("127.0.0.1:4001");
+    b.bound_at("127.0.0.1:4002");
+    let fa = a.reserve_seqs(0).unwrap();
+    let fb = b.reserve_seqs(0).unwrap();
+    let r = region(3, 3);
+    assert_eq!(
+        a.acquire_regions(&regions(&[r])).unwrap(),
+        RegionAccess::Granted
+    );
+    assert_eq!(a.take_fresh_regions(), [r], "a claim is reported once");
+    assert!(a.take_fresh_regions().is_empty());
+    let elsewhere = RegionAccess::Elsewhere {
+        region: r,
+        owner: "a".into(),
+        addr: "127.0.0.1:4001".into(),
+    };
+    assert_eq!(b.acquire_regions(&regions(&[r])).unwrap(), elsewhere);
+    // Asked again, b answers from what it learnt, even with the row gone.
+    sql(
+        &db,
+        "UPDATE regions SET owner_addr = 'moved' WHERE region_x = 3",
+    );
+    assert_eq!(b.acquire_regions(&regions(&[r])).unwrap(), elsewhere);
+    assert!(b.take_fresh_regions().is_empty());
+
+    let pos = chunk_in(r, 0);
+    let mut world = Seq {
+        last_seq: fa,
+        ..Seq::default()
+    };
+    a.commit_batch(&edit(&mut world, &[pos], 1)).unwrap();
+    a.commit_batch(&edit(&mut world, &[pos], 2)).unwrap();
+    // a crashes; b's renewal adopts what a let run out, and nothing else.
+    let other = region(9, 9);
+    assert_eq!(
+        a.acquire_regions(&regions(&[other])).unwrap(),
+        RegionAccess::Granted
+    );
+    expire(&db, r);
+    assert_eq!(b.adopt_regions().unwrap(), [r]);
+    assert!(b.adopt_regions().unwrap().is_empty());
+    assert_eq!(b.take_fresh_regions(), [r]);
+    assert_eq!(b.region_versions(r).unwrap(), [(pos, 2)]);
+    assert_eq!(b.seq_floor(), fb, "b's block is above a's seqs already");
+    // b goes on from the stored chain, with seqs from its block.
+    world.last_seq = fb;
+    b.commit_batch(&edit(&mut world, &[pos], 3)).unwrap();
+    assert_eq!(b.load_chunk(pos).unwrap().unwrap().version, 3);
+    let err = a
+        .commit_batch(&edit(&mut fork(&world), &[pos], 4))
+        .unwrap_err();
+    assert_eq!(fenced(err).3.as_deref(), Some("b"));
+
+    // The other way round: a takes a region b wrote from its newer block,
+    // and moves to a block above b's before it numbers any edit there.
+    let r2 = region(4, 4);
+    let pos2 = chunk_in(r2, 0);
+    b.commit_batch(&edit(&mut world, &[pos2], 5)).unwrap();
+    expire(&db, r2);
+    assert_eq!(
+        a.acquire_regions(&regions(&[r2])).unwrap(),
+        RegionAccess::Granted
+    );
+    assert_eq!(a.seq_floor(), fb + SEQ_BLOCK);
+    world.last_seq = a.seq_floor();
+    a.commit_batch(&edit(&mut world, &[pos2], 6)).unwrap();
+    let report = plain(&db).check().unwrap();
+    assert!(report.is_ok(), "{report:?}");
 }

@@ -2,7 +2,13 @@
 //! on PostgreSQL is SIGSTOPped past its lease while bots edit, another
 //! node takes its regions, and the node is SIGCONTed. Nothing it commits
 //! after the takeover reaches the store and nothing is acknowledged past
-//! what the store held then; the node stops, closing its sessions.
+//! what the store held then. A batch in flight is refused and the node
+//! stops, closing its sessions; otherwise it refuses its players' edits in
+//! the lost regions, naming the new owner.
+//!
+//! Three nodes writing one world at once, each its own regions with seqs
+//! from its own block; one is killed with SIGKILL and the others adopt its
+//! regions within the lease.
 //!
 //! And the graceful side: a node stopped with SIGTERM releases its leases,
 //! `strata-admin cluster status` reports a running node's regions, and
@@ -50,15 +56,29 @@ fn acked_seqs(path: &std::path::Path) -> Vec<u64> {
 /// `n` bots editing 5 times a second, logging acks to `acks`, once they
 /// have 10 acknowledged.
 fn editing_bots(server: &Server, acks: &std::path::Path, n: u32) -> strata_tests::Guard {
+    bots_at(server, acks, n, "512,512", "60s")
+}
+
+/// [`editing_bots`] living in the square whose corner is `origin` (X,Z),
+/// for `duration`.
+fn bots_at(
+    server: &Server,
+    acks: &std::path::Path,
+    n: u32,
+    origin: &str,
+    duration: &str,
+) -> strata_tests::Guard {
     let bots = spawn_bots(
         server,
         &[
             "--bots",
             &n.to_string(),
             "--duration",
-            "60s",
+            duration,
             "--edit-rate",
             "5",
+            "--area-origin",
+            origin,
             "--ack-log",
             acks.to_str().unwrap(),
         ],
@@ -69,6 +89,15 @@ fn editing_bots(server: &Server, acks: &std::path::Path, n: u32) -> strata_tests
         std::thread::sleep(Duration::from_millis(100));
     }
     bots
+}
+
+/// A log file's text so far.
+fn read(path: &std::path::Path) -> String {
+    let mut text = String::new();
+    if let Ok(mut f) = std::fs::File::open(path) {
+        let _ = f.read_to_string(&mut text);
+    }
+    text
 }
 
 /// What the store holds: last seq, the log's seqs, each chunk's version.
@@ -114,6 +143,9 @@ fn a_node_paused_past_its_lease_stores_and_acknowledges_nothing_after_a_takeover
         node_id: "node-b".into(),
         lease_ms: 60_000,
         renew_ms: 10_000,
+        // It takes node-a's regions when the test says.
+        adopt: false,
+        ..ClusterConfig::default()
     };
     let b = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &other).unwrap();
     let held_by_a: Vec<_> = b
@@ -132,16 +164,32 @@ fn a_node_paused_past_its_lease_stores_and_acknowledges_nothing_after_a_takeover
     let at_takeover = state(&b);
 
     signal(&server, "-CONT");
-    // It wakes with edits queued and commits them: refused, it stops.
-    let status = server.proc.wait_timeout(Duration::from_secs(30));
-    assert!(!status.success(), "node-a stopped: {status}");
-    drop(bots);
-
+    // It wakes up. Its renewal finds the leases lost, and from then on it
+    // refuses its players' edits there, naming node-b; a batch it had in
+    // flight is refused by the fence, and then the node stops.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !read(&log).contains("region lease lost") && server.proc.0.try_wait().unwrap().is_none() {
+        assert!(Instant::now() < deadline, "node-a never saw its loss");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Long enough for the bots to try a few more edits.
+    std::thread::sleep(Duration::from_millis(1_500));
     assert_eq!(
         state(&b),
         at_takeover,
         "nothing of node-a's after the takeover"
     );
+    drop(bots);
+    if server.proc.0.try_wait().unwrap().is_none() {
+        signal(&server, "-TERM");
+    }
+    let status = server.proc.wait_timeout(Duration::from_secs(30));
+    let text = read(&log);
+    assert!(
+        status.success() || text.contains("is fenced"),
+        "node-a exited with {status} and its log does not say why"
+    );
+    assert_eq!(state(&b), at_takeover, "nor at its shutdown");
     let seqs = acked_seqs(&acks);
     assert!(
         seqs.iter().all(|&s| s <= at_takeover.0),
@@ -155,12 +203,6 @@ fn a_node_paused_past_its_lease_stores_and_acknowledges_nothing_after_a_takeover
     assert!(status.success(), "verify-acks: {report}");
     assert_eq!(num(&report, "records") as usize, seqs.len());
     assert_eq!(num(&report, "failure_count"), 0);
-    let mut text = String::new();
-    std::fs::File::open(&log)
-        .unwrap()
-        .read_to_string(&mut text)
-        .unwrap();
-    assert!(text.contains("is fenced"), "node-a's log says why: {text}");
     for l in b.region_leases().unwrap() {
         if regions.contains(&l.region) {
             assert_eq!(l.owner.as_deref(), Some("node-b"));
@@ -325,4 +367,119 @@ fn a_node_stopped_gracefully_hands_its_regions_over_and_the_admin_tools_read_pos
         status.success() && out.contains("OK"),
         "check after restore: {out}"
     );
+}
+
+/// The cluster test's lease and renewal period.
+const CLUSTER_LEASE_MS: u64 = 2_000;
+const CLUSTER_RENEW_MS: u64 = 400;
+
+#[test]
+fn three_nodes_write_one_world_and_a_killed_nodes_regions_are_adopted_within_the_lease() {
+    let Some(db) = database("three_nodes") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let store_config = format!("{SERVER_CONFIG}{}", db.store_toml());
+    // Bot areas in regions 2, 5 and -4 along x (256 voxels a region).
+    let origins = ["512,512", "1280,512", "-1024,512"];
+    let mut nodes = Vec::new();
+    for (i, origin) in origins.iter().enumerate() {
+        let name = format!("node-{i}");
+        let data = tmp.path().join(&name);
+        let config = format!(
+            "{store_config}[cluster]\nnode_id = \"{name}\"\nlease_ms = {CLUSTER_LEASE_MS}\n\
+             renew_ms = {CLUSTER_RENEW_MS}\n"
+        );
+        let server = Server::start_with(&data, "127.0.0.1:0", &config);
+        std::fs::write(data.join("strata.toml"), &store_config).unwrap();
+        nodes.push((name, data, server, *origin));
+    }
+    let acks: Vec<_> = (0..3)
+        .map(|i| tmp.path().join(format!("acks-{i}.jsonl")))
+        .collect();
+    // node-0's fleet runs until the node dies; the others' run out.
+    let doomed = bots_at(&nodes[0].2, &acks[0], 3, nodes[0].3, "60s");
+    let fleets: Vec<_> = (1..3)
+        .map(|i| bots_at(&nodes[i].2, &acks[i], 3, nodes[i].3, "8s"))
+        .collect();
+
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let store = PgStore::open(&pg, DEFAULT_REGION_CHUNKS).unwrap();
+    let owners = |store: &PgStore| -> Vec<(String, (i32, i32))> {
+        store
+            .region_leases()
+            .unwrap()
+            .into_iter()
+            .filter_map(|l| Some((l.owner?, (l.region.x, l.region.z))))
+            .collect()
+    };
+    let held = owners(&store);
+    for (name, ..) in &nodes {
+        assert!(
+            held.iter().any(|(o, _)| o == name),
+            "{name} holds a region: {held:?}"
+        );
+    }
+    let dead: Vec<(i32, i32)> = held
+        .iter()
+        .filter(|(o, _)| o == "node-0")
+        .map(|(_, r)| *r)
+        .collect();
+
+    // SIGKILL node-0; the others' renewals adopt its regions once its
+    // lease runs out: at most a lease and a renewal period later.
+    let (_, data0, server0, _) = nodes.remove(0);
+    server0.kill();
+    let killed = Instant::now();
+    drop(doomed);
+    let takeover = loop {
+        let now = owners(&store);
+        let moved = dead.iter().all(|r| {
+            now.iter()
+                .any(|(o, h)| h == r && (o == "node-1" || o == "node-2"))
+        });
+        if moved {
+            break killed.elapsed();
+        }
+        assert!(
+            killed.elapsed() < Duration::from_secs(20),
+            "node-0's regions {dead:?} not adopted: {now:?}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    println!("takeover after SIGKILL: {} ms", takeover.as_millis());
+    assert!(
+        takeover < Duration::from_millis(CLUSTER_LEASE_MS + CLUSTER_RENEW_MS + 1_500),
+        "taken over in {takeover:?}"
+    );
+
+    // The survivors' bots converged on their node's world.
+    for (fleet, (name, ..)) in fleets.into_iter().zip(&nodes) {
+        let (status, summary) = strata_tests::bots_summary(fleet);
+        assert!(status.success(), "{name}'s bots: {summary}");
+        strata_tests::assert_converged(&summary);
+        assert!(num(&summary, "edits_accepted") > 0, "{summary}");
+    }
+    // Every edit any node acknowledged is in PostgreSQL, node-0's too.
+    for (i, data) in [&data0, &nodes[0].1, &nodes[1].1].into_iter().enumerate() {
+        let seqs = acked_seqs(&acks[i]);
+        assert!(!seqs.is_empty(), "node-{i} acknowledged edits");
+        let (status, report) = verify_acks(data, &acks[i]);
+        assert!(status.success(), "verify-acks node-{i}: {report}");
+        assert_eq!(num(&report, "records") as usize, seqs.len());
+        assert_eq!(num(&report, "failure_count"), 0, "{report}");
+    }
+    // Three seq blocks, and the log checks out with its jumps between them.
+    let blocks: std::collections::BTreeSet<u64> = (0..3)
+        .map(|i| acked_seqs(&acks[i])[0] / strata_server::store::pg::SEQ_BLOCK)
+        .collect();
+    assert_eq!(blocks.len(), 3, "one block per node: {blocks:?}");
+    let (status, out) = admin(&["check", "--data-dir", nodes[0].1.to_str().unwrap()]);
+    assert!(status.success() && out.contains("OK"), "check: {out}");
+    for (_, _, server, _) in nodes {
+        server.stop();
+    }
 }

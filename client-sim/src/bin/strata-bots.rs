@@ -112,6 +112,11 @@ struct Args {
     /// Seed of the bots' choices.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// South-west corner X,Z of the square the bots live in (voxels); it
+    /// must lie in the server's spawn area. Bots of different fleets (or
+    /// of different cluster nodes) keep apart with different corners.
+    #[arg(long, default_value = "512,512", value_parser = parse_origin, allow_hyphen_values = true)]
+    area_origin: (i32, i32),
     /// Write one JSON line per accepted edit to FILE (format above).
     #[arg(long)]
     ack_log: Option<PathBuf>,
@@ -251,7 +256,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         ramp: !args.no_ramp,
         ack_log: args.ack_log,
         progress: true,
-        area_origin: bots::DEFAULT_AREA_ORIGIN,
+        area_origin: args.area_origin,
         silence_limit: args.silence_limit,
         predict: args.predict,
         capabilities: capabilities(args.thin, args.op_replay),
@@ -279,6 +284,22 @@ async fn run(args: Args) -> anyhow::Result<bool> {
 }
 
 /// The `Hello` capability bits the flags ask for.
+/// `X,Z` in voxels, inside the world's coordinate range.
+fn parse_origin(s: &str) -> Result<(i32, i32), String> {
+    let (x, z) = s
+        .split_once(',')
+        .ok_or_else(|| format!("{s:?} is not X,Z"))?;
+    let coord = |v: &str| -> Result<i32, String> {
+        let n: i32 = v.trim().parse().map_err(|e| format!("{v:?}: {e}"))?;
+        let limit = strata_terrain::edit::COORD_LIMIT_VOXELS / 2;
+        if n.abs() > limit {
+            return Err(format!("{n} is outside -{limit}..={limit}"));
+        }
+        Ok(n)
+    };
+    Ok((coord(x)?, coord(z)?))
+}
+
 fn capabilities(thin: bool, op_replay: bool) -> u32 {
     use strata_protocol::{CAP_OP_REPLAY, CAP_SNAPSHOTS};
     (if thin { CAP_SNAPSHOTS } else { 0 }) | (if op_replay { CAP_OP_REPLAY } else { 0 })

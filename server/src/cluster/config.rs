@@ -17,6 +17,8 @@ pub const MAX_LEASE_MS: u64 = 600_000;
 pub const MIN_RENEW_MS: u64 = 20;
 /// Longest node name.
 pub const MAX_NODE_ID_LEN: usize = 64;
+/// Longest `advertise` address.
+pub const MAX_ADVERTISE_LEN: usize = 255;
 
 /// The `[cluster]` section. Without it a node on PostgreSQL takes no leases
 /// and its commits are not fenced: it must be the only one on its database.
@@ -31,6 +33,14 @@ pub struct ClusterConfig {
     pub lease_ms: u64,
     /// See [`DEFAULT_RENEW_MS`]; at most half of `lease_ms`.
     pub renew_ms: u64,
+    /// The address clients reach this node at (`host:port`), named to a
+    /// client whose edit lands in a region this node does not hold. Empty:
+    /// the address the node is bound to.
+    pub advertise: String,
+    /// Whether every renewal also takes over regions whose owner let its
+    /// lease run out (a crashed node's), so they are not left unowned
+    /// until a client edits them.
+    pub adopt: bool,
 }
 
 impl Default for ClusterConfig {
@@ -39,6 +49,8 @@ impl Default for ClusterConfig {
             node_id: String::new(),
             lease_ms: DEFAULT_LEASE_MS,
             renew_ms: DEFAULT_RENEW_MS,
+            advertise: String::new(),
+            adopt: true,
         }
     }
 }
@@ -69,6 +81,14 @@ impl ClusterConfig {
                     "{} is outside {MIN_LEASE_MS}..={MAX_LEASE_MS}",
                     self.lease_ms
                 ),
+            ));
+        }
+        if self.advertise.len() > MAX_ADVERTISE_LEN
+            || self.advertise.chars().any(|c| c.is_control() || c == ' ')
+        {
+            return Err((
+                "cluster.advertise",
+                format!("must be at most {MAX_ADVERTISE_LEN} characters, without spaces"),
             ));
         }
         let most = self.lease_ms / 2;

@@ -16,6 +16,7 @@ mod generated;
 mod inbox;
 mod latest;
 mod ops;
+mod ownership;
 mod peer;
 mod position_refusal;
 mod premesh;
@@ -415,6 +416,7 @@ impl Engine {
         let result = self
             .seq
             .precheck(session, &request.edit, now)
+            .and_then(|()| self.check_regions(session, &request.edit, now))
             .and_then(|()| {
                 let needed = self.seq.chunks_needed(session, &request.edit);
                 if let Err(e) = self.make_resident(&needed) {
@@ -496,6 +498,7 @@ impl Engine {
     fn tick(&mut self, rx: Option<&Inbox>) -> anyhow::Result<()> {
         let started = Instant::now();
         let mut phase = Phases::new();
+        self.follow_leases();
         let pool = self.pool.clone();
         let (mut out, pending) = pool.install(|| self.seq.tick_apply(now_ms()));
         // Collision meshes build on the workers while the batch commits.

@@ -147,6 +147,25 @@ impl Sequencer {
         self.next_seq
     }
 
+    /// Numbers the next edits from `next` on, if that is higher: a cluster
+    /// node moved to a new seq block (`store/pg/seqs.rs`). Between ticks.
+    pub fn raise_next_seq(&mut self, next: u64) {
+        self.next_seq = self.next_seq.max(next);
+    }
+
+    /// The regions `edit` writes or reads (its footprint: box, read margin
+    /// and mesh apron), or `None` if the terrain core refuses it.
+    pub fn edit_regions(
+        &self,
+        edit: &strata_terrain::Edit,
+    ) -> Option<std::collections::BTreeSet<regions::RegionId>> {
+        let bbox = edit.validate(&self.ctx()).ok()?;
+        let fp = residency::edit_footprint(&bbox, edit.read_margin());
+        let span =
+            regions::RegionSpan::of_chunks(fp.min.chunk(), fp.max.chunk(), self.cfg.region_chunks);
+        Some(span.regions().collect())
+    }
+
     /// The last sequence number handed out (or loaded from the store).
     pub fn last_seq(&self) -> u64 {
         self.next_seq - 1

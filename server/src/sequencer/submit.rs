@@ -141,6 +141,17 @@ impl Sequencer {
         limits
     }
 
+    /// [`Self::rejected`] for a refusal decided outside the sequencer (a
+    /// region another cluster node holds).
+    pub fn charge_refusal(
+        &mut self,
+        session_id: u64,
+        reason: RejectReason,
+        now_ms: u64,
+    ) -> RejectReason {
+        self.rejected(session_id, reason, now_ms)
+    }
+
     /// Charges a refusal to the player's budgets; returns `reason`. `Busy`
     /// is the server's state, not the player's doing, and costs nothing.
     fn rejected(&mut self, session_id: u64, reason: RejectReason, now_ms: u64) -> RejectReason {

@@ -33,10 +33,13 @@ mod rules;
 mod sled_store;
 mod types;
 
+use std::collections::BTreeSet;
 use std::ops::RangeInclusive;
 
 use strata_terrain::edit::FixedVec3;
 use strata_terrain::ChunkPos;
+
+use crate::sequencer::regions::RegionId;
 
 pub use batch::{MAX_BATCH_CHUNKS, MAX_BATCH_ENTRIES};
 pub use check::{CheckIssue, CheckReport, Checker, MAX_REPORTED_ISSUES};
@@ -59,8 +62,8 @@ pub use sled_store::{
     TREE_BLOBS, TREE_CHUNKS, TREE_DELTAS, TREE_LOG, TREE_META, TREE_PLAYERS,
 };
 pub use types::{
-    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta,
-    STORE_FORMAT_VERSION,
+    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, RegionAccess, StoredChunk,
+    WorldMeta, STORE_FORMAT_VERSION,
 };
 
 /// A fallible iterator over store records.
@@ -146,4 +149,48 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     fn close(&self) -> Result<(), StoreError> {
         Ok(())
     }
+
+    // ------------------------------------------------- one node of many
+    // Alone on its store (sled, or PostgreSQL without `[cluster]`) a node
+    // writes everything; these defaults say so.
+
+    /// Whether other nodes may write this store too: the engine then asks
+    /// [`Self::acquire_regions`] before it queues an edit.
+    fn clustered(&self) -> bool {
+        false
+    }
+
+    /// The seq the engine continues after, given the store's `last_seq`:
+    /// that one, or in a cluster the seq below a block of seqs reserved for
+    /// this process (`store/pg/seqs.rs`). Called once, before the engine starts.
+    fn reserve_seqs(&self, last_seq: u64) -> Result<u64, StoreError> {
+        Ok(last_seq)
+    }
+
+    /// The engine's next seq must be above this (it rises when a claim
+    /// reserves a new block). Cheap: read at every tick.
+    fn seq_floor(&self) -> u64 {
+        0
+    }
+
+    /// Whether this node may write `regions`; claims those it may take.
+    fn acquire_regions(&self, _regions: &BTreeSet<RegionId>) -> Result<RegionAccess, StoreError> {
+        Ok(RegionAccess::Granted)
+    }
+
+    /// Regions claimed since the last call (at the engine's request or
+    /// adopted in the background): their chunks may have changed while
+    /// another node held them. Cheap: called at every tick.
+    fn take_fresh_regions(&self) -> Vec<RegionId> {
+        Vec::new()
+    }
+
+    /// The stored version of every chunk of `region` that the store holds.
+    fn region_versions(&self, _region: RegionId) -> Result<Vec<(ChunkPos, u64)>, StoreError> {
+        Ok(Vec::new())
+    }
+
+    /// The address clients reach this node at, once it is bound: written
+    /// into the region rows it claims, unless `[cluster] advertise` is set.
+    fn bound_at(&self, _addr: &str) {}
 }

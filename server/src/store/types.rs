@@ -121,3 +121,18 @@ pub struct CheckpointStats {
     /// Chunk record bytes written.
     pub bytes_written: u64,
 }
+
+/// Whether this node may write the regions an edit touches
+/// ([`crate::store::ChunkStore::acquire_regions`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum RegionAccess {
+    /// It holds every one of them (now, or after claiming them).
+    Granted,
+    /// Another node holds `region` (`owner` empty: none does, and this
+    /// node may not take it back), reachable at `addr` (may be empty).
+    Elsewhere {
+        region: crate::sequencer::regions::RegionId,
+        owner: String,
+        addr: String,
+    },
+}

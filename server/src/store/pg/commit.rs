@@ -7,7 +7,9 @@
 //! what the sled store refuses: seqs that do not follow `last_seq`, chunk
 //! versions at or below the stored ones, and deltas that do not continue
 //! the stored chain. A cluster node's commit is also fenced (`fence.rs`):
-//! it writes only regions it holds at the epoch the store has.
+//! it writes only regions it holds at the epoch the store has, with seqs
+//! above each region's last; its seqs come from its own block (`seqs.rs`),
+//! so they need not follow `last_seq`, which only ever rises.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
@@ -120,6 +122,7 @@ impl PgStore {
         let fence = match &self.leases {
             Some(leases) => {
                 let mut f = fence::prepare(&self.pool, leases, &cols.regions())?;
+                f.set_seqs(cols.first_seq, cols.last_seq);
                 f.count_edits(b.entries.iter().map(|e| {
                     e.changes
                         .iter()
@@ -172,11 +175,12 @@ async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<()
     else {
         return Err(StoreError::NoMeta);
     };
-    if let Some(fence) = fence {
-        fence::check(c, fence).await?;
-    }
     let last: i64 = row.get(0);
-    if last.checked_add(1) != Some(cols.first_seq) {
+    if let Some(fence) = fence {
+        // Nodes number from blocks of their own (`seqs.rs`): the log has
+        // gaps, and per region the fence checks the order.
+        fence::check(c, fence).await?;
+    } else if last.checked_add(1) != Some(cols.first_seq) {
         return Err(StoreError::batch(format!(
             "first seq {} does not follow the stored last_seq {last}",
             cols.first_seq
@@ -203,17 +207,29 @@ async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<()
             Some(_) => {}
         }
     }
-    if let Some(row) = c
-        .query_opt(
-            "SELECT seq FROM edit_log WHERE seq >= $1 LIMIT 1",
-            &[&cols.first_seq],
-        )
-        .await?
-    {
-        return Err(StoreError::corrupt(
-            "log record beyond last_seq",
-            format!("seq {}", row.get::<_, i64>(0)),
-        ));
+    let beyond = match fence {
+        // Another node's newer block may be above: seqs must be free.
+        Some(_) => {
+            c.query_opt(
+                "SELECT seq FROM edit_log WHERE seq = ANY($1) LIMIT 1",
+                &[&cols.seqs],
+            )
+            .await?
+        }
+        None => {
+            c.query_opt(
+                "SELECT seq FROM edit_log WHERE seq >= $1 LIMIT 1",
+                &[&cols.first_seq],
+            )
+            .await?
+        }
+    };
+    if let Some(row) = beyond {
+        let seq: i64 = row.get(0);
+        return Err(match fence {
+            Some(_) => StoreError::batch(format!("seq {seq} is logged already")),
+            None => StoreError::corrupt("log record beyond last_seq", format!("seq {seq}")),
+        });
     }
     let ch = &cols.chunks;
     if !ch.x.is_empty() {
@@ -250,7 +266,7 @@ async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<()
     )
     .await?;
     c.execute(
-        "UPDATE world SET last_seq = $1 WHERE id = 1",
+        "UPDATE world SET last_seq = GREATEST(last_seq, $1) WHERE id = 1",
         &[&cols.last_seq],
     )
     .await?;

@@ -6,8 +6,11 @@
 //! locks the batch's region rows `FOR UPDATE` (a claim by another node
 //! waits for the commit, or the commit sees the claim) and compares. Any
 //! mismatch refuses the whole batch with [`StoreError::Fenced`] and the
-//! transaction is rolled back. A batch that passes adds its edits to each
-//! region's `edits` count in the same transaction (`cluster status`). The lease's expiry is not checked here: an
+//! transaction is rolled back. So does a batch whose first seq is not
+//! above a region's `last_seq`: each region's edits keep one rising order
+//! across owners (`seqs.rs`). A batch that passes moves each region's
+//! `last_seq` to its own and adds its edits to the regions' `edits` counts
+//! in the same transaction (`cluster status`). The lease's expiry is not checked here: an
 //! epoch only moves when another claim succeeded, and that is what makes
 //! a write unsafe.
 
@@ -26,9 +29,15 @@ pub(super) struct Fence {
     held: BTreeMap<RegionId, u64>,
     /// Accepted edits of the batch that changed each region.
     edits: BTreeMap<RegionId, i64>,
+    /// The batch's first and last seq.
+    seqs: (i64, i64),
 }
 
 impl Fence {
+    pub(super) fn set_seqs(&mut self, first: i64, last: i64) {
+        self.seqs = (first, last);
+    }
+
     /// Counts, per region, the edits whose changes touch it (an edit
     /// across a border counts in each of its regions).
     pub(super) fn count_edits(&mut self, edits: impl Iterator<Item = BTreeSet<RegionId>>) {
@@ -54,6 +63,7 @@ pub(super) fn prepare(
         node_id: leases.node_id().to_string(),
         held: BTreeMap::new(),
         edits: BTreeMap::new(),
+        seqs: (0, 0),
     };
     for &r in regions {
         match held.get(&r) {
@@ -101,25 +111,26 @@ pub(super) async fn check(c: &mut Conn, fence: &Fence) -> Result<(), StoreError>
     let (xs, zs): (Vec<i32>, Vec<i32>) = fence.held.keys().map(|r| (r.x, r.z)).unzip();
     let rows = c
         .query(
-            "SELECT r.region_x, r.region_z, r.owner, r.epoch FROM regions r \
+            "SELECT r.region_x, r.region_z, r.owner, r.epoch, r.last_seq FROM regions r \
              JOIN unnest($1::int4[], $2::int4[]) AS u(x, z) \
                ON r.region_x = u.x AND r.region_z = u.z \
              ORDER BY r.region_x, r.region_z FOR UPDATE OF r",
             &[&xs, &zs],
         )
         .await?;
-    let mut current: BTreeMap<RegionId, (Option<String>, i64)> = BTreeMap::new();
+    let mut current: BTreeMap<RegionId, (Option<String>, i64, i64)> = BTreeMap::new();
     for r in rows {
         current.insert(
             RegionId {
                 x: r.get(0),
                 z: r.get(1),
             },
-            (r.get(2), r.get(3)),
+            (r.get(2), r.get(3), r.get(4)),
         );
     }
+    let (first, last) = fence.seqs;
     for (&region, &held) in &fence.held {
-        let (owner, epoch) = current.remove(&region).unwrap_or((None, 0));
+        let (owner, epoch, region_last) = current.remove(&region).unwrap_or((None, 0, 0));
         if owner.as_deref() != Some(&fence.node_id) || epoch != to_sql(held, "epoch")? {
             return Err(StoreError::Fenced {
                 region,
@@ -128,7 +139,20 @@ pub(super) async fn check(c: &mut Conn, fence: &Fence) -> Result<(), StoreError>
                 owner,
             });
         }
+        if first <= region_last {
+            return Err(StoreError::batch(format!(
+                "first seq {first} is not above {}'s last seq {region_last}",
+                super::lease::show(region)
+            )));
+        }
     }
+    c.execute(
+        "UPDATE regions AS r SET last_seq = GREATEST(r.last_seq, $3) \
+         FROM unnest($1::int4[], $2::int4[]) AS u(x, z) \
+         WHERE r.region_x = u.x AND r.region_z = u.z",
+        &[&xs, &zs, &last],
+    )
+    .await?;
     if !fence.edits.is_empty() {
         let (xs, zs): (Vec<i32>, Vec<i32>) = fence.edits.keys().map(|r| (r.x, r.z)).unzip();
         let ns: Vec<i64> = fence.edits.values().copied().collect();

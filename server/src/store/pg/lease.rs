@@ -8,24 +8,50 @@
 //! and epoch are still its own. A region whose epoch moved on is lost for
 //! good: this process never claims it back, since its copy of the region
 //! may be stale. Commits check the epochs held (`fence.rs`).
+//!
+//! The engine asks before it queues an edit ([`PgStore::acquire`]): a
+//! region held elsewhere refuses the edit with the holder's name and
+//! address, cached until its lease could have run out, so a client aiming
+//! edits at another node's regions costs no query each. Every renewal also
+//! adopts regions whose owner let the lease run out (a crashed node), at
+//! most [`MAX_ADOPT_PER_RENEWAL`] at a time. Every region claimed is
+//! reported once as fresh: its stored chunks may have moved on while
+//! another node held it, and the engine reloads them before using them.
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use tracing::{info, warn};
 
 use super::pool::{Conn, Pool};
-use super::{from_sql, PgStore};
+use super::{from_sql, seqs, PgStore};
 use crate::cluster::ClusterConfig;
 use crate::sequencer::regions::RegionId;
-use crate::store::StoreError;
+use crate::store::{RegionAccess, StoreError};
+
+/// Most expired regions one renewal adopts.
+pub const MAX_ADOPT_PER_RENEWAL: i64 = 256;
+/// Most holders of other nodes' regions remembered for refusals; the cache
+/// is emptied when full.
+pub const MAX_CACHED_HOLDERS: usize = 4096;
 
 /// This node's leases: its name, its lease length, and what it holds.
 #[derive(Debug)]
 pub struct NodeLeases {
     node_id: String,
     lease_ms: f64,
+    renew: Duration,
+    adopt: bool,
+    /// Where clients reach this node (`[cluster] advertise`, or the bound
+    /// address), written into the rows it claims.
+    addr: Mutex<String>,
+    /// The seq below this process's current block.
+    floor: AtomicU64,
+    /// Whether the engine has reserved a block (`reserve_seqs`): until then
+    /// claims reserve none, the engine's first block is above them all.
+    numbering: std::sync::atomic::AtomicBool,
     book: Mutex<Book>,
 }
 
@@ -35,6 +61,10 @@ struct Book {
     held: BTreeMap<RegionId, u64>,
     /// Regions lost, by the epoch this node held them with.
     lost: BTreeMap<RegionId, u64>,
+    /// Regions claimed and not yet reported by [`NodeLeases::take_fresh`].
+    fresh: BTreeSet<RegionId>,
+    /// Other nodes' regions: holder, address, and until when to believe it.
+    elsewhere: BTreeMap<RegionId, (String, String, Instant)>,
 }
 
 impl NodeLeases {
@@ -42,7 +72,39 @@ impl NodeLeases {
         Self {
             node_id: cfg.node_id.clone(),
             lease_ms: cfg.lease_ms as f64,
+            renew: Duration::from_millis(cfg.renew_ms),
+            adopt: cfg.adopt,
+            addr: Mutex::new(cfg.advertise.clone()),
+            floor: AtomicU64::new(0),
+            numbering: std::sync::atomic::AtomicBool::new(false),
             book: Mutex::new(Book::default()),
+        }
+    }
+
+    /// The seq below this process's current block.
+    pub fn seq_floor(&self) -> u64 {
+        self.floor.load(Ordering::Acquire)
+    }
+
+    pub(super) fn raise_floor(&self, floor: u64) {
+        self.floor.fetch_max(floor, Ordering::AcqRel);
+        self.numbering.store(true, Ordering::Release);
+    }
+
+    /// Regions claimed since the last call.
+    pub fn take_fresh(&self) -> Vec<RegionId> {
+        std::mem::take(&mut self.book().fresh).into_iter().collect()
+    }
+
+    fn addr(&self) -> String {
+        self.addr.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
+    /// Sets the address written into claimed rows, unless configured.
+    pub(super) fn set_addr_if_unset(&self, addr: &str) {
+        let mut a = self.addr.lock().unwrap_or_else(|p| p.into_inner());
+        if a.is_empty() {
+            *a = addr.to_string();
         }
     }
 
@@ -133,34 +195,166 @@ pub(super) fn claim(
         return Ok(BTreeMap::new());
     }
     let (xs, zs) = columns(todo.iter());
+    let addr = leases.addr();
     let rows = pool.run("claiming regions", async |c: &mut Conn| {
         c.query(
-            "INSERT INTO regions AS r (region_x, region_z, owner, epoch, lease_expires) \
-             SELECT x, z, $3, 1, now() + $4::float8 * interval '1 millisecond' \
+            "INSERT INTO regions AS r (region_x, region_z, owner, epoch, lease_expires, owner_addr) \
+             SELECT x, z, $3, 1, now() + $4::float8 * interval '1 millisecond', $5 \
              FROM unnest($1::int4[], $2::int4[]) AS u(x, z) ORDER BY x, z \
              ON CONFLICT (region_x, region_z) DO UPDATE \
-             SET owner = EXCLUDED.owner, epoch = r.epoch + 1, \
+             SET owner = EXCLUDED.owner, epoch = r.epoch + 1, owner_addr = EXCLUDED.owner_addr, \
                  lease_expires = EXCLUDED.lease_expires, renewed_at = now() \
              WHERE r.owner IS NULL OR r.owner = EXCLUDED.owner OR r.lease_expires < now() \
-             RETURNING region_x, region_z, epoch",
-            &[&xs, &zs, &leases.node_id, &leases.lease_ms],
+             RETURNING region_x, region_z, epoch, last_seq",
+            &[&xs, &zs, &leases.node_id, &leases.lease_ms, &addr],
         )
         .await
     })?;
+    took(pool, leases, rows, "region claimed")
+}
+
+/// Books regions a claim or adoption returned (x, z, epoch, last_seq):
+/// first a new seq block if one of them was written above this node's
+/// block, then held and fresh.
+fn took(
+    pool: &Pool,
+    leases: &NodeLeases,
+    rows: Vec<tokio_postgres::Row>,
+    what: &'static str,
+) -> Result<BTreeMap<RegionId, u64>, StoreError> {
     let mut got = BTreeMap::new();
+    let mut newest = 0;
     for r in rows {
         let region = RegionId {
             x: r.get(0),
             z: r.get(1),
         };
         got.insert(region, from_sql(r.get(2), "epoch", show(region))?);
+        newest = newest.max(from_sql(r.get(3), "last_seq", show(region))?);
+    }
+    if leases.numbering.load(Ordering::Acquire) && newest > leases.seq_floor() {
+        let next = seqs::reserve(pool, &leases.node_id)?;
+        info!(node = %leases.node_id, first_seq = next + 1, "seq block reserved");
+        leases.raise_floor(next);
     }
     let mut book = leases.book();
     for (&region, &epoch) in &got {
-        info!(node = %leases.node_id, region_x = region.x, region_z = region.z, epoch, "region claimed");
+        info!(node = %leases.node_id, region_x = region.x, region_z = region.z, epoch, "{what}");
         book.held.insert(region, epoch);
+        book.fresh.insert(region);
+        book.elsewhere.remove(&region);
     }
     Ok(got)
+}
+
+/// Claims the regions whose owner let its lease run out (not ones this
+/// node lost: its copy of those may be stale), at most
+/// [`MAX_ADOPT_PER_RENEWAL`]. Nodes adopting at once skip each other's
+/// rows. Returns what it adopted.
+pub(super) fn adopt(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
+    let (lx, lz) = {
+        let book = leases.book();
+        columns(book.lost.keys())
+    };
+    let addr = leases.addr();
+    let rows = pool.run("adopting regions", async |c: &mut Conn| {
+        c.query(
+            "UPDATE regions AS r SET owner = $1, owner_addr = $2, epoch = r.epoch + 1, \
+                 lease_expires = now() + $3::float8 * interval '1 millisecond', renewed_at = now() \
+             FROM (SELECT region_x, region_z FROM regions \
+                   WHERE owner IS NOT NULL AND owner <> $1 AND lease_expires < now() \
+                     AND (region_x, region_z) NOT IN \
+                         (SELECT * FROM unnest($4::int4[], $5::int4[])) \
+                   ORDER BY region_x, region_z LIMIT $6 FOR UPDATE SKIP LOCKED) AS o \
+             WHERE r.region_x = o.region_x AND r.region_z = o.region_z \
+             RETURNING r.region_x, r.region_z, r.epoch, r.last_seq",
+            &[
+                &leases.node_id,
+                &addr,
+                &leases.lease_ms,
+                &lx,
+                &lz,
+                &MAX_ADOPT_PER_RENEWAL,
+            ],
+        )
+        .await
+    })?;
+    Ok(took(
+        pool,
+        leases,
+        rows,
+        "region adopted from a node whose lease ran out",
+    )?
+    .into_keys()
+    .collect())
+}
+
+/// Whether this node may write every one of `regions`: claims those free,
+/// expired or its own by name; names the holder of the first it cannot.
+pub(super) fn acquire(
+    pool: &Pool,
+    leases: &NodeLeases,
+    regions: &BTreeSet<RegionId>,
+) -> Result<RegionAccess, StoreError> {
+    let now = Instant::now();
+    let todo: BTreeSet<RegionId> = {
+        let book = leases.book();
+        let mut todo = BTreeSet::new();
+        for r in regions {
+            if book.held.contains_key(r) {
+                continue;
+            }
+            if let Some((owner, addr, until)) = book.elsewhere.get(r) {
+                if *until > now {
+                    return Ok(elsewhere(*r, owner, addr));
+                }
+            }
+            todo.insert(*r);
+        }
+        todo
+    };
+    if todo.is_empty() {
+        return Ok(RegionAccess::Granted);
+    }
+    claim(pool, leases, &todo)?;
+    let Some(&refused) = todo.iter().find(|r| !leases.book().held.contains_key(r)) else {
+        return Ok(RegionAccess::Granted);
+    };
+    let row = pool.run("reading a region's holder", async |c: &mut Conn| {
+        c.query_opt(
+            "SELECT owner, owner_addr, \
+                 GREATEST((extract(epoch FROM lease_expires - now()) * 1000)::int8, 0) \
+             FROM regions WHERE region_x = $1 AND region_z = $2",
+            &[&refused.x, &refused.z],
+        )
+        .await
+    })?;
+    let (owner, addr, left_ms) = match row {
+        Some(r) => (
+            r.get::<_, Option<String>>(0).unwrap_or_default(),
+            r.get::<_, Option<String>>(1).unwrap_or_default(),
+            r.get::<_, i64>(2),
+        ),
+        None => (String::new(), String::new(), 0),
+    };
+    // Believed until the lease could have run out, and never for longer
+    // than a renewal period (a lost region stays refused: it is re-read).
+    let until = now + leases.renew.min(Duration::from_millis(left_ms as u64));
+    let mut book = leases.book();
+    if book.elsewhere.len() >= MAX_CACHED_HOLDERS {
+        book.elsewhere.clear();
+    }
+    book.elsewhere
+        .insert(refused, (owner.clone(), addr.clone(), until));
+    Ok(elsewhere(refused, &owner, &addr))
+}
+
+fn elsewhere(region: RegionId, owner: &str, addr: &str) -> RegionAccess {
+    RegionAccess::Elsewhere {
+        region,
+        owner: owner.to_string(),
+        addr: addr.to_string(),
+    }
 }
 
 /// Extends every lease still this node's at the epoch it holds; those
@@ -171,14 +365,15 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
         return Ok(Vec::new());
     }
     let (xs, zs, epochs) = held_columns(&held)?;
+    let addr = leases.addr();
     let rows = pool.run("renewing leases", async |c: &mut Conn| {
         c.query(
             "UPDATE regions AS r SET lease_expires = now() + $5::float8 * interval '1 millisecond', \
-                 renewed_at = now() \
+                 renewed_at = now(), owner_addr = $6 \
              FROM unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
              WHERE r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e AND r.owner = $4 \
              RETURNING r.region_x, r.region_z",
-            &[&xs, &zs, &epochs, &leases.node_id, &leases.lease_ms],
+            &[&xs, &zs, &epochs, &leases.node_id, &leases.lease_ms, &addr],
         )
         .await
     })?;
@@ -261,6 +456,11 @@ impl Renewer {
                     if let Err(e) = renew(&pool, &leases) {
                         warn!(error = %e, "renewing region leases failed; retrying");
                     }
+                    if leases.adopt {
+                        if let Err(e) = adopt(&pool, &leases) {
+                            warn!(error = %e, "adopting expired regions failed; retrying");
+                        }
+                    }
                     stopped = flag.flag.lock().unwrap_or_else(|p| p.into_inner());
                 }
             })?;
@@ -331,6 +531,12 @@ impl PgStore {
             .into_iter()
             .filter(|(r, _)| wanted.contains(r))
             .collect())
+    }
+
+    /// Adopts now what the renewal thread adopts every `renew_ms`: regions
+    /// whose owner let the lease run out.
+    pub fn adopt_regions(&self) -> Result<Vec<RegionId>, StoreError> {
+        adopt(&self.pool, self.cluster_leases()?)
     }
 
     /// Renews now (the renewal thread does it every `renew_ms`); returns

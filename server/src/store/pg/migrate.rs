@@ -27,6 +27,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0003_region_stats",
         include_str!("../../../migrations/0003_region_stats.sql"),
     ),
+    (
+        4,
+        "0004_seq_blocks",
+        include_str!("../../../migrations/0004_seq_blocks.sql"),
+    ),
 ];
 
 /// Key of the advisory lock migrations take ("strata" in ASCII).

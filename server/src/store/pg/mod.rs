@@ -35,6 +35,7 @@ mod pages;
 mod pool;
 mod read;
 mod scan_check;
+mod seqs;
 mod wait;
 
 use std::ops::RangeInclusive;
@@ -46,7 +47,8 @@ use super::check::CheckReport;
 use super::error::StoreError;
 use super::rules::{check_blob, check_blob_name, check_new_meta, compare_meta};
 use super::types::{
-    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta,
+    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, RegionAccess, StoredChunk,
+    WorldMeta,
 };
 use super::{ChunkStore, StoreIter};
 use crate::sequencer::regions::RegionId;
@@ -55,9 +57,10 @@ pub use config::{
     PgConfig, DEFAULT_PG_CONNECT_TIMEOUT_MS, DEFAULT_PG_MAX_CONNECTIONS, DEFAULT_PG_POOL_WAIT_MS,
     DEFAULT_PG_STATEMENT_TIMEOUT_MS, MAX_PG_MAX_CONNECTIONS, MAX_PG_TIMEOUT_MS,
 };
-pub use lease::{NodeLeases, RegionLease};
+pub use lease::{NodeLeases, RegionLease, MAX_ADOPT_PER_RENEWAL, MAX_CACHED_HOLDERS};
 pub use migrate::{MIGRATIONS, MIGRATIONS_TABLE};
 use pool::{Conn, Pool};
+pub use seqs::SEQ_BLOCK;
 
 /// Rows one page of a scan fetches (chunk bodies are a few KiB each).
 const PAGE_ROWS: i64 = 256;
@@ -357,5 +360,49 @@ impl ChunkStore for PgStore {
             tracing::info!(node = %leases.node_id(), regions = n, "region leases released");
         }
         Ok(())
+    }
+
+    fn clustered(&self) -> bool {
+        self.leases.is_some()
+    }
+
+    fn reserve_seqs(&self, last_seq: u64) -> Result<u64, StoreError> {
+        let Some(leases) = &self.leases else {
+            return Ok(last_seq);
+        };
+        let floor = seqs::reserve(&self.pool, leases.node_id())?;
+        leases.raise_floor(floor);
+        tracing::info!(node = %leases.node_id(), first_seq = floor + 1, "seq block reserved");
+        Ok(floor)
+    }
+
+    fn seq_floor(&self) -> u64 {
+        self.leases.as_ref().map_or(0, |l| l.seq_floor())
+    }
+
+    fn acquire_regions(
+        &self,
+        regions: &std::collections::BTreeSet<RegionId>,
+    ) -> Result<RegionAccess, StoreError> {
+        match &self.leases {
+            Some(leases) => lease::acquire(&self.pool, leases, regions),
+            None => Ok(RegionAccess::Granted),
+        }
+    }
+
+    fn take_fresh_regions(&self) -> Vec<RegionId> {
+        self.leases
+            .as_ref()
+            .map_or_else(Vec::new, |l| l.take_fresh())
+    }
+
+    fn region_versions(&self, region: RegionId) -> Result<Vec<(ChunkPos, u64)>, StoreError> {
+        self.stored_versions(region)
+    }
+
+    fn bound_at(&self, addr: &str) {
+        if let Some(leases) = &self.leases {
+            leases.set_addr_if_unset(addr);
+        }
     }
 }

@@ -8,6 +8,7 @@ use strata_terrain::{Chunk, ChunkPos};
 
 use super::pool::Conn;
 use super::{from_sql, PgStore};
+use crate::sequencer::regions::RegionId;
 use crate::store::deltas::replay;
 use crate::store::keys::show_pos;
 use crate::store::record::decode_delta;
@@ -100,5 +101,36 @@ impl Stored {
                 show_pos(pos),
             )
         })
+    }
+}
+
+impl PgStore {
+    /// Every stored chunk of `region` with its newest version (its record's
+    /// or its last delta's), for a node that just claimed the region.
+    pub(super) fn stored_versions(
+        &self,
+        region: RegionId,
+    ) -> Result<Vec<(ChunkPos, u64)>, StoreError> {
+        let rows = self
+            .pool
+            .run("reading a region's versions", async |c: &mut Conn| {
+                c.query(
+                    "SELECT x, y, z, max(v) FROM ( \
+                     SELECT x, y, z, version AS v FROM chunks \
+                     WHERE region_x = $1 AND region_z = $2 \
+                     UNION ALL \
+                     SELECT x, y, z, to_version FROM chunk_deltas \
+                     WHERE region_x = $1 AND region_z = $2) AS s \
+                 GROUP BY x, y, z",
+                    &[&region.x, &region.z],
+                )
+                .await
+            })?;
+        rows.iter()
+            .map(|r| {
+                let pos = ChunkPos::new(r.get(0), r.get(1), r.get(2));
+                Ok((pos, from_sql(r.get(3), "chunk version", show_pos(pos))?))
+            })
+            .collect()
     }
 }

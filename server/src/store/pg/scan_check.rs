@@ -22,6 +22,7 @@ const TABLES: &[&str] = &[
     "blobs",
     "players",
     "regions",
+    "seq_blocks",
 ];
 
 impl PgStore {
@@ -47,6 +48,7 @@ impl PgStore {
                 }
             }
         }
+        checker.allow_jumps_to(super::seqs::block_starts(&self.pool)?);
         self.check_tables(&mut checker)?;
         let mut seq = 0i64;
         loop {
