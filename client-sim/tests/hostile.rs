@@ -41,6 +41,7 @@ async fn run_attack(attack: Attack, ramp: bool) -> (Summary, HostileSummary) {
         ack_log: None,
         progress: false,
         area_origin: bots::DEFAULT_AREA_ORIGIN,
+        region_chunks: 8,
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
         predict: false,
         capabilities: 0,

@@ -391,3 +391,24 @@ fn a_cluster_node_needs_postgres_a_name_and_a_renewal_inside_its_lease() {
     );
     assert_eq!(ServerConfig::default().cluster, None);
 }
+
+#[test]
+fn the_cluster_examples_are_valid_nodes_of_one_cluster() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/cluster");
+    let mut ids = Vec::new();
+    for i in 1..=3 {
+        let path = dir.join(format!("node-{i}.toml"));
+        let c = ServerConfig::load(Some(path.as_path())).unwrap();
+        c.validate().unwrap();
+        assert_eq!(
+            c.store.backend,
+            strata_server::store::StoreBackend::Postgres
+        );
+        let cluster = c.cluster.expect("a [cluster] section");
+        assert_eq!(cluster.node_id, format!("node-{i}"));
+        assert!(cluster.advertise.contains(&format!("node-{i}")));
+        ids.push(cluster.node_id);
+    }
+    ids.dedup();
+    assert_eq!(ids.len(), 3, "unique node ids");
+}

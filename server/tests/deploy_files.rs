@@ -13,10 +13,11 @@ use strata_server::config::{ServerConfig, DEFAULT_LISTEN};
 
 const SERVER_BIN: &str = env!("CARGO_BIN_EXE_strata-server");
 const ADMIN_BIN: &str = env!("CARGO_BIN_EXE_strata-admin");
-const UNITS: [&str; 3] = [
+const UNITS: [&str; 4] = [
     "strata.service",
     "strata-backup.service",
     "strata-backup.timer",
+    "strata-node@.service",
 ];
 
 fn root() -> PathBuf {
@@ -74,7 +75,8 @@ fn systemd_units_pass_systemd_analyze_verify() {
         let text = deploy(&format!("systemd/{unit}"))
             .replace("/usr/local/bin/strata-server", SERVER_BIN)
             .replace("/usr/local/bin/strata-admin", ADMIN_BIN);
-        let path = dir.path().join(unit);
+        // A template is verified as one of its instances.
+        let path = dir.path().join(unit.replace("@.", "@1."));
         std::fs::write(&path, text).unwrap();
         paths.push(path);
     }
@@ -88,7 +90,11 @@ fn systemd_units_pass_systemd_analyze_verify() {
     // Unknown keys and bad values are only warnings: none is allowed.
     let about_ours: Vec<&str> = stderr
         .lines()
-        .filter(|l| UNITS.iter().any(|u| l.contains(u)))
+        .filter(|l| {
+            UNITS
+                .iter()
+                .any(|u| l.contains(u) || l.contains(&u.replace("@.", "@1.")))
+        })
         .collect();
     assert!(about_ours.is_empty(), "warnings: {about_ours:#?}");
 }
@@ -154,6 +160,18 @@ fn units_and_dockerfile_name_real_binaries_packages_and_paths() {
     let service = deploy("systemd/strata.service");
     assert!(service.contains("StateDirectory=strata\n"));
     assert!(service.contains("--config /etc/strata/strata.toml --data-dir /var/lib/strata"));
+    let node = deploy("systemd/strata-node@.service");
+    assert!(node.contains("StateDirectory=strata/node-%i\n"));
+    assert!(node.contains("--config /etc/strata/node-%i.toml --data-dir /var/lib/strata/node-%i"));
+    for i in 1..=3 {
+        let c = ServerConfig::load(Some(&root().join(format!("deploy/cluster/node-{i}.toml"))))
+            .unwrap();
+        assert_eq!(
+            c.server.data_dir,
+            Path::new(&format!("/var/lib/strata/node-{i}")),
+            "the unit's data dir"
+        );
+    }
     let backup = deploy("systemd/strata-backup.service");
     assert!(backup.contains(&format!("--server 127.0.0.1:{port}")));
     assert!(backup.contains("--cert /var/lib/strata/cert.der"));

@@ -117,6 +117,10 @@ struct Args {
     /// of different cluster nodes) keep apart with different corners.
     #[arg(long, default_value = "512,512", value_parser = parse_origin, allow_hyphen_values = true)]
     area_origin: (i32, i32),
+    /// Region side in chunks, as the server's `[sequencer] region_chunks`:
+    /// the summary counts the bots' walks from one region into another.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=65536))]
+    region_chunks: u32,
     /// Write one JSON line per accepted edit to FILE (format above).
     #[arg(long)]
     ack_log: Option<PathBuf>,
@@ -257,6 +261,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         ack_log: args.ack_log,
         progress: true,
         area_origin: args.area_origin,
+        region_chunks: args.region_chunks,
         silence_limit: args.silence_limit,
         predict: args.predict,
         capabilities: capabilities(args.thin, args.op_replay),

@@ -72,6 +72,8 @@ struct Loop {
     /// over the first interval, not all at the same instant.
     active_from: Instant,
     pings: u64,
+    /// The region (x, z) the feet were last in.
+    region: Option<(i32, i32)>,
 }
 
 /// What one bot reports at the end, over all its connections.
@@ -339,6 +341,7 @@ impl Bot {
             edit_offset,
             active_from: Instant::now() + edit_offset,
             pings: 0,
+            region: None,
         };
         let mut ticker = tokio::time::interval(STEP);
         ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -420,6 +423,12 @@ impl Bot {
                     }
                 }
                 let chunk = walker.chunk();
+                let side = self.fleet.cfg.region_chunks.max(1) as i32;
+                let region = (chunk.x.div_euclid(side), chunk.z.div_euclid(side));
+                if st.region.is_some_and(|r| r != region) {
+                    Stats::add(&self.fleet.stats.region_crossings, 1);
+                }
+                st.region = Some(region);
                 if chunk != st.subscribed {
                     st.subscribed = chunk;
                     client.subscribe(chunk, radius).await?;

@@ -158,6 +158,9 @@ pub struct BotsConfig {
     pub ack_log: Option<PathBuf>,
     pub progress: bool,
     pub area_origin: (i32, i32),
+    /// Region side in chunks, for counting `region_crossings` (the server's
+    /// `[sequencer] region_chunks`).
+    pub region_chunks: u32,
     /// A server silent this long, despite pings, is taken for dead and the
     /// bot reconnects. QUIC's idle timeout is much longer, and a restarted
     /// server cannot reset the old connections (its reset key is new).
@@ -430,6 +433,7 @@ fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet:
         edits_rejected: s.rejected(),
         edits_unanswered: Stats::get(&s.edits_unanswered),
         edits_skipped: Stats::get(&s.edits_skipped),
+        region_crossings: Stats::get(&s.region_crossings),
         ack_latency_ms: s.ack.summary(),
         broadcast_latency_ms: s.broadcast.summary(),
         latency_by_second: summary::timeline(&s.ack, &s.broadcast),

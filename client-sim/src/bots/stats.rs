@@ -104,6 +104,8 @@ pub struct Stats {
     pub edits_unanswered: AtomicU64,
     /// Edits skipped because no target was in reach and sight.
     pub edits_skipped: AtomicU64,
+    /// Walks from one region into another (`BotsConfig::region_chunks`).
+    pub region_crossings: AtomicU64,
     pub rejected: Mutex<BTreeMap<String, u64>>,
     pub ack: Latencies,
     pub broadcast: Latencies,

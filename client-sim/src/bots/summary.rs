@@ -48,6 +48,9 @@ pub struct Summary {
     pub edits_unanswered: u64,
     /// Edit slots skipped: no target in reach and sight.
     pub edits_skipped: u64,
+    /// Times a bot walked from one region into another (regions of
+    /// `--region-chunks` chunks, as the server's `[sequencer] region_chunks`).
+    pub region_crossings: u64,
     pub edits_accepted_per_second: f64,
     /// From sending an edit to its `EditAccepted`.
     pub ack_latency_ms: LatencyMs,

@@ -1,0 +1,124 @@
+#!/usr/bin/env bash
+# Three strata-server nodes sharing one world on PostgreSQL, bots on each
+# walking across region borders, one node SIGKILLed halfway.
+# Usage: scripts/cluster_demo.sh [BOTS_PER_NODE] [DURATION_S]
+#        scripts/cluster_demo.sh --help
+# Defaults: 4 bots per node, 20 seconds of editing (1 edit per bot per s).
+#
+# - Builds the release binaries (CLUSTER_DEMO_PROFILE=debug: the debug ones).
+# - Starts PostgreSQL 15 from Debian's binaries (STRATA_PG_BIN, default
+#   /usr/lib/postgresql/15/bin) with initdb and pg_ctl in a temp dir on
+#   127.0.0.1 (as `nobody` when run as root), stopped at the end.
+# - Starts node-0, node-1 and node-2 ([cluster], lease 2 s, renewed every
+#   0.4 s, one auth secret shared), each with bots whose square straddles a
+#   region corner (regions of 8 chunks, 256 voxels), so they walk from one
+#   region into another; each node holds the regions its players edit.
+# - Halfway, SIGKILLs node-0 and times how long until node-1 or node-2
+#   holds every region node-0 held (they adopt what they find expired).
+# - At the end: `strata-admin verify-acks` of every node's ack log against
+#   PostgreSQL (node-0's included) and `strata-admin check`.
+# The last line is JSON:
+#   {"nodes":3,"edits_accepted":N,"acked_lost":N,"replica_mismatches":N,
+#    "border_crossings":N,"takeover_ms":N}
+# edits_accepted counts node-0's acks until its death and the survivors'
+# summaries; replica_mismatches and border_crossings are the survivors'
+# bots' (node-0's bots lose their server). Exits non-zero if an
+# acknowledged edit is missing, a replica differs, or check fails.
+set -euo pipefail
+if [ "${1:-}" = -h ] || [ "${1:-}" = --help ]; then
+    sed -n '2,/^set -euo/{/^set -euo/d; s/^# \{0,1\}//; p}' "$0"
+    exit 0
+fi
+cd "$(dirname "$0")/.."
+bots=${1:-4}; duration=${2:-20}
+profile=${CLUSTER_DEMO_PROFILE:-release}
+pg_bin=${STRATA_PG_BIN:-/usr/lib/postgresql/15/bin}
+port=${CLUSTER_DEMO_PG_PORT:-55433}
+target=${CARGO_TARGET_DIR:-target}/$profile
+if [ "$profile" = release ]; then
+    cargo build --release --locked -q -p strata-server -p strata-client-sim --bins
+else
+    cargo build --locked -q -p strata-server -p strata-client-sim --bins
+fi
+dir=$(mktemp -d /tmp/strata-cluster-demo.XXXXXX)
+as_pg=()
+if [ "$(id -u)" = 0 ]; then as_pg=(runuser -u nobody --); chown nobody "$dir"; fi
+pids=()
+cleanup() {
+    kill "${pids[@]}" 2>/dev/null || true
+    wait 2>/dev/null || true
+    "${as_pg[@]}" "$pg_bin/pg_ctl" -D "$dir/pg" -m immediate stop > /dev/null 2>&1 || true
+    [ -n "${CLUSTER_DEMO_KEEP:-}" ] || rm -rf "$dir"
+}
+trap cleanup EXIT
+"${as_pg[@]}" "$pg_bin/initdb" -D "$dir/pg" -U strata -A trust > /dev/null
+"${as_pg[@]}" "$pg_bin/pg_ctl" -D "$dir/pg" -l "$dir/pg.log" -w \
+    -o "-p $port -k $dir -c listen_addresses=127.0.0.1" start > /dev/null
+"$pg_bin/createdb" -h 127.0.0.1 -p "$port" -U strata world
+store=$(printf '[store]\nbackend = "postgres"\n[store.postgres]\nurl = "host=127.0.0.1 port=%s user=strata dbname=world"\n' "$port")
+
+# Bot squares straddle region corners far apart: (256, 256), (1280, 256)
+# and (-1280, 256); half the square on each side.
+side=$(awk -v b="$bots" 'BEGIN { s = int(sqrt(b)); if (s * s < b) s++; print s * 24 }')
+corners=(256 1280 -1280)
+addrs=()
+for i in 0 1 2; do
+    mkdir -p "$dir/node-$i"
+    if [ "$i" -gt 0 ]; then cp "$dir/node-0/auth.secret" "$dir/node-$i/auth.secret"; fi
+    printf '%s\n[server]\nlisten = "127.0.0.1:0"\n[cluster]\nnode_id = "node-%s"\nlease_ms = 2000\nrenew_ms = 400\n' \
+        "$store" "$i" > "$dir/node-$i/strata.toml"
+    "$target/strata-server" --config "$dir/node-$i/strata.toml" --data-dir "$dir/node-$i" \
+        > "$dir/node-$i.out" 2> "$dir/node-$i.log" &
+    pids+=($!)
+    for _ in $(seq 300); do grep -q listening "$dir/node-$i.out" 2>/dev/null && break; sleep 0.1; done
+    addrs+=("$(grep -oE '127\.0\.0\.1:[0-9]+' "$dir/node-$i.out" | head -1)")
+    [ -n "${addrs[$i]}" ] || { echo "node-$i did not start: $(tail -5 "$dir/node-$i.log")" >&2; exit 1; }
+done
+fleet=()
+for i in 0 1 2; do
+    origin="$(( ${corners[$i]} - side / 2 )),$(( 256 - side / 2 ))"
+    RUST_LOG=warn "$target/strata-bots" --server "${addrs[$i]}" --data-dir "$dir/node-$i" \
+        --bots "$bots" --duration "${duration}s" --edit-rate 1 --area-origin "$origin" \
+        --verify modified --ack-log "$dir/acks-$i.jsonl" --json \
+        > "$dir/bots-$i.json" 2> "$dir/bots-$i.log" &
+    fleet+=($!); pids+=($!)
+done
+echo "3 nodes at ${addrs[*]}, $bots bots each; node-0 dies in $(( duration / 2 + 2 )) s" >&2
+
+sql() { "$pg_bin/psql" -h 127.0.0.1 -p "$port" -U strata -d world -Atc "$1"; }
+sleep $(( duration / 2 + 2 ))
+held=$(sql "SELECT region_x || ',' || region_z FROM regions WHERE owner = 'node-0' ORDER BY 1")
+disown "${pids[0]}"   # no "Killed" line from the shell
+kill -KILL "${pids[0]}"
+t0=$(date +%s%N)
+kill "${fleet[0]}" 2>/dev/null || true
+takeover_ms=null
+if [ -n "$held" ]; then
+    list=$(echo "$held" | sed "s/^/'/; s/$/'/" | paste -sd,)
+    for _ in $(seq 600); do
+        left=$(sql "SELECT count(*) FROM regions WHERE region_x || ',' || region_z IN ($list) \
+                    AND owner NOT IN ('node-1', 'node-2')")
+        if [ "$left" = 0 ]; then takeover_ms=$(( ($(date +%s%N) - t0) / 1000000 )); break; fi
+        sleep 0.02
+    done
+fi
+wait "${fleet[1]}" "${fleet[2]}" || true
+
+field() { grep -oE "\"$2\":[-0-9.eE+]+" "$1" | head -1 | cut -d: -f2; }
+edits=$(wc -l < "$dir/acks-0.jsonl"); lost=0; mismatches=0; crossings=0
+for i in 1 2; do
+    f="$dir/bots-$i.json"
+    [ -s "$f" ] || { echo "node-$i's bots printed no summary: $(tail -5 "$dir/bots-$i.log")" >&2; exit 1; }
+    edits=$(( edits + $(field "$f" edits_accepted) ))
+    mismatches=$(( mismatches + $(field "$f" replica_mismatches) + $(field "$f" mesh_mismatches) ))
+    crossings=$(( crossings + $(field "$f" region_crossings) ))
+done
+for i in 0 1 2; do
+    report=$("$target/strata-admin" verify-acks --data-dir "$dir/node-$i" "$dir/acks-$i.jsonl" | tail -1)
+    lost=$(( lost + $(echo "$report" | grep -oE '"failure_count":[0-9]+' | cut -d: -f2) ))
+done
+checked=ok
+"$target/strata-admin" check --data-dir "$dir/node-1" > "$dir/check.out" 2>&1 || checked=failed
+echo "check: $checked ($(tail -1 "$dir/check.out"))" >&2
+echo "{\"nodes\":3,\"edits_accepted\":$edits,\"acked_lost\":$lost,\"replica_mismatches\":$mismatches,\"border_crossings\":$crossings,\"takeover_ms\":$takeover_ms}"
+[ "$lost" = 0 ] && [ "$mismatches" = 0 ] && [ "$checked" = ok ]
