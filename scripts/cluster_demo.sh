@@ -20,9 +20,10 @@
 # The last line is JSON:
 #   {"nodes":3,"edits_accepted":N,"acked_lost":N,"replica_mismatches":N,
 #    "border_crossings":N,"takeover_ms":N}
-# edits_accepted counts node-0's acks until its death and the survivors'
-# summaries; replica_mismatches and border_crossings are the survivors'
-# bots' (node-0's bots lose their server). Exits non-zero if an
+# and then ack_p99_ms and broadcast_p99_ms (the worse of the survivors'
+# fleets). edits_accepted counts node-0's acks until its death and the
+# survivors' summaries; the other figures are the survivors' bots' (node-0's
+# bots lose their server). Exits non-zero if an
 # acknowledged edit is missing, a replica differs, or check fails.
 set -euo pipefail
 if [ "${1:-}" = -h ] || [ "${1:-}" = --help ]; then
@@ -65,8 +66,9 @@ addrs=()
 for i in 0 1 2; do
     mkdir -p "$dir/node-$i"
     if [ "$i" -gt 0 ]; then cp "$dir/node-0/auth.secret" "$dir/node-$i/auth.secret"; fi
-    printf '%s\n[server]\nlisten = "127.0.0.1:0"\n[cluster]\nnode_id = "node-%s"\nlease_ms = 2000\nrenew_ms = 400\n' \
-        "$store" "$i" > "$dir/node-$i/strata.toml"
+    # All bots come from one address: room for them in the admission limits.
+    printf '%s\n[server]\nlisten = "127.0.0.1:0"\nmax_connections = %s\nmax_handshakes = %s\nmax_handshakes_per_address = %s\n[cluster]\nnode_id = "node-%s"\nlease_ms = 2000\nrenew_ms = 400\n' \
+        "$store" $((bots + 64)) $((bots + 64)) $((bots + 64)) "$i" > "$dir/node-$i/strata.toml"
     "$target/strata-server" --config "$dir/node-$i/strata.toml" --data-dir "$dir/node-$i" \
         > "$dir/node-$i.out" 2> "$dir/node-$i.log" &
     pids+=($!)
@@ -105,13 +107,17 @@ fi
 wait "${fleet[1]}" "${fleet[2]}" || true
 
 field() { grep -oE "\"$2\":[-0-9.eE+]+" "$1" | head -1 | cut -d: -f2; }
-edits=$(wc -l < "$dir/acks-0.jsonl"); lost=0; mismatches=0; crossings=0
+# p99 of the named latency object in a summary.
+p99() { grep -oE "\"$2\":\{[^}]*\}" "$1" | grep -oE '"p99":[0-9.eE+-]+' | cut -d: -f2; }
+edits=$(wc -l < "$dir/acks-0.jsonl"); lost=0; mismatches=0; crossings=0; ack99=0; bc99=0
 for i in 1 2; do
     f="$dir/bots-$i.json"
     [ -s "$f" ] || { echo "node-$i's bots printed no summary: $(tail -5 "$dir/bots-$i.log")" >&2; exit 1; }
     edits=$(( edits + $(field "$f" edits_accepted) ))
     mismatches=$(( mismatches + $(field "$f" replica_mismatches) + $(field "$f" mesh_mismatches) ))
     crossings=$(( crossings + $(field "$f" region_crossings) ))
+    ack99=$(awk -v a="$ack99" -v b="$(p99 "$f" ack_latency_ms)" 'BEGIN { print (b > a ? b : a) }')
+    bc99=$(awk -v a="$bc99" -v b="$(p99 "$f" broadcast_latency_ms)" 'BEGIN { print (b > a ? b : a) }')
 done
 for i in 0 1 2; do
     report=$("$target/strata-admin" verify-acks --data-dir "$dir/node-$i" "$dir/acks-$i.jsonl" | tail -1)
@@ -120,5 +126,5 @@ done
 checked=ok
 "$target/strata-admin" check --data-dir "$dir/node-1" > "$dir/check.out" 2>&1 || checked=failed
 echo "check: $checked ($(tail -1 "$dir/check.out"))" >&2
-echo "{\"nodes\":3,\"edits_accepted\":$edits,\"acked_lost\":$lost,\"replica_mismatches\":$mismatches,\"border_crossings\":$crossings,\"takeover_ms\":$takeover_ms}"
+echo "{\"nodes\":3,\"edits_accepted\":$edits,\"acked_lost\":$lost,\"replica_mismatches\":$mismatches,\"border_crossings\":$crossings,\"takeover_ms\":$takeover_ms,\"ack_p99_ms\":$ack99,\"broadcast_p99_ms\":$bc99}"
 [ "$lost" = 0 ] && [ "$mismatches" = 0 ] && [ "$checked" = ok ]
