@@ -380,8 +380,9 @@ fn three_nodes_write_one_world_and_a_killed_nodes_regions_are_adopted_within_the
     };
     let tmp = tempfile::tempdir().unwrap();
     let store_config = format!("{SERVER_CONFIG}{}", db.store_toml());
-    // Bot areas in regions 2, 5 and -4 along x (256 voxels a region).
-    let origins = ["512,512", "1280,512", "-1024,512"];
+    // Each fleet's 48-voxel square straddles a region corner (regions are
+    // 256 voxels): (512, 512), (1280, 512) and (-1280, 512), far apart.
+    let origins = ["488,488", "1256,488", "-1304,488"];
     let mut nodes = Vec::new();
     for (i, origin) in origins.iter().enumerate() {
         let name = format!("node-{i}");
@@ -428,6 +429,10 @@ fn three_nodes_write_one_world_and_a_killed_nodes_regions_are_adopted_within_the
         .filter(|(o, _)| o == "node-0")
         .map(|(_, r)| *r)
         .collect();
+    assert!(
+        dead.len() >= 2,
+        "edits at its corner span regions, all node-0's: {held:?}"
+    );
 
     // SIGKILL node-0; the others' renewals adopt its regions once its
     // lease runs out: at most a lease and a renewal period later.
@@ -462,6 +467,7 @@ fn three_nodes_write_one_world_and_a_killed_nodes_regions_are_adopted_within_the
         assert!(status.success(), "{name}'s bots: {summary}");
         strata_tests::assert_converged(&summary);
         assert!(num(&summary, "edits_accepted") > 0, "{summary}");
+        assert_eq!(num(&summary, "edits_unanswered"), 0, "{summary}");
     }
     // Every edit any node acknowledged is in PostgreSQL, node-0's too.
     for (i, data) in [&data0, &nodes[0].1, &nodes[1].1].into_iter().enumerate() {
