@@ -10,8 +10,6 @@
 //! chunk again (the one resync a takeover allows). Alone on its store
 //! (`ChunkStore::clustered` false) none of this runs.
 
-use std::collections::BTreeSet;
-
 use strata_protocol::RejectReason;
 use strata_terrain::Edit;
 use tracing::{error, info};
@@ -71,13 +69,8 @@ impl Engine {
     }
 
     fn take_fresh_regions(&mut self) {
-        let fresh = self.store.take_fresh_regions();
-        if fresh.is_empty() {
-            return;
-        }
-        let regions: BTreeSet<RegionId> = fresh.into_iter().collect();
-        for r in &regions {
-            match self.reload_region(*r) {
+        for r in self.store.take_fresh_regions() {
+            match self.reload_region(r) {
                 Ok(n) => info!(
                     region_x = r.x,
                     region_z = r.z,
