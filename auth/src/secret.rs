@@ -84,6 +84,19 @@ impl Secret {
     pub(crate) fn key(&self) -> &hmac::Key {
         &self.key
     }
+
+    /// HMAC-SHA256 of `message` (for statements other than tokens that
+    /// the holders of this secret must trust, such as cluster tickets).
+    pub fn sign(&self, message: &[u8]) -> [u8; 32] {
+        let mut mac = [0u8; 32];
+        mac.copy_from_slice(hmac::sign(&self.key, message).as_ref());
+        mac
+    }
+
+    /// Whether `mac` is [`Self::sign`]'s for `message` (constant time).
+    pub fn verify(&self, message: &[u8], mac: &[u8]) -> bool {
+        hmac::verify(&self.key, message, mac).is_ok()
+    }
 }
 
 impl fmt::Debug for Secret {

@@ -5,6 +5,7 @@ pub mod bots;
 
 pub use strata_client::{client, pool, prediction, replica, tls};
 pub use strata_client::{
-    Acked, Arrival, ChunkPool, Client, ClientError, ClientOptions, MeshMismatch, Notice,
-    Prediction, PredictionStats, Replica, ReplicaStats, Request, Verdict, MAX_PENDING_PREDICTIONS,
+    Acked, Arrival, ChunkPool, Client, ClientError, ClientOptions, ClusterClient, ClusterError,
+    MeshMismatch, Notice, Prediction, PredictionStats, Replica, ReplicaStats, Request, Verdict,
+    MAX_PENDING_PREDICTIONS,
 };

@@ -133,6 +133,10 @@ struct Shared {
     notices: Mutex<Notices>,
     /// The last `InterestComplete`: (centre, radius).
     view_loaded: Mutex<Option<(ChunkPos, u8)>>,
+    /// The last `RegionOwners` (cluster nodes only).
+    owners: Mutex<Option<crate::cluster::RegionOwners>>,
+    /// Where an accepted `Arrive` placed the player.
+    arrived: Mutex<Option<FixedVec3>>,
 }
 
 impl Shared {
@@ -693,6 +697,23 @@ impl Client {
         *self.shared.view_loaded.lock().expect("not poisoned")
     }
 
+    /// The last `RegionOwners` this node sent (cluster nodes only).
+    pub fn region_owners(&self) -> Option<crate::cluster::RegionOwners> {
+        self.shared.owners.lock().expect("not poisoned").clone()
+    }
+
+    /// Where an accepted [`Self::arrive`] placed the player.
+    pub fn arrived(&self) -> Option<FixedVec3> {
+        *self.shared.arrived.lock().expect("not poisoned")
+    }
+
+    /// Continues the player from another node's ticket
+    /// (`ClientMessage::Arrive`); see [`Self::arrived`] and
+    /// [`Self::refusals`] for the answer.
+    pub async fn arrive(&self, ticket: strata_protocol::Ticket) -> Result<(), ClientError> {
+        self.send(&ClientMessage::Arrive(ticket)).await
+    }
+
     /// True once the connection has ended.
     pub fn is_closed(&self) -> bool {
         self.conn.close_reason().is_some()
@@ -800,6 +821,23 @@ async fn read_control(
             }
             Ok(Some(ServerMessage::PositionRefused { seq, reason })) => {
                 shared.notice(Notice::PositionRefused { seq, reason });
+            }
+            Ok(Some(ServerMessage::RegionOwners {
+                region_chunks,
+                regions,
+                ticket,
+            })) => {
+                let mut o = shared.owners.lock().expect("not poisoned");
+                let serial = o.as_ref().map_or(1, |o| o.serial + 1);
+                *o = Some(crate::cluster::RegionOwners {
+                    serial,
+                    region_chunks,
+                    regions,
+                    ticket,
+                });
+            }
+            Ok(Some(ServerMessage::Arrived { feet })) => {
+                *shared.arrived.lock().expect("not poisoned") = Some(feet);
             }
             Ok(Some(ServerMessage::Pong { .. } | ServerMessage::Welcome(_))) => {}
             Ok(None) | Err(_) => break,

@@ -8,9 +8,12 @@
 //!   [`Replica`]: snapshots and deltas applied with version and hash
 //!   checks, changed chunks re-meshed and compared with the server's mesh
 //!   hashes, and optional [`prediction`].
+//! - [`ClusterClient`]: one player on a cluster of nodes: a connection to
+//!   each node writing a region in view, each edit sent to its writer.
 
 mod changes;
 pub mod client;
+pub mod cluster;
 pub mod coords;
 pub mod edits;
 pub mod mesh;
@@ -23,6 +26,7 @@ pub mod session;
 pub use strata_protocol::client_tls as tls;
 
 pub use client::{Acked, Arrival, Client, ClientError, ClientOptions, SentEdit, Verdict};
+pub use cluster::{ClusterClient, ClusterError, RegionOwners, MAX_CLUSTER_NODES};
 pub use mesh::ChunkMesh;
 pub use notice::Notice;
 pub use pool::ChunkPool;

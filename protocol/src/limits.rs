@@ -14,3 +14,10 @@ pub const MAX_UNSUBSCRIBED_PER_UPDATE: usize = 4096;
 /// Most chunks in one `Forget` (at most 15 bytes each, so a full one
 /// still fits a client frame); a larger one is refused as a whole.
 pub const MAX_FORGET_CHUNKS: usize = 1024;
+/// Most regions in one `RegionOwners` (a view of radius 32 chunks spans at
+/// most 10 x 10 regions of 8 chunks).
+pub const MAX_REGION_OWNERS: usize = 256;
+/// How long an `Arrive` ticket is accepted after it was issued (ms).
+pub const TICKET_TTL_MS: u64 = 30_000;
+/// How far in the future a ticket's `issued_ms` may be (clock skew, ms).
+pub const TICKET_SKEW_MS: u64 = 2_000;

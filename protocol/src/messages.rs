@@ -132,6 +132,43 @@ pub enum ClientMessage {
     Forget {
         chunks: Vec<ChunkPos>,
     },
+    /// Sent right after `Welcome` to a node named by another node's
+    /// `RegionOwners`: the player continues from the ticket's position
+    /// instead of `Welcome::start`. Answered `Arrived`, or
+    /// `RequestRefused(BadTicket)` and nothing changes.
+    Arrive(Ticket),
+}
+
+/// A node's signed statement of where a player stood (`RegionOwners`),
+/// accepted by the other nodes of its cluster (they share the auth
+/// secret). Valid for [`crate::limits::TICKET_TTL_MS`] after `issued_ms`.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Ticket {
+    pub player: String,
+    pub feet: FixedVec3,
+    /// Milliseconds since the Unix epoch.
+    pub issued_ms: u64,
+    /// HMAC-SHA256 of the fields above (PROTOCOL.md, "Tickets").
+    pub mac: [u8; 32],
+}
+
+/// Who writes one region, as one node sees it (`RegionOwners`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum RegionHolder {
+    /// The node that sent the message.
+    Here,
+    /// No live lease: the first node to write it will claim it.
+    Free,
+    /// Another node, reachable at `addr` (empty when it advertised none).
+    Node { node: String, addr: String },
+}
+
+/// One region of a `RegionOwners` message.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RegionOwner {
+    pub region_x: i32,
+    pub region_z: i32,
+    pub holder: RegionHolder,
 }
 
 /// Why an edit was refused. Nothing changed.
@@ -269,6 +306,23 @@ pub enum ServerMessage {
         seq: u32,
         reason: PositionRefusal,
     },
+    /// Cluster nodes only: who writes each region the session's view
+    /// overlaps (at most [`crate::limits::MAX_REGION_OWNERS`]). Sent when
+    /// that set of regions or any of their holders changes. Regions are
+    /// `region_chunks` chunks on a side; region (x, z) holds chunk columns
+    /// `x * region_chunks ..` and `z * region_chunks ..`. `ticket`, when
+    /// the session has a position, lets the player `Arrive` at another
+    /// node of the cluster.
+    RegionOwners {
+        region_chunks: u32,
+        regions: Vec<RegionOwner>,
+        ticket: Option<Ticket>,
+    },
+    /// The `Arrive` ticket was accepted: the first position report must
+    /// be a legal move from `feet`, timed from the ticket's `issued_ms`.
+    Arrived {
+        feet: FixedVec3,
+    },
 }
 
 /// Why a position report was refused.
@@ -298,6 +352,23 @@ pub enum Refusal {
     /// A `Forget` naming more than `max` chunks
     /// ([`crate::limits::MAX_FORGET_CHUNKS`]); nothing was forgotten.
     ForgetTooLarge { chunks: u32, max: u32 },
+    /// An `Arrive` ticket this node does not accept.
+    BadTicket { reason: TicketRefusal },
+}
+
+/// Why an `Arrive` ticket was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TicketRefusal {
+    /// Not signed with this cluster's secret.
+    BadSignature,
+    /// Issued for another player.
+    OtherPlayer,
+    /// Older than [`crate::limits::TICKET_TTL_MS`], or from the future.
+    Expired,
+    /// The session already has an accepted position.
+    AlreadyPlaced,
+    /// A position beyond 2^22 voxels.
+    OutOfBounds,
 }
 
 /// A chunk change, as broadcast after its edit is durable.

@@ -4,5 +4,7 @@
 pub const ALPN: &[u8] = b"strata/1";
 /// Wire protocol version carried in `Hello` (2 added `WorldUpdate::Patched`,
 /// 3 added `Welcome::start`, 4 added `Hello::capabilities`,
-/// `WorldUpdate::Op`, `PositionRefused`, `Forget` and `InterestComplete`).
-pub const PROTOCOL_VERSION: u32 = 5;
+/// `WorldUpdate::Op`, `PositionRefused`, `Forget` and `InterestComplete`,
+/// 5 added `RegionElsewhere`, 6 added `RegionOwners`, `Arrive` and
+/// `Arrived`).
+pub const PROTOCOL_VERSION: u32 = 6;

@@ -158,7 +158,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         cfg.interest,
         validation.bounds,
         versions,
-    )?;
+    )?
+    .with_ticket_secret(data_dir.secret().clone());
     let health = Arc::new(Health::default());
     let (exit_tx, engine_exit) = tokio::sync::watch::channel(false);
     let on_exit = {

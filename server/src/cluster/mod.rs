@@ -3,6 +3,7 @@
 //! `store::pg::lease`); every commit is fenced by the epochs it holds.
 
 mod config;
+pub mod ticket;
 
 pub use config::{
     ClusterConfig, DEFAULT_LEASE_MS, DEFAULT_RENEW_MS, MAX_ADVERTISE_LEN, MAX_LEASE_MS,

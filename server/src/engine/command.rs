@@ -66,6 +66,13 @@ pub enum Command {
         session: u64,
         chunks: Vec<ChunkPos>,
     },
+    /// A verified ticket (`ClientMessage::Arrive`): the session continues
+    /// from `feet`, timed from `issued_ms`, unless it has a position.
+    Arrive {
+        session: u64,
+        feet: strata_terrain::edit::FixedVec3,
+        issued_ms: u64,
+    },
     /// From an admin session only.
     Admin(super::admin::AdminCommand),
     /// Finish the batch in flight, flush, and stop.

@@ -16,6 +16,7 @@ mod generated;
 mod inbox;
 mod latest;
 mod ops;
+mod owners;
 mod ownership;
 mod peer;
 mod position_refusal;
@@ -168,6 +169,10 @@ pub struct Engine {
     durable_seq: u64,
     /// The `[engine] workers` threads.
     pool: Arc<rayon::ThreadPool>,
+    /// Signs `RegionOwners` tickets (the cluster's shared auth secret).
+    ticket_secret: Option<crate::auth::Secret>,
+    /// When the sessions' region holders are next looked at.
+    owners_due: Instant,
 }
 
 impl std::fmt::Debug for Engine {
@@ -216,7 +221,15 @@ impl Engine {
             snapshots_running: Vec::new(),
             deferred: Default::default(),
             committer: None,
+            ticket_secret: None,
+            owners_due: Instant::now(),
         })
+    }
+
+    /// Signs the tickets `RegionOwners` carries with `secret`.
+    pub fn with_ticket_secret(mut self, secret: crate::auth::Secret) -> Self {
+        self.ticket_secret = Some(secret);
+        self
     }
 
     /// Starts the engine thread. It stops on [`Command::Stop`] or when
@@ -402,6 +415,22 @@ impl Engine {
                 if let Some(p) = self.peers.get_mut(&session) {
                     p.forget(&chunks);
                 }
+            }
+            Command::Arrive {
+                session,
+                feet,
+                issued_ms,
+            } => {
+                let msg = match self.seq.arrive(session, feet, issued_ms) {
+                    Ok(start) => {
+                        if let Some(p) = self.peers.get_mut(&session) {
+                            p.start = start;
+                        }
+                        ServerMessage::Arrived { feet }
+                    }
+                    Err(reason) => ServerMessage::RequestRefused(Refusal::BadTicket { reason }),
+                };
+                self.send_control(session, &msg);
             }
             Command::Admin(c) => self.admin(c),
             Command::Stop | Command::Wake => {}

@@ -66,6 +66,7 @@ impl Engine {
         self.seq
             .raise_next_seq(self.store.seq_floor().saturating_add(1));
         self.take_fresh_regions();
+        self.tell_owners();
     }
 
     fn take_fresh_regions(&mut self) {

@@ -44,6 +44,8 @@ pub struct Peer {
     pub complete_due: bool,
     /// When (ms) the last `PositionRefused` was sent, for its rate bound.
     pub refused_at: Option<u64>,
+    /// The regions and holders last sent in `RegionOwners` (cluster only).
+    pub owners_told: Vec<strata_protocol::RegionOwner>,
     kick: Option<oneshot::Sender<Kick>>,
 }
 
@@ -70,6 +72,7 @@ impl Peer {
             start,
             complete_due: false,
             refused_at: None,
+            owners_told: Vec::new(),
             kick: Some(kick),
         }
     }

@@ -271,7 +271,7 @@ async fn joined(
     info!("session started");
     let end = serve(
         &conn,
-        session,
+        (session, &claims.player),
         &ctx,
         &control,
         &mut reader,
@@ -325,7 +325,7 @@ pub(super) fn read_error_code(e: &ReadError) -> ErrorCode {
 #[allow(clippy::too_many_arguments)]
 async fn serve(
     conn: &quinn::Connection,
-    session: u64,
+    (session, player): (u64, &str),
     ctx: &SessionContext,
     control: &FrameSender,
     reader: &mut FramedReader<quinn::RecvStream>,
@@ -337,7 +337,7 @@ async fn serve(
         tokio::select! {
             msg = reader.next::<ClientMessage>() => match msg {
                 Ok(Some(m)) => {
-                    let routed = match route(session, ctx, control, m) {
+                    let routed = match route((session, player), ctx, control, m) {
                         Ok(Some(cmd)) => deliver(&ctx.engine, cmd, ENGINE_WAIT_TIMEOUT).await,
                         Ok(None) => Ok(()),
                         Err(end) => Err(end),
@@ -425,7 +425,7 @@ async fn deliver(engine: &EngineHandle, mut cmd: Command, patience: Duration) ->
 
 /// Handles a control message; returns the command the engine must get.
 fn route(
-    session: u64,
+    (session, player): (u64, &str),
     ctx: &SessionContext,
     control: &FrameSender,
     m: ClientMessage,
@@ -466,6 +466,22 @@ fn route(
             Command::Forget { session, chunks }
         }
         ClientMessage::ResyncRequest { pos } => Command::Resync { session, pos },
+        ClientMessage::Arrive(ticket) => {
+            // Signature, player and age here: a bad ticket never reaches
+            // the engine.
+            if let Err(reason) =
+                crate::cluster::ticket::verify(&ctx.secret, &ticket, player, now_ms())
+            {
+                let refusal = Refusal::BadTicket { reason };
+                let _ = control.try_send(fanout_control(&ServerMessage::RequestRefused(refusal)));
+                return Ok(None);
+            }
+            Command::Arrive {
+                session,
+                feet: ticket.feet,
+                issued_ms: ticket.issued_ms,
+            }
+        }
         ClientMessage::FullSnapshotRequest { pos } => Command::FullSnapshot { session, pos },
         ClientMessage::Ping { nonce } => {
             let _ = control.try_send(fanout_control(&ServerMessage::Pong {

@@ -155,6 +155,11 @@ impl Sequencer {
 
     /// The regions `edit` writes or reads (its footprint: box, read margin
     /// and mesh apron), or `None` if the terrain core refuses it.
+    /// Region side in chunks (`[sequencer] region_chunks`).
+    pub fn region_chunks(&self) -> u32 {
+        self.cfg.region_chunks
+    }
+
     pub fn edit_regions(
         &self,
         edit: &strata_terrain::Edit,
@@ -355,6 +360,29 @@ impl Sequencer {
             }
             None => spawn,
         }
+    }
+
+    /// A verified ticket: the session continues from `feet`, timed from
+    /// `issued_ms`, as a resumed one would. Refused once a position
+    /// report has been accepted (a ticket never moves a placed player).
+    pub fn arrive(
+        &mut self,
+        session_id: u64,
+        feet: FixedVec3,
+        issued_ms: u64,
+    ) -> Result<Start, strata_protocol::TicketRefusal> {
+        let Some(s) = self.sessions.get_mut(&session_id) else {
+            return Err(strata_protocol::TicketRefusal::AlreadyPlaced);
+        };
+        if s.position.is_some_and(|p| p.seq > 0) {
+            return Err(strata_protocol::TicketRefusal::AlreadyPlaced);
+        }
+        s.position = Some(ValidatedPosition {
+            feet,
+            at_ms: issued_ms,
+            seq: 0,
+        });
+        Ok(Start::Resume { feet })
     }
 
     /// A session ended. The player's buckets stay until they have refilled

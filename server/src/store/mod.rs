@@ -62,8 +62,8 @@ pub use sled_store::{
     TREE_BLOBS, TREE_CHUNKS, TREE_DELTAS, TREE_LOG, TREE_META, TREE_PLAYERS,
 };
 pub use types::{
-    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, RegionAccess, StoredChunk,
-    WorldMeta, STORE_FORMAT_VERSION,
+    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, RegionAccess, RegionHolder,
+    StoredChunk, WorldMeta, STORE_FORMAT_VERSION,
 };
 
 /// A fallible iterator over store records.
@@ -176,6 +176,16 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Whether this node may write `regions`; claims those it may take.
     fn acquire_regions(&self, _regions: &BTreeSet<RegionId>) -> Result<RegionAccess, StoreError> {
         Ok(RegionAccess::Granted)
+    }
+
+    /// Who writes each of `regions`, claiming nothing. Cached like
+    /// [`Self::acquire_regions`]' refusals: at most one query per region
+    /// per renewal period. Sorted by region.
+    fn region_holders(
+        &self,
+        regions: &BTreeSet<RegionId>,
+    ) -> Result<Vec<(RegionId, RegionHolder)>, StoreError> {
+        Ok(regions.iter().map(|r| (*r, RegionHolder::Here)).collect())
     }
 
     /// Regions claimed since the last call (at the engine's request or

@@ -136,3 +136,15 @@ pub enum RegionAccess {
         addr: String,
     },
 }
+
+/// Who writes a region, as this node sees it
+/// ([`crate::store::ChunkStore::region_holders`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum RegionHolder {
+    /// This node.
+    Here,
+    /// No live lease: the first node to write it claims it.
+    Free,
+    /// Node `owner`, reachable at `addr` (may be empty).
+    Node { owner: String, addr: String },
+}

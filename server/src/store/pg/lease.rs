@@ -29,7 +29,7 @@ use super::pool::{Conn, Pool};
 use super::{from_sql, seqs, PgStore};
 use crate::cluster::ClusterConfig;
 use crate::sequencer::regions::RegionId;
-use crate::store::{RegionAccess, StoreError};
+use crate::store::{RegionAccess, RegionHolder, StoreError};
 
 /// Most expired regions one renewal adopts.
 pub const MAX_ADOPT_PER_RENEWAL: i64 = 256;
@@ -65,6 +65,8 @@ struct Book {
     fresh: BTreeSet<RegionId>,
     /// Other nodes' regions: holder, address, and until when to believe it.
     elsewhere: BTreeMap<RegionId, (String, String, Instant)>,
+    /// Regions seen free ([`holders`]), and until when to believe it.
+    free: BTreeMap<RegionId, Instant>,
 }
 
 impl NodeLeases {
@@ -347,6 +349,90 @@ pub(super) fn acquire(
     book.elsewhere
         .insert(refused, (owner.clone(), addr.clone(), until));
     Ok(elsewhere(refused, &owner, &addr))
+}
+
+/// Who writes each of `regions`, claiming nothing: held ones from the
+/// book, others from the cache or one query, then cached for at most a
+/// renewal period (a live holder no longer than its lease).
+pub(super) fn holders(
+    pool: &Pool,
+    leases: &NodeLeases,
+    regions: &BTreeSet<RegionId>,
+) -> Result<Vec<(RegionId, RegionHolder)>, StoreError> {
+    let now = Instant::now();
+    let mut out = Vec::with_capacity(regions.len());
+    let mut todo = Vec::new();
+    {
+        let book = leases.book();
+        for r in regions {
+            if book.held.contains_key(r) {
+                out.push((*r, RegionHolder::Here));
+            } else if let Some((owner, addr, _)) = book
+                .elsewhere
+                .get(r)
+                .filter(|(o, _, until)| *until > now && !o.is_empty())
+            {
+                let (owner, addr) = (owner.clone(), addr.clone());
+                out.push((*r, RegionHolder::Node { owner, addr }));
+            } else if book.free.get(r).is_some_and(|until| *until > now) {
+                out.push((*r, RegionHolder::Free));
+            } else {
+                todo.push(*r);
+            }
+        }
+    }
+    if !todo.is_empty() {
+        let (xs, zs) = columns(todo.iter());
+        let rows = pool.run("reading regions' holders", async |c: &mut Conn| {
+            c.query(
+                "SELECT r.region_x, r.region_z, r.owner, r.owner_addr, \
+                     GREATEST((extract(epoch FROM r.lease_expires - now()) * 1000)::int8, 0) \
+                 FROM regions r \
+                 JOIN unnest($1::int4[], $2::int4[]) AS q(x, z) \
+                   ON r.region_x = q.x AND r.region_z = q.z",
+                &[&xs, &zs],
+            )
+            .await
+        })?;
+        let mut live = BTreeMap::new();
+        for row in rows {
+            let r = RegionId {
+                x: row.get(0),
+                z: row.get(1),
+            };
+            let owner = row.get::<_, Option<String>>(2).unwrap_or_default();
+            let addr = row.get::<_, Option<String>>(3).unwrap_or_default();
+            let left_ms: i64 = row.get(4);
+            // A row under this node's name that it does not hold is a
+            // previous run's: free to this node.
+            if left_ms > 0 && !owner.is_empty() && owner != leases.node_id {
+                live.insert(r, (owner, addr, left_ms as u64));
+            }
+        }
+        let mut book = leases.book();
+        if book.elsewhere.len() >= MAX_CACHED_HOLDERS {
+            book.elsewhere.clear();
+        }
+        if book.free.len() >= MAX_CACHED_HOLDERS {
+            book.free.clear();
+        }
+        for r in todo {
+            match live.remove(&r) {
+                Some((owner, addr, left_ms)) => {
+                    let until = now + leases.renew.min(Duration::from_millis(left_ms));
+                    book.elsewhere
+                        .insert(r, (owner.clone(), addr.clone(), until));
+                    out.push((r, RegionHolder::Node { owner, addr }));
+                }
+                None => {
+                    book.free.insert(r, now + leases.renew);
+                    out.push((r, RegionHolder::Free));
+                }
+            }
+        }
+    }
+    out.sort_by_key(|(r, _)| *r);
+    Ok(out)
 }
 
 fn elsewhere(region: RegionId, owner: &str, addr: &str) -> RegionAccess {

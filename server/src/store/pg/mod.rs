@@ -390,6 +390,19 @@ impl ChunkStore for PgStore {
         }
     }
 
+    fn region_holders(
+        &self,
+        regions: &std::collections::BTreeSet<RegionId>,
+    ) -> Result<Vec<(RegionId, crate::store::RegionHolder)>, StoreError> {
+        match &self.leases {
+            Some(leases) => lease::holders(&self.pool, leases, regions),
+            None => Ok(regions
+                .iter()
+                .map(|r| (*r, crate::store::RegionHolder::Here))
+                .collect()),
+        }
+    }
+
     fn take_fresh_regions(&self) -> Vec<RegionId> {
         self.leases
             .as_ref()

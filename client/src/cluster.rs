@@ -1,0 +1,385 @@
+//! A player on a cluster of nodes that share one world
+//! ([`ClusterClient`]). Each node writes some regions; every node tells
+//! its sessions who writes each region their view overlaps
+//! (`ServerMessage::RegionOwners`). The cluster client keeps one
+//! connection per node named there (at most [`MAX_CLUSTER_NODES`]),
+//! arriving at each with the ticket the last message carried so the
+//! player continues where it stands, reports every position to all of
+//! them, sends each edit to the node that writes its region, and reads
+//! each chunk from that node's replica.
+//!
+//! Each connection's replica is whole and ordered on its own (every
+//! node streams the view it is told), so walking across a border only
+//! changes which replica a chunk is read from: nothing is resent.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use strata_protocol::{RegionHolder, RegionOwner, RejectReason, Ticket};
+use strata_terrain::{Chunk, ChunkPos, Edit, FixedVec3, VoxelPos};
+use thiserror::Error;
+
+use crate::client::{Acked, Client, ClientError, ClientOptions, Verdict};
+
+/// Most nodes a cluster client keeps connections to.
+pub const MAX_CLUSTER_NODES: usize = 8;
+/// How long a new connection waits for its `Arrived`.
+pub const ARRIVE_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long a node that could not be joined is left alone.
+pub const JOIN_BACKOFF: Duration = Duration::from_secs(2);
+
+/// A node's last `RegionOwners`, numbered in arrival order.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RegionOwners {
+    /// 1 for the first message on a connection, then one more each.
+    pub serial: u64,
+    pub region_chunks: u32,
+    pub regions: Vec<RegionOwner>,
+    pub ticket: Option<Ticket>,
+}
+
+/// Why the cluster client could not go on.
+#[derive(Debug, Error)]
+pub enum ClusterError {
+    #[error(transparent)]
+    Client(#[from] ClientError),
+    #[error("node address {0:?} does not resolve")]
+    BadAddress(String),
+    #[error("already connected to {MAX_CLUSTER_NODES} nodes; {0} is one more")]
+    TooManyNodes(SocketAddr),
+    #[error("node {0} did not accept the ticket in time")]
+    NotArrived(SocketAddr),
+}
+
+/// A region's coordinates: chunk x and z divided (floor) by the side.
+fn region_of(pos: ChunkPos, side: u32) -> (i32, i32) {
+    let side = side.max(1) as i32;
+    (pos.x.div_euclid(side), pos.z.div_euclid(side))
+}
+
+/// The voxel an edit is routed by: its centre, box corner or origin.
+pub fn edit_anchor(edit: &Edit) -> VoxelPos {
+    let at = |c: FixedVec3| VoxelPos::new(c.x.floor_voxel(), c.y.floor_voxel(), c.z.floor_voxel());
+    match edit {
+        Edit::Mine { center, .. }
+        | Edit::Explode { center, .. }
+        | Edit::Build { center, .. }
+        | Edit::Smooth { center, .. } => at(*center),
+        Edit::FillBox { min, .. } | Edit::ClearBox { min, .. } => *min,
+        Edit::PlaceStructure { origin, .. } => *origin,
+    }
+}
+
+async fn resolve(addr: &str) -> Result<SocketAddr, ClusterError> {
+    if let Ok(a) = addr.parse() {
+        return Ok(a);
+    }
+    tokio::net::lookup_host(addr)
+        .await
+        .ok()
+        .and_then(|mut a| a.next())
+        .ok_or_else(|| ClusterError::BadAddress(addr.to_string()))
+}
+
+/// One player's connections to the nodes of a cluster.
+#[derive(Debug)]
+pub struct ClusterClient {
+    cert: Vec<u8>,
+    token: String,
+    opts: ClientOptions,
+    home: SocketAddr,
+    nodes: BTreeMap<SocketAddr, Client>,
+    /// Per node, the serial of the last `RegionOwners` taken in.
+    seen: BTreeMap<SocketAddr, u64>,
+    /// Region (x, z) to the node that writes it.
+    routes: BTreeMap<(i32, i32), SocketAddr>,
+    region_chunks: Option<u32>,
+    /// The newest ticket any node gave.
+    ticket: Option<Ticket>,
+    /// Connections being opened in the background.
+    joining: BTreeMap<SocketAddr, tokio::task::JoinHandle<Result<Client, ClusterError>>>,
+    /// Nodes that could not be joined, and when.
+    failed: BTreeMap<SocketAddr, Instant>,
+}
+
+/// Connects to node `addr` and arrives there with `ticket`.
+async fn join(
+    addr: SocketAddr,
+    cert: Vec<u8>,
+    token: String,
+    opts: ClientOptions,
+    ticket: Option<Ticket>,
+) -> Result<Client, ClusterError> {
+    let c = Client::connect_opts(addr, &cert, &token, opts).await?;
+    if let Some(t) = ticket {
+        c.arrive(t).await?;
+        let deadline = Instant::now() + ARRIVE_TIMEOUT;
+        while c.arrived().is_none() {
+            if Instant::now() > deadline || !c.refusals().is_empty() || c.is_closed() {
+                return Err(ClusterError::NotArrived(addr));
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    }
+    Ok(c)
+}
+
+impl ClusterClient {
+    /// Connects to one node (`home`) of the cluster, trusting `cert` (the
+    /// certificate the cluster's nodes share).
+    pub async fn connect(
+        home: SocketAddr,
+        cert: &[u8],
+        token: &str,
+        opts: ClientOptions,
+    ) -> Result<Self, ClusterError> {
+        let client = Client::connect_opts(home, cert, token, opts.clone()).await?;
+        Ok(Self {
+            cert: cert.to_vec(),
+            token: token.to_string(),
+            opts,
+            home,
+            nodes: BTreeMap::from([(home, client)]),
+            seen: BTreeMap::new(),
+            routes: BTreeMap::new(),
+            region_chunks: None,
+            ticket: None,
+            joining: BTreeMap::new(),
+            failed: BTreeMap::new(),
+        })
+    }
+
+    /// The first node's connection.
+    pub fn home(&self) -> &Client {
+        &self.nodes[&self.home]
+    }
+
+    /// The connection to `addr`, if open.
+    pub fn node(&self, addr: SocketAddr) -> Option<&Client> {
+        self.nodes.get(&addr)
+    }
+
+    /// Every connected node.
+    pub fn nodes(&self) -> impl Iterator<Item = (SocketAddr, &Client)> {
+        self.nodes.iter().map(|(a, c)| (*a, c))
+    }
+
+    /// The node that writes the region of `pos`, as last told; the home
+    /// node when none is known or connected.
+    pub fn route(&self, pos: ChunkPos) -> SocketAddr {
+        self.region_chunks
+            .and_then(|side| self.routes.get(&region_of(pos, side)))
+            .filter(|a| self.nodes.contains_key(a))
+            .copied()
+            .unwrap_or(self.home)
+    }
+
+    /// The connection whose replica is current for `pos`.
+    pub fn client_for(&self, pos: ChunkPos) -> &Client {
+        &self.nodes[&self.route(pos)]
+    }
+
+    /// The chunk as its writer's replica holds it (see
+    /// [`Client::visible_chunk`]).
+    pub fn chunk(&self, pos: ChunkPos) -> Option<(Arc<Chunk>, u64, bool)> {
+        self.client_for(pos).visible_chunk(pos)
+    }
+
+    /// Takes in every node's newest `RegionOwners` and connects to the
+    /// nodes they name. Call it often (every frame is fine: it is cheap
+    /// when nothing changed). Returns the nodes newly connected.
+    pub async fn follow(&mut self) -> Result<Vec<SocketAddr>, ClusterError> {
+        self.nodes.retain(|a, c| *a == self.home || !c.is_closed());
+        let mut news = Vec::new();
+        for (addr, c) in &self.nodes {
+            if let Some(o) = c.region_owners() {
+                if self.seen.get(addr) != Some(&o.serial) {
+                    news.push((*addr, o));
+                }
+            }
+        }
+        let mut named = Vec::new();
+        // Another node's word first, each node's word on itself last: a
+        // node knows best what it holds.
+        for (from, o) in &news {
+            self.seen.insert(*from, o.serial);
+            self.region_chunks = Some(o.region_chunks);
+            if let Some(t) = &o.ticket {
+                if self
+                    .ticket
+                    .as_ref()
+                    .is_none_or(|old| old.issued_ms <= t.issued_ms)
+                {
+                    self.ticket = Some(t.clone());
+                }
+            }
+            for r in &o.regions {
+                let key = (r.region_x, r.region_z);
+                match &r.holder {
+                    RegionHolder::Node { addr, .. } if !addr.is_empty() => {
+                        if let Ok(a) = resolve(addr).await {
+                            if self.routes.get(&key) != Some(&a) {
+                                self.routes.insert(key, a);
+                            }
+                            if !named.contains(&a) {
+                                named.push(a);
+                            }
+                        }
+                    }
+                    RegionHolder::Free | RegionHolder::Node { .. } => {
+                        if self.routes.get(&key) == Some(from) {
+                            self.routes.remove(&key);
+                        }
+                    }
+                    RegionHolder::Here => {}
+                }
+            }
+        }
+        for (from, o) in &news {
+            for r in o.regions.iter().filter(|r| r.holder == RegionHolder::Here) {
+                self.routes.insert((r.region_x, r.region_z), *from);
+            }
+        }
+        self.start_joins(named);
+        Ok(self.finish_joins().await)
+    }
+
+    /// Opens connections to the named nodes not yet connected, in the
+    /// background (a dead node's address never stalls the caller).
+    fn start_joins(&mut self, named: Vec<SocketAddr>) {
+        let now = Instant::now();
+        self.failed
+            .retain(|_, at| now.duration_since(*at) < JOIN_BACKOFF);
+        for a in named {
+            if self.nodes.contains_key(&a)
+                || self.joining.contains_key(&a)
+                || self.failed.contains_key(&a)
+                || self.nodes.len() + self.joining.len() >= MAX_CLUSTER_NODES
+            {
+                continue;
+            }
+            let task = join(
+                a,
+                self.cert.clone(),
+                self.token.clone(),
+                self.opts.clone(),
+                self.ticket.clone(),
+            );
+            self.joining.insert(a, tokio::spawn(task));
+        }
+    }
+
+    /// Takes in the connections opened since the last call.
+    async fn finish_joins(&mut self) -> Vec<SocketAddr> {
+        let done: Vec<SocketAddr> = self
+            .joining
+            .iter()
+            .filter(|(_, h)| h.is_finished())
+            .map(|(a, _)| *a)
+            .collect();
+        let mut added = Vec::new();
+        for a in done {
+            let Some(h) = self.joining.remove(&a) else {
+                continue;
+            };
+            match h.await {
+                Ok(Ok(c)) => {
+                    self.nodes.insert(a, c);
+                    added.push(a);
+                }
+                _ => {
+                    self.failed.insert(a, Instant::now());
+                }
+            }
+        }
+        added
+    }
+
+    /// Reports the player's position to every node (each validates it).
+    pub fn send_position(&self, pos: FixedVec3) -> Result<(), ClientError> {
+        let mut home = Ok(());
+        for (a, c) in &self.nodes {
+            let sent = c.send_position(pos);
+            if *a == self.home {
+                home = sent;
+            }
+        }
+        home
+    }
+
+    /// Sends `edit` to the node that writes its region and waits for the
+    /// verdict. One refused `RegionElsewhere` naming another connected
+    /// node (the region changed hands since this client was told) is sent
+    /// once more, there; naming one not connected, the client starts
+    /// joining it and returns the refusal. Returns the node that answered,
+    /// with its answer.
+    pub async fn edit(&mut self, edit: Edit) -> Result<(SocketAddr, Acked), ClusterError> {
+        let to = self.route(edit_anchor(&edit).chunk());
+        let acked = self.nodes[&to].edit_acked(edit.clone()).await?;
+        let Verdict::Rejected(RejectReason::RegionElsewhere {
+            region_x,
+            region_z,
+            addr,
+            ..
+        }) = &acked.0
+        else {
+            return Ok((to, acked));
+        };
+        let Ok(there) = resolve(addr).await else {
+            return Ok((to, acked));
+        };
+        if there == to {
+            return Ok((to, acked));
+        }
+        self.routes.insert((*region_x, *region_z), there);
+        if !self.nodes.contains_key(&there) {
+            // Not connected yet: joined in the background, the refusal
+            // goes back to the caller (it may send the edit again).
+            self.start_joins(vec![there]);
+            return Ok((to, acked));
+        }
+        let again = self.nodes[&there].edit_acked(edit).await?;
+        Ok((there, again))
+    }
+
+    /// Closes every connection.
+    pub async fn close(self) {
+        for (_, h) in self.joining {
+            h.abort();
+        }
+        for (_, c) in self.nodes {
+            c.close().await;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strata_terrain::Fixed;
+
+    #[test]
+    fn regions_are_floor_divided_chunk_columns() {
+        assert_eq!(region_of(ChunkPos::new(7, 3, 0), 8), (0, 0));
+        assert_eq!(region_of(ChunkPos::new(8, -3, -1), 8), (1, -1));
+        assert_eq!(region_of(ChunkPos::new(-9, 0, 16), 8), (-2, 2));
+    }
+
+    #[test]
+    fn an_edit_is_routed_by_its_centre_corner_or_origin() {
+        let c = FixedVec3::new(Fixed(300 * 256 + 128), Fixed(-256), Fixed(5 * 256));
+        let mine = Edit::Mine {
+            center: c,
+            radius: Fixed(4 * 256),
+            strength: 10,
+        };
+        assert_eq!(edit_anchor(&mine), VoxelPos::new(300, -1, 5));
+        let fill = Edit::ClearBox {
+            min: VoxelPos::new(-4, 2, 9),
+            max: VoxelPos::new(0, 3, 10),
+        };
+        assert_eq!(edit_anchor(&fill), VoxelPos::new(-4, 2, 9));
+    }
+}

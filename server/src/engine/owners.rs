@@ -1,0 +1,131 @@
+//! Routing for cluster clients: every session is told who writes each
+//! region its view overlaps (`ServerMessage::RegionOwners`), whenever
+//! that set or a holder changes, with a ticket that lets the player
+//! `Arrive` at another node. The client library then keeps a connection
+//! to each holder and sends each edit to its region's holder.
+//!
+//! Looked at every [`OWNERS_EVERY`]; holders come from the store's cache
+//! (one query per region per renewal period at most).
+
+use std::collections::BTreeSet;
+use std::time::{Duration, Instant};
+
+use strata_protocol::limits::MAX_REGION_OWNERS;
+use strata_protocol::{RegionHolder as Holder, RegionOwner, ServerMessage};
+use strata_terrain::ChunkPos;
+use tracing::error;
+
+use super::{now_ms, Engine};
+use crate::sequencer::regions::{RegionId, RegionSpan};
+use crate::store::RegionHolder;
+
+/// How often sessions' region holders are looked at.
+pub const OWNERS_EVERY: Duration = Duration::from_millis(200);
+
+/// The regions a view of `radius` chunks around `center` overlaps, the
+/// nearest [`MAX_REGION_OWNERS`] when there are more.
+pub fn view_regions(center: ChunkPos, radius: u8, side: u32) -> BTreeSet<RegionId> {
+    let r = i32::from(radius);
+    let min = ChunkPos::new(center.x - r, center.y, center.z - r);
+    let max = ChunkPos::new(center.x + r, center.y, center.z + r);
+    let mut all: Vec<RegionId> = RegionSpan::of_chunks(min, max, side).regions().collect();
+    if all.len() > MAX_REGION_OWNERS {
+        let mid = RegionId::of(center, side);
+        all.sort_by_key(|g| (g.x - mid.x).abs().max((g.z - mid.z).abs()));
+        all.truncate(MAX_REGION_OWNERS);
+    }
+    all.into_iter().collect()
+}
+
+fn to_wire(region: RegionId, holder: RegionHolder) -> RegionOwner {
+    RegionOwner {
+        region_x: region.x,
+        region_z: region.z,
+        holder: match holder {
+            RegionHolder::Here => Holder::Here,
+            RegionHolder::Free => Holder::Free,
+            RegionHolder::Node { owner, addr } => Holder::Node { node: owner, addr },
+        },
+    }
+}
+
+impl Engine {
+    /// Sends `RegionOwners` to every session whose view's regions or
+    /// their holders changed since it was last told.
+    pub(super) fn tell_owners(&mut self) {
+        let now = Instant::now();
+        if !self.store.clustered() || now < self.owners_due {
+            return;
+        }
+        self.owners_due = now + OWNERS_EVERY;
+        let side = self.seq.region_chunks();
+        let sessions: Vec<(u64, ChunkPos, u8)> = self
+            .peers
+            .iter()
+            .filter_map(|(&id, p)| Some((id, p.interest.center()?, p.interest.radius())))
+            .collect();
+        for (session, center, radius) in sessions {
+            let regions = view_regions(center, radius, side);
+            let holders = match self.store.region_holders(&regions) {
+                Ok(h) => h,
+                Err(e) => {
+                    error!(error = %e, "reading region holders failed");
+                    return;
+                }
+            };
+            let owners: Vec<RegionOwner> =
+                holders.into_iter().map(|(r, h)| to_wire(r, h)).collect();
+            let Some(peer) = self.peers.get_mut(&session) else {
+                continue;
+            };
+            if peer.owners_told == owners {
+                continue;
+            }
+            peer.owners_told = owners.clone();
+            let ticket = self.ticket(session);
+            self.send_control(
+                session,
+                &ServerMessage::RegionOwners {
+                    region_chunks: side,
+                    regions: owners,
+                    ticket,
+                },
+            );
+        }
+    }
+
+    /// A ticket for the session's player where it stands now, if it has
+    /// a position.
+    fn ticket(&self, session: u64) -> Option<strata_protocol::Ticket> {
+        let secret = self.ticket_secret.as_ref()?;
+        let player = &self.seq.session(session)?.player;
+        let feet = self.seq.position(session)?.feet;
+        Some(crate::cluster::ticket::mint(secret, player, feet, now_ms()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_view_overlaps_the_regions_its_square_touches() {
+        // Chunk 7 with radius 2 spans chunks 5..=9: regions 0 and 1 of 8.
+        let r = view_regions(ChunkPos::new(7, 0, 7), 2, 8);
+        let want: BTreeSet<RegionId> = [(0, 0), (1, 0), (0, 1), (1, 1)]
+            .into_iter()
+            .map(|(x, z)| RegionId { x, z })
+            .collect();
+        assert_eq!(r, want);
+        assert_eq!(view_regions(ChunkPos::new(3, 0, 3), 2, 8).len(), 1);
+    }
+
+    #[test]
+    fn a_huge_view_of_tiny_regions_names_only_the_nearest() {
+        let r = view_regions(ChunkPos::new(0, 0, 0), 32, 1);
+        assert_eq!(r.len(), MAX_REGION_OWNERS);
+        assert!(r.contains(&RegionId { x: 0, z: 0 }));
+        assert!(r.contains(&RegionId { x: 7, z: -7 }));
+        assert!(!r.contains(&RegionId { x: 32, z: 32 }));
+    }
+}

@@ -1,0 +1,263 @@
+//! Routing on a cluster: two nodes on one PostgreSQL world, each writing
+//! its own region. A player connected to the first walks across the
+//! border into the second's region and keeps playing: the first node
+//! names the second (`RegionOwners`), the client library connects there
+//! and arrives with the first node's ticket, and its edit beyond the
+//! border goes to the second node. Nothing is disconnected and every
+//! replica's versions rise one by one with matching meshes.
+
+mod common;
+
+use std::net::SocketAddr;
+use std::path::Path;
+use std::time::Duration;
+
+use common::*;
+use strata_client_sim::{client::Verdict, ClientOptions, ClusterClient};
+use strata_protocol::{RegionHolder, Role};
+use strata_server::app::{self, Running};
+use strata_server::cluster::ClusterConfig;
+use strata_server::datadir::{CERT_NAME, KEY_NAME, SECRET_NAME};
+use strata_server::validate::spawn::SpawnArea;
+use strata_terrain::{ChunkPos, Edit, FixedVec3};
+
+/// Region 0 is x in 0..256, region 1 is x in 256..512 (8-chunk regions).
+const WEST_X: i32 = 200;
+const EAST_X: i32 = 330;
+const Z: i32 = 128;
+
+async fn node(dir: &Path, db: &strata_tests::postgres::PgDb, id: &str, spawn_x: i32) -> Running {
+    let mut cfg = test_config(dir);
+    cfg.store.backend = strata_server::store::StoreBackend::Postgres;
+    cfg.store.postgres.url = db.url();
+    cfg.cluster = Some(ClusterConfig {
+        node_id: id.into(),
+        lease_ms: 5_000,
+        renew_ms: 500,
+        ..ClusterConfig::default()
+    });
+    cfg.validation.spawn = SpawnArea {
+        x: spawn_x,
+        z: Z,
+        radius: 4,
+    };
+    cfg.validation.max_speed = 64.0;
+    app::start(cfg).await.expect("node starts")
+}
+
+fn mine_at(x: i32) -> Edit {
+    let (_, v) = spot(x, Z);
+    Edit::Mine {
+        center: at(v.x as f64, v.y as f64, v.z as f64),
+        radius: r(3.0),
+        strength: 60,
+    }
+}
+
+fn chunk_of(x: i32) -> ChunkPos {
+    spot(x, Z).1.chunk()
+}
+
+fn feet(x: i32) -> FixedVec3 {
+    spot(x, Z).0
+}
+
+/// Every replica's chunk histories rise one version at a time, and no
+/// mesh differed from the server's.
+fn assert_in_order(name: &str, c: &strata_client_sim::Client) {
+    let r = c.replica();
+    assert!(
+        r.mesh_mismatches().is_empty(),
+        "{name}: {:?}",
+        r.mesh_mismatches()
+    );
+    for (pos, versions) in r.history().expect("recording") {
+        for w in versions.windows(2) {
+            assert!(
+                w[1] == w[0] + 1 || (w[0] == 0 && w[1] > 0),
+                "{name}: {pos:?} went {versions:?}"
+            );
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_player_walks_into_another_nodes_region_and_keeps_playing() {
+    let Some(db) = strata_tests::postgres::database("cluster_routing") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dirs = tempfile::tempdir().unwrap();
+        let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
+        let west = node(&da, &db, "west", WEST_X).await;
+        // The nodes share the auth secret (tickets) and the certificate.
+        std::fs::create_dir_all(&db_dir).unwrap();
+        for f in [SECRET_NAME, CERT_NAME, KEY_NAME] {
+            std::fs::copy(da.join(f), db_dir.join(f)).unwrap();
+        }
+        let east = node(&db_dir, &db, "east", EAST_X).await;
+        let opts = ClientOptions {
+            record_history: true,
+            ..Default::default()
+        };
+
+        // Bob plays on the east node: his edit claims region 1 for it.
+        let bob_token = token(&east, "bob", Role::Player);
+        let bob = strata_client_sim::Client::connect_opts(
+            east.addr,
+            &east.cert_der,
+            &bob_token,
+            opts.clone(),
+        )
+        .await
+        .unwrap();
+        bob.send_position(feet(EAST_X)).unwrap();
+        assert!(
+            eventually(TEST_TIMEOUT, || bob
+                .replica()
+                .get(chunk_of(EAST_X))
+                .is_some())
+            .await
+        );
+        let (v, _) = bob.edit_acked(mine_at(EAST_X + 2)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+
+        // Ann plays on the west node: her edit claims region 0 for it.
+        let ann_token = token(&west, "ann", Role::Player);
+        let mut ann = ClusterClient::connect(west.addr, &west.cert_der, &ann_token, opts)
+            .await
+            .unwrap();
+        ann.send_position(feet(WEST_X)).unwrap();
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .home()
+                .replica()
+                .get(chunk_of(WEST_X))
+                .is_some())
+            .await
+        );
+        let (to, (v, _)) = ann.edit(mine_at(WEST_X + 2)).await.unwrap();
+        assert_eq!(to, west.addr);
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+
+        // The west node names the east node as region 1's writer; the
+        // client connects there and arrives with the ticket.
+        let mut joined = Vec::new();
+        for _ in 0..500 {
+            joined.extend(ann.follow().await.unwrap());
+            if !joined.is_empty() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert_eq!(joined, vec![east.addr]);
+        let owners = ann.home().region_owners().expect("RegionOwners");
+        let east_holds = owners.regions.iter().any(|r| {
+            r.region_x == 1
+                && matches!(&r.holder, RegionHolder::Node { node, addr }
+                    if node == "east" && addr.parse::<SocketAddr>().ok() == Some(east.addr))
+        });
+        assert!(east_holds, "{owners:?}");
+        let arrived = ann.node(east.addr).unwrap().arrived().expect("Arrived");
+        assert_eq!(arrived, feet(WEST_X));
+
+        // Ann walks east across the border, two voxels every 50 ms.
+        let mut x = WEST_X;
+        while x < EAST_X - 4 {
+            x += 2;
+            ann.send_position(feet(x)).unwrap();
+            ann.follow().await.unwrap();
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let there = chunk_of(EAST_X - 4);
+        assert_eq!(ann.route(there), east.addr);
+        assert!(
+            eventually(TEST_TIMEOUT, || {
+                ann.node(east.addr)
+                    .is_some_and(|c| c.replica().get(there).is_some())
+            })
+            .await
+        );
+        // Her edit beyond the border goes to the east node.
+        let (to, (v, changes)) = ann.edit(mine_at(EAST_X - 2)).await.unwrap();
+        assert_eq!(to, east.addr);
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        let changed = changes[0];
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .chunk(changed.pos)
+                .is_some_and(|(_, version, _)| version >= changed.version))
+            .await,
+            "ann's routed replica reached {changed:?}"
+        );
+        // Bob, on the east node only, sees her edit too.
+        assert!(
+            eventually(TEST_TIMEOUT, || bob
+                .replica()
+                .get(changed.pos)
+                .is_some_and(|h| h.version >= changed.version))
+            .await
+        );
+
+        // Nobody was disconnected, and every stream stayed in order.
+        for (addr, c) in ann.nodes() {
+            assert!(!c.is_closed(), "ann's connection to {addr} closed");
+            assert_in_order(&format!("ann@{addr}"), c);
+        }
+        assert!(!bob.is_closed());
+        assert_in_order("bob", &bob);
+
+        // The east node stops (releasing its leases): ann is moved back to
+        // the west node, which takes region 1 over at her next edit there
+        // and resends the chunks it held older versions of.
+        bob.close().await;
+        let east_addr = east.addr;
+        east.shutdown().await.unwrap();
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .node(east_addr)
+                .is_none_or(|c| c.is_closed()))
+            .await
+        );
+        // The west node's word on region 1 changes once its cached holder
+        // expires (`renew_ms`): the region is free.
+        let mut moved = false;
+        for _ in 0..500 {
+            ann.follow().await.unwrap();
+            let free = ann.home().region_owners().is_some_and(|o| {
+                o.regions
+                    .iter()
+                    .any(|r| r.region_x == 1 && r.holder == RegionHolder::Free)
+            });
+            if free && ann.route(there) == west.addr {
+                moved = true;
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert!(moved, "region 1 free and routed to the west node");
+        let (to, (v, again)) = ann.edit(mine_at(EAST_X - 2)).await.unwrap();
+        assert_eq!(to, west.addr);
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        let taken = again
+            .iter()
+            .find(|c| c.pos == changed.pos)
+            .expect("same chunk");
+        assert!(
+            taken.version > changed.version,
+            "{taken:?} after {changed:?}"
+        );
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .chunk(taken.pos)
+                .is_some_and(|(_, version, _)| version >= taken.version))
+            .await
+        );
+        assert!(ann.home().replica().mesh_mismatches().is_empty());
+        assert!(!ann.home().is_closed());
+        ann.close().await;
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
