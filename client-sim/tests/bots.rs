@@ -39,6 +39,7 @@ fn config_for(server: &app::Running) -> BotsConfig {
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
         predict: false,
         capabilities: 0,
+        follow_owners: false,
     }
 }
 
@@ -144,6 +145,7 @@ async fn bad_settings_are_refused_before_connecting() {
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
         predict: false,
         capabilities: 0,
+        follow_owners: false,
     };
     let e = bots::run(run.clone()).await.unwrap_err();
     assert!(e.to_string().contains("--stalled"), "{e}");

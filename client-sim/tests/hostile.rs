@@ -45,6 +45,7 @@ async fn run_attack(attack: Attack, ramp: bool) -> (Summary, HostileSummary) {
         silence_limit: bots::DEFAULT_SILENCE_LIMIT,
         predict: false,
         capabilities: 0,
+        follow_owners: false,
     };
     let hostile = HostileConfig::new(attack, 1, server.addr);
     assert_eq!(hostile.bind.to_string(), "127.0.0.2");

@@ -5,6 +5,9 @@
 //! and arrives with the first node's ticket, and its edit beyond the
 //! border goes to the second node. Nothing is disconnected and every
 //! replica's versions rise one by one with matching meshes.
+//!
+//! And bots (`strata-bots --follow-owners`) sent to the wrong node move
+//! to the one their `RegionElsewhere` names and keep editing there.
 
 mod common;
 
@@ -26,6 +29,14 @@ const WEST_X: i32 = 200;
 const EAST_X: i32 = 330;
 const Z: i32 = 128;
 
+/// The nodes share the auth secret (tickets) and the certificate.
+fn share_keys(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for f in [SECRET_NAME, CERT_NAME, KEY_NAME] {
+        std::fs::copy(from.join(f), to.join(f)).unwrap();
+    }
+}
+
 async fn node(dir: &Path, db: &strata_tests::postgres::PgDb, id: &str, spawn_x: i32) -> Running {
     let mut cfg = test_config(dir);
     cfg.store.backend = strata_server::store::StoreBackend::Postgres;
@@ -39,7 +50,7 @@ async fn node(dir: &Path, db: &strata_tests::postgres::PgDb, id: &str, spawn_x: 
     cfg.validation.spawn = SpawnArea {
         x: spawn_x,
         z: Z,
-        radius: 4,
+        radius: 32,
     };
     cfg.validation.max_speed = 64.0;
     app::start(cfg).await.expect("node starts")
@@ -90,11 +101,7 @@ async fn a_player_walks_into_another_nodes_region_and_keeps_playing() {
         let dirs = tempfile::tempdir().unwrap();
         let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
         let west = node(&da, &db, "west", WEST_X).await;
-        // The nodes share the auth secret (tickets) and the certificate.
-        std::fs::create_dir_all(&db_dir).unwrap();
-        for f in [SECRET_NAME, CERT_NAME, KEY_NAME] {
-            std::fs::copy(da.join(f), db_dir.join(f)).unwrap();
-        }
+        share_keys(&da, &db_dir);
         let east = node(&db_dir, &db, "east", EAST_X).await;
         let opts = ClientOptions {
             record_history: true,
@@ -260,4 +267,58 @@ async fn a_player_walks_into_another_nodes_region_and_keeps_playing() {
     })
     .await
     .expect("within the test timeout");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bots_refused_for_another_nodes_region_move_there_and_keep_editing() {
+    use strata_client_sim::bots::{self, BotsConfig, Profile, Tokens, VerifyMode};
+    let Some(db) = strata_tests::postgres::database("cluster_routing_bots") else {
+        return;
+    };
+    let dirs = tempfile::tempdir().unwrap();
+    let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
+    // Both nodes spawn players around x = 130, in region 0.
+    let west = node(&da, &db, "west", 130).await;
+    share_keys(&da, &db_dir);
+    let east = node(&db_dir, &db, "east", 130).await;
+    // An edit on the west node claims region 0 for it.
+    let ann = connect(&west, "ann", Role::Player).await;
+    ann.send_position(feet(128)).unwrap();
+    assert!(eventually(TEST_TIMEOUT, || ann.replica().get(chunk_of(128)).is_some()).await);
+    let (v, _) = ann.edit_acked(mine_at(126)).await.unwrap();
+    assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+
+    // Bots sent to the east node, living in region 0.
+    let run = BotsConfig {
+        server: east.addr,
+        cert_der: east.cert_der.clone(),
+        tokens: Tokens::Minted(east.data_dir.secret().clone()),
+        bots: 2,
+        duration: Duration::from_secs(3),
+        profile: Profile::Mixed,
+        edit_rate: 2.0,
+        view_radius: 2,
+        verify: VerifyMode::Modified,
+        seed: 7,
+        stalled: 0,
+        ramp: true,
+        ack_log: None,
+        progress: false,
+        area_origin: (110, Z - 20),
+        region_chunks: 8,
+        silence_limit: bots::DEFAULT_SILENCE_LIMIT,
+        predict: false,
+        capabilities: 0,
+        follow_owners: true,
+    };
+    let s = tokio::time::timeout(Duration::from_secs(90), bots::run(run))
+        .await
+        .expect("the run ends")
+        .unwrap();
+    assert!(s.consistent(), "{}", s.human());
+    assert!(s.handoffs >= 1, "{}", s.human());
+    assert!(s.edits_accepted > 0, "{}", s.human());
+    ann.close().await;
+    west.shutdown().await.unwrap();
+    east.shutdown().await.unwrap();
 }

@@ -121,6 +121,10 @@ struct Args {
     /// the summary counts the bots' walks from one region into another.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=65536))]
     region_chunks: u32,
+    /// On a cluster: a bot whose edit is refused because another node
+    /// writes the region moves to that node (its ticket keeps its place).
+    #[arg(long)]
+    follow_owners: bool,
     /// Write one JSON line per accepted edit to FILE (format above).
     #[arg(long)]
     ack_log: Option<PathBuf>,
@@ -262,6 +266,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         progress: true,
         area_origin: args.area_origin,
         region_chunks: args.region_chunks,
+        follow_owners: args.follow_owners,
         silence_limit: args.silence_limit,
         predict: args.predict,
         capabilities: capabilities(args.thin, args.op_replay),

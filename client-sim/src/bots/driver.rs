@@ -3,13 +3,14 @@
 
 use std::collections::HashMap;
 use std::future::Future;
+use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use strata_protocol::reject_label;
-use strata_protocol::{ErrorCode, Start};
+use strata_protocol::{ErrorCode, RejectReason, Start};
 use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
 use tokio::sync::watch;
 use tracing::debug;
@@ -142,6 +143,25 @@ impl BotOutcome {
     }
 }
 
+/// How long a bot waits for `Arrived` after sending its ticket.
+const ARRIVE_WAIT: Duration = Duration::from_secs(3);
+
+/// Sends `ticket` and waits for the node's answer; a refusal (or none) is
+/// logged, and the bot then starts as the node's `Welcome` says.
+async fn arrive(c: &Client, ticket: strata_protocol::Ticket, bot: usize) {
+    if c.arrive(ticket).await.is_err() {
+        return;
+    }
+    let deadline = Instant::now() + ARRIVE_WAIT;
+    while c.arrived().is_none() {
+        if Instant::now() > deadline || !c.refusals().is_empty() {
+            debug!(bot, refusals = ?c.refusals(), "ticket not accepted");
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+}
+
 /// Runs bot `id` until the run is done.
 pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
     let stalled = id < fleet.cfg.stalled;
@@ -155,6 +175,9 @@ pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
         },
         walker: None,
         arrivals: Vec::new(),
+        server: fleet.cfg.server,
+        ticket: None,
+        move_to: None,
         fleet,
         id,
     };
@@ -175,9 +198,23 @@ pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
                 client.close().await;
                 break;
             }
+            Err(_) if bot.move_to.is_some() => {
+                // Told another node writes the region: move there, and
+                // arrive with the newest ticket this node gave.
+                bot.server = bot.move_to.take().expect("checked");
+                bot.ticket = client.region_owners().and_then(|o| o.ticket);
+                debug!(bot = id, to = %bot.server, "moving to the region's node");
+                Stats::add(&stats.handoffs, 1);
+                client.close().await;
+            }
             Err(e) => {
                 debug!(bot = id, error = %e, "connection lost; reconnecting");
                 Stats::add(&stats.reconnects, 1);
+                if bot.server != fleet.cfg.server {
+                    // A node moved to is gone: back to the first one.
+                    bot.ticket = client.region_owners().and_then(|o| o.ticket);
+                    bot.server = fleet.cfg.server;
+                }
                 client.abandon();
                 tokio::time::sleep(RECONNECT_DELAY).await;
             }
@@ -200,6 +237,12 @@ struct Bot {
     walker: Option<Walker>,
     /// Delta arrivals not yet matched with their edit.
     arrivals: Vec<Arrival>,
+    /// The node this bot connects to (`--follow-owners` moves it).
+    server: SocketAddr,
+    /// A ticket to arrive with at the next connection.
+    ticket: Option<strata_protocol::Ticket>,
+    /// Set by a `RegionElsewhere` verdict to move the bot there.
+    move_to: Option<SocketAddr>,
 }
 
 impl Bot {
@@ -242,12 +285,15 @@ impl Bot {
                 let _slot = self.fleet.connect_slots.acquire().await.ok()?;
                 tokio::time::timeout(
                     CONNECT_ATTEMPT_TIMEOUT,
-                    Client::connect_opts(cfg.server, &cfg.cert_der, &token, opts),
+                    Client::connect_opts(self.server, &cfg.cert_der, &token, opts),
                 )
                 .await
             };
             match attempt {
                 Ok(Ok(c)) => {
+                    if let Some(t) = self.ticket.take() {
+                        arrive(&c, t, self.id).await;
+                    }
                     let (hx, hz) = cfg.home(self.id);
                     let home = FixedVec3::from_f64([hx, 0.0, hz])?;
                     if self.walker.is_none() && !c.welcome().start.admits_column(home) {
@@ -275,6 +321,8 @@ impl Bot {
                 Ok(Err(e)) => debug!(bot = self.id, error = %e, "connect failed"),
                 Err(_) => debug!(bot = self.id, "connect timed out"),
             }
+            // A node moved to that cannot be reached: back to the first.
+            self.server = cfg.server;
             tokio::time::sleep(RECONNECT_DELAY).await;
         }
     }
@@ -497,7 +545,7 @@ impl Bot {
 
     /// Records an edit's verdict; an error means the connection is lost.
     fn verdict(
-        &self,
+        &mut self,
         result: Result<Acked, ClientError>,
         sent_at: Instant,
     ) -> Result<(), ClientError> {
@@ -512,6 +560,13 @@ impl Bot {
             Ok((Verdict::Rejected(reason), _)) => {
                 debug!(bot = self.id, ?reason, "edit rejected");
                 stats.reject(reject_label(&reason));
+                if let RejectReason::RegionElsewhere { addr, .. } = &reason {
+                    let to = addr.parse::<SocketAddr>().ok();
+                    if self.fleet.cfg.follow_owners && to.is_some_and(|a| a != self.server) {
+                        self.move_to = to;
+                        return Err(ClientError::Protocol("moving to the region's node".into()));
+                    }
+                }
                 Ok(())
             }
             Err(e) => {

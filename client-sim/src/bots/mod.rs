@@ -169,6 +169,9 @@ pub struct BotsConfig {
     pub predict: bool,
     /// `Hello::capabilities` of every bot (`--thin`, `--op-replay`).
     pub capabilities: u32,
+    /// On a cluster: a bot whose edit is refused `RegionElsewhere` moves to
+    /// the node named, arriving there with its last ticket (`--follow-owners`).
+    pub follow_owners: bool,
 }
 
 impl BotsConfig {
@@ -434,6 +437,7 @@ fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet:
         edits_unanswered: Stats::get(&s.edits_unanswered),
         edits_skipped: Stats::get(&s.edits_skipped),
         region_crossings: Stats::get(&s.region_crossings),
+        handoffs: Stats::get(&s.handoffs),
         ack_latency_ms: s.ack.summary(),
         broadcast_latency_ms: s.broadcast.summary(),
         latency_by_second: summary::timeline(&s.ack, &s.broadcast),

@@ -106,6 +106,8 @@ pub struct Stats {
     pub edits_skipped: AtomicU64,
     /// Walks from one region into another (`BotsConfig::region_chunks`).
     pub region_crossings: AtomicU64,
+    /// Moves to the node a `RegionElsewhere` named (`--follow-owners`).
+    pub handoffs: AtomicU64,
     pub rejected: Mutex<BTreeMap<String, u64>>,
     pub ack: Latencies,
     pub broadcast: Latencies,

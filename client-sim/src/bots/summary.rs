@@ -51,6 +51,9 @@ pub struct Summary {
     /// Times a bot walked from one region into another (regions of
     /// `--region-chunks` chunks, as the server's `[sequencer] region_chunks`).
     pub region_crossings: u64,
+    /// Times a bot moved to the cluster node a `RegionElsewhere` named and
+    /// arrived there with its ticket (`--follow-owners`).
+    pub handoffs: u64,
     pub edits_accepted_per_second: f64,
     /// From sending an edit to its `EditAccepted`.
     pub ack_latency_ms: LatencyMs,

@@ -5,7 +5,9 @@
 //! to each holder and sends each edit to its region's holder.
 //!
 //! Looked at every [`OWNERS_EVERY`]; holders come from the store's cache
-//! (one query per region per renewal period at most).
+//! (one query per region per renewal period at most). Sent again with a
+//! new ticket every [`TICKET_REFRESH_MS`], so a client always holds one
+//! well within `TICKET_TTL_MS`.
 
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
@@ -21,6 +23,9 @@ use crate::store::RegionHolder;
 
 /// How often sessions' region holders are looked at.
 pub const OWNERS_EVERY: Duration = Duration::from_millis(200);
+/// A session's ticket is renewed after this long (ms), a third of
+/// `TICKET_TTL_MS`.
+pub const TICKET_REFRESH_MS: u64 = strata_protocol::limits::TICKET_TTL_MS / 3;
 
 /// The regions a view of `radius` chunks around `center` overlaps, the
 /// nearest [`MAX_REGION_OWNERS`] when there are more.
@@ -75,14 +80,24 @@ impl Engine {
             };
             let owners: Vec<RegionOwner> =
                 holders.into_iter().map(|(r, h)| to_wire(r, h)).collect();
+            let Some(peer) = self.peers.get(&session) else {
+                continue;
+            };
+            let now = now_ms();
+            let placed = self.seq.position(session).is_some();
+            let stale = placed
+                && peer
+                    .ticket_ms
+                    .is_none_or(|at| now.saturating_sub(at) >= TICKET_REFRESH_MS);
+            if peer.owners_told == owners && !stale {
+                continue;
+            }
+            let ticket = self.ticket(session);
             let Some(peer) = self.peers.get_mut(&session) else {
                 continue;
             };
-            if peer.owners_told == owners {
-                continue;
-            }
             peer.owners_told = owners.clone();
-            let ticket = self.ticket(session);
+            peer.ticket_ms = ticket.as_ref().map(|t| t.issued_ms);
             self.send_control(
                 session,
                 &ServerMessage::RegionOwners {

@@ -46,6 +46,8 @@ pub struct Peer {
     pub refused_at: Option<u64>,
     /// The regions and holders last sent in `RegionOwners` (cluster only).
     pub owners_told: Vec<strata_protocol::RegionOwner>,
+    /// When (ms) the ticket last sent was issued.
+    pub ticket_ms: Option<u64>,
     kick: Option<oneshot::Sender<Kick>>,
 }
 
@@ -73,6 +75,7 @@ impl Peer {
             complete_due: false,
             refused_at: None,
             owners_told: Vec::new(),
+            ticket_ms: None,
             kick: Some(kick),
         }
     }
