@@ -38,13 +38,24 @@ fn share_keys(from: &Path, to: &Path) {
 }
 
 async fn node(dir: &Path, db: &strata_tests::postgres::PgDb, id: &str, spawn_x: i32) -> Running {
+    node_leasing(dir, db, (id, spawn_x), 5_000, 500).await
+}
+
+/// [`node`] with its lease and renewal period.
+async fn node_leasing(
+    dir: &Path,
+    db: &strata_tests::postgres::PgDb,
+    (id, spawn_x): (&str, i32),
+    lease_ms: u64,
+    renew_ms: u64,
+) -> Running {
     let mut cfg = test_config(dir);
     cfg.store.backend = strata_server::store::StoreBackend::Postgres;
     cfg.store.postgres.url = db.url();
     cfg.cluster = Some(ClusterConfig {
         node_id: id.into(),
-        lease_ms: 5_000,
-        renew_ms: 500,
+        lease_ms,
+        renew_ms,
         ..ClusterConfig::default()
     });
     cfg.validation.spawn = SpawnArea {
@@ -321,4 +332,114 @@ async fn bots_refused_for_another_nodes_region_move_there_and_keep_editing() {
     ann.close().await;
     west.shutdown().await.unwrap();
     east.shutdown().await.unwrap();
+}
+
+/// Runs one statement on the test's database.
+async fn sql(db: &strata_tests::postgres::PgDb, statement: &str) {
+    let (client, conn) = tokio_postgres::connect(&db.url(), tokio_postgres::NoTls)
+        .await
+        .unwrap();
+    let driver = tokio::spawn(conn);
+    client.batch_execute(statement).await.unwrap();
+    drop(client);
+    let _ = driver.await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_batch_fenced_after_a_takeover_is_refused_and_the_node_goes_on() {
+    use strata_server::sequencer::regions::RegionId;
+    use strata_server::store::{ChunkStore, PgStore};
+    let Some(db) = strata_tests::postgres::database("cluster_fenced_batch") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dirs = tempfile::tempdir().unwrap();
+        // Renewals far apart: the node learns of the takeover only from
+        // its next commit's fence.
+        let west = node_leasing(
+            &dirs.path().join("a"),
+            &db,
+            ("west", WEST_X),
+            60_000,
+            10_000,
+        )
+        .await;
+        let ann = connect(&west, "ann", Role::Player).await;
+        ann.send_position(feet(WEST_X)).unwrap();
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .replica()
+                .get(chunk_of(WEST_X))
+                .is_some())
+            .await
+        );
+        let (v, first) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        let Verdict::Accepted { seq } = v else {
+            panic!("{v:?}")
+        };
+
+        // Another node takes region (0, 0) while west is unaware.
+        let region = RegionId { x: 0, z: 0 };
+        sql(
+            &db,
+            "UPDATE regions SET lease_expires = now() - interval '1 second' \
+             WHERE region_x = 0 AND region_z = 0",
+        )
+        .await;
+        let url = db.url();
+        let thief = tokio::task::spawn_blocking(move || {
+            let pg = strata_server::store::pg::PgConfig {
+                url,
+                ..Default::default()
+            };
+            let other = ClusterConfig {
+                node_id: "thief".into(),
+                lease_ms: 60_000,
+                renew_ms: 10_000,
+                advertise: "127.0.0.1:9".into(),
+                adopt: false,
+            };
+            let s = PgStore::open_node(&pg, 8, &other).unwrap();
+            assert_eq!(s.claim_regions(&[region]).unwrap().len(), 1);
+            s
+        })
+        .await
+        .unwrap();
+
+        // West's next edit there is fenced: refused, naming the thief.
+        let (v, _) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        assert_eq!(
+            v,
+            Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere {
+                region_x: 0,
+                region_z: 0,
+                owner: "thief".into(),
+                addr: "127.0.0.1:9".into(),
+            })
+        );
+        // West goes on, refusing the lost region from then on, and its
+        // player's copy never saw the abandoned edit.
+        assert!(!ann.is_closed());
+        let (v, _) = ann.edit_acked(mine_at(WEST_X - 2)).await.unwrap();
+        assert!(
+            matches!(
+                v,
+                Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere { .. })
+            ),
+            "{v:?}"
+        );
+        let pos = first[0].pos;
+        assert_eq!(ann.replica().get(pos).unwrap().version, first[0].version);
+        let stored = tokio::task::spawn_blocking(move || {
+            let last = thief.edit_log(1..=u64::MAX).map(|e| e.unwrap().seq).max();
+            (last, thief.load_chunk(pos).unwrap().map(|c| c.version))
+        })
+        .await
+        .unwrap();
+        assert_eq!(stored, (Some(seq), Some(first[0].version)));
+        ann.close().await;
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
 }

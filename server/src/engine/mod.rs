@@ -550,46 +550,56 @@ impl Engine {
             let (batch, committed) = self.commit_serving(std::mem::take(&mut out.batch), rx);
             out.batch = batch;
             let stats = match committed {
-                Ok(stats) => stats,
+                Ok(stats) => Some(stats),
+                // A region lost mid-flight: the batch is abandoned, the
+                // node goes on.
+                Err(e) if self.abandon_fenced(&out, &e) => None,
                 Err(e) => {
                     error!(error = %e, "group commit failed; stopping without acknowledging");
                     self.close_all();
                     return Err(e.into());
                 }
             };
-            self.durable_seq = out.batch.last_seq;
-            metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
-            metrics::histogram!(m::FSYNC_SECONDS).record(stats.fsync.as_secs_f64());
-            phase.end("commit");
-            phase.commit = Some((stats, out.batch.chunks.len()));
-            let built = meshing
-                .recv()
-                .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
-            phase.end("mesh_wait");
-            self.seq.finish_tick(&mut out, built);
-            for e in &out.batch.entries {
-                self.versions.extend(e.changes.iter().copied());
+            if let Some(stats) = stats {
+                self.durable_seq = out.batch.last_seq;
+                metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
+                metrics::histogram!(m::FSYNC_SECONDS).record(stats.fsync.as_secs_f64());
+                phase.end("commit");
+                phase.commit = Some((stats, out.batch.chunks.len()));
+                let built = meshing
+                    .recv()
+                    .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
+                phase.end("mesh_wait");
+                self.seq.finish_tick(&mut out, built);
+                for e in &out.batch.entries {
+                    self.versions.extend(e.changes.iter().copied());
+                }
+                for a in &out.applied {
+                    metrics::counter!(m::EDITS_ACCEPTED).increment(1);
+                    metrics::histogram!(m::EDIT_LATENCY_SECONDS)
+                        .record(a.queued_at.elapsed().as_secs_f64());
+                    let msg = ServerMessage::EditAccepted {
+                        client_edit_id: a.client_edit_id,
+                        seq: a.seq,
+                        changes: a
+                            .changes
+                            .iter()
+                            .map(|c| ChunkVersion {
+                                pos: c.pos,
+                                version: c.to_version,
+                            })
+                            .collect(),
+                    };
+                    self.send_control(a.session_id, &msg);
+                }
+                pool.install(|| {
+                    fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq)
+                });
+                phase.end("fanout");
+            } else {
+                let _ = meshing.recv();
+                phase.end("commit");
             }
-            for a in &out.applied {
-                metrics::counter!(m::EDITS_ACCEPTED).increment(1);
-                metrics::histogram!(m::EDIT_LATENCY_SECONDS)
-                    .record(a.queued_at.elapsed().as_secs_f64());
-                let msg = ServerMessage::EditAccepted {
-                    client_edit_id: a.client_edit_id,
-                    seq: a.seq,
-                    changes: a
-                        .changes
-                        .iter()
-                        .map(|c| ChunkVersion {
-                            pos: c.pos,
-                            version: c.to_version,
-                        })
-                        .collect(),
-                };
-                self.send_control(a.session_id, &msg);
-            }
-            pool.install(|| fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq));
-            phase.end("fanout");
         }
         self.stream_snapshots();
         phase.end("stream");

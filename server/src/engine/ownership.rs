@@ -7,16 +7,24 @@
 //! A region this node claims, here or in the background (adopted from a
 //! crashed node), may have changed while others held it: its chunks are
 //! reloaded from the store, and sessions holding older versions get the
-//! chunk again (the one resync a takeover allows). Alone on its store
-//! (`ChunkStore::clustered` false) none of this runs.
+//! chunk again (the one resync a takeover allows). A batch the store
+//! fences (the node was paused past its lease and another took a region)
+//! is abandoned, not fatal: nothing of it is durable, so its chunks are put
+//! back as stored, its edits refused, and numbering moves to a new seq
+//! block. Alone on its store (`ChunkStore::clustered` false) none of this
+//! runs.
 
-use strata_protocol::RejectReason;
-use strata_terrain::Edit;
-use tracing::{error, info};
+use std::collections::BTreeSet;
+
+use strata_protocol::{RejectReason, ServerMessage};
+use strata_terrain::{ChunkPos, Edit};
+use tracing::{error, info, warn};
 
 use super::Engine;
+use crate::metrics as m;
+use crate::sequencer::batch::TickOutput;
 use crate::sequencer::regions::RegionId;
-use crate::store::{RegionAccess, StoreError};
+use crate::store::{RegionAccess, RegionHolder, StoreError};
 
 impl Engine {
     /// `Ok` when this node may write every region `edit` touches.
@@ -107,5 +115,96 @@ impl Engine {
             }
         }
         Ok(changed)
+    }
+}
+
+impl Engine {
+    /// A commit the store fenced: nothing of `out` is durable. Puts its
+    /// chunks back as the store holds them, refuses its edits
+    /// (`RegionElsewhere` for those that changed the lost region, `Busy`
+    /// for the others), and reserves a new seq block so the abandoned
+    /// seqs leave no gap inside one. False for any other error, or when
+    /// the chunks cannot be put back (the node must then stop).
+    pub(super) fn abandon_fenced(&mut self, out: &TickOutput, e: &StoreError) -> bool {
+        let StoreError::Fenced { region, owner, .. } = e else {
+            return false;
+        };
+        if !self.store.clustered() {
+            return false;
+        }
+        let changed: BTreeSet<ChunkPos> = out
+            .applied
+            .iter()
+            .flat_map(|a| a.changes.iter().map(|c| c.pos))
+            .collect();
+        for &pos in &changed {
+            if let Err(e) = self.restore_chunk(pos) {
+                error!(error = %e, ?pos, "putting a fenced batch's chunk back failed");
+                return false;
+            }
+        }
+        match self.store.reserve_seqs(self.seq.last_seq()) {
+            Ok(floor) => self.seq.raise_next_seq(floor.saturating_add(1)),
+            Err(e) => {
+                error!(error = %e, "reserving a seq block after a fenced commit failed");
+                return false;
+            }
+        }
+        let addr = match self.store.region_holders(&BTreeSet::from([*region])) {
+            Ok(h) => h.into_iter().find_map(|(_, h)| match h {
+                RegionHolder::Node { addr, .. } => Some(addr),
+                _ => None,
+            }),
+            Err(_) => None,
+        };
+        let side = self.seq.region_chunks();
+        for a in &out.applied {
+            let lost = a
+                .changes
+                .iter()
+                .any(|c| RegionId::of(c.pos, side) == *region);
+            let reason = if lost {
+                RejectReason::RegionElsewhere {
+                    region_x: region.x,
+                    region_z: region.z,
+                    owner: owner.clone().unwrap_or_default(),
+                    addr: addr.clone().unwrap_or_default(),
+                }
+            } else {
+                RejectReason::Busy
+            };
+            metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&reason)).increment(1);
+            let msg = ServerMessage::EditRejected {
+                client_edit_id: a.client_edit_id,
+                reason,
+            };
+            self.send_control(a.session_id, &msg);
+        }
+        warn!(
+            region_x = region.x,
+            region_z = region.z,
+            edits = out.applied.len(),
+            chunks = changed.len(),
+            "commit fenced: the region was lost; the batch is abandoned and its edits refused"
+        );
+        true
+    }
+
+    /// Puts `pos` back as the store holds it (generated if it holds none).
+    fn restore_chunk(&mut self, pos: ChunkPos) -> Result<(), StoreError> {
+        match self.store.load_chunk(pos)? {
+            Some(stored) => {
+                self.versions.insert(pos, stored.version);
+                self.seq
+                    .insert_stored_chunk(pos, stored.chunk, stored.version);
+            }
+            None => {
+                self.versions.remove(&pos);
+                let generator = self.seq.world().generator().clone();
+                self.seq
+                    .insert_stored_chunk(pos, generator.generate(pos), 0);
+            }
+        }
+        Ok(())
     }
 }

@@ -132,6 +132,9 @@ impl NodeLeases {
     /// epoch changed).
     pub(super) fn lose(&self, region: RegionId) {
         let mut book = self.book();
+        // What was believed of it before this node held it is stale.
+        book.free.remove(&region);
+        book.elsewhere.remove(&region);
         if let Some(epoch) = book.held.remove(&region) {
             warn!(
                 node = %self.node_id,
@@ -245,6 +248,7 @@ fn took(
         book.held.insert(region, epoch);
         book.fresh.insert(region);
         book.elsewhere.remove(&region);
+        book.free.remove(&region);
     }
     Ok(got)
 }
