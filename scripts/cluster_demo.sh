@@ -85,18 +85,26 @@ for i in 0 1 2; do
     addrs+=("$(grep -oE '127\.0\.0\.1:[0-9]+' "$dir/node-$i.out" | head -1)")
     [ -n "${addrs[$i]}" ] || { echo "node-$i did not start: $(tail -5 "$dir/node-$i.log")" >&2; exit 1; }
 done
+sql() { "$pg_bin/psql" -h 127.0.0.1 -p "$port" -U strata -d world -Atc "$1"; }
 fleet=()
 for i in 0 1 2; do
     origin="$(( ${corners[$i]} - side / 2 )),$(( 256 - side / 2 ))"
-    RUST_LOG=warn "$target/strata-bots" --server "${addrs[$i]}" --data-dir "$dir/node-$i" \
+    RUST_LOG=${CLUSTER_DEMO_BOTS_LOG:-warn} "$target/strata-bots" --server "${addrs[$i]}" --data-dir "$dir/node-$i" \
         --bots "$bots" --duration "${duration}s" --edit-rate 1 --area-origin "$origin" \
-        --verify modified --follow-owners --ack-log "$dir/acks-$i.jsonl" --json \
+        --verify modified --follow-owners --player-prefix "n$i-bot" --ack-log "$dir/acks-$i.jsonl" --json \
         > "$dir/bots-$i.json" 2> "$dir/bots-$i.log" &
     fleet+=($!); pids+=($!)
+    if [ "$i" = 0 ]; then
+        # node-0 first holds a region at the shared corner, so there is
+        # something to take over when it dies.
+        for _ in $(seq 600); do
+            [ "$(sql "SELECT count(*) FROM regions WHERE owner = 'node-0'")" != 0 ] && break
+            sleep 0.05
+        done
+    fi
 done
 echo "3 nodes at ${addrs[*]}, $bots bots each; node-0 dies in $(( duration / 2 + 2 )) s" >&2
 
-sql() { "$pg_bin/psql" -h 127.0.0.1 -p "$port" -U strata -d world -Atc "$1"; }
 sleep $(( duration / 2 + 2 ))
 held=$(sql "SELECT region_x || ',' || region_z FROM regions WHERE owner = 'node-0' ORDER BY 1")
 disown "${pids[0]}"   # no "Killed" line from the shell

@@ -40,6 +40,7 @@ fn config_for(server: &app::Running) -> BotsConfig {
         predict: false,
         capabilities: 0,
         follow_owners: false,
+        player_prefix: "bot".into(),
     }
 }
 
@@ -146,6 +147,7 @@ async fn bad_settings_are_refused_before_connecting() {
         predict: false,
         capabilities: 0,
         follow_owners: false,
+        player_prefix: "bot".into(),
     };
     let e = bots::run(run.clone()).await.unwrap_err();
     assert!(e.to_string().contains("--stalled"), "{e}");

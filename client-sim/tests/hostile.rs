@@ -46,6 +46,7 @@ async fn run_attack(attack: Attack, ramp: bool) -> (Summary, HostileSummary) {
         predict: false,
         capabilities: 0,
         follow_owners: false,
+        player_prefix: "bot".into(),
     };
     let hostile = HostileConfig::new(attack, 1, server.addr);
     assert_eq!(hostile.bind.to_string(), "127.0.0.2");

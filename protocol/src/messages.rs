@@ -416,8 +416,10 @@ pub enum WorldUpdate {
         mesh_hash: u64,
     },
     /// These chunks left the view range (at most
-    /// [`crate::limits::MAX_UNSUBSCRIBED_PER_UPDATE`]); the client may drop
-    /// them. Servers send this instead of one `Unsubscribed` per chunk.
+    /// [`crate::limits::MAX_UNSUBSCRIBED_PER_UPDATE`]), or a cluster node
+    /// that took their region over withdraws stale copies it sends again;
+    /// the client drops them. Servers send this instead of one
+    /// `Unsubscribed` per chunk.
     UnsubscribedMany {
         chunks: Vec<ChunkPos>,
     },

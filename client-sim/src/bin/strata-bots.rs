@@ -122,9 +122,15 @@ struct Args {
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=65536))]
     region_chunks: u32,
     /// On a cluster: a bot whose edit is refused because another node
-    /// writes the region moves to that node (its ticket keeps its place).
+    /// writes the region it stands in moves to that node (its ticket keeps
+    /// its place).
     #[arg(long)]
     follow_owners: bool,
+    /// Players are PREFIX-0, PREFIX-1, ... (minted tokens only). Fleets on
+    /// one cluster need different prefixes: a second login of a player
+    /// replaces the first.
+    #[arg(long, default_value = "bot", value_parser = parse_prefix)]
+    player_prefix: String,
     /// Write one JSON line per accepted edit to FILE (format above).
     #[arg(long)]
     ack_log: Option<PathBuf>,
@@ -267,6 +273,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         area_origin: args.area_origin,
         region_chunks: args.region_chunks,
         follow_owners: args.follow_owners,
+        player_prefix: args.player_prefix,
         silence_limit: args.silence_limit,
         predict: args.predict,
         capabilities: capabilities(args.thin, args.op_replay),
@@ -313,4 +320,11 @@ fn parse_origin(s: &str) -> Result<(i32, i32), String> {
 fn capabilities(thin: bool, op_replay: bool) -> u32 {
     use strata_protocol::{CAP_OP_REPLAY, CAP_SNAPSHOTS};
     (if thin { CAP_SNAPSHOTS } else { 0 }) | (if op_replay { CAP_OP_REPLAY } else { 0 })
+}
+
+/// A player-name prefix: the name of its 1,000,000th bot must be valid.
+fn parse_prefix(s: &str) -> Result<String, String> {
+    strata_auth::validate_player_name(&format!("{s}-999999"))
+        .map(|()| s.to_string())
+        .map_err(|e| e.to_string())
 }

@@ -202,7 +202,6 @@ pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
                 // Told another node writes the region: move there, and
                 // arrive with the newest ticket this node gave.
                 bot.server = bot.move_to.take().expect("checked");
-                bot.ticket = client.region_owners().and_then(|o| o.ticket);
                 debug!(bot = id, to = %bot.server, "moving to the region's node");
                 Stats::add(&stats.handoffs, 1);
                 client.close().await;
@@ -266,7 +265,7 @@ impl Bot {
             if self.phase() == Phase::Done || start.elapsed() > RECONNECT_WINDOW {
                 return None;
             }
-            let token = match cfg.tokens.token(self.id) {
+            let token = match cfg.tokens.token(&cfg.player_prefix, self.id) {
                 Ok(t) => t,
                 Err(e) => {
                     tracing::error!(bot = self.id, error = %e, "no token");
@@ -402,7 +401,7 @@ impl Bot {
                 {
                     pending = None;
                     self.fleet.in_flight.fetch_sub(1, Ordering::Relaxed);
-                    if let Err(e) = self.verdict(verdict, sent_at) {
+                    if let Err(e) = self.verdict(verdict, sent_at, client) {
                         break Err(e);
                     }
                 }
@@ -548,6 +547,7 @@ impl Bot {
         &mut self,
         result: Result<Acked, ClientError>,
         sent_at: Instant,
+        client: &Client,
     ) -> Result<(), ClientError> {
         let stats = &self.fleet.stats;
         match result {
@@ -560,10 +560,31 @@ impl Bot {
             Ok((Verdict::Rejected(reason), _)) => {
                 debug!(bot = self.id, ?reason, "edit rejected");
                 stats.reject(reject_label(&reason));
-                if let RejectReason::RegionElsewhere { addr, .. } = &reason {
+                if let RejectReason::RegionElsewhere {
+                    region_x,
+                    region_z,
+                    addr,
+                    ..
+                } = &reason
+                {
+                    // Only for the region the bot stands in: an edit across
+                    // two nodes' regions is refused by both, and the bot
+                    // would bounce between them.
+                    let side = self.fleet.cfg.region_chunks.max(1) as i32;
+                    let here = self.walker.as_ref().map(|w| {
+                        let c = w.chunk();
+                        (c.x.div_euclid(side), c.z.div_euclid(side))
+                    });
                     let to = addr.parse::<SocketAddr>().ok();
-                    if self.fleet.cfg.follow_owners && to.is_some_and(|a| a != self.server) {
+                    // Without a ticket it would start over at the spawn.
+                    let ticket = client.region_owners().and_then(|o| o.ticket);
+                    if self.fleet.cfg.follow_owners
+                        && here == Some((*region_x, *region_z))
+                        && to.is_some_and(|a| a != self.server)
+                        && ticket.is_some()
+                    {
                         self.move_to = to;
+                        self.ticket = ticket;
                         return Err(ClientError::Protocol("moving to the region's node".into()));
                     }
                 }

@@ -89,13 +89,14 @@ pub enum BotsError {
 pub enum Tokens {
     /// One token for every bot: they share one player's rate limits.
     Shared(String),
-    /// A token per bot (`bot-<index>`), signed with the server's secret.
+    /// A token per bot (`<prefix>-<index>`), signed with the server's secret.
     Minted(Secret),
 }
 
 impl Tokens {
-    pub fn token(&self, bot: usize) -> Result<String, BotsError> {
-        self.token_for(&format!("bot-{bot}"))
+    /// The token of bot `bot` of a fleet whose players are `prefix-N`.
+    pub fn token(&self, prefix: &str, bot: usize) -> Result<String, BotsError> {
+        self.token_for(&format!("{prefix}-{bot}"))
     }
 
     /// The token of player `name` (the shared one with [`Tokens::Shared`]).
@@ -169,9 +170,13 @@ pub struct BotsConfig {
     pub predict: bool,
     /// `Hello::capabilities` of every bot (`--thin`, `--op-replay`).
     pub capabilities: u32,
-    /// On a cluster: a bot whose edit is refused `RegionElsewhere` moves to
-    /// the node named, arriving there with its last ticket (`--follow-owners`).
+    /// On a cluster: a bot whose edit is refused `RegionElsewhere` for the
+    /// region it stands in moves to the node named, arriving there with its
+    /// last ticket (`--follow-owners`).
     pub follow_owners: bool,
+    /// Bots play as `<player_prefix>-<index>` (with minted tokens): fleets
+    /// on one cluster need different prefixes, or they log each other out.
+    pub player_prefix: String,
 }
 
 impl BotsConfig {
@@ -326,7 +331,7 @@ pub async fn run_with(
         None => None,
     };
     // Fail early on a token problem rather than in every bot.
-    cfg.tokens.token(0)?;
+    cfg.tokens.token(&cfg.player_prefix, 0)?;
     let first = if cfg.ramp { Phase::Ramp } else { Phase::Run };
     let (phase, _) = watch::channel(first);
     let fleet = Arc::new(Fleet {

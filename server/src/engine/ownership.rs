@@ -6,8 +6,9 @@
 //! [`RejectReason::RegionElsewhere`], naming the holder and its address.
 //! A region this node claims, here or in the background (adopted from a
 //! crashed node), may have changed while others held it: its chunks are
-//! reloaded from the store, and sessions holding older versions get the
-//! chunk again (the one resync a takeover allows). A batch the store
+//! reloaded from the store, and sessions holding older versions are told
+//! to drop them (`UnsubscribedMany`, before any delta) and get them again
+//! (the one resync a takeover allows). A batch the store
 //! fences (the node was paused past its lease and another took a region)
 //! is abandoned, not fatal: nothing of it is durable, so its chunks are put
 //! back as stored, its edits refused, and numbering moves to a new seq
@@ -96,6 +97,7 @@ impl Engine {
     /// many had moved on.
     fn reload_region(&mut self, region: RegionId) -> Result<usize, StoreError> {
         let mut changed = 0;
+        let mut stale: std::collections::HashMap<u64, Vec<ChunkPos>> = Default::default();
         for (pos, version) in self.store.region_versions(region)? {
             if self.versions.get(&pos) == Some(&version) {
                 continue;
@@ -108,9 +110,28 @@ impl Engine {
                         .insert_stored_chunk(pos, stored.chunk, stored.version);
                 }
             }
-            for p in self.peers.values_mut() {
+            for (&id, p) in self.peers.iter_mut() {
                 if p.known.get(&pos).is_some_and(|&v| v != version) {
                     p.resend(pos);
+                    stale.entry(id).or_default().push(pos);
+                }
+            }
+        }
+        // Withdrawn at once, before any delta of this tick: a neighbour's
+        // delta must not be meshed against a stale copy.
+        for (id, chunks) in stale {
+            let Some(p) = self.peers.get_mut(&id) else {
+                continue;
+            };
+            for part in chunks.chunks(strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE) {
+                let update = strata_protocol::WorldUpdate::UnsubscribedMany {
+                    chunks: part.to_vec(),
+                };
+                if p.updates
+                    .try_send(super::fanout::encode_update(&update))
+                    .is_err()
+                {
+                    p.failed = true;
                 }
             }
         }
