@@ -191,19 +191,33 @@ impl ClusterClient {
     /// nodes they name. Call it often (every frame is fine: it is cheap
     /// when nothing changed). Returns the nodes newly connected.
     pub async fn follow(&mut self) -> Result<Vec<SocketAddr>, ClusterError> {
+        let before = self.nodes.len();
         self.nodes.retain(|a, c| *a == self.home || !c.is_closed());
-        let mut news = Vec::new();
-        for (addr, c) in &self.nodes {
-            if let Some(o) = c.region_owners() {
-                if self.seen.get(addr) != Some(&o.serial) {
-                    news.push((*addr, o));
-                }
-            }
+        let nodes = &self.nodes;
+        self.seen.retain(|a, _| nodes.contains_key(a));
+        let latest: Vec<(SocketAddr, RegionOwners)> = self
+            .nodes
+            .iter()
+            .filter_map(|(a, c)| Some((*a, c.region_owners()?)))
+            .collect();
+        let news = latest
+            .iter()
+            .any(|(a, o)| self.seen.get(a) != Some(&o.serial));
+        if news || self.nodes.len() != before {
+            let named = self.reroute(&latest).await;
+            self.start_joins(named);
         }
+        Ok(self.finish_joins().await)
+    }
+
+    /// Rebuilds the routes from every connected node's last word (at most
+    /// [`MAX_CLUSTER_NODES`] times `MAX_REGION_OWNERS` regions): another
+    /// node's word first, each node's word on itself last, since a node
+    /// knows best what it holds. Returns the nodes named.
+    async fn reroute(&mut self, latest: &[(SocketAddr, RegionOwners)]) -> Vec<SocketAddr> {
+        self.routes.clear();
         let mut named = Vec::new();
-        // Another node's word first, each node's word on itself last: a
-        // node knows best what it holds.
-        for (from, o) in &news {
+        for (from, o) in latest {
             self.seen.insert(*from, o.serial);
             self.region_chunks = Some(o.region_chunks);
             if let Some(t) = &o.ticket {
@@ -216,34 +230,23 @@ impl ClusterClient {
                 }
             }
             for r in &o.regions {
-                let key = (r.region_x, r.region_z);
-                match &r.holder {
-                    RegionHolder::Node { addr, .. } if !addr.is_empty() => {
-                        if let Ok(a) = resolve(addr).await {
-                            if self.routes.get(&key) != Some(&a) {
-                                self.routes.insert(key, a);
-                            }
-                            if !named.contains(&a) {
-                                named.push(a);
-                            }
-                        }
+                let RegionHolder::Node { addr, .. } = &r.holder else {
+                    continue;
+                };
+                if let Ok(a) = resolve(addr).await {
+                    self.routes.insert((r.region_x, r.region_z), a);
+                    if !named.contains(&a) {
+                        named.push(a);
                     }
-                    RegionHolder::Free | RegionHolder::Node { .. } => {
-                        if self.routes.get(&key) == Some(from) {
-                            self.routes.remove(&key);
-                        }
-                    }
-                    RegionHolder::Here => {}
                 }
             }
         }
-        for (from, o) in &news {
+        for (from, o) in latest {
             for r in o.regions.iter().filter(|r| r.holder == RegionHolder::Here) {
                 self.routes.insert((r.region_x, r.region_z), *from);
             }
         }
-        self.start_joins(named);
-        Ok(self.finish_joins().await)
+        named
     }
 
     /// Opens connections to the named nodes not yet connected, in the
