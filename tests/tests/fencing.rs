@@ -10,6 +10,11 @@
 //! from its own block; one is killed with SIGKILL and the others adopt its
 //! regions within the lease.
 //!
+//! Its players are told and moved: bots (`--follow-owners`) on a node
+//! paused past its lease, whose regions another node adopted, are refused
+//! there naming the new owner, move to it with their tickets and keep
+//! editing, every replica converged and every ack stored.
+//!
 //! And the graceful side: a node stopped with SIGTERM releases its leases,
 //! `strata-admin cluster status` reports a running node's regions, and
 //! the offline tools (check, render-map, snapshot create and restore)
@@ -59,6 +64,15 @@ fn editing_bots(server: &Server, acks: &std::path::Path, n: u32) -> strata_tests
     bots_at(server, acks, n, "512,512", "60s")
 }
 
+/// Waits until `acks` holds `n` lines.
+fn await_acks(acks: &std::path::Path, n: usize) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while std::fs::read_to_string(acks).map_or(0, |s| s.lines().count()) < n {
+        assert!(Instant::now() < deadline, "no edits acknowledged");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
 /// [`editing_bots`] living in the square whose corner is `origin` (X,Z),
 /// for `duration`.
 fn bots_at(
@@ -83,11 +97,7 @@ fn bots_at(
             acks.to_str().unwrap(),
         ],
     );
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while std::fs::read_to_string(acks).map_or(0, |s| s.lines().count()) < 10 {
-        assert!(Instant::now() < deadline, "no edits acknowledged");
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    await_acks(acks, 10);
     bots
 }
 
@@ -211,6 +221,92 @@ fn a_node_paused_past_its_lease_stores_and_acknowledges_nothing_after_a_takeover
             assert_eq!(l.owner.as_deref(), Some("node-b"));
         }
     }
+}
+
+#[test]
+fn a_paused_nodes_players_are_told_the_new_owner_and_move_there() {
+    let Some(db) = database("fencing_moved") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let (da, dbb, acks) = (
+        tmp.path().join("a"),
+        tmp.path().join("b"),
+        tmp.path().join("acks.jsonl"),
+    );
+    let store_config = format!("{SERVER_CONFIG}{}", db.store_toml());
+    let config = |id: &str| {
+        format!(
+            "{store_config}[cluster]\nnode_id = \"{id}\"\nlease_ms = {LEASE_MS}\nrenew_ms = {RENEW_MS}\n"
+        )
+    };
+    let a = Server::start_with(&da, "127.0.0.1:0", &config("node-a"));
+    std::fs::write(da.join("strata.toml"), &store_config).unwrap();
+    // One secret and one certificate for the cluster.
+    std::fs::create_dir_all(&dbb).unwrap();
+    for f in ["auth.secret", "cert.der", "key.der"] {
+        std::fs::copy(da.join(f), dbb.join(f)).unwrap();
+    }
+    let b = Server::start_with(&dbb, "127.0.0.1:0", &config("node-b"));
+    // Bots on node-a, in the middle of region (2, 2): each edit touches
+    // that region only.
+    let bots = spawn_bots(
+        &a,
+        &[
+            "--bots",
+            "4",
+            "--duration",
+            "12s",
+            "--edit-rate",
+            "5",
+            "--area-origin",
+            "600,600",
+            "--follow-owners",
+            "--ack-log",
+            acks.to_str().unwrap(),
+        ],
+    );
+    await_acks(&acks, 10);
+
+    // Paused past its lease: node-b adopts its region.
+    signal(&a, "-STOP");
+    std::thread::sleep(Duration::from_millis(LEASE_MS) + PAST_LEASE);
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let reader = PgStore::open(&pg, DEFAULT_REGION_CHUNKS).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let leases = reader.region_leases().unwrap();
+        let r22 = leases
+            .iter()
+            .find(|l| l.region == strata_server::sequencer::regions::RegionId { x: 2, z: 2 });
+        if r22.is_some_and(|l| l.owner.as_deref() == Some("node-b")) {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "node-b adopted region (2, 2): {leases:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    signal(&a, "-CONT");
+
+    let (status, summary) = strata_tests::bots_summary(bots);
+    assert!(status.success(), "bots: {summary}");
+    strata_tests::assert_converged(&summary);
+    assert!(num(&summary, "handoffs") >= 1, "moved to node-b: {summary}");
+    assert!(
+        num(&summary["edits_rejected"], "region_elsewhere") >= 1,
+        "told: {summary}"
+    );
+    // Every ack, from either node, is in the store.
+    let (status, report) = verify_acks(&da, &acks);
+    assert!(status.success(), "verify-acks: {report}");
+    assert_eq!(num(&report, "failure_count"), 0);
+    a.stop();
+    b.stop();
 }
 
 /// Runs `strata-admin` with `args`; returns its status and stdout.

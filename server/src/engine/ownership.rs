@@ -140,15 +140,20 @@ impl Engine {
 }
 
 impl Engine {
-    /// A commit the store fenced: nothing of `out` is durable. Puts its
-    /// chunks back as the store holds them, refuses its edits
-    /// (`RegionElsewhere` for those that changed the lost region, `Busy`
-    /// for the others), and reserves a new seq block so the abandoned
-    /// seqs leave no gap inside one. False for any other error, or when
-    /// the chunks cannot be put back (the node must then stop).
+    /// A commit the store fenced, or whose session ended before COMMIT:
+    /// nothing of `out` is durable. Puts its chunks back as the store holds
+    /// them, refuses its edits (`RegionElsewhere` for those that changed a
+    /// lost region, `Busy` for the others), and reserves a new seq block so
+    /// the abandoned seqs leave no gap inside one. False for any other
+    /// error, or when the chunks cannot be put back (the node must then
+    /// stop).
     pub(super) fn abandon_fenced(&mut self, out: &TickOutput, e: &StoreError) -> bool {
-        let StoreError::Fenced { region, owner, .. } = e else {
-            return false;
+        // A session the server ended before COMMIT (idle in its
+        // transaction past the lease: a paused node) wrote nothing either.
+        let (region, owner) = match e {
+            StoreError::Fenced { region, owner, .. } => (Some(*region), owner.clone()),
+            StoreError::Uncommitted { .. } => (None, None),
+            _ => return false,
         };
         if !self.store.clustered() {
             return false;
@@ -171,28 +176,25 @@ impl Engine {
                 return false;
             }
         }
-        let addr = match self.store.region_holders(&BTreeSet::from([*region])) {
-            Ok(h) => h.into_iter().find_map(|(_, h)| match h {
-                RegionHolder::Node { addr, .. } => Some(addr),
-                _ => None,
-            }),
-            Err(_) => None,
-        };
+        let addr = region
+            .and_then(|r| self.store.region_holders(&BTreeSet::from([r])).ok())
+            .and_then(|h| {
+                h.into_iter().find_map(|(_, h)| match h {
+                    RegionHolder::Node { addr, .. } => Some(addr),
+                    _ => None,
+                })
+            });
         let side = self.seq.region_chunks();
         for a in &out.applied {
-            let lost = a
-                .changes
-                .iter()
-                .any(|c| RegionId::of(c.pos, side) == *region);
-            let reason = if lost {
-                RejectReason::RegionElsewhere {
-                    region_x: region.x,
-                    region_z: region.z,
+            let lost = region.filter(|r| a.changes.iter().any(|c| RegionId::of(c.pos, side) == *r));
+            let reason = match lost {
+                Some(r) => RejectReason::RegionElsewhere {
+                    region_x: r.x,
+                    region_z: r.z,
                     owner: owner.clone().unwrap_or_default(),
                     addr: addr.clone().unwrap_or_default(),
-                }
-            } else {
-                RejectReason::Busy
+                },
+                None => RejectReason::Busy,
             };
             metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&reason)).increment(1);
             let msg = ServerMessage::EditRejected {
@@ -202,11 +204,10 @@ impl Engine {
             self.send_control(a.session_id, &msg);
         }
         warn!(
-            region_x = region.x,
-            region_z = region.z,
+            error = %e,
             edits = out.applied.len(),
             chunks = changed.len(),
-            "commit fenced: the region was lost; the batch is abandoned and its edits refused"
+            "commit refused: nothing was written; the batch is abandoned and its edits refused"
         );
         true
     }

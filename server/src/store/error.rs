@@ -13,6 +13,11 @@ pub enum StoreError {
     /// PostgreSQL refused a statement or the connection failed.
     #[error("postgres: {}", pg_reason(.0))]
     Postgres(#[from] tokio_postgres::Error),
+    /// A commit's connection was lost before its `COMMIT` was sent (the
+    /// server ended a session left idle in its transaction, as when the
+    /// node was paused): nothing of the batch was written.
+    #[error("postgres: the commit's session ended before COMMIT; nothing was written ({reason})")]
+    Uncommitted { reason: String },
     /// A PostgreSQL call ran past its limit (`[store.postgres]`).
     #[error("postgres: {what} took longer than {limit_ms} ms")]
     PgTimeout { what: &'static str, limit_ms: u64 },
@@ -87,7 +92,10 @@ fn pg_reason(e: &tokio_postgres::Error) -> String {
 impl StoreError {
     /// An error from PostgreSQL itself (the connection may be unusable).
     pub fn is_postgres(&self) -> bool {
-        matches!(self, StoreError::Postgres(_))
+        matches!(
+            self,
+            StoreError::Postgres(_) | StoreError::Uncommitted { .. }
+        )
     }
 
     pub(crate) fn corrupt(what: impl Into<String>, key: impl Into<String>) -> Self {

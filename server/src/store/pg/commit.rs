@@ -27,6 +27,7 @@ use crate::store::keys::show_pos;
 use crate::store::record::{encode_delta, encode_log_record};
 use crate::store::types::{CommitBatch, CommitStats};
 use crate::store::StoreError;
+use tokio_postgres::error::SqlState;
 
 /// A batch encoded as column arrays, ready for `unnest`.
 #[derive(Debug, Default)]
@@ -79,6 +80,22 @@ impl Rows {
         self.rz.push(r.z);
         self.version.push(version);
         self.body.push(body);
+    }
+}
+
+/// An error before `COMMIT` was sent: a session the server ended (idle in
+/// the transaction too long, or the connection gone) wrote nothing.
+fn before_commit(e: StoreError) -> StoreError {
+    match &e {
+        StoreError::Postgres(pg)
+            if pg.is_closed()
+                || pg.code() == Some(&SqlState::IDLE_IN_TRANSACTION_SESSION_TIMEOUT) =>
+        {
+            StoreError::Uncommitted {
+                reason: e.to_string(),
+            }
+        }
+        _ => e,
     }
 }
 
@@ -135,12 +152,13 @@ impl PgStore {
         };
         let encode = started.elapsed();
         let committed = self.pool.run("committing a batch", async |c: &mut Conn| {
-            c.batch("BEGIN").await?;
+            c.batch("BEGIN").await.map_err(before_commit)?;
             let applying = Instant::now();
             match write(c, &cols, fence.as_ref()).await {
                 Ok(()) => {
                     let apply = applying.elapsed();
                     let committing = Instant::now();
+                    // From here a lost connection leaves the outcome unknown.
                     c.batch("COMMIT").await?;
                     Ok((apply, committing.elapsed()))
                 }
@@ -148,7 +166,7 @@ impl PgStore {
                     if !e.is_postgres() {
                         c.batch("ROLLBACK").await?;
                     }
-                    Err(e)
+                    Err(before_commit(e))
                 }
             }
         });

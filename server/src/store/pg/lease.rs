@@ -585,7 +585,10 @@ impl PgStore {
             .map_err(|(field, reason)| StoreError::PgSetup {
                 reason: format!("{field} {reason}"),
             })?;
-        let mut store = Self::open(cfg, region_chunks)?;
+        // A transaction left open by a paused node is rolled back by the
+        // server within the lease, so it never holds a takeover up.
+        let idle = Duration::from_millis(cluster.lease_ms.min(cfg.statement_timeout_ms));
+        let mut store = Self::open_on(Pool::open_idle(cfg, idle)?, region_chunks)?;
         let leases = Arc::new(NodeLeases::new(cluster));
         // A connection of its own: renewals never wait behind commits or
         // scans for a pooled one.

@@ -83,7 +83,11 @@ impl PgStore {
     /// records `region_chunks`; an existing one must have been made with
     /// the same.
     pub fn open(cfg: &PgConfig, region_chunks: u32) -> Result<Self, StoreError> {
-        let pool = Pool::open(cfg)?;
+        Self::open_on(Pool::open(cfg)?, region_chunks)
+    }
+
+    /// [`Self::open`] on a pool already open.
+    fn open_on(pool: Pool, region_chunks: u32) -> Result<Self, StoreError> {
         migrate::apply(&pool)?;
         let fsync: String = pool.run("reading fsync", async |c: &mut Conn| {
             Ok(c.query("SHOW fsync", &[]).await?[0].get(0))

@@ -96,11 +96,21 @@ pub struct Pool {
     connect_timeout: Duration,
     pool_wait: Duration,
     statement_timeout: Duration,
+    /// The server ends a session left idle inside a transaction this long
+    /// (a paused node), rolling it back and freeing its row locks.
+    idle_in_transaction: Duration,
 }
 
 impl Pool {
     /// A pool for `cfg`; opens one connection to prove the server answers.
     pub fn open(cfg: &PgConfig) -> Result<Self, StoreError> {
+        Self::open_idle(cfg, Duration::from_millis(cfg.statement_timeout_ms))
+    }
+
+    /// [`Self::open`], its sessions ended by the server when idle inside a
+    /// transaction for `idle_in_transaction` (a cluster node: its lease, so
+    /// a node paused mid-commit cannot hold a takeover up).
+    pub fn open_idle(cfg: &PgConfig, idle_in_transaction: Duration) -> Result<Self, StoreError> {
         let config = cfg.client_config().map_err(|reason| StoreError::PgSetup {
             reason: format!("store.postgres.url {reason}"),
         })?;
@@ -118,6 +128,7 @@ impl Pool {
             connect_timeout: Duration::from_millis(cfg.connect_timeout_ms),
             pool_wait: Duration::from_millis(cfg.pool_wait_ms),
             statement_timeout: Duration::from_millis(cfg.statement_timeout_ms),
+            idle_in_transaction: idle_in_transaction.max(Duration::from_millis(1)),
         };
         let first = pool.take()?;
         pool.give(Some(first));
@@ -262,8 +273,10 @@ impl Pool {
         };
         // Every commit waits for the WAL flush; no statement runs forever.
         let settings = format!(
-            "SET synchronous_commit = on; SET statement_timeout = {}",
-            self.statement_timeout.as_millis()
+            "SET synchronous_commit = on; SET statement_timeout = {}; \
+             SET idle_in_transaction_session_timeout = {}",
+            self.statement_timeout.as_millis(),
+            self.idle_in_transaction.as_millis()
         );
         match wait(conn.batch(&settings), self.connect_timeout) {
             Ok(r) => r?,
