@@ -338,3 +338,37 @@ async fn lock_heads(c: &mut Conn, cols: &Columns) -> Result<BTreeMap<ChunkPos, u
         .map(|(p, v)| Ok((p, super::from_sql(v, "chunk version", show_pos(p))?)))
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::*;
+    use crate::store::pg::pool::Pool;
+    use crate::store::pg::PgConfig;
+
+    #[test]
+    fn a_session_ended_idle_in_its_transaction_wrote_nothing() {
+        let Some(db) = strata_tests::postgres::database("pg_idle_in_transaction") else {
+            return;
+        };
+        let cfg = PgConfig {
+            url: db.url(),
+            ..PgConfig::default()
+        };
+        let pool = Pool::open_idle(&cfg, Duration::from_millis(100)).unwrap();
+        // A client stalled inside its transaction (a paused node): the
+        // server ends the session, and the next statement says so.
+        let r = pool.run("an idle transaction", async |c: &mut Conn| {
+            c.batch("BEGIN").await?;
+            std::thread::sleep(Duration::from_millis(600));
+            c.batch("SELECT 1").await.map_err(before_commit)
+        });
+        assert!(matches!(r, Err(StoreError::Uncommitted { .. })), "{r:?}");
+        // That connection was dropped: the next call gets a fresh one.
+        pool.run("a fresh session", async |c: &mut Conn| {
+            c.batch("SELECT 1").await
+        })
+        .unwrap();
+    }
+}
