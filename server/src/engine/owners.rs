@@ -4,12 +4,13 @@
 //! `Arrive` at another node. The client library then keeps a connection
 //! to each holder and sends each edit to its region's holder.
 //!
-//! Looked at every [`OWNERS_EVERY`]; holders come from the store's cache
-//! (one query per region per renewal period at most). Sent again with a
+//! Looked at every [`OWNERS_EVERY`], for every session at once: holders
+//! come from the store's cache, with one query for those not cached (a
+//! region is cached up to a renewal period). Sent again with a
 //! new ticket every [`TICKET_REFRESH_MS`], so a client always holds one
 //! well within `TICKET_TTL_MS`.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
 use strata_protocol::limits::MAX_REGION_OWNERS;
@@ -64,22 +65,29 @@ impl Engine {
         }
         self.owners_due = now + OWNERS_EVERY;
         let side = self.seq.region_chunks();
-        let sessions: Vec<(u64, ChunkPos, u8)> = self
+        let views: Vec<(u64, BTreeSet<RegionId>)> = self
             .peers
             .iter()
-            .filter_map(|(&id, p)| Some((id, p.interest.center()?, p.interest.radius())))
+            .filter_map(|(&id, p)| {
+                let center = p.interest.center()?;
+                Some((id, view_regions(center, p.interest.radius(), side)))
+            })
             .collect();
-        for (session, center, radius) in sessions {
-            let regions = view_regions(center, radius, side);
-            let holders = match self.store.region_holders(&regions) {
-                Ok(h) => h,
-                Err(e) => {
-                    error!(error = %e, "reading region holders failed");
-                    return;
-                }
-            };
-            let owners: Vec<RegionOwner> =
-                holders.into_iter().map(|(r, h)| to_wire(r, h)).collect();
+        // Every session's regions in one call: one query at most for all
+        // the holders not cached.
+        let all: BTreeSet<RegionId> = views.iter().flat_map(|(_, r)| r.iter().copied()).collect();
+        let holders: BTreeMap<RegionId, RegionHolder> = match self.store.region_holders(&all) {
+            Ok(h) => h.into_iter().collect(),
+            Err(e) => {
+                error!(error = %e, "reading region holders failed");
+                return;
+            }
+        };
+        for (session, regions) in views {
+            let owners: Vec<RegionOwner> = regions
+                .iter()
+                .filter_map(|r| Some(to_wire(*r, holders.get(r)?.clone())))
+                .collect();
             let Some(peer) = self.peers.get(&session) else {
                 continue;
             };
