@@ -714,6 +714,26 @@ impl Client {
         self.send(&ClientMessage::Arrive(ticket)).await
     }
 
+    /// [`Self::arrive`], then waits up to `limit` for the answer: the
+    /// position arrived at, or `None` when refused, closed or too slow.
+    pub async fn arrive_within(
+        &self,
+        ticket: strata_protocol::Ticket,
+        limit: Duration,
+    ) -> Result<Option<FixedVec3>, ClientError> {
+        self.arrive(ticket).await?;
+        let deadline = Instant::now() + limit;
+        loop {
+            if let Some(feet) = self.arrived() {
+                return Ok(Some(feet));
+            }
+            if Instant::now() > deadline || !self.refusals().is_empty() || self.is_closed() {
+                return Ok(None);
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    }
+
     /// True once the connection has ended.
     pub fn is_closed(&self) -> bool {
         self.conn.close_reason().is_some()

@@ -114,13 +114,8 @@ async fn join(
 ) -> Result<Client, ClusterError> {
     let c = Client::connect_opts(addr, &cert, &token, opts).await?;
     if let Some(t) = ticket {
-        c.arrive(t).await?;
-        let deadline = Instant::now() + ARRIVE_TIMEOUT;
-        while c.arrived().is_none() {
-            if Instant::now() > deadline || !c.refusals().is_empty() || c.is_closed() {
-                return Err(ClusterError::NotArrived(addr));
-            }
-            tokio::time::sleep(Duration::from_millis(5)).await;
+        if c.arrive_within(t, ARRIVE_TIMEOUT).await?.is_none() {
+            return Err(ClusterError::NotArrived(addr));
         }
     }
     Ok(c)

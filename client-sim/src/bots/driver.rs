@@ -149,16 +149,8 @@ const ARRIVE_WAIT: Duration = Duration::from_secs(3);
 /// Sends `ticket` and waits for the node's answer; a refusal (or none) is
 /// logged, and the bot then starts as the node's `Welcome` says.
 async fn arrive(c: &Client, ticket: strata_protocol::Ticket, bot: usize) {
-    if c.arrive(ticket).await.is_err() {
-        return;
-    }
-    let deadline = Instant::now() + ARRIVE_WAIT;
-    while c.arrived().is_none() {
-        if Instant::now() > deadline || !c.refusals().is_empty() {
-            debug!(bot, refusals = ?c.refusals(), "ticket not accepted");
-            return;
-        }
-        tokio::time::sleep(Duration::from_millis(5)).await;
+    if !matches!(c.arrive_within(ticket, ARRIVE_WAIT).await, Ok(Some(_))) {
+        debug!(bot, refusals = ?c.refusals(), "ticket not accepted");
     }
 }
 
