@@ -89,10 +89,25 @@ impl DenseChunk {
     /// The single voxel value if every voxel is equal.
     pub fn uniform_value(&self) -> Option<Voxel> {
         let v = self.get(0);
-        let same = self.density.iter().all(|&d| d == v.density)
-            && self.material.iter().all(|&m| m == v.material);
+        let same =
+            all_equal(&self.density[..], v.density) && all_equal(&self.material[..], v.material);
         same.then_some(v)
     }
+}
+
+/// Whether every byte of `bytes` is `v`. Compares 64-byte blocks at a time
+/// (a loop the compiler vectorises), stopping at the first block that
+/// differs: a surface chunk differs early in one plane and not at all in
+/// the other, so the whole-plane case must be fast.
+pub fn all_equal(bytes: &[u8], v: u8) -> bool {
+    let mut blocks = bytes.chunks_exact(64);
+    for block in &mut blocks {
+        let differs = block.iter().fold(0u8, |acc, &b| acc | (b ^ v));
+        if differs != 0 {
+            return false;
+        }
+    }
+    blocks.remainder().iter().all(|&b| b == v)
 }
 
 /// A chunk's voxels. Most of a world is all air or all rock, so a uniform
@@ -247,5 +262,23 @@ mod tests {
         c.set(0, 0, 0, Voxel::new(100, ids::DIRT));
         let h = c.solid_histogram();
         assert_eq!(h[ids::DIRT as usize], CHUNK_VOLUME as u32 - 1);
+    }
+
+    #[test]
+    fn all_equal_sees_one_differing_byte_anywhere() {
+        // Lengths around the 64-byte blocks, and every position in them.
+        for len in [0, 1, 63, 64, 65, 127, 128, 200] {
+            let mut bytes = vec![7u8; len];
+            assert!(all_equal(&bytes, 7), "len {len}");
+            for i in 0..len {
+                bytes[i] = 8;
+                assert!(!all_equal(&bytes, 7), "len {len}, byte {i}");
+                bytes[i] = 7;
+            }
+        }
+        let mut d = DenseChunk::filled(Voxel::new(3, ids::DIRT));
+        assert_eq!(d.uniform_value(), Some(Voxel::new(3, ids::DIRT)));
+        d.material[CHUNK_VOLUME - 1] = ids::STONE;
+        assert_eq!(d.uniform_value(), None);
     }
 }

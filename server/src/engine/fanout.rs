@@ -48,12 +48,33 @@ pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_s
         return;
     }
     let end = encode_update(&WorldUpdate::TickEnd { last_seq });
+    let chains = chains(&edits);
     // Peers outside, changes inside: each session is visited once per
     // tick, sessions on every worker of the current pool.
     let mut all: Vec<&mut Peer> = peers.values_mut().collect();
     all.par_iter_mut()
         .with_min_len(PEERS_PER_TASK)
-        .for_each(|p| send_tick(p, &edits, &end));
+        .for_each(|p| send_tick(p, &edits, &chains, &end));
+}
+
+/// Where a change sits: (index into the tick's edits, index of the change).
+type At = (u32, u32);
+
+/// Each chunk the tick changed, with its changes in order (a version
+/// chain): a session looks up each chunk once, not each change.
+fn chains(edits: &[TickEdit<'_>]) -> Vec<(ChunkPos, Vec<At>)> {
+    let mut at: HashMap<ChunkPos, usize> = HashMap::new();
+    let mut out: Vec<(ChunkPos, Vec<At>)> = Vec::new();
+    for (e, edit) in edits.iter().enumerate() {
+        for (c, change) in edit.edit.changes.iter().enumerate() {
+            let i = *at.entry(change.pos).or_insert_with(|| {
+                out.push((change.pos, Vec::new()));
+                out.len() - 1
+            });
+            out[i].1.push((e as u32, c as u32));
+        }
+    }
+    out
 }
 
 /// One applied edit of the tick with its changes' `Delta` frames.
@@ -91,30 +112,45 @@ impl<'a> TickEdit<'a> {
 const PEERS_PER_TASK: usize = 64;
 
 /// Queues the tick's frames `p` holds the base of, then `end`, as one batch.
-fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], end: &Bytes) {
-    let mut buf = BytesMut::new();
-    let mut chunks: Vec<ChunkPos> = Vec::new();
-    let replay = p.has(CAP_OP_REPLAY);
-    // Indices of an edit's changes `p` holds the base of (one buffer per
-    // session and tick, not one per edit).
-    let mut held: Vec<usize> = Vec::new();
-    for e in edits {
-        // The Fx-hashed `known` lookup rules most sessions out; `covers`
-        // (a tree lookup) only confirms the few that hold the base.
-        held.clear();
-        held.extend(
-            e.edit
-                .changes
-                .iter()
-                .enumerate()
-                .filter(|(_, c)| {
-                    p.known.get(&c.pos) == Some(&c.from_version) && p.interest.covers(c.pos)
-                })
-                .map(|(i, _)| i),
-        );
-        if held.is_empty() {
+fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], chains: &[(ChunkPos, Vec<At>)], end: &Bytes) {
+    // The changes `p` gets: along each chunk's chain from the version it
+    // holds. The Fx-hashed `known` lookup rules most chunks out; `covers`
+    // (a tree lookup) only confirms the few it holds.
+    let mut picked: Vec<At> = Vec::new();
+    for (pos, chain) in chains {
+        let Some(&held) = p.known.get(pos) else {
             continue;
+        };
+        let mut version = held;
+        let mut covered = None;
+        for &(e, c) in chain {
+            let change = &edits[e as usize].edit.changes[c as usize];
+            if change.from_version != version {
+                continue;
+            }
+            if !*covered.get_or_insert_with(|| p.interest.covers(*pos)) {
+                break;
+            }
+            picked.push((e, c));
+            version = change.to_version;
         }
+        if version != held {
+            p.known.insert(*pos, version);
+        }
+    }
+    if picked.is_empty() {
+        return;
+    }
+    // Frames in the tick's order: by edit, then change.
+    picked.sort_unstable();
+    let mut buf = BytesMut::new();
+    let mut chunks: Vec<ChunkPos> = Vec::with_capacity(picked.len());
+    let replay = p.has(CAP_OP_REPLAY);
+    let mut held: Vec<usize> = Vec::new();
+    for group in picked.chunk_by(|a, b| a.0 == b.0) {
+        let e = &edits[group[0].0 as usize];
+        held.clear();
+        held.extend(group.iter().map(|&(_, c)| c as usize));
         match e.op.as_ref().filter(|op| replay && op.replayable_by(p)) {
             Some(op) => {
                 buf.extend_from_slice(&op.frame(e.edit, &held));
@@ -126,11 +162,7 @@ fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], end: &Bytes) {
                 }
             }
         }
-        for &i in &held {
-            let c = &e.edit.changes[i];
-            p.known.insert(c.pos, c.to_version);
-            chunks.push(c.pos);
-        }
+        chunks.extend(held.iter().map(|&i| e.edit.changes[i].pos));
     }
     if chunks.is_empty() {
         return;
@@ -145,5 +177,126 @@ fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], end: &Bytes) {
             }
         }
         Err(SendRefused::Closed) => p.failed = true,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::interest::{Interest, InterestConfig};
+    use crate::sequencer::ChunkUpdate;
+    use crate::validate::bounds::WorldBounds;
+    use strata_protocol::Start;
+    use strata_terrain::delta::ChunkDelta;
+    use strata_terrain::{Chunk, Edit, Fixed, FixedVec3, Voxel};
+
+    /// A change of `pos` from `from` to `from + 1` (uniform chunks whose
+    /// density is the version, so every delta is distinct).
+    fn change(pos: ChunkPos, from: u64) -> ChunkUpdate {
+        let at = |v: u64| Chunk::Uniform(Voxel::new(v as u8, 1));
+        ChunkUpdate {
+            pos,
+            from_version: from,
+            to_version: from + 1,
+            delta: ChunkDelta::encode(pos, from, from + 1, &at(from), &at(from + 1)).unwrap(),
+            mesh_hash: from,
+        }
+    }
+
+    fn applied(seq: u64, changes: Vec<ChunkUpdate>) -> AppliedEdit {
+        AppliedEdit {
+            seq,
+            session_id: 0,
+            client_edit_id: seq,
+            player: "p".into(),
+            edit: Edit::Mine {
+                center: FixedVec3::from_voxels(0, 0, 0),
+                radius: Fixed::from_voxels(1),
+                strength: 1,
+            },
+            changes,
+            queued_at: std::time::Instant::now(),
+        }
+    }
+
+    fn peer(known: &[(ChunkPos, u64)]) -> (Peer, tokio::sync::mpsc::Receiver<Bytes>) {
+        let (control, _) = crate::net::writer::FrameSender::channel(4);
+        let (updates, rx) = crate::net::writer::FrameSender::channel(4);
+        let mut interest = Interest::new(InterestConfig::default(), WorldBounds::default());
+        let _ = interest.subscribe(ChunkPos::new(0, 0, 0), 2);
+        let (kick, _) = tokio::sync::oneshot::channel();
+        let position = std::sync::Arc::new(super::super::LatestPosition::default());
+        let start = Start::Spawn {
+            x: 0,
+            z: 0,
+            radius: 0,
+        };
+        let mut p = Peer::new(control, updates, interest, kick, position, start);
+        p.known.extend(known.iter().copied());
+        (p, rx)
+    }
+
+    /// The per-change walk `send_tick` replaced: every change of every
+    /// edit, in order, against the versions held so far.
+    fn reference(known: &[(ChunkPos, u64)], edits: &[TickEdit<'_>], end: &Bytes) -> Vec<u8> {
+        let (mut p, _) = peer(known);
+        let mut out = Vec::new();
+        for e in edits {
+            for (i, c) in e.edit.changes.iter().enumerate() {
+                if p.known.get(&c.pos) == Some(&c.from_version) && p.interest.covers(c.pos) {
+                    out.extend_from_slice(&e.deltas[i]);
+                    p.known.insert(c.pos, c.to_version);
+                }
+            }
+        }
+        if !out.is_empty() {
+            out.extend_from_slice(end);
+        }
+        out
+    }
+
+    #[test]
+    fn each_session_gets_the_chains_it_holds_in_the_ticks_order() {
+        let (a, b, c) = (
+            ChunkPos::new(0, 0, 0),
+            ChunkPos::new(1, 0, 0),
+            ChunkPos::new(0, 1, 0),
+        );
+        let far = ChunkPos::new(40, 0, 0);
+        // a changes three times, b twice, c and far once, interleaved.
+        let applied = [
+            applied(1, vec![change(a, 4), change(b, 0)]),
+            applied(2, vec![change(c, 7)]),
+            applied(3, vec![change(a, 5), change(far, 0)]),
+            applied(4, vec![change(b, 1), change(a, 6)]),
+        ];
+        let edits: Vec<TickEdit<'_>> = applied.iter().map(|a| TickEdit::new(a, false)).collect();
+        let end = encode_update(&WorldUpdate::TickEnd { last_seq: 4 });
+        let chains = chains(&edits);
+        assert_eq!(chains.len(), 4);
+        let cases: Vec<Vec<(ChunkPos, u64)>> = vec![
+            vec![(a, 4), (b, 0), (c, 7)],
+            vec![(a, 5), (b, 1)],
+            // Held too old or too new: nothing of a or b.
+            vec![(a, 3), (b, 2)],
+            vec![(c, 7), (far, 0)],
+            vec![(a, 6)],
+            vec![],
+        ];
+        for known in cases {
+            let (mut p, mut rx) = peer(&known);
+            send_tick(&mut p, &edits, &chains, &end);
+            let got = rx.try_recv().map(|b| b.to_vec()).unwrap_or_default();
+            assert_eq!(got, reference(&known, &edits, &end), "holding {known:?}");
+            let (mut r, _) = peer(&known);
+            for e in &edits {
+                for ch in &e.edit.changes {
+                    if r.known.get(&ch.pos) == Some(&ch.from_version) && r.interest.covers(ch.pos) {
+                        r.known.insert(ch.pos, ch.to_version);
+                    }
+                }
+            }
+            assert_eq!(p.known, r.known, "holding {known:?}");
+        }
     }
 }

@@ -1,6 +1,6 @@
 //! `Sequencer::tick`: apply queued edits in order, number them, build deltas.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use strata_protocol::RejectReason;
 use strata_terrain::delta::ChunkDelta;
@@ -8,6 +8,7 @@ use strata_terrain::mesh::Neighborhood;
 use strata_terrain::ChunkPos;
 
 use rayon::prelude::*;
+use strata_terrain::hash::chunk_hash;
 use strata_terrain::{Chunk, VoxelBox, World};
 
 use super::batch::*;
@@ -284,6 +285,9 @@ impl Lane {
         let mut changed: Vec<(usize, usize, ChunkPos)> = Vec::new();
         let mut versions: BTreeMap<ChunkPos, u64> = BTreeMap::new();
         let mut new_in_store: BTreeSet<ChunkPos> = BTreeSet::new();
+        // Each chunk's hash after its last change in this lane: the base
+        // hash of its next change, which need not be hashed again.
+        let mut hashes: HashMap<ChunkPos, u64> = HashMap::new();
         for i in members {
             let edit = &queued[i].request.edit;
             let outcome = match edit.apply(&mut world, ctx) {
@@ -298,10 +302,22 @@ impl Lane {
                 let delta = {
                     let now = world.peek(c.pos).map(|v| &v.chunk);
                     let now = now.expect("apply leaves changed chunks loaded");
+                    let base_hash = match hashes.get(&c.pos) {
+                        Some(&h) => h,
+                        None => chunk_hash(&c.before),
+                    };
                     // `apply` raised the version, so the order check cannot fail.
-                    ChunkDelta::encode(c.pos, c.from_version, c.to_version, &c.before, now)
-                        .expect("apply raises the version")
+                    ChunkDelta::encode_from_hash(
+                        c.pos,
+                        c.from_version,
+                        c.to_version,
+                        &c.before,
+                        base_hash,
+                        now,
+                    )
+                    .expect("apply raises the version")
                 };
+                hashes.insert(c.pos, delta.target_hash);
                 // Meshed once, after the lane's last edit.
                 changed.push((i, changes.len(), c.pos));
                 versions.insert(c.pos, c.to_version);

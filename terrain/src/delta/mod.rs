@@ -75,7 +75,8 @@
 //!
 //! **Encoder choice.** An unchanged chunk is `[0x00]`; a uniform target is
 //! method `0x20`. Otherwise the encoder builds the runs and the masked body,
-//! tries each raw, with LZ4 and with zstd level [`DELTA_ZSTD_LEVEL`], and
+//! tries each raw, with LZ4 and (bodies of at least
+//! [`DELTA_ZSTD_MIN_BODY`] bytes) with zstd level [`DELTA_ZSTD_LEVEL`], and
 //! keeps the shortest payload, the lower method byte on a tie, so its output
 //! is deterministic. Decoders accept any valid payload, chosen or not.
 
@@ -105,6 +106,10 @@ use varint::{read_varint, write_varint};
 pub const MAX_BODY_LEN: usize = 2 * XOR_STREAM_LEN;
 /// zstd level for delta bodies; they are small, so a fast level is enough.
 pub const DELTA_ZSTD_LEVEL: i32 = 3;
+/// Shortest body the encoder tries zstd on. Below it zstd's frame and
+/// table headers cost about what it saves, and building its tables is
+/// most of an edit's encoding time.
+pub const DELTA_ZSTD_MIN_BODY: usize = 64;
 
 /// Layout nibble: (zero run, literal) pairs over the XOR stream.
 pub const LAYOUT_RUNS: u8 = 0x00;
@@ -183,13 +188,35 @@ impl ChunkDelta {
         base: &Chunk,
         target: &Chunk,
     ) -> Result<ChunkDelta, DeltaError> {
+        Self::encode_from_hash(
+            pos,
+            from_version,
+            to_version,
+            base,
+            chunk_hash(base),
+            target,
+        )
+    }
+
+    /// [`Self::encode`] for a caller that knows `base` hashes to
+    /// `base_hash` (the previous delta's `target_hash` for that chunk):
+    /// skips hashing the base again. A wrong `base_hash` makes a delta no
+    /// client can apply, so only pass one computed from this very chunk.
+    pub fn encode_from_hash(
+        pos: ChunkPos,
+        from_version: u64,
+        to_version: u64,
+        base: &Chunk,
+        base_hash: u64,
+        target: &Chunk,
+    ) -> Result<ChunkDelta, DeltaError> {
         if to_version <= from_version {
             return Err(DeltaError::VersionOrder {
                 from: from_version,
                 to: to_version,
             });
         }
-        let base_hash = chunk_hash(base);
+        debug_assert_eq!(base_hash, chunk_hash(base));
         let target_hash = chunk_hash(target);
         let payload = encode_payload(base, target, base_hash == target_hash);
         Ok(ChunkDelta {
@@ -258,7 +285,9 @@ fn encode_payload(base: &Chunk, target: &Chunk, same: bool) -> Vec<u8> {
     let mut best: Option<Vec<u8>> = None;
     for (layout, body) in [(LAYOUT_RUNS, &runs), (LAYOUT_MASKED, &masked)] {
         let lz4 = Some(lz4_flex::block::compress(body));
-        let zst = crate::zstd_ctx::compress(body, DELTA_ZSTD_LEVEL).ok();
+        let zst = (body.len() >= DELTA_ZSTD_MIN_BODY)
+            .then(|| crate::zstd_ctx::compress(body, DELTA_ZSTD_LEVEL).ok())
+            .flatten();
         let mut raw = Vec::with_capacity(1 + body.len());
         raw.push(layout | COMPRESSION_NONE);
         raw.extend_from_slice(body);

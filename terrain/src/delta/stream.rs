@@ -23,18 +23,15 @@ impl Plane<'_> {
         }
     }
 
-    fn xor_into(self, other: Plane<'_>, out: &mut [u8]) {
+    /// Appends `self XOR other` (one plane) to `out`.
+    fn xor_onto(self, other: Plane<'_>, out: &mut Vec<u8>) {
         match (self, other) {
-            (Plane::Fill(a), Plane::Fill(b)) => out.fill(a ^ b),
+            (Plane::Fill(a), Plane::Fill(b)) => out.resize(out.len() + CHUNK_VOLUME, a ^ b),
             (Plane::Fill(a), Plane::Bytes(b)) | (Plane::Bytes(b), Plane::Fill(a)) => {
-                for (o, &v) in out.iter_mut().zip(b) {
-                    *o = v ^ a;
-                }
+                out.extend(b.iter().map(|&v| v ^ a));
             }
             (Plane::Bytes(a), Plane::Bytes(b)) => {
-                for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
-                    *o = x ^ y;
-                }
+                out.extend(a.iter().zip(b).map(|(&x, &y)| x ^ y));
             }
         }
     }
@@ -50,22 +47,31 @@ pub(super) fn planes(c: &Chunk) -> [Plane<'_>; 2] {
 
 /// `base XOR target`, density plane then material plane.
 pub(super) fn xor_stream(base: &Chunk, target: &Chunk) -> Vec<u8> {
-    let mut x = vec![0u8; XOR_STREAM_LEN];
-    let (lo, hi) = x.split_at_mut(CHUNK_VOLUME);
+    // Written once, never zeroed first.
+    let mut x = Vec::with_capacity(XOR_STREAM_LEN);
     let [bd, bm] = planes(base);
     let [td, tm] = planes(target);
-    bd.xor_into(td, lo);
-    bm.xor_into(tm, hi);
+    bd.xor_onto(td, &mut x);
+    bm.xor_onto(tm, &mut x);
+    debug_assert_eq!(x.len(), XOR_STREAM_LEN);
     x
 }
 
 /// First index at or after `from` whose byte is non-zero.
 pub(super) fn next_nonzero(x: &[u8], from: usize) -> Option<usize> {
     let mut i = from;
-    // Skip zero words 8 bytes at a time: most of a sparse stream is zero.
-    while let Some(word) = x.get(i..i + 8) {
-        if word.iter().fold(0u8, |acc, &b| acc | b) != 0 {
+    // Skip zero blocks 32 bytes at a time (a vectorised OR), then zero
+    // words: most of a sparse stream is zero.
+    while let Some(block) = x.get(i..i + 32) {
+        if block.iter().fold(0u8, |acc, &b| acc | b) != 0 {
             break;
+        }
+        i += 32;
+    }
+    while let Some(word) = x.get(i..i + 8) {
+        let w = u64::from_le_bytes(word.try_into().expect("8 bytes"));
+        if w != 0 {
+            return Some(i + (w.trailing_zeros() / 8) as usize);
         }
         i += 8;
     }
