@@ -19,29 +19,11 @@ async fn start_server(tmp: &tempfile::TempDir) -> app::Running {
 
 /// A short run against `server` with minted tokens; tests override fields.
 fn config_for(server: &app::Running) -> BotsConfig {
-    BotsConfig {
-        server: server.addr,
-        cert_der: server.cert_der.clone(),
-        tokens: Tokens::Minted(server.data_dir.secret().clone()),
-        bots: 2,
-        duration: Duration::from_secs(2),
-        profile: Profile::Mixed,
-        edit_rate: 2.0,
-        view_radius: 2,
-        verify: VerifyMode::Modified,
-        seed: 1,
-        stalled: 0,
-        ramp: true,
-        ack_log: None,
-        progress: false,
-        area_origin: bots::DEFAULT_AREA_ORIGIN,
-        region_chunks: 8,
-        silence_limit: bots::DEFAULT_SILENCE_LIMIT,
-        predict: false,
-        capabilities: 0,
-        follow_owners: false,
-        player_prefix: "bot".into(),
-    }
+    BotsConfig::new(
+        server.addr,
+        server.cert_der.clone(),
+        Tokens::Minted(server.data_dir.secret().clone()),
+    )
 }
 
 /// Runs the bots to the end and checks every replica converged.

@@ -13,9 +13,11 @@
 //! `cargo bench -p strata-server --bench pipeline` (1, 2, 4 and 8 workers)
 //! or `... -- 1 2` for chosen counts; `STRATA_BENCH_SECONDS` sets the
 //! measured time per count (default 6), `STRATA_BENCH_IN_FLIGHT` the edits
-//! in flight (default 768). The last columns split the mean tick into the
-//! engine's phases (apply: the region lanes; commit: encode, write, fsync;
-//! fanout: acks and deltas).
+//! in flight (default 768). "ahead" is the share of batches applied while
+//! the batch before them committed. The last columns split the time per
+//! batch into the engine's phases (apply: the region lanes; commit:
+//! encode, write, fsync, and any batch applied ahead meanwhile; fanout:
+//! acks and deltas).
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -65,20 +67,21 @@ fn main() -> anyhow::Result<()> {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );
     println!(
-        "| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick | edits/tick | tick ms | apply / commit / fanout ms |"
+        "| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick | edits/tick | ahead | tick ms | apply / commit / fanout ms |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     for workers in counts {
         let r = run(workers, Duration::from_secs(seconds), &metrics)?;
         let per_tick = |ms: f64| ms / r.ticks.max(1.0);
         println!(
-            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} | {:.0} | {:.1} | {:.1} / {:.1} / {:.1} |",
+            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} | {:.0} | {:.2} | {:.1} | {:.1} / {:.1} / {:.1} |",
             r.edits / r.secs,
             r.deltas / r.secs,
             r.deltas / r.edits.max(1.0),
             r.cpu_ms / r.edits.max(1.0),
             r.lanes,
             r.edits / r.ticks.max(1.0),
+            r.ahead / r.ticks.max(1.0),
             per_tick(r.phase_ms[0]),
             per_tick(r.phase_ms[1]),
             per_tick(r.phase_ms[2]),
@@ -94,8 +97,10 @@ struct Result {
     secs: f64,
     cpu_ms: f64,
     lanes: f64,
-    /// Ticks that committed edits.
+    /// Batches that committed edits.
     ticks: f64,
+    /// Of them, applied while the one before committed.
+    ahead: f64,
     /// Whole tick, apply, commit, fanout: ms summed over `ticks`.
     phase_ms: [f64; 4],
 }
@@ -226,6 +231,7 @@ fn run(
         lanes: (after.lanes_sum - before.lanes_sum)
             / (after.lanes_count - before.lanes_count).max(1.0),
         ticks: after.lanes_count - before.lanes_count,
+        ahead: after.ahead - before.ahead,
         phase_ms: std::array::from_fn(|i| (after.phases[i] - before.phases[i]) * 1e3),
     })
 }
@@ -341,6 +347,7 @@ struct Counters {
     cpu: f64,
     lanes_sum: f64,
     lanes_count: f64,
+    ahead: f64,
     phases: [f64; 4],
 }
 
@@ -360,6 +367,7 @@ impl Counters {
             cpu: process_cpu_seconds(),
             lanes_sum: counter(m, "strata_tick_lanes_sum"),
             lanes_count: counter(m, "strata_tick_lanes_count"),
+            ahead: counter(m, "strata_ticks_applied_ahead_total"),
             phases: PHASES.map(|p| counter(m, p)),
         }
     }

@@ -22,6 +22,7 @@ pub const CHECKPOINT_SECONDS: &str = "strata_checkpoint_seconds";
 pub const CHECKPOINT_CHUNKS_TOTAL: &str = "strata_checkpoint_chunks_total";
 pub const TICK_SECONDS: &str = "strata_tick_seconds";
 pub const TICK_LANES: &str = "strata_tick_lanes";
+pub const TICKS_APPLIED_AHEAD: &str = "strata_ticks_applied_ahead_total";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
@@ -98,6 +99,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
         "Chunks whose deltas a checkpoint folded into their records"
     );
     metrics::describe_histogram!(TICK_SECONDS, "Sequencer tick duration");
+    metrics::describe_counter!(
+        TICKS_APPLIED_AHEAD,
+        "Batches applied while the one before them committed (an engine behind its tick rate)"
+    );
     metrics::describe_histogram!(
         TICK_LANES,
         "Lanes of joined regions a tick with edits applied in parallel"

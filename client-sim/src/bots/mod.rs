@@ -180,6 +180,35 @@ pub struct BotsConfig {
 }
 
 impl BotsConfig {
+    /// Two bots of the mixed profile for 2 s against `server`, at 2 edits
+    /// per second each, view radius 2, checking the chunks they modify;
+    /// callers override what their run needs.
+    pub fn new(server: SocketAddr, cert_der: Vec<u8>, tokens: Tokens) -> Self {
+        Self {
+            server,
+            cert_der,
+            tokens,
+            bots: 2,
+            duration: Duration::from_secs(2),
+            profile: Profile::Mixed,
+            edit_rate: 2.0,
+            view_radius: 2,
+            verify: VerifyMode::Modified,
+            seed: 1,
+            stalled: 0,
+            ramp: true,
+            ack_log: None,
+            progress: false,
+            area_origin: DEFAULT_AREA_ORIGIN,
+            region_chunks: 8,
+            silence_limit: DEFAULT_SILENCE_LIMIT,
+            predict: false,
+            capabilities: 0,
+            follow_owners: false,
+            player_prefix: "bot".into(),
+        }
+    }
+
     fn check(&self) -> Result<(), BotsError> {
         let bad = |m: &str| Err(BotsError::Config(m.to_string()));
         if self.bots == 0 {

@@ -2,7 +2,9 @@
 //! flushed on the engine's commit thread while the engine keeps taking
 //! commands.
 //!
-//! While the commit runs, the world is one batch ahead of the store, so
+//! While the commit runs, the world is one batch ahead of the store (two,
+//! once the next tick was due and applied meanwhile: `Engine::tick`
+//! chains its commit right after), so
 //! only commands that cannot observe the difference are served: positions,
 //! edit submissions (they queue for a later tick), subscriptions, resyncs
 //! (the snapshot itself is built after the commit) and joins and leaves.
@@ -16,10 +18,11 @@
 use std::collections::VecDeque;
 use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use super::inbox::Waker;
-use super::{Command, Engine, Inbox};
+use super::{Applied, Command, Engine, Inbox};
+use crate::metrics as m;
 use crate::store::{ChunkStore, CommitBatch, CommitStats, StoreError};
 
 /// Longest the engine sleeps between looks at a running commit, should a
@@ -100,44 +103,76 @@ impl Drop for Committer {
 
 impl Engine {
     /// Commits `batch` on the commit thread, serving safe commands from
-    /// `rx` until it is durable; returns the batch with the result.
-    pub(super) fn commit_serving(&mut self, batch: CommitBatch, rx: Option<&Inbox>) -> Done {
+    /// `rx` until it is durable; returns the batch with the result. Once
+    /// `due` has passed, the next tick's edits are applied meanwhile and
+    /// returned too (they are not committed).
+    pub(super) fn commit_serving(
+        &mut self,
+        batch: CommitBatch,
+        rx: Option<&Inbox>,
+        due: Option<Instant>,
+    ) -> (
+        CommitBatch,
+        Result<CommitStats, StoreError>,
+        Option<Applied>,
+    ) {
         let Some(committer) = self.committer.take() else {
             let result = self.store.commit_batch(&batch);
-            return (batch, result);
+            return (batch, result, None);
         };
-        let done = match committer.start(batch) {
-            Ok(()) => self.serve_until_done(&committer, rx),
+        let (done, next) = match committer.start(batch) {
+            Ok(()) => self.serve_until_done(&committer, rx, due),
             // No thread: commit here, serving nothing meanwhile.
             Err(batch) => {
                 let result = self.store.commit_batch(&batch);
-                (batch, result)
+                ((batch, result), None)
             }
         };
         self.committer = Some(committer);
-        done
+        (done.0, done.1, next)
     }
 
-    fn serve_until_done(&mut self, committer: &Committer, rx: Option<&Inbox>) -> Done {
+    fn serve_until_done(
+        &mut self,
+        committer: &Committer,
+        rx: Option<&Inbox>,
+        mut due: Option<Instant>,
+    ) -> (Done, Option<Applied>) {
         let lost = || {
             let err = std::io::Error::other("commit thread panicked");
             (CommitBatch::default(), Err(err.into()))
         };
         let Some(rx) = rx else {
-            return committer.done.recv().unwrap_or_else(|_| lost());
+            return (committer.done.recv().unwrap_or_else(|_| lost()), None);
         };
+        let mut next = None;
         loop {
             match committer.done.try_recv() {
-                Ok(done) => return done,
-                Err(mpsc::TryRecvError::Disconnected) => return lost(),
+                Ok(done) => return (done, next),
+                Err(mpsc::TryRecvError::Disconnected) => return (lost(), next),
                 Err(mpsc::TryRecvError::Empty) => {}
             }
-            match rx.recv_or_wake(COMMIT_LOOK) {
+            let now = Instant::now();
+            if due.is_some_and(|at| now >= at) {
+                // The next tick is due and this commit still runs: apply it
+                // now, on the workers the fsync leaves idle. Applied once.
+                due = None;
+                if self.seq.queued() > 0 {
+                    next = Some(self.apply_tick());
+                    metrics::histogram!(m::TICK_PHASE_SECONDS, "phase" => "apply_ahead")
+                        .record(now.elapsed().as_secs_f64());
+                    continue;
+                }
+            }
+            let wait = due.map_or(COMMIT_LOOK, |at| {
+                at.saturating_duration_since(now).min(COMMIT_LOOK)
+            });
+            match rx.recv_or_wake(wait) {
                 Ok(Some(cmd)) if safe_during_commit(&cmd) => self.handle(cmd),
                 Ok(Some(cmd)) => self.deferred.0.push_back(cmd),
                 Ok(None) => {}
                 Err(RecvTimeoutError::Disconnected | RecvTimeoutError::Timeout) => {
-                    return committer.done.recv().unwrap_or_else(|_| lost());
+                    return (committer.done.recv().unwrap_or_else(|_| lost()), next);
                 }
             }
         }

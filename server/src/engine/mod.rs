@@ -32,7 +32,7 @@ pub use latest::LatestPosition;
 pub use premesh::{DEFAULT_PREMESH_INFLIGHT, DEFAULT_PREMESH_RADIUS, MAX_PREMESH_RADIUS};
 pub use residency::{DEFAULT_RESIDENT_CHUNKS, MIN_RESIDENT_CHUNKS};
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -523,13 +523,51 @@ impl Engine {
     }
 
     /// One tick: apply, commit, acknowledge, broadcast, stream. While the
-    /// commit runs, safe commands from `rx` are served.
+    /// commit runs, safe commands from `rx` are served, and once the next
+    /// tick is due the next batch is applied meanwhile (see
+    /// [`MAX_CHAINED_COMMITS`]); its commit follows at once. Streaming and
+    /// eviction run only after the last, when the world equals the store.
     fn tick(&mut self, rx: Option<&Inbox>) -> anyhow::Result<()> {
         let started = Instant::now();
+        let period = Duration::from_millis(self.cfg.tick_ms.max(1));
         let mut phase = Phases::new();
         self.follow_leases();
+        let mut applied = self.apply_tick();
+        phase.end("apply");
+        // Cluster nodes never apply ahead: a fenced commit puts its chunks
+        // back from the store, which a batch applied on top would undo.
+        let chain = rx.is_some() && !self.store.clustered();
+        let mut chained = 0;
+        loop {
+            let due = (chain && chained < MAX_CHAINED_COMMITS).then(|| applied.at + period);
+            match self.commit_and_answer(applied, rx, due, &mut phase)? {
+                Some(next) => {
+                    metrics::counter!(m::TICKS_APPLIED_AHEAD).increment(1);
+                    applied = next;
+                    chained += 1;
+                }
+                None => break,
+            }
+        }
+        self.stream_snapshots();
+        phase.end("stream");
+        self.evict_cold();
+        self.drop_failed();
+        phase.end("evict");
+        let took = started.elapsed();
+        metrics::histogram!(m::TICK_SECONDS).record(took.as_secs_f64());
+        if took > period * (SLOW_TICK_PERIODS as u32) * (chained + 1) {
+            warn!(ms = took.as_millis() as u64, phases = %phase.describe(), "slow tick");
+        }
+        Ok(())
+    }
+
+    /// Applies the queued edits on the workers and starts their meshes;
+    /// refusals are answered at once.
+    fn apply_tick(&mut self) -> Applied {
+        let at = Instant::now();
         let pool = self.pool.clone();
-        let (mut out, pending) = pool.install(|| self.seq.tick_apply(now_ms()));
+        let (out, pending) = pool.install(|| self.seq.tick_apply(now_ms()));
         // Collision meshes build on the workers while the batch commits.
         let meshing = spawn_meshing(&pool, pending);
         for r in &out.rejected {
@@ -541,77 +579,88 @@ impl Engine {
             };
             self.send_control(r.session_id, &msg);
         }
-        phase.end("apply");
-        if !out.batch.is_empty() {
-            metrics::histogram!(m::TICK_LANES).record(out.lanes as f64);
-            self.capture_preimages(&out.batch);
-            let flush = Instant::now();
-            // Nothing is acknowledged or broadcast unless this succeeds.
-            let (batch, committed) = self.commit_serving(std::mem::take(&mut out.batch), rx);
-            out.batch = batch;
-            let stats = match committed {
-                Ok(stats) => Some(stats),
-                // A region lost mid-flight: the batch is abandoned, the
-                // node goes on.
-                Err(e) if self.abandon_fenced(&out, &e) => None,
-                Err(e) => {
-                    error!(error = %e, "group commit failed; stopping without acknowledging");
-                    self.close_all();
-                    return Err(e.into());
-                }
-            };
-            if let Some(stats) = stats {
-                self.durable_seq = out.batch.last_seq;
-                metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
-                metrics::histogram!(m::FSYNC_SECONDS).record(stats.fsync.as_secs_f64());
-                phase.end("commit");
-                phase.commit = Some((stats, out.batch.chunks.len()));
-                let built = meshing
-                    .recv()
-                    .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
-                phase.end("mesh_wait");
-                self.seq.finish_tick(&mut out, built);
-                for e in &out.batch.entries {
-                    self.versions.extend(e.changes.iter().copied());
-                }
-                for a in &out.applied {
-                    metrics::counter!(m::EDITS_ACCEPTED).increment(1);
-                    metrics::histogram!(m::EDIT_LATENCY_SECONDS)
-                        .record(a.queued_at.elapsed().as_secs_f64());
-                    let msg = ServerMessage::EditAccepted {
-                        client_edit_id: a.client_edit_id,
-                        seq: a.seq,
-                        changes: a
-                            .changes
-                            .iter()
-                            .map(|c| ChunkVersion {
-                                pos: c.pos,
-                                version: c.to_version,
-                            })
-                            .collect(),
-                    };
-                    self.send_control(a.session_id, &msg);
-                }
-                pool.install(|| {
-                    fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq)
-                });
-                phase.end("fanout");
-            } else {
+        Applied { out, meshing, at }
+    }
+
+    /// Commits `applied`, then acknowledges and broadcasts it. Returns the
+    /// next tick if it was applied while this one committed (only once
+    /// `due`, and never without `rx`).
+    fn commit_and_answer(
+        &mut self,
+        applied: Applied,
+        rx: Option<&Inbox>,
+        due: Option<Instant>,
+        phase: &mut Phases,
+    ) -> anyhow::Result<Option<Applied>> {
+        let Applied {
+            mut out, meshing, ..
+        } = applied;
+        if out.batch.is_empty() {
+            return Ok(None);
+        }
+        metrics::histogram!(m::TICK_LANES).record(out.lanes as f64);
+        // After the previous batch is durable: pre-images are read from
+        // the store.
+        self.capture_preimages(&out.batch);
+        let flush = Instant::now();
+        // Nothing is acknowledged or broadcast unless this succeeds.
+        let (batch, committed, next) = self.commit_serving(std::mem::take(&mut out.batch), rx, due);
+        out.batch = batch;
+        let stats = match committed {
+            Ok(stats) => stats,
+            // A region lost mid-flight: the batch is abandoned, the node
+            // goes on (cluster nodes apply nothing ahead).
+            Err(e) if self.abandon_fenced(&out, &e) => {
                 let _ = meshing.recv();
                 phase.end("commit");
+                return Ok(next);
             }
+            Err(e) => {
+                error!(error = %e, "group commit failed; stopping without acknowledging");
+                self.close_all();
+                return Err(e.into());
+            }
+        };
+        self.durable_seq = out.batch.last_seq;
+        metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
+        metrics::histogram!(m::FSYNC_SECONDS).record(stats.fsync.as_secs_f64());
+        phase.end("commit");
+        phase.commit = Some((stats, out.batch.chunks.len()));
+        let built = meshing
+            .recv()
+            .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
+        phase.end("mesh_wait");
+        let ahead: HashSet<ChunkPos> = next
+            .iter()
+            .flat_map(|n| n.out.applied.iter())
+            .flat_map(|a| a.changes.iter().map(|c| c.pos))
+            .collect();
+        self.seq.finish_tick(&mut out, built, &ahead);
+        for e in &out.batch.entries {
+            self.versions.extend(e.changes.iter().copied());
         }
-        self.stream_snapshots();
-        phase.end("stream");
-        self.evict_cold();
-        self.drop_failed();
-        phase.end("evict");
-        let took = started.elapsed();
-        metrics::histogram!(m::TICK_SECONDS).record(took.as_secs_f64());
-        if took > Duration::from_millis(self.cfg.tick_ms.max(1) * SLOW_TICK_PERIODS) {
-            warn!(ms = took.as_millis() as u64, phases = %phase.describe(), "slow tick");
+        for a in &out.applied {
+            metrics::counter!(m::EDITS_ACCEPTED).increment(1);
+            metrics::histogram!(m::EDIT_LATENCY_SECONDS)
+                .record(a.queued_at.elapsed().as_secs_f64());
+            let msg = ServerMessage::EditAccepted {
+                client_edit_id: a.client_edit_id,
+                seq: a.seq,
+                changes: a
+                    .changes
+                    .iter()
+                    .map(|c| ChunkVersion {
+                        pos: c.pos,
+                        version: c.to_version,
+                    })
+                    .collect(),
+            };
+            self.send_control(a.session_id, &msg);
         }
-        Ok(())
+        let pool = self.pool.clone();
+        pool.install(|| fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq));
+        phase.end("fanout");
+        Ok(next)
     }
 
     fn drop_failed(&mut self) {
@@ -713,6 +762,20 @@ impl Phases {
         }
         parts.join(" ")
     }
+}
+
+/// Batches one `tick` may commit back to back, each applied while the one
+/// before it committed, before it streams snapshots and evicts (which need
+/// the world to equal the store). An overloaded engine so keeps its
+/// workers busy during the fsync and still streams every few commits.
+pub const MAX_CHAINED_COMMITS: u32 = 3;
+
+/// A tick applied (world changed, meshes building) but not yet durable.
+pub(crate) struct Applied {
+    out: crate::sequencer::TickOutput,
+    meshing: Receiver<BuiltMeshes>,
+    /// When it was applied: the next is due a tick period later.
+    at: Instant,
 }
 
 /// Builds a tick's collision meshes on the workers; the receiver yields

@@ -1,6 +1,6 @@
 //! `Sequencer::tick`: apply queued edits in order, number them, build deltas.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 
 use strata_protocol::RejectReason;
 use strata_terrain::delta::ChunkDelta;
@@ -67,7 +67,7 @@ impl Sequencer {
     /// on this thread; the engine uses [`Self::tick_apply`] instead.
     pub fn tick(&mut self, now_ms: u64) -> TickOutput {
         let (mut out, pending) = self.tick_apply(now_ms);
-        self.finish_tick(&mut out, pending.build());
+        self.finish_tick(&mut out, pending.build(), &HashSet::new());
         out
     }
 
@@ -234,14 +234,24 @@ impl Sequencer {
         }
     }
 
-    /// Fills in the mesh hashes of `out` and caches the built meshes.
-    pub fn finish_tick(&mut self, out: &mut TickOutput, built: BuiltMeshes) {
+    /// Fills in the mesh hashes of `out` and caches the built meshes,
+    /// except those that read a chunk in `ahead` (changed since, by a tick
+    /// already applied): their version keys would no longer say what they
+    /// were built from.
+    pub fn finish_tick(
+        &mut self,
+        out: &mut TickOutput,
+        built: BuiltMeshes,
+        ahead: &HashSet<ChunkPos>,
+    ) {
         let BuiltMeshes { meshes, slots } = built;
         for slot in &slots {
             out.applied[slot.applied].changes[slot.change].mesh_hash = meshes[slot.job].hash;
         }
         for mesh in meshes {
-            self.collision.insert(mesh);
+            if ahead.is_empty() || !with_neighbours(mesh.pos).any(|p| ahead.contains(&p)) {
+                self.collision.insert(mesh);
+            }
         }
     }
 }
