@@ -42,8 +42,11 @@ pub const MAX_SEGMENT_SIZE_BYTES: usize = 16 * 1024 * 1024;
 
 /// How often the background checkpoint folds committed deltas into chunk
 /// records. Commits store only the log and deltas, so this bounds how much
-/// a read (or a restart) replays, not what is durable.
-pub const DEFAULT_CHECKPOINT_MS: u64 = 1000;
+/// a read (or a restart) replays, not what is durable. Each fold re-encodes
+/// whole chunk records (zstd), so a longer period folds more deltas per
+/// record: 5 s instead of 1 s cut the checkpointer's CPU by two thirds at
+/// 500 bots (BENCHMARKS.md).
+pub const DEFAULT_CHECKPOINT_MS: u64 = 5000;
 /// Longest allowed checkpoint period.
 pub const MAX_CHECKPOINT_MS: u64 = 3_600_000;
 /// Chunks one checkpoint pass folds at most (a pass then fsyncs once).
