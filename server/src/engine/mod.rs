@@ -764,10 +764,11 @@ impl Phases {
     }
 }
 
-/// Batches one `tick` may commit back to back, each applied while the one
-/// before it committed, before it streams snapshots and evicts (which need
-/// the world to equal the store). An overloaded engine so keeps its
-/// workers busy during the fsync and still streams every few commits.
+/// Batches one `tick` may apply ahead (each while the one before it
+/// commits) after its first, so at most this plus one commits back to back
+/// before it streams snapshots and evicts (which need the world to equal
+/// the store). An overloaded engine so keeps its workers busy during the
+/// fsync and still streams every few commits.
 pub const MAX_CHAINED_COMMITS: u32 = 3;
 
 /// A tick applied (world changed, meshes building) but not yet durable.
