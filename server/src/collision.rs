@@ -100,6 +100,8 @@ pub struct CollisionCache {
     /// Use stamp -> chunk, oldest first.
     lru: BTreeMap<u64, ChunkPos>,
     clock: u64,
+    /// See [`Self::built_on_demand`].
+    built_on_demand: u64,
 }
 
 impl Default for CollisionCache {
@@ -116,6 +118,7 @@ impl CollisionCache {
             entries: HashMap::new(),
             lru: BTreeMap::new(),
             clock: 0,
+            built_on_demand: 0,
         }
     }
 
@@ -259,9 +262,16 @@ impl CollisionCache {
                 jobs.push((p, version(p), Neighborhood::from_world(world, p)));
             }
         }
+        self.built_on_demand += jobs.len() as u64;
         for m in Self::mesh_chunks(&jobs) {
             self.insert(m);
         }
+    }
+
+    /// Meshes [`Self::ensure`] has built since the cache was made: each one
+    /// a line-of-sight check (or a caller) waited for.
+    pub fn built_on_demand(&self) -> u64 {
+        self.built_on_demand
     }
 
     /// The first terrain hit along the ray within `max_dist` voxels, looking
@@ -517,7 +527,9 @@ mod tests {
         );
         cache.ensure(&world, &[a, b]);
         cache.ensure(&world, &[a]); // a becomes most recent
+        assert_eq!(cache.built_on_demand(), 2, "a cached mesh is not rebuilt");
         cache.ensure(&world, &[c]);
+        assert_eq!(cache.built_on_demand(), 3);
         assert_eq!(cache.len(), 2);
         assert!(cache.get(a, 0).is_some());
         assert!(cache.get(b, 0).is_none());

@@ -23,6 +23,10 @@ pub const CHECKPOINT_CHUNKS_TOTAL: &str = "strata_checkpoint_chunks_total";
 pub const TICK_SECONDS: &str = "strata_tick_seconds";
 pub const TICK_LANES: &str = "strata_tick_lanes";
 pub const TICKS_APPLIED_AHEAD: &str = "strata_ticks_applied_ahead_total";
+/// Collision meshes built on the engine's behalf, by `kind`: `changed` (one
+/// per chunk a tick changed), `rewarm` (a stale neighbour mesh, rebuilt
+/// rebuilt by the tick) or `on_demand` (built while a check waited).
+pub const COLLISION_MESHES: &str = "strata_collision_meshes_total";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
@@ -102,6 +106,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         TICKS_APPLIED_AHEAD,
         "Batches applied while the one before them committed (an engine behind its tick rate)"
+    );
+    metrics::describe_counter!(
+        COLLISION_MESHES,
+        "Collision meshes built: kind=changed (chunks a tick changed), rewarm (stale neighbour meshes rebuilt by a tick), on_demand (a line-of-sight check waited)"
     );
     metrics::describe_histogram!(
         TICK_LANES,

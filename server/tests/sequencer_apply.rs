@@ -2,7 +2,7 @@
 
 mod sequencer_common;
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use sequencer_common::*;
 use strata_protocol::{RejectReason, Role};
@@ -189,8 +189,14 @@ fn stale_neighbour_meshes_in_use_are_rebuilt_by_the_tick() {
     s.mesh_hash(used);
     assert!(s.collision().get(unused, 0).is_none());
     s.submit(PLAYER, req(1, mine(98, -1, Z + 4, 2)), 0).unwrap();
-    let out = s.tick(0);
+    let (mut out, pending) = s.tick_apply(0);
+    let changed = out.applied[0].changes.len();
     assert!(out.applied[0].changes.iter().all(|c| c.pos.x == 3));
+    // One mesh per changed chunk, and rewarms: `used` and any other stale
+    // mesh the line-of-sight check had cached, never `unused`.
+    assert_eq!(pending.changed(), changed);
+    assert!(pending.rewarmed() >= 1);
+    s.finish_tick(&mut out, pending.build(), &HashSet::new());
     let nb = Neighborhood::from_world(s.world(), used);
     let fresh = CollisionMesh::build(used, 0, &nb);
     let cached = s.collision().get(used, 0).expect("rebuilt, not left stale");

@@ -10,6 +10,12 @@ use strata_server::app;
 use strata_server::config::ServerConfig;
 use tracing_subscriber::EnvFilter;
 
+/// mimalloc: the tick's meshes, frames and QUIC buffers allocate and free
+/// across threads all the time, where glibc's malloc spent about 10 % of
+/// the server's CPU at 500 bots (BENCHMARKS.md).
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 /// Authoritative multiplayer terrain server for smooth voxel worlds.
 ///
 /// With no arguments it runs on its embedded defaults: 127.0.0.1:4433 and

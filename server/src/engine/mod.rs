@@ -568,6 +568,12 @@ impl Engine {
         let at = Instant::now();
         let pool = self.pool.clone();
         let (out, pending) = pool.install(|| self.seq.tick_apply(now_ms()));
+        metrics::counter!(m::COLLISION_MESHES, "kind" => "changed")
+            .increment(pending.changed() as u64);
+        metrics::counter!(m::COLLISION_MESHES, "kind" => "rewarm")
+            .increment(pending.rewarmed() as u64);
+        metrics::counter!(m::COLLISION_MESHES, "kind" => "on_demand")
+            .absolute(self.seq.collision().built_on_demand());
         // Collision meshes build on the workers while the batch commits.
         let meshing = spawn_meshing(&pool, pending);
         for r in &out.rejected {

@@ -36,6 +36,8 @@ struct MeshSlot {
 pub struct PendingMeshes {
     jobs: Vec<(ChunkPos, u64, Neighborhood)>,
     slots: Vec<MeshSlot>,
+    /// How many of `jobs` (the last ones) rewarm stale neighbour meshes.
+    rewarmed: usize,
 }
 
 /// Meshes built from a [`PendingMeshes`].
@@ -48,6 +50,16 @@ pub struct BuiltMeshes {
 impl PendingMeshes {
     pub fn is_empty(&self) -> bool {
         self.jobs.is_empty()
+    }
+
+    /// Meshes of changed chunks.
+    pub fn changed(&self) -> usize {
+        self.jobs.len() - self.rewarmed
+    }
+
+    /// Meshes of unchanged neighbours rebuilt because a change made them stale.
+    pub fn rewarmed(&self) -> usize {
+        self.rewarmed
     }
 
     /// Meshes every job in parallel on the current rayon pool.
@@ -207,17 +219,27 @@ impl Sequencer {
                 job,
             })
             .collect();
+        let before = jobs.len();
         self.rewarm(dropped, &changed, &mut jobs);
+        let rewarmed = jobs.len() - before;
         out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
         out.batch.last_seq = self.last_seq();
-        (out, PendingMeshes { jobs, slots })
+        (
+            out,
+            PendingMeshes {
+                jobs,
+                slots,
+                rewarmed,
+            },
+        )
     }
 
     /// Adds a job for each unchanged chunk whose cached mesh the tick made
     /// stale (its apron changed): it was in use, and otherwise the next
     /// line-of-sight check through it would mesh it on the engine thread.
     /// Only chunks whose 27 chunks are all resident: anything else would be
-    /// meshed from generated stand-ins.
+    /// meshed from generated stand-ins. (Every such chunk is within reach of
+    /// the edit's author, so filtering by players' eyes keeps them all.)
     fn rewarm(
         &self,
         dropped: BTreeSet<ChunkPos>,
