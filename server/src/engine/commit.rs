@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 use super::inbox::Waker;
 use super::{Applied, Command, Engine, Inbox};
 use crate::metrics as m;
-use crate::store::{ChunkStore, CommitBatch, CommitStats, StoreError};
+use crate::store::{ChunkStore, CommitBatch, CommitStats, StoreError, PARALLEL_ENCODE_CHUNKS};
 
 /// Longest the engine sleeps between looks at a running commit, should a
 /// wake be lost (a full player queue skips it; draining that queue looks
@@ -69,7 +69,13 @@ impl Committer {
             .name("strata-commit".into())
             .spawn(move || {
                 for batch in todo {
-                    let result = pool.install(|| store.commit_batch(&batch));
+                    // On a worker only when the store encodes chunks in
+                    // parallel: the thread that runs it waits out the fsync.
+                    let result = if batch.chunks.len() >= PARALLEL_ENCODE_CHUNKS {
+                        pool.install(|| store.commit_batch(&batch))
+                    } else {
+                        store.commit_batch(&batch)
+                    };
                     if finished.send((batch, result)).is_err() {
                         return;
                     }

@@ -69,6 +69,12 @@ pub use types::{
 /// A fallible iterator over store records.
 pub type StoreIter<'a, T> = Box<dyn Iterator<Item = Result<T, StoreError>> + Send + 'a>;
 
+/// Whole chunk states in a batch from which a store encodes them in
+/// parallel (on the rayon pool the commit runs in, see `engine/commit.rs`).
+/// Below it the committing thread encodes them alone, and no worker thread
+/// waits out the batch's flush and fsync.
+pub const PARALLEL_ENCODE_CHUNKS: usize = 4;
+
 /// Durable world storage. Every method that writes returns only once the
 /// write is durable; a write that fails changes nothing.
 pub trait ChunkStore: Send + Sync + std::fmt::Debug {

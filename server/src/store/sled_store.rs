@@ -18,7 +18,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
 use strata_terrain::edit::{Fixed, FixedVec3};
-use strata_terrain::ChunkPos;
+use strata_terrain::{Chunk, ChunkPos};
 
 use super::batch;
 use super::check::{CheckReport, Checker};
@@ -37,7 +37,7 @@ use super::types::{
     CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta,
     STORE_FORMAT_VERSION,
 };
-use super::{ChunkStore, StoreIter};
+use super::{ChunkStore, StoreIter, PARALLEL_ENCODE_CHUNKS};
 
 /// Tree of world metadata.
 pub const TREE_META: &str = "meta";
@@ -210,16 +210,17 @@ impl ChunkStore for SledStore {
             logs.push((seq_key(e.seq), encode_log_record(e)?));
         }
         // zstd dominates a big batch's cost; chunks compress independently.
-        let chunks: Vec<EncodedChunk> = b
-            .chunks
-            .par_iter()
-            .map(|(pos, version, chunk)| EncodedChunk {
-                key: chunk_key(*pos),
-                pos: *pos,
-                lowest: lowest.get(pos).copied().unwrap_or(*version),
-                value: encode_chunk_value(*version, chunk),
-            })
-            .collect();
+        let encode = |(pos, version, chunk): &(ChunkPos, u64, Chunk)| EncodedChunk {
+            key: chunk_key(*pos),
+            pos: *pos,
+            lowest: lowest.get(pos).copied().unwrap_or(*version),
+            value: encode_chunk_value(*version, chunk),
+        };
+        let chunks: Vec<EncodedChunk> = if b.chunks.len() >= PARALLEL_ENCODE_CHUNKS {
+            b.chunks.par_iter().map(encode).collect()
+        } else {
+            b.chunks.iter().map(encode).collect()
+        };
         let mut deltas = Vec::with_capacity(b.deltas.len());
         for d in &b.deltas {
             deltas.push((

@@ -26,7 +26,7 @@ use crate::store::batch;
 use crate::store::keys::show_pos;
 use crate::store::record::{encode_delta, encode_log_record};
 use crate::store::types::{CommitBatch, CommitStats};
-use crate::store::StoreError;
+use crate::store::{StoreError, PARALLEL_ENCODE_CHUNKS};
 use tokio_postgres::error::SqlState;
 
 /// A batch encoded as column arrays, ready for `unnest`.
@@ -117,7 +117,11 @@ impl PgStore {
             cols.entries.push(encode_log_record(e)?);
         }
         // zstd dominates a big batch's cost; chunks compress independently.
-        let bodies: Vec<Vec<u8>> = b.chunks.par_iter().map(|c| encode_chunk(&c.2)).collect();
+        let bodies: Vec<Vec<u8>> = if b.chunks.len() >= PARALLEL_ENCODE_CHUNKS {
+            b.chunks.par_iter().map(|c| encode_chunk(&c.2)).collect()
+        } else {
+            b.chunks.iter().map(|c| encode_chunk(&c.2)).collect()
+        };
         for ((pos, version, _), body) in b.chunks.iter().zip(bodies) {
             cols.chunks
                 .push(self, *pos, to_sql(*version, "chunk version")?, body);
