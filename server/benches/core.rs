@@ -1,6 +1,7 @@
 //! Costs of the sequencer core: one validated edit end to end (submit with
-//! line of sight, then tick with deltas and mesh hashes), a raycast against
-//! warm collision meshes, and parallel meshing.
+//! line of sight, then tick with deltas and mesh hashes), raycasts against
+//! warm collision meshes (flat ground, generated terrain), and parallel
+//! meshing.
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -12,10 +13,12 @@ use strata_server::sequencer::{Sequencer, SequencerConfig};
 use strata_server::validate::ratelimit::BucketConfig;
 use strata_server::validate::ValidationConfig;
 use strata_terrain::edit::{Fixed, FixedVec3, StructureLibrary};
+use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::material::ids;
 use strata_terrain::mesh::Neighborhood;
 use strata_terrain::world::FlatGenerator;
-use strata_terrain::{ChunkPos, Edit, MaterialTable, Voxel, World};
+use strata_terrain::world::VoxelRead;
+use strata_terrain::{ChunkPos, Edit, MaterialTable, Voxel, VoxelPos, World};
 
 fn world() -> World {
     World::new(Arc::new(FlatGenerator {
@@ -98,6 +101,27 @@ fn raycast(c: &mut Criterion) {
     });
 }
 
+/// A line-of-sight ray as `submit` casts it: from an eye 2.6 voxels above
+/// generated terrain to the ground 7 voxels away.
+fn raycast_sight(c: &mut Criterion) {
+    let w = World::new(Arc::new(Generator::fractal(GenParams::default()).unwrap()));
+    let ground = |x: i32, z: i32| {
+        (-64..64)
+            .rev()
+            .find(|&y| w.voxel(VoxelPos::new(x, y, z)).density > 127)
+            .expect("terrain in -64..64") as f64
+    };
+    let origin = [10.5, ground(10, 10) + 2.6, 10.5];
+    let target = [16.5, ground(16, 14) + 0.5, 14.5];
+    let dir: [f64; 3] = std::array::from_fn(|i| target[i] - origin[i]);
+    let dist = dir.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let mut cache = CollisionCache::default();
+    cache.ensure(&w, &ray_chunks(origin, dir, dist));
+    c.bench_function("raycast_terrain_sight_warm", |b| {
+        b.iter(|| black_box(cache.raycast(black_box(origin), dir, dist)))
+    });
+}
+
 fn mesh_chunks(c: &mut Criterion) {
     let w = world();
     let jobs: Vec<_> = (0..8)
@@ -111,5 +135,11 @@ fn mesh_chunks(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, submit_and_tick, raycast, mesh_chunks);
+criterion_group!(
+    benches,
+    submit_and_tick,
+    raycast,
+    raycast_sight,
+    mesh_chunks
+);
 criterion_main!(benches);

@@ -9,13 +9,16 @@
 //! of its neighbourhood, so the output does not depend on the thread count.
 
 use std::collections::{BTreeMap, HashMap};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Arc, OnceLock};
 
 use rayon::prelude::*;
 use strata_terrain::mesh::{
     mesh_chunk, Mesh, MeshOptions, Neighborhood, LOCAL_MAX, LOCAL_MAX_Y, LOCAL_MIN,
 };
 use strata_terrain::{ChunkPos, VoxelBox, World, CHUNK_SIZE};
+
+use crate::tri_grid::TriGrid;
 
 /// Meshes kept by default (a LOD-0 chunk mesh is tens of KiB).
 pub const DEFAULT_COLLISION_CACHE_CAPACITY: usize = 2048;
@@ -24,8 +27,14 @@ pub const MAX_RAY_CHUNKS: usize = 256;
 /// Hits closer than this to the origin are ignored (the ray starts on a surface).
 const MIN_HIT_T: f64 = 1e-9;
 
+/// Ray casts against a mesh that test every triangle; the next one bins
+/// the triangles first ([`TriGrid`]). Most meshes (a tick builds one per
+/// changed chunk) are cast against rarely or never, and binning costs
+/// about as much as a few full casts.
+pub const GRID_AFTER_CASTS: u32 = 1;
+
 /// A chunk's LOD-0 mesh with the version it was built from and its hash.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug)]
 pub struct CollisionMesh {
     pub pos: ChunkPos,
     pub version: u64,
@@ -34,6 +43,32 @@ pub struct CollisionMesh {
     pub mesh: Mesh,
     /// Chunk-local bounding box of the vertices (`None` for an empty mesh).
     bounds: Option<([f64; 3], [f64; 3])>,
+    /// Ray casts so far, up to the one that binned the triangles.
+    casts: AtomicU32,
+    /// The triangles by place, once [`GRID_AFTER_CASTS`] casts have run.
+    grid: OnceLock<TriGrid>,
+}
+
+impl Clone for CollisionMesh {
+    fn clone(&self) -> Self {
+        Self {
+            pos: self.pos,
+            version: self.version,
+            hash: self.hash,
+            mesh: self.mesh.clone(),
+            bounds: self.bounds,
+            casts: AtomicU32::new(self.casts.load(Ordering::Relaxed)),
+            grid: self.grid.clone(),
+        }
+    }
+}
+
+/// Equal meshes of the same chunk and version, however often cast against.
+impl PartialEq for CollisionMesh {
+    fn eq(&self, other: &Self) -> bool {
+        (self.pos, self.version, self.hash, &self.mesh)
+            == (other.pos, other.version, other.hash, &other.mesh)
+    }
 }
 
 impl CollisionMesh {
@@ -55,20 +90,55 @@ impl CollisionMesh {
             hash: mesh.hash(),
             mesh,
             bounds,
+            casts: AtomicU32::new(0),
+            grid: OnceLock::new(),
         }
     }
 
-    /// Nearest triangle hit in chunk-local coordinates: `(t, triangle index)`.
+    /// Nearest triangle hit in chunk-local coordinates: `(t, triangle index)`;
+    /// of equally near ones, the last. Once the mesh is binned
+    /// ([`GRID_AFTER_CASTS`]), tests only the triangles binned near the part
+    /// of the ray inside the mesh's bounds (`tri_grid.rs`), which finds what
+    /// testing all of them would.
     fn raycast_local(&self, o: [f64; 3], d: [f64; 3], max_t: f64) -> Option<(f64, u32)> {
         let (lo, hi) = self.bounds?;
-        slab(o, d, lo, hi).filter(|(t0, _)| *t0 <= max_t)?;
+        let (t0, t1) = slab(o, d, lo, hi).filter(|(t0, _)| *t0 <= max_t)?;
+        let grid = match self.grid.get() {
+            Some(grid) => grid,
+            None if self.casts.fetch_add(1, Ordering::Relaxed) < GRID_AFTER_CASTS => {
+                let all = 0..(self.mesh.indices.len() / 3) as u32;
+                return self.nearest_hit(o, d, max_t, all);
+            }
+            None => self
+                .grid
+                .get_or_init(|| TriGrid::build(&self.mesh.positions, &self.mesh.indices)),
+        };
+        let (a, b) = (at(o, d, t0), at(o, d, t1.min(max_t)));
+        let mut candidates = Vec::new();
+        grid.candidates(
+            std::array::from_fn(|i| a[i].min(b[i])),
+            std::array::from_fn(|i| a[i].max(b[i])),
+            &mut candidates,
+        );
+        self.nearest_hit(o, d, max_t, candidates.into_iter())
+    }
+
+    /// [`Self::raycast_local`] over the given triangles, in the order given.
+    fn nearest_hit(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        max_t: f64,
+        triangles: impl Iterator<Item = u32>,
+    ) -> Option<(f64, u32)> {
         let p = |i: u32| self.mesh.positions[i as usize].map(f64::from);
         let mut best: Option<(f64, u32)> = None;
-        for (n, tri) in self.mesh.indices.chunks_exact(3).enumerate() {
+        for n in triangles {
+            let tri = &self.mesh.indices[3 * n as usize..3 * n as usize + 3];
             let limit = best.map_or(max_t, |b| b.0);
             if let Some(t) = moller_trumbore(o, d, p(tri[0]), p(tri[1]), p(tri[2])) {
                 if t <= limit && t > MIN_HIT_T {
-                    best = Some((t, n as u32));
+                    best = Some((t, n));
                 }
             }
         }
@@ -416,6 +486,11 @@ fn slab(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> Option<(f64, f6
     (t0 <= t1).then_some((t0, t1))
 }
 
+/// The point `o + t d`.
+fn at(o: [f64; 3], d: [f64; 3], t: f64) -> [f64; 3] {
+    std::array::from_fn(|i| o[i] + t * d[i])
+}
+
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -433,6 +508,7 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
 }
 
 /// Möller–Trumbore ray/triangle intersection, both faces; returns `t`.
+#[inline(always)]
 fn moller_trumbore(o: [f64; 3], d: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> Option<f64> {
     const EPS: f64 = 1e-12;
     let e1 = sub(b, a);
@@ -470,6 +546,61 @@ mod tests {
         World::new(Arc::new(FlatGenerator {
             ground: Voxel::solid(ids::STONE),
         }))
+    }
+
+    #[test]
+    fn binned_ray_casts_find_what_testing_every_triangle_finds() {
+        use strata_terrain::gen::{GenParams, Generator};
+        let world = World::new(Arc::new(Generator::fractal(GenParams::default()).unwrap()));
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut unit = move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut meshes, mut hits) = (0, 0);
+        for (x, y, z) in [(0, -1, 0), (0, 0, 0), (3, -1, -2), (-4, 0, 5), (7, 1, 7)] {
+            let pos = ChunkPos::new(x, y, z);
+            let m = CollisionMesh::build(pos, 0, &Neighborhood::from_world(&world, pos));
+            if m.mesh.indices.is_empty() {
+                continue;
+            }
+            meshes += 1;
+            m.raycast_local([16.0, 40.0, 16.0], [0.0, -1.0, 0.0], 80.0);
+            assert!(
+                m.grid.get().is_none(),
+                "the first cast tests every triangle"
+            );
+            let all = || 0..(m.mesh.indices.len() / 3) as u32;
+            for k in 0..3000 {
+                // Origins in and around the chunk, some on bin faces; some
+                // directions along an axis or in a plane.
+                let mut o: [f64; 3] = std::array::from_fn(|_| unit() * 48.0 - 8.0);
+                if k % 5 == 0 {
+                    o = o.map(|v| (v / 4.0).round() * 4.0);
+                }
+                let mut d: [f64; 3] = std::array::from_fn(|_| unit() * 2.0 - 1.0);
+                if k % 7 == 0 {
+                    d[k % 3] = 0.0;
+                }
+                if k % 11 == 0 {
+                    d = [0.0, -1.0, 0.0];
+                }
+                let Some(d) = normalize(d) else { continue };
+                let max_t = unit() * 60.0;
+                let binned = m.raycast_local(o, d, max_t);
+                assert_eq!(
+                    binned,
+                    m.nearest_hit(o, d, max_t, all()),
+                    "{pos:?} {o:?} {d:?}"
+                );
+                hits += usize::from(binned.is_some());
+            }
+            assert!(m.grid.get().is_some(), "later casts use the bins");
+        }
+        assert!(meshes >= 2, "the sample needs surface chunks");
+        assert!(hits > 500, "the rays must hit terrain often: {hits}");
     }
 
     #[test]
