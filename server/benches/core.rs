@@ -8,8 +8,9 @@ use std::sync::Arc;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use strata_protocol::{EditRequest, PositionUpdate, Role};
-use strata_server::collision::{ray_chunks, CollisionCache};
+use strata_server::collision::{ray_chunks, CollisionCache, CollisionMesh};
 use strata_server::sequencer::{Sequencer, SequencerConfig};
+use strata_server::tri_grid::TriGrid;
 use strata_server::validate::ratelimit::BucketConfig;
 use strata_server::validate::ValidationConfig;
 use strata_terrain::edit::{Fixed, FixedVec3, StructureLibrary};
@@ -122,6 +123,17 @@ fn raycast_sight(c: &mut Criterion) {
     });
 }
 
+/// Binning a generated surface chunk's triangles for ray casts.
+fn tri_grid_build(c: &mut Criterion) {
+    let w = World::new(Arc::new(Generator::fractal(GenParams::default()).unwrap()));
+    let pos = ChunkPos::new(0, -1, 0);
+    let mesh = CollisionMesh::build(pos, 0, &Neighborhood::from_world(&w, pos)).mesh;
+    assert!(!mesh.indices.is_empty(), "a surface chunk");
+    c.bench_function("tri_grid_build_terrain", |b| {
+        b.iter(|| black_box(TriGrid::build(&mesh.positions, &mesh.indices)))
+    });
+}
+
 fn mesh_chunks(c: &mut Criterion) {
     let w = world();
     let jobs: Vec<_> = (0..8)
@@ -140,6 +152,7 @@ criterion_group!(
     submit_and_tick,
     raycast,
     raycast_sight,
+    tri_grid_build,
     mesh_chunks
 );
 criterion_main!(benches);

@@ -28,10 +28,12 @@ pub const MAX_RAY_CHUNKS: usize = 256;
 const MIN_HIT_T: f64 = 1e-9;
 
 /// Ray casts against a mesh that test every triangle; the next one bins
-/// the triangles first ([`TriGrid`]). Most meshes (a tick builds one per
-/// changed chunk) are cast against rarely or never, and binning costs
-/// about as much as a few full casts.
-pub const GRID_AFTER_CASTS: u32 = 1;
+/// the triangles first ([`TriGrid`]). Binning a surface chunk costs about
+/// as much as three or four full casts, a binned cast about a third of one
+/// (`benches/core.rs`), and most meshes (a tick builds one per changed
+/// chunk) are cast against rarely or never: only a mesh cast against this
+/// often is likely to pay it back.
+pub const GRID_AFTER_CASTS: u32 = 4;
 
 /// A chunk's LOD-0 mesh with the version it was built from and its hash.
 #[derive(Debug)]

@@ -31,6 +31,12 @@ fn bin(x: f64) -> usize {
     (x / BIN).floor().clamp(0.0, (BINS - 1) as f64) as usize
 }
 
+/// [`bin`] for a vertex coordinate. Truncation toward zero equals the floor
+/// wherever the clamp does not apply; `/ 4` is exact.
+fn bin32(x: f32) -> u32 {
+    ((x / BIN as f32) as i32).clamp(0, BINS as i32 - 1) as u32
+}
+
 /// Inclusive bin ranges, per axis, of the box `lo..=hi` grown by [`SLACK`].
 fn bin_ranges(lo: [f64; 3], hi: [f64; 3]) -> [(usize, usize); 3] {
     std::array::from_fn(|i| (bin(lo[i] - SLACK), bin(hi[i] + SLACK)))
@@ -46,38 +52,49 @@ fn for_each_bin(r: [(usize, usize); 3], mut f: impl FnMut(usize)) {
     }
 }
 
-fn triangle_box(positions: &[[f32; 3]], tri: &[u32]) -> ([f64; 3], [f64; 3]) {
-    let p = |k: usize| positions[tri[k] as usize].map(f64::from);
-    let (a, b, c) = (p(0), p(1), p(2));
-    (
-        std::array::from_fn(|i| a[i].min(b[i]).min(c[i])),
-        std::array::from_fn(|i| a[i].max(b[i]).max(c[i])),
-    )
+/// A triangle's bin ranges (its box grown by [`SLACK`]), 3 bits per bound.
+fn packed_ranges(positions: &[[f32; 3]], tri: &[u32]) -> u32 {
+    let (a, b, c) = (
+        positions[tri[0] as usize],
+        positions[tri[1] as usize],
+        positions[tri[2] as usize],
+    );
+    let mut packed = 0;
+    for i in 0..3 {
+        let lo = bin32(a[i].min(b[i]).min(c[i]) - SLACK as f32);
+        let hi = bin32(a[i].max(b[i]).max(c[i]) + SLACK as f32);
+        packed |= (lo | hi << 3) << (6 * i);
+    }
+    packed
+}
+
+fn unpack(packed: u32) -> [(usize, usize); 3] {
+    std::array::from_fn(|i| {
+        let r = packed >> (6 * i);
+        ((r & 7) as usize, (r >> 3 & 7) as usize)
+    })
 }
 
 impl TriGrid {
     /// Bins the triangles of `indices` (three per triangle) over `positions`
     /// (chunk-local).
     pub fn build(positions: &[[f32; 3]], indices: &[u32]) -> Self {
-        let ranges: Vec<[(usize, usize); 3]> = indices
+        let ranges: Vec<u32> = indices
             .chunks_exact(3)
-            .map(|tri| {
-                let (lo, hi) = triangle_box(positions, tri);
-                bin_ranges(lo, hi)
-            })
+            .map(|tri| packed_ranges(positions, tri))
             .collect();
         // Counting sort: sizes, offsets, then fill in triangle order.
         let mut start = vec![0u32; BINS * BINS * BINS + 1];
-        for r in &ranges {
-            for_each_bin(*r, |b| start[b + 1] += 1);
+        for &r in &ranges {
+            for_each_bin(unpack(r), |b| start[b + 1] += 1);
         }
         for b in 1..start.len() {
             start[b] += start[b - 1];
         }
         let mut next: Vec<u32> = start[..start.len() - 1].to_vec();
         let mut tris = vec![0u32; *start.last().unwrap_or(&0) as usize];
-        for (n, r) in ranges.iter().enumerate() {
-            for_each_bin(*r, |b| {
+        for (n, &r) in ranges.iter().enumerate() {
+            for_each_bin(unpack(r), |b| {
                 tris[next[b] as usize] = n as u32;
                 next[b] += 1;
             });
