@@ -6,11 +6,10 @@
 use std::hint::black_box;
 use std::sync::Arc;
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use strata_protocol::{EditRequest, PositionUpdate, Role};
 use strata_server::collision::{ray_chunks, CollisionCache, CollisionMesh};
 use strata_server::sequencer::{Sequencer, SequencerConfig};
-use strata_server::tri_grid::TriGrid;
 use strata_server::validate::ratelimit::BucketConfig;
 use strata_server::validate::ValidationConfig;
 use strata_terrain::edit::{Fixed, FixedVec3, StructureLibrary};
@@ -121,16 +120,23 @@ fn raycast_sight(c: &mut Criterion) {
     c.bench_function("raycast_terrain_sight_warm", |b| {
         b.iter(|| black_box(cache.raycast(black_box(origin), dir, dist)))
     });
-}
-
-/// Binning a generated surface chunk's triangles for ray casts.
-fn tri_grid_build(c: &mut Criterion) {
-    let w = World::new(Arc::new(Generator::fractal(GenParams::default()).unwrap()));
-    let pos = ChunkPos::new(0, -1, 0);
-    let mesh = CollisionMesh::build(pos, 0, &Neighborhood::from_world(&w, pos)).mesh;
-    assert!(!mesh.indices.is_empty(), "a surface chunk");
-    c.bench_function("tri_grid_build_terrain", |b| {
-        b.iter(|| black_box(TriGrid::build(&mesh.positions, &mesh.indices)))
+    // The first cast against freshly built meshes, as after an edit.
+    let meshes: Vec<CollisionMesh> = ray_chunks(origin, dir, dist)
+        .into_iter()
+        .map(|p| CollisionMesh::build(p, 0, &Neighborhood::from_world(&w, p)))
+        .collect();
+    c.bench_function("raycast_terrain_sight_first", |b| {
+        b.iter_batched_ref(
+            || {
+                let mut fresh = CollisionCache::default();
+                for m in &meshes {
+                    fresh.insert(m.clone());
+                }
+                fresh
+            },
+            |fresh| black_box(fresh.raycast(black_box(origin), dir, dist)),
+            BatchSize::SmallInput,
+        )
     });
 }
 
@@ -152,7 +158,6 @@ criterion_group!(
     submit_and_tick,
     raycast,
     raycast_sight,
-    tri_grid_build,
     mesh_chunks
 );
 criterion_main!(benches);

@@ -9,16 +9,13 @@
 //! of its neighbourhood, so the output does not depend on the thread count.
 
 use std::collections::{BTreeMap, HashMap};
-use std::sync::atomic::{AtomicU32, Ordering};
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 
 use rayon::prelude::*;
 use strata_terrain::mesh::{
     mesh_chunk, Mesh, MeshOptions, Neighborhood, LOCAL_MAX, LOCAL_MAX_Y, LOCAL_MIN,
 };
 use strata_terrain::{ChunkPos, VoxelBox, World, CHUNK_SIZE};
-
-use crate::tri_grid::TriGrid;
 
 /// Meshes kept by default (a LOD-0 chunk mesh is tens of KiB).
 pub const DEFAULT_COLLISION_CACHE_CAPACITY: usize = 2048;
@@ -27,16 +24,16 @@ pub const MAX_RAY_CHUNKS: usize = 256;
 /// Hits closer than this to the origin are ignored (the ray starts on a surface).
 const MIN_HIT_T: f64 = 1e-9;
 
-/// Ray casts against a mesh that test every triangle; the next one bins
-/// the triangles first ([`TriGrid`]). Binning a surface chunk costs about
-/// as much as three or four full casts, a binned cast about a third of one
-/// (`benches/core.rs`), and most meshes (a tick builds one per changed
-/// chunk) are cast against rarely or never: only a mesh cast against this
-/// often is likely to pay it back.
-pub const GRID_AFTER_CASTS: u32 = 4;
+/// Largest difference, on any axis, between two vertices of one LOD-0
+/// triangle: Marching Cubes puts a triangle's vertices on the edges of one
+/// unit cell (checked for every mesh in debug builds).
+pub const TRIANGLE_SPAN: f64 = 1.0;
+/// How far from a ray's box a triangle's first vertex may lie and the ray
+/// still hit it: the span plus room, far more than the rounding of a hit.
+const NEAR: f64 = TRIANGLE_SPAN + 1e-3;
 
 /// A chunk's LOD-0 mesh with the version it was built from and its hash.
-#[derive(Debug)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct CollisionMesh {
     pub pos: ChunkPos,
     pub version: u64,
@@ -45,38 +42,22 @@ pub struct CollisionMesh {
     pub mesh: Mesh,
     /// Chunk-local bounding box of the vertices (`None` for an empty mesh).
     bounds: Option<([f64; 3], [f64; 3])>,
-    /// Ray casts so far, up to the one that binned the triangles.
-    casts: AtomicU32,
-    /// The triangles by place, once [`GRID_AFTER_CASTS`] casts have run.
-    grid: OnceLock<TriGrid>,
-}
-
-impl Clone for CollisionMesh {
-    fn clone(&self) -> Self {
-        Self {
-            pos: self.pos,
-            version: self.version,
-            hash: self.hash,
-            mesh: self.mesh.clone(),
-            bounds: self.bounds,
-            casts: AtomicU32::new(self.casts.load(Ordering::Relaxed)),
-            grid: self.grid.clone(),
-        }
-    }
-}
-
-/// Equal meshes of the same chunk and version, however often cast against.
-impl PartialEq for CollisionMesh {
-    fn eq(&self, other: &Self) -> bool {
-        (self.pos, self.version, self.hash, &self.mesh)
-            == (other.pos, other.version, other.hash, &other.mesh)
-    }
 }
 
 impl CollisionMesh {
     /// Meshes one chunk at LOD 0.
     pub fn build(pos: ChunkPos, version: u64, nb: &Neighborhood) -> Self {
         let mesh = mesh_chunk(nb, &MeshOptions::default());
+        debug_assert!(
+            mesh.indices.chunks_exact(3).all(|t| {
+                let v = |k: usize| mesh.positions[t[k] as usize];
+                (0..3).all(|i| {
+                    let (x, y, z) = (v(0)[i], v(1)[i], v(2)[i]);
+                    f64::from(x.max(y).max(z) - x.min(y).min(z)) <= TRIANGLE_SPAN
+                })
+            }),
+            "a triangle wider than TRIANGLE_SPAN"
+        );
         let bounds = mesh.positions.first().map(|first| {
             let f = first.map(f64::from);
             mesh.positions.iter().fold((f, f), |(lo, hi), p| {
@@ -92,37 +73,34 @@ impl CollisionMesh {
             hash: mesh.hash(),
             mesh,
             bounds,
-            casts: AtomicU32::new(0),
-            grid: OnceLock::new(),
         }
     }
 
     /// Nearest triangle hit in chunk-local coordinates: `(t, triangle index)`;
-    /// of equally near ones, the last. Once the mesh is binned
-    /// ([`GRID_AFTER_CASTS`]), tests only the triangles binned near the part
-    /// of the ray inside the mesh's bounds (`tri_grid.rs`), which finds what
-    /// testing all of them would.
+    /// of equally near ones, the last. A triangle the ray hits has its first
+    /// vertex within [`TRIANGLE_SPAN`] of the box of the part of the ray
+    /// inside the mesh's bounds, so only those triangles are tested.
     fn raycast_local(&self, o: [f64; 3], d: [f64; 3], max_t: f64) -> Option<(f64, u32)> {
+        let (lo, hi) = self.ray_box(o, d, max_t)?;
+        let (lo, hi) = (lo.map(|v| v - NEAR), hi.map(|v| v + NEAR));
+        let near = |n: &u32| {
+            let v = self.mesh.positions[self.mesh.indices[3 * *n as usize] as usize];
+            (0..3).all(|i| (lo[i]..=hi[i]).contains(&f64::from(v[i])))
+        };
+        let all = 0..(self.mesh.indices.len() / 3) as u32;
+        self.nearest_hit(o, d, max_t, all.filter(near))
+    }
+
+    /// The box of the part of the ray within `max_t` inside the mesh's
+    /// bounds, or `None` if it misses them.
+    fn ray_box(&self, o: [f64; 3], d: [f64; 3], max_t: f64) -> Option<([f64; 3], [f64; 3])> {
         let (lo, hi) = self.bounds?;
         let (t0, t1) = slab(o, d, lo, hi).filter(|(t0, _)| *t0 <= max_t)?;
-        let grid = match self.grid.get() {
-            Some(grid) => grid,
-            None if self.casts.fetch_add(1, Ordering::Relaxed) < GRID_AFTER_CASTS => {
-                let all = 0..(self.mesh.indices.len() / 3) as u32;
-                return self.nearest_hit(o, d, max_t, all);
-            }
-            None => self
-                .grid
-                .get_or_init(|| TriGrid::build(&self.mesh.positions, &self.mesh.indices)),
-        };
         let (a, b) = (at(o, d, t0), at(o, d, t1.min(max_t)));
-        let mut candidates = Vec::new();
-        grid.candidates(
+        Some((
             std::array::from_fn(|i| a[i].min(b[i])),
             std::array::from_fn(|i| a[i].max(b[i])),
-            &mut candidates,
-        );
-        self.nearest_hit(o, d, max_t, candidates.into_iter())
+        ))
     }
 
     /// [`Self::raycast_local`] over the given triangles, in the order given.
@@ -551,7 +529,7 @@ mod tests {
     }
 
     #[test]
-    fn binned_ray_casts_find_what_testing_every_triangle_finds() {
+    fn casts_near_the_ray_find_what_testing_every_triangle_finds() {
         use strata_terrain::gen::{GenParams, Generator};
         let world = World::new(Arc::new(Generator::fractal(GenParams::default()).unwrap()));
         let mut state = 0x9E37_79B9_7F4A_7C15u64;
@@ -562,22 +540,22 @@ mod tests {
             (state >> 11) as f64 / (1u64 << 53) as f64
         };
         let (mut meshes, mut hits) = (0, 0);
-        for (x, y, z) in [(0, -1, 0), (0, 0, 0), (3, -1, -2), (-4, 0, 5), (7, 1, 7)] {
+        let flat = flat();
+        let cases = [(0, -1, 0), (0, 0, 0), (3, -1, -2), (-4, 0, 5), (7, 1, 7)]
+            .map(|p| (p, &world))
+            .into_iter()
+            .chain([((3, -1, 3), &flat)]);
+        for ((x, y, z), world) in cases {
             let pos = ChunkPos::new(x, y, z);
-            let m = CollisionMesh::build(pos, 0, &Neighborhood::from_world(&world, pos));
+            let m = CollisionMesh::build(pos, 0, &Neighborhood::from_world(world, pos));
             if m.mesh.indices.is_empty() {
                 continue;
             }
             meshes += 1;
-            m.raycast_local([16.0, 40.0, 16.0], [0.0, -1.0, 0.0], 80.0);
-            assert!(
-                m.grid.get().is_none(),
-                "the first cast tests every triangle"
-            );
             let all = || 0..(m.mesh.indices.len() / 3) as u32;
             for k in 0..3000 {
-                // Origins in and around the chunk, some on bin faces; some
-                // directions along an axis or in a plane.
+                // Origins in and around the chunk, some on whole voxels;
+                // some directions along an axis or in a plane.
                 let mut o: [f64; 3] = std::array::from_fn(|_| unit() * 48.0 - 8.0);
                 if k % 5 == 0 {
                     o = o.map(|v| (v / 4.0).round() * 4.0);
@@ -591,15 +569,14 @@ mod tests {
                 }
                 let Some(d) = normalize(d) else { continue };
                 let max_t = unit() * 60.0;
-                let binned = m.raycast_local(o, d, max_t);
+                let near = m.raycast_local(o, d, max_t);
                 assert_eq!(
-                    binned,
+                    near,
                     m.nearest_hit(o, d, max_t, all()),
                     "{pos:?} {o:?} {d:?}"
                 );
-                hits += usize::from(binned.is_some());
+                hits += usize::from(near.is_some());
             }
-            assert!(m.grid.get().is_some(), "later casts use the bins");
         }
         assert!(meshes >= 2, "the sample needs surface chunks");
         assert!(hits > 500, "the rays must hit terrain often: {hits}");

@@ -26,5 +26,4 @@ pub mod snapshot;
 pub mod store;
 pub mod structures;
 pub mod tls;
-pub mod tri_grid;
 pub mod validate;
