@@ -1,7 +1,7 @@
 //! Costs of the sequencer core: one validated edit end to end (submit with
 //! line of sight, then tick with deltas and mesh hashes), raycasts against
-//! warm collision meshes (flat ground, generated terrain), and parallel
-//! meshing.
+//! collision meshes (warm and freshly built; flat ground, generated
+//! terrain), and parallel meshing.
 
 use std::hint::black_box;
 use std::sync::Arc;
