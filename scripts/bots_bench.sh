@@ -15,7 +15,10 @@
 # server's own strata_edits_accepted_total (hostile players' edits included).
 # The same line has the tick: tick_ms mean (strata_tick_seconds sum over
 # count, whole run), p50 and p99 (the registry's rolling window, the run's
-# last minute) and the count of ticks. BENCH_CONSOLE_PORT turns on the web
+# last minute) and the count of ticks; and "udp": the
+# UDP datagrams the server sent and received, its UDP bytes sent, QUIC's
+# lost packets, and datagrams (both ways) per edit it accepted.
+# BENCH_CONSOLE_PORT turns on the web
 # console; BENCH_WATCHERS=N then connects N watching consoles once the
 # server is up, each like a browser tab: the first screen of map tiles
 # (3 x 3 around the bots), then the live event stream to the end.
@@ -173,9 +176,15 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
             split($1, a, "[{\"]"); q[a[1] "_" a[3]] = $2 * 1000 }
         /^strata_tick_seconds_sum / { tsum = $2 }
         /^strata_tick_seconds_count / { tcount = $2 }
+        /^strata_udp_datagrams_total\{direction="sent"\}/ { dsent = $NF }
+        /^strata_udp_datagrams_total\{direction="received"\}/ { drecv = $NF }
+        /^strata_udp_bytes_total\{direction="sent"\}/ { bsent = $NF }
+        /^strata_quic_lost_packets_total / { lost = $NF }
         END { printf "{\"commit_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"fsync_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"server_edits_accepted\":%d",
             q["strata_flush_seconds_0.5"], q["strata_flush_seconds_0.99"], q["strata_flush_seconds_1"],
             q["strata_fsync_seconds_0.5"], q["strata_fsync_seconds_0.99"], q["strata_fsync_seconds_1"], accepted
-              printf ",\"tick_ms\":{\"mean\":%.3f,\"p50\":%.3f,\"p99\":%.3f,\"count\":%d}}\n",
-            (tcount > 0 ? 1000 * tsum / tcount : 0), q["strata_tick_seconds_0.5"], q["strata_tick_seconds_0.99"], tcount }'
+              printf ",\"tick_ms\":{\"mean\":%.3f,\"p50\":%.3f,\"p99\":%.3f,\"count\":%d}",
+            (tcount > 0 ? 1000 * tsum / tcount : 0), q["strata_tick_seconds_0.5"], q["strata_tick_seconds_0.99"], tcount
+              printf ",\"udp\":{\"datagrams_sent\":%d,\"datagrams_received\":%d,\"bytes_sent\":%d,\"lost_packets\":%d,\"datagrams_per_edit\":%.1f}}\n",
+            dsent, drecv, bsent, lost, (accepted > 0 ? (dsent + drecv) / accepted : 0) }'
 fi

@@ -30,6 +30,11 @@ pub const COLLISION_MESHES: &str = "strata_collision_meshes_total";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
+pub const UDP_DATAGRAMS: &str = "strata_udp_datagrams_total";
+pub const UDP_BYTES: &str = "strata_udp_bytes_total";
+pub const QUIC_LOST_PACKETS: &str = "strata_quic_lost_packets_total";
+pub const QUIC_CONGESTION_EVENTS: &str = "strata_quic_congestion_events_total";
+pub const QUIC_RTT_SECONDS: &str = "strata_quic_rtt_seconds";
 pub const DELTAS_DROPPED: &str = "strata_deltas_dropped_total";
 pub const DELTAS_SENT: &str = "strata_deltas_sent_total";
 pub const OPS_SENT: &str = "strata_ops_sent_total";
@@ -124,6 +129,23 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
         "Tick time by phase: apply, commit, mesh_wait, fanout, stream, evict"
     );
     metrics::describe_counter!(BYTES_SENT, "Bytes written to clients");
+    metrics::describe_counter!(
+        UDP_DATAGRAMS,
+        "UDP datagrams of client and admin connections, by direction (sent, received)"
+    );
+    metrics::describe_counter!(
+        UDP_BYTES,
+        "UDP payload bytes of client and admin connections (QUIC headers, ACKs and retransmissions included), by direction"
+    );
+    metrics::describe_counter!(QUIC_LOST_PACKETS, "Packets QUIC declared lost");
+    metrics::describe_counter!(
+        QUIC_CONGESTION_EVENTS,
+        "Congestion events (a connection's congestion window shrank)"
+    );
+    metrics::describe_histogram!(
+        QUIC_RTT_SECONDS,
+        "Smoothed round-trip time, one reading per open connection every 5 s"
+    );
     metrics::describe_gauge!(RESIDENT_CHUNKS, "Chunks held in the sequencer's memory");
     metrics::describe_counter!(PREMESH_BUILT, "Collision meshes built ahead of need");
     metrics::describe_counter!(PREMESH_STALE, "Background meshes dropped as outdated");

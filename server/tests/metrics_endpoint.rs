@@ -1,6 +1,6 @@
 //! The Prometheus endpoint of a real server process reports connections,
 //! sessions, edits by outcome and reason, edit and flush latency, bytes
-//! sent and background meshing.
+//! sent, background meshing and QUIC's own traffic.
 
 mod common;
 
@@ -72,10 +72,55 @@ async fn metrics_count_what_happened() {
             }
         };
         assert!(premeshed <= 27.0 + 2.0, "{premeshed} meshes for one player");
+        // Transport counters: read while the connection is open (every
+        // 5 s), and once more when it closes.
+        let sent = "strata_udp_datagrams_total{direction=\"sent\"}";
+        let received = "strata_udp_datagrams_total{direction=\"received\"}";
+        let open = wait_for_metric(metrics, received, 1.0).await;
         c.close().await;
+        let closed = wait_for_metric(metrics, received, open + 1.0).await;
+        let text = scrape(metrics);
+        let datagrams = metric(&text, sent).expect("datagrams sent");
+        let bytes = metric(&text, "strata_udp_bytes_total{direction=\"sent\"}").unwrap();
+        let app_bytes = metric(&text, "strata_bytes_sent_total").unwrap();
+        // The welcome, the snapshots around the player, two verdicts.
+        assert!(datagrams >= 10.0, "{datagrams} datagrams sent");
+        // QUIC's headers and ACKs come on top of what the writers sent.
+        assert!(
+            bytes > app_bytes,
+            "{bytes} UDP bytes for {app_bytes} written"
+        );
+        assert!(
+            bytes <= datagrams * 1500.0,
+            "{bytes} bytes in {datagrams} datagrams"
+        );
+        let in_bytes = metric(&text, "strata_udp_bytes_total{direction=\"received\"}").unwrap();
+        assert!(
+            in_bytes >= closed * 20.0,
+            "{in_bytes} bytes in {closed} datagrams"
+        );
+        assert_eq!(metric(&text, "strata_quic_lost_packets_total"), Some(0.0));
+        let rtts = metric(&text, "strata_quic_rtt_seconds_count").unwrap_or(0.0);
+        assert!(rtts >= 1.0, "{rtts} RTT readings:\n{text}");
         child.kill().unwrap();
         child.wait().unwrap();
     })
     .await
     .expect("test finished in time");
+}
+
+/// Polls the metrics at `addr` until `name` is at least `at_least`
+/// (20 s at most); returns its value.
+async fn wait_for_metric(addr: std::net::SocketAddr, name: &str, at_least: f64) -> f64 {
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    loop {
+        let text = scrape(addr);
+        match metric(&text, name) {
+            Some(n) if n >= at_least => return n,
+            _ if std::time::Instant::now() > deadline => {
+                panic!("{name} never reached {at_least}:\n{text}")
+            }
+            _ => tokio::time::sleep(Duration::from_millis(100)).await,
+        }
+    }
 }

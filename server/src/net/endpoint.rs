@@ -10,6 +10,7 @@ use tracing::{debug, info, Instrument};
 use super::admin_session;
 use super::admission::{Admission, Limits};
 use super::session::{self, SessionContext};
+use super::transport_stats;
 use crate::shutdown::Shutdown;
 
 /// How long shutdown waits for sessions to say goodbye.
@@ -61,9 +62,13 @@ impl Listener {
                         metrics::gauge!(crate::metrics::CONNECTIONS).increment(1.0);
                         match tokio::time::timeout_at(handshake.deadline, incoming).await {
                             Ok(Ok(conn)) if is_admin(&conn) => {
-                                admin_session::run(conn, id, ctx, shutdown, handshake).await
+                                let run = admin_session::run(conn.clone(), id, ctx, shutdown, handshake);
+                                transport_stats::sampled(conn, run).await
                             }
-                            Ok(Ok(conn)) => session::run(conn, id, ctx, shutdown, handshake).await,
+                            Ok(Ok(conn)) => {
+                                let run = session::run(conn.clone(), id, ctx, shutdown, handshake);
+                                transport_stats::sampled(conn, run).await
+                            }
                             Ok(Err(e)) => debug!(error = %e, "handshake failed"),
                             Err(_) => debug!("TLS handshake timed out"),
                         }

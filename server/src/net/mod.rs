@@ -5,4 +5,5 @@ pub mod admin_session;
 pub mod admission;
 pub mod endpoint;
 pub mod session;
+pub mod transport_stats;
 pub mod writer;
