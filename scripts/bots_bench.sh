@@ -23,7 +23,9 @@
 # server is up, each like a browser tab: the first screen of map tiles
 # (3 x 3 around the bots), then the live event stream to the end.
 # BENCH_LOG=FILE keeps the server's log. Binaries come from
-# ${CARGO_TARGET_DIR:-target}/release, built first.
+# ${CARGO_TARGET_DIR:-target}/release, built first, or from BENCH_BIN_DIR
+# as they are (strata-server, strata-admin, strata-bots; no cargo needed:
+# a machine the binaries were copied to).
 #
 # BENCH_SERVER_CPUS and BENCH_BOT_CPUS pin the server and the bots to CPU
 # lists (taskset -c syntax: 0,1 or 2-7); unset, both run anywhere.
@@ -43,7 +45,9 @@
 #                           edit_server_cores, edit_server_cpu_ms_per_edit
 #   server_cpus, bots_cpus  the pins (null: none)
 # and one human-readable line of them goes to stderr. BENCH_CSV=FILE appends
-# the same figures as a CSV row (header first when FILE is new or empty).
+# the same figures as a CSV row (header first when FILE is new or empty),
+# with the bots' ack p50 and p99 and broadcast p99 in ms, and their
+# replica, mesh, op and order mismatches summed.
 set -euo pipefail
 if [ "${1:-}" = -h ] || [ "${1:-}" = --help ]; then
     sed -n '2,/^set -euo/{/^set -euo/d; s/^# \{0,1\}//; p}' "$0"
@@ -61,7 +65,15 @@ if [ -n "${BENCH_BOT_CPUS:-}" ]; then
     taskset -c "$BENCH_BOT_CPUS" true
     bots_pin=(taskset -c "$BENCH_BOT_CPUS")
 fi
-cargo build --release --locked -q -p strata-server -p strata-client-sim --bins
+if [ -n "${BENCH_BIN_DIR:-}" ]; then
+    bin=$BENCH_BIN_DIR
+else
+    cargo build --release --locked -q -p strata-server -p strata-client-sim --bins
+    bin=$target/release
+fi
+for b in strata-server strata-admin strata-bots; do
+    [ -x "$bin/$b" ] || { echo "bots_bench: no $bin/$b" >&2; exit 1; }
+done
 dir=$(mktemp -d)
 pid=; sampler=; watchers=()
 trap 'kill ${watchers[*]:-} ${sampler:-} ${pid:-} 2>/dev/null || true; [ -n "${BENCH_LOG:-}" ] && cp "$dir/log" "$BENCH_LOG"; rm -rf "$dir"' EXIT
@@ -82,13 +94,13 @@ if [ -n "${BENCH_CONSOLE_PORT:-}" ]; then
     printf '[console]\nlisten = "127.0.0.1:%s"\n' "$BENCH_CONSOLE_PORT" >> "$dir/strata.toml"
 fi
 # taskset execs the server: $! is the server's pid either way.
-"${server_pin[@]}" "${STRATA_SERVER_BIN:-$target/release/strata-server}" \
+"${server_pin[@]}" "${STRATA_SERVER_BIN:-$bin/strata-server}" \
     --config "$dir/strata.toml" --data-dir "$dir/data" > "$dir/out" 2> "$dir/log" &
 pid=$!
 for _ in $(seq 100); do grep -q listening "$dir/out" 2>/dev/null && break; sleep 0.1; done
 addr=$(grep -oE '127\.0\.0\.1:[0-9]+' "$dir/out" | head -1)
 if [ "${BENCH_WATCHERS:-0}" -gt 0 ]; then
-    token=$("$target/release/strata-admin" token issue --data-dir "$dir/data" \
+    token=$("$bin/strata-admin" token issue --data-dir "$dir/data" \
         --player bench --role admin --ttl 1h | tail -1)
     console="http://127.0.0.1:${BENCH_CONSOLE_PORT:?BENCH_WATCHERS needs BENCH_CONSOLE_PORT}"
     for _ in $(seq "$BENCH_WATCHERS"); do
@@ -109,7 +121,7 @@ sample > "$dir/samples" 2>/dev/null &
 sampler=$!
 t0=$(ticks); s0=$(date +%s.%N)
 /usr/bin/time -f "%U %S" -o "$dir/bots_time" \
-    "${bots_pin[@]}" "$target/release/strata-bots" --server "$addr" --data-dir "$dir/data" \
+    "${bots_pin[@]}" "$bin/strata-bots" --server "$addr" --data-dir "$dir/data" \
     --bots "$bots" --duration "$duration" --json "$@" | tee "$dir/bots.json"
 t1=$(ticks); s1=$(date +%s.%N)
 kill "$sampler" 2>/dev/null || true; wait "$sampler" 2>/dev/null || true; sampler=
@@ -119,11 +131,20 @@ bots_cpu=$(awk '{print $1 + $2}' "$dir/bots_time")
 # object that could repeat a name).
 field() { grep -oE "\"$1\":[-0-9.eE+]+" "$dir/bots.json" | head -1 | cut -d: -f2; }
 edits=$(field edits_accepted); deltas=$(field deltas)
+# A quantile of one of the bots' latency objects ("ack_latency_ms", ...).
+quantile() { grep -oE "\"$1\":\\{[^}]*\\}" "$dir/bots.json" | head -1 | grep -oE "\"$2\":[0-9.]+" | cut -d: -f2; }
+ack_p50=$(quantile ack_latency_ms p50); ack_p99=$(quantile ack_latency_ms p99)
+bc_p99=$(quantile broadcast_latency_ms p99)
+mismatches=0
+for f in replica_mismatches mesh_mismatches op_mismatches order_violations; do
+    mismatches=$(( mismatches + $(field "$f" || true) + 0 ))
+done
 duration_s=$(field duration_s); ramp_s=$(field ramp_s)
 awk -v t0="$t0" -v t1="$t1" -v hz="$hz" -v s0="$s0" -v s1="$s1" -v rss="$rss" -v b="$bots_cpu" \
     -v edits="${edits:-0}" -v deltas="${deltas:-0}" -v dur="${duration_s:-0}" -v ramp="${ramp_s:-0}" \
     -v bots="$bots" -v scpus="${BENCH_SERVER_CPUS:-}" -v bcpus="${BENCH_BOT_CPUS:-}" \
-    -v csv="${BENCH_CSV:-}" -v samples="$dir/samples" '
+    -v csv="${BENCH_CSV:-}" -v samples="$dir/samples" \
+    -v ack50="${ack_p50:-}" -v ack99="${ack_p99:-}" -v bc99="${bc_p99:-}" -v mism="$mismatches" '
     function at(t,   i) {  # server ticks at epoch t, interpolated
         if (n == 0) return 0
         if (t <= ts[1]) return tk[1]
@@ -161,10 +182,10 @@ awk -v t0="$t0" -v t1="$t1" -v hz="$hz" -v s0="$s0" -v s1="$s1" -v rss="$rss" -v
         printf "; bots %.2f CPU s; pins server %s, bots %s\n", b, ord(scpus), ord(bcpus) > "/dev/stderr"
         if (csv != "") {
             if ((getline line < csv) <= 0)
-                print "bots,duration_s,server_cpus,bots_cpus,edits_accepted,deltas,deltas_per_second,server_cpu_seconds,wall_seconds,server_cpu_share,server_cpu_ms_per_edit,edit_server_cpu_seconds,edit_server_cores,edit_server_cpu_ms_per_edit,bots_cpu_seconds,server_peak_rss_mib" >> csv
+                print "bots,duration_s,server_cpus,bots_cpus,edits_accepted,deltas,deltas_per_second,server_cpu_seconds,wall_seconds,server_cpu_share,server_cpu_ms_per_edit,edit_server_cpu_seconds,edit_server_cores,edit_server_cpu_ms_per_edit,bots_cpu_seconds,server_peak_rss_mib,ack_p50_ms,ack_p99_ms,broadcast_p99_ms,mismatches" >> csv
             close(csv)
-            printf "%d,%s,\"%s\",\"%s\",%d,%d,%s,%.2f,%.2f,%.2f,%s,%s,%s,%s,%.2f,%.1f\n", bots, dur, scpus, bcpus, edits, deltas, dps, \
-                cpu, wall, cpu / wall, per_edit, ecpu, ecores, eper, b, rss / 1024 >> csv
+            printf "%d,%s,\"%s\",\"%s\",%d,%d,%s,%.2f,%.2f,%.2f,%s,%s,%s,%s,%.2f,%.1f,%s,%s,%s,%d\n", bots, dur, scpus, bcpus, edits, deltas, dps, \
+                cpu, wall, cpu / wall, per_edit, ecpu, ecores, eper, b, rss / 1024, ack50, ack99, bc99, mism >> csv
         }
     }'
 if [ -n "${BENCH_METRICS_PORT:-}" ]; then
