@@ -567,15 +567,23 @@ impl Engine {
     fn apply_tick(&mut self) -> Applied {
         let at = Instant::now();
         let pool = self.pool.clone();
-        let (out, pending) = pool.install(|| self.seq.tick_apply(now_ms()));
-        metrics::counter!(m::COLLISION_MESHES, "kind" => "changed")
-            .increment(pending.changed() as u64);
-        metrics::counter!(m::COLLISION_MESHES, "kind" => "rewarm")
-            .increment(pending.rewarmed() as u64);
+        let idle = self.seq.queued() == 0;
+        let seq = &mut self.seq;
+        // Collision meshes build on the workers while the batch commits,
+        // spawned while the workers are awake from applying it. An empty
+        // queue leaves them asleep: an idle server's ticks touch no other
+        // thread.
+        let mut apply = || {
+            let (out, pending) = seq.tick_apply(now_ms());
+            metrics::counter!(m::COLLISION_MESHES, "kind" => "changed")
+                .increment(pending.changed() as u64);
+            metrics::counter!(m::COLLISION_MESHES, "kind" => "rewarm")
+                .increment(pending.rewarmed() as u64);
+            (out, spawn_meshing(&pool, pending))
+        };
+        let (out, meshing) = if idle { apply() } else { pool.install(apply) };
         metrics::counter!(m::COLLISION_MESHES, "kind" => "on_demand")
             .absolute(self.seq.collision().built_on_demand());
-        // Collision meshes build on the workers while the batch commits.
-        let meshing = spawn_meshing(&pool, pending);
         for r in &out.rejected {
             metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&r.reason))
                 .increment(1);
@@ -785,12 +793,16 @@ pub(crate) struct Applied {
     at: Instant,
 }
 
-/// Builds a tick's collision meshes on the workers; the receiver yields
-/// them once done.
+/// Builds a tick's collision meshes on the workers (no jobs: at once,
+/// here); the receiver yields them once done.
 fn spawn_meshing(pool: &rayon::ThreadPool, pending: PendingMeshes) -> Receiver<BuiltMeshes> {
     let (tx, rx) = std::sync::mpsc::sync_channel(1);
-    pool.spawn(move || {
+    if pending.is_empty() {
         let _ = tx.send(pending.build());
-    });
+    } else {
+        pool.spawn(move || {
+            let _ = tx.send(pending.build());
+        });
+    }
     rx
 }

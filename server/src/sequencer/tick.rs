@@ -62,10 +62,16 @@ impl PendingMeshes {
         self.rewarmed
     }
 
-    /// Meshes every job in parallel on the current rayon pool.
+    /// Meshes every job in parallel on the current rayon pool; with no
+    /// jobs, touches no pool (rayon would start its global one).
     pub fn build(self) -> BuiltMeshes {
+        let meshes = if self.jobs.is_empty() {
+            Vec::new()
+        } else {
+            CollisionCache::mesh_chunks(&self.jobs)
+        };
         BuiltMeshes {
-            meshes: CollisionCache::mesh_chunks(&self.jobs),
+            meshes,
             slots: self.slots,
         }
     }
