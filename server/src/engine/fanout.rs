@@ -50,11 +50,25 @@ pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_s
     let end = encode_update(&WorldUpdate::TickEnd { last_seq });
     let chains = chains(&edits);
     // Peers outside, changes inside: each session is visited once per
-    // tick, sessions on every worker of the current pool.
+    // tick, sessions on every worker of the current pool; as few as one
+    // task's worth on this thread (see [`on_workers`]).
     let mut all: Vec<&mut Peer> = peers.values_mut().collect();
-    all.par_iter_mut()
-        .with_min_len(PEERS_PER_TASK)
-        .for_each(|p| send_tick(p, &edits, &chains, &end));
+    if on_workers(all.len()) {
+        all.par_iter_mut()
+            .with_min_len(PEERS_PER_TASK)
+            .for_each(|p| send_tick(p, &edits, &chains, &end));
+    } else {
+        for p in all {
+            send_tick(p, &edits, &chains, &end);
+        }
+    }
+}
+
+/// Whether a fan-out to `peers` sessions is worth the worker pool: more
+/// than one task's worth. Below that, [`broadcast`] runs on the calling
+/// thread and touches no pool, so the engine need not enter one.
+pub fn on_workers(peers: usize) -> bool {
+    peers > PEERS_PER_TASK
 }
 
 /// Where a change sits: (index into the tick's edits, index of the change).
@@ -295,6 +309,45 @@ mod tests {
             let (want, held) = reference(&known, &edits, &end);
             assert_eq!(got, want, "holding {known:?}");
             assert_eq!(p.known, held, "holding {known:?}");
+        }
+    }
+
+    #[test]
+    fn broadcast_reaches_every_session_here_or_on_the_workers() {
+        let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
+        let applied = [
+            applied(1, vec![change(a, 4), change(b, 0)]),
+            applied(2, vec![change(a, 5)]),
+        ];
+        let edits: Vec<TickEdit<'_>> = applied.iter().map(|a| TickEdit::new(a, false)).collect();
+        let end = encode_update(&WorldUpdate::TickEnd { last_seq: 2 });
+        let holds = [vec![(a, 4), (b, 0)], vec![(a, 5)], vec![(b, 0)], vec![]];
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        for sessions in [PEERS_PER_TASK, 3 * PEERS_PER_TASK + 5] {
+            assert_eq!(on_workers(sessions), sessions > PEERS_PER_TASK);
+            let mut peers = HashMap::new();
+            let mut rxs = Vec::new();
+            for id in 0..sessions {
+                let known = &holds[id % holds.len()];
+                let (p, rx) = peer(known);
+                peers.insert(id as u64, p);
+                rxs.push((id, rx));
+            }
+            if on_workers(sessions) {
+                pool.install(|| broadcast(&mut peers, &applied, 2));
+            } else {
+                broadcast(&mut peers, &applied, 2);
+            }
+            for (id, mut rx) in rxs {
+                let known = &holds[id % holds.len()];
+                let got = rx.try_recv().map(|b| b.to_vec()).unwrap_or_default();
+                let (want, held) = reference(known, &edits, &end);
+                assert_eq!(got, want, "{sessions} sessions, session {id}");
+                assert_eq!(peers[&(id as u64)].known, held, "session {id}");
+            }
         }
     }
 }

@@ -671,8 +671,13 @@ impl Engine {
             };
             self.send_control(a.session_id, &msg);
         }
-        let pool = self.pool.clone();
-        pool.install(|| fanout::broadcast(&mut self.peers, &out.applied, out.batch.last_seq));
+        let last_seq = out.batch.last_seq;
+        if fanout::on_workers(self.peers.len()) {
+            let pool = self.pool.clone();
+            pool.install(|| fanout::broadcast(&mut self.peers, &out.applied, last_seq));
+        } else {
+            fanout::broadcast(&mut self.peers, &out.applied, last_seq);
+        }
         phase.end("fanout");
         Ok(next)
     }
