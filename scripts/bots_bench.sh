@@ -15,12 +15,11 @@
 # server's own strata_edits_accepted_total (hostile players' edits included).
 # The same line has the tick: tick_ms mean (strata_tick_seconds sum over
 # count, whole run), p50 and p99 (the registry's rolling window, the run's
-# last minute) and the count of ticks; and "udp": the
-# UDP datagrams the server sent and received, its UDP bytes sent, QUIC's
-# lost packets, and datagrams (both ways) per edit it accepted.
-# BENCH_CONSOLE_PORT turns on the web
-# console; BENCH_WATCHERS=N then connects N watching consoles once the
-# server is up, each like a browser tab: the first screen of map tiles
+# last minute) and the count of ticks; and "udp": the UDP datagrams the
+# server sent and received, its UDP bytes sent, QUIC's lost packets, and
+# datagrams (both ways) per edit it accepted. BENCH_CONSOLE_PORT turns on
+# the web console; BENCH_WATCHERS=N then connects N watching consoles once
+# the server is up, each like a browser tab: the first screen of map tiles
 # (3 x 3 around the bots), then the live event stream to the end.
 # BENCH_LOG=FILE keeps the server's log. Binaries come from
 # ${CARGO_TARGET_DIR:-target}/release, built first, or from BENCH_BIN_DIR
