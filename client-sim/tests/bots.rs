@@ -130,6 +130,7 @@ async fn bad_settings_are_refused_before_connecting() {
         capabilities: 0,
         follow_owners: false,
         player_prefix: "bot".into(),
+        link_delay: Duration::ZERO,
     };
     let e = bots::run(run.clone()).await.unwrap_err();
     assert!(e.to_string().contains("--stalled"), "{e}");
@@ -137,11 +138,41 @@ async fn bad_settings_are_refused_before_connecting() {
         stalled: 0,
         ramp: true,
         view_radius: 0,
-        ..run
+        ..run.clone()
     })
     .await
     .unwrap_err();
     assert!(e.to_string().contains("--view-radius"), "{e}");
+    let e = bots::run(BotsConfig {
+        stalled: 0,
+        link_delay: bots::MAX_LINK_DELAY + Duration::from_millis(1),
+        ..run
+    })
+    .await
+    .unwrap_err();
+    assert!(e.to_string().contains("--link-delay"), "{e}");
+}
+
+/// `--link-delay`: every bot's sends leave 40 ms late, so each verdict
+/// takes at least that long, and the replicas still converge.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bots_over_a_delayed_link_converge() {
+    let tmp = tempfile::tempdir().unwrap();
+    let server = start_server(&tmp).await;
+    let delay = Duration::from_millis(40);
+    let run = BotsConfig {
+        bots: 3,
+        duration: Duration::from_secs(2),
+        seed: 5,
+        link_delay: delay,
+        ..config_for(&server)
+    };
+    let s = run_consistent(run).await;
+    assert!(s.edits_accepted > 0, "{}", s.human());
+    // Every request waits 40 ms on the link (histogram rounding aside).
+    let p50 = s.ack_latency_ms.p50;
+    assert!(p50 >= 39.0, "verdicts came back in {p50} ms at p50");
+    server.shutdown().await.unwrap();
 }
 
 /// `strata-bots --predict` (the real binary, with its own server): the

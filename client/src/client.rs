@@ -92,6 +92,10 @@ pub struct ClientOptions {
     /// `CAP_SNAPSHOTS` makes a thin client (whole chunks, never
     /// regenerated), `CAP_OP_REPLAY` replays edits instead of taking deltas.
     pub capabilities: u32,
+    /// Hold every datagram this client sends this long before it leaves
+    /// (a simulated link delay: the RTT grows by it; zero: none). For load
+    /// tests at a real network's RTT on loopback; see [`crate::link_delay`].
+    pub link_delay: Duration,
 }
 
 /// An edit on its way to the server, from [`Client::submit`].
@@ -345,7 +349,7 @@ impl Client {
         protocol_version: u32,
         opts: ClientOptions,
     ) -> Result<Client, ClientError> {
-        let endpoint = client_endpoint(addr)?;
+        let endpoint = client_endpoint_delayed(addr, opts.link_delay)?;
         let handshake = async {
             let conn = endpoint
                 .connect_with(config, addr, "localhost")
@@ -771,13 +775,36 @@ impl Client {
 /// A client endpoint (one UDP socket, on loopback for a loopback server)
 /// for reaching `server`.
 pub fn client_endpoint(server: SocketAddr) -> Result<quinn::Endpoint, ClientError> {
+    client_endpoint_delayed(server, Duration::ZERO)
+}
+
+/// Like [`client_endpoint`], with every send held `link_delay` first
+/// (zero: a plain socket).
+pub fn client_endpoint_delayed(
+    server: SocketAddr,
+    link_delay: Duration,
+) -> Result<quinn::Endpoint, ClientError> {
     let ip: IpAddr = match (server.is_ipv6(), server.ip().is_loopback()) {
         (false, true) => Ipv4Addr::LOCALHOST.into(),
         (false, false) => Ipv4Addr::UNSPECIFIED.into(),
         (true, true) => Ipv6Addr::LOCALHOST.into(),
         (true, false) => Ipv6Addr::UNSPECIFIED.into(),
     };
-    quinn::Endpoint::client(SocketAddr::new(ip, 0)).map_err(|e| ClientError::Connect(e.to_string()))
+    let bind = SocketAddr::new(ip, 0);
+    let failed = |e: std::io::Error| ClientError::Connect(e.to_string());
+    if link_delay.is_zero() {
+        return quinn::Endpoint::client(bind).map_err(failed);
+    }
+    let runtime: Arc<dyn quinn::Runtime> = Arc::new(quinn::TokioRuntime);
+    let socket = runtime.wrap_udp_socket(std::net::UdpSocket::bind(bind).map_err(failed)?);
+    let socket = crate::link_delay::delayed(socket.map_err(failed)?, link_delay);
+    quinn::Endpoint::new_with_abstract_socket(
+        quinn::EndpointConfig::default(),
+        None,
+        socket,
+        runtime,
+    )
+    .map_err(failed)
 }
 
 /// A generator from the Welcome's parameters, if the client can run it.

@@ -16,6 +16,7 @@ pub mod client;
 pub mod cluster;
 pub mod coords;
 pub mod edits;
+pub mod link_delay;
 pub mod mesh;
 pub mod notice;
 pub mod pool;

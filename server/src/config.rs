@@ -94,6 +94,17 @@ pub const DEFAULT_SEND_BUDGET_BYTES_PER_TICK: usize = 256 * 1024;
 pub const MIN_SEND_BUDGET_BYTES_PER_TICK: usize = 1024;
 pub const MAX_SEND_BUDGET_BYTES_PER_TICK: usize = 64 * 1024 * 1024;
 
+/// Longest ACK delay the server asks clients for (ACK_FREQUENCY); 0 asks
+/// nothing and clients keep QUIC's 25 ms. quinn never asks for more than
+/// the connection's RTT (or 25 ms, whichever is more).
+pub const DEFAULT_ACK_DELAY_MAX_MS: u64 = 0;
+pub const MAX_ACK_DELAY_MAX_MS: u64 = 1_000;
+/// Ack-eliciting packets a client may take in before it must acknowledge
+/// (QUIC's own behaviour is 1: every second packet). Sent only with
+/// `ack_delay_max_ms`.
+pub const DEFAULT_ACK_ELICITING_THRESHOLD: u32 = 1;
+pub const MAX_ACK_ELICITING_THRESHOLD: u32 = 64;
+
 /// Longest lifetime `strata-admin token issue` may grant by default.
 pub const DEFAULT_TOKEN_MAX_TTL: Duration = Duration::from_secs(30 * 24 * 3600);
 
@@ -203,6 +214,10 @@ pub struct NetSection {
     pub datagram_send_buffer: usize,
     pub writer_queue: usize,
     pub send_budget_bytes_per_tick: usize,
+    /// Ask clients to acknowledge at most this late (ms; 0: ask nothing).
+    pub ack_delay_max_ms: u64,
+    /// With `ack_delay_max_ms`: packets a client may take in unacknowledged.
+    pub ack_eliciting_threshold: u32,
 }
 
 /// `[auth]`: token policy.
@@ -270,6 +285,8 @@ impl Default for NetSection {
             datagram_send_buffer: DEFAULT_DATAGRAM_SEND_BUFFER,
             writer_queue: DEFAULT_WRITER_QUEUE,
             send_budget_bytes_per_tick: DEFAULT_SEND_BUDGET_BYTES_PER_TICK,
+            ack_delay_max_ms: DEFAULT_ACK_DELAY_MAX_MS,
+            ack_eliciting_threshold: DEFAULT_ACK_ELICITING_THRESHOLD,
         }
     }
 }
@@ -280,6 +297,10 @@ impl NetSection {
     }
     pub fn keep_alive(&self) -> Duration {
         Duration::from_millis(self.keep_alive_ms)
+    }
+    /// The ACK delay to ask clients for; `None`: ask nothing.
+    pub fn ack_delay_max(&self) -> Option<Duration> {
+        (self.ack_delay_max_ms > 0).then(|| Duration::from_millis(self.ack_delay_max_ms))
     }
 }
 
@@ -445,6 +466,18 @@ impl ServerConfig {
             n.send_budget_bytes_per_tick,
             MIN_SEND_BUDGET_BYTES_PER_TICK,
             MAX_SEND_BUDGET_BYTES_PER_TICK,
+        )?;
+        range(
+            "net.ack_delay_max_ms",
+            n.ack_delay_max_ms,
+            0,
+            MAX_ACK_DELAY_MAX_MS,
+        )?;
+        range(
+            "net.ack_eliciting_threshold",
+            n.ack_eliciting_threshold,
+            0,
+            MAX_ACK_ELICITING_THRESHOLD,
         )?;
 
         if self.auth.token_max_ttl.0 > MAX_TOKEN_TTL {

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use quinn::crypto::rustls::QuicServerConfig;
-use quinn::{IdleTimeout, TransportConfig, VarInt};
+use quinn::{AckFrequencyConfig, IdleTimeout, TransportConfig, VarInt};
 use rustls::crypto::CryptoProvider;
 use rustls::pki_types::{CertificateDer, PrivateKeyDer, PrivatePkcs8KeyDer, ServerName};
 use strata_protocol::ALPN;
@@ -161,6 +161,13 @@ pub fn transport_config(net: &NetSection, tls: &TlsSection) -> Result<TransportC
         .datagram_receive_buffer_size(Some(net.datagram_receive_buffer))
         .datagram_send_buffer_size(net.datagram_send_buffer)
         .enable_segmentation_offload(tls.enable_segmentation_offload);
+    if let Some(delay) = net.ack_delay_max() {
+        // Sent once the handshake is confirmed, and again as the RTT moves.
+        let mut ack = AckFrequencyConfig::default();
+        ack.max_ack_delay(Some(delay))
+            .ack_eliciting_threshold(VarInt::from_u32(net.ack_eliciting_threshold));
+        t.ack_frequency_config(Some(ack));
+    }
     Ok(t)
 }
 

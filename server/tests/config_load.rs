@@ -224,6 +224,11 @@ fn bad_values_name_their_field() {
             "[net]\nsend_budget_bytes_per_tick = 0",
             "net.send_budget_bytes_per_tick",
         ),
+        ("[net]\nack_delay_max_ms = 1001", "net.ack_delay_max_ms"),
+        (
+            "[net]\nack_eliciting_threshold = 65",
+            "net.ack_eliciting_threshold",
+        ),
         ("[auth]\ntoken_max_ttl = \"400d\"", "auth.token_max_ttl"),
         ("[interest]\nview_radius = 0", "interest.view_radius"),
         ("[interest]\nview_radius = 33", "interest.view_radius"),

@@ -109,6 +109,11 @@ struct Args {
     /// timeout).
     #[arg(long, default_value = "10s", value_parser = parse_run_duration)]
     silence_limit: std::time::Duration,
+    /// Hold each bot's sends this long before they leave (default: none):
+    /// a simulated one-way network delay, so the server sees a real RTT on
+    /// loopback (e.g. 50ms).
+    #[arg(long, value_parser = parse_run_duration)]
+    link_delay: Option<std::time::Duration>,
     /// Seed of the bots' choices.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -275,6 +280,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         follow_owners: args.follow_owners,
         player_prefix: args.player_prefix,
         silence_limit: args.silence_limit,
+        link_delay: args.link_delay.unwrap_or_default(),
         predict: args.predict,
         capabilities: capabilities(args.thin, args.op_replay),
     };

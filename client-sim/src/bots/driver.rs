@@ -271,6 +271,7 @@ impl Bot {
                 structures: Default::default(),
                 track_changes: false,
                 capabilities: cfg.capabilities,
+                link_delay: cfg.link_delay,
             };
             let attempt = {
                 let _slot = self.fleet.connect_slots.acquire().await.ok()?;

@@ -63,6 +63,8 @@ pub const RAMP_TIMEOUT: Duration = Duration::from_secs(60);
 pub const QUIET_TIMEOUT: Duration = Duration::from_secs(30);
 /// Longest wait for every bot to finish its end-of-run check.
 pub const VERIFY_TIMEOUT: Duration = Duration::from_secs(60);
+/// Longest [`BotsConfig::link_delay`] (`--link-delay`).
+pub const MAX_LINK_DELAY: Duration = Duration::from_secs(5);
 /// Default of [`BotsConfig::silence_limit`].
 pub const DEFAULT_SILENCE_LIMIT: Duration = Duration::from_secs(10);
 /// Largest view radius a bot subscribes with.
@@ -177,6 +179,9 @@ pub struct BotsConfig {
     /// Bots play as `<player_prefix>-<index>` (with minted tokens): fleets
     /// on one cluster need different prefixes, or they log each other out.
     pub player_prefix: String,
+    /// Every bot's sends leave this late (`--link-delay`): a simulated
+    /// network delay that adds to the RTT the server measures. Zero: none.
+    pub link_delay: Duration,
 }
 
 impl BotsConfig {
@@ -206,6 +211,7 @@ impl BotsConfig {
             capabilities: 0,
             follow_owners: false,
             player_prefix: "bot".into(),
+            link_delay: Duration::ZERO,
         }
     }
 
@@ -222,6 +228,9 @@ impl BotsConfig {
         }
         if !(1..=MAX_BOT_VIEW_RADIUS).contains(&self.view_radius) {
             return bad("--view-radius must be 1..=8");
+        }
+        if self.link_delay > MAX_LINK_DELAY {
+            return bad("--link-delay must be at most 5s");
         }
         Ok(())
     }
