@@ -7,13 +7,18 @@ use std::time::Duration;
 use strata_client_sim::bots::{self, BotsConfig, Profile, Tokens, VerifyMode};
 use strata_server::admin::verify_acks::{read_ack_log, verify};
 use strata_server::app;
-use strata_server::config::ServerConfig;
+use strata_server::config::{NetSection, ServerConfig};
 use strata_server::store::SledStore;
 
 async fn start_server(tmp: &tempfile::TempDir) -> app::Running {
+    start_server_with(tmp, NetSection::default()).await
+}
+
+async fn start_server_with(tmp: &tempfile::TempDir, net: NetSection) -> app::Running {
     let mut cfg = ServerConfig::default();
     cfg.server.listen = "127.0.0.1:0".parse().unwrap();
     cfg.server.data_dir = tmp.path().join("data");
+    cfg.net = net;
     app::start(cfg).await.unwrap()
 }
 
@@ -154,11 +159,18 @@ async fn bad_settings_are_refused_before_connecting() {
 }
 
 /// `--link-delay`: every bot's sends leave 40 ms late, so each verdict
-/// takes at least that long, and the replicas still converge.
+/// takes at least that long. The server is set up for such players (a
+/// send interval, ACK_FREQUENCY), and the replicas still converge.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bots_over_a_delayed_link_converge() {
     let tmp = tempfile::tempdir().unwrap();
-    let server = start_server(&tmp).await;
+    let net = NetSection {
+        send_interval_ms: 50,
+        ack_delay_max_ms: 100,
+        ack_eliciting_threshold: 3,
+        ..NetSection::default()
+    };
+    let server = start_server_with(&tmp, net).await;
     let delay = Duration::from_millis(40);
     let run = BotsConfig {
         bots: 3,

@@ -105,6 +105,11 @@ pub const MAX_ACK_DELAY_MAX_MS: u64 = 1_000;
 pub const DEFAULT_ACK_ELICITING_THRESHOLD: u32 = 1;
 pub const MAX_ACK_ELICITING_THRESHOLD: u32 = 64;
 
+/// Shortest time between two writes of one session's updates; 0 sends
+/// each tick's updates at once.
+pub const DEFAULT_SEND_INTERVAL_MS: u64 = 0;
+pub const MAX_SEND_INTERVAL_MS: u64 = 1_000;
+
 /// Longest lifetime `strata-admin token issue` may grant by default.
 pub const DEFAULT_TOKEN_MAX_TTL: Duration = Duration::from_secs(30 * 24 * 3600);
 
@@ -218,6 +223,9 @@ pub struct NetSection {
     pub ack_delay_max_ms: u64,
     /// With `ack_delay_max_ms`: packets a client may take in unacknowledged.
     pub ack_eliciting_threshold: u32,
+    /// Shortest time between two writes of one session's updates (ms; 0:
+    /// each tick's updates leave at once).
+    pub send_interval_ms: u64,
 }
 
 /// `[auth]`: token policy.
@@ -287,6 +295,7 @@ impl Default for NetSection {
             send_budget_bytes_per_tick: DEFAULT_SEND_BUDGET_BYTES_PER_TICK,
             ack_delay_max_ms: DEFAULT_ACK_DELAY_MAX_MS,
             ack_eliciting_threshold: DEFAULT_ACK_ELICITING_THRESHOLD,
+            send_interval_ms: DEFAULT_SEND_INTERVAL_MS,
         }
     }
 }
@@ -472,6 +481,12 @@ impl ServerConfig {
             n.ack_delay_max_ms,
             0,
             MAX_ACK_DELAY_MAX_MS,
+        )?;
+        range(
+            "net.send_interval_ms",
+            n.send_interval_ms,
+            0,
+            MAX_SEND_INTERVAL_MS,
         )?;
         range(
             "net.ack_eliciting_threshold",

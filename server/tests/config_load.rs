@@ -225,6 +225,7 @@ fn bad_values_name_their_field() {
             "net.send_budget_bytes_per_tick",
         ),
         ("[net]\nack_delay_max_ms = 1001", "net.ack_delay_max_ms"),
+        ("[net]\nsend_interval_ms = 1001", "net.send_interval_ms"),
         (
             "[net]\nack_eliciting_threshold = 65",
             "net.ack_eliciting_threshold",

@@ -44,6 +44,8 @@ pub struct SessionContext {
     pub view_radius: u8,
     /// Per-connection queue of world updates.
     pub writer_queue: usize,
+    /// Shortest time between two writes of a session's updates (zero: none).
+    pub send_interval: std::time::Duration,
     /// Bans and revocations, checked at every Hello; admin sessions change
     /// it (one at a time, under `access_writes`) and persist it first.
     pub access: std::sync::RwLock<auth::AccessList>,
@@ -118,7 +120,7 @@ pub async fn run(
     let Some((send, recv)) = accept_first_stream(&conn, "control stream", deadline).await else {
         return;
     };
-    let (control, control_task) = spawn_writer(send, CONTROL_QUEUE, "control");
+    let (control, control_task) = spawn_writer(send, CONTROL_QUEUE, Duration::ZERO, "control");
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ClientToServer));
     let hello = match tokio::time::timeout_at(deadline, reader.next::<ClientMessage>()).await {
         Ok(Ok(Some(ClientMessage::Hello(h)))) => h,
@@ -220,7 +222,7 @@ async fn joined(
         Ok(u) => u,
         Err(e) => return debug!(error = %e, "could not open the updates stream"),
     };
-    let (updates, updates_task) = spawn_writer(uni, ctx.writer_queue, "updates");
+    let (updates, updates_task) = spawn_writer(uni, ctx.writer_queue, ctx.send_interval, "updates");
     let (reply_tx, reply_rx) = oneshot::channel();
     let (kick_tx, mut kick_rx) = oneshot::channel();
     let latest = Arc::new(LatestPosition::default());

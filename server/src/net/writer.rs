@@ -1,6 +1,8 @@
 //! One bounded writer task per outgoing stream. The sequencer only ever
 //! `try_send`s encoded frames here; it never touches a socket.
 
+use std::time::Duration;
+
 use bytes::Bytes;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
@@ -55,12 +57,14 @@ impl FrameSender {
     }
 }
 
-/// Spawns a task that writes queued frames to `stream` in order, then
-/// finishes the stream when every sender is dropped and ends once the peer
-/// has acknowledged all of it.
+/// Spawns a task that writes queued frames to `stream` in order, waiting
+/// `interval` after each write (zero: none) so that the frames queued
+/// meanwhile share packets; then finishes the stream when every sender is
+/// dropped and ends once the peer has acknowledged all of it.
 pub fn spawn_writer(
     mut stream: quinn::SendStream,
     capacity: usize,
+    interval: Duration,
     name: &'static str,
 ) -> (FrameSender, JoinHandle<()>) {
     let (tx, mut rx) = mpsc::channel::<Bytes>(capacity);
@@ -77,6 +81,10 @@ pub fn spawn_writer(
                 }
                 batch.clear();
                 metrics::counter!(BYTES_SENT).increment(bytes as u64);
+                if !interval.is_zero() {
+                    // Frames queued meanwhile go out together next time.
+                    tokio::time::sleep(interval).await;
+                }
             }
             // Finished: wait (bounded by whoever awaits this task) until the
             // peer has every byte, so a close that follows cannot drop the
