@@ -307,6 +307,9 @@ impl NetSection {
     pub fn keep_alive(&self) -> Duration {
         Duration::from_millis(self.keep_alive_ms)
     }
+    pub fn send_interval(&self) -> Duration {
+        Duration::from_millis(self.send_interval_ms)
+    }
     /// The ACK delay to ask clients for; `None`: ask nothing.
     pub fn ack_delay_max(&self) -> Option<Duration> {
         (self.ack_delay_max_ms > 0).then(|| Duration::from_millis(self.ack_delay_max_ms))

@@ -45,7 +45,7 @@ pub struct SessionContext {
     /// Per-connection queue of world updates.
     pub writer_queue: usize,
     /// Shortest time between two writes of a session's updates (zero: none).
-    pub send_interval: std::time::Duration,
+    pub send_interval: Duration,
     /// Bans and revocations, checked at every Hello; admin sessions change
     /// it (one at a time, under `access_writes`) and persist it first.
     pub access: std::sync::RwLock<auth::AccessList>,
