@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion, SamplingMode};
 use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood, ALL_FACES};
-use strata_terrain::ChunkPos;
+use strata_terrain::{Chunk, ChunkPos, Voxel};
 
 #[path = "../tests/mesh_common/mod.rs"]
 mod mesh_common;
@@ -111,6 +111,18 @@ fn bench(c: &mut Criterion) {
             });
         }
     }
+    // The server's path: 27 loaded dense chunks copied a row at a time.
+    let mut dense = Chunk::uniform(Voxel::new(140, 2));
+    dense.dense_mut();
+    g.bench_function("neighborhood/from_chunks dense", |b| {
+        b.iter_custom(|n| {
+            cpu_time(n, || {
+                black_box(Neighborhood::from_chunks(ChunkPos::new(0, 0, 0), |_| {
+                    Some(&dense)
+                }));
+            })
+        })
+    });
     g.bench_function("neighborhood/from_fn terrain", |b| {
         b.iter_custom(|n| {
             cpu_time(n, || {
