@@ -12,8 +12,10 @@ use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 
 use rayon::prelude::*;
+
+use crate::mesh_buffers;
 use strata_terrain::mesh::{
-    mesh_chunk, Mesh, MeshOptions, Neighborhood, LOCAL_MAX, LOCAL_MAX_Y, LOCAL_MIN,
+    mesh_chunk, Mesh, MeshOptions, Neighborhood, LOCAL_MIN, LOD0_LOCAL_MAX,
 };
 use strata_terrain::{ChunkPos, VoxelBox, World, CHUNK_SIZE};
 
@@ -140,6 +142,8 @@ pub struct Hit {
 struct Entry {
     mesh: Arc<CollisionMesh>,
     stamp: u64,
+    /// Rebuilt ahead of need (a rewarm) and not looked up since.
+    unused_rewarm: bool,
 }
 
 /// LRU-bounded cache of collision meshes by chunk.
@@ -152,6 +156,17 @@ pub struct CollisionCache {
     clock: u64,
     /// See [`Self::built_on_demand`].
     built_on_demand: u64,
+    /// See [`Self::rewarm_outcomes`].
+    rewarm: RewarmOutcomes,
+}
+
+/// What became of the meshes rebuilt ahead of need ([`CollisionCache::insert_rewarmed`]).
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct RewarmOutcomes {
+    /// Looked up by [`CollisionCache::ensure`] before being dropped.
+    pub used: u64,
+    /// Dropped (stale, replaced or evicted) without a lookup.
+    pub wasted: u64,
 }
 
 impl Default for CollisionCache {
@@ -169,6 +184,7 @@ impl CollisionCache {
             lru: BTreeMap::new(),
             clock: 0,
             built_on_demand: 0,
+            rewarm: RewarmOutcomes::default(),
         }
     }
 
@@ -201,30 +217,57 @@ impl CollisionCache {
 
     /// Adds (or replaces) a mesh as the most recently used; evicts the oldest past capacity.
     pub fn insert(&mut self, mesh: CollisionMesh) -> Arc<CollisionMesh> {
+        self.insert_entry(mesh, false)
+    }
+
+    /// [`Self::insert`] for a mesh rebuilt before anything asked for it;
+    /// whether something then does is counted ([`Self::rewarm_outcomes`]).
+    pub fn insert_rewarmed(&mut self, mesh: CollisionMesh) -> Arc<CollisionMesh> {
+        self.insert_entry(mesh, true)
+    }
+
+    fn insert_entry(&mut self, mesh: CollisionMesh, unused_rewarm: bool) -> Arc<CollisionMesh> {
         let pos = mesh.pos;
         let mesh = Arc::new(mesh);
         self.clock += 1;
-        if let Some(old) = self.entries.insert(
-            pos,
-            Entry {
-                mesh: mesh.clone(),
-                stamp: self.clock,
-            },
-        ) {
+        let entry = Entry {
+            mesh: mesh.clone(),
+            stamp: self.clock,
+            unused_rewarm,
+        };
+        if let Some(old) = self.entries.insert(pos, entry) {
             self.lru.remove(&old.stamp);
+            self.count_dropped(&old);
         }
         self.lru.insert(self.clock, pos);
         while self.entries.len() > self.capacity {
             let Some((_, oldest)) = self.lru.pop_first() else {
                 break;
             };
-            self.entries.remove(&oldest);
+            if let Some(old) = self.entries.remove(&oldest) {
+                self.count_dropped(&old);
+            }
         }
         mesh
     }
 
+    fn count_dropped(&mut self, e: &Entry) {
+        if e.unused_rewarm {
+            self.rewarm.wasted += 1;
+        }
+    }
+
+    /// How many rewarmed meshes were used, and how many dropped unused,
+    /// since the cache was made.
+    pub fn rewarm_outcomes(&self) -> RewarmOutcomes {
+        self.rewarm
+    }
+
     fn touch(&mut self, pos: ChunkPos) {
         if let Some(e) = self.entries.get_mut(&pos) {
+            if std::mem::take(&mut e.unused_rewarm) {
+                self.rewarm.used += 1;
+            }
             self.clock += 1;
             self.lru.remove(&e.stamp);
             e.stamp = self.clock;
@@ -238,6 +281,7 @@ impl CollisionCache {
         match self.entries.remove(&pos) {
             Some(e) => {
                 self.lru.remove(&e.stamp);
+                self.count_dropped(&e);
                 true
             }
             None => false,
@@ -278,15 +322,17 @@ impl CollisionCache {
         for dz in -1..=1 {
             for dy in -1..=1 {
                 for dx in -1..=1 {
-                    // The neighbour holds its local LOCAL_MIN..=LOCAL_MAX (y: ..=LOCAL_MAX_Y);
-                    // in `pos`'s local frame that range moves by one chunk per step.
-                    let reads = [(dx, LOCAL_MAX), (dy, LOCAL_MAX_Y), (dz, LOCAL_MAX)]
-                        .iter()
-                        .zip(lo.iter().zip(&hi))
-                        .all(|(&(d, max), (&l, &h))| {
-                            let shift = d * CHUNK_SIZE;
-                            l <= max + shift && h >= LOCAL_MIN + shift
-                        });
+                    // An LOD-0 mesh reads its local LOCAL_MIN..=LOD0_LOCAL_MAX on every
+                    // axis (not the surface-scan rows above); in `pos`'s local frame
+                    // that range moves by one chunk per step.
+                    let reads =
+                        [dx, dy, dz]
+                            .iter()
+                            .zip(lo.iter().zip(&hi))
+                            .all(|(&d, (&l, &h))| {
+                                let shift = d * CHUNK_SIZE;
+                                l <= LOD0_LOCAL_MAX + shift && h >= LOCAL_MIN + shift
+                            });
                     if let Some(p) = pos.offset(dx, dy, dz).filter(|_| reads) {
                         if self.invalidate(p) {
                             dropped.push(p);
@@ -309,13 +355,14 @@ impl CollisionCache {
             if self.get(p, version(p)).is_some() {
                 self.touch(p);
             } else if !jobs.iter().any(|(q, _, _)| *q == p) {
-                jobs.push((p, version(p), Neighborhood::from_world(world, p)));
+                jobs.push((p, version(p), mesh_buffers::from_world(world, p)));
             }
         }
         self.built_on_demand += jobs.len() as u64;
         for m in Self::mesh_chunks(&jobs) {
             self.insert(m);
         }
+        mesh_buffers::recycle(jobs.into_iter().map(|(_, _, nb)| nb));
     }
 
     /// Meshes [`Self::ensure`] has built since the cache was made: each one
@@ -649,6 +696,42 @@ mod tests {
     }
 
     #[test]
+    fn rewarm_outcomes_count_lookups_and_unused_drops() {
+        let world = flat();
+        let mesh = |x: i32| {
+            let p = ChunkPos::new(x, -1, 0);
+            CollisionMesh::build(p, 0, &Neighborhood::from_world(&world, p))
+        };
+        let mut cache = CollisionCache::new(3);
+        cache.insert_rewarmed(mesh(0));
+        cache.insert_rewarmed(mesh(1));
+        cache.insert(mesh(2));
+        assert_eq!(cache.rewarm_outcomes(), RewarmOutcomes::default());
+        // Looked up: used, once however often.
+        cache.ensure(&world, &[ChunkPos::new(0, -1, 0)]);
+        cache.ensure(&world, &[ChunkPos::new(0, -1, 0)]);
+        assert_eq!(cache.built_on_demand(), 0);
+        let counts = |used, wasted| RewarmOutcomes { used, wasted };
+        assert_eq!(cache.rewarm_outcomes(), counts(1, 0));
+        // Dropped unused: stale, replaced or evicted.
+        assert!(cache.invalidate(ChunkPos::new(1, -1, 0)));
+        assert_eq!(cache.rewarm_outcomes(), counts(1, 1));
+        cache.insert_rewarmed(mesh(3));
+        cache.insert(mesh(3));
+        assert_eq!(cache.rewarm_outcomes(), counts(1, 2));
+        cache.insert_rewarmed(mesh(4)); // evicts the plain 2
+        cache.insert(mesh(5)); // evicts the used 0: not counted
+        cache.insert(mesh(6)); // evicts 3, plain since its replacement
+        cache.insert(mesh(7)); // evicts the unused rewarm 4
+        assert_eq!(cache.rewarm_outcomes(), counts(1, 3));
+        // Invalidating a used one counts nothing.
+        cache.insert_rewarmed(mesh(8));
+        cache.ensure(&world, &[ChunkPos::new(8, -1, 0)]);
+        assert!(cache.invalidate(ChunkPos::new(8, -1, 0)));
+        assert_eq!(cache.rewarm_outcomes(), counts(2, 3));
+    }
+
+    #[test]
     fn touched_invalidation_drops_only_neighbours_reading_the_change() {
         let world = flat();
         let mut cache = CollisionCache::new(64);
@@ -673,10 +756,10 @@ mod tests {
         cache.invalidate_touched(centre, boxed([10, 10, 10], [20, 20, 20]));
         assert!(cache.get(centre, 0).is_none());
         assert_eq!(held(&cache), 26);
-        // Local x = 1 is in the -x neighbour's apron (its local 33); y = 8 in the
-        // chunk below's (its surface-scan rows reach local 40).
+        // Local x = 1 is in the -x neighbour's apron (its local 33), and so is
+        // y = 1 in the chunk below's.
         cache.ensure(&world, &around);
-        cache.invalidate_touched(centre, boxed([1, 8, 10], [5, 12, 20]));
+        cache.invalidate_touched(centre, boxed([1, 1, 10], [5, 12, 20]));
         let dropped: Vec<_> = around
             .iter()
             .filter(|p| cache.get(**p, 0).is_none())
@@ -686,9 +769,10 @@ mod tests {
         for d in [(0, 0, 0), (-1, 0, 0), (0, -1, 0), (-1, -1, 0)] {
             assert!(want(d), "{d:?} dropped");
         }
-        // y = 9 is beyond the reach of the chunk below; x = 31 reaches +x.
+        // y = 2..=8 is beyond the reach of the chunk below: those are its
+        // surface-scan rows, which LOD 0 never reads. x = 31 reaches +x.
         cache.ensure(&world, &around);
-        cache.invalidate_touched(centre, boxed([31, 9, 31], [31, 9, 31]));
+        cache.invalidate_touched(centre, boxed([31, 2, 31], [31, 8, 31]));
         assert_eq!(held(&cache), 27 - 4, "self, +x, +z, +x+z");
     }
 

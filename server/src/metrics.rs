@@ -24,9 +24,12 @@ pub const TICK_SECONDS: &str = "strata_tick_seconds";
 pub const TICK_LANES: &str = "strata_tick_lanes";
 pub const TICKS_APPLIED_AHEAD: &str = "strata_ticks_applied_ahead_total";
 /// Collision meshes built on the engine's behalf, by `kind`: `changed` (one
-/// per chunk a tick changed), `rewarm` (a stale neighbour mesh, rebuilt
+/// per chunk a tick changed), `rewarm` (a stale neighbour mesh
 /// rebuilt by the tick) or `on_demand` (built while a check waited).
 pub const COLLISION_MESHES: &str = "strata_collision_meshes_total";
+/// Rewarmed collision meshes by `outcome`: `used` (looked up before being
+/// dropped) or `wasted` (dropped unused: stale again, replaced or evicted).
+pub const COLLISION_REWARMS: &str = "strata_collision_rewarms_total";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
@@ -115,6 +118,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         COLLISION_MESHES,
         "Collision meshes built: kind=changed (chunks a tick changed), rewarm (stale neighbour meshes rebuilt by a tick), on_demand (a line-of-sight check waited)"
+    );
+    metrics::describe_counter!(
+        COLLISION_REWARMS,
+        "Rewarmed collision meshes by outcome: used (looked up before being dropped) or wasted (dropped unused)"
     );
     metrics::describe_histogram!(
         TICK_LANES,

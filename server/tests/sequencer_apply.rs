@@ -202,6 +202,10 @@ fn stale_neighbour_meshes_in_use_are_rebuilt_by_the_tick() {
     let cached = s.collision().get(used, 0).expect("rebuilt, not left stale");
     assert_eq!(cached.hash, fresh.hash);
     assert!(s.collision().get(unused, 0).is_none(), "only meshes in use");
+    // The rewarm is counted as used once something looks it up.
+    assert_eq!(s.collision().rewarm_outcomes().used, 0);
+    assert_eq!(s.mesh_hash(used), fresh.hash);
+    assert_eq!(s.collision().rewarm_outcomes().used, 1);
 }
 
 #[test]

@@ -123,6 +123,16 @@ fn bench(c: &mut Criterion) {
             })
         })
     });
+    // The same copy into a recycled buffer: no allocation, no zeroing.
+    let mut recycled = Neighborhood::from_chunks(ChunkPos::new(0, 0, 0), |_| None);
+    g.bench_function("neighborhood/refill_from_chunks dense", |b| {
+        b.iter_custom(|n| {
+            cpu_time(n, || {
+                recycled.refill_from_chunks(ChunkPos::new(0, 0, 0), |_| Some(&dense));
+                black_box(&recycled);
+            })
+        })
+    });
     g.bench_function("neighborhood/from_fn terrain", |b| {
         b.iter_custom(|n| {
             cpu_time(n, || {

@@ -5,7 +5,8 @@ mod mesh_common;
 use mesh_common::*;
 use strata_terrain::material::ids;
 use strata_terrain::mesh::{
-    mesh_chunk, try_mesh_chunk, Mesh, MeshError, MeshOptions, Neighborhood, MAX_SURFACE_SCAN,
+    mesh_chunk, try_mesh_chunk, Mesh, MeshError, MeshOptions, Neighborhood, LOCAL_MAX_Y,
+    LOD0_LOCAL_MAX, MAX_SURFACE_SCAN,
 };
 use strata_terrain::world::FlatGenerator;
 use strata_terrain::{Chunk, ChunkPos, Voxel, VoxelPos, VoxelRead, World};
@@ -137,6 +138,39 @@ fn from_world_reads_the_apron_from_neighbour_chunks() {
     );
 }
 
+/// The server drops a cached LOD-0 mesh only when a voxel up to `LOD0_LOCAL_MAX` changes; the
+/// surface-scan rows above feed coarse meshes alone.
+#[test]
+fn lod0_meshes_ignore_the_surface_scan_rows() {
+    let field = value_noise(7, 6.0);
+    let (chunk, iso, slope) = (ChunkPos::new(0, 0, 0), 127.5, 16.0);
+    let base = neighborhood(chunk, &field, iso, slope);
+    // Above LOD0_LOCAL_MAX every sample becomes solid sand: another density and material.
+    let origin = chunk.origin();
+    let changed = Neighborhood::from_fn(origin, |p| {
+        if p.y - origin.y > LOD0_LOCAL_MAX {
+            Voxel::solid(ids::SAND)
+        } else {
+            let v = base.voxel(p.x - origin.x, p.y - origin.y, p.z - origin.z);
+            v.expect("inside the held range")
+        }
+    });
+    assert_ne!(base, changed);
+    assert_eq!(
+        changed.voxel(0, LOD0_LOCAL_MAX + 1, 0),
+        Some(Voxel::solid(ids::SAND))
+    );
+    const { assert!(LOD0_LOCAL_MAX < LOCAL_MAX_Y) };
+    let lod0 = MeshOptions::default();
+    let m = mesh_chunk(&base, &lod0);
+    assert!(m.triangle_count() > 100, "the noise crosses the chunk");
+    assert_eq!(m, mesh_chunk(&changed, &lod0));
+    assert_eq!(m.hash(), mesh_chunk(&changed, &lod0).hash());
+    // At LOD 1 the same rows do count: the surface scan climbs into them.
+    let lod1 = MeshOptions { lod: 1, ..lod0 };
+    assert_ne!(mesh_chunk(&base, &lod1), mesh_chunk(&changed, &lod1));
+}
+
 #[test]
 fn row_sampling_matches_per_voxel_sampling() {
     let mut world = World::new(std::sync::Arc::new(FlatGenerator {
@@ -183,6 +217,15 @@ fn row_sampling_matches_per_voxel_sampling() {
     });
     assert_eq!(lonely.voxel(-1, 5, 5), Some(Voxel::AIR));
     assert_eq!(lonely.voxel(3, 5, 5), a.voxel(3, 5, 5));
+    // Refilling a recycled buffer, left dirty by other chunks, gives the same samples.
+    let mut recycled = Neighborhood::from_world(&world, centre.offset(0, 1, 0).unwrap());
+    assert_ne!(recycled, a);
+    recycled.refill_from_world(&world, centre);
+    assert_eq!(recycled, a);
+    recycled.refill_from_chunks(centre, |p| {
+        (p == centre).then(|| &world.peek(p).unwrap().chunk)
+    });
+    assert_eq!(recycled, lonely);
 }
 
 /// Hills: grass one voxel thick on dirt three thick on stone.

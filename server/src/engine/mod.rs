@@ -584,6 +584,9 @@ impl Engine {
         let (out, meshing) = if idle { apply() } else { pool.install(apply) };
         metrics::counter!(m::COLLISION_MESHES, "kind" => "on_demand")
             .absolute(self.seq.collision().built_on_demand());
+        let rewarms = self.seq.collision().rewarm_outcomes();
+        metrics::counter!(m::COLLISION_REWARMS, "outcome" => "used").absolute(rewarms.used);
+        metrics::counter!(m::COLLISION_REWARMS, "outcome" => "wasted").absolute(rewarms.wasted);
         for r in &out.rejected {
             metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&r.reason))
                 .increment(1);

@@ -13,11 +13,11 @@ use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::sync::Arc;
 
-use strata_terrain::mesh::Neighborhood;
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, FixedVec3};
 
 use super::generated::GeneratedCache;
 use crate::collision::CollisionMesh;
+use crate::mesh_buffers;
 use crate::metrics as m;
 use crate::sequencer::residency::with_neighbours;
 use crate::validate::position::feet_voxel;
@@ -64,13 +64,15 @@ impl PremeshJob {
                         None => (*p, cache.get(*p, &*self.generator)),
                     })
                     .collect();
-                let nb = Neighborhood::from_chunks(t.pos, |p| reads.get(&p).map(|c| &**c));
+                let nb = mesh_buffers::from_chunks(t.pos, |p| reads.get(&p).map(|c| &**c));
                 let generated = reads
                     .into_iter()
                     .filter(|(p, _)| !self.modified.contains_key(p))
                     .collect();
+                let mesh = CollisionMesh::build(t.pos, t.version, &nb);
+                mesh_buffers::recycle([nb]);
                 PremeshResult {
-                    mesh: CollisionMesh::build(t.pos, t.version, &nb),
+                    mesh,
                     stamp: t.stamp,
                     generated,
                 }
@@ -334,6 +336,7 @@ mod tests {
 
     use super::*;
     use strata_terrain::gen::{GenParams, Generator};
+    use strata_terrain::mesh::Neighborhood;
     use strata_terrain::World;
 
     fn generator() -> Arc<dyn ChunkGenerator> {

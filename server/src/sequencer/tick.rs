@@ -16,6 +16,7 @@ use super::regions::{self, RegionSpan};
 use super::residency::{edit_footprint, with_neighbours};
 use super::{LogEntry, Queued, Sequencer};
 use crate::collision::{CollisionCache, CollisionMesh};
+use crate::mesh_buffers;
 
 /// Where a change's mesh hash comes from once the meshes are built.
 #[derive(Debug)]
@@ -45,6 +46,8 @@ pub struct PendingMeshes {
 pub struct BuiltMeshes {
     meshes: Vec<CollisionMesh>,
     slots: Vec<MeshSlot>,
+    /// How many of `meshes` (the last ones) are rewarms.
+    rewarmed: usize,
 }
 
 impl PendingMeshes {
@@ -70,9 +73,11 @@ impl PendingMeshes {
         } else {
             CollisionCache::mesh_chunks(&self.jobs)
         };
+        mesh_buffers::recycle(self.jobs.into_iter().map(|(_, _, nb)| nb));
         BuiltMeshes {
             meshes,
             slots: self.slots,
+            rewarmed: self.rewarmed,
         }
     }
 }
@@ -258,7 +263,7 @@ impl Sequencer {
                 continue;
             }
             let version = self.world.peek(pos).map_or(0, |c| c.version);
-            jobs.push((pos, version, Neighborhood::from_world(&self.world, pos)));
+            jobs.push((pos, version, mesh_buffers::from_world(&self.world, pos)));
         }
     }
 
@@ -272,13 +277,22 @@ impl Sequencer {
         built: BuiltMeshes,
         ahead: &HashSet<ChunkPos>,
     ) {
-        let BuiltMeshes { meshes, slots } = built;
+        let BuiltMeshes {
+            meshes,
+            slots,
+            rewarmed,
+        } = built;
         for slot in &slots {
             out.applied[slot.applied].changes[slot.change].mesh_hash = meshes[slot.job].hash;
         }
-        for mesh in meshes {
+        let first_rewarm = meshes.len() - rewarmed;
+        for (i, mesh) in meshes.into_iter().enumerate() {
             if ahead.is_empty() || !with_neighbours(mesh.pos).any(|p| ahead.contains(&p)) {
-                self.collision.insert(mesh);
+                if i < first_rewarm {
+                    self.collision.insert(mesh);
+                } else {
+                    self.collision.insert_rewarmed(mesh);
+                }
             }
         }
     }
@@ -380,7 +394,7 @@ impl Lane {
             world.load(with_neighbours(pos));
             job_of.insert(pos, lane.jobs.len());
             lane.jobs
-                .push((pos, version, Neighborhood::from_world(&world, pos)));
+                .push((pos, version, mesh_buffers::from_world(&world, pos)));
             if new_in_store.contains(&pos) {
                 let state = world.peek(pos).expect("loaded above").chunk.clone();
                 lane.finals.insert(pos, (version, state));

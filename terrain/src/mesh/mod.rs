@@ -59,7 +59,8 @@ mod types;
 pub mod volume;
 
 pub use neighborhood::{
-    Neighborhood, APRON_HIGH, APRON_LOW, LOCAL_MAX, LOCAL_MAX_Y, LOCAL_MIN, MAX_SURFACE_SCAN,
+    Neighborhood, APRON_HIGH, APRON_LOW, LOCAL_MAX, LOCAL_MAX_Y, LOCAL_MIN, LOD0_LOCAL_MAX,
+    MAX_SURFACE_SCAN,
 };
 pub use transition::TRANSITION_WIDTH;
 pub use types::{faces, Mesh, MeshError, MeshOptions, VertexKey, ALL_FACES, DEFAULT_ISO, MAX_LOD};

@@ -34,6 +34,9 @@ pub const LOCAL_MIN: i32 = -APRON_LOW;
 pub const LOCAL_MAX: i32 = CHUNK_SIZE + APRON_HIGH;
 /// Last local coordinate held on y: higher, so the surface scan from sample 32 stays inside.
 pub const LOCAL_MAX_Y: i32 = CHUNK_SIZE + MAX_SURFACE_SCAN;
+/// Last local coordinate an LOD-0 mesh reads on every axis, y included: the surface scan
+/// (the rows above) runs only on coarse edges.
+pub const LOD0_LOCAL_MAX: i32 = CHUNK_SIZE + APRON_HIGH;
 
 /// Samples per row (x).
 pub const DIM_X: usize = (LOCAL_MAX - LOCAL_MIN + 1) as usize;
@@ -75,15 +78,23 @@ impl Neighborhood {
     /// chunks around it is read once (loaded ones borrowed, missing ones generated), and
     /// copied a row at a time.
     pub fn from_world(src: &impl ChunkRead, chunk: ChunkPos) -> Self {
+        let mut nb = Self::with_material(0);
+        nb.refill_from_world(src, chunk);
+        nb
+    }
+
+    /// [`Self::from_world`] into this neighbourhood's buffers (see
+    /// [`Self::refill_from_chunks`]).
+    pub fn refill_from_world(&mut self, src: &impl ChunkRead, chunk: ChunkPos) {
         let around: Vec<Option<Cow<'_, Chunk>>> = NEIGHBOURS
             .iter()
             .map(|&(dx, dy, dz)| chunk.offset(dx, dy, dz).map(|p| src.chunk_at(p)))
             .collect();
-        Self::from_chunks(chunk, |p| {
+        self.refill_from_chunks(chunk, |p| {
             let d = (p.x - chunk.x, p.y - chunk.y, p.z - chunk.z);
             let i = NEIGHBOURS.iter().position(|n| *n == d)?;
             around[i].as_deref()
-        })
+        });
     }
 
     /// Samples by callback; `origin` is the world position of local (0,0,0). World positions
@@ -153,16 +164,30 @@ impl Neighborhood {
     /// does not return read as air.
     pub fn from_chunks<'c>(
         chunk: ChunkPos,
-        mut get: impl FnMut(ChunkPos) -> Option<&'c Chunk>,
+        get: impl FnMut(ChunkPos) -> Option<&'c Chunk>,
     ) -> Self {
+        let mut nb = Self::with_material(0);
+        nb.refill_from_chunks(chunk, get);
+        nb
+    }
+
+    /// [`Self::from_chunks`] into this neighbourhood's buffers: every sample is overwritten, so
+    /// a recycled buffer needs no clearing, and no memory is allocated.
+    pub fn refill_from_chunks<'c>(
+        &mut self,
+        chunk: ChunkPos,
+        mut get: impl FnMut(ChunkPos) -> Option<&'c Chunk>,
+    ) {
         let around: [Option<&'c Chunk>; 27] = std::array::from_fn(|i| {
             let (dx, dy, dz) = NEIGHBOURS[i];
             chunk.offset(dx, dy, dz).and_then(&mut get)
         });
-        let mut density = vec![0u8; SAMPLES].into_boxed_slice();
-        let mut material = vec![0u8; SAMPLES].into_boxed_slice();
         let m = CHUNK_SIZE - 1;
-        for r in 0..DIM_Y * DIM_Z {
+        let rows = self
+            .density
+            .chunks_exact_mut(DIM_X)
+            .zip(self.material.chunks_exact_mut(DIM_X));
+        for (r, (drow, mrow)) in rows.enumerate() {
             // Local y and z of this row, and the chunk layer each falls in.
             let (y, z) = (
                 (r % DIM_Y) as i32 + LOCAL_MIN,
@@ -170,23 +195,15 @@ impl Neighborhood {
             );
             let (dy, dz) = (y.div_euclid(CHUNK_SIZE), z.div_euclid(CHUNK_SIZE));
             let slot = |dx: i32| (dx + 1 + 3 * (dy + 1) + 9 * (dz + 1)) as usize;
-            let row = r * DIM_X;
             let base = local_index(0, (y & m) as usize, (z & m) as usize);
-            let (drow, mrow) = (
-                &mut density[row..row + DIM_X],
-                &mut material[row..row + DIM_X],
-            );
-            // Each row crosses three chunks along x: local -1, 0..=31 and 32..=33.
-            // Fixed-size pieces compile to a few moves instead of memcpy calls.
+            // Each row crosses three chunks along x: local -1, 0..=31 and 32..=33, which
+            // together write all DIM_X samples. Fixed-size pieces compile to a few moves
+            // instead of memcpy calls.
             copy_piece::<1>(around[slot(-1)], base + m as usize, drow, mrow, 0);
             copy_piece::<32>(around[slot(0)], base, drow, mrow, 1);
             copy_piece::<2>(around[slot(1)], base, drow, mrow, 33);
         }
-        Self {
-            origin: chunk.origin(),
-            density,
-            material,
-        }
+        self.origin = chunk.origin();
     }
 
     /// World position of local (0,0,0).
