@@ -202,6 +202,7 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
         /^strata_quic_lost_packets_total / { lost = $NF }
         /^strata_collision_meshes_total\{/ { split($1, a, "\""); meshes[a[2]] = $NF }
         /^strata_collision_rewarms_total\{/ { split($1, a, "\""); rewarms[a[2]] = $NF }
+        /^strata_premesh_meshes_total / { premesh = $NF }
         END { printf "{\"commit_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"fsync_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"server_edits_accepted\":%d",
             q["strata_flush_seconds_0.5"], q["strata_flush_seconds_0.99"], q["strata_flush_seconds_1"],
             q["strata_fsync_seconds_0.5"], q["strata_fsync_seconds_0.99"], q["strata_fsync_seconds_1"], accepted
@@ -209,7 +210,7 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
             (tcount > 0 ? 1000 * tsum / tcount : 0), q["strata_tick_seconds_0.5"], q["strata_tick_seconds_0.99"], tcount
               printf ",\"udp\":{\"datagrams_sent\":%d,\"datagrams_received\":%d,\"bytes_sent\":%d,\"lost_packets\":%d,\"datagrams_per_edit\":%.1f}",
             dsent, drecv, bsent, lost, (accepted > 0 ? (dsent + drecv) / accepted : 0)
-              printf ",\"meshes\":{\"changed\":%d,\"rewarm\":%d,\"on_demand\":%d,\"rewarm_used\":%d,\"rewarm_wasted\":%d,\"per_edit\":%.2f}}\n",
-            meshes["changed"], meshes["rewarm"], meshes["on_demand"], rewarms["used"], rewarms["wasted"],
-            (accepted > 0 ? (meshes["changed"] + meshes["rewarm"] + meshes["on_demand"]) / accepted : 0) }'
+              printf ",\"meshes\":{\"changed\":%d,\"rewarm\":%d,\"on_demand\":%d,\"premesh\":%d,\"rewarm_used\":%d,\"rewarm_wasted\":%d,\"per_edit\":%.2f}}\n",
+            meshes["changed"], meshes["rewarm"], meshes["on_demand"], premesh, rewarms["used"], rewarms["wasted"],
+            (accepted > 0 ? (meshes["changed"] + meshes["rewarm"] + meshes["on_demand"] + premesh) / accepted : 0) }'
 fi
