@@ -209,6 +209,40 @@ fn stale_neighbour_meshes_in_use_are_rebuilt_by_the_tick() {
 }
 
 #[test]
+fn edits_above_the_lod0_apron_keep_the_mesh_below() {
+    // Ground level is y = 0, so chunk (3, -1, 3) holds the surface. Its
+    // LOD-0 mesh reads up to local 33, world y = 1; world y 2..=8 lie in its
+    // neighbourhood (the surface-scan rows) but not in what it reads.
+    let mut s = ready(ValidationConfig::default());
+    let below = ChunkPos::new(3, -1, 3);
+    let fresh =
+        |s: &Sequencer| CollisionMesh::build(below, 0, &Neighborhood::from_world(s.world(), below));
+    s.mesh_hash(below);
+    let before = s.collision().get(below, 0).expect("meshed").clone();
+    s.submit(ADMIN, req(1, fill((98, 2, Z + 4), (100, 8, Z + 6))), 0)
+        .unwrap();
+    let out = s.tick(0);
+    assert_eq!(out.applied.len(), 1, "{:?}", out.rejected);
+    assert!(out.applied[0].changes.iter().all(|c| c.pos != below));
+    let kept = s.collision().get(below, 0).expect("kept");
+    assert!(
+        std::sync::Arc::ptr_eq(kept, &before),
+        "neither dropped nor rebuilt"
+    );
+    assert_eq!(**kept, fresh(&s), "and still what the world meshes to");
+    // World y = 1 is its local 33 (the normals at 32 read it): dropped and
+    // rebuilt. (On flat ground only the normals' length changes, so the mesh
+    // comes out the same.)
+    s.submit(ADMIN, req(2, fill((98, 1, Z + 4), (100, 1, Z + 6))), 1_000)
+        .unwrap();
+    let out = s.tick(1_000);
+    assert_eq!(out.applied.len(), 1, "{:?}", out.rejected);
+    let rebuilt = s.collision().get(below, 0).expect("rewarmed");
+    assert!(!std::sync::Arc::ptr_eq(rebuilt, &before));
+    assert_eq!(**rebuilt, fresh(&s));
+}
+
+#[test]
 fn adopted_generated_chunks_never_replace_loaded_ones() {
     let mut s = ready(ValidationConfig::default());
     let gen = s.world().generator().clone();
