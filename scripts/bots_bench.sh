@@ -17,7 +17,9 @@
 # count, whole run), p50 and p99 (the registry's rolling window, the run's
 # last minute) and the count of ticks; and "udp": the UDP datagrams the
 # server sent and received, its UDP bytes sent, QUIC's lost packets, and
-# datagrams (both ways) per edit it accepted. BENCH_CONSOLE_PORT turns on
+# datagrams (both ways) per edit it accepted; and "meshes": collision
+# meshes built by kind (changed, rewarm, on_demand, premesh), what became of
+# the rewarms (used, wasted) and meshes per edit. BENCH_CONSOLE_PORT turns on
 # the web console; BENCH_WATCHERS=N then connects N watching consoles once
 # the server is up, each like a browser tab: the first screen of map tiles
 # (3 x 3 around the bots), then the live event stream to the end.
