@@ -169,10 +169,16 @@ impl Interest {
 
     /// Whether deltas of `pos` go to this session.
     pub fn covers(&self, pos: ChunkPos) -> bool {
-        // Every subscribed chunk is within the keep distance of the center:
-        // most sessions are ruled out without a set lookup.
+        self.may_cover(pos) && self.subscribed.contains(&pos)
+    }
+
+    /// Whether `pos` is within the keep distance of the center, where every
+    /// subscribed chunk lies: false rules out [`Self::covers`] with no
+    /// lookup at all, which is how most sessions miss most changes.
+    #[inline]
+    pub fn may_cover(&self, pos: ChunkPos) -> bool {
         let keep = self.radius as u32 + self.cfg.hysteresis as u32;
-        self.center.is_some_and(|c| pos.chebyshev(c) <= keep) && self.subscribed.contains(&pos)
+        self.center.is_some_and(|c| pos.chebyshev(c) <= keep)
     }
 
     /// Every covered chunk, in position order.

@@ -40,6 +40,20 @@ fn nearest_first_with_fixed_tiebreak() {
     assert_eq!(j.follow_position(FixedVec3::from_voxels(40, 5, -1)), c);
     assert!(i.covers(ChunkPos::new(3, 2, 1)));
     assert!(!i.covers(ChunkPos::new(4, 0, -1)));
+    // `may_cover` (no lookup) holds wherever `covers` does, and rules out
+    // everything beyond the keep distance (2 + 1 from the center).
+    for x in -6..=8 {
+        for z in -8..=6 {
+            let p = ChunkPos::new(x, 0, z);
+            assert!(!i.covers(p) || i.may_cover(p), "{p:?}");
+            assert_eq!(
+                i.may_cover(p),
+                (x - 1).abs().max((z + 1).abs()) <= 3,
+                "{p:?}"
+            );
+        }
+    }
+    assert!(!interest(2, 1).may_cover(center), "no center yet: nothing");
 }
 
 #[test]

@@ -128,10 +128,14 @@ const PEERS_PER_TASK: usize = 64;
 /// Queues the tick's frames `p` holds the base of, then `end`, as one batch.
 fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], chains: &[(ChunkPos, Vec<At>)], end: &Bytes) {
     // The changes `p` gets: along each chunk's chain from the version it
-    // holds. The Fx-hashed `known` lookup rules most chunks out; `covers`
-    // (a tree lookup) only confirms the few it holds.
+    // holds. The distance from its view's center rules most chunks out, the
+    // Fx-hashed `known` lookup most others; `covers` (a tree lookup) only
+    // confirms the few it holds.
     let mut picked: Vec<At> = Vec::new();
     for (pos, chain) in chains {
+        if !p.interest.may_cover(*pos) {
+            continue;
+        }
         let Some(&held) = p.known.get(pos) else {
             continue;
         };
