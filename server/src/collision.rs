@@ -19,8 +19,10 @@ use strata_terrain::mesh::{
 };
 use strata_terrain::{ChunkPos, VoxelBox, World, CHUNK_SIZE};
 
-/// Meshes kept by default (a LOD-0 chunk mesh is tens of KiB).
-pub const DEFAULT_COLLISION_CACHE_CAPACITY: usize = 2048;
+/// Meshes kept by default (a LOD-0 chunk mesh is tens of KiB). 2048 was
+/// too few for 1000 players and more: evicted meshes were built again by
+/// premesh and on the engine thread (BENCHMARKS.md, session 17).
+pub const DEFAULT_COLLISION_CACHE_CAPACITY: usize = 8192;
 /// Most chunks one raycast walks through; bounds the work of a long ray.
 pub const MAX_RAY_CHUNKS: usize = 256;
 /// Hits closer than this to the origin are ignored (the ray starts on a surface).
