@@ -189,6 +189,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         generator_params: meta.generator_params.clone(),
         view_radius: cfg.interest.radius(),
         writer_queue: cfg.net.writer_queue,
+        control_writer_queue: cfg.net.control_writer_queue,
         send_interval: cfg.net.send_interval(),
         access: std::sync::RwLock::new(access),
         access_writes: tokio::sync::Mutex::new(()),

@@ -89,6 +89,9 @@ pub const MAX_DATAGRAM_BUFFER: usize = 16 * 1024 * 1024;
 /// too slow.
 pub const DEFAULT_WRITER_QUEUE: usize = 256;
 pub const MAX_WRITER_QUEUE: usize = 65_536;
+/// Frames queued on a connection's control stream (acknowledgements,
+/// refusals, replies) before the session is dropped as not reading them.
+pub const DEFAULT_CONTROL_WRITER_QUEUE: usize = 1024;
 /// Bytes of world data sent per connection per tick.
 pub const DEFAULT_SEND_BUDGET_BYTES_PER_TICK: usize = 256 * 1024;
 pub const MIN_SEND_BUDGET_BYTES_PER_TICK: usize = 1024;
@@ -218,6 +221,8 @@ pub struct NetSection {
     pub datagram_receive_buffer: usize,
     pub datagram_send_buffer: usize,
     pub writer_queue: usize,
+    /// See [`DEFAULT_CONTROL_WRITER_QUEUE`].
+    pub control_writer_queue: usize,
     pub send_budget_bytes_per_tick: usize,
     /// Ask clients to acknowledge at most this late (ms; 0: ask nothing).
     pub ack_delay_max_ms: u64,
@@ -292,6 +297,7 @@ impl Default for NetSection {
             datagram_receive_buffer: DEFAULT_DATAGRAM_RECEIVE_BUFFER,
             datagram_send_buffer: DEFAULT_DATAGRAM_SEND_BUFFER,
             writer_queue: DEFAULT_WRITER_QUEUE,
+            control_writer_queue: DEFAULT_CONTROL_WRITER_QUEUE,
             send_budget_bytes_per_tick: DEFAULT_SEND_BUDGET_BYTES_PER_TICK,
             ack_delay_max_ms: DEFAULT_ACK_DELAY_MAX_MS,
             ack_eliciting_threshold: DEFAULT_ACK_ELICITING_THRESHOLD,
@@ -474,6 +480,12 @@ impl ServerConfig {
         )?;
         range("net.writer_queue", n.writer_queue, 1, MAX_WRITER_QUEUE)?;
         range(
+            "net.control_writer_queue",
+            n.control_writer_queue,
+            1,
+            MAX_WRITER_QUEUE,
+        )?;
+        range(
             "net.send_budget_bytes_per_tick",
             n.send_budget_bytes_per_tick,
             MIN_SEND_BUDGET_BYTES_PER_TICK,
@@ -556,6 +568,20 @@ impl ServerConfig {
             1,
             MAX_COMMAND_QUEUE,
         )?;
+        for (name, value) in [
+            ("engine.premesh_backlog", self.engine.premesh_backlog),
+            (
+                "engine.premesh_generated_chunks",
+                self.engine.premesh_generated_chunks,
+            ),
+            ("engine.patch_base_chunks", self.engine.patch_base_chunks),
+            (
+                "engine.snapshot_cache_entries",
+                self.engine.snapshot_cache_entries,
+            ),
+        ] {
+            range(name, value, 1, crate::engine::MAX_ENGINE_CACHE)?;
+        }
         range(
             "engine.snapshot_preimages",
             self.engine.snapshot_preimages,

@@ -30,6 +30,12 @@ pub const COLLISION_MESHES: &str = "strata_collision_meshes_total";
 /// Rewarmed collision meshes by `outcome`: `used` (looked up before being
 /// dropped) or `wasted` (dropped unused: stale again, replaced or evicted).
 pub const COLLISION_REWARMS: &str = "strata_collision_rewarms_total";
+/// Generated-chunk cache lookups by `cache` (`premesh`, `patch_base`) and
+/// `outcome` (`hit`, or `generated` again).
+pub const GENERATED_CHUNKS: &str = "strata_generated_chunks_total";
+/// Snapshot-frame cache lookups by `outcome`: `hit`, `miss`, or `cleared`
+/// (entries dropped when it filled up).
+pub const SNAPSHOT_CACHE: &str = "strata_snapshot_cache_total";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
@@ -122,6 +128,14 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         COLLISION_REWARMS,
         "Rewarmed collision meshes by outcome: used (looked up before being dropped) or wasted (dropped unused)"
+    );
+    metrics::describe_counter!(
+        GENERATED_CHUNKS,
+        "Generated-chunk cache lookups by cache (premesh, patch_base) and outcome (hit, generated)"
+    );
+    metrics::describe_counter!(
+        SNAPSHOT_CACHE,
+        "Snapshot-frame cache lookups by outcome (hit, miss) and entries cleared when it filled"
     );
     metrics::describe_histogram!(
         TICK_LANES,

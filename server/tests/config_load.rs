@@ -243,6 +243,23 @@ fn bad_values_name_their_field() {
         ("[engine]\ncommand_queue = 0", "engine.command_queue"),
         ("[engine]\npremesh_radius = 9", "engine.premesh_radius"),
         ("[engine]\npremesh_inflight = 0", "engine.premesh_inflight"),
+        ("[engine]\npremesh_backlog = 0", "engine.premesh_backlog"),
+        (
+            "[engine]\npremesh_generated_chunks = 0",
+            "engine.premesh_generated_chunks",
+        ),
+        (
+            "[engine]\npatch_base_chunks = 2000000",
+            "engine.patch_base_chunks",
+        ),
+        (
+            "[engine]\nsnapshot_cache_entries = 0",
+            "engine.snapshot_cache_entries",
+        ),
+        (
+            "[net]\ncontrol_writer_queue = 0",
+            "net.control_writer_queue",
+        ),
         ("[engine]\nstream_us = 0", "engine.stream_us"),
         ("[engine]\nresident_chunks = 3", "engine.resident_chunks"),
         (

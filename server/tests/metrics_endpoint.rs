@@ -72,6 +72,20 @@ async fn metrics_count_what_happened() {
             }
         };
         assert!(premeshed <= 27.0 + 2.0, "{premeshed} meshes for one player");
+        // Those meshes read the 5x5x5 chunks around the player, each generated
+        // once at most (the cache holds thousands); the rest of their reads hit.
+        let text = scrape(metrics);
+        let generated = "strata_generated_chunks_total{cache=\"premesh\",outcome=\"generated\"}";
+        let hits = "strata_generated_chunks_total{cache=\"premesh\",outcome=\"hit\"}";
+        let (generated, hits) = (metric(&text, generated), metric(&text, hits));
+        assert!(
+            matches!(generated, Some(n) if (1.0..=125.0).contains(&n)),
+            "{generated:?} generated:\n{text}"
+        );
+        assert!(
+            matches!((generated, hits), (Some(g), Some(h)) if h >= 4.0 * g),
+            "{hits:?} hits for {generated:?} generated"
+        );
         // Transport counters: read while the connection is open (every
         // 5 s), and once more when it closes.
         let sent = "strata_udp_datagrams_total{direction=\"sent\"}";

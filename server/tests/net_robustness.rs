@@ -182,17 +182,27 @@ async fn a_stalled_client_does_not_delay_the_others() {
 async fn a_client_that_never_reads_its_verdicts_is_disconnected() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        // Refusals without limit, so the control queue overflows first.
+        // Refusals without limit, so the control queue overflows first; a
+        // queue of 16 (`[net] control_writer_queue`) overflows within 400
+        // verdicts, which the default of 1024 would hold.
         let mut cfg = test_config(dir.path());
         cfg.validation.reject_rate.capacity = u64::MAX / 2000;
+        cfg.net.control_writer_queue = 16;
         let server = app::start(cfg).await.expect("server starts");
         let good = connect(&server, "good", Role::Player).await;
         // No reading: verdicts pile up in the server's bounded control queue
         // until it overflows.
-        let RawSession { conn, mut send, .. } = raw_session(&server, "flood").await;
+        // Its receive streams stay open: dropped, they would stop the
+        // server's writers (a different way to fail).
+        let RawSession {
+            conn,
+            mut send,
+            _recv,
+            _endpoint,
+        } = raw_session(&server, "flood").await;
         let flood = async {
             // Refused at once (no position yet), each answered by a verdict.
-            for id in 0..20_000u64 {
+            for id in 0..400u64 {
                 let edit = Edit::Mine {
                     center: FixedVec3::from_voxels(0, 0, 0),
                     radius: r(1.0),

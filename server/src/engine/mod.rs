@@ -29,8 +29,12 @@ pub use command::{Command, JoinReply, Kick};
 pub use fanout::encode_control as fanout_control;
 pub use inbox::{channel as inbox_channel, EngineHandle, Inbox};
 pub use latest::LatestPosition;
-pub use premesh::{DEFAULT_PREMESH_INFLIGHT, DEFAULT_PREMESH_RADIUS, MAX_PREMESH_RADIUS};
+pub use premesh::{
+    DEFAULT_PREMESH_BACKLOG, DEFAULT_PREMESH_GENERATED_CHUNKS, DEFAULT_PREMESH_INFLIGHT,
+    DEFAULT_PREMESH_RADIUS, MAX_PREMESH_RADIUS,
+};
 pub use residency::{DEFAULT_RESIDENT_CHUNKS, MIN_RESIDENT_CHUNKS};
+pub use stream::{DEFAULT_PATCH_BASE_CHUNKS, DEFAULT_SNAPSHOT_CACHE_ENTRIES};
 
 use std::collections::{HashMap, HashSet};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
@@ -71,6 +75,8 @@ pub const DEFAULT_COMMAND_QUEUE: usize = 8192;
 pub const DEFAULT_CONTROL_QUEUE: usize = 4096;
 /// Largest allowed command or edit queue.
 pub const MAX_COMMAND_QUEUE: usize = 1 << 20;
+/// Largest allowed premesh backlog, generated-chunk cache or snapshot cache.
+pub const MAX_ENGINE_CACHE: usize = 1 << 20;
 /// Most worker threads `[engine] workers` may ask for.
 pub const MAX_WORKERS: usize = 256;
 
@@ -96,6 +102,18 @@ pub struct EngineConfig {
     pub premesh_radius: u8,
     /// Background mesh jobs in flight at most ([`DEFAULT_PREMESH_INFLIGHT`]).
     pub premesh_inflight: usize,
+    /// Player chunks whose surroundings wait for the background mesher
+    /// ([`premesh::DEFAULT_PREMESH_BACKLOG`]); past it the oldest are dropped.
+    pub premesh_backlog: usize,
+    /// Generated chunks the background mesher keeps for reuse
+    /// ([`premesh::DEFAULT_PREMESH_GENERATED_CHUNKS`]).
+    pub premesh_generated_chunks: usize,
+    /// Generated chunks kept as patch bases for the chunk stream
+    /// ([`stream::DEFAULT_PATCH_BASE_CHUNKS`]).
+    pub patch_base_chunks: usize,
+    /// Encoded snapshot frames kept for reuse
+    /// ([`stream::DEFAULT_SNAPSHOT_CACHE_ENTRIES`]).
+    pub snapshot_cache_entries: usize,
     /// Chunks held in memory before cold ones are dropped ([`DEFAULT_RESIDENT_CHUNKS`]).
     pub resident_chunks: usize,
     /// Pre-images one online snapshot may hold when its request names no
@@ -116,6 +134,10 @@ impl Default for EngineConfig {
             sessions_per_player: DEFAULT_SESSIONS_PER_PLAYER,
             premesh_radius: DEFAULT_PREMESH_RADIUS,
             premesh_inflight: DEFAULT_PREMESH_INFLIGHT,
+            premesh_backlog: premesh::DEFAULT_PREMESH_BACKLOG,
+            premesh_generated_chunks: premesh::DEFAULT_PREMESH_GENERATED_CHUNKS,
+            patch_base_chunks: stream::DEFAULT_PATCH_BASE_CHUNKS,
+            snapshot_cache_entries: stream::DEFAULT_SNAPSHOT_CACHE_ENTRIES,
             resident_chunks: DEFAULT_RESIDENT_CHUNKS,
             snapshot_preimages: snapshot::DEFAULT_SNAPSHOT_PREIMAGES,
             workers: 0,
@@ -204,7 +226,11 @@ impl Engine {
             .map_err(std::io::Error::other)?;
         Ok(Self {
             pool: Arc::new(pool),
-            premesh: premesh::Premesher::new(cfg.premesh_inflight)?,
+            premesh: premesh::Premesher::new(premesh::PremeshLimits {
+                inflight: cfg.premesh_inflight,
+                backlog: cfg.premesh_backlog,
+                generated_chunks: cfg.premesh_generated_chunks,
+            })?,
             durable_seq: seq.last_seq(),
             seq,
             store,
@@ -214,9 +240,12 @@ impl Engine {
             bounds,
             peers: HashMap::new(),
             versions,
-            snapshots: Default::default(),
+            snapshots: stream::SnapshotCache::new(cfg.snapshot_cache_entries),
             stream_cursor: 0,
-            patch_bases: generated::GeneratedCache::new(stream::PATCH_BASE_CHUNKS),
+            patch_bases: generated::GeneratedCache::new(
+                cfg.patch_base_chunks,
+                generated::Use::PatchBase,
+            ),
             last_evict: None,
             snapshots_running: Vec::new(),
             deferred: Default::default(),

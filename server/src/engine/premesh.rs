@@ -15,7 +15,7 @@ use std::sync::Arc;
 
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, FixedVec3};
 
-use super::generated::GeneratedCache;
+use super::generated::{GeneratedCache, Use};
 use crate::collision::CollisionMesh;
 use crate::mesh_buffers;
 use crate::metrics as m;
@@ -28,11 +28,34 @@ pub const DEFAULT_PREMESH_RADIUS: u8 = 1;
 pub const MAX_PREMESH_RADIUS: u8 = 3;
 /// Chunks being meshed in the background at most; the rest wait in the backlog.
 pub const DEFAULT_PREMESH_INFLIGHT: usize = 64;
-/// Player chunks whose surroundings wait for room in the background mesher;
-/// past this, the oldest are dropped (they are meshed on demand instead).
-pub const PREMESH_BACKLOG: usize = 4096;
-/// Generated chunks the background mesher keeps for reuse (about 64 KiB each at most).
-pub const GENERATED_CACHE_CHUNKS: usize = 2048;
+/// Default player chunks whose surroundings wait for room in the background
+/// mesher (`[engine] premesh_backlog`); past it, the oldest are dropped
+/// (they are meshed on demand instead).
+pub const DEFAULT_PREMESH_BACKLOG: usize = 4096;
+/// Default generated chunks the background mesher keeps for reuse (about
+/// 64 KiB each at most; `[engine] premesh_generated_chunks`).
+pub const DEFAULT_PREMESH_GENERATED_CHUNKS: usize = 8192;
+
+/// The background mesher's bounds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PremeshLimits {
+    /// Chunks queued or being meshed at most.
+    pub inflight: usize,
+    /// Player chunks waiting for room at most.
+    pub backlog: usize,
+    /// Generated chunks kept for reuse.
+    pub generated_chunks: usize,
+}
+
+impl Default for PremeshLimits {
+    fn default() -> Self {
+        Self {
+            inflight: DEFAULT_PREMESH_INFLIGHT,
+            backlog: DEFAULT_PREMESH_BACKLOG,
+            generated_chunks: DEFAULT_PREMESH_GENERATED_CHUNKS,
+        }
+    }
+}
 
 /// One chunk to mesh and what it reads.
 pub struct PremeshTarget {
@@ -103,6 +126,7 @@ pub struct Premesher {
     jobs: SyncSender<PremeshJob>,
     inflight: HashSet<ChunkPos>,
     max_inflight: usize,
+    max_backlog: usize,
     rx: Receiver<PremeshResult>,
     /// Centers waiting for room, oldest first.
     backlog: VecDeque<ChunkPos>,
@@ -117,15 +141,16 @@ impl std::fmt::Debug for Premesher {
 }
 
 impl Premesher {
-    pub fn new(max_inflight: usize) -> std::io::Result<Self> {
-        let max_inflight = max_inflight.max(1);
+    pub fn new(limits: PremeshLimits) -> std::io::Result<Self> {
+        let max_inflight = limits.inflight.max(1);
+        let generated_chunks = limits.generated_chunks;
         // One slot per job in flight, so neither side ever blocks on send.
         let (results, rx) = sync_channel(max_inflight);
         let (jobs, queued) = sync_channel::<PremeshJob>(max_inflight);
         std::thread::Builder::new()
             .name("strata-premesh".into())
             .spawn(move || {
-                let mut cache = GeneratedCache::new(GENERATED_CACHE_CHUNKS);
+                let mut cache = GeneratedCache::new(generated_chunks, Use::Premesh);
                 for job in queued {
                     for r in job.build(&mut cache) {
                         let _ = results.send(r);
@@ -136,6 +161,7 @@ impl Premesher {
             jobs,
             inflight: HashSet::new(),
             max_inflight,
+            max_backlog: limits.backlog.max(1),
             rx,
             backlog: VecDeque::new(),
         })
@@ -162,7 +188,7 @@ impl Premesher {
         if self.backlog.contains(&center) {
             return true;
         }
-        let dropped = self.backlog.len() >= PREMESH_BACKLOG;
+        let dropped = self.backlog.len() >= self.max_backlog;
         if dropped {
             self.backlog.pop_front();
         }
@@ -376,7 +402,11 @@ mod tests {
             modified: HashMap::from([(above, Arc::new(edited))]),
             generator: g.clone(),
         };
-        let mut pm = Premesher::new(4).unwrap();
+        let mut pm = Premesher::new(PremeshLimits {
+            inflight: 4,
+            ..PremeshLimits::default()
+        })
+        .unwrap();
         assert!(pm.submit(job));
         assert!(pm.is_inflight(surface));
         let done = wait_for(&mut pm, 1);
@@ -399,7 +429,11 @@ mod tests {
     #[test]
     fn submit_is_bounded_and_deduplicated() {
         let g = generator();
-        let mut pm = Premesher::new(2).unwrap();
+        let mut pm = Premesher::new(PremeshLimits {
+            inflight: 2,
+            ..PremeshLimits::default()
+        })
+        .unwrap();
         let job = |pos: ChunkPos| PremeshJob {
             targets: vec![PremeshTarget {
                 pos,
@@ -421,6 +455,25 @@ mod tests {
         assert_eq!(wait_for(&mut pm, 2).len(), 2);
         assert!(pm.submit(job(c)), "room again after draining");
         assert_eq!(wait_for(&mut pm, 1).len(), 1);
+    }
+
+    #[test]
+    fn backlog_holds_the_configured_number_of_newest_centers() {
+        let mut pm = Premesher::new(PremeshLimits {
+            backlog: 3,
+            ..PremeshLimits::default()
+        })
+        .unwrap();
+        let c = |x: i32| ChunkPos::new(x, 0, 0);
+        for x in 0..3 {
+            assert!(pm.defer(c(x)), "room for {x}");
+        }
+        assert!(pm.defer(c(1)), "already waiting: nothing dropped");
+        assert_eq!(pm.backlog_len(), 3);
+        assert!(!pm.defer(c(3)), "full: the oldest goes");
+        assert_eq!(pm.backlog_len(), 3);
+        let left: Vec<ChunkPos> = std::iter::from_fn(|| pm.next_deferred()).collect();
+        assert_eq!(left, vec![c(1), c(2), c(3)]);
     }
 
     #[test]

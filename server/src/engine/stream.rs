@@ -20,12 +20,14 @@ use super::Engine;
 use crate::metrics as m;
 use crate::net::writer::SendRefused;
 
-/// Generated chunks kept as patch bases (at most 64 KiB each).
-pub const PATCH_BASE_CHUNKS: usize = 512;
+/// Default generated chunks kept as patch bases (at most 64 KiB each;
+/// `[engine] patch_base_chunks`).
+pub const DEFAULT_PATCH_BASE_CHUNKS: usize = 512;
 
-/// Encoded snapshots kept for reuse: many sessions near one spot ask for
-/// the same chunks.
-pub const SNAPSHOT_CACHE_ENTRIES: usize = 8192;
+/// Default encoded snapshots kept for reuse (`[engine]
+/// snapshot_cache_entries`): many sessions near one spot ask for the same
+/// chunks.
+pub const DEFAULT_SNAPSHOT_CACHE_ENTRIES: usize = 8192;
 
 /// An encoded snapshot or patch and the update it encodes.
 #[derive(Debug)]
@@ -39,8 +41,10 @@ struct Cached {
 /// A frame carries its chunk's mesh hash, which also depends on the
 /// neighbours, so a hit is reused only if that hash is still current; else
 /// only the (small) frame is re-encoded, not the chunk or the patch.
-#[derive(Debug, Default)]
+/// Full, it starts over empty.
+#[derive(Debug)]
 pub struct SnapshotCache {
+    capacity: usize,
     frames: HashMap<(ChunkPos, u64, bool), Cached>,
 }
 
@@ -55,9 +59,21 @@ fn mesh_hash_of(u: &mut WorldUpdate) -> Option<&mut u64> {
 }
 
 impl SnapshotCache {
+    /// A cache of at most `capacity` frames (at least one).
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            capacity: capacity.max(1),
+            frames: HashMap::new(),
+        }
+    }
+
     /// The cached frame, re-encoded first if `mesh_hash` changed.
     fn get(&mut self, key: (ChunkPos, u64, bool), mesh_hash: u64) -> Option<Bytes> {
-        let c = self.frames.get_mut(&key)?;
+        let Some(c) = self.frames.get_mut(&key) else {
+            metrics::counter!(m::SNAPSHOT_CACHE, "outcome" => "miss").increment(1);
+            return None;
+        };
+        metrics::counter!(m::SNAPSHOT_CACHE, "outcome" => "hit").increment(1);
         let held = mesh_hash_of(&mut c.update)?;
         if *held != mesh_hash {
             *held = mesh_hash;
@@ -67,7 +83,9 @@ impl SnapshotCache {
     }
 
     fn put(&mut self, key: (ChunkPos, u64, bool), update: WorldUpdate, frame: Bytes) {
-        if self.frames.len() >= SNAPSHOT_CACHE_ENTRIES {
+        if self.frames.len() >= self.capacity {
+            metrics::counter!(m::SNAPSHOT_CACHE, "outcome" => "cleared")
+                .increment(self.frames.len() as u64);
             self.frames.clear();
         }
         self.frames.insert(key, Cached { update, frame });
@@ -217,5 +235,44 @@ impl Engine {
         // mesh) as any; end-of-run checks ask many sessions for the same ones.
         self.snapshots.put(key, update, frame.clone());
         Ok((frame, version, kind))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strata_terrain::delta::ChunkDelta;
+    use strata_terrain::{Chunk, Voxel};
+
+    fn patched(pos: ChunkPos, mesh_hash: u64) -> WorldUpdate {
+        let at = |d: u8| Chunk::Uniform(Voxel::new(d, 1));
+        let delta = ChunkDelta::encode(pos, 0, 1, &at(0), &at(9)).unwrap();
+        WorldUpdate::Patched { delta, mesh_hash }
+    }
+
+    #[test]
+    fn holds_at_most_its_capacity_and_refreshes_the_mesh_hash() {
+        let mut cache = SnapshotCache::new(2);
+        let key = |x: i32| (ChunkPos::new(x, 0, 0), 1, false);
+        for x in 0..2 {
+            let u = patched(key(x).0, 7);
+            let frame = encode_update(&u);
+            cache.put(key(x), u, frame);
+        }
+        assert_eq!(
+            cache.get(key(0), 7),
+            Some(encode_update(&patched(key(0).0, 7)))
+        );
+        // A changed neighbour changed the mesh hash: only the frame is redone.
+        assert_eq!(
+            cache.get(key(0), 8),
+            Some(encode_update(&patched(key(0).0, 8)))
+        );
+        assert_eq!(cache.get(key(5), 7), None);
+        let u = patched(key(2).0, 7);
+        let frame = encode_update(&u);
+        cache.put(key(2), u, frame);
+        assert!(cache.frames.len() <= 2, "{} frames", cache.frames.len());
+        assert!(cache.get(key(2), 7).is_some(), "the newest is kept");
     }
 }

@@ -23,8 +23,6 @@ use crate::shutdown::Shutdown;
 
 /// How long a closing connection waits for its last frames to drain.
 pub const DRAIN_TIMEOUT: Duration = Duration::from_secs(2);
-/// Capacity of each connection's control writer queue.
-pub const CONTROL_QUEUE: usize = 1024;
 /// How long a session waits for room in the engine's queue for a command
 /// its client relies on before closing as overloaded.
 pub const ENGINE_WAIT_TIMEOUT: Duration = Duration::from_secs(2);
@@ -44,6 +42,8 @@ pub struct SessionContext {
     pub view_radius: u8,
     /// Per-connection queue of world updates.
     pub writer_queue: usize,
+    /// Per-connection queue of control frames (`[net] control_writer_queue`).
+    pub control_writer_queue: usize,
     /// Shortest time between two writes of a session's updates (zero: none).
     pub send_interval: Duration,
     /// Bans and revocations, checked at every Hello; admin sessions change
@@ -120,7 +120,8 @@ pub async fn run(
     let Some((send, recv)) = accept_first_stream(&conn, "control stream", deadline).await else {
         return;
     };
-    let (control, control_task) = spawn_writer(send, CONTROL_QUEUE, Duration::ZERO, "control");
+    let (control, control_task) =
+        spawn_writer(send, ctx.control_writer_queue, Duration::ZERO, "control");
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ClientToServer));
     let hello = match tokio::time::timeout_at(deadline, reader.next::<ClientMessage>()).await {
         Ok(Ok(Some(ClientMessage::Hello(h)))) => h,
