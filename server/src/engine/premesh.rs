@@ -130,6 +130,8 @@ pub struct Premesher {
     rx: Receiver<PremeshResult>,
     /// Centers waiting for room, oldest first.
     backlog: VecDeque<ChunkPos>,
+    /// The same centers, for the duplicate check (the backlog may be long).
+    waiting: HashSet<ChunkPos>,
 }
 
 impl std::fmt::Debug for Premesher {
@@ -164,6 +166,7 @@ impl Premesher {
             max_backlog: limits.backlog.max(1),
             rx,
             backlog: VecDeque::new(),
+            waiting: HashSet::new(),
         })
     }
 
@@ -185,12 +188,14 @@ impl Premesher {
     /// Remembers `center` until there is room; false if the backlog was
     /// full and its oldest center was dropped.
     pub fn defer(&mut self, center: ChunkPos) -> bool {
-        if self.backlog.contains(&center) {
+        if !self.waiting.insert(center) {
             return true;
         }
         let dropped = self.backlog.len() >= self.max_backlog;
         if dropped {
-            self.backlog.pop_front();
+            if let Some(old) = self.backlog.pop_front() {
+                self.waiting.remove(&old);
+            }
         }
         self.backlog.push_back(center);
         !dropped
@@ -203,7 +208,9 @@ impl Premesher {
 
     /// The oldest center waiting for room.
     pub fn next_deferred(&mut self) -> Option<ChunkPos> {
-        self.backlog.pop_front()
+        let center = self.backlog.pop_front()?;
+        self.waiting.remove(&center);
+        Some(center)
     }
 
     /// Queues `job`; false (and nothing queued) if it does not fit or a
@@ -474,6 +481,9 @@ mod tests {
         assert_eq!(pm.backlog_len(), 3);
         let left: Vec<ChunkPos> = std::iter::from_fn(|| pm.next_deferred()).collect();
         assert_eq!(left, vec![c(1), c(2), c(3)]);
+        assert!(pm.defer(c(0)), "the dropped one may wait again");
+        assert!(pm.defer(c(1)), "and so may one taken out");
+        assert_eq!(pm.backlog_len(), 2);
     }
 
     #[test]
