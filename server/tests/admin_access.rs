@@ -76,7 +76,11 @@ async fn online_bans_and_revocations_end_sessions_and_refuse_hellos() {
         // A revocation ends the session and refuses every older token.
         let out = online(&server, &["token", "revoke", "eve"]);
         assert!(out.contains("revoked eve's tokens"), "{out}");
-        let _ = tokio::time::timeout(Duration::from_secs(5), eve.closed()).await;
+        assert!(out.contains("ended 1 live session"), "{out}");
+        assert!(matches!(
+            tokio::time::timeout(Duration::from_secs(5), eve.closed()).await,
+            Ok(ClientError::Refused { .. })
+        ));
         assert!(refused(&server, &eve_token).await.contains("revoked"));
         tokio::time::sleep(Duration::from_millis(1100)).await;
         let fresh = token(&server, "eve", Role::Player);

@@ -11,7 +11,7 @@ use strata_client_sim::{Client, ClientError, Verdict};
 use strata_protocol::limits::MAX_CLIENT_FRAME;
 use strata_protocol::{
     encode_frame, ClientMessage, Direction, ErrorCode, Hello, PositionRefusal, PositionUpdate,
-    Role, PROTOCOL_VERSION,
+    RejectReason, Role, PROTOCOL_VERSION,
 };
 use strata_server::app;
 use strata_terrain::gen::{GenParams, Generator};
@@ -64,18 +64,29 @@ async fn malformed_oversized_and_garbage_frames_close_only_their_connection() {
         expect_closed_with(empty, ErrorCode::Malformed).await;
 
         // Garbage datagrams are dropped; the session lives on.
-        // The good client never noticed any of it.
+        let raw = raw_session(&server, "g5").await;
+        for junk in [vec![0xffu8; 9], vec![0u8; 3], vec![7u8; 600]] {
+            raw.conn.send_datagram(junk.into()).unwrap();
+        }
+        // The good client never noticed any of it: its edit gets the exact
+        // verdict it should (it never sent a position).
         good.ping(7).await.unwrap();
         let edit = Edit::Mine {
             center: FixedVec3::from_voxels(70, 0, 40),
             radius: r(2.0),
             strength: 255,
         };
-        assert!(matches!(
+        assert_eq!(
             good.edit(edit).await.unwrap(),
-            Verdict::Rejected(_) | Verdict::Accepted { .. }
-        ));
+            Verdict::Rejected(RejectReason::NoPosition)
+        );
         assert!(!good.is_closed());
+        assert!(
+            raw.conn.close_reason().is_none(),
+            "{:?}",
+            raw.conn.close_reason()
+        );
+        drop(raw);
         good.close().await;
         server.shutdown().await.unwrap();
     })
@@ -169,6 +180,14 @@ async fn a_stalled_client_does_not_delay_the_others() {
         // Had the stalled writer blocked the engine, no ack would arrive and
         // the test would hit its timeout instead.
         assert_eq!(b.replica().stats.gaps, 0);
+        // And the stalled client was still connected throughout: it fell
+        // behind, it was not dropped.
+        assert!(
+            stalled.conn.close_reason().is_none(),
+            "{:?}",
+            stalled.conn.close_reason()
+        );
+        assert_eq!(live_sessions(&server).await, 3);
         drop(stalled);
         a.close().await;
         b.close().await;

@@ -56,7 +56,8 @@ pub fn replay(store: &SledStore, seq: u64) -> (World, BTreeMap<ChunkPos, u64>) {
 
 /// Checks snapshot `file` against the stopped server's store in `data`:
 /// every chunk hash, and the chunk set with versions, equal the edit log
-/// replayed to `seq`. Returns the store, that world and its versions.
+/// replayed to `seq`. Returns the store, that world and the snapshot's
+/// own chunk versions (equal to the replay's, checked here).
 pub fn assert_snapshot_is_log_at(
     data: &Path,
     file: &Path,
@@ -74,5 +75,5 @@ pub fn assert_snapshot_is_log_at(
         in_snapshot.insert(c.pos, c.version);
     }
     assert_eq!(in_snapshot, versions, "chunk set and versions at seq {seq}");
-    (store, world, versions)
+    (store, world, in_snapshot)
 }
