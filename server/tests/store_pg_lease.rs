@@ -358,15 +358,19 @@ fn a_commit_racing_a_takeover_is_either_before_it_or_refused() {
                     }
                 }
             }
-            acked
+            (acked, late)
         })
     };
     std::thread::sleep(Duration::from_millis(100));
     expire(&db, r);
     assert_eq!(b.claim_regions(&[r]).unwrap(), BTreeMap::from([(r, 2)]));
     taken.store(true, Ordering::SeqCst);
-    let acked = writer.join().unwrap();
+    let (acked, late) = writer.join().unwrap();
     assert!(!acked.is_empty(), "a wrote before the takeover");
+    assert!(
+        late > 0,
+        "a was still writing at the takeover, and was refused"
+    );
     // The log holds exactly the first commit and what a was told succeeded.
     let mut want = vec!["1".to_string()];
     want.extend(acked.iter().map(u64::to_string));
