@@ -4,11 +4,13 @@ use std::collections::HashMap;
 
 use bytes::{Bytes, BytesMut};
 use rayon::prelude::*;
+use rustc_hash::FxHashMap;
 use strata_protocol::{
     encode_frame, DeltaUpdate, Direction, ServerMessage, WorldUpdate, CAP_OP_REPLAY,
 };
 use strata_terrain::ChunkPos;
 
+use super::holders::Holders;
 use super::ops;
 use super::peer::Peer;
 use crate::metrics as m;
@@ -35,33 +37,86 @@ pub fn encode_control(msg: &ServerMessage) -> Bytes {
 /// the tick and the `TickEnd` marker as one frame batch (one queue slot,
 /// one write, few packets). A session whose queue is full loses the batch
 /// and gets snapshots of its chunks later; it never slows the others down.
-pub fn broadcast(peers: &mut HashMap<u64, Peer>, applied: &[AppliedEdit], last_seq: u64) {
-    // Each edit's delta frames (and op, when a session replays ops),
-    // encoded once, in order.
-    let ops = peers.values().any(|p| p.has(CAP_OP_REPLAY));
-    let edits: Vec<TickEdit<'_>> = applied
-        .iter()
-        .filter(|a| !a.changes.is_empty())
-        .map(|a| TickEdit::new(a, ops))
-        .collect();
-    if edits.is_empty() {
+///
+/// Only the sessions `holders` lists for a changed chunk are visited; a
+/// listed session found not to hold the chunk is unlisted.
+pub fn broadcast(
+    peers: &mut HashMap<u64, Peer>,
+    holders: &mut Holders,
+    applied: &[AppliedEdit],
+    last_seq: u64,
+) {
+    debug_assert!(every_holding_listed(peers, holders));
+    let changed: Vec<&AppliedEdit> = applied.iter().filter(|a| !a.changes.is_empty()).collect();
+    let chains = chains(&changed);
+    // The chains each listed session may hold the base of, in chain order.
+    let mut wants: FxHashMap<u64, Vec<u32>> = FxHashMap::default();
+    for (i, (pos, _)) in chains.iter().enumerate() {
+        for &id in holders.of(*pos) {
+            wants.entry(id).or_default().push(i as u32);
+        }
+    }
+    if wants.is_empty() {
         return;
     }
     let end = encode_update(&WorldUpdate::TickEnd { last_seq });
-    let chains = chains(&edits);
-    // Peers outside, changes inside: each session is visited once per
-    // tick, sessions on every worker of the current pool; as few as one
-    // task's worth on this thread (see [`on_workers`]).
-    let mut all: Vec<&mut Peer> = peers.values_mut().collect();
-    if on_workers(all.len()) {
-        all.par_iter_mut()
+    let mut stale: Vec<(ChunkPos, u64)> = Vec::new();
+    if on_workers(wants.len()) {
+        // Sessions outside, chains inside: each visited once per tick, on
+        // every worker of the current pool.
+        let mut visits: Vec<(u64, &mut Peer, Vec<u32>)> = peers
+            .iter_mut()
+            .filter_map(|(id, p)| wants.remove(id).map(|w| (*id, p, w)))
+            .collect();
+        let ops = visits.iter().any(|(_, p, _)| p.has(CAP_OP_REPLAY));
+        let edits: Vec<TickEdit<'_>> = changed.iter().map(|a| TickEdit::new(a, ops)).collect();
+        let gone: Vec<(ChunkPos, u64)> = visits
+            .par_iter_mut()
             .with_min_len(PEERS_PER_TASK)
-            .for_each(|p| send_tick(p, &edits, &chains, &end));
+            .flat_map_iter(|(id, p, mine)| {
+                let id = *id;
+                send_tick(p, &edits, &chains, mine, &end)
+                    .into_iter()
+                    .map(move |pos| (pos, id))
+            })
+            .collect();
+        stale.extend(gone);
     } else {
-        for p in all {
-            send_tick(p, &edits, &chains, &end);
+        let mut ids: Vec<u64> = wants.keys().copied().collect();
+        ids.sort_unstable();
+        let ops = ids
+            .iter()
+            .any(|id| peers.get(id).is_some_and(|p| p.has(CAP_OP_REPLAY)));
+        let edits: Vec<TickEdit<'_>> = changed.iter().map(|a| TickEdit::new(a, ops)).collect();
+        for id in ids {
+            // A session not found stays in `wants`, to be unlisted below.
+            let Some(p) = peers.get_mut(&id) else {
+                continue;
+            };
+            let mine = wants.remove(&id).unwrap_or_default();
+            let gone = send_tick(p, &edits, &chains, &mine, &end);
+            stale.extend(gone.into_iter().map(|pos| (pos, id)));
         }
     }
+    // Sessions listed but gone (every end unlists them, so none should be).
+    for (id, mine) in wants {
+        stale.extend(mine.into_iter().map(|i| (chains[i as usize].0, id)));
+    }
+    for (pos, id) in stale {
+        holders.remove(pos, id);
+    }
+}
+
+/// Whether `holders` lists every chunk every session holds (checked in
+/// debug builds, on one fan-out in 16: it reads every session's chunks).
+fn every_holding_listed(peers: &HashMap<u64, Peer>, holders: &Holders) -> bool {
+    static CALLS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    if CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed) % 16 != 0 {
+        return true;
+    }
+    peers
+        .iter()
+        .all(|(id, p)| p.holdings().keys().all(|pos| holders.lists(*pos, *id)))
 }
 
 /// Whether a fan-out to `peers` sessions is worth the worker pool: more
@@ -75,12 +130,13 @@ pub fn on_workers(peers: usize) -> bool {
 type At = (u32, u32);
 
 /// Each chunk the tick changed, with its changes in order (a version
-/// chain): a session looks up each chunk once, not each change.
-fn chains(edits: &[TickEdit<'_>]) -> Vec<(ChunkPos, Vec<At>)> {
+/// chain): a session looks up each chunk once, not each change. `edits`
+/// are the tick's edits that changed something, in order.
+fn chains(edits: &[&AppliedEdit]) -> Vec<(ChunkPos, Vec<At>)> {
     let mut at: HashMap<ChunkPos, usize> = HashMap::new();
     let mut out: Vec<(ChunkPos, Vec<At>)> = Vec::new();
     for (e, edit) in edits.iter().enumerate() {
-        for (c, change) in edit.edit.changes.iter().enumerate() {
+        for (c, change) in edit.changes.iter().enumerate() {
             let i = *at.entry(change.pos).or_insert_with(|| {
                 out.push((change.pos, Vec::new()));
                 out.len() - 1
@@ -125,18 +181,24 @@ impl<'a> TickEdit<'a> {
 /// scheduling than the lookups they save.
 const PEERS_PER_TASK: usize = 64;
 
-/// Queues the tick's frames `p` holds the base of, then `end`, as one batch.
-fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], chains: &[(ChunkPos, Vec<At>)], end: &Bytes) {
+/// Queues the tick's frames `p` holds the base of, then `end`, as one
+/// batch. `mine`: the chains (indices into `chains`) of the chunks `p` is
+/// listed for. Returns those chunks it turned out not to hold.
+fn send_tick(
+    p: &mut Peer,
+    edits: &[TickEdit<'_>],
+    chains: &[(ChunkPos, Vec<At>)],
+    mine: &[u32],
+    end: &Bytes,
+) -> Vec<ChunkPos> {
     // The changes `p` gets: along each chunk's chain from the version it
-    // holds. The distance from its view's center rules most chunks out, the
-    // Fx-hashed `known` lookup most others; `covers` (a tree lookup) only
-    // confirms the few it holds.
+    // holds; `covers` (a tree lookup) only confirms the chunks it holds.
+    let mut not_held: Vec<ChunkPos> = Vec::new();
     let mut picked: Vec<At> = Vec::new();
-    for (pos, chain) in chains {
-        if !p.interest.may_cover(*pos) {
-            continue;
-        }
-        let Some(&held) = p.known.get(pos) else {
+    for &i in mine {
+        let (pos, chain) = &chains[i as usize];
+        let Some(held) = p.held(*pos) else {
+            not_held.push(*pos);
             continue;
         };
         let mut version = held;
@@ -153,11 +215,11 @@ fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], chains: &[(ChunkPos, Vec<At>)
             version = change.to_version;
         }
         if version != held {
-            p.known.insert(*pos, version);
+            p.advance(*pos, version);
         }
     }
     if picked.is_empty() {
-        return;
+        return not_held;
     }
     // Frames in the tick's order: by edit, then change.
     picked.sort_unstable();
@@ -183,7 +245,7 @@ fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], chains: &[(ChunkPos, Vec<At>)
         chunks.extend(held.iter().map(|&i| e.edit.changes[i].pos));
     }
     if chunks.is_empty() {
-        return;
+        return not_held;
     }
     buf.extend_from_slice(end);
     match p.updates.try_send(buf.freeze()) {
@@ -196,6 +258,7 @@ fn send_tick(p: &mut Peer, edits: &[TickEdit<'_>], chains: &[(ChunkPos, Vec<At>)
         }
         Err(SendRefused::Closed) => p.failed = true,
     }
+    not_held
 }
 
 #[cfg(test)]
@@ -237,6 +300,20 @@ mod tests {
         }
     }
 
+    /// A session `id` holding `known`, listed in `holders`.
+    fn listed_peer(
+        holders: &mut Holders,
+        id: u64,
+        known: &[(ChunkPos, u64)],
+    ) -> (Peer, tokio::sync::mpsc::Receiver<Bytes>) {
+        let (mut p, rx) = peer(&[]);
+        for &(pos, v) in known {
+            p.receive(holders, id, pos, v);
+        }
+        (p, rx)
+    }
+
+    /// A session holding `known` (listed in an index of its own).
     fn peer(known: &[(ChunkPos, u64)]) -> (Peer, tokio::sync::mpsc::Receiver<Bytes>) {
         let (control, _) = crate::net::writer::FrameSender::channel(4);
         let (updates, rx) = crate::net::writer::FrameSender::channel(4);
@@ -250,7 +327,10 @@ mod tests {
             radius: 0,
         };
         let mut p = Peer::new(control, updates, interest, kick, position, start);
-        p.known.extend(known.iter().copied());
+        let mut own = Holders::default();
+        for &(pos, v) in known {
+            p.receive(&mut own, 0, pos, v);
+        }
         (p, rx)
     }
 
@@ -266,16 +346,16 @@ mod tests {
         let mut out = Vec::new();
         for e in edits {
             for (i, c) in e.edit.changes.iter().enumerate() {
-                if p.known.get(&c.pos) == Some(&c.from_version) && p.interest.covers(c.pos) {
+                if p.held(c.pos) == Some(c.from_version) && p.interest.covers(c.pos) {
                     out.extend_from_slice(&e.deltas[i]);
-                    p.known.insert(c.pos, c.to_version);
+                    p.advance(c.pos, c.to_version);
                 }
             }
         }
         if !out.is_empty() {
             out.extend_from_slice(end);
         }
-        (out, p.known)
+        (out, p.holdings().clone())
     }
 
     #[test]
@@ -295,7 +375,8 @@ mod tests {
         ];
         let edits: Vec<TickEdit<'_>> = applied.iter().map(|a| TickEdit::new(a, false)).collect();
         let end = encode_update(&WorldUpdate::TickEnd { last_seq: 4 });
-        let chains = chains(&edits);
+        let chains = chains(&applied.iter().collect::<Vec<_>>());
+        let all: Vec<u32> = (0..chains.len() as u32).collect();
         assert_eq!(chains.len(), 4);
         let cases: Vec<Vec<(ChunkPos, u64)>> = vec![
             vec![(a, 4), (b, 0), (c, 7)],
@@ -308,11 +389,17 @@ mod tests {
         ];
         for known in cases {
             let (mut p, mut rx) = peer(&known);
-            send_tick(&mut p, &edits, &chains, &end);
+            let not_held = send_tick(&mut p, &edits, &chains, &all, &end);
             let got = rx.try_recv().map(|b| b.to_vec()).unwrap_or_default();
             let (want, held) = reference(&known, &edits, &end);
             assert_eq!(got, want, "holding {known:?}");
-            assert_eq!(p.known, held, "holding {known:?}");
+            assert_eq!(*p.holdings(), held, "holding {known:?}");
+            let missing: Vec<ChunkPos> = chains
+                .iter()
+                .map(|(pos, _)| *pos)
+                .filter(|pos| !known.iter().any(|(k, _)| k == pos))
+                .collect();
+            assert_eq!(not_held, missing, "holding {known:?}");
         }
     }
 
@@ -333,25 +420,56 @@ mod tests {
         for sessions in [PEERS_PER_TASK, 3 * PEERS_PER_TASK + 5] {
             assert_eq!(on_workers(sessions), sessions > PEERS_PER_TASK);
             let mut peers = HashMap::new();
+            let mut holders = Holders::default();
             let mut rxs = Vec::new();
             for id in 0..sessions {
                 let known = &holds[id % holds.len()];
-                let (p, rx) = peer(known);
+                let (p, rx) = listed_peer(&mut holders, id as u64, known);
                 peers.insert(id as u64, p);
                 rxs.push((id, rx));
             }
             if on_workers(sessions) {
-                pool.install(|| broadcast(&mut peers, &applied, 2));
+                pool.install(|| broadcast(&mut peers, &mut holders, &applied, 2));
             } else {
-                broadcast(&mut peers, &applied, 2);
+                broadcast(&mut peers, &mut holders, &applied, 2);
             }
             for (id, mut rx) in rxs {
                 let known = &holds[id % holds.len()];
                 let got = rx.try_recv().map(|b| b.to_vec()).unwrap_or_default();
                 let (want, held) = reference(known, &edits, &end);
                 assert_eq!(got, want, "{sessions} sessions, session {id}");
-                assert_eq!(peers[&(id as u64)].known, held, "session {id}");
+                assert_eq!(*peers[&(id as u64)].holdings(), held, "session {id}");
             }
         }
+    }
+
+    #[test]
+    fn only_listed_sessions_are_visited_and_stale_listings_are_dropped() {
+        let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
+        let applied = [
+            applied(1, vec![change(a, 4)]),
+            applied(2, vec![change(b, 0)]),
+        ];
+        let mut holders = Holders::default();
+        let mut peers = HashMap::new();
+        // 1 holds a; 2 held b but was told to resend it (still listed);
+        // 3 is listed for a but has ended.
+        let (p1, mut rx1) = listed_peer(&mut holders, 1, &[(a, 4)]);
+        let (mut p2, mut rx2) = listed_peer(&mut holders, 2, &[(b, 0)]);
+        p2.resend(b);
+        holders.add(a, 3);
+        peers.insert(1, p1);
+        peers.insert(2, p2);
+        assert_eq!(holders.pairs(), 3);
+        broadcast(&mut peers, &mut holders, &applied, 2);
+        assert!(rx1.try_recv().is_ok(), "the holder of a got its change");
+        assert!(rx2.try_recv().is_err(), "nothing for a chunk being resent");
+        assert_eq!(peers[&1].held(a), Some(5));
+        assert_eq!(holders.of(a), &[1]);
+        assert!(holders.of(b).is_empty());
+        // Ending and unlisting a session leaves nothing of it.
+        let p1 = peers.remove(&1).unwrap();
+        p1.unlist_all(&mut holders, 1);
+        assert_eq!(holders.pairs(), 0);
     }
 }

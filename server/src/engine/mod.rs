@@ -13,6 +13,7 @@ mod command;
 mod commit;
 mod fanout;
 mod generated;
+mod holders;
 mod inbox;
 mod latest;
 mod ops;
@@ -171,6 +172,8 @@ pub struct Engine {
     interest: InterestConfig,
     bounds: WorldBounds,
     peers: HashMap<u64, Peer>,
+    /// Which sessions hold each chunk: the fan-out visits only those.
+    holders: holders::Holders,
     /// Durable version of every modified chunk (absent = version 0).
     versions: HashMap<ChunkPos, u64>,
     snapshots: stream::SnapshotCache,
@@ -239,6 +242,7 @@ impl Engine {
             interest,
             bounds,
             peers: HashMap::new(),
+            holders: Default::default(),
             versions,
             snapshots: stream::SnapshotCache::new(cfg.snapshot_cache_entries),
             stream_cursor: 0,
@@ -380,7 +384,9 @@ impl Engine {
             }
             Command::Leave { session } => {
                 self.seq.session_left(session);
-                self.peers.remove(&session);
+                if let Some(p) = self.peers.remove(&session) {
+                    p.unlist_all(&mut self.holders, session);
+                }
             }
             Command::Edit { session, request } => self.submit(session, request, now),
             Command::Position { session } => {
@@ -442,7 +448,7 @@ impl Engine {
             }
             Command::Forget { session, chunks } => {
                 if let Some(p) = self.peers.get_mut(&session) {
-                    p.forget(&chunks);
+                    p.forget(&mut self.holders, session, &chunks);
                 }
             }
             Command::Arrive {
@@ -530,7 +536,7 @@ impl Engine {
         };
         // One frame for a whole re-centring: per-chunk frames (thousands at
         // view radius 8) would overflow the writer queue of a prompt client.
-        let gone = p.apply_interest(change);
+        let gone = p.apply_interest(&mut self.holders, session, change);
         for chunks in gone.chunks(strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE) {
             let update = WorldUpdate::UnsubscribedMany {
                 chunks: chunks.to_vec(),
@@ -706,9 +712,10 @@ impl Engine {
         let last_seq = out.batch.last_seq;
         if fanout::on_workers(self.peers.len()) {
             let pool = self.pool.clone();
-            pool.install(|| fanout::broadcast(&mut self.peers, &out.applied, last_seq));
+            let (peers, holders) = (&mut self.peers, &mut self.holders);
+            pool.install(|| fanout::broadcast(peers, holders, &out.applied, last_seq));
         } else {
-            fanout::broadcast(&mut self.peers, &out.applied, last_seq);
+            fanout::broadcast(&mut self.peers, &mut self.holders, &out.applied, last_seq);
         }
         phase.end("fanout");
         Ok(next)
@@ -741,6 +748,7 @@ impl Engine {
     /// engine forgets it (its later `Leave` finds nothing).
     fn end_session(&mut self, id: u64, code: ErrorCode, message: &str) {
         if let Some(mut p) = self.peers.remove(&id) {
+            p.unlist_all(&mut self.holders, id);
             p.kick(code, message);
         }
         self.seq.session_left(id);
@@ -751,6 +759,7 @@ impl Engine {
             p.kick(ErrorCode::ShuttingDown, "server is shutting down");
             self.seq.session_left(id);
         }
+        self.holders.clear();
     }
 }
 

@@ -40,7 +40,7 @@ impl OpPlan {
     pub fn replayable_by(&self, p: &Peer) -> bool {
         self.margin_reads
             .iter()
-            .all(|c| p.known.contains_key(c) && p.interest.covers(*c))
+            .all(|c| p.held(*c).is_some() && p.interest.covers(*c))
     }
 
     /// The op frame with the changes `held` (indices into `a.changes`).

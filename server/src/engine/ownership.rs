@@ -111,7 +111,7 @@ impl Engine {
                 }
             }
             for (&id, p) in self.peers.iter_mut() {
-                if p.known.get(&pos).is_some_and(|&v| v != version) {
+                if p.held(pos).is_some_and(|v| v != version) {
                     p.resend(pos);
                     stale.entry(id).or_default().push(pos);
                 }

@@ -12,6 +12,7 @@ use strata_protocol::{ErrorCode, Start};
 use tokio::sync::oneshot;
 
 use super::command::Kick;
+use super::holders::Holders;
 use super::LatestPosition;
 use crate::interest::{nearest_first, Anchor, Interest, InterestChange};
 use crate::net::writer::FrameSender;
@@ -21,9 +22,10 @@ pub struct Peer {
     pub control: FrameSender,
     pub updates: FrameSender,
     pub interest: Interest,
-    /// Chunk versions the client holds (sent to it, in order). Fx-hashed:
-    /// fanout looks up every change in every nearby session's map.
-    pub known: FxHashMap<ChunkPos, u64>,
+    /// Chunk versions the client holds (sent to it, in order). Private:
+    /// a chunk becomes held only through [`Self::receive`], which lists it
+    /// in the engine's [`Holders`] too.
+    known: FxHashMap<ChunkPos, u64>,
     /// Chunks to send as snapshots, nearest first.
     pub pending: VecDeque<ChunkPos>,
     /// Chunks the client asked to receive as full data even at version 0.
@@ -92,14 +94,51 @@ impl Peer {
         }
     }
 
-    /// Queues new chunks and forgets dropped ones; the whole queue (chunks
-    /// still waiting from earlier views included) is then nearest first
-    /// from the new centre. Returns the chunks the client should be told
-    /// to unload.
-    pub fn apply_interest(&mut self, change: InterestChange) -> Vec<ChunkPos> {
+    /// The version of `pos` the client holds, if it holds it.
+    pub fn held(&self, pos: ChunkPos) -> Option<u64> {
+        self.known.get(&pos).copied()
+    }
+
+    /// Every chunk the client holds, with its version.
+    pub fn holdings(&self) -> &FxHashMap<ChunkPos, u64> {
+        &self.known
+    }
+
+    /// The client was sent `pos` whole at `version`: it holds it now, and
+    /// `holders` lists it as session `id`'s.
+    pub fn receive(&mut self, holders: &mut Holders, id: u64, pos: ChunkPos, version: u64) {
+        self.known.insert(pos, version);
+        holders.add(pos, id);
+    }
+
+    /// The client was sent the changes of a chunk it holds, up to `version`.
+    pub fn advance(&mut self, pos: ChunkPos, version: u64) {
+        if let Some(v) = self.known.get_mut(&pos) {
+            *v = version;
+        }
+    }
+
+    /// Unlists every chunk of session `id` (the session is ending).
+    pub fn unlist_all(&self, holders: &mut Holders, id: u64) {
+        for pos in self.known.keys() {
+            holders.remove(*pos, id);
+        }
+    }
+
+    /// Queues new chunks and forgets dropped ones (unlisting them for
+    /// session `id`); the whole queue (chunks still waiting from earlier
+    /// views included) is then nearest first from the new centre. Returns
+    /// the chunks the client should be told to unload.
+    pub fn apply_interest(
+        &mut self,
+        holders: &mut Holders,
+        id: u64,
+        change: InterestChange,
+    ) -> Vec<ChunkPos> {
         let gone: HashSet<ChunkPos> = change.unsubscribe.iter().copied().collect();
         for pos in &gone {
             self.known.remove(pos);
+            holders.remove(*pos, id);
             self.full_data.remove(pos);
         }
         self.pending.retain(|p| !gone.contains(p));
@@ -123,10 +162,10 @@ impl Peer {
         strata_protocol::capabilities::has(self.capabilities, cap)
     }
 
-    /// The client dropped `chunks`: those in view are no longer held, so
-    /// no update of them is sent until a resync or until they leave the
-    /// view and come back. Others are ignored.
-    pub fn forget(&mut self, chunks: &[ChunkPos]) {
+    /// The client dropped `chunks`: those in view are no longer held (nor
+    /// listed for session `id`), so no update of them is sent until a
+    /// resync or until they leave the view and come back. Others are ignored.
+    pub fn forget(&mut self, holders: &mut Holders, id: u64, chunks: &[ChunkPos]) {
         let dropped: HashSet<ChunkPos> = chunks
             .iter()
             .copied()
@@ -137,11 +176,14 @@ impl Peer {
         }
         for pos in &dropped {
             self.known.remove(pos);
+            holders.remove(*pos, id);
         }
         self.pending.retain(|p| !dropped.contains(p));
     }
 
-    /// Forgets the client's copy of `pos` and sends it again first.
+    /// Forgets the client's copy of `pos` and sends it again first. The
+    /// engine's [`Holders`] may still list it: the fan-out unlists it the
+    /// next time it finds it not held.
     pub fn resend(&mut self, pos: ChunkPos) {
         self.known.remove(&pos);
         if !self.pending.contains(&pos) {

@@ -179,7 +179,7 @@ impl Engine {
             Ok(()) => {
                 p.complete_due &= !completes;
                 for (pos, version, kind) in sent {
-                    p.known.insert(pos, version);
+                    p.receive(&mut self.holders, id, pos, version);
                     metrics::counter!(m::SNAPSHOTS_SENT, "kind" => kind).increment(1);
                 }
             }
