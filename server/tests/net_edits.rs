@@ -1,6 +1,7 @@
 //! Edits over real QUIC: validation rejects with a reason and changes
 //! nothing; accepted edits are acknowledged after they are durable, and two
-//! clients receive the same deltas in the same order as the server's store.
+//! clients receive the same deltas in the same order as the server's store;
+//! `[net] send_interval_ms` spaces a watcher's writes.
 
 #[macro_use]
 mod common;
@@ -313,6 +314,72 @@ async fn op_replay_falls_back_to_resync_and_converges() {
         for c in [a, b] {
             c.close().await;
         }
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// `[net] send_interval_ms` through the real config: a watcher's updates
+/// are written at most once per interval, so the delta of an edit made
+/// just after the previous one was written reaches it an interval later.
+#[tokio::test]
+async fn the_send_interval_spaces_a_watchers_writes() {
+    const INTERVAL_MS: u64 = 1000;
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.net.send_interval_ms = INTERVAL_MS;
+        let server = strata_server::app::start(cfg).await.unwrap();
+        let (feet, ground) = spot();
+        let editor = connect(&server, "ed", Role::Player).await;
+        let watcher = connect(&server, "wat", Role::Player).await;
+        editor.send_position(feet).unwrap();
+        watcher.send_position(feet).unwrap();
+        assert!(
+            eventually(Duration::from_secs(10), || watcher
+                .replica()
+                .get(ground.chunk())
+                .is_some())
+            .await
+        );
+        // Let the view's last write and its interval pass.
+        tokio::time::sleep(Duration::from_millis(INTERVAL_MS + 200)).await;
+        let build = |dy: i32| Edit::Build {
+            center: FixedVec3::from_voxels(ground.x, ground.y + dy, ground.z),
+            radius: r(1.5),
+            material: 7,
+            strength: 40,
+        };
+        let Verdict::Accepted { seq: first } = editor.edit(build(2)).await.unwrap() else {
+            panic!("first edit refused");
+        };
+        // When the watcher has `seq`, polled every 2 ms.
+        let seen = |seq: u64| {
+            let watcher = &watcher;
+            async move {
+                loop {
+                    if watcher.replica().last_seq() >= seq {
+                        return std::time::Instant::now();
+                    }
+                    tokio::time::sleep(Duration::from_millis(2)).await;
+                }
+            }
+        };
+        let t1 = seen(first).await;
+        let Verdict::Accepted { seq: second } = editor.edit(build(3)).await.unwrap() else {
+            panic!("second edit refused");
+        };
+        let t2 = seen(second).await;
+        let gap = t2 - t1;
+        // At least the interval after the first write; the first may have
+        // been noticed late, so allow for that.
+        assert!(
+            gap >= Duration::from_millis(INTERVAL_MS * 6 / 10),
+            "the second delta came {gap:?} after the first"
+        );
+        editor.close().await;
+        watcher.close().await;
         server.shutdown().await.unwrap();
     })
     .await
