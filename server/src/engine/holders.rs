@@ -7,7 +7,9 @@
 //! client forgets it or when the session ends. A chunk dropped for a resend
 //! stays listed until the fan-out next finds the session does not hold it
 //! (a stale pair costs one lookup and is then removed). Every pair lies in
-//! a live session's view, so the index is bounded by the sessions' views.
+//! a live session's view (a chunk leaving the view is unlisted, and an
+//! ending session is unlisted for its whole view), so the index is bounded
+//! by the sessions' views.
 
 use rustc_hash::FxHashMap;
 use strata_terrain::ChunkPos;

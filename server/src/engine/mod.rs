@@ -374,7 +374,9 @@ impl Engine {
                 let interest = Interest::new(self.interest, self.bounds);
                 let mut peer = Peer::new(control, updates, interest, kick, position, start);
                 peer.capabilities = capabilities;
-                self.peers.insert(session, peer);
+                if let Some(old) = self.peers.insert(session, peer) {
+                    old.unlist_all(&mut self.holders, session);
+                }
                 // A join may arrive mid-commit: name no seq a power cut could
                 // still take back.
                 let _ = reply.send(JoinReply {

@@ -118,10 +118,12 @@ impl Peer {
         }
     }
 
-    /// Unlists every chunk of session `id` (the session is ending).
+    /// Unlists every chunk of session `id` (the session is ending): every
+    /// chunk it is listed for lies in its view (a chunk leaving the view is
+    /// unlisted), held or waiting to be sent again after a resend.
     pub fn unlist_all(&self, holders: &mut Holders, id: u64) {
-        for pos in self.known.keys() {
-            holders.remove(*pos, id);
+        for pos in self.interest.subscribed() {
+            holders.remove(pos, id);
         }
     }
 
