@@ -9,8 +9,8 @@ use std::time::Duration;
 
 use strata_tests::postgres::database;
 use strata_tests::{
-    assert_converged, binary, bots_summary, num, spawn_bots, verify_acks, wait_with_output, Guard,
-    Server, SERVER_CONFIG,
+    assert_converged, binary, bots_summary, count, num, spawn_bots, verify_acks, wait_with_output,
+    Guard, Server, SERVER_CONFIG,
 };
 
 #[test]
@@ -106,6 +106,6 @@ fn crash_run(tmp: &Path, config: &str) -> std::path::PathBuf {
     let (status, report) = verify_acks(&data, &acks);
     assert!(status.success(), "verify-acks: {report}");
     assert_eq!(num(&report, "records"), num(&s, "edits_accepted"));
-    assert_eq!(num(&report, "failure_count"), 0);
+    assert_eq!(count(&report, "failure_count"), 0);
     data
 }

@@ -29,7 +29,7 @@ use strata_server::sequencer::regions::DEFAULT_REGION_CHUNKS;
 use strata_server::store::pg::PgConfig;
 use strata_server::store::{ChunkStore, PgStore};
 use strata_tests::postgres::database;
-use strata_tests::{num, spawn_bots, verify_acks, Server, SERVER_CONFIG};
+use strata_tests::{count, num, spawn_bots, verify_acks, Server, SERVER_CONFIG};
 
 /// The paused node's lease and renewal period.
 const LEASE_MS: u64 = 1_000;
@@ -215,7 +215,7 @@ fn a_node_paused_past_its_lease_stores_and_acknowledges_nothing_after_a_takeover
     let (status, report) = verify_acks(&data, &acks);
     assert!(status.success(), "verify-acks: {report}");
     assert_eq!(num(&report, "records") as usize, seqs.len());
-    assert_eq!(num(&report, "failure_count"), 0);
+    assert_eq!(count(&report, "failure_count"), 0);
     for l in b.region_leases().unwrap() {
         if regions.contains(&l.region) {
             assert_eq!(l.owner.as_deref(), Some("node-b"));
@@ -304,7 +304,7 @@ fn a_paused_nodes_players_are_told_the_new_owner_and_move_there() {
     // Every ack, from either node, is in the store.
     let (status, report) = verify_acks(&da, &acks);
     assert!(status.success(), "verify-acks: {report}");
-    assert_eq!(num(&report, "failure_count"), 0);
+    assert_eq!(count(&report, "failure_count"), 0);
     a.stop();
     b.stop();
 }
@@ -575,7 +575,7 @@ fn three_nodes_write_one_world_and_a_killed_nodes_regions_are_adopted_within_the
         let (status, report) = verify_acks(data, &acks[i]);
         assert!(status.success(), "verify-acks node-{i}: {report}");
         assert_eq!(num(&report, "records") as usize, seqs.len());
-        assert_eq!(num(&report, "failure_count"), 0, "{report}");
+        assert_eq!(count(&report, "failure_count"), 0, "{report}");
     }
     // Three seq blocks, and the log checks out with its jumps between them.
     let blocks: std::collections::BTreeSet<u64> = (0..3)
