@@ -22,7 +22,7 @@ use crate::net::writer::SendRefused;
 
 /// Default generated chunks kept as patch bases (at most 64 KiB each;
 /// `[engine] patch_base_chunks`).
-pub const DEFAULT_PATCH_BASE_CHUNKS: usize = 512;
+pub const DEFAULT_PATCH_BASE_CHUNKS: usize = 2048;
 
 /// Default encoded snapshots kept for reuse (`[engine]
 /// snapshot_cache_entries`): many sessions near one spot ask for the same
