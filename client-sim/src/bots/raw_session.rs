@@ -124,6 +124,22 @@ impl RawSession {
             .map_err(|e| ClientError::Closed(e.to_string()))
     }
 
+    /// Writes control messages as one write, so they reach the server
+    /// together (one packet when they fit).
+    pub async fn send_all(&mut self, msgs: &[ClientMessage]) -> Result<(), ClientError> {
+        let mut frames = Vec::new();
+        for msg in msgs {
+            frames.extend(
+                encode_frame(msg, Direction::ClientToServer)
+                    .map_err(|e| ClientError::Protocol(e.to_string()))?,
+            );
+        }
+        self.send
+            .write_all(&frames)
+            .await
+            .map_err(|e| ClientError::Closed(e.to_string()))
+    }
+
     /// Sends an edit; returns its `client_edit_id`.
     pub async fn edit(&mut self, edit: Edit) -> Result<u64, ClientError> {
         let id = self.next_edit;
