@@ -64,6 +64,12 @@ pub fn broadcast(
     // Decided on live sessions only, never more than the engine's count
     // (by which it entered its pool or not).
     let live = wants.keys().filter(|id| peers.contains_key(id)).count();
+    // Each edit's delta frames (and op, when a visited session replays
+    // ops), encoded once, in order.
+    let ops = wants
+        .keys()
+        .any(|id| peers.get(id).is_some_and(|p| p.has(CAP_OP_REPLAY)));
+    let edits: Vec<TickEdit<'_>> = changed.iter().map(|a| TickEdit::new(a, ops)).collect();
     if on_workers(live) {
         // Sessions outside, chains inside: each visited once per tick, on
         // every worker of the current pool.
@@ -71,8 +77,6 @@ pub fn broadcast(
             .iter_mut()
             .filter_map(|(id, p)| wants.remove(id).map(|w| (*id, p, w)))
             .collect();
-        let ops = visits.iter().any(|(_, p, _)| p.has(CAP_OP_REPLAY));
-        let edits: Vec<TickEdit<'_>> = changed.iter().map(|a| TickEdit::new(a, ops)).collect();
         let gone: Vec<(ChunkPos, u64)> = visits
             .par_iter_mut()
             .with_min_len(PEERS_PER_TASK)
@@ -87,10 +91,6 @@ pub fn broadcast(
     } else {
         let mut ids: Vec<u64> = wants.keys().copied().collect();
         ids.sort_unstable();
-        let ops = ids
-            .iter()
-            .any(|id| peers.get(id).is_some_and(|p| p.has(CAP_OP_REPLAY)));
-        let edits: Vec<TickEdit<'_>> = changed.iter().map(|a| TickEdit::new(a, ops)).collect();
         for id in ids {
             // A session not found stays in `wants`, to be unlisted below.
             let Some(p) = peers.get_mut(&id) else {
