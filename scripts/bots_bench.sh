@@ -21,7 +21,9 @@
 # meshes built by kind (changed, rewarm, on_demand, premesh), what became of
 # the rewarms (used, wasted) and meshes per edit; and "caches": lookups of
 # the generated-chunk caches (premesh and patch bases: hits, generated) and
-# of the snapshot-frame cache (hits, misses, entries cleared). BENCH_CONSOLE_PORT turns on
+# of the snapshot-frame cache (hits, misses, entries cleared); and
+# "requests_throttled": requests that waited for their session's
+# [validation.request_rate] tokens (0 for the bots). BENCH_CONSOLE_PORT turns on
 # the web console; BENCH_WATCHERS=N then connects N watching consoles once
 # the server is up, each like a browser tab: the first screen of map tiles
 # (3 x 3 around the bots), then the live event stream to the end.
@@ -209,6 +211,7 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
         /^strata_premesh_meshes_total / { premesh = $NF }
         /^strata_generated_chunks_total\{/ { split($1, a, "\""); gen[a[2] "_" a[4]] = $NF }
         /^strata_snapshot_cache_total\{/ { split($1, a, "\""); snap[a[2]] = $NF }
+        /^strata_requests_throttled_total / { throttled = $NF }
         END { printf "{\"commit_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"fsync_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"server_edits_accepted\":%d",
             q["strata_flush_seconds_0.5"], q["strata_flush_seconds_0.99"], q["strata_flush_seconds_1"],
             q["strata_fsync_seconds_0.5"], q["strata_fsync_seconds_0.99"], q["strata_fsync_seconds_1"], accepted
@@ -219,7 +222,7 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
               printf ",\"meshes\":{\"changed\":%d,\"rewarm\":%d,\"on_demand\":%d,\"premesh\":%d,\"rewarm_used\":%d,\"rewarm_wasted\":%d,\"per_edit\":%.2f}",
             meshes["changed"], meshes["rewarm"], meshes["on_demand"], premesh, rewarms["used"], rewarms["wasted"],
             (accepted > 0 ? (meshes["changed"] + meshes["rewarm"] + meshes["on_demand"] + premesh) / accepted : 0)
-              printf ",\"caches\":{\"premesh_hit\":%d,\"premesh_generated\":%d,\"patch_base_hit\":%d,\"patch_base_generated\":%d,\"snapshot_hit\":%d,\"snapshot_miss\":%d,\"snapshot_cleared\":%d}}\n",
+              printf ",\"caches\":{\"premesh_hit\":%d,\"premesh_generated\":%d,\"patch_base_hit\":%d,\"patch_base_generated\":%d,\"snapshot_hit\":%d,\"snapshot_miss\":%d,\"snapshot_cleared\":%d},\"requests_throttled\":%d}\n",
             gen["premesh_hit"], gen["premesh_generated"], gen["patch_base_hit"], gen["patch_base_generated"],
-            snap["hit"], snap["miss"], snap["cleared"] }'
+            snap["hit"], snap["miss"], snap["cleared"], throttled }'
 fi

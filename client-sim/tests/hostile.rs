@@ -141,3 +141,15 @@ async fn a_shared_token_holds_one_session() {
     assert!(n(&h, "max_concurrent_welcomed") <= 1, "{h:?}");
     assert_eq!(n(&h, "edits_accepted_far_apart"), 0, "{h:?}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_subscription_flood_is_slowed_down_not_served() {
+    let (s, h) = run_attack(Attack::SubscribeFlood, true).await;
+    assert_honest(&s);
+    assert!(n(&h, "subscribes_sent") > 100, "{h:?}");
+    // Its own subscriptions are legal: it is neither refused nor
+    // disconnected, only read as fast as its request tokens allow
+    // (`server/tests/net_robustness.rs` times that).
+    assert_eq!(n(&h, "refusals"), 0, "{h:?}");
+    assert!(h.closed_by_server.is_empty(), "{h:?}");
+}

@@ -5,6 +5,7 @@
 pub mod ack;
 pub mod admin;
 pub mod capabilities;
+mod cautious;
 pub mod codec;
 pub mod frame;
 pub mod limits;

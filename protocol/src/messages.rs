@@ -130,6 +130,7 @@ pub enum ClientMessage {
     /// leave the view and come back. At most
     /// [`crate::limits::MAX_FORGET_CHUNKS`]; chunks not in view are ignored.
     Forget {
+        #[serde(deserialize_with = "crate::cautious::vec")]
         chunks: Vec<ChunkPos>,
     },
     /// Sent right after `Welcome` to a node named by another node's

@@ -423,6 +423,16 @@ fn garbage_and_trailing_bytes_are_errors() {
     // A length prefix claiming a huge string is refused by the size limit.
     let lie = [0u8, 1, 0xfc, 0xff, 0xff, 0xff, 0x7f];
     assert!(decode::<ClientMessage>(&lie, Direction::ClientToServer).is_err());
+    // So is a Forget claiming 2^32 - 1 chunks with one there (and room for
+    // at most MAX_FORGET_CHUNKS is reserved first: `cautious.rs`).
+    let one = ClientMessage::Forget {
+        chunks: vec![ChunkPos::new(1, 2, 3)],
+    };
+    let b = encode(&one, Direction::ClientToServer).unwrap();
+    assert_eq!(b[1], 1, "{b:?}");
+    let mut lie = vec![b[0], 0xfc, 0xff, 0xff, 0xff, 0xff];
+    lie.extend_from_slice(&b[2..]);
+    assert!(decode::<ClientMessage>(&lie, Direction::ClientToServer).is_err());
 }
 
 #[test]

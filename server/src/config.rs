@@ -44,6 +44,9 @@ pub const DEFAULT_MAX_ADMIN_CONNECTIONS: u32 = 8;
 pub const DEFAULT_MAX_HANDSHAKES: u32 = 128;
 /// Default handshakes in progress from one IP address.
 pub const DEFAULT_MAX_HANDSHAKES_PER_ADDRESS: u32 = 16;
+/// Default handshakes in progress from which a connection from an address
+/// QUIC has not validated is first sent a Retry.
+pub const DEFAULT_RETRY_ABOVE_HANDSHAKES: u32 = 32;
 /// Default time from a connection's first packet to its verified Hello.
 pub const DEFAULT_HANDSHAKE_TIMEOUT_MS: u64 = 5_000;
 /// Longest allowed handshake time.
@@ -177,6 +180,11 @@ pub struct ServerSection {
     pub max_handshakes: u32,
     /// Handshakes in progress from one IP address at once.
     pub max_handshakes_per_address: u32,
+    /// From this many handshakes in progress on, a connection whose source
+    /// address QUIC has not validated gets a Retry first and takes no slot
+    /// until it comes back with the token: spoofed sources never do, so
+    /// they cannot fill the handshake slots. 0: always.
+    pub retry_above_handshakes: u32,
     /// Milliseconds from a connection's first packet to its verified Hello.
     pub handshake_timeout_ms: u64,
 }
@@ -189,6 +197,7 @@ impl ServerSection {
             admin_sessions: self.max_admin_connections,
             handshakes: self.max_handshakes,
             handshakes_per_address: self.max_handshakes_per_address,
+            retry_above: self.retry_above_handshakes,
             handshake_timeout: std::time::Duration::from_millis(self.handshake_timeout_ms),
         }
     }
@@ -242,11 +251,23 @@ pub struct AuthSection {
 }
 
 /// `[metrics]`: optional Prometheus endpoint.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MetricsSection {
     /// TCP address for `/metrics`; absent means no endpoint.
     pub listen: Option<SocketAddr>,
+    /// Connections the endpoint holds at once; more wait to be accepted
+    /// ([`crate::metrics::DEFAULT_MAX_CONNECTIONS`]).
+    pub max_connections: usize,
+}
+
+impl Default for MetricsSection {
+    fn default() -> Self {
+        Self {
+            listen: None,
+            max_connections: crate::metrics::DEFAULT_MAX_CONNECTIONS,
+        }
+    }
 }
 
 /// `[world]`: which world to serve. `[world.generator]` holds every
@@ -271,6 +292,7 @@ impl Default for ServerSection {
             max_admin_connections: DEFAULT_MAX_ADMIN_CONNECTIONS,
             max_handshakes: DEFAULT_MAX_HANDSHAKES,
             max_handshakes_per_address: DEFAULT_MAX_HANDSHAKES_PER_ADDRESS,
+            retry_above_handshakes: DEFAULT_RETRY_ABOVE_HANDSHAKES,
             handshake_timeout_ms: DEFAULT_HANDSHAKE_TIMEOUT_MS,
         }
     }
@@ -391,6 +413,12 @@ impl ServerConfig {
         ] {
             range(field, value, 1, MAX_CONNECTIONS_CAP)?;
         }
+        range(
+            "server.retry_above_handshakes",
+            s.retry_above_handshakes,
+            0,
+            MAX_CONNECTIONS_CAP,
+        )?;
         range(
             "server.handshake_timeout_ms",
             s.handshake_timeout_ms,
@@ -525,6 +553,26 @@ impl ServerConfig {
             .generator
             .validate()
             .map_err(|e| invalid("world.generator", e.to_string()))?;
+        range(
+            "metrics.max_connections",
+            self.metrics.max_connections,
+            1,
+            crate::metrics::MAX_CONNECTIONS,
+        )?;
+        let requests = self.validation.request_rate;
+        let max = crate::validate::config::MAX_REQUEST_RATE;
+        range(
+            "validation.request_rate.capacity",
+            requests.capacity,
+            1,
+            max,
+        )?;
+        range(
+            "validation.request_rate.per_second",
+            requests.per_second,
+            1,
+            max,
+        )?;
         range(
             "interest.view_radius",
             self.interest.view_radius,

@@ -18,6 +18,7 @@ pub mod engine;
 pub mod health;
 pub mod heightmap;
 pub mod interest;
+pub mod log_every;
 pub mod mesh_buffers;
 pub mod metrics;
 pub mod net;

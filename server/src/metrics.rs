@@ -48,6 +48,7 @@ pub const DELTAS_DROPPED: &str = "strata_deltas_dropped_total";
 pub const DELTAS_SENT: &str = "strata_deltas_sent_total";
 pub const OPS_SENT: &str = "strata_ops_sent_total";
 pub const POSITIONS_DROPPED: &str = "strata_positions_dropped_total";
+pub const REQUESTS_THROTTLED: &str = "strata_requests_throttled_total";
 pub const RESYNCS: &str = "strata_resyncs_total";
 pub const RESIDENT_CHUNKS: &str = "strata_resident_chunks";
 pub const PREMESH_BUILT: &str = "strata_premesh_meshes_total";
@@ -57,6 +58,7 @@ pub const PATCH_BYTES: &str = "strata_patch_payload_bytes_total";
 pub const SNAPSHOTS_SENT: &str = "strata_snapshots_sent_total";
 pub const SESSIONS_KICKED: &str = "strata_sessions_kicked_total";
 pub const CONNECTIONS_REFUSED: &str = "strata_connections_refused_total";
+pub const CONNECTIONS_RETRIED: &str = "strata_connections_retried_total";
 
 /// How often the recorder's rolling summaries are advanced.
 pub const UPKEEP_EVERY: Duration = Duration::from_secs(5);
@@ -85,8 +87,16 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
         "Connections turned away, by reason (handshakes, per_address, sessions, admin_sessions)"
     );
     metrics::describe_counter!(
+        CONNECTIONS_RETRIED,
+        "Connection attempts from unvalidated addresses answered with a QUIC Retry ([server] retry_above_handshakes)"
+    );
+    metrics::describe_counter!(
         SESSIONS_KICKED,
         "Sessions the server disconnected for misbehaving, by reason"
+    );
+    metrics::describe_counter!(
+        REQUESTS_THROTTLED,
+        "Requests (subscriptions, resyncs, forgets, snapshots, tickets, pings) that waited for their session's [validation.request_rate] tokens"
     );
     metrics::describe_counter!(
         POSITIONS_DROPPED,
@@ -187,10 +197,21 @@ pub async fn bind(addr: SocketAddr) -> anyhow::Result<tokio::net::TcpListener> {
     Ok(tokio::net::TcpListener::bind(addr).await?)
 }
 
+/// Default connections the metrics listener holds at once
+/// (`[metrics] max_connections`).
+pub const DEFAULT_MAX_CONNECTIONS: usize = 32;
+/// Largest `[metrics] max_connections`.
+pub const MAX_CONNECTIONS: usize = 4096;
+/// A metrics connection silent this long, or a request unanswered this
+/// long, is closed: scrapers do not hold slots idle.
+pub const CONNECTION_DEADLINE: std::time::Duration = std::time::Duration::from_secs(10);
+
 /// Serves `GET /metrics` (Prometheus text) and `GET /healthz` (200 `ready`,
-/// or 503 with the reason) until the task is dropped.
+/// or 503 with the reason) until the task is dropped, on at most
+/// `max_connections` connections at once.
 pub async fn serve(
     listener: tokio::net::TcpListener,
+    max_connections: usize,
     handle: PrometheusHandle,
     health: Arc<Health>,
 ) {
@@ -213,7 +234,15 @@ pub async fn serve(
                 })
             }),
         );
-    if let Err(e) = axum::serve(listener, app).await {
+    let limited = crate::console::LimitedListener::new(
+        listener,
+        max_connections,
+        crate::console::Deadlines {
+            idle: CONNECTION_DEADLINE,
+            request: CONNECTION_DEADLINE,
+        },
+    );
+    if let Err(e) = axum::serve(limited, app).await {
         tracing::error!(error = %e, "metrics listener failed");
     }
 }
@@ -240,7 +269,7 @@ mod tests {
         let addr = listener.local_addr().unwrap();
         let handle = PrometheusBuilder::new().build_recorder().handle();
         let health = Arc::new(Health::default());
-        let server = tokio::spawn(serve(listener, handle, health.clone()));
+        let server = tokio::spawn(serve(listener, 4, handle, health.clone()));
         let r = get(addr, "/healthz").await;
         assert!(
             r.starts_with("HTTP/1.1 503") && r.ends_with("not accepting connections"),
@@ -260,6 +289,27 @@ mod tests {
         );
         assert!(get(addr, "/metrics").await.starts_with("HTTP/1.1 200"));
         assert!(get(addr, "/nothing").await.starts_with("HTTP/1.1 404"));
+        server.abort();
+    }
+
+    #[tokio::test]
+    async fn the_endpoint_holds_at_most_its_connections() {
+        let listener = bind("127.0.0.1:0".parse().unwrap()).await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let handle = PrometheusBuilder::new().build_recorder().handle();
+        let server = tokio::spawn(serve(listener, 1, handle, Arc::new(Health::default())));
+        let idle = tokio::net::TcpStream::connect(addr).await.unwrap();
+        // Let the server take the idle one first: it holds the only slot.
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+        let waiting = tokio::spawn(get(addr, "/metrics"));
+        tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+        assert!(!waiting.is_finished(), "served beyond the cap");
+        drop(idle);
+        let r = tokio::time::timeout(std::time::Duration::from_secs(10), waiting)
+            .await
+            .expect("served once the slot is free")
+            .unwrap();
+        assert!(r.starts_with("HTTP/1.1 200"), "{r}");
         server.abort();
     }
 }

@@ -260,6 +260,19 @@ fn bad_values_name_their_field() {
             "[net]\ncontrol_writer_queue = 0",
             "net.control_writer_queue",
         ),
+        (
+            "[validation.request_rate]\ncapacity = 0\nper_second = 10",
+            "validation.request_rate.capacity",
+        ),
+        (
+            "[validation.request_rate]\ncapacity = 10\nper_second = 0",
+            "validation.request_rate.per_second",
+        ),
+        (
+            "[server]\nretry_above_handshakes = 70000",
+            "server.retry_above_handshakes",
+        ),
+        ("[metrics]\nmax_connections = 0", "metrics.max_connections"),
         ("[engine]\nstream_us = 0", "engine.stream_us"),
         ("[engine]\nresident_chunks = 3", "engine.resident_chunks"),
         (

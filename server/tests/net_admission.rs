@@ -1,6 +1,7 @@
 //! Admission: connections that never say Hello hold only handshake slots
-//! (few, a few per address, until a deadline), the session cap counts
-//! authenticated sessions, and admins have room of their own.
+//! (few, a few per address, until a deadline), spoofed sources hold none
+//! once a Retry is asked for, the session cap counts authenticated
+//! sessions, and admins have room of their own.
 
 mod common;
 
@@ -177,6 +178,61 @@ async fn a_new_login_replaces_the_old_session_unless_more_are_allowed() {
         a.close().await;
         b.close().await;
         server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// Sends one QUIC Initial packet to `server` from each of `sources`
+/// loopback addresses and never reads an answer: what a sender of spoofed
+/// source addresses does.
+fn spoofed_initials(server: std::net::SocketAddr, cert: &[u8], sources: u8) {
+    let cfg = strata_client_sim::tls::client_config_pinned(cert).unwrap();
+    let mut ep = quinn_proto::Endpoint::new(Default::default(), None, false, None);
+    for i in 1..=sources {
+        let now = std::time::Instant::now();
+        let (_, mut conn) = ep.connect(now, cfg.clone(), server, "localhost").unwrap();
+        let mut buf = Vec::new();
+        let t = conn.poll_transmit(now, 1, &mut buf).expect("an Initial");
+        let from = std::net::UdpSocket::bind((std::net::Ipv4Addr::new(127, 0, 1, i), 0)).unwrap();
+        from.send_to(&buf[..t.size], server).unwrap();
+    }
+}
+
+#[tokio::test]
+async fn spoofed_initials_take_no_handshake_slot_once_retry_is_asked() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        // Without a Retry, 40 Initials from 40 addresses take all 8 slots
+        // for the handshake's time; with it (from 4 in progress), at most 4.
+        for retry_above in [9, 4] {
+            let dir = tempfile::tempdir().unwrap();
+            let mut cfg = test_config(dir.path());
+            cfg.server.max_handshakes = 8;
+            cfg.server.retry_above_handshakes = retry_above;
+            cfg.server.handshake_timeout_ms = 2_000;
+            let server = app::start(cfg).await.expect("server starts");
+            spoofed_initials(server.addr, &server.cert_der, 40);
+            // The server has taken them in before the player comes.
+            tokio::time::sleep(Duration::from_millis(300)).await;
+            let tls = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
+            let mut endpoint = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+            endpoint.set_default_client_config(tls);
+            let player = endpoint.connect(server.addr, "localhost").unwrap().await;
+            if retry_above > 8 {
+                assert!(
+                    player.is_err(),
+                    "every slot was taken, yet a connection got one"
+                );
+            } else {
+                // The player answers the Retry, so it gets a slot.
+                let conn = player.expect("a real client gets in");
+                conn.close(0u32.into(), b"");
+                let a = connect(&server, "ana", Role::Player).await;
+                a.ping(1).await.unwrap();
+                a.close().await;
+            }
+            server.shutdown().await.unwrap();
+        }
     })
     .await
     .expect("test finished in time");

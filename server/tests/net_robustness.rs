@@ -1,6 +1,7 @@
 //! Bad input closes only the offending connection; a client that stops
 //! reading loses deltas instead of slowing anyone down; refused positions
-//! are answered, at a bounded rate however many come.
+//! are answered, at a bounded rate however many come; a session's requests
+//! wait for its request tokens.
 
 mod common;
 
@@ -8,10 +9,11 @@ use std::time::Duration;
 
 use common::*;
 use strata_client_sim::{Client, ClientError, Verdict};
+use strata_protocol::io::FramedReader;
 use strata_protocol::limits::MAX_CLIENT_FRAME;
 use strata_protocol::{
-    encode_frame, ClientMessage, Direction, ErrorCode, Hello, PositionRefusal, PositionUpdate,
-    RejectReason, Role, PROTOCOL_VERSION,
+    encode_frame, ClientMessage, Direction, ErrorCode, FrameBuffer, Hello, PositionRefusal,
+    PositionUpdate, RejectReason, Role, ServerMessage, PROTOCOL_VERSION,
 };
 use strata_server::app;
 use strata_terrain::gen::{GenParams, Generator};
@@ -461,6 +463,71 @@ async fn refused_positions_are_answered_at_a_bounded_rate() {
             "{late:?}"
         );
         c.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn a_sessions_requests_wait_for_its_request_tokens() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        // 100 chunks of requests a second and no more at once: a
+        // subscription to the whole view (radius 2 here, 125 chunks, capped
+        // at the burst) takes the whole bucket.
+        let mut cfg = test_config(dir.path());
+        cfg.interest.view_radius = 2;
+        cfg.validation.request_rate.capacity = 100;
+        cfg.validation.request_rate.per_second = 100;
+        let server = app::start(cfg).await.expect("server starts");
+        let calm = connect(&server, "calm", Role::Player).await;
+        let RawSession {
+            conn,
+            mut send,
+            _recv,
+            _endpoint,
+        } = raw_session(&server, "flood").await;
+        let mut reader = FramedReader::new(_recv, FrameBuffer::new(Direction::ServerToClient));
+        match reader.next::<ServerMessage>().await {
+            Ok(Some(ServerMessage::Welcome(_))) => {}
+            other => panic!("expected Welcome, got {other:?}"),
+        }
+        // A view that flips between two radii unsubscribes nothing and
+        // so costs the server a full walk of the view each time: the
+        // cheapest way to keep an engine busy, without limits.
+        let mut frames = Vec::new();
+        for i in 0..5u8 {
+            let sub = ClientMessage::Subscribe {
+                center: strata_terrain::ChunkPos::new(0, 0, 0),
+                radius: 2 - i % 2,
+            };
+            frames.extend(encode_frame(&sub, Direction::ClientToServer).unwrap());
+        }
+        frames.extend(
+            encode_frame(&ClientMessage::Ping { nonce: 7 }, Direction::ClientToServer).unwrap(),
+        );
+        let sent = std::time::Instant::now();
+        send.write_all(&frames).await.unwrap();
+        // Meanwhile the others are served as usual.
+        calm.ping(1).await.unwrap();
+        loop {
+            match reader.next::<ServerMessage>().await {
+                Ok(Some(ServerMessage::Pong { nonce: 7, .. })) => break,
+                Ok(Some(_)) => continue,
+                other => panic!("expected the Pong, got {other:?}"),
+            }
+        }
+        // The ping waited behind the subscriptions: radius 2 takes the
+        // bucket (100), radius 1 needs 27 (0.27 s), radius 2 again 100 (1 s):
+        // 2.54 s for the five.
+        let waited = sent.elapsed();
+        assert!(waited >= Duration::from_millis(2_500), "{waited:?}");
+        // Slowed down, not disconnected.
+        assert!(conn.close_reason().is_none(), "{:?}", conn.close_reason());
+        assert!(!calm.is_closed());
+        calm.close().await;
+        drop(send);
         server.shutdown().await.unwrap();
     })
     .await

@@ -279,18 +279,38 @@ fn max_edits_per_tick_leaves_the_rest_queued() {
     assert_eq!(s.tick(0).applied[0].seq, 3);
 }
 
-#[test]
-fn store_backed_chunks_must_be_resident() {
+/// A sequencer with a store (nothing resident until loaded or marked
+/// absent), its next seq above `last_seq`, and the player joined.
+fn store_backed(last_seq: u64) -> Sequencer {
     let mut s = Sequencer::new(
         world(),
         SequencerConfig::default(),
         ValidationConfig::default(),
-        10,
+        last_seq,
         MaterialTable::default(),
         StructureLibrary::default(),
         vec![],
     );
     s.session_joined(PLAYER, "p".into(), Role::Player);
+    s
+}
+
+/// The tick's first edit took `home` from its stored version 5 to 6, by a
+/// delta that turns `stored` into the world's chunk.
+fn assert_applied_on_stored(s: &Sequencer, out: &TickOutput, home: ChunkPos, stored: &Chunk) {
+    let c = out.applied[0]
+        .changes
+        .iter()
+        .find(|c| c.pos == home)
+        .unwrap();
+    assert_eq!((c.from_version, c.to_version), (5, 6));
+    let now = &s.world().peek(home).unwrap().chunk;
+    assert_eq!(&c.delta.apply(stored).unwrap(), now);
+}
+
+#[test]
+fn store_backed_chunks_must_be_resident() {
+    let mut s = store_backed(10);
     let p = at(1, X, 0, Z);
     let need = s.chunks_needed_for_position(&p);
     assert_eq!(need, vec![ChunkPos::new(3, 0, 3)]);
@@ -324,13 +344,43 @@ fn store_backed_chunks_must_be_resident() {
     s.submit(PLAYER, req(1, edit), 0).unwrap();
     let out = s.tick(0);
     assert_eq!(out.applied[0].seq, 11);
-    let c = out.applied[0]
-        .changes
-        .iter()
-        .find(|c| c.pos == home)
-        .unwrap();
-    assert_eq!((c.from_version, c.to_version), (5, 6));
-    let now = &s.world().peek(home).unwrap().chunk;
-    assert_eq!(&c.delta.apply(&stored).unwrap(), now);
+    assert_applied_on_stored(&s, &out, home, &stored);
     assert_eq!(s.world().peek(home).unwrap().chunk.get(0, 0, 0), Voxel::AIR);
+}
+
+#[test]
+fn eviction_with_edits_queued_keeps_what_they_read() {
+    let mut s = store_backed(0);
+    let p = at(1, X, 0, Z);
+    for c in s.chunks_needed_for_position(&p) {
+        s.mark_absent(c);
+    }
+    s.update_position(PLAYER, p, 0).unwrap();
+    // A modified chunk far from anything: cold.
+    let far = ChunkPos::new(40, -1, 40);
+    s.insert_stored_chunk(far, Chunk::uniform(Voxel::solid(3)), 7);
+    let edit = mine(X, -1, Z + 4, 2);
+    let home = ChunkPos::new(3, -1, 3);
+    let mut stored = Chunk::uniform(Voxel::solid(3));
+    stored.set(0, 0, 0, Voxel::AIR);
+    for c in s.chunks_needed(PLAYER, &edit) {
+        if c == home {
+            s.insert_stored_chunk(c, stored.clone(), 5);
+        } else {
+            s.mark_absent(c);
+        }
+    }
+    s.submit(PLAYER, req(1, edit.clone()), 0).unwrap();
+    assert_eq!(s.queued(), 1);
+    // Nothing is hot, yet the queued edit's chunks stay and the cold one
+    // goes: a queue that never empties no longer stops eviction.
+    assert!(s.evict_cold(|_| false) >= 1);
+    assert!(s.world().peek(far).is_none() && !s.is_resident(far));
+    assert!(s.chunks_needed(PLAYER, &edit).is_empty());
+    assert_eq!(s.world().peek(home).map(|c| c.version), Some(5));
+    let out = s.tick(0);
+    assert_applied_on_stored(&s, &out, home, &stored);
+    // With the queue empty, everything not kept goes.
+    s.evict_cold(|_| false);
+    assert!(!s.is_resident(home));
 }

@@ -56,7 +56,9 @@ use tracing_subscriber::EnvFilter;
 /// players reconnect), far-subscribe (subscriptions and full-chunk requests
 /// 150+ chunks away), teleport (edit, reconnect thousands of voxels away,
 /// edit), handshake-flood (--hostile-connections connections that never
-/// say Hello) or token-share (--hostile-sessions sessions of one token).
+/// say Hello), token-share (--hostile-sessions sessions of one token) or
+/// subscribe-flood (subscriptions to its own view, the radius flipping,
+/// --hostile-rate per second).
 /// The summary's "hostile" object holds their counters; every other field
 /// counts the honest bots only.
 #[derive(Debug, Parser)]
@@ -158,15 +160,16 @@ struct Args {
     #[arg(long, default_value_t = 0)]
     hostile: usize,
     /// position-flood, rejected-edits, far-subscribe, teleport,
-    /// handshake-flood or token-share.
+    /// handshake-flood, token-share or subscribe-flood.
     #[arg(long)]
     attack: Option<Attack>,
     /// Local address of every hostile connection [default: 127.0.0.2 for a
     /// server on 127.0.0.1, ::1 for [::1], else any].
     #[arg(long)]
     hostile_bind: Option<IpAddr>,
-    /// Position datagrams (position-flood, default 50000) or edits
-    /// (rejected-edits, default 1000) per second per hostile player.
+    /// Position datagrams (position-flood, default 50000), edits
+    /// (rejected-edits, default 1000) or subscriptions (subscribe-flood,
+    /// default 1000) per second per hostile player.
     #[arg(long)]
     hostile_rate: Option<u32>,
     /// Sessions a token-share player opens with its one token.

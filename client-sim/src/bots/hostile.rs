@@ -123,16 +123,23 @@ pub enum Attack {
     /// `edits_accepted`, `edits_accepted_far_apart` (accepted while the
     /// other editor, far away, had an accepted edit and was still open).
     TokenShare,
+    /// Subscriptions to its own view, flipping between the Welcome's view
+    /// radius and one less (nothing is ever unsubscribed, so each costs the
+    /// server a walk of the whole view), at up to `rate` per second as fast
+    /// as the control stream takes them. `subscribes_sent` (written to the
+    /// stream), `refusals`, `reconnects`.
+    SubscribeFlood,
 }
 
 impl Attack {
-    pub const ALL: [Attack; 6] = [
+    pub const ALL: [Attack; 7] = [
         Attack::PositionFlood,
         Attack::RejectedEdits,
         Attack::FarSubscribe,
         Attack::Teleport,
         Attack::HandshakeFlood,
         Attack::TokenShare,
+        Attack::SubscribeFlood,
     ];
 
     pub fn name(self) -> &'static str {
@@ -143,6 +150,7 @@ impl Attack {
             Attack::Teleport => "teleport",
             Attack::HandshakeFlood => "handshake-flood",
             Attack::TokenShare => "token-share",
+            Attack::SubscribeFlood => "subscribe-flood",
         }
     }
 
@@ -195,6 +203,7 @@ impl Attack {
                 "edits_accepted",
                 "edits_accepted_far_apart",
             ],
+            Attack::SubscribeFlood => &["subscribes_sent", "refusals", "reconnects"],
         }
     }
 }
@@ -227,8 +236,9 @@ pub struct HostileConfig {
     pub attack: Attack,
     /// Local address every hostile connection comes from.
     pub bind: IpAddr,
-    /// Datagrams (position-flood) or edits (rejected-edits) per second per
-    /// player; `None`: [`DEFAULT_DATAGRAM_RATE`] or [`DEFAULT_EDIT_RATE`].
+    /// Datagrams (position-flood), edits (rejected-edits) or subscriptions
+    /// (subscribe-flood) per second per player; `None`:
+    /// [`DEFAULT_DATAGRAM_RATE`] or [`DEFAULT_EDIT_RATE`].
     pub rate: Option<u32>,
     /// Sessions a token-share player opens with its one token.
     pub sessions: usize,
@@ -463,6 +473,7 @@ async fn attack(h: Arc<Hostile>) {
         Attack::Teleport => teleport(&h).await,
         Attack::HandshakeFlood => handshake_flood(&h).await,
         Attack::TokenShare => token_share(&h).await,
+        Attack::SubscribeFlood => subscribe_flood(&h).await,
     }
 }
 
@@ -757,14 +768,7 @@ async fn far_subscribe(h: &Hostile) {
             }
         })
     };
-    let on_control: OnControl = {
-        let stats = h.stats.clone();
-        Arc::new(move |m: &ServerMessage| {
-            if let ServerMessage::Error { .. } | ServerMessage::RequestRefused(_) = m {
-                stats.add("refusals", 1);
-            }
-        })
-    };
+    let on_control = count_refusals(h);
     let mut first = true;
     let mut round = 0i32;
     while let Some(mut s) = h
@@ -799,6 +803,55 @@ async fn far_subscribe(h: &Hostile) {
             }
             sleep(PAUSE).await;
         }
+        if !h.running() {
+            break;
+        }
+        record_end(h, &s).await;
+        sleep(PAUSE).await;
+    }
+}
+
+/// A control handler counting `Error` and `RequestRefused` as `refusals`.
+fn count_refusals(h: &Hostile) -> OnControl {
+    let stats = h.stats.clone();
+    Arc::new(move |m: &ServerMessage| {
+        if let ServerMessage::Error { .. } | ServerMessage::RequestRefused(_) = m {
+            stats.add("refusals", 1);
+        }
+    })
+}
+
+/// Subscriptions to its own view at up to `rate` per second, the radius
+/// flipping so that each one changes the view without dropping a chunk.
+async fn subscribe_flood(h: &Hostile) {
+    let rate = h.cfg.rate();
+    let on_control = count_refusals(h);
+    let mut first = true;
+    while let Some(mut s) = h.connect(&mut first, Some(on_control.clone()), None).await {
+        let feet = h.feet(&s.welcome, h.home.0, h.home.1);
+        let _ = s.position(feet);
+        let home = VoxelPos::new(h.home.0, feet.y.floor_voxel(), h.home.1).chunk();
+        let radius = s.welcome.view_radius.max(2);
+        let start = Instant::now();
+        let mut sent = 0u64;
+        'session: while h.running() {
+            let n = due(rate, start.elapsed(), sent);
+            if n > 0 {
+                let msgs: Vec<_> = (sent..sent + n)
+                    .map(|i| strata_protocol::ClientMessage::Subscribe {
+                        center: home,
+                        radius: radius - (i % 2) as u8,
+                    })
+                    .collect();
+                // Blocks while the server does not read: flow control.
+                match timeout_at(h.deadline.into(), s.send_all(&msgs)).await {
+                    Ok(Ok(())) => sent += n,
+                    Ok(Err(_)) | Err(_) => break 'session,
+                }
+            }
+            sleep(Duration::from_millis(1)).await;
+        }
+        h.stats.add("subscribes_sent", sent);
         if !h.running() {
             break;
         }

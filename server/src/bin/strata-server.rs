@@ -55,6 +55,7 @@ async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     let mut cfg = ServerConfig::load(args.config.as_deref()).context("loading config")?;
     cfg.apply_overrides(args.data_dir, args.listen);
+    let metrics_connections = cfg.metrics.max_connections;
     let metrics = match cfg.metrics.listen {
         Some(addr) => {
             let handle = strata_server::metrics::shared()?;
@@ -69,6 +70,7 @@ async fn main() -> anyhow::Result<()> {
     if let Some((listener, handle)) = metrics {
         tokio::spawn(strata_server::metrics::serve(
             listener,
+            metrics_connections,
             handle,
             running.health(),
         ));

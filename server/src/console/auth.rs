@@ -8,6 +8,7 @@ use thiserror::Error;
 use tracing::warn;
 
 use crate::auth;
+use crate::log_every::LogEvery;
 use crate::net::session::SessionContext;
 
 /// Why a request was turned away.
@@ -32,6 +33,9 @@ impl Refused {
     }
 }
 
+/// Refused tokens, logged at most once a second (anyone can send them).
+static TOKEN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
+
 /// The admin a request comes from, or why it is refused.
 pub fn admin(ctx: &SessionContext, headers: &HeaderMap) -> Result<String, Refused> {
     let token = headers
@@ -42,7 +46,9 @@ pub fn admin(ctx: &SessionContext, headers: &HeaderMap) -> Result<String, Refuse
         .filter(|t| !t.is_empty() && t.len() <= auth::MAX_TOKEN_LEN)
         .ok_or(Refused::NoToken)?;
     let claims = auth::verify(&ctx.secret, token, auth::unix_now()).inspect_err(|e| {
-        warn!(error = %e, "console refused a token");
+        if let Some(refused) = TOKEN_REFUSALS.event() {
+            warn!(error = %e, refused, "console refused a token");
+        }
     })?;
     if claims.role != Role::Admin {
         warn!(player = %claims.player, "console refused a non-admin token");

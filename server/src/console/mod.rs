@@ -15,6 +15,7 @@ mod actions;
 mod assets;
 mod auth;
 mod conn_limit;
+pub use conn_limit::{Deadlines, LimitedListener};
 mod events;
 mod live_world;
 mod query;

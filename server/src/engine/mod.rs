@@ -20,6 +20,7 @@ mod ops;
 mod owners;
 mod ownership;
 mod peer;
+mod pending;
 mod position_refusal;
 mod premesh;
 mod residency;

@@ -32,12 +32,22 @@ pub const TICKET_REFRESH_MS: u64 = strata_protocol::limits::TICKET_TTL_MS / 3;
 /// nearest [`MAX_REGION_OWNERS`] when there are more.
 pub fn view_regions(center: ChunkPos, radius: u8, side: u32) -> BTreeSet<RegionId> {
     let r = i32::from(radius);
-    let min = ChunkPos::new(center.x - r, center.y, center.z - r);
-    let max = ChunkPos::new(center.x + r, center.y, center.z + r);
+    // Saturating: an admin may look anywhere, up to the coordinates' ends.
+    let min = ChunkPos::new(
+        center.x.saturating_sub(r),
+        center.y,
+        center.z.saturating_sub(r),
+    );
+    let max = ChunkPos::new(
+        center.x.saturating_add(r),
+        center.y,
+        center.z.saturating_add(r),
+    );
     let mut all: Vec<RegionId> = RegionSpan::of_chunks(min, max, side).regions().collect();
     if all.len() > MAX_REGION_OWNERS {
         let mid = RegionId::of(center, side);
-        all.sort_by_key(|g| (g.x - mid.x).abs().max((g.z - mid.z).abs()));
+        let off = |a: i32, b: i32| (i64::from(a) - i64::from(b)).abs();
+        all.sort_by_key(|g| off(g.x, mid.x).max(off(g.z, mid.z)));
         all.truncate(MAX_REGION_OWNERS);
     }
     all.into_iter().collect()
@@ -130,6 +140,15 @@ impl Engine {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_view_at_the_coordinates_ends_does_not_overflow() {
+        for c in [i32::MAX, i32::MIN] {
+            let regions = view_regions(ChunkPos::new(c, 0, c), 32, 8);
+            assert!(!regions.is_empty() && regions.len() <= MAX_REGION_OWNERS);
+            assert!(regions.contains(&RegionId::of(ChunkPos::new(c, 0, c), 8)));
+        }
+    }
 
     #[test]
     fn a_view_overlaps_the_regions_its_square_touches() {

@@ -1,7 +1,7 @@
 //! The engine's view of one connected session: what it sees, what it has,
 //! and what it still needs to be sent.
 
-use std::collections::{HashSet, VecDeque};
+use std::collections::HashSet;
 use std::sync::Arc;
 
 use rustc_hash::FxHashMap;
@@ -13,6 +13,7 @@ use tokio::sync::oneshot;
 
 use super::command::Kick;
 use super::holders::Holders;
+use super::pending::Pending;
 use super::LatestPosition;
 use crate::interest::{nearest_first, Anchor, Interest, InterestChange};
 use crate::net::writer::FrameSender;
@@ -27,7 +28,7 @@ pub struct Peer {
     /// in the engine's [`Holders`] too.
     known: FxHashMap<ChunkPos, u64>,
     /// Chunks to send as snapshots, nearest first.
-    pub pending: VecDeque<ChunkPos>,
+    pub pending: Pending,
     /// Chunks the client asked to receive as full data even at version 0.
     pub full_data: HashSet<ChunkPos>,
     /// Set when a queue overflowed and the connection should be closed.
@@ -67,7 +68,7 @@ impl Peer {
             updates,
             interest,
             known: FxHashMap::default(),
-            pending: VecDeque::new(),
+            pending: Pending::default(),
             full_data: HashSet::new(),
             failed: false,
             premeshed: None,
@@ -143,17 +144,14 @@ impl Peer {
             holders.remove(*pos, id);
             self.full_data.remove(pos);
         }
-        self.pending.retain(|p| !gone.contains(p));
-        let mut queued: HashSet<ChunkPos> = self.pending.iter().copied().collect();
+        self.pending.retain(|p| !gone.contains(&p));
         for pos in change.subscribe {
-            if !self.known.contains_key(&pos) && queued.insert(pos) {
+            if !self.known.contains_key(&pos) {
                 self.pending.push_back(pos);
             }
         }
         if let Some(center) = self.interest.center().filter(|_| change.recentred) {
-            self.pending
-                .make_contiguous()
-                .sort_by_key(|p| nearest_first(*p, center));
+            self.pending.sort_by_key(|p| nearest_first(*p, center));
             self.complete_due = true;
         }
         change.unsubscribe
@@ -180,7 +178,7 @@ impl Peer {
             self.known.remove(pos);
             holders.remove(*pos, id);
         }
-        self.pending.retain(|p| !dropped.contains(p));
+        self.pending.retain(|p| !dropped.contains(&p));
     }
 
     /// Forgets the client's copy of `pos` and sends it again first. The
@@ -188,8 +186,6 @@ impl Peer {
     /// next time it finds it not held.
     pub fn resend(&mut self, pos: ChunkPos) {
         self.known.remove(&pos);
-        if !self.pending.contains(&pos) {
-            self.pending.push_front(pos);
-        }
+        self.pending.push_front(pos);
     }
 }

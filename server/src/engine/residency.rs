@@ -63,14 +63,13 @@ impl Engine {
             .player_chunks()
             .flat_map(|c| around(c, HOT_RADIUS))
             .collect();
-        if let Some(n) = self.seq.evict_cold(|p| hot.contains(&p)) {
-            self.last_evict = Some(Instant::now());
-            tracing::debug!(
-                dropped = n,
-                kept = self.seq.resident(),
-                "evicted cold chunks"
-            );
-            metrics::gauge!(m::RESIDENT_CHUNKS).set(self.seq.resident() as f64);
-        }
+        let n = self.seq.evict_cold(|p| hot.contains(&p));
+        self.last_evict = Some(Instant::now());
+        tracing::debug!(
+            dropped = n,
+            kept = self.seq.resident(),
+            "evicted cold chunks"
+        );
+        metrics::gauge!(m::RESIDENT_CHUNKS).set(self.seq.resident() as f64);
     }
 }

@@ -7,10 +7,12 @@
 use std::collections::HashMap;
 use std::net::IpAddr;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tracing::warn;
+
+use crate::log_every::{LogEvery, LOG_EVERY};
 
 /// The limits, from `[server]`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -23,6 +25,8 @@ pub struct Limits {
     pub handshakes: u32,
     /// Connections in their handshake at once from one IP address.
     pub handshakes_per_address: u32,
+    /// Handshakes in progress from which unvalidated addresses get a Retry.
+    pub retry_above: u32,
     /// From the first packet to a verified Hello.
     pub handshake_timeout: Duration,
 }
@@ -61,9 +65,6 @@ impl Refused {
     }
 }
 
-/// Refusals are logged at most once per this period (with a count).
-const LOG_EVERY: Duration = Duration::from_secs(1);
-
 #[derive(Debug)]
 pub struct Admission {
     limits: Limits,
@@ -73,8 +74,8 @@ pub struct Admission {
     per_address: Mutex<HashMap<IpAddr, u32>>,
     players: Arc<Semaphore>,
     admins: Arc<Semaphore>,
-    /// When refusals were last logged, and how many since.
-    logged: Mutex<(Option<Instant>, u64)>,
+    /// Refusals are logged at most once a second, with a count.
+    logged: LogEvery,
 }
 
 impl Admission {
@@ -85,9 +86,18 @@ impl Admission {
             players: permits(limits.sessions),
             admins: permits(limits.admin_sessions),
             per_address: Mutex::new(HashMap::new()),
-            logged: Mutex::new((None, 0)),
+            logged: LogEvery::new(LOG_EVERY),
             limits,
         })
+    }
+
+    /// Whether a connection from an address QUIC has not validated should
+    /// be sent a Retry instead of taking a slot: enough handshakes are in
+    /// progress that the slots are worth defending against spoofed sources.
+    pub fn wants_retry(&self) -> bool {
+        let free = self.handshakes.available_permits();
+        let in_progress = (self.limits.handshakes as usize).saturating_sub(free);
+        in_progress >= self.limits.retry_above as usize
     }
 
     /// A handshake slot for a new connection from `addr`, or why not.
@@ -113,11 +123,8 @@ impl Admission {
     fn refused(&self, why: Refused, addr: IpAddr) -> Refused {
         metrics::counter!(crate::metrics::CONNECTIONS_REFUSED, "reason" => why.label())
             .increment(1);
-        let mut logged = self.logged.lock().unwrap_or_else(|e| e.into_inner());
-        logged.1 += 1;
-        if logged.0.is_none_or(|t| t.elapsed() >= LOG_EVERY) {
-            warn!(%addr, reason = why.label(), refused = logged.1, "refusing connections");
-            *logged = (Some(Instant::now()), 0);
+        if let Some(refused) = self.logged.event() {
+            warn!(%addr, reason = why.label(), refused, "refusing connections");
         }
         why
     }
@@ -189,6 +196,7 @@ mod tests {
             admin_sessions: 1,
             handshakes: 3,
             handshakes_per_address: 2,
+            retry_above: 2,
             handshake_timeout: Duration::from_secs(1),
         }
     }

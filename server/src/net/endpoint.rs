@@ -46,6 +46,15 @@ impl Listener {
                 incoming = self.endpoint.accept() => {
                     let Some(incoming) = incoming else { break };
                     let remote = incoming.remote_address();
+                    // Stateless: a Retry holds no slot, and only a client
+                    // that receives at its address can answer it.
+                    if !incoming.remote_address_validated() && self.admission.wants_retry() {
+                        metrics::counter!(crate::metrics::CONNECTIONS_RETRIED).increment(1);
+                        if let Err(e) = incoming.retry() {
+                            e.into_incoming().refuse();
+                        }
+                        continue;
+                    }
                     let handshake = match self.admission.begin(remote.ip()) {
                         Ok(h) => h,
                         Err(_) => {

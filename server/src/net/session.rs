@@ -16,10 +16,12 @@ use tokio::sync::oneshot;
 use tracing::{debug, info, warn, Instrument};
 
 use super::admission::Handshake;
-use super::writer::{spawn_writer, FrameSender};
+use super::writer::{spawn_writer, FrameSender, SendRefused};
 use crate::auth::{self, AuthError, Secret};
 use crate::engine::{fanout_control, now_ms, Command, EngineHandle, LatestPosition};
+use crate::log_every::LogEvery;
 use crate::shutdown::Shutdown;
+use crate::validate::ratelimit::{BucketConfig, TokenBucket};
 
 /// How long a closing connection waits for its last frames to drain.
 pub const DRAIN_TIMEOUT: Duration = Duration::from_secs(2);
@@ -46,6 +48,9 @@ pub struct SessionContext {
     pub control_writer_queue: usize,
     /// Shortest time between two writes of a session's updates (zero: none).
     pub send_interval: Duration,
+    /// Each session's bucket for requests other than edits
+    /// (`[validation.request_rate]`, in chunks; see [`request_cost`]).
+    pub request_rate: BucketConfig,
     /// Bans and revocations, checked at every Hello; admin sessions change
     /// it (one at a time, under `access_writes`) and persist it first.
     pub access: std::sync::RwLock<auth::AccessList>,
@@ -193,7 +198,7 @@ pub async fn run(
     let span = tracing::info_span!("session", id = session, player = %claims.player, role = claims.role.name());
     joined(
         conn,
-        session,
+        (session, deadline),
         ctx,
         shutdown,
         control,
@@ -210,7 +215,7 @@ pub async fn run(
 #[allow(clippy::too_many_arguments)]
 async fn joined(
     conn: quinn::Connection,
-    session: u64,
+    (session, deadline): (u64, tokio::time::Instant),
     ctx: Arc<SessionContext>,
     mut shutdown: Shutdown,
     control: FrameSender,
@@ -219,9 +224,16 @@ async fn joined(
     claims: auth::Claims,
     capabilities: u32,
 ) {
-    let uni = match conn.open_uni().await {
-        Ok(u) => u,
-        Err(e) => return debug!(error = %e, "could not open the updates stream"),
+    // A client that grants no stream credit would hold its session slot
+    // forever: the updates stream must open within the handshake's time.
+    let uni = match tokio::time::timeout_at(deadline, conn.open_uni()).await {
+        Ok(Ok(u)) => u,
+        Ok(Err(e)) => return debug!(error = %e, "could not open the updates stream"),
+        Err(_) => {
+            let code = ErrorCode::Malformed;
+            let why = "no stream credit for the updates stream in time";
+            return refuse(&conn, control, control_task, code, why).await;
+        }
     };
     let (updates, updates_task) = spawn_writer(uni, ctx.writer_queue, ctx.send_interval, "updates");
     let (reply_tx, reply_rx) = oneshot::channel();
@@ -302,13 +314,18 @@ enum End {
     Refused(ErrorCode, String),
 }
 
+/// Refused tokens, logged at most once a second (anyone can send them).
+static TOKEN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
+
 /// Verifies a Hello's token; a refusal comes with its error code.
 pub(super) fn check_token(
     ctx: &SessionContext,
     token: &str,
 ) -> Result<auth::Claims, (ErrorCode, String)> {
     auth::verify(&ctx.secret, token, auth::unix_now()).map_err(|e| {
-        warn!(error = %e, "refused a token");
+        if let Some(refused) = TOKEN_REFUSALS.event() {
+            warn!(error = %e, refused, "refused a token");
+        }
         let code = if matches!(e, AuthError::Expired { .. }) {
             ErrorCode::ExpiredToken
         } else {
@@ -336,19 +353,23 @@ async fn serve(
     kicked: &mut oneshot::Receiver<crate::engine::Kick>,
     latest: &LatestPosition,
 ) -> End {
+    let mut requests = TokenBucket::new(ctx.request_rate, now_ms());
+    // A request waiting for tokens, and when they are there: the control
+    // stream is not read meanwhile (positions, kicks and shutdown still are).
+    let mut throttled: Option<(ClientMessage, tokio::time::Instant)> = None;
     loop {
-        tokio::select! {
-            msg = reader.next::<ClientMessage>() => match msg {
-                Ok(Some(m)) => {
-                    let routed = match route((session, player), ctx, control, m) {
-                        Ok(Some(cmd)) => deliver(&ctx.engine, cmd, ENGINE_WAIT_TIMEOUT).await,
-                        Ok(None) => Ok(()),
-                        Err(end) => Err(end),
-                    };
-                    if let Err(end) = routed {
-                        return end;
-                    }
+        let wake = throttled
+            .as_ref()
+            .map_or_else(tokio::time::Instant::now, |(_, at)| *at);
+        let m = tokio::select! {
+            _ = tokio::time::sleep_until(wake), if throttled.is_some() => {
+                match throttled.take() {
+                    Some((m, _)) => m,
+                    None => continue,
                 }
+            }
+            msg = reader.next::<ClientMessage>(), if throttled.is_none() => match msg {
+                Ok(Some(m)) => m,
                 Ok(None) => return End::ClientClosed,
                 Err(ReadError::Io(e)) => {
                     debug!(error = %e, "control stream ended");
@@ -356,13 +377,16 @@ async fn serve(
                 }
                 Err(e) => return End::Refused(read_error_code(&e), e.to_string()),
             },
-            dg = conn.read_datagram() => match dg {
-                Ok(bytes) => position(session, &ctx.engine, latest, bytes),
-                Err(e) => {
-                    debug!(error = %e, "connection ended");
-                    return End::Gone;
+            dg = conn.read_datagram() => {
+                match dg {
+                    Ok(bytes) => position(session, &ctx.engine, latest, bytes),
+                    Err(e) => {
+                        debug!(error = %e, "connection ended");
+                        return End::Gone;
+                    }
                 }
-            },
+                continue;
+            }
             _ = shutdown.wait() => {
                 return End::Refused(ErrorCode::ShuttingDown, "server is shutting down".into());
             }
@@ -370,7 +394,70 @@ async fn serve(
                 let (code, message) = kick.unwrap_or((ErrorCode::Internal, "the server ended this session".into()));
                 return End::Refused(code, message);
             }
+        };
+        // Cheap first: a request the session has no tokens for waits before
+        // anything is checked or queued.
+        let cost = request_cost(&m, ctx.view_radius).min(requests.capacity());
+        requests.refill(now_ms());
+        match requests.wait_ms(cost) {
+            Some(0) | None => {
+                requests.take(cost);
+            }
+            Some(ms) => {
+                metrics::counter!(crate::metrics::REQUESTS_THROTTLED).increment(1);
+                let at = tokio::time::Instant::now() + Duration::from_millis(ms);
+                throttled = Some((m, at));
+                continue;
+            }
         }
+        let routed = match route((session, player), ctx, control, m) {
+            Ok(Some(cmd)) => deliver(&ctx.engine, cmd, ENGINE_WAIT_TIMEOUT).await,
+            Ok(None) => Ok(()),
+            Err(end) => Err(end),
+        };
+        if let Err(end) = routed {
+            return end;
+        }
+    }
+}
+
+/// What a request costs a session's bucket, in chunks it makes the engine
+/// touch: a subscription its whole view ((2r+1)^3, the radius capped at the
+/// server's view radius), a forget its list, a resync, snapshot request or
+/// ticket [`RESEND_COST`]. Edits are not counted: the sequencer's
+/// per-player buckets (`edit_rate`, `reject_rate`) limit them.
+pub fn request_cost(m: &ClientMessage, view_radius: u8) -> u64 {
+    match m {
+        ClientMessage::Edit(_) | ClientMessage::Hello(_) => 0,
+        ClientMessage::Subscribe { radius, .. } => {
+            let side = 2 * u64::from((*radius).min(view_radius)) + 1;
+            side * side * side
+        }
+        ClientMessage::Forget { chunks } => chunks.len() as u64,
+        ClientMessage::ResyncRequest { .. }
+        | ClientMessage::FullSnapshotRequest { .. }
+        | ClientMessage::Arrive(_) => RESEND_COST,
+        ClientMessage::Ping { .. } => 1,
+    }
+}
+
+/// What a resync, a full-snapshot request or a ticket costs a session's
+/// request bucket, in chunks. The engine's work is a few set lookups and
+/// queueing one chunk; sending it again is paced by the session's stream
+/// budget like any snapshot. A client checking its whole radius-8 view
+/// (4,913 chunks) fits the default burst.
+pub const RESEND_COST: u64 = 4;
+
+/// Queues a reply on a session's control stream. A full queue ends the
+/// session, as it does for the engine's replies: a client that does not
+/// read its verdicts is not silently missing some.
+fn reply(control: &FrameSender, msg: &ServerMessage) -> Result<(), End> {
+    match control.try_send(fanout_control(msg)) {
+        Ok(()) | Err(SendRefused::Closed) => Ok(()),
+        Err(SendRefused::Full) => Err(End::Refused(
+            ErrorCode::Internal,
+            "the client does not read its control stream".into(),
+        )),
     }
 }
 
@@ -447,7 +534,7 @@ fn route(
                     client_edit_id: id,
                     reason: RejectReason::Busy,
                 };
-                let _ = control.try_send(fanout_control(&msg));
+                reply(control, &msg)?;
             }
             return Ok(None);
         }
@@ -463,7 +550,7 @@ fn route(
                     chunks: u32::try_from(chunks.len()).unwrap_or(u32::MAX),
                     max: MAX_FORGET_CHUNKS as u32,
                 };
-                let _ = control.try_send(fanout_control(&ServerMessage::RequestRefused(refusal)));
+                reply(control, &ServerMessage::RequestRefused(refusal))?;
                 return Ok(None);
             }
             Command::Forget { session, chunks }
@@ -476,7 +563,7 @@ fn route(
                 crate::cluster::ticket::verify(&ctx.secret, &ticket, player, now_ms())
             {
                 let refusal = Refusal::BadTicket { reason };
-                let _ = control.try_send(fanout_control(&ServerMessage::RequestRefused(refusal)));
+                reply(control, &ServerMessage::RequestRefused(refusal))?;
                 return Ok(None);
             }
             Command::Arrive {
@@ -487,10 +574,11 @@ fn route(
         }
         ClientMessage::FullSnapshotRequest { pos } => Command::FullSnapshot { session, pos },
         ClientMessage::Ping { nonce } => {
-            let _ = control.try_send(fanout_control(&ServerMessage::Pong {
+            let pong = ServerMessage::Pong {
                 nonce,
                 server_time: now_ms(),
-            }));
+            };
+            reply(control, &pong)?;
             return Ok(None);
         }
     };
@@ -500,6 +588,28 @@ fn route(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use strata_terrain::ChunkPos;
+
+    #[test]
+    fn a_request_costs_the_chunks_it_makes_the_engine_touch() {
+        let sub = |radius| ClientMessage::Subscribe {
+            center: ChunkPos::new(0, 0, 0),
+            radius,
+        };
+        assert_eq!(request_cost(&sub(2), 8), 125);
+        assert_eq!(request_cost(&sub(8), 8), 17 * 17 * 17);
+        // A radius above the server's view costs only the view it gets.
+        assert_eq!(request_cost(&sub(255), 8), 17 * 17 * 17);
+        let forget = ClientMessage::Forget {
+            chunks: vec![ChunkPos::new(1, 2, 3); 40],
+        };
+        assert_eq!(request_cost(&forget, 8), 40);
+        let resync = ClientMessage::ResyncRequest {
+            pos: ChunkPos::new(0, 0, 0),
+        };
+        assert_eq!(request_cost(&resync, 8), RESEND_COST);
+        assert_eq!(request_cost(&ClientMessage::Ping { nonce: 1 }, 8), 1);
+    }
 
     fn leave(session: u64) -> Command {
         Command::Leave { session }

@@ -19,7 +19,7 @@ pub use batch::{AppliedEdit, ChunkUpdate, RejectedEdit, TickOutput};
 pub use config::{SequencerConfig, DEFAULT_MAX_EDITS_PER_TICK, DEFAULT_QUEUE_CAPACITY};
 pub use tick::{BuiltMeshes, PendingMeshes};
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 
 use strata_protocol::{EditRequest, PositionUpdate, Role, Start};
 use strata_terrain::edit::{EditContext, FixedVec3, StructureLibrary};
@@ -29,7 +29,7 @@ use crate::collision::{CollisionCache, CollisionMesh};
 use crate::validate::position::{self, PositionReject, ValidatedPosition};
 use crate::validate::zones::{self, Zone, ZoneError};
 use crate::validate::ValidationConfig;
-use residency::Residency;
+use residency::{with_neighbours, Residency};
 use session::{PlayerLimits, Session};
 
 /// An accepted edit waiting for the next tick.
@@ -261,21 +261,28 @@ impl Sequencer {
 
     /// Drops chunks and absent marks for which `keep` is false. Modified
     /// chunks go too when there is a store (it holds them durably; they are
-    /// loaded again before use). Only between ticks with an empty queue:
-    /// queued edits rely on what was resident when they were submitted.
-    /// Returns how many chunks were dropped, or `None` if edits are queued.
-    pub fn evict_cold(&mut self, keep: impl Fn(ChunkPos) -> bool) -> Option<usize> {
-        if !self.queue.is_empty() {
-            return None;
-        }
+    /// loaded again before use). Queued edits rely on what was resident
+    /// when they were submitted: the chunks they read and those around
+    /// them (their meshes' aprons) are kept whatever `keep` says, so a
+    /// server whose queue never empties still evicts. Returns how many
+    /// chunks were dropped.
+    pub fn evict_cold(&mut self, keep: impl Fn(ChunkPos) -> bool) -> usize {
+        let queued: HashSet<ChunkPos> = self
+            .queue
+            .iter()
+            .filter_map(|q| self.read_set(&q.request.edit, None))
+            .flatten()
+            .flat_map(with_neighbours)
+            .collect();
+        let keep = |p: ChunkPos| keep(p) || queued.contains(&p);
         let before = self.world.loaded();
         if self.residency.is_storeless() {
-            self.world.evict_generated(&keep);
+            self.world.evict_generated(keep);
         } else {
-            self.world.evict(&keep);
+            self.world.evict(keep);
         }
-        self.residency.retain_absent(&keep);
-        Some(before - self.world.loaded())
+        self.residency.retain_absent(keep);
+        before - self.world.loaded()
     }
 
     /// Chunks each session stands in (sessions with a validated position).

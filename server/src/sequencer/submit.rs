@@ -100,6 +100,12 @@ impl Sequencer {
         let v = &self.validation;
         permissions::check(role, edit.kind(), &v.player_kinds)?;
         caps::check(edit, v.max_radius_fixed(), v.max_power_capped())?;
+        // Before validation, which walks a structure's template: a flood of
+        // edits costs a bucket lookup each once the bucket is empty.
+        if !self.limits_of(session_id, now_ms).edits.can_take(1) {
+            return Err(RejectReason::RateLimited);
+        }
+        let v = &self.validation;
         let bbox = edit
             .validate(&self.ctx())
             .map_err(|e| RejectReason::Invalid {
@@ -113,9 +119,6 @@ impl Sequencer {
         zones::check(&self.zones, role, &bbox)?;
         let volume_cost = bbox.volume().min(v.volume_rate.capacity);
         let limits = self.limits_of(session_id, now_ms);
-        if !limits.edits.can_take(1) {
-            return Err(RejectReason::RateLimited);
-        }
         if !limits.volume.can_take(volume_cost) {
             return Err(RejectReason::VolumeRateLimited);
         }

@@ -40,6 +40,14 @@ pub const DEFAULT_VOLUME_PER_SECOND: u64 = 50_000;
 pub const DEFAULT_REJECT_BURST: u64 = 100;
 /// Refused edits per second that never add up to a disconnect.
 pub const DEFAULT_REJECTS_PER_SECOND: u64 = 10;
+/// Default burst of a session's requests, in chunks they touch (a
+/// subscription costs its whole view, (2r+1)^3 chunks; see
+/// `net::session::request_cost`): ten radius-8 views at once.
+pub const DEFAULT_REQUEST_BURST: u64 = 50_000;
+/// Default refill of a session's request bucket, chunks per second.
+pub const DEFAULT_REQUESTS_PER_SECOND: u64 = 10_000;
+/// Largest `[validation.request_rate]` capacity and refill.
+pub const MAX_REQUEST_RATE: u64 = 1 << 32;
 /// Least milliseconds between two `PositionRefused` answers to one session.
 pub const DEFAULT_POSITION_REFUSAL_MS: u64 = 500;
 /// Players whose last position the server remembers after they leave.
@@ -82,6 +90,11 @@ pub struct ValidationConfig {
     /// Refused edits per player: burst and refill per second. Each refusal
     /// takes one token; a player with none left is disconnected and logged.
     pub reject_rate: BucketConfig,
+    /// A session's requests other than edits (subscriptions, resyncs,
+    /// forgets, snapshots, tickets, pings), in chunks they touch: burst and
+    /// refill per second. A session out of tokens is not read until it has
+    /// them again, so QUIC's flow control slows its client down.
+    pub request_rate: BucketConfig,
     /// Players whose last position is kept after their sessions end, so a
     /// reconnect resumes there ([`DEFAULT_REMEMBERED_PLAYERS`]).
     pub remembered_players: usize,
@@ -117,6 +130,10 @@ impl Default for ValidationConfig {
             reject_rate: BucketConfig {
                 capacity: DEFAULT_REJECT_BURST,
                 per_second: DEFAULT_REJECTS_PER_SECOND,
+            },
+            request_rate: BucketConfig {
+                capacity: DEFAULT_REQUEST_BURST,
+                per_second: DEFAULT_REQUESTS_PER_SECOND,
             },
             remembered_players: DEFAULT_REMEMBERED_PLAYERS,
             position_refusal_ms: DEFAULT_POSITION_REFUSAL_MS,

@@ -70,11 +70,53 @@ impl TokenBucket {
     pub fn capacity(&self) -> u64 {
         self.cfg.capacity
     }
+
+    /// Milliseconds until `n` tokens are there (after the last refill), at
+    /// least 1 if they are not there now; `None` if they never will be (`n`
+    /// above the capacity, or no refill).
+    pub fn wait_ms(&self, n: u64) -> Option<u64> {
+        let need = n.saturating_mul(MILLI);
+        if self.milli_tokens >= need {
+            return Some(0);
+        }
+        if n > self.cfg.capacity || self.cfg.per_second == 0 {
+            return None;
+        }
+        Some((need - self.milli_tokens).div_ceil(self.cfg.per_second))
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn says_how_long_until_tokens_are_there() {
+        let cfg = BucketConfig {
+            capacity: 10,
+            per_second: 4,
+        };
+        let mut b = TokenBucket::new(cfg, 0);
+        assert_eq!(b.wait_ms(10), Some(0));
+        assert!(b.take(10));
+        // 4 per second: one token in 250 ms, ten in 2.5 s.
+        assert_eq!(b.wait_ms(1), Some(250));
+        assert_eq!(b.wait_ms(10), Some(2500));
+        b.refill(100);
+        assert_eq!(b.wait_ms(1), Some(150));
+        b.refill(250);
+        assert_eq!(b.wait_ms(1), Some(0));
+        assert_eq!(b.wait_ms(11), None, "above the capacity: never");
+        let dry = TokenBucket::new(
+            BucketConfig {
+                capacity: 1,
+                per_second: 0,
+            },
+            0,
+        );
+        assert_eq!(dry.wait_ms(1), Some(0));
+        assert_eq!(dry.wait_ms(2), None);
+    }
 
     #[test]
     fn drains_and_refills_with_time() {
