@@ -47,7 +47,7 @@ impl Engine {
     /// Drops chunks far from every player once more than
     /// `engine.resident_chunks` are held. Modified chunks are durable in the
     /// store by now (this runs after the tick's commit) and load again when
-    /// needed. Skipped while edits are queued.
+    /// needed. What queued edits read is kept.
     pub(super) fn evict_cold(&mut self) {
         let resident = self.seq.resident();
         metrics::gauge!(m::RESIDENT_CHUNKS).set(resident as f64);
