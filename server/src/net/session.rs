@@ -361,15 +361,15 @@ async fn serve(
         let wake = throttled
             .as_ref()
             .map_or_else(tokio::time::Instant::now, |(_, at)| *at);
-        let m = tokio::select! {
+        let (m, waited) = tokio::select! {
             _ = tokio::time::sleep_until(wake), if throttled.is_some() => {
                 match throttled.take() {
-                    Some((m, _)) => m,
+                    Some((m, _)) => (m, true),
                     None => continue,
                 }
             }
             msg = reader.next::<ClientMessage>(), if throttled.is_none() => match msg {
-                Ok(Some(m)) => m,
+                Ok(Some(m)) => (m, false),
                 Ok(None) => return End::ClientClosed,
                 Err(ReadError::Io(e)) => {
                     debug!(error = %e, "control stream ended");
@@ -404,7 +404,10 @@ async fn serve(
                 requests.take(cost);
             }
             Some(ms) => {
-                metrics::counter!(crate::metrics::REQUESTS_THROTTLED).increment(1);
+                // Counted once per request, not again if a clock tick short.
+                if !waited {
+                    metrics::counter!(crate::metrics::REQUESTS_THROTTLED).increment(1);
+                }
                 let at = tokio::time::Instant::now() + Duration::from_millis(ms);
                 throttled = Some((m, at));
                 continue;
