@@ -178,7 +178,8 @@ pub struct ServerSection {
     /// Connections in their handshake (TLS, then a Hello with a valid
     /// token) at once; more are refused before TLS.
     pub max_handshakes: u32,
-    /// Handshakes in progress from one IP address at once.
+    /// Handshakes in progress from one IP address at once (an IPv6 /64
+    /// counts as one address).
     pub max_handshakes_per_address: u32,
     /// From this many handshakes in progress on, a connection whose source
     /// address QUIC has not validated gets a Retry first and takes no slot

@@ -100,8 +100,12 @@ impl Admission {
         in_progress >= self.limits.retry_above as usize
     }
 
-    /// A handshake slot for a new connection from `addr`, or why not.
+    /// A handshake slot for a new connection from `addr`, or why not. The
+    /// per-address count is per IPv4 address and per IPv6 /64 (one host
+    /// usually holds a whole /64, so counting single IPv6 addresses would
+    /// give it 2^64 shares).
     pub fn begin(self: &Arc<Self>, addr: IpAddr) -> Result<Handshake, Refused> {
+        let addr = sharing_limits(addr);
         let mut per = self.per_address.lock().unwrap_or_else(|e| e.into_inner());
         let here = per.get(&addr).copied().unwrap_or(0);
         if here >= self.limits.handshakes_per_address {
@@ -143,6 +147,22 @@ impl Admission {
             all(&self.handshakes, self.limits.handshakes).await;
         })
         .await;
+    }
+}
+
+/// The address whose share of handshakes a connection from `addr` takes:
+/// an IPv4 address (IPv4-mapped IPv6 included) as it is, an IPv6 address
+/// as its /64.
+pub fn sharing_limits(addr: IpAddr) -> IpAddr {
+    match addr {
+        IpAddr::V4(_) => addr,
+        IpAddr::V6(v6) => match v6.to_ipv4_mapped() {
+            Some(v4) => IpAddr::V4(v4),
+            None => {
+                let prefix = u128::from(v6) & !((1u128 << 64) - 1);
+                IpAddr::V6(prefix.into())
+            }
+        },
     }
 }
 
@@ -220,6 +240,22 @@ mod tests {
             "a finished handshake frees both its slots"
         );
         assert_eq!(a.per_address.lock().unwrap().len(), 2);
+    }
+
+    #[tokio::test]
+    async fn an_ipv6_slash_64_shares_one_address_worth_of_handshakes() {
+        let a = Admission::new(limits());
+        let ip = |s: &str| s.parse::<IpAddr>().unwrap();
+        let _first = a.begin(ip("2001:db8:1:2::1")).unwrap();
+        let _second = a.begin(ip("2001:db8:1:2:ffff::9")).unwrap();
+        assert_eq!(
+            a.begin(ip("2001:db8:1:2:abcd::7")).unwrap_err(),
+            Refused::PerAddress,
+            "the same /64"
+        );
+        assert!(a.begin(ip("2001:db8:1:3::1")).is_ok(), "another /64");
+        assert_eq!(sharing_limits(ip("::ffff:10.0.0.1")), ip("10.0.0.1"));
+        assert_eq!(sharing_limits(ip("10.0.0.1")), ip("10.0.0.1"));
     }
 
     #[tokio::test]
