@@ -27,7 +27,9 @@
 # the web console; BENCH_WATCHERS=N then connects N watching consoles once
 # the server is up, each like a browser tab: the first screen of map tiles
 # (3 x 3 around the bots), then the live event stream to the end.
-# BENCH_LOG=FILE keeps the server's log. Binaries come from
+# A last line has the server's CPU seconds by thread name over the bots'
+# run ("thread_cpu_seconds": strata-engine, tokio-rt-worker, strata-worker,
+# ...). BENCH_LOG=FILE keeps the server's log. Binaries come from
 # ${CARGO_TARGET_DIR:-target}/release, built first, or from BENCH_BIN_DIR
 # as they are (strata-server, strata-admin, strata-bots; no cargo needed:
 # a machine the binaries were copied to).
@@ -124,11 +126,22 @@ hz=$(getconf CLK_TCK)
 sample() { local t; while t=$(ticks 2>/dev/null); do echo "$EPOCHREALTIME $t"; sleep 0.1; done; }
 sample > "$dir/samples" 2>/dev/null &
 sampler=$!
+# "name ticks" per server thread (names without their trailing numbers).
+threads() {
+    local t c s
+    for t in /proc/"$pid"/task/*; do
+        read -r c < "$t/comm" 2>/dev/null && read -r s < "$t/stat" 2>/dev/null || continue
+        s=${s##*) }; set -- $s
+        c=${c%%[0-9]*}; echo "${c%-} $(( ${12} + ${13} ))"
+    done
+}
+threads > "$dir/threads0"
 t0=$(ticks); s0=$(date +%s.%N)
 /usr/bin/time -f "%U %S" -o "$dir/bots_time" \
     "${bots_pin[@]}" "$bin/strata-bots" --server "$addr" --data-dir "$dir/data" \
     --bots "$bots" --duration "$duration" --json "$@" | tee "$dir/bots.json"
 t1=$(ticks); s1=$(date +%s.%N)
+threads > "$dir/threads1"
 kill "$sampler" 2>/dev/null || true; wait "$sampler" 2>/dev/null || true; sampler=
 rss=$(awk '/VmHWM/ {print $2}' "/proc/$pid/status")
 bots_cpu=$(awk '{print $1 + $2}' "$dir/bots_time")
@@ -193,6 +206,12 @@ awk -v t0="$t0" -v t1="$t1" -v hz="$hz" -v s0="$s0" -v s1="$s1" -v rss="$rss" -v
                 cpu, wall, cpu / wall, per_edit, ecpu, ecores, eper, b, rss / 1024, ack50, ack99, bc99, mism >> csv
         }
     }'
+# Server CPU seconds by thread name over the bots' run (threads that ended
+# during it are missing).
+awk -v hz="$hz" 'FNR == NR { a[$1] += $2; next } { b[$1] += $2 }
+    END { printf "{\"thread_cpu_seconds\":{"; sep = ""
+          for (k in b) { printf "%s\"%s\":%.2f", sep, k, (b[k] - a[k]) / hz; sep = "," }
+          print "}}" }' "$dir/threads0" "$dir/threads1"
 if [ -n "${BENCH_METRICS_PORT:-}" ]; then
     curl -s "http://127.0.0.1:$BENCH_METRICS_PORT/metrics" | awk '
         /^strata_(flush|fsync)_seconds\{quantile="(0.5|0.99|1)"\}/ {

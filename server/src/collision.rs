@@ -348,18 +348,25 @@ impl CollisionCache {
 
     /// Makes sure each listed chunk has a mesh for its current version in
     /// `world` (unloaded chunks count as generated, version 0), building the
-    /// missing ones in parallel. Load the chunks and their neighbours first:
+    /// missing ones (their neighbourhood copies too) in parallel on the
+    /// current rayon pool. Load the chunks and their neighbours first:
     /// unloaded voxels are generated on the fly, which is slow.
     pub fn ensure(&mut self, world: &World, chunks: &[ChunkPos]) {
         let version = |p: ChunkPos| world.peek(p).map_or(0, |c| c.version);
-        let mut jobs = Vec::new();
+        let mut missing: Vec<(ChunkPos, u64)> = Vec::new();
         for &p in chunks {
             if self.get(p, version(p)).is_some() {
                 self.touch(p);
-            } else if !jobs.iter().any(|(q, _, _)| *q == p) {
-                jobs.push((p, version(p), mesh_buffers::from_world(world, p)));
+            } else if !missing.iter().any(|(q, _)| *q == p) {
+                missing.push((p, version(p)));
             }
         }
+        let copy = |&(p, v): &(ChunkPos, u64)| (p, v, mesh_buffers::from_world(world, p));
+        let jobs: Vec<(ChunkPos, u64, Neighborhood)> = if missing.len() > 1 {
+            missing.par_iter().map(copy).collect()
+        } else {
+            missing.iter().map(copy).collect()
+        };
         self.built_on_demand += jobs.len() as u64;
         for m in Self::mesh_chunks(&jobs) {
             self.insert(m);

@@ -12,8 +12,10 @@ use std::sync::{Mutex, MutexGuard};
 use strata_terrain::mesh::Neighborhood;
 use strata_terrain::{Chunk, ChunkPos, World};
 
-/// Buffers kept for reuse (about 100 KB each); more are freed.
-pub const POOLED_NEIGHBORHOODS: usize = 64;
+/// Buffers kept for reuse (about 100 KB each, so 25 MB at most); more are
+/// freed. A tick of 3000 players meshes about 150 chunks while the one
+/// before it may still hold its buffers: 64 made every other mesh allocate.
+pub const POOLED_NEIGHBORHOODS: usize = 256;
 
 static POOL: Mutex<Vec<Neighborhood>> = Mutex::new(Vec::new());
 

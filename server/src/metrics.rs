@@ -112,7 +112,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_counter!(EDITS_ACCEPTED, "Edits acknowledged after they were durable");
     metrics::describe_counter!(EDITS_REJECTED, "Edits refused, by reason");
-    metrics::describe_gauge!(QUEUE_DEPTH, "Edits waiting for the sequencer");
+    metrics::describe_gauge!(
+        QUEUE_DEPTH,
+        "Edits waiting for the sequencer (their sight check or the tick)"
+    );
     metrics::describe_histogram!(FLUSH_SECONDS, "Group-commit latency");
     metrics::describe_histogram!(
         FSYNC_SECONDS,

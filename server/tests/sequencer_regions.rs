@@ -104,7 +104,7 @@ fn regions_split_a_tick_into_lanes() {
     // 8-chunk regions: (100,100) and (110,100) share one, the pair across
     // x = 256 joins two, and three stand alone.
     assert_eq!(one_tick(8, 2).1.lanes, 5);
-    // One-chunk regions: the 100/110 pair still joins through the apron.
+    // One-chunk regions: the 100/110 pair's boxes share chunk x 3.
     let (_, fine) = one_tick(1, 2);
     assert_eq!(fine.lanes, 5);
     // Mesh hashes are filled in for every change.
@@ -142,4 +142,43 @@ fn an_edit_across_a_region_boundary_changes_both_sides_in_one_tick() {
             .map(|c| c.version > 0),
         Some(true)
     );
+}
+
+/// Two edits in neighbouring 8-chunk regions whose boxes stay inside their
+/// own regions (x 249..=255 and 256..=262), but whose mesh aprons reach
+/// into each other's: each changes voxels the other chunk's mesh reads.
+fn apron_pair(region_chunks: u32, threads: usize) -> TickOutput {
+    let cfg = SequencerConfig {
+        region_chunks,
+        ..Default::default()
+    };
+    let mut s = sequencer(cfg, generous());
+    for (i, x) in [252, 259].into_iter().enumerate() {
+        let id = 1 + i as u64;
+        join_at(&mut s, id, Role::Admin, x, 300);
+        s.submit(id, req(id, mine(x, -1, 304, 3)), 0).unwrap();
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    pool.install(|| s.tick(5))
+}
+
+#[test]
+fn mesh_aprons_do_not_join_lanes_and_meshes_see_every_lane() {
+    // Boxes in chunks x 7 (region 0) and x 8 (region 1): two lanes, where
+    // joining through the aprons made one.
+    let split = apron_pair(8, 2);
+    assert_eq!(split.lanes, 2);
+    // Chunk 7's mesh reads chunk 8, changed by the other lane: the hashes
+    // are those of one lane holding both.
+    let whole = apron_pair(1024, 1);
+    assert_eq!(whole.lanes, 1);
+    assert_eq!(bytes_of(&split), bytes_of(&whole));
+    assert!(split
+        .applied
+        .iter()
+        .flat_map(|a| &a.changes)
+        .all(|c| c.mesh_hash != 0));
 }

@@ -397,3 +397,97 @@ fn precheck_refuses_without_loading_anything() {
     assert_eq!(s.resident(), resident, "no chunk was loaded or generated");
     assert_eq!(s.precheck(PLAYER, &mine(X, -1, Z + 4, 1), 0), Ok(()));
 }
+
+/// A one-voxel brick wall between the player (eye at HOME) and z + 6.
+fn walled() -> Sequencer {
+    let mut s = ready(ValidationConfig::default());
+    s.submit(ADMIN, req(1, fill((X - 4, 0, Z + 3), (X + 4, 4, Z + 3))), 0)
+        .unwrap();
+    s.tick(0);
+    s
+}
+
+#[test]
+fn admitted_edits_wait_for_one_sight_check_in_arrival_order() {
+    let mut s = walled();
+    let before = snapshot(&s);
+    // Behind the wall, then in front of it (z + 2), then behind it again.
+    s.admit(PLAYER, req(10, mine(X + 1, -1, Z + 6, 2)), 0)
+        .unwrap();
+    s.admit(PLAYER, req(11, mine(X, -1, Z + 2, 1)), 0).unwrap();
+    s.admit(PLAYER, req(12, mine(X - 1, -1, Z + 6, 2)), 0)
+        .unwrap();
+    assert_eq!((s.queued(), s.sighting()), (0, 3), "nothing queued yet");
+    assert_eq!(snapshot(&s), before);
+    let refused = s.check_sighted(0);
+    let ids: Vec<(u64, RejectReason)> = refused
+        .into_iter()
+        .map(|r| (r.client_edit_id, r.reason))
+        .collect();
+    assert_eq!(
+        ids,
+        vec![
+            (10, RejectReason::NoLineOfSight),
+            (12, RejectReason::NoLineOfSight)
+        ]
+    );
+    assert_eq!((s.queued(), s.sighting()), (1, 0));
+    let out = s.tick(0);
+    let applied: Vec<u64> = out.applied.iter().map(|a| a.client_edit_id).collect();
+    assert_eq!(applied, vec![11]);
+    // The same three through `submit` decide the same.
+    let mut t = walled();
+    let r: Vec<_> = [
+        mine(X + 1, -1, Z + 6, 2),
+        mine(X, -1, Z + 2, 1),
+        mine(X - 1, -1, Z + 6, 2),
+    ]
+    .into_iter()
+    .enumerate()
+    .map(|(i, e)| t.submit(PLAYER, req(10 + i as u64, e), 0))
+    .collect();
+    assert_eq!(
+        r,
+        vec![
+            Err(RejectReason::NoLineOfSight),
+            Ok(()),
+            Err(RejectReason::NoLineOfSight)
+        ]
+    );
+}
+
+#[test]
+fn admission_takes_the_edit_token_and_a_refused_sight_gives_the_volume_back() {
+    // Three edit tokens, and volume for one radius-2 mine (a 5^3 box) at a time.
+    let v = ValidationConfig {
+        edit_rate: BucketConfig {
+            capacity: 3,
+            per_second: 0,
+        },
+        volume_rate: BucketConfig {
+            capacity: 125,
+            per_second: 0,
+        },
+        ..Default::default()
+    };
+    let mut s = ready(v.clone());
+    s.submit(ADMIN, req(1, fill((X - 4, 0, Z + 3), (X + 4, 4, Z + 3))), 0)
+        .unwrap();
+    s.tick(0);
+    s.admit(PLAYER, req(10, mine(X, -1, Z + 6, 2)), 0).unwrap();
+    // Its volume is held while it waits: a second one does not fit (and,
+    // refused, costs the second edit token).
+    assert_eq!(
+        s.admit(PLAYER, req(11, mine(X, -1, Z + 2, 2)), 0),
+        Err(RejectReason::VolumeRateLimited)
+    );
+    assert_eq!(s.check_sighted(0).len(), 1, "behind the wall");
+    // The volume came back; the one edit token left pays for this one.
+    s.admit(PLAYER, req(12, mine(X, -1, Z + 2, 2)), 0).unwrap();
+    assert!(s.check_sighted(0).is_empty());
+    assert_eq!(
+        s.admit(PLAYER, req(13, mine(X + 1, -1, Z + 2, 1)), 0),
+        Err(RejectReason::RateLimited),
+        "three edit tokens: one per edit, refused or not"
+    );
+}

@@ -84,7 +84,7 @@ impl Engine {
                     sessions: self.peers.len() as u32,
                     resident_chunks: self.seq.world().loaded() as u64,
                     modified_chunks: self.versions.len() as u64,
-                    queued_edits: self.seq.queued() as u32,
+                    queued_edits: (self.seq.queued() + self.seq.sighting()) as u32,
                 });
             }
             AdminCommand::Players(reply) => {

@@ -163,7 +163,7 @@ impl Engine {
                 // The next tick is due and this commit still runs: apply it
                 // now, on the workers the fsync leaves idle. Applied once.
                 due = None;
-                if self.seq.queued() > 0 {
+                if self.seq.queued() + self.seq.sighting() > 0 {
                     next = Some(self.apply_tick());
                     metrics::histogram!(m::TICK_PHASE_SECONDS, "phase" => "apply_ahead")
                         .record(now.elapsed().as_secs_f64());

@@ -473,7 +473,7 @@ impl Engine {
             Command::Admin(c) => self.admin(c),
             Command::Stop | Command::Wake => {}
         }
-        metrics::gauge!(m::QUEUE_DEPTH).set(self.seq.queued() as f64);
+        metrics::gauge!(m::QUEUE_DEPTH).set((self.seq.queued() + self.seq.sighting()) as f64);
     }
 
     fn submit(&mut self, session: u64, request: strata_protocol::EditRequest, now: u64) {
@@ -489,18 +489,47 @@ impl Engine {
                 if let Err(e) = self.make_resident(&needed) {
                     error!(error = %e, "store read failed");
                 }
-                self.seq.submit(session, request, now)
+                // Line of sight waits for the tick (`check_sighted`).
+                self.seq.admit(session, request, now)
             });
         if let Err(reason) = result {
-            metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&reason)).increment(1);
-            self.send_control(
-                session,
-                &ServerMessage::EditRejected {
-                    client_edit_id: id,
-                    reason,
-                },
-            );
+            self.refuse_edit(session, id, reason);
         }
+        self.kick_refused();
+    }
+
+    fn refuse_edit(
+        &mut self,
+        session: u64,
+        client_edit_id: u64,
+        reason: strata_protocol::RejectReason,
+    ) {
+        metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&reason)).increment(1);
+        let msg = ServerMessage::EditRejected {
+            client_edit_id,
+            reason,
+        };
+        self.send_control(session, &msg);
+    }
+
+    /// Checks the line of sight of every edit admitted since the last
+    /// check, on the workers, and answers those it refuses; the rest are
+    /// queued for the tick.
+    fn check_sighted(&mut self) {
+        if self.seq.sighting() == 0 {
+            return;
+        }
+        let pool = self.pool.clone();
+        let seq = &mut self.seq;
+        let refused = pool.install(|| seq.check_sighted(now_ms()));
+        for r in refused {
+            self.refuse_edit(r.session_id, r.client_edit_id, r.reason);
+        }
+        self.kick_refused();
+    }
+
+    /// Disconnects players out of rejection tokens.
+    fn kick_refused(&mut self) {
         for s in self.seq.take_disconnects() {
             if let Some(p) = self.peers.get_mut(&s) {
                 warn!(session = s, "disconnecting: too many refused edits");
@@ -572,6 +601,7 @@ impl Engine {
         self.follow_leases();
         let mut applied = self.apply_tick();
         phase.end("apply");
+        phase.apply = applied.out.split;
         // Cluster nodes never apply ahead: a fenced commit puts its chunks
         // back from the store, which a batch applied on top would undo.
         let chain = rx.is_some() && !self.store.clustered();
@@ -604,6 +634,7 @@ impl Engine {
     /// refusals are answered at once.
     fn apply_tick(&mut self) -> Applied {
         let at = Instant::now();
+        self.check_sighted();
         let pool = self.pool.clone();
         let idle = self.seq.queued() == 0;
         let seq = &mut self.seq;
@@ -611,8 +642,11 @@ impl Engine {
         // spawned while the workers are awake from applying it. An empty
         // queue leaves them asleep: an idle server's ticks touch no other
         // thread.
+        let asked = Instant::now();
         let mut apply = || {
-            let (out, pending) = seq.tick_apply(now_ms());
+            let began = Instant::now();
+            let (mut out, pending) = seq.tick_apply(now_ms());
+            out.split.wait = began - asked;
             metrics::counter!(m::COLLISION_MESHES, "kind" => "changed")
                 .increment(pending.changed() as u64);
             metrics::counter!(m::COLLISION_MESHES, "kind" => "rewarm")
@@ -785,6 +819,8 @@ struct Phases {
     took: Vec<(&'static str, Duration)>,
     /// The tick's commit and how many chunks it wrote, if it had one.
     commit: Option<(crate::store::CommitStats, usize)>,
+    /// The parts of its first apply.
+    apply: crate::sequencer::ApplySplit,
 }
 
 impl Phases {
@@ -793,6 +829,7 @@ impl Phases {
             last: Instant::now(),
             took: Vec::with_capacity(8),
             commit: None,
+            apply: Default::default(),
         }
     }
 
@@ -807,13 +844,21 @@ impl Phases {
 
     /// "apply=0.4ms commit=12.0ms ..." for a log line.
     fn describe(&self) -> String {
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
         let mut parts: Vec<String> = self
             .took
             .iter()
-            .map(|(n, d)| format!("{n}={:.1}ms", d.as_secs_f64() * 1e3))
+            .map(|(n, d)| format!("{n}={:.1}ms", ms(*d)))
             .collect();
+        let a = &self.apply;
+        parts.push(format!(
+            "(apply: wait={:.1}ms prepare={:.1}ms lanes={:.1}ms merge={:.1}ms)",
+            ms(a.wait),
+            ms(a.prepare),
+            ms(a.lanes),
+            ms(a.merge)
+        ));
         if let Some((c, chunks)) = &self.commit {
-            let ms = |d: Duration| d.as_secs_f64() * 1e3;
             parts.push(format!(
                 "(encode={:.1}ms write={:.1}ms flush={:.1}ms fsync={:.1}ms chunks={chunks} bytes={})",
                 ms(c.encode),

@@ -1,8 +1,9 @@
 //! Loading stored chunks into the sequencer before anything reads them,
 //! and dropping them again when memory holds too many.
 
-use std::collections::HashSet;
 use std::time::{Duration, Instant};
+
+use rustc_hash::FxHashSet;
 
 use strata_terrain::ChunkPos;
 
@@ -58,7 +59,9 @@ impl Engine {
         {
             return;
         }
-        let hot: HashSet<ChunkPos> = self
+        // Fx, not SipHash: with thousands of players this set holds
+        // hundreds of thousands of chunks, built on the engine thread.
+        let hot: FxHashSet<ChunkPos> = self
             .seq
             .player_chunks()
             .flat_map(|c| around(c, HOT_RADIUS))

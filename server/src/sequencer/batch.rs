@@ -51,4 +51,19 @@ pub struct TickOutput {
     pub batch: CommitBatch,
     /// Lanes the tick's edits were applied in (see `regions.rs`).
     pub lanes: usize,
+    /// Where the apply's time went, for the slow-tick warning.
+    pub split: ApplySplit,
+}
+
+/// The parts of [`super::Sequencer::tick_apply`], timed.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ApplySplit {
+    /// Waiting for a worker to take the apply (the engine's `pool.install`).
+    pub wait: std::time::Duration,
+    /// Validating the edits, grouping them and moving their chunks out.
+    pub prepare: std::time::Duration,
+    /// The lanes, in parallel.
+    pub lanes: std::time::Duration,
+    /// Numbering, putting chunks back and copying rewarm neighbourhoods.
+    pub merge: std::time::Duration,
 }

@@ -12,11 +12,13 @@ pub mod config;
 pub mod regions;
 pub mod residency;
 pub mod session;
+mod sight;
 mod submit;
 mod tick;
 
-pub use batch::{AppliedEdit, ChunkUpdate, RejectedEdit, TickOutput};
+pub use batch::{AppliedEdit, ApplySplit, ChunkUpdate, RejectedEdit, TickOutput};
 pub use config::{SequencerConfig, DEFAULT_MAX_EDITS_PER_TICK, DEFAULT_QUEUE_CAPACITY};
+pub use sight::SightRefusal;
 pub use tick::{BuiltMeshes, PendingMeshes};
 
 use std::collections::{HashMap, HashSet, VecDeque};
@@ -54,6 +56,9 @@ pub struct Sequencer {
     sessions: HashMap<u64, Session>,
     limits: HashMap<String, PlayerLimits>,
     queue: VecDeque<Queued>,
+    /// Edits that passed every rule but line of sight, for
+    /// [`Self::check_sighted`]; counted with `queue` against its capacity.
+    sighting: Vec<sight::Sighted>,
     next_seq: u64,
     collision: CollisionCache,
     residency: Residency,
@@ -92,6 +97,7 @@ impl Sequencer {
             sessions: HashMap::new(),
             limits: HashMap::new(),
             queue: VecDeque::new(),
+            sighting: Vec::new(),
             next_seq: last_seq.saturating_add(1),
             residency: Residency::default(),
             disconnect: Vec::new(),
@@ -264,13 +270,19 @@ impl Sequencer {
     /// loaded again before use). Queued edits rely on what was resident
     /// when they were submitted: the chunks they read and those around
     /// them (their meshes' aprons) are kept whatever `keep` says, so a
-    /// server whose queue never empties still evicts. Returns how many
+    /// server whose queue never empties still evicts; so are those of edits
+    /// awaiting their line-of-sight check, rays included. Returns how many
     /// chunks were dropped.
     pub fn evict_cold(&mut self, keep: impl Fn(ChunkPos) -> bool) -> usize {
         let queued: HashSet<ChunkPos> = self
             .queue
             .iter()
             .filter_map(|q| self.read_set(&q.request.edit, None))
+            .chain(
+                self.sighting
+                    .iter()
+                    .filter_map(|s| self.read_set(&s.request.edit, Some(s.eye))),
+            )
             .flatten()
             .flat_map(with_neighbours)
             .collect();

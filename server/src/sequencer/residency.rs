@@ -16,7 +16,16 @@ pub fn edit_chunks(bbox: &VoxelBox, margin: i32) -> impl Iterator<Item = ChunkPo
 /// The voxels whose chunks [`edit_chunks`] names: the box grown by the
 /// edit's read margin and one chunk.
 pub fn edit_footprint(bbox: &VoxelBox, margin: i32) -> VoxelBox {
-    let grow = margin + CHUNK_SIZE;
+    grown(bbox, margin + CHUNK_SIZE)
+}
+
+/// The voxels applying an edit reads or writes: the box grown by its read
+/// margin, without the mesh apron.
+pub fn edit_reads(bbox: &VoxelBox, margin: i32) -> VoxelBox {
+    grown(bbox, margin)
+}
+
+fn grown(bbox: &VoxelBox, grow: i32) -> VoxelBox {
     VoxelBox {
         min: VoxelPos::new(
             bbox.min.x.saturating_sub(grow),

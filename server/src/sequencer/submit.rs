@@ -9,10 +9,10 @@ use super::{Queued, Sequencer};
 use crate::validate::{caps, line_of_sight, permissions, position, reach, zones};
 
 /// What the cheap rules worked out, for the rest of the checks.
-struct Cheap {
-    eye: glam::DVec3,
-    target: glam::DVec3,
-    volume_cost: u64,
+pub(super) struct Cheap {
+    pub(super) eye: glam::DVec3,
+    pub(super) target: glam::DVec3,
+    pub(super) volume_cost: u64,
 }
 
 impl Sequencer {
@@ -84,7 +84,7 @@ impl Sequencer {
         Ok(c.volume_cost)
     }
 
-    fn cheap_checks(
+    pub(super) fn cheap_checks(
         &mut self,
         session_id: u64,
         edit: &Edit,
@@ -122,7 +122,7 @@ impl Sequencer {
         if !limits.volume.can_take(volume_cost) {
             return Err(RejectReason::VolumeRateLimited);
         }
-        if self.queue.len() >= self.cfg.queue_capacity {
+        if self.queue.len() + self.sighting.len() >= self.cfg.queue_capacity {
             return Err(RejectReason::Busy);
         }
         Ok(Cheap {
@@ -133,7 +133,7 @@ impl Sequencer {
     }
 
     /// The player's buckets, refilled to `now_ms`.
-    fn limits_of(&mut self, session_id: u64, now_ms: u64) -> &mut PlayerLimits {
+    pub(super) fn limits_of(&mut self, session_id: u64, now_ms: u64) -> &mut PlayerLimits {
         let player = self.sessions.get(&session_id).map(|s| s.player.as_str());
         let v = &self.validation;
         let limits = self
@@ -157,7 +157,12 @@ impl Sequencer {
 
     /// Charges a refusal to the player's budgets; returns `reason`. `Busy`
     /// is the server's state, not the player's doing, and costs nothing.
-    fn rejected(&mut self, session_id: u64, reason: RejectReason, now_ms: u64) -> RejectReason {
+    pub(super) fn rejected(
+        &mut self,
+        session_id: u64,
+        reason: RejectReason,
+        now_ms: u64,
+    ) -> RejectReason {
         if reason == RejectReason::Busy || !self.sessions.contains_key(&session_id) {
             return reason;
         }

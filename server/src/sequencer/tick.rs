@@ -1,6 +1,7 @@
 //! `Sequencer::tick`: apply queued edits in order, number them, build deltas.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
+use std::time::Instant;
 
 use strata_protocol::RejectReason;
 use strata_terrain::delta::ChunkDelta;
@@ -13,10 +14,13 @@ use strata_terrain::{Chunk, VoxelBox, World};
 
 use super::batch::*;
 use super::regions::{self, RegionSpan};
-use super::residency::{edit_footprint, with_neighbours};
+use super::residency::{edit_reads, with_neighbours};
 use super::{LogEntry, Queued, Sequencer};
 use crate::collision::{CollisionCache, CollisionMesh};
 use crate::mesh_buffers;
+
+/// A chunk to mesh: its position, version and neighbourhood.
+type MeshJob = (ChunkPos, u64, Neighborhood);
 
 /// Where a change's mesh hash comes from once the meshes are built.
 #[derive(Debug)]
@@ -101,7 +105,12 @@ impl Sequencer {
     /// each lane applies its edits in queue order to its own chunks, moved
     /// out of the world, on the current rayon pool. Seqs are then given in
     /// queue order, so the output is the same for any number of threads.
+    /// A lane holds what its edits read and write, not their mesh aprons:
+    /// with the aprons, neighbouring regions' edits joined into one lane
+    /// so often that thousands of players applied on about one thread.
+    /// The meshes' neighbourhoods are copied once every lane is back.
     pub fn tick_apply(&mut self, now_ms: u64) -> (TickOutput, PendingMeshes) {
+        let started = Instant::now();
         self.prune_limits(now_ms);
         let take = self.queue.len().min(self.cfg.max_edits_per_tick);
         let queued: Vec<Queued> = self.queue.drain(..take).collect();
@@ -110,15 +119,15 @@ impl Sequencer {
             structures: &self.structures,
         };
         let side = self.cfg.region_chunks;
-        // What each edit reads: its box grown by the read margin and one
-        // chunk (the mesh apron). An invalid edit reads nothing.
+        // What applying each edit reads: its box grown by the read margin.
+        // An invalid edit reads nothing.
         let footprints: Vec<Option<VoxelBox>> = queued
             .iter()
             .map(|q| {
                 let e = &q.request.edit;
                 e.validate(&ctx)
                     .ok()
-                    .map(|b| edit_footprint(&b, e.read_margin()))
+                    .map(|b| edit_reads(&b, e.read_margin()))
             })
             .collect();
         let spans: Vec<Option<RegionSpan>> = footprints
@@ -137,6 +146,7 @@ impl Sequencer {
                 (members, part)
             })
             .collect();
+        let prepared = Instant::now();
         let lanes: Vec<Lane> = if parts.len() > 1 {
             parts
                 .into_par_iter()
@@ -149,8 +159,15 @@ impl Sequencer {
                 .collect()
         };
         let count = lanes.len();
+        let laned = Instant::now();
         let (mut out, pending) = self.merge(queued, lanes, now_ms);
         out.lanes = count;
+        out.split = ApplySplit {
+            prepare: prepared - started,
+            lanes: laned - prepared,
+            merge: laned.elapsed(),
+            ..ApplySplit::default()
+        };
         (out, pending)
     }
 
@@ -164,21 +181,25 @@ impl Sequencer {
     ) -> (TickOutput, PendingMeshes) {
         let mut out = TickOutput::default();
         let mut results: Vec<Option<LaneResult>> = (0..queued.len()).map(|_| None).collect();
-        let mut jobs = Vec::new();
-        let mut job_slots = Vec::new();
+        let mut lane_slots = Vec::new();
         let mut finals: BTreeMap<ChunkPos, (u64, Chunk)> = BTreeMap::new();
-        let mut changed: BTreeSet<ChunkPos> = BTreeSet::new();
+        let mut versions: BTreeMap<ChunkPos, u64> = BTreeMap::new();
         for lane in lanes {
             for (i, r) in lane.results {
                 results[i] = Some(r);
             }
-            let base = jobs.len();
-            jobs.extend(lane.jobs);
-            job_slots.extend(lane.slots.into_iter().map(|(i, c, j)| (i, c, base + j)));
+            lane_slots.extend(lane.slots);
             finals.extend(lane.finals);
-            changed.extend(lane.changed);
+            versions.extend(lane.versions);
             self.world.absorb(lane.world);
         }
+        let changed: BTreeSet<ChunkPos> = versions.keys().copied().collect();
+        let mut jobs = self.changed_jobs(&versions);
+        let job_of: HashMap<ChunkPos, usize> =
+            versions.keys().enumerate().map(|(j, &p)| (p, j)).collect();
+        let job_slots = lane_slots
+            .into_iter()
+            .map(|(i, c, pos)| (i, c, job_of[&pos]));
         let mut applied_at = vec![usize::MAX; queued.len()];
         // Cached meshes the tick's changes made stale.
         let mut dropped: BTreeSet<ChunkPos> = BTreeSet::new();
@@ -245,25 +266,74 @@ impl Sequencer {
         )
     }
 
+    /// One mesh job per changed chunk (in `versions` order), of the world as
+    /// the tick leaves it: every lane's changes are in, neighbours included.
+    /// Missing neighbours are generated first (on the pool when several),
+    /// then the neighbourhoods are copied in parallel.
+    fn changed_jobs(&mut self, versions: &BTreeMap<ChunkPos, u64>) -> Vec<MeshJob> {
+        let missing: BTreeSet<ChunkPos> = versions
+            .keys()
+            .flat_map(|&p| with_neighbours(p))
+            .filter(|&p| self.world.peek(p).is_none())
+            .collect();
+        let generator = self.world.generator().clone();
+        let made: Vec<(ChunkPos, Chunk)> = if missing.len() > 1 {
+            missing
+                .par_iter()
+                .map(|&p| (p, generator.generate(p)))
+                .collect()
+        } else {
+            missing
+                .iter()
+                .map(|&p| (p, generator.generate(p)))
+                .collect()
+        };
+        for (p, chunk) in made {
+            self.world.insert(p, chunk, 0);
+        }
+        let world = &self.world;
+        let copy = |(&pos, &version): (&ChunkPos, &u64)| {
+            (pos, version, mesh_buffers::from_world(world, pos))
+        };
+        if versions.len() > 1 {
+            versions.par_iter().map(copy).collect()
+        } else {
+            versions.iter().map(copy).collect()
+        }
+    }
+
     /// Adds a job for each unchanged chunk whose cached mesh the tick made
     /// stale (its apron changed): it was in use, and otherwise the next
     /// line-of-sight check through it would mesh it on the engine thread.
     /// Only chunks whose 27 chunks are all resident: anything else would be
     /// meshed from generated stand-ins. (Every such chunk is within reach of
     /// the edit's author, so filtering by players' eyes keeps them all.)
+    /// The neighbourhoods are copied on the current rayon pool when there
+    /// are several: the world is only read here.
     fn rewarm(
         &self,
         dropped: BTreeSet<ChunkPos>,
         changed: &BTreeSet<ChunkPos>,
-        jobs: &mut Vec<(ChunkPos, u64, Neighborhood)>,
+        jobs: &mut Vec<MeshJob>,
     ) {
-        for pos in dropped {
-            let resident = || self.residency.missing(&self.world, with_neighbours(pos));
-            if changed.contains(&pos) || !resident().is_empty() {
-                continue;
-            }
-            let version = self.world.peek(pos).map_or(0, |c| c.version);
-            jobs.push((pos, version, mesh_buffers::from_world(&self.world, pos)));
+        let stale: Vec<(ChunkPos, u64)> = dropped
+            .into_iter()
+            .filter(|&pos| {
+                !changed.contains(&pos)
+                    && self
+                        .residency
+                        .missing(&self.world, with_neighbours(pos))
+                        .is_empty()
+            })
+            .map(|pos| (pos, self.world.peek(pos).map_or(0, |c| c.version)))
+            .collect();
+        let copy = |&(pos, version): &(ChunkPos, u64)| {
+            (pos, version, mesh_buffers::from_world(&self.world, pos))
+        };
+        if stale.len() > 1 {
+            jobs.par_extend(stale.par_iter().map(copy));
+        } else {
+            jobs.extend(stale.iter().map(copy));
         }
     }
 
@@ -305,16 +375,14 @@ type LaneResult = Result<(VoxelBox, Vec<ChunkUpdate>), String>;
 struct Lane {
     /// By queue index.
     results: Vec<(usize, LaneResult)>,
-    /// One per changed chunk, of its final state.
-    jobs: Vec<(ChunkPos, u64, Neighborhood)>,
-    /// Each change's (queue index, change index, job index).
-    slots: Vec<(usize, usize, usize)>,
+    /// Each changed chunk's final version.
+    versions: BTreeMap<ChunkPos, u64>,
+    /// Each change's (queue index, change index, chunk).
+    slots: Vec<(usize, usize, ChunkPos)>,
     /// Final version and state of each changed chunk the store does not
     /// hold yet (version 0 before the tick): stored whole, the others as
     /// their deltas.
     finals: BTreeMap<ChunkPos, (u64, Chunk)>,
-    /// Every chunk the lane changed.
-    changed: BTreeSet<ChunkPos>,
     /// The lane's chunks, to be put back in the world.
     world: World,
 }
@@ -328,10 +396,9 @@ impl Lane {
     ) -> Lane {
         let mut lane = Lane {
             results: Vec::with_capacity(members.len()),
-            jobs: Vec::new(),
+            versions: BTreeMap::new(),
             slots: Vec::new(),
             finals: BTreeMap::new(),
-            changed: BTreeSet::new(),
             world: World::new(world.generator().clone()),
         };
         let mut changed: Vec<(usize, usize, ChunkPos)> = Vec::new();
@@ -386,25 +453,16 @@ impl Lane {
             }
             lane.results.push((i, Ok((outcome.bbox, changes))));
         }
-        // One mesh per changed chunk, of the world as the tick leaves it;
-        // the neighbours (its apron) lie in the footprint.
-        // The store's copy of each new chunk's final state is made here too.
-        let mut job_of: BTreeMap<ChunkPos, usize> = BTreeMap::new();
-        for (pos, version) in versions {
-            world.load(with_neighbours(pos));
-            job_of.insert(pos, lane.jobs.len());
-            lane.jobs
-                .push((pos, version, mesh_buffers::from_world(&world, pos)));
+        // The store's copy of each new chunk's final state. Meshes are
+        // built once every lane is back (`Sequencer::changed_jobs`).
+        for (&pos, &version) in &versions {
             if new_in_store.contains(&pos) {
-                let state = world.peek(pos).expect("loaded above").chunk.clone();
-                lane.finals.insert(pos, (version, state));
+                let state = world.peek(pos).expect("changed chunks are loaded");
+                lane.finals.insert(pos, (version, state.chunk.clone()));
             }
-            lane.changed.insert(pos);
         }
-        lane.slots = changed
-            .into_iter()
-            .map(|(i, change, pos)| (i, change, job_of[&pos]))
-            .collect();
+        lane.versions = versions;
+        lane.slots = changed;
         lane.world = world;
         lane
     }

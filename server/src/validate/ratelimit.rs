@@ -67,6 +67,16 @@ impl TokenBucket {
         }
     }
 
+    /// Gives back `n` tokens taken for something that did not happen, up
+    /// to the capacity.
+    pub fn give(&mut self, n: u64) {
+        let cap = self.cfg.capacity.saturating_mul(MILLI);
+        self.milli_tokens = self
+            .milli_tokens
+            .saturating_add(n.saturating_mul(MILLI))
+            .min(cap);
+    }
+
     pub fn capacity(&self) -> u64 {
         self.cfg.capacity
     }
@@ -116,6 +126,20 @@ mod tests {
         );
         assert_eq!(dry.wait_ms(1), Some(0));
         assert_eq!(dry.wait_ms(2), None);
+    }
+
+    #[test]
+    fn tokens_given_back_stop_at_the_capacity() {
+        let cfg = BucketConfig {
+            capacity: 10,
+            per_second: 0,
+        };
+        let mut b = TokenBucket::new(cfg, 0);
+        assert!(b.take(7));
+        b.give(4);
+        assert_eq!(b.available(), 7);
+        b.give(u64::MAX);
+        assert_eq!(b.available(), 10);
     }
 
     #[test]
