@@ -11,7 +11,7 @@ use strata_server::sequencer::{Sequencer, SequencerConfig, TickOutput};
 use strata_server::validate::ValidationConfig;
 use strata_terrain::edit::StructureLibrary;
 use strata_terrain::mesh::Neighborhood;
-use strata_terrain::{Chunk, ChunkPos, MaterialTable, Voxel};
+use strata_terrain::{Chunk, ChunkPos, Edit, MaterialTable, Voxel};
 
 const X: i32 = HOME.0;
 const Z: i32 = HOME.1;
@@ -348,8 +348,10 @@ fn store_backed_chunks_must_be_resident() {
     assert_eq!(s.world().peek(home).unwrap().chunk.get(0, 0, 0), Voxel::AIR);
 }
 
-#[test]
-fn eviction_with_edits_queued_keeps_what_they_read() {
+/// A store-backed sequencer with the player at home, a cold modified
+/// chunk `far`, and the chunks `edit` reads resident (`home` stored at
+/// version 5 as `stored`).
+fn evictable() -> (Sequencer, Edit, ChunkPos, ChunkPos, Chunk) {
     let mut s = store_backed(0);
     let p = at(1, X, 0, Z);
     for c in s.chunks_needed_for_position(&p) {
@@ -370,11 +372,17 @@ fn eviction_with_edits_queued_keeps_what_they_read() {
             s.mark_absent(c);
         }
     }
+    (s, edit, home, far, stored)
+}
+
+#[test]
+fn eviction_with_edits_queued_keeps_what_they_read() {
+    let (mut s, edit, home, far, stored) = evictable();
     s.submit(PLAYER, req(1, edit.clone()), 0).unwrap();
     assert_eq!(s.queued(), 1);
     // Nothing is hot, yet the queued edit's chunks stay and the cold one
     // goes: a queue that never empties no longer stops eviction.
-    assert!(s.evict_cold(|_| false) >= 1);
+    assert!(!s.evict_cold(|_| false).is_empty());
     assert!(s.world().peek(far).is_none() && !s.is_resident(far));
     assert!(s.chunks_needed(PLAYER, &edit).is_empty());
     assert_eq!(s.world().peek(home).map(|c| c.version), Some(5));
@@ -383,4 +391,17 @@ fn eviction_with_edits_queued_keeps_what_they_read() {
     // With the queue empty, everything not kept goes.
     s.evict_cold(|_| false);
     assert!(!s.is_resident(home));
+}
+
+#[test]
+fn eviction_keeps_what_edits_awaiting_their_sight_check_read() {
+    let (mut s, edit, home, far, stored) = evictable();
+    s.admit(PLAYER, req(1, edit.clone()), 0).unwrap();
+    assert_eq!((s.queued(), s.sighting()), (0, 1));
+    assert!(!s.evict_cold(|_| false).is_empty());
+    assert!(s.world().peek(far).is_none());
+    assert!(s.chunks_needed(PLAYER, &edit).is_empty());
+    assert!(s.check_sighted(0).is_empty());
+    let out = s.tick(0);
+    assert_applied_on_stored(&s, &out, home, &stored);
 }

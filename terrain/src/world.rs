@@ -156,18 +156,32 @@ impl World {
         self.chunks.len()
     }
 
-    /// Drops unmodified chunks for which `keep` is false; they regenerate on demand.
-    pub fn evict_generated(&mut self, keep: impl Fn(ChunkPos) -> bool) {
-        self.chunks.retain(|p, c| c.version > 0 || keep(*p));
+    /// Drops unmodified chunks for which `keep` is false; they regenerate on
+    /// demand. Returns them, for the caller to free where it suits.
+    pub fn evict_generated(&mut self, keep: impl Fn(ChunkPos) -> bool) -> Vec<VersionedChunk> {
+        self.take_where(|p, c| c.version == 0 && !keep(p))
     }
 
     /// Drops every chunk for which `keep` is false, modified ones too: only
     /// for callers that hold the modified chunks elsewhere (a store) and
-    /// load them again before reading. Returns how many were dropped.
-    pub fn evict(&mut self, keep: impl Fn(ChunkPos) -> bool) -> usize {
-        let before = self.chunks.len();
-        self.chunks.retain(|p, _| keep(*p));
-        before - self.chunks.len()
+    /// load them again before reading. Returns the dropped chunks: freeing
+    /// thousands of them takes milliseconds, which the caller may spend on
+    /// another thread.
+    pub fn evict(&mut self, keep: impl Fn(ChunkPos) -> bool) -> Vec<VersionedChunk> {
+        self.take_where(|p, _| !keep(p))
+    }
+
+    fn take_where(
+        &mut self,
+        drop: impl Fn(ChunkPos, &VersionedChunk) -> bool,
+    ) -> Vec<VersionedChunk> {
+        let gone: Vec<ChunkPos> = self
+            .chunks
+            .iter()
+            .filter(|(p, c)| drop(**p, c))
+            .map(|(p, _)| *p)
+            .collect();
+        gone.iter().filter_map(|p| self.chunks.remove(p)).collect()
     }
 }
 

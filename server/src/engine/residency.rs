@@ -61,12 +61,18 @@ impl Engine {
         }
         // Fx, not SipHash: with thousands of players this set holds
         // hundreds of thousands of chunks, built on the engine thread.
-        let hot: FxHashSet<ChunkPos> = self
-            .seq
-            .player_chunks()
+        // Players crowd: each of their chunks once, then its surroundings.
+        let standing: FxHashSet<ChunkPos> = self.seq.player_chunks().collect();
+        let hot: FxHashSet<ChunkPos> = standing
+            .into_iter()
             .flat_map(|c| around(c, HOT_RADIUS))
             .collect();
-        let n = self.seq.evict_cold(|p| hot.contains(&p));
+        let dropped = self.seq.evict_cold(|p| hot.contains(&p));
+        let n = dropped.len();
+        // Freeing thousands of chunks is the worker's time, not the tick's.
+        if n > 0 {
+            self.pool.spawn(move || drop(dropped));
+        }
         self.last_evict = Some(Instant::now());
         tracing::debug!(
             dropped = n,

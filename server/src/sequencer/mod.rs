@@ -257,7 +257,7 @@ impl Sequencer {
 
     /// Drops unmodified chunks for which `keep` is false (they regenerate).
     pub fn evict_generated(&mut self, keep: impl Fn(ChunkPos) -> bool) {
-        self.world.evict_generated(keep);
+        drop(self.world.evict_generated(keep));
     }
 
     /// Chunks held in memory: loaded ones plus absent marks.
@@ -271,9 +271,12 @@ impl Sequencer {
     /// when they were submitted: the chunks they read and those around
     /// them (their meshes' aprons) are kept whatever `keep` says, so a
     /// server whose queue never empties still evicts; so are those of edits
-    /// awaiting their line-of-sight check, rays included. Returns how many
-    /// chunks were dropped.
-    pub fn evict_cold(&mut self, keep: impl Fn(ChunkPos) -> bool) -> usize {
+    /// awaiting their line-of-sight check, rays included. Returns the
+    /// dropped chunks (the engine frees them on a worker).
+    pub fn evict_cold(
+        &mut self,
+        keep: impl Fn(ChunkPos) -> bool,
+    ) -> Vec<strata_terrain::world::VersionedChunk> {
         let queued: HashSet<ChunkPos> = self
             .queue
             .iter()
@@ -287,14 +290,13 @@ impl Sequencer {
             .flat_map(with_neighbours)
             .collect();
         let keep = |p: ChunkPos| keep(p) || queued.contains(&p);
-        let before = self.world.loaded();
-        if self.residency.is_storeless() {
-            self.world.evict_generated(keep);
+        let dropped = if self.residency.is_storeless() {
+            self.world.evict_generated(keep)
         } else {
-            self.world.evict(keep);
-        }
+            self.world.evict(keep)
+        };
         self.residency.retain_absent(keep);
-        before - self.world.loaded()
+        dropped
     }
 
     /// Chunks each session stands in (sessions with a validated position).
