@@ -1,7 +1,8 @@
 //! Edits over real QUIC: validation rejects with a reason and changes
 //! nothing; accepted edits are acknowledged after they are durable, and two
 //! clients receive the same deltas in the same order as the server's store;
-//! `[net] send_interval_ms` spaces a watcher's writes.
+//! `[net] send_interval_ms` spaces a watcher's writes; an edit behind a
+//! wall is refused for line of sight.
 
 #[macro_use]
 mod common;
@@ -380,6 +381,70 @@ async fn the_send_interval_spaces_a_watchers_writes() {
         );
         editor.close().await;
         watcher.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// Line of sight over QUIC: checked on the workers for the edits the
+/// engine admitted, against the terrain as it stands then.
+#[tokio::test]
+async fn an_edit_behind_a_wall_is_refused_for_line_of_sight() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let ana = connect(&server, "ana", Role::Player).await;
+        let root = connect(&server, "root", Role::Admin).await;
+        let (feet, ground) = spot();
+        ana.send_position(feet).unwrap();
+        root.send_position(feet).unwrap();
+        let (x, y, z) = (ground.x, ground.y, ground.z);
+        assert!(
+            eventually(Duration::from_secs(10), || ana
+                .replica()
+                .get(ground.chunk())
+                .is_some())
+            .await
+        );
+        let g = Generator::fractal(GenParams::default()).unwrap();
+        let behind = |dx: i32| {
+            let (tx, tz) = (x + dx, z + 8);
+            Edit::Mine {
+                center: FixedVec3::from_voxels(tx, g.surface_height(tx, tz).floor() as i32, tz),
+                radius: r(2.0),
+                strength: 255,
+            }
+        };
+        // A brick wall three voxels ahead, from below the ground to well
+        // above the eye.
+        let wall = Edit::FillBox {
+            min: VoxelPos::new(x - 6, y - 3, z + 3),
+            max: VoxelPos::new(x + 6, y + 9, z + 3),
+            material: strata_terrain::material::ids::BRICK,
+        };
+        assert!(matches!(
+            root.edit(wall).await.unwrap(),
+            Verdict::Accepted { .. }
+        ));
+        for dx in [0, 1] {
+            assert_eq!(
+                ana.edit(behind(dx)).await.unwrap(),
+                Verdict::Rejected(RejectReason::NoLineOfSight)
+            );
+        }
+        // In front of the wall the view is clear.
+        let near = Edit::Mine {
+            center: FixedVec3::from_voxels(x, y, z + 1),
+            radius: r(1.0),
+            strength: 255,
+        };
+        assert!(matches!(
+            ana.edit(near).await.unwrap(),
+            Verdict::Accepted { .. }
+        ));
+        ana.close().await;
+        root.close().await;
         server.shutdown().await.unwrap();
     })
     .await

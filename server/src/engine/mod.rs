@@ -298,10 +298,9 @@ impl Engine {
         let mut commands_until = Instant::now();
         let mut next_position_save = Instant::now() + POSITION_SAVE_EVERY;
         loop {
-            let wait = next_tick.saturating_duration_since(Instant::now());
             let next = match self.deferred.pop() {
                 Some(cmd) => Ok(cmd),
-                None => rx.recv_timeout(wait),
+                None => self.next_command(&rx, next_tick),
             };
             let mut handled = false;
             match next {
@@ -332,6 +331,25 @@ impl Engine {
                 next_position_save = now + POSITION_SAVE_EVERY;
             }
         }
+    }
+
+    /// The next command, waiting until `next_tick` at most. Edits awaiting
+    /// their sight check are checked first if none is waiting, so the
+    /// check runs while the engine would idle, not at the tick (which
+    /// checks whatever arrived since).
+    fn next_command(
+        &mut self,
+        rx: &Inbox,
+        next_tick: Instant,
+    ) -> Result<Command, RecvTimeoutError> {
+        if self.seq.sighting() > 0 {
+            match rx.recv_or_wake(Duration::ZERO) {
+                Ok(Some(cmd)) => return Ok(cmd),
+                Ok(None) => self.check_sighted(),
+                Err(e) => return Err(e),
+            }
+        }
+        rx.recv_timeout(next_tick.saturating_duration_since(Instant::now()))
     }
 
     /// Stores the positions of players who moved since the last save. A
