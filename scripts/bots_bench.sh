@@ -83,7 +83,16 @@ for b in strata-server strata-admin strata-bots; do
 done
 dir=$(mktemp -d)
 pid=; sampler=; watchers=()
-trap 'kill ${watchers[*]:-} ${sampler:-} ${pid:-} 2>/dev/null || true; [ -n "${BENCH_LOG:-}" ] && cp "$dir/log" "$BENCH_LOG"; rm -rf "$dir"' EXIT
+# The server is waited for (10 s, then SIGKILL): a run right after this one
+# must find its ports free (scripts/scaling_table.sh).
+stop_server() {
+    [ -n "${pid:-}" ] || return 0
+    kill "$pid" 2>/dev/null || return 0
+    for _ in $(seq 100); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
+    kill -9 "$pid" 2>/dev/null || true
+    wait "$pid" 2>/dev/null || true
+}
+trap 'kill ${watchers[*]:-} ${sampler:-} 2>/dev/null || true; stop_server; [ -n "${BENCH_LOG:-}" ] && cp "$dir/log" "$BENCH_LOG"; rm -rf "$dir"' EXIT
 cat > "$dir/strata.toml" <<TOML
 [server]
 listen = "127.0.0.1:0"
