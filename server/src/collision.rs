@@ -23,6 +23,13 @@ use strata_terrain::{ChunkPos, VoxelBox, World, CHUNK_SIZE};
 /// too few for 1000 players and more: evicted meshes were built again by
 /// premesh and on the engine thread (BENCHMARKS.md, session 17).
 pub const DEFAULT_COLLISION_CACHE_CAPACITY: usize = 8192;
+/// Least `[sequencer] collision_cache_capacity`: a line-of-sight batch
+/// needs the meshes of each ray at once (`Sequencer::check_sighted`
+/// groups rays into half the cache), and half of this holds the longest
+/// ray ([`MAX_RAY_CHUNKS`]).
+pub const MIN_COLLISION_CACHE_CAPACITY: usize = 2 * MAX_RAY_CHUNKS;
+/// Most `[sequencer] collision_cache_capacity` (about 5–10 GiB of meshes).
+pub const MAX_COLLISION_CACHE_CAPACITY: usize = 262_144;
 /// Most chunks one raycast walks through; bounds the work of a long ray.
 pub const MAX_RAY_CHUNKS: usize = 256;
 /// Hits closer than this to the origin are ignored (the ray starts on a surface).

@@ -703,6 +703,12 @@ impl ServerConfig {
             MAX_COMMAND_QUEUE,
         )?;
         range(
+            "sequencer.collision_cache_capacity",
+            self.sequencer.collision_cache_capacity,
+            crate::collision::MIN_COLLISION_CACHE_CAPACITY,
+            crate::collision::MAX_COLLISION_CACHE_CAPACITY,
+        )?;
+        range(
             "sequencer.region_chunks",
             self.sequencer.region_chunks,
             1,

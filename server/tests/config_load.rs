@@ -284,6 +284,14 @@ fn bad_values_name_their_field() {
             "sequencer.queue_capacity",
         ),
         (
+            "[sequencer]\ncollision_cache_capacity = 1",
+            "sequencer.collision_cache_capacity",
+        ),
+        (
+            "[sequencer]\ncollision_cache_capacity = 10000000",
+            "sequencer.collision_cache_capacity",
+        ),
+        (
             "[store]\ncache_capacity_bytes = 1000",
             "store.cache_capacity_bytes",
         ),

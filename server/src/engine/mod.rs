@@ -619,7 +619,9 @@ impl Engine {
         self.follow_leases();
         let mut applied = self.apply_tick();
         phase.end("apply");
-        phase.apply = applied.out.split;
+        if applied.out.lanes > 0 {
+            phase.apply = applied.out.split;
+        }
         // Cluster nodes never apply ahead: a fenced commit puts its chunks
         // back from the store, which a batch applied on top would undo.
         let chain = rx.is_some() && !self.store.clustered();
@@ -869,13 +871,16 @@ impl Phases {
             .map(|(n, d)| format!("{n}={:.1}ms", ms(*d)))
             .collect();
         let a = &self.apply;
-        parts.push(format!(
-            "(apply: wait={:.1}ms prepare={:.1}ms lanes={:.1}ms merge={:.1}ms)",
-            ms(a.wait),
-            ms(a.prepare),
-            ms(a.lanes),
-            ms(a.merge)
-        ));
+        // Only a tick that applied edits has an apply to split.
+        if *a != Default::default() {
+            parts.push(format!(
+                "(apply: wait={:.1}ms prepare={:.1}ms lanes={:.1}ms merge={:.1}ms)",
+                ms(a.wait),
+                ms(a.prepare),
+                ms(a.lanes),
+                ms(a.merge)
+            ));
+        }
         if let Some((c, chunks)) = &self.commit {
             parts.push(format!(
                 "(encode={:.1}ms write={:.1}ms flush={:.1}ms fsync={:.1}ms chunks={chunks} bytes={})",

@@ -64,6 +64,7 @@ pub struct ApplySplit {
     pub prepare: std::time::Duration,
     /// The lanes, in parallel.
     pub lanes: std::time::Duration,
-    /// Numbering, putting chunks back and copying rewarm neighbourhoods.
+    /// Numbering, putting chunks back and copying the neighbourhoods of
+    /// the changed chunks and the rewarms.
     pub merge: std::time::Duration,
 }
