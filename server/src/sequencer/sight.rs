@@ -103,8 +103,8 @@ impl Sequencer {
     /// fit in half the mesh cache, so none is evicted before its ray.
     pub fn check_sighted(&mut self, now_ms: u64) -> Vec<SightRefusal> {
         let batch = std::mem::take(&mut self.sighting);
-        let mut refused = Vec::new();
         let room = (self.collision.capacity() / 2).max(1);
+        let mut seen: Vec<Result<(), RejectReason>> = Vec::with_capacity(batch.len());
         let mut rest = batch.as_slice();
         while !rest.is_empty() {
             let mut chunks: Vec<ChunkPos> = Vec::new();
@@ -120,27 +120,28 @@ impl Sequencer {
             self.collision.ensure(&self.world, &chunks);
             let cast =
                 |s: &Sighted| line_of_sight::check(&self.collision, s.eye, s.target, s.tolerance);
-            let seen: Vec<Result<(), RejectReason>> = if group.len() > 1 {
-                group.par_iter().map(cast).collect()
+            if group.len() > 1 {
+                seen.par_extend(group.par_iter().map(cast));
             } else {
-                group.iter().map(cast).collect()
-            };
-            for (s, result) in group.iter().zip(seen) {
-                match result {
-                    Ok(()) => self.queue.push_back(Queued {
+                seen.extend(group.iter().map(cast));
+            }
+        }
+        let mut refused = Vec::new();
+        for (s, result) in batch.into_iter().zip(seen) {
+            match result {
+                Ok(()) => self.queue.push_back(Queued {
+                    session_id: s.session_id,
+                    player: s.player,
+                    request: s.request,
+                    queued_at: s.queued_at,
+                }),
+                Err(reason) => {
+                    self.refuse_sighted(&s, now_ms);
+                    refused.push(SightRefusal {
                         session_id: s.session_id,
-                        player: s.player.clone(),
-                        request: s.request.clone(),
-                        queued_at: s.queued_at,
-                    }),
-                    Err(reason) => {
-                        self.refuse_sighted(s, now_ms);
-                        refused.push(SightRefusal {
-                            session_id: s.session_id,
-                            client_edit_id: s.request.client_edit_id,
-                            reason,
-                        });
-                    }
+                        client_edit_id: s.request.client_edit_id,
+                        reason,
+                    });
                 }
             }
         }
