@@ -507,7 +507,7 @@ impl Engine {
                 if let Err(e) = self.make_resident(&needed) {
                     error!(error = %e, "store read failed");
                 }
-                // Line of sight waits for the tick (`check_sighted`).
+                // Line of sight is checked in a batch (`check_sighted`).
                 self.seq.admit(session, request, now)
             });
         if let Err(reason) = result {
@@ -650,8 +650,9 @@ impl Engine {
         Ok(())
     }
 
-    /// Applies the queued edits on the workers and starts their meshes;
-    /// refusals are answered at once.
+    /// Checks the sight of the edits still waiting for it, then applies the
+    /// queued edits on the workers and starts their meshes; refusals are
+    /// answered at once.
     fn apply_tick(&mut self) -> Applied {
         let at = Instant::now();
         self.check_sighted();
