@@ -361,10 +361,12 @@ impl CollisionCache {
     pub fn ensure(&mut self, world: &World, chunks: &[ChunkPos]) {
         let version = |p: ChunkPos| world.peek(p).map_or(0, |c| c.version);
         let mut missing: Vec<(ChunkPos, u64)> = Vec::new();
+        // A set, not a scan of `missing`: a batch of rays lists thousands.
+        let mut listed: rustc_hash::FxHashSet<ChunkPos> = Default::default();
         for &p in chunks {
             if self.get(p, version(p)).is_some() {
                 self.touch(p);
-            } else if !missing.iter().any(|(q, _)| *q == p) {
+            } else if listed.insert(p) {
                 missing.push((p, version(p)));
             }
         }
