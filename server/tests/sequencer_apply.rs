@@ -405,3 +405,46 @@ fn eviction_keeps_what_edits_awaiting_their_sight_check_read() {
     let out = s.tick(0);
     assert_applied_on_stored(&s, &out, home, &stored);
 }
+
+#[test]
+fn a_stored_chunk_changed_twice_in_a_tick_is_committed_as_one_delta() {
+    let mut s = store_backed(0);
+    let p = at(1, X, 0, Z);
+    for c in s.chunks_needed_for_position(&p) {
+        s.mark_absent(c);
+    }
+    s.update_position(PLAYER, p, 0).unwrap();
+    let first = mine(X, -1, Z + 4, 2);
+    let second = mine(X + 1, -1, Z + 5, 2);
+    let home = ChunkPos::new(3, -1, 3);
+    let mut stored = Chunk::uniform(Voxel::solid(3));
+    stored.set(0, 0, 0, Voxel::AIR);
+    for edit in [&first, &second] {
+        for c in s.chunks_needed(PLAYER, edit) {
+            if c == home {
+                s.insert_stored_chunk(c, stored.clone(), 5);
+            } else {
+                s.mark_absent(c);
+            }
+        }
+    }
+    s.submit(PLAYER, req(1, first), 0).unwrap();
+    s.submit(PLAYER, req(2, second), 0).unwrap();
+    let out = s.tick(0);
+    let home_changes: Vec<(u64, u64)> = out
+        .applied
+        .iter()
+        .flat_map(|a| a.changes.iter().filter(|c| c.pos == home))
+        .map(|c| (c.from_version, c.to_version))
+        .collect();
+    assert_eq!(home_changes, [(5, 6), (6, 7)], "each edit's own delta");
+    // The store gets one delta across both, which turns the stored chunk
+    // into the world's; chunks new to the store go whole.
+    let deltas: Vec<_> = out.batch.deltas.iter().filter(|d| d.pos == home).collect();
+    assert_eq!(deltas.len(), 1);
+    assert_eq!((deltas[0].from_version, deltas[0].to_version), (5, 7));
+    let now = &s.world().peek(home).unwrap().chunk;
+    assert_eq!(&deltas[0].apply(&stored).unwrap(), now);
+    assert_eq!(out.batch.deltas.len(), 1);
+    assert!(out.batch.chunks.iter().all(|c| c.0 != home));
+}

@@ -75,6 +75,42 @@ fn inconsistent_batches_on(store: &dyn ChunkStore) {
     };
     assert!(reason(store.commit_batch(&b)).contains("without any log entry"));
 
+    // Deltas of a stored chunk must run from its version before the batch
+    // to the last one the entries give it, each from where one ended.
+    let mut span_seq = Seq {
+        last_seq: 0,
+        versions: [(P, 1)].into(),
+        states: [(P, terrain_chunk(0))].into(),
+    };
+    let edits = [
+        vec![(P, terrain_chunk(1))],
+        vec![(P, terrain_chunk(2))],
+        vec![(P, terrain_chunk(3))],
+    ];
+    let per_change = Seq {
+        versions: span_seq.versions.clone(),
+        states: span_seq.states.clone(),
+        ..Seq::default()
+    }
+    .delta_batch(&edits);
+    let spanning = span_seq.span_batch(&edits);
+    assert_eq!(spanning.deltas.len(), 1);
+    let mut b = per_change.clone();
+    b.deltas.remove(1);
+    assert!(reason(store.commit_batch(&b)).contains("from version 3 to 4, expected from 2"));
+    let mut b = per_change.clone();
+    b.deltas.pop();
+    assert!(reason(store.commit_batch(&b)).contains("state is missing"));
+    let mut b = spanning.clone();
+    b.deltas[0].to_version = 5;
+    assert!(reason(store.commit_batch(&b)).contains("to at most 4"));
+    let mut b = spanning.clone();
+    b.deltas[0].from_version = 2;
+    assert!(reason(store.commit_batch(&b)).contains("expected from 1"));
+    let mut b = spanning.clone();
+    b.deltas.push(per_change.deltas[2].clone());
+    assert!(reason(store.commit_batch(&b)).contains("expected from 4"));
+
     // Seqs must follow the stored last_seq.
     let mut b = good.clone();
     for (i, e) in b.entries.iter_mut().enumerate() {

@@ -142,9 +142,95 @@ fn version_mismatch_is_reported() {
     );
 }
 
+/// Rewrites the log as a format-2 store holds it: one record per entry,
+/// keyed by its seq, instead of one page per commit.
+fn as_single_records(db: &sled::Db) {
+    let log = db.open_tree(TREE_LOG).unwrap();
+    for r in log.iter().collect::<Vec<_>>() {
+        let (k, v) = r.unwrap();
+        if k.len() != 16 {
+            continue;
+        }
+        let mut seq = u64::from_be_bytes(k[..8].try_into().unwrap());
+        let mut rest = &v[..];
+        while !rest.is_empty() {
+            let len = u32::from_le_bytes(rest[..4].try_into().unwrap()) as usize;
+            log.insert(seq_key(seq), &rest[4..4 + len]).unwrap();
+            rest = &rest[4 + len..];
+            seq += 1;
+        }
+        log.remove(k).unwrap();
+    }
+}
+
+#[test]
+fn log_pages_and_single_records_read_as_one_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut seq = Seq::default();
+    {
+        let store = SledStore::open(dir.path()).unwrap();
+        store.init_meta(&WorldMeta::new(5, 1, "")).unwrap();
+        store
+            .commit_batch(&seq.batch(&[vec![(A, terrain_chunk(1))], vec![(B, terrain_chunk(2))]]))
+            .unwrap();
+    }
+    // Seqs 1 and 2 as a format-2 store wrote them, then a page of 3..=5.
+    plant(dir.path(), as_single_records);
+    let store = SledStore::open(dir.path()).unwrap();
+    store
+        .commit_batch(&seq.batch(&[
+            vec![(A, terrain_chunk(3))],
+            vec![(C, terrain_chunk(4))],
+            vec![(B, terrain_chunk(5))],
+        ]))
+        .unwrap();
+    let seqs = |lo: u64, hi: u64| -> Vec<u64> {
+        store.edit_log(lo..=hi).map(|e| e.unwrap().seq).collect()
+    };
+    assert_eq!(seqs(1, 5), [1, 2, 3, 4, 5]);
+    assert_eq!(seqs(2, 4), [2, 3, 4]);
+    assert_eq!(seqs(4, 4), [4]);
+    assert_eq!(seqs(5, 99), [5]);
+    assert!(seqs(6, 9).is_empty());
+    for s in 1..=5 {
+        assert_eq!(store.log_entry(s).unwrap().unwrap().seq, s);
+    }
+    assert!(store.log_entry(6).unwrap().is_none());
+    assert!(store.log_entry(0).unwrap().is_none());
+    let report = store.check().unwrap();
+    assert!(report.is_ok(), "{report:?}");
+    assert_eq!(report.log_entries, 5);
+    drop(store);
+
+    // A page cut short is reported at its first seq, and reads of it fail.
+    plant(dir.path(), |db| {
+        let log = db.open_tree(TREE_LOG).unwrap();
+        let (k, v) = log.last().unwrap().unwrap();
+        assert_eq!(k.len(), 16);
+        log.insert(k, &v[..v.len() - 1]).unwrap();
+    });
+    let store = SledStore::open(dir.path()).unwrap();
+    let issues = store.check().unwrap().issues;
+    assert!(
+        matches!(&issues[0], CheckIssue::BadLogRecord { seq: 3, reason } if reason.contains("page")),
+        "{issues:?}"
+    );
+    assert!(store.edit_log(4..=4).any(|e| e.is_err()));
+    assert!(matches!(
+        store.log_entry(4),
+        Err(StoreError::Corrupt { .. })
+    ));
+    assert_eq!(seqs_ok(&store, 1, 2), [1, 2]);
+}
+
+fn seqs_ok(store: &SledStore, lo: u64, hi: u64) -> Vec<u64> {
+    store.edit_log(lo..=hi).map(|e| e.unwrap().seq).collect()
+}
+
 #[test]
 fn log_damage_is_reported_by_seq() {
     let (_dir, issues) = damaged(|db| {
+        as_single_records(db);
         let log = db.open_tree(TREE_LOG).unwrap();
         log.insert(seq_key(2), &[0xff; 5][..]).unwrap();
         log.remove(seq_key(3)).unwrap();
@@ -232,13 +318,19 @@ fn unknown_format_version_refuses_to_open() {
 }
 
 #[test]
-fn a_store_of_format_1_is_upgraded_when_opened() {
-    let dir = healthy();
-    set_format(dir.path(), 1);
-    let store = SledStore::open(dir.path()).unwrap();
-    let meta = store.load_meta().unwrap().unwrap();
-    assert_eq!(meta.format_version, STORE_FORMAT_VERSION);
-    assert!(store.check().unwrap().is_ok());
+fn stores_of_formats_1_and_2_are_upgraded_when_opened() {
+    for old in [1, 2] {
+        let dir = healthy();
+        set_format(dir.path(), old);
+        let store = SledStore::open(dir.path()).unwrap();
+        let meta = store.load_meta().unwrap().unwrap();
+        assert_eq!(meta.format_version, STORE_FORMAT_VERSION);
+        assert!(store.check().unwrap().is_ok());
+        drop(store);
+        // Upgraded on disk: opened again, it is at the new format.
+        let store = SledStore::open(dir.path()).unwrap();
+        assert_eq!(store.load_meta().unwrap().unwrap().format_version, 3);
+    }
 }
 
 #[test]

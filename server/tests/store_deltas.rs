@@ -90,6 +90,54 @@ fn deltas_replay_on(place: &Place) {
 }
 
 #[test]
+fn a_delta_across_several_changes_replays_folds_and_chains_on() {
+    for place in places("delta_spans") {
+        delta_spans_on(&place);
+    }
+}
+
+fn delta_spans_on(place: &Place) {
+    let mut seq = Seq::default();
+    {
+        let store = open(place);
+        store
+            .commit_batch(&seq.span_batch(&[vec![(A, terrain_chunk(1)), (B, terrain_chunk(2))]]))
+            .unwrap();
+        // A changed three times and B once: one delta each, A's from
+        // version 1 to 4.
+        let next = seq.span_batch(&[
+            vec![(A, terrain_chunk(3))],
+            vec![(A, terrain_chunk(4)), (B, terrain_chunk(5))],
+            vec![(A, terrain_chunk(6))],
+        ]);
+        let spans: Vec<_> = next
+            .deltas
+            .iter()
+            .map(|d| (d.pos, d.from_version, d.to_version))
+            .collect();
+        assert_eq!(spans, [(B, 1, 2), (A, 1, 4)]);
+        store.commit_batch(&next).unwrap();
+        // The next tick's delta starts where the span ended.
+        store
+            .commit_batch(
+                &seq.span_batch(&[vec![(A, terrain_chunk(7))], vec![(A, terrain_chunk(8))]]),
+            )
+            .unwrap();
+        assert_eq!(store.delta_count().unwrap(), 3);
+        assert_reads(&*store, A, 6, &terrain_chunk(8));
+        assert_reads(&*store, B, 2, &terrain_chunk(5));
+        assert!(store.check().unwrap().is_ok(), "{:?}", store.check());
+    }
+    let store = place.open();
+    assert_reads(&*store, A, 6, &terrain_chunk(8));
+    store.checkpoint(usize::MAX).unwrap();
+    assert_eq!(store.delta_count().unwrap(), 0);
+    assert_reads(&*store, A, 6, &terrain_chunk(8));
+    assert_reads(&*store, B, 2, &terrain_chunk(5));
+    assert!(store.check().unwrap().is_ok());
+}
+
+#[test]
 fn a_delta_that_does_not_continue_the_stored_chain_is_refused() {
     for place in places("delta_chain_refused") {
         delta_chain_refused_on(&*open(&place));

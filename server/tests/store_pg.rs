@@ -7,7 +7,7 @@ mod store_common;
 
 use store_common::{pg_store, sql, terrain_chunk, Seq};
 use strata_server::store::pg::{PgConfig, MIGRATIONS};
-use strata_server::store::{ChunkStore, PgStore, StoreError, WorldMeta};
+use strata_server::store::{ChunkStore, PgStore, StoreError, WorldMeta, STORE_FORMAT_VERSION};
 use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::ChunkPos;
 use strata_tests::postgres::database;
@@ -39,6 +39,23 @@ fn migrations_are_applied_once_and_recorded() {
         matches!(err, StoreError::UnsupportedFormat { found: 999, .. }),
         "{err}"
     );
+}
+
+#[test]
+fn a_world_of_store_format_2_is_upgraded_by_its_migration() {
+    let Some(db) = database("format_2_upgrade") else {
+        return;
+    };
+    let store = pg_store(&db);
+    store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
+    drop(store);
+    // As a format-2 build left it: before migration 5.
+    sql(&db, "UPDATE world SET format_version = 2");
+    sql(&db, "DELETE FROM schema_migrations WHERE version = 5");
+    let store = pg_store(&db);
+    let meta = store.load_meta().unwrap().unwrap();
+    assert_eq!(meta.format_version, STORE_FORMAT_VERSION);
+    assert_eq!(STORE_FORMAT_VERSION, 3);
 }
 
 #[test]

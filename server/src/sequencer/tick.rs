@@ -1,5 +1,6 @@
 //! `Sequencer::tick`: apply queued edits in order, number them, build deltas.
 
+use std::collections::hash_map::Entry;
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::time::Instant;
 
@@ -182,6 +183,7 @@ impl Sequencer {
         let mut out = TickOutput::default();
         let mut results: Vec<Option<LaneResult>> = (0..queued.len()).map(|_| None).collect();
         let mut lane_slots = Vec::new();
+        let mut stored = Vec::new();
         let mut finals: BTreeMap<ChunkPos, (u64, Chunk)> = BTreeMap::new();
         let mut versions: BTreeMap<ChunkPos, u64> = BTreeMap::new();
         for lane in lanes {
@@ -190,6 +192,7 @@ impl Sequencer {
             }
             lane_slots.extend(lane.slots);
             finals.extend(lane.finals);
+            stored.extend(lane.stored);
             versions.extend(lane.versions);
             self.world.absorb(lane.world);
         }
@@ -220,10 +223,6 @@ impl Sequencer {
             for c in &changes {
                 dropped.extend(self.collision.invalidate_touched(c.pos, bbox));
                 self.residency.mark_present(c.pos);
-                // A chunk the store holds already gets its deltas stored.
-                if !finals.contains_key(&c.pos) {
-                    out.batch.deltas.push(c.delta.clone());
-                }
             }
             out.batch.entries.push(LogEntry {
                 seq,
@@ -255,6 +254,7 @@ impl Sequencer {
         self.rewarm(dropped, &changed, &mut jobs);
         let rewarmed = jobs.len() - before;
         out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
+        out.batch.deltas = stored;
         out.batch.last_seq = self.last_seq();
         (
             out,
@@ -371,6 +371,15 @@ impl Sequencer {
 /// An applied edit's box and chunk updates, or why it failed.
 type LaneResult = Result<(VoxelBox, Vec<ChunkUpdate>), String>;
 
+/// A stored chunk's state before its first change in a lane.
+struct FirstChange {
+    from_version: u64,
+    base_hash: u64,
+    before: Chunk,
+    /// The change's delta while it is the chunk's only one.
+    only: Option<ChunkDelta>,
+}
+
 /// One lane's edits applied in order to its own chunks.
 struct Lane {
     /// By queue index.
@@ -383,6 +392,9 @@ struct Lane {
     /// hold yet (version 0 before the tick): stored whole, the others as
     /// their deltas.
     finals: BTreeMap<ChunkPos, (u64, Chunk)>,
+    /// The store's record of every other changed chunk: one delta from its
+    /// version before the lane to its last, in position order.
+    stored: Vec<ChunkDelta>,
     /// The lane's chunks, to be put back in the world.
     world: World,
 }
@@ -399,6 +411,7 @@ impl Lane {
             versions: BTreeMap::new(),
             slots: Vec::new(),
             finals: BTreeMap::new(),
+            stored: Vec::new(),
             world: World::new(world.generator().clone()),
         };
         let mut changed: Vec<(usize, usize, ChunkPos)> = Vec::new();
@@ -407,6 +420,7 @@ impl Lane {
         // Each chunk's hash after its last change in this lane: the base
         // hash of its next change, which need not be hashed again.
         let mut hashes: HashMap<ChunkPos, u64> = HashMap::new();
+        let mut firsts: HashMap<ChunkPos, FirstChange> = HashMap::new();
         for i in members {
             let edit = &queued[i].request.edit;
             let outcome = match edit.apply(&mut world, ctx) {
@@ -437,6 +451,19 @@ impl Lane {
                     .expect("apply raises the version")
                 };
                 hashes.insert(c.pos, delta.target_hash);
+                if c.from_version != 0 {
+                    match firsts.entry(c.pos) {
+                        Entry::Occupied(mut first) => first.get_mut().only = None,
+                        Entry::Vacant(slot) => {
+                            slot.insert(FirstChange {
+                                from_version: c.from_version,
+                                base_hash: delta.base_hash,
+                                before: c.before,
+                                only: Some(delta.clone()),
+                            });
+                        }
+                    }
+                }
                 // Meshed once, after the lane's last edit.
                 changed.push((i, changes.len(), c.pos));
                 versions.insert(c.pos, c.to_version);
@@ -456,10 +483,28 @@ impl Lane {
         // The store's copy of each new chunk's final state. Meshes are
         // built once every lane is back (`Sequencer::changed_jobs`).
         for (&pos, &version) in &versions {
+            let state = world.peek(pos).expect("changed chunks are loaded");
             if new_in_store.contains(&pos) {
-                let state = world.peek(pos).expect("changed chunks are loaded");
                 lane.finals.insert(pos, (version, state.chunk.clone()));
+                continue;
             }
+            let first = firsts
+                .remove(&pos)
+                .expect("a chunk the store holds had a first change");
+            // A chunk changed several times is stored as one delta across
+            // them all: one record a tick, whatever the edits per chunk.
+            lane.stored.push(match first.only {
+                Some(delta) => delta,
+                None => ChunkDelta::encode_from_hash(
+                    pos,
+                    first.from_version,
+                    version,
+                    &first.before,
+                    first.base_hash,
+                    &state.chunk,
+                )
+                .expect("the lane raised the version"),
+            });
         }
         lane.versions = versions;
         lane.slots = changed;

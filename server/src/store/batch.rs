@@ -108,7 +108,9 @@ pub fn validate(b: &CommitBatch) -> Result<BTreeMap<ChunkPos, u64>, StoreError> 
             Some(_) => {}
         }
     }
-    // Every other changed chunk: its deltas, exactly one per change, in order.
+    // Every other changed chunk: its deltas, in order, each from where the
+    // last one ended (one per change, or one across several), from the
+    // version before the batch's first change of it to its last.
     let mut next: BTreeMap<ChunkPos, u64> = BTreeMap::new();
     for d in &b.deltas {
         let Some(&(lo, hi)) = span.get(&d.pos) else {
@@ -123,19 +125,19 @@ pub fn validate(b: &CommitBatch) -> Result<BTreeMap<ChunkPos, u64>, StoreError> 
                 show_pos(d.pos)
             )));
         }
-        let want = *next.get(&d.pos).unwrap_or(&lo);
-        if d.to_version != want || d.from_version + 1 != want || want > hi {
+        let from = *next.get(&d.pos).unwrap_or(&(lo - 1));
+        if d.from_version != from || d.to_version <= from || d.to_version > hi {
             return Err(StoreError::batch(format!(
-                "delta for {} from version {} to {}, expected to {want}",
+                "delta for {} from version {} to {}, expected from {from} to at most {hi}",
                 show_pos(d.pos),
                 d.from_version,
                 d.to_version
             )));
         }
-        next.insert(d.pos, want + 1);
+        next.insert(d.pos, d.to_version);
     }
     for (pos, &(_, hi)) in &span {
-        let complete = seen.contains_key(pos) || next.get(pos) == Some(&(hi + 1));
+        let complete = seen.contains_key(pos) || next.get(pos) == Some(&hi);
         if !complete {
             return Err(StoreError::batch(format!(
                 "{} changed by an entry but its state is missing",

@@ -258,7 +258,16 @@ impl Checker {
         });
     }
 
-    /// One log record, in key order.
+    /// A log page that does not split into the entries its key names.
+    pub fn bad_log_page(&mut self, first: u64, reason: String) {
+        self.report.log_entries += 1;
+        self.issue(CheckIssue::BadLogRecord {
+            seq: first,
+            reason: format!("page: {reason}"),
+        });
+    }
+
+    /// One log entry's record, in seq order.
     pub fn log_record(&mut self, key: &[u8], value: &[u8]) {
         self.report.log_entries += 1;
         let Some(seq) = seq_from_key(key) else {

@@ -1,5 +1,6 @@
-//! The small durable record: a commit stores each change of an already
-//! stored chunk as its delta (the bytes clients receive), and a checkpoint
+//! The small durable record: a commit stores the changes of an already
+//! stored chunk as one delta across the tick's changes of it (the delta
+//! format clients receive, spanning versions), and a checkpoint
 //! later folds a chunk's deltas into its record. Every read replays the
 //! deltas past the record, so readers always see the newest durable state,
 //! and recovery after a crash is just that replay.

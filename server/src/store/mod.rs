@@ -26,6 +26,7 @@ mod disk_sync;
 mod error;
 mod import;
 pub mod keys;
+mod log_pages;
 mod open;
 pub mod pg;
 mod record;

@@ -127,7 +127,7 @@ pub fn decode_delta(
     if used != bytes.len() {
         return Err(corrupt(format!("{} trailing bytes", bytes.len() - used)));
     }
-    if d.pos != pos || d.to_version != to_version || d.from_version + 1 != to_version {
+    if d.pos != pos || d.to_version != to_version || d.from_version >= to_version {
         return Err(corrupt(format!(
             "record says {} from version {} to {}",
             show_pos(d.pos),

@@ -25,9 +25,8 @@ use super::check::{CheckReport, Checker};
 use super::config::StoreConfig;
 use super::disk_sync::DiskSync;
 use super::error::StoreError;
-use super::keys::{
-    chunk_key, chunk_pos_from_key, delta_key, seq_from_key, seq_key, show_pos, show_raw,
-};
+use super::keys::{chunk_key, chunk_pos_from_key, delta_key, seq_key, show_pos, show_raw};
+use super::log_pages::{encode_page, page_key, record_entries, search_key, BadRecord};
 use super::record::{
     decode_last_seq, decode_log_entry, decode_meta, encode_chunk_value, encode_delta,
     encode_log_record, encode_meta, split_chunk_value,
@@ -49,8 +48,10 @@ pub const TREE_LOG: &str = "log";
 pub const TREE_BLOBS: &str = "blobs";
 /// Tree of chunk deltas committed since each chunk's record was written.
 pub const TREE_DELTAS: &str = "deltas";
-/// The store format that had no `deltas` tree; opened, it is upgraded.
-const FORMAT_WITHOUT_DELTAS: u32 = 1;
+/// Older store formats a build opens and upgrades in place, their records
+/// being valid as they are: 1 had no `deltas` tree, 2 stored one delta per
+/// change (a special case of 3's deltas across several changes).
+const UPGRADABLE_FORMATS: [u32; 2] = [1, 2];
 /// Tree of players' last positions: name → x, y, z (fixed point, i32 BE).
 pub const TREE_PLAYERS: &str = "players";
 /// Key of the metadata record in [`TREE_META`].
@@ -112,8 +113,8 @@ impl SledStore {
         // `load_meta` returns the error to anyone else).
         let world = store.meta.get(META_WORLD)?;
         if let Some(Ok(mut m)) = world.map(|w| decode_meta(&w, 0)) {
-            if m.format_version == FORMAT_WITHOUT_DELTAS {
-                // Nothing to convert: such a store simply has no deltas.
+            if UPGRADABLE_FORMATS.contains(&m.format_version) {
+                // Nothing to convert; an older build now refuses the store.
                 m.format_version = STORE_FORMAT_VERSION;
                 store.meta.insert(META_WORLD, encode_meta(&m)?)?;
                 store.flush()?;
@@ -134,6 +135,16 @@ impl SledStore {
         self.disk.sync()?;
         Ok(())
     }
+}
+
+/// [`record_entries`] of a log record, or why the store is corrupt.
+fn log_record_entries<'a>(key: &[u8], value: &'a [u8]) -> Result<Vec<(u64, &'a [u8])>, StoreError> {
+    record_entries(key, value).map_err(|e| match e {
+        BadRecord::Key => StoreError::corrupt("log key", show_raw(key)),
+        BadRecord::Page { first, reason } => {
+            StoreError::corrupt(format!("log page ({reason})"), format!("seq {first}"))
+        }
+    })
 }
 
 /// A batch chunk ready to write.
@@ -205,10 +216,12 @@ impl ChunkStore for SledStore {
         };
         let started = Instant::now();
         // Encode outside the transaction: its closure may run again on conflict.
-        let mut logs = Vec::with_capacity(b.entries.len());
+        let mut records = Vec::with_capacity(b.entries.len());
         for e in &b.entries {
-            logs.push((seq_key(e.seq), encode_log_record(e)?));
+            records.push(encode_log_record(e)?);
         }
+        // One log record a commit, whatever its edits (`log_pages.rs`).
+        let page = (page_key(first_seq, b.last_seq), encode_page(&records));
         // zstd dominates a big batch's cost; chunks compress independently.
         let encode = |(pos, version, chunk): &(ChunkPos, u64, Chunk)| EncodedChunk {
             key: chunk_key(*pos),
@@ -230,7 +243,7 @@ impl ChunkStore for SledStore {
                 encode_delta(d)?,
             ));
         }
-        let bytes_written = logs.iter().map(|(_, v)| v.len() as u64).sum::<u64>()
+        let bytes_written = page.1.len() as u64
             + chunks.iter().map(|c| c.value.len() as u64).sum::<u64>()
             + deltas.iter().map(|d| d.3.len() as u64).sum::<u64>();
 
@@ -276,13 +289,11 @@ impl ChunkStore for SledStore {
                     ))));
                 }
             }
-            for (key, value) in &logs {
-                if log.insert(&key[..], value.as_slice())?.is_some() {
-                    return Err(abort(StoreError::corrupt(
-                        "log record beyond last_seq",
-                        show_raw(key),
-                    )));
-                }
+            if log.insert(&page.0[..], page.1.as_slice())?.is_some() {
+                return Err(abort(StoreError::corrupt(
+                    "log record beyond last_seq",
+                    show_raw(&page.0),
+                )));
             }
             meta.insert(META_LAST_SEQ, &b.last_seq.to_be_bytes()[..])?;
             Ok(())
@@ -306,22 +317,41 @@ impl ChunkStore for SledStore {
     }
 
     fn log_entry(&self, seq: u64) -> Result<Option<LogEntry>, StoreError> {
-        match self.log.get(seq_key(seq))? {
-            Some(v) => decode_log_entry(seq, &v).map(Some),
-            None => Ok(None),
+        let Some((k, v)) = self.log.range(..=search_key(seq)).next_back().transpose()? else {
+            return Ok(None);
+        };
+        for (s, record) in log_record_entries(&k, &v)? {
+            if s == seq {
+                return decode_log_entry(seq, record).map(Some);
+            }
         }
+        Ok(None)
     }
 
     fn edit_log(&self, seqs: RangeInclusive<u64>) -> StoreIter<'_, LogEntry> {
         if seqs.is_empty() {
             return Box::new(std::iter::empty());
         }
-        let range = seq_key(*seqs.start())..=seq_key(*seqs.end());
-        Box::new(self.log.range(range).map(|r| {
-            let (k, v) = r?;
-            let seq =
-                seq_from_key(&k).ok_or_else(|| StoreError::corrupt("log key", show_raw(&k)))?;
-            decode_log_entry(seq, &v)
+        let (lo, hi) = (*seqs.start(), *seqs.end());
+        // From the record holding `lo` (a page may start below it).
+        let start = match self.log.range(..=search_key(lo)).keys().next_back() {
+            Some(Ok(k)) => k.to_vec(),
+            Some(Err(e)) => return Box::new(std::iter::once(Err(e.into()))),
+            None => seq_key(lo).to_vec(),
+        };
+        let records = self.log.range(start..=search_key(hi).to_vec());
+        Box::new(records.flat_map(move |r| {
+            let entries = r.map_err(StoreError::from).and_then(|(k, v)| {
+                log_record_entries(&k, &v)?
+                    .into_iter()
+                    .filter(|(s, _)| (lo..=hi).contains(s))
+                    .map(|(s, record)| decode_log_entry(s, record))
+                    .collect::<Result<Vec<_>, _>>()
+            });
+            match entries {
+                Ok(v) => v.into_iter().map(Ok).collect::<Vec<_>>(),
+                Err(e) => vec![Err(e)],
+            }
         }))
     }
 
@@ -504,7 +534,15 @@ impl SledStore {
         }
         for r in self.log.iter() {
             let (k, v) = r?;
-            checker.log_record(&k, &v);
+            match record_entries(&k, &v) {
+                Ok(entries) => {
+                    for (seq, record) in entries {
+                        checker.log_record(&seq_key(seq), record);
+                    }
+                }
+                Err(BadRecord::Key) => checker.log_record(&k, &v),
+                Err(BadRecord::Page { first, reason }) => checker.bad_log_page(first, reason),
+            }
             tick();
         }
         for r in self.chunks.iter() {

@@ -7,8 +7,10 @@ use strata_terrain::{Chunk, ChunkPos, Edit};
 
 /// Layout version of the store written by this build; bumped on any change
 /// to [`crate::store::keys`] or to a record's encoding. 2 added the `deltas`
-/// tree; a version-1 store is upgraded when opened (it has no deltas).
-pub const STORE_FORMAT_VERSION: u32 = 2;
+/// tree; 3 lets a delta span several versions (a tick stores one per
+/// chunk) and writes the sled log as one page a commit (`log_pages.rs`).
+/// Older stores are upgraded when opened: their records stay valid.
+pub const STORE_FORMAT_VERSION: u32 = 3;
 
 /// What a world was generated from, plus how far its edit log goes.
 ///

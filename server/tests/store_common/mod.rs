@@ -76,6 +76,27 @@ impl Seq {
         self.build(edits, true)
     }
 
+    /// Like [`Seq::delta_batch`], but as a tick's lanes store them: one
+    /// delta per stored chunk, across all of the batch's changes of it.
+    pub fn span_batch(&mut self, edits: &[Vec<(ChunkPos, Chunk)>]) -> CommitBatch {
+        let before = self.states.clone();
+        let mut b = self.build(edits, true);
+        let mut spans: BTreeMap<ChunkPos, (u64, u64)> = BTreeMap::new();
+        for d in &b.deltas {
+            spans
+                .entry(d.pos)
+                .and_modify(|s| s.1 = d.to_version)
+                .or_insert((d.from_version, d.to_version));
+        }
+        b.deltas = spans
+            .into_iter()
+            .map(|(pos, (from, to))| {
+                ChunkDelta::encode(pos, from, to, &before[&pos], &self.states[&pos]).unwrap()
+            })
+            .collect();
+        b
+    }
+
     fn build(&mut self, edits: &[Vec<(ChunkPos, Chunk)>], as_deltas: bool) -> CommitBatch {
         let stored_before: BTreeMap<ChunkPos, u64> = self.versions.clone();
         let mut deltas = Vec::new();

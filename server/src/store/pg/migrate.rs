@@ -32,6 +32,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0004_seq_blocks",
         include_str!("../../../migrations/0004_seq_blocks.sql"),
     ),
+    (
+        5,
+        "0005_delta_spans",
+        include_str!("../../../migrations/0005_delta_spans.sql"),
+    ),
 ];
 
 /// Key of the advisory lock migrations take ("strata" in ASCII).
