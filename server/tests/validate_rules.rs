@@ -8,7 +8,7 @@ use strata_server::sequencer::{Sequencer, SequencerConfig};
 use strata_server::validate::ratelimit::BucketConfig;
 use strata_server::validate::{ValidationConfig, WorldBounds, Zone};
 use strata_terrain::edit::{Fixed, FixedVec3};
-use strata_terrain::{Edit, EditKind, VoxelPos};
+use strata_terrain::{ChunkPos, Edit, EditKind, VoxelPos};
 
 const X: i32 = HOME.0;
 const Z: i32 = HOME.1;
@@ -395,7 +395,12 @@ fn precheck_refuses_without_loading_anything() {
         Err(RejectReason::RadiusTooLarge { .. })
     ));
     assert_eq!(s.resident(), resident, "no chunk was loaded or generated");
-    assert_eq!(s.precheck(PLAYER, &mine(X, -1, Z + 4, 1), 0), Ok(()));
+    let pre = s.precheck(PLAYER, &mine(X, -1, Z + 4, 1), 0).unwrap();
+    // What admitting it reads: the box with its margin, and the ray's
+    // chunks with their neighbours, sorted; still nothing loaded.
+    assert!(pre.reads().windows(2).all(|w| w[0] < w[1]));
+    assert!(pre.reads().contains(&ChunkPos::new(3, -1, 3)));
+    assert_eq!(s.resident(), resident);
 }
 
 /// A one-voxel brick wall between the player (eye at HOME) and z + 6.

@@ -501,14 +501,14 @@ impl Engine {
         let result = self
             .seq
             .precheck(session, &request.edit, now)
-            .and_then(|()| self.check_regions(session, &request.edit, now))
-            .and_then(|()| {
-                let needed = self.seq.chunks_needed(session, &request.edit);
+            .and_then(|pre| {
+                self.check_regions(session, &request.edit, now)?;
+                let needed = self.seq.missing(pre.reads());
                 if let Err(e) = self.make_resident(&needed) {
                     error!(error = %e, "store read failed");
                 }
                 // Line of sight is checked in a batch (`check_sighted`).
-                self.seq.admit(session, request, now)
+                self.seq.admit_prechecked(session, request, pre, now)
             });
         if let Err(reason) = result {
             self.refuse_edit(session, id, reason);

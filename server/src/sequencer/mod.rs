@@ -19,6 +19,7 @@ mod tick;
 pub use batch::{AppliedEdit, ApplySplit, ChunkUpdate, RejectedEdit, TickOutput};
 pub use config::{SequencerConfig, DEFAULT_MAX_EDITS_PER_TICK, DEFAULT_QUEUE_CAPACITY};
 pub use sight::SightRefusal;
+pub use submit::Prechecked;
 pub use tick::{BuiltMeshes, PendingMeshes};
 
 use std::collections::{HashMap, HashSet, VecDeque};
@@ -246,6 +247,11 @@ impl Sequencer {
             Some(set) => self.residency.missing(&self.world, set),
             None => Vec::new(),
         }
+    }
+
+    /// Those of `chunks` the shell must load (or mark absent) first.
+    pub fn missing(&self, chunks: &[ChunkPos]) -> Vec<ChunkPos> {
+        self.residency.missing(&self.world, chunks.iter().copied())
     }
 
     /// Chunks the shell must load before [`Self::update_position`] can check `upd`.

@@ -50,7 +50,9 @@ pub fn with_neighbours(c: ChunkPos) -> impl Iterator<Item = ChunkPos> {
 /// Tracks chunks known to be absent from the store.
 #[derive(Debug, Clone, Default)]
 pub struct Residency {
-    absent: HashSet<ChunkPos>,
+    /// Seeded foldhash, as the world's chunk map: looked up for every
+    /// chunk an edit reads.
+    absent: HashSet<ChunkPos, foldhash::fast::RandomState>,
     /// No store at all: every chunk not loaded is generated.
     storeless: bool,
 }
@@ -58,7 +60,7 @@ pub struct Residency {
 impl Residency {
     pub fn storeless() -> Self {
         Self {
-            absent: HashSet::new(),
+            absent: HashSet::default(),
             storeless: true,
         }
     }

@@ -16,6 +16,7 @@ use strata_protocol::{EditRequest, RejectReason};
 use strata_terrain::ChunkPos;
 
 use super::residency::with_neighbours;
+use super::submit::Prechecked;
 use super::{Queued, Sequencer};
 use crate::validate::line_of_sight;
 
@@ -51,20 +52,28 @@ impl Sequencer {
         request: EditRequest,
         now_ms: u64,
     ) -> Result<(), RejectReason> {
+        let pre = self.precheck(session_id, &request.edit, now_ms)?;
+        self.admit_prechecked(session_id, request, pre, now_ms)
+    }
+
+    /// [`Self::admit`] for an edit that passed [`Self::precheck`] just now
+    /// (nothing but loads since): its rules are not run again.
+    pub fn admit_prechecked(
+        &mut self,
+        session_id: u64,
+        request: EditRequest,
+        pre: Prechecked,
+        now_ms: u64,
+    ) -> Result<(), RejectReason> {
         let edit = &request.edit;
-        let cheap = match self.cheap_checks(session_id, edit, now_ms) {
-            Ok(c) => c,
-            Err(r) => return Err(self.rejected(session_id, r, now_ms)),
-        };
-        let needed = self.read_set(edit, Some(cheap.eye)).unwrap_or_default();
         if !self
             .residency
-            .missing(&self.world, needed.iter().copied())
+            .missing(&self.world, pre.reads().iter().copied())
             .is_empty()
         {
             return Err(self.rejected(session_id, RejectReason::Busy, now_ms));
         }
-        let ray = line_of_sight::sight_chunks(cheap.eye, cheap.target);
+        let Prechecked { cheap, ray, .. } = pre;
         self.world
             .load(ray.iter().flat_map(|c| with_neighbours(*c)));
         let tolerance = edit.radius().map_or(0.0, |r| r.to_f64()) + self.validation.los_tolerance;

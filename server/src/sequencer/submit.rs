@@ -1,18 +1,79 @@
 //! `Sequencer::submit`: every validation rule, in order, before queueing.
 
 use strata_protocol::{EditRequest, RejectReason};
-use strata_terrain::{ChunkPos, Edit};
+use strata_terrain::{ChunkPos, Edit, VoxelBox};
 
-use super::residency::{edit_chunks, with_neighbours};
+use super::residency::{edit_chunks, edit_footprint, with_neighbours};
 use super::session::PlayerLimits;
 use super::{Queued, Sequencer};
 use crate::validate::{caps, line_of_sight, permissions, position, reach, zones};
 
 /// What the cheap rules worked out, for the rest of the checks.
+#[derive(Debug, Clone, PartialEq)]
 pub(super) struct Cheap {
     pub(super) eye: glam::DVec3,
     pub(super) target: glam::DVec3,
     pub(super) volume_cost: u64,
+    pub(super) bbox: VoxelBox,
+}
+
+/// An edit that passed [`Sequencer::precheck`], with what the rest of its
+/// checks read: worked out once, for loading and for
+/// [`Sequencer::admit_prechecked`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Prechecked {
+    pub(super) cheap: Cheap,
+    /// The chunks the sight ray crosses.
+    pub(super) ray: Vec<ChunkPos>,
+    /// Sorted: the edit's box and read margin, the ray's chunks and their
+    /// neighbours.
+    reads: Vec<ChunkPos>,
+}
+
+impl Prechecked {
+    /// Every chunk admitting and applying the edit reads, sorted.
+    pub fn reads(&self) -> &[ChunkPos] {
+        &self.reads
+    }
+}
+
+/// The chunks of the box `lo..=hi` and the 27 around each of `ray`'s,
+/// sorted and without repeats: listed in order over their bounds, no sort
+/// (the ray ends at the edit, so the bounds are the box and a little).
+fn box_and_ray(lo: ChunkPos, hi: ChunkPos, ray: &[ChunkPos]) -> Vec<ChunkPos> {
+    let (mut a, mut b) = (lo, hi);
+    for r in ray {
+        a = ChunkPos::new(
+            a.x.min(r.x.saturating_sub(1)),
+            a.y.min(r.y.saturating_sub(1)),
+            a.z.min(r.z.saturating_sub(1)),
+        );
+        b = ChunkPos::new(
+            b.x.max(r.x.saturating_add(1)),
+            b.y.max(r.y.saturating_add(1)),
+            b.z.max(r.z.saturating_add(1)),
+        );
+    }
+    let in_box = |p: ChunkPos| {
+        (lo.x..=hi.x).contains(&p.x) && (lo.y..=hi.y).contains(&p.y) && (lo.z..=hi.z).contains(&p.z)
+    };
+    let near_ray = |p: ChunkPos| {
+        ray.iter()
+            .any(|r| r.x.abs_diff(p.x) <= 1 && r.y.abs_diff(p.y) <= 1 && r.z.abs_diff(p.z) <= 1)
+    };
+    // `ChunkPos` orders by x, then y, then z.
+    let mut out = Vec::new();
+    for x in a.x..=b.x {
+        for y in a.y..=b.y {
+            for z in a.z..=b.z {
+                let p = ChunkPos::new(x, y, z);
+                if in_box(p) || near_ray(p) {
+                    out.push(p);
+                }
+            }
+        }
+    }
+    out
 }
 
 impl Sequencer {
@@ -45,11 +106,15 @@ impl Sequencer {
         session_id: u64,
         edit: &Edit,
         now_ms: u64,
-    ) -> Result<(), RejectReason> {
-        let checked = self.cheap_checks(session_id, edit, now_ms);
-        checked
-            .map(|_| ())
-            .map_err(|r| self.rejected(session_id, r, now_ms))
+    ) -> Result<Prechecked, RejectReason> {
+        let cheap = match self.cheap_checks(session_id, edit, now_ms) {
+            Ok(c) => c,
+            Err(r) => return Err(self.rejected(session_id, r, now_ms)),
+        };
+        let ray = line_of_sight::sight_chunks(cheap.eye, cheap.target);
+        let footprint = edit_footprint(&cheap.bbox, edit.read_margin());
+        let reads = box_and_ray(footprint.min.chunk(), footprint.max.chunk(), &ray);
+        Ok(Prechecked { cheap, ray, reads })
     }
 
     /// Validates an edit request and queues it for the next tick.
@@ -129,17 +194,25 @@ impl Sequencer {
             eye,
             target,
             volume_cost,
+            bbox,
         })
     }
 
     /// The player's buckets, refilled to `now_ms`.
     pub(super) fn limits_of(&mut self, session_id: u64, now_ms: u64) -> &mut PlayerLimits {
-        let player = self.sessions.get(&session_id).map(|s| s.player.as_str());
-        let v = &self.validation;
+        let player = self
+            .sessions
+            .get(&session_id)
+            .map_or("", |s| s.player.as_str());
+        // A lookup first: the key is allocated only for a new player.
+        if !self.limits.contains_key(player) {
+            let fresh = PlayerLimits::new(&self.validation, now_ms);
+            self.limits.insert(player.to_string(), fresh);
+        }
         let limits = self
             .limits
-            .entry(player.unwrap_or_default().to_string())
-            .or_insert_with(|| PlayerLimits::new(v, now_ms));
+            .get_mut(player)
+            .expect("inserted above when missing");
         limits.refill(now_ms);
         limits
     }
@@ -219,5 +292,52 @@ impl Sequencer {
         let tolerance = edit.radius().map_or(0.0, |r| r.to_f64()) + self.validation.los_tolerance;
         line_of_sight::check(&self.collision, eye, target, tolerance)?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What `box_and_ray` replaces: collect, sort, dedup.
+    fn by_sorting(lo: ChunkPos, hi: ChunkPos, ray: &[ChunkPos]) -> Vec<ChunkPos> {
+        let mut v: Vec<ChunkPos> = (lo.x..=hi.x)
+            .flat_map(|x| {
+                (lo.y..=hi.y).flat_map(move |y| (lo.z..=hi.z).map(move |z| ChunkPos::new(x, y, z)))
+            })
+            .collect();
+        for &r in ray {
+            v.extend(with_neighbours(r));
+        }
+        v.sort_unstable();
+        v.dedup();
+        v
+    }
+
+    #[test]
+    fn box_and_ray_lists_the_sorted_union() {
+        let c = ChunkPos::new;
+        let cases: [(ChunkPos, ChunkPos, Vec<ChunkPos>); 5] = [
+            (c(0, 0, 0), c(2, 2, 2), vec![]),
+            (c(0, 0, 0), c(2, 2, 2), vec![c(1, 1, 1)]),
+            (
+                c(3, -1, 3),
+                c(5, 1, 5),
+                vec![c(1, 0, 2), c(2, 0, 3), c(3, 0, 3)],
+            ),
+            (
+                c(-4, -4, -4),
+                c(-4, -4, -4),
+                vec![c(-6, -2, -5), c(-5, -3, -5)],
+            ),
+            (c(10, 0, 0), c(11, 0, 0), vec![c(0, 5, 0)]),
+        ];
+        for (lo, hi, ray) in cases {
+            assert_eq!(
+                box_and_ray(lo, hi, &ray),
+                by_sorting(lo, hi, &ray),
+                "{lo:?} {hi:?} {ray:?}"
+            );
+        }
     }
 }
