@@ -61,6 +61,17 @@ fn box_and_ray(lo: ChunkPos, hi: ChunkPos, ray: &[ChunkPos]) -> Vec<ChunkPos> {
         ray.iter()
             .any(|r| r.x.abs_diff(p.x) <= 1 && r.y.abs_diff(p.y) <= 1 && r.z.abs_diff(p.z) <= 1)
     };
+    let span = |lo: i32, hi: i32| u64::from(hi.abs_diff(lo)) + 1;
+    let volume = |a: ChunkPos, b: ChunkPos| {
+        span(a.x, b.x)
+            .saturating_mul(span(a.y, b.y))
+            .saturating_mul(span(a.z, b.z))
+    };
+    let listed = volume(lo, hi).saturating_add(27 * ray.len() as u64);
+    if volume(a, b) > listed.saturating_mul(4) {
+        // A long ray (a large `reach`) spans far more than it touches.
+        return sorted_union(lo, hi, ray);
+    }
     // `ChunkPos` orders by x, then y, then z.
     let mut out = Vec::new();
     for x in a.x..=b.x {
@@ -74,6 +85,21 @@ fn box_and_ray(lo: ChunkPos, hi: ChunkPos, ray: &[ChunkPos]) -> Vec<ChunkPos> {
         }
     }
     out
+}
+
+/// [`box_and_ray`] by collecting, sorting and deduplicating.
+fn sorted_union(lo: ChunkPos, hi: ChunkPos, ray: &[ChunkPos]) -> Vec<ChunkPos> {
+    let mut v: Vec<ChunkPos> = (lo.x..=hi.x)
+        .flat_map(|x| {
+            (lo.y..=hi.y).flat_map(move |y| (lo.z..=hi.z).map(move |z| ChunkPos::new(x, y, z)))
+        })
+        .collect();
+    for &r in ray {
+        v.extend(with_neighbours(r));
+    }
+    v.sort_unstable();
+    v.dedup();
+    v
 }
 
 impl Sequencer {
@@ -299,25 +325,13 @@ impl Sequencer {
 mod tests {
     use super::*;
 
-    /// What `box_and_ray` replaces: collect, sort, dedup.
-    fn by_sorting(lo: ChunkPos, hi: ChunkPos, ray: &[ChunkPos]) -> Vec<ChunkPos> {
-        let mut v: Vec<ChunkPos> = (lo.x..=hi.x)
-            .flat_map(|x| {
-                (lo.y..=hi.y).flat_map(move |y| (lo.z..=hi.z).map(move |z| ChunkPos::new(x, y, z)))
-            })
-            .collect();
-        for &r in ray {
-            v.extend(with_neighbours(r));
-        }
-        v.sort_unstable();
-        v.dedup();
-        v
-    }
-
     #[test]
     fn box_and_ray_lists_the_sorted_union() {
         let c = ChunkPos::new;
-        let cases: [(ChunkPos, ChunkPos, Vec<ChunkPos>); 5] = [
+        // A diagonal ray of 40 chunks: its bounds would be 42³ chunks, so
+        // the union is sorted instead of listed.
+        let long: Vec<ChunkPos> = (0..40).map(|i| c(i, i, i)).collect();
+        let cases: [(ChunkPos, ChunkPos, Vec<ChunkPos>); 6] = [
             (c(0, 0, 0), c(2, 2, 2), vec![]),
             (c(0, 0, 0), c(2, 2, 2), vec![c(1, 1, 1)]),
             (
@@ -331,11 +345,12 @@ mod tests {
                 vec![c(-6, -2, -5), c(-5, -3, -5)],
             ),
             (c(10, 0, 0), c(11, 0, 0), vec![c(0, 5, 0)]),
+            (c(38, 38, 38), c(40, 40, 40), long),
         ];
         for (lo, hi, ray) in cases {
             assert_eq!(
                 box_and_ray(lo, hi, &ray),
-                by_sorting(lo, hi, &ray),
+                sorted_union(lo, hi, &ray),
                 "{lo:?} {hi:?} {ray:?}"
             );
         }
