@@ -36,6 +36,9 @@ pub const GENERATED_CHUNKS: &str = "strata_generated_chunks_total";
 /// Snapshot-frame cache lookups by `outcome`: `hit`, `miss`, or `cleared`
 /// (entries dropped when it filled up).
 pub const SNAPSHOT_CACHE: &str = "strata_snapshot_cache_total";
+/// Snapshot and patch frames built, by `on`: `workers` (ahead of the
+/// streaming loop, in parallel) or `engine` (by the loop itself).
+pub const SNAPSHOT_FRAMES_BUILT: &str = "strata_snapshot_frames_built_total";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
@@ -149,6 +152,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         SNAPSHOT_CACHE,
         "Snapshot-frame cache lookups by outcome (hit, miss) and entries cleared when it filled"
+    );
+    metrics::describe_counter!(
+        SNAPSHOT_FRAMES_BUILT,
+        "Snapshot and patch frames built, on the workers ahead of streaming or on the engine thread"
     );
     metrics::describe_histogram!(
         TICK_LANES,

@@ -1,6 +1,7 @@
 //! Snapshot streaming under the smallest time and byte budgets: each tick
 //! serves at least one session, sessions take turns, and every session
-//! still receives its whole view.
+//! still receives its whole view. Frames are built on the workers, and
+//! sent again from the cache.
 
 mod common;
 
@@ -151,6 +152,62 @@ async fn thin_clients_load_their_view_as_verified_snapshots() {
             c.close().await;
         }
         server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// Two thin clients load the same view: every frame is built once, on the
+/// workers (`prebuild.rs`), none on the engine thread, and the second
+/// client's come from the cache. Every chunk hash matches, and so does
+/// every mesh hash the clients could check (those of chunks whose 26
+/// neighbours they hold).
+#[tokio::test]
+async fn frames_are_built_on_the_workers_once_and_then_served_from_the_cache() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let root = tempfile::tempdir().unwrap();
+        let data = root.path().join("data");
+        let metrics = free_metrics_addr();
+        let config = format!(
+            "{FAST_EDITS}[interest]\nview_radius = 2\n[engine]\nworkers = 2\n[metrics]\nlisten = \"{metrics}\"\n"
+        );
+        let (mut child, addr) = spawn_server(&data, &config);
+        let (feet, surface) = spot(70, 40);
+        let view = cube(VoxelPos::new(70, surface.y + 1, 40).chunk(), 2);
+        let thin = || strata_client_sim::ClientOptions {
+            capabilities: strata_protocol::CAP_SNAPSHOTS,
+            ..Default::default()
+        };
+        let built = |on: &str| {
+            let text = scrape(metrics);
+            metric(&text, &format!("strata_snapshot_frames_built_total{{on=\"{on}\"}}"))
+        };
+        let mut clients = Vec::new();
+        for name in ["ana", "bo"] {
+            let c = process_client_opts(&data, addr, name, thin()).await;
+            c.send_position(feet).unwrap();
+            assert!(
+                eventually(Duration::from_secs(30), || c.replica().len() >= view.len()).await,
+                "{name} has {} of {} chunks",
+                c.replica().len(),
+                view.len()
+            );
+            let s = c.replica().stats;
+            assert_eq!(s.snapshots, view.len() as u64, "{s:?}");
+            assert_eq!((s.hash_mismatches, s.mesh_mismatches), (0, 0), "{s:?}");
+            // The first client's frames were built; the second's were not.
+            assert_eq!(built("workers"), Some(view.len() as f64), "{name}");
+            clients.push(c);
+        }
+        assert_eq!(built("engine"), None, "no frame built on the engine thread");
+        let text = scrape(metrics);
+        let hits = metric(&text, "strata_snapshot_cache_total{outcome=\"hit\"}");
+        assert!(hits >= Some(view.len() as f64), "{hits:?} cache hits");
+        for c in clients {
+            c.close().await;
+        }
+        child.kill().unwrap();
+        child.wait().unwrap();
     })
     .await
     .expect("test finished in time");

@@ -448,3 +448,26 @@ fn a_stored_chunk_changed_twice_in_a_tick_is_committed_as_one_delta() {
     assert_eq!(out.batch.deltas.len(), 1);
     assert!(out.batch.chunks.iter().all(|c| c.0 != home));
 }
+
+#[test]
+fn prepared_meshes_keep_their_generated_neighbours_and_hash_as_meshed_alone() {
+    use strata_server::sequencer::residency::with_neighbours;
+    let mut s = ready(ValidationConfig::default());
+    // Two neighbours far from every player: nothing around them is loaded.
+    let far = [ChunkPos::new(40, -1, 40), ChunkPos::new(41, -1, 40)];
+    let around: HashSet<ChunkPos> = far.iter().flat_map(|&p| with_neighbours(p)).collect();
+    assert!(around.iter().all(|&p| s.world().peek(p).is_none()));
+    s.prepare_meshes(&far);
+    // Each neighbour generated once, into the world, at version 0.
+    for &p in &around {
+        assert_eq!(s.world().peek(p).map(|c| c.version), Some(0), "{p:?}");
+    }
+    let mut alone = ready(ValidationConfig::default());
+    for p in far {
+        let fresh = CollisionMesh::build(p, 0, &Neighborhood::from_world(s.world(), p));
+        let prepared = s.collision().get(p, 0).expect("meshed");
+        assert_eq!(prepared.hash, fresh.hash);
+        // A sequencer that meshes it on its own, generating on the fly.
+        assert_eq!(alone.mesh_hash(p), fresh.hash);
+    }
+}

@@ -6,6 +6,8 @@
 use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 
+use rayon::prelude::*;
+
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos};
 
 use crate::metrics as m;
@@ -49,22 +51,65 @@ impl GeneratedCache {
 
     /// The generated chunk at `pos`, from the cache or the generator.
     pub fn get(&mut self, pos: ChunkPos, generator: &dyn ChunkGenerator) -> Arc<Chunk> {
-        if let Some(c) = self.chunks.get(&pos) {
-            metrics::counter!(m::GENERATED_CHUNKS, "cache" => self.label, "outcome" => "hit")
-                .increment(1);
-            return c.clone();
+        if let Some(c) = self.hit(pos) {
+            return c;
         }
-        metrics::counter!(m::GENERATED_CHUNKS, "cache" => self.label, "outcome" => "generated")
-            .increment(1);
+        self.count_generated(1);
         let c = Arc::new(generator.generate(pos));
-        self.chunks.insert(pos, c.clone());
-        self.order.push_back(pos);
+        self.keep(pos, c.clone());
+        c
+    }
+
+    /// [`Self::get`] of each of `positions` (distinct), in order; those not
+    /// cached are generated in parallel on the current rayon pool.
+    pub fn get_many(
+        &mut self,
+        positions: &[ChunkPos],
+        generator: &dyn ChunkGenerator,
+    ) -> Vec<Arc<Chunk>> {
+        let cached: Vec<Option<Arc<Chunk>>> = positions.iter().map(|&p| self.hit(p)).collect();
+        let made: Vec<Arc<Chunk>> = positions
+            .par_iter()
+            .zip(&cached)
+            .filter(|(_, c)| c.is_none())
+            .map(|(&p, _)| Arc::new(generator.generate(p)))
+            .collect();
+        self.count_generated(made.len());
+        let mut made = made.into_iter();
+        positions
+            .iter()
+            .zip(cached)
+            .map(|(&p, c)| {
+                c.unwrap_or_else(|| {
+                    let c = made.next().expect("one generated chunk per miss");
+                    self.keep(p, c.clone());
+                    c
+                })
+            })
+            .collect()
+    }
+
+    fn hit(&self, pos: ChunkPos) -> Option<Arc<Chunk>> {
+        let c = self.chunks.get(&pos)?;
+        metrics::counter!(m::GENERATED_CHUNKS, "cache" => self.label, "outcome" => "hit")
+            .increment(1);
+        Some(c.clone())
+    }
+
+    fn count_generated(&self, n: usize) {
+        metrics::counter!(m::GENERATED_CHUNKS, "cache" => self.label, "outcome" => "generated")
+            .increment(n as u64);
+    }
+
+    fn keep(&mut self, pos: ChunkPos, chunk: Arc<Chunk>) {
+        if self.chunks.insert(pos, chunk).is_none() {
+            self.order.push_back(pos);
+        }
         while self.order.len() > self.capacity {
             if let Some(old) = self.order.pop_front() {
                 self.chunks.remove(&old);
             }
         }
-        c
     }
 }
 
@@ -86,5 +131,25 @@ mod tests {
         let again = cache.get(ChunkPos::new(0, 0, 0), &g);
         assert!(!Arc::ptr_eq(&a, &again), "the oldest was dropped");
         assert_eq!(*a, *again, "and generates the same again");
+    }
+
+    #[test]
+    fn many_at_once_are_the_chunks_one_at_a_time() {
+        let g = Generator::fractal(GenParams::default()).expect("valid params");
+        let mut cache = GeneratedCache::new(3, Use::PatchBase);
+        let kept = cache.get(ChunkPos::new(1, 0, 0), &g);
+        let positions: Vec<ChunkPos> = (0..3).map(|x| ChunkPos::new(x, -1 + x % 2, 0)).collect();
+        let many = cache.get_many(&positions, &g);
+        assert_eq!(many.len(), 3);
+        for (p, c) in positions.iter().zip(&many) {
+            assert_eq!(**c, g.generate(*p), "{p:?}");
+        }
+        assert!(
+            Arc::ptr_eq(&many[1], &kept),
+            "a cached chunk is not generated again"
+        );
+        // Each kept once, up to the capacity.
+        assert_eq!((cache.chunks.len(), cache.order.len()), (3, 3));
+        assert!(Arc::ptr_eq(&cache.get(positions[2], &g), &many[2]));
     }
 }

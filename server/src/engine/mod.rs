@@ -22,6 +22,7 @@ mod ownership;
 mod peer;
 mod pending;
 mod position_refusal;
+mod prebuild;
 mod premesh;
 mod residency;
 pub mod snapshot;
@@ -181,6 +182,8 @@ pub struct Engine {
     /// The session last streamed to; the next tick starts after it.
     stream_cursor: u64,
     patch_bases: generated::GeneratedCache,
+    /// What a snapshot frame built ahead has cost lately.
+    prebuild_cost: prebuild::PrebuildCost,
     premesh: premesh::Premesher,
     last_evict: Option<Instant>,
     /// Online snapshots in progress (their copy-on-write pre-images).
@@ -251,6 +254,7 @@ impl Engine {
                 cfg.patch_base_chunks,
                 generated::Use::PatchBase,
             ),
+            prebuild_cost: Default::default(),
             last_evict: None,
             snapshots_running: Vec::new(),
             deferred: Default::default(),

@@ -157,6 +157,12 @@ impl Peer {
         change.unsubscribe
     }
 
+    /// Whether `pos` goes to the client whole even at version 0: it asked
+    /// so, or it is a thin client (no generator) that gets every chunk whole.
+    pub fn wants_full(&self, pos: ChunkPos) -> bool {
+        self.full_data.contains(&pos) || self.has(strata_protocol::CAP_SNAPSHOTS)
+    }
+
     /// Whether the client asked for `cap` (`strata_protocol::capabilities`).
     pub fn has(&self, cap: u32) -> bool {
         strata_protocol::capabilities::has(self.capabilities, cap)

@@ -71,7 +71,6 @@ impl Pending {
         self.order.len()
     }
 
-    #[cfg(test)]
     pub fn iter(&self) -> impl Iterator<Item = ChunkPos> + '_ {
         self.order.iter().copied()
     }

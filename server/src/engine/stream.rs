@@ -8,11 +8,11 @@ use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 use bytes::{Bytes, BytesMut};
-use strata_protocol::{WorldUpdate, CAP_SNAPSHOTS};
+use strata_protocol::WorldUpdate;
 use strata_terrain::chunk_codec::encode_chunk;
-use strata_terrain::delta::ChunkDelta;
+use strata_terrain::delta::{ChunkDelta, DeltaError};
 use strata_terrain::hash::chunk_hash;
-use strata_terrain::ChunkPos;
+use strata_terrain::{Chunk, ChunkPos};
 use tracing::error;
 
 use super::fanout::encode_update;
@@ -28,6 +28,10 @@ pub const DEFAULT_PATCH_BASE_CHUNKS: usize = 2048;
 /// snapshot_cache_entries`): many sessions near one spot ask for the same
 /// chunks.
 pub const DEFAULT_SNAPSHOT_CACHE_ENTRIES: usize = 8192;
+
+/// A frame's cache key: the chunk, its version, and whether it goes whole
+/// (else as a patch against the generated chunk).
+pub type FrameKey = (ChunkPos, u64, bool);
 
 /// An encoded snapshot or patch and the update it encodes.
 #[derive(Debug)]
@@ -45,7 +49,7 @@ struct Cached {
 #[derive(Debug)]
 pub struct SnapshotCache {
     capacity: usize,
-    frames: HashMap<(ChunkPos, u64, bool), Cached>,
+    frames: HashMap<FrameKey, Cached>,
 }
 
 /// The mesh hash a snapshot or patch carries.
@@ -68,9 +72,10 @@ impl SnapshotCache {
     }
 
     /// The cached frame, re-encoded first if `mesh_hash` changed.
-    fn get(&mut self, key: (ChunkPos, u64, bool), mesh_hash: u64) -> Option<Bytes> {
+    fn get(&mut self, key: FrameKey, mesh_hash: u64) -> Option<Bytes> {
         let Some(c) = self.frames.get_mut(&key) else {
-            metrics::counter!(m::SNAPSHOT_CACHE, "outcome" => "miss").increment(1);
+            // Not counted: a miss is counted once, when its frame is
+            // planned or built (a frame may wait for several ticks).
             return None;
         };
         metrics::counter!(m::SNAPSHOT_CACHE, "outcome" => "hit").increment(1);
@@ -82,14 +87,66 @@ impl SnapshotCache {
         Some(c.frame.clone())
     }
 
-    fn put(&mut self, key: (ChunkPos, u64, bool), update: WorldUpdate, frame: Bytes) {
+    /// Whether a frame for `key` is cached (its mesh hash may be stale).
+    pub fn has(&self, key: FrameKey) -> bool {
+        self.frames.contains_key(&key)
+    }
+
+    pub fn put(&mut self, key: FrameKey, update: WorldUpdate, frame: Bytes) {
         if self.frames.len() >= self.capacity {
-            metrics::counter!(m::SNAPSHOT_CACHE, "outcome" => "cleared")
-                .increment(self.frames.len() as u64);
-            self.frames.clear();
+            self.clear();
         }
         self.frames.insert(key, Cached { update, frame });
     }
+
+    /// Starts over empty unless `n` more frames fit: frames built for this
+    /// tick are not dropped by their own puts.
+    pub fn make_room(&mut self, n: usize) {
+        if self.frames.len() + n > self.capacity {
+            self.clear();
+        }
+    }
+
+    fn clear(&mut self) {
+        metrics::counter!(m::SNAPSHOT_CACHE, "outcome" => "cleared")
+            .increment(self.frames.len() as u64);
+        self.frames.clear();
+    }
+}
+
+/// The update that brings a client to `chunk` at `version`: the whole
+/// chunk, or, given its generated form `base`, a patch against that.
+pub fn frame_update(
+    pos: ChunkPos,
+    version: u64,
+    mesh_hash: u64,
+    chunk: &Chunk,
+    base: Option<&Chunk>,
+) -> Result<WorldUpdate, DeltaError> {
+    Ok(match base {
+        None => WorldUpdate::Snapshot {
+            pos,
+            version,
+            hash: chunk_hash(chunk),
+            mesh_hash,
+            data: encode_chunk(chunk),
+        },
+        Some(base) => {
+            // A patch: the delta from the generated chunk (version 0).
+            let delta = ChunkDelta::encode(pos, 0, version, base, chunk)?;
+            metrics::counter!(m::PATCH_BYTES).increment(delta.payload.len() as u64);
+            WorldUpdate::Patched { delta, mesh_hash }
+        }
+    })
+}
+
+/// One session's batch while a tick's streaming assembles it.
+struct OpenBatch {
+    id: u64,
+    bytes: BytesMut,
+    sent: Vec<(ChunkPos, u64, &'static str)>,
+    /// The frame it stopped at, not built yet.
+    waiting: Option<FrameKey>,
 }
 
 impl Engine {
@@ -97,6 +154,13 @@ impl Engine {
     /// until the tick's streaming time is spent. Sessions are served in turn
     /// from where the last tick stopped, so a join storm delays snapshots,
     /// never the tick's edits.
+    ///
+    /// Three steps: each session's batch takes what needs no building
+    /// (cached frames, `Generated` lines) up to the first frame that does;
+    /// those frames are built on the workers, for many sessions at once
+    /// (`prebuild.rs`); then the batches go on with them and are sent.
+    /// `[engine] stream_us` bounds the first and the last step, and sizes
+    /// the building between them.
     pub(super) fn stream_snapshots(&mut self) {
         let deadline = Instant::now() + Duration::from_micros(self.cfg.stream_us);
         let mut ids: Vec<u64> = self
@@ -109,43 +173,82 @@ impl Engine {
         // Resume after the session served last.
         let start = ids.partition_point(|id| *id <= self.stream_cursor);
         ids.rotate_left(start);
+        let mut due = self.prebuild_plan();
+        let mut open = Vec::new();
         for (i, id) in ids.into_iter().enumerate() {
             // At least one session per tick, however small the budget.
             if i > 0 && Instant::now() >= deadline {
                 break;
             }
             self.stream_cursor = id;
-            self.stream_batch(id, deadline);
+            let Some(mut batch) = self.open_batch(id) else {
+                continue;
+            };
+            self.fill_batch(&mut batch, deadline, false);
+            if batch.waiting.is_some() {
+                self.plan_frames(id, &mut due);
+            }
+            open.push(batch);
+        }
+        if !due.is_empty() {
+            self.prebuild_frames(&due);
+            let deadline = Instant::now() + Duration::from_micros(self.cfg.stream_us);
+            for batch in open.iter_mut() {
+                // A frame planned and still not built (its chunk could not
+                // be read) is built here, so the session moves on.
+                if let Some(key) = batch.waiting.take() {
+                    self.fill_batch(batch, deadline, due.contains(key));
+                }
+            }
+        }
+        for batch in open {
+            self.send_batch(batch);
         }
     }
 
-    /// Sends one session up to its byte budget of snapshots (and until
-    /// `deadline`) as one batch, once its previous batch went to the writer.
-    fn stream_batch(&mut self, id: u64, deadline: Instant) {
+    /// An empty batch for session `id`, unless it is gone, failed, or its
+    /// previous batch is still being written: one batch in flight at
+    /// most, so a delta queued after it waits behind one batch of
+    /// snapshots, not many.
+    fn open_batch(&self, id: u64) -> Option<OpenBatch> {
+        let p = self.peers.get(&id)?;
+        (!p.failed && p.updates.is_idle()).then(|| OpenBatch {
+            id,
+            bytes: BytesMut::new(),
+            sent: Vec::new(),
+            waiting: None,
+        })
+    }
+
+    /// Adds the session's next frames to `batch` up to its byte budget (and
+    /// until `deadline`, once it holds one), stopping at a frame not built
+    /// yet: built here only if `build_first` and the batch is empty.
+    fn fill_batch(&mut self, batch: &mut OpenBatch, deadline: Instant, build_first: bool) {
         let budget = self.stream.send_budget;
-        let mut batch = BytesMut::new();
-        let mut sent: Vec<(ChunkPos, u64, &'static str)> = Vec::new();
-        while batch.len() < budget && (batch.is_empty() || Instant::now() < deadline) {
+        let id = batch.id;
+        while batch.bytes.len() < budget && (batch.bytes.is_empty() || Instant::now() < deadline) {
             let Some(p) = self.peers.get_mut(&id) else {
                 return;
             };
-            // One batch in flight at most: a delta queued after it then
-            // waits behind one batch of snapshots, not many.
-            if p.failed || (batch.is_empty() && !p.updates.is_idle()) {
-                break;
-            }
             let Some(pos) = p.pending.pop_front() else {
                 break;
             };
             if !p.interest.covers(pos) {
                 continue;
             }
-            // A thin client (no generator) gets every chunk whole.
-            let full = p.full_data.contains(&pos) || p.has(CAP_SNAPSHOTS);
-            match self.snapshot_frame(pos, full) {
-                Ok((frame, version, kind)) => {
-                    batch.extend_from_slice(&frame);
-                    sent.push((pos, version, kind));
+            let full = p.wants_full(pos);
+            let build = build_first && batch.bytes.is_empty();
+            match self.snapshot_frame(pos, full, build) {
+                Ok(Ok((frame, version, kind))) => {
+                    batch.bytes.extend_from_slice(&frame);
+                    batch.sent.push((pos, version, kind));
+                }
+                Ok(Err(key)) => {
+                    if let Some(p) = self.peers.get_mut(&id) {
+                        p.pending.push_front(pos);
+                    }
+                    batch.waiting = Some(key);
+                    break;
                 }
                 Err(e) => {
                     error!(error = %e, ?pos, "cannot build a snapshot");
@@ -157,14 +260,21 @@ impl Engine {
                 }
             }
         }
+    }
+
+    /// Sends a batch (with the view's end marker after its last chunk),
+    /// and records what the session now holds.
+    fn send_batch(&mut self, batch: OpenBatch) {
+        let OpenBatch {
+            id,
+            bytes: mut batch,
+            sent,
+            ..
+        } = batch;
         let Some(p) = self.peers.get_mut(&id) else {
             return;
         };
-        // The view's end marker goes after its last chunk, in the same batch.
-        let completes = p.complete_due
-            && p.pending.is_empty()
-            && !p.failed
-            && (!batch.is_empty() || p.updates.is_idle());
+        let completes = p.complete_due && p.pending.is_empty() && !p.failed;
         if let (true, Some(center)) = (completes, p.interest.center()) {
             let radius = p.interest.radius();
             batch.extend_from_slice(&encode_update(&WorldUpdate::InterestComplete {
@@ -192,49 +302,56 @@ impl Engine {
         }
     }
 
-    /// The frame that brings a client to the chunk's current version: a
-    /// patch against the generated chunk when the client can regenerate,
-    /// else (or when it asked for full data) the whole chunk.
+    /// The key of the frame that brings a client to the chunk's current
+    /// version: a patch against the generated chunk when the client can
+    /// regenerate, else (or when `full`) the whole chunk.
+    pub(super) fn frame_key(&self, pos: ChunkPos, full: bool) -> FrameKey {
+        let version = self.versions.get(&pos).copied().unwrap_or(0);
+        (pos, version, full || !self.stream.regenerable)
+    }
+
+    /// That frame, from the cache or (when `build`) built here; else the
+    /// key of the frame not built yet.
     fn snapshot_frame(
         &mut self,
         pos: ChunkPos,
         full: bool,
-    ) -> anyhow::Result<(Bytes, u64, &'static str)> {
-        let version = self.versions.get(&pos).copied().unwrap_or(0);
-        let full = full || !self.stream.regenerable;
+        build: bool,
+    ) -> anyhow::Result<Result<(Bytes, u64, &'static str), FrameKey>> {
+        let key @ (_, version, full) = self.frame_key(pos, full);
         if version == 0 && !full {
             let frame = encode_update(&WorldUpdate::Generated { pos });
-            return Ok((frame, 0, "generated"));
+            return Ok(Ok((frame, 0, "generated")));
         }
         let kind = if full { "full" } else { "patched" };
+        // A cached frame is sent without touching the world.
+        if let Some(mesh_hash) = self.cached_frame_mesh(key) {
+            if let Some(f) = self.snapshots.get(key, mesh_hash) {
+                return Ok(Ok((f, version, kind)));
+            }
+        }
+        if !build {
+            return Ok(Err(key));
+        }
         let around: Vec<ChunkPos> = crate::sequencer::residency::with_neighbours(pos).collect();
         self.make_resident(&around)?;
         let mesh_hash = self.seq.mesh_hash(pos);
-        let key = (pos, version, full);
         if let Some(f) = self.snapshots.get(key, mesh_hash) {
-            return Ok((f, version, kind));
+            return Ok(Ok((f, version, kind)));
         }
+        metrics::counter!(m::SNAPSHOT_CACHE, "outcome" => "miss").increment(1);
         let chunk = self.seq.chunk(pos);
-        let update = if full {
-            WorldUpdate::Snapshot {
-                pos,
-                version,
-                hash: chunk_hash(&chunk),
-                mesh_hash,
-                data: encode_chunk(&chunk),
-            }
-        } else {
-            let base = self.patch_bases.get(pos, &**self.seq.world().generator());
-            // A patch: the delta from the generated chunk (version 0).
-            let delta = ChunkDelta::encode(pos, 0, version, &base, &chunk)?;
-            metrics::counter!(m::PATCH_BYTES).increment(delta.payload.len() as u64);
-            WorldUpdate::Patched { delta, mesh_hash }
+        let base = match full {
+            true => None,
+            false => Some(self.patch_bases.get(pos, &**self.seq.world().generator())),
         };
+        let update = frame_update(pos, version, mesh_hash, &chunk, base.as_deref())?;
+        metrics::counter!(m::SNAPSHOT_FRAMES_BUILT, "on" => "engine").increment(1);
         let frame = encode_update(&update);
         // Full frames of version 0 are as costly to build (generate, compress,
         // mesh) as any; end-of-run checks ask many sessions for the same ones.
         self.snapshots.put(key, update, frame.clone());
-        Ok((frame, version, kind))
+        Ok(Ok((frame, version, kind)))
     }
 }
 

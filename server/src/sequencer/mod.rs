@@ -24,6 +24,8 @@ pub use tick::{BuiltMeshes, PendingMeshes};
 
 use std::collections::{HashMap, HashSet, VecDeque};
 
+use rayon::prelude::*;
+
 use strata_protocol::{EditRequest, PositionUpdate, Role, Start};
 use strata_terrain::edit::{EditContext, FixedVec3, StructureLibrary};
 use strata_terrain::{Chunk, ChunkPos, MaterialTable, World};
@@ -220,6 +222,39 @@ impl Sequencer {
         if self.world.peek(pos).is_none() {
             self.world.insert(pos, chunk.clone(), 0);
             self.residency.mark_absent(pos);
+        }
+    }
+
+    /// Makes sure each listed chunk has a collision mesh for its current
+    /// version, built on the current rayon pool. Their neighbours that the
+    /// store lacks and the world has not loaded are generated first, each
+    /// once and in parallel, and kept (version 0): else every mesh would
+    /// generate its missing neighbours again on its own. The chunks and
+    /// their neighbours must be resident.
+    pub fn prepare_meshes(&mut self, chunks: &[ChunkPos]) {
+        let mut missing: Vec<ChunkPos> = chunks
+            .iter()
+            .flat_map(|&p| with_neighbours(p))
+            .filter(|&p| self.world.peek(p).is_none() && self.is_resident(p))
+            .collect();
+        missing.sort_unstable();
+        missing.dedup();
+        self.generate_into_world(missing);
+        self.collision.ensure(&self.world, chunks);
+    }
+
+    /// Generates `positions` (none of them loaded) and holds them at
+    /// version 0; on the current rayon pool when there are several.
+    fn generate_into_world(&mut self, positions: Vec<ChunkPos>) {
+        let generator = self.world.generator().clone();
+        let generate = |&p: &ChunkPos| (p, generator.generate(p));
+        let made: Vec<(ChunkPos, Chunk)> = if positions.len() > 1 {
+            positions.par_iter().map(generate).collect()
+        } else {
+            positions.iter().map(generate).collect()
+        };
+        for (p, chunk) in made {
+            self.world.insert(p, chunk, 0);
         }
     }
 

@@ -276,21 +276,7 @@ impl Sequencer {
             .flat_map(|&p| with_neighbours(p))
             .filter(|&p| self.world.peek(p).is_none())
             .collect();
-        let generator = self.world.generator().clone();
-        let made: Vec<(ChunkPos, Chunk)> = if missing.len() > 1 {
-            missing
-                .par_iter()
-                .map(|&p| (p, generator.generate(p)))
-                .collect()
-        } else {
-            missing
-                .iter()
-                .map(|&p| (p, generator.generate(p)))
-                .collect()
-        };
-        for (p, chunk) in made {
-            self.world.insert(p, chunk, 0);
-        }
+        self.generate_into_world(missing.into_iter().collect());
         let world = &self.world;
         let copy = |(&pos, &version): (&ChunkPos, &u64)| {
             (pos, version, mesh_buffers::from_world(world, pos))

@@ -196,6 +196,16 @@ pub fn spawn_server(data_dir: &Path, config: &str) -> (Child, SocketAddr) {
 
 /// A client of a child-process server, with a token from its data dir.
 pub async fn process_client(data_dir: &Path, addr: SocketAddr, player: &str) -> Client {
+    process_client_opts(data_dir, addr, player, Default::default()).await
+}
+
+/// [`process_client`] with client options (capabilities, ...).
+pub async fn process_client_opts(
+    data_dir: &Path,
+    addr: SocketAddr,
+    player: &str,
+    opts: strata_client_sim::ClientOptions,
+) -> Client {
     let dd = DataDir::open_existing(data_dir).unwrap();
     let token = auth::issue(
         dd.secret(),
@@ -205,7 +215,7 @@ pub async fn process_client(data_dir: &Path, addr: SocketAddr, player: &str) -> 
         auth::unix_now(),
     )
     .unwrap();
-    Client::connect(addr, dd.cert().cert_der(), &token)
+    Client::connect_opts(addr, dd.cert().cert_der(), &token, opts)
         .await
         .unwrap()
 }
