@@ -714,6 +714,30 @@ impl ServerConfig {
             1,
             crate::sequencer::regions::MAX_REGION_CHUNKS,
         )?;
+        let v = &self.validation;
+        use crate::validate::config as vc;
+        for (field, value, max) in [
+            ("validation.reach", v.reach, vc::MAX_REACH),
+            (
+                "validation.los_tolerance",
+                v.los_tolerance,
+                vc::MAX_LOS_TOLERANCE,
+            ),
+            ("validation.eye_height", v.eye_height, vc::MAX_EYE_HEIGHT),
+            ("validation.max_speed", v.max_speed, vc::MAX_SPEED_LIMIT),
+            (
+                "validation.speed_slack_factor",
+                v.speed_slack_factor,
+                vc::MAX_SPEED_SLACK_FACTOR,
+            ),
+            (
+                "validation.speed_slack_voxels",
+                v.speed_slack_voxels,
+                vc::MAX_SPEED_LIMIT,
+            ),
+        ] {
+            range(field, value, 0.0, max)?;
+        }
         let spawn = &self.validation.spawn;
         let max = crate::validate::spawn::MAX_SPAWN_COORD;
         range("validation.spawn.x", spawn.x, -max, max)?;
@@ -796,7 +820,8 @@ fn range<T: PartialOrd + std::fmt::Display>(
     min: T,
     max: T,
 ) -> Result<(), ConfigError> {
-    if value < min || value > max {
+    // Not `value < min || value > max`: a NaN would pass that.
+    if !(value >= min && value <= max) {
         return Err(invalid(field, format!("{value} is outside {min}..={max}")));
     }
     Ok(())

@@ -322,6 +322,23 @@ fn bad_values_name_their_field() {
             "[store]\nsegment_size_bytes = 3000000",
             "store.segment_size_bytes",
         ),
+        ("[validation]\nreach = 1000.0", "validation.reach"),
+        ("[validation]\nreach = nan", "validation.reach"),
+        ("[validation]\nreach = -1.0", "validation.reach"),
+        (
+            "[validation]\nlos_tolerance = inf",
+            "validation.los_tolerance",
+        ),
+        ("[validation]\neye_height = -0.5", "validation.eye_height"),
+        ("[validation]\nmax_speed = 1e9", "validation.max_speed"),
+        (
+            "[validation]\nspeed_slack_factor = nan",
+            "validation.speed_slack_factor",
+        ),
+        (
+            "[validation]\nspeed_slack_voxels = 5000.0",
+            "validation.speed_slack_voxels",
+        ),
     ];
     for (text, field) in cases {
         assert_eq!(invalid_field(text), field, "config {text:?}");

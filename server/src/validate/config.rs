@@ -26,6 +26,17 @@ pub const DEFAULT_MAX_SPEED: f64 = 20.0;
 pub const DEFAULT_SPEED_SLACK_FACTOR: f64 = 0.25;
 /// Extra voxels allowed on every move (datagram timing, rounding).
 pub const DEFAULT_SPEED_SLACK_VOXELS: f64 = 2.0;
+/// Longest allowed `reach`: an edit's sight ray, the meshes it needs and
+/// the chunks it reads grow with it.
+pub const MAX_REACH: f64 = 128.0;
+/// Largest allowed `los_tolerance`, in voxels.
+pub const MAX_LOS_TOLERANCE: f64 = 16.0;
+/// Largest allowed `eye_height`, in voxels.
+pub const MAX_EYE_HEIGHT: f64 = 16.0;
+/// Largest allowed `max_speed` and `speed_slack_voxels`.
+pub const MAX_SPEED_LIMIT: f64 = 1024.0;
+/// Largest allowed `speed_slack_factor`.
+pub const MAX_SPEED_SLACK_FACTOR: f64 = 16.0;
 /// Half-width of the default spawn protection cube around the origin, in voxels.
 pub const DEFAULT_SPAWN_PROTECTION_RADIUS: i32 = 32;
 /// Burst of edits per player.
