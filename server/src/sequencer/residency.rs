@@ -7,14 +7,9 @@ use std::collections::HashSet;
 
 use strata_terrain::{ChunkPos, VoxelBox, VoxelPos, World, CHUNK_SIZE};
 
-/// Chunks an edit's box reads, grown by one chunk on each side: the
-/// neighbours' voxels feed the collision meshes of the changed chunks.
-pub fn edit_chunks(bbox: &VoxelBox, margin: i32) -> impl Iterator<Item = ChunkPos> {
-    edit_footprint(bbox, margin).chunks()
-}
-
-/// The voxels whose chunks [`edit_chunks`] names: the box grown by the
-/// edit's read margin and one chunk.
+/// The voxels an edit's box reads, grown by its read margin and one chunk
+/// on each side: the neighbours' voxels feed the collision meshes of the
+/// changed chunks.
 pub fn edit_footprint(bbox: &VoxelBox, margin: i32) -> VoxelBox {
     grown(bbox, margin + CHUNK_SIZE)
 }

@@ -3,7 +3,7 @@
 use strata_protocol::{EditRequest, RejectReason};
 use strata_terrain::{ChunkPos, Edit, VoxelBox};
 
-use super::residency::{edit_chunks, edit_footprint, with_neighbours};
+use super::residency::{edit_footprint, with_neighbours};
 use super::session::PlayerLimits;
 use super::{Queued, Sequencer};
 use crate::validate::{caps, line_of_sight, permissions, position, reach, zones};
@@ -102,23 +102,25 @@ fn sorted_union(lo: ChunkPos, hi: ChunkPos, ray: &[ChunkPos]) -> Vec<ChunkPos> {
     v
 }
 
+/// The chunks of an edit's footprint (its box, read margin and mesh
+/// apron) and the 27 around each of `ray`'s, sorted.
+fn footprint_and_ray(bbox: &VoxelBox, margin: i32, ray: &[ChunkPos]) -> Vec<ChunkPos> {
+    let footprint = edit_footprint(bbox, margin);
+    box_and_ray(footprint.min.chunk(), footprint.max.chunk(), ray)
+}
+
 impl Sequencer {
     /// Everything validating and applying `edit` reads, given the eye (if any).
     /// `None` if the terrain core refuses the edit.
     pub(super) fn read_set(&self, edit: &Edit, eye: Option<glam::DVec3>) -> Option<Vec<ChunkPos>> {
         let bbox = edit.validate(&self.ctx()).ok()?;
-        let mut set: Vec<ChunkPos> = edit_chunks(&bbox, edit.read_margin()).collect();
-        if let Some(eye) = eye {
-            let target = reach::target_point(edit, &bbox, eye);
-            if eye.distance(target) <= self.validation.reach {
-                for c in line_of_sight::sight_chunks(eye, target) {
-                    set.extend(with_neighbours(c));
-                }
-            }
-        }
-        set.sort();
-        set.dedup();
-        Some(set)
+        let ray = eye
+            .map(|eye| (eye, reach::target_point(edit, &bbox, eye)))
+            .filter(|(eye, target)| eye.distance(*target) <= self.validation.reach)
+            .map_or_else(Vec::new, |(eye, target)| {
+                line_of_sight::sight_chunks(eye, target)
+            });
+        Some(footprint_and_ray(&bbox, edit.read_margin(), &ray))
     }
 
     /// The rules of [`Self::submit`] that read no terrain: role permission,
@@ -138,8 +140,7 @@ impl Sequencer {
             Err(r) => return Err(self.rejected(session_id, r, now_ms)),
         };
         let ray = line_of_sight::sight_chunks(cheap.eye, cheap.target);
-        let footprint = edit_footprint(&cheap.bbox, edit.read_margin());
-        let reads = box_and_ray(footprint.min.chunk(), footprint.max.chunk(), &ray);
+        let reads = footprint_and_ray(&cheap.bbox, edit.read_margin(), &ray);
         Ok(Prechecked { cheap, ray, reads })
     }
 
