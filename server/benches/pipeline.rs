@@ -41,6 +41,10 @@ use strata_terrain::world::FlatGenerator;
 use strata_terrain::{ChunkPos, Edit, Fixed, FixedVec3, MaterialTable, Voxel, World};
 use tokio::sync::mpsc::Receiver;
 
+/// The server's allocator, so that the CPU per edit here is the server's.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 const SPOTS: i32 = 16;
 const WATCHERS: usize = 50;
 /// Edits sent but not yet acknowledged or refused, at most.
