@@ -92,7 +92,7 @@ impl Due {
 
     /// Adds `key` unless it is planned already; false once full.
     fn add(&mut self, key: FrameKey) -> bool {
-        if self.keys.len() >= self.cap {
+        if self.is_full() {
             return false;
         }
         if self.seen.insert(key) {
@@ -108,6 +108,10 @@ impl Due {
 
     pub fn is_empty(&self) -> bool {
         self.keys.is_empty()
+    }
+
+    fn is_full(&self) -> bool {
+        self.keys.len() >= self.cap
     }
 }
 
@@ -126,7 +130,7 @@ impl Engine {
     /// the front of its queue, [`PREBUILD_PER_SESSION`] at most, looking at
     /// [`PLAN_SCAN_PER_SESSION`] chunks at most.
     pub(super) fn plan_frames(&self, id: u64, due: &mut Due) {
-        let Some(p) = self.peers.get(&id) else {
+        let Some(p) = self.peers.get(&id).filter(|_| !due.is_full()) else {
             return;
         };
         let mut taken = 0;
@@ -256,7 +260,7 @@ mod tests {
         assert!(due.add(key(1)));
         assert!(due.add(key(1)), "planned already: not full");
         assert!(due.add(key(2)));
-        assert!(!due.add(key(3)), "full");
+        assert!(!due.add(key(3)) && due.is_full(), "full");
         assert_eq!(due.keys, [key(1), key(2)]);
         assert!(due.contains(key(2)) && !due.contains(key(3)));
     }
