@@ -329,6 +329,14 @@ fn store_backed_chunks_must_be_resident() {
         s.submit(PLAYER, req(1, edit.clone()), 0),
         Err(RejectReason::Busy)
     );
+    // The engine's path (rules once, then its sight check on the workers)
+    // waits as well, generating nothing.
+    let loaded = s.world().loaded();
+    assert_eq!(
+        s.admit(PLAYER, req(1, edit.clone()), 0),
+        Err(RejectReason::Busy)
+    );
+    assert_eq!((s.sighting(), s.world().loaded()), (0, loaded));
     assert_eq!(snapshot(&s), before);
     // The store has the home chunk at version 5 (one voxel already dug).
     let mut stored = Chunk::uniform(Voxel::solid(3));

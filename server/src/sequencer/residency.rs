@@ -87,6 +87,12 @@ impl Residency {
         self.storeless || world.peek(pos).is_some() || self.absent.contains(&pos)
     }
 
+    /// Whether `pos`, when not loaded, is generated: the store has no
+    /// version of it (or there is no store).
+    pub fn may_generate(&self, pos: ChunkPos) -> bool {
+        self.storeless || self.absent.contains(&pos)
+    }
+
     /// The chunks of `wanted` that still need loading, sorted and deduplicated.
     pub fn missing(
         &self,

@@ -15,8 +15,7 @@ use rayon::prelude::*;
 use strata_protocol::{EditRequest, RejectReason};
 use strata_terrain::ChunkPos;
 
-use super::residency::with_neighbours;
-use super::submit::Prechecked;
+use super::submit::{near_any, Prechecked};
 use super::{Queued, Sequencer};
 use crate::validate::line_of_sight;
 
@@ -66,16 +65,23 @@ impl Sequencer {
         now_ms: u64,
     ) -> Result<(), RejectReason> {
         let edit = &request.edit;
-        if !self
-            .residency
-            .missing(&self.world, pre.reads().iter().copied())
-            .is_empty()
-        {
-            return Err(self.rejected(session_id, RejectReason::Busy, now_ms));
+        // One look at each chunk read: one not resident makes the edit
+        // wait; the ray's neighbourhoods are loaded (generated) for its
+        // meshes.
+        let mut generate = Vec::new();
+        for &p in pre.reads() {
+            if self.world.peek(p).is_some() {
+                continue;
+            }
+            if !self.residency.may_generate(p) {
+                return Err(self.rejected(session_id, RejectReason::Busy, now_ms));
+            }
+            if near_any(&pre.ray, p) {
+                generate.push(p);
+            }
         }
+        self.world.load(generate);
         let Prechecked { cheap, ray, .. } = pre;
-        self.world
-            .load(ray.iter().flat_map(|c| with_neighbours(*c)));
         let tolerance = edit.radius().map_or(0.0, |r| r.to_f64()) + self.validation.los_tolerance;
         let limits = self.limits_of(session_id, now_ms);
         limits.edits.take(1);

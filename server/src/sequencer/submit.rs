@@ -57,10 +57,7 @@ fn box_and_ray(lo: ChunkPos, hi: ChunkPos, ray: &[ChunkPos]) -> Vec<ChunkPos> {
     let in_box = |p: ChunkPos| {
         (lo.x..=hi.x).contains(&p.x) && (lo.y..=hi.y).contains(&p.y) && (lo.z..=hi.z).contains(&p.z)
     };
-    let near_ray = |p: ChunkPos| {
-        ray.iter()
-            .any(|r| r.x.abs_diff(p.x) <= 1 && r.y.abs_diff(p.y) <= 1 && r.z.abs_diff(p.z) <= 1)
-    };
+    let near_ray = |p: ChunkPos| near_any(ray, p);
     let span = |lo: i32, hi: i32| u64::from(hi.abs_diff(lo)) + 1;
     let volume = |a: ChunkPos, b: ChunkPos| {
         span(a.x, b.x)
@@ -85,6 +82,13 @@ fn box_and_ray(lo: ChunkPos, hi: ChunkPos, ray: &[ChunkPos]) -> Vec<ChunkPos> {
         }
     }
     out
+}
+
+/// Whether `p` is one of `chunks` or touches one (the 27 around each).
+pub(super) fn near_any(chunks: &[ChunkPos], p: ChunkPos) -> bool {
+    chunks
+        .iter()
+        .any(|r| r.x.abs_diff(p.x) <= 1 && r.y.abs_diff(p.y) <= 1 && r.z.abs_diff(p.z) <= 1)
 }
 
 /// [`box_and_ray`] by collecting, sorting and deduplicating.
