@@ -28,19 +28,37 @@ fn cube(c: ChunkPos, r: i32) -> Vec<ChunkPos> {
 
 #[tokio::test]
 async fn tiny_stream_budgets_serve_sessions_in_turn_and_deliver_every_chunk() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(dir.path());
+    // The smallest batches, and time for one session per tick.
+    cfg.engine.stream_us = 1;
+    cfg.net.send_budget_bytes_per_tick = strata_server::config::MIN_SEND_BUDGET_BYTES_PER_TICK;
+    served_in_turn(cfg, 0).await;
+}
+
+/// Thin clients, whose every frame is built: a tick builds only so many
+/// (`prebuild.rs`), and the sessions whose frames did not fit go first
+/// the next tick, so none waits for another's whole view.
+#[tokio::test]
+async fn sessions_whose_frames_wait_for_the_workers_are_served_in_turn() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(dir.path());
+    cfg.engine.workers = 1;
+    served_in_turn(cfg, strata_protocol::CAP_SNAPSHOTS).await;
+}
+
+/// Three sessions with `capabilities` join far apart: when the first has
+/// its whole view, the others have at least half of theirs, and then all
+/// of it.
+async fn served_in_turn(cfg: strata_server::config::ServerConfig, capabilities: u32) {
     tokio::time::timeout(TEST_TIMEOUT, async {
-        let dir = tempfile::tempdir().unwrap();
-        let mut cfg = test_config(dir.path());
-        // The smallest batches, and time for one session per tick.
-        cfg.engine.stream_us = 1;
-        cfg.net.send_budget_bytes_per_tick = strata_server::config::MIN_SEND_BUDGET_BYTES_PER_TICK;
         let radius = i32::from(cfg.interest.view_radius);
         let server = app::start(cfg).await.expect("server starts");
         let g = Generator::fractal(GenParams::default()).unwrap();
         let mut clients = Vec::new();
         let mut views = Vec::new();
         for (i, name) in ["ana", "bo", "cy"].into_iter().enumerate() {
-            let c = connect(&server, name, Role::Player).await;
+            let c = connect_caps(&server, name, capabilities).await;
             let x = 70 + 40 * i as i32;
             let y = g.surface_height(x, 40);
             c.send_position(at(x as f64, y + 1.0, 40.0)).unwrap();

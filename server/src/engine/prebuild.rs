@@ -110,7 +110,7 @@ impl Due {
         self.keys.is_empty()
     }
 
-    fn is_full(&self) -> bool {
+    pub fn is_full(&self) -> bool {
         self.keys.len() >= self.cap
     }
 }

@@ -180,14 +180,21 @@ impl Engine {
             if i > 0 && Instant::now() >= deadline {
                 break;
             }
-            self.stream_cursor = id;
             let Some(mut batch) = self.open_batch(id) else {
+                self.stream_cursor = id;
                 continue;
             };
             self.fill_batch(&mut batch, deadline, false);
             if batch.waiting.is_some() {
+                if due.is_full() {
+                    // No room left to build its frames: it goes first next
+                    // tick (with what it has now), ahead of those served.
+                    open.push(batch);
+                    break;
+                }
                 self.plan_frames(id, &mut due);
             }
+            self.stream_cursor = id;
             open.push(batch);
         }
         if !due.is_empty() {
