@@ -235,7 +235,7 @@ impl Sequencer {
         let mut missing: Vec<ChunkPos> = chunks
             .iter()
             .flat_map(|&p| with_neighbours(p))
-            .filter(|&p| self.world.peek(p).is_none() && self.is_resident(p))
+            .filter(|&p| self.world.peek(p).is_none() && self.residency.may_generate(p))
             .collect();
         missing.sort_unstable();
         missing.dedup();

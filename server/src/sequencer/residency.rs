@@ -84,7 +84,7 @@ impl Residency {
     }
 
     pub fn is_resident(&self, world: &World, pos: ChunkPos) -> bool {
-        self.storeless || world.peek(pos).is_some() || self.absent.contains(&pos)
+        self.may_generate(pos) || world.peek(pos).is_some()
     }
 
     /// Whether `pos`, when not loaded, is generated: the store has no
