@@ -17,7 +17,10 @@
 //! the batch before them committed. The last columns split the time per
 //! batch into the engine's phases (apply: the region lanes; commit:
 //! encode, write, fsync, and any batch applied ahead meanwhile; fanout:
-//! acks and deltas).
+//! acks and deltas). The last column splits the process's CPU per edit
+//! by thread: the workers, the engine thread, the commit thread, and the
+//! rest (the bench's drain and feed, sled, the checkpointer), so that what
+//! does not grow with the workers shows.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -71,14 +74,14 @@ fn main() -> anyhow::Result<()> {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );
     println!(
-        "| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick | edits/tick | ahead | tick ms | apply / commit / fanout ms |"
+        "| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick | edits/tick | ahead | tick ms | apply / commit / fanout ms | CPU µs/edit: workers / engine / commit / rest |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for workers in counts {
         let r = run(workers, Duration::from_secs(seconds), &metrics)?;
         let per_tick = |ms: f64| ms / r.ticks.max(1.0);
         println!(
-            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} | {:.0} | {:.2} | {:.1} | {:.1} / {:.1} / {:.1} |",
+            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} | {:.0} | {:.2} | {:.1} | {:.1} / {:.1} / {:.1} | {} |",
             r.edits / r.secs,
             r.deltas / r.secs,
             r.deltas / r.edits.max(1.0),
@@ -90,6 +93,9 @@ fn main() -> anyhow::Result<()> {
             per_tick(r.phase_ms[1]),
             per_tick(r.phase_ms[2]),
             per_tick(r.phase_ms[3]),
+            r.by_thread
+                .map(|s| format!("{:.1}", s * 1e6 / r.edits.max(1.0)))
+                .join(" / "),
         );
     }
     Ok(())
@@ -107,6 +113,9 @@ struct Result {
     ahead: f64,
     /// Whole tick, apply, commit, fanout: ms summed over `ticks`.
     phase_ms: [f64; 4],
+    /// CPU seconds of the workers, the engine, the commit thread and the
+    /// rest of the process.
+    by_thread: [f64; 4],
 }
 
 /// One session's end of the engine's queues.
@@ -237,6 +246,7 @@ fn run(
         ticks: after.lanes_count - before.lanes_count,
         ahead: after.ahead - before.ahead,
         phase_ms: std::array::from_fn(|i| (after.phases[i] - before.phases[i]) * 1e3),
+        by_thread: std::array::from_fn(|i| after.threads[i] - before.threads[i]),
     })
 }
 
@@ -353,6 +363,7 @@ struct Counters {
     lanes_count: f64,
     ahead: f64,
     phases: [f64; 4],
+    threads: [f64; 4],
 }
 
 /// Series summed into [`Counters::phases`].
@@ -373,6 +384,7 @@ impl Counters {
             lanes_count: counter(m, "strata_tick_lanes_count"),
             ahead: counter(m, "strata_ticks_applied_ahead_total"),
             phases: PHASES.map(|p| counter(m, p)),
+            threads: threads_cpu_seconds(),
         }
     }
 }
@@ -392,7 +404,35 @@ fn counter(m: &metrics_exporter_prometheus::PrometheusHandle, name: &str) -> f64
 
 /// User plus system CPU seconds of this process, all threads.
 fn process_cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    cpu_seconds(&std::fs::read_to_string("/proc/self/stat").unwrap_or_default())
+}
+
+/// CPU seconds of the live threads: workers, engine, commit, the rest.
+/// (Each measured run's threads live through both readings.)
+fn threads_cpu_seconds() -> [f64; 4] {
+    let mut by = [0.0; 4];
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return by;
+    };
+    for task in tasks.flatten() {
+        let stat = std::fs::read_to_string(task.path().join("stat")).unwrap_or_default();
+        let name = stat
+            .split_once('(')
+            .and_then(|(_, r)| r.rsplit_once(')'))
+            .map_or("", |(n, _)| n);
+        let group = match name {
+            n if n.starts_with("strata-worker") => 0,
+            "strata-engine" => 1,
+            "strata-commit" => 2,
+            _ => 3,
+        };
+        by[group] += cpu_seconds(&stat);
+    }
+    by
+}
+
+/// User plus system CPU seconds from a `stat` line of `/proc`.
+fn cpu_seconds(stat: &str) -> f64 {
     // Fields after the command name (which may hold spaces) start at ')'.
     let rest = stat.rsplit(')').next().unwrap_or("");
     let f: Vec<&str> = rest.split_whitespace().collect();

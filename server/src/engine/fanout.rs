@@ -70,6 +70,7 @@ pub fn broadcast(
         .keys()
         .any(|id| peers.get(id).is_some_and(|p| p.has(CAP_OP_REPLAY)));
     let edits: Vec<TickEdit<'_>> = changed.iter().map(|a| TickEdit::new(a, ops)).collect();
+    let counters = Counters::new();
     if on_workers(live) {
         // Sessions outside, chains inside: each visited once per tick, on
         // every worker of the current pool.
@@ -82,7 +83,7 @@ pub fn broadcast(
             .with_min_len(PEERS_PER_TASK)
             .flat_map_iter(|(id, p, mine)| {
                 let id = *id;
-                send_tick(p, &edits, &chains, mine, &end)
+                send_tick(p, &edits, &chains, mine, &end, &counters)
                     .into_iter()
                     .map(move |pos| (pos, id))
             })
@@ -97,7 +98,7 @@ pub fn broadcast(
                 continue;
             };
             let mine = wants.remove(&id).unwrap_or_default();
-            let gone = send_tick(p, &edits, &chains, &mine, &end);
+            let gone = send_tick(p, &edits, &chains, &mine, &end, &counters);
             stale.extend(gone.into_iter().map(|pos| (pos, id)));
         }
     }
@@ -183,6 +184,24 @@ impl<'a> TickEdit<'a> {
     }
 }
 
+/// The fan-out's counters, looked up once a tick rather than once a
+/// session (a registry lookup each).
+struct Counters {
+    ops_sent: metrics::Counter,
+    deltas_sent: metrics::Counter,
+    deltas_dropped: metrics::Counter,
+}
+
+impl Counters {
+    fn new() -> Self {
+        Self {
+            ops_sent: metrics::counter!(m::OPS_SENT),
+            deltas_sent: metrics::counter!(m::DELTAS_SENT),
+            deltas_dropped: metrics::counter!(m::DELTAS_DROPPED),
+        }
+    }
+}
+
 /// Sessions one fan-out task visits at least: fewer would cost more in
 /// scheduling than the lookups they save.
 const PEERS_PER_TASK: usize = 64;
@@ -196,6 +215,7 @@ fn send_tick(
     chains: &[(ChunkPos, Vec<At>)],
     mine: &[u32],
     end: &Bytes,
+    counters: &Counters,
 ) -> Vec<ChunkPos> {
     // The changes `p` gets: along each chunk's chain from the version it
     // holds; `covers` (a tree lookup) only confirms the chunks it holds.
@@ -240,7 +260,7 @@ fn send_tick(
         match e.op.as_ref().filter(|op| replay && op.replayable_by(p)) {
             Some(op) => {
                 buf.extend_from_slice(&op.frame(e.edit, &held));
-                metrics::counter!(m::OPS_SENT).increment(1);
+                counters.ops_sent.increment(1);
             }
             None => {
                 for &i in &held {
@@ -255,9 +275,9 @@ fn send_tick(
     }
     buf.extend_from_slice(end);
     match p.updates.try_send(buf.freeze()) {
-        Ok(()) => metrics::counter!(m::DELTAS_SENT).increment(chunks.len() as u64),
+        Ok(()) => counters.deltas_sent.increment(chunks.len() as u64),
         Err(SendRefused::Full) => {
-            metrics::counter!(m::DELTAS_DROPPED).increment(chunks.len() as u64);
+            counters.deltas_dropped.increment(chunks.len() as u64);
             for pos in chunks {
                 p.resend(pos);
             }
@@ -395,7 +415,7 @@ mod tests {
         ];
         for known in cases {
             let (mut p, mut rx) = peer(&known);
-            let not_held = send_tick(&mut p, &edits, &chains, &all, &end);
+            let not_held = send_tick(&mut p, &edits, &chains, &all, &end, &Counters::new());
             let got = rx.try_recv().map(|b| b.to_vec()).unwrap_or_default();
             let (want, held) = reference(&known, &edits, &end);
             assert_eq!(got, want, "holding {known:?}");

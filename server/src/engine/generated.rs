@@ -52,9 +52,10 @@ impl GeneratedCache {
     /// The generated chunk at `pos`, from the cache or the generator.
     pub fn get(&mut self, pos: ChunkPos, generator: &dyn ChunkGenerator) -> Arc<Chunk> {
         if let Some(c) = self.hit(pos) {
+            self.count(1, 0);
             return c;
         }
-        self.count_generated(1);
+        self.count(0, 1);
         let c = Arc::new(generator.generate(pos));
         self.keep(pos, c.clone());
         c
@@ -74,7 +75,7 @@ impl GeneratedCache {
             .filter(|(_, c)| c.is_none())
             .map(|(&p, _)| Arc::new(generator.generate(p)))
             .collect();
-        self.count_generated(made.len());
+        self.count(positions.len() - made.len(), made.len());
         let mut made = made.into_iter();
         positions
             .iter()
@@ -90,15 +91,20 @@ impl GeneratedCache {
     }
 
     fn hit(&self, pos: ChunkPos) -> Option<Arc<Chunk>> {
-        let c = self.chunks.get(&pos)?;
-        metrics::counter!(m::GENERATED_CHUNKS, "cache" => self.label, "outcome" => "hit")
-            .increment(1);
-        Some(c.clone())
+        self.chunks.get(&pos).cloned()
     }
 
-    fn count_generated(&self, n: usize) {
-        metrics::counter!(m::GENERATED_CHUNKS, "cache" => self.label, "outcome" => "generated")
-            .increment(n as u64);
+    /// Counts a lookup's hits and generated chunks, once per call (a
+    /// labelled counter's lookup costs more than the cache's own).
+    fn count(&self, hits: usize, generated: usize) {
+        if hits > 0 {
+            metrics::counter!(m::GENERATED_CHUNKS, "cache" => self.label, "outcome" => "hit")
+                .increment(hits as u64);
+        }
+        if generated > 0 {
+            metrics::counter!(m::GENERATED_CHUNKS, "cache" => self.label, "outcome" => "generated")
+                .increment(generated as u64);
+        }
     }
 
     fn keep(&mut self, pos: ChunkPos, chunk: Arc<Chunk>) {

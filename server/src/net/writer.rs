@@ -73,6 +73,7 @@ pub fn spawn_writer(
             // Frames queued together go out in one write, so QUIC packs them
             // into as few packets as their size allows.
             let mut batch: Vec<Bytes> = Vec::with_capacity(WRITE_BATCH_FRAMES);
+            let bytes_sent = metrics::counter!(BYTES_SENT);
             while rx.recv_many(&mut batch, WRITE_BATCH_FRAMES).await > 0 {
                 let bytes: usize = batch.iter().map(Bytes::len).sum();
                 if let Err(e) = stream.write_all_chunks(&mut batch).await {
@@ -80,7 +81,7 @@ pub fn spawn_writer(
                     return;
                 }
                 batch.clear();
-                metrics::counter!(BYTES_SENT).increment(bytes as u64);
+                bytes_sent.increment(bytes as u64);
                 if !interval.is_zero() {
                     // Frames queued meanwhile go out together next time.
                     tokio::time::sleep(interval).await;
