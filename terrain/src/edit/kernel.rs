@@ -4,7 +4,7 @@
 //! to the new voxel. Chunked and whole-array application share it, which is
 //! what makes them agree voxel for voxel.
 
-use super::fixed::{isqrt, FixedVec3, FRAC_BITS};
+use super::fixed::{isqrt, Fixed, FixedVec3, FRAC_BITS};
 use super::limits::SPHERE_RIM;
 use super::structure::Structure;
 use super::Edit;
@@ -16,13 +16,25 @@ use crate::world::VoxelRead;
 /// Q16 one.
 const Q16: i64 = 1 << 16;
 
-/// Distance from a fixed-point centre to voxel `p`, in Q16 voxels.
-fn distance_q16(c: FixedVec3, p: VoxelPos) -> i64 {
+/// Squared distance from a fixed-point centre to voxel `p`, in Q32.
+fn distance_sq_q32(c: FixedVec3, p: VoxelPos) -> u64 {
     let d = |v: i32, c: i32| ((v as i64) << FRAC_BITS) - c as i64;
     let (dx, dy, dz) = (d(p.x, c.x.0), d(p.y, c.y.0), d(p.z, c.z.0));
     // Q8 squared is Q16; shift to Q32 so the root is Q16.
-    let sq = (dx * dx + dy * dy + dz * dz) as u64;
-    isqrt(sq << 16) as i64
+    ((dx * dx + dy * dy + dz * dz) as u64) << 16
+}
+
+/// Distance from a fixed-point centre to voxel `p`, in Q16 voxels.
+fn distance_q16(c: FixedVec3, p: VoxelPos) -> i64 {
+    isqrt(distance_sq_q32(c, p)) as i64
+}
+
+/// Whether voxel `p` lies at or beyond `radius` from `c`, where every
+/// sphere brush's weight is 0: exactly `distance_q16 >= radius` (the root
+/// is the floor), without the root.
+fn beyond(c: FixedVec3, p: VoxelPos, radius: Fixed) -> bool {
+    let r = q8_to_q16(radius.0);
+    r <= 0 || u128::from(distance_sq_q32(c, p)) >= (r as u128) * (r as u128)
 }
 
 /// Rim weight in Q16: 1 inside `r - rim`, 0 from `r` on, linear between.
@@ -64,6 +76,9 @@ pub(crate) fn apply_voxel(
             radius,
             strength,
         } => {
+            if beyond(center, p, radius) {
+                return old;
+            }
             let w = rim_weight(distance_q16(center, p), q8_to_q16(radius.0));
             let hardness = materials.hardness(old.material).max(1) as i64;
             let amount = strength as i64 * w * REFERENCE_HARDNESS as i64 / hardness / Q16;
@@ -77,6 +92,9 @@ pub(crate) fn apply_voxel(
             radius,
             power,
         } => {
+            if beyond(center, p, radius) {
+                return old;
+            }
             let f = falloff(distance_q16(center, p), q8_to_q16(radius.0));
             let damage = (power as i64 * f * f) >> 32;
             Voxel::new((old.density as i64 - damage).max(0) as u8, old.material)
@@ -87,6 +105,9 @@ pub(crate) fn apply_voxel(
             material,
             strength,
         } => {
+            if beyond(center, p, radius) {
+                return old;
+            }
             let w = rim_weight(distance_q16(center, p), q8_to_q16(radius.0));
             let amount = strength as i64 * w / Q16;
             if amount == 0 {
@@ -121,6 +142,9 @@ pub(crate) fn apply_voxel(
             radius,
             strength,
         } => {
+            if beyond(center, p, radius) {
+                return old;
+            }
             let f = falloff(distance_q16(center, p), q8_to_q16(radius.0));
             if f == 0 {
                 return old;
@@ -178,6 +202,23 @@ mod tests {
         assert_eq!(falloff(0, r), Q16);
         assert_eq!(falloff(2 * Q16, r), Q16 / 2);
         assert_eq!(falloff(r, r), 0);
+    }
+
+    #[test]
+    fn beyond_is_the_rounded_distance_against_the_radius() {
+        let c = FixedVec3::new(Fixed(37), Fixed(-300), Fixed(129));
+        for r in [0, 1, 255, 256, 700, 1024, 3 * 256 + 17] {
+            for x in -6..=6 {
+                for y in -6..=6 {
+                    for z in -6..=6 {
+                        let p = VoxelPos::new(x, y, z);
+                        let far = distance_q16(c, p) >= q8_to_q16(r);
+                        assert_eq!(beyond(c, p, Fixed(r)), far, "r={r} p={p:?}");
+                    }
+                }
+            }
+        }
+        assert!(beyond(c, VoxelPos::new(0, 0, 0), Fixed(-5)));
     }
 
     #[test]
