@@ -7,21 +7,23 @@
 
 use crate::chunk::Chunk;
 use crate::pos::CHUNK_VOLUME;
-use xxhash_rust::xxh3::{xxh3_64, Xxh3};
+use std::hash::Hasher;
+
+use twox_hash::XxHash3_64;
 
 /// XXH3-64 (seed 0) of a byte string.
 pub fn hash_bytes(bytes: &[u8]) -> u64 {
-    xxh3_64(bytes)
+    XxHash3_64::oneshot(bytes)
 }
 
 /// The specified hash of a chunk's voxel state.
 pub fn chunk_hash(chunk: &Chunk) -> u64 {
     match chunk {
         Chunk::Dense(d) => {
-            let mut h = Xxh3::new();
-            h.update(&d.density[..]);
-            h.update(&d.material[..]);
-            h.digest()
+            let mut h = XxHash3_64::with_seed(0);
+            h.write(&d.density[..]);
+            h.write(&d.material[..]);
+            h.finish()
         }
         Chunk::Uniform(v) => uniform_hash(v.density, v.material),
     }
@@ -29,14 +31,14 @@ pub fn chunk_hash(chunk: &Chunk) -> u64 {
 
 fn uniform_hash(density: u8, material: u8) -> u64 {
     const BLOCK: usize = 4096;
-    let mut h = Xxh3::new();
+    let mut h = XxHash3_64::with_seed(0);
     for value in [density, material] {
         let block = [value; BLOCK];
         for _ in 0..CHUNK_VOLUME / BLOCK {
-            h.update(&block);
+            h.write(&block);
         }
     }
-    h.digest()
+    h.finish()
 }
 
 #[cfg(test)]

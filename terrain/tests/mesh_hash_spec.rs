@@ -7,7 +7,7 @@ use std::sync::Arc;
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::mesh::{faces, mesh_chunk, Mesh, MeshOptions, Neighborhood};
 use strata_terrain::{ChunkPos, Voxel, World};
-use xxhash_rust::xxh3::xxh3_64_with_seed;
+use twox_hash::XxHash3_64;
 
 /// The appendix's byte string E: V and I as u32 LE; V positions then V
 /// normals, three f32 bit patterns (u32 LE) each; V material bytes; I
@@ -36,7 +36,7 @@ fn spec_encoding(m: &Mesh) -> Vec<u8> {
 
 /// XXH3-64 with seed 0.
 fn spec_hash(m: &Mesh) -> u64 {
-    xxh3_64_with_seed(&spec_encoding(m), 0)
+    XxHash3_64::oneshot_with_seed(0, &spec_encoding(m))
 }
 
 fn hex(bytes: &[u8]) -> String {

@@ -74,7 +74,7 @@ impl SnapshotHeader {
         out.extend_from_slice(&SNAPSHOT_FORMAT_VERSION.to_le_bytes());
         out.extend_from_slice(&(body.len() as u32).to_le_bytes());
         out.extend_from_slice(&body);
-        let sum = xxhash_rust::xxh3::xxh3_64(&out);
+        let sum = twox_hash::XxHash3_64::oneshot(&out);
         out.extend_from_slice(&sum.to_le_bytes());
         Ok(out)
     }
@@ -165,7 +165,7 @@ pub fn encode_record(
     out.extend_from_slice(&version.to_le_bytes());
     out.extend_from_slice(&(payload.len() as u32).to_le_bytes());
     out.extend_from_slice(payload);
-    let sum = xxhash_rust::xxh3::xxh3_64(&out);
+    let sum = twox_hash::XxHash3_64::oneshot(&out);
     out.extend_from_slice(&sum.to_le_bytes());
     Ok(out)
 }

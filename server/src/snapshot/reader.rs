@@ -1,12 +1,13 @@
 //! Reads a snapshot file record by record, checking every checksum, and
 //! [`verify`]: the whole-file check `strata-admin snapshot verify` runs.
 
+use std::hash::Hasher;
 use std::io::{BufReader, Read};
 use std::path::Path;
 
 use strata_terrain::chunk_codec::decode_chunk;
 use strata_terrain::ChunkPos;
-use xxhash_rust::xxh3::{xxh3_64, Xxh3};
+use twox_hash::XxHash3_64;
 
 use super::error::SnapshotError;
 use super::format::{
@@ -32,7 +33,7 @@ pub struct SnapshotChunk {
 /// ([`Self::stopped`]), it reads nothing more.
 pub struct SnapshotReader<R: Read> {
     r: R,
-    hasher: Xxh3,
+    hasher: XxHash3_64,
     offset: u64,
     index: u64,
     last: Option<ChunkPos>,
@@ -97,16 +98,16 @@ impl<R: Read> SnapshotReader<R> {
         let stored = u64::from_le_bytes(body[len..].try_into().expect("8 bytes"));
         let mut covered = fixed.to_vec();
         covered.extend_from_slice(&body[..len]);
-        let computed = xxh3_64(&covered);
+        let computed = XxHash3_64::oneshot(&covered);
         if stored != computed {
             return Err(SnapshotError::Header(format!(
                 "checksum mismatch: stored {stored:016x}, computed {computed:016x}"
             )));
         }
         let header = SnapshotHeader::decode_body(&body[..len])?;
-        let mut hasher = Xxh3::new();
-        hasher.update(&covered);
-        hasher.update(&body[len..]);
+        let mut hasher = XxHash3_64::with_seed(0);
+        hasher.write(&covered);
+        hasher.write(&body[len..]);
         Ok(Self {
             r,
             hasher,
@@ -189,16 +190,16 @@ impl<R: Read> SnapshotReader<R> {
             let e = self.record_error(start, Some(pos), "file ends inside the record".into());
             return Err(self.fatal(e));
         }
-        self.hasher.update(&prefix);
-        self.hasher.update(&rest);
+        self.hasher.write(&prefix);
+        self.hasher.write(&rest);
         self.offset += (RECORD_PREFIX + len + 8) as u64;
         let index = self.index;
         self.index += 1;
         let stored = u64::from_le_bytes(rest[len..].try_into().expect("8 bytes"));
-        let mut h = Xxh3::new();
-        h.update(&prefix);
-        h.update(&rest[..len]);
-        let computed = h.digest();
+        let mut h = XxHash3_64::with_seed(0);
+        h.write(&prefix);
+        h.write(&rest[..len]);
+        let computed = h.finish();
         let fail = |reason: String| SnapshotError::Record {
             index,
             offset: start,
@@ -236,11 +237,11 @@ impl<R: Read> SnapshotReader<R> {
                 reason: "file ends inside the footer".into(),
             });
         }
-        self.hasher.update(&[TAG_FOOTER]);
-        self.hasher.update(&rest[..8]);
+        self.hasher.write(&[TAG_FOOTER]);
+        self.hasher.write(&rest[..8]);
         let count = u64::from_le_bytes(rest[..8].try_into().expect("8 bytes"));
         let stored = u64::from_le_bytes(rest[8..].try_into().expect("8 bytes"));
-        let computed = self.hasher.digest();
+        let computed = self.hasher.finish();
         let footer = |reason| SnapshotError::Footer {
             offset: start,
             reason,

@@ -1,10 +1,11 @@
 //! Writes a snapshot file as chunk records arrive, hashing as it goes, so
 //! memory stays bounded whatever the world's size.
 
+use std::hash::Hasher;
 use std::io::Write;
 
 use strata_terrain::ChunkPos;
-use xxhash_rust::xxh3::Xxh3;
+use twox_hash::XxHash3_64;
 
 use super::error::SnapshotError;
 use super::format::{encode_record, SnapshotHeader, TAG_FOOTER};
@@ -13,7 +14,7 @@ use super::format::{encode_record, SnapshotHeader, TAG_FOOTER};
 /// footer fails verification.
 pub struct SnapshotWriter<W: Write> {
     out: W,
-    hasher: Xxh3,
+    hasher: XxHash3_64,
     records: u64,
     bytes: u64,
     last: Option<ChunkPos>,
@@ -33,7 +34,7 @@ impl<W: Write> SnapshotWriter<W> {
     pub fn new(out: W, header: &SnapshotHeader) -> Result<Self, SnapshotError> {
         let mut w = Self {
             out,
-            hasher: Xxh3::new(),
+            hasher: XxHash3_64::with_seed(0),
             records: 0,
             bytes: 0,
             last: None,
@@ -44,7 +45,7 @@ impl<W: Write> SnapshotWriter<W> {
 
     fn put(&mut self, bytes: &[u8]) -> Result<(), SnapshotError> {
         self.out.write_all(bytes)?;
-        self.hasher.update(bytes);
+        self.hasher.write(bytes);
         self.bytes += bytes.len() as u64;
         Ok(())
     }
@@ -86,7 +87,7 @@ impl<W: Write> SnapshotWriter<W> {
         let mut footer = vec![TAG_FOOTER];
         footer.extend_from_slice(&self.records.to_le_bytes());
         self.put(&footer)?;
-        let sum = self.hasher.digest();
+        let sum = self.hasher.finish();
         self.out.write_all(&sum.to_le_bytes())?;
         self.out.flush()?;
         Ok((self.out, self.bytes + 8))

@@ -10,7 +10,9 @@
 //!
 //! Vertex keys are not hashed: they are welding metadata, not geometry.
 
-use xxhash_rust::xxh3::Xxh3;
+use std::hash::Hasher;
+
+use twox_hash::XxHash3_64;
 
 use super::types::Mesh;
 
@@ -37,9 +39,9 @@ impl Mesh {
     /// Streams the encoding to the hasher a block at a time instead of
     /// building it.
     pub fn hash(&self) -> u64 {
-        let mut w = Xxh3::new();
-        w.update(&(self.positions.len() as u32).to_le_bytes());
-        w.update(&(self.indices.len() as u32).to_le_bytes());
+        let mut w = XxHash3_64::with_seed(0);
+        w.write(&(self.positions.len() as u32).to_le_bytes());
+        w.write(&(self.indices.len() as u32).to_le_bytes());
         // Encoded into `b` a block at a time, then hashed.
         const BLOCK: usize = 4080;
         let mut b = [0u8; BLOCK];
@@ -52,16 +54,16 @@ impl Mesh {
                 out[4..8].copy_from_slice(&p[1].to_bits().to_le_bytes());
                 out[8..12].copy_from_slice(&p[2].to_bits().to_le_bytes());
             }
-            w.update(&b[..block.len() * 12]);
+            w.write(&b[..block.len() * 12]);
         }
-        w.update(&self.materials);
+        w.write(&self.materials);
         for block in self.indices.chunks(BLOCK / 4) {
             for (out, i) in b.chunks_exact_mut(4).zip(block) {
                 out.copy_from_slice(&i.to_le_bytes());
             }
-            w.update(&b[..block.len() * 4]);
+            w.write(&b[..block.len() * 4]);
         }
-        w.digest()
+        w.finish()
     }
 }
 
