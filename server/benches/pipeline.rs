@@ -12,8 +12,11 @@
 //!
 //! `cargo bench -p strata-server --bench pipeline` (1, 2, 4 and 8 workers)
 //! or `... -- 1 2` for chosen counts; `STRATA_BENCH_SECONDS` sets the
-//! measured time per count (default 6), `STRATA_BENCH_IN_FLIGHT` the edits
-//! in flight (default 768). "ahead" is the share of batches applied while
+//! measured time per count (default 6), `STRATA_BENCH_EDITS_PER_TICK` the
+//! sequencer's `max_edits_per_tick` (default the server's, 256: with 10 ms
+//! ticks a ceiling of 25,600 edits/s, which 2 workers reach on a fast
+//! 2-core box), `STRATA_BENCH_IN_FLIGHT` the edits in flight (default 768,
+//! or three ticks' worth if more). "ahead" is the share of batches applied while
 //! the batch before them committed. The last columns split the time per
 //! batch into the engine's phases (apply: the region lanes; commit:
 //! encode, write, fsync, and any batch applied ahead meanwhile; fanout:
@@ -70,8 +73,9 @@ fn main() -> anyhow::Result<()> {
         .and_then(|s| s.parse().ok())
         .unwrap_or(6);
     println!(
-        "pipeline: {SPOTS} spots x ({WATCHERS} watchers + 1 editor), {seconds} s each, {} cores",
-        std::thread::available_parallelism().map_or(1, |n| n.get())
+        "pipeline: {SPOTS} spots x ({WATCHERS} watchers + 1 editor), {seconds} s each, {} cores, at most {} edits a tick",
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
+        edits_per_tick()
     );
     println!(
         "| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick | edits/tick | ahead | tick ms | apply / commit / fanout ms | CPU µs/edit: workers / engine / commit / rest |"
@@ -99,6 +103,14 @@ fn main() -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The sequencer's `max_edits_per_tick` for the runs.
+fn edits_per_tick() -> usize {
+    std::env::var("STRATA_BENCH_EDITS_PER_TICK")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(strata_server::sequencer::DEFAULT_MAX_EDITS_PER_TICK)
 }
 
 struct Result {
@@ -152,7 +164,10 @@ fn run(
     }));
     let seq = Sequencer::new(
         world,
-        SequencerConfig::default(),
+        SequencerConfig {
+            max_edits_per_tick: edits_per_tick(),
+            ..SequencerConfig::default()
+        },
         validation.clone(),
         0,
         MaterialTable::default(),
@@ -202,7 +217,7 @@ fn run(
     let in_flight: u64 = std::env::var("STRATA_BENCH_IN_FLIGHT")
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or(IN_FLIGHT);
+        .unwrap_or(IN_FLIGHT.max(3 * edits_per_tick() as u64));
     let mut sent = 0u64;
     let mut feed = |until: Instant| {
         while Instant::now() < until {
