@@ -16,14 +16,18 @@ pub const MERGE_GAP: usize = 2;
 pub(super) fn encode_runs(x: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
     let mut pos = 0;
-    while let Some(start) = next_nonzero(x, pos) {
+    // Each zero gap is scanned once: the search that ends a literal finds
+    // the next one's start.
+    let mut next = next_nonzero(x, 0);
+    while let Some(start) = next {
         let mut end = start;
         loop {
             while end < x.len() && x[end] != 0 {
                 end += 1;
             }
-            match next_nonzero(x, end) {
-                Some(next) if next - end <= MERGE_GAP => end = next,
+            next = next_nonzero(x, end);
+            match next {
+                Some(n) if n - end <= MERGE_GAP => end = n,
                 _ => break,
             }
         }
