@@ -78,7 +78,8 @@
 //! tries each raw and with LZ4, and the one whose LZ4 block is shorter (runs
 //! on a tie) also with zstd level [`DELTA_ZSTD_LEVEL`] when it has at least
 //! [`DELTA_ZSTD_MIN_BODY`] bytes; it keeps the shortest payload, the lower
-//! method byte on a tie, so its output is deterministic. Decoders accept any valid payload, chosen or not.
+//! method byte on a tie, so its output is deterministic. Decoders accept any
+//! valid payload, chosen or not.
 
 mod masked;
 mod runs;
