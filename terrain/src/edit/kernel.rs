@@ -70,15 +70,19 @@ pub(crate) fn apply_voxel(
     if materials.is_indestructible(old.material) {
         return old;
     }
+    // Every sphere brush leaves what lies at or beyond its radius alone.
+    if edit
+        .sphere()
+        .is_some_and(|(center, radius)| beyond(center, p, radius))
+    {
+        return old;
+    }
     match *edit {
         Edit::Mine {
             center,
             radius,
             strength,
         } => {
-            if beyond(center, p, radius) {
-                return old;
-            }
             let w = rim_weight(distance_q16(center, p), q8_to_q16(radius.0));
             let hardness = materials.hardness(old.material).max(1) as i64;
             let amount = strength as i64 * w * REFERENCE_HARDNESS as i64 / hardness / Q16;
@@ -92,9 +96,6 @@ pub(crate) fn apply_voxel(
             radius,
             power,
         } => {
-            if beyond(center, p, radius) {
-                return old;
-            }
             let f = falloff(distance_q16(center, p), q8_to_q16(radius.0));
             let damage = (power as i64 * f * f) >> 32;
             Voxel::new((old.density as i64 - damage).max(0) as u8, old.material)
@@ -105,9 +106,6 @@ pub(crate) fn apply_voxel(
             material,
             strength,
         } => {
-            if beyond(center, p, radius) {
-                return old;
-            }
             let w = rim_weight(distance_q16(center, p), q8_to_q16(radius.0));
             let amount = strength as i64 * w / Q16;
             if amount == 0 {
@@ -142,9 +140,6 @@ pub(crate) fn apply_voxel(
             radius,
             strength,
         } => {
-            if beyond(center, p, radius) {
-                return old;
-            }
             let f = falloff(distance_q16(center, p), q8_to_q16(radius.0));
             if f == 0 {
                 return old;

@@ -128,11 +128,16 @@ impl Edit {
 
     /// Radius of a sphere edit, if it is one.
     pub fn radius(&self) -> Option<Fixed> {
+        self.sphere().map(|(_, radius)| radius)
+    }
+
+    /// Centre and radius of a sphere edit, if it is one.
+    pub fn sphere(&self) -> Option<(FixedVec3, Fixed)> {
         match self {
-            Edit::Mine { radius, .. }
-            | Edit::Explode { radius, .. }
-            | Edit::Build { radius, .. }
-            | Edit::Smooth { radius, .. } => Some(*radius),
+            Edit::Mine { center, radius, .. }
+            | Edit::Explode { center, radius, .. }
+            | Edit::Build { center, radius, .. }
+            | Edit::Smooth { center, radius, .. } => Some((*center, *radius)),
             _ => None,
         }
     }
