@@ -16,7 +16,8 @@
 //! sequencer's `max_edits_per_tick` (default the server's, 256: with 10 ms
 //! ticks a ceiling of 25,600 edits/s, which 2 workers reach on a fast
 //! 2-core box), `STRATA_BENCH_IN_FLIGHT` the edits in flight (default 768,
-//! or three ticks' worth if more). "ahead" is the share of batches applied while
+//! or three ticks' worth if more; the sequencer's queue holds them all,
+//! so that none is refused `Busy` and sent again). "ahead" is the share of batches applied while
 //! the batch before them committed. The last columns split the time per
 //! batch into the engine's phases (apply: the region lanes; commit:
 //! encode, write, fsync, and any batch applied ahead meanwhile; fanout:
@@ -36,7 +37,7 @@ use strata_server::engine::{
 };
 use strata_server::interest::InterestConfig;
 use strata_server::net::writer::FrameSender;
-use strata_server::sequencer::{Sequencer, SequencerConfig};
+use strata_server::sequencer::{Sequencer, SequencerConfig, DEFAULT_QUEUE_CAPACITY};
 use strata_server::store::{ChunkStore, SledStore, WorldMeta, STORE_FORMAT_VERSION};
 use strata_server::validate::bounds::WorldBounds;
 use strata_server::validate::ratelimit::BucketConfig;
@@ -101,8 +102,23 @@ fn main() -> anyhow::Result<()> {
                 .map(|s| format!("{:.1}", s * 1e6 / r.edits.max(1.0)))
                 .join(" / "),
         );
+        if r.refused > 0.0 {
+            println!(
+                "  ({workers} workers: {:.0} edits refused, which the figures above pay for)",
+                r.refused
+            );
+        }
     }
     Ok(())
+}
+
+/// Edits in flight: `STRATA_BENCH_IN_FLIGHT`, or [`IN_FLIGHT`] or three
+/// ticks' worth if more.
+fn in_flight() -> u64 {
+    std::env::var("STRATA_BENCH_IN_FLIGHT")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(IN_FLIGHT.max(3 * edits_per_tick() as u64))
 }
 
 /// The sequencer's `max_edits_per_tick` for the runs.
@@ -115,6 +131,9 @@ fn edits_per_tick() -> usize {
 
 struct Result {
     edits: f64,
+    /// Edits refused (any reason): each one is engine and feed work that
+    /// no durable edit shows for.
+    refused: f64,
     deltas: f64,
     secs: f64,
     cpu_ms: f64,
@@ -166,6 +185,10 @@ fn run(
         world,
         SequencerConfig {
             max_edits_per_tick: edits_per_tick(),
+            // Room for every edit in flight: a refusal (`Busy`) would be
+            // answered at once and the edit sent again, work no server
+            // does at its queue's bound for long.
+            queue_capacity: DEFAULT_QUEUE_CAPACITY.max(in_flight() as usize),
             ..SequencerConfig::default()
         },
         validation.clone(),
@@ -214,10 +237,7 @@ fn run(
         std::thread::spawn(move || drain(queues, &stop, &verdicts))
     };
 
-    let in_flight: u64 = std::env::var("STRATA_BENCH_IN_FLIGHT")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(IN_FLIGHT.max(3 * edits_per_tick() as u64));
+    let in_flight = in_flight();
     let mut sent = 0u64;
     let mut feed = |until: Instant| {
         while Instant::now() < until {
@@ -253,6 +273,7 @@ fn run(
     drop(kicks);
     Ok(Result {
         edits: after.accepted - before.accepted,
+        refused: after.refused - before.refused,
         deltas: after.deltas - before.deltas,
         secs,
         cpu_ms: (after.cpu - before.cpu) * 1e3,
@@ -372,6 +393,7 @@ fn drain(mut queues: Vec<(Receiver<Bytes>, bool)>, stop: &AtomicBool, verdicts: 
 
 struct Counters {
     accepted: f64,
+    refused: f64,
     deltas: f64,
     cpu: f64,
     lanes_sum: f64,
@@ -393,6 +415,7 @@ impl Counters {
     fn read(m: &metrics_exporter_prometheus::PrometheusHandle) -> Self {
         Counters {
             accepted: counter(m, "strata_edits_accepted_total"),
+            refused: counter(m, "strata_edits_rejected_total"),
             deltas: counter(m, "strata_deltas_sent_total"),
             cpu: process_cpu_seconds(),
             lanes_sum: counter(m, "strata_tick_lanes_sum"),
