@@ -219,6 +219,27 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(CASES))]
 
     #[test]
+    fn listed_voxels_give_the_same_delta(
+        base in base_chunk(),
+        edits in prop::collection::vec(edit(), 1..4),
+        unchanged in prop::collection::vec(0usize..CHUNK_VOLUME, 0..16),
+    ) {
+        // Every changed voxel, and some that may not have changed.
+        let target = edited(&base, &edits);
+        let mut voxels: Vec<u16> = (0..CHUNK_VOLUME)
+            .filter(|&i| base.get_index(i) != target.get_index(i))
+            .chain(unchanged)
+            .map(|i| i as u16)
+            .collect();
+        voxels.sort_unstable();
+        voxels.dedup();
+        let h = chunk_hash(&base);
+        let full = ChunkDelta::encode_from_hash(POS, 1, 2, &base, h, &target).unwrap();
+        let listed = ChunkDelta::encode_changed(POS, 1, 2, &base, h, &target, &voxels).unwrap();
+        prop_assert_eq!(listed, full);
+    }
+
+    #[test]
     fn delta_round_trips_exactly(
         base in base_chunk(),
         edits in prop::collection::vec(edit(), 1..4),

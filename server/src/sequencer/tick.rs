@@ -426,13 +426,14 @@ impl Lane {
                         None => chunk_hash(&c.before),
                     };
                     // `apply` raised the version, so the order check cannot fail.
-                    ChunkDelta::encode_from_hash(
+                    ChunkDelta::encode_changed(
                         c.pos,
                         c.from_version,
                         c.to_version,
                         &c.before,
                         base_hash,
                         now,
+                        &c.voxels,
                     )
                     .expect("apply raises the version")
                 };

@@ -33,6 +33,22 @@ struct LocalBox {
 }
 
 impl LocalBox {
+    /// The box of the one voxel at local index `i`.
+    fn of(i: usize) -> Self {
+        let (x, y, z) = index_local(i);
+        LocalBox {
+            min: [x, y, z],
+            max: [x, y, z],
+        }
+    }
+
+    fn union(self, o: Self) -> Self {
+        LocalBox {
+            min: std::array::from_fn(|a| self.min[a].min(o.min[a])),
+            max: std::array::from_fn(|a| self.max[a].max(o.max[a])),
+        }
+    }
+
     fn volume(&self) -> usize {
         (0..3).map(|a| self.max[a] - self.min[a] + 1).product()
     }
@@ -74,28 +90,54 @@ fn encode_section(out: &mut Vec<u8>, base: Plane<'_>, target: Plane<'_>, x: &[u8
             changed.push((base.get(i), target.get(i)));
         }
     }
-    let op = choose_op(&changed);
+    write_section(out, bbox, &mask, &changed);
+}
+
+/// [`encode_masked`] from each plane's changed bytes, `(index, base,
+/// target)` in increasing index order with `base != target`: the same
+/// bytes, without the XOR stream.
+pub(super) fn encode_masked_sparse(planes: [&[(u16, u8, u8)]; 2]) -> Vec<u8> {
+    let mut out = Vec::new();
+    for changes in planes {
+        let Some(bbox) = changes
+            .iter()
+            .map(|&(i, _, _)| LocalBox::of(usize::from(i)))
+            .reduce(LocalBox::union)
+        else {
+            out.push(OP_KEEP);
+            continue;
+        };
+        let [x0, y0, z0] = bbox.min;
+        let (w, h) = (bbox.max[0] - x0 + 1, bbox.max[1] - y0 + 1);
+        let mut mask = vec![0u8; bbox.volume().div_ceil(8)];
+        for &(i, _, _) in changes {
+            // Increasing index order is the box's x-fastest order.
+            let (x, y, z) = index_local(usize::from(i));
+            let k = (x - x0) + w * ((y - y0) + h * (z - z0));
+            mask[k / 8] |= 1 << (k % 8);
+        }
+        let changed: Vec<(u8, u8)> = changes.iter().map(|&(_, b, t)| (b, t)).collect();
+        write_section(&mut out, bbox, &mask, &changed);
+    }
+    out
+}
+
+/// Appends a section that changes something: op, box, mask, values.
+fn write_section(out: &mut Vec<u8>, bbox: LocalBox, mask: &[u8], changed: &[(u8, u8)]) {
+    let op = choose_op(changed);
     out.push(op);
     out.extend(bbox.min.iter().chain(&bbox.max).map(|&c| c as u8));
-    out.extend_from_slice(&mask);
+    out.extend_from_slice(mask);
     out.extend(changed.iter().map(|&(b, t)| value_for(op, b, t)));
 }
 
 /// Tight bounding box of the non-zero bytes of one plane's XOR.
 fn changed_box(x: &[u8]) -> Option<LocalBox> {
     let first = next_nonzero(x, 0)?;
-    let (fx, fy, fz) = index_local(first);
-    let mut b = LocalBox {
-        min: [fx, fy, fz],
-        max: [fx, fy, fz],
-    };
-    let mut i = first;
+    let mut b = LocalBox::of(first);
+    let mut i = first + 1;
     while let Some(j) = next_nonzero(x, i) {
-        let (px, py, pz) = index_local(j);
-        for (a, c) in [px, py, pz].into_iter().enumerate() {
-            b.min[a] = b.min[a].min(c);
-            b.max[a] = b.max[a].max(c);
-        }
+        b = b.union(LocalBox::of(j));
         i = j + 1;
     }
     Some(b)

@@ -80,6 +80,13 @@
 //! [`DELTA_ZSTD_MIN_BODY`] bytes; it keeps the shortest payload, the lower
 //! method byte on a tie, so its output is deterministic. Decoders accept any
 //! valid payload, chosen or not.
+//!
+//! **Two ways to the same bytes.** [`ChunkDelta::encode`] diffs the two
+//! chunks through the 64 KB XOR stream. [`ChunkDelta::encode_changed`]
+//! builds the same bodies from the list of voxels an edit changed (which
+//! [`crate::edit::Edit::apply`] records), without the stream or its scans;
+//! the server encodes each edit's deltas this way. Tests hold the two
+//! equal byte for byte, and debug builds check every such encode.
 
 mod masked;
 mod runs;
@@ -96,9 +103,9 @@ use thiserror::Error;
 
 use crate::chunk::{Chunk, Voxel};
 use crate::hash::chunk_hash;
-use crate::pos::ChunkPos;
-use masked::{apply_masked, encode_masked};
-use runs::{apply_runs, encode_runs};
+use crate::pos::{ChunkPos, CHUNK_VOLUME};
+use masked::{apply_masked, encode_masked, encode_masked_sparse};
+use runs::{apply_runs, encode_runs, encode_runs_sparse};
 use stream::{dense_copy, planes, xor_stream};
 use varint::{read_varint, write_varint};
 
@@ -211,6 +218,38 @@ impl ChunkDelta {
         base_hash: u64,
         target: &Chunk,
     ) -> Result<ChunkDelta, DeltaError> {
+        let versions = (from_version, to_version);
+        Self::build(pos, versions, base, base_hash, target, None)
+    }
+
+    /// [`Self::encode_from_hash`] for an edit that knows which voxels it
+    /// changed: `voxels` holds, in increasing order, the local index of
+    /// every voxel where `base` and `target` may differ (a listed voxel may
+    /// be equal in both; an unlisted one must be). The same delta, built
+    /// from those voxels instead of from two 64 KB planes.
+    pub fn encode_changed(
+        pos: ChunkPos,
+        from_version: u64,
+        to_version: u64,
+        base: &Chunk,
+        base_hash: u64,
+        target: &Chunk,
+        voxels: &[u16],
+    ) -> Result<ChunkDelta, DeltaError> {
+        let versions = (from_version, to_version);
+        Self::build(pos, versions, base, base_hash, target, Some(voxels))
+    }
+
+    /// The delta, its bodies from `voxels` when given, else from the XOR
+    /// stream.
+    fn build(
+        pos: ChunkPos,
+        (from_version, to_version): (u64, u64),
+        base: &Chunk,
+        base_hash: u64,
+        target: &Chunk,
+        voxels: Option<&[u16]>,
+    ) -> Result<ChunkDelta, DeltaError> {
         if to_version <= from_version {
             return Err(DeltaError::VersionOrder {
                 from: from_version,
@@ -219,7 +258,20 @@ impl ChunkDelta {
         }
         debug_assert_eq!(base_hash, chunk_hash(base));
         let target_hash = chunk_hash(target);
-        let payload = encode_payload(base, target, base_hash == target_hash);
+        let same = base_hash == target_hash;
+        let payload = match voxels {
+            None => encode_payload(base, target, same),
+            Some(voxels) => {
+                debug_assert!(voxels.windows(2).all(|w| w[0] < w[1]));
+                let payload = payload_from(target, same, || sparse_bodies(base, target, voxels));
+                debug_assert_eq!(
+                    payload,
+                    encode_payload(base, target, same),
+                    "`voxels` must list every changed voxel"
+                );
+                payload
+            }
+        };
         Ok(ChunkDelta {
             pos,
             from_version,
@@ -266,6 +318,43 @@ impl ChunkDelta {
 // ---------------------------------------------------------------- encoding
 
 fn encode_payload(base: &Chunk, target: &Chunk, same: bool) -> Vec<u8> {
+    payload_from(target, same, || {
+        let x = xor_stream(base, target);
+        [
+            encode_runs(&x),
+            encode_masked(planes(base), planes(target), &x),
+        ]
+    })
+}
+
+/// The runs and masked bodies from the voxels that may differ
+/// ([`ChunkDelta::encode_changed`]).
+fn sparse_bodies(base: &Chunk, target: &Chunk, voxels: &[u16]) -> [Vec<u8>; 2] {
+    let (b, t) = (planes(base), planes(target));
+    // Each plane's changed bytes: (index, base, target).
+    let changes = |p: usize| -> Vec<(u16, u8, u8)> {
+        voxels
+            .iter()
+            .map(|&i| (i, b[p].get(usize::from(i)), t[p].get(usize::from(i))))
+            .filter(|&(_, old, new)| old != new)
+            .collect()
+    };
+    let [density, material] = [changes(0), changes(1)];
+    let xor =
+        |offset: usize| move |&(i, old, new): &(u16, u8, u8)| (offset + usize::from(i), old ^ new);
+    let nonzero = density
+        .iter()
+        .map(xor(0))
+        .chain(material.iter().map(xor(CHUNK_VOLUME)));
+    [
+        encode_runs_sparse(nonzero),
+        encode_masked_sparse([&density, &material]),
+    ]
+}
+
+/// The payload for `target`: unchanged (`same`), uniform, or else the
+/// shortest form of the runs and masked `bodies`.
+fn payload_from(target: &Chunk, same: bool, bodies: impl FnOnce() -> [Vec<u8>; 2]) -> Vec<u8> {
     if same {
         return vec![LAYOUT_RUNS | COMPRESSION_NONE];
     }
@@ -277,9 +366,7 @@ fn encode_payload(base: &Chunk, target: &Chunk, same: bool) -> Vec<u8> {
     if let Some(v) = uniform {
         return vec![LAYOUT_UNIFORM, v.density, v.material];
     }
-    let x = xor_stream(base, target);
-    let runs = encode_runs(&x);
-    let masked = encode_masked(planes(base), planes(target), &x);
+    let [runs, masked] = bodies();
     debug_assert!(runs.len() <= MAX_BODY_LEN && masked.len() <= MAX_BODY_LEN);
 
     // Every layout raw and with LZ4; zstd only for the layout LZ4 packs
@@ -750,8 +837,10 @@ mod tests {
             .unwrap()
     }
 
-    #[test]
-    fn zstd_on_one_layout_costs_almost_nothing_on_real_edits() {
+    /// Calls `f` with each chunk change of 60 real edits (mined, built
+    /// and exploded at the surface of the default world), and the chunk
+    /// after it.
+    fn for_each_real_change(mut f: impl FnMut(&crate::edit::ChunkChange, &Chunk)) {
         use crate::edit::{Edit, EditContext, StructureLibrary};
         use crate::gen::{GenParams, Generator};
         use crate::{Fixed, FixedVec3, MaterialTable, World};
@@ -762,7 +851,6 @@ mod tests {
             materials: &materials,
             structures: &structures,
         };
-        let (mut chosen, mut best, mut deltas) = (0, 0, 0);
         for k in 0..60i32 {
             let (x, z) = ((k * 37) % 160 - 80, (k * 61) % 160 - 80);
             let c = FixedVec3::from_voxels(x, generator.surface_height(x, z).floor() as i32, z);
@@ -785,23 +873,51 @@ mod tests {
                 },
             };
             for ch in edit.apply(&mut world, &ctx).unwrap().changed {
-                let after = &world.peek(ch.pos).unwrap().chunk;
-                let payload = encode_payload(&ch.before, after, false);
-                if payload[0] & 0xf0 == LAYOUT_UNIFORM {
-                    continue;
-                }
-                chosen += payload.len();
-                // The varint of a compressed body may be shorter than the
-                // bound counted for every candidate.
-                best += shortest_of_all(&ch.before, after).min(payload.len());
-                deltas += 1;
+                f(&ch, &world.peek(ch.pos).unwrap().chunk);
             }
         }
+    }
+
+    #[test]
+    fn zstd_on_one_layout_costs_almost_nothing_on_real_edits() {
+        let (mut chosen, mut best, mut deltas) = (0, 0, 0);
+        for_each_real_change(|ch, after| {
+            let payload = encode_payload(&ch.before, after, false);
+            if payload[0] & 0xf0 == LAYOUT_UNIFORM {
+                return;
+            }
+            chosen += payload.len();
+            // The varint of a compressed body may be shorter than the
+            // bound counted for every candidate.
+            best += shortest_of_all(&ch.before, after).min(payload.len());
+            deltas += 1;
+        });
         assert!(deltas > 100, "{deltas} deltas");
         // 3327 deltas of this mix: 634,783 bytes against 634,621.
         assert!(
             chosen * 1000 <= best * 1003,
             "{chosen} bytes against {best}"
         );
+    }
+
+    #[test]
+    fn an_edits_changed_voxels_give_the_same_delta() {
+        let mut deltas = 0;
+        for_each_real_change(|ch, after| {
+            let differ: Vec<u16> = (0..CHUNK_VOLUME)
+                .filter(|&i| ch.before.get_index(i) != after.get_index(i))
+                .map(|i| i as u16)
+                .collect();
+            assert_eq!(ch.voxels, differ, "apply lists exactly the changed voxels");
+            let base_hash = chunk_hash(&ch.before);
+            let (from, to) = (ch.from_version, ch.to_version);
+            let full = ChunkDelta::encode_from_hash(ch.pos, from, to, &ch.before, base_hash, after);
+            let listed = ChunkDelta::encode_changed(
+                ch.pos, from, to, &ch.before, base_hash, after, &ch.voxels,
+            );
+            assert_eq!(listed.unwrap(), full.unwrap());
+            deltas += 1;
+        });
+        assert!(deltas > 100, "{deltas} deltas");
     }
 }

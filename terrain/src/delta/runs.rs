@@ -39,6 +39,40 @@ pub(super) fn encode_runs(x: &[u8]) -> Vec<u8> {
     out
 }
 
+/// [`encode_runs`] of a stream given by its non-zero bytes: `(index,
+/// byte)` in increasing index order. The same bytes, without the stream.
+pub(super) fn encode_runs_sparse(nonzero: impl Iterator<Item = (usize, u8)>) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut pos = 0;
+    // The open literal: it starts at `start`, its last byte is `end - 1`.
+    let (mut start, mut end) = (0, 0);
+    let mut literal: Vec<u8> = Vec::new();
+    for (i, byte) in nonzero {
+        if !literal.is_empty() && i - end <= MERGE_GAP {
+            literal.resize(literal.len() + (i - end), 0);
+        } else {
+            write_literal(&mut out, &mut pos, start, &literal);
+            literal.clear();
+            start = i;
+        }
+        literal.push(byte);
+        end = i + 1;
+    }
+    write_literal(&mut out, &mut pos, start, &literal);
+    out
+}
+
+/// Appends one (zero run, literal) pair unless `literal` is empty.
+fn write_literal(out: &mut Vec<u8>, pos: &mut usize, start: usize, literal: &[u8]) {
+    if literal.is_empty() {
+        return;
+    }
+    write_varint(out, start - *pos);
+    write_varint(out, literal.len());
+    out.extend_from_slice(literal);
+    *pos = start + literal.len();
+}
+
 /// XORs the runs into `out` (a copy of the base). On error `out` is
 /// partly written; callers discard it.
 pub(super) fn apply_runs(runs: &[u8], out: &mut DenseChunk) -> Result<(), DeltaError> {

@@ -9,7 +9,7 @@ use super::structure::{Structure, StructureLibrary};
 use super::Edit;
 use crate::chunk::Chunk;
 use crate::material::{MaterialId, MaterialTable};
-use crate::pos::{ChunkPos, VoxelBox, VoxelPos};
+use crate::pos::{local_index, ChunkPos, VoxelBox, VoxelPos};
 use crate::world::{VoxelRead, World};
 
 /// What an edit needs besides the world: the material table and templates.
@@ -27,6 +27,9 @@ pub struct ChunkChange {
     pub to_version: u64,
     /// The chunk before the edit (the base of its delta).
     pub before: Chunk,
+    /// Local indices of the voxels that changed, increasing: what
+    /// [`crate::delta::ChunkDelta::encode_changed`] needs.
+    pub voxels: Vec<u16>,
 }
 
 /// The result of applying an edit.
@@ -213,25 +216,26 @@ impl Edit {
                 .expect("chunk from the box's own range");
             let before = &world.peek(cpos).expect("loaded above").chunk;
             let mut after = before.clone();
-            let mut n = 0u64;
+            // Visited z, then y, then x: increasing local index.
+            let mut voxels = Vec::new();
             for_each_voxel(sub, |p| {
                 let (x, y, z) = p.local();
                 let old = before.get(x, y, z);
                 let new = apply_voxel(self, structure, ctx.materials, p, old, &*world, bbox.min);
                 if new != old {
                     after.set(x, y, z, new);
-                    n += 1;
+                    voxels.push(local_index(x, y, z) as u16);
                 }
             });
-            if n > 0 {
-                voxels_changed += n;
-                pending.push((cpos, after));
+            if !voxels.is_empty() {
+                voxels_changed += voxels.len() as u64;
+                pending.push((cpos, after, voxels));
             }
         }
         // The world's own copy becomes each change's `before`: no clone.
         let changed = pending
             .into_iter()
-            .map(|(pos, after)| {
+            .map(|(pos, after, voxels)| {
                 let from_version = world.peek(pos).expect("loaded").version;
                 let (to_version, before) = world.commit_replace(pos, after);
                 ChunkChange {
@@ -239,6 +243,7 @@ impl Edit {
                     from_version,
                     to_version,
                     before,
+                    voxels,
                 }
             })
             .collect();
