@@ -126,6 +126,21 @@ fn bench_delta(c: &mut Criterion) {
         g.bench_function(format!("encode/{name}"), |b| {
             b.iter(|| ChunkDelta::encode(POS, 0, 1, black_box(&base), black_box(&target)))
         });
+        // What an edit knows: the voxels it changed, and the base's hash.
+        let voxels: Vec<u16> = (0..CHUNK_VOLUME)
+            .filter(|&i| base.get_index(i) != target.get_index(i))
+            .map(|i| i as u16)
+            .collect();
+        let base_hash = chunk_hash(&base);
+        g.bench_function(format!("encode_from_hash/{name}"), |b| {
+            b.iter(|| ChunkDelta::encode_from_hash(POS, 0, 1, &base, base_hash, black_box(&target)))
+        });
+        g.bench_function(format!("encode_changed/{name}"), |b| {
+            b.iter(|| {
+                let t = black_box(&target);
+                ChunkDelta::encode_changed(POS, 0, 1, &base, base_hash, t, &voxels)
+            })
+        });
         let delta = ChunkDelta::encode(POS, 0, 1, &base, &target).expect("versions increase");
         g.bench_function(format!("apply/{name}"), |b| {
             b.iter(|| black_box(&delta).apply(&base))
