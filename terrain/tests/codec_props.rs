@@ -224,8 +224,10 @@ proptest! {
         edits in prop::collection::vec(edit(), 1..4),
         unchanged in prop::collection::vec(0usize..CHUNK_VOLUME, 0..16),
     ) {
-        // Every changed voxel, and some that may not have changed.
-        let target = edited(&base, &edits);
+        // Compact, as the world keeps it; every changed voxel listed, and
+        // some that may not have changed.
+        let mut target = edited(&base, &edits);
+        target.compact();
         let mut voxels: Vec<u16> = (0..CHUNK_VOLUME)
             .filter(|&i| base.get_index(i) != target.get_index(i))
             .chain(unchanged)

@@ -225,8 +225,9 @@ impl ChunkDelta {
     /// [`Self::encode_from_hash`] for an edit that knows which voxels it
     /// changed: `voxels` holds, in increasing order, the local index of
     /// every voxel where `base` and `target` may differ (a listed voxel may
-    /// be equal in both; an unlisted one must be). The same delta, built
-    /// from those voxels instead of from two 64 KB planes.
+    /// be equal in both; an unlisted one must be), and `target` is compact
+    /// ([`Chunk::compact`], as [`crate::World`] keeps its chunks). The same
+    /// delta, built from those voxels instead of from two 64 KB planes.
     pub fn encode_changed(
         pos: ChunkPos,
         from_version: u64,
@@ -263,11 +264,18 @@ impl ChunkDelta {
             None => encode_payload(base, target, same),
             Some(voxels) => {
                 debug_assert!(voxels.windows(2).all(|w| w[0] < w[1]));
-                let payload = payload_from(target, same, || sparse_bodies(base, target, voxels));
+                // An edit's target is compact (the world keeps its chunks
+                // so): uniform only in uniform form, no 64 KB check.
+                let uniform = match target {
+                    Chunk::Uniform(v) => Some(*v),
+                    Chunk::Dense(_) => None,
+                };
+                let bodies = || sparse_bodies(base, target, voxels);
+                let payload = payload_from(uniform, same, bodies);
                 debug_assert_eq!(
                     payload,
                     encode_payload(base, target, same),
-                    "`voxels` must list every changed voxel"
+                    "`voxels` must list every changed voxel, and `target` be compact"
                 );
                 payload
             }
@@ -318,7 +326,12 @@ impl ChunkDelta {
 // ---------------------------------------------------------------- encoding
 
 fn encode_payload(base: &Chunk, target: &Chunk, same: bool) -> Vec<u8> {
-    payload_from(target, same, || {
+    // A uniform target in either form.
+    let uniform = match target {
+        Chunk::Uniform(v) => Some(*v),
+        Chunk::Dense(d) => d.uniform_value(),
+    };
+    payload_from(uniform, same, || {
         let x = xor_stream(base, target);
         [
             encode_runs(&x),
@@ -354,15 +367,15 @@ fn sparse_bodies(base: &Chunk, target: &Chunk, voxels: &[u16]) -> [Vec<u8>; 2] {
 
 /// The payload for `target`: unchanged (`same`), uniform, or else the
 /// shortest form of the runs and masked `bodies`.
-fn payload_from(target: &Chunk, same: bool, bodies: impl FnOnce() -> [Vec<u8>; 2]) -> Vec<u8> {
+fn payload_from(
+    uniform: Option<Voxel>,
+    same: bool,
+    bodies: impl FnOnce() -> [Vec<u8>; 2],
+) -> Vec<u8> {
     if same {
         return vec![LAYOUT_RUNS | COMPRESSION_NONE];
     }
-    // A uniform target (in either form) needs no stream at all.
-    let uniform = match target {
-        Chunk::Uniform(v) => Some(*v),
-        Chunk::Dense(d) => d.uniform_value(),
-    };
+    // A uniform target needs no stream at all.
     if let Some(v) = uniform {
         return vec![LAYOUT_UNIFORM, v.density, v.material];
     }
