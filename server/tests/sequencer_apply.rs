@@ -453,6 +453,9 @@ fn a_stored_chunk_changed_twice_in_a_tick_is_committed_as_one_delta() {
     assert_eq!((deltas[0].from_version, deltas[0].to_version), (5, 7));
     let now = &s.world().peek(home).unwrap().chunk;
     assert_eq!(&deltas[0].apply(&stored).unwrap(), now);
+    // Built from the voxels either edit changed: the full encoder's bytes.
+    let full = strata_terrain::delta::ChunkDelta::encode(home, 5, 7, &stored, now).unwrap();
+    assert_eq!(deltas[0], &full);
     assert_eq!(out.batch.deltas.len(), 1);
     assert!(out.batch.chunks.iter().all(|c| c.0 != home));
 }

@@ -357,11 +357,29 @@ impl Sequencer {
 /// An applied edit's box and chunk updates, or why it failed.
 type LaneResult = Result<(VoxelBox, Vec<ChunkUpdate>), String>;
 
+/// The union of two increasing lists, increasing, without repeats.
+fn merge_sorted(a: &[u16], b: &[u16]) -> Vec<u16> {
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        let (x, y) = (a[i], b[j]);
+        out.push(x.min(y));
+        i += usize::from(x <= y);
+        j += usize::from(y <= x);
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
+    out
+}
+
 /// A stored chunk's state before its first change in a lane.
 struct FirstChange {
     from_version: u64,
     base_hash: u64,
     before: Chunk,
+    /// Every voxel the lane's changes of the chunk so far changed
+    /// (increasing): where `before` and the chunk's last state may differ.
+    voxels: Vec<u16>,
     /// The change's delta while it is the chunk's only one.
     only: Option<ChunkDelta>,
 }
@@ -440,12 +458,17 @@ impl Lane {
                 hashes.insert(c.pos, delta.target_hash);
                 if c.from_version != 0 {
                     match firsts.entry(c.pos) {
-                        Entry::Occupied(mut first) => first.get_mut().only = None,
+                        Entry::Occupied(mut first) => {
+                            let first = first.get_mut();
+                            first.only = None;
+                            first.voxels = merge_sorted(&first.voxels, &c.voxels);
+                        }
                         Entry::Vacant(slot) => {
                             slot.insert(FirstChange {
                                 from_version: c.from_version,
                                 base_hash: delta.base_hash,
                                 before: c.before,
+                                voxels: c.voxels,
                                 only: Some(delta.clone()),
                             });
                         }
@@ -479,16 +502,18 @@ impl Lane {
                 .remove(&pos)
                 .expect("a chunk the store holds had a first change");
             // A chunk changed several times is stored as one delta across
-            // them all: one record a tick, whatever the edits per chunk.
+            // them all (one record a tick, whatever the edits per chunk),
+            // built from the voxels any of them changed.
             lane.stored.push(match first.only {
                 Some(delta) => delta,
-                None => ChunkDelta::encode_from_hash(
+                None => ChunkDelta::encode_changed(
                     pos,
                     first.from_version,
                     version,
                     &first.before,
                     first.base_hash,
                     &state.chunk,
+                    &first.voxels,
                 )
                 .expect("the lane raised the version"),
             });
@@ -497,5 +522,22 @@ impl Lane {
         lane.slots = changed;
         lane.world = world;
         lane
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::merge_sorted;
+
+    #[test]
+    fn merged_lists_are_the_sorted_union() {
+        assert_eq!(merge_sorted(&[], &[]), Vec::<u16>::new());
+        assert_eq!(merge_sorted(&[1, 5, 9], &[]), [1, 5, 9]);
+        assert_eq!(merge_sorted(&[], &[0, 65535]), [0, 65535]);
+        assert_eq!(
+            merge_sorted(&[1, 5, 9], &[2, 5, 10, 11]),
+            [1, 2, 5, 9, 10, 11]
+        );
+        assert_eq!(merge_sorted(&[3, 4], &[3, 4]), [3, 4]);
     }
 }
