@@ -136,6 +136,7 @@ async fn bad_settings_are_refused_before_connecting() {
         follow_owners: false,
         player_prefix: "bot".into(),
         link_delay: Duration::ZERO,
+        verify_timeout: bots::DEFAULT_VERIFY_TIMEOUT,
     };
     let e = bots::run(run.clone()).await.unwrap_err();
     assert!(e.to_string().contains("--stalled"), "{e}");
@@ -151,11 +152,55 @@ async fn bad_settings_are_refused_before_connecting() {
     let e = bots::run(BotsConfig {
         stalled: 0,
         link_delay: bots::MAX_LINK_DELAY + Duration::from_millis(1),
-        ..run
+        ..run.clone()
     })
     .await
     .unwrap_err();
     assert!(e.to_string().contains("--link-delay"), "{e}");
+    for verify_timeout in [
+        Duration::ZERO,
+        bots::MAX_VERIFY_TIMEOUT + Duration::from_secs(1),
+    ] {
+        let e = bots::run(BotsConfig {
+            stalled: 0,
+            verify_timeout,
+            ..run.clone()
+        })
+        .await
+        .unwrap_err();
+        assert!(e.to_string().contains("--verify-timeout"), "{e}");
+    }
+}
+
+/// `--verify-timeout`: a check that runs out of time leaves the chunks the
+/// server has not sent yet unverified, and the run is not called
+/// consistent; the default leaves time for all of them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_check_out_of_time_counts_what_it_did_not_verify() {
+    let tmp = tempfile::tempdir().unwrap();
+    let server = start_server(&tmp).await;
+    let run = BotsConfig {
+        bots: 2,
+        duration: Duration::from_millis(500),
+        edit_rate: 0.0,
+        verify: VerifyMode::All,
+        verify_timeout: Duration::from_millis(1),
+        ..config_for(&server)
+    };
+    let s = tokio::time::timeout(Duration::from_secs(90), bots::run(run.clone()))
+        .await
+        .expect("the run ends")
+        .unwrap();
+    assert!(s.chunks_unverified > 0, "{}", s.human());
+    assert!(!s.consistent(), "{}", s.human());
+    let s = run_consistent(BotsConfig {
+        verify_timeout: bots::DEFAULT_VERIFY_TIMEOUT,
+        ..run
+    })
+    .await;
+    assert_eq!(s.chunks_unverified, 0, "{}", s.human());
+    assert!(s.chunks_verified > 0, "{}", s.human());
+    server.shutdown().await.unwrap();
 }
 
 /// `--link-delay`: every bot's sends leave 40 ms late, so each verdict

@@ -48,6 +48,7 @@ async fn run_attack(attack: Attack, ramp: bool) -> (Summary, HostileSummary) {
         follow_owners: false,
         player_prefix: "bot".into(),
         link_delay: Duration::ZERO,
+        verify_timeout: bots::DEFAULT_VERIFY_TIMEOUT,
     };
     let hostile = HostileConfig::new(attack, 1, server.addr);
     assert_eq!(hostile.bind.to_string(), "127.0.0.2");

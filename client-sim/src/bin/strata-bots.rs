@@ -97,6 +97,11 @@ struct Args {
     /// End-of-run comparison: all held chunks, only modified ones, or off.
     #[arg(long, default_value = "all")]
     verify: VerifyMode,
+    /// Longest each bot's end-of-run check waits for the server's copies
+    /// of its chunks (up to 1h); the rest count as unverified. `--verify
+    /// all` at view radius 8 asks for thousands of chunks per bot.
+    #[arg(long, default_value = "45s", value_parser = parse_run_duration)]
+    verify_timeout: std::time::Duration,
     /// The first N bots stop reading their updates once spawned (a frozen
     /// client); they keep editing and are left out of the comparison.
     #[arg(long, default_value_t = 0)]
@@ -273,6 +278,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         edit_rate: args.edit_rate,
         view_radius: args.view_radius,
         verify: args.verify,
+        verify_timeout: args.verify_timeout,
         seed: args.seed,
         stalled: args.stalled,
         ramp: !args.no_ramp,

@@ -47,8 +47,6 @@ pub const CHECK_WINDOW: usize = 4;
 /// A chunk request unanswered this long is sent again (a full server
 /// command queue drops requests).
 pub const CHECK_RETRY: Duration = Duration::from_secs(3);
-/// Longest wait for the server's copies of a bot's chunks.
-pub const CHECK_TIMEOUT: Duration = Duration::from_secs(45);
 
 /// An edit in flight: its verdict and when it was sent.
 type PendingEdit<'a> = dyn Future<Output = (Result<Acked, ClientError>, Instant)> + Send + 'a;
@@ -654,7 +652,7 @@ impl Bot {
             if outstanding.is_empty() && queue.is_empty() {
                 break;
             }
-            if start.elapsed() > CHECK_TIMEOUT || self.phase() == Phase::Done {
+            if start.elapsed() > self.fleet.cfg.verify_timeout || self.phase() == Phase::Done {
                 break;
             }
             if client.is_closed() {

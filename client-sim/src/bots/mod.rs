@@ -61,8 +61,13 @@ pub const QUIET_PERIOD: Duration = Duration::from_millis(750);
 pub const RAMP_TIMEOUT: Duration = Duration::from_secs(60);
 /// Longest wait for quiet before checking anyway.
 pub const QUIET_TIMEOUT: Duration = Duration::from_secs(30);
-/// Longest wait for every bot to finish its end-of-run check.
-pub const VERIFY_TIMEOUT: Duration = Duration::from_secs(60);
+/// Default of [`BotsConfig::verify_timeout`].
+pub const DEFAULT_VERIFY_TIMEOUT: Duration = Duration::from_secs(45);
+/// Longest [`BotsConfig::verify_timeout`] (`--verify-timeout`).
+pub const MAX_VERIFY_TIMEOUT: Duration = Duration::from_secs(3600);
+/// How much longer than [`BotsConfig::verify_timeout`] the fleet waits
+/// for every bot to report its end-of-run check.
+pub const VERIFY_GRACE: Duration = Duration::from_secs(15);
 /// Longest [`BotsConfig::link_delay`] (`--link-delay`).
 pub const MAX_LINK_DELAY: Duration = Duration::from_secs(5);
 /// Default of [`BotsConfig::silence_limit`].
@@ -182,6 +187,11 @@ pub struct BotsConfig {
     /// Every bot's sends leave this late (`--link-delay`): a simulated
     /// network delay that adds to the RTT the server measures. Zero: none.
     pub link_delay: Duration,
+    /// Longest a bot's end-of-run check waits for the server's copies
+    /// (`--verify-timeout`); what has not come by then counts as
+    /// `chunks_unverified`. `--verify all` at a large view radius asks for
+    /// thousands of chunks per bot.
+    pub verify_timeout: Duration,
 }
 
 impl BotsConfig {
@@ -212,6 +222,7 @@ impl BotsConfig {
             follow_owners: false,
             player_prefix: "bot".into(),
             link_delay: Duration::ZERO,
+            verify_timeout: DEFAULT_VERIFY_TIMEOUT,
         }
     }
 
@@ -231,6 +242,9 @@ impl BotsConfig {
         }
         if self.link_delay > MAX_LINK_DELAY {
             return bad("--link-delay must be at most 5s");
+        }
+        if self.verify_timeout.is_zero() || self.verify_timeout > MAX_VERIFY_TIMEOUT {
+            return bad("--verify-timeout must be above 0 and at most 1h");
         }
         Ok(())
     }
@@ -437,7 +451,7 @@ pub async fn run_with(
     fleet.phase.send_replace(Phase::Verify);
     let verify_start = Instant::now();
     while fleet.finished.load(Ordering::Relaxed) < cfg.bots
-        && verify_start.elapsed() < VERIFY_TIMEOUT
+        && verify_start.elapsed() < cfg.verify_timeout + VERIFY_GRACE
     {
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
