@@ -18,6 +18,7 @@ pub const EDITS_REJECTED: &str = "strata_edits_rejected_total";
 pub const QUEUE_DEPTH: &str = "strata_sequencer_queue_depth";
 pub const FLUSH_SECONDS: &str = "strata_flush_seconds";
 pub const FSYNC_SECONDS: &str = "strata_fsync_seconds";
+pub const STORE_FLUSH_NUDGES: &str = "strata_store_flush_nudges_total";
 pub const CHECKPOINT_SECONDS: &str = "strata_checkpoint_seconds";
 pub const CHECKPOINT_CHUNKS_TOTAL: &str = "strata_checkpoint_chunks_total";
 pub const TICK_SECONDS: &str = "strata_tick_seconds";
@@ -123,6 +124,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_histogram!(
         FSYNC_SECONDS,
         "The fsyncs that end a group commit (part of its latency)"
+    );
+    metrics::describe_counter!(
+        STORE_FLUSH_NUDGES,
+        "sled flushes that ran past 250 ms, so the store flushed again to wake them (a failed disk, or a slow one)"
     );
     metrics::describe_histogram!(
         CHECKPOINT_SECONDS,

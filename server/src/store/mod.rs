@@ -24,6 +24,7 @@ mod config;
 mod deltas;
 mod disk_sync;
 mod error;
+mod flush_watch;
 mod import;
 pub mod keys;
 mod log_pages;

@@ -25,6 +25,7 @@ use super::check::{CheckReport, Checker};
 use super::config::StoreConfig;
 use super::disk_sync::DiskSync;
 use super::error::StoreError;
+use super::flush_watch::FlushWatch;
 use super::keys::{chunk_key, chunk_pos_from_key, delta_key, seq_key, show_pos, show_raw};
 use super::log_pages::{encode_page, page_key, record_entries, search_key, BadRecord};
 use super::record::{
@@ -80,6 +81,8 @@ pub struct SledStore {
     pub(super) deltas: sled::Tree,
     players: sled::Tree,
     disk: DiskSync,
+    /// Dropped after `db`: its thread holds the last handle.
+    watch: FlushWatch,
 }
 
 impl SledStore {
@@ -106,6 +109,7 @@ impl SledStore {
             deltas: db.open_tree(TREE_DELTAS)?,
             players: db.open_tree(TREE_PLAYERS)?,
             disk: DiskSync::open(dir)?,
+            watch: FlushWatch::spawn(db.clone())?,
             db,
         };
         // Only a readable record of another format stops the open: a
@@ -131,7 +135,7 @@ impl SledStore {
     /// Makes every write so far durable: sled's flush, then the fsyncs it
     /// leaves out.
     pub(super) fn flush(&self) -> Result<(), StoreError> {
-        self.db.flush()?;
+        self.watch.flush(&self.db)?;
         self.disk.sync()?;
         Ok(())
     }
@@ -304,7 +308,7 @@ impl ChunkStore for SledStore {
         })?;
         let apply = started.elapsed() - encode;
         let flushing = Instant::now();
-        self.db.flush()?;
+        self.watch.flush(&self.db)?;
         let syncing = Instant::now();
         self.disk.sync()?;
         Ok(CommitStats {
