@@ -1,7 +1,7 @@
 //! The C and Python examples, compiled and run against a real server on
 //! 127.0.0.1: each connects, digs, sees its own delta, meshes the chunk.
 
-mod common;
+use crate::common;
 
 use std::process::Command;
 

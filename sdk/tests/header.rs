@@ -22,7 +22,7 @@ fn header_is_current() {
     let current = std::fs::read(&path).unwrap_or_default();
     assert!(
         current == fresh,
-        "{} is stale; regenerate it with STRATA_BLESS=1 cargo test -p strata-sdk --test header",
+        "{} is stale; regenerate it with STRATA_BLESS=1 cargo test -p strata-sdk --test integration -- header_is_current",
         path.display()
     );
 }

@@ -3,7 +3,7 @@
 //! changes are reported, meshes match the server's hashes, and the end of
 //! the connection comes last.
 
-mod common;
+use crate::common;
 
 use std::time::{Duration, Instant};
 

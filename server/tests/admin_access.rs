@@ -2,7 +2,7 @@
 //! ends live sessions and is refused at the next Hello) and offline (a
 //! stopped server's stored list), and both survive a restart.
 
-mod common;
+use crate::common;
 
 use std::process::Command;
 use std::time::Duration;

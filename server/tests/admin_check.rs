@@ -3,7 +3,7 @@
 //! would leave it) fails with a non-zero exit and a line naming each record;
 //! a store held open by a running process is refused as locked.
 
-mod offline_common;
+use crate::offline_common;
 
 use std::path::Path;
 

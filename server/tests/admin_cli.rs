@@ -3,7 +3,7 @@
 //! (a corrupt byte is named by record), restore (refused when corrupt or
 //! onto a non-empty dir) and diff, and the offline forms on the stopped dir.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::{Command, Output};

@@ -3,7 +3,7 @@
 //! carry), the welded mesh is closed everywhere except where the region box
 //! cuts it, and PLY, OBJ and GLB carry the same mesh.
 
-mod offline_common;
+use crate::offline_common;
 
 use std::collections::HashMap;
 use std::path::Path;

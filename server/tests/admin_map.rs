@@ -4,7 +4,7 @@
 //! store, the data dir's config or `--config`, and a config that disagrees
 //! with the store is refused.
 
-mod offline_common;
+use crate::offline_common;
 
 use std::collections::HashSet;
 use std::path::Path;

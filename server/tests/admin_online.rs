@@ -2,8 +2,8 @@
 //! restored into a new data dir that a server then serves exactly; and
 //! player tokens that can reach no admin request.
 
-mod common;
-mod snapshot_common;
+use crate::common;
+use crate::snapshot_common;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;

@@ -6,8 +6,8 @@
 //! flow-control arithmetic proves those records were resolved after the
 //! edits committed, so only their pre-images could have produced them.
 
-mod common;
-mod snapshot_common;
+use crate::common;
+use crate::snapshot_common;
 
 use std::fs::File;
 use std::io::BufWriter;

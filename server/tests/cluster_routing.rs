@@ -9,7 +9,7 @@
 //! And bots (`strata-bots --follow-owners`) sent to the wrong node move
 //! to the one their `RegionElsewhere` names and keep editing there.
 
-mod common;
+use crate::common;
 
 use std::net::SocketAddr;
 use std::path::Path;

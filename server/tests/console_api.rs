@@ -3,7 +3,7 @@
 //! it, the 3-D scene as glTF, the named limits, and the confirmed admin
 //! actions (which take the admin protocol's own path).
 
-mod common;
+use crate::common;
 
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};

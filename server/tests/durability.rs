@@ -1,8 +1,7 @@
 //! Acknowledged edits survive SIGKILL and graceful shutdown: the server runs
 //! as a real child process, and the store is checked offline afterwards.
 
-#[macro_use]
-mod common;
+use crate::common;
 
 use std::sync::{Arc, Mutex};
 use std::time::Duration;

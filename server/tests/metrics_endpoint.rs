@@ -2,7 +2,7 @@
 //! sessions, edits by outcome and reason, edit and flush latency, bytes
 //! sent, background meshing and QUIC's own traffic.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

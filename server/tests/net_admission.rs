@@ -3,7 +3,7 @@
 //! once a Retry is asked for, the session cap counts authenticated
 //! sessions, and admins have room of their own.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

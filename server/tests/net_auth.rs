@@ -2,7 +2,7 @@
 //! and forged tokens, a wrong protocol version and a wrong ALPN are refused
 //! before any world data is sent.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

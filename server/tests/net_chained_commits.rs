@@ -4,7 +4,7 @@
 //! Every replica still converges, every mesh matches, and every
 //! acknowledged edit is in the store once the server has stopped.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

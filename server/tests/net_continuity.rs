@@ -4,8 +4,7 @@
 //! of reach (no teleport by reconnecting). A player the server does not
 //! remember starts in the configured spawn area.
 
-#[macro_use]
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

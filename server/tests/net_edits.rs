@@ -4,8 +4,7 @@
 //! `[net] send_interval_ms` spaces a watcher's writes; an edit behind a
 //! wall is refused for line of sight.
 
-#[macro_use]
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

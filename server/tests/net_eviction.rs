@@ -2,7 +2,7 @@
 //! chunks far from every player, modified ones included, and loads them
 //! from the store again when a player comes back and edits there.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

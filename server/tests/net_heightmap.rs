@@ -2,7 +2,7 @@
 //! seed, so the server sends full snapshots of unmodified chunks, and they
 //! match the heightmap generator exactly.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

@@ -6,7 +6,7 @@
 //! re-centre the whole queue is nearest first from the new centre, and a
 //! forgotten chunk gets no updates until it is asked for again.
 
-mod common;
+use crate::common;
 
 use std::sync::{Arc, Mutex};
 use std::time::Duration;

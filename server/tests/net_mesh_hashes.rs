@@ -3,7 +3,7 @@
 //! so a neighbour's change must retire them: a client that asks for a chunk
 //! after its neighbour changed gets the hash of the mesh as it now stands.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

@@ -3,7 +3,7 @@
 //! are answered, at a bounded rate however many come; a session's requests
 //! wait for its request tokens.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

@@ -3,7 +3,7 @@
 //! still receives its whole view. Frames are built on the workers, and
 //! sent again from the cache.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 

@@ -1,6 +1,6 @@
 //! Ordering, versions, delta chains, commit batches and store residency.
 
-mod sequencer_common;
+use crate::sequencer_common;
 
 use std::collections::{HashMap, HashSet};
 

@@ -1,7 +1,7 @@
 //! Region lanes: a tick's output is the same whatever the region size and
 //! however many threads apply the lanes.
 
-mod sequencer_common;
+use crate::sequencer_common;
 
 use sequencer_common::*;
 use strata_protocol::Role;

@@ -1,7 +1,7 @@
 //! Bad commit batches are refused with a reason and change nothing, on
 //! every backend.
 
-mod store_common;
+use crate::store_common;
 
 use store_common::{places, terrain_chunk, Seq};
 use strata_server::store::{ChunkStore, CommitBatch, StoreError, WorldMeta};

@@ -1,8 +1,8 @@
 //! Commit latency of the sled store (group commit, one flush per batch).
 //! A measurement, not a test of speed: run it by hand with
-//! `cargo test --release -p strata-server --test store_bench -- --ignored --nocapture`.
+//! `cargo test --release -p strata-server --test integration -- --ignored --nocapture store_bench::`.
 
-mod store_common;
+use crate::store_common;
 
 use std::time::{Duration, Instant};
 

@@ -2,7 +2,7 @@
 //! planted by opening the sled database directly, as a bad disk or a bug
 //! elsewhere would leave it.
 
-mod store_common;
+use crate::store_common;
 
 use std::path::Path;
 

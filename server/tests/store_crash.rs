@@ -8,7 +8,7 @@
 //! [`CHILD_DIR_VAR`] is set, the same test body commits instead of
 //! supervising.
 
-mod store_common;
+use crate::store_common;
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
@@ -21,7 +21,8 @@ use strata_server::store::{ChunkStore, CommitBatch, SledStore, WorldMeta};
 use strata_terrain::{Chunk, ChunkPos};
 
 const CHILD_DIR_VAR: &str = "STRATA_STORE_CRASH_CHILD_DIR";
-const TEST_NAME: &str = "acknowledged_commits_survive_sigkill";
+/// The test's name in the integration binary (the child runs it alone).
+const TEST_NAME: &str = "store_crash::acknowledged_commits_survive_sigkill";
 /// How long the child commits before it is killed.
 const RUN_FOR: Duration = Duration::from_millis(1000);
 /// The child stops by itself after this many batches if never killed.

@@ -4,7 +4,7 @@
 //! folded. A delta that does not continue the stored chain is refused.
 //! Every test runs on every backend.
 
-mod store_common;
+use crate::store_common;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;

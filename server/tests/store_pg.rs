@@ -3,7 +3,7 @@
 //! rows, calls from inside a tokio runtime, and `check` naming tables this
 //! layout does not have.
 
-mod store_common;
+use crate::store_common;
 
 use store_common::{pg_store, sql, terrain_chunk, Seq};
 use strata_server::store::pg::{PgConfig, MIGRATIONS};

@@ -2,7 +2,7 @@
 //! renewals, takeover of an expired lease with a new epoch, commits with
 //! a stale epoch refused and changing nothing, and nodes racing.
 
-mod store_common;
+use crate::store_common;
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -4,7 +4,7 @@
 //! `sync_file_range` leaves the data in LazyFS's cache, and its blob files
 //! are never synced at all).
 
-mod store_common;
+use crate::store_common;
 
 use store_common::{noisy_chunk, Seq};
 use strata_server::datadir::DataDir;

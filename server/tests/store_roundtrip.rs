@@ -1,7 +1,7 @@
 //! Round trips through a real store: sled in a tempdir, and PostgreSQL
 //! where a test is not about sled's own files.
 
-mod store_common;
+use crate::store_common;
 
 use store_common::{noisy_chunk, places, terrain_chunk, Place, Seq};
 use strata_server::store::keys::{chunk_key, chunk_pos_from_key};

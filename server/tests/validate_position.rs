@@ -1,6 +1,6 @@
 //! Position rules: first position in the spawn area, resume, speed with slack, not inside solid, bounds, staleness.
 
-mod sequencer_common;
+use crate::sequencer_common;
 
 use sequencer_common::*;
 use strata_protocol::{PositionUpdate, Role, Start};

@@ -1,6 +1,6 @@
 //! Each edit rule rejects with its own reason and changes nothing.
 
-mod sequencer_common;
+use crate::sequencer_common;
 
 use sequencer_common::*;
 use strata_protocol::{RejectReason, Role};

@@ -1,6 +1,6 @@
 //! Options validation, neighbourhood sampling and per-vertex materials.
 
-mod mesh_common;
+use crate::mesh_common;
 
 use mesh_common::*;
 use strata_terrain::material::ids;

@@ -1,6 +1,6 @@
 //! Golden mesh hashes and thread-count independence.
 
-mod mesh_common;
+use crate::mesh_common;
 
 use mesh_common::*;
 use rayon::prelude::*;

@@ -1,6 +1,6 @@
 //! Stride LOD and Transvoxel: no cracks against finer neighbours on any face subset.
 
-mod mesh_common;
+use crate::mesh_common;
 
 use mesh_common::*;
 use std::collections::HashMap;

@@ -1,7 +1,7 @@
 //! Chunk seams: neighbouring chunks agree bit for bit on shared vertices, and the welded
 //! union of separately meshed chunks is watertight, at every LOD.
 
-mod mesh_common;
+use crate::mesh_common;
 
 use mesh_common::*;
 use strata_terrain::mesh::MeshOptions;

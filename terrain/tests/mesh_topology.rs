@@ -1,6 +1,6 @@
 //! Closed analytic surfaces: watertight, right Euler characteristic, right area and volume.
 
-mod mesh_common;
+use crate::mesh_common;
 
 use mesh_common::*;
 use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood};
