@@ -19,7 +19,9 @@
 # server sent and received, its UDP bytes sent, QUIC's lost packets, and
 # datagrams (both ways) per edit it accepted; and "meshes": collision
 # meshes built by kind (changed, rewarm, on_demand, premesh), what became of
-# the rewarms (used, wasted) and meshes per edit; and "caches": lookups of
+# the rewarms (used, wasted) and meshes per edit; "store_bytes": encoded
+# bytes handed to the store (strata_store_bytes_total: commit, checkpoint)
+# and per edit; and "caches": lookups of
 # the generated-chunk caches (premesh and patch bases: hits, generated) and
 # of the snapshot-frame cache (hits, misses, entries cleared); and
 # "requests_throttled": requests that waited for their session's
@@ -27,9 +29,12 @@
 # the web console; BENCH_WATCHERS=N then connects N watching consoles once
 # the server is up, each like a browser tab: the first screen of map tiles
 # (3 x 3 around the bots), then the live event stream to the end.
-# A last line has the server's CPU seconds by thread name over the bots'
+# A line has the server's CPU seconds by thread name over the bots'
 # run ("thread_cpu_seconds": strata-engine, tokio-rt-worker, strata-worker,
-# ...). BENCH_LOG=FILE keeps the server's log. Binaries come from
+# ...), and one what it wrote over that run, from /proc/PID/io ("disk":
+# wchar, the bytes its write calls passed, store and log; write_bytes, the
+# bytes the page cache sent to the disk for it; write_calls; both per
+# accepted edit). BENCH_LOG=FILE keeps the server's log. Binaries come from
 # ${CARGO_TARGET_DIR:-target}/release, built first, or from BENCH_BIN_DIR
 # as they are (strata-server, strata-admin, strata-bots; no cargo needed:
 # a machine the binaries were copied to).
@@ -145,12 +150,14 @@ threads() {
     done
 }
 threads > "$dir/threads0"
+cp "/proc/$pid/io" "$dir/io0"
 t0=$(ticks); s0=$(date +%s.%N)
 /usr/bin/time -f "%U %S" -o "$dir/bots_time" \
     "${bots_pin[@]}" "$bin/strata-bots" --server "$addr" --data-dir "$dir/data" \
     --bots "$bots" --duration "$duration" --json "$@" | tee "$dir/bots.json"
 t1=$(ticks); s1=$(date +%s.%N)
 threads > "$dir/threads1"
+cp "/proc/$pid/io" "$dir/io1"
 kill "$sampler" 2>/dev/null || true; wait "$sampler" 2>/dev/null || true; sampler=
 rss=$(awk '/VmHWM/ {print $2}' "/proc/$pid/status")
 bots_cpu=$(awk '{print $1 + $2}' "$dir/bots_time")
@@ -221,6 +228,14 @@ awk -v hz="$hz" 'FNR == NR { a[$1] += $2; next } { b[$1] += $2 }
     END { printf "{\"thread_cpu_seconds\":{"; sep = ""
           for (k in b) { printf "%s\"%s\":%.2f", sep, k, (b[k] - a[k]) / hz; sep = "," }
           print "}}" }' "$dir/threads0" "$dir/threads1"
+# What the server wrote over the bots' run (/proc/PID/io): bytes passed to
+# write calls (the store's files and the log), and bytes the page cache
+# sent to the disk for it.
+awk -v edits="${edits:-0}" 'FNR == NR { a[$1] = $2; next } { b[$1] = $2 }
+    END { w = b["wchar:"] - a["wchar:"]; d = b["write_bytes:"] - a["write_bytes:"]
+          printf "{\"disk\":{\"wchar\":%d,\"write_bytes\":%d,\"write_calls\":%d,\"wchar_per_edit\":%.0f,\"write_bytes_per_edit\":%.0f}}\n",
+              w, d, b["syscw:"] - a["syscw:"], (edits > 0 ? w / edits : 0), (edits > 0 ? d / edits : 0) }' \
+    "$dir/io0" "$dir/io1"
 if [ -n "${BENCH_METRICS_PORT:-}" ]; then
     curl -s "http://127.0.0.1:$BENCH_METRICS_PORT/metrics" | awk '
         /^strata_(flush|fsync)_seconds\{quantile="(0.5|0.99|1)"\}/ {
@@ -240,6 +255,7 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
         /^strata_generated_chunks_total\{/ { split($1, a, "\""); gen[a[2] "_" a[4]] = $NF }
         /^strata_snapshot_cache_total\{/ { split($1, a, "\""); snap[a[2]] = $NF }
         /^strata_requests_throttled_total / { throttled = $NF }
+        /^strata_store_bytes_total\{/ { split($1, a, "\""); store[a[2]] = $NF }
         END { printf "{\"commit_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"fsync_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"server_edits_accepted\":%d",
             q["strata_flush_seconds_0.5"], q["strata_flush_seconds_0.99"], q["strata_flush_seconds_1"],
             q["strata_fsync_seconds_0.5"], q["strata_fsync_seconds_0.99"], q["strata_fsync_seconds_1"], accepted
@@ -250,6 +266,8 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
               printf ",\"meshes\":{\"changed\":%d,\"rewarm\":%d,\"on_demand\":%d,\"premesh\":%d,\"rewarm_used\":%d,\"rewarm_wasted\":%d,\"per_edit\":%.2f}",
             meshes["changed"], meshes["rewarm"], meshes["on_demand"], premesh, rewarms["used"], rewarms["wasted"],
             (accepted > 0 ? (meshes["changed"] + meshes["rewarm"] + meshes["on_demand"] + premesh) / accepted : 0)
+              printf ",\"store_bytes\":{\"commit\":%d,\"checkpoint\":%d,\"per_edit\":%.0f}",
+            store["commit"], store["checkpoint"], (accepted > 0 ? (store["commit"] + store["checkpoint"]) / accepted : 0)
               printf ",\"caches\":{\"premesh_hit\":%d,\"premesh_generated\":%d,\"patch_base_hit\":%d,\"patch_base_generated\":%d,\"snapshot_hit\":%d,\"snapshot_miss\":%d,\"snapshot_cleared\":%d},\"requests_throttled\":%d}\n",
             gen["premesh_hit"], gen["premesh_generated"], gen["patch_base_hit"], gen["patch_base_generated"],
             snap["hit"], snap["miss"], snap["cleared"], throttled }'

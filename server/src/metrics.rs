@@ -21,6 +21,11 @@ pub const FSYNC_SECONDS: &str = "strata_fsync_seconds";
 pub const STORE_FLUSH_NUDGES: &str = "strata_store_flush_nudges_total";
 pub const CHECKPOINT_SECONDS: &str = "strata_checkpoint_seconds";
 pub const CHECKPOINT_CHUNKS_TOTAL: &str = "strata_checkpoint_chunks_total";
+/// Encoded bytes handed to the store, by `kind`: `commit` (a group
+/// commit's log page, deltas and chunk records) or `checkpoint` (chunk
+/// records rewritten with their deltas folded in). What the disk takes is
+/// more: the store's own framing, rewrites and the file system's journal.
+pub const STORE_BYTES: &str = "strata_store_bytes_total";
 pub const TICK_SECONDS: &str = "strata_tick_seconds";
 pub const TICK_LANES: &str = "strata_tick_lanes";
 pub const TICKS_APPLIED_AHEAD: &str = "strata_ticks_applied_ahead_total";
@@ -136,6 +141,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         CHECKPOINT_CHUNKS_TOTAL,
         "Chunks whose deltas a checkpoint folded into their records"
+    );
+    metrics::describe_counter!(
+        STORE_BYTES,
+        "Encoded bytes handed to the store, by kind (commit, checkpoint)"
     );
     metrics::describe_histogram!(TICK_SECONDS, "Sequencer tick duration");
     metrics::describe_counter!(

@@ -21,7 +21,7 @@ async fn metrics_count_what_happened() {
         // Room for 4 background meshes: the other 23 around the player wait
         // in the backlog and are meshed as room frees up.
         let config = format!(
-            "{FAST_EDITS}[metrics]\nlisten = \"{metrics}\"\n[engine]\npremesh_inflight = 4\n"
+            "{FAST_EDITS}[metrics]\nlisten = \"{metrics}\"\n[engine]\npremesh_inflight = 4\n[store]\ncheckpoint_ms = 200\n"
         );
         let (mut child, addr) = spawn_server(&data, &config);
         let health = http_get(metrics, "/healthz");
@@ -61,6 +61,12 @@ async fn metrics_count_what_happened() {
         ] {
             assert!(text.contains(needle), "{needle:?} missing from:\n{text}");
         }
+        // The accepted edit's group commit: its log page and the chunk.
+        let commit = metric(&text, "strata_store_bytes_total{kind=\"commit\"}");
+        assert!(
+            matches!(commit, Some(n) if (16.0..65_536.0).contains(&n)),
+            "{commit:?} commit bytes:\n{text}"
+        );
         // The chunks around the player were meshed in the background.
         let deadline = std::time::Instant::now() + Duration::from_secs(20);
         let premeshed = loop {
@@ -72,6 +78,21 @@ async fn metrics_count_what_happened() {
             }
         };
         assert!(premeshed <= 27.0 + 2.0, "{premeshed} meshes for one player");
+        // The first edit of a chunk stores its whole record; a second one
+        // stores a delta, which a checkpoint folds into that record.
+        let again = Edit::Mine {
+            center: FixedVec3::from_voxels(x + 2, y.floor() as i32, z),
+            radius: r(2.0),
+            strength: 255,
+        };
+        assert!(matches!(
+            c.edit(again).await.unwrap(),
+            Verdict::Accepted { .. }
+        ));
+        let checkpoint = "strata_store_bytes_total{kind=\"checkpoint\"}";
+        let folded = wait_for_metric(metrics, checkpoint, 1.0).await;
+        // One or two chunks, compressed.
+        assert!(folded < 2.0 * 65_536.0, "{folded} checkpoint bytes");
         // Those meshes read the 5x5x5 chunks around the player, each generated
         // once at most (the cache holds thousands); the rest of their reads hit.
         let text = scrape(metrics);

@@ -738,6 +738,7 @@ impl Engine {
         self.durable_seq = out.batch.last_seq;
         metrics::histogram!(m::FLUSH_SECONDS).record(flush.elapsed().as_secs_f64());
         metrics::histogram!(m::FSYNC_SECONDS).record(stats.fsync.as_secs_f64());
+        metrics::counter!(m::STORE_BYTES, "kind" => "commit").increment(stats.bytes_written);
         phase.end("commit");
         phase.commit = Some((stats, out.batch.chunks.len()));
         let built = meshing

@@ -71,6 +71,7 @@ fn pass(store: &dyn ChunkStore, max_chunks: usize) -> Result<u64, StoreError> {
     if stats.chunks > 0 {
         metrics::histogram!(m::CHECKPOINT_SECONDS).record(started.elapsed().as_secs_f64());
         metrics::counter!(m::CHECKPOINT_CHUNKS_TOTAL).increment(stats.chunks);
+        metrics::counter!(m::STORE_BYTES, "kind" => "checkpoint").increment(stats.bytes_written);
         debug!(
             chunks = stats.chunks,
             deltas = stats.deltas,

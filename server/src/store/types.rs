@@ -100,7 +100,7 @@ impl CommitBatch {
 /// What one commit cost, for metrics.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct CommitStats {
-    /// Encoded bytes written (chunk values plus log records).
+    /// Encoded bytes written: the log records, deltas and chunk values.
     pub bytes_written: u64,
     /// Time to encode the batch (zstd of the chunks, bincode of the log).
     pub encode: Duration,
