@@ -75,15 +75,26 @@ pub fn root() -> PathBuf {
         .to_path_buf()
 }
 
-/// The directory holding libstrata.so and libstrata.a, built once per test
-/// process with this test's profile: `cargo test` builds the crate as an
-/// rlib only, so the C libraries could be stale or missing.
+/// The directory holding libstrata.so and libstrata.a. The `cargo test`
+/// that built this test built them beside it, in `deps/`, from the same
+/// compile as the rlib it links: every crate type the lib declares (cargo
+/// copies only the targets it was asked for up to the profile's
+/// directory). Where they are missing, they are built once per test
+/// process with this test's profile, at the cost of rebuilding the
+/// dependencies whose features differ without the rest of the workspace.
 pub fn lib_dir() -> PathBuf {
     static BUILT: OnceLock<PathBuf> = OnceLock::new();
     BUILT
         .get_or_init(|| {
             let exe = std::env::current_exe().unwrap();
-            let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
+            let deps = exe.parent().unwrap();
+            if ["libstrata.so", "libstrata.a"]
+                .iter()
+                .all(|lib| deps.join(lib).exists())
+            {
+                return deps.to_path_buf();
+            }
+            let dir = deps.parent().unwrap().to_path_buf();
             let mut cmd = Command::new(env!("CARGO"));
             cmd.args(["build", "--locked", "-p", "strata-sdk", "--lib"])
                 .arg("--target-dir")
