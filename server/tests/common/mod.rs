@@ -166,23 +166,51 @@ pub async fn eventually(limit: Duration, mut f: impl FnMut() -> bool) -> bool {
 pub const FAST_EDITS: &str =
     "[validation]\nspawn_protection_radius = 0\n[validation.edit_rate]\nper_second = 1000\ncapacity = 1000\n";
 
+/// A `strata-server` child process, killed when dropped: a test that fails
+/// before it stops its server leaves none running.
+#[derive(Debug)]
+pub struct ServerProcess(Child);
+
+impl std::ops::Deref for ServerProcess {
+    type Target = Child;
+    fn deref(&self) -> &Child {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for ServerProcess {
+    fn deref_mut(&mut self) -> &mut Child {
+        &mut self.0
+    }
+}
+
+impl Drop for ServerProcess {
+    fn drop(&mut self) {
+        // Errors only say it has ended already.
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 /// Starts the real `strata-server` binary on 127.0.0.1 port 0 with `config`
 /// and returns it with the address it printed.
-pub fn spawn_server(data_dir: &Path, config: &str) -> (Child, SocketAddr) {
+pub fn spawn_server(data_dir: &Path, config: &str) -> (ServerProcess, SocketAddr) {
     let path = data_dir.with_extension("toml");
     std::fs::write(&path, config).unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_strata-server"))
-        .arg("--config")
-        .arg(&path)
-        .arg("--data-dir")
-        .arg(data_dir)
-        .arg("--listen")
-        .arg("127.0.0.1:0")
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("strata-server starts");
+    let mut child = ServerProcess(
+        Command::new(env!("CARGO_BIN_EXE_strata-server"))
+            .arg("--config")
+            .arg(&path)
+            .arg("--data-dir")
+            .arg(data_dir)
+            .arg("--listen")
+            .arg("127.0.0.1:0")
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("strata-server starts"),
+    );
     let mut line = String::new();
     BufReader::new(child.stdout.take().unwrap())
         .read_line(&mut line)
