@@ -170,11 +170,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         }
     };
     let (engine, engine_thread) = engine.spawn(on_exit)?;
-    let checkpointer = Checkpointer::spawn(
-        store.clone(),
-        std::time::Duration::from_millis(cfg.store.checkpoint_ms),
-        cfg.store.checkpoint_chunks,
-    )?;
+    let checkpointer = Checkpointer::spawn(store.clone(), cfg.store.checkpoint_pace())?;
     let server_config = crate::tls::server_config(data_dir.cert(), &cfg.net, &cfg.tls)?;
     let endpoint = quinn::Endpoint::server(server_config, cfg.server.listen)
         .with_context(|| format!("binding {}", cfg.server.listen))?;

@@ -668,6 +668,12 @@ impl ServerConfig {
             crate::store::MAX_CHECKPOINT_CHUNKS,
         )?;
         range(
+            "store.checkpoint_slice_chunks",
+            self.store.checkpoint_slice_chunks,
+            1,
+            crate::store::MAX_CHECKPOINT_CHUNKS,
+        )?;
+        range(
             "store.segment_size_bytes",
             self.store.segment_size_bytes,
             MIN_SEGMENT_SIZE_BYTES,

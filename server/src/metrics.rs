@@ -136,7 +136,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_histogram!(
         CHECKPOINT_SECONDS,
-        "Background checkpoint passes (folding committed deltas into chunk records)"
+        "Background checkpoint passes (folding committed deltas into chunk records): time spent folding, pauses left out"
     );
     metrics::describe_counter!(
         CHECKPOINT_CHUNKS_TOTAL,

@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use store_common::{places, terrain_chunk, Place, Seq};
-use strata_server::store::{ChunkStore, WorldMeta};
+use strata_server::store::{pass_once, CheckpointPace, ChunkStore, WorldMeta};
 use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::{Chunk, ChunkPos};
 
@@ -87,6 +87,61 @@ fn deltas_replay_on(place: &Place) {
         .unwrap();
     assert_reads(&*store, A, 4, &terrain_chunk(6));
     assert!(store.check().unwrap().is_ok());
+}
+
+#[test]
+fn a_paced_pass_folds_in_slices_and_pauses_between_them() {
+    for place in places("paced_pass") {
+        paced_pass_on(&place);
+    }
+}
+
+fn paced_pass_on(place: &Place) {
+    let store = open(place);
+    let chunks: Vec<ChunkPos> = (0..10).map(|i| ChunkPos::new(i, 0, -i)).collect();
+    let mut seq = Seq::default();
+    let whole: Vec<_> = chunks
+        .iter()
+        .map(|&p| vec![(p, terrain_chunk(1))])
+        .collect();
+    store.commit_batch(&seq.delta_batch(&whole)).unwrap();
+    let changed: Vec<_> = (0..2u32)
+        .flat_map(|round| {
+            chunks
+                .iter()
+                .map(move |&p| vec![(p, terrain_chunk(2 + round))])
+        })
+        .collect();
+    store.commit_batch(&seq.delta_batch(&changed)).unwrap();
+    assert_eq!(store.delta_count().unwrap(), 20);
+
+    let pace = |max_chunks, slice_chunks| CheckpointPace {
+        every: std::time::Duration::from_secs(60),
+        max_chunks,
+        slice_chunks,
+    };
+    // At most max_chunks a pass, in slices: 3 + 3 + 1.
+    let first = pass_once(&*store, pace(7, 3)).unwrap();
+    assert_eq!(
+        (first.folded.chunks, first.folded.deltas, first.slices),
+        (7, 14, 3)
+    );
+    assert!(first.paused > std::time::Duration::ZERO, "{first:?}");
+    assert!(!first.stopped);
+    assert_eq!(store.delta_count().unwrap(), 6);
+    // The rest: one slice of 3, no pause after the last slice.
+    let rest = pass_once(&*store, pace(usize::MAX, 3)).unwrap();
+    assert_eq!((rest.folded.chunks, rest.slices), (3, 1), "{rest:?}");
+    assert_eq!(rest.paused, std::time::Duration::ZERO);
+    assert_eq!(store.delta_count().unwrap(), 0);
+    assert!(store.check().unwrap().is_ok(), "{:?}", store.check());
+    for (p, v) in &seq.versions {
+        assert_reads(&*store, *p, *v, &seq.states[p]);
+    }
+    let idle = pass_once(&*store, pace(usize::MAX, 3)).unwrap();
+    assert_eq!((idle.folded.chunks, idle.slices), (0, 0));
+    // A chunk listed but folded meanwhile is skipped, uncounted.
+    assert_eq!(store.fold_chunks(&chunks).unwrap().chunks, 0);
 }
 
 #[test]

@@ -1,19 +1,66 @@
 //! The background checkpoint: a thread that folds committed deltas into
 //! chunk records every `[store] checkpoint_ms`, off the commit path, and
 //! folds everything once more when stopped.
+//!
+//! A pass is paced: it folds `checkpoint_slice_chunks` chunks (one store
+//! call, one flush), then pauses [`PAUSE_FACTOR`] times as long as that
+//! slice took, so the pass takes at most a quarter of a core and a
+//! commit waits behind at most one slice's writes, not the whole pass's.
+//! Once a pass has run half its period it stops pausing, so it finishes
+//! before the next is due.
 
 use std::sync::{Arc, Condvar, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use tracing::{debug, error};
 
-use super::{ChunkStore, StoreError};
+use super::{CheckpointStats, ChunkStore, StoreError};
 use crate::metrics as m;
+
+/// A pass pauses this many times each slice's own duration after it.
+pub const PAUSE_FACTOR: u32 = 3;
 
 #[derive(Debug, Default)]
 struct Stop {
     flag: Mutex<bool>,
     wake: Condvar,
+}
+
+impl Stop {
+    /// Waits `d`, or less once stopped; true when stopped.
+    fn wait(&self, d: Duration) -> bool {
+        let stopped = self.flag.lock().unwrap_or_else(|p| p.into_inner());
+        let (stopped, _) = self
+            .wake
+            .wait_timeout_while(stopped, d, |s| !*s)
+            .unwrap_or_else(|p| p.into_inner());
+        *stopped
+    }
+}
+
+/// How a pass folds: the period and the sizes from `[store]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CheckpointPace {
+    /// Between passes; zero: no thread, only the fold at stop.
+    pub every: Duration,
+    /// Chunks one pass folds at most.
+    pub max_chunks: usize,
+    /// Chunks folded (and flushed) between two pauses.
+    pub slice_chunks: usize,
+}
+
+/// What one paced pass did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PassReport {
+    pub folded: CheckpointStats,
+    /// Store calls, each ending with a flush.
+    pub slices: u32,
+    /// Time spent folding, pauses left out.
+    pub working: Duration,
+    /// Time spent pausing.
+    pub paused: Duration,
+    /// The stop came during the pass; what is left folds at stop.
+    pub stopped: bool,
 }
 
 /// The running checkpoint thread; [`Checkpointer::stop`] ends it.
@@ -26,78 +73,127 @@ pub struct Checkpointer {
 }
 
 impl Checkpointer {
-    /// Starts folding every `every` (never, for zero: only at [`Self::stop`]).
-    pub fn spawn(
-        store: Arc<dyn ChunkStore>,
-        every: Duration,
-        max_chunks: usize,
-    ) -> std::io::Result<Self> {
+    /// Starts a pass every `pace.every` (never, for zero: only at
+    /// [`Self::stop`]).
+    pub fn spawn(store: Arc<dyn ChunkStore>, pace: CheckpointPace) -> std::io::Result<Self> {
         let stop = Arc::new(Stop::default());
-        let thread = if every.is_zero() {
+        let thread = if pace.every.is_zero() {
             None
         } else {
             let (stop, store) = (stop.clone(), store.clone());
             Some(
                 std::thread::Builder::new()
                     .name("strata-checkpoint".into())
-                    .spawn(move || run(&*store, &stop, every, max_chunks))?,
+                    .spawn(move || run(&*store, &stop, pace))?,
             )
         };
         Ok(Self {
             stop,
             thread,
             store,
-            max_chunks,
+            max_chunks: pace.max_chunks,
         })
     }
 
-    /// Ends the thread, then folds every delta left (a clean shutdown
-    /// leaves nothing to replay).
+    /// Ends the thread (a pass under way stops pausing and ends after its
+    /// slice), then folds every delta left, unpaced: a clean shutdown
+    /// leaves nothing to replay.
     pub fn stop(mut self) -> Result<(), StoreError> {
         *self.stop.flag.lock().unwrap_or_else(|p| p.into_inner()) = true;
         self.stop.wake.notify_all();
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
-        while pass(&*self.store, self.max_chunks)? > 0 {}
-        Ok(())
+        loop {
+            let started = Instant::now();
+            let stats = self.store.checkpoint(self.max_chunks)?;
+            count(&stats);
+            record(&stats, started.elapsed());
+            if stats.chunks == 0 {
+                return Ok(());
+            }
+        }
     }
 }
 
-/// One pass; returns the chunks folded.
-fn pass(store: &dyn ChunkStore, max_chunks: usize) -> Result<u64, StoreError> {
-    let started = std::time::Instant::now();
-    let stats = store.checkpoint(max_chunks)?;
+/// Counts folded chunks and bytes as each slice ends, so a scrape during
+/// a long pass sees its slices so far.
+fn count(stats: &CheckpointStats) {
+    metrics::counter!(m::CHECKPOINT_CHUNKS_TOTAL).increment(stats.chunks);
+    metrics::counter!(m::STORE_BYTES, "kind" => "checkpoint").increment(stats.bytes_written);
+}
+
+/// A pass's (or the stop's fold's) time spent folding.
+fn record(stats: &CheckpointStats, working: Duration) {
     if stats.chunks > 0 {
-        metrics::histogram!(m::CHECKPOINT_SECONDS).record(started.elapsed().as_secs_f64());
-        metrics::counter!(m::CHECKPOINT_CHUNKS_TOTAL).increment(stats.chunks);
-        metrics::counter!(m::STORE_BYTES, "kind" => "checkpoint").increment(stats.bytes_written);
+        metrics::histogram!(m::CHECKPOINT_SECONDS).record(working.as_secs_f64());
+    }
+}
+
+/// One paced pass on the calling thread, as the checkpoint thread runs
+/// them: the chunks that have deltas when it starts (at most
+/// `pace.max_chunks`), folded `pace.slice_chunks` at a time.
+pub fn pass_once(store: &dyn ChunkStore, pace: CheckpointPace) -> Result<PassReport, StoreError> {
+    paced_pass(store, &Stop::default(), pace)
+}
+
+/// [`pass_once`], ended early by [`Checkpointer::stop`]. Chunks changed
+/// during the pass wait for the next one: a pass never chases commits.
+fn paced_pass(
+    store: &dyn ChunkStore,
+    stop: &Stop,
+    pace: CheckpointPace,
+) -> Result<PassReport, StoreError> {
+    let started = Instant::now();
+    let mut report = PassReport::default();
+    let todo = store.chunks_with_deltas(pace.max_chunks)?;
+    let mut slices = todo.chunks(pace.slice_chunks.max(1)).peekable();
+    while let Some(slice) = slices.next() {
+        let t = Instant::now();
+        let s = store.fold_chunks(slice)?;
+        let took = t.elapsed();
+        count(&s);
+        report.slices += 1;
+        report.working += took;
+        report.folded.chunks += s.chunks;
+        report.folded.deltas += s.deltas;
+        report.folded.bytes_written += s.bytes_written;
+        let pause = took * PAUSE_FACTOR;
+        if slices.peek().is_none() || started.elapsed() + pause > pace.every / 2 {
+            // Done, or late: finish before the next pass is due.
+            continue;
+        }
+        if stop.wait(pause) {
+            report.stopped = true;
+            break;
+        }
+        report.paused += pause;
+    }
+    report.working += started
+        .elapsed()
+        .saturating_sub(report.working + report.paused);
+    record(&report.folded, report.working);
+    if report.folded.chunks > 0 {
         debug!(
-            chunks = stats.chunks,
-            deltas = stats.deltas,
-            bytes = stats.bytes_written,
+            chunks = report.folded.chunks,
+            deltas = report.folded.deltas,
+            bytes = report.folded.bytes_written,
+            slices = report.slices,
+            working_ms = report.working.as_millis() as u64,
+            paused_ms = report.paused.as_millis() as u64,
             "checkpoint"
         );
     }
-    Ok(stats.chunks)
+    Ok(report)
 }
 
-fn run(store: &dyn ChunkStore, stop: &Stop, every: Duration, max_chunks: usize) {
-    let mut stopped = stop.flag.lock().unwrap_or_else(|p| p.into_inner());
-    loop {
-        let (guard, _) = stop
-            .wake
-            .wait_timeout(stopped, every)
-            .unwrap_or_else(|p| p.into_inner());
-        stopped = guard;
-        if *stopped {
-            return;
-        }
-        drop(stopped);
+fn run(store: &dyn ChunkStore, stop: &Stop, pace: CheckpointPace) {
+    while !stop.wait(pace.every) {
         // A failed pass changes nothing: the deltas stay and reads replay them.
-        if let Err(e) = pass(store, max_chunks) {
-            error!(error = %e, "checkpoint failed; deltas stay until the next pass");
+        match paced_pass(store, stop, pace) {
+            Ok(r) if r.stopped => return,
+            Ok(_) => {}
+            Err(e) => error!(error = %e, "checkpoint failed; deltas stay until the next pass"),
         }
-        stopped = stop.flag.lock().unwrap_or_else(|p| p.into_inner());
     }
 }

@@ -51,8 +51,13 @@ pub const DEFAULT_CHECKPOINT_MS: u64 = 5000;
 pub const MAX_CHECKPOINT_MS: u64 = 3_600_000;
 /// Chunks one checkpoint pass folds at most (a pass then fsyncs once).
 pub const DEFAULT_CHECKPOINT_CHUNKS: usize = 4096;
-/// Largest allowed `checkpoint_chunks`.
+/// Largest allowed `checkpoint_chunks` (and `checkpoint_slice_chunks`).
 pub const MAX_CHECKPOINT_CHUNKS: usize = 1 << 20;
+/// Chunks a pass folds between two flushes, pausing after each slice
+/// (`checkpointer.rs`): a commit waits behind at most one slice's writes.
+/// Folding a pass's 260 chunks at once, at 300 bots, stalled commits that
+/// ran beside it or just after it for up to 430 ms (BENCHMARKS.md).
+pub const DEFAULT_CHECKPOINT_SLICE_CHUNKS: usize = 32;
 
 /// The `[store]` section of the server config.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -72,11 +77,22 @@ pub struct StoreConfig {
     pub checkpoint_ms: u64,
     /// See [`DEFAULT_CHECKPOINT_CHUNKS`].
     pub checkpoint_chunks: usize,
+    /// See [`DEFAULT_CHECKPOINT_SLICE_CHUNKS`].
+    pub checkpoint_slice_chunks: usize,
     /// The PostgreSQL store's settings, read when `backend = "postgres"`.
     pub postgres: PgConfig,
 }
 
 impl StoreConfig {
+    /// The checkpoint thread's pace.
+    pub fn checkpoint_pace(&self) -> super::CheckpointPace {
+        super::CheckpointPace {
+            every: std::time::Duration::from_millis(self.checkpoint_ms),
+            max_chunks: self.checkpoint_chunks,
+            slice_chunks: self.checkpoint_slice_chunks,
+        }
+    }
+
     /// sled's setting: `None` is no background thread.
     pub fn flush_period(&self) -> Option<u64> {
         (self.flush_every_ms > 0).then_some(self.flush_every_ms)
@@ -92,6 +108,7 @@ impl Default for StoreConfig {
             segment_size_bytes: DEFAULT_SEGMENT_SIZE_BYTES,
             checkpoint_ms: DEFAULT_CHECKPOINT_MS,
             checkpoint_chunks: DEFAULT_CHECKPOINT_CHUNKS,
+            checkpoint_slice_chunks: DEFAULT_CHECKPOINT_SLICE_CHUNKS,
             postgres: PgConfig::default(),
         }
     }

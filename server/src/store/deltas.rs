@@ -104,12 +104,11 @@ impl SledStore {
         ))
     }
 
-    /// Folds the deltas of up to `max_chunks` chunks into their records,
-    /// then makes that durable. Safe beside commits: each chunk's record
-    /// and the deltas folded into it change in one transaction, and a
-    /// commit's deltas past them stay.
-    pub(super) fn fold_deltas(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
-        let mut stats = CheckpointStats::default();
+    /// Up to `max_chunks` chunks with deltas, in key order.
+    pub(super) fn chunks_with_deltas(
+        &self,
+        max_chunks: usize,
+    ) -> Result<Vec<ChunkPos>, StoreError> {
         let mut last: Option<[u8; CHUNK_KEY_LEN]> = None;
         let mut todo = Vec::new();
         for k in self.deltas.iter().keys() {
@@ -124,7 +123,16 @@ impl SledStore {
                 todo.push(pos);
             }
         }
-        for pos in todo {
+        Ok(todo)
+    }
+
+    /// Folds the deltas of `chunks` into their records, then makes that
+    /// durable. Safe beside commits: each chunk's record and the deltas
+    /// folded into it change in one transaction, and a commit's deltas
+    /// past them stay.
+    pub(super) fn fold_chunks(&self, chunks: &[ChunkPos]) -> Result<CheckpointStats, StoreError> {
+        let mut stats = CheckpointStats::default();
+        for &pos in chunks {
             if let Some((folded, bytes)) = self.fold_one(pos)? {
                 stats.chunks += 1;
                 stats.deltas += folded;
@@ -138,7 +146,7 @@ impl SledStore {
     }
 
     /// Folds `pos`'s deltas into its record: (deltas removed, bytes written),
-    /// or `None` when a concurrent fold got there first.
+    /// or `None` when it has none or a concurrent fold got there first.
     fn fold_one(&self, pos: ChunkPos) -> Result<Option<(u64, u64)>, StoreError> {
         let key = chunk_key(pos);
         let Some(record) = self.chunks.get(key)? else {
@@ -149,6 +157,10 @@ impl SledStore {
         };
         let (base, chunk) = decode_chunk_value(pos, &record)?;
         let deltas = self.deltas_of(pos)?;
+        if deltas.is_empty() {
+            // Folded since it was listed.
+            return Ok(None);
+        }
         let Ok((head, state)) = replay(pos, base, chunk, &deltas)? else {
             return Ok(None);
         };

@@ -45,7 +45,7 @@ use crate::sequencer::regions::RegionId;
 
 pub use batch::{MAX_BATCH_CHUNKS, MAX_BATCH_ENTRIES};
 pub use check::{CheckIssue, CheckReport, Checker, MAX_REPORTED_ISSUES};
-pub use checkpointer::Checkpointer;
+pub use checkpointer::{pass_once, CheckpointPace, Checkpointer, PassReport};
 pub use config::{
     StoreBackend, StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_CHECKPOINT_CHUNKS,
     DEFAULT_CHECKPOINT_MS, DEFAULT_FLUSH_EVERY_MS, DEFAULT_SEGMENT_SIZE_BYTES,
@@ -141,10 +141,19 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Every stored player position.
     fn player_positions(&self) -> StoreIter<'_, (String, FixedVec3)>;
 
-    /// Folds the committed deltas of up to `max_chunks` chunks into their
-    /// records (a checkpoint), durably. Runs beside commits; reads see the
-    /// same states before and after.
-    fn checkpoint(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError>;
+    /// Up to `max_chunks` chunks that have committed deltas, in key order.
+    fn chunks_with_deltas(&self, max_chunks: usize) -> Result<Vec<ChunkPos>, StoreError>;
+
+    /// Folds the committed deltas of `chunks` into their records (a
+    /// checkpoint), durably. Runs beside commits; reads see the same states
+    /// before and after. A chunk with no deltas left is skipped, uncounted.
+    fn fold_chunks(&self, chunks: &[ChunkPos]) -> Result<CheckpointStats, StoreError>;
+
+    /// Folds the deltas of up to `max_chunks` chunks:
+    /// [`Self::chunks_with_deltas`], then [`Self::fold_chunks`].
+    fn checkpoint(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
+        self.fold_chunks(&self.chunks_with_deltas(max_chunks)?)
+    }
 
     /// Verifies every record (see [`Checker`]). Run it while nothing
     /// commits: records are scanned, not snapshotted.

@@ -447,8 +447,12 @@ impl ChunkStore for SledStore {
         }))
     }
 
-    fn checkpoint(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
-        self.fold_deltas(max_chunks)
+    fn chunks_with_deltas(&self, max_chunks: usize) -> Result<Vec<ChunkPos>, StoreError> {
+        SledStore::chunks_with_deltas(self, max_chunks)
+    }
+
+    fn fold_chunks(&self, chunks: &[ChunkPos]) -> Result<CheckpointStats, StoreError> {
+        SledStore::fold_chunks(self, chunks)
     }
 
     fn check(&self) -> Result<CheckReport, StoreError> {

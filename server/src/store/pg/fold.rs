@@ -22,9 +22,13 @@ use crate::store::StoreError;
 const BEGIN_LAZY: &str = "BEGIN; SET LOCAL synchronous_commit = off";
 
 impl PgStore {
-    pub(super) fn fold_deltas(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
+    /// Up to `max_chunks` chunks with deltas, in key order.
+    pub(super) fn chunks_with_deltas(
+        &self,
+        max_chunks: usize,
+    ) -> Result<Vec<ChunkPos>, StoreError> {
         let limit = i64::try_from(max_chunks).unwrap_or(i64::MAX);
-        let todo: Vec<ChunkPos> = self
+        Ok(self
             .pool
             .run("listing deltas to fold", async |c: &mut Conn| {
                 c.query(
@@ -35,10 +39,14 @@ impl PgStore {
             })?
             .iter()
             .map(|r| ChunkPos::new(r.get(0), r.get(1), r.get(2)))
-            .collect();
+            .collect())
+    }
+
+    /// Folds the deltas of `chunks`, the last fold durably.
+    pub(super) fn fold_chunks(&self, chunks: &[ChunkPos]) -> Result<CheckpointStats, StoreError> {
         let mut stats = CheckpointStats::default();
-        for (i, &pos) in todo.iter().enumerate() {
-            let begin = if i + 1 == todo.len() {
+        for (i, &pos) in chunks.iter().enumerate() {
+            let begin = if i + 1 == chunks.len() {
                 "BEGIN"
             } else {
                 BEGIN_LAZY
@@ -48,9 +56,11 @@ impl PgStore {
                     .run_tx("folding a chunk", begin, async |c: &mut Conn| {
                         fold_one(c, pos).await
                     })?;
-            stats.chunks += 1;
-            stats.deltas += deltas;
-            stats.bytes_written += bytes;
+            if deltas > 0 {
+                stats.chunks += 1;
+                stats.deltas += deltas;
+                stats.bytes_written += bytes;
+            }
         }
         Ok(stats)
     }
@@ -84,6 +94,10 @@ async fn fold_one(c: &mut Conn, pos: ChunkPos) -> Result<(u64, u64), StoreError>
         deltas.push(decode_delta(pos, to, r.get(1))?);
     }
     let removed = deltas.len() as u64;
+    if removed == 0 {
+        // Folded since it was listed.
+        return Ok((0, 0));
+    }
     let (head, state) = Stored {
         version,
         body: record.get(1),

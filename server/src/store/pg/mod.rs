@@ -350,8 +350,12 @@ impl ChunkStore for PgStore {
         }
     }
 
-    fn checkpoint(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
-        self.fold_deltas(max_chunks)
+    fn chunks_with_deltas(&self, max_chunks: usize) -> Result<Vec<ChunkPos>, StoreError> {
+        PgStore::chunks_with_deltas(self, max_chunks)
+    }
+
+    fn fold_chunks(&self, chunks: &[ChunkPos]) -> Result<CheckpointStats, StoreError> {
+        PgStore::fold_chunks(self, chunks)
     }
 
     fn check(&self) -> Result<CheckReport, StoreError> {
