@@ -56,8 +56,10 @@ pub const MAX_CHECKPOINT_CHUNKS: usize = 1 << 20;
 /// Chunks a pass folds between two flushes, pausing after each slice
 /// (`checkpointer.rs`): a commit waits behind at most one slice's writes.
 /// Folding a pass's 260 chunks at once, at 300 bots, stalled commits that
-/// ran beside it or just after it for up to 430 ms (BENCHMARKS.md).
-pub const DEFAULT_CHECKPOINT_SLICE_CHUNKS: usize = 32;
+/// ran beside it or just after it for up to 430 ms; slices of 8 gave a
+/// lower ack p99 than 16 or 32 for a little more checkpoint CPU
+/// (BENCHMARKS.md).
+pub const DEFAULT_CHECKPOINT_SLICE_CHUNKS: usize = 8;
 
 /// The `[store]` section of the server config.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
