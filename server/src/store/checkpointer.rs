@@ -55,7 +55,7 @@ pub struct PassReport {
     pub folded: CheckpointStats,
     /// Store calls, each ending with a flush.
     pub slices: u32,
-    /// Time spent folding, pauses left out.
+    /// The pass's time, pauses left out.
     pub working: Duration,
     /// Time spent pausing.
     pub paused: Duration,
@@ -154,7 +154,6 @@ fn paced_pass(
         let took = t.elapsed();
         count(&s);
         report.slices += 1;
-        report.working += took;
         report.folded.chunks += s.chunks;
         report.folded.deltas += s.deltas;
         report.folded.bytes_written += s.bytes_written;
@@ -169,9 +168,8 @@ fn paced_pass(
         }
         report.paused += pause;
     }
-    report.working += started
-        .elapsed()
-        .saturating_sub(report.working + report.paused);
+    // Listing included; a pause the stop cut short counts as working.
+    report.working = started.elapsed().saturating_sub(report.paused);
     record(&report.folded, report.working);
     if report.folded.chunks > 0 {
         debug!(
