@@ -89,3 +89,74 @@ fn a_new_data_dir_keeps_its_identity_through_a_power_cut() {
     assert_eq!(std::fs::read(kept.cert_path()).unwrap(), cert);
     assert_eq!(std::fs::read(kept.secret_path()).unwrap(), secret);
 }
+
+/// Checkpoint folds are not flushed on their own (a flush would hold
+/// sled's global lock, which commits need, while it waits for the disk):
+/// the next commit's fsync carries them, and a fold no commit carried is
+/// lost to a power cut without losing anything else, since reads replay
+/// the deltas it would have removed.
+#[test]
+fn folds_ride_on_the_next_commit_and_a_lost_fold_loses_nothing() {
+    let Some(mut fs) = LazyFs::for_test("folds_ride_on_the_next_commit") else {
+        return;
+    };
+    let dir = fs.mount_dir().join("world.sled");
+    // No background thread: only the store's own flushes reach the disk.
+    let config = StoreConfig {
+        flush_every_ms: 0,
+        ..Default::default()
+    };
+    let store = SledStore::open_with(&dir, &config).unwrap();
+    store.init_meta(&WorldMeta::new(7, 3, PARAMS)).unwrap();
+    let chunks: Vec<ChunkPos> = (0..8).map(|i| ChunkPos::new(i, 1, -i)).collect();
+    let mut seq = Seq::default();
+    let round = |seq: &mut Seq, salt: u64, which: &[ChunkPos]| {
+        let edits: Vec<_> = which
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| vec![(p, noisy_chunk(salt * 100 + i as u64))])
+            .collect();
+        seq.delta_batch(&edits)
+    };
+    store.commit_batch(&round(&mut seq, 1, &chunks)).unwrap();
+    store.commit_batch(&round(&mut seq, 2, &chunks)).unwrap();
+    store.commit_batch(&round(&mut seq, 3, &chunks)).unwrap();
+    assert_eq!(store.delta_count().unwrap(), 16);
+
+    // Folded, then carried by a commit to one other chunk.
+    let (carried, lost) = chunks.split_at(4);
+    assert_eq!(store.fold_chunks(carried).unwrap().chunks, 4);
+    let other = ChunkPos::new(40, 0, 0);
+    store.commit_batch(&round(&mut seq, 4, &[other])).unwrap();
+    // Folded after the last commit, and never synced.
+    assert_eq!(store.fold_chunks(lost).unwrap().chunks, 4);
+    assert_eq!(store.delta_count().unwrap(), 0);
+    std::mem::forget(store);
+    fs.power_cut();
+
+    let store = SledStore::open_with(&dir, &config).unwrap();
+    assert_eq!(store.last_seq().unwrap(), seq.last_seq);
+    // The carried folds stayed; the lost ones left their deltas.
+    assert_eq!(store.delta_count().unwrap(), 8);
+    let mut left = store.chunks_with_deltas(usize::MAX).unwrap();
+    left.sort();
+    assert_eq!(left, lost.to_vec());
+    for (p, v) in &seq.versions {
+        let stored = store.load_chunk(*p).unwrap().unwrap();
+        assert_eq!((stored.version, &stored.chunk), (*v, &seq.states[p]));
+    }
+    assert!(store.check().unwrap().is_ok(), "{:?}", store.check());
+
+    // `sync_folds` makes folds durable with no commit after them.
+    assert_eq!(store.fold_chunks(lost).unwrap().chunks, 4);
+    store.sync_folds().unwrap();
+    std::mem::forget(store);
+    fs.power_cut();
+    let store = SledStore::open_with(&dir, &config).unwrap();
+    assert_eq!(store.delta_count().unwrap(), 0);
+    for (p, v) in &seq.versions {
+        let stored = store.load_chunk(*p).unwrap().unwrap();
+        assert_eq!((stored.version, &stored.chunk), (*v, &seq.states[p]));
+    }
+    assert!(store.check().unwrap().is_ok(), "{:?}", store.check());
+}

@@ -14,6 +14,10 @@
 //! back on a channel and then wakes the engine through its inbox
 //! ([`super::inbox::Waker`]), so the engine sleeps until a command or the
 //! result arrives instead of polling.
+//!
+//! It also stores the players' positions (a flush and an fsync each
+//! second), between two commits: the engine thread never waits on the
+//! disk for them, and they never flush beside a commit.
 
 use std::collections::VecDeque;
 use std::sync::mpsc::{self, RecvTimeoutError};
@@ -22,6 +26,9 @@ use std::time::{Duration, Instant};
 
 use super::inbox::Waker;
 use super::{Applied, Command, Engine, Inbox};
+use strata_terrain::edit::FixedVec3;
+use tracing::error;
+
 use crate::metrics as m;
 use crate::store::{ChunkStore, CommitBatch, CommitStats, StoreError, PARALLEL_ENCODE_CHUNKS};
 
@@ -47,10 +54,24 @@ fn safe_during_commit(cmd: &Command) -> bool {
 
 type Done = (CommitBatch, Result<CommitStats, StoreError>);
 
-/// The engine's commit thread: one batch at a time, in order.
+/// Players and where they are.
+pub type Positions = Vec<(String, FixedVec3)>;
+
+/// What the commit thread does, in the order it was handed.
+#[derive(Debug)]
+enum Job {
+    /// Written, flushed and fsynced; the result goes back to the engine.
+    Commit(CommitBatch),
+    /// Stored (flushed and fsynced); a failure is logged, as positions are
+    /// recoverable state. The engine hands one only while no commit runs,
+    /// at most once per `POSITION_SAVE_EVERY`, so at most two jobs wait.
+    Positions(Positions),
+}
+
+/// The engine's commit thread: one job at a time, in order.
 #[derive(Debug)]
 pub struct Committer {
-    jobs: Option<mpsc::Sender<CommitBatch>>,
+    jobs: Option<mpsc::Sender<Job>>,
     done: mpsc::Receiver<Done>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -63,12 +84,21 @@ impl Committer {
         pool: Arc<rayon::ThreadPool>,
         waker: Waker,
     ) -> std::io::Result<Self> {
-        let (jobs, todo) = mpsc::channel::<CommitBatch>();
+        let (jobs, todo) = mpsc::channel::<Job>();
         let (finished, done) = mpsc::channel::<Done>();
         let thread = std::thread::Builder::new()
             .name("strata-commit".into())
             .spawn(move || {
-                for batch in todo {
+                for job in todo {
+                    let batch = match job {
+                        Job::Commit(batch) => batch,
+                        Job::Positions(moved) => {
+                            if let Err(e) = store.save_positions(&moved) {
+                                error!(error = %e, players = moved.len(), "saving player positions failed");
+                            }
+                            continue;
+                        }
+                    };
                     // On a worker only when the store encodes chunks in
                     // parallel: the thread that runs it waits out the fsync.
                     let result = if batch.chunks.len() >= PARALLEL_ENCODE_CHUNKS {
@@ -91,9 +121,25 @@ impl Committer {
 
     /// Hands `batch` to the thread; gives it back if the thread is gone.
     fn start(&self, batch: CommitBatch) -> Result<(), CommitBatch> {
+        match self.send(Job::Commit(batch)) {
+            Err(Job::Commit(batch)) => Err(batch),
+            _ => Ok(()),
+        }
+    }
+
+    /// Hands `moved` to the thread to store; gives it back if the thread is
+    /// gone.
+    pub fn save_positions(&self, moved: Positions) -> Result<(), Positions> {
+        match self.send(Job::Positions(moved)) {
+            Err(Job::Positions(moved)) => Err(moved),
+            _ => Ok(()),
+        }
+    }
+
+    fn send(&self, job: Job) -> Result<(), Job> {
         match &self.jobs {
-            Some(jobs) => jobs.send(batch).map_err(|e| e.0),
-            None => Err(batch),
+            Some(jobs) => jobs.send(job).map_err(|e| e.0),
+            None => Err(job),
         }
     }
 }

@@ -313,6 +313,10 @@ impl Engine {
                     self.tick(None)?;
                     self.close_all();
                     self.save_positions();
+                    // Joins the commit thread once it has done every job
+                    // queued: the last positions are stored, after the
+                    // earlier ones.
+                    drop(self.committer.take());
                     return Ok(());
                 }
                 Ok(cmd) => {
@@ -356,13 +360,20 @@ impl Engine {
         rx.recv_timeout(next_tick.saturating_duration_since(Instant::now()))
     }
 
-    /// Stores the positions of players who moved since the last save. A
-    /// failure is logged: positions are recoverable state (the next save
-    /// retries), unlike edits.
+    /// Stores the positions of players who moved since the last save: on
+    /// the commit thread (no commit runs now, so it goes next), or here
+    /// without that thread. A failure is logged: positions are recoverable
+    /// state (the next save retries), unlike edits.
     fn save_positions(&mut self) {
-        let moved = self.seq.take_moved();
+        let mut moved = self.seq.take_moved();
         if moved.is_empty() {
             return;
+        }
+        if let Some(committer) = &self.committer {
+            match committer.save_positions(moved) {
+                Ok(()) => return,
+                Err(back) => moved = back,
+            }
         }
         if let Err(e) = self.store.save_positions(&moved) {
             error!(error = %e, players = moved.len(), "saving player positions failed");

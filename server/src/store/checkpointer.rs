@@ -3,11 +3,14 @@
 //! folds everything once more when stopped.
 //!
 //! A pass is paced: it folds `checkpoint_slice_chunks` chunks (one store
-//! call, one flush), then pauses [`PAUSE_FACTOR`] times as long as that
-//! slice took, so the pass takes at most a quarter of a core and a
-//! commit waits behind at most one slice's writes, not the whole pass's.
-//! Once a pass has run half its period it stops pausing, so it finishes
-//! before the next is due.
+//! call), then pauses [`PAUSE_FACTOR`] times as long as that slice took,
+//! so the pass takes at most a quarter of a core. Slices do not flush: on
+//! sled the next group commit's flush writes a slice with the commit's own
+//! records, so under load a commit carries at most the slice folded since
+//! the commit before it, and never waits under sled's global lock for a
+//! checkpoint's flush. The pass ends with one
+//! [`ChunkStore::sync_folds`]. Once a pass has run half its period it
+//! stops pausing, so it finishes before the next is due.
 
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
@@ -45,7 +48,7 @@ pub struct CheckpointPace {
     pub every: Duration,
     /// Chunks one pass folds at most.
     pub max_chunks: usize,
-    /// Chunks folded (and flushed) between two pauses.
+    /// Chunks folded between two pauses.
     pub slice_chunks: usize,
 }
 
@@ -53,7 +56,7 @@ pub struct CheckpointPace {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct PassReport {
     pub folded: CheckpointStats,
-    /// Store calls, each ending with a flush.
+    /// Store calls (folds, none flushed).
     pub slices: u32,
     /// The pass's time, pauses left out.
     pub working: Duration,
@@ -132,7 +135,8 @@ fn record(stats: &CheckpointStats, working: Duration) {
 
 /// One paced pass on the calling thread, as the checkpoint thread runs
 /// them: the chunks that have deltas when it starts (at most
-/// `pace.max_chunks`), folded `pace.slice_chunks` at a time.
+/// `pace.max_chunks`), folded `pace.slice_chunks` at a time, then made
+/// durable once.
 pub fn pass_once(store: &dyn ChunkStore, pace: CheckpointPace) -> Result<PassReport, StoreError> {
     paced_pass(store, &Stop::default(), pace)
 }
@@ -167,6 +171,10 @@ fn paced_pass(
             break;
         }
         report.paused += pause;
+    }
+    if report.folded.chunks > 0 {
+        // Commits have flushed most slices already; this writes the rest.
+        store.sync_folds()?;
     }
     // Listing included; a pause the stop cut short counts as working.
     report.working = started.elapsed().saturating_sub(report.paused);

@@ -126,10 +126,15 @@ impl SledStore {
         Ok(todo)
     }
 
-    /// Folds the deltas of `chunks` into their records, then makes that
-    /// durable. Safe beside commits: each chunk's record and the deltas
-    /// folded into it change in one transaction, and a commit's deltas
-    /// past them stay.
+    /// Folds the deltas of `chunks` into their records. Safe beside
+    /// commits: each chunk's record and the deltas folded into it change in
+    /// one transaction, and a commit's deltas past them stay.
+    ///
+    /// No flush: sled's flush holds its global lock, which every commit's
+    /// transaction must take, while it waits for the disk. The next group
+    /// commit's flush and fsync write the folds with the commit's own
+    /// records; until then a crash keeps the unfolded deltas, which reads
+    /// replay to the same states.
     pub(super) fn fold_chunks(&self, chunks: &[ChunkPos]) -> Result<CheckpointStats, StoreError> {
         let mut stats = CheckpointStats::default();
         for &pos in chunks {
@@ -138,9 +143,6 @@ impl SledStore {
                 stats.deltas += folded;
                 stats.bytes_written += bytes;
             }
-        }
-        if stats.chunks > 0 {
-            self.flush()?;
         }
         Ok(stats)
     }

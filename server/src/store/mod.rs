@@ -145,14 +145,29 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     fn chunks_with_deltas(&self, max_chunks: usize) -> Result<Vec<ChunkPos>, StoreError>;
 
     /// Folds the committed deltas of `chunks` into their records (a
-    /// checkpoint), durably. Runs beside commits; reads see the same states
-    /// before and after. A chunk with no deltas left is skipped, uncounted.
+    /// checkpoint). Runs beside commits; reads see the same states before
+    /// and after. A chunk with no deltas left is skipped, uncounted. The
+    /// folds need not be durable yet (on sled they reach the disk with the
+    /// next commit's flush): a fold lost to a crash leaves the deltas it
+    /// would have removed, which reads replay. [`Self::sync_folds`] makes
+    /// them durable at once.
     fn fold_chunks(&self, chunks: &[ChunkPos]) -> Result<CheckpointStats, StoreError>;
 
-    /// Folds the deltas of up to `max_chunks` chunks:
-    /// [`Self::chunks_with_deltas`], then [`Self::fold_chunks`].
+    /// Makes every fold so far durable. PostgreSQL's already are (the last
+    /// fold of each call commits synchronously).
+    fn sync_folds(&self) -> Result<(), StoreError> {
+        Ok(())
+    }
+
+    /// Folds the deltas of up to `max_chunks` chunks, durably:
+    /// [`Self::chunks_with_deltas`], [`Self::fold_chunks`], then
+    /// [`Self::sync_folds`].
     fn checkpoint(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
-        self.fold_chunks(&self.chunks_with_deltas(max_chunks)?)
+        let stats = self.fold_chunks(&self.chunks_with_deltas(max_chunks)?)?;
+        if stats.chunks > 0 {
+            self.sync_folds()?;
+        }
+        Ok(stats)
     }
 
     /// Verifies every record (see [`Checker`]). Run it while nothing

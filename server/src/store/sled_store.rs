@@ -455,6 +455,10 @@ impl ChunkStore for SledStore {
         SledStore::fold_chunks(self, chunks)
     }
 
+    fn sync_folds(&self) -> Result<(), StoreError> {
+        self.flush()
+    }
+
     fn check(&self) -> Result<CheckReport, StoreError> {
         self.check_with_progress(&|| {})
     }
