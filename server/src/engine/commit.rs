@@ -24,11 +24,11 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use super::inbox::Waker;
-use super::{Applied, Command, Engine, Inbox};
 use strata_terrain::edit::FixedVec3;
 use tracing::error;
 
+use super::inbox::Waker;
+use super::{Applied, Command, Engine, Inbox};
 use crate::metrics as m;
 use crate::store::{ChunkStore, CommitBatch, CommitStats, StoreError, PARALLEL_ENCODE_CHUNKS};
 
