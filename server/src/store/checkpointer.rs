@@ -7,8 +7,8 @@
 //! so the pass takes at most a quarter of a core. Slices do not flush: on
 //! sled the next group commit's flush writes a slice with the commit's own
 //! records, so under load a commit carries at most the slice folded since
-//! the commit before it, and never waits under sled's global lock for a
-//! checkpoint's flush. The pass ends with one
+//! the commit before it, and waits under sled's global lock for at most
+//! one checkpoint flush a pass: the pass ends with one
 //! [`ChunkStore::sync_folds`]. Once a pass has run half its period it
 //! stops pausing, so it finishes before the next is due.
 
