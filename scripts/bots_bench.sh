@@ -12,7 +12,8 @@
 # settings out for a server older than them. BENCH_METRICS_PORT turns on the
 # metrics endpoint and prints one more JSON line: the group-commit latency
 # (strata_flush_seconds) and its fsync part, p50/p99/max in ms, and the
-# server's own strata_edits_accepted_total (hostile players' edits included).
+# server's own strata_edits_accepted_total (hostile players' edits included);
+# BENCH_METRICS_DUMP=FILE also keeps the whole scrape, taken as the bots end.
 # The same line has the tick: tick_ms mean (strata_tick_seconds sum over
 # count, whole run), p50 and p99 (the registry's rolling window, the run's
 # last minute) and the count of ticks; and "udp": the UDP datagrams the
@@ -237,6 +238,8 @@ awk -v edits="${edits:-0}" 'FNR == NR { a[$1] = $2; next } { b[$1] = $2 }
               w, d, b["syscw:"] - a["syscw:"], (edits > 0 ? w / edits : 0), (edits > 0 ? d / edits : 0) }' \
     "$dir/io0" "$dir/io1"
 if [ -n "${BENCH_METRICS_PORT:-}" ]; then
+    [ -z "${BENCH_METRICS_DUMP:-}" ] ||
+        curl -s -o "$BENCH_METRICS_DUMP" "http://127.0.0.1:$BENCH_METRICS_PORT/metrics"
     curl -s "http://127.0.0.1:$BENCH_METRICS_PORT/metrics" | awk '
         /^strata_(flush|fsync)_seconds\{quantile="(0.5|0.99|1)"\}/ {
             split($1, a, "[{\"]"); q[a[1] "_" a[3]] = $2 * 1000 }

@@ -18,7 +18,8 @@ use thiserror::Error;
 
 use crate::auth::{HumanDuration, MAX_TOKEN_TTL};
 use crate::engine::{
-    EngineConfig, MAX_COMMAND_QUEUE, MAX_PREMESH_RADIUS, MAX_TICK_MS, MIN_RESIDENT_CHUNKS,
+    EngineConfig, MAX_COMMAND_QUEUE, MAX_PREMESH_RADIUS, MAX_PREMESH_THREADS, MAX_TICK_MS,
+    MIN_RESIDENT_CHUNKS,
 };
 use crate::heightmap::HeightmapSection;
 use crate::interest::{InterestConfig, MAX_VIEW_RADIUS};
@@ -610,6 +611,12 @@ impl ServerConfig {
             self.engine.premesh_radius,
             0,
             MAX_PREMESH_RADIUS,
+        )?;
+        range(
+            "engine.premesh_threads",
+            self.engine.premesh_threads,
+            1,
+            MAX_PREMESH_THREADS,
         )?;
         range(
             "engine.premesh_inflight",

@@ -243,6 +243,8 @@ fn bad_values_name_their_field() {
         ("[engine]\ncommand_queue = 0", "engine.command_queue"),
         ("[engine]\npremesh_radius = 9", "engine.premesh_radius"),
         ("[engine]\npremesh_inflight = 0", "engine.premesh_inflight"),
+        ("[engine]\npremesh_threads = 0", "engine.premesh_threads"),
+        ("[engine]\npremesh_threads = 65", "engine.premesh_threads"),
         ("[engine]\npremesh_backlog = 0", "engine.premesh_backlog"),
         (
             "[engine]\npremesh_generated_chunks = 0",

@@ -90,6 +90,21 @@ impl GeneratedCache {
             .collect()
     }
 
+    /// The cached chunk at `pos`, counted as a hit; `None` counts nothing:
+    /// the caller generates it and hands it to [`Self::keep_generated`].
+    pub fn lookup(&self, pos: ChunkPos) -> Option<Arc<Chunk>> {
+        let c = self.hit(pos)?;
+        self.count(1, 0);
+        Some(c)
+    }
+
+    /// Keeps a chunk generated after a [`Self::lookup`] missed, counted
+    /// as generated.
+    pub fn keep_generated(&mut self, pos: ChunkPos, chunk: Arc<Chunk>) {
+        self.count(0, 1);
+        self.keep(pos, chunk);
+    }
+
     fn hit(&self, pos: ChunkPos) -> Option<Arc<Chunk>> {
         self.chunks.get(&pos).cloned()
     }

@@ -34,7 +34,7 @@ pub use inbox::{channel as inbox_channel, EngineHandle, Inbox};
 pub use latest::LatestPosition;
 pub use premesh::{
     DEFAULT_PREMESH_BACKLOG, DEFAULT_PREMESH_GENERATED_CHUNKS, DEFAULT_PREMESH_INFLIGHT,
-    DEFAULT_PREMESH_RADIUS, MAX_PREMESH_RADIUS,
+    DEFAULT_PREMESH_RADIUS, DEFAULT_PREMESH_THREADS, MAX_PREMESH_RADIUS, MAX_PREMESH_THREADS,
 };
 pub use residency::{DEFAULT_RESIDENT_CHUNKS, MIN_RESIDENT_CHUNKS};
 pub use stream::{DEFAULT_PATCH_BASE_CHUNKS, DEFAULT_SNAPSHOT_CACHE_ENTRIES};
@@ -111,6 +111,8 @@ pub struct EngineConfig {
     /// Generated chunks the background mesher keeps for reuse
     /// ([`premesh::DEFAULT_PREMESH_GENERATED_CHUNKS`]).
     pub premesh_generated_chunks: usize,
+    /// Threads building background meshes ([`DEFAULT_PREMESH_THREADS`]).
+    pub premesh_threads: usize,
     /// Generated chunks kept as patch bases for the chunk stream
     /// ([`stream::DEFAULT_PATCH_BASE_CHUNKS`]).
     pub patch_base_chunks: usize,
@@ -139,6 +141,7 @@ impl Default for EngineConfig {
             premesh_inflight: DEFAULT_PREMESH_INFLIGHT,
             premesh_backlog: premesh::DEFAULT_PREMESH_BACKLOG,
             premesh_generated_chunks: premesh::DEFAULT_PREMESH_GENERATED_CHUNKS,
+            premesh_threads: DEFAULT_PREMESH_THREADS,
             patch_base_chunks: stream::DEFAULT_PATCH_BASE_CHUNKS,
             snapshot_cache_entries: stream::DEFAULT_SNAPSHOT_CACHE_ENTRIES,
             resident_chunks: DEFAULT_RESIDENT_CHUNKS,
@@ -237,6 +240,7 @@ impl Engine {
                 inflight: cfg.premesh_inflight,
                 backlog: cfg.premesh_backlog,
                 generated_chunks: cfg.premesh_generated_chunks,
+                threads: cfg.premesh_threads,
             })?,
             durable_seq: seq.last_seq(),
             seq,

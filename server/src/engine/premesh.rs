@@ -4,14 +4,15 @@
 //! When a player enters a new chunk, the engine queues jobs for the chunks
 //! within `premesh_radius` that have no current mesh. A job carries copies
 //! of the modified chunks it reads and regenerates the rest, so the engine
-//! thread only copies what the store holds. Jobs run on a thread of their
-//! own that sleeps while it has none (a rayon pool spins between jobs).
+//! thread only copies what the store holds. Jobs run on threads of their
+//! own (`engine.premesh_threads`) that sleep while they have none (a rayon
+//! pool spins between jobs); they share one cache of generated chunks.
 //! A finished mesh is cached
 //! only if none of the 27 chunks it read changed version meanwhile.
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, FixedVec3};
 
@@ -35,6 +36,10 @@ pub const DEFAULT_PREMESH_BACKLOG: usize = 4096;
 /// Default generated chunks the background mesher keeps for reuse (about
 /// 64 KiB each at most; `[engine] premesh_generated_chunks`).
 pub const DEFAULT_PREMESH_GENERATED_CHUNKS: usize = 8192;
+/// Default background mesher threads (`[engine] premesh_threads`).
+pub const DEFAULT_PREMESH_THREADS: usize = 1;
+/// Most background mesher threads allowed.
+pub const MAX_PREMESH_THREADS: usize = 64;
 
 /// The background mesher's bounds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -45,6 +50,8 @@ pub struct PremeshLimits {
     pub backlog: usize,
     /// Generated chunks kept for reuse.
     pub generated_chunks: usize,
+    /// Threads meshing jobs.
+    pub threads: usize,
 }
 
 impl Default for PremeshLimits {
@@ -53,6 +60,7 @@ impl Default for PremeshLimits {
             inflight: DEFAULT_PREMESH_INFLIGHT,
             backlog: DEFAULT_PREMESH_BACKLOG,
             generated_chunks: DEFAULT_PREMESH_GENERATED_CHUNKS,
+            threads: DEFAULT_PREMESH_THREADS,
         }
     }
 }
@@ -75,7 +83,7 @@ pub struct PremeshJob {
 
 impl PremeshJob {
     /// Meshes every target exactly as [`CollisionMesh::build`] on the world would.
-    pub fn build(self, cache: &mut GeneratedCache) -> Vec<PremeshResult> {
+    pub fn build(self, cache: &SharedGenerated) -> Vec<PremeshResult> {
         self.targets
             .into_iter()
             .map(|t| {
@@ -101,6 +109,29 @@ impl PremeshJob {
                 }
             })
             .collect()
+    }
+}
+
+/// The mesher threads' one cache of generated chunks. A miss generates
+/// outside the lock, so threads wait only for lookups; two threads missing
+/// the same chunk at once both generate it (the same bytes).
+#[derive(Debug)]
+pub struct SharedGenerated(Mutex<GeneratedCache>);
+
+impl SharedGenerated {
+    pub fn new(capacity: usize) -> Self {
+        Self(Mutex::new(GeneratedCache::new(capacity, Use::Premesh)))
+    }
+
+    /// The generated chunk at `pos`, from the cache or the generator.
+    pub fn get(&self, pos: ChunkPos, generator: &dyn ChunkGenerator) -> Arc<Chunk> {
+        let lock = || self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(c) = lock().lookup(pos) {
+            return c;
+        }
+        let c = Arc::new(generator.generate(pos));
+        lock().keep_generated(pos, c.clone());
+        c
     }
 }
 
@@ -145,20 +176,28 @@ impl std::fmt::Debug for Premesher {
 impl Premesher {
     pub fn new(limits: PremeshLimits) -> std::io::Result<Self> {
         let max_inflight = limits.inflight.max(1);
-        let generated_chunks = limits.generated_chunks;
+        let cache = Arc::new(SharedGenerated::new(limits.generated_chunks));
         // One slot per job in flight, so neither side ever blocks on send.
         let (results, rx) = sync_channel(max_inflight);
         let (jobs, queued) = sync_channel::<PremeshJob>(max_inflight);
-        std::thread::Builder::new()
-            .name("strata-premesh".into())
-            .spawn(move || {
-                let mut cache = GeneratedCache::new(generated_chunks, Use::Premesh);
-                for job in queued {
-                    for r in job.build(&mut cache) {
+        let queued = Arc::new(Mutex::new(queued));
+        for i in 0..limits.threads.max(1) {
+            let (queued, results, cache) = (queued.clone(), results.clone(), cache.clone());
+            std::thread::Builder::new()
+                .name(format!("strata-premesh-{i}"))
+                .spawn(move || loop {
+                    // The lock is held only while waiting for the next job;
+                    // the threads end when the `Premesher` (the sender) goes.
+                    let job = match queued.lock() {
+                        Ok(rx) => rx.recv(),
+                        Err(_) => return,
+                    };
+                    let Ok(job) = job else { return };
+                    for r in job.build(&cache) {
                         let _ = results.send(r);
                     }
-                }
-            })?;
+                })?;
+        }
         Ok(Self {
             jobs,
             inflight: HashSet::new(),
@@ -376,6 +415,19 @@ mod tests {
         Arc::new(Generator::fractal(GenParams::default()).expect("default params are valid"))
     }
 
+    /// A job meshing `pos` in a world nobody edited.
+    fn generated_job(pos: ChunkPos, g: &Arc<dyn ChunkGenerator>) -> PremeshJob {
+        PremeshJob {
+            targets: vec![PremeshTarget {
+                pos,
+                version: 0,
+                stamp: stamp(pos, |_| 0),
+            }],
+            modified: HashMap::new(),
+            generator: g.clone(),
+        }
+    }
+
     fn wait_for(p: &mut Premesher, n: usize) -> Vec<PremeshResult> {
         let deadline = Instant::now() + Duration::from_secs(30);
         let mut out = Vec::new();
@@ -441,15 +493,7 @@ mod tests {
             ..PremeshLimits::default()
         })
         .unwrap();
-        let job = |pos: ChunkPos| PremeshJob {
-            targets: vec![PremeshTarget {
-                pos,
-                version: 0,
-                stamp: stamp(pos, |_| 0),
-            }],
-            modified: HashMap::new(),
-            generator: g.clone(),
-        };
+        let job = |pos: ChunkPos| generated_job(pos, &g);
         let (a, b, c) = (
             ChunkPos::new(0, 0, 0),
             ChunkPos::new(1, 0, 0),
@@ -462,6 +506,75 @@ mod tests {
         assert_eq!(wait_for(&mut pm, 2).len(), 2);
         assert!(pm.submit(job(c)), "room again after draining");
         assert_eq!(wait_for(&mut pm, 1).len(), 1);
+    }
+
+    #[test]
+    fn several_threads_mesh_as_the_world_does_and_all_of_them_work() {
+        let g = generator();
+        let world = World::new(g.clone());
+        let threads = 3;
+        let mut pm = Premesher::new(PremeshLimits {
+            inflight: 64,
+            threads,
+            ..PremeshLimits::default()
+        })
+        .unwrap();
+        // Overlapping surroundings, one job per column: the threads share
+        // the generated chunks between them.
+        let targets: Vec<ChunkPos> = (0..4)
+            .flat_map(|x| (-2..2).map(move |y| ChunkPos::new(x, y, 0)))
+            .collect();
+        for &pos in &targets {
+            assert!(pm.submit(generated_job(pos, &g)));
+        }
+        let done = wait_for(&mut pm, targets.len());
+        assert_eq!(done.len(), targets.len(), "every job finishes");
+        for r in &done {
+            let expected =
+                CollisionMesh::build(r.mesh.pos, 0, &Neighborhood::from_world(&world, r.mesh.pos));
+            assert_eq!(r.mesh.hash, expected.hash, "at {:?}", r.mesh.pos);
+            assert_eq!(r.generated.len(), 27);
+            for (p, c) in &r.generated {
+                assert_eq!(**c, g.generate(*p));
+            }
+        }
+    }
+
+    /// Generates as `inner` does, except that its first two calls wait
+    /// for each other: a mesher with one thread never gets past them.
+    #[derive(Debug)]
+    struct Rendezvous {
+        inner: Arc<dyn ChunkGenerator>,
+        calls: std::sync::atomic::AtomicUsize,
+        barrier: std::sync::Barrier,
+    }
+
+    impl ChunkGenerator for Rendezvous {
+        fn generate(&self, pos: ChunkPos) -> Chunk {
+            if self.calls.fetch_add(1, std::sync::atomic::Ordering::SeqCst) < 2 {
+                self.barrier.wait();
+            }
+            self.inner.generate(pos)
+        }
+    }
+
+    #[test]
+    fn two_threads_mesh_two_jobs_at_once() {
+        let g: Arc<dyn ChunkGenerator> = Arc::new(Rendezvous {
+            inner: generator(),
+            calls: Default::default(),
+            barrier: std::sync::Barrier::new(2),
+        });
+        let mut pm = Premesher::new(PremeshLimits {
+            threads: 2,
+            ..PremeshLimits::default()
+        })
+        .unwrap();
+        // Far apart: neither job finds the other's chunks in the cache.
+        for pos in [ChunkPos::new(0, 0, 0), ChunkPos::new(40, 0, 0)] {
+            assert!(pm.submit(generated_job(pos, &g)));
+        }
+        assert_eq!(wait_for(&mut pm, 2).len(), 2, "both jobs ran at once");
     }
 
     #[test]
