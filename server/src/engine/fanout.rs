@@ -69,9 +69,19 @@ pub fn broadcast(
     let ops = wants
         .keys()
         .any(|id| peers.get(id).is_some_and(|p| p.has(CAP_OP_REPLAY)));
-    let edits: Vec<TickEdit<'_>> = changed.iter().map(|a| TickEdit::new(a, ops)).collect();
+    let workers = on_workers(live);
+    let edits: Vec<TickEdit<'_>> = if workers && changed.len() > EDITS_PER_TASK {
+        // Off the pool, a parallel iterator would start rayon's global one.
+        changed
+            .par_iter()
+            .with_min_len(EDITS_PER_TASK)
+            .map(|a| TickEdit::new(a, ops))
+            .collect()
+    } else {
+        changed.iter().map(|a| TickEdit::new(a, ops)).collect()
+    };
     let counters = Counters::new();
-    if on_workers(live) {
+    if workers {
         // Sessions outside, chains inside: each visited once per tick, on
         // every worker of the current pool.
         let mut visits: Vec<(u64, &mut Peer, Vec<u32>)> = peers
@@ -205,6 +215,11 @@ impl Counters {
 /// Sessions one fan-out task visits at least: fewer would cost more in
 /// scheduling than the lookups they save.
 const PEERS_PER_TASK: usize = 64;
+
+/// Edits whose frames one task encodes at least, when the fan-out runs on
+/// the workers: a busy tick's encoding is otherwise one worker's, while
+/// the others wait for it.
+const EDITS_PER_TASK: usize = 32;
 
 /// Queues the tick's frames `p` holds the base of, then `end`, as one
 /// batch. `mine`: the chains (indices into `chains`) of the chunks `p` is
@@ -432,39 +447,50 @@ mod tests {
     #[test]
     fn broadcast_reaches_every_session_here_or_on_the_workers() {
         let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
-        let applied = [
+        let short = vec![
             applied(1, vec![change(a, 4), change(b, 0)]),
             applied(2, vec![change(a, 5)]),
         ];
-        let edits: Vec<TickEdit<'_>> = applied.iter().map(|a| TickEdit::new(a, false)).collect();
-        let end = encode_update(&WorldUpdate::TickEnd { last_seq: 2 });
+        // Enough edits that the workers encode their frames together.
+        let long: Vec<AppliedEdit> = (1..=3 * EDITS_PER_TASK as u64)
+            .map(|seq| applied(seq, vec![change(a, 3 + seq)]))
+            .collect();
         let holds = [vec![(a, 4), (b, 0)], vec![(a, 5)], vec![(b, 0)], vec![]];
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(2)
             .build()
             .unwrap();
-        for sessions in [PEERS_PER_TASK, 3 * PEERS_PER_TASK + 5] {
-            assert_eq!(on_workers(sessions), sessions > PEERS_PER_TASK);
-            let mut peers = HashMap::new();
-            let mut holders = Holders::default();
-            let mut rxs = Vec::new();
-            for id in 0..sessions {
-                let known = &holds[id % holds.len()];
-                let (p, rx) = listed_peer(&mut holders, id as u64, known);
-                peers.insert(id as u64, p);
-                rxs.push((id, rx));
-            }
-            if on_workers(sessions) {
-                pool.install(|| broadcast(&mut peers, &mut holders, &applied, 2));
-            } else {
-                broadcast(&mut peers, &mut holders, &applied, 2);
-            }
-            for (id, mut rx) in rxs {
-                let known = &holds[id % holds.len()];
-                let got = rx.try_recv().map(|b| b.to_vec()).unwrap_or_default();
-                let (want, held) = reference(known, &edits, &end);
-                assert_eq!(got, want, "{sessions} sessions, session {id}");
-                assert_eq!(*peers[&(id as u64)].holdings(), held, "session {id}");
+        for tick in [short, long] {
+            let last_seq = tick.len() as u64;
+            let edits: Vec<TickEdit<'_>> = tick.iter().map(|a| TickEdit::new(a, false)).collect();
+            let end = encode_update(&WorldUpdate::TickEnd { last_seq });
+            for sessions in [PEERS_PER_TASK, 3 * PEERS_PER_TASK + 5] {
+                assert_eq!(on_workers(sessions), sessions > PEERS_PER_TASK);
+                let mut peers = HashMap::new();
+                let mut holders = Holders::default();
+                let mut rxs = Vec::new();
+                for id in 0..sessions {
+                    let known = &holds[id % holds.len()];
+                    let (p, rx) = listed_peer(&mut holders, id as u64, known);
+                    peers.insert(id as u64, p);
+                    rxs.push((id, rx));
+                }
+                if on_workers(sessions) {
+                    pool.install(|| broadcast(&mut peers, &mut holders, &tick, last_seq));
+                } else {
+                    broadcast(&mut peers, &mut holders, &tick, last_seq);
+                }
+                for (id, mut rx) in rxs {
+                    let known = &holds[id % holds.len()];
+                    let got = rx.try_recv().map(|b| b.to_vec()).unwrap_or_default();
+                    let (want, held) = reference(known, &edits, &end);
+                    let edits = tick.len();
+                    assert_eq!(
+                        got, want,
+                        "{edits} edits, {sessions} sessions, session {id}"
+                    );
+                    assert_eq!(*peers[&(id as u64)].holdings(), held, "session {id}");
+                }
             }
         }
     }
