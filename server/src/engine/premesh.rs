@@ -509,7 +509,7 @@ mod tests {
     }
 
     #[test]
-    fn several_threads_mesh_as_the_world_does_and_all_of_them_work() {
+    fn several_threads_mesh_as_the_world_does() {
         let g = generator();
         let world = World::new(g.clone());
         let threads = 3;
