@@ -94,19 +94,18 @@ async fn metrics_count_what_happened() {
         // One or two chunks, compressed.
         assert!(folded < 2.0 * 65_536.0, "{folded} checkpoint bytes");
         // Those meshes read the 5x5x5 chunks around the player, each generated
-        // once a mesher thread at most (two threads share a cache that holds
-        // thousands, and may both miss a chunk at once); the rest of their
-        // 27 x 27 reads hit.
+        // once at most (the two mesher threads share a cache that holds
+        // thousands); the rest of their reads hit.
         let text = scrape(metrics);
         let generated = "strata_generated_chunks_total{cache=\"premesh\",outcome=\"generated\"}";
         let hits = "strata_generated_chunks_total{cache=\"premesh\",outcome=\"hit\"}";
         let (generated, hits) = (metric(&text, generated), metric(&text, hits));
         assert!(
-            matches!(generated, Some(n) if (1.0..=250.0).contains(&n)),
+            matches!(generated, Some(n) if (1.0..=125.0).contains(&n)),
             "{generated:?} generated:\n{text}"
         );
         assert!(
-            matches!((generated, hits), (Some(g), Some(h)) if h >= 1.5 * g),
+            matches!((generated, hits), (Some(g), Some(h)) if h >= 4.0 * g),
             "{hits:?} hits for {generated:?} generated"
         );
         // Transport counters: read while the connection is open (every

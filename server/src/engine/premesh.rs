@@ -12,7 +12,7 @@
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, FixedVec3};
 
@@ -113,25 +113,70 @@ impl PremeshJob {
 }
 
 /// The mesher threads' one cache of generated chunks. A miss generates
-/// outside the lock, so threads wait only for lookups; two threads missing
-/// the same chunk at once both generate it (the same bytes).
+/// outside the lock, so threads wait only for lookups, and for a chunk
+/// another thread is generating: each chunk is generated once.
 #[derive(Debug)]
-pub struct SharedGenerated(Mutex<GeneratedCache>);
+pub struct SharedGenerated {
+    state: Mutex<Generating>,
+    /// Signalled whenever a chunk being generated is done.
+    done: Condvar,
+}
+
+#[derive(Debug)]
+struct Generating {
+    cache: GeneratedCache,
+    /// Chunks a thread is generating now (one per thread at most).
+    underway: HashSet<ChunkPos>,
+}
 
 impl SharedGenerated {
     pub fn new(capacity: usize) -> Self {
-        Self(Mutex::new(GeneratedCache::new(capacity, Use::Premesh)))
+        Self {
+            state: Mutex::new(Generating {
+                cache: GeneratedCache::new(capacity, Use::Premesh),
+                underway: HashSet::new(),
+            }),
+            done: Condvar::new(),
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Generating> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// The generated chunk at `pos`, from the cache or the generator.
     pub fn get(&self, pos: ChunkPos, generator: &dyn ChunkGenerator) -> Arc<Chunk> {
-        let lock = || self.0.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(c) = lock().lookup(pos) {
-            return c;
+        let mut state = self.lock();
+        loop {
+            if let Some(c) = state.cache.lookup(pos) {
+                return c;
+            }
+            if !state.underway.contains(&pos) {
+                break;
+            }
+            state = self.done.wait(state).unwrap_or_else(|e| e.into_inner());
         }
+        state.underway.insert(pos);
+        drop(state);
+        // Taken off the list whatever happens, so no thread waits forever.
+        let finished = Finished { shared: self, pos };
         let c = Arc::new(generator.generate(pos));
-        lock().keep_generated(pos, c.clone());
+        self.lock().cache.keep_generated(pos, c.clone());
+        drop(finished);
         c
+    }
+}
+
+/// Ends a chunk's generation in a [`SharedGenerated`] when dropped.
+struct Finished<'a> {
+    shared: &'a SharedGenerated,
+    pos: ChunkPos,
+}
+
+impl Drop for Finished<'_> {
+    fn drop(&mut self) {
+        self.shared.lock().underway.remove(&self.pos);
+        self.shared.done.notify_all();
     }
 }
 
@@ -575,6 +620,46 @@ mod tests {
             assert!(pm.submit(generated_job(pos, &g)));
         }
         assert_eq!(wait_for(&mut pm, 2).len(), 2, "both jobs ran at once");
+    }
+
+    /// Generates as `inner` does, counting its calls, slowly.
+    #[derive(Debug)]
+    struct Counting {
+        inner: Arc<dyn ChunkGenerator>,
+        calls: std::sync::atomic::AtomicUsize,
+    }
+
+    impl ChunkGenerator for Counting {
+        fn generate(&self, pos: ChunkPos) -> Chunk {
+            self.calls.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            std::thread::sleep(Duration::from_millis(50));
+            self.inner.generate(pos)
+        }
+    }
+
+    #[test]
+    fn threads_missing_one_chunk_at_once_generate_it_once() {
+        let g = Counting {
+            inner: generator(),
+            calls: Default::default(),
+        };
+        let shared = SharedGenerated::new(16);
+        let pos = ChunkPos::new(3, 0, 3);
+        let start = std::sync::Barrier::new(4);
+        let got: Vec<Arc<Chunk>> = std::thread::scope(|s| {
+            let tasks: Vec<_> = (0..4)
+                .map(|_| {
+                    s.spawn(|| {
+                        start.wait();
+                        shared.get(pos, &g)
+                    })
+                })
+                .collect();
+            tasks.into_iter().map(|t| t.join().unwrap()).collect()
+        });
+        assert_eq!(g.calls.load(std::sync::atomic::Ordering::SeqCst), 1);
+        assert!(got.iter().all(|c| Arc::ptr_eq(c, &got[0])));
+        assert_eq!(*got[0], g.inner.generate(pos));
     }
 
     #[test]
