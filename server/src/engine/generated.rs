@@ -51,13 +51,11 @@ impl GeneratedCache {
 
     /// The generated chunk at `pos`, from the cache or the generator.
     pub fn get(&mut self, pos: ChunkPos, generator: &dyn ChunkGenerator) -> Arc<Chunk> {
-        if let Some(c) = self.hit(pos) {
-            self.count(1, 0);
+        if let Some(c) = self.lookup(pos) {
             return c;
         }
-        self.count(0, 1);
         let c = Arc::new(generator.generate(pos));
-        self.keep(pos, c.clone());
+        self.keep_generated(pos, c.clone());
         c
     }
 
