@@ -1,7 +1,7 @@
 //! Costs of the sequencer core: one validated edit end to end (submit with
 //! line of sight, then tick with deltas and mesh hashes), raycasts against
 //! collision meshes (warm and freshly built; flat ground, generated
-//! terrain), and parallel meshing.
+//! terrain), parallel meshing, and an eviction pass among 3000 players.
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -153,11 +153,103 @@ fn mesh_chunks(c: &mut Criterion) {
     });
 }
 
+/// A sequencer as a busy server holds it: `players` sessions standing
+/// apart over a square of chunk columns, everything within two chunks of
+/// them resident, and one queued edit for each of the first `queued`.
+fn crowded(players: u64, queued: u64) -> Sequencer {
+    let validation = ValidationConfig {
+        edit_rate: BucketConfig {
+            capacity: 1 << 40,
+            per_second: 0,
+        },
+        volume_rate: BucketConfig {
+            capacity: 1 << 40,
+            per_second: 0,
+        },
+        ..Default::default()
+    };
+    let cfg = SequencerConfig {
+        queue_capacity: 1 << 20,
+        ..Default::default()
+    };
+    let mut s = Sequencer::new(
+        world(),
+        cfg,
+        validation,
+        0,
+        MaterialTable::default(),
+        StructureLibrary::default(),
+        vec![],
+    );
+    // 3000 players over 64 × 64 columns hold about 21 000 chunks hot, as
+    // 3000 bots did on the 16-core machine.
+    let side = ((players as f64 * 4096.0 / 3000.0).sqrt() as u64).max(1) * 32;
+    let mut rng = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng % side) as i32
+    };
+    for id in 1..=players {
+        s.session_joined(id, format!("p{id}"), Role::Player);
+        let (x, z) = (next(), next());
+        let pos = PositionUpdate {
+            seq: 1,
+            pos: FixedVec3::from_voxels(x, 0, z),
+        };
+        let around = ChunkPos::new(x.div_euclid(32), 0, z.div_euclid(32));
+        for dz in -2..=2 {
+            for dy in -2..=2 {
+                for dx in -2..=2 {
+                    if let Some(p) = around.offset(dx, dy, dz) {
+                        if !s.is_resident(p) {
+                            s.mark_absent(p);
+                        }
+                    }
+                }
+            }
+        }
+        s.update_position(id, pos, 0).expect("position");
+        if id <= queued {
+            let request = EditRequest {
+                client_edit_id: id,
+                edit: Edit::Mine {
+                    center: FixedVec3::from_voxels(x + 3, -1, z + 2),
+                    radius: Fixed::from_voxels(4),
+                    strength: 255,
+                },
+            };
+            for p in s.chunks_needed(id, &request.edit) {
+                s.mark_absent(p);
+            }
+            s.submit(id, request, 0).expect("accepted");
+        }
+    }
+    s
+}
+
+/// One eviction pass when every resident chunk is near a player, so
+/// nothing is dropped and every pass does the same work.
+fn evict_pass(c: &mut Criterion) {
+    for (players, queued) in [(3000, 30), (3000, 3000)] {
+        let mut s = crowded(players, queued);
+        let resident = s.resident();
+        assert!(s.evict_far_from_players(2).is_empty());
+        assert_eq!(s.resident(), resident);
+        c.bench_function(
+            &format!("evict_pass_{players}_players_{queued}_queued_{resident}_resident"),
+            |b| b.iter(|| black_box(s.evict_far_from_players(2))),
+        );
+    }
+}
+
 criterion_group!(
     benches,
     submit_and_tick,
     raycast,
     raycast_sight,
-    mesh_chunks
+    mesh_chunks,
+    evict_pass
 );
 criterion_main!(benches);

@@ -402,6 +402,37 @@ fn eviction_with_edits_queued_keeps_what_they_read() {
 }
 
 #[test]
+fn eviction_far_from_players_keeps_the_cube_around_each() {
+    let (mut s, edit, home, far, stored) = evictable();
+    s.submit(PLAYER, req(1, edit.clone()), 0).unwrap();
+    // The player stands in chunk (3, 0, 3); the queued edit's reads with
+    // their neighbours reach up to y = 1.
+    let up = |d: i32| ChunkPos::new(3, d, 3);
+    let diagonal = |d: i32| ChunkPos::new(3 - d, d, 3 + d);
+    for d in 0..=9 {
+        for c in [up(d), diagonal(d)] {
+            if !s.is_resident(c) {
+                s.mark_absent(c);
+            }
+        }
+    }
+    assert!(!s.evict_far_from_players(2).is_empty());
+    assert!(s.world().peek(far).is_none() && !s.is_resident(far));
+    for d in 0..=9 {
+        let kept = d <= 2;
+        assert_eq!(s.is_resident(up(d)), kept, "{:?}", up(d));
+        assert_eq!(s.is_resident(diagonal(d)), kept, "{:?}", diagonal(d));
+    }
+    assert!(s.chunks_needed(PLAYER, &edit).is_empty());
+    let out = s.tick(0);
+    assert_applied_on_stored(&s, &out, home, &stored);
+    // Radius 0 keeps only the chunk the player stands in.
+    s.evict_far_from_players(0);
+    assert!(s.is_resident(up(0)));
+    assert!(!s.is_resident(up(1)) && !s.is_resident(home));
+}
+
+#[test]
 fn eviction_keeps_what_edits_awaiting_their_sight_check_read() {
     let (mut s, edit, home, far, stored) = evictable();
     s.admit(PLAYER, req(1, edit.clone()), 0).unwrap();

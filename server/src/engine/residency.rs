@@ -3,11 +3,8 @@
 
 use std::time::{Duration, Instant};
 
-use rustc_hash::FxHashSet;
-
 use strata_terrain::ChunkPos;
 
-use super::premesh::around;
 use super::Engine;
 use crate::metrics as m;
 use crate::store::StoreError;
@@ -59,15 +56,7 @@ impl Engine {
         {
             return;
         }
-        // Fx, not SipHash: with thousands of players this set holds
-        // hundreds of thousands of chunks, built on the engine thread.
-        // Players crowd: each of their chunks once, then its surroundings.
-        let standing: FxHashSet<ChunkPos> = self.seq.player_chunks().collect();
-        let hot: FxHashSet<ChunkPos> = standing
-            .into_iter()
-            .flat_map(|c| around(c, HOT_RADIUS))
-            .collect();
-        let dropped = self.seq.evict_cold(|p| hot.contains(&p));
+        let dropped = self.seq.evict_far_from_players(HOT_RADIUS);
         let n = dropped.len();
         // Freeing thousands of chunks is the worker's time, not the tick's.
         if n > 0 {

@@ -6,6 +6,7 @@
 //! and broadcasts deltas. Time arrives as `now_ms` so tests are deterministic.
 
 pub mod batch;
+mod chunk_bits;
 pub use crate::store::{CommitBatch, LogEntry};
 
 pub mod config;
@@ -22,7 +23,7 @@ pub use sight::SightRefusal;
 pub use submit::Prechecked;
 pub use tick::{BuiltMeshes, PendingMeshes};
 
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::{HashMap, VecDeque};
 
 use rayon::prelude::*;
 
@@ -34,6 +35,7 @@ use crate::collision::{CollisionCache, CollisionMesh};
 use crate::validate::position::{self, PositionReject, ValidatedPosition};
 use crate::validate::zones::{self, Zone, ZoneError};
 use crate::validate::ValidationConfig;
+use chunk_bits::ChunkBits;
 use residency::{with_neighbours, Residency};
 use session::{PlayerLimits, Session};
 
@@ -318,23 +320,54 @@ impl Sequencer {
         &mut self,
         keep: impl Fn(ChunkPos) -> bool,
     ) -> Vec<strata_terrain::world::VersionedChunk> {
-        let queued: HashSet<ChunkPos> = self
-            .queue
-            .iter()
-            .filter_map(|q| self.read_set(&q.request.edit, None))
-            .chain(
-                self.sighting
-                    .iter()
-                    .filter_map(|s| self.read_set(&s.request.edit, Some(s.eye))),
-            )
-            .flatten()
-            .flat_map(with_neighbours)
-            .collect();
-        let keep = |p: ChunkPos| keep(p) || queued.contains(&p);
+        let queued = self.queued_reads();
+        self.evict_unless(|p| keep(p) || queued.contains(p))
+    }
+
+    /// [`Self::evict_cold`], keeping every chunk within `radius` chunks of
+    /// a player (a cube around the chunk the player stands in).
+    pub fn evict_far_from_players(
+        &mut self,
+        radius: u8,
+    ) -> Vec<strata_terrain::world::VersionedChunk> {
+        let mut keep = self.queued_reads();
+        for c in self.player_chunks() {
+            keep.insert_cube(c, radius);
+        }
+        self.evict_unless(|p| keep.contains(p))
+    }
+
+    /// The chunks queued edits and those awaiting line of sight read, and
+    /// the 26 around each: [`Self::read_set`]'s box grown by one chunk, and
+    /// each chunk of the line of sight grown by two.
+    fn queued_reads(&self) -> ChunkBits {
+        let mut keep = ChunkBits::default();
+        let queued = self.queue.iter().map(|q| (&q.request.edit, None));
+        let sighting = self.sighting.iter().map(|s| (&s.request.edit, Some(s.eye)));
+        for (edit, eye) in queued.chain(sighting) {
+            let Some((lo, hi, ray)) = self.read_bounds(edit, eye) else {
+                continue;
+            };
+            let grown = |v: i32, d: i32| v.saturating_add(d);
+            keep.insert_box(
+                ChunkPos::new(grown(lo.x, -1), grown(lo.y, -1), grown(lo.z, -1)),
+                ChunkPos::new(grown(hi.x, 1), grown(hi.y, 1), grown(hi.z, 1)),
+            );
+            for r in ray {
+                keep.insert_cube(r, 2);
+            }
+        }
+        keep
+    }
+
+    fn evict_unless(
+        &mut self,
+        keep: impl Fn(ChunkPos) -> bool,
+    ) -> Vec<strata_terrain::world::VersionedChunk> {
         let dropped = if self.residency.is_storeless() {
-            self.world.evict_generated(keep)
+            self.world.evict_generated(&keep)
         } else {
-            self.world.evict(keep)
+            self.world.evict(&keep)
         };
         self.residency.retain_absent(keep);
         dropped

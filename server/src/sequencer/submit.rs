@@ -117,6 +117,17 @@ impl Sequencer {
     /// Everything validating and applying `edit` reads, given the eye (if any).
     /// `None` if the terrain core refuses the edit.
     pub(super) fn read_set(&self, edit: &Edit, eye: Option<glam::DVec3>) -> Option<Vec<ChunkPos>> {
+        let (lo, hi, ray) = self.read_bounds(edit, eye)?;
+        Some(box_and_ray(lo, hi, &ray))
+    }
+
+    /// What [`Self::read_set`] lists, as the footprint's corner chunks and
+    /// the chunks of the line of sight (the set adds the 27 around each).
+    pub(super) fn read_bounds(
+        &self,
+        edit: &Edit,
+        eye: Option<glam::DVec3>,
+    ) -> Option<(ChunkPos, ChunkPos, Vec<ChunkPos>)> {
         let bbox = edit.validate(&self.ctx()).ok()?;
         let ray = eye
             .map(|eye| (eye, reach::target_point(edit, &bbox, eye)))
@@ -124,7 +135,8 @@ impl Sequencer {
             .map_or_else(Vec::new, |(eye, target)| {
                 line_of_sight::sight_chunks(eye, target)
             });
-        Some(footprint_and_ray(&bbox, edit.read_margin(), &ray))
+        let footprint = edit_footprint(&bbox, edit.read_margin());
+        Some((footprint.min.chunk(), footprint.max.chunk(), ray))
     }
 
     /// The rules of [`Self::submit`] that read no terrain: role permission,
