@@ -20,8 +20,10 @@
 //! so that none is refused `Busy` and sent again). "ahead" is the share of batches applied while
 //! the batch before them committed. The last columns split the time per
 //! batch into the engine's phases (apply: the region lanes; commit:
-//! encode, write, fsync, and any batch applied ahead meanwhile; fanout:
-//! acks and deltas). The last column splits the process's CPU per edit
+//! encode, write, fsync, and any batch applied ahead meanwhile; mesh
+//! wait: the tick's collision meshes still building; finish: the meshes
+//! and hashes put in and the acks sent, on the engine thread; fanout: the
+//! deltas, on the workers). The last column splits the process's CPU per edit
 //! by thread: the workers, the engine thread, the commit thread, and the
 //! rest (the bench's drain and feed, sled, the checkpointer), so that what
 //! does not grow with the workers shows.
@@ -79,14 +81,14 @@ fn main() -> anyhow::Result<()> {
         edits_per_tick()
     );
     println!(
-        "| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick | edits/tick | ahead | tick ms | apply / commit / fanout ms | CPU µs/edit: workers / engine / commit / rest |"
+        "| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick | edits/tick | ahead | tick ms | apply / commit / mesh wait / finish / fanout ms | CPU µs/edit: workers / engine / commit / rest |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for workers in counts {
         let r = run(workers, Duration::from_secs(seconds), &metrics)?;
         let per_tick = |ms: f64| ms / r.ticks.max(1.0);
         println!(
-            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} | {:.0} | {:.2} | {:.1} | {:.1} / {:.1} / {:.1} | {} |",
+            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} | {:.0} | {:.2} | {:.1} | {:.1} / {:.1} / {:.1} / {:.1} / {:.1} | {} |",
             r.edits / r.secs,
             r.deltas / r.secs,
             r.deltas / r.edits.max(1.0),
@@ -98,6 +100,8 @@ fn main() -> anyhow::Result<()> {
             per_tick(r.phase_ms[1]),
             per_tick(r.phase_ms[2]),
             per_tick(r.phase_ms[3]),
+            per_tick(r.phase_ms[4]),
+            per_tick(r.phase_ms[5]),
             r.by_thread
                 .map(|s| format!("{:.1}", s * 1e6 / r.edits.max(1.0)))
                 .join(" / "),
@@ -142,8 +146,8 @@ struct Result {
     ticks: f64,
     /// Of them, applied while the one before committed.
     ahead: f64,
-    /// Whole tick, apply, commit, fanout: ms summed over `ticks`.
-    phase_ms: [f64; 4],
+    /// Whole tick, apply, commit, mesh wait, finish, fanout: ms summed over `ticks`.
+    phase_ms: [f64; 6],
     /// CPU seconds of the workers, the engine, the commit thread and the
     /// rest of the process.
     by_thread: [f64; 4],
@@ -399,15 +403,17 @@ struct Counters {
     lanes_sum: f64,
     lanes_count: f64,
     ahead: f64,
-    phases: [f64; 4],
+    phases: [f64; 6],
     threads: [f64; 4],
 }
 
 /// Series summed into [`Counters::phases`].
-const PHASES: [&str; 4] = [
+const PHASES: [&str; 6] = [
     "strata_tick_seconds_sum",
     "strata_tick_phase_seconds_sum{phase=\"apply\"}",
     "strata_tick_phase_seconds_sum{phase=\"commit\"}",
+    "strata_tick_phase_seconds_sum{phase=\"mesh_wait\"}",
+    "strata_tick_phase_seconds_sum{phase=\"finish\"}",
     "strata_tick_phase_seconds_sum{phase=\"fanout\"}",
 ];
 

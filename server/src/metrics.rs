@@ -181,7 +181,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_histogram!(
         TICK_PHASE_SECONDS,
-        "Tick time by phase: apply, commit, mesh_wait, fanout, stream, evict"
+        "Tick time by phase: apply, commit, mesh_wait, finish (meshes in, acknowledgements), fanout, stream, evict"
     );
     metrics::describe_counter!(BYTES_SENT, "Bytes written to clients");
     metrics::describe_counter!(

@@ -787,6 +787,7 @@ impl Engine {
             };
             self.send_control(a.session_id, &msg);
         }
+        phase.end("finish");
         let last_seq = out.batch.last_seq;
         if fanout::on_workers(self.peers.len()) {
             let pool = self.pool.clone();
