@@ -84,25 +84,38 @@ impl Lattice {
         Self { rows }
     }
 
-    /// Values at every lattice height for the voxel column `(lx, lz)`
-    /// (x and z interpolated); [`column_at`] then finishes along y.
-    pub(crate) fn column(&self, lx: usize, lz: usize) -> [f64; LATTICE_POINTS] {
+    /// Values at every lattice height for every voxel column of the z-row
+    /// `lz` (x and z interpolated), lattice height first: `out[y][lx]`.
+    /// [`row_at`] then finishes along y.
+    pub(crate) fn z_rows(&self, lz: usize) -> [[f64; SIZE]; LATTICE_POINTS] {
         let (cz, tz) = (lz / LATTICE_STEP, FRACTIONS[lz % LATTICE_STEP]);
         let near = &self.rows[cz * N * SIZE..(cz + 1) * N * SIZE];
         let far = &self.rows[(cz + 1) * N * SIZE..(cz + 2) * N * SIZE];
-        let mut out = [0.0; LATTICE_POINTS];
+        let mut out = [[0.0; SIZE]; LATTICE_POINTS];
         for (y, o) in out.iter_mut().enumerate() {
-            *o = lerp(near[y * SIZE + lx], far[y * SIZE + lx], tz);
+            let (n, f) = (
+                &near[y * SIZE..(y + 1) * SIZE],
+                &far[y * SIZE..(y + 1) * SIZE],
+            );
+            for ((v, &a), &b) in o.iter_mut().zip(n).zip(f) {
+                *v = lerp(a, b, tz);
+            }
         }
         out
     }
 }
 
-/// The field at local height `ly` of a column from [`Lattice::column`].
+/// The field at local height `ly` of each column of a z-row from
+/// [`Lattice::z_rows`].
 #[inline]
-pub(crate) fn column_at(column: &[f64; LATTICE_POINTS], ly: usize) -> f64 {
+pub(crate) fn row_at(rows: &[[f64; SIZE]; LATTICE_POINTS], ly: usize) -> [f64; SIZE] {
     let c = ly / LATTICE_STEP;
-    lerp(column[c], column[c + 1], FRACTIONS[ly % LATTICE_STEP])
+    let t = FRACTIONS[ly % LATTICE_STEP];
+    let mut out = [0.0; SIZE];
+    for ((v, &a), &b) in out.iter_mut().zip(&rows[c]).zip(&rows[c + 1]) {
+        *v = lerp(a, b, t);
+    }
+    out
 }
 
 #[inline]
@@ -119,13 +132,17 @@ mod tests {
         let f = NoiseField::new(11, 2, 2, 24.0, 1.5);
         let o = (-32, 64, 96);
         let l = Lattice::sample(&f, o);
-        let col = l.column(8, 12);
-        assert_eq!(column_at(&col, 4), f.at(o.0 + 8, o.1 + 4, o.2 + 12));
+        let rows = l.z_rows(12);
+        assert_eq!(row_at(&rows, 4)[8], f.at(o.0 + 8, o.1 + 4, o.2 + 12));
         // The voxel at the top face of one chunk's lattice is the bottom of the next.
         let above = Lattice::sample(&f, (o.0, o.1 + 32, o.2));
-        assert_eq!(col[LATTICE_POINTS - 1], above.column(8, 12)[0]);
+        assert_eq!(rows[LATTICE_POINTS - 1][8], above.z_rows(12)[0][8]);
         // Between points the value lies between the neighbours along y.
-        let (a, b, m) = (column_at(&col, 0), column_at(&col, 4), column_at(&col, 2));
+        let (a, b, m) = (
+            row_at(&rows, 0)[8],
+            row_at(&rows, 4)[8],
+            row_at(&rows, 2)[8],
+        );
         assert!(m >= a.min(b) && m <= a.max(b));
     }
 }
