@@ -1,6 +1,9 @@
 //! The world generator: heights, caves and layers combined into chunks.
 
+use std::sync::Arc;
+
 use super::caves::{row_at, Lattice, NoiseField};
+use super::columns::ColumnHeights;
 use super::height::{FractalHills, HeightSource};
 use super::layers::Layers;
 use super::noise::floor_i64;
@@ -36,6 +39,8 @@ pub struct Generator {
     max_surface: f64,
     /// Voxels this far above their column's surface are density 0: 128/k.
     air_band: f64,
+    /// Recent columns' surface heights, shared by clones.
+    columns: Arc<ColumnHeights>,
 }
 
 impl Generator {
@@ -70,6 +75,7 @@ impl Generator {
             air_band,
             source,
             params,
+            columns: Arc::default(),
         })
     }
 
@@ -121,15 +127,19 @@ impl Generator {
         if fast && oy as f64 > self.max_surface + self.air_band {
             return Chunk::uniform(Voxel::AIR);
         }
-        let mut heights = [0.0f64; SIZE * SIZE];
-        for (i, h) in heights.iter_mut().enumerate() {
-            *h = self.height(ox + (i % SIZE) as i64, oz + (i / SIZE) as i64);
-        }
+        let heights = self.columns.get(pos.x, pos.z, || {
+            let mut heights = [0.0f64; SIZE * SIZE];
+            for (i, h) in heights.iter_mut().enumerate() {
+                *h = self.height(ox + (i % SIZE) as i64, oz + (i / SIZE) as i64);
+            }
+            heights
+        });
+        let heights = &heights[..];
         let hmax = heights.iter().copied().fold(f64::MIN, f64::max);
         if fast && oy as f64 > hmax + self.air_band {
             return Chunk::uniform(Voxel::AIR);
         }
-        let mut chunk = Chunk::Dense(self.fill((ox, oy, oz), &heights, hmax));
+        let mut chunk = Chunk::Dense(self.fill((ox, oy, oz), heights, hmax));
         chunk.compact();
         chunk
     }

@@ -64,6 +64,7 @@
 //! `tests/gen_golden.rs`): stored worlds keep only edits over generation.
 
 mod caves;
+mod columns;
 mod generator;
 mod height;
 mod heightmap;
@@ -72,6 +73,7 @@ mod noise;
 mod params;
 
 pub use caves::{LATTICE_POINTS, LATTICE_STEP};
+pub use columns::HEIGHT_COLUMNS;
 pub use generator::{Generator, BEDROCK};
 pub use height::HeightSource;
 pub use heightmap::{
