@@ -81,14 +81,14 @@ fn main() -> anyhow::Result<()> {
         edits_per_tick()
     );
     println!(
-        "| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick | edits/tick | ahead | tick ms | apply / commit / mesh wait / finish / fanout ms | CPU µs/edit: workers / engine / commit / rest |"
+        "| workers | durable edits/s | deltas/s | deltas/edit | CPU ms/edit | lanes/tick | edits/tick | ahead | tick ms | apply / commit / mesh wait / finish / fanout ms | apply: wait / prepare / lanes / merge ms | CPU µs/edit: workers / engine / commit / rest |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for workers in counts {
         let r = run(workers, Duration::from_secs(seconds), &metrics)?;
         let per_tick = |ms: f64| ms / r.ticks.max(1.0);
         println!(
-            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} | {:.0} | {:.2} | {:.1} | {:.1} / {:.1} / {:.1} / {:.1} / {:.1} | {} |",
+            "| {workers} | {:.0} | {:.0} | {:.1} | {:.3} | {:.1} | {:.0} | {:.2} | {:.1} | {:.1} / {:.1} / {:.1} / {:.1} / {:.1} | {} | {} |",
             r.edits / r.secs,
             r.deltas / r.secs,
             r.deltas / r.edits.max(1.0),
@@ -102,6 +102,9 @@ fn main() -> anyhow::Result<()> {
             per_tick(r.phase_ms[3]),
             per_tick(r.phase_ms[4]),
             per_tick(r.phase_ms[5]),
+            r.apply_ms
+                .map(|ms| format!("{:.1}", ms / r.applies.max(1.0)))
+                .join(" / "),
             r.by_thread
                 .map(|s| format!("{:.1}", s * 1e6 / r.edits.max(1.0)))
                 .join(" / "),
@@ -148,6 +151,9 @@ struct Result {
     ahead: f64,
     /// Whole tick, apply, commit, mesh wait, finish, fanout: ms summed over `ticks`.
     phase_ms: [f64; 6],
+    /// Each apply's wait, prepare, lanes and merge: ms summed over `applies`.
+    apply_ms: [f64; 4],
+    applies: f64,
     /// CPU seconds of the workers, the engine, the commit thread and the
     /// rest of the process.
     by_thread: [f64; 4],
@@ -286,6 +292,8 @@ fn run(
         ticks: after.lanes_count - before.lanes_count,
         ahead: after.ahead - before.ahead,
         phase_ms: std::array::from_fn(|i| (after.phases[i] - before.phases[i]) * 1e3),
+        apply_ms: std::array::from_fn(|i| (after.apply_parts[i] - before.apply_parts[i]) * 1e3),
+        applies: after.applies - before.applies,
         by_thread: std::array::from_fn(|i| after.threads[i] - before.threads[i]),
     })
 }
@@ -377,11 +385,25 @@ fn edit(spot: (i32, i32), n: u64) -> EditRequest {
     }
 }
 
+/// Drain rounds (1 ms apart) between two polls of the update queues: a
+/// session gets at most one frame batch a tick (10 ms or more), and its
+/// queue holds [`SESSION_QUEUE`].
+const UPDATE_POLL_ROUNDS: u64 = 5;
+
 /// Empties every session queue until `stop`, counting the frames of
 /// queues marked as verdicts.
 fn drain(mut queues: Vec<(Receiver<Bytes>, bool)>, stop: &AtomicBool, verdicts: &AtomicU64) {
+    let mut round = 0u64;
     while !stop.load(Ordering::Relaxed) {
+        round += 1;
         for (q, counted) in &mut queues {
+            // Verdicts every millisecond (the feed waits on them), updates
+            // every `UPDATE_POLL_ROUNDS`: polling all of them each round
+            // cost this thread a sixth of a core, which on a 2-core box
+            // the workers paid for.
+            if !*counted && round % UPDATE_POLL_ROUNDS != 0 {
+                continue;
+            }
             let mut n = 0;
             while q.try_recv().is_ok() {
                 n += 1;
@@ -390,7 +412,6 @@ fn drain(mut queues: Vec<(Receiver<Bytes>, bool)>, stop: &AtomicBool, verdicts: 
                 verdicts.fetch_add(n, Ordering::Relaxed);
             }
         }
-        // A session gets at most one frame batch per 10 ms tick.
         std::thread::sleep(Duration::from_millis(1));
     }
 }
@@ -404,6 +425,9 @@ struct Counters {
     lanes_count: f64,
     ahead: f64,
     phases: [f64; 6],
+    apply_parts: [f64; 4],
+    /// Applies with edits (each batch, ahead or not).
+    applies: f64,
     threads: [f64; 4],
 }
 
@@ -417,6 +441,14 @@ const PHASES: [&str; 6] = [
     "strata_tick_phase_seconds_sum{phase=\"fanout\"}",
 ];
 
+/// Series summed into [`Counters::apply_parts`].
+const APPLY_PARTS: [&str; 4] = [
+    "strata_apply_part_seconds_sum{part=\"wait\"}",
+    "strata_apply_part_seconds_sum{part=\"prepare\"}",
+    "strata_apply_part_seconds_sum{part=\"lanes\"}",
+    "strata_apply_part_seconds_sum{part=\"merge\"}",
+];
+
 impl Counters {
     fn read(m: &metrics_exporter_prometheus::PrometheusHandle) -> Self {
         Counters {
@@ -428,6 +460,8 @@ impl Counters {
             lanes_count: counter(m, "strata_tick_lanes_count"),
             ahead: counter(m, "strata_ticks_applied_ahead_total"),
             phases: PHASES.map(|p| counter(m, p)),
+            apply_parts: APPLY_PARTS.map(|p| counter(m, p)),
+            applies: counter(m, "strata_apply_part_seconds_count{part=\"lanes\"}"),
             threads: threads_cpu_seconds(),
         }
     }

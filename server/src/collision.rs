@@ -9,6 +9,7 @@
 //! of its neighbourhood, so the output does not depend on the thread count.
 
 use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
 use rayon::prelude::*;
@@ -151,8 +152,18 @@ pub struct Hit {
 struct Entry {
     mesh: Arc<CollisionMesh>,
     stamp: u64,
-    /// Rebuilt ahead of need (a rewarm) and not looked up since.
-    unused_rewarm: bool,
+    /// Rebuilt ahead of need (a rewarm).
+    rewarm: bool,
+    /// Looked up since it was built ([`CollisionCache::ensure`] or
+    /// [`CollisionCache::lookup`]): in use. Atomic so that a lookup needs
+    /// only `&self`.
+    looked_up: AtomicBool,
+}
+
+impl Entry {
+    fn looked_up(&self) -> bool {
+        self.looked_up.load(Ordering::Relaxed)
+    }
 }
 
 /// LRU-bounded cache of collision meshes by chunk.
@@ -165,14 +176,16 @@ pub struct CollisionCache {
     clock: u64,
     /// See [`Self::built_on_demand`].
     built_on_demand: u64,
-    /// See [`Self::rewarm_outcomes`].
-    rewarm: RewarmOutcomes,
+    /// See [`Self::rewarm_outcomes`] (used: counted on a `&self` lookup).
+    rewarms_used: AtomicU64,
+    rewarms_wasted: u64,
 }
 
 /// What became of the meshes rebuilt ahead of need ([`CollisionCache::insert_rewarmed`]).
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
 pub struct RewarmOutcomes {
-    /// Looked up by [`CollisionCache::ensure`] before being dropped.
+    /// Looked up ([`CollisionCache::ensure`], [`CollisionCache::lookup`])
+    /// before being dropped.
     pub used: u64,
     /// Dropped (stale, replaced or evicted) without a lookup.
     pub wasted: u64,
@@ -193,7 +206,8 @@ impl CollisionCache {
             lru: BTreeMap::new(),
             clock: 0,
             built_on_demand: 0,
-            rewarm: RewarmOutcomes::default(),
+            rewarms_used: AtomicU64::new(0),
+            rewarms_wasted: 0,
         }
     }
 
@@ -216,6 +230,17 @@ impl CollisionCache {
         self.capacity
     }
 
+    /// [`Self::get`] for a caller that uses the mesh (a snapshot frame its
+    /// hash): marks it in use, as [`Self::rewarm_outcomes`] counts.
+    pub fn lookup(&self, pos: ChunkPos, version: u64) -> Option<&Arc<CollisionMesh>> {
+        let e = self
+            .entries
+            .get(&pos)
+            .filter(|e| e.mesh.version == version)?;
+        self.mark_looked_up(e);
+        Some(&e.mesh)
+    }
+
     /// The cached mesh of `pos` if it was built from `version`.
     pub fn get(&self, pos: ChunkPos, version: u64) -> Option<&Arc<CollisionMesh>> {
         self.entries
@@ -235,14 +260,15 @@ impl CollisionCache {
         self.insert_entry(mesh, true)
     }
 
-    fn insert_entry(&mut self, mesh: CollisionMesh, unused_rewarm: bool) -> Arc<CollisionMesh> {
+    fn insert_entry(&mut self, mesh: CollisionMesh, rewarm: bool) -> Arc<CollisionMesh> {
         let pos = mesh.pos;
         let mesh = Arc::new(mesh);
         self.clock += 1;
         let entry = Entry {
             mesh: mesh.clone(),
             stamp: self.clock,
-            unused_rewarm,
+            rewarm,
+            looked_up: AtomicBool::new(false),
         };
         if let Some(old) = self.entries.insert(pos, entry) {
             self.lru.remove(&old.stamp);
@@ -261,22 +287,32 @@ impl CollisionCache {
     }
 
     fn count_dropped(&mut self, e: &Entry) {
-        if e.unused_rewarm {
-            self.rewarm.wasted += 1;
+        if e.rewarm && !e.looked_up() {
+            self.rewarms_wasted += 1;
         }
     }
 
     /// How many rewarmed meshes were used, and how many dropped unused,
     /// since the cache was made.
     pub fn rewarm_outcomes(&self) -> RewarmOutcomes {
-        self.rewarm
+        RewarmOutcomes {
+            used: self.rewarms_used.load(Ordering::Relaxed),
+            wasted: self.rewarms_wasted,
+        }
+    }
+
+    /// Marks `e` in use; a rewarm's first use counts.
+    fn mark_looked_up(&self, e: &Entry) {
+        if !e.looked_up.swap(true, Ordering::Relaxed) && e.rewarm {
+            self.rewarms_used.fetch_add(1, Ordering::Relaxed);
+        }
     }
 
     fn touch(&mut self, pos: ChunkPos) {
+        if let Some(e) = self.entries.get(&pos) {
+            self.mark_looked_up(e);
+        }
         if let Some(e) = self.entries.get_mut(&pos) {
-            if std::mem::take(&mut e.unused_rewarm) {
-                self.rewarm.used += 1;
-            }
             self.clock += 1;
             self.lru.remove(&e.stamp);
             e.stamp = self.clock;
@@ -284,17 +320,14 @@ impl CollisionCache {
         }
     }
 
-    /// Drops the mesh of `pos`.
     /// Drops the mesh of `pos`; returns whether there was one.
     pub fn invalidate(&mut self, pos: ChunkPos) -> bool {
-        match self.entries.remove(&pos) {
-            Some(e) => {
-                self.lru.remove(&e.stamp);
-                self.count_dropped(&e);
-                true
-            }
-            None => false,
-        }
+        let Some(e) = self.entries.remove(&pos) else {
+            return false;
+        };
+        self.lru.remove(&e.stamp);
+        self.count_dropped(&e);
+        true
     }
 
     /// Drops the meshes of `pos` and its 26 neighbours: all of them read
@@ -747,6 +780,15 @@ mod tests {
         cache.ensure(&world, &[ChunkPos::new(8, -1, 0)]);
         assert!(cache.invalidate(ChunkPos::new(8, -1, 0)));
         assert_eq!(cache.rewarm_outcomes(), counts(2, 3));
+        // A snapshot's lookup is a use too; a presence check is not.
+        cache.insert_rewarmed(mesh(9));
+        let p9 = ChunkPos::new(9, -1, 0);
+        assert!(cache.get(p9, 0).is_some());
+        assert!(cache.lookup(p9, 1).is_none(), "another version");
+        assert_eq!(cache.rewarm_outcomes(), counts(2, 3));
+        assert!(cache.lookup(p9, 0).is_some());
+        assert!(cache.lookup(p9, 0).is_some());
+        assert_eq!(cache.rewarm_outcomes(), counts(3, 3));
     }
 
     #[test]

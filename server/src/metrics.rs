@@ -47,6 +47,8 @@ pub const SNAPSHOT_CACHE: &str = "strata_snapshot_cache_total";
 pub const SNAPSHOT_FRAMES_BUILT: &str = "strata_snapshot_frames_built_total";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
+/// A tick's apply by `part`: wait, prepare, lanes, merge (`ApplySplit`).
+pub const APPLY_PART_SECONDS: &str = "strata_apply_part_seconds";
 pub const BYTES_SENT: &str = "strata_bytes_sent_total";
 pub const UDP_DATAGRAMS: &str = "strata_udp_datagrams_total";
 pub const UDP_BYTES: &str = "strata_udp_bytes_total";
@@ -182,6 +184,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_histogram!(
         TICK_PHASE_SECONDS,
         "Tick time by phase: apply, commit, mesh_wait, finish (meshes in, acknowledgements), fanout, stream, evict"
+    );
+    metrics::describe_histogram!(
+        APPLY_PART_SECONDS,
+        "A tick's apply by part: wait (for a worker), prepare (serial), lanes (parallel), merge (serial, neighbourhoods copied in parallel)"
     );
     metrics::describe_counter!(BYTES_SENT, "Bytes written to clients");
     metrics::describe_counter!(

@@ -89,11 +89,27 @@ impl DenseChunk {
     /// The single voxel value if every voxel is equal.
     pub fn uniform_value(&self) -> Option<Voxel> {
         let v = self.get(0);
+        // A surface chunk is often uniform below its surface: a few probes
+        // across the planes answer it without scanning half a plane.
+        let probe = |i: usize| self.density[i] == v.density && self.material[i] == v.material;
+        if !UNIFORM_PROBES.iter().all(|&i| probe(i)) {
+            return None;
+        }
         let same =
             all_equal(&self.density[..], v.density) && all_equal(&self.material[..], v.material);
         same.then_some(v)
     }
 }
+
+/// Indices [`DenseChunk::uniform_value`] looks at before scanning: the
+/// last voxel and the planes' quarter points (z = 8, 16, 24 in the middle
+/// of x and y).
+const UNIFORM_PROBES: [usize; 4] = [
+    CHUNK_VOLUME - 1,
+    CHUNK_VOLUME / 2 + CHUNK_VOLUME / 64 + 16,
+    CHUNK_VOLUME / 4 + CHUNK_VOLUME / 64 + 16,
+    3 * CHUNK_VOLUME / 4 + CHUNK_VOLUME / 64 + 16,
+];
 
 /// Whether every byte of `bytes` is `v`. Compares 64-byte blocks at a time
 /// (a loop the compiler vectorises), stopping at the first block that
@@ -280,5 +296,16 @@ mod tests {
         assert_eq!(d.uniform_value(), Some(Voxel::new(3, ids::DIRT)));
         d.material[CHUNK_VOLUME - 1] = ids::STONE;
         assert_eq!(d.uniform_value(), None);
+        // Every probe agreeing is not enough: the scan finds the rest.
+        let mut d = DenseChunk::filled(Voxel::new(3, ids::DIRT));
+        for i in [1, 4095, CHUNK_VOLUME - 2] {
+            d.density[i] = 4;
+            assert_eq!(d.uniform_value(), None, "density at {i}");
+            d.density[i] = 3;
+            d.material[i] = ids::STONE;
+            assert_eq!(d.uniform_value(), None, "material at {i}");
+            d.material[i] = ids::DIRT;
+        }
+        assert_eq!(d.uniform_value(), Some(Voxel::new(3, ids::DIRT)));
     }
 }

@@ -694,6 +694,17 @@ impl Engine {
             (out, spawn_meshing(&pool, pending))
         };
         let (out, meshing) = if idle { apply() } else { pool.install(apply) };
+        if out.lanes > 0 {
+            let s = &out.split;
+            for (part, d) in [
+                ("wait", s.wait),
+                ("prepare", s.prepare),
+                ("lanes", s.lanes),
+                ("merge", s.merge),
+            ] {
+                metrics::histogram!(m::APPLY_PART_SECONDS, "part" => part).record(d.as_secs_f64());
+            }
+        }
         metrics::counter!(m::COLLISION_MESHES, "kind" => "on_demand")
             .absolute(self.seq.collision().built_on_demand());
         let rewarms = self.seq.collision().rewarm_outcomes();

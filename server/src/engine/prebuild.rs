@@ -219,7 +219,7 @@ impl Engine {
     /// chunk's mesh whenever the chunk or a neighbour changes.
     pub(super) fn cached_frame_mesh(&self, key: FrameKey) -> Option<u64> {
         let (pos, version, _) = key;
-        let mesh = self.seq.collision().get(pos, version)?;
+        let mesh = self.seq.collision().lookup(pos, version)?;
         self.snapshots.has(key).then_some(mesh.hash)
     }
 }

@@ -289,8 +289,11 @@ impl Sequencer {
     }
 
     /// Adds a job for each unchanged chunk whose cached mesh the tick made
-    /// stale (its apron changed): it was in use, and otherwise the next
-    /// line-of-sight check through it would mesh it on the engine thread.
+    /// stale (its apron changed): otherwise the next line-of-sight check
+    /// through it would mesh it before its batch applies, not while a
+    /// commit runs. (Rebuilding only meshes looked up since they were
+    /// built cut these by 63 % but moved the work to the premesher and to
+    /// on-demand builds: see BENCHMARKS.md, session 31.)
     /// Only chunks whose 27 chunks are all resident: anything else would be
     /// meshed from generated stand-ins. (Every such chunk is within reach of
     /// the edit's author, so filtering by players' eyes keeps them all.)
