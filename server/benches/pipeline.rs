@@ -109,6 +109,12 @@ fn main() -> anyhow::Result<()> {
                 .map(|s| format!("{:.1}", s * 1e6 / r.edits.max(1.0)))
                 .join(" / "),
         );
+        if r.dropped > 0.0 {
+            println!(
+                "  ({workers} workers: {:.0} deltas dropped, their session queues full)",
+                r.dropped
+            );
+        }
         if r.refused > 0.0 {
             println!(
                 "  ({workers} workers: {:.0} edits refused, which the figures above pay for)",
@@ -141,6 +147,8 @@ struct Result {
     /// Edits refused (any reason): each one is engine and feed work that
     /// no durable edit shows for.
     refused: f64,
+    /// Deltas a full session queue lost (the drain fell behind).
+    dropped: f64,
     deltas: f64,
     secs: f64,
     cpu_ms: f64,
@@ -284,6 +292,7 @@ fn run(
     Ok(Result {
         edits: after.accepted - before.accepted,
         refused: after.refused - before.refused,
+        dropped: after.dropped - before.dropped,
         deltas: after.deltas - before.deltas,
         secs,
         cpu_ms: (after.cpu - before.cpu) * 1e3,
@@ -419,6 +428,7 @@ fn drain(mut queues: Vec<(Receiver<Bytes>, bool)>, stop: &AtomicBool, verdicts: 
 struct Counters {
     accepted: f64,
     refused: f64,
+    dropped: f64,
     deltas: f64,
     cpu: f64,
     lanes_sum: f64,
@@ -454,6 +464,7 @@ impl Counters {
         Counters {
             accepted: counter(m, "strata_edits_accepted_total"),
             refused: counter(m, "strata_edits_rejected_total"),
+            dropped: counter(m, "strata_deltas_dropped_total"),
             deltas: counter(m, "strata_deltas_sent_total"),
             cpu: process_cpu_seconds(),
             lanes_sum: counter(m, "strata_tick_lanes_sum"),

@@ -205,16 +205,20 @@ impl Engine {
                 Err(mpsc::TryRecvError::Empty) => {}
             }
             let now = Instant::now();
-            if due.is_some_and(|at| now >= at) {
+            if let Some(at) = due.filter(|&at| now >= at) {
                 // The next tick is due and this commit still runs: apply it
-                // now, on the workers the fsync leaves idle. Applied once.
-                due = None;
-                if self.seq.queued() + self.seq.sighting() > 0 {
-                    next = Some(self.apply_tick());
-                    metrics::histogram!(m::TICK_PHASE_SECONDS, "phase" => "apply_ahead")
-                        .record(now.elapsed().as_secs_f64());
+                // now, on the workers the fsync leaves idle. Applied once;
+                // with nothing queued yet, the tick after is due a period
+                // later, as it would be without a commit running.
+                if self.seq.queued() + self.seq.sighting() == 0 {
+                    due = Some(at + self.tick_period());
                     continue;
                 }
+                due = None;
+                next = Some(self.apply_tick());
+                metrics::histogram!(m::TICK_PHASE_SECONDS, "phase" => "apply_ahead")
+                    .record(now.elapsed().as_secs_f64());
+                continue;
             }
             let wait = due.map_or(COMMIT_LOOK, |at| {
                 at.saturating_duration_since(now).min(COMMIT_LOOK)

@@ -633,7 +633,7 @@ impl Engine {
     /// eviction run only after the last, when the world equals the store.
     fn tick(&mut self, rx: Option<&Inbox>) -> anyhow::Result<()> {
         let started = Instant::now();
-        let period = Duration::from_millis(self.cfg.tick_ms.max(1));
+        let period = self.tick_period();
         let mut phase = Phases::new();
         self.follow_leases();
         let mut applied = self.apply_tick();
@@ -667,6 +667,11 @@ impl Engine {
             warn!(ms = took.as_millis() as u64, phases = %phase.describe(), "slow tick");
         }
         Ok(())
+    }
+
+    /// The time between two ticks' starts.
+    fn tick_period(&self) -> Duration {
+        Duration::from_millis(self.cfg.tick_ms.max(1))
     }
 
     /// Checks the sight of the edits still waiting for it, then applies the
