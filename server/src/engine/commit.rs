@@ -211,7 +211,7 @@ impl Engine {
                 // with nothing queued yet, the tick after is due a period
                 // later, as it would be without a commit running.
                 if self.seq.queued() + self.seq.sighting() == 0 {
-                    due = Some(at + self.tick_period());
+                    due = Some(next_due(at, now, self.tick_period()));
                     continue;
                 }
                 due = None;
@@ -232,5 +232,32 @@ impl Engine {
                 }
             }
         }
+    }
+}
+
+/// The first tick boundary after `now` of ticks due every `period` from
+/// `at`: when the next tick is due at `at` but finds nothing queued, the
+/// one after it.
+fn next_due(at: Instant, now: Instant, period: Duration) -> Instant {
+    let period = period.max(Duration::from_nanos(1));
+    let behind = now.saturating_duration_since(at).as_nanos();
+    let periods = behind / period.as_nanos() + 1;
+    at + period.saturating_mul(u32::try_from(periods).unwrap_or(u32::MAX))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_empty_due_tick_is_followed_by_the_next_boundary_after_now() {
+        let at = Instant::now();
+        let p = Duration::from_millis(10);
+        assert_eq!(next_due(at, at, p), at + p);
+        assert_eq!(next_due(at, at + p / 2, p), at + p);
+        assert_eq!(next_due(at, at + p, p), at + 2 * p, "a boundary is passed");
+        assert_eq!(next_due(at, at + p * 5 / 2, p), at + 3 * p);
+        // A zero period still moves on.
+        assert!(next_due(at, at, Duration::ZERO) > at);
     }
 }
