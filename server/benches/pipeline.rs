@@ -23,7 +23,8 @@
 //! encode, write, fsync, and any batch applied ahead meanwhile; mesh
 //! wait: the tick's collision meshes still building; finish: the meshes
 //! and hashes put in and the acks sent, on the engine thread; fanout: the
-//! deltas, on the workers). The last column splits the process's CPU per edit
+//! deltas, on the workers). The next splits each apply (wait for a
+//! worker, prepare, the lanes in parallel, merge). The last column splits the process's CPU per edit
 //! by thread: the workers, the engine thread, the commit thread, and the
 //! rest (the bench's drain and feed, sled, the checkpointer), so that what
 //! does not grow with the workers shows.
