@@ -164,6 +164,13 @@ impl Entry {
     fn looked_up(&self) -> bool {
         self.looked_up.load(Ordering::Relaxed)
     }
+
+    /// Marks the mesh in use; a rewarm's first use counts in `used`.
+    fn mark_looked_up(&self, used: &AtomicU64) {
+        if !self.looked_up.swap(true, Ordering::Relaxed) && self.rewarm {
+            used.fetch_add(1, Ordering::Relaxed);
+        }
+    }
 }
 
 /// LRU-bounded cache of collision meshes by chunk.
@@ -237,7 +244,7 @@ impl CollisionCache {
             .entries
             .get(&pos)
             .filter(|e| e.mesh.version == version)?;
-        self.mark_looked_up(e);
+        e.mark_looked_up(&self.rewarms_used);
         Some(&e.mesh)
     }
 
@@ -301,18 +308,9 @@ impl CollisionCache {
         }
     }
 
-    /// Marks `e` in use; a rewarm's first use counts.
-    fn mark_looked_up(&self, e: &Entry) {
-        if !e.looked_up.swap(true, Ordering::Relaxed) && e.rewarm {
-            self.rewarms_used.fetch_add(1, Ordering::Relaxed);
-        }
-    }
-
     fn touch(&mut self, pos: ChunkPos) {
-        if let Some(e) = self.entries.get(&pos) {
-            self.mark_looked_up(e);
-        }
         if let Some(e) = self.entries.get_mut(&pos) {
+            e.mark_looked_up(&self.rewarms_used);
             self.clock += 1;
             self.lru.remove(&e.stamp);
             e.stamp = self.clock;
