@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use strata_protocol::{EditRequest, PositionUpdate, Role};
-use strata_server::collision::{ray_chunks, CollisionCache, CollisionMesh};
+use strata_server::collision::{ray_chunks, CollisionCache, CollisionMesh, MeshJob};
 use strata_server::sequencer::{Sequencer, SequencerConfig};
 use strata_server::validate::ratelimit::BucketConfig;
 use strata_server::validate::ValidationConfig;
@@ -144,8 +144,13 @@ fn mesh_chunks(c: &mut Criterion) {
     let w = world();
     let jobs: Vec<_> = (0..8)
         .map(|x| {
-            let p = ChunkPos::new(x, -1, 0);
-            (p, 0, Neighborhood::from_world(&w, p))
+            let pos = ChunkPos::new(x, -1, 0);
+            MeshJob {
+                pos,
+                version: 0,
+                nb: Neighborhood::from_world(&w, pos),
+                base: None,
+            }
         })
         .collect();
     c.bench_function("mesh_chunks_8_flat", |b| {

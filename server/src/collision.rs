@@ -16,7 +16,8 @@ use rayon::prelude::*;
 
 use crate::mesh_buffers;
 use strata_terrain::mesh::{
-    mesh_chunk, Mesh, MeshOptions, Neighborhood, LOCAL_MIN, LOD0_LOCAL_MAX,
+    mesh_chunk_layered, remesh_chunk_layered, Mesh, MeshLayers, Neighborhood, LOCAL_MIN,
+    LOD0_LOCAL_MAX,
 };
 use strata_terrain::{ChunkPos, VoxelBox, World, CHUNK_SIZE};
 
@@ -52,14 +53,47 @@ pub struct CollisionMesh {
     /// [`Mesh::hash`], sent to clients so they can check their own meshes.
     pub hash: u64,
     pub mesh: Mesh,
+    /// Where the mesh's layers start, and what its neighbourhood held: what
+    /// [`Self::rebuild`] needs of a base.
+    layers: MeshLayers,
     /// Chunk-local bounding box of the vertices (`None` for an empty mesh).
     bounds: Option<([f64; 3], [f64; 3])>,
+}
+
+/// One mesh to build: a chunk, its version, its neighbourhood and, when the
+/// cache had one, an earlier mesh of it to copy unchanged layers from.
+#[derive(Debug)]
+pub struct MeshJob {
+    pub pos: ChunkPos,
+    pub version: u64,
+    pub nb: Neighborhood,
+    pub base: Option<Arc<CollisionMesh>>,
+}
+
+/// Cell layers meshed and copied from a base by a batch of builds.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct LayerCounts {
+    pub meshed: u64,
+    pub reused: u64,
 }
 
 impl CollisionMesh {
     /// Meshes one chunk at LOD 0.
     pub fn build(pos: ChunkPos, version: u64, nb: &Neighborhood) -> Self {
-        let mesh = mesh_chunk(nb, &MeshOptions::default());
+        let (mesh, layers) = mesh_chunk_layered(nb);
+        Self::new(pos, version, mesh, layers)
+    }
+
+    /// [`Self::build`], copying from `base` (an earlier mesh of the same
+    /// chunk) the layers the difference between the two neighbourhoods
+    /// cannot reach; the result is the same bit for bit. Also returns how
+    /// many of the 32 cell layers were copied.
+    pub fn rebuild(pos: ChunkPos, version: u64, nb: &Neighborhood, base: &Self) -> (Self, u32) {
+        let r = remesh_chunk_layered(nb, (&base.mesh, &base.layers));
+        (Self::new(pos, version, r.mesh, r.layers), r.reused)
+    }
+
+    fn new(pos: ChunkPos, version: u64, mesh: Mesh, layers: MeshLayers) -> Self {
         debug_assert!(
             mesh.indices.chunks_exact(3).all(|t| {
                 let v = |k: usize| mesh.positions[t[k] as usize];
@@ -84,6 +118,7 @@ impl CollisionMesh {
             version,
             hash: mesh.hash(),
             mesh,
+            layers,
             bounds,
         }
     }
@@ -218,11 +253,24 @@ impl CollisionCache {
         }
     }
 
-    /// Builds meshes in parallel on the current rayon pool, in input order.
-    pub fn mesh_chunks(jobs: &[(ChunkPos, u64, Neighborhood)]) -> Vec<CollisionMesh> {
-        jobs.par_iter()
-            .map(|(pos, version, nb)| CollisionMesh::build(*pos, *version, nb))
-            .collect()
+    /// Builds meshes in parallel on the current rayon pool, in input order
+    /// (from a job's base where it has one), and counts the cell layers
+    /// meshed and copied.
+    pub fn mesh_chunks(jobs: &[MeshJob]) -> (Vec<CollisionMesh>, LayerCounts) {
+        let built: Vec<(CollisionMesh, u32)> = jobs
+            .par_iter()
+            .map(|j| match &j.base {
+                Some(base) => CollisionMesh::rebuild(j.pos, j.version, &j.nb, base),
+                None => (CollisionMesh::build(j.pos, j.version, &j.nb), 0),
+            })
+            .collect();
+        let layers = (CHUNK_SIZE as u64) * built.len() as u64;
+        let reused: u64 = built.iter().map(|(_, r)| u64::from(*r)).sum();
+        let counts = LayerCounts {
+            meshed: layers - reused,
+            reused,
+        };
+        (built.into_iter().map(|(m, _)| m).collect(), counts)
     }
 
     pub fn len(&self) -> usize {
@@ -246,6 +294,12 @@ impl CollisionCache {
             .filter(|e| e.mesh.version == version)?;
         e.mark_looked_up(&self.rewarms_used);
         Some(&e.mesh)
+    }
+
+    /// The cached mesh of `pos`, whatever version it was built from (a base
+    /// for [`CollisionMesh::rebuild`]); does not count as a use.
+    pub fn peek(&self, pos: ChunkPos) -> Option<&Arc<CollisionMesh>> {
+        self.entries.get(&pos).map(|e| &e.mesh)
     }
 
     /// The cached mesh of `pos` if it was built from `version`.
@@ -318,14 +372,12 @@ impl CollisionCache {
         }
     }
 
-    /// Drops the mesh of `pos`; returns whether there was one.
-    pub fn invalidate(&mut self, pos: ChunkPos) -> bool {
-        let Some(e) = self.entries.remove(&pos) else {
-            return false;
-        };
+    /// Drops the mesh of `pos`; returns it if there was one.
+    pub fn invalidate(&mut self, pos: ChunkPos) -> Option<Arc<CollisionMesh>> {
+        let e = self.entries.remove(&pos)?;
         self.lru.remove(&e.stamp);
         self.count_dropped(&e);
-        true
+        Some(e.mesh)
     }
 
     /// Drops the meshes of `pos` and its 26 neighbours: all of them read
@@ -345,8 +397,12 @@ impl CollisionCache {
     /// Drops the meshes that read any voxel of `pos` inside `changed` (world
     /// coordinates): `pos`'s own, and each neighbour's whose apron overlaps
     /// the box. A small edit in a chunk's middle keeps every neighbour's
-    /// mesh. Returns the chunks whose mesh was dropped.
-    pub fn invalidate_touched(&mut self, pos: ChunkPos, changed: VoxelBox) -> Vec<ChunkPos> {
+    /// mesh. Returns the meshes dropped.
+    pub fn invalidate_touched(
+        &mut self,
+        pos: ChunkPos,
+        changed: VoxelBox,
+    ) -> Vec<Arc<CollisionMesh>> {
         let mut dropped = Vec::new();
         let o = pos.origin();
         let lo = [
@@ -374,9 +430,7 @@ impl CollisionCache {
                                 l <= LOD0_LOCAL_MAX + shift && h >= LOCAL_MIN + shift
                             });
                     if let Some(p) = pos.offset(dx, dy, dz).filter(|_| reads) {
-                        if self.invalidate(p) {
-                            dropped.push(p);
-                        }
+                        dropped.extend(self.invalidate(p));
                     }
                 }
             }
@@ -401,17 +455,22 @@ impl CollisionCache {
                 missing.push((p, version(p)));
             }
         }
-        let copy = |&(p, v): &(ChunkPos, u64)| (p, v, mesh_buffers::from_world(world, p));
-        let jobs: Vec<(ChunkPos, u64, Neighborhood)> = if missing.len() > 1 {
+        let copy = |&(pos, version): &(ChunkPos, u64)| MeshJob {
+            pos,
+            version,
+            nb: mesh_buffers::from_world(world, pos),
+            base: self.peek(pos).cloned(),
+        };
+        let jobs: Vec<MeshJob> = if missing.len() > 1 {
             missing.par_iter().map(copy).collect()
         } else {
             missing.iter().map(copy).collect()
         };
         self.built_on_demand += jobs.len() as u64;
-        for m in Self::mesh_chunks(&jobs) {
+        for m in Self::mesh_chunks(&jobs).0 {
             self.insert(m);
         }
-        mesh_buffers::recycle(jobs.into_iter().map(|(_, _, nb)| nb));
+        mesh_buffers::recycle(jobs.into_iter().map(|j| j.nb));
     }
 
     /// Meshes [`Self::ensure`] has built since the cache was made: each one
@@ -763,7 +822,7 @@ mod tests {
         let counts = |used, wasted| RewarmOutcomes { used, wasted };
         assert_eq!(cache.rewarm_outcomes(), counts(1, 0));
         // Dropped unused: stale, replaced or evicted.
-        assert!(cache.invalidate(ChunkPos::new(1, -1, 0)));
+        assert!(cache.invalidate(ChunkPos::new(1, -1, 0)).is_some());
         assert_eq!(cache.rewarm_outcomes(), counts(1, 1));
         cache.insert_rewarmed(mesh(3));
         cache.insert(mesh(3));
@@ -776,7 +835,7 @@ mod tests {
         // Invalidating a used one counts nothing.
         cache.insert_rewarmed(mesh(8));
         cache.ensure(&world, &[ChunkPos::new(8, -1, 0)]);
-        assert!(cache.invalidate(ChunkPos::new(8, -1, 0)));
+        assert!(cache.invalidate(ChunkPos::new(8, -1, 0)).is_some());
         assert_eq!(cache.rewarm_outcomes(), counts(2, 3));
         // A snapshot's lookup is a use too; a presence check is not.
         cache.insert_rewarmed(mesh(9));
@@ -835,18 +894,39 @@ mod tests {
     }
 
     #[test]
-    fn parallel_meshing_matches_serial() {
-        let world = flat();
-        let jobs: Vec<_> = (0..4)
-            .map(|x| {
-                let p = ChunkPos::new(x, -1, 0);
-                (p, 0, Neighborhood::from_world(&world, p))
+    fn parallel_meshing_matches_serial_with_and_without_bases() {
+        let mut world = flat();
+        let at = |x| ChunkPos::new(x, -1, 0);
+        let before: Vec<CollisionMesh> = (0..4)
+            .map(|x| CollisionMesh::build(at(x), 0, &Neighborhood::from_world(&world, at(x))))
+            .collect();
+        // Dig a pit in chunk 1 near its face with chunk 2: both meshes change.
+        let pit = strata_terrain::Edit::ClearBox {
+            min: VoxelPos::new(60, -4, 4),
+            max: VoxelPos::new(63, -1, 8),
+        };
+        let ctx = strata_terrain::EditContext {
+            materials: &strata_terrain::MaterialTable::default(),
+            structures: &Default::default(),
+        };
+        pit.apply(&mut world, &ctx).expect("valid edit");
+        let jobs: Vec<MeshJob> = (0..4)
+            .map(|x| MeshJob {
+                pos: at(x),
+                version: 1,
+                nb: Neighborhood::from_world(&world, at(x)),
+                base: (x != 3).then(|| Arc::new(before[x as usize].clone())),
             })
             .collect();
-        let par = CollisionCache::mesh_chunks(&jobs);
-        for ((p, v, nb), m) in jobs.iter().zip(&par) {
-            assert_eq!(*m, CollisionMesh::build(*p, *v, nb));
+        let (par, layers) = CollisionCache::mesh_chunks(&jobs);
+        assert_eq!(layers.meshed + layers.reused, 4 * 32);
+        assert!(layers.reused > 2 * 32, "{layers:?}");
+        for (j, m) in jobs.iter().zip(&par) {
+            assert_eq!(*m, CollisionMesh::build(j.pos, j.version, &j.nb));
             assert!(m.mesh.triangle_count() > 0);
         }
+        assert_ne!(par[1].hash, before[1].hash, "the pit is in chunk 1");
+        assert_ne!(par[2].hash, before[2].hash, "and in chunk 2's apron");
+        assert_eq!(par[0].hash, before[0].hash);
     }
 }

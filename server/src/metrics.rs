@@ -33,6 +33,10 @@ pub const TICKS_APPLIED_AHEAD: &str = "strata_ticks_applied_ahead_total";
 /// per chunk a tick changed), `rewarm` (a stale neighbour mesh
 /// rebuilt by the tick) or `on_demand` (built while a check waited).
 pub const COLLISION_MESHES: &str = "strata_collision_meshes_total";
+/// Cell layers (32 a chunk) of the tick's collision meshes by `how`:
+/// `meshed`, or `reused` (copied from the chunk's previous mesh, which the
+/// change could not reach).
+pub const MESH_LAYERS: &str = "strata_mesh_layers_total";
 /// Rewarmed collision meshes by `outcome`: `used` (looked up before being
 /// dropped) or `wasted` (dropped unused: stale again, replaced or evicted).
 pub const COLLISION_REWARMS: &str = "strata_collision_rewarms_total";
@@ -156,6 +160,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         COLLISION_MESHES,
         "Collision meshes built: kind=changed (chunks a tick changed), rewarm (stale neighbour meshes rebuilt by a tick), on_demand (a line-of-sight check waited)"
+    );
+    metrics::describe_counter!(
+        MESH_LAYERS,
+        "Cell layers of the ticks' collision meshes by how: meshed, or reused (copied from the chunk's previous mesh)"
     );
     metrics::describe_counter!(
         COLLISION_REWARMS,

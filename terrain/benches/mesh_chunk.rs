@@ -9,7 +9,9 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion, SamplingMode};
-use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood, ALL_FACES};
+use strata_terrain::mesh::{
+    mesh_chunk, mesh_chunk_layered, remesh_chunk_layered, MeshOptions, Neighborhood, ALL_FACES,
+};
 use strata_terrain::{Chunk, ChunkPos, Voxel};
 
 #[path = "../tests/mesh_common/mod.rs"]
@@ -17,11 +19,21 @@ mod mesh_common;
 use mesh_common::{neighborhood, sphere, value_noise};
 
 fn terrain() -> Neighborhood {
+    terrain_dug(None)
+}
+
+/// The terrain field, with a ball of `(centre, radius)` made air.
+fn terrain_dug(pit: Option<([f64; 3], f64)>) -> Neighborhood {
     let n = value_noise(1, 24.0);
     let d = value_noise(2, 7.0);
     let f = move |p: [f64; 3]| {
         let xz = [p[0], 0.0, p[2]];
-        16.0 + 9.0 * n(xz) + 2.0 * d(xz) - p[1]
+        let ground = 16.0 + 9.0 * n(xz) + 2.0 * d(xz) - p[1];
+        match pit {
+            // Air inside the ball, the terrain unchanged outside it.
+            Some((c, r)) if sphere(c, r)(p) >= 0.0 => -8.0,
+            _ => ground,
+        }
     };
     neighborhood(ChunkPos::new(0, 0, 0), &f, 127.5, 16.0)
 }
@@ -95,6 +107,27 @@ fn bench(c: &mut Criterion) {
         });
     }
     let nb = &fields[0].1;
+    // The server's re-mesh of a changed chunk: a pit of radius 3 dug at the surface, meshed
+    // whole and against the mesh before it.
+    let (before, layers) = mesh_chunk_layered(nb);
+    let surface = (0..32)
+        .rev()
+        .find(|&y| nb.voxel(16, y, 16).is_some_and(|v| v.density > 127));
+    let pit = terrain_dug(Some(([16.0, f64::from(surface.unwrap_or(16)), 16.0], 3.0)));
+    g.bench_function("lod0/terrain pit, whole", |b| {
+        b.iter_custom(|n| {
+            cpu_time(n, || {
+                black_box(mesh_chunk_layered(black_box(&pit)));
+            })
+        })
+    });
+    g.bench_function("lod0/terrain pit, re-meshed", |b| {
+        b.iter_custom(|n| {
+            cpu_time(n, || {
+                black_box(remesh_chunk_layered(black_box(&pit), (&before, &layers)));
+            })
+        })
+    });
     for lod in 1..=3u8 {
         for (label, faces) in [("plain", 0), ("6 transitions", ALL_FACES)] {
             let o = MeshOptions {

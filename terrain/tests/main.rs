@@ -11,6 +11,7 @@ mod gen_golden;
 mod mesh_api;
 mod mesh_determinism;
 mod mesh_hash_spec;
+mod mesh_layered;
 mod mesh_lod;
 mod mesh_seams;
 mod mesh_topology;

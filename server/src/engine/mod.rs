@@ -776,6 +776,8 @@ impl Engine {
             .recv()
             .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
         phase.end("mesh_wait");
+        metrics::counter!(m::MESH_LAYERS, "how" => "meshed").increment(built.layers.meshed);
+        metrics::counter!(m::MESH_LAYERS, "how" => "reused").increment(built.layers.reused);
         let ahead: HashSet<ChunkPos> = next
             .iter()
             .flat_map(|n| n.out.applied.iter())

@@ -2,11 +2,11 @@
 
 use std::collections::hash_map::Entry;
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
+use std::sync::Arc;
 use std::time::Instant;
 
 use strata_protocol::RejectReason;
 use strata_terrain::delta::ChunkDelta;
-use strata_terrain::mesh::Neighborhood;
 use strata_terrain::ChunkPos;
 
 use rayon::prelude::*;
@@ -17,11 +17,8 @@ use super::batch::*;
 use super::regions::{self, RegionSpan};
 use super::residency::{edit_reads, with_neighbours};
 use super::{LogEntry, Queued, Sequencer};
-use crate::collision::{CollisionCache, CollisionMesh};
+use crate::collision::{CollisionCache, CollisionMesh, LayerCounts, MeshJob};
 use crate::mesh_buffers;
-
-/// A chunk to mesh: its position, version and neighbourhood.
-type MeshJob = (ChunkPos, u64, Neighborhood);
 
 /// Where a change's mesh hash comes from once the meshes are built.
 #[derive(Debug)]
@@ -40,7 +37,7 @@ struct MeshSlot {
 /// [`Sequencer::finish_tick`].
 #[derive(Debug, Default)]
 pub struct PendingMeshes {
-    jobs: Vec<(ChunkPos, u64, Neighborhood)>,
+    jobs: Vec<MeshJob>,
     slots: Vec<MeshSlot>,
     /// How many of `jobs` (the last ones) rewarm stale neighbour meshes.
     rewarmed: usize,
@@ -53,6 +50,8 @@ pub struct BuiltMeshes {
     slots: Vec<MeshSlot>,
     /// How many of `meshes` (the last ones) are rewarms.
     rewarmed: usize,
+    /// Cell layers meshed, and copied from the meshes built before.
+    pub layers: LayerCounts,
 }
 
 impl PendingMeshes {
@@ -73,16 +72,17 @@ impl PendingMeshes {
     /// Meshes every job in parallel on the current rayon pool; with no
     /// jobs, touches no pool (rayon would start its global one).
     pub fn build(self) -> BuiltMeshes {
-        let meshes = if self.jobs.is_empty() {
-            Vec::new()
+        let (meshes, layers) = if self.jobs.is_empty() {
+            (Vec::new(), LayerCounts::default())
         } else {
             CollisionCache::mesh_chunks(&self.jobs)
         };
-        mesh_buffers::recycle(self.jobs.into_iter().map(|(_, _, nb)| nb));
+        mesh_buffers::recycle(self.jobs.into_iter().map(|j| j.nb));
         BuiltMeshes {
             meshes,
             slots: self.slots,
             rewarmed: self.rewarmed,
+            layers,
         }
     }
 }
@@ -205,7 +205,7 @@ impl Sequencer {
             .map(|(i, c, pos)| (i, c, job_of[&pos]));
         let mut applied_at = vec![usize::MAX; queued.len()];
         // Cached meshes the tick's changes made stale.
-        let mut dropped: BTreeSet<ChunkPos> = BTreeSet::new();
+        let mut dropped: BTreeMap<ChunkPos, Arc<CollisionMesh>> = BTreeMap::new();
         for (i, (q, r)) in queued.into_iter().zip(results).enumerate() {
             let (bbox, changes) = match r.expect("every queued edit is in one lane") {
                 Ok(done) => done,
@@ -221,7 +221,9 @@ impl Sequencer {
             let seq = self.next_seq;
             self.next_seq += 1;
             for c in &changes {
-                dropped.extend(self.collision.invalidate_touched(c.pos, bbox));
+                for m in self.collision.invalidate_touched(c.pos, bbox) {
+                    dropped.insert(m.pos, m);
+                }
                 self.residency.mark_present(c.pos);
             }
             out.batch.entries.push(LogEntry {
@@ -277,9 +279,12 @@ impl Sequencer {
             .filter(|&p| self.world.peek(p).is_none())
             .collect();
         self.generate_into_world(missing.into_iter().collect());
-        let world = &self.world;
-        let copy = |(&pos, &version): (&ChunkPos, &u64)| {
-            (pos, version, mesh_buffers::from_world(world, pos))
+        let (world, cache) = (&self.world, &self.collision);
+        let copy = |(&pos, &version): (&ChunkPos, &u64)| MeshJob {
+            pos,
+            version,
+            nb: mesh_buffers::from_world(world, pos),
+            base: cache.peek(pos).cloned(),
         };
         if versions.len() > 1 {
             versions.par_iter().map(copy).collect()
@@ -301,23 +306,26 @@ impl Sequencer {
     /// are several: the world is only read here.
     fn rewarm(
         &self,
-        dropped: BTreeSet<ChunkPos>,
+        dropped: BTreeMap<ChunkPos, Arc<CollisionMesh>>,
         changed: &BTreeSet<ChunkPos>,
         jobs: &mut Vec<MeshJob>,
     ) {
-        let stale: Vec<(ChunkPos, u64)> = dropped
+        let stale: Vec<(ChunkPos, u64, Arc<CollisionMesh>)> = dropped
             .into_iter()
-            .filter(|&pos| {
+            .filter(|&(pos, _)| {
                 !changed.contains(&pos)
                     && self
                         .residency
                         .missing(&self.world, with_neighbours(pos))
                         .is_empty()
             })
-            .map(|pos| (pos, self.world.peek(pos).map_or(0, |c| c.version)))
+            .map(|(pos, old)| (pos, self.world.peek(pos).map_or(0, |c| c.version), old))
             .collect();
-        let copy = |&(pos, version): &(ChunkPos, u64)| {
-            (pos, version, mesh_buffers::from_world(&self.world, pos))
+        let copy = |(pos, version, old): &(ChunkPos, u64, Arc<CollisionMesh>)| MeshJob {
+            pos: *pos,
+            version: *version,
+            nb: mesh_buffers::from_world(&self.world, *pos),
+            base: Some(old.clone()),
         };
         if stale.len() > 1 {
             jobs.par_extend(stale.par_iter().map(copy));
@@ -340,6 +348,7 @@ impl Sequencer {
             meshes,
             slots,
             rewarmed,
+            ..
         } = built;
         for slot in &slots {
             out.applied[slot.applied].changes[slot.change].mesh_hash = meshes[slot.job].hash;

@@ -45,10 +45,13 @@
 //!   face, so transition cells can emit zero-area triangles when their vertices happen to be
 //!   collinear or coincide (linear data, and where the slab tapers to zero); they are kept,
 //!   since dropping them would open the key-welded mesh. Regular cells never emit them.
+//! * Re-meshing after a change (`layered.rs`): [`remesh_chunk_layered`] meshes only the
+//!   z-layers a change can reach and copies the rest from an earlier mesh of the chunk.
 //! * [`Mesh::hash`] digests a documented byte encoding (`hash.rs`).
 
 mod builder;
 mod hash;
+mod layered;
 mod material;
 mod neighborhood;
 mod normals;
@@ -58,6 +61,7 @@ mod transition;
 mod types;
 pub mod volume;
 
+pub use layered::{mesh_chunk_layered, remesh_chunk_layered, MeshLayers, Remeshed};
 pub use neighborhood::{
     Neighborhood, APRON_HIGH, APRON_LOW, LOCAL_MAX, LOCAL_MAX_Y, LOCAL_MIN, LOD0_LOCAL_MAX,
     MAX_SURFACE_SCAN,

@@ -8,6 +8,8 @@
 //! XOR of neighbouring bits or rows) and stores its index in two z-layers of per-sample slots
 //! (one per axis); cells then only read slots. No hash map, no per-cell "seen?" branch.
 
+use crate::pos::CHUNK_SIZE;
+
 use super::builder::Builder;
 use super::neighborhood::{index, Neighborhood};
 use super::tables::{edge_endpoints, REGULAR_CELL_CLASS, REGULAR_CELL_DATA, REGULAR_VERTEX_DATA};
@@ -134,34 +136,13 @@ fn mesh_regular_in(
     stride: i32,
     cells: [usize; 3],
 ) {
-    if cells.contains(&0) {
-        return;
-    }
-    let t = match Threshold::new(iso) {
-        Threshold::Above(t) => t,
-        // Every sample on the same side: no surface.
-        Threshold::AllSolid | Threshold::NoneSolid => return,
-    };
-    debug_assert!(t < u8::MAX, "Threshold::new keeps t below 255");
-    let [gx, gy, gz] = cells.map(|c| c + 1);
-    let density = nb.densities();
-    let s = stride as usize;
-    let full = (1u64 << gx) - 1;
-    let rows = &mut scratch.rows;
-    rows.clear();
-    rows.resize(gy * gz, 0);
-    let (mut any, mut all) = (0u64, full);
-    for z in 0..gz {
-        for y in 0..gy {
-            let m = row_bits(density, index(0, (y * s) as i32, (z * s) as i32), s, gx, t);
-            rows[z * gy + y] = m;
-            any |= m;
-            all &= m;
-        }
-    }
-    if any == 0 || all == full {
+    if !sign_rows(&mut scratch.rows, nb, iso, stride, cells, 0..cells[2] + 1) {
         return; // no sign change anywhere: no surface
     }
+    let rows = &scratch.rows;
+    let [gx, gy, _] = cells.map(|c| c + 1);
+    let s = stride as usize;
+    let full = (1u64 << gx) - 1;
 
     // Reserve output space: about one vertex and two triangles per mixed cell.
     let mut mixed = 0usize;
@@ -203,6 +184,120 @@ fn mesh_regular_in(
         grid.emit_xy(b, &mut slots[part(z + 1)], z + 1, cells[1]);
         cell_layer(&grid, z, slots, &mut scratch.cells.0, &mut b.mesh.indices);
     }
+}
+
+/// Fills `rows` with the solid bits of the rows of strided samples (`gy` rows a layer, see
+/// [`Grid`]) of the sample layers `layers` (the other rows keep stale values); false when no
+/// sample of those layers differs from another (no surface there).
+fn sign_rows(
+    rows: &mut Vec<u64>,
+    nb: &Neighborhood,
+    iso: f32,
+    stride: i32,
+    cells: [usize; 3],
+    layers: std::ops::Range<usize>,
+) -> bool {
+    if cells.contains(&0) {
+        return false;
+    }
+    let t = match Threshold::new(iso) {
+        Threshold::Above(t) => t,
+        // Every sample on the same side: no surface.
+        Threshold::AllSolid | Threshold::NoneSolid => return false,
+    };
+    debug_assert!(t < u8::MAX, "Threshold::new keeps t below 255");
+    let [gx, gy, gz] = cells.map(|c| c + 1);
+    let density = nb.densities();
+    let s = stride as usize;
+    let full = (1u64 << gx) - 1;
+    rows.resize(gy * gz, 0);
+    let (mut any, mut all) = (0u64, full);
+    for z in layers {
+        for y in 0..gy {
+            let m = row_bits(density, index(0, (y * s) as i32, (z * s) as i32), s, gx, t);
+            rows[z * gy + y] = m;
+            any |= m;
+            all &= m;
+        }
+    }
+    any != 0 && all != full
+}
+
+/// Cell layers of a whole LOD-0 chunk.
+pub(crate) const LAYERS: usize = CHUNK_SIZE as usize;
+/// Vertex groups of a whole LOD-0 chunk, in the order they are made: the x and y edges of
+/// sample layer 0 (`X0`), the z edges from layer 0 to 1 (`Z0`), `X1`, `Z1`, ..., `X32`.
+/// Group `2k` is `Xk`, group `2k + 1` is `Zk`.
+pub(crate) const GROUPS: usize = 2 * LAYERS + 1;
+
+/// Where each vertex group and each cell layer's indices start in a whole LOD-0 chunk mesh
+/// (the counts before them, then the totals).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(crate) struct Marks {
+    pub(crate) vertices: [u32; GROUPS + 1],
+    pub(crate) indices: [u32; LAYERS + 1],
+}
+
+impl Default for Marks {
+    fn default() -> Self {
+        Self {
+            vertices: [0; GROUPS + 1],
+            indices: [0; LAYERS + 1],
+        }
+    }
+}
+
+/// Meshes cell layers `from..to` of a whole LOD-0 chunk into `b`, recording in `marks` where
+/// groups `X{from}` to `X{to}` and cell layers `from..to` start. `b` must hold exactly the
+/// vertex groups before `X{from}` and the indices of the cell layers before `from`, as
+/// meshing the whole chunk would have made them. False (and `b` untouched) when the chunk
+/// has no surface at all (checked only when meshing the whole chunk): its mesh is empty.
+pub(crate) fn mesh_lod0_layers(
+    b: &mut Builder,
+    nb: &Neighborhood,
+    iso: f32,
+    from: usize,
+    to: usize,
+    marks: &mut Marks,
+) -> bool {
+    debug_assert!(from <= to && to <= LAYERS);
+    let mut run = |scratch: &mut Scratch| {
+        let cells = [LAYERS; 3];
+        // Only the layers meshed are read. With no sign change among them, the layers
+        // copied around them have none either only if they are the whole chunk.
+        let surface = sign_rows(&mut scratch.rows, nb, iso, 1, cells, from..to + 1);
+        if !surface && from == 0 && to == LAYERS {
+            return false;
+        }
+        let gy = LAYERS + 1;
+        let full = (1u64 << gy) - 1;
+        let grid = Grid {
+            rows: &scratch.rows,
+            gy,
+            stride: 1,
+            cell_mask: (1u64 << LAYERS) - 1,
+            full,
+        };
+        scratch.slots.resize(SLOTS, 0);
+        let slots: &mut [u32; SLOTS] = (&mut scratch.slots[..]).try_into().expect("SLOTS long");
+        let part = |z: usize| (z & 1) * LAYER..(z & 1) * LAYER + LAYER;
+        let count = |b: &Builder| b.mesh.keys.len() as u32;
+        marks.vertices[2 * from] = count(b);
+        grid.emit_xy(b, &mut slots[part(from)], from, LAYERS);
+        for z in from..to {
+            marks.vertices[2 * z + 1] = count(b);
+            grid.emit_z(b, &mut slots[part(z)], z);
+            marks.vertices[2 * z + 2] = count(b);
+            grid.emit_xy(b, &mut slots[part(z + 1)], z + 1, LAYERS);
+            marks.indices[z] = b.mesh.indices.len() as u32;
+            cell_layer(&grid, z, slots, &mut scratch.cells.0, &mut b.mesh.indices);
+        }
+        true
+    };
+    SCRATCH.with(|s| match s.try_borrow_mut() {
+        Ok(mut scratch) => run(&mut scratch),
+        Err(_) => run(&mut Scratch::default()),
+    })
 }
 
 /// Pushes the triangles of the mixed cells of cell layer `z`, reading vertex ids from
