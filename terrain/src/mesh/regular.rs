@@ -76,7 +76,7 @@ pub(crate) fn row_bits(density: &[u8], start: usize, stride: usize, n: usize, t:
 
 /// Working memory of one meshing call, kept per thread between calls: allocating and freeing
 /// it every chunk made the allocator hand pages back to the kernel and fault them in again.
-/// Contents never leak between calls (each is cleared or fully rewritten first), so output
+/// Contents never leak between calls (a call reads only what it wrote first), so output
 /// does not depend on what the thread meshed before.
 #[derive(Default)]
 struct Scratch {
