@@ -8,6 +8,7 @@
 use crate::chunk::Chunk;
 use crate::pos::CHUNK_VOLUME;
 use std::hash::Hasher;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use twox_hash::XxHash3_64;
 
@@ -29,7 +30,24 @@ pub fn chunk_hash(chunk: &Chunk) -> u64 {
     }
 }
 
+/// [`chunk_hash`] of uniform chunks already hashed, by `density << 8 | material`; 0 stands
+/// for "not yet" (a value whose hash is 0 is just hashed each time). An edit that empties
+/// a chunk hashes 64 KiB of air otherwise.
+static UNIFORM_HASHES: [AtomicU64; 1 << 16] = [const { AtomicU64::new(0) }; 1 << 16];
+
 fn uniform_hash(density: u8, material: u8) -> u64 {
+    let slot = &UNIFORM_HASHES[usize::from(density) << 8 | usize::from(material)];
+    match slot.load(Ordering::Relaxed) {
+        0 => {
+            let h = expanded_uniform_hash(density, material);
+            slot.store(h, Ordering::Relaxed);
+            h
+        }
+        h => h,
+    }
+}
+
+fn expanded_uniform_hash(density: u8, material: u8) -> u64 {
     const BLOCK: usize = 4096;
     let mut h = XxHash3_64::with_seed(0);
     for value in [density, material] {
@@ -54,6 +72,18 @@ mod tests {
         let mut concat = vec![255u8; CHUNK_VOLUME];
         concat.extend(std::iter::repeat_n(3u8, CHUNK_VOLUME));
         assert_eq!(chunk_hash(&dense), hash_bytes(&concat));
+    }
+
+    #[test]
+    fn remembered_uniform_hashes_equal_hashing_the_expanded_chunk() {
+        for (d, m) in [(0, 0), (255, 3), (127, 9), (0, 0), (255, 3)] {
+            let dense = Chunk::Dense(DenseChunk::filled(Voxel::new(d, m)));
+            assert_eq!(
+                chunk_hash(&Chunk::uniform(Voxel::new(d, m))),
+                chunk_hash(&dense)
+            );
+            assert_eq!(uniform_hash(d, m), expanded_uniform_hash(d, m));
+        }
     }
 
     #[test]
