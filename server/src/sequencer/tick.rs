@@ -271,7 +271,8 @@ impl Sequencer {
     /// One mesh job per changed chunk (in `versions` order), of the world as
     /// the tick leaves it: every lane's changes are in, neighbours included.
     /// Missing neighbours are generated first (on the pool when several),
-    /// then the neighbourhoods are copied in parallel.
+    /// then the neighbourhoods are copied in parallel. Each job's base is
+    /// the chunk's cached mesh, if any (`CollisionMesh::rebuild`).
     fn changed_jobs(&mut self, versions: &BTreeMap<ChunkPos, u64>) -> Vec<MeshJob> {
         let missing: BTreeSet<ChunkPos> = versions
             .keys()
