@@ -150,6 +150,8 @@ fn mesh_chunks(c: &mut Criterion) {
                 version: 0,
                 nb: Neighborhood::from_world(&w, pos),
                 base: None,
+                known: None,
+                sources: None,
             }
         })
         .collect();

@@ -15,9 +15,11 @@ use std::sync::Arc;
 use rayon::prelude::*;
 
 use crate::mesh_buffers;
+use std::ops::RangeInclusive;
+
 use strata_terrain::mesh::{
-    mesh_chunk_layered, remesh_chunk_layered, Mesh, MeshLayers, Neighborhood, LOCAL_MIN,
-    LOD0_LOCAL_MAX,
+    mesh_chunk_layered, remesh_chunk_layered, remesh_chunk_layered_known, Mesh, MeshLayers,
+    Neighborhood, LOCAL_MIN, LOD0_LOCAL_MAX,
 };
 use strata_terrain::{ChunkPos, VoxelBox, World, CHUNK_SIZE};
 
@@ -56,8 +58,39 @@ pub struct CollisionMesh {
     /// Where the mesh's layers start, and what its neighbourhood held: what
     /// [`Self::rebuild`] needs of a base.
     layers: MeshLayers,
+    /// The versions of the 27 chunks its neighbourhood was copied from,
+    /// when the builder knew them: lets the next tick tell which layers its
+    /// changes reach without copying and fingerprinting every layer
+    /// (`sequencer/reach.rs`).
+    sources: Option<Sources>,
     /// Chunk-local bounding box of the vertices (`None` for an empty mesh).
     bounds: Option<([f64; 3], [f64; 3])>,
+}
+
+/// The versions of the 27 chunks of a neighbourhood, in [`with_sources`]'
+/// order (z slowest, then y, then x).
+pub type Sources = [u64; 27];
+
+/// A cached mesh and the chunk versions it is right for, when known.
+pub type Base = (Arc<CollisionMesh>, Option<Sources>);
+
+/// The 27 chunks around `pos` (itself included), in [`Sources`] order.
+pub fn with_sources(pos: ChunkPos) -> [Option<ChunkPos>; 27] {
+    std::array::from_fn(|i| {
+        let d = |k: usize| (k % 3) as i32 - 1;
+        pos.offset(d(i), d(i / 3), d(i / 9))
+    })
+}
+
+/// The versions of the 27 chunks around `pos` in `world`; `None` unless all
+/// are loaded (a missing one would be meshed as generated on the fly).
+pub fn sources_of(world: &World, pos: ChunkPos) -> Option<Sources> {
+    let around = with_sources(pos);
+    let mut out = [0; 27];
+    for (v, p) in out.iter_mut().zip(around) {
+        *v = world.peek(p?)?.version;
+    }
+    Some(out)
 }
 
 /// One mesh to build: a chunk, its version, its neighbourhood and, when the
@@ -66,15 +99,26 @@ pub struct CollisionMesh {
 pub struct MeshJob {
     pub pos: ChunkPos,
     pub version: u64,
+    /// The whole neighbourhood, or with `known`, only the sample layers
+    /// [`strata_terrain::mesh::remesh_reads`] names.
     pub nb: Neighborhood,
     pub base: Option<Arc<CollisionMesh>>,
+    /// The sample layers (local z) that may differ from `base`'s
+    /// neighbourhood, when the job's maker knows them; only with a base of
+    /// the same chunk.
+    pub known: Option<RangeInclusive<i32>>,
+    /// The versions `nb` was copied from, when known.
+    pub sources: Option<Sources>,
 }
 
-/// Cell layers meshed and copied from a base by a batch of builds.
+/// Cell layers meshed and copied from a base by a batch of builds, and how
+/// many of its jobs copied only some layers of their neighbourhood.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
 pub struct LayerCounts {
     pub meshed: u64,
     pub reused: u64,
+    pub partial_copies: u64,
+    pub whole_copies: u64,
 }
 
 impl CollisionMesh {
@@ -82,6 +126,27 @@ impl CollisionMesh {
     pub fn build(pos: ChunkPos, version: u64, nb: &Neighborhood) -> Self {
         let (mesh, layers) = mesh_chunk_layered(nb);
         Self::new(pos, version, mesh, layers)
+    }
+
+    /// What [`Self::rebuild`] makes of a whole neighbourhood, from a
+    /// neighbourhood holding only the layers `known` reaches (see
+    /// [`remesh_chunk_layered_known`]); `base` must be of the same chunk.
+    pub fn rebuild_known(
+        pos: ChunkPos,
+        version: u64,
+        nb: &Neighborhood,
+        base: &Self,
+        known: RangeInclusive<i32>,
+    ) -> (Self, u32) {
+        let r = remesh_chunk_layered_known(nb, (&base.mesh, &base.layers), known)
+            .expect("a known job's base is of its own chunk (reach.rs checks)");
+        (Self::new(pos, version, r.mesh, r.layers), r.reused)
+    }
+
+    /// The versions of the chunks its neighbourhood was copied from, when
+    /// its builder knew them.
+    pub fn sources(&self) -> Option<&Sources> {
+        self.sources.as_ref()
     }
 
     /// [`Self::build`], copying from `base` (an earlier mesh of the same
@@ -119,6 +184,7 @@ impl CollisionMesh {
             hash: mesh.hash(),
             mesh,
             layers,
+            sources: None,
             bounds,
         }
     }
@@ -186,6 +252,9 @@ pub struct Hit {
 #[derive(Debug)]
 struct Entry {
     mesh: Arc<CollisionMesh>,
+    /// Versions of the 27 chunks the mesh is right for: those it was copied
+    /// from, moved on past each neighbour change that did not reach it.
+    sources: Option<Sources>,
     stamp: u64,
     /// Rebuilt ahead of need (a rewarm).
     rewarm: bool,
@@ -259,16 +328,26 @@ impl CollisionCache {
     pub fn mesh_chunks(jobs: &[MeshJob]) -> (Vec<CollisionMesh>, LayerCounts) {
         let built: Vec<(CollisionMesh, u32)> = jobs
             .par_iter()
-            .map(|j| match &j.base {
-                Some(base) => CollisionMesh::rebuild(j.pos, j.version, &j.nb, base),
-                None => (CollisionMesh::build(j.pos, j.version, &j.nb), 0),
+            .map(|j| {
+                let (mut m, reused) = match (&j.base, &j.known) {
+                    (Some(base), Some(known)) => {
+                        CollisionMesh::rebuild_known(j.pos, j.version, &j.nb, base, known.clone())
+                    }
+                    (Some(base), None) => CollisionMesh::rebuild(j.pos, j.version, &j.nb, base),
+                    (None, _) => (CollisionMesh::build(j.pos, j.version, &j.nb), 0),
+                };
+                m.sources = j.sources;
+                (m, reused)
             })
             .collect();
         let layers = (CHUNK_SIZE as u64) * built.len() as u64;
         let reused: u64 = built.iter().map(|(_, r)| u64::from(*r)).sum();
+        let partial = jobs.iter().filter(|j| j.known.is_some()).count() as u64;
         let counts = LayerCounts {
             meshed: layers - reused,
             reused,
+            partial_copies: partial,
+            whole_copies: jobs.len() as u64 - partial,
         };
         (built.into_iter().map(|(m, _)| m).collect(), counts)
     }
@@ -302,6 +381,12 @@ impl CollisionCache {
         self.entries.get(&pos).map(|e| &e.mesh)
     }
 
+    /// [`Self::peek`] with the chunk versions the mesh is right for, when
+    /// known: a base for a job that copies only the layers a change reaches.
+    pub fn peek_base(&self, pos: ChunkPos) -> Option<Base> {
+        self.entries.get(&pos).map(|e| (e.mesh.clone(), e.sources))
+    }
+
     /// The cached mesh of `pos` if it was built from `version`.
     pub fn get(&self, pos: ChunkPos, version: u64) -> Option<&Arc<CollisionMesh>> {
         self.entries
@@ -327,6 +412,7 @@ impl CollisionCache {
         self.clock += 1;
         let entry = Entry {
             mesh: mesh.clone(),
+            sources: mesh.sources,
             stamp: self.clock,
             rewarm,
             looked_up: AtomicBool::new(false),
@@ -374,10 +460,15 @@ impl CollisionCache {
 
     /// Drops the mesh of `pos`; returns it if there was one.
     pub fn invalidate(&mut self, pos: ChunkPos) -> Option<Arc<CollisionMesh>> {
+        self.invalidate_base(pos).map(|(mesh, _)| mesh)
+    }
+
+    /// [`Self::invalidate`], with the versions the mesh was right for.
+    fn invalidate_base(&mut self, pos: ChunkPos) -> Option<Base> {
         let e = self.entries.remove(&pos)?;
         self.lru.remove(&e.stamp);
         self.count_dropped(&e);
-        Some(e.mesh)
+        Some((e.mesh, e.sources))
     }
 
     /// Drops the meshes of `pos` and its 26 neighbours: all of them read
@@ -397,12 +488,14 @@ impl CollisionCache {
     /// Drops the meshes that read any voxel of `pos` inside `changed` (world
     /// coordinates): `pos`'s own, and each neighbour's whose apron overlaps
     /// the box. A small edit in a chunk's middle keeps every neighbour's
-    /// mesh. Returns the meshes dropped.
+    /// mesh, now right for `pos` at `version` too. Returns the meshes
+    /// dropped, with the versions they were right for.
     pub fn invalidate_touched(
         &mut self,
         pos: ChunkPos,
         changed: VoxelBox,
-    ) -> Vec<Arc<CollisionMesh>> {
+        version: u64,
+    ) -> Vec<Base> {
         let mut dropped = Vec::new();
         let o = pos.origin();
         let lo = [
@@ -429,8 +522,16 @@ impl CollisionCache {
                                 let shift = d * CHUNK_SIZE;
                                 l <= LOD0_LOCAL_MAX + shift && h >= LOCAL_MIN + shift
                             });
-                    if let Some(p) = pos.offset(dx, dy, dz).filter(|_| reads) {
-                        dropped.extend(self.invalidate(p));
+                    let Some(p) = pos.offset(dx, dy, dz) else {
+                        continue;
+                    };
+                    if reads {
+                        dropped.extend(self.invalidate_base(p));
+                    } else if let Some(s) =
+                        self.entries.get_mut(&p).and_then(|e| e.sources.as_mut())
+                    {
+                        // `pos` seen from `p`: offset (-dx, -dy, -dz).
+                        s[((1 - dx) + 3 * (1 - dy) + 9 * (1 - dz)) as usize] = version;
                     }
                 }
             }
@@ -460,6 +561,8 @@ impl CollisionCache {
             version,
             nb: mesh_buffers::from_world(world, pos),
             base: self.peek(pos).cloned(),
+            known: None,
+            sources: sources_of(world, pos),
         };
         let jobs: Vec<MeshJob> = if missing.len() > 1 {
             missing.par_iter().map(copy).collect()
@@ -870,13 +973,13 @@ mod tests {
         };
         // A change deep inside (y 10..=20, away from every apron) drops only the chunk.
         cache.ensure(&world, &around);
-        cache.invalidate_touched(centre, boxed([10, 10, 10], [20, 20, 20]));
+        cache.invalidate_touched(centre, boxed([10, 10, 10], [20, 20, 20]), 1);
         assert!(cache.get(centre, 0).is_none());
         assert_eq!(held(&cache), 26);
         // Local x = 1 is in the -x neighbour's apron (its local 33), and so is
         // y = 1 in the chunk below's.
         cache.ensure(&world, &around);
-        cache.invalidate_touched(centre, boxed([1, 1, 10], [5, 12, 20]));
+        cache.invalidate_touched(centre, boxed([1, 1, 10], [5, 12, 20]), 1);
         let dropped: Vec<_> = around
             .iter()
             .filter(|p| cache.get(**p, 0).is_none())
@@ -889,7 +992,7 @@ mod tests {
         // y = 2..=8 is beyond the reach of the chunk below: those are its
         // surface-scan rows, which LOD 0 never reads. x = 31 reaches +x.
         cache.ensure(&world, &around);
-        cache.invalidate_touched(centre, boxed([31, 2, 31], [31, 8, 31]));
+        cache.invalidate_touched(centre, boxed([31, 2, 31], [31, 8, 31]), 1);
         assert_eq!(held(&cache), 27 - 4, "self, +x, +z, +x+z");
     }
 
@@ -916,6 +1019,8 @@ mod tests {
                 version: 1,
                 nb: Neighborhood::from_world(&world, at(x)),
                 base: (x != 3).then(|| Arc::new(before[x as usize].clone())),
+                known: None,
+                sources: None,
             })
             .collect();
         let (par, layers) = CollisionCache::mesh_chunks(&jobs);

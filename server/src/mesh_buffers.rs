@@ -7,6 +7,7 @@
 //! workers and the premesh thread; it holds at most
 //! [`POOLED_NEIGHBORHOODS`] buffers. Nothing a client sends can grow it.
 
+use std::ops::RangeInclusive;
 use std::sync::{Mutex, MutexGuard};
 
 use strata_terrain::mesh::Neighborhood;
@@ -33,6 +34,22 @@ pub fn from_world(world: &World, pos: ChunkPos) -> Neighborhood {
     match take() {
         Some(mut nb) => {
             nb.refill_from_world(world, pos);
+            nb
+        }
+        None => Neighborhood::from_world(world, pos),
+    }
+}
+
+/// [`Neighborhood::refill_layers_from_world`] of `layers` into a recycled
+/// buffer when one is free (else a new buffer, copied whole).
+pub fn from_world_layers(
+    world: &World,
+    pos: ChunkPos,
+    layers: RangeInclusive<i32>,
+) -> Neighborhood {
+    match take() {
+        Some(mut nb) => {
+            nb.refill_layers_from_world(world, pos, layers);
             nb
         }
         None => Neighborhood::from_world(world, pos),

@@ -37,6 +37,10 @@ pub const COLLISION_MESHES: &str = "strata_collision_meshes_total";
 /// `meshed`, or `reused` (copied from the chunk's previous mesh, which the
 /// change could not reach).
 pub const MESH_LAYERS: &str = "strata_mesh_layers_total";
+/// The tick's collision meshes by how much of their neighbourhood was
+/// copied: `copied="layers"` (only the layers the re-mesh reads: the tick
+/// knew which its changes reach) or `copied="whole"`.
+pub const MESH_NEIGHBOURHOODS: &str = "strata_mesh_neighbourhoods_total";
 /// Rewarmed collision meshes by `outcome`: `used` (looked up before being
 /// dropped) or `wasted` (dropped unused: stale again, replaced or evicted).
 pub const COLLISION_REWARMS: &str = "strata_collision_rewarms_total";
@@ -164,6 +168,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         MESH_LAYERS,
         "Cell layers of the ticks' collision meshes by how: meshed, or reused (copied from the chunk's previous mesh)"
+    );
+    metrics::describe_counter!(
+        MESH_NEIGHBOURHOODS,
+        "The ticks' collision meshes by what of their neighbourhood was copied: copied=layers (only the layers a change reached and around them) or whole"
     );
     metrics::describe_counter!(
         COLLISION_REWARMS,

@@ -8,6 +8,7 @@ use sequencer_common::*;
 use strata_protocol::{RejectReason, Role};
 use strata_server::collision::CollisionMesh;
 use strata_server::sequencer::{Sequencer, SequencerConfig, TickOutput};
+use strata_server::validate::ratelimit::BucketConfig;
 use strata_server::validate::ValidationConfig;
 use strata_terrain::edit::StructureLibrary;
 use strata_terrain::mesh::Neighborhood;
@@ -511,5 +512,110 @@ fn prepared_meshes_keep_their_generated_neighbours_and_hash_as_meshed_alone() {
         assert_eq!(prepared.hash, fresh.hash);
         // A sequencer that meshes it on its own, generating on the fly.
         assert_eq!(alone.mesh_hash(p), fresh.hash);
+    }
+}
+
+#[test]
+fn meshes_copying_only_the_layers_a_tick_reaches_equal_fresh_meshes() {
+    // Ticks of mines and fills on both sides of the chunk border at x = 96:
+    // from the second tick on, the changed chunks' and their neighbours'
+    // meshes are built from the layers the tick's edits reach
+    // (`sequencer/reach.rs`), and must equal meshes of the whole
+    // neighbourhood, bit for bit.
+    let plenty = BucketConfig {
+        capacity: 1 << 30,
+        per_second: 1 << 30,
+    };
+    let mut s = ready(ValidationConfig {
+        edit_rate: plenty,
+        volume_rate: plenty,
+        ..ValidationConfig::default()
+    });
+    let mut state = 0x2545_f491_4f6c_dd1d_u64;
+    let mut next = |n: i32| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % n as u64) as i32
+    };
+    let (mut partial, mut whole, mut id, mut accepted) = (0, 0, 0, 0);
+    for tick in 0..16 {
+        for _ in 0..3 {
+            id += 1;
+            // Mines centred on the ground's surface (in sight), fills by
+            // the admin (players may not fill).
+            let (who, edit) = if next(4) == 0 {
+                let (x, z) = (X + 3 + next(4), Z + next(7));
+                (
+                    ADMIN,
+                    fill((x, 0, z), (x + next(3), 1 + next(2), z + next(3))),
+                )
+            } else {
+                (PLAYER, mine(X - 6 + next(13), 0, Z + next(7), 1 + next(3)))
+            };
+            // A fill may hide a later edit from sight: refused, it changes nothing.
+            accepted += usize::from(s.submit(who, req(id, edit), 0).is_ok());
+        }
+        let (mut out, pending) = s.tick_apply(tick);
+        let built = pending.build();
+        partial += built.layers.partial_copies;
+        whole += built.layers.whole_copies;
+        s.finish_tick(&mut out, built, &HashSet::new());
+        let mut seen = HashSet::new();
+        for c in out.applied.iter().flat_map(|a| &a.changes) {
+            for (dx, dy, dz) in (0..27).map(|i| (i % 3 - 1, i / 3 % 3 - 1, i / 9 - 1)) {
+                let p = ChunkPos::new(c.pos.x + dx, c.pos.y + dy, c.pos.z + dz);
+                let v = s.world().peek(p).map_or(0, |c| c.version);
+                let Some(m) = s.collision().get(p, v).filter(|_| seen.insert(p)) else {
+                    continue;
+                };
+                let fresh = CollisionMesh::build(p, v, &Neighborhood::from_world(s.world(), p));
+                assert_eq!(m.mesh, fresh.mesh, "tick {tick}: {p:?}");
+                assert_eq!(m.hash, fresh.hash);
+            }
+        }
+    }
+    assert!(accepted >= 30, "{accepted} edits accepted");
+    assert!(
+        partial >= 10,
+        "layers copied for {partial} meshes, whole for {whole}"
+    );
+}
+
+#[test]
+fn a_tick_applied_ahead_meshes_against_older_meshes_whole() {
+    // The engine applies a tick while the one before it commits, before
+    // that tick's meshes are cached: the first tick dropped the meshes it
+    // made stale, so the second finds no base for them and copies whole
+    // neighbourhoods. Every change's mesh hash still describes the world.
+    let cfg = SequencerConfig {
+        max_edits_per_tick: 1,
+        ..Default::default()
+    };
+    let mut s = sequencer(cfg, ValidationConfig::default());
+    join_at(&mut s, PLAYER, Role::Player, X, Z);
+    s.submit(PLAYER, req(1, mine(X - 3, 0, Z + 2, 2)), 0)
+        .unwrap();
+    let out = s.tick(0);
+    assert!(!out.applied.is_empty());
+    // Two ticks on one chunk, in different layers, the second applied
+    // ahead (one edit a tick, both queued before).
+    s.submit(PLAYER, req(2, mine(X + 2, 0, 98, 2)), 0).unwrap();
+    s.submit(PLAYER, req(3, mine(X + 2, 0, 106, 2)), 0).unwrap();
+    let (mut first, first_meshes) = s.tick_apply(1);
+    let (mut second, second_meshes) = s.tick_apply(2);
+    assert_eq!((first.applied.len(), second.applied.len()), (1, 1));
+    let ahead: HashSet<ChunkPos> = second.applied[0].changes.iter().map(|c| c.pos).collect();
+    let built = second_meshes.build();
+    assert!(built.layers.whole_copies > 0, "{:?}", built.layers);
+    s.finish_tick(&mut first, first_meshes.build(), &ahead);
+    s.finish_tick(&mut second, built, &HashSet::new());
+    for c in &second.applied[0].changes {
+        let fresh = CollisionMesh::build(
+            c.pos,
+            c.to_version,
+            &Neighborhood::from_world(s.world(), c.pos),
+        );
+        assert_eq!(c.mesh_hash, fresh.hash, "{:?}", c.pos);
     }
 }

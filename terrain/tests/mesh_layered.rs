@@ -2,11 +2,14 @@
 //! whole chunk gives, for changes anywhere: middle, faces, aprons, materials only, to and
 //! from an empty mesh, and chains of changes.
 
+use std::ops::RangeInclusive;
+use std::sync::Arc;
+
 use strata_terrain::mesh::{
-    mesh_chunk, mesh_chunk_layered, remesh_chunk_layered, Mesh, MeshLayers, MeshOptions,
-    Neighborhood,
+    mesh_chunk, mesh_chunk_layered, remesh_chunk_layered, remesh_chunk_layered_known, remesh_reads,
+    Mesh, MeshLayers, MeshOptions, Neighborhood,
 };
-use strata_terrain::{ChunkPos, Voxel, VoxelPos};
+use strata_terrain::{Chunk, ChunkPos, Voxel, VoxelPos, World};
 
 use crate::mesh_common::value_noise;
 
@@ -169,4 +172,131 @@ fn edge_cases_give_the_whole_chunk_mesh() {
         0,
         "another chunk's base meshes everything"
     );
+}
+
+/// `world(chunk, changes)` where its sample layers (local z) in `held`, and noise elsewhere:
+/// what a neighbourhood refilled only in `held` may hold.
+fn partly(chunk: ChunkPos, changes: &[Change], held: RangeInclusive<i32>) -> Neighborhood {
+    let real = world(chunk, changes);
+    let o = chunk.origin();
+    Neighborhood::from_fn(o, |p| {
+        let l = [p.x - o.x, p.y - o.y, p.z - o.z];
+        if held.contains(&l[2]) {
+            return real.voxel(l[0], l[1], l[2]).expect("held");
+        }
+        let h = (l[0] * 131 + l[1] * 71 + l[2] * 29) as u32 % 251;
+        Voxel::new(h as u8, (h % 5) as u8)
+    })
+}
+
+/// The sample layers (local z) a change's box can reach in the neighbourhood.
+fn reach(c: &Change) -> RangeInclusive<i32> {
+    c.lo[2].max(-1)..=c.hi[2].min(33)
+}
+
+#[test]
+fn known_changes_need_only_the_layers_they_reach() {
+    let chunk = ChunkPos::new(-1, 0, 4);
+    let mut rng = Rng(0xbeef);
+    let mut reused_some = 0;
+    for case in 0..60 {
+        let mut changes = Vec::new();
+        let (mut mesh, mut layers) = mesh_chunk_layered(&world(chunk, &changes));
+        for step in 0..3 {
+            let size = [rng.range(0, 6), rng.range(0, 6), rng.range(0, 6)];
+            let lo = [rng.range(-1, 33), rng.range(8, 30), rng.range(-1, 33)];
+            let hi = std::array::from_fn(|i| lo[i] + size[i]);
+            let change = Change {
+                lo,
+                hi,
+                rule: (rng.next() % 4) as u8,
+            };
+            changes.push(change);
+            let what = format!("case {case} step {step}: {changes:?}");
+            let whole = world(chunk, &changes);
+            // Only the layers the re-mesh reads are the world's; the rest is noise.
+            let nb = partly(chunk, &changes, remesh_reads(reach(&change)));
+            let r = remesh_chunk_layered_known(&nb, (&mesh, &layers), reach(&change))
+                .expect("a base of the same chunk");
+            let (m, l) = mesh_chunk_layered(&whole);
+            assert_eq!(r.mesh, m, "{what}: re-meshed mesh differs");
+            assert_eq!(r.mesh, full(&whole), "{what}");
+            assert_eq!(r.layers, l, "{what}: layers differ");
+            if r.reused > 0 {
+                reused_some += 1;
+            }
+            (mesh, layers) = (m, l);
+        }
+    }
+    assert!(reused_some > 60, "most changes reuse layers: {reused_some}");
+}
+
+#[test]
+fn known_changes_outside_the_reach_or_of_another_chunk() {
+    let chunk = ChunkPos::new(0, 0, 0);
+    let base_nb = world(chunk, &[]);
+    let (base, layers) = mesh_chunk_layered(&base_nb);
+    // Nothing changed: the base comes back, whatever the neighbourhood holds.
+    let noise = partly(chunk, &[], 100..=100);
+    let r =
+        remesh_chunk_layered_known(&noise, (&base, &layers), RangeInclusive::new(40, 34)).unwrap();
+    assert_eq!(
+        (r.mesh, r.layers, r.reused),
+        (base.clone(), layers.clone(), 32)
+    );
+    // A change below the held layers reaches from the first layer on.
+    let low = Change {
+        lo: [0, 10, -9],
+        hi: [33, 30, -1],
+        rule: 0,
+    };
+    let nb = partly(chunk, &[low], remesh_reads(-9..=-1));
+    let r = remesh_chunk_layered_known(&nb, (&base, &layers), -9..=-1).unwrap();
+    assert_eq!(r.mesh, full(&world(chunk, &[low])));
+    // A base of another chunk cannot be used.
+    let other = world(ChunkPos::new(1, 0, 0), &[]);
+    assert!(remesh_chunk_layered_known(&other, (&base, &layers), 0..=3).is_none());
+}
+
+#[test]
+fn refilling_some_layers_from_the_world_copies_those_layers() {
+    #[derive(Debug)]
+    struct Ground;
+    impl strata_terrain::ChunkGenerator for Ground {
+        fn generate(&self, pos: ChunkPos) -> Chunk {
+            let mut c = Chunk::uniform(Voxel::new(0, 0));
+            for i in 0..32 {
+                let v = Voxel::new((pos.x * 7 + pos.y * 13 + pos.z * 29 + i * 5) as u8, 1);
+                c.set(i as usize, (i * 3 % 32) as usize, (i * 11 % 32) as usize, v);
+            }
+            c
+        }
+    }
+    let mut w = World::new(Arc::new(Ground));
+    let pos = ChunkPos::new(3, -1, 2);
+    // Some chunks held (a modified one among them), the rest generated.
+    for (dz, v) in [(-1, 9), (0, 3), (1, 1)] {
+        let p = ChunkPos::new(pos.x + 1, pos.y, pos.z + dz);
+        w.insert(p, Chunk::uniform(Voxel::new(200, v as u8)), v);
+    }
+    let expected = Neighborhood::from_world(&w, pos);
+    for layers in [-1..=-1, -1..=4, 7..=20, 30..=33, 31..=40, -5..=50] {
+        // A buffer that held another chunk's neighbourhood.
+        let mut nb = Neighborhood::from_world(&w, ChunkPos::new(-8, 5, 1));
+        nb.refill_layers_from_world(&w, pos, layers.clone());
+        assert_eq!(nb.origin(), expected.origin());
+        let mut kept = 0;
+        for z in -1..=33 {
+            let same =
+                (-1..=40).all(|y| (-1..=33).all(|x| nb.voxel(x, y, z) == expected.voxel(x, y, z)));
+            if layers.contains(&z) {
+                assert!(same, "layer {z} of {layers:?} copied");
+            } else if !same {
+                kept += 1;
+            }
+        }
+        // The layers outside were left as they were (another chunk's).
+        let outside = (-1..=33).filter(|z| !layers.contains(z)).count();
+        assert_eq!(kept, outside, "{layers:?}");
+    }
 }

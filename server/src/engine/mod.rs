@@ -778,6 +778,10 @@ impl Engine {
         phase.end("mesh_wait");
         metrics::counter!(m::MESH_LAYERS, "how" => "meshed").increment(built.layers.meshed);
         metrics::counter!(m::MESH_LAYERS, "how" => "reused").increment(built.layers.reused);
+        metrics::counter!(m::MESH_NEIGHBOURHOODS, "copied" => "layers")
+            .increment(built.layers.partial_copies);
+        metrics::counter!(m::MESH_NEIGHBOURHOODS, "copied" => "whole")
+            .increment(built.layers.whole_copies);
         let ahead: HashSet<ChunkPos> = next
             .iter()
             .flat_map(|n| n.out.applied.iter())

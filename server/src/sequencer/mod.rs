@@ -10,6 +10,7 @@ mod chunk_bits;
 pub use crate::store::{CommitBatch, LogEntry};
 
 pub mod config;
+mod reach;
 pub mod regions;
 pub mod residency;
 pub mod session;

@@ -2,7 +2,6 @@
 
 use std::collections::hash_map::Entry;
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
-use std::sync::Arc;
 use std::time::Instant;
 
 use strata_protocol::RejectReason;
@@ -14,10 +13,11 @@ use strata_terrain::hash::chunk_hash;
 use strata_terrain::{Chunk, VoxelBox, World};
 
 use super::batch::*;
+use super::reach::TickReach;
 use super::regions::{self, RegionSpan};
 use super::residency::{edit_reads, with_neighbours};
 use super::{LogEntry, Queued, Sequencer};
-use crate::collision::{CollisionCache, CollisionMesh, LayerCounts, MeshJob};
+use crate::collision::{Base, CollisionCache, CollisionMesh, LayerCounts, MeshJob};
 use crate::mesh_buffers;
 
 /// Where a change's mesh hash comes from once the meshes are built.
@@ -197,7 +197,11 @@ impl Sequencer {
             self.world.absorb(lane.world);
         }
         let changed: BTreeSet<ChunkPos> = versions.keys().copied().collect();
-        let mut jobs = self.changed_jobs(&versions);
+        let reach = TickReach::of(results.iter().filter_map(|r| match r {
+            Some(Ok((bbox, changes))) => Some((*bbox, changes.as_slice())),
+            _ => None,
+        }));
+        let mut jobs = self.changed_jobs(&versions, &reach);
         let job_of: HashMap<ChunkPos, usize> =
             versions.keys().enumerate().map(|(j, &p)| (p, j)).collect();
         let job_slots = lane_slots
@@ -205,7 +209,7 @@ impl Sequencer {
             .map(|(i, c, pos)| (i, c, job_of[&pos]));
         let mut applied_at = vec![usize::MAX; queued.len()];
         // Cached meshes the tick's changes made stale.
-        let mut dropped: BTreeMap<ChunkPos, Arc<CollisionMesh>> = BTreeMap::new();
+        let mut dropped: BTreeMap<ChunkPos, Base> = BTreeMap::new();
         for (i, (q, r)) in queued.into_iter().zip(results).enumerate() {
             let (bbox, changes) = match r.expect("every queued edit is in one lane") {
                 Ok(done) => done,
@@ -221,8 +225,8 @@ impl Sequencer {
             let seq = self.next_seq;
             self.next_seq += 1;
             for c in &changes {
-                for m in self.collision.invalidate_touched(c.pos, bbox) {
-                    dropped.insert(m.pos, m);
+                for m in self.collision.invalidate_touched(c.pos, bbox, c.to_version) {
+                    dropped.insert(m.0.pos, m);
                 }
                 self.residency.mark_present(c.pos);
             }
@@ -253,7 +257,7 @@ impl Sequencer {
             })
             .collect();
         let before = jobs.len();
-        self.rewarm(dropped, &changed, &mut jobs);
+        self.rewarm(dropped, &changed, &reach, &mut jobs);
         let rewarmed = jobs.len() - before;
         out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
         out.batch.deltas = stored;
@@ -273,7 +277,11 @@ impl Sequencer {
     /// Missing neighbours are generated first (on the pool when several),
     /// then the neighbourhoods are copied in parallel. Each job's base is
     /// the chunk's cached mesh, if any (`CollisionMesh::rebuild`).
-    fn changed_jobs(&mut self, versions: &BTreeMap<ChunkPos, u64>) -> Vec<MeshJob> {
+    fn changed_jobs(
+        &mut self,
+        versions: &BTreeMap<ChunkPos, u64>,
+        reach: &TickReach,
+    ) -> Vec<MeshJob> {
         let missing: BTreeSet<ChunkPos> = versions
             .keys()
             .flat_map(|&p| with_neighbours(p))
@@ -281,11 +289,8 @@ impl Sequencer {
             .collect();
         self.generate_into_world(missing.into_iter().collect());
         let (world, cache) = (&self.world, &self.collision);
-        let copy = |(&pos, &version): (&ChunkPos, &u64)| MeshJob {
-            pos,
-            version,
-            nb: mesh_buffers::from_world(world, pos),
-            base: cache.peek(pos).cloned(),
+        let copy = |(&pos, &version): (&ChunkPos, &u64)| {
+            reach.job(world, pos, version, cache.peek_base(pos))
         };
         if versions.len() > 1 {
             versions.par_iter().map(copy).collect()
@@ -307,11 +312,12 @@ impl Sequencer {
     /// are several: the world is only read here.
     fn rewarm(
         &self,
-        dropped: BTreeMap<ChunkPos, Arc<CollisionMesh>>,
+        dropped: BTreeMap<ChunkPos, Base>,
         changed: &BTreeSet<ChunkPos>,
+        reach: &TickReach,
         jobs: &mut Vec<MeshJob>,
     ) {
-        let stale: Vec<(ChunkPos, u64, Arc<CollisionMesh>)> = dropped
+        let stale: Vec<(ChunkPos, u64, Base)> = dropped
             .into_iter()
             .filter(|&(pos, _)| {
                 !changed.contains(&pos)
@@ -322,11 +328,8 @@ impl Sequencer {
             })
             .map(|(pos, old)| (pos, self.world.peek(pos).map_or(0, |c| c.version), old))
             .collect();
-        let copy = |(pos, version, old): &(ChunkPos, u64, Arc<CollisionMesh>)| MeshJob {
-            pos: *pos,
-            version: *version,
-            nb: mesh_buffers::from_world(&self.world, *pos),
-            base: Some(old.clone()),
+        let copy = |(pos, version, old): &(ChunkPos, u64, Base)| {
+            reach.job(&self.world, *pos, *version, Some(old.clone()))
         };
         if stale.len() > 1 {
             jobs.par_extend(stale.par_iter().map(copy));

@@ -15,10 +15,14 @@
 //! [`mesh_chunk`](super::mesh_chunk) with default options bit for bit (tests compare them on
 //! random edits); its cost follows the layers changed, not the chunk.
 
+use std::ops::RangeInclusive;
+
 use twox_hash::XxHash3_64;
 
 use super::builder::Builder;
-use super::neighborhood::{Neighborhood, DIM_X, DIM_Z, LOCAL_MIN, LOD0_LOCAL_MAX, STEP_Z};
+use super::neighborhood::{
+    Neighborhood, DIM_X, DIM_Z, LOCAL_MAX, LOCAL_MIN, LOD0_LOCAL_MAX, STEP_Z,
+};
 use super::regular::{mesh_lod0_layers, Marks, GROUPS, LAYERS};
 use super::types::{Mesh, DEFAULT_ISO};
 use crate::pos::VoxelPos;
@@ -57,14 +61,17 @@ fn print_seed() -> u64 {
 
 /// Fingerprints (densities, materials) of the sample layers of `nb` that a LOD-0 mesh reads.
 fn layer_prints(nb: &Neighborhood) -> [[u64; 2]; DIM_Z] {
+    std::array::from_fn(|z| layer_print(nb, z))
+}
+
+/// The fingerprint of sample layer `z` (an index from local z -1).
+fn layer_print(nb: &Neighborhood, z: usize) -> [u64; 2] {
     let (d, m, seed) = (nb.densities(), nb.materials(), print_seed());
-    std::array::from_fn(|z| {
-        let at = z * STEP_Z..z * STEP_Z + LAYER_READ;
-        [
-            XxHash3_64::oneshot_with_seed(seed, &d[at.clone()]),
-            XxHash3_64::oneshot_with_seed(seed, &m[at]),
-        ]
-    })
+    let at = z * STEP_Z..z * STEP_Z + LAYER_READ;
+    [
+        XxHash3_64::oneshot_with_seed(seed, &d[at.clone()]),
+        XxHash3_64::oneshot_with_seed(seed, &m[at]),
+    ]
 }
 
 /// [`mesh_chunk`](super::mesh_chunk) with default options, with the [`MeshLayers`] that
@@ -94,21 +101,83 @@ pub fn mesh_chunk_layered(nb: &Neighborhood) -> (Mesh, MeshLayers) {
 /// earlier neighbourhood of the same chunk, with its layers) what the difference between the
 /// two neighbourhoods cannot reach. A base of another chunk is not used.
 pub fn remesh_chunk_layered(nb: &Neighborhood, base: (&Mesh, &MeshLayers)) -> Remeshed {
-    let (old, old_layers) = base;
+    let old_layers = base.1;
     let prints = layer_prints(nb);
     let differ = |z: &usize| prints[*z] != old_layers.prints[*z];
     let (first, last) = match ((0..DIM_Z).find(differ), (0..DIM_Z).rev().find(differ)) {
         _ if old_layers.origin != nb.origin() => (0, DIM_Z - 1),
         (Some(a), Some(b)) => (a, b),
         // Nothing the mesh reads changed.
-        _ => {
-            return Remeshed {
-                mesh: old.clone(),
-                layers: old_layers.clone(),
-                reused: LAYERS as u32,
-            }
-        }
+        _ => return unchanged(base),
     };
+    remesh_layers(nb, base, (first, last), prints)
+}
+
+/// The sample layers (local z) that [`remesh_chunk_layered_known`] reads when sample layers
+/// `changed` differ from the base's: the neighbourhood need hold only these.
+pub fn remesh_reads(changed: RangeInclusive<i32>) -> RangeInclusive<i32> {
+    // Groups and cell layers a - 2 ..= b + 2 are meshed; a group reads one sample layer
+    // below its own and, for z edges, two above.
+    (changed.start() - 3).max(LOCAL_MIN)..=(changed.end() + 3).min(LOCAL_MAX)
+}
+
+/// [`remesh_chunk_layered`] for a caller that knows which sample layers (local z) may differ
+/// between `base`'s neighbourhood and the current one: `changed` (empty when none). `nb` need
+/// hold the current samples of [`remesh_reads`]`(changed)` only; nothing else of it is read,
+/// and no layer is fingerprinted but those in `changed`, of which only the ones whose
+/// fingerprints differ are meshed again. The same mesh and layers as
+/// [`remesh_chunk_layered`] of the whole neighbourhood, if `changed` covers every layer that
+/// differs; `None` for a base of another chunk, which cannot be used.
+pub fn remesh_chunk_layered_known(
+    nb: &Neighborhood,
+    base: (&Mesh, &MeshLayers),
+    changed: RangeInclusive<i32>,
+) -> Option<Remeshed> {
+    let (_, old_layers) = base;
+    if old_layers.origin != nb.origin() {
+        return None;
+    }
+    let (a, b) = (
+        (*changed.start()).max(LOCAL_MIN),
+        (*changed.end()).min(LOCAL_MAX),
+    );
+    if a > b {
+        return Some(unchanged(base));
+    }
+    let (first, last) = ((a - LOCAL_MIN) as usize, (b - LOCAL_MIN) as usize);
+    let mut prints = old_layers.prints;
+    for (z, print) in prints.iter_mut().enumerate().take(last + 1).skip(first) {
+        *print = layer_print(nb, z);
+    }
+    // Of the layers that may differ, those that do.
+    let differ = |z: &usize| prints[*z] != old_layers.prints[*z];
+    match (
+        (first..=last).find(differ),
+        (first..=last).rev().find(differ),
+    ) {
+        (Some(a), Some(b)) => Some(remesh_layers(nb, base, (a, b), prints)),
+        _ => Some(unchanged(base)),
+    }
+}
+
+/// The base itself: nothing a mesh reads changed.
+fn unchanged((old, old_layers): (&Mesh, &MeshLayers)) -> Remeshed {
+    Remeshed {
+        mesh: old.clone(),
+        layers: old_layers.clone(),
+        reused: LAYERS as u32,
+    }
+}
+
+/// Re-meshes against `base` when sample layers `first..=last` (indices from local z -1)
+/// differ; `prints` are the new neighbourhood's.
+fn remesh_layers(
+    nb: &Neighborhood,
+    base: (&Mesh, &MeshLayers),
+    (first, last): (usize, usize),
+    prints: [[u64; 2]; DIM_Z],
+) -> Remeshed {
+    let (old, old_layers) = base;
     // Sample layers a..=b changed (local z = index - 1): groups and cell layers from a - 2
     // to b + 1 may change, X{b + 2} only moves.
     let (a, b) = (first as i32 + LOCAL_MIN, last as i32 + LOCAL_MIN);

@@ -61,7 +61,10 @@ mod transition;
 mod types;
 pub mod volume;
 
-pub use layered::{mesh_chunk_layered, remesh_chunk_layered, MeshLayers, Remeshed};
+pub use layered::{
+    mesh_chunk_layered, remesh_chunk_layered, remesh_chunk_layered_known, remesh_reads, MeshLayers,
+    Remeshed,
+};
 pub use neighborhood::{
     Neighborhood, APRON_HIGH, APRON_LOW, LOCAL_MAX, LOCAL_MAX_Y, LOCAL_MIN, LOD0_LOCAL_MAX,
     MAX_SURFACE_SCAN,

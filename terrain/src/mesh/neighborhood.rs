@@ -1,6 +1,7 @@
 //! A chunk's voxels plus the read-only apron the mesher needs around them.
 
 use std::borrow::Cow;
+use std::ops::RangeInclusive;
 
 use crate::chunk::{Chunk, Voxel};
 use crate::pos::{local_index, ChunkPos, VoxelPos, CHUNK_SIZE};
@@ -86,11 +87,40 @@ impl Neighborhood {
     /// [`Self::from_world`] into this neighbourhood's buffers (see
     /// [`Self::refill_from_chunks`]).
     pub fn refill_from_world(&mut self, src: &impl ChunkRead, chunk: ChunkPos) {
+        self.refill_layers_from_world(src, chunk, LOCAL_MIN..=LOCAL_MAX);
+    }
+
+    /// [`Self::refill_from_world`] of the sample layers whose local z is in `layers` only
+    /// (clamped to the held range); the other layers keep what they held, whatever that was.
+    /// For [`super::remesh_chunk_layered_known`], which reads only the layers it is told.
+    pub fn refill_layers_from_world(
+        &mut self,
+        src: &impl ChunkRead,
+        chunk: ChunkPos,
+        layers: RangeInclusive<i32>,
+    ) {
+        let (lo, hi) = (
+            (*layers.start()).max(LOCAL_MIN),
+            (*layers.end()).min(LOCAL_MAX),
+        );
+        // Only the chunk layers (dz) the sample layers fall in are read.
+        let reads = |dz: i32| {
+            let shift = dz * CHUNK_SIZE;
+            lo < shift + CHUNK_SIZE && hi >= shift
+        };
         let around: Vec<Option<Cow<'_, Chunk>>> = NEIGHBOURS
             .iter()
-            .map(|&(dx, dy, dz)| chunk.offset(dx, dy, dz).map(|p| src.chunk_at(p)))
+            .map(|&(dx, dy, dz)| {
+                let p = chunk.offset(dx, dy, dz).filter(|_| reads(dz))?;
+                Some(src.chunk_at(p))
+            })
             .collect();
-        self.refill_from_chunks(chunk, |p| {
+        let rows = if lo > hi {
+            0..0
+        } else {
+            (lo - LOCAL_MIN) as usize * DIM_Y..(hi - LOCAL_MIN + 1) as usize * DIM_Y
+        };
+        self.refill_rows_from_chunks(chunk, rows, |p| {
             let d = (p.x - chunk.x, p.y - chunk.y, p.z - chunk.z);
             let i = NEIGHBOURS.iter().position(|n| *n == d)?;
             around[i].as_deref()
@@ -176,6 +206,16 @@ impl Neighborhood {
     pub fn refill_from_chunks<'c>(
         &mut self,
         chunk: ChunkPos,
+        get: impl FnMut(ChunkPos) -> Option<&'c Chunk>,
+    ) {
+        self.refill_rows_from_chunks(chunk, 0..DIM_Y * DIM_Z, get);
+    }
+
+    /// [`Self::refill_from_chunks`] of the rows in `rows` only (rows run y fastest, then z).
+    fn refill_rows_from_chunks<'c>(
+        &mut self,
+        chunk: ChunkPos,
+        rows: std::ops::Range<usize>,
         mut get: impl FnMut(ChunkPos) -> Option<&'c Chunk>,
     ) {
         let around: [Option<&'c Chunk>; 27] = std::array::from_fn(|i| {
@@ -183,11 +223,16 @@ impl Neighborhood {
             chunk.offset(dx, dy, dz).and_then(&mut get)
         });
         let m = CHUNK_SIZE - 1;
-        let rows = self
-            .density
+        let first = rows.start;
+        let (density, material) = (
+            &mut self.density[rows.start * DIM_X..rows.end * DIM_X],
+            &mut self.material[rows.start * DIM_X..rows.end * DIM_X],
+        );
+        let rows = density
             .chunks_exact_mut(DIM_X)
-            .zip(self.material.chunks_exact_mut(DIM_X));
+            .zip(material.chunks_exact_mut(DIM_X));
         for (r, (drow, mrow)) in rows.enumerate() {
+            let r = first + r;
             // Local y and z of this row, and the chunk layer each falls in.
             let (y, z) = (
                 (r % DIM_Y) as i32 + LOCAL_MIN,
