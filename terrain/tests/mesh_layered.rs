@@ -86,10 +86,15 @@ fn check(nb: &Neighborhood, base: (&Mesh, &MeshLayers), what: &str) -> (Mesh, Me
     (r.mesh, r.layers, r.reused)
 }
 
-#[test]
-fn random_changes_give_the_whole_chunk_mesh() {
-    let chunk = ChunkPos::new(2, 0, -3);
-    let mut rng = Rng(0x5eed);
+/// 60 chains of 3 random changes to `chunk`, each re-meshed by `remesh(changes so far, base,
+/// what)` against the mesh before it, which returns the new mesh and layers and how many
+/// layers it copied; most must copy some.
+fn random_chains(
+    chunk: ChunkPos,
+    seed: u64,
+    mut remesh: impl FnMut(&[Change], (&Mesh, &MeshLayers), &str) -> (Mesh, MeshLayers, u32),
+) {
+    let mut rng = Rng(seed);
     let mut reused_some = 0;
     for case in 0..60 {
         let mut changes = Vec::new();
@@ -105,9 +110,8 @@ fn random_changes_give_the_whole_chunk_mesh() {
                 hi,
                 rule: (rng.next() % 4) as u8,
             });
-            let nb = world(chunk, &changes);
             let what = format!("case {case} step {step}: {changes:?}");
-            let (m, l, reused) = check(&nb, (&mesh, &layers), &what);
+            let (m, l, reused) = remesh(&changes, (&mesh, &layers), &what);
             if reused > 0 {
                 reused_some += 1;
             }
@@ -115,6 +119,14 @@ fn random_changes_give_the_whole_chunk_mesh() {
         }
     }
     assert!(reused_some > 60, "most changes reuse layers: {reused_some}");
+}
+
+#[test]
+fn random_changes_give_the_whole_chunk_mesh() {
+    let chunk = ChunkPos::new(2, 0, -3);
+    random_chains(chunk, 0x5eed, |changes, base, what| {
+        check(&world(chunk, changes), base, what)
+    });
 }
 
 #[test]
@@ -197,38 +209,19 @@ fn reach(c: &Change) -> RangeInclusive<i32> {
 #[test]
 fn known_changes_need_only_the_layers_they_reach() {
     let chunk = ChunkPos::new(-1, 0, 4);
-    let mut rng = Rng(0xbeef);
-    let mut reused_some = 0;
-    for case in 0..60 {
-        let mut changes = Vec::new();
-        let (mut mesh, mut layers) = mesh_chunk_layered(&world(chunk, &changes));
-        for step in 0..3 {
-            let size = [rng.range(0, 6), rng.range(0, 6), rng.range(0, 6)];
-            let lo = [rng.range(-1, 33), rng.range(8, 30), rng.range(-1, 33)];
-            let hi = std::array::from_fn(|i| lo[i] + size[i]);
-            let change = Change {
-                lo,
-                hi,
-                rule: (rng.next() % 4) as u8,
-            };
-            changes.push(change);
-            let what = format!("case {case} step {step}: {changes:?}");
-            let whole = world(chunk, &changes);
-            // Only the layers the re-mesh reads are the world's; the rest is noise.
-            let nb = partly(chunk, &changes, remesh_reads(reach(&change)));
-            let r = remesh_chunk_layered_known(&nb, (&mesh, &layers), reach(&change))
-                .expect("a base of the same chunk");
-            let (m, l) = mesh_chunk_layered(&whole);
-            assert_eq!(r.mesh, m, "{what}: re-meshed mesh differs");
-            assert_eq!(r.mesh, full(&whole), "{what}");
-            assert_eq!(r.layers, l, "{what}: layers differ");
-            if r.reused > 0 {
-                reused_some += 1;
-            }
-            (mesh, layers) = (m, l);
-        }
-    }
-    assert!(reused_some > 60, "most changes reuse layers: {reused_some}");
+    random_chains(chunk, 0xbeef, |changes, base, what| {
+        let last = changes.last().expect("a change");
+        let whole = world(chunk, changes);
+        // Only the layers the re-mesh reads are the world's; the rest is noise.
+        let nb = partly(chunk, changes, remesh_reads(reach(last)));
+        let r =
+            remesh_chunk_layered_known(&nb, base, reach(last)).expect("a base of the same chunk");
+        let (m, l) = mesh_chunk_layered(&whole);
+        assert_eq!(r.mesh, m, "{what}: re-meshed mesh differs");
+        assert_eq!(r.mesh, full(&whole), "{what}");
+        assert_eq!(r.layers, l, "{what}: layers differ");
+        (r.mesh, r.layers, r.reused)
+    });
 }
 
 #[test]
