@@ -488,14 +488,9 @@ impl CollisionCache {
     /// Drops the meshes that read any voxel of `pos` inside `changed` (world
     /// coordinates): `pos`'s own, and each neighbour's whose apron overlaps
     /// the box. A small edit in a chunk's middle keeps every neighbour's
-    /// mesh, now right for `pos` at `version` too. Returns the meshes
-    /// dropped, with the versions they were right for.
-    pub fn invalidate_touched(
-        &mut self,
-        pos: ChunkPos,
-        changed: VoxelBox,
-        version: u64,
-    ) -> Vec<Base> {
+    /// mesh. Returns the meshes dropped, with the versions they were right
+    /// for.
+    pub fn invalidate_touched(&mut self, pos: ChunkPos, changed: VoxelBox) -> Vec<Base> {
         let mut dropped = Vec::new();
         let o = pos.origin();
         let lo = [
@@ -522,21 +517,30 @@ impl CollisionCache {
                                 let shift = d * CHUNK_SIZE;
                                 l <= LOD0_LOCAL_MAX + shift && h >= LOCAL_MIN + shift
                             });
-                    let Some(p) = pos.offset(dx, dy, dz) else {
-                        continue;
-                    };
-                    if reads {
+                    if let Some(p) = pos.offset(dx, dy, dz).filter(|_| reads) {
                         dropped.extend(self.invalidate_base(p));
-                    } else if let Some(s) =
-                        self.entries.get_mut(&p).and_then(|e| e.sources.as_mut())
-                    {
-                        // `pos` seen from `p`: offset (-dx, -dy, -dz).
-                        s[((1 - dx) + 3 * (1 - dy) + 9 * (1 - dz)) as usize] = version;
                     }
                 }
             }
         }
         dropped
+    }
+
+    /// Notes that `pos` is now at `version` in the meshes of its neighbours
+    /// still cached: call it once a tick's changes of `pos` have dropped
+    /// every mesh they reach ([`Self::invalidate_touched`]), so the meshes
+    /// left are right for the new version too.
+    pub fn moved_on(&mut self, pos: ChunkPos, version: u64) {
+        for (i, p) in with_sources(pos).into_iter().enumerate() {
+            let Some(s) = p
+                .and_then(|p| self.entries.get_mut(&p))
+                .and_then(|e| e.sources.as_mut())
+            else {
+                continue;
+            };
+            // `pos` seen from `p`: the opposite offset, the mirrored slot.
+            s[26 - i] = version;
+        }
     }
 
     /// Makes sure each listed chunk has a mesh for its current version in
@@ -973,13 +977,13 @@ mod tests {
         };
         // A change deep inside (y 10..=20, away from every apron) drops only the chunk.
         cache.ensure(&world, &around);
-        cache.invalidate_touched(centre, boxed([10, 10, 10], [20, 20, 20]), 1);
+        cache.invalidate_touched(centre, boxed([10, 10, 10], [20, 20, 20]));
         assert!(cache.get(centre, 0).is_none());
         assert_eq!(held(&cache), 26);
         // Local x = 1 is in the -x neighbour's apron (its local 33), and so is
         // y = 1 in the chunk below's.
         cache.ensure(&world, &around);
-        cache.invalidate_touched(centre, boxed([1, 1, 10], [5, 12, 20]), 1);
+        cache.invalidate_touched(centre, boxed([1, 1, 10], [5, 12, 20]));
         let dropped: Vec<_> = around
             .iter()
             .filter(|p| cache.get(**p, 0).is_none())
@@ -992,7 +996,7 @@ mod tests {
         // y = 2..=8 is beyond the reach of the chunk below: those are its
         // surface-scan rows, which LOD 0 never reads. x = 31 reaches +x.
         cache.ensure(&world, &around);
-        cache.invalidate_touched(centre, boxed([31, 2, 31], [31, 8, 31]), 1);
+        cache.invalidate_touched(centre, boxed([31, 2, 31], [31, 8, 31]));
         assert_eq!(held(&cache), 27 - 4, "self, +x, +z, +x+z");
     }
 

@@ -15,7 +15,7 @@ use std::ops::RangeInclusive;
 use std::sync::Arc;
 
 use strata_terrain::mesh::{remesh_reads, LOCAL_MIN, LOD0_LOCAL_MAX};
-use strata_terrain::{ChunkPos, VoxelBox, World};
+use strata_terrain::{ChunkPos, VoxelBox, World, CHUNK_SIZE};
 
 use super::batch::ChunkUpdate;
 use crate::collision::{sources_of, with_sources, Base, CollisionMesh, MeshJob, Sources};
@@ -27,11 +27,9 @@ pub const NONE_REACHED: RangeInclusive<i32> = RangeInclusive::new(1, 0);
 /// The tick's changes, as far as meshing against older meshes needs them.
 #[derive(Debug, Default)]
 pub struct TickReach {
-    /// Each changed chunk's version before the tick.
-    before: HashMap<ChunkPos, u64>,
-    /// The boxes of the tick's edits that changed something: every voxel
-    /// the tick changed lies in one.
-    boxes: Vec<VoxelBox>,
+    /// Each changed chunk's version before the tick, and the boxes of the
+    /// edits that changed it: every voxel of it the tick changed lies in one.
+    changed: HashMap<ChunkPos, (u64, Vec<VoxelBox>)>,
 }
 
 impl TickReach {
@@ -39,13 +37,13 @@ impl TickReach {
     pub fn of<'a>(applied: impl IntoIterator<Item = (VoxelBox, &'a [ChunkUpdate])>) -> Self {
         let mut reach = Self::default();
         for (bbox, changes) in applied {
-            if changes.is_empty() {
-                continue;
-            }
-            reach.boxes.push(bbox);
             for c in changes {
                 // The first change of a chunk starts from its version before the tick.
-                reach.before.entry(c.pos).or_insert(c.from_version);
+                let (_, boxes) = reach
+                    .changed
+                    .entry(c.pos)
+                    .or_insert((c.from_version, Vec::new()));
+                boxes.push(bbox);
             }
         }
         reach
@@ -93,28 +91,43 @@ impl TickReach {
         }
         let around = with_sources(pos);
         for i in 0..27 {
-            let changed_from = around[i].and_then(|p| self.before.get(&p));
-            if then[i] != now[i] && changed_from != Some(&then[i]) {
+            let changed_from = around[i].and_then(|p| self.changed.get(&p)).map(|c| c.0);
+            if then[i] != now[i] && changed_from != Some(then[i]) {
                 // Copied from another version than the tick's start.
                 return None;
             }
         }
         // The neighbourhood's LOD-0 reach, in world voxels (i64: no overflow
         // at the ends of the coordinates).
-        let o = pos.origin();
-        let o = [i64::from(o.x), i64::from(o.y), i64::from(o.z)];
+        let at = |p: ChunkPos| {
+            let o = p.origin();
+            [o.x, o.y, o.z].map(i64::from)
+        };
+        let o = at(pos);
         let (reach_lo, reach_hi) = (i64::from(LOCAL_MIN), i64::from(LOD0_LOCAL_MAX));
         let (mut first, mut last) = (i64::MAX, i64::MIN);
-        for b in &self.boxes {
-            let bl = [b.min.x, b.min.y, b.min.z].map(i64::from);
-            let bh = [b.max.x, b.max.y, b.max.z].map(i64::from);
-            let (l, h): (Vec<i64>, Vec<i64>) = (0..3).map(|k| (bl[k] - o[k], bh[k] - o[k])).unzip();
-            if (0..3).all(|k| l[k] <= reach_hi && h[k] >= reach_lo) {
-                first = first.min(l[2].max(reach_lo));
-                last = last.max(h[2].min(reach_hi));
+        for p in around.into_iter().flatten() {
+            let Some((_, boxes)) = self.changed.get(&p) else {
+                continue;
+            };
+            // A box changed `p` only inside `p`.
+            let c = at(p);
+            for b in boxes {
+                let (bl, bh) = ([b.min.x, b.min.y, b.min.z], [b.max.x, b.max.y, b.max.z]);
+                let lo: [i64; 3] =
+                    std::array::from_fn(|k| i64::from(bl[k]).max(c[k]).max(o[k] + reach_lo) - o[k]);
+                let hi: [i64; 3] = std::array::from_fn(|k| {
+                    i64::from(bh[k])
+                        .min(c[k] + i64::from(CHUNK_SIZE) - 1)
+                        .min(o[k] + reach_hi)
+                        - o[k]
+                });
+                if (0..3).all(|k| lo[k] <= hi[k]) {
+                    first = first.min(lo[2]);
+                    last = last.max(hi[2]);
+                }
             }
         }
-        // None reached: an empty range.
         Some(if first > last {
             NONE_REACHED
         } else {
@@ -131,6 +144,13 @@ mod tests {
     use strata_terrain::mesh::Neighborhood;
     use strata_terrain::world::FlatGenerator;
     use strata_terrain::{Chunk, Voxel, VoxelPos};
+
+    /// A tick whose edits changed `pos` (from version `before`) within boxes.
+    fn tick_of(pos: ChunkPos, before: u64, boxes: Vec<VoxelBox>) -> TickReach {
+        TickReach {
+            changed: HashMap::from([(pos, (before, boxes))]),
+        }
+    }
 
     fn box_at(lo: [i32; 3], hi: [i32; 3]) -> VoxelBox {
         VoxelBox {
@@ -178,33 +198,40 @@ mod tests {
         // 4..=6: the layers its box reaches.
         w.insert(below, Chunk::uniform(Voxel::solid(2)), 2);
         let now = sources_of(&w, pos).unwrap();
-        let tick = TickReach {
-            before: HashMap::from([(below, 1)]),
-            boxes: vec![box_at([3, -5, 4], [9, -1, 6])],
-        };
+        let tick = tick_of(below, 1, vec![box_at([3, -5, 4], [9, -1, 6])]);
         assert_eq!(tick.known(pos, &mesh, &then, &now), Some(4..=6));
         // A box out of the neighbourhood's LOD-0 reach reaches nothing.
-        let far = TickReach {
-            before: HashMap::from([(below, 1)]),
-            boxes: vec![
+        let far = tick_of(
+            below,
+            1,
+            vec![
                 box_at([3, -9, 4], [9, -2, 6]),
                 box_at([40, -5, 4], [41, -1, 6]),
             ],
-        };
+        );
         assert_eq!(far.known(pos, &mesh, &then, &now), Some(NONE_REACHED));
-        // Boxes are clipped to the layers held, -1..=33.
-        let tall = TickReach {
-            before: HashMap::from([(below, 1)]),
-            boxes: vec![box_at([0, -3, -40], [2, -1, 90])],
+        // A box counts only inside the chunk it changed: z 0..=31 below.
+        let tall = tick_of(below, 1, vec![box_at([0, -3, -40], [2, -1, 90])]);
+        assert_eq!(tall.known(pos, &mesh, &then, &now), Some(0..=31));
+        // And only in the layers held, -1..=33: in the chunks before and
+        // after in z, the neighbourhood holds one layer and two.
+        let (behind, ahead) = (ChunkPos::new(0, 0, -1), ChunkPos::new(0, 0, 1));
+        let (v_behind, v_ahead) = (
+            w.peek(behind).unwrap().version,
+            w.peek(ahead).unwrap().version,
+        );
+        let ends = TickReach {
+            changed: HashMap::from([
+                (below, (1, Vec::new())),
+                (behind, (v_behind, vec![box_at([5, 5, -40], [6, 6, -1])])),
+                (ahead, (v_ahead, vec![box_at([5, 5, 32], [6, 6, 90])])),
+            ]),
         };
-        assert_eq!(tall.known(pos, &mesh, &then, &now), Some(-1..=33));
+        assert_eq!(ends.known(pos, &mesh, &then, &now), Some(-1..=33));
         // Changed since the mesh, but not by this tick (or from another
         // version): unknown, the whole neighbourhood is compared.
         assert_eq!(TickReach::default().known(pos, &mesh, &then, &now), None);
-        let other = TickReach {
-            before: HashMap::from([(below, 3)]),
-            boxes: tick.boxes.clone(),
-        };
+        let other = tick_of(below, 3, vec![box_at([3, -5, 4], [9, -1, 6])]);
         assert_eq!(other.known(pos, &mesh, &then, &now), None);
         // A mesh of another chunk is no base; one without sources makes a
         // job that copies everything.
@@ -226,10 +253,7 @@ mod tests {
             c.set(x, 31, 5, Voxel::new(0, 0));
         }
         w.insert(below, c, 2);
-        let tick = TickReach {
-            before: HashMap::from([(below, 1)]),
-            boxes: vec![box_at([3, -1, 5], [9, -1, 5])],
-        };
+        let tick = tick_of(below, 1, vec![box_at([3, -1, 5], [9, -1, 5])]);
         let then = mesh.sources().copied();
         let job = tick.job(&w, pos, 1, Some((Arc::new(mesh), then)));
         assert_eq!(job.known, Some(5..=5));
@@ -252,13 +276,15 @@ mod tests {
         cache.insert(mesh);
         // Deep in the chunk below: out of the mesh's reach, which stays.
         let deep = box_at([4, -20, 4], [8, -10, 8]);
-        assert!(cache.invalidate_touched(below, deep, 2).is_empty());
+        assert!(cache.invalidate_touched(below, deep).is_empty());
+        cache.moved_on(below, 2);
         let (_, sources) = cache.peek_base(pos).expect("kept");
         assert_eq!(sources.unwrap()[slot], 2);
         // Its top row is the mesh's apron: dropped, with the versions it was
         // right for.
         let top = box_at([4, -1, 4], [8, -1, 8]);
-        let dropped = cache.invalidate_touched(below, top, 3);
+        let dropped = cache.invalidate_touched(below, top);
+        cache.moved_on(below, 3);
         let (m, sources) = dropped.iter().find(|(m, _)| m.pos == pos).expect("dropped");
         assert_eq!((m.pos, sources.unwrap()[slot]), (pos, 2));
         assert!(cache.peek_base(pos).is_none());

@@ -225,7 +225,7 @@ impl Sequencer {
             let seq = self.next_seq;
             self.next_seq += 1;
             for c in &changes {
-                for m in self.collision.invalidate_touched(c.pos, bbox, c.to_version) {
+                for m in self.collision.invalidate_touched(c.pos, bbox) {
                     dropped.insert(m.0.pos, m);
                 }
                 self.residency.mark_present(c.pos);
@@ -247,6 +247,11 @@ impl Sequencer {
                 changes,
                 queued_at: q.queued_at,
             });
+        }
+        // The cached meshes the changes did not reach are right for the
+        // chunks' new versions.
+        for (&pos, &version) in &versions {
+            self.collision.moved_on(pos, version);
         }
         let slots = job_slots
             .into_iter()
