@@ -46,7 +46,9 @@
 //!   collinear or coincide (linear data, and where the slab tapers to zero); they are kept,
 //!   since dropping them would open the key-welded mesh. Regular cells never emit them.
 //! * Re-meshing after a change (`layered.rs`): [`remesh_chunk_layered`] meshes only the
-//!   z-layers a change can reach and copies the rest from an earlier mesh of the chunk.
+//!   z-layers a change can reach and copies the rest from an earlier mesh of the chunk;
+//!   [`remesh_chunk_layered_known`] does the same from a neighbourhood holding only the
+//!   layers it reads ([`remesh_reads`]), for a caller that knows which layers changed.
 //! * [`Mesh::hash`] digests a documented byte encoding (`hash.rs`).
 
 mod builder;
