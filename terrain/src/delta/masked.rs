@@ -125,6 +125,7 @@ pub(super) fn encode_masked_sparse(planes: [&[(u16, u8, u8)]; 2]) -> Vec<u8> {
 /// Appends a section that changes something: op, box, mask, values.
 fn write_section(out: &mut Vec<u8>, bbox: LocalBox, mask: &[u8], changed: &[(u8, u8)]) {
     let op = choose_op(changed);
+    out.reserve(7 + mask.len() + changed.len());
     out.push(op);
     out.extend(bbox.min.iter().chain(&bbox.max).map(|&c| c as u8));
     out.extend_from_slice(mask);

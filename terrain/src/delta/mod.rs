@@ -346,11 +346,14 @@ fn sparse_bodies(base: &Chunk, target: &Chunk, voxels: &[u16]) -> [Vec<u8>; 2] {
     let (b, t) = (planes(base), planes(target));
     // Each plane's changed bytes: (index, base, target).
     let changes = |p: usize| -> Vec<(u16, u8, u8)> {
-        voxels
-            .iter()
-            .map(|&i| (i, b[p].get(usize::from(i)), t[p].get(usize::from(i))))
-            .filter(|&(_, old, new)| old != new)
-            .collect()
+        let mut out = Vec::with_capacity(voxels.len());
+        out.extend(
+            voxels
+                .iter()
+                .map(|&i| (i, b[p].get(usize::from(i)), t[p].get(usize::from(i))))
+                .filter(|&(_, old, new)| old != new),
+        );
+        out
     };
     let [density, material] = [changes(0), changes(1)];
     let xor =

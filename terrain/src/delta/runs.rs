@@ -3,7 +3,7 @@
 //! [`crate::delta`] for the exact bytes.
 
 use super::stream::{next_nonzero, XOR_STREAM_LEN};
-use super::varint::{read_varint, write_varint};
+use super::varint::{read_varint, write_varint, MAX_VARINT_BYTES};
 use super::DeltaError;
 use crate::chunk::DenseChunk;
 use crate::pos::CHUNK_VOLUME;
@@ -42,11 +42,13 @@ pub(super) fn encode_runs(x: &[u8]) -> Vec<u8> {
 /// [`encode_runs`] of a stream given by its non-zero bytes: `(index,
 /// byte)` in increasing index order. The same bytes, without the stream.
 pub(super) fn encode_runs_sparse(nonzero: impl Iterator<Item = (usize, u8)>) -> Vec<u8> {
-    let mut out = Vec::new();
+    // Sized for the bytes listed (gaps merged into literals may add more).
+    let listed = nonzero.size_hint().0;
+    let mut out = Vec::with_capacity(listed + 2 * MAX_VARINT_BYTES);
     let mut pos = 0;
     // The open literal: it starts at `start`, its last byte is `end - 1`.
     let (mut start, mut end) = (0, 0);
-    let mut literal: Vec<u8> = Vec::new();
+    let mut literal: Vec<u8> = Vec::with_capacity(listed);
     for (i, byte) in nonzero {
         if !literal.is_empty() && i - end <= MERGE_GAP {
             literal.resize(literal.len() + (i - end), 0);

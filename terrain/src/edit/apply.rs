@@ -217,7 +217,8 @@ impl Edit {
             let before = &world.peek(cpos).expect("loaded above").chunk;
             let mut after = before.clone();
             // Visited z, then y, then x: increasing local index.
-            let mut voxels = Vec::new();
+            // At most the box's part of the chunk: reserved once.
+            let mut voxels = Vec::with_capacity(sub.volume() as usize);
             for_each_voxel(sub, |p| {
                 let (x, y, z) = p.local();
                 let old = before.get(x, y, z);
