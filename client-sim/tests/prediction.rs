@@ -128,7 +128,7 @@ impl Local {
             assert_eq!(*predicted, *held.chunk, "{pos:?}");
             if let Some(s) = server.peek(pos) {
                 assert_eq!(held.version, s.version);
-                assert_eq!(*held.chunk, s.chunk);
+                assert_eq!(*held.chunk, *s.chunk);
             }
         }
     }
@@ -205,7 +205,7 @@ fn a_delta_ahead_of_its_verdict_is_matched_by_seq() {
     c.deltas(&s1);
     c.verdict(1, &s1);
     let mid = c.prediction.chunk(ground.chunk(), &c.replica).unwrap();
-    assert_eq!(*mid, server.world.peek(ground.chunk()).unwrap().chunk);
+    assert_eq!(*mid, *server.world.peek(ground.chunk()).unwrap().chunk);
     c.verdict(2, &s2);
     c.deltas(&s2);
     let st = c.stats();
@@ -226,7 +226,7 @@ fn another_edit_sequenced_first_is_a_misprediction_and_the_view_rebases() {
     c.deltas(&s_theirs);
     assert_eq!(
         *c.prediction.chunk(pos, &c.replica).unwrap(),
-        server.world.peek(pos).unwrap().chunk
+        *server.world.peek(pos).unwrap().chunk
     );
     c.verdict(1, &s_ours);
     c.deltas(&s_ours);
@@ -285,7 +285,7 @@ fn a_rejected_edit_rolls_back_and_a_later_one_built_on_it_mispredicts() {
     let s = server.apply(&ours);
     assert_eq!(
         *c.prediction.chunk(pos, &c.replica).unwrap(),
-        server.world.peek(pos).unwrap().chunk
+        *server.world.peek(pos).unwrap().chunk
     );
     c.deltas(&s);
     c.verdict(2, &s);

@@ -106,7 +106,7 @@ fn a_wrong_mesh_hash_is_reported_with_both_hashes() {
     let center = ChunkPos::new(0, 1, 0);
     let mut replica = Replica::new(Some(g.clone() as Arc<dyn ChunkGenerator>));
     subscribe(&mut replica, center);
-    let before = world.chunk(center).chunk.clone();
+    let before = strata_terrain::Chunk::clone(&world.chunk(center).chunk);
     let mut after = before.clone();
     after.set(5, 5, 5, strata_terrain::Voxel::solid(2));
     world.commit(center, after.clone());

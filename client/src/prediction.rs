@@ -529,8 +529,9 @@ impl Prediction {
             let Some(c) = world.peek(pos).map(|v| &v.chunk) else {
                 continue;
             };
-            let chunk = Arc::new(c.clone());
-            if replica.get(pos).is_none_or(|h| *h.chunk != *c) {
+            // The world's own chunk, shared: no copy.
+            let chunk = c.clone();
+            if replica.get(pos).is_none_or(|h| *h.chunk != **c) {
                 self.view.insert(pos, chunk.clone());
             }
             fresh.insert(pos, chunk);

@@ -77,7 +77,7 @@ pub fn replay(op: &OpUpdate, held: impl Fn(ChunkPos) -> Option<Held>) -> Vec<Rep
             }
             let result = world
                 .peek(c.pos)
-                .map(|v| v.chunk.clone())
+                .map(|v| Chunk::clone(&v.chunk))
                 .filter(|chunk| chunk_hash(chunk) == c.hash)
                 .ok_or(ReplayFailure::Mismatch);
             (*c, result)

@@ -509,7 +509,7 @@ mod wire_bytes {
             .filter_map(|i| pos.offset(i % 3 - 1, i / 3 % 3 - 1, i / 9 - 1))
             .collect();
         world.load(around.iter().copied());
-        let nb = Neighborhood::from_chunks(pos, |p| world.peek(p).map(|v| &v.chunk));
+        let nb = Neighborhood::from_chunks(pos, |p| world.peek(p).map(|v| &*v.chunk));
         mesh_chunk(&nb, &MeshOptions::default()).hash()
     }
 

@@ -3,6 +3,7 @@
 use crate::sequencer_common;
 
 use std::collections::{HashMap, HashSet};
+use std::sync::Arc;
 
 use sequencer_common::*;
 use strata_protocol::{RejectReason, Role};
@@ -40,7 +41,7 @@ fn replay_matches_world(s: &Sequencer, outs: &[TickOutput]) {
     assert!(!replica.is_empty());
     for (pos, (chunk, version)) in &replica {
         let w = s.world().peek(*pos).unwrap();
-        assert_eq!((&w.chunk, w.version), (chunk, *version), "{pos:?}");
+        assert_eq!((&*w.chunk, w.version), (chunk, *version), "{pos:?}");
     }
 }
 
@@ -249,17 +250,17 @@ fn adopted_generated_chunks_never_replace_loaded_ones() {
     let gen = s.world().generator().clone();
     let fresh = ChunkPos::new(40, 0, 40);
     assert!(s.world().peek(fresh).is_none());
-    s.adopt_generated(fresh, &gen.generate(fresh));
+    s.adopt_generated(fresh, &Arc::new(gen.generate(fresh)));
     let held = s.world().peek(fresh).expect("adopted");
-    assert_eq!((held.version, &held.chunk), (0, &gen.generate(fresh)));
+    assert_eq!((held.version, &*held.chunk), (0, &gen.generate(fresh)));
     assert!(s.is_resident(fresh));
     // A loaded chunk (here edited) is kept as it is.
     let home = ChunkPos::new(X.div_euclid(32), 0, Z.div_euclid(32));
     s.insert_stored_chunk(home, Chunk::Uniform(Voxel::solid(7)), 3);
-    s.adopt_generated(home, &gen.generate(home));
+    s.adopt_generated(home, &Arc::new(gen.generate(home)));
     let kept = s.world().peek(home).unwrap();
     assert_eq!(
-        (kept.version, &kept.chunk),
+        (kept.version, &*kept.chunk),
         (3, &Chunk::Uniform(Voxel::solid(7)))
     );
 }
@@ -305,7 +306,7 @@ fn assert_applied_on_stored(s: &Sequencer, out: &TickOutput, home: ChunkPos, sto
         .find(|c| c.pos == home)
         .unwrap();
     assert_eq!((c.from_version, c.to_version), (5, 6));
-    let now = &s.world().peek(home).unwrap().chunk;
+    let now = &*s.world().peek(home).unwrap().chunk;
     assert_eq!(&c.delta.apply(stored).unwrap(), now);
 }
 
@@ -483,7 +484,7 @@ fn a_stored_chunk_changed_twice_in_a_tick_is_committed_as_one_delta() {
     let deltas: Vec<_> = out.batch.deltas.iter().filter(|d| d.pos == home).collect();
     assert_eq!(deltas.len(), 1);
     assert_eq!((deltas[0].from_version, deltas[0].to_version), (5, 7));
-    let now = &s.world().peek(home).unwrap().chunk;
+    let now = &*s.world().peek(home).unwrap().chunk;
     assert_eq!(&deltas[0].apply(&stored).unwrap(), now);
     // Built from the voxels either edit changed: the full encoder's bytes.
     let full = strata_terrain::delta::ChunkDelta::encode(home, 5, 7, &stored, now).unwrap();

@@ -62,7 +62,8 @@ fn inconsistent_batches_on(store: &dyn ChunkStore) {
     assert!(reason(store.commit_batch(&b)).contains("entries end it at 2"));
 
     let mut b = good.clone();
-    b.chunks.push((ChunkPos::new(9, 9, 9), 1, Chunk::default()));
+    b.chunks
+        .push((ChunkPos::new(9, 9, 9), 1, Chunk::default().into()));
     assert!(reason(store.commit_batch(&b)).contains("no entry changed it"));
 
     let mut b = good.clone();

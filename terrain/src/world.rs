@@ -39,7 +39,10 @@ impl ChunkGenerator for FlatGenerator {
 /// changes the chunk raises it by one.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct VersionedChunk {
-    pub chunk: Chunk,
+    /// Shared: a reader that needs the state beyond a borrow (a background
+    /// job, a snapshot's pre-image) holds it without a copy; a change
+    /// replaces it, never writes it in place.
+    pub chunk: Arc<Chunk>,
     pub version: u64,
 }
 
@@ -84,7 +87,7 @@ impl World {
     fn entry(&mut self, pos: ChunkPos) -> &mut VersionedChunk {
         let generator = &self.generator;
         self.chunks.entry(pos).or_insert_with(|| VersionedChunk {
-            chunk: generator.generate(pos),
+            chunk: Arc::new(generator.generate(pos)),
             version: 0,
         })
     }
@@ -102,7 +105,8 @@ impl World {
     }
 
     /// Replaces a chunk and its version (restore, store load, replication).
-    pub fn insert(&mut self, pos: ChunkPos, chunk: Chunk, version: u64) {
+    pub fn insert(&mut self, pos: ChunkPos, chunk: impl Into<Arc<Chunk>>, version: u64) {
+        let chunk = chunk.into();
         self.chunks.insert(pos, VersionedChunk { chunk, version });
     }
 
@@ -112,10 +116,10 @@ impl World {
     }
 
     /// [`Self::commit`] that also hands back the state it replaced.
-    pub fn commit_replace(&mut self, pos: ChunkPos, mut chunk: Chunk) -> (u64, Chunk) {
+    pub fn commit_replace(&mut self, pos: ChunkPos, mut chunk: Chunk) -> (u64, Arc<Chunk>) {
         chunk.compact();
         let e = self.entry(pos);
-        let before = std::mem::replace(&mut e.chunk, chunk);
+        let before = std::mem::replace(&mut e.chunk, Arc::new(chunk));
         e.version += 1;
         (e.version, before)
     }
@@ -238,6 +242,31 @@ mod tests {
     }
 
     #[test]
+    fn a_shared_state_never_changes_under_its_holder() {
+        let mut w = World::new(Arc::new(FlatGenerator {
+            ground: Voxel::solid(ids::STONE),
+        }));
+        let p = ChunkPos::new(0, -1, 0);
+        let held = w.chunk(p).chunk.clone();
+        let mut next = Chunk::clone(&held);
+        next.set(1, 2, 3, Voxel::AIR);
+        let (v, before) = w.commit_replace(p, next.clone());
+        assert_eq!(v, 1);
+        // The state replaced is the one shared, not a copy, and unchanged.
+        assert!(Arc::ptr_eq(&before, &held));
+        assert_eq!(*held, Chunk::uniform(Voxel::solid(ids::STONE)));
+        assert_eq!(*w.peek(p).unwrap().chunk, next);
+        // A world's clone shares its chunks; changing one leaves the other.
+        let copy = w.clone();
+        assert!(Arc::ptr_eq(
+            &copy.peek(p).unwrap().chunk,
+            &w.peek(p).unwrap().chunk
+        ));
+        w.commit(p, Chunk::uniform(Voxel::AIR));
+        assert_eq!(*copy.peek(p).unwrap().chunk, next);
+    }
+
+    #[test]
     fn generates_on_demand_and_versions() {
         let mut w = World::new(Arc::new(FlatGenerator {
             ground: Voxel::solid(ids::STONE),
@@ -246,7 +275,7 @@ mod tests {
         assert_eq!(w.chunk(p).version, 0);
         assert_eq!(w.voxel(VoxelPos::new(0, -1, 0)), Voxel::solid(ids::STONE));
         assert_eq!(w.voxel(VoxelPos::new(0, 0, 0)), Voxel::AIR);
-        let mut c = w.chunk(p).chunk.clone();
+        let mut c = Chunk::clone(&w.chunk(p).chunk);
         c.set(0, 0, 0, Voxel::AIR);
         assert_eq!(w.commit(p, c), 1);
         assert_eq!(w.modified().count(), 1);

@@ -399,7 +399,7 @@ fn carve(world: &mut World, c: [f64; 3], r: f64) {
         for py in lo.y..=hi.y {
             for px in lo.x..=hi.x {
                 let pos = ChunkPos::new(px, py, pz);
-                let mut chunk = world.chunk(pos).chunk.clone();
+                let mut chunk = strata_terrain::Chunk::clone(&world.chunk(pos).chunk);
                 let o = pos.origin();
                 for z in 0..32 {
                     for y in 0..32 {

@@ -215,7 +215,7 @@ fn check_equivalent(edit: &Edit) {
     for ch in &out.changed {
         assert_eq!((ch.from_version, ch.to_version), (0, 1));
         assert_eq!(w.peek(ch.pos).unwrap().version, 1);
-        assert_eq!(ch.before, TestGround.generate(ch.pos));
+        assert_eq!(*ch.before, TestGround.generate(ch.pos));
     }
 }
 

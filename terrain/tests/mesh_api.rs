@@ -190,7 +190,7 @@ fn row_sampling_matches_per_voxel_sampling() {
                     continue;
                 }
                 // Distinct voxels near every face, edge and corner of the centre chunk.
-                let mut c = world.chunk(p).chunk.clone();
+                let mut c = Chunk::clone(&world.chunk(p).chunk);
                 for i in 0..40 {
                     n += 1;
                     let (x, y, z) = ((i * 7 + n as usize) % 32, (i * 13) % 32, (i * 29 + 3) % 32);
@@ -213,7 +213,7 @@ fn row_sampling_matches_per_voxel_sampling() {
     );
     // Missing chunks read as air.
     let lonely = Neighborhood::from_chunks(centre, |p| {
-        (p == centre).then(|| &world.peek(p).unwrap().chunk)
+        (p == centre).then(|| &*world.peek(p).unwrap().chunk)
     });
     assert_eq!(lonely.voxel(-1, 5, 5), Some(Voxel::AIR));
     assert_eq!(lonely.voxel(3, 5, 5), a.voxel(3, 5, 5));
@@ -223,7 +223,7 @@ fn row_sampling_matches_per_voxel_sampling() {
     recycled.refill_from_world(&world, centre);
     assert_eq!(recycled, a);
     recycled.refill_from_chunks(centre, |p| {
-        (p == centre).then(|| &world.peek(p).unwrap().chunk)
+        (p == centre).then(|| &*world.peek(p).unwrap().chunk)
     });
     assert_eq!(recycled, lonely);
 }

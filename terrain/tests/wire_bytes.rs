@@ -30,7 +30,7 @@ fn wire_cost(edit_at: impl Fn(i32, i32, i32) -> Edit, x: i32, z: i32) -> Vec<(us
             let after = &world.peek(ch.pos).unwrap().chunk;
             let d = ChunkDelta::encode(ch.pos, ch.from_version, ch.to_version, &ch.before, after)
                 .unwrap();
-            assert_eq!(&d.apply(&ch.before).unwrap(), after);
+            assert_eq!(&d.apply(&ch.before).unwrap(), &**after);
             (d.payload.len(), encode_chunk(after).len())
         })
         .collect()

@@ -231,7 +231,7 @@ mod tests {
         store
             .commit_batch(&CommitBatch {
                 entries: vec![entry(1, 1), entry(2, 2)],
-                chunks: vec![(pos, 2, Chunk::uniform(Voxel::AIR))],
+                chunks: vec![(pos, 2, Chunk::uniform(Voxel::AIR).into())],
                 deltas: Vec::new(),
                 last_seq: 2,
             })

@@ -2,9 +2,10 @@
 //! so line-of-sight checks rarely mesh on the engine thread.
 //!
 //! When a player enters a new chunk, the engine queues jobs for the chunks
-//! within `premesh_radius` that have no current mesh. A job carries copies
-//! of the modified chunks it reads and regenerates the rest, so the engine
-//! thread only copies what the store holds. Jobs run on threads of their
+//! within `premesh_radius` that have no current mesh. A job shares the
+//! world's modified chunks it reads (the world holds each as an `Arc`, and
+//! never writes one in place) and regenerates the rest, so the engine
+//! thread copies nothing. Jobs run on threads of their
 //! own (`engine.premesh_threads`) that sleep while they have none (a rayon
 //! pool spins between jobs); they share one cache of generated chunks.
 //! A finished mesh is cached
@@ -76,7 +77,8 @@ pub struct PremeshTarget {
 /// Chunks to mesh off the engine thread, together.
 pub struct PremeshJob {
     pub targets: Vec<PremeshTarget>,
-    /// Copies of the modified chunks they read; the rest are generated.
+    /// The modified chunks they read, shared with the world; the rest are
+    /// generated.
     pub modified: HashMap<ChunkPos, Arc<Chunk>>,
     pub generator: Arc<dyn ChunkGenerator>,
 }
@@ -410,7 +412,8 @@ impl super::Engine {
         }
         let modified = reads
             .iter()
-            .filter_map(|p| Some((*p, Arc::new(self.seq.world().peek(*p)?.chunk.clone()))))
+            // Shared with the world: the engine thread copies nothing.
+            .filter_map(|p| Some((*p, self.seq.world().peek(*p)?.chunk.clone())))
             .collect();
         self.premesh.submit(PremeshJob {
             targets,
@@ -489,11 +492,11 @@ mod tests {
         let mut world = World::new(g.clone());
         let surface = (0..16)
             .map(|y| ChunkPos::new(0, y - 8, 0))
-            .find(|p| !matches!(world.chunk(*p).chunk, Chunk::Uniform(_)))
+            .find(|p| !matches!(*world.chunk(*p).chunk, Chunk::Uniform(_)))
             .expect("a surface chunk near the origin");
         // One modified neighbour: its copy must be what the job meshes.
         let above = surface.offset(0, 1, 0).unwrap();
-        let mut edited = world.chunk(above).chunk.clone();
+        let mut edited = Chunk::clone(&world.chunk(above).chunk);
         edited.set(3, 0, 3, strata_terrain::Voxel::solid(3));
         let v = world.commit(above, edited.clone());
         let version_of = |p: ChunkPos| world.peek(p).map_or(0, |c| c.version);

@@ -195,7 +195,7 @@ mod tests {
             }],
             chunks: chunks
                 .iter()
-                .map(|&(p, v, m)| (p, v, Chunk::Uniform(Voxel::solid(m))))
+                .map(|&(p, v, m)| (p, v, Chunk::Uniform(Voxel::solid(m)).into()))
                 .collect(),
             deltas: Vec::new(),
             last_seq: seq,

@@ -25,6 +25,7 @@ pub use submit::Prechecked;
 pub use tick::{BuiltMeshes, PendingMeshes};
 
 use std::collections::{HashMap, VecDeque};
+use std::sync::Arc;
 
 use rayon::prelude::*;
 
@@ -130,7 +131,7 @@ impl Sequencer {
 
     /// The chunk's current state; a chunk never loaded is generated
     /// (make stored chunks resident first).
-    pub fn chunk(&mut self, pos: ChunkPos) -> Chunk {
+    pub fn chunk(&mut self, pos: ChunkPos) -> Arc<Chunk> {
         self.world.chunk(pos).chunk.clone()
     }
 
@@ -220,8 +221,8 @@ impl Sequencer {
 
     /// Holds `chunk`, generated off this thread, as the version-0 chunk at
     /// `pos` unless a chunk is loaded there. The caller has checked that
-    /// the store has no version of `pos`.
-    pub fn adopt_generated(&mut self, pos: ChunkPos, chunk: &Chunk) {
+    /// the store has no version of `pos`. The chunk is shared, not copied.
+    pub fn adopt_generated(&mut self, pos: ChunkPos, chunk: &Arc<Chunk>) {
         if self.world.peek(pos).is_none() {
             self.world.insert(pos, chunk.clone(), 0);
             self.residency.mark_absent(pos);

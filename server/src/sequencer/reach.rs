@@ -248,7 +248,7 @@ mod tests {
         let (mut w, mesh) = meshed();
         let pos = ChunkPos::new(0, 0, 0);
         let below = ChunkPos::new(0, -1, 0);
-        let mut c = w.peek(below).unwrap().chunk.clone();
+        let mut c = strata_terrain::Chunk::clone(&w.peek(below).unwrap().chunk);
         for x in 3..=9 {
             c.set(x, 31, 5, Voxel::new(0, 0));
         }

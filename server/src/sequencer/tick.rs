@@ -2,6 +2,7 @@
 
 use std::collections::hash_map::Entry;
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
+use std::sync::Arc;
 use std::time::Instant;
 
 use strata_protocol::RejectReason;
@@ -184,7 +185,7 @@ impl Sequencer {
         let mut results: Vec<Option<LaneResult>> = (0..queued.len()).map(|_| None).collect();
         let mut lane_slots = Vec::new();
         let mut stored = Vec::new();
-        let mut finals: BTreeMap<ChunkPos, (u64, Chunk)> = BTreeMap::new();
+        let mut finals: BTreeMap<ChunkPos, (u64, Arc<Chunk>)> = BTreeMap::new();
         let mut versions: BTreeMap<ChunkPos, u64> = BTreeMap::new();
         for lane in lanes {
             for (i, r) in lane.results {
@@ -397,7 +398,7 @@ fn merge_sorted(a: &[u16], b: &[u16]) -> Vec<u16> {
 struct FirstChange {
     from_version: u64,
     base_hash: u64,
-    before: Chunk,
+    before: Arc<Chunk>,
     /// Every voxel the lane's changes of the chunk so far changed
     /// (increasing): where `before` and the chunk's last state may differ.
     voxels: Vec<u16>,
@@ -416,7 +417,7 @@ struct Lane {
     /// Final version and state of each changed chunk the store does not
     /// hold yet (version 0 before the tick): stored whole, the others as
     /// their deltas.
-    finals: BTreeMap<ChunkPos, (u64, Chunk)>,
+    finals: BTreeMap<ChunkPos, (u64, Arc<Chunk>)>,
     /// The store's record of every other changed chunk: one delta from its
     /// version before the lane to its last, in position order.
     stored: Vec<ChunkDelta>,

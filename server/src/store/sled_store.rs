@@ -13,6 +13,7 @@
 
 use std::ops::RangeInclusive;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -227,7 +228,7 @@ impl ChunkStore for SledStore {
         // One log record a commit, whatever its edits (`log_pages.rs`).
         let page = (page_key(first_seq, b.last_seq), encode_page(&records));
         // zstd dominates a big batch's cost; chunks compress independently.
-        let encode = |(pos, version, chunk): &(ChunkPos, u64, Chunk)| EncodedChunk {
+        let encode = |(pos, version, chunk): &(ChunkPos, u64, Arc<Chunk>)| EncodedChunk {
             key: chunk_key(*pos),
             pos: *pos,
             lowest: lowest.get(pos).copied().unwrap_or(*version),

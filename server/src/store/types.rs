@@ -1,6 +1,7 @@
 //! Records the store keeps: world metadata, chunks, the edit log and batches.
 
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 use std::time::Duration;
 use strata_terrain::delta::ChunkDelta;
 use strata_terrain::{Chunk, ChunkPos, Edit};
@@ -81,7 +82,7 @@ pub struct CommitBatch {
     /// The final state, at the highest version the entries gave it, of
     /// each changed chunk written whole: at least every chunk the store
     /// does not hold yet (version 0 before the batch).
-    pub chunks: Vec<(ChunkPos, u64, Chunk)>,
+    pub chunks: Vec<(ChunkPos, u64, Arc<Chunk>)>,
     /// For every other changed chunk, one delta per change, in version
     /// order: the tick's durable record is the log plus these, and a
     /// checkpoint later folds them into the chunk's record.

@@ -130,7 +130,10 @@ impl Seq {
         }
         CommitBatch {
             entries,
-            chunks: latest.into_iter().map(|(p, (v, c))| (p, v, c)).collect(),
+            chunks: latest
+                .into_iter()
+                .map(|(p, (v, c))| (p, v, c.into()))
+                .collect(),
             deltas,
             last_seq: self.last_seq,
         }

@@ -7,6 +7,8 @@ use super::limits::*;
 use super::region::Region;
 use super::structure::{Structure, StructureLibrary};
 use super::Edit;
+use std::sync::Arc;
+
 use crate::chunk::Chunk;
 use crate::material::{MaterialId, MaterialTable};
 use crate::pos::{local_index, ChunkPos, VoxelBox, VoxelPos};
@@ -25,8 +27,9 @@ pub struct ChunkChange {
     pub pos: ChunkPos,
     pub from_version: u64,
     pub to_version: u64,
-    /// The chunk before the edit (the base of its delta).
-    pub before: Chunk,
+    /// The chunk before the edit (the base of its delta), as the world
+    /// held it.
+    pub before: Arc<Chunk>,
     /// Local indices of the voxels that changed, increasing: what
     /// [`crate::delta::ChunkDelta::encode_changed`] needs.
     pub voxels: Vec<u16>,
@@ -215,7 +218,7 @@ impl Edit {
                 .within_chunk(cpos)
                 .expect("chunk from the box's own range");
             let before = &world.peek(cpos).expect("loaded above").chunk;
-            let mut after = before.clone();
+            let mut after = Chunk::clone(before);
             // Visited z, then y, then x: increasing local index.
             // At most the box's part of the chunk: reserved once.
             let mut voxels = Vec::with_capacity(sub.volume() as usize);
