@@ -1,5 +1,7 @@
 //! Validation and application of edits to a chunked [`World`] or a [`Region`].
 
+use std::sync::Arc;
+
 use super::error::EditError;
 use super::fixed::{Fixed, FixedVec3, COORD_LIMIT_VOXELS};
 use super::kernel::apply_voxel;
@@ -7,8 +9,6 @@ use super::limits::*;
 use super::region::Region;
 use super::structure::{Structure, StructureLibrary};
 use super::Edit;
-use std::sync::Arc;
-
 use crate::chunk::Chunk;
 use crate::material::{MaterialId, MaterialTable};
 use crate::pos::{local_index, ChunkPos, VoxelBox, VoxelPos};
