@@ -52,7 +52,13 @@ impl ChunkPool {
 
     /// Shares `chunk` (hash `hash`): returns the pooled copy if one with the
     /// same hash is alive, else pools this one.
-    pub fn intern(&self, pos: ChunkPos, version: u64, hash: u64, chunk: Chunk) -> Arc<Chunk> {
+    pub fn intern(
+        &self,
+        pos: ChunkPos,
+        version: u64,
+        hash: u64,
+        chunk: impl Into<Arc<Chunk>>,
+    ) -> Arc<Chunk> {
         let mut c = self.chunks.lock().expect("not poisoned");
         if let Some((h, weak)) = c.map.get(&(pos, version)) {
             if *h == hash {
@@ -61,7 +67,7 @@ impl ChunkPool {
                 }
             }
         }
-        let arc = Arc::new(chunk);
+        let arc = chunk.into();
         c.map.insert((pos, version), (hash, Arc::downgrade(&arc)));
         if c.map.len() >= c.sweep_at.max(CHUNK_SWEEP_ENTRIES) {
             c.map.retain(|_, (_, w)| w.strong_count() > 0);

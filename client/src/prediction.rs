@@ -501,7 +501,7 @@ impl Prediction {
                     continue;
                 }
                 match replica.get(c) {
-                    Some(h) => world.insert(c, (*h.chunk).clone(), h.version),
+                    Some(h) => world.insert(c, h.chunk.clone(), h.version),
                     None => held = false,
                 }
             }

@@ -26,7 +26,7 @@ pub enum ReplayFailure {
 }
 
 /// One listed chunk's outcome.
-pub type Replayed = (OpChunk, Result<Chunk, ReplayFailure>);
+pub type Replayed = (OpChunk, Result<Arc<Chunk>, ReplayFailure>);
 
 fn materials() -> &'static MaterialTable {
     static TABLE: OnceLock<MaterialTable> = OnceLock::new();
@@ -60,7 +60,8 @@ pub fn replay(op: &OpUpdate, held: impl Fn(ChunkPos) -> Option<Held>) -> Vec<Rep
     let mut world = World::new(Arc::new(FlatGenerator { ground: Voxel::AIR }));
     for pos in reads.chunks() {
         match held(pos) {
-            Some(h) => world.insert(pos, (*h.chunk).clone(), h.version),
+            // Shared: the edit copies only the chunks it changes.
+            Some(h) => world.insert(pos, h.chunk.clone(), h.version),
             None if m > 0 => return fail_all(ReplayFailure::MissingBase),
             None => {}
         }
@@ -77,7 +78,7 @@ pub fn replay(op: &OpUpdate, held: impl Fn(ChunkPos) -> Option<Held>) -> Vec<Rep
             }
             let result = world
                 .peek(c.pos)
-                .map(|v| Chunk::clone(&v.chunk))
+                .map(|v| v.chunk.clone())
                 .filter(|chunk| chunk_hash(chunk) == c.hash)
                 .ok_or(ReplayFailure::Mismatch);
             (*c, result)
