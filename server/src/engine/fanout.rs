@@ -93,7 +93,7 @@ pub fn broadcast(
             .with_min_len(PEERS_PER_TASK)
             .flat_map_iter(|(id, p, mine)| {
                 let id = *id;
-                send_tick(p, &edits, &chains, mine, &end, &counters)
+                send_tick(p, &edits, &chains, mine, &end, &counters, true)
                     .into_iter()
                     .map(move |pos| (pos, id))
             })
@@ -108,7 +108,7 @@ pub fn broadcast(
                 continue;
             };
             let mine = wants.remove(&id).unwrap_or_default();
-            let gone = send_tick(p, &edits, &chains, &mine, &end, &counters);
+            let gone = send_tick(p, &edits, &chains, &mine, &end, &counters, false);
             stale.extend(gone.into_iter().map(|pos| (pos, id)));
         }
     }
@@ -242,7 +242,9 @@ impl std::ops::Deref for Frame<'_> {
 
 /// Queues the tick's frames `p` holds the base of, then `end`, as one
 /// batch. `mine`: the chains (indices into `chains`) of the chunks `p` is
-/// listed for. Returns those chunks it turned out not to hold.
+/// listed for. `direct`: on a worker, write the batch into the stream
+/// when it can go at once (the engine thread only queues). Returns those
+/// chunks it turned out not to hold.
 fn send_tick(
     p: &mut Peer,
     edits: &[TickEdit<'_>],
@@ -250,6 +252,7 @@ fn send_tick(
     mine: &[u32],
     end: &Bytes,
     counters: &Counters,
+    direct: bool,
 ) -> Vec<ChunkPos> {
     // The changes `p` gets: along each chunk's chain from the version it
     // holds; `covers` (a tree lookup) only confirms the chunks it holds.
@@ -310,7 +313,13 @@ fn send_tick(
     for f in &frames {
         buf.extend_from_slice(f);
     }
-    match p.updates.try_send(buf.freeze()) {
+    let batch = buf.freeze();
+    let sent = if direct {
+        p.updates.send_now(batch).map(|_| ())
+    } else {
+        p.updates.try_send(batch)
+    };
+    match sent {
         Ok(()) => counters.deltas_sent.increment(chunks.len() as u64),
         Err(SendRefused::Full) => {
             counters.deltas_dropped.increment(chunks.len() as u64);
@@ -451,7 +460,7 @@ mod tests {
         ];
         for known in cases {
             let (mut p, mut rx) = peer(&known);
-            let not_held = send_tick(&mut p, &edits, &chains, &all, &end, &Counters::new());
+            let not_held = send_tick(&mut p, &edits, &chains, &all, &end, &Counters::new(), true);
             let got = rx.try_recv().map(|b| b.to_vec()).unwrap_or_default();
             let (want, held) = reference(&known, &edits, &end);
             assert_eq!(got, want, "holding {known:?}");
