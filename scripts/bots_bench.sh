@@ -24,8 +24,10 @@
 # bytes handed to the store (strata_store_bytes_total: commit, checkpoint)
 # and per edit; and "caches": lookups of
 # the generated-chunk caches (premesh and patch bases: hits, generated) and
-# of the snapshot-frame cache (hits, misses, entries cleared); and
-# "requests_throttled": requests that waited for their session's
+# of the snapshot-frame cache (hits, misses, entries cleared); "batches":
+# sessions' batches of a tick's updates, written into the stream at once
+# by a fan-out worker, begun there (the rest left to the writer), or
+# queued to the writer task; and "requests_throttled": requests that waited for their session's
 # [validation.request_rate] tokens (0 for the bots). BENCH_CONSOLE_PORT turns on
 # the web console; BENCH_WATCHERS=N then connects N watching consoles once
 # the server is up, each like a browser tab: the first screen of map tiles
@@ -258,6 +260,7 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
         /^strata_generated_chunks_total\{/ { split($1, a, "\""); gen[a[2] "_" a[4]] = $NF }
         /^strata_snapshot_cache_total\{/ { split($1, a, "\""); snap[a[2]] = $NF }
         /^strata_requests_throttled_total / { throttled = $NF }
+        /^strata_fanout_batches_total\{/ { split($1, a, "\""); batches[a[2]] = $NF }
         /^strata_store_bytes_total\{/ { split($1, a, "\""); store[a[2]] = $NF }
         END { printf "{\"commit_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"fsync_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"server_edits_accepted\":%d",
             q["strata_flush_seconds_0.5"], q["strata_flush_seconds_0.99"], q["strata_flush_seconds_1"],
@@ -271,7 +274,7 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
             (accepted > 0 ? (meshes["changed"] + meshes["rewarm"] + meshes["on_demand"] + premesh) / accepted : 0)
               printf ",\"store_bytes\":{\"commit\":%d,\"checkpoint\":%d,\"per_edit\":%.0f}",
             store["commit"], store["checkpoint"], (accepted > 0 ? (store["commit"] + store["checkpoint"]) / accepted : 0)
-              printf ",\"caches\":{\"premesh_hit\":%d,\"premesh_generated\":%d,\"patch_base_hit\":%d,\"patch_base_generated\":%d,\"snapshot_hit\":%d,\"snapshot_miss\":%d,\"snapshot_cleared\":%d},\"requests_throttled\":%d}\n",
+              printf ",\"caches\":{\"premesh_hit\":%d,\"premesh_generated\":%d,\"patch_base_hit\":%d,\"patch_base_generated\":%d,\"snapshot_hit\":%d,\"snapshot_miss\":%d,\"snapshot_cleared\":%d},\"batches\":{\"written\":%d,\"begun\":%d,\"queued\":%d},\"requests_throttled\":%d}\n",
             gen["premesh_hit"], gen["premesh_generated"], gen["patch_base_hit"], gen["patch_base_generated"],
-            snap["hit"], snap["miss"], snap["cleared"], throttled }'
+            snap["hit"], snap["miss"], snap["cleared"], batches["written"], batches["begun"], batches["queued"], throttled }'
 fi

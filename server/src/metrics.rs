@@ -65,6 +65,9 @@ pub const QUIC_CONGESTION_EVENTS: &str = "strata_quic_congestion_events_total";
 pub const QUIC_RTT_SECONDS: &str = "strata_quic_rtt_seconds";
 pub const DELTAS_DROPPED: &str = "strata_deltas_dropped_total";
 pub const DELTAS_SENT: &str = "strata_deltas_sent_total";
+/// A session's batch of a tick's updates, by how it went: `written` into
+/// the stream at once, `begun` (its rest left to the writer), `queued`.
+pub const FANOUT_BATCHES: &str = "strata_fanout_batches_total";
 pub const OPS_SENT: &str = "strata_ops_sent_total";
 pub const POSITIONS_DROPPED: &str = "strata_positions_dropped_total";
 pub const REQUESTS_THROTTLED: &str = "strata_requests_throttled_total";
@@ -124,6 +127,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         DELTAS_SENT,
         "Chunk deltas queued to sessions (one per session that sees the chunk)"
+    );
+    metrics::describe_counter!(
+        FANOUT_BATCHES,
+        "Sessions' batches of a tick's updates, by how they went: written (into the QUIC stream at once, by a fan-out worker), begun (the rest left to the session's writer), queued (to the writer task)"
     );
     metrics::describe_counter!(
         OPS_SENT,

@@ -58,6 +58,8 @@ async fn metrics_count_what_happened() {
             "strata_flush_seconds",
             "strata_bytes_sent_total",
             "strata_sequencer_queue_depth",
+            // One session: its batch is queued by the engine thread.
+            "strata_fanout_batches_total{how=\"queued\"} 1",
         ] {
             assert!(text.contains(needle), "{needle:?} missing from:\n{text}");
         }

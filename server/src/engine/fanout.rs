@@ -14,7 +14,7 @@ use super::holders::Holders;
 use super::ops;
 use super::peer::Peer;
 use crate::metrics as m;
-use crate::net::writer::SendRefused;
+use crate::net::writer::{Handed, SendRefused};
 use crate::sequencer::AppliedEdit;
 
 /// Encodes an updates-stream frame. Server messages are built from
@@ -200,6 +200,8 @@ struct Counters {
     ops_sent: metrics::Counter,
     deltas_sent: metrics::Counter,
     deltas_dropped: metrics::Counter,
+    /// Batches by [`Handed`]: written, begun, queued.
+    batches: [metrics::Counter; 3],
 }
 
 impl Counters {
@@ -208,6 +210,8 @@ impl Counters {
             ops_sent: metrics::counter!(m::OPS_SENT),
             deltas_sent: metrics::counter!(m::DELTAS_SENT),
             deltas_dropped: metrics::counter!(m::DELTAS_DROPPED),
+            batches: ["written", "begun", "queued"]
+                .map(|how| metrics::counter!(m::FANOUT_BATCHES, "how" => how)),
         }
     }
 }
@@ -315,12 +319,15 @@ fn send_tick(
     }
     let batch = buf.freeze();
     let sent = if direct {
-        p.updates.send_now(batch).map(|_| ())
+        p.updates.send_now(batch)
     } else {
-        p.updates.try_send(batch)
+        p.updates.try_send(batch).map(|()| Handed::Queued)
     };
     match sent {
-        Ok(()) => counters.deltas_sent.increment(chunks.len() as u64),
+        Ok(how) => {
+            counters.deltas_sent.increment(chunks.len() as u64);
+            counters.batches[how as usize].increment(1);
+        }
         Err(SendRefused::Full) => {
             counters.deltas_dropped.increment(chunks.len() as u64);
             for pos in chunks {

@@ -35,11 +35,11 @@ pub enum SendRefused {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Handed {
     /// Whole, into the stream's QUIC buffer.
-    Written,
+    Written = 0,
     /// Its start into the stream; the rest goes next, by the writer.
-    Begun,
+    Begun = 1,
     /// Into the queue, as [`FrameSender::try_send`] would.
-    Queued,
+    Queued = 2,
 }
 
 /// The producer side of a writer queue. Cheap to clone.
