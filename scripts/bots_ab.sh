@@ -7,9 +7,10 @@
 # and B then A in even ones, so that the box's drift (20-40 % within an
 # hour on shared machines) falls on both alike. Prints one line a run
 # (server CPU ms per accepted edit over the editing window, ack p50/p99,
-# accepted edits, CPU seconds of the engine, worker and tokio threads, any
-# mismatch), then B/A of the CPU per edit for each pair and their median:
-# the figure to quote, with its pairs. The other bots_bench.sh settings
+# accepted edits, CPU seconds of the engine, worker and tokio threads, the
+# server's context switches per edit, any mismatch), then B/A of the CPU
+# per edit for each pair and their median: the figure to quote, with its
+# pairs. The other bots_bench.sh settings
 # (BENCH_SERVER_TOML, BENCH_SERVER_CPUS, BENCH_BOT_CPUS, ...) apply to both.
 # BENCH_AB_KEEP=DIR keeps each run's output there (A1.log, B1.log, ...).
 # Needs python3 to read the JSON lines.
@@ -52,12 +53,14 @@ if len(rows) < 2:
     print(f"{name}{pair}: no result"); sys.exit()
 bots, cpu = rows[0], rows[1]
 threads = next((r['thread_cpu_seconds'] for r in rows if 'thread_cpu_seconds' in r), {})
+switches = next((r['context_switches'] for r in rows if 'context_switches' in r), {})
 bad = {k: v for k, v in bots.items() if 'mismatch' in k and v}
 ack = bots.get('ack_latency_ms', {})
 print(f"{name}{pair}: {cpu['edit_server_cpu_ms_per_edit']} ms/edit, ack p50/p99 "
       f"{ack.get('p50')}/{ack.get('p99')} ms, {bots.get('edits_accepted')} edits, CPU s engine "
       f"{threads.get('strata-engine')} workers {threads.get('strata-worker')} tokio "
-      f"{threads.get('tokio-rt-worker')}, mismatches {bad or 0}")
+      f"{threads.get('tokio-rt-worker')}, switches/edit {switches.get('per_edit')}, "
+      f"mismatches {bad or 0}")
 PY
 }
 

@@ -37,7 +37,9 @@
 # ...), and one what it wrote over that run, from /proc/PID/io ("disk":
 # wchar, the bytes its write calls passed, store and log; write_bytes, the
 # bytes the page cache sent to the disk for it; write_calls; both per
-# accepted edit). BENCH_LOG=FILE keeps the server's log. Binaries come from
+# accepted edit), and one its threads' context switches over that run
+# ("context_switches": voluntary, involuntary, both per accepted edit).
+# BENCH_LOG=FILE keeps the server's log. Binaries come from
 # ${CARGO_TARGET_DIR:-target}/release, built first, or from BENCH_BIN_DIR
 # as they are (strata-server, strata-admin, strata-bots; no cargo needed:
 # a machine the binaries were copied to).
@@ -152,7 +154,13 @@ threads() {
         c=${c%%[0-9]*}; echo "${c%-} $(( ${12} + ${13} ))"
     done
 }
+# "voluntary involuntary" context switches summed over the server's threads.
+switches() {
+    awk '/^voluntary_ctxt_switches/ { v += $2 } /^nonvoluntary_ctxt_switches/ { n += $2 }
+        END { print v + 0, n + 0 }' /proc/"$pid"/task/*/status 2>/dev/null
+}
 threads > "$dir/threads0"
+switches > "$dir/switches0"
 cp "/proc/$pid/io" "$dir/io0"
 t0=$(ticks); s0=$(date +%s.%N)
 /usr/bin/time -f "%U %S" -o "$dir/bots_time" \
@@ -160,6 +168,7 @@ t0=$(ticks); s0=$(date +%s.%N)
     --bots "$bots" --duration "$duration" --json "$@" | tee "$dir/bots.json"
 t1=$(ticks); s1=$(date +%s.%N)
 threads > "$dir/threads1"
+switches > "$dir/switches1"
 cp "/proc/$pid/io" "$dir/io1"
 kill "$sampler" 2>/dev/null || true; wait "$sampler" 2>/dev/null || true; sampler=
 rss=$(awk '/VmHWM/ {print $2}' "/proc/$pid/status")
@@ -231,6 +240,14 @@ awk -v hz="$hz" 'FNR == NR { a[$1] += $2; next } { b[$1] += $2 }
     END { printf "{\"thread_cpu_seconds\":{"; sep = ""
           for (k in b) { printf "%s\"%s\":%.2f", sep, k, (b[k] - a[k]) / hz; sep = "," }
           print "}}" }' "$dir/threads0" "$dir/threads1"
+# The server's threads' context switches over the bots' run (threads that
+# ended during it are missing): voluntary (it slept: waits, parks) and
+# involuntary (preempted), and both per accepted edit.
+read -r v0 n0 < "$dir/switches0"
+read -r v1 n1 < "$dir/switches1"
+awk -v v=$((v1 - v0)) -v n=$((n1 - n0)) -v edits="${edits:-0}" 'BEGIN {
+    printf "{\"context_switches\":{\"voluntary\":%d,\"involuntary\":%d,\"per_edit\":%.1f}}\n",
+        v, n, (edits > 0 ? (v + n) / edits : 0) }'
 # What the server wrote over the bots' run (/proc/PID/io): bytes passed to
 # write calls (the store's files and the log), and bytes the page cache
 # sent to the disk for it.
