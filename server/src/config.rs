@@ -52,6 +52,8 @@ pub const DEFAULT_RETRY_ABOVE_HANDSHAKES: u32 = 32;
 pub const DEFAULT_HANDSHAKE_TIMEOUT_MS: u64 = 5_000;
 /// Longest allowed handshake time.
 pub const MAX_HANDSHAKE_TIMEOUT_MS: u64 = 60_000;
+/// Most `[server] net_threads`.
+pub const MAX_NET_THREADS: usize = 256;
 
 /// Cap on `tls.extra_names`.
 pub const MAX_EXTRA_NAMES: usize = 32;
@@ -189,9 +191,19 @@ pub struct ServerSection {
     pub retry_above_handshakes: u32,
     /// Milliseconds from a connection's first packet to its verified Hello.
     pub handshake_timeout_ms: u64,
+    /// Threads of the async runtime that runs QUIC, the sessions and the
+    /// metrics and console servers; 0 means one per available core
+    /// (tokio's default, or `TOKIO_WORKER_THREADS`). Read by the
+    /// `strata-server` binary when it starts.
+    pub net_threads: usize,
 }
 
 impl ServerSection {
+    /// The runtime's worker threads, if set (`None`: tokio's default).
+    pub fn net_threads(&self) -> Option<usize> {
+        (self.net_threads > 0).then_some(self.net_threads)
+    }
+
     /// The connection limits for [`crate::net::admission`].
     pub fn admission(&self) -> crate::net::admission::Limits {
         crate::net::admission::Limits {
@@ -296,6 +308,7 @@ impl Default for ServerSection {
             max_handshakes_per_address: DEFAULT_MAX_HANDSHAKES_PER_ADDRESS,
             retry_above_handshakes: DEFAULT_RETRY_ABOVE_HANDSHAKES,
             handshake_timeout_ms: DEFAULT_HANDSHAKE_TIMEOUT_MS,
+            net_threads: 0,
         }
     }
 }
@@ -427,6 +440,7 @@ impl ServerConfig {
             100,
             MAX_HANDSHAKE_TIMEOUT_MS,
         )?;
+        range("server.net_threads", s.net_threads, 0, MAX_NET_THREADS)?;
         if s.data_dir.as_os_str().is_empty() {
             return Err(invalid("server.data_dir", "must not be empty"));
         }

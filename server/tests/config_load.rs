@@ -187,6 +187,7 @@ fn bad_values_name_their_field() {
             "server.max_connections",
         ),
         ("[server]\ndata_dir = \"\"", "server.data_dir"),
+        ("[server]\nnet_threads = 257", "server.net_threads"),
         ("[tls]\nextra_names = [\"bad name!\"]", "tls.extra_names"),
         ("[tls]\nextra_names = [\"\"]", "tls.extra_names"),
         (

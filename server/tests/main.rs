@@ -41,6 +41,7 @@ mod net_interest;
 mod net_mesh_hashes;
 mod net_robustness;
 mod net_stream;
+mod net_threads;
 mod net_transport;
 mod sequencer_apply;
 mod sequencer_interest;

@@ -43,8 +43,7 @@ async fn wait_for_signal() -> anyhow::Result<&'static str> {
     }
 }
 
-#[tokio::main]
-async fn main() -> anyhow::Result<()> {
+fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
             EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")),
@@ -55,6 +54,17 @@ async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     let mut cfg = ServerConfig::load(args.config.as_deref()).context("loading config")?;
     cfg.apply_overrides(args.data_dir, args.listen);
+    // The runtime is sized by the config, so it starts after it is read.
+    let mut runtime = tokio::runtime::Builder::new_multi_thread();
+    runtime.enable_all();
+    if let Some(n) = cfg.server.net_threads() {
+        runtime.worker_threads(n);
+    }
+    let runtime = runtime.build().context("starting the async runtime")?;
+    runtime.block_on(serve(cfg))
+}
+
+async fn serve(cfg: ServerConfig) -> anyhow::Result<()> {
     let metrics_connections = cfg.metrics.max_connections;
     let metrics = match cfg.metrics.listen {
         Some(addr) => {
