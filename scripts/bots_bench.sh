@@ -5,7 +5,9 @@
 # Prints the bots' JSON summary, then one JSON line with the server's CPU
 # seconds (user+system, all threads, during the run), CPU share of one core,
 # and peak RSS, and the bots process's CPU seconds. BENCH_SERVER_TOML appends
-# lines to the server's config (e.g. $'[engine]\ntick_ms = 20').
+# lines to the server's config (e.g. $'[engine]\ntick_ms = 20'); it follows
+# the [server] table's keys, so keys before any header of its own are
+# [server]'s (e.g. $'net_threads = 1\n[engine]\ntick_ms = 20').
 # STRATA_SERVER_BIN runs another server binary (A/B runs). BENCH_PER_ADDRESS
 # sets the server's handshakes per address (default: room for every bot,
 # which all connect from 127.0.0.1); BENCH_OLD_SERVER=1 leaves the admission

@@ -11,10 +11,12 @@
 #   1. the pipeline bench at 1, 2, 1, 2, 4 and 8 workers (5 s each, at
 #      most 1024 edits a tick);
 #   2. bots_bench.sh runs, server pinned to CPUs 0..K-1 and the bots to
-#      the rest: 1000 bots on 2 cores (twice), 3000 on 8 with
-#      premesh_threads 1, 2 and 4, then 1 again, 2000 on 4, and 200 bots
-#      at view radius 8 on 2 cores; each run keeps its JSON lines, its
-#      stderr, its slow-tick lines and the server's last metrics scrape;
+#      the rest: 1000 bots on 2 cores with the default net_threads and
+#      with 1 (twice), 3000 on 8 with premesh_threads 1, 2 and 4, then 1
+#      again, with the default net_threads and with 4, 2000 on 4, and 200
+#      bots at view radius 8 on 2 cores; each run keeps its JSON lines,
+#      its stderr, its slow-tick lines and the server's last metrics
+#      scrape (a tag r<i>_<bots>b_<cores>c_p<premesh>_n<net threads>);
 #   3. scaling.csv of every run, and the table scaling_table.sh prints.
 # `quick` runs each step at a tenth of the bots for a few seconds, on
 # CPUs 0 and 1: a check of the script itself on a small machine.
@@ -41,32 +43,35 @@ STRATA_BENCH_EDITS_PER_TICK=1024 STRATA_BENCH_SECONDS=$seconds \
 log "pipeline rc=$?"
 
 i=0
-run() { # BOTS SERVER_CORES PREMESH_THREADS [strata-bots args...]
-    local bots=$(( $1 / scale )) k=$2 threads=$3 cpus bots_cpus tag
-    shift 3
+run() { # BOTS SERVER_CORES PREMESH_THREADS NET_THREADS [strata-bots args...]
+    local bots=$(( $1 / scale )) k=$2 threads=$3 net=$4 cpus bots_cpus tag
+    shift 4
     i=$((i + 1))
     cpus="0-$((k - 1))" bots_cpus="$k-$(( $(nproc) - 1 ))"
     if [ "$quick" = quick ]; then cpus=0 bots_cpus=1; fi
-    tag="r${i}_${bots}b_${k}c_p${threads}"
+    tag="r${i}_${bots}b_${k}c_p${threads}_n${net}"
     log "start $tag"
     BENCH_BIN_DIR="$bin" BENCH_METRICS_PORT=$((9400 + i)) BENCH_LOG="$work/$tag.log" \
         BENCH_METRICS_DUMP="$work/$tag.prom" BENCH_CSV="$work/scaling.csv" \
         BENCH_SERVER_CPUS="$cpus" BENCH_BOT_CPUS="$bots_cpus" \
-        BENCH_SERVER_TOML=$'[engine]\npremesh_threads = '"$threads" \
+        BENCH_SERVER_TOML="net_threads = $net"$'\n[engine]\npremesh_threads = '"$threads" \
         timeout 180 "$here/bots_bench.sh" "$bots" "$duration" "$@" \
         > "$work/$tag.json" 2> "$work/$tag.err"
     log "end $tag rc=$?"
     grep "slow tick" "$work/$tag.log" > "$work/$tag.slow"
     rm -f "$work/$tag.log"
 }
-run 1000 2 1 --verify modified
-run 3000 8 1 --verify modified
-run 3000 8 2 --verify modified
-run 3000 8 4 --verify modified
-run 1000 2 1 --verify modified
-run 3000 8 1 --verify modified
-run 2000 4 1 --verify modified
-run 200 2 1 --view-radius 8 --verify modified
+run 1000 2 1 0 --verify modified
+run 1000 2 1 1 --verify modified
+run 3000 8 1 0 --verify modified
+run 3000 8 2 0 --verify modified
+run 3000 8 4 0 --verify modified
+run 1000 2 1 0 --verify modified
+run 1000 2 1 1 --verify modified
+run 3000 8 1 0 --verify modified
+run 3000 8 1 4 --verify modified
+run 2000 4 1 0 --verify modified
+run 200 2 1 0 --view-radius 8 --verify modified
 
 if [ -s "$work/scaling.csv" ]; then
     echo "| bots | server cores | accepted edits/s | ack p50 / p99 ms | broadcast p99 ms | server cores used | server CPU ms/edit | mismatches |" > "$work/table.md"
