@@ -117,13 +117,13 @@ impl FrameSender {
         let Some(d) = &self.direct else {
             return queue(frame);
         };
-        let Ok(mut shared) = d.stream.try_lock() else {
+        let Ok(mut locked) = d.stream.try_lock() else {
             return queue(frame);
         };
         // Under the lock: a frame queued from now on is written after the
         // writer takes the lock, so after this one.
         if d.queued.load(Ordering::Acquire) != 0 {
-            drop(shared);
+            drop(locked);
             return queue(frame);
         }
         // A slot held first: a frame begun must be finished, and its rest
@@ -134,7 +134,7 @@ impl FrameSender {
         })?;
         let mut bufs = [frame];
         let written = {
-            let write = pin!(shared.stream.write_chunks(&mut bufs));
+            let write = pin!(locked.stream.write_chunks(&mut bufs));
             // Cancel-safe: a write that does not resolve wrote nothing.
             match write.poll(&mut Context::from_waker(Waker::noop())) {
                 Poll::Ready(Ok(w)) => w.bytes,
@@ -152,7 +152,7 @@ impl FrameSender {
             return Ok(Handed::Written);
         }
         // The writer writes `rest` first when it takes this wake-up.
-        shared.rest = Some(rest);
+        locked.rest = Some(rest);
         d.queued.fetch_add(1, Ordering::AcqRel);
         permit.send(Bytes::new());
         Ok(if written == 0 {
