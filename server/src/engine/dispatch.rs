@@ -1,0 +1,253 @@
+//! Serving one command from a session or an operator, between ticks.
+
+use strata_protocol::{ErrorCode, Refusal, ServerMessage, WorldUpdate};
+use tracing::{error, info, warn};
+
+use super::peer::Peer;
+use super::{fanout, now_ms, Command, Engine, JoinReply};
+use crate::interest::{Anchor, Interest};
+use crate::metrics as m;
+
+impl Engine {
+    pub(super) fn handle(&mut self, cmd: Command) {
+        let now = now_ms();
+        match cmd {
+            Command::Join {
+                session,
+                player,
+                role,
+                control,
+                updates,
+                reply,
+                kick,
+                position,
+                capabilities,
+            } => {
+                // A new login replaces the player's oldest sessions past the cap.
+                let mut older = self.sessions_of(&player);
+                older.sort_unstable();
+                let excess = (older.len() + 1).saturating_sub(self.cfg.sessions_per_player.max(1));
+                for &id in &older[..excess] {
+                    info!(session = id, %player, "replaced by a newer login");
+                    self.end_session(id, ErrorCode::Kicked, "replaced by a newer login");
+                }
+                self.seq.session_joined(session, player, role);
+                let start = self.seq.resume_position(session, now);
+                metrics::counter!(m::SESSIONS_TOTAL).increment(1);
+                let interest = Interest::new(self.interest, self.bounds);
+                let mut peer = Peer::new(control, updates, interest, kick, position, start);
+                peer.capabilities = capabilities;
+                if let Some(old) = self.peers.insert(session, peer) {
+                    old.unlist_all(&mut self.holders, session);
+                }
+                // A join may arrive mid-commit: name no seq a power cut could
+                // still take back.
+                let _ = reply.send(JoinReply {
+                    last_seq: self.durable_seq,
+                    start,
+                });
+            }
+            Command::Leave { session } => {
+                self.seq.session_left(session);
+                if let Some(p) = self.peers.remove(&session) {
+                    p.unlist_all(&mut self.holders, session);
+                }
+            }
+            Command::Edit { session, request } => self.submit(session, request, now),
+            Command::Position { session } => {
+                let update = self.peers.get(&session).and_then(|p| p.position.take());
+                if let Some(update) = update {
+                    self.position(session, update, now);
+                }
+            }
+            Command::Subscribe {
+                session,
+                center,
+                radius,
+            } => {
+                // Admins may look anywhere; players only around themselves,
+                // or before any position, around their start.
+                let player = match self.seq.session(session) {
+                    Some(s) if s.role == strata_protocol::Role::Admin => None,
+                    Some(_) => Some(self.seq.position(session).map(|p| {
+                        Anchor::Chunk(crate::validate::position::feet_voxel(p.feet).chunk())
+                    })),
+                    None => return,
+                };
+                let Some(p) = self.peers.get_mut(&session) else {
+                    return;
+                };
+                let allowed = match player {
+                    None => Ok(()),
+                    Some(at) => {
+                        let anchor = at.unwrap_or_else(|| p.start_anchor());
+                        p.interest.check_centre(center, anchor)
+                    }
+                };
+                match allowed {
+                    Ok(()) => {
+                        let change = p.interest.subscribe(center, radius);
+                        self.apply_interest(session, change);
+                    }
+                    Err(max) => {
+                        let refusal = Refusal::SubscribeTooFar { center, max };
+                        self.send_control(session, &ServerMessage::RequestRefused(refusal));
+                    }
+                }
+            }
+            Command::Resync { session, pos } | Command::FullSnapshot { session, pos } => {
+                let full = matches!(cmd, Command::FullSnapshot { .. });
+                let Some(p) = self.peers.get_mut(&session) else {
+                    return;
+                };
+                if p.interest.covers(pos) {
+                    metrics::counter!(m::RESYNCS).increment(1);
+                    if full {
+                        p.full_data.insert(pos);
+                    }
+                    p.resend(pos);
+                } else {
+                    let refusal = Refusal::NotInInterest { pos };
+                    self.send_control(session, &ServerMessage::RequestRefused(refusal));
+                }
+            }
+            Command::Forget { session, chunks } => {
+                if let Some(p) = self.peers.get_mut(&session) {
+                    p.forget(&mut self.holders, session, &chunks);
+                }
+            }
+            Command::Arrive {
+                session,
+                feet,
+                issued_ms,
+            } => {
+                let msg = match self.seq.arrive(session, feet, issued_ms) {
+                    Ok(start) => {
+                        if let Some(p) = self.peers.get_mut(&session) {
+                            p.start = start;
+                        }
+                        ServerMessage::Arrived { feet }
+                    }
+                    Err(reason) => ServerMessage::RequestRefused(Refusal::BadTicket { reason }),
+                };
+                self.send_control(session, &msg);
+            }
+            Command::Admin(c) => self.admin(c),
+            Command::Stop | Command::Wake => {}
+        }
+        metrics::gauge!(m::QUEUE_DEPTH).set((self.seq.queued() + self.seq.sighting()) as f64);
+    }
+
+    fn submit(&mut self, session: u64, request: strata_protocol::EditRequest, now: u64) {
+        let id = request.client_edit_id;
+        // Every rule that reads no terrain first: a refused edit loads,
+        // generates and meshes nothing.
+        let result = self
+            .seq
+            .precheck(session, &request.edit, now)
+            .and_then(|pre| {
+                self.check_regions(session, &request.edit, now)?;
+                let needed = self.seq.missing(pre.reads());
+                if let Err(e) = self.make_resident(&needed) {
+                    error!(error = %e, "store read failed");
+                }
+                // Line of sight is checked in a batch (`check_sighted`).
+                self.seq.admit_prechecked(session, request, pre, now)
+            });
+        if let Err(reason) = result {
+            self.refuse_edit(session, id, reason);
+        }
+        self.kick_refused();
+    }
+
+    fn refuse_edit(
+        &mut self,
+        session: u64,
+        client_edit_id: u64,
+        reason: strata_protocol::RejectReason,
+    ) {
+        metrics::counter!(m::EDITS_REJECTED, "reason" => m::reject_label(&reason)).increment(1);
+        let msg = ServerMessage::EditRejected {
+            client_edit_id,
+            reason,
+        };
+        self.send_control(session, &msg);
+    }
+
+    /// Checks the line of sight of every edit admitted since the last
+    /// check, on the workers, and answers those it refuses; the rest are
+    /// queued for the tick.
+    pub(super) fn check_sighted(&mut self) {
+        if self.seq.sighting() == 0 {
+            return;
+        }
+        let pool = self.pool.clone();
+        let seq = &mut self.seq;
+        let refused = pool.install(|| seq.check_sighted(now_ms()));
+        for r in refused {
+            self.refuse_edit(r.session_id, r.client_edit_id, r.reason);
+        }
+        self.kick_refused();
+    }
+
+    /// Disconnects players out of rejection tokens.
+    fn kick_refused(&mut self) {
+        for s in self.seq.take_disconnects() {
+            if let Some(p) = self.peers.get_mut(&s) {
+                warn!(session = s, "disconnecting: too many refused edits");
+                metrics::counter!(m::SESSIONS_KICKED, "reason" => "rejected_edits").increment(1);
+                p.kick(ErrorCode::Kicked, "too many refused edits; slow down");
+            }
+        }
+    }
+
+    fn position(&mut self, session: u64, update: strata_protocol::PositionUpdate, now: u64) {
+        // Stale, out of bounds or too fast: refused before any chunk is
+        // loaded or generated.
+        if let Err(reason) = self.seq.precheck_position(session, &update, now) {
+            return self.refuse_position(session, update.seq, &reason, now);
+        }
+        let needed = self.seq.chunks_needed_for_position(&update);
+        if let Err(e) = self.make_resident(&needed) {
+            error!(error = %e, "store read failed");
+            return;
+        }
+        match self.seq.update_position(session, update, now) {
+            Ok(()) => {
+                if let Some(p) = self.peers.get_mut(&session) {
+                    let change = p.interest.follow_position(update.pos);
+                    self.apply_interest(session, change);
+                }
+                self.premesh_around(session, update.pos);
+            }
+            Err(reason) => self.refuse_position(session, update.seq, &reason, now),
+        }
+    }
+
+    fn apply_interest(&mut self, session: u64, change: crate::interest::InterestChange) {
+        let Some(p) = self.peers.get_mut(&session) else {
+            return;
+        };
+        // One frame for a whole re-centring: per-chunk frames (thousands at
+        // view radius 8) would overflow the writer queue of a prompt client.
+        let gone = p.apply_interest(&mut self.holders, session, change);
+        for chunks in gone.chunks(strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE) {
+            let update = WorldUpdate::UnsubscribedMany {
+                chunks: chunks.to_vec(),
+            };
+            if p.updates.try_send(fanout::encode_update(&update)).is_err() {
+                p.failed = true;
+            }
+        }
+    }
+
+    pub(super) fn send_control(&mut self, session: u64, msg: &ServerMessage) {
+        if let Some(p) = self.peers.get_mut(&session) {
+            if p.control.try_send(fanout::encode_control(msg)).is_err() {
+                // Control messages are never dropped silently: a client this
+                // far behind is disconnected.
+                p.failed = true;
+            }
+        }
+    }
+}
