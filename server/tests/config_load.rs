@@ -157,6 +157,11 @@ fn a_misspelled_key_in_a_known_section_is_an_error_naming_it_and_its_line() {
     // Edit bounds come from [world.generator]; they are not a validation key.
     let (_, msg) = load_error("[validation.bounds]\nmin_y = 0\n");
     assert!(msg.contains("line 1") && msg.contains("`bounds`"), "{msg}");
+    // A rate bucket takes exactly its two keys.
+    let (line, msg) =
+        load_error("[validation.edit_rate]\ncapacity = 20\nper_second = 5\nburst = 99\n");
+    assert_eq!(line, Some(4));
+    assert!(msg.contains("line 4") && msg.contains("`burst`"), "{msg}");
 }
 
 #[test]

@@ -8,8 +8,9 @@ use serde::{Deserialize, Serialize};
 /// Milli-tokens per token.
 const MILLI: u64 = 1000;
 
-/// Capacity and refill rate of one bucket.
+/// Capacity and refill rate of one bucket (both keys required, no others).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct BucketConfig {
     /// Largest burst, in tokens.
     pub capacity: u64,
