@@ -22,7 +22,7 @@ use crate::engine::{
     MIN_RESIDENT_CHUNKS,
 };
 use crate::heightmap::HeightmapSection;
-use crate::interest::{InterestConfig, MAX_VIEW_RADIUS};
+use crate::interest::{InterestConfig, MAX_HYSTERESIS, MAX_VIEW_RADIUS};
 use crate::sequencer::SequencerConfig;
 use crate::store::{
     StoreConfig, MAX_FLUSH_EVERY_MS, MAX_SEGMENT_SIZE_BYTES, MIN_CACHE_CAPACITY_BYTES,
@@ -588,6 +588,35 @@ impl ServerConfig {
             requests.per_second,
             1,
             max,
+        )?;
+        // The player buckets may refill at 0 (a fixed allowance), but a
+        // capacity of 0 would refuse every edit as rate-limited.
+        let v = &self.validation;
+        for (capacity, per_second, bucket) in [
+            (
+                "validation.edit_rate.capacity",
+                "validation.edit_rate.per_second",
+                v.edit_rate,
+            ),
+            (
+                "validation.volume_rate.capacity",
+                "validation.volume_rate.per_second",
+                v.volume_rate,
+            ),
+            (
+                "validation.reject_rate.capacity",
+                "validation.reject_rate.per_second",
+                v.reject_rate,
+            ),
+        ] {
+            range(capacity, bucket.capacity, 1, max)?;
+            range(per_second, bucket.per_second, 0, max)?;
+        }
+        range(
+            "interest.hysteresis",
+            self.interest.hysteresis,
+            0,
+            MAX_HYSTERESIS,
         )?;
         range(
             "interest.view_radius",

@@ -23,6 +23,9 @@ pub const DEFAULT_VIEW_RADIUS: u8 = 8;
 pub const DEFAULT_HYSTERESIS: u8 = 2;
 /// Largest view radius a config may set (a radius-32 cube is 274,625 chunks).
 pub const MAX_VIEW_RADIUS: u8 = 32;
+/// Largest hysteresis a config may set: a session keeps chunks out to
+/// `view_radius + hysteresis`, so this bounds what walking away leaves held.
+pub const MAX_HYSTERESIS: u8 = 16;
 
 /// The `[interest]` config section.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -57,7 +57,7 @@ pub const DEFAULT_REJECTS_PER_SECOND: u64 = 10;
 pub const DEFAULT_REQUEST_BURST: u64 = 50_000;
 /// Default refill of a session's request bucket, chunks per second.
 pub const DEFAULT_REQUESTS_PER_SECOND: u64 = 10_000;
-/// Largest `[validation.request_rate]` capacity and refill.
+/// Largest capacity and refill of any `[validation.*_rate]` bucket.
 pub const MAX_REQUEST_RATE: u64 = 1 << 32;
 /// Least milliseconds between two `PositionRefused` answers to one session.
 pub const DEFAULT_POSITION_REFUSAL_MS: u64 = 500;
