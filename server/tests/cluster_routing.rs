@@ -433,6 +433,9 @@ async fn a_batch_fenced_after_a_takeover_is_refused_and_the_node_goes_on() {
         );
         let pos = first[0].pos;
         assert_eq!(ann.replica().get(pos).unwrap().version, first[0].version);
+        // Its operators are told the last durable seq, not the floor of
+        // the seq block it reserved after the fenced batch.
+        assert_eq!(admin_stats(&west).await.last_seq, seq);
         let stored = tokio::task::spawn_blocking(move || {
             let last = thief.edit_log(1..=u64::MAX).map(|e| e.unwrap().seq).max();
             (last, thief.load_chunk(pos).unwrap().map(|c| c.version))

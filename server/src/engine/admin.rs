@@ -80,7 +80,9 @@ impl Engine {
         match cmd {
             AdminCommand::Stats(reply) => {
                 let _ = reply.send(EngineStats {
-                    last_seq: self.seq.last_seq(),
+                    // Not the sequencer's: a cluster node's runs ahead after a
+                    // fenced batch (its next seq block's floor).
+                    last_seq: self.durable_seq,
                     sessions: self.peers.len() as u32,
                     resident_chunks: self.seq.world().loaded() as u64,
                     modified_chunks: self.versions.len() as u64,

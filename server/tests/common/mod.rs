@@ -292,18 +292,23 @@ pub fn spot(x: i32, z: i32) -> (FixedVec3, strata_terrain::VoxelPos) {
 
 /// Live sessions, from the admin protocol.
 pub async fn live_sessions(server: &Running) -> u32 {
+    admin_stats(server).await.sessions
+}
+
+/// The admin protocol's `Stats`.
+pub async fn admin_stats(server: &Running) -> strata_protocol::admin::ServerStats {
     use strata_protocol::admin::{AdminRequest, AdminResponse};
     let token = token(server, "ops", Role::Admin);
     let mut admin =
         strata_server::admin::remote::AdminClient::connect(server.addr, &server.cert_der, &token)
             .await
             .unwrap();
-    let n = match admin.request(&AdminRequest::Stats).await.unwrap() {
-        AdminResponse::Stats(s) => s.sessions,
+    let stats = match admin.request(&AdminRequest::Stats).await.unwrap() {
+        AdminResponse::Stats(s) => s,
         other => panic!("unexpected {other:?}"),
     };
     admin.close().await;
-    n
+    stats
 }
 
 /// [`connect`] with `Hello` capability bits.
