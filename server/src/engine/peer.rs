@@ -138,13 +138,12 @@ impl Peer {
         id: u64,
         change: InterestChange,
     ) -> Vec<ChunkPos> {
-        let gone: HashSet<ChunkPos> = change.unsubscribe.iter().copied().collect();
-        for pos in &gone {
-            self.known.remove(pos);
-            holders.remove(*pos, id);
-            self.full_data.remove(pos);
+        for &pos in &change.unsubscribe {
+            self.known.remove(&pos);
+            holders.remove(pos, id);
+            self.full_data.remove(&pos);
+            self.pending.remove(pos);
         }
-        self.pending.retain(|p| !gone.contains(&p));
         for pos in change.subscribe {
             if !self.known.contains_key(&pos) {
                 self.pending.push_back(pos);
@@ -180,11 +179,12 @@ impl Peer {
         if dropped.is_empty() {
             return;
         }
+        // Work in proportion to the chunks named, never to the queue.
         for pos in &dropped {
             self.known.remove(pos);
             holders.remove(*pos, id);
+            self.pending.remove(*pos);
         }
-        self.pending.retain(|p| !dropped.contains(&p));
     }
 
     /// Forgets the client's copy of `pos` and sends it again first. The

@@ -436,7 +436,8 @@ pub fn request_cost(m: &ClientMessage, view_radius: u8) -> u64 {
             let side = 2 * u64::from((*radius).min(view_radius)) + 1;
             side * side * side
         }
-        ClientMessage::Forget { chunks } => chunks.len() as u64,
+        // Even an empty list is a command the engine serves.
+        ClientMessage::Forget { chunks } => (chunks.len() as u64).max(1),
         ClientMessage::ResyncRequest { .. }
         | ClientMessage::FullSnapshotRequest { .. }
         | ClientMessage::Arrive(_) => RESEND_COST,
@@ -607,6 +608,8 @@ mod tests {
             chunks: vec![ChunkPos::new(1, 2, 3); 40],
         };
         assert_eq!(request_cost(&forget, 8), 40);
+        let nothing = ClientMessage::Forget { chunks: Vec::new() };
+        assert_eq!(request_cost(&nothing, 8), 1, "an empty list is not free");
         let resync = ClientMessage::ResyncRequest {
             pos: ChunkPos::new(0, 0, 0),
         };
