@@ -448,11 +448,7 @@ impl Sequencer {
         };
         match known {
             Some(feet) => {
-                s.position = Some(ValidatedPosition {
-                    feet,
-                    at_ms: now_ms,
-                    seq: 0,
-                });
+                s.position = Some(ValidatedPosition::placed(feet, now_ms, &self.validation));
                 Start::Resume { feet }
             }
             None => spawn,
@@ -474,11 +470,7 @@ impl Sequencer {
         if s.position.is_some_and(|p| p.seq > 0) {
             return Err(strata_protocol::TicketRefusal::AlreadyPlaced);
         }
-        s.position = Some(ValidatedPosition {
-            feet,
-            at_ms: issued_ms,
-            seq: 0,
-        });
+        s.position = Some(ValidatedPosition::placed(feet, issued_ms, &self.validation));
         Ok(Start::Resume { feet })
     }
 
@@ -529,7 +521,7 @@ impl Sequencer {
         now_ms: u64,
     ) -> Result<(), PositionReject> {
         let prev = self.previous(session_id)?;
-        position::check_motion(prev.as_ref(), upd, now_ms, &self.validation)
+        position::check_motion(prev.as_ref(), upd, now_ms, &self.validation).map(|_| ())
     }
 
     /// Checks and records a position report. A rejected report changes

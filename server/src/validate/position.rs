@@ -14,6 +14,33 @@ pub struct ValidatedPosition {
     pub feet: FixedVec3,
     pub at_ms: u64,
     pub seq: u32,
+    /// The jitter slack still unspent, in thousandths of a voxel
+    /// ([`check_motion`]).
+    pub slack_milli: u64,
+}
+
+impl ValidatedPosition {
+    /// A position taken without a report (a resume, an arrival), with its
+    /// whole slack.
+    pub fn placed(feet: FixedVec3, at_ms: u64, cfg: &ValidationConfig) -> Self {
+        Self {
+            feet,
+            at_ms,
+            seq: 0,
+            slack_milli: full_slack_milli(cfg),
+        }
+    }
+}
+
+/// How long the jitter slack (`speed_slack_voxels`) takes to refill from
+/// empty. Reports closer together share it, so sending more of them buys
+/// no extra distance: over any time `t` a player moves at most
+/// `max_speed * (1 + speed_slack_factor) * t` plus the slack, plus the
+/// slack again for every `SLACK_REFILL_MS` of `t`.
+pub const SLACK_REFILL_MS: u64 = 250;
+
+fn full_slack_milli(cfg: &ValidationConfig) -> u64 {
+    (cfg.speed_slack_voxels.max(0.0) * 1000.0) as u64
 }
 
 /// Why a position report was not accepted. The previous position stays.
@@ -100,20 +127,29 @@ fn in_bounds(feet: FixedVec3, cfg: &ValidationConfig) -> bool {
             .all(|v| cfg.bounds.contains_y(v.y))
 }
 
-/// Largest distance legal between two reports `elapsed_ms` apart.
-pub fn allowed_distance(elapsed_ms: u64, cfg: &ValidationConfig) -> f64 {
-    let base = cfg.max_speed * (elapsed_ms as f64 / 1000.0);
-    base * (1.0 + cfg.speed_slack_factor) + cfg.speed_slack_voxels
+/// The distance speed allows in `elapsed_ms`, without the slack.
+fn speed_distance(elapsed_ms: u64, cfg: &ValidationConfig) -> f64 {
+    cfg.max_speed * (elapsed_ms as f64 / 1000.0) * (1.0 + cfg.speed_slack_factor)
+}
+
+/// The slack `prev` left, refilled for `elapsed_ms`, in thousandths of a voxel.
+fn slack_available(prev: &ValidatedPosition, elapsed_ms: u64, cfg: &ValidationConfig) -> u64 {
+    let full = full_slack_milli(cfg);
+    let refill = full.saturating_mul(elapsed_ms) / SLACK_REFILL_MS;
+    prev.slack_milli.saturating_add(refill).min(full)
 }
 
 /// The rules that need no terrain: order, bounds and speed against the
-/// previous validated position. Run before any chunk is loaded.
+/// previous validated position. Run before any chunk is loaded. Returns
+/// the slack the move leaves ([`ValidatedPosition::slack_milli`]): a move
+/// may go as far as speed allows since the previous report plus the slack
+/// left, and what it goes beyond speed is spent from the slack.
 pub fn check_motion(
     prev: Option<&ValidatedPosition>,
     upd: &PositionUpdate,
     now_ms: u64,
     cfg: &ValidationConfig,
-) -> Result<(), PositionReject> {
+) -> Result<u64, PositionReject> {
     if let Some(p) = prev {
         if upd.seq <= p.seq {
             return Err(PositionReject::Stale {
@@ -135,17 +171,21 @@ pub fn check_motion(
                 radius: spawn.radius,
             });
         }
-        return Ok(());
+        return Ok(full_slack_milli(cfg));
     };
+    let elapsed = now_ms.saturating_sub(p.at_ms);
     let d = to_dvec3(p.feet).distance(to_dvec3(upd.pos));
-    let allowed = allowed_distance(now_ms.saturating_sub(p.at_ms), cfg);
+    let speed = speed_distance(elapsed, cfg);
+    let slack = slack_available(p, elapsed, cfg);
+    let allowed = speed + slack as f64 / 1000.0;
     if d > allowed {
         return Err(PositionReject::TooFast {
             distance: d,
             allowed,
         });
     }
-    Ok(())
+    let spent = ((d - speed).max(0.0) * 1000.0).ceil() as u64;
+    Ok(slack.saturating_sub(spent))
 }
 
 /// Checks a report against the previous validated position (none when the
@@ -158,7 +198,7 @@ pub fn check(
     cfg: &ValidationConfig,
     voxels: &impl VoxelRead,
 ) -> Result<ValidatedPosition, PositionReject> {
-    check_motion(prev, upd, now_ms, cfg)?;
+    let slack_milli = check_motion(prev, upd, now_ms, cfg)?;
     for v in body_voxels(upd.pos, cfg) {
         if voxels.voxel(v).is_solid() {
             return Err(PositionReject::InsideSolid { voxel: v });
@@ -168,5 +208,6 @@ pub fn check(
         feet: upd.pos,
         at_ms: now_ms,
         seq: upd.seq,
+        slack_milli,
     })
 }
