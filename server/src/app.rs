@@ -188,6 +188,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         control_writer_queue: cfg.net.control_writer_queue,
         send_interval: cfg.net.send_interval(),
         request_rate: cfg.validation.request_rate,
+        position_rate: cfg.validation.position_rate,
         access: std::sync::RwLock::new(access),
         access_writes: tokio::sync::Mutex::new(()),
     };

@@ -589,28 +589,29 @@ impl ServerConfig {
             1,
             max,
         )?;
-        // The player buckets may refill at 0 (a fixed allowance), but a
-        // capacity of 0 would refuse every edit as rate-limited.
+        let positions = self.validation.position_rate;
+        range(
+            "validation.position_rate.capacity",
+            positions.capacity,
+            1,
+            max,
+        )?;
+        range(
+            "validation.position_rate.per_second",
+            positions.per_second,
+            1,
+            max,
+        )?;
+        // The player buckets may refill at 0 (only the burst) and be as
+        // large as u64 (the bucket saturates), but a capacity of 0 would
+        // refuse every edit as rate-limited.
         let v = &self.validation;
-        for (capacity, per_second, bucket) in [
-            (
-                "validation.edit_rate.capacity",
-                "validation.edit_rate.per_second",
-                v.edit_rate,
-            ),
-            (
-                "validation.volume_rate.capacity",
-                "validation.volume_rate.per_second",
-                v.volume_rate,
-            ),
-            (
-                "validation.reject_rate.capacity",
-                "validation.reject_rate.per_second",
-                v.reject_rate,
-            ),
+        for (field, bucket) in [
+            ("validation.edit_rate.capacity", v.edit_rate),
+            ("validation.volume_rate.capacity", v.volume_rate),
+            ("validation.reject_rate.capacity", v.reject_rate),
         ] {
-            range(capacity, bucket.capacity, 1, max)?;
-            range(per_second, bucket.per_second, 0, max)?;
+            range(field, bucket.capacity, 1, u64::MAX)?;
         }
         range(
             "interest.hysteresis",

@@ -122,7 +122,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_counter!(
         POSITIONS_DROPPED,
-        "Position datagrams dropped because the engine's queue was full"
+        "Position datagrams dropped: reason=rate past the session's [validation.position_rate], queue_full when the engine's queue was full"
     );
     metrics::describe_counter!(
         DELTAS_SENT,

@@ -198,14 +198,18 @@ fn bad_values_name_their_field() {
             "validation.edit_rate.capacity",
         ),
         (
-            "[validation.reject_rate]\ncapacity = 5\nper_second = 5000000000",
-            "validation.reject_rate.per_second",
-        ),
-        (
-            "[validation.volume_rate]\ncapacity = 5000000000\nper_second = 0",
+            "[validation.volume_rate]\ncapacity = 0\nper_second = 0",
             "validation.volume_rate.capacity",
         ),
         ("[interest]\nhysteresis = 17", "interest.hysteresis"),
+        (
+            "[validation.position_rate]\ncapacity = 0\nper_second = 5",
+            "validation.position_rate.capacity",
+        ),
+        (
+            "[validation.position_rate]\ncapacity = 5\nper_second = 0",
+            "validation.position_rate.per_second",
+        ),
         ("[tls]\nextra_names = [\"bad name!\"]", "tls.extra_names"),
         ("[tls]\nextra_names = [\"\"]", "tls.extra_names"),
         (

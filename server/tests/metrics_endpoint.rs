@@ -147,6 +147,49 @@ async fn metrics_count_what_happened() {
     .expect("test finished in time");
 }
 
+/// A client sending position datagrams as fast as it can gets no more of
+/// them to the engine than its `[validation.position_rate]`: its session
+/// task drops the rest, counts them, and the session goes on.
+#[tokio::test]
+async fn a_position_flood_stops_at_the_sessions_bucket() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let root = tempfile::tempdir().unwrap();
+        let data = root.path().join("data");
+        let metrics = free_metrics_addr();
+        let config = format!(
+            "{FAST_EDITS}[validation.position_rate]\ncapacity = 5\nper_second = 10\n[metrics]\nlisten = \"{metrics}\"\n"
+        );
+        let (mut child, addr) = spawn_server(&data, &config);
+        let c = process_client(&data, addr, "ana").await;
+        let g = Generator::fractal(GenParams::default()).unwrap();
+        let (x, z) = (70, 40);
+        let feet = at(x as f64, g.surface_height(x, z) + 1.0, z as f64);
+        // A report a millisecond, so that most find the engine done with
+        // the one before (one arriving while another waits replaces it).
+        const FLOOD: usize = 400;
+        for _ in 0..FLOOD {
+            c.send_position(feet).unwrap();
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+        // The burst and about a second's refill reach the engine; every
+        // other report that would queue a command is dropped.
+        let dropped = "strata_positions_dropped_total{reason=\"rate\"}";
+        let n = wait_for_metric(metrics, dropped, (FLOOD / 4) as f64).await;
+        assert!(n <= FLOOD as f64, "{n} dropped of {FLOOD}");
+        let text = scrape(metrics);
+        assert_eq!(
+            metric(&text, "strata_positions_dropped_total{reason=\"queue_full\"}"),
+            None
+        );
+        c.ping(1).await.unwrap();
+        assert!(!c.is_closed(), "the flood cost the session nothing else");
+        child.kill().unwrap();
+        child.wait().unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
 /// Polls the metrics at `addr` until `name` is at least `at_least`
 /// (20 s at most); returns its value.
 async fn wait_for_metric(addr: std::net::SocketAddr, name: &str, at_least: f64) -> f64 {

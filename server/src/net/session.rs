@@ -51,6 +51,8 @@ pub struct SessionContext {
     /// Each session's bucket for requests other than edits
     /// (`[validation.request_rate]`, in chunks; see [`request_cost`]).
     pub request_rate: BucketConfig,
+    /// Each session's bucket of position reports (`[validation.position_rate]`).
+    pub position_rate: BucketConfig,
     /// Bans and revocations, checked at every Hello; admin sessions change
     /// it (one at a time, under `access_writes`) and persist it first.
     pub access: std::sync::RwLock<auth::AccessList>,
@@ -354,6 +356,7 @@ async fn serve(
     latest: &LatestPosition,
 ) -> End {
     let mut requests = TokenBucket::new(ctx.request_rate, now_ms());
+    let mut positions = TokenBucket::new(ctx.position_rate, now_ms());
     // A request waiting for tokens, and when they are there: the control
     // stream is not read meanwhile (positions, kicks and shutdown still are).
     let mut throttled: Option<(ClientMessage, tokio::time::Instant)> = None;
@@ -379,7 +382,7 @@ async fn serve(
             },
             dg = conn.read_datagram() => {
                 match dg {
-                    Ok(bytes) => position(session, &ctx.engine, latest, bytes),
+                    Ok(bytes) => position(session, &ctx.engine, latest, &mut positions, bytes),
                     Err(e) => {
                         debug!(error = %e, "connection ended");
                         return End::Gone;
@@ -467,17 +470,34 @@ fn reply(control: &FrameSender, msg: &ServerMessage) -> Result<(), End> {
 
 /// Datagrams are unreliable and the next one supersedes this one: it
 /// replaces the session's pending update, and only an update into an empty
-/// slot queues a command. A bad or unqueued one is dropped (and counted).
-fn position(session: u64, engine: &EngineHandle, latest: &LatestPosition, bytes: Bytes) {
-    match decode::<PositionUpdate>(&bytes, Direction::ClientToServer) {
-        Ok(update) => {
-            if latest.offer(update) && !engine.try_send(Command::Position { session }) {
-                latest.clear();
-                metrics::counter!(crate::metrics::POSITIONS_DROPPED).increment(1);
-            }
-        }
-        Err(e) => debug!(error = %e, "bad position datagram"),
+/// slot queues a command, which takes one of `tokens`. A bad one is
+/// dropped, and one that would queue a command with no token left or into
+/// a full engine queue is dropped and counted.
+fn position(
+    session: u64,
+    engine: &EngineHandle,
+    latest: &LatestPosition,
+    tokens: &mut TokenBucket,
+    bytes: Bytes,
+) {
+    let update = match decode::<PositionUpdate>(&bytes, Direction::ClientToServer) {
+        Ok(update) => update,
+        Err(e) => return debug!(error = %e, "bad position datagram"),
+    };
+    if !latest.offer(update) {
+        return;
     }
+    // The slot was empty, so no command names it: clearing it is safe.
+    tokens.refill(now_ms());
+    let why = if !tokens.take(1) {
+        "rate"
+    } else if !engine.try_send(Command::Position { session }) {
+        "queue_full"
+    } else {
+        return;
+    };
+    latest.clear();
+    metrics::counter!(crate::metrics::POSITIONS_DROPPED, "reason" => why).increment(1);
 }
 
 /// Tells the engine the session ended. It must arrive, or the engine keeps
@@ -674,29 +694,39 @@ mod tests {
     fn a_position_flood_queues_one_command_per_session_and_keeps_the_newest() {
         let (engine, rx) = crate::engine::inbox_channel(8, 8);
         let latest = LatestPosition::default();
+        // Two commands' worth of tokens, never refilled.
+        let cfg = BucketConfig {
+            capacity: 2,
+            per_second: 0,
+        };
+        let mut tokens = TokenBucket::new(cfg, now_ms());
         for seq in 1..=10_000u32 {
             let update = PositionUpdate {
                 seq,
                 pos: strata_terrain::edit::FixedVec3::from_voxels(seq as i32 * 1000, 40, 0),
             };
             let bytes = strata_protocol::encode(&update, Direction::ClientToServer).unwrap();
-            position(7, &engine, &latest, Bytes::from(bytes));
+            position(7, &engine, &latest, &mut tokens, Bytes::from(bytes));
         }
         let next = || rx.recv_timeout(Duration::ZERO);
         assert!(matches!(next(), Ok(Command::Position { session: 7 })));
         assert!(next().is_err(), "one command for 10,000 datagrams");
         assert_eq!(latest.take().map(|u| u.seq), Some(10_000));
-        // Once the engine took it, the next datagram asks again.
-        let again = PositionUpdate {
-            seq: 10_001,
-            pos: strata_terrain::edit::FixedVec3::from_voxels(0, 40, 0),
+        // Once the engine took it, the next datagram asks again, with the
+        // second token; the one after that finds none and is dropped.
+        let mut again = |seq| {
+            let update = PositionUpdate {
+                seq,
+                pos: strata_terrain::edit::FixedVec3::from_voxels(0, 40, 0),
+            };
+            let bytes = strata_protocol::encode(&update, Direction::ClientToServer).unwrap();
+            position(7, &engine, &latest, &mut tokens, Bytes::from(bytes));
         };
-        position(
-            7,
-            &engine,
-            &latest,
-            Bytes::from(strata_protocol::encode(&again, Direction::ClientToServer).unwrap()),
-        );
+        again(10_001);
         assert!(matches!(next(), Ok(Command::Position { session: 7 })));
+        assert_eq!(latest.take().map(|u| u.seq), Some(10_001));
+        again(10_002);
+        assert!(next().is_err(), "no token: no command");
+        assert_eq!(latest.take(), None, "and nothing left pending");
     }
 }

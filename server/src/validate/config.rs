@@ -57,6 +57,11 @@ pub const DEFAULT_REJECTS_PER_SECOND: u64 = 10;
 pub const DEFAULT_REQUEST_BURST: u64 = 50_000;
 /// Default refill of a session's request bucket, chunks per second.
 pub const DEFAULT_REQUESTS_PER_SECOND: u64 = 10_000;
+/// Default burst of position reports the engine handles per session.
+pub const DEFAULT_POSITION_BURST: u64 = 30;
+/// Default position reports per second the engine handles per session
+/// (game clients send 10 to 60).
+pub const DEFAULT_POSITIONS_PER_SECOND: u64 = 60;
 /// Largest capacity and refill of any `[validation.*_rate]` bucket.
 pub const MAX_REQUEST_RATE: u64 = 1 << 32;
 /// Least milliseconds between two `PositionRefused` answers to one session.
@@ -106,6 +111,11 @@ pub struct ValidationConfig {
     /// refill per second. A session out of tokens is not read until it has
     /// them again, so QUIC's flow control slows its client down.
     pub request_rate: BucketConfig,
+    /// A session's position reports handed to the engine: burst and
+    /// refill per second. A datagram past them is dropped (the next one
+    /// supersedes it anyway), so a client sending at line rate costs the
+    /// engine no more than one sending at this rate.
+    pub position_rate: BucketConfig,
     /// Players whose last position is kept after their sessions end, so a
     /// reconnect resumes there ([`DEFAULT_REMEMBERED_PLAYERS`]).
     pub remembered_players: usize,
@@ -145,6 +155,10 @@ impl Default for ValidationConfig {
             request_rate: BucketConfig {
                 capacity: DEFAULT_REQUEST_BURST,
                 per_second: DEFAULT_REQUESTS_PER_SECOND,
+            },
+            position_rate: BucketConfig {
+                capacity: DEFAULT_POSITION_BURST,
+                per_second: DEFAULT_POSITIONS_PER_SECOND,
             },
             remembered_players: DEFAULT_REMEMBERED_PLAYERS,
             position_refusal_ms: DEFAULT_POSITION_REFUSAL_MS,
