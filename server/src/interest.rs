@@ -4,7 +4,10 @@
 //! explicit `Subscribe`. New chunks come nearest first (the shell sends them
 //! under its per-tick byte budget); chunks are dropped only once they are
 //! beyond `radius + hysteresis`, so walking back and forth over a chunk
-//! border does not resend the same chunks. Rows outside the world's vertical
+//! border does not resend the same chunks, and the centre moves to a new
+//! chunk only once the feet are [`RECENTRE_MARGIN`] voxels past the old
+//! one, so it does not re-centre (a walk over the whole view) at every
+//! crossing either. Rows outside the world's vertical
 //! bounds are never subscribed. A player's subscription stays near its
 //! last accepted position or, before one, near its start ([`Anchor`]).
 
@@ -26,6 +29,11 @@ pub const MAX_VIEW_RADIUS: u8 = 32;
 /// Largest hysteresis a config may set: a session keeps chunks out to
 /// `view_radius + hysteresis`, so this bounds what walking away leaves held.
 pub const MAX_HYSTERESIS: u8 = 16;
+
+/// Voxels the feet must be past the centre chunk before the view
+/// re-centres: walking to and fro over a chunk border re-centres once per
+/// `2 * RECENTRE_MARGIN` voxels walked at most, not at every crossing.
+pub const RECENTRE_MARGIN: i32 = 4;
 
 /// The `[interest]` config section.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -146,8 +154,14 @@ impl Interest {
         if self.explicit {
             return InterestChange::default();
         }
-        let chunk = crate::validate::position::feet_voxel(feet).chunk();
+        let voxel = crate::validate::position::feet_voxel(feet);
+        let chunk = voxel.chunk();
         let r = self.cfg.radius();
+        if let Some(c) = self.center {
+            if chunk != c && self.radius == r && voxels_past(voxel, c) < RECENTRE_MARGIN {
+                return InterestChange::default();
+            }
+        }
         self.recenter(chunk, r)
     }
 
@@ -216,6 +230,18 @@ impl Interest {
             recentred: true,
         }
     }
+}
+
+/// How far `v` lies outside chunk `c`, in voxels along its farthest axis
+/// (0 inside).
+fn voxels_past(v: strata_terrain::VoxelPos, c: ChunkPos) -> i32 {
+    let past = |v: i32, c: i32| {
+        let lo = i64::from(c) * CHUNK_SIZE as i64;
+        let hi = lo + CHUNK_SIZE as i64 - 1;
+        let v = i64::from(v);
+        (lo - v).max(v - hi).clamp(0, i64::from(i32::MAX)) as i32
+    };
+    past(v.x, c.x).max(past(v.y, c.y)).max(past(v.z, c.z))
 }
 
 /// The sort key of the chunk stream: squared Euclidean distance in chunks

@@ -60,8 +60,9 @@ fn nearest_first_with_fixed_tiebreak() {
 fn hysteresis_keeps_chunks_until_far_enough() {
     let mut i = interest(2, 1);
     i.follow_position(FixedVec3::from_voxels(0, 0, 0));
-    // One chunk east: the west column (x = -2) is 3 away, within 2 + 1.
-    let c = i.follow_position(FixedVec3::from_voxels(32, 0, 0));
+    // One chunk east (far enough past the border to re-centre): the west
+    // column (x = -2) is 3 away, within 2 + 1.
+    let c = i.follow_position(FixedVec3::from_voxels(40, 0, 0));
     assert!(c.unsubscribe.is_empty());
     assert_eq!(c.subscribe.len(), 25, "only the new east face");
     assert!(c.subscribe.iter().all(|p| p.x == 3));
@@ -81,6 +82,39 @@ fn hysteresis_keeps_chunks_until_far_enough() {
     assert!(i
         .follow_position(FixedVec3::from_voxels(70, 3, 3))
         .is_empty());
+}
+
+#[test]
+fn walking_to_and_fro_over_a_border_recentres_only_past_the_margin() {
+    use strata_server::interest::RECENTRE_MARGIN;
+    let mut i = interest(2, 1);
+    i.follow_position(FixedVec3::from_voxels(31, 0, 0));
+    for _ in 0..10 {
+        assert!(i
+            .follow_position(FixedVec3::from_voxels(32, 0, 0))
+            .is_empty());
+        assert!(i
+            .follow_position(FixedVec3::from_voxels(31, 0, 0))
+            .is_empty());
+    }
+    assert_eq!(i.center(), Some(ChunkPos::new(0, 0, 0)));
+    // Just short of the margin, then at it: the view moves east.
+    let short = 31 + RECENTRE_MARGIN - 1;
+    assert!(i
+        .follow_position(FixedVec3::from_voxels(short, 0, 0))
+        .is_empty());
+    let c = i.follow_position(FixedVec3::from_voxels(31 + RECENTRE_MARGIN, 0, 0));
+    assert_eq!(c.subscribe.len(), 25);
+    assert_eq!(i.center(), Some(ChunkPos::new(1, 0, 0)));
+    // Back west, and the same margin past chunk 1's west face; or up.
+    assert!(i
+        .follow_position(FixedVec3::from_voxels(29, 0, 0))
+        .is_empty());
+    assert_eq!(i.center(), Some(ChunkPos::new(1, 0, 0)));
+    i.follow_position(FixedVec3::from_voxels(32 - RECENTRE_MARGIN, 0, 0));
+    assert_eq!(i.center(), Some(ChunkPos::new(0, 0, 0)));
+    i.follow_position(FixedVec3::from_voxels(0, 31 + RECENTRE_MARGIN, 0));
+    assert_eq!(i.center(), Some(ChunkPos::new(0, 1, 0)));
 }
 
 #[test]
