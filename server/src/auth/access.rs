@@ -42,6 +42,9 @@ pub enum Denied {
 pub enum AccessError {
     #[error("the access list holds {MAX_ACCESS_ENTRIES} entries, its limit")]
     Full,
+    /// No token could name this player, so there is nothing to ban.
+    #[error("not a player name: {0}")]
+    BadName(String),
     #[error("the stored access list does not parse: {0}")]
     Corrupt(String),
 }
@@ -81,6 +84,7 @@ impl AccessList {
     /// Bans `player` until `until` (`None`: for good), replacing any ban.
     /// Expired bans are dropped first.
     pub fn ban(&mut self, player: &str, until: Option<u64>, now: u64) -> Result<(), AccessError> {
+        valid_name(player)?;
         self.bans.retain(|_, u| u.is_none_or(|u| u > now));
         if !self.bans.contains_key(player) && self.len() >= MAX_ACCESS_ENTRIES {
             return Err(AccessError::Full);
@@ -96,6 +100,7 @@ impl AccessList {
 
     /// Refuses every token of `player` issued at or before `now`.
     pub fn revoke(&mut self, player: &str, now: u64) -> Result<(), AccessError> {
+        valid_name(player)?;
         if !self.revoked_before.contains_key(player) && self.len() >= MAX_ACCESS_ENTRIES {
             return Err(AccessError::Full);
         }
@@ -106,6 +111,12 @@ impl AccessList {
     fn len(&self) -> usize {
         self.bans.len() + self.revoked_before.len()
     }
+}
+
+/// A name a token may carry (`strata_auth::validate_player_name`): the
+/// list's entries stay as short as player names.
+fn valid_name(player: &str) -> Result<(), AccessError> {
+    strata_auth::validate_player_name(player).map_err(|e| AccessError::BadName(e.to_string()))
 }
 
 #[cfg(test)]
@@ -121,6 +132,19 @@ mod tests {
             expires_at: issued_at + 3600,
             nonce: [0; strata_auth::NONCE_LEN],
         }
+    }
+
+    #[test]
+    fn only_player_names_are_banned_or_revoked() {
+        let mut a = AccessList::default();
+        let long = "a".repeat(strata_auth::MAX_PLAYER_NAME_LEN + 1);
+        for bad in [long.as_str(), "", "two words", "ève"] {
+            assert!(matches!(a.ban(bad, None, 0), Err(AccessError::BadName(_))));
+            assert!(matches!(a.revoke(bad, 0), Err(AccessError::BadName(_))));
+        }
+        assert_eq!(a.len(), 0, "nothing was added");
+        a.ban(&"a".repeat(strata_auth::MAX_PLAYER_NAME_LEN), None, 0)
+            .unwrap();
     }
 
     #[test]
