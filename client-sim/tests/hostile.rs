@@ -85,6 +85,17 @@ async fn position_flood_leaves_honest_bots_converging() {
     assert!(n(&h, "datagrams_sent") >= 10_000, "{h:?}");
 }
 
+/// Reports flipping over a chunk border at line rate: the server hands the
+/// engine a bounded number of them and re-centres the view only past its
+/// margin (BENCHMARKS.md measures the engine's time).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn border_flip_leaves_honest_bots_converging() {
+    let (s, h) = run_attack(Attack::BorderFlip, true).await;
+    assert_honest(&s);
+    assert!(n(&h, "datagrams_sent") >= 10_000, "{h:?}");
+    assert!(h.closed_by_server.is_empty(), "not disconnected: {h:?}");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn rejected_edits_get_the_hostile_kicked() {
     let (s, h) = run_attack(Attack::RejectedEdits, true).await;

@@ -52,6 +52,7 @@ use tracing_subscriber::EnvFilter;
 /// so --data-dir or --spawn-server) that attack through the real protocol
 /// while the bots edit, from connections bound to --hostile-bind:
 /// position-flood (far-apart position datagrams, --hostile-rate per second),
+/// border-flip (position datagrams flipping over a chunk border, as many),
 /// rejected-edits (edits always refused, --hostile-rate per second; kicked
 /// players reconnect), far-subscribe (subscriptions and full-chunk requests
 /// 150+ chunks away), teleport (edit, reconnect thousands of voxels away,
@@ -164,15 +165,15 @@ struct Args {
     /// Hostile players beside the bots (each runs --attack).
     #[arg(long, default_value_t = 0)]
     hostile: usize,
-    /// position-flood, rejected-edits, far-subscribe, teleport,
-    /// handshake-flood, token-share or subscribe-flood.
+    /// position-flood, border-flip, rejected-edits, far-subscribe,
+    /// teleport, handshake-flood, token-share or subscribe-flood.
     #[arg(long)]
     attack: Option<Attack>,
     /// Local address of every hostile connection [default: 127.0.0.2 for a
     /// server on 127.0.0.1, ::1 for [::1], else any].
     #[arg(long)]
     hostile_bind: Option<IpAddr>,
-    /// Position datagrams (position-flood, default 50000), edits
+    /// Position datagrams (position-flood, border-flip, default 50000), edits
     /// (rejected-edits, default 1000) or subscriptions (subscribe-flood,
     /// default 1000) per second per hostile player.
     #[arg(long)]

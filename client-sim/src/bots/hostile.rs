@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 use strata_protocol::reject_label;
 use strata_protocol::{ErrorCode, RejectReason, ServerMessage, Welcome, WorldUpdate};
 use strata_terrain::gen::{GenParams, Generator};
-use strata_terrain::{ChunkPos, Edit, Fixed, FixedVec3, VoxelPos};
+use strata_terrain::{ChunkPos, Edit, Fixed, FixedVec3, VoxelPos, CHUNK_SIZE};
 use tokio::sync::{mpsc, Semaphore};
 use tokio::task::{JoinHandle, JoinSet};
 use tokio::time::{sleep, sleep_until, timeout, timeout_at};
@@ -92,6 +92,12 @@ pub enum Attack {
     /// the oldest unsent ones when its buffer is full), `datagrams_sent`
     /// (datagram frames on the wire), `datagrams_failed`.
     PositionFlood,
+    /// Position datagrams at up to `rate` per second, its feet flipping a
+    /// quarter voxel either side of a chunk border (each move legal for
+    /// speed, and no `Subscribe`, so positions move its view): every
+    /// crossing a server handles may re-centre its view. The same counters
+    /// as `PositionFlood`.
+    BorderFlip,
     /// Explosions of radius 64 far away, at up to `rate` per second, as fast
     /// as the control stream takes them; a kicked player reconnects.
     /// `edits_sent`, `edits_rejected`, `edits_accepted` (a cheat),
@@ -132,8 +138,9 @@ pub enum Attack {
 }
 
 impl Attack {
-    pub const ALL: [Attack; 7] = [
+    pub const ALL: [Attack; 8] = [
         Attack::PositionFlood,
+        Attack::BorderFlip,
         Attack::RejectedEdits,
         Attack::FarSubscribe,
         Attack::Teleport,
@@ -145,6 +152,7 @@ impl Attack {
     pub fn name(self) -> &'static str {
         match self {
             Attack::PositionFlood => "position-flood",
+            Attack::BorderFlip => "border-flip",
             Attack::RejectedEdits => "rejected-edits",
             Attack::FarSubscribe => "far-subscribe",
             Attack::Teleport => "teleport",
@@ -157,7 +165,7 @@ impl Attack {
     /// The counters the attack reports (all present, zeros included).
     pub fn counters(self) -> &'static [&'static str] {
         match self {
-            Attack::PositionFlood => &[
+            Attack::PositionFlood | Attack::BorderFlip => &[
                 "datagrams_queued",
                 "datagrams_sent",
                 "datagrams_failed",
@@ -282,7 +290,7 @@ impl HostileConfig {
 
     fn rate(&self) -> u32 {
         self.rate.unwrap_or(match self.attack {
-            Attack::PositionFlood => DEFAULT_DATAGRAM_RATE,
+            Attack::PositionFlood | Attack::BorderFlip => DEFAULT_DATAGRAM_RATE,
             _ => DEFAULT_EDIT_RATE,
         })
     }
@@ -468,6 +476,7 @@ impl Prepared {
 async fn attack(h: Arc<Hostile>) {
     match h.cfg.attack {
         Attack::PositionFlood => position_flood(&h).await,
+        Attack::BorderFlip => border_flip(&h).await,
         Attack::RejectedEdits => rejected_edits(&h).await,
         Attack::FarSubscribe => far_subscribe(&h).await,
         Attack::Teleport => teleport(&h).await,
@@ -652,7 +661,6 @@ async fn record_end(h: &Hostile, s: &RawSession) -> bool {
 
 /// Position datagrams at up to `rate` per second, each far from the last.
 async fn position_flood(h: &Hostile) {
-    let rate = h.cfg.rate();
     let mut rng = Rng::new(h.seed, 0x0F10_0D00 + h.id as u64);
     let mut first = true;
     while let Some(mut s) = h.connect(&mut first, None, None).await {
@@ -663,30 +671,56 @@ async fn position_flood(h: &Hostile) {
             sleep(PAUSE).await;
             continue;
         }
-        let start = Instant::now();
-        let (mut queued, mut failed) = (0u64, 0u64);
-        while h.running() && s.close_reason().is_none() {
-            for _ in 0..due(rate, start.elapsed(), queued + failed) {
-                let far = FixedVec3::from_voxels(
-                    h.home.0 + rng.range(-1_000_000, 1_000_000),
-                    home.y.floor_voxel() + rng.range(-20, 20),
-                    h.home.1 + rng.range(-1_000_000, 1_000_000),
-                );
-                match s.position(far) {
-                    Ok(()) => queued += 1,
-                    Err(_) => failed += 1,
-                }
+        flood_positions(h, &mut s, |_| {
+            FixedVec3::from_voxels(
+                h.home.0 + rng.range(-1_000_000, 1_000_000),
+                home.y.floor_voxel() + rng.range(-20, 20),
+                h.home.1 + rng.range(-1_000_000, 1_000_000),
+            )
+        })
+        .await;
+    }
+}
+
+/// Position datagrams at up to `rate` per second, flipping a quarter voxel
+/// either side of the home chunk's east border.
+async fn border_flip(h: &Hostile) {
+    let border = (h.home.0.div_euclid(CHUNK_SIZE) + 1) * CHUNK_SIZE;
+    let mut first = true;
+    while let Some(mut s) = h.connect(&mut first, None, None).await {
+        let feet = h.feet(&s.welcome, border, h.home.1);
+        flood_positions(h, &mut s, |i| {
+            let east = if i % 2 == 1 { 0.25 } else { -0.25 };
+            let mut f = feet;
+            f.x = Fixed::from_f64(f64::from(border) + east).unwrap_or(f.x);
+            f
+        })
+        .await;
+    }
+}
+
+/// Sends `next(i)` for the i-th datagram at up to `rate` per second until
+/// the run or the session ends; counts them, and how the session ended.
+async fn flood_positions(h: &Hostile, s: &mut RawSession, mut next: impl FnMut(u64) -> FixedVec3) {
+    let rate = h.cfg.rate();
+    let start = Instant::now();
+    let (mut queued, mut failed) = (0u64, 0u64);
+    while h.running() && s.close_reason().is_none() {
+        for _ in 0..due(rate, start.elapsed(), queued + failed) {
+            match s.position(next(queued + failed)) {
+                Ok(()) => queued += 1,
+                Err(_) => failed += 1,
             }
-            sleep(Duration::from_millis(1)).await;
         }
-        h.stats.add("datagrams_queued", queued);
-        h.stats.add("datagrams_failed", failed);
-        h.stats
-            .add("datagrams_sent", s.conn.stats().frame_tx.datagram);
-        if h.running() {
-            record_end(h, &s).await;
-            sleep(PAUSE).await;
-        }
+        sleep(Duration::from_millis(1)).await;
+    }
+    h.stats.add("datagrams_queued", queued);
+    h.stats.add("datagrams_failed", failed);
+    h.stats
+        .add("datagrams_sent", s.conn.stats().frame_tx.datagram);
+    if h.running() {
+        record_end(h, s).await;
+        sleep(PAUSE).await;
     }
 }
 
