@@ -6,7 +6,9 @@
 //! player control stream (u32 LE length, bincode 2 standard config, 16 KiB
 //! cap client to server, 1 MiB server to client). The client sends
 //! `AdminRequest::Hello` with an admin token; the server answers `Welcome`,
-//! or `Error` and closes. Then each request gets its responses in order.
+//! or `Error` and closes. Then each request gets its responses in order;
+//! a list answer too long for one frame comes in parts
+//! ([`crate::admin_parts`]).
 
 use serde::{Deserialize, Serialize};
 use strata_terrain::{ChunkPos, FixedVec3, VoxelPos};
@@ -164,4 +166,10 @@ pub enum AdminResponse {
         chunks: u64,
     },
     Access(AccessSpec),
+    /// A leading part of a `Players` answer over one frame's worth
+    /// ([`crate::admin_parts`]); more follow, the last as `Players`.
+    PlayersPart(Vec<PlayerInfo>),
+    /// A leading part of an `Access` answer; more follow, the last (with
+    /// `kicked`) as `Access`.
+    AccessPart(AccessSpec),
 }

@@ -4,6 +4,7 @@
 
 pub mod ack;
 pub mod admin;
+pub mod admin_parts;
 pub mod capabilities;
 mod cautious;
 pub mod codec;

@@ -125,3 +125,58 @@ async fn an_offline_ban_holds_when_the_server_starts() {
     .await
     .expect("test finished in time");
 }
+
+/// 40,000 bans and 20,000 revocations are about 2.6 MB of answer, over a
+/// server frame (1 MiB): the server sends them in parts, and the admin
+/// client joins them, for a listing and for a change's answer alike.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_access_list_over_a_frame_comes_whole_in_parts() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        start(dir.path()).await.shutdown().await.unwrap();
+        let mut list = strata_server::auth::AccessList::default();
+        for i in 0..40_000 {
+            list.bans.insert(format!("banned_{i:0>25}"), None);
+        }
+        for i in 0..20_000 {
+            list.revoked_before.insert(format!("revoked_{i:0>24}"), 1);
+        }
+        let store = strata_server::admin::remote::open_offline_store(dir.path()).unwrap();
+        store
+            .put_blob(strata_server::auth::ACCESS_BLOB, &list.to_blob())
+            .unwrap();
+        drop(store);
+        let server = start(dir.path()).await;
+        let out = online(&server, &["bans"]);
+        assert_eq!(
+            out.lines().filter(|l| l.starts_with("banned ")).count(),
+            40_000
+        );
+        assert_eq!(
+            out.lines().filter(|l| l.starts_with("revoked ")).count(),
+            20_000
+        );
+        assert!(out.contains("banned banned_0000000000000000000000000 until unbanned"));
+        assert!(out.contains("revoked revoked_000000000000000000019999's tokens"));
+        let eve = connect(&server, "eve", Role::Player).await;
+        let out = online(&server, &["ban", "eve"]);
+        assert_eq!(
+            out.lines().filter(|l| l.starts_with("banned ")).count(),
+            40_001
+        );
+        assert!(
+            out.contains("banned eve until unbanned"),
+            "{}",
+            &out[out.len() - 200..]
+        );
+        assert!(
+            out.ends_with("ended 1 live session(s)\n"),
+            "{}",
+            &out[out.len() - 200..]
+        );
+        drop(eve);
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

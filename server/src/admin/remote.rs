@@ -14,6 +14,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use strata_protocol::admin::{
     AdminHello, AdminRequest, AdminResponse, AdminWelcome, ADMIN_ALPN, ADMIN_PROTOCOL_VERSION,
 };
+use strata_protocol::admin_parts::Joiner;
 use strata_protocol::io::FramedReader;
 use strata_protocol::{encode_frame, Direction, ErrorCode, FrameBuffer};
 
@@ -228,12 +229,19 @@ impl AdminClient {
         }
     }
 
-    /// Sends a request and waits for its (first) response.
+    /// Sends a request and waits for its response (a list answer's parts
+    /// joined into one).
     pub async fn request(&mut self, req: &AdminRequest) -> anyhow::Result<AdminResponse> {
         self.send(req).await?;
-        tokio::time::timeout(REMOTE_TIMEOUT, self.next())
-            .await
-            .context("timed out waiting for the server")?
+        let mut joiner = Joiner::default();
+        loop {
+            let msg = tokio::time::timeout(REMOTE_TIMEOUT, self.next())
+                .await
+                .context("timed out waiting for the server")??;
+            if let Some(whole) = joiner.push(msg)? {
+                return Ok(whole);
+            }
+        }
     }
 
     /// The close reason, if the server closed the connection with one.

@@ -39,6 +39,14 @@ async fn send(stream: &mut Send, msg: &AdminResponse) -> Result<(), String> {
     stream.write_all(&bytes).await.map_err(|e| e.to_string())
 }
 
+/// Sends an answer, in parts when it is a list too long for one frame.
+async fn send_parts(stream: &mut Send, msg: AdminResponse) -> Result<(), String> {
+    for part in msg.into_parts() {
+        send(stream, &part).await?;
+    }
+    Ok(())
+}
+
 /// Sends `Error`, lets it drain, and closes with the matching code.
 async fn refuse(conn: &quinn::Connection, mut stream: Send, code: ErrorCode, message: &str) {
     let msg = AdminResponse::Error {
@@ -167,7 +175,7 @@ async fn serve(
                 snapshot(&ctx, &mut stream, max_pending_chunks as usize).await
             }
             other => match answer(&ctx, other).await {
-                Ok(resp) => send(&mut stream, &resp).await,
+                Ok(resp) => send_parts(&mut stream, resp).await,
                 Err(e) => Err(e),
             },
         };
