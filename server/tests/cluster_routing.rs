@@ -401,6 +401,7 @@ async fn a_batch_fenced_after_a_takeover_is_refused_and_the_node_goes_on() {
                 renew_ms: 10_000,
                 advertise: "127.0.0.1:9".into(),
                 adopt: false,
+                ..ClusterConfig::default()
             };
             let s = PgStore::open_node(&pg, 8, &other).unwrap();
             assert_eq!(s.claim_regions(&[region]).unwrap().len(), 1);

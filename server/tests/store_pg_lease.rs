@@ -187,6 +187,135 @@ fn an_expired_lease_goes_to_the_next_claimer_and_fences_the_old_owner() {
     assert_eq!(footprint(&db, &a), before);
 }
 
+/// `edit` as the engine builds it: under epoch `epoch` of `r`.
+fn built_under(mut batch: CommitBatch, r: RegionId, epoch: u64) -> CommitBatch {
+    batch.epochs = Some(BTreeMap::from([(r, epoch)]));
+    batch
+}
+
+/// The engine takes a lost region back once no node holds it: reported
+/// fresh with its new epoch (the engine reloads it). A batch built under
+/// the old epoch is refused and leaves the new lease held; one built under
+/// the new epoch commits.
+#[test]
+fn a_lost_region_is_taken_back_on_request_and_older_batches_are_fenced() {
+    let Some(db) = database("lease_retake") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let b = node(&db, "b");
+    let r = region(4, -4);
+    let pos = chunk_in(r, 0);
+    let mut world = Seq::default();
+    let mine = regions(&[r]);
+    assert_eq!(a.acquire_regions(&mine).unwrap(), RegionAccess::Granted);
+    assert_eq!(a.take_fresh_regions(), [(r, Some(1))]);
+    a.commit_batch(&built_under(edit(&mut world, &[pos], 1), r, 1))
+        .unwrap();
+    expire(&db, r);
+    assert_eq!(b.claim_regions(&[r]).unwrap(), BTreeMap::from([(r, 2)]));
+    b.commit_batch(&edit(&mut world, &[pos], 2)).unwrap();
+    let err = a
+        .commit_batch(&built_under(edit(&mut fork(&world), &[pos], 3), r, 1))
+        .unwrap_err();
+    assert_eq!(fenced(err), (r, Some(1), Some(2), Some("b".into())));
+    assert_eq!(a.leases().unwrap().lost(), BTreeMap::from([(r, 1)]));
+
+    assert_eq!(b.release_leases().unwrap(), 1);
+    assert_eq!(a.acquire_regions(&mine).unwrap(), RegionAccess::Granted);
+    assert_eq!(a.take_fresh_regions(), [(r, Some(3))]);
+    assert!(a.leases().unwrap().lost().is_empty());
+    // Built on the copy from before the reload: refused, the lease kept.
+    let before = footprint(&db, &a);
+    let err = a
+        .commit_batch(&built_under(edit(&mut fork(&world), &[pos], 4), r, 1))
+        .unwrap_err();
+    assert_eq!(fenced(err), (r, Some(1), Some(3), Some("a".into())));
+    assert_eq!(footprint(&db, &a), before);
+    assert_eq!(a.leases().unwrap().held(), BTreeMap::from([(r, 3)]));
+    // Built on the reloaded copy: written.
+    a.commit_batch(&built_under(edit(&mut world, &[pos], 5), r, 3))
+        .unwrap();
+    assert_eq!(a.load_chunk(pos).unwrap().unwrap().version, 3);
+}
+
+/// `max_held_regions`: an edit that would claim past it is refused, and
+/// past half of it the renewal thread lets go of the regions no edit asked
+/// for in a whole lease, least recently used first, down to half.
+#[test]
+fn a_node_holds_at_most_max_held_regions_and_lets_idle_ones_go() {
+    let Some(db) = database("lease_max_held") else {
+        return;
+    };
+    let cluster = ClusterConfig {
+        node_id: "a".into(),
+        lease_ms: 400,
+        renew_ms: 100,
+        adopt: false,
+        max_held_regions: 4,
+        ..ClusterConfig::default()
+    };
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let a = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap();
+    a.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+    let rs: Vec<RegionId> = (0..5).map(|i| region(i, 0)).collect();
+    for r in &rs[..4] {
+        assert_eq!(
+            a.acquire_regions(&regions(&[*r])).unwrap(),
+            RegionAccess::Granted
+        );
+    }
+    assert_eq!(
+        a.acquire_regions(&regions(&[rs[4]])).unwrap(),
+        RegionAccess::AtCapacity { held: 4 }
+    );
+    assert_eq!(
+        a.region_leases().unwrap().len(),
+        4,
+        "nothing claimed past it"
+    );
+    // rs[0] stays in use; the others idle past a lease. The book lets
+    // them go before the rows do.
+    let free = || -> Vec<RegionId> {
+        a.region_leases()
+            .unwrap()
+            .into_iter()
+            .filter(|l| l.owner.is_none())
+            .map(|l| l.region)
+            .collect()
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while a.leases().unwrap().held().len() > 2 || free().len() < 2 {
+        assert!(std::time::Instant::now() < deadline, "nothing let go");
+        assert_eq!(
+            a.acquire_regions(&regions(&[rs[0]])).unwrap(),
+            RegionAccess::Granted
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let held = a.leases().unwrap().held();
+    assert!(
+        held.contains_key(&rs[0]),
+        "the region in use is kept: {held:?}"
+    );
+    assert_eq!(held.len(), 2, "down to half: {held:?}");
+    let free = free();
+    assert_eq!(free.len(), 2, "{free:?}");
+    assert!(!free.contains(&rs[0]));
+    // Let go: reported to the engine as no longer held.
+    let fresh = a.take_fresh_regions();
+    for r in &free {
+        assert!(fresh.contains(&(*r, None)), "{fresh:?}");
+    }
+    assert_eq!(
+        a.acquire_regions(&regions(&[rs[4]])).unwrap(),
+        RegionAccess::Granted
+    );
+}
+
 #[test]
 fn a_region_another_node_holds_is_not_written() {
     let Some(db) = database("lease_live_other") else {
@@ -424,6 +553,14 @@ fn open_node_refuses_bad_cluster_settings() {
             },
             "cluster.renew_ms",
         ),
+        (
+            ClusterConfig {
+                node_id: "a".into(),
+                max_held_regions: 0,
+                ..ClusterConfig::default()
+            },
+            "cluster.max_held_regions",
+        ),
     ] {
         let err = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap_err();
         assert!(err.to_string().contains(field), "{err}");
@@ -656,7 +793,11 @@ fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adop
         a.acquire_regions(&regions(&[r])).unwrap(),
         RegionAccess::Granted
     );
-    assert_eq!(a.take_fresh_regions(), [r], "a claim is reported once");
+    assert_eq!(
+        a.take_fresh_regions(),
+        [(r, Some(1))],
+        "a claim is reported once, with its epoch"
+    );
     assert!(a.take_fresh_regions().is_empty());
     let elsewhere = RegionAccess::Elsewhere {
         region: r,
@@ -688,7 +829,7 @@ fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adop
     expire(&db, r);
     assert_eq!(b.adopt_regions().unwrap(), [r]);
     assert!(b.adopt_regions().unwrap().is_empty());
-    assert_eq!(b.take_fresh_regions(), [r]);
+    assert_eq!(b.take_fresh_regions(), [(r, Some(2))]);
     assert_eq!(b.region_versions(r).unwrap(), [(pos, 2)]);
     assert_eq!(b.seq_floor(), fb, "b's block is above a's seqs already");
     // b goes on from the stored chain, with seqs from its block.

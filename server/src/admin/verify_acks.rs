@@ -234,6 +234,7 @@ mod tests {
                 chunks: vec![(pos, 2, Chunk::uniform(Voxel::AIR).into())],
                 deltas: Vec::new(),
                 last_seq: 2,
+                epochs: None,
             })
             .unwrap();
         let ack = |seq, version| AckRecord::new(seq, &[ChunkVersion { pos, version }]);

@@ -19,6 +19,11 @@ pub const MIN_RENEW_MS: u64 = 20;
 pub const MAX_NODE_ID_LEN: usize = 64;
 /// Longest `advertise` address.
 pub const MAX_ADVERTISE_LEN: usize = 255;
+/// Regions one node holds at most by default (players claim them by
+/// editing; regions idle for a lease are let go past half of it).
+pub const DEFAULT_MAX_HELD_REGIONS: usize = 16_384;
+/// Largest allowed `max_held_regions`.
+pub const MAX_HELD_REGIONS_CAP: usize = 1 << 20;
 
 /// The `[cluster]` section. Without it a node on PostgreSQL takes no leases
 /// and its commits are not fenced: it must be the only one on its database.
@@ -41,6 +46,11 @@ pub struct ClusterConfig {
     /// lease run out (a crashed node's), so they are not left unowned
     /// until a client edits them.
     pub adopt: bool,
+    /// Regions held at once: an edit that would claim more is refused
+    /// (`Busy`), and nothing more is adopted. Past half of it, each
+    /// renewal releases the regions no edit asked for in a whole lease,
+    /// least recently used first, down to half.
+    pub max_held_regions: usize,
 }
 
 impl Default for ClusterConfig {
@@ -51,6 +61,7 @@ impl Default for ClusterConfig {
             renew_ms: DEFAULT_RENEW_MS,
             advertise: String::new(),
             adopt: true,
+            max_held_regions: DEFAULT_MAX_HELD_REGIONS,
         }
     }
 }
@@ -89,6 +100,15 @@ impl ClusterConfig {
             return Err((
                 "cluster.advertise",
                 format!("must be at most {MAX_ADVERTISE_LEN} characters, without spaces"),
+            ));
+        }
+        if !(1..=MAX_HELD_REGIONS_CAP).contains(&self.max_held_regions) {
+            return Err((
+                "cluster.max_held_regions",
+                format!(
+                    "{} is outside 1..={MAX_HELD_REGIONS_CAP}",
+                    self.max_held_regions
+                ),
             ));
         }
         let most = self.lease_ms / 2;

@@ -109,6 +109,9 @@ pub struct Engine {
     ticket_secret: Option<crate::auth::Secret>,
     /// When the sessions' region holders are next looked at.
     owners_due: Instant,
+    /// A cluster node's lease epoch for each region it last reloaded
+    /// (`ownership.rs`): what its batches are fenced by.
+    region_epochs: HashMap<crate::sequencer::regions::RegionId, u64>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -169,6 +172,7 @@ impl Engine {
             committer: None,
             ticket_secret: None,
             owners_due: Instant::now(),
+            region_epochs: HashMap::new(),
         })
     }
 

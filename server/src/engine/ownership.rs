@@ -8,7 +8,10 @@
 //! crashed node), may have changed while others held it: its chunks are
 //! reloaded from the store, and sessions holding older versions are told
 //! to drop them (`UnsubscribedMany`, before any delta) and get them again
-//! (the one resync a takeover allows). A batch the store
+//! (the one resync a takeover allows). Each batch carries the epoch under
+//! which each of its regions was last reloaded ([`Engine::batch_epochs`]),
+//! so one built before a region was taken back (lost, then claimed again)
+//! is fenced, not written over the reloaded copy. A batch the store
 //! fences (the node was paused past its lease and another took a region)
 //! is abandoned, not fatal: nothing of it is durable, so its chunks are put
 //! back as stored, its edits refused, and numbering moves to a new seq
@@ -19,7 +22,7 @@ use std::collections::BTreeSet;
 
 use strata_protocol::{RejectReason, ServerMessage};
 use strata_terrain::{ChunkPos, Edit};
-use tracing::{error, info, warn};
+use tracing::{debug, error, info, warn};
 
 use super::Engine;
 use crate::metrics as m;
@@ -59,6 +62,10 @@ impl Engine {
                 };
                 Err(self.seq.charge_refusal(session, reason, now))
             }
+            Ok(RegionAccess::AtCapacity { held }) => {
+                debug!(held, "edit refused: this node holds max_held_regions");
+                Err(self.seq.charge_refusal(session, RejectReason::Busy, now))
+            }
             Err(e) => {
                 error!(error = %e, "claiming regions failed");
                 Err(RejectReason::Busy)
@@ -79,7 +86,11 @@ impl Engine {
     }
 
     fn take_fresh_regions(&mut self) {
-        for r in self.store.take_fresh_regions() {
+        for (r, epoch) in self.store.take_fresh_regions() {
+            match epoch {
+                Some(e) => self.region_epochs.insert(r, e),
+                None => self.region_epochs.remove(&r),
+            };
             match self.reload_region(r) {
                 Ok(n) => info!(
                     region_x = r.x,
@@ -176,14 +187,16 @@ impl Engine {
                 return false;
             }
         }
-        let addr = region
+        let holder = region
             .and_then(|r| self.store.region_holders(&BTreeSet::from([r])).ok())
-            .and_then(|h| {
-                h.into_iter().find_map(|(_, h)| match h {
-                    RegionHolder::Node { addr, .. } => Some(addr),
-                    _ => None,
-                })
-            });
+            .and_then(|h| h.into_iter().next().map(|(_, h)| h));
+        // Held here again (the batch was built before this node took the
+        // region back): not elsewhere, only too late.
+        let region = region.filter(|_| holder != Some(RegionHolder::Here));
+        let addr = match holder {
+            Some(RegionHolder::Node { addr, .. }) => Some(addr),
+            _ => None,
+        };
         let side = self.seq.region_chunks();
         for a in &out.applied {
             let lost = region.filter(|r| a.changes.iter().any(|c| RegionId::of(c.pos, side) == *r));
@@ -210,6 +223,28 @@ impl Engine {
             "commit refused: nothing was written; the batch is abandoned and its edits refused"
         );
         true
+    }
+
+    /// The epoch each region `batch` writes was last reloaded under (0,
+    /// which no lease has, for one never reported): `None` alone on the
+    /// store.
+    pub(super) fn batch_epochs(
+        &self,
+        batch: &crate::store::CommitBatch,
+    ) -> Option<std::collections::BTreeMap<RegionId, u64>> {
+        if !self.store.clustered() {
+            return None;
+        }
+        let side = self.seq.region_chunks();
+        let chunks = batch.chunks.iter().map(|c| c.0);
+        let deltas = batch.deltas.iter().map(|d| d.pos);
+        Some(
+            chunks
+                .chain(deltas)
+                .map(|pos| RegionId::of(pos, side))
+                .map(|r| (r, self.region_epochs.get(&r).copied().unwrap_or(0)))
+                .collect(),
+        )
     }
 
     /// Puts `pos` back as the store holds it (generated if it holds none).

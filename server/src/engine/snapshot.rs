@@ -199,6 +199,7 @@ mod tests {
                 .collect(),
             deltas: Vec::new(),
             last_seq: seq,
+            epochs: None,
         };
         store.commit_batch(&batch).unwrap();
     }

@@ -87,7 +87,9 @@ impl Engine {
                 .increment(pending.rewarmed() as u64);
             (out, spawn_meshing(&pool, pending))
         };
-        let (out, meshing) = if idle { apply() } else { pool.install(apply) };
+        let (mut out, meshing) = if idle { apply() } else { pool.install(apply) };
+        // The epochs the world was built under, before anything reloads.
+        out.batch.epochs = self.batch_epochs(&out.batch);
         if out.lanes > 0 {
             let s = &out.split;
             for (part, d) in [

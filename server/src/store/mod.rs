@@ -221,9 +221,10 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     }
 
     /// Regions claimed since the last call (at the engine's request or
-    /// adopted in the background): their chunks may have changed while
-    /// another node held them. Cheap: called at every tick.
-    fn take_fresh_regions(&self) -> Vec<RegionId> {
+    /// adopted in the background), with the epoch held now, and regions
+    /// lost or let go (`None`): their chunks may have changed, or may
+    /// change, while another node holds them. Cheap: called at every tick.
+    fn take_fresh_regions(&self) -> Vec<(RegionId, Option<u64>)> {
         Vec::new()
     }
 

@@ -89,6 +89,12 @@ pub struct CommitBatch {
     pub deltas: Vec<ChunkDelta>,
     /// The seq of the last entry.
     pub last_seq: u64,
+    /// A cluster node's engine: the lease epoch under which it last loaded
+    /// each region the batch writes (`take_fresh_regions`). The commit is
+    /// fenced by these, so a batch built before the node took a region
+    /// back is refused. `None`: by the epochs the store holds now (one
+    /// node alone, tools, tests).
+    pub epochs: Option<std::collections::BTreeMap<crate::sequencer::regions::RegionId, u64>>,
 }
 
 impl CommitBatch {
@@ -131,13 +137,15 @@ pub struct CheckpointStats {
 pub enum RegionAccess {
     /// It holds every one of them (now, or after claiming them).
     Granted,
-    /// Another node holds `region` (`owner` empty: none does, and this
-    /// node may not take it back), reachable at `addr` (may be empty).
+    /// Another node holds `region` (`owner` empty: the row names none),
+    /// reachable at `addr` (may be empty).
     Elsewhere {
         region: crate::sequencer::regions::RegionId,
         owner: String,
         addr: String,
     },
+    /// Claiming them would pass `[cluster] max_held_regions`.
+    AtCapacity { held: usize },
 }
 
 /// Who writes a region, as this node sees it

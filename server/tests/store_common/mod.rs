@@ -136,6 +136,7 @@ impl Seq {
                 .collect(),
             deltas,
             last_seq: self.last_seq,
+            epochs: None,
         }
     }
 }

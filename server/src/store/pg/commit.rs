@@ -142,7 +142,8 @@ impl PgStore {
             .sum();
         let fence = match &self.leases {
             Some(leases) => {
-                let mut f = fence::prepare(&self.pool, leases, &cols.regions())?;
+                let regions = cols.regions();
+                let mut f = fence::prepare(&self.pool, leases, &regions, b.epochs.as_ref())?;
                 f.set_seqs(cols.first_seq, cols.last_seq);
                 f.count_edits(b.entries.iter().map(|e| {
                     e.changes
@@ -174,8 +175,14 @@ impl PgStore {
                 }
             }
         });
-        if let (Err(StoreError::Fenced { region, .. }), Some(leases)) = (&committed, &self.leases) {
-            leases.lose(*region);
+        if let (
+            Err(StoreError::Fenced {
+                region, held_epoch, ..
+            }),
+            Some(leases),
+        ) = (&committed, &self.leases)
+        {
+            leases.lose_at(*region, *held_epoch);
         }
         let (apply, commit) = committed?;
         Ok(CommitStats {

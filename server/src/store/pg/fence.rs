@@ -2,7 +2,9 @@
 //! names this node as owner at the epoch it holds.
 //!
 //! Before the transaction the node claims the regions of the batch it does
-//! not hold yet (`lease.rs`); inside it, after the world row's lock, it
+//! not hold yet (`lease.rs`; never one it lost), and refuses a batch the
+//! engine built under another epoch than the one held now (it was built on
+//! the copy from before the region was taken back); inside it, after the world row's lock, it
 //! locks the batch's region rows `FOR UPDATE` (a claim by another node
 //! waits for the commit, or the commit sees the claim) and compares. Any
 //! mismatch refuses the whole batch with [`StoreError::Fenced`] and the
@@ -16,7 +18,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::lease::{claim, NodeLeases};
+use super::lease::{claim, Lost, NodeLeases};
 use super::pool::{Conn, Pool};
 use super::{from_sql, to_sql};
 use crate::sequencer::regions::RegionId;
@@ -50,13 +52,16 @@ impl Fence {
 }
 
 /// Claims what the batch needs and this node does not hold; refuses at
-/// once a region it lost or another node holds.
+/// once a region it lost or another node holds, and one whose epoch the
+/// batch was built under (`built`, when the engine gave them) is not the
+/// one held.
 pub(super) fn prepare(
     pool: &Pool,
     leases: &NodeLeases,
     regions: &BTreeSet<RegionId>,
+    built: Option<&BTreeMap<RegionId, u64>>,
 ) -> Result<Fence, StoreError> {
-    claim(pool, leases, regions)?;
+    claim(pool, leases, regions, Lost::Keep)?;
     let held = leases.held();
     let lost = leases.lost();
     let mut fence = Fence {
@@ -66,11 +71,21 @@ pub(super) fn prepare(
         seqs: (0, 0),
     };
     for &r in regions {
-        match held.get(&r) {
-            Some(&epoch) => {
+        let under = match built {
+            Some(b) => b.get(&r).copied(),
+            None => held.get(&r).copied(),
+        };
+        match (held.get(&r), under) {
+            (Some(&epoch), Some(b)) if b == epoch => {
                 fence.held.insert(r, epoch);
             }
-            None => return Err(current_holder(pool, r, lost.get(&r).copied())?),
+            (_, b) => {
+                return Err(current_holder(
+                    pool,
+                    r,
+                    b.or_else(|| lost.get(&r).copied()),
+                )?)
+            }
         }
     }
     Ok(fence)

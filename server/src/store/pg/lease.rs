@@ -7,7 +7,10 @@
 //! bumps the epoch. It renews what it holds every `renew_ms` while owner
 //! and epoch are still its own. A region whose epoch moved on is lost for
 //! good: this process never claims it back, since its copy of the region
-//! may be stale. Commits check the epochs held (`fence.rs`).
+//! may be stale, unless the engine asks for it again ([`acquire`]): then
+//! it is claimed like any other and reported fresh, the engine reloads it,
+//! and a batch the engine built before that carries the old epoch and is
+//! refused. Commits check the epochs (`fence.rs`).
 //!
 //! The engine asks before it queues an edit ([`PgStore::acquire`]): a
 //! region held elsewhere refuses the edit with the holder's name and
@@ -17,6 +20,9 @@
 //! most [`MAX_ADOPT_PER_RENEWAL`] at a time. Every region claimed is
 //! reported once as fresh: its stored chunks may have moved on while
 //! another node held it, and the engine reloads them before using them.
+//! A node holds at most `[cluster] max_held_regions`: past half of it,
+//! each renewal releases the regions no edit asked for in a whole lease
+//! ([`release_idle`]).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -44,6 +50,7 @@ pub struct NodeLeases {
     lease_ms: f64,
     renew: Duration,
     adopt: bool,
+    max_held: usize,
     /// Where clients reach this node (`[cluster] advertise`, or the bound
     /// address), written into the rows it claims.
     addr: Mutex<String>,
@@ -61,12 +68,26 @@ struct Book {
     held: BTreeMap<RegionId, u64>,
     /// Regions lost, by the epoch this node held them with.
     lost: BTreeMap<RegionId, u64>,
-    /// Regions claimed and not yet reported by [`NodeLeases::take_fresh`].
+    /// Regions claimed, lost or let go and not yet reported by
+    /// [`NodeLeases::take_fresh`].
     fresh: BTreeSet<RegionId>,
+    /// When the engine last asked for each held region ([`acquire`]).
+    used: BTreeMap<RegionId, Instant>,
     /// Other nodes' regions: holder, address, and until when to believe it.
     elsewhere: BTreeMap<RegionId, (String, String, Instant)>,
     /// Regions seen free ([`holders`]), and until when to believe it.
     free: BTreeMap<RegionId, Instant>,
+}
+
+impl Book {
+    /// Keeps at most `most` lost regions. One forgotten may be adopted or
+    /// claimed by a commit again: the engine's batches name the epoch they
+    /// were built under, so that is refused, not written.
+    fn forget_lost_past(&mut self, most: usize) {
+        while self.lost.len() > most {
+            self.lost.pop_first();
+        }
+    }
 }
 
 impl NodeLeases {
@@ -76,6 +97,7 @@ impl NodeLeases {
             lease_ms: cfg.lease_ms as f64,
             renew: Duration::from_millis(cfg.renew_ms),
             adopt: cfg.adopt,
+            max_held: cfg.max_held_regions.max(1),
             addr: Mutex::new(cfg.advertise.clone()),
             floor: AtomicU64::new(0),
             numbering: std::sync::atomic::AtomicBool::new(false),
@@ -93,9 +115,15 @@ impl NodeLeases {
         self.numbering.store(true, Ordering::Release);
     }
 
-    /// Regions claimed since the last call.
-    pub fn take_fresh(&self) -> Vec<RegionId> {
-        std::mem::take(&mut self.book().fresh).into_iter().collect()
+    /// Regions claimed, lost or let go since the last call, with the
+    /// epoch held now (`None`: no longer held).
+    pub fn take_fresh(&self) -> Vec<(RegionId, Option<u64>)> {
+        let mut book = self.book();
+        let fresh = std::mem::take(&mut book.fresh);
+        fresh
+            .into_iter()
+            .map(|r| (r, book.held.get(&r).copied()))
+            .collect()
     }
 
     fn addr(&self) -> String {
@@ -128,6 +156,14 @@ impl NodeLeases {
         self.book().lost.clone()
     }
 
+    /// [`Self::lose`] when `epoch` is the one held: a batch built under an
+    /// older epoch says nothing of the lease held now.
+    pub(super) fn lose_at(&self, region: RegionId, epoch: Option<u64>) {
+        if epoch.is_some() && self.book().held.get(&region) == epoch.as_ref() {
+            self.lose(region);
+        }
+    }
+
     /// Moves `region` from held to lost (a commit or renewal found its
     /// epoch changed).
     pub(super) fn lose(&self, region: RegionId) {
@@ -135,7 +171,9 @@ impl NodeLeases {
         // What was believed of it before this node held it is stale.
         book.free.remove(&region);
         book.elsewhere.remove(&region);
+        book.used.remove(&region);
         if let Some(epoch) = book.held.remove(&region) {
+            book.fresh.insert(region);
             warn!(
                 node = %self.node_id,
                 region_x = region.x,
@@ -144,6 +182,7 @@ impl NodeLeases {
                 "region lease lost; this node no longer writes it"
             );
             book.lost.insert(region, epoch);
+            book.forget_lost_past(self.max_held);
         }
     }
 }
@@ -181,18 +220,31 @@ fn held_columns(held: &BTreeMap<RegionId, u64>) -> Result<HeldColumns, StoreErro
     Ok((xs, zs, epochs))
 }
 
+/// Whether a claim may take back a region this process lost.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Lost {
+    /// Never (the commit path: its batch was built on the lost copy).
+    Keep,
+    /// Yes (the engine, which reloads what it is reported fresh before it
+    /// builds on it).
+    Retake,
+}
+
 /// Claims those of `wanted` that are free, expired or this node's by
 /// name, in one statement (rows in key order). Returns what it claimed.
 pub(super) fn claim(
     pool: &Pool,
     leases: &NodeLeases,
     wanted: &BTreeSet<RegionId>,
+    lost: Lost,
 ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
     let todo: Vec<RegionId> = {
         let book = leases.book();
         wanted
             .iter()
-            .filter(|r| !book.held.contains_key(r) && !book.lost.contains_key(r))
+            .filter(|r| {
+                !book.held.contains_key(r) && (lost == Lost::Retake || !book.lost.contains_key(r))
+            })
             .copied()
             .collect()
     };
@@ -243,9 +295,12 @@ fn took(
         leases.raise_floor(next);
     }
     let mut book = leases.book();
+    let now = Instant::now();
     for (&region, &epoch) in &got {
         info!(node = %leases.node_id, region_x = region.x, region_z = region.z, epoch, "{what}");
+        book.used.insert(region, now);
         book.held.insert(region, epoch);
+        book.lost.remove(&region);
         book.fresh.insert(region);
         book.elsewhere.remove(&region);
         book.free.remove(&region);
@@ -258,10 +313,15 @@ fn took(
 /// [`MAX_ADOPT_PER_RENEWAL`]. Nodes adopting at once skip each other's
 /// rows. Returns what it adopted.
 pub(super) fn adopt(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
-    let (lx, lz) = {
+    let (lx, lz, room) = {
         let book = leases.book();
-        columns(book.lost.keys())
+        let (lx, lz) = columns(book.lost.keys());
+        (lx, lz, leases.max_held.saturating_sub(book.held.len()))
     };
+    let limit = MAX_ADOPT_PER_RENEWAL.min(room as i64);
+    if limit == 0 {
+        return Ok(Vec::new());
+    }
     let addr = leases.addr();
     let rows = pool.run("adopting regions", async |c: &mut Conn| {
         c.query(
@@ -274,14 +334,7 @@ pub(super) fn adopt(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
                    ORDER BY region_x, region_z LIMIT $6 FOR UPDATE SKIP LOCKED) AS o \
              WHERE r.region_x = o.region_x AND r.region_z = o.region_z \
              RETURNING r.region_x, r.region_z, r.epoch, r.last_seq",
-            &[
-                &leases.node_id,
-                &addr,
-                &leases.lease_ms,
-                &lx,
-                &lz,
-                &MAX_ADOPT_PER_RENEWAL,
-            ],
+            &[&leases.node_id, &addr, &leases.lease_ms, &lx, &lz, &limit],
         )
         .await
     })?;
@@ -296,7 +349,8 @@ pub(super) fn adopt(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
 }
 
 /// Whether this node may write every one of `regions`: claims those free,
-/// expired or its own by name; names the holder of the first it cannot.
+/// expired or its own by name (lost ones too: the engine reloads them
+/// before use); names the holder of the first it cannot.
 pub(super) fn acquire(
     pool: &Pool,
     leases: &NodeLeases,
@@ -304,10 +358,11 @@ pub(super) fn acquire(
 ) -> Result<RegionAccess, StoreError> {
     let now = Instant::now();
     let todo: BTreeSet<RegionId> = {
-        let book = leases.book();
+        let mut book = leases.book();
         let mut todo = BTreeSet::new();
         for r in regions {
             if book.held.contains_key(r) {
+                book.used.insert(*r, now);
                 continue;
             }
             if let Some((owner, addr, until)) = book.elsewhere.get(r) {
@@ -317,12 +372,16 @@ pub(super) fn acquire(
             }
             todo.insert(*r);
         }
+        let held = book.held.len();
+        if held + todo.len() > leases.max_held {
+            return Ok(RegionAccess::AtCapacity { held });
+        }
         todo
     };
     if todo.is_empty() {
         return Ok(RegionAccess::Granted);
     }
-    claim(pool, leases, &todo)?;
+    claim(pool, leases, &todo, Lost::Retake)?;
     let Some(&refused) = todo.iter().find(|r| !leases.book().held.contains_key(r)) else {
         return Ok(RegionAccess::Granted);
     };
@@ -488,12 +547,30 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
 /// Gives up every lease still this node's (owner set to NULL, epoch
 /// kept): another node may claim them at once. Returns how many.
 pub(super) fn release(pool: &Pool, leases: &NodeLeases) -> Result<u64, StoreError> {
-    let held = std::mem::take(&mut leases.book().held);
-    if held.is_empty() {
+    let held = {
+        let mut book = leases.book();
+        book.used.clear();
+        std::mem::take(&mut book.held)
+    };
+    let n = let_go(pool, leases, &held)?;
+    let mut book = leases.book();
+    book.lost.extend(held);
+    book.forget_lost_past(leases.max_held);
+    Ok(n)
+}
+
+/// Sets the owner of `regions` to NULL where this node still holds them
+/// at those epochs; returns how many rows it changed.
+fn let_go(
+    pool: &Pool,
+    leases: &NodeLeases,
+    regions: &BTreeMap<RegionId, u64>,
+) -> Result<u64, StoreError> {
+    if regions.is_empty() {
         return Ok(0);
     }
-    let (xs, zs, epochs) = held_columns(&held)?;
-    let n = pool.run("releasing leases", async |c: &mut Conn| {
+    let (xs, zs, epochs) = held_columns(regions)?;
+    pool.run("releasing leases", async |c: &mut Conn| {
         c.execute(
             "UPDATE regions AS r SET owner = NULL \
              FROM unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
@@ -501,9 +578,46 @@ pub(super) fn release(pool: &Pool, leases: &NodeLeases) -> Result<u64, StoreErro
             &[&xs, &zs, &epochs, &leases.node_id],
         )
         .await
-    })?;
-    leases.book().lost.extend(held);
-    Ok(n)
+    })
+}
+
+/// Past half of `max_held_regions`: releases the held regions the engine
+/// has not asked for in a whole lease, least recently used first, down
+/// to half. They leave the book first, so an edit meanwhile claims them
+/// anew (a new epoch, which the release then no longer matches). Returns
+/// those released.
+pub(super) fn release_idle(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
+    let keep = leases.max_held / 2;
+    let idle_for = Duration::from_secs_f64(leases.lease_ms / 1000.0);
+    let gone: BTreeMap<RegionId, u64> = {
+        let mut book = leases.book();
+        if book.held.len() <= keep {
+            return Ok(Vec::new());
+        }
+        let now = Instant::now();
+        let mut idle: Vec<(Instant, RegionId)> = book
+            .used
+            .iter()
+            .filter(|(_, &at)| now.saturating_duration_since(at) >= idle_for)
+            .map(|(&r, &at)| (at, r))
+            .collect();
+        idle.sort();
+        let over = book.held.len() - keep;
+        let mut gone = BTreeMap::new();
+        for (_, r) in idle.into_iter().take(over) {
+            book.used.remove(&r);
+            if let Some(epoch) = book.held.remove(&r) {
+                book.fresh.insert(r);
+                gone.insert(r, epoch);
+            }
+        }
+        gone
+    };
+    let_go(pool, leases, &gone)?;
+    for r in gone.keys() {
+        info!(node = %leases.node_id, region_x = r.x, region_z = r.z, "idle region released");
+    }
+    Ok(gone.into_keys().collect())
 }
 
 /// A region as error messages and logs name it.
@@ -545,6 +659,9 @@ impl Renewer {
                     drop(stopped);
                     if let Err(e) = renew(&pool, &leases) {
                         warn!(error = %e, "renewing region leases failed; retrying");
+                    }
+                    if let Err(e) = release_idle(&pool, &leases) {
+                        warn!(error = %e, "releasing idle regions failed");
                     }
                     if leases.adopt {
                         if let Err(e) = adopt(&pool, &leases) {
@@ -618,7 +735,7 @@ impl PgStore {
     ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
         let leases = self.cluster_leases()?;
         let wanted: BTreeSet<RegionId> = regions.iter().copied().collect();
-        claim(&self.pool, leases, &wanted)?;
+        claim(&self.pool, leases, &wanted, Lost::Keep)?;
         let held = leases.held();
         Ok(held
             .into_iter()
@@ -641,6 +758,12 @@ impl PgStore {
     /// Releases every lease held (at shutdown, after the last commit).
     pub fn release_leases(&self) -> Result<u64, StoreError> {
         release(&self.pool, self.cluster_leases()?)
+    }
+
+    /// Releases now what the renewal thread releases every `renew_ms`:
+    /// past half of `max_held_regions`, the regions idle for a lease.
+    pub fn release_idle_regions(&self) -> Result<Vec<RegionId>, StoreError> {
+        release_idle(&self.pool, self.cluster_leases()?)
     }
 
     /// Every region ever claimed, in key order.

@@ -411,7 +411,7 @@ impl ChunkStore for PgStore {
         }
     }
 
-    fn take_fresh_regions(&self) -> Vec<RegionId> {
+    fn take_fresh_regions(&self) -> Vec<(RegionId, Option<u64>)> {
         self.leases
             .as_ref()
             .map_or_else(Vec::new, |l| l.take_fresh())
