@@ -73,6 +73,12 @@ pub const POSITIONS_DROPPED: &str = "strata_positions_dropped_total";
 pub const REQUESTS_THROTTLED: &str = "strata_requests_throttled_total";
 pub const RESYNCS: &str = "strata_resyncs_total";
 pub const RESIDENT_CHUNKS: &str = "strata_resident_chunks";
+/// Regions a cluster node holds the lease of (`[cluster] max_held_regions`
+/// bounds it).
+pub const REGIONS_HELD: &str = "strata_cluster_regions_held";
+/// Edits refused because claiming their regions would pass
+/// `max_held_regions`.
+pub const REGION_CLAIMS_REFUSED: &str = "strata_cluster_claims_refused_total";
 pub const PREMESH_BUILT: &str = "strata_premesh_meshes_total";
 pub const PREMESH_STALE: &str = "strata_premesh_stale_total";
 pub const PREMESH_SKIPPED: &str = "strata_premesh_skipped_total";
@@ -231,6 +237,11 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
         "Smoothed round-trip time, one reading per open connection every 5 s"
     );
     metrics::describe_gauge!(RESIDENT_CHUNKS, "Chunks held in the sequencer's memory");
+    metrics::describe_gauge!(REGIONS_HELD, "Regions this cluster node holds the lease of");
+    metrics::describe_counter!(
+        REGION_CLAIMS_REFUSED,
+        "Edits refused because their regions would pass [cluster] max_held_regions"
+    );
     metrics::describe_counter!(PREMESH_BUILT, "Collision meshes built ahead of need");
     metrics::describe_counter!(PREMESH_STALE, "Background meshes dropped as outdated");
     metrics::describe_counter!(

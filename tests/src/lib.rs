@@ -272,3 +272,27 @@ pub fn assert_converged(s: &serde_json::Value) {
     assert_eq!(s["quiet"], true, "the world went quiet: {s}");
     assert!(count(s, "chunks_verified") > 0, "{s}");
 }
+
+/// A `127.0.0.1:PORT` nobody listens on now (for a server's `[metrics]`).
+pub fn free_local_addr() -> String {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port();
+    format!("127.0.0.1:{port}")
+}
+
+/// `GET path` over plain HTTP/1.1; the whole response, head and body.
+pub fn http_get(addr: &str, path: &str) -> String {
+    use std::io::Write;
+    let mut s = std::net::TcpStream::connect(addr).expect("an HTTP listener");
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut out = String::new();
+    s.read_to_string(&mut out).unwrap();
+    out
+}

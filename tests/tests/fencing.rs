@@ -347,8 +347,10 @@ fn a_node_stopped_gracefully_hands_its_regions_over_and_the_admin_tools_read_pos
     let (data, acks) = (tmp.path().join("data"), tmp.path().join("acks.jsonl"));
     let store_config = format!("{SERVER_CONFIG}{}", db.store_toml());
     // A long lease: only the release at shutdown can free the regions soon.
+    let metrics = strata_tests::free_local_addr();
     let config = format!(
-        "{store_config}[cluster]\nnode_id = \"node-a\"\nlease_ms = 60000\nrenew_ms = 10000\n"
+        "{store_config}[metrics]\nlisten = \"{metrics}\"\n\
+         [cluster]\nnode_id = \"node-a\"\nlease_ms = 60000\nrenew_ms = 10000\n"
     );
     let server = Server::start_with(&data, "127.0.0.1:0", &config);
     std::fs::write(data.join("strata.toml"), &store_config).unwrap();
@@ -399,6 +401,18 @@ fn a_node_stopped_gracefully_hands_its_regions_over_and_the_admin_tools_read_pos
     assert!(
         status.success() && table.contains("node node-a:"),
         "{table}"
+    );
+    // The node counts the regions it holds: at least those listed live
+    // above (its bots may have claimed more since).
+    let text = strata_tests::http_get(&metrics, "/metrics");
+    let gauge = text
+        .lines()
+        .find_map(|l| l.strip_prefix("strata_cluster_regions_held "))
+        .and_then(|v| v.trim().parse::<f64>().ok());
+    assert!(
+        gauge.is_some_and(|g| g >= mine.len() as f64),
+        "regions held: {gauge:?}, {} listed",
+        mine.len()
     );
 
     drop(bots);

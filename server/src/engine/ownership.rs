@@ -64,6 +64,7 @@ impl Engine {
             }
             Ok(RegionAccess::AtCapacity { held }) => {
                 debug!(held, "edit refused: this node holds max_held_regions");
+                metrics::counter!(m::REGION_CLAIMS_REFUSED).increment(1);
                 Err(self.seq.charge_refusal(session, RejectReason::Busy, now))
             }
             Err(e) => {
@@ -82,6 +83,7 @@ impl Engine {
         self.seq
             .raise_next_seq(self.store.seq_floor().saturating_add(1));
         self.take_fresh_regions();
+        metrics::gauge!(m::REGIONS_HELD).set(self.store.regions_held() as f64);
         self.tell_owners();
     }
 

@@ -192,6 +192,11 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         false
     }
 
+    /// Regions whose lease this node holds (0 alone on the store).
+    fn regions_held(&self) -> usize {
+        0
+    }
+
     /// The seq the engine continues after, given the store's `last_seq`:
     /// that one, or in a cluster the seq below a block of seqs reserved for
     /// this process (`store/pg/seqs.rs`). Called once, before the engine starts.

@@ -146,6 +146,11 @@ impl NodeLeases {
         &self.node_id
     }
 
+    /// How many regions are held.
+    pub fn held_count(&self) -> usize {
+        self.book().held.len()
+    }
+
     /// Regions held, with their epochs.
     pub fn held(&self) -> BTreeMap<RegionId, u64> {
         self.book().held.clone()

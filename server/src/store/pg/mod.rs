@@ -374,6 +374,10 @@ impl ChunkStore for PgStore {
         self.leases.is_some()
     }
 
+    fn regions_held(&self) -> usize {
+        self.leases.as_ref().map_or(0, |l| l.held_count())
+    }
+
     fn reserve_seqs(&self, last_seq: u64) -> Result<u64, StoreError> {
         let Some(leases) = &self.leases else {
             return Ok(last_seq);
