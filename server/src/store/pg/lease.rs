@@ -5,9 +5,9 @@
 //! region that is free (never claimed, released, or its lease expired) or
 //! that its own node id holds (a restart under the same name); every claim
 //! bumps the epoch. It renews what it holds every `renew_ms` while owner
-//! and epoch are still its own. A region whose epoch moved on is lost for
-//! good: this process never claims it back, since its copy of the region
-//! may be stale, unless the engine asks for it again ([`acquire`]): then
+//! and epoch are still its own. A region whose epoch moved on is lost: a
+//! commit or an adoption never claims it back, since this process's copy
+//! may be stale; only the engine does, asking for it again ([`acquire`]): then
 //! it is claimed like any other and reported fresh, the engine reloads it,
 //! and a batch the engine built before that carries the old epoch and is
 //! refused. Commits check the epochs (`fence.rs`).
