@@ -311,11 +311,16 @@ impl ClusterClient {
     /// verdict. One refused `RegionElsewhere` naming another connected
     /// node (the region changed hands since this client was told) is sent
     /// once more, there; naming one not connected, the client starts
-    /// joining it and returns the refusal. Returns the node that answered,
-    /// with its answer.
+    /// joining it and returns the refusal. One refused `NodeFull` (no node
+    /// holds the region, and that one may take no more) is sent to each
+    /// other connected node in turn, until one answers otherwise. Returns
+    /// the node that answered, with its answer.
     pub async fn edit(&mut self, edit: Edit) -> Result<(SocketAddr, Acked), ClusterError> {
         let to = self.route(edit_anchor(&edit).chunk());
         let acked = self.nodes[&to].edit_acked(edit.clone()).await?;
+        if matches!(acked.0, Verdict::Rejected(RejectReason::NodeFull { .. })) {
+            return Ok(self.edit_past_full(to, edit, acked).await);
+        }
         let Verdict::Rejected(RejectReason::RegionElsewhere {
             region_x,
             region_z,
@@ -340,6 +345,34 @@ impl ClusterClient {
         }
         let again = self.nodes[&there].edit_acked(edit).await?;
         Ok((there, again))
+    }
+
+    /// After `NodeFull` from `full`: the other connected nodes in address
+    /// order, until one answers something else (one that fails to answer
+    /// is passed over). The node that accepts writes the region from then
+    /// on, and edits there are routed to it. Returns the last answer.
+    async fn edit_past_full(
+        &mut self,
+        full: SocketAddr,
+        edit: Edit,
+        refused: Acked,
+    ) -> (SocketAddr, Acked) {
+        let mut last = (full, refused);
+        let others: Vec<SocketAddr> = self.nodes.keys().filter(|a| **a != full).copied().collect();
+        for a in others {
+            let Ok(acked) = self.nodes[&a].edit_acked(edit.clone()).await else {
+                continue;
+            };
+            last = (a, acked);
+            if !matches!(last.1 .0, Verdict::Rejected(RejectReason::NodeFull { .. })) {
+                break;
+            }
+        }
+        if let (Verdict::Accepted { .. }, Some(side)) = (&last.1 .0, self.region_chunks) {
+            let region = region_of(edit_anchor(&edit).chunk(), side);
+            self.routes.insert(region, last.0);
+        }
+        last
     }
 
     /// Closes every connection.

@@ -219,6 +219,13 @@ pub enum RejectReason {
         owner: String,
         addr: String,
     },
+    /// A cluster node already holds `max_regions` regions (`[cluster]
+    /// max_held_regions`) and no node holds the edit's region: another
+    /// node may take it, so send the edit there, or here again later.
+    /// Nothing was charged.
+    NodeFull {
+        max_regions: u32,
+    },
 }
 
 /// Errors that end the connection (sent just before closing it).

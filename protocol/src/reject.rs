@@ -20,5 +20,6 @@ pub fn reject_label(r: &RejectReason) -> &'static str {
         Invalid { .. } => "invalid",
         Busy => "busy",
         RegionElsewhere { .. } => "region_elsewhere",
+        NodeFull { .. } => "node_full",
     }
 }

@@ -134,6 +134,9 @@ typedef enum {
   // Another server of the cluster holds the region: the message names
   // the node and its address.
   STRATA_REJECT_REGION_ELSEWHERE = 13,
+  // The cluster server holds as many regions as it may and no server
+  // holds this one: send the edit to another server, or here later.
+  STRATA_REJECT_NODE_FULL = 14,
 } StrataReject;
 
 // Why the server refused a position report.

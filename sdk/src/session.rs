@@ -339,6 +339,7 @@ fn reject_code(r: &RejectReason) -> StrataReject {
         RejectReason::Invalid { .. } => StrataReject::Invalid,
         RejectReason::Busy => StrataReject::Busy,
         RejectReason::RegionElsewhere { .. } => StrataReject::RegionElsewhere,
+        RejectReason::NodeFull { .. } => StrataReject::NodeFull,
     }
 }
 

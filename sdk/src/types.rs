@@ -73,6 +73,9 @@ pub enum StrataReject {
     /// Another server of the cluster holds the region: the message names
     /// the node and its address.
     RegionElsewhere = 13,
+    /// The cluster server holds as many regions as it may and no server
+    /// holds this one: send the edit to another server, or here later.
+    NodeFull = 14,
 }
 
 /// Bytes of `StrataEvent.message`, its NUL included.

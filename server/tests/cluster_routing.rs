@@ -8,6 +8,8 @@
 //!
 //! And bots (`strata-bots --follow-owners`) sent to the wrong node move
 //! to the one their `RegionElsewhere` names and keep editing there.
+//! A node at its region limit refuses an edit in a free region with
+//! `NodeFull`, and the client library passes it to the other node.
 
 use crate::common;
 
@@ -49,6 +51,18 @@ async fn node_leasing(
     lease_ms: u64,
     renew_ms: u64,
 ) -> Running {
+    let cfg = node_config(dir, db, (id, spawn_x), lease_ms, renew_ms);
+    app::start(cfg).await.expect("node starts")
+}
+
+/// A cluster node's configuration, spawning players at `spawn_x`.
+fn node_config(
+    dir: &Path,
+    db: &strata_tests::postgres::PgDb,
+    (id, spawn_x): (&str, i32),
+    lease_ms: u64,
+    renew_ms: u64,
+) -> strata_server::config::ServerConfig {
     let mut cfg = test_config(dir);
     cfg.store.backend = strata_server::store::StoreBackend::Postgres;
     cfg.store.postgres.url = db.url();
@@ -64,7 +78,69 @@ async fn node_leasing(
         radius: 32,
     };
     cfg.validation.max_speed = 64.0;
-    app::start(cfg).await.expect("node starts")
+    cfg
+}
+
+/// Bob on the east node claims region 1 for it; Ann, a cluster client
+/// at home on the west node, claims region 0 for that one and follows the
+/// west node's word until she is connected to the east node too.
+async fn bob_east_ann_west(
+    west: &Running,
+    east: &Running,
+) -> (strata_client_sim::Client, ClusterClient) {
+    let opts = ClientOptions {
+        record_history: true,
+        ..Default::default()
+    };
+    let bob_token = token(east, "bob", Role::Player);
+    let bob = strata_client_sim::Client::connect_opts(
+        east.addr,
+        &east.cert_der,
+        &bob_token,
+        opts.clone(),
+    )
+    .await
+    .unwrap();
+    bob.send_position(feet(EAST_X)).unwrap();
+    assert!(
+        eventually(TEST_TIMEOUT, || bob
+            .replica()
+            .get(chunk_of(EAST_X))
+            .is_some())
+        .await
+    );
+    let (v, _) = bob.edit_acked(mine_at(EAST_X + 2)).await.unwrap();
+    assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+
+    let ann_token = token(west, "ann", Role::Player);
+    let mut ann = ClusterClient::connect(west.addr, &west.cert_der, &ann_token, opts)
+        .await
+        .unwrap();
+    ann.send_position(feet(WEST_X)).unwrap();
+    assert!(
+        eventually(TEST_TIMEOUT, || ann
+            .home()
+            .replica()
+            .get(chunk_of(WEST_X))
+            .is_some())
+        .await
+    );
+    let (to, (v, _)) = ann.edit(mine_at(WEST_X + 2)).await.unwrap();
+    assert_eq!(to, west.addr);
+    assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+
+    // The west node names the east node as region 1's writer; the client
+    // connects there and arrives with the ticket.
+    let mut joined = Vec::new();
+    for _ in 0..500 {
+        joined.extend(ann.follow().await.unwrap());
+        if !joined.is_empty() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert_eq!(joined, vec![east.addr]);
+    (bob, ann)
 }
 
 fn mine_at(x: i32) -> Edit {
@@ -114,61 +190,7 @@ async fn a_player_walks_into_another_nodes_region_and_keeps_playing() {
         let west = node(&da, &db, "west", WEST_X).await;
         share_keys(&da, &db_dir);
         let east = node(&db_dir, &db, "east", EAST_X).await;
-        let opts = ClientOptions {
-            record_history: true,
-            ..Default::default()
-        };
-
-        // Bob plays on the east node: his edit claims region 1 for it.
-        let bob_token = token(&east, "bob", Role::Player);
-        let bob = strata_client_sim::Client::connect_opts(
-            east.addr,
-            &east.cert_der,
-            &bob_token,
-            opts.clone(),
-        )
-        .await
-        .unwrap();
-        bob.send_position(feet(EAST_X)).unwrap();
-        assert!(
-            eventually(TEST_TIMEOUT, || bob
-                .replica()
-                .get(chunk_of(EAST_X))
-                .is_some())
-            .await
-        );
-        let (v, _) = bob.edit_acked(mine_at(EAST_X + 2)).await.unwrap();
-        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
-
-        // Ann plays on the west node: her edit claims region 0 for it.
-        let ann_token = token(&west, "ann", Role::Player);
-        let mut ann = ClusterClient::connect(west.addr, &west.cert_der, &ann_token, opts)
-            .await
-            .unwrap();
-        ann.send_position(feet(WEST_X)).unwrap();
-        assert!(
-            eventually(TEST_TIMEOUT, || ann
-                .home()
-                .replica()
-                .get(chunk_of(WEST_X))
-                .is_some())
-            .await
-        );
-        let (to, (v, _)) = ann.edit(mine_at(WEST_X + 2)).await.unwrap();
-        assert_eq!(to, west.addr);
-        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
-
-        // The west node names the east node as region 1's writer; the
-        // client connects there and arrives with the ticket.
-        let mut joined = Vec::new();
-        for _ in 0..500 {
-            joined.extend(ann.follow().await.unwrap());
-            if !joined.is_empty() {
-                break;
-            }
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-        assert_eq!(joined, vec![east.addr]);
+        let (bob, mut ann) = bob_east_ann_west(&west, &east).await;
         let owners = ann.home().region_owners().expect("RegionOwners");
         let east_holds = owners.regions.iter().any(|r| {
             r.region_x == 1
@@ -335,6 +357,99 @@ async fn bots_refused_for_another_nodes_region_move_there_and_keep_editing() {
     ann.close().await;
     west.shutdown().await.unwrap();
     east.shutdown().await.unwrap();
+}
+
+/// Region (0, 1): z in 256..512, an edit's footprint well inside it.
+const NORTH_Z: i32 = 300;
+
+fn mine_at_xz(x: i32, z: i32) -> Edit {
+    let (_, v) = spot(x, z);
+    Edit::Mine {
+        center: at(v.x as f64, v.y as f64, v.z as f64),
+        radius: r(3.0),
+        strength: 60,
+    }
+}
+
+/// A node at `[cluster] max_held_regions` refuses an edit in a region no
+/// node holds with `NodeFull`, at no cost to the player. The cluster
+/// client sends it on to the other node it is connected to, which claims
+/// the region, and routes the region's edits there from then on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_node_passes_an_edit_in_a_free_region_to_a_node_with_room() {
+    use strata_protocol::RejectReason;
+    let Some(db) = strata_tests::postgres::database("cluster_node_full") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dirs = tempfile::tempdir().unwrap();
+        let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
+        // One region at most, on a lease no idle release reaches here.
+        let mut cfg = node_config(&da, &db, ("west", WEST_X), 60_000, 500);
+        if let Some(c) = cfg.cluster.as_mut() {
+            c.max_held_regions = 1;
+        }
+        let west = app::start(cfg).await.expect("node starts");
+        share_keys(&da, &db_dir);
+        let east = node(&db_dir, &db, "east", EAST_X).await;
+        // Bob's edit claims region 1 for the east node, Ann's region 0 for
+        // the west node: now it is full.
+        let (bob, mut ann) = bob_east_ann_west(&west, &east).await;
+
+        // Ann walks north into region (0, 1), which no node holds.
+        let mut z = Z;
+        while z < NORTH_Z - 2 {
+            z += 2;
+            ann.send_position(spot(WEST_X, z).0).unwrap();
+            ann.follow().await.unwrap();
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let north = spot(WEST_X, NORTH_Z).1.chunk();
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .nodes()
+                .all(|(_, c)| c.replica().get(north).is_some()))
+            .await
+        );
+        assert_eq!(ann.route(north), west.addr, "nobody holds it: home");
+        // Asked alone, the west node says why, and charges nothing for it:
+        // more refusals than the edit-rate bucket holds leave it full.
+        let edit = mine_at_xz(WEST_X, NORTH_Z);
+        for _ in 0..12 {
+            let (v, _) = ann.home().edit_acked(edit.clone()).await.unwrap();
+            assert_eq!(
+                v,
+                Verdict::Rejected(RejectReason::NodeFull { max_regions: 1 })
+            );
+        }
+        // The cluster client passes it to the east node, which takes the
+        // region.
+        let (to, (v, changes)) = ann.edit(edit.clone()).await.unwrap();
+        assert_eq!(to, east.addr);
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        assert_eq!(ann.route(north), east.addr);
+        let changed = changes[0];
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .chunk(changed.pos)
+                .is_some_and(|(_, version, _)| version >= changed.version))
+            .await
+        );
+        // The next edit there goes straight to its new writer.
+        let (to, (v, _)) = ann.edit(edit).await.unwrap();
+        assert_eq!(to, east.addr);
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        for (addr, c) in ann.nodes() {
+            assert!(!c.is_closed(), "ann's connection to {addr} closed");
+            assert_in_order(&format!("ann@{addr}"), c);
+        }
+        ann.close().await;
+        bob.close().await;
+        west.shutdown().await.unwrap();
+        east.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
 }
 
 /// Runs one statement on the test's database.

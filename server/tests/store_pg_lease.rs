@@ -270,20 +270,43 @@ fn a_node_holds_at_most_max_held_regions_and_lets_idle_ones_go() {
     }
     assert_eq!(
         a.acquire_regions(&regions(&[rs[4]])).unwrap(),
-        RegionAccess::AtCapacity { held: 4 }
+        RegionAccess::AtCapacity { held: 4, max: 4 }
     );
     assert_eq!(
         a.region_leases().unwrap().len(),
         4,
         "nothing claimed past it"
     );
+    // At the cap, a region another node holds is still named: the edit
+    // belongs there, not on some node with room.
+    let b = PgStore::open_node(
+        &pg,
+        DEFAULT_REGION_CHUNKS,
+        &ClusterConfig {
+            node_id: "b".into(),
+            ..cluster.clone()
+        },
+    )
+    .unwrap();
+    let theirs = region(9, 0);
+    assert_eq!(
+        b.acquire_regions(&regions(&[theirs])).unwrap(),
+        RegionAccess::Granted
+    );
+    let named = a.acquire_regions(&regions(&[rs[4], theirs])).unwrap();
+    assert!(
+        matches!(&named, RegionAccess::Elsewhere { region, owner, .. }
+            if *region == theirs && owner == "b"),
+        "{named:?}"
+    );
+    b.close().unwrap();
     // rs[0] stays in use; the others idle past a lease. The book lets
-    // them go before the rows do.
+    // them go before the rows do (b let go of its region as it closed).
     let free = || -> Vec<RegionId> {
         a.region_leases()
             .unwrap()
             .into_iter()
-            .filter(|l| l.owner.is_none())
+            .filter(|l| l.owner.is_none() && l.region != theirs)
             .map(|l| l.region)
             .collect()
     };

@@ -62,10 +62,13 @@ impl Engine {
                 };
                 Err(self.seq.charge_refusal(session, reason, now))
             }
-            Ok(RegionAccess::AtCapacity { held }) => {
+            Ok(RegionAccess::AtCapacity { held, max }) => {
                 debug!(held, "edit refused: this node holds max_held_regions");
                 metrics::counter!(m::REGION_CLAIMS_REFUSED).increment(1);
-                Err(self.seq.charge_refusal(session, RejectReason::Busy, now))
+                // The node's state, not the player's doing: free, like Busy.
+                Err(RejectReason::NodeFull {
+                    max_regions: u32::try_from(max).unwrap_or(u32::MAX),
+                })
             }
             Err(e) => {
                 error!(error = %e, "claiming regions failed");

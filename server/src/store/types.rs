@@ -144,8 +144,9 @@ pub enum RegionAccess {
         owner: String,
         addr: String,
     },
-    /// Claiming them would pass `[cluster] max_held_regions`.
-    AtCapacity { held: usize },
+    /// Claiming them would pass `[cluster] max_held_regions` (`max`), and
+    /// no other node holds any of them.
+    AtCapacity { held: usize, max: usize },
 }
 
 /// Who writes a region, as this node sees it

@@ -379,7 +379,8 @@ pub(super) fn acquire(
         }
         let held = book.held.len();
         if held + todo.len() > leases.max_held {
-            return Ok(RegionAccess::AtCapacity { held });
+            drop(book);
+            return at_capacity(pool, leases, &todo, held);
         }
         todo
     };
@@ -501,6 +502,25 @@ pub(super) fn holders(
     }
     out.sort_by_key(|(r, _)| *r);
     Ok(out)
+}
+
+/// A node that may claim no more: names the first of `todo` another node
+/// holds (so the edit goes there), else says it is full.
+fn at_capacity(
+    pool: &Pool,
+    leases: &NodeLeases,
+    todo: &BTreeSet<RegionId>,
+    held: usize,
+) -> Result<RegionAccess, StoreError> {
+    for (r, h) in holders(pool, leases, todo)? {
+        if let RegionHolder::Node { owner, addr } = h {
+            return Ok(elsewhere(r, &owner, &addr));
+        }
+    }
+    Ok(RegionAccess::AtCapacity {
+        held,
+        max: leases.max_held,
+    })
 }
 
 fn elsewhere(region: RegionId, owner: &str, addr: &str) -> RegionAccess {
