@@ -339,6 +339,78 @@ fn a_node_holds_at_most_max_held_regions_and_lets_idle_ones_go() {
     );
 }
 
+/// `release_idle_ms`: a region no edit asked for in that long is let go
+/// however few the node holds, and then another node may claim it.
+#[test]
+fn a_region_idle_for_release_idle_ms_is_let_go_for_any_node_to_claim() {
+    let Some(db) = database("lease_release_idle") else {
+        return;
+    };
+    let cluster = ClusterConfig {
+        node_id: "a".into(),
+        lease_ms: 400,
+        renew_ms: 100,
+        adopt: false,
+        release_idle_ms: 800,
+        ..ClusterConfig::default()
+    };
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let a = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap();
+    a.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+    let (busy, quiet) = (region(0, 0), region(1, 0));
+    for r in [busy, quiet] {
+        assert_eq!(
+            a.acquire_regions(&regions(&[r])).unwrap(),
+            RegionAccess::Granted
+        );
+    }
+    a.take_fresh_regions();
+    let b = PgStore::open_node(
+        &pg,
+        DEFAULT_REGION_CHUNKS,
+        &ClusterConfig {
+            node_id: "b".into(),
+            ..cluster.clone()
+        },
+    )
+    .unwrap();
+    let named = b.acquire_regions(&regions(&[quiet])).unwrap();
+    assert!(
+        matches!(&named, RegionAccess::Elsewhere { owner, .. } if owner == "a"),
+        "{named:?}"
+    );
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while a.leases().unwrap().held().contains_key(&quiet) {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the quiet region kept"
+        );
+        assert_eq!(
+            a.acquire_regions(&regions(&[busy])).unwrap(),
+            RegionAccess::Granted
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(
+        a.leases().unwrap().held().contains_key(&busy),
+        "the region in use is kept"
+    );
+    assert!(a.take_fresh_regions().contains(&(quiet, None)));
+    // Node b's refusal is believed a renewal period at most, and the row
+    // is freed just after the book: b takes the region soon.
+    loop {
+        assert!(std::time::Instant::now() < deadline, "b never took it");
+        if b.acquire_regions(&regions(&[quiet])).unwrap() == RegionAccess::Granted {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(b.leases().unwrap().held().len(), 1);
+}
+
 #[test]
 fn a_region_another_node_holds_is_not_written() {
     let Some(db) = database("lease_live_other") else {
@@ -583,6 +655,15 @@ fn open_node_refuses_bad_cluster_settings() {
                 ..ClusterConfig::default()
             },
             "cluster.max_held_regions",
+        ),
+        (
+            ClusterConfig {
+                node_id: "a".into(),
+                lease_ms: 10_000,
+                release_idle_ms: 5_000,
+                ..ClusterConfig::default()
+            },
+            "cluster.release_idle_ms",
         ),
     ] {
         let err = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap_err();

@@ -24,6 +24,12 @@ pub const MAX_ADVERTISE_LEN: usize = 255;
 pub const DEFAULT_MAX_HELD_REGIONS: usize = 16_384;
 /// Largest allowed `max_held_regions`.
 pub const MAX_HELD_REGIONS_CAP: usize = 1 << 20;
+/// How long a region may go unedited before its node lets it go, however
+/// few it holds: the next edit there claims it for whichever node it is
+/// sent to, so regions follow the players across the nodes.
+pub const DEFAULT_RELEASE_IDLE_MS: u64 = 600_000;
+/// Longest allowed `release_idle_ms` (a week).
+pub const MAX_RELEASE_IDLE_MS: u64 = 7 * 24 * 3_600_000;
 
 /// The `[cluster]` section. Without it a node on PostgreSQL takes no leases
 /// and its commits are not fenced: it must be the only one on its database.
@@ -47,10 +53,13 @@ pub struct ClusterConfig {
     /// until a client edits them.
     pub adopt: bool,
     /// Regions held at once: an edit that would claim more is refused
-    /// (`Busy`), and nothing more is adopted. Past half of it, each
+    /// (`NodeFull`), and nothing more is adopted. Past half of it, each
     /// renewal releases the regions no edit asked for in a whole lease,
     /// least recently used first, down to half.
     pub max_held_regions: usize,
+    /// See [`DEFAULT_RELEASE_IDLE_MS`]; 0 keeps every region until
+    /// `max_held_regions` presses, else at least `lease_ms`.
+    pub release_idle_ms: u64,
 }
 
 impl Default for ClusterConfig {
@@ -62,6 +71,7 @@ impl Default for ClusterConfig {
             advertise: String::new(),
             adopt: true,
             max_held_regions: DEFAULT_MAX_HELD_REGIONS,
+            release_idle_ms: DEFAULT_RELEASE_IDLE_MS,
         }
     }
 }
@@ -108,6 +118,16 @@ impl ClusterConfig {
                 format!(
                     "{} is outside 1..={MAX_HELD_REGIONS_CAP}",
                     self.max_held_regions
+                ),
+            ));
+        }
+        let idle = self.release_idle_ms;
+        if idle != 0 && !(self.lease_ms..=MAX_RELEASE_IDLE_MS).contains(&idle) {
+            return Err((
+                "cluster.release_idle_ms",
+                format!(
+                    "{idle} is neither 0 nor within {}..={MAX_RELEASE_IDLE_MS} (cluster.lease_ms up to a week)",
+                    self.lease_ms
                 ),
             ));
         }

@@ -20,9 +20,9 @@
 //! most [`MAX_ADOPT_PER_RENEWAL`] at a time. Every region claimed is
 //! reported once as fresh: its stored chunks may have moved on while
 //! another node held it, and the engine reloads them before using them.
-//! A node holds at most `[cluster] max_held_regions`: past half of it,
-//! each renewal releases the regions no edit asked for in a whole lease
-//! ([`release_idle`]).
+//! Each renewal releases the regions no edit asked for in `[cluster]
+//! release_idle_ms`, and a node holds at most `max_held_regions`: past
+//! half of it, those no edit asked for in a whole lease ([`release_idle`]).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -51,6 +51,8 @@ pub struct NodeLeases {
     renew: Duration,
     adopt: bool,
     max_held: usize,
+    /// `[cluster] release_idle_ms`: `None` for 0 (never by time alone).
+    release_idle: Option<Duration>,
     /// Where clients reach this node (`[cluster] advertise`, or the bound
     /// address), written into the rows it claims.
     addr: Mutex<String>,
@@ -98,6 +100,8 @@ impl NodeLeases {
             renew: Duration::from_millis(cfg.renew_ms),
             adopt: cfg.adopt,
             max_held: cfg.max_held_regions.max(1),
+            release_idle: (cfg.release_idle_ms > 0)
+                .then(|| Duration::from_millis(cfg.release_idle_ms.max(cfg.lease_ms))),
             addr: Mutex::new(cfg.advertise.clone()),
             floor: AtomicU64::new(0),
             numbering: std::sync::atomic::AtomicBool::new(false),
@@ -606,17 +610,17 @@ fn let_go(
     })
 }
 
-/// Past half of `max_held_regions`: releases the held regions the engine
-/// has not asked for in a whole lease, least recently used first, down
-/// to half. They leave the book first, so an edit meanwhile claims them
-/// anew (a new epoch, which the release then no longer matches). Returns
-/// those released.
+/// Releases the held regions the engine has not asked for in
+/// `release_idle_ms`, and past half of `max_held_regions` those idle for
+/// a whole lease, least recently used first, down to half. They leave the
+/// book first, so an edit meanwhile claims them anew (a new epoch, which
+/// the release then no longer matches). Returns those released.
 pub(super) fn release_idle(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
     let keep = leases.max_held / 2;
     let idle_for = Duration::from_secs_f64(leases.lease_ms / 1000.0);
     let gone: BTreeMap<RegionId, u64> = {
         let mut book = leases.book();
-        if book.held.len() <= keep {
+        if book.held.len() <= keep && leases.release_idle.is_none() {
             return Ok(Vec::new());
         }
         let now = Instant::now();
@@ -627,7 +631,11 @@ pub(super) fn release_idle(pool: &Pool, leases: &NodeLeases) -> Result<Vec<Regio
             .map(|(&r, &at)| (at, r))
             .collect();
         idle.sort();
-        let over = book.held.len() - keep;
+        // Oldest first: those idle past `release_idle` are a prefix.
+        let stale = leases.release_idle.map_or(0, |d| {
+            idle.partition_point(|(at, _)| now.saturating_duration_since(*at) >= d)
+        });
+        let over = book.held.len().saturating_sub(keep).max(stale);
         let mut gone = BTreeMap::new();
         for (_, r) in idle.into_iter().take(over) {
             book.used.remove(&r);
