@@ -21,19 +21,26 @@ const SIDE: i32 = DEFAULT_REGION_CHUNKS as i32;
 
 /// A node on `db` named `id`, leases of `lease_ms` renewed every `renew_ms`.
 fn node_with(db: &PgDb, id: &str, lease_ms: u64, renew_ms: u64) -> PgStore {
+    open_node(
+        db,
+        &ClusterConfig {
+            node_id: id.into(),
+            lease_ms,
+            renew_ms,
+            // Adoption is tested on its own (`adopt_regions`).
+            adopt: false,
+            ..ClusterConfig::default()
+        },
+    )
+}
+
+/// A node on `db` with these settings, the world's metadata written.
+fn open_node(db: &PgDb, cluster: &ClusterConfig) -> PgStore {
     let pg = PgConfig {
         url: db.url(),
         ..PgConfig::default()
     };
-    let cluster = ClusterConfig {
-        node_id: id.into(),
-        lease_ms,
-        renew_ms,
-        // Adoption is tested on its own (`adopt_regions`).
-        adopt: false,
-        ..ClusterConfig::default()
-    };
-    let store = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap();
+    let store = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, cluster).unwrap();
     store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
     store
 }
@@ -255,12 +262,7 @@ fn a_node_holds_at_most_max_held_regions_and_lets_idle_ones_go() {
         max_held_regions: 4,
         ..ClusterConfig::default()
     };
-    let pg = PgConfig {
-        url: db.url(),
-        ..PgConfig::default()
-    };
-    let a = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap();
-    a.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+    let a = open_node(&db, &cluster);
     let rs: Vec<RegionId> = (0..5).map(|i| region(i, 0)).collect();
     for r in &rs[..4] {
         assert_eq!(
@@ -279,15 +281,13 @@ fn a_node_holds_at_most_max_held_regions_and_lets_idle_ones_go() {
     );
     // At the cap, a region another node holds is still named: the edit
     // belongs there, not on some node with room.
-    let b = PgStore::open_node(
-        &pg,
-        DEFAULT_REGION_CHUNKS,
+    let b = open_node(
+        &db,
         &ClusterConfig {
             node_id: "b".into(),
             ..cluster.clone()
         },
-    )
-    .unwrap();
+    );
     let theirs = region(9, 0);
     assert_eq!(
         b.acquire_regions(&regions(&[theirs])).unwrap(),
@@ -354,12 +354,7 @@ fn a_region_idle_for_release_idle_ms_is_let_go_for_any_node_to_claim() {
         release_idle_ms: 800,
         ..ClusterConfig::default()
     };
-    let pg = PgConfig {
-        url: db.url(),
-        ..PgConfig::default()
-    };
-    let a = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap();
-    a.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+    let a = open_node(&db, &cluster);
     let (busy, quiet) = (region(0, 0), region(1, 0));
     for r in [busy, quiet] {
         assert_eq!(
@@ -368,15 +363,13 @@ fn a_region_idle_for_release_idle_ms_is_let_go_for_any_node_to_claim() {
         );
     }
     a.take_fresh_regions();
-    let b = PgStore::open_node(
-        &pg,
-        DEFAULT_REGION_CHUNKS,
+    let b = open_node(
+        &db,
         &ClusterConfig {
             node_id: "b".into(),
             ..cluster.clone()
         },
-    )
-    .unwrap();
+    );
     let named = b.acquire_regions(&regions(&[quiet])).unwrap();
     assert!(
         matches!(&named, RegionAccess::Elsewhere { owner, .. } if owner == "a"),
