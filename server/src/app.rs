@@ -204,6 +204,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
                     generator,
                     metrics: crate::metrics::shared()?,
                     data_dir: cfg.server.data_dir.clone(),
+                    region_chunks: cfg.sequencer.region_chunks,
+                    node_id: cfg.cluster.as_ref().map(|c| c.node_id.clone()),
                 },
             )
             .await

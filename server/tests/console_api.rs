@@ -218,6 +218,7 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
             "/api/tile?tx=0&tz=0",
             "/api/events",
             "/api/scene.glb?x0=0&z0=0&x1=0&z1=0",
+            "/api/regions?x0=0&z0=0&x1=0&z1=0",
         ] {
             assert_eq!(get(web, path, None).await.status, 401, "{path}");
             assert_eq!(get(web, path, Some(&player)).await.status, 403, "{path}");
@@ -235,6 +236,25 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
         assert_eq!(world.status, 200);
         assert_eq!(world.json()["admin"], "ops");
         assert_eq!(world.json()["samples"], 0, "nothing sampled before anyone watched");
+        // Alone on its store, the node writes every region.
+        assert_eq!(world.json()["clustered"], false);
+        let regions = get(web, "/api/regions?x0=-1&z0=0&x1=8&z1=0", Some(&admin)).await;
+        assert_eq!(regions.status, 200);
+        let regions = regions.json();
+        let holders: Vec<(i64, &str)> = regions["regions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| (r["x"].as_i64().unwrap(), r["holder"].as_str().unwrap()))
+            .collect();
+        assert_eq!(holders, [(-1, "here"), (0, "here"), (1, "here")]);
+        for bad in [
+            "/api/regions?x0=1&z0=0&x1=0&z1=0",
+            "/api/regions?x0=0&z0=0&x1=100000&z1=100000",
+            "/api/regions?x0=0&z0=0&x1=0",
+        ] {
+            assert_eq!(get(web, bad, Some(&admin)).await.status, 400, "{bad}");
+        }
 
         // A tile before and after an edit in it.
         let (feet, ground) = spot(70, 40);
@@ -460,4 +480,106 @@ async fn console_bounds_connections_and_closes_silent_ones() {
     })
     .await
     .expect("test timed out");
+}
+
+/// On a cluster node the map's overlay names who writes each region: this
+/// node where its players edited, another node with its address, free
+/// elsewhere.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn on_a_cluster_node_the_console_names_each_regions_writer() {
+    use std::collections::BTreeSet;
+    use strata_server::cluster::ClusterConfig;
+    use strata_server::sequencer::regions::{RegionId, DEFAULT_REGION_CHUNKS};
+    use strata_server::store::pg::PgConfig;
+    use strata_server::store::{ChunkStore, PgStore, RegionAccess, StoreBackend};
+    let Some(db) = strata_tests::postgres::database("console_regions") else {
+        return;
+    };
+    tokio::time::timeout(Duration::from_secs(120), async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.console.listen = Some("127.0.0.1:0".parse().unwrap());
+        cfg.store.backend = StoreBackend::Postgres;
+        cfg.store.postgres.url = db.url();
+        cfg.cluster = Some(ClusterConfig {
+            node_id: "west".into(),
+            ..ClusterConfig::default()
+        });
+        let server = app::start(cfg).await.unwrap();
+        let web = server.console_addr.expect("console address");
+        let admin = token(&server, "ops", Role::Admin);
+
+        // Another node holds region (1, 0).
+        let pg = PgConfig {
+            url: db.url(),
+            ..PgConfig::default()
+        };
+        let east = ClusterConfig {
+            node_id: "east".into(),
+            advertise: "10.0.0.2:7777".into(),
+            ..ClusterConfig::default()
+        };
+        let east = tokio::task::spawn_blocking(move || {
+            let store = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &east).unwrap();
+            let region = BTreeSet::from([RegionId { x: 1, z: 0 }]);
+            assert_eq!(
+                store.acquire_regions(&region).unwrap(),
+                RegionAccess::Granted
+            );
+            store
+        })
+        .await
+        .unwrap();
+        // A player's edit claims region (0, 0) for this node.
+        let (feet, ground) = spot(70, 40);
+        let ana = standing_player(&server, "ana", feet).await;
+        let mine = Edit::Mine {
+            center: FixedVec3::from_voxels(ground.x, ground.y, ground.z),
+            radius: r(3.0),
+            strength: 255,
+        };
+        assert!(matches!(
+            ana.edit(mine).await.unwrap(),
+            Verdict::Accepted { .. }
+        ));
+
+        let world = get(web, "/api/world", Some(&admin)).await.json();
+        assert_eq!(world["clustered"], true);
+        assert_eq!(world["node_id"], "west");
+        assert_eq!(world["region_chunks"], 8);
+        let reply = get(web, "/api/regions?x0=0&z0=0&x1=23&z1=7", Some(&admin)).await;
+        assert_eq!(reply.status, 200);
+        let regions = reply.json()["regions"].clone();
+        let got: Vec<(i64, i64, String)> = regions
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| {
+                let who = match r["holder"].as_str().unwrap() {
+                    "node" => format!(
+                        "{}@{}",
+                        r["node"].as_str().unwrap(),
+                        r["addr"].as_str().unwrap()
+                    ),
+                    h => h.to_string(),
+                };
+                (r["x"].as_i64().unwrap(), r["z"].as_i64().unwrap(), who)
+            })
+            .collect();
+        assert_eq!(
+            got,
+            [
+                (0, 0, "here".to_string()),
+                (1, 0, "east@10.0.0.2:7777".to_string()),
+                (2, 0, "free".to_string()),
+            ]
+        );
+        ana.close().await;
+        tokio::task::spawn_blocking(move || east.close().unwrap())
+            .await
+            .unwrap();
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
 }

@@ -4,13 +4,16 @@
 //! map tiles on the canvas (a screenshot that is not blank), a marker per
 //! player, charts that gained points from successive samples, and the 3-D
 //! view's glTF of the chunks around the players, fetched and parsed.
+//!
+//! On a cluster node it also tints each region by the node that writes it,
+//! with a legend of those nodes.
 
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 use strata_tests::chromium::{self, attribute};
-use strata_tests::{binary, spawn_bots, Server};
+use strata_tests::{binary, spawn_bots, Server, SERVER_CONFIG};
 
 /// How long the page runs per load, in Chromium's virtual time.
 const BUDGET_MS: u32 = 15_000;
@@ -160,4 +163,68 @@ fn chromium_shows_the_live_map_players_and_charts() {
     }
     drop(bots);
     server.stop();
+}
+
+#[test]
+fn chromium_maps_which_node_writes_each_region() {
+    use std::collections::BTreeSet;
+    use strata_server::cluster::ClusterConfig;
+    use strata_server::sequencer::regions::{RegionId, DEFAULT_REGION_CHUNKS};
+    use strata_server::store::pg::PgConfig;
+    use strata_server::store::{ChunkStore, PgStore, RegionAccess};
+    let Some(chrome) = chromium::binary_or_skip("chromium_maps_which_node_writes_each_region")
+    else {
+        return;
+    };
+    let Some(db) = strata_tests::postgres::database("console_regions_browser") else {
+        return;
+    };
+    // Another node holds region (0, 0): the map's centre with no player.
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let east = ClusterConfig {
+        node_id: "east".into(),
+        adopt: false,
+        ..ClusterConfig::default()
+    };
+    let east = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &east).unwrap();
+    let origin = BTreeSet::from([RegionId { x: 0, z: 0 }]);
+    assert_eq!(
+        east.acquire_regions(&origin).unwrap(),
+        RegionAccess::Granted
+    );
+
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let port = free_port();
+    let config = format!(
+        "{SERVER_CONFIG}{}[cluster]\nnode_id = \"west\"\n[console]\nlisten = \"127.0.0.1:{port}\"\n",
+        db.store_toml()
+    );
+    let server = Server::start_with(&data, "127.0.0.1:0", &config);
+    let url = format!("http://127.0.0.1:{port}/#token={}", admin_token(&data));
+    let profile = tmp.path().join("chromium");
+    let start = Instant::now();
+    let dom = loop {
+        let dom = chromium::run(&chrome, &profile, &url, "--dump-dom", BUDGET_MS);
+        if dom.contains("data-node=\"east\"") || start.elapsed() > SHOW_TIMEOUT {
+            break dom;
+        }
+        std::thread::sleep(Duration::from_secs(2));
+    };
+    // 800 x 560 voxels around (0, 0) at one pixel each: 4 x 4 regions.
+    let regions = number(&dom, "id=\"map\"", "data-regions");
+    assert_eq!(regions, 16, "regions outlined: {dom}");
+    assert!(
+        dom.contains("data-node=\"east\""),
+        "east in the legend: {dom}"
+    );
+    assert!(
+        !dom.contains("id=\"region-bar\" hidden"),
+        "the legend shows on a cluster node"
+    );
+    server.stop();
+    east.close().unwrap();
 }

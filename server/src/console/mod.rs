@@ -19,6 +19,8 @@ pub use conn_limit::{Deadlines, LimitedListener};
 mod events;
 mod live_world;
 mod query;
+mod regions;
+pub use regions::MAX_REGIONS_PER_REQUEST;
 mod routes;
 mod scene;
 mod snapshot_job;
@@ -207,6 +209,10 @@ pub struct Console {
     hub: events::Hub,
     renders: Arc<tokio::sync::Semaphore>,
     snapshots: snapshot_job::SnapshotJobs,
+    /// `[sequencer] region_chunks`.
+    region_chunks: u32,
+    /// `[cluster] node_id`, on a cluster node.
+    node_id: Option<String>,
 }
 
 impl std::fmt::Debug for Console {
@@ -225,6 +231,10 @@ pub struct ConsoleParts {
     pub generator: Arc<Generator>,
     pub metrics: PrometheusHandle,
     pub data_dir: PathBuf,
+    /// `[sequencer] region_chunks`: the map's region overlay.
+    pub region_chunks: u32,
+    /// `[cluster] node_id`, on a cluster node.
+    pub node_id: Option<String>,
 }
 
 /// A console that is serving; dropping it does not stop it, [`Self::stop`] does.
@@ -263,6 +273,8 @@ pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<Ru
         snapshots: snapshot_job::SnapshotJobs::new(snapshot_dir),
         metrics: parts.metrics,
         ctx: parts.ctx,
+        region_chunks: parts.region_chunks,
+        node_id: parts.node_id,
         cfg,
     });
     let hub = tokio::spawn(events::run_hub(console.clone()));

@@ -4,6 +4,8 @@
 //! - `GET /api/world`: who you are and the world's constants.
 //! - `GET /api/tile?view=top|slice&y=Y&tx=X&tz=Z`: a map tile (PNG).
 //! - `GET /api/scene.glb?x0&y0&z0&x1&y1&z1`: a chunk box's mesh (GLB).
+//! - `GET /api/regions?x0&z0&x1&z1`: who writes each region over chunk
+//!   columns (JSON).
 //! - `GET /api/events`: server-sent events, one `sample` each period.
 //! - `POST /api/action`: a confirmed admin action (JSON).
 
@@ -25,7 +27,7 @@ use tracing::{info, Instrument};
 use super::actions::{self, ActionError, ActionRequest};
 use super::query::Query;
 use super::tiles::{self, TileKey, View};
-use super::{assets, auth, scene, Console, MAX_TILE_COORD, TILE_COLUMNS};
+use super::{assets, auth, regions, scene, Console, MAX_TILE_COORD, TILE_COLUMNS};
 use crate::admin::world_source::WorldView;
 
 /// Longest wait for a free render slot before answering 503.
@@ -41,6 +43,7 @@ pub fn router(console: Arc<Console>) -> Router {
         .route("/api/world", get(world))
         .route("/api/tile", get(tile))
         .route("/api/scene.glb", get(scene_glb))
+        .route("/api/regions", get(regions_route))
         .route("/api/events", get(events))
         .route("/api/action", post(action))
         .layer(middleware::from_fn(per_request))
@@ -133,6 +136,9 @@ async fn world(State(c): State<Arc<Console>>, headers: HeaderMap) -> ApiResult {
         "tile_voxels": TILE_COLUMNS * strata_terrain::CHUNK_SIZE,
         "sample_ms": c.cfg.sample_ms,
         "scene_max_chunks": c.cfg.scene_max_chunks,
+        "region_chunks": c.region_chunks,
+        "clustered": c.world.store().clustered(),
+        "node_id": c.node_id,
         "tiles_cached": c.tiles.len(),
         "watchers": c.hub.watchers(),
         "samples": c.hub.samples(),
@@ -247,6 +253,26 @@ async fn scene_glb(State(c): State<Arc<Console>>, headers: HeaderMap, uri: Uri) 
         glb,
     )
         .into_response())
+}
+
+async fn regions_route(State(c): State<Arc<Console>>, headers: HeaderMap, uri: Uri) -> ApiResult {
+    admin(&c, &headers)?;
+    let q = Query::parse(uri.query(), &["x0", "z0", "x1", "z1"]).map_err(bad)?;
+    let lim = i64::from(MAX_TILE_COORD) * i64::from(TILE_COLUMNS);
+    let x = |n| q.int(n, -lim, lim).map(|v| v as i32).map_err(bad);
+    let (from, to) = ((x("x0")?, x("z0")?), (x("x1")?, x("z1")?));
+    let c2 = c.clone();
+    let side = c.region_chunks;
+    let answer = tokio::task::spawn_blocking(move || {
+        regions::holders(c2.world.store().as_ref(), side, from, to)
+    })
+    .await
+    .map_err(internal)?;
+    match answer {
+        Ok(v) => Ok(json_ok(v)),
+        Err(e @ regions::RegionsError::Store(_)) => Err(internal(e)),
+        Err(e) => Err(bad(e)),
+    }
 }
 
 async fn events(State(c): State<Arc<Console>>, headers: HeaderMap) -> ApiResult {

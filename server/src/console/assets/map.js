@@ -1,7 +1,8 @@
 // The live top-down map: server-drawn tiles (PNG per 4x4 chunk columns,
 // redrawn by the server when a chunk changes) on a canvas with pan and
-// zoom, player markers, flashes where edits land (coloured by kind) and
-// protected zones as outlines.
+// zoom, player markers, flashes where edits land (coloured by kind),
+// protected zones as outlines and, on a cluster node, who writes each
+// region (tinted by node, refreshed every few seconds).
 "use strict";
 
 const StrataMap = (() => {
@@ -11,12 +12,15 @@ const StrataMap = (() => {
   };
   const FLASH_MS = 2500;
   const MAX_INFLIGHT = 4;
+  const REGIONS_EVERY_MS = 2000;
+  const MAX_REGIONS = 1024;
   let world, canvas, ctx;
   let cx = 0, cz = 0, scale = 1, follow = true;
   let view = "top", sliceY = 0;
   const tiles = new Map();
   let inflight = 0;
   let players = [], zones = [], flashes = [];
+  let regions = [], regionsAt = 0, regionsBox = "", regionsLoading = false;
 
   const tileVoxels = () => world.tile_voxels;
   const key = (tx, tz) => `${view}:${view === "slice" ? sliceY : ""}:${tx}:${tz}`;
@@ -70,6 +74,86 @@ const StrataMap = (() => {
     }
   }
 
+  // The chunk columns in view, or null when zoomed out past MAX_REGIONS.
+  function regionQuery() {
+    const [x0, z0] = toWorld(0, 0);
+    const [x1, z1] = toWorld(canvas.width, canvas.height);
+    const ch = (v) => Math.floor(v / 32);
+    const side = world.region_chunks;
+    const n = (Math.floor(ch(x1) / side) - Math.floor(ch(x0) / side) + 1) *
+      (Math.floor(ch(z1) / side) - Math.floor(ch(z0) / side) + 1);
+    if (n > MAX_REGIONS) return null;
+    return `x0=${ch(x0)}&z0=${ch(z0)}&x1=${ch(x1)}&z1=${ch(z1)}`;
+  }
+
+  async function loadRegions() {
+    if (!world.clustered || regionsLoading) return;
+    const q = regionQuery();
+    if (q === null) { regions = []; showOwners(); return; }
+    if (q === regionsBox && Date.now() - regionsAt < REGIONS_EVERY_MS) return;
+    regionsLoading = true;
+    try {
+      const resp = await api(`/api/regions?${q}`);
+      if (resp.ok) {
+        regions = (await resp.json()).regions;
+        regionsBox = q;
+      }
+    } catch (e) { /* the next draw asks again */ }
+    regionsAt = Date.now();
+    regionsLoading = false;
+    showOwners();
+  }
+
+  // A steady colour per node name.
+  function nodeColour(name) {
+    let h = 0;
+    for (const c of name) h = (h * 31 + c.codePointAt(0)) % 360;
+    return `hsl(${h}, 70%, 55%)`;
+  }
+
+  function owner(r) {
+    if (r.holder === "here") return world.node_id || "this node";
+    return r.holder === "node" ? r.node : "";
+  }
+
+  function showOwners() {
+    const legend = document.getElementById("region-legend");
+    const names = [...new Set(regions.map(owner).filter((n) => n))].sort();
+    legend.replaceChildren(...names.map((n) => {
+      const span = document.createElement("span");
+      span.className = "owner";
+      span.dataset.node = n;
+      span.style.borderColor = nodeColour(n);
+      span.textContent = n;
+      return span;
+    }));
+  }
+
+  function drawRegions() {
+    const side = world.region_chunks * 32;
+    let drawn = 0;
+    ctx.lineWidth = 1;
+    for (const r of regions) {
+      const [sx, sy] = toScreen(r.x * side, r.z * side);
+      const w = side * scale;
+      const name = owner(r);
+      ctx.setLineDash(name ? [] : [4, 4]);
+      ctx.strokeStyle = name ? nodeColour(name) : "#888";
+      if (name) {
+        ctx.globalAlpha = 0.15;
+        ctx.fillStyle = nodeColour(name);
+        ctx.fillRect(sx, sy, w, w);
+        ctx.globalAlpha = 1;
+      }
+      ctx.strokeRect(sx + 0.5, sy + 0.5, w - 1, w - 1);
+      ctx.fillStyle = name ? nodeColour(name) : "#888";
+      ctx.fillText(name || "free", sx + 3, sy + w - 4);
+      drawn++;
+    }
+    ctx.setLineDash([]);
+    canvas.dataset.regions = drawn;
+  }
+
   function zoneBox(z) {
     const v = (p) => (Array.isArray(p) ? p : [p.x, p.y, p.z]);
     return [v(z.min), v(z.max)];
@@ -91,6 +175,10 @@ const StrataMap = (() => {
       drawn++;
     }
     loadTiles(list);
+    if (world.clustered) {
+      drawRegions();
+      loadRegions();
+    }
     ctx.lineWidth = 2;
     ctx.strokeStyle = "#ff2";
     for (const z of zones) {
@@ -205,6 +293,7 @@ const StrataMap = (() => {
     canvas = document.getElementById("map");
     ctx = canvas.getContext("2d");
     ctx.font = "11px sans-serif";
+    document.getElementById("region-bar").hidden = !world.clustered;
     bind();
     draw();
     setInterval(draw, 250);
