@@ -53,6 +53,40 @@ pub enum ClusterError {
     NotArrived(SocketAddr),
 }
 
+/// A [`ClusterClient`]'s connections and routes at one moment.
+#[derive(Debug, Clone)]
+pub struct ClusterView {
+    pub home: SocketAddr,
+    pub nodes: BTreeMap<SocketAddr, Arc<Client>>,
+    region_chunks: Option<u32>,
+    routes: BTreeMap<(i32, i32), SocketAddr>,
+}
+
+impl ClusterView {
+    /// The node that writes the region of `pos`, as last told; the home
+    /// node when none is known or connected.
+    pub fn route(&self, pos: ChunkPos) -> SocketAddr {
+        self.region_chunks
+            .and_then(|side| self.routes.get(&region_of(pos, side)))
+            .filter(|a| self.nodes.contains_key(a))
+            .copied()
+            .unwrap_or(self.home)
+    }
+
+    /// The connection whose replica is current for `pos`.
+    pub fn client_for(&self, pos: ChunkPos) -> &Arc<Client> {
+        &self.nodes[&self.route(pos)]
+    }
+
+    /// Whether every chunk routes the same under `other`.
+    pub fn routes_like(&self, other: &ClusterView) -> bool {
+        self.home == other.home
+            && self.region_chunks == other.region_chunks
+            && self.routes == other.routes
+            && self.nodes.keys().eq(other.nodes.keys())
+    }
+}
+
 /// A region's coordinates: chunk x and z divided (floor) by the side.
 fn region_of(pos: ChunkPos, side: u32) -> (i32, i32) {
     let side = side.max(1) as i32;
@@ -89,13 +123,10 @@ pub struct ClusterClient {
     cert: Vec<u8>,
     token: String,
     opts: ClientOptions,
-    home: SocketAddr,
-    nodes: BTreeMap<SocketAddr, Client>,
+    /// The connections, and region (x, z) to the node that writes it.
+    view: ClusterView,
     /// Per node, the serial of the last `RegionOwners` taken in.
     seen: BTreeMap<SocketAddr, u64>,
-    /// Region (x, z) to the node that writes it.
-    routes: BTreeMap<(i32, i32), SocketAddr>,
-    region_chunks: Option<u32>,
     /// The newest ticket any node gave.
     ticket: Option<Ticket>,
     /// Connections being opened in the background.
@@ -135,11 +166,13 @@ impl ClusterClient {
             cert: cert.to_vec(),
             token: token.to_string(),
             opts,
-            home,
-            nodes: BTreeMap::from([(home, client)]),
+            view: ClusterView {
+                home,
+                nodes: BTreeMap::from([(home, Arc::new(client))]),
+                region_chunks: None,
+                routes: BTreeMap::new(),
+            },
             seen: BTreeMap::new(),
-            routes: BTreeMap::new(),
-            region_chunks: None,
             ticket: None,
             joining: BTreeMap::new(),
             failed: BTreeMap::new(),
@@ -148,32 +181,34 @@ impl ClusterClient {
 
     /// The first node's connection.
     pub fn home(&self) -> &Client {
-        &self.nodes[&self.home]
+        &self.view.nodes[&self.view.home]
     }
 
     /// The connection to `addr`, if open.
     pub fn node(&self, addr: SocketAddr) -> Option<&Client> {
-        self.nodes.get(&addr)
+        self.view.nodes.get(&addr).map(|c| c.as_ref())
     }
 
     /// Every connected node.
     pub fn nodes(&self) -> impl Iterator<Item = (SocketAddr, &Client)> {
-        self.nodes.iter().map(|(a, c)| (*a, c))
+        self.view.nodes.iter().map(|(a, c)| (*a, c.as_ref()))
     }
 
     /// The node that writes the region of `pos`, as last told; the home
     /// node when none is known or connected.
     pub fn route(&self, pos: ChunkPos) -> SocketAddr {
-        self.region_chunks
-            .and_then(|side| self.routes.get(&region_of(pos, side)))
-            .filter(|a| self.nodes.contains_key(a))
-            .copied()
-            .unwrap_or(self.home)
+        self.view.route(pos)
+    }
+
+    /// A copy of the connections and routes as they are now, for readers
+    /// on other threads (the game-loop [`crate::Session`]).
+    pub fn view(&self) -> ClusterView {
+        self.view.clone()
     }
 
     /// The connection whose replica is current for `pos`.
     pub fn client_for(&self, pos: ChunkPos) -> &Client {
-        &self.nodes[&self.route(pos)]
+        &self.view.nodes[&self.route(pos)]
     }
 
     /// The chunk as its writer's replica holds it (see
@@ -186,11 +221,13 @@ impl ClusterClient {
     /// nodes they name. Call it often (every frame is fine: it is cheap
     /// when nothing changed). Returns the nodes newly connected.
     pub async fn follow(&mut self) -> Result<Vec<SocketAddr>, ClusterError> {
-        let before = self.nodes.len();
-        self.nodes.retain(|a, c| *a == self.home || !c.is_closed());
-        let nodes = &self.nodes;
+        let before = self.view.nodes.len();
+        let home = self.view.home;
+        self.view.nodes.retain(|a, c| *a == home || !c.is_closed());
+        let nodes = &self.view.nodes;
         self.seen.retain(|a, _| nodes.contains_key(a));
         let latest: Vec<(SocketAddr, RegionOwners)> = self
+            .view
             .nodes
             .iter()
             .filter_map(|(a, c)| Some((*a, c.region_owners()?)))
@@ -198,7 +235,7 @@ impl ClusterClient {
         let news = latest
             .iter()
             .any(|(a, o)| self.seen.get(a) != Some(&o.serial));
-        if news || self.nodes.len() != before {
+        if news || self.view.nodes.len() != before {
             let named = self.reroute(&latest).await;
             self.start_joins(named);
         }
@@ -210,11 +247,11 @@ impl ClusterClient {
     /// node's word first, each node's word on itself last, since a node
     /// knows best what it holds. Returns the nodes named.
     async fn reroute(&mut self, latest: &[(SocketAddr, RegionOwners)]) -> Vec<SocketAddr> {
-        self.routes.clear();
+        self.view.routes.clear();
         let mut named = Vec::new();
         for (from, o) in latest {
             self.seen.insert(*from, o.serial);
-            self.region_chunks = Some(o.region_chunks);
+            self.view.region_chunks = Some(o.region_chunks);
             if let Some(t) = &o.ticket {
                 if self
                     .ticket
@@ -229,7 +266,7 @@ impl ClusterClient {
                     continue;
                 };
                 if let Ok(a) = resolve(addr).await {
-                    self.routes.insert((r.region_x, r.region_z), a);
+                    self.view.routes.insert((r.region_x, r.region_z), a);
                     if !named.contains(&a) {
                         named.push(a);
                     }
@@ -238,7 +275,7 @@ impl ClusterClient {
         }
         for (from, o) in latest {
             for r in o.regions.iter().filter(|r| r.holder == RegionHolder::Here) {
-                self.routes.insert((r.region_x, r.region_z), *from);
+                self.view.routes.insert((r.region_x, r.region_z), *from);
             }
         }
         named
@@ -251,10 +288,10 @@ impl ClusterClient {
         self.failed
             .retain(|_, at| now.duration_since(*at) < JOIN_BACKOFF);
         for a in named {
-            if self.nodes.contains_key(&a)
+            if self.view.nodes.contains_key(&a)
                 || self.joining.contains_key(&a)
                 || self.failed.contains_key(&a)
-                || self.nodes.len() + self.joining.len() >= MAX_CLUSTER_NODES
+                || self.view.nodes.len() + self.joining.len() >= MAX_CLUSTER_NODES
             {
                 continue;
             }
@@ -284,7 +321,7 @@ impl ClusterClient {
             };
             match h.await {
                 Ok(Ok(c)) => {
-                    self.nodes.insert(a, c);
+                    self.view.nodes.insert(a, Arc::new(c));
                     added.push(a);
                 }
                 _ => {
@@ -298,9 +335,9 @@ impl ClusterClient {
     /// Reports the player's position to every node (each validates it).
     pub fn send_position(&self, pos: FixedVec3) -> Result<(), ClientError> {
         let mut home = Ok(());
-        for (a, c) in &self.nodes {
+        for (a, c) in &self.view.nodes {
             let sent = c.send_position(pos);
-            if *a == self.home {
+            if *a == self.view.home {
                 home = sent;
             }
         }
@@ -317,7 +354,7 @@ impl ClusterClient {
     /// the node that answered, with its answer.
     pub async fn edit(&mut self, edit: Edit) -> Result<(SocketAddr, Acked), ClusterError> {
         let to = self.route(edit_anchor(&edit).chunk());
-        let acked = self.nodes[&to].edit_acked(edit.clone()).await?;
+        let acked = self.view.nodes[&to].edit_acked(edit.clone()).await?;
         if matches!(acked.0, Verdict::Rejected(RejectReason::NodeFull { .. })) {
             return Ok(self.edit_past_full(to, edit, acked).await);
         }
@@ -336,14 +373,14 @@ impl ClusterClient {
         if there == to {
             return Ok((to, acked));
         }
-        self.routes.insert((*region_x, *region_z), there);
-        if !self.nodes.contains_key(&there) {
+        self.view.routes.insert((*region_x, *region_z), there);
+        if !self.view.nodes.contains_key(&there) {
             // Not connected yet: joined in the background, the refusal
             // goes back to the caller (it may send the edit again).
             self.start_joins(vec![there]);
             return Ok((to, acked));
         }
-        let again = self.nodes[&there].edit_acked(edit).await?;
+        let again = self.view.nodes[&there].edit_acked(edit).await?;
         Ok((there, again))
     }
 
@@ -358,9 +395,15 @@ impl ClusterClient {
         refused: Acked,
     ) -> (SocketAddr, Acked) {
         let mut last = (full, refused);
-        let others: Vec<SocketAddr> = self.nodes.keys().filter(|a| **a != full).copied().collect();
+        let others: Vec<SocketAddr> = self
+            .view
+            .nodes
+            .keys()
+            .filter(|a| **a != full)
+            .copied()
+            .collect();
         for a in others {
-            let Ok(acked) = self.nodes[&a].edit_acked(edit.clone()).await else {
+            let Ok(acked) = self.view.nodes[&a].edit_acked(edit.clone()).await else {
                 continue;
             };
             last = (a, acked);
@@ -368,9 +411,9 @@ impl ClusterClient {
                 break;
             }
         }
-        if let (Verdict::Accepted { .. }, Some(side)) = (&last.1 .0, self.region_chunks) {
+        if let (Verdict::Accepted { .. }, Some(side)) = (&last.1 .0, self.view.region_chunks) {
             let region = region_of(edit_anchor(&edit).chunk(), side);
-            self.routes.insert(region, last.0);
+            self.view.routes.insert(region, last.0);
         }
         last
     }
@@ -380,8 +423,8 @@ impl ClusterClient {
         for (_, h) in self.joining {
             h.abort();
         }
-        for (_, c) in self.nodes {
-            c.close().await;
+        for (_, c) in self.view.nodes {
+            c.shutdown().await;
         }
     }
 }

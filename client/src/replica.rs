@@ -83,6 +83,28 @@ pub struct ReplicaStats {
     pub checks_failed: u64,
 }
 
+impl std::ops::AddAssign for ReplicaStats {
+    /// Sums counters (a player's connections, a load test's bots).
+    fn add_assign(&mut self, b: Self) {
+        self.snapshots += b.snapshots;
+        self.patched += b.patched;
+        self.generated += b.generated;
+        self.deltas += b.deltas;
+        self.delta_payload_bytes += b.delta_payload_bytes;
+        self.gaps += b.gaps;
+        self.hash_mismatches += b.hash_mismatches;
+        self.meshes_checked += b.meshes_checked;
+        self.mesh_mismatches += b.mesh_mismatches;
+        self.meshes_unverifiable += b.meshes_unverifiable;
+        self.checks_ok += b.checks_ok;
+        self.checks_failed += b.checks_failed;
+        self.ops += b.ops;
+        self.op_chunks += b.op_chunks;
+        self.op_gaps += b.op_gaps;
+        self.op_mismatches += b.op_mismatches;
+    }
+}
+
 /// Chunks held by one client.
 #[derive(Debug)]
 pub struct Replica {

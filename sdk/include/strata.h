@@ -387,6 +387,23 @@ StrataStatus strata_connect_with(const char *address,
                                  const StrataConnectOptions *options,
                                  StrataSession **out_session);
 
+// `strata_connect_with` for a cluster of servers sharing one world:
+// `address` is any one node. The session connects to the other nodes that
+// node names, sends the position to all of them, each edit to the node
+// that writes its region (one at a time: the next goes once the last is
+// answered), and reads each chunk from that node's copy. When a region
+// moves to another node, its chunks come as CHUNK_CHANGED events. Every
+// other call works as on one server.
+//
+// # Safety
+// As `strata_connect_with`.
+StrataStatus strata_connect_cluster(const char *address,
+                                    const uint8_t *cert_der,
+                                    size_t cert_len,
+                                    const char *token,
+                                    const StrataConnectOptions *options,
+                                    StrataSession **out_session);
+
 // Closes the connection politely (waiting at most 2 s) and frees the
 // session. Null is ignored. No other call on the session may be running
 // or follow.

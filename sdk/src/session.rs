@@ -78,7 +78,7 @@ pub unsafe extern "C" fn strata_connect(
             ..SessionOptions::default()
         };
         // SAFETY: the caller's contract above.
-        unsafe { connect(address, cert, token, opts, out_session) }
+        unsafe { connect(address, cert, token, (opts, false), out_session) }
     })
 }
 
@@ -97,6 +97,45 @@ pub unsafe extern "C" fn strata_connect_with(
     options: *const StrataConnectOptions,
     out_session: *mut *mut StrataSession,
 ) -> StrataStatus {
+    let args = (address, cert_der, cert_len, token);
+    // SAFETY: the caller's contract above.
+    unsafe { connect_options(args, options, false, out_session) }
+}
+
+/// `strata_connect_with` for a cluster of servers sharing one world:
+/// `address` is any one node. The session connects to the other nodes that
+/// node names, sends the position to all of them, each edit to the node
+/// that writes its region (one at a time: the next goes once the last is
+/// answered), and reads each chunk from that node's copy. When a region
+/// moves to another node, its chunks come as CHUNK_CHANGED events. Every
+/// other call works as on one server.
+///
+/// # Safety
+/// As `strata_connect_with`.
+#[no_mangle]
+pub unsafe extern "C" fn strata_connect_cluster(
+    address: *const c_char,
+    cert_der: *const u8,
+    cert_len: usize,
+    token: *const c_char,
+    options: *const StrataConnectOptions,
+    out_session: *mut *mut StrataSession,
+) -> StrataStatus {
+    let args = (address, cert_der, cert_len, token);
+    // SAFETY: the caller's contract above.
+    unsafe { connect_options(args, options, true, out_session) }
+}
+
+/// `strata_connect_with` and `strata_connect_cluster`.
+///
+/// # Safety
+/// As `strata_connect_with`.
+unsafe fn connect_options(
+    (address, cert_der, cert_len, token): (*const c_char, *const u8, usize, *const c_char),
+    options: *const StrataConnectOptions,
+    cluster: bool,
+    out_session: *mut *mut StrataSession,
+) -> StrataStatus {
     call(|| {
         // SAFETY: the caller's contract above.
         let (address, cert, token, o) = unsafe {
@@ -113,11 +152,12 @@ pub unsafe extern "C" fn strata_connect_with(
             ..SessionOptions::default()
         };
         // SAFETY: the caller's contract above.
-        unsafe { connect(address, cert, token, opts, out_session) }
+        unsafe { connect(address, cert, token, (opts, cluster), out_session) }
     })
 }
 
-/// Connects and hands the new session to `*out_session`.
+/// Connects (to a cluster when `cluster`) and hands the new session to
+/// `*out_session`.
 ///
 /// # Safety
 /// `out_session` is null or writable.
@@ -125,10 +165,15 @@ unsafe fn connect(
     address: &str,
     cert: &[u8],
     token: &str,
-    opts: SessionOptions,
+    (opts, cluster): (SessionOptions, bool),
     out_session: *mut *mut StrataSession,
 ) -> Result<(), Failure> {
-    let session = Session::connect(resolve(address)?, cert, token, opts)?;
+    let addr = resolve(address)?;
+    let session = if cluster {
+        Session::connect_cluster(addr, cert, token, opts)?
+    } else {
+        Session::connect(addr, cert, token, opts)?
+    };
     let boxed = Box::new(StrataSession {
         session,
         last_changes: Mutex::default(),

@@ -5,6 +5,7 @@
 mod common;
 
 mod boundary;
+mod cluster;
 mod examples;
 mod header;
 mod session;

@@ -7,29 +7,13 @@ use crate::common;
 
 use std::time::{Duration, Instant};
 
-use common::Server;
+use common::{wait_for, Server};
 use strata_client::glam::{DVec3, IVec3};
 use strata_client::protocol::RejectReason;
 use strata_client::terrain::ChunkPos;
 use strata_client::{edits, Event, Session, SessionOptions};
 
 const WAIT: Duration = Duration::from_secs(10);
-
-/// Polls until `want` picks an event out (others are kept), or panics.
-fn wait_for<T>(s: &Session, seen: &mut Vec<Event>, mut want: impl FnMut(&Event) -> Option<T>) -> T {
-    let start = Instant::now();
-    while start.elapsed() < WAIT {
-        while let Some(e) = s.poll() {
-            let found = want(&e);
-            seen.push(e);
-            if let Some(t) = found {
-                return t;
-            }
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    panic!("timed out; events so far: {seen:?}");
-}
 
 /// The highest solid voxel of column (`x`, `z`), read from held chunks.
 fn ground(s: &Session, x: i32, z: i32) -> Option<i32> {

@@ -98,32 +98,13 @@ pub struct BotOutcome {
     counted_ready: bool,
 }
 
-fn add_stats(a: &mut ReplicaStats, b: &ReplicaStats) {
-    a.snapshots += b.snapshots;
-    a.patched += b.patched;
-    a.generated += b.generated;
-    a.deltas += b.deltas;
-    a.delta_payload_bytes += b.delta_payload_bytes;
-    a.gaps += b.gaps;
-    a.hash_mismatches += b.hash_mismatches;
-    a.meshes_checked += b.meshes_checked;
-    a.mesh_mismatches += b.mesh_mismatches;
-    a.meshes_unverifiable += b.meshes_unverifiable;
-    a.checks_ok += b.checks_ok;
-    a.checks_failed += b.checks_failed;
-    a.ops += b.ops;
-    a.op_chunks += b.op_chunks;
-    a.op_gaps += b.op_gaps;
-    a.op_mismatches += b.op_mismatches;
-}
-
 impl BotOutcome {
     /// Folds a finished connection in.
     fn absorb(&mut self, client: &Client) {
         self.bytes_in += client.bytes_in();
         self.bytes_out += client.bytes_out();
         let r = client.replica();
-        add_stats(&mut self.replica, &r.stats);
+        self.replica += r.stats;
         if let Some(h) = r.version_hashes() {
             self.version_hashes.extend(h.iter().map(|(k, v)| (*k, *v)));
         }

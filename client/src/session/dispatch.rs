@@ -1,14 +1,23 @@
 //! The session's tasks on the connection thread: one takes the game's
 //! commands in order (so edits reach the server in the order taken) and
 //! turns each edit's verdict into an event; one notes the connection's end.
+//! On a cluster one task owns the [`ClusterClient`]: it takes the game's
+//! commands and follows the nodes' word between them.
 
 use std::sync::{mpsc as std_mpsc, Arc, Mutex};
+use std::time::Duration;
 
 use strata_terrain::{ChunkPos, Edit};
 use tokio::sync::mpsc;
 
 use super::event::Event;
+use super::links::Links;
 use crate::client::{Client, ClientError, Verdict};
+use crate::cluster::{ClusterClient, ClusterError};
+
+/// How often a cluster session takes in the nodes' `RegionOwners` (and
+/// joins the nodes they name).
+pub const FOLLOW_EVERY: Duration = Duration::from_millis(50);
 
 /// What the game asked the connection thread to send.
 #[derive(Debug)]
@@ -47,6 +56,81 @@ pub(super) async fn dispatch(
             Command::Resync { pos } => {
                 let _ = client.resync(pos).await;
             }
+        }
+    }
+}
+
+/// [`dispatch`] for a cluster: subscriptions and forgets go to every node,
+/// a resync to the node the chunk is read from, edits through the cluster
+/// client one at a time; after each command and every [`FOLLOW_EVERY`]
+/// the session's copy of the routes is brought up to date.
+pub(super) async fn dispatch_cluster(
+    mut cluster: ClusterClient,
+    links: Arc<Links>,
+    mut commands: mpsc::Receiver<Command>,
+    events: std_mpsc::Sender<Event>,
+) {
+    let mut follow = tokio::time::interval(FOLLOW_EVERY);
+    follow.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    // The game's last subscription, for nodes joined after it.
+    let mut subscribed = None;
+    loop {
+        tokio::select! {
+            command = commands.recv() => {
+                let Some(command) = command else { break };
+                if let Command::Subscribe { center, radius } = &command {
+                    subscribed = Some((*center, *radius));
+                }
+                run_on_cluster(&mut cluster, command, &events).await;
+            }
+            _ = follow.tick() => {
+                // A node that cannot be joined is retried later; the home
+                // connection's end is reported by `watch_close`.
+                let joined = cluster.follow().await.unwrap_or_default();
+                if let Some((center, radius)) = subscribed {
+                    for a in joined {
+                        if let Some(c) = cluster.node(a) {
+                            let _ = c.subscribe(center, radius).await;
+                        }
+                    }
+                }
+            }
+        }
+        links.update(cluster.view());
+    }
+}
+
+async fn run_on_cluster(
+    cluster: &mut ClusterClient,
+    command: Command,
+    events: &std_mpsc::Sender<Event>,
+) {
+    let view = cluster.view();
+    match command {
+        Command::Edit { ticket, edit } => {
+            let answer = cluster.edit(edit).await.map(|(_, acked)| acked);
+            let event = match answer {
+                Ok(acked) => verdict_event(ticket, Ok(acked)),
+                Err(ClusterError::Client(e)) => verdict_event(ticket, Err(e)),
+                Err(e) => Event::EditFailed {
+                    ticket,
+                    error: e.to_string(),
+                },
+            };
+            let _ = events.send(event);
+        }
+        Command::Subscribe { center, radius } => {
+            for c in view.nodes.values() {
+                let _ = c.subscribe(center, radius).await;
+            }
+        }
+        Command::Forget { chunks } => {
+            for c in view.nodes.values() {
+                let _ = c.forget(&chunks).await;
+            }
+        }
+        Command::Resync { pos } => {
+            let _ = view.client_for(pos).resync(pos).await;
         }
     }
 }

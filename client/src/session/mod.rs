@@ -3,10 +3,17 @@
 //! functions that never wait on the network, except [`Session::connect`].
 //! Edits return a ticket at once; their verdicts, chunk changes and the
 //! end of the connection come out of [`Session::poll`].
+//!
+//! [`Session::connect_cluster`] plays on a cluster of nodes through a
+//! [`ClusterClient`]: positions go to every node, each edit to the node
+//! that writes its region, and each chunk is read from that node's replica;
+//! the connection thread follows the nodes' `RegionOwners` every
+//! [`FOLLOW_EVERY`].
 
 mod dispatch;
 mod error;
 mod event;
+mod links;
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
@@ -20,14 +27,18 @@ use tokio::runtime::Runtime;
 use tokio::sync::mpsc;
 
 use crate::client::{Client, ClientError, ClientOptions};
+use crate::cluster::ClusterClient;
 use crate::coords::to_fixed;
 use crate::mesh::{mesh_at, ChunkMesh};
 use crate::notice::Notice;
 use crate::prediction::PredictionStats;
 use crate::replica::ReplicaStats;
-use dispatch::{dispatch, watch_close, Command};
+pub use dispatch::FOLLOW_EVERY;
+use dispatch::{dispatch, dispatch_cluster, watch_close, Command};
 pub use error::SessionError;
 pub use event::Event;
+use links::Links;
+pub use links::MAX_MOVED_CHUNKS;
 
 /// Edits and subscriptions queued for the connection thread, and edits
 /// whose verdict the game has not polled yet: past it, calls say `Busy`.
@@ -64,7 +75,7 @@ pub struct ChunkData {
 /// `&self` and may be called from any thread.
 #[derive(Debug)]
 pub struct Session {
-    client: Arc<Client>,
+    links: Arc<Links>,
     commands: mpsc::Sender<Command>,
     events: Mutex<std_mpsc::Receiver<Event>>,
     /// Set once the connection has ended, with why.
@@ -88,29 +99,66 @@ impl Session {
         token: &str,
         opts: SessionOptions,
     ) -> Result<Session, SessionError> {
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .thread_name("strata-client")
-            .enable_all()
-            .build()
-            .map_err(SessionError::Runtime)?;
-        let client_opts = ClientOptions {
-            predict: opts.predict,
-            structures: opts.structures,
-            track_changes: true,
-            capabilities: opts.capabilities,
-            ..ClientOptions::default()
-        };
-        let client =
-            runtime.block_on(Client::connect_opts(addr, server_cert, token, client_opts))?;
+        let runtime = runtime()?;
+        let client = runtime.block_on(Client::connect_opts(
+            addr,
+            server_cert,
+            token,
+            client_options(opts),
+        ))?;
         let client = Arc::new(client);
         let (commands, rx) = mpsc::channel(MAX_IN_FLIGHT);
         let (events_tx, events) = std_mpsc::channel();
-        let closed = Arc::default();
         runtime.spawn(dispatch(client.clone(), rx, events_tx));
-        runtime.spawn(watch_close(client.clone(), Arc::clone(&closed)));
-        Ok(Session {
-            client,
+        Ok(Self::started(
+            runtime,
+            Arc::new(Links::one(client)),
+            commands,
+            events,
+        ))
+    }
+
+    /// Connects to node `home` of a cluster (its nodes share `server_cert`
+    /// and the token's secret), as [`Self::connect`], then follows the
+    /// nodes the cluster names: each edit goes to the node that writes its
+    /// region (one at a time: the next is sent once the last is answered),
+    /// and each chunk is read from that node's replica. When a region's
+    /// writer changes, its held chunks are reported changed.
+    pub fn connect_cluster(
+        home: SocketAddr,
+        server_cert: &[u8],
+        token: &str,
+        opts: SessionOptions,
+    ) -> Result<Session, SessionError> {
+        let runtime = runtime()?;
+        let cluster = runtime
+            .block_on(ClusterClient::connect(
+                home,
+                server_cert,
+                token,
+                client_options(opts),
+            ))
+            .map_err(|e| match e {
+                crate::cluster::ClusterError::Client(c) => c,
+                other => ClientError::Closed(other.to_string()),
+            })?;
+        let links = Arc::new(Links::cluster(cluster.view()));
+        let (commands, rx) = mpsc::channel(MAX_IN_FLIGHT);
+        let (events_tx, events) = std_mpsc::channel();
+        runtime.spawn(dispatch_cluster(cluster, links.clone(), rx, events_tx));
+        Ok(Self::started(runtime, links, commands, events))
+    }
+
+    fn started(
+        runtime: Runtime,
+        links: Arc<Links>,
+        commands: mpsc::Sender<Command>,
+        events: std_mpsc::Receiver<Event>,
+    ) -> Session {
+        let closed = Arc::default();
+        runtime.spawn(watch_close(links.home.clone(), Arc::clone(&closed)));
+        Session {
+            links,
             commands,
             events: Mutex::new(events),
             closed,
@@ -118,19 +166,26 @@ impl Session {
             unpolled: AtomicUsize::new(0),
             next_ticket: AtomicU64::new(1),
             runtime,
-        })
+        }
     }
 
     /// The server's greeting: world seed, view radius, spawn and so on.
     pub fn welcome(&self) -> &Welcome {
-        self.client.welcome()
+        self.links.home.welcome()
     }
 
     /// Reports the player's feet position, in voxels (an unreliable
     /// datagram: send it every frame or so). Interest follows it.
     pub fn set_position(&self, feet: DVec3) -> Result<(), SessionError> {
         let pos = to_fixed(feet).ok_or(SessionError::BadPosition)?;
-        Ok(self.client.send_position(pos)?)
+        let mut sent = Ok(());
+        for (i, c) in self.links.all().iter().enumerate() {
+            let r = c.send_position(pos);
+            if i == 0 {
+                sent = r;
+            }
+        }
+        Ok(sent?)
     }
 
     /// Asks for the cube of chunks within `radius` of `center` (capped by
@@ -195,7 +250,7 @@ impl Session {
             self.unpolled.fetch_sub(1, Ordering::SeqCst);
             return Some(e);
         }
-        match self.client.pop_notice() {
+        match self.links.home.pop_notice() {
             Some(Notice::PositionRefused { seq, reason }) => {
                 return Some(Event::PositionRefused { seq, reason })
             }
@@ -204,7 +259,7 @@ impl Session {
             }
             None => {}
         }
-        if let Some(pos) = self.client.pop_changed() {
+        if let Some(pos) = self.links.pop_changed() {
             return Some(Event::ChunkChanged { pos });
         }
         // Disconnected comes last: after every edit's verdict or failure.
@@ -230,13 +285,13 @@ impl Session {
     /// Whether the connection has ended (the `Disconnected` event may still
     /// be waiting behind others).
     pub fn is_closed(&self) -> bool {
-        self.client.is_closed()
+        self.links.home.is_closed()
     }
 
     /// A held chunk's densities and materials, with the player's pending
     /// predicted edits applied when predicting; `None` when not held.
     pub fn chunk(&self, pos: ChunkPos) -> Option<ChunkData> {
-        let (chunk, version, predicted) = self.client.visible_chunk(pos)?;
+        let (chunk, version, predicted) = self.links.for_chunk(pos).visible_chunk(pos)?;
         Some(ChunkData {
             pos,
             version,
@@ -257,35 +312,65 @@ impl Session {
         transition_faces: u8,
     ) -> Result<Option<ChunkMesh>, SessionError> {
         Ok(mesh_at(pos, lod, transition_faces, |p| {
-            self.client.predicted_chunk(p)
+            self.links.for_chunk(p).predicted_chunk(p)
         })?)
     }
 
-    /// Chunks held now.
+    /// Chunks held now (on a cluster, by the first node's connection:
+    /// every connection holds the whole view).
     pub fn held_chunks(&self) -> usize {
-        self.client.replica().len()
+        self.links.home.replica().len()
     }
 
     /// The replica's counters: chunks taken in, deltas applied, meshes
-    /// checked against the server's hashes and mismatches.
+    /// checked against the server's hashes and mismatches (on a cluster,
+    /// summed over the connections).
     pub fn stats(&self) -> ReplicaStats {
-        self.client.replica().stats
+        let mut sum = ReplicaStats::default();
+        for c in self.links.all() {
+            sum += c.replica().stats;
+        }
+        sum
     }
 
-    /// How predictions fared; `None` when not predicting.
+    /// How predictions fared; `None` when not predicting (on a cluster,
+    /// the first node's).
     pub fn prediction_stats(&self) -> Option<PredictionStats> {
-        self.client.prediction_stats()
+        self.links.home.prediction_stats()
     }
 
-    /// Closes the connection politely (waiting at most two seconds) and
-    /// stops its thread. Dropping a session does the same without waiting.
+    /// Closes the connections politely (waiting at most two seconds) and
+    /// stops the thread. Dropping a session does the same without waiting.
     pub fn close(self) {
-        self.runtime.block_on(self.client.shutdown());
+        for c in self.links.all() {
+            self.runtime.block_on(c.shutdown());
+        }
     }
 }
 
 impl Drop for Session {
     fn drop(&mut self) {
-        self.client.disconnect();
+        for c in self.links.all() {
+            c.disconnect();
+        }
+    }
+}
+
+fn runtime() -> Result<Runtime, SessionError> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .thread_name("strata-client")
+        .enable_all()
+        .build()
+        .map_err(SessionError::Runtime)
+}
+
+fn client_options(opts: SessionOptions) -> ClientOptions {
+    ClientOptions {
+        predict: opts.predict,
+        structures: opts.structures,
+        track_changes: true,
+        capabilities: opts.capabilities,
+        ..ClientOptions::default()
     }
 }

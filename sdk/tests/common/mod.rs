@@ -191,3 +191,27 @@ pub fn check_run(out: &str) {
     }
     assert!(out.lines().any(|l| l == "bye"));
 }
+
+/// How long [`wait_for`] polls.
+pub const EVENT_WAIT: Duration = Duration::from_secs(20);
+
+/// Polls until `want` picks an event out (every event is kept in `seen`),
+/// or panics after [`EVENT_WAIT`].
+pub fn wait_for<T>(
+    s: &strata_client::Session,
+    seen: &mut Vec<strata_client::Event>,
+    mut want: impl FnMut(&strata_client::Event) -> Option<T>,
+) -> T {
+    let start = Instant::now();
+    while start.elapsed() < EVENT_WAIT {
+        while let Some(e) = s.poll() {
+            let found = want(&e);
+            seen.push(e);
+            if let Some(t) = found {
+                return t;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    panic!("timed out; events so far: {seen:?}");
+}

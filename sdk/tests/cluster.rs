@@ -1,0 +1,226 @@
+//! A game-loop session on a cluster: two nodes on one PostgreSQL world,
+//! each writing its own region. `Session::connect_cluster` at the west
+//! node walks the player across the border: the session joins the east
+//! node, an edit beyond the border goes there, and the changed chunk is
+//! read from the east node's copy with matching meshes. The C ABI's
+//! `strata_connect_cluster` opens the same kind of session.
+
+use crate::common::wait_for;
+
+use std::ffi::CString;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use strata::*;
+use strata_client::glam::DVec3;
+use strata_client::terrain::ChunkPos;
+use strata_client::{edits, Event, Session, SessionOptions};
+use strata_protocol::Role;
+use strata_server::app::{self, Running};
+use strata_server::cluster::ClusterConfig;
+use strata_server::config::ServerConfig;
+use strata_server::datadir::{CERT_NAME, KEY_NAME, SECRET_NAME};
+use strata_server::validate::spawn::SpawnArea;
+
+/// Region 0 is x in 0..256, region 1 x in 256..512 (8-chunk regions).
+const WEST_X: i32 = 200;
+const EAST_X: i32 = 330;
+const Z: i32 = 128;
+const WAIT: Duration = Duration::from_secs(20);
+
+fn node_config(
+    dir: &Path,
+    db: &strata_tests::postgres::PgDb,
+    id: &str,
+    spawn_x: i32,
+) -> ServerConfig {
+    let mut cfg = ServerConfig::default();
+    cfg.server.listen = "127.0.0.1:0".parse().unwrap();
+    cfg.server.data_dir = dir.to_path_buf();
+    cfg.validation.spawn_protection_radius = 0;
+    cfg.validation.max_speed = 64.0;
+    cfg.validation.spawn = SpawnArea {
+        x: spawn_x,
+        z: Z,
+        radius: 32,
+    };
+    cfg.interest.view_radius = 2;
+    cfg.engine.tick_ms = 5;
+    cfg.store.backend = strata_server::store::StoreBackend::Postgres;
+    cfg.store.postgres.url = db.url();
+    cfg.cluster = Some(ClusterConfig {
+        node_id: id.into(),
+        lease_ms: 5_000,
+        renew_ms: 500,
+        ..ClusterConfig::default()
+    });
+    cfg
+}
+
+fn token(node: &Running, player: &str) -> String {
+    strata_server::auth::issue(
+        node.data_dir.secret(),
+        player,
+        Role::Player,
+        Duration::from_secs(600),
+        strata_server::auth::unix_now(),
+    )
+    .unwrap()
+}
+
+/// Feet on the surface of column (x, Z), and the surface voxel's centre.
+fn spot(x: i32) -> (DVec3, DVec3) {
+    let g = strata_client::terrain::gen::Generator::fractal(Default::default()).unwrap();
+    let y = g.surface_height(x, Z);
+    (
+        DVec3::new(f64::from(x), y + 1.0, f64::from(Z)),
+        DVec3::new(f64::from(x), y.floor(), f64::from(Z)),
+    )
+}
+
+fn chunk_of(x: i32) -> ChunkPos {
+    let (_, v) = spot(x);
+    ChunkPos::new(x >> 5, (v.y as i32) >> 5, Z >> 5)
+}
+
+fn eventually(mut f: impl FnMut() -> bool) -> bool {
+    let start = Instant::now();
+    while start.elapsed() < WAIT {
+        if f() {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    false
+}
+
+/// Edits at `x` and waits for its acceptance; returns the changed chunks.
+fn mine(s: &Session, seen: &mut Vec<Event>, x: i32) -> Vec<strata_protocol::ChunkVersion> {
+    let ticket = s.edit(edits::mine(spot(x).1, 3.0, 60).unwrap()).unwrap();
+    wait_for(s, seen, |e| match e {
+        Event::EditAccepted {
+            ticket: t, changes, ..
+        } if *t == ticket => Some(changes.clone()),
+        Event::EditRejected { ticket: t, reason } if *t == ticket => {
+            panic!("edit at x {x} refused: {reason:?}")
+        }
+        _ => None,
+    })
+}
+
+#[test]
+fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
+    let Some(db) = strata_tests::postgres::database("sdk_cluster") else {
+        return;
+    };
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let dirs = tempfile::tempdir().unwrap();
+    let (west_dir, east_dir) = (dirs.path().join("west"), dirs.path().join("east"));
+    let west = runtime
+        .block_on(app::start(node_config(&west_dir, &db, "west", WEST_X)))
+        .unwrap();
+    // The nodes share the auth secret (tickets) and the certificate.
+    std::fs::create_dir_all(&east_dir).unwrap();
+    for f in [SECRET_NAME, CERT_NAME, KEY_NAME] {
+        std::fs::copy(west_dir.join(f), east_dir.join(f)).unwrap();
+    }
+    let east = runtime
+        .block_on(app::start(node_config(&east_dir, &db, "east", EAST_X)))
+        .unwrap();
+
+    // Bob, on the east node alone, claims region 1 for it.
+    let opts = SessionOptions::default();
+    let bob = Session::connect(
+        east.addr,
+        &east.cert_der,
+        &token(&east, "bob"),
+        opts.clone(),
+    )
+    .unwrap();
+    bob.set_position(spot(EAST_X).0).unwrap();
+    assert!(eventually(|| bob.chunk(chunk_of(EAST_X)).is_some()));
+    let mut bob_seen = Vec::new();
+    mine(&bob, &mut bob_seen, EAST_X + 2);
+
+    // Ann plays on the cluster from the west node: her edit claims region 0.
+    let ann =
+        Session::connect_cluster(west.addr, &west.cert_der, &token(&west, "ann"), opts).unwrap();
+    ann.set_position(spot(WEST_X).0).unwrap();
+    assert!(eventually(|| ann.chunk(chunk_of(WEST_X)).is_some()));
+    let mut seen = Vec::new();
+    mine(&ann, &mut seen, WEST_X + 2);
+
+    // She walks east across the border, two voxels every 50 ms.
+    let mut x = WEST_X;
+    while x < EAST_X - 4 {
+        x += 2;
+        ann.set_position(spot(x).0).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        while let Some(e) = ann.poll() {
+            seen.push(e);
+        }
+    }
+    // Her edit beyond the border: the east node takes it (the west node
+    // would refuse it), and the chunk is read from the east node's copy.
+    let changes = mine(&ann, &mut seen, EAST_X - 2);
+    let changed = changes[0];
+    assert!(
+        eventually(|| ann
+            .chunk(changed.pos)
+            .is_some_and(|c| c.version >= changed.version)),
+        "ann reads {changed:?} from the east node"
+    );
+    assert!(eventually(|| bob
+        .chunk(changed.pos)
+        .is_some_and(|c| c.version >= changed.version)));
+    // Reported changed, and meshed from what she reads.
+    if !seen
+        .iter()
+        .any(|e| matches!(e, Event::ChunkChanged { pos } if *pos == changed.pos))
+    {
+        wait_for(&ann, &mut seen, |e| {
+            matches!(e, Event::ChunkChanged { pos } if *pos == changed.pos).then_some(())
+        });
+    }
+    assert!(ann.mesh(changed.pos, 0, 0).unwrap().is_some());
+    let stats = ann.stats();
+    assert!(stats.meshes_checked > 0, "{stats:?}");
+    assert_eq!(stats.mesh_mismatches, 0, "{stats:?}");
+    assert!(!ann.is_closed());
+    ann.close();
+    bob.close();
+
+    // The C ABI opens the same kind of session.
+    let address = CString::new(west.addr.to_string()).unwrap();
+    let player = CString::new(token(&west, "cat")).unwrap();
+    let options = StrataConnectOptions {
+        predict: false,
+        capabilities: 0,
+    };
+    let mut s: *mut StrataSession = std::ptr::null_mut();
+    // SAFETY: live strings, the certificate's bytes, writable out pointer.
+    let status = unsafe {
+        strata_connect_cluster(
+            address.as_ptr(),
+            west.cert_der.as_ptr(),
+            west.cert_der.len(),
+            player.as_ptr(),
+            &options,
+            &mut s,
+        )
+    };
+    assert_eq!(status, StrataStatus::Ok);
+    let mut w = std::mem::MaybeUninit::<StrataWelcome>::uninit();
+    // SAFETY: a live session and a writable welcome.
+    let status = unsafe { strata_welcome(s, w.as_mut_ptr()) };
+    assert_eq!(status, StrataStatus::Ok);
+    // SAFETY: written by the call above.
+    assert_eq!(unsafe { w.assume_init() }.view_radius, 2);
+    // SAFETY: the live session, freed once.
+    unsafe { strata_session_free(s) };
+
+    runtime.block_on(async {
+        west.shutdown().await.unwrap();
+        east.shutdown().await.unwrap();
+    });
+}
