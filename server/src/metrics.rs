@@ -79,6 +79,10 @@ pub const REGIONS_HELD: &str = "strata_cluster_regions_held";
 /// Edits refused because claiming their regions would pass
 /// `max_held_regions`.
 pub const REGION_CLAIMS_REFUSED: &str = "strata_cluster_claims_refused_total";
+/// Regions let go by a cluster node's renewals, by `why`: `idle` (no edit
+/// in `[cluster] release_idle_ms`) or `cap` (past half of
+/// `max_held_regions`).
+pub const REGIONS_RELEASED: &str = "strata_cluster_regions_released_total";
 pub const PREMESH_BUILT: &str = "strata_premesh_meshes_total";
 pub const PREMESH_STALE: &str = "strata_premesh_stale_total";
 pub const PREMESH_SKIPPED: &str = "strata_premesh_skipped_total";
@@ -241,6 +245,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         REGION_CLAIMS_REFUSED,
         "Edits refused because their regions would pass [cluster] max_held_regions"
+    );
+    metrics::describe_counter!(
+        REGIONS_RELEASED,
+        "Regions let go by this cluster node's renewals, by why (idle, cap)"
     );
     metrics::describe_counter!(PREMESH_BUILT, "Collision meshes built ahead of need");
     metrics::describe_counter!(PREMESH_STALE, "Background meshes dropped as outdated");

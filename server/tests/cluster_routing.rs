@@ -143,6 +143,14 @@ async fn bob_east_ann_west(
     (bob, ann)
 }
 
+/// A player on `node`, standing at `x` with its chunk in hand.
+async fn standing(node: &Running, name: &str, x: i32) -> strata_client_sim::Client {
+    let c = connect(node, name, Role::Player).await;
+    c.send_position(feet(x)).unwrap();
+    assert!(eventually(TEST_TIMEOUT, || c.replica().get(chunk_of(x)).is_some()).await);
+    c
+}
+
 fn mine_at(x: i32) -> Edit {
     let (_, v) = spot(x, Z);
     Edit::Mine {
@@ -482,15 +490,7 @@ async fn a_batch_fenced_after_a_takeover_is_refused_and_the_node_goes_on() {
             10_000,
         )
         .await;
-        let ann = connect(&west, "ann", Role::Player).await;
-        ann.send_position(feet(WEST_X)).unwrap();
-        assert!(
-            eventually(TEST_TIMEOUT, || ann
-                .replica()
-                .get(chunk_of(WEST_X))
-                .is_some())
-            .await
-        );
+        let ann = standing(&west, "ann", WEST_X).await;
         let (v, first) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
         let Verdict::Accepted { seq } = v else {
             panic!("{v:?}")
@@ -559,6 +559,78 @@ async fn a_batch_fenced_after_a_takeover_is_refused_and_the_node_goes_on() {
         .await
         .unwrap();
         assert_eq!(stored, (Some(seq), Some(first[0].version)));
+        ann.close().await;
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// `[cluster] release_idle_ms`: a node lets go of a region no edit asked
+/// for in that long (counted in `strata_cluster_regions_released_total`),
+/// and its player's next edit there claims it again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_lets_an_idle_region_go_and_claims_it_again_at_the_next_edit() {
+    let Some(db) = strata_tests::postgres::database("cluster_release_idle") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 400, 100);
+        if let Some(c) = cfg.cluster.as_mut() {
+            c.release_idle_ms = 400;
+        }
+        let west = app::start(cfg).await.expect("node starts");
+        // The process's registry (this test binary's nodes share it; only
+        // this test releases regions for idleness).
+        let registry = strata_server::metrics::shared().unwrap();
+        let scrape_now = || registry.render();
+        let released = |text: &str| {
+            text.lines()
+                .find_map(|l| {
+                    l.strip_prefix("strata_cluster_regions_released_total{why=\"idle\"} ")
+                })
+                .and_then(|v| v.trim().parse::<f64>().ok())
+                .unwrap_or(0.0)
+        };
+        let ann = standing(&west, "ann", WEST_X).await;
+        // Counted before the edit claims the region.
+        let before = released(&scrape_now());
+        let (v, first) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+
+        // Nobody edits: the region is let go within a few renewals, and the
+        // node tells its player so.
+        let holder = |c: &strata_client_sim::Client| {
+            c.region_owners().and_then(|o| {
+                o.regions
+                    .into_iter()
+                    .find(|r| (r.region_x, r.region_z) == (0, 0))
+                    .map(|r| r.holder)
+            })
+        };
+        assert!(
+            eventually(TEST_TIMEOUT, || holder(&ann) == Some(RegionHolder::Here)).await,
+            "{:?}",
+            ann.region_owners()
+        );
+        assert!(
+            eventually(TEST_TIMEOUT, || holder(&ann) == Some(RegionHolder::Free)).await,
+            "the idle region was kept: {:?}",
+            ann.region_owners()
+        );
+        let text = scrape_now();
+        assert!(released(&text) > before, "counted: {text}");
+        // The next edit claims it again, and numbers the chunk on.
+        let (v, again) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        let (a, b) = (
+            first[0],
+            again.iter().find(|c| c.pos == first[0].pos).unwrap(),
+        );
+        assert!(b.version > a.version, "{a:?} then {b:?}");
+        assert!(!ann.is_closed());
+        assert!(ann.replica().mesh_mismatches().is_empty());
         ann.close().await;
         west.shutdown().await.unwrap();
     })

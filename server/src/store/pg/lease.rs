@@ -644,6 +644,12 @@ pub(super) fn release_idle(pool: &Pool, leases: &NodeLeases) -> Result<Vec<Regio
                 gone.insert(r, epoch);
             }
         }
+        let idle = gone.len().min(stale);
+        let counter = |why: &'static str, n: usize| {
+            metrics::counter!(crate::metrics::REGIONS_RELEASED, "why" => why).increment(n as u64)
+        };
+        counter("idle", idle);
+        counter("cap", gone.len() - idle);
         gone
     };
     let_go(pool, leases, &gone)?;
