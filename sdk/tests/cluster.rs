@@ -142,9 +142,14 @@ fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
     let mut bob_seen = Vec::new();
     mine(&bob, &mut bob_seen, EAST_X + 2);
 
-    // Ann plays on the cluster from the west node: her edit claims region 0.
-    let ann =
-        Session::connect_cluster(west.addr, &west.cert_der, &token(&west, "ann"), opts).unwrap();
+    // Ann plays on the cluster from the west node, predicting her edits:
+    // her first edit claims region 0.
+    let predicting = SessionOptions {
+        predict: true,
+        ..opts
+    };
+    let ann = Session::connect_cluster(west.addr, &west.cert_der, &token(&west, "ann"), predicting)
+        .unwrap();
     ann.set_position(spot(WEST_X).0).unwrap();
     assert!(eventually(|| ann.chunk(chunk_of(WEST_X)).is_some()));
     let mut seen = Vec::new();
@@ -186,6 +191,9 @@ fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
     let stats = ann.stats();
     assert!(stats.meshes_checked > 0, "{stats:?}");
     assert_eq!(stats.mesh_mismatches, 0, "{stats:?}");
+    // Predicted on both connections: one edit each.
+    let predicted = ann.prediction_stats().expect("predicting");
+    assert_eq!(predicted.made, 2, "{predicted:?}");
     assert!(!ann.is_closed());
     ann.close();
     bob.close();

@@ -334,9 +334,13 @@ impl Session {
     }
 
     /// How predictions fared; `None` when not predicting (on a cluster,
-    /// the first node's).
+    /// summed over the connections).
     pub fn prediction_stats(&self) -> Option<PredictionStats> {
-        self.links.home.prediction_stats()
+        let mut sum: Option<PredictionStats> = None;
+        for p in self.links.all().iter().filter_map(|c| c.prediction_stats()) {
+            sum.get_or_insert_with(PredictionStats::default).add(&p);
+        }
+        sum
     }
 
     /// Closes the connections politely (waiting at most two seconds) and
