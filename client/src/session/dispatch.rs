@@ -60,10 +60,12 @@ pub(super) async fn dispatch(
     }
 }
 
-/// [`dispatch`] for a cluster: subscriptions and forgets go to every node,
-/// a resync to the node the chunk is read from, edits through the cluster
-/// client one at a time; after each command and every [`FOLLOW_EVERY`]
-/// the session's copy of the routes is brought up to date.
+/// [`dispatch`] for a cluster: subscriptions and forgets go to every node
+/// connected then (a node joined later follows the player's positions and
+/// streams its whole view), a resync to the node the chunk is read from,
+/// edits through the cluster client one at a time; after each command and
+/// every [`FOLLOW_EVERY`] the session's copy of the routes is brought up
+/// to date.
 pub(super) async fn dispatch_cluster(
     mut cluster: ClusterClient,
     links: Arc<Links>,
@@ -72,28 +74,16 @@ pub(super) async fn dispatch_cluster(
 ) {
     let mut follow = tokio::time::interval(FOLLOW_EVERY);
     follow.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    // The game's last subscription, for nodes joined after it.
-    let mut subscribed = None;
     loop {
         tokio::select! {
             command = commands.recv() => {
                 let Some(command) = command else { break };
-                if let Command::Subscribe { center, radius } = &command {
-                    subscribed = Some((*center, *radius));
-                }
                 run_on_cluster(&mut cluster, command, &events).await;
             }
             _ = follow.tick() => {
                 // A node that cannot be joined is retried later; the home
                 // connection's end is reported by `watch_close`.
-                let joined = cluster.follow().await.unwrap_or_default();
-                if let Some((center, radius)) = subscribed {
-                    for a in joined {
-                        if let Some(c) = cluster.node(a) {
-                            let _ = c.subscribe(center, radius).await;
-                        }
-                    }
-                }
+                let _ = cluster.follow().await;
             }
         }
         links.update(cluster.view());
