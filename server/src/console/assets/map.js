@@ -104,11 +104,11 @@ const StrataMap = (() => {
     showOwners();
   }
 
-  // A steady colour per node name.
+  // A steady colour per node name, never the zones' yellow (hues 40-80).
   function nodeColour(name) {
     let h = 0;
-    for (const c of name) h = (h * 31 + c.codePointAt(0)) % 360;
-    return `hsl(${h}, 70%, 55%)`;
+    for (const c of name) h = (h * 31 + c.codePointAt(0)) % 320;
+    return `hsl(${h < 40 ? h : h + 40}, 70%, 55%)`;
   }
 
   function owner(r) {
