@@ -50,6 +50,15 @@ fn node(db: &PgDb, id: &str) -> PgStore {
     node_with(db, id, 60_000, 10_000)
 }
 
+/// `store` may write region `r` (claiming it if free).
+fn granted(store: &PgStore, r: RegionId) {
+    assert_eq!(
+        store.acquire_regions(&regions(&[r])).unwrap(),
+        RegionAccess::Granted,
+        "{r:?}"
+    );
+}
+
 fn region(x: i32, z: i32) -> RegionId {
     RegionId { x, z }
 }
@@ -265,10 +274,7 @@ fn a_node_holds_at_most_max_held_regions_and_lets_idle_ones_go() {
     let a = open_node(&db, &cluster);
     let rs: Vec<RegionId> = (0..5).map(|i| region(i, 0)).collect();
     for r in &rs[..4] {
-        assert_eq!(
-            a.acquire_regions(&regions(&[*r])).unwrap(),
-            RegionAccess::Granted
-        );
+        granted(&a, *r);
     }
     assert_eq!(
         a.acquire_regions(&regions(&[rs[4]])).unwrap(),
@@ -289,10 +295,7 @@ fn a_node_holds_at_most_max_held_regions_and_lets_idle_ones_go() {
         },
     );
     let theirs = region(9, 0);
-    assert_eq!(
-        b.acquire_regions(&regions(&[theirs])).unwrap(),
-        RegionAccess::Granted
-    );
+    granted(&b, theirs);
     let named = a.acquire_regions(&regions(&[rs[4], theirs])).unwrap();
     assert!(
         matches!(&named, RegionAccess::Elsewhere { region, owner, .. }
@@ -313,10 +316,7 @@ fn a_node_holds_at_most_max_held_regions_and_lets_idle_ones_go() {
     let deadline = std::time::Instant::now() + Duration::from_secs(10);
     while a.leases().unwrap().held().len() > 2 || free().len() < 2 {
         assert!(std::time::Instant::now() < deadline, "nothing let go");
-        assert_eq!(
-            a.acquire_regions(&regions(&[rs[0]])).unwrap(),
-            RegionAccess::Granted
-        );
+        granted(&a, rs[0]);
         std::thread::sleep(Duration::from_millis(50));
     }
     let held = a.leases().unwrap().held();
@@ -333,10 +333,7 @@ fn a_node_holds_at_most_max_held_regions_and_lets_idle_ones_go() {
     for r in &free {
         assert!(fresh.contains(&(*r, None)), "{fresh:?}");
     }
-    assert_eq!(
-        a.acquire_regions(&regions(&[rs[4]])).unwrap(),
-        RegionAccess::Granted
-    );
+    granted(&a, rs[4]);
 }
 
 /// `release_idle_ms`: a region no edit asked for in that long is let go
@@ -357,10 +354,7 @@ fn a_region_idle_for_release_idle_ms_is_let_go_for_any_node_to_claim() {
     let a = open_node(&db, &cluster);
     let (busy, quiet) = (region(0, 0), region(1, 0));
     for r in [busy, quiet] {
-        assert_eq!(
-            a.acquire_regions(&regions(&[r])).unwrap(),
-            RegionAccess::Granted
-        );
+        granted(&a, r);
     }
     a.take_fresh_regions();
     let b = open_node(
@@ -381,10 +375,7 @@ fn a_region_idle_for_release_idle_ms_is_let_go_for_any_node_to_claim() {
             std::time::Instant::now() < deadline,
             "the quiet region kept"
         );
-        assert_eq!(
-            a.acquire_regions(&regions(&[busy])).unwrap(),
-            RegionAccess::Granted
-        );
+        granted(&a, busy);
         std::thread::sleep(Duration::from_millis(50));
     }
     assert!(
@@ -886,10 +877,7 @@ fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adop
     let fa = a.reserve_seqs(0).unwrap();
     let fb = b.reserve_seqs(0).unwrap();
     let r = region(3, 3);
-    assert_eq!(
-        a.acquire_regions(&regions(&[r])).unwrap(),
-        RegionAccess::Granted
-    );
+    granted(&a, r);
     assert_eq!(
         a.take_fresh_regions(),
         [(r, Some(1))],
@@ -919,10 +907,7 @@ fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adop
     a.commit_batch(&edit(&mut world, &[pos], 2)).unwrap();
     // a crashes; b's renewal adopts what a let run out, and nothing else.
     let other = region(9, 9);
-    assert_eq!(
-        a.acquire_regions(&regions(&[other])).unwrap(),
-        RegionAccess::Granted
-    );
+    granted(&a, other);
     expire(&db, r);
     assert_eq!(b.adopt_regions().unwrap(), [r]);
     assert!(b.adopt_regions().unwrap().is_empty());
@@ -944,10 +929,7 @@ fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adop
     let pos2 = chunk_in(r2, 0);
     b.commit_batch(&edit(&mut world, &[pos2], 5)).unwrap();
     expire(&db, r2);
-    assert_eq!(
-        a.acquire_regions(&regions(&[r2])).unwrap(),
-        RegionAccess::Granted
-    );
+    granted(&a, r2);
     assert_eq!(a.seq_floor(), fb + SEQ_BLOCK);
     world.last_seq = a.seq_floor();
     a.commit_batch(&edit(&mut world, &[pos2], 6)).unwrap();
