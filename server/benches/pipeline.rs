@@ -197,9 +197,12 @@ fn run(
         volume_rate: lots,
         ..Default::default()
     };
-    let world = World::new(Arc::new(FlatGenerator {
+    let generator = Arc::new(FlatGenerator {
         ground: Voxel::solid(ids::STONE),
-    }));
+    });
+    // As the server does: new chunks are stored from generated.
+    store.attach_generator(generator.clone());
+    let world = World::new(generator);
     let seq = Sequencer::new(
         world,
         SequencerConfig {

@@ -113,6 +113,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         generator_params: generator_params.clone(),
         last_seq: 0,
     })?;
+    // The metadata matched: new chunks may be stored as changes to it.
+    store.attach_generator(generator.clone());
     let structures = match &cfg.world.structures_dir {
         Some(dir) => load_structures(Path::new(dir))?,
         None => StructureLibrary::default(),

@@ -146,3 +146,59 @@ async fn graceful_shutdown_loses_nothing_on(backend: Backend) {
     .await
     .expect("test finished in time");
 }
+
+/// A chunk's first change reaches sled as a delta from its generated state
+/// (no whole chunk on the commit's path): killed before any checkpoint, the
+/// store cannot read the chunk without the world's generator, and reads it
+/// at the acknowledged version with it, as the restarted server does.
+#[tokio::test]
+async fn a_first_change_is_stored_as_a_delta_from_generated_terrain() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let root = tempfile::tempdir().unwrap();
+        let data = root.path().join("data");
+        // No checkpoint folds the delta before the kill.
+        let config = format!("{FAST_EDITS}[store]\ncheckpoint_ms = 3600000\n");
+        let (mut child, addr) = spawn_server(&data, &config);
+        let c = process_client(&data, addr, "ana").await;
+        let (pos, x, y, z) = feet();
+        c.send_position(pos).unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let (verdict, changes) = c
+            .edit_acked(Edit::Build {
+                center: FixedVec3::from_voxels(x, y + 2, z),
+                radius: r(1.5),
+                material: 7,
+                strength: 20,
+            })
+            .await
+            .unwrap();
+        assert!(matches!(verdict, Verdict::Accepted { .. }), "{verdict:?}");
+        assert!(!changes.is_empty());
+        child.kill().unwrap();
+        child.wait().unwrap();
+        c.close().await;
+        {
+            let bare =
+                strata_server::store::SledStore::open(&data.join("world.sled")).unwrap();
+            for ch in &changes {
+                assert_eq!(ch.version, 1, "a first change: {ch:?}");
+                let read = strata_server::store::ChunkStore::load_chunk(&bare, ch.pos);
+                assert!(
+                    matches!(
+                        read,
+                        Err(strata_server::store::StoreError::NeedsGenerator { pos }) if pos == ch.pos
+                    ),
+                    "{read:?}"
+                );
+            }
+        }
+        let store = Backend::Sled.open_store(&data);
+        // The replay checks the generated base's hash and the target's.
+        for ch in &changes {
+            assert_eq!(store.load_chunk(ch.pos).unwrap().unwrap().version, 1);
+        }
+        assert!(store.check().unwrap().is_ok());
+    })
+    .await
+    .expect("test finished in time");
+}

@@ -51,6 +51,7 @@ mod store_bench;
 mod store_check;
 mod store_crash;
 mod store_deltas;
+mod store_generated;
 mod store_pg;
 mod store_pg_lease;
 mod store_power_cut;

@@ -12,7 +12,6 @@ use common::*;
 use strata_client_sim::bots::{self, BotsConfig, Tokens};
 use strata_server::admin::verify_acks::{read_ack_log, verify};
 use strata_server::datadir::DataDir;
-use strata_server::store::SledStore;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn batches_applied_during_a_commit_are_acknowledged_only_once_durable() {
@@ -55,6 +54,8 @@ async fn batches_applied_during_a_commit_are_acknowledged_only_once_durable() {
     // SIGKILLed: whatever was acknowledged was durable.
     let records = read_ack_log(&acks).unwrap();
     assert_eq!(records.len() as u64, s.edits_accepted);
-    let report = verify(&SledStore::open(&dd.world_db_path()).unwrap(), &records).unwrap();
+    // Opened as `strata-admin verify-acks` does, with the world's generator.
+    let store = strata_server::admin::remote::open_offline_store(dd.root()).unwrap();
+    let report = verify(&*store, &records).unwrap();
     assert!(report.ok(), "{report:?}");
 }

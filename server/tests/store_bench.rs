@@ -4,11 +4,13 @@
 
 use crate::store_common;
 
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use store_common::{terrain_chunk, Seq};
 use strata_server::store::{ChunkStore, CommitStats, SledStore, WorldMeta};
-use strata_terrain::{Chunk, ChunkPos};
+use strata_terrain::gen::{GenParams, Generator};
+use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, Voxel};
 
 /// (edits per batch, batches timed).
 const CASES: [(usize, usize); 3] = [(1, 300), (10, 200), (100, 50)];
@@ -78,5 +80,80 @@ fn commit_latency() {
             store.size_on_disk().unwrap() / 1024,
         );
         assert_eq!(store.last_seq().unwrap(), (edits * batches) as u64);
+    }
+}
+
+/// New chunks a cold-start batch stores (a 3000-bot start stored 92-166
+/// per commit, `BENCHMARKS.md`), and batches timed per case.
+const FIRST_TOUCHES: [usize; 3] = [16, 64, 128];
+const FIRST_TOUCH_BATCHES: usize = 20;
+
+/// A generated surface chunk with a hole mined in it: a first touch.
+fn mined(g: &dyn ChunkGenerator, pos: ChunkPos) -> Chunk {
+    let mut c = g.generate(pos);
+    for z in 12..20 {
+        for y in 0..32 {
+            for x in 12..20 {
+                c.set(x, y, z, Voxel::AIR);
+            }
+        }
+    }
+    c
+}
+
+/// The commit path of first touches: whole chunks (no generator attached,
+/// as before store format 4) against deltas from generated (attached), on
+/// one binary. Run as `commit_latency`.
+#[test]
+#[ignore = "benchmark: run by hand with --ignored --nocapture"]
+fn first_touch_commits() {
+    let g = Generator::fractal(GenParams::default()).unwrap();
+    // Surface chunks: the row that holds the ground at each column.
+    let surface = |i: usize| {
+        let (x, z) = (i as i32 % 64, i as i32 / 64);
+        let y = (g.surface_height(x * 32 + 16, z * 32 + 16) / 32.0).floor() as i32;
+        ChunkPos::new(x, y, z)
+    };
+    for n in FIRST_TOUCHES {
+        for attach in [false, true] {
+            let dir = tempfile::tempdir().unwrap();
+            let store = SledStore::open(dir.path()).unwrap();
+            store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
+            if attach {
+                store.attach_generator(Arc::new(g.clone()));
+            }
+            let mut seq = Seq::default();
+            let mut next = 0;
+            let mut total = Vec::new();
+            let mut stats = Vec::<CommitStats>::new();
+            for _ in 0..FIRST_TOUCH_BATCHES {
+                let edits: Vec<Vec<(ChunkPos, Chunk)>> = (0..n)
+                    .map(|_| {
+                        next += 1;
+                        let p = surface(next);
+                        vec![(p, mined(&g, p))]
+                    })
+                    .collect();
+                let b = seq.generated_batch(&edits, &g);
+                let t = Instant::now();
+                stats.push(store.commit_batch(&b).unwrap());
+                total.push(t.elapsed());
+            }
+            total.sort();
+            let encode = stats.iter().map(|s| s.encode).sum::<Duration>() / stats.len() as u32;
+            let bytes = stats.iter().map(|s| s.bytes_written).sum::<u64>() / stats.len() as u64;
+            let t = Instant::now();
+            let folded = store.checkpoint(usize::MAX).unwrap();
+            println!(
+                "{n:>3} new chunks/batch, {}: commit p50 {:.3} ms max {:.3} | encode mean {:.3} ms | \
+                 {bytes} B/batch | checkpoint afterwards: {} chunks in {:.1} ms",
+                if attach { "from generated" } else { "whole" },
+                ms(pct(&total, 0.5)),
+                ms(*total.last().unwrap()),
+                ms(encode),
+                folded.chunks,
+                ms(t.elapsed()),
+            );
+        }
     }
 }

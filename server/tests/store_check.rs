@@ -318,8 +318,8 @@ fn unknown_format_version_refuses_to_open() {
 }
 
 #[test]
-fn stores_of_formats_1_and_2_are_upgraded_when_opened() {
-    for old in [1, 2] {
+fn stores_of_formats_1_to_3_are_upgraded_when_opened() {
+    for old in [1, 2, 3] {
         let dir = healthy();
         set_format(dir.path(), old);
         let store = SledStore::open(dir.path()).unwrap();
@@ -329,7 +329,7 @@ fn stores_of_formats_1_and_2_are_upgraded_when_opened() {
         drop(store);
         // Upgraded on disk: opened again, it is at the new format.
         let store = SledStore::open(dir.path()).unwrap();
-        assert_eq!(store.load_meta().unwrap().unwrap().format_version, 3);
+        assert_eq!(store.load_meta().unwrap().unwrap().format_version, 4);
     }
 }
 

@@ -9,10 +9,9 @@ use crate::store_common;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-use store_common::{places, terrain_chunk, Place, Seq};
+use store_common::{assert_reads, places, terrain_chunk, Place, Seq};
 use strata_server::store::{pass_once, CheckpointPace, ChunkStore, WorldMeta};
-use strata_terrain::chunk_codec::encode_chunk;
-use strata_terrain::{Chunk, ChunkPos};
+use strata_terrain::ChunkPos;
 
 const A: ChunkPos = ChunkPos { x: 1, y: 0, z: -2 };
 const B: ChunkPos = ChunkPos { x: -4, y: 1, z: 3 };
@@ -21,20 +20,6 @@ fn open(place: &Place) -> Box<dyn ChunkStore> {
     let store = place.open();
     store.init_meta(&WorldMeta::new(5, 1, "")).unwrap();
     store
-}
-
-/// What every read of `pos` must say.
-fn assert_reads(store: &dyn ChunkStore, pos: ChunkPos, version: u64, chunk: &Chunk) {
-    let loaded = store.load_chunk(pos).unwrap().unwrap();
-    assert_eq!((loaded.version, &loaded.chunk), (version, chunk));
-    let raw = store.raw_chunk(pos).unwrap().unwrap();
-    assert_eq!((raw.version, raw.encoded), (version, encode_chunk(chunk)));
-    let listed: Vec<_> = store.modified_chunks().map(|r| r.unwrap()).collect();
-    assert!(listed.contains(&(pos, version)), "{listed:?}");
-    let walked: Vec<_> = store.raw_chunks().map(|r| r.unwrap()).collect();
-    assert!(walked
-        .iter()
-        .any(|r| r.pos == pos && r.version == version && r.encoded == encode_chunk(chunk)));
 }
 
 #[test]

@@ -42,20 +42,26 @@ fn migrations_are_applied_once_and_recorded() {
 }
 
 #[test]
-fn a_world_of_store_format_2_is_upgraded_by_its_migration() {
+fn worlds_of_store_formats_2_and_3_are_upgraded_by_their_migrations() {
     let Some(db) = database("format_2_upgrade") else {
         return;
     };
-    let store = pg_store(&db);
-    store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
-    drop(store);
-    // As a format-2 build left it: before migration 5.
-    sql(&db, "UPDATE world SET format_version = 2");
-    sql(&db, "DELETE FROM schema_migrations WHERE version = 5");
-    let store = pg_store(&db);
-    let meta = store.load_meta().unwrap().unwrap();
-    assert_eq!(meta.format_version, STORE_FORMAT_VERSION);
-    assert_eq!(STORE_FORMAT_VERSION, 3);
+    // As a format-2 build left it (before migrations 5 and 6), then as a
+    // format-3 build did (before 6).
+    for (old, missing) in [(2, "5, 6"), (3, "6")] {
+        let store = pg_store(&db);
+        store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
+        drop(store);
+        sql(&db, &format!("UPDATE world SET format_version = {old}"));
+        sql(
+            &db,
+            &format!("DELETE FROM schema_migrations WHERE version IN ({missing})"),
+        );
+        let store = pg_store(&db);
+        let meta = store.load_meta().unwrap().unwrap();
+        assert_eq!(meta.format_version, STORE_FORMAT_VERSION);
+    }
+    assert_eq!(STORE_FORMAT_VERSION, 4);
 }
 
 #[test]

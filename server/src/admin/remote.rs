@@ -18,7 +18,7 @@ use strata_protocol::admin_parts::Joiner;
 use strata_protocol::io::FramedReader;
 use strata_protocol::{encode_frame, Direction, ErrorCode, FrameBuffer};
 
-use crate::admin::world_source::DATA_DIR_CONFIG_NAME;
+use crate::admin::world_source::{world_generator_of, DATA_DIR_CONFIG_NAME};
 use crate::client_tls::client_config_pinned_with_alpn;
 use crate::config::ServerConfig;
 use crate::datadir::DataDir;
@@ -90,12 +90,24 @@ pub fn open_offline_store(dir: &Path) -> anyhow::Result<Arc<dyn ChunkStore>> {
         .with_context(|| format!("opening data dir {}", dir.display()))?;
     let cfg = data_dir_config(dir)?;
     let world_db = dd.world_db_path();
-    open_store(&cfg.store, &world_db, cfg.sequencer.region_chunks, None).with_context(|| {
-        format!(
-            "opening the world store of {} (is the server still running? stop it or use --server)",
-            dir.display()
-        )
-    })
+    let store = open_store(&cfg.store, &world_db, cfg.sequencer.region_chunks, None)
+        .with_context(|| {
+            format!(
+                "opening the world store of {} (is the server still running? stop it or use --server)",
+                dir.display()
+            )
+        })?;
+    // Chunks stored as changes to generated terrain read through the
+    // world's generator: the config's if the data dir has one, else the
+    // one the store records. Without it those reads say what they need.
+    if let Some(meta) = store.load_meta()? {
+        let has_config = dir.join(DATA_DIR_CONFIG_NAME).is_file();
+        let generator = world_generator_of(has_config.then_some(&cfg), Some(&meta));
+        if let Ok(g) = generator {
+            store.attach_generator(Arc::new(g));
+        }
+    }
+    Ok(store)
 }
 
 /// `DIR/strata.toml` when the data dir has one, else the defaults.

@@ -233,6 +233,7 @@ mod tests {
                 entries: vec![entry(1, 1), entry(2, 2)],
                 chunks: vec![(pos, 2, Chunk::uniform(Voxel::AIR).into())],
                 deltas: Vec::new(),
+                generated: Vec::new(),
                 last_seq: 2,
                 epochs: None,
             })

@@ -160,14 +160,15 @@ impl RegionArgs {
 /// A stopped server's store, of the backend its config names.
 #[derive(Debug)]
 pub enum OfflineStore {
-    Sled(SledStore),
+    /// Boxed: a sled handle is far larger than a pool's.
+    Sled(Box<SledStore>),
     Postgres(PgStore),
 }
 
 impl OfflineStore {
     pub fn as_store(&self) -> &dyn ChunkStore {
         match self {
-            OfflineStore::Sled(s) => s,
+            OfflineStore::Sled(s) => s.as_ref(),
             OfflineStore::Postgres(s) => s,
         }
     }
@@ -219,7 +220,10 @@ pub fn open_offline(
         }
     }
     let store = open_store(data_dir)?;
-    Ok((OfflineStore::Sled(store), data_dir.join(WORLD_DB_NAME)))
+    Ok((
+        OfflineStore::Sled(Box::new(store)),
+        data_dir.join(WORLD_DB_NAME),
+    ))
 }
 
 /// A stopped server's store and the generator of its world.
@@ -274,6 +278,28 @@ fn recorded_generator(meta: &WorldMeta) -> Result<Generator, WorldSourceError> {
     Generator::fractal(params).map_err(|e| WorldSourceError::Generator(e.into()))
 }
 
+/// The world's generator: from `cfg` (checked against `meta`, as the
+/// server checks on start), else the one `meta` records.
+pub fn world_generator_of(
+    cfg: Option<&ServerConfig>,
+    meta: Option<&WorldMeta>,
+) -> Result<Generator, WorldSourceError> {
+    match (cfg, meta) {
+        (Some(cfg), meta) => {
+            let (generator, params_text) =
+                crate::app::world_generator(cfg).map_err(WorldSourceError::Generator)?;
+            if let Some(m) = meta {
+                compare(m, cfg.world.generator.seed, &params_text)?;
+            }
+            Ok(generator)
+        }
+        (None, Some(m)) => recorded_generator(m),
+        (None, None) => Err(WorldSourceError::RecordedParams(
+            "the store records no world".into(),
+        )),
+    }
+}
+
 impl OfflineWorld {
     pub fn open(args: &OfflineArgs) -> Result<Self, WorldSourceError> {
         let (store, db_path) = open_offline(&args.data_dir, args.config.as_deref())?;
@@ -290,24 +316,23 @@ impl OfflineWorld {
                 });
             }
         }
-        let generator = match (find_config(args), &meta) {
-            (Some(path), meta) => {
-                let cfg = ServerConfig::load(Some(&path))?;
-                let (generator, params_text) =
-                    crate::app::world_generator(&cfg).map_err(WorldSourceError::Generator)?;
-                if let Some(m) = meta {
-                    compare(m, cfg.world.generator.seed, &params_text)?;
-                }
-                generator
-            }
-            (None, Some(m)) => recorded_generator(m)?,
+        let cfg = find_config(args)
+            .map(|path| ServerConfig::load(Some(&path)))
+            .transpose()?;
+        let generator = match (&cfg, &meta) {
             (None, None) => Generator::fractal(GenParams::default())
                 .map_err(|e| WorldSourceError::Generator(e.into()))?,
+            (cfg, meta) => world_generator_of(cfg.as_ref(), meta.as_ref())?,
         };
+        let generator = Arc::new(generator);
+        if meta.is_some() {
+            // It agrees with the metadata: "generated" records read through it.
+            store.as_store().attach_generator(generator.clone());
+        }
         Ok(Self {
             store,
             db_path,
-            generator: Arc::new(generator),
+            generator,
             meta,
         })
     }

@@ -61,7 +61,8 @@ pub type Positions = Vec<(String, FixedVec3)>;
 #[derive(Debug)]
 enum Job {
     /// Written, flushed and fsynced; the result goes back to the engine.
-    Commit(CommitBatch),
+    /// Boxed: a job moves through a channel, and a batch is large.
+    Commit(Box<CommitBatch>),
     /// Stored (flushed and fsynced); a failure is logged, as positions are
     /// recoverable state. The engine hands one only while no commit runs,
     /// at most once per `POSITION_SAVE_EVERY`, so at most two jobs wait.
@@ -91,7 +92,7 @@ impl Committer {
             .spawn(move || {
                 for job in todo {
                     let batch = match job {
-                        Job::Commit(batch) => batch,
+                        Job::Commit(batch) => *batch,
                         Job::Positions(moved) => {
                             if let Err(e) = store.save_positions(&moved) {
                                 error!(error = %e, players = moved.len(), "saving player positions failed");
@@ -120,8 +121,8 @@ impl Committer {
     }
 
     /// Hands `batch` to the thread; gives it back if the thread is gone.
-    fn start(&self, batch: CommitBatch) -> Result<(), CommitBatch> {
-        match self.send(Job::Commit(batch)) {
+    fn start(&self, batch: CommitBatch) -> Result<(), Box<CommitBatch>> {
+        match self.send(Job::Commit(Box::new(batch))) {
             Err(Job::Commit(batch)) => Err(batch),
             _ => Ok(()),
         }
@@ -177,7 +178,7 @@ impl Engine {
             // No thread: commit here, serving nothing meanwhile.
             Err(batch) => {
                 let result = self.store.commit_batch(&batch);
-                ((batch, result), None)
+                ((*batch, result), None)
             }
         };
         self.committer = Some(committer);

@@ -198,6 +198,7 @@ mod tests {
                 .map(|&(p, v, m)| (p, v, Chunk::Uniform(Voxel::solid(m)).into()))
                 .collect(),
             deltas: Vec::new(),
+            generated: Vec::new(),
             last_seq: seq,
             epochs: None,
         };

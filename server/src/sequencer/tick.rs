@@ -185,6 +185,7 @@ impl Sequencer {
         let mut results: Vec<Option<LaneResult>> = (0..queued.len()).map(|_| None).collect();
         let mut lane_slots = Vec::new();
         let mut stored = Vec::new();
+        let mut generated = Vec::new();
         let mut finals: BTreeMap<ChunkPos, (u64, Arc<Chunk>)> = BTreeMap::new();
         let mut versions: BTreeMap<ChunkPos, u64> = BTreeMap::new();
         for lane in lanes {
@@ -193,6 +194,7 @@ impl Sequencer {
             }
             lane_slots.extend(lane.slots);
             finals.extend(lane.finals);
+            generated.extend(lane.generated);
             stored.extend(lane.stored);
             versions.extend(lane.versions);
             self.world.absorb(lane.world);
@@ -267,6 +269,9 @@ impl Sequencer {
         let rewarmed = jobs.len() - before;
         out.batch.chunks = finals.into_iter().map(|(p, (v, c))| (p, v, c)).collect();
         out.batch.deltas = stored;
+        // In position order, as `chunks`, whatever the lanes.
+        generated.sort_unstable_by_key(|d: &ChunkDelta| d.pos);
+        out.batch.generated = generated;
         out.batch.last_seq = self.last_seq();
         (
             out,
@@ -394,7 +399,7 @@ fn merge_sorted(a: &[u16], b: &[u16]) -> Vec<u16> {
     out
 }
 
-/// A stored chunk's state before its first change in a lane.
+/// A changed chunk's state before its first change in a lane.
 struct FirstChange {
     from_version: u64,
     base_hash: u64,
@@ -418,6 +423,8 @@ struct Lane {
     /// hold yet (version 0 before the tick): stored whole, the others as
     /// their deltas.
     finals: BTreeMap<ChunkPos, (u64, Arc<Chunk>)>,
+    /// The same chunks' change from their generated state to `finals`.
+    generated: Vec<ChunkDelta>,
     /// The store's record of every other changed chunk: one delta from its
     /// version before the lane to its last, in position order.
     stored: Vec<ChunkDelta>,
@@ -437,6 +444,7 @@ impl Lane {
             versions: BTreeMap::new(),
             slots: Vec::new(),
             finals: BTreeMap::new(),
+            generated: Vec::new(),
             stored: Vec::new(),
             world: World::new(world.generator().clone()),
         };
@@ -478,22 +486,20 @@ impl Lane {
                     .expect("apply raises the version")
                 };
                 hashes.insert(c.pos, delta.target_hash);
-                if c.from_version != 0 {
-                    match firsts.entry(c.pos) {
-                        Entry::Occupied(mut first) => {
-                            let first = first.get_mut();
-                            first.only = None;
-                            first.voxels = merge_sorted(&first.voxels, &c.voxels);
-                        }
-                        Entry::Vacant(slot) => {
-                            slot.insert(FirstChange {
-                                from_version: c.from_version,
-                                base_hash: delta.base_hash,
-                                before: c.before,
-                                voxels: c.voxels,
-                                only: Some(delta.clone()),
-                            });
-                        }
+                match firsts.entry(c.pos) {
+                    Entry::Occupied(mut first) => {
+                        let first = first.get_mut();
+                        first.only = None;
+                        first.voxels = merge_sorted(&first.voxels, &c.voxels);
+                    }
+                    Entry::Vacant(slot) => {
+                        slot.insert(FirstChange {
+                            from_version: c.from_version,
+                            base_hash: delta.base_hash,
+                            before: c.before,
+                            voxels: c.voxels,
+                            only: Some(delta.clone()),
+                        });
                     }
                 }
                 // Meshed once, after the lane's last edit.
@@ -516,17 +522,13 @@ impl Lane {
         // built once every lane is back (`Sequencer::changed_jobs`).
         for (&pos, &version) in &versions {
             let state = world.peek(pos).expect("changed chunks are loaded");
-            if new_in_store.contains(&pos) {
-                lane.finals.insert(pos, (version, state.chunk.clone()));
-                continue;
-            }
             let first = firsts
                 .remove(&pos)
-                .expect("a chunk the store holds had a first change");
+                .expect("every changed chunk had a first change");
             // A chunk changed several times is stored as one delta across
             // them all (one record a tick, whatever the edits per chunk),
             // built from the voxels any of them changed.
-            lane.stored.push(match first.only {
+            let delta = match first.only {
                 Some(delta) => delta,
                 None => ChunkDelta::encode_changed(
                     pos,
@@ -538,7 +540,14 @@ impl Lane {
                     &first.voxels,
                 )
                 .expect("the lane raised the version"),
-            });
+            };
+            if new_in_store.contains(&pos) {
+                // Whole, or from its generated state where the store can.
+                lane.finals.insert(pos, (version, state.chunk.clone()));
+                lane.generated.push(delta);
+            } else {
+                lane.stored.push(delta);
+            }
         }
         lane.versions = versions;
         lane.slots = changed;

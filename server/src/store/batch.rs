@@ -39,7 +39,7 @@ pub fn validate(b: &CommitBatch) -> Result<BTreeMap<ChunkPos, u64>, StoreError> 
         )));
     }
     let Some(first) = b.entries.first() else {
-        if !b.chunks.is_empty() || !b.deltas.is_empty() {
+        if !b.chunks.is_empty() || !b.deltas.is_empty() || !b.generated.is_empty() {
             return Err(StoreError::batch("chunks without any log entry"));
         }
         return Ok(BTreeMap::new());
@@ -106,6 +106,30 @@ pub fn validate(b: &CommitBatch) -> Result<BTreeMap<ChunkPos, u64>, StoreError> 
                 )))
             }
             Some(_) => {}
+        }
+    }
+    // A whole state's other form: its change from the generated state.
+    let mut generated = BTreeMap::new();
+    for d in &b.generated {
+        if seen.get(&d.pos) != Some(&d.to_version) || d.from_version != 0 {
+            return Err(StoreError::batch(format!(
+                "a delta from generated {} to version {} (from {}), which is not written whole there",
+                show_pos(d.pos),
+                d.to_version,
+                d.from_version
+            )));
+        }
+        if span.get(&d.pos).is_none_or(|&(lo, _)| lo != 1) {
+            return Err(StoreError::batch(format!(
+                "{} is stored from generated, but the entries do not start it at version 1",
+                show_pos(d.pos)
+            )));
+        }
+        if generated.insert(d.pos, ()).is_some() {
+            return Err(StoreError::batch(format!(
+                "{} has two deltas from generated",
+                show_pos(d.pos)
+            )));
         }
     }
     // Every other changed chunk: its deltas, in order, each from where the

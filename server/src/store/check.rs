@@ -21,7 +21,7 @@ use strata_terrain::chunk_codec::decode_chunk;
 use strata_terrain::ChunkPos;
 
 use super::keys::{chunk_pos_from_key, delta_from_key, seq_from_key, show_pos, show_raw};
-use super::record::{decode_delta, decode_log_entry, split_chunk_value};
+use super::record::{decode_delta, decode_log_entry, is_generated, split_chunk_value};
 
 /// Issues kept in a report; past this only the count grows, so checking a
 /// badly broken store cannot exhaust memory.
@@ -323,7 +323,15 @@ impl Checker {
                 });
             }
         };
-        if let Err(e) = decode_chunk(body) {
+        if is_generated(body) {
+            // The generator's output, which its deltas must follow.
+            if version != 0 {
+                self.issue(CheckIssue::BadChunkRecord {
+                    pos,
+                    reason: format!("a generated record at version {version}"),
+                });
+            }
+        } else if let Err(e) = decode_chunk(body) {
             self.issue(CheckIssue::BadChunkRecord {
                 pos,
                 reason: format!("snapshot does not decode: {e}"),

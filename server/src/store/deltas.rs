@@ -3,7 +3,9 @@
 //! format clients receive, spanning versions), and a checkpoint
 //! later folds a chunk's deltas into its record. Every read replays the
 //! deltas past the record, so readers always see the newest durable state,
-//! and recovery after a crash is just that replay.
+//! and recovery after a crash is just that replay. A chunk first stored
+//! with a generator attached has a "generated" record (version 0): its
+//! base is the generator's output, and the first fold writes it whole.
 
 use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
 use strata_terrain::delta::ChunkDelta;
@@ -23,6 +25,11 @@ const READ_RETRIES: usize = 32;
 pub(super) struct Moved;
 
 impl SledStore {
+    /// The attached generator, which "generated" records need.
+    pub(super) fn generator(&self) -> Option<&dyn strata_terrain::world::ChunkGenerator> {
+        self.generator.get().map(|g| g.as_ref())
+    }
+
     /// `pos`'s deltas, in version order.
     fn deltas_of(&self, pos: ChunkPos) -> Result<Vec<ChunkDelta>, StoreError> {
         self.deltas
@@ -90,7 +97,7 @@ impl SledStore {
                     show_pos(pos),
                 ));
             };
-            let (version, chunk) = decode_chunk_value(pos, &record)?;
+            let (version, chunk) = decode_chunk_value(pos, &record, self.generator())?;
             match replay(pos, version, chunk, &deltas)? {
                 // The deltas were scanned from this record only if no fold
                 // moved it during the scan.
@@ -157,7 +164,7 @@ impl SledStore {
                 show_pos(pos),
             ));
         };
-        let (base, chunk) = decode_chunk_value(pos, &record)?;
+        let (base, chunk) = decode_chunk_value(pos, &record, self.generator())?;
         let deltas = self.deltas_of(pos)?;
         if deltas.is_empty() {
             // Folded since it was listed.

@@ -36,6 +36,11 @@ pub enum StoreError {
         #[source]
         source: CodecError,
     },
+    /// The chunk is stored as changes to its generated state, and no
+    /// generator is attached to rebuild that state
+    /// ([`crate::store::ChunkStore::attach_generator`]).
+    #[error("chunk ({}, {}, {}) is stored as changes to generated terrain; reading it needs the world's generator", .pos.x, .pos.y, .pos.z)]
+    NeedsGenerator { pos: strata_terrain::ChunkPos },
     /// The world on disk was made with different generation inputs.
     #[error("world metadata mismatch: stored {field} is {stored}, given {given}")]
     MetaMismatch {

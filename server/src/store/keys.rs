@@ -7,7 +7,7 @@
 //! |---|---|---|
 //! | `meta` | `b"world"` | JSON of the world metadata without `last_seq` |
 //! | `meta` | `b"last_seq"` | `u64` big-endian: seq of the last committed edit |
-//! | `chunks` | [`chunk_key`]: 12 bytes | `version: u64 BE` then [`encode_chunk`] bytes |
+//! | `chunks` | [`chunk_key`]: 12 bytes | `version: u64 BE` then [`encode_chunk`] bytes, or version 0 then `0x00`: "generated", the generator's output, which the chunk's deltas follow |
 //! | `log` | [`seq_key`]: 8 bytes, `u64` BE | bincode 2 (serde, standard config) of a `LogEntry` |
 //! | `deltas` | [`delta_key`]: chunk key then `to_version: u64 BE` (20 bytes) | bincode 2 (as the log) of the `ChunkDelta` |
 //! | `blobs` | the blob name, UTF-8 | the blob bytes |

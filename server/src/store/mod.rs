@@ -7,8 +7,10 @@
 //! generator's output at version 0.
 //!
 //! Writes happen once per sequencer tick through [`ChunkStore::commit_batch`]
-//! (group commit): log entries, the deltas of chunks already stored (whole
-//! states only for chunks stored for the first time) and `last_seq` go in
+//! (group commit): log entries, the deltas of the changed chunks (on sled
+//! with a generator attached, a chunk's first changes too, after a
+//! "generated" record; elsewhere a chunk stored for the first time goes
+//! whole) and `last_seq` go in
 //! one atomic transaction, then one flush and the fsyncs sled leaves out
 //! (`disk_sync`) make them durable, and only then may the server
 //! acknowledge the edits. The call blocks on fsync, so the async
@@ -38,7 +40,10 @@ mod types;
 use std::collections::BTreeSet;
 use std::ops::RangeInclusive;
 
+use std::sync::Arc;
+
 use strata_terrain::edit::FixedVec3;
+use strata_terrain::world::ChunkGenerator;
 use strata_terrain::ChunkPos;
 
 use crate::sequencer::regions::RegionId;
@@ -173,6 +178,15 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Verifies every record (see [`Checker`]). Run it while nothing
     /// commits: records are scanned, not snapshotted.
     fn check(&self) -> Result<CheckReport, StoreError>;
+
+    /// Gives the store the world's generator, so that it may keep a chunk's
+    /// first changes as deltas from its generated state
+    /// ([`CommitBatch::generated`]) and rebuild that state to read it. The
+    /// first call counts; a store that never stores chunks that way ignores
+    /// it. Without one, every chunk is written whole, and reading a chunk a
+    /// store with one wrote is [`StoreError::NeedsGenerator`] until a
+    /// checkpoint has folded it.
+    fn attach_generator(&self, _generator: Arc<dyn ChunkGenerator>) {}
 
     /// Called once at shutdown, after the last commit and checkpoint: a
     /// cluster node gives up its region leases, so another node may take

@@ -8,6 +8,7 @@
 use serde::{Deserialize, Serialize};
 use strata_terrain::chunk_codec::{decode_chunk, encode_chunk};
 use strata_terrain::delta::ChunkDelta;
+use strata_terrain::world::ChunkGenerator;
 use strata_terrain::{Chunk, ChunkPos};
 
 use super::error::StoreError;
@@ -55,9 +56,43 @@ pub fn split_chunk_value(pos: ChunkPos, value: &[u8]) -> Result<(u64, &[u8]), St
     Ok((version, body))
 }
 
-/// Decodes a chunk value fully.
-pub fn decode_chunk_value(pos: ChunkPos, value: &[u8]) -> Result<(u64, Chunk), StoreError> {
+/// The body of a "generated" chunk record: the chunk is the generator's
+/// output at version 0, and its deltas follow. No snapshot starts with
+/// this byte (`chunk_codec`'s tags are 1 to 3), so an older build reading
+/// one reports a corrupt record rather than a wrong chunk.
+pub const GENERATED_BODY: &[u8] = &[0x00];
+
+/// The value of a "generated" record (version 0, [`GENERATED_BODY`]).
+pub fn generated_chunk_value() -> Vec<u8> {
+    let mut v = Vec::with_capacity(CHUNK_VERSION_LEN + GENERATED_BODY.len());
+    v.extend_from_slice(&0u64.to_be_bytes());
+    v.extend_from_slice(GENERATED_BODY);
+    v
+}
+
+/// Whether a record's body (after its version) says "generated".
+pub fn is_generated(body: &[u8]) -> bool {
+    body == GENERATED_BODY
+}
+
+/// Decodes a chunk value fully: a "generated" record through `generator`,
+/// which it needs ([`StoreError::NeedsGenerator`] without one).
+pub fn decode_chunk_value(
+    pos: ChunkPos,
+    value: &[u8],
+    generator: Option<&dyn ChunkGenerator>,
+) -> Result<(u64, Chunk), StoreError> {
     let (version, body) = split_chunk_value(pos, value)?;
+    if is_generated(body) {
+        if version != 0 {
+            return Err(StoreError::corrupt(
+                format!("a generated record at version {version}"),
+                show_pos(pos),
+            ));
+        }
+        let g = generator.ok_or(StoreError::NeedsGenerator { pos })?;
+        return Ok((0, g.generate(pos)));
+    }
     let chunk = decode_chunk(body).map_err(|source| StoreError::Codec {
         key: show_pos(pos),
         source,

@@ -11,6 +11,7 @@
 //! data from a completed write survives a power cut, and the caller
 //! acknowledges nothing before that.
 
+use std::collections::BTreeSet;
 use std::ops::RangeInclusive;
 use std::path::Path;
 use std::sync::Arc;
@@ -18,7 +19,9 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
+use strata_terrain::delta::ChunkDelta;
 use strata_terrain::edit::{Fixed, FixedVec3};
+use strata_terrain::world::ChunkGenerator;
 use strata_terrain::{Chunk, ChunkPos};
 
 use super::batch;
@@ -31,7 +34,7 @@ use super::keys::{chunk_key, chunk_pos_from_key, delta_key, seq_key, show_pos, s
 use super::log_pages::{encode_page, page_key, record_entries, search_key, BadRecord};
 use super::record::{
     decode_last_seq, decode_log_entry, decode_meta, encode_chunk_value, encode_delta,
-    encode_log_record, encode_meta, split_chunk_value,
+    encode_log_record, encode_meta, generated_chunk_value, is_generated, split_chunk_value,
 };
 use super::rules::{check_blob, check_blob_name, check_new_meta, compare_meta};
 use super::types::{
@@ -52,8 +55,9 @@ pub const TREE_BLOBS: &str = "blobs";
 pub const TREE_DELTAS: &str = "deltas";
 /// Older store formats a build opens and upgrades in place, their records
 /// being valid as they are: 1 had no `deltas` tree, 2 stored one delta per
-/// change (a special case of 3's deltas across several changes).
-const UPGRADABLE_FORMATS: [u32; 2] = [1, 2];
+/// change (a special case of 3's deltas across several changes), 3 had no
+/// "generated" chunk records.
+const UPGRADABLE_FORMATS: [u32; 3] = [1, 2, 3];
 /// Tree of players' last positions: name → x, y, z (fixed point, i32 BE).
 pub const TREE_PLAYERS: &str = "players";
 /// Key of the metadata record in [`TREE_META`].
@@ -84,6 +88,9 @@ pub struct SledStore {
     disk: DiskSync,
     /// Dropped after `db`: its thread holds the last handle.
     watch: FlushWatch,
+    /// The world's generator, once attached: chunks are then first stored
+    /// as a "generated" record and deltas (`CommitBatch::generated`).
+    pub(super) generator: std::sync::OnceLock<Arc<dyn ChunkGenerator>>,
 }
 
 impl SledStore {
@@ -112,6 +119,7 @@ impl SledStore {
             disk: DiskSync::open(dir)?,
             watch: FlushWatch::spawn(db.clone())?,
             db,
+            generator: std::sync::OnceLock::new(),
         };
         // Only a readable record of another format stops the open: a
         // corrupt one must still open so `check` can report it (and
@@ -227,6 +235,21 @@ impl ChunkStore for SledStore {
         }
         // One log record a commit, whatever its edits (`log_pages.rs`).
         let page = (page_key(first_seq, b.last_seq), encode_page(&records));
+        // With a generator, a new chunk is a "generated" record and the
+        // delta of its first changes; its whole state waits for a fold.
+        let from_generated: Vec<&ChunkDelta> = match self.generator.get() {
+            Some(_) => b.generated.iter().collect(),
+            None => Vec::new(),
+        };
+        let as_delta: BTreeSet<ChunkPos> = from_generated.iter().map(|d| d.pos).collect();
+        let mut firsts = Vec::with_capacity(from_generated.len());
+        for d in &from_generated {
+            firsts.push((
+                chunk_key(d.pos),
+                delta_key(d.pos, d.to_version),
+                encode_delta(d)?,
+            ));
+        }
         // zstd dominates a big batch's cost; chunks compress independently.
         let encode = |(pos, version, chunk): &(ChunkPos, u64, Arc<Chunk>)| EncodedChunk {
             key: chunk_key(*pos),
@@ -234,10 +257,15 @@ impl ChunkStore for SledStore {
             lowest: lowest.get(pos).copied().unwrap_or(*version),
             value: encode_chunk_value(*version, chunk),
         };
-        let chunks: Vec<EncodedChunk> = if b.chunks.len() >= PARALLEL_ENCODE_CHUNKS {
-            b.chunks.par_iter().map(encode).collect()
+        let whole: Vec<_> = b
+            .chunks
+            .iter()
+            .filter(|c| !as_delta.contains(&c.0))
+            .collect();
+        let chunks: Vec<EncodedChunk> = if whole.len() >= PARALLEL_ENCODE_CHUNKS {
+            whole.par_iter().map(|c| encode(c)).collect()
         } else {
-            b.chunks.iter().map(encode).collect()
+            whole.iter().map(|c| encode(c)).collect()
         };
         let mut deltas = Vec::with_capacity(b.deltas.len());
         for d in &b.deltas {
@@ -250,6 +278,10 @@ impl ChunkStore for SledStore {
         }
         let bytes_written = page.1.len() as u64
             + chunks.iter().map(|c| c.value.len() as u64).sum::<u64>()
+            + firsts
+                .iter()
+                .map(|f| (f.2.len() + generated_chunk_value().len()) as u64)
+                .sum::<u64>()
             + deltas.iter().map(|d| d.3.len() as u64).sum::<u64>();
 
         let encode = started.elapsed();
@@ -277,6 +309,16 @@ impl ChunkStore for SledStore {
                             c.lowest
                         ))));
                     }
+                }
+            }
+            for (key, dkey, value) in &firsts {
+                if tchunks.insert(&key[..], generated_chunk_value())?.is_some()
+                    || tdeltas.insert(&dkey[..], value.as_slice())?.is_some()
+                {
+                    return Err(abort(StoreError::batch(format!(
+                        "{} is stored already, the batch stores it from generated",
+                        show_raw(key)
+                    ))));
                 }
             }
             for (pos, from, key, value) in &deltas {
@@ -463,6 +505,11 @@ impl ChunkStore for SledStore {
     fn check(&self) -> Result<CheckReport, StoreError> {
         self.check_with_progress(&|| {})
     }
+
+    fn attach_generator(&self, generator: Arc<dyn ChunkGenerator>) {
+        // The first one stays: the world has one generator.
+        let _ = self.generator.set(generator);
+    }
 }
 
 /// sled's own default tree, present in every database.
@@ -473,7 +520,7 @@ impl SledStore {
     /// past its record `value`, else replayed and encoded again.
     fn raw_latest(&self, pos: ChunkPos, value: &[u8]) -> Result<RawChunk, StoreError> {
         let (version, body) = split_chunk_value(pos, value)?;
-        if self.head_version(pos, version)? == version {
+        if !is_generated(body) && self.head_version(pos, version)? == version {
             return Ok(RawChunk {
                 pos,
                 version,

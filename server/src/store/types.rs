@@ -9,9 +9,11 @@ use strata_terrain::{Chunk, ChunkPos, Edit};
 /// Layout version of the store written by this build; bumped on any change
 /// to [`crate::store::keys`] or to a record's encoding. 2 added the `deltas`
 /// tree; 3 lets a delta span several versions (a tick stores one per
-/// chunk) and writes the sled log as one page a commit (`log_pages.rs`).
+/// chunk) and writes the sled log as one page a commit (`log_pages.rs`);
+/// 4 lets a chunk record say "generated" (version 0), with the deltas of a
+/// chunk's first changes after it (`CommitBatch::generated`).
 /// Older stores are upgraded when opened: their records stay valid.
-pub const STORE_FORMAT_VERSION: u32 = 3;
+pub const STORE_FORMAT_VERSION: u32 = 4;
 
 /// What a world was generated from, plus how far its edit log goes.
 ///
@@ -83,6 +85,13 @@ pub struct CommitBatch {
     /// each changed chunk written whole: at least every chunk the store
     /// does not hold yet (version 0 before the batch).
     pub chunks: Vec<(ChunkPos, u64, Arc<Chunk>)>,
+    /// For some of `chunks` (those at version 0 before the batch): the
+    /// change from the generated state to the version written, one delta
+    /// each. A store that can regenerate chunks (a generator attached,
+    /// [`crate::store::ChunkStore::attach_generator`]) writes these and a
+    /// "generated" record instead of the whole states, which its checkpoint
+    /// writes later; any other store writes the whole states.
+    pub generated: Vec<ChunkDelta>,
     /// For every other changed chunk, one delta per change, in version
     /// order: the tick's durable record is the log plus these, and a
     /// checkpoint later folds them into the chunk's record.

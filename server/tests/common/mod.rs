@@ -52,13 +52,17 @@ impl Backend {
     ) -> std::sync::Arc<dyn strata_server::store::ChunkStore> {
         let mut cfg = test_config(data_dir);
         self.apply(&mut cfg);
-        strata_server::store::open_store(
+        let store = strata_server::store::open_store(
             &cfg.store,
             &data_dir.join("world.sled"),
             cfg.sequencer.region_chunks,
             None,
         )
-        .unwrap()
+        .unwrap();
+        // As the server does: chunks stored from generated read through it.
+        let (generator, _) = strata_server::app::world_generator(&cfg).unwrap();
+        store.attach_generator(std::sync::Arc::new(generator));
+        store
     }
 }
 

@@ -8,9 +8,10 @@ use std::collections::BTreeMap;
 use strata_server::store::pg::PgConfig;
 use strata_server::store::{ChunkStore, CommitBatch, LogEntry, PgStore, SledStore};
 use strata_terrain::chunk::DenseChunk;
+use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::delta::ChunkDelta;
 use strata_terrain::material::ids;
-use strata_terrain::{Chunk, ChunkPos, Edit, Fixed, FixedVec3, Voxel, CHUNK_SIZE};
+use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, Edit, Fixed, FixedVec3, Voxel, CHUNK_SIZE};
 use strata_tests::postgres::PgDb;
 
 /// A dense chunk with a rolling surface: grass over dirt over stone, a
@@ -97,6 +98,25 @@ impl Seq {
         b
     }
 
+    /// Like [`Seq::delta_batch`], and each new chunk also as its change
+    /// from `generator`'s output (`CommitBatch::generated`), as the
+    /// sequencer hands a first touch to the store.
+    pub fn generated_batch(
+        &mut self,
+        edits: &[Vec<(ChunkPos, Chunk)>],
+        generator: &dyn ChunkGenerator,
+    ) -> CommitBatch {
+        let mut b = self.build(edits, true);
+        b.generated = b
+            .chunks
+            .iter()
+            .map(|(pos, v, c)| {
+                ChunkDelta::encode(*pos, 0, *v, &generator.generate(*pos), c).unwrap()
+            })
+            .collect();
+        b
+    }
+
     fn build(&mut self, edits: &[Vec<(ChunkPos, Chunk)>], as_deltas: bool) -> CommitBatch {
         let stored_before: BTreeMap<ChunkPos, u64> = self.versions.clone();
         let mut deltas = Vec::new();
@@ -135,6 +155,7 @@ impl Seq {
                 .map(|(p, (v, c))| (p, v, c.into()))
                 .collect(),
             deltas,
+            generated: Vec::new(),
             last_seq: self.last_seq,
             epochs: None,
         }
@@ -223,4 +244,18 @@ pub fn sql(db: &PgDb, sql: &str) -> Vec<String> {
             })
             .collect()
     })
+}
+
+/// What every read of `pos` must say.
+pub fn assert_reads(store: &dyn ChunkStore, pos: ChunkPos, version: u64, chunk: &Chunk) {
+    let loaded = store.load_chunk(pos).unwrap().unwrap();
+    assert_eq!((loaded.version, &loaded.chunk), (version, chunk));
+    let raw = store.raw_chunk(pos).unwrap().unwrap();
+    assert_eq!((raw.version, raw.encoded), (version, encode_chunk(chunk)));
+    let listed: Vec<_> = store.modified_chunks().map(|r| r.unwrap()).collect();
+    assert!(listed.contains(&(pos, version)), "{listed:?}");
+    let walked: Vec<_> = store.raw_chunks().map(|r| r.unwrap()).collect();
+    assert!(walked
+        .iter()
+        .any(|r| r.pos == pos && r.version == version && r.encoded == encode_chunk(chunk)));
 }

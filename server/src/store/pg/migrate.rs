@@ -37,6 +37,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0005_delta_spans",
         include_str!("../../../migrations/0005_delta_spans.sql"),
     ),
+    (
+        6,
+        "0006_generated_records",
+        include_str!("../../../migrations/0006_generated_records.sql"),
+    ),
 ];
 
 /// Key of the advisory lock migrations take ("strata" in ASCII).
