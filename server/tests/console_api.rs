@@ -156,6 +156,20 @@ impl Events {
         serde_json::from_str(line["data:".len()..].trim()).unwrap()
     }
 
+    /// Reads until the server ends the stream (panics after `limit`).
+    async fn until_end(&mut self, limit: Duration) {
+        let deadline = Instant::now() + limit;
+        let mut buf = [0u8; 16384];
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match tokio::time::timeout(left, self.stream.read(&mut buf)).await {
+                Ok(Ok(0)) | Ok(Err(_)) => return,
+                Ok(Ok(n)) => self.seen.push_str(&String::from_utf8_lossy(&buf[..n])),
+                Err(_) => panic!("the stream did not end in time; got {}", self.tail()),
+            }
+        }
+    }
+
     fn tail(&self) -> &str {
         &self.seen[self.seen.len().saturating_sub(2000)..]
     }
@@ -476,6 +490,88 @@ async fn console_bounds_connections_and_closes_silent_ones() {
         let after_close = samples().await;
         tokio::time::sleep(Duration::from_millis(1500)).await;
         assert_eq!(samples().await, after_close, "sampled with nobody watching");
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test timed out");
+}
+
+/// Pipelined requests a client sends without reading any answer.
+const UNREAD_REQUESTS: usize = 300;
+/// That client's receive buffer, so the server's writes soon block.
+const SMALL_RECV_BUFFER: u32 = 2048;
+/// How long a request may wait for the slot such a client held.
+const SLOT_FREED_WITHIN: Duration = Duration::from_secs(10);
+
+/// A client that sends requests and never reads the answers blocks the
+/// server's writes, not its reads: it is closed after idle_timeout_ms all
+/// the same, so it cannot keep the only connection slot.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_never_reads_cannot_keep_a_slot() {
+    tokio::time::timeout(Duration::from_secs(60), async {
+        let dir = tempfile::tempdir().unwrap();
+        let (server, web) = start_console(dir.path(), |c| {
+            c.max_connections = 1;
+            c.idle_timeout_ms = 2000;
+        })
+        .await;
+        let socket = tokio::net::TcpSocket::new_v4().unwrap();
+        socket.set_recv_buffer_size(SMALL_RECV_BUFFER).unwrap();
+        let mut hog = socket.connect(web).await.unwrap();
+        let request = "GET /assets/map.js HTTP/1.1\r\nHost: x\r\n\r\n";
+        hog.write_all(request.repeat(UNREAD_REQUESTS).as_bytes())
+            .await
+            .unwrap();
+        let page = tokio::time::timeout(SLOT_FREED_WITHIN, get(web, "/", None))
+            .await
+            .expect("served while the non-reading client is connected");
+        assert_eq!(page.status, 200);
+        drop(hog);
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test timed out");
+}
+
+/// How long an event stream may go on once its token is no longer good.
+const STREAM_ENDS_WITHIN: Duration = Duration::from_secs(10);
+/// Lifetime of a short-lived admin token.
+const SHORT_TOKEN_TTL: Duration = Duration::from_secs(2);
+
+/// An event stream is checked at every sample, not only when it opens: it
+/// ends once its admin is banned, and once its token expires.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_event_stream_ends_when_its_token_is_no_longer_good() {
+    tokio::time::timeout(Duration::from_secs(60), async {
+        let dir = tempfile::tempdir().unwrap();
+        let (server, web) = start_console(dir.path(), |c| c.sample_ms = 100).await;
+        let watcher = token(&server, "eve", Role::Admin);
+        let other = token(&server, "ops", Role::Admin);
+        let mut banned = Events::open(web, &watcher).await;
+        let mut kept = Events::open(web, &other).await;
+        banned
+            .until("event: sample", Duration::from_secs(10))
+            .await;
+        let ban = serde_json::json!({"confirm": true, "action": {"ban": {"player": "eve", "until": null}}});
+        let r = action(web, &other, ban).await;
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        banned.until_end(STREAM_ENDS_WITHIN).await;
+        assert_eq!(get(web, "/api/world", Some(&watcher)).await.status, 403);
+        // Another admin's stream goes on.
+        kept.seen.clear();
+        kept.until("event: sample", Duration::from_secs(10)).await;
+
+        // A token that expires while its stream is open.
+        let short = strata_server::auth::issue(
+            server.data_dir.secret(),
+            "ivy",
+            Role::Admin,
+            SHORT_TOKEN_TTL,
+            strata_server::auth::unix_now(),
+        )
+        .unwrap();
+        let mut expiring = Events::open(web, &short).await;
+        expiring.until_end(SHORT_TOKEN_TTL + STREAM_ENDS_WITHIN).await;
         server.shutdown().await.unwrap();
     })
     .await

@@ -36,8 +36,9 @@ impl Refused {
 /// Refused tokens, logged at most once a second (anyone can send them).
 static TOKEN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
 
-/// The admin a request comes from, or why it is refused.
-pub fn admin(ctx: &SessionContext, headers: &HeaderMap) -> Result<String, Refused> {
+/// The admin a request comes from (its verified claims), or why it is
+/// refused.
+pub fn admin(ctx: &SessionContext, headers: &HeaderMap) -> Result<auth::Claims, Refused> {
     let token = headers
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
@@ -60,5 +61,21 @@ pub fn admin(ctx: &SessionContext, headers: &HeaderMap) -> Result<String, Refuse
     ctx.admitted(&claims).inspect_err(|d| {
         warn!(admin = %claims.player, denied = %d, "console refused a denied admin");
     })?;
-    Ok(claims.player)
+    Ok(claims)
+}
+
+/// Whether claims [`admin`] let in are still good at unix second `now`:
+/// unexpired, not revoked, the admin not banned (for long-lived requests).
+pub fn still_admitted(
+    ctx: &SessionContext,
+    claims: &auth::Claims,
+    now: u64,
+) -> Result<(), Refused> {
+    if now >= claims.expires_at {
+        return Err(auth::AuthError::Expired {
+            expired_at: claims.expires_at,
+        }
+        .into());
+    }
+    Ok(ctx.admitted(claims)?)
 }

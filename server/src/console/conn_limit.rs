@@ -7,7 +7,9 @@
 //! keep-alive comment every half of the timeout at least). Nor may a request
 //! take longer than `[console] request_timeout_ms` from its first byte to
 //! its answer's first byte, so a client trickling a byte now and then
-//! cannot keep a slot either.
+//! cannot keep a slot either. Both deadlines hold while a write waits on a
+//! full socket too, so a client that sends requests but never reads the
+//! answers cannot keep a slot.
 
 use std::io;
 use std::pin::Pin;
@@ -96,6 +98,14 @@ impl LimitedStream {
             Poll::Pending => Ok(()),
         }
     }
+
+    /// `Pending`, or the timeout error once a deadline has passed.
+    fn pending_or_timeout<T>(&mut self, cx: &mut Context<'_>) -> Poll<io::Result<T>> {
+        match self.check_deadlines(cx) {
+            Ok(()) => Poll::Pending,
+            Err(e) => Poll::Ready(Err(e)),
+        }
+    }
 }
 
 impl axum::serve::Listener for LimitedListener {
@@ -143,10 +153,7 @@ impl AsyncRead for LimitedStream {
                 }
                 Poll::Ready(Ok(()))
             }
-            Poll::Pending => match self.check_deadlines(cx) {
-                Ok(()) => Poll::Pending,
-                Err(e) => Poll::Ready(Err(e)),
-            },
+            Poll::Pending => self.pending_or_timeout(cx),
             other => other,
         }
     }
@@ -159,18 +166,24 @@ impl AsyncWrite for LimitedStream {
         buf: &[u8],
     ) -> Poll<io::Result<usize>> {
         let r = Pin::new(&mut self.stream).poll_write(cx, buf);
-        if let Poll::Ready(Ok(n)) = r {
-            if n > 0 {
+        match r {
+            Poll::Ready(Ok(n)) if n > 0 => {
                 self.last_active = Instant::now();
                 // Answered: the next byte read starts the next request.
                 self.request_since = None;
             }
+            // A client that does not read fills the socket: time it out.
+            Poll::Pending => return self.pending_or_timeout(cx),
+            _ => {}
         }
         r
     }
 
     fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
-        Pin::new(&mut self.stream).poll_flush(cx)
+        match Pin::new(&mut self.stream).poll_flush(cx) {
+            Poll::Pending => self.pending_or_timeout(cx),
+            other => other,
+        }
     }
 
     fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {

@@ -8,7 +8,9 @@
 //! (read from the store's edit log, not from the tick), the chunk columns
 //! they changed (the page redraws those tiles), the chart figures (from the
 //! metrics registry) and any snapshot in progress. Each watcher has a
-//! bounded queue; a watcher too slow to take a sample misses it.
+//! bounded queue; a watcher too slow to take a sample misses it. A
+//! watcher's token is checked again before each sample it is given: once
+//! it has expired or been revoked, or its admin is banned, the stream ends.
 
 use std::collections::VecDeque;
 use std::convert::Infallible;
@@ -24,9 +26,11 @@ use serde_json::json;
 use strata_terrain::Edit;
 use tokio::sync::{mpsc, oneshot, Notify};
 
-use super::{stats, Console, EVENT_QUEUE};
+use super::{auth, stats, Console, EVENT_QUEUE};
+use crate::auth::{unix_now, Claims};
 use crate::engine::admin::AdminCommand;
 use crate::net::admin_session::ask;
+use crate::net::session::SessionContext;
 use crate::store::{ChunkStore, LogEntry, StoreError};
 
 /// Longest wait for the engine's answer within a sample.
@@ -50,8 +54,14 @@ impl Hub {
         self.watchers.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// A new watcher's stream, or `None` when `max` are connected.
-    pub fn subscribe(&self, max: usize) -> Option<EventStream> {
+    /// A new stream for the admin of `claims`, or `None` when `max` are
+    /// connected.
+    pub fn subscribe(
+        &self,
+        max: usize,
+        ctx: Arc<SessionContext>,
+        claims: Claims,
+    ) -> Option<EventStream> {
         let mut w = self.lock();
         w.retain(|s| !s.is_closed());
         if w.len() >= max {
@@ -61,7 +71,7 @@ impl Hub {
         w.push(tx);
         drop(w);
         self.wake.notify_one();
-        Some(EventStream { rx })
+        Some(EventStream { rx, ctx, claims })
     }
 
     /// Samples taken so far.
@@ -86,16 +96,25 @@ impl Hub {
     }
 }
 
-/// One watcher's events.
+/// One watcher's events, while its token stays good.
 #[derive(Debug)]
 pub struct EventStream {
     rx: mpsc::Receiver<Arc<str>>,
+    ctx: Arc<SessionContext>,
+    /// The watcher's verified token, checked again before each sample.
+    claims: Claims,
 }
 
 impl futures_core::Stream for EventStream {
     type Item = Result<Event, Infallible>;
 
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
+        if let Err(refused) = auth::still_admitted(&self.ctx, &self.claims, unix_now()) {
+            tracing::info!(admin = %self.claims.player, %refused, "console watcher ended");
+            // The hub drops a closed queue at its next sample.
+            self.rx.close();
+            return Poll::Ready(None);
+        }
         self.rx
             .poll_recv(cx)
             .map(|o| o.map(|data| Ok(Event::default().event("sample").data(&*data))))

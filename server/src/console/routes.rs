@@ -119,6 +119,11 @@ async fn asset_route(axum::extract::Path(name): axum::extract::Path<String>) -> 
 
 /// The admin behind the request, or the refusal as a response.
 fn admin(c: &Console, headers: &HeaderMap) -> Result<String, ApiError> {
+    admin_claims(c, headers).map(|claims| claims.player)
+}
+
+/// [`admin`]'s verified claims, for a stream that checks them again.
+fn admin_claims(c: &Console, headers: &HeaderMap) -> Result<crate::auth::Claims, ApiError> {
     auth::admin(&c.ctx, headers).map_err(|r| error(r.status(), r))
 }
 
@@ -276,13 +281,17 @@ async fn regions_route(State(c): State<Arc<Console>>, headers: HeaderMap, uri: U
 }
 
 async fn events(State(c): State<Arc<Console>>, headers: HeaderMap) -> ApiResult {
-    let admin = admin(&c, &headers)?;
-    let stream = c.hub.subscribe(c.cfg.max_watchers).ok_or_else(|| {
-        error(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "too many watching consoles ([console] max_watchers)",
-        )
-    })?;
+    let claims = admin_claims(&c, &headers)?;
+    let admin = claims.player.clone();
+    let stream = c
+        .hub
+        .subscribe(c.cfg.max_watchers, c.ctx.clone(), claims)
+        .ok_or_else(|| {
+            error(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "too many watching consoles ([console] max_watchers)",
+            )
+        })?;
     info!(%admin, "console watcher connected");
     Ok(Sse::new(stream)
         .keep_alive(KeepAlive::new().interval(c.cfg.keep_alive()))

@@ -24,6 +24,17 @@ pub struct SnapshotJobs {
     last: Mutex<Option<Arc<Job>>>,
 }
 
+/// The running mark, held by a snapshot being started or written; dropped
+/// (the job done, failed, or its start abandoned), it clears the mark.
+#[derive(Debug)]
+struct Busy(Arc<AtomicBool>);
+
+impl Drop for Busy {
+    fn drop(&mut self) {
+        self.0.store(false, Ordering::Release);
+    }
+}
+
 /// One snapshot's progress.
 #[derive(Debug)]
 struct Job {
@@ -87,19 +98,24 @@ impl SnapshotJobs {
         })
     }
 
-    /// Starts a snapshot for `admin`; refused while one runs.
+    /// Starts a snapshot for `admin`; refused while one runs. Dropped
+    /// before the job is handed to its writer (a client gone, a timeout),
+    /// it leaves none running.
     pub async fn start(&self, ctx: &Arc<SessionContext>, admin: &str) -> Result<JobStatus, String> {
         if self.busy.swap(true, Ordering::AcqRel) {
             return Err("a snapshot is already running".into());
         }
-        let started = self.spawn(ctx, admin).await;
-        if started.is_err() {
-            self.busy.store(false, Ordering::Release);
-        }
-        started
+        let busy = Busy(self.busy.clone());
+        self.spawn(ctx, admin, busy).await
     }
 
-    async fn spawn(&self, ctx: &Arc<SessionContext>, admin: &str) -> Result<JobStatus, String> {
+    /// `busy` goes with the job to its writer, or is dropped on a failure.
+    async fn spawn(
+        &self,
+        ctx: &Arc<SessionContext>,
+        admin: &str,
+        busy: Busy,
+    ) -> Result<JobStatus, String> {
         let start = begin_snapshot(ctx, 0).await??;
         let info = start.info;
         crate::durable::create_dir_all(&std::fs::DirBuilder::new(), &self.dir)
@@ -121,7 +137,6 @@ impl SnapshotJobs {
         *self.last.lock().unwrap_or_else(|p| p.into_inner()) = Some(job.clone());
         let store = ctx.store.clone();
         let pre = start.preimages;
-        let busy = self.busy.clone();
         let j = job.clone();
         tokio::task::spawn_blocking(move || {
             let result = write_atomically(&file, |out| {
@@ -153,9 +168,101 @@ impl SnapshotJobs {
             }
             *j.outcome.lock().unwrap_or_else(|p| p.into_inner()) =
                 Some(result.map_err(|e| format!("{e:#}")));
-            busy.store(false, Ordering::Release);
+            drop(busy);
         });
         self.status()
             .ok_or_else(|| "the snapshot was not recorded".to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use tokio::sync::oneshot;
+
+    use super::*;
+    use crate::engine::admin::{AdminCommand, SnapshotStart};
+    use crate::engine::{inbox_channel, Command, Inbox};
+    use crate::validate::ratelimit::BucketConfig;
+
+    /// How long a start may wait on the engine before it is abandoned.
+    const ABANDON_AFTER: Duration = Duration::from_millis(200);
+    /// How long the stand-in engine waits for a command.
+    const ENGINE_WAIT: Duration = Duration::from_secs(5);
+    /// How often the stand-in engine looks at its queue.
+    const ENGINE_POLL: Duration = Duration::from_millis(5);
+    /// Queue room on each lane of the stand-in engine.
+    const ENGINE_QUEUE: usize = 4;
+    /// What the stand-in engine answers a snapshot start with.
+    const REFUSAL: &str = "the engine refused";
+
+    type Reply = oneshot::Sender<Result<SnapshotStart, String>>;
+
+    /// A context whose engine is the returned inbox (nobody serves it).
+    fn context(dir: &std::path::Path) -> (Arc<SessionContext>, Inbox) {
+        let (engine, inbox) = inbox_channel(ENGINE_QUEUE, ENGINE_QUEUE);
+        let rate = BucketConfig {
+            capacity: 1,
+            per_second: 1,
+        };
+        let ctx = SessionContext {
+            secret: crate::auth::Secret::from_bytes([7; crate::auth::SECRET_LEN]),
+            engine,
+            store: Arc::new(crate::store::SledStore::open(dir).unwrap()),
+            world_seed: 1,
+            generator_version: 1,
+            generator_params: String::new(),
+            view_radius: 1,
+            writer_queue: 1,
+            control_writer_queue: 1,
+            send_interval: Duration::ZERO,
+            request_rate: rate,
+            position_rate: rate,
+            access: std::sync::RwLock::default(),
+            access_writes: tokio::sync::Mutex::new(()),
+        };
+        (Arc::new(ctx), inbox)
+    }
+
+    /// The reply channel of the next snapshot start the engine is asked
+    /// for, or `None` if none comes within [`ENGINE_WAIT`].
+    async fn snapshot_begin(inbox: &Inbox) -> Option<Reply> {
+        let deadline = tokio::time::Instant::now() + ENGINE_WAIT;
+        while tokio::time::Instant::now() < deadline {
+            match inbox.recv_timeout(Duration::ZERO) {
+                Ok(Command::Admin(AdminCommand::SnapshotBegin { reply, .. })) => {
+                    return Some(reply)
+                }
+                Ok(other) => panic!("not a snapshot start: {other:?}"),
+                Err(_) => tokio::time::sleep(ENGINE_POLL).await,
+            }
+        }
+        None
+    }
+
+    #[tokio::test]
+    async fn an_abandoned_start_leaves_no_snapshot_running() {
+        let dir = tempfile::tempdir().unwrap();
+        let (ctx, inbox) = context(&dir.path().join("store"));
+        let jobs = SnapshotJobs::new(dir.path().join("snapshots"));
+        // The engine is asked but does not answer, and the request goes
+        // away (a client gone, a timeout).
+        let abandoned = tokio::time::timeout(ABANDON_AFTER, jobs.start(&ctx, "ops")).await;
+        assert!(abandoned.is_err(), "{abandoned:?}");
+        assert!(
+            snapshot_begin(&inbox).await.is_some(),
+            "the engine was asked"
+        );
+        // The next start is not refused as running: it asks the engine too
+        // and gets its answer.
+        let engine = async {
+            let reply = snapshot_begin(&inbox).await;
+            reply.map(|r| r.send(Err(REFUSAL.into())).is_ok())
+        };
+        let (second, answered) = tokio::join!(jobs.start(&ctx, "ops"), engine);
+        assert_eq!(second.unwrap_err(), REFUSAL);
+        assert_eq!(answered, Some(true));
+        assert!(jobs.status().is_none(), "no job was recorded");
     }
 }
