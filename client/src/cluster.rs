@@ -2,21 +2,24 @@
 //! ([`ClusterClient`]). Each node writes some regions; every node tells
 //! its sessions who writes each region their view overlaps
 //! (`ServerMessage::RegionOwners`). The cluster client keeps one
-//! connection per node named there (at most [`MAX_CLUSTER_NODES`]),
-//! arriving at each with the ticket the last message carried so the
-//! player continues where it stands, reports every position to all of
-//! them, sends each edit to the node that writes its region, and reads
-//! each chunk from that node's replica.
+//! connection per node named there (at most [`MAX_CLUSTER_NODES`]; one
+//! no longer named nor routed to is closed), arriving at each with the
+//! ticket the last message carried so the player continues where it
+//! stands, reports every position to all of them, sends each edit to the
+//! node that writes its region, and reads each chunk from that node's
+//! replica (for a region let go, the last writer's while connected).
 //!
 //! Each connection's replica is whole and ordered on its own (every
 //! node streams the view it is told), so walking across a border only
 //! changes which replica a chunk is read from: nothing is resent.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
+use std::future::Future;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use strata_protocol::limits::MAX_REGION_OWNERS;
 use strata_protocol::{RegionHolder, RegionOwner, RejectReason, Ticket};
 use strata_terrain::{Chunk, ChunkPos, Edit, FixedVec3, VoxelPos};
 use thiserror::Error;
@@ -29,6 +32,8 @@ pub const MAX_CLUSTER_NODES: usize = 8;
 pub const ARRIVE_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long a node that could not be joined is left alone.
 pub const JOIN_BACKOFF: Duration = Duration::from_secs(2);
+/// Most distinct node addresses one reroute looks up.
+const MAX_LOOKUPS: usize = 2 * MAX_CLUSTER_NODES;
 
 /// A node's last `RegionOwners`, numbered in arrival order.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -89,8 +94,10 @@ impl ClusterView {
 
 /// A region's coordinates: chunk x and z divided (floor) by the side.
 fn region_of(pos: ChunkPos, side: u32) -> (i32, i32) {
-    let side = side.max(1) as i32;
-    (pos.x.div_euclid(side), pos.z.div_euclid(side))
+    // In i64: any u32 side is positive there, and the quotient fits i32.
+    let side = i64::from(side.max(1));
+    let div = |v: i32| i64::from(v).div_euclid(side) as i32;
+    (div(pos.x), div(pos.z))
 }
 
 /// The voxel an edit is routed by: its centre, box corner or origin.
@@ -115,6 +122,81 @@ async fn resolve(addr: &str) -> Result<SocketAddr, ClusterError> {
         .ok()
         .and_then(|mut a| a.next())
         .ok_or_else(|| ClusterError::BadAddress(addr.to_string()))
+}
+
+/// Routes built from every connected node's last word.
+#[derive(Debug, Default)]
+struct Routing {
+    routes: BTreeMap<(i32, i32), SocketAddr>,
+    /// The nodes named, at most [`MAX_CLUSTER_NODES`].
+    named: Vec<SocketAddr>,
+}
+
+/// Builds the routes from `latest`: another node's word first, each
+/// node's word on itself last, since a node knows best what it holds. A
+/// region reported free keeps its route in `kept` (routes to connected
+/// nodes only): the last writer's replica holds its newest versions,
+/// other nodes' copies may be older. Messages with more than
+/// `MAX_REGION_OWNERS` regions are ignored; each distinct address is
+/// looked up once, and new ones only while fewer than
+/// [`MAX_CLUSTER_NODES`] nodes are named (and [`MAX_LOOKUPS`] tried).
+async fn build_routes<F, Fut>(
+    latest: &[(SocketAddr, RegionOwners)],
+    kept: &BTreeMap<(i32, i32), SocketAddr>,
+    lookup: F,
+) -> Routing
+where
+    F: Fn(String) -> Fut,
+    Fut: Future<Output = Option<SocketAddr>>,
+{
+    let mut out = Routing::default();
+    let mut looked: BTreeMap<&str, Option<SocketAddr>> = BTreeMap::new();
+    let mut free = Vec::new();
+    let valid = || {
+        latest
+            .iter()
+            .filter(|(_, o)| o.regions.len() <= MAX_REGION_OWNERS)
+    };
+    for (_, o) in valid() {
+        for r in &o.regions {
+            let region = (r.region_x, r.region_z);
+            let addr = match &r.holder {
+                RegionHolder::Node { addr, .. } if !addr.is_empty() => addr.as_str(),
+                RegionHolder::Free => {
+                    free.push(region);
+                    continue;
+                }
+                _ => continue,
+            };
+            let found = match looked.get(addr) {
+                Some(found) => *found,
+                None if out.named.len() < MAX_CLUSTER_NODES && looked.len() < MAX_LOOKUPS => {
+                    let found = lookup(addr.to_string()).await;
+                    looked.insert(addr, found);
+                    found
+                }
+                None => None,
+            };
+            let Some(a) = found else {
+                continue;
+            };
+            out.routes.insert(region, a);
+            if out.named.len() < MAX_CLUSTER_NODES && !out.named.contains(&a) {
+                out.named.push(a);
+            }
+        }
+    }
+    for (from, o) in valid() {
+        for r in o.regions.iter().filter(|r| r.holder == RegionHolder::Here) {
+            out.routes.insert((r.region_x, r.region_z), *from);
+        }
+    }
+    for region in free {
+        if let Some(a) = kept.get(&region) {
+            out.routes.entry(region).or_insert(*a);
+        }
+    }
+    out
 }
 
 /// One player's connections to the nodes of a cluster.
@@ -217,8 +299,8 @@ impl ClusterClient {
         self.client_for(pos).visible_chunk(pos)
     }
 
-    /// Takes in every node's newest `RegionOwners` and connects to the
-    /// nodes they name. Call it often (every frame is fine: it is cheap
+    /// Takes in every node's newest `RegionOwners`, connects to the nodes
+    /// they name and closes the others. Call it often (every frame is fine: it is cheap
     /// when nothing changed). Returns the nodes newly connected.
     pub async fn follow(&mut self) -> Result<Vec<SocketAddr>, ClusterError> {
         let before = self.view.nodes.len();
@@ -237,21 +319,23 @@ impl ClusterClient {
             .any(|(a, o)| self.seen.get(a) != Some(&o.serial));
         if news || self.view.nodes.len() != before {
             let named = self.reroute(&latest).await;
+            self.let_go_unused(&named);
             self.start_joins(named);
         }
         Ok(self.finish_joins().await)
     }
 
-    /// Rebuilds the routes from every connected node's last word (at most
-    /// [`MAX_CLUSTER_NODES`] times `MAX_REGION_OWNERS` regions): another
-    /// node's word first, each node's word on itself last, since a node
-    /// knows best what it holds. Returns the nodes named.
+    /// Rebuilds the routes from every connected node's last word (see
+    /// [`build_routes`]) and takes in the newest ticket. Returns the nodes
+    /// named.
     async fn reroute(&mut self, latest: &[(SocketAddr, RegionOwners)]) -> Vec<SocketAddr> {
-        self.view.routes.clear();
-        let mut named = Vec::new();
+        let mut side = None;
         for (from, o) in latest {
             self.seen.insert(*from, o.serial);
-            self.view.region_chunks = Some(o.region_chunks);
+            if o.regions.len() > MAX_REGION_OWNERS {
+                continue;
+            }
+            side = Some(o.region_chunks);
             if let Some(t) = &o.ticket {
                 if self
                     .ticket
@@ -261,24 +345,46 @@ impl ClusterClient {
                     self.ticket = Some(t.clone());
                 }
             }
-            for r in &o.regions {
-                let RegionHolder::Node { addr, .. } = &r.holder else {
-                    continue;
-                };
-                if let Ok(a) = resolve(addr).await {
-                    self.view.routes.insert((r.region_x, r.region_z), a);
-                    if !named.contains(&a) {
-                        named.push(a);
-                    }
-                }
-            }
         }
-        for (from, o) in latest {
-            for r in o.regions.iter().filter(|r| r.holder == RegionHolder::Here) {
-                self.view.routes.insert((r.region_x, r.region_z), *from);
-            }
+        let mut kept = std::mem::take(&mut self.view.routes);
+        let nodes = &self.view.nodes;
+        kept.retain(|_, a| nodes.contains_key(a));
+        if side.is_some_and(|s| Some(s) != self.view.region_chunks) {
+            // Other coordinates: the old routes name other regions.
+            kept.clear();
+            self.view.region_chunks = side;
         }
-        named
+        let routing = build_routes(latest, &kept, |a| async move { resolve(&a).await.ok() }).await;
+        self.view.routes = routing.routes;
+        routing.named
+    }
+
+    /// Closes the connections to nodes other than home that no message
+    /// names and no route uses (freeing their places for new writers),
+    /// and stops joining nodes no longer named.
+    fn let_go_unused(&mut self, named: &[SocketAddr]) {
+        let home = self.view.home;
+        let used: BTreeSet<SocketAddr> = self.view.routes.values().chain(named).copied().collect();
+        let unused: Vec<SocketAddr> = self
+            .view
+            .nodes
+            .keys()
+            .filter(|a| **a != home && !used.contains(a))
+            .copied()
+            .collect();
+        for a in unused {
+            if let Some(c) = self.view.nodes.remove(&a) {
+                c.disconnect();
+            }
+            self.seen.remove(&a);
+        }
+        self.joining.retain(|a, h| {
+            let keep = named.contains(a);
+            if !keep {
+                h.abort();
+            }
+            keep
+        });
     }
 
     /// Opens connections to the named nodes not yet connected, in the
@@ -356,7 +462,7 @@ impl ClusterClient {
         let to = self.route(edit_anchor(&edit).chunk());
         let acked = self.view.nodes[&to].edit_acked(edit.clone()).await?;
         if matches!(acked.0, Verdict::Rejected(RejectReason::NodeFull { .. })) {
-            return Ok(self.edit_past_full(to, edit, acked).await);
+            return self.edit_past_full(to, edit, acked).await;
         }
         let Verdict::Rejected(RejectReason::RegionElsewhere {
             region_x,
@@ -385,15 +491,17 @@ impl ClusterClient {
     }
 
     /// After `NodeFull` from `full`: the other connected nodes in address
-    /// order, until one answers something else (one that fails to answer
-    /// is passed over). The node that accepts writes the region from then
-    /// on, and edits there are routed to it. Returns the last answer.
+    /// order, until one answers something else (one the edit cannot be
+    /// sent to is passed over; one that took it but gave no verdict may
+    /// have applied it, so its error is returned). The node that accepts
+    /// writes the region from then on, and edits there are routed to it.
+    /// Returns the last answer.
     async fn edit_past_full(
         &mut self,
         full: SocketAddr,
         edit: Edit,
         refused: Acked,
-    ) -> (SocketAddr, Acked) {
+    ) -> Result<(SocketAddr, Acked), ClusterError> {
         let mut last = (full, refused);
         let others: Vec<SocketAddr> = self
             .view
@@ -403,10 +511,11 @@ impl ClusterClient {
             .copied()
             .collect();
         for a in others {
-            let Ok(acked) = self.view.nodes[&a].edit_acked(edit.clone()).await else {
+            let c = &self.view.nodes[&a];
+            let Ok(sent) = c.submit(edit.clone()).await else {
                 continue;
             };
-            last = (a, acked);
+            last = (a, c.verdict(sent).await?);
             if !matches!(last.1 .0, Verdict::Rejected(RejectReason::NodeFull { .. })) {
                 break;
             }
@@ -415,7 +524,7 @@ impl ClusterClient {
             let region = region_of(edit_anchor(&edit).chunk(), side);
             self.view.routes.insert(region, last.0);
         }
-        last
+        Ok(last)
     }
 
     /// Closes every connection.
@@ -439,6 +548,134 @@ mod tests {
         assert_eq!(region_of(ChunkPos::new(7, 3, 0), 8), (0, 0));
         assert_eq!(region_of(ChunkPos::new(8, -3, -1), 8), (1, -1));
         assert_eq!(region_of(ChunkPos::new(-9, 0, 16), 8), (-2, 2));
+    }
+
+    #[test]
+    fn a_huge_region_side_does_not_overflow() {
+        let corner = ChunkPos::new(i32::MIN, 0, i32::MIN);
+        assert_eq!(region_of(corner, u32::MAX), (-1, -1));
+        assert_eq!(region_of(ChunkPos::new(i32::MAX, 0, 0), u32::MAX), (0, 0));
+        assert_eq!(region_of(corner, 0), (i32::MIN, i32::MIN));
+    }
+
+    fn owners(regions: Vec<RegionOwner>) -> RegionOwners {
+        RegionOwners {
+            serial: 1,
+            region_chunks: 8,
+            regions,
+            ticket: None,
+        }
+    }
+
+    fn held(x: i32, holder: RegionHolder) -> RegionOwner {
+        RegionOwner {
+            region_x: x,
+            region_z: 0,
+            holder,
+        }
+    }
+
+    fn node_at(addr: String) -> RegionHolder {
+        RegionHolder::Node {
+            node: "n".into(),
+            addr,
+        }
+    }
+
+    fn addr(port: u16) -> SocketAddr {
+        SocketAddr::from(([127, 0, 0, 1], port))
+    }
+
+    /// Routes built with a lookup that parses and counts its calls.
+    async fn counted(
+        latest: &[(SocketAddr, RegionOwners)],
+        kept: &BTreeMap<(i32, i32), SocketAddr>,
+    ) -> (Routing, usize) {
+        let calls = std::cell::Cell::new(0);
+        let routing = build_routes(latest, kept, |a| {
+            calls.set(calls.get() + 1);
+            async move { a.parse().ok() }
+        })
+        .await;
+        (routing, calls.get())
+    }
+
+    #[tokio::test]
+    async fn one_address_is_looked_up_once_per_reroute() {
+        let regions = (0..MAX_REGION_OWNERS as i32)
+            .map(|x| held(x, node_at("127.0.0.1:7000".into())))
+            .collect();
+        let latest = [(addr(1), owners(regions))];
+        let (routing, calls) = counted(&latest, &BTreeMap::new()).await;
+        assert_eq!(calls, 1);
+        assert_eq!(routing.named, vec![addr(7000)]);
+        assert_eq!(routing.routes.len(), MAX_REGION_OWNERS);
+    }
+
+    #[tokio::test]
+    async fn names_and_lookups_stop_at_their_limits() {
+        let regions = (0..MAX_REGION_OWNERS as i32)
+            .map(|x| held(x, node_at(format!("127.0.0.1:{}", 7000 + x))))
+            .collect();
+        let latest = [(addr(1), owners(regions))];
+        let (routing, calls) = counted(&latest, &BTreeMap::new()).await;
+        assert_eq!(calls, MAX_CLUSTER_NODES);
+        assert_eq!(routing.named.len(), MAX_CLUSTER_NODES);
+        assert_eq!(routing.routes.len(), MAX_CLUSTER_NODES);
+
+        // Addresses that do not resolve stop at MAX_LOOKUPS.
+        let regions = (0..MAX_REGION_OWNERS as i32)
+            .map(|x| held(x, node_at(format!("nowhere-{x}"))))
+            .collect();
+        let latest = [(addr(1), owners(regions))];
+        let (routing, calls) = counted(&latest, &BTreeMap::new()).await;
+        assert_eq!(calls, MAX_LOOKUPS);
+        assert!(routing.named.is_empty() && routing.routes.is_empty());
+    }
+
+    #[tokio::test]
+    async fn a_message_with_too_many_regions_is_ignored() {
+        let regions = (0..=MAX_REGION_OWNERS as i32)
+            .map(|x| held(x, RegionHolder::Here))
+            .collect();
+        let latest = [(addr(1), owners(regions))];
+        let (routing, calls) = counted(&latest, &BTreeMap::new()).await;
+        assert_eq!(calls, 0);
+        assert!(routing.routes.is_empty() && routing.named.is_empty());
+    }
+
+    #[tokio::test]
+    async fn a_free_region_keeps_its_route_and_a_node_knows_best() {
+        let kept = BTreeMap::from([((0, 0), addr(2)), ((2, 0), addr(1))]);
+        let latest = [
+            (
+                addr(1),
+                owners(vec![
+                    held(0, RegionHolder::Free),
+                    held(1, node_at(addr(2).to_string())),
+                    held(2, RegionHolder::Free),
+                    held(3, RegionHolder::Here),
+                ]),
+            ),
+            (
+                addr(2),
+                owners(vec![
+                    held(0, RegionHolder::Free),
+                    held(1, RegionHolder::Free),
+                    held(2, RegionHolder::Here),
+                    held(3, node_at(addr(3).to_string())),
+                ]),
+            ),
+        ];
+        let (routing, _) = counted(&latest, &kept).await;
+        let expected = BTreeMap::from([
+            ((0, 0), addr(2)),
+            ((1, 0), addr(2)),
+            ((2, 0), addr(2)),
+            ((3, 0), addr(1)),
+        ]);
+        assert_eq!(routing.routes, expected);
+        assert_eq!(routing.named, vec![addr(2), addr(3)]);
     }
 
     #[test]

@@ -637,3 +637,139 @@ async fn a_node_lets_an_idle_region_go_and_claims_it_again_at_the_next_edit() {
     .await
     .expect("within the test timeout");
 }
+
+/// In region 1 (chunk 8), where both nodes below spawn their players.
+const BORDER_X: i32 = 260;
+
+/// The region (x, 0) as `c`'s node last described it.
+fn holder_of(c: &strata_client_sim::Client, region_x: i32) -> Option<RegionHolder> {
+    c.region_owners()?
+        .regions
+        .into_iter()
+        .find(|r| (r.region_x, r.region_z) == (region_x, 0))
+        .map(|r| r.holder)
+}
+
+/// A region its writer lets go idle (`Free`) is still read from that
+/// writer's replica, not from the home node's older copy. Once another
+/// node takes it, the last writer, named by no node and routed to by no
+/// region, is let go.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_region_let_go_is_read_from_its_last_writer_until_another_takes_it() {
+    let Some(db) = strata_tests::postgres::database("cluster_free_reads") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dirs = tempfile::tempdir().unwrap();
+        let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
+        let west = node(&da, &db, "west", BORDER_X).await;
+        share_keys(&da, &db_dir);
+        let mut cfg = node_config(&db_dir, &db, ("east", BORDER_X), 1_000, 100);
+        if let Some(c) = cfg.cluster.as_mut() {
+            c.release_idle_ms = 3_000;
+        }
+        let east = app::start(cfg).await.expect("node starts");
+
+        // Bob's edits claim region 1 for the east node and keep it there
+        // until Ann, at home on the west node, has joined the east node.
+        let bob = standing(&east, "bob", BORDER_X + 8).await;
+        let (v, _) = bob.edit_acked(mine_at(BORDER_X + 10)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        let ann_token = token(&west, "ann", Role::Player);
+        let opts = ClientOptions::default();
+        let mut ann = ClusterClient::connect(west.addr, &west.cert_der, &ann_token, opts)
+            .await
+            .unwrap();
+        ann.send_position(feet(BORDER_X)).unwrap();
+        let pos = chunk_of(BORDER_X + 2);
+        assert!(eventually(TEST_TIMEOUT, || ann.home().replica().get(pos).is_some()).await);
+        let mut joined = Vec::new();
+        for i in 0..500 {
+            if i % 10 == 9 {
+                bob.edit_acked(mine_at(BORDER_X + 10)).await.unwrap();
+            }
+            joined.extend(ann.follow().await.unwrap());
+            if !joined.is_empty() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert_eq!(joined, vec![east.addr]);
+        // Her next position starts the east node's stream.
+        ann.send_position(feet(BORDER_X)).unwrap();
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .node(east.addr)
+                .is_some_and(|c| c.replica().get(pos).is_some()))
+            .await
+        );
+
+        // Ann's edit goes to the east node.
+        let (to, (v, changes)) = ann.edit(mine_at(BORDER_X + 2)).await.unwrap();
+        assert_eq!(to, east.addr);
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        let edited = *changes.iter().find(|c| c.pos == pos).expect("changed");
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .chunk(pos)
+                .is_some_and(|(_, version, _)| version >= edited.version))
+            .await
+        );
+
+        // Nobody edits: the east node lets region 1 go, and both nodes
+        // report it free. The west node's copy is older than Ann's edit.
+        let mut free = false;
+        for _ in 0..500 {
+            ann.follow().await.unwrap();
+            free = holder_of(ann.home(), 1) == Some(RegionHolder::Free)
+                && ann
+                    .node(east.addr)
+                    .is_none_or(|c| holder_of(c, 1) == Some(RegionHolder::Free));
+            if free {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert!(free, "region 1 let go: {:?}", ann.home().region_owners());
+        ann.follow().await.unwrap();
+        let read = ann.chunk(pos).map(|(_, version, _)| version);
+        assert!(
+            read >= Some(edited.version),
+            "read {read:?} after {edited:?}"
+        );
+        assert_eq!(ann.route(pos), east.addr);
+
+        // Carl, on the west node only, takes region 1 there: Ann reads it
+        // from the west node and lets the east node go.
+        let carl = standing(&west, "carl", BORDER_X + 4).await;
+        let (v, taken) = carl.edit_acked(mine_at(BORDER_X + 6)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        let taken = *taken.iter().find(|c| c.pos == pos).expect("changed");
+        assert!(taken.version > edited.version, "{taken:?} after {edited:?}");
+        let mut let_go = false;
+        for _ in 0..500 {
+            ann.follow().await.unwrap();
+            if ann.node(east.addr).is_none() {
+                let_go = true;
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert!(let_go, "still connected to {}", east.addr);
+        assert_eq!(ann.route(pos), west.addr);
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .chunk(pos)
+                .is_some_and(|(_, version, _)| version >= taken.version))
+            .await
+        );
+        assert!(!ann.home().is_closed());
+        ann.close().await;
+        bob.close().await;
+        carl.close().await;
+        west.shutdown().await.unwrap();
+        east.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
