@@ -180,7 +180,8 @@ int main(int argc, char **argv) {
            (unsigned long long)stats.meshes_checked, (unsigned long long)stats.mesh_mismatches);
 
     /* Errors are codes plus a message. */
-    st = strata_mesh(s, changed.chunk[0], changed.chunk[1], changed.chunk[2], 9, 0, NULL);
+    StrataMesh *bad = NULL;
+    st = strata_mesh(s, changed.chunk[0], changed.chunk[1], changed.chunk[2], 9, 0, &bad);
     printf("error status=%d message=%s\n", (int)st, strata_last_error_message());
 
     strata_session_free(s);

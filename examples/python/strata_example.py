@@ -102,16 +102,19 @@ class Strata:
         return status
 
     def drain(self, s):
-        """Polls until no event is left; returns them."""
+        """Polls until no event is left; returns (event, changes) pairs."""
         events = []
         while True:
             ev = Event()
             self.call("strata_poll", s, C.byref(ev))
+            # ev.changes lives until the next poll: copy them now.
+            changes = [(tuple(ev.changes[i].chunk), ev.changes[i].version)
+                       for i in range(ev.changes_len)]
             if ev.kind == EV_NONE:
                 return events
             if ev.kind == EV_DISCONNECTED:
                 raise RuntimeError(f"disconnected: {ev.message.decode()}")
-            events.append(ev)
+            events.append((ev, changes))
 
 
 def main():
@@ -166,11 +169,8 @@ def main():
         deadline = time.monotonic() + WAIT_S
         verdict = None
         while verdict is None and time.monotonic() < deadline:
-            for ev in st.drain(s):
+            for ev, changes in st.drain(s):
                 if ev.ticket == ticket.value and ev.kind in (EV_ACCEPTED, EV_REJECTED, EV_FAILED):
-                    # The changes live until the next poll: copy them now.
-                    changes = [(tuple(ev.changes[i].chunk), ev.changes[i].version)
-                               for i in range(ev.changes_len)] if ev.kind == EV_ACCEPTED else []
                     verdict = (ev.kind, ev.reject, ev.seq, changes, ev.message.decode())
                     break
             time.sleep(0.005)

@@ -18,14 +18,16 @@
  *   strata_mesh_free. The arrays strata_mesh_data points to belong to the
  *   mesh and live until it is freed. A mesh may outlive its session.
  * - The changes array of an EDIT_ACCEPTED event belongs to the session and
- *   lives until the next strata_poll on it.
+ *   lives until the next strata_poll on that session, from any thread.
  * - strata_last_error_message's string belongs to the library and lives
  *   until the next failing call on the same thread.
  * - Every other pointer argument is borrowed for the call only.
  *
  * Threading:
  * - Functions on one session may be called from any thread, also at the
- *   same time, except strata_session_free.
+ *   same time, except strata_session_free. But each strata_poll overwrites
+ *   the changes array of the event before it, whichever thread polled:
+ *   poll from one thread if you read changes.
  * - The last error message is per thread.
  * - Events come out of strata_poll in order. Each edit's ticket gets
  *   exactly one EDIT_ACCEPTED, EDIT_REJECTED or EDIT_FAILED;
@@ -260,7 +262,8 @@ typedef struct {
   // EDIT_ACCEPTED: the edit's global sequence number.
   uint64_t seq;
   // EDIT_ACCEPTED: the chunk versions the edit made durable, owned by
-  // the session and valid until the next `strata_poll` on it.
+  // the session and valid until the next `strata_poll` on it from any
+  // thread (poll from one thread if you read them).
   const StrataChunkVersion *changes;
   size_t changes_len;
   // EDIT_REJECTED: why.
@@ -463,7 +466,8 @@ StrataStatus strata_edit(const StrataSession *s, const StrataEdit *edit, uint64_
 
 // Takes the next event into `*out_event`, or sets its kind to
 // STRATA_EVENT_KIND_NONE when nothing happened. Never waits: call it every
-// frame until it returns NONE.
+// frame until it returns NONE. An EDIT_ACCEPTED event's `changes` stay
+// valid until the next `strata_poll` on this session, from any thread.
 //
 // # Safety
 // `s` is a live session; `out_event` is writable.

@@ -5,7 +5,7 @@ use strata_client::glam::DVec3;
 use strata_client::terrain::{ChunkPos, CHUNK_VOLUME};
 use strata_client::ChunkMesh;
 
-use crate::ptr::{out, shared};
+use crate::ptr::{shared, writable};
 use crate::session::{session, StrataSession};
 use crate::status::{call, Failure, StrataStatus};
 use crate::types::StrataMeshData;
@@ -42,8 +42,8 @@ pub unsafe extern "C" fn strata_chunk_read(
     out_version: *mut u64,
 ) -> StrataStatus {
     call(|| {
-        // SAFETY: the caller's contract above.
-        let session = unsafe { session(s) }?;
+        // SAFETY: the caller's contract above; a null `out_version` is skipped.
+        let (session, version) = unsafe { (session(s)?, writable(out_version, "").ok()) };
         if len < CHUNK_VOLUME && !(density.is_null() && material.is_null()) {
             return Err(Failure::invalid(format!(
                 "buffers of {len} bytes; a chunk needs {CHUNK_VOLUME}"
@@ -58,9 +58,8 @@ pub unsafe extern "C" fn strata_chunk_read(
                 unsafe { dst.copy_from_nonoverlapping(src.as_ptr(), CHUNK_VOLUME) };
             }
         }
-        if !out_version.is_null() {
-            // SAFETY: the caller's contract above.
-            unsafe { out(out_version, "out_version", data.version) }?;
+        if let Some(v) = version {
+            v.write(data.version);
         }
         Ok(())
     })
@@ -78,11 +77,13 @@ pub unsafe extern "C" fn strata_chunk_of(
     out_chunk: *mut i32,
 ) -> StrataStatus {
     call(|| {
+        // SAFETY: the caller's contract above; `[i32; 3]` has the
+        // alignment of `i32`.
+        let dst = unsafe { writable(out_chunk.cast::<[i32; 3]>(), "out_chunk") }?;
         let c = chunk_at(DVec3::new(x, y, z))
             .ok_or_else(|| Failure::invalid("the point is not finite or out of range"))?;
-        // SAFETY: the caller's contract above.
-        // `[i32; 3]` has the alignment of `i32`.
-        unsafe { out(out_chunk.cast::<[i32; 3]>(), "out_chunk", [c.x, c.y, c.z]) }
+        dst.write([c.x, c.y, c.z]);
+        Ok(())
     })
 }
 
@@ -118,17 +119,13 @@ pub unsafe extern "C" fn strata_mesh(
 ) -> StrataStatus {
     call(|| {
         // SAFETY: the caller's contract above.
-        let session = unsafe { session(s) }?;
+        let (session, dst) = unsafe { (session(s)?, writable(out_mesh, "out_mesh")?) };
         let pos = ChunkPos::new(cx, cy, cz);
         let mesh = session
             .mesh(pos, lod, transition_faces)?
             .ok_or_else(|| not_held(pos))?;
-        let raw = Box::into_raw(Box::new(StrataMesh(mesh)));
-        // SAFETY: the caller's contract above.
-        unsafe { out(out_mesh, "out_mesh", raw) }.inspect_err(|_| {
-            // SAFETY: `raw` came from `Box::into_raw` just above.
-            drop(unsafe { Box::from_raw(raw) });
-        })
+        dst.write(Box::into_raw(Box::new(StrataMesh(mesh))));
+        Ok(())
     })
 }
 
@@ -144,7 +141,8 @@ pub unsafe extern "C" fn strata_mesh_data(
 ) -> StrataStatus {
     call(|| {
         // SAFETY: the caller's contract above.
-        let StrataMesh(m) = unsafe { shared(mesh, "mesh") }?;
+        let (StrataMesh(m), dst) =
+            unsafe { (shared(mesh, "mesh")?, writable(out_data, "out_data")?) };
         let data = StrataMeshData {
             positions: m.positions_flat().as_ptr(),
             normals: m.normals_flat().as_ptr(),
@@ -157,8 +155,8 @@ pub unsafe extern "C" fn strata_mesh_data(
             complete: m.complete,
             hash: m.hash,
         };
-        // SAFETY: the caller's contract above.
-        unsafe { out(out_data, "out_data", data) }
+        dst.write(data);
+        Ok(())
     })
 }
 

@@ -3,6 +3,7 @@
 //! each pointer's contract is the caller's, as the header states.
 
 use std::ffi::{c_char, CStr};
+use std::mem::MaybeUninit;
 
 use crate::status::Failure;
 
@@ -29,19 +30,20 @@ pub(crate) unsafe fn shared<'a, T>(p: *const T, what: &str) -> Result<&'a T, Fai
     unsafe { p.as_ref() }.ok_or_else(|| Failure::invalid(format!("{what} is null")))
 }
 
-/// Where to write a result.
+/// Where to write a result, checked for null before the call does any
+/// work; written with `MaybeUninit::write`, which drops no old value.
 ///
 /// # Safety
 /// `p` is null or points to writable memory for a `T`, not accessed
 /// otherwise during the call.
-pub(crate) unsafe fn out<T>(p: *mut T, what: &str, value: T) -> Result<(), Failure> {
-    if p.is_null() {
-        return Err(Failure::invalid(format!("{what} is null")));
-    }
-    // SAFETY: non-null and writable, as the caller promises; `write` does
-    // not read or drop the (possibly uninitialised) old value.
-    unsafe { p.write(value) };
-    Ok(())
+pub(crate) unsafe fn writable<'a, T>(
+    p: *mut T,
+    what: &str,
+) -> Result<&'a mut MaybeUninit<T>, Failure> {
+    // SAFETY: the caller promises writable memory for a `T` when non-null;
+    // `MaybeUninit<T>` has `T`'s layout and may hold anything.
+    unsafe { p.cast::<MaybeUninit<T>>().as_mut() }
+        .ok_or_else(|| Failure::invalid(format!("{what} is null")))
 }
 
 /// A byte slice.

@@ -9,7 +9,7 @@ use strata_client::protocol::{PositionRefusal, RejectReason, Start};
 use strata_client::terrain::Edit;
 use strata_client::{edits, Event, Session, SessionOptions};
 
-use crate::ptr::{bytes, items, out, shared, text};
+use crate::ptr::{bytes, items, shared, text, writable};
 use crate::status::{call, Failure, StrataStatus};
 use crate::types::*;
 
@@ -168,6 +168,8 @@ unsafe fn connect(
     (opts, cluster): (SessionOptions, bool),
     out_session: *mut *mut StrataSession,
 ) -> Result<(), Failure> {
+    // SAFETY: the caller's contract above.
+    let dst = unsafe { writable(out_session, "out_session") }?;
     let addr = resolve(address)?;
     let session = if cluster {
         Session::connect_cluster(addr, cert, token, opts)?
@@ -178,12 +180,8 @@ unsafe fn connect(
         session,
         last_changes: Mutex::default(),
     });
-    let raw = Box::into_raw(boxed);
-    // SAFETY: the caller's contract above.
-    unsafe { out(out_session, "out_session", raw) }.inspect_err(|_| {
-        // SAFETY: `raw` came from `Box::into_raw` just above.
-        drop(unsafe { Box::from_raw(raw) });
-    })
+    dst.write(Box::into_raw(boxed));
+    Ok(())
 }
 
 /// Closes the connection politely (waiting at most 2 s) and frees the
@@ -216,7 +214,7 @@ pub unsafe extern "C" fn strata_welcome(
 ) -> StrataStatus {
     call(|| {
         // SAFETY: the caller's contract above.
-        let w = unsafe { session(s) }?.welcome();
+        let (w, dst) = unsafe { (session(s)?.welcome(), writable(out_welcome, "out_welcome")?) };
         let mut welcome = StrataWelcome {
             session: w.session,
             world_seed: w.world_seed,
@@ -237,8 +235,8 @@ pub unsafe extern "C" fn strata_welcome(
                 (welcome.spawn_x, welcome.spawn_z, welcome.spawn_radius) = (x, z, radius);
             }
         }
-        // SAFETY: the caller's contract above.
-        unsafe { out(out_welcome, "out_welcome", welcome) }
+        dst.write(welcome);
+        Ok(())
     })
 }
 
@@ -362,10 +360,15 @@ pub unsafe extern "C" fn strata_edit(
 ) -> StrataStatus {
     call(|| {
         // SAFETY: the caller's contract above.
-        let (session, edit) = unsafe { (session(s)?, shared(edit, "edit")?) };
-        let ticket = session.edit(to_edit(edit)?)?;
-        // SAFETY: the caller's contract above.
-        unsafe { out(out_ticket, "out_ticket", ticket) }
+        let (session, edit, dst) = unsafe {
+            (
+                session(s)?,
+                shared(edit, "edit")?,
+                writable(out_ticket, "out_ticket")?,
+            )
+        };
+        dst.write(session.edit(to_edit(edit)?)?);
+        Ok(())
     })
 }
 
@@ -413,9 +416,13 @@ fn empty_event() -> StrataEvent {
     }
 }
 
-/// Copies `text` into the event's message, truncated and NUL-terminated.
+/// Copies `text` into the event's message, truncated on a character
+/// boundary and NUL-terminated.
 fn set_message(ev: &mut StrataEvent, text: &str) {
-    let n = text.len().min(STRATA_MESSAGE_LEN - 1);
+    let mut n = text.len().min(STRATA_MESSAGE_LEN - 1);
+    while !text.is_char_boundary(n) {
+        n -= 1;
+    }
     for (dst, &b) in ev.message.iter_mut().zip(&text.as_bytes()[..n]) {
         *dst = b as c_char;
     }
@@ -424,7 +431,8 @@ fn set_message(ev: &mut StrataEvent, text: &str) {
 
 /// Takes the next event into `*out_event`, or sets its kind to
 /// STRATA_EVENT_KIND_NONE when nothing happened. Never waits: call it every
-/// frame until it returns NONE.
+/// frame until it returns NONE. An EDIT_ACCEPTED event's `changes` stay
+/// valid until the next `strata_poll` on this session, from any thread.
 ///
 /// # Safety
 /// `s` is a live session; `out_event` is writable.
@@ -435,7 +443,7 @@ pub unsafe extern "C" fn strata_poll(
 ) -> StrataStatus {
     call(|| {
         // SAFETY: the caller's contract above.
-        let handle = unsafe { shared(s, "session") }?;
+        let (handle, dst) = unsafe { (shared(s, "session")?, writable(out_event, "out_event")?) };
         let mut ev = empty_event();
         let mut last = handle.last_changes.lock().expect("not poisoned");
         last.clear();
@@ -487,8 +495,8 @@ pub unsafe extern "C" fn strata_poll(
                 set_message(&mut ev, &message);
             }
         }
-        // SAFETY: the caller's contract above.
-        unsafe { out(out_event, "out_event", ev) }
+        dst.write(ev);
+        Ok(())
     })
 }
 
@@ -503,7 +511,7 @@ pub unsafe extern "C" fn strata_stats(
 ) -> StrataStatus {
     call(|| {
         // SAFETY: the caller's contract above.
-        let session = unsafe { session(s) }?;
+        let (session, dst) = unsafe { (session(s)?, writable(out_stats, "out_stats")?) };
         let r = session.stats();
         let stats = StrataStats {
             chunks_held: session.held_chunks() as u64,
@@ -516,7 +524,22 @@ pub unsafe extern "C" fn strata_stats(
             op_chunks: r.op_chunks,
             op_fallbacks: r.op_gaps + r.op_mismatches,
         };
-        // SAFETY: the caller's contract above.
-        unsafe { out(out_stats, "out_stats", stats) }
+        dst.write(stats);
+        Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::ffi::CStr;
+
+    #[test]
+    fn a_long_message_is_cut_on_a_char_boundary() {
+        let mut ev = empty_event();
+        set_message(&mut ev, &"é".repeat(200));
+        let bytes: Vec<u8> = ev.message.iter().map(|&c| c as u8).collect();
+        let message = CStr::from_bytes_until_nul(&bytes).expect("NUL-terminated");
+        assert_eq!(message.to_str(), Ok("é".repeat(127).as_str()));
+    }
 }

@@ -98,7 +98,9 @@ fn set_last_error(message: &str) {
     // A NUL inside the message would cut it short in C: drop those bytes.
     let bytes: Vec<u8> = message.bytes().filter(|&b| b != 0).collect();
     let c = CString::new(bytes).unwrap_or_default();
-    LAST_ERROR.with(|e| *e.borrow_mut() = c);
+    // Gone while the thread exits (a thread-local destructor calling in):
+    // the message is lost, never a panic.
+    let _ = LAST_ERROR.try_with(|e| *e.borrow_mut() = c);
 }
 
 /// Runs one entry point: its failure or panic becomes a status and this
@@ -130,7 +132,9 @@ pub(crate) fn call(f: impl FnOnce() -> Result<(), Failure>) -> StrataStatus {
 /// failing call on this thread.
 #[no_mangle]
 pub extern "C" fn strata_last_error_message() -> *const c_char {
-    LAST_ERROR.with(|e| e.borrow().as_ptr())
+    LAST_ERROR
+        .try_with(|e| e.borrow().as_ptr())
+        .unwrap_or(c"".as_ptr())
 }
 
 #[cfg(test)]
@@ -156,5 +160,33 @@ mod tests {
         assert_eq!(last(), "nonul");
         assert_eq!(call(|| Ok(())), StrataStatus::Ok);
         assert_eq!(last(), "nonul", "kept until the next failure");
+    }
+
+    #[test]
+    fn a_failing_call_from_a_thread_exit_destructor_does_not_abort() {
+        struct Guard(std::sync::mpsc::Sender<(StrataStatus, String)>);
+        impl Drop for Guard {
+            fn drop(&mut self) {
+                let status = call(|| Err(Failure::invalid("late")));
+                let _ = self.0.send((status, last()));
+            }
+        }
+        thread_local! {
+            static GUARD: RefCell<Option<Guard>> = const { RefCell::new(None) };
+        }
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            // Set before LAST_ERROR, so destroyed after it.
+            GUARD.with(|g| *g.borrow_mut() = Some(Guard(tx)));
+            assert_eq!(
+                call(|| Err(Failure::invalid("early"))),
+                StrataStatus::InvalidArgument
+            );
+        })
+        .join()
+        .expect("the thread exits cleanly");
+        let (status, message) = rx.recv().expect("the guard was dropped");
+        assert_eq!(status, StrataStatus::InvalidArgument);
+        assert_eq!(message, "", "no message once LAST_ERROR is gone");
     }
 }

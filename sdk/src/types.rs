@@ -91,7 +91,8 @@ pub struct StrataEvent {
     /// EDIT_ACCEPTED: the edit's global sequence number.
     pub seq: u64,
     /// EDIT_ACCEPTED: the chunk versions the edit made durable, owned by
-    /// the session and valid until the next `strata_poll` on it.
+    /// the session and valid until the next `strata_poll` on it from any
+    /// thread (poll from one thread if you read them).
     pub changes: *const StrataChunkVersion,
     pub changes_len: usize,
     /// EDIT_REJECTED: why.

@@ -8,4 +8,5 @@ mod boundary;
 mod cluster;
 mod examples;
 mod header;
+mod out_pointers;
 mod session;

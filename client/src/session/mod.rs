@@ -15,9 +15,11 @@ mod error;
 mod event;
 mod links;
 
+use std::future::Future;
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{mpsc as std_mpsc, Arc, Mutex};
+use std::time::Duration;
 
 use glam::{DVec3, IVec3};
 use strata_protocol::Welcome;
@@ -25,6 +27,7 @@ use strata_terrain::edit::StructureLibrary;
 use strata_terrain::{ChunkPos, Edit, CHUNK_VOLUME};
 use tokio::runtime::Runtime;
 use tokio::sync::mpsc;
+use tokio::task::JoinSet;
 
 use crate::client::{Client, ClientError, ClientOptions};
 use crate::cluster::ClusterClient;
@@ -343,12 +346,14 @@ impl Session {
         sum
     }
 
-    /// Closes the connections politely (waiting at most two seconds) and
-    /// stops the thread. Dropping a session does the same without waiting.
+    /// Closes the connections politely, all at once (waiting at most two
+    /// seconds in all), and stops the thread. Dropping a session does
+    /// the same without waiting.
     pub fn close(self) {
-        for c in self.links.all() {
-            self.runtime.block_on(c.shutdown());
-        }
+        let closes = self.links.all().into_iter().map(|c| async move {
+            c.shutdown().await;
+        });
+        self.runtime.block_on(all_within(CLOSE_WAIT, closes));
     }
 }
 
@@ -358,6 +363,18 @@ impl Drop for Session {
             c.disconnect();
         }
     }
+}
+
+/// The longest [`Session::close`] waits.
+const CLOSE_WAIT: Duration = Duration::from_secs(2);
+
+/// Runs `tasks` concurrently, abandoning those still running after `limit`.
+async fn all_within<F>(limit: Duration, tasks: impl IntoIterator<Item = F>)
+where
+    F: Future<Output = ()> + Send + 'static,
+{
+    let mut set: JoinSet<()> = tasks.into_iter().collect();
+    let _ = tokio::time::timeout(limit, async { while set.join_next().await.is_some() {} }).await;
 }
 
 fn runtime() -> Result<Runtime, SessionError> {
@@ -376,5 +393,34 @@ fn client_options(opts: SessionOptions) -> ClientOptions {
         track_changes: true,
         capabilities: opts.capabilities,
         ..ClientOptions::default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Instant;
+
+    #[test]
+    fn closes_run_at_once_under_one_bound() {
+        let rt = runtime().unwrap();
+        let start = Instant::now();
+        // Three closes of 1 s each: 1 s together, not 3 s.
+        let closes = (0..3).map(|_| tokio::time::sleep(Duration::from_secs(1)));
+        rt.block_on(all_within(CLOSE_WAIT, closes));
+        let together = start.elapsed();
+        assert!(
+            together >= Duration::from_secs(1) && together < CLOSE_WAIT,
+            "{together:?}"
+        );
+        // Closes that never end are abandoned at the bound.
+        let start = Instant::now();
+        let stuck = (0..3).map(|_| std::future::pending::<()>());
+        rt.block_on(all_within(CLOSE_WAIT, stuck));
+        let bounded = start.elapsed();
+        assert!(
+            bounded >= CLOSE_WAIT && bounded < CLOSE_WAIT + Duration::from_millis(500),
+            "{bounded:?}"
+        );
     }
 }
