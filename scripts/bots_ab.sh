@@ -3,7 +3,8 @@
 # Usage: scripts/bots_ab.sh A_BIN_DIR B_BIN_DIR PAIRS BOTS [DURATION] [strata-bots ARGS...]
 #        scripts/bots_ab.sh --help
 # Each directory holds strata-server, strata-admin and strata-bots (as
-# BENCH_BIN_DIR of bots_bench.sh). Runs PAIRS pairs, A then B in odd pairs
+# BENCH_BIN_DIR of bots_bench.sh); when only the server changed, give both
+# the same strata-bots (the bots share the box's cores with the server). Runs PAIRS pairs, A then B in odd pairs
 # and B then A in even ones, so that the box's drift (20-40 % within an
 # hour on shared machines) falls on both alike. Prints one line a run
 # (server CPU ms per accepted edit over the editing window, ack p50/p99,

@@ -15,6 +15,7 @@ use crate::common;
 
 use std::net::SocketAddr;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Duration;
 
 use common::*;
@@ -519,6 +520,9 @@ async fn a_batch_fenced_after_a_takeover_is_refused_and_the_node_goes_on() {
                 ..ClusterConfig::default()
             };
             let s = PgStore::open_node(&pg, 8, &other).unwrap();
+            // A node of the same world: the same generator.
+            let (g, _) = strata_server::app::world_generator(&test_config(Path::new("."))).unwrap();
+            s.attach_generator(Arc::new(g));
             assert_eq!(s.claim_regions(&[region]).unwrap().len(), 1);
             s
         })

@@ -1,8 +1,8 @@
 //! A chunk's first changes stored as deltas from its generated state: a
 //! store with the world's generator attached writes a "generated" record
-//! and the delta (sled), or the whole state (PostgreSQL); reads rebuild the
-//! chunk through the generator, a checkpoint writes it whole, and a store
-//! without the generator says what it needs instead of guessing.
+//! and the delta; reads rebuild the chunk through the generator, a
+//! checkpoint writes it whole, and a store without the generator says
+//! what it needs instead of guessing. Every test runs on every backend.
 
 use crate::store_common;
 
@@ -46,7 +46,6 @@ fn first_changes_are_stored_from_generated_and_a_checkpoint_writes_them_whole() 
 }
 
 fn first_changes_on(place: &Place) {
-    let sled = place.backend() == "sled";
     let g = flat(ids::STONE);
     let mut seq = Seq::default();
     let (a1, b1, a2) = (terrain_chunk(1), terrain_chunk(2), terrain_chunk(3));
@@ -55,9 +54,8 @@ fn first_changes_on(place: &Place) {
         let first = seq.generated_batch(&[vec![(A, a1.clone()), (B, b1.clone())]], &g);
         assert_eq!((first.chunks.len(), first.generated.len()), (2, 2));
         store.commit_batch(&first).unwrap();
-        // sled keeps the two deltas (after "generated" records); PostgreSQL
-        // writes the states whole.
-        assert_eq!(store.delta_count().unwrap(), if sled { 2 } else { 0 });
+        // Two deltas after "generated" records, no whole state.
+        assert_eq!(store.delta_count().unwrap(), 2);
         assert_eq!(store.chunk_count().unwrap(), 2);
         assert_reads(&*store, A, 1, &a1);
         assert_reads(&*store, B, 1, &b1);
@@ -70,35 +68,34 @@ fn first_changes_on(place: &Place) {
         assert_clean(&*store);
     }
     {
-        // Reopened without the generator: sled cannot rebuild the base,
-        // and says so; nothing is guessed.
+        // Reopened without the generator: the store cannot rebuild the
+        // base, and says so; nothing is guessed.
         let store = open(place, None);
-        if sled {
-            for pos in [A, B] {
-                match store.load_chunk(pos) {
-                    Err(StoreError::NeedsGenerator { pos: p }) => assert_eq!(p, pos),
-                    other => panic!("{pos:?}: {other:?}"),
-                }
+        for pos in [A, B] {
+            match store.load_chunk(pos) {
+                Err(StoreError::NeedsGenerator { pos: p }) => assert_eq!(p, pos),
+                other => panic!("{}: {pos:?}: {other:?}", place.backend()),
             }
-            assert!(matches!(
-                store.raw_chunk(B),
-                Err(StoreError::NeedsGenerator { .. })
-            ));
-            // What needs no chunk contents still works.
-            let listed: Vec<_> = store.modified_chunks().map(|r| r.unwrap()).collect();
-            assert_eq!(listed.len(), 2, "{listed:?}");
-            assert_clean(&*store);
-        } else {
-            assert_reads(&*store, B, 1, &b1);
         }
+        assert!(matches!(
+            store.raw_chunk(B),
+            Err(StoreError::NeedsGenerator { .. })
+        ));
+        assert!(matches!(
+            store.raw_chunks().find(|r| r.is_err()),
+            Some(Err(StoreError::NeedsGenerator { .. }))
+        ));
+        // What needs no chunk contents still works.
+        let listed: Vec<_> = store.modified_chunks().map(|r| r.unwrap()).collect();
+        assert_eq!(listed.len(), 2, "{listed:?}");
+        assert_clean(&*store);
     }
     {
         let store = open(place, Some(g));
         assert_reads(&*store, A, 2, &a2);
         assert_reads(&*store, B, 1, &b1);
         let folded = store.checkpoint(usize::MAX).unwrap();
-        // sled: both (A's later delta too); PostgreSQL: A's later delta.
-        assert_eq!(folded.chunks, if sled { 2 } else { 1 });
+        assert_eq!(folded.chunks, 2);
         assert_eq!(store.delta_count().unwrap(), 0);
     }
     // Folded: the records are whole, and no generator is needed.
@@ -163,9 +160,6 @@ fn a_delta_from_generated_must_match_a_chunk_written_whole() {
 #[test]
 fn another_generator_never_yields_a_wrong_chunk() {
     for place in places("generated_other_generator") {
-        if place.backend() != "sled" {
-            continue; // PostgreSQL stores first changes whole.
-        }
         let g = flat(ids::STONE);
         let mut seq = Seq::default();
         {
@@ -177,6 +171,10 @@ fn another_generator_never_yields_a_wrong_chunk() {
         // The delta's base hash is the stone ground's: dirt is refused.
         let store = open(&place, Some(flat(ids::DIRT)));
         let err = store.load_chunk(B).unwrap_err();
-        assert!(matches!(err, StoreError::Corrupt { .. }), "{err}");
+        assert!(
+            matches!(err, StoreError::Corrupt { .. }),
+            "{}: {err}",
+            place.backend()
+        );
     }
 }

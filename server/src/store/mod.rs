@@ -7,10 +7,10 @@
 //! generator's output at version 0.
 //!
 //! Writes happen once per sequencer tick through [`ChunkStore::commit_batch`]
-//! (group commit): log entries, the deltas of the changed chunks (on sled
-//! with a generator attached, a chunk's first changes too, after a
-//! "generated" record; elsewhere a chunk stored for the first time goes
-//! whole) and `last_seq` go in
+//! (group commit): log entries, the deltas of the changed chunks (with a
+//! generator attached, a chunk's first changes too, after a "generated"
+//! record; without one a chunk stored for the first time goes whole) and
+//! `last_seq` go in
 //! one atomic transaction, then one flush and the fsyncs sled leaves out
 //! (`disk_sync`) make them durable, and only then may the server
 //! acknowledge the edits. The call blocks on fsync, so the async

@@ -83,6 +83,17 @@ pub fn decode_chunk_value(
     generator: Option<&dyn ChunkGenerator>,
 ) -> Result<(u64, Chunk), StoreError> {
     let (version, body) = split_chunk_value(pos, value)?;
+    Ok((version, decode_record(pos, version, body, generator)?))
+}
+
+/// A chunk record's state from its `version` and body (see
+/// [`decode_chunk_value`]).
+pub fn decode_record(
+    pos: ChunkPos,
+    version: u64,
+    body: &[u8],
+    generator: Option<&dyn ChunkGenerator>,
+) -> Result<Chunk, StoreError> {
     if is_generated(body) {
         if version != 0 {
             return Err(StoreError::corrupt(
@@ -91,13 +102,12 @@ pub fn decode_chunk_value(
             ));
         }
         let g = generator.ok_or(StoreError::NeedsGenerator { pos })?;
-        return Ok((0, g.generate(pos)));
+        return Ok(g.generate(pos));
     }
-    let chunk = decode_chunk(body).map_err(|source| StoreError::Codec {
+    decode_chunk(body).map_err(|source| StoreError::Codec {
         key: show_pos(pos),
         source,
-    })?;
-    Ok((version, chunk))
+    })
 }
 
 pub fn encode_log_entry(e: &LogEntry) -> Result<Vec<u8>, StoreError> {

@@ -10,8 +10,9 @@ use strata_terrain::{Chunk, ChunkPos, Edit};
 /// to [`crate::store::keys`] or to a record's encoding. 2 added the `deltas`
 /// tree; 3 lets a delta span several versions (a tick stores one per
 /// chunk) and writes the sled log as one page a commit (`log_pages.rs`);
-/// 4 lets a chunk record say "generated" (version 0), with the deltas of a
-/// chunk's first changes after it (`CommitBatch::generated`).
+/// 4 lets a chunk record (sled) or row (PostgreSQL) say "generated"
+/// (version 0), with the deltas of a chunk's first changes after it
+/// (`CommitBatch::generated`).
 /// Older stores are upgraded when opened: their records stay valid.
 pub const STORE_FORMAT_VERSION: u32 = 4;
 

@@ -16,6 +16,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use strata_terrain::chunk_codec::encode_chunk;
+use strata_terrain::delta::ChunkDelta;
 use strata_terrain::ChunkPos;
 
 use super::fence::{self, Fence};
@@ -24,7 +25,7 @@ use super::{to_sql, PgStore};
 use crate::sequencer::regions::RegionId;
 use crate::store::batch;
 use crate::store::keys::show_pos;
-use crate::store::record::{encode_delta, encode_log_record};
+use crate::store::record::{encode_delta, encode_log_record, GENERATED_BODY};
 use crate::store::types::{CommitBatch, CommitStats};
 use crate::store::{StoreError, PARALLEL_ENCODE_CHUNKS};
 use tokio_postgres::error::SqlState;
@@ -116,13 +117,34 @@ impl PgStore {
             cols.seqs.push(to_sql(e.seq, "seq")?);
             cols.entries.push(encode_log_record(e)?);
         }
-        // zstd dominates a big batch's cost; chunks compress independently.
-        let bodies: Vec<Vec<u8>> = if b.chunks.len() >= PARALLEL_ENCODE_CHUNKS {
-            b.chunks.par_iter().map(|c| encode_chunk(&c.2)).collect()
-        } else {
-            b.chunks.iter().map(|c| encode_chunk(&c.2)).collect()
+        // With a generator, a new chunk is a "generated" record and the
+        // delta of its first changes; its whole state waits for a fold.
+        let from_generated: BTreeMap<ChunkPos, &ChunkDelta> = match self.generator() {
+            Some(_) => b.generated.iter().map(|d| (d.pos, d)).collect(),
+            None => BTreeMap::new(),
         };
-        for ((pos, version, _), body) in b.chunks.iter().zip(bodies) {
+        for d in from_generated.values() {
+            cols.chunks.push(self, d.pos, 0, GENERATED_BODY.to_vec());
+            cols.starts.insert(d.pos, 0);
+            cols.deltas.push(
+                self,
+                d.pos,
+                to_sql(d.to_version, "chunk version")?,
+                encode_delta(d)?,
+            );
+        }
+        let whole: Vec<_> = b
+            .chunks
+            .iter()
+            .filter(|c| !from_generated.contains_key(&c.0))
+            .collect();
+        // zstd dominates a big batch's cost; chunks compress independently.
+        let bodies: Vec<Vec<u8>> = if whole.len() >= PARALLEL_ENCODE_CHUNKS {
+            whole.par_iter().map(|c| encode_chunk(&c.2)).collect()
+        } else {
+            whole.iter().map(|c| encode_chunk(&c.2)).collect()
+        };
+        for ((pos, version, _), body) in whole.into_iter().zip(bodies) {
             cols.chunks
                 .push(self, *pos, to_sql(*version, "chunk version")?, body);
         }
@@ -219,6 +241,8 @@ async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<()
     for (pos, &lowest) in &cols.lowest {
         let head = heads.get(pos).copied();
         match cols.starts.get(pos) {
+            // Stored from generated: nothing may be stored yet.
+            Some(&0) if head.is_none() => {}
             Some(&from) if head != Some(from) => {
                 return Err(StoreError::batch(format!(
                     "{} is not stored at version {from}, the batch's delta starts there",

@@ -9,6 +9,7 @@
 //! carries it) except the pass's last, which makes the pass durable.
 
 use strata_terrain::chunk_codec::encode_chunk;
+use strata_terrain::world::ChunkGenerator;
 use strata_terrain::ChunkPos;
 
 use super::pool::Conn;
@@ -54,7 +55,7 @@ impl PgStore {
             let (deltas, bytes) =
                 self.pool
                     .run_tx("folding a chunk", begin, async |c: &mut Conn| {
-                        fold_one(c, pos).await
+                        fold_one(c, pos, self.generator()).await
                     })?;
             if deltas > 0 {
                 stats.chunks += 1;
@@ -67,7 +68,11 @@ impl PgStore {
 }
 
 /// Folds `pos`'s deltas into its record: (deltas removed, bytes written).
-async fn fold_one(c: &mut Conn, pos: ChunkPos) -> Result<(u64, u64), StoreError> {
+async fn fold_one(
+    c: &mut Conn,
+    pos: ChunkPos,
+    generator: Option<&dyn ChunkGenerator>,
+) -> Result<(u64, u64), StoreError> {
     let Some(record) = c
         .query_opt(
             "SELECT version, body FROM chunks WHERE x = $1 AND y = $2 AND z = $3 FOR UPDATE",
@@ -103,7 +108,7 @@ async fn fold_one(c: &mut Conn, pos: ChunkPos) -> Result<(u64, u64), StoreError>
         body: record.get(1),
         deltas,
     }
-    .replayed(pos)?;
+    .replayed(pos, generator)?;
     let body = encode_chunk(&state);
     let head_sql = super::to_sql(head, "chunk version")?;
     c.execute(

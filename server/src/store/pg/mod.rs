@@ -75,6 +75,9 @@ pub struct PgStore {
     leases: Option<std::sync::Arc<NodeLeases>>,
     /// Region side in chunks, as the `layout` row records it.
     region_chunks: u32,
+    /// The world's generator, once attached: new chunks are then stored
+    /// as a "generated" record and deltas (`CommitBatch::generated`).
+    generator: std::sync::OnceLock<std::sync::Arc<dyn strata_terrain::world::ChunkGenerator>>,
 }
 
 impl PgStore {
@@ -126,7 +129,13 @@ impl PgStore {
             pool: std::sync::Arc::new(pool),
             leases: None,
             region_chunks: region_chunks.max(1),
+            generator: std::sync::OnceLock::new(),
         })
+    }
+
+    /// The attached generator, which "generated" records need.
+    pub(super) fn generator(&self) -> Option<&dyn strata_terrain::world::ChunkGenerator> {
+        self.generator.get().map(|g| g.as_ref())
     }
 
     /// The region a chunk row belongs to.
@@ -360,6 +369,14 @@ impl ChunkStore for PgStore {
 
     fn check(&self) -> Result<CheckReport, StoreError> {
         self.check_with_progress(&|| {})
+    }
+
+    fn attach_generator(
+        &self,
+        generator: std::sync::Arc<dyn strata_terrain::world::ChunkGenerator>,
+    ) {
+        // The first one stays: the world has one generator.
+        let _ = self.generator.set(generator);
     }
 
     fn close(&self) -> Result<(), StoreError> {

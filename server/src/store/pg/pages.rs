@@ -11,7 +11,7 @@ use strata_terrain::ChunkPos;
 use super::pool::Conn;
 use super::{from_sql, PgStore, PAGE_ROWS};
 use crate::store::keys::show_pos;
-use crate::store::record::decode_log_entry;
+use crate::store::record::{decode_log_entry, is_generated};
 use crate::store::types::{LogEntry, RawChunk};
 use crate::store::{StoreError, StoreIter};
 
@@ -125,8 +125,10 @@ impl PgStore {
             let mut items = Vec::with_capacity(rows.len());
             for r in &rows {
                 let pos = ChunkPos::new(r.get(0), r.get(1), r.get(2));
-                // Deltas follow the record: read the two together again.
-                let item = if r.get::<_, bool>(5) {
+                // Deltas follow the record (a "generated" one has some):
+                // read the two together again.
+                let body: Vec<u8> = r.get(4);
+                let item = if r.get::<_, bool>(5) || is_generated(&body) {
                     let (version, chunk) = self.latest(pos)?.ok_or_else(|| {
                         StoreError::corrupt("chunk record vanished", show_pos(pos))
                     })?;
@@ -139,7 +141,7 @@ impl PgStore {
                     RawChunk {
                         pos,
                         version: from_sql(r.get(3), "chunk version", show_pos(pos))?,
-                        encoded: r.get(4),
+                        encoded: body,
                     }
                 };
                 items.push(item);

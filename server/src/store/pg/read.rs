@@ -2,8 +2,9 @@
 //! (one snapshot, so a concurrent fold can never split them), replayed
 //! with the sled store's hash-checked `replay`.
 
-use strata_terrain::chunk_codec::{decode_chunk, encode_chunk};
+use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::delta::ChunkDelta;
+use strata_terrain::world::ChunkGenerator;
 use strata_terrain::{Chunk, ChunkPos};
 
 use super::pool::Conn;
@@ -11,7 +12,7 @@ use super::{from_sql, PgStore};
 use crate::sequencer::regions::RegionId;
 use crate::store::deltas::replay;
 use crate::store::keys::show_pos;
-use crate::store::record::decode_delta;
+use crate::store::record::{decode_delta, decode_record, is_generated};
 use crate::store::types::RawChunk;
 use crate::store::StoreError;
 
@@ -63,7 +64,9 @@ impl PgStore {
 
     /// `pos`'s newest durable state: its record with the deltas past it.
     pub(super) fn latest(&self, pos: ChunkPos) -> Result<Option<(u64, Chunk)>, StoreError> {
-        self.stored(pos)?.map(|s| s.replayed(pos)).transpose()
+        self.stored(pos)?
+            .map(|s| s.replayed(pos, self.generator()))
+            .transpose()
     }
 
     /// `pos`'s newest durable state as codec bytes: the record's own
@@ -72,14 +75,14 @@ impl PgStore {
         let Some(s) = self.stored(pos)? else {
             return Ok(None);
         };
-        if s.deltas.is_empty() {
+        if s.deltas.is_empty() && !is_generated(&s.body) {
             return Ok(Some(RawChunk {
                 pos,
                 version: s.version,
                 encoded: s.body,
             }));
         }
-        let (version, chunk) = s.replayed(pos)?;
+        let (version, chunk) = s.replayed(pos, self.generator())?;
         Ok(Some(RawChunk {
             pos,
             version,
@@ -89,12 +92,14 @@ impl PgStore {
 }
 
 impl Stored {
-    /// The record decoded and the deltas applied, each hash-checked.
-    pub fn replayed(self, pos: ChunkPos) -> Result<(u64, Chunk), StoreError> {
-        let chunk = decode_chunk(&self.body).map_err(|source| StoreError::Codec {
-            key: show_pos(pos),
-            source,
-        })?;
+    /// The record decoded (a "generated" one through `generator`) and the
+    /// deltas applied, each hash-checked.
+    pub fn replayed(
+        self,
+        pos: ChunkPos,
+        generator: Option<&dyn ChunkGenerator>,
+    ) -> Result<(u64, Chunk), StoreError> {
+        let chunk = decode_record(pos, self.version, &self.body, generator)?;
         replay(pos, self.version, chunk, &self.deltas)?.map_err(|_| {
             StoreError::corrupt(
                 "delta chain does not start at the chunk record's version",
