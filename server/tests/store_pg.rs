@@ -5,11 +5,15 @@
 
 use crate::store_common;
 
+use std::sync::Arc;
 use store_common::{pg_store, sql, terrain_chunk, Seq};
 use strata_server::store::pg::{PgConfig, MIGRATIONS};
 use strata_server::store::{ChunkStore, PgStore, StoreError, WorldMeta, STORE_FORMAT_VERSION};
+
 use strata_terrain::edit::{Fixed, FixedVec3};
-use strata_terrain::ChunkPos;
+use strata_terrain::material::ids;
+use strata_terrain::world::FlatGenerator;
+use strata_terrain::{ChunkPos, Voxel};
 use strata_tests::postgres::database;
 
 #[test]
@@ -62,6 +66,40 @@ fn worlds_of_store_formats_2_and_3_are_upgraded_by_their_migrations() {
         assert_eq!(meta.format_version, STORE_FORMAT_VERSION);
     }
     assert_eq!(STORE_FORMAT_VERSION, 4);
+}
+
+#[test]
+fn a_database_migrated_before_generated_rows_takes_them_after_migration_7() {
+    let Some(db) = database("generated_rows_migration") else {
+        return;
+    };
+    let store = pg_store(&db);
+    store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
+    drop(store);
+    // As a build with migrations 1-6 left it: the first checks on versions.
+    sql(
+        &db,
+        "ALTER TABLE chunks DROP CONSTRAINT chunks_version_check; \
+         ALTER TABLE chunks ADD CONSTRAINT chunks_version_check CHECK (version > 0); \
+         ALTER TABLE chunk_deltas DROP CONSTRAINT chunk_deltas_to_version_check; \
+         ALTER TABLE chunk_deltas ADD CONSTRAINT chunk_deltas_to_version_check \
+             CHECK (to_version > 1); \
+         DELETE FROM schema_migrations WHERE version = 7",
+    );
+    let store = pg_store(&db);
+    let g = FlatGenerator {
+        ground: Voxel::solid(ids::STONE),
+    };
+    store.attach_generator(Arc::new(g));
+    let pos = ChunkPos::new(3, -1, 2);
+    let state = terrain_chunk(4);
+    let mut seq = Seq::default();
+    store
+        .commit_batch(&seq.generated_batch(&[vec![(pos, state.clone())]], &g))
+        .unwrap();
+    assert_eq!(store.delta_count().unwrap(), 1, "stored from generated");
+    let loaded = store.load_chunk(pos).unwrap().unwrap();
+    assert_eq!((loaded.version, loaded.chunk), (1, state));
 }
 
 #[test]

@@ -42,6 +42,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0006_generated_records",
         include_str!("../../../migrations/0006_generated_records.sql"),
     ),
+    (
+        7,
+        "0007_generated_rows",
+        include_str!("../../../migrations/0007_generated_rows.sql"),
+    ),
 ];
 
 /// Key of the advisory lock migrations take ("strata" in ASCII).
