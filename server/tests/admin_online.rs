@@ -1,6 +1,7 @@
 //! Online admin protocol: a consistent snapshot under concurrent edits,
-//! restored into a new data dir that a server then serves exactly; and
-//! player tokens that can reach no admin request.
+//! restored into a new data dir that a server then serves exactly; online
+//! snapshots refused on a cluster node; and player tokens that can reach
+//! no admin request.
 
 use crate::common;
 use crate::snapshot_common;
@@ -21,8 +22,10 @@ use strata_server::admin::remote::AdminClient;
 use strata_server::admin::snapshot_cmd::{self, RestoreArgs};
 use strata_server::app;
 use strata_server::client_tls::client_config_pinned_with_alpn;
+use strata_server::cluster::ClusterConfig;
+use strata_server::engine::snapshot::SnapshotRefused;
 use strata_server::snapshot::verify;
-use strata_server::store::{ChunkStore, SledStore};
+use strata_server::store::{ChunkStore, SledStore, StoreBackend};
 use strata_terrain::hash::chunk_hash;
 use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
 
@@ -150,6 +153,47 @@ async fn online_snapshot_under_load_restores_the_world_at_its_seq() {
         server.shutdown().await.unwrap();
         let report = SledStore::open(&dd).unwrap().check().unwrap();
         assert!(report.is_ok(), "{:?}", report.issues);
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cluster_node_refuses_online_snapshots() {
+    let Some(db) = strata_tests::postgres::database("a_cluster_node_refuses_online_snapshots")
+    else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(tmp.path());
+        cfg.store.backend = StoreBackend::Postgres;
+        cfg.store.postgres.url = db.url();
+        cfg.cluster = Some(ClusterConfig {
+            node_id: "a".into(),
+            ..ClusterConfig::default()
+        });
+        let server = app::start(cfg).await.expect("node starts");
+        let mut admin = AdminClient::connect(
+            server.addr,
+            &server.cert_der,
+            &token(&server, "root", Role::Admin),
+        )
+        .await
+        .unwrap();
+        let file = tmp.path().join("world.snap");
+        let err = snapshot_cmd::create_online(&mut admin, &file, 0)
+            .await
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(&SnapshotRefused::Clustered.to_string()),
+            "{err}"
+        );
+        assert!(err.contains("offline snapshot"), "{err}");
+        assert!(!file.exists() && !tmp.path().join("world.snap.partial").exists());
+        admin.close().await;
+        server.shutdown().await.unwrap();
     })
     .await
     .expect("test finished in time");

@@ -2,28 +2,15 @@
 //! and position (library and CLI), restore refuses it, truncation is
 //! caught, and diff lists exactly the chunks that differ.
 
+use crate::snapshot_common::header;
+
 use std::process::Command;
 
-use strata_protocol::admin::ZoneSpec;
 use strata_server::snapshot::diff::diff;
-use strata_server::snapshot::{verify, SnapshotHeader, SnapshotWriter};
+use strata_server::snapshot::{verify, SnapshotWriter};
 use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::gen::{GenParams, Generator};
-use strata_terrain::{ChunkGenerator, ChunkPos, VoxelPos};
-
-fn header(seq: u64) -> SnapshotHeader {
-    SnapshotHeader {
-        seed: GenParams::default().seed,
-        generator_version: strata_terrain::gen::GENERATOR_VERSION,
-        seq,
-        generator_params: toml::to_string(&GenParams::default()).unwrap(),
-        zones: vec![ZoneSpec {
-            name: "z".into(),
-            min: VoxelPos::new(0, 0, 0),
-            max: VoxelPos::new(1, 1, 1),
-        }],
-    }
-}
+use strata_terrain::{ChunkGenerator, ChunkPos};
 
 /// Writes real generated chunks (dense ones, near the surface) at the given versions.
 fn write(path: &std::path::Path, seq: u64, chunks: &[(ChunkPos, u64)]) -> Vec<u64> {

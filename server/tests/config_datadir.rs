@@ -226,7 +226,7 @@ fn only_missing_pieces_are_generated() {
 fn data_dir_with_world(root: &std::path::Path) {
     let (dir, _) = DataDir::open_or_init(root, &[]).unwrap();
     let store = SledStore::open(&dir.world_db_path()).unwrap();
-    store.init_meta(&WorldMeta::new(7, 1, "params")).unwrap();
+    store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
 }
 
 fn files(root: &std::path::Path) -> Vec<std::ffi::OsString> {

@@ -46,6 +46,7 @@ mod net_transport;
 mod sequencer_apply;
 mod sequencer_interest;
 mod sequencer_regions;
+mod snapshot_restore;
 mod store_batch;
 mod store_bench;
 mod store_check;

@@ -290,15 +290,92 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
     }
     let (dd, _) = DataDir::open_or_init(&args.data_dir, &[])
         .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
-    let db = dd.world_db_path();
-    if db.exists() {
-        std::fs::remove_dir_all(&db).with_context(|| format!("removing {}", db.display()))?;
-    }
-    let store = SledStore::open(&db)?;
-    let total = report.chunks;
-    let bar = progress(Some(total), "restore {bar:40} {pos}/{len} chunks {eta}");
-    let n = import(&args.file, &store, ZONES_BLOB, |n| bar.set_position(n))?;
+    let bar = progress(
+        Some(report.chunks),
+        "restore {bar:40} {pos}/{len} chunks {eta}",
+    );
+    let n = replace_world(&dd.world_db_path(), |store| {
+        Ok(import(&args.file, store, ZONES_BLOB, |n| {
+            bar.set_position(n)
+        })?)
+    })?;
     bar.finish_and_clear();
+    Ok(n)
+}
+
+/// Suffix of the store a restore fills before it replaces the world.
+pub const RESTORING_SUFFIX: &str = ".restoring";
+/// Suffix of the replaced world while the new one moves into place.
+pub const REPLACED_SUFFIX: &str = ".replaced";
+
+fn with_suffix(path: &Path, suffix: &str) -> PathBuf {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(suffix);
+    path.with_file_name(name)
+}
+
+fn remove_dir_if_present(dir: &Path) -> anyhow::Result<()> {
+    match std::fs::remove_dir_all(dir) {
+        Ok(()) => Ok(crate::durable::sync_parent(dir)?),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(e).with_context(|| format!("removing {}", dir.display())),
+    }
+}
+
+/// fsyncs every file and directory under `dir`.
+fn sync_tree(dir: &Path) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(dir)? {
+        let entry = entry?;
+        if entry.file_type()?.is_dir() {
+            sync_tree(&entry.path())?;
+        } else {
+            File::open(entry.path())?.sync_all()?;
+        }
+    }
+    crate::durable::sync_dir(dir)
+}
+
+/// Fills a new sled store beside `db` (`world.sled.restoring`) with
+/// `fill`, makes it durable, then moves it into `db`'s place; the old
+/// world is removed only once the new one is there. A failure before the
+/// swap leaves `db` as it was. Returns what `fill` returned.
+pub fn replace_world(
+    db: &Path,
+    fill: impl FnOnce(&SledStore) -> anyhow::Result<u64>,
+) -> anyhow::Result<u64> {
+    let staging = with_suffix(db, RESTORING_SUFFIX);
+    let old = with_suffix(db, REPLACED_SUFFIX);
+    // A swap cut short between its renames: the old world goes back first.
+    if !db.exists() && old.exists() {
+        crate::durable::rename(&old, db)
+            .with_context(|| format!("moving {} back", old.display()))?;
+    }
+    remove_dir_if_present(&staging)?;
+    remove_dir_if_present(&old)?;
+    let filled = SledStore::open(&staging)
+        .map_err(anyhow::Error::from)
+        .and_then(|store| {
+            let n = fill(&store)?;
+            drop(store);
+            sync_tree(&staging)?;
+            Ok(n)
+        });
+    let n = match filled {
+        Ok(n) => n,
+        Err(e) => {
+            let _ = remove_dir_if_present(&staging);
+            return Err(e.context(format!("{} is unchanged", db.display())));
+        }
+    };
+    if db.exists() {
+        crate::durable::rename(db, &old)
+            .with_context(|| format!("moving {} aside", db.display()))?;
+    }
+    if let Err(e) = crate::durable::rename(&staging, db) {
+        let _ = crate::durable::rename(&old, db);
+        return Err(e).with_context(|| format!("moving the restored world into {}", db.display()));
+    }
+    remove_dir_if_present(&old)?;
     Ok(n)
 }
 

@@ -26,6 +26,20 @@ pub const MAX_SNAPSHOT_PREIMAGES: usize = 1 << 20;
 /// Snapshots that may run at once.
 pub const MAX_CONCURRENT_SNAPSHOTS: usize = 2;
 
+/// Why the engine refuses to begin an online snapshot.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SnapshotRefused {
+    /// Pre-images cover only this node's commits, while the walk reads a
+    /// store other nodes also write: the copy would not be consistent.
+    #[error(
+        "online snapshots are not consistent on a cluster node; stop every node and take an \
+         offline snapshot (`strata-admin snapshot create --data-dir DIR` with the store's config)"
+    )]
+    Clustered,
+    #[error("{MAX_CONCURRENT_SNAPSHOTS} snapshots are already running")]
+    TooMany,
+}
+
 #[derive(Debug, Default)]
 struct State {
     map: HashMap<ChunkPos, Option<RawChunk>>,
@@ -114,13 +128,15 @@ impl PreImages {
 
 impl Engine {
     /// Registers a snapshot at the current seq (call between ticks).
+    /// Refused on a cluster node ([`SnapshotRefused::Clustered`]).
     pub(super) fn begin_snapshot(&mut self, limit: usize) -> Result<Arc<PreImages>, String> {
+        if self.store.clustered() {
+            return Err(SnapshotRefused::Clustered.to_string());
+        }
         self.snapshots_running
             .retain(|s| Arc::strong_count(s) > 1 && s.aborted().is_none());
         if self.snapshots_running.len() >= MAX_CONCURRENT_SNAPSHOTS {
-            return Err(format!(
-                "{MAX_CONCURRENT_SNAPSHOTS} snapshots are already running"
-            ));
+            return Err(SnapshotRefused::TooMany.to_string());
         }
         let limit = match limit {
             0 => self.cfg.snapshot_preimages,

@@ -16,8 +16,11 @@
 //! most once, every version above 0.
 
 use strata_protocol::admin::ZoneSpec;
+use strata_terrain::gen::{GenParams, GENERATOR_VERSION};
 
-use super::error::SnapshotError;
+use super::error::{HeaderProblem, SnapshotError};
+use crate::store::MAX_GENERATOR_PARAMS_BYTES;
+use crate::validate::zones::{check_new, Zone};
 
 /// First bytes of every snapshot file.
 pub const SNAPSHOT_MAGIC: [u8; 8] = *b"STRATASN";
@@ -77,6 +80,48 @@ impl SnapshotHeader {
         let sum = twox_hash::XxHash3_64::oneshot(&out);
         out.extend_from_slice(&sum.to_le_bytes());
         Ok(out)
+    }
+
+    /// Refuses a world this build cannot serve: another generator version,
+    /// parameters too long or invalid, or zones `ZoneAdd` would refuse.
+    pub fn check_usable(&self) -> Result<(), HeaderProblem> {
+        if self.generator_version != GENERATOR_VERSION {
+            return Err(HeaderProblem::GeneratorVersion {
+                found: self.generator_version,
+                supported: GENERATOR_VERSION,
+            });
+        }
+        let len = self.generator_params.len();
+        if len > MAX_GENERATOR_PARAMS_BYTES {
+            return Err(HeaderProblem::ParamsTooLong { len });
+        }
+        // A heightmap world's params end in a TOML comment: they parse too.
+        let params: GenParams = toml::from_str(&self.generator_params)
+            .map_err(|e| HeaderProblem::Params(e.message().to_string()))?;
+        params
+            .validate()
+            .map_err(|e| HeaderProblem::Params(e.to_string()))?;
+        self.zones()?;
+        Ok(())
+    }
+
+    /// The zones, each checked as `ZoneAdd` checks a new one.
+    pub fn zones(&self) -> Result<Vec<Zone>, HeaderProblem> {
+        let mut zones = Vec::with_capacity(self.zones.len());
+        for (index, z) in self.zones.iter().enumerate() {
+            let zone = Zone {
+                name: z.name.clone(),
+                min: z.min,
+                max: z.max,
+            };
+            check_new(&zones, &zone).map_err(|source| HeaderProblem::Zone {
+                index,
+                name: z.name.clone(),
+                source,
+            })?;
+            zones.push(zone);
+        }
+        Ok(zones)
     }
 
     /// Parses a header body (after its checksum was checked).

@@ -13,7 +13,7 @@ pub mod reader;
 pub mod restore;
 pub mod writer;
 
-pub use error::SnapshotError;
+pub use error::{HeaderProblem, SnapshotError};
 pub use format::{SnapshotHeader, SNAPSHOT_FORMAT_VERSION, SNAPSHOT_MAGIC};
 pub use reader::{verify, SnapshotChunk, SnapshotReader, VerifyIssue, VerifyReport};
 pub use writer::SnapshotWriter;

@@ -218,6 +218,11 @@ impl<R: Read> SnapshotReader<R> {
             return Err(fail("out of order or repeated chunk position".into()));
         }
         self.last = Some(pos);
+        if self.header.seq == 0 {
+            return Err(fail(
+                "a snapshot at seq 0 holds no modified chunk (its seq is wrong)".into(),
+            ));
+        }
         rest.truncate(len);
         Ok(Some(SnapshotChunk {
             index,
@@ -292,7 +297,8 @@ impl VerifyReport {
     }
 }
 
-/// Checks every checksum and decodes every chunk. `progress` is called
+/// Checks every checksum, decodes every chunk, and checks that this build
+/// can serve the header's world ([`SnapshotHeader::check_usable`]). `progress` is called
 /// with the byte offset reached after each record.
 pub fn verify(path: &Path, mut progress: impl FnMut(u64)) -> Result<VerifyReport, SnapshotError> {
     let mut report = VerifyReport {
@@ -310,6 +316,9 @@ pub fn verify(path: &Path, mut progress: impl FnMut(u64)) -> Result<VerifyReport
         }
     };
     report.header = Some(reader.header().clone());
+    if let Err(e) = reader.header().check_usable() {
+        report.issue(SnapshotError::from(e));
+    }
     loop {
         match reader.next_chunk() {
             Ok(Some(c)) => {

@@ -7,7 +7,6 @@ use strata_terrain::chunk_codec::decode_chunk;
 use super::error::SnapshotError;
 use super::reader::SnapshotReader;
 use crate::store::{ImportTarget, RawChunk, StoreError, WorldMeta};
-use crate::validate::zones::Zone;
 
 /// Why a restore failed.
 #[derive(Debug, thiserror::Error)]
@@ -35,15 +34,8 @@ pub fn import(
 ) -> Result<u64, RestoreError> {
     let mut reader = SnapshotReader::open(snapshot)?;
     let h = reader.header().clone();
-    let zones: Vec<Zone> = h
-        .zones
-        .iter()
-        .map(|z| Zone {
-            name: z.name.clone(),
-            min: z.min,
-            max: z.max,
-        })
-        .collect();
+    h.check_usable().map_err(SnapshotError::from)?;
+    let zones = h.zones().map_err(SnapshotError::from)?;
     let zones = serde_json::to_vec(&zones).map_err(|e| RestoreError::Zones(e.to_string()))?;
     let mut meta = WorldMeta::new(h.seed, h.generator_version, h.generator_params.clone());
     meta.last_seq = h.seq;

@@ -199,6 +199,21 @@ impl ChunkStore for SledStore {
             compare_meta(&stored, meta)?;
             return Ok(stored);
         }
+        // Records without metadata: a restore cut short, not a new world.
+        for (name, tree) in [
+            ("chunks", &self.chunks),
+            ("deltas", &self.deltas),
+            ("log", &self.log),
+        ] {
+            if !tree.is_empty() {
+                return Err(StoreError::InvalidMeta {
+                    reason: format!(
+                        "the store has no world metadata but its {name} tree is not empty \
+                         (an interrupted restore?); restore it again with --force"
+                    ),
+                });
+            }
+        }
         let record = encode_meta(meta)?;
         // Both keys in one batch: a crash leaves both or neither.
         let mut b = sled::Batch::default();

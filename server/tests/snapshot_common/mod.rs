@@ -1,20 +1,21 @@
-//! Helpers shared by the online snapshot tests: standing spots on the
-//! generated ground, the world at a seq rebuilt from the edit log, and a
-//! snapshot file checked against it.
+//! Helpers shared by the snapshot tests: standing spots on the generated
+//! ground, the world at a seq rebuilt from the edit log, a snapshot file
+//! checked against it, and snapshot files written from generated chunks.
 #![allow(dead_code)]
 
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
 
+use strata_protocol::admin::ZoneSpec;
 use strata_server::datadir::DataDir;
-use strata_server::snapshot::SnapshotReader;
+use strata_server::snapshot::{SnapshotHeader, SnapshotReader, SnapshotWriter};
 use strata_server::store::{ChunkStore, SledStore};
-use strata_terrain::chunk_codec::decode_chunk;
+use strata_terrain::chunk_codec::{decode_chunk, encode_chunk};
 use strata_terrain::edit::{EditContext, StructureLibrary};
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::hash::chunk_hash;
-use strata_terrain::{ChunkPos, FixedVec3, MaterialTable, VoxelPos, World};
+use strata_terrain::{ChunkGenerator, ChunkPos, FixedVec3, MaterialTable, VoxelPos, World};
 
 /// A ground voxel at (x, z) and the feet position standing on it.
 pub fn spot(x: i32, z: i32) -> (FixedVec3, VoxelPos) {
@@ -76,4 +77,31 @@ pub fn assert_snapshot_is_log_at(
     }
     assert_eq!(in_snapshot, versions, "chunk set and versions at seq {seq}");
     (store, world, in_snapshot)
+}
+
+/// The header of a default-generator world at `seq` with one zone.
+pub fn header(seq: u64) -> SnapshotHeader {
+    SnapshotHeader {
+        seed: GenParams::default().seed,
+        generator_version: strata_terrain::gen::GENERATOR_VERSION,
+        seq,
+        generator_params: toml::to_string(&GenParams::default()).unwrap(),
+        zones: vec![ZoneSpec {
+            name: "z".into(),
+            min: VoxelPos::new(0, 0, 0),
+            max: VoxelPos::new(1, 1, 1),
+        }],
+    }
+}
+
+/// Writes a snapshot of `header` holding generated chunks at the given
+/// versions (ascending positions).
+pub fn write_snapshot(path: &Path, header: &SnapshotHeader, chunks: &[(ChunkPos, u64)]) {
+    let g = Generator::fractal(GenParams::default()).unwrap();
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut w = SnapshotWriter::new(file, header).unwrap();
+    for &(pos, v) in chunks {
+        w.chunk(pos, v, &encode_chunk(&g.generate(pos))).unwrap();
+    }
+    w.finish().unwrap();
 }

@@ -14,8 +14,10 @@ use crate::store::types::{RawChunk, WorldMeta};
 use crate::store::{ImportTarget, StoreError};
 
 /// The world's tables, emptied by [`PgStore::clear_world`]
-/// (`schema_migrations` and `layout` stay).
-const WORLD_TABLES: &str = "world, chunks, chunk_deltas, edit_log, blobs, players, regions";
+/// (`schema_migrations` and `layout` stay). `seq_blocks` goes too: a
+/// restored world reserves its blocks from its own `last_seq` again.
+const WORLD_TABLES: &str =
+    "world, chunks, chunk_deltas, edit_log, blobs, players, regions, seq_blocks";
 
 impl PgStore {
     /// Empties every table of the world, leases included, in one

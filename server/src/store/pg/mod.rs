@@ -203,17 +203,25 @@ impl ChunkStore for PgStore {
         let seed = meta.seed as i64;
         let generator = i64::from(meta.generator_version);
         // Inserted only if absent, in one statement: two nodes starting at
-        // once agree on one world row.
+        // once agree on one world row. Not over rows without a world (a
+        // restore cut short), which would then pass for a new world.
         self.pool.run("writing the world", async |c: &mut Conn| {
             c.execute(
                 "INSERT INTO world (id, format_version, seed, generator_version, \
-                     generator_params, last_seq) VALUES (1, $1, $2, $3, $4, 0) \
+                     generator_params, last_seq) SELECT 1, $1::int4, $2::int8, $3::int8, $4::text, 0 \
+                     WHERE NOT EXISTS (SELECT 1 FROM chunks) \
+                     AND NOT EXISTS (SELECT 1 FROM chunk_deltas) \
+                     AND NOT EXISTS (SELECT 1 FROM edit_log) \
                      ON CONFLICT (id) DO NOTHING",
                 &[&format, &seed, &generator, &meta.generator_params],
             )
             .await
         })?;
-        let stored = self.load_meta()?.ok_or(StoreError::NoMeta)?;
+        let stored = self.load_meta()?.ok_or_else(|| StoreError::InvalidMeta {
+            reason: "the store has no world row but holds chunks, deltas or log records \
+                     (an interrupted restore?); restore it again with --force"
+                .into(),
+        })?;
         compare_meta(&stored, meta)?;
         Ok(stored)
     }

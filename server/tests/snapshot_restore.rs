@@ -1,0 +1,314 @@
+//! Restoring snapshots: a restore cut short leaves the old world as it
+//! was, and a store holding records without metadata is not taken for a
+//! new world; headers this build cannot serve, zones `ZoneAdd` would
+//! refuse and chunks in a seq-0 snapshot fail verification, and restore
+//! refuses them before touching the data dir; a forced PostgreSQL restore
+//! leaves no stale seq blocks.
+
+use crate::snapshot_common;
+use crate::store_common;
+
+use std::path::{Path, PathBuf};
+
+use snapshot_common::{header, write_snapshot};
+use store_common::{pg_store, sql, terrain_chunk};
+use strata_protocol::admin::ZoneSpec;
+use strata_server::admin::snapshot_cmd::{
+    self, replace_world, RestoreArgs, REPLACED_SUFFIX, RESTORING_SUFFIX,
+};
+use strata_server::app::ZONES_BLOB;
+use strata_server::cluster::ClusterConfig;
+use strata_server::datadir::WORLD_DB_NAME;
+use strata_server::sequencer::regions::DEFAULT_REGION_CHUNKS;
+use strata_server::snapshot::restore::import;
+use strata_server::snapshot::{verify, SnapshotHeader};
+use strata_server::store::pg::PgConfig;
+use strata_server::store::{
+    ChunkStore, ImportTarget, PgStore, RawChunk, SledStore, StoreError, WorldMeta,
+    MAX_GENERATOR_PARAMS_BYTES,
+};
+use strata_terrain::chunk_codec::encode_chunk;
+use strata_terrain::{ChunkPos, VoxelPos};
+use strata_tests::postgres::database;
+
+/// `n` chunks in a row, at versions 1..=n.
+fn chunks(n: i32) -> Vec<(ChunkPos, u64)> {
+    (0..n)
+        .map(|i| (ChunkPos::new(i, 1, 0), 1 + i as u64))
+        .collect()
+}
+
+fn snapshot(dir: &Path, name: &str, h: &SnapshotHeader, n: i32) -> PathBuf {
+    let path = dir.join(name);
+    write_snapshot(&path, h, &chunks(n));
+    path
+}
+
+fn restore(file: &Path, data: &Path, force: bool) -> anyhow::Result<u64> {
+    snapshot_cmd::restore(&RestoreArgs {
+        file: file.into(),
+        data_dir: data.into(),
+        force,
+        config: None,
+    })
+}
+
+/// The data dir's world as (last_seq, chunks); its store checks clean.
+fn world_of(data: &Path) -> (u64, u64) {
+    let store = SledStore::open(&data.join(WORLD_DB_NAME)).unwrap();
+    let report = store.check().unwrap();
+    assert!(report.is_ok(), "{:?}", report.issues);
+    let seq = store.load_meta().unwrap().expect("a world").last_seq;
+    (seq, store.chunk_count().unwrap())
+}
+
+fn beside(db: &Path, suffix: &str) -> PathBuf {
+    let mut name = db.file_name().unwrap().to_os_string();
+    name.push(suffix);
+    db.with_file_name(name)
+}
+
+/// Names in `dir`, sorted.
+fn listing(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+/// Every issue `verify` reports, joined.
+fn issues(file: &Path) -> String {
+    let report = verify(file, |_| {}).unwrap();
+    assert!(!report.is_ok(), "verify passed");
+    report.issues.join("\n")
+}
+
+/// Passes the chunks through, then fails where the metadata would be
+/// written: an import cut short (disk full, Ctrl-C) after its chunks.
+struct CutBeforeMeta<'a>(&'a SledStore);
+
+impl ImportTarget for CutBeforeMeta<'_> {
+    fn begin_import(&self) -> Result<(), StoreError> {
+        self.0.begin_import()
+    }
+
+    fn import_chunks(&self, chunks: &[RawChunk]) -> Result<(), StoreError> {
+        self.0.import_chunks(chunks)
+    }
+
+    fn finish_import(&self, _: &WorldMeta, _: &str, _: &[u8]) -> Result<(), StoreError> {
+        Err(StoreError::Io(std::io::Error::other(
+            "no space left on device",
+        )))
+    }
+}
+
+/// The restore's swap with an import that fails part-way.
+fn restore_cut_short(db: &Path, file: &Path) -> String {
+    let err = replace_world(db, |store| {
+        Ok(import(file, &CutBeforeMeta(store), ZONES_BLOB, |_| {})?)
+    })
+    .unwrap_err();
+    format!("{err:#}")
+}
+
+#[test]
+fn a_restore_cut_short_leaves_the_old_world() {
+    let tmp = tempfile::tempdir().unwrap();
+    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
+    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
+    let data = tmp.path().join("data");
+    assert_eq!(restore(&old, &data, false).unwrap(), 3);
+    let db = data.join(WORLD_DB_NAME);
+
+    let err = restore_cut_short(&db, &new);
+    assert!(
+        err.contains("no space left") && err.contains("is unchanged"),
+        "{err}"
+    );
+    assert_eq!(world_of(&data), (9, 3));
+    assert!(!beside(&db, RESTORING_SUFFIX).exists(), "staging removed");
+
+    // A crash between the swap's renames left the old world aside: the
+    // next restore puts it back before anything else.
+    std::fs::rename(&db, beside(&db, REPLACED_SUFFIX)).unwrap();
+    restore_cut_short(&db, &new);
+    assert_eq!(world_of(&data), (9, 3));
+    assert!(!beside(&db, REPLACED_SUFFIX).exists());
+
+    // A whole restore replaces the world and leaves nothing beside it.
+    let before = listing(&data);
+    assert_eq!(restore(&new, &data, true).unwrap(), 5);
+    assert_eq!(world_of(&data), (20, 5));
+    assert_eq!(listing(&data), before);
+}
+
+/// Imports a chunk with no metadata, then `init_meta` must refuse.
+fn refuses_records_without_meta(import: &dyn ImportTarget, store: &dyn ChunkStore) {
+    let raw = RawChunk {
+        pos: ChunkPos::new(1, 0, 2),
+        version: 4,
+        encoded: encode_chunk(&terrain_chunk(3)),
+    };
+    import.begin_import().unwrap();
+    import.import_chunks(&[raw]).unwrap();
+    match store.init_meta(&WorldMeta::new(7, 1, "")) {
+        Err(StoreError::InvalidMeta { reason }) => {
+            assert!(reason.contains("interrupted restore"), "{reason}")
+        }
+        other => panic!("expected InvalidMeta, got {other:?}"),
+    }
+    assert!(store.load_meta().unwrap().is_none(), "no world written");
+}
+
+#[test]
+fn init_meta_refuses_a_store_with_chunks_but_no_metadata() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sled = SledStore::open(tmp.path()).unwrap();
+    refuses_records_without_meta(&sled, &sled);
+    if let Some(db) = database("init_meta_refuses_a_store_with_chunks_but_no_metadata") {
+        let pg = pg_store(&db);
+        refuses_records_without_meta(&pg, &pg);
+    }
+}
+
+#[test]
+fn a_header_this_build_cannot_serve_is_refused_before_the_data_dir_is_touched() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    restore(
+        &snapshot(tmp.path(), "old.snap", &header(9), 3),
+        &data,
+        false,
+    )
+    .unwrap();
+    let before = listing(&data);
+
+    let mut h = header(20);
+    h.generator_version += 1;
+    let bad = snapshot(tmp.path(), "next-gen.snap", &h, 2);
+    let want = format!(
+        "generator version {} is not the one this build runs",
+        h.generator_version
+    );
+    assert!(issues(&bad).contains(&want), "{}", issues(&bad));
+    let err = format!("{:#}", restore(&bad, &data, true).unwrap_err());
+    assert!(err.contains(&want), "{err}");
+    assert_eq!(listing(&data), before);
+    assert_eq!(world_of(&data), (9, 3));
+    let fresh = tmp.path().join("fresh");
+    restore(&bad, &fresh, false).unwrap_err();
+    assert!(!fresh.exists(), "nothing created");
+
+    // Parameters that do not parse, or are over the limit.
+    let too_long = "#".repeat(MAX_GENERATOR_PARAMS_BYTES + 1);
+    for (params, want) in [
+        ("seed = \"one\"\n", "generator params are not valid"),
+        (too_long.as_str(), "generator params are 65537 bytes"),
+    ] {
+        let mut h = header(20);
+        h.generator_params = params.into();
+        let bad = snapshot(tmp.path(), "params.snap", &h, 1);
+        assert!(issues(&bad).contains(want), "{}", issues(&bad));
+        restore(&bad, &data, true).unwrap_err();
+        assert_eq!(world_of(&data), (9, 3));
+    }
+}
+
+#[test]
+fn zones_zone_add_would_refuse_fail_verify() {
+    let tmp = tempfile::tempdir().unwrap();
+    let zone = |name: &str, min, max| ZoneSpec {
+        name: name.into(),
+        min,
+        max,
+    };
+    let (o, one) = (VoxelPos::new(0, 0, 0), VoxelPos::new(1, 1, 1));
+    for (zones, want) in [
+        (
+            vec![zone("a", VoxelPos::new(5, 0, 0), o)],
+            "zone 0 (\"a\"): zone min is above max",
+        ),
+        (
+            vec![zone("a", o, one), zone("a", o, one)],
+            "zone 1 (\"a\"): zone \"a\" already exists",
+        ),
+        (vec![zone("", o, one)], "zone name must be 1..=64 bytes"),
+    ] {
+        let mut h = header(9);
+        h.zones = zones;
+        let bad = snapshot(tmp.path(), "zones.snap", &h, 1);
+        assert!(issues(&bad).contains(want), "{}", issues(&bad));
+        let data = tmp.path().join("data");
+        restore(&bad, &data, false).unwrap_err();
+        assert!(!data.exists());
+    }
+}
+
+#[test]
+fn a_seq_0_snapshot_holding_chunks_fails_verify() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bad = snapshot(tmp.path(), "seq0.snap", &header(0), 2);
+    let report = verify(&bad, |_| {}).unwrap();
+    assert_eq!(report.issues.len(), 2, "{:?}", report.issues);
+    assert!(
+        report.issues[0].starts_with("record 0 at byte")
+            && report.issues[0].contains("a snapshot at seq 0 holds no modified chunk"),
+        "{:?}",
+        report.issues
+    );
+    let data = tmp.path().join("data");
+    restore(&bad, &data, false).unwrap_err();
+    assert!(!data.exists());
+
+    // Without chunks, seq 0 is a fresh world.
+    let empty = snapshot(tmp.path(), "empty.snap", &header(0), 0);
+    assert_eq!(restore(&empty, &data, false).unwrap(), 0);
+    assert_eq!(world_of(&data), (0, 0));
+}
+
+#[test]
+fn a_forced_postgres_restore_leaves_no_stale_seq_blocks() {
+    let Some(db) = database("a_forced_postgres_restore_leaves_no_stale_seq_blocks") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let file = snapshot(tmp.path(), "world.snap", &header(9), 3);
+    let config = tmp.path().join("strata.toml");
+    std::fs::write(&config, db.store_toml()).unwrap();
+    let args = |force| RestoreArgs {
+        file: file.clone(),
+        data_dir: tmp.path().join("data"),
+        force,
+        config: Some(config.clone()),
+    };
+    // A cluster node reserves its block of seqs above the world's last_seq.
+    let reserve = || {
+        let pg = PgConfig {
+            url: db.url(),
+            ..PgConfig::default()
+        };
+        let cluster = ClusterConfig {
+            node_id: "a".into(),
+            ..ClusterConfig::default()
+        };
+        PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster)
+            .unwrap()
+            .reserve_seqs(9)
+    };
+    assert_eq!(snapshot_cmd::restore(&args(false)).unwrap(), 3);
+    assert_eq!(reserve().unwrap(), 9);
+    assert_eq!(sql(&db, "SELECT count(*) FROM seq_blocks"), ["1"]);
+    let err = snapshot_cmd::restore(&args(false)).unwrap_err().to_string();
+    assert!(err.contains("--force"), "{err}");
+
+    assert_eq!(snapshot_cmd::restore(&args(true)).unwrap(), 3);
+    // The restored world's first block starts where the old one's did:
+    // the old block's row is gone, so reserving it again works.
+    assert_eq!(reserve().unwrap(), 9);
+    assert_eq!(sql(&db, "SELECT count(*) FROM seq_blocks"), ["1"]);
+    let report = pg_store(&db).check().unwrap();
+    assert!(report.is_ok(), "{:?}", report.issues);
+}
