@@ -128,7 +128,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_counter!(
         REQUESTS_THROTTLED,
-        "Requests (subscriptions, resyncs, forgets, snapshots, tickets, pings) that waited for their session's [validation.request_rate] tokens"
+        "Requests (subscriptions, resyncs, forgets, snapshots, tickets, pings, edits) that waited for their player's [validation.request_rate] tokens"
     );
     metrics::describe_counter!(
         POSITIONS_DROPPED,

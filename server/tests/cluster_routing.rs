@@ -381,7 +381,7 @@ fn mine_at_xz(x: i32, z: i32) -> Edit {
 }
 
 /// A node at `[cluster] max_held_regions` refuses an edit in a region no
-/// node holds with `NodeFull`, at no cost to the player. The cluster
+/// node holds with `NodeFull`, costing the player no edit token. The cluster
 /// client sends it on to the other node it is connected to, which claims
 /// the region, and routes the region's edits there from then on.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -1,7 +1,7 @@
 //! Bad input closes only the offending connection; a client that stops
 //! reading loses deltas instead of slowing anyone down; refused positions
-//! are answered, at a bounded rate however many come; a session's requests
-//! wait for its request tokens.
+//! are answered, at a bounded rate however many come; a player's requests,
+//! edits included, wait for its request tokens, across reconnects.
 
 use crate::common;
 
@@ -12,8 +12,8 @@ use strata_client_sim::{Client, ClientError, Verdict};
 use strata_protocol::io::FramedReader;
 use strata_protocol::limits::MAX_CLIENT_FRAME;
 use strata_protocol::{
-    encode_frame, ClientMessage, Direction, ErrorCode, FrameBuffer, Hello, PositionRefusal,
-    PositionUpdate, RejectReason, Role, ServerMessage, PROTOCOL_VERSION,
+    encode_frame, ClientMessage, Direction, EditRequest, ErrorCode, FrameBuffer, Hello,
+    PositionRefusal, PositionUpdate, RejectReason, Role, ServerMessage, PROTOCOL_VERSION,
 };
 use strata_server::app;
 use strata_terrain::gen::{GenParams, Generator};
@@ -527,6 +527,154 @@ async fn a_sessions_requests_wait_for_its_request_tokens() {
         assert!(conn.close_reason().is_none(), "{:?}", conn.close_reason());
         assert!(!calm.is_closed());
         calm.close().await;
+        drop(send);
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// `strata_requests_throttled_total` in this process's registry (shared
+/// by every test here: compare before and after, never absolutely).
+fn requests_throttled() -> f64 {
+    let text = strata_server::metrics::shared().unwrap().render();
+    metric(&text, strata_server::metrics::REQUESTS_THROTTLED).unwrap_or(0.0)
+}
+
+/// A raw session of `player` past its `Welcome`: its connection, control
+/// stream and a reader of the server's control frames.
+async fn welcomed(
+    server: &app::Running,
+    player: &str,
+) -> (
+    quinn::Endpoint,
+    quinn::Connection,
+    quinn::SendStream,
+    FramedReader<quinn::RecvStream>,
+) {
+    let RawSession {
+        _endpoint,
+        conn,
+        send,
+        _recv,
+    } = raw_session(server, player).await;
+    let mut reader = FramedReader::new(_recv, FrameBuffer::new(Direction::ServerToClient));
+    match reader.next::<ServerMessage>().await {
+        Ok(Some(ServerMessage::Welcome(_))) => {}
+        other => panic!("expected Welcome, got {other:?}"),
+    }
+    (_endpoint, conn, send, reader)
+}
+
+fn pings(n: u64) -> Vec<u8> {
+    (0..n)
+        .flat_map(|nonce| {
+            encode_frame(&ClientMessage::Ping { nonce }, Direction::ClientToServer).unwrap()
+        })
+        .collect()
+}
+
+#[tokio::test]
+async fn edits_wait_for_request_tokens_too() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let before = requests_throttled();
+        let dir = tempfile::tempdir().unwrap();
+        // Ten requests at once, ten a second.
+        let mut cfg = test_config(dir.path());
+        cfg.validation.request_rate.capacity = 10;
+        cfg.validation.request_rate.per_second = 10;
+        let server = app::start(cfg).await.expect("server starts");
+        let (_endpoint, conn, mut send, mut reader) = welcomed(&server, "flood").await;
+        // Forty edits, refused for want of a position or past the edit rate
+        // (within the default 100 refusals before a kick), then a ping.
+        const EDITS: u64 = 40;
+        let mut frames = Vec::new();
+        for id in 0..EDITS {
+            let edit = ClientMessage::Edit(EditRequest {
+                client_edit_id: id,
+                edit: Edit::Mine {
+                    center: FixedVec3::from_voxels(70, 0, 40),
+                    radius: r(1.0),
+                    strength: 1,
+                },
+            });
+            frames.extend(encode_frame(&edit, Direction::ClientToServer).unwrap());
+        }
+        frames.extend(
+            encode_frame(
+                &ClientMessage::Ping { nonce: 77 },
+                Direction::ClientToServer,
+            )
+            .unwrap(),
+        );
+        let sent = std::time::Instant::now();
+        send.write_all(&frames).await.unwrap();
+        let (mut answered, mut ponged) = (0, false);
+        while answered < EDITS || !ponged {
+            match reader.next::<ServerMessage>().await {
+                Ok(Some(ServerMessage::EditRejected { reason, .. })) => {
+                    assert!(
+                        matches!(reason, RejectReason::NoPosition | RejectReason::RateLimited),
+                        "{reason:?}"
+                    );
+                    answered += 1;
+                }
+                Ok(Some(ServerMessage::Pong { nonce: 77, .. })) => ponged = true,
+                Ok(Some(_)) => continue,
+                other => panic!("expected verdicts and the Pong, got {other:?}"),
+            }
+        }
+        // 41 tokens, ten at once and ten a second: 3.1 s at the least.
+        let waited = sent.elapsed();
+        assert!(waited >= Duration::from_millis(2_500), "{waited:?}");
+        assert!(requests_throttled() > before, "the waits were counted");
+        // Slowed down, not disconnected.
+        assert!(conn.close_reason().is_none(), "{:?}", conn.close_reason());
+        drop(send);
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn reconnecting_does_not_refill_the_request_bucket() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        // Twenty requests at once, one a second.
+        const BURST: u64 = 20;
+        let mut cfg = test_config(dir.path());
+        cfg.validation.request_rate.capacity = BURST;
+        cfg.validation.request_rate.per_second = 1;
+        let server = app::start(cfg).await.expect("server starts");
+        // The first connection spends the whole burst.
+        let (_first_endpoint, first, mut send, mut reader) = welcomed(&server, "again").await;
+        send.write_all(&pings(BURST)).await.unwrap();
+        for _ in 0..BURST {
+            match reader.next::<ServerMessage>().await {
+                Ok(Some(ServerMessage::Pong { .. })) => {}
+                other => panic!("expected a Pong, got {other:?}"),
+            }
+        }
+        first.close(0u32.into(), b"bye");
+        drop((send, reader));
+        // The same player again: as many pings find the bucket as the first
+        // connection left it, refilling at one a second.
+        let before = requests_throttled();
+        let (_endpoint, conn, mut send, mut reader) = welcomed(&server, "again").await;
+        send.write_all(&pings(BURST)).await.unwrap();
+        let window = tokio::time::Instant::now() + Duration::from_secs(2);
+        let mut pongs = 0;
+        while let Ok(msg) = tokio::time::timeout_at(window, reader.next::<ServerMessage>()).await {
+            match msg {
+                Ok(Some(ServerMessage::Pong { .. })) => pongs += 1,
+                Ok(Some(_)) => continue,
+                other => panic!("expected Pongs, got {other:?}"),
+            }
+        }
+        assert!(pongs < BURST, "{pongs} of {BURST} pings answered at once");
+        assert!(requests_throttled() > before, "the waits were counted");
+        assert!(conn.close_reason().is_none(), "{:?}", conn.close_reason());
         drop(send);
         server.shutdown().await.unwrap();
     })

@@ -1,10 +1,10 @@
-//! Position rules: first position in the spawn area, resume, speed with slack, not inside solid, bounds, staleness.
+//! Position rules: first position in the spawn area, resume, speed with slack, not inside solid, bounds, staleness, arrival tickets.
 
 use crate::sequencer_common;
 
 use sequencer_common::*;
-use strata_protocol::{PositionUpdate, Role, Start};
-use strata_server::sequencer::SequencerConfig;
+use strata_protocol::{PositionUpdate, Role, Start, TicketRefusal};
+use strata_server::sequencer::{Sequencer, SequencerConfig};
 use strata_server::validate::{PositionReject, SpawnArea, ValidationConfig};
 use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::VoxelPos;
@@ -280,4 +280,100 @@ fn refusals_name_the_rule_and_stale_reports_get_none() {
         .unwrap_err();
     assert_eq!(stale.refusal(), None, "stale reports get no answer");
     assert_eq!(PositionReject::UnknownSession.refusal(), None);
+}
+
+/// Walks session `id` east from `from` 20 voxels a second (within the
+/// default 25 a second) for `seconds`, reporting once a second from `t0`
+/// with seqs from 2.
+fn walk_east(s: &mut Sequencer, id: u64, from: (i32, i32), t0: u64, seconds: u32) {
+    for i in 1..=seconds {
+        let x = from.0 + 20 * i as i32;
+        s.update_position(id, at(1 + i, x, 0, from.1), t0 + u64::from(i) * 1000)
+            .expect("a legal walk");
+    }
+}
+
+#[test]
+fn an_older_ticket_never_rewinds_a_resumed_player() {
+    let mut s = fresh();
+    // At A at t = 0 (when a ticket for A was issued), then 500 voxels east
+    // to B by t = 25 s.
+    let a = FixedVec3::from_voxels(HOME.0, 0, HOME.1);
+    s.update_position(PLAYER, at(1, HOME.0, 0, HOME.1), 0)
+        .unwrap();
+    walk_east(&mut s, PLAYER, HOME, 0, 25);
+    let b = FixedVec3::from_voxels(HOME.0 + 500, 0, HOME.1);
+    s.session_left(PLAYER);
+    let again = 7;
+    s.session_joined(again, "p".into(), Role::Player);
+    assert_eq!(s.resume_position(again, 26_000), Start::Resume { feet: b });
+    // The ticket for A would time the player from t = 0 and let it jump
+    // ~600 voxels past A: refused, and the resume stands.
+    assert_eq!(s.arrive(again, a, 0), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(s.position(again).unwrap().feet, b);
+    assert!(matches!(
+        s.update_position(again, at(1, HOME.0 - 600, 0, HOME.1), 26_000),
+        Err(PositionReject::TooFast { .. })
+    ));
+    // Still refused after another reconnect without a report: the resume
+    // keeps when the player was last seen.
+    s.session_left(again);
+    s.session_joined(8, "p".into(), Role::Player);
+    s.resume_position(8, 27_000);
+    assert_eq!(s.arrive(8, a, 0), Err(TicketRefusal::AlreadyPlaced));
+    // A ticket newer than the last report (another node saw the player
+    // since) is taken, once.
+    let c = FixedVec3::from_voxels(HOME.0 + 520, 0, HOME.1);
+    assert_eq!(s.arrive(8, c, 26_000), Ok(Start::Resume { feet: c }));
+    assert_eq!(s.position(8).unwrap().feet, c);
+    assert_eq!(s.arrive(8, c, 26_500), Err(TicketRefusal::AlreadyPlaced));
+    s.update_position(8, at(1, HOME.0 + 530, 0, HOME.1), 27_000)
+        .unwrap();
+}
+
+#[test]
+fn a_ticket_never_moves_a_player_that_reported() {
+    let mut s = fresh();
+    let far = FixedVec3::from_voxels(HOME.0 + 1000, 0, HOME.1);
+    // A first report with seq 0 is accepted as any first report...
+    s.update_position(PLAYER, at(0, HOME.0, 0, HOME.1), 1_000)
+        .unwrap();
+    // ...and still places the player: a ticket, even a newer one, is refused.
+    assert_eq!(
+        s.arrive(PLAYER, far, 2_000),
+        Err(TicketRefusal::AlreadyPlaced)
+    );
+    // Another seq 0 after it is stale.
+    assert_eq!(
+        s.update_position(PLAYER, at(0, HOME.0 + 1, 0, HOME.1), 1_500),
+        Err(PositionReject::Stale { seq: 0, last: 0 })
+    );
+    // The same after a report on a resumed session.
+    s.session_left(PLAYER);
+    s.session_joined(9, "p".into(), Role::Player);
+    s.resume_position(9, 3_000);
+    s.update_position(9, at(1, HOME.0 + 2, 0, HOME.1), 3_100)
+        .unwrap();
+    assert_eq!(s.arrive(9, far, 3_200), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(
+        s.position(9).unwrap().feet,
+        FixedVec3::from_voxels(HOME.0 + 2, 0, HOME.1)
+    );
+}
+
+#[test]
+fn a_ticket_older_than_another_sessions_report_is_refused() {
+    let mut s = fresh();
+    s.update_position(PLAYER, at(1, HOME.0, 0, HOME.1), 0)
+        .unwrap();
+    // A second session of the player (`sessions_per_player` > 1) resumes
+    // there, and the first walks on for 5 s.
+    s.session_joined(5, "p".into(), Role::Player);
+    s.resume_position(5, 1_000);
+    walk_east(&mut s, PLAYER, HOME, 0, 5);
+    let a = FixedVec3::from_voxels(HOME.0, 0, HOME.1);
+    assert_eq!(s.arrive(5, a, 1_000), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(s.arrive(5, a, 4_999), Err(TicketRefusal::AlreadyPlaced));
+    let b = FixedVec3::from_voxels(HOME.0 + 100, 0, HOME.1);
+    assert_eq!(s.arrive(5, b, 5_000), Ok(Start::Resume { feet: b }));
 }

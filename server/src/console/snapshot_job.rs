@@ -218,6 +218,7 @@ mod tests {
             control_writer_queue: 1,
             send_interval: Duration::ZERO,
             request_rate: rate,
+            request_buckets: crate::net::session::RequestBuckets::new(1),
             position_rate: rate,
             access: std::sync::RwLock::default(),
             access_writes: tokio::sync::Mutex::new(()),

@@ -1,6 +1,7 @@
 //! One connection: handshake (Hello, token, version), then a loop that
 //! routes control messages and position datagrams to the engine.
 
+use std::collections::HashMap;
 use std::sync::mpsc::TrySendError;
 use std::sync::Arc;
 use std::time::Duration;
@@ -48,9 +49,11 @@ pub struct SessionContext {
     pub control_writer_queue: usize,
     /// Shortest time between two writes of a session's updates (zero: none).
     pub send_interval: Duration,
-    /// Each session's bucket for requests other than edits
-    /// (`[validation.request_rate]`, in chunks; see [`request_cost`]).
+    /// Each player's bucket for requests (`[validation.request_rate]`, in
+    /// chunks; see [`request_cost`]).
     pub request_rate: BucketConfig,
+    /// The players' request buckets, kept across their sessions.
+    pub request_buckets: RequestBuckets,
     /// Each session's bucket of position reports (`[validation.position_rate]`).
     pub position_rate: BucketConfig,
     /// Bans and revocations, checked at every Hello; admin sessions change
@@ -64,6 +67,116 @@ impl SessionContext {
     pub fn admitted(&self, claims: &auth::Claims) -> Result<(), auth::Denied> {
         let list = self.access.read().unwrap_or_else(|e| e.into_inner());
         list.check(claims, auth::unix_now())
+    }
+}
+
+/// Each player's request bucket, shared by its sessions and kept after
+/// they end until it is full again, so reconnecting gives no fresh budget.
+/// Holds at most `max_players` (the session limit: every player with a
+/// session fits, and idle ones make room).
+#[derive(Debug)]
+pub struct RequestBuckets {
+    max_players: usize,
+    players: std::sync::Mutex<HashMap<String, PlayerRequests>>,
+}
+
+#[derive(Debug)]
+struct PlayerRequests {
+    bucket: TokenBucket,
+    /// Sessions of the player holding the bucket.
+    sessions: u32,
+}
+
+impl RequestBuckets {
+    pub fn new(max_players: usize) -> Self {
+        Self {
+            max_players: max_players.max(1),
+            players: Default::default(),
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, PlayerRequests>> {
+        self.players.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// A session of `player` starts: it draws on the player's bucket (a
+    /// new, full one if there is none) until the returned hold drops.
+    pub fn hold<'a>(&'a self, player: &str, cfg: BucketConfig, now_ms: u64) -> RequestHold<'a> {
+        let mut players = self.lock();
+        if !players.contains_key(player) && players.len() >= self.max_players {
+            // Forget the buckets nobody holds that have refilled.
+            players.retain(|_, p| {
+                p.bucket.refill(now_ms);
+                p.sessions > 0 || p.bucket.available() < p.bucket.capacity()
+            });
+            if players.len() >= self.max_players {
+                // Still full of recently spent ones: the fullest idle one goes.
+                let idle = players
+                    .iter()
+                    .filter(|(_, p)| p.sessions == 0)
+                    .max_by_key(|(_, p)| p.bucket.available())
+                    .map(|(name, _)| name.clone());
+                if let Some(name) = idle {
+                    players.remove(&name);
+                }
+            }
+        }
+        players
+            .entry(player.to_string())
+            .or_insert_with(|| PlayerRequests {
+                bucket: TokenBucket::new(cfg, now_ms),
+                sessions: 0,
+            })
+            .sessions += 1;
+        RequestHold {
+            buckets: self,
+            player: player.to_string(),
+            cfg,
+        }
+    }
+
+    /// Players whose request buckets are kept.
+    pub fn tracked_players(&self) -> usize {
+        self.lock().len()
+    }
+}
+
+/// A session's claim on its player's request bucket; released on drop.
+#[derive(Debug)]
+pub struct RequestHold<'a> {
+    buckets: &'a RequestBuckets,
+    player: String,
+    cfg: BucketConfig,
+}
+
+impl RequestHold<'_> {
+    /// Takes `cost` tokens (at most the capacity) and returns 0, or
+    /// returns how many milliseconds until they are there and takes none.
+    pub fn spend(&self, cost: u64, now_ms: u64) -> u64 {
+        let mut players = self.buckets.lock();
+        let p = players
+            .entry(self.player.clone())
+            .or_insert_with(|| PlayerRequests {
+                bucket: TokenBucket::new(self.cfg, now_ms),
+                sessions: 1,
+            });
+        let cost = cost.min(p.bucket.capacity());
+        p.bucket.refill(now_ms);
+        match p.bucket.wait_ms(cost) {
+            Some(0) | None => {
+                p.bucket.take(cost);
+                0
+            }
+            Some(ms) => ms,
+        }
+    }
+}
+
+impl Drop for RequestHold<'_> {
+    fn drop(&mut self) {
+        if let Some(p) = self.buckets.lock().get_mut(&self.player) {
+            p.sessions = p.sessions.saturating_sub(1);
+        }
     }
 }
 
@@ -355,7 +468,9 @@ async fn serve(
     kicked: &mut oneshot::Receiver<crate::engine::Kick>,
     latest: &LatestPosition,
 ) -> End {
-    let mut requests = TokenBucket::new(ctx.request_rate, now_ms());
+    // The player's bucket, shared with its other sessions and kept after
+    // this one ends.
+    let requests = ctx.request_buckets.hold(player, ctx.request_rate, now_ms());
     let mut positions = TokenBucket::new(ctx.position_rate, now_ms());
     // A request waiting for tokens, and when they are there: the control
     // stream is not read meanwhile (positions, kicks and shutdown still are).
@@ -400,21 +515,15 @@ async fn serve(
         };
         // Cheap first: a request the session has no tokens for waits before
         // anything is checked or queued.
-        let cost = request_cost(&m, ctx.view_radius).min(requests.capacity());
-        requests.refill(now_ms());
-        match requests.wait_ms(cost) {
-            Some(0) | None => {
-                requests.take(cost);
+        let ms = requests.spend(request_cost(&m, ctx.view_radius), now_ms());
+        if ms > 0 {
+            // Counted once per request, not again if a clock tick short.
+            if !waited {
+                metrics::counter!(crate::metrics::REQUESTS_THROTTLED).increment(1);
             }
-            Some(ms) => {
-                // Counted once per request, not again if a clock tick short.
-                if !waited {
-                    metrics::counter!(crate::metrics::REQUESTS_THROTTLED).increment(1);
-                }
-                let at = tokio::time::Instant::now() + Duration::from_millis(ms);
-                throttled = Some((m, at));
-                continue;
-            }
+            let at = tokio::time::Instant::now() + Duration::from_millis(ms);
+            throttled = Some((m, at));
+            continue;
         }
         let routed = match route((session, player), ctx, control, m) {
             Ok(Some(cmd)) => deliver(&ctx.engine, cmd, ENGINE_WAIT_TIMEOUT).await,
@@ -427,14 +536,14 @@ async fn serve(
     }
 }
 
-/// What a request costs a session's bucket, in chunks it makes the engine
+/// What a request costs a player's bucket, in chunks it makes the engine
 /// touch: a subscription its whole view ((2r+1)^3, the radius capped at the
 /// server's view radius), a forget its list, a resync, snapshot request or
-/// ticket [`RESEND_COST`]. Edits are not counted: the sequencer's
-/// per-player buckets (`edit_rate`, `reject_rate`) limit them.
+/// ticket [`RESEND_COST`], an edit [`EDIT_COST`].
 pub fn request_cost(m: &ClientMessage, view_radius: u8) -> u64 {
     match m {
-        ClientMessage::Edit(_) | ClientMessage::Hello(_) => 0,
+        ClientMessage::Hello(_) => 0,
+        ClientMessage::Edit(_) => EDIT_COST,
         ClientMessage::Subscribe { radius, .. } => {
             let side = 2 * u64::from((*radius).min(view_radius)) + 1;
             side * side * side
@@ -454,6 +563,12 @@ pub fn request_cost(m: &ClientMessage, view_radius: u8) -> u64 {
 /// budget like any snapshot. A client checking its whole radius-8 view
 /// (4,913 chunks) fits the default burst.
 pub const RESEND_COST: u64 = 4;
+
+/// What an edit costs a player's request bucket. The sequencer's
+/// per-player buckets (`edit_rate`, `reject_rate`) limit the edits it
+/// takes in; this bounds the ones refused before they charge those
+/// (`Busy`, `NodeFull`), which still cost prechecks and a queue slot.
+pub const EDIT_COST: u64 = 1;
 
 /// Queues a reply on a session's control stream. A full queue ends the
 /// session, as it does for the engine's replies: a client that does not
@@ -635,6 +750,51 @@ mod tests {
         };
         assert_eq!(request_cost(&resync, 8), RESEND_COST);
         assert_eq!(request_cost(&ClientMessage::Ping { nonce: 1 }, 8), 1);
+        let edit = ClientMessage::Edit(strata_protocol::EditRequest {
+            client_edit_id: 1,
+            edit: strata_terrain::Edit::Mine {
+                center: strata_terrain::edit::FixedVec3::from_voxels(0, 0, 0),
+                radius: strata_terrain::edit::Fixed::from_voxels(1),
+                strength: 1,
+            },
+        });
+        assert_eq!(request_cost(&edit, 8), EDIT_COST);
+        assert_eq!(EDIT_COST, 1, "an edit is not free");
+    }
+
+    #[test]
+    fn a_players_request_bucket_outlives_its_sessions_within_the_bound() {
+        // Ten tokens, one every 100 ms.
+        let cfg = BucketConfig {
+            capacity: 10,
+            per_second: 10,
+        };
+        let buckets = RequestBuckets::new(2);
+        let first = buckets.hold("ann", cfg, 0);
+        assert_eq!(first.spend(10, 0), 0);
+        drop(first);
+        // A reconnect continues from the drained bucket, and a second
+        // session of the player shares it.
+        let again = buckets.hold("ann", cfg, 0);
+        let other = buckets.hold("ann", cfg, 0);
+        assert_eq!(again.spend(1, 0), 100);
+        assert_eq!(other.spend(1, 50), 50);
+        // A cost above the capacity waits for a full bucket, not forever.
+        assert_eq!(other.spend(1_000, 100), 900);
+        drop((again, other));
+        let bob = buckets.hold("bob", cfg, 100);
+        assert_eq!(buckets.tracked_players(), 2);
+        // At the bound, a new player's bucket replaces a full idle one...
+        let carl = buckets.hold("carl", cfg, 1_100);
+        assert_eq!(buckets.tracked_players(), 2);
+        assert_eq!(bob.spend(10, 1_100), 0);
+        assert_eq!(carl.spend(10, 1_100), 0);
+        drop(carl);
+        // ...or, with none full, the fullest idle one: never a held one.
+        let dan = buckets.hold("dan", cfg, 1_100);
+        assert_eq!(buckets.tracked_players(), 2);
+        assert_eq!(bob.spend(1, 1_100), 100, "bob's bucket was kept");
+        assert_eq!(dan.spend(10, 1_100), 0, "dan's is new");
     }
 
     fn leave(session: u64) -> Command {

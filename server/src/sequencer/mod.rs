@@ -34,7 +34,7 @@ use strata_terrain::edit::{EditContext, FixedVec3, StructureLibrary};
 use strata_terrain::{Chunk, ChunkPos, MaterialTable, World};
 
 use crate::collision::{CollisionCache, CollisionMesh};
-use crate::validate::position::{self, PositionReject, ValidatedPosition};
+use crate::validate::position::{self, Placement, PositionReject, ValidatedPosition};
 use crate::validate::zones::{self, Zone, ZoneError};
 use crate::validate::ValidationConfig;
 use chunk_bits::ChunkBits;
@@ -49,6 +49,14 @@ struct Queued {
     request: EditRequest,
     /// When the engine took the request, for the edit latency metric.
     queued_at: std::time::Instant,
+}
+
+/// A player's last validated position, kept after its sessions end.
+#[derive(Debug, Clone, Copy)]
+struct Remembered {
+    feet: FixedVec3,
+    /// [`ValidatedPosition::known_ms`]; 0 for positions read from the store.
+    known_ms: u64,
 }
 
 /// Owns the authoritative world and everything edits are checked against.
@@ -73,8 +81,9 @@ pub struct Sequencer {
     disconnect: Vec<u64>,
     /// Each player's last validated feet position, kept after its sessions
     /// end (at most `validation.remembered_players`): a new session starts
-    /// from it, so the speed check spans reconnects.
-    last_positions: HashMap<String, FixedVec3>,
+    /// from it, so the speed check spans reconnects, and no older ticket
+    /// moves it ([`Self::arrive`]).
+    last_positions: HashMap<String, Remembered>,
     /// Players whose position changed since [`Self::take_moved`].
     moved: std::collections::HashSet<String>,
 }
@@ -406,13 +415,13 @@ impl Sequencer {
     /// Forgets the session. Its queued edits still apply at the next tick.
     pub fn session_left(&mut self, session_id: u64) {
         if let Some(old) = self.sessions.remove(&session_id) {
-            self.remember_position(&old.player, old.position.map(|p| p.feet));
+            self.remember_position(&old.player, old.position);
             self.release_limits(&old.player);
         }
     }
 
-    fn remember_position(&mut self, player: &str, feet: Option<FixedVec3>) {
-        let Some(feet) = feet else { return };
+    fn remember_position(&mut self, player: &str, position: Option<ValidatedPosition>) {
+        let Some(p) = position else { return };
         let cap = self.validation.remembered_players.max(1);
         if !self.last_positions.contains_key(player) && self.last_positions.len() >= cap {
             // Full: forget one player (any) to keep the map bounded.
@@ -420,7 +429,11 @@ impl Sequencer {
                 self.last_positions.remove(&k);
             }
         }
-        self.last_positions.insert(player.to_string(), feet);
+        let remembered = Remembered {
+            feet: p.feet,
+            known_ms: p.known_ms,
+        };
+        self.last_positions.insert(player.to_string(), remembered);
         self.moved.insert(player.to_string());
     }
 
@@ -435,20 +448,32 @@ impl Sequencer {
         };
         // Another live session of the player (sessions_per_player > 1) knows
         // a newer position than the remembered one.
-        let live = self
+        let others: Vec<ValidatedPosition> = self
             .sessions
             .iter()
             .filter(|(&id, s)| id != session_id && s.player == player)
             .filter_map(|(_, s)| s.position)
+            .collect();
+        let remembered = self.last_positions.get(&player).copied();
+        let feet = others
+            .iter()
             .max_by_key(|p| p.at_ms)
-            .map(|p| p.feet);
-        let known = live.or_else(|| self.last_positions.get(&player).copied());
+            .map(|p| p.feet)
+            .or(remembered.map(|r| r.feet));
+        // The newest time the player is known anywhere bounds its tickets.
+        let known_ms = others
+            .iter()
+            .map(|p| p.known_ms)
+            .chain(remembered.map(|r| r.known_ms))
+            .max()
+            .unwrap_or(0);
         let Some(s) = self.sessions.get_mut(&session_id) else {
             return spawn;
         };
-        match known {
+        match feet {
             Some(feet) => {
-                s.position = Some(ValidatedPosition::placed(feet, now_ms, &self.validation));
+                let resumed = ValidatedPosition::resumed(feet, now_ms, known_ms, &self.validation);
+                s.position = Some(resumed);
                 Start::Resume { feet }
             }
             None => spawn,
@@ -456,21 +481,41 @@ impl Sequencer {
     }
 
     /// A verified ticket: the session continues from `feet`, timed from
-    /// `issued_ms`, as a resumed one would. Refused once a position
-    /// report has been accepted (a ticket never moves a placed player).
+    /// `issued_ms`, as a resumed one would. A ticket never moves a placed
+    /// player: refused once the session reported or arrived, and when the
+    /// player was seen after the ticket was issued (an older ticket would
+    /// rewind it and refund the time it walked since).
     pub fn arrive(
         &mut self,
         session_id: u64,
         feet: FixedVec3,
         issued_ms: u64,
     ) -> Result<Start, strata_protocol::TicketRefusal> {
-        let Some(s) = self.sessions.get_mut(&session_id) else {
-            return Err(strata_protocol::TicketRefusal::AlreadyPlaced);
+        let refused = Err(strata_protocol::TicketRefusal::AlreadyPlaced);
+        let Some(s) = self.sessions.get(&session_id) else {
+            return refused;
         };
-        if s.position.is_some_and(|p| p.seq > 0) {
-            return Err(strata_protocol::TicketRefusal::AlreadyPlaced);
+        if s.position
+            .is_some_and(|p| p.placement != Placement::Resumed)
+        {
+            return refused;
         }
-        s.position = Some(ValidatedPosition::placed(feet, issued_ms, &self.validation));
+        // When any session of the player last saw it (its own resume
+        // included): an older ticket would take it back in time.
+        let newest = self
+            .sessions
+            .values()
+            .filter(|o| o.player == s.player)
+            .filter_map(|o| o.position)
+            .map(|p| p.known_ms)
+            .max();
+        if newest.is_some_and(|t| issued_ms < t) {
+            return refused;
+        }
+        let arrived = ValidatedPosition::arrived(feet, issued_ms, &self.validation);
+        if let Some(s) = self.sessions.get_mut(&session_id) {
+            s.position = Some(arrived);
+        }
         Ok(Start::Resume { feet })
     }
 
@@ -572,8 +617,8 @@ impl Sequencer {
             .filter_map(|player| {
                 let feet = live
                     .get(player.as_str())
-                    .or_else(|| self.last_positions.get(&player))
-                    .copied()?;
+                    .copied()
+                    .or_else(|| self.last_positions.get(&player).map(|r| r.feet))?;
                 Some((player, feet))
             })
             .collect()
@@ -586,7 +631,9 @@ impl Sequencer {
             .into_iter()
             .take(self.validation.remembered_players)
         {
-            self.last_positions.insert(player, feet);
+            // When the player stood there is not stored: no ticket is older.
+            let remembered = Remembered { feet, known_ms: 0 };
+            self.last_positions.insert(player, remembered);
         }
     }
 

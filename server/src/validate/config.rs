@@ -106,10 +106,12 @@ pub struct ValidationConfig {
     /// Refused edits per player: burst and refill per second. Each refusal
     /// takes one token; a player with none left is disconnected and logged.
     pub reject_rate: BucketConfig,
-    /// A session's requests other than edits (subscriptions, resyncs,
-    /// forgets, snapshots, tickets, pings), in chunks they touch: burst and
-    /// refill per second. A session out of tokens is not read until it has
-    /// them again, so QUIC's flow control slows its client down.
+    /// A player's requests (subscriptions, resyncs, forgets, snapshots,
+    /// tickets, pings, and 1 for each edit), in chunks they touch: burst
+    /// and refill per second, one bucket for all of the player's sessions
+    /// (a reconnect does not refill it). A session out of tokens is not
+    /// read until it has them again, so QUIC's flow control slows its
+    /// client down.
     pub request_rate: BucketConfig,
     /// A session's position reports handed to the engine: burst and
     /// refill per second. A datagram past them is dropped (the next one

@@ -8,6 +8,17 @@ use thiserror::Error;
 
 use super::config::ValidationConfig;
 
+/// How a session got its position.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Placement {
+    /// Where the server last knew the player, at the session's start.
+    Resumed,
+    /// From an accepted `Arrive` ticket.
+    Arrived,
+    /// From an accepted position report.
+    Reported,
+}
+
 /// The last position a session reported that passed every rule.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ValidatedPosition {
@@ -17,17 +28,39 @@ pub struct ValidatedPosition {
     /// The jitter slack still unspent, in thousandths of a voxel
     /// ([`check_motion`]).
     pub slack_milli: u64,
+    /// How the session got it: a ticket may replace only a resume.
+    pub placement: Placement,
+    /// When the player was last known to stand at `feet` or on the way to
+    /// it: the report's time, the ticket's `issued_ms`, or for a resume the
+    /// resumed position's (0 when unknown). A ticket older than it would
+    /// take the player back in time.
+    pub known_ms: u64,
 }
 
 impl ValidatedPosition {
-    /// A position taken without a report (a resume, an arrival), with its
-    /// whole slack.
-    pub fn placed(feet: FixedVec3, at_ms: u64, cfg: &ValidationConfig) -> Self {
+    /// A resumed position, timed from `at_ms`, with its whole slack; the
+    /// player was last known there at `known_ms`.
+    pub fn resumed(feet: FixedVec3, at_ms: u64, known_ms: u64, cfg: &ValidationConfig) -> Self {
         Self {
             feet,
             at_ms,
             seq: 0,
             slack_milli: full_slack_milli(cfg),
+            placement: Placement::Resumed,
+            known_ms,
+        }
+    }
+
+    /// A position from a ticket issued at `issued_ms`, timed from it, with
+    /// its whole slack.
+    pub fn arrived(feet: FixedVec3, issued_ms: u64, cfg: &ValidationConfig) -> Self {
+        Self {
+            feet,
+            at_ms: issued_ms,
+            seq: 0,
+            slack_milli: full_slack_milli(cfg),
+            placement: Placement::Arrived,
+            known_ms: issued_ms,
         }
     }
 }
@@ -209,5 +242,7 @@ pub fn check(
         at_ms: now_ms,
         seq: upd.seq,
         slack_milli,
+        placement: Placement::Reported,
+        known_ms: now_ms,
     })
 }
