@@ -47,6 +47,8 @@ pub struct Running {
     /// The web console's address, when `[console] listen` is set.
     pub console_addr: Option<SocketAddr>,
     console: Option<crate::console::RunningConsole>,
+    /// Reads the access list again from the store now and then.
+    access_reload: tokio::task::JoinHandle<()>,
 }
 
 fn load_zones(store: &dyn ChunkStore, cfg: &ServerConfig) -> anyhow::Result<Vec<Zone>> {
@@ -217,6 +219,11 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         None => None,
     };
     let (trigger, shutdown) = shutdown::channel();
+    // Bans and revocations written by another node apply here too.
+    let access_reload = tokio::spawn(crate::net::admin_session::reload_access(
+        ctx.clone(),
+        shutdown.clone(),
+    ));
     let listener = Listener::new(endpoint, ctx, cfg.server.admission());
     let listener = tokio::spawn(listener.run(shutdown));
     health.set_accepting(true);
@@ -234,6 +241,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         engine_exit,
         console_addr: console.as_ref().map(|c| c.addr),
         console,
+        access_reload,
     })
 }
 
@@ -265,6 +273,9 @@ impl Running {
         if let Some(console) = self.console {
             console.stop();
         }
+        // It only reads the store: stopped before the store closes.
+        self.access_reload.abort();
+        let _ = self.access_reload.await;
         let engine = self.engine;
         let engine_thread = self.engine_thread;
         let checkpointer = self.checkpointer;

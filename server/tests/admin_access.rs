@@ -1,16 +1,26 @@
 //! Bans and token revocations through `strata-admin`, online (the change
 //! ends live sessions and is refused at the next Hello) and offline (a
-//! stopped server's stored list), and both survive a restart.
+//! stopped server's stored list), and both survive a restart. Admin
+//! sessions check their token again, and a ban during a join holds.
 
 use crate::common;
 
 use std::process::Command;
+use std::sync::Arc;
 use std::time::Duration;
 
 use common::*;
 use strata_client_sim::{Client, ClientError};
-use strata_protocol::{ErrorCode, Role};
+use strata_protocol::admin::{AdminRequest, AdminResponse};
+use strata_protocol::io::FramedReader;
+use strata_protocol::{
+    encode_frame, ClientMessage, Direction, ErrorCode, FrameBuffer, Hello, Role, ServerMessage,
+    PROTOCOL_VERSION,
+};
+use strata_server::admin::remote::AdminClient;
 use strata_server::app;
+use strata_server::auth::{self, MAX_CLOCK_SKEW_SECS};
+use strata_server::net::admin_session::ADMIN_RECHECK_PERIOD;
 
 fn admin(args: &[&str]) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_strata-admin"))
@@ -82,11 +92,22 @@ async fn online_bans_and_revocations_end_sessions_and_refuse_hellos() {
             Ok(ClientError::Refused { .. })
         ));
         assert!(refused(&server, &eve_token).await.contains("revoked"));
-        tokio::time::sleep(Duration::from_millis(1100)).await;
+        // A token minted now on a clock up to MAX_CLOCK_SKEW_SECS fast would
+        // verify: the revocation covers that long, so a new one waits too.
         let fresh = token(&server, "eve", Role::Player);
-        let eve = Client::connect(server.addr, &server.cert_der, &fresh)
+        assert!(refused(&server, &fresh).await.contains("revoked"));
+        tokio::time::sleep(Duration::from_millis(1100)).await;
+        let later = auth::issue(
+            server.data_dir.secret(),
+            "eve",
+            Role::Player,
+            Duration::from_secs(3600),
+            auth::unix_now() + MAX_CLOCK_SKEW_SECS,
+        )
+        .unwrap();
+        let eve = Client::connect(server.addr, &server.cert_der, &later)
             .await
-            .expect("a token issued after the revocation works");
+            .expect("a token issued after the revocation's time works");
         // Nobody else was touched.
         ana.ping(1).await.unwrap();
         eve.close().await;
@@ -175,6 +196,178 @@ async fn an_access_list_over_a_frame_comes_whole_in_parts() {
             &out[out.len() - 200..]
         );
         drop(eve);
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+async fn admin_client(server: &app::Running, token: &str) -> AdminClient {
+    AdminClient::connect(server.addr, &server.cert_der, token)
+        .await
+        .expect("admin connects")
+}
+
+/// The error that ends `c`'s session when it sends `req`: the request's
+/// own, or the `Error` the server sent before it (a periodic check may
+/// close the session first, and then the send fails with no code).
+async fn ended(c: &mut AdminClient, req: &AdminRequest) -> String {
+    let e = c.request(req).await.expect_err("refused").to_string();
+    if e.contains("server refused (") {
+        return e;
+    }
+    c.next().await.expect_err("the server's Error").to_string()
+}
+
+/// A leaked admin token revoked, or its admin banned, while its session is
+/// open: the next request is refused and the connection closes, and an
+/// idle session is closed within ADMIN_RECHECK_PERIOD. Others go on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_revoked_or_banned_admin_loses_its_open_session() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let mut mal = admin_client(&server, &token(&server, "mal", Role::Admin)).await;
+        let mut eve = admin_client(&server, &token(&server, "eve", Role::Admin)).await;
+        let mut root = admin_client(&server, &token(&server, "root", Role::Admin)).await;
+        assert!(matches!(
+            mal.request(&AdminRequest::Players).await.unwrap(),
+            AdminResponse::Players(_)
+        ));
+        let revoke = AdminRequest::RevokeTokens {
+            player: "mal".into(),
+        };
+        assert!(matches!(
+            root.request(&revoke).await.unwrap(),
+            AdminResponse::Access(_)
+        ));
+        let e = ended(&mut mal, &AdminRequest::Players).await;
+        assert!(e.contains("(Forbidden)") && e.contains("revoked"), "{e}");
+        assert!(
+            mal.request(&AdminRequest::Stats).await.is_err(),
+            "the connection is closed"
+        );
+
+        // Eve sends nothing: the periodic check ends her session.
+        let ban = AdminRequest::Ban {
+            player: "eve".into(),
+            until: None,
+        };
+        assert!(matches!(
+            root.request(&ban).await.unwrap(),
+            AdminResponse::Access(_)
+        ));
+        let limit = ADMIN_RECHECK_PERIOD + Duration::from_secs(5);
+        let e = tokio::time::timeout(limit, eve.next())
+            .await
+            .expect("closed within the recheck period")
+            .expect_err("refused")
+            .to_string();
+        assert!(e.contains("(Forbidden)") && e.contains("banned"), "{e}");
+
+        // Root's session outlived several checks.
+        match root.request(&AdminRequest::Access).await.unwrap() {
+            AdminResponse::Access(a) => {
+                assert!(a.bans.iter().any(|(p, _)| p == "eve"));
+                assert!(a.revoked_before.iter().any(|(p, _)| p == "mal"));
+            }
+            other => panic!("unexpected {other:?}"),
+        }
+        root.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// An admin token's lifetime ends its open session: the first request
+/// after it expires fails with `ExpiredToken`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_admin_session_ends_when_its_token_expires() {
+    const TTL: Duration = Duration::from_secs(3);
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let issued_at = auth::unix_now();
+        let short =
+            auth::issue(server.data_dir.secret(), "tmp", Role::Admin, TTL, issued_at).unwrap();
+        let mut tmp = admin_client(&server, &short).await;
+        assert!(matches!(
+            tmp.request(&AdminRequest::Players).await.unwrap(),
+            AdminResponse::Players(_)
+        ));
+        while auth::unix_now() < issued_at + TTL.as_secs() {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let e = ended(&mut tmp, &AdminRequest::Players).await;
+        assert!(e.contains("(ExpiredToken)"), "{e}");
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// How long the join test waits after its Hello for the server to check
+/// it and block on the updates stream (a local Hello takes milliseconds).
+const HELLO_CHECKED: Duration = Duration::from_millis(500);
+
+/// A ban between the Hello's check and the engine's Join finds no session
+/// to end; the session checks again after the Join and is refused. The
+/// client holds the join there by granting no stream credit for the
+/// updates stream until the ban is in.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ban_during_a_join_refuses_the_player() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        // Room for the ban within the handshake.
+        cfg.server.handshake_timeout_ms = 30_000;
+        let server = app::start(cfg).await.expect("server starts");
+        let mut tls = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
+        let mut transport = quinn::TransportConfig::default();
+        transport.max_concurrent_uni_streams(0u32.into());
+        tls.transport_config(Arc::new(transport));
+        let mut endpoint = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+        endpoint.set_default_client_config(tls);
+        let conn = endpoint
+            .connect(server.addr, "localhost")
+            .unwrap()
+            .await
+            .unwrap();
+        let (mut send, recv) = conn.open_bi().await.unwrap();
+        let hello = ClientMessage::Hello(Hello {
+            protocol_version: PROTOCOL_VERSION,
+            token: token(&server, "eve", Role::Player),
+            capabilities: 0,
+        });
+        let frame = encode_frame(&hello, Direction::ClientToServer).unwrap();
+        send.write_all(&frame).await.unwrap();
+        tokio::time::sleep(HELLO_CHECKED).await;
+        let out = online(&server, &["ban", "eve"]);
+        assert!(out.contains("banned eve"), "{out}");
+        assert!(!out.contains("ended"), "eve had not joined yet: {out}");
+        conn.set_max_concurrent_uni_streams(1u32.into());
+        let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ServerToClient));
+        let refusal = loop {
+            match reader.next::<ServerMessage>().await {
+                Ok(Some(ServerMessage::Error { code, message })) => break (code, message),
+                Ok(Some(ServerMessage::Welcome(_))) => panic!("a banned player got Welcome"),
+                Ok(Some(_)) => continue,
+                other => panic!("expected Error, got {other:?}"),
+            }
+        };
+        assert_eq!(refusal.0, ErrorCode::Forbidden, "{}", refusal.1);
+        assert!(refusal.1.contains("banned"), "{}", refusal.1);
+        // The engine let the session go.
+        let mut sessions = live_sessions(&server).await;
+        for _ in 0..100 {
+            if sessions == 0 {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            sessions = live_sessions(&server).await;
+        }
+        assert_eq!(sessions, 0);
         server.shutdown().await.unwrap();
     })
     .await

@@ -10,6 +10,7 @@
 //! to the one their `RegionElsewhere` names and keep editing there.
 //! A node at its region limit refuses an edit in a free region with
 //! `NodeFull`, and the client library passes it to the other node.
+//! Bans made on either node hold on both (the access list is shared).
 
 use crate::common;
 
@@ -20,10 +21,13 @@ use std::time::Duration;
 
 use common::*;
 use strata_client_sim::{client::Verdict, ClientOptions, ClusterClient};
-use strata_protocol::{RegionHolder, Role};
+use strata_protocol::admin::{AdminRequest, AdminResponse};
+use strata_protocol::{ErrorCode, RegionHolder, Role};
+use strata_server::admin::remote::AdminClient;
 use strata_server::app::{self, Running};
 use strata_server::cluster::ClusterConfig;
 use strata_server::datadir::{CERT_NAME, KEY_NAME, SECRET_NAME};
+use strata_server::net::admin_session::ACCESS_RELOAD_PERIOD;
 use strata_server::validate::spawn::SpawnArea;
 use strata_terrain::{ChunkPos, Edit, FixedVec3};
 
@@ -771,6 +775,88 @@ async fn a_region_let_go_is_read_from_its_last_writer_until_another_takes_it() {
         ann.close().await;
         bob.close().await;
         carl.close().await;
+        west.shutdown().await.unwrap();
+        east.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// The admin protocol's answer to `req` on `node`, as root.
+async fn admin_on(node: &Running, req: AdminRequest) -> AdminResponse {
+    let token = token(node, "root", Role::Admin);
+    let mut c = AdminClient::connect(node.addr, &node.cert_der, &token)
+        .await
+        .unwrap();
+    let answer = c.request(&req).await.unwrap();
+    c.close().await;
+    answer
+}
+
+fn ban(player: &str) -> AdminRequest {
+    AdminRequest::Ban {
+        player: player.into(),
+        until: None,
+    }
+}
+
+/// Bans made on either node hold on both: a change starts from the stored
+/// list, so neither erases the other's, and each node reads the list again
+/// within ACCESS_RELOAD_PERIOD, refusing and ending the other's banned.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bans_made_on_either_node_hold_on_both() {
+    let Some(db) = strata_tests::postgres::database("cluster_access") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dirs = tempfile::tempdir().unwrap();
+        let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
+        let west = node(&da, &db, "west", WEST_X).await;
+        share_keys(&da, &db_dir);
+        let east = node(&db_dir, &db, "east", EAST_X).await;
+        let eve = connect(&east, "eve", Role::Player).await;
+        let bans = |answer: AdminResponse| match answer {
+            AdminResponse::Access(a) => a.bans.into_iter().map(|(p, _)| p).collect::<Vec<_>>(),
+            other => panic!("unexpected {other:?}"),
+        };
+
+        // One ban on each node, the second before the east node reloads:
+        // it starts from the stored list and keeps the first.
+        assert_eq!(bans(admin_on(&west, ban("xav")).await), ["xav"]);
+        assert_eq!(bans(admin_on(&east, ban("yul")).await), ["xav", "yul"]);
+        assert_eq!(
+            bans(admin_on(&west, AdminRequest::Access).await),
+            ["xav", "yul"]
+        );
+
+        // Banned on the west node: once the east node has read the list
+        // again, it refuses zed's Hello and ends eve's live session.
+        admin_on(&west, ban("zed")).await;
+        admin_on(&west, ban("eve")).await;
+        let limit = ACCESS_RELOAD_PERIOD + Duration::from_secs(5);
+        let started = std::time::Instant::now();
+        let zed = token(&east, "zed", Role::Player);
+        let refused = loop {
+            match strata_client_sim::Client::connect(east.addr, &east.cert_der, &zed).await {
+                Err(strata_client_sim::ClientError::Refused { code, message }) => {
+                    break (code, message)
+                }
+                Ok(c) => c.close().await,
+                Err(e) => panic!("unexpected {e}"),
+            }
+            assert!(started.elapsed() < limit, "zed still joins the east node");
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        };
+        assert_eq!(refused.0, ErrorCode::Forbidden, "{}", refused.1);
+        assert!(refused.1.contains("banned"), "{}", refused.1);
+        let ended = tokio::time::timeout(limit, eve.closed())
+            .await
+            .expect("eve's session on the east node ended");
+        assert!(
+            matches!(&ended, strata_client_sim::ClientError::Refused { code, message }
+                if *code == ErrorCode::Kicked && message.contains("administrator")),
+            "{ended:?}"
+        );
         west.shutdown().await.unwrap();
         east.shutdown().await.unwrap();
     })

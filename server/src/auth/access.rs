@@ -1,15 +1,17 @@
 //! Who may not join although their token verifies: banned players (until a
 //! time, or for good) and revoked tokens (every token of a player issued at
-//! or before a time). Checked at every Hello, players' and admins'; stored
-//! in the world's store as the blob [`ACCESS_BLOB`] (JSON), so bans and
-//! revocations survive restarts and work on a stopped server too.
+//! or before a time). Checked at every Hello, players' and admins' (and
+//! by admin sessions again before each request); stored in the world's
+//! store as the blob [`ACCESS_BLOB`] (JSON), so bans and revocations
+//! survive restarts and work on a stopped server too. Every server reads it
+//! again from the store periodically, so a cluster's nodes share it.
 
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use strata_auth::Claims;
+use strata_auth::{Claims, MAX_CLOCK_SKEW_SECS};
 
 /// Blob name under which the access list is stored.
 pub const ACCESS_BLOB: &str = "access";
@@ -32,7 +34,7 @@ pub enum Denied {
     #[error("{player} is banned{}", until.map(|u| format!(" until unix time {u}")).unwrap_or_default())]
     Banned { player: String, until: Option<u64> },
     #[error(
-        "{player}'s tokens issued at or before unix time {before} were revoked; ask for a new one"
+        "{player}'s tokens issued at or before unix time {before} were revoked; ask for a new one after then"
     )]
     Revoked { player: String, before: u64 },
 }
@@ -98,13 +100,19 @@ impl AccessList {
         self.bans.remove(player).is_some()
     }
 
-    /// Refuses every token of `player` issued at or before `now`.
+    /// Refuses every token of `player` issued at or before `now` plus
+    /// [`MAX_CLOCK_SKEW_SECS`]: verification accepts an `issued_at` that far
+    /// ahead, so a token minted on a host whose clock runs fast is refused
+    /// too. New tokens for the player are refused until the server's clock
+    /// passes that time. A later revocation never shortens an earlier one.
     pub fn revoke(&mut self, player: &str, now: u64) -> Result<(), AccessError> {
         valid_name(player)?;
         if !self.revoked_before.contains_key(player) && self.len() >= MAX_ACCESS_ENTRIES {
             return Err(AccessError::Full);
         }
-        self.revoked_before.insert(player.to_string(), now);
+        let before = now.saturating_add(MAX_CLOCK_SKEW_SECS);
+        let entry = self.revoked_before.entry(player.to_string()).or_default();
+        *entry = (*entry).max(before);
         Ok(())
     }
 
@@ -148,11 +156,32 @@ mod tests {
     }
 
     #[test]
+    fn a_revocation_covers_tokens_minted_by_a_fast_clock() {
+        let mut a = AccessList::default();
+        let now = 10_000;
+        a.revoke("eve", now).unwrap();
+        let fast = now + MAX_CLOCK_SKEW_SECS;
+        assert_eq!(a.revoked_before["eve"], fast);
+        // As far ahead as verification accepts: refused at once.
+        assert!(matches!(
+            a.check(&claims("eve", fast), now),
+            Err(Denied::Revoked { .. })
+        ));
+        assert_eq!(a.check(&claims("eve", fast + 1), now + 1), Ok(()));
+        // An earlier revocation time (a clock stepped back) keeps the later one.
+        a.revoke("eve", now - 60).unwrap();
+        assert_eq!(a.revoked_before["eve"], fast);
+        // Near the end of time it saturates instead of wrapping.
+        a.revoke("max", u64::MAX - 1).unwrap();
+        assert_eq!(a.revoked_before["max"], u64::MAX);
+    }
+
+    #[test]
     fn bans_end_when_they_say_and_revocations_spare_newer_tokens() {
         let mut a = AccessList::default();
         a.ban("eve", Some(1000), 0).unwrap();
         a.ban("mal", None, 0).unwrap();
-        a.revoke("bob", 500).unwrap();
+        a.revoke("bob", 500 - MAX_CLOCK_SKEW_SECS).unwrap();
         assert!(matches!(
             a.check(&claims("eve", 10), 999),
             Err(Denied::Banned { .. })

@@ -4,8 +4,15 @@
 //!
 //! Player connections never come here: the endpoint routes by ALPN, and
 //! the player session decodes only `ClientMessage`.
+//!
+//! The token is checked again before each request and every
+//! [`ADMIN_RECHECK_PERIOD`]: an admin session that expires, is banned or
+//! revoked ends, as the engine, which does not know admin sessions, cannot
+//! kick it.
 
+use std::collections::BTreeSet;
 use std::sync::Arc;
+use std::time::Duration;
 
 use strata_protocol::admin::{
     AccessSpec, AdminRequest, AdminResponse, AdminWelcome, ServerStats, ADMIN_PROTOCOL_VERSION,
@@ -18,7 +25,7 @@ use tracing::{debug, info, warn, Instrument};
 use super::session::{
     accept_first_stream, check_token, close_code, read_error_code, SessionContext, DRAIN_TIMEOUT,
 };
-use crate::auth::{unix_now, AccessError, AccessList, ACCESS_BLOB};
+use crate::auth::{unix_now, AccessError, AccessList, AuthError, Claims, ACCESS_BLOB};
 use crate::engine::admin::{AdminCommand, SnapshotStart};
 use crate::engine::snapshot::PreImages;
 use crate::engine::Command;
@@ -27,6 +34,12 @@ use crate::store::{ChunkStore, RawChunk, StoreError};
 
 /// Encoded snapshot frames buffered between the store reader and the socket.
 pub const SNAPSHOT_STREAM_QUEUE: usize = 64;
+/// How often an admin session checks its token again (expiry, bans,
+/// revocations) while it waits for a request; it also does before each one.
+pub const ADMIN_RECHECK_PERIOD: Duration = Duration::from_secs(2);
+/// How often every server reads the access list again from its store, so
+/// bans and revocations made on another cluster node apply here too.
+pub const ACCESS_RELOAD_PERIOD: Duration = Duration::from_secs(5);
 
 type Send = quinn::SendStream;
 
@@ -126,9 +139,23 @@ pub async fn run(
         }
     };
     let span = tracing::info_span!("admin", id = session, admin = %claims.player);
-    serve(conn, ctx, shutdown, stream, reader, claims.player)
+    serve(conn, ctx, shutdown, stream, reader, claims)
         .instrument(span)
         .await
+}
+
+/// Whether an admin's claims still hold now, as the console checks its
+/// long-lived requests (`console::auth::still_admitted`): unexpired, not
+/// revoked, not banned. If not, the code and message to close with.
+fn recheck(ctx: &SessionContext, claims: &Claims) -> Result<(), (ErrorCode, String)> {
+    if unix_now() >= claims.expires_at {
+        let expired = AuthError::Expired {
+            expired_at: claims.expires_at,
+        };
+        return Err((ErrorCode::ExpiredToken, expired.to_string()));
+    }
+    ctx.admitted(claims)
+        .map_err(|denied| (ErrorCode::Forbidden, denied.to_string()))
 }
 
 async fn serve(
@@ -137,14 +164,14 @@ async fn serve(
     mut shutdown: Shutdown,
     mut stream: Send,
     mut reader: FramedReader<quinn::RecvStream>,
-    admin: String,
+    claims: Claims,
 ) {
     let last_seq = match ask(&ctx, AdminCommand::Stats).await {
         Ok(s) => s.last_seq,
         Err(m) => return refuse(&conn, stream, ErrorCode::TooManyConnections, &m).await,
     };
     let welcome = AdminResponse::Welcome(AdminWelcome {
-        admin,
+        admin: claims.player.clone(),
         last_seq,
         world_seed: ctx.world_seed,
         generator_version: ctx.generator_version,
@@ -153,9 +180,19 @@ async fn serve(
         return;
     }
     info!("admin session started");
+    let start = tokio::time::Instant::now() + ADMIN_RECHECK_PERIOD;
+    let mut tick = tokio::time::interval_at(start, ADMIN_RECHECK_PERIOD);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         let req = tokio::select! {
             r = reader.next::<AdminRequest>() => r,
+            _ = tick.tick() => {
+                if let Err((code, message)) = recheck(&ctx, &claims) {
+                    warn!(reason = %message, "admin session ended: its token no longer holds");
+                    return refuse(&conn, stream, code, &message).await;
+                }
+                continue;
+            }
             _ = shutdown.wait() => {
                 return refuse(&conn, stream, ErrorCode::ShuttingDown, "server is shutting down").await;
             }
@@ -166,6 +203,10 @@ async fn serve(
             Err(ReadError::Io(e)) => return debug!(error = %e, "admin stream ended"),
             Err(e) => return refuse(&conn, stream, read_error_code(&e), &e.to_string()).await,
         };
+        if let Err((code, message)) = recheck(&ctx, &claims) {
+            warn!(reason = %message, "refused a request: the admin's token no longer holds");
+            return refuse(&conn, stream, code, &message).await;
+        }
         let result = match req {
             AdminRequest::Hello(_) => {
                 let msg = "Hello was already received";
@@ -284,15 +325,21 @@ pub(crate) async fn answer(
     })
 }
 
-/// Applies `change` to a copy of the access list, persists it (fsynced),
-/// makes it current, and ends the live sessions of the player `change`
-/// names. A refused or failed change leaves everything as it was.
+/// Applies `change` to the access list as the store holds it now (not to
+/// this server's copy: another cluster node may have changed it since, and
+/// writing the copy back would undo that), persists it (fsynced), makes it
+/// current, and ends the live sessions of the player `change` names. A
+/// refused or failed change leaves the store as it was.
 async fn access_answer(
     ctx: &Arc<SessionContext>,
     change: impl FnOnce(&mut AccessList, u64) -> Result<Option<String>, AccessError>,
 ) -> Result<AdminResponse, String> {
     let _one_writer = ctx.access_writes.lock().await;
-    let mut list = ctx.access.read().unwrap_or_else(|e| e.into_inner()).clone();
+    let mut list = match stored_access(ctx).await {
+        Ok(list) => list,
+        Err(m) => return Ok(refused(m)),
+    };
+    adopt(ctx, list.clone()).await?;
     let before = list.clone();
     let kick = match change(&mut list, unix_now()) {
         Ok(k) => k,
@@ -314,6 +361,73 @@ async fn access_answer(
         None => 0,
     };
     Ok(AdminResponse::Access(access_spec(&list, kicked)))
+}
+
+/// The access list as the store holds it now.
+async fn stored_access(ctx: &SessionContext) -> Result<AccessList, String> {
+    let store = ctx.store.clone();
+    let blob = tokio::task::spawn_blocking(move || store.get_blob(ACCESS_BLOB))
+        .await
+        .map_err(|e| e.to_string())?
+        .map_err(|e| format!("store read failed: {e}"))?;
+    AccessList::from_blob(blob.as_deref()).map_err(|e| e.to_string())
+}
+
+/// Makes `stored` the current list and ends the live sessions of the
+/// players it bans or revokes anew (changes made elsewhere, e.g. on another
+/// node). Called under `access_writes`.
+async fn adopt(ctx: &SessionContext, stored: AccessList) -> Result<(), String> {
+    let renewed = {
+        let mut current = ctx.access.write().unwrap_or_else(|e| e.into_inner());
+        if *current == stored {
+            return Ok(());
+        }
+        let renewed = renewed_players(&current, &stored);
+        *current = stored;
+        renewed
+    };
+    for player in renewed {
+        info!(%player, "access list changed elsewhere: ending the player's sessions");
+        ask(ctx, |reply| AdminCommand::Kick { player, reply }).await?;
+    }
+    Ok(())
+}
+
+/// Players whose ban or revocation `new` adds or changes from `old`.
+fn renewed_players(old: &AccessList, new: &AccessList) -> BTreeSet<String> {
+    let bans = new
+        .bans
+        .iter()
+        .filter(|(p, until)| old.bans.get(*p) != Some(until))
+        .map(|(p, _)| p.clone());
+    let revoked = new
+        .revoked_before
+        .iter()
+        .filter(|(p, before)| old.revoked_before.get(*p) != Some(before))
+        .map(|(p, _)| p.clone());
+    bans.chain(revoked).collect()
+}
+
+/// Reads the stored access list every [`ACCESS_RELOAD_PERIOD`] and adopts
+/// it, until shutdown. A failed read keeps the current list.
+pub async fn reload_access(ctx: Arc<SessionContext>, mut shutdown: Shutdown) {
+    let start = tokio::time::Instant::now() + ACCESS_RELOAD_PERIOD;
+    let mut tick = tokio::time::interval_at(start, ACCESS_RELOAD_PERIOD);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = shutdown.wait() => return,
+        }
+        let _one_writer = ctx.access_writes.lock().await;
+        let adopted = match stored_access(&ctx).await {
+            Ok(stored) => adopt(&ctx, stored).await,
+            Err(e) => Err(e),
+        };
+        if let Err(e) = adopted {
+            warn!(error = %e, "reloading the access list failed");
+        }
+    }
 }
 
 /// The wire form of an access list.

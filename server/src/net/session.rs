@@ -385,6 +385,15 @@ async fn joined(
         )
         .await;
     };
+    // A ban between the Hello's check and the engine's Join found no session
+    // to end; the engine knows this one now, so any later ban kicks it.
+    if let Err(denied) = ctx.admitted(&claims) {
+        warn!(%denied, "refused a player denied while joining");
+        leave(&ctx.engine, session).await;
+        updates_task.abort();
+        let code = ErrorCode::Forbidden;
+        return refuse(&conn, control, control_task, code, &denied.to_string()).await;
+    }
     let welcome = Welcome {
         session,
         player: claims.player.clone(),
