@@ -201,11 +201,22 @@ fn late_deltas_of_a_forgotten_chunk_are_dropped_not_resynced() {
     assert!(replica.get(pos).is_none());
     assert_eq!(replica.apply(update()), None, "no resync for it");
     assert_eq!(replica.stats.gaps, 0);
-    // Sent again, it is held and takes deltas as usual.
+    // A whole chunk the server sent before it handled the Forget is not
+    // taken in: the server no longer sends its deltas, so it would go stale.
+    assert_eq!(replica.apply(WorldUpdate::Generated { pos }), None);
+    assert!(replica.get(pos).is_none(), "late snapshot ignored");
+    assert_eq!(replica.stats.generated, 1);
+    // Asked for again (resync), it is held and takes deltas as usual.
+    replica.undrop(pos);
     assert_eq!(replica.apply(WorldUpdate::Generated { pos }), None);
     assert_eq!(replica.apply(update()), None);
     assert_eq!(replica.get(pos).map(|h| h.version), Some(1));
     // A chunk dropped without Forget (it left the view) is asked for again.
     assert_eq!(replica.apply(WorldUpdate::Unsubscribed { pos }), None);
     assert_eq!(replica.apply(update()), Some(Request::Resync(pos)));
+    // A forgotten chunk that leaves the view and comes back is taken in.
+    replica.drop_chunk(pos);
+    assert_eq!(replica.apply(WorldUpdate::Unsubscribed { pos }), None);
+    assert_eq!(replica.apply(WorldUpdate::Generated { pos }), None);
+    assert_eq!(replica.get(pos).map(|h| h.version), Some(0));
 }

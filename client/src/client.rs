@@ -528,8 +528,10 @@ impl Client {
             .await
     }
 
-    /// Asks for a fresh snapshot of one chunk.
+    /// Asks for a fresh snapshot of one chunk (taken in even if the chunk
+    /// was forgotten).
     pub async fn resync(&self, pos: ChunkPos) -> Result<(), ClientError> {
+        self.replica().undrop(pos);
         self.send(&ClientMessage::ResyncRequest { pos }).await
     }
 
@@ -557,8 +559,10 @@ impl Client {
         .await
     }
 
-    /// Asks for a chunk's full data, even at version 0.
+    /// Asks for a chunk's full data, even at version 0 (taken in even if
+    /// the chunk was forgotten).
     pub async fn full_snapshot(&self, pos: ChunkPos) -> Result<(), ClientError> {
+        self.replica().undrop(pos);
         self.send(&ClientMessage::FullSnapshotRequest { pos }).await
     }
 

@@ -122,8 +122,10 @@ pub struct Replica {
     pool: Arc<ChunkPool>,
     pub stats: ReplicaStats,
     last_seq: u64,
-    /// Chunks the client forgot (`Forget`): deltas still in flight for
-    /// them are dropped, not answered with a resync.
+    /// Chunks the client forgot (`Forget`): deltas and whole chunks still
+    /// in flight for them are dropped, not answered with a resync, until
+    /// the client asks for the chunk again ([`Replica::undrop`]) or it
+    /// leaves the view.
     dropped: HashSet<ChunkPos>,
 }
 
@@ -160,10 +162,24 @@ impl Replica {
     }
 
     /// Drops a chunk the client no longer wants (it sends `Forget`): it is
-    /// not held, and late deltas for it are ignored until it is sent again.
+    /// not held, and late deltas and whole chunks for it (sent before the
+    /// server handled the `Forget`) are ignored until [`Self::undrop`].
     pub fn drop_chunk(&mut self, pos: ChunkPos) {
         self.forget(pos);
         self.dropped.insert(pos);
+    }
+
+    /// The client asks for a dropped chunk again (`ResyncRequest` or
+    /// `FullSnapshotRequest`): the chunk sent in answer is taken in. Call
+    /// before sending the request.
+    pub fn undrop(&mut self, pos: ChunkPos) {
+        self.dropped.remove(&pos);
+    }
+
+    /// Whether `pos` was dropped with [`Self::drop_chunk`] and not asked for
+    /// again since.
+    pub fn is_dropped(&self, pos: ChunkPos) -> bool {
+        self.dropped.contains(&pos)
     }
 
     /// Records every version each chunk passes through, and its hash
@@ -240,7 +256,6 @@ impl Replica {
     }
 
     fn hold(&mut self, pos: ChunkPos, chunk: Arc<Chunk>, version: u64, hash: u64) {
-        self.dropped.remove(&pos);
         if let Some(h) = self.history.as_mut() {
             let seen = h.entry(pos).or_default();
             if seen.last() != Some(&version) {
@@ -271,6 +286,13 @@ impl Replica {
 
     /// Applies one update; returns what must be requested from the server.
     pub fn apply(&mut self, update: WorldUpdate) -> Option<Request> {
+        // A whole chunk the server sent before it handled our `Forget`: it
+        // would be held at a version the server no longer takes forward.
+        if let Some(pos) = whole_chunk_pos(&update) {
+            if self.dropped.contains(&pos) {
+                return None;
+            }
+        }
         match update {
             WorldUpdate::Generated { pos } => match self.generator.clone() {
                 Some(g) => {
@@ -379,6 +401,8 @@ impl Replica {
                     };
                     self.pending_mesh.insert(c.pos, p);
                 }
+                // Forgotten: no resync, as for a delta.
+                Err(_) if self.dropped.contains(&c.pos) => {}
                 Err(f) => {
                     match f {
                         ReplayFailure::MissingBase => self.stats.op_gaps += 1,
@@ -578,5 +602,14 @@ impl Replica {
     pub fn voxel(&self, p: VoxelPos) -> Option<Voxel> {
         let (x, y, z) = p.local();
         self.chunks.get(&p.chunk()).map(|h| h.chunk.get(x, y, z))
+    }
+}
+
+/// The chunk a whole-chunk update (`Generated`, `Snapshot`, `Patched`) carries.
+fn whole_chunk_pos(update: &WorldUpdate) -> Option<ChunkPos> {
+    match update {
+        WorldUpdate::Generated { pos } | WorldUpdate::Snapshot { pos, .. } => Some(*pos),
+        WorldUpdate::Patched { delta, .. } => Some(delta.pos),
+        _ => None,
     }
 }

@@ -347,3 +347,59 @@ async fn a_forgotten_chunk_gets_no_deltas_until_it_is_resynced() {
     .await
     .expect("test finished in time");
 }
+
+#[tokio::test]
+async fn a_forgotten_chunk_whose_snapshot_was_on_its_way_does_not_go_stale() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let (feet, surface) = spot(20, 20);
+        let target = surface.chunk();
+        let editor = connect(&server, "digger", Role::Player).await;
+        editor.send_position(feet).unwrap();
+        assert!(eventually(Duration::from_secs(10), || editor.view_loaded().is_some()).await);
+        // The watcher lags: the target's snapshot is sent (and the server
+        // records it held) but not applied before the client forgets it.
+        let watcher = connect(&server, "watcher", Role::Player).await;
+        watcher.pause_updates();
+        watcher.subscribe(target, 1).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        watcher.forget(&[target]).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        // The server no longer sends the target's deltas to the watcher.
+        let mine = Edit::Mine {
+            center: strata_terrain::FixedVec3::from_voxels(surface.x, surface.y, surface.z),
+            radius: r(2.0),
+            strength: 255,
+        };
+        let seq = match editor.edit(mine).await.unwrap() {
+            Verdict::Accepted { seq } => seq,
+            other => panic!("the edit was refused: {other:?}"),
+        };
+        assert!(
+            eventually(Duration::from_secs(5), || editor.replica().last_seq()
+                >= seq)
+            .await
+        );
+        let version = editor
+            .replica()
+            .get(target)
+            .expect("editor holds it")
+            .version;
+        assert!(version >= 1);
+        // The late snapshot arrives after the Forget: it must not be kept
+        // at a version the server no longer takes forward.
+        watcher.resume_updates();
+        loaded(&watcher, target, 1).await;
+        let held = watcher.replica().get(target).map(|h| h.version);
+        assert!(
+            held.is_none_or(|v| v == version),
+            "the watcher holds the target at {held:?}, the server at {version}"
+        );
+        editor.close().await;
+        watcher.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

@@ -371,37 +371,28 @@ impl super::Engine {
     /// Queues meshes for the chunks around `center` that have none, nearest
     /// first, as many as there is room for; the rest wait in the backlog.
     fn premesh_center(&mut self, center: ChunkPos) {
-        let version_of =
-            |versions: &HashMap<ChunkPos, u64>, p: ChunkPos| versions.get(&p).copied().unwrap_or(0);
-        let mut targets: Vec<PremeshTarget> = around(center, self.cfg.premesh_radius)
+        let durable = |p: ChunkPos| self.versions.get(&p).copied().unwrap_or(0);
+        let mut positions: Vec<ChunkPos> = around(center, self.cfg.premesh_radius)
             .into_iter()
             .filter(|p| !self.premesh.is_inflight(*p))
-            .filter(|p| {
-                let v = version_of(&self.versions, *p);
-                self.seq.collision().get(*p, v).is_none()
-            })
-            .map(|pos| PremeshTarget {
-                pos,
-                version: version_of(&self.versions, pos),
-                stamp: stamp(pos, |p| version_of(&self.versions, p)),
-            })
+            .filter(|p| self.seq.collision().get(*p, durable(*p)).is_none())
             .collect();
-        if targets.is_empty() {
+        if positions.is_empty() {
             return;
         }
         let room = self.premesh.room();
-        if room < targets.len() {
-            targets.truncate(room);
+        if room < positions.len() {
+            positions.truncate(room);
             if !self.premesh.defer(center) {
                 metrics::counter!(m::PREMESH_SKIPPED).increment(1);
             }
-            if targets.is_empty() {
+            if positions.is_empty() {
                 return;
             }
         }
-        let mut reads: Vec<ChunkPos> = targets
+        let mut reads: Vec<ChunkPos> = positions
             .iter()
-            .flat_map(|t| t.stamp.iter().map(|(p, _)| *p))
+            .flat_map(|t| with_neighbours(*t))
             .filter(|p| self.versions.contains_key(p))
             .collect();
         reads.sort();
@@ -410,11 +401,29 @@ impl super::Engine {
             tracing::error!(error = %e, "store read failed");
             return;
         }
-        let modified = reads
+        // Each chunk read is stamped with the world's version of it, not the
+        // durable one: during a commit the world may hold a batch's
+        // uncommitted content, which goes back if the batch is fenced; the
+        // mesh of it must then be found stale. Chunks not read are generated
+        // (version 0).
+        let read: HashMap<ChunkPos, (Arc<Chunk>, u64)> = reads
             .iter()
             // Shared with the world: the engine thread copies nothing.
-            .filter_map(|p| Some((*p, self.seq.world().peek(*p)?.chunk.clone())))
+            .filter_map(|p| {
+                let c = self.seq.world().peek(*p)?;
+                Some((*p, (c.chunk.clone(), c.version)))
+            })
             .collect();
+        let version_of = |p: ChunkPos| read.get(&p).map_or(0, |(_, v)| *v);
+        let targets = positions
+            .into_iter()
+            .map(|pos| PremeshTarget {
+                pos,
+                version: version_of(pos),
+                stamp: stamp(pos, version_of),
+            })
+            .collect();
+        let modified = read.into_iter().map(|(p, (c, _))| (p, c)).collect();
         self.premesh.submit(PremeshJob {
             targets,
             modified,
