@@ -1,5 +1,6 @@
 //! The real `strata-admin` process against a real `strata-server` process:
-//! online zones, players, stats, inspect and snapshot create; then verify
+//! online zones, players, stats (the token also from --token-file),
+//! inspect and snapshot create; then verify
 //! (a corrupt byte is named by record), restore (refused when corrupt or
 //! onto a non-empty dir) and diff, and the offline forms on the stopped dir.
 
@@ -97,6 +98,32 @@ async fn admin_cli_online_then_offline() {
     refused[last] = player_token.trim().to_string();
     let msg = fails(&refused.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(msg.contains("Forbidden"), "{msg}");
+    // The token from a file, off the command line (whitespace ignored).
+    let token_file = tmp.path().join("admin.token");
+    std::fs::write(&token_file, format!("  {token}\n")).unwrap();
+    let from_file = |extra: &[&'static str]| -> Vec<&str> {
+        let mut v = extra.to_vec();
+        v.extend([
+            "--server",
+            &addr_s,
+            "--cert",
+            p(&cert),
+            "--token-file",
+            p(&token_file),
+        ]);
+        v
+    };
+    assert!(ok(&from_file(&["stats"])).contains("sessions: 0"));
+    let empty = tmp.path().join("empty.token");
+    std::fs::write(&empty, "\n").unwrap();
+    let mut no_token = from_file(&["stats"]);
+    let last = no_token.len() - 1;
+    no_token[last] = p(&empty);
+    let msg = fails(&no_token);
+    assert!(msg.contains("is empty"), "{msg}");
+    let mut both = from_file(&["stats"]);
+    both.extend(["--token", token]);
+    assert!(fails(&both).contains("cannot be used with"));
 
     let snap = tmp.path().join("a.snap");
     let created = run(online(&["snapshot", "create", "--out", p(&snap)]));

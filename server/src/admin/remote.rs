@@ -33,15 +33,44 @@ pub struct TargetArgs {
     /// Data dir of a stopped server (offline).
     #[arg(long, conflicts_with = "server", required_unless_present = "server")]
     pub data_dir: Option<PathBuf>,
-    /// Address of a running server (online), e.g. 127.0.0.1:4433.
-    #[arg(long, requires_all = ["cert", "token"])]
+    /// Address of a running server (online), e.g. 127.0.0.1:4433; needs
+    /// --cert and --token or --token-file.
+    #[arg(long, requires = "cert")]
     pub server: Option<SocketAddr>,
     /// The server's certificate (DER, `<data-dir>/cert.der`) to pin.
     #[arg(long, requires = "server")]
     pub cert: Option<PathBuf>,
-    /// An admin-role token (`strata-admin token issue --role admin`).
-    #[arg(long, requires = "server")]
+    /// An admin-role token (`strata-admin token issue --role admin`). On a
+    /// shared host prefer --token-file: a command line is visible to every
+    /// local user while the command runs.
+    #[arg(long, requires = "server", conflicts_with = "token_file")]
     pub token: Option<String>,
+    /// A file holding the admin token (surrounding whitespace ignored).
+    #[arg(long, value_name = "FILE", requires = "server")]
+    pub token_file: Option<PathBuf>,
+}
+
+/// Longest token file read: far above any token's length.
+pub const MAX_TOKEN_FILE_BYTES: u64 = 64 * 1024;
+
+/// The token in `path`, trimmed.
+fn read_token_file(path: &Path) -> anyhow::Result<String> {
+    use std::io::Read;
+    let mut text = String::new();
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MAX_TOKEN_FILE_BYTES + 1).read_to_string(&mut text))
+        .with_context(|| format!("reading the token file {}", path.display()))?;
+    if text.len() as u64 > MAX_TOKEN_FILE_BYTES {
+        bail!(
+            "the token file {} is over {MAX_TOKEN_FILE_BYTES} bytes",
+            path.display()
+        );
+    }
+    let token = text.trim();
+    if token.is_empty() {
+        bail!("the token file {} is empty", path.display());
+    }
+    Ok(token.to_string())
 }
 
 /// A resolved target.
@@ -57,14 +86,21 @@ pub enum Target {
 
 impl TargetArgs {
     pub fn target(&self) -> anyhow::Result<Target> {
-        match (&self.data_dir, self.server, &self.cert, &self.token) {
+        let token = match (&self.token, &self.token_file) {
+            (Some(t), _) => Some(t.clone()),
+            (None, Some(path)) => Some(read_token_file(path)?),
+            (None, None) => None,
+        };
+        match (&self.data_dir, self.server, &self.cert, token) {
             (Some(d), None, _, _) => Ok(Target::Offline(d.clone())),
             (None, Some(server), Some(cert), Some(token)) => Ok(Target::Online {
                 server,
                 cert: cert.clone(),
-                token: token.clone(),
+                token,
             }),
-            _ => bail!("give either --data-dir, or --server with --cert and --token"),
+            _ => {
+                bail!("give either --data-dir, or --server with --cert and --token or --token-file")
+            }
         }
     }
 
