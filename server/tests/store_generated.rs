@@ -178,3 +178,46 @@ fn another_generator_never_yields_a_wrong_chunk() {
         );
     }
 }
+
+/// A chunk whose records do not read (here: a generated one, reopened
+/// without the generator) is left unfolded, and the checkpoint folds the
+/// other chunks all the same: one bad chunk never stops every later pass.
+#[test]
+fn a_chunk_that_does_not_read_does_not_stop_the_checkpoint() {
+    for place in places("generated_checkpoint_skips") {
+        let g = flat(ids::STONE);
+        let mut seq = Seq::default();
+        let (b1, b2) = (terrain_chunk(2), terrain_chunk(3));
+        {
+            let store = open(&place, Some(g));
+            // A from generated; B stored whole first, then changed by a delta.
+            store
+                .commit_batch(&seq.generated_batch(&[vec![(A, terrain_chunk(1))]], &g))
+                .unwrap();
+            store
+                .commit_batch(&seq.delta_batch(&[vec![(B, b1)]]))
+                .unwrap();
+            store
+                .commit_batch(&seq.delta_batch(&[vec![(B, b2.clone())]]))
+                .unwrap();
+            assert_eq!(store.delta_count().unwrap(), 2);
+        }
+        let store = open(&place, None);
+        let folded = store.checkpoint(usize::MAX).unwrap();
+        assert_eq!(
+            (folded.chunks, folded.skipped),
+            (1, 1),
+            "{}",
+            place.backend()
+        );
+        assert_eq!(store.delta_count().unwrap(), 1, "A's delta stays");
+        let loaded = store.load_chunk(B).unwrap().unwrap();
+        assert_eq!((loaded.version, loaded.chunk), (2, b2.clone()));
+        drop(store);
+        // With the generator back, the next pass folds A too.
+        let store = open(&place, Some(g));
+        let folded = store.checkpoint(usize::MAX).unwrap();
+        assert_eq!((folded.chunks, folded.skipped), (1, 0));
+        assert_eq!(store.delta_count().unwrap(), 0);
+    }
+}

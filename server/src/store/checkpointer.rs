@@ -161,6 +161,7 @@ fn paced_pass(
         report.folded.chunks += s.chunks;
         report.folded.deltas += s.deltas;
         report.folded.bytes_written += s.bytes_written;
+        report.folded.skipped += s.skipped;
         let pause = took * PAUSE_FACTOR;
         if slices.peek().is_none() || started.elapsed() + pause > pace.every / 2 {
             // Done, or late: finish before the next pass is due.

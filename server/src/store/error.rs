@@ -95,6 +95,17 @@ fn pg_reason(e: &tokio_postgres::Error) -> String {
 }
 
 impl StoreError {
+    /// An error in one chunk's records (they do not decode, replay or
+    /// rebuild): a checkpoint leaves that chunk unfolded and goes on.
+    pub fn is_chunk_local(&self) -> bool {
+        matches!(
+            self,
+            StoreError::Corrupt { .. }
+                | StoreError::Codec { .. }
+                | StoreError::NeedsGenerator { .. }
+        )
+    }
+
     /// An error from PostgreSQL itself (the connection may be unusable).
     pub fn is_postgres(&self) -> bool {
         matches!(

@@ -139,6 +139,10 @@ pub struct CheckpointStats {
     pub deltas: u64,
     /// Chunk record bytes written.
     pub bytes_written: u64,
+    /// Chunks left unfolded because their records do not read
+    /// ([`crate::store::StoreError::is_chunk_local`], each logged): their
+    /// deltas stay, and the other chunks are folded all the same.
+    pub skipped: u64,
 }
 
 /// Whether this node may write the regions an edit touches
