@@ -48,6 +48,17 @@ async fn node(dir: &Path, db: &strata_tests::postgres::PgDb, id: &str, spawn_x: 
     node_leasing(dir, db, (id, spawn_x), 5_000, 500).await
 }
 
+/// The west and east nodes on `db`, sharing keys, with the default
+/// leases; the temp dir holding their data dirs comes first (keep it).
+async fn west_and_east(db: &strata_tests::postgres::PgDb) -> (tempfile::TempDir, Running, Running) {
+    let dirs = tempfile::tempdir().unwrap();
+    let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
+    let west = node(&da, db, "west", WEST_X).await;
+    share_keys(&da, &db_dir);
+    let east = node(&db_dir, db, "east", EAST_X).await;
+    (dirs, west, east)
+}
+
 /// [`node`] with its lease and renewal period.
 async fn node_leasing(
     dir: &Path,
@@ -198,11 +209,7 @@ async fn a_player_walks_into_another_nodes_region_and_keeps_playing() {
         return;
     };
     tokio::time::timeout(TEST_TIMEOUT, async {
-        let dirs = tempfile::tempdir().unwrap();
-        let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
-        let west = node(&da, &db, "west", WEST_X).await;
-        share_keys(&da, &db_dir);
-        let east = node(&db_dir, &db, "east", EAST_X).await;
+        let (_dirs, west, east) = west_and_east(&db).await;
         let (bob, mut ann) = bob_east_ann_west(&west, &east).await;
         let owners = ann.home().region_owners().expect("RegionOwners");
         let east_holds = owners.regions.iter().any(|r| {
@@ -809,11 +816,7 @@ async fn bans_made_on_either_node_hold_on_both() {
         return;
     };
     tokio::time::timeout(TEST_TIMEOUT, async {
-        let dirs = tempfile::tempdir().unwrap();
-        let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
-        let west = node(&da, &db, "west", WEST_X).await;
-        share_keys(&da, &db_dir);
-        let east = node(&db_dir, &db, "east", EAST_X).await;
+        let (_dirs, west, east) = west_and_east(&db).await;
         let eve = connect(&east, "eve", Role::Player).await;
         let bans = |answer: AdminResponse| match answer {
             AdminResponse::Access(a) => a.bans.into_iter().map(|(p, _)| p).collect::<Vec<_>>(),
