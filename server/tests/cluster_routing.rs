@@ -483,62 +483,77 @@ async fn sql(db: &strata_tests::postgres::PgDb, statement: &str) {
     let _ = driver.await;
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_batch_fenced_after_a_takeover_is_refused_and_the_node_goes_on() {
+/// West on `db` with renewals far apart (it learns of a takeover only
+/// from its next commit's fence), and ann standing there, her first edit
+/// accepted: its verdict and changes.
+async fn west_with_ann(
+    dir: &Path,
+    db: &strata_tests::postgres::PgDb,
+) -> (
+    Running,
+    strata_client_sim::Client,
+    strata_client_sim::client::Acked,
+) {
+    let west = node_leasing(dir, db, ("west", WEST_X), 60_000, 10_000).await;
+    let ann = standing(&west, "ann", WEST_X).await;
+    let acked = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+    (west, ann, acked)
+}
+
+/// Another node ("thief", at 127.0.0.1:9) takes region (0, 0) while its
+/// holder is unaware: the lease is run out and the thief claims it.
+async fn thief_takes_region_zero(
+    db: &strata_tests::postgres::PgDb,
+) -> strata_server::store::PgStore {
     use strata_server::sequencer::regions::RegionId;
     use strata_server::store::{ChunkStore, PgStore};
+    sql(
+        db,
+        "UPDATE regions SET lease_expires = now() - interval '1 second' \
+         WHERE region_x = 0 AND region_z = 0",
+    )
+    .await;
+    let url = db.url();
+    tokio::task::spawn_blocking(move || {
+        let pg = strata_server::store::pg::PgConfig {
+            url,
+            ..Default::default()
+        };
+        let other = ClusterConfig {
+            node_id: "thief".into(),
+            lease_ms: 60_000,
+            renew_ms: 10_000,
+            advertise: "127.0.0.1:9".into(),
+            adopt: false,
+            ..ClusterConfig::default()
+        };
+        let s = PgStore::open_node(&pg, 8, &other).unwrap();
+        // A node of the same world: the same generator.
+        let (g, _) = strata_server::app::world_generator(&test_config(Path::new("."))).unwrap();
+        s.attach_generator(Arc::new(g));
+        assert_eq!(
+            s.claim_regions(&[RegionId { x: 0, z: 0 }]).unwrap().len(),
+            1
+        );
+        s
+    })
+    .await
+    .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_batch_fenced_after_a_takeover_is_refused_and_the_node_goes_on() {
+    use strata_server::store::ChunkStore;
     let Some(db) = strata_tests::postgres::database("cluster_fenced_batch") else {
         return;
     };
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dirs = tempfile::tempdir().unwrap();
-        // Renewals far apart: the node learns of the takeover only from
-        // its next commit's fence.
-        let west = node_leasing(
-            &dirs.path().join("a"),
-            &db,
-            ("west", WEST_X),
-            60_000,
-            10_000,
-        )
-        .await;
-        let ann = standing(&west, "ann", WEST_X).await;
-        let (v, first) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        let (west, ann, (v, first)) = west_with_ann(&dirs.path().join("a"), &db).await;
         let Verdict::Accepted { seq } = v else {
             panic!("{v:?}")
         };
-
-        // Another node takes region (0, 0) while west is unaware.
-        let region = RegionId { x: 0, z: 0 };
-        sql(
-            &db,
-            "UPDATE regions SET lease_expires = now() - interval '1 second' \
-             WHERE region_x = 0 AND region_z = 0",
-        )
-        .await;
-        let url = db.url();
-        let thief = tokio::task::spawn_blocking(move || {
-            let pg = strata_server::store::pg::PgConfig {
-                url,
-                ..Default::default()
-            };
-            let other = ClusterConfig {
-                node_id: "thief".into(),
-                lease_ms: 60_000,
-                renew_ms: 10_000,
-                advertise: "127.0.0.1:9".into(),
-                adopt: false,
-                ..ClusterConfig::default()
-            };
-            let s = PgStore::open_node(&pg, 8, &other).unwrap();
-            // A node of the same world: the same generator.
-            let (g, _) = strata_server::app::world_generator(&test_config(Path::new("."))).unwrap();
-            s.attach_generator(Arc::new(g));
-            assert_eq!(s.claim_regions(&[region]).unwrap().len(), 1);
-            s
-        })
-        .await
-        .unwrap();
+        let thief = thief_takes_region_zero(&db).await;
 
         // West's next edit there is fenced: refused, naming the thief.
         let (v, _) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
@@ -574,6 +589,94 @@ async fn a_batch_fenced_after_a_takeover_is_refused_and_the_node_goes_on() {
         .await
         .unwrap();
         assert_eq!(stored, (Some(seq), Some(first[0].version)));
+        ann.close().await;
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// The thief of a region changes a chunk this node's player holds, and
+/// the node's next batch there is fenced: putting the chunk back as
+/// stored moves it past the player's copy, so the player is told to drop
+/// that copy and gets the thief's version, as after a takeover.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fenced_batch_over_a_chunk_the_thief_changed_resyncs_the_players_copy() {
+    use strata_server::store::{ChunkStore, CommitBatch, LogEntry};
+    use strata_terrain::delta::ChunkDelta;
+    use strata_terrain::hash::chunk_hash;
+    use strata_terrain::Voxel;
+    let Some(db) = strata_tests::postgres::database("cluster_fenced_resync") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dirs = tempfile::tempdir().unwrap();
+        let (west, ann, (v, first)) = west_with_ann(&dirs.path().join("a"), &db).await;
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        let (pos, held) = (first[0].pos, first[0].version);
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .replica()
+                .get(pos)
+                .is_some_and(|h| h.version == held))
+            .await
+        );
+
+        // The thief writes the next version of ann's chunk.
+        let thief = thief_takes_region_zero(&db).await;
+        let (thief, theirs) = tokio::task::spawn_blocking(move || {
+            let stored = thief.load_chunk(pos).unwrap().unwrap();
+            assert_eq!(stored.version, held);
+            let mut next = stored.chunk.clone();
+            for y in 0..4 {
+                for x in 0..4 {
+                    next.set(x, y, 0, Voxel::new(255, 3));
+                }
+            }
+            let floor = thief.reserve_seqs(0).unwrap();
+            let batch = CommitBatch {
+                entries: vec![LogEntry {
+                    seq: floor + 1,
+                    player: "thief".into(),
+                    time_ms: 1,
+                    edit: mine_at(WEST_X + 2),
+                    changes: vec![(pos, held + 1)],
+                }],
+                deltas: vec![
+                    ChunkDelta::encode(pos, held, held + 1, &stored.chunk, &next).unwrap(),
+                ],
+                last_seq: floor + 1,
+                ..CommitBatch::default()
+            };
+            thief.commit_batch(&batch).unwrap();
+            (thief, next)
+        })
+        .await
+        .unwrap();
+
+        // West's next edit there is fenced; ann's copy is withdrawn and
+        // replaced by the thief's version.
+        let (v, _) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        assert!(
+            matches!(
+                v,
+                Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere { .. })
+            ),
+            "{v:?}"
+        );
+        assert!(
+            eventually(Duration::from_secs(20), || ann
+                .replica()
+                .get(pos)
+                .is_some_and(|h| h.version == held + 1))
+            .await,
+            "ann still holds {:?}",
+            ann.replica().get(pos).map(|h| h.version)
+        );
+        assert_eq!(ann.replica().get(pos).unwrap().hash, chunk_hash(&theirs));
+        assert!(ann.replica().mesh_mismatches().is_empty());
+        assert!(!ann.is_closed());
+        drop(thief);
         ann.close().await;
         west.shutdown().await.unwrap();
     })

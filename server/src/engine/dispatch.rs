@@ -235,7 +235,9 @@ impl Engine {
             let update = WorldUpdate::UnsubscribedMany {
                 chunks: chunks.to_vec(),
             };
-            if p.updates.try_send(fanout::encode_update(&update)).is_err() {
+            if p.send_update(fanout::encode_update(&update), false)
+                .is_err()
+            {
                 p.failed = true;
             }
         }

@@ -14,7 +14,7 @@ use super::holders::Holders;
 use super::ops;
 use super::peer::Peer;
 use crate::metrics as m;
-use crate::net::writer::{Handed, SendRefused};
+use crate::net::writer::SendRefused;
 use crate::sequencer::AppliedEdit;
 
 /// Encodes an updates-stream frame. Server messages are built from
@@ -318,21 +318,14 @@ fn send_tick(
         buf.extend_from_slice(f);
     }
     let batch = buf.freeze();
-    let sent = if direct {
-        p.updates.send_now(batch)
-    } else {
-        p.updates.try_send(batch).map(|()| Handed::Queued)
-    };
-    match sent {
+    match p.send_update(batch, direct) {
         Ok(how) => {
             counters.deltas_sent.increment(chunks.len() as u64);
             counters.batches[how as usize].increment(1);
         }
         Err(SendRefused::Full) => {
             counters.deltas_dropped.increment(chunks.len() as u64);
-            for pos in chunks {
-                p.resend(pos);
-            }
+            p.dropped(&chunks);
         }
         Err(SendRefused::Closed) => p.failed = true,
     }
@@ -560,6 +553,40 @@ mod tests {
         let p1 = peers.remove(&1).unwrap();
         p1.unlist_all(&mut holders, 1);
         assert_eq!(holders.pairs(), 0);
+    }
+
+    #[test]
+    fn changes_dropped_on_a_full_queue_are_withdrawn_before_the_next_update() {
+        let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
+        let (mut p, mut rx) = peer(&[(a, 4), (b, 0)]);
+        let filler = Bytes::from_static(b"x");
+        while p.updates.try_send(filler.clone()).is_ok() {}
+        let first = [applied(1, vec![change(a, 4)])];
+        let edits: Vec<TickEdit<'_>> = first.iter().map(|e| TickEdit::new(e, false)).collect();
+        let chains1 = chains(&first.iter().collect::<Vec<_>>());
+        let end = encode_update(&WorldUpdate::TickEnd { last_seq: 1 });
+        let counters = Counters::new();
+        send_tick(&mut p, &edits, &chains1, &[0], &end, &counters, true);
+        // Dropped: a is no longer held, is sent again first, and the
+        // client's copy (at 4) is owed a withdrawal.
+        assert_eq!(p.held(a), None);
+        assert_eq!(p.withdrawals_owed(), &[a]);
+        assert_eq!(p.pending.pop_front(), Some(a));
+        p.pending.push_front(a);
+        while rx.try_recv().is_ok() {}
+
+        // The next update, a change of b, carries the withdrawal first.
+        let second = [applied(2, vec![change(b, 0)])];
+        let edits: Vec<TickEdit<'_>> = second.iter().map(|e| TickEdit::new(e, false)).collect();
+        let chains2 = chains(&second.iter().collect::<Vec<_>>());
+        let end = encode_update(&WorldUpdate::TickEnd { last_seq: 2 });
+        send_tick(&mut p, &edits, &chains2, &[0], &end, &counters, true);
+        let got = rx.try_recv().unwrap().to_vec();
+        let mut want = encode_update(&WorldUpdate::UnsubscribedMany { chunks: vec![a] }).to_vec();
+        want.extend_from_slice(&reference(&[(b, 0)], &edits, &end).0);
+        assert_eq!(got, want);
+        assert!(p.withdrawals_owed().is_empty());
+        assert_eq!(p.held(b), Some(1));
     }
 
     #[test]

@@ -112,13 +112,11 @@ impl Engine {
     /// Brings the region's chunks to their stored versions; returns how
     /// many had moved on.
     fn reload_region(&mut self, region: RegionId) -> Result<usize, StoreError> {
-        let mut changed = 0;
-        let mut stale: std::collections::HashMap<u64, Vec<ChunkPos>> = Default::default();
+        let mut moved = Vec::new();
         for (pos, version) in self.store.region_versions(region)? {
             if self.versions.get(&pos) == Some(&version) {
                 continue;
             }
-            changed += 1;
             self.versions.insert(pos, version);
             if self.seq.is_resident(pos) {
                 if let Some(stored) = self.store.load_chunk(pos)? {
@@ -126,6 +124,19 @@ impl Engine {
                         .insert_stored_chunk(pos, stored.chunk, stored.version);
                 }
             }
+            moved.push((pos, version));
+        }
+        self.withdraw_stale(&moved);
+        Ok(moved.len())
+    }
+
+    /// Sessions holding any of `chunks` at another version than the one
+    /// given are told to drop it (`UnsubscribedMany`) and get it again.
+    /// Withdrawn at once, before any delta of this tick: a neighbour's
+    /// delta must not be meshed against a stale copy.
+    fn withdraw_stale(&mut self, chunks: &[(ChunkPos, u64)]) {
+        let mut stale: std::collections::HashMap<u64, Vec<ChunkPos>> = Default::default();
+        for &(pos, version) in chunks {
             for (&id, p) in self.peers.iter_mut() {
                 if p.held(pos).is_some_and(|v| v != version) {
                     p.resend(pos);
@@ -133,8 +144,6 @@ impl Engine {
                 }
             }
         }
-        // Withdrawn at once, before any delta of this tick: a neighbour's
-        // delta must not be meshed against a stale copy.
         for (id, chunks) in stale {
             let Some(p) = self.peers.get_mut(&id) else {
                 continue;
@@ -143,15 +152,13 @@ impl Engine {
                 let update = strata_protocol::WorldUpdate::UnsubscribedMany {
                     chunks: part.to_vec(),
                 };
-                if p.updates
-                    .try_send(super::fanout::encode_update(&update))
+                if p.send_update(super::fanout::encode_update(&update), false)
                     .is_err()
                 {
                     p.failed = true;
                 }
             }
         }
-        Ok(changed)
     }
 }
 
@@ -179,12 +186,20 @@ impl Engine {
             .iter()
             .flat_map(|a| a.changes.iter().map(|c| c.pos))
             .collect();
+        let mut restored = Vec::with_capacity(changed.len());
         for &pos in &changed {
-            if let Err(e) = self.restore_chunk(pos) {
-                error!(error = %e, ?pos, "putting a fenced batch's chunk back failed");
-                return false;
+            match self.restore_chunk(pos) {
+                Ok(version) => restored.push((pos, version)),
+                Err(e) => {
+                    error!(error = %e, ?pos, "putting a fenced batch's chunk back failed");
+                    return false;
+                }
             }
         }
+        // Another node may have changed a chunk since this one's players
+        // got it (the batch was fenced because it took the region): their
+        // copies are stale, as after a takeover.
+        self.withdraw_stale(&restored);
         match self.store.reserve_seqs(self.seq.last_seq()) {
             Ok(floor) => self.seq.raise_next_seq(floor.saturating_add(1)),
             Err(e) => {
@@ -252,21 +267,23 @@ impl Engine {
         )
     }
 
-    /// Puts `pos` back as the store holds it (generated if it holds none).
-    fn restore_chunk(&mut self, pos: ChunkPos) -> Result<(), StoreError> {
+    /// Puts `pos` back as the store holds it (generated if it holds none);
+    /// returns the version it is at now.
+    fn restore_chunk(&mut self, pos: ChunkPos) -> Result<u64, StoreError> {
         match self.store.load_chunk(pos)? {
             Some(stored) => {
                 self.versions.insert(pos, stored.version);
                 self.seq
                     .insert_stored_chunk(pos, stored.chunk, stored.version);
+                Ok(stored.version)
             }
             None => {
                 self.versions.remove(&pos);
                 let generator = self.seq.world().generator().clone();
                 self.seq
                     .insert_stored_chunk(pos, generator.generate(pos), 0);
+                Ok(0)
             }
         }
-        Ok(())
     }
 }

@@ -4,11 +4,12 @@
 use std::collections::HashSet;
 use std::sync::Arc;
 
+use bytes::{Bytes, BytesMut};
 use rustc_hash::FxHashMap;
 
 use strata_terrain::ChunkPos;
 
-use strata_protocol::{ErrorCode, Start};
+use strata_protocol::{ErrorCode, Start, WorldUpdate};
 use tokio::sync::oneshot;
 
 use super::command::Kick;
@@ -16,7 +17,7 @@ use super::holders::Holders;
 use super::pending::Pending;
 use super::LatestPosition;
 use crate::interest::{nearest_first, Anchor, Interest, InterestChange};
-use crate::net::writer::FrameSender;
+use crate::net::writer::{FrameSender, Handed, SendRefused};
 
 #[derive(Debug)]
 pub struct Peer {
@@ -51,6 +52,13 @@ pub struct Peer {
     pub owners_told: Vec<strata_protocol::RegionOwner>,
     /// When (ms) the ticket last sent was issued.
     pub ticket_ms: Option<u64>,
+    /// Chunks whose changes were dropped on a full updates queue: the
+    /// client's copies are stale, and it is told to drop them
+    /// (`UnsubscribedMany`) before anything else reaches its updates
+    /// stream ([`Self::send_update`]). Each is also waiting in `pending`,
+    /// not held, so no chunk is listed twice and the list is bounded by
+    /// the view.
+    withdraw: Vec<ChunkPos>,
     kick: Option<oneshot::Sender<Kick>>,
 }
 
@@ -79,6 +87,7 @@ impl Peer {
             refused_at: None,
             owners_told: Vec::new(),
             ticket_ms: None,
+            withdraw: Vec::new(),
             kick: Some(kick),
         }
     }
@@ -185,6 +194,56 @@ impl Peer {
             holders.remove(*pos, id);
             self.pending.remove(*pos);
         }
+    }
+
+    /// The changes of `chunks` (all held) were not sent: each is sent
+    /// again whole, after the client is told to drop its stale copy. Until
+    /// then a neighbour's change would be meshed against it.
+    pub fn dropped(&mut self, chunks: &[ChunkPos]) {
+        for &pos in chunks {
+            if self.known.contains_key(&pos) {
+                self.resend(pos);
+                self.withdraw.push(pos);
+            }
+        }
+    }
+
+    /// Chunks owed an `UnsubscribedMany` before the next update.
+    #[cfg(test)]
+    pub fn withdrawals_owed(&self) -> &[ChunkPos] {
+        &self.withdraw
+    }
+
+    /// Hands `batch` (whole update frames) to the updates stream, after
+    /// the withdrawals owed ([`Self::dropped`]); `direct`: written into the
+    /// stream when it can go at once ([`FrameSender::send_now`]). On
+    /// failure nothing was sent and the withdrawals stay owed.
+    pub fn send_update(&mut self, batch: Bytes, direct: bool) -> Result<Handed, SendRefused> {
+        let batch = if self.withdraw.is_empty() {
+            batch
+        } else {
+            let mut buf = BytesMut::new();
+            for part in self
+                .withdraw
+                .chunks(strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE)
+            {
+                let update = WorldUpdate::UnsubscribedMany {
+                    chunks: part.to_vec(),
+                };
+                buf.extend_from_slice(&super::fanout::encode_update(&update));
+            }
+            buf.extend_from_slice(&batch);
+            buf.freeze()
+        };
+        let sent = if direct {
+            self.updates.send_now(batch)
+        } else {
+            self.updates.try_send(batch).map(|()| Handed::Queued)
+        };
+        if sent.is_ok() {
+            self.withdraw.clear();
+        }
+        sent
     }
 
     /// Forgets the client's copy of `pos` and sends it again first. The

@@ -292,8 +292,8 @@ impl Engine {
         if batch.is_empty() {
             return;
         }
-        match p.updates.try_send(batch.freeze()) {
-            Ok(()) => {
+        match p.send_update(batch.freeze(), false) {
+            Ok(_) => {
                 p.complete_due &= !completes;
                 for (pos, version, kind) in sent {
                     p.receive(&mut self.holders, id, pos, version);
