@@ -40,6 +40,22 @@ async fn stand_and_mine(
     client.edit(mine(ground)).await.unwrap()
 }
 
+/// A server on `dir` where ana stood at home and mined (her position
+/// accepted), stopped again; returns home.
+async fn ana_stood_home(dir: &std::path::Path, backend: &Backend) -> FixedVec3 {
+    let (home, home_ground) = spot(70, 40);
+    let server = start_on(dir, backend).await;
+    let ana = connect(&server, "ana", Role::Player).await;
+    assert!(matches!(
+        stand_and_mine(&ana, home, home_ground).await,
+        Verdict::Accepted { .. }
+    ));
+    ana.close().await;
+    // Positions are saved every second and at shutdown.
+    server.shutdown().await.unwrap();
+    home
+}
+
 on_both_backends!(
     a_restarted_server_resumes_players_where_they_stood,
     a_restarted_server_resumes_players_where_they_stood_on_postgres,
@@ -49,18 +65,8 @@ on_both_backends!(
 async fn a_restarted_server_resumes_players_where_they_stood_on(backend: Backend) {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        let (home, home_ground) = spot(70, 40);
         let (far, far_ground) = spot(5070, 40);
-        let server = start_on(dir.path(), &backend).await;
-        let ana = connect(&server, "ana", Role::Player).await;
-        assert!(matches!(
-            stand_and_mine(&ana, home, home_ground).await,
-            Verdict::Accepted { .. }
-        ));
-        ana.close().await;
-        // Positions are saved every second and at shutdown.
-        server.shutdown().await.unwrap();
-
+        let home = ana_stood_home(dir.path(), &backend).await;
         let server = start_on(dir.path(), &backend).await;
         let ana = connect(&server, "ana", Role::Player).await;
         assert_eq!(
@@ -95,6 +101,50 @@ async fn a_restarted_server_resumes_players_where_they_stood_on(backend: Backend
         );
         ana.close().await;
         bo.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+on_both_backends!(
+    a_ticket_older_than_a_stored_position_is_refused_after_a_restart,
+    a_ticket_older_than_a_stored_position_is_refused_after_a_restart_on_postgres,
+    a_ticket_older_than_a_stored_position_is_refused_after_a_restart_on
+);
+
+/// When the server last knew a player where it stood is stored with the
+/// position: after a restart, a ticket (another node's word) issued before
+/// then still cannot move the player back in time, and a newer one can.
+async fn a_ticket_older_than_a_stored_position_is_refused_after_a_restart_on(backend: Backend) {
+    use strata_protocol::{Refusal, TicketRefusal};
+    use strata_server::cluster::ticket;
+    use strata_server::engine::now_ms;
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let (near, _) = spot(74, 40);
+        let issued_before = now_ms();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        let home = ana_stood_home(dir.path(), &backend).await;
+        let server = start_on(dir.path(), &backend).await;
+        let secret = server.data_dir.secret();
+        let ana = connect(&server, "ana", Role::Player).await;
+        assert_eq!(ana.welcome().start, Start::Resume { feet: home });
+        let old = ticket::mint(secret, "ana", near, issued_before);
+        let arrived = ana.arrive_within(old, Duration::from_secs(10)).await;
+        assert_eq!(arrived.unwrap(), None, "an older ticket moved ana");
+        assert_eq!(
+            ana.refusals(),
+            [Refusal::BadTicket {
+                reason: TicketRefusal::AlreadyPlaced
+            }]
+        );
+        let new = ticket::mint(secret, "ana", near, now_ms());
+        ana.arrive(new).await.unwrap();
+        assert!(eventually(Duration::from_secs(10), || ana.arrived().is_some()).await);
+        assert_eq!(ana.arrived(), Some(near));
+        assert_eq!(ana.refusals().len(), 1);
+        ana.close().await;
         server.shutdown().await.unwrap();
     })
     .await

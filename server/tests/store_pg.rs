@@ -8,13 +8,15 @@ use crate::store_common;
 use std::sync::Arc;
 use store_common::{pg_store, sql, terrain_chunk, Seq};
 use strata_server::store::pg::{PgConfig, MIGRATIONS};
-use strata_server::store::{ChunkStore, PgStore, StoreError, WorldMeta, STORE_FORMAT_VERSION};
+use strata_server::store::{
+    ChunkStore, PgStore, StoreError, StoredPosition, WorldMeta, STORE_FORMAT_VERSION,
+};
 
 use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::material::ids;
 use strata_terrain::world::FlatGenerator;
 use strata_terrain::{ChunkPos, Voxel};
-use strata_tests::postgres::database;
+use strata_tests::postgres::{database, PgDb};
 
 #[test]
 fn migrations_are_applied_once_and_recorded() {
@@ -68,24 +70,31 @@ fn worlds_of_store_formats_2_and_3_are_upgraded_by_their_migrations() {
     assert_eq!(STORE_FORMAT_VERSION, 4);
 }
 
-#[test]
-fn a_database_migrated_before_generated_rows_takes_them_after_migration_7() {
-    let Some(db) = database("generated_rows_migration") else {
-        return;
-    };
+/// A database `name` whose world was made by this build, then taken back
+/// by `statements` to what an older build left.
+fn as_an_older_build_left_it(name: &str, statements: &str) -> Option<PgDb> {
+    let db = database(name)?;
     let store = pg_store(&db);
     store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
     drop(store);
+    sql(&db, statements);
+    Some(db)
+}
+
+#[test]
+fn a_database_migrated_before_generated_rows_takes_them_after_migration_7() {
     // As a build with migrations 1-6 left it: the first checks on versions.
-    sql(
-        &db,
+    let Some(db) = as_an_older_build_left_it(
+        "generated_rows_migration",
         "ALTER TABLE chunks DROP CONSTRAINT chunks_version_check; \
          ALTER TABLE chunks ADD CONSTRAINT chunks_version_check CHECK (version > 0); \
          ALTER TABLE chunk_deltas DROP CONSTRAINT chunk_deltas_to_version_check; \
          ALTER TABLE chunk_deltas ADD CONSTRAINT chunk_deltas_to_version_check \
              CHECK (to_version > 1); \
          DELETE FROM schema_migrations WHERE version = 7",
-    );
+    ) else {
+        return;
+    };
     let store = pg_store(&db);
     let g = FlatGenerator {
         ground: Voxel::solid(ids::STONE),
@@ -100,6 +109,32 @@ fn a_database_migrated_before_generated_rows_takes_them_after_migration_7() {
     assert_eq!(store.delta_count().unwrap(), 1, "stored from generated");
     let loaded = store.load_chunk(pos).unwrap().unwrap();
     assert_eq!((loaded.version, loaded.chunk), (1, state));
+}
+
+#[test]
+fn positions_stored_before_migration_8_read_with_no_time() {
+    // As a build with migrations 1-7 left it, with a player stored.
+    let Some(db) = as_an_older_build_left_it(
+        "position_times_migration",
+        "ALTER TABLE players DROP COLUMN known_ms; \
+         DELETE FROM schema_migrations WHERE version = 8; \
+         INSERT INTO players (name, x, y, z) VALUES ('old', 1, 2, 3)",
+    ) else {
+        return;
+    };
+    let store = pg_store(&db);
+    let feet = |v: i32| FixedVec3::new(Fixed(v), Fixed(v + 1), Fixed(v + 2));
+    let new = StoredPosition {
+        feet: feet(7),
+        known_ms: 1_790_000_000_000,
+    };
+    store.save_positions(&[("new".into(), new)]).unwrap();
+    let got: Vec<_> = store.player_positions().map(|r| r.unwrap()).collect();
+    let old = StoredPosition {
+        feet: feet(1),
+        known_ms: 0,
+    };
+    assert_eq!(got, [("new".to_string(), new), ("old".to_string(), old)]);
 }
 
 #[test]
@@ -147,7 +182,10 @@ async fn calls_from_a_tokio_task_wait_without_a_nested_runtime() {
     // The server's start and its admin sessions call the store from tasks.
     let store = pg_store(&db);
     store.init_meta(&WorldMeta::new(3, 1, "")).unwrap();
-    let p = |v: i32| FixedVec3::new(Fixed(v), Fixed(-v), Fixed(2 * v));
+    let p = |v: i32| StoredPosition {
+        feet: FixedVec3::new(Fixed(v), Fixed(-v), Fixed(2 * v)),
+        known_ms: 1_790_000_000_000 + v as u64,
+    };
     store
         .save_positions(&[
             ("ana".into(), p(1)),

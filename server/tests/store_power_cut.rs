@@ -8,7 +8,7 @@ use crate::store_common;
 
 use store_common::{noisy_chunk, Seq};
 use strata_server::datadir::DataDir;
-use strata_server::store::{ChunkStore, SledStore, StoreConfig, WorldMeta};
+use strata_server::store::{ChunkStore, SledStore, StoreConfig, StoredPosition, WorldMeta};
 use strata_terrain::edit::FixedVec3;
 use strata_terrain::ChunkPos;
 use strata_tests::lazyfs::LazyFs;
@@ -44,7 +44,10 @@ fn commits_blob_files_and_blobs_survive_a_power_cut() {
     store.put_blob("zones", b"[1,2,3]").unwrap();
     store.put_blob("scratch", b"gone").unwrap();
     assert!(store.delete_blob("scratch").unwrap());
-    let ana = FixedVec3::from_voxels(70, 12, -40);
+    let ana = StoredPosition {
+        feet: FixedVec3::from_voxels(70, 12, -40),
+        known_ms: 1_790_000_000_000,
+    };
     store.save_positions(&[("ana".to_string(), ana)]).unwrap();
     // The process "dies": no drop, no last flush.
     std::mem::forget(store);

@@ -24,7 +24,6 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use strata_terrain::edit::FixedVec3;
 use tracing::error;
 
 use super::inbox::Waker;
@@ -55,7 +54,7 @@ fn safe_during_commit(cmd: &Command) -> bool {
 type Done = (CommitBatch, Result<CommitStats, StoreError>);
 
 /// Players and where they are.
-pub type Positions = Vec<(String, FixedVec3)>;
+pub type Positions = Vec<(String, crate::store::StoredPosition)>;
 
 /// What the commit thread does, in the order it was handed.
 #[derive(Debug)]

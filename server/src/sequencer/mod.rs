@@ -7,7 +7,7 @@
 
 pub mod batch;
 mod chunk_bits;
-pub use crate::store::{CommitBatch, LogEntry};
+pub use crate::store::{CommitBatch, LogEntry, StoredPosition};
 
 pub mod config;
 mod reach;
@@ -55,7 +55,8 @@ struct Queued {
 #[derive(Debug, Clone, Copy)]
 struct Remembered {
     feet: FixedVec3,
-    /// [`ValidatedPosition::known_ms`]; 0 for positions read from the store.
+    /// [`ValidatedPosition::known_ms`] (as stored, for positions read from
+    /// the store; 0 for those stored before the time was kept).
     known_ms: u64,
 }
 
@@ -601,38 +602,55 @@ impl Sequencer {
         Ok(())
     }
 
-    /// Players whose position changed since the last call, with it: the
-    /// shell stores them durably.
-    pub fn take_moved(&mut self) -> Vec<(String, FixedVec3)> {
+    /// Players whose position changed since the last call, with it and
+    /// when the player was last known there: the shell stores them
+    /// durably.
+    pub fn take_moved(&mut self) -> Vec<(String, StoredPosition)> {
         // A live session's position is newer than the remembered one.
-        let live: HashMap<&str, FixedVec3> = self
+        let live: HashMap<&str, StoredPosition> = self
             .sessions
             .values()
             .filter(|s| self.moved.contains(&s.player))
-            .filter_map(|s| Some((s.player.as_str(), s.position?.feet)))
+            .filter_map(|s| {
+                let p = s.position?;
+                let stored = StoredPosition {
+                    feet: p.feet,
+                    known_ms: p.known_ms,
+                };
+                Some((s.player.as_str(), stored))
+            })
             .collect();
         let moved = std::mem::take(&mut self.moved);
         moved
             .into_iter()
             .filter_map(|player| {
-                let feet = live
-                    .get(player.as_str())
-                    .copied()
-                    .or_else(|| self.last_positions.get(&player).map(|r| r.feet))?;
-                Some((player, feet))
+                let p = live.get(player.as_str()).copied().or_else(|| {
+                    let r = self.last_positions.get(&player)?;
+                    Some(StoredPosition {
+                        feet: r.feet,
+                        known_ms: r.known_ms,
+                    })
+                })?;
+                Some((player, p))
             })
             .collect()
     }
 
     /// Last positions loaded from the store at start (at most
-    /// `validation.remembered_players`).
-    pub fn restore_positions(&mut self, positions: impl IntoIterator<Item = (String, FixedVec3)>) {
-        for (player, feet) in positions
+    /// `validation.remembered_players`), each with when the player was
+    /// last known there: an older ticket does not move the player.
+    pub fn restore_positions(
+        &mut self,
+        positions: impl IntoIterator<Item = (String, StoredPosition)>,
+    ) {
+        for (player, p) in positions
             .into_iter()
             .take(self.validation.remembered_players)
         {
-            // When the player stood there is not stored: no ticket is older.
-            let remembered = Remembered { feet, known_ms: 0 };
+            let remembered = Remembered {
+                feet: p.feet,
+                known_ms: p.known_ms,
+            };
             self.last_positions.insert(player, remembered);
         }
     }

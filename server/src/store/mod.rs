@@ -32,6 +32,7 @@ pub mod keys;
 mod log_pages;
 mod open;
 pub mod pg;
+mod positions;
 mod record;
 mod rules;
 mod sled_store;
@@ -42,7 +43,6 @@ use std::ops::RangeInclusive;
 
 use std::sync::Arc;
 
-use strata_terrain::edit::FixedVec3;
 use strata_terrain::world::ChunkGenerator;
 use strata_terrain::ChunkPos;
 
@@ -70,7 +70,7 @@ pub use sled_store::{
 };
 pub use types::{
     CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, RegionAccess, RegionHolder,
-    StoredChunk, WorldMeta, STORE_FORMAT_VERSION,
+    StoredChunk, StoredPosition, WorldMeta, STORE_FORMAT_VERSION,
 };
 
 /// A fallible iterator over store records.
@@ -139,12 +139,12 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Removes a blob durably; returns whether it existed.
     fn delete_blob(&self, name: &str) -> Result<bool, StoreError>;
 
-    /// Stores players' last feet positions, replacing older ones; durable
-    /// on return.
-    fn save_positions(&self, positions: &[(String, FixedVec3)]) -> Result<(), StoreError>;
+    /// Stores players' last positions, replacing older ones; durable on
+    /// return.
+    fn save_positions(&self, positions: &[(String, StoredPosition)]) -> Result<(), StoreError>;
 
     /// Every stored player position.
-    fn player_positions(&self) -> StoreIter<'_, (String, FixedVec3)>;
+    fn player_positions(&self) -> StoreIter<'_, (String, StoredPosition)>;
 
     /// Up to `max_chunks` chunks that have committed deltas, in key order.
     fn chunks_with_deltas(&self, max_chunks: usize) -> Result<Vec<ChunkPos>, StoreError>;

@@ -20,7 +20,6 @@ use std::time::Instant;
 use rayon::prelude::*;
 use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
 use strata_terrain::delta::ChunkDelta;
-use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::world::ChunkGenerator;
 use strata_terrain::{Chunk, ChunkPos};
 
@@ -32,14 +31,15 @@ use super::error::StoreError;
 use super::flush_watch::FlushWatch;
 use super::keys::{chunk_key, chunk_pos_from_key, delta_key, seq_key, show_pos, show_raw};
 use super::log_pages::{encode_page, page_key, record_entries, search_key, BadRecord};
+use super::positions::{decode_position, encode_position};
 use super::record::{
     decode_last_seq, decode_log_entry, decode_meta, encode_chunk_value, encode_delta,
     encode_log_record, encode_meta, generated_chunk_value, is_generated, split_chunk_value,
 };
 use super::rules::{check_blob, check_blob_name, check_new_meta, compare_meta};
 use super::types::{
-    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, WorldMeta,
-    STORE_FORMAT_VERSION,
+    CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, StoredPosition,
+    WorldMeta, STORE_FORMAT_VERSION,
 };
 use super::{ChunkStore, StoreIter, PARALLEL_ENCODE_CHUNKS};
 
@@ -471,37 +471,23 @@ impl ChunkStore for SledStore {
         Ok(existed)
     }
 
-    fn save_positions(&self, positions: &[(String, FixedVec3)]) -> Result<(), StoreError> {
+    fn save_positions(&self, positions: &[(String, StoredPosition)]) -> Result<(), StoreError> {
         let mut b = sled::Batch::default();
         for (player, p) in positions {
-            let mut v = [0u8; 12];
-            for (i, c) in [p.x, p.y, p.z].iter().enumerate() {
-                v[i * 4..i * 4 + 4].copy_from_slice(&c.0.to_be_bytes());
-            }
-            b.insert(player.as_bytes(), &v[..]);
+            b.insert(player.as_bytes(), &encode_position(p)[..]);
         }
         self.players.apply_batch(b)?;
         self.flush()
     }
 
-    fn player_positions(&self) -> StoreIter<'_, (String, FixedVec3)> {
+    fn player_positions(&self) -> StoreIter<'_, (String, StoredPosition)> {
         Box::new(self.players.iter().map(|r| {
             let (k, v) = r?;
             let name = std::str::from_utf8(&k)
                 .map_err(|_| StoreError::corrupt("player name", show_raw(&k)))?;
-            let coords: [u8; 12] = v
-                .as_ref()
-                .try_into()
-                .map_err(|_| StoreError::corrupt("player position", show_raw(&k)))?;
-            let c = |i: usize| {
-                Fixed(i32::from_be_bytes([
-                    coords[i],
-                    coords[i + 1],
-                    coords[i + 2],
-                    coords[i + 3],
-                ]))
-            };
-            Ok((name.to_string(), FixedVec3::new(c(0), c(4), c(8))))
+            let p = decode_position(&v)
+                .ok_or_else(|| StoreError::corrupt("player position", show_raw(&k)))?;
+            Ok((name.to_string(), p))
         }))
     }
 

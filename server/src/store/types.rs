@@ -76,6 +76,16 @@ pub struct LogEntry {
     pub changes: Vec<(ChunkPos, u64)>,
 }
 
+/// A player's last validated position, as stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StoredPosition {
+    pub feet: strata_terrain::FixedVec3,
+    /// When (ms since the Unix epoch) the server last knew the player
+    /// there: a ticket issued before it cannot move the player. 0 when not
+    /// known (a store written before this was kept).
+    pub known_ms: u64,
+}
+
 /// Everything one sequencer tick commits, written atomically and made
 /// durable together (group commit).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]

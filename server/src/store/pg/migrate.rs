@@ -47,6 +47,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0007_generated_rows",
         include_str!("../../../migrations/0007_generated_rows.sql"),
     ),
+    (
+        8,
+        "0008_position_times",
+        include_str!("../../../migrations/0008_position_times.sql"),
+    ),
 ];
 
 /// Key of the advisory lock migrations take ("strata" in ASCII).

@@ -48,7 +48,7 @@ use super::error::StoreError;
 use super::rules::{check_blob, check_blob_name, check_new_meta, compare_meta};
 use super::types::{
     CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, RegionAccess, StoredChunk,
-    WorldMeta,
+    StoredPosition, WorldMeta,
 };
 use super::{ChunkStore, StoreIter};
 use crate::sequencer::regions::RegionId;
@@ -328,9 +328,9 @@ impl ChunkStore for PgStore {
         Ok(n > 0)
     }
 
-    fn save_positions(&self, positions: &[(String, FixedVec3)]) -> Result<(), StoreError> {
+    fn save_positions(&self, positions: &[(String, StoredPosition)]) -> Result<(), StoreError> {
         // One row per player (an upsert may not touch a row twice): the last wins.
-        let latest: std::collections::BTreeMap<&str, FixedVec3> = positions
+        let latest: std::collections::BTreeMap<&str, StoredPosition> = positions
             .iter()
             .map(|(name, p)| (name.as_str(), *p))
             .collect();
@@ -338,30 +338,41 @@ impl ChunkStore for PgStore {
             return Ok(());
         }
         let names: Vec<&str> = latest.keys().copied().collect();
-        let axis = |f: fn(&FixedVec3) -> Fixed| latest.values().map(|p| f(p).0).collect();
+        let axis = |f: fn(&FixedVec3) -> Fixed| latest.values().map(|p| f(&p.feet).0).collect();
         let (xs, ys, zs): (Vec<i32>, Vec<i32>, Vec<i32>) =
             (axis(|p| p.x), axis(|p| p.y), axis(|p| p.z));
+        // bigint holds every time before the year 292 million.
+        let times: Vec<i64> = latest
+            .values()
+            .map(|p| i64::try_from(p.known_ms).unwrap_or(i64::MAX))
+            .collect();
         self.pool.run("saving positions", async |c: &mut Conn| {
             c.execute(
-                "INSERT INTO players (name, x, y, z) \
-                 SELECT * FROM unnest($1::text[], $2::int4[], $3::int4[], $4::int4[]) \
-                 ON CONFLICT (name) DO UPDATE SET x = EXCLUDED.x, y = EXCLUDED.y, z = EXCLUDED.z",
-                &[&names, &xs, &ys, &zs],
+                "INSERT INTO players (name, x, y, z, known_ms) \
+                 SELECT * FROM unnest($1::text[], $2::int4[], $3::int4[], $4::int4[], $5::int8[]) \
+                 ON CONFLICT (name) DO UPDATE SET x = EXCLUDED.x, y = EXCLUDED.y, z = EXCLUDED.z, \
+                 known_ms = EXCLUDED.known_ms",
+                &[&names, &xs, &ys, &zs, &times],
             )
             .await
         })?;
         Ok(())
     }
 
-    fn player_positions(&self) -> StoreIter<'_, (String, FixedVec3)> {
+    fn player_positions(&self) -> StoreIter<'_, (String, StoredPosition)> {
         let rows = self.pool.run("reading positions", async |c: &mut Conn| {
-            c.query("SELECT name, x, y, z FROM players ORDER BY name", &[])
-                .await
+            c.query(
+                "SELECT name, x, y, z, known_ms FROM players ORDER BY name",
+                &[],
+            )
+            .await
         });
         match rows {
             Ok(rows) => Box::new(rows.into_iter().map(|r| {
                 let c = |i: usize| Fixed(r.get::<_, i32>(i));
-                Ok((r.get::<_, String>(0), FixedVec3::new(c(1), c(2), c(3))))
+                let feet = FixedVec3::new(c(1), c(2), c(3));
+                let known_ms = from_sql(r.get(4), "known_ms", "players")?;
+                Ok((r.get::<_, String>(0), StoredPosition { feet, known_ms }))
             })),
             Err(e) => Box::new(std::iter::once(Err(e))),
         }
