@@ -963,6 +963,22 @@ async fn bans_made_on_either_node_hold_on_both() {
                 if *code == ErrorCode::Kicked && message.contains("administrator")),
             "{ended:?}"
         );
+
+        // Bans made on both nodes at once: each is written only over the
+        // list it read (else read again), so none is lost.
+        let racers = |parity: usize| (0..16).filter(move |i| i % 2 == parity);
+        let on = |node: &'static str, parity: usize| {
+            let node = if node == "west" { &west } else { &east };
+            async move {
+                for i in racers(parity) {
+                    admin_on(node, ban(&format!("racer{i:02}"))).await;
+                }
+            }
+        };
+        tokio::join!(on("west", 0), on("east", 1));
+        let all = bans(admin_on(&west, AdminRequest::Access).await);
+        let raced: Vec<&String> = all.iter().filter(|p| p.starts_with("racer")).collect();
+        assert_eq!(raced.len(), 16, "{all:?}");
         west.shutdown().await.unwrap();
         east.shutdown().await.unwrap();
     })

@@ -319,6 +319,71 @@ fn blobs_round_trip_on(place: &Place) {
 }
 
 #[test]
+fn a_blob_is_swapped_only_over_what_was_read() {
+    for place in places("blob_swap") {
+        let store = place.open();
+        // None: written only where there is no blob yet.
+        assert!(store.swap_blob("access", None, b"one").unwrap());
+        assert!(!store.swap_blob("access", None, b"two").unwrap());
+        assert!(!store.swap_blob("access", Some(b"zero"), b"two").unwrap());
+        assert_eq!(
+            store.get_blob("access").unwrap().as_deref(),
+            Some(&b"one"[..])
+        );
+        assert!(store.swap_blob("access", Some(b"one"), b"two").unwrap());
+        // Limits hold as for `put_blob`, and a refusal writes nothing.
+        let big = vec![0u8; strata_server::store::MAX_BLOB_BYTES + 1];
+        assert!(matches!(
+            store.swap_blob("access", Some(b"two"), &big),
+            Err(StoreError::InvalidBlob { .. })
+        ));
+        drop(store);
+        let store = place.open();
+        assert_eq!(
+            store.get_blob("access").unwrap().as_deref(),
+            Some(&b"two"[..])
+        );
+    }
+}
+
+/// Writers racing on one blob, each adding its mark to what it read and
+/// swapping until it succeeds: no mark is lost (sled's compare-and-swap;
+/// PostgreSQL's row lock, the WHERE re-checked on the row it waited for).
+#[test]
+fn racing_swaps_lose_no_change() {
+    for place in places("blob_swap_race") {
+        // On PostgreSQL four stores of their own (as four nodes); sled
+        // opens once, so its four writers share it.
+        let first: std::sync::Arc<dyn ChunkStore> = place.open().into();
+        let stores: Vec<std::sync::Arc<dyn ChunkStore>> = (0..4)
+            .map(|i| match place {
+                Place::Postgres(_) if i > 0 => place.open().into(),
+                _ => first.clone(),
+            })
+            .collect();
+        std::thread::scope(|scope| {
+            for (w, store) in stores.iter().enumerate() {
+                scope.spawn(move || {
+                    for i in 0..25 {
+                        loop {
+                            let raw = store.get_blob("marks").unwrap();
+                            let mut next = raw.clone().unwrap_or_default();
+                            next.extend_from_slice(format!("{w}.{i};").as_bytes());
+                            if store.swap_blob("marks", raw.as_deref(), &next).unwrap() {
+                                break;
+                            }
+                        }
+                    }
+                });
+            }
+        });
+        let marks = stores[0].get_blob("marks").unwrap().unwrap();
+        let text = String::from_utf8(marks).unwrap();
+        assert_eq!(text.split_terminator(';').count(), 100, "{text}");
+    }
+}
+
+#[test]
 fn every_background_setting_keeps_overwritten_chunks() {
     // Off (no segment cleaning), the default slice, and sled's own period,
     // each with the smallest page cache so overwrites page in and out.

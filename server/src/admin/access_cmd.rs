@@ -11,7 +11,7 @@ use strata_protocol::admin::{AccessSpec, AdminRequest, AdminResponse};
 
 use super::remote::{open_offline_store, Target, TargetArgs};
 use crate::auth::{parse_duration, unix_now, validate_player_name, AccessList, ACCESS_BLOB};
-use crate::net::admin_session::access_spec;
+use crate::net::admin_session::{access_spec, ACCESS_WRITE_ATTEMPTS};
 
 #[derive(Debug, Args)]
 pub struct BanArgs {
@@ -80,7 +80,7 @@ pub fn render(a: &AccessSpec) -> String {
 fn apply(
     target: &TargetArgs,
     req: AdminRequest,
-    change: impl FnOnce(&mut AccessList, u64) -> anyhow::Result<()>,
+    change: impl Fn(&mut AccessList, u64) -> anyhow::Result<()>,
 ) -> anyhow::Result<AccessSpec> {
     if let Some(answer) = target.request_if_online(&req)? {
         return match answer {
@@ -93,13 +93,18 @@ fn apply(
         unreachable!("online handled first")
     };
     let store = open_offline_store(&dir)?;
-    let mut list = AccessList::from_blob(store.get_blob(ACCESS_BLOB)?.as_deref())?;
-    let before = list.clone();
-    change(&mut list, unix_now())?;
-    if list != before {
-        store.put_blob(ACCESS_BLOB, &list.to_blob())?;
+    // On PostgreSQL the cluster's nodes may change the list meanwhile: it
+    // is written only over what was read.
+    for _ in 0..ACCESS_WRITE_ATTEMPTS {
+        let raw = store.get_blob(ACCESS_BLOB)?;
+        let mut list = AccessList::from_blob(raw.as_deref())?;
+        let before = list.clone();
+        change(&mut list, unix_now())?;
+        if list == before || store.swap_blob(ACCESS_BLOB, raw.as_deref(), &list.to_blob())? {
+            return Ok(access_spec(&list, 0));
+        }
     }
-    Ok(access_spec(&list, 0))
+    bail!("the stored access list changed under this change {ACCESS_WRITE_ATTEMPTS} times; nothing was written, try again")
 }
 
 pub fn ban(a: &BanArgs) -> anyhow::Result<AccessSpec> {

@@ -41,6 +41,10 @@ pub const ADMIN_RECHECK_PERIOD: Duration = Duration::from_secs(2);
 /// bans and revocations made on another cluster node apply here too.
 pub const ACCESS_RELOAD_PERIOD: Duration = Duration::from_secs(5);
 
+/// Reads and swaps one access-list change tries while other writers (nodes
+/// of a cluster) keep changing the stored list under it.
+pub const ACCESS_WRITE_ATTEMPTS: usize = 8;
+
 type Send = quinn::SendStream;
 
 fn frame(msg: &AdminResponse) -> Result<Vec<u8>, FrameError> {
@@ -327,50 +331,63 @@ pub(crate) async fn answer(
 
 /// Applies `change` to the access list as the store holds it now (not to
 /// this server's copy: another cluster node may have changed it since, and
-/// writing the copy back would undo that), persists it (fsynced), makes it
-/// current, and ends the live sessions of the player `change` names. A
-/// refused or failed change leaves the store as it was.
+/// writing the copy back would undo that), persists it (fsynced) only if
+/// the store still holds what was read (else reads and applies again, up
+/// to [`ACCESS_WRITE_ATTEMPTS`] times), makes it current, and ends the
+/// live sessions of the player `change` names. A refused or failed change
+/// leaves the store as it was.
 async fn access_answer(
     ctx: &Arc<SessionContext>,
-    change: impl FnOnce(&mut AccessList, u64) -> Result<Option<String>, AccessError>,
+    change: impl Fn(&mut AccessList, u64) -> Result<Option<String>, AccessError>,
 ) -> Result<AdminResponse, String> {
     let _one_writer = ctx.access_writes.lock().await;
-    let mut list = match stored_access(ctx).await {
-        Ok(list) => list,
-        Err(m) => return Ok(refused(m)),
-    };
-    adopt(ctx, list.clone()).await?;
-    let before = list.clone();
-    let kick = match change(&mut list, unix_now()) {
-        Ok(k) => k,
-        Err(e) => return Ok(refused(e.to_string())),
-    };
-    if list != before {
-        let store = ctx.store.clone();
-        let blob = list.to_blob();
-        let saved = tokio::task::spawn_blocking(move || store.put_blob(ACCESS_BLOB, &blob))
+    for _ in 0..ACCESS_WRITE_ATTEMPTS {
+        let (raw, mut list) = match stored_access(ctx).await {
+            Ok(read) => read,
+            Err(m) => return Ok(refused(m)),
+        };
+        adopt(ctx, list.clone()).await?;
+        let before = list.clone();
+        let kick = match change(&mut list, unix_now()) {
+            Ok(k) => k,
+            Err(e) => return Ok(refused(e.to_string())),
+        };
+        if list != before {
+            let store = ctx.store.clone();
+            let blob = list.to_blob();
+            let saved = tokio::task::spawn_blocking(move || {
+                store.swap_blob(ACCESS_BLOB, raw.as_deref(), &blob)
+            })
             .await
             .map_err(|e| e.to_string())?;
-        if let Err(e) = saved {
-            return Ok(refused(format!("store write failed: {e}")));
+            match saved {
+                Ok(true) => {}
+                // Another node wrote between the read and the swap.
+                Ok(false) => continue,
+                Err(e) => return Ok(refused(format!("store write failed: {e}"))),
+            }
+            *ctx.access.write().unwrap_or_else(|e| e.into_inner()) = list.clone();
         }
-        *ctx.access.write().unwrap_or_else(|e| e.into_inner()) = list.clone();
+        let kicked = match kick {
+            Some(player) => ask(ctx, |reply| AdminCommand::Kick { player, reply }).await?,
+            None => 0,
+        };
+        return Ok(AdminResponse::Access(access_spec(&list, kicked)));
     }
-    let kicked = match kick {
-        Some(player) => ask(ctx, |reply| AdminCommand::Kick { player, reply }).await?,
-        None => 0,
-    };
-    Ok(AdminResponse::Access(access_spec(&list, kicked)))
+    Ok(refused(format!(
+        "the stored access list changed under this change {ACCESS_WRITE_ATTEMPTS} times; nothing was written, try again"
+    )))
 }
 
-/// The access list as the store holds it now.
-async fn stored_access(ctx: &SessionContext) -> Result<AccessList, String> {
+/// The access list as the store holds it now, with its stored bytes.
+async fn stored_access(ctx: &SessionContext) -> Result<(Option<Vec<u8>>, AccessList), String> {
     let store = ctx.store.clone();
     let blob = tokio::task::spawn_blocking(move || store.get_blob(ACCESS_BLOB))
         .await
         .map_err(|e| e.to_string())?
         .map_err(|e| format!("store read failed: {e}"))?;
-    AccessList::from_blob(blob.as_deref()).map_err(|e| e.to_string())
+    let list = AccessList::from_blob(blob.as_deref()).map_err(|e| e.to_string())?;
+    Ok((blob, list))
 }
 
 /// Makes `stored` the current list and ends the live sessions of the
@@ -421,7 +438,7 @@ pub async fn reload_access(ctx: Arc<SessionContext>, mut shutdown: Shutdown) {
         }
         let _one_writer = ctx.access_writes.lock().await;
         let adopted = match stored_access(&ctx).await {
-            Ok(stored) => adopt(&ctx, stored).await,
+            Ok((_, stored)) => adopt(&ctx, stored).await,
             Err(e) => Err(e),
         };
         if let Err(e) = adopted {

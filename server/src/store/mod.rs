@@ -136,6 +136,17 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Stores a named blob durably, replacing any previous one.
     fn put_blob(&self, name: &str, bytes: &[u8]) -> Result<(), StoreError>;
 
+    /// Stores `bytes` as blob `name` only if the blob holds `expected` now
+    /// (`None`: there is none), atomically; durable on return. False, with
+    /// nothing written, when it holds something else: another writer (a
+    /// node of the cluster) changed it since it was read.
+    fn swap_blob(
+        &self,
+        name: &str,
+        expected: Option<&[u8]>,
+        bytes: &[u8],
+    ) -> Result<bool, StoreError>;
+
     /// Removes a blob durably; returns whether it existed.
     fn delete_blob(&self, name: &str) -> Result<bool, StoreError>;
 

@@ -464,6 +464,23 @@ impl ChunkStore for SledStore {
         self.flush()
     }
 
+    fn swap_blob(
+        &self,
+        name: &str,
+        expected: Option<&[u8]>,
+        bytes: &[u8],
+    ) -> Result<bool, StoreError> {
+        check_blob(name, bytes)?;
+        let swapped = self
+            .blobs
+            .compare_and_swap(name.as_bytes(), expected, Some(bytes))?
+            .is_ok();
+        if swapped {
+            self.flush()?;
+        }
+        Ok(swapped)
+    }
+
     fn delete_blob(&self, name: &str) -> Result<bool, StoreError> {
         check_blob_name(name)?;
         let existed = self.blobs.remove(name.as_bytes())?.is_some();

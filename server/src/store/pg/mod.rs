@@ -319,6 +319,35 @@ impl ChunkStore for PgStore {
         Ok(())
     }
 
+    fn swap_blob(
+        &self,
+        name: &str,
+        expected: Option<&[u8]>,
+        bytes: &[u8],
+    ) -> Result<bool, StoreError> {
+        check_blob(name, bytes)?;
+        let n =
+            self.pool.run("swapping a blob", async |c: &mut Conn| {
+                match expected {
+            None => {
+                c.execute(
+                    "INSERT INTO blobs (name, body) VALUES ($1, $2) ON CONFLICT (name) DO NOTHING",
+                    &[&name, &bytes],
+                )
+                .await
+            }
+            Some(old) => {
+                c.execute(
+                    "UPDATE blobs SET body = $3 WHERE name = $1 AND body = $2",
+                    &[&name, &old, &bytes],
+                )
+                .await
+            }
+        }
+            })?;
+        Ok(n == 1)
+    }
+
     fn delete_blob(&self, name: &str) -> Result<bool, StoreError> {
         check_blob_name(name)?;
         let n = self.pool.run("deleting a blob", async |c: &mut Conn| {
