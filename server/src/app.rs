@@ -26,7 +26,7 @@ use crate::validate::zones::Zone;
 use crate::validate::WorldBounds;
 
 /// Blob name under which protected zones are stored.
-pub const ZONES_BLOB: &str = "zones";
+pub use crate::stored_zones::ZONES_BLOB;
 
 /// A server that is listening.
 #[derive(Debug)]
@@ -47,17 +47,13 @@ pub struct Running {
     /// The web console's address, when `[console] listen` is set.
     pub console_addr: Option<SocketAddr>,
     console: Option<crate::console::RunningConsole>,
-    /// Reads the access list again from the store now and then.
-    access_reload: tokio::task::JoinHandle<()>,
+    /// Read the access list and the zones again from the store now and then.
+    reloads: [tokio::task::JoinHandle<()>; 2],
 }
 
 fn load_zones(store: &dyn ChunkStore, cfg: &ServerConfig) -> anyhow::Result<Vec<Zone>> {
-    match store.get_blob(ZONES_BLOB)? {
-        Some(bytes) => {
-            serde_json::from_slice(&bytes).context("stored protected zones do not parse")
-        }
-        None => Ok(Sequencer::default_zones(&cfg.validation)),
-    }
+    Ok(crate::stored_zones::stored(store)?
+        .unwrap_or_else(|| Sequencer::default_zones(&cfg.validation)))
 }
 
 /// The world's generator from the config, and the generator parameter text
@@ -196,6 +192,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         position_rate: cfg.validation.position_rate,
         access: std::sync::RwLock::new(access),
         access_writes: tokio::sync::Mutex::new(()),
+        default_zones: Sequencer::default_zones(&cfg.validation),
+        zone_writes: tokio::sync::Mutex::new(()),
     };
     let ctx = Arc::new(ctx);
     // Bound before anything is accepted, so a taken port fails the start.
@@ -220,10 +218,17 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     };
     let (trigger, shutdown) = shutdown::channel();
     // Bans and revocations written by another node apply here too.
-    let access_reload = tokio::spawn(crate::net::admin_session::reload_access(
-        ctx.clone(),
-        shutdown.clone(),
-    ));
+    // Bans, revocations and zones written by another node apply here too.
+    let reloads = [
+        tokio::spawn(crate::net::admin_session::reload_access(
+            ctx.clone(),
+            shutdown.clone(),
+        )),
+        tokio::spawn(crate::net::admin_zones::reload(
+            ctx.clone(),
+            shutdown.clone(),
+        )),
+    ];
     let listener = Listener::new(endpoint, ctx, cfg.server.admission());
     let listener = tokio::spawn(listener.run(shutdown));
     health.set_accepting(true);
@@ -241,7 +246,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         engine_exit,
         console_addr: console.as_ref().map(|c| c.addr),
         console,
-        access_reload,
+        reloads,
     })
 }
 
@@ -273,9 +278,11 @@ impl Running {
         if let Some(console) = self.console {
             console.stop();
         }
-        // It only reads the store: stopped before the store closes.
-        self.access_reload.abort();
-        let _ = self.access_reload.await;
+        // They only read the store: stopped before the store closes.
+        for reload in self.reloads {
+            reload.abort();
+            let _ = reload.await;
+        }
         let engine = self.engine;
         let engine_thread = self.engine_thread;
         let checkpointer = self.checkpointer;

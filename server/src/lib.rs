@@ -26,6 +26,7 @@ pub mod sequencer;
 pub mod shutdown;
 pub mod snapshot;
 pub mod store;
+pub mod stored_zones;
 pub mod structures;
 pub mod tls;
 pub mod validate;

@@ -985,3 +985,86 @@ async fn bans_made_on_either_node_hold_on_both() {
     .await
     .expect("within the test timeout");
 }
+
+fn zone_names(answer: AdminResponse) -> Vec<String> {
+    match answer {
+        AdminResponse::Zones(z) => z.into_iter().map(|z| z.name).collect(),
+        other => panic!("unexpected {other:?}"),
+    }
+}
+
+/// The names of `node`'s zones once it holds `n` (it reads the stored
+/// zones again every ZONES_RELOAD_PERIOD).
+async fn zones_held(node: &Running, n: usize) -> Vec<String> {
+    let limit = strata_server::stored_zones::ZONES_RELOAD_PERIOD + Duration::from_secs(5);
+    let started = std::time::Instant::now();
+    loop {
+        let names = zone_names(admin_on(node, AdminRequest::Zones).await);
+        if names.len() == n {
+            return names;
+        }
+        assert!(started.elapsed() < limit, "still {names:?}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// Protected zones are shared like the access list: a zone added on either
+/// node is refused on both (the other reads the stored zones again within
+/// ZONES_RELOAD_PERIOD), and zones added on both nodes at once are all
+/// kept (each change is written only over the zones it read).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn zones_added_on_either_node_hold_on_both() {
+    use strata_protocol::admin::ZoneSpec;
+    use strata_protocol::RejectReason;
+    use strata_terrain::VoxelPos;
+    let Some(db) = strata_tests::postgres::database("cluster_zones") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let (_dirs, west, east) = west_and_east(&db).await;
+        let around = |name: &str, x: i32| {
+            let (_, v) = spot(x, Z);
+            AdminRequest::ZoneAdd(ZoneSpec {
+                name: name.into(),
+                min: VoxelPos::new(v.x - 6, v.y - 6, v.z - 6),
+                max: VoxelPos::new(v.x + 6, v.y + 6, v.z + 6),
+            })
+        };
+        let bob = standing(&east, "bob", EAST_X).await;
+
+        // Added on the west node, around bob's spot on the east node.
+        assert_eq!(
+            zone_names(admin_on(&west, around("keep", EAST_X + 2)).await),
+            ["keep"]
+        );
+        assert_eq!(zones_held(&east, 1).await, ["keep"]);
+        let (v, _) = bob.edit_acked(mine_at(EAST_X + 2)).await.unwrap();
+        assert_eq!(
+            v,
+            Verdict::Rejected(RejectReason::ProtectedZone {
+                zone: "keep".into()
+            })
+        );
+
+        // Zones added on both nodes at once: none is lost.
+        let on = |node: &'static str, parity: usize| {
+            let node = if node == "west" { &west } else { &east };
+            async move {
+                for i in (0..12i32).filter(|i| *i as usize % 2 == parity) {
+                    let answer = admin_on(node, around(&format!("z{i:02}"), 1000 + 40 * i)).await;
+                    assert!(matches!(answer, AdminResponse::Zones(_)), "{answer:?}");
+                }
+            }
+        };
+        tokio::join!(on("west", 0), on("east", 1));
+        // Each node holds all 13 once it has read the other's last change.
+        for node in [&west, &east] {
+            zones_held(node, 13).await;
+        }
+        bob.close().await;
+        west.shutdown().await.unwrap();
+        east.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}

@@ -1,22 +1,23 @@
-//! `strata-admin zones add|remove|list`. Online changes take effect in the
-//! running sequencer at once and persist in the store; offline ones edit
-//! the stored zones of a stopped server.
+//! `strata-admin zones add|remove|list`. Online changes persist in the
+//! store, then take effect in the running sequencer (and on a cluster's
+//! other nodes within `ZONES_RELOAD_PERIOD`); offline ones edit the stored
+//! zones of a stopped server.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use anyhow::{bail, Context};
+use anyhow::bail;
 use clap::{Args, Subcommand};
 use strata_protocol::admin::{AdminRequest, AdminResponse, ZoneSpec};
 use strata_terrain::VoxelPos;
 
 use super::remote::{open_offline_store, Target, TargetArgs};
-use crate::app::ZONES_BLOB;
 use crate::config::ServerConfig;
 use crate::engine::admin::zone_spec;
 use crate::sequencer::Sequencer;
 use crate::store::ChunkStore;
-use crate::validate::zones::{check_new, Zone};
+use crate::stored_zones::{self, ZoneChange};
+use crate::validate::zones::Zone;
 
 #[derive(Debug, Subcommand)]
 pub enum ZonesCommand {
@@ -84,21 +85,22 @@ pub fn render(zones: &[ZoneSpec]) -> String {
     out
 }
 
-/// The zones a stopped server would load: the stored ones, else its defaults.
-fn stored_zones(
-    store: &dyn ChunkStore,
-    config: Option<&std::path::Path>,
-) -> anyhow::Result<Vec<Zone>> {
-    match store.get_blob(ZONES_BLOB)? {
-        Some(b) => serde_json::from_slice(&b).context("stored protected zones do not parse"),
-        None => Ok(Sequencer::default_zones(
-            &ServerConfig::load(config)?.validation,
-        )),
-    }
+/// The zones a stopped server starts with when none are stored.
+fn defaults(config: Option<&std::path::Path>) -> anyhow::Result<Vec<Zone>> {
+    Ok(Sequencer::default_zones(
+        &ServerConfig::load(config)?.validation,
+    ))
 }
 
-fn save(store: &dyn ChunkStore, zones: &[Zone]) -> anyhow::Result<Vec<ZoneSpec>> {
-    store.put_blob(ZONES_BLOB, &serde_json::to_vec(zones)?)?;
+/// Makes `change` to the stored zones (a cluster's running nodes may
+/// change them meanwhile, on a shared database: written only over what
+/// was read).
+fn save(
+    store: &dyn ChunkStore,
+    config: Option<&std::path::Path>,
+    change: &ZoneChange,
+) -> anyhow::Result<Vec<ZoneSpec>> {
+    let zones = stored_zones::change(store, &defaults(config)?, change)?;
     Ok(zones.iter().map(zone_spec).collect())
 }
 
@@ -127,10 +129,11 @@ pub fn run(cmd: &ZonesCommand) -> anyhow::Result<Vec<ZoneSpec>> {
                 return Ok(z);
             }
             let store = offline_store(&a.target)?;
-            Ok(stored_zones(&*store, a.config.as_deref())?
-                .iter()
-                .map(zone_spec)
-                .collect())
+            let zones = match stored_zones::stored(&*store)? {
+                Some(z) => z,
+                None => defaults(a.config.as_deref())?,
+            };
+            Ok(zones.iter().map(zone_spec).collect())
         }
         ZonesCommand::Add(a) => {
             let zone = Zone {
@@ -142,10 +145,7 @@ pub fn run(cmd: &ZonesCommand) -> anyhow::Result<Vec<ZoneSpec>> {
                 return Ok(z);
             }
             let store = offline_store(&a.target)?;
-            let mut zones = stored_zones(&*store, a.config.as_deref())?;
-            check_new(&zones, &zone)?;
-            zones.push(zone);
-            save(&*store, &zones)
+            save(&*store, a.config.as_deref(), &ZoneChange::Add(zone))
         }
         ZonesCommand::Remove(a) => {
             let req = AdminRequest::ZoneRemove {
@@ -155,12 +155,11 @@ pub fn run(cmd: &ZonesCommand) -> anyhow::Result<Vec<ZoneSpec>> {
                 return Ok(z);
             }
             let store = offline_store(&a.target)?;
-            let mut zones = stored_zones(&*store, a.config.as_deref())?;
-            let Some(i) = zones.iter().position(|z| z.name == a.name) else {
-                bail!("no zone named {:?}", a.name);
-            };
-            zones.remove(i);
-            save(&*store, &zones)
+            save(
+                &*store,
+                a.config.as_deref(),
+                &ZoneChange::Remove(a.name.clone()),
+            )
         }
     }
 }

@@ -222,6 +222,8 @@ mod tests {
             position_rate: rate,
             access: std::sync::RwLock::default(),
             access_writes: tokio::sync::Mutex::new(()),
+            default_zones: Vec::new(),
+            zone_writes: tokio::sync::Mutex::new(()),
         };
         (Arc::new(ctx), inbox)
     }

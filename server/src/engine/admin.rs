@@ -14,7 +14,6 @@ use tracing::info;
 
 use super::snapshot::PreImages;
 use super::Engine;
-use crate::app::ZONES_BLOB;
 use crate::validate::zones::Zone;
 
 /// What the engine alone knows for `stats`.
@@ -45,13 +44,11 @@ pub enum AdminCommand {
         reply: oneshot::Sender<u32>,
     },
     Zones(oneshot::Sender<Vec<ZoneSpec>>),
-    ZoneAdd {
-        zone: ZoneSpec,
-        reply: oneshot::Sender<Result<Vec<ZoneSpec>, String>>,
-    },
-    ZoneRemove {
-        name: String,
-        reply: oneshot::Sender<Result<Vec<ZoneSpec>, String>>,
+    /// The zones as stored after a change, or as another node changed
+    /// them (`net/admin_zones.rs`): they replace the engine's.
+    SetZones {
+        zones: Vec<Zone>,
+        reply: oneshot::Sender<Vec<ZoneSpec>>,
     },
     /// The chunk's current version and chunk codec bytes.
     Chunk {
@@ -117,28 +114,9 @@ impl Engine {
             AdminCommand::Zones(reply) => {
                 let _ = reply.send(self.seq.zones().iter().map(zone_spec).collect());
             }
-            AdminCommand::ZoneAdd { zone, reply } => {
-                let z = Zone {
-                    name: zone.name,
-                    min: zone.min,
-                    max: zone.max,
-                };
-                let result = match self.seq.add_zone(z.clone()) {
-                    Err(e) => Err(e.to_string()),
-                    Ok(()) => self.persist_zones().inspect_err(|_| {
-                        self.seq.remove_zone(&z.name);
-                    }),
-                };
-                let _ = reply.send(result);
-            }
-            AdminCommand::ZoneRemove { name, reply } => {
-                let result = match self.seq.remove_zone(&name) {
-                    None => Err(format!("no zone named {name:?}")),
-                    Some(old) => self.persist_zones().inspect_err(|_| {
-                        let _ = self.seq.add_zone(old.clone());
-                    }),
-                };
-                let _ = reply.send(result);
+            AdminCommand::SetZones { zones, reply } => {
+                self.seq.set_zones(zones);
+                let _ = reply.send(self.seq.zones().iter().map(zone_spec).collect());
             }
             AdminCommand::Chunk { pos, reply } => {
                 let result = self
@@ -174,15 +152,5 @@ impl Engine {
                 let _ = reply.send(result);
             }
         }
-    }
-
-    /// Writes the sequencer's zones to the store; returns them.
-    fn persist_zones(&self) -> Result<Vec<ZoneSpec>, String> {
-        let zones = self.seq.zones();
-        let json = serde_json::to_vec(zones).map_err(|e| e.to_string())?;
-        self.store
-            .put_blob(ZONES_BLOB, &json)
-            .map_err(|e| format!("zones not saved: {e}"))?;
-        Ok(zones.iter().map(zone_spec).collect())
     }
 }

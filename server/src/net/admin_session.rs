@@ -246,6 +246,8 @@ pub(crate) async fn ask<T>(
     rx.await.map_err(|_| "server is shutting down".to_string())
 }
 
+use crate::stored_zones::ZoneChange;
+
 fn refused(message: String) -> AdminResponse {
     AdminResponse::Refused { message }
 }
@@ -283,17 +285,16 @@ pub(crate) async fn answer(
             sessions: ask(ctx, |reply| AdminCommand::Kick { player, reply }).await?,
         },
         AdminRequest::Zones => AdminResponse::Zones(ask(ctx, AdminCommand::Zones).await?),
-        AdminRequest::ZoneAdd(zone) => {
-            match ask(ctx, |reply| AdminCommand::ZoneAdd { zone, reply }).await? {
-                Ok(z) => AdminResponse::Zones(z),
-                Err(m) => refused(m),
-            }
+        AdminRequest::ZoneAdd(z) => {
+            let zone = crate::validate::zones::Zone {
+                name: z.name,
+                min: z.min,
+                max: z.max,
+            };
+            super::admin_zones::answer(ctx, ZoneChange::Add(zone)).await?
         }
         AdminRequest::ZoneRemove { name } => {
-            match ask(ctx, |reply| AdminCommand::ZoneRemove { name, reply }).await? {
-                Ok(z) => AdminResponse::Zones(z),
-                Err(m) => refused(m),
-            }
+            super::admin_zones::answer(ctx, ZoneChange::Remove(name)).await?
         }
         AdminRequest::InspectChunk { pos } => {
             match ask(ctx, |reply| AdminCommand::Chunk { pos, reply }).await? {

@@ -2,6 +2,7 @@
 //! writers. It moves bytes between sockets and the engine, nothing more.
 
 pub mod admin_session;
+pub mod admin_zones;
 pub mod admission;
 pub mod endpoint;
 pub mod session;

@@ -60,6 +60,12 @@ pub struct SessionContext {
     /// it (one at a time, under `access_writes`) and persist it first.
     pub access: std::sync::RwLock<auth::AccessList>,
     pub access_writes: tokio::sync::Mutex<()>,
+    /// The zones this server starts with when none are stored
+    /// (`[validation] spawn_protection_radius`); the first change stores
+    /// them with it.
+    pub default_zones: Vec<crate::validate::zones::Zone>,
+    /// Zone changes and reloads, one at a time (`net/admin_zones.rs`).
+    pub zone_writes: tokio::sync::Mutex<()>,
 }
 
 impl SessionContext {

@@ -667,6 +667,11 @@ impl Sequencer {
         Ok(())
     }
 
+    /// Replaces the zones (as stored: each was checked when it was added).
+    pub fn set_zones(&mut self, zones: Vec<Zone>) {
+        self.zones = zones;
+    }
+
     /// Removes the zone named `name`, returning it.
     pub fn remove_zone(&mut self, name: &str) -> Option<Zone> {
         let i = self.zones.iter().position(|z| z.name == name)?;
