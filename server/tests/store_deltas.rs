@@ -106,27 +106,82 @@ fn paced_pass_on(place: &Place) {
         slice_chunks,
     };
     // At most max_chunks a pass, in slices: 3 + 3 + 1.
-    let first = pass_once(&*store, pace(7, 3)).unwrap();
+    let first = pass_once(&*store, pace(7, 3), None).unwrap();
     assert_eq!(
         (first.folded.chunks, first.folded.deltas, first.slices),
         (7, 14, 3)
     );
     assert!(first.paused > std::time::Duration::ZERO, "{first:?}");
     assert!(!first.stopped);
+    assert!(
+        first.next.is_some(),
+        "it listed max_chunks: the next goes on"
+    );
     assert_eq!(store.delta_count().unwrap(), 6);
-    // The rest: one slice of 3, no pause after the last slice.
-    let rest = pass_once(&*store, pace(usize::MAX, 3)).unwrap();
+    // The rest, after the first pass's last chunk: one slice of 3, no
+    // pause after the last slice, and the next pass starts over.
+    let rest = pass_once(&*store, pace(7, 3), first.next).unwrap();
     assert_eq!((rest.folded.chunks, rest.slices), (3, 1), "{rest:?}");
+    assert_eq!(rest.next, None);
     assert_eq!(rest.paused, std::time::Duration::ZERO);
     assert_eq!(store.delta_count().unwrap(), 0);
     assert!(store.check().unwrap().is_ok(), "{:?}", store.check());
     for (p, v) in &seq.versions {
         assert_reads(&*store, *p, *v, &seq.states[p]);
     }
-    let idle = pass_once(&*store, pace(usize::MAX, 3)).unwrap();
+    let idle = pass_once(&*store, pace(usize::MAX, 3), None).unwrap();
     assert_eq!((idle.folded.chunks, idle.slices), (0, 0));
     // A chunk listed but folded meanwhile is skipped, uncounted.
     assert_eq!(store.fold_chunks(&chunks).unwrap().chunks, 0);
+}
+
+/// Chunks early in key order that change before every pass do not keep a
+/// later one from being folded: each pass goes on where the last stopped.
+#[test]
+fn no_chunk_waits_behind_chunks_that_keep_changing() {
+    for place in places("checkpoint_cursor") {
+        let store = open(&place);
+        let busy: Vec<ChunkPos> = (0..4).map(|i| ChunkPos::new(-10 + i, 0, 0)).collect();
+        let late = ChunkPos::new(20, 0, 0);
+        let mut seq = Seq::default();
+        let mut every = busy.clone();
+        every.push(late);
+        let whole: Vec<_> = every.iter().map(|&p| vec![(p, terrain_chunk(1))]).collect();
+        store.commit_batch(&seq.delta_batch(&whole)).unwrap();
+        let change = |seq: &mut Seq, chunks: &[ChunkPos], salt: u32| {
+            let edits: Vec<_> = chunks
+                .iter()
+                .map(|&p| vec![(p, terrain_chunk(salt))])
+                .collect();
+            store.commit_batch(&seq.delta_batch(&edits)).unwrap();
+        };
+        change(&mut seq, &[late], 2);
+        let pace = CheckpointPace {
+            every: std::time::Duration::from_secs(60),
+            max_chunks: busy.len(),
+            slice_chunks: busy.len(),
+        };
+        let mut after = None;
+        let mut passes = 0;
+        loop {
+            // The busy chunks change again before each pass.
+            change(&mut seq, &busy, 3 + passes);
+            let has_late = store
+                .chunks_with_deltas(None, usize::MAX)
+                .unwrap()
+                .contains(&late);
+            if !has_late {
+                break;
+            }
+            after = pass_once(&*store, pace, after).unwrap().next;
+            passes += 1;
+            assert!(
+                passes <= 2,
+                "the late chunk still waits after {passes} passes"
+            );
+        }
+        assert_reads(&*store, late, seq.versions[&late], &seq.states[&late]);
+    }
 }
 
 #[test]

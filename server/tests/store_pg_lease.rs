@@ -936,3 +936,37 @@ fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adop
     let report = plain(&db).check().unwrap();
     assert!(report.is_ok(), "{report:?}");
 }
+
+/// A node's checkpoint folds only the regions it holds: another node's
+/// deltas are that node's to fold (every node folding every region would
+/// stall the owners' commits on the chunk rows, and a stopping node's last
+/// fold would chase the others' commits).
+#[test]
+fn a_node_lists_only_the_deltas_of_regions_it_holds() {
+    let Some(db) = database("lease_fold_scope") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let b = node(&db, "b");
+    let (ra, rb) = (region(0, 0), region(1, 0));
+    let (pa, pb) = (chunk_in(ra, 0), chunk_in(rb, 0));
+    let mut world = Seq::default();
+    for salt in 1..=2 {
+        a.commit_batch(&edit(&mut world, &[pa], salt)).unwrap();
+        b.commit_batch(&edit(&mut world, &[pb], salt)).unwrap();
+    }
+    assert_eq!(a.chunks_with_deltas(None, usize::MAX).unwrap(), [pa]);
+    assert_eq!(b.chunks_with_deltas(None, usize::MAX).unwrap(), [pb]);
+    assert_eq!(a.checkpoint(usize::MAX).unwrap().chunks, 1);
+    assert_eq!(b.chunks_with_deltas(None, usize::MAX).unwrap(), [pb]);
+    // A node holding nothing lists nothing.
+    assert_eq!(a.release_leases().unwrap(), 1);
+    assert!(a.chunks_with_deltas(None, usize::MAX).unwrap().is_empty());
+    // Tools on the database alone (no node) list every region's.
+    assert_eq!(
+        store_common::pg_store(&db)
+            .chunks_with_deltas(None, usize::MAX)
+            .unwrap(),
+        [pb]
+    );
+}

@@ -141,7 +141,7 @@ fn folds_ride_on_the_next_commit_and_a_lost_fold_loses_nothing() {
     assert_eq!(store.last_seq().unwrap(), seq.last_seq);
     // The carried folds stayed; the lost ones left their deltas.
     assert_eq!(store.delta_count().unwrap(), 8);
-    let mut left = store.chunks_with_deltas(usize::MAX).unwrap();
+    let mut left = store.chunks_with_deltas(None, usize::MAX).unwrap();
     left.sort();
     assert_eq!(left, lost.to_vec());
     for (p, v) in &seq.versions {

@@ -10,12 +10,16 @@
 //! the commit before it, and waits under sled's global lock for at most
 //! one checkpoint flush a pass: the pass ends with one
 //! [`ChunkStore::sync_folds`]. Once a pass has run half its period it
-//! stops pausing, so it finishes before the next is due.
+//! stops pausing, so it finishes before the next is due. Each pass lists
+//! chunks from where the last one stopped (wrapping at the end), so a
+//! chunk is folded within a few passes however many others keep changing.
 
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use tracing::{debug, error};
+
+use strata_terrain::ChunkPos;
 
 use super::{CheckpointStats, ChunkStore, StoreError};
 use crate::metrics as m;
@@ -64,6 +68,9 @@ pub struct PassReport {
     pub paused: Duration,
     /// The stop came during the pass; what is left folds at stop.
     pub stopped: bool,
+    /// Where the next pass lists from: the last chunk listed when the pass
+    /// listed `max_chunks`, else `None` (the start again).
+    pub next: Option<ChunkPos>,
 }
 
 /// The running checkpoint thread; [`Checkpointer::stop`] ends it.
@@ -107,13 +114,27 @@ impl Checkpointer {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
+        // Round after round over the chunks with deltas, until a whole
+        // round folds nothing (what is left does not read: skipped).
+        let mut after = None;
+        let mut folded_this_round = 0;
         loop {
             let started = Instant::now();
-            let stats = self.store.checkpoint(self.max_chunks)?;
+            let todo = self.store.chunks_with_deltas(after, self.max_chunks)?;
+            let stats = self.store.fold_chunks(&todo)?;
+            if stats.chunks > 0 {
+                self.store.sync_folds()?;
+            }
             count(&stats);
             record(&stats, started.elapsed());
-            if stats.chunks == 0 {
-                return Ok(());
+            folded_this_round += stats.chunks;
+            if todo.len() < self.max_chunks.max(1) {
+                if folded_this_round == 0 {
+                    return Ok(());
+                }
+                (after, folded_this_round) = (None, 0);
+            } else {
+                after = todo.last().copied();
             }
         }
     }
@@ -137,8 +158,12 @@ fn record(stats: &CheckpointStats, working: Duration) {
 /// them: the chunks that have deltas when it starts (at most
 /// `pace.max_chunks`), folded `pace.slice_chunks` at a time, then made
 /// durable once.
-pub fn pass_once(store: &dyn ChunkStore, pace: CheckpointPace) -> Result<PassReport, StoreError> {
-    paced_pass(store, &Stop::default(), pace)
+pub fn pass_once(
+    store: &dyn ChunkStore,
+    pace: CheckpointPace,
+    after: Option<ChunkPos>,
+) -> Result<PassReport, StoreError> {
+    paced_pass(store, &Stop::default(), pace, after)
 }
 
 /// [`pass_once`], ended early by [`Checkpointer::stop`]. Chunks changed
@@ -147,10 +172,14 @@ fn paced_pass(
     store: &dyn ChunkStore,
     stop: &Stop,
     pace: CheckpointPace,
+    after: Option<ChunkPos>,
 ) -> Result<PassReport, StoreError> {
     let started = Instant::now();
     let mut report = PassReport::default();
-    let todo = store.chunks_with_deltas(pace.max_chunks)?;
+    let todo = store.chunks_with_deltas(after, pace.max_chunks)?;
+    if todo.len() >= pace.max_chunks.max(1) {
+        report.next = todo.last().copied();
+    }
     let mut slices = todo.chunks(pace.slice_chunks.max(1)).peekable();
     while let Some(slice) = slices.next() {
         let t = Instant::now();
@@ -195,11 +224,12 @@ fn paced_pass(
 }
 
 fn run(store: &dyn ChunkStore, stop: &Stop, pace: CheckpointPace) {
+    let mut after = None;
     while !stop.wait(pace.every) {
         // A failed pass changes nothing: the deltas stay and reads replay them.
-        match paced_pass(store, stop, pace) {
+        match paced_pass(store, stop, pace, after) {
             Ok(r) if r.stopped => return,
-            Ok(_) => {}
+            Ok(r) => after = r.next,
             Err(e) => error!(error = %e, "checkpoint failed; deltas stay until the next pass"),
         }
     }

@@ -12,7 +12,9 @@ use strata_terrain::delta::ChunkDelta;
 use strata_terrain::{Chunk, ChunkPos};
 
 use super::error::StoreError;
-use super::keys::{chunk_key, delta_from_key, delta_key, show_pos, show_raw, CHUNK_KEY_LEN};
+use super::keys::{
+    chunk_key, delta_from_key, delta_key, show_pos, show_raw, CHUNK_KEY_LEN, DELTA_KEY_LEN,
+};
 use super::record::{decode_chunk_value, decode_delta, encode_chunk_value, split_chunk_value};
 use super::sled_store::SledStore;
 use super::types::CheckpointStats;
@@ -111,14 +113,24 @@ impl SledStore {
         ))
     }
 
-    /// Up to `max_chunks` chunks with deltas, in key order.
+    /// Up to `max_chunks` chunks with deltas, in key order, after `after`.
     pub(super) fn chunks_with_deltas(
         &self,
+        after: Option<ChunkPos>,
         max_chunks: usize,
     ) -> Result<Vec<ChunkPos>, StoreError> {
         let mut last: Option<[u8; CHUNK_KEY_LEN]> = None;
         let mut todo = Vec::new();
-        for k in self.deltas.iter().keys() {
+        // Past every delta of `after`.
+        let start = match after {
+            Some(pos) => std::ops::Bound::Excluded(delta_key(pos, u64::MAX)),
+            None => std::ops::Bound::Unbounded,
+        };
+        let keys = self
+            .deltas
+            .range::<[u8; DELTA_KEY_LEN], _>((start, std::ops::Bound::Unbounded))
+            .keys();
+        for k in keys {
             let k = k?;
             let (pos, _) =
                 delta_from_key(&k).ok_or_else(|| StoreError::corrupt("delta key", show_raw(&k)))?;

@@ -157,8 +157,16 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Every stored player position.
     fn player_positions(&self) -> StoreIter<'_, (String, StoredPosition)>;
 
-    /// Up to `max_chunks` chunks that have committed deltas, in key order.
-    fn chunks_with_deltas(&self, max_chunks: usize) -> Result<Vec<ChunkPos>, StoreError>;
+    /// Up to `max_chunks` chunks that have committed deltas, in key order,
+    /// after `after` when given (a checkpoint goes on where its last pass
+    /// stopped, so no chunk waits behind others edited as often). A cluster
+    /// node lists only chunks of the regions it holds: another node's are
+    /// that node's to fold.
+    fn chunks_with_deltas(
+        &self,
+        after: Option<ChunkPos>,
+        max_chunks: usize,
+    ) -> Result<Vec<ChunkPos>, StoreError>;
 
     /// Folds the committed deltas of `chunks` into their records (a
     /// checkpoint). Runs beside commits; reads see the same states before
@@ -179,7 +187,7 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// [`Self::chunks_with_deltas`], [`Self::fold_chunks`], then
     /// [`Self::sync_folds`].
     fn checkpoint(&self, max_chunks: usize) -> Result<CheckpointStats, StoreError> {
-        let stats = self.fold_chunks(&self.chunks_with_deltas(max_chunks)?)?;
+        let stats = self.fold_chunks(&self.chunks_with_deltas(None, max_chunks)?)?;
         if stats.chunks > 0 {
             self.sync_folds()?;
         }

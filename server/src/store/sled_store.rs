@@ -508,8 +508,12 @@ impl ChunkStore for SledStore {
         }))
     }
 
-    fn chunks_with_deltas(&self, max_chunks: usize) -> Result<Vec<ChunkPos>, StoreError> {
-        SledStore::chunks_with_deltas(self, max_chunks)
+    fn chunks_with_deltas(
+        &self,
+        after: Option<ChunkPos>,
+        max_chunks: usize,
+    ) -> Result<Vec<ChunkPos>, StoreError> {
+        SledStore::chunks_with_deltas(self, after, max_chunks)
     }
 
     fn fold_chunks(&self, chunks: &[ChunkPos]) -> Result<CheckpointStats, StoreError> {

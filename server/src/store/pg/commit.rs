@@ -85,12 +85,20 @@ impl Rows {
 }
 
 /// An error before `COMMIT` was sent: a session the server ended (idle in
-/// the transaction too long, or the connection gone) wrote nothing.
+/// the transaction too long, or the connection gone), or a transaction it
+/// aborted (a deadlock or serialization failure it broke by ending this
+/// one, a statement cancelled), wrote nothing.
 fn before_commit(e: StoreError) -> StoreError {
+    let aborted = [
+        SqlState::IDLE_IN_TRANSACTION_SESSION_TIMEOUT,
+        SqlState::T_R_DEADLOCK_DETECTED,
+        SqlState::T_R_SERIALIZATION_FAILURE,
+        SqlState::QUERY_CANCELED,
+        SqlState::LOCK_NOT_AVAILABLE,
+    ];
     match &e {
         StoreError::Postgres(pg)
-            if pg.is_closed()
-                || pg.code() == Some(&SqlState::IDLE_IN_TRANSACTION_SESSION_TIMEOUT) =>
+            if pg.is_closed() || pg.code().is_some_and(|c| aborted.contains(c)) =>
         {
             StoreError::Uncommitted {
                 reason: e.to_string(),
@@ -405,5 +413,54 @@ mod tests {
             c.batch("SELECT 1").await
         })
         .unwrap();
+    }
+
+    /// Two transactions locking two rows in opposite orders: PostgreSQL
+    /// breaks the deadlock by aborting one, which wrote nothing.
+    #[test]
+    fn a_transaction_aborted_to_break_a_deadlock_wrote_nothing() {
+        let Some(db) = strata_tests::postgres::database("pg_deadlock") else {
+            return;
+        };
+        let cfg = PgConfig {
+            url: db.url(),
+            ..PgConfig::default()
+        };
+        let setup = Pool::open_idle(&cfg, Duration::from_secs(60)).unwrap();
+        setup
+            .run("a table", async |c: &mut Conn| {
+                c.batch("CREATE TABLE t (id int PRIMARY KEY, n int); INSERT INTO t VALUES (1, 0), (2, 0)")
+                    .await
+            })
+            .unwrap();
+        let both_hold_one = std::sync::Barrier::new(2);
+        let results: Vec<Result<(), StoreError>> = std::thread::scope(|scope| {
+            let runs: Vec<_> = [(1, 2), (2, 1)]
+                .into_iter()
+                .map(|(first, second)| {
+                    let (cfg, barrier) = (&cfg, &both_hold_one);
+                    scope.spawn(move || {
+                        let pool = Pool::open_idle(cfg, Duration::from_secs(60)).unwrap();
+                        pool.run("locking two rows", async |c: &mut Conn| {
+                            c.batch("BEGIN").await?;
+                            let lock = |id: i32| format!("UPDATE t SET n = n + 1 WHERE id = {id}");
+                            c.batch(&lock(first)).await?;
+                            barrier.wait();
+                            match c.batch(&lock(second)).await {
+                                Ok(()) => c.batch("COMMIT").await,
+                                Err(e) => Err(before_commit(e)),
+                            }
+                        })
+                    })
+                })
+                .collect();
+            runs.into_iter().map(|r| r.join().unwrap()).collect()
+        });
+        let aborted: Vec<_> = results.iter().filter_map(|r| r.as_ref().err()).collect();
+        assert_eq!(aborted.len(), 1, "{results:?}");
+        assert!(
+            matches!(aborted[0], StoreError::Uncommitted { reason } if reason.contains("deadlock")),
+            "{aborted:?}"
+        );
     }
 }

@@ -23,18 +23,45 @@ use crate::store::StoreError;
 const BEGIN_LAZY: &str = "BEGIN; SET LOCAL synchronous_commit = off";
 
 impl PgStore {
-    /// Up to `max_chunks` chunks with deltas, in key order.
+    /// Up to `max_chunks` chunks with deltas, in key order, after `after`;
+    /// on a cluster node, only those of the regions it holds.
     pub(super) fn chunks_with_deltas(
         &self,
+        after: Option<ChunkPos>,
         max_chunks: usize,
     ) -> Result<Vec<ChunkPos>, StoreError> {
         let limit = i64::try_from(max_chunks).unwrap_or(i64::MAX);
+        let from_start = after.is_none();
+        let a = after.unwrap_or(ChunkPos::new(0, 0, 0));
+        let (every_region, xs, zs): (bool, Vec<i32>, Vec<i32>) = match &self.leases {
+            None => (true, Vec::new(), Vec::new()),
+            Some(l) => {
+                let (xs, zs) = l.held().keys().map(|r| (r.x, r.z)).unzip();
+                (false, xs, zs)
+            }
+        };
+        if !every_region && xs.is_empty() {
+            return Ok(Vec::new());
+        }
         Ok(self
             .pool
             .run("listing deltas to fold", async |c: &mut Conn| {
                 c.query(
-                    "SELECT DISTINCT x, y, z FROM chunk_deltas ORDER BY x, y, z LIMIT $1",
-                    &[&limit],
+                    "SELECT DISTINCT x, y, z FROM chunk_deltas \
+                     WHERE ($2::bool OR (x, y, z) > ($3::int4, $4::int4, $5::int4)) \
+                       AND ($6::bool OR (region_x, region_z) IN \
+                            (SELECT * FROM unnest($7::int4[], $8::int4[]))) \
+                     ORDER BY x, y, z LIMIT $1",
+                    &[
+                        &limit,
+                        &from_start,
+                        &a.x,
+                        &a.y,
+                        &a.z,
+                        &every_region,
+                        &xs,
+                        &zs,
+                    ],
                 )
                 .await
             })?

@@ -537,6 +537,8 @@ fn elsewhere(region: RegionId, owner: &str, addr: &str) -> RegionAccess {
 
 /// Extends every lease still this node's at the epoch it holds; those
 /// whose owner or epoch changed are lost. Returns the regions lost now.
+/// Rows are locked in key order, as a commit's fence locks them, so the
+/// two never deadlock.
 pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
     let held = leases.held();
     if held.is_empty() {
@@ -546,10 +548,14 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
     let addr = leases.addr();
     let rows = pool.run("renewing leases", async |c: &mut Conn| {
         c.query(
-            "UPDATE regions AS r SET lease_expires = now() + $5::float8 * interval '1 millisecond', \
+            "WITH mine AS (SELECT r.region_x, r.region_z FROM regions r \
+                 JOIN unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
+                   ON r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e \
+                 WHERE r.owner = $4 \
+                 ORDER BY r.region_x, r.region_z FOR UPDATE OF r) \
+             UPDATE regions AS r SET lease_expires = now() + $5::float8 * interval '1 millisecond', \
                  renewed_at = now(), owner_addr = $6 \
-             FROM unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
-             WHERE r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e AND r.owner = $4 \
+             FROM mine WHERE r.region_x = mine.region_x AND r.region_z = mine.region_z \
              RETURNING r.region_x, r.region_z",
             &[&xs, &zs, &epochs, &leases.node_id, &leases.lease_ms, &addr],
         )
@@ -601,9 +607,13 @@ fn let_go(
     let (xs, zs, epochs) = held_columns(regions)?;
     pool.run("releasing leases", async |c: &mut Conn| {
         c.execute(
-            "UPDATE regions AS r SET owner = NULL \
-             FROM unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
-             WHERE r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e AND r.owner = $4",
+            "WITH mine AS (SELECT r.region_x, r.region_z FROM regions r \
+                 JOIN unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
+                   ON r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e \
+                 WHERE r.owner = $4 \
+                 ORDER BY r.region_x, r.region_z FOR UPDATE OF r) \
+             UPDATE regions AS r SET owner = NULL \
+             FROM mine WHERE r.region_x = mine.region_x AND r.region_z = mine.region_z",
             &[&xs, &zs, &epochs, &leases.node_id],
         )
         .await
