@@ -117,14 +117,24 @@ impl Engine {
             if self.versions.get(&pos) == Some(&version) {
                 continue;
             }
-            self.versions.insert(pos, version);
+            // The version loaded, which another node may have moved past
+            // the one just listed.
+            let mut now = version;
             if self.seq.is_resident(pos) {
                 if let Some(stored) = self.store.load_chunk(pos)? {
+                    now = stored.version;
                     self.seq
                         .insert_stored_chunk(pos, stored.chunk, stored.version);
                 }
+            } else {
+                // Not held here, but its neighbours' meshes read it.
+                self.seq.forget_meshes_around(pos);
             }
-            moved.push((pos, version));
+            self.versions.insert(pos, now);
+            moved.push((pos, now));
+        }
+        if !moved.is_empty() {
+            self.premesh.invalidate();
         }
         self.withdraw_stale(&moved);
         Ok(moved.len())
@@ -186,6 +196,8 @@ impl Engine {
             .iter()
             .flat_map(|a| a.changes.iter().map(|c| c.pos))
             .collect();
+        // A background mesh may have read the batch's content.
+        self.premesh.invalidate();
         let mut restored = Vec::with_capacity(changed.len());
         for &pos in &changed {
             match self.restore_chunk(pos) {

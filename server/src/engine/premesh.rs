@@ -81,6 +81,9 @@ pub struct PremeshJob {
     /// generated.
     pub modified: HashMap<ChunkPos, Arc<Chunk>>,
     pub generator: Arc<dyn ChunkGenerator>,
+    /// [`Premesher::epoch`] when the job was built: a result of an older
+    /// epoch may have read content that was put back since.
+    pub epoch: u64,
 }
 
 impl PremeshJob {
@@ -108,6 +111,7 @@ impl PremeshJob {
                     mesh,
                     stamp: t.stamp,
                     generated,
+                    epoch: self.epoch,
                 }
             })
             .collect()
@@ -189,12 +193,15 @@ pub struct PremeshResult {
     /// The unmodified chunks it generated: the engine keeps those it does
     /// not hold, so the first edits near a player need not generate them.
     pub generated: Vec<(ChunkPos, Arc<Chunk>)>,
+    /// The job's [`PremeshJob::epoch`].
+    pub epoch: u64,
 }
 
 impl PremeshResult {
-    /// Whether every chunk the mesh read still has the version it had.
-    pub fn is_current(&self, version_of: impl Fn(ChunkPos) -> u64) -> bool {
-        self.stamp.iter().all(|(p, v)| version_of(*p) == *v)
+    /// Whether the job was built in `epoch` (nothing it read was put back
+    /// since) and every chunk the mesh read still has the version it had.
+    pub fn is_current(&self, epoch: u64, version_of: impl Fn(ChunkPos) -> u64) -> bool {
+        self.epoch == epoch && self.stamp.iter().all(|(p, v)| version_of(*p) == *v)
     }
 }
 
@@ -210,6 +217,9 @@ pub struct Premesher {
     backlog: VecDeque<ChunkPos>,
     /// The same centers, for the duplicate check (the backlog may be long).
     waiting: HashSet<ChunkPos>,
+    /// Raised whenever the world's content goes back or is replaced
+    /// outside a commit ([`Self::invalidate`]).
+    epoch: u64,
 }
 
 impl std::fmt::Debug for Premesher {
@@ -253,7 +263,21 @@ impl Premesher {
             rx,
             backlog: VecDeque::new(),
             waiting: HashSet::new(),
+            epoch: 0,
         })
+    }
+
+    /// The epoch new jobs carry.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+
+    /// Chunks were put back to their stored state (a fenced batch), or
+    /// reloaded from the store (a region claimed): a job in flight may have
+    /// read content that will never be durable at the version it stamped,
+    /// so every result of an older epoch is dropped.
+    pub fn invalidate(&mut self) {
+        self.epoch += 1;
     }
 
     /// Whether a job for `pos` is running or queued.
@@ -428,6 +452,7 @@ impl super::Engine {
             targets,
             modified,
             generator: self.seq.world().generator().clone(),
+            epoch: self.premesh.epoch(),
         });
     }
 
@@ -440,7 +465,9 @@ impl super::Engine {
                 }
             }
             let versions = &self.versions;
-            if r.is_current(|p| versions.get(&p).copied().unwrap_or(0)) {
+            if r.is_current(self.premesh.epoch(), |p| {
+                versions.get(&p).copied().unwrap_or(0)
+            }) {
                 metrics::counter!(m::PREMESH_BUILT).increment(1);
                 self.seq.insert_collision_mesh(r.mesh);
             } else {
@@ -482,6 +509,7 @@ mod tests {
             }],
             modified: HashMap::new(),
             generator: g.clone(),
+            epoch: 0,
         }
     }
 
@@ -509,6 +537,11 @@ mod tests {
         edited.set(3, 0, 3, strata_terrain::Voxel::solid(3));
         let v = world.commit(above, edited.clone());
         let version_of = |p: ChunkPos| world.peek(p).map_or(0, |c| c.version);
+        let mut pm = Premesher::new(PremeshLimits {
+            inflight: 4,
+            ..PremeshLimits::default()
+        })
+        .unwrap();
         let job = PremeshJob {
             targets: vec![PremeshTarget {
                 pos: surface,
@@ -517,12 +550,8 @@ mod tests {
             }],
             modified: HashMap::from([(above, Arc::new(edited))]),
             generator: g.clone(),
+            epoch: pm.epoch(),
         };
-        let mut pm = Premesher::new(PremeshLimits {
-            inflight: 4,
-            ..PremeshLimits::default()
-        })
-        .unwrap();
         assert!(pm.submit(job));
         assert!(pm.is_inflight(surface));
         let done = wait_for(&mut pm, 1);
@@ -531,7 +560,7 @@ mod tests {
         let expected = CollisionMesh::build(surface, 0, &Neighborhood::from_world(&world, surface));
         assert_eq!(done[0].mesh.hash, expected.hash);
         assert!(!done[0].mesh.mesh.indices.is_empty());
-        assert!(done[0].is_current(version_of));
+        assert!(done[0].is_current(pm.epoch(), version_of));
         // It hands back the 26 chunks it generated (not the modified one).
         assert_eq!(done[0].generated.len(), 26);
         for (p, c) in &done[0].generated {
@@ -539,7 +568,11 @@ mod tests {
             assert_eq!(**c, g.generate(*p));
         }
         // The neighbour moves on: the result is stale.
-        assert!(!done[0].is_current(|p| if p == above { v + 1 } else { version_of(p) }));
+        let moved_on = |p| if p == above { v + 1 } else { version_of(p) };
+        assert!(!done[0].is_current(pm.epoch(), moved_on));
+        // As it is once content went back (a fenced batch), versions alike.
+        pm.invalidate();
+        assert!(!done[0].is_current(pm.epoch(), version_of));
     }
 
     #[test]

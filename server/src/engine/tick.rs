@@ -179,8 +179,13 @@ impl Engine {
             .flat_map(|a| a.changes.iter().map(|c| c.pos))
             .collect();
         self.seq.finish_tick(&mut out, built, &ahead);
+        // Only raised: a cluster node may have reloaded a region past this
+        // batch while it committed (another node wrote on after it).
         for e in &out.batch.entries {
-            self.versions.extend(e.changes.iter().copied());
+            for &(pos, v) in &e.changes {
+                let held = self.versions.entry(pos).or_insert(v);
+                *held = (*held).max(v);
+            }
         }
         for a in &out.applied {
             metrics::counter!(m::EDITS_ACCEPTED).increment(1);
@@ -250,8 +255,13 @@ fn spawn_meshing(pool: &rayon::ThreadPool, pending: PendingMeshes) -> Receiver<B
     if pending.is_empty() {
         let _ = tx.send(pending.build());
     } else {
+        // A panic would abort the process inside a spawned job: caught, it
+        // drops `tx`, and the engine stops cleanly on the closed channel.
         pool.spawn(move || {
-            let _ = tx.send(pending.build());
+            let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| pending.build()));
+            if let Ok(built) = built {
+                let _ = tx.send(built);
+            }
         });
     }
     rx

@@ -229,6 +229,12 @@ impl Sequencer {
         self.collision.invalidate_around(pos);
     }
 
+    /// Drops the collision meshes that read `pos` (it changed in the store
+    /// while not loaded here: another cluster node wrote it).
+    pub fn forget_meshes_around(&mut self, pos: ChunkPos) {
+        self.collision.invalidate_around(pos);
+    }
+
     /// Holds `chunk`, generated off this thread, as the version-0 chunk at
     /// `pos` unless a chunk is loaded there. The caller has checked that
     /// the store has no version of `pos`. The chunk is shared, not copied.
