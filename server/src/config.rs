@@ -610,6 +610,7 @@ impl ServerConfig {
             ("validation.edit_rate.capacity", v.edit_rate),
             ("validation.volume_rate.capacity", v.volume_rate),
             ("validation.reject_rate.capacity", v.reject_rate),
+            ("validation.placement_rate.capacity", v.placement_rate),
         ] {
             range(field, bucket.capacity, 1, u64::MAX)?;
         }

@@ -132,7 +132,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_counter!(
         POSITIONS_DROPPED,
-        "Position datagrams dropped: reason=rate past the session's [validation.position_rate], queue_full when the engine's queue was full"
+        "Position datagrams dropped: reason=rate past the session's [validation.position_rate], queue_full when the engine's queue was full, placement past the player's [validation.placement_rate] (reports of a session with no position yet)"
     );
     metrics::describe_counter!(
         DELTAS_SENT,

@@ -210,6 +210,10 @@ fn bad_values_name_their_field() {
             "[validation.position_rate]\ncapacity = 5\nper_second = 0",
             "validation.position_rate.per_second",
         ),
+        (
+            "[validation.placement_rate]\ncapacity = 0\nper_second = 1",
+            "validation.placement_rate.capacity",
+        ),
         ("[tls]\nextra_names = [\"bad name!\"]", "tls.extra_names"),
         ("[tls]\nextra_names = [\"\"]", "tls.extra_names"),
         (

@@ -190,6 +190,52 @@ async fn a_position_flood_stops_at_the_sessions_bucket() {
     .expect("test finished in time");
 }
 
+/// A player with no position yet claiming spot after spot deep in the
+/// rock of the spawn square (each claim loads or generates the chunks
+/// around it, then is refused as inside solid) is held to its
+/// `[validation.placement_rate]`: the rest are dropped before anything is
+/// loaded, and counted; the session goes on and can still place itself.
+#[tokio::test]
+async fn placements_past_the_players_bucket_are_dropped_before_loading() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let root = tempfile::tempdir().unwrap();
+        let data = root.path().join("data");
+        let metrics = free_metrics_addr();
+        let config = format!(
+            "{FAST_EDITS}[validation.placement_rate]\ncapacity = 4\nper_second = 1\n[metrics]\nlisten = \"{metrics}\"\n"
+        );
+        let (mut child, addr) = spawn_server(&data, &config);
+        let c = process_client(&data, addr, "mole").await;
+        let g = Generator::fractal(GenParams::default()).unwrap();
+        const CLAIMS: i32 = 40;
+        for i in 0..CLAIMS {
+            let (x, z) = (100 + 37 * i, -300 + 53 * i);
+            let deep = g.surface_height(x, z) - 40.0;
+            c.send_position(at(x as f64, deep, z as f64)).unwrap();
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let dropped = "strata_positions_dropped_total{reason=\"placement\"}";
+        let n = wait_for_metric(metrics, dropped, (CLAIMS / 2) as f64).await;
+        assert!(n < CLAIMS as f64, "{n} dropped of {CLAIMS}");
+        // Placing itself at the surface works once a token is back.
+        let (x, z) = (70, 40);
+        let feet = at(x as f64, g.surface_height(x, z) + 1.0, z as f64);
+        tokio::time::sleep(Duration::from_millis(1100)).await;
+        c.send_position(feet).unwrap();
+        let chunk = strata_terrain::VoxelPos::new(x, g.surface_height(x, z) as i32, z).chunk();
+        let started = std::time::Instant::now();
+        while c.replica().get(chunk).is_none() {
+            assert!(started.elapsed() < Duration::from_secs(10), "never placed");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert!(!c.is_closed());
+        child.kill().unwrap();
+        child.wait().unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
 /// Polls the metrics at `addr` until `name` is at least `at_least`
 /// (20 s at most); returns its value.
 async fn wait_for_metric(addr: std::net::SocketAddr, name: &str, at_least: f64) -> f64 {

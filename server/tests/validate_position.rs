@@ -377,3 +377,37 @@ fn a_ticket_older_than_another_sessions_report_is_refused() {
     let b = FixedVec3::from_voxels(HOME.0 + 100, 0, HOME.1);
     assert_eq!(s.arrive(5, b, 5_000), Ok(Start::Resume { feet: b }));
 }
+
+/// A session with no position yet may claim any spot in the spawn square
+/// at any height, and each claim loads (or generates) the chunks around
+/// the body before it can be refused: the player's placements are
+/// bounded by `[validation.placement_rate]`, shared by its sessions. A
+/// placed session is not charged.
+#[test]
+fn placements_of_a_player_with_no_position_are_bounded() {
+    let mut s = fresh();
+    let burst = ValidationConfig::default().placement_rate.capacity;
+    let per_second = ValidationConfig::default().placement_rate.per_second;
+    for _ in 0..burst {
+        s.charge_placement(PLAYER, 0).unwrap();
+    }
+    assert_eq!(
+        s.charge_placement(PLAYER, 0),
+        Err(PositionReject::PlacementLimited)
+    );
+    // Another session of the player draws on the same bucket.
+    s.session_joined(2, "p".into(), Role::Player);
+    assert_eq!(
+        s.charge_placement(2, 0),
+        Err(PositionReject::PlacementLimited)
+    );
+    // It refills; once placed, reports are not charged.
+    let refill_ms = 1000 / per_second;
+    s.charge_placement(PLAYER, refill_ms).unwrap();
+    s.update_position(PLAYER, at(1, HOME.0, 0, HOME.1), refill_ms)
+        .unwrap();
+    for _ in 0..3 * burst {
+        s.charge_placement(PLAYER, refill_ms).unwrap();
+    }
+    assert_eq!(PositionReject::PlacementLimited.refusal(), None);
+}

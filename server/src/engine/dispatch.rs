@@ -207,6 +207,10 @@ impl Engine {
         if let Err(reason) = self.seq.precheck_position(session, &update, now) {
             return self.refuse_position(session, update.seq, &reason, now);
         }
+        if let Err(reason) = self.seq.charge_placement(session, now) {
+            metrics::counter!(m::POSITIONS_DROPPED, "reason" => "placement").increment(1);
+            return self.refuse_position(session, update.seq, &reason, now);
+        }
         let needed = self.seq.chunks_needed_for_position(&update);
         if let Err(e) = self.make_resident(&needed) {
             error!(error = %e, "store read failed");

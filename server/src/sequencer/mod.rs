@@ -576,6 +576,30 @@ impl Sequencer {
         position::check_motion(prev.as_ref(), upd, now_ms, &self.validation).map(|_| ())
     }
 
+    /// Takes one of the player's placement tokens when the session has no
+    /// position yet (its report reads and may generate the chunks around
+    /// the body wherever in the spawn square it claims to be); `Err`, and
+    /// nothing loaded, when none is left.
+    pub fn charge_placement(&mut self, session_id: u64, now_ms: u64) -> Result<(), PositionReject> {
+        let s = self
+            .sessions
+            .get(&session_id)
+            .ok_or(PositionReject::UnknownSession)?;
+        if s.position.is_some() {
+            return Ok(());
+        }
+        let limits = self
+            .limits
+            .get_mut(&s.player)
+            .ok_or(PositionReject::UnknownSession)?;
+        limits.placements.refill(now_ms);
+        if limits.placements.take(1) {
+            Ok(())
+        } else {
+            Err(PositionReject::PlacementLimited)
+        }
+    }
+
     /// Checks and records a position report. A rejected report changes
     /// nothing; a stale one is rejected as [`PositionReject::Stale`] and the
     /// shell should drop it silently.

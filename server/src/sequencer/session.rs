@@ -22,6 +22,8 @@ pub struct PlayerLimits {
     pub volume: TokenBucket,
     /// Refused edits; when it runs dry the player's session is disconnected.
     pub rejections: TokenBucket,
+    /// Reports of sessions with no position yet (`[validation.placement_rate]`).
+    pub placements: TokenBucket,
     /// Sessions of this player still connected.
     pub sessions: u32,
 }
@@ -32,6 +34,7 @@ impl PlayerLimits {
             edits: TokenBucket::new(cfg.edit_rate, now_ms),
             volume: TokenBucket::new(cfg.volume_rate, now_ms),
             rejections: TokenBucket::new(cfg.reject_rate, now_ms),
+            placements: TokenBucket::new(cfg.placement_rate, now_ms),
             sessions: 0,
         }
     }
@@ -43,13 +46,19 @@ impl PlayerLimits {
         self.edits.refill(now_ms);
         self.volume.refill(now_ms);
         self.rejections.refill(now_ms);
+        self.placements.refill(now_ms);
     }
 
     /// Whether every bucket is full at `now_ms` (refilling them).
     pub fn is_full(&mut self, now_ms: u64) -> bool {
         self.refill(now_ms);
-        [&self.edits, &self.volume, &self.rejections]
-            .iter()
-            .all(|b| b.available() == b.capacity())
+        [
+            &self.edits,
+            &self.volume,
+            &self.rejections,
+            &self.placements,
+        ]
+        .iter()
+        .all(|b| b.available() == b.capacity())
     }
 }

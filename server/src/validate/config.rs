@@ -62,6 +62,11 @@ pub const DEFAULT_POSITION_BURST: u64 = 30;
 /// Default position reports per second the engine handles per session
 /// (game clients send 10 to 60).
 pub const DEFAULT_POSITIONS_PER_SECOND: u64 = 60;
+/// Default burst of a player's first placements (reports of a session
+/// with no position yet).
+pub const DEFAULT_PLACEMENT_BURST: u64 = 10;
+/// Default first placements per second per player.
+pub const DEFAULT_PLACEMENTS_PER_SECOND: u64 = 2;
 /// Largest capacity and refill of any `[validation.*_rate]` bucket.
 pub const MAX_REQUEST_RATE: u64 = 1 << 32;
 /// Least milliseconds between two `PositionRefused` answers to one session.
@@ -118,6 +123,14 @@ pub struct ValidationConfig {
     /// supersedes it anyway), so a client sending at line rate costs the
     /// engine no more than one sending at this rate.
     pub position_rate: BucketConfig,
+    /// A player's placements: position reports of a session that has no
+    /// position yet (a player the server does not remember, anywhere in
+    /// the spawn square at any height), each of which loads and may
+    /// generate the chunks around the body before it can be refused.
+    /// Burst and refill per second, one bucket for all of the player's
+    /// sessions; a report past them is dropped before anything is loaded.
+    /// An honest client places once.
+    pub placement_rate: BucketConfig,
     /// Players whose last position is kept after their sessions end, so a
     /// reconnect resumes there ([`DEFAULT_REMEMBERED_PLAYERS`]).
     pub remembered_players: usize,
@@ -161,6 +174,10 @@ impl Default for ValidationConfig {
             position_rate: BucketConfig {
                 capacity: DEFAULT_POSITION_BURST,
                 per_second: DEFAULT_POSITIONS_PER_SECOND,
+            },
+            placement_rate: BucketConfig {
+                capacity: DEFAULT_PLACEMENT_BURST,
+                per_second: DEFAULT_PLACEMENTS_PER_SECOND,
             },
             remembered_players: DEFAULT_REMEMBERED_PLAYERS,
             position_refusal_ms: DEFAULT_POSITION_REFUSAL_MS,

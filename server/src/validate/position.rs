@@ -95,6 +95,8 @@ pub enum PositionReject {
     InsideSolid { voxel: VoxelPos },
     #[error("chunk {pos:?} must be loaded from the store first")]
     ChunkNotLoaded { pos: ChunkPos },
+    #[error("past the player's [validation.placement_rate]; dropped before loading anything")]
+    PlacementLimited,
 }
 
 impl PositionReject {
@@ -114,7 +116,8 @@ impl PositionReject {
             PositionReject::InsideSolid { voxel } => Some(PositionRefusal::InsideSolid { voxel }),
             PositionReject::UnknownSession
             | PositionReject::Stale { .. }
-            | PositionReject::ChunkNotLoaded { .. } => None,
+            | PositionReject::ChunkNotLoaded { .. }
+            | PositionReject::PlacementLimited => None,
         }
     }
 }
