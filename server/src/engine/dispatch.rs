@@ -193,7 +193,8 @@ impl Engine {
     /// Disconnects players out of rejection tokens.
     fn kick_refused(&mut self) {
         for s in self.seq.take_disconnects() {
-            if let Some(p) = self.peers.get_mut(&s) {
+            // Each later refusal until the session ends names it again.
+            if let Some(p) = self.peers.get_mut(&s).filter(|p| !p.is_kicked()) {
                 warn!(session = s, "disconnecting: too many refused edits");
                 metrics::counter!(m::SESSIONS_KICKED, "reason" => "rejected_edits").increment(1);
                 p.kick(ErrorCode::Kicked, "too many refused edits; slow down");

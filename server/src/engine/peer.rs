@@ -97,6 +97,11 @@ impl Peer {
         Anchor::of_start(self.start)
     }
 
+    /// Whether the session was told to close already.
+    pub fn is_kicked(&self) -> bool {
+        self.kick.is_none()
+    }
+
     /// Tells the session to close its connection with `code`.
     pub fn kick(&mut self, code: ErrorCode, message: &str) {
         if let Some(k) = self.kick.take() {

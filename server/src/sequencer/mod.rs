@@ -507,6 +507,11 @@ impl Sequencer {
         {
             return refused;
         }
+        // The session's own resume already knows the player's newest time
+        // at its join: most replayed tickets stop here, before the scan.
+        if s.position.is_some_and(|p| issued_ms < p.known_ms) {
+            return refused;
+        }
         // When any session of the player last saw it (its own resume
         // included): an older ticket would take it back in time.
         let newest = self
