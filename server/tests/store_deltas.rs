@@ -268,6 +268,35 @@ fn delta_chain_refused_on(store: &dyn ChunkStore) {
     assert_eq!(store.delta_count().unwrap(), 0);
     assert_reads(store, A, 1, &terrain_chunk(1));
     assert!(store.check().unwrap().is_ok());
+
+    // Behind the newest version: the chain goes on to 3 in deltas not
+    // folded yet, and a delta from 1 (the record's version) or a whole
+    // write at 2 would fork it, every later read failing. Refused, nothing
+    // written.
+    for salt in 2..=3 {
+        store
+            .commit_batch(&seq.delta_batch(&[vec![(A, terrain_chunk(salt))]]))
+            .unwrap();
+    }
+    let stale = |from: u64| Seq {
+        last_seq: seq.last_seq,
+        versions: [(A, from)].into(),
+        states: [(A, terrain_chunk(from as u32))].into(),
+    };
+    // One delta across three changes, 1 to 4: no stored delta ends at 4.
+    let behind = stale(1).span_batch(&[
+        vec![(A, terrain_chunk(8))],
+        vec![(A, terrain_chunk(9))],
+        vec![(A, terrain_chunk(10))],
+    ]);
+    assert_eq!(behind.deltas.len(), 1);
+    assert!(store.commit_batch(&behind).is_err());
+    let whole = stale(1).batch(&[vec![(A, terrain_chunk(8))]]);
+    assert!(store.commit_batch(&whole).is_err());
+    assert_eq!(store.last_seq().unwrap(), seq.last_seq);
+    assert_eq!(store.delta_count().unwrap(), 2);
+    assert_reads(store, A, 3, &terrain_chunk(3));
+    assert!(store.check().unwrap().is_ok());
 }
 
 #[test]

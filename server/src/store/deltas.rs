@@ -113,6 +113,50 @@ impl SledStore {
         ))
     }
 
+    /// Refuses a batch whose changes do not start at each chunk's newest
+    /// stored version: a delta from `from` while a stored delta goes past
+    /// it, or a chunk written whole at `lowest` while a stored delta
+    /// reaches it. The transaction checks the record and the delta ending
+    /// at `from` (it cannot scan); only a scan finds newer deltas. Run
+    /// before the transaction: the engine's one commit thread is the only
+    /// writer of deltas (a fold only removes those a record holds).
+    pub(super) fn check_heads(
+        &self,
+        whole: impl Iterator<Item = (ChunkPos, u64)>,
+        deltas: impl Iterator<Item = (ChunkPos, u64)>,
+    ) -> Result<(), StoreError> {
+        let past = |pos: ChunkPos, version: u64| -> Result<Option<u64>, StoreError> {
+            let from = delta_key(pos, version.saturating_add(1));
+            let to = delta_key(pos, u64::MAX);
+            match self.deltas.range(from..=to).keys().next_back() {
+                Some(k) => {
+                    let k = k?;
+                    let (_, v) = delta_from_key(&k)
+                        .ok_or_else(|| StoreError::corrupt("delta key", show_raw(&k)))?;
+                    Ok(Some(v))
+                }
+                None => Ok(None),
+            }
+        };
+        for (pos, lowest) in whole {
+            if let Some(v) = past(pos, lowest.saturating_sub(1))? {
+                return Err(StoreError::batch(format!(
+                    "{} is stored at version {v}, the batch moves it to {lowest}",
+                    show_pos(pos)
+                )));
+            }
+        }
+        for (pos, from) in deltas {
+            if let Some(v) = past(pos, from)? {
+                return Err(StoreError::batch(format!(
+                    "{} is stored at version {v}, the batch's delta starts at {from}",
+                    show_pos(pos)
+                )));
+            }
+        }
+        Ok(())
+    }
+
     /// Up to `max_chunks` chunks with deltas, in key order, after `after`.
     pub(super) fn chunks_with_deltas(
         &self,

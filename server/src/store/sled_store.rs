@@ -299,6 +299,11 @@ impl ChunkStore for SledStore {
                 .sum::<u64>()
             + deltas.iter().map(|d| d.3.len() as u64).sum::<u64>();
 
+        // Past the transaction, which cannot scan: one committer a store.
+        self.check_heads(
+            chunks.iter().map(|c| (c.pos, c.lowest)),
+            deltas.iter().map(|d| (d.0, d.1)),
+        )?;
         let encode = started.elapsed();
         let trees = (&self.meta, &self.chunks, &self.log, &self.deltas);
         let result = trees.transaction(|(meta, tchunks, log, tdeltas)| {
