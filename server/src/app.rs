@@ -74,6 +74,27 @@ pub fn world_generator(cfg: &ServerConfig) -> anyhow::Result<(Generator, String)
     })
 }
 
+/// The generator parameter text to check `stored` against: `given`, or
+/// the stored text when it is `given` as a data dir recorded it before raw
+/// heightmaps' sizes were part of the fingerprint (logged: the map's size
+/// goes unchecked for that data dir).
+pub fn recorded_params(given: String, stored: Option<&WorldMeta>) -> String {
+    match stored {
+        Some(m)
+            if m.generator_params != given
+                && crate::heightmap::without_raw_size(&given).as_deref()
+                    == Some(m.generator_params.as_str()) =>
+        {
+            tracing::warn!(
+                "this world was made before a raw heightmap's width and height were recorded: \
+                 they are not checked against it"
+            );
+            m.generator_params.clone()
+        }
+        _ => given,
+    }
+}
+
 /// Opens the data dir and store, checks the world metadata against the
 /// config, and binds the endpoint. Nothing is accepted until [`Running`]
 /// exists; call [`Running::shutdown`] to stop.
@@ -103,6 +124,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         max_y: params.max_y,
     };
     let (generator, generator_params) = world_generator(&cfg)?;
+    let generator_params = recorded_params(generator_params, store.load_meta()?.as_ref());
     let generator = Arc::new(generator);
     let meta = store.init_meta(&WorldMeta {
         format_version: STORE_FORMAT_VERSION,

@@ -25,8 +25,23 @@ pub struct HeightmapSection {
     pub placement: HeightmapPlacement,
 }
 
-/// A generator over the heightmap, and a fingerprint of the file so a data
-/// dir refuses a changed map.
+/// What a raw map's size adds to its fingerprint, before `WxH`.
+const RAW_SIZE_MARK: &str = ", raw ";
+
+/// The generator parameter text (`params`, ending in a heightmap's
+/// fingerprint line) as data dirs made before a raw map's size was part of
+/// the fingerprint recorded it; `None` when `params` names no raw size.
+/// Such a data dir still opens, its map's size unchecked.
+pub fn without_raw_size(params: &str) -> Option<String> {
+    let body = params.strip_suffix('\n')?;
+    let at = body.rfind(RAW_SIZE_MARK)?;
+    let (w, h) = body[at + RAW_SIZE_MARK.len()..].split_once('x')?;
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    (digits(w) && digits(h)).then(|| format!("{}\n", &body[..at]))
+}
+
+/// A generator over the heightmap, and a fingerprint of the file (and of
+/// a raw file's size) so a data dir refuses a changed map.
 pub fn load(section: &HeightmapSection, params: &GenParams) -> anyhow::Result<(Generator, String)> {
     let path: &Path = &section.path;
     let len = std::fs::metadata(path)
@@ -43,6 +58,9 @@ pub fn load(section: &HeightmapSection, params: &GenParams) -> anyhow::Result<(G
         .extension()
         .and_then(|e| e.to_str())
         .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    // A PNG's size is in its bytes; a raw file's is the config's, and the
+    // same bytes read at another size are another map.
+    let mut size = String::new();
     let map = if is_png {
         Heightmap::from_png16(&bytes)
     } else {
@@ -52,13 +70,14 @@ pub fn load(section: &HeightmapSection, params: &GenParams) -> anyhow::Result<(G
                 path.display()
             );
         };
+        size = format!("{RAW_SIZE_MARK}{w}x{h}");
         Heightmap::from_raw(&bytes, w, h)
     }
     .with_context(|| format!("heightmap {}", path.display()))?
     .with_placement(section.placement)?;
     let generator = Generator::new(params.clone(), HeightSource::heightmap(map))?;
     let fingerprint = format!(
-        "heightmap xxh3 {:016x}, {} bytes, {:?}",
+        "heightmap xxh3 {:016x}, {} bytes, {:?}{size}",
         hash_bytes(&bytes),
         bytes.len(),
         section.placement
@@ -70,6 +89,23 @@ pub fn load(section: &HeightmapSection, params: &GenParams) -> anyhow::Result<(G
 mod tests {
     use super::*;
     use strata_terrain::ChunkGenerator;
+
+    #[test]
+    fn a_raw_size_is_left_out_as_older_data_dirs_recorded_it() {
+        let params = "seed = 1\n# heightmap xxh3 00ff, 8 bytes, P, raw 2x2\n";
+        assert_eq!(
+            without_raw_size(params).as_deref(),
+            Some("seed = 1\n# heightmap xxh3 00ff, 8 bytes, P\n")
+        );
+        for other in [
+            "seed = 1\n# heightmap xxh3 00ff, 8 bytes, P\n",
+            "seed = 1\n# heightmap xxh3 00ff, 8 bytes, P, raw 2x\n",
+            "seed = 1\n# heightmap xxh3 00ff, 8 bytes, P, raw 2x2",
+            "seed = 1\n",
+        ] {
+            assert_eq!(without_raw_size(other), None, "{other:?}");
+        }
+    }
 
     #[test]
     fn raw_maps_load_and_bad_ones_are_refused() {

@@ -62,3 +62,60 @@ async fn heightmap_worlds_stream_full_snapshots() {
     .await
     .expect("test finished in time");
 }
+
+/// A raw map's size is part of the world's record: the same file read at
+/// another width and height (another map) is refused. A data dir made
+/// before the size was recorded still opens with its map.
+#[tokio::test]
+async fn a_raw_map_read_at_another_size_is_refused() {
+    use strata_server::store::{open_raw, META_WORLD, TREE_META};
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let map = dir.path().join("long.raw");
+        let samples: Vec<u8> = (0..128u32 * 64)
+            .flat_map(|i| ((i % 128) as u16 * 64).to_le_bytes())
+            .collect();
+        std::fs::write(&map, samples).unwrap();
+        let data = dir.path().join("data");
+        let sized = |width, height| {
+            let mut cfg = test_config(&data);
+            cfg.world.heightmap = Some(HeightmapSection {
+                path: map.clone(),
+                width: Some(width),
+                height: Some(height),
+                placement: HeightmapPlacement::default(),
+            });
+            cfg
+        };
+        strata_server::app::start(sized(128, 64))
+            .await
+            .unwrap()
+            .shutdown()
+            .await
+            .unwrap();
+        let err = strata_server::app::start(sized(64, 128)).await.unwrap_err();
+        assert!(format!("{err:#}").contains("generator_params"), "{err:#}");
+
+        // As a data dir from before: the size left out of its record.
+        let db = open_raw(&data.join(strata_server::datadir::WORLD_DB_NAME)).unwrap();
+        let meta = db.open_tree(TREE_META).unwrap();
+        let mut world: serde_json::Value =
+            serde_json::from_slice(&meta.get(META_WORLD).unwrap().unwrap()).unwrap();
+        let params = world["generator_params"].as_str().unwrap().to_string();
+        let old = heightmap::without_raw_size(&params).expect("the size is recorded");
+        assert!(params.contains(", raw 128x64\n"), "{params}");
+        world["generator_params"] = old.into();
+        meta.insert(META_WORLD, serde_json::to_vec(&world).unwrap())
+            .unwrap();
+        db.flush().unwrap();
+        drop((meta, db));
+        strata_server::app::start(sized(128, 64))
+            .await
+            .unwrap()
+            .shutdown()
+            .await
+            .unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

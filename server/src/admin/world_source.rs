@@ -289,6 +289,7 @@ pub fn world_generator_of(
             let (generator, params_text) =
                 crate::app::world_generator(cfg).map_err(WorldSourceError::Generator)?;
             if let Some(m) = meta {
+                let params_text = crate::app::recorded_params(params_text, Some(m));
                 compare(m, cfg.world.generator.seed, &params_text)?;
             }
             Ok(generator)
