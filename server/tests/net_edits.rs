@@ -449,3 +449,56 @@ async fn an_edit_behind_a_wall_is_refused_for_line_of_sight() {
     .await
     .expect("test finished in time");
 }
+
+/// A sphere too small to hold a voxel centre (radius under half a voxel,
+/// centred between centres) is refused as invalid, and the server goes on
+/// editing: it once made an empty box that the tick's apply panicked on.
+#[tokio::test]
+async fn a_sphere_holding_no_voxel_is_refused_and_the_server_goes_on() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = strata_server::app::start(test_config(dir.path()))
+            .await
+            .unwrap();
+        let a = connect(&server, "ana", Role::Player).await;
+        let (feet, ground) = spot();
+        a.send_position(feet).unwrap();
+        assert!(
+            eventually(Duration::from_secs(10), || a
+                .replica()
+                .get(ground.chunk())
+                .is_some())
+            .await
+        );
+        let between = FixedVec3::from_f64([
+            ground.x as f64 + 0.5,
+            ground.y as f64 + 0.5,
+            ground.z as f64 + 0.5,
+        ])
+        .unwrap();
+        let tiny = Edit::Mine {
+            center: between,
+            radius: strata_terrain::Fixed(64),
+            strength: 1,
+        };
+        match a.edit(tiny).await.unwrap() {
+            Verdict::Rejected(RejectReason::Invalid { message }) => {
+                assert!(message.contains("no voxel"), "{message}")
+            }
+            v => panic!("{v:?}"),
+        }
+        let mine = Edit::Mine {
+            center: FixedVec3::from_voxels(ground.x, ground.y, ground.z),
+            radius: r(2.5),
+            strength: 255,
+        };
+        assert!(matches!(
+            a.edit(mine).await.unwrap(),
+            Verdict::Accepted { .. }
+        ));
+        a.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

@@ -35,6 +35,11 @@ impl ChunkGenerator for FlatGenerator {
     }
 }
 
+/// The highest chunk version a store, snapshot or peer may hand over (what
+/// PostgreSQL's `bigint` holds). Edits would take 2^63 years to reach it;
+/// a record above it is corrupt, and refusing it keeps every `+ 1` exact.
+pub const MAX_CHUNK_VERSION: u64 = i64::MAX as u64;
+
 /// A chunk plus its version: 0 means "as generated", and every edit that
 /// changes the chunk raises it by one.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -105,6 +110,8 @@ impl World {
     }
 
     /// Replaces a chunk and its version (restore, store load, replication).
+    /// Readers of stored or received chunks refuse versions above
+    /// [`MAX_CHUNK_VERSION`], so a commit's `+ 1` never overflows.
     pub fn insert(&mut self, pos: ChunkPos, chunk: impl Into<Arc<Chunk>>, version: u64) {
         let chunk = chunk.into();
         self.chunks.insert(pos, VersionedChunk { chunk, version });

@@ -589,3 +589,99 @@ proptest! {
         check_equivalent(&e);
     }
 }
+
+/// A voxel smoothing makes solid next to indestructible voxels and no
+/// other solid ones stays below solid: no edit grows bedrock. Beside
+/// placeable ones it takes theirs.
+#[test]
+fn smoothing_never_makes_indestructible_voxels() {
+    let setup = Setup::new();
+    let ctx = setup.ctx();
+    let smooth = Edit::Smooth {
+        center: c(0.0, 0.0, 0.0),
+        radius: r(2.0),
+        strength: 255,
+    };
+    // Bedrock below y = 0: the voxels of y = 0 would become solid.
+    let mut w = flat(Voxel::solid(ids::BEDROCK));
+    // Sand on the bedrock around (0, 0, 0), that voxel left empty: its
+    // 3×3×3 mean is solid, its solid neighbours mostly bedrock.
+    Edit::FillBox {
+        min: VoxelPos::new(-1, 0, -1),
+        max: VoxelPos::new(1, 0, 1),
+        material: ids::SAND,
+    }
+    .apply(&mut w, &ctx)
+    .unwrap();
+    Edit::ClearBox {
+        min: VoxelPos::new(0, 0, 0),
+        max: VoxelPos::new(0, 0, 0),
+    }
+    .apply(&mut w, &ctx)
+    .unwrap();
+    smooth.apply(&mut w, &ctx).unwrap();
+    let v = w.voxel(VoxelPos::new(0, 0, 0));
+    assert!(v.is_solid(), "{v:?}");
+    assert_eq!(
+        v.material,
+        ids::SAND,
+        "the placeable neighbour's, not bedrock"
+    );
+    // A hole in solid bedrock: only bedrock around, so it stays below solid.
+    let mut w = World::new(Arc::new(BedrockWithAHole));
+    smooth.apply(&mut w, &ctx).unwrap();
+    let v = w.voxel(VoxelPos::new(0, 0, 0));
+    assert_eq!(v.density, strata_terrain::SOLID_THRESHOLD - 1, "{v:?}");
+}
+
+/// Bedrock everywhere but the voxel at the origin.
+#[derive(Debug)]
+struct BedrockWithAHole;
+
+impl ChunkGenerator for BedrockWithAHole {
+    fn generate(&self, pos: ChunkPos) -> Chunk {
+        let mut c = Chunk::uniform(Voxel::solid(ids::BEDROCK));
+        if pos == ChunkPos::new(0, 0, 0) {
+            c.set(0, 0, 0, Voxel::AIR);
+        }
+        c
+    }
+}
+
+/// A sphere under half a voxel across that lies between voxel centres
+/// holds none: refused as such, never an empty box that edits wrongly.
+#[test]
+fn a_sphere_between_voxel_centres_is_refused() {
+    let setup = Setup::new();
+    let ctx = setup.ctx();
+    let mut w = world();
+    let before = w.voxel(VoxelPos::new(0, 10, 0));
+    for edit in [
+        Edit::Mine {
+            center: c(0.5, 10.5, 0.5),
+            radius: r(0.25),
+            strength: 1,
+        },
+        Edit::Build {
+            center: c(31.5, 0.5, 0.5),
+            radius: r(0.25),
+            material: ids::SAND,
+            strength: 1,
+        },
+    ] {
+        assert_eq!(edit.validate(&ctx), Err(EditError::NoVoxel), "{edit:?}");
+        assert_eq!(edit.apply(&mut w, &ctx).unwrap_err(), EditError::NoVoxel);
+    }
+    assert_eq!(w.voxel(VoxelPos::new(0, 10, 0)), before);
+    // On a voxel centre the same radius holds that one voxel.
+    let one = Edit::Mine {
+        center: c(0.0, 0.0, 0.0),
+        radius: r(0.25),
+        strength: 1,
+    };
+    let b = one.validate(&ctx).unwrap();
+    assert_eq!(
+        (b.min, b.max),
+        (VoxelPos::new(0, 0, 0), VoxelPos::new(0, 0, 0))
+    );
+}

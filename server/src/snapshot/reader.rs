@@ -214,6 +214,11 @@ impl<R: Read> SnapshotReader<R> {
         if version == 0 {
             return Err(fail("version 0 (unmodified chunks are not stored)".into()));
         }
+        if version > strata_terrain::world::MAX_CHUNK_VERSION {
+            return Err(fail(format!(
+                "version {version} over the highest a chunk may have"
+            )));
+        }
         if self.last.is_some_and(|l| l >= pos) {
             return Err(fail("out of order or repeated chunk position".into()));
         }

@@ -8,7 +8,7 @@
 use serde::{Deserialize, Serialize};
 use strata_terrain::chunk_codec::{decode_chunk, encode_chunk};
 use strata_terrain::delta::ChunkDelta;
-use strata_terrain::world::ChunkGenerator;
+use strata_terrain::world::{ChunkGenerator, MAX_CHUNK_VERSION};
 use strata_terrain::{Chunk, ChunkPos};
 
 use super::error::StoreError;
@@ -53,6 +53,12 @@ pub fn split_chunk_value(pos: ChunkPos, value: &[u8]) -> Result<(u64, &[u8]), St
     }
     let (v, body) = value.split_at(CHUNK_VERSION_LEN);
     let version = u64::from_be_bytes(v.try_into().expect("split at CHUNK_VERSION_LEN"));
+    if version > MAX_CHUNK_VERSION {
+        return Err(StoreError::corrupt(
+            format!("chunk version {version} over {MAX_CHUNK_VERSION}"),
+            show_pos(pos),
+        ));
+    }
     Ok((version, body))
 }
 
@@ -172,7 +178,11 @@ pub fn decode_delta(
     if used != bytes.len() {
         return Err(corrupt(format!("{} trailing bytes", bytes.len() - used)));
     }
-    if d.pos != pos || d.to_version != to_version || d.from_version >= to_version {
+    if d.pos != pos
+        || d.to_version != to_version
+        || d.from_version >= to_version
+        || to_version > MAX_CHUNK_VERSION
+    {
         return Err(corrupt(format!(
             "record says {} from version {} to {}",
             show_pos(d.pos),
@@ -226,4 +236,30 @@ pub fn decode_last_seq(bytes: &[u8]) -> Result<u64, StoreError> {
         )
     })?;
     Ok(u64::from_be_bytes(b))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strata_terrain::Voxel;
+
+    #[test]
+    fn a_version_no_edit_can_reach_is_corrupt() {
+        let pos = ChunkPos::new(1, 2, 3);
+        let chunk = Chunk::uniform(Voxel::solid(1));
+        let at = |v: u64| encode_chunk_value(v, &chunk);
+        assert_eq!(
+            split_chunk_value(pos, &at(MAX_CHUNK_VERSION)).unwrap().0,
+            MAX_CHUNK_VERSION
+        );
+        for v in [MAX_CHUNK_VERSION + 1, u64::MAX] {
+            assert!(
+                matches!(
+                    split_chunk_value(pos, &at(v)),
+                    Err(StoreError::Corrupt { .. })
+                ),
+                "{v}"
+            );
+        }
+    }
 }

@@ -76,6 +76,10 @@ fn sphere_box(center: FixedVec3, radius: Fixed) -> Result<VoxelBox, EditError> {
         min: VoxelPos::new(lo(center.x), lo(center.y), lo(center.z)),
         max: VoxelPos::new(hi(center.x), hi(center.y), hi(center.z)),
     };
+    // A radius under half a voxel between voxel centres holds none.
+    if b.min.x > b.max.x || b.min.y > b.max.y || b.min.z > b.max.z {
+        return Err(EditError::NoVoxel);
+    }
     check_coord(b.min)?;
     check_coord(b.max)?;
     Ok(b)
@@ -214,9 +218,10 @@ impl Edit {
         let mut pending = Vec::new();
         let mut voxels_changed = 0u64;
         for cpos in bbox.chunks() {
-            let sub = bbox
-                .within_chunk(cpos)
-                .expect("chunk from the box's own range");
+            // `validate` returns no empty box; one would touch nothing.
+            let Some(sub) = bbox.within_chunk(cpos) else {
+                continue;
+            };
             let before = &world.peek(cpos).expect("loaded above").chunk;
             let mut after = Chunk::clone(before);
             // Visited z, then y, then x: increasing local index.

@@ -31,4 +31,6 @@ pub enum EditError {
     UnknownStructure(StructureId),
     #[error("rotation must be 0..=3 quarter turns, got {0}")]
     BadRotation(u8),
+    #[error("the sphere holds no voxel centre (a radius under half a voxel between centres)")]
+    NoVoxel,
 }

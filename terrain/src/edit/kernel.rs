@@ -144,13 +144,22 @@ pub(crate) fn apply_voxel(
             if f == 0 {
                 return old;
             }
-            smooth_voxel(p, old, src, strength as i64 * f / 255)
+            smooth_voxel(p, old, src, materials, strength as i64 * f / 255)
         }
     }
 }
 
-/// Moves density toward the 3×3×3 mean by `weight` (Q16).
-fn smooth_voxel(p: VoxelPos, old: Voxel, src: &dyn VoxelRead, weight: i64) -> Voxel {
+/// Moves density toward the 3×3×3 mean by `weight` (Q16). A voxel made
+/// solid takes the most common placeable solid neighbour material; with
+/// none (only indestructible ones, say bedrock) it stays below solid, so
+/// smoothing never grows what no edit may place.
+fn smooth_voxel(
+    p: VoxelPos,
+    old: Voxel,
+    src: &dyn VoxelRead,
+    materials: &MaterialTable,
+    weight: i64,
+) -> Voxel {
     let mut sum = 0i64;
     let mut counts = [0u16; 256];
     for dz in -1..=1 {
@@ -158,7 +167,9 @@ fn smooth_voxel(p: VoxelPos, old: Voxel, src: &dyn VoxelRead, weight: i64) -> Vo
             for dx in -1..=1 {
                 let n = src.voxel(VoxelPos::new(p.x + dx, p.y + dy, p.z + dz));
                 sum += n.density as i64;
-                if n.is_solid() {
+                let placeable =
+                    materials.get(n.material).is_some() && !materials.is_indestructible(n.material);
+                if n.is_solid() && placeable {
                     counts[n.material as usize] += 1;
                 }
             }
@@ -169,15 +180,17 @@ fn smooth_voxel(p: VoxelPos, old: Voxel, src: &dyn VoxelRead, weight: i64) -> Vo
     let density =
         (old.density as i64 + (mean - old.density as i64) * weight / Q16).clamp(0, 255) as u8;
     let mut material = old.material;
+    let mut density = density;
     if !old.is_solid() && density >= crate::chunk::SOLID_THRESHOLD {
         // Newly solid: take the most common solid neighbour material (lowest id on ties).
-        if let Some((m, _)) = counts
+        match counts
             .iter()
             .enumerate()
             .filter(|(_, c)| **c > 0)
             .max_by_key(|(i, c)| (**c, usize::MAX - i))
         {
-            material = m as u8;
+            Some((m, _)) => material = m as u8,
+            None => density = crate::chunk::SOLID_THRESHOLD - 1,
         }
     }
     Voxel::new(density, material)

@@ -140,8 +140,12 @@ impl Structure {
     }
 
     pub fn to_bytes(&self) -> Vec<u8> {
-        let name = self.name.as_bytes();
-        let name = &name[..name.len().min(255)];
+        // At most 255 bytes, cut on a character boundary (it must read back).
+        let mut end = self.name.len().min(255);
+        while !self.name.is_char_boundary(end) {
+            end -= 1;
+        }
+        let name = &self.name.as_bytes()[..end];
         let mut out = Vec::with_capacity(12 + name.len() + 2 * self.density.len());
         out.extend_from_slice(MAGIC);
         out.push(VERSION);
@@ -262,6 +266,15 @@ mod tests {
             Err(StructureError::BadSize(_))
         ));
         assert!(Structure::new("x", [2, 2, 2], vec![0; 7], vec![0; 8]).is_err());
+    }
+
+    #[test]
+    fn a_long_name_is_cut_on_a_character_boundary() {
+        // 254 ASCII bytes then a 2-byte character: byte 255 is inside it.
+        let name = format!("{}é", "a".repeat(254));
+        let s = Structure::from_fn(name, [1, 1, 1], |_, _, _| Voxel::solid(7)).unwrap();
+        let back = Structure::from_bytes(&s.to_bytes()).unwrap();
+        assert_eq!(back.name, "a".repeat(254));
     }
 
     #[test]
