@@ -576,7 +576,7 @@ proptest! {
     #[test]
     fn random_sphere_edits_match_reference(
         x in -70.0f64..70.0, y in -40.0f64..10.0, z in -70.0f64..70.0,
-        radius in 0.5f64..9.0, kind in 0u8..4, amount in 1u8..=255,
+        radius in 0.25f64..9.0, kind in 0u8..4, amount in 1u8..=255,
     ) {
         let center = c(x, y, z);
         let radius = r(radius);
@@ -586,7 +586,36 @@ proptest! {
             2 => Edit::Build { center, radius, material: ids::ORE, strength: amount },
             _ => Edit::Smooth { center, radius, strength: amount },
         };
-        check_equivalent(&e);
+        // From the smallest radius allowed: a sphere holding no voxel
+        // centre is refused, by both paths, changing nothing.
+        let setup = Setup::new();
+        if e.validate(&setup.ctx()) == Err(EditError::NoVoxel) {
+            let mut w = world();
+            prop_assert_eq!(e.apply(&mut w, &setup.ctx()).unwrap_err(), EditError::NoVoxel);
+            prop_assert_eq!(w.loaded(), 0);
+        } else {
+            check_equivalent(&e);
+        }
+    }
+
+    /// Tiny spheres between voxel centres, where empty boxes lie.
+    #[test]
+    fn tiny_spheres_never_panic(
+        x in -70i32..70, y in -40i32..10, z in -70i32..70,
+        fx in 0u8..4, fy in 0u8..4, fz in 0u8..4, raw in 64i32..128,
+    ) {
+        let quarter = |v: i32, f: u8| v as f64 + f as f64 / 4.0;
+        let e = Edit::Mine {
+            center: c(quarter(x, fx), quarter(y, fy), quarter(z, fz)),
+            radius: Fixed(raw),
+            strength: 255,
+        };
+        let setup = Setup::new();
+        match e.validate(&setup.ctx()) {
+            Err(EditError::NoVoxel) => {}
+            Ok(_) => check_equivalent(&e),
+            Err(other) => prop_assert!(false, "{other:?}"),
+        }
     }
 }
 
