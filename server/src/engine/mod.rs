@@ -112,6 +112,11 @@ pub struct Engine {
     /// A cluster node's lease epoch for each region it last reloaded
     /// (`ownership.rs`): what its batches are fenced by.
     region_epochs: HashMap<crate::sequencer::regions::RegionId, u64>,
+    /// Regions reported fresh whose reload failed, with the epoch to take
+    /// once it succeeds; until then their batches carry no epoch and are
+    /// fenced. Retried at most every [`ownership::RELOAD_RETRY`].
+    reload_retry: std::collections::BTreeMap<crate::sequencer::regions::RegionId, Option<u64>>,
+    reload_retry_at: Option<Instant>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -173,6 +178,8 @@ impl Engine {
             ticket_secret: None,
             owners_due: Instant::now(),
             region_epochs: HashMap::new(),
+            reload_retry: Default::default(),
+            reload_retry_at: None,
         })
     }
 

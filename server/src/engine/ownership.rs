@@ -19,6 +19,10 @@
 //! runs.
 
 use std::collections::BTreeSet;
+use std::time::Duration;
+
+/// Shortest time between two tries to reload regions whose reload failed.
+pub const RELOAD_RETRY: Duration = Duration::from_secs(1);
 
 use strata_protocol::{RejectReason, ServerMessage};
 use strata_terrain::{ChunkPos, Edit};
@@ -90,21 +94,49 @@ impl Engine {
         self.tell_owners();
     }
 
+    /// Reloads the regions claimed, lost or let go since the last call
+    /// (and those whose reload failed, once [`RELOAD_RETRY`] has passed).
+    /// A region takes its new epoch only once reloaded: until then a batch
+    /// writing it is fenced, never built on chunks another node moved on.
     fn take_fresh_regions(&mut self) {
-        for (r, epoch) in self.store.take_fresh_regions() {
-            match epoch {
-                Some(e) => self.region_epochs.insert(r, e),
-                None => self.region_epochs.remove(&r),
-            };
+        let fresh = self.store.take_fresh_regions();
+        let retry_due = self
+            .reload_retry_at
+            .is_none_or(|at| at.elapsed() >= RELOAD_RETRY);
+        if fresh.is_empty() && (self.reload_retry.is_empty() || !retry_due) {
+            return;
+        }
+        let mut todo = if retry_due {
+            std::mem::take(&mut self.reload_retry)
+        } else {
+            Default::default()
+        };
+        // A newer report of a region replaces a retry of it.
+        for (r, epoch) in fresh {
+            self.reload_retry.remove(&r);
+            todo.insert(r, epoch);
+        }
+        for (r, epoch) in todo {
             match self.reload_region(r) {
-                Ok(n) => info!(
-                    region_x = r.x,
-                    region_z = r.z,
-                    chunks_changed = n,
-                    "region claimed; stored chunks reloaded"
-                ),
-                Err(e) => error!(error = %e, region_x = r.x, region_z = r.z,
-                    "reloading a claimed region failed"),
+                Ok(n) => {
+                    match epoch {
+                        Some(e) => self.region_epochs.insert(r, e),
+                        None => self.region_epochs.remove(&r),
+                    };
+                    info!(
+                        region_x = r.x,
+                        region_z = r.z,
+                        chunks_changed = n,
+                        "region claimed; stored chunks reloaded"
+                    )
+                }
+                Err(e) => {
+                    self.region_epochs.remove(&r);
+                    self.reload_retry.insert(r, epoch);
+                    self.reload_retry_at = Some(std::time::Instant::now());
+                    error!(error = %e, region_x = r.x, region_z = r.z,
+                        "reloading a claimed region failed; its edits are refused until a retry succeeds")
+                }
             }
         }
     }

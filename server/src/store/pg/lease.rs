@@ -685,7 +685,7 @@ struct Stop {
 #[derive(Debug)]
 pub(super) struct Renewer {
     stop: Arc<Stop>,
-    thread: Option<std::thread::JoinHandle<()>>,
+    thread: Mutex<Option<std::thread::JoinHandle<()>>>,
 }
 
 impl Renewer {
@@ -722,18 +722,25 @@ impl Renewer {
             })?;
         Ok(Self {
             stop,
-            thread: Some(thread),
+            thread: Mutex::new(Some(thread)),
         })
+    }
+
+    /// Stops the thread and waits for it: a pass under way (which may adopt
+    /// regions) ends first. Later calls do nothing.
+    pub(super) fn stop(&self) {
+        *self.stop.flag.lock().unwrap_or_else(|p| p.into_inner()) = true;
+        self.stop.wake.notify_all();
+        let thread = self.thread.lock().unwrap_or_else(|p| p.into_inner()).take();
+        if let Some(t) = thread {
+            let _ = t.join();
+        }
     }
 }
 
 impl Drop for Renewer {
     fn drop(&mut self) {
-        *self.stop.flag.lock().unwrap_or_else(|p| p.into_inner()) = true;
-        self.stop.wake.notify_all();
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
+        self.stop();
     }
 }
 

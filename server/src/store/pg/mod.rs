@@ -432,6 +432,10 @@ impl ChunkStore for PgStore {
     }
 
     fn close(&self) -> Result<(), StoreError> {
+        // No renewal pass may adopt a region after the release below.
+        if let Some(r) = &self.renewer {
+            r.stop();
+        }
         if let Some(leases) = &self.leases {
             let n = lease::release(&self.pool, leases)?;
             tracing::info!(node = %leases.node_id(), regions = n, "region leases released");
