@@ -218,3 +218,56 @@ fn check_names_tables_this_layout_does_not_have() {
         ["tree \"leftovers\": 2 orphaned records in a tree this version does not use"]
     );
 }
+
+/// A commit that times out waiting for a row lock (another node paused
+/// inside its own commit holds the world row) wrote nothing: it is
+/// `Uncommitted`, which a cluster node abandons, not an unknown outcome
+/// that stops it. The same batch commits once the lock is free.
+#[test]
+fn a_commit_timed_out_before_commit_was_sent_wrote_nothing() {
+    let Some(db) = database("commit_timeout") else {
+        return;
+    };
+    let cfg = PgConfig {
+        url: db.url(),
+        statement_timeout_ms: 500,
+        ..PgConfig::default()
+    };
+    let store = PgStore::open(&cfg, 8).unwrap();
+    store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
+    let (locked_tx, locked) = std::sync::mpsc::channel();
+    let (release, released) = std::sync::mpsc::channel::<()>();
+    let url = db.url();
+    let holder = std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            let (client, conn) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
+                .await
+                .unwrap();
+            let driver = tokio::spawn(conn);
+            client
+                .batch_execute("BEGIN; SELECT 1 FROM world WHERE id = 1 FOR UPDATE")
+                .await
+                .unwrap();
+            locked_tx.send(()).unwrap();
+            let _ = tokio::task::spawn_blocking(move || released.recv()).await;
+            client.batch_execute("ROLLBACK").await.unwrap();
+            drop(client);
+            let _ = driver.await;
+        });
+    });
+    locked.recv().unwrap();
+    let pos = ChunkPos::new(1, 0, 1);
+    let batch = Seq::default().delta_batch(&[vec![(pos, terrain_chunk(1))]]);
+    let err = store.commit_batch(&batch).unwrap_err();
+    assert!(matches!(err, StoreError::Uncommitted { .. }), "{err}");
+    release.send(()).unwrap();
+    holder.join().unwrap();
+    assert_eq!(store.last_seq().unwrap(), 0);
+    assert!(store.load_chunk(pos).unwrap().is_none());
+    store.commit_batch(&batch).unwrap();
+    assert_eq!(store.last_seq().unwrap(), 1);
+}

@@ -186,6 +186,7 @@ impl PgStore {
             None => None,
         };
         let encode = started.elapsed();
+        let commit_sent = std::sync::atomic::AtomicBool::new(false);
         let committed = self.pool.run("committing a batch", async |c: &mut Conn| {
             c.batch("BEGIN").await.map_err(before_commit)?;
             let applying = Instant::now();
@@ -194,6 +195,7 @@ impl PgStore {
                     let apply = applying.elapsed();
                     let committing = Instant::now();
                     // From here a lost connection leaves the outcome unknown.
+                    commit_sent.store(true, std::sync::atomic::Ordering::Release);
                     c.batch("COMMIT").await?;
                     Ok((apply, committing.elapsed()))
                 }
@@ -205,6 +207,18 @@ impl PgStore {
                 }
             }
         });
+        // Timed out before COMMIT was sent (waiting on another node's row
+        // locks, say): the connection was closed, so nothing was written.
+        let committed = match committed {
+            Err(e @ StoreError::PgTimeout { .. })
+                if !commit_sent.load(std::sync::atomic::Ordering::Acquire) =>
+            {
+                Err(StoreError::Uncommitted {
+                    reason: e.to_string(),
+                })
+            }
+            other => other,
+        };
         if let (
             Err(StoreError::Fenced {
                 region, held_epoch, ..
