@@ -937,6 +937,33 @@ fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adop
     assert!(report.is_ok(), "{report:?}");
 }
 
+/// A node that lets a region go and takes it back, having written it from
+/// its own block, goes on in that block: blocks are not burnt on handoffs.
+#[test]
+fn taking_back_a_region_written_from_ones_own_block_keeps_the_block() {
+    let Some(db) = database("lease_own_block") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let fa = a.reserve_seqs(0).unwrap();
+    let r = region(5, 5);
+    let pos = chunk_in(r, 0);
+    let mut world = Seq {
+        last_seq: fa,
+        ..Seq::default()
+    };
+    a.commit_batch(&edit(&mut world, &[pos], 1)).unwrap();
+    assert_eq!(a.release_leases().unwrap(), 1);
+    granted(&a, r);
+    assert_eq!(a.seq_floor(), fa, "no new block for its own seqs");
+    a.commit_batch(&edit(&mut world, &[pos], 2)).unwrap();
+    assert_eq!(
+        sql(&db, "SELECT count(*) FROM seq_blocks"),
+        ["1"],
+        "one block reserved in all"
+    );
+}
+
 /// A node's checkpoint folds only the regions it holds: another node's
 /// deltas are that node's to fold (every node folding every region would
 /// stall the owners' commits on the chunk rows, and a stopping node's last

@@ -281,7 +281,8 @@ pub(super) fn claim(
 
 /// Books regions a claim or adoption returned (x, z, epoch, last_seq):
 /// first a new seq block if one of them was written above this node's
-/// block, then held and fresh.
+/// block (taking back a region it wrote itself costs none), then held and
+/// fresh.
 fn took(
     pool: &Pool,
     leases: &NodeLeases,
@@ -298,7 +299,10 @@ fn took(
         got.insert(region, from_sql(r.get(2), "epoch", show(region))?);
         newest = newest.max(from_sql(r.get(3), "last_seq", show(region))?);
     }
-    if leases.numbering.load(Ordering::Acquire) && newest > leases.seq_floor() {
+    // Above this node's own block: a node with a newer block wrote there.
+    // Within it only this node can have (each block is one node's).
+    let own_block_end = leases.seq_floor().saturating_add(seqs::SEQ_BLOCK);
+    if leases.numbering.load(Ordering::Acquire) && newest > own_block_end {
         let next = seqs::reserve(pool, &leases.node_id)?;
         info!(node = %leases.node_id, first_seq = next + 1, "seq block reserved");
         leases.raise_floor(next);
