@@ -937,6 +937,27 @@ fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adop
     assert!(report.is_ok(), "{report:?}");
 }
 
+/// A batch the engine built (with the epochs it loaded under) for a region
+/// this node does not hold is refused, and claims nothing on the way: the
+/// region stays free for whoever asks first.
+#[test]
+fn a_batch_built_for_a_region_not_held_claims_nothing() {
+    let Some(db) = database("lease_no_commit_claim") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let r = region(6, 6);
+    let mut world = Seq::default();
+    let mut batch = edit(&mut world, &[chunk_in(r, 0)], 1);
+    batch.epochs = Some(BTreeMap::from([(r, 0)]));
+    assert_eq!(fenced(a.commit_batch(&batch).unwrap_err()).0, r);
+    assert!(a.leases().unwrap().held().is_empty());
+    assert_eq!(
+        sql(&db, "SELECT count(*) FROM regions WHERE owner IS NOT NULL"),
+        ["0"]
+    );
+}
+
 /// A node that lets a region go and takes it back, having written it from
 /// its own block, goes on in that block: blocks are not burnt on handoffs.
 #[test]

@@ -51,17 +51,21 @@ impl Fence {
     }
 }
 
-/// Claims what the batch needs and this node does not hold; refuses at
-/// once a region it lost or another node holds, and one whose epoch the
-/// batch was built under (`built`, when the engine gave them) is not the
-/// one held.
+/// Refuses at once a region this node lost or another node holds, and one
+/// whose epoch the batch was built under (`built`, when the engine gave
+/// them) is not the one held. Without `built` (tools, tests) it first
+/// claims what the batch needs and this node does not hold; with it, a
+/// claim could only take the region under a new epoch the batch was not
+/// built under, so none is made.
 pub(super) fn prepare(
     pool: &Pool,
     leases: &NodeLeases,
     regions: &BTreeSet<RegionId>,
     built: Option<&BTreeMap<RegionId, u64>>,
 ) -> Result<Fence, StoreError> {
-    claim(pool, leases, regions, Lost::Keep)?;
+    if built.is_none() {
+        claim(pool, leases, regions, Lost::Keep)?;
+    }
     let held = leases.held();
     let lost = leases.lost();
     let mut fence = Fence {
