@@ -94,6 +94,23 @@ pub struct SledStore {
 }
 
 impl SledStore {
+    /// Makes a blob change durable; when that fails, puts `old` back (the
+    /// blob as it was: `None`, none), so a write reported failed is not
+    /// read afterwards (nor made durable by a later flush).
+    fn flush_or_undo(&self, name: &str, old: Option<sled::IVec>) -> Result<(), StoreError> {
+        let Err(e) = self.flush() else {
+            return Ok(());
+        };
+        let undone = match old {
+            Some(v) => self.blobs.insert(name.as_bytes(), v).map(|_| ()),
+            None => self.blobs.remove(name.as_bytes()).map(|_| ()),
+        };
+        if let Err(u) = undone {
+            tracing::error!(error = %u, blob = name, "putting a blob back after a failed flush failed");
+        }
+        Err(e)
+    }
+
     /// Opens (or creates) the store in `dir` with the default config.
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
         Self::open_with(dir, &StoreConfig::default())
@@ -465,8 +482,8 @@ impl ChunkStore for SledStore {
 
     fn put_blob(&self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
         check_blob(name, bytes)?;
-        self.blobs.insert(name.as_bytes(), bytes)?;
-        self.flush()
+        let old = self.blobs.insert(name.as_bytes(), bytes)?;
+        self.flush_or_undo(name, old)
     }
 
     fn swap_blob(
@@ -481,15 +498,16 @@ impl ChunkStore for SledStore {
             .compare_and_swap(name.as_bytes(), expected, Some(bytes))?
             .is_ok();
         if swapped {
-            self.flush()?;
+            self.flush_or_undo(name, expected.map(sled::IVec::from))?;
         }
         Ok(swapped)
     }
 
     fn delete_blob(&self, name: &str) -> Result<bool, StoreError> {
         check_blob_name(name)?;
-        let existed = self.blobs.remove(name.as_bytes())?.is_some();
-        self.flush()?;
+        let old = self.blobs.remove(name.as_bytes())?;
+        let existed = old.is_some();
+        self.flush_or_undo(name, old)?;
         Ok(existed)
     }
 
