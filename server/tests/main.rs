@@ -44,6 +44,7 @@ mod net_stream;
 mod net_threads;
 mod net_transport;
 mod sequencer_apply;
+mod sequencer_fuzz;
 mod sequencer_interest;
 mod sequencer_regions;
 mod snapshot_restore;
