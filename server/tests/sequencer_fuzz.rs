@@ -144,3 +144,35 @@ fn any_edit_is_refused_unchanged_or_applied() {
     // The strategies must reach the apply, not only the refusals.
     assert!(applied.get() >= 48, "only {} edits applied", applied.get());
 }
+
+/// Any position report, from a placed player or one with no position yet:
+/// refused with a reason or taken, never a panic, and a refused one
+/// leaves the position as it was.
+#[test]
+fn any_position_report_is_refused_or_taken() {
+    let mut runner = proptest::test_runner::TestRunner::new(ProptestConfig {
+        cases: 512,
+        ..ProptestConfig::default()
+    });
+    let report = (any::<u32>(), center(), 0u64..100_000);
+    runner
+        .run(&prop::collection::vec(report, 1..6), |reports| {
+            let mut s = ready(ValidationConfig::default());
+            s.session_joined(7, "new".into(), strata_protocol::Role::Player);
+            for (seq, pos, now) in reports {
+                for session in [PLAYER, 7] {
+                    let update = strata_protocol::PositionUpdate { seq, pos };
+                    let before = s.position(session);
+                    let taken = s
+                        .precheck_position(session, &update, now)
+                        .and_then(|()| s.charge_placement(session, now))
+                        .and_then(|()| s.update_position(session, update, now));
+                    if taken.is_err() {
+                        prop_assert_eq!(s.position(session), before);
+                    }
+                }
+            }
+            Ok(())
+        })
+        .unwrap();
+}
