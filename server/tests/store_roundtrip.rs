@@ -480,3 +480,44 @@ fn an_existing_store_keeps_its_segment_size() {
         Some(DEFAULT_SEGMENT_SIZE_BYTES)
     );
 }
+
+/// A position's feet stay a 12-byte record in `players`, the layout older
+/// builds read (they open the store and resume players where they stood);
+/// the time goes in `player_times`, which they do not know.
+#[test]
+fn positions_keep_the_feet_record_older_builds_read() {
+    use strata_server::store::{StoredPosition, TREE_PLAYERS, TREE_PLAYER_TIMES};
+    use strata_terrain::edit::{Fixed, FixedVec3};
+    let dir = tempfile::tempdir().unwrap();
+    let feet = FixedVec3::new(Fixed(256), Fixed(-512), Fixed(768));
+    {
+        let store = SledStore::open(dir.path()).unwrap();
+        let p = StoredPosition {
+            feet,
+            known_ms: 1_790_000_000_000,
+        };
+        store.save_positions(&[("ana".into(), p)]).unwrap();
+        let got: Vec<_> = store.player_positions().map(|r| r.unwrap()).collect();
+        assert_eq!(got, [("ana".to_string(), p)]);
+    }
+    let db = strata_server::store::open_raw(dir.path()).unwrap();
+    let record = db
+        .open_tree(TREE_PLAYERS)
+        .unwrap()
+        .get("ana")
+        .unwrap()
+        .unwrap();
+    assert_eq!(record.len(), 12);
+    let x = i32::from_be_bytes(record[..4].try_into().unwrap());
+    assert_eq!(x, 256);
+    let time = db
+        .open_tree(TREE_PLAYER_TIMES)
+        .unwrap()
+        .get("ana")
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        u64::from_be_bytes(time[..].try_into().unwrap()),
+        1_790_000_000_000
+    );
+}

@@ -52,6 +52,13 @@ impl Engine {
         let access = self.store.acquire_regions(&regions);
         self.take_fresh_regions();
         match access {
+            // Held, but not reloaded yet (a failed reload waits for its
+            // retry): refused before anything is applied on stale chunks.
+            Ok(RegionAccess::Granted)
+                if regions.iter().any(|r| self.reload_retry.contains_key(r)) =>
+            {
+                Err(RejectReason::Busy)
+            }
             Ok(RegionAccess::Granted) => Ok(()),
             Ok(RegionAccess::Elsewhere {
                 region,
@@ -145,6 +152,23 @@ impl Engine {
     /// many had moved on.
     fn reload_region(&mut self, region: RegionId) -> Result<usize, StoreError> {
         let mut moved = Vec::new();
+        let reloaded = self.reload_chunks(region, &mut moved);
+        // What moved before a failure is withdrawn all the same: the retry
+        // finds those chunks current and would never tell their holders.
+        if !moved.is_empty() {
+            self.premesh.invalidate();
+        }
+        self.withdraw_stale(&moved);
+        reloaded.map(|()| moved.len())
+    }
+
+    /// Brings each chunk of `region` whose stored version moved to it,
+    /// listing in `moved` those done (with the version loaded).
+    fn reload_chunks(
+        &mut self,
+        region: RegionId,
+        moved: &mut Vec<(ChunkPos, u64)>,
+    ) -> Result<(), StoreError> {
         for (pos, version) in self.store.region_versions(region)? {
             if self.versions.get(&pos) == Some(&version) {
                 continue;
@@ -165,11 +189,7 @@ impl Engine {
             self.versions.insert(pos, now);
             moved.push((pos, now));
         }
-        if !moved.is_empty() {
-            self.premesh.invalidate();
-        }
-        self.withdraw_stale(&moved);
-        Ok(moved.len())
+        Ok(())
     }
 
     /// Sessions holding any of `chunks` at another version than the one

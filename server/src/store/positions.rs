@@ -1,32 +1,42 @@
-//! The sled store's record of a player's last position.
+//! The sled store's records of a player's last position: the feet in
+//! tree `players` (x, y, z: i32 each, big endian, 12 bytes, the layout
+//! every build reads), and when the player was last seen there in tree
+//! `player_times` (u64 ms, big endian), which builds before it ignore, so
+//! they still open the store. A player with no time reads with 0.
 
 use strata_terrain::edit::{Fixed, FixedVec3};
 
 use super::types::StoredPosition;
 
-/// A player's record: feet x, y, z (i32 each), then `known_ms` (u64), big
-/// endian. Records of 12 bytes (no time) were written before the time was
-/// kept, and read with `known_ms` 0.
-pub(super) fn encode_position(p: &StoredPosition) -> [u8; 20] {
-    let mut v = [0u8; 20];
+/// Tree of the times players were last seen at their stored positions.
+pub const TREE_PLAYER_TIMES: &str = "player_times";
+
+pub(super) fn encode_feet(p: &StoredPosition) -> [u8; 12] {
+    let mut v = [0u8; 12];
     for (i, c) in [p.feet.x, p.feet.y, p.feet.z].iter().enumerate() {
         v[i * 4..i * 4 + 4].copy_from_slice(&c.0.to_be_bytes());
     }
-    v[12..].copy_from_slice(&p.known_ms.to_be_bytes());
     v
 }
 
-pub(super) fn decode_position(v: &[u8]) -> Option<StoredPosition> {
-    if v.len() != 12 && v.len() != 20 {
+/// A position from its feet record and its time record, if any. Feet
+/// records of 20 bytes (the time inside, written by one development build)
+/// read too.
+pub(super) fn decode_position(feet: &[u8], time: Option<&[u8]>) -> Option<StoredPosition> {
+    if feet.len() != 12 && feet.len() != 20 {
         return None;
     }
-    let c = |i: usize| Some(Fixed(i32::from_be_bytes(v.get(i..i + 4)?.try_into().ok()?)));
-    let feet = FixedVec3::new(c(0)?, c(4)?, c(8)?);
-    let known_ms = match v.get(12..20) {
-        Some(t) => u64::from_be_bytes(t.try_into().ok()?),
-        None => 0,
+    let c = |i: usize| {
+        Some(Fixed(i32::from_be_bytes(
+            feet.get(i..i + 4)?.try_into().ok()?,
+        )))
     };
-    Some(StoredPosition { feet, known_ms })
+    let at = FixedVec3::new(c(0)?, c(4)?, c(8)?);
+    let known_ms = match (time, feet.get(12..20)) {
+        (Some(t), _) | (None, Some(t)) => u64::from_be_bytes(t.try_into().ok()?),
+        (None, None) => 0,
+    };
+    Some(StoredPosition { feet: at, known_ms })
 }
 
 #[cfg(test)]
@@ -34,19 +44,23 @@ mod tests {
     use super::*;
 
     #[test]
-    fn records_round_trip_and_old_ones_read_without_a_time() {
+    fn records_round_trip_and_ones_without_a_time_read_as_0() {
         let p = StoredPosition {
             feet: FixedVec3::new(Fixed(-5), Fixed(1 << 20), Fixed(i32::MIN)),
             known_ms: 1_790_000_000_123,
         };
-        assert_eq!(decode_position(&encode_position(&p)), Some(p));
-        let old = &encode_position(&p)[..12];
+        let time = p.known_ms.to_be_bytes();
+        assert_eq!(decode_position(&encode_feet(&p), Some(&time)), Some(p));
         assert_eq!(
-            decode_position(old),
+            decode_position(&encode_feet(&p), None),
             Some(StoredPosition { known_ms: 0, ..p })
         );
+        let mut inline = encode_feet(&p).to_vec();
+        inline.extend_from_slice(&time);
+        assert_eq!(decode_position(&inline, None), Some(p));
         for bad in [&[][..], &[0u8; 11], &[0u8; 13], &[0u8; 21]] {
-            assert_eq!(decode_position(bad), None, "{} bytes", bad.len());
+            assert_eq!(decode_position(bad, None), None, "{} bytes", bad.len());
         }
+        assert_eq!(decode_position(&encode_feet(&p), Some(&[1, 2])), None);
     }
 }

@@ -31,7 +31,7 @@ use super::error::StoreError;
 use super::flush_watch::FlushWatch;
 use super::keys::{chunk_key, chunk_pos_from_key, delta_key, seq_key, show_pos, show_raw};
 use super::log_pages::{encode_page, page_key, record_entries, search_key, BadRecord};
-use super::positions::{decode_position, encode_position};
+use super::positions::{decode_position, encode_feet, TREE_PLAYER_TIMES};
 use super::record::{
     decode_last_seq, decode_log_entry, decode_meta, encode_chunk_value, encode_delta,
     encode_log_record, encode_meta, generated_chunk_value, is_generated, split_chunk_value,
@@ -85,6 +85,7 @@ pub struct SledStore {
     pub(super) blobs: sled::Tree,
     pub(super) deltas: sled::Tree,
     players: sled::Tree,
+    player_times: sled::Tree,
     disk: DiskSync,
     /// Dropped after `db`: its thread holds the last handle.
     watch: FlushWatch,
@@ -133,6 +134,7 @@ impl SledStore {
             blobs: db.open_tree(TREE_BLOBS)?,
             deltas: db.open_tree(TREE_DELTAS)?,
             players: db.open_tree(TREE_PLAYERS)?,
+            player_times: db.open_tree(TREE_PLAYER_TIMES)?,
             disk: DiskSync::open(dir)?,
             watch: FlushWatch::spawn(db.clone())?,
             db,
@@ -512,11 +514,19 @@ impl ChunkStore for SledStore {
     }
 
     fn save_positions(&self, positions: &[(String, StoredPosition)]) -> Result<(), StoreError> {
-        let mut b = sled::Batch::default();
-        for (player, p) in positions {
-            b.insert(player.as_bytes(), &encode_position(p)[..]);
-        }
-        self.players.apply_batch(b)?;
+        // The feet and the time together: a time never belongs to other feet.
+        let trees = (&self.players, &self.player_times);
+        let saved = trees.transaction(|(feet, times)| {
+            for (player, p) in positions {
+                feet.insert(player.as_bytes(), &encode_feet(p)[..])?;
+                times.insert(player.as_bytes(), &p.known_ms.to_be_bytes()[..])?;
+            }
+            Ok::<(), ConflictableTransactionError<StoreError>>(())
+        });
+        saved.map_err(|e| match e {
+            TransactionError::Abort(e) => e,
+            TransactionError::Storage(e) => StoreError::Sled(e),
+        })?;
         self.flush()
     }
 
@@ -525,7 +535,8 @@ impl ChunkStore for SledStore {
             let (k, v) = r?;
             let name = std::str::from_utf8(&k)
                 .map_err(|_| StoreError::corrupt("player name", show_raw(&k)))?;
-            let p = decode_position(&v)
+            let time = self.player_times.get(&k)?;
+            let p = decode_position(&v, time.as_deref())
                 .ok_or_else(|| StoreError::corrupt("player position", show_raw(&k)))?;
             Ok((name.to_string(), p))
         }))
@@ -624,6 +635,7 @@ impl SledStore {
             TREE_LOG,
             TREE_BLOBS,
             TREE_PLAYERS,
+            TREE_PLAYER_TIMES,
             TREE_DELTAS,
         ]
         .map(str::as_bytes);
