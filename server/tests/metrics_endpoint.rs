@@ -190,8 +190,8 @@ async fn a_position_flood_stops_at_the_sessions_bucket() {
     .expect("test finished in time");
 }
 
-/// A player with no position yet claiming spot after spot deep in the
-/// rock of the spawn square (each claim loads or generates the chunks
+/// A player with no position yet claiming spot after spot in the bedrock
+/// floor of the spawn square (each claim loads or generates the chunks
 /// around it, then is refused as inside solid) is held to its
 /// `[validation.placement_rate]`: the rest are dropped before anything is
 /// loaded, and counted; the session goes on and can still place itself.
@@ -208,10 +208,12 @@ async fn placements_past_the_players_bucket_are_dropped_before_loading() {
         let c = process_client(&data, addr, "mole").await;
         let g = Generator::fractal(GenParams::default()).unwrap();
         const CLAIMS: i32 = 40;
+        // In the bedrock floor (the lowest three layers), which no cave
+        // reaches: every claim that loads is refused as inside solid.
+        let floor = strata_terrain::gen::GenParams::default().min_y as f64 + 0.5;
         for i in 0..CLAIMS {
             let (x, z) = (100 + 37 * i, -300 + 53 * i);
-            let deep = g.surface_height(x, z) - 40.0;
-            c.send_position(at(x as f64, deep, z as f64)).unwrap();
+            c.send_position(at(x as f64, floor, z as f64)).unwrap();
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         let dropped = "strata_positions_dropped_total{reason=\"placement\"}";
