@@ -13,15 +13,21 @@ use strata_terrain::gen::{GenParams, HeightmapPlacement};
 use strata_terrain::hash::chunk_hash;
 use strata_terrain::{ChunkGenerator, VoxelPos};
 
+/// Writes a raw 16-bit map `width` samples wide and `height` long whose
+/// heights rise along x; returns its path.
+fn ramp(path: &std::path::Path, width: u32, height: u32) -> std::path::PathBuf {
+    let samples: Vec<u8> = (0..width * height)
+        .flat_map(|i| ((i % width) as u16 * height as u16).to_le_bytes())
+        .collect();
+    std::fs::write(path, samples).unwrap();
+    path.to_path_buf()
+}
+
 #[tokio::test]
 async fn heightmap_worlds_stream_full_snapshots() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        let map = dir.path().join("ramp.raw");
-        let samples: Vec<u8> = (0..128u32 * 128)
-            .flat_map(|i| ((i % 128) as u16 * 128).to_le_bytes())
-            .collect();
-        std::fs::write(&map, samples).unwrap();
+        let map = ramp(&dir.path().join("ramp.raw"), 128, 128);
         let placement = HeightmapPlacement {
             base_y: 10.0,
             ..HeightmapPlacement::default()
@@ -71,11 +77,7 @@ async fn a_raw_map_read_at_another_size_is_refused() {
     use strata_server::store::{open_raw, META_WORLD, TREE_META};
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        let map = dir.path().join("long.raw");
-        let samples: Vec<u8> = (0..128u32 * 64)
-            .flat_map(|i| ((i % 128) as u16 * 64).to_le_bytes())
-            .collect();
-        std::fs::write(&map, samples).unwrap();
+        let map = ramp(&dir.path().join("long.raw"), 128, 64);
         let data = dir.path().join("data");
         let sized = |width, height| {
             let mut cfg = test_config(&data);

@@ -235,31 +235,10 @@ fn a_commit_timed_out_before_commit_was_sent_wrote_nothing() {
     };
     let store = PgStore::open(&cfg, 8).unwrap();
     store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
-    let (locked_tx, locked) = std::sync::mpsc::channel();
     let (release, released) = std::sync::mpsc::channel::<()>();
-    let url = db.url();
-    let holder = std::thread::spawn(move || {
-        let rt = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .unwrap();
-        rt.block_on(async {
-            let (client, conn) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
-                .await
-                .unwrap();
-            let driver = tokio::spawn(conn);
-            client
-                .batch_execute("BEGIN; SELECT 1 FROM world WHERE id = 1 FOR UPDATE")
-                .await
-                .unwrap();
-            locked_tx.send(()).unwrap();
-            let _ = tokio::task::spawn_blocking(move || released.recv()).await;
-            client.batch_execute("ROLLBACK").await.unwrap();
-            drop(client);
-            let _ = driver.await;
-        });
+    let holder = store_common::hold_world_row(&db, "ROLLBACK", move || {
+        let _ = released.recv();
     });
-    locked.recv().unwrap();
     let pos = ChunkPos::new(1, 0, 1);
     let batch = Seq::default().delta_batch(&[vec![(pos, terrain_chunk(1))]]);
     let err = store.commit_batch(&batch).unwrap_err();

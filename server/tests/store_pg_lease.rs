@@ -745,31 +745,9 @@ fn renewals_do_not_wait_behind_a_commit_holding_the_pool() {
 
     // Another session holds the world row for three leases: a's commit
     // waits on it with the pool's only connection.
-    let url = db.url();
-    let locked = Arc::new(Barrier::new(2));
-    let holder = {
-        let locked = locked.clone();
-        std::thread::spawn(move || {
-            let rt = tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .build()
-                .unwrap();
-            rt.block_on(async {
-                let (client, conn) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
-                    .await
-                    .unwrap();
-                tokio::spawn(conn);
-                client
-                    .batch_execute("BEGIN; SELECT 1 FROM world WHERE id = 1 FOR UPDATE")
-                    .await
-                    .unwrap();
-                locked.wait();
-                tokio::time::sleep(Duration::from_millis(3 * lease_ms)).await;
-                client.batch_execute("COMMIT").await.unwrap();
-            })
-        })
-    };
-    locked.wait();
+    let holder = store_common::hold_world_row(&db, "COMMIT", move || {
+        std::thread::sleep(Duration::from_millis(3 * lease_ms));
+    });
     let committing = {
         let a = a.clone();
         std::thread::spawn(move || a.commit_batch(&batch))

@@ -259,3 +259,39 @@ pub fn assert_reads(store: &dyn ChunkStore, pos: ChunkPos, version: u64, chunk: 
         .iter()
         .any(|r| r.pos == pos && r.version == version && r.encoded == encode_chunk(chunk)));
 }
+
+/// Locks `db`'s world row from a session of its own (as a node paused
+/// inside its commit holds it), returns once it is locked, and lets it go
+/// (ending that transaction with `end`) when `until` returns, on the
+/// returned thread.
+pub fn hold_world_row(
+    db: &PgDb,
+    end: &'static str,
+    until: impl FnOnce() + Send + 'static,
+) -> std::thread::JoinHandle<()> {
+    let url = db.url();
+    let (locked_tx, locked) = std::sync::mpsc::channel();
+    let holder = std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            let (client, conn) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
+                .await
+                .unwrap();
+            let driver = tokio::spawn(conn);
+            client
+                .batch_execute("BEGIN; SELECT 1 FROM world WHERE id = 1 FOR UPDATE")
+                .await
+                .unwrap();
+            locked_tx.send(()).unwrap();
+            tokio::task::spawn_blocking(until).await.unwrap();
+            client.batch_execute(end).await.unwrap();
+            drop(client);
+            let _ = driver.await;
+        });
+    });
+    locked.recv().unwrap();
+    holder
+}
