@@ -13,6 +13,12 @@ use strata_terrain::gen::{GenParams, HeightmapPlacement};
 use strata_terrain::hash::chunk_hash;
 use strata_terrain::{ChunkGenerator, VoxelPos};
 
+/// Starts a server on `cfg` and stops it again.
+async fn starts_and_stops(cfg: strata_server::config::ServerConfig) {
+    let server = strata_server::app::start(cfg).await.unwrap();
+    server.shutdown().await.unwrap();
+}
+
 /// Writes a raw 16-bit map `width` samples wide and `height` long whose
 /// heights rise along x; returns its path.
 fn ramp(path: &std::path::Path, width: u32, height: u32) -> std::path::PathBuf {
@@ -89,12 +95,7 @@ async fn a_raw_map_read_at_another_size_is_refused() {
             });
             cfg
         };
-        strata_server::app::start(sized(128, 64))
-            .await
-            .unwrap()
-            .shutdown()
-            .await
-            .unwrap();
+        starts_and_stops(sized(128, 64)).await;
         let err = strata_server::app::start(sized(64, 128)).await.unwrap_err();
         assert!(format!("{err:#}").contains("generator_params"), "{err:#}");
 
@@ -111,12 +112,7 @@ async fn a_raw_map_read_at_another_size_is_refused() {
             .unwrap();
         db.flush().unwrap();
         drop((meta, db));
-        strata_server::app::start(sized(128, 64))
-            .await
-            .unwrap()
-            .shutdown()
-            .await
-            .unwrap();
+        starts_and_stops(sized(128, 64)).await;
     })
     .await
     .expect("test finished in time");
