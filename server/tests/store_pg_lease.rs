@@ -741,11 +741,19 @@ fn renewals_do_not_wait_behind_a_commit_holding_the_pool() {
     let r = region(2, 2);
     a.claim_regions(&[r]).unwrap();
     let mut world = Seq::default();
-    let batch = world.delta_batch(&[vec![(chunk_in(r, 0), terrain_chunk(9))]]);
+    let pos = chunk_in(r, 0);
+    a.commit_batch(&world.delta_batch(&[vec![(pos, terrain_chunk(8))]]))
+        .unwrap();
+    let batch = world.delta_batch(&[vec![(pos, terrain_chunk(9))]]);
 
-    // Another session holds the world row for three leases: a's commit
-    // waits on it with the pool's only connection.
-    let holder = store_common::hold_world_row(&db, "COMMIT", move || {
+    // Another session holds the chunk's row for three leases (as a
+    // checkpoint folding it would): a's commit waits on it with the
+    // pool's only connection.
+    let lock = format!(
+        "SELECT 1 FROM chunks WHERE x = {} AND y = {} AND z = {} FOR UPDATE",
+        pos.x, pos.y, pos.z
+    );
+    let holder = store_common::hold_rows(&db, &lock, "COMMIT", move || {
         std::thread::sleep(Duration::from_millis(3 * lease_ms));
     });
     let committing = {
@@ -769,6 +777,78 @@ fn renewals_do_not_wait_behind_a_commit_holding_the_pool() {
     assert_eq!(a.leases().unwrap().held(), BTreeMap::from([(r, 1)]));
 }
 
+/// Nodes "a" and "b", each with its seq block reserved, and a world
+/// numbering from each one's block.
+fn two_nodes(db: &PgDb) -> (PgStore, PgStore, Seq, Seq) {
+    let a = node(db, "a");
+    let b = node(db, "b");
+    let world = |store: &PgStore| Seq {
+        last_seq: store.reserve_seqs(0).unwrap(),
+        ..Seq::default()
+    };
+    let (wa, wb) = (world(&a), world(&b));
+    (a, b, wa, wb)
+}
+
+/// A node paused inside its commit (here: a session holding what such a
+/// commit locks, the world row included, as builds before this one
+/// locked it) holds up no other node's commit: fenced commits lock only
+/// their own regions' and chunks' rows. The store's last seq is the
+/// log's, which fenced commits leave the world row behind.
+#[test]
+fn a_node_paused_in_its_commit_holds_up_no_other_nodes_commit() {
+    let Some(db) = database("lease_paused_commit") else {
+        return;
+    };
+    let (a, b, mut wa, mut wb) = two_nodes(&db);
+    let fb = wb.last_seq;
+    let (ra, rb) = (region(0, 0), region(1, 0));
+    b.commit_batch(&edit(&mut wb, &[chunk_in(rb, 0)], 1))
+        .unwrap();
+    let pb = chunk_in(rb, 0);
+    let lock = format!(
+        "SELECT 1 FROM world WHERE id = 1 FOR UPDATE; \
+         SELECT 1 FROM regions WHERE region_x = {} AND region_z = {} FOR UPDATE; \
+         SELECT 1 FROM chunks WHERE x = {} AND y = {} AND z = {} FOR UPDATE",
+        rb.x, rb.z, pb.x, pb.y, pb.z
+    );
+    let (release, released) = std::sync::mpsc::channel::<()>();
+    let holder = store_common::hold_rows(&db, &lock, "ROLLBACK", move || {
+        let _ = released.recv();
+    });
+    // While b is "paused", a commits twice (the first claims its region).
+    for i in 0..2 {
+        a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], 10 + i))
+            .unwrap();
+    }
+    release.send(()).unwrap();
+    holder.join().unwrap();
+
+    assert_eq!(a.last_seq().unwrap(), fb + 1, "the log's last seq");
+    assert_eq!(
+        sql(&db, "SELECT last_seq FROM world"),
+        ["0"],
+        "fenced commits leave the world row alone"
+    );
+    assert_eq!(plain(&db).load_meta().unwrap().unwrap().last_seq, fb + 1);
+    let report = plain(&db).check().unwrap();
+    assert!(report.is_ok(), "{report:?}");
+    // A single node opened on the cluster's store goes on after the log.
+    let single = plain(&db);
+    let mut ws = Seq {
+        last_seq: fb + 1,
+        ..Seq::default()
+    };
+    single
+        .commit_batch(&edit(&mut ws, &[chunk_in(region(5, 5), 0)], 30))
+        .unwrap();
+    assert_eq!(single.last_seq().unwrap(), fb + 2);
+    assert_eq!(
+        sql(&db, "SELECT last_seq FROM world"),
+        [(fb + 2).to_string()]
+    );
+}
+
 fn regions(rs: &[RegionId]) -> std::collections::BTreeSet<RegionId> {
     rs.iter().copied().collect()
 }
@@ -787,21 +867,11 @@ fn nodes_writing_at_once_number_from_their_own_seq_blocks_in_order_per_region() 
     let Some(db) = database("lease_seq_blocks") else {
         return;
     };
-    let a = node(&db, "a");
-    let b = node(&db, "b");
-    let fa = a.reserve_seqs(0).unwrap();
-    let fb = b.reserve_seqs(0).unwrap();
+    let (a, b, mut wa, mut wb) = two_nodes(&db);
+    let (fa, fb) = (wa.last_seq, wb.last_seq);
     assert_eq!((fa, fb), (0, SEQ_BLOCK), "blocks one after the other");
     assert_eq!((a.seq_floor(), b.seq_floor()), (fa, fb));
     let (ra, rb) = (region(0, 0), region(1, 0));
-    let mut wa = Seq {
-        last_seq: fa,
-        ..Seq::default()
-    };
-    let mut wb = Seq {
-        last_seq: fb,
-        ..Seq::default()
-    };
     // Interleaved commits of two nodes, each in its own region.
     for i in 0..3 {
         a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], i))

@@ -260,15 +260,33 @@ pub fn assert_reads(store: &dyn ChunkStore, pos: ChunkPos, version: u64, chunk: 
         .any(|r| r.pos == pos && r.version == version && r.encoded == encode_chunk(chunk)));
 }
 
-/// Locks `db`'s world row from a session of its own (as a node paused
-/// inside its commit holds it), returns once it is locked, and lets it go
-/// (ending that transaction with `end`) when `until` returns, on the
-/// returned thread.
+/// Locks `db`'s world row from a session of its own (as a single node
+/// paused inside its commit holds it), returns once it is locked, and
+/// lets it go (ending that transaction with `end`) when `until` returns,
+/// on the returned thread.
 pub fn hold_world_row(
     db: &PgDb,
     end: &'static str,
     until: impl FnOnce() + Send + 'static,
 ) -> std::thread::JoinHandle<()> {
+    hold_rows(
+        db,
+        "SELECT 1 FROM world WHERE id = 1 FOR UPDATE",
+        end,
+        until,
+    )
+}
+
+/// Runs `lock` (statements taking row locks) in a transaction of its
+/// own, returns once they ran, and ends it with `end` when `until`
+/// returns, on the returned thread.
+pub fn hold_rows(
+    db: &PgDb,
+    lock: &str,
+    end: &'static str,
+    until: impl FnOnce() + Send + 'static,
+) -> std::thread::JoinHandle<()> {
+    let lock = format!("BEGIN; {lock}");
     let url = db.url();
     let (locked_tx, locked) = std::sync::mpsc::channel();
     let holder = std::thread::spawn(move || {
@@ -281,10 +299,7 @@ pub fn hold_world_row(
                 .await
                 .unwrap();
             let driver = tokio::spawn(conn);
-            client
-                .batch_execute("BEGIN; SELECT 1 FROM world WHERE id = 1 FOR UPDATE")
-                .await
-                .unwrap();
+            client.batch_execute(&lock).await.unwrap();
             locked_tx.send(()).unwrap();
             tokio::task::spawn_blocking(until).await.unwrap();
             client.batch_execute(end).await.unwrap();

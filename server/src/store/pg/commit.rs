@@ -1,15 +1,20 @@
 //! One tick's commit: one PostgreSQL transaction, durable when `COMMIT`
 //! returns (`synchronous_commit = on`).
 //!
-//! The transaction locks the world row first, so commits run one at a
-//! time, then the rows of the chunks the batch changes (in key order), so
-//! a checkpoint cannot fold them meanwhile. It refuses, changing nothing,
+//! A single node's transaction locks the world row first, so its commits
+//! run one at a time; a cluster node's locks its regions' rows instead
+//! (`fence.rs`), so nodes commit side by side and one paused inside its
+//! commit holds up no other. Then it locks the rows of the chunks the
+//! batch changes (in key order), so a checkpoint cannot fold them
+//! meanwhile. It refuses, changing nothing,
 //! what the sled store refuses: seqs that do not follow `last_seq`, chunk
 //! versions at or below the stored ones, and deltas that do not continue
 //! the stored chain. A cluster node's commit is also fenced (`fence.rs`):
 //! it writes only regions it holds at the epoch the store has, with seqs
 //! above each region's last; its seqs come from its own block (`seqs.rs`),
-//! so they need not follow `last_seq`, which only ever rises.
+//! so they need not follow `last_seq`, and they leave the world row's
+//! `last_seq` alone: the store's last seq is the higher of it and the
+//! log's last (`last_seq_sql!`).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
@@ -242,24 +247,38 @@ impl PgStore {
 
 /// The transaction's statements, between `BEGIN` and `COMMIT`.
 async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<(), StoreError> {
-    let Some(row) = c
-        .query_opt("SELECT last_seq FROM world WHERE id = 1 FOR UPDATE", &[])
-        .await?
-    else {
-        return Err(StoreError::NoMeta);
-    };
-    let last: i64 = row.get(0);
-    if let Some(fence) = fence {
-        // Nodes number from blocks of their own (`seqs.rs`): the log has
-        // gaps, and per region the fence checks the order.
-        fence::check(c, fence).await?;
-    } else if last.checked_add(1) != Some(cols.first_seq) {
-        return Err(StoreError::batch(format!(
-            "first seq {} does not follow the stored last_seq {last}",
-            cols.first_seq
-        )));
+    if fence.is_none() {
+        // A cluster's fenced commits leave the row behind the log.
+        let Some(row) = c
+            .query_opt(
+                concat!(
+                    "SELECT ",
+                    super::last_seq_sql!(),
+                    " FROM world WHERE id = 1 FOR UPDATE"
+                ),
+                &[],
+            )
+            .await?
+        else {
+            return Err(StoreError::NoMeta);
+        };
+        let last: i64 = row.get(0);
+        if last.checked_add(1) != Some(cols.first_seq) {
+            return Err(StoreError::batch(format!(
+                "first seq {} does not follow the stored last_seq {last}",
+                cols.first_seq
+            )));
+        }
     }
     let heads = lock_heads(c, cols).await?;
+    if let Some(fence) = fence {
+        // Nodes number from blocks of their own (`seqs.rs`): the log has
+        // gaps, and per region the fence checks the order. No world row:
+        // a node paused in its commit stalls only its own regions. Their
+        // rows are locked after the chunks', so a commit waiting on a
+        // fold holds up no renewal or claim meanwhile.
+        fence::check(c, fence).await?;
+    }
     for (pos, &lowest) in &cols.lowest {
         let head = heads.get(pos).copied();
         match cols.starts.get(pos) {
@@ -340,11 +359,13 @@ async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<()
         &[&cols.seqs, &cols.entries],
     )
     .await?;
-    c.execute(
-        "UPDATE world SET last_seq = GREATEST(last_seq, $1) WHERE id = 1",
-        &[&cols.last_seq],
-    )
-    .await?;
+    if fence.is_none() {
+        c.execute(
+            "UPDATE world SET last_seq = $1 WHERE id = 1",
+            &[&cols.last_seq],
+        )
+        .await?;
+    }
     Ok(())
 }
 

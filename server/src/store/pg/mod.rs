@@ -176,8 +176,21 @@ fn meta_from_row(row: &tokio_postgres::Row) -> Result<WorldMeta, StoreError> {
     })
 }
 
-const SELECT_META: &str = "SELECT format_version, seed, generator_version, generator_params, \
-     last_seq FROM world WHERE id = 1";
+/// The store's last seq, as SQL over the world row: the row's, or the
+/// log's last where a cluster's fenced commits (which leave the row
+/// alone) went beyond it. `seq` is the log's key: its max is one probe.
+macro_rules! last_seq_sql {
+    () => {
+        "GREATEST(last_seq, (SELECT COALESCE(max(seq), 0) FROM edit_log))"
+    };
+}
+pub(super) use last_seq_sql;
+
+const SELECT_META: &str = concat!(
+    "SELECT format_version, seed, generator_version, generator_params, ",
+    last_seq_sql!(),
+    " FROM world WHERE id = 1"
+);
 
 impl ChunkStore for PgStore {
     fn load_meta(&self) -> Result<Option<WorldMeta>, StoreError> {
@@ -228,8 +241,11 @@ impl ChunkStore for PgStore {
 
     fn last_seq(&self) -> Result<u64, StoreError> {
         let row = self.pool.run("reading last_seq", async |c: &mut Conn| {
-            c.query_opt("SELECT last_seq FROM world WHERE id = 1", &[])
-                .await
+            c.query_opt(
+                concat!("SELECT ", last_seq_sql!(), " FROM world WHERE id = 1"),
+                &[],
+            )
+            .await
         })?;
         row.map_or(Ok(0), |r| from_sql(r.get(0), "last_seq", "world"))
     }

@@ -29,8 +29,15 @@ impl PgStore {
     /// [`crate::store::ChunkStore::check`], calling `tick` once per row scanned.
     pub fn check_with_progress(&self, tick: &dyn Fn()) -> Result<CheckReport, StoreError> {
         let world = self.pool.run("reading the world", async |c: &mut Conn| {
-            c.query_opt("SELECT last_seq, log_base FROM world WHERE id = 1", &[])
-                .await
+            c.query_opt(
+                concat!(
+                    "SELECT ",
+                    super::last_seq_sql!(),
+                    ", log_base FROM world WHERE id = 1"
+                ),
+                &[],
+            )
+            .await
         })?;
         let mut checker = Checker::new();
         let mut last_seq = None;
