@@ -473,14 +473,21 @@ async fn a_full_node_passes_an_edit_in_a_free_region_to_a_node_with_room() {
 }
 
 /// Runs one statement on the test's database.
-async fn sql(db: &strata_tests::postgres::PgDb, statement: &str) {
+/// Runs `statement`; returns the first column of the rows it gave.
+async fn sql(db: &strata_tests::postgres::PgDb, statement: &str) -> Vec<String> {
     let (client, conn) = tokio_postgres::connect(&db.url(), tokio_postgres::NoTls)
         .await
         .unwrap();
     let driver = tokio::spawn(conn);
-    client.batch_execute(statement).await.unwrap();
+    let rows = client.simple_query(statement).await.unwrap();
     drop(client);
     let _ = driver.await;
+    rows.into_iter()
+        .filter_map(|m| match m {
+            tokio_postgres::SimpleQueryMessage::Row(r) => r.get(0).map(str::to_string),
+            _ => None,
+        })
+        .collect()
 }
 
 /// West on `db` with renewals far apart (it learns of a takeover only
@@ -748,6 +755,49 @@ async fn a_node_lets_an_idle_region_go_and_claims_it_again_at_the_next_edit() {
         );
         assert!(b.version > a.version, "{a:?} then {b:?}");
         assert!(!ann.is_closed());
+        assert!(ann.replica().mesh_mismatches().is_empty());
+        ann.close().await;
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// An edit any rule refuses, line of sight included (checked in a batch
+/// after the region checks), leaves no lease behind: the node claims an
+/// edit's regions only at the gate that queues it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_edit_refused_for_line_of_sight_claims_no_region() {
+    let Some(db) = strata_tests::postgres::database("cluster_sight_claims") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 5_000, 500);
+        cfg.validation.reach = 30.0;
+        let west = app::start(cfg).await.expect("node starts");
+        let ann = standing(&west, "ann", WEST_X).await;
+        let held = || sql(&db, "SELECT owner FROM regions WHERE owner IS NOT NULL");
+        assert!(held().await.is_empty(), "standing claims nothing");
+
+        // Twelve voxels of rock under her feet: within reach, out of sight.
+        let (_, v) = spot(WEST_X, Z);
+        let deep = Edit::Mine {
+            center: at(v.x as f64, v.y as f64 - 12.0, v.z as f64),
+            radius: r(1.0),
+            strength: 60,
+        };
+        let (verdict, _) = ann.edit_acked(deep).await.unwrap();
+        assert_eq!(
+            verdict,
+            Verdict::Rejected(strata_protocol::RejectReason::NoLineOfSight)
+        );
+        assert!(held().await.is_empty(), "the refused edit claimed a region");
+
+        // One she sees claims the region and is applied.
+        let (verdict, _) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        assert!(matches!(verdict, Verdict::Accepted { .. }), "{verdict:?}");
+        assert_eq!(held().await, ["west"]);
         assert!(ann.replica().mesh_mismatches().is_empty());
         ann.close().await;
         west.shutdown().await.unwrap();
