@@ -27,6 +27,7 @@ use strata_server::admin::remote::AdminClient;
 use strata_server::app::{self, Running};
 use strata_server::cluster::ClusterConfig;
 use strata_server::datadir::{CERT_NAME, KEY_NAME, SECRET_NAME};
+use strata_server::engine::RELOAD_RETRY;
 use strata_server::net::admin_session::ACCESS_RELOAD_PERIOD;
 use strata_server::validate::spawn::SpawnArea;
 use strata_terrain::{ChunkPos, Edit, FixedVec3};
@@ -798,6 +799,72 @@ async fn an_edit_refused_for_line_of_sight_claims_no_region() {
         let (verdict, _) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
         assert!(matches!(verdict, Verdict::Accepted { .. }), "{verdict:?}");
         assert_eq!(held().await, ["west"]);
+        assert!(ann.replica().mesh_mismatches().is_empty());
+        ann.close().await;
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// A region whose reload fails when the node claims it (the database
+/// cannot answer in time) refuses its edits `Busy`, the first one too,
+/// without a fenced batch (which would cost a seq block), until a retry
+/// reloads it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_region_whose_reload_failed_refuses_its_edits_until_a_retry_succeeds() {
+    let Some(db) = strata_tests::postgres::database("cluster_reload_retry") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 5_000, 500);
+        cfg.store.postgres.statement_timeout_ms = 300;
+        let west = app::start(cfg).await.expect("node starts");
+        let ann = standing(&west, "ann", WEST_X).await;
+
+        // Another session holds the deltas table: reading a region's
+        // versions waits past the statement timeout.
+        let (release, released) = std::sync::mpsc::channel::<()>();
+        let lock = "LOCK TABLE chunk_deltas IN ACCESS EXCLUSIVE MODE";
+        let holder = crate::store_common::hold_rows(&db, lock, "ROLLBACK", move || {
+            let _ = released.recv();
+        });
+        let (verdict, _) = ann.edit_acked(mine_at(WEST_X)).await.unwrap();
+        assert_eq!(
+            verdict,
+            Verdict::Rejected(strata_protocol::RejectReason::Busy)
+        );
+        let (verdict, _) = ann.edit_acked(mine_at(WEST_X)).await.unwrap();
+        assert_eq!(
+            verdict,
+            Verdict::Rejected(strata_protocol::RejectReason::Busy)
+        );
+        release.send(()).unwrap();
+        tokio::task::spawn_blocking(move || holder.join().unwrap())
+            .await
+            .unwrap();
+
+        // The next retry reloads it; edits are taken again.
+        let mut accepted = false;
+        for _ in 0..40 {
+            tokio::time::sleep(RELOAD_RETRY / 4).await;
+            let (verdict, _) = ann.edit_acked(mine_at(WEST_X)).await.unwrap();
+            if matches!(verdict, Verdict::Accepted { .. }) {
+                accepted = true;
+                break;
+            }
+            assert_eq!(
+                verdict,
+                Verdict::Rejected(strata_protocol::RejectReason::Busy)
+            );
+        }
+        assert!(accepted, "the region was never reloaded");
+        assert_eq!(
+            sql(&db, "SELECT count(*) FROM seq_blocks").await,
+            ["1"],
+            "no batch was fenced"
+        );
         assert!(ann.replica().mesh_mismatches().is_empty());
         ann.close().await;
         west.shutdown().await.unwrap();

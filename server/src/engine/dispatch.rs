@@ -162,7 +162,7 @@ impl Engine {
         self.kick_refused();
     }
 
-    fn refuse_edit(
+    pub(super) fn refuse_edit(
         &mut self,
         session: u64,
         client_edit_id: u64,

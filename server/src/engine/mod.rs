@@ -41,6 +41,7 @@ pub use config::{
 pub use fanout::encode_control as fanout_control;
 pub use inbox::{channel as inbox_channel, EngineHandle, Inbox};
 pub use latest::LatestPosition;
+pub use ownership::RELOAD_RETRY;
 pub use premesh::{
     DEFAULT_PREMESH_BACKLOG, DEFAULT_PREMESH_GENERATED_CHUNKS, DEFAULT_PREMESH_INFLIGHT,
     DEFAULT_PREMESH_RADIUS, DEFAULT_PREMESH_THREADS, MAX_PREMESH_RADIUS, MAX_PREMESH_THREADS,

@@ -172,6 +172,14 @@ impl Engine {
                 }
             }
         }
+        // Edits queued in one (claimed at the gate, or adopted under
+        // them) are refused now, not applied to be fenced.
+        if !self.reload_retry.is_empty() {
+            let failed = self.reload_retry.keys().copied().collect();
+            for (session, id) in self.seq.unqueue_in(&failed) {
+                self.refuse_edit(session, id, RejectReason::Busy);
+            }
+        }
     }
 
     /// Brings the region's chunks to their stored versions; returns how

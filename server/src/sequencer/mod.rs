@@ -176,13 +176,13 @@ impl Sequencer {
         self.next_seq = self.next_seq.max(next);
     }
 
-    /// The regions `edit` writes or reads (its footprint: box, read margin
-    /// and mesh apron), or `None` if the terrain core refuses it.
     /// Region side in chunks (`[sequencer] region_chunks`).
     pub fn region_chunks(&self) -> u32 {
         self.cfg.region_chunks
     }
 
+    /// The regions `edit` writes or reads (its footprint: box, read margin
+    /// and mesh apron), or `None` if the terrain core refuses it.
     pub fn edit_regions(
         &self,
         edit: &strata_terrain::Edit,
@@ -192,6 +192,29 @@ impl Sequencer {
         let span =
             regions::RegionSpan::of_chunks(fp.min.chunk(), fp.max.chunk(), self.cfg.region_chunks);
         Some(span.regions().collect())
+    }
+
+    /// Takes the queued edits touching any of `regions` out of the queue
+    /// (a cluster node's regions whose reload failed: a batch writing them
+    /// would be fenced); returns each one's session and client edit id.
+    /// Their tokens stay spent, as for an edit refused in the tick.
+    pub fn unqueue_in(
+        &mut self,
+        regions: &std::collections::BTreeSet<regions::RegionId>,
+    ) -> Vec<(u64, u64)> {
+        let mut out = Vec::new();
+        let queue = std::mem::take(&mut self.queue);
+        for q in queue {
+            let hit = self
+                .edit_regions(&q.request.edit)
+                .is_some_and(|rs| !rs.is_disjoint(regions));
+            if hit {
+                out.push((q.session_id, q.request.client_edit_id));
+            } else {
+                self.queue.push_back(q);
+            }
+        }
+        out
     }
 
     /// The last sequence number handed out (or loaded from the store).
