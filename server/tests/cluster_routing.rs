@@ -764,49 +764,6 @@ async fn a_node_lets_an_idle_region_go_and_claims_it_again_at_the_next_edit() {
     .expect("within the test timeout");
 }
 
-/// An edit any rule refuses, line of sight included (checked in a batch
-/// after the region checks), leaves no lease behind: the node claims an
-/// edit's regions only at the gate that queues it.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn an_edit_refused_for_line_of_sight_claims_no_region() {
-    let Some(db) = strata_tests::postgres::database("cluster_sight_claims") else {
-        return;
-    };
-    tokio::time::timeout(TEST_TIMEOUT, async {
-        let dir = tempfile::tempdir().unwrap();
-        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 5_000, 500);
-        cfg.validation.reach = 30.0;
-        let west = app::start(cfg).await.expect("node starts");
-        let ann = standing(&west, "ann", WEST_X).await;
-        let held = || sql(&db, "SELECT owner FROM regions WHERE owner IS NOT NULL");
-        assert!(held().await.is_empty(), "standing claims nothing");
-
-        // Twelve voxels of rock under her feet: within reach, out of sight.
-        let (_, v) = spot(WEST_X, Z);
-        let deep = Edit::Mine {
-            center: at(v.x as f64, v.y as f64 - 12.0, v.z as f64),
-            radius: r(1.0),
-            strength: 60,
-        };
-        let (verdict, _) = ann.edit_acked(deep).await.unwrap();
-        assert_eq!(
-            verdict,
-            Verdict::Rejected(strata_protocol::RejectReason::NoLineOfSight)
-        );
-        assert!(held().await.is_empty(), "the refused edit claimed a region");
-
-        // One she sees claims the region and is applied.
-        let (verdict, _) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
-        assert!(matches!(verdict, Verdict::Accepted { .. }), "{verdict:?}");
-        assert_eq!(held().await, ["west"]);
-        assert!(ann.replica().mesh_mismatches().is_empty());
-        ann.close().await;
-        west.shutdown().await.unwrap();
-    })
-    .await
-    .expect("within the test timeout");
-}
-
 /// A region whose reload fails when the node claims it (the database
 /// cannot answer in time) refuses its edits `Busy`, the first one too,
 /// without a fenced batch (which would cost a seq block), until a retry

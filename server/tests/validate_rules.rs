@@ -4,7 +4,7 @@ use crate::sequencer_common;
 
 use sequencer_common::*;
 use strata_protocol::{RejectReason, Role};
-use strata_server::sequencer::{GateRefusal, Sequencer, SequencerConfig};
+use strata_server::sequencer::{Sequencer, SequencerConfig};
 use strata_server::validate::ratelimit::BucketConfig;
 use strata_server::validate::{ValidationConfig, WorldBounds, Zone};
 use strata_terrain::edit::{Fixed, FixedVec3};
@@ -494,61 +494,5 @@ fn admission_takes_the_edit_token_and_a_refused_sight_gives_the_volume_back() {
         s.admit(PLAYER, req(13, mine(X + 1, -1, Z + 2, 1)), 0),
         Err(RejectReason::RateLimited),
         "three edit tokens: one per edit, refused or not"
-    );
-}
-
-/// The gate after the sight check (a cluster node's claim): an edit it
-/// refuses is not queued; an uncharged refusal (the node's state) gives
-/// the edit token and volume back, a charged one costs a rejection.
-#[test]
-fn the_gate_after_the_sight_check_refuses_and_charges_as_told() {
-    let v = ValidationConfig {
-        edit_rate: BucketConfig {
-            capacity: 2,
-            per_second: 0,
-        },
-        reject_rate: BucketConfig {
-            capacity: 1,
-            per_second: 0,
-        },
-        ..Default::default()
-    };
-    let mut s = ready(v);
-    let before = snapshot(&s);
-    let gated = |s: &mut Sequencer, id: u64, charged: bool| {
-        let e = mine(X, -1, Z + 2, 1);
-        let mut pre = s.precheck(PLAYER, &e, 0).unwrap();
-        pre.claim_at_gate(s.edit_regions(&e).unwrap());
-        s.admit_prechecked(PLAYER, req(id, e), pre, 0).unwrap();
-        let mut calls = 0;
-        let refused = s.check_sighted_gated(0, &mut |regions| {
-            calls += 1;
-            assert!(!regions.is_empty());
-            Err(GateRefusal {
-                reason: RejectReason::Busy,
-                charged,
-            })
-        });
-        assert_eq!(calls, 1);
-        refused
-    };
-    // Uncharged, many times over: no edit token is spent.
-    for id in 10..15 {
-        let refused = gated(&mut s, id, false);
-        assert_eq!(refused.len(), 1);
-        assert_eq!(refused[0].reason, RejectReason::Busy);
-    }
-    assert_eq!((s.queued(), s.sighting()), (0, 0));
-    assert_eq!(snapshot(&s), before);
-    // Charged: each costs its edit token and a rejection token; the
-    // second finds none left and disconnects the player.
-    gated(&mut s, 20, true);
-    assert!(s.take_disconnects().is_empty());
-    gated(&mut s, 21, true);
-    assert_eq!(s.take_disconnects(), vec![PLAYER]);
-    assert_eq!(
-        s.admit(PLAYER, req(22, mine(X, -1, Z + 2, 1)), 0),
-        Err(RejectReason::RateLimited),
-        "two edit tokens, both the charged refusals'"
     );
 }

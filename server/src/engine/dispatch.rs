@@ -145,10 +145,8 @@ impl Engine {
         let result = self
             .seq
             .precheck(session, &request.edit, now)
-            .and_then(|mut pre| {
-                if let Some(regions) = self.check_regions(session, &request.edit, now)? {
-                    pre.claim_at_gate(regions);
-                }
+            .and_then(|pre| {
+                self.check_regions(session, &request.edit, now)?;
                 let needed = self.seq.missing(pre.reads());
                 if let Err(e) = self.make_resident(&needed) {
                     error!(error = %e, "store read failed");
@@ -184,17 +182,12 @@ impl Engine {
             return;
         }
         let pool = self.pool.clone();
-        let (seq, store) = (&mut self.seq, &*self.store);
-        let mut gate = |regions: &_| super::ownership::claim_at_gate(store, regions);
-        let refused = pool.install(|| seq.check_sighted_gated(now_ms(), &mut gate));
+        let seq = &mut self.seq;
+        let refused = pool.install(|| seq.check_sighted(now_ms()));
         for r in refused {
             self.refuse_edit(r.session_id, r.client_edit_id, r.reason);
         }
         self.kick_refused();
-        // Regions the gate claimed are reloaded before the tick applies.
-        if self.store.clustered() {
-            self.take_fresh_regions();
-        }
     }
 
     /// Disconnects players out of rejection tokens.

@@ -32,85 +32,59 @@ use super::Engine;
 use crate::metrics as m;
 use crate::sequencer::batch::TickOutput;
 use crate::sequencer::regions::RegionId;
-use crate::sequencer::GateRefusal;
-use crate::store::{ChunkStore, RegionAccess, RegionHolder, StoreError};
-
-/// A refusal for regions this node may not write now (`access`, what the
-/// store answered).
-fn access_refusal(access: Result<RegionAccess, StoreError>) -> Result<(), GateRefusal> {
-    let (reason, charged) = match access {
-        Ok(RegionAccess::Granted) => return Ok(()),
-        Ok(RegionAccess::Elsewhere {
-            region,
-            owner,
-            addr,
-        }) => {
-            let reason = RejectReason::RegionElsewhere {
-                region_x: region.x,
-                region_z: region.z,
-                owner,
-                addr,
-            };
-            (reason, true)
-        }
-        Ok(RegionAccess::AtCapacity { held, max }) => {
-            debug!(held, "edit refused: this node holds max_held_regions");
-            metrics::counter!(m::REGION_CLAIMS_REFUSED).increment(1);
-            // The node's state, not the player's doing: free, like Busy.
-            let max_regions = u32::try_from(max).unwrap_or(u32::MAX);
-            (RejectReason::NodeFull { max_regions }, false)
-        }
-        Err(e) => {
-            error!(error = %e, "claiming regions failed");
-            (RejectReason::Busy, false)
-        }
-    };
-    Err(GateRefusal { reason, charged })
-}
-
-/// The gate before an edit is queued: claims the regions it needs that
-/// this node does not hold yet (held ones cost a lookup).
-pub(super) fn claim_at_gate(
-    store: &dyn ChunkStore,
-    regions: &BTreeSet<RegionId>,
-) -> Result<(), GateRefusal> {
-    access_refusal(store.acquire_regions(regions))
-}
+use crate::store::{RegionAccess, RegionHolder, StoreError};
 
 impl Engine {
-    /// `Ok` with the regions to claim at the gate (`None` alone on its
-    /// store) when this node may write every region `edit` touches,
-    /// holding them or free to claim them. Claims nothing: an edit any
-    /// later rule refuses must leave no lease behind.
+    /// `Ok` when this node may write every region `edit` touches.
     pub(super) fn check_regions(
         &mut self,
         session: u64,
         edit: &Edit,
         now: u64,
-    ) -> Result<Option<BTreeSet<RegionId>>, RejectReason> {
+    ) -> Result<(), RejectReason> {
         if !self.store.clustered() {
-            return Ok(None);
+            return Ok(());
         }
         // An edit the terrain core refuses is refused by the rules next.
         let Some(regions) = self.seq.edit_regions(edit) else {
-            return Ok(None);
+            return Ok(());
         };
-        let access = self.store.may_acquire_regions(&regions);
+        let access = self.store.acquire_regions(&regions);
         self.take_fresh_regions();
-        // Held, but not reloaded yet (a failed reload waits for its
-        // retry): refused before anything is applied on stale chunks.
-        if matches!(access, Ok(RegionAccess::Granted))
-            && regions.iter().any(|r| self.reload_retry.contains_key(r))
-        {
-            return Err(RejectReason::Busy);
-        }
-        match access_refusal(access) {
-            Ok(()) => Ok(Some(regions)),
-            Err(GateRefusal {
-                reason,
-                charged: true,
-            }) => Err(self.seq.charge_refusal(session, reason, now)),
-            Err(GateRefusal { reason, .. }) => Err(reason),
+        match access {
+            // Held, but not reloaded yet (a failed reload waits for its
+            // retry): refused before anything is applied on stale chunks.
+            Ok(RegionAccess::Granted)
+                if regions.iter().any(|r| self.reload_retry.contains_key(r)) =>
+            {
+                Err(RejectReason::Busy)
+            }
+            Ok(RegionAccess::Granted) => Ok(()),
+            Ok(RegionAccess::Elsewhere {
+                region,
+                owner,
+                addr,
+            }) => {
+                let reason = RejectReason::RegionElsewhere {
+                    region_x: region.x,
+                    region_z: region.z,
+                    owner,
+                    addr,
+                };
+                Err(self.seq.charge_refusal(session, reason, now))
+            }
+            Ok(RegionAccess::AtCapacity { held, max }) => {
+                debug!(held, "edit refused: this node holds max_held_regions");
+                metrics::counter!(m::REGION_CLAIMS_REFUSED).increment(1);
+                // The node's state, not the player's doing: free, like Busy.
+                Err(RejectReason::NodeFull {
+                    max_regions: u32::try_from(max).unwrap_or(u32::MAX),
+                })
+            }
+            Err(e) => {
+                error!(error = %e, "claiming regions failed");
+                Err(RejectReason::Busy)
+            }
         }
     }
 
@@ -131,7 +105,7 @@ impl Engine {
     /// (and those whose reload failed, once [`RELOAD_RETRY`] has passed).
     /// A region takes its new epoch only once reloaded: until then a batch
     /// writing it is fenced, never built on chunks another node moved on.
-    pub(super) fn take_fresh_regions(&mut self) {
+    fn take_fresh_regions(&mut self) {
         let fresh = self.store.take_fresh_regions();
         let retry_due = self
             .reload_retry_at

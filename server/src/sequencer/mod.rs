@@ -20,7 +20,7 @@ mod tick;
 
 pub use batch::{AppliedEdit, ApplySplit, ChunkUpdate, RejectedEdit, TickOutput};
 pub use config::{SequencerConfig, DEFAULT_MAX_EDITS_PER_TICK, DEFAULT_QUEUE_CAPACITY};
-pub use sight::{GateRefusal, SightRefusal};
+pub use sight::SightRefusal;
 pub use submit::Prechecked;
 pub use tick::{BuiltMeshes, PendingMeshes};
 

@@ -11,13 +11,10 @@
 //! on admission (accepted and refused edits both cost one), and so is the
 //! volume, given back if the sight check refuses.
 
-use std::collections::BTreeSet;
-
 use rayon::prelude::*;
 use strata_protocol::{EditRequest, RejectReason};
 use strata_terrain::ChunkPos;
 
-use super::regions::RegionId;
 use super::submit::{near_any, Prechecked};
 use super::{Queued, Sequencer};
 use crate::validate::line_of_sight;
@@ -33,19 +30,7 @@ pub(super) struct Sighted {
     tolerance: f64,
     volume_cost: u64,
     ray: Vec<ChunkPos>,
-    claim: Option<BTreeSet<RegionId>>,
     queued_at: std::time::Instant,
-}
-
-/// The gate's refusal of an edit whose sight passed
-/// ([`Sequencer::check_sighted_gated`]).
-#[derive(Debug, Clone, PartialEq)]
-pub struct GateRefusal {
-    pub reason: RejectReason,
-    /// Whether it costs the player a rejection token, as a rule's refusal
-    /// does; when not (the server's state, not the player's doing), the
-    /// edit's token and volume are given back.
-    pub charged: bool,
 }
 
 /// An edit [`Sequencer::check_sighted`] refused.
@@ -96,9 +81,7 @@ impl Sequencer {
             }
         }
         self.world.load(generate);
-        let Prechecked {
-            cheap, ray, claim, ..
-        } = pre;
+        let Prechecked { cheap, ray, .. } = pre;
         let tolerance = edit.radius().map_or(0.0, |r| r.to_f64()) + self.validation.los_tolerance;
         let limits = self.limits_of(session_id, now_ms);
         limits.edits.take(1);
@@ -117,7 +100,6 @@ impl Sequencer {
             tolerance,
             volume_cost: cheap.volume_cost,
             ray,
-            claim,
             queued_at: std::time::Instant::now(),
         });
         Ok(())
@@ -135,18 +117,6 @@ impl Sequencer {
     /// (their volume given back). Rays are checked in groups whose chunks
     /// fit in half the mesh cache, so none is evicted before its ray.
     pub fn check_sighted(&mut self, now_ms: u64) -> Vec<SightRefusal> {
-        self.check_sighted_gated(now_ms, &mut |_| Ok(()))
-    }
-
-    /// [`Self::check_sighted`], with `gate` run, in arrival order, on the
-    /// regions of each edit seen that holds some back
-    /// ([`Prechecked::claim_at_gate`]): a cluster node claims them there,
-    /// so an edit refused by any rule claims nothing.
-    pub fn check_sighted_gated(
-        &mut self,
-        now_ms: u64,
-        gate: &mut dyn FnMut(&BTreeSet<RegionId>) -> Result<(), GateRefusal>,
-    ) -> Vec<SightRefusal> {
         let batch = std::mem::take(&mut self.sighting);
         let room = (self.collision.capacity() / 2).max(1);
         let mut seen: Vec<Result<(), RejectReason>> = Vec::with_capacity(batch.len());
@@ -173,12 +143,6 @@ impl Sequencer {
         }
         let mut refused = Vec::new();
         for (s, result) in batch.into_iter().zip(seen) {
-            let result = result
-                .map_err(|reason| GateRefusal {
-                    reason,
-                    charged: true,
-                })
-                .and_then(|()| s.claim.as_ref().map_or(Ok(()), &mut *gate));
             match result {
                 Ok(()) => self.queue.push_back(Queued {
                     session_id: s.session_id,
@@ -186,8 +150,8 @@ impl Sequencer {
                     request: s.request,
                     queued_at: s.queued_at,
                 }),
-                Err(GateRefusal { reason, charged }) => {
-                    self.refuse_sighted(&s, charged, now_ms);
+                Err(reason) => {
+                    self.refuse_sighted(&s, now_ms);
                     refused.push(SightRefusal {
                         session_id: s.session_id,
                         client_edit_id: s.request.client_edit_id,
@@ -199,18 +163,13 @@ impl Sequencer {
         refused
     }
 
-    /// The rest of a refusal's cost: the edit token went on admission,
-    /// and is given back with the volume when the refusal is not charged.
-    fn refuse_sighted(&mut self, s: &Sighted, charged: bool, now_ms: u64) {
+    /// The rest of a refusal's cost: the edit token went on admission.
+    fn refuse_sighted(&mut self, s: &Sighted, now_ms: u64) {
         let Some(limits) = self.limits.get_mut(&s.player) else {
             return;
         };
         limits.refill(now_ms);
         limits.volume.give(s.volume_cost);
-        if !charged {
-            limits.edits.give(1);
-            return;
-        }
         let live = self.sessions.contains_key(&s.session_id);
         if live && !limits.rejections.take(1) && !self.disconnect.contains(&s.session_id) {
             self.disconnect.push(s.session_id);

@@ -1,11 +1,8 @@
 //! `Sequencer::submit`: every validation rule, in order, before queueing.
 
-use std::collections::BTreeSet;
-
 use strata_protocol::{EditRequest, RejectReason};
 use strata_terrain::{ChunkPos, Edit, VoxelBox};
 
-use super::regions::RegionId;
 use super::residency::{edit_footprint, with_neighbours};
 use super::session::PlayerLimits;
 use super::{Queued, Sequencer};
@@ -31,21 +28,12 @@ pub struct Prechecked {
     /// Sorted: the edit's box and read margin, the ray's chunks and their
     /// neighbours.
     reads: Vec<ChunkPos>,
-    /// The regions a cluster node must claim before the edit is queued
-    /// ([`Sequencer::check_sighted_gated`]'s gate).
-    pub(super) claim: Option<BTreeSet<RegionId>>,
 }
 
 impl Prechecked {
     /// Every chunk admitting and applying the edit reads, sorted.
     pub fn reads(&self) -> &[ChunkPos] {
         &self.reads
-    }
-
-    /// Holds `regions` back for the gate that queues the edit: claimed
-    /// only once every rule, sight included, passed.
-    pub fn claim_at_gate(&mut self, regions: BTreeSet<RegionId>) {
-        self.claim = Some(regions);
     }
 }
 
@@ -169,12 +157,7 @@ impl Sequencer {
         };
         let ray = line_of_sight::sight_chunks(cheap.eye, cheap.target);
         let reads = footprint_and_ray(&cheap.bbox, edit.read_margin(), &ray);
-        Ok(Prechecked {
-            cheap,
-            ray,
-            reads,
-            claim: None,
-        })
+        Ok(Prechecked { cheap, ray, reads })
     }
 
     /// Validates an edit request and queues it for the next tick.

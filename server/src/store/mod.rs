@@ -249,16 +249,6 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(RegionAccess::Granted)
     }
 
-    /// What [`Self::acquire_regions`] would answer, claiming nothing:
-    /// `Granted` when this node holds each of `regions` or may claim it.
-    /// Cached like its refusals.
-    fn may_acquire_regions(
-        &self,
-        _regions: &BTreeSet<RegionId>,
-    ) -> Result<RegionAccess, StoreError> {
-        Ok(RegionAccess::Granted)
-    }
-
     /// Who writes each of `regions`, claiming nothing. Cached like
     /// [`Self::acquire_regions`]' refusals: at most one query per region
     /// per renewal period. Sorted by region.

@@ -370,11 +370,31 @@ pub(super) fn acquire(
     regions: &BTreeSet<RegionId>,
 ) -> Result<RegionAccess, StoreError> {
     let now = Instant::now();
-    let todo = match unheld(pool, leases, regions, now, true)? {
-        Ok(todo) if !todo.is_empty() => todo,
-        Ok(_) => return Ok(RegionAccess::Granted),
-        Err(answer) => return Ok(answer),
+    let todo: BTreeSet<RegionId> = {
+        let mut book = leases.book();
+        let mut todo = BTreeSet::new();
+        for r in regions {
+            if book.held.contains_key(r) {
+                book.used.insert(*r, now);
+                continue;
+            }
+            if let Some((owner, addr, until)) = book.elsewhere.get(r) {
+                if *until > now {
+                    return Ok(elsewhere(*r, owner, addr));
+                }
+            }
+            todo.insert(*r);
+        }
+        let held = book.held.len();
+        if held + todo.len() > leases.max_held {
+            drop(book);
+            return at_capacity(pool, leases, &todo, held);
+        }
+        todo
     };
+    if todo.is_empty() {
+        return Ok(RegionAccess::Granted);
+    }
     claim(pool, leases, &todo, Lost::Retake)?;
     let Some(&refused) = todo.iter().find(|r| !leases.book().held.contains_key(r)) else {
         return Ok(RegionAccess::Granted);
@@ -406,62 +426,6 @@ pub(super) fn acquire(
     book.elsewhere
         .insert(refused, (owner.clone(), addr.clone(), until));
     Ok(elsewhere(refused, &owner, &addr))
-}
-
-/// What [`acquire`] would answer, claiming nothing: `Granted` when this
-/// node holds each of `regions` or no other node does (from the cache,
-/// or one query).
-pub(super) fn may_acquire(
-    pool: &Pool,
-    leases: &NodeLeases,
-    regions: &BTreeSet<RegionId>,
-) -> Result<RegionAccess, StoreError> {
-    let todo = match unheld(pool, leases, regions, Instant::now(), false)? {
-        Ok(todo) => todo,
-        Err(answer) => return Ok(answer),
-    };
-    if !todo.is_empty() {
-        for (r, h) in holders(pool, leases, &todo)? {
-            if let RegionHolder::Node { owner, addr } = h {
-                return Ok(elsewhere(r, &owner, &addr));
-            }
-        }
-    }
-    Ok(RegionAccess::Granted)
-}
-
-/// The regions of `regions` this node does not hold, or the answer the
-/// book gives without a claim: one cached as another node's, or too many
-/// to hold. Held ones are marked used when `mark_used`.
-fn unheld(
-    pool: &Pool,
-    leases: &NodeLeases,
-    regions: &BTreeSet<RegionId>,
-    now: Instant,
-    mark_used: bool,
-) -> Result<Result<BTreeSet<RegionId>, RegionAccess>, StoreError> {
-    let mut book = leases.book();
-    let mut todo = BTreeSet::new();
-    for r in regions {
-        if book.held.contains_key(r) {
-            if mark_used {
-                book.used.insert(*r, now);
-            }
-            continue;
-        }
-        if let Some((owner, addr, until)) = book.elsewhere.get(r) {
-            if *until > now {
-                return Ok(Err(elsewhere(*r, owner, addr)));
-            }
-        }
-        todo.insert(*r);
-    }
-    let held = book.held.len();
-    if held + todo.len() > leases.max_held {
-        drop(book);
-        return at_capacity(pool, leases, &todo, held).map(Err);
-    }
-    Ok(Ok(todo))
 }
 
 /// Who writes each of `regions`, claiming nothing: held ones from the

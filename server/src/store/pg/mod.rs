@@ -491,16 +491,6 @@ impl ChunkStore for PgStore {
         }
     }
 
-    fn may_acquire_regions(
-        &self,
-        regions: &std::collections::BTreeSet<RegionId>,
-    ) -> Result<RegionAccess, StoreError> {
-        match &self.leases {
-            Some(leases) => lease::may_acquire(&self.pool, leases, regions),
-            None => Ok(RegionAccess::Granted),
-        }
-    }
-
     fn region_holders(
         &self,
         regions: &std::collections::BTreeSet<RegionId>,
