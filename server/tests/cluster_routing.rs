@@ -830,6 +830,42 @@ async fn a_region_whose_reload_failed_refuses_its_edits_until_a_retry_succeeds()
     .expect("within the test timeout");
 }
 
+/// Two live processes under one node id would take regions from each
+/// other without end: the later one's start supersedes the earlier, whose
+/// engine stops at its next renewal, while the later one serves on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_process_under_the_same_node_id_stops_the_first() {
+    let Some(db) = strata_tests::postgres::database("cluster_same_id") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dirs = tempfile::tempdir().unwrap();
+        let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
+        let first = node_leasing(&da, &db, ("west", WEST_X), 5_000, 100).await;
+        let ann = standing(&first, "ann", WEST_X).await;
+        let (v, _) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+
+        share_keys(&da, &db_dir);
+        let second = node_leasing(&db_dir, &db, ("west", WEST_X), 5_000, 100).await;
+        first.engine_stopped().await;
+        assert!(
+            eventually(TEST_TIMEOUT, || ann.is_closed()).await,
+            "the first process's players are let go"
+        );
+
+        let bob = standing(&second, "bob", WEST_X).await;
+        let (v, _) = bob.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        assert!(bob.replica().mesh_mismatches().is_empty());
+        bob.close().await;
+        second.shutdown().await.unwrap();
+        let _ = first.shutdown().await;
+    })
+    .await
+    .expect("within the test timeout");
+}
+
 /// In region 1 (chunk 8), where both nodes below spawn their players.
 const BORDER_X: i32 = 260;
 

@@ -250,3 +250,40 @@ fn a_commit_timed_out_before_commit_was_sent_wrote_nothing() {
     store.commit_batch(&batch).unwrap();
     assert_eq!(store.last_seq().unwrap(), 1);
 }
+
+/// On a store never clustered (no seq blocks) the world row's last seq
+/// stays exact: a log beyond it is damage that `check` names and that
+/// refuses the next commit, changing nothing (a cluster's fenced commits
+/// leave the row behind the log, and there the log's last counts).
+#[test]
+fn a_log_beyond_a_single_nodes_last_seq_is_damage() {
+    let Some(db) = database("log_beyond_last_seq") else {
+        return;
+    };
+    let store = pg_store(&db);
+    store.init_meta(&WorldMeta::new(3, 1, "")).unwrap();
+    let mut world = Seq::default();
+    let pos = ChunkPos::new(1, 0, 1);
+    for salt in 1..=2 {
+        store
+            .commit_batch(&world.delta_batch(&[vec![(pos, terrain_chunk(salt))]]))
+            .unwrap();
+    }
+    assert!(store.check().unwrap().is_ok());
+    sql(&db, "UPDATE world SET last_seq = 1");
+    let report = store.check().unwrap();
+    assert!(
+        report
+            .issues
+            .contains(&strata_server::store::CheckIssue::LastSeqMismatch { meta: 1, log: 2 }),
+        "{report:?}"
+    );
+    let err = store
+        .commit_batch(&world.delta_batch(&[vec![(pos, terrain_chunk(3))]]))
+        .unwrap_err();
+    assert!(
+        err.to_string().contains("log record beyond last_seq"),
+        "{err}"
+    );
+    assert_eq!(sql(&db, "SELECT max(seq) FROM edit_log"), ["2"]);
+}

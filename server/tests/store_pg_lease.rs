@@ -463,6 +463,57 @@ fn a_node_restarted_under_its_name_fences_its_previous_process() {
         .unwrap();
 }
 
+/// A process started under a node id that a live process still runs as
+/// supersedes it: the older one's next renewal finds out, and from then on
+/// it claims, renews and adopts nothing, and says why.
+#[test]
+fn a_second_process_under_a_node_id_supersedes_the_first() {
+    let Some(db) = database("lease_superseded") else {
+        return;
+    };
+    let old = node(&db, "a");
+    let (r, s) = (region(3, 3), region(4, 3));
+    old.claim_regions(&[r]).unwrap();
+    old.renew_leases().unwrap();
+    assert_eq!(old.superseded(), None);
+    let new = node(&db, "a");
+    assert_eq!(new.claim_regions(&[r]).unwrap(), BTreeMap::from([(r, 2)]));
+
+    let err = old.renew_leases().unwrap_err();
+    assert!(matches!(err, StoreError::Superseded { .. }), "{err}");
+    let why = old.superseded().expect("superseded");
+    assert!(why.contains("another process started as node a"), "{why}");
+    assert!(matches!(
+        old.claim_regions(&[s]).unwrap_err(),
+        StoreError::Superseded { .. }
+    ));
+    assert!(matches!(
+        old.acquire_regions(&regions(&[r])).unwrap_err(),
+        StoreError::Superseded { .. }
+    ));
+    assert!(matches!(
+        old.adopt_regions().unwrap_err(),
+        StoreError::Superseded { .. }
+    ));
+    let before = footprint(&db, &new);
+    let mut world = Seq::default();
+    assert!(matches!(
+        old.commit_batch(&edit(&mut world, &[chunk_in(s, 0)], 1))
+            .unwrap_err(),
+        StoreError::Superseded { .. }
+    ));
+    assert_eq!(footprint(&db, &new), before, "it wrote nothing");
+    // The new process goes on, and its renewals keep its region.
+    assert_eq!(new.renew_leases().unwrap(), Vec::<RegionId>::new());
+    assert_eq!(new.superseded(), None);
+    assert_eq!(new.leases().unwrap().held(), BTreeMap::from([(r, 2)]));
+    assert_eq!(
+        sql(&db, "SELECT node_id FROM nodes"),
+        ["a"],
+        "one row per node id"
+    );
+}
+
 #[test]
 fn nodes_racing_for_the_same_regions_get_one_owner_each() {
     let Some(db) = database("lease_race") else {

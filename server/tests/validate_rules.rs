@@ -496,3 +496,35 @@ fn admission_takes_the_edit_token_and_a_refused_sight_gives_the_volume_back() {
         "three edit tokens: one per edit, refused or not"
     );
 }
+
+/// Edits taken out for a region whose reload failed (queued, or awaiting
+/// their sight check) are refused `Busy`, which costs nothing: their edit
+/// and volume tokens come back, and edits elsewhere stay.
+#[test]
+fn edits_taken_out_of_a_region_get_their_tokens_back() {
+    let v = ValidationConfig {
+        edit_rate: BucketConfig {
+            capacity: 2,
+            per_second: 0,
+        },
+        ..Default::default()
+    };
+    let mut s = ready(v);
+    let e = mine(X, -1, Z + 2, 1);
+    s.admit(PLAYER, req(10, e.clone()), 0).unwrap();
+    assert!(s.check_sighted(0).is_empty());
+    s.admit(PLAYER, req(11, e.clone()), 0).unwrap();
+    assert_eq!((s.queued(), s.sighting()), (1, 1));
+    let elsewhere = [strata_server::sequencer::regions::RegionId { x: 99, z: 99 }]
+        .into_iter()
+        .collect();
+    assert!(s.unqueue_in(&elsewhere, 0).is_empty());
+    assert_eq!((s.queued(), s.sighting()), (1, 1));
+
+    let here = s.edit_regions(&e).unwrap();
+    assert_eq!(s.unqueue_in(&here, 0), vec![(PLAYER, 10), (PLAYER, 11)]);
+    assert_eq!((s.queued(), s.sighting()), (0, 0));
+    // Both edit tokens are back.
+    s.admit(PLAYER, req(12, e.clone()), 0).unwrap();
+    s.admit(PLAYER, req(13, e), 0).unwrap();
+}

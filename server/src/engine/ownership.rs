@@ -89,16 +89,21 @@ impl Engine {
     }
 
     /// Between ticks: the seq block the store may have moved to, and the
-    /// regions claimed in the background.
-    pub(super) fn follow_leases(&mut self) {
+    /// regions claimed in the background. An error when another process
+    /// took this node's id: the engine stops.
+    pub(super) fn follow_leases(&mut self) -> anyhow::Result<()> {
         if !self.store.clustered() {
-            return;
+            return Ok(());
+        }
+        if let Some(why) = self.store.superseded() {
+            anyhow::bail!(why);
         }
         self.seq
             .raise_next_seq(self.store.seq_floor().saturating_add(1));
         self.take_fresh_regions();
         metrics::gauge!(m::REGIONS_HELD).set(self.store.regions_held() as f64);
         self.tell_owners();
+        Ok(())
     }
 
     /// Reloads the regions claimed, lost or let go since the last call
@@ -150,7 +155,7 @@ impl Engine {
         // them) are refused now, not applied to be fenced.
         if !self.reload_retry.is_empty() {
             let failed = self.reload_retry.keys().copied().collect();
-            for (session, id) in self.seq.unqueue_in(&failed) {
+            for (session, id) in self.seq.unqueue_in(&failed, super::now_ms()) {
                 self.refuse_edit(session, id, RejectReason::Busy);
             }
         }

@@ -24,7 +24,7 @@ impl Engine {
         let started = Instant::now();
         let period = self.tick_period();
         let mut phase = Phases::new();
-        self.follow_leases();
+        self.follow_leases()?;
         let mut applied = self.apply_tick();
         phase.end("apply");
         if applied.out.lanes > 0 {

@@ -47,6 +47,8 @@ struct Queued {
     session_id: u64,
     player: String,
     request: EditRequest,
+    /// The volume tokens it took, given back if it is taken out unapplied.
+    volume_cost: u64,
     /// When the engine took the request, for the edit latency metric.
     queued_at: std::time::Instant,
 }
@@ -194,24 +196,43 @@ impl Sequencer {
         Some(span.regions().collect())
     }
 
-    /// Takes the queued edits touching any of `regions` out of the queue
-    /// (a cluster node's regions whose reload failed: a batch writing them
-    /// would be fenced); returns each one's session and client edit id.
-    /// Their tokens stay spent, as for an edit refused in the tick.
+    /// Takes the edits touching any of `regions` out of the queue and
+    /// out of those awaiting their sight check (a cluster node's regions
+    /// whose reload failed: a batch writing them would be fenced); returns
+    /// each one's session and client edit id, to be refused `Busy`. Like
+    /// any `Busy`, that costs the player nothing: the edit and volume
+    /// tokens go back.
     pub fn unqueue_in(
         &mut self,
         regions: &std::collections::BTreeSet<regions::RegionId>,
+        now_ms: u64,
     ) -> Vec<(u64, u64)> {
+        let hits = |s: &Self, e: &strata_terrain::Edit| {
+            s.edit_regions(e).is_some_and(|rs| !rs.is_disjoint(regions))
+        };
         let mut out = Vec::new();
-        let queue = std::mem::take(&mut self.queue);
-        for q in queue {
-            let hit = self
-                .edit_regions(&q.request.edit)
-                .is_some_and(|rs| !rs.is_disjoint(regions));
-            if hit {
+        let mut refunds = Vec::new();
+        for q in std::mem::take(&mut self.queue) {
+            if hits(self, &q.request.edit) {
                 out.push((q.session_id, q.request.client_edit_id));
+                refunds.push((q.player, q.volume_cost));
             } else {
                 self.queue.push_back(q);
+            }
+        }
+        for s in std::mem::take(&mut self.sighting) {
+            if hits(self, &s.request.edit) {
+                out.push((s.session_id, s.request.client_edit_id));
+                refunds.push((s.player.clone(), s.volume_cost));
+            } else {
+                self.sighting.push(s);
+            }
+        }
+        for (player, volume) in refunds {
+            if let Some(limits) = self.limits.get_mut(&player) {
+                limits.refill(now_ms);
+                limits.edits.give(1);
+                limits.volume.give(volume);
             }
         }
         out

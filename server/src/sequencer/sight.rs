@@ -22,13 +22,13 @@ use crate::validate::line_of_sight;
 /// An edit that passed every rule but line of sight.
 #[derive(Debug, Clone)]
 pub(super) struct Sighted {
-    session_id: u64,
-    player: String,
+    pub(super) session_id: u64,
+    pub(super) player: String,
     pub(super) request: EditRequest,
     pub(super) eye: glam::DVec3,
     target: glam::DVec3,
     tolerance: f64,
-    volume_cost: u64,
+    pub(super) volume_cost: u64,
     ray: Vec<ChunkPos>,
     queued_at: std::time::Instant,
 }
@@ -148,6 +148,7 @@ impl Sequencer {
                     session_id: s.session_id,
                     player: s.player,
                     request: s.request,
+                    volume_cost: s.volume_cost,
                     queued_at: s.queued_at,
                 }),
                 Err(reason) => {

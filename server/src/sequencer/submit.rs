@@ -302,6 +302,7 @@ impl Sequencer {
             session_id,
             player,
             request,
+            volume_cost,
             queued_at: std::time::Instant::now(),
         });
     }

@@ -74,6 +74,18 @@ pub enum StoreError {
         current_epoch: Option<u64>,
         owner: Option<String>,
     },
+    /// Another process started under this node's `node_id` (a newer
+    /// incarnation in the `nodes` table): this one claims nothing more and
+    /// must stop.
+    #[error(
+        "another process started as node {node_id} (incarnation {current}, this one's is {mine}); \
+         node ids must be unique, so this process stops"
+    )]
+    Superseded {
+        node_id: String,
+        mine: i64,
+        current: i64,
+    },
     /// A blob name or body breaks a limit.
     #[error("invalid blob: {reason}")]
     InvalidBlob { reason: String },

@@ -249,6 +249,13 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(RegionAccess::Granted)
     }
 
+    /// Why this process must stop: another process started under its
+    /// cluster node id (`None` alone on its store, or while the id is its
+    /// own). Cheap: read at every tick.
+    fn superseded(&self) -> Option<String> {
+        None
+    }
+
     /// Who writes each of `regions`, claiming nothing. Cached like
     /// [`Self::acquire_regions`]' refusals: at most one query per region
     /// per renewal period. Sorted by region.

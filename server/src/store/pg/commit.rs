@@ -2,11 +2,11 @@
 //! returns (`synchronous_commit = on`).
 //!
 //! A single node's transaction locks the world row first, so its commits
-//! run one at a time; a cluster node's locks its regions' rows instead
-//! (`fence.rs`), so nodes commit side by side and one paused inside its
-//! commit holds up no other. Then it locks the rows of the chunks the
-//! batch changes (in key order), so a checkpoint cannot fold them
-//! meanwhile. It refuses, changing nothing,
+//! run one at a time. Then it locks the rows of the chunks the batch
+//! changes (in key order), so a checkpoint cannot fold them meanwhile. A
+//! cluster node's takes no world row: after the chunks' rows it locks its
+//! regions' (`fence.rs`), so nodes commit side by side, and one paused
+//! inside its commit holds up only the regions it writes. It refuses, changing nothing,
 //! what the sled store refuses: seqs that do not follow `last_seq`, chunk
 //! versions at or below the stored ones, and deltas that do not continue
 //! the stored chain. A cluster node's commit is also fenced (`fence.rs`):
@@ -248,21 +248,27 @@ impl PgStore {
 /// The transaction's statements, between `BEGIN` and `COMMIT`.
 async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<(), StoreError> {
     if fence.is_none() {
-        // A cluster's fenced commits leave the row behind the log.
         let Some(row) = c
             .query_opt(
-                concat!(
-                    "SELECT ",
-                    super::last_seq_sql!(),
-                    " FROM world WHERE id = 1 FOR UPDATE"
-                ),
+                "SELECT last_seq, (SELECT COALESCE(max(seq), 0) FROM edit_log), \
+                     EXISTS (SELECT 1 FROM seq_blocks) \
+                 FROM world WHERE id = 1 FOR UPDATE",
                 &[],
             )
             .await?
         else {
             return Err(StoreError::NoMeta);
         };
-        let last: i64 = row.get(0);
+        let (row_last, logged, clustered): (i64, i64, bool) = (row.get(0), row.get(1), row.get(2));
+        // A cluster's fenced commits leave the row behind the log; a
+        // store never clustered has nothing logged beyond it.
+        if logged > row_last && !clustered {
+            return Err(StoreError::corrupt(
+                "log record beyond last_seq",
+                format!("seq {logged}"),
+            ));
+        }
+        let last = row_last.max(logged);
         if last.checked_add(1) != Some(cols.first_seq) {
             return Err(StoreError::batch(format!(
                 "first seq {} does not follow the stored last_seq {last}",

@@ -4,8 +4,8 @@
 //! Before the transaction the node claims the regions of the batch it does
 //! not hold yet (`lease.rs`; never one it lost), and refuses a batch the
 //! engine built under another epoch than the one held now (it was built on
-//! the copy from before the region was taken back); inside it, after the world row's lock, it
-//! locks the batch's region rows `FOR UPDATE` (a claim by another node
+//! the copy from before the region was taken back); inside it, after the
+//! rows of the batch's chunks, it locks the batch's region rows `FOR UPDATE` (a claim by another node
 //! waits for the commit, or the commit sees the claim) and compares. Any
 //! mismatch refuses the whole batch with [`StoreError::Fenced`] and the
 //! transaction is rolled back. So does a batch whose first seq is not
@@ -63,6 +63,8 @@ pub(super) fn prepare(
     regions: &BTreeSet<RegionId>,
     built: Option<&BTreeMap<RegionId, u64>>,
 ) -> Result<Fence, StoreError> {
+    // Another process runs under this node's id: this one writes nothing.
+    leases.not_superseded()?;
     if built.is_none() {
         claim(pool, leases, regions, Lost::Keep)?;
     }

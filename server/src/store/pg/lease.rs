@@ -61,6 +61,10 @@ pub struct NodeLeases {
     /// Whether the engine has reserved a block (`reserve_seqs`): until then
     /// claims reserve none, the engine's first block is above them all.
     numbering: std::sync::atomic::AtomicBool,
+    /// This process's incarnation (random, written into `nodes` at open).
+    incarnation: i64,
+    /// The incarnation a renewal found there instead, once one did.
+    superseded: Mutex<Option<i64>>,
     book: Mutex<Book>,
 }
 
@@ -105,7 +109,26 @@ impl NodeLeases {
             addr: Mutex::new(cfg.advertise.clone()),
             floor: AtomicU64::new(0),
             numbering: std::sync::atomic::AtomicBool::new(false),
+            incarnation: new_incarnation(),
+            superseded: Mutex::new(None),
             book: Mutex::new(Book::default()),
+        }
+    }
+
+    /// Why this process must stop, once another took its node id.
+    pub fn superseded(&self) -> Option<String> {
+        self.not_superseded().err().map(|e| e.to_string())
+    }
+
+    /// Refuses when another process took this node's id.
+    pub(super) fn not_superseded(&self) -> Result<(), StoreError> {
+        match *self.superseded.lock().unwrap_or_else(|p| p.into_inner()) {
+            Some(current) => Err(StoreError::Superseded {
+                node_id: self.node_id.clone(),
+                mine: self.incarnation,
+                current,
+            }),
+            None => Ok(()),
         }
     }
 
@@ -247,6 +270,7 @@ pub(super) fn claim(
     wanted: &BTreeSet<RegionId>,
     lost: Lost,
 ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
+    leases.not_superseded()?;
     let todo: Vec<RegionId> = {
         let book = leases.book();
         wanted
@@ -326,6 +350,7 @@ fn took(
 /// [`MAX_ADOPT_PER_RENEWAL`]. Nodes adopting at once skip each other's
 /// rows. Returns what it adopted.
 pub(super) fn adopt(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
+    leases.not_superseded()?;
     let (lx, lz, room) = {
         let book = leases.book();
         let (lx, lz) = columns(book.lost.keys());
@@ -369,6 +394,7 @@ pub(super) fn acquire(
     leases: &NodeLeases,
     regions: &BTreeSet<RegionId>,
 ) -> Result<RegionAccess, StoreError> {
+    leases.not_superseded()?;
     let now = Instant::now();
     let todo: BTreeSet<RegionId> = {
         let mut book = leases.book();
@@ -537,6 +563,62 @@ fn elsewhere(region: RegionId, owner: &str, addr: &str) -> RegionAccess {
         owner: owner.to_string(),
         addr: addr.to_string(),
     }
+}
+
+/// A random incarnation: two processes never share one.
+fn new_incarnation() -> i64 {
+    use ring::rand::SecureRandom;
+    let mut b = [0u8; 8];
+    if ring::rand::SystemRandom::new().fill(&mut b).is_err() {
+        // No system randomness: the time and the process id still differ
+        // between two processes started under one name.
+        let t = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap_or_default();
+        b = (t.as_nanos() as u64 ^ (u64::from(std::process::id()) << 40)).to_le_bytes();
+    }
+    i64::from_le_bytes(b)
+}
+
+/// Writes this process's incarnation as its node id's: from now on a
+/// previous process still running under the name finds itself superseded
+/// at its next renewal.
+pub(super) fn register(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreError> {
+    pool.run("registering the node", async |c: &mut Conn| {
+        c.execute(
+            "INSERT INTO nodes (node_id, incarnation) VALUES ($1, $2) \
+             ON CONFLICT (node_id) DO UPDATE SET incarnation = EXCLUDED.incarnation, \
+                 started_at = now(), seen_at = now()",
+            &[&leases.node_id, &leases.incarnation],
+        )
+        .await
+    })?;
+    info!(node = %leases.node_id, incarnation = leases.incarnation, "node registered");
+    Ok(())
+}
+
+/// Whether the node id is still this process's: marks it when another
+/// process registered since, and refuses from then on.
+pub(super) fn check_incarnation(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreError> {
+    leases.not_superseded()?;
+    let row = pool.run("checking the node's incarnation", async |c: &mut Conn| {
+        c.query_opt(
+            "UPDATE nodes SET seen_at = now() WHERE node_id = $1 \
+             RETURNING incarnation",
+            &[&leases.node_id],
+        )
+        .await
+    })?;
+    let current: Option<i64> = row.map(|r| r.get(0));
+    if current == Some(leases.incarnation) {
+        return Ok(());
+    }
+    *leases.superseded.lock().unwrap_or_else(|p| p.into_inner()) = Some(current.unwrap_or(0));
+    let e = leases.not_superseded();
+    if let Err(e) = &e {
+        tracing::error!(error = %e, "this node's id was taken over");
+    }
+    e
 }
 
 /// Extends every lease still this node's at the epoch it holds; those
@@ -710,6 +792,13 @@ impl Renewer {
                         break;
                     }
                     drop(stopped);
+                    if let Err(e) = check_incarnation(&pool, &leases) {
+                        if leases.superseded().is_some() {
+                            // The engine stops at its next tick.
+                            break;
+                        }
+                        warn!(error = %e, "checking the node's incarnation failed; retrying");
+                    }
                     if let Err(e) = renew(&pool, &leases) {
                         warn!(error = %e, "renewing region leases failed; retrying");
                     }
@@ -767,6 +856,7 @@ impl PgStore {
         let idle = Duration::from_millis(cluster.lease_ms.min(cfg.statement_timeout_ms));
         let mut store = Self::open_on(Pool::open_idle(cfg, idle)?, region_chunks)?;
         let leases = Arc::new(NodeLeases::new(cluster));
+        register(&store.pool, &leases)?;
         // A connection of its own: renewals never wait behind commits or
         // scans for a pooled one.
         let renewals = Pool::open(&super::PgConfig {
@@ -812,7 +902,9 @@ impl PgStore {
     /// Renews now (the renewal thread does it every `renew_ms`); returns
     /// the regions found lost.
     pub fn renew_leases(&self) -> Result<Vec<RegionId>, StoreError> {
-        renew(&self.pool, self.cluster_leases()?)
+        let leases = self.cluster_leases()?;
+        check_incarnation(&self.pool, leases)?;
+        renew(&self.pool, leases)
     }
 
     /// Releases every lease held (at shutdown, after the last commit).

@@ -52,6 +52,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0008_position_times",
         include_str!("../../../migrations/0008_position_times.sql"),
     ),
+    (
+        9,
+        "0009_node_incarnations",
+        include_str!("../../../migrations/0009_node_incarnations.sql"),
+    ),
 ];
 
 /// Key of the advisory lock migrations take ("strata" in ASCII).

@@ -491,6 +491,10 @@ impl ChunkStore for PgStore {
         }
     }
 
+    fn superseded(&self) -> Option<String> {
+        self.leases.as_ref().and_then(|l| l.superseded())
+    }
+
     fn region_holders(
         &self,
         regions: &std::collections::BTreeSet<RegionId>,

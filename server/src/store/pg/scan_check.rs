@@ -23,17 +23,19 @@ const TABLES: &[&str] = &[
     "players",
     "regions",
     "seq_blocks",
+    "nodes",
 ];
 
 impl PgStore {
     /// [`crate::store::ChunkStore::check`], calling `tick` once per row scanned.
     pub fn check_with_progress(&self, tick: &dyn Fn()) -> Result<CheckReport, StoreError> {
         let world = self.pool.run("reading the world", async |c: &mut Conn| {
+            // A store never clustered keeps its row's last seq exact.
             c.query_opt(
                 concat!(
-                    "SELECT ",
+                    "SELECT CASE WHEN EXISTS (SELECT 1 FROM seq_blocks) THEN ",
                     super::last_seq_sql!(),
-                    ", log_base FROM world WHERE id = 1"
+                    " ELSE last_seq END, log_base FROM world WHERE id = 1"
                 ),
                 &[],
             )
