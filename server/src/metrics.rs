@@ -312,6 +312,7 @@ pub async fn serve(
         crate::console::Deadlines {
             idle: CONNECTION_DEADLINE,
             request: CONNECTION_DEADLINE,
+            unadmitted: None,
         },
     );
     if let Err(e) = axum::serve(limited, app).await {

@@ -248,6 +248,12 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
         assert!(String::from_utf8_lossy(&page.body).contains("<canvas id=\"map\""));
         let world = get(web, "/api/world", Some(&admin)).await;
         assert_eq!(world.status, 200);
+        // The seed and the rest: nothing for a cache to keep.
+        assert!(world.headers.contains("cache-control: no-store"), "{}", world.headers);
+        assert!(get(web, "/api/world", None)
+            .await
+            .headers
+            .contains("cache-control: no-store"));
         assert_eq!(world.json()["admin"], "ops");
         assert_eq!(world.json()["samples"], 0, "nothing sampled before anyone watched");
         // Alone on its store, the node writes every region.
@@ -417,10 +423,49 @@ async fn console_bounds_connections_and_closes_silent_ones() {
             c.sample_ms = 200;
         })
         .await;
-        // Two idle connections take both slots ...
-        let first = TcpStream::connect(web).await.unwrap();
-        let _second = TcpStream::connect(web).await.unwrap();
+        let admin = token(&server, "ops", Role::Admin);
+        let mut buf = [0u8; 64];
+        // Two connections never admitted (no token yet) take both slots;
+        // a third closes the older of them and is served.
+        let mut first = TcpStream::connect(web).await.unwrap();
         tokio::time::sleep(Duration::from_millis(100)).await;
+        let second = TcpStream::connect(web).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let mut third = TcpStream::connect(web).await.unwrap();
+        third
+            .write_all(&request_text("GET", "/api/world", Some(&admin), b""))
+            .await
+            .unwrap();
+        let n = tokio::time::timeout(Duration::from_secs(10), third.read(&mut buf))
+            .await
+            .expect("served: an unadmitted connection made room")
+            .unwrap();
+        assert!(buf[..n].starts_with(b"HTTP/1.1 200"), "{:?}", &buf[..n]);
+        let closed = tokio::time::timeout(Duration::from_secs(10), first.read(&mut buf))
+            .await
+            .expect("the oldest unadmitted connection is closed");
+        assert!(matches!(closed, Ok(0) | Err(_)), "{closed:?}");
+        drop((second, third));
+
+        // Two admitted connections (a request with the admin token each,
+        // kept alive) take both slots ...
+        let keep_alive = |token: &str| {
+            let text = request_text("GET", "/api/world", Some(token), b"");
+            String::from_utf8(text)
+                .unwrap()
+                .replace("Connection: close", "Connection: keep-alive")
+        };
+        let mut admitted = Vec::new();
+        for _ in 0..2 {
+            let mut c = TcpStream::connect(web).await.unwrap();
+            c.write_all(keep_alive(&admin).as_bytes()).await.unwrap();
+            let n = tokio::time::timeout(Duration::from_secs(10), c.read(&mut buf))
+                .await
+                .expect("served")
+                .unwrap();
+            assert!(buf[..n].starts_with(b"HTTP/1.1 200"), "{:?}", &buf[..n]);
+            admitted.push(c);
+        }
         // ... so a third is not served while they stay (under the 2 s idle
         // timeout) ...
         let mut third = TcpStream::connect(web).await.unwrap();
@@ -428,20 +473,18 @@ async fn console_bounds_connections_and_closes_silent_ones() {
             .write_all(&request_text("GET", "/api/world", None, b""))
             .await
             .unwrap();
-        let mut buf = [0u8; 64];
         let waited = tokio::time::timeout(Duration::from_millis(600), third.read(&mut buf)).await;
         assert!(waited.is_err(), "served past max_connections");
         // ... and is, once one of them leaves.
-        drop(first);
+        drop(admitted.remove(0));
         let n = tokio::time::timeout(Duration::from_secs(10), third.read(&mut buf))
             .await
             .expect("served once a slot is free")
             .unwrap();
         assert!(buf[..n].starts_with(b"HTTP/1.1 401"), "{:?}", &buf[..n]);
-        drop(third);
+        drop((third, admitted));
         // A silent connection is closed after idle_timeout_ms; an open
         // event stream is not (its keep-alives are traffic).
-        let admin = token(&server, "ops", Role::Admin);
         let mut events = Events::open(web, &admin).await;
         let mut silent = TcpStream::connect(web).await.unwrap();
         let closed = tokio::time::timeout(Duration::from_secs(10), silent.read(&mut buf))

@@ -33,7 +33,8 @@ impl Refused {
     }
 }
 
-/// Refused tokens, logged at most once a second (anyone can send them).
+/// Refused tokens, logged at most once a second (anyone can send them,
+/// and a player can send its own token on every request).
 static TOKEN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
 
 /// The admin a request comes from (its verified claims), or why it is
@@ -52,14 +53,18 @@ pub fn admin(ctx: &SessionContext, headers: &HeaderMap) -> Result<auth::Claims, 
         }
     })?;
     if claims.role != Role::Admin {
-        warn!(player = %claims.player, "console refused a non-admin token");
+        if let Some(refused) = TOKEN_REFUSALS.event() {
+            warn!(player = %claims.player, refused, "console refused a non-admin token");
+        }
         return Err(Refused::NotAdmin {
             player: claims.player,
             role: claims.role.name(),
         });
     }
     ctx.admitted(&claims).inspect_err(|d| {
-        warn!(admin = %claims.player, denied = %d, "console refused a denied admin");
+        if let Some(refused) = TOKEN_REFUSALS.event() {
+            warn!(admin = %claims.player, denied = %d, refused, "console refused a denied admin");
+        }
     })?;
     Ok(claims)
 }

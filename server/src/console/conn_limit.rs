@@ -10,11 +10,19 @@
 //! cannot keep a slot either. Both deadlines hold while a write waits on a
 //! full socket too, so a client that sends requests but never reads the
 //! answers cannot keep a slot.
+//!
+//! With [`Deadlines::unadmitted`] set (the console), a connection is
+//! unadmitted until a request on it passed the token check
+//! ([`ConnState::admit`]): it may stay silent only that long, and when
+//! every slot is taken a new connection closes the oldest unadmitted one,
+//! so anonymous connections can never lock the operators out.
 
+use std::collections::VecDeque;
 use std::io;
 use std::pin::Pin;
-use std::sync::Arc;
-use std::task::{Context, Poll};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, Weak};
+use std::task::{Context, Poll, Waker};
 use std::time::Duration;
 
 use std::future::Future;
@@ -32,6 +40,50 @@ const ACCEPT_RETRY: std::time::Duration = std::time::Duration::from_millis(50);
 pub struct Deadlines {
     pub idle: Duration,
     pub request: Duration,
+    /// How long a connection not admitted yet may stay silent, and whether
+    /// a new connection may close the oldest of those when every slot is
+    /// taken (`None`: every connection is alike).
+    pub unadmitted: Option<Duration>,
+}
+
+/// What a connection's handlers and its listener share.
+#[derive(Debug, Default)]
+pub struct ConnState {
+    admitted: AtomicBool,
+    evicted: AtomicBool,
+    /// The task waiting on the connection, woken to close it.
+    waker: Mutex<Option<Waker>>,
+}
+
+impl ConnState {
+    /// A request on this connection passed the token check.
+    pub fn admit(&self) {
+        self.admitted.store(true, Ordering::Release);
+    }
+
+    fn is_admitted(&self) -> bool {
+        self.admitted.load(Ordering::Acquire)
+    }
+
+    /// Closes the connection at its next poll (woken now).
+    fn evict(&self) {
+        self.evicted.store(true, Ordering::Release);
+        if let Some(w) = self.waker.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            w.wake();
+        }
+    }
+}
+
+/// The connection a request came on, for `axum`'s `ConnectInfo`.
+#[derive(Debug, Clone)]
+pub struct ConnMark(pub Arc<ConnState>);
+
+impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, LimitedListener>>
+    for ConnMark
+{
+    fn connect_info(stream: axum::serve::IncomingStream<'_, LimitedListener>) -> Self {
+        ConnMark(stream.io().state.clone())
+    }
 }
 
 /// [`TcpListener`] with a connection cap, for `axum::serve`.
@@ -40,6 +92,10 @@ pub struct LimitedListener {
     inner: TcpListener,
     slots: Arc<Semaphore>,
     deadlines: Deadlines,
+    /// Connections not admitted yet, oldest first (some gone or admitted
+    /// since: skipped when met). At most one entry per slot is kept.
+    unadmitted: VecDeque<Weak<ConnState>>,
+    max: usize,
 }
 
 impl LimitedListener {
@@ -48,6 +104,41 @@ impl LimitedListener {
             inner,
             slots: Arc::new(Semaphore::new(max)),
             deadlines,
+            unadmitted: VecDeque::new(),
+            max,
+        }
+    }
+
+    /// A free slot; when none is, closes the oldest unadmitted connection
+    /// (if eviction is on and there is one) and waits for its slot.
+    async fn slot(&mut self) -> OwnedSemaphorePermit {
+        if let Ok(slot) = self.slots.clone().try_acquire_owned() {
+            return slot;
+        }
+        if self.deadlines.unadmitted.is_some() {
+            while let Some(w) = self.unadmitted.pop_front() {
+                if let Some(conn) = w.upgrade().filter(|c| !c.is_admitted()) {
+                    conn.evict();
+                    break;
+                }
+            }
+        }
+        match self.slots.clone().acquire_owned().await {
+            Ok(slot) => slot,
+            // The semaphore is never closed; wait as if it were full.
+            Err(_) => std::future::pending().await,
+        }
+    }
+
+    fn track(&mut self, state: &Arc<ConnState>) {
+        if self.deadlines.unadmitted.is_none() {
+            return;
+        }
+        self.unadmitted
+            .retain(|w| w.upgrade().is_some_and(|c| !c.is_admitted()));
+        // Bounded by the slots: every live entry holds one.
+        if self.unadmitted.len() < self.max {
+            self.unadmitted.push_back(Arc::downgrade(state));
         }
     }
 }
@@ -58,6 +149,7 @@ pub struct LimitedStream {
     stream: TcpStream,
     _slot: OwnedSemaphorePermit,
     deadlines: Deadlines,
+    state: Arc<ConnState>,
     last_active: Instant,
     /// When the first byte of a request not answered yet arrived.
     request_since: Option<Instant>,
@@ -67,20 +159,38 @@ pub struct LimitedStream {
 impl LimitedStream {
     fn new(stream: TcpStream, slot: OwnedSemaphorePermit, deadlines: Deadlines) -> Self {
         let now = Instant::now();
+        let idle = deadlines
+            .unadmitted
+            .map_or(deadlines.idle, |u| u.min(deadlines.idle));
         Self {
             stream,
             _slot: slot,
             deadlines,
+            state: Arc::new(ConnState::default()),
             last_active: now,
             request_since: None,
-            deadline: Box::pin(tokio::time::sleep_until(now + deadlines.idle)),
+            deadline: Box::pin(tokio::time::sleep_until(now + idle)),
         }
     }
 
-    /// An error once nothing moved for the idle time, or a request went
-    /// unanswered for the request time; else arms the timer.
+    /// An error once the connection was evicted, nothing moved for the
+    /// idle time, or a request went unanswered for the request time; else
+    /// arms the timer (and keeps the waker, for an eviction).
     fn check_deadlines(&mut self, cx: &mut Context<'_>) -> io::Result<()> {
-        let idle = self.last_active + self.deadlines.idle;
+        if self.state.evicted.load(Ordering::Acquire) {
+            return Err(io::Error::new(
+                io::ErrorKind::ConnectionAborted,
+                "console connection closed for a new one (never admitted)",
+            ));
+        }
+        if self.deadlines.unadmitted.is_some() {
+            *self.state.waker.lock().unwrap_or_else(|p| p.into_inner()) = Some(cx.waker().clone());
+        }
+        let idle_for = match self.deadlines.unadmitted {
+            Some(u) if !self.state.is_admitted() => u.min(self.deadlines.idle),
+            _ => self.deadlines.idle,
+        };
+        let idle = self.last_active + idle_for;
         let request = self.request_since.map(|t| t + self.deadlines.request);
         let due = request.map_or(idle, |r| r.min(idle));
         if self.deadline.deadline() != due {
@@ -114,15 +224,23 @@ impl axum::serve::Listener for LimitedListener {
 
     async fn accept(&mut self) -> (Self::Io, Self::Addr) {
         loop {
-            let Ok(slot) = self.slots.clone().acquire_owned().await else {
-                // The semaphore is never closed; wait as if it were full.
-                std::future::pending::<()>().await;
-                continue;
+            // Without eviction a slot comes first: a connection waits in
+            // the kernel's queue. With it, the new connection is what may
+            // close an unadmitted one.
+            let early = match self.deadlines.unadmitted {
+                None => Some(self.slot().await),
+                Some(_) => None,
             };
             match self.inner.accept().await {
                 Ok((stream, addr)) => {
+                    let slot = match early {
+                        Some(slot) => slot,
+                        None => self.slot().await,
+                    };
                     let _ = stream.set_nodelay(true);
-                    return (LimitedStream::new(stream, slot, self.deadlines), addr);
+                    let conn = LimitedStream::new(stream, slot, self.deadlines);
+                    self.track(&conn.state);
+                    return (conn, addr);
                 }
                 Err(e) => {
                     tracing::debug!(error = %e, "console accept failed");
@@ -143,6 +261,9 @@ impl AsyncRead for LimitedStream {
         cx: &mut Context<'_>,
         buf: &mut ReadBuf<'_>,
     ) -> Poll<io::Result<()>> {
+        if self.state.evicted.load(Ordering::Acquire) {
+            return self.pending_or_timeout(cx);
+        }
         let before = buf.filled().len();
         match Pin::new(&mut self.stream).poll_read(cx, buf) {
             Poll::Ready(Ok(())) => {
@@ -165,6 +286,9 @@ impl AsyncWrite for LimitedStream {
         cx: &mut Context<'_>,
         buf: &[u8],
     ) -> Poll<io::Result<usize>> {
+        if self.state.evicted.load(Ordering::Acquire) {
+            return self.pending_or_timeout(cx);
+        }
         let r = Pin::new(&mut self.stream).poll_write(cx, buf);
         match r {
             Poll::Ready(Ok(n)) if n > 0 => {

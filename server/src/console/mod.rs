@@ -15,7 +15,7 @@ mod actions;
 mod assets;
 mod auth;
 mod conn_limit;
-pub use conn_limit::{Deadlines, LimitedListener};
+pub use conn_limit::{ConnMark, ConnState, Deadlines, LimitedListener};
 mod events;
 mod live_world;
 mod query;
@@ -54,6 +54,11 @@ pub const MAX_IDLE_TIMEOUT_MS: u64 = 3_600_000;
 /// A client that trickles a request (a byte now and then, never idle) is
 /// closed after this, so it cannot hold a connection slot.
 pub const DEFAULT_REQUEST_TIMEOUT_MS: u64 = 30_000;
+/// Longest a console connection may stay silent before a request on it
+/// passed the token check (then `idle_timeout_ms` holds). When every
+/// connection slot is taken, a new connection also closes the oldest
+/// such one (`conn_limit.rs`).
+pub const UNADMITTED_IDLE: std::time::Duration = std::time::Duration::from_secs(5);
 /// Range of `request_timeout_ms`.
 pub const MIN_REQUEST_TIMEOUT_MS: u64 = 100;
 pub const MAX_REQUEST_TIMEOUT_MS: u64 = 600_000;
@@ -208,6 +213,9 @@ pub struct Console {
     versions: versions::VersionIndex,
     hub: events::Hub,
     renders: Arc<tokio::sync::Semaphore>,
+    /// Held by the tile request whose work catches the version index up:
+    /// one at a time, the others wait here, not on a blocking thread.
+    catch_ups: Arc<tokio::sync::Mutex<()>>,
     snapshots: snapshot_job::SnapshotJobs,
     /// `[sequencer] region_chunks`.
     region_chunks: u32,
@@ -270,6 +278,7 @@ pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<Ru
         versions: versions::VersionIndex::default(),
         hub: events::Hub::new(),
         renders: Arc::new(tokio::sync::Semaphore::new(cfg.max_renders)),
+        catch_ups: Arc::new(tokio::sync::Mutex::new(())),
         snapshots: snapshot_job::SnapshotJobs::new(snapshot_dir),
         metrics: parts.metrics,
         ctx: parts.ctx,
@@ -284,9 +293,10 @@ pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<Ru
         conn_limit::Deadlines {
             idle: std::time::Duration::from_millis(console.cfg.idle_timeout_ms),
             request: std::time::Duration::from_millis(console.cfg.request_timeout_ms),
+            unadmitted: Some(UNADMITTED_IDLE),
         },
     );
-    let app = routes::router(console);
+    let app = routes::router(console).into_make_service_with_connect_info::<conn_limit::ConnMark>();
     let server = tokio::spawn(async move {
         if let Err(e) = axum::serve(limited, app).await {
             tracing::error!(error = %e, "console listener failed");

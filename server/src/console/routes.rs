@@ -51,10 +51,26 @@ pub fn router(console: Arc<Console>) -> Router {
 }
 
 /// A span per request, and headers that keep the page to its own origin.
+/// A successful `/api/` answer (every one checked the admin token first)
+/// admits its connection (`conn_limit.rs`).
 async fn per_request(req: Request, next: Next) -> Response {
     let span = tracing::info_span!("console", method = %req.method(), path = %req.uri().path());
+    let api = req.uri().path().starts_with("/api/");
+    let conn = req
+        .extensions()
+        .get::<axum::extract::ConnectInfo<super::ConnMark>>()
+        .map(|c| c.0 .0.clone());
     let mut resp = next.run(req).instrument(span).await;
+    if api && resp.status().is_success() {
+        if let Some(conn) = conn {
+            conn.admit();
+        }
+    }
     let h = resp.headers_mut();
+    if api && !h.contains_key(header::CACHE_CONTROL) {
+        // The world's seed, who holds what: nothing for a cache to keep.
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    }
     h.insert(
         header::CONTENT_SECURITY_POLICY,
         HeaderValue::from_static(CONTENT_SECURITY_POLICY),
@@ -185,22 +201,34 @@ fn tile_key(c: &Console, uri: &Uri) -> Result<TileKey, ApiError> {
 async fn tile(State(c): State<Arc<Console>>, headers: HeaderMap, uri: Uri) -> ApiResult {
     admin(&c, &headers)?;
     let key = tile_key(&c, &uri)?;
+    // The catch-up and the stamp on a blocking thread, one request at a
+    // time; the work owns the turn, so a request given up on frees it
+    // only when that work ends.
+    let turn = c.catch_ups.clone().lock_owned().await;
     let c2 = c.clone();
-    tokio::task::spawn_blocking(move || c2.versions.catch_up(c2.world.store().as_ref()))
-        .await
-        .map_err(internal)?
-        .map_err(internal)?;
-    let (x0, z0) = key.first_column();
-    let stamp = c.versions.stamp(x0, z0, TILE_COLUMNS);
+    let stamp = tokio::task::spawn_blocking(move || {
+        let _turn = turn;
+        c2.versions.catch_up(c2.world.store().as_ref())?;
+        let (x0, z0) = key.first_column();
+        Ok::<_, crate::store::StoreError>(c2.versions.stamp(x0, z0, TILE_COLUMNS))
+    })
+    .await
+    .map_err(internal)?
+    .map_err(internal)?;
     let png = match c.tiles.get(&key, stamp) {
         Some(png) => png,
         None => {
-            let _slot = render_slot(&c).await?;
+            // The render owns its slot: `max_renders` bounds renders
+            // running, not requests waiting on them.
+            let slot = render_slot(&c).await?;
             let world = c.world.clone();
-            let png = tokio::task::spawn_blocking(move || tiles::render(&world, key))
-                .await
-                .map_err(internal)?
-                .map_err(internal)?;
+            let png = tokio::task::spawn_blocking(move || {
+                let _slot = slot;
+                tiles::render(&world, key)
+            })
+            .await
+            .map_err(internal)?
+            .map_err(internal)?;
             let png = Arc::new(png);
             c.tiles.put(key, stamp, png.clone());
             png
@@ -238,18 +266,21 @@ async fn scene_glb(State(c): State<Arc<Console>>, headers: HeaderMap, uri: Uri) 
     admin(&c, &headers)?;
     let (min, max) = scene_box(&c, &uri)?;
     let bx = scene::check_box(&c.world, min, max, c.cfg.scene_max_chunks).map_err(bad)?;
-    let _slot = render_slot(&c).await?;
+    let slot = render_slot(&c).await?;
     let world = c.world.clone();
-    let glb = tokio::task::spawn_blocking(move || scene::build(&world, bx))
-        .await
-        .map_err(internal)?
-        .map_err(|e| {
-            if e.is_bad_request() {
-                bad(e)
-            } else {
-                internal(e)
-            }
-        })?;
+    let glb = tokio::task::spawn_blocking(move || {
+        let _slot = slot;
+        scene::build(&world, bx)
+    })
+    .await
+    .map_err(internal)?
+    .map_err(|e| {
+        if e.is_bad_request() {
+            bad(e)
+        } else {
+            internal(e)
+        }
+    })?;
     Ok((
         [
             (header::CONTENT_TYPE, "model/gltf-binary"),
