@@ -221,6 +221,7 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
         let (server, web) = start_console(dir.path(), |c| {
             c.max_watchers = 2;
             c.sample_ms = 100;
+            c.keep_snapshots = 1;
         })
         .await;
         let admin = token(&server, "ops", Role::Admin);
@@ -395,7 +396,13 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
         let refused = Client::connect(server.addr, &server.cert_der, &player).await;
         assert!(refused.is_err(), "a banned player cannot connect");
 
-        // A snapshot started from the console, watched to its end.
+        // A snapshot started from the console, watched to its end; with
+        // keep_snapshots = 1 an older console snapshot goes, other files stay.
+        let snaps = dir.path().join("snapshots");
+        std::fs::create_dir_all(&snaps).unwrap();
+        let (older, notes) = (snaps.join("strata-seq0-1.snap"), snaps.join("notes.txt"));
+        std::fs::write(&older, b"an older snapshot").unwrap();
+        std::fs::write(&notes, b"keep me").unwrap();
         let snap = serde_json::json!({"confirm": true, "action": "snapshot"});
         let r = action(web, &admin, snap).await;
         assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
@@ -404,6 +411,8 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
         let report = strata_server::snapshot::verify(std::path::Path::new(&file), |_| {}).unwrap();
         assert!(report.is_ok(), "{:?}", report.issues);
         assert_eq!(report.header.unwrap().seq, seq);
+        assert!(!older.exists(), "the older console snapshot was removed");
+        assert!(notes.exists(), "other files are left alone");
 
         cli.close().await;
         server.shutdown().await.unwrap();

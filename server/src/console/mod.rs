@@ -74,6 +74,9 @@ pub const DEFAULT_SCENE_MAX_CHUNKS: u64 = 512;
 pub const DEFAULT_SAMPLE_MS: u64 = 500;
 /// Default edits one sample reports at most (the rest are counted).
 pub const DEFAULT_EDITS_PER_SAMPLE: usize = 256;
+/// Default console snapshots kept in `snapshot_dir` (older ones are
+/// removed once a new one is written).
+pub const DEFAULT_KEEP_SNAPSHOTS: usize = 8;
 /// Caps on the limits above.
 pub const MAX_CONSOLE_LIMIT: usize = 65_536;
 pub const MAX_SCENE_CHUNKS: u64 = 16_384;
@@ -123,6 +126,10 @@ pub struct ConsoleConfig {
     /// Where snapshots started from the console are written (default:
     /// `snapshots/` in the data dir).
     pub snapshot_dir: Option<PathBuf>,
+    /// Console snapshots kept there: once one is written, the oldest
+    /// beyond this many are removed, so repeated snapshots cannot fill
+    /// the disk.
+    pub keep_snapshots: usize,
 }
 
 impl Default for ConsoleConfig {
@@ -140,6 +147,7 @@ impl Default for ConsoleConfig {
             sample_ms: DEFAULT_SAMPLE_MS,
             edits_per_sample: DEFAULT_EDITS_PER_SAMPLE,
             snapshot_dir: None,
+            keep_snapshots: DEFAULT_KEEP_SNAPSHOTS,
         }
     }
 }
@@ -151,7 +159,7 @@ impl ConsoleConfig {
     }
 
     /// Range checks: `(field, value, min, max)` for each limit.
-    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 10] {
+    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 11] {
         let cap = MAX_CONSOLE_LIMIT as u64;
         [
             ("console.max_watchers", self.max_watchers as u64, 1, cap),
@@ -169,6 +177,12 @@ impl ConsoleConfig {
                 1 << 20,
             ),
             ("console.max_renders", self.max_renders as u64, 1, 64),
+            (
+                "console.keep_snapshots",
+                self.keep_snapshots as u64,
+                1,
+                1_000,
+            ),
             (
                 "console.scene_max_chunks",
                 self.scene_max_chunks,
@@ -279,7 +293,7 @@ pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<Ru
         hub: events::Hub::new(),
         renders: Arc::new(tokio::sync::Semaphore::new(cfg.max_renders)),
         catch_ups: Arc::new(tokio::sync::Mutex::new(())),
-        snapshots: snapshot_job::SnapshotJobs::new(snapshot_dir),
+        snapshots: snapshot_job::SnapshotJobs::new(snapshot_dir, cfg.keep_snapshots),
         metrics: parts.metrics,
         ctx: parts.ctx,
         region_chunks: parts.region_chunks,

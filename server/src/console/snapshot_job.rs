@@ -20,6 +20,8 @@ use crate::snapshot::{SnapshotHeader, SnapshotWriter};
 #[derive(Debug)]
 pub struct SnapshotJobs {
     dir: PathBuf,
+    /// `[console] keep_snapshots`.
+    keep: usize,
     busy: Arc<AtomicBool>,
     last: Mutex<Option<Arc<Job>>>,
 }
@@ -62,9 +64,10 @@ pub struct JobStatus {
 }
 
 impl SnapshotJobs {
-    pub fn new(dir: PathBuf) -> Self {
+    pub fn new(dir: PathBuf, keep: usize) -> Self {
         Self {
             dir,
+            keep: keep.max(1),
             busy: Arc::default(),
             last: Mutex::default(),
         }
@@ -138,6 +141,7 @@ impl SnapshotJobs {
         let store = ctx.store.clone();
         let pre = start.preimages;
         let j = job.clone();
+        let (dir, keep) = (self.dir.clone(), self.keep);
         tokio::task::spawn_blocking(move || {
             let result = write_atomically(&file, |out| {
                 let mut w = SnapshotWriter::new(out, &header)?;
@@ -162,7 +166,8 @@ impl SnapshotJobs {
             drop(pre);
             match &result {
                 Ok(c) => {
-                    info!(admin = %j.admin, file = %file.display(), seq = c.seq, chunks = c.chunks, "console snapshot written")
+                    info!(admin = %j.admin, file = %file.display(), seq = c.seq, chunks = c.chunks, "console snapshot written");
+                    prune(&dir, keep);
                 }
                 Err(e) => warn!(admin = %j.admin, error = %e, "console snapshot failed"),
             }
@@ -172,6 +177,42 @@ impl SnapshotJobs {
         });
         self.status()
             .ok_or_else(|| "the snapshot was not recorded".to_string())
+    }
+}
+
+/// Whether `name` is a console snapshot's file name.
+fn is_console_snapshot(name: &str) -> bool {
+    name.starts_with("strata-seq") && name.ends_with(".snap")
+}
+
+/// Removes the oldest console snapshots in `dir` beyond `keep` (oldest by
+/// modification time); other files are left alone. Failures are logged.
+fn prune(dir: &std::path::Path, keep: usize) {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) => {
+            return warn!(dir = %dir.display(), error = %e, "listing console snapshots failed")
+        }
+    };
+    let mut snaps: Vec<(std::time::SystemTime, PathBuf)> = entries
+        .filter_map(Result::ok)
+        .filter(|e| e.file_name().to_str().is_some_and(is_console_snapshot))
+        .filter_map(|e| {
+            let modified = e.metadata().ok()?.modified().ok()?;
+            Some((modified, e.path()))
+        })
+        .collect();
+    if snaps.len() <= keep {
+        return;
+    }
+    snaps.sort();
+    for (_, path) in &snaps[..snaps.len() - keep] {
+        match std::fs::remove_file(path) {
+            Ok(()) => info!(file = %path.display(), "old console snapshot removed"),
+            Err(e) => {
+                warn!(file = %path.display(), error = %e, "removing an old console snapshot failed")
+            }
+        }
     }
 }
 
@@ -248,7 +289,7 @@ mod tests {
     async fn an_abandoned_start_leaves_no_snapshot_running() {
         let dir = tempfile::tempdir().unwrap();
         let (ctx, inbox) = context(&dir.path().join("store"));
-        let jobs = SnapshotJobs::new(dir.path().join("snapshots"));
+        let jobs = SnapshotJobs::new(dir.path().join("snapshots"), 8);
         // The engine is asked but does not answer, and the request goes
         // away (a client gone, a timeout).
         let abandoned = tokio::time::timeout(ABANDON_AFTER, jobs.start(&ctx, "ops")).await;
