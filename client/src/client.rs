@@ -164,13 +164,15 @@ impl Shared {
     fn prediction(&self) -> Option<std::sync::MutexGuard<'_, Prediction>> {
         self.prediction
             .as_ref()
-            .map(|p| p.lock().expect("not poisoned"))
+            .map(|p| p.lock().unwrap_or_else(std::sync::PoisonError::into_inner))
     }
 
     /// Runs `f` on the prediction and the replica, when predicting.
     fn with_prediction(&self, replica: &Mutex<Replica>, f: impl FnOnce(&mut Prediction, &Replica)) {
         if self.prediction.is_some() {
-            let r = replica.lock().expect("not poisoned");
+            let r = replica
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
             if let Some(mut p) = self.prediction() {
                 self.reshape_prediction(&mut p, |p| f(p, &r));
             }
@@ -185,7 +187,9 @@ impl Shared {
         };
         let before: Vec<ChunkPos> = p.predicted_chunks().collect();
         f(p);
-        let mut c = changed.lock().expect("not poisoned");
+        let mut c = changed
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         for pos in before.into_iter().chain(p.predicted_chunks()) {
             c.mark(pos);
         }
@@ -193,14 +197,22 @@ impl Shared {
 
     fn notice(&self, n: Notice) {
         if let Notice::ViewLoaded { center, radius } = n {
-            *self.view_loaded.lock().expect("not poisoned") = Some((center, radius));
+            *self
+                .view_loaded
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner) = Some((center, radius));
         }
-        self.notices.lock().expect("not poisoned").push(n);
+        self.notices
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .push(n);
     }
 
     fn mark_changed(&self, pos: ChunkPos) {
         if let Some(c) = &self.changed {
-            c.lock().expect("not poisoned").mark(pos);
+            c.lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .mark(pos);
         }
     }
 
@@ -220,7 +232,9 @@ impl Shared {
                 .collect(),
             u => Touched::of(u).into_iter().collect(),
         };
-        let mut r = replica.lock().expect("not poisoned");
+        let mut r = replica
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         let request = r.apply(update);
         for t in touched {
             self.mark_changed(t.pos());
@@ -427,7 +441,13 @@ impl Client {
     }
 
     fn gone(&self) -> ClientError {
-        match self.shared.error.lock().expect("not poisoned").clone() {
+        match self
+            .shared
+            .error
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+        {
             Some((code, message)) => ClientError::Refused { code, message },
             None => self
                 .conn
@@ -580,7 +600,9 @@ impl Client {
 
     /// The replica, locked. Keep the guard short: updates wait on it.
     pub fn replica(&self) -> std::sync::MutexGuard<'_, Replica> {
-        self.replica.lock().expect("not poisoned")
+        self.replica
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Stops reading the updates stream for good, as a frozen client
@@ -635,7 +657,10 @@ impl Client {
     /// when tracking changes ([`ClientOptions::track_changes`]).
     pub fn pop_changed(&self) -> Option<ChunkPos> {
         let changed = self.shared.changed.as_ref()?;
-        changed.lock().expect("not poisoned").pop()
+        changed
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .pop()
     }
 
     /// Chunks whose predicted copy differs from the replica's.
@@ -652,12 +677,22 @@ impl Client {
 
     /// The error the server sent before closing, if any.
     pub fn server_error(&self) -> Option<(ErrorCode, String)> {
-        self.shared.error.lock().expect("not poisoned").clone()
+        self.shared
+            .error
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
     }
 
     /// Takes the recorded delta arrivals.
     pub fn take_arrivals(&self) -> Vec<Arrival> {
-        std::mem::take(&mut *self.shared.arrivals.lock().expect("not poisoned"))
+        std::mem::take(
+            &mut *self
+                .shared
+                .arrivals
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner),
+        )
     }
 
     pub fn bytes_in(&self) -> u64 {
@@ -692,27 +727,47 @@ impl Client {
     /// The server's `RequestRefused` answers so far (the first
     /// [`MAX_REFUSALS_KEPT`]).
     pub fn refusals(&self) -> Vec<Refusal> {
-        self.shared.refusals.lock().expect("not poisoned").clone()
+        self.shared
+            .refusals
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
     }
 
     /// The oldest notice not taken yet (refused positions, loaded views).
     pub fn pop_notice(&self) -> Option<Notice> {
-        self.shared.notices.lock().expect("not poisoned").pop()
+        self.shared
+            .notices
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .pop()
     }
 
     /// The last view the server said was wholly sent: (centre, radius).
     pub fn view_loaded(&self) -> Option<(ChunkPos, u8)> {
-        *self.shared.view_loaded.lock().expect("not poisoned")
+        *self
+            .shared
+            .view_loaded
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// The last `RegionOwners` this node sent (cluster nodes only).
     pub fn region_owners(&self) -> Option<crate::cluster::RegionOwners> {
-        self.shared.owners.lock().expect("not poisoned").clone()
+        self.shared
+            .owners
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
     }
 
     /// Where an accepted [`Self::arrive`] placed the player.
     pub fn arrived(&self) -> Option<FixedVec3> {
-        *self.shared.arrived.lock().expect("not poisoned")
+        *self
+            .shared
+            .arrived
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Continues the player from another node's ticket
@@ -862,10 +917,16 @@ async fn read_control(
                 (Verdict::Rejected(reason), Vec::new()),
             ),
             Ok(Some(ServerMessage::Error { code, message })) => {
-                *shared.error.lock().expect("not poisoned") = Some((code, message));
+                *shared
+                    .error
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner) = Some((code, message));
             }
             Ok(Some(ServerMessage::RequestRefused(r))) => {
-                let mut all = shared.refusals.lock().expect("not poisoned");
+                let mut all = shared
+                    .refusals
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
                 if all.len() < MAX_REFUSALS_KEPT {
                     all.push(r);
                 }
@@ -878,7 +939,10 @@ async fn read_control(
                 regions,
                 ticket,
             })) => {
-                let mut o = shared.owners.lock().expect("not poisoned");
+                let mut o = shared
+                    .owners
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
                 let serial = o.as_ref().map_or(1, |o| o.serial + 1);
                 *o = Some(crate::cluster::RegionOwners {
                     serial,
@@ -888,21 +952,33 @@ async fn read_control(
                 });
             }
             Ok(Some(ServerMessage::Arrived { feet })) => {
-                *shared.arrived.lock().expect("not poisoned") = Some(feet);
+                *shared
+                    .arrived
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(feet);
             }
             Ok(Some(ServerMessage::Pong { .. } | ServerMessage::Welcome(_))) => {}
             Ok(None) | Err(_) => break,
         }
     }
     // Anyone still waiting learns the connection is gone.
-    shared.pending.lock().expect("not poisoned").clear();
+    shared
+        .pending
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .clear();
 }
 
 /// Reconciles the prediction (before the caller sees the verdict) and
 /// hands the verdict to the waiting `edit`.
 fn resolve(shared: &Shared, replica: &Mutex<Replica>, id: u64, v: Acked) {
     shared.with_prediction(replica, |p, r| p.verdict(id, &v.0, &v.1, r));
-    if let Some(tx) = shared.pending.lock().expect("not poisoned").remove(&id) {
+    if let Some(tx) = shared
+        .pending
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .remove(&id)
+    {
         let _ = tx.send(v);
     }
 }
@@ -940,7 +1016,10 @@ async fn read_updates(
             _ => Vec::new(),
         };
         if !arrived.is_empty() {
-            let mut a = shared.arrivals.lock().expect("not poisoned");
+            let mut a = shared
+                .arrivals
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
             for (seq, pos) in arrived {
                 if a.len() < MAX_ARRIVALS {
                     a.push(Arrival {

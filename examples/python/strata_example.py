@@ -126,7 +126,7 @@ def main():
 
     s = C.c_void_p()
     st.call("strata_connect", address.encode(), cert, C.c_size_t(len(cert)), token.encode(),
-            C.c_bool(False), C.byref(s))
+            C.c_uint8(0), C.byref(s))
     w = Welcome()
     st.call("strata_welcome", s, C.byref(w))
     print(f"connected session={w.session} view_radius={w.view_radius}")

@@ -6,13 +6,16 @@
  * plain functions that never wait on the network (except strata_connect and
  * strata_session_free) and drains events with strata_poll every frame.
  *
- * Errors: every function returns a StrataStatus. On anything but
+ * Errors: every function but the two frees and
+ * strata_last_error_message returns a StrataStatus. On anything but
  * STRATA_STATUS_OK, strata_last_error_message() says why, in words. No
  * panic crosses into the caller: an internal bug returns
- * STRATA_STATUS_PANIC (then free the session).
+ * STRATA_STATUS_PANIC (then free the session); a free never changes the
+ * last error message.
  *
  * Ownership:
- * - strata_connect makes a StrataSession the caller owns; free it with
+ * - strata_connect, strata_connect_with and strata_connect_cluster make
+ *   a StrataSession the caller owns; free it with
  *   strata_session_free, once, after every other call on it has returned.
  * - strata_mesh makes a StrataMesh the caller owns; free it with
  *   strata_mesh_free. The arrays strata_mesh_data points to belong to the
@@ -207,8 +210,10 @@ typedef struct {
 
 // Options of `strata_connect_with`.
 typedef struct {
-  // Show the player's own edits at once (as `strata_connect`'s `predict`).
-  bool predict;
+  // Show the player's own edits at once (as `strata_connect`'s
+  // `predict`): nonzero for yes. A byte, not a `bool`: any value a
+  // foreign caller puts there is sound.
+  uint8_t predict;
   // `STRATA_CAP_*` bits; unknown bits are ignored by the server.
   uint32_t capabilities;
 } StrataConnectOptions;
@@ -362,7 +367,8 @@ void strata_mesh_free(StrataMesh *mesh);
 
 // Connects to `address` ("host:port"), trusting only the server
 // certificate `cert_der` (`cert_len` bytes of DER, e.g. the server's
-// data/cert.der), and logs in with `token`. With `predict`, the player's
+// data/cert.der), and logs in with `token`. With `predict` nonzero (a byte:
+// any value is sound from any language), the player's
 // own edits show at once and are reconciled with the server's verdicts.
 // Blocks until the server welcomes the player (10 s at most). On success
 // `*out` is a new session the caller owns.
@@ -374,7 +380,7 @@ StrataStatus strata_connect(const char *address,
                             const uint8_t *cert_der,
                             size_t cert_len,
                             const char *token,
-                            bool predict,
+                            uint8_t predict,
                             StrataSession **out_session);
 
 // `strata_connect` with options: prediction and capability bits

@@ -7,7 +7,7 @@ use strata_client::ChunkMesh;
 
 use crate::ptr::{shared, writable};
 use crate::session::{session, StrataSession};
-use crate::status::{call, Failure, StrataStatus};
+use crate::status::{call, call_quiet, Failure, StrataStatus};
 use crate::types::StrataMeshData;
 
 /// Voxels per chunk: 32 × 32 × 32.
@@ -169,9 +169,8 @@ pub unsafe extern "C" fn strata_mesh_free(mesh: *mut StrataMesh) {
     if mesh.is_null() {
         return;
     }
-    call(|| {
+    call_quiet(|| {
         // SAFETY: a live mesh from `Box::into_raw`, given back once.
         drop(unsafe { Box::from_raw(mesh) });
-        Ok(())
     });
 }

@@ -51,11 +51,8 @@ pub(crate) unsafe fn writable<'a, T>(
 /// # Safety
 /// `p` is null (then `len` must be 0) or points to `len` readable bytes.
 pub(crate) unsafe fn bytes<'a>(p: *const u8, len: usize, what: &str) -> Result<&'a [u8], Failure> {
-    if p.is_null() {
-        return Err(Failure::invalid(format!("{what} is null")));
-    }
-    // SAFETY: non-null and `len` readable bytes, as the caller promises.
-    Ok(unsafe { std::slice::from_raw_parts(p, len) })
+    // SAFETY: forwarded from the caller.
+    unsafe { items(p, len, what) }
 }
 
 /// A slice of `len` values.
@@ -64,8 +61,22 @@ pub(crate) unsafe fn bytes<'a>(p: *const u8, len: usize, what: &str) -> Result<&
 /// `p` is null (then `len` must be 0) or points to `len` readable `T`s.
 pub(crate) unsafe fn items<'a, T>(p: *const T, len: usize, what: &str) -> Result<&'a [T], Failure> {
     if p.is_null() {
+        if len == 0 {
+            return Ok(&[]);
+        }
         return Err(Failure::invalid(format!("{what} is null")));
     }
-    // SAFETY: non-null and `len` readable values, as the caller promises.
+    // No slice may span more than isize::MAX bytes (a length gone
+    // negative in C, say): refused before one is made.
+    if len > isize::MAX as usize / std::mem::size_of::<T>().max(1) {
+        return Err(Failure::invalid(format!(
+            "{what}: {len} items is no length"
+        )));
+    }
+    if !p.is_aligned() {
+        return Err(Failure::invalid(format!("{what} is misaligned")));
+    }
+    // SAFETY: non-null, aligned, a length that fits, and `len` readable
+    // values, as the caller promises.
     Ok(unsafe { std::slice::from_raw_parts(p, len) })
 }

@@ -10,7 +10,7 @@ use strata_client::terrain::Edit;
 use strata_client::{edits, Event, Session, SessionOptions};
 
 use crate::ptr::{bytes, items, shared, text, writable};
-use crate::status::{call, Failure, StrataStatus};
+use crate::status::{call, call_quiet, Failure, StrataStatus};
 use crate::types::*;
 
 /// One connected player. Opaque: made by `strata_connect`, freed by
@@ -47,7 +47,8 @@ fn resolve(address: &str) -> Result<SocketAddr, Failure> {
 
 /// Connects to `address` ("host:port"), trusting only the server
 /// certificate `cert_der` (`cert_len` bytes of DER, e.g. the server's
-/// data/cert.der), and logs in with `token`. With `predict`, the player's
+/// data/cert.der), and logs in with `token`. With `predict` nonzero (a byte:
+/// any value is sound from any language), the player's
 /// own edits show at once and are reconciled with the server's verdicts.
 /// Blocks until the server welcomes the player (10 s at most). On success
 /// `*out` is a new session the caller owns.
@@ -61,7 +62,7 @@ pub unsafe extern "C" fn strata_connect(
     cert_der: *const u8,
     cert_len: usize,
     token: *const c_char,
-    predict: bool,
+    predict: u8,
     out_session: *mut *mut StrataSession,
 ) -> StrataStatus {
     call(|| {
@@ -74,7 +75,7 @@ pub unsafe extern "C" fn strata_connect(
             )
         };
         let opts = SessionOptions {
-            predict,
+            predict: predict != 0,
             ..SessionOptions::default()
         };
         // SAFETY: the caller's contract above.
@@ -147,7 +148,7 @@ unsafe fn connect_options(
             )
         };
         let opts = SessionOptions {
-            predict: o.predict,
+            predict: o.predict != 0,
             capabilities: o.capabilities,
             ..SessionOptions::default()
         };
@@ -195,11 +196,10 @@ pub unsafe extern "C" fn strata_session_free(s: *mut StrataSession) {
     if s.is_null() {
         return;
     }
-    call(|| {
+    call_quiet(|| {
         // SAFETY: a live session from `Box::into_raw`, given back once.
         let boxed = unsafe { Box::from_raw(s) };
         boxed.session.close();
-        Ok(())
     });
 }
 
@@ -293,6 +293,14 @@ pub unsafe extern "C" fn strata_forget(
     count: usize,
 ) -> StrataStatus {
     call(|| {
+        // Checked before anything is read: a count past the limit is
+        // refused, never read beyond the caller's buffer.
+        let max = strata_client::protocol::limits::MAX_FORGET_CHUNKS;
+        if count > max {
+            return Err(Failure::invalid(format!(
+                "{count} chunks to forget; at most {max} at once"
+            )));
+        }
         // SAFETY: the caller's contract above.
         let (session, chunks) = unsafe { (session(s)?, items(chunks, count, "chunks")?) };
         let chunks: Vec<IVec3> = chunks.iter().map(|c| IVec3::from_array(*c)).collect();
@@ -445,7 +453,10 @@ pub unsafe extern "C" fn strata_poll(
         // SAFETY: the caller's contract above.
         let (handle, dst) = unsafe { (shared(s, "session")?, writable(out_event, "out_event")?) };
         let mut ev = empty_event();
-        let mut last = handle.last_changes.lock().expect("not poisoned");
+        let mut last = handle
+            .last_changes
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         last.clear();
         match handle.session.poll() {
             None => {}

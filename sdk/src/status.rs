@@ -127,6 +127,13 @@ pub(crate) fn call(f: impl FnOnce() -> Result<(), Failure>) -> StrataStatus {
     }
 }
 
+/// Runs an entry point that returns nothing (the frees): a panic is
+/// caught, and, as the caller cannot be told, the thread's last error
+/// message is left as it was (a pointer to it stays valid).
+pub(crate) fn call_quiet(f: impl FnOnce()) {
+    let _ = catch_unwind(AssertUnwindSafe(f));
+}
+
 /// The message of the last call that failed on this thread (empty if none
 /// has). The string belongs to the library and stays valid until the next
 /// failing call on this thread.

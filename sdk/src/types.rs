@@ -205,8 +205,10 @@ pub const STRATA_CAP_OP_REPLAY: u32 = 2;
 #[repr(C)]
 #[derive(Debug, Clone, Copy)]
 pub struct StrataConnectOptions {
-    /// Show the player's own edits at once (as `strata_connect`'s `predict`).
-    pub predict: bool,
+    /// Show the player's own edits at once (as `strata_connect`'s
+    /// `predict`): nonzero for yes. A byte, not a `bool`: any value a
+    /// foreign caller puts there is sound.
+    pub predict: u8,
     /// `STRATA_CAP_*` bits; unknown bits are ignored by the server.
     pub capabilities: u32,
 }

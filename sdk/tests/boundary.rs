@@ -57,18 +57,22 @@ fn a_bad_certificate_or_address_is_a_status_with_a_message() {
     let junk = [1u8, 2, 3];
     let mut s = null_mut();
     // SAFETY: valid strings, 3 readable bytes, a writable out pointer.
+    let st = unsafe { strata_connect(addr.as_ptr(), junk.as_ptr(), 3, token.as_ptr(), 0, &mut s) };
+    assert_eq!(st, StrataStatus::Tls, "{}", last_error());
+    assert!(s.is_null());
+    // Any byte is a sound `predict` (a foreign `true` may be 0xff).
+    // SAFETY: as above.
     let st = unsafe {
         strata_connect(
             addr.as_ptr(),
             junk.as_ptr(),
             3,
             token.as_ptr(),
-            false,
+            0xff,
             &mut s,
         )
     };
     assert_eq!(st, StrataStatus::Tls, "{}", last_error());
-    assert!(s.is_null());
     let nowhere = CString::new("no-such-host.invalid:4433").unwrap();
     // SAFETY: as above.
     let st = unsafe {
@@ -77,7 +81,7 @@ fn a_bad_certificate_or_address_is_a_status_with_a_message() {
             junk.as_ptr(),
             3,
             token.as_ptr(),
-            false,
+            0,
             &mut s,
         )
     };
@@ -91,6 +95,16 @@ fn forget_and_resync_check_their_pointers() {
     let st = unsafe { strata_forget(null(), null(), 0) };
     assert_eq!(st, StrataStatus::InvalidArgument);
     assert_eq!(last_error(), "session is null");
+    // A count past the limit (here one gone negative in C) is refused
+    // before any pointer is read.
+    // SAFETY: nothing is read: the count is refused first.
+    let st = unsafe { strata_forget(null(), null(), usize::MAX) };
+    assert_eq!(st, StrataStatus::InvalidArgument);
+    assert!(
+        last_error().contains("at most 1024 at once"),
+        "{}",
+        last_error()
+    );
     // SAFETY: as above.
     let st = unsafe { strata_resync(null(), 0, 0, 0) };
     assert_eq!(st, StrataStatus::InvalidArgument);

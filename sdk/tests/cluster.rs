@@ -202,7 +202,7 @@ fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
     let address = CString::new(west.addr.to_string()).unwrap();
     let player = CString::new(token(&west, "cat")).unwrap();
     let options = StrataConnectOptions {
-        predict: false,
+        predict: 0,
         capabilities: 0,
     };
     let mut s: *mut StrataSession = std::ptr::null_mut();

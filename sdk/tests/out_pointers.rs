@@ -42,7 +42,7 @@ fn connect(server: &Server, player: &str) -> *mut StrataSession {
             cert.as_ptr(),
             cert.len(),
             token.as_ptr(),
-            false,
+            0,
             &mut s,
         )
     };
@@ -147,7 +147,7 @@ fn a_connect_with_a_null_session_pointer_does_not_log_in() {
     let token = CString::new(server.token("null-session")).unwrap();
     let cert = &server.running.cert_der;
     let options = StrataConnectOptions {
-        predict: false,
+        predict: 0,
         capabilities: 0,
     };
     let start = Instant::now();
@@ -160,7 +160,7 @@ fn a_connect_with_a_null_session_pointer_does_not_log_in() {
                 cert.as_ptr(),
                 cert.len(),
                 token.as_ptr(),
-                false,
+                0,
                 null_mut(),
             ),
             strata_connect_cluster(

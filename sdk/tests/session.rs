@@ -172,7 +172,7 @@ fn a_thin_op_replay_session_through_the_c_abi() {
     let token = CString::new(server.token("c-thin")).unwrap();
     let cert = &server.running.cert_der;
     let options = StrataConnectOptions {
-        predict: false,
+        predict: 0,
         capabilities: STRATA_CAP_SNAPSHOTS | STRATA_CAP_OP_REPLAY,
     };
     let mut c = std::ptr::null_mut();

@@ -145,5 +145,7 @@ fn verdict_event(
 
 pub(super) async fn watch_close(client: Arc<Client>, closed: Arc<Mutex<Option<ClientError>>>) {
     let why = client.closed().await;
-    *closed.lock().expect("not poisoned") = Some(why);
+    *closed
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(why);
 }

@@ -43,7 +43,11 @@ impl Links {
     pub fn for_chunk(&self, pos: ChunkPos) -> Arc<Client> {
         match &self.cluster {
             None => self.home.clone(),
-            Some(v) => v.read().expect("not poisoned").client_for(pos).clone(),
+            Some(v) => v
+                .read()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .client_for(pos)
+                .clone(),
         }
     }
 
@@ -52,7 +56,7 @@ impl Links {
         let Some(v) = &self.cluster else {
             return vec![self.home.clone()];
         };
-        let v = v.read().expect("not poisoned");
+        let v = v.read().unwrap_or_else(std::sync::PoisonError::into_inner);
         let mut all = vec![self.home.clone()];
         all.extend(
             v.nodes
@@ -69,25 +73,37 @@ impl Links {
         let Some(current) = &self.cluster else {
             return;
         };
-        let mut current = current.write().expect("not poisoned");
-        if current.routes_like(&view) {
-            *current = view;
-            return;
-        }
+        // The replicas are read with no view lock held: a replica's lock
+        // never waits on the view's. Only this driver writes the view.
+        let routes_like = current
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .routes_like(&view);
         let mut moved = BTreeSet::new();
-        for (addr, c) in &view.nodes {
-            for (pos, _) in c.replica().chunks() {
-                if view.route(pos) == *addr && current.route(pos) != *addr {
+        if !routes_like {
+            let mut held = Vec::new();
+            for (addr, c) in &view.nodes {
+                held.extend(c.replica().chunks().map(|(pos, _)| (*addr, pos)));
+            }
+            let old = current
+                .read()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            for (addr, pos) in held {
+                if view.route(pos) == addr && old.route(pos) != addr {
                     moved.insert(pos);
                 }
             }
         }
-        *current = view;
-        drop(current);
+        *current
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = view;
         if moved.is_empty() {
             return;
         }
-        let mut queue = self.moved.lock().expect("not poisoned");
+        let mut queue = self
+            .moved
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         queue.extend(moved);
         while queue.len() > MAX_MOVED_CHUNKS {
             queue.pop_front();
@@ -97,7 +113,12 @@ impl Links {
     /// A chunk to report changed: one that moved, else one a connection
     /// changed.
     pub fn pop_changed(&self) -> Option<ChunkPos> {
-        if let Some(pos) = self.moved.lock().expect("not poisoned").pop_front() {
+        if let Some(pos) = self
+            .moved
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .pop_front()
+        {
             return Some(pos);
         }
         if self.cluster.is_none() {

@@ -249,7 +249,12 @@ impl Session {
 
     /// The next event, or `None` when nothing new happened. Never waits.
     pub fn poll(&self) -> Option<Event> {
-        if let Ok(e) = self.events.lock().expect("not poisoned").try_recv() {
+        if let Ok(e) = self
+            .events
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .try_recv()
+        {
             self.unpolled.fetch_sub(1, Ordering::SeqCst);
             return Some(e);
         }
@@ -269,8 +274,14 @@ impl Session {
         if self.unpolled.load(Ordering::SeqCst) > 0 {
             return None;
         }
-        let mut reported = self.disconnect_reported.lock().expect("not poisoned");
-        let closed = self.closed.lock().expect("not poisoned");
+        let mut reported = self
+            .disconnect_reported
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let closed = self
+            .closed
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         let why = closed.as_ref().filter(|_| !*reported)?;
         *reported = true;
         Some(match why {
