@@ -28,6 +28,12 @@ use crate::validate::WorldBounds;
 /// Blob name under which protected zones are stored.
 pub use crate::stored_zones::ZONES_BLOB;
 
+/// Exit status of a cluster node stopped because another process started
+/// under its `node_id`: the systemd units do not restart on it
+/// (`RestartPreventExitStatus`), so two processes sharing an id never
+/// take turns superseding each other.
+pub const EXIT_SUPERSEDED: i32 = 3;
+
 /// A server that is listening.
 #[derive(Debug)]
 pub struct Running {
@@ -238,6 +244,9 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         ),
         None => None,
     };
+    // Every port is bound: only now does this process take its cluster
+    // node id over (a start that failed supersedes nobody).
+    store.register_node()?;
     let (trigger, shutdown) = shutdown::channel();
     // Bans and revocations written by another node apply here too.
     // Bans, revocations and zones written by another node apply here too.
@@ -273,6 +282,12 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
 }
 
 impl Running {
+    /// Why the engine stopped, when another process took this cluster
+    /// node's id (the server then exits with [`EXIT_SUPERSEDED`]).
+    pub fn superseded(&self) -> Option<String> {
+        self.store.superseded()
+    }
+
     /// A listener for this server's shutdown signal.
     pub fn shutdown_signal(&self) -> Shutdown {
         self.trigger.subscribe()
@@ -284,8 +299,9 @@ impl Running {
     }
 
     /// Resolves when the engine thread has ended (on its own, it only does
-    /// so when a commit failed or it panicked): the server can serve no
-    /// one and should [`Self::shutdown`] and exit non-zero.
+    /// so when a commit failed, it panicked, or another process took its
+    /// cluster node id: [`Self::superseded`]): the server can serve no one
+    /// and should [`Self::shutdown`] and exit non-zero.
     pub async fn engine_stopped(&self) {
         let mut rx = self.engine_exit.clone();
         let _ = rx.wait_for(|stopped| *stopped).await;

@@ -55,6 +55,7 @@ mod store_crash;
 mod store_deltas;
 mod store_generated;
 mod store_pg;
+mod store_pg_bench;
 mod store_pg_lease;
 mod store_power_cut;
 mod store_roundtrip;

@@ -42,6 +42,7 @@ fn open_node(db: &PgDb, cluster: &ClusterConfig) -> PgStore {
     };
     let store = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, cluster).unwrap();
     store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+    store.register_node().unwrap();
     store
 }
 
@@ -476,6 +477,30 @@ fn a_second_process_under_a_node_id_supersedes_the_first() {
     old.claim_regions(&[r]).unwrap();
     old.renew_leases().unwrap();
     assert_eq!(old.superseded(), None);
+    // A row gone (a database restored from a dump) is written again.
+    sql(&db, "DELETE FROM nodes");
+    old.renew_leases().unwrap();
+    assert_eq!(sql(&db, "SELECT node_id FROM nodes"), ["a"]);
+    assert_eq!(old.superseded(), None);
+    // A process not registered yet (its ports not bound) checks nothing
+    // and supersedes nobody.
+    let starting = PgStore::open_node(
+        &PgConfig {
+            url: db.url(),
+            ..PgConfig::default()
+        },
+        DEFAULT_REGION_CHUNKS,
+        &ClusterConfig {
+            node_id: "a".into(),
+            adopt: false,
+            ..ClusterConfig::default()
+        },
+    )
+    .unwrap();
+    starting.renew_leases().unwrap();
+    old.renew_leases().unwrap();
+    assert_eq!((starting.superseded(), old.superseded()), (None, None));
+    drop(starting);
     let new = node(&db, "a");
     assert_eq!(new.claim_regions(&[r]).unwrap(), BTreeMap::from([(r, 2)]));
 

@@ -620,3 +620,27 @@ fn three_nodes_write_one_world_and_a_killed_nodes_regions_are_adopted_within_the
         server.stop();
     }
 }
+
+/// Two processes started with one `node_id`: the later one takes the id
+/// over once its ports are bound, and the earlier one stops with exit
+/// status 3 (`EXIT_SUPERSEDED`, which the systemd units do not restart
+/// on) instead of the two taking regions from each other.
+#[test]
+fn a_second_process_with_the_same_node_id_stops_the_first_with_status_3() {
+    let Some(db) = database("same_node_id") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let store_config = format!("{SERVER_CONFIG}{}", db.store_toml());
+    let config = format!(
+        "{store_config}[cluster]\nnode_id = \"node-a\"\nlease_ms = {LEASE_MS}\nrenew_ms = {RENEW_MS}\n"
+    );
+    let mut first = Server::start_with(&tmp.path().join("a"), "127.0.0.1:0", &config);
+    let _second = Server::start_with(&tmp.path().join("b"), "127.0.0.1:0", &config);
+    let status = first.proc.wait_timeout(Duration::from_secs(30));
+    assert_eq!(
+        status.code(),
+        Some(strata_server::app::EXIT_SUPERSEDED),
+        "{status:?}"
+    );
+}

@@ -102,6 +102,11 @@ async fn serve(cfg: ServerConfig) -> anyhow::Result<()> {
         }
         () = running.engine_stopped() => {
             tracing::error!("the engine stopped; closing every session and exiting");
+            if let Some(why) = running.superseded() {
+                let _ = running.shutdown().await;
+                eprintln!("strata-server: {why}");
+                std::process::exit(strata_server::app::EXIT_SUPERSEDED);
+            }
             // The engine's error, or this one should it have returned Ok.
             running.shutdown().await?;
             anyhow::bail!("the engine stopped")

@@ -38,8 +38,22 @@ impl Refused {
 static TOKEN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
 
 /// The admin a request comes from (its verified claims), or why it is
-/// refused.
+/// refused (logged, at most once a second).
 pub fn admin(ctx: &SessionContext, headers: &HeaderMap) -> Result<auth::Claims, Refused> {
+    check(ctx, headers).inspect_err(|r| {
+        // No token at all is the page before sign-in: not worth a line.
+        if matches!(r, Refused::NoToken) {
+            return;
+        }
+        if let Some(refused) = TOKEN_REFUSALS.event() {
+            warn!(reason = %r, refused, "console refused a request");
+        }
+    })
+}
+
+/// [`admin`] without the log: what the connection limiter asks before a
+/// request runs (`conn_limit.rs`).
+pub fn check(ctx: &SessionContext, headers: &HeaderMap) -> Result<auth::Claims, Refused> {
     let token = headers
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
@@ -47,25 +61,14 @@ pub fn admin(ctx: &SessionContext, headers: &HeaderMap) -> Result<auth::Claims, 
         .map(str::trim)
         .filter(|t| !t.is_empty() && t.len() <= auth::MAX_TOKEN_LEN)
         .ok_or(Refused::NoToken)?;
-    let claims = auth::verify(&ctx.secret, token, auth::unix_now()).inspect_err(|e| {
-        if let Some(refused) = TOKEN_REFUSALS.event() {
-            warn!(error = %e, refused, "console refused a token");
-        }
-    })?;
+    let claims = auth::verify(&ctx.secret, token, auth::unix_now())?;
     if claims.role != Role::Admin {
-        if let Some(refused) = TOKEN_REFUSALS.event() {
-            warn!(player = %claims.player, refused, "console refused a non-admin token");
-        }
         return Err(Refused::NotAdmin {
             player: claims.player,
             role: claims.role.name(),
         });
     }
-    ctx.admitted(&claims).inspect_err(|d| {
-        if let Some(refused) = TOKEN_REFUSALS.event() {
-            warn!(admin = %claims.player, denied = %d, refused, "console refused a denied admin");
-        }
-    })?;
+    ctx.admitted(&claims)?;
     Ok(claims)
 }
 

@@ -20,7 +20,7 @@
 use std::collections::VecDeque;
 use std::io;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 use std::task::{Context, Poll, Waker};
 use std::time::Duration;
@@ -46,31 +46,53 @@ pub struct Deadlines {
     pub unadmitted: Option<Duration>,
 }
 
+/// A connection not admitted yet.
+const NEW: u8 = 0;
+/// A request on it passed the token check.
+const ADMITTED: u8 = 1;
+/// Closed for a new connection (it was never admitted).
+const EVICTED: u8 = 2;
+
 /// What a connection's handlers and its listener share.
 #[derive(Debug, Default)]
 pub struct ConnState {
-    admitted: AtomicBool,
-    evicted: AtomicBool,
+    /// [`NEW`], then [`ADMITTED`] or [`EVICTED`] for good: whichever
+    /// comes first wins.
+    state: AtomicU8,
     /// The task waiting on the connection, woken to close it.
     waker: Mutex<Option<Waker>>,
 }
 
 impl ConnState {
-    /// A request on this connection passed the token check.
+    /// A request on this connection passed the token check: it is never
+    /// evicted from now on (unless it already was).
     pub fn admit(&self) {
-        self.admitted.store(true, Ordering::Release);
+        let _ = self
+            .state
+            .compare_exchange(NEW, ADMITTED, Ordering::AcqRel, Ordering::Acquire);
     }
 
     fn is_admitted(&self) -> bool {
-        self.admitted.load(Ordering::Acquire)
+        self.state.load(Ordering::Acquire) == ADMITTED
     }
 
-    /// Closes the connection at its next poll (woken now).
-    fn evict(&self) {
-        self.evicted.store(true, Ordering::Release);
-        if let Some(w) = self.waker.lock().unwrap_or_else(|p| p.into_inner()).take() {
-            w.wake();
+    fn is_evicted(&self) -> bool {
+        self.state.load(Ordering::Acquire) == EVICTED
+    }
+
+    /// Closes the connection at its next poll (woken now), unless it was
+    /// admitted meanwhile; true if it was evicted.
+    fn evict(&self) -> bool {
+        let evicted = self
+            .state
+            .compare_exchange(NEW, EVICTED, Ordering::AcqRel, Ordering::Acquire)
+            .is_ok();
+        if evicted {
+            if let Some(w) = self.waker.lock().unwrap_or_else(|p| p.into_inner()).take() {
+                w.wake();
+            }
         }
+        evicted
     }
 }
 
@@ -117,8 +139,7 @@ impl LimitedListener {
         }
         if self.deadlines.unadmitted.is_some() {
             while let Some(w) = self.unadmitted.pop_front() {
-                if let Some(conn) = w.upgrade().filter(|c| !c.is_admitted()) {
-                    conn.evict();
+                if w.upgrade().is_some_and(|c| c.evict()) {
                     break;
                 }
             }
@@ -177,7 +198,7 @@ impl LimitedStream {
     /// idle time, or a request went unanswered for the request time; else
     /// arms the timer (and keeps the waker, for an eviction).
     fn check_deadlines(&mut self, cx: &mut Context<'_>) -> io::Result<()> {
-        if self.state.evicted.load(Ordering::Acquire) {
+        if self.state.is_evicted() {
             return Err(io::Error::new(
                 io::ErrorKind::ConnectionAborted,
                 "console connection closed for a new one (never admitted)",
@@ -186,8 +207,12 @@ impl LimitedStream {
         if self.deadlines.unadmitted.is_some() {
             *self.state.waker.lock().unwrap_or_else(|p| p.into_inner()) = Some(cx.waker().clone());
         }
+        // The short silence only between requests: one being answered
+        // (a render, say) is bounded by the request deadline.
         let idle_for = match self.deadlines.unadmitted {
-            Some(u) if !self.state.is_admitted() => u.min(self.deadlines.idle),
+            Some(u) if !self.state.is_admitted() && self.request_since.is_none() => {
+                u.min(self.deadlines.idle)
+            }
             _ => self.deadlines.idle,
         };
         let idle = self.last_active + idle_for;
@@ -261,7 +286,7 @@ impl AsyncRead for LimitedStream {
         cx: &mut Context<'_>,
         buf: &mut ReadBuf<'_>,
     ) -> Poll<io::Result<()>> {
-        if self.state.evicted.load(Ordering::Acquire) {
+        if self.state.is_evicted() {
             return self.pending_or_timeout(cx);
         }
         let before = buf.filled().len();
@@ -286,7 +311,7 @@ impl AsyncWrite for LimitedStream {
         cx: &mut Context<'_>,
         buf: &[u8],
     ) -> Poll<io::Result<usize>> {
-        if self.state.evicted.load(Ordering::Acquire) {
+        if self.state.is_evicted() {
             return self.pending_or_timeout(cx);
         }
         let r = Pin::new(&mut self.stream).poll_write(cx, buf);

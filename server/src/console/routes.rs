@@ -46,26 +46,25 @@ pub fn router(console: Arc<Console>) -> Router {
         .route("/api/regions", get(regions_route))
         .route("/api/events", get(events))
         .route("/api/action", post(action))
-        .layer(middleware::from_fn(per_request))
+        .layer(middleware::from_fn_with_state(console.clone(), per_request))
         .with_state(console)
 }
 
 /// A span per request, and headers that keep the page to its own origin.
-/// A successful `/api/` answer (every one checked the admin token first)
-/// admits its connection (`conn_limit.rs`).
-async fn per_request(req: Request, next: Next) -> Response {
+/// A request whose admin token checks out admits its connection before it
+/// runs (`conn_limit.rs`): from then on it is never closed for a new one.
+async fn per_request(State(c): State<Arc<Console>>, req: Request, next: Next) -> Response {
     let span = tracing::info_span!("console", method = %req.method(), path = %req.uri().path());
     let api = req.uri().path().starts_with("/api/");
-    let conn = req
-        .extensions()
-        .get::<axum::extract::ConnectInfo<super::ConnMark>>()
-        .map(|c| c.0 .0.clone());
-    let mut resp = next.run(req).instrument(span).await;
-    if api && resp.status().is_success() {
-        if let Some(conn) = conn {
-            conn.admit();
+    if req.headers().contains_key(header::AUTHORIZATION) {
+        let conn = req
+            .extensions()
+            .get::<axum::extract::ConnectInfo<super::ConnMark>>();
+        if let Some(conn) = conn.filter(|_| auth::check(&c.ctx, req.headers()).is_ok()) {
+            conn.0 .0.admit();
         }
     }
+    let mut resp = next.run(req).instrument(span).await;
     let h = resp.headers_mut();
     if api && !h.contains_key(header::CACHE_CONTROL) {
         // The world's seed, who holds what: nothing for a cache to keep.

@@ -249,6 +249,13 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(RegionAccess::Granted)
     }
 
+    /// Claims the cluster node id for this process (a newer incarnation
+    /// supersedes any process still running under it). The server calls
+    /// it once its ports are bound. Alone on its store: nothing.
+    fn register_node(&self) -> Result<(), StoreError> {
+        Ok(())
+    }
+
     /// Why this process must stop: another process started under its
     /// cluster node id (`None` alone on its store, or while the id is its
     /// own). Cheap: read at every tick.

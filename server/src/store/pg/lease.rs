@@ -65,6 +65,9 @@ pub struct NodeLeases {
     incarnation: i64,
     /// The incarnation a renewal found there instead, once one did.
     superseded: Mutex<Option<i64>>,
+    /// Whether `register` ran: until then renewals check nothing (the
+    /// row is still the previous process's).
+    registered: std::sync::atomic::AtomicBool,
     book: Mutex<Book>,
 }
 
@@ -111,6 +114,7 @@ impl NodeLeases {
             numbering: std::sync::atomic::AtomicBool::new(false),
             incarnation: new_incarnation(),
             superseded: Mutex::new(None),
+            registered: std::sync::atomic::AtomicBool::new(false),
             book: Mutex::new(Book::default()),
         }
     }
@@ -593,6 +597,7 @@ pub(super) fn register(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreErro
         )
         .await
     })?;
+    leases.registered.store(true, Ordering::Release);
     info!(node = %leases.node_id, incarnation = leases.incarnation, "node registered");
     Ok(())
 }
@@ -601,6 +606,9 @@ pub(super) fn register(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreErro
 /// process registered since, and refuses from then on.
 pub(super) fn check_incarnation(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreError> {
     leases.not_superseded()?;
+    if !leases.registered.load(Ordering::Acquire) {
+        return Ok(());
+    }
     let row = pool.run("checking the node's incarnation", async |c: &mut Conn| {
         c.query_opt(
             "UPDATE nodes SET seen_at = now() WHERE node_id = $1 \
@@ -609,11 +617,16 @@ pub(super) fn check_incarnation(pool: &Pool, leases: &NodeLeases) -> Result<(), 
         )
         .await
     })?;
-    let current: Option<i64> = row.map(|r| r.get(0));
-    if current == Some(leases.incarnation) {
+    let current = match row {
+        Some(r) => r.get::<_, i64>(0),
+        // No row (a database restored from a dump, say): nobody else
+        // runs under the name, so it is this process's again.
+        None => return register(pool, leases),
+    };
+    if current == leases.incarnation {
         return Ok(());
     }
-    *leases.superseded.lock().unwrap_or_else(|p| p.into_inner()) = Some(current.unwrap_or(0));
+    *leases.superseded.lock().unwrap_or_else(|p| p.into_inner()) = Some(current);
     let e = leases.not_superseded();
     if let Err(e) = &e {
         tracing::error!(error = %e, "this node's id was taken over");
@@ -856,7 +869,6 @@ impl PgStore {
         let idle = Duration::from_millis(cluster.lease_ms.min(cfg.statement_timeout_ms));
         let mut store = Self::open_on(Pool::open_idle(cfg, idle)?, region_chunks)?;
         let leases = Arc::new(NodeLeases::new(cluster));
-        register(&store.pool, &leases)?;
         // A connection of its own: renewals never wait behind commits or
         // scans for a pooled one.
         let renewals = Pool::open(&super::PgConfig {

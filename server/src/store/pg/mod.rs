@@ -495,6 +495,13 @@ impl ChunkStore for PgStore {
         self.leases.as_ref().and_then(|l| l.superseded())
     }
 
+    fn register_node(&self) -> Result<(), StoreError> {
+        match &self.leases {
+            Some(leases) => lease::register(&self.pool, leases),
+            None => Ok(()),
+        }
+    }
+
     fn region_holders(
         &self,
         regions: &std::collections::BTreeSet<RegionId>,
