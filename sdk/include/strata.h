@@ -370,7 +370,9 @@ void strata_mesh_free(StrataMesh *mesh);
 // data/cert.der), and logs in with `token`. With `predict` nonzero (a byte:
 // any value is sound from any language), the player's
 // own edits show at once and are reconciled with the server's verdicts.
-// Blocks until the server welcomes the player (10 s at most). On success
+// Blocks until the server welcomes the player (10 s at most for each
+// address the name resolves to: IPv4 ones first, the next tried only when
+// nothing answered at one, at most 4; name lookup comes on top). On success
 // `*out` is a new session the caller owns.
 //
 // # Safety

@@ -7,7 +7,7 @@ use std::sync::Mutex;
 use strata_client::glam::{DVec3, IVec3};
 use strata_client::protocol::{PositionRefusal, RejectReason, Start};
 use strata_client::terrain::Edit;
-use strata_client::{edits, Event, Session, SessionOptions};
+use strata_client::{edits, ClientError, Event, Session, SessionError, SessionOptions};
 
 use crate::ptr::{bytes, items, shared, text, writable};
 use crate::status::{call, call_quiet, Failure, StrataStatus};
@@ -36,13 +36,45 @@ pub(crate) unsafe fn session<'a>(p: *const StrataSession) -> Result<&'a Session,
     Ok(&unsafe { shared(p, "session") }?.session)
 }
 
-fn resolve(address: &str) -> Result<SocketAddr, Failure> {
+/// Most addresses of one name tried, one after another.
+const MAX_ADDRESSES_TRIED: usize = 4;
+
+/// Every address `address` resolves to, IPv4 first (a server listens on
+/// 127.0.0.1 by default, and "localhost" often resolves to ::1 first),
+/// at most [`MAX_ADDRESSES_TRIED`].
+fn resolve(address: &str) -> Result<Vec<SocketAddr>, Failure> {
     let fail = |why: String| Failure::new(StrataStatus::Connect, why);
-    address
+    let found = address
         .to_socket_addrs()
-        .map_err(|e| fail(format!("cannot resolve {address}: {e}")))?
-        .next()
-        .ok_or_else(|| fail(format!("{address} resolves to no address")))
+        .map_err(|e| fail(format!("cannot resolve {address}: {e}")))?;
+    let addrs = to_try(found);
+    if addrs.is_empty() {
+        return Err(fail(format!("{address} resolves to no address")));
+    }
+    Ok(addrs)
+}
+
+/// `found` without repeats, IPv4 first (each family in its order), at
+/// most [`MAX_ADDRESSES_TRIED`].
+fn to_try(found: impl Iterator<Item = SocketAddr>) -> Vec<SocketAddr> {
+    let mut addrs: Vec<SocketAddr> = Vec::new();
+    for a in found {
+        if !addrs.contains(&a) {
+            addrs.push(a);
+        }
+    }
+    addrs.sort_by_key(|a| a.is_ipv6());
+    addrs.truncate(MAX_ADDRESSES_TRIED);
+    addrs
+}
+
+/// Whether another of a name's addresses may do better than this failure:
+/// nothing answered there, or not in time.
+fn try_next(e: &SessionError) -> bool {
+    matches!(
+        e,
+        SessionError::Client(ClientError::Connect(_) | ClientError::Timeout(_))
+    )
 }
 
 /// Connects to `address` ("host:port"), trusting only the server
@@ -50,7 +82,9 @@ fn resolve(address: &str) -> Result<SocketAddr, Failure> {
 /// data/cert.der), and logs in with `token`. With `predict` nonzero (a byte:
 /// any value is sound from any language), the player's
 /// own edits show at once and are reconciled with the server's verdicts.
-/// Blocks until the server welcomes the player (10 s at most). On success
+/// Blocks until the server welcomes the player (10 s at most for each
+/// address the name resolves to: IPv4 ones first, the next tried only when
+/// nothing answered at one, at most 4; name lookup comes on top). On success
 /// `*out` is a new session the caller owns.
 ///
 /// # Safety
@@ -171,12 +205,27 @@ unsafe fn connect(
 ) -> Result<(), Failure> {
     // SAFETY: the caller's contract above.
     let dst = unsafe { writable(out_session, "out_session") }?;
-    let addr = resolve(address)?;
-    let session = if cluster {
-        Session::connect_cluster(addr, cert, token, opts)?
-    } else {
-        Session::connect(addr, cert, token, opts)?
-    };
+    let addrs = resolve(address)?;
+    let mut result = Err(Failure::new(StrataStatus::Connect, "no address tried"));
+    for (i, addr) in addrs.iter().enumerate() {
+        let attempt = if cluster {
+            Session::connect_cluster(*addr, cert, token, opts.clone())
+        } else {
+            Session::connect(*addr, cert, token, opts.clone())
+        };
+        match attempt {
+            Ok(s) => {
+                result = Ok(s);
+                break;
+            }
+            Err(e) if try_next(&e) && i + 1 < addrs.len() => {}
+            Err(e) => {
+                result = Err(e.into());
+                break;
+            }
+        }
+    }
+    let session = result?;
     let boxed = Box::new(StrataSession {
         session,
         last_changes: Mutex::default(),
@@ -552,5 +601,30 @@ mod tests {
         let bytes: Vec<u8> = ev.message.iter().map(|&c| c as u8).collect();
         let message = CStr::from_bytes_until_nul(&bytes).expect("NUL-terminated");
         assert_eq!(message.to_str(), Ok("é".repeat(127).as_str()));
+    }
+
+    #[test]
+    fn addresses_are_tried_ipv4_first_without_repeats_and_few() {
+        let a = |s: &str| s.parse::<SocketAddr>().unwrap();
+        let found = [
+            a("[::1]:4433"),
+            a("127.0.0.1:4433"),
+            a("[::1]:4433"),
+            a("10.0.0.1:4433"),
+            a("[fe80::1]:4433"),
+            a("10.0.0.2:4433"),
+            a("10.0.0.3:4433"),
+        ];
+        assert_eq!(
+            to_try(found.into_iter()),
+            [
+                a("127.0.0.1:4433"),
+                a("10.0.0.1:4433"),
+                a("10.0.0.2:4433"),
+                a("10.0.0.3:4433")
+            ]
+        );
+        assert_eq!(resolve("localhost:4433").unwrap()[0].port(), 4433);
+        assert!(resolve("no-such-host.invalid:1").is_err());
     }
 }

@@ -143,7 +143,9 @@ impl Session {
             ))
             .map_err(|e| match e {
                 crate::cluster::ClusterError::Client(c) => c,
-                other => ClientError::Closed(other.to_string()),
+                // A setup failure (a bad address, too many nodes, a node
+                // refusing the arrival): the connection never was.
+                other => ClientError::Connect(other.to_string()),
             })?;
         let links = Arc::new(Links::cluster(cluster.view()));
         let (commands, rx) = mpsc::channel(MAX_IN_FLIGHT);
