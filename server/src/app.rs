@@ -246,7 +246,21 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     };
     // Every port is bound: only now does this process take its cluster
     // node id over (a start that failed supersedes nobody).
-    store.register_node()?;
+    if let Err(e) = store.register_node() {
+        // What started so far stops, as in `Running::shutdown`.
+        if let Some(console) = console {
+            console.stop();
+        }
+        let store = store.clone();
+        let _ = tokio::task::spawn_blocking(move || {
+            engine.stop();
+            let _ = engine_thread.join();
+            let _ = checkpointer.stop();
+            let _ = store.close();
+        })
+        .await;
+        return Err(anyhow::Error::from(e).context("registering the cluster node"));
+    }
     let (trigger, shutdown) = shutdown::channel();
     // Bans and revocations written by another node apply here too.
     // Bans, revocations and zones written by another node apply here too.

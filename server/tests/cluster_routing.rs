@@ -764,12 +764,64 @@ async fn a_node_lets_an_idle_region_go_and_claims_it_again_at_the_next_edit() {
     .expect("within the test timeout");
 }
 
-/// A region whose reload fails when the node claims it (the database
-/// cannot answer in time) refuses its edits `Busy`, the first one too,
-/// without a fenced batch (which would cost a seq block), until a retry
-/// reloads it.
+/// An edit any rule refuses, line of sight included, leaves no lease
+/// behind: a node claims the free regions of an edit only once the edit
+/// passed every rule, its sight checked on the store's copy.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_region_whose_reload_failed_refuses_its_edits_until_a_retry_succeeds() {
+async fn an_edit_refused_for_line_of_sight_claims_no_region() {
+    let Some(db) = strata_tests::postgres::database("cluster_sight_claims") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 5_000, 500);
+        cfg.validation.reach = 30.0;
+        let west = app::start(cfg).await.expect("node starts");
+        let ann = standing(&west, "ann", WEST_X).await;
+        let held = || sql(&db, "SELECT owner FROM regions WHERE owner IS NOT NULL");
+        assert!(held().await.is_empty(), "standing claims nothing");
+
+        // Twelve voxels of rock under her feet: within reach, out of sight.
+        let (_, v) = spot(WEST_X, Z);
+        let deep = Edit::Mine {
+            center: at(v.x as f64, v.y as f64 - 12.0, v.z as f64),
+            radius: r(1.0),
+            strength: 60,
+        };
+        for _ in 0..3 {
+            let (verdict, _) = ann.edit_acked(deep.clone()).await.unwrap();
+            assert_eq!(
+                verdict,
+                Verdict::Rejected(strata_protocol::RejectReason::NoLineOfSight)
+            );
+        }
+        assert!(held().await.is_empty(), "a refused edit claimed a region");
+
+        // One she sees claims the region and is applied, and so are the
+        // next ones there.
+        for i in 0..3 {
+            let (verdict, _) = ann.edit_acked(mine_at(WEST_X + 2 + i)).await.unwrap();
+            assert!(matches!(verdict, Verdict::Accepted { .. }), "{verdict:?}");
+        }
+        assert_eq!(held().await, ["west"]);
+        finish(ann, west).await;
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// Closes `c` (its meshes all matched the server's) and stops `node`.
+async fn finish(c: strata_client_sim::Client, node: Running) {
+    assert!(c.replica().mesh_mismatches().is_empty());
+    c.close().await;
+    node.shutdown().await.unwrap();
+}
+
+/// A free region whose chunks the store cannot read in time refuses its
+/// edits `Busy` and is not claimed, with no fenced batch (which would cost
+/// a seq block), until the store answers again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_free_region_the_store_cannot_read_refuses_its_edits_until_it_can() {
     let Some(db) = strata_tests::postgres::database("cluster_reload_retry") else {
         return;
     };
@@ -797,12 +849,18 @@ async fn a_region_whose_reload_failed_refuses_its_edits_until_a_retry_succeeds()
             verdict,
             Verdict::Rejected(strata_protocol::RejectReason::Busy)
         );
+        assert!(
+            sql(&db, "SELECT owner FROM regions WHERE owner IS NOT NULL")
+                .await
+                .is_empty(),
+            "claimed while unreadable"
+        );
         release.send(()).unwrap();
         tokio::task::spawn_blocking(move || holder.join().unwrap())
             .await
             .unwrap();
 
-        // The next retry reloads it; edits are taken again.
+        // Readable again: the next edit claims it and is taken.
         let mut accepted = false;
         for _ in 0..40 {
             tokio::time::sleep(RELOAD_RETRY / 4).await;
@@ -822,9 +880,7 @@ async fn a_region_whose_reload_failed_refuses_its_edits_until_a_retry_succeeds()
             ["1"],
             "no batch was fenced"
         );
-        assert!(ann.replica().mesh_mismatches().is_empty());
-        ann.close().await;
-        west.shutdown().await.unwrap();
+        finish(ann, west).await;
     })
     .await
     .expect("within the test timeout");
@@ -857,9 +913,7 @@ async fn a_second_process_under_the_same_node_id_stops_the_first() {
         let bob = standing(&second, "bob", WEST_X).await;
         let (v, _) = bob.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
         assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
-        assert!(bob.replica().mesh_mismatches().is_empty());
-        bob.close().await;
-        second.shutdown().await.unwrap();
+        finish(bob, second).await;
         let _ = first.shutdown().await;
     })
     .await

@@ -146,13 +146,21 @@ impl Engine {
             .seq
             .precheck(session, &request.edit, now)
             .and_then(|pre| {
-                self.check_regions(session, &request.edit, now)?;
+                let claim = self.check_regions(session, &request.edit, now)?;
+                if let Some(free) = &claim {
+                    self.before_claiming(free)?;
+                }
                 let needed = self.seq.missing(pre.reads());
                 if let Err(e) = self.make_resident(&needed) {
                     error!(error = %e, "store read failed");
                 }
-                // Line of sight is checked in a batch (`check_sighted`).
-                self.seq.admit_prechecked(session, request, pre, now)
+                // Line of sight is checked in a batch (`check_sighted`),
+                // at once for an edit whose regions are claimed for it.
+                self.seq.admit_prechecked(session, request, pre, now)?;
+                match &claim {
+                    Some(free) => self.claim_after_sight(session, id, free, now),
+                    None => Ok(()),
+                }
             });
         if let Err(reason) = result {
             self.refuse_edit(session, id, reason);

@@ -34,56 +34,160 @@ use crate::sequencer::batch::TickOutput;
 use crate::sequencer::regions::RegionId;
 use crate::store::{RegionAccess, RegionHolder, StoreError};
 
+/// The refusal for regions this node may not write now (`access`, what
+/// the store answered), and whether it costs the player a rejection token.
+fn access_refusal(access: Result<RegionAccess, StoreError>) -> Result<(), (RejectReason, bool)> {
+    match access {
+        Ok(RegionAccess::Granted) => Ok(()),
+        Ok(RegionAccess::Elsewhere {
+            region,
+            owner,
+            addr,
+        }) => {
+            let reason = RejectReason::RegionElsewhere {
+                region_x: region.x,
+                region_z: region.z,
+                owner,
+                addr,
+            };
+            Err((reason, true))
+        }
+        Ok(RegionAccess::AtCapacity { held, max }) => {
+            debug!(held, "edit refused: this node holds max_held_regions");
+            metrics::counter!(m::REGION_CLAIMS_REFUSED).increment(1);
+            // The node's state, not the player's doing: free, like Busy.
+            let max_regions = u32::try_from(max).unwrap_or(u32::MAX);
+            Err((RejectReason::NodeFull { max_regions }, false))
+        }
+        Err(e) => {
+            error!(error = %e, "claiming regions failed");
+            Err((RejectReason::Busy, false))
+        }
+    }
+}
+
 impl Engine {
-    /// `Ok` when this node may write every region `edit` touches.
+    /// `Ok` when this node may write every region `edit` touches: with
+    /// `None` when it holds them all (or is alone on its store), with the
+    /// free regions it must claim first otherwise. Those are claimed only
+    /// once the edit passed every rule, line of sight included
+    /// ([`Self::claim_after_sight`]): a refused edit leaves no lease.
     pub(super) fn check_regions(
         &mut self,
         session: u64,
         edit: &Edit,
         now: u64,
-    ) -> Result<(), RejectReason> {
+    ) -> Result<Option<BTreeSet<RegionId>>, RejectReason> {
         if !self.store.clustered() {
-            return Ok(());
+            return Ok(None);
         }
         // An edit the terrain core refuses is refused by the rules next.
         let Some(regions) = self.seq.edit_regions(edit) else {
-            return Ok(());
+            return Ok(None);
         };
+        let holders = match self.store.region_holders(&regions) {
+            Ok(h) => h,
+            Err(e) => {
+                error!(error = %e, "reading regions' holders failed");
+                return Err(RejectReason::Busy);
+            }
+        };
+        let mut free = BTreeSet::new();
+        for (r, h) in holders {
+            match h {
+                RegionHolder::Here => {}
+                RegionHolder::Free => {
+                    free.insert(r);
+                }
+                RegionHolder::Node { owner, addr } => {
+                    let reason = RejectReason::RegionElsewhere {
+                        region_x: r.x,
+                        region_z: r.z,
+                        owner,
+                        addr,
+                    };
+                    return Err(self.seq.charge_refusal(session, reason, now));
+                }
+            }
+        }
+        let room = self
+            .store
+            .max_held_regions()
+            .saturating_sub(self.store.regions_held());
+        if !free.is_empty() && free.len() <= room {
+            return Ok(Some(free));
+        }
+        // Held (marked in use), or more than this node may claim: the
+        // store answers now, and claims nothing at capacity.
         let access = self.store.acquire_regions(&regions);
         self.take_fresh_regions();
-        match access {
-            // Held, but not reloaded yet (a failed reload waits for its
-            // retry): refused before anything is applied on stale chunks.
-            Ok(RegionAccess::Granted)
-                if regions.iter().any(|r| self.reload_retry.contains_key(r)) =>
-            {
-                Err(RejectReason::Busy)
+        // Held, but not reloaded yet (a failed reload waits for its
+        // retry): refused before anything is applied on stale chunks.
+        if matches!(access, Ok(RegionAccess::Granted))
+            && regions.iter().any(|r| self.reload_retry.contains_key(r))
+        {
+            return Err(RejectReason::Busy);
+        }
+        match access_refusal(access) {
+            Ok(()) => Ok(None),
+            Err((reason, true)) => Err(self.seq.charge_refusal(session, reason, now)),
+            Err((reason, false)) => Err(reason),
+        }
+    }
+
+    /// Before the first edit in regions this node does not hold: earlier
+    /// edits' sight is checked (they keep their place in the queue), and
+    /// the regions' chunks are brought to the store's versions, so this
+    /// edit's sight is checked on what it will apply to.
+    pub(super) fn before_claiming(
+        &mut self,
+        free: &BTreeSet<RegionId>,
+    ) -> Result<(), RejectReason> {
+        self.check_sighted();
+        for &r in free {
+            if let Err(e) = self.reload_region(r) {
+                error!(error = %e, region_x = r.x, region_z = r.z, "reading a free region failed");
+                return Err(RejectReason::Busy);
             }
-            Ok(RegionAccess::Granted) => Ok(()),
-            Ok(RegionAccess::Elsewhere {
-                region,
-                owner,
-                addr,
-            }) => {
-                let reason = RejectReason::RegionElsewhere {
-                    region_x: region.x,
-                    region_z: region.z,
-                    owner,
-                    addr,
-                };
-                Err(self.seq.charge_refusal(session, reason, now))
+        }
+        Ok(())
+    }
+
+    /// The edit just admitted (the only one awaiting its sight check, see
+    /// [`Self::before_claiming`]) has its sight checked; seen, it is queued
+    /// and `free` claimed for it, or taken back out with the claim's
+    /// refusal.
+    pub(super) fn claim_after_sight(
+        &mut self,
+        session: u64,
+        client_edit_id: u64,
+        free: &BTreeSet<RegionId>,
+        now: u64,
+    ) -> Result<(), RejectReason> {
+        let pool = self.pool.clone();
+        let seq = &mut self.seq;
+        let refused = pool.install(|| seq.check_sighted(now));
+        let mut mine = None;
+        for r in refused {
+            if (r.session_id, r.client_edit_id) == (session, client_edit_id) {
+                mine = Some(r.reason);
+            } else {
+                self.refuse_edit(r.session_id, r.client_edit_id, r.reason);
             }
-            Ok(RegionAccess::AtCapacity { held, max }) => {
-                debug!(held, "edit refused: this node holds max_held_regions");
-                metrics::counter!(m::REGION_CLAIMS_REFUSED).increment(1);
-                // The node's state, not the player's doing: free, like Busy.
-                Err(RejectReason::NodeFull {
-                    max_regions: u32::try_from(max).unwrap_or(u32::MAX),
-                })
+        }
+        if let Some(reason) = mine {
+            return Err(reason);
+        }
+        let access = self.store.acquire_regions(free);
+        match access_refusal(access) {
+            Ok(()) => {
+                // Reloaded, or its edits refused `Busy` if that failed.
+                self.take_fresh_regions();
+                Ok(())
             }
-            Err(e) => {
-                error!(error = %e, "claiming regions failed");
-                Err(RejectReason::Busy)
+            Err((reason, charged)) => {
+                self.seq.take_back(session, client_edit_id, charged, now);
+                Err(reason)
             }
         }
     }
@@ -163,7 +267,7 @@ impl Engine {
 
     /// Brings the region's chunks to their stored versions; returns how
     /// many had moved on.
-    fn reload_region(&mut self, region: RegionId) -> Result<usize, StoreError> {
+    pub(super) fn reload_region(&mut self, region: RegionId) -> Result<usize, StoreError> {
         let mut moved = Vec::new();
         let reloaded = self.reload_chunks(region, &mut moved);
         // What moved before a failure is withdrawn all the same: the retry

@@ -221,7 +221,8 @@ async fn serve(
             }
             other => match answer(&ctx, other).await {
                 Ok(resp) => send_parts(&mut stream, resp).await,
-                Err(e) => Err(e),
+                // The engine stalled or is stopping: the admin is told why.
+                Err(e) => return refuse(&conn, stream, ErrorCode::Internal, &e).await,
             },
         };
         if let Err(e) = result {
@@ -234,7 +235,14 @@ async fn serve(
     info!("admin session ended");
 }
 
-/// Sends a command to the engine and waits for its answer.
+/// Longest an admin request waits for the engine's answer (a stalled
+/// commit, say). Past it the request fails, and the write turns its caller
+/// holds (the access list's, the zones') are let go; a change already
+/// stored still reaches every node by the next reload.
+pub const ENGINE_ANSWER_LIMIT: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Sends a command to the engine and waits for its answer, at most
+/// [`ENGINE_ANSWER_LIMIT`].
 pub(crate) async fn ask<T>(
     ctx: &SessionContext,
     make: impl FnOnce(oneshot::Sender<T>) -> AdminCommand,
@@ -243,7 +251,13 @@ pub(crate) async fn ask<T>(
     if !ctx.engine.try_send(Command::Admin(make(tx))) {
         return Err("server is overloaded".into());
     }
-    rx.await.map_err(|_| "server is shutting down".to_string())
+    match tokio::time::timeout(ENGINE_ANSWER_LIMIT, rx).await {
+        Ok(answer) => answer.map_err(|_| "server is shutting down".to_string()),
+        Err(_) => Err(format!(
+            "the engine did not answer within {} s; a change asked for may or may not have been made",
+            ENGINE_ANSWER_LIMIT.as_secs()
+        )),
+    }
 }
 
 use crate::stored_zones::ZoneChange;
@@ -395,18 +409,37 @@ async fn stored_access(ctx: &SessionContext) -> Result<(Option<Vec<u8>>, AccessL
 /// players it bans or revokes anew (changes made elsewhere, e.g. on another
 /// node). Called under `access_writes`.
 async fn adopt(ctx: &SessionContext, stored: AccessList) -> Result<(), String> {
-    let renewed = {
+    let (renewed, previous) = {
         let mut current = ctx.access.write().unwrap_or_else(|e| e.into_inner());
         if *current == stored {
             return Ok(());
         }
         let renewed = renewed_players(&current, &stored);
-        *current = stored;
-        renewed
+        let previous = std::mem::replace(&mut *current, stored.clone());
+        (renewed, previous)
     };
+    // Every kick is queued before any answer is awaited: a stalled engine
+    // delays them, never drops one.
+    let mut answers = Vec::with_capacity(renewed.len());
     for player in renewed {
         info!(%player, "access list changed elsewhere: ending the player's sessions");
-        ask(ctx, |reply| AdminCommand::Kick { player, reply }).await?;
+        let (reply, answer) = oneshot::channel();
+        if !ctx
+            .engine
+            .try_send(Command::Admin(AdminCommand::Kick { player, reply }))
+        {
+            // Not queued: the old list goes back, so the next reload sees
+            // the change again and kicks again.
+            let mut current = ctx.access.write().unwrap_or_else(|e| e.into_inner());
+            if *current == stored {
+                *current = previous;
+            }
+            return Err("server is overloaded".into());
+        }
+        answers.push(answer);
+    }
+    for answer in answers {
+        let _ = tokio::time::timeout(ENGINE_ANSWER_LIMIT, answer).await;
     }
     Ok(())
 }

@@ -238,6 +238,32 @@ impl Sequencer {
         out
     }
 
+    /// Takes the queued edit `client_edit_id` of `session` back out of the
+    /// queue, refused after it was queued (a cluster node could not claim
+    /// its regions). Its volume goes back; so does its edit token unless
+    /// the refusal is `charged`, which costs a rejection token instead.
+    pub fn take_back(&mut self, session_id: u64, client_edit_id: u64, charged: bool, now_ms: u64) {
+        let Some(i) = self.queue.iter().rposition(|q| {
+            (q.session_id, q.request.client_edit_id) == (session_id, client_edit_id)
+        }) else {
+            return;
+        };
+        let Some(q) = self.queue.remove(i) else {
+            return;
+        };
+        let live = self.sessions.contains_key(&session_id);
+        let Some(limits) = self.limits.get_mut(&q.player) else {
+            return;
+        };
+        limits.refill(now_ms);
+        limits.volume.give(q.volume_cost);
+        if !charged {
+            limits.edits.give(1);
+        } else if live && !limits.rejections.take(1) && !self.disconnect.contains(&session_id) {
+            self.disconnect.push(session_id);
+        }
+    }
+
     /// The last sequence number handed out (or loaded from the store).
     pub fn last_seq(&self) -> u64 {
         self.next_seq - 1

@@ -231,6 +231,11 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         0
     }
 
+    /// Most regions this node may hold (`[cluster] max_held_regions`).
+    fn max_held_regions(&self) -> usize {
+        usize::MAX
+    }
+
     /// The seq the engine continues after, given the store's `last_seq`:
     /// that one, or in a cluster the seq below a block of seqs reserved for
     /// this process (`store/pg/seqs.rs`). Called once, before the engine starts.

@@ -177,6 +177,11 @@ impl NodeLeases {
         &self.node_id
     }
 
+    /// `[cluster] max_held_regions`.
+    pub fn max_held(&self) -> usize {
+        self.max_held
+    }
+
     /// How many regions are held.
     pub fn held_count(&self) -> usize {
         self.book().held.len()
@@ -619,9 +624,23 @@ pub(super) fn check_incarnation(pool: &Pool, leases: &NodeLeases) -> Result<(), 
     })?;
     let current = match row {
         Some(r) => r.get::<_, i64>(0),
-        // No row (a database restored from a dump, say): nobody else
-        // runs under the name, so it is this process's again.
-        None => return register(pool, leases),
+        // No row (a database restored from a dump, say): written again,
+        // unless another process got there first.
+        None => {
+            let row = pool.run("registering the node again", async |c: &mut Conn| {
+                c.query_opt(
+                    "INSERT INTO nodes (node_id, incarnation) VALUES ($1, $2) \
+                     ON CONFLICT (node_id) DO UPDATE SET node_id = EXCLUDED.node_id \
+                     RETURNING incarnation",
+                    &[&leases.node_id, &leases.incarnation],
+                )
+                .await
+            })?;
+            match row {
+                Some(r) => r.get::<_, i64>(0),
+                None => return Ok(()),
+            }
+        }
     };
     if current == leases.incarnation {
         return Ok(());
@@ -818,7 +837,9 @@ impl Renewer {
                     if let Err(e) = release_idle(&pool, &leases) {
                         warn!(error = %e, "releasing idle regions failed");
                     }
-                    if leases.adopt {
+                    // A process still starting adopts nothing: its start
+                    // may fail, and it has no address to name yet.
+                    if leases.adopt && leases.registered.load(Ordering::Acquire) {
                         if let Err(e) = adopt(&pool, &leases) {
                             warn!(error = %e, "adopting expired regions failed; retrying");
                         }

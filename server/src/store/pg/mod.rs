@@ -467,6 +467,10 @@ impl ChunkStore for PgStore {
         self.leases.as_ref().map_or(0, |l| l.held_count())
     }
 
+    fn max_held_regions(&self) -> usize {
+        self.leases.as_ref().map_or(usize::MAX, |l| l.max_held())
+    }
+
     fn reserve_seqs(&self, last_seq: u64) -> Result<u64, StoreError> {
         let Some(leases) = &self.leases else {
             return Ok(last_seq);
