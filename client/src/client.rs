@@ -482,7 +482,7 @@ impl Client {
         self.shared
             .pending
             .lock()
-            .expect("not poisoned")
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
             .insert(id, tx);
         let sent = self
             .send(&ClientMessage::Edit(EditRequest {
@@ -496,7 +496,7 @@ impl Client {
                 self.shared
                     .pending
                     .lock()
-                    .expect("not poisoned")
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
                     .remove(&id);
                 self.abandon_prediction(id);
                 Err(e)
@@ -938,7 +938,7 @@ async fn read_control(
                 region_chunks,
                 regions,
                 ticket,
-            })) => {
+            })) if regions.len() <= strata_protocol::limits::MAX_REGION_OWNERS => {
                 let mut o = shared
                     .owners
                     .lock()
@@ -950,6 +950,10 @@ async fn read_control(
                     regions,
                     ticket,
                 });
+            }
+            Ok(Some(ServerMessage::RegionOwners { regions, .. })) => {
+                // Past the protocol's cap: not kept (nor cloned per follow).
+                debug!(regions = regions.len(), "server broke the RegionOwners cap");
             }
             Ok(Some(ServerMessage::Arrived { feet })) => {
                 *shared
@@ -1034,6 +1038,16 @@ async fn read_updates(
             .bytes_in
             .store(reader.bytes_read(), Ordering::Relaxed);
         if let WorldUpdate::UnsubscribedMany { chunks } = update {
+            // Past the protocol's cap the server is broken or hostile: the
+            // connection ends rather than the client doing its bidding.
+            if chunks.len() > strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE {
+                debug!(
+                    chunks = chunks.len(),
+                    "server broke the UnsubscribedMany cap"
+                );
+                conn.close(quinn::VarInt::from_u32(0), b"protocol violation");
+                break;
+            }
             for pos in chunks {
                 shared.apply(&replica, WorldUpdate::Unsubscribed { pos });
             }

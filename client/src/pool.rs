@@ -45,7 +45,10 @@ struct MeshMemo {
 impl ChunkPool {
     /// A live chunk at `(pos, version)` with its hash, if some replica holds it.
     pub fn get(&self, pos: ChunkPos, version: u64) -> Option<(Arc<Chunk>, u64)> {
-        let c = self.chunks.lock().expect("not poisoned");
+        let c = self
+            .chunks
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         let (hash, weak) = c.map.get(&(pos, version))?;
         Some((weak.upgrade()?, *hash))
     }
@@ -59,7 +62,10 @@ impl ChunkPool {
         hash: u64,
         chunk: impl Into<Arc<Chunk>>,
     ) -> Arc<Chunk> {
-        let mut c = self.chunks.lock().expect("not poisoned");
+        let mut c = self
+            .chunks
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         if let Some((h, weak)) = c.map.get(&(pos, version)) {
             if *h == hash {
                 if let Some(live) = weak.upgrade() {
@@ -77,12 +83,18 @@ impl ChunkPool {
     }
 
     pub fn mesh_hash(&self, key: &MeshKey) -> Option<u64> {
-        let m = self.meshes.lock().expect("not poisoned");
+        let m = self
+            .meshes
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         m.young.get(key).or_else(|| m.old.get(key)).copied()
     }
 
     pub fn put_mesh_hash(&self, key: MeshKey, hash: u64) {
-        let mut m = self.meshes.lock().expect("not poisoned");
+        let mut m = self
+            .meshes
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         if m.young.len() >= MESH_MEMO_ENTRIES {
             m.old = std::mem::take(&mut m.young);
         }
@@ -91,7 +103,10 @@ impl ChunkPool {
 
     /// Live pooled chunks (for reports).
     pub fn live_chunks(&self) -> usize {
-        let c = self.chunks.lock().expect("not poisoned");
+        let c = self
+            .chunks
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         c.map.values().filter(|(_, w)| w.strong_count() > 0).count()
     }
 }

@@ -10,6 +10,10 @@ use thiserror::Error;
 
 /// Keep-alive interval so idle sessions survive the server's idle timeout.
 pub const KEEP_ALIVE: Duration = Duration::from_secs(5);
+/// Bytes all of a connection's streams may hold unread at once, on the
+/// client (quinn's default is unbounded): room for both streams' own
+/// windows several times over.
+pub const CLIENT_RECEIVE_WINDOW: u32 = 8 << 20;
 
 #[derive(Debug, Error)]
 pub enum TlsError {
@@ -45,6 +49,14 @@ pub fn client_config_pinned_with_alpn(
     let mut cfg = quinn::ClientConfig::new(Arc::new(quic));
     let mut transport = quinn::TransportConfig::default();
     transport.keep_alive_interval(Some(KEEP_ALIVE));
+    // What a server may make the client hold, whatever server it is: the
+    // client opens its one bidirectional stream itself, the server opens
+    // one unidirectional (the updates) and sends no datagrams, and all
+    // streams together buffer at most `CLIENT_RECEIVE_WINDOW`.
+    transport.max_concurrent_bidi_streams(quinn::VarInt::from_u32(0));
+    transport.max_concurrent_uni_streams(quinn::VarInt::from_u32(1));
+    transport.receive_window(quinn::VarInt::from_u32(CLIENT_RECEIVE_WINDOW));
+    transport.datagram_receive_buffer_size(None);
     cfg.transport_config(Arc::new(transport));
     Ok(cfg)
 }

@@ -155,3 +155,37 @@ async fn an_interval_gathers_a_sessions_frames_into_fewer_writes() {
     .await
     .expect("the exchanges finish in time");
 }
+
+/// What any server may make a client hold: one unidirectional stream (the
+/// updates), no bidirectional one, no datagrams. A second stream the
+/// server tries to open waits for credit the client never gives.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_lets_a_server_open_one_stream_and_no_more() {
+    tokio::time::timeout(LIMIT, async {
+        let pair = CertPair::generate(&[]).unwrap();
+        let config = server_config(&pair, &NetSection::default(), &TlsSection::default()).unwrap();
+        let server = quinn::Endpoint::server(config, "127.0.0.1:0".parse().unwrap()).unwrap();
+        let addr = server.local_addr().unwrap();
+        let endpoint = client_endpoint_delayed(addr, Duration::ZERO).unwrap();
+        let client = client_config_pinned(pair.cert_der().as_ref()).unwrap();
+        let connecting = endpoint.connect_with(client, addr, "localhost").unwrap();
+        let conn = server.accept().await.unwrap().await.unwrap();
+        let client_conn = connecting.await.unwrap();
+
+        let wait = Duration::from_millis(500);
+        let mut first = conn.open_uni().await.expect("the updates stream");
+        first.write_all(b"x").await.unwrap();
+        assert!(
+            tokio::time::timeout(wait, conn.open_uni()).await.is_err(),
+            "a second unidirectional stream was granted"
+        );
+        assert!(
+            tokio::time::timeout(wait, conn.open_bi()).await.is_err(),
+            "a bidirectional stream was granted"
+        );
+        assert_eq!(conn.max_datagram_size(), None, "datagrams to the client");
+        drop(client_conn);
+    })
+    .await
+    .expect("within the limit");
+}
