@@ -406,9 +406,12 @@ impl Client {
             tokio::spawn(read_control(reader, shared.clone(), replica.clone())),
             tokio::spawn(read_updates(
                 conn.clone(),
-                replica.clone(),
-                shared.clone(),
+                (replica.clone(), shared.clone()),
                 control.clone(),
+                strata_protocol::capabilities::has(
+                    opts.capabilities,
+                    strata_protocol::capabilities::CAP_OP_REPLAY,
+                ),
             )),
         ];
         Ok(Client {
@@ -991,9 +994,9 @@ fn resolve(shared: &Shared, replica: &Mutex<Replica>, id: u64, v: Acked) {
 /// frame) and applies every update to the replica.
 async fn read_updates(
     conn: quinn::Connection,
-    replica: Arc<Mutex<Replica>>,
-    shared: Arc<Shared>,
+    (replica, shared): (Arc<Mutex<Replica>>, Arc<Shared>),
     control: mpsc::Sender<Bytes>,
+    replay_ops: bool,
 ) {
     let Ok(recv) = conn.accept_uni().await else {
         return;
@@ -1012,6 +1015,13 @@ async fn read_updates(
                 break;
             }
         };
+        // Ops only for a client that asked for them (`CAP_OP_REPLAY`):
+        // each costs a replay of the edit, which no server may impose.
+        if matches!(update, WorldUpdate::Op(_)) && !replay_ops {
+            debug!("server sent an op the client did not ask for");
+            conn.close(quinn::VarInt::from_u32(0), b"protocol violation");
+            break;
+        }
         shared.heard();
         shared.unpaused().await;
         let arrived: Vec<(u64, ChunkPos)> = match &update {

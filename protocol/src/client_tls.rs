@@ -14,6 +14,10 @@ pub const KEEP_ALIVE: Duration = Duration::from_secs(5);
 /// client (quinn's default is unbounded): room for both streams' own
 /// windows several times over.
 pub const CLIENT_RECEIVE_WINDOW: u32 = 8 << 20;
+/// Bytes of unread datagrams from the server a client keeps. Datagrams
+/// stay enabled (quinn sends none on a connection that takes none, and
+/// the client sends its positions as datagrams).
+pub const CLIENT_DATAGRAM_BUFFER: usize = 2048;
 
 #[derive(Debug, Error)]
 pub enum TlsError {
@@ -51,12 +55,14 @@ pub fn client_config_pinned_with_alpn(
     transport.keep_alive_interval(Some(KEEP_ALIVE));
     // What a server may make the client hold, whatever server it is: the
     // client opens its one bidirectional stream itself, the server opens
-    // one unidirectional (the updates) and sends no datagrams, and all
-    // streams together buffer at most `CLIENT_RECEIVE_WINDOW`.
+    // one unidirectional (the updates) and sends no datagrams (the client
+    // reads none: at most `CLIENT_DATAGRAM_BUFFER` bytes of them are kept,
+    // older ones dropped), and all streams together buffer at most
+    // `CLIENT_RECEIVE_WINDOW`.
     transport.max_concurrent_bidi_streams(quinn::VarInt::from_u32(0));
     transport.max_concurrent_uni_streams(quinn::VarInt::from_u32(1));
     transport.receive_window(quinn::VarInt::from_u32(CLIENT_RECEIVE_WINDOW));
-    transport.datagram_receive_buffer_size(None);
+    transport.datagram_receive_buffer_size(Some(CLIENT_DATAGRAM_BUFFER));
     cfg.transport_config(Arc::new(transport));
     Ok(cfg)
 }

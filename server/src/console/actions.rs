@@ -103,9 +103,17 @@ pub async fn run(
         }),
         Action::ZoneRemove { name } => AdminRequest::ZoneRemove { name },
     };
-    // The engine's answer is waited for at most `ENGINE_ANSWER_LIMIT`.
-    let response = answer(&console.ctx, request)
+    // Given up past the limit (a stalled engine or store): dropping the
+    // request lets go of the write turn it may hold.
+    let limit = crate::net::admin_session::ENGINE_ANSWER_LIMIT;
+    let response = tokio::time::timeout(limit, answer(&console.ctx, request))
         .await
+        .map_err(|_| {
+            ActionError::Unavailable(format!(
+                "the server did not answer within {} s; the change may or may not have been made",
+                limit.as_secs()
+            ))
+        })?
         .map_err(ActionError::Unavailable)?;
     if let strata_protocol::admin::AdminResponse::Refused { message } = response {
         info!(%admin, %message, "console action refused");

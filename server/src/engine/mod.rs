@@ -118,6 +118,10 @@ pub struct Engine {
     /// fenced. Retried at most every [`ownership::RELOAD_RETRY`].
     reload_retry: std::collections::BTreeMap<crate::sequencer::regions::RegionId, Option<u64>>,
     reload_retry_at: Option<Instant>,
+    /// Free regions read from the store for an edit's sight check, and
+    /// when: read again only after [`ownership::FREE_REREAD`] (at most
+    /// [`ownership::MAX_FREE_READ`] kept).
+    free_read: std::collections::BTreeMap<crate::sequencer::regions::RegionId, Instant>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -181,6 +185,7 @@ impl Engine {
             region_epochs: HashMap::new(),
             reload_retry: Default::default(),
             reload_retry_at: None,
+            free_read: Default::default(),
         })
     }
 

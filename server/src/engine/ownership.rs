@@ -4,6 +4,9 @@
 //! chunk is loaded) the engine asks the store for every region of the
 //! edit's footprint. One held by another node refuses the edit with
 //! [`RejectReason::RegionElsewhere`], naming the holder and its address.
+//! Free ones are claimed only once the edit passed every rule, line of
+//! sight included, checked on the regions' stored chunks
+//! ([`Engine::claim_after_sight`]): an edit a rule refuses claims nothing.
 //! A region this node claims, here or in the background (adopted from a
 //! crashed node), may have changed while others held it: its chunks are
 //! reloaded from the store, and sessions holding older versions are told
@@ -23,6 +26,12 @@ use std::time::Duration;
 
 /// Shortest time between two tries to reload regions whose reload failed.
 pub const RELOAD_RETRY: Duration = Duration::from_secs(1);
+/// How long a free region read from the store for an edit's sight check
+/// is taken as current: edits aimed there meanwhile (a player refused
+/// again and again, say) cost no more reads.
+pub const FREE_REREAD: Duration = Duration::from_secs(1);
+/// Most free regions remembered as read ([`FREE_REREAD`]).
+pub const MAX_FREE_READ: usize = 1024;
 
 use strata_protocol::{RejectReason, ServerMessage};
 use strata_terrain::{ChunkPos, Edit};
@@ -92,10 +101,12 @@ impl Engine {
                 return Err(RejectReason::Busy);
             }
         };
-        let mut free = BTreeSet::new();
+        let (mut free, mut held) = (BTreeSet::new(), BTreeSet::new());
         for (r, h) in holders {
             match h {
-                RegionHolder::Here => {}
+                RegionHolder::Here => {
+                    held.insert(r);
+                }
                 RegionHolder::Free => {
                     free.insert(r);
                 }
@@ -115,6 +126,14 @@ impl Engine {
             .max_held_regions()
             .saturating_sub(self.store.regions_held());
         if !free.is_empty() && free.len() <= room {
+            // Held, but not reloaded yet: refused before anything loads.
+            if held.iter().any(|r| self.reload_retry.contains_key(r)) {
+                return Err(RejectReason::Busy);
+            }
+            // The held ones are in use (kept from idle release).
+            if !held.is_empty() {
+                let _ = self.store.acquire_regions(&held);
+            }
             return Ok(Some(free));
         }
         // Held (marked in use), or more than this node may claim: the
@@ -144,11 +163,23 @@ impl Engine {
         free: &BTreeSet<RegionId>,
     ) -> Result<(), RejectReason> {
         self.check_sighted();
+        let now = std::time::Instant::now();
         for &r in free {
+            if self
+                .free_read
+                .get(&r)
+                .is_some_and(|at| now.duration_since(*at) < FREE_REREAD)
+            {
+                continue;
+            }
             if let Err(e) = self.reload_region(r) {
                 error!(error = %e, region_x = r.x, region_z = r.z, "reading a free region failed");
                 return Err(RejectReason::Busy);
             }
+            if self.free_read.len() >= MAX_FREE_READ {
+                self.free_read.clear();
+            }
+            self.free_read.insert(r, now);
         }
         Ok(())
     }

@@ -438,8 +438,10 @@ async fn adopt(ctx: &SessionContext, stored: AccessList) -> Result<(), String> {
         }
         answers.push(answer);
     }
+    // One deadline for them all.
+    let until = tokio::time::Instant::now() + ENGINE_ANSWER_LIMIT;
     for answer in answers {
-        let _ = tokio::time::timeout(ENGINE_ANSWER_LIMIT, answer).await;
+        let _ = tokio::time::timeout_at(until, answer).await;
     }
     Ok(())
 }
