@@ -1142,3 +1142,24 @@ fn a_node_lists_only_the_deltas_of_regions_it_holds() {
         [pb]
     );
 }
+
+/// Regions claimed for an edit refused after all are let go at once,
+/// reported fresh (no longer held); others, and regions not held, stay.
+#[test]
+fn regions_claimed_for_a_refused_edit_are_let_go() {
+    let Some(db) = database("lease_release_some") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let (r, s, t) = (region(0, 0), region(1, 0), region(2, 0));
+    a.claim_regions(&[r, s]).unwrap();
+    let _ = a.take_fresh_regions();
+    a.release_regions(&regions(&[r, t])).unwrap();
+    assert_eq!(a.leases().unwrap().held(), BTreeMap::from([(s, 1)]));
+    assert_eq!(a.take_fresh_regions(), vec![(r, None)]);
+    let owners = sql(
+        &db,
+        "SELECT region_x || ':' || coalesce(owner, '-') FROM regions ORDER BY region_x",
+    );
+    assert_eq!(owners, ["0:-", "1:a"]);
+}

@@ -218,6 +218,12 @@ impl Engine {
             }
             Err((reason, charged)) => {
                 self.seq.take_back(session, client_edit_id, charged, now);
+                // One claim takes what it can: what it took for this edit
+                // (another node had one of the others) goes back.
+                if let Err(e) = self.store.release_regions(free) {
+                    warn!(error = %e, "letting go of a refused edit's regions failed; they idle out");
+                }
+                self.take_fresh_regions();
                 Err(reason)
             }
         }

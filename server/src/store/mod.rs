@@ -231,6 +231,12 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         0
     }
 
+    /// Lets go of those of `regions` this node holds (claimed for an edit
+    /// that was refused after all); they are reported fresh.
+    fn release_regions(&self, _regions: &BTreeSet<RegionId>) -> Result<(), StoreError> {
+        Ok(())
+    }
+
     /// Most regions this node may hold (`[cluster] max_held_regions`).
     fn max_held_regions(&self) -> usize {
         usize::MAX

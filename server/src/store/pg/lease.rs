@@ -697,6 +697,28 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
     Ok(lost)
 }
 
+/// Gives up those of `regions` this node holds (a claim made for an edit
+/// that was then refused); each is reported fresh. Returns how many.
+pub(super) fn release_some(
+    pool: &Pool,
+    leases: &NodeLeases,
+    regions: &BTreeSet<RegionId>,
+) -> Result<u64, StoreError> {
+    let gone: BTreeMap<RegionId, u64> = {
+        let mut book = leases.book();
+        let mut gone = BTreeMap::new();
+        for r in regions {
+            if let Some(epoch) = book.held.remove(r) {
+                book.used.remove(r);
+                book.fresh.insert(*r);
+                gone.insert(*r, epoch);
+            }
+        }
+        gone
+    };
+    let_go(pool, leases, &gone)
+}
+
 /// Gives up every lease still this node's (owner set to NULL, epoch
 /// kept): another node may claim them at once. Returns how many.
 pub(super) fn release(pool: &Pool, leases: &NodeLeases) -> Result<u64, StoreError> {

@@ -467,6 +467,16 @@ impl ChunkStore for PgStore {
         self.leases.as_ref().map_or(0, |l| l.held_count())
     }
 
+    fn release_regions(
+        &self,
+        regions: &std::collections::BTreeSet<RegionId>,
+    ) -> Result<(), StoreError> {
+        match &self.leases {
+            Some(leases) => lease::release_some(&self.pool, leases, regions).map(|_| ()),
+            None => Ok(()),
+        }
+    }
+
     fn max_held_regions(&self) -> usize {
         self.leases.as_ref().map_or(usize::MAX, |l| l.max_held())
     }
