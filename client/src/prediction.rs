@@ -25,7 +25,7 @@
 //! view) is **unverified** unless the chunk sets already differ. A rejected
 //! edit, or one whose verdict never came, is **rolled back**.
 
-use std::collections::{BTreeSet, HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
 use serde::Serialize;
@@ -362,6 +362,19 @@ impl Prediction {
         match *verdict {
             Verdict::Accepted { seq } => {
                 let p = &mut self.pending[i];
+                // Only chunks the edit reads can be among its changes, each
+                // once: whatever else a server lists is dropped, so a huge
+                // list costs nothing later (each settle scans this one).
+                let reads: HashSet<ChunkPos> = p.reads.iter().copied().collect();
+                let mut kept: BTreeMap<ChunkPos, u64> = BTreeMap::new();
+                for c in changes.iter().filter(|c| reads.contains(&c.pos)) {
+                    kept.entry(c.pos).or_insert(c.version);
+                }
+                let changes: Vec<ChunkVersion> = kept
+                    .into_iter()
+                    .map(|(pos, version)| ChunkVersion { pos, version })
+                    .collect();
+                let changes = &changes[..];
                 p.accepted = Some(Accepted {
                     seq,
                     changes: changes.to_vec(),
@@ -541,5 +554,63 @@ impl Prediction {
                 .filter_map(|p| fresh.get(&p).map(|c| (p, c.clone())))
                 .collect()
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strata_terrain::edit::{Fixed, FixedVec3};
+
+    /// A replica holding every chunk around the origin, generated flat.
+    fn replica() -> Replica {
+        let stone = Voxel::solid(strata_terrain::material::ids::STONE);
+        let mut r = Replica::new(Some(Arc::new(FlatGenerator { ground: stone })));
+        for x in -2..=2 {
+            for y in -2..=2 {
+                for z in -2..=2 {
+                    r.apply(WorldUpdate::Generated {
+                        pos: ChunkPos::new(x, y, z),
+                    });
+                }
+            }
+        }
+        r
+    }
+
+    #[test]
+    fn a_verdict_keeps_only_changes_the_edit_could_make_each_once() {
+        let replica = replica();
+        let mut p = Prediction::new(Arc::new(StructureLibrary::default()), 4);
+        let at = |v: f64| Fixed::from_f64(v).unwrap();
+        let edit = Edit::Mine {
+            center: FixedVec3::new(at(4.0), at(4.0), at(4.0)),
+            radius: at(2.0),
+            strength: 60,
+        };
+        assert!(p.predict(1, edit, &replica));
+        let here = ChunkPos::new(0, 0, 0);
+        // A hostile verdict: the edit's own chunk many times over, and
+        // chunks it cannot have changed.
+        let mut changes = vec![
+            ChunkVersion {
+                pos: here,
+                version: 1
+            };
+            10_000
+        ];
+        changes.extend((0..10_000).map(|i| ChunkVersion {
+            pos: ChunkPos::new(1_000 + i, 0, 0),
+            version: 1,
+        }));
+        p.verdict(1, &Verdict::Accepted { seq: 1 }, &changes, &replica);
+        let kept = &p.pending[0].accepted.as_ref().unwrap().changes;
+        assert_eq!(
+            kept,
+            &[ChunkVersion {
+                pos: here,
+                version: 1
+            }]
+        );
     }
 }
