@@ -212,8 +212,15 @@ impl Engine {
         let access = self.store.acquire_regions(free);
         match access_refusal(access) {
             Ok(()) => {
-                // Reloaded, or its edits refused `Busy` if that failed.
-                self.take_fresh_regions();
+                // Reloaded, or its edits refused `Busy` if that failed. A
+                // writer that got in since the read moved chunks its sight
+                // was checked on: refused `Busy` (free), tried again on
+                // the current copy.
+                let moved = self.take_fresh_regions();
+                if free.iter().any(|r| moved.contains(r)) {
+                    self.seq.take_back(session, client_edit_id, false, now);
+                    return Err(RejectReason::Busy);
+                }
                 Ok(())
             }
             Err((reason, charged)) => {
@@ -251,13 +258,15 @@ impl Engine {
     /// (and those whose reload failed, once [`RELOAD_RETRY`] has passed).
     /// A region takes its new epoch only once reloaded: until then a batch
     /// writing it is fenced, never built on chunks another node moved on.
-    fn take_fresh_regions(&mut self) {
+    /// Returns the regions whose reload moved a chunk.
+    fn take_fresh_regions(&mut self) -> BTreeSet<RegionId> {
+        let mut moved = BTreeSet::new();
         let fresh = self.store.take_fresh_regions();
         let retry_due = self
             .reload_retry_at
             .is_none_or(|at| at.elapsed() >= RELOAD_RETRY);
         if fresh.is_empty() && (self.reload_retry.is_empty() || !retry_due) {
-            return;
+            return moved;
         }
         let mut todo = if retry_due {
             std::mem::take(&mut self.reload_retry)
@@ -272,6 +281,9 @@ impl Engine {
         for (r, epoch) in todo {
             match self.reload_region(r) {
                 Ok(n) => {
+                    if n > 0 {
+                        moved.insert(r);
+                    }
                     match epoch {
                         Some(e) => self.region_epochs.insert(r, e),
                         None => self.region_epochs.remove(&r),
@@ -292,14 +304,15 @@ impl Engine {
                 }
             }
         }
-        // Edits queued in one (claimed at the gate, or adopted under
-        // them) are refused now, not applied to be fenced.
+        // Edits queued in one (claimed for them, or adopted under them)
+        // are refused now, not applied to be fenced.
         if !self.reload_retry.is_empty() {
             let failed = self.reload_retry.keys().copied().collect();
             for (session, id) in self.seq.unqueue_in(&failed, super::now_ms()) {
                 self.refuse_edit(session, id, RejectReason::Busy);
             }
         }
+        moved
     }
 
     /// Brings the region's chunks to their stored versions; returns how
