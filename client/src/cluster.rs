@@ -113,13 +113,18 @@ pub fn edit_anchor(edit: &Edit) -> VoxelPos {
     }
 }
 
+/// Longest a node's name may take to resolve: a name a server hands out
+/// never stalls the session's commands for longer.
+pub const RESOLVE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(2);
+
 async fn resolve(addr: &str) -> Result<SocketAddr, ClusterError> {
     if let Ok(a) = addr.parse() {
         return Ok(a);
     }
-    tokio::net::lookup_host(addr)
+    tokio::time::timeout(RESOLVE_TIMEOUT, tokio::net::lookup_host(addr))
         .await
         .ok()
+        .and_then(Result::ok)
         .and_then(|mut a| a.next())
         .ok_or_else(|| ClusterError::BadAddress(addr.to_string()))
 }
@@ -541,6 +546,18 @@ impl ClusterClient {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[tokio::test]
+    async fn node_names_resolve_or_are_bad_addresses_in_time() {
+        let a: SocketAddr = "127.0.0.1:4433".parse().unwrap();
+        assert_eq!(resolve("127.0.0.1:4433").await.unwrap(), a);
+        assert_eq!(resolve("localhost:4433").await.unwrap().port(), 4433);
+        assert!(matches!(
+            resolve("no-such-host.invalid:4433").await,
+            Err(ClusterError::BadAddress(_))
+        ));
+        assert!(resolve("not an address").await.is_err());
+    }
     use strata_terrain::Fixed;
 
     #[test]
