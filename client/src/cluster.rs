@@ -113,8 +113,9 @@ pub fn edit_anchor(edit: &Edit) -> VoxelPos {
     }
 }
 
-/// Longest a node's name may take to resolve: a name a server hands out
-/// never stalls the session's commands for longer.
+/// Longest a node's name may take to resolve, and all the names of one
+/// reroute together: names a server hands out never stall the session's
+/// commands for longer.
 pub const RESOLVE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(2);
 
 async fn resolve(addr: &str) -> Result<SocketAddr, ClusterError> {
@@ -359,7 +360,15 @@ impl ClusterClient {
             kept.clear();
             self.view.region_chunks = side;
         }
-        let routing = build_routes(latest, &kept, |a| async move { resolve(&a).await.ok() }).await;
+        // One deadline for every name of this reroute.
+        let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
+        let routing = build_routes(latest, &kept, |a| async move {
+            tokio::time::timeout_at(until, resolve(&a))
+                .await
+                .ok()
+                .and_then(Result::ok)
+        })
+        .await;
         self.view.routes = routing.routes;
         routing.named
     }

@@ -147,8 +147,8 @@ impl Engine {
             .precheck(session, &request.edit, now)
             .and_then(|pre| {
                 let claim = self.check_regions(session, &request.edit, now)?;
-                if let Some(free) = &claim {
-                    self.before_claiming(free)?;
+                if let Some(c) = &claim {
+                    self.before_claiming(&c.free)?;
                 }
                 let needed = self.seq.missing(pre.reads());
                 if let Err(e) = self.make_resident(&needed) {
@@ -158,7 +158,7 @@ impl Engine {
                 // at once for an edit whose regions are claimed for it.
                 self.seq.admit_prechecked(session, request, pre, now)?;
                 match &claim {
-                    Some(free) => self.claim_after_sight(session, id, free, now),
+                    Some(c) => self.claim_after_sight(session, id, c, now),
                     None => Ok(()),
                 }
             });

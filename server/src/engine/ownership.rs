@@ -43,6 +43,14 @@ use crate::sequencer::batch::TickOutput;
 use crate::sequencer::regions::RegionId;
 use crate::store::{RegionAccess, RegionHolder, StoreError};
 
+/// Regions an edit needs that this node must claim first (`free`), and
+/// every region it touches (`all`).
+#[derive(Debug)]
+pub(super) struct Claim {
+    pub(super) free: BTreeSet<RegionId>,
+    pub(super) all: BTreeSet<RegionId>,
+}
+
 /// The refusal for regions this node may not write now (`access`, what
 /// the store answered), and whether it costs the player a rejection token.
 fn access_refusal(access: Result<RegionAccess, StoreError>) -> Result<(), (RejectReason, bool)> {
@@ -86,7 +94,7 @@ impl Engine {
         session: u64,
         edit: &Edit,
         now: u64,
-    ) -> Result<Option<BTreeSet<RegionId>>, RejectReason> {
+    ) -> Result<Option<Claim>, RejectReason> {
         if !self.store.clustered() {
             return Ok(None);
         }
@@ -126,7 +134,9 @@ impl Engine {
             .max_held_regions()
             .saturating_sub(self.store.regions_held());
         if !free.is_empty() && free.len() <= room {
-            // Held, but not reloaded yet: refused before anything loads.
+            // Held ones reported fresh (adopted, say) are reloaded before
+            // the sight check reads them; one not reloaded yet refuses.
+            self.take_fresh_regions();
             if held.iter().any(|r| self.reload_retry.contains_key(r)) {
                 return Err(RejectReason::Busy);
             }
@@ -134,7 +144,7 @@ impl Engine {
             if !held.is_empty() {
                 let _ = self.store.acquire_regions(&held);
             }
-            return Ok(Some(free));
+            return Ok(Some(Claim { free, all: regions }));
         }
         // Held (marked in use), or more than this node may claim: the
         // store answers now, and claims nothing at capacity.
@@ -192,9 +202,10 @@ impl Engine {
         &mut self,
         session: u64,
         client_edit_id: u64,
-        free: &BTreeSet<RegionId>,
+        claim: &Claim,
         now: u64,
     ) -> Result<(), RejectReason> {
+        let free = &claim.free;
         let pool = self.pool.clone();
         let seq = &mut self.seq;
         let refused = pool.install(|| seq.check_sighted(now));
@@ -217,8 +228,12 @@ impl Engine {
                 // was checked on: refused `Busy` (free), tried again on
                 // the current copy.
                 let moved = self.take_fresh_regions();
-                if free.iter().any(|r| moved.contains(r)) {
-                    self.seq.take_back(session, client_edit_id, false, now);
+                if claim.all.iter().any(|r| moved.contains(r)) {
+                    // Not in the queue any more: a failed reload's
+                    // `unqueue_in` took it out and answered it.
+                    if !self.seq.take_back(session, client_edit_id, false, now) {
+                        return Ok(());
+                    }
                     return Err(RejectReason::Busy);
                 }
                 Ok(())

@@ -242,18 +242,25 @@ impl Sequencer {
     /// queue, refused after it was queued (a cluster node could not claim
     /// its regions). Its volume goes back; so does its edit token unless
     /// the refusal is `charged`, which costs a rejection token instead.
-    pub fn take_back(&mut self, session_id: u64, client_edit_id: u64, charged: bool, now_ms: u64) {
+    /// False when it was not in the queue (answered already).
+    pub fn take_back(
+        &mut self,
+        session_id: u64,
+        client_edit_id: u64,
+        charged: bool,
+        now_ms: u64,
+    ) -> bool {
         let Some(i) = self.queue.iter().rposition(|q| {
             (q.session_id, q.request.client_edit_id) == (session_id, client_edit_id)
         }) else {
-            return;
+            return false;
         };
         let Some(q) = self.queue.remove(i) else {
-            return;
+            return false;
         };
         let live = self.sessions.contains_key(&session_id);
         let Some(limits) = self.limits.get_mut(&q.player) else {
-            return;
+            return true;
         };
         limits.refill(now_ms);
         limits.volume.give(q.volume_cost);
@@ -262,6 +269,7 @@ impl Sequencer {
         } else if live && !limits.rejections.take(1) && !self.disconnect.contains(&session_id) {
             self.disconnect.push(session_id);
         }
+        true
     }
 
     /// The last sequence number handed out (or loaded from the store).
