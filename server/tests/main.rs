@@ -22,6 +22,7 @@ mod admin_snapshot_file;
 mod auth_secret_duration;
 mod auth_tls_quic;
 mod auth_tokens;
+mod client_hostile_server;
 mod cluster_routing;
 mod config_datadir;
 mod config_load;
