@@ -2,8 +2,9 @@
 //! was, and a store holding records without metadata is not taken for a
 //! new world; headers this build cannot serve, zones `ZoneAdd` would
 //! refuse and chunks in a seq-0 snapshot fail verification, and restore
-//! refuses them before touching the data dir; a forced PostgreSQL restore
-//! leaves no stale seq blocks.
+//! refuses them before touching the data dir; a PostgreSQL restore is one
+//! transaction (cut short, it leaves the old world), a forced one leaves
+//! no stale seq blocks and is refused while a node runs.
 
 use crate::snapshot_common;
 use crate::store_common;
@@ -19,12 +20,12 @@ use strata_server::admin::snapshot_cmd::{
 use strata_server::app::ZONES_BLOB;
 use strata_server::cluster::ClusterConfig;
 use strata_server::datadir::WORLD_DB_NAME;
-use strata_server::sequencer::regions::DEFAULT_REGION_CHUNKS;
+use strata_server::sequencer::regions::{RegionId, DEFAULT_REGION_CHUNKS};
 use strata_server::snapshot::restore::import;
 use strata_server::snapshot::{verify, SnapshotHeader};
 use strata_server::store::pg::PgConfig;
 use strata_server::store::{
-    ChunkStore, ImportTarget, PgStore, RawChunk, SledStore, StoreError, WorldMeta,
+    ChunkStore, ImportTarget, PgStore, RawChunk, RegionAccess, SledStore, StoreError, WorldMeta,
     MAX_GENERATOR_PARAMS_BYTES,
 };
 use strata_terrain::chunk_codec::encode_chunk;
@@ -87,7 +88,7 @@ fn issues(file: &Path) -> String {
 
 /// Passes the chunks through, then fails where the metadata would be
 /// written: an import cut short (disk full, Ctrl-C) after its chunks.
-struct CutBeforeMeta<'a>(&'a SledStore);
+struct CutBeforeMeta<'a>(&'a dyn ImportTarget);
 
 impl ImportTarget for CutBeforeMeta<'_> {
     fn begin_import(&self) -> Result<(), StoreError> {
@@ -145,15 +146,8 @@ fn a_restore_cut_short_leaves_the_old_world() {
     assert_eq!(listing(&data), before);
 }
 
-/// Imports a chunk with no metadata, then `init_meta` must refuse.
-fn refuses_records_without_meta(import: &dyn ImportTarget, store: &dyn ChunkStore) {
-    let raw = RawChunk {
-        pos: ChunkPos::new(1, 0, 2),
-        version: 4,
-        encoded: encode_chunk(&terrain_chunk(3)),
-    };
-    import.begin_import().unwrap();
-    import.import_chunks(&[raw]).unwrap();
+/// A store holding a chunk with no metadata: `init_meta` must refuse.
+fn refuses_records_without_meta(store: &dyn ChunkStore) {
     match store.init_meta(&WorldMeta::new(7, 1, "")) {
         Err(StoreError::InvalidMeta { reason }) => {
             assert!(reason.contains("interrupted restore"), "{reason}")
@@ -167,10 +161,24 @@ fn refuses_records_without_meta(import: &dyn ImportTarget, store: &dyn ChunkStor
 fn init_meta_refuses_a_store_with_chunks_but_no_metadata() {
     let tmp = tempfile::tempdir().unwrap();
     let sled = SledStore::open(tmp.path()).unwrap();
-    refuses_records_without_meta(&sled, &sled);
+    let raw = RawChunk {
+        pos: ChunkPos::new(1, 0, 2),
+        version: 4,
+        encoded: encode_chunk(&terrain_chunk(3)),
+    };
+    sled.begin_import().unwrap();
+    sled.import_chunks(&[raw]).unwrap();
+    refuses_records_without_meta(&sled);
     if let Some(db) = database("init_meta_refuses_a_store_with_chunks_but_no_metadata") {
+        // A restore commits its chunks with the world row, so only an
+        // older build's restore cut short could leave this.
         let pg = pg_store(&db);
-        refuses_records_without_meta(&pg, &pg);
+        sql(
+            &db,
+            "INSERT INTO chunks (x, y, z, region_x, region_z, version, body) \
+             VALUES (1, 0, 2, 0, 0, 4, '\\x00')",
+        );
+        refuses_records_without_meta(&pg);
     }
 }
 
@@ -311,4 +319,129 @@ fn a_forced_postgres_restore_leaves_no_stale_seq_blocks() {
     assert_eq!(sql(&db, "SELECT count(*) FROM seq_blocks"), ["1"]);
     let report = pg_store(&db).check().unwrap();
     assert!(report.is_ok(), "{:?}", report.issues);
+}
+
+/// The PostgreSQL world as (last_seq, chunks); its store checks clean.
+fn pg_world(db: &strata_tests::postgres::PgDb) -> (String, String) {
+    let report = pg_store(db).check().unwrap();
+    assert!(report.is_ok(), "{:?}", report.issues);
+    (
+        sql(db, "SELECT last_seq FROM world").concat(),
+        sql(db, "SELECT count(*) FROM chunks").concat(),
+    )
+}
+
+/// `restore` of `file` into `db`'s store, through the admin command.
+fn pg_restore(
+    db: &strata_tests::postgres::PgDb,
+    tmp: &Path,
+    file: &Path,
+    force: bool,
+) -> anyhow::Result<u64> {
+    let config = tmp.join("strata.toml");
+    std::fs::write(&config, db.store_toml()).unwrap();
+    snapshot_cmd::restore(&RestoreArgs {
+        file: file.into(),
+        data_dir: tmp.join("data"),
+        force,
+        config: Some(config),
+    })
+}
+
+#[test]
+fn a_postgres_restore_cut_short_leaves_the_old_world() {
+    let Some(db) = database("a_postgres_restore_cut_short_leaves_the_old_world") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
+    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
+    assert_eq!(pg_restore(&db, tmp.path(), &old, false).unwrap(), 3);
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+
+    // Replacing: the tables are emptied and the new chunks written inside
+    // the transaction, which the failure rolls back.
+    let store = pg_store(&db);
+    let err = import(
+        &new,
+        &CutBeforeMeta(&store.import_in_one_transaction(true)),
+        ZONES_BLOB,
+        |_| {},
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("no space left"), "{err}");
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+    assert_eq!(sql(&db, "SELECT count(*) FROM blobs"), ["1"], "zones kept");
+
+    // Nothing of the failed transaction holds the tables: a whole
+    // restore replaces the world.
+    assert_eq!(pg_restore(&db, tmp.path(), &new, true).unwrap(), 5);
+    assert_eq!(pg_world(&db), ("20".into(), "5".into()));
+}
+
+#[test]
+fn a_forced_postgres_restore_waits_for_no_running_node() {
+    let Some(db) = database("a_forced_postgres_restore_waits_for_no_running_node") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
+    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
+    assert_eq!(pg_restore(&db, tmp.path(), &old, false).unwrap(), 3);
+
+    // A node holding a region's lease: refused, with its name.
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let cluster = ClusterConfig {
+        node_id: "west".into(),
+        ..ClusterConfig::default()
+    };
+    let node = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap();
+    node.register_node().unwrap();
+    let region = RegionId { x: 0, z: 0 };
+    assert_eq!(
+        node.acquire_regions(&[region].into_iter().collect())
+            .unwrap(),
+        RegionAccess::Granted
+    );
+    let err = format!("{:#}", pg_restore(&db, tmp.path(), &new, true).unwrap_err());
+    assert!(
+        err.contains("leased by running nodes")
+            && err.contains("\"west\"")
+            && err.contains("stop every node first"),
+        "{err}"
+    );
+    assert!(err.contains("unchanged"), "{err}");
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+    drop(node);
+
+    // A lease run out is a node stopped.
+    sql(
+        &db,
+        "UPDATE regions SET lease_expires = now() - interval '1 second'",
+    );
+    // Something still using the world's tables: refused after a bounded
+    // wait, the world unchanged.
+    let (done_tx, done) = std::sync::mpsc::channel::<()>();
+    let holder = store_common::hold_rows(
+        &db,
+        "LOCK TABLE chunks IN ACCESS SHARE MODE",
+        "ROLLBACK",
+        move || {
+            let _ = done.recv();
+        },
+    );
+    let err = format!("{:#}", pg_restore(&db, tmp.path(), &new, true).unwrap_err());
+    done_tx.send(()).unwrap();
+    holder.join().unwrap();
+    assert!(
+        err.contains("stayed in use") && err.contains("stop every node first"),
+        "{err}"
+    );
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+
+    assert_eq!(pg_restore(&db, tmp.path(), &new, true).unwrap(), 5);
+    assert_eq!(pg_world(&db), ("20".into(), "5".into()));
 }

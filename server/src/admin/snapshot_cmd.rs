@@ -16,7 +16,7 @@ use crate::engine::admin::zone_spec;
 use crate::snapshot::diff::{diff, DiffReport};
 use crate::snapshot::restore::import;
 use crate::snapshot::{verify, SnapshotHeader, SnapshotWriter, VerifyReport};
-use crate::store::{ChunkStore, ImportTarget, PgStore, SledStore, StoreBackend};
+use crate::store::{ChunkStore, PgStore, SledStore, StoreBackend};
 use crate::validate::zones::Zone;
 
 #[derive(Debug, Subcommand)]
@@ -385,16 +385,14 @@ fn restore_postgres(args: &RestoreArgs, cfg: &ServerConfig, total: u64) -> anyho
         .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
     let store = PgStore::open(&cfg.store.postgres, cfg.sequencer.region_chunks)
         .context("opening the PostgreSQL store")?;
-    if let Err(e) = store.begin_import() {
-        if !args.force {
-            bail!("the PostgreSQL store already holds a world ({e}); pass --force to replace it (stop every node first)");
-        }
-        store
-            .clear_world()
-            .context("emptying the PostgreSQL store")?;
+    if !args.force && store.holds_world()? {
+        bail!("the PostgreSQL store already holds a world; pass --force to replace it (stop every node first)");
     }
+    // One transaction: cut short, the store keeps the world it had.
+    let target = store.import_in_one_transaction(args.force);
     let bar = progress(Some(total), "restore {bar:40} {pos}/{len} chunks {eta}");
-    let n = import(&args.file, &store, ZONES_BLOB, |n| bar.set_position(n))?;
+    let n = import(&args.file, &target, ZONES_BLOB, |n| bar.set_position(n))
+        .context("the PostgreSQL store is unchanged")?;
     bar.finish_and_clear();
     Ok(n)
 }

@@ -1,7 +1,8 @@
 //! A small pool of PostgreSQL connections, each with its cached prepared
 //! statements, and the one way the store talks to them: [`Pool::run`]
 //! (one call) and [`Pool::run_tx`] (one transaction), each under the
-//! statement timeout.
+//! statement timeout, and [`Pool::hold`] (one connection for a transaction
+//! that spans calls, each under the statement timeout).
 
 use std::collections::HashMap;
 use std::sync::{Condvar, Mutex};
@@ -191,6 +192,16 @@ impl Pool {
         })
     }
 
+    /// A connection of its own, for a transaction that spans several calls
+    /// ([`Held`]).
+    pub fn hold(&self) -> Result<Held<'_>, StoreError> {
+        Ok(Held {
+            pool: self,
+            conn: Some(self.take()?),
+            clean: true,
+        })
+    }
+
     /// An idle connection, a new one while under the limit, or the next
     /// one given back within `pool_wait`.
     fn take(&self) -> Result<Conn, StoreError> {
@@ -288,6 +299,71 @@ impl Pool {
             }
         }
         Ok(conn)
+    }
+}
+
+/// A connection taken out of the pool for a transaction that spans calls.
+/// It goes back to the pool only when clean (no transaction open); one
+/// dropped mid-transaction is closed, and PostgreSQL rolls it back.
+#[derive(Debug)]
+pub struct Held<'p> {
+    pool: &'p Pool,
+    /// `None` once a call failed or timed out: the connection was closed.
+    conn: Option<Conn>,
+    /// No transaction open on it.
+    clean: bool,
+}
+
+impl Held<'_> {
+    /// One call on the held connection, under the statement timeout. A
+    /// failure or timeout closes the connection (so its transaction, if
+    /// any, is rolled back); later calls fail.
+    pub fn run<T>(
+        &mut self,
+        what: &'static str,
+        f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
+        let Some(conn) = self.conn.as_mut() else {
+            return Err(StoreError::PgSetup {
+                reason: format!("{what}: the connection was closed by an earlier failure"),
+            });
+        };
+        let limit = self.pool.statement_timeout;
+        let result = match wait(f(conn), limit) {
+            Ok(r) => r,
+            Err(_) => Err(StoreError::PgTimeout {
+                what,
+                limit_ms: limit.as_millis() as u64,
+            }),
+        };
+        if result.is_err() {
+            self.conn = None;
+            self.pool.give(None);
+        }
+        result
+    }
+
+    /// Statements that open a transaction (`BEGIN ...`).
+    pub fn begin(&mut self, what: &'static str, begin: &'static str) -> Result<(), StoreError> {
+        self.run(what, async |c: &mut Conn| c.batch(begin).await)?;
+        self.clean = false;
+        Ok(())
+    }
+
+    /// `COMMIT`s the open transaction: durable when it returns.
+    pub fn commit(&mut self, what: &'static str) -> Result<(), StoreError> {
+        self.run(what, async |c: &mut Conn| c.batch("COMMIT").await)?;
+        self.clean = true;
+        Ok(())
+    }
+}
+
+impl Drop for Held<'_> {
+    fn drop(&mut self) {
+        if let Some(conn) = self.conn.take() {
+            // Closing the connection rolls an open transaction back.
+            self.pool.give(self.clean.then_some(conn));
+        }
     }
 }
 
