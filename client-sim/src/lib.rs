@@ -6,6 +6,6 @@ pub mod bots;
 pub use strata_client::{client, pool, prediction, replica, tls};
 pub use strata_client::{
     Acked, Arrival, ChunkPool, Client, ClientError, ClientOptions, ClusterClient, ClusterError,
-    MeshMismatch, Notice, Prediction, PredictionStats, Replica, ReplicaStats, Request, Verdict,
-    MAX_PENDING_PREDICTIONS,
+    JoinRate, MeshMismatch, Notice, Prediction, PredictionStats, Replica, ReplicaStats, Request,
+    Verdict, MAX_PENDING_PREDICTIONS,
 };

@@ -96,6 +96,9 @@ pub struct ClientOptions {
     /// (a simulated link delay: the RTT grows by it; zero: none). For load
     /// tests at a real network's RTT on loopback; see [`crate::link_delay`].
     pub link_delay: Duration,
+    /// How fast a cluster client may reach out to nodes it is not
+    /// connected to (see [`crate::cluster::JoinRate`]).
+    pub join_rate: crate::cluster::JoinRate,
 }
 
 /// An edit on its way to the server, from [`Client::submit`].

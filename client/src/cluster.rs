@@ -2,8 +2,9 @@
 //! ([`ClusterClient`]). Each node writes some regions; every node tells
 //! its sessions who writes each region their view overlaps
 //! (`ServerMessage::RegionOwners`). The cluster client keeps one
-//! connection per node named there (at most [`MAX_CLUSTER_NODES`]; one
-//! no longer named nor routed to is closed), arriving at each with the
+//! connection per node named there (at most [`MAX_CLUSTER_NODES`], joined
+//! no faster than [`JoinRate`] allows whatever a node names; one no longer
+//! named nor routed to is closed), arriving at each with the
 //! ticket the last message carried so the player continues where it
 //! stands, reports every position to all of them, sends each edit to the
 //! node that writes its region, and reads each chunk from that node's
@@ -32,8 +33,80 @@ pub const MAX_CLUSTER_NODES: usize = 8;
 pub const ARRIVE_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long a node that could not be joined is left alone.
 pub const JOIN_BACKOFF: Duration = Duration::from_secs(2);
-/// Most distinct node addresses one reroute looks up.
+/// Most distinct node addresses one reroute looks up, and most names the
+/// client keeps looked up.
 const MAX_LOOKUPS: usize = 2 * MAX_CLUSTER_NODES;
+/// How long a name's lookup is used again (a failed one: [`JOIN_BACKOFF`]).
+pub const RESOLVED_TTL: Duration = Duration::from_secs(60);
+
+/// How fast a cluster client reaches out to destinations it does not use
+/// yet: each connection attempt to a node it is not connected to, and each
+/// name it looks up afresh, takes a token from a bucket of `burst`, refilled
+/// one per `every`. Whatever a node's `RegionOwners` name, it cannot make
+/// the players connected to it send handshakes or lookups to addresses of
+/// its choosing faster than that (a reflector). A join or a lookup left
+/// for lack of tokens is tried again at a later [`ClusterClient::follow`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct JoinRate {
+    /// Tokens when none was spent for a while: 0 joins no other node.
+    pub burst: u32,
+    /// One token back per this long (zero: no limit).
+    pub every: Duration,
+}
+
+impl Default for JoinRate {
+    /// A whole cluster's worth at once, then one a second.
+    fn default() -> Self {
+        Self {
+            burst: MAX_CLUSTER_NODES as u32,
+            every: Duration::from_secs(1),
+        }
+    }
+}
+
+/// A [`JoinRate`]'s tokens.
+#[derive(Debug)]
+struct JoinBucket {
+    rate: JoinRate,
+    tokens: u32,
+    /// When the last token came back (or the bucket was last full).
+    since: Instant,
+}
+
+impl JoinBucket {
+    fn new(rate: JoinRate, now: Instant) -> Self {
+        Self {
+            rate,
+            tokens: rate.burst,
+            since: now,
+        }
+    }
+
+    /// Takes a token if there is one.
+    fn take(&mut self, now: Instant) -> bool {
+        if self.rate.every.is_zero() {
+            return true;
+        }
+        let every = self.rate.every.as_nanos();
+        let earned = now.saturating_duration_since(self.since).as_nanos() / every;
+        if earned > 0 {
+            let tokens = u128::from(self.tokens) + earned;
+            if tokens >= u128::from(self.rate.burst) {
+                self.tokens = self.rate.burst;
+                self.since = now;
+            } else {
+                self.tokens = tokens as u32;
+                // earned < burst here, so this fits.
+                self.since += self.rate.every * earned as u32;
+            }
+        }
+        if self.tokens == 0 {
+            return false;
+        }
+        self.tokens -= 1;
+        true
+    }
+}
 
 /// A node's last `RegionOwners`, numbered in arrival order.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -130,6 +203,88 @@ async fn resolve(addr: &str) -> Result<SocketAddr, ClusterError> {
         .ok_or_else(|| ClusterError::BadAddress(addr.to_string()))
 }
 
+/// A reroute's name lookups: the names looked up before and the tokens
+/// fresh ones take.
+struct Lookups<'a> {
+    resolved: BTreeMap<String, (Option<SocketAddr>, Instant)>,
+    joins: &'a mut JoinBucket,
+    /// A name was left for lack of tokens.
+    owed: bool,
+}
+
+impl<'a> Lookups<'a> {
+    /// The names looked up so far and the bucket, lent to one round of
+    /// lookups (`resolved` goes back after).
+    fn lend(
+        resolved: &mut BTreeMap<String, (Option<SocketAddr>, Instant)>,
+        joins: &'a mut JoinBucket,
+    ) -> Self {
+        Self {
+            resolved: std::mem::take(resolved),
+            joins,
+            owed: false,
+        }
+    }
+
+    /// What `name` gave when looked up lately (`None`: look it up).
+    fn cached(&self, name: &str, now: Instant) -> Option<Option<SocketAddr>> {
+        let &(found, at) = self.resolved.get(name)?;
+        let ttl = if found.is_some() {
+            RESOLVED_TTL
+        } else {
+            JOIN_BACKOFF
+        };
+        (now.saturating_duration_since(at) < ttl).then_some(found)
+    }
+
+    /// Keeps a lookup, dropping the oldest past [`MAX_LOOKUPS`].
+    fn keep(&mut self, name: String, found: Option<SocketAddr>, at: Instant) {
+        self.resolved.insert(name, (found, at));
+        while self.resolved.len() > MAX_LOOKUPS {
+            let oldest = self
+                .resolved
+                .iter()
+                .min_by_key(|(_, (_, at))| *at)
+                .map(|(n, _)| n.clone());
+            match oldest {
+                Some(n) => self.resolved.remove(&n),
+                None => break,
+            };
+        }
+    }
+}
+
+fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// `name` as an address: an address as it is, a name from the lookups
+/// kept, or looked up for a [`JoinRate`] token by `until` (`None`: it does
+/// not resolve, or no token was left, which `state` then owes).
+async fn look_up(
+    state: &std::sync::Mutex<Lookups<'_>>,
+    name: String,
+    now: Instant,
+    until: tokio::time::Instant,
+) -> Option<SocketAddr> {
+    if let Ok(found) = name.parse() {
+        return Some(found);
+    }
+    if let Some(found) = lock(state).cached(&name, now) {
+        return found;
+    }
+    if !lock(state).joins.take(now) {
+        lock(state).owed = true;
+        return None;
+    }
+    let found = tokio::time::timeout_at(until, resolve(&name))
+        .await
+        .ok()
+        .and_then(Result::ok);
+    lock(state).keep(name, found, Instant::now());
+    found
+}
+
 /// Routes built from every connected node's last word.
 #[derive(Debug, Default)]
 struct Routing {
@@ -221,6 +376,14 @@ pub struct ClusterClient {
     joining: BTreeMap<SocketAddr, tokio::task::JoinHandle<Result<Client, ClusterError>>>,
     /// Nodes that could not be joined, and when.
     failed: BTreeMap<SocketAddr, Instant>,
+    /// The nodes the last reroute named.
+    named: Vec<SocketAddr>,
+    /// Tokens for joins and fresh lookups ([`JoinRate`]).
+    joins: JoinBucket,
+    /// Names looked up: what each gave, and when (at most [`MAX_LOOKUPS`]).
+    resolved: BTreeMap<String, (Option<SocketAddr>, Instant)>,
+    /// A lookup was left for lack of tokens: route again.
+    reroute_owed: bool,
 }
 
 /// Connects to node `addr` and arrives there with `ticket`.
@@ -250,6 +413,7 @@ impl ClusterClient {
         opts: ClientOptions,
     ) -> Result<Self, ClusterError> {
         let client = Client::connect_opts(home, cert, token, opts.clone()).await?;
+        let joins = JoinBucket::new(opts.join_rate, Instant::now());
         Ok(Self {
             cert: cert.to_vec(),
             token: token.to_string(),
@@ -264,6 +428,10 @@ impl ClusterClient {
             ticket: None,
             joining: BTreeMap::new(),
             failed: BTreeMap::new(),
+            named: Vec::new(),
+            joins,
+            resolved: BTreeMap::new(),
+            reroute_owed: false,
         })
     }
 
@@ -323,11 +491,11 @@ impl ClusterClient {
         let news = latest
             .iter()
             .any(|(a, o)| self.seen.get(a) != Some(&o.serial));
-        if news || self.view.nodes.len() != before {
-            let named = self.reroute(&latest).await;
-            self.let_go_unused(&named);
-            self.start_joins(named);
+        if news || self.reroute_owed || self.view.nodes.len() != before {
+            self.named = self.reroute(&latest).await;
+            self.let_go_unused();
         }
+        self.start_joins();
         Ok(self.finish_joins().await)
     }
 
@@ -362,13 +530,12 @@ impl ClusterClient {
         }
         // One deadline for every name of this reroute.
         let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
-        let routing = build_routes(latest, &kept, |a| async move {
-            tokio::time::timeout_at(until, resolve(&a))
-                .await
-                .ok()
-                .and_then(Result::ok)
-        })
-        .await;
+        let now = Instant::now();
+        let state = std::sync::Mutex::new(Lookups::lend(&mut self.resolved, &mut self.joins));
+        let routing = build_routes(latest, &kept, |a| look_up(&state, a, now, until)).await;
+        let Lookups { resolved, owed, .. } = state.into_inner().unwrap_or_else(|p| p.into_inner());
+        self.resolved = resolved;
+        self.reroute_owed = owed;
         self.view.routes = routing.routes;
         routing.named
     }
@@ -376,8 +543,9 @@ impl ClusterClient {
     /// Closes the connections to nodes other than home that no message
     /// names and no route uses (freeing their places for new writers),
     /// and stops joining nodes no longer named.
-    fn let_go_unused(&mut self, named: &[SocketAddr]) {
+    fn let_go_unused(&mut self) {
         let home = self.view.home;
+        let named = &self.named;
         let used: BTreeSet<SocketAddr> = self.view.routes.values().chain(named).copied().collect();
         let unused: Vec<SocketAddr> = self
             .view
@@ -402,18 +570,22 @@ impl ClusterClient {
     }
 
     /// Opens connections to the named nodes not yet connected, in the
-    /// background (a dead node's address never stalls the caller).
-    fn start_joins(&mut self, named: Vec<SocketAddr>) {
+    /// background (a dead node's address never stalls the caller), each
+    /// for a [`JoinRate`] token.
+    fn start_joins(&mut self) {
         let now = Instant::now();
         self.failed
             .retain(|_, at| now.duration_since(*at) < JOIN_BACKOFF);
-        for a in named {
+        for a in self.named.clone() {
             if self.view.nodes.contains_key(&a)
                 || self.joining.contains_key(&a)
                 || self.failed.contains_key(&a)
                 || self.view.nodes.len() + self.joining.len() >= MAX_CLUSTER_NODES
             {
                 continue;
+            }
+            if !self.joins.take(now) {
+                break;
             }
             let task = join(
                 a,
@@ -487,7 +659,14 @@ impl ClusterClient {
         else {
             return Ok((to, acked));
         };
-        let Ok(there) = resolve(addr).await else {
+        let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
+        let state = std::sync::Mutex::new(Lookups::lend(&mut self.resolved, &mut self.joins));
+        let found = look_up(&state, addr.clone(), Instant::now(), until).await;
+        self.resolved = state
+            .into_inner()
+            .unwrap_or_else(|p| p.into_inner())
+            .resolved;
+        let Some(there) = found else {
             return Ok((to, acked));
         };
         if there == to {
@@ -497,7 +676,10 @@ impl ClusterClient {
         if !self.view.nodes.contains_key(&there) {
             // Not connected yet: joined in the background, the refusal
             // goes back to the caller (it may send the edit again).
-            self.start_joins(vec![there]);
+            if !self.named.contains(&there) && self.named.len() < MAX_CLUSTER_NODES {
+                self.named.push(there);
+            }
+            self.start_joins();
             return Ok((to, acked));
         }
         let again = self.view.nodes[&there].edit_acked(edit).await?;
@@ -568,6 +750,80 @@ mod tests {
         assert!(resolve("not an address").await.is_err());
     }
     use strata_terrain::Fixed;
+
+    #[test]
+    fn the_join_bucket_spends_its_burst_then_one_per_period() {
+        let t0 = Instant::now();
+        let every = Duration::from_secs(1);
+        let mut b = JoinBucket::new(JoinRate { burst: 3, every }, t0);
+        assert!((0..3).all(|_| b.take(t0)));
+        assert!(!b.take(t0));
+        assert!(!b.take(t0 + every / 2));
+        assert!(b.take(t0 + every));
+        assert!(!b.take(t0 + every));
+        // A long quiet refills the burst, no more.
+        let later = t0 + every * 100;
+        assert!((0..3).all(|_| b.take(later)));
+        assert!(!b.take(later));
+        // Part of a period is kept towards the next token.
+        assert!(!b.take(later + every * 3 / 4));
+        assert!(b.take(later + every * 5 / 4));
+        // A burst of 0 takes nothing; a period of zero, everything.
+        let mut none = JoinBucket::new(JoinRate { burst: 0, every }, t0);
+        assert!(!none.take(t0 + every * 10));
+        let mut all = JoinBucket::new(
+            JoinRate {
+                burst: 0,
+                every: Duration::ZERO,
+            },
+            t0,
+        );
+        assert!((0..1000).all(|_| all.take(t0)));
+    }
+
+    #[tokio::test]
+    async fn names_are_looked_up_once_and_kept_a_bounded_while() {
+        let t0 = Instant::now();
+        let mut joins = JoinBucket::new(
+            JoinRate {
+                burst: 1,
+                every: Duration::from_secs(3600),
+            },
+            t0,
+        );
+        let mut resolved = BTreeMap::new();
+        let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
+        let state = std::sync::Mutex::new(Lookups::lend(&mut resolved, &mut joins));
+        // An address costs no token.
+        let a = look_up(&state, "127.0.0.1:9".into(), t0, until).await;
+        assert_eq!(a, Some("127.0.0.1:9".parse().unwrap()));
+        // A name takes the one token, then is answered from the kept ones.
+        let name = "localhost:4433".to_string();
+        let found = look_up(&state, name.clone(), t0, until).await;
+        assert_eq!(found.map(|a| a.port()), Some(4433));
+        assert_eq!(look_up(&state, name.clone(), t0, until).await, found);
+        assert!(!lock(&state).owed);
+        // A new name with no token left is owed, not looked up.
+        assert_eq!(look_up(&state, "other:1".into(), t0, until).await, None);
+        assert!(lock(&state).owed);
+        // Past its time a kept name is looked up again (no token: owed).
+        lock(&state).owed = false;
+        let stale = t0 + RESOLVED_TTL + RESOLVE_TIMEOUT;
+        assert_eq!(look_up(&state, name, stale, until).await, None);
+        assert!(lock(&state).owed);
+        // At most MAX_LOOKUPS names are kept, the oldest dropped first.
+        let mut l = state.into_inner().unwrap();
+        for i in 0..MAX_LOOKUPS + 5 {
+            l.keep(
+                format!("n{i}:1"),
+                None,
+                t0 + Duration::from_millis(i as u64),
+            );
+        }
+        assert_eq!(l.resolved.len(), MAX_LOOKUPS);
+        assert!(!l.resolved.contains_key("n0:1"));
+        assert!(l.resolved.contains_key(&format!("n{}:1", MAX_LOOKUPS + 4)));
+    }
 
     #[test]
     fn regions_are_floor_divided_chunk_columns() {

@@ -27,7 +27,9 @@ pub mod session;
 pub use strata_protocol::client_tls as tls;
 
 pub use client::{Acked, Arrival, Client, ClientError, ClientOptions, SentEdit, Verdict};
-pub use cluster::{ClusterClient, ClusterError, ClusterView, RegionOwners, MAX_CLUSTER_NODES};
+pub use cluster::{
+    ClusterClient, ClusterError, ClusterView, JoinRate, RegionOwners, MAX_CLUSTER_NODES,
+};
 pub use mesh::ChunkMesh;
 pub use notice::Notice;
 pub use pool::ChunkPool;

@@ -5,9 +5,10 @@
 
 use std::time::Duration;
 
-use strata_client_sim::{Client, ClientOptions};
+use strata_client_sim::{Client, ClientOptions, ClusterClient, JoinRate};
 use strata_protocol::{
-    encode_frame, Direction, OpUpdate, Role, ServerMessage, Start, Welcome, WorldUpdate,
+    encode_frame, Direction, OpUpdate, RegionHolder, RegionOwner, Role, ServerMessage, Start,
+    Welcome, WorldUpdate,
 };
 use strata_server::config::{NetSection, TlsSection};
 use strata_server::tls::{server_config, CertPair};
@@ -20,38 +21,51 @@ const LIMIT: Duration = Duration::from_secs(30);
 /// How long a client that keeps the connection is watched.
 const KEPT: Duration = Duration::from_secs(2);
 
+/// A QUIC endpoint on 127.0.0.1 with the server's TLS, and its cert.
+fn endpoint() -> (quinn::Endpoint, CertPair) {
+    let pair = CertPair::generate(&[]).unwrap();
+    let config = server_config(&pair, &NetSection::default(), &TlsSection::default()).unwrap();
+    let server = quinn::Endpoint::server(config, "127.0.0.1:0".parse().unwrap()).unwrap();
+    (server, pair)
+}
+
+/// Accepts one client and greets it as Strata would; returns the
+/// connection and its control stream.
+async fn welcome(server: &quinn::Endpoint) -> (quinn::Connection, quinn::SendStream) {
+    let conn = server.accept().await.unwrap().await.unwrap();
+    let (mut control, mut hello) = conn.accept_bi().await.unwrap();
+    // The Hello, whatever it says.
+    let mut buf = [0u8; 4096];
+    let _ = hello.read(&mut buf).await.unwrap();
+    let welcome = ServerMessage::Welcome(Welcome {
+        session: 1,
+        player: "p".into(),
+        role: Role::Player,
+        world_seed: 1,
+        generator_version: 1,
+        generator_params: String::new(),
+        server_time: 0,
+        view_radius: 2,
+        last_seq: 0,
+        start: Start::Spawn {
+            x: 0,
+            z: 0,
+            radius: 8,
+        },
+    });
+    let frame = encode_frame(&welcome, Direction::ServerToClient).unwrap();
+    control.write_all(&frame).await.unwrap();
+    (conn, control)
+}
+
 /// A server that welcomes one client, then writes `updates` on its
 /// updates stream; returns whether the client closed the connection
 /// within `wait`.
 async fn hostile(updates: Vec<WorldUpdate>, opts: ClientOptions, wait: Duration) -> bool {
-    let pair = CertPair::generate(&[]).unwrap();
-    let config = server_config(&pair, &NetSection::default(), &TlsSection::default()).unwrap();
-    let server = quinn::Endpoint::server(config, "127.0.0.1:0".parse().unwrap()).unwrap();
+    let (server, pair) = endpoint();
     let addr = server.local_addr().unwrap();
     let serving = tokio::spawn(async move {
-        let conn = server.accept().await.unwrap().await.unwrap();
-        let (mut control, mut hello) = conn.accept_bi().await.unwrap();
-        // The Hello, whatever it says.
-        let mut buf = [0u8; 4096];
-        let _ = hello.read(&mut buf).await.unwrap();
-        let welcome = ServerMessage::Welcome(Welcome {
-            session: 1,
-            player: "p".into(),
-            role: Role::Player,
-            world_seed: 1,
-            generator_version: 1,
-            generator_params: String::new(),
-            server_time: 0,
-            view_radius: 2,
-            last_seq: 0,
-            start: Start::Spawn {
-                x: 0,
-                z: 0,
-                radius: 8,
-            },
-        });
-        let frame = encode_frame(&welcome, Direction::ServerToClient).unwrap();
-        control.write_all(&frame).await.unwrap();
+        let (conn, _control) = welcome(&server).await;
         let mut out = conn.open_uni().await.unwrap();
         for u in updates {
             let frame = encode_frame(&u, Direction::ServerToClient).unwrap();
@@ -104,4 +118,101 @@ async fn an_unsubscribe_past_the_protocol_cap_ends_the_connection() {
     };
     assert!(hostile(many(max + 1), ClientOptions::default(), LIMIT).await);
     assert!(!hostile(many(max), ClientOptions::default(), KEPT).await);
+}
+
+/// Local UDP sockets standing for hosts a hostile node names.
+const VICTIMS: usize = 40;
+/// Addresses each of its `RegionOwners` names (one under the client's
+/// cap on nodes, which the home node takes).
+const NAMED_PER_MESSAGE: usize = 7;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_naming_new_addresses_gets_no_more_handshakes_than_the_join_rate() {
+    let mut victims = Vec::new();
+    for _ in 0..VICTIMS {
+        let v = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        victims.push(std::sync::Arc::new(v));
+    }
+    let addrs: Vec<String> = victims
+        .iter()
+        .map(|v| v.local_addr().unwrap().to_string())
+        .collect();
+    // Which victims received anything (a QUIC Initial) during the run.
+    let hit: Vec<_> = victims
+        .iter()
+        .map(|v| {
+            let v = v.clone();
+            tokio::spawn(async move {
+                let mut buf = [0u8; 2048];
+                tokio::time::timeout(LIMIT, v.recv(&mut buf)).await.is_ok()
+            })
+        })
+        .collect();
+
+    // The node: every 30 ms a `RegionOwners` naming 7 addresses not named
+    // before, each the writer of a region around the player.
+    let (server, pair) = endpoint();
+    let home = server.local_addr().unwrap();
+    let serving = tokio::spawn(async move {
+        let (conn, mut control) = welcome(&server).await;
+        for m in 0.. {
+            let regions = (0..NAMED_PER_MESSAGE)
+                .map(|k| RegionOwner {
+                    region_x: k as i32,
+                    region_z: 0,
+                    holder: RegionHolder::Node {
+                        node: format!("n{k}"),
+                        addr: addrs[(m * NAMED_PER_MESSAGE + k) % VICTIMS].clone(),
+                    },
+                })
+                .collect();
+            let msg = ServerMessage::RegionOwners {
+                region_chunks: 8,
+                regions,
+                ticket: None,
+            };
+            let frame = encode_frame(&msg, Direction::ServerToClient).unwrap();
+            if control.write_all(&frame).await.is_err() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(30)).await;
+        }
+        drop(conn);
+    });
+
+    let rate = JoinRate {
+        burst: 3,
+        every: Duration::from_secs(1),
+    };
+    let opts = ClientOptions {
+        join_rate: rate,
+        ..ClientOptions::default()
+    };
+    let mut client = ClusterClient::connect(home, pair.cert_der().as_ref(), "token", opts)
+        .await
+        .unwrap();
+    let started = std::time::Instant::now();
+    let run = Duration::from_millis(2500);
+    while started.elapsed() < run {
+        client.follow().await.unwrap();
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let elapsed = started.elapsed();
+    drop(client);
+    serving.abort();
+    // What got a packet by now (a handshake's first flight leaves at once).
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut contacted = 0;
+    for h in hit {
+        if !h.is_finished() {
+            h.abort();
+        } else if h.await.unwrap() {
+            contacted += 1;
+        }
+    }
+    let allowed = rate.burst as usize + elapsed.as_secs() as usize + 1;
+    assert!(
+        (rate.burst as usize..=allowed).contains(&contacted),
+        "{contacted} of {VICTIMS} addresses got handshakes in {elapsed:?} (rate allows {allowed})"
+    );
 }

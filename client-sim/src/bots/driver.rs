@@ -251,6 +251,7 @@ impl Bot {
                 track_changes: false,
                 capabilities: cfg.capabilities,
                 link_delay: cfg.link_delay,
+                join_rate: Default::default(),
             };
             let attempt = {
                 let _slot = self.fleet.connect_slots.acquire().await.ok()?;
