@@ -388,8 +388,18 @@ fn a_forced_postgres_restore_waits_for_no_running_node() {
     let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
     let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
     assert_eq!(pg_restore(&db, tmp.path(), &old, false).unwrap(), 3);
+    // Without --force: refused, saying why.
+    let err = format!(
+        "{:#}",
+        pg_restore(&db, tmp.path(), &new, false).unwrap_err()
+    );
+    assert!(
+        err.contains("its world table is not empty") && err.contains("--force"),
+        "{err}"
+    );
 
-    // A node holding a region's lease: refused, with its name.
+    // A node killed while holding a region's lease: refused, with its
+    // name, until the lease runs out.
     let pg = PgConfig {
         url: db.url(),
         ..PgConfig::default()
@@ -406,23 +416,35 @@ fn a_forced_postgres_restore_waits_for_no_running_node() {
             .unwrap(),
         RegionAccess::Granted
     );
+    let epoch = sql(&db, "SELECT epoch FROM regions").concat();
+    drop(node);
     let err = format!("{:#}", pg_restore(&db, tmp.path(), &new, true).unwrap_err());
     assert!(
         err.contains("leased by running nodes")
             && err.contains("\"west\"")
-            && err.contains("stop every node first"),
+            && err.contains("stop every node first")
+            && err.contains("unchanged"),
         "{err}"
     );
-    assert!(err.contains("unchanged"), "{err}");
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
-    drop(node);
-
-    // A lease run out is a node stopped.
     sql(
         &db,
         "UPDATE regions SET lease_expires = now() - interval '1 second'",
     );
-    // Something still using the world's tables: refused after a bounded
+
+    // A running server (a store open, named as the server names its
+    // connections): refused once its sessions stayed past the wait.
+    let running = pg_store(&db);
+    let err = format!("{:#}", pg_restore(&db, tmp.path(), &new, true).unwrap_err());
+    assert!(
+        err.contains("sessions of a running strata-server")
+            && err.contains("stop every node first"),
+        "{err}"
+    );
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+    drop(running);
+
+    // Something else using the world's tables: refused after a bounded
     // wait, the world unchanged.
     let (done_tx, done) = std::sync::mpsc::channel::<()>();
     let holder = store_common::hold_rows(
@@ -443,5 +465,74 @@ fn a_forced_postgres_restore_waits_for_no_running_node() {
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
 
     assert_eq!(pg_restore(&db, tmp.path(), &new, true).unwrap(), 5);
+    assert_eq!(pg_world(&db), ("20".into(), "5".into()));
+    // The region row stays, freed at a higher epoch: a node paused across
+    // the restore is fenced, not let write at the epoch it had.
+    let before: i64 = epoch.parse().unwrap();
+    assert_eq!(sql(&db, "SELECT owner IS NULL FROM regions"), ["t"]);
+    assert_eq!(
+        sql(&db, "SELECT epoch FROM regions"),
+        [(before + 1).to_string()]
+    );
+}
+
+#[test]
+fn failed_postgres_restores_give_their_one_connection_back() {
+    let Some(db) = database("failed_postgres_restores_give_their_one_connection_back") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
+    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
+    assert_eq!(pg_restore(&db, tmp.path(), &old, false).unwrap(), 3);
+    // One connection, and little patience for a free one: a connection a
+    // restore kept would fail every call after it.
+    let cfg = PgConfig {
+        url: db.url(),
+        max_connections: 1,
+        pool_wait_ms: 500,
+        ..PgConfig::default()
+    };
+    let store = PgStore::open(&cfg.for_admin(), DEFAULT_REGION_CHUNKS).unwrap();
+
+    // Refused at its start (the store holds a world).
+    let err = import(
+        &new,
+        &store.import_in_one_transaction(false),
+        ZONES_BLOB,
+        |_| {},
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("not empty"), "{err}");
+    // Failed by PostgreSQL part-way, after the tables were emptied: a
+    // batch holding one chunk twice.
+    let twice = RawChunk {
+        pos: ChunkPos::new(1, 0, 2),
+        version: 4,
+        encoded: encode_chunk(&terrain_chunk(3)),
+    };
+    let target = store.import_in_one_transaction(true);
+    target.begin_import().unwrap();
+    let err = target.import_chunks(&[twice.clone(), twice]).unwrap_err();
+    assert!(err.to_string().contains("duplicate key"), "{err}");
+    let err = target.finish_import(&WorldMeta::new(1, 1, ""), ZONES_BLOB, b"[]");
+    assert!(err.is_err(), "the failed transaction's connection is gone");
+    assert!(!target.commit_sent());
+    drop(target);
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+
+    // The one connection serves a whole restore, and calls after it.
+    let n = import(
+        &new,
+        &store.import_in_one_transaction(true),
+        ZONES_BLOB,
+        |_| {},
+    )
+    .unwrap();
+    assert_eq!(n, 5);
+    assert_eq!(
+        store.holds_world().unwrap().as_deref(),
+        Some("its world table is not empty")
+    );
     assert_eq!(pg_world(&db), ("20".into(), "5".into()));
 }

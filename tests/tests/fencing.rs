@@ -424,7 +424,9 @@ fn a_node_stopped_gracefully_hands_its_regions_over_and_the_admin_tools_read_pos
         url: db.url(),
         ..PgConfig::default()
     };
-    let b = PgStore::open(&pg, DEFAULT_REGION_CHUNKS).unwrap();
+    // Named as the admin tools are: the forced restore below refuses a
+    // database a running server's sessions use.
+    let b = PgStore::open(&pg.for_admin(), DEFAULT_REGION_CHUNKS).unwrap();
     let leases = b.region_leases().unwrap();
     assert!(!leases.is_empty());
     assert!(

@@ -383,16 +383,28 @@ pub fn replace_world(
 fn restore_postgres(args: &RestoreArgs, cfg: &ServerConfig, total: u64) -> anyhow::Result<u64> {
     DataDir::open_or_init(&args.data_dir, &[])
         .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
-    let store = PgStore::open(&cfg.store.postgres, cfg.sequencer.region_chunks)
+    let store = PgStore::open(&cfg.store.postgres.for_admin(), cfg.sequencer.region_chunks)
         .context("opening the PostgreSQL store")?;
-    if !args.force && store.holds_world()? {
-        bail!("the PostgreSQL store already holds a world; pass --force to replace it (stop every node first)");
+    if !args.force {
+        if let Some(why) = store.holds_world()? {
+            bail!(
+                "the PostgreSQL store already holds a world ({why}); pass --force to replace it, \
+                 its bans and revocations included (stop every node first)"
+            );
+        }
     }
     // One transaction: cut short, the store keeps the world it had.
     let target = store.import_in_one_transaction(args.force);
     let bar = progress(Some(total), "restore {bar:40} {pos}/{len} chunks {eta}");
-    let n = import(&args.file, &target, ZONES_BLOB, |n| bar.set_position(n))
-        .context("the PostgreSQL store is unchanged")?;
+    let n =
+        import(&args.file, &target, ZONES_BLOB, |n| bar.set_position(n)).with_context(|| {
+            if target.commit_sent() {
+                "the restore's COMMIT got no answer: the store holds either the old world or the \
+             restored one; look with `strata-admin stats`"
+            } else {
+                "the PostgreSQL store is unchanged"
+            }
+        })?;
     bar.finish_and_clear();
     Ok(n)
 }

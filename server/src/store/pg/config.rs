@@ -30,7 +30,16 @@ pub struct PgConfig {
     pub connect_timeout_ms: u64,
     pub pool_wait_ms: u64,
     pub statement_timeout_ms: u64,
+    /// The `application_name` its connections give when the URL names
+    /// none: [`SERVER_APPLICATION`] unless [`PgConfig::for_admin`] set it.
+    #[serde(skip)]
+    pub program: Option<&'static str>,
 }
+
+/// What a running server's connections are named in `pg_stat_activity`.
+pub const SERVER_APPLICATION: &str = "strata-server";
+/// What the admin tools' connections are named.
+pub const ADMIN_APPLICATION: &str = "strata-admin";
 
 impl Default for PgConfig {
     fn default() -> Self {
@@ -40,11 +49,21 @@ impl Default for PgConfig {
             connect_timeout_ms: DEFAULT_PG_CONNECT_TIMEOUT_MS,
             pool_wait_ms: DEFAULT_PG_POOL_WAIT_MS,
             statement_timeout_ms: DEFAULT_PG_STATEMENT_TIMEOUT_MS,
+            program: None,
         }
     }
 }
 
 impl PgConfig {
+    /// The same database, its connections named [`ADMIN_APPLICATION`]
+    /// (so that a restore can tell running servers from admin tools).
+    pub fn for_admin(&self) -> Self {
+        Self {
+            program: Some(ADMIN_APPLICATION),
+            ..self.clone()
+        }
+    }
+
     /// The parsed connection string with the connect timeout applied.
     pub fn client_config(&self) -> Result<tokio_postgres::Config, String> {
         if self.url.trim().is_empty() {
@@ -53,7 +72,7 @@ impl PgConfig {
         let mut c: tokio_postgres::Config = self.url.parse().map_err(|e| format!("{e}"))?;
         c.connect_timeout(std::time::Duration::from_millis(self.connect_timeout_ms));
         if c.get_application_name().is_none() {
-            c.application_name("strata-server");
+            c.application_name(self.program.unwrap_or(SERVER_APPLICATION));
         }
         Ok(c)
     }

@@ -7,25 +7,36 @@
 //! The world row names the snapshot's seq as both `last_seq` and
 //! `log_base`.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
+use std::time::{Duration, Instant};
 
 use super::commit::Rows;
 use super::pool::{Conn, Held};
-use super::{to_sql, PgStore};
+use super::{to_sql, PgStore, SERVER_APPLICATION};
 use crate::store::import::check_import_format;
 use crate::store::rules::check_blob;
 use crate::store::types::{RawChunk, WorldMeta};
 use crate::store::{ImportTarget, StoreError};
+use tokio_postgres::error::SqlState;
 
-/// The world's tables, emptied by a replacing import (`schema_migrations`,
-/// `layout` and `nodes` stay). `seq_blocks` goes too: a restored world
-/// reserves its blocks from its own `last_seq` again.
-const WORLD_TABLES: &str =
-    "world, chunks, chunk_deltas, edit_log, blobs, players, regions, seq_blocks";
+/// The world's tables a restore empties (`schema_migrations`, `layout` and
+/// `nodes` stay; `regions` keeps its rows, freed at a higher epoch, so a
+/// node paused across the restore is fenced). `seq_blocks` goes too: a
+/// restored world reserves its blocks from its own `last_seq` again.
+const EMPTIED_TABLES: &str = "world, chunks, chunk_deltas, edit_log, blobs, players, seq_blocks";
 
-/// How long a restore waits for the world's tables: a running node holds
-/// them only for moments, so a longer wait means one is running.
+/// Every table a restore locks.
+const LOCKED_TABLES: &str =
+    "world, chunks, chunk_deltas, edit_log, blobs, players, seq_blocks, regions";
+
+/// How long a restore waits, in all, for the world's tables, and for
+/// running servers' sessions to leave the database.
 pub const IMPORT_LOCK_WAIT_MS: u64 = 5_000;
+
+/// The longest pause between two statements of a restore's transaction
+/// (reading the snapshot's next batch) before PostgreSQL ends it.
+const IMPORT_IDLE_MS: u64 = 600_000;
 
 /// A restore into a [`PgStore`] as one transaction (see the module's
 /// doc). Dropped before `finish_import` returned, it rolls back.
@@ -37,6 +48,8 @@ pub struct PgImport<'a> {
     replace: bool,
     /// The transaction's connection, from `begin_import` on.
     held: Mutex<Option<Held<'a>>>,
+    /// `COMMIT` was sent: a failure from then on may have committed.
+    committing: AtomicBool,
 }
 
 impl PgStore {
@@ -48,23 +61,25 @@ impl PgStore {
             store: self,
             replace,
             held: Mutex::new(None),
+            committing: AtomicBool::new(false),
         }
     }
 
-    /// Whether the store holds a world, chunks, log entries or blobs.
-    pub fn holds_world(&self) -> Result<bool, StoreError> {
+    /// Why the store counts as holding a world (`None`: it is empty).
+    pub fn holds_world(&self) -> Result<Option<String>, StoreError> {
         self.pool.run(
             "checking the store is empty",
             async |c: &mut Conn| match refuse_non_empty(c).await {
-                Ok(()) => Ok(false),
-                Err(StoreError::InvalidMeta { .. }) => Ok(true),
+                Ok(()) => Ok(None),
+                Err(StoreError::InvalidMeta { reason }) => Ok(Some(reason)),
                 Err(e) => Err(e),
             },
         )
     }
 }
 
-/// Refuses a database that holds a world, chunks, log entries or blobs.
+/// Refuses a database that holds a world, chunks, log entries or blobs
+/// (an access list alone, from `ban` before any world, counts).
 async fn refuse_non_empty(c: &mut Conn) -> Result<(), StoreError> {
     let row = c
         .query_opt(
@@ -79,11 +94,28 @@ async fn refuse_non_empty(c: &mut Conn) -> Result<(), StoreError> {
     for (i, name) in ["world", "chunks", "edit_log", "blobs"].iter().enumerate() {
         if row.get::<_, i64>(i) > 0 {
             return Err(StoreError::InvalidMeta {
-                reason: format!("cannot import into a store whose {name} table is not empty"),
+                reason: format!("its {name} table is not empty"),
             });
         }
     }
     Ok(())
+}
+
+/// Running servers' sessions on this database (named
+/// [`SERVER_APPLICATION`]), and where from; a fresh look each time.
+async fn server_sessions(c: &mut Conn) -> Result<(i64, String), StoreError> {
+    c.batch("SELECT pg_stat_clear_snapshot()").await?;
+    let row = c
+        .query_opt(
+            "SELECT count(*), coalesce(string_agg(DISTINCT \
+                 coalesce(host(client_addr), 'a local socket'), ', '), '') \
+             FROM pg_stat_activity \
+             WHERE datname = current_database() AND application_name = $1 \
+               AND pid <> pg_backend_pid()",
+            &[&SERVER_APPLICATION],
+        )
+        .await?;
+    Ok(row.map_or((0, String::new()), |r| (r.get(0), r.get(1))))
 }
 
 /// Refuses to empty a world whose regions a node still leases.
@@ -115,6 +147,13 @@ async fn refuse_live_leases(c: &mut Conn) -> Result<(), StoreError> {
 }
 
 impl PgImport<'_> {
+    /// Whether `COMMIT` was sent: after a failure, whether the store may
+    /// hold the restored world (the reply may have been lost) rather
+    /// than surely the old one.
+    pub fn commit_sent(&self) -> bool {
+        self.committing.load(Ordering::Relaxed)
+    }
+
     /// The open transaction's connection.
     fn with_held<T>(
         &self,
@@ -129,40 +168,77 @@ impl PgImport<'_> {
 }
 
 impl ImportTarget for PgImport<'_> {
-    /// Opens the transaction, takes the world's tables (waiting at most
-    /// [`IMPORT_LOCK_WAIT_MS`] for them) and refuses a store that holds a
-    /// world, or, replacing, one whose regions a node leases, then empties
-    /// them.
+    /// Opens the transaction and takes the world's tables (waiting at
+    /// most [`IMPORT_LOCK_WAIT_MS`] for them). Refuses a store that holds
+    /// a world, or, replacing one, a database a running server uses (its
+    /// sessions given [`IMPORT_LOCK_WAIT_MS`] to leave) or whose regions a
+    /// node leases; then empties the world's tables and frees every
+    /// region at a higher epoch.
     fn begin_import(&self) -> Result<(), StoreError> {
         let mut held = self.store.pool.hold()?;
-        held.begin("beginning the restore", "BEGIN")?;
+        let statement_ms = held.statement_timeout().as_millis();
+        held.begin(
+            "beginning the restore",
+            &format!(
+                "BEGIN; SET LOCAL idle_in_transaction_session_timeout = {IMPORT_IDLE_MS}; \
+                 SET LOCAL lock_timeout = {IMPORT_LOCK_WAIT_MS}; \
+                 SET LOCAL statement_timeout = {IMPORT_LOCK_WAIT_MS}"
+            ),
+        )?;
+        // One bound for every table, whatever the configured timeouts.
         let lock = format!(
-            "SET LOCAL lock_timeout = {IMPORT_LOCK_WAIT_MS}; \
-             LOCK TABLE {WORLD_TABLES} IN ACCESS EXCLUSIVE MODE"
+            "LOCK TABLE {LOCKED_TABLES} IN ACCESS EXCLUSIVE MODE; \
+             SET LOCAL statement_timeout = {statement_ms}"
         );
-        held.run("locking the world's tables", async |c: &mut Conn| {
-            c.batch(&lock).await.map_err(|e| match e {
-                StoreError::Postgres(ref pg)
-                    if pg.code() == Some(&tokio_postgres::error::SqlState::LOCK_NOT_AVAILABLE) =>
-                {
-                    StoreError::PgSetup {
-                        reason: format!(
-                            "the world's tables stayed in use for {IMPORT_LOCK_WAIT_MS} ms \
+        let margin = Duration::from_millis(IMPORT_LOCK_WAIT_MS) + Duration::from_secs(2);
+        held.run_within(
+            margin,
+            "locking the world's tables",
+            async |c: &mut Conn| {
+                c.batch(&lock).await.map_err(|e| match e {
+                    StoreError::Postgres(ref pg)
+                        if pg.code() == Some(&SqlState::LOCK_NOT_AVAILABLE)
+                            || pg.code() == Some(&SqlState::QUERY_CANCELED) =>
+                    {
+                        StoreError::PgSetup {
+                            reason: format!(
+                                "the world's tables stayed in use for {IMPORT_LOCK_WAIT_MS} ms \
                              (is a node running?): stop every node first"
-                        ),
+                            ),
+                        }
                     }
+                    e => e,
+                })
+            },
+        )?;
+        if self.replace {
+            let deadline = Instant::now() + Duration::from_millis(IMPORT_LOCK_WAIT_MS);
+            loop {
+                let (sessions, from) = held.run("looking for running servers", server_sessions)?;
+                if sessions == 0 {
+                    break;
                 }
-                e => e,
-            })
-        })?;
-        let replace = self.replace;
-        held.run("emptying the world", async |c: &mut Conn| {
-            if replace {
-                refuse_live_leases(c).await?;
-                c.batch(&format!("TRUNCATE {WORLD_TABLES}")).await
-            } else {
-                refuse_non_empty(c).await
+                if Instant::now() >= deadline {
+                    return Err(StoreError::PgSetup {
+                        reason: format!(
+                            "{sessions} sessions of a running {SERVER_APPLICATION} (from {from}) \
+                             use this database: stop every node first"
+                        ),
+                    });
+                }
+                std::thread::sleep(Duration::from_millis(100));
             }
+            held.run("looking for live leases", refuse_live_leases)?;
+        } else {
+            held.run("checking the store is empty", refuse_non_empty)?;
+        }
+        held.run("emptying the world", async |c: &mut Conn| {
+            c.batch(&format!(
+                "TRUNCATE {EMPTIED_TABLES}; \
+                 UPDATE regions SET owner = NULL, owner_addr = NULL, epoch = epoch + 1, \
+                     last_seq = 0, edits = 0, lease_expires = now()"
+            ))
+            .await
         })?;
         *self.held.lock().unwrap_or_else(|p| p.into_inner()) = Some(held);
         Ok(())
@@ -232,6 +308,7 @@ impl ImportTarget for PgImport<'_> {
                 .await?;
                 Ok(())
             })?;
+            self.committing.store(true, Ordering::Relaxed);
             held.commit("committing the restore")
         })?;
         // The connection is clean again: back to the pool.

@@ -323,12 +323,22 @@ impl Held<'_> {
         what: &'static str,
         f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
     ) -> Result<T, StoreError> {
+        self.run_within(self.pool.statement_timeout, what, f)
+    }
+
+    /// [`Held::run`] with a limit of its own (a statement whose own
+    /// timeout the transaction set).
+    pub fn run_within<T>(
+        &mut self,
+        limit: Duration,
+        what: &'static str,
+        f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
         let Some(conn) = self.conn.as_mut() else {
             return Err(StoreError::PgSetup {
                 reason: format!("{what}: the connection was closed by an earlier failure"),
             });
         };
-        let limit = self.pool.statement_timeout;
         let result = match wait(f(conn), limit) {
             Ok(r) => r,
             Err(_) => Err(StoreError::PgTimeout {
@@ -344,10 +354,14 @@ impl Held<'_> {
     }
 
     /// Statements that open a transaction (`BEGIN ...`).
-    pub fn begin(&mut self, what: &'static str, begin: &'static str) -> Result<(), StoreError> {
-        self.run(what, async |c: &mut Conn| c.batch(begin).await)?;
+    pub fn begin(&mut self, what: &'static str, begin: &str) -> Result<(), StoreError> {
         self.clean = false;
-        Ok(())
+        self.run(what, async |c: &mut Conn| c.batch(begin).await)
+    }
+
+    /// The statement timeout every connection runs under.
+    pub fn statement_timeout(&self) -> Duration {
+        self.pool.statement_timeout
     }
 
     /// `COMMIT`s the open transaction: durable when it returns.
