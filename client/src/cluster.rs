@@ -25,7 +25,7 @@ use strata_protocol::{RegionHolder, RegionOwner, RejectReason, Ticket};
 use strata_terrain::{Chunk, ChunkPos, Edit, FixedVec3, VoxelPos};
 use thiserror::Error;
 
-use crate::client::{Acked, Client, ClientError, ClientOptions, Verdict};
+use crate::client::{Acked, Client, ClientError, ClientOptions, SentEdit, Verdict};
 
 /// Most nodes a cluster client keeps connections to.
 pub const MAX_CLUSTER_NODES: usize = 8;
@@ -445,6 +445,12 @@ impl ClusterClient {
         self.view.nodes.get(&addr).map(|c| c.as_ref())
     }
 
+    /// The connection to `addr`, shared, if open (to wait on a verdict
+    /// elsewhere).
+    pub fn node_shared(&self, addr: SocketAddr) -> Option<Arc<Client>> {
+        self.view.nodes.get(&addr).cloned()
+    }
+
     /// Every connected node.
     pub fn nodes(&self) -> impl Iterator<Item = (SocketAddr, &Client)> {
         self.view.nodes.iter().map(|(a, c)| (*a, c.as_ref()))
@@ -637,16 +643,47 @@ impl ClusterClient {
     }
 
     /// Sends `edit` to the node that writes its region and waits for the
-    /// verdict. One refused `RegionElsewhere` naming another connected
-    /// node (the region changed hands since this client was told) is sent
-    /// once more, there; naming one not connected, the client starts
-    /// joining it and returns the refusal. One refused `NodeFull` (no node
-    /// holds the region, and that one may take no more) is sent to each
-    /// other connected node in turn, until one answers otherwise. Returns
-    /// the node that answered, with its answer.
+    /// verdict ([`Self::submit`], the verdict, then [`Self::settle`]).
+    /// Returns the node that answered, with its answer.
     pub async fn edit(&mut self, edit: Edit) -> Result<(SocketAddr, Acked), ClusterError> {
+        let (to, sent) = self.submit(edit.clone()).await?;
+        let acked = self.view.nodes[&to].verdict(sent).await?;
+        self.settle(to, edit, acked).await
+    }
+
+    /// Sends `edit` to the node that writes its region without waiting
+    /// for the verdict: edits submitted one after another to one node reach
+    /// it in that order. Returns the node and what [`Client::verdict`]
+    /// takes; pass the verdict to [`Self::settle`].
+    pub async fn submit(&self, edit: Edit) -> Result<(SocketAddr, SentEdit), ClusterError> {
         let to = self.route(edit_anchor(&edit).chunk());
-        let acked = self.view.nodes[&to].edit_acked(edit.clone()).await?;
+        let sent = self.view.nodes[&to].submit(edit).await?;
+        Ok((to, sent))
+    }
+
+    /// Whether [`Self::settle`] may send the edit again for this answer
+    /// (otherwise it returns the answer as it is).
+    pub fn may_resend(acked: &Acked) -> bool {
+        matches!(
+            acked.0,
+            Verdict::Rejected(RejectReason::NodeFull { .. } | RejectReason::RegionElsewhere { .. })
+        )
+    }
+
+    /// What to make of node `to`'s answer to `edit`. One refused
+    /// `RegionElsewhere` naming another connected node (the region changed
+    /// hands since this client was told) is sent once more, there; naming
+    /// one not connected, the client starts joining it and returns the
+    /// refusal. One refused `NodeFull` (no node holds the region, and that
+    /// one may take no more) is sent to each other connected node in turn,
+    /// until one answers otherwise. Returns the node that answered last,
+    /// with its answer.
+    pub async fn settle(
+        &mut self,
+        to: SocketAddr,
+        edit: Edit,
+        acked: Acked,
+    ) -> Result<(SocketAddr, Acked), ClusterError> {
         if matches!(acked.0, Verdict::Rejected(RejectReason::NodeFull { .. })) {
             return self.edit_past_full(to, edit, acked).await;
         }
