@@ -39,13 +39,18 @@ const MAX_LOOKUPS: usize = 2 * MAX_CLUSTER_NODES;
 /// How long a name's lookup is used again (a failed one: [`JOIN_BACKOFF`]).
 pub const RESOLVED_TTL: Duration = Duration::from_secs(60);
 
-/// How fast a cluster client reaches out to destinations it does not use
-/// yet: each connection attempt to a node it is not connected to, and each
-/// name it looks up afresh, takes a token from a bucket of `burst`, refilled
-/// one per `every`. Whatever a node's `RegionOwners` name, it cannot make
-/// the players connected to it send handshakes or lookups to addresses of
-/// its choosing faster than that (a reflector). A join or a lookup left
-/// for lack of tokens is tried again at a later [`ClusterClient::follow`].
+/// How fast one cluster client (one player) reaches out to destinations
+/// it does not use yet: each handshake with a node it is not connected to
+/// takes a token from a bucket of `burst`, refilled one per `every`; a name
+/// looked up afresh takes the token its node's join then uses. Whatever a
+/// node's `RegionOwners` or `RegionElsewhere` name, a player sends
+/// handshakes or lookups to addresses of its choosing no faster than that.
+/// A join left for lack of tokens is tried again at a later
+/// [`ClusterClient::follow`] (a name from a refused edit, when the edit is
+/// sent again); a join given up because no message names its node any
+/// more leaves that address alone for [`JOIN_BACKOFF`]. A name whose
+/// lookup is past [`RESOLVED_TTL`] keeps its address while no token is
+/// left.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct JoinRate {
     /// Tokens when none was spent for a while: 0 joins no other node.
@@ -55,7 +60,8 @@ pub struct JoinRate {
 }
 
 impl Default for JoinRate {
-    /// A whole cluster's worth at once, then one a second.
+    /// [`MAX_CLUSTER_NODES`] at once (a cluster's worth, even by name),
+    /// then one a second.
     fn default() -> Self {
         Self {
             burst: MAX_CLUSTER_NODES as u32,
@@ -80,6 +86,13 @@ impl JoinBucket {
             tokens: rate.burst,
             since: now,
         }
+    }
+
+    /// Whether [`Self::take`] would give a token at `now`.
+    fn ready(&self, now: Instant) -> bool {
+        self.rate.every.is_zero()
+            || self.tokens > 0
+            || (self.rate.burst > 0 && now.saturating_duration_since(self.since) >= self.rate.every)
     }
 
     /// Takes a token if there is one.
@@ -195,46 +208,52 @@ async fn resolve(addr: &str) -> Result<SocketAddr, ClusterError> {
     if let Ok(a) = addr.parse() {
         return Ok(a);
     }
+    // IPv4 first: "localhost" often resolves to ::1 first, and a node
+    // listens on 127.0.0.1 by default.
     tokio::time::timeout(RESOLVE_TIMEOUT, tokio::net::lookup_host(addr))
         .await
         .ok()
         .and_then(Result::ok)
-        .and_then(|mut a| a.next())
+        .and_then(|a| a.min_by_key(SocketAddr::is_ipv6))
         .ok_or_else(|| ClusterError::BadAddress(addr.to_string()))
 }
 
-/// A reroute's name lookups: the names looked up before and the tokens
-/// fresh ones take.
+/// Names looked up: what each gave, and when.
+type Resolved = BTreeMap<String, (Option<SocketAddr>, Instant)>;
+
+/// A round of name lookups: the names looked up before, the tokens fresh
+/// ones take, and the addresses a fresh lookup found (their join is paid).
 struct Lookups<'a> {
-    resolved: BTreeMap<String, (Option<SocketAddr>, Instant)>,
+    resolved: &'a mut Resolved,
     joins: &'a mut JoinBucket,
+    prepaid: &'a mut BTreeSet<SocketAddr>,
     /// A name was left for lack of tokens.
     owed: bool,
 }
 
-impl<'a> Lookups<'a> {
-    /// The names looked up so far and the bucket, lent to one round of
-    /// lookups (`resolved` goes back after).
-    fn lend(
-        resolved: &mut BTreeMap<String, (Option<SocketAddr>, Instant)>,
-        joins: &'a mut JoinBucket,
-    ) -> Self {
-        Self {
-            resolved: std::mem::take(resolved),
-            joins,
-            owed: false,
-        }
-    }
+/// How a kept lookup stands.
+enum Kept {
+    /// Within its time: use it.
+    Fresh(Option<SocketAddr>),
+    /// Past its time, but an address: used while no token is left.
+    Stale(SocketAddr),
+    /// None kept, or a failure past its time.
+    Missing,
+}
 
-    /// What `name` gave when looked up lately (`None`: look it up).
-    fn cached(&self, name: &str, now: Instant) -> Option<Option<SocketAddr>> {
-        let &(found, at) = self.resolved.get(name)?;
-        let ttl = if found.is_some() {
-            RESOLVED_TTL
-        } else {
-            JOIN_BACKOFF
+impl Lookups<'_> {
+    /// How the lookup of `name` kept stands at `now`.
+    fn kept(&self, name: &str, now: Instant) -> Kept {
+        let Some(&(found, at)) = self.resolved.get(name) else {
+            return Kept::Missing;
         };
-        (now.saturating_duration_since(at) < ttl).then_some(found)
+        let age = now.saturating_duration_since(at);
+        match found {
+            Some(a) if age < RESOLVED_TTL => Kept::Fresh(Some(a)),
+            Some(a) => Kept::Stale(a),
+            None if age < JOIN_BACKOFF => Kept::Fresh(None),
+            None => Kept::Missing,
+        }
     }
 
     /// Keeps a lookup, dropping the oldest past [`MAX_LOOKUPS`].
@@ -259,8 +278,11 @@ fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 }
 
 /// `name` as an address: an address as it is, a name from the lookups
-/// kept, or looked up for a [`JoinRate`] token by `until` (`None`: it does
-/// not resolve, or no token was left, which `state` then owes).
+/// kept, or looked up for a [`JoinRate`] token by `until` (which also pays
+/// the join of what it finds). With no token left, or past `until`, a
+/// name kept past its time keeps its last address; otherwise `None`, which
+/// `state` then owes. A name that does not resolve is `None` for
+/// [`JOIN_BACKOFF`].
 async fn look_up(
     state: &std::sync::Mutex<Lookups<'_>>,
     name: String,
@@ -270,18 +292,29 @@ async fn look_up(
     if let Ok(found) = name.parse() {
         return Some(found);
     }
-    if let Some(found) = lock(state).cached(&name, now) {
-        return found;
+    let stale = match lock(state).kept(&name, now) {
+        Kept::Fresh(found) => return found,
+        Kept::Stale(a) => Some(a),
+        Kept::Missing => None,
+    };
+    {
+        let mut l = lock(state);
+        if tokio::time::Instant::now() >= until || !l.joins.take(now) {
+            l.owed |= stale.is_none();
+            return stale;
+        }
     }
-    if !lock(state).joins.take(now) {
-        lock(state).owed = true;
-        return None;
+    let Ok(result) = tokio::time::timeout_at(until, resolve(&name)).await else {
+        // Out of time for this round, not a name that does not resolve.
+        lock(state).owed |= stale.is_none();
+        return stale;
+    };
+    let found = result.ok();
+    let mut l = lock(state);
+    l.keep(name, found, Instant::now());
+    if let Some(a) = found {
+        l.prepaid.insert(a);
     }
-    let found = tokio::time::timeout_at(until, resolve(&name))
-        .await
-        .ok()
-        .and_then(Result::ok);
-    lock(state).keep(name, found, Instant::now());
     found
 }
 
@@ -381,7 +414,10 @@ pub struct ClusterClient {
     /// Tokens for joins and fresh lookups ([`JoinRate`]).
     joins: JoinBucket,
     /// Names looked up: what each gave, and when (at most [`MAX_LOOKUPS`]).
-    resolved: BTreeMap<String, (Option<SocketAddr>, Instant)>,
+    resolved: Resolved,
+    /// Addresses a fresh lookup found, whose join its token paid (at most
+    /// the nodes named).
+    prepaid: BTreeSet<SocketAddr>,
     /// A lookup was left for lack of tokens: route again.
     reroute_owed: bool,
 }
@@ -431,6 +467,7 @@ impl ClusterClient {
             named: Vec::new(),
             joins,
             resolved: BTreeMap::new(),
+            prepaid: BTreeSet::new(),
             reroute_owed: false,
         })
     }
@@ -497,7 +534,8 @@ impl ClusterClient {
         let news = latest
             .iter()
             .any(|(a, o)| self.seen.get(a) != Some(&o.serial));
-        if news || self.reroute_owed || self.view.nodes.len() != before {
+        let owed = self.reroute_owed && self.joins.ready(Instant::now());
+        if news || owed || self.view.nodes.len() != before {
             self.named = self.reroute(&latest).await;
             self.let_go_unused();
         }
@@ -537,11 +575,15 @@ impl ClusterClient {
         // One deadline for every name of this reroute.
         let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
         let now = Instant::now();
-        let state = std::sync::Mutex::new(Lookups::lend(&mut self.resolved, &mut self.joins));
+        let state = std::sync::Mutex::new(Lookups {
+            resolved: &mut self.resolved,
+            joins: &mut self.joins,
+            prepaid: &mut self.prepaid,
+            owed: false,
+        });
         let routing = build_routes(latest, &kept, |a| look_up(&state, a, now, until)).await;
-        let Lookups { resolved, owed, .. } = state.into_inner().unwrap_or_else(|p| p.into_inner());
-        self.resolved = resolved;
-        self.reroute_owed = owed;
+        self.reroute_owed = state.into_inner().unwrap_or_else(|p| p.into_inner()).owed;
+        self.prepaid.retain(|a| routing.named.contains(a));
         self.view.routes = routing.routes;
         routing.named
     }
@@ -566,10 +608,15 @@ impl ClusterClient {
             }
             self.seen.remove(&a);
         }
+        let now = Instant::now();
+        let failed = &mut self.failed;
         self.joining.retain(|a, h| {
             let keep = named.contains(a);
             if !keep {
+                // Left alone a while, as a failed join: naming an address
+                // again and again restarts no handshake sooner.
                 h.abort();
+                failed.insert(*a, now);
             }
             keep
         });
@@ -590,8 +637,9 @@ impl ClusterClient {
             {
                 continue;
             }
-            if !self.joins.take(now) {
-                break;
+            // Joins a lookup paid for go even when no token is left.
+            if !self.prepaid.remove(&a) && !self.joins.take(now) {
+                continue;
             }
             let task = join(
                 a,
@@ -696,13 +744,18 @@ impl ClusterClient {
         else {
             return Ok((to, acked));
         };
+        if addr.is_empty() {
+            return Ok((to, acked));
+        }
         let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
-        let state = std::sync::Mutex::new(Lookups::lend(&mut self.resolved, &mut self.joins));
+        let state = std::sync::Mutex::new(Lookups {
+            resolved: &mut self.resolved,
+            joins: &mut self.joins,
+            prepaid: &mut self.prepaid,
+            owed: false,
+        });
+        // Owed or not, only the edit sent again asks for this name again.
         let found = look_up(&state, addr.clone(), Instant::now(), until).await;
-        self.resolved = state
-            .into_inner()
-            .unwrap_or_else(|p| p.into_inner())
-            .resolved;
         let Some(there) = found else {
             return Ok((to, acked));
         };
@@ -779,7 +832,8 @@ mod tests {
     async fn node_names_resolve_or_are_bad_addresses_in_time() {
         let a: SocketAddr = "127.0.0.1:4433".parse().unwrap();
         assert_eq!(resolve("127.0.0.1:4433").await.unwrap(), a);
-        assert_eq!(resolve("localhost:4433").await.unwrap().port(), 4433);
+        let local = resolve("localhost:4433").await.unwrap();
+        assert!(local.port() == 4433 && local.is_ipv4(), "{local}");
         assert!(matches!(
             resolve("no-such-host.invalid:4433").await,
             Err(ClusterError::BadAddress(_))
@@ -793,9 +847,11 @@ mod tests {
         let t0 = Instant::now();
         let every = Duration::from_secs(1);
         let mut b = JoinBucket::new(JoinRate { burst: 3, every }, t0);
+        assert!(b.ready(t0));
         assert!((0..3).all(|_| b.take(t0)));
-        assert!(!b.take(t0));
+        assert!(!b.ready(t0) && !b.take(t0));
         assert!(!b.take(t0 + every / 2));
+        assert!(b.ready(t0 + every));
         assert!(b.take(t0 + every));
         assert!(!b.take(t0 + every));
         // A long quiet refills the burst, no more.
@@ -807,7 +863,7 @@ mod tests {
         assert!(b.take(later + every * 5 / 4));
         // A burst of 0 takes nothing; a period of zero, everything.
         let mut none = JoinBucket::new(JoinRate { burst: 0, every }, t0);
-        assert!(!none.take(t0 + every * 10));
+        assert!(!none.ready(t0 + every * 10) && !none.take(t0 + every * 10));
         let mut all = JoinBucket::new(
             JoinRate {
                 burst: 0,
@@ -828,28 +884,43 @@ mod tests {
             },
             t0,
         );
-        let mut resolved = BTreeMap::new();
+        let (mut resolved, mut prepaid) = (Resolved::new(), BTreeSet::new());
         let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
-        let state = std::sync::Mutex::new(Lookups::lend(&mut resolved, &mut joins));
+        let state = std::sync::Mutex::new(Lookups {
+            resolved: &mut resolved,
+            joins: &mut joins,
+            prepaid: &mut prepaid,
+            owed: false,
+        });
         // An address costs no token.
         let a = look_up(&state, "127.0.0.1:9".into(), t0, until).await;
         assert_eq!(a, Some("127.0.0.1:9".parse().unwrap()));
-        // A name takes the one token, then is answered from the kept ones.
+        // A name takes the one token, which pays its join too, then is
+        // answered from the kept ones.
         let name = "localhost:4433".to_string();
         let found = look_up(&state, name.clone(), t0, until).await;
         assert_eq!(found.map(|a| a.port()), Some(4433));
+        assert!(lock(&state).prepaid.contains(&found.unwrap()));
         assert_eq!(look_up(&state, name.clone(), t0, until).await, found);
         assert!(!lock(&state).owed);
         // A new name with no token left is owed, not looked up.
         assert_eq!(look_up(&state, "other:1".into(), t0, until).await, None);
         assert!(lock(&state).owed);
-        // Past its time a kept name is looked up again (no token: owed).
+        // Past its time, with no token to look it up again, a kept name
+        // keeps its address (its connection is not dropped for it).
         lock(&state).owed = false;
         let stale = t0 + RESOLVED_TTL + RESOLVE_TIMEOUT;
-        assert_eq!(look_up(&state, name, stale, until).await, None);
-        assert!(lock(&state).owed);
-        // At most MAX_LOOKUPS names are kept, the oldest dropped first.
+        assert_eq!(look_up(&state, name.clone(), stale, until).await, found);
+        assert!(!lock(&state).owed);
+        // Past the round's deadline nothing is looked up or kept as bad.
+        let l = state.into_inner().unwrap();
+        l.joins.tokens = 1;
+        let state = std::sync::Mutex::new(l);
+        let late = tokio::time::Instant::now();
+        assert_eq!(look_up(&state, "late:1".into(), t0, late).await, None);
         let mut l = state.into_inner().unwrap();
+        assert!(l.owed && l.joins.tokens == 1 && !l.resolved.contains_key("late:1"));
+        // At most MAX_LOOKUPS names are kept, the oldest dropped first.
         for i in 0..MAX_LOOKUPS + 5 {
             l.keep(
                 format!("n{i}:1"),

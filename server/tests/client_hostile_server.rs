@@ -125,6 +125,8 @@ const VICTIMS: usize = 40;
 /// Addresses each of its `RegionOwners` names (one under the client's
 /// cap on nodes, which the home node takes).
 const NAMED_PER_MESSAGE: usize = 7;
+/// How long each of its messages stands before the next names others.
+const NAMED_FOR: Duration = Duration::from_millis(400);
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_node_naming_new_addresses_gets_no_more_handshakes_than_the_join_rate() {
@@ -133,24 +135,37 @@ async fn a_node_naming_new_addresses_gets_no_more_handshakes_than_the_join_rate(
         let v = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
         victims.push(std::sync::Arc::new(v));
     }
-    let addrs: Vec<String> = victims
+    // Every other victim by name: a lookup, then a handshake.
+    let names: Vec<String> = victims
         .iter()
-        .map(|v| v.local_addr().unwrap().to_string())
+        .enumerate()
+        .map(|(i, v)| {
+            let port = v.local_addr().unwrap().port();
+            match i % 2 {
+                0 => format!("127.0.0.1:{port}"),
+                _ => format!("localhost:{port}"),
+            }
+        })
         .collect();
-    // Which victims received anything (a QUIC Initial) during the run.
-    let hit: Vec<_> = victims
+    // Handshakes: the distinct (victim, sender) pairs heard from (each
+    // connection attempt sends from a socket of its own).
+    let heard = std::sync::Arc::new(std::sync::Mutex::new(std::collections::BTreeSet::new()));
+    let listening: Vec<_> = victims
         .iter()
-        .map(|v| {
-            let v = v.clone();
+        .enumerate()
+        .map(|(i, v)| {
+            let (v, heard) = (v.clone(), heard.clone());
             tokio::spawn(async move {
                 let mut buf = [0u8; 2048];
-                tokio::time::timeout(LIMIT, v.recv(&mut buf)).await.is_ok()
+                while let Ok((_, from)) = v.recv_from(&mut buf).await {
+                    heard.lock().unwrap().insert((i, from));
+                }
             })
         })
         .collect();
 
-    // The node: every 30 ms a `RegionOwners` naming 7 addresses not named
-    // before, each the writer of a region around the player.
+    // The node: every NAMED_FOR a `RegionOwners` naming 7 victims, each
+    // the writer of a region around the player.
     let (server, pair) = endpoint();
     let home = server.local_addr().unwrap();
     let serving = tokio::spawn(async move {
@@ -162,7 +177,7 @@ async fn a_node_naming_new_addresses_gets_no_more_handshakes_than_the_join_rate(
                     region_z: 0,
                     holder: RegionHolder::Node {
                         node: format!("n{k}"),
-                        addr: addrs[(m * NAMED_PER_MESSAGE + k) % VICTIMS].clone(),
+                        addr: names[(m * NAMED_PER_MESSAGE + k) % VICTIMS].clone(),
                     },
                 })
                 .collect();
@@ -175,7 +190,7 @@ async fn a_node_naming_new_addresses_gets_no_more_handshakes_than_the_join_rate(
             if control.write_all(&frame).await.is_err() {
                 break;
             }
-            tokio::time::sleep(Duration::from_millis(30)).await;
+            tokio::time::sleep(NAMED_FOR).await;
         }
         drop(conn);
     });
@@ -192,7 +207,7 @@ async fn a_node_naming_new_addresses_gets_no_more_handshakes_than_the_join_rate(
         .await
         .unwrap();
     let started = std::time::Instant::now();
-    let run = Duration::from_millis(2500);
+    let run = Duration::from_millis(3500);
     while started.elapsed() < run {
         client.follow().await.unwrap();
         tokio::time::sleep(Duration::from_millis(10)).await;
@@ -200,19 +215,16 @@ async fn a_node_naming_new_addresses_gets_no_more_handshakes_than_the_join_rate(
     let elapsed = started.elapsed();
     drop(client);
     serving.abort();
-    // What got a packet by now (a handshake's first flight leaves at once).
+    // A handshake's first flight leaves at once; late retransmits of one
+    // already heard add nothing.
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let mut contacted = 0;
-    for h in hit {
-        if !h.is_finished() {
-            h.abort();
-        } else if h.await.unwrap() {
-            contacted += 1;
-        }
+    for l in listening {
+        l.abort();
     }
-    let allowed = rate.burst as usize + elapsed.as_secs() as usize + 1;
+    let handshakes = heard.lock().unwrap().len();
+    let allowed = rate.burst as usize + elapsed.as_secs() as usize;
     assert!(
-        (rate.burst as usize..=allowed).contains(&contacted),
-        "{contacted} of {VICTIMS} addresses got handshakes in {elapsed:?} (rate allows {allowed})"
+        (2..=allowed).contains(&handshakes),
+        "{handshakes} handshakes to {VICTIMS} addresses in {elapsed:?} (the rate allows {allowed})"
     );
 }
