@@ -360,8 +360,13 @@ fn a_postgres_restore_cut_short_leaves_the_old_world() {
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
 
     // Replacing: the tables are emptied and the new chunks written inside
-    // the transaction, which the failure rolls back.
-    let store = pg_store(&db);
+    // the transaction, which the failure rolls back. (Named as the admin
+    // tools name their connections: a server's would be refused.)
+    let cfg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let store = PgStore::open(&cfg.for_admin(), DEFAULT_REGION_CHUNKS).unwrap();
     let err = import(
         &new,
         &CutBeforeMeta(&store.import_in_one_transaction(true)),
@@ -464,7 +469,16 @@ fn a_forced_postgres_restore_waits_for_no_running_node() {
     );
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
 
+    // A server stopping as the restore begins: its sessions leave within
+    // the wait, and the restore goes ahead.
+    let stopping = pg_store(&db);
+    assert!(stopping.holds_world().unwrap().is_some());
+    let stopped = std::thread::spawn(move || {
+        std::thread::sleep(std::time::Duration::from_secs(1));
+        drop(stopping);
+    });
     assert_eq!(pg_restore(&db, tmp.path(), &new, true).unwrap(), 5);
+    stopped.join().unwrap();
     assert_eq!(pg_world(&db), ("20".into(), "5".into()));
     // The region row stays, freed at a higher epoch: a node paused across
     // the restore is fenced, not let write at the epoch it had.
@@ -517,7 +531,7 @@ fn failed_postgres_restores_give_their_one_connection_back() {
     assert!(err.to_string().contains("duplicate key"), "{err}");
     let err = target.finish_import(&WorldMeta::new(1, 1, ""), ZONES_BLOB, b"[]");
     assert!(err.is_err(), "the failed transaction's connection is gone");
-    assert!(!target.commit_sent());
+    assert!(!target.commit_unknown());
     drop(target);
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
 

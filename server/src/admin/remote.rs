@@ -126,7 +126,13 @@ pub fn open_offline_store(dir: &Path) -> anyhow::Result<Arc<dyn ChunkStore>> {
         .with_context(|| format!("opening data dir {}", dir.display()))?;
     let cfg = data_dir_config(dir)?;
     let world_db = dd.world_db_path();
-    let store = open_store(&cfg.store, &world_db, cfg.sequencer.region_chunks, None)
+    // Named as an admin tool's on PostgreSQL (a forced restore refuses
+    // only running servers' sessions).
+    let store_cfg = crate::store::StoreConfig {
+        postgres: cfg.store.postgres.for_admin(),
+        ..cfg.store.clone()
+    };
+    let store = open_store(&store_cfg, &world_db, cfg.sequencer.region_chunks, None)
         .with_context(|| {
             format!(
                 "opening the world store of {} (is the server still running? stop it or use --server)",

@@ -398,9 +398,9 @@ fn restore_postgres(args: &RestoreArgs, cfg: &ServerConfig, total: u64) -> anyho
     let bar = progress(Some(total), "restore {bar:40} {pos}/{len} chunks {eta}");
     let n =
         import(&args.file, &target, ZONES_BLOB, |n| bar.set_position(n)).with_context(|| {
-            if target.commit_sent() {
+            if target.commit_unknown() {
                 "the restore's COMMIT got no answer: the store holds either the old world or the \
-             restored one; look with `strata-admin stats`"
+                 restored one; look with `strata-admin check --data-dir DIR --config FILE`"
             } else {
                 "the PostgreSQL store is unchanged"
             }

@@ -13,8 +13,8 @@
 //! across owners (`seqs.rs`). A batch that passes moves each region's
 //! `last_seq` to its own and adds its edits to the regions' `edits` counts
 //! in the same transaction (`cluster status`). The lease's expiry is not checked here: an
-//! epoch only moves when another claim succeeded, and that is what makes
-//! a write unsafe.
+//! epoch only moves when another claim succeeded or a restore freed the
+//! region, and that is what makes a write unsafe.
 
 use std::collections::{BTreeMap, BTreeSet};
 

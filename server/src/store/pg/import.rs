@@ -48,8 +48,9 @@ pub struct PgImport<'a> {
     replace: bool,
     /// The transaction's connection, from `begin_import` on.
     held: Mutex<Option<Held<'a>>>,
-    /// `COMMIT` was sent: a failure from then on may have committed.
-    committing: AtomicBool,
+    /// `COMMIT` was sent and failed without PostgreSQL's answer: the
+    /// restore may or may not have taken.
+    commit_unknown: AtomicBool,
 }
 
 impl PgStore {
@@ -61,7 +62,7 @@ impl PgStore {
             store: self,
             replace,
             held: Mutex::new(None),
-            committing: AtomicBool::new(false),
+            commit_unknown: AtomicBool::new(false),
         }
     }
 
@@ -101,21 +102,32 @@ async fn refuse_non_empty(c: &mut Conn) -> Result<(), StoreError> {
     Ok(())
 }
 
-/// Running servers' sessions on this database (named
-/// [`SERVER_APPLICATION`]), and where from; a fresh look each time.
-async fn server_sessions(c: &mut Conn) -> Result<(i64, String), StoreError> {
+/// Refuses a database running servers' sessions use (named
+/// [`SERVER_APPLICATION`]), saying where from; a fresh look each time.
+async fn refuse_servers(c: &mut Conn) -> Result<(), StoreError> {
     c.batch("SELECT pg_stat_clear_snapshot()").await?;
     let row = c
         .query_opt(
-            "SELECT count(*), coalesce(string_agg(DISTINCT \
-                 coalesce(host(client_addr), 'a local socket'), ', '), '') \
+            "SELECT count(*), coalesce(string_agg(DISTINCT CASE \
+                 WHEN client_port = -1 THEN 'a local socket' \
+                 WHEN client_addr IS NULL THEN 'an address hidden from this role' \
+                 ELSE host(client_addr) END, ', '), '') \
              FROM pg_stat_activity \
              WHERE datname = current_database() AND application_name = $1 \
                AND pid <> pg_backend_pid()",
             &[&SERVER_APPLICATION],
         )
         .await?;
-    Ok(row.map_or((0, String::new()), |r| (r.get(0), r.get(1))))
+    let (sessions, from): (i64, String) = row.map_or((0, String::new()), |r| (r.get(0), r.get(1)));
+    if sessions == 0 {
+        return Ok(());
+    }
+    Err(StoreError::PgSetup {
+        reason: format!(
+            "{sessions} sessions of a running {SERVER_APPLICATION} (from {from}) use this \
+             database: stop every node first"
+        ),
+    })
 }
 
 /// Refuses to empty a world whose regions a node still leases.
@@ -147,11 +159,11 @@ async fn refuse_live_leases(c: &mut Conn) -> Result<(), StoreError> {
 }
 
 impl PgImport<'_> {
-    /// Whether `COMMIT` was sent: after a failure, whether the store may
-    /// hold the restored world (the reply may have been lost) rather
-    /// than surely the old one.
-    pub fn commit_sent(&self) -> bool {
-        self.committing.load(Ordering::Relaxed)
+    /// After a failure: whether `COMMIT` failed without PostgreSQL's
+    /// answer, so the store may hold the restored world rather than
+    /// surely the old one.
+    pub fn commit_unknown(&self) -> bool {
+        self.commit_unknown.load(Ordering::Relaxed)
     }
 
     /// The open transaction's connection.
@@ -168,14 +180,31 @@ impl PgImport<'_> {
 }
 
 impl ImportTarget for PgImport<'_> {
-    /// Opens the transaction and takes the world's tables (waiting at
-    /// most [`IMPORT_LOCK_WAIT_MS`] for them). Refuses a store that holds
-    /// a world, or, replacing one, a database a running server uses (its
-    /// sessions given [`IMPORT_LOCK_WAIT_MS`] to leave) or whose regions a
-    /// node leases; then empties the world's tables and frees every
-    /// region at a higher epoch.
+    /// Replacing a world: waits, holding no lock, up to
+    /// [`IMPORT_LOCK_WAIT_MS`] for running servers' sessions to leave the
+    /// database, and refuses one whose regions a node leases. Then opens
+    /// the transaction and takes the world's tables (waiting at most
+    /// [`IMPORT_LOCK_WAIT_MS`] for them), looks again for servers and
+    /// leases (or refuses a store that holds a world, when not
+    /// replacing), empties the world's tables and frees every region at a
+    /// higher epoch.
     fn begin_import(&self) -> Result<(), StoreError> {
         let mut held = self.store.pool.hold()?;
+        if self.replace {
+            // Outside any transaction: a server stopping meanwhile must
+            // be able to let its regions go.
+            let deadline = Instant::now() + Duration::from_millis(IMPORT_LOCK_WAIT_MS);
+            loop {
+                match held.run("looking for running servers", refuse_servers) {
+                    Ok(()) => break,
+                    Err(StoreError::PgSetup { .. }) if Instant::now() < deadline => {
+                        std::thread::sleep(Duration::from_millis(100));
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
+            held.run("looking for live leases", refuse_live_leases)?;
+        }
         let statement_ms = held.statement_timeout().as_millis();
         held.begin(
             "beginning the restore",
@@ -212,22 +241,8 @@ impl ImportTarget for PgImport<'_> {
             },
         )?;
         if self.replace {
-            let deadline = Instant::now() + Duration::from_millis(IMPORT_LOCK_WAIT_MS);
-            loop {
-                let (sessions, from) = held.run("looking for running servers", server_sessions)?;
-                if sessions == 0 {
-                    break;
-                }
-                if Instant::now() >= deadline {
-                    return Err(StoreError::PgSetup {
-                        reason: format!(
-                            "{sessions} sessions of a running {SERVER_APPLICATION} (from {from}) \
-                             use this database: stop every node first"
-                        ),
-                    });
-                }
-                std::thread::sleep(Duration::from_millis(100));
-            }
+            // Under the lock, no server can start or claim meanwhile.
+            held.run("looking for running servers", refuse_servers)?;
             held.run("looking for live leases", refuse_live_leases)?;
         } else {
             held.run("checking the store is empty", refuse_non_empty)?;
@@ -308,8 +323,12 @@ impl ImportTarget for PgImport<'_> {
                 .await?;
                 Ok(())
             })?;
-            self.committing.store(true, Ordering::Relaxed);
-            held.commit("committing the restore")
+            held.commit("committing the restore").inspect_err(|e| {
+                // An error PostgreSQL sent is a rollback; a lost
+                // connection or a timeout says nothing.
+                let answered = matches!(e, StoreError::Postgres(pg) if pg.as_db_error().is_some());
+                self.commit_unknown.store(!answered, Ordering::Relaxed);
+            })
         })?;
         // The connection is clean again: back to the pool.
         drop(self.held.lock().unwrap_or_else(|p| p.into_inner()).take());

@@ -4,7 +4,8 @@
 //! and when its lease runs out, on the database's clock. A node claims a
 //! region that is free (never claimed, released, or its lease expired) or
 //! that its own node id holds (a restart under the same name); every claim
-//! bumps the epoch. It renews what it holds every `renew_ms` while owner
+//! bumps the epoch, and so does a restore, which frees every region
+//! (`import.rs`). It renews what it holds every `renew_ms` while owner
 //! and epoch are still its own. A region whose epoch moved on is lost: a
 //! commit or an adoption never claims it back, since this process's copy
 //! may be stale; only the engine does, asking for it again ([`acquire`]): then

@@ -316,8 +316,9 @@ pub struct Held<'p> {
 
 impl Held<'_> {
     /// One call on the held connection, under the statement timeout. A
-    /// failure or timeout closes the connection (so its transaction, if
-    /// any, is rolled back); later calls fail.
+    /// database error or a timeout closes the connection (so its
+    /// transaction, if any, is rolled back) and later calls fail; our own
+    /// refusals leave it as it was.
     pub fn run<T>(
         &mut self,
         what: &'static str,
@@ -339,14 +340,21 @@ impl Held<'_> {
                 reason: format!("{what}: the connection was closed by an earlier failure"),
             });
         };
-        let result = match wait(f(conn), limit) {
-            Ok(r) => r,
-            Err(_) => Err(StoreError::PgTimeout {
-                what,
-                limit_ms: limit.as_millis() as u64,
-            }),
+        let (result, close) = match wait(f(conn), limit) {
+            Ok(Ok(v)) => (Ok(v), false),
+            Ok(Err(e)) => {
+                let close = e.is_postgres();
+                (Err(e), close)
+            }
+            Err(_) => (
+                Err(StoreError::PgTimeout {
+                    what,
+                    limit_ms: limit.as_millis() as u64,
+                }),
+                true,
+            ),
         };
-        if result.is_err() {
+        if close {
             self.conn = None;
             self.pool.give(None);
         }
