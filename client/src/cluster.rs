@@ -482,11 +482,6 @@ impl ClusterClient {
         self.view.nodes.get(&addr).map(|c| c.as_ref())
     }
 
-    /// The connection to `addr`, shared, if open (to wait on a verdict
-    /// elsewhere).
-    pub fn node_shared(&self, addr: SocketAddr) -> Option<Arc<Client>> {
-        self.view.nodes.get(&addr).cloned()
-    }
 
     /// Every connected node.
     pub fn nodes(&self) -> impl Iterator<Item = (SocketAddr, &Client)> {
@@ -702,7 +697,11 @@ impl ClusterClient {
     /// Sends `edit` to the node that writes its region without waiting
     /// for the verdict: edits submitted one after another to one node reach
     /// it in that order. Returns the node and what [`Client::verdict`]
-    /// takes; pass the verdict to [`Self::settle`].
+    /// takes; pass the verdict to [`Self::settle`]. A caller keeping
+    /// several edits in flight should know that one [`Self::settle`] sends
+    /// again reaches its new node after any submitted there since, and
+    /// that [`Self::follow`] may close a node whose verdicts are still
+    /// awaited ([`Self::edit`] keeps one edit in flight and has neither).
     pub async fn submit(&self, edit: Edit) -> Result<(SocketAddr, SentEdit), ClusterError> {
         let to = self.route(edit_anchor(&edit).chunk());
         let sent = self.view.nodes[&to].submit(edit).await?;

@@ -4,17 +4,15 @@
 //! On a cluster one task owns the [`ClusterClient`]: it takes the game's
 //! commands and follows the nodes' word between them.
 
-use std::net::SocketAddr;
 use std::sync::{mpsc as std_mpsc, Arc, Mutex};
 use std::time::Duration;
 
 use strata_terrain::{ChunkPos, Edit};
 use tokio::sync::mpsc;
-use tokio::task::JoinSet;
 
 use super::event::Event;
 use super::links::Links;
-use crate::client::{Acked, Client, ClientError, Verdict};
+use crate::client::{Client, ClientError, Verdict};
 use crate::cluster::{ClusterClient, ClusterError};
 
 /// How often a cluster session takes in the nodes' `RegionOwners` (and
@@ -62,18 +60,12 @@ pub(super) async fn dispatch(
     }
 }
 
-/// An edit sent to a node, and that node's answer.
-type Answered = (u64, Edit, SocketAddr, Result<Acked, ClientError>);
-
 /// [`dispatch`] for a cluster: subscriptions and forgets go to every node
 /// connected then (a node joined later follows the player's positions and
-/// streams its whole view), a resync to the node the chunk is read from.
-/// Each edit goes at once to the node that writes its region (edits to one
-/// node reach it in the order taken) and its verdict is awaited on the
-/// side; an answer the cluster client may send again elsewhere
-/// (`RegionElsewhere`, `NodeFull`) is settled here, the others become
-/// events as they come. After each command and every [`FOLLOW_EVERY`] the
-/// session's copy of the routes is brought up to date.
+/// streams its whole view), a resync to the node the chunk is read from,
+/// edits through the cluster client one at a time; after each command and
+/// every [`FOLLOW_EVERY`] the session's copy of the routes is brought up
+/// to date.
 pub(super) async fn dispatch_cluster(
     mut cluster: ClusterClient,
     links: Arc<Links>,
@@ -82,19 +74,11 @@ pub(super) async fn dispatch_cluster(
 ) {
     let mut follow = tokio::time::interval(FOLLOW_EVERY);
     follow.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut answers: JoinSet<Answered> = JoinSet::new();
     loop {
         tokio::select! {
             command = commands.recv() => {
                 let Some(command) = command else { break };
-                run_on_cluster(&cluster, command, &mut answers, &events).await;
-            }
-            Some(answered) = answers.join_next(), if !answers.is_empty() => {
-                // A verdict task cannot fail but by a panic, which has no
-                // ticket to report: nothing else to do with it.
-                if let Ok(answered) = answered {
-                    let _ = events.send(settle(&mut cluster, answered).await);
-                }
+                run_on_cluster(&mut cluster, command, &events).await;
             }
             _ = follow.tick() => {
                 // A node that cannot be joined is retried later; the home
@@ -106,71 +90,24 @@ pub(super) async fn dispatch_cluster(
     }
 }
 
-/// Sends an edit to the node that writes its region and awaits its
-/// verdict in `answers`.
-async fn submit_on_cluster(
-    cluster: &ClusterClient,
-    ticket: u64,
-    edit: Edit,
-    answers: &mut JoinSet<Answered>,
-    events: &std_mpsc::Sender<Event>,
-) {
-    let (to, sent) = match cluster.submit(edit.clone()).await {
-        Ok(sent) => sent,
-        Err(e) => {
-            let _ = events.send(failed_event(ticket, e));
-            return;
-        }
-    };
-    let Some(node) = cluster.node_shared(to) else {
-        // Not reached (edits route to a connected node), but no ticket
-        // goes unanswered.
-        let _ = events.send(Event::EditFailed {
-            ticket,
-            error: format!("node {to} is no longer connected"),
-        });
-        return;
-    };
-    answers.spawn(async move {
-        let verdict = node.verdict(sent).await;
-        (ticket, edit, to, verdict)
-    });
-}
-
-/// The event for an answer, sending the edit again first where the
-/// cluster client may ([`ClusterClient::settle`]).
-async fn settle(cluster: &mut ClusterClient, (ticket, edit, to, verdict): Answered) -> Event {
-    match verdict {
-        Ok(acked) if ClusterClient::may_resend(&acked) => {
-            match cluster.settle(to, edit, acked).await {
-                Ok((_, acked)) => verdict_event(ticket, Ok(acked)),
-                Err(e) => failed_event(ticket, e),
-            }
-        }
-        other => verdict_event(ticket, other),
-    }
-}
-
-fn failed_event(ticket: u64, e: ClusterError) -> Event {
-    match e {
-        ClusterError::Client(e) => verdict_event(ticket, Err(e)),
-        e => Event::EditFailed {
-            ticket,
-            error: e.to_string(),
-        },
-    }
-}
-
 async fn run_on_cluster(
-    cluster: &ClusterClient,
+    cluster: &mut ClusterClient,
     command: Command,
-    answers: &mut JoinSet<Answered>,
     events: &std_mpsc::Sender<Event>,
 ) {
     let view = cluster.view();
     match command {
         Command::Edit { ticket, edit } => {
-            submit_on_cluster(cluster, ticket, edit, answers, events).await;
+            let answer = cluster.edit(edit).await.map(|(_, acked)| acked);
+            let event = match answer {
+                Ok(acked) => verdict_event(ticket, Ok(acked)),
+                Err(ClusterError::Client(e)) => verdict_event(ticket, Err(e)),
+                Err(e) => Event::EditFailed {
+                    ticket,
+                    error: e.to_string(),
+                },
+            };
+            let _ = events.send(event);
         }
         Command::Subscribe { center, radius } => {
             for c in view.nodes.values() {
