@@ -420,6 +420,9 @@ pub struct ClusterClient {
     prepaid: BTreeSet<SocketAddr>,
     /// A lookup was left for lack of tokens: route again.
     reroute_owed: bool,
+    /// The last view asked for ([`Self::subscribe`]), for nodes joined
+    /// since.
+    asked_view: Option<(ChunkPos, u8)>,
 }
 
 /// Connects to node `addr` and arrives there with `ticket`.
@@ -469,6 +472,7 @@ impl ClusterClient {
             resolved: BTreeMap::new(),
             prepaid: BTreeSet::new(),
             reroute_owed: false,
+            asked_view: None,
         })
     }
 
@@ -481,7 +485,6 @@ impl ClusterClient {
     pub fn node(&self, addr: SocketAddr) -> Option<&Client> {
         self.view.nodes.get(&addr).map(|c| c.as_ref())
     }
-
 
     /// Every connected node.
     pub fn nodes(&self) -> impl Iterator<Item = (SocketAddr, &Client)> {
@@ -647,7 +650,47 @@ impl ClusterClient {
         }
     }
 
-    /// Takes in the connections opened since the last call.
+    /// Asks every node for the view around `center` (see
+    /// [`Client::subscribe`]); a node joined later is asked too.
+    pub async fn subscribe(&mut self, center: ChunkPos, radius: u8) {
+        self.asked_view = Some((center, radius));
+        for c in self.view.nodes.values() {
+            // A node that cannot be told is one whose end is reported.
+            let _ = c.subscribe(center, radius).await;
+        }
+    }
+
+    /// Drops chunks on every node (see [`Client::forget`]); a node joined
+    /// later is told of those still dropped.
+    pub async fn forget(&mut self, chunks: &[ChunkPos]) -> Result<(), ClientError> {
+        for c in self.view.nodes.values() {
+            if let Err(e @ ClientError::TooManyChunks { .. }) = c.forget(chunks).await {
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+
+    /// A node just joined is asked for the view asked of the others, and
+    /// told of the chunks they still have dropped.
+    async fn catch_up(&self, node: &Client) {
+        if let Some((center, radius)) = self.asked_view {
+            let _ = node.subscribe(center, radius).await;
+        }
+        let dropped: BTreeSet<ChunkPos> = self
+            .view
+            .nodes
+            .values()
+            .flat_map(|c| c.replica().dropped_chunks().collect::<Vec<_>>())
+            .collect();
+        let dropped: Vec<ChunkPos> = dropped.into_iter().collect();
+        for part in dropped.chunks(strata_protocol::limits::MAX_FORGET_CHUNKS) {
+            let _ = node.forget(part).await;
+        }
+    }
+
+    /// Takes in the connections opened since the last call, each caught
+    /// up with the view asked for and the chunks dropped.
     async fn finish_joins(&mut self) -> Vec<SocketAddr> {
         let done: Vec<SocketAddr> = self
             .joining
@@ -662,6 +705,7 @@ impl ClusterClient {
             };
             match h.await {
                 Ok(Ok(c)) => {
+                    self.catch_up(&c).await;
                     self.view.nodes.insert(a, Arc::new(c));
                     added.push(a);
                 }

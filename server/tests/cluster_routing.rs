@@ -148,6 +148,12 @@ async fn bob_east_ann_west(
 
     // The west node names the east node as region 1's writer; the client
     // connects there and arrives with the ticket.
+    follow_until_joined(&mut ann, east.addr).await;
+    (bob, ann)
+}
+
+/// Follows the nodes' word until the client joined `node` (and no other).
+async fn follow_until_joined(ann: &mut ClusterClient, node: SocketAddr) {
     let mut joined = Vec::new();
     for _ in 0..500 {
         joined.extend(ann.follow().await.unwrap());
@@ -156,8 +162,7 @@ async fn bob_east_ann_west(
         }
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    assert_eq!(joined, vec![east.addr]);
-    (bob, ann)
+    assert_eq!(joined, vec![node]);
 }
 
 /// A player on `node`, standing at `x` with its chunk in hand.
@@ -1231,4 +1236,60 @@ async fn zones_added_on_either_node_hold_on_both() {
     })
     .await
     .expect("within the test timeout");
+}
+
+/// A node the cluster client joins after the player asked for a view
+/// (`Subscribe`) and forgot chunks streams that view, the forgotten chunks
+/// left out, as the nodes connected then do.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_joined_later_streams_the_view_asked_without_the_chunks_forgotten() {
+    let Some(db) = strata_tests::postgres::database("cluster_view_asked") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let (_dirs, west, east) = west_and_east(&db).await;
+        // Bob on the east node claims region 1 for it.
+        let bob = standing(&east, "bob", EAST_X).await;
+        let (v, _) = bob.edit_acked(mine_at(EAST_X + 2)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+
+        // Ann, at home on the west node, asks for a view in region 1,
+        // beyond her own view radius of where she stands, and forgets one
+        // of its chunks, before she joins the east node.
+        let ann_token = token(&west, "ann", Role::Player);
+        let mut ann = ClusterClient::connect(
+            west.addr,
+            &west.cert_der,
+            &ann_token,
+            ClientOptions::default(),
+        )
+        .await
+        .unwrap();
+        let center = chunk_of(EAST_X);
+        let forgotten = ChunkPos::new(center.x - 1, center.y, center.z);
+        ann.subscribe(center, 1).await;
+        ann.forget(&[forgotten]).await.unwrap();
+        assert!(
+            eventually(TEST_TIMEOUT, || ann.home().replica().get(center).is_some()).await,
+            "the west node streams the view asked"
+        );
+        follow_until_joined(&mut ann, east.addr).await;
+
+        // The east node, asked the same, streams the same view.
+        let there = || ann.node(east.addr).unwrap();
+        assert!(
+            eventually(TEST_TIMEOUT, || there().replica().get(center).is_some()).await,
+            "the east node streams the view asked"
+        );
+        let neighbour = ChunkPos::new(center.x + 1, center.y, center.z);
+        assert!(eventually(TEST_TIMEOUT, || there().replica().get(neighbour).is_some()).await);
+        assert!(there().replica().is_dropped(forgotten));
+        assert!(there().replica().get(forgotten).is_none());
+        assert!(ann.home().replica().get(forgotten).is_none());
+        ann.close().await;
+        finish(bob, east).await;
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test timed out");
 }

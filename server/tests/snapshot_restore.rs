@@ -361,7 +361,7 @@ fn a_postgres_restore_cut_short_leaves_the_old_world() {
 
     // Replacing: the tables are emptied and the new chunks written inside
     // the transaction, which the failure rolls back. (Named as the admin
-    // tools name their connections: a server's would be refused.)
+    // tools name their connections, as a restore's is.)
     let cfg = PgConfig {
         url: db.url(),
         ..PgConfig::default()
@@ -477,7 +477,12 @@ fn a_forced_postgres_restore_waits_for_no_running_node() {
         std::thread::sleep(std::time::Duration::from_secs(1));
         drop(stopping);
     });
+    let started = std::time::Instant::now();
     assert_eq!(pg_restore(&db, tmp.path(), &new, true).unwrap(), 5);
+    assert!(
+        started.elapsed() >= std::time::Duration::from_millis(900),
+        "the restore waited for the stopping server"
+    );
     stopped.join().unwrap();
     assert_eq!(pg_world(&db), ("20".into(), "5".into()));
     // The region row stays, freed at a higher epoch: a node paused across
@@ -549,4 +554,30 @@ fn failed_postgres_restores_give_their_one_connection_back() {
         Some("its world table is not empty")
     );
     assert_eq!(pg_world(&db), ("20".into(), "5".into()));
+}
+
+#[test]
+fn a_postgres_restore_whose_commit_postgres_refuses_is_unchanged() {
+    let Some(db) = database("a_postgres_restore_whose_commit_postgres_refuses_is_unchanged") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
+    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
+    assert_eq!(pg_restore(&db, tmp.path(), &old, false).unwrap(), 3);
+    // A check PostgreSQL runs only at COMMIT, refusing the new world row.
+    sql(
+        &db,
+        "CREATE FUNCTION refuse_seq_20() RETURNS trigger LANGUAGE plpgsql AS $$ \
+         BEGIN IF NEW.last_seq = 20 THEN RAISE EXCEPTION 'refused at commit'; END IF; \
+         RETURN NEW; END $$; \
+         CREATE CONSTRAINT TRIGGER refuse_seq_20 AFTER INSERT ON world \
+         DEFERRABLE INITIALLY DEFERRED FOR EACH ROW EXECUTE FUNCTION refuse_seq_20()",
+    );
+    let err = format!("{:#}", pg_restore(&db, tmp.path(), &new, true).unwrap_err());
+    assert!(
+        err.contains("refused at commit") && err.contains("is unchanged"),
+        "{err}"
+    );
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
 }

@@ -61,8 +61,8 @@ pub(super) async fn dispatch(
 }
 
 /// [`dispatch`] for a cluster: subscriptions and forgets go to every node
-/// connected then (a node joined later follows the player's positions and
-/// streams its whole view), a resync to the node the chunk is read from,
+/// (a node joined later is asked for the last view asked and told of the
+/// chunks still dropped), a resync to the node the chunk is read from,
 /// edits through the cluster client one at a time; after each command and
 /// every [`FOLLOW_EVERY`] the session's copy of the routes is brought up
 /// to date.
@@ -110,14 +110,10 @@ async fn run_on_cluster(
             let _ = events.send(event);
         }
         Command::Subscribe { center, radius } => {
-            for c in view.nodes.values() {
-                let _ = c.subscribe(center, radius).await;
-            }
+            cluster.subscribe(center, radius).await;
         }
         Command::Forget { chunks } => {
-            for c in view.nodes.values() {
-                let _ = c.forget(&chunks).await;
-            }
+            let _ = cluster.forget(&chunks).await;
         }
         Command::Resync { pos } => {
             let _ = view.client_for(pos).resync(pos).await;

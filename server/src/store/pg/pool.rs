@@ -316,9 +316,9 @@ pub struct Held<'p> {
 
 impl Held<'_> {
     /// One call on the held connection, under the statement timeout. A
-    /// database error or a timeout closes the connection (so its
-    /// transaction, if any, is rolled back) and later calls fail; our own
-    /// refusals leave it as it was.
+    /// database error, a timeout or any error inside a transaction closes
+    /// the connection (so the transaction is rolled back) and later calls
+    /// fail; our own refusals outside a transaction leave it as it was.
     pub fn run<T>(
         &mut self,
         what: &'static str,
@@ -343,7 +343,9 @@ impl Held<'_> {
         let (result, close) = match wait(f(conn), limit) {
             Ok(Ok(v)) => (Ok(v), false),
             Ok(Err(e)) => {
-                let close = e.is_postgres();
+                // Inside a transaction an error may stand for one
+                // PostgreSQL aborted (a mapped lock timeout): never kept.
+                let close = e.is_postgres() || !self.clean;
                 (Err(e), close)
             }
             Err(_) => (
