@@ -123,6 +123,8 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         cfg.sequencer.region_chunks,
         cfg.cluster.as_ref(),
     )?;
+    // Before the world is read: no restore replaces it under this server.
+    store.serve()?;
     let params = cfg.world.generator.clone();
     let mut validation = cfg.validation.clone();
     validation.bounds = WorldBounds {

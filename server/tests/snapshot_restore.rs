@@ -23,7 +23,7 @@ use strata_server::datadir::WORLD_DB_NAME;
 use strata_server::sequencer::regions::{RegionId, DEFAULT_REGION_CHUNKS};
 use strata_server::snapshot::restore::import;
 use strata_server::snapshot::{verify, SnapshotHeader};
-use strata_server::store::pg::PgConfig;
+use strata_server::store::pg::{PgConfig, SERVING_LOCK};
 use strata_server::store::{
     ChunkStore, ImportTarget, PgStore, RawChunk, RegionAccess, SledStore, StoreError, WorldMeta,
     MAX_GENERATOR_PARAMS_BYTES,
@@ -449,6 +449,26 @@ fn a_forced_postgres_restore_waits_for_no_running_node() {
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
     drop(running);
 
+    // A running server whose connections are named otherwise (its URL
+    // says so) still holds the database while it serves it.
+    let named_otherwise = PgStore::open(
+        &PgConfig {
+            url: format!("{} application_name=game", db.url()),
+            ..PgConfig::default()
+        },
+        DEFAULT_REGION_CHUNKS,
+    )
+    .unwrap();
+    named_otherwise.serve().unwrap();
+    let err = format!("{:#}", pg_restore(&db, tmp.path(), &new, true).unwrap_err());
+    assert!(
+        err.contains("a running server holds this database") && err.contains("unchanged"),
+        "{err}"
+    );
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+    named_otherwise.close().unwrap();
+    drop(named_otherwise);
+
     // Something else using the world's tables: refused after a bounded
     // wait, the world unchanged.
     let (done_tx, done) = std::sync::mpsc::channel::<()>();
@@ -580,4 +600,29 @@ fn a_postgres_restore_whose_commit_postgres_refuses_is_unchanged() {
         "{err}"
     );
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+}
+
+#[test]
+fn a_server_does_not_start_on_a_database_a_restore_is_replacing() {
+    let Some(db) = database("a_server_does_not_start_on_a_database_a_restore_is_replacing") else {
+        return;
+    };
+    // A restore's transaction holds the lock alone.
+    let (done_tx, done) = std::sync::mpsc::channel::<()>();
+    let restoring = store_common::hold_rows(
+        &db,
+        &format!("SELECT pg_advisory_xact_lock({SERVING_LOCK})"),
+        "ROLLBACK",
+        move || {
+            let _ = done.recv();
+        },
+    );
+    let store = pg_store(&db);
+    let err = store.serve().unwrap_err().to_string();
+    assert!(err.contains("a restore is replacing"), "{err}");
+    done_tx.send(()).unwrap();
+    restoring.join().unwrap();
+    // Once it is done, servers take the database, several at once.
+    store.serve().unwrap();
+    pg_store(&db).serve().unwrap();
 }

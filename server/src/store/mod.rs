@@ -260,6 +260,14 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(RegionAccess::Granted)
     }
 
+    /// Marks the store as one a running server uses, for as long as it is
+    /// open: on PostgreSQL a forced restore then refuses the database, and
+    /// a restore in progress refuses the server. The server calls it once,
+    /// before reading the world. Embedded stores: nothing.
+    fn serve(&self) -> Result<(), StoreError> {
+        Ok(())
+    }
+
     /// Claims the cluster node id for this process (a newer incarnation
     /// supersedes any process still running under it). The server calls
     /// it once its ports are bound. Alone on its store: nothing.

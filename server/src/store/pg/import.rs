@@ -30,6 +30,12 @@ const EMPTIED_TABLES: &str = "world, chunks, chunk_deltas, edit_log, blobs, play
 const LOCKED_TABLES: &str =
     "world, chunks, chunk_deltas, edit_log, blobs, players, seq_blocks, regions";
 
+/// The advisory lock a running server holds shared for as long as it uses
+/// the database ([`crate::store::ChunkStore::serve`]), and a restore takes
+/// alone for its transaction: whatever the sessions are named, neither
+/// runs while the other does.
+pub const SERVING_LOCK: i64 = 0x5354_5241_5441; // "STRATA"
+
 /// How long a restore waits, in all, for the world's tables, and for
 /// running servers' sessions to leave the database.
 pub const IMPORT_LOCK_WAIT_MS: u64 = 5_000;
@@ -102,9 +108,20 @@ async fn refuse_non_empty(c: &mut Conn) -> Result<(), StoreError> {
     Ok(())
 }
 
-/// Refuses a database running servers' sessions use (named
-/// [`SERVER_APPLICATION`]), saying where from; a fresh look each time.
+/// Refuses a database a running server holds ([`SERVING_LOCK`]), or
+/// whose sessions named [`SERVER_APPLICATION`] use, saying where from; a
+/// fresh look each time. Inside a transaction the lock, once taken, is
+/// kept to its end; outside one it is let go at once (a look).
 async fn refuse_servers(c: &mut Conn) -> Result<(), StoreError> {
+    let free: bool = c
+        .query_opt("SELECT pg_try_advisory_xact_lock($1)", &[&SERVING_LOCK])
+        .await?
+        .is_some_and(|r| r.get(0));
+    if !free {
+        return Err(StoreError::PgSetup {
+            reason: "a running server holds this database: stop every node first".into(),
+        });
+    }
     c.batch("SELECT pg_stat_clear_snapshot()").await?;
     let row = c
         .query_opt(

@@ -58,7 +58,7 @@ pub use config::{
     DEFAULT_PG_POOL_WAIT_MS, DEFAULT_PG_STATEMENT_TIMEOUT_MS, MAX_PG_MAX_CONNECTIONS,
     MAX_PG_TIMEOUT_MS, SERVER_APPLICATION,
 };
-pub use import::{PgImport, IMPORT_LOCK_WAIT_MS};
+pub use import::{PgImport, IMPORT_LOCK_WAIT_MS, SERVING_LOCK};
 pub use lease::{NodeLeases, RegionLease, MAX_ADOPT_PER_RENEWAL, MAX_CACHED_HOLDERS};
 pub use migrate::{MIGRATIONS, MIGRATIONS_TABLE};
 use pool::{Conn, Pool};
@@ -80,6 +80,9 @@ pub struct PgStore {
     /// The world's generator, once attached: new chunks are then stored
     /// as a "generated" record and deltas (`CommitBatch::generated`).
     generator: std::sync::OnceLock<std::sync::Arc<dyn strata_terrain::world::ChunkGenerator>>,
+    /// The connection holding [`import::SERVING_LOCK`] shared while a
+    /// server uses this store ([`ChunkStore::serve`]).
+    serving: std::sync::Mutex<Option<Box<Conn>>>,
 }
 
 impl PgStore {
@@ -132,6 +135,7 @@ impl PgStore {
             leases: None,
             region_chunks: region_chunks.max(1),
             generator: std::sync::OnceLock::new(),
+            serving: std::sync::Mutex::new(None),
         })
     }
 
@@ -450,6 +454,13 @@ impl ChunkStore for PgStore {
     }
 
     fn close(&self) -> Result<(), StoreError> {
+        // A restore may go ahead once this server is gone.
+        drop(
+            self.serving
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .take(),
+        );
         // No renewal pass may adopt a region after the release below.
         if let Some(r) = &self.renewer {
             r.stop();
@@ -509,6 +520,30 @@ impl ChunkStore for PgStore {
 
     fn superseded(&self) -> Option<String> {
         self.leases.as_ref().and_then(|l| l.superseded())
+    }
+
+    fn serve(&self) -> Result<(), StoreError> {
+        let (conn, held) =
+            self.pool
+                .dedicated("marking the store served", async |c: &mut Conn| {
+                    let row = c
+                        .query_opt(
+                            "SELECT pg_try_advisory_lock_shared($1)",
+                            &[&import::SERVING_LOCK],
+                        )
+                        .await?;
+                    Ok(row.is_some_and(|r| r.get::<_, bool>(0)))
+                })?;
+        if !held {
+            return Err(StoreError::PgSetup {
+                reason:
+                    "a restore is replacing this database's world: start the server once it is done"
+                        .into(),
+            });
+        }
+        // Held while this connection lives: as long as the store.
+        *self.serving.lock().unwrap_or_else(|p| p.into_inner()) = Some(Box::new(conn));
+        Ok(())
     }
 
     fn register_node(&self) -> Result<(), StoreError> {

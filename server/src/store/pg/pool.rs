@@ -192,6 +192,25 @@ impl Pool {
         })
     }
 
+    /// A connection outside the pool (not counted against its limit), for
+    /// a session-level lock held as long as the store; one call on it runs
+    /// under the statement timeout. It closes with the pool's runtime.
+    pub fn dedicated<T>(
+        &self,
+        what: &'static str,
+        f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+    ) -> Result<(Conn, T), StoreError> {
+        let mut conn = self.connect()?;
+        match wait(f(&mut conn), self.statement_timeout) {
+            Ok(Ok(v)) => Ok((conn, v)),
+            Ok(Err(e)) => Err(e),
+            Err(_) => Err(StoreError::PgTimeout {
+                what,
+                limit_ms: self.statement_timeout.as_millis() as u64,
+            }),
+        }
+    }
+
     /// A connection of its own, for a transaction that spans several calls
     /// ([`Held`]).
     pub fn hold(&self) -> Result<Held<'_>, StoreError> {
