@@ -660,8 +660,9 @@ impl ClusterClient {
         }
     }
 
-    /// Drops chunks on every node (see [`Client::forget`]); a node joined
-    /// later is told of those still dropped.
+    /// Drops chunks on every node connected (see [`Client::forget`]). A
+    /// node joined later is not told: it may stream them again (telling it
+    /// could hide a chunk asked for again on another node since).
     pub async fn forget(&mut self, chunks: &[ChunkPos]) -> Result<(), ClientError> {
         for c in self.view.nodes.values() {
             if let Err(e @ ClientError::TooManyChunks { .. }) = c.forget(chunks).await {
@@ -671,26 +672,16 @@ impl ClusterClient {
         Ok(())
     }
 
-    /// A node just joined is asked for the view asked of the others, and
-    /// told of the chunks they still have dropped.
+    /// A node just joined (and arrived) is asked for the view asked of
+    /// the others.
     async fn catch_up(&self, node: &Client) {
         if let Some((center, radius)) = self.asked_view {
             let _ = node.subscribe(center, radius).await;
         }
-        let dropped: BTreeSet<ChunkPos> = self
-            .view
-            .nodes
-            .values()
-            .flat_map(|c| c.replica().dropped_chunks().collect::<Vec<_>>())
-            .collect();
-        let dropped: Vec<ChunkPos> = dropped.into_iter().collect();
-        for part in dropped.chunks(strata_protocol::limits::MAX_FORGET_CHUNKS) {
-            let _ = node.forget(part).await;
-        }
     }
 
     /// Takes in the connections opened since the last call, each caught
-    /// up with the view asked for and the chunks dropped.
+    /// up with the view asked for.
     async fn finish_joins(&mut self) -> Vec<SocketAddr> {
         let done: Vec<SocketAddr> = self
             .joining

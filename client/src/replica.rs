@@ -176,12 +176,6 @@ impl Replica {
         self.dropped.remove(&pos);
     }
 
-    /// Every chunk dropped with [`Self::drop_chunk`] and neither asked for
-    /// again nor out of the view since.
-    pub fn dropped_chunks(&self) -> impl Iterator<Item = ChunkPos> + '_ {
-        self.dropped.iter().copied()
-    }
-
     /// Whether `pos` was dropped with [`Self::drop_chunk`] and not asked for
     /// again since.
     pub fn is_dropped(&self, pos: ChunkPos) -> bool {

@@ -626,3 +626,42 @@ fn a_server_does_not_start_on_a_database_a_restore_is_replacing() {
     store.serve().unwrap();
     pg_store(&db).serve().unwrap();
 }
+
+#[test]
+fn a_server_whose_lock_connection_ended_takes_the_lock_again_at_its_next_commit() {
+    let Some(db) = database("a_server_whose_lock_connection_ended_takes_the_lock_again") else {
+        return;
+    };
+    let store = pg_store(&db);
+    store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+    store.serve().unwrap();
+    let holders =
+        "SELECT count(*) FROM pg_locks WHERE locktype = 'advisory' AND mode = 'ShareLock'";
+    assert_eq!(sql(&db, holders), ["1"]);
+    // Its backend ended (an operator's pg_terminate_backend, a restart).
+    sql(
+        &db,
+        "SELECT pg_terminate_backend(pid) FROM pg_locks \
+         WHERE locktype = 'advisory' AND mode = 'ShareLock'",
+    );
+    let started = std::time::Instant::now();
+    while sql(&db, holders) != ["0"] {
+        assert!(started.elapsed() < std::time::Duration::from_secs(10));
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    // The next commit sees the connection gone and takes the lock again.
+    let mut seq = store_common::Seq::default();
+    let pos = ChunkPos::new(1, 0, 2);
+    let started = std::time::Instant::now();
+    loop {
+        store
+            .commit_batch(&seq.batch(&[vec![(pos, terrain_chunk(3))]]))
+            .unwrap();
+        if sql(&db, holders) == ["1"] {
+            break;
+        }
+        // The client learns of the end when its connection task does.
+        assert!(started.elapsed() < std::time::Duration::from_secs(10));
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}

@@ -94,6 +94,49 @@ impl PgStore {
         Self::open_on(Pool::open(cfg)?, region_chunks)
     }
 
+    /// Takes [`import::SERVING_LOCK`] shared on a connection of its own,
+    /// kept while the store is open ([`ChunkStore::serve`]).
+    fn take_serving_lock(&self) -> Result<(), StoreError> {
+        let (conn, held) =
+            self.pool
+                .dedicated("marking the store served", async |c: &mut Conn| {
+                    let row = c
+                        .query_opt(
+                            "SELECT pg_try_advisory_lock_shared($1)",
+                            &[&import::SERVING_LOCK],
+                        )
+                        .await?;
+                    Ok(row.is_some_and(|r| r.get::<_, bool>(0)))
+                })?;
+        if !held {
+            return Err(StoreError::PgSetup {
+                reason:
+                    "a restore is replacing this database's world: start the server once it is done"
+                        .into(),
+            });
+        }
+        // Held while this connection lives: as long as the store.
+        *self.serving.lock().unwrap_or_else(|p| p.into_inner()) = Some(Box::new(conn));
+        Ok(())
+    }
+
+    /// Before a commit: a served store whose lock connection ended (a
+    /// PostgreSQL restart, a terminated backend) takes the lock again, or
+    /// fails the commit (a restore got in meanwhile).
+    fn keep_serving(&self) -> Result<(), StoreError> {
+        let lost = self
+            .serving
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_ref()
+            .is_some_and(|c| c.is_closed());
+        if lost {
+            tracing::warn!("the connection holding the serving lock ended; taking it again");
+            self.take_serving_lock()?;
+        }
+        Ok(())
+    }
+
     /// [`Self::open`] on a pool already open.
     fn open_on(pool: Pool, region_chunks: u32) -> Result<Self, StoreError> {
         migrate::apply(&pool)?;
@@ -263,6 +306,7 @@ impl ChunkStore for PgStore {
     }
 
     fn commit_batch(&self, batch: &CommitBatch) -> Result<CommitStats, StoreError> {
+        self.keep_serving()?;
         self.commit(batch)
     }
 
@@ -454,22 +498,24 @@ impl ChunkStore for PgStore {
     }
 
     fn close(&self) -> Result<(), StoreError> {
-        // A restore may go ahead once this server is gone.
+        // No renewal pass may adopt a region after the release below.
+        if let Some(r) = &self.renewer {
+            r.stop();
+        }
+        let released = match &self.leases {
+            Some(leases) => lease::release(&self.pool, leases).map(|n| {
+                tracing::info!(node = %leases.node_id(), regions = n, "region leases released");
+            }),
+            None => Ok(()),
+        };
+        // Last: a restore may go ahead once this server is gone.
         drop(
             self.serving
                 .lock()
                 .unwrap_or_else(|p| p.into_inner())
                 .take(),
         );
-        // No renewal pass may adopt a region after the release below.
-        if let Some(r) = &self.renewer {
-            r.stop();
-        }
-        if let Some(leases) = &self.leases {
-            let n = lease::release(&self.pool, leases)?;
-            tracing::info!(node = %leases.node_id(), regions = n, "region leases released");
-        }
-        Ok(())
+        released
     }
 
     fn clustered(&self) -> bool {
@@ -523,27 +569,7 @@ impl ChunkStore for PgStore {
     }
 
     fn serve(&self) -> Result<(), StoreError> {
-        let (conn, held) =
-            self.pool
-                .dedicated("marking the store served", async |c: &mut Conn| {
-                    let row = c
-                        .query_opt(
-                            "SELECT pg_try_advisory_lock_shared($1)",
-                            &[&import::SERVING_LOCK],
-                        )
-                        .await?;
-                    Ok(row.is_some_and(|r| r.get::<_, bool>(0)))
-                })?;
-        if !held {
-            return Err(StoreError::PgSetup {
-                reason:
-                    "a restore is replacing this database's world: start the server once it is done"
-                        .into(),
-            });
-        }
-        // Held while this connection lives: as long as the store.
-        *self.serving.lock().unwrap_or_else(|p| p.into_inner()) = Some(Box::new(conn));
-        Ok(())
+        self.take_serving_lock()
     }
 
     fn register_node(&self) -> Result<(), StoreError> {

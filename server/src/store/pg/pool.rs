@@ -71,6 +71,11 @@ impl Conn {
         Ok(None)
     }
 
+    /// Whether the connection ended.
+    pub fn is_closed(&self) -> bool {
+        self.client.is_closed()
+    }
+
     /// Statements without parameters, in one round trip (simple protocol).
     pub async fn batch(&mut self, sql: &str) -> Result<(), StoreError> {
         Ok(self.client.batch_execute(sql).await?)
