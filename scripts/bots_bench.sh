@@ -14,7 +14,10 @@
 # settings out for a server older than them. BENCH_METRICS_PORT turns on the
 # metrics endpoint and prints one more JSON line: the group-commit latency
 # (strata_flush_seconds) and its fsync part, p50/p99/max in ms, and the
-# server's own strata_edits_accepted_total (hostile players' edits included);
+# server's own strata_edits_accepted_total (hostile players' edits included),
+# and "edit_ms": an edit's wait in the engine's queue (inbox: from its
+# session decoding it to the engine taking it) and in the engine (from
+# then to its ack), p50/p99/max in ms;
 # BENCH_METRICS_DUMP=FILE also keeps the whole scrape, taken as the bots end.
 # The same line has the tick: tick_ms mean (strata_tick_seconds sum over
 # count, whole run), p50 and p99 (the registry's rolling window, the run's
@@ -262,7 +265,7 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
     [ -z "${BENCH_METRICS_DUMP:-}" ] ||
         curl -s -o "$BENCH_METRICS_DUMP" "http://127.0.0.1:$BENCH_METRICS_PORT/metrics"
     curl -s "http://127.0.0.1:$BENCH_METRICS_PORT/metrics" | awk '
-        /^strata_(flush|fsync)_seconds\{quantile="(0.5|0.99|1)"\}/ {
+        /^strata_(flush|fsync|edit_inbox|edit_latency)_seconds\{quantile="(0.5|0.99|1)"\}/ {
             split($1, a, "[{\"]"); q[a[1] "_" a[3]] = $2 * 1000 }
         /^strata_edits_accepted_total[ {]/ { accepted += $NF }
         /^strata_tick_seconds\{quantile="(0.5|0.99)"\}/ {
@@ -284,6 +287,9 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
         END { printf "{\"commit_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"fsync_ms\":{\"p50\":%.2f,\"p99\":%.2f,\"max\":%.2f},\"server_edits_accepted\":%d",
             q["strata_flush_seconds_0.5"], q["strata_flush_seconds_0.99"], q["strata_flush_seconds_1"],
             q["strata_fsync_seconds_0.5"], q["strata_fsync_seconds_0.99"], q["strata_fsync_seconds_1"], accepted
+              printf ",\"edit_ms\":{\"inbox_p50\":%.2f,\"inbox_p99\":%.2f,\"inbox_max\":%.2f,\"engine_p50\":%.2f,\"engine_p99\":%.2f,\"engine_max\":%.2f}",
+            q["strata_edit_inbox_seconds_0.5"], q["strata_edit_inbox_seconds_0.99"], q["strata_edit_inbox_seconds_1"],
+            q["strata_edit_latency_seconds_0.5"], q["strata_edit_latency_seconds_0.99"], q["strata_edit_latency_seconds_1"]
               printf ",\"tick_ms\":{\"mean\":%.3f,\"p50\":%.3f,\"p99\":%.3f,\"count\":%d}",
             (tcount > 0 ? 1000 * tsum / tcount : 0), q["strata_tick_seconds_0.5"], q["strata_tick_seconds_0.99"], tcount
               printf ",\"udp\":{\"datagrams_sent\":%d,\"datagrams_received\":%d,\"bytes_sent\":%d,\"lost_packets\":%d,\"datagrams_per_edit\":%.1f}",

@@ -269,6 +269,7 @@ fn run(
                 if !engine.try_send(Command::Edit {
                     session: e.id,
                     request: edit(e.spot, sent),
+                    received: Instant::now(),
                 }) {
                     break;
                 }

@@ -54,6 +54,9 @@ pub const SNAPSHOT_CACHE: &str = "strata_snapshot_cache_total";
 /// streaming loop, in parallel) or `engine` (by the loop itself).
 pub const SNAPSHOT_FRAMES_BUILT: &str = "strata_snapshot_frames_built_total";
 pub const EDIT_LATENCY_SECONDS: &str = "strata_edit_latency_seconds";
+/// From a session decoding an edit to the engine taking it: how long
+/// edits wait in the engine's queue (QUIC's part comes before it).
+pub const EDIT_INBOX_SECONDS: &str = "strata_edit_inbox_seconds";
 pub const TICK_PHASE_SECONDS: &str = "strata_tick_phase_seconds";
 /// A tick's apply by `part`: wait, prepare, lanes, merge (`ApplySplit`).
 pub const APPLY_PART_SECONDS: &str = "strata_apply_part_seconds";
@@ -213,6 +216,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_histogram!(
         EDIT_LATENCY_SECONDS,
         "From the engine taking an edit to its acknowledgement (durable)"
+    );
+    metrics::describe_histogram!(
+        EDIT_INBOX_SECONDS,
+        "From a session decoding an edit to the engine taking it"
     );
     metrics::describe_histogram!(
         TICK_PHASE_SECONDS,

@@ -1283,7 +1283,8 @@ async fn a_node_joined_later_streams_the_view_asked() {
         // Both running nodes hold the database against a forced restore.
         let serving = sql(
             &db,
-            "SELECT count(*) FROM pg_locks WHERE locktype = 'advisory' AND mode = 'ShareLock'",
+            "SELECT count(*) FROM pg_locks WHERE locktype = 'advisory' AND mode = 'ShareLock' \
+             AND database = (SELECT oid FROM pg_database WHERE datname = current_database())",
         )
         .await;
         assert_eq!(serving, ["2"]);

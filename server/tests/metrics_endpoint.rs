@@ -53,6 +53,8 @@ async fn metrics_count_what_happened() {
             "strata_connections 1",
             "strata_sessions_total 1",
             "strata_edit_latency_seconds_count 1",
+            // Both edits, the refused one too, went through the engine's inbox.
+            "strata_edit_inbox_seconds_count 2",
             "strata_edits_accepted_total 1",
             "strata_edits_rejected_total{reason=\"reach\"} 1",
             "strata_flush_seconds",

@@ -43,6 +43,8 @@ pub enum Command {
     Edit {
         session: u64,
         request: EditRequest,
+        /// When the session decoded it.
+        received: std::time::Instant,
     },
     /// The session's [`super::LatestPosition`] holds an update.
     Position {

@@ -53,7 +53,14 @@ impl Engine {
                     p.unlist_all(&mut self.holders, session);
                 }
             }
-            Command::Edit { session, request } => self.submit(session, request, now),
+            Command::Edit {
+                session,
+                request,
+                received,
+            } => {
+                metrics::histogram!(m::EDIT_INBOX_SECONDS).record(received.elapsed().as_secs_f64());
+                self.submit(session, request, now)
+            }
             Command::Position { session } => {
                 let update = self.peers.get(&session).and_then(|p| p.position.take());
                 if let Some(update) = update {

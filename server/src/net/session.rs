@@ -683,7 +683,12 @@ fn route(
         }
         ClientMessage::Edit(request) => {
             let id = request.client_edit_id;
-            if !ctx.engine.try_send(Command::Edit { session, request }) {
+            let received = std::time::Instant::now();
+            if !ctx.engine.try_send(Command::Edit {
+                session,
+                request,
+                received,
+            }) {
                 let msg = ServerMessage::EditRejected {
                     client_edit_id: id,
                     reason: RejectReason::Busy,
