@@ -10,18 +10,19 @@
 # DEVICE_DEADLINE_S=N starts no run after N seconds from the script's
 # start; the archive is written again after every step, so a call cut off
 # by its time limit still leaves what finished.
-# In order, each step appending to DEST's progress.txt:
+# In order, each step appending to progress.txt (in the archive):
 #   1. the pipeline bench at 1, 2, 1, 2, 4 and 8 workers (5 s each, at
 #      most 1024 edits a tick);
 #   2. bots_bench.sh runs, server pinned to CPUs 0..K-1 and the bots to
 #      the rest, most wanted first: 1000 bots on 2 cores, 3000 on 8 with
 #      premesh_threads 1 and 2, 200 bots at view radius 8 on 2 cores, 500
-#      on 2, 2000 on 4, 1000 on 2 with net_threads 1, then repeats (1000
-#      on 2, 3000 on 8 with premesh_threads 4, and with net_threads 4);
+#      on 2, 2000 on 4, 1000 on 2 with net_threads 1, then 1000 on 2
+#      again, 3000 on 8 with premesh_threads 4, and with net_threads 4;
 #      each run keeps its JSON lines, its stderr, its slow-tick lines and
 #      the server's last metrics scrape (a tag
 #      r<i>_<bots>b_<cores>c_p<premesh>_n<net threads>);
-#   3. scaling.csv of every run, and the table scaling_table.sh prints.
+#   3. scaling.csv of every run, and table.md built from it (the columns
+#      scaling_table.sh prints).
 # `quick` runs each step at a tenth of the bots for a few seconds, on
 # CPUs 0 and 1: a check of the script itself on a small machine.
 set -uo pipefail

@@ -481,6 +481,16 @@ impl ClusterClient {
         &self.view.nodes[&self.view.home]
     }
 
+    /// A round of name lookups on this client's kept names and tokens.
+    fn lookups(&mut self) -> std::sync::Mutex<Lookups<'_>> {
+        std::sync::Mutex::new(Lookups {
+            resolved: &mut self.resolved,
+            joins: &mut self.joins,
+            prepaid: &mut self.prepaid,
+            owed: false,
+        })
+    }
+
     /// The connection to `addr`, if open.
     pub fn node(&self, addr: SocketAddr) -> Option<&Client> {
         self.view.nodes.get(&addr).map(|c| c.as_ref())
@@ -573,12 +583,7 @@ impl ClusterClient {
         // One deadline for every name of this reroute.
         let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
         let now = Instant::now();
-        let state = std::sync::Mutex::new(Lookups {
-            resolved: &mut self.resolved,
-            joins: &mut self.joins,
-            prepaid: &mut self.prepaid,
-            owed: false,
-        });
+        let state = self.lookups();
         let routing = build_routes(latest, &kept, |a| look_up(&state, a, now, until)).await;
         self.reroute_owed = state.into_inner().unwrap_or_else(|p| p.into_inner()).owed;
         self.prepaid.retain(|a| routing.named.contains(a));
@@ -743,15 +748,6 @@ impl ClusterClient {
         Ok((to, sent))
     }
 
-    /// Whether [`Self::settle`] may send the edit again for this answer
-    /// (otherwise it returns the answer as it is).
-    pub fn may_resend(acked: &Acked) -> bool {
-        matches!(
-            acked.0,
-            Verdict::Rejected(RejectReason::NodeFull { .. } | RejectReason::RegionElsewhere { .. })
-        )
-    }
-
     /// What to make of node `to`'s answer to `edit`. One refused
     /// `RegionElsewhere` naming another connected node (the region changed
     /// hands since this client was told) is sent once more, there; naming
@@ -782,12 +778,7 @@ impl ClusterClient {
             return Ok((to, acked));
         }
         let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
-        let state = std::sync::Mutex::new(Lookups {
-            resolved: &mut self.resolved,
-            joins: &mut self.joins,
-            prepaid: &mut self.prepaid,
-            owed: false,
-        });
+        let state = self.lookups();
         // Owed or not, only the edit sent again asks for this name again.
         let found = look_up(&state, addr.clone(), Instant::now(), until).await;
         let Some(there) = found else {

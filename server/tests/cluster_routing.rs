@@ -1283,8 +1283,7 @@ async fn a_node_joined_later_streams_the_view_asked() {
         // Both running nodes hold the database against a forced restore.
         let serving = sql(
             &db,
-            "SELECT count(*) FROM pg_locks WHERE locktype = 'advisory' AND mode = 'ShareLock' \
-             AND database = (SELECT oid FROM pg_database WHERE datname = current_database())",
+            &format!("SELECT count(*) {}", crate::store_common::SERVING_LOCK_ROWS),
         )
         .await;
         assert_eq!(serving, ["2"]);

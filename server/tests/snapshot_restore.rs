@@ -635,16 +635,15 @@ fn a_server_whose_lock_connection_ended_takes_the_lock_again_at_its_next_commit(
     let store = pg_store(&db);
     store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
     store.serve().unwrap();
-    let holders =
-        "SELECT count(*) FROM pg_locks WHERE locktype = 'advisory' AND mode = 'ShareLock' \
-             AND database = (SELECT oid FROM pg_database WHERE datname = current_database())";
+    let holders = &format!("SELECT count(*) {}", store_common::SERVING_LOCK_ROWS);
     assert_eq!(sql(&db, holders), ["1"]);
     // Its backend ended (an operator's pg_terminate_backend, a restart).
     sql(
         &db,
-        "SELECT pg_terminate_backend(pid) FROM pg_locks \
-         WHERE locktype = 'advisory' AND mode = 'ShareLock' \
-             AND database = (SELECT oid FROM pg_database WHERE datname = current_database())",
+        &format!(
+            "SELECT pg_terminate_backend(pid) {}",
+            store_common::SERVING_LOCK_ROWS
+        ),
     );
     let started = std::time::Instant::now();
     while sql(&db, holders) != ["0"] {

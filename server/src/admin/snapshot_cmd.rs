@@ -61,10 +61,10 @@ pub struct RestoreArgs {
     #[arg(long)]
     pub force: bool,
     /// Server config naming the store to restore into. With `[store]
-    /// backend = "postgres"` the world goes into that database (every
-    /// node stopped; `--force` empties its world and leases first) and the
-    /// data dir keeps only the certificate and secret [default: the data
-    /// dir's world.sled].
+    /// backend = "postgres"` the world goes into that database in one
+    /// transaction (every node stopped; `--force` replaces a world there,
+    /// freeing its regions) and the data dir keeps only the certificate
+    /// and secret [default: the data dir's world.sled].
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
 }

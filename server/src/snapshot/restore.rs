@@ -22,7 +22,8 @@ pub enum RestoreError {
 /// Chunks imported per store batch.
 pub const RESTORE_BATCH_CHUNKS: usize = 1024;
 
-/// Imports `snapshot` into `store`, which must be empty: world metadata at
+/// Imports `snapshot` into `store`, which must be empty or replace what it
+/// holds ([`ImportTarget::begin_import`]): world metadata at
 /// the snapshot's seq, every chunk, and the protected zones. The file is
 /// checked again as it is read; run [`super::verify`] first so a bad file
 /// is refused before anything is written. `progress` gets chunks imported.

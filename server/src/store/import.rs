@@ -15,7 +15,8 @@ use super::SledStore;
 /// A store a snapshot can be restored into: sled's, or PostgreSQL's
 /// (`pg/import.rs`).
 pub trait ImportTarget {
-    /// Refuses a store that holds a world.
+    /// Refuses a store that holds a world, or, for one that replaces it
+    /// (a forced PostgreSQL restore), empties it first.
     fn begin_import(&self) -> Result<(), StoreError>;
     /// Writes chunk records as they are.
     fn import_chunks(&self, chunks: &[RawChunk]) -> Result<(), StoreError>;

@@ -262,7 +262,7 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
 
     /// Marks the store as one a running server uses, for as long as it is
     /// open: on PostgreSQL a forced restore then refuses the database, and
-    /// a restore in progress refuses the server. The server calls it once,
+    /// a forced restore in progress refuses the server. The server calls it once,
     /// before reading the world. Embedded stores: nothing.
     fn serve(&self) -> Result<(), StoreError> {
         Ok(())

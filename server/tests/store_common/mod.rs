@@ -214,6 +214,12 @@ pub fn pg_store(db: &PgDb) -> PgStore {
     .unwrap()
 }
 
+/// The rows of `pg_locks` for servers' serving locks (`SERVING_LOCK`,
+/// shared) in the test's own database: `SELECT count(*) ` it, say.
+pub const SERVING_LOCK_ROWS: &str = "FROM pg_locks WHERE locktype = 'advisory' \
+    AND mode = 'ShareLock' \
+    AND database = (SELECT oid FROM pg_database WHERE datname = current_database())";
+
 /// An empty store of every backend: sled, and PostgreSQL (a database of
 /// its own in the test process's cluster) unless it is missing outside CI.
 pub fn places(test: &str) -> Vec<Place> {

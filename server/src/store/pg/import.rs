@@ -24,16 +24,20 @@ use tokio_postgres::error::SqlState;
 /// `nodes` stay; `regions` keeps its rows, freed at a higher epoch, so a
 /// node paused across the restore is fenced). `seq_blocks` goes too: a
 /// restored world reserves its blocks from its own `last_seq` again.
-const EMPTIED_TABLES: &str = "world, chunks, chunk_deltas, edit_log, blobs, players, seq_blocks";
+macro_rules! emptied_tables {
+    () => {
+        "world, chunks, chunk_deltas, edit_log, blobs, players, seq_blocks"
+    };
+}
+const EMPTIED_TABLES: &str = emptied_tables!();
 
-/// Every table a restore locks.
-const LOCKED_TABLES: &str =
-    "world, chunks, chunk_deltas, edit_log, blobs, players, seq_blocks, regions";
+/// Every table a restore locks: those it empties, and `regions`.
+const LOCKED_TABLES: &str = concat!(emptied_tables!(), ", regions");
 
 /// The advisory lock a running server holds shared for as long as it uses
-/// the database ([`crate::store::ChunkStore::serve`]), and a restore takes
-/// alone for its transaction: whatever the sessions are named, neither
-/// runs while the other does.
+/// the database ([`crate::store::ChunkStore::serve`]), and a forced restore
+/// takes alone for its transaction: whatever the sessions are named,
+/// neither runs while the other does.
 pub const SERVING_LOCK: i64 = 0x5354_5241_5441; // "STRATA"
 
 /// How long a restore waits, in all, for the world's tables, and for

@@ -54,11 +54,10 @@ use super::{ChunkStore, StoreIter};
 use crate::sequencer::regions::RegionId;
 
 pub use config::{
-    PgConfig, ADMIN_APPLICATION, DEFAULT_PG_CONNECT_TIMEOUT_MS, DEFAULT_PG_MAX_CONNECTIONS,
-    DEFAULT_PG_POOL_WAIT_MS, DEFAULT_PG_STATEMENT_TIMEOUT_MS, MAX_PG_MAX_CONNECTIONS,
-    MAX_PG_TIMEOUT_MS, SERVER_APPLICATION,
+    PgConfig, DEFAULT_PG_CONNECT_TIMEOUT_MS, DEFAULT_PG_MAX_CONNECTIONS, DEFAULT_PG_POOL_WAIT_MS,
+    DEFAULT_PG_STATEMENT_TIMEOUT_MS, MAX_PG_MAX_CONNECTIONS, MAX_PG_TIMEOUT_MS, SERVER_APPLICATION,
 };
-pub use import::{PgImport, IMPORT_LOCK_WAIT_MS, SERVING_LOCK};
+pub use import::{PgImport, SERVING_LOCK};
 pub use lease::{NodeLeases, RegionLease, MAX_ADOPT_PER_RENEWAL, MAX_CACHED_HOLDERS};
 pub use migrate::{MIGRATIONS, MIGRATIONS_TABLE};
 use pool::{Conn, Pool};
@@ -266,7 +265,8 @@ impl ChunkStore for PgStore {
         let generator = i64::from(meta.generator_version);
         // Inserted only if absent, in one statement: two nodes starting at
         // once agree on one world row. Not over rows without a world (a
-        // restore cut short), which would then pass for a new world.
+        // restore by an older build, cut short), which would then pass for
+        // a new world.
         self.pool.run("writing the world", async |c: &mut Conn| {
             c.execute(
                 "INSERT INTO world (id, format_version, seed, generator_version, \
@@ -281,7 +281,7 @@ impl ChunkStore for PgStore {
         })?;
         let stored = self.load_meta()?.ok_or_else(|| StoreError::InvalidMeta {
             reason: "the store has no world row but holds chunks, deltas or log records \
-                     (an interrupted restore?); restore it again with --force"
+                     (an interrupted restore by an older build?); restore it again with --force"
                 .into(),
         })?;
         compare_meta(&stored, meta)?;

@@ -149,25 +149,12 @@ impl Pool {
         f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
     ) -> Result<T, StoreError> {
         let mut conn = self.take()?;
-        match wait(f(&mut conn), self.statement_timeout) {
-            Ok(Ok(v)) => {
-                self.give(Some(conn));
-                Ok(v)
-            }
-            Ok(Err(e)) => {
-                // Our own refusals leave the connection clean; a database
-                // error may leave it mid-transaction.
-                self.give((!e.is_postgres()).then_some(conn));
-                Err(e)
-            }
-            Err(_) => {
-                self.give(None);
-                Err(StoreError::PgTimeout {
-                    what,
-                    limit_ms: self.statement_timeout.as_millis() as u64,
-                })
-            }
-        }
+        let (result, late) = timed(what, self.statement_timeout, f(&mut conn));
+        // Our own refusals leave the connection clean; a database error
+        // may leave it mid-transaction.
+        let keep = !late && result.as_ref().err().is_none_or(|e| !e.is_postgres());
+        self.give(keep.then_some(conn));
+        result
     }
 
     /// [`Pool::run`] inside `begin` ... `COMMIT`; rolled back when `f`
@@ -206,14 +193,8 @@ impl Pool {
         f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
     ) -> Result<(Conn, T), StoreError> {
         let mut conn = self.connect()?;
-        match wait(f(&mut conn), self.statement_timeout) {
-            Ok(Ok(v)) => Ok((conn, v)),
-            Ok(Err(e)) => Err(e),
-            Err(_) => Err(StoreError::PgTimeout {
-                what,
-                limit_ms: self.statement_timeout.as_millis() as u64,
-            }),
-        }
+        let (result, _) = timed(what, self.statement_timeout, f(&mut conn));
+        result.map(|v| (conn, v))
     }
 
     /// A connection of its own, for a transaction that spans several calls
@@ -364,22 +345,14 @@ impl Held<'_> {
                 reason: format!("{what}: the connection was closed by an earlier failure"),
             });
         };
-        let (result, close) = match wait(f(conn), limit) {
-            Ok(Ok(v)) => (Ok(v), false),
-            Ok(Err(e)) => {
-                // Inside a transaction an error may stand for one
-                // PostgreSQL aborted (a mapped lock timeout): never kept.
-                let close = e.is_postgres() || !self.clean;
-                (Err(e), close)
-            }
-            Err(_) => (
-                Err(StoreError::PgTimeout {
-                    what,
-                    limit_ms: limit.as_millis() as u64,
-                }),
-                true,
-            ),
-        };
+        let (result, late) = timed(what, limit, f(conn));
+        // Inside a transaction an error may stand for one PostgreSQL
+        // aborted (a mapped lock timeout): never kept.
+        let close = late
+            || result
+                .as_ref()
+                .err()
+                .is_some_and(|e| e.is_postgres() || !self.clean);
         if close {
             self.conn = None;
             self.pool.give(None);
@@ -412,6 +385,25 @@ impl Drop for Held<'_> {
             // Closing the connection rolls an open transaction back.
             self.pool.give(self.clean.then_some(conn));
         }
+    }
+}
+
+/// `f` under `limit`: its result, or [`StoreError::PgTimeout`] naming
+/// `what`, and whether it ran out of time (its connection must close).
+fn timed<T>(
+    what: &'static str,
+    limit: Duration,
+    f: impl std::future::Future<Output = Result<T, StoreError>>,
+) -> (Result<T, StoreError>, bool) {
+    match wait(f, limit) {
+        Ok(result) => (result, false),
+        Err(_) => (
+            Err(StoreError::PgTimeout {
+                what,
+                limit_ms: limit.as_millis() as u64,
+            }),
+            true,
+        ),
     }
 }
 
