@@ -331,6 +331,15 @@ fn pg_world(db: &strata_tests::postgres::PgDb) -> (String, String) {
     )
 }
 
+/// `db` holding an old world (seq 9, 3 chunks) restored from a snapshot in
+/// `dir`; returns a newer snapshot (seq 20, 5 chunks) beside it.
+fn old_world_restored(db: &strata_tests::postgres::PgDb, dir: &Path) -> PathBuf {
+    let old = snapshot(dir, "old.snap", &header(9), 3);
+    let new = snapshot(dir, "new.snap", &header(20), 5);
+    assert_eq!(pg_restore(db, dir, &old, false).unwrap(), 3);
+    new
+}
+
 /// `restore` of `file` into `db`'s store, through the admin command.
 fn pg_restore(
     db: &strata_tests::postgres::PgDb,
@@ -354,9 +363,7 @@ fn a_postgres_restore_cut_short_leaves_the_old_world() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
-    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
-    assert_eq!(pg_restore(&db, tmp.path(), &old, false).unwrap(), 3);
+    let new = old_world_restored(&db, tmp.path());
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
 
     // Replacing: the tables are emptied and the new chunks written inside
@@ -390,9 +397,7 @@ fn a_forced_postgres_restore_waits_for_no_running_node() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
-    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
-    assert_eq!(pg_restore(&db, tmp.path(), &old, false).unwrap(), 3);
+    let new = old_world_restored(&db, tmp.path());
     // Without --force: refused, saying why.
     let err = format!(
         "{:#}",
@@ -521,9 +526,7 @@ fn failed_postgres_restores_give_their_one_connection_back() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
-    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
-    assert_eq!(pg_restore(&db, tmp.path(), &old, false).unwrap(), 3);
+    let new = old_world_restored(&db, tmp.path());
     // One connection, and little patience for a free one: a connection a
     // restore kept would fail every call after it.
     let cfg = PgConfig {
@@ -582,9 +585,7 @@ fn a_postgres_restore_whose_commit_postgres_refuses_is_unchanged() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
-    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
-    assert_eq!(pg_restore(&db, tmp.path(), &old, false).unwrap(), 3);
+    let new = old_world_restored(&db, tmp.path());
     // A check PostgreSQL runs only at COMMIT, refusing the new world row.
     sql(
         &db,
