@@ -608,7 +608,8 @@ fn a_server_does_not_start_on_a_database_a_restore_is_replacing() {
     let Some(db) = database("a_server_does_not_start_on_a_database_a_restore_is_replacing") else {
         return;
     };
-    // A restore's transaction holds the lock alone.
+    // A store opened before a restore's transaction took the lock alone.
+    let store = pg_store(&db);
     let (done_tx, done) = std::sync::mpsc::channel::<()>();
     let restoring = store_common::hold_rows(
         &db,
@@ -618,14 +619,70 @@ fn a_server_does_not_start_on_a_database_a_restore_is_replacing() {
             let _ = done.recv();
         },
     );
-    let store = pg_store(&db);
     let err = store.serve().unwrap_err().to_string();
+    assert!(err.contains("a restore is replacing"), "{err}");
+    // Opened during the restore, its migrations refuse at once.
+    let cfg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let err = PgStore::open(&cfg, DEFAULT_REGION_CHUNKS)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("a restore is replacing"), "{err}");
     done_tx.send(()).unwrap();
     restoring.join().unwrap();
     // Once it is done, servers take the database, several at once.
     store.serve().unwrap();
     pg_store(&db).serve().unwrap();
+}
+
+#[test]
+fn a_server_with_a_migration_pending_says_a_restore_is_running_at_once() {
+    let Some(db) = database("a_server_with_a_migration_pending_says_a_restore_is_running") else {
+        return;
+    };
+    // A database migrated before 0008 (players without known_ms).
+    drop(pg_store(&db));
+    sql(
+        &db,
+        "DROP TABLE nodes; ALTER TABLE players DROP COLUMN known_ms; \
+         DELETE FROM schema_migrations WHERE version >= 8",
+    );
+    // A forced restore's transaction: the lock alone, the tables locked.
+    let (done_tx, done) = std::sync::mpsc::channel::<()>();
+    let restoring = store_common::hold_rows(
+        &db,
+        &format!(
+            "SELECT pg_advisory_xact_lock({SERVING_LOCK}); \
+             LOCK TABLE world, chunks, players IN ACCESS EXCLUSIVE MODE"
+        ),
+        "ROLLBACK",
+        move || {
+            let _ = done.recv();
+        },
+    );
+    let cfg = PgConfig {
+        url: db.url(),
+        statement_timeout_ms: 60_000,
+        ..PgConfig::default()
+    };
+    let started = std::time::Instant::now();
+    let err = PgStore::open(&cfg, DEFAULT_REGION_CHUNKS)
+        .unwrap_err()
+        .to_string();
+    // Not after the statement timeout, waiting on the restore's tables.
+    assert!(err.contains("a restore is replacing"), "{err}");
+    assert!(started.elapsed() < std::time::Duration::from_secs(30));
+    done_tx.send(()).unwrap();
+    restoring.join().unwrap();
+    // Once it is done, the migrations run.
+    pg_store(&db).serve().unwrap();
+    let newest = strata_server::store::pg::MIGRATIONS.last().unwrap().0;
+    assert_eq!(
+        sql(&db, "SELECT max(version) FROM schema_migrations"),
+        [newest.to_string()]
+    );
 }
 
 #[test]

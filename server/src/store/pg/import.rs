@@ -40,6 +40,15 @@ const LOCKED_TABLES: &str = concat!(emptied_tables!(), ", regions");
 /// neither runs while the other does.
 pub const SERVING_LOCK: i64 = 0x5354_5241_5441; // "STRATA"
 
+/// What opening or serving a store says while a restore holds
+/// [`SERVING_LOCK`] alone.
+pub(super) fn restore_running() -> StoreError {
+    StoreError::PgSetup {
+        reason: "a restore is replacing this database's world: start the server once it is done"
+            .into(),
+    }
+}
+
 /// How long a restore waits, in all, for the world's tables, and for
 /// running servers' sessions to leave the database.
 pub const IMPORT_LOCK_WAIT_MS: u64 = 5_000;

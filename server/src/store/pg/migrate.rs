@@ -69,6 +69,18 @@ pub fn apply(pool: &Pool) -> Result<(), StoreError> {
     pool.run_tx("applying migrations", "BEGIN", async |c: &mut Conn| {
         c.execute("SELECT pg_advisory_xact_lock($1)", &[&MIGRATION_LOCK])
             .await?;
+        // A restore holds the world's tables: a migration would wait on
+        // them until its statement timeout. Say why at once instead.
+        let free: bool = c
+            .query_opt(
+                "SELECT pg_try_advisory_xact_lock_shared($1)",
+                &[&super::import::SERVING_LOCK],
+            )
+            .await?
+            .is_some_and(|r| r.get(0));
+        if !free {
+            return Err(super::import::restore_running());
+        }
         c.batch(
             "CREATE TABLE IF NOT EXISTS schema_migrations (\
              version integer PRIMARY KEY, name text NOT NULL, \

@@ -108,11 +108,7 @@ impl PgStore {
                     Ok(row.is_some_and(|r| r.get::<_, bool>(0)))
                 })?;
         if !held {
-            return Err(StoreError::PgSetup {
-                reason:
-                    "a restore is replacing this database's world: start the server once it is done"
-                        .into(),
-            });
+            return Err(import::restore_running());
         }
         // Held while this connection lives: as long as the store.
         *self.serving.lock().unwrap_or_else(|p| p.into_inner()) = Some(Box::new(conn));
