@@ -175,6 +175,12 @@ fn units_and_dockerfile_name_real_binaries_packages_and_paths() {
     let backup = deploy("systemd/strata-backup.service");
     assert!(backup.contains(&format!("--server 127.0.0.1:{port}")));
     assert!(backup.contains("--cert /var/lib/strata/cert.der"));
+    // The token never on a command line; a stalled run does not hold the
+    // next ones; what killed runs leave is cleaned.
+    assert!(backup.contains("--token-file \"$CREDENTIALS_DIRECTORY/token\""));
+    assert!(!backup.contains("--token \""));
+    assert!(backup.contains("\nTimeoutStartSec="));
+    assert!(backup.contains("-name 'strata-*.partial'"));
     assert!(deploy("systemd/strata-backup.timer").contains("Unit=strata-backup.service"));
 }
 

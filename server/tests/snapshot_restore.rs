@@ -14,10 +14,9 @@ use std::path::{Path, PathBuf};
 use snapshot_common::{header, write_snapshot};
 use store_common::{pg_store, sql, terrain_chunk};
 use strata_protocol::admin::ZoneSpec;
-use strata_server::admin::snapshot_cmd::{
-    self, replace_world, RestoreArgs, REPLACED_SUFFIX, RESTORING_SUFFIX,
-};
+use strata_server::admin::snapshot_cmd::{self, replace_world, RestoreArgs};
 use strata_server::app::ZONES_BLOB;
+use strata_server::auth::ACCESS_BLOB;
 use strata_server::cluster::ClusterConfig;
 use strata_server::datadir::WORLD_DB_NAME;
 use strata_server::sequencer::regions::{RegionId, DEFAULT_REGION_CHUNKS};
@@ -25,10 +24,12 @@ use strata_server::snapshot::restore::import;
 use strata_server::snapshot::{verify, SnapshotHeader};
 use strata_server::store::pg::{PgConfig, SERVING_LOCK};
 use strata_server::store::{
-    ChunkStore, ImportTarget, PgStore, RawChunk, RegionAccess, SledStore, StoreError, WorldMeta,
-    MAX_GENERATOR_PARAMS_BYTES,
+    open_store, with_suffix, ChunkStore, ImportTarget, PgStore, RawChunk, RegionAccess, SledStore,
+    StoreConfig, StoreError, WorldMeta, MAX_GENERATOR_PARAMS_BYTES, REPLACED_SUFFIX,
+    RESTORING_SUFFIX,
 };
 use strata_terrain::chunk_codec::encode_chunk;
+use strata_terrain::gen::GenParams;
 use strata_terrain::{ChunkPos, VoxelPos};
 use strata_tests::postgres::database;
 
@@ -61,12 +62,6 @@ fn world_of(data: &Path) -> (u64, u64) {
     assert!(report.is_ok(), "{:?}", report.issues);
     let seq = store.load_meta().unwrap().expect("a world").last_seq;
     (seq, store.chunk_count().unwrap())
-}
-
-fn beside(db: &Path, suffix: &str) -> PathBuf {
-    let mut name = db.file_name().unwrap().to_os_string();
-    name.push(suffix);
-    db.with_file_name(name)
 }
 
 /// Names in `dir`, sorted.
@@ -115,14 +110,21 @@ fn restore_cut_short(db: &Path, file: &Path) -> String {
     format!("{err:#}")
 }
 
+/// A data dir in `dir` restored from a snapshot at seq 9 (3 chunks), a
+/// snapshot at seq 20 (5 chunks) beside it, and the data dir's world.
+fn old_sled_world(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
+    let old = snapshot(dir, "old.snap", &header(9), 3);
+    let new = snapshot(dir, "new.snap", &header(20), 5);
+    let data = dir.join("data");
+    assert_eq!(restore(&old, &data, false).unwrap(), 3);
+    let db = data.join(WORLD_DB_NAME);
+    (new, data, db)
+}
+
 #[test]
 fn a_restore_cut_short_leaves_the_old_world() {
     let tmp = tempfile::tempdir().unwrap();
-    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
-    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
-    let data = tmp.path().join("data");
-    assert_eq!(restore(&old, &data, false).unwrap(), 3);
-    let db = data.join(WORLD_DB_NAME);
+    let (new, data, db) = old_sled_world(tmp.path());
 
     let err = restore_cut_short(&db, &new);
     assert!(
@@ -130,20 +132,91 @@ fn a_restore_cut_short_leaves_the_old_world() {
         "{err}"
     );
     assert_eq!(world_of(&data), (9, 3));
-    assert!(!beside(&db, RESTORING_SUFFIX).exists(), "staging removed");
+    assert!(
+        !with_suffix(&db, RESTORING_SUFFIX).exists(),
+        "staging removed"
+    );
 
-    // A crash between the swap's renames left the old world aside: the
-    // next restore puts it back before anything else.
-    std::fs::rename(&db, beside(&db, REPLACED_SUFFIX)).unwrap();
+    // A crash between the swap's renames left the old world aside. No
+    // server or tool opens (nor makes) an empty world in its place...
+    std::fs::rename(&db, with_suffix(&db, REPLACED_SUFFIX)).unwrap();
+    let err = open_store(&StoreConfig::default(), &db, DEFAULT_REGION_CHUNKS, None)
+        .map(|_| ())
+        .unwrap_err();
+    assert!(matches!(err, StoreError::RestoreCutShort { .. }), "{err}");
+    assert!(!db.exists());
+    // ...and the next restore puts it back before anything else.
     restore_cut_short(&db, &new);
     assert_eq!(world_of(&data), (9, 3));
-    assert!(!beside(&db, REPLACED_SUFFIX).exists());
+    assert!(!with_suffix(&db, REPLACED_SUFFIX).exists());
 
     // A whole restore replaces the world and leaves nothing beside it.
     let before = listing(&data);
     assert_eq!(restore(&new, &data, true).unwrap(), 5);
     assert_eq!(world_of(&data), (20, 5));
     assert_eq!(listing(&data), before);
+}
+
+#[test]
+fn a_restore_refuses_a_world_a_server_or_tool_has_open() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (new, data, db) = old_sled_world(tmp.path());
+    // Open as a server opens it.
+    let open = open_store(&StoreConfig::default(), &db, DEFAULT_REGION_CHUNKS, None).unwrap();
+    let err = format!("{:#}", restore(&new, &data, true).unwrap_err());
+    assert!(
+        err.contains("in use by another process") && err.contains("is unchanged"),
+        "{err}"
+    );
+    assert_eq!(open.load_meta().unwrap().unwrap().last_seq, 9);
+    // Nor may a second holder open it meanwhile.
+    let err = open_store(&StoreConfig::default(), &db, DEFAULT_REGION_CHUNKS, None)
+        .map(|_| ())
+        .unwrap_err();
+    assert!(matches!(err, StoreError::WorldInUse { .. }), "{err}");
+    drop(open);
+    assert_eq!(world_of(&data), (9, 3));
+    // Closed, the restore goes through.
+    assert_eq!(restore(&new, &data, true).unwrap(), 5);
+    assert_eq!(world_of(&data), (20, 5));
+}
+
+#[test]
+fn a_restore_keeps_bans_and_answers_to_the_data_dirs_config() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (new, data, db) = old_sled_world(tmp.path());
+    let store = SledStore::open(&db).unwrap();
+    store.put_blob(ACCESS_BLOB, b"bans").unwrap();
+    store.put_blob("other", b"x").unwrap();
+    drop(store);
+    // A config of another seed in the data dir: its server would refuse
+    // the world, so nothing is restored.
+    let other_seed = GenParams {
+        seed: GenParams::default().seed + 1,
+        ..GenParams::default()
+    };
+    let config = format!(
+        "[world.generator]\n{}",
+        toml::to_string(&other_seed).unwrap()
+    );
+    std::fs::write(data.join("strata.toml"), &config).unwrap();
+    let before = listing(&data);
+    let err = format!("{:#}", restore(&new, &data, true).unwrap_err());
+    assert!(
+        err.contains("would refuse this snapshot's world") && err.contains("seed"),
+        "{err}"
+    );
+    assert_eq!(listing(&data), before);
+    assert_eq!(world_of(&data), (9, 3));
+    // With the world's own config, the restore goes through and keeps
+    // the bans and revocations (the snapshot holds none).
+    std::fs::remove_file(data.join("strata.toml")).unwrap();
+    assert_eq!(restore(&new, &data, true).unwrap(), 5);
+    assert_eq!(world_of(&data), (20, 5));
+    let store = SledStore::open(&db).unwrap();
+    assert_eq!(store.get_blob(ACCESS_BLOB).unwrap().unwrap(), b"bans");
+    assert_eq!(store.get_blob("other").unwrap(), None);
+    assert!(store.get_blob(ZONES_BLOB).unwrap().is_some());
 }
 
 /// A store holding a chunk with no metadata: `init_meta` must refuse.
@@ -312,7 +385,16 @@ fn a_forced_postgres_restore_leaves_no_stale_seq_blocks() {
     let err = snapshot_cmd::restore(&args(false)).unwrap_err().to_string();
     assert!(err.contains("--force"), "{err}");
 
+    // Bans and revocations stay; the old world's other blobs go.
+    let store = pg_store(&db);
+    store.put_blob(ACCESS_BLOB, b"bans").unwrap();
+    store.put_blob("other", b"x").unwrap();
+    drop(store);
     assert_eq!(snapshot_cmd::restore(&args(true)).unwrap(), 3);
+    let store = pg_store(&db);
+    assert_eq!(store.get_blob(ACCESS_BLOB).unwrap().unwrap(), b"bans");
+    assert_eq!(store.get_blob("other").unwrap(), None);
+    drop(store);
     // The restored world's first block starts where the old one's did:
     // the old block's row is gone, so reserving it again works.
     assert_eq!(reserve().unwrap(), 9);
@@ -635,6 +717,61 @@ fn a_server_does_not_start_on_a_database_a_restore_is_replacing() {
     // Once it is done, servers take the database, several at once.
     store.serve().unwrap();
     pg_store(&db).serve().unwrap();
+}
+
+#[test]
+fn an_offline_postgres_snapshot_and_running_servers_keep_off_each_other() {
+    let Some(db) = database("an_offline_postgres_snapshot_and_running_servers") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let file = snapshot(tmp.path(), "world.snap", &header(9), 3);
+    std::fs::create_dir_all(&data).unwrap();
+    std::fs::write(data.join("strata.toml"), db.store_toml()).unwrap();
+    // The data dir's config names the database: the restore goes there.
+    let args = RestoreArgs {
+        file,
+        data_dir: data.clone(),
+        force: false,
+        config: None,
+    };
+    assert_eq!(snapshot_cmd::restore(&args).unwrap(), 3);
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+    let create = |out: &str| {
+        snapshot_cmd::create(&snapshot_cmd::CreateArgs {
+            out: tmp.path().join(out),
+            target: strata_server::admin::remote::TargetArgs {
+                data_dir: Some(data.clone()),
+                server: None,
+                cert: None,
+                token: None,
+                token_file: None,
+            },
+            max_pending_chunks: 0,
+        })
+    };
+    // A running server: the offline snapshot is refused.
+    let server = pg_store(&db);
+    server.serve().unwrap();
+    let err = format!("{:#}", create("a.snap").unwrap_err());
+    assert!(err.contains("a running server"), "{err}");
+    drop(server);
+    // During an offline snapshot no server starts.
+    let snapshotting = pg_store(&db);
+    snapshotting.hold_alone().unwrap();
+    let cfg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let err = PgStore::open(&cfg, DEFAULT_REGION_CHUNKS)
+        .and_then(|s| s.serve())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("an offline snapshot"), "{err}");
+    drop(snapshotting);
+    let created = create("b.snap").unwrap();
+    assert_eq!((created.seq, created.chunks), (9, 3));
 }
 
 #[test]

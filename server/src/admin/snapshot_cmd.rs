@@ -8,16 +8,25 @@ use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 use strata_protocol::admin::{AdminRequest, AdminResponse, SnapshotInfo, ZoneSpec};
 
-use super::remote::{block_on, connect_target, open_offline_store, progress, Target, TargetArgs};
+use super::remote::{
+    block_on, connect_target, data_dir_config, open_offline_store, progress, Target, TargetArgs,
+};
+use super::world_source::DATA_DIR_CONFIG_NAME;
 use crate::app::ZONES_BLOB;
+use crate::app::{recorded_params, world_generator};
+use crate::auth::ACCESS_BLOB;
 use crate::config::ServerConfig;
 use crate::datadir::DataDir;
 use crate::engine::admin::zone_spec;
 use crate::snapshot::diff::{diff, DiffReport};
 use crate::snapshot::restore::import;
-use crate::snapshot::{verify, SnapshotHeader, SnapshotWriter, VerifyReport};
-use crate::store::{ChunkStore, PgStore, SledStore, StoreBackend};
+use crate::snapshot::{verify, SnapshotHeader, SnapshotReader, SnapshotWriter, VerifyReport};
+use crate::store::{
+    compare_meta, with_suffix, ChunkStore, PgStore, SledStore, StoreBackend, WorldLock, WorldMeta,
+    REPLACED_SUFFIX, RESTORING_SUFFIX,
+};
 use crate::validate::zones::Zone;
+use strata_terrain::gen::GENERATOR_VERSION;
 
 #[derive(Debug, Subcommand)]
 pub enum SnapshotCommand {
@@ -96,10 +105,19 @@ pub struct Created {
     pub bytes: u64,
 }
 
-pub(crate) fn partial_path(out: &Path) -> PathBuf {
-    let mut name = out.file_name().unwrap_or_default().to_os_string();
-    name.push(".partial");
-    out.with_file_name(name)
+/// Creates a `.partial` file beside `out`, named for this process and
+/// new (two runs writing the same `out` never share one).
+fn create_partial(out: &Path) -> anyhow::Result<(PathBuf, File)> {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    loop {
+        let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let tmp = with_suffix(out, &format!(".{}-{n}.partial", std::process::id()));
+        match File::create_new(&tmp) {
+            Ok(file) => return Ok((tmp, file)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e).with_context(|| format!("creating {}", tmp.display())),
+        }
+    }
 }
 
 /// Writes through a `.partial` file renamed into place only on success.
@@ -107,8 +125,7 @@ pub(crate) fn write_atomically(
     out: &Path,
     f: impl FnOnce(BufWriter<File>) -> anyhow::Result<(BufWriter<File>, Created)>,
 ) -> anyhow::Result<Created> {
-    let tmp = partial_path(out);
-    let file = File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let (tmp, file) = create_partial(out)?;
     let result = f(BufWriter::new(file)).and_then(|(w, created)| {
         w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
         Ok(created)
@@ -178,6 +195,10 @@ pub fn create_offline(store: &dyn ChunkStore, out: &Path) -> anyhow::Result<Crea
 }
 
 /// Snapshot of a running server over the admin protocol.
+/// Longest silence of the server during an online snapshot before the
+/// snapshot is given up (a stalled server must not hold a backup forever).
+pub const SNAPSHOT_IDLE: std::time::Duration = std::time::Duration::from_secs(120);
+
 pub async fn create_online(
     c: &mut super::remote::AdminClient,
     out: &Path,
@@ -195,12 +216,16 @@ pub async fn create_online(
         Some(modified_chunks),
         "snapshot {bar:40} {pos}/{len} chunks {eta}",
     );
-    let tmp = partial_path(out);
-    let file = File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let (tmp, file) = create_partial(out)?;
     let result = async {
         let mut w = SnapshotWriter::new(BufWriter::new(file), &header)?;
         loop {
-            match c.next().await? {
+            let next = tokio::time::timeout(SNAPSHOT_IDLE, c.next())
+                .await
+                .with_context(|| {
+                    format!("the server sent nothing for {} s", SNAPSHOT_IDLE.as_secs())
+                })??;
+            match next {
                 AdminResponse::SnapshotChunk { pos, version, data } => {
                     w.chunk(pos, version, &data)?;
                     bar.inc(1);
@@ -231,7 +256,12 @@ pub async fn create_online(
 
 pub fn create(args: &CreateArgs) -> anyhow::Result<Created> {
     match args.target.target()? {
-        Target::Offline(dir) => create_offline(&*open_offline_store(&dir)?, &args.out),
+        Target::Offline(dir) => {
+            let store = open_offline_store(&dir)?;
+            // One moment of the world: no server writes it meanwhile.
+            store.hold_alone()?;
+            create_offline(&*store, &args.out)
+        }
         Target::Online {
             server,
             cert,
@@ -275,11 +305,24 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
             report.issues.join("\n")
         );
     }
-    if let Some(path) = &args.config {
-        let cfg = ServerConfig::load(Some(path))
-            .with_context(|| format!("loading {}", path.display()))?;
+    // The server's config: `--config`, else the data dir's own.
+    let cfg = match &args.config {
+        Some(path) => Some(
+            ServerConfig::load(Some(path))
+                .with_context(|| format!("loading {}", path.display()))?,
+        ),
+        None => {
+            let found = args.data_dir.join(DATA_DIR_CONFIG_NAME);
+            found
+                .is_file()
+                .then(|| data_dir_config(&args.data_dir))
+                .transpose()?
+        }
+    };
+    if let Some(cfg) = &cfg {
+        refuse_other_generation(&args.file, cfg)?;
         if cfg.store.backend == StoreBackend::Postgres {
-            return restore_postgres(args, &cfg, report.chunks);
+            return restore_postgres(args, cfg, report.chunks);
         }
     }
     if !is_empty_dir(&args.data_dir)? && !args.force {
@@ -301,17 +344,6 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
     })?;
     bar.finish_and_clear();
     Ok(n)
-}
-
-/// Suffix of the store a restore fills before it replaces the world.
-pub const RESTORING_SUFFIX: &str = ".restoring";
-/// Suffix of the replaced world while the new one moves into place.
-pub const REPLACED_SUFFIX: &str = ".replaced";
-
-fn with_suffix(path: &Path, suffix: &str) -> PathBuf {
-    let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(suffix);
-    path.with_file_name(name)
 }
 
 fn remove_dir_if_present(dir: &Path) -> anyhow::Result<()> {
@@ -338,11 +370,56 @@ fn sync_tree(dir: &Path) -> std::io::Result<()> {
 /// Fills a new sled store beside `db` (`world.sled.restoring`) with
 /// `fill`, makes it durable, then moves it into `db`'s place; the old
 /// world is removed only once the new one is there. A failure before the
-/// swap leaves `db` as it was. Returns what `fill` returned.
+/// swap leaves `db` as it was. Holds `db`'s [`WorldLock`] throughout, so
+/// it refuses a world a server or a tool has open, and neither opens one
+/// half swapped. Returns what `fill` returned.
+/// The bans and revocations of the world at `db`, which a restore keeps
+/// (a snapshot holds none: restoring an old world must not let a banned
+/// player or a revoked token back in). A world that does not open keeps
+/// none, said on stderr: restoring is how such a world is mended.
+fn kept_access(db: &Path) -> Option<Vec<u8>> {
+    if !db.exists() {
+        return None;
+    }
+    match SledStore::open(db).and_then(|s| s.get_blob(ACCESS_BLOB)) {
+        Ok(access) => access,
+        Err(e) => {
+            eprintln!(
+                "warning: the replaced world's bans and revocations are not kept ({} does not read: {e})",
+                db.display()
+            );
+            None
+        }
+    }
+}
+
+/// Refuses a snapshot of a world the configured server would refuse to
+/// start on (another seed, generator or parameters), before anything is
+/// touched.
+fn refuse_other_generation(file: &Path, cfg: &ServerConfig) -> anyhow::Result<()> {
+    let header = SnapshotReader::open(file)?.header().clone();
+    let snapshot = WorldMeta::new(
+        header.seed,
+        header.generator_version,
+        header.generator_params,
+    );
+    let (_, params) = world_generator(cfg)?;
+    let configured = WorldMeta::new(
+        cfg.world.generator.seed,
+        GENERATOR_VERSION,
+        recorded_params(params, Some(&snapshot)),
+    );
+    compare_meta(&snapshot, &configured).context(
+        "the server's config would refuse this snapshot's world, nothing restored \
+         (restore with the config the world was made with)",
+    )
+}
+
 pub fn replace_world(
     db: &Path,
     fill: impl FnOnce(&SledStore) -> anyhow::Result<u64>,
 ) -> anyhow::Result<u64> {
+    let _lock = WorldLock::take(db).with_context(|| format!("{} is unchanged", db.display()))?;
     let staging = with_suffix(db, RESTORING_SUFFIX);
     let old = with_suffix(db, REPLACED_SUFFIX);
     // A swap cut short between its renames: the old world goes back first.
@@ -352,10 +429,14 @@ pub fn replace_world(
     }
     remove_dir_if_present(&staging)?;
     remove_dir_if_present(&old)?;
+    let access = kept_access(db);
     let filled = SledStore::open(&staging)
         .map_err(anyhow::Error::from)
         .and_then(|store| {
             let n = fill(&store)?;
+            if let Some(access) = &access {
+                store.put_blob(ACCESS_BLOB, access)?;
+            }
             drop(store);
             sync_tree(&staging)?;
             Ok(n)
@@ -389,7 +470,7 @@ fn restore_postgres(args: &RestoreArgs, cfg: &ServerConfig, total: u64) -> anyho
         if let Some(why) = store.holds_world()? {
             bail!(
                 "the PostgreSQL store already holds a world ({why}); pass --force to replace it, \
-                 its bans and revocations included (stop every node first)"
+                 keeping its bans and revocations (stop every node first)"
             );
         }
     }

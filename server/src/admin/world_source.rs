@@ -28,7 +28,8 @@ use thiserror::Error;
 use crate::config::{ConfigError, ServerConfig};
 use crate::datadir::WORLD_DB_NAME;
 use crate::store::{
-    CheckReport, ChunkStore, PgStore, RawChunk, SledStore, StoreBackend, StoreError, WorldMeta,
+    CheckReport, ChunkStore, PgStore, RawChunk, SledStore, StoreBackend, StoreError, WorldLock,
+    WorldMeta,
 };
 
 /// A config file in the data dir that offline commands read by default.
@@ -246,7 +247,10 @@ pub fn open_store(data_dir: &Path) -> Result<SledStore, WorldSourceError> {
     if !path.exists() {
         return Err(WorldSourceError::NoStore(path));
     }
-    SledStore::open(&path).map_err(|source| match source {
+    let opened =
+        WorldLock::take_whole(&path).and_then(|lock| Ok(SledStore::open(&path)?.holding(lock)));
+    opened.map_err(|source| match source {
+        StoreError::WorldInUse { .. } => WorldSourceError::Locked(path),
         StoreError::Sled(sled::Error::Io(e))
             if e.to_string().contains("could not acquire lock") =>
         {

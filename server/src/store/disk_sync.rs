@@ -44,6 +44,10 @@ struct Seen {
     blobs: HashMap<OsString, u64>,
     /// Names in the store directory (sled's snapshot files come and go).
     entries: BTreeSet<OsString>,
+    /// The first failed sync. Linux reports a write-back error to each
+    /// handle once and marks the lost pages clean: a later fsync would
+    /// succeed over the hole. So one failure fails every later sync.
+    failed: Option<String>,
 }
 
 impl DiskSync {
@@ -66,11 +70,26 @@ impl DiskSync {
     }
 
     /// Makes everything sled has written so far durable. Call it after
-    /// `flush`, before acknowledging anything.
+    /// `flush`, before acknowledging anything. Once a sync failed, every
+    /// later one fails too (see `Seen::failed`): only a restart, which
+    /// recovers from what is on disk, writes again.
     pub(super) fn sync(&self) -> io::Result<()> {
         let mut seen = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(first) = &seen.failed {
+            return Err(io::Error::other(format!(
+                "an earlier sync of the store failed ({first}): writes since may be lost; restart to recover from the disk"
+            )));
+        }
+        let synced = Self::sync_changed(&self.dir, &self.db, &mut seen);
+        if let Err(e) = &synced {
+            seen.failed = Some(e.to_string());
+        }
+        synced
+    }
+
+    fn sync_changed(dir: &Path, db: &File, seen: &mut Seen) -> io::Result<()> {
         // Blobs first: the log may point at them.
-        let blob_dir = self.dir.join(BLOBS_DIR);
+        let blob_dir = dir.join(BLOBS_DIR);
         let mut present = Vec::new();
         let mut changed = false;
         for entry in fs::read_dir(&blob_dir)? {
@@ -97,12 +116,12 @@ impl DiskSync {
             sync_dir(&blob_dir)?;
         }
         seen.blobs = present.into_iter().take(MAX_TRACKED_BLOBS).collect();
-        self.db.sync_data()?;
-        let entries = fs::read_dir(&self.dir)?
+        db.sync_data()?;
+        let entries = fs::read_dir(dir)?
             .map(|e| e.map(|e| e.file_name()))
             .collect::<io::Result<BTreeSet<_>>>()?;
         if entries != seen.entries {
-            sync_dir(&self.dir)?;
+            sync_dir(dir)?;
             seen.entries = entries;
         }
         Ok(())
@@ -154,6 +173,24 @@ mod tests {
             .unwrap()
             .entries
             .contains(std::ffi::OsStr::new("snap.0000000000000001")));
+    }
+
+    #[test]
+    fn once_a_sync_failed_every_later_one_fails() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("store");
+        fs::create_dir_all(dir.join(BLOBS_DIR)).unwrap();
+        fs::write(dir.join(DB_FILE), b"log").unwrap();
+        let s = DiskSync::open(&dir).unwrap();
+        // A failure (here the blob directory gone) ...
+        fs::remove_dir(dir.join(BLOBS_DIR)).unwrap();
+        assert!(s.sync().is_err());
+        // ... is not retried into a success once the cause is gone.
+        fs::create_dir(dir.join(BLOBS_DIR)).unwrap();
+        let err = s.sync().unwrap_err().to_string();
+        assert!(err.contains("an earlier sync of the store failed"), "{err}");
+        // A new handle (a restart) syncs again.
+        DiskSync::open(&dir).unwrap().sync().unwrap();
     }
 
     #[test]

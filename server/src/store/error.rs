@@ -26,6 +26,21 @@ pub enum StoreError {
     PgSetup { reason: String },
     #[error("i/o: {0}")]
     Io(#[from] std::io::Error),
+    /// Another process holds the sled world (`world_lock`).
+    #[error(
+        "{} is in use by another process (a running server, an admin tool or a restore): stop it first",
+        .world.display()
+    )]
+    WorldInUse { world: std::path::PathBuf },
+    /// A restore's swap was cut short: the world is beside its place.
+    #[error(
+        "a restore was cut short: the world is in {}, and {} is missing; run the restore again, or move it back",
+        .replaced.display(), .world.display()
+    )]
+    RestoreCutShort {
+        world: std::path::PathBuf,
+        replaced: std::path::PathBuf,
+    },
     /// A record on disk does not have the layout this version writes.
     #[error("corrupt {what} at key {key}")]
     Corrupt { what: String, key: String },

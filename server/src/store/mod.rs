@@ -37,6 +37,7 @@ mod record;
 mod rules;
 mod sled_store;
 mod types;
+mod world_lock;
 
 use std::collections::BTreeSet;
 use std::ops::RangeInclusive;
@@ -64,6 +65,7 @@ pub use open::open_store;
 pub use pg::PgStore;
 pub use positions::TREE_PLAYER_TIMES;
 pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
+pub use rules::compare_meta;
 pub use sled_store::{
     open_raw, open_when_unlocked, persisted_segment_size, SledStore, MAX_BLOB_BYTES,
     MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES, META_LAST_SEQ, META_LOG_BASE, META_WORLD,
@@ -73,6 +75,7 @@ pub use types::{
     CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, RegionAccess, RegionHolder,
     StoredChunk, StoredPosition, WorldMeta, STORE_FORMAT_VERSION,
 };
+pub use world_lock::{with_suffix, WorldLock, LOCK_SUFFIX, REPLACED_SUFFIX, RESTORING_SUFFIX};
 
 /// A fallible iterator over store records.
 pub type StoreIter<'a, T> = Box<dyn Iterator<Item = Result<T, StoreError>> + Send + 'a>;
@@ -265,6 +268,14 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// a forced restore in progress refuses the server. The server calls it once,
     /// before reading the world. Embedded stores: nothing.
     fn serve(&self) -> Result<(), StoreError> {
+        Ok(())
+    }
+
+    /// Keeps every server off the store while it is open, or refuses one
+    /// a server uses: for a tool that must read one moment of the world
+    /// (an offline snapshot). On PostgreSQL it holds the serving lock
+    /// alone; an embedded store opened by `open_store` is held already.
+    fn hold_alone(&self) -> Result<(), StoreError> {
         Ok(())
     }
 

@@ -6,10 +6,10 @@ use std::sync::Arc;
 use crate::cluster::ClusterConfig;
 
 use super::config::{StoreBackend, StoreConfig};
-use super::{ChunkStore, PgStore, SledStore, StoreError};
+use super::{ChunkStore, PgStore, SledStore, StoreError, WorldLock};
 
 /// Opens (creating if new) the `[store]` backend: `world_db` is sled's
-/// directory; PostgreSQL records `region_chunks` as its region layout, and
+/// directory, held by its [`WorldLock`] while the store is open; PostgreSQL records `region_chunks` as its region layout, and
 /// with `cluster` this node's commits are fenced by its region leases.
 pub fn open_store(
     cfg: &StoreConfig,
@@ -18,7 +18,10 @@ pub fn open_store(
     cluster: Option<&ClusterConfig>,
 ) -> Result<Arc<dyn ChunkStore>, StoreError> {
     Ok(match (cfg.backend, cluster) {
-        (StoreBackend::Sled, None) => Arc::new(SledStore::open_with(world_db, cfg)?),
+        (StoreBackend::Sled, None) => {
+            let lock = WorldLock::take_whole(world_db)?;
+            Arc::new(SledStore::open_with(world_db, cfg)?.holding(lock))
+        }
         (StoreBackend::Sled, Some(_)) => {
             return Err(StoreError::PgSetup {
                 reason: "[cluster] needs [store] backend = \"postgres\"".into(),

@@ -14,6 +14,7 @@
 use std::collections::BTreeSet;
 use std::ops::RangeInclusive;
 use std::path::Path;
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -92,6 +93,12 @@ pub struct SledStore {
     /// The world's generator, once attached: chunks are then first stored
     /// as a "generated" record and deltas (`CommitBatch::generated`).
     pub(super) generator: std::sync::OnceLock<Arc<dyn ChunkGenerator>>,
+    /// The highest `last_seq` known on disk: sled shows a transaction's
+    /// writes before its flush, and `last_seq` reads no further than this,
+    /// so no reader (the console) sees an edit that is not durable yet.
+    durable_seq: std::sync::atomic::AtomicU64,
+    /// The world's lock, when opened through `open_store`: let go last.
+    held: Option<super::WorldLock>,
 }
 
 impl SledStore {
@@ -119,6 +126,12 @@ impl SledStore {
 
     /// Opens (or creates) the store in `dir`. Refuses a store written by an
     /// unknown format version.
+    /// This store, keeping `lock` until it is dropped.
+    pub fn holding(mut self, lock: super::WorldLock) -> Self {
+        self.held = Some(lock);
+        self
+    }
+
     pub fn open_with(dir: &Path, config: &StoreConfig) -> Result<Self, StoreError> {
         let segment = persisted_segment_size(dir).unwrap_or(config.segment_size_bytes);
         let cfg = sled::Config::new()
@@ -139,7 +152,14 @@ impl SledStore {
             watch: FlushWatch::spawn(db.clone())?,
             db,
             generator: std::sync::OnceLock::new(),
+            durable_seq: std::sync::atomic::AtomicU64::new(u64::MAX),
+            held: None,
         };
+        // `DiskSync::open` synced what sled recovered: it is on disk. An
+        // unreadable seq clamps nothing (`last_seq` reports it).
+        if let Ok(seq) = store.stored_last_seq() {
+            store.durable_seq.store(seq, Ordering::Relaxed);
+        }
         // Only a readable record of another format stops the open: a
         // corrupt one must still open so `check` can report it (and
         // `load_meta` returns the error to anyone else).
@@ -163,9 +183,21 @@ impl SledStore {
     /// Makes every write so far durable: sled's flush, then the fsyncs it
     /// leaves out.
     pub(super) fn flush(&self) -> Result<(), StoreError> {
+        let seq = self.stored_last_seq();
         self.watch.flush(&self.db)?;
         self.disk.sync()?;
+        if let Ok(seq) = seq {
+            self.durable_seq.fetch_max(seq, Ordering::Relaxed);
+        }
         Ok(())
+    }
+
+    /// `last_seq` as sled shows it, durable or not.
+    fn stored_last_seq(&self) -> Result<u64, StoreError> {
+        match self.meta.get(META_LAST_SEQ)? {
+            Some(v) => decode_last_seq(&v),
+            None => Ok(0),
+        }
     }
 }
 
@@ -244,10 +276,8 @@ impl ChunkStore for SledStore {
     }
 
     fn last_seq(&self) -> Result<u64, StoreError> {
-        match self.meta.get(META_LAST_SEQ)? {
-            Some(v) => decode_last_seq(&v),
-            None => Ok(0),
-        }
+        let stored = self.stored_last_seq()?;
+        Ok(stored.min(self.durable_seq.load(Ordering::Relaxed)))
     }
 
     fn load_chunk(&self, pos: ChunkPos) -> Result<Option<StoredChunk>, StoreError> {
@@ -393,6 +423,7 @@ impl ChunkStore for SledStore {
         self.watch.flush(&self.db)?;
         let syncing = Instant::now();
         self.disk.sync()?;
+        self.durable_seq.fetch_max(b.last_seq, Ordering::Relaxed);
         Ok(CommitStats {
             bytes_written,
             encode,
@@ -732,5 +763,29 @@ mod lock_tests {
         });
         assert!(open_when_unlocked(|| sled::open(dir.path())).is_ok());
         releaser.join().unwrap();
+    }
+}
+
+#[cfg(test)]
+mod durable_seq_tests {
+    use super::*;
+
+    #[test]
+    fn last_seq_shows_only_what_a_flush_made_durable() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = SledStore::open(dir.path()).unwrap();
+        store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+        // Written into sled, not yet flushed: readers do not see it.
+        store
+            .meta
+            .insert(META_LAST_SEQ, &5u64.to_be_bytes()[..])
+            .unwrap();
+        assert_eq!(store.last_seq().unwrap(), 0);
+        store.flush().unwrap();
+        assert_eq!(store.last_seq().unwrap(), 5);
+        // Reopened, what sled recovered is durable.
+        drop(store);
+        let store = SledStore::open(dir.path()).unwrap();
+        assert_eq!(store.last_seq().unwrap(), 5);
     }
 }

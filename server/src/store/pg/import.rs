@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 use super::commit::Rows;
 use super::pool::{Conn, Held};
 use super::{to_sql, PgStore, SERVER_APPLICATION};
+use crate::auth::ACCESS_BLOB;
 use crate::store::import::check_import_format;
 use crate::store::rules::check_blob;
 use crate::store::types::{RawChunk, WorldMeta};
@@ -24,15 +25,16 @@ use tokio_postgres::error::SqlState;
 /// `nodes` stay; `regions` keeps its rows, freed at a higher epoch, so a
 /// node paused across the restore is fenced). `seq_blocks` goes too: a
 /// restored world reserves its blocks from its own `last_seq` again.
+/// `blobs` keeps the bans and revocations (`ACCESS_BLOB`).
 macro_rules! emptied_tables {
     () => {
-        "world, chunks, chunk_deltas, edit_log, blobs, players, seq_blocks"
+        "world, chunks, chunk_deltas, edit_log, players, seq_blocks"
     };
 }
 const EMPTIED_TABLES: &str = emptied_tables!();
 
-/// Every table a restore locks: those it empties, and `regions`.
-const LOCKED_TABLES: &str = concat!(emptied_tables!(), ", regions");
+/// Every table a restore locks: those it empties, `blobs` and `regions`.
+const LOCKED_TABLES: &str = concat!(emptied_tables!(), ", blobs, regions");
 
 /// The advisory lock a running server holds shared for as long as it uses
 /// the database ([`crate::store::ChunkStore::serve`]), and a forced restore
@@ -40,11 +42,12 @@ const LOCKED_TABLES: &str = concat!(emptied_tables!(), ", regions");
 /// neither runs while the other does.
 pub const SERVING_LOCK: i64 = 0x5354_5241_5441; // "STRATA"
 
-/// What opening or serving a store says while a restore holds
-/// [`SERVING_LOCK`] alone.
+/// What opening or serving a store says while a restore (or an offline
+/// snapshot) holds [`SERVING_LOCK`] alone.
 pub(super) fn restore_running() -> StoreError {
     StoreError::PgSetup {
-        reason: "a restore is replacing this database's world: start the server once it is done"
+        reason: "a restore is replacing this database's world, or an offline snapshot is \
+                 reading it: start the server once it is done"
             .into(),
     }
 }
@@ -280,6 +283,7 @@ impl ImportTarget for PgImport<'_> {
         held.run("emptying the world", async |c: &mut Conn| {
             c.batch(&format!(
                 "TRUNCATE {EMPTIED_TABLES}; \
+                 DELETE FROM blobs WHERE name <> '{ACCESS_BLOB}'; \
                  UPDATE regions SET owner = NULL, owner_addr = NULL, epoch = epoch + 1, \
                      last_seq = 0, edits = 0, lease_expires = now()"
             ))

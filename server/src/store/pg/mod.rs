@@ -110,9 +110,35 @@ impl PgStore {
         if !held {
             return Err(import::restore_running());
         }
+        self.keep_lock_connection(conn);
+        Ok(())
+    }
+
+    /// Takes [`import::SERVING_LOCK`] alone on a connection of its own,
+    /// kept while the store is open ([`ChunkStore::hold_alone`]).
+    fn take_serving_lock_alone(&self) -> Result<(), StoreError> {
+        let (conn, held) = self
+            .pool
+            .dedicated("keeping servers off", async |c: &mut Conn| {
+                let row = c
+                    .query_opt("SELECT pg_try_advisory_lock($1)", &[&import::SERVING_LOCK])
+                    .await?;
+                Ok(row.is_some_and(|r| r.get::<_, bool>(0)))
+            })?;
+        if !held {
+            return Err(StoreError::PgSetup {
+                reason:
+                    "a running server (or a restore) holds this database: stop every node first"
+                        .into(),
+            });
+        }
+        self.keep_lock_connection(conn);
+        Ok(())
+    }
+
+    fn keep_lock_connection(&self, conn: Conn) {
         // Held while this connection lives: as long as the store.
         *self.serving.lock().unwrap_or_else(|p| p.into_inner()) = Some(Box::new(conn));
-        Ok(())
     }
 
     /// Before a commit: a served store whose lock connection ended (a
@@ -566,6 +592,10 @@ impl ChunkStore for PgStore {
 
     fn serve(&self) -> Result<(), StoreError> {
         self.take_serving_lock()
+    }
+
+    fn hold_alone(&self) -> Result<(), StoreError> {
+        self.take_serving_lock_alone()
     }
 
     fn register_node(&self) -> Result<(), StoreError> {
