@@ -353,7 +353,8 @@ pub enum PositionRefusal {
 pub enum Refusal {
     /// The `Subscribe` centre is more than `max` chunks (Chebyshev) from
     /// the chunk of the player's last accepted position, or, before any,
-    /// from the session's first subscription centre.
+    /// from its spawn square's chunk columns: its view would reach past
+    /// view radius + hysteresis (`max` is that less the view's radius).
     SubscribeTooFar { center: ChunkPos, max: u8 },
     /// A resync or full snapshot of a chunk outside the session's view.
     NotInInterest { pos: ChunkPos },

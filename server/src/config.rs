@@ -640,6 +640,12 @@ impl ServerConfig {
             MAX_COMMAND_QUEUE,
         )?;
         range(
+            "engine.session_commands",
+            self.engine.session_commands,
+            1,
+            MAX_COMMAND_QUEUE,
+        )?;
+        range(
             "engine.control_queue",
             self.engine.control_queue,
             1,

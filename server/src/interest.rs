@@ -9,7 +9,10 @@
 //! one, so it does not re-centre (a walk over the whole view) at every
 //! crossing either. Rows outside the world's vertical
 //! bounds are never subscribed. A player's subscription stays near its
-//! last accepted position or, before one, near its start ([`Anchor`]).
+//! last accepted position or, before one, near its start ([`Anchor`]):
+//! its cube reaches at most `view_radius + hysteresis` chunks from there
+//! when accepted, and an accepted position that leaves it reaching
+//! farther ends it (the view follows positions again).
 
 use std::collections::BTreeSet;
 
@@ -117,6 +120,18 @@ impl Anchor {
     }
 }
 
+/// Who chose the centre.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Explicit {
+    /// Nobody: the centre follows positions.
+    No,
+    /// A player's `Subscribe`: kept while it stays within reach of the
+    /// player's accepted positions.
+    Near,
+    /// An admin's `Subscribe`: kept wherever the admin goes.
+    Anywhere,
+}
+
 /// One session's interest set.
 #[derive(Debug, Clone)]
 pub struct Interest {
@@ -124,8 +139,9 @@ pub struct Interest {
     bounds: WorldBounds,
     center: Option<ChunkPos>,
     radius: u8,
-    /// Set by an explicit `Subscribe`; positions then no longer move the centre.
-    explicit: bool,
+    /// Set by an explicit `Subscribe`; positions then no longer move the
+    /// centre (a player's, while it stays within reach).
+    explicit: Explicit,
     subscribed: BTreeSet<ChunkPos>,
 }
 
@@ -136,7 +152,7 @@ impl Interest {
             bounds,
             center: None,
             radius: cfg.radius(),
-            explicit: false,
+            explicit: Explicit::No,
             subscribed: BTreeSet::new(),
         }
     }
@@ -149,14 +165,28 @@ impl Interest {
         self.radius
     }
 
-    /// Follows an accepted feet position (ignored after an explicit subscribe).
+    /// Follows an accepted feet position. After an explicit subscribe it
+    /// keeps that view instead, a player's only while the view stays
+    /// within reach of the feet' chunk ([`Self::within_reach`]): past it,
+    /// the view drops back to the one centred on the position.
     pub fn follow_position(&mut self, feet: FixedVec3) -> InterestChange {
-        if self.explicit {
-            return InterestChange::default();
-        }
         let voxel = crate::validate::position::feet_voxel(feet);
         let chunk = voxel.chunk();
         let r = self.cfg.radius();
+        match self.explicit {
+            Explicit::Anywhere => return InterestChange::default(),
+            Explicit::Near => {
+                let kept = self
+                    .center
+                    .is_some_and(|c| self.within_reach(c, self.radius, Anchor::Chunk(chunk)));
+                if kept {
+                    return InterestChange::default();
+                }
+                self.explicit = Explicit::No;
+                return self.recenter(chunk, r);
+            }
+            Explicit::No => {}
+        }
         if let Some(c) = self.center {
             if chunk != c && self.radius == r && voxels_past(voxel, c) < RECENTRE_MARGIN {
                 return InterestChange::default();
@@ -165,23 +195,48 @@ impl Interest {
         self.recenter(chunk, r)
     }
 
-    /// Whether a player's `Subscribe` may centre on `center`: within radius
-    /// plus hysteresis (Chebyshev, in chunks) of `anchor`. `Err` carries
-    /// that distance.
-    pub fn check_centre(&self, center: ChunkPos, anchor: Anchor) -> Result<(), u8> {
-        let max = self.cfg.radius().saturating_add(self.cfg.hysteresis);
-        if anchor.distance(center) > u64::from(max) {
-            Err(max)
-        } else {
+    /// Whether a view of `center` and `radius` (capped at the view radius)
+    /// reaches no farther than `view_radius + hysteresis` chunks
+    /// (Chebyshev) from `anchor`: what a player's own view, re-centred
+    /// lazily and kept with its hysteresis, may reach.
+    pub fn within_reach(&self, center: ChunkPos, radius: u8, anchor: Anchor) -> bool {
+        anchor.distance(center) <= u64::from(self.max_centre_distance(radius))
+    }
+
+    /// How far (Chebyshev, in chunks) from its anchor a player's view of
+    /// `radius` may be centred: `view_radius + hysteresis - min(radius,
+    /// view_radius)`.
+    fn max_centre_distance(&self, radius: u8) -> u8 {
+        let r = self.cfg.radius();
+        r.saturating_add(self.cfg.hysteresis) - radius.min(r)
+    }
+
+    /// Whether a player's `Subscribe` of `center` and `radius` may be
+    /// accepted: its view within reach of `anchor`
+    /// ([`Self::within_reach`]). `Err` carries the farthest allowed
+    /// centre distance for that radius.
+    pub fn check_centre(&self, center: ChunkPos, radius: u8, anchor: Anchor) -> Result<(), u8> {
+        if self.within_reach(center, radius, anchor) {
             Ok(())
+        } else {
+            Err(self.max_centre_distance(radius))
         }
     }
 
-    /// An explicit `Subscribe`; the radius is capped by the config's view radius.
+    /// A player's explicit `Subscribe`; the radius is capped by the
+    /// config's view radius. Positions then no longer move the centre
+    /// while the view stays within reach of them.
     pub fn subscribe(&mut self, center: ChunkPos, radius: u8) -> InterestChange {
-        self.explicit = true;
+        self.explicit = Explicit::Near;
         let r = radius.min(self.cfg.radius());
         self.recenter(center, r)
+    }
+
+    /// An admin's explicit `Subscribe`: kept wherever the admin goes.
+    pub fn subscribe_anywhere(&mut self, center: ChunkPos, radius: u8) -> InterestChange {
+        let change = self.subscribe(center, radius);
+        self.explicit = Explicit::Anywhere;
+        change
     }
 
     /// Whether deltas of `pos` go to this session.

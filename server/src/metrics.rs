@@ -74,6 +74,7 @@ pub const FANOUT_BATCHES: &str = "strata_fanout_batches_total";
 pub const OPS_SENT: &str = "strata_ops_sent_total";
 pub const POSITIONS_DROPPED: &str = "strata_positions_dropped_total";
 pub const REQUESTS_THROTTLED: &str = "strata_requests_throttled_total";
+pub const SESSION_QUEUE_FULL: &str = "strata_session_queue_full_total";
 pub const RESYNCS: &str = "strata_resyncs_total";
 pub const RESIDENT_CHUNKS: &str = "strata_resident_chunks";
 /// Regions a cluster node holds the lease of (`[cluster] max_held_regions`
@@ -132,6 +133,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         REQUESTS_THROTTLED,
         "Requests (subscriptions, resyncs, forgets, snapshots, tickets, pings, edits) that waited for their player's [validation.request_rate] tokens"
+    );
+    metrics::describe_counter!(
+        SESSION_QUEUE_FULL,
+        "Requests that found their session's share of the engine queue ([engine] session_commands) in use: a request waited, an edit was answered Busy"
     );
     metrics::describe_counter!(
         POSITIONS_DROPPED,

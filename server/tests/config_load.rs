@@ -268,6 +268,7 @@ fn bad_values_name_their_field() {
         ),
         ("[engine]\ntick_ms = 0", "engine.tick_ms"),
         ("[engine]\ncommand_queue = 0", "engine.command_queue"),
+        ("[engine]\nsession_commands = 0", "engine.session_commands"),
         ("[engine]\npremesh_radius = 9", "engine.premesh_radius"),
         ("[engine]\npremesh_inflight = 0", "engine.premesh_inflight"),
         ("[engine]\npremesh_threads = 0", "engine.premesh_threads"),

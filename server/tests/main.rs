@@ -40,6 +40,7 @@ mod net_eviction;
 mod net_heightmap;
 mod net_interest;
 mod net_mesh_hashes;
+mod net_queue_share;
 mod net_robustness;
 mod net_stream;
 mod net_threads;

@@ -2,9 +2,11 @@
 //! subscription is told which chunks left in a few frames, not thousands,
 //! and stays connected; a player cannot subscribe or ask for chunks far
 //! from itself (map hack), even before its first position, and each
-//! refusal is answered. Each view ends with `InterestComplete`, after a
-//! re-centre the whole queue is nearest first from the new centre, and a
-//! forgotten chunk gets no updates until it is asked for again.
+//! refusal is answered; its own view never reaches past radius plus
+//! hysteresis from where it stands, walking away included. Each view ends
+//! with `InterestComplete`, after a re-centre the whole queue is nearest
+//! first from the new centre, and a forgotten chunk gets no updates until
+//! it is asked for again.
 
 use crate::common;
 
@@ -52,9 +54,10 @@ async fn a_far_re_centre_at_view_radius_8_keeps_the_client() {
         cfg.interest.view_radius = 8;
         let server = app::start(cfg).await.expect("server starts");
         let c = connect(&server, "walker", Role::Player).await;
-        // 17³ = 4913 chunks a view; each jump of 10 chunks (the farthest a
-        // player may re-centre: radius plus hysteresis) drops 2312 of them,
-        // far more than the session's writer queue holds frames.
+        // 17³ = 4913 chunks a view; each jump of 10 chunks (allowed: with
+        // no position yet the player may look anywhere near the default
+        // spawn square, 128 chunks wide) drops 2312 of them, far more than
+        // the session's writer queue holds frames.
         for (i, x) in [0, 10, 0, -10].into_iter().enumerate() {
             c.subscribe(ChunkPos::new(x, 0, 0), 8).await.unwrap();
             tokio::time::sleep(Duration::from_millis(300)).await;
@@ -77,7 +80,8 @@ async fn a_far_re_centre_at_view_radius_8_keeps_the_client() {
 async fn far_subscriptions_and_snapshot_requests_are_refused() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        // View radius 2, hysteresis 2: centres at most 4 chunks away.
+        // View radius 2, hysteresis 2: a view reaches at most 4 chunks
+        // from the player, so a radius-2 centre is at most 2 away.
         let server = start(dir.path()).await;
         let c = connect(&server, "spy", Role::Player).await;
         c.subscribe(ChunkPos::new(0, 0, 0), 2).await.unwrap();
@@ -97,7 +101,7 @@ async fn far_subscriptions_and_snapshot_requests_are_refused() {
             vec![
                 Refusal::SubscribeTooFar {
                     center: far,
-                    max: 4
+                    max: 2
                 },
                 Refusal::NotInInterest { pos: far },
                 Refusal::NotInInterest {
@@ -132,29 +136,24 @@ async fn a_positionless_player_subscribes_only_near_its_start() {
         cfg.validation.spawn.radius = 16;
         let server = app::start(cfg).await.expect("server starts");
         let c = connect(&server, "early", Role::Player).await;
-        // View radius 2 + hysteresis 2: at most 4 chunks from the square.
+        // View radius 2 + hysteresis 2: a view reaches at most 4 chunks
+        // from the square, so a radius-2 centre lies at most 2 away.
         let far = ChunkPos::new(175, 0, 0);
         let edge = ChunkPos::new(5, 0, -5);
+        let wide = ChunkPos::new(4, 0, 0);
         c.subscribe(far, 2).await.unwrap();
         c.subscribe(edge, 2).await.unwrap();
-        // Accepted first subscriptions no longer anchor later ones: near
-        // the square is fine, and so is the other side of it.
-        c.subscribe(ChunkPos::new(4, 0, 0), 2).await.unwrap();
-        c.subscribe(ChunkPos::new(-5, 3, 3), 2).await.unwrap();
+        c.subscribe(wide, 2).await.unwrap();
+        // A smaller view may lie farther. Accepted first subscriptions no
+        // longer anchor later ones: the other side of the square is fine.
+        c.subscribe(wide, 0).await.unwrap();
+        c.subscribe(ChunkPos::new(-3, 3, 2), 2).await.unwrap();
         c.subscribe(ChunkPos::new(0, 0, 0), 2).await.unwrap();
         loaded(&c, ChunkPos::new(0, 0, 0), 2).await;
+        let too_far = |center| Refusal::SubscribeTooFar { center, max: 2 };
         assert_eq!(
             c.refusals(),
-            vec![
-                Refusal::SubscribeTooFar {
-                    center: far,
-                    max: 4
-                },
-                Refusal::SubscribeTooFar {
-                    center: edge,
-                    max: 4
-                },
-            ]
+            vec![too_far(far), too_far(edge), too_far(wide)]
         );
         let outside = c.replica().chunks().filter(|(p, _)| p.x.abs() > 9).count();
         assert_eq!(outside, 0, "nothing was sent from far away");
@@ -398,6 +397,98 @@ async fn a_forgotten_chunk_whose_snapshot_was_on_its_way_does_not_go_stale() {
         );
         editor.close().await;
         watcher.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+#[tokio::test]
+async fn a_players_own_view_stays_within_reach_of_where_it_walks() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        // View radius 2, hysteresis 2: a view reaches at most 4 chunks
+        // from the player. Fast walking, so one report crosses chunks.
+        let mut cfg = test_config(dir.path());
+        cfg.validation.max_speed = 1000.0;
+        let server = app::start(cfg).await.expect("server starts");
+        let (feet, _) = spot(16, 16);
+        let walker = connect(&server, "walker", Role::Player).await;
+        walker.send_position(feet).unwrap();
+        assert!(eventually(Duration::from_secs(10), || walker.view_loaded().is_some()).await);
+        let (home, _) = walker.view_loaded().unwrap();
+        // A centre 4 chunks off passed the old rule (centre within radius
+        // plus hysteresis) but its radius-2 view would reach 6.
+        let wide = ChunkPos::new(home.x + 4, home.y, home.z);
+        walker.subscribe(wide, 2).await.unwrap();
+        // Two chunks ahead is within reach: the view stays there.
+        let (dig_feet, surface) = spot(2 * 32 + 16, 16);
+        let target = surface.chunk();
+        assert!(target.chebyshev(home) <= 2, "{target:?} is near {home:?}");
+        walker.subscribe(target, 2).await.unwrap();
+        loaded(&walker, target, 2).await;
+        assert_eq!(
+            walker.refusals(),
+            vec![Refusal::SubscribeTooFar {
+                center: wide,
+                max: 2
+            }]
+        );
+        let digger = connect(&server, "digger", Role::Player).await;
+        digger.send_position(dig_feet).unwrap();
+        assert!(eventually(Duration::from_secs(10), || digger.view_loaded().is_some()).await);
+        let dig = |strength| Edit::Mine {
+            center: strata_terrain::FixedVec3::from_voxels(surface.x, surface.y, surface.z),
+            radius: r(1.0),
+            strength,
+        };
+        let accepted = |v| match v {
+            Verdict::Accepted { seq } => seq,
+            other => panic!("the edit was refused: {other:?}"),
+        };
+        // While the walker stands near, its own view brings the deltas.
+        walker.take_arrivals();
+        accepted(digger.edit(dig(100)).await.unwrap());
+        let mut seen = Vec::new();
+        assert!(
+            eventually(Duration::from_secs(5), || {
+                seen.extend(walker.take_arrivals());
+                seen.iter().any(|a| a.pos == target)
+            })
+            .await,
+            "the explicit view brought the delta"
+        );
+        // Walking 3 chunks the other way, the view would reach 7 chunks
+        // from the feet: it drops back to the view centred on them, which
+        // no longer holds the target even with its hysteresis.
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let (away, _) = spot(-3 * 32 + 16, 16);
+        walker.send_position(away).unwrap();
+        let there = strata_terrain::VoxelPos::new(-80, 0, 16).chunk().x;
+        assert!(
+            eventually(Duration::from_secs(10), || walker
+                .view_loaded()
+                .is_some_and(|(c, r)| c.x == there && r == 2))
+            .await,
+            "the view follows the walker again: {:?}",
+            walker.view_loaded()
+        );
+        assert!(walker.replica().get(target).is_none(), "told to drop it");
+        walker.take_arrivals();
+        let seq = accepted(digger.edit(dig(200)).await.unwrap());
+        assert!(
+            eventually(Duration::from_secs(5), || digger.replica().last_seq()
+                >= seq)
+            .await
+        );
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(
+            walker.take_arrivals().iter().all(|a| a.pos != target),
+            "a delta of the view walked away from was sent"
+        );
+        assert!(!walker.is_closed());
+        walker.close().await;
+        digger.close().await;
         server.shutdown().await.unwrap();
     })
     .await

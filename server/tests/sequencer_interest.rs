@@ -1,6 +1,7 @@
-//! Interest sets: nearest-first ordering, hysteresis, caps, vertical bounds.
+//! Interest sets: nearest-first ordering, hysteresis, caps, vertical
+//! bounds, and how far a player's own subscription may reach.
 
-use strata_server::interest::{Interest, InterestConfig};
+use strata_server::interest::{Anchor, Interest, InterestConfig};
 use strata_server::validate::WorldBounds;
 use strata_terrain::edit::FixedVec3;
 use strata_terrain::ChunkPos;
@@ -123,8 +124,9 @@ fn explicit_subscribe_is_capped_and_overrides_position() {
     let c = i.subscribe(ChunkPos::new(10, 0, 10), 200);
     assert_eq!(i.radius(), 2, "capped by the view radius");
     assert_eq!(c.subscribe.len(), 125);
+    // A position in the view's own chunk keeps it.
     assert!(i
-        .follow_position(FixedVec3::from_voxels(0, 0, 0))
+        .follow_position(FixedVec3::from_voxels(330, 0, 330))
         .is_empty());
     assert_eq!(i.center(), Some(ChunkPos::new(10, 0, 10)));
     let c = i.subscribe(ChunkPos::new(10, 0, 10), 0);
@@ -134,6 +136,64 @@ fn explicit_subscribe_is_capped_and_overrides_position() {
         i.subscribed().collect::<Vec<_>>(),
         vec![ChunkPos::new(10, 0, 10)]
     );
+}
+
+#[test]
+fn a_subscription_must_keep_its_whole_view_within_reach() {
+    // View radius 8, hysteresis 2: a view may reach 10 chunks from the anchor.
+    let i = interest(8, 2);
+    let anchor = Anchor::Chunk(ChunkPos::new(0, 0, 0));
+    let check = |x, r| i.check_centre(ChunkPos::new(x, 0, 0), r, anchor);
+    assert_eq!(check(2, 8), Ok(()));
+    assert_eq!(check(3, 8), Err(2), "a full view two chunks off at most");
+    // A radius past the view radius counts as the view radius.
+    assert_eq!(check(3, 200), Err(2));
+    assert_eq!(check(10, 0), Ok(()));
+    assert_eq!(check(10, 1), Err(9));
+    assert_eq!(check(6, 4), Ok(()));
+    assert_eq!(check(-7, 4), Err(6));
+    // Before any position, from the spawn square's chunk columns (-1..=0).
+    let spawn = Anchor::Spawn {
+        x: 0,
+        z: 0,
+        radius: 16,
+    };
+    assert!(i.check_centre(ChunkPos::new(2, 50, -3), 8, spawn).is_ok());
+    assert_eq!(i.check_centre(ChunkPos::new(-4, 0, 0), 8, spawn), Err(2));
+}
+
+#[test]
+fn walking_away_from_a_subscription_drops_back_to_the_position_view() {
+    let mut i = interest(2, 1);
+    let feet = |cx: i32| FixedVec3::from_voxels(cx * 32 + 16, 16, 16);
+    i.follow_position(feet(0));
+    // Radius 1 one chunk ahead: reaches 2 of the 3 allowed.
+    let c = i.subscribe(ChunkPos::new(1, 0, 0), 1);
+    assert!(c.recentred);
+    // Still within reach one chunk back, or one chunk on.
+    assert!(i.follow_position(feet(-1)).is_empty());
+    assert!(i.follow_position(feet(2)).is_empty());
+    assert_eq!((i.center(), i.radius()), (Some(ChunkPos::new(1, 0, 0)), 1));
+    // Two chunks back it would reach 4: the position's view takes over.
+    let c = i.follow_position(feet(-2));
+    assert!(c.recentred);
+    assert_eq!((i.center(), i.radius()), (Some(ChunkPos::new(-2, 0, 0)), 2));
+    assert!(c.unsubscribe.contains(&ChunkPos::new(2, 0, 0)));
+    assert!(!i.covers(ChunkPos::new(2, 0, 0)), "no deltas from there");
+    // And it follows positions again.
+    let c = i.follow_position(feet(-4));
+    assert_eq!(i.center(), Some(ChunkPos::new(-4, 0, 0)));
+    assert!(c.recentred);
+}
+
+#[test]
+fn an_admins_subscription_stays_wherever_it_goes() {
+    let mut i = interest(2, 0);
+    i.subscribe_anywhere(ChunkPos::new(100, 0, 0), 2);
+    assert!(i
+        .follow_position(FixedVec3::from_voxels(0, 0, 0))
+        .is_empty());
+    assert_eq!(i.center(), Some(ChunkPos::new(100, 0, 0)));
 }
 
 #[test]

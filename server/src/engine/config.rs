@@ -8,6 +8,7 @@ use super::premesh::{
     self, DEFAULT_PREMESH_INFLIGHT, DEFAULT_PREMESH_RADIUS, DEFAULT_PREMESH_THREADS,
 };
 use super::residency::DEFAULT_RESIDENT_CHUNKS;
+use super::session_share::DEFAULT_SESSION_COMMANDS;
 use super::{snapshot, stream};
 
 /// Default tick period.
@@ -49,6 +50,11 @@ pub struct EngineConfig {
     /// Player commands (edits, positions, subscriptions) queued from
     /// sessions before new ones are refused.
     pub command_queue: usize,
+    /// Player commands one session may have in that queue at once
+    /// ([`DEFAULT_SESSION_COMMANDS`]; position notices apart, one each at
+    /// most), so no client fills it for everyone; at most `command_queue`
+    /// takes effect.
+    pub session_commands: usize,
     /// Joins, leaves and admin requests queued ([`DEFAULT_CONTROL_QUEUE`]);
     /// served before any player command.
     pub control_queue: usize,
@@ -89,6 +95,7 @@ impl Default for EngineConfig {
             tick_ms: DEFAULT_TICK_MS,
             stream_us: DEFAULT_STREAM_US,
             command_queue: DEFAULT_COMMAND_QUEUE,
+            session_commands: DEFAULT_SESSION_COMMANDS,
             control_queue: DEFAULT_CONTROL_QUEUE,
             sessions_per_player: DEFAULT_SESSIONS_PER_PLAYER,
             premesh_radius: DEFAULT_PREMESH_RADIUS,

@@ -73,7 +73,8 @@ impl Engine {
                 radius,
             } => {
                 // Admins may look anywhere; players only around themselves,
-                // or before any position, around their start.
+                // or before any position, around their start: the whole
+                // view within reach (`Interest::within_reach`).
                 let player = match self.seq.session(session) {
                     Some(s) if s.role == strata_protocol::Role::Admin => None,
                     Some(_) => Some(self.seq.position(session).map(|p| {
@@ -85,15 +86,21 @@ impl Engine {
                     return;
                 };
                 let allowed = match player {
-                    None => Ok(()),
+                    None => Ok(false),
                     Some(at) => {
                         let anchor = at.unwrap_or_else(|| p.start_anchor());
-                        p.interest.check_centre(center, anchor)
+                        p.interest
+                            .check_centre(center, radius, anchor)
+                            .map(|()| true)
                     }
                 };
                 match allowed {
-                    Ok(()) => {
-                        let change = p.interest.subscribe(center, radius);
+                    Ok(near) => {
+                        let change = if near {
+                            p.interest.subscribe(center, radius)
+                        } else {
+                            p.interest.subscribe_anywhere(center, radius)
+                        };
                         self.apply_interest(session, change);
                     }
                     Err(max) => {

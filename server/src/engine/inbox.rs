@@ -9,28 +9,73 @@
 //! commit thread wakes it the same way through a [`Waker`], which holds
 //! the player lane only weakly: the queues still disconnect once every
 //! handle is gone.
+//!
+//! A session's commands on the player lane hold a slot of its
+//! [`SessionShare`] until the engine takes them (`session_share.rs`).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::{Arc, Weak};
 use std::time::Duration;
 
+use super::session_share::{QueueSlot, SessionShare, DEFAULT_SESSION_COMMANDS};
 use super::Command;
+
+/// A command on the player lane and the slot of its session's share it
+/// holds until the engine takes it (none for position notices and wakes).
+#[derive(Debug)]
+pub struct Queued {
+    cmd: Command,
+    /// Given back when this is dropped: when the engine takes the command.
+    _slot: Option<QueueSlot>,
+}
+
+impl Queued {
+    /// A command counted against its session's share.
+    pub fn held(cmd: Command, slot: QueueSlot) -> Self {
+        Self {
+            cmd,
+            _slot: Some(slot),
+        }
+    }
+
+    fn free(cmd: Command) -> Self {
+        Self { cmd, _slot: None }
+    }
+
+    /// The command, its slot given back.
+    pub fn into_command(self) -> Command {
+        self.cmd
+    }
+}
+
+/// `e` with its payload mapped by `f`.
+fn map_refused<T, U>(e: TrySendError<T>, f: impl FnOnce(T) -> U) -> TrySendError<U> {
+    match e {
+        TrySendError::Full(t) => TrySendError::Full(f(t)),
+        TrySendError::Disconnected(t) => TrySendError::Disconnected(f(t)),
+    }
+}
 
 /// Handle for sending commands to a running engine.
 #[derive(Debug, Clone)]
 pub struct EngineHandle {
     /// Shared by the clones; the [`Waker`] holds it weakly.
-    player: Arc<SyncSender<Command>>,
+    player: Arc<SyncSender<Queued>>,
     control: SyncSender<Command>,
     /// A `Wake` is queued on the player lane and not yet taken.
     wake_pending: Arc<AtomicBool>,
+    /// The player lane's capacity.
+    lane: usize,
+    /// Commands one session may have on the player lane (`[engine]
+    /// session_commands`, at most the lane's capacity).
+    session_commands: usize,
 }
 
 /// The engine's end of both queues.
 #[derive(Debug)]
 pub struct Inbox {
-    player: Receiver<Command>,
+    player: Receiver<Queued>,
     control: Receiver<Command>,
     wake_pending: Arc<AtomicBool>,
     waker: Waker,
@@ -39,7 +84,7 @@ pub struct Inbox {
 /// Wakes a waiting engine without keeping its queues open.
 #[derive(Debug, Clone)]
 pub struct Waker {
-    player: Weak<SyncSender<Command>>,
+    player: Weak<SyncSender<Queued>>,
     wake_pending: Arc<AtomicBool>,
 }
 
@@ -55,13 +100,17 @@ impl Waker {
 /// Queues one `Wake` on `player` unless one is pending. A full player
 /// queue needs no wake: the engine is busy draining it and looks at the
 /// control lane (and a running commit) between commands.
-fn wake(player: &SyncSender<Command>, pending: &AtomicBool) {
-    if !pending.swap(true, Ordering::AcqRel) && player.try_send(Command::Wake).is_err() {
+fn wake(player: &SyncSender<Queued>, pending: &AtomicBool) {
+    if !pending.swap(true, Ordering::AcqRel)
+        && player.try_send(Queued::free(Command::Wake)).is_err()
+    {
         pending.store(false, Ordering::Release);
     }
 }
 
-/// A handle and inbox with room for `player` and `control` commands.
+/// A handle and inbox with room for `player` and `control` commands; each
+/// session may have [`DEFAULT_SESSION_COMMANDS`] of the player commands
+/// (see [`EngineHandle::with_session_commands`]).
 pub fn channel(player: usize, control: usize) -> (EngineHandle, Inbox) {
     let (ptx, prx) = sync_channel(player);
     let (ctx, crx) = sync_channel(control);
@@ -75,6 +124,8 @@ pub fn channel(player: usize, control: usize) -> (EngineHandle, Inbox) {
         player: ptx,
         control: ctx,
         wake_pending: wake_pending.clone(),
+        lane: player,
+        session_commands: DEFAULT_SESSION_COMMANDS.clamp(1, player.max(1)),
     };
     let inbox = Inbox {
         player: prx,
@@ -94,6 +145,18 @@ fn is_control(c: &Command) -> bool {
 }
 
 impl EngineHandle {
+    /// Lets each session have `n` commands on the player lane (at least
+    /// one, at most the lane's capacity).
+    pub fn with_session_commands(mut self, n: usize) -> Self {
+        self.session_commands = n.clamp(1, self.lane.max(1));
+        self
+    }
+
+    /// A new session's share of the player lane.
+    pub fn session_share(&self) -> SessionShare {
+        SessionShare::new(self.session_commands)
+    }
+
     /// Queues a command without waiting; false if its queue is full or the
     /// engine is gone.
     pub fn try_send(&self, c: Command) -> bool {
@@ -101,14 +164,26 @@ impl EngineHandle {
     }
 
     /// Queues a command without waiting, handing it back when its queue is
-    /// full (or `Disconnected` when the engine is gone).
+    /// full (or `Disconnected` when the engine is gone). A player command
+    /// sent this way holds no slot of a session's share: sessions send
+    /// only position notices so.
     pub fn offer(&self, c: Command) -> Result<(), TrySendError<Command>> {
         if !is_control(&c) {
-            return self.player.try_send(c);
+            let sent = self.player.try_send(Queued::free(c));
+            return sent.map_err(|e| map_refused(e, Queued::into_command));
         }
         self.control.try_send(c)?;
         self.wake();
         Ok(())
+    }
+
+    /// Queues a command holding its session's slot without waiting,
+    /// handing it back (slot and all) when the queue is full.
+    pub fn offer_queued(&self, q: Queued) -> Result<(), TrySendError<Queued>> {
+        if is_control(&q.cmd) {
+            return self.offer(q.cmd).map_err(|e| map_refused(e, Queued::free));
+        }
+        self.player.try_send(q)
     }
 
     /// Asks the engine to finish and stop, waiting for queue space (blocking).
@@ -145,7 +220,8 @@ impl Inbox {
         if let Ok(c) = self.control.try_recv() {
             return Ok(Some(c));
         }
-        match self.player.recv_timeout(wait) {
+        // Taken off the queue: the session's slot is given back here.
+        match self.player.recv_timeout(wait).map(Queued::into_command) {
             Ok(Command::Wake) => {
                 self.wake_pending.store(false, Ordering::Release);
                 // A control sender wakes after queueing its command.
@@ -193,6 +269,26 @@ mod tests {
             )
             .collect();
         assert_eq!(order, ["leave 7", "pos 1", "pos 2"]);
+    }
+
+    #[test]
+    fn a_sessions_slot_comes_back_when_the_engine_takes_its_command() {
+        let (handle, inbox) = channel(4, 4);
+        let share = handle.clone().with_session_commands(1).session_share();
+        let forget = Command::Forget {
+            session: 1,
+            chunks: Vec::new(),
+        };
+        let slot = share.try_take().expect("a free slot");
+        assert!(handle.offer_queued(Queued::held(forget, slot)).is_ok());
+        assert!(share.try_take().is_none(), "held while queued");
+        let taken = inbox.recv_timeout(Duration::from_secs(1));
+        assert!(matches!(taken, Ok(Command::Forget { session: 1, .. })));
+        assert!(share.try_take().is_some(), "given back once taken");
+        // A share is never larger than the lane.
+        let big = handle.with_session_commands(100).session_share();
+        let held: Vec<_> = (0..10).filter_map(|_| big.try_take()).collect();
+        assert_eq!(held.len(), 4);
     }
 
     #[test]

@@ -27,6 +27,7 @@ mod position_refusal;
 mod prebuild;
 mod premesh;
 mod residency;
+mod session_share;
 pub mod snapshot;
 mod stream;
 mod tick;
@@ -39,7 +40,7 @@ pub use config::{
     SLOW_TICK_PERIODS,
 };
 pub use fanout::encode_control as fanout_control;
-pub use inbox::{channel as inbox_channel, EngineHandle, Inbox};
+pub use inbox::{channel as inbox_channel, EngineHandle, Inbox, Queued};
 pub use latest::LatestPosition;
 pub use ownership::RELOAD_RETRY;
 pub use premesh::{
@@ -47,6 +48,7 @@ pub use premesh::{
     DEFAULT_PREMESH_RADIUS, DEFAULT_PREMESH_THREADS, MAX_PREMESH_RADIUS, MAX_PREMESH_THREADS,
 };
 pub use residency::{DEFAULT_RESIDENT_CHUNKS, MIN_RESIDENT_CHUNKS};
+pub use session_share::{QueueSlot, SessionShare, DEFAULT_SESSION_COMMANDS};
 pub use stream::{DEFAULT_PATCH_BASE_CHUNKS, DEFAULT_SNAPSHOT_CACHE_ENTRIES};
 pub(crate) use tick::Applied;
 pub use tick::MAX_CHAINED_COMMITS;
@@ -204,6 +206,7 @@ impl Engine {
         on_exit: impl FnOnce() + Send + 'static,
     ) -> std::io::Result<(EngineHandle, std::thread::JoinHandle<anyhow::Result<()>>)> {
         let (tx, rx) = inbox::channel(self.cfg.command_queue, self.cfg.control_queue);
+        let tx = tx.with_session_commands(self.cfg.session_commands);
         let handle = std::thread::Builder::new()
             .name("strata-engine".into())
             .spawn(move || {

@@ -19,7 +19,9 @@ use tracing::{debug, info, warn, Instrument};
 use super::admission::Handshake;
 use super::writer::{spawn_writer, FrameSender, SendRefused};
 use crate::auth::{self, AuthError, Secret};
-use crate::engine::{fanout_control, now_ms, Command, EngineHandle, LatestPosition};
+use crate::engine::{
+    fanout_control, now_ms, Command, EngineHandle, LatestPosition, Queued, SessionShare,
+};
 use crate::log_every::LogEvery;
 use crate::shutdown::Shutdown;
 use crate::validate::ratelimit::{BucketConfig, TokenBucket};
@@ -487,6 +489,9 @@ async fn serve(
     // this one ends.
     let requests = ctx.request_buckets.hold(player, ctx.request_rate, now_ms());
     let mut positions = TokenBucket::new(ctx.position_rate, now_ms());
+    // The session's share of the engine's player queue (`[engine]
+    // session_commands`).
+    let share = ctx.engine.session_share();
     // A request waiting for tokens, and when they are there: the control
     // stream is not read meanwhile (positions, kicks and shutdown still are).
     let mut throttled: Option<(ClientMessage, tokio::time::Instant)> = None;
@@ -540,8 +545,8 @@ async fn serve(
             throttled = Some((m, at));
             continue;
         }
-        let routed = match route((session, player), ctx, control, m) {
-            Ok(Some(cmd)) => deliver(&ctx.engine, cmd, ENGINE_WAIT_TIMEOUT).await,
+        let routed = match route((session, player), ctx, &share, control, m) {
+            Ok(Some(cmd)) => deliver(&ctx.engine, &share, cmd, ENGINE_WAIT_TIMEOUT).await,
             Ok(None) => Ok(()),
             Err(end) => Err(end),
         };
@@ -644,33 +649,56 @@ async fn leave(engine: &EngineHandle, session: u64) {
     }
 }
 
-/// Queues a command the client relies on (subscriptions, resyncs). While
-/// the engine's queue is full the session waits, and stops reading its
-/// control stream, so QUIC flow control slows the client down; after
-/// `patience` ([`ENGINE_WAIT_TIMEOUT`]) the session is closed as overloaded.
-async fn deliver(engine: &EngineHandle, mut cmd: Command, patience: Duration) -> Result<(), End> {
+/// Queues a command the client relies on (subscriptions, resyncs). The
+/// session's share of the queue first: at its share it waits for the
+/// engine to take one of its own commands, so one client's burst holds at
+/// most that much of the queue all players share. While the queue itself
+/// is full it waits too. Waiting, it stops reading its control stream, so
+/// QUIC flow control slows the client down; after `patience`
+/// ([`ENGINE_WAIT_TIMEOUT`]) the session is closed as overloaded.
+async fn deliver(
+    engine: &EngineHandle,
+    share: &SessionShare,
+    cmd: Command,
+    patience: Duration,
+) -> Result<(), End> {
     let deadline = tokio::time::Instant::now() + patience;
+    let slot = match share.try_take() {
+        Some(slot) => slot,
+        None => {
+            metrics::counter!(crate::metrics::SESSION_QUEUE_FULL).increment(1);
+            match tokio::time::timeout_at(deadline, share.take()).await {
+                Ok(Some(slot)) => slot,
+                Ok(None) => return Err(End::Gone),
+                Err(_) => return Err(overloaded()),
+            }
+        }
+    };
+    let mut queued = Queued::held(cmd, slot);
     loop {
-        match engine.offer(cmd) {
+        match engine.offer_queued(queued) {
             Ok(()) => return Ok(()),
             Err(TrySendError::Disconnected(_)) => return Err(End::Gone),
-            Err(TrySendError::Full(back)) => cmd = back,
+            Err(TrySendError::Full(back)) => queued = back,
         }
         if tokio::time::Instant::now() >= deadline {
-            warn!("engine queue full; closing the session");
-            return Err(End::Refused(
-                ErrorCode::TooManyConnections,
-                "server is overloaded".into(),
-            ));
+            return Err(overloaded());
         }
         tokio::time::sleep(ENGINE_RETRY).await;
     }
+}
+
+/// The end of a session that waited out [`ENGINE_WAIT_TIMEOUT`].
+fn overloaded() -> End {
+    warn!("engine queue full; closing the session");
+    End::Refused(ErrorCode::TooManyConnections, "server is overloaded".into())
 }
 
 /// Handles a control message; returns the command the engine must get.
 fn route(
     (session, player): (u64, &str),
     ctx: &SessionContext,
+    share: &SessionShare,
     control: &FrameSender,
     m: ClientMessage,
 ) -> Result<Option<Command>, End> {
@@ -684,11 +712,21 @@ fn route(
         ClientMessage::Edit(request) => {
             let id = request.client_edit_id;
             let received = std::time::Instant::now();
-            if !ctx.engine.try_send(Command::Edit {
+            let edit = Command::Edit {
                 session,
                 request,
                 received,
-            }) {
+            };
+            // At the session's share, as with a full queue: `Busy` at once.
+            let slot = share.try_take();
+            if slot.is_none() {
+                metrics::counter!(crate::metrics::SESSION_QUEUE_FULL).increment(1);
+            }
+            let queued = slot.is_some_and(|slot| {
+                let sent = ctx.engine.offer_queued(Queued::held(edit, slot));
+                sent.is_ok()
+            });
+            if !queued {
                 let msg = ServerMessage::EditRejected {
                     client_edit_id: id,
                     reason: RejectReason::Busy,
@@ -817,24 +855,36 @@ mod tests {
         assert_eq!(dan.spend(10, 1_100), 0, "dan's is new");
     }
 
-    fn leave(session: u64) -> Command {
-        Command::Leave { session }
+    /// A player command, as the sessions queue them.
+    fn resync(session: u64) -> Command {
+        Command::Resync {
+            session,
+            pos: ChunkPos::new(0, 0, 0),
+        }
+    }
+
+    fn resynced(rx: &crate::engine::Inbox, wait: Duration) -> Option<u64> {
+        match rx.recv_timeout(wait) {
+            Ok(Command::Resync { session, .. }) => Some(session),
+            _ => None,
+        }
     }
 
     #[tokio::test]
     async fn deliver_waits_for_room_in_the_engine_queue() {
         let (engine, rx) = crate::engine::inbox_channel(1, 1);
-        assert!(engine.try_send(leave(1)), "the queue has one slot");
+        let share = engine.session_share();
+        assert!(engine.try_send(resync(1)), "the queue has one slot");
         let drain = std::thread::spawn(move || {
             std::thread::sleep(Duration::from_millis(30));
             let mut got = Vec::new();
-            while let Ok(Command::Leave { session }) = rx.recv_timeout(Duration::from_secs(2)) {
+            while let Some(session) = resynced(&rx, Duration::from_secs(2)) {
                 got.push(session);
             }
             got
         });
         let waited = std::time::Instant::now();
-        assert!(deliver(&engine, leave(2), Duration::from_secs(5))
+        assert!(deliver(&engine, &share, resync(2), Duration::from_secs(5))
             .await
             .is_ok());
         assert!(
@@ -848,26 +898,57 @@ mod tests {
     #[tokio::test]
     async fn deliver_gives_up_on_a_stuck_engine_and_notices_a_gone_one() {
         let (engine, rx) = crate::engine::inbox_channel(1, 1);
-        assert!(engine.try_send(leave(1)));
-        match deliver(&engine, leave(2), Duration::from_millis(50)).await {
+        let share = engine.session_share();
+        assert!(engine.try_send(resync(1)));
+        match deliver(&engine, &share, resync(2), Duration::from_millis(50)).await {
             Err(End::Refused(ErrorCode::TooManyConnections, m)) => {
                 assert!(m.contains("overloaded"))
             }
             _ => panic!("expected an overloaded refusal"),
         }
-        assert!(matches!(
-            rx.recv_timeout(Duration::ZERO),
-            Ok(Command::Leave { session: 1 })
-        ));
+        assert_eq!(resynced(&rx, Duration::ZERO), Some(1));
         assert!(
             rx.recv_timeout(Duration::ZERO).is_err(),
             "the refused command was not queued"
         );
+        assert_eq!(share.in_use(), 0, "nor holds its slot");
         drop(rx);
         assert!(matches!(
-            deliver(&engine, leave(3), Duration::from_millis(50)).await,
+            deliver(&engine, &share, resync(3), Duration::from_millis(50)).await,
             Err(End::Gone)
         ));
+    }
+
+    #[tokio::test]
+    async fn a_session_at_its_share_waits_while_others_still_queue() {
+        // Room for 8 in the queue, 2 of them a session's.
+        let (engine, rx) = crate::engine::inbox_channel(8, 8);
+        let engine = engine.with_session_commands(2);
+        let (flooder, honest) = (engine.session_share(), engine.session_share());
+        let patience = Duration::from_millis(50);
+        for _ in 0..2 {
+            assert!(deliver(&engine, &flooder, resync(1), patience)
+                .await
+                .is_ok());
+        }
+        // The flooder's third waits for the engine, though the queue has
+        // room, and gives up when the engine takes nothing.
+        assert!(matches!(
+            deliver(&engine, &flooder, resync(1), patience).await,
+            Err(End::Refused(ErrorCode::TooManyConnections, _))
+        ));
+        // Another session queues meanwhile.
+        assert!(deliver(&engine, &honest, resync(2), patience).await.is_ok());
+        assert_eq!((flooder.in_use(), honest.in_use()), (2, 1));
+        // Once the engine takes one of the flooder's, it may queue one more.
+        assert_eq!(resynced(&rx, Duration::ZERO), Some(1));
+        assert_eq!(flooder.in_use(), 1, "given back when taken");
+        assert!(deliver(&engine, &flooder, resync(1), patience)
+            .await
+            .is_ok());
+        let order: Vec<_> = std::iter::from_fn(|| resynced(&rx, Duration::ZERO)).collect();
+        assert_eq!(order, vec![1, 2, 1]);
+        assert_eq!((flooder.in_use(), honest.in_use()), (0, 0));
     }
 
     #[test]
