@@ -157,6 +157,16 @@ impl DataDir {
             }
             (false, false) => None,
             (true, false) => return Err(half(cert_path, key_path)),
+            // `CertPair::save` writes the key first: a lone key beside no
+            // world is a first start cut short. Nobody pinned a certificate
+            // that was never written, so a new pair replaces it.
+            (false, true) if !has_world => {
+                tracing::warn!(
+                    key = %key_path.display(),
+                    "a key without its certificate (a first start cut short): making a new pair"
+                );
+                None
+            }
             (false, true) => return Err(half(key_path, cert_path)),
         };
         let (secret, secret_is_new) = match existing_secret {

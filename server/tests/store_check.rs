@@ -394,6 +394,9 @@ fn a_broken_delta_chain_is_reported() {
             .unwrap();
     });
     let store = SledStore::open(dir.path()).unwrap();
+    // A checkpoint reports the chunk and counts it skipped, not folded.
+    let folded = store.fold_chunks(&[A]).unwrap();
+    assert_eq!((folded.chunks, folded.skipped), (0, 1), "{folded:?}");
     let issues = store.check().unwrap().issues;
     assert!(
         issues.iter().any(|i| matches!(

@@ -14,7 +14,7 @@
 //! `seq` and holds that entry with the same chunk versions, and every chunk
 //! is stored at that version or later. Run it while the server is stopped.
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 
 use clap::Args;
@@ -110,19 +110,37 @@ pub fn read_ack_log(path: &Path) -> Result<Vec<AckRecord>, VerifyError> {
         source,
     };
     let file = std::fs::File::open(path).map_err(io)?;
+    let mut reader = BufReader::new(file);
     let mut out = Vec::new();
-    for (i, line) in BufReader::new(file).lines().enumerate() {
-        let line = line.map_err(io)?;
-        if line.trim().is_empty() {
-            continue;
+    let mut bytes = Vec::new();
+    for i in 0.. {
+        // Never more than a line's bound in memory, whatever the file holds.
+        bytes.clear();
+        let limit = MAX_ACK_LINE_BYTES as u64 + 2;
+        if (&mut reader)
+            .take(limit)
+            .read_until(b'\n', &mut bytes)
+            .map_err(io)?
+            == 0
+        {
+            break;
         }
-        if line.len() > MAX_ACK_LINE_BYTES {
+        let body = bytes.strip_suffix(b"\n").unwrap_or(&bytes);
+        let body = body.strip_suffix(b"\r").unwrap_or(body);
+        if body.len() > MAX_ACK_LINE_BYTES {
             return Err(VerifyError::Parse {
                 line: i + 1,
                 reason: format!("longer than {MAX_ACK_LINE_BYTES} bytes"),
             });
         }
-        let rec = AckRecord::parse_line(&line).map_err(|e| VerifyError::Parse {
+        let line = std::str::from_utf8(body).map_err(|e| VerifyError::Parse {
+            line: i + 1,
+            reason: format!("not UTF-8: {e}"),
+        })?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let rec = AckRecord::parse_line(line).map_err(|e| VerifyError::Parse {
             line: i + 1,
             reason: e.to_string(),
         })?;
@@ -205,6 +223,30 @@ mod tests {
         assert_eq!(AckRecord::parse_line(&line).unwrap(), rec);
         assert!(AckRecord::parse_line(r#"{"seq":1}"#).is_err());
         assert!(AckRecord::parse_line(r#"{"seq":1,"chunks":[],"extra":2}"#).is_err());
+    }
+
+    #[test]
+    fn an_ack_log_reads_line_by_line_and_refuses_an_overlong_line() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("acks.jsonl");
+        let line = AckRecord::new(3, &[]).to_line();
+        std::fs::write(&path, format!("{line}\r\n\n{line}")).unwrap();
+        assert_eq!(read_ack_log(&path).unwrap().len(), 2);
+        // One line far past the bound, no newline: refused by its length.
+        let mut long = format!("{line}\n").into_bytes();
+        long.resize(long.len() + 4 * MAX_ACK_LINE_BYTES, b'x');
+        std::fs::write(&path, &long).unwrap();
+        match read_ack_log(&path) {
+            Err(VerifyError::Parse { line: 2, reason }) => {
+                assert!(reason.contains("longer than"), "{reason}")
+            }
+            other => panic!("{other:?}"),
+        }
+        std::fs::write(&path, b"\xff\n").unwrap();
+        assert!(matches!(
+            read_ack_log(&path),
+            Err(VerifyError::Parse { line: 1, .. })
+        ));
     }
 
     #[test]

@@ -23,6 +23,9 @@ use crate::store::{CommitBatch, RawChunk};
 pub const DEFAULT_SNAPSHOT_PREIMAGES: usize = 65_536;
 /// Largest bound an admin may ask for.
 pub const MAX_SNAPSHOT_PREIMAGES: usize = 1 << 20;
+/// Bound on one snapshot's pre-image bytes: a count alone lets large
+/// chunks (up to 64 KiB encoded) hold gigabytes while a slow reader runs.
+pub const MAX_SNAPSHOT_PREIMAGE_BYTES: usize = 512 << 20;
 /// Snapshots that may run at once.
 pub const MAX_CONCURRENT_SNAPSHOTS: usize = 2;
 
@@ -43,6 +46,8 @@ pub enum SnapshotRefused {
 #[derive(Debug, Default)]
 struct State {
     map: HashMap<ChunkPos, Option<RawChunk>>,
+    /// Encoded bytes the map holds.
+    bytes: usize,
     aborted: Option<String>,
 }
 
@@ -52,14 +57,21 @@ struct State {
 pub struct PreImages {
     seq: u64,
     limit: usize,
+    /// [`MAX_SNAPSHOT_PREIMAGE_BYTES`], smaller in tests.
+    byte_limit: usize,
     state: Mutex<State>,
 }
 
 impl PreImages {
     pub fn new(seq: u64, limit: usize) -> Self {
+        Self::bounded(seq, limit, MAX_SNAPSHOT_PREIMAGE_BYTES)
+    }
+
+    fn bounded(seq: u64, limit: usize, byte_limit: usize) -> Self {
         Self {
             seq,
             limit,
+            byte_limit,
             state: Mutex::new(State::default()),
         }
     }
@@ -82,6 +94,7 @@ impl PreImages {
     pub fn abort(&self, reason: String) {
         let mut s = self.lock();
         s.map.clear();
+        s.bytes = 0;
         s.aborted.get_or_insert(reason);
     }
 
@@ -96,14 +109,27 @@ impl PreImages {
         if s.aborted.is_some() || s.map.contains_key(&pos) {
             return;
         }
-        if s.map.len() >= self.limit {
-            s.map.clear();
-            s.aborted = Some(format!(
+        let size = before.as_ref().map_or(0, |c| c.encoded.len());
+        let over = if s.map.len() >= self.limit {
+            Some(format!(
                 "more than {} chunks changed while the snapshot ran (raise the pre-image limit)",
                 self.limit
-            ));
+            ))
+        } else if s.bytes.saturating_add(size) > self.byte_limit {
+            Some(format!(
+                "the chunks changed while the snapshot ran took more than {} KiB",
+                self.byte_limit >> 10
+            ))
+        } else {
+            None
+        };
+        if let Some(reason) = over {
+            s.map.clear();
+            s.bytes = 0;
+            s.aborted = Some(reason);
             return;
         }
+        s.bytes += size;
         s.map.insert(pos, before.clone());
     }
 
@@ -322,5 +348,27 @@ mod tests {
         // The first reason stays.
         pre.abort("store read failed".into());
         assert_eq!(pre.aborted(), Some(reason));
+    }
+
+    #[test]
+    fn past_its_byte_bound_a_snapshot_aborts_however_few_chunks_changed() {
+        let pre = PreImages::bounded(1, MAX_SNAPSHOT_PREIMAGES, 1 << 20);
+        let big = |x| {
+            Some(RawChunk {
+                pos: ChunkPos::new(x, 0, 0),
+                version: 1,
+                encoded: vec![0; 64 << 10],
+            })
+        };
+        let fit = 16;
+        for x in 0..fit {
+            pre.record(ChunkPos::new(x, 0, 0), &big(x));
+        }
+        assert!(pre.aborted().is_none());
+        assert_eq!(pre.len(), fit as usize);
+        pre.record(ChunkPos::new(fit, 0, 0), &big(fit));
+        let reason = pre.aborted().expect("aborted");
+        assert!(reason.contains("more than 1024 KiB"), "{reason}");
+        assert!(pre.is_empty());
     }
 }

@@ -236,6 +236,14 @@ impl SledStore {
             return Ok(None);
         }
         let Ok((head, state)) = replay(pos, base, chunk, &deltas)? else {
+            // Folded meanwhile (the record moved), or a chain that does not
+            // start at the record: damage, reported and counted as skipped.
+            if self.chunks.get(key)?.as_ref() == Some(&record) {
+                return Err(StoreError::corrupt(
+                    format!("deltas do not start at the record's version {base}"),
+                    show_pos(pos),
+                ));
+            }
             return Ok(None);
         };
         let value = encode_chunk_value(head, &state);

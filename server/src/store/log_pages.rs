@@ -81,9 +81,14 @@ pub fn record_entries<'a>(key: &[u8], value: &'a [u8]) -> Result<Vec<(u64, &'a [
         let (record, tail) = tail.split_at(len);
         entries.push((seq, record));
         rest = tail;
-        seq += 1;
+        // A damaged key may name the last seq there is: no entry follows it.
+        seq = match seq.checked_add(1) {
+            Some(next) => next,
+            None if rest.is_empty() => break,
+            None => return Err(bad(format!("entries past seq {seq}"))),
+        };
     }
-    if seq != last.wrapping_add(1) {
+    if entries.last().map(|e| e.0) != Some(last) {
         return Err(bad(format!(
             "{} entries for seqs {first}..={last}",
             entries.len()
@@ -117,6 +122,20 @@ mod tests {
         assert_eq!(keys[2], page_key(7, 9));
         assert!(search_key(9).as_slice() >= page_key(7, 9).as_slice());
         assert!(search_key(9).as_slice() < page_key(10, 10).as_slice());
+    }
+
+    #[test]
+    fn a_page_ending_at_the_last_seq_there_is_reads_or_is_refused_without_a_panic() {
+        let two = encode_page(&[b"a".to_vec(), b"b".to_vec()]);
+        let got = record_entries(&page_key(u64::MAX - 1, u64::MAX), &two).unwrap();
+        assert_eq!(got, [(u64::MAX - 1, &b"a"[..]), (u64::MAX, &b"b"[..])]);
+        let three = encode_page(&[b"a".to_vec(), b"b".to_vec(), b"c".to_vec()]);
+        match record_entries(&page_key(u64::MAX - 1, u64::MAX), &three) {
+            Err(BadRecord::Page { reason, .. }) => {
+                assert!(reason.contains("entries past seq"), "{reason}")
+            }
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]
