@@ -17,7 +17,8 @@ use crate::datadir::DataDir;
 use crate::engine::{Engine, EngineHandle, StreamPolicy};
 use crate::health::Health;
 use crate::net::endpoint::Listener;
-use crate::net::session::{RequestBuckets, SessionContext};
+use crate::net::player_buckets::PlayerBuckets;
+use crate::net::session::SessionContext;
 use crate::sequencer::Sequencer;
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
 use crate::store::{Checkpointer, ChunkStore, WorldMeta, STORE_FORMAT_VERSION};
@@ -218,7 +219,9 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         control_writer_queue: cfg.net.control_writer_queue,
         send_interval: cfg.net.send_interval(),
         request_rate: cfg.validation.request_rate,
-        request_buckets: RequestBuckets::new(cfg.server.max_connections as usize),
+        request_buckets: PlayerBuckets::new(cfg.server.max_connections as usize),
+        join_rate: cfg.validation.join_rate,
+        join_buckets: PlayerBuckets::new(cfg.server.max_connections as usize),
         position_rate: cfg.validation.position_rate,
         access: std::sync::RwLock::new(access),
         access_writes: tokio::sync::Mutex::new(()),

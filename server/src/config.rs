@@ -611,6 +611,7 @@ impl ServerConfig {
             ("validation.volume_rate.capacity", v.volume_rate),
             ("validation.reject_rate.capacity", v.reject_rate),
             ("validation.placement_rate.capacity", v.placement_rate),
+            ("validation.join_rate.capacity", v.join_rate),
         ] {
             range(field, bucket.capacity, 1, u64::MAX)?;
         }
@@ -685,6 +686,10 @@ impl ServerConfig {
             (
                 "engine.snapshot_cache_entries",
                 self.engine.snapshot_cache_entries,
+            ),
+            (
+                "engine.full_frame_cache_entries",
+                self.engine.full_frame_cache_entries,
             ),
         ] {
             range(name, value, 1, crate::engine::MAX_ENGINE_CACHE)?;

@@ -120,7 +120,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(SESSIONS_TOTAL, "Sessions that joined the world");
     metrics::describe_counter!(
         CONNECTIONS_REFUSED,
-        "Connections turned away, by reason (handshakes, per_address, sessions, admin_sessions)"
+        "Connections turned away, by reason (handshakes, per_address, sessions, admin_sessions, join_rate)"
     );
     metrics::describe_counter!(
         CONNECTIONS_RETRIED,
@@ -132,7 +132,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_counter!(
         REQUESTS_THROTTLED,
-        "Requests (subscriptions, resyncs, forgets, snapshots, tickets, pings, edits) that waited for their player's [validation.request_rate] tokens"
+        "Requests (subscriptions, resyncs, forgets, snapshots, tickets, pings, edits, a session's first view) that waited for their player's [validation.request_rate] tokens"
     );
     metrics::describe_counter!(
         SESSION_QUEUE_FULL,
@@ -208,7 +208,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_counter!(
         SNAPSHOT_CACHE,
-        "Snapshot-frame cache lookups by outcome (hit, miss) and entries cleared when it filled"
+        "Snapshot-frame cache lookups by outcome (hit, miss), and frames evicted from a full cache: evicted (the shared frames), evicted_requested (whole frames kept for clients that ask for them)"
     );
     metrics::describe_counter!(
         SNAPSHOT_FRAMES_BUILT,

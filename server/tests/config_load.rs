@@ -214,6 +214,10 @@ fn bad_values_name_their_field() {
             "[validation.placement_rate]\ncapacity = 0\nper_second = 1",
             "validation.placement_rate.capacity",
         ),
+        (
+            "[validation.join_rate]\ncapacity = 0\nper_second = 1",
+            "validation.join_rate.capacity",
+        ),
         ("[tls]\nextra_names = [\"bad name!\"]", "tls.extra_names"),
         ("[tls]\nextra_names = [\"\"]", "tls.extra_names"),
         (
@@ -285,6 +289,10 @@ fn bad_values_name_their_field() {
         (
             "[engine]\nsnapshot_cache_entries = 0",
             "engine.snapshot_cache_entries",
+        ),
+        (
+            "[engine]\nfull_frame_cache_entries = 0",
+            "engine.full_frame_cache_entries",
         ),
         (
             "[net]\ncontrol_writer_queue = 0",

@@ -124,7 +124,11 @@ async fn the_cap_counts_sessions_and_admins_have_their_own_room() {
 async fn a_new_login_replaces_the_old_session_unless_more_are_allowed() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        let server = start(dir.path()).await;
+        // Logins past the player's join rate are refused (`net_rejoin.rs`);
+        // room here for every one.
+        let mut cfg = test_config(dir.path());
+        cfg.validation.join_rate.capacity = 64;
+        let server = app::start(cfg).await.unwrap();
         let shared = token(&server, "ana", Role::Player);
         let first = Client::connect(server.addr, &server.cert_der, &shared)
             .await

@@ -91,6 +91,36 @@ fn the_spawn_area_is_configurable_and_reconnects_resume() {
 }
 
 #[test]
+fn sessions_are_indexed_by_player_and_resume_from_their_own() {
+    let mut s = sequencer(SequencerConfig::default(), ValidationConfig::default());
+    s.session_joined(1, "p".into(), Role::Player);
+    s.session_joined(2, "q".into(), Role::Player);
+    s.session_joined(3, "p".into(), Role::Player);
+    assert_eq!(s.sessions_of("p"), [1, 3]);
+    assert_eq!(s.sessions_of("q"), [2]);
+    // An id joined again under another player moves to it.
+    s.session_joined(3, "q".into(), Role::Player);
+    assert_eq!(
+        (s.sessions_of("p"), s.sessions_of("q")),
+        (&[1][..], &[2, 3][..])
+    );
+    s.session_left(1);
+    assert!(s.sessions_of("p").is_empty());
+    // Another player's position is no one else's to resume from.
+    s.update_position(2, at(1, 100, 0, 100), 0).unwrap();
+    s.session_joined(4, "p".into(), Role::Player);
+    assert_eq!(s.resume_position(4, 10), SpawnArea::default().start());
+    s.update_position(4, at(1, 50, 0, 50), 0).unwrap();
+    s.session_joined(5, "p".into(), Role::Player);
+    let feet = FixedVec3::from_voxels(50, 0, 50);
+    assert_eq!(s.resume_position(5, 10), Start::Resume { feet });
+    for id in 2..=5 {
+        s.session_left(id);
+    }
+    assert!(s.sessions_of("p").is_empty() && s.sessions_of("q").is_empty());
+}
+
+#[test]
 fn speed_limit_with_slack() {
     let mut s = fresh();
     s.update_position(PLAYER, at(1, 0, 0, 0), 0).unwrap();

@@ -9,7 +9,7 @@ use super::premesh::{
 };
 use super::residency::DEFAULT_RESIDENT_CHUNKS;
 use super::session_share::DEFAULT_SESSION_COMMANDS;
-use super::{snapshot, stream};
+use super::{frame_cache, snapshot, stream};
 
 /// Default tick period.
 pub const DEFAULT_TICK_MS: u64 = 10;
@@ -77,8 +77,12 @@ pub struct EngineConfig {
     /// ([`stream::DEFAULT_PATCH_BASE_CHUNKS`]).
     pub patch_base_chunks: usize,
     /// Encoded snapshot frames kept for reuse
-    /// ([`stream::DEFAULT_SNAPSHOT_CACHE_ENTRIES`]).
+    /// ([`frame_cache::DEFAULT_SNAPSHOT_CACHE_ENTRIES`]).
     pub snapshot_cache_entries: usize,
+    /// Whole-chunk frames kept, apart from those, for the clients that ask
+    /// for whole chunks in a world clients regenerate
+    /// ([`frame_cache::DEFAULT_FULL_FRAME_CACHE_ENTRIES`]).
+    pub full_frame_cache_entries: usize,
     /// Chunks held in memory before cold ones are dropped ([`DEFAULT_RESIDENT_CHUNKS`]).
     pub resident_chunks: usize,
     /// Pre-images one online snapshot may hold when its request names no
@@ -104,7 +108,8 @@ impl Default for EngineConfig {
             premesh_generated_chunks: premesh::DEFAULT_PREMESH_GENERATED_CHUNKS,
             premesh_threads: DEFAULT_PREMESH_THREADS,
             patch_base_chunks: stream::DEFAULT_PATCH_BASE_CHUNKS,
-            snapshot_cache_entries: stream::DEFAULT_SNAPSHOT_CACHE_ENTRIES,
+            snapshot_cache_entries: frame_cache::DEFAULT_SNAPSHOT_CACHE_ENTRIES,
+            full_frame_cache_entries: frame_cache::DEFAULT_FULL_FRAME_CACHE_ENTRIES,
             resident_chunks: DEFAULT_RESIDENT_CHUNKS,
             snapshot_preimages: snapshot::DEFAULT_SNAPSHOT_PREIMAGES,
             workers: 0,

@@ -14,6 +14,7 @@ mod commit;
 mod config;
 mod dispatch;
 mod fanout;
+mod frame_cache;
 mod generated;
 mod holders;
 mod inbox;
@@ -40,6 +41,7 @@ pub use config::{
     SLOW_TICK_PERIODS,
 };
 pub use fanout::encode_control as fanout_control;
+pub use frame_cache::{DEFAULT_FULL_FRAME_CACHE_ENTRIES, DEFAULT_SNAPSHOT_CACHE_ENTRIES};
 pub use inbox::{channel as inbox_channel, EngineHandle, Inbox, Queued};
 pub use latest::LatestPosition;
 pub use ownership::RELOAD_RETRY;
@@ -49,7 +51,7 @@ pub use premesh::{
 };
 pub use residency::{DEFAULT_RESIDENT_CHUNKS, MIN_RESIDENT_CHUNKS};
 pub use session_share::{QueueSlot, SessionShare, DEFAULT_SESSION_COMMANDS};
-pub use stream::{DEFAULT_PATCH_BASE_CHUNKS, DEFAULT_SNAPSHOT_CACHE_ENTRIES};
+pub use stream::DEFAULT_PATCH_BASE_CHUNKS;
 pub(crate) use tick::Applied;
 pub use tick::MAX_CHAINED_COMMITS;
 
@@ -88,7 +90,7 @@ pub struct Engine {
     holders: holders::Holders,
     /// Durable version of every modified chunk (absent = version 0).
     versions: HashMap<ChunkPos, u64>,
-    snapshots: stream::SnapshotCache,
+    snapshots: frame_cache::SnapshotCache,
     /// The session last streamed to; the next tick starts after it.
     stream_cursor: u64,
     patch_bases: generated::GeneratedCache,
@@ -171,7 +173,11 @@ impl Engine {
             peers: HashMap::new(),
             holders: Default::default(),
             versions,
-            snapshots: stream::SnapshotCache::new(cfg.snapshot_cache_entries),
+            snapshots: frame_cache::SnapshotCache::new(
+                cfg.snapshot_cache_entries,
+                cfg.full_frame_cache_entries,
+                stream.regenerable,
+            ),
             stream_cursor: 0,
             patch_bases: generated::GeneratedCache::new(
                 cfg.patch_base_chunks,
@@ -308,12 +314,14 @@ impl Engine {
         }
     }
 
-    /// Live sessions of `player`.
+    /// Live sessions of `player` (the sequencer's index: no scan of
+    /// every session).
     fn sessions_of(&self, player: &str) -> Vec<u64> {
-        self.peers
-            .keys()
+        self.seq
+            .sessions_of(player)
+            .iter()
             .copied()
-            .filter(|&id| self.seq.session(id).is_some_and(|s| s.player == player))
+            .filter(|id| self.peers.contains_key(id))
             .collect()
     }
 

@@ -22,7 +22,8 @@ use strata_terrain::{Chunk, ChunkPos};
 use tracing::error;
 
 use super::fanout::encode_update;
-use super::stream::{frame_update, FrameKey};
+use super::frame_cache::FrameKey;
+use super::stream::frame_update;
 use super::Engine;
 use crate::metrics as m;
 use crate::sequencer::residency::with_neighbours;
@@ -200,7 +201,8 @@ impl Engine {
             pool.install(|| due.par_iter().filter_map(build).collect());
         metrics::counter!(m::SNAPSHOT_FRAMES_BUILT, "on" => "workers")
             .increment(built.len() as u64);
-        self.snapshots.make_room(built.len());
+        self.snapshots
+            .make_room(built.iter().map(|(key, _, _)| key));
         for (key, update, frame) in built {
             self.snapshots.put(key, update, frame);
         }

@@ -4,7 +4,6 @@
 //! regenerate as a patch: a delta from its generated form, usually tens of
 //! times smaller than the chunk.
 
-use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 use bytes::{Bytes, BytesMut};
@@ -16,6 +15,7 @@ use strata_terrain::{Chunk, ChunkPos};
 use tracing::error;
 
 use super::fanout::encode_update;
+use super::frame_cache::FrameKey;
 use super::Engine;
 use crate::metrics as m;
 use crate::net::writer::SendRefused;
@@ -23,96 +23,6 @@ use crate::net::writer::SendRefused;
 /// Default generated chunks kept as patch bases (at most 64 KiB each;
 /// `[engine] patch_base_chunks`).
 pub const DEFAULT_PATCH_BASE_CHUNKS: usize = 2048;
-
-/// Default encoded snapshots kept for reuse (`[engine]
-/// snapshot_cache_entries`): many sessions near one spot ask for the same
-/// chunks.
-pub const DEFAULT_SNAPSHOT_CACHE_ENTRIES: usize = 8192;
-
-/// A frame's cache key: the chunk, its version, and whether it goes whole
-/// (else as a patch against the generated chunk).
-pub type FrameKey = (ChunkPos, u64, bool);
-
-/// An encoded snapshot or patch and the update it encodes.
-#[derive(Debug)]
-struct Cached {
-    update: WorldUpdate,
-    frame: Bytes,
-}
-
-/// Snapshot frames by (chunk, version, full data rather than a patch).
-///
-/// A frame carries its chunk's mesh hash, which also depends on the
-/// neighbours, so a hit is reused only if that hash is still current; else
-/// only the (small) frame is re-encoded, not the chunk or the patch.
-/// Full, it starts over empty.
-#[derive(Debug)]
-pub struct SnapshotCache {
-    capacity: usize,
-    frames: HashMap<FrameKey, Cached>,
-}
-
-/// The mesh hash a snapshot or patch carries.
-fn mesh_hash_of(u: &mut WorldUpdate) -> Option<&mut u64> {
-    match u {
-        WorldUpdate::Snapshot { mesh_hash, .. } | WorldUpdate::Patched { mesh_hash, .. } => {
-            Some(mesh_hash)
-        }
-        _ => None,
-    }
-}
-
-impl SnapshotCache {
-    /// A cache of at most `capacity` frames (at least one).
-    pub fn new(capacity: usize) -> Self {
-        Self {
-            capacity: capacity.max(1),
-            frames: HashMap::new(),
-        }
-    }
-
-    /// The cached frame, re-encoded first if `mesh_hash` changed.
-    fn get(&mut self, key: FrameKey, mesh_hash: u64) -> Option<Bytes> {
-        let Some(c) = self.frames.get_mut(&key) else {
-            // Not counted: a miss is counted once, when its frame is
-            // planned or built (a frame may wait for several ticks).
-            return None;
-        };
-        metrics::counter!(m::SNAPSHOT_CACHE, "outcome" => "hit").increment(1);
-        let held = mesh_hash_of(&mut c.update)?;
-        if *held != mesh_hash {
-            *held = mesh_hash;
-            c.frame = encode_update(&c.update);
-        }
-        Some(c.frame.clone())
-    }
-
-    /// Whether a frame for `key` is cached (its mesh hash may be stale).
-    pub fn has(&self, key: FrameKey) -> bool {
-        self.frames.contains_key(&key)
-    }
-
-    pub fn put(&mut self, key: FrameKey, update: WorldUpdate, frame: Bytes) {
-        if self.frames.len() >= self.capacity {
-            self.clear();
-        }
-        self.frames.insert(key, Cached { update, frame });
-    }
-
-    /// Starts over empty unless `n` more frames fit: frames built for this
-    /// tick are not dropped by their own puts.
-    pub fn make_room(&mut self, n: usize) {
-        if self.frames.len() + n > self.capacity {
-            self.clear();
-        }
-    }
-
-    fn clear(&mut self) {
-        metrics::counter!(m::SNAPSHOT_CACHE, "outcome" => "cleared")
-            .increment(self.frames.len() as u64);
-        self.frames.clear();
-    }
-}
 
 /// The update that brings a client to `chunk` at `version`: the whole
 /// chunk, or, given its generated form `base`, a patch against that.
@@ -359,44 +269,5 @@ impl Engine {
         // mesh) as any; end-of-run checks ask many sessions for the same ones.
         self.snapshots.put(key, update, frame.clone());
         Ok(Ok((frame, version, kind)))
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use strata_terrain::delta::ChunkDelta;
-    use strata_terrain::{Chunk, Voxel};
-
-    fn patched(pos: ChunkPos, mesh_hash: u64) -> WorldUpdate {
-        let at = |d: u8| Chunk::Uniform(Voxel::new(d, 1));
-        let delta = ChunkDelta::encode(pos, 0, 1, &at(0), &at(9)).unwrap();
-        WorldUpdate::Patched { delta, mesh_hash }
-    }
-
-    #[test]
-    fn holds_at_most_its_capacity_and_refreshes_the_mesh_hash() {
-        let mut cache = SnapshotCache::new(2);
-        let key = |x: i32| (ChunkPos::new(x, 0, 0), 1, false);
-        for x in 0..2 {
-            let u = patched(key(x).0, 7);
-            let frame = encode_update(&u);
-            cache.put(key(x), u, frame);
-        }
-        assert_eq!(
-            cache.get(key(0), 7),
-            Some(encode_update(&patched(key(0).0, 7)))
-        );
-        // A changed neighbour changed the mesh hash: only the frame is redone.
-        assert_eq!(
-            cache.get(key(0), 8),
-            Some(encode_update(&patched(key(0).0, 8)))
-        );
-        assert_eq!(cache.get(key(5), 7), None);
-        let u = patched(key(2).0, 7);
-        let frame = encode_update(&u);
-        cache.put(key(2), u, frame);
-        assert!(cache.frames.len() <= 2, "{} frames", cache.frames.len());
-        assert!(cache.get(key(2), 7).is_some(), "the newest is kept");
     }
 }

@@ -5,6 +5,7 @@ pub mod admin_session;
 pub mod admin_zones;
 pub mod admission;
 pub mod endpoint;
+pub mod player_buckets;
 pub mod session;
 pub mod transport_stats;
 pub mod writer;

@@ -1,7 +1,6 @@
 //! One connection: handshake (Hello, token, version), then a loop that
 //! routes control messages and position datagrams to the engine.
 
-use std::collections::HashMap;
 use std::sync::mpsc::TrySendError;
 use std::sync::Arc;
 use std::time::Duration;
@@ -17,6 +16,7 @@ use tokio::sync::oneshot;
 use tracing::{debug, info, warn, Instrument};
 
 use super::admission::Handshake;
+use super::player_buckets::{BucketHold, PlayerBuckets};
 use super::writer::{spawn_writer, FrameSender, SendRefused};
 use crate::auth::{self, AuthError, Secret};
 use crate::engine::{
@@ -55,7 +55,12 @@ pub struct SessionContext {
     /// chunks; see [`request_cost`]).
     pub request_rate: BucketConfig,
     /// The players' request buckets, kept across their sessions.
-    pub request_buckets: RequestBuckets,
+    pub request_buckets: PlayerBuckets,
+    /// Each player's bucket of logins (`[validation.join_rate]`), taken
+    /// before its Join reaches the engine.
+    pub join_rate: BucketConfig,
+    /// The players' login buckets, kept across their sessions.
+    pub join_buckets: PlayerBuckets,
     /// Each session's bucket of position reports (`[validation.position_rate]`).
     pub position_rate: BucketConfig,
     /// Bans and revocations, checked at every Hello; admin sessions change
@@ -75,116 +80,6 @@ impl SessionContext {
     pub fn admitted(&self, claims: &auth::Claims) -> Result<(), auth::Denied> {
         let list = self.access.read().unwrap_or_else(|e| e.into_inner());
         list.check(claims, auth::unix_now())
-    }
-}
-
-/// Each player's request bucket, shared by its sessions and kept after
-/// they end until it is full again, so reconnecting gives no fresh budget.
-/// Holds at most `max_players` (the session limit: every player with a
-/// session fits, and idle ones make room).
-#[derive(Debug)]
-pub struct RequestBuckets {
-    max_players: usize,
-    players: std::sync::Mutex<HashMap<String, PlayerRequests>>,
-}
-
-#[derive(Debug)]
-struct PlayerRequests {
-    bucket: TokenBucket,
-    /// Sessions of the player holding the bucket.
-    sessions: u32,
-}
-
-impl RequestBuckets {
-    pub fn new(max_players: usize) -> Self {
-        Self {
-            max_players: max_players.max(1),
-            players: Default::default(),
-        }
-    }
-
-    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, PlayerRequests>> {
-        self.players.lock().unwrap_or_else(|e| e.into_inner())
-    }
-
-    /// A session of `player` starts: it draws on the player's bucket (a
-    /// new, full one if there is none) until the returned hold drops.
-    pub fn hold<'a>(&'a self, player: &str, cfg: BucketConfig, now_ms: u64) -> RequestHold<'a> {
-        let mut players = self.lock();
-        if !players.contains_key(player) && players.len() >= self.max_players {
-            // Forget the buckets nobody holds that have refilled.
-            players.retain(|_, p| {
-                p.bucket.refill(now_ms);
-                p.sessions > 0 || p.bucket.available() < p.bucket.capacity()
-            });
-            if players.len() >= self.max_players {
-                // Still full of recently spent ones: the fullest idle one goes.
-                let idle = players
-                    .iter()
-                    .filter(|(_, p)| p.sessions == 0)
-                    .max_by_key(|(_, p)| p.bucket.available())
-                    .map(|(name, _)| name.clone());
-                if let Some(name) = idle {
-                    players.remove(&name);
-                }
-            }
-        }
-        players
-            .entry(player.to_string())
-            .or_insert_with(|| PlayerRequests {
-                bucket: TokenBucket::new(cfg, now_ms),
-                sessions: 0,
-            })
-            .sessions += 1;
-        RequestHold {
-            buckets: self,
-            player: player.to_string(),
-            cfg,
-        }
-    }
-
-    /// Players whose request buckets are kept.
-    pub fn tracked_players(&self) -> usize {
-        self.lock().len()
-    }
-}
-
-/// A session's claim on its player's request bucket; released on drop.
-#[derive(Debug)]
-pub struct RequestHold<'a> {
-    buckets: &'a RequestBuckets,
-    player: String,
-    cfg: BucketConfig,
-}
-
-impl RequestHold<'_> {
-    /// Takes `cost` tokens (at most the capacity) and returns 0, or
-    /// returns how many milliseconds until they are there and takes none.
-    pub fn spend(&self, cost: u64, now_ms: u64) -> u64 {
-        let mut players = self.buckets.lock();
-        let p = players
-            .entry(self.player.clone())
-            .or_insert_with(|| PlayerRequests {
-                bucket: TokenBucket::new(self.cfg, now_ms),
-                sessions: 1,
-            });
-        let cost = cost.min(p.bucket.capacity());
-        p.bucket.refill(now_ms);
-        match p.bucket.wait_ms(cost) {
-            Some(0) | None => {
-                p.bucket.take(cost);
-                0
-            }
-            Some(ms) => ms,
-        }
-    }
-}
-
-impl Drop for RequestHold<'_> {
-    fn drop(&mut self) {
-        if let Some(p) = self.buckets.lock().get_mut(&self.player) {
-            p.sessions = p.sessions.saturating_sub(1);
-        }
     }
 }
 
@@ -347,6 +242,16 @@ async fn joined(
     claims: auth::Claims,
     capabilities: u32,
 ) {
+    // Cheap first: a player past its logins never reaches the engine (a
+    // Join ends the player's older session and, resumed, its first
+    // position re-centres a whole view).
+    let _joins = match join_allowed(&ctx, &claims.player) {
+        Ok(hold) => hold,
+        Err(message) => {
+            let code = ErrorCode::TooManyConnections;
+            return refuse(&conn, control, control_task, code, &message).await;
+        }
+    };
     // A client that grants no stream credit would hold its session slot
     // forever: the updates stream must open within the handshake's time.
     let uni = match tokio::time::timeout_at(deadline, conn.open_uni()).await {
@@ -448,6 +353,29 @@ enum End {
 
 /// Refused tokens, logged at most once a second (anyone can send them).
 static TOKEN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
+/// Logins refused for their rate, logged likewise.
+static JOIN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
+
+/// Takes one of `player`'s login tokens (`[validation.join_rate]`) and
+/// holds its bucket for the session; none left: the reason to refuse.
+fn join_allowed<'a>(ctx: &'a SessionContext, player: &str) -> Result<BucketHold<'a>, String> {
+    let hold = ctx.join_buckets.hold(player, ctx.join_rate, now_ms());
+    let wait = match hold.try_take(1, now_ms()) {
+        Ok(()) => return Ok(hold),
+        Err(wait) => wait,
+    };
+    metrics::counter!(crate::metrics::CONNECTIONS_REFUSED, "reason" => "join_rate").increment(1);
+    if let Some(refused) = JOIN_REFUSALS.event() {
+        warn!(%player, refused, "refusing logins past [validation.join_rate]");
+    }
+    Err(match wait {
+        Some(ms) => format!(
+            "this player logs in too often; try again in {} s",
+            ms.div_ceil(1000)
+        ),
+        None => "this player logs in too often; no more logins".into(),
+    })
+}
 
 /// Verifies a Hello's token; a refusal comes with its error code.
 pub(super) fn check_token(
@@ -495,11 +423,20 @@ async fn serve(
     // A request waiting for tokens, and when they are there: the control
     // stream is not read meanwhile (positions, kicks and shutdown still are).
     let mut throttled: Option<(ClientMessage, tokio::time::Instant)> = None;
+    let mut view = FirstView::Unpaid;
+    let view_cost = view_cost(ctx.view_radius);
     loop {
         let wake = throttled
             .as_ref()
             .map_or_else(tokio::time::Instant::now, |(_, at)| *at);
+        let view_wake = view.wake();
         let (m, waited) = tokio::select! {
+            _ = tokio::time::sleep_until(view_wake), if view.is_waiting() => {
+                if view.charge(&requests, view_cost, true) {
+                    queue_position(session, &ctx.engine, latest, &mut positions);
+                }
+                continue;
+            }
             _ = tokio::time::sleep_until(wake), if throttled.is_some() => {
                 match throttled.take() {
                     Some((m, _)) => (m, true),
@@ -517,7 +454,11 @@ async fn serve(
             },
             dg = conn.read_datagram() => {
                 match dg {
-                    Ok(bytes) => position(session, &ctx.engine, latest, &mut positions, bytes),
+                    Ok(bytes) => {
+                        if offer_position(latest, &bytes) && view.charge(&requests, view_cost, false) {
+                            queue_position(session, &ctx.engine, latest, &mut positions);
+                        }
+                    }
                     Err(e) => {
                         debug!(error = %e, "connection ended");
                         return End::Gone;
@@ -564,16 +505,67 @@ pub fn request_cost(m: &ClientMessage, view_radius: u8) -> u64 {
     match m {
         ClientMessage::Hello(_) => 0,
         ClientMessage::Edit(_) => EDIT_COST,
-        ClientMessage::Subscribe { radius, .. } => {
-            let side = 2 * u64::from((*radius).min(view_radius)) + 1;
-            side * side * side
-        }
+        ClientMessage::Subscribe { radius, .. } => view_cost((*radius).min(view_radius)),
         // Even an empty list is a command the engine serves.
         ClientMessage::Forget { chunks } => (chunks.len() as u64).max(1),
         ClientMessage::ResyncRequest { .. }
         | ClientMessage::FullSnapshotRequest { .. }
         | ClientMessage::Arrive(_) => RESEND_COST,
         ClientMessage::Ping { .. } => 1,
+    }
+}
+
+/// The chunks of a view of `radius`: (2r+1)^3.
+pub fn view_cost(radius: u8) -> u64 {
+    let side = 2 * u64::from(radius) + 1;
+    side * side * side
+}
+
+/// Whether a session's first view is paid for. Its first position report
+/// re-centres it on a whole view, so that report costs the player's
+/// request bucket what a `Subscribe` of the view would ([`view_cost`]),
+/// once a session (a reconnect gets no free view). Without the tokens the
+/// report waits, unread by the engine, the newest one kept.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FirstView {
+    Unpaid,
+    /// Tokens are due then.
+    Waiting(tokio::time::Instant),
+    Paid,
+}
+
+impl FirstView {
+    fn is_waiting(&self) -> bool {
+        matches!(self, FirstView::Waiting(_))
+    }
+
+    /// When the tokens are due (now when nothing waits).
+    fn wake(&self) -> tokio::time::Instant {
+        match self {
+            FirstView::Waiting(at) => *at,
+            _ => tokio::time::Instant::now(),
+        }
+    }
+
+    /// Whether a report may go to the engine now: the first one takes
+    /// `cost` tokens, or waits for them (`due`: the wait is over, try
+    /// again). The wait is counted once, as a throttled request.
+    fn charge(&mut self, requests: &BucketHold<'_>, cost: u64, due: bool) -> bool {
+        match self {
+            FirstView::Paid => return true,
+            FirstView::Waiting(_) if !due => return false,
+            _ => {}
+        }
+        let ms = requests.spend(cost, now_ms());
+        if ms == 0 {
+            *self = FirstView::Paid;
+            return true;
+        }
+        if *self == FirstView::Unpaid {
+            metrics::counter!(crate::metrics::REQUESTS_THROTTLED).increment(1);
+        }
+        *self = FirstView::Waiting(tokio::time::Instant::now() + Duration::from_millis(ms));
+        false
     }
 }
 
@@ -604,24 +596,28 @@ fn reply(control: &FrameSender, msg: &ServerMessage) -> Result<(), End> {
 }
 
 /// Datagrams are unreliable and the next one supersedes this one: it
-/// replaces the session's pending update, and only an update into an empty
-/// slot queues a command, which takes one of `tokens`. A bad one is
-/// dropped, and one that would queue a command with no token left or into
-/// a full engine queue is dropped and counted.
-fn position(
+/// replaces the session's pending update (a bad one is dropped). True when
+/// the slot was empty: then a command must be queued for it
+/// ([`queue_position`]), unless the update waits ([`FirstView`]).
+fn offer_position(latest: &LatestPosition, bytes: &Bytes) -> bool {
+    match decode::<PositionUpdate>(bytes, Direction::ClientToServer) {
+        Ok(update) => latest.offer(update),
+        Err(e) => {
+            debug!(error = %e, "bad position datagram");
+            false
+        }
+    }
+}
+
+/// Queues the command for the pending update, taking one of `tokens`;
+/// with no token left or a full engine queue, the update is dropped and
+/// counted.
+fn queue_position(
     session: u64,
     engine: &EngineHandle,
     latest: &LatestPosition,
     tokens: &mut TokenBucket,
-    bytes: Bytes,
 ) {
-    let update = match decode::<PositionUpdate>(&bytes, Direction::ClientToServer) {
-        Ok(update) => update,
-        Err(e) => return debug!(error = %e, "bad position datagram"),
-    };
-    if !latest.offer(update) {
-        return;
-    }
     // The slot was empty, so no command names it: clearing it is safe.
     tokens.refill(now_ms());
     let why = if !tokens.take(1) {
@@ -821,38 +817,26 @@ mod tests {
     }
 
     #[test]
-    fn a_players_request_bucket_outlives_its_sessions_within_the_bound() {
-        // Ten tokens, one every 100 ms.
+    fn a_sessions_first_view_costs_its_view_once_and_waits_for_the_tokens() {
+        // One view (radius 2) of tokens, one token a second.
         let cfg = BucketConfig {
-            capacity: 10,
-            per_second: 10,
+            capacity: 125,
+            per_second: 1,
         };
-        let buckets = RequestBuckets::new(2);
-        let first = buckets.hold("ann", cfg, 0);
-        assert_eq!(first.spend(10, 0), 0);
-        drop(first);
-        // A reconnect continues from the drained bucket, and a second
-        // session of the player shares it.
-        let again = buckets.hold("ann", cfg, 0);
-        let other = buckets.hold("ann", cfg, 0);
-        assert_eq!(again.spend(1, 0), 100);
-        assert_eq!(other.spend(1, 50), 50);
-        // A cost above the capacity waits for a full bucket, not forever.
-        assert_eq!(other.spend(1_000, 100), 900);
-        drop((again, other));
-        let bob = buckets.hold("bob", cfg, 100);
-        assert_eq!(buckets.tracked_players(), 2);
-        // At the bound, a new player's bucket replaces a full idle one...
-        let carl = buckets.hold("carl", cfg, 1_100);
-        assert_eq!(buckets.tracked_players(), 2);
-        assert_eq!(bob.spend(10, 1_100), 0);
-        assert_eq!(carl.spend(10, 1_100), 0);
-        drop(carl);
-        // ...or, with none full, the fullest idle one: never a held one.
-        let dan = buckets.hold("dan", cfg, 1_100);
-        assert_eq!(buckets.tracked_players(), 2);
-        assert_eq!(bob.spend(1, 1_100), 100, "bob's bucket was kept");
-        assert_eq!(dan.spend(10, 1_100), 0, "dan's is new");
+        let buckets = PlayerBuckets::new(1);
+        let hold = buckets.hold("ann", cfg, now_ms());
+        let mut first = FirstView::Unpaid;
+        assert!(first.charge(&hold, view_cost(2), false));
+        assert!(first.charge(&hold, view_cost(2), false), "once a session");
+        assert_eq!(first, FirstView::Paid);
+        // A reconnect's first view finds the bucket spent: it waits.
+        let mut again = FirstView::Unpaid;
+        assert!(!again.charge(&hold, view_cost(2), false));
+        assert!(again.is_waiting());
+        assert!(again.wake() > tokio::time::Instant::now());
+        assert!(!again.charge(&hold, view_cost(2), false), "not before due");
+        assert!(!again.charge(&hold, view_cost(2), true), "still short");
+        assert!(again.is_waiting());
     }
 
     /// A player command, as the sessions queue them.
@@ -951,6 +935,18 @@ mod tests {
         assert_eq!((flooder.in_use(), honest.in_use()), (0, 0));
     }
 
+    /// A datagram of session 7, its first view paid.
+    fn position(
+        engine: &EngineHandle,
+        latest: &LatestPosition,
+        tokens: &mut TokenBucket,
+        bytes: Bytes,
+    ) {
+        if offer_position(latest, &bytes) {
+            queue_position(7, engine, latest, tokens);
+        }
+    }
+
     #[test]
     fn a_position_flood_queues_one_command_per_session_and_keeps_the_newest() {
         let (engine, rx) = crate::engine::inbox_channel(8, 8);
@@ -967,7 +963,7 @@ mod tests {
                 pos: strata_terrain::edit::FixedVec3::from_voxels(seq as i32 * 1000, 40, 0),
             };
             let bytes = strata_protocol::encode(&update, Direction::ClientToServer).unwrap();
-            position(7, &engine, &latest, &mut tokens, Bytes::from(bytes));
+            position(&engine, &latest, &mut tokens, Bytes::from(bytes));
         }
         let next = || rx.recv_timeout(Duration::ZERO);
         assert!(matches!(next(), Ok(Command::Position { session: 7 })));
@@ -981,7 +977,7 @@ mod tests {
                 pos: strata_terrain::edit::FixedVec3::from_voxels(0, 40, 0),
             };
             let bytes = strata_protocol::encode(&update, Direction::ClientToServer).unwrap();
-            position(7, &engine, &latest, &mut tokens, Bytes::from(bytes));
+            position(&engine, &latest, &mut tokens, Bytes::from(bytes));
         };
         again(10_001);
         assert!(matches!(next(), Ok(Command::Position { session: 7 })));

@@ -72,6 +72,9 @@ pub struct Sequencer {
     structures: StructureLibrary,
     zones: Vec<Zone>,
     sessions: HashMap<u64, Session>,
+    /// Live sessions by player (`sessions`' ids, indexed), so a join or a
+    /// ticket looks at the player's sessions, not at everyone's.
+    by_player: HashMap<String, Vec<u64>>,
     limits: HashMap<String, PlayerLimits>,
     queue: VecDeque<Queued>,
     /// Edits that passed every rule but line of sight, for
@@ -114,6 +117,7 @@ impl Sequencer {
             structures,
             zones,
             sessions: HashMap::new(),
+            by_player: HashMap::new(),
             limits: HashMap::new(),
             queue: VecDeque::new(),
             sighting: Vec::new(),
@@ -481,12 +485,17 @@ impl Sequencer {
 
     pub fn session_joined(&mut self, session_id: u64, player: String, role: Role) {
         if let Some(old) = self.sessions.remove(&session_id) {
+            self.unindex(&old.player, session_id);
             self.release_limits(&old.player);
         }
         self.limits
             .entry(player.clone())
             .or_insert_with(|| PlayerLimits::new(&self.validation, 0))
             .sessions += 1;
+        self.by_player
+            .entry(player.clone())
+            .or_default()
+            .push(session_id);
         self.sessions.insert(
             session_id,
             Session {
@@ -500,9 +509,35 @@ impl Sequencer {
     /// Forgets the session. Its queued edits still apply at the next tick.
     pub fn session_left(&mut self, session_id: u64) {
         if let Some(old) = self.sessions.remove(&session_id) {
+            self.unindex(&old.player, session_id);
             self.remember_position(&old.player, old.position);
             self.release_limits(&old.player);
         }
+    }
+
+    /// Takes `session_id` out of `player`'s live sessions.
+    fn unindex(&mut self, player: &str, session_id: u64) {
+        if let Some(ids) = self.by_player.get_mut(player) {
+            ids.retain(|&id| id != session_id);
+            if ids.is_empty() {
+                self.by_player.remove(player);
+            }
+        }
+    }
+
+    /// The live sessions of `player`, oldest join first.
+    pub fn sessions_of(&self, player: &str) -> &[u64] {
+        self.by_player.get(player).map_or(&[], |ids| ids.as_slice())
+    }
+
+    /// The validated positions of `player`'s live sessions.
+    fn positions_of<'a>(
+        &'a self,
+        player: &str,
+    ) -> impl Iterator<Item = (u64, ValidatedPosition)> + 'a {
+        self.sessions_of(player)
+            .iter()
+            .filter_map(|id| Some((*id, self.sessions.get(id)?.position?)))
     }
 
     fn remember_position(&mut self, player: &str, position: Option<ValidatedPosition>) {
@@ -534,10 +569,9 @@ impl Sequencer {
         // Another live session of the player (sessions_per_player > 1) knows
         // a newer position than the remembered one.
         let others: Vec<ValidatedPosition> = self
-            .sessions
-            .iter()
-            .filter(|(&id, s)| id != session_id && s.player == player)
-            .filter_map(|(_, s)| s.position)
+            .positions_of(&player)
+            .filter(|&(id, _)| id != session_id)
+            .map(|(_, p)| p)
             .collect();
         let remembered = self.last_positions.get(&player).copied();
         let feet = others
@@ -592,13 +626,7 @@ impl Sequencer {
         }
         // When any session of the player last saw it (its own resume
         // included): an older ticket would take it back in time.
-        let newest = self
-            .sessions
-            .values()
-            .filter(|o| o.player == s.player)
-            .filter_map(|o| o.position)
-            .map(|p| p.known_ms)
-            .max();
+        let newest = self.positions_of(&s.player).map(|(_, p)| p.known_ms).max();
         if newest.is_some_and(|t| issued_ms < t) {
             return refused;
         }

@@ -67,6 +67,11 @@ pub const DEFAULT_POSITIONS_PER_SECOND: u64 = 60;
 pub const DEFAULT_PLACEMENT_BURST: u64 = 10;
 /// Default first placements per second per player.
 pub const DEFAULT_PLACEMENTS_PER_SECOND: u64 = 2;
+/// Default burst of a player's logins: a client that lost its connection
+/// comes back several times in a minute.
+pub const DEFAULT_JOIN_BURST: u64 = 10;
+/// Default logins per second per player, past the burst.
+pub const DEFAULT_JOINS_PER_SECOND: u64 = 1;
 /// Largest capacity and refill of any `[validation.*_rate]` bucket.
 pub const MAX_REQUEST_RATE: u64 = 1 << 32;
 /// Least milliseconds between two `PositionRefused` answers to one session.
@@ -131,6 +136,12 @@ pub struct ValidationConfig {
     /// sessions; a report past them is dropped before anything is loaded.
     /// An honest client places once.
     pub placement_rate: BucketConfig,
+    /// A player's logins: Hellos with a valid token that would join.
+    /// Burst and refill per second, one bucket a player, kept across its
+    /// sessions; a Hello past it is refused (`TooManyConnections`) before
+    /// the engine hears of it. Each login ends the player's older session
+    /// and starts a view over, which the player's requests pay for.
+    pub join_rate: BucketConfig,
     /// Players whose last position is kept after their sessions end, so a
     /// reconnect resumes there ([`DEFAULT_REMEMBERED_PLAYERS`]).
     pub remembered_players: usize,
@@ -178,6 +189,10 @@ impl Default for ValidationConfig {
             placement_rate: BucketConfig {
                 capacity: DEFAULT_PLACEMENT_BURST,
                 per_second: DEFAULT_PLACEMENTS_PER_SECOND,
+            },
+            join_rate: BucketConfig {
+                capacity: DEFAULT_JOIN_BURST,
+                per_second: DEFAULT_JOINS_PER_SECOND,
             },
             remembered_players: DEFAULT_REMEMBERED_PLAYERS,
             position_refusal_ms: DEFAULT_POSITION_REFUSAL_MS,
