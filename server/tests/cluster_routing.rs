@@ -1299,3 +1299,54 @@ async fn a_node_joined_later_streams_the_view_asked() {
     .await
     .expect("test timed out");
 }
+
+/// A node that never saw a player reads where another node last saved it
+/// at the player's join: a ticket issued before then cannot take the
+/// player back (the old ticket's place), and the player resumes there.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
+    use strata_protocol::{Refusal, Start, TicketRefusal};
+    use strata_server::cluster::ticket;
+    use strata_server::engine::now_ms;
+    let Some(db) = strata_tests::postgres::database("cluster_old_ticket") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let (_dirs, west, east) = west_and_east(&db).await;
+        let issued_before = now_ms();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        let ann = standing(&west, "ann", WEST_X).await;
+        // The west node saves where it saw ann (once a second).
+        let saved = format!(
+            "SELECT count(*) FROM players WHERE name = 'ann' AND known_ms > {issued_before}"
+        );
+        let started = std::time::Instant::now();
+        while sql(&db, &saved).await != ["1"] {
+            assert!(started.elapsed() < Duration::from_secs(20), "never saved");
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        let on_east = connect(&east, "ann", Role::Player).await;
+        assert!(
+            matches!(on_east.welcome().start, Start::Resume { .. }),
+            "{:?}",
+            on_east.welcome().start
+        );
+        let old = ticket::mint(west.data_dir.secret(), "ann", feet(EAST_X), issued_before);
+        let arrived = on_east.arrive_within(old, Duration::from_secs(10)).await;
+        assert_eq!(arrived.unwrap(), None, "an older ticket moved ann");
+        assert_eq!(
+            on_east.refusals(),
+            [Refusal::BadTicket {
+                reason: TicketRefusal::AlreadyPlaced
+            }]
+        );
+        // A ticket issued now is taken.
+        let new = ticket::mint(west.data_dir.secret(), "ann", feet(WEST_X), now_ms());
+        on_east.arrive(new).await.unwrap();
+        assert!(eventually(Duration::from_secs(10), || on_east.arrived().is_some()).await);
+        finish(ann, west).await;
+        finish(on_east, east).await;
+    })
+    .await
+    .expect("test finished in time");
+}

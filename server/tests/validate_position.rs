@@ -4,7 +4,7 @@ use crate::sequencer_common;
 
 use sequencer_common::*;
 use strata_protocol::{PositionUpdate, Role, Start, TicketRefusal};
-use strata_server::sequencer::{Sequencer, SequencerConfig};
+use strata_server::sequencer::{Sequencer, SequencerConfig, StoredPosition};
 use strata_server::validate::{PositionReject, SpawnArea, ValidationConfig};
 use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::VoxelPos;
@@ -19,7 +19,10 @@ fn fresh() -> strata_server::sequencer::Sequencer {
 fn first_position_in_the_spawn_area_not_solid() {
     let mut s = fresh();
     assert_eq!(s.position(PLAYER), None);
-    assert_eq!(s.resume_position(PLAYER, 0), SpawnArea::default().start());
+    assert_eq!(
+        s.resume_position(PLAYER, 0, None),
+        SpawnArea::default().start()
+    );
     // Far outside the default spawn square (2048 voxels around 0, 0).
     assert_eq!(
         s.update_position(PLAYER, at(1, 5000, 40, -7000), 0),
@@ -78,12 +81,15 @@ fn the_spawn_area_is_configurable_and_reconnects_resume() {
     s.session_left(PLAYER);
     s.session_joined(PLAYER + 1, "p".into(), Role::Player);
     let feet = FixedVec3::from_voxels(5000, 40, -7000);
-    assert_eq!(s.resume_position(PLAYER + 1, 10), Start::Resume { feet });
+    assert_eq!(
+        s.resume_position(PLAYER + 1, 10, None),
+        Start::Resume { feet }
+    );
     s.update_position(PLAYER + 1, at(1, 5010, 40, -7000), 1_000)
         .unwrap();
     s.session_joined(PLAYER + 2, "p".into(), Role::Player);
     assert_eq!(
-        s.resume_position(PLAYER + 2, 1_000),
+        s.resume_position(PLAYER + 2, 1_000, None),
         Start::Resume {
             feet: FixedVec3::from_voxels(5010, 40, -7000)
         }
@@ -109,11 +115,11 @@ fn sessions_are_indexed_by_player_and_resume_from_their_own() {
     // Another player's position is no one else's to resume from.
     s.update_position(2, at(1, 100, 0, 100), 0).unwrap();
     s.session_joined(4, "p".into(), Role::Player);
-    assert_eq!(s.resume_position(4, 10), SpawnArea::default().start());
+    assert_eq!(s.resume_position(4, 10, None), SpawnArea::default().start());
     s.update_position(4, at(1, 50, 0, 50), 0).unwrap();
     s.session_joined(5, "p".into(), Role::Player);
     let feet = FixedVec3::from_voxels(50, 0, 50);
-    assert_eq!(s.resume_position(5, 10), Start::Resume { feet });
+    assert_eq!(s.resume_position(5, 10, None), Start::Resume { feet });
     for id in 2..=5 {
         s.session_left(id);
     }
@@ -258,7 +264,7 @@ fn a_reconnect_resumes_where_the_player_left() {
     // player was, and its first report is a move from there.
     let again = 7;
     s.session_joined(again, "p".into(), Role::Player);
-    s.resume_position(again, 10_000);
+    s.resume_position(again, 10_000, None);
     assert_eq!(
         s.position(again).unwrap().feet,
         FixedVec3::from_voxels(100, 40, 100)
@@ -271,7 +277,7 @@ fn a_reconnect_resumes_where_the_player_left() {
         .unwrap();
     // A player never seen may start anywhere.
     s.session_joined(8, "new".into(), Role::Player);
-    s.resume_position(8, 10_000);
+    s.resume_position(8, 10_000, None);
     assert_eq!(s.position(8), None);
 }
 
@@ -336,7 +342,10 @@ fn an_older_ticket_never_rewinds_a_resumed_player() {
     s.session_left(PLAYER);
     let again = 7;
     s.session_joined(again, "p".into(), Role::Player);
-    assert_eq!(s.resume_position(again, 26_000), Start::Resume { feet: b });
+    assert_eq!(
+        s.resume_position(again, 26_000, None),
+        Start::Resume { feet: b }
+    );
     // The ticket for A would time the player from t = 0 and let it jump
     // ~600 voxels past A: refused, and the resume stands.
     assert_eq!(s.arrive(again, a, 0), Err(TicketRefusal::AlreadyPlaced));
@@ -349,7 +358,7 @@ fn an_older_ticket_never_rewinds_a_resumed_player() {
     // keeps when the player was last seen.
     s.session_left(again);
     s.session_joined(8, "p".into(), Role::Player);
-    s.resume_position(8, 27_000);
+    s.resume_position(8, 27_000, None);
     assert_eq!(s.arrive(8, a, 0), Err(TicketRefusal::AlreadyPlaced));
     // A ticket newer than the last report (another node saw the player
     // since) is taken, once.
@@ -359,6 +368,37 @@ fn an_older_ticket_never_rewinds_a_resumed_player() {
     assert_eq!(s.arrive(8, c, 26_500), Err(TicketRefusal::AlreadyPlaced));
     s.update_position(8, at(1, HOME.0 + 530, 0, HOME.1), 27_000)
         .unwrap();
+}
+
+#[test]
+fn a_stored_position_newer_than_this_nodes_bounds_tickets_and_resumes_there() {
+    // Another node had the player since: it stored B at t = 25 s. This
+    // node never saw the player.
+    let mut s = fresh();
+    let a = FixedVec3::from_voxels(HOME.0, 0, HOME.1);
+    let b = FixedVec3::from_voxels(HOME.0 + 500, 0, HOME.1);
+    let stored = StoredPosition {
+        feet: b,
+        known_ms: 25_000,
+    };
+    s.session_joined(7, "p".into(), Role::Player);
+    assert_eq!(
+        s.resume_position(7, 26_000, Some(stored)),
+        Start::Resume { feet: b }
+    );
+    // A ticket for A issued at t = 0 would rewind the player: refused.
+    assert_eq!(s.arrive(7, a, 0), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(s.position(7).unwrap().feet, b);
+    // An older stored position loses to what this node remembers.
+    let mut s = fresh();
+    s.update_position(PLAYER, at(1, HOME.0, 0, HOME.1), 30_000)
+        .unwrap();
+    s.session_left(PLAYER);
+    s.session_joined(8, "p".into(), Role::Player);
+    assert_eq!(
+        s.resume_position(8, 31_000, Some(stored)),
+        Start::Resume { feet: a }
+    );
 }
 
 #[test]
@@ -381,7 +421,7 @@ fn a_ticket_never_moves_a_player_that_reported() {
     // The same after a report on a resumed session.
     s.session_left(PLAYER);
     s.session_joined(9, "p".into(), Role::Player);
-    s.resume_position(9, 3_000);
+    s.resume_position(9, 3_000, None);
     s.update_position(9, at(1, HOME.0 + 2, 0, HOME.1), 3_100)
         .unwrap();
     assert_eq!(s.arrive(9, far, 3_200), Err(TicketRefusal::AlreadyPlaced));
@@ -399,7 +439,7 @@ fn a_ticket_older_than_another_sessions_report_is_refused() {
     // A second session of the player (`sessions_per_player` > 1) resumes
     // there, and the first walks on for 5 s.
     s.session_joined(5, "p".into(), Role::Player);
-    s.resume_position(5, 1_000);
+    s.resume_position(5, 1_000, None);
     walk_east(&mut s, PLAYER, HOME, 0, 5);
     let a = FixedVec3::from_voxels(HOME.0, 0, HOME.1);
     assert_eq!(s.arrive(5, a, 1_000), Err(TicketRefusal::AlreadyPlaced));

@@ -561,7 +561,14 @@ impl Sequencer {
     /// its first report must be a legal move from there, timed from
     /// `now_ms` (a reconnect teleports nowhere). A player the server does
     /// not remember starts in the spawn area. Returns where it starts.
-    pub fn resume_position(&mut self, session_id: u64, now_ms: u64) -> Start {
+    /// `stored`: the player's stored position, which a cluster node reads
+    /// at each join (another node may have had the player since).
+    pub fn resume_position(
+        &mut self,
+        session_id: u64,
+        now_ms: u64,
+        stored: Option<StoredPosition>,
+    ) -> Start {
         let spawn = self.validation.spawn.start();
         let Some(player) = self.sessions.get(&session_id).map(|s| s.player.clone()) else {
             return spawn;
@@ -573,7 +580,17 @@ impl Sequencer {
             .filter(|&(id, _)| id != session_id)
             .map(|(_, p)| p)
             .collect();
-        let remembered = self.last_positions.get(&player).copied();
+        // Of the remembered and the stored position, the newer.
+        let remembered = self
+            .last_positions
+            .get(&player)
+            .map(|r| StoredPosition {
+                feet: r.feet,
+                known_ms: r.known_ms,
+            })
+            .into_iter()
+            .chain(stored)
+            .max_by_key(|r| r.known_ms);
         let feet = others
             .iter()
             .max_by_key(|p| p.at_ms)

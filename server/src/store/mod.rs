@@ -161,6 +161,10 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Every stored player position.
     fn player_positions(&self) -> StoreIter<'_, (String, StoredPosition)>;
 
+    /// One player's stored position (a cluster node joining a player reads
+    /// what the node that last had it saved).
+    fn player_position(&self, player: &str) -> Result<Option<StoredPosition>, StoreError>;
+
     /// Up to `max_chunks` chunks that have committed deltas, in key order,
     /// after `after` when given (a checkpoint goes on where its last pass
     /// stopped, so no chunk waits behind others edited as often). A cluster

@@ -573,6 +573,16 @@ impl ChunkStore for SledStore {
         }))
     }
 
+    fn player_position(&self, player: &str) -> Result<Option<StoredPosition>, StoreError> {
+        let Some(feet) = self.players.get(player.as_bytes())? else {
+            return Ok(None);
+        };
+        let time = self.player_times.get(player.as_bytes())?;
+        decode_position(&feet, time.as_deref())
+            .map(Some)
+            .ok_or_else(|| StoreError::corrupt("player position", show_raw(player.as_bytes())))
+    }
+
     fn chunks_with_deltas(
         &self,
         after: Option<ChunkPos>,

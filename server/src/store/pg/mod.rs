@@ -476,6 +476,22 @@ impl ChunkStore for PgStore {
         Ok(())
     }
 
+    fn player_position(&self, player: &str) -> Result<Option<StoredPosition>, StoreError> {
+        let row = self.pool.run("reading a position", async |c: &mut Conn| {
+            c.query_opt(
+                "SELECT x, y, z, known_ms FROM players WHERE name = $1",
+                &[&player],
+            )
+            .await
+        })?;
+        let Some(r) = row else { return Ok(None) };
+        let c = |i: usize| Fixed(r.get::<_, i32>(i));
+        Ok(Some(StoredPosition {
+            feet: FixedVec3::new(c(0), c(1), c(2)),
+            known_ms: from_sql(r.get(3), "known_ms", "players")?,
+        }))
+    }
+
     fn player_positions(&self) -> StoreIter<'_, (String, StoredPosition)> {
         let rows = self.pool.run("reading positions", async |c: &mut Conn| {
             c.query(
