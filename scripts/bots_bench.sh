@@ -29,7 +29,7 @@
 # bytes handed to the store (strata_store_bytes_total: commit, checkpoint)
 # and per edit; and "caches": lookups of
 # the generated-chunk caches (premesh and patch bases: hits, generated) and
-# of the snapshot-frame cache (hits, misses, entries cleared); "batches":
+# of the snapshot-frame cache (hits, misses, frames evicted); "batches":
 # sessions' batches of a tick's updates, written into the stream at once
 # by a fan-out worker, begun there (the rest left to the writer), or
 # queued to the writer task; and "requests_throttled": requests that waited for their session's
@@ -299,7 +299,7 @@ if [ -n "${BENCH_METRICS_PORT:-}" ]; then
             (accepted > 0 ? (meshes["changed"] + meshes["rewarm"] + meshes["on_demand"] + premesh) / accepted : 0)
               printf ",\"store_bytes\":{\"commit\":%d,\"checkpoint\":%d,\"per_edit\":%.0f}",
             store["commit"], store["checkpoint"], (accepted > 0 ? (store["commit"] + store["checkpoint"]) / accepted : 0)
-              printf ",\"caches\":{\"premesh_hit\":%d,\"premesh_generated\":%d,\"patch_base_hit\":%d,\"patch_base_generated\":%d,\"snapshot_hit\":%d,\"snapshot_miss\":%d,\"snapshot_cleared\":%d},\"batches\":{\"written\":%d,\"begun\":%d,\"queued\":%d},\"requests_throttled\":%d}\n",
+              printf ",\"caches\":{\"premesh_hit\":%d,\"premesh_generated\":%d,\"patch_base_hit\":%d,\"patch_base_generated\":%d,\"snapshot_hit\":%d,\"snapshot_miss\":%d,\"snapshot_evicted\":%d,\"snapshot_evicted_requested\":%d},\"batches\":{\"written\":%d,\"begun\":%d,\"queued\":%d},\"requests_throttled\":%d}\n",
             gen["premesh_hit"], gen["premesh_generated"], gen["patch_base_hit"], gen["patch_base_generated"],
-            snap["hit"], snap["miss"], snap["cleared"], batches["written"], batches["begun"], batches["queued"], throttled }'
+            snap["hit"], snap["miss"], snap["evicted"], snap["evicted_requested"], batches["written"], batches["begun"], batches["queued"], throttled }'
 fi

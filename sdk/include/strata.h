@@ -437,7 +437,10 @@ StrataStatus strata_welcome(const StrataSession *s, StrataWelcome *out_welcome);
 StrataStatus strata_set_position(const StrataSession *s, double x, double y, double z);
 
 // Asks for the chunks within `radius` chunks of chunk (`cx`, `cy`, `cz`)
-// (capped at the view radius); interest stops following positions.
+// (capped at the view radius). The whole cube must lie within the view
+// radius plus the hysteresis (in chunks) of the player; positions then
+// move it only when it would reach farther (to the feet, keeping its
+// radius).
 //
 // # Safety
 // `s` is a live session.

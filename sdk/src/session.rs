@@ -309,7 +309,10 @@ pub unsafe extern "C" fn strata_set_position(
 }
 
 /// Asks for the chunks within `radius` chunks of chunk (`cx`, `cy`, `cz`)
-/// (capped at the view radius); interest stops following positions.
+/// (capped at the view radius). The whole cube must lie within the view
+/// radius plus the hysteresis (in chunks) of the player; positions then
+/// move it only when it would reach farther (to the feet, keeping its
+/// radius).
 ///
 /// # Safety
 /// `s` is a live session.

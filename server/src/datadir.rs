@@ -157,15 +157,18 @@ impl DataDir {
             }
             (false, false) => None,
             (true, false) => return Err(half(cert_path, key_path)),
-            // `CertPair::save` writes the key first: a lone key beside no
-            // world is a first start cut short. Nobody pinned a certificate
-            // that was never written, so a new pair replaces it.
-            (false, true) if !has_world => {
-                tracing::warn!(
-                    key = %key_path.display(),
-                    "a key without its certificate (a first start cut short): making a new pair"
-                );
-                None
+            // A save cut short between the key and moving its staged
+            // certificate into place: finish it (the pair must match).
+            (false, true) if crate::tls::staged_cert(&cert_path).is_file() => {
+                let staged = crate::tls::staged_cert(&cert_path);
+                let pair = CertPair::load(&staged, &key_path)?;
+                crate::durable::rename(&staged, &cert_path).map_err(|source| {
+                    DataDirError::Create {
+                        path: cert_path.clone(),
+                        source,
+                    }
+                })?;
+                Some(pair)
             }
             (false, true) => return Err(half(key_path, cert_path)),
         };

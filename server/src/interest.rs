@@ -12,7 +12,7 @@
 //! last accepted position or, before one, near its start ([`Anchor`]):
 //! its cube reaches at most `view_radius + hysteresis` chunks from there
 //! when accepted, and an accepted position that leaves it reaching
-//! farther ends it (the view follows positions again).
+//! farther moves it to the position's chunk (its radius kept).
 
 use std::collections::BTreeSet;
 
@@ -168,7 +168,7 @@ impl Interest {
     /// Follows an accepted feet position. After an explicit subscribe it
     /// keeps that view instead, a player's only while the view stays
     /// within reach of the feet' chunk ([`Self::within_reach`]): past it,
-    /// the view drops back to the one centred on the position.
+    /// the view moves to the feet' chunk, keeping the radius asked for.
     pub fn follow_position(&mut self, feet: FixedVec3) -> InterestChange {
         let voxel = crate::validate::position::feet_voxel(feet);
         let chunk = voxel.chunk();
@@ -182,8 +182,9 @@ impl Interest {
                 if kept {
                     return InterestChange::default();
                 }
-                self.explicit = Explicit::No;
-                return self.recenter(chunk, r);
+                // Out of reach: the view moves to the feet, at the radius
+                // the player asked for.
+                return self.recenter(chunk, self.radius);
             }
             Explicit::No => {}
         }

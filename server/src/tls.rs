@@ -110,18 +110,22 @@ impl CertPair {
         Ok(pair)
     }
 
-    /// Writes the certificate (0644) and the key (0600), each atomically.
+    /// Writes the certificate (0644) and the key (0600), each atomically:
+    /// the certificate first beside its place ([`staged_cert`]), then the
+    /// key, then the certificate moved into place. A crash between leaves
+    /// the key with the staged certificate, which the next start finishes
+    /// moving ([`crate::datadir::DataDir::open_or_init`]).
     pub fn save(&self, cert_path: &Path, key_path: &Path) -> Result<(), TlsError> {
-        write_private_file(key_path, self.key.secret_pkcs8_der()).map_err(|source| {
-            TlsError::Write {
-                path: key_path.to_owned(),
+        fn write(path: &Path) -> impl FnOnce(std::io::Error) -> TlsError + '_ {
+            move |source| TlsError::Write {
+                path: path.to_owned(),
                 source,
             }
-        })?;
-        write_public_file(cert_path, self.cert.as_ref()).map_err(|source| TlsError::Write {
-            path: cert_path.to_owned(),
-            source,
-        })
+        }
+        let staged = staged_cert(cert_path);
+        write_public_file(&staged, self.cert.as_ref()).map_err(write(&staged))?;
+        write_private_file(key_path, self.key.secret_pkcs8_der()).map_err(write(key_path))?;
+        crate::durable::rename(&staged, cert_path).map_err(write(cert_path))
     }
 
     /// The certificate, DER-encoded: what clients pin.
@@ -132,6 +136,13 @@ impl CertPair {
     fn private_key(&self) -> PrivateKeyDer<'static> {
         PrivateKeyDer::Pkcs8(self.key.clone_key())
     }
+}
+
+/// Where [`CertPair::save`] writes the certificate before the key.
+pub fn staged_cert(cert_path: &Path) -> std::path::PathBuf {
+    let mut name = cert_path.file_name().unwrap_or_default().to_owned();
+    name.push(".new");
+    cert_path.with_file_name(name)
 }
 
 /// Reads a DER certificate file (e.g. a copy of the server's `cert.der`).

@@ -148,22 +148,18 @@ fn half_a_certificate_is_refused_not_regenerated() {
 }
 
 #[test]
-fn a_key_left_by_a_first_start_cut_short_is_replaced_but_not_beside_a_world() {
+fn a_certificate_save_cut_short_is_finished_at_the_next_start() {
     let tmp = tempfile::tempdir().unwrap();
     let root = tmp.path().join("data");
-    DataDir::open_or_init(&root, &[]).unwrap();
-    // The key was written, the certificate was not: no world yet.
-    std::fs::remove_file(root.join(CERT_NAME)).unwrap();
-    let old_key = std::fs::read(root.join(KEY_NAME)).unwrap();
+    let (first, _) = DataDir::open_or_init(&root, &[]).unwrap();
+    // The key was written, the certificate not yet moved into place.
+    let staged = strata_server::tls::staged_cert(&root.join(CERT_NAME));
+    std::fs::rename(root.join(CERT_NAME), &staged).unwrap();
     let (dir, report) = DataDir::open_or_init(&root, &[]).unwrap();
-    assert_eq!(report.created_cert, Some(root.join(CERT_NAME)));
-    assert_ne!(std::fs::read(root.join(KEY_NAME)).unwrap(), old_key);
-    assert_eq!(
-        std::fs::read(root.join(CERT_NAME)).unwrap(),
-        dir.cert().cert_der().as_ref()
-    );
-    // Beside a world its certificate may be pinned: refused.
-    std::fs::create_dir(root.join(WORLD_DB_NAME)).unwrap();
+    assert_eq!(report.created_cert, None, "the same pair, not a new one");
+    assert_eq!(dir.cert().cert_der(), first.cert().cert_der());
+    assert!(root.join(CERT_NAME).is_file() && !staged.exists());
+    // Without the staged certificate, a lone key is refused as before.
     std::fs::remove_file(root.join(CERT_NAME)).unwrap();
     assert!(matches!(
         DataDir::open_or_init(&root, &[]),

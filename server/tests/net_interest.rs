@@ -459,7 +459,7 @@ async fn a_players_own_view_stays_within_reach_of_where_it_walks() {
             "the explicit view brought the delta"
         );
         // Walking 3 chunks the other way, the view would reach 7 chunks
-        // from the feet: it drops back to the view centred on them, which
+        // from the feet: it moves to the feet's chunk (radius kept), which
         // no longer holds the target even with its hysteresis.
         tokio::time::sleep(Duration::from_millis(200)).await;
         let (away, _) = spot(-3 * 32 + 16, 16);

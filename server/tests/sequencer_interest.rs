@@ -163,7 +163,7 @@ fn a_subscription_must_keep_its_whole_view_within_reach() {
 }
 
 #[test]
-fn walking_away_from_a_subscription_drops_back_to_the_position_view() {
+fn walking_away_from_a_subscription_moves_it_to_the_feet_at_its_radius() {
     let mut i = interest(2, 1);
     let feet = |cx: i32| FixedVec3::from_voxels(cx * 32 + 16, 16, 16);
     i.follow_position(feet(0));
@@ -174,16 +174,18 @@ fn walking_away_from_a_subscription_drops_back_to_the_position_view() {
     assert!(i.follow_position(feet(-1)).is_empty());
     assert!(i.follow_position(feet(2)).is_empty());
     assert_eq!((i.center(), i.radius()), (Some(ChunkPos::new(1, 0, 0)), 1));
-    // Two chunks back it would reach 4: the position's view takes over.
+    // Two chunks back it would reach 4: it moves to the feet, keeping the
+    // radius asked for.
     let c = i.follow_position(feet(-2));
     assert!(c.recentred);
-    assert_eq!((i.center(), i.radius()), (Some(ChunkPos::new(-2, 0, 0)), 2));
+    assert_eq!((i.center(), i.radius()), (Some(ChunkPos::new(-2, 0, 0)), 1));
     assert!(c.unsubscribe.contains(&ChunkPos::new(2, 0, 0)));
     assert!(!i.covers(ChunkPos::new(2, 0, 0)), "no deltas from there");
-    // And it follows positions again.
-    let c = i.follow_position(feet(-4));
-    assert_eq!(i.center(), Some(ChunkPos::new(-4, 0, 0)));
+    // Within reach of the new centre it stays; past it, it moves again.
+    assert!(i.follow_position(feet(-4)).is_empty());
+    let c = i.follow_position(feet(-5));
     assert!(c.recentred);
+    assert_eq!((i.center(), i.radius()), (Some(ChunkPos::new(-5, 0, 0)), 1));
 }
 
 #[test]

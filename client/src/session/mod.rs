@@ -194,7 +194,9 @@ impl Session {
     }
 
     /// Asks for the cube of chunks within `radius` of `center` (capped by
-    /// the server's view radius); interest stops following positions.
+    /// the server's view radius). The whole cube must lie within view
+    /// radius + hysteresis chunks of the player; positions then move it
+    /// only when it would reach farther (to the feet, keeping its radius).
     pub fn subscribe(&self, center: IVec3, radius: u8) -> Result<(), SessionError> {
         let center = ChunkPos::new(center.x, center.y, center.z);
         self.queue(Command::Subscribe { center, radius })

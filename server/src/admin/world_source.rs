@@ -244,20 +244,24 @@ pub fn open_store(data_dir: &Path) -> Result<SledStore, WorldSourceError> {
         return Err(WorldSourceError::NoDataDir(data_dir.to_path_buf()));
     }
     let path = data_dir.join(WORLD_DB_NAME);
-    if !path.exists() {
-        return Err(WorldSourceError::NoStore(path));
-    }
-    let opened =
-        WorldLock::take_whole(&path).and_then(|lock| Ok(SledStore::open(&path)?.holding(lock)));
-    opened.map_err(|source| match source {
-        StoreError::WorldInUse { .. } => WorldSourceError::Locked(path),
-        StoreError::Sled(sled::Error::Io(e))
+    // The lock first: a world a restore left half swapped says so.
+    let opened = WorldLock::take_whole(&path).and_then(|lock| {
+        if !path.exists() {
+            return Ok(None);
+        }
+        Ok(Some(SledStore::open(&path)?.holding(lock)))
+    });
+    match opened {
+        Ok(Some(store)) => Ok(store),
+        Ok(None) => Err(WorldSourceError::NoStore(path)),
+        Err(StoreError::WorldInUse { .. }) => Err(WorldSourceError::Locked(path)),
+        Err(StoreError::Sled(sled::Error::Io(e)))
             if e.to_string().contains("could not acquire lock") =>
         {
-            WorldSourceError::Locked(path)
+            Err(WorldSourceError::Locked(path))
         }
-        source => WorldSourceError::Store { path, source },
-    })
+        Err(source) => Err(WorldSourceError::Store { path, source }),
+    }
 }
 
 /// The config offline commands use: `--config`, else `DIR/strata.toml`.

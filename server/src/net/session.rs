@@ -31,6 +31,10 @@ pub const DRAIN_TIMEOUT: Duration = Duration::from_secs(2);
 /// How long a session waits for room in the engine's queue for a command
 /// its client relies on before closing as overloaded.
 pub const ENGINE_WAIT_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long a session waits for the engine to take one of its own queued
+/// commands (its share, `[engine] session_commands`): long, since a busy
+/// engine drains a deep queue over many ticks.
+pub const SHARE_WAIT_TIMEOUT: Duration = Duration::from_secs(30);
 /// Pause between attempts while the engine's queue is full.
 pub const ENGINE_RETRY: Duration = Duration::from_millis(1);
 
@@ -487,7 +491,7 @@ async fn serve(
             continue;
         }
         let routed = match route((session, player), ctx, &share, control, m) {
-            Ok(Some(cmd)) => deliver(&ctx.engine, &share, cmd, ENGINE_WAIT_TIMEOUT).await,
+            Ok(Some(cmd)) => deliver(&ctx.engine, &share, cmd, WAITS).await,
             Ok(None) => Ok(()),
             Err(end) => Err(end),
         };
@@ -650,26 +654,28 @@ async fn leave(engine: &EngineHandle, session: u64) {
 /// engine to take one of its own commands, so one client's burst holds at
 /// most that much of the queue all players share. While the queue itself
 /// is full it waits too. Waiting, it stops reading its control stream, so
-/// QUIC flow control slows the client down; after `patience`
-/// ([`ENGINE_WAIT_TIMEOUT`]) the session is closed as overloaded.
+/// QUIC flow control slows the client down. A session whose own commands
+/// wait in a long queue is not overloaded: its share is waited for up to
+/// `waits.share` ([`SHARE_WAIT_TIMEOUT`]); only a queue full for
+/// `waits.queue` ([`ENGINE_WAIT_TIMEOUT`]) closes the session as overloaded.
 async fn deliver(
     engine: &EngineHandle,
     share: &SessionShare,
     cmd: Command,
-    patience: Duration,
+    waits: Waits,
 ) -> Result<(), End> {
-    let deadline = tokio::time::Instant::now() + patience;
     let slot = match share.try_take() {
         Some(slot) => slot,
         None => {
             metrics::counter!(crate::metrics::SESSION_QUEUE_FULL).increment(1);
-            match tokio::time::timeout_at(deadline, share.take()).await {
+            match tokio::time::timeout(waits.share, share.take()).await {
                 Ok(Some(slot)) => slot,
                 Ok(None) => return Err(End::Gone),
                 Err(_) => return Err(overloaded()),
             }
         }
     };
+    let deadline = tokio::time::Instant::now() + waits.queue;
     let mut queued = Queued::held(cmd, slot);
     loop {
         match engine.offer_queued(queued) {
@@ -683,6 +689,20 @@ async fn deliver(
         tokio::time::sleep(ENGINE_RETRY).await;
     }
 }
+
+/// How long [`deliver`] waits for the session's share, and for room in
+/// the queue.
+#[derive(Debug, Clone, Copy)]
+struct Waits {
+    share: Duration,
+    queue: Duration,
+}
+
+/// What sessions wait.
+const WAITS: Waits = Waits {
+    share: SHARE_WAIT_TIMEOUT,
+    queue: ENGINE_WAIT_TIMEOUT,
+};
 
 /// The end of a session that waited out [`ENGINE_WAIT_TIMEOUT`].
 fn overloaded() -> End {
@@ -868,9 +888,11 @@ mod tests {
             got
         });
         let waited = std::time::Instant::now();
-        assert!(deliver(&engine, &share, resync(2), Duration::from_secs(5))
-            .await
-            .is_ok());
+        assert!(
+            deliver(&engine, &share, resync(2), both(Duration::from_secs(5)))
+                .await
+                .is_ok()
+        );
         assert!(
             waited.elapsed() >= Duration::from_millis(20),
             "it waited for room"
@@ -884,7 +906,7 @@ mod tests {
         let (engine, rx) = crate::engine::inbox_channel(1, 1);
         let share = engine.session_share();
         assert!(engine.try_send(resync(1)));
-        match deliver(&engine, &share, resync(2), Duration::from_millis(50)).await {
+        match deliver(&engine, &share, resync(2), both(Duration::from_millis(50))).await {
             Err(End::Refused(ErrorCode::TooManyConnections, m)) => {
                 assert!(m.contains("overloaded"))
             }
@@ -898,9 +920,14 @@ mod tests {
         assert_eq!(share.in_use(), 0, "nor holds its slot");
         drop(rx);
         assert!(matches!(
-            deliver(&engine, &share, resync(3), Duration::from_millis(50)).await,
+            deliver(&engine, &share, resync(3), both(Duration::from_millis(50))).await,
             Err(End::Gone)
         ));
+    }
+
+    /// Both of [`deliver`]'s waits `d` long.
+    fn both(d: Duration) -> Waits {
+        Waits { share: d, queue: d }
     }
 
     #[tokio::test]
@@ -909,7 +936,7 @@ mod tests {
         let (engine, rx) = crate::engine::inbox_channel(8, 8);
         let engine = engine.with_session_commands(2);
         let (flooder, honest) = (engine.session_share(), engine.session_share());
-        let patience = Duration::from_millis(50);
+        let patience = both(Duration::from_millis(50));
         for _ in 0..2 {
             assert!(deliver(&engine, &flooder, resync(1), patience)
                 .await

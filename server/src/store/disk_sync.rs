@@ -44,7 +44,7 @@ struct Seen {
     blobs: HashMap<OsString, u64>,
     /// Names in the store directory (sled's snapshot files come and go).
     entries: BTreeSet<OsString>,
-    /// The first failed sync. Linux reports a write-back error to each
+    /// The first failed fsync. Linux reports a write-back error to each
     /// handle once and marks the lost pages clean: a later fsync would
     /// succeed over the hole. So one failure fails every later sync.
     failed: Option<String>,
@@ -80,11 +80,7 @@ impl DiskSync {
                 "an earlier sync of the store failed ({first}): writes since may be lost; restart to recover from the disk"
             )));
         }
-        let synced = Self::sync_changed(&self.dir, &self.db, &mut seen);
-        if let Err(e) = &synced {
-            seen.failed = Some(e.to_string());
-        }
-        synced
+        Self::sync_changed(&self.dir, &self.db, &mut seen)
     }
 
     fn sync_changed(dir: &Path, db: &File, seen: &mut Seen) -> io::Result<()> {
@@ -103,7 +99,7 @@ impl DiskSync {
             };
             if seen.blobs.get(&name) != Some(&len) {
                 match File::open(entry.path()) {
-                    Ok(f) => f.sync_data()?,
+                    Ok(f) => fsynced(&mut seen.failed, f.sync_data())?,
                     Err(e) if e.kind() == io::ErrorKind::NotFound => continue,
                     Err(e) => return Err(e),
                 }
@@ -113,19 +109,28 @@ impl DiskSync {
         }
         changed |= present.len() != seen.blobs.len();
         if changed {
-            sync_dir(&blob_dir)?;
+            fsynced(&mut seen.failed, sync_dir(&blob_dir))?;
         }
         seen.blobs = present.into_iter().take(MAX_TRACKED_BLOBS).collect();
-        db.sync_data()?;
+        fsynced(&mut seen.failed, db.sync_data())?;
         let entries = fs::read_dir(dir)?
             .map(|e| e.map(|e| e.file_name()))
             .collect::<io::Result<BTreeSet<_>>>()?;
         if entries != seen.entries {
-            sync_dir(dir)?;
+            fsynced(&mut seen.failed, sync_dir(dir))?;
             seen.entries = entries;
         }
         Ok(())
     }
+}
+
+/// `synced`, remembering its failure in `failed`: a failed fsync is never
+/// retried (other errors, such as a failed directory read, are).
+fn fsynced(failed: &mut Option<String>, synced: io::Result<()>) -> io::Result<()> {
+    if let Err(e) = &synced {
+        failed.get_or_insert_with(|| e.to_string());
+    }
+    synced
 }
 
 #[cfg(test)]
@@ -176,19 +181,27 @@ mod tests {
     }
 
     #[test]
-    fn once_a_sync_failed_every_later_one_fails() {
+    fn once_an_fsync_failed_every_later_sync_fails() {
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path().join("store");
         fs::create_dir_all(dir.join(BLOBS_DIR)).unwrap();
         fs::write(dir.join(DB_FILE), b"log").unwrap();
         let s = DiskSync::open(&dir).unwrap();
-        // A failure (here the blob directory gone) ...
+        // A failed directory read is an error, and the next sync tries again.
         fs::remove_dir(dir.join(BLOBS_DIR)).unwrap();
         assert!(s.sync().is_err());
-        // ... is not retried into a success once the cause is gone.
         fs::create_dir(dir.join(BLOBS_DIR)).unwrap();
+        s.sync().unwrap();
+        // A failed fsync is not retried into a success.
+        let mut failed = s.state.lock().unwrap().failed.take();
+        assert!(failed.is_none());
+        assert!(fsynced(&mut failed, Err(io::Error::other("EIO"))).is_err());
+        s.state.lock().unwrap().failed = failed;
         let err = s.sync().unwrap_err().to_string();
-        assert!(err.contains("an earlier sync of the store failed"), "{err}");
+        assert!(
+            err.contains("an earlier sync of the store failed (EIO)"),
+            "{err}"
+        );
         // A new handle (a restart) syncs again.
         DiskSync::open(&dir).unwrap().sync().unwrap();
     }

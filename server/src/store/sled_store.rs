@@ -124,14 +124,14 @@ impl SledStore {
         Self::open_with(dir, &StoreConfig::default())
     }
 
-    /// Opens (or creates) the store in `dir`. Refuses a store written by an
-    /// unknown format version.
     /// This store, keeping `lock` until it is dropped.
     pub fn holding(mut self, lock: super::WorldLock) -> Self {
         self.held = Some(lock);
         self
     }
 
+    /// Opens (or creates) the store in `dir`. Refuses a store written by an
+    /// unknown format version.
     pub fn open_with(dir: &Path, config: &StoreConfig) -> Result<Self, StoreError> {
         let segment = persisted_segment_size(dir).unwrap_or(config.segment_size_bytes);
         let cfg = sled::Config::new()
