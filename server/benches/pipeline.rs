@@ -342,6 +342,7 @@ fn join(
             kick,
             position: position.clone(),
             capabilities: 0,
+            stored: None,
         },
     );
     reply_rx.blocking_recv()?;

@@ -1313,13 +1313,14 @@ async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
     };
     tokio::time::timeout(TEST_TIMEOUT, async {
         let (_dirs, west, east) = west_and_east(&db).await;
-        let issued_before = now_ms();
-        tokio::time::sleep(Duration::from_millis(20)).await;
+        let seen = now_ms();
         let ann = standing(&west, "ann", WEST_X).await;
+        // A ticket held 20 s (a replay; tickets live 30 s), older than
+        // any a node issues by more than the slack.
+        let issued_before = seen - 20_000;
         // The west node saves where it saw ann (once a second).
-        let saved = format!(
-            "SELECT count(*) FROM players WHERE name = 'ann' AND known_ms > {issued_before}"
-        );
+        let saved =
+            format!("SELECT count(*) FROM players WHERE name = 'ann' AND known_ms >= {seen}");
         let started = std::time::Instant::now();
         while sql(&db, &saved).await != ["1"] {
             assert!(started.elapsed() < Duration::from_secs(20), "never saved");
@@ -1340,8 +1341,10 @@ async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
                 reason: TicketRefusal::AlreadyPlaced
             }]
         );
-        // A ticket issued now is taken.
-        let new = ticket::mint(west.data_dir.secret(), "ann", feet(WEST_X), now_ms());
+        // One issued a few seconds before the save (the player's latest) is
+        // taken.
+        let recent = seen - 5_000;
+        let new = ticket::mint(west.data_dir.secret(), "ann", feet(WEST_X), recent);
         on_east.arrive(new).await.unwrap();
         assert!(eventually(Duration::from_secs(10), || on_east.arrived().is_some()).await);
         finish(ann, west).await;

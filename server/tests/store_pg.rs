@@ -138,6 +138,31 @@ fn positions_stored_before_migration_8_read_with_no_time() {
 }
 
 #[test]
+fn a_stored_position_is_never_replaced_by_an_older_one() {
+    let Some(db) = database("positions_newest_wins") else {
+        return;
+    };
+    let store = pg_store(&db);
+    let at = |v: i32, known_ms| StoredPosition {
+        feet: FixedVec3::new(Fixed(v), Fixed(0), Fixed(0)),
+        known_ms,
+    };
+    // Another node saved a newer one; a stale save after it changes nothing.
+    store
+        .save_positions(&[("ann".into(), at(5, 2_000))])
+        .unwrap();
+    store
+        .save_positions(&[("ann".into(), at(1, 1_000))])
+        .unwrap();
+    assert_eq!(store.player_position("ann").unwrap(), Some(at(5, 2_000)));
+    store
+        .save_positions(&[("ann".into(), at(9, 3_000))])
+        .unwrap();
+    assert_eq!(store.player_position("ann").unwrap(), Some(at(9, 3_000)));
+    assert_eq!(store.player_position("bob").unwrap(), None);
+}
+
+#[test]
 fn the_region_layout_is_fixed_and_rows_carry_their_region() {
     let Some(db) = database("region_layout") else {
         return;

@@ -4,7 +4,9 @@ use crate::sequencer_common;
 
 use sequencer_common::*;
 use strata_protocol::{PositionUpdate, Role, Start, TicketRefusal};
-use strata_server::sequencer::{Sequencer, SequencerConfig, StoredPosition};
+use strata_server::sequencer::{
+    Sequencer, SequencerConfig, StoredPosition, STORED_TICKET_SLACK_MS,
+};
 use strata_server::validate::{PositionReject, SpawnArea, ValidationConfig};
 use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::VoxelPos;
@@ -389,6 +391,21 @@ fn a_stored_position_newer_than_this_nodes_bounds_tickets_and_resumes_there() {
     // A ticket for A issued at t = 0 would rewind the player: refused.
     assert_eq!(s.arrive(7, a, 0), Err(TicketRefusal::AlreadyPlaced));
     assert_eq!(s.position(7).unwrap().feet, b);
+    // One issued shortly before the other node saved (the player walked
+    // on a little after its latest ticket) is taken.
+    s.session_joined(9, "q".into(), Role::Player);
+    s.resume_position(9, 26_000, Some(stored));
+    let issued = 25_000 - STORED_TICKET_SLACK_MS + 1;
+    assert_eq!(s.arrive(9, b, issued), Ok(Start::Resume { feet: b }));
+    // A time from another node's clock running ahead counts as now.
+    let ahead = StoredPosition {
+        feet: b,
+        known_ms: 90_000,
+    };
+    s.session_joined(10, "r".into(), Role::Player);
+    s.resume_position(10, 26_000, Some(ahead));
+    let issued = 26_000 - STORED_TICKET_SLACK_MS + 1;
+    assert_eq!(s.arrive(10, b, issued), Ok(Start::Resume { feet: b }));
     // An older stored position loses to what this node remembers.
     let mut s = fresh();
     s.update_position(PLAYER, at(1, HOME.0, 0, HOME.1), 30_000)

@@ -36,6 +36,10 @@ pub enum Command {
         position: Arc<super::LatestPosition>,
         /// `Hello::capabilities`, unknown bits already dropped.
         capabilities: u32,
+        /// Where the store last has the player, read by the session (off
+        /// the engine thread) on a cluster node: another node may have had
+        /// it since.
+        stored: Option<Box<crate::store::StoredPosition>>,
     },
     Leave {
         session: u64,

@@ -22,6 +22,7 @@ impl Engine {
                 kick,
                 position,
                 capabilities,
+                stored,
             } => {
                 // A new login replaces the player's oldest sessions past the cap.
                 let mut older = self.sessions_of(&player);
@@ -31,18 +32,11 @@ impl Engine {
                     info!(session = id, %player, "replaced by a newer login");
                     self.end_session(id, ErrorCode::Kicked, "replaced by a newer login");
                 }
-                // A cluster node reads where the player was last saved: a
-                // node that had it since knows a newer place and time, and
-                // an older ticket must not take it back there.
-                let stored = match self.store.clustered() {
-                    true => self.store.player_position(&player).unwrap_or_else(|e| {
-                        warn!(error = %e, %player, "reading the stored position failed");
-                        None
-                    }),
-                    false => None,
-                };
+                // A cluster node's session read where the player was last
+                // saved: a node that had it since knows a newer place and
+                // time, and an older ticket must not take it back there.
                 self.seq.session_joined(session, player, role);
-                let start = self.seq.resume_position(session, now, stored);
+                let start = self.seq.resume_position(session, now, stored.map(|p| *p));
                 metrics::counter!(m::SESSIONS_TOTAL).increment(1);
                 let interest = Interest::new(self.interest, self.bounds);
                 let mut peer = Peer::new(control, updates, interest, kick, position, start);

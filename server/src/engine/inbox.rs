@@ -179,6 +179,9 @@ impl EngineHandle {
 
     /// Queues a command holding its session's slot without waiting,
     /// handing it back (slot and all) when the queue is full.
+    // The refusal hands the command back to be offered again: boxing it
+    // would allocate at every full queue.
+    #[allow(clippy::result_large_err)]
     pub fn offer_queued(&self, q: Queued) -> Result<(), TrySendError<Queued>> {
         if is_control(&q.cmd) {
             return self.offer(q.cmd).map_err(|e| map_refused(e, Queued::free));

@@ -268,6 +268,7 @@ async fn joined(
         }
     };
     let (updates, updates_task) = spawn_writer(uni, ctx.writer_queue, ctx.send_interval, "updates");
+    let stored = stored_position(&ctx, &claims.player).await;
     let (reply_tx, reply_rx) = oneshot::channel();
     let (kick_tx, mut kick_rx) = oneshot::channel();
     let latest = Arc::new(LatestPosition::default());
@@ -281,6 +282,7 @@ async fn joined(
         kick: kick_tx,
         position: latest.clone(),
         capabilities,
+        stored: stored.map(Box::new),
     };
     if !ctx.engine.try_send(join) {
         return refuse(
@@ -649,6 +651,30 @@ async fn leave(engine: &EngineHandle, session: u64) {
     }
 }
 
+/// On a cluster node, where the shared store last has `player` (read on a
+/// blocking thread, after the login bucket): the engine bounds tickets and
+/// places the resume with it. A failed read is logged and counts as none.
+async fn stored_position(
+    ctx: &SessionContext,
+    player: &str,
+) -> Option<crate::store::StoredPosition> {
+    if !ctx.store.clustered() {
+        return None;
+    }
+    let (store, name) = (ctx.store.clone(), player.to_string());
+    let read = tokio::task::spawn_blocking(move || store.player_position(&name)).await;
+    match read.map_err(|e| e.to_string()) {
+        Ok(Ok(stored)) => stored,
+        Ok(Err(e)) => warn_none(&e.to_string()),
+        Err(e) => warn_none(&e),
+    }
+}
+
+fn warn_none<T>(error: &str) -> Option<T> {
+    warn!(error, "reading the player's stored position failed");
+    None
+}
+
 /// Queues a command the client relies on (subscriptions, resyncs). The
 /// session's share of the queue first: at its share it waits for the
 /// engine to take one of its own commands, so one client's burst holds at
@@ -704,7 +730,8 @@ const WAITS: Waits = Waits {
     queue: ENGINE_WAIT_TIMEOUT,
 };
 
-/// The end of a session that waited out [`ENGINE_WAIT_TIMEOUT`].
+/// The end of a session that waited out [`ENGINE_WAIT_TIMEOUT`] for room,
+/// or [`SHARE_WAIT_TIMEOUT`] for its own share.
 fn overloaded() -> End {
     warn!("engine queue full; closing the session");
     End::Refused(ErrorCode::TooManyConnections, "server is overloaded".into())

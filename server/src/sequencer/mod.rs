@@ -9,6 +9,13 @@ pub mod batch;
 mod chunk_bits;
 pub use crate::store::{CommitBatch, LogEntry, StoredPosition};
 
+/// How much older than another node's stored time a ticket may be: a node
+/// issues a fresh ticket every `TICKET_TTL_MS / 3` (`engine::owners`) and
+/// saves positions every second, so a player that walks on and uses its
+/// latest ticket at once is seen up to that much after the ticket. An
+/// older ticket (a replay) is refused.
+pub const STORED_TICKET_SLACK_MS: u64 = strata_protocol::limits::TICKET_TTL_MS / 3 + 2_000;
+
 pub mod config;
 mod reach;
 pub mod regions;
@@ -580,27 +587,30 @@ impl Sequencer {
             .filter(|&(id, _)| id != session_id)
             .map(|(_, p)| p)
             .collect();
+        let local = self.last_positions.get(&player).map(|r| StoredPosition {
+            feet: r.feet,
+            known_ms: r.known_ms,
+        });
+        // Another node's clock may run ahead: its times are at most now.
+        let stored = stored.map(|p| StoredPosition {
+            known_ms: p.known_ms.min(now_ms),
+            ..p
+        });
         // Of the remembered and the stored position, the newer.
-        let remembered = self
-            .last_positions
-            .get(&player)
-            .map(|r| StoredPosition {
-                feet: r.feet,
-                known_ms: r.known_ms,
-            })
-            .into_iter()
-            .chain(stored)
-            .max_by_key(|r| r.known_ms);
+        let remembered = local.into_iter().chain(stored).max_by_key(|r| r.known_ms);
         let feet = others
             .iter()
             .max_by_key(|p| p.at_ms)
             .map(|p| p.feet)
             .or(remembered.map(|r| r.feet));
-        // The newest time the player is known anywhere bounds its tickets.
+        // The newest time the player is known anywhere bounds its tickets;
+        // another node's, less the age a ticket it issued may have when
+        // used ([`STORED_TICKET_SLACK_MS`]).
         let known_ms = others
             .iter()
             .map(|p| p.known_ms)
-            .chain(remembered.map(|r| r.known_ms))
+            .chain(local.map(|r| r.known_ms))
+            .chain(stored.map(|r| r.known_ms.saturating_sub(STORED_TICKET_SLACK_MS)))
             .max()
             .unwrap_or(0);
         let Some(s) = self.sessions.get_mut(&session_id) else {

@@ -16,7 +16,7 @@ use std::io;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use crate::durable::{sync_dir, sync_parent};
+use crate::durable::sync_parent;
 
 /// sled's log file inside the store directory.
 const DB_FILE: &str = "db";
@@ -109,7 +109,7 @@ impl DiskSync {
         }
         changed |= present.len() != seen.blobs.len();
         if changed {
-            fsynced(&mut seen.failed, sync_dir(&blob_dir))?;
+            fsynced(&mut seen.failed, File::open(&blob_dir)?.sync_all())?;
         }
         seen.blobs = present.into_iter().take(MAX_TRACKED_BLOBS).collect();
         fsynced(&mut seen.failed, db.sync_data())?;
@@ -117,7 +117,7 @@ impl DiskSync {
             .map(|e| e.map(|e| e.file_name()))
             .collect::<io::Result<BTreeSet<_>>>()?;
         if entries != seen.entries {
-            fsynced(&mut seen.failed, sync_dir(dir))?;
+            fsynced(&mut seen.failed, File::open(dir)?.sync_all())?;
             seen.entries = entries;
         }
         Ok(())

@@ -446,7 +446,8 @@ impl ChunkStore for PgStore {
     }
 
     fn save_positions(&self, positions: &[(String, StoredPosition)]) -> Result<(), StoreError> {
-        // One row per player (an upsert may not touch a row twice): the last wins.
+        // One row per player (an upsert may not touch a row twice): the last
+        // wins, and never over a newer one another node saved.
         let latest: std::collections::BTreeMap<&str, StoredPosition> = positions
             .iter()
             .map(|(name, p)| (name.as_str(), *p))
@@ -468,7 +469,7 @@ impl ChunkStore for PgStore {
                 "INSERT INTO players (name, x, y, z, known_ms) \
                  SELECT * FROM unnest($1::text[], $2::int4[], $3::int4[], $4::int4[], $5::int8[]) \
                  ON CONFLICT (name) DO UPDATE SET x = EXCLUDED.x, y = EXCLUDED.y, z = EXCLUDED.z, \
-                 known_ms = EXCLUDED.known_ms",
+                 known_ms = EXCLUDED.known_ms WHERE players.known_ms <= EXCLUDED.known_ms",
                 &[&names, &xs, &ys, &zs, &times],
             )
             .await
