@@ -62,7 +62,7 @@ fn acked_seqs(path: &std::path::Path) -> Vec<u64> {
 /// `n` bots editing 5 times a second, logging acks to `acks`, once they
 /// have 10 acknowledged.
 fn editing_bots(server: &Server, acks: &std::path::Path, n: u32) -> strata_tests::Guard {
-    bots_at(server, acks, n, "512,512", "60s")
+    bots_at(server, acks, n, ("bot", "512,512"), "60s")
 }
 
 /// Waits until `acks` holds `n` lines.
@@ -74,18 +74,21 @@ fn await_acks(acks: &std::path::Path, n: usize) {
     }
 }
 
-/// [`editing_bots`] living in the square whose corner is `origin` (X,Z),
-/// for `duration`.
+/// [`editing_bots`] named `prefix-N` living in the square whose corner is
+/// `origin` (X,Z), for `duration`. Fleets on one cluster need their own
+/// prefix: a player is one body, which a node resumes where another left it.
 fn bots_at(
     server: &Server,
     acks: &std::path::Path,
     n: u32,
-    origin: &str,
+    (prefix, origin): (&str, &str),
     duration: &str,
 ) -> strata_tests::Guard {
     let bots = spawn_bots(
         server,
         &[
+            "--player-prefix",
+            prefix,
             "--bots",
             &n.to_string(),
             "--duration",
@@ -532,9 +535,10 @@ fn three_nodes_write_one_world_and_a_killed_nodes_regions_are_adopted_within_the
         .map(|i| tmp.path().join(format!("acks-{i}.jsonl")))
         .collect();
     // node-0's fleet runs until the node dies; the others' run out.
-    let doomed = bots_at(&nodes[0].2, &acks[0], 3, nodes[0].3, "60s");
+    let fleet = |i: usize| (["fleet0", "fleet1", "fleet2"][i], nodes[i].3);
+    let doomed = bots_at(&nodes[0].2, &acks[0], 3, fleet(0), "60s");
     let fleets: Vec<_> = (1..3)
-        .map(|i| bots_at(&nodes[i].2, &acks[i], 3, nodes[i].3, "8s"))
+        .map(|i| bots_at(&nodes[i].2, &acks[i], 3, fleet(i), "8s"))
         .collect();
 
     let pg = PgConfig {
