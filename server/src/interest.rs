@@ -196,16 +196,6 @@ impl Interest {
         self.recenter(chunk, r)
     }
 
-    /// After a ticket placed the player at `feet` (`Arrive`): a player's
-    /// explicit view out of reach of it moves there, as at a position
-    /// report; any other view waits for the first report.
-    pub fn placed_at(&mut self, feet: FixedVec3) -> InterestChange {
-        if self.explicit != Explicit::Near {
-            return InterestChange::default();
-        }
-        self.follow_position(feet)
-    }
-
     /// Whether a view of `center` and `radius` (capped at the view radius)
     /// reaches no farther than `view_radius + hysteresis` chunks
     /// (Chebyshev) from `anchor`: what a player's own view, re-centred

@@ -189,23 +189,6 @@ fn walking_away_from_a_subscription_moves_it_to_the_feet_at_its_radius() {
 }
 
 #[test]
-fn a_ticket_moves_only_an_explicit_view_it_leaves_out_of_reach() {
-    let feet = |cx: i32| FixedVec3::from_voxels(cx * 32 + 16, 16, 16);
-    // A view that follows positions waits for the first report.
-    let mut i = interest(2, 1);
-    assert!(i.placed_at(feet(40)).is_empty());
-    assert_eq!(i.center(), None);
-    // An explicit one the arrival leaves out of reach moves to the feet.
-    let mut i = interest(2, 1);
-    i.follow_position(feet(0));
-    i.subscribe(ChunkPos::new(1, 0, 0), 1);
-    assert!(i.placed_at(feet(2)).is_empty(), "still within reach");
-    let c = i.placed_at(feet(40));
-    assert!(c.recentred);
-    assert_eq!((i.center(), i.radius()), (Some(ChunkPos::new(40, 0, 0)), 1));
-}
-
-#[test]
 fn an_admins_subscription_stays_wherever_it_goes() {
     let mut i = interest(2, 0);
     i.subscribe_anywhere(ChunkPos::new(100, 0, 0), 2);

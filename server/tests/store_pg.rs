@@ -160,6 +160,13 @@ fn a_stored_position_is_never_replaced_by_an_older_one() {
         .unwrap();
     assert_eq!(store.player_position("ann").unwrap(), Some(at(9, 3_000)));
     assert_eq!(store.player_position("bob").unwrap(), None);
+    // A row dated an hour ahead (a node's clock ran ahead) pins nothing.
+    let now = strata_server::engine::now_ms();
+    store
+        .save_positions(&[("cy".into(), at(1, now + 3_600_000))])
+        .unwrap();
+    store.save_positions(&[("cy".into(), at(2, now))]).unwrap();
+    assert_eq!(store.player_position("cy").unwrap(), Some(at(2, now)));
 }
 
 #[test]

@@ -404,6 +404,7 @@ fn a_stored_position_newer_than_this_nodes_bounds_tickets_and_resumes_there() {
     };
     s.session_joined(10, "r".into(), Role::Player);
     s.resume_position(10, 26_000, Some(ahead));
+    assert_eq!(s.arrive(10, b, 0), Err(TicketRefusal::AlreadyPlaced));
     let issued = 26_000 - STORED_TICKET_SLACK_MS + 1;
     assert_eq!(s.arrive(10, b, issued), Ok(Start::Resume { feet: b }));
     // An older stored position loses to what this node remembers.

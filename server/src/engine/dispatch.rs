@@ -143,8 +143,6 @@ impl Engine {
                     Ok(start) => {
                         if let Some(p) = self.peers.get_mut(&session) {
                             p.start = start;
-                            let change = p.interest.placed_at(feet);
-                            self.apply_interest(session, change);
                         }
                         ServerMessage::Arrived { feet }
                     }

@@ -591,7 +591,8 @@ impl Sequencer {
             feet: r.feet,
             known_ms: r.known_ms,
         });
-        // Another node's clock may run ahead: its times are at most now.
+        // Another node's clock may run ahead: its times are at most now
+        // (and the store lets any node overwrite a row dated ahead).
         let stored = stored.map(|p| StoredPosition {
             known_ms: p.known_ms.min(now_ms),
             ..p
@@ -774,20 +775,25 @@ impl Sequencer {
     /// when the player was last known there: the shell stores them
     /// durably.
     pub fn take_moved(&mut self) -> Vec<(String, StoredPosition)> {
-        // A live session's position is newer than the remembered one.
-        let live: HashMap<&str, StoredPosition> = self
-            .sessions
-            .values()
-            .filter(|s| self.moved.contains(&s.player))
-            .filter_map(|s| {
-                let p = s.position?;
-                let stored = StoredPosition {
-                    feet: p.feet,
-                    known_ms: p.known_ms,
-                };
-                Some((s.player.as_str(), stored))
-            })
-            .collect();
+        // A live session's position is newer than the remembered one; of
+        // several sessions of a player, the one known there last.
+        let mut live: HashMap<&str, StoredPosition> = HashMap::new();
+        for s in self.sessions.values() {
+            let Some(p) = s.position.filter(|_| self.moved.contains(&s.player)) else {
+                continue;
+            };
+            let stored = StoredPosition {
+                feet: p.feet,
+                known_ms: p.known_ms,
+            };
+            live.entry(s.player.as_str())
+                .and_modify(|q| {
+                    if stored.known_ms > q.known_ms {
+                        *q = stored;
+                    }
+                })
+                .or_insert(stored);
+        }
         let moved = std::mem::take(&mut self.moved);
         moved
             .into_iter()

@@ -447,7 +447,10 @@ impl ChunkStore for PgStore {
 
     fn save_positions(&self, positions: &[(String, StoredPosition)]) -> Result<(), StoreError> {
         // One row per player (an upsert may not touch a row twice): the last
-        // wins, and never over a newer one another node saved.
+        // wins, and never over a newer one another node saved, unless that
+        // one is dated ahead of the database's clock (a node whose clock
+        // ran ahead would pin it).
+        const SKEW_MS: i64 = strata_protocol::limits::TICKET_SKEW_MS as i64;
         let latest: std::collections::BTreeMap<&str, StoredPosition> = positions
             .iter()
             .map(|(name, p)| (name.as_str(), *p))
@@ -469,8 +472,10 @@ impl ChunkStore for PgStore {
                 "INSERT INTO players (name, x, y, z, known_ms) \
                  SELECT * FROM unnest($1::text[], $2::int4[], $3::int4[], $4::int4[], $5::int8[]) \
                  ON CONFLICT (name) DO UPDATE SET x = EXCLUDED.x, y = EXCLUDED.y, z = EXCLUDED.z, \
-                 known_ms = EXCLUDED.known_ms WHERE players.known_ms <= EXCLUDED.known_ms",
-                &[&names, &xs, &ys, &zs, &times],
+                 known_ms = EXCLUDED.known_ms WHERE players.known_ms <= EXCLUDED.known_ms \
+                 OR players.known_ms > (extract(epoch FROM clock_timestamp()) * 1000)::bigint \
+                     + $6",
+                &[&names, &xs, &ys, &zs, &times, &SKEW_MS],
             )
             .await
         })?;
