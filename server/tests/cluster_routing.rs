@@ -839,11 +839,8 @@ async fn a_free_region_the_store_cannot_read_refuses_its_edits_until_it_can() {
 
         // Another session holds the deltas table: reading a region's
         // versions waits past the statement timeout.
-        let (release, released) = std::sync::mpsc::channel::<()>();
         let lock = "LOCK TABLE chunk_deltas IN ACCESS EXCLUSIVE MODE";
-        let holder = crate::store_common::hold_rows(&db, lock, "ROLLBACK", move || {
-            let _ = released.recv();
-        });
+        let (release, holder) = crate::store_common::hold_until_told(&db, lock);
         let (verdict, _) = ann.edit_acked(mine_at(WEST_X)).await.unwrap();
         assert_eq!(
             verdict,

@@ -558,15 +558,8 @@ fn a_forced_postgres_restore_waits_for_no_running_node() {
 
     // Something else using the world's tables: refused after a bounded
     // wait, the world unchanged.
-    let (done_tx, done) = std::sync::mpsc::channel::<()>();
-    let holder = store_common::hold_rows(
-        &db,
-        "LOCK TABLE chunks IN ACCESS SHARE MODE",
-        "ROLLBACK",
-        move || {
-            let _ = done.recv();
-        },
-    );
+    let (done_tx, holder) =
+        store_common::hold_until_told(&db, "LOCK TABLE chunks IN ACCESS SHARE MODE");
     let err = format!("{:#}", pg_restore(&db, tmp.path(), &new, true).unwrap_err());
     done_tx.send(()).unwrap();
     holder.join().unwrap();
@@ -692,14 +685,9 @@ fn a_server_does_not_start_on_a_database_a_restore_is_replacing() {
     };
     // A store opened before a restore's transaction took the lock alone.
     let store = pg_store(&db);
-    let (done_tx, done) = std::sync::mpsc::channel::<()>();
-    let restoring = store_common::hold_rows(
+    let (done_tx, restoring) = store_common::hold_until_told(
         &db,
         &format!("SELECT pg_advisory_xact_lock({SERVING_LOCK})"),
-        "ROLLBACK",
-        move || {
-            let _ = done.recv();
-        },
     );
     let err = store.serve().unwrap_err().to_string();
     assert!(err.contains("a restore is replacing"), "{err}");
@@ -787,17 +775,12 @@ fn a_server_with_a_migration_pending_says_a_restore_is_running_at_once() {
          DELETE FROM schema_migrations WHERE version >= 8",
     );
     // A forced restore's transaction: the lock alone, the tables locked.
-    let (done_tx, done) = std::sync::mpsc::channel::<()>();
-    let restoring = store_common::hold_rows(
+    let (done_tx, restoring) = store_common::hold_until_told(
         &db,
         &format!(
             "SELECT pg_advisory_xact_lock({SERVING_LOCK}); \
              LOCK TABLE world, chunks, players IN ACCESS EXCLUSIVE MODE"
         ),
-        "ROLLBACK",
-        move || {
-            let _ = done.recv();
-        },
     );
     let cfg = PgConfig {
         url: db.url(),

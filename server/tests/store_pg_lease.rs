@@ -888,10 +888,7 @@ fn a_node_paused_in_its_commit_holds_up_no_other_nodes_commit() {
          SELECT 1 FROM chunks WHERE x = {} AND y = {} AND z = {} FOR UPDATE",
         rb.x, rb.z, pb.x, pb.y, pb.z
     );
-    let (release, released) = std::sync::mpsc::channel::<()>();
-    let holder = store_common::hold_rows(&db, &lock, "ROLLBACK", move || {
-        let _ = released.recv();
-    });
+    let (release, holder) = store_common::hold_until_told(&db, &lock);
     // While b is "paused", a commits twice (the first claims its region).
     for i in 0..2 {
         a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], 10 + i))

@@ -283,6 +283,19 @@ pub fn hold_world_row(
     )
 }
 
+/// Runs `lock` in a transaction of its own until the returned sender
+/// sends (or drops), then rolls it back; join the handle to wait for that.
+pub fn hold_until_told(
+    db: &PgDb,
+    lock: &str,
+) -> (std::sync::mpsc::Sender<()>, std::thread::JoinHandle<()>) {
+    let (done_tx, done) = std::sync::mpsc::channel::<()>();
+    let holder = hold_rows(db, lock, "ROLLBACK", move || {
+        let _ = done.recv();
+    });
+    (done_tx, holder)
+}
+
 /// Runs `lock` (statements taking row locks) in a transaction of its
 /// own, returns once they ran, and ends it with `end` when `until`
 /// returns, on the returned thread.
