@@ -1297,9 +1297,10 @@ async fn a_node_joined_later_streams_the_view_asked() {
     .expect("test timed out");
 }
 
-/// A node that never saw a player reads where another node last saved it
-/// at the player's join: a ticket issued before then cannot take the
-/// player back (the old ticket's place), and the player resumes there.
+/// A node that never saw a player reads, as the player joins, where another
+/// node last saved it: a ticket issued more than `STORED_TICKET_SLACK_MS`
+/// before then cannot take the player back, a more recent one can, and
+/// the player resumes where it was saved.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
     use strata_protocol::{Refusal, Start, TicketRefusal};
