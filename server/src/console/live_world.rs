@@ -11,6 +11,9 @@ use strata_terrain::{ChunkGenerator, World};
 use crate::admin::world_source::{insert_raw, ChunkBox, WorldSourceError, WorldView};
 use crate::store::ChunkStore;
 
+/// How long a read waits for the commit it saw to be fsynced.
+const SETTLE_WITHIN: std::time::Duration = std::time::Duration::from_secs(5);
+
 /// Store plus generator of a running server.
 #[derive(Clone)]
 pub struct LiveWorld {
@@ -61,6 +64,14 @@ impl WorldView for LiveWorld {
                 }
             }
         }
+        // What the operator sees is what clients were acknowledged: never
+        // an edit a power cut may still take back.
+        self.store
+            .settle_reads(SETTLE_WITHIN)
+            .map_err(|source| WorldSourceError::Store {
+                path: PathBuf::from("world.sled"),
+                source,
+            })?;
         Ok(world)
     }
 }

@@ -41,6 +41,10 @@ pub enum StoreError {
         world: std::path::PathBuf,
         replaced: std::path::PathBuf,
     },
+    /// A read showed a commit that was not made durable in time (its
+    /// fsync is slow, or failed).
+    #[error("the store showed edits up to seq {seq} that were not durable within {waited_ms} ms")]
+    NotDurable { seq: u64, waited_ms: u64 },
     /// A record on disk does not have the layout this version writes.
     #[error("corrupt {what} at key {key}")]
     Corrupt { what: String, key: String },

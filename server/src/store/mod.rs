@@ -118,7 +118,18 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     fn edit_log(&self, seqs: RangeInclusive<u64>) -> StoreIter<'_, LogEntry>;
 
     /// A modified chunk's stored bytes, undecoded, or `None` if never modified.
+    /// It may show a commit whose fsync is still running: a reader that
+    /// shows what it read to anyone calls [`Self::settle_reads`] first.
     fn raw_chunk(&self, pos: ChunkPos) -> Result<Option<RawChunk>, StoreError>;
+
+    /// Returns once every commit this store's reads have shown so far is
+    /// durable, or refuses after `within` ([`StoreError::NotDurable`]).
+    /// sled shows a transaction's writes before its fsync; PostgreSQL shows
+    /// a commit only once its WAL is flushed, so its default returns at once.
+    fn settle_reads(&self, within: std::time::Duration) -> Result<(), StoreError> {
+        let _ = within;
+        Ok(())
+    }
 
     /// `(pos, version)` of every modified chunk, in key ([`ChunkPos`]) order.
     fn modified_chunks(&self) -> StoreIter<'_, (ChunkPos, u64)>;

@@ -59,6 +59,10 @@ pub const TREE_DELTAS: &str = "deltas";
 /// change (a special case of 3's deltas across several changes), 3 had no
 /// "generated" chunk records.
 const UPGRADABLE_FORMATS: [u32; 3] = [1, 2, 3];
+
+/// How often [`ChunkStore::settle_reads`] looks whether a commit's fsync
+/// finished (a group commit takes about a millisecond).
+const SETTLE_POLL: std::time::Duration = std::time::Duration::from_millis(1);
 /// Tree of players' last positions: name → x, y, z (fixed point, i32 BE).
 pub const TREE_PLAYERS: &str = "players";
 /// Key of the metadata record in [`TREE_META`].
@@ -278,6 +282,24 @@ impl ChunkStore for SledStore {
     fn last_seq(&self) -> Result<u64, StoreError> {
         let stored = self.stored_last_seq()?;
         Ok(stored.min(self.durable_seq.load(Ordering::Relaxed)))
+    }
+
+    /// Every commit's writes and its `last_seq` become visible together
+    /// (one transaction), so `last_seq` as sled shows it after the reads
+    /// covers all they saw; a commit's fsync raises `durable_seq` to it.
+    fn settle_reads(&self, within: std::time::Duration) -> Result<(), StoreError> {
+        let seen = self.stored_last_seq()?;
+        let started = Instant::now();
+        while self.durable_seq.load(Ordering::Relaxed) < seen {
+            if started.elapsed() >= within {
+                return Err(StoreError::NotDurable {
+                    seq: seen,
+                    waited_ms: within.as_millis() as u64,
+                });
+            }
+            std::thread::sleep(SETTLE_POLL);
+        }
+        Ok(())
     }
 
     fn load_chunk(&self, pos: ChunkPos) -> Result<Option<StoredChunk>, StoreError> {
@@ -797,5 +819,31 @@ mod durable_seq_tests {
         drop(store);
         let store = SledStore::open(dir.path()).unwrap();
         assert_eq!(store.last_seq().unwrap(), 5);
+    }
+
+    #[test]
+    fn reads_settle_only_once_what_they_saw_is_durable() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = SledStore::open(dir.path()).unwrap();
+        store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+        let short = std::time::Duration::from_millis(30);
+        store.settle_reads(short).unwrap();
+        // A commit shown (its `last_seq` with it), its fsync not run yet.
+        store
+            .meta
+            .insert(META_LAST_SEQ, &5u64.to_be_bytes()[..])
+            .unwrap();
+        let err = store.settle_reads(short).unwrap_err();
+        assert!(
+            matches!(err, StoreError::NotDurable { seq: 5, .. }),
+            "{err}"
+        );
+        // A reader waiting while the fsync runs returns once it is done.
+        std::thread::scope(|s| {
+            let waiter = s.spawn(|| store.settle_reads(std::time::Duration::from_secs(30)));
+            store.flush().unwrap();
+            waiter.join().unwrap().unwrap();
+        });
+        store.settle_reads(short).unwrap();
     }
 }
