@@ -215,7 +215,15 @@ impl DataDir {
             Err(_) => return Err(DataDirError::Missing(root.to_owned())),
         }
         let secret = Secret::load(&root.join(SECRET_NAME))?;
-        let cert = CertPair::load(&root.join(CERT_NAME), &root.join(KEY_NAME))?;
+        let (cert_path, key_path) = (root.join(CERT_NAME), root.join(KEY_NAME));
+        // A save cut short: the staged certificate is the pair's (a tool
+        // only reads it; the server's next start moves it into place).
+        let staged = crate::tls::staged_cert(&cert_path);
+        let cert = if !cert_path.exists() && key_path.exists() && staged.is_file() {
+            CertPair::load(&staged, &key_path)?
+        } else {
+            CertPair::load(&cert_path, &key_path)?
+        };
         Ok(DataDir {
             root: root.to_owned(),
             secret,

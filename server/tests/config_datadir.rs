@@ -155,6 +155,10 @@ fn a_certificate_save_cut_short_is_finished_at_the_next_start() {
     // The key was written, the certificate not yet moved into place.
     let staged = strata_server::tls::staged_cert(&root.join(CERT_NAME));
     std::fs::rename(root.join(CERT_NAME), &staged).unwrap();
+    // An admin tool reads the pair as it is, and moves nothing.
+    let tool = DataDir::open_existing(&root).unwrap();
+    assert_eq!(tool.cert().cert_der(), first.cert().cert_der());
+    assert!(staged.is_file() && !root.join(CERT_NAME).exists());
     let (dir, report) = DataDir::open_or_init(&root, &[]).unwrap();
     assert_eq!(report.created_cert, None, "the same pair, not a new one");
     assert_eq!(dir.cert().cert_der(), first.cert().cert_der());
