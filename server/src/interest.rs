@@ -11,8 +11,9 @@
 //! bounds are never subscribed. A player's subscription stays near its
 //! last accepted position or, before one, near its start ([`Anchor`]):
 //! its cube reaches at most `view_radius + hysteresis` chunks from there
-//! when accepted, and an accepted position that leaves it reaching
-//! farther moves it to the position's chunk (its radius kept).
+//! when accepted, and an accepted position [`RECENTRE_MARGIN`] voxels
+//! past where it reaches no farther moves it to the position's chunk (its
+//! radius kept).
 
 use std::collections::BTreeSet;
 
@@ -167,8 +168,9 @@ impl Interest {
 
     /// Follows an accepted feet position. After an explicit subscribe it
     /// keeps that view instead, a player's only while the view stays
-    /// within reach of the feet' chunk ([`Self::within_reach`]): past it,
-    /// the view moves to the feet' chunk, keeping the radius asked for.
+    /// within reach of the feet' chunk ([`Self::within_reach`]): once the
+    /// feet are [`RECENTRE_MARGIN`] voxels past that, the view moves to
+    /// the feet' chunk, keeping the radius asked for.
     pub fn follow_position(&mut self, feet: FixedVec3) -> InterestChange {
         let voxel = crate::validate::position::feet_voxel(feet);
         let chunk = voxel.chunk();
@@ -176,9 +178,14 @@ impl Interest {
         match self.explicit {
             Explicit::Anywhere => return InterestChange::default(),
             Explicit::Near => {
+                // Kept while the feet are in reach of it, or fewer than
+                // RECENTRE_MARGIN voxels past that (with no hysteresis a
+                // view of the whole radius is in reach of one chunk only,
+                // and flipping over its border would move it each time).
+                let reach = self.max_centre_distance(self.radius);
                 let kept = self
                     .center
-                    .is_some_and(|c| self.within_reach(c, self.radius, Anchor::Chunk(chunk)));
+                    .is_some_and(|c| voxels_past_cube(voxel, c, reach) < RECENTRE_MARGIN);
                 if kept {
                     return InterestChange::default();
                 }
@@ -291,9 +298,15 @@ impl Interest {
 /// How far `v` lies outside chunk `c`, in voxels along its farthest axis
 /// (0 inside).
 fn voxels_past(v: strata_terrain::VoxelPos, c: ChunkPos) -> i32 {
+    voxels_past_cube(v, c, 0)
+}
+
+/// How far `v` lies outside the chunks within `d` (Chebyshev) of `c`, in
+/// voxels along its farthest axis (0 inside).
+fn voxels_past_cube(v: strata_terrain::VoxelPos, c: ChunkPos, d: u8) -> i32 {
     let past = |v: i32, c: i32| {
-        let lo = i64::from(c) * CHUNK_SIZE as i64;
-        let hi = lo + CHUNK_SIZE as i64 - 1;
+        let lo = (i64::from(c) - i64::from(d)) * CHUNK_SIZE as i64;
+        let hi = (i64::from(c) + i64::from(d) + 1) * CHUNK_SIZE as i64 - 1;
         let v = i64::from(v);
         (lo - v).max(v - hi).clamp(0, i64::from(i32::MAX)) as i32
     };

@@ -189,6 +189,28 @@ fn walking_away_from_a_subscription_moves_it_to_the_feet_at_its_radius() {
 }
 
 #[test]
+fn with_no_hysteresis_flipping_over_a_border_does_not_move_a_subscription() {
+    use strata_server::interest::RECENTRE_MARGIN;
+    // A whole view with no hysteresis is in reach of its own chunk only.
+    let mut i = interest(2, 0);
+    i.follow_position(FixedVec3::from_voxels(31, 0, 0));
+    i.subscribe(ChunkPos::new(0, 0, 0), 2);
+    for _ in 0..10 {
+        assert!(i
+            .follow_position(FixedVec3::from_voxels(32, 0, 0))
+            .is_empty());
+        assert!(i
+            .follow_position(FixedVec3::from_voxels(31, 0, 0))
+            .is_empty());
+    }
+    assert_eq!(i.center(), Some(ChunkPos::new(0, 0, 0)));
+    // The margin past it, the view moves to the feet.
+    let c = i.follow_position(FixedVec3::from_voxels(31 + RECENTRE_MARGIN, 0, 0));
+    assert!(c.recentred);
+    assert_eq!((i.center(), i.radius()), (Some(ChunkPos::new(1, 0, 0)), 2));
+}
+
+#[test]
 fn an_admins_subscription_stays_wherever_it_goes() {
     let mut i = interest(2, 0);
     i.subscribe_anywhere(ChunkPos::new(100, 0, 0), 2);
