@@ -353,6 +353,11 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
         assert_eq!(glb.json["meshes"].as_array().unwrap().len(), 1);
         let huge = get(web, "/api/scene.glb?x0=-20&z0=-20&x1=20&z1=20", Some(&admin)).await;
         assert_eq!(huge.status, 400, "scene_max_chunks");
+        // A thin box counts the border its meshes read: 500 x 1 x 1 chunks
+        // read 502 x 3 x 3.
+        let y = format!("&y0={}&y1={}", c.y, c.y);
+        let thin = get(web, &format!("/api/scene.glb?x0=0&z0=0&x1=499&z1=0{y}"), Some(&admin)).await;
+        assert_eq!(thin.status, 400, "{}", String::from_utf8_lossy(&thin.body));
         assert_eq!(get(web, "/api/tile?tx=0&tz=0&evil=1", Some(&admin)).await.status, 400);
         assert_eq!(get(web, "/api/tile?tx=99999999&tz=0", Some(&admin)).await.status, 400);
 
@@ -624,6 +629,62 @@ async fn an_event_stream_ends_when_its_token_is_no_longer_good() {
         .unwrap();
         let mut expiring = Events::open(web, &short).await;
         expiring.until_end(SHORT_TOKEN_TTL + STREAM_ENDS_WITHIN).await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test timed out");
+}
+
+/// Connections admitted by a token hold their slots only while it stays
+/// good: once it expired, a new connection closes them and is served.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_admitted_by_a_token_no_longer_good_give_up_their_slots() {
+    tokio::time::timeout(Duration::from_secs(60), async {
+        let dir = tempfile::tempdir().unwrap();
+        let (server, web) = start_console(dir.path(), |c| {
+            c.max_connections = 2;
+            c.idle_timeout_ms = 30_000;
+        })
+        .await;
+        let short = strata_server::auth::issue(
+            server.data_dir.secret(),
+            "eve",
+            Role::Admin,
+            SHORT_TOKEN_TTL,
+            strata_server::auth::unix_now(),
+        )
+        .unwrap();
+        let keep_alive = String::from_utf8(request_text("GET", "/api/world", Some(&short), b""))
+            .unwrap()
+            .replace("Connection: close", "Connection: keep-alive");
+        let mut buf = [0u8; 64];
+        let mut held = Vec::new();
+        for _ in 0..2 {
+            let mut c = TcpStream::connect(web).await.unwrap();
+            c.write_all(keep_alive.as_bytes()).await.unwrap();
+            let n = tokio::time::timeout(Duration::from_secs(10), c.read(&mut buf))
+                .await
+                .expect("served")
+                .unwrap();
+            assert!(buf[..n].starts_with(b"HTTP/1.1 200"), "{:?}", &buf[..n]);
+            held.push(c);
+        }
+        // Past the token's expiry (whole seconds), another admin gets in.
+        tokio::time::sleep(SHORT_TOKEN_TTL + Duration::from_secs(1)).await;
+        let admin = token(&server, "ops", Role::Admin);
+        let r = tokio::time::timeout(
+            Duration::from_secs(10),
+            get(web, "/api/world", Some(&admin)),
+        )
+        .await
+        .expect("served: a lapsed admission made room");
+        assert_eq!(r.status, 200);
+        for c in &mut held {
+            // The rest of the first answer, then the end.
+            let mut rest = Vec::new();
+            let end = tokio::time::timeout(Duration::from_secs(5), c.read_to_end(&mut rest)).await;
+            assert!(end.is_ok(), "a lapsed connection is closed");
+        }
         server.shutdown().await.unwrap();
     })
     .await

@@ -15,7 +15,11 @@
 //! unadmitted until a request on it passed the token check
 //! ([`ConnState::admit`]): it may stay silent only that long, and when
 //! every slot is taken a new connection closes the oldest unadmitted one,
-//! so anonymous connections can never lock the operators out.
+//! so anonymous connections can never lock the operators out. An
+//! admission lasts only while the token that made it stays good
+//! (unexpired, unrevoked, its admin not banned): with no unadmitted
+//! connection to close, a new one closes those whose admission lapsed, so
+//! a former admin's connections cannot keep the slots either.
 
 use std::collections::VecDeque;
 use std::io;
@@ -53,23 +57,49 @@ const ADMITTED: u8 = 1;
 /// Closed for a new connection (it was never admitted).
 const EVICTED: u8 = 2;
 
+/// Whether the admission a token made still holds.
+pub type StillGood = Box<dyn Fn() -> bool + Send + Sync>;
+
 /// What a connection's handlers and its listener share.
-#[derive(Debug, Default)]
+#[derive(Default)]
 pub struct ConnState {
-    /// [`NEW`], then [`ADMITTED`] or [`EVICTED`] for good: whichever
-    /// comes first wins.
+    /// [`NEW`], then [`ADMITTED`] or [`EVICTED`]; an admitted connection
+    /// is evicted only once its admission lapsed.
     state: AtomicU8,
     /// The task waiting on the connection, woken to close it.
     waker: Mutex<Option<Waker>>,
+    /// The newest admission's check.
+    still: Mutex<Option<StillGood>>,
+}
+
+impl std::fmt::Debug for ConnState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ConnState")
+            .field("state", &self.state)
+            .finish_non_exhaustive()
+    }
 }
 
 impl ConnState {
-    /// A request on this connection passed the token check: it is never
-    /// evicted from now on (unless it already was).
-    pub fn admit(&self) {
+    /// A request on this connection passed the token check: it is not
+    /// evicted from now on (unless it already was) while `still` holds,
+    /// the newest admission's check replacing the one before.
+    pub fn admit(&self, still: StillGood) {
+        *self.still.lock().unwrap_or_else(|p| p.into_inner()) = Some(still);
         let _ = self
             .state
             .compare_exchange(NEW, ADMITTED, Ordering::AcqRel, Ordering::Acquire);
+    }
+
+    /// Whether it is admitted by a token no longer good.
+    fn lapsed(&self) -> bool {
+        self.is_admitted()
+            && self
+                .still
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .as_ref()
+                .is_some_and(|still| !still())
     }
 
     fn is_admitted(&self) -> bool {
@@ -80,12 +110,12 @@ impl ConnState {
         self.state.load(Ordering::Acquire) == EVICTED
     }
 
-    /// Closes the connection at its next poll (woken now), unless it was
-    /// admitted meanwhile; true if it was evicted.
-    fn evict(&self) -> bool {
+    /// Closes the connection at its next poll (woken now), unless it
+    /// left state `from` meanwhile; true if it was evicted.
+    fn evict(&self, from: u8) -> bool {
         let evicted = self
             .state
-            .compare_exchange(NEW, EVICTED, Ordering::AcqRel, Ordering::Acquire)
+            .compare_exchange(from, EVICTED, Ordering::AcqRel, Ordering::Acquire)
             .is_ok();
         if evicted {
             if let Some(w) = self.waker.lock().unwrap_or_else(|p| p.into_inner()).take() {
@@ -114,9 +144,9 @@ pub struct LimitedListener {
     inner: TcpListener,
     slots: Arc<Semaphore>,
     deadlines: Deadlines,
-    /// Connections not admitted yet, oldest first (some gone or admitted
-    /// since: skipped when met). At most one entry per slot is kept.
-    unadmitted: VecDeque<Weak<ConnState>>,
+    /// Open connections, oldest first (some gone since: skipped when met,
+    /// dropped when tracking). At most one entry per slot is kept.
+    conns: VecDeque<Weak<ConnState>>,
     max: usize,
 }
 
@@ -126,21 +156,23 @@ impl LimitedListener {
             inner,
             slots: Arc::new(Semaphore::new(max)),
             deadlines,
-            unadmitted: VecDeque::new(),
+            conns: VecDeque::new(),
             max,
         }
     }
 
-    /// A free slot; when none is, closes the oldest unadmitted connection
-    /// (if eviction is on and there is one) and waits for its slot.
+    /// A free slot; when none is (and eviction is on), closes the oldest
+    /// unadmitted connection or, with none, every one whose admission
+    /// lapsed, and waits for a slot.
     async fn slot(&mut self) -> OwnedSemaphorePermit {
         if let Ok(slot) = self.slots.clone().try_acquire_owned() {
             return slot;
         }
         if self.deadlines.unadmitted.is_some() {
-            while let Some(w) = self.unadmitted.pop_front() {
-                if w.upgrade().is_some_and(|c| c.evict()) {
-                    break;
+            let live = || self.conns.iter().filter_map(Weak::upgrade);
+            if !live().any(|c| c.evict(NEW)) {
+                for c in live().filter(|c| c.lapsed()) {
+                    c.evict(ADMITTED);
                 }
             }
         }
@@ -155,11 +187,11 @@ impl LimitedListener {
         if self.deadlines.unadmitted.is_none() {
             return;
         }
-        self.unadmitted
-            .retain(|w| w.upgrade().is_some_and(|c| !c.is_admitted()));
+        self.conns
+            .retain(|w| w.upgrade().is_some_and(|c| !c.is_evicted()));
         // Bounded by the slots: every live entry holds one.
-        if self.unadmitted.len() < self.max {
-            self.unadmitted.push_back(Arc::downgrade(state));
+        if self.conns.len() < self.max {
+            self.conns.push_back(Arc::downgrade(state));
         }
     }
 }

@@ -8,7 +8,10 @@
 //! (read from the store's edit log, not from the tick), the chunk columns
 //! they changed (the page redraws those tiles), the chart figures (from the
 //! metrics registry) and any snapshot in progress. Each watcher has a
-//! bounded queue; a watcher too slow to take a sample misses it. A
+//! bounded queue; a watcher too slow to take a sample misses it, and the
+//! next sample it takes says `"lagged": true` (the page then redraws every
+//! tile: the columns it missed are unknown). A sample that fails moves
+//! the hub's place in the edit log nowhere, so the next lists its edits. A
 //! watcher's token is checked again before each sample it is given: once
 //! it has expired or been revoked, or its admin is banned, the stream ends.
 
@@ -36,10 +39,18 @@ use crate::store::{ChunkStore, LogEntry, StoreError};
 /// Longest wait for the engine's answer within a sample.
 const ENGINE_ANSWER_TIMEOUT: Duration = Duration::from_secs(2);
 
+/// A watcher's queue.
+#[derive(Debug)]
+struct Watcher {
+    tx: mpsc::Sender<Arc<str>>,
+    /// Its queue was full for a sample since the last one it took.
+    missed: bool,
+}
+
 /// The watchers' queues.
 #[derive(Debug, Default)]
 pub struct Hub {
-    watchers: Mutex<Vec<mpsc::Sender<Arc<str>>>>,
+    watchers: Mutex<Vec<Watcher>>,
     wake: Notify,
     /// Samples taken since the start (none while nobody watches).
     samples: AtomicU64,
@@ -50,7 +61,7 @@ impl Hub {
         Self::default()
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<mpsc::Sender<Arc<str>>>> {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<Watcher>> {
         self.watchers.lock().unwrap_or_else(|p| p.into_inner())
     }
 
@@ -63,12 +74,12 @@ impl Hub {
         claims: Claims,
     ) -> Option<EventStream> {
         let mut w = self.lock();
-        w.retain(|s| !s.is_closed());
+        w.retain(|s| !s.tx.is_closed());
         if w.len() >= max {
             return None;
         }
         let (tx, rx) = mpsc::channel(EVENT_QUEUE);
-        w.push(tx);
+        w.push(Watcher { tx, missed: false });
         drop(w);
         self.wake.notify_one();
         Some(EventStream { rx, ctx, claims })
@@ -82,16 +93,32 @@ impl Hub {
     /// Connected watchers.
     pub fn watchers(&self) -> usize {
         let mut w = self.lock();
-        w.retain(|s| !s.is_closed());
+        w.retain(|s| !s.tx.is_closed());
         w.len()
     }
 
-    /// Queues `data` to every watcher that has room.
-    fn publish(&self, data: Arc<str>) {
-        self.lock().retain(|s| match s.try_send(data.clone()) {
-            Ok(()) => true,
-            Err(mpsc::error::TrySendError::Full(_)) => true,
-            Err(mpsc::error::TrySendError::Closed(_)) => false,
+    /// Queues `sample` to every watcher that has room; to one that missed
+    /// a sample, marked `"lagged": true`.
+    fn publish(&self, sample: serde_json::Value) {
+        let plain: Arc<str> = sample.to_string().into();
+        let mut lagged: Option<Arc<str>> = None;
+        self.lock().retain_mut(|w| {
+            let data = match w.missed {
+                false => plain.clone(),
+                true => lagged
+                    .get_or_insert_with(|| {
+                        let mut s = sample.clone();
+                        s["lagged"] = true.into();
+                        s.to_string().into()
+                    })
+                    .clone(),
+            };
+            match w.tx.try_send(data) {
+                Ok(()) => w.missed = false,
+                Err(mpsc::error::TrySendError::Full(_)) => w.missed = true,
+                Err(mpsc::error::TrySendError::Closed(_)) => return false,
+            }
+            true
         });
     }
 }
@@ -134,7 +161,7 @@ pub async fn run_hub(console: Arc<Console>) {
         }
         console.hub.samples.fetch_add(1, Ordering::Relaxed);
         match take_sample(&console, &mut cursor).await {
-            Ok(data) => console.hub.publish(data.into()),
+            Ok(sample) => console.hub.publish(sample),
             Err(e) => tracing::warn!(error = %e, "console sample failed"),
         }
         tokio::time::sleep(period).await;
@@ -224,7 +251,12 @@ async fn ask_in_time<T>(
         .map_err(anyhow::Error::msg)
 }
 
-async fn take_sample(console: &Arc<Console>, cursor: &mut Option<u64>) -> anyhow::Result<String> {
+/// The next sample; the hub's place in the edit log moves only with one
+/// taken whole.
+async fn take_sample(
+    console: &Arc<Console>,
+    cursor: &mut Option<u64>,
+) -> anyhow::Result<serde_json::Value> {
     let c = console.clone();
     let from = *cursor;
     let limit = console.cfg.edits_per_sample;
@@ -239,7 +271,6 @@ async fn take_sample(console: &Arc<Console>, cursor: &mut Option<u64>) -> anyhow
         read_edits(store, from, limit)
     })
     .await??;
-    *cursor = Some(edits.last_seq);
     let players = ask_in_time(console, AdminCommand::Players).await?;
     let zones = ask_in_time(console, AdminCommand::Zones).await?;
     let players: Vec<_> = players
@@ -265,5 +296,37 @@ async fn take_sample(console: &Arc<Console>, cursor: &mut Option<u64>) -> anyhow
         "snapshot": console.snapshots.status(),
         "watchers": console.hub.watchers(),
     });
-    Ok(serde_json::to_string(&sample)?)
+    *cursor = Some(edits.last_seq);
+    Ok(sample)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_watcher_that_missed_a_sample_is_told_so_in_the_next_it_takes() {
+        let hub = Hub::new();
+        let (tx, mut rx) = mpsc::channel(EVENT_QUEUE);
+        hub.lock().push(Watcher { tx, missed: false });
+        let sample = |n: u64| json!({ "seq": n, "columns": [[n, 0]] });
+        for n in 0..EVENT_QUEUE as u64 {
+            hub.publish(sample(n));
+        }
+        // Full: this one is missed.
+        hub.publish(sample(99));
+        let lagged =
+            |data: &str| serde_json::from_str::<serde_json::Value>(data).unwrap()["lagged"] == true;
+        let first = rx.try_recv().unwrap();
+        assert!(!lagged(&first));
+        hub.publish(sample(100));
+        let taken: Vec<Arc<str>> = std::iter::from_fn(|| rx.try_recv().ok()).collect();
+        assert_eq!(taken.len(), EVENT_QUEUE);
+        let last = taken.last().unwrap();
+        assert!(last.contains("\"seq\":100") && lagged(last), "{last}");
+        assert!(taken[..EVENT_QUEUE - 1].iter().all(|d| !lagged(d)));
+        // Told once: the next is plain again.
+        hub.publish(sample(101));
+        assert!(!lagged(&rx.try_recv().unwrap()));
+    }
 }

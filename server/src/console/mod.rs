@@ -68,8 +68,9 @@ pub const DEFAULT_TILE_CACHE: usize = 1024;
 pub const DEFAULT_MAX_BODY_BYTES: usize = 4096;
 /// Default tile or scene renders at once.
 pub const DEFAULT_MAX_RENDERS: usize = 2;
-/// Default chunks one 3-D view may mesh.
-pub const DEFAULT_SCENE_MAX_CHUNKS: u64 = 512;
+/// Default chunks one 3-D view may read: an 8 x 8 x 8 box with its
+/// one-chunk border.
+pub const DEFAULT_SCENE_MAX_CHUNKS: u64 = 1000;
 /// Default milliseconds between samples sent to watchers.
 pub const DEFAULT_SAMPLE_MS: u64 = 500;
 /// Default edits one sample reports at most (the rest are counted).
@@ -117,7 +118,8 @@ pub struct ConsoleConfig {
     pub max_body_bytes: usize,
     /// Tile and 3-D scene renders at once; more are answered 503.
     pub max_renders: usize,
-    /// Chunks one 3-D scene request may mesh.
+    /// Chunks one 3-D scene request may read: the box it meshes with the
+    /// one-chunk border around it its meshes need.
     pub scene_max_chunks: u64,
     /// Milliseconds between samples (players, edits, charts) to watchers.
     pub sample_ms: u64,

@@ -52,7 +52,8 @@ pub fn router(console: Arc<Console>) -> Router {
 
 /// A span per request, and headers that keep the page to its own origin.
 /// A request whose admin token checks out admits its connection before it
-/// runs (`conn_limit.rs`): from then on it is never closed for a new one.
+/// runs (`conn_limit.rs`): from then on it is not closed for a new one
+/// while that token stays good.
 async fn per_request(State(c): State<Arc<Console>>, req: Request, next: Next) -> Response {
     let span = tracing::info_span!("console", method = %req.method(), path = %req.uri().path());
     let api = req.uri().path().starts_with("/api/");
@@ -60,8 +61,11 @@ async fn per_request(State(c): State<Arc<Console>>, req: Request, next: Next) ->
         let conn = req
             .extensions()
             .get::<axum::extract::ConnectInfo<super::ConnMark>>();
-        if let Some(conn) = conn.filter(|_| auth::check(&c.ctx, req.headers()).is_ok()) {
-            conn.0 .0.admit();
+        if let (Some(conn), Ok(claims)) = (conn, auth::check(&c.ctx, req.headers())) {
+            let ctx = c.ctx.clone();
+            conn.0 .0.admit(Box::new(move || {
+                auth::still_admitted(&ctx, &claims, crate::auth::unix_now()).is_ok()
+            }));
         }
     }
     let mut resp = next.run(req).instrument(span).await;

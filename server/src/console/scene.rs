@@ -15,7 +15,7 @@ use crate::admin::world_source::{ChunkBox, WorldView};
 pub enum SceneError {
     #[error("the region must have x0 <= x1, y0 <= y1 and z0 <= z1")]
     Empty,
-    #[error("the region holds {chunks} chunks; at most {max} ([console] scene_max_chunks)")]
+    #[error("the region and the border of chunks its meshes read hold {chunks} chunks; at most {max} ([console] scene_max_chunks)")]
     TooLarge { chunks: u64, max: u64 },
     #[error("rows {0}..={1} are outside the world")]
     Rows(i32, i32),
@@ -35,7 +35,8 @@ impl SceneError {
     }
 }
 
-/// Checks a requested chunk box against the world and the size cap.
+/// Checks a requested chunk box against the world and the size cap (the
+/// box with the border its meshes read).
 pub fn check_box(
     world: &dyn WorldView,
     min: ChunkPos,
@@ -50,7 +51,9 @@ pub fn check_box(
         return Err(SceneError::Rows(min.y, max.y));
     }
     let bx = ChunkBox { min, max };
-    let [a, b, c] = bx.size();
+    // Meshing reads (and generates) a border of one chunk around the box:
+    // a thin box reads several times its own chunks.
+    let [a, b, c] = bx.size().map(|n| n.saturating_add(2));
     let chunks = a.saturating_mul(b).saturating_mul(c);
     if chunks > max_chunks {
         return Err(SceneError::TooLarge {

@@ -225,6 +225,8 @@ const StrataMap = (() => {
     const now = Date.now();
     for (const e of s.edits) flashes.push({ at: e.at, kind: e.kind, t: now });
     const c = world.tile_columns;
+    // Samples were missed: which columns changed is unknown, so all.
+    if (s.lagged) for (const [, e] of tiles) e.gen++;
     for (const [x, z] of s.columns) {
       for (const v of ["top", "slice"]) {
         for (const [k, e] of tiles) {
