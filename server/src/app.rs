@@ -18,6 +18,7 @@ use crate::engine::{Engine, EngineHandle, StreamPolicy};
 use crate::health::Health;
 use crate::net::endpoint::Listener;
 use crate::net::player_buckets::PlayerBuckets;
+use crate::net::position_reads::PositionReads;
 use crate::net::session::SessionContext;
 use crate::sequencer::Sequencer;
 use crate::shutdown::{self, Shutdown, ShutdownTrigger};
@@ -227,6 +228,13 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         access_writes: tokio::sync::Mutex::new(()),
         default_zones: Sequencer::default_zones(&cfg.validation),
         zone_writes: tokio::sync::Mutex::new(()),
+        position_reads: match &cfg.cluster {
+            Some(c) => PositionReads::new(
+                c.position_reads,
+                std::time::Duration::from_millis(c.position_read_ms),
+            ),
+            None => PositionReads::default(),
+        },
     };
     let ctx = Arc::new(ctx);
     // Bound before anything is accepted, so a taken port fails the start.

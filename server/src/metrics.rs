@@ -120,7 +120,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(SESSIONS_TOTAL, "Sessions that joined the world");
     metrics::describe_counter!(
         CONNECTIONS_REFUSED,
-        "Connections turned away, by reason (handshakes, per_address, sessions, admin_sessions, join_rate)"
+        "Connections turned away, by reason (handshakes, per_address, sessions, admin_sessions, join_rate; on a cluster node, logins whose stored position was not read: position_reads, no turn in [cluster] position_read_ms; position_read_slow, the read did not end in it; position_read_failed)"
     );
     metrics::describe_counter!(
         CONNECTIONS_RETRIED,

@@ -11,6 +11,8 @@
 //! A node at its region limit refuses an edit in a free region with
 //! `NodeFull`, and the client library passes it to the other node.
 //! Bans made on either node hold on both (the access list is shared).
+//! A login whose stored position is not read in time, or fails, is
+//! refused retryable, with at most `[cluster] position_reads` at once.
 
 use crate::common;
 
@@ -1350,4 +1352,258 @@ async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
     })
     .await
     .expect("test finished in time");
+}
+
+/// Takes the players table from every other session (a plain `SELECT` of
+/// a stored position waits) until told; the holder thread comes second.
+fn lock_players(
+    db: &strata_tests::postgres::PgDb,
+) -> (std::sync::mpsc::Sender<()>, std::thread::JoinHandle<()>) {
+    let lock = "LOCK TABLE players IN ACCESS EXCLUSIVE MODE";
+    crate::store_common::hold_until_told(db, lock)
+}
+
+/// Ends [`lock_players`]'s transaction and waits for its thread.
+async fn unlock_players(held: (std::sync::mpsc::Sender<()>, std::thread::JoinHandle<()>)) {
+    let (release, holder) = held;
+    release.send(()).unwrap();
+    tokio::task::spawn_blocking(move || holder.join().unwrap())
+        .await
+        .unwrap();
+}
+
+/// The test database's backends reading a stored position now (the
+/// store's query; pg_stat_activity lists every database's, so this one's
+/// only).
+async fn position_readers(db: &strata_tests::postgres::PgDb) -> u32 {
+    let n = sql(
+        db,
+        "SELECT count(*) FROM pg_stat_activity WHERE datname = current_database() \
+         AND pid <> pg_backend_pid() AND state = 'active' \
+         AND query LIKE 'SELECT x, y, z, known_ms FROM players WHERE name%'",
+    )
+    .await;
+    n[0].parse().unwrap()
+}
+
+/// Waits until the store holds a position of `player` known at `seen` or
+/// later (the node saves them once a second).
+async fn saved_since(db: &strata_tests::postgres::PgDb, player: &str, seen: u64) {
+    let saved =
+        format!("SELECT count(*) FROM players WHERE name = '{player}' AND known_ms >= {seen}");
+    let started = std::time::Instant::now();
+    while sql(db, &saved).await != ["1"] {
+        assert!(started.elapsed() < Duration::from_secs(20), "never saved");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// A login to `node` as `player`: how it ended and how long it took.
+async fn timed_login(
+    node: &Running,
+    player: &str,
+) -> (
+    Result<strata_client_sim::Client, strata_client_sim::ClientError>,
+    Duration,
+) {
+    let t = token(node, player, Role::Player);
+    let started = std::time::Instant::now();
+    let c = strata_client_sim::Client::connect(node.addr, &node.cert_der, &t).await;
+    (c, started.elapsed())
+}
+
+/// The refusal's message, which must be a retryable `TooManyConnections`.
+fn busy_refusal(
+    login: &Result<strata_client_sim::Client, strata_client_sim::ClientError>,
+) -> String {
+    match login {
+        Err(strata_client_sim::ClientError::Refused {
+            code: ErrorCode::TooManyConnections,
+            message,
+        }) if message.contains("try again") => message.clone(),
+        Err(e) => panic!("not refused busy: {e}"),
+        Ok(_) => panic!("let in without its stored position"),
+    }
+}
+
+/// How many logins the process's metrics count refused for `reason`.
+fn refused_for(reason: &str) -> f64 {
+    let text = strata_server::metrics::shared().unwrap().render();
+    let line = format!("strata_connections_refused_total{{reason=\"{reason}\"}} ");
+    text.lines()
+        .find_map(|l| l.strip_prefix(&line))
+        .map_or(0.0, |v| v.trim().parse().unwrap())
+}
+
+/// A login whose stored position stays unreadable (the players table is
+/// locked) is refused `TooManyConnections` once `[cluster]
+/// position_read_ms` has passed, never let in unplaced; meanwhile the
+/// node renews its lease and commits a standing player's edit, and once
+/// the table is free again the player logs in.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_login_whose_stored_position_is_not_read_in_time_is_refused_and_the_node_goes_on() {
+    use strata_server::engine::now_ms;
+    let Some(db) = strata_tests::postgres::database("cluster_position_read_slow") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        strata_server::metrics::shared().unwrap();
+        let bound = Duration::from_millis(1_500);
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 5_000, 500);
+        cfg.cluster.as_mut().unwrap().position_read_ms = bound.as_millis() as u64;
+        let west = app::start(cfg).await.expect("node starts");
+        let seen = now_ms();
+        let ann = standing(&west, "ann", WEST_X).await;
+        let (v, _) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        // Saved: no save of hers waits on the lock (ahead of the commits).
+        saved_since(&db, "ann", seen).await;
+        let renewed = "SELECT renewed_at::text FROM regions WHERE owner = 'west'";
+        let before = sql(&db, renewed).await;
+        assert_eq!(before.len(), 1, "west holds region 0");
+        let slow_before = refused_for("position_read_slow");
+
+        let held = lock_players(&db);
+        let (bob, took) = timed_login(&west, "bob").await;
+        let why = busy_refusal(&bob);
+        assert!(why.contains("in time"), "{why}");
+        assert!(
+            took >= bound - Duration::from_millis(100) && took < bound + Duration::from_secs(2),
+            "refused after {took:?}"
+        );
+        assert!(refused_for("position_read_slow") > slow_before);
+        // The node went on meanwhile: it renewed its lease and commits.
+        assert_ne!(sql(&db, renewed).await, before, "no renewal while locked");
+        let (v, _) = ann.edit_acked(mine_at(WEST_X)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+
+        unlock_players(held).await;
+        let (bob, _) = timed_login(&west, "bob").await;
+        let bob = bob.expect("bob logs in once the table is free");
+        bob.close().await;
+        finish(ann, west).await;
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// However many players log in at once, at most `[cluster]
+/// position_reads` stored positions are read at once, each on one pooled
+/// connection: the others wait for a turn and are refused at
+/// `position_read_ms`, and reads stuck in the store keep their turns
+/// after their logins gave up, so the next logins find none either.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn logins_past_position_reads_hold_no_more_connections_and_are_refused_in_time() {
+    let Some(db) = strata_tests::postgres::database("cluster_position_reads") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        strata_server::metrics::shared().unwrap();
+        let (reads, bound) = (2, Duration::from_millis(2_000));
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 5_000, 500);
+        let cluster = cfg.cluster.as_mut().unwrap();
+        cluster.position_reads = reads;
+        cluster.position_read_ms = bound.as_millis() as u64;
+        let west = Arc::new(app::start(cfg).await.expect("node starts"));
+        let busy_before = refused_for("position_reads");
+
+        let held = lock_players(&db);
+        for wave in [6, 3] {
+            let logins: Vec<_> = (0..wave)
+                .map(|i| {
+                    let west = west.clone();
+                    tokio::spawn(async move { timed_login(&west, &format!("p{wave}_{i}")).await })
+                })
+                .collect();
+            let mut most = 0;
+            while logins.iter().any(|l| !l.is_finished()) {
+                most = most.max(position_readers(&db).await);
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            let mut busy = 0;
+            for l in logins {
+                let (login, took) = l.await.unwrap();
+                let why = busy_refusal(&login);
+                busy += usize::from(why.contains("busy"));
+                assert!(
+                    took < bound + Duration::from_secs(2),
+                    "refused after {took:?}"
+                );
+            }
+            assert!(most <= reads as u32, "{most} reads at once");
+            if wave == 6 {
+                // Two read, and wait on the lock past the bound.
+                assert_eq!(most, reads as u32, "the reads never ran");
+                assert_eq!(busy, wave - reads, "refused for want of a turn");
+            } else {
+                // The stuck reads still hold both turns.
+                assert_eq!(busy, wave, "refused for want of a turn");
+            }
+        }
+        assert_eq!(position_readers(&db).await, reads as u32);
+        assert!(refused_for("position_reads") >= busy_before + 7.0);
+
+        unlock_players(held).await;
+        let (late, _) = timed_login(&west, "late").await;
+        late.expect("a login once the table is free").close().await;
+        let Ok(west) = Arc::try_unwrap(west) else {
+            panic!("a login still holds the node");
+        };
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// A stored position whose read fails (the store's statement timeout,
+/// here under a lock; a player flooding logins could cause it too) refuses
+/// the login at once: counted as no position, it would let the player
+/// onto a node that never saw it with an `Arrive` ticket older than
+/// where another node last saved it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_login_whose_stored_position_read_fails_is_refused_not_let_in_unplaced() {
+    use strata_server::engine::now_ms;
+    let Some(db) = strata_tests::postgres::database("cluster_position_read_failed") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        strata_server::metrics::shared().unwrap();
+        let dirs = tempfile::tempdir().unwrap();
+        let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
+        let west = node(&da, &db, "west", WEST_X).await;
+        share_keys(&da, &db_dir);
+        let mut cfg = node_config(&db_dir, &db, ("east", EAST_X), 5_000, 500);
+        cfg.store.postgres.statement_timeout_ms = 300;
+        let east = app::start(cfg).await.expect("node starts");
+        let seen = now_ms();
+        let ann = standing(&west, "ann", WEST_X).await;
+        saved_since(&db, "ann", seen).await;
+        let failed_before = refused_for("position_read_failed");
+
+        let held = lock_players(&db);
+        let (on_east, took) = timed_login(&east, "ann").await;
+        let why = busy_refusal(&on_east);
+        assert!(!why.contains("in time") && !why.contains("busy"), "{why}");
+        let wait = Duration::from_millis(strata_server::cluster::DEFAULT_POSITION_READ_MS);
+        assert!(took < wait, "refused only after {took:?}");
+        assert!(refused_for("position_read_failed") > failed_before);
+
+        unlock_players(held).await;
+        let (on_east, _) = timed_login(&east, "ann").await;
+        let on_east = on_east.expect("ann logs in once the table is free");
+        assert!(
+            matches!(
+                on_east.welcome().start,
+                strata_protocol::Start::Resume { .. }
+            ),
+            "{:?}",
+            on_east.welcome().start
+        );
+        finish(ann, west).await;
+        finish(on_east, east).await;
+    })
+    .await
+    .expect("within the test timeout");
 }

@@ -474,6 +474,19 @@ fn a_cluster_node_needs_postgres_a_name_and_a_renewal_inside_its_lease() {
             "[cluster]\nnode_id = \"a\"\nadvertise = \"host :1\"\n",
             "cluster.advertise",
         ),
+        (
+            "[cluster]\nnode_id = \"a\"\nposition_reads = 0\n",
+            "cluster.position_reads",
+        ),
+        // Every connection of the pool (8): none left for commits.
+        (
+            "[cluster]\nnode_id = \"a\"\nposition_reads = 8\n",
+            "cluster.position_reads",
+        ),
+        (
+            "[cluster]\nnode_id = \"a\"\nposition_read_ms = 0\n",
+            "cluster.position_read_ms",
+        ),
     ] {
         assert_eq!(invalid_field(&format!("{pg}{cluster}")), field, "{cluster}");
     }
@@ -487,6 +500,27 @@ fn a_cluster_node_needs_postgres_a_name_and_a_renewal_inside_its_lease() {
             strata_server::cluster::DEFAULT_LEASE_MS,
             strata_server::cluster::DEFAULT_RENEW_MS
         )
+    );
+    assert_eq!(
+        (cluster.position_reads, cluster.position_read_ms),
+        (
+            strata_server::cluster::DEFAULT_POSITION_READS,
+            strata_server::cluster::DEFAULT_POSITION_READ_MS
+        )
+    );
+    assert!(
+        cluster.position_reads < c.store.postgres.max_connections,
+        "the default leaves the pool connections"
+    );
+    let bigger =
+        format!("{pg}max_connections = 9\n[cluster]\nnode_id = \"a\"\nposition_reads = 8\n");
+    assert_eq!(
+        ServerConfig::from_toml_str(&bigger)
+            .unwrap()
+            .cluster
+            .unwrap()
+            .position_reads,
+        8
     );
     assert_eq!(ServerConfig::default().cluster, None);
 }

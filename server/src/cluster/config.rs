@@ -30,6 +30,21 @@ pub const MAX_HELD_REGIONS_CAP: usize = 1 << 20;
 pub const DEFAULT_RELEASE_IDLE_MS: u64 = 600_000;
 /// Longest allowed `release_idle_ms` (a week).
 pub const MAX_RELEASE_IDLE_MS: u64 = 7 * 24 * 3_600_000;
+/// Players' stored positions read at once by logins (each read holds one
+/// of the store's `[store.postgres] max_connections`, 8 by default): well
+/// under the pool, so a login storm leaves commits, chunk loads and
+/// claims their connections.
+pub const DEFAULT_POSITION_READS: usize = 2;
+/// Largest allowed `position_reads` (the pool's own cap; it must also stay
+/// below `[store.postgres] max_connections`).
+pub const MAX_POSITION_READS: usize = 256;
+/// How long a login waits for a position read (its turn among
+/// `position_reads`, then the read) before it is refused, retryable
+/// (`TooManyConnections`). Well inside a client's wait for `Welcome` (10 s
+/// in strata-client).
+pub const DEFAULT_POSITION_READ_MS: u64 = 3_000;
+/// Longest allowed `position_read_ms`.
+pub const MAX_POSITION_READ_MS: u64 = 60_000;
 
 /// The `[cluster]` section. Without it a node on PostgreSQL takes no leases
 /// and its commits are not fenced: it must be the only one on its database.
@@ -60,6 +75,14 @@ pub struct ClusterConfig {
     /// See [`DEFAULT_RELEASE_IDLE_MS`]; 0 keeps every region until
     /// `max_held_regions` presses, else at least `lease_ms`.
     pub release_idle_ms: u64,
+    /// Logins reading their player's stored position at once (see
+    /// [`DEFAULT_POSITION_READS`]); the others wait their turn. At least
+    /// 1, and below `[store.postgres] max_connections`.
+    pub position_reads: usize,
+    /// See [`DEFAULT_POSITION_READ_MS`]: a login whose read has not
+    /// begun and ended in this long is refused (as is one whose read
+    /// failed), never let in unplaced.
+    pub position_read_ms: u64,
 }
 
 impl Default for ClusterConfig {
@@ -72,6 +95,8 @@ impl Default for ClusterConfig {
             adopt: true,
             max_held_regions: DEFAULT_MAX_HELD_REGIONS,
             release_idle_ms: DEFAULT_RELEASE_IDLE_MS,
+            position_reads: DEFAULT_POSITION_READS,
+            position_read_ms: DEFAULT_POSITION_READ_MS,
         }
     }
 }
@@ -112,15 +137,12 @@ impl ClusterConfig {
                 format!("must be at most {MAX_ADVERTISE_LEN} characters, without spaces"),
             ));
         }
-        if !(1..=MAX_HELD_REGIONS_CAP).contains(&self.max_held_regions) {
-            return Err((
-                "cluster.max_held_regions",
-                format!(
-                    "{} is outside 1..={MAX_HELD_REGIONS_CAP}",
-                    self.max_held_regions
-                ),
-            ));
-        }
+        within(
+            "cluster.max_held_regions",
+            self.max_held_regions,
+            1,
+            MAX_HELD_REGIONS_CAP,
+        )?;
         let idle = self.release_idle_ms;
         if idle != 0 && !(self.lease_ms..=MAX_RELEASE_IDLE_MS).contains(&idle) {
             return Err((
@@ -131,6 +153,18 @@ impl ClusterConfig {
                 ),
             ));
         }
+        within(
+            "cluster.position_reads",
+            self.position_reads,
+            1,
+            MAX_POSITION_READS,
+        )?;
+        within(
+            "cluster.position_read_ms",
+            self.position_read_ms,
+            1,
+            MAX_POSITION_READ_MS,
+        )?;
         let most = self.lease_ms / 2;
         if !(MIN_RENEW_MS..=most).contains(&self.renew_ms) {
             return Err((
@@ -143,4 +177,17 @@ impl ClusterConfig {
         }
         Ok(())
     }
+}
+
+/// `Err((field, why))` unless `lo <= v <= hi`.
+fn within<T: PartialOrd + std::fmt::Display>(
+    field: &'static str,
+    v: T,
+    lo: T,
+    hi: T,
+) -> Result<(), (&'static str, String)> {
+    if lo <= v && v <= hi {
+        return Ok(());
+    }
+    Err((field, format!("{v} is outside {lo}..={hi}")))
 }

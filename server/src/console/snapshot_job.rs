@@ -263,6 +263,7 @@ mod tests {
             join_rate: rate,
             join_buckets: crate::net::player_buckets::PlayerBuckets::new(1),
             position_rate: rate,
+            position_reads: crate::net::position_reads::PositionReads::default(),
             access: std::sync::RwLock::default(),
             access_writes: tokio::sync::Mutex::new(()),
             default_zones: Vec::new(),

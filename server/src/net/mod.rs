@@ -6,6 +6,7 @@ pub mod admin_zones;
 pub mod admission;
 pub mod endpoint;
 pub mod player_buckets;
+pub mod position_reads;
 pub mod session;
 pub mod transport_stats;
 pub mod writer;

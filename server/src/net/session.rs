@@ -17,6 +17,7 @@ use tracing::{debug, info, warn, Instrument};
 
 use super::admission::Handshake;
 use super::player_buckets::{BucketHold, PlayerBuckets};
+use super::position_reads::{PositionReads, ReadRefused};
 use super::writer::{spawn_writer, FrameSender, SendRefused};
 use crate::auth::{self, AuthError, Secret};
 use crate::engine::{
@@ -77,6 +78,9 @@ pub struct SessionContext {
     pub default_zones: Vec<crate::validate::zones::Zone>,
     /// Zone changes and reloads, one at a time (`net/admin_zones.rs`).
     pub zone_writes: tokio::sync::Mutex<()>,
+    /// On a cluster node, the logins' reads of stored positions: at most
+    /// `[cluster] position_reads` at once, each within `position_read_ms`.
+    pub position_reads: PositionReads,
 }
 
 impl SessionContext {
@@ -268,7 +272,15 @@ async fn joined(
         }
     };
     let (updates, updates_task) = spawn_writer(uni, ctx.writer_queue, ctx.send_interval, "updates");
-    let stored = stored_position(&ctx, &claims.player).await;
+    let stored = match stored_position(&ctx, &claims.player).await {
+        Ok(stored) => stored,
+        Err(refused) => {
+            drop(updates);
+            updates_task.abort();
+            let code = ErrorCode::TooManyConnections;
+            return refuse(&conn, control, control_task, code, &refused.to_string()).await;
+        }
+    };
     let (reply_tx, reply_rx) = oneshot::channel();
     let (kick_tx, mut kick_rx) = oneshot::channel();
     let latest = Arc::new(LatestPosition::default());
@@ -361,6 +373,8 @@ enum End {
 static TOKEN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
 /// Logins refused for their rate, logged likewise.
 static JOIN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
+/// Logins refused for want of their stored position, logged likewise.
+static POSITION_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
 
 /// Takes one of `player`'s login tokens (`[validation.join_rate]`) and
 /// holds its bucket for the session; none left: the reason to refuse.
@@ -651,28 +665,34 @@ async fn leave(engine: &EngineHandle, session: u64) {
     }
 }
 
-/// On a cluster node, where the shared store last has `player` (read on a
-/// blocking thread, after the login bucket): the engine bounds tickets and
-/// places the resume with it. A failed read is logged and counts as none.
+/// On a cluster node, where the shared store last has `player` (after the
+/// login bucket, under `[cluster] position_reads`, see
+/// `net/position_reads.rs`): the engine bounds tickets and places the
+/// resume with it. No answer in time, or a failed read, refuses the login
+/// (counted, logged at most once a second): never counted as none.
 async fn stored_position(
     ctx: &SessionContext,
     player: &str,
-) -> Option<crate::store::StoredPosition> {
+) -> Result<Option<crate::store::StoredPosition>, ReadRefused> {
     if !ctx.store.clustered() {
-        return None;
+        return Ok(None);
     }
-    let (store, name) = (ctx.store.clone(), player.to_string());
-    let read = tokio::task::spawn_blocking(move || store.player_position(&name)).await;
-    match read.map_err(|e| e.to_string()) {
-        Ok(Ok(stored)) => stored,
-        Ok(Err(e)) => warn_none(&e.to_string()),
-        Err(e) => warn_none(&e),
+    let refused = match ctx.position_reads.read(&ctx.store, player).await {
+        Ok(stored) => return Ok(stored),
+        Err(refused) => refused,
+    };
+    let reason = refused.reason();
+    metrics::counter!(crate::metrics::CONNECTIONS_REFUSED, "reason" => reason).increment(1);
+    if let Some(count) = POSITION_REFUSALS.event() {
+        let error = match &refused {
+            ReadRefused::Failed(e) => e.as_str(),
+            _ => "",
+        };
+        let wait = ctx.position_reads.wait();
+        warn!(%player, reason, error, ?wait, refused = count,
+            "refusing a login: its stored position was not read ([cluster] position_reads, position_read_ms)");
     }
-}
-
-fn warn_none<T>(error: &str) -> Option<T> {
-    warn!(error, "reading the player's stored position failed");
-    None
+    Err(refused)
 }
 
 /// Queues a command the client relies on (subscriptions, resyncs). The
