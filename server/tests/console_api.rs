@@ -635,6 +635,42 @@ async fn an_event_stream_ends_when_its_token_is_no_longer_good() {
     .expect("test timed out");
 }
 
+/// A connection still sending its first request is not closed for a new
+/// one while a silent anonymous one can be: an operator's request gets
+/// through a crowd of idle connections.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_new_connection_closes_a_silent_one_before_one_sending_its_request() {
+    tokio::time::timeout(Duration::from_secs(60), async {
+        let dir = tempfile::tempdir().unwrap();
+        let (server, web) = start_console(dir.path(), |c| c.max_connections = 2).await;
+        let admin = token(&server, "ops", Role::Admin);
+        let text = request_text("GET", "/api/world", Some(&admin), b"");
+        let (head, tail) = text.split_at(20);
+        // The oldest is an operator's, its request half sent ...
+        let mut operator = TcpStream::connect(web).await.unwrap();
+        operator.write_all(head).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        // ... then one that sends nothing, then one more.
+        let mut silent = TcpStream::connect(web).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let _third = TcpStream::connect(web).await.unwrap();
+        let mut buf = [0u8; 64];
+        let closed = tokio::time::timeout(Duration::from_secs(10), silent.read(&mut buf))
+            .await
+            .expect("the silent connection is closed");
+        assert!(matches!(closed, Ok(0) | Err(_)), "{closed:?}");
+        operator.write_all(tail).await.unwrap();
+        let n = tokio::time::timeout(Duration::from_secs(10), operator.read(&mut buf))
+            .await
+            .expect("the operator is answered")
+            .unwrap();
+        assert!(buf[..n].starts_with(b"HTTP/1.1 200"), "{:?}", &buf[..n]);
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test timed out");
+}
+
 /// Connections admitted by a token hold their slots only while it stays
 /// good: once it expired, a new connection closes them and is served.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -36,6 +36,11 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tokio::time::{Instant, Sleep};
 
+/// How long an unadmitted connection that is sending a request is safe
+/// from eviction: an operator's new connection gets this long to deliver
+/// its token while anonymous ones crowd in.
+const REQUEST_GRACE: Duration = Duration::from_secs(1);
+
 /// Pause after a failed accept (e.g. out of file descriptors).
 const ACCEPT_RETRY: std::time::Duration = std::time::Duration::from_millis(50);
 
@@ -70,6 +75,8 @@ pub struct ConnState {
     waker: Mutex<Option<Waker>>,
     /// The newest admission's check.
     still: Mutex<Option<StillGood>>,
+    /// When the request being received began, while one is.
+    request_since: Mutex<Option<Instant>>,
 }
 
 impl std::fmt::Debug for ConnState {
@@ -89,6 +96,19 @@ impl ConnState {
         let _ = self
             .state
             .compare_exchange(NEW, ADMITTED, Ordering::AcqRel, Ordering::Acquire);
+    }
+
+    /// Whether it may be closed for a new connection now: never admitted,
+    /// and silent between requests, or sending one for over
+    /// [`REQUEST_GRACE`].
+    fn evictable(&self, now: Instant) -> bool {
+        let since = *self.request_since.lock().unwrap_or_else(|p| p.into_inner());
+        self.state.load(Ordering::Acquire) == NEW
+            && since.is_none_or(|t| now.duration_since(t) >= REQUEST_GRACE)
+    }
+
+    fn set_request_since(&self, since: Option<Instant>) {
+        *self.request_since.lock().unwrap_or_else(|p| p.into_inner()) = since;
     }
 
     /// Whether it is admitted by a token no longer good.
@@ -162,24 +182,42 @@ impl LimitedListener {
     }
 
     /// A free slot; when none is (and eviction is on), closes the oldest
-    /// unadmitted connection or, with none, every one whose admission
-    /// lapsed, and waits for a slot.
+    /// evictable unadmitted connection ([`ConnState::evictable`]) or, with
+    /// none, every one whose admission lapsed, and waits for a slot,
+    /// looking again every [`REQUEST_GRACE`].
     async fn slot(&mut self) -> OwnedSemaphorePermit {
-        if let Ok(slot) = self.slots.clone().try_acquire_owned() {
-            return slot;
-        }
-        if self.deadlines.unadmitted.is_some() {
-            let live = || self.conns.iter().filter_map(Weak::upgrade);
-            if !live().any(|c| c.evict(NEW)) {
-                for c in live().filter(|c| c.lapsed()) {
-                    c.evict(ADMITTED);
-                }
+        loop {
+            if let Ok(slot) = self.slots.clone().try_acquire_owned() {
+                return slot;
+            }
+            if self.deadlines.unadmitted.is_none() {
+                break;
+            }
+            self.evict_one();
+            let acquired =
+                tokio::time::timeout(REQUEST_GRACE, self.slots.clone().acquire_owned()).await;
+            match acquired {
+                Ok(Ok(slot)) => return slot,
+                // The semaphore is never closed; wait as if it were full.
+                Ok(Err(_)) => std::future::pending::<()>().await,
+                Err(_) => {}
             }
         }
         match self.slots.clone().acquire_owned().await {
             Ok(slot) => slot,
-            // The semaphore is never closed; wait as if it were full.
             Err(_) => std::future::pending().await,
+        }
+    }
+
+    /// Closes the oldest evictable unadmitted connection, or with none,
+    /// every one whose admission lapsed.
+    fn evict_one(&self) {
+        let now = Instant::now();
+        let live = || self.conns.iter().filter_map(Weak::upgrade);
+        if !live().any(|c| c.evictable(now) && c.evict(NEW)) {
+            for c in live().filter(|c| c.lapsed()) {
+                c.evict(ADMITTED);
+            }
         }
     }
 
@@ -327,7 +365,10 @@ impl AsyncRead for LimitedStream {
                 if buf.filled().len() > before {
                     let now = Instant::now();
                     self.last_active = now;
-                    self.request_since.get_or_insert(now);
+                    if self.request_since.is_none() {
+                        self.request_since = Some(now);
+                        self.state.set_request_since(Some(now));
+                    }
                 }
                 Poll::Ready(Ok(()))
             }
@@ -351,7 +392,9 @@ impl AsyncWrite for LimitedStream {
             Poll::Ready(Ok(n)) if n > 0 => {
                 self.last_active = Instant::now();
                 // Answered: the next byte read starts the next request.
-                self.request_since = None;
+                if self.request_since.take().is_some() {
+                    self.state.set_request_since(None);
+                }
             }
             // A client that does not read fills the socket: time it out.
             Poll::Pending => return self.pending_or_timeout(cx),

@@ -319,5 +319,12 @@ pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<Ru
         }
     });
     tracing::info!(%addr, "console listening");
+    if !addr.ip().is_loopback() {
+        // Plain HTTP: admin tokens cross the network readable.
+        tracing::warn!(
+            %addr,
+            "the console listens beyond this machine over plain HTTP: admin tokens can be read on the way; bind it to 127.0.0.1 behind a TLS proxy (OPERATIONS.md)"
+        );
+    }
     Ok(RunningConsole { addr, server, hub })
 }
