@@ -45,6 +45,14 @@ fn request_text(method: &str, path: &str, token: Option<&str>, body: &[u8]) -> V
     req
 }
 
+/// `GET /api/world` with `token`, keeping the connection open.
+fn keep_alive(token: &str) -> String {
+    let text = request_text("GET", "/api/world", Some(token), b"");
+    String::from_utf8(text)
+        .unwrap()
+        .replace("Connection: close", "Connection: keep-alive")
+}
+
 /// Decodes a chunked body.
 fn dechunk(mut raw: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
@@ -463,12 +471,6 @@ async fn console_bounds_connections_and_closes_silent_ones() {
 
         // Two admitted connections (a request with the admin token each,
         // kept alive) take both slots ...
-        let keep_alive = |token: &str| {
-            let text = request_text("GET", "/api/world", Some(token), b"");
-            String::from_utf8(text)
-                .unwrap()
-                .replace("Connection: close", "Connection: keep-alive")
-        };
         let mut admitted = Vec::new();
         for _ in 0..2 {
             let mut c = TcpStream::connect(web).await.unwrap();
@@ -690,9 +692,7 @@ async fn connections_admitted_by_a_token_no_longer_good_give_up_their_slots() {
             strata_server::auth::unix_now(),
         )
         .unwrap();
-        let keep_alive = String::from_utf8(request_text("GET", "/api/world", Some(&short), b""))
-            .unwrap()
-            .replace("Connection: close", "Connection: keep-alive");
+        let keep_alive = keep_alive(&short);
         let mut buf = [0u8; 64];
         let mut held = Vec::new();
         for _ in 0..2 {
