@@ -24,6 +24,7 @@ use tokio::sync::{mpsc, oneshot, Notify};
 use tokio::task::JoinHandle;
 use tracing::debug;
 
+use crate::bounds::{center_in_world, ChunkLimits, Violation, MAX_CENTER_CHUNK};
 use crate::changes::ChangedChunks;
 use crate::notice::{Notice, Notices};
 use crate::pool::ChunkPool;
@@ -37,7 +38,8 @@ pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
 pub const EDIT_TIMEOUT: Duration = Duration::from_secs(30);
 /// Frames the client may queue on its control stream.
 pub const CONTROL_QUEUE: usize = 256;
-/// Delta arrival records kept for latency reports.
+/// Delta arrival records kept for latency reports, when recording
+/// ([`ClientOptions::record_arrivals`]).
 pub const MAX_ARRIVALS: usize = 1 << 20;
 /// `RequestRefused` answers a client keeps.
 pub const MAX_REFUSALS_KEPT: usize = 1024;
@@ -52,12 +54,18 @@ pub enum ClientError {
     Refused { code: ErrorCode, message: String },
     #[error("protocol violation: {0}")]
     Protocol(String),
+    /// The server broke the protocol in its updates; the client ended the
+    /// connection.
+    #[error("protocol violation: {0}")]
+    Violation(#[from] Violation),
     #[error("connection closed: {0}")]
     Closed(String),
     #[error("timed out waiting for {0}")]
     Timeout(&'static str),
     #[error("cannot forget {chunks} chunks at once; at most {max}")]
     TooManyChunks { chunks: usize, max: usize },
+    #[error("cannot centre a view on chunk {center:?}: outside the world (within ±{max})")]
+    OutsideWorld { center: ChunkPos, max: i32 },
 }
 
 /// The server's answer to an edit.
@@ -99,6 +107,11 @@ pub struct ClientOptions {
     /// How fast a cluster client may reach out to nodes it is not
     /// connected to (see [`crate::cluster::JoinRate`]).
     pub join_rate: crate::cluster::JoinRate,
+    /// Record when each delta (or op) arrives, for [`Client::take_arrivals`]
+    /// (load tests' latency reports), from the first update on. Off, the
+    /// first `take_arrivals` starts recording: nothing is kept for a
+    /// caller that never takes them.
+    pub record_arrivals: bool,
 }
 
 /// An edit on its way to the server, from [`Client::submit`].
@@ -128,6 +141,11 @@ struct Shared {
     /// The predicted view, when predicting (lock the replica first).
     prediction: Option<Mutex<Prediction>>,
     error: Mutex<Option<(ErrorCode, String)>>,
+    /// How the server broke the protocol, when the client ended the
+    /// connection for it.
+    violation: Mutex<Option<Violation>>,
+    /// Whether delta arrivals are recorded.
+    recording_arrivals: AtomicBool,
     arrivals: Mutex<Vec<Arrival>>,
     bytes_in: AtomicU64,
     /// When the server was last heard from (ms since the Unix epoch).
@@ -220,8 +238,13 @@ impl Shared {
     }
 
     /// Applies `update` to the replica and keeps the prediction and the
-    /// change queue in step; returns what to ask the server for.
-    fn apply(&self, replica: &Mutex<Replica>, update: WorldUpdate) -> Option<Request> {
+    /// change queue in step; returns what to ask the server for, or how the
+    /// update broke the replica's limits (then nothing changed).
+    fn apply(
+        &self,
+        replica: &Mutex<Replica>,
+        update: WorldUpdate,
+    ) -> Result<Option<Request>, Violation> {
         let touched: Vec<Touched> = match &update {
             // Each chunk an op lists, as if its delta had come.
             WorldUpdate::Op(op) => op
@@ -238,14 +261,31 @@ impl Shared {
         let mut r = replica
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        let request = r.apply(update);
+        let request = r.try_apply(update)?;
         for t in touched {
             self.mark_changed(t.pos());
             if let Some(mut p) = self.prediction() {
                 self.reshape_prediction(&mut p, |p| p.after_update(t, &r));
             }
         }
-        request
+        Ok(request)
+    }
+
+    fn violation(&self) -> Option<Violation> {
+        self.violation
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    /// Ends the connection for `v` (the first violation is kept).
+    fn violated(&self, conn: &quinn::Connection, v: Violation) {
+        debug!(violation = %v, "server broke the protocol");
+        self.violation
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .get_or_insert(v);
+        conn.close(quinn::VarInt::from_u32(0), b"protocol violation");
     }
 }
 
@@ -387,6 +427,7 @@ impl Client {
         let thin = strata_protocol::capabilities::has(opts.capabilities, CAP_SNAPSHOTS);
         let generator = if thin { None } else { generator_from(&welcome) };
         let mut replica = Replica::with_pool(generator, opts.pool);
+        replica.limit(ChunkLimits::from_welcome(&welcome));
         if opts.record_history {
             replica.record_history();
         }
@@ -400,6 +441,7 @@ impl Client {
         let shared = Arc::new(Shared {
             prediction,
             changed: opts.track_changes.then(Mutex::default),
+            recording_arrivals: AtomicBool::new(opts.record_arrivals),
             ..Shared::default()
         });
         shared.heard();
@@ -447,6 +489,9 @@ impl Client {
     }
 
     fn gone(&self) -> ClientError {
+        if let Some(v) = self.shared.violation() {
+            return ClientError::Violation(v);
+        }
         match self
             .shared
             .error
@@ -549,7 +594,12 @@ impl Client {
             .map_err(|e| ClientError::Closed(e.to_string()))
     }
 
+    /// Asks for the chunks within `radius` of `center`. A centre outside
+    /// the world ([`crate::bounds::center_in_world`]) is refused here: no
+    /// position can bring a view there, and its chunks would be a
+    /// protocol violation.
     pub async fn subscribe(&self, center: ChunkPos, radius: u8) -> Result<(), ClientError> {
+        check_center(center)?;
         self.send(&ClientMessage::Subscribe { center, radius })
             .await
     }
@@ -575,7 +625,9 @@ impl Client {
         }
         // Dropped first: deltas arriving meanwhile are ignored, not resynced.
         for &pos in chunks {
-            self.shared
+            // An unsubscribe is never past the limits.
+            let _ = self
+                .shared
                 .apply(&self.replica, WorldUpdate::Unsubscribed { pos });
             self.replica().drop_chunk(pos);
         }
@@ -690,8 +742,13 @@ impl Client {
             .clone()
     }
 
-    /// Takes the recorded delta arrivals.
+    /// Takes the recorded delta arrivals (at most [`MAX_ARRIVALS`] between
+    /// calls). Unless [`ClientOptions::record_arrivals`] started recording
+    /// at connect, the first call starts it (and returns nothing).
     pub fn take_arrivals(&self) -> Vec<Arrival> {
+        self.shared
+            .recording_arrivals
+            .store(true, Ordering::Relaxed);
         std::mem::take(
             &mut *self
                 .shared
@@ -811,8 +868,14 @@ impl Client {
     /// Waits for the connection to end and returns why.
     /// A close whose frame was lost (a stateless reset, a timeout) still
     /// reports the Error the server sent first on the control stream.
+    /// A connection the client ended because the server broke the
+    /// protocol reports [`ClientError::Violation`].
     pub async fn closed(&self) -> ClientError {
-        match closed_error(&self.conn.closed().await) {
+        let closed = self.conn.closed().await;
+        if let Some(v) = self.shared.violation() {
+            return ClientError::Violation(v);
+        }
+        match closed_error(&closed) {
             ClientError::Closed(why) => match self.server_error() {
                 Some((code, message)) => ClientError::Refused { code, message },
                 None => ClientError::Closed(why),
@@ -870,6 +933,17 @@ pub fn client_endpoint_delayed(
         runtime,
     )
     .map_err(failed)
+}
+
+/// Refuses a view centre outside the world.
+pub(crate) fn check_center(center: ChunkPos) -> Result<(), ClientError> {
+    if center_in_world(center) {
+        return Ok(());
+    }
+    Err(ClientError::OutsideWorld {
+        center,
+        max: MAX_CENTER_CHUNK,
+    })
 }
 
 /// A generator from the Welcome's parameters, if the client can run it.
@@ -1021,8 +1095,7 @@ async fn read_updates(
         // Ops only for a client that asked for them (`CAP_OP_REPLAY`):
         // each costs a replay of the edit, which no server may impose.
         if matches!(update, WorldUpdate::Op(_)) && !replay_ops {
-            debug!("server sent an op the client did not ask for");
-            conn.close(quinn::VarInt::from_u32(0), b"protocol violation");
+            shared.violated(&conn, Violation::UnaskedOp);
             break;
         }
         shared.heard();
@@ -1032,7 +1105,7 @@ async fn read_updates(
             WorldUpdate::Op(op) => op.chunks.iter().map(|c| (op.seq, c.pos)).collect(),
             _ => Vec::new(),
         };
-        if !arrived.is_empty() {
+        if !arrived.is_empty() && shared.recording_arrivals.load(Ordering::Relaxed) {
             let mut a = shared
                 .arrivals
                 .lock()
@@ -1053,16 +1126,15 @@ async fn read_updates(
         if let WorldUpdate::UnsubscribedMany { chunks } = update {
             // Past the protocol's cap the server is broken or hostile: the
             // connection ends rather than the client doing its bidding.
-            if chunks.len() > strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE {
-                debug!(
-                    chunks = chunks.len(),
-                    "server broke the UnsubscribedMany cap"
-                );
-                conn.close(quinn::VarInt::from_u32(0), b"protocol violation");
+            let max = strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE;
+            if chunks.len() > max {
+                let chunks = chunks.len();
+                shared.violated(&conn, Violation::UnsubscribeTooLarge { chunks, max });
                 break;
             }
             for pos in chunks {
-                shared.apply(&replica, WorldUpdate::Unsubscribed { pos });
+                // An unsubscribe is never past the limits.
+                let _ = shared.apply(&replica, WorldUpdate::Unsubscribed { pos });
             }
             continue;
         }
@@ -1070,7 +1142,17 @@ async fn read_updates(
             shared.notice(Notice::ViewLoaded { center, radius });
             continue;
         }
-        let msgs = match shared.apply(&replica, update) {
+        // A chunk outside the world, or past what any view covers: the
+        // server would have the client generate and hold chunks without
+        // end. The connection ends instead.
+        let request = match shared.apply(&replica, update) {
+            Ok(r) => r,
+            Err(v) => {
+                shared.violated(&conn, v);
+                break;
+            }
+        };
+        let msgs = match request {
             Some(Request::Resync(pos)) => vec![ClientMessage::ResyncRequest { pos }],
             Some(Request::FullSnapshot(pos)) => vec![ClientMessage::FullSnapshotRequest { pos }],
             Some(Request::ResyncMany(chunks)) => chunks

@@ -48,9 +48,11 @@ pub fn voxel_vec(v: VoxelPos) -> IVec3 {
 }
 
 /// World voxel coordinates of a chunk's local (0, 0, 0), where its mesh's
-/// chunk-local positions start.
-pub fn chunk_origin(c: ChunkPos) -> IVec3 {
-    chunk_vec(c) * CHUNK_SIZE
+/// chunk-local positions start; `None` when they do not fit an `i32` (a
+/// chunk far outside the world, which no replica holds).
+pub fn chunk_origin(c: ChunkPos) -> Option<IVec3> {
+    let v = |c: i32| c.checked_mul(CHUNK_SIZE);
+    Some(IVec3::new(v(c.x)?, v(c.y)?, v(c.z)?))
 }
 
 #[cfg(test)]
@@ -64,10 +66,21 @@ mod tests {
         assert_eq!(chunk_at(p), Some(ChunkPos::new(-1, 0, 1)));
         assert_eq!(
             chunk_origin(ChunkPos::new(-1, 0, 1)),
-            IVec3::new(-32, 0, 32)
+            Some(IVec3::new(-32, 0, 32))
         );
         assert_eq!(voxel_at(DVec3::new(f64::NAN, 0.0, 0.0)), None);
         assert_eq!(voxel_at(DVec3::new(3e9, 0.0, 0.0)), None);
+    }
+
+    #[test]
+    fn far_chunk_origins_do_not_overflow() {
+        assert_eq!(chunk_origin(ChunkPos::new(1 << 26, 0, 0)), None);
+        assert_eq!(chunk_origin(ChunkPos::new(0, i32::MIN, 0)), None);
+        let edge = (1 << 26) - 1;
+        assert_eq!(
+            chunk_origin(ChunkPos::new(edge, -(1 << 26), 0)),
+            Some(IVec3::new(edge * 32, i32::MIN, 0))
+        );
     }
 
     #[test]

@@ -11,6 +11,7 @@
 //! - [`ClusterClient`]: one player on a cluster of nodes: a connection to
 //!   each node writing a region in view, each edit sent to its writer.
 
+pub mod bounds;
 mod changes;
 pub mod client;
 pub mod cluster;
@@ -26,6 +27,7 @@ pub mod replica;
 pub mod session;
 pub use strata_protocol::client_tls as tls;
 
+pub use bounds::{ChunkLimits, Violation};
 pub use client::{Acked, Arrival, Client, ClientError, ClientOptions, SentEdit, Verdict};
 pub use cluster::{
     ClusterClient, ClusterError, ClusterView, JoinRate, RegionOwners, MAX_CLUSTER_NODES,

@@ -57,7 +57,8 @@ impl ChunkMesh {
 /// Meshes `pos` at `lod`, with transition cells on the faces set in
 /// `transition_faces` (bit order -X, +X, -Y, +Y, -Z, +Z: faces bordering a
 /// finer neighbour). `get` yields the chunks to read; `None` when it has
-/// no chunk at `pos` itself.
+/// no chunk at `pos` itself, or when `pos` lies so far out that its
+/// origin does not fit an `i32` (no replica holds such a chunk).
 pub fn mesh_at(
     pos: ChunkPos,
     lod: u8,
@@ -70,6 +71,11 @@ pub fn mesh_at(
         ..MeshOptions::default()
     };
     opts.validate()?;
+    // A chunk whose origin is past i32 lies far outside the world: no
+    // replica holds one.
+    let Some(origin) = chunk_origin(pos) else {
+        return Ok(None);
+    };
     let Some(center) = get(pos) else {
         return Ok(None);
     };
@@ -94,7 +100,7 @@ pub fn mesh_at(
     let mesh = try_mesh_chunk(&nb, &opts)?;
     Ok(Some(ChunkMesh {
         pos,
-        origin: chunk_origin(pos),
+        origin,
         lod,
         hash: mesh.hash(),
         positions: mesh.positions,
@@ -144,5 +150,23 @@ mod tests {
             mesh_at(pos, 0, faces::POS_X, get),
             Err(MeshError::TransitionAtLod0)
         );
+    }
+
+    #[test]
+    fn a_chunk_whose_origin_overflows_is_not_meshed() {
+        let g = FlatGenerator {
+            ground: Voxel::solid(ids::STONE),
+        };
+        // Whatever `get` hands out: a chunk there has no i32 origin.
+        let get = |p: ChunkPos| Some(Arc::new(g.generate(p)));
+        assert_eq!(mesh_at(ChunkPos::new(1 << 26, 0, 0), 0, 0, get), Ok(None));
+        assert_eq!(
+            mesh_at(ChunkPos::new(0, 0, -(1 << 27)), 1, 0, get),
+            Ok(None)
+        );
+        // The farthest origin that fits still meshes.
+        let edge = ChunkPos::new((1 << 26) - 2, 0, 0);
+        let m = mesh_at(edge, 0, 0, get).unwrap().unwrap();
+        assert_eq!(m.origin, IVec3::new(((1 << 26) - 2) * 32, 0, 0));
     }
 }

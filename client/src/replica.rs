@@ -12,8 +12,14 @@ use strata_terrain::hash::chunk_hash;
 use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood};
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, Voxel, VoxelPos};
 
+use crate::bounds::{ChunkLimits, Violation};
 use crate::pool::ChunkPool;
 use crate::replay::{replay, ReplayFailure};
+
+/// Mesh mismatches a replica keeps (the first ones); later ones are only
+/// counted ([`Replica::mesh_mismatches_dropped`]): a server sending wrong
+/// mesh hashes must not grow the client without end.
+pub const MAX_MESH_MISMATCHES_KEPT: usize = 1024;
 
 /// A chunk as held by the client.
 #[derive(Debug, Clone)]
@@ -112,7 +118,13 @@ pub struct Replica {
     chunks: HashMap<ChunkPos, Held>,
     /// Server mesh hashes to check at the next tick end: pos -> (version, hash).
     pending_mesh: HashMap<ChunkPos, PendingMesh>,
+    /// The first [`MAX_MESH_MISMATCHES_KEPT`] mismatches.
     mismatches: Vec<MeshMismatch>,
+    /// Mismatches past [`MAX_MESH_MISMATCHES_KEPT`], not kept.
+    mismatches_dropped: u64,
+    /// Where the server's chunks may lie and how many may be held; `None`:
+    /// anything goes (a replica fed by the caller, not a server).
+    limits: Option<ChunkLimits>,
     /// Every version each chunk passed through, when recording.
     history: Option<HashMap<ChunkPos, Vec<u64>>>,
     /// The hash of every (chunk, version) held, when recording.
@@ -151,6 +163,8 @@ impl Replica {
             chunks: HashMap::default(),
             pending_mesh: HashMap::default(),
             mismatches: Vec::new(),
+            mismatches_dropped: 0,
+            limits: None,
             history: None,
             version_hashes: None,
             checks: HashSet::default(),
@@ -159,6 +173,15 @@ impl Replica {
             last_seq: 0,
             dropped: HashSet::default(),
         }
+    }
+
+    /// Holds the server's updates to `limits` ([`Self::try_apply`]).
+    pub fn limit(&mut self, limits: ChunkLimits) {
+        self.limits = Some(limits);
+    }
+
+    pub fn limits(&self) -> Option<ChunkLimits> {
+        self.limits
     }
 
     /// Drops a chunk the client no longer wants (it sends `Forget`): it is
@@ -251,8 +274,15 @@ impl Replica {
         self.last_seq
     }
 
+    /// The first [`MAX_MESH_MISMATCHES_KEPT`] mesh mismatches
+    /// (`stats.mesh_mismatches` counts them all).
     pub fn mesh_mismatches(&self) -> &[MeshMismatch] {
         &self.mismatches
+    }
+
+    /// Mesh mismatches found past [`MAX_MESH_MISMATCHES_KEPT`], not kept.
+    pub fn mesh_mismatches_dropped(&self) -> u64 {
+        self.mismatches_dropped
     }
 
     fn hold(&mut self, pos: ChunkPos, chunk: Arc<Chunk>, version: u64, hash: u64) {
@@ -284,8 +314,48 @@ impl Replica {
         })
     }
 
+    /// Whether `update` keeps within the limits ([`Self::limit`]): every
+    /// chunk it names lies inside the world, and a chunk it would newly
+    /// hold fits under the cap. Unsubscribes always pass.
+    pub fn admit(&self, update: &WorldUpdate) -> Result<(), Violation> {
+        let Some(limits) = &self.limits else {
+            return Ok(());
+        };
+        match update {
+            WorldUpdate::Delta(d) => limits.check(d.delta.pos)?,
+            WorldUpdate::Op(op) => {
+                for c in &op.chunks {
+                    limits.check(c.pos)?;
+                }
+            }
+            _ => {}
+        }
+        if let Some(pos) = whole_chunk_pos(update) {
+            limits.check(pos)?;
+            let new = !self.chunks.contains_key(&pos) && !self.dropped.contains(&pos);
+            let max = limits.max_held();
+            if new && self.chunks.len() >= max {
+                return Err(Violation::TooManyChunks { pos, max });
+            }
+        }
+        Ok(())
+    }
+
+    /// Applies one update if it keeps within the limits ([`Self::admit`]);
+    /// returns what must be requested from the server.
+    pub fn try_apply(&mut self, update: WorldUpdate) -> Result<Option<Request>, Violation> {
+        self.admit(&update)?;
+        Ok(self.apply_admitted(update))
+    }
+
     /// Applies one update; returns what must be requested from the server.
+    /// An update past the limits changes nothing ([`Self::try_apply`] says
+    /// why).
     pub fn apply(&mut self, update: WorldUpdate) -> Option<Request> {
+        self.try_apply(update).unwrap_or(None)
+    }
+
+    fn apply_admitted(&mut self, update: WorldUpdate) -> Option<Request> {
         // A whole chunk the server sent before it handled our `Forget`: it
         // would be held at a version the server no longer takes forward.
         if let Some(pos) = whole_chunk_pos(&update) {
@@ -560,12 +630,16 @@ impl Replica {
             self.stats.meshes_checked += 1;
             if client != server {
                 self.stats.mesh_mismatches += 1;
-                self.mismatches.push(MeshMismatch {
-                    pos,
-                    version,
-                    server,
-                    client,
-                });
+                if self.mismatches.len() < MAX_MESH_MISMATCHES_KEPT {
+                    self.mismatches.push(MeshMismatch {
+                        pos,
+                        version,
+                        server,
+                        client,
+                    });
+                } else {
+                    self.mismatches_dropped += 1;
+                }
             }
         }
     }
@@ -611,5 +685,131 @@ fn whole_chunk_pos(update: &WorldUpdate) -> Option<ChunkPos> {
         WorldUpdate::Generated { pos } | WorldUpdate::Snapshot { pos, .. } => Some(*pos),
         WorldUpdate::Patched { delta, .. } => Some(delta.pos),
         _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strata_terrain::chunk_codec::encode_chunk;
+    use strata_terrain::material::ids;
+    use strata_terrain::world::FlatGenerator;
+
+    fn flat() -> Arc<dyn ChunkGenerator> {
+        Arc::new(FlatGenerator {
+            ground: Voxel::solid(ids::STONE),
+        })
+    }
+
+    fn generated(x: i32, y: i32, z: i32) -> WorldUpdate {
+        WorldUpdate::Generated {
+            pos: ChunkPos::new(x, y, z),
+        }
+    }
+
+    fn snapshot(pos: ChunkPos, version: u64, chunk: &Chunk, mesh_hash: u64) -> WorldUpdate {
+        WorldUpdate::Snapshot {
+            pos,
+            version,
+            hash: chunk_hash(chunk),
+            mesh_hash,
+            data: encode_chunk(chunk),
+        }
+    }
+
+    #[test]
+    fn chunks_outside_the_world_are_refused_before_any_is_generated() {
+        let mut r = Replica::new(Some(flat()));
+        r.limit(ChunkLimits::new(2, Some((-4, 7))));
+        let far = ChunkPos::new(1 << 26, 0, 0);
+        let max = crate::bounds::MAX_CHUNK_COORD;
+        let outside = Violation::OutsideWorld { pos: far, max };
+        assert_eq!(r.try_apply(generated(1 << 26, 0, 0)), Err(outside.clone()));
+        let air = Chunk::uniform(Voxel::AIR);
+        assert_eq!(r.try_apply(snapshot(far, 3, &air, 0)), Err(outside));
+        let delta = ChunkDelta::encode(far, 0, 1, &air, &Chunk::uniform(Voxel::solid(1))).unwrap();
+        let d = WorldUpdate::Delta(DeltaUpdate {
+            delta,
+            mesh_hash: 0,
+            seq: 1,
+        });
+        assert!(matches!(
+            r.try_apply(d),
+            Err(Violation::OutsideWorld { .. })
+        ));
+        // A row the world does not have.
+        assert!(matches!(
+            r.try_apply(generated(0, 8, 0)),
+            Err(Violation::OutsideRows { lo: -4, hi: 7, .. })
+        ));
+        // `apply` drops them too.
+        assert_eq!(r.apply(generated(-(1 << 26), 0, 0)), None);
+        assert!(r.is_empty());
+        assert_eq!(r.stats.generated, 0, "nothing was generated");
+        assert_eq!(r.stats.gaps, 0, "nor asked for");
+        // Inside the world they are taken in.
+        assert_eq!(r.try_apply(generated(0, 7, 0)), Ok(None));
+        assert_eq!(r.len(), 1);
+    }
+
+    #[test]
+    fn held_chunks_are_capped_at_what_any_view_covers() {
+        let mut r = Replica::new(Some(flat()));
+        // Radius 0, one row: 33 x 33 chunks at most.
+        let limits = ChunkLimits::new(0, Some((0, 0)));
+        r.limit(limits);
+        let max = limits.max_held();
+        assert_eq!(max, 33 * 33);
+        for z in -16..=16 {
+            for x in -16..=16 {
+                assert_eq!(r.try_apply(generated(x, 0, z)), Ok(None));
+            }
+        }
+        assert_eq!(r.len(), max);
+        // One more is a violation, and changes nothing.
+        let pos = ChunkPos::new(17, 0, 0);
+        assert_eq!(
+            r.try_apply(generated(17, 0, 0)),
+            Err(Violation::TooManyChunks { pos, max })
+        );
+        assert!(r.get(pos).is_none());
+        // A chunk held already may come again.
+        assert_eq!(r.try_apply(generated(0, 0, 0)), Ok(None));
+        // A forgotten one is dropped, not counted.
+        r.drop_chunk(ChunkPos::new(16, 0, 16));
+        assert_eq!(r.try_apply(generated(16, 0, 16)), Ok(None));
+        assert!(r.get(ChunkPos::new(16, 0, 16)).is_none());
+        // Room again: the new chunk fits.
+        assert_eq!(r.try_apply(generated(17, 0, 0)), Ok(None));
+        assert_eq!(r.len(), max);
+        // A replica without limits (fed by its caller) holds anything.
+        let mut free = Replica::new(Some(flat()));
+        assert_eq!(free.try_apply(generated(1 << 26, 0, 0)), Ok(None));
+    }
+
+    #[test]
+    fn mesh_mismatches_kept_are_capped_and_the_rest_counted() {
+        let mut r = Replica::new(Some(flat()));
+        let pos = ChunkPos::new(0, -1, 0);
+        for dz in -1..=1 {
+            for dy in -2..=0 {
+                for dx in -1..=1 {
+                    r.apply(generated(dx, dy, dz));
+                }
+            }
+        }
+        let stone = Chunk::uniform(Voxel::solid(ids::STONE));
+        let real = r.mesh_hash(pos).unwrap();
+        let extra = 5;
+        let rounds = MAX_MESH_MISMATCHES_KEPT + extra;
+        for v in 1..=rounds as u64 {
+            // The server's mesh hash is wrong every time.
+            assert_eq!(r.apply(snapshot(pos, v, &stone, !real)), None);
+            r.apply(WorldUpdate::TickEnd { last_seq: v });
+        }
+        assert_eq!(r.stats.mesh_mismatches, rounds as u64);
+        assert_eq!(r.mesh_mismatches().len(), MAX_MESH_MISMATCHES_KEPT);
+        assert_eq!(r.mesh_mismatches_dropped(), extra as u64);
+        assert_eq!(r.mesh_mismatches()[0].version, 1, "the first ones are kept");
     }
 }

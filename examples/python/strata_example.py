@@ -62,7 +62,7 @@ class Welcome(C.Structure):
         ("world_seed", C.c_uint64),
         ("last_seq", C.c_uint64),
         ("view_radius", C.c_uint8),
-        ("resume", C.c_bool),
+        ("resume", C.c_uint8),
         ("resume_feet", C.c_double * 3),
         ("spawn_x", C.c_int32),
         ("spawn_z", C.c_int32),
@@ -80,7 +80,7 @@ class MeshData(C.Structure):
         ("index_count", C.c_size_t),
         ("origin", C.c_int32 * 3),
         ("lod", C.c_uint8),
-        ("complete", C.c_bool),
+        ("complete", C.c_uint8),
         ("hash", C.c_uint64),
     ]
 

@@ -25,6 +25,9 @@
  * - strata_last_error_message's string belongs to the library and lives
  *   until the next failing call on the same thread.
  * - Every other pointer argument is borrowed for the call only.
+ * - Every pointer must be naturally aligned for what it points to (a
+ *   StrataEvent* to 8 bytes, an int32_t* to 4...): a misaligned one is
+ *   STRATA_STATUS_INVALID_ARGUMENT, as a null one is.
  *
  * Threading:
  * - Functions on one session may be called from any thread, also at the
@@ -34,7 +37,9 @@
  * - The last error message is per thread.
  * - Events come out of strata_poll in order. Each edit's ticket gets
  *   exactly one EDIT_ACCEPTED, EDIT_REJECTED or EDIT_FAILED;
- *   DISCONNECTED comes once, last.
+ *   DISCONNECTED comes once, last: after it strata_poll returns NONE,
+ *   and strata_edit, strata_subscribe, strata_forget and strata_resync
+ *   return STRATA_STATUS_CLOSED.
  *
  * Coordinates: voxels. Chunks are 32 voxels a side; chunk (cx, cy, cz)
  * holds voxels 32*cx .. 32*cx+31 on x, and so on. Mesh positions are
@@ -201,9 +206,10 @@ typedef struct {
   // World voxel coordinates of the chunk's local (0, 0, 0).
   int32_t origin[3];
   uint8_t lod;
-  // Whether all 26 neighbours were held (if not, faces on the missing
-  // sides are provisional).
-  bool complete;
+  // 1 when all 26 neighbours were held; 0 when not (faces on the
+  // missing sides are provisional). A byte, not a `bool`, as
+  // `StrataWelcome.resume`.
+  uint8_t complete;
   // The mesh hash (at LOD 0 the server's, for the same chunk versions).
   uint64_t hash;
 } StrataMeshData;
@@ -229,8 +235,9 @@ typedef struct {
   // 1: the server remembers the player at `resume_feet`, and the first
   // position must be a legal move from there. 0: the first position's
   // column must lie within `spawn_radius` voxels of (`spawn_x`, `spawn_z`)
-  // on both axes, at any height not inside terrain.
-  bool resume;
+  // on both axes, at any height not inside terrain. A byte, not a
+  // `bool`: every language reads it as one (C#'s default `bool` is 4).
+  uint8_t resume;
   double resume_feet[3];
   int32_t spawn_x;
   int32_t spawn_z;
@@ -440,7 +447,9 @@ StrataStatus strata_set_position(const StrataSession *s, double x, double y, dou
 // (capped at the view radius). The whole cube must lie within the view
 // radius plus the hysteresis (in chunks) of the player; positions then
 // move it only when it would reach farther (to the feet, keeping its
-// radius).
+// radius). A centre outside the world (a coordinate past ±131072 chunks)
+// is STRATA_STATUS_INVALID_ARGUMENT; after DISCONNECTED,
+// STRATA_STATUS_CLOSED.
 //
 // # Safety
 // `s` is a live session.
@@ -453,7 +462,8 @@ StrataStatus strata_subscribe(const StrataSession *s,
 // Drops `count` chunks the game no longer wants (at most 1024):
 // `chunks` holds `count` (x, y, z) chunk coordinates. They stop being
 // held at once, and the server stops sending their updates until
-// `strata_resync`, or until they leave the view and come back.
+// `strata_resync`, or until they leave the view and come back. After
+// DISCONNECTED, STRATA_STATUS_CLOSED.
 //
 // # Safety
 // `s` is a live session; `chunks` points to `count` `int32_t[3]`.
@@ -461,6 +471,7 @@ StrataStatus strata_forget(const StrataSession *s, const int32_t (*chunks)[3], s
 
 // Asks the server to send chunk (`cx`, `cy`, `cz`) again: one forgotten
 // with `strata_forget`, or one whose copy looks wrong. It must be in view.
+// After DISCONNECTED, STRATA_STATUS_CLOSED.
 //
 // # Safety
 // `s` is a live session.
@@ -469,6 +480,7 @@ StrataStatus strata_resync(const StrataSession *s, int32_t cx, int32_t cy, int32
 // Sends an edit without waiting: `*out_ticket` names it in the
 // EDIT_ACCEPTED, EDIT_REJECTED or EDIT_FAILED event that `strata_poll`
 // will return for it (exactly one). Edits reach the server in call order.
+// After DISCONNECTED, STRATA_STATUS_CLOSED (no ticket).
 //
 // # Safety
 // `s` is a live session; `edit` points to a `StrataEdit`; `out_ticket`
@@ -479,6 +491,7 @@ StrataStatus strata_edit(const StrataSession *s, const StrataEdit *edit, uint64_
 // STRATA_EVENT_KIND_NONE when nothing happened. Never waits: call it every
 // frame until it returns NONE. An EDIT_ACCEPTED event's `changes` stay
 // valid until the next `strata_poll` on this session, from any thread.
+// DISCONNECTED is the last event: every poll after it returns NONE.
 //
 // # Safety
 // `s` is a live session; `out_event` is writable.

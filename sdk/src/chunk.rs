@@ -42,8 +42,16 @@ pub unsafe extern "C" fn strata_chunk_read(
     out_version: *mut u64,
 ) -> StrataStatus {
     call(|| {
-        // SAFETY: the caller's contract above; a null `out_version` is skipped.
-        let (session, version) = unsafe { (session(s)?, writable(out_version, "").ok()) };
+        // SAFETY: the caller's contract above; a null `out_version` is
+        // skipped, a misaligned one refused.
+        let (session, version) = unsafe {
+            let session = session(s)?;
+            if out_version.is_null() {
+                (session, None)
+            } else {
+                (session, Some(writable(out_version, "out_version")?))
+            }
+        };
         if len < CHUNK_VOLUME && !(density.is_null() && material.is_null()) {
             return Err(Failure::invalid(format!(
                 "buffers of {len} bytes; a chunk needs {CHUNK_VOLUME}"
@@ -152,7 +160,7 @@ pub unsafe extern "C" fn strata_mesh_data(
             index_count: m.indices.len(),
             origin: m.origin.to_array(),
             lod: m.lod,
-            complete: m.complete,
+            complete: u8::from(m.complete),
             hash: m.hash,
         };
         dst.write(data);

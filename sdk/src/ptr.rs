@@ -1,6 +1,7 @@
-//! Reading the caller's pointers. Each helper turns null into
-//! `STRATA_STATUS_INVALID_ARGUMENT` instead of undefined behaviour; the rest of
-//! each pointer's contract is the caller's, as the header states.
+//! Reading the caller's pointers. Each helper turns null, and a pointer not
+//! aligned for its type, into `STRATA_STATUS_INVALID_ARGUMENT` instead of
+//! undefined behaviour; the rest of each pointer's contract is the
+//! caller's, as the header states.
 
 use std::ffi::{c_char, CStr};
 use std::mem::MaybeUninit;
@@ -24,24 +25,41 @@ pub(crate) unsafe fn text<'a>(p: *const c_char, what: &str) -> Result<&'a str, F
 /// A shared reference.
 ///
 /// # Safety
-/// `p` is null or points to a live, initialised `T` not written during the call.
+/// `p` is null, misaligned, or points to a live, initialised `T` not
+/// written during the call.
 pub(crate) unsafe fn shared<'a, T>(p: *const T, what: &str) -> Result<&'a T, Failure> {
-    // SAFETY: the caller promises a live `T` when non-null.
+    aligned(p, what)?;
+    // SAFETY: non-null and aligned (checked above); the caller promises a
+    // live `T` there.
     unsafe { p.as_ref() }.ok_or_else(|| Failure::invalid(format!("{what} is null")))
+}
+
+/// Refuses a null pointer, or one not aligned for `T` (making a reference
+/// of it would be undefined behaviour, whatever it points to).
+fn aligned<T>(p: *const T, what: &str) -> Result<(), Failure> {
+    if p.is_null() {
+        return Err(Failure::invalid(format!("{what} is null")));
+    }
+    if !p.is_aligned() {
+        return Err(Failure::invalid(format!("{what} is misaligned")));
+    }
+    Ok(())
 }
 
 /// Where to write a result, checked for null before the call does any
 /// work; written with `MaybeUninit::write`, which drops no old value.
 ///
 /// # Safety
-/// `p` is null or points to writable memory for a `T`, not accessed
-/// otherwise during the call.
+/// `p` is null, misaligned, or points to writable memory for a `T`, not
+/// accessed otherwise during the call.
 pub(crate) unsafe fn writable<'a, T>(
     p: *mut T,
     what: &str,
 ) -> Result<&'a mut MaybeUninit<T>, Failure> {
-    // SAFETY: the caller promises writable memory for a `T` when non-null;
-    // `MaybeUninit<T>` has `T`'s layout and may hold anything.
+    aligned(p.cast_const(), what)?;
+    // SAFETY: non-null and aligned (checked above); the caller promises
+    // writable memory for a `T` there; `MaybeUninit<T>` has `T`'s layout
+    // and may hold anything.
     unsafe { p.cast::<MaybeUninit<T>>().as_mut() }
         .ok_or_else(|| Failure::invalid(format!("{what} is null")))
 }

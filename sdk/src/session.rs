@@ -269,7 +269,7 @@ pub unsafe extern "C" fn strata_welcome(
             world_seed: w.world_seed,
             last_seq: w.last_seq,
             view_radius: w.view_radius,
-            resume: false,
+            resume: 0,
             resume_feet: [0.0; 3],
             spawn_x: 0,
             spawn_z: 0,
@@ -277,7 +277,7 @@ pub unsafe extern "C" fn strata_welcome(
         };
         match w.start {
             Start::Resume { feet } => {
-                welcome.resume = true;
+                welcome.resume = 1;
                 welcome.resume_feet = feet.to_f64();
             }
             Start::Spawn { x, z, radius } => {
@@ -312,7 +312,9 @@ pub unsafe extern "C" fn strata_set_position(
 /// (capped at the view radius). The whole cube must lie within the view
 /// radius plus the hysteresis (in chunks) of the player; positions then
 /// move it only when it would reach farther (to the feet, keeping its
-/// radius).
+/// radius). A centre outside the world (a coordinate past ±131072 chunks)
+/// is STRATA_STATUS_INVALID_ARGUMENT; after DISCONNECTED,
+/// STRATA_STATUS_CLOSED.
 ///
 /// # Safety
 /// `s` is a live session.
@@ -334,7 +336,8 @@ pub unsafe extern "C" fn strata_subscribe(
 /// Drops `count` chunks the game no longer wants (at most 1024):
 /// `chunks` holds `count` (x, y, z) chunk coordinates. They stop being
 /// held at once, and the server stops sending their updates until
-/// `strata_resync`, or until they leave the view and come back.
+/// `strata_resync`, or until they leave the view and come back. After
+/// DISCONNECTED, STRATA_STATUS_CLOSED.
 ///
 /// # Safety
 /// `s` is a live session; `chunks` points to `count` `int32_t[3]`.
@@ -362,6 +365,7 @@ pub unsafe extern "C" fn strata_forget(
 
 /// Asks the server to send chunk (`cx`, `cy`, `cz`) again: one forgotten
 /// with `strata_forget`, or one whose copy looks wrong. It must be in view.
+/// After DISCONNECTED, STRATA_STATUS_CLOSED.
 ///
 /// # Safety
 /// `s` is a live session.
@@ -408,6 +412,7 @@ fn to_edit(e: &StrataEdit) -> Result<Edit, Failure> {
 /// Sends an edit without waiting: `*out_ticket` names it in the
 /// EDIT_ACCEPTED, EDIT_REJECTED or EDIT_FAILED event that `strata_poll`
 /// will return for it (exactly one). Edits reach the server in call order.
+/// After DISCONNECTED, STRATA_STATUS_CLOSED (no ticket).
 ///
 /// # Safety
 /// `s` is a live session; `edit` points to a `StrataEdit`; `out_ticket`
@@ -493,6 +498,7 @@ fn set_message(ev: &mut StrataEvent, text: &str) {
 /// STRATA_EVENT_KIND_NONE when nothing happened. Never waits: call it every
 /// frame until it returns NONE. An EDIT_ACCEPTED event's `changes` stay
 /// valid until the next `strata_poll` on this session, from any thread.
+/// DISCONNECTED is the last event: every poll after it returns NONE.
 ///
 /// # Safety
 /// `s` is a live session; `out_event` is writable.

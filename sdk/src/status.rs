@@ -83,10 +83,12 @@ fn client_status(e: &ClientError) -> StrataStatus {
         ClientError::Tls(_) => StrataStatus::Tls,
         ClientError::Connect(_) => StrataStatus::Connect,
         ClientError::Refused { .. } => StrataStatus::Refused,
-        ClientError::Protocol(_) => StrataStatus::Protocol,
+        ClientError::Protocol(_) | ClientError::Violation(_) => StrataStatus::Protocol,
         ClientError::Closed(_) => StrataStatus::Closed,
         ClientError::Timeout(_) => StrataStatus::Timeout,
-        ClientError::TooManyChunks { .. } => StrataStatus::InvalidArgument,
+        ClientError::TooManyChunks { .. } | ClientError::OutsideWorld { .. } => {
+            StrataStatus::InvalidArgument
+        }
     }
 }
 

@@ -161,8 +161,9 @@ pub struct StrataWelcome {
     /// 1: the server remembers the player at `resume_feet`, and the first
     /// position must be a legal move from there. 0: the first position's
     /// column must lie within `spawn_radius` voxels of (`spawn_x`, `spawn_z`)
-    /// on both axes, at any height not inside terrain.
-    pub resume: bool,
+    /// on both axes, at any height not inside terrain. A byte, not a
+    /// `bool`: every language reads it as one (C#'s default `bool` is 4).
+    pub resume: u8,
     pub resume_feet: [f64; 3],
     pub spawn_x: i32,
     pub spawn_z: i32,
@@ -232,9 +233,10 @@ pub struct StrataMeshData {
     /// World voxel coordinates of the chunk's local (0, 0, 0).
     pub origin: [i32; 3],
     pub lod: u8,
-    /// Whether all 26 neighbours were held (if not, faces on the missing
-    /// sides are provisional).
-    pub complete: bool,
+    /// 1 when all 26 neighbours were held; 0 when not (faces on the
+    /// missing sides are provisional). A byte, not a `bool`, as
+    /// `StrataWelcome.resume`.
+    pub complete: u8,
     /// The mesh hash (at LOD 0 the server's, for the same chunk versions).
     pub hash: u64,
 }

@@ -109,3 +109,52 @@ fn forget_and_resync_check_their_pointers() {
     let st = unsafe { strata_resync(null(), 0, 0, 0) };
     assert_eq!(st, StrataStatus::InvalidArgument);
 }
+
+#[test]
+fn misaligned_pointers_are_invalid_arguments() {
+    // Room for a value one byte past an aligned start.
+    let mut buf = [0u64; 8];
+    let odd = buf.as_mut_ptr().cast::<u8>().wrapping_add(1);
+    // SAFETY: the out pointer is misaligned, which is what is tested: the
+    // call refuses it before writing.
+    let st = unsafe { strata_chunk_of(1.0, 2.0, 3.0, odd.cast::<i32>()) };
+    assert_eq!(st, StrataStatus::InvalidArgument);
+    assert_eq!(last_error(), "out_chunk is misaligned");
+    assert_eq!(buf, [0; 8], "nothing was written");
+    // A misaligned options struct is refused before any connection.
+    let (addr, token, cert) = (c"127.0.0.1:9", c"v1.x.y", [1u8, 2, 3]);
+    let mut s = null_mut();
+    // SAFETY: valid strings, bytes and out pointer; the misaligned options
+    // (inside `buf`, readable) are what is tested.
+    let st = unsafe {
+        strata_connect_with(
+            addr.as_ptr(),
+            cert.as_ptr(),
+            3,
+            token.as_ptr(),
+            odd.cast::<StrataConnectOptions>().cast_const(),
+            &mut s,
+        )
+    };
+    assert_eq!(st, StrataStatus::InvalidArgument, "{}", last_error());
+    assert_eq!(last_error(), "options is misaligned");
+    // A misaligned out_session likewise.
+    let options = StrataConnectOptions {
+        predict: 0,
+        capabilities: 0,
+    };
+    // SAFETY: as above; the misaligned out pointer is what is tested.
+    let st = unsafe {
+        strata_connect_with(
+            addr.as_ptr(),
+            cert.as_ptr(),
+            3,
+            token.as_ptr(),
+            &options,
+            odd.cast::<*mut StrataSession>(),
+        )
+    };
+    assert_eq!(st, StrataStatus::InvalidArgument, "{}", last_error());
+    assert_eq!(last_error(), "out_session is misaligned");
+    assert_eq!(buf, [0; 8], "nothing was written");
+}

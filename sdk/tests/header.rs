@@ -26,3 +26,20 @@ fn header_is_current() {
         path.display()
     );
 }
+
+/// No `bool` in the ABI, nor in the Python mirror: C# (Unity) marshals a
+/// `bool` field as a 4-byte Win32 BOOL by default, which shifts every field
+/// after it. Flags are `uint8_t` (0 or 1) instead.
+#[test]
+fn no_bool_crosses_the_boundary() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let header = std::fs::read_to_string(root.join("include/strata.h")).unwrap();
+    let bools: Vec<&str> = header
+        .lines()
+        .filter(|l| !l.trim_start().starts_with("//") && l.contains("bool "))
+        .collect();
+    assert!(bools.is_empty(), "bool in strata.h: {bools:?}");
+    let python = root.join("../examples/python/strata_example.py");
+    let python = std::fs::read_to_string(python).unwrap();
+    assert!(!python.contains("c_bool"), "c_bool in the Python mirror");
+}

@@ -8,5 +8,6 @@ mod boundary;
 mod cluster;
 mod examples;
 mod header;
+mod hostile;
 mod out_pointers;
 mod session;

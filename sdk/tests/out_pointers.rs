@@ -181,3 +181,24 @@ fn a_connect_with_a_null_session_pointer_does_not_log_in() {
         start.elapsed()
     );
 }
+
+#[test]
+fn misaligned_out_pointers_are_refused_not_skipped() {
+    let server = Server::start();
+    let s = connect(&server, "misaligned");
+    let mut buf = [0u64; 16];
+    let odd = buf.as_mut_ptr().cast::<u8>().wrapping_add(4);
+    // SAFETY: `s` is live; the misaligned out pointer is what is tested.
+    let st = unsafe { strata_welcome(s, odd.cast::<StrataWelcome>()) };
+    assert_eq!(st, StrataStatus::InvalidArgument);
+    assert_eq!(last_error(), "out_welcome is misaligned");
+    // A null `out_version` is skipped; a misaligned one is an error, not
+    // skipped, even for a chunk not held.
+    // SAFETY: as above; null buffers are skipped.
+    let st = unsafe { strata_chunk_read(s, 0, 0, 0, null_mut(), null_mut(), 0, odd.cast::<u64>()) };
+    assert_eq!(st, StrataStatus::InvalidArgument);
+    assert_eq!(last_error(), "out_version is misaligned");
+    assert_eq!(buf, [0; 16], "nothing was written");
+    // SAFETY: `s` is live and nothing else uses it.
+    unsafe { strata_session_free(s) };
+}

@@ -297,3 +297,150 @@ fn a_session_hears_its_view_loaded_its_refused_positions_and_forgets_chunks() {
     }
     s.close();
 }
+
+/// Through the C ABI: once DISCONNECTED was polled, the calls that would
+/// queue work say CLOSED, and polls return nothing more (no EDIT_FAILED
+/// for an edit taken after it, no CHUNK_CHANGED for a forget).
+#[test]
+fn nothing_is_taken_or_polled_after_disconnected() {
+    use std::ffi::CString;
+    use strata::*;
+
+    let server = Server::start();
+    let addr = CString::new(server.address()).unwrap();
+    let token = CString::new(server.token("c-after")).unwrap();
+    let cert = &server.running.cert_der;
+    let mut c = std::ptr::null_mut();
+    // SAFETY: NUL-terminated strings, `cert.len()` readable bytes and a
+    // writable out pointer.
+    let st = unsafe {
+        strata_connect(
+            addr.as_ptr(),
+            cert.as_ptr(),
+            cert.len(),
+            token.as_ptr(),
+            0,
+            &mut c,
+        )
+    };
+    assert_eq!(st, StrataStatus::Ok);
+    let poll = || {
+        let mut ev = std::mem::MaybeUninit::<StrataEvent>::uninit();
+        // SAFETY: `c` is live; `ev` is writable.
+        assert_eq!(unsafe { strata_poll(c, ev.as_mut_ptr()) }, StrataStatus::Ok);
+        // SAFETY: written by the call above.
+        unsafe { ev.assume_init() }.kind
+    };
+    let Server {
+        running,
+        dir: _dir,
+        runtime,
+    } = server;
+    runtime.block_on(running.shutdown()).unwrap();
+    let start = Instant::now();
+    while poll() != StrataEventKind::Disconnected {
+        assert!(start.elapsed() < WAIT, "no DISCONNECTED");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let dig = StrataEdit {
+        kind: StrataEditKind::Mine as u32,
+        center: [3.5, 40.5, 3.5],
+        radius: 2.0,
+        strength: 255,
+        power: 0,
+        material: 0,
+        min: [0; 3],
+        max: [0; 3],
+        structure: 0,
+        rotation: 0,
+    };
+    let mut ticket = 0;
+    let chunk = [0i32, 1, 0];
+    // SAFETY: `c` is live; the edit and the chunk are readable, `ticket`
+    // writable.
+    let statuses = unsafe {
+        [
+            strata_edit(c, &dig, &mut ticket),
+            strata_forget(c, &chunk, 1),
+            strata_resync(c, 0, 1, 0),
+            strata_subscribe(c, 0, 1, 0, 1),
+        ]
+    };
+    assert_eq!(statuses, [StrataStatus::Closed; 4]);
+    assert_eq!(ticket, 0, "no ticket was taken");
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_millis(500) {
+        assert_eq!(poll(), StrataEventKind::None, "an event after DISCONNECTED");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // SAFETY: `c` is live and nothing else uses it.
+    unsafe { strata_session_free(c) };
+}
+
+/// A client records delta arrivals only when asked (a load test's
+/// latencies): an SDK session, which never takes them, keeps none.
+#[test]
+fn delta_arrivals_are_recorded_only_for_a_caller_that_takes_them() {
+    use strata_client::terrain::{Edit, FixedVec3, VoxelPos};
+    use strata_client::{Client, Verdict};
+
+    let server = Server::start();
+    let cert = server.running.cert_der.clone();
+    let token = server.token("arrivals");
+    let client = server
+        .runtime
+        .block_on(Client::connect(server.running.addr, &cert, &token))
+        .unwrap();
+    server
+        .runtime
+        .block_on(client.subscribe(ChunkPos::new(0, 1, 0), 2))
+        .unwrap();
+    let start = Instant::now();
+    let y = loop {
+        let r = client.replica();
+        if let Some(y) = (-64..=127).rev().find_map(|y| {
+            r.voxel(VoxelPos::new(3, y, 3))
+                .filter(|v| v.is_solid())
+                .map(|_| y)
+        }) {
+            break y;
+        }
+        drop(r);
+        assert!(start.elapsed() < WAIT, "the column never arrived");
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let feet = FixedVec3::from_f64([3.5, f64::from(y) + 1.0, 3.5]).unwrap();
+    let dig = || Edit::Mine {
+        center: FixedVec3::from_f64([3.5, f64::from(y) + 0.5, 3.5]).unwrap(),
+        radius: strata_client::terrain::Fixed::from_f64(2.0).unwrap(),
+        strength: 255,
+    };
+    // Digs until accepted; waits until its own delta was applied.
+    let dig_and_wait = || {
+        let start = Instant::now();
+        let changes = loop {
+            assert!(start.elapsed() < WAIT, "no dig was accepted");
+            client.send_position(feet).unwrap();
+            std::thread::sleep(Duration::from_millis(20));
+            let (verdict, changes) = server.runtime.block_on(client.edit_acked(dig())).unwrap();
+            if matches!(verdict, Verdict::Accepted { .. }) && !changes.is_empty() {
+                break changes;
+            }
+        };
+        let c = changes[0];
+        let start = Instant::now();
+        while client.replica().get(c.pos).map(|h| h.version) < Some(c.version) {
+            assert!(start.elapsed() < WAIT, "our delta never came");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    };
+    dig_and_wait();
+    assert!(
+        client.take_arrivals().is_empty(),
+        "arrivals were recorded for a client that never asked"
+    );
+    // Taking them starts recording.
+    dig_and_wait();
+    assert!(!client.take_arrivals().is_empty(), "taken, so recorded");
+    server.runtime.block_on(client.close());
+}

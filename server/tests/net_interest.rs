@@ -284,6 +284,8 @@ async fn a_forgotten_chunk_gets_no_deltas_until_it_is_resynced() {
         // Its view follows the accepted position and holds the target.
         assert!(eventually(Duration::from_secs(10), || editor.view_loaded().is_some()).await);
         let watcher = connect(&server, "watcher", Role::Player).await;
+        // From now on its arrivals are recorded.
+        assert!(watcher.take_arrivals().is_empty());
         watcher.subscribe(target, 1).await.unwrap();
         loaded(&watcher, target, 1).await;
         watcher.forget(&[target]).await.unwrap();

@@ -252,6 +252,8 @@ impl Bot {
                 capabilities: cfg.capabilities,
                 link_delay: cfg.link_delay,
                 join_rate: Default::default(),
+                // Delta latencies: `drain_arrivals` takes them every step.
+                record_arrivals: true,
             };
             let attempt = {
                 let _slot = self.fleet.connect_slots.acquire().await.ok()?;

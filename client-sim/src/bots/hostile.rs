@@ -615,7 +615,10 @@ fn error_name(e: &ClientError) -> String {
         ClientError::Closed(name) => name.clone(),
         ClientError::Timeout(_) => "timed_out".to_string(),
         ClientError::Connect(_) | ClientError::Tls(_) => "connect".to_string(),
-        ClientError::Protocol(_) | ClientError::TooManyChunks { .. } => "protocol".to_string(),
+        ClientError::Protocol(_)
+        | ClientError::Violation(_)
+        | ClientError::TooManyChunks { .. }
+        | ClientError::OutsideWorld { .. } => "protocol".to_string(),
     }
 }
 

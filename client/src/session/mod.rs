@@ -83,12 +83,15 @@ pub struct Session {
     events: Mutex<std_mpsc::Receiver<Event>>,
     /// Set once the connection has ended, with why.
     closed: Arc<Mutex<Option<ClientError>>>,
+    /// Whether `Disconnected` was polled. Held while `poll` decides on it
+    /// and while an edit, forget or resync is taken, so none is taken
+    /// after it and nothing is polled after it.
     disconnect_reported: Mutex<bool>,
     /// Edits taken whose verdict event has not been polled.
     unpolled: AtomicUsize,
     next_ticket: AtomicU64,
     // Last, so it is dropped after the client it drives.
-    runtime: Runtime,
+    runtime: SessionRuntime,
 }
 
 impl Session {
@@ -170,7 +173,7 @@ impl Session {
             disconnect_reported: Mutex::new(false),
             unpolled: AtomicUsize::new(0),
             next_ticket: AtomicU64::new(1),
-            runtime,
+            runtime: SessionRuntime(Some(runtime)),
         }
     }
 
@@ -197,9 +200,12 @@ impl Session {
     /// the server's view radius). The whole cube must lie within view
     /// radius + hysteresis chunks of the player; positions then move it
     /// only when it would reach farther (to the feet, keeping its radius).
+    /// A centre outside the world is refused
+    /// ([`crate::bounds::center_in_world`]).
     pub fn subscribe(&self, center: IVec3, radius: u8) -> Result<(), SessionError> {
         let center = ChunkPos::new(center.x, center.y, center.z);
-        self.queue(Command::Subscribe { center, radius })
+        crate::client::check_center(center)?;
+        self.queue_live(Command::Subscribe { center, radius })
     }
 
     /// Drops chunks the game no longer wants (chunk coordinates, at most
@@ -216,20 +222,27 @@ impl Session {
             .iter()
             .map(|c| ChunkPos::new(c.x, c.y, c.z))
             .collect();
-        self.queue(Command::Forget { chunks })
+        self.queue_live(Command::Forget { chunks })
     }
 
     /// Asks the server to send a chunk again (one forgotten, or one whose
     /// copy looks wrong); it must be in the view.
     pub fn resync(&self, chunk: IVec3) -> Result<(), SessionError> {
         let pos = ChunkPos::new(chunk.x, chunk.y, chunk.z);
-        self.queue(Command::Resync { pos })
+        self.queue_live(Command::Resync { pos })
     }
 
     /// Sends an edit (build one with [`crate::edits`]) and returns its
     /// ticket at once; its verdict comes from [`Self::poll`]. Edits reach
     /// the server in the order they were taken.
+    /// Once `Disconnected` was polled, refused with [`ClientError::Closed`].
     pub fn edit(&self, edit: Edit) -> Result<u64, SessionError> {
+        // Held until the edit is counted: `poll` reports `Disconnected`
+        // only with no edit unpolled, under this lock.
+        let reported = self.reported();
+        if *reported {
+            return Err(after_disconnect());
+        }
         if self.unpolled.fetch_add(1, Ordering::SeqCst) >= MAX_IN_FLIGHT {
             self.unpolled.fetch_sub(1, Ordering::SeqCst);
             return Err(SessionError::Busy);
@@ -242,6 +255,23 @@ impl Session {
         Ok(ticket)
     }
 
+    fn reported(&self) -> std::sync::MutexGuard<'_, bool> {
+        self.disconnect_reported
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Queues `c` unless `Disconnected` was polled (then
+    /// [`ClientError::Closed`]); the check and the queueing under the lock
+    /// `poll` reports it under.
+    fn queue_live(&self, c: Command) -> Result<(), SessionError> {
+        let reported = self.reported();
+        if *reported {
+            return Err(after_disconnect());
+        }
+        self.queue(c)
+    }
+
     fn queue(&self, c: Command) -> Result<(), SessionError> {
         self.commands.try_send(c).map_err(|e| match e {
             mpsc::error::TrySendError::Full(_) => SessionError::Busy,
@@ -252,7 +282,12 @@ impl Session {
     }
 
     /// The next event, or `None` when nothing new happened. Never waits.
+    /// After `Disconnected`, always `None`.
     pub fn poll(&self) -> Option<Event> {
+        let mut reported = self.reported();
+        if *reported {
+            return None;
+        }
         if let Ok(e) = self
             .events
             .lock()
@@ -274,19 +309,16 @@ impl Session {
         if let Some(pos) = self.links.pop_changed() {
             return Some(Event::ChunkChanged { pos });
         }
-        // Disconnected comes last: after every edit's verdict or failure.
+        // Disconnected comes last: after every edit's verdict or failure
+        // (no edit is taken while the lock is held).
         if self.unpolled.load(Ordering::SeqCst) > 0 {
             return None;
         }
-        let mut reported = self
-            .disconnect_reported
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
         let closed = self
             .closed
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        let why = closed.as_ref().filter(|_| !*reported)?;
+        let why = closed.as_ref()?;
         *reported = true;
         Some(match why {
             ClientError::Refused { code, message } => Event::Disconnected {
@@ -361,14 +393,35 @@ impl Session {
         sum
     }
 
-    /// Closes the connections politely, all at once (waiting at most two
-    /// seconds in all), and stops the thread. Dropping a session does
-    /// the same without waiting.
+    /// Closes the connections politely, all at once, and stops the thread
+    /// (waiting at most two seconds in all). Dropping a session does the
+    /// same without the polite close.
     pub fn close(self) {
         let closes = self.links.all().into_iter().map(|c| async move {
             c.shutdown().await;
         });
-        self.runtime.block_on(all_within(CLOSE_WAIT, closes));
+        if let Some(rt) = &self.runtime.0 {
+            rt.block_on(all_within(POLITE_WAIT, closes));
+        }
+    }
+}
+
+/// The error of a call after `Disconnected` was polled.
+fn after_disconnect() -> SessionError {
+    SessionError::Client(ClientError::Closed("the session has disconnected".into()))
+}
+
+/// The session's runtime: dropped, it stops within [`STOP_WAIT`], where a
+/// plain drop would wait for every blocking task (a name lookup stuck in
+/// `getaddrinfo`, which no timeout interrupts) to end.
+#[derive(Debug)]
+struct SessionRuntime(Option<Runtime>);
+
+impl Drop for SessionRuntime {
+    fn drop(&mut self) {
+        if let Some(rt) = self.0.take() {
+            rt.shutdown_timeout(STOP_WAIT);
+        }
     }
 }
 
@@ -380,8 +433,14 @@ impl Drop for Session {
     }
 }
 
-/// The longest [`Session::close`] waits.
+/// The longest [`Session::close`] waits: for the polite close, then for
+/// the thread to stop.
 const CLOSE_WAIT: Duration = Duration::from_secs(2);
+/// The longest a session's runtime is waited for once its connections
+/// are closed (blocking tasks still running are left behind).
+const STOP_WAIT: Duration = Duration::from_millis(250);
+/// The longest the polite close waits.
+const POLITE_WAIT: Duration = CLOSE_WAIT.saturating_sub(STOP_WAIT);
 
 /// Runs `tasks` concurrently, abandoning those still running after `limit`.
 async fn all_within<F>(limit: Duration, tasks: impl IntoIterator<Item = F>)
@@ -422,20 +481,39 @@ mod tests {
         let start = Instant::now();
         // Three closes of 1 s each: 1 s together, not 3 s.
         let closes = (0..3).map(|_| tokio::time::sleep(Duration::from_secs(1)));
-        rt.block_on(all_within(CLOSE_WAIT, closes));
+        rt.block_on(all_within(POLITE_WAIT, closes));
         let together = start.elapsed();
         assert!(
-            together >= Duration::from_secs(1) && together < CLOSE_WAIT,
+            together >= Duration::from_secs(1) && together < POLITE_WAIT,
             "{together:?}"
         );
         // Closes that never end are abandoned at the bound.
         let start = Instant::now();
         let stuck = (0..3).map(|_| std::future::pending::<()>());
-        rt.block_on(all_within(CLOSE_WAIT, stuck));
+        rt.block_on(all_within(POLITE_WAIT, stuck));
         let bounded = start.elapsed();
         assert!(
-            bounded >= CLOSE_WAIT && bounded < CLOSE_WAIT + Duration::from_millis(500),
+            bounded >= POLITE_WAIT && bounded < POLITE_WAIT + Duration::from_millis(500),
             "{bounded:?}"
+        );
+    }
+
+    #[test]
+    fn a_blocking_task_does_not_hold_the_runtime_past_its_stop_wait() {
+        let rt = runtime().unwrap();
+        let (started, running) = std_mpsc::channel();
+        // As a name lookup stuck in getaddrinfo: no timeout interrupts it.
+        rt.spawn_blocking(move || {
+            let _ = started.send(());
+            std::thread::sleep(Duration::from_secs(10));
+        });
+        running.recv().unwrap();
+        let start = Instant::now();
+        drop(SessionRuntime(Some(rt)));
+        let stopped = start.elapsed();
+        assert!(
+            stopped < STOP_WAIT + Duration::from_millis(500),
+            "{stopped:?}"
         );
     }
 }
