@@ -1,16 +1,35 @@
 //! The boundary without a server: null pointers, a refused connection and
 //! bad arguments are status codes with messages, never crashes.
 
-use std::ffi::{CStr, CString};
+use crate::common::ffi::last_error;
+
+use std::ffi::CString;
 use std::ptr::{null, null_mut};
 
 use strata::*;
 
-fn last_error() -> String {
-    // SAFETY: the library's NUL-terminated string, read at once.
-    unsafe { CStr::from_ptr(strata_last_error_message()) }
-        .to_string_lossy()
-        .into_owned()
+/// `strata_connect_with` to a closed port, with a junk token and
+/// certificate: only argument checks can answer it OK.
+///
+/// # Safety
+/// As `strata_connect_with`'s for `options` and `out_session`.
+unsafe fn connect_with_junk(
+    options: *const StrataConnectOptions,
+    out_session: *mut *mut StrataSession,
+) -> StrataStatus {
+    let (addr, token, cert) = (c"127.0.0.1:9", c"v1.x.y", [1u8, 2, 3]);
+    // SAFETY: valid strings and 3 readable bytes; the caller answers for
+    // the rest.
+    unsafe {
+        strata_connect_with(
+            addr.as_ptr(),
+            cert.as_ptr(),
+            3,
+            token.as_ptr(),
+            options,
+            out_session,
+        )
+    }
 }
 
 #[test]
@@ -27,20 +46,9 @@ fn null_pointers_are_invalid_arguments() {
     // SAFETY: `c` holds 3 writable i32.
     let st = unsafe { strata_chunk_of(-0.5, 40.0, 70.0, c.as_mut_ptr()) };
     assert_eq!((st, c), (StrataStatus::Ok, [-1, 1, 2]));
-    let (addr, token, cert) = (c"127.0.0.1:9", c"v1.x.y", [1u8, 2, 3]);
     let mut s = null_mut();
-    // SAFETY: valid strings, bytes and out pointer; null options are what
-    // is tested.
-    let st = unsafe {
-        strata_connect_with(
-            addr.as_ptr(),
-            cert.as_ptr(),
-            3,
-            token.as_ptr(),
-            null(),
-            &mut s,
-        )
-    };
+    // SAFETY: a writable out pointer; null options are what is tested.
+    let st = unsafe { connect_with_junk(null(), &mut s) };
     assert_eq!(st, StrataStatus::InvalidArgument);
     assert_eq!(last_error(), "options is null");
     // SAFETY: null is ignored by both.
@@ -122,20 +130,10 @@ fn misaligned_pointers_are_invalid_arguments() {
     assert_eq!(last_error(), "out_chunk is misaligned");
     assert_eq!(buf, [0; 8], "nothing was written");
     // A misaligned options struct is refused before any connection.
-    let (addr, token, cert) = (c"127.0.0.1:9", c"v1.x.y", [1u8, 2, 3]);
     let mut s = null_mut();
-    // SAFETY: valid strings, bytes and out pointer; the misaligned options
-    // (inside `buf`, readable) are what is tested.
-    let st = unsafe {
-        strata_connect_with(
-            addr.as_ptr(),
-            cert.as_ptr(),
-            3,
-            token.as_ptr(),
-            odd.cast::<StrataConnectOptions>().cast_const(),
-            &mut s,
-        )
-    };
+    // SAFETY: a writable out pointer; the misaligned options (inside
+    // `buf`, readable) are what is tested.
+    let st = unsafe { connect_with_junk(odd.cast::<StrataConnectOptions>().cast_const(), &mut s) };
     assert_eq!(st, StrataStatus::InvalidArgument, "{}", last_error());
     assert_eq!(last_error(), "options is misaligned");
     // A misaligned out_session likewise.
@@ -143,17 +141,9 @@ fn misaligned_pointers_are_invalid_arguments() {
         predict: 0,
         capabilities: 0,
     };
-    // SAFETY: as above; the misaligned out pointer is what is tested.
-    let st = unsafe {
-        strata_connect_with(
-            addr.as_ptr(),
-            cert.as_ptr(),
-            3,
-            token.as_ptr(),
-            &options,
-            odd.cast::<*mut StrataSession>(),
-        )
-    };
+    // SAFETY: live options; the misaligned out pointer (inside `buf`,
+    // writable) is what is tested.
+    let st = unsafe { connect_with_junk(&options, odd.cast::<*mut StrataSession>()) };
     assert_eq!(st, StrataStatus::InvalidArgument, "{}", last_error());
     assert_eq!(last_error(), "out_session is misaligned");
     assert_eq!(buf, [0; 8], "nothing was written");

@@ -4,8 +4,9 @@
 //! ends with DISCONNECTED (a protocol violation) instead of generating and
 //! holding whatever it is sent.
 
-use std::ffi::{CStr, CString};
-use std::mem::MaybeUninit;
+use crate::common::ffi::{connect_with, last_error, poll, stats};
+
+use std::ffi::CStr;
 use std::ptr::null_mut;
 use std::time::{Duration, Instant};
 
@@ -20,13 +21,6 @@ use tokio::sync::oneshot;
 
 /// The longest any step waits.
 const WAIT: Duration = Duration::from_secs(20);
-
-fn last_error() -> String {
-    // SAFETY: the library's NUL-terminated string, read at once.
-    unsafe { CStr::from_ptr(strata_last_error_message()) }
-        .to_string_lossy()
-        .into_owned()
-}
 
 /// A Welcome of view radius `view_radius` with these generator parameters.
 fn welcome(view_radius: u8, world_seed: u64, generator_params: String) -> ServerMessage {
@@ -99,36 +93,12 @@ impl Hostile {
     }
 
     fn connect(&self) -> *mut StrataSession {
-        let addr = CString::new(self.addr.clone()).unwrap();
         let options = StrataConnectOptions {
             predict: 0,
             capabilities: 0,
         };
-        let mut s = null_mut();
-        // SAFETY: NUL-terminated strings, `cert.len()` readable bytes, live
-        // options and a writable out pointer.
-        let st = unsafe {
-            strata_connect_with(
-                addr.as_ptr(),
-                self.cert.as_ptr(),
-                self.cert.len(),
-                c"token".as_ptr(),
-                &options,
-                &mut s,
-            )
-        };
-        assert_eq!(st, StrataStatus::Ok, "{}", last_error());
-        s
+        connect_with(&self.addr, &self.cert, "token", &options)
     }
-}
-
-fn poll(s: *mut StrataSession) -> StrataEvent {
-    let mut ev = MaybeUninit::<StrataEvent>::uninit();
-    // SAFETY: `s` is live; `ev` is writable.
-    let st = unsafe { strata_poll(s, ev.as_mut_ptr()) };
-    assert_eq!(st, StrataStatus::Ok, "{}", last_error());
-    // SAFETY: written by the call above.
-    unsafe { ev.assume_init() }
 }
 
 fn message(ev: &StrataEvent) -> String {
@@ -137,15 +107,6 @@ fn message(ev: &StrataEvent) -> String {
         .unwrap()
         .to_string_lossy()
         .into_owned()
-}
-
-fn stats(s: *mut StrataSession) -> StrataStats {
-    let mut out = MaybeUninit::<StrataStats>::uninit();
-    // SAFETY: `s` is live; `out` is writable.
-    let st = unsafe { strata_stats(s, out.as_mut_ptr()) };
-    assert_eq!(st, StrataStatus::Ok, "{}", last_error());
-    // SAFETY: written by the call above.
-    unsafe { out.assume_init() }
 }
 
 /// Polls until `stop` picks an event or the stats out, or [`WAIT`] passes;

@@ -2,23 +2,16 @@
 //! call with a null one returns INVALID_ARGUMENT and does nothing else (no
 //! edit sent, no event taken, no login).
 
+use crate::common::ffi::{connect, dig, last_error, poll};
 use crate::common::Server;
 
-use std::ffi::{CStr, CString};
-use std::mem::MaybeUninit;
+use std::ffi::CString;
 use std::ptr::null_mut;
 use std::time::{Duration, Instant};
 
 use strata::*;
 
 const WAIT: Duration = Duration::from_secs(10);
-
-fn last_error() -> String {
-    // SAFETY: the library's NUL-terminated string, read at once.
-    unsafe { CStr::from_ptr(strata_last_error_message()) }
-        .to_string_lossy()
-        .into_owned()
-}
 
 /// Sends `dig()` on live session `s`; its ticket.
 fn edit(s: *mut StrataSession) -> u64 {
@@ -27,36 +20,6 @@ fn edit(s: *mut StrataSession) -> u64 {
     let st = unsafe { strata_edit(s, &dig(), &mut ticket) };
     assert_eq!(st, StrataStatus::Ok, "{}", last_error());
     ticket
-}
-
-fn connect(server: &Server, player: &str) -> *mut StrataSession {
-    let addr = CString::new(server.address()).unwrap();
-    let token = CString::new(server.token(player)).unwrap();
-    let cert = &server.running.cert_der;
-    let mut s = null_mut();
-    // SAFETY: NUL-terminated strings, `cert.len()` readable bytes and a
-    // writable out pointer.
-    let st = unsafe {
-        strata_connect(
-            addr.as_ptr(),
-            cert.as_ptr(),
-            cert.len(),
-            token.as_ptr(),
-            0,
-            &mut s,
-        )
-    };
-    assert_eq!(st, StrataStatus::Ok, "{}", last_error());
-    s
-}
-
-fn poll(s: *mut StrataSession) -> StrataEvent {
-    let mut ev = MaybeUninit::<StrataEvent>::uninit();
-    // SAFETY: `s` is live; `ev` is writable.
-    let st = unsafe { strata_poll(s, ev.as_mut_ptr()) };
-    assert_eq!(st, StrataStatus::Ok, "{}", last_error());
-    // SAFETY: written by the call above.
-    unsafe { ev.assume_init() }
 }
 
 fn is_verdict(ev: &StrataEvent) -> bool {
@@ -77,22 +40,6 @@ fn wait_verdict(s: *mut StrataSession, ticket: u64) -> StrataEvent {
         }
     }
     panic!("no verdict for edit {ticket}");
-}
-
-/// A dig; without a position the server answers it NO_POSITION.
-fn dig() -> StrataEdit {
-    StrataEdit {
-        kind: StrataEditKind::Mine as u32,
-        center: [3.5, 40.5, 3.5],
-        radius: 2.0,
-        strength: 255,
-        power: 0,
-        material: 0,
-        min: [0; 3],
-        max: [0; 3],
-        structure: 0,
-        rotation: 0,
-    }
 }
 
 #[test]

@@ -7,7 +7,7 @@ use crate::common;
 
 use std::time::{Duration, Instant};
 
-use common::{wait_for, Server};
+use common::{ffi, wait_for, Server};
 use strata_client::glam::{DVec3, IVec3};
 use strata_client::protocol::RejectReason;
 use strata_client::terrain::ChunkPos;
@@ -130,12 +130,7 @@ fn a_session_edits_sees_its_changes_and_ends_with_disconnected() {
 
     // The server goes away: edits taken meanwhile fail, then Disconnected
     // comes once, last.
-    let Server {
-        running,
-        dir: _dir,
-        runtime,
-    } = server;
-    runtime.block_on(running.shutdown()).unwrap();
+    let _stopped = server.stop();
     let start = Instant::now();
     while !s.is_closed() {
         assert!(
@@ -164,41 +159,18 @@ fn a_session_edits_sees_its_changes_and_ends_with_disconnected() {
 /// player's edit as an op, replayed and hash-checked.
 #[test]
 fn a_thin_op_replay_session_through_the_c_abi() {
-    use std::ffi::CString;
     use strata::*;
 
     let server = Server::start();
-    let addr = CString::new(server.address()).unwrap();
-    let token = CString::new(server.token("c-thin")).unwrap();
     let cert = &server.running.cert_der;
     let options = StrataConnectOptions {
         predict: 0,
         capabilities: STRATA_CAP_SNAPSHOTS | STRATA_CAP_OP_REPLAY,
     };
-    let mut c = std::ptr::null_mut();
-    // SAFETY: NUL-terminated strings, `cert.len()` readable bytes, a live
-    // options struct and a writable out pointer.
-    let st = unsafe {
-        strata_connect_with(
-            addr.as_ptr(),
-            cert.as_ptr(),
-            cert.len(),
-            token.as_ptr(),
-            &options,
-            &mut c,
-        )
-    };
-    assert_eq!(st, StrataStatus::Ok);
+    let c = ffi::connect_with(&server.address(), cert, &server.token("c-thin"), &options);
     // SAFETY: `c` is the live session made above.
     assert_eq!(unsafe { strata_subscribe(c, 0, 1, 0, 2) }, StrataStatus::Ok);
-    let stats = || {
-        let mut out = std::mem::MaybeUninit::<StrataStats>::uninit();
-        // SAFETY: `c` is live; `out` is writable.
-        let st = unsafe { strata_stats(c, out.as_mut_ptr()) };
-        assert_eq!(st, StrataStatus::Ok);
-        // SAFETY: written by the call above.
-        unsafe { out.assume_init() }
-    };
+    let stats = || ffi::stats(c);
     let start = Instant::now();
     while stats().chunks_held < 125 {
         assert!(
@@ -303,57 +275,18 @@ fn a_session_hears_its_view_loaded_its_refused_positions_and_forgets_chunks() {
 /// for an edit taken after it, no CHUNK_CHANGED for a forget).
 #[test]
 fn nothing_is_taken_or_polled_after_disconnected() {
-    use std::ffi::CString;
     use strata::*;
 
     let server = Server::start();
-    let addr = CString::new(server.address()).unwrap();
-    let token = CString::new(server.token("c-after")).unwrap();
-    let cert = &server.running.cert_der;
-    let mut c = std::ptr::null_mut();
-    // SAFETY: NUL-terminated strings, `cert.len()` readable bytes and a
-    // writable out pointer.
-    let st = unsafe {
-        strata_connect(
-            addr.as_ptr(),
-            cert.as_ptr(),
-            cert.len(),
-            token.as_ptr(),
-            0,
-            &mut c,
-        )
-    };
-    assert_eq!(st, StrataStatus::Ok);
-    let poll = || {
-        let mut ev = std::mem::MaybeUninit::<StrataEvent>::uninit();
-        // SAFETY: `c` is live; `ev` is writable.
-        assert_eq!(unsafe { strata_poll(c, ev.as_mut_ptr()) }, StrataStatus::Ok);
-        // SAFETY: written by the call above.
-        unsafe { ev.assume_init() }.kind
-    };
-    let Server {
-        running,
-        dir: _dir,
-        runtime,
-    } = server;
-    runtime.block_on(running.shutdown()).unwrap();
+    let c = ffi::connect(&server, "c-after");
+    let poll = || ffi::poll(c).kind;
+    let _stopped = server.stop();
     let start = Instant::now();
     while poll() != StrataEventKind::Disconnected {
         assert!(start.elapsed() < WAIT, "no DISCONNECTED");
         std::thread::sleep(Duration::from_millis(5));
     }
-    let dig = StrataEdit {
-        kind: StrataEditKind::Mine as u32,
-        center: [3.5, 40.5, 3.5],
-        radius: 2.0,
-        strength: 255,
-        power: 0,
-        material: 0,
-        min: [0; 3],
-        max: [0; 3],
-        structure: 0,
-        rotation: 0,
-    };
+    let dig = ffi::dig();
     let mut ticket = 0;
     let chunk = [0i32, 1, 0];
     // SAFETY: `c` is live; the edit and the chunk are readable, `ticket`

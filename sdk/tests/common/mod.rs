@@ -15,6 +15,8 @@ use strata_server::app::{self, Running};
 use strata_server::auth;
 use strata_server::config::ServerConfig;
 
+pub mod ffi;
+
 /// The longest an example may run.
 pub const EXAMPLE_TIMEOUT: Duration = Duration::from_secs(60);
 
@@ -24,6 +26,13 @@ pub struct Server {
     pub dir: tempfile::TempDir,
     // Dropped last: the server's tasks run on it.
     pub runtime: tokio::runtime::Runtime,
+}
+
+/// A server shut down by [`Server::stop`]: its scratch dir and runtime.
+pub struct Stopped {
+    _dir: tempfile::TempDir,
+    // Dropped last, as in [`Server`].
+    _runtime: tokio::runtime::Runtime,
 }
 
 impl Server {
@@ -41,6 +50,21 @@ impl Server {
             running,
             dir,
             runtime,
+        }
+    }
+
+    /// Shuts the server down; what it returns keeps the scratch dir and the
+    /// runtime until the caller drops it.
+    pub fn stop(self) -> Stopped {
+        let Server {
+            running,
+            dir,
+            runtime,
+        } = self;
+        runtime.block_on(running.shutdown()).unwrap();
+        Stopped {
+            _dir: dir,
+            _runtime: runtime,
         }
     }
 
