@@ -497,11 +497,9 @@ fn admission_takes_the_edit_token_and_a_refused_sight_gives_the_volume_back() {
     );
 }
 
-/// Edits taken out for a region whose reload failed (queued, or awaiting
-/// their sight check) are refused `Busy`, which costs nothing: their edit
-/// and volume tokens come back, and edits elsewhere stay.
-#[test]
-fn edits_taken_out_of_a_region_get_their_tokens_back() {
+/// A player with two edit tokens, both spent: edit 10 queued (its sight
+/// checked), edit 11 awaiting its sight check; and that edit.
+fn one_queued_one_awaiting_sight() -> (Sequencer, Edit) {
     let v = ValidationConfig {
         edit_rate: BucketConfig {
             capacity: 2,
@@ -515,6 +513,15 @@ fn edits_taken_out_of_a_region_get_their_tokens_back() {
     assert!(s.check_sighted(0).is_empty());
     s.admit(PLAYER, req(11, e.clone()), 0).unwrap();
     assert_eq!((s.queued(), s.sighting()), (1, 1));
+    (s, e)
+}
+
+/// Edits taken out for a region whose reload failed (queued, or awaiting
+/// their sight check) are refused `Busy`, which costs nothing: their edit
+/// and volume tokens come back, and edits elsewhere stay.
+#[test]
+fn edits_taken_out_of_a_region_get_their_tokens_back() {
+    let (mut s, e) = one_queued_one_awaiting_sight();
     let elsewhere = [strata_server::sequencer::regions::RegionId { x: 99, z: 99 }]
         .into_iter()
         .collect();
@@ -527,4 +534,16 @@ fn edits_taken_out_of_a_region_get_their_tokens_back() {
     // Both edit tokens are back.
     s.admit(PLAYER, req(12, e.clone()), 0).unwrap();
     s.admit(PLAYER, req(13, e), 0).unwrap();
+}
+
+/// After a fenced batch, the queued edits (their sight checked, perhaps on
+/// what the batch changed) are taken out and refused `Busy` at no cost;
+/// those still awaiting their check stay for it.
+#[test]
+fn a_fenced_batch_takes_the_queued_edits_out_and_leaves_those_awaiting_sight() {
+    let (mut s, e) = one_queued_one_awaiting_sight();
+    assert_eq!(s.unqueue_sighted(0), vec![(PLAYER, 10)]);
+    assert_eq!((s.queued(), s.sighting()), (0, 1));
+    // The edit token of the one taken out is back.
+    s.admit(PLAYER, req(12, e), 0).unwrap();
 }

@@ -276,11 +276,8 @@ impl Engine {
 
     pub(super) fn send_control(&mut self, session: u64, msg: &ServerMessage) {
         if let Some(p) = self.peers.get_mut(&session) {
-            if p.control.try_send(fanout::encode_control(msg)).is_err() {
-                // Control messages are never dropped silently: a client this
-                // far behind is disconnected.
-                p.failed = true;
-            }
+            // A client this far behind is disconnected (`drop_failed`).
+            p.send_control(fanout::encode_control(msg));
         }
     }
 }

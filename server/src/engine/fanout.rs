@@ -258,6 +258,10 @@ fn send_tick(
     counters: &Counters,
     direct: bool,
 ) -> Vec<ChunkPos> {
+    // A failed session is sent nothing more (it is dropped after the tick).
+    if p.failed {
+        return Vec::new();
+    }
     // The changes `p` gets: along each chunk's chain from the version it
     // holds; `covers` (a tree lookup) only confirms the chunks it holds.
     let mut not_held: Vec<ChunkPos> = Vec::new();
@@ -427,6 +431,29 @@ mod tests {
             out.extend_from_slice(end);
         }
         (out, p.holdings().clone())
+    }
+
+    #[test]
+    fn a_session_that_missed_a_verdict_is_sent_nothing_more() {
+        let a = ChunkPos::new(0, 0, 0);
+        let (mut p, mut rx) = peer(&[(a, 4)]);
+        let (control, mut verdicts) = crate::net::writer::FrameSender::channel(1);
+        p.control = control;
+        assert!(p.send_control(Bytes::from_static(b"one")));
+        assert!(!p.send_control(Bytes::from_static(b"two")), "full: missed");
+        assert!(p.failed);
+        // Room again, and still nothing more on either stream.
+        assert_eq!(&verdicts.try_recv().unwrap()[..], b"one");
+        assert!(!p.send_control(Bytes::from_static(b"three")));
+        assert!(verdicts.try_recv().is_err());
+        let applied = [applied(1, vec![change(a, 4)])];
+        let edits: Vec<TickEdit<'_>> = applied.iter().map(|a| TickEdit::new(a, false)).collect();
+        let end = encode_update(&WorldUpdate::TickEnd { last_seq: 1 });
+        let chains = chains(&applied.iter().collect::<Vec<_>>());
+        send_tick(&mut p, &edits, &chains, &[0], &end, &Counters::new(), true);
+        assert!(rx.try_recv().is_err(), "no delta after the missed verdict");
+        assert!(p.send_update(end.clone(), false).is_err());
+        assert!(rx.try_recv().is_err());
     }
 
     #[test]

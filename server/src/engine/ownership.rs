@@ -446,6 +446,11 @@ impl Engine {
         // got it (the batch was fenced because it took the region): their
         // copies are stale, as after a takeover.
         self.withdraw_stale(&restored);
+        // Edits queued while it committed may have been seen through what
+        // it changed: refused, to be sent again against the world as it is.
+        for (session, id) in self.seq.unqueue_sighted(super::now_ms()) {
+            self.refuse_edit(session, id, RejectReason::Busy);
+        }
         match self.store.reserve_seqs(self.seq.last_seq()) {
             Ok(floor) => self.seq.raise_next_seq(floor.saturating_add(1)),
             Err(e) => {

@@ -32,7 +32,10 @@ pub struct Peer {
     pub pending: Pending,
     /// Chunks the client asked to receive as full data even at version 0.
     pub full_data: HashSet<ChunkPos>,
-    /// Set when a queue overflowed and the connection should be closed.
+    /// Set when a queue overflowed and the connection should be closed:
+    /// from then on nothing more is sent to it ([`Self::send_update`],
+    /// [`Self::send_control`]), so it never sees a later verdict or delta
+    /// after one it missed.
     pub failed: bool,
     /// The chunk around which collision meshes were last queued.
     pub premeshed: Option<ChunkPos>,
@@ -224,6 +227,9 @@ impl Peer {
     /// stream when it can go at once ([`FrameSender::send_now`]). On
     /// failure nothing was sent and the withdrawals stay owed.
     pub fn send_update(&mut self, batch: Bytes, direct: bool) -> Result<Handed, SendRefused> {
+        if self.failed {
+            return Err(SendRefused::Closed);
+        }
         let batch = if self.withdraw.is_empty() {
             batch
         } else {
@@ -248,6 +254,18 @@ impl Peer {
         if sent.is_ok() {
             self.withdraw.clear();
         }
+        sent
+    }
+
+    /// Queues a control frame (a verdict, a notice). One that does not fit
+    /// fails the session: control frames are never dropped silently.
+    /// Returns whether it was queued.
+    pub fn send_control(&mut self, frame: Bytes) -> bool {
+        if self.failed {
+            return false;
+        }
+        let sent = self.control.try_send(frame).is_ok();
+        self.failed = !sent;
         sent
     }
 

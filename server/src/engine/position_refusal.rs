@@ -26,7 +26,7 @@ impl Engine {
         let quiet = p
             .refused_at
             .is_some_and(|at| now.saturating_sub(at) < interval);
-        if interval == 0 || quiet {
+        if interval == 0 || quiet || p.failed {
             return;
         }
         let msg = ServerMessage::PositionRefused { seq, reason };

@@ -60,6 +60,9 @@ struct Queued {
     queued_at: std::time::Instant,
 }
 
+/// Edits taken out unapplied: each one's player and volume tokens.
+type Refunds = Vec<(String, u64)>;
+
 /// A player's last validated position, kept after its sessions end.
 #[derive(Debug, Clone, Copy)]
 struct Remembered {
@@ -221,6 +224,36 @@ impl Sequencer {
         let hits = |s: &Self, e: &strata_terrain::Edit| {
             s.edit_regions(e).is_some_and(|rs| !rs.is_disjoint(regions))
         };
+        let (mut out, mut refunds) = self.unqueue_queued(|s, e| hits(s, e));
+        for s in std::mem::take(&mut self.sighting) {
+            if hits(self, &s.request.edit) {
+                out.push((s.session_id, s.request.client_edit_id));
+                refunds.push((s.player.clone(), s.volume_cost));
+            } else {
+                self.sighting.push(s);
+            }
+        }
+        self.refund_busy(refunds, now_ms);
+        out
+    }
+
+    /// Takes every queued edit back out (a cluster node's fenced batch:
+    /// their sight may have been checked on the world that batch left,
+    /// which is gone); returns each one's session and client edit id, to be
+    /// refused `Busy`, which costs nothing. Edits still awaiting their sight
+    /// check stay: it runs on the world put back.
+    pub fn unqueue_sighted(&mut self, now_ms: u64) -> Vec<(u64, u64)> {
+        let (out, refunds) = self.unqueue_queued(|_, _| true);
+        self.refund_busy(refunds, now_ms);
+        out
+    }
+
+    /// The queued edits `hits` picks, taken out: their ids and what each
+    /// player is owed.
+    fn unqueue_queued(
+        &mut self,
+        hits: impl Fn(&Self, &strata_terrain::Edit) -> bool,
+    ) -> (Vec<(u64, u64)>, Refunds) {
         let mut out = Vec::new();
         let mut refunds = Vec::new();
         for q in std::mem::take(&mut self.queue) {
@@ -231,14 +264,12 @@ impl Sequencer {
                 self.queue.push_back(q);
             }
         }
-        for s in std::mem::take(&mut self.sighting) {
-            if hits(self, &s.request.edit) {
-                out.push((s.session_id, s.request.client_edit_id));
-                refunds.push((s.player.clone(), s.volume_cost));
-            } else {
-                self.sighting.push(s);
-            }
-        }
+        (out, refunds)
+    }
+
+    /// Gives back what edits refused `Busy` took: an edit token and their
+    /// volume.
+    fn refund_busy(&mut self, refunds: Refunds, now_ms: u64) {
         for (player, volume) in refunds {
             if let Some(limits) = self.limits.get_mut(&player) {
                 limits.refill(now_ms);
@@ -246,7 +277,6 @@ impl Sequencer {
                 limits.volume.give(volume);
             }
         }
-        out
     }
 
     /// Takes the queued edit `client_edit_id` of `session` back out of the
