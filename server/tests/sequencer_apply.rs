@@ -45,6 +45,33 @@ fn replay_matches_world(s: &Sequencer, outs: &[TickOutput]) {
     }
 }
 
+/// Past `MAX_SEQ` (only a stored seq near it can bring a world there) no
+/// seq is handed out: edits wait in the queue, and nothing overflows.
+#[test]
+fn no_seq_is_handed_out_past_the_highest_a_store_holds() {
+    use strata_server::store::MAX_SEQ;
+    let mut s = Sequencer::new(
+        world(),
+        SequencerConfig::default(),
+        ValidationConfig::default(),
+        MAX_SEQ - 1,
+        MaterialTable::default(),
+        StructureLibrary::default(),
+        vec![],
+    )
+    .without_store();
+    join_at(&mut s, PLAYER, Role::Player, X, Z);
+    s.submit(PLAYER, req(1, mine(X, -1, Z + 4, 2)), 0).unwrap();
+    s.submit(PLAYER, req(2, mine(X + 1, -2, Z + 4, 2)), 0)
+        .unwrap();
+    let t = s.tick(10);
+    let seqs: Vec<u64> = t.applied.iter().map(|a| a.seq).collect();
+    assert_eq!(seqs, vec![MAX_SEQ]);
+    assert_eq!(s.queued(), 1, "the other waits");
+    assert!(s.tick(20).applied.is_empty());
+    assert_eq!((s.queued(), s.last_seq()), (1, MAX_SEQ));
+}
+
 #[test]
 fn consecutive_seqs_rising_versions_and_delta_chains() {
     let mut s = Sequencer::new(

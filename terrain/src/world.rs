@@ -111,7 +111,8 @@ impl World {
 
     /// Replaces a chunk and its version (restore, store load, replication).
     /// Readers of stored or received chunks refuse versions above
-    /// [`MAX_CHUNK_VERSION`], so a commit's `+ 1` never overflows.
+    /// [`MAX_CHUNK_VERSION`], and edits refuse a chunk at it, so a
+    /// commit's `+ 1` never leaves it.
     pub fn insert(&mut self, pos: ChunkPos, chunk: impl Into<Arc<Chunk>>, version: u64) {
         let chunk = chunk.into();
         self.chunks.insert(pos, VersionedChunk { chunk, version });

@@ -478,6 +478,15 @@ fn bad_edits_are_refused_and_change_nothing() {
             |e| *e == EditError::IndestructibleMaterial(ids::BEDROCK),
         ),
         (
+            Edit::Build {
+                center: origin,
+                radius: r(4.0),
+                material: ids::AIR,
+                strength: 9,
+            },
+            |e| *e == EditError::AirBuild,
+        ),
+        (
             Edit::FillBox {
                 min: VoxelPos::new(0, 0, 0),
                 max: VoxelPos::new(200, 0, 0),
@@ -540,6 +549,36 @@ fn bad_edits_are_refused_and_change_nothing() {
     }
     assert_eq!(w.modified().count(), 0);
     assert_eq!(before, snapshot(&w));
+}
+
+/// A chunk at the highest version (only stored bytes can put one there)
+/// takes no edit: the `+ 1` would leave what a store holds.
+#[test]
+fn a_chunk_at_the_last_version_takes_no_edit() {
+    use strata_terrain::world::MAX_CHUNK_VERSION;
+    let setup = Setup::new();
+    let ctx = setup.ctx();
+    let mut w = flat(Voxel::AIR);
+    let at = VoxelPos::new(8, 8, 8);
+    let pos = at.chunk();
+    w.load([pos]);
+    let chunk = w.peek(pos).unwrap().chunk.clone();
+    w.insert(pos, chunk.clone(), MAX_CHUNK_VERSION);
+    let build = Edit::Build {
+        center: FixedVec3::from_voxels(at.x, at.y, at.z),
+        radius: r(2.0),
+        material: ids::SAND,
+        strength: 255,
+    };
+    assert_eq!(
+        build.apply(&mut w, &ctx).expect_err("refused"),
+        EditError::VersionExhausted { pos }
+    );
+    let after = w.peek(pos).unwrap();
+    assert_eq!((after.version, &after.chunk), (MAX_CHUNK_VERSION, &chunk));
+    w.insert(pos, chunk, MAX_CHUNK_VERSION - 1);
+    let out = build.apply(&mut w, &ctx).unwrap();
+    assert_eq!(out.changed[0].to_version, MAX_CHUNK_VERSION);
 }
 
 #[test]

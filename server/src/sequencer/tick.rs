@@ -114,7 +114,14 @@ impl Sequencer {
     pub fn tick_apply(&mut self, now_ms: u64) -> (TickOutput, PendingMeshes) {
         let started = Instant::now();
         self.prune_limits(now_ms);
-        let take = self.queue.len().min(self.cfg.max_edits_per_tick);
+        // No seq past `MAX_SEQ` (only a stored seq near it, hostile bytes,
+        // leaves fewer than a tick's): the rest wait, and the queue fills.
+        let seqs_left = (crate::store::MAX_SEQ + 1).saturating_sub(self.next_seq);
+        let take = self
+            .queue
+            .len()
+            .min(self.cfg.max_edits_per_tick)
+            .min(usize::try_from(seqs_left).unwrap_or(usize::MAX));
         let queued: Vec<Queued> = self.queue.drain(..take).collect();
         let ctx = strata_terrain::EditContext {
             materials: &self.materials,

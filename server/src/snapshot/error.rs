@@ -41,6 +41,11 @@ pub enum HeaderProblem {
     ParamsTooLong { len: usize },
     #[error("generator params are not valid: {0}")]
     Params(String),
+    #[error(
+        "seq {seq} is over the highest a world may hold ({})",
+        crate::store::MAX_SEQ
+    )]
+    Seq { seq: u64 },
     #[error("zone {index} ({name:?}): {source}")]
     Zone {
         index: usize,

@@ -102,6 +102,9 @@ impl SnapshotHeader {
             .validate()
             .map_err(|e| HeaderProblem::Params(e.to_string()))?;
         self.zones()?;
+        if self.seq > crate::store::MAX_SEQ {
+            return Err(HeaderProblem::Seq { seq: self.seq });
+        }
         Ok(())
     }
 
@@ -213,4 +216,26 @@ pub fn encode_record(
     let sum = twox_hash::XxHash3_64::oneshot(&out);
     out.extend_from_slice(&sum.to_le_bytes());
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_seq_past_what_a_store_holds_is_not_usable() {
+        let at = |seq: u64| SnapshotHeader {
+            seed: 1,
+            generator_version: GENERATOR_VERSION,
+            seq,
+            generator_params: String::new(),
+            zones: Vec::new(),
+        };
+        let max = crate::store::MAX_SEQ;
+        assert_eq!(at(max).check_usable(), Ok(()));
+        assert!(matches!(
+            at(max + 1).check_usable(),
+            Err(HeaderProblem::Seq { seq }) if seq == max + 1
+        ));
+    }
 }

@@ -64,7 +64,7 @@ pub use import::ImportTarget;
 pub use open::open_store;
 pub use pg::PgStore;
 pub use positions::TREE_PLAYER_TIMES;
-pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES};
+pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES, MAX_SEQ};
 pub use rules::compare_meta;
 pub use sled_store::{
     open_raw, open_when_unlocked, persisted_segment_size, SledStore, MAX_BLOB_BYTES,

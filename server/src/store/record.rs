@@ -235,8 +235,20 @@ pub fn decode_last_seq(bytes: &[u8]) -> Result<u64, StoreError> {
             "meta/last_seq",
         )
     })?;
-    Ok(u64::from_be_bytes(b))
+    let seq = u64::from_be_bytes(b);
+    if seq > MAX_SEQ {
+        return Err(StoreError::corrupt(
+            format!("last_seq {seq} over {MAX_SEQ}"),
+            "meta/last_seq",
+        ));
+    }
+    Ok(seq)
 }
+
+/// The highest seq a store or snapshot may hold (what PostgreSQL's
+/// `bigint` holds): the sequencer hands out none past it, so no `+ 1`
+/// leaves it.
+pub const MAX_SEQ: u64 = i64::MAX as u64;
 
 #[cfg(test)]
 mod tests {
@@ -260,6 +272,15 @@ mod tests {
                 ),
                 "{v}"
             );
+        }
+    }
+
+    #[test]
+    fn a_last_seq_past_what_postgresql_holds_is_corrupt() {
+        let at = |s: u64| decode_last_seq(&s.to_be_bytes());
+        assert_eq!(at(MAX_SEQ).unwrap(), MAX_SEQ);
+        for s in [MAX_SEQ + 1, u64::MAX] {
+            assert!(matches!(at(s), Err(StoreError::Corrupt { .. })), "{s}");
         }
     }
 }

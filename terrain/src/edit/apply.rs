@@ -140,6 +140,11 @@ impl Edit {
                 if strength == 0 {
                     return Err(EditError::ZeroStrength);
                 }
+                // Solid air would be an invisible wall (admins' `FillBox`
+                // may still make it).
+                if material == crate::material::ids::AIR {
+                    return Err(EditError::AirBuild);
+                }
                 check_placeable(material, ctx.materials)?;
                 sphere_box(center, radius)
             }
@@ -240,6 +245,13 @@ impl Edit {
                 voxels_changed += voxels.len() as u64;
                 pending.push((cpos, after, voxels));
             }
+        }
+        // A chunk at the last version (only stored bytes can put one
+        // there) takes no edit: its `+ 1` would leave what stores hold.
+        if let Some((pos, ..)) = pending.iter().find(|(pos, ..)| {
+            world.peek(*pos).expect("loaded").version >= crate::world::MAX_CHUNK_VERSION
+        }) {
+            return Err(EditError::VersionExhausted { pos: *pos });
         }
         // The world's own copy becomes each change's `before`: no clone.
         let changed = pending

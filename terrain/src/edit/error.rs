@@ -23,6 +23,8 @@ pub enum EditError {
     InvertedBox,
     #[error("box edge of {edge} voxels is over the cap {max}")]
     BoxTooLarge { edge: i64, max: i32 },
+    #[error("a build of material 0 (air) would be an invisible solid")]
+    AirBuild,
     #[error("unknown material id {0}")]
     UnknownMaterial(MaterialId),
     #[error("material id {0} is indestructible and cannot be placed")]
@@ -33,4 +35,6 @@ pub enum EditError {
     BadRotation(u8),
     #[error("the sphere holds no voxel centre (a radius under half a voxel between centres)")]
     NoVoxel,
+    #[error("chunk ({}, {}, {}) is at the highest version a chunk may have", .pos.x, .pos.y, .pos.z)]
+    VersionExhausted { pos: crate::ChunkPos },
 }
