@@ -203,9 +203,11 @@ async fn a_check_out_of_time_counts_what_it_did_not_verify() {
     server.shutdown().await.unwrap();
 }
 
-/// `--link-delay`: every bot's sends leave 40 ms late, so each verdict
+/// `--link-delay`: every bot's sends leave 150 ms late, so each verdict
 /// takes at least that long. The server is set up for such players (a
-/// send interval, ACK_FREQUENCY), and the replicas still converge.
+/// send interval, ACK_FREQUENCY), and the replicas still converge. At 10
+/// edits a second the next slot falls due while each edit awaits its
+/// verdict: those slots are counted, not silently dropped.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bots_over_a_delayed_link_converge() {
     let tmp = tempfile::tempdir().unwrap();
@@ -216,19 +218,31 @@ async fn bots_over_a_delayed_link_converge() {
         ..NetSection::default()
     };
     let server = start_server_with(&tmp, net).await;
-    let delay = Duration::from_millis(40);
+    let delay = Duration::from_millis(110);
     let run = BotsConfig {
         bots: 3,
         duration: Duration::from_secs(2),
         seed: 5,
         link_delay: delay,
+        edit_rate: 10.0,
         ..config_for(&server)
     };
-    let s = run_consistent(run).await;
+    let s = run_consistent(run.clone()).await;
     assert!(s.edits_accepted > 0, "{}", s.human());
-    // Every request waits 40 ms on the link (histogram rounding aside).
+    // Every request waits 150 ms on the link (histogram rounding aside).
     let p50 = s.ack_latency_ms.p50;
-    assert!(p50 >= 39.0, "verdicts came back in {p50} ms at p50");
+    assert!(p50 >= 109.0, "verdicts came back in {p50} ms at p50");
+    // Every slot is accounted for: sent, skipped for want of a target, or
+    // skipped while the last edit awaited its verdict (most of them here).
+    // Each bot starts within its first interval, hence the margin.
+    assert!(s.edit_slots_skipped > 0, "{}", s.human());
+    let due = run.bots as f64 * run.edit_rate * run.duration.as_secs_f64();
+    let slots = (s.edits_sent + s.edits_skipped + s.edit_slots_skipped) as f64;
+    assert!(
+        slots >= 0.8 * due,
+        "{slots} of {due} edit slots accounted for: {}",
+        s.human()
+    );
     server.shutdown().await.unwrap();
 }
 

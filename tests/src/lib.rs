@@ -245,6 +245,33 @@ pub fn verify_acks(data_dir: &Path, ack_log: &Path) -> (ExitStatus, serde_json::
     json_result(Guard(child), Duration::from_secs(60))
 }
 
+/// Lines in a file written line by line (an ack log); 0 while it is missing.
+pub fn lines_in(path: &Path) -> usize {
+    std::fs::read(path).map_or(0, |b| b.iter().filter(|&&c| c == b'\n').count())
+}
+
+/// Longest [`await_lines`] waits: generous, for a debug build on a busy
+/// 2-core box.
+pub const LINES_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// Waits until `path` (an ack log) holds at least `n` whole lines, polling;
+/// fails the test after [`LINES_TIMEOUT`]. Returns the count it saw.
+pub fn await_lines(path: &Path, n: usize, what: &str) -> usize {
+    let start = Instant::now();
+    loop {
+        let have = lines_in(path);
+        if have >= n {
+            return have;
+        }
+        assert!(
+            start.elapsed() < LINES_TIMEOUT,
+            "{what}: {} holds {have} lines, not {n}, after {LINES_TIMEOUT:?}",
+            path.display()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
 /// A counter from a summary or report (0 when absent).
 pub fn num(v: &serde_json::Value, key: &str) -> u64 {
     v[key].as_u64().unwrap_or(0)
@@ -261,6 +288,7 @@ pub fn count(v: &serde_json::Value, key: &str) -> u64 {
 /// Asserts every replica converged on the server's world.
 pub fn assert_converged(s: &serde_json::Value) {
     for key in [
+        "bots_failed",
         "replica_mismatches",
         "mesh_mismatches",
         "chunks_unverified",

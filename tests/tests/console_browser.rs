@@ -59,6 +59,19 @@ fn number(dom: &str, marker: &str, attr: &str) -> u64 {
         .unwrap_or(0)
 }
 
+/// The triangle count of the glTF the 3-D view fetched and parsed, drawn
+/// or not (no WebGL2); `None` before one parsed (`no-webgl2` is set at the
+/// page's start, before any fetch).
+fn scene_parsed(dom: &str) -> Option<u64> {
+    let state = attribute(dom, "id=\"scene-state\"", "data-state")?;
+    if !matches!(state.as_str(), "drawn" | "parsed-no-webgl2") {
+        return None;
+    }
+    attribute(dom, "id=\"scene-state\"", "data-triangles")?
+        .parse()
+        .ok()
+}
+
 /// Distinct colours in the screenshot's map canvas area (its top-left
 /// 800 x 560 CSS pixels, below the header).
 fn map_colours(png_path: &Path) -> usize {
@@ -105,8 +118,7 @@ fn chromium_shows_the_live_map_players_and_charts() {
         let dom = chromium::run(&chrome, &profile, &url, "--dump-dom", BUDGET_MS);
         // Edits (and so the latency chart) start once every bot has joined.
         let markers = number(&dom, "id=\"map\"", "data-markers");
-        let scene = attribute(&dom, "id=\"scene-state\"", "data-state");
-        let settled = matches!(scene.as_deref(), Some("drawn" | "no-webgl2"));
+        let settled = scene_parsed(&dom).is_some_and(|t| t > 0);
         let charted = CHARTS
             .iter()
             .all(|c| number(&dom, &format!("id=\"{c}\""), "data-points") >= 2);
@@ -121,6 +133,14 @@ fn chromium_shows_the_live_map_players_and_charts() {
         "signed in and watching: {dom} {}",
         std::fs::read_to_string(profile.with_extension("log")).unwrap_or_default()
     );
+    // The 3-D view fetched and parsed the glTF of the chunks around the
+    // bots, triangles and all (drawn with WebGL2 where the browser has it).
+    let triangles = scene_parsed(&dom);
+    assert!(
+        triangles.is_some_and(|t| t > 0),
+        "3-D view: {:?} with {triangles:?} triangles",
+        attribute(&dom, "id=\"scene-state\"", "data-state")
+    );
     assert!(
         number(&dom, "id=\"map\"", "data-markers") >= 4,
         "a marker per bot"
@@ -134,13 +154,6 @@ fn chromium_shows_the_live_map_players_and_charts() {
         let points = number(&dom, &format!("id=\"{chart}\""), "data-points");
         assert!(points >= 2, "{chart} has {points} points");
     }
-    // The 3-D view fetched and parsed the glTF of the chunks around the
-    // bots (drawn with WebGL2 where the browser has it).
-    let scene = attribute(&dom, "id=\"scene-state\"", "data-state");
-    assert!(
-        matches!(scene.as_deref(), Some("drawn" | "no-webgl2")),
-        "3-D view: {scene:?}"
-    );
     let edits = number(&dom, "id=\"c-edits\"", "data-points");
     assert!(
         edits >= 1,

@@ -9,9 +9,13 @@ use std::time::Duration;
 
 use strata_tests::postgres::database;
 use strata_tests::{
-    assert_converged, binary, bots_summary, count, num, spawn_bots, verify_acks, wait_with_output,
-    Guard, Server, SERVER_CONFIG,
+    assert_converged, await_lines, binary, bots_summary, count, num, spawn_bots, verify_acks,
+    wait_with_output, Guard, Server, SERVER_CONFIG,
 };
+
+/// Acknowledged edits before the kill: the bots are editing (8 bots at 3
+/// edits a second make these in about a second).
+const ACKED_BEFORE_KILL: usize = 24;
 
 #[test]
 fn killed_server_loses_no_acknowledged_edit_and_bots_converge() {
@@ -87,8 +91,8 @@ fn crash_run(tmp: &Path, config: &str) -> std::path::PathBuf {
             acks.to_str().unwrap(),
         ],
     );
-    std::thread::sleep(Duration::from_secs(4));
-    let before_kill = std::fs::read_to_string(&acks).unwrap().lines().count();
+    // Killed once edits flow, however long the bots took to join.
+    let before_kill = await_lines(&acks, ACKED_BEFORE_KILL, "edits before the kill");
     server.kill();
     std::thread::sleep(Duration::from_millis(500));
     let server = Server::start_with(&data, &listen, config);

@@ -6,7 +6,7 @@
 use std::time::{Duration, Instant};
 
 use strata_tests::lazyfs::LazyFs;
-use strata_tests::{free_local_addr, http_get, spawn_bots, Server, SERVER_CONFIG};
+use strata_tests::{await_lines, free_local_addr, http_get, spawn_bots, Server, SERVER_CONFIG};
 
 /// How soon after the disk fails the process must be gone: the next
 /// commit (edits every 200 ms) fails, then shutdown closes the sessions.
@@ -23,11 +23,23 @@ fn a_failed_store_ends_the_process_with_an_error() {
     let mut server = Server::start_with(&data, "127.0.0.1:0", &config);
     let health = http_get(&metrics, "/healthz");
     assert!(health.starts_with("HTTP/1.1 200"), "{health}");
+    // The ack log lives off LazyFS: it must not fail with the disk.
+    let acks = fs.dir().join("acks.jsonl");
     let _bots = spawn_bots(
         &server,
-        &["--bots", "2", "--duration", "30s", "--edit-rate", "5"],
+        &[
+            "--bots",
+            "2",
+            "--duration",
+            "30s",
+            "--edit-rate",
+            "5",
+            "--ack-log",
+            acks.to_str().unwrap(),
+        ],
     );
-    std::thread::sleep(Duration::from_secs(3));
+    // The disk fails once edits are being committed.
+    await_lines(&acks, 5, "edits before the disk failed");
     fs.fail();
     let failed = Instant::now();
     let status = server.proc.wait_timeout(Duration::from_secs(30));

@@ -8,10 +8,11 @@
 //! default period, a long one): durability must not depend on it.
 
 use std::process::Command;
-use std::time::Duration;
 
 use strata_tests::lazyfs::LazyFs;
-use strata_tests::{assert_converged, binary, bots_summary, num, spawn_bots, verify_acks, Server};
+use strata_tests::{
+    assert_converged, await_lines, binary, bots_summary, num, spawn_bots, verify_acks, Server,
+};
 
 /// sled background periods the cycles take in turn, in ms (0: no
 /// background thread).
@@ -19,13 +20,12 @@ const PERIODS: [u64; 3] = [0, 20, 500];
 /// Power cuts during the bots' run, unless `STRATA_POWER_CUTS` says how
 /// many (a longer soak: the run lasts 4 s more per cut).
 const DEFAULT_CUTS: usize = 3;
+/// New acknowledgements each cycle waits for before its cut: the bots
+/// (6 at 4 edits a second) reconnected and edit again.
+const NEW_ACKS_PER_CYCLE: usize = 12;
 
 fn config(flush_every_ms: u64) -> String {
     format!("[engine]\ntick_ms = 10\n\n[store]\nflush_every_ms = {flush_every_ms}\n")
-}
-
-fn acks_so_far(path: &std::path::Path) -> usize {
-    std::fs::read_to_string(path).map_or(0, |s| s.lines().count())
 }
 
 #[test]
@@ -62,8 +62,11 @@ fn power_cuts_lose_no_acknowledged_edit_and_reuse_no_seq() {
     );
     let mut acked_before_cuts = Vec::new();
     for i in 0..cuts {
-        std::thread::sleep(Duration::from_secs(4));
-        acked_before_cuts.push(acks_so_far(&acks));
+        // Each cut once edits flow again (the bots joined, or reconnected
+        // to the restarted server), however long that took.
+        let last = acked_before_cuts.last().copied().unwrap_or(0);
+        let what = format!("edits acknowledged before cut {}", i + 1);
+        acked_before_cuts.push(await_lines(&acks, last + NEW_ACKS_PER_CYCLE, &what));
         server.kill();
         fs.power_cut();
         let next = PERIODS[(i + 1) % PERIODS.len()];

@@ -39,8 +39,15 @@ use tracing_subscriber::EnvFilter;
 ///
 /// The summary reports edits sent, accepted and rejected by reason, ack and
 /// broadcast latency (edit sent → its delta at another bot), bytes in and
-/// out, mean delta size, resyncs, replica and mesh mismatches. The exit
-/// code is non-zero if any replica ended different from the server.
+/// out, mean delta size, resyncs, replica and mesh mismatches. Ack latency
+/// times accepted edits only: beside it are the edits rejected, those never
+/// answered, and edit_slots_skipped, the slots that fell due while a bot's
+/// last edit still awaited its verdict (no edit was sent for them). The
+/// exit code is non-zero if any replica ended different from the server or
+/// a bot's task failed (bots_failed).
+///
+/// SIGTERM ends the edits early: the bots then wait for quiet, check their
+/// replicas and print the summary as at the end of --duration.
 ///
 /// `--ack-log FILE` writes one JSON line per accepted edit, as soon as it
 /// is acknowledged: {"seq":17,"chunks":[{"x":16,"y":1,"z":16,"version":4}]}
@@ -216,6 +223,16 @@ fn main() -> ExitCode {
     }
 }
 
+/// A future that resolves at the first SIGTERM (from now on, not the
+/// default end of the process).
+fn sigterm() -> anyhow::Result<impl std::future::Future<Output = ()>> {
+    use tokio::signal::unix::{signal, SignalKind};
+    let mut term = signal(SignalKind::terminate()).context("listening for SIGTERM")?;
+    Ok(async move {
+        term.recv().await;
+    })
+}
+
 /// Runs the bots; `Ok(false)` when the replicas did not converge.
 async fn run(args: Args) -> anyhow::Result<bool> {
     match (args.hostile, args.attack) {
@@ -304,7 +321,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         reach: args.hostile_reach,
         ..HostileConfig::new(attack, args.hostile, server)
     });
-    let summary = bots::run_with(cfg, hostile).await?;
+    let summary = bots::run_until(cfg, hostile, sigterm()?).await?;
     if args.json {
         println!("{}", summary.to_json());
     } else {

@@ -3,6 +3,7 @@
 
 use std::collections::HashMap;
 use std::future::Future;
+use std::hash::BuildHasher;
 use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::atomic::Ordering;
@@ -83,10 +84,16 @@ pub struct BotOutcome {
     pub replica: ReplicaStats,
     pub bytes_in: u64,
     pub bytes_out: u64,
-    /// Hash of every (chunk, version) any of its replicas held.
+    /// Hash of every (chunk, version) any of its replicas held (the first
+    /// connection's, where two differ: that counts in `order_violations`).
     pub version_hashes: HashMap<(ChunkPos, u64), u64>,
-    /// Steps where a chunk's version went backwards in one replica.
-    pub history_regressions: u64,
+    /// Newest version of each chunk its connections so far received.
+    newest: HashMap<ChunkPos, u64>,
+    /// Steps where a chunk's version went backwards in one replica, chunks
+    /// a later connection received older than an earlier one had, and
+    /// (chunk, version) pairs two of its connections received with
+    /// different contents.
+    pub order_violations: u64,
     /// Versions held by the last replica.
     pub final_versions: HashMap<ChunkPos, u64>,
     /// Chunks (or, for a bot that never checked, 1) not compared at the end.
@@ -105,19 +112,45 @@ impl BotOutcome {
         self.bytes_out += client.bytes_out();
         let r = client.replica();
         self.replica += r.stats;
-        if let Some(h) = r.version_hashes() {
-            self.version_hashes.extend(h.iter().map(|(k, v)| (*k, *v)));
-        }
-        if let Some(h) = r.history() {
-            for versions in h.values() {
-                self.history_regressions +=
-                    versions.windows(2).filter(|w| w[1] <= w[0]).count() as u64;
-            }
+        if let (Some(history), Some(hashes)) = (r.history(), r.version_hashes()) {
+            self.fold_history(history, hashes);
         }
         self.final_versions = r.chunks().map(|(p, h)| (p, h.version)).collect();
         drop(r);
         if let Some(p) = client.prediction_stats() {
             self.prediction.add(&p);
+        }
+    }
+
+    /// Folds one connection's received versions in: within it, a chunk's
+    /// versions only go forward; across connections, a chunk is never
+    /// received older than an earlier connection received it, and one
+    /// (chunk, version) always has one content. Only versions received for
+    /// a chunk count: one not held since (forgotten, out of view) has no
+    /// newer version to contradict, and a resync or a new connection
+    /// receives the chunk at the version it then had, never older.
+    fn fold_history<S: BuildHasher, T: BuildHasher>(
+        &mut self,
+        history: &HashMap<ChunkPos, Vec<u64>, S>,
+        hashes: &HashMap<(ChunkPos, u64), u64, T>,
+    ) {
+        for (pos, versions) in history {
+            self.order_violations += versions.windows(2).filter(|w| w[1] <= w[0]).count() as u64;
+            let (Some(&oldest), Some(&newest)) = (versions.iter().min(), versions.iter().max())
+            else {
+                continue;
+            };
+            let before = self.newest.entry(*pos).or_insert(oldest);
+            if oldest < *before {
+                self.order_violations += 1;
+            }
+            *before = (*before).max(newest);
+        }
+        for (key, hash) in hashes {
+            let first = self.version_hashes.entry(*key).or_insert(*hash);
+            if first != hash {
+                self.order_violations += 1;
+            }
         }
     }
 }
@@ -133,8 +166,23 @@ async fn arrive(c: &Client, ticket: strata_protocol::Ticket, bot: usize) {
     }
 }
 
+/// Counts a bot whose task panics as joined and checked, so the fleet
+/// does not wait out its ramp and check timeouts for it (the run counts it
+/// in `bots_failed`).
+struct CountOnPanic(Arc<Fleet>);
+
+impl Drop for CountOnPanic {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.ready.fetch_add(1, Ordering::Relaxed);
+            self.0.finished.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
 /// Runs bot `id` until the run is done.
 pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
+    let _count_on_panic = CountOnPanic(fleet.clone());
     let stalled = id < fleet.cfg.stalled;
     let mut bot = Bot {
         role: fleet.cfg.profile.role_of(id),
@@ -391,7 +439,10 @@ impl Bot {
                             }));
                         }
                     }
-                    Ok(Next::Edit) => {}
+                    // The slot fell due while the last edit awaits its
+                    // verdict: no edit for it, and no latency measured;
+                    // counted, so a slow server's omitted slots show.
+                    Ok(Next::Edit) => Stats::add(&self.fleet.stats.edit_slots_skipped, 1),
                     Ok(Next::Done) => break Ok(()),
                     Err(e) => break Err(e),
                 },
@@ -456,8 +507,18 @@ impl Bot {
                     client.subscribe(chunk, radius).await?;
                 }
                 if let Some(i) = st.interval {
-                    if Instant::now() >= st.next_edit {
-                        st.next_edit = (st.next_edit + i).max(Instant::now());
+                    let now = Instant::now();
+                    if now >= st.next_edit {
+                        // Slots that fell due since the one taken now (a
+                        // late step, or a rate above one edit a step) are
+                        // skipped: counted, not made up for.
+                        let late = now.saturating_duration_since(st.next_edit);
+                        let missed = late.as_nanos() / i.as_nanos().max(1);
+                        Stats::add(
+                            &self.fleet.stats.edit_slots_skipped,
+                            u64::try_from(missed).unwrap_or(u64::MAX),
+                        );
+                        st.next_edit = (st.next_edit + i).max(now);
                         return Ok(Next::Edit);
                     }
                 }
@@ -653,5 +714,63 @@ impl Bot {
         self.out.unverified += client.replica().checks_pending() as u64;
         self.out.verified = true;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One connection's received versions of each chunk (in order) and the
+    /// hash of each (chunk, version), as its replica records them.
+    type ConnHistory = (HashMap<ChunkPos, Vec<u64>>, HashMap<(ChunkPos, u64), u64>);
+
+    /// One connection's record: each chunk's versions in the order
+    /// received, with the hash each version had.
+    fn conn(chunks: &[(ChunkPos, &[(u64, u64)])]) -> ConnHistory {
+        let mut history = HashMap::new();
+        let mut hashes = HashMap::new();
+        for (pos, seen) in chunks {
+            history.insert(*pos, seen.iter().map(|(v, _)| *v).collect());
+            for (v, h) in *seen {
+                hashes.insert((*pos, *v), *h);
+            }
+        }
+        (history, hashes)
+    }
+
+    fn violations(conns: &[ConnHistory]) -> u64 {
+        let mut out = BotOutcome::default();
+        for (history, hashes) in conns {
+            out.fold_history(history, hashes);
+        }
+        out.order_violations
+    }
+
+    #[test]
+    fn reconnects_keep_each_chunk_version_and_its_contents() {
+        let (a, b) = (ChunkPos::new(1, 0, 1), ChunkPos::new(2, 0, 1));
+        let first = conn(&[(a, &[(0, 10), (1, 11), (2, 12)]), (b, &[(4, 40)])]);
+        // Reconnected: a again at 2 (same contents) then 3; b not held
+        // this time (out of view): nothing to contradict.
+        let later = conn(&[(a, &[(2, 12), (3, 13)])]);
+        assert_eq!(violations(&[first.clone(), later.clone()]), 0);
+        // A chunk first received on the second connection, forgotten on
+        // the third: fine too.
+        let third = conn(&[(b, &[(5, 50)])]);
+        assert_eq!(violations(&[first.clone(), later.clone(), third]), 0);
+        // An acknowledged version lost in a crash, and the version number
+        // reused with other contents.
+        let reused = conn(&[(a, &[(2, 99), (3, 13)])]);
+        assert_eq!(violations(&[first.clone(), reused]), 1);
+        // The chunk back at an older version than the last connection had.
+        let behind = conn(&[(a, &[(1, 11)])]);
+        assert_eq!(violations(&[first.clone(), later, behind]), 1);
+        // Going backwards within one connection still counts.
+        let within = conn(&[(a, &[(3, 13), (2, 12)])]);
+        assert_eq!(violations(&[within]), 1);
+        // A resync within a connection skips ahead: fine.
+        let resynced = conn(&[(a, &[(2, 12), (4, 14)])]);
+        assert_eq!(violations(&[first, resynced]), 0);
     }
 }

@@ -370,6 +370,17 @@ pub async fn run_with(
     cfg: BotsConfig,
     hostile: Option<HostileConfig>,
 ) -> Result<Summary, BotsError> {
+    run_until(cfg, hostile, std::future::pending()).await
+}
+
+/// Like [`run_with`], the edits ending early once `stop` resolves (the
+/// binary's SIGTERM): the bots then wait for quiet, check and report as
+/// after the full `duration`.
+pub async fn run_until(
+    cfg: BotsConfig,
+    hostile: Option<HostileConfig>,
+    stop: impl std::future::Future<Output = ()>,
+) -> Result<Summary, BotsError> {
     cfg.check()?;
     let hostile = match &hostile {
         Some(h) => Some(hostile::prepare(h, &cfg)?),
@@ -428,7 +439,10 @@ pub async fn run_with(
     fleet.phase.send_replace(Phase::Run);
     let edit_start = Instant::now();
     let hostiles = hostile.map(|h| h.start(edit_start + cfg.duration));
-    tokio::time::sleep(cfg.duration).await;
+    tokio::select! {
+        _ = tokio::time::sleep(cfg.duration) => {}
+        _ = stop => tracing::info!("told to stop: the edits end early"),
+    }
     let edit_time = edit_start.elapsed();
     let hostile_summary = match hostiles {
         Some(h) => Some(h.finish().await),
@@ -461,10 +475,16 @@ pub async fn run_with(
         verify_start.elapsed(),
     );
     let mut outcomes = Vec::with_capacity(bots.len());
+    let mut failed = 0;
     for b in bots {
         match b.await {
             Ok(o) => outcomes.push(o),
-            Err(e) => tracing::error!(error = %e, "a bot task failed"),
+            Err(e) => {
+                // Its replica and counters are gone: the run cannot vouch
+                // for it, so it counts (and the run is not consistent).
+                failed += 1;
+                tracing::error!(error = %e, "a bot task failed");
+            }
         }
     }
     if let Some((bar, task)) = progress {
@@ -472,6 +492,7 @@ pub async fn run_with(
         bar.finish_and_clear();
     }
     let mut summary = summarize(&fleet, &outcomes, edit_time, quiet);
+    summary.bots_failed = failed;
     summary.ramp_s = ramp.as_secs_f64();
     summary.ready_at_start = ready_at_start;
     summary.quiet_wait_s = timings.0.as_secs_f64();
@@ -493,6 +514,7 @@ fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet:
         edits_rejected: s.rejected(),
         edits_unanswered: Stats::get(&s.edits_unanswered),
         edits_skipped: Stats::get(&s.edits_skipped),
+        edit_slots_skipped: Stats::get(&s.edit_slots_skipped),
         region_crossings: Stats::get(&s.region_crossings),
         handoffs: Stats::get(&s.handoffs),
         ack_latency_ms: s.ack.summary(),
@@ -521,7 +543,7 @@ fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet:
         sum.op_mismatches += r.op_mismatches;
         sum.meshes_checked += r.meshes_checked;
         sum.mesh_mismatches += r.mesh_mismatches;
-        sum.order_violations += o.history_regressions;
+        sum.order_violations += o.order_violations;
         if let Some(p) = sum.prediction.as_mut() {
             p.add(&o.prediction);
         }

@@ -104,6 +104,9 @@ pub struct Stats {
     pub edits_unanswered: AtomicU64,
     /// Edits skipped because no target was in reach and sight.
     pub edits_skipped: AtomicU64,
+    /// Edit slots that fell due while the bot's last edit still awaited its
+    /// verdict, or while a step ran late: no edit was sent for them.
+    pub edit_slots_skipped: AtomicU64,
     /// Walks from one region into another (`BotsConfig::region_chunks`).
     pub region_crossings: AtomicU64,
     /// Moves to the node a `RegionElsewhere` named (`--follow-owners`).

@@ -38,6 +38,9 @@ pub struct Summary {
     /// Bots that stopped reading their updates (`--stalled`).
     pub stalled: usize,
     pub connected_at_end: usize,
+    /// Bots whose task panicked: their counters and replicas are missing
+    /// from everything below, and the run is not consistent.
+    pub bots_failed: usize,
     /// Connections a bot had to open again after losing one.
     pub reconnects: u64,
     pub edits_sent: u64,
@@ -48,6 +51,11 @@ pub struct Summary {
     pub edits_unanswered: u64,
     /// Edit slots skipped: no target in reach and sight.
     pub edits_skipped: u64,
+    /// Edit slots that fell due while the bot's last edit still awaited its
+    /// verdict (or while a step ran late), so no edit was sent for them: a
+    /// server slow to answer sends fewer edits, and `ack_latency_ms` does
+    /// not see the wait they would have had (coordinated omission).
+    pub edit_slots_skipped: u64,
     /// Times a bot walked from one region into another (regions of
     /// `--region-chunks` chunks, as the server's `[sequencer] region_chunks`).
     pub region_crossings: u64,
@@ -55,7 +63,9 @@ pub struct Summary {
     /// arrived there with its ticket (`--follow-owners`).
     pub handoffs: u64,
     pub edits_accepted_per_second: f64,
-    /// From sending an edit to its `EditAccepted`.
+    /// From sending an edit to its `EditAccepted`: accepted edits only
+    /// (refused ones are in `edits_rejected`, those never answered in
+    /// `edits_unanswered`, slots never sent in `edit_slots_skipped`).
     pub ack_latency_ms: LatencyMs,
     /// From sending an edit to the arrival of its delta at another bot.
     pub broadcast_latency_ms: LatencyMs,
@@ -90,8 +100,10 @@ pub struct Summary {
     pub replica_mismatches: u64,
     /// Chunks the server did not answer for before the timeout.
     pub chunks_unverified: u64,
-    /// Two bots holding different contents for one chunk version, or a
-    /// replica whose versions of a chunk went backwards.
+    /// Two bots, or two connections of one bot, holding different contents
+    /// for one chunk version; a replica whose versions of a chunk went
+    /// backwards; or a bot that received a chunk older after a reconnect
+    /// than before it.
     pub order_violations: u64,
     /// Final replica chunks older than an acknowledged version.
     pub ack_missing: u64,
@@ -136,6 +148,7 @@ impl Summary {
     /// True when every replica converged on the server's world.
     pub fn consistent(&self) -> bool {
         self.quiet
+            && self.bots_failed == 0
             && self.replica_mismatches == 0
             && self.mesh_mismatches == 0
             && self.chunks_unverified == 0
@@ -158,8 +171,17 @@ impl Summary {
         };
         let _ = writeln!(
             s,
-            "{} bots ({}) for {:.0} s, {} connected at the end, {} reconnects",
-            self.bots, self.profile, self.duration_s, self.connected_at_end, self.reconnects
+            "{} bots ({}) for {:.0} s, {} connected at the end, {} reconnects{}",
+            self.bots,
+            self.profile,
+            self.duration_s,
+            self.connected_at_end,
+            self.reconnects,
+            if self.bots_failed > 0 {
+                format!(", {} failed (panicked)", self.bots_failed)
+            } else {
+                String::new()
+            }
         );
         let rejected: u64 = self.edits_rejected.values().sum();
         let _ = writeln!(
@@ -172,7 +194,14 @@ impl Summary {
             self.edits_rejected,
             self.edits_unanswered
         );
-        let _ = writeln!(s, "ack latency: {}", l(&self.ack_latency_ms));
+        let _ = writeln!(
+            s,
+            "ack latency (accepted edits only): {}; not timed: {} rejected, {} unanswered, {} slots skipped while an edit awaited its verdict",
+            l(&self.ack_latency_ms),
+            rejected,
+            self.edits_unanswered,
+            self.edit_slots_skipped
+        );
         let _ = writeln!(s, "broadcast latency: {}", l(&self.broadcast_latency_ms));
         let _ = writeln!(
             s,
@@ -244,6 +273,9 @@ mod tests {
             "edits_sent",
             "edits_accepted",
             "edits_rejected",
+            "edits_unanswered",
+            "edit_slots_skipped",
+            "bots_failed",
             "ack_latency_ms",
             "broadcast_latency_ms",
             "bytes_in",
@@ -285,8 +317,14 @@ mod tests {
         assert!(predicted.human().contains("3 exact (75.0%)"));
         let bad = Summary {
             mesh_mismatches: 1,
-            ..s
+            ..s.clone()
         };
         assert!(!bad.consistent());
+        let failed = Summary {
+            bots_failed: 1,
+            ..s
+        };
+        assert!(!failed.consistent());
+        assert!(failed.human().contains("1 failed"), "{}", failed.human());
     }
 }

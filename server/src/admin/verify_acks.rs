@@ -12,8 +12,16 @@
 //! changed with the version it moved that chunk to (from `EditAccepted`).
 //! The check passes when, for every record, the store's edit log reaches
 //! `seq` and holds that entry with the same chunk versions, and every chunk
-//! is stored at that version or later. Run it while the server is stopped.
+//! is stored at that version or later; and no seq is acknowledged twice in
+//! the ack log (a seq handed out again, say after a crash lost the first
+//! edit: the second ack may name the very same chunk versions) or appears
+//! twice in the store's log over the acknowledged seqs. Run it while the
+//! server is stopped.
+//!
+//! The records carry no player or client edit id, so the stored entry's
+//! player is not compared with the acknowledging client.
 
+use std::collections::HashSet;
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 
@@ -66,8 +74,13 @@ pub enum VerifyError {
 pub enum AckFailure {
     /// The store's log ends before the edit.
     SeqNotLogged { seq: u64, last_seq: u64 },
-    /// The log entry exists but names other chunk versions.
+    /// The log entry exists but names other chunk versions (or another seq).
     LogDiffers { seq: u64 },
+    /// The ack log holds the seq again: the server acknowledged two edits
+    /// with one seq.
+    AckedTwice { seq: u64 },
+    /// The store's log holds the seq more than once.
+    LoggedTwice { seq: u64 },
     /// A chunk is stored at an older version than acknowledged.
     ChunkBehind {
         seq: u64,
@@ -156,9 +169,13 @@ pub fn verify(store: &dyn ChunkStore, records: &[AckRecord]) -> Result<VerifyRep
         last_seq,
         ..Default::default()
     };
+    let mut acked = HashSet::with_capacity(records.len());
     for rec in records {
         report.records += 1;
         report.chunks += rec.chunks.len() as u64;
+        if !acked.insert(rec.seq) {
+            report.fail(AckFailure::AckedTwice { seq: rec.seq });
+        }
         let Some(entry) = store.log_entry(rec.seq)?.filter(|_| rec.seq <= last_seq) else {
             report.fail(AckFailure::SeqNotLogged {
                 seq: rec.seq,
@@ -171,7 +188,7 @@ pub fn verify(store: &dyn ChunkStore, records: &[AckRecord]) -> Result<VerifyRep
             rec.chunks.iter().map(|c| (c.pos(), c.version)).collect();
         logged.sort();
         acked.sort();
-        if logged != acked {
+        if logged != acked || entry.seq != rec.seq {
             report.fail(AckFailure::LogDiffers { seq: rec.seq });
         }
         for c in &rec.chunks {
@@ -188,7 +205,28 @@ pub fn verify(store: &dyn ChunkStore, records: &[AckRecord]) -> Result<VerifyRep
             }
         }
     }
+    // The store's log over the acknowledged seqs: each seq once.
+    if let (Some(&lo), Some(&hi)) = (acked.iter().min(), acked.iter().max()) {
+        for seq in logged_twice(store.edit_log(lo..=hi).map(|e| e.map(|e| e.seq)))? {
+            report.fail(AckFailure::LoggedTwice { seq });
+        }
+    }
     Ok(report)
+}
+
+/// Seqs a log yields more than once (each named once), in order.
+fn logged_twice(
+    seqs: impl Iterator<Item = Result<u64, StoreError>>,
+) -> Result<Vec<u64>, StoreError> {
+    let (mut seen, mut named) = (HashSet::new(), HashSet::new());
+    let mut twice = Vec::new();
+    for seq in seqs {
+        let seq = seq?;
+        if !seen.insert(seq) && named.insert(seq) {
+            twice.push(seq);
+        }
+    }
+    Ok(twice)
 }
 
 /// Opens the data dir's store and verifies the ack log against it.
@@ -304,5 +342,20 @@ mod tests {
                 },
             ]
         );
+        // A seq acknowledged twice: the second ack names the same chunk
+        // version (an edit lost in a crash, its seq and version reused),
+        // so only the repeat gives it away.
+        let twice = verify(&store, &[ack(1, 1), ack(2, 2), ack(2, 2)]).unwrap();
+        assert_eq!(twice.failures, vec![AckFailure::AckedTwice { seq: 2 }]);
+        assert_eq!(twice.failure_count, 1);
+    }
+
+    #[test]
+    fn a_seq_the_log_holds_twice_is_named_once() {
+        let log = |seqs: &[u64]| logged_twice(seqs.iter().map(|&s| Ok(s))).unwrap();
+        assert_eq!(log(&[1, 2, 3]), Vec::<u64>::new());
+        assert_eq!(log(&[1, 2, 2, 3, 2, 3]), vec![2, 3]);
+        let failed = vec![Ok(1), Err(StoreError::Io(std::io::ErrorKind::Other.into()))];
+        assert!(logged_twice(failed.into_iter()).is_err());
     }
 }

@@ -2,15 +2,22 @@
 // /api/scene.glb, parsed here and drawn with WebGL2 (orbit with the mouse,
 // zoom with the wheel). Without WebGL2 the panel says so and the rest of
 // the console works as before.
+//
+// #scene-state's data-state: "idle", "loading", "error", "no-webgl2" (set at
+// start, before any fetch), and after a fetched glTF parsed "drawn" or, with
+// no WebGL2 to draw it, "parsed-no-webgl2"; those two set data-triangles to
+// the parsed mesh's triangle count.
 "use strict";
 
 const StrataView3d = (() => {
   let world, canvas, gl = null, prog, mesh = null;
   let region = null;
   let yaw = 0.8, pitch = 0.6, dist = 200;
-  const state = (s, text) => {
+  const state = (s, text, triangles) => {
     const el = document.getElementById("scene-state");
     el.dataset.state = s;
+    if (triangles === undefined) delete el.dataset.triangles;
+    else el.dataset.triangles = String(triangles);
     el.textContent = text || s;
   };
 
@@ -130,9 +137,13 @@ const StrataView3d = (() => {
       return;
     }
     const parsed = parseGlb(await resp.arrayBuffer());
-    if (!gl) { state("no-webgl2", `${parsed.idx.count / 3} triangles (no WebGL2 here to draw them)`); return; }
+    const triangles = Math.floor(parsed.idx.count / 3);
+    if (!gl) {
+      state("parsed-no-webgl2", `${triangles} triangles (no WebGL2 here to draw them)`, triangles);
+      return;
+    }
     mesh = upload(parsed);
-    state("drawn", `${parsed.idx.count / 3} triangles`);
+    state("drawn", `${triangles} triangles`, triangles);
     draw();
   }
 
