@@ -110,7 +110,8 @@ held=$(sql "SELECT region_x || ',' || region_z FROM regions WHERE owner = 'node-
 disown "${pids[0]}"   # no "Killed" line from the shell
 kill -KILL "${pids[0]}"
 t0=$(date +%s%N)
-kill "${fleet[0]}" 2>/dev/null || true
+disown "${fleet[0]}"
+kill -KILL "${fleet[0]}" 2>/dev/null || true   # its node is gone
 takeover_ms=null
 if [ -n "$held" ]; then
     list=$(echo "$held" | sed "s/^/'/; s/$/'/" | paste -sd,)

@@ -230,7 +230,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         zone_writes: tokio::sync::Mutex::new(()),
         position_reads: match &cfg.cluster {
             Some(c) => PositionReads::new(
-                c.position_reads,
+                c.position_reads_with(cfg.store.postgres.max_connections),
                 std::time::Duration::from_millis(c.position_read_ms),
             ),
             None => PositionReads::default(),

@@ -758,18 +758,6 @@ impl ServerConfig {
                     "a cluster needs [store] backend = \"postgres\"",
                 ));
             }
-            // Each read holds a pooled connection: logins must leave the
-            // commits, chunk loads and claims at least one.
-            let pool = self.store.postgres.max_connections;
-            if c.position_reads >= pool {
-                return Err(invalid(
-                    "cluster.position_reads",
-                    format!(
-                        "{} must be below store.postgres.max_connections ({pool})",
-                        c.position_reads
-                    ),
-                ));
-            }
         }
         range(
             "sequencer.queue_capacity",

@@ -348,6 +348,11 @@ fn bad_values_name_their_field() {
             "[console]\nscene_max_chunks = 0",
             "console.scene_max_chunks",
         ),
+        // Under one chunk with its border: every scene refused.
+        (
+            "[console]\nscene_max_chunks = 26",
+            "console.scene_max_chunks",
+        ),
         (
             "[console]\nedits_per_sample = 0",
             "console.edits_per_sample",
@@ -478,11 +483,6 @@ fn a_cluster_node_needs_postgres_a_name_and_a_renewal_inside_its_lease() {
             "[cluster]\nnode_id = \"a\"\nposition_reads = 0\n",
             "cluster.position_reads",
         ),
-        // Every connection of the pool (8): none left for commits.
-        (
-            "[cluster]\nnode_id = \"a\"\nposition_reads = 8\n",
-            "cluster.position_reads",
-        ),
         (
             "[cluster]\nnode_id = \"a\"\nposition_read_ms = 0\n",
             "cluster.position_read_ms",
@@ -512,16 +512,16 @@ fn a_cluster_node_needs_postgres_a_name_and_a_renewal_inside_its_lease() {
         cluster.position_reads < c.store.postgres.max_connections,
         "the default leaves the pool connections"
     );
-    let bigger =
-        format!("{pg}max_connections = 9\n[cluster]\nnode_id = \"a\"\nposition_reads = 8\n");
-    assert_eq!(
-        ServerConfig::from_toml_str(&bigger)
-            .unwrap()
-            .cluster
-            .unwrap()
-            .position_reads,
-        8
-    );
+    // Reads leave the pool a connection for commits (a pool of one is
+    // shared): a config that asks for more starts, with fewer.
+    for (pool, asked, used) in [(9, 8, 8), (8, 8, 7), (2, 2, 1), (1, 2, 1)] {
+        let text = format!(
+            "{pg}max_connections = {pool}\n[cluster]\nnode_id = \"a\"\nposition_reads = {asked}\n"
+        );
+        let c = ServerConfig::from_toml_str(&text).unwrap();
+        let reads = c.cluster.unwrap().position_reads_with(pool);
+        assert_eq!(reads, used, "pool {pool}, asked {asked}");
+    }
     assert_eq!(ServerConfig::default().cluster, None);
 }
 

@@ -78,6 +78,17 @@ pub fn not_run<T>(test: &str, what: &str, why: &str) -> Option<T> {
 pub struct Guard(pub Child);
 
 impl Guard {
+    /// Sends SIGTERM (`strata-bots`: the edits end early, the summary
+    /// follows).
+    pub fn terminate(&self) {
+        let pid = self.0.id().to_string();
+        let ok = Command::new("kill")
+            .args(["-TERM", &pid])
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "kill -TERM {pid}");
+    }
+
     /// Waits for the process to exit, killing it after `limit`.
     pub fn wait_timeout(&mut self, limit: Duration) -> ExitStatus {
         let start = Instant::now();

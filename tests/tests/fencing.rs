@@ -196,12 +196,7 @@ fn a_node_paused_past_its_lease_stores_and_acknowledges_nothing_after_a_takeover
     // SIGTERM ends the bots' edits early; their summary says they tried
     // after the takeover and node-a refused them, naming node-b (else
     // "nothing acknowledged" below would hold of bots that never tried).
-    let pid = bots.0.id().to_string();
-    let ok = Command::new("kill")
-        .args(["-TERM", &pid])
-        .status()
-        .is_ok_and(|s| s.success());
-    assert!(ok, "kill -TERM {pid}");
+    bots.terminate();
     let (_, summary) = strata_tests::bots_summary(bots);
     assert!(
         num(&summary["edits_rejected"], "region_elsewhere") > 0,

@@ -47,7 +47,8 @@ use tracing_subscriber::EnvFilter;
 /// a bot's task failed (bots_failed).
 ///
 /// SIGTERM ends the edits early: the bots then wait for quiet, check their
-/// replicas and print the summary as at the end of --duration.
+/// replicas and print the summary as at the end of --duration. A SIGTERM
+/// after the edits, or a second one, ends the process at once.
 ///
 /// `--ack-log FILE` writes one JSON line per accepted edit, as soon as it
 /// is acknowledged: {"seq":17,"chunks":[{"x":16,"y":1,"z":16,"version":4}]}
@@ -223,13 +224,22 @@ fn main() -> ExitCode {
     }
 }
 
-/// A future that resolves at the first SIGTERM (from now on, not the
-/// default end of the process).
+/// A future that resolves at the first SIGTERM while it is held (the run
+/// holds it until its edits end). A SIGTERM after that, or a second one,
+/// ends the process (status 143), as without a handler.
 fn sigterm() -> anyhow::Result<impl std::future::Future<Output = ()>> {
     use tokio::signal::unix::{signal, SignalKind};
     let mut term = signal(SignalKind::terminate()).context("listening for SIGTERM")?;
-    Ok(async move {
+    let (told, heard) = tokio::sync::oneshot::channel::<()>();
+    tokio::spawn(async move {
         term.recv().await;
+        if told.send(()).is_ok() {
+            term.recv().await;
+        }
+        std::process::exit(143);
+    });
+    Ok(async move {
+        let _ = heard.await;
     })
 }
 

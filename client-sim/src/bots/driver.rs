@@ -6,7 +6,7 @@ use std::future::Future;
 use std::hash::BuildHasher;
 use std::net::SocketAddr;
 use std::pin::Pin;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -87,8 +87,13 @@ pub struct BotOutcome {
     /// Hash of every (chunk, version) any of its replicas held (the first
     /// connection's, where two differ: that counts in `order_violations`).
     pub version_hashes: HashMap<(ChunkPos, u64), u64>,
-    /// Newest version of each chunk its connections so far received.
+    /// Newest version of each chunk its connections to `newest_from` so
+    /// far received.
     newest: HashMap<ChunkPos, u64>,
+    /// The node those connections were to: another node may stream an
+    /// older copy of a chunk in a region it does not hold (PROTOCOL.md,
+    /// clusters), so a move starts the comparison afresh.
+    newest_from: Option<SocketAddr>,
     /// Steps where a chunk's version went backwards in one replica, chunks
     /// a later connection received older than an earlier one had, and
     /// (chunk, version) pairs two of its connections received with
@@ -101,13 +106,38 @@ pub struct BotOutcome {
     /// Its predictions, over all its connections (with `predict`).
     pub prediction: PredictionStats,
     verified: bool,
-    counted_finished: bool,
-    counted_ready: bool,
+    /// Whether it was counted joined and checked (shared with
+    /// [`CountOnPanic`], so a bot is counted once either way).
+    counted: Arc<Counted>,
+}
+
+/// A bot's marks in the fleet's counts.
+#[derive(Debug, Default)]
+struct Counted {
+    ready: AtomicBool,
+    finished: AtomicBool,
+}
+
+impl Counted {
+    /// Adds the bot to the fleet's joined count, once.
+    fn ready(&self, fleet: &Fleet) {
+        if !self.ready.swap(true, Ordering::Relaxed) {
+            fleet.ready.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Adds the bot to the fleet's checked count, once.
+    fn finished(&self, fleet: &Fleet) {
+        if !self.finished.swap(true, Ordering::Relaxed) {
+            fleet.finished.fetch_add(1, Ordering::Relaxed);
+        }
+    }
 }
 
 impl BotOutcome {
-    /// Folds a finished connection in.
-    fn absorb(&mut self, client: &Client) {
+    /// Folds a finished connection to `node` in.
+    fn absorb(&mut self, client: &Client, node: SocketAddr) {
+        self.on_node(node);
         self.bytes_in += client.bytes_in();
         self.bytes_out += client.bytes_out();
         let r = client.replica();
@@ -119,6 +149,15 @@ impl BotOutcome {
         drop(r);
         if let Some(p) = client.prediction_stats() {
             self.prediction.add(&p);
+        }
+    }
+
+    /// The next connection folded in was to `node`: versions are compared
+    /// across connections to one node only.
+    fn on_node(&mut self, node: SocketAddr) {
+        if self.newest_from != Some(node) {
+            self.newest.clear();
+            self.newest_from = Some(node);
         }
     }
 
@@ -166,23 +205,24 @@ async fn arrive(c: &Client, ticket: strata_protocol::Ticket, bot: usize) {
     }
 }
 
-/// Counts a bot whose task panics as joined and checked, so the fleet
-/// does not wait out its ramp and check timeouts for it (the run counts it
-/// in `bots_failed`).
-struct CountOnPanic(Arc<Fleet>);
+/// Counts a bot whose task panics as joined and checked (unless it was
+/// already), so the fleet does not wait out its ramp and check timeouts
+/// for it (the run counts it in `bots_failed`).
+struct CountOnPanic(Arc<Fleet>, Arc<Counted>);
 
 impl Drop for CountOnPanic {
     fn drop(&mut self) {
         if std::thread::panicking() {
-            self.0.ready.fetch_add(1, Ordering::Relaxed);
-            self.0.finished.fetch_add(1, Ordering::Relaxed);
+            self.1.ready(&self.0);
+            self.1.finished(&self.0);
         }
     }
 }
 
 /// Runs bot `id` until the run is done.
 pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
-    let _count_on_panic = CountOnPanic(fleet.clone());
+    let counted = Arc::new(Counted::default());
+    let _count_on_panic = CountOnPanic(fleet.clone(), counted.clone());
     let stalled = id < fleet.cfg.stalled;
     let mut bot = Bot {
         role: fleet.cfg.profile.role_of(id),
@@ -190,6 +230,7 @@ pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
         rng: Rng::new(fleet.cfg.seed, id as u64),
         out: BotOutcome {
             stalled,
+            counted,
             ..Default::default()
         },
         walker: None,
@@ -210,7 +251,7 @@ pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
         let result = bot.session(&client).await;
         stats.connected.fetch_sub(1, Ordering::Relaxed);
         bot.drain_arrivals(&client);
-        bot.out.absorb(&client);
+        bot.out.absorb(&client, bot.server);
         match result {
             Ok(()) => {
                 bot.out.connected_at_end = !client.is_closed();
@@ -270,10 +311,7 @@ impl Bot {
 
     /// Counts this bot as done with the end-of-run check, once.
     fn finish(&mut self) {
-        if !self.out.counted_finished {
-            self.out.counted_finished = true;
-            self.fleet.finished.fetch_add(1, Ordering::Relaxed);
-        }
+        self.out.counted.finished(&self.fleet);
     }
 
     /// Connects, retrying within [`RECONNECT_WINDOW`]; `None` gives up.
@@ -474,10 +512,7 @@ impl Bot {
         let radius = self.fleet.cfg.view_radius;
         match self.phase() {
             Phase::Ramp => {
-                if !self.out.counted_ready {
-                    self.out.counted_ready = true;
-                    self.fleet.ready.fetch_add(1, Ordering::Relaxed);
-                }
+                self.out.counted.ready(&self.fleet);
                 let b = client.bytes_in();
                 if b != st.last_bytes {
                     st.last_bytes = b;
@@ -769,6 +804,19 @@ mod tests {
         // Going backwards within one connection still counts.
         let within = conn(&[(a, &[(3, 13), (2, 12)])]);
         assert_eq!(violations(&[within]), 1);
+        // Another node may stream an older copy (a region it does not
+        // hold): only connections to one node are compared.
+        let node = |p: u16| SocketAddr::from(([127, 0, 0, 1], p));
+        let mut out = BotOutcome::default();
+        for (at, (history, hashes)) in [(1, first.clone()), (2, conn(&[(a, &[(1, 11)])]))] {
+            out.on_node(node(at));
+            out.fold_history(&history, &hashes);
+        }
+        assert_eq!(out.order_violations, 0);
+        out.on_node(node(2));
+        let (history, hashes) = conn(&[(a, &[(0, 10)])]);
+        out.fold_history(&history, &hashes);
+        assert_eq!(out.order_violations, 1, "older again on the same node");
         // A resync within a connection skips ahead: fine.
         let resynced = conn(&[(a, &[(2, 12), (4, 14)])]);
         assert_eq!(violations(&[first, resynced]), 0);

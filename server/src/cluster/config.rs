@@ -35,8 +35,9 @@ pub const MAX_RELEASE_IDLE_MS: u64 = 7 * 24 * 3_600_000;
 /// under the pool, so a login storm leaves commits, chunk loads and
 /// claims their connections.
 pub const DEFAULT_POSITION_READS: usize = 2;
-/// Largest allowed `position_reads` (the pool's own cap; it must also stay
-/// below `[store.postgres] max_connections`).
+/// Largest allowed `position_reads` (the pool's own cap; at most
+/// `[store.postgres] max_connections - 1` are used, see
+/// [`ClusterConfig::position_reads_with`]).
 pub const MAX_POSITION_READS: usize = 256;
 /// How long a login waits for a position read (its turn among
 /// `position_reads`, then the read) before it is refused, retryable
@@ -176,6 +177,15 @@ impl ClusterConfig {
             ));
         }
         Ok(())
+    }
+}
+
+impl ClusterConfig {
+    /// The position reads a node runs at once with a pool of `pool`
+    /// connections: `position_reads`, leaving the commits, chunk loads and
+    /// claims at least one connection (a pool of one shares it).
+    pub fn position_reads_with(&self, pool: usize) -> usize {
+        self.position_reads.min(pool.saturating_sub(1)).max(1)
     }
 }
 

@@ -111,15 +111,14 @@ impl ConnState {
         *self.request_since.lock().unwrap_or_else(|p| p.into_inner()) = since;
     }
 
-    /// Whether it is admitted by a token no longer good.
-    fn lapsed(&self) -> bool {
-        self.is_admitted()
-            && self
-                .still
-                .lock()
-                .unwrap_or_else(|p| p.into_inner())
-                .as_ref()
-                .is_some_and(|still| !still())
+    /// Closes it if it is admitted by a token no longer good. The check
+    /// and the eviction hold the admission's lock: a request admitting it
+    /// with a good token meanwhile is seen, or comes after the eviction.
+    fn evict_if_lapsed(&self) {
+        let still = self.still.lock().unwrap_or_else(|p| p.into_inner());
+        if self.is_admitted() && still.as_ref().is_some_and(|still| !still()) {
+            self.evict(ADMITTED);
+        }
     }
 
     fn is_admitted(&self) -> bool {
@@ -215,8 +214,8 @@ impl LimitedListener {
         let now = Instant::now();
         let live = || self.conns.iter().filter_map(Weak::upgrade);
         if !live().any(|c| c.evictable(now) && c.evict(NEW)) {
-            for c in live().filter(|c| c.lapsed()) {
-                c.evict(ADMITTED);
+            for c in live() {
+                c.evict_if_lapsed();
             }
         }
     }

@@ -68,6 +68,8 @@ pub const DEFAULT_TILE_CACHE: usize = 1024;
 pub const DEFAULT_MAX_BODY_BYTES: usize = 4096;
 /// Default tile or scene renders at once.
 pub const DEFAULT_MAX_RENDERS: usize = 2;
+/// Fewest chunks a 3-D view cap may allow: one chunk with its border.
+pub const MIN_SCENE_CHUNKS: u64 = 27;
 /// Default chunks one 3-D view may read: an 8 x 8 x 8 box with its
 /// one-chunk border.
 pub const DEFAULT_SCENE_MAX_CHUNKS: u64 = 1000;
@@ -188,7 +190,7 @@ impl ConsoleConfig {
             (
                 "console.scene_max_chunks",
                 self.scene_max_chunks,
-                1,
+                MIN_SCENE_CHUNKS,
                 MAX_SCENE_CHUNKS,
             ),
             (
