@@ -762,6 +762,47 @@ fn an_offline_postgres_snapshot_and_running_servers_keep_off_each_other() {
     assert_eq!((created.seq, created.chunks), (9, 3));
 }
 
+/// An offline snapshot whose lock connection ended (a PostgreSQL restart,
+/// a terminated backend) let servers in meanwhile: it is refused, not
+/// written as one moment of the world.
+#[test]
+fn an_offline_postgres_snapshot_that_lost_its_lock_is_refused() {
+    let Some(db) = database("an_offline_postgres_snapshot_that_lost_its_lock") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    old_world_restored(&db, tmp.path());
+    let store = pg_store(&db);
+    store.hold_alone().unwrap();
+    store.still_alone().unwrap();
+    let out = tmp.path().join("held.snap");
+    snapshot_cmd::create_offline(&store, &out).unwrap();
+    sql(
+        &db,
+        &format!(
+            "SELECT pg_terminate_backend(pid) FROM pg_stat_activity \
+             WHERE datname = '{}' AND query LIKE '%pg_try_advisory_lock%' \
+             AND pid <> pg_backend_pid()",
+            db.name()
+        ),
+    );
+    let started = std::time::Instant::now();
+    while store.still_alone().is_ok() {
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(10),
+            "the loss is seen"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let lost = tmp.path().join("lost.snap");
+    let err = format!(
+        "{:#}",
+        snapshot_cmd::create_offline(&store, &lost).unwrap_err()
+    );
+    assert!(err.contains("keeping servers off"), "{err}");
+    assert!(!lost.exists(), "no snapshot file");
+}
+
 #[test]
 fn a_server_with_a_migration_pending_says_a_restore_is_running_at_once() {
     let Some(db) = database("a_server_with_a_migration_pending_says_a_restore_is_running") else {

@@ -180,6 +180,8 @@ pub fn create_offline(store: &dyn ChunkStore, out: &Path) -> anyhow::Result<Crea
             w.chunk(c.pos, c.version, &c.encoded)?;
             bar.inc(1);
         }
+        // Held alone all along, or the file is not one moment.
+        store.still_alone()?;
         let chunks = w.records();
         let (file, bytes) = w.finish()?;
         bar.finish_and_clear();

@@ -294,6 +294,13 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(())
     }
 
+    /// Whether what [`Self::hold_alone`] took still holds: on PostgreSQL
+    /// the lock lives with one connection, and one that ended (a restart,
+    /// a terminated backend) let servers in meanwhile. Refuses then.
+    fn still_alone(&self) -> Result<(), StoreError> {
+        Ok(())
+    }
+
     /// Claims the cluster node id for this process (a newer incarnation
     /// supersedes any process still running under it). The server calls
     /// it once its ports are bound. Alone on its store: nothing.

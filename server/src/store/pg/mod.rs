@@ -141,16 +141,20 @@ impl PgStore {
         *self.serving.lock().unwrap_or_else(|p| p.into_inner()) = Some(Box::new(conn));
     }
 
+    /// Whether the connection holding the serving lock ended.
+    fn lock_connection_lost(&self) -> bool {
+        self.serving
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_ref()
+            .is_some_and(|c| c.is_closed())
+    }
+
     /// Before a commit: a served store whose lock connection ended (a
     /// PostgreSQL restart, a terminated backend) takes the lock again, or
     /// fails the commit (a restore got in meanwhile).
     fn keep_serving(&self) -> Result<(), StoreError> {
-        let lost = self
-            .serving
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .as_ref()
-            .is_some_and(|c| c.is_closed());
+        let lost = self.lock_connection_lost();
         if lost {
             tracing::warn!("the connection holding the serving lock ended; taking it again");
             self.take_serving_lock()?;
@@ -618,6 +622,16 @@ impl ChunkStore for PgStore {
 
     fn hold_alone(&self) -> Result<(), StoreError> {
         self.take_serving_lock_alone()
+    }
+
+    fn still_alone(&self) -> Result<(), StoreError> {
+        let lost = self.lock_connection_lost();
+        if lost {
+            return Err(StoreError::PgSetup {
+                reason: "the connection keeping servers off this database ended: a server may have written meanwhile".into(),
+            });
+        }
+        Ok(())
     }
 
     fn register_node(&self) -> Result<(), StoreError> {
