@@ -700,6 +700,13 @@ impl ServerConfig {
             1,
             crate::engine::snapshot::MAX_SNAPSHOT_PREIMAGES,
         )?;
+        let (fewest, most) = crate::engine::snapshot::SNAPSHOT_PREIMAGE_BYTES_RANGE;
+        range(
+            "engine.snapshot_preimage_bytes",
+            self.engine.snapshot_preimage_bytes,
+            fewest,
+            most,
+        )?;
         range(
             "engine.resident_chunks",
             self.engine.resident_chunks,

@@ -318,6 +318,10 @@ fn bad_values_name_their_field() {
             "engine.snapshot_preimages",
         ),
         (
+            "[engine]\nsnapshot_preimage_bytes = 1000",
+            "engine.snapshot_preimage_bytes",
+        ),
+        (
             "[sequencer]\nqueue_capacity = 0",
             "sequencer.queue_capacity",
         ),

@@ -88,6 +88,9 @@ pub struct EngineConfig {
     /// Pre-images one online snapshot may hold when its request names no
     /// limit ([`snapshot::DEFAULT_SNAPSHOT_PREIMAGES`]).
     pub snapshot_preimages: usize,
+    /// Encoded bytes of pre-images one online snapshot may hold, whatever
+    /// its request ([`snapshot::DEFAULT_SNAPSHOT_PREIMAGE_BYTES`]).
+    pub snapshot_preimage_bytes: usize,
     /// Threads that apply region lanes, mesh, encode for the store and fan
     /// deltas out; 0 means one per available core.
     pub workers: usize,
@@ -112,6 +115,7 @@ impl Default for EngineConfig {
             full_frame_cache_entries: frame_cache::DEFAULT_FULL_FRAME_CACHE_ENTRIES,
             resident_chunks: DEFAULT_RESIDENT_CHUNKS,
             snapshot_preimages: snapshot::DEFAULT_SNAPSHOT_PREIMAGES,
+            snapshot_preimage_bytes: snapshot::DEFAULT_SNAPSHOT_PREIMAGE_BYTES,
             workers: 0,
         }
     }

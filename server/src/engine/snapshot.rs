@@ -23,9 +23,12 @@ use crate::store::{CommitBatch, RawChunk};
 pub const DEFAULT_SNAPSHOT_PREIMAGES: usize = 65_536;
 /// Largest bound an admin may ask for.
 pub const MAX_SNAPSHOT_PREIMAGES: usize = 1 << 20;
-/// Bound on one snapshot's pre-image bytes: a count alone lets large
-/// chunks (up to 64 KiB encoded) hold gigabytes while a slow reader runs.
-pub const MAX_SNAPSHOT_PREIMAGE_BYTES: usize = 512 << 20;
+/// Default bound on one snapshot's pre-image bytes (`[engine]
+/// snapshot_preimage_bytes`): a count alone lets large chunks (up to 64 KiB
+/// encoded) hold gigabytes while a slow reader runs.
+pub const DEFAULT_SNAPSHOT_PREIMAGE_BYTES: usize = 512 << 20;
+/// Fewest and most bytes `snapshot_preimage_bytes` may allow.
+pub const SNAPSHOT_PREIMAGE_BYTES_RANGE: (usize, usize) = (1 << 20, 64 << 30);
 /// Snapshots that may run at once.
 pub const MAX_CONCURRENT_SNAPSHOTS: usize = 2;
 
@@ -57,17 +60,14 @@ struct State {
 pub struct PreImages {
     seq: u64,
     limit: usize,
-    /// [`MAX_SNAPSHOT_PREIMAGE_BYTES`], smaller in tests.
+    /// `[engine] snapshot_preimage_bytes`.
     byte_limit: usize,
     state: Mutex<State>,
 }
 
 impl PreImages {
-    pub fn new(seq: u64, limit: usize) -> Self {
-        Self::bounded(seq, limit, MAX_SNAPSHOT_PREIMAGE_BYTES)
-    }
-
-    fn bounded(seq: u64, limit: usize, byte_limit: usize) -> Self {
+    /// At most `limit` chunks and `byte_limit` encoded bytes.
+    pub fn new(seq: u64, limit: usize, byte_limit: usize) -> Self {
         Self {
             seq,
             limit,
@@ -168,7 +168,8 @@ impl Engine {
             0 => self.cfg.snapshot_preimages,
             n => n.min(MAX_SNAPSHOT_PREIMAGES),
         };
-        let pre = Arc::new(PreImages::new(self.seq.last_seq(), limit));
+        let bytes = self.cfg.snapshot_preimage_bytes;
+        let pre = Arc::new(PreImages::new(self.seq.last_seq(), limit, bytes));
         self.snapshots_running.push(pre.clone());
         Ok(pre)
     }
@@ -277,7 +278,7 @@ mod tests {
             &[(a, 1, ids::STONE), (b, 1, ids::DIRT), (c, 1, ids::STONE)],
         );
 
-        let pre = PreImages::new(1, 8);
+        let pre = PreImages::new(1, 8, DEFAULT_SNAPSHOT_PREIMAGE_BYTES);
         assert_eq!(pre.seq(), 1);
         // Seq 2 changes `a` and creates `new`; seq 3 changes both again.
         let seq2 = [(a, 2, ids::DIRT), (new, 1, ids::DIRT)];
@@ -328,7 +329,7 @@ mod tests {
             &[(pos[0], 1, ids::STONE), (pos[1], 1, ids::STONE)],
         );
 
-        let pre = PreImages::new(1, 3);
+        let pre = PreImages::new(1, 3, DEFAULT_SNAPSHOT_PREIMAGE_BYTES);
         let seq2: Vec<_> = pos
             .iter()
             .map(|&p| (p, if p.x < 2 { 2 } else { 1 }, ids::DIRT))
@@ -352,7 +353,7 @@ mod tests {
 
     #[test]
     fn past_its_byte_bound_a_snapshot_aborts_however_few_chunks_changed() {
-        let pre = PreImages::bounded(1, MAX_SNAPSHOT_PREIMAGES, 1 << 20);
+        let pre = PreImages::new(1, MAX_SNAPSHOT_PREIMAGES, 1 << 20);
         let big = |x| {
             Some(RawChunk {
                 pos: ChunkPos::new(x, 0, 0),
