@@ -125,6 +125,7 @@ async fn bad_settings_are_refused_before_connecting() {
         verify: VerifyMode::All,
         seed: 1,
         stalled: 3,
+        stalled_window: None,
         ramp: true,
         ack_log: None,
         progress: false,
@@ -169,6 +170,16 @@ async fn bad_settings_are_refused_before_connecting() {
         .await
         .unwrap_err();
         assert!(e.to_string().contains("--verify-timeout"), "{e}");
+    }
+    for window in [bots::MIN_STALLED_WINDOW - 1, bots::MAX_STALLED_WINDOW + 1] {
+        let e = bots::run(BotsConfig {
+            stalled: 1,
+            stalled_window: Some(window),
+            ..run.clone()
+        })
+        .await
+        .unwrap_err();
+        assert!(e.to_string().contains("--stalled-window"), "{e}");
     }
 }
 

@@ -37,6 +37,7 @@ async fn run_attack(attack: Attack, ramp: bool) -> (Summary, HostileSummary) {
         verify: VerifyMode::Modified,
         seed: 5,
         stalled: 0,
+        stalled_window: None,
         ramp,
         ack_log: None,
         progress: false,

@@ -306,6 +306,8 @@ pub struct Client {
     replica: Arc<Mutex<Replica>>,
     next_edit: AtomicU64,
     next_position: AtomicU32,
+    /// The last position [`Self::send_position`] sent.
+    last_position: Mutex<Option<FixedVec3>>,
     bytes_out: AtomicU64,
     tasks: Vec<JoinHandle<()>>,
 }
@@ -468,6 +470,7 @@ impl Client {
             replica,
             next_edit: AtomicU64::new(1),
             next_position: AtomicU32::new(1),
+            last_position: Mutex::new(None),
             bytes_out: AtomicU64::new(0),
             tasks,
         })
@@ -587,11 +590,23 @@ impl Client {
         let seq = self.next_position.fetch_add(1, Ordering::Relaxed);
         let bytes = encode(&PositionUpdate { seq, pos }, Direction::ClientToServer)
             .map_err(|e| ClientError::Protocol(e.to_string()))?;
+        *self
+            .last_position
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(pos);
         self.bytes_out
             .fetch_add(bytes.len() as u64, Ordering::Relaxed);
         self.conn
             .send_datagram(Bytes::from(bytes))
             .map_err(|e| ClientError::Closed(e.to_string()))
+    }
+
+    /// The last position [`Self::send_position`] sent (accepted or not).
+    pub fn last_position(&self) -> Option<FixedVec3> {
+        *self
+            .last_position
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Asks for the chunks within `radius` of `center`. A centre outside

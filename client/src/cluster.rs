@@ -13,6 +13,12 @@
 //! Each connection's replica is whole and ordered on its own (every
 //! node streams the view it is told), so walking across a border only
 //! changes which replica a chunk is read from: nothing is resent.
+//!
+//! A view asked for ([`ClusterClient::subscribe`]) is the same on every
+//! node: the cluster client moves it with the player itself
+//! ([`moved_view`]) and asks every node for it there, so a node joined
+//! later is asked for the view where it is, not where it was first asked
+//! (which may be out of the player's reach by then).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::future::Future;
@@ -22,7 +28,7 @@ use std::time::{Duration, Instant};
 
 use strata_protocol::limits::MAX_REGION_OWNERS;
 use strata_protocol::{RegionHolder, RegionOwner, RejectReason, Ticket};
-use strata_terrain::{Chunk, ChunkPos, Edit, FixedVec3, VoxelPos};
+use strata_terrain::{Chunk, ChunkPos, Edit, FixedVec3, VoxelPos, CHUNK_SIZE};
 use thiserror::Error;
 
 use crate::client::{Acked, Client, ClientError, ClientOptions, SentEdit, Verdict};
@@ -197,6 +203,44 @@ pub fn edit_anchor(edit: &Edit) -> VoxelPos {
         Edit::FillBox { min, .. } | Edit::ClearBox { min, .. } => *min,
         Edit::PlaceStructure { origin, .. } => *origin,
     }
+}
+
+/// Voxels the feet must be past where a view asked for may reach before
+/// it moves to them (the protocol's margin, PROTOCOL.md "Interest").
+pub const RECENTRE_MARGIN: i32 = 4;
+
+/// Where a view asked for, `radius` chunks around `center`, goes once the
+/// player's feet are at `feet`: `None` (it stays) while the feet voxel is
+/// fewer than [`RECENTRE_MARGIN`] voxels past every chunk within `reach =
+/// view_radius - min(radius, view_radius)` chunks (Chebyshev) of `center`
+/// on its farthest axis, else the feet voxel's chunk (the radius kept).
+///
+/// A node's own rule is the same with `reach` larger by its hysteresis,
+/// which the `Welcome` does not give: moved by this rule, a view never
+/// waits for a node to move it (whatever the hysteresis), so the view the
+/// client last asked for is the one every node streams.
+pub fn moved_view(
+    center: ChunkPos,
+    radius: u8,
+    view_radius: u8,
+    feet: FixedVec3,
+) -> Option<ChunkPos> {
+    let reach = i64::from(view_radius - radius.min(view_radius));
+    let side = i64::from(CHUNK_SIZE);
+    let past = |v: i32, c: i32| {
+        let lo = (i64::from(c) - reach) * side;
+        let hi = (i64::from(c) + reach + 1) * side - 1;
+        (lo - i64::from(v)).max(i64::from(v) - hi).max(0)
+    };
+    let at = VoxelPos::new(
+        feet.x.floor_voxel(),
+        feet.y.floor_voxel(),
+        feet.z.floor_voxel(),
+    );
+    let far = past(at.x, center.x)
+        .max(past(at.y, center.y))
+        .max(past(at.z, center.z));
+    (far >= i64::from(RECENTRE_MARGIN)).then(|| at.chunk())
 }
 
 /// Longest a node's name may take to resolve, and all the names of one
@@ -420,8 +464,8 @@ pub struct ClusterClient {
     prepaid: BTreeSet<SocketAddr>,
     /// A lookup was left for lack of tokens: route again.
     reroute_owed: bool,
-    /// The last view asked for ([`Self::subscribe`]), for nodes joined
-    /// since.
+    /// The view asked for ([`Self::subscribe`]) where it is now: moved
+    /// with the player ([`moved_view`]), for nodes joined since.
     asked_view: Option<(ChunkPos, u8)>,
 }
 
@@ -524,10 +568,13 @@ impl ClusterClient {
         self.client_for(pos).visible_chunk(pos)
     }
 
-    /// Takes in every node's newest `RegionOwners`, connects to the nodes
-    /// they name and closes the others. Call it often (every frame is fine: it is cheap
-    /// when nothing changed). Returns the nodes newly connected.
+    /// Moves the view asked for to the player once the last position sent
+    /// leaves it out of reach ([`moved_view`]), then takes in every node's
+    /// newest `RegionOwners`, connects to the nodes they name and closes the
+    /// others. Call it often (every frame is fine: it is cheap when nothing
+    /// changed). Returns the nodes newly connected.
     pub async fn follow(&mut self) -> Result<Vec<SocketAddr>, ClusterError> {
+        self.move_view().await;
         let before = self.view.nodes.len();
         let home = self.view.home;
         self.view.nodes.retain(|a, c| *a == home || !c.is_closed());
@@ -656,7 +703,10 @@ impl ClusterClient {
     }
 
     /// Asks every node for the view around `center` (see
-    /// [`Client::subscribe`]); a node joined later is asked too.
+    /// [`Client::subscribe`]). [`Self::follow`] moves it with the player
+    /// ([`moved_view`]: it stays within the `Welcome`'s view radius of the
+    /// feet, not that and the hysteresis), asking every node again; a node
+    /// joined later is asked for it where it is then.
     pub async fn subscribe(&mut self, center: ChunkPos, radius: u8) {
         self.asked_view = Some((center, radius));
         for c in self.view.nodes.values() {
@@ -677,8 +727,24 @@ impl ClusterClient {
         Ok(())
     }
 
-    /// A node just joined (and arrived) is asked for the view asked of
-    /// the others.
+    /// Asks every node for the view asked for at the chunk of the last
+    /// position sent, once that position leaves it out of reach.
+    async fn move_view(&mut self) {
+        let Some((center, radius)) = self.asked_view else {
+            return;
+        };
+        let home = self.home();
+        let Some(feet) = home.last_position() else {
+            return;
+        };
+        let view_radius = home.welcome().view_radius;
+        if let Some(to) = moved_view(center, radius, view_radius, feet) {
+            self.subscribe(to, radius).await;
+        }
+    }
+
+    /// A node just joined (and arrived) is asked for the view the others
+    /// stream: the view asked for, where it is now.
     async fn catch_up(&self, node: &Client) {
         if let Some((center, radius)) = self.asked_view {
             let _ = node.subscribe(center, radius).await;
@@ -686,7 +752,7 @@ impl ClusterClient {
     }
 
     /// Takes in the connections opened since the last call, each caught
-    /// up with the view asked for.
+    /// up with the view asked for, where it is now.
     async fn finish_joins(&mut self) -> Vec<SocketAddr> {
         let done: Vec<SocketAddr> = self
             .joining
@@ -713,7 +779,8 @@ impl ClusterClient {
         added
     }
 
-    /// Reports the player's position to every node (each validates it).
+    /// Reports the player's position to every node (each validates it);
+    /// the next [`Self::follow`] moves the view asked for after it.
     pub fn send_position(&self, pos: FixedVec3) -> Result<(), ClientError> {
         let mut home = Ok(());
         for (a, c) in &self.view.nodes {
@@ -1091,6 +1158,37 @@ mod tests {
         ]);
         assert_eq!(routing.routes, expected);
         assert_eq!(routing.named, vec![addr(2), addr(3)]);
+    }
+
+    #[test]
+    fn a_view_asked_moves_to_the_feet_once_they_are_the_margin_past_its_reach() {
+        let feet = |x: i32, y: i32| FixedVec3::from_voxels(x, y, 5);
+        let c = ChunkPos::new(4, 0, 0);
+        // Radius 1 of 2: reach 1, chunks 3..=5 (voxels 96..=191) on x.
+        for x in [96 - RECENTRE_MARGIN + 1, 100, 191 + RECENTRE_MARGIN - 1] {
+            assert_eq!(moved_view(c, 1, 2, feet(x, 5)), None, "{x}");
+        }
+        let to = moved_view(c, 1, 2, feet(191 + RECENTRE_MARGIN, 5));
+        assert_eq!(to, Some(ChunkPos::new(6, 0, 0)));
+        let to = moved_view(c, 1, 2, feet(96 - RECENTRE_MARGIN, 5));
+        assert_eq!(to, Some(ChunkPos::new(2, 0, 0)));
+        // Up and down too, to the feet's row.
+        assert_eq!(moved_view(c, 1, 2, feet(100, 35)), None);
+        let to = moved_view(c, 1, 2, feet(100, 64 + RECENTRE_MARGIN));
+        assert_eq!(to, Some(ChunkPos::new(3, 2, 0)));
+        // A radius of the view radius or more reaches from its own chunk
+        // only; a view radius of 0 never underflows.
+        assert_eq!(moved_view(c, 9, 2, feet(128 + 31 + 3, 5)), None);
+        let to = moved_view(c, 9, 2, feet(128 + 31 + RECENTRE_MARGIN, 5));
+        assert_eq!(to, Some(ChunkPos::new(5, 0, 0)));
+        assert_eq!(moved_view(c, 3, 0, feet(130, 5)), None);
+        // Far coordinates do not overflow.
+        let far = FixedVec3::from_voxels(-(1 << 22) + 1, 0, (1 << 22) - 1);
+        let corner = ChunkPos::new(i32::MAX, i32::MIN, i32::MAX);
+        assert_eq!(
+            moved_view(corner, 0, 32, far),
+            Some(ChunkPos::new(-(1 << 17), 0, (1 << 17) - 1))
+        );
     }
 
     #[test]

@@ -3,7 +3,9 @@
 //! node walks the player across the border: the session joins the east
 //! node, an edit beyond the border goes there, and the changed chunk is
 //! read from the east node's copy with matching meshes. The C ABI's
-//! `strata_connect_cluster` opens the same kind of session.
+//! `strata_connect_cluster` opens the same kind of session. A view the
+//! player asked for moves with the player on every node alike, and the
+//! east node, joined once it reaches region 1, is asked for it there.
 
 use crate::common::wait_for;
 
@@ -12,10 +14,11 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use strata::*;
+use strata_client::coords::{chunk_at, to_fixed};
 use strata_client::glam::DVec3;
 use strata_client::terrain::ChunkPos;
-use strata_client::{edits, Event, Session, SessionOptions};
-use strata_protocol::Role;
+use strata_client::{edits, ClientOptions, ClusterClient, Event, Session, SessionOptions};
+use strata_protocol::{Refusal, Role};
 use strata_server::app::{self, Running};
 use strata_server::cluster::ClusterConfig;
 use strata_server::config::ServerConfig;
@@ -108,16 +111,16 @@ fn mine(s: &Session, seen: &mut Vec<Event>, x: i32) -> Vec<strata_protocol::Chun
     })
 }
 
-#[test]
-fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
-    let Some(db) = strata_tests::postgres::database("sdk_cluster") else {
-        return;
-    };
-    let runtime = tokio::runtime::Runtime::new().unwrap();
+/// The west and east nodes on `db`, sharing keys; the temp dir holding
+/// their data dirs comes first (keep it).
+fn west_and_east(
+    runtime: &tokio::runtime::Runtime,
+    db: &strata_tests::postgres::PgDb,
+) -> (tempfile::TempDir, Running, Running) {
     let dirs = tempfile::tempdir().unwrap();
     let (west_dir, east_dir) = (dirs.path().join("west"), dirs.path().join("east"));
     let west = runtime
-        .block_on(app::start(node_config(&west_dir, &db, "west", WEST_X)))
+        .block_on(app::start(node_config(&west_dir, db, "west", WEST_X)))
         .unwrap();
     // The nodes share the auth secret (tickets) and the certificate.
     std::fs::create_dir_all(&east_dir).unwrap();
@@ -125,22 +128,37 @@ fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
         std::fs::copy(west_dir.join(f), east_dir.join(f)).unwrap();
     }
     let east = runtime
-        .block_on(app::start(node_config(&east_dir, &db, "east", EAST_X)))
+        .block_on(app::start(node_config(&east_dir, db, "east", EAST_X)))
         .unwrap();
+    (dirs, west, east)
+}
 
-    // Bob, on the east node alone, claims region 1 for it.
-    let opts = SessionOptions::default();
+/// Bob, on the east node alone, claims region 1 for it.
+fn bob_claims_region_one(east: &Running) -> Session {
     let bob = Session::connect(
         east.addr,
         &east.cert_der,
-        &token(&east, "bob"),
-        opts.clone(),
+        &token(east, "bob"),
+        SessionOptions::default(),
     )
     .unwrap();
     bob.set_position(spot(EAST_X).0).unwrap();
     assert!(eventually(|| bob.chunk(chunk_of(EAST_X)).is_some()));
     let mut bob_seen = Vec::new();
     mine(&bob, &mut bob_seen, EAST_X + 2);
+    bob
+}
+
+#[test]
+fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
+    let Some(db) = strata_tests::postgres::database("sdk_cluster") else {
+        return;
+    };
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let (_dirs, west, east) = west_and_east(&runtime, &db);
+    let bob = bob_claims_region_one(&east);
+
+    let opts = SessionOptions::default();
 
     // Ann plays on the cluster from the west node, predicting her edits:
     // her first edit claims region 0.
@@ -231,6 +249,100 @@ fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
     let took = closing.elapsed();
     assert!(took < Duration::from_millis(2500), "{took:?}");
 
+    runtime.block_on(async {
+        west.shutdown().await.unwrap();
+        east.shutdown().await.unwrap();
+    });
+}
+
+/// A view asked for (`subscribe`) follows the player on every node, and a
+/// node joined later is asked for it where it is then, not where it was
+/// first asked: out of the player's reach by then, the east node would
+/// refuse that (`SubscribeTooFar`) and stream its own view instead.
+#[test]
+fn a_node_joined_after_the_view_moved_streams_it_where_it_is() {
+    let Some(db) = strata_tests::postgres::database("sdk_cluster_moved_view") else {
+        return;
+    };
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let (_dirs, west, east) = west_and_east(&runtime, &db);
+    let bob = bob_claims_region_one(&east);
+    // View radius 2, hysteresis 2: a view of radius 1 may be centred 3
+    // chunks from the player's.
+    let feet = |x: i32| to_fixed(spot(x).0).unwrap();
+    let feet_chunk = |x: i32| chunk_at(spot(x).0).unwrap();
+    let start = 170;
+    runtime.block_on(async {
+        let mut ann = ClusterClient::connect(
+            west.addr,
+            &west.cert_der,
+            &token(&west, "ann"),
+            ClientOptions::default(),
+        )
+        .await
+        .unwrap();
+        // Ann, at the west end of the spawn square, asks for a view of
+        // radius 1 one chunk west of hers: region 0 alone.
+        ann.send_position(feet(start)).unwrap();
+        let here = feet_chunk(start);
+        let asked = ChunkPos::new(here.x - 1, here.y, here.z);
+        ann.subscribe(asked, 1).await;
+        let home_view = |ann: &ClusterClient| ann.home().view_loaded();
+        let mut loaded = false;
+        for _ in 0..1000 {
+            if home_view(&ann) == Some((asked, 1)) {
+                loaded = true;
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        assert!(loaded, "the west node streams the view asked");
+
+        // She walks east into region 1 (x 256..), two voxels every 50 ms:
+        // the view follows her there, and the client joins the east node.
+        let mut x = start;
+        while x < 300 {
+            x += 2;
+            ann.send_position(feet(x)).unwrap();
+            ann.follow().await.unwrap();
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let mut settled = None;
+        for _ in 0..1000 {
+            ann.follow().await.unwrap();
+            let views = ann
+                .node(east.addr)
+                .map(|c| (home_view(&ann), c.view_loaded()));
+            if let Some((Some(w), Some(e))) = views {
+                settled = Some((w, e));
+                if w == e {
+                    break;
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        let there = ann.node(east.addr).expect("joined the east node");
+        let refused: Vec<Refusal> = ann.nodes().flat_map(|(_, c)| c.refusals()).collect();
+        assert!(refused.is_empty(), "{refused:?}");
+        // Both nodes stream the view of radius 1 around her chunk: the
+        // east node the view where it is, not where it was asked.
+        let (w, e) = settled.expect("both nodes loaded a view");
+        assert_eq!(e, w, "the east node streams the west node's view");
+        let (center, radius) = e;
+        assert_eq!(radius, 1, "the radius asked");
+        let now = feet_chunk(x);
+        assert!(
+            center.x >= 8 && center.chebyshev(now) <= 1,
+            "{center:?} near {now:?}"
+        );
+        for c in [now, ChunkPos::new(center.x + 1, center.y, center.z)] {
+            assert!(there.replica().get(c).is_some(), "{c:?} on the east node");
+            assert_eq!(ann.route(c), east.addr);
+            assert!(ann.chunk(c).is_some());
+        }
+        ann.close().await;
+    });
+    bob.close();
     runtime.block_on(async {
         west.shutdown().await.unwrap();
         east.shutdown().await.unwrap();

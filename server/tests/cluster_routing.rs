@@ -374,6 +374,7 @@ async fn bots_refused_for_another_nodes_region_move_there_and_keep_editing() {
         player_prefix: "bot".into(),
         link_delay: Duration::ZERO,
         verify_timeout: bots::DEFAULT_VERIFY_TIMEOUT,
+        stalled_window: None,
     };
     let s = tokio::time::timeout(Duration::from_secs(90), bots::run(run))
         .await

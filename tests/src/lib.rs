@@ -335,3 +335,14 @@ pub fn http_get(addr: &str, path: &str) -> String {
     s.read_to_string(&mut out).unwrap();
     out
 }
+
+/// The unlabelled sample `name` (a counter or gauge) on the Prometheus
+/// endpoint at `addr` (a server's `[metrics] listen`); `None` when the
+/// server exports no such sample.
+pub fn metric(addr: &str, name: &str) -> Option<f64> {
+    let text = http_get(addr, "/metrics");
+    let prefix = format!("{name} ");
+    text.lines()
+        .find_map(|l| l.strip_prefix(&prefix))
+        .and_then(|v| v.trim().parse().ok())
+}

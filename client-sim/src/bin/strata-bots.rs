@@ -115,6 +115,14 @@ struct Args {
     /// client); they keep editing and are left out of the comparison.
     #[arg(long, default_value_t = 0)]
     stalled: usize,
+    /// Receive window, in bytes, of each stalled bot's updates stream
+    /// (default: the client's own, 1.25 MB; 1024..=67108864). A small one
+    /// fills the server's queue for a stalled bot after kilobytes of
+    /// updates, so a short run reaches its backpressure (deltas dropped,
+    /// chunks withdrawn). Stalled bots so connected take the client's
+    /// default options: no --link-delay, --predict, --thin or --op-replay.
+    #[arg(long)]
+    stalled_window: Option<u32>,
     /// Let each bot edit as soon as it stands in the world, while the others
     /// still join (a join storm under load). By default the edits, and the
     /// DURATION, start once every bot has joined and loaded its surroundings.
@@ -309,6 +317,7 @@ async fn run(args: Args) -> anyhow::Result<bool> {
         verify_timeout: args.verify_timeout,
         seed: args.seed,
         stalled: args.stalled,
+        stalled_window: args.stalled_window,
         ramp: !args.no_ramp,
         ack_log: args.ack_log,
         progress: true,

@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use strata_protocol::reject_label;
-use strata_protocol::{ErrorCode, RejectReason, Start};
+use strata_protocol::{ErrorCode, RejectReason, Start, PROTOCOL_VERSION};
 use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
 use tokio::sync::watch;
 use tracing::debug;
@@ -219,6 +219,25 @@ impl Drop for CountOnPanic {
     }
 }
 
+/// The client's QUIC config with an updates-stream receive window of
+/// `window` bytes (`--stalled-window`): what the server may have written
+/// to a stalled bot before flow control holds the rest in its queue.
+/// The transport is otherwise `client_config_pinned`'s.
+fn stalled_config(cert_der: &[u8], window: u32) -> Result<quinn::ClientConfig, ClientError> {
+    use crate::tls::{CLIENT_DATAGRAM_BUFFER, CLIENT_RECEIVE_WINDOW, KEEP_ALIVE};
+    let mut config = crate::tls::client_config_pinned(cert_der)?;
+    let mut transport = quinn::TransportConfig::default();
+    transport
+        .keep_alive_interval(Some(KEEP_ALIVE))
+        .max_concurrent_bidi_streams(quinn::VarInt::from_u32(0))
+        .max_concurrent_uni_streams(quinn::VarInt::from_u32(1))
+        .receive_window(quinn::VarInt::from_u32(CLIENT_RECEIVE_WINDOW))
+        .datagram_receive_buffer_size(Some(CLIENT_DATAGRAM_BUFFER))
+        .stream_receive_window(quinn::VarInt::from_u32(window));
+    config.transport_config(Arc::new(transport));
+    Ok(config)
+}
+
 /// Runs bot `id` until the run is done.
 pub async fn run_bot(fleet: Arc<Fleet>, id: usize) -> BotOutcome {
     let counted = Arc::new(Counted::default());
@@ -343,11 +362,19 @@ impl Bot {
             };
             let attempt = {
                 let _slot = self.fleet.connect_slots.acquire().await.ok()?;
-                tokio::time::timeout(
-                    CONNECT_ATTEMPT_TIMEOUT,
-                    Client::connect_opts(self.server, &cfg.cert_der, &token, opts),
-                )
-                .await
+                let connect = async {
+                    match cfg.stalled_window.filter(|_| self.out.stalled) {
+                        Some(window) => {
+                            let config = stalled_config(&cfg.cert_der, window)?;
+                            Client::connect_with(self.server, config, &token, PROTOCOL_VERSION)
+                                .await
+                        }
+                        None => {
+                            Client::connect_opts(self.server, &cfg.cert_der, &token, opts).await
+                        }
+                    }
+                };
+                tokio::time::timeout(CONNECT_ATTEMPT_TIMEOUT, connect).await
             };
             match attempt {
                 Ok(Ok(c)) => {

@@ -48,6 +48,9 @@ pub use summary::{HostileSummary, Summary};
 
 /// Side of the square each bot calls home, in voxels.
 pub const CELL: i32 = 24;
+/// Bounds of `--stalled-window` (bytes).
+pub const MIN_STALLED_WINDOW: u32 = 1024;
+pub const MAX_STALLED_WINDOW: u32 = 64 << 20;
 /// Default south-west corner of the bots' area: far from the protected spawn.
 pub const DEFAULT_AREA_ORIGIN: (i32, i32) = (512, 512);
 /// Lifetime of minted bot tokens.
@@ -160,6 +163,12 @@ pub struct BotsConfig {
     pub seed: u64,
     /// The first `stalled` bots stop reading their updates once spawned.
     pub stalled: usize,
+    /// Receive window (bytes) of each stalled bot's updates stream
+    /// (`--stalled-window`; `None`: the client's own, quinn's 1.25 MB).
+    /// Small, the server's queue for a stalled bot fills after kilobytes
+    /// of updates instead of megabytes, so a short run reaches the
+    /// server's backpressure (deltas dropped, chunks withdrawn).
+    pub stalled_window: Option<u32>,
     /// Hold the edits until every bot has joined ([`Phase::Ramp`]); false
     /// lets each bot edit as soon as it stands, while others still join.
     pub ramp: bool,
@@ -211,6 +220,7 @@ impl BotsConfig {
             verify: VerifyMode::Modified,
             seed: 1,
             stalled: 0,
+            stalled_window: None,
             ramp: true,
             ack_log: None,
             progress: false,
@@ -233,6 +243,12 @@ impl BotsConfig {
         }
         if self.stalled > self.bots {
             return bad("--stalled cannot exceed --bots");
+        }
+        if self
+            .stalled_window
+            .is_some_and(|w| !(MIN_STALLED_WINDOW..=MAX_STALLED_WINDOW).contains(&w))
+        {
+            return bad("--stalled-window must be 1024..=67108864 bytes");
         }
         if !self.edit_rate.is_finite() || self.edit_rate < 0.0 {
             return bad("--edit-rate must be a number >= 0");

@@ -61,8 +61,9 @@ pub(super) async fn dispatch(
 }
 
 /// [`dispatch`] for a cluster: subscriptions and forgets go to every node
-/// connected (a node joined later is asked for the last view asked; it may
-/// stream forgotten chunks again), a resync to the node the chunk is read
+/// connected (a node joined later is asked for the view asked, where the
+/// cluster client moved it with the player; it may stream forgotten chunks
+/// again), a resync to the node the chunk is read
 /// from,
 /// edits through the cluster client one at a time; after each command and
 /// every [`FOLLOW_EVERY`] the session's copy of the routes is brought up

@@ -199,8 +199,10 @@ impl Session {
     /// Asks for the cube of chunks within `radius` of `center` (capped by
     /// the server's view radius). The whole cube must lie within view
     /// radius + hysteresis chunks of the player; positions then move it
-    /// only when it would reach farther (to the feet, keeping its radius).
-    /// A centre outside the world is refused
+    /// only when it would reach farther (to the feet, keeping its radius;
+    /// on a cluster, farther than the view radius alone: see
+    /// [`crate::ClusterClient::subscribe`]). A centre outside the world is
+    /// refused
     /// ([`crate::bounds::center_in_world`]).
     pub fn subscribe(&self, center: IVec3, radius: u8) -> Result<(), SessionError> {
         let center = ChunkPos::new(center.x, center.y, center.z);
