@@ -85,20 +85,25 @@ fn hysteresis_keeps_chunks_until_far_enough() {
         .is_empty());
 }
 
+/// Steps ten times over chunk 0's east border (x 31 and 32) and back: no
+/// change, and the view stays centred on chunk 0.
+fn flip_over_the_x_border_of_chunk_0(i: &mut Interest) {
+    for _ in 0..10 {
+        for x in [32, 31] {
+            assert!(i
+                .follow_position(FixedVec3::from_voxels(x, 0, 0))
+                .is_empty());
+        }
+    }
+    assert_eq!(i.center(), Some(ChunkPos::new(0, 0, 0)));
+}
+
 #[test]
 fn walking_to_and_fro_over_a_border_recentres_only_past_the_margin() {
     use strata_server::interest::RECENTRE_MARGIN;
     let mut i = interest(2, 1);
     i.follow_position(FixedVec3::from_voxels(31, 0, 0));
-    for _ in 0..10 {
-        assert!(i
-            .follow_position(FixedVec3::from_voxels(32, 0, 0))
-            .is_empty());
-        assert!(i
-            .follow_position(FixedVec3::from_voxels(31, 0, 0))
-            .is_empty());
-    }
-    assert_eq!(i.center(), Some(ChunkPos::new(0, 0, 0)));
+    flip_over_the_x_border_of_chunk_0(&mut i);
     // Just short of the margin, then at it: the view moves east.
     let short = 31 + RECENTRE_MARGIN - 1;
     assert!(i
@@ -195,15 +200,7 @@ fn with_no_hysteresis_flipping_over_a_border_does_not_move_a_subscription() {
     let mut i = interest(2, 0);
     i.follow_position(FixedVec3::from_voxels(31, 0, 0));
     i.subscribe(ChunkPos::new(0, 0, 0), 2);
-    for _ in 0..10 {
-        assert!(i
-            .follow_position(FixedVec3::from_voxels(32, 0, 0))
-            .is_empty());
-        assert!(i
-            .follow_position(FixedVec3::from_voxels(31, 0, 0))
-            .is_empty());
-    }
-    assert_eq!(i.center(), Some(ChunkPos::new(0, 0, 0)));
+    flip_over_the_x_border_of_chunk_0(&mut i);
     // The margin past it, the view moves to the feet.
     let c = i.follow_position(FixedVec3::from_voxels(31 + RECENTRE_MARGIN, 0, 0));
     assert!(c.recentred);
