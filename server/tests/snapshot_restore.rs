@@ -780,9 +780,10 @@ fn an_offline_postgres_snapshot_that_lost_its_lock_is_refused() {
     sql(
         &db,
         &format!(
-            "SELECT pg_terminate_backend(pid) FROM pg_stat_activity \
-             WHERE datname = '{}' AND query LIKE '%pg_try_advisory_lock%' \
-             AND pid <> pg_backend_pid()",
+            "SELECT pg_terminate_backend(l.pid) FROM pg_locks l \
+             JOIN pg_database d ON d.oid = l.database \
+             WHERE l.locktype = 'advisory' AND d.datname = '{}' \
+             AND l.pid <> pg_backend_pid()",
             db.name()
         ),
     );

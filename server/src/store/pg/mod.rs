@@ -624,14 +624,35 @@ impl ChunkStore for PgStore {
         self.take_serving_lock_alone()
     }
 
+    /// A round trip on the lock's connection: one that ended without a
+    /// word (a crashed host, a failover, a partition) looks open until it
+    /// is used.
     fn still_alone(&self) -> Result<(), StoreError> {
-        let lost = self.lock_connection_lost();
-        if lost {
-            return Err(StoreError::PgSetup {
-                reason: "the connection keeping servers off this database ended: a server may have written meanwhile".into(),
-            });
+        let lost = || {
+            StoreError::PgSetup {
+            reason: "the connection keeping servers off this database ended: a server may have written meanwhile".into(),
         }
-        Ok(())
+        };
+        let mut serving = self.serving.lock().unwrap_or_else(|p| p.into_inner());
+        let Some(conn) = serving.as_mut() else {
+            return Ok(());
+        };
+        let held = self
+            .pool
+            .on_dedicated(conn, "checking the lock", async |c: &mut Conn| {
+                let row = c
+                    .query_opt(
+                        "SELECT 1 FROM pg_locks WHERE locktype = 'advisory' \
+                     AND pid = pg_backend_pid() AND granted",
+                        &[],
+                    )
+                    .await?;
+                Ok(row.is_some())
+            });
+        match held {
+            Ok(true) => Ok(()),
+            Ok(false) | Err(_) => Err(lost()),
+        }
     }
 
     fn register_node(&self) -> Result<(), StoreError> {

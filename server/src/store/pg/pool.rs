@@ -197,6 +197,17 @@ impl Pool {
         result.map(|v| (conn, v))
     }
 
+    /// One call on a connection [`Pool::dedicated`] made, under the
+    /// statement timeout.
+    pub fn on_dedicated<T>(
+        &self,
+        conn: &mut Conn,
+        what: &'static str,
+        f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
+        timed(what, self.statement_timeout, f(conn)).0
+    }
+
     /// A connection of its own, for a transaction that spans several calls
     /// ([`Held`]).
     pub fn hold(&self) -> Result<Held<'_>, StoreError> {
