@@ -90,6 +90,32 @@ async fn without_a_ramp_bots_edit_while_others_join() {
     server.shutdown().await.unwrap();
 }
 
+/// A stop during the ramp (the binary's first SIGTERM) ends it at once:
+/// no edits, and the run still waits for quiet, checks and reports. A
+/// ramp not told lasts at least QUIET_PERIOD (750 ms) of quiet.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stop_during_the_ramp_ends_it_with_a_summary() {
+    let tmp = tempfile::tempdir().unwrap();
+    let server = start_server(&tmp).await;
+    let run = BotsConfig {
+        bots: 2,
+        duration: Duration::from_secs(60),
+        profile: Profile::Miners,
+        seed: 5,
+        ..config_for(&server)
+    };
+    let s = tokio::time::timeout(
+        Duration::from_secs(30),
+        bots::run_until(run, None, std::future::ready(())),
+    )
+    .await
+    .expect("the run ends before its duration")
+    .unwrap();
+    assert!(s.ramp_s < 0.5, "the ramp ended when told: {}", s.human());
+    assert_eq!(s.edits_accepted, 0, "{}", s.human());
+    server.shutdown().await.unwrap();
+}
+
 /// `--thin --op-replay`: bots load their views as snapshots (nothing
 /// regenerated), take edits as ops, and still converge on the server.
 #[tokio::test]

@@ -18,7 +18,14 @@
 //! node: the cluster client moves it with the player itself
 //! ([`moved_view`]) and asks every node for it there, so a node joined
 //! later is asked for the view where it is, not where it was first asked
-//! (which may be out of the player's reach by then).
+//! (which may be out of the player's reach by then). It moves only when a
+//! new position has been sent since it was asked or last moved
+//! ([`view_to_follow`]), so the client's reach (narrower than a node's by
+//! the hysteresis) applies at the next position, not to a view a node
+//! accepted; an admin's view stays where it was asked, as the server keeps
+//! it. A node joined later is asked for the view the home node last
+//! confirmed (`InterestComplete`, [`view_for_new_node`]): the client moves
+//! on positions it sent, a node on positions it accepted.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::future::Future;
@@ -27,7 +34,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use strata_protocol::limits::MAX_REGION_OWNERS;
-use strata_protocol::{RegionHolder, RegionOwner, RejectReason, Ticket};
+use strata_protocol::{RegionHolder, RegionOwner, RejectReason, Role, Ticket};
 use strata_terrain::{Chunk, ChunkPos, Edit, FixedVec3, VoxelPos, CHUNK_SIZE};
 use thiserror::Error;
 
@@ -241,6 +248,40 @@ pub fn moved_view(
         .max(past(at.y, center.y))
         .max(past(at.z, center.z));
     (far >= i64::from(RECENTRE_MARGIN)).then(|| at.chunk())
+}
+
+/// Where [`ClusterClient::follow`] moves the view asked for (`asked`:
+/// centre, radius): `None` for an admin (the server keeps an admin's view
+/// wherever it was asked), while no position was sent, while the last
+/// position sent (`feet`) is the one it was asked or last moved at
+/// (`checked`), so a view a node accepted past the client's reach is not
+/// undone before the player moves, else as [`moved_view`] says.
+pub fn view_to_follow(
+    asked: Option<(ChunkPos, u8)>,
+    role: Role,
+    feet: Option<FixedVec3>,
+    checked: Option<FixedVec3>,
+    view_radius: u8,
+) -> Option<ChunkPos> {
+    let (center, radius) = asked?;
+    let feet = feet?;
+    if role == Role::Admin || checked == Some(feet) {
+        return None;
+    }
+    moved_view(center, radius, view_radius, feet)
+}
+
+/// The view a node just joined is asked for: the one the home node last
+/// confirmed (`loaded`, its last `InterestComplete`) when it has the
+/// radius asked (a node moves the view on positions it accepted, the
+/// client on positions it sent, which may be lost or refused), else the
+/// view asked for where it is now; none while no view was asked.
+pub fn view_for_new_node(
+    asked: Option<(ChunkPos, u8)>,
+    loaded: Option<(ChunkPos, u8)>,
+) -> Option<(ChunkPos, u8)> {
+    let asked = asked?;
+    Some(loaded.filter(|l| l.1 == asked.1).unwrap_or(asked))
 }
 
 /// Longest a node's name may take to resolve, and all the names of one
@@ -467,6 +508,9 @@ pub struct ClusterClient {
     /// The view asked for ([`Self::subscribe`]) where it is now: moved
     /// with the player ([`moved_view`]), for nodes joined since.
     asked_view: Option<(ChunkPos, u8)>,
+    /// The last position sent when the view was asked for or last moved
+    /// ([`view_to_follow`]).
+    view_checked_at: Option<FixedVec3>,
 }
 
 /// Connects to node `addr` and arrives there with `ticket`.
@@ -517,6 +561,7 @@ impl ClusterClient {
             prepaid: BTreeSet::new(),
             reroute_owed: false,
             asked_view: None,
+            view_checked_at: None,
         })
     }
 
@@ -568,8 +613,8 @@ impl ClusterClient {
         self.client_for(pos).visible_chunk(pos)
     }
 
-    /// Moves the view asked for to the player once the last position sent
-    /// leaves it out of reach ([`moved_view`]), then takes in every node's
+    /// Moves the view asked for to the player once a new position sent
+    /// leaves it out of reach ([`view_to_follow`]), then takes in every node's
     /// newest `RegionOwners`, connects to the nodes they name and closes the
     /// others. Call it often (every frame is fine: it is cheap when nothing
     /// changed). Returns the nodes newly connected.
@@ -704,11 +749,14 @@ impl ClusterClient {
 
     /// Asks every node for the view around `center` (see
     /// [`Client::subscribe`]). [`Self::follow`] moves it with the player
-    /// ([`moved_view`]: it stays within the `Welcome`'s view radius of the
-    /// feet, not that and the hysteresis), asking every node again; a node
-    /// joined later is asked for it where it is then.
+    /// ([`view_to_follow`]: at the next position sent, it is kept within
+    /// the `Welcome`'s view radius of the feet, not that and the
+    /// hysteresis a node allows), asking every node again; an admin's view
+    /// stays where asked. A node joined later is asked for the view the
+    /// home node confirmed ([`view_for_new_node`]).
     pub async fn subscribe(&mut self, center: ChunkPos, radius: u8) {
         self.asked_view = Some((center, radius));
+        self.view_checked_at = self.home().last_position();
         for c in self.view.nodes.values() {
             // A node that cannot be told is one whose end is reported.
             let _ = c.subscribe(center, radius).await;
@@ -728,25 +776,32 @@ impl ClusterClient {
     }
 
     /// Asks every node for the view asked for at the chunk of the last
-    /// position sent, once that position leaves it out of reach.
+    /// position sent, once a new position leaves it out of reach
+    /// ([`view_to_follow`]).
     async fn move_view(&mut self) {
-        let Some((center, radius)) = self.asked_view else {
-            return;
-        };
         let home = self.home();
-        let Some(feet) = home.last_position() else {
-            return;
-        };
-        let view_radius = home.welcome().view_radius;
-        if let Some(to) = moved_view(center, radius, view_radius, feet) {
+        let feet = home.last_position();
+        let welcome = home.welcome();
+        let to = view_to_follow(
+            self.asked_view,
+            welcome.role,
+            feet,
+            self.view_checked_at,
+            welcome.view_radius,
+        );
+        if feet.is_some() {
+            self.view_checked_at = feet;
+        }
+        if let (Some(to), Some((_, radius))) = (to, self.asked_view) {
             self.subscribe(to, radius).await;
         }
     }
 
     /// A node just joined (and arrived) is asked for the view the others
-    /// stream: the view asked for, where it is now.
+    /// stream: the one the home node confirmed ([`view_for_new_node`]).
     async fn catch_up(&self, node: &Client) {
-        if let Some((center, radius)) = self.asked_view {
+        let loaded = self.home().view_loaded();
+        if let Some((center, radius)) = view_for_new_node(self.asked_view, loaded) {
             let _ = node.subscribe(center, radius).await;
         }
     }
@@ -1189,6 +1244,46 @@ mod tests {
             moved_view(corner, 0, 32, far),
             Some(ChunkPos::new(-(1 << 17), 0, (1 << 17) - 1))
         );
+    }
+
+    #[test]
+    fn a_view_follows_only_a_player_at_a_new_position() {
+        let c = ChunkPos::new(4, 0, 0);
+        let asked = Some((c, 1));
+        let near = FixedVec3::from_voxels(100, 5, 5);
+        let far = FixedVec3::from_voxels(191 + RECENTRE_MARGIN, 5, 5);
+        let moved = Some(ChunkPos::new(6, 0, 0));
+        // A player's view moves once a new position is past its reach.
+        assert_eq!(
+            view_to_follow(asked, Role::Player, Some(far), None, 2),
+            moved
+        );
+        let from_near = view_to_follow(asked, Role::Player, Some(far), Some(near), 2);
+        assert_eq!(from_near, moved);
+        // An admin's view stays where it was asked.
+        assert_eq!(view_to_follow(asked, Role::Admin, Some(far), None, 2), None);
+        // A view asked past the client's reach (a node's hysteresis allows
+        // it) stays until the player sends another position.
+        let same = view_to_follow(asked, Role::Player, Some(far), Some(far), 2);
+        assert_eq!(same, None);
+        // Nothing asked or no position sent: nothing moves.
+        assert_eq!(view_to_follow(None, Role::Player, Some(far), None, 2), None);
+        assert_eq!(view_to_follow(asked, Role::Player, None, None, 2), None);
+    }
+
+    #[test]
+    fn a_node_joined_is_asked_for_the_view_the_home_node_confirmed() {
+        let asked = (ChunkPos::new(6, 0, 0), 1);
+        let loaded = (ChunkPos::new(5, 0, 0), 1);
+        // The home node refused the move (SubscribeTooFar, or a position
+        // lost): the new node is asked for the view the home node streams.
+        assert_eq!(view_for_new_node(Some(asked), Some(loaded)), Some(loaded));
+        // Nothing confirmed yet, or a view of another radius: the asked.
+        assert_eq!(view_for_new_node(Some(asked), None), Some(asked));
+        let other = (ChunkPos::new(5, 0, 0), 2);
+        assert_eq!(view_for_new_node(Some(asked), Some(other)), Some(asked));
+        // Nothing asked: the node streams its own view.
+        assert_eq!(view_for_new_node(None, Some(loaded)), None);
     }
 
     #[test]

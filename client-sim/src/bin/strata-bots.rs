@@ -46,9 +46,10 @@ use tracing_subscriber::EnvFilter;
 /// exit code is non-zero if any replica ended different from the server or
 /// a bot's task failed (bots_failed).
 ///
-/// SIGTERM ends the edits early: the bots then wait for quiet, check their
+/// SIGTERM during the ramp or the edits ends them early (no edits start
+/// after a SIGTERM in the ramp): the bots then wait for quiet, check their
 /// replicas and print the summary as at the end of --duration. A SIGTERM
-/// after the edits, or a second one, ends the process at once.
+/// after the edits, or a second one, exits 143 at once without a summary.
 ///
 /// `--ack-log FILE` writes one JSON line per accepted edit, as soon as it
 /// is acknowledged: {"seq":17,"chunks":[{"x":16,"y":1,"z":16,"version":4}]}
@@ -115,8 +116,10 @@ struct Args {
     /// client); they keep editing and are left out of the comparison.
     #[arg(long, default_value_t = 0)]
     stalled: usize,
-    /// Receive window, in bytes, of each stalled bot's updates stream
-    /// (default: the client's own, 1.25 MB; 1024..=67108864). A small one
+    /// Per-stream receive window, in bytes, of each stalled bot's
+    /// connection (quinn's stream_receive_window: every stream, the control
+    /// stream too, not only updates; default: the client's own, 1.25 MB;
+    /// 1024..=67108864). A small one
     /// fills the server's queue for a stalled bot after kilobytes of
     /// updates, so a short run reaches its backpressure (deltas dropped,
     /// chunks withdrawn). Stalled bots so connected take the client's
@@ -233,7 +236,7 @@ fn main() -> ExitCode {
 }
 
 /// A future that resolves at the first SIGTERM while it is held (the run
-/// holds it until its edits end). A SIGTERM after that, or a second one,
+/// holds it through the ramp and the edits, and drops it when they end). A SIGTERM after that, or a second one,
 /// ends the process (status 143), as without a handler.
 fn sigterm() -> anyhow::Result<impl std::future::Future<Output = ()>> {
     use tokio::signal::unix::{signal, SignalKind};

@@ -219,9 +219,10 @@ impl Drop for CountOnPanic {
     }
 }
 
-/// The client's QUIC config with an updates-stream receive window of
-/// `window` bytes (`--stalled-window`): what the server may have written
-/// to a stalled bot before flow control holds the rest in its queue.
+/// The client's QUIC config with a per-stream receive window of `window`
+/// bytes (`--stalled-window`; every stream, the control stream too): what
+/// the server may have written to a stalled bot's updates stream before
+/// flow control holds the rest in its queue.
 /// The transport is otherwise `client_config_pinned`'s.
 fn stalled_config(cert_der: &[u8], window: u32) -> Result<quinn::ClientConfig, ClientError> {
     use crate::tls::{CLIENT_DATAGRAM_BUFFER, CLIENT_RECEIVE_WINDOW, KEEP_ALIVE};

@@ -163,8 +163,9 @@ pub struct BotsConfig {
     pub seed: u64,
     /// The first `stalled` bots stop reading their updates once spawned.
     pub stalled: usize,
-    /// Receive window (bytes) of each stalled bot's updates stream
-    /// (`--stalled-window`; `None`: the client's own, quinn's 1.25 MB).
+    /// Per-stream receive window (bytes) of each stalled bot's connection
+    /// (`--stalled-window`: quinn's `stream_receive_window`, every stream,
+    /// control too, not only updates; `None`: the client's own, 1.25 MB).
     /// Small, the server's queue for a stalled bot fills after kilobytes
     /// of updates instead of megabytes, so a short run reaches the
     /// server's backpressure (deltas dropped, chunks withdrawn).
@@ -389,9 +390,10 @@ pub async fn run_with(
     run_until(cfg, hostile, std::future::pending()).await
 }
 
-/// Like [`run_with`], the edits ending early once `stop` resolves (the
-/// binary's SIGTERM): the bots then wait for quiet, check and report as
-/// after the full `duration`.
+/// Like [`run_with`], the run ending early once `stop` resolves (the
+/// binary's SIGTERM): during the ramp, no edits start; during the edits,
+/// they end. Either way the bots then wait for quiet, check and report as
+/// after the full `duration`. `stop` is dropped once the edits end.
 pub async fn run_until(
     cfg: BotsConfig,
     hostile: Option<HostileConfig>,
@@ -435,14 +437,24 @@ pub async fn run_until(
     let bots: Vec<_> = (0..cfg.bots)
         .map(|i| tokio::spawn(driver::run_bot(fleet.clone(), i)))
         .collect();
+    // One stop for the ramp and the edits: polled no more once resolved.
+    let mut stop = Box::pin(stop);
+    let mut stopped = false;
     // Edits start once every bot stands in the world and snapshots have
-    // stopped arriving.
+    // stopped arriving (or never, when told to stop meanwhile).
     let ramp_start = Instant::now();
     while cfg.ramp
         && (fleet.ready.load(Ordering::Relaxed) < cfg.bots || fleet.quiet_for() < QUIET_PERIOD)
         && ramp_start.elapsed() < RAMP_TIMEOUT
     {
-        tokio::time::sleep(Duration::from_millis(50)).await;
+        tokio::select! {
+            _ = tokio::time::sleep(Duration::from_millis(50)) => {}
+            _ = &mut stop => {
+                tracing::info!("told to stop during the ramp: no edits");
+                stopped = true;
+                break;
+            }
+        }
     }
     let ramp = if cfg.ramp {
         ramp_start.elapsed()
@@ -452,13 +464,20 @@ pub async fn run_until(
     let ready_at_start = fleet.ready.load(Ordering::Relaxed);
     fleet.stats.ack.restart_timeline();
     fleet.stats.broadcast.restart_timeline();
-    fleet.phase.send_replace(Phase::Run);
     let edit_start = Instant::now();
-    let hostiles = hostile.map(|h| h.start(edit_start + cfg.duration));
-    tokio::select! {
-        _ = tokio::time::sleep(cfg.duration) => {}
-        _ = stop => tracing::info!("told to stop: the edits end early"),
-    }
+    let hostiles = if stopped {
+        None
+    } else {
+        fleet.phase.send_replace(Phase::Run);
+        let hostiles = hostile.map(|h| h.start(edit_start + cfg.duration));
+        tokio::select! {
+            _ = tokio::time::sleep(cfg.duration) => {}
+            _ = &mut stop => tracing::info!("told to stop: the edits end early"),
+        }
+        hostiles
+    };
+    // A stop after the edits is not listened for (the binary then exits).
+    drop(stop);
     let edit_time = edit_start.elapsed();
     let hostile_summary = match hostiles {
         Some(h) => Some(h.finish().await),

@@ -200,7 +200,8 @@ impl Session {
     /// the server's view radius). The whole cube must lie within view
     /// radius + hysteresis chunks of the player; positions then move it
     /// only when it would reach farther (to the feet, keeping its radius;
-    /// on a cluster, farther than the view radius alone: see
+    /// on a cluster, farther than the view radius alone at the next
+    /// position set, never an admin's: see
     /// [`crate::ClusterClient::subscribe`]). A centre outside the world is
     /// refused
     /// ([`crate::bounds::center_in_world`]).
