@@ -107,9 +107,37 @@ pub fn recorded_params(given: String, stored: Option<&WorldMeta>) -> String {
 /// config, and binds the endpoint. Nothing is accepted until [`Running`]
 /// exists; call [`Running::shutdown`] to stop.
 pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
+    start_with_health(cfg, Arc::default()).await
+}
+
+/// [`start`], reporting readiness through `health`, which a `/healthz`
+/// already serving can answer from while the server starts ("not
+/// accepting connections" until it does).
+pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow::Result<Running> {
     cfg.validate()?;
-    let (data_dir, report) = DataDir::open_or_init(&cfg.server.data_dir, &cfg.tls.extra_names)
-        .with_context(|| format!("opening data dir {}", cfg.server.data_dir.display()))?;
+    if cfg.server.retry_above_handshakes >= cfg.server.max_handshakes {
+        tracing::warn!(
+            retry_above_handshakes = cfg.server.retry_above_handshakes,
+            max_handshakes = cfg.server.max_handshakes,
+            "retry_above_handshakes is not below max_handshakes: no Retry is ever sent, and spoofed sources can take every handshake slot"
+        );
+    }
+    // On PostgreSQL the world lives outside the data dir: whether it holds
+    // one decides, as `world.sled` does, if missing identity files may be
+    // made anew.
+    let pg_world = match cfg.store.backend {
+        crate::store::StoreBackend::Postgres => {
+            let store =
+                crate::store::PgStore::open(&cfg.store.postgres, cfg.sequencer.region_chunks)?;
+            store
+                .load_meta()?
+                .map(|_| "the world in the PostgreSQL store")
+        }
+        crate::store::StoreBackend::Sled => None,
+    };
+    let (data_dir, report) =
+        DataDir::open_or_init_beside(&cfg.server.data_dir, &cfg.tls.extra_names, pg_world)
+            .with_context(|| format!("opening data dir {}", cfg.server.data_dir.display()))?;
     for (what, path) in [
         ("data dir", &report.created_dir),
         ("certificate", &report.created_cert),
@@ -165,8 +193,7 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
     );
     seq.restore_positions(
         store
-            .player_positions()
-            .collect::<Result<Vec<_>, _>>()
+            .recent_player_positions(cfg.validation.remembered_players)
             .context("reading stored player positions")?,
     );
     let mut versions = HashMap::new();
@@ -192,7 +219,6 @@ pub async fn start(cfg: ServerConfig) -> anyhow::Result<Running> {
         versions,
     )?
     .with_ticket_secret(data_dir.secret().clone());
-    let health = Arc::new(Health::default());
     let (exit_tx, engine_exit) = tokio::sync::watch::channel(false);
     let on_exit = {
         let health = health.clone();

@@ -95,12 +95,12 @@ pub enum DataDirError {
     #[error("{present} exists but {missing} does not; restore {missing} from a backup")]
     HalfCertificate { present: PathBuf, missing: PathBuf },
     #[error("{missing} is missing but {world} exists; a new auth secret would invalidate every token already issued, so none is generated. Restore {missing} from a backup, or see \"Tokens\" in deploy/OPERATIONS.md to replace it on purpose")]
-    MissingSecret { missing: PathBuf, world: PathBuf },
+    MissingSecret { missing: PathBuf, world: String },
     #[error("{cert} and {key} are missing but {world} exists; a new certificate would be rejected by every client that pinned the old one, so none is generated. Restore both from a backup, or see \"Certificates\" in deploy/OPERATIONS.md to replace them on purpose")]
     MissingCertificate {
         cert: PathBuf,
         key: PathBuf,
-        world: PathBuf,
+        world: String,
     },
     #[error(transparent)]
     Secret(#[from] SecretError),
@@ -120,6 +120,19 @@ impl DataDir {
         root: &Path,
         extra_names: &[String],
     ) -> Result<(DataDir, InitReport), DataDirError> {
+        Self::open_or_init_beside(root, extra_names, None)
+    }
+
+    /// [`Self::open_or_init`] for a server whose world lives outside the
+    /// data dir (PostgreSQL): `world_elsewhere` names it when it already
+    /// holds a world, and a missing secret or certificate is then an error
+    /// as beside `world.sled` (a node started before the cluster's files
+    /// were copied to it would sign tickets no other node accepts).
+    pub fn open_or_init_beside(
+        root: &Path,
+        extra_names: &[String],
+        world_elsewhere: Option<&str>,
+    ) -> Result<(DataDir, InitReport), DataDirError> {
         let dir_exists = match fs::metadata(root) {
             Ok(meta) if meta.is_dir() => true,
             Ok(_) => return Err(DataDirError::NotADirectory(root.to_owned())),
@@ -134,14 +147,18 @@ impl DataDir {
         let secret_path = root.join(SECRET_NAME);
         let (cert_path, key_path) = (root.join(CERT_NAME), root.join(KEY_NAME));
         let world_path = root.join(WORLD_DB_NAME);
-        let has_world = dir_exists && world_path.exists();
+        let world = match world_elsewhere {
+            Some(w) => Some(w.to_string()),
+            None => (dir_exists && world_path.exists()).then(|| world_path.display().to_string()),
+        };
+        let has_world = world.is_some();
 
         let existing_secret = match dir_exists && secret_path.exists() {
             true => Some(Secret::load(&secret_path)?),
             false if has_world => {
                 return Err(DataDirError::MissingSecret {
                     missing: secret_path,
-                    world: world_path,
+                    world: world.unwrap_or_default(),
                 })
             }
             false => None,
@@ -152,7 +169,7 @@ impl DataDir {
                 return Err(DataDirError::MissingCertificate {
                     cert: cert_path,
                     key: key_path,
-                    world: world_path,
+                    world: world.unwrap_or_default(),
                 })
             }
             (false, false) => None,

@@ -521,12 +521,22 @@ async fn west_with_ann(
 async fn thief_takes_region_zero(
     db: &strata_tests::postgres::PgDb,
 ) -> strata_server::store::PgStore {
+    thief_takes_region(db, 0).await
+}
+
+/// [`thief_takes_region_zero`] for region (`x`, 0).
+async fn thief_takes_region(
+    db: &strata_tests::postgres::PgDb,
+    x: i32,
+) -> strata_server::store::PgStore {
     use strata_server::sequencer::regions::RegionId;
     use strata_server::store::{ChunkStore, PgStore};
     sql(
         db,
-        "UPDATE regions SET lease_expires = now() - interval '1 second' \
-         WHERE region_x = 0 AND region_z = 0",
+        &format!(
+            "UPDATE regions SET lease_expires = now() - interval '1 second' \
+             WHERE region_x = {x} AND region_z = 0"
+        ),
     )
     .await;
     let url = db.url();
@@ -547,14 +557,56 @@ async fn thief_takes_region_zero(
         // A node of the same world: the same generator.
         let (g, _) = strata_server::app::world_generator(&test_config(Path::new("."))).unwrap();
         s.attach_generator(Arc::new(g));
-        assert_eq!(
-            s.claim_regions(&[RegionId { x: 0, z: 0 }]).unwrap().len(),
-            1
-        );
+        assert_eq!(s.claim_regions(&[RegionId { x, z: 0 }]).unwrap().len(), 1);
         s
     })
     .await
     .unwrap()
+}
+
+/// An edit by a region's border writes one region and reads (its mesh
+/// apron, claimed for it) the next. Once another node took that next
+/// region, unknown to this one, the edit's batch is fenced all the same:
+/// it was built on that region's chunks as this node last had them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_batch_reading_a_region_taken_over_is_fenced_too() {
+    use strata_server::sequencer::regions::RegionId;
+    let Some(db) = strata_tests::postgres::database("cluster_fenced_read") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dirs = tempfile::tempdir().unwrap();
+        let (west, ann, (v, _)) = west_with_ann(&dirs.path().join("a"), &db).await;
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        // Region 0 ends at x = 256; the mesh apron reaches 32 voxels past.
+        let bea = standing(&west, "bea", 230).await;
+        let (v, changes) = bea.edit_acked(mine_at(232)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        assert!(!changes.is_empty());
+        assert!(
+            changes
+                .iter()
+                .all(|c| RegionId::of(c.pos, 8) == RegionId { x: 0, z: 0 }),
+            "it writes region 0 alone: {changes:?}"
+        );
+        let _thief = thief_takes_region(&db, 1).await;
+        let (v, _) = bea.edit_acked(mine_at(232)).await.unwrap();
+        assert_eq!(
+            v,
+            Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere {
+                region_x: 1,
+                region_z: 0,
+                owner: "thief".into(),
+                addr: "127.0.0.1:9".into(),
+            })
+        );
+        assert!(!bea.is_closed());
+        ann.close().await;
+        bea.close().await;
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -272,7 +272,8 @@ fn a_world_without_its_secret_is_refused_not_given_a_new_one() {
     let err = DataDir::open_or_init(&root, &[]).unwrap_err();
     assert!(
         matches!(&err, DataDirError::MissingSecret { missing, world }
-            if *missing == root.join(SECRET_NAME) && *world == root.join(WORLD_DB_NAME)),
+            if *missing == root.join(SECRET_NAME)
+                && *world == root.join(WORLD_DB_NAME).display().to_string()),
         "{err:?}"
     );
     let msg = err.to_string();
@@ -359,4 +360,50 @@ fn forced_restore_into_a_data_dir_keeps_its_identity() {
     assert!(!root.join(SECRET_NAME).exists());
     let store = SledStore::open(&root.join(WORLD_DB_NAME)).unwrap();
     assert_eq!(store.load_meta().unwrap().unwrap().seed, 7);
+}
+
+#[test]
+fn a_node_of_a_postgres_world_without_its_identity_files_is_refused() {
+    let Some(db) = strata_tests::postgres::database("datadir_pg_identity") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let config = |root: &std::path::Path| {
+        let mut cfg = ServerConfig::default();
+        cfg.apply_overrides(
+            Some(root.to_path_buf()),
+            Some("127.0.0.1:0".parse().unwrap()),
+        );
+        cfg.store.backend = strata_server::store::StoreBackend::Postgres;
+        cfg.store.postgres.url = db.url();
+        cfg
+    };
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    // The first node makes the world and the identity files.
+    let first = tmp.path().join("node-1");
+    let running = rt.block_on(app::start(config(&first))).unwrap();
+    rt.block_on(running.shutdown()).unwrap();
+    // A second node started before they were copied to it: refused, and
+    // nothing written (its own secret would sign tickets nobody accepts).
+    let second = tmp.path().join("node-2");
+    let err = match rt.block_on(app::start(config(&second))) {
+        Ok(_) => panic!("started with a new auth.secret beside a world"),
+        Err(e) => format!("{e:#}"),
+    };
+    assert!(err.contains("auth.secret is missing"), "{err}");
+    assert!(err.contains("PostgreSQL"), "{err}");
+    assert!(!second.exists(), "nothing was written");
+    // With node 1's files it starts, and makes none of its own.
+    std::fs::create_dir(&second).unwrap();
+    for name in [SECRET_NAME, CERT_NAME, KEY_NAME] {
+        std::fs::copy(first.join(name), second.join(name)).unwrap();
+    }
+    let running = rt.block_on(app::start(config(&second))).unwrap();
+    rt.block_on(running.shutdown()).unwrap();
+    for name in [SECRET_NAME, CERT_NAME, KEY_NAME] {
+        assert_eq!(
+            std::fs::read(first.join(name)).unwrap(),
+            std::fs::read(second.join(name)).unwrap()
+        );
+    }
 }

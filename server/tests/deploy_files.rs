@@ -181,6 +181,24 @@ fn units_and_dockerfile_name_real_binaries_packages_and_paths() {
     assert!(!backup.contains("--token \""));
     assert!(backup.contains("\nTimeoutStartSec="));
     assert!(backup.contains("-name 'strata-*.partial'"));
+    // A stopped server stays stopped, and the documented token is one the
+    // default `token_max_ttl` allows.
+    assert!(backup.contains("\nRequisite=strata.service\n"));
+    assert!(!backup.contains("\nWants="));
+    let max = strata_server::config::DEFAULT_TOKEN_MAX_TTL.as_secs();
+    for text in [backup.as_str(), deploy("OPERATIONS.md").as_str()] {
+        for ttl in text.split("--ttl ").skip(1) {
+            let digits: String = ttl.chars().take_while(char::is_ascii_digit).collect();
+            let unit = match ttl[digits.len()..].chars().next() {
+                Some('d') => 86_400,
+                Some('h') => 3_600,
+                Some('m') => 60,
+                other => panic!("--ttl {digits} with unit {other:?}"),
+            };
+            let secs = digits.parse::<u64>().unwrap() * unit;
+            assert!(secs <= max, "--ttl {digits}.. is over {max} s");
+        }
+    }
     assert!(deploy("systemd/strata-backup.timer").contains("Unit=strata-backup.service"));
 }
 

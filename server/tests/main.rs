@@ -19,6 +19,7 @@ mod admin_map;
 mod admin_online;
 mod admin_snapshot_cow;
 mod admin_snapshot_file;
+mod admin_snapshot_stop;
 mod auth_secret_duration;
 mod auth_tls_quic;
 mod auth_tokens;

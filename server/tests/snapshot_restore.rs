@@ -702,9 +702,19 @@ fn a_server_does_not_start_on_a_database_a_restore_is_replacing() {
     assert!(err.contains("a restore is replacing"), "{err}");
     done_tx.send(()).unwrap();
     restoring.join().unwrap();
-    // Once it is done, servers take the database, several at once.
+    // Once it is done, a server takes the database; a second one without
+    // `[cluster]` is refused (neither's commits are fenced).
     store.serve().unwrap();
-    pg_store(&db).serve().unwrap();
+    let err = pg_store(&db).serve().unwrap_err().to_string();
+    assert!(err.contains("must be alone on it"), "{err}");
+    // Gone (its session ends a moment later), it leaves the database free.
+    drop(store);
+    let next = pg_store(&db);
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while let Err(e) = next.serve() {
+        assert!(std::time::Instant::now() < deadline, "{e}");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
 }
 
 #[test]

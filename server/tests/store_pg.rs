@@ -70,6 +70,62 @@ fn worlds_of_store_formats_2_and_3_are_upgraded_by_their_migrations() {
     assert_eq!(STORE_FORMAT_VERSION, 4);
 }
 
+#[test]
+fn an_admin_tool_migrates_a_database_only_while_no_server_uses_it() {
+    let Some(db) = database("admin_migrates_alone") else {
+        return;
+    };
+    let cfg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    let server = pg_store(&db);
+    server.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
+    server.serve().unwrap();
+    // As a build with migrations 1-7 left it, and a server of that build
+    // running on it.
+    sql(
+        &db,
+        "ALTER TABLE players DROP COLUMN known_ms; \
+         DELETE FROM schema_migrations WHERE version = 8",
+    );
+    let err = PgStore::open_admin(&cfg, 8).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            StoreError::SchemaBehind {
+                found: 9,
+                needed: 9
+            }
+        ),
+        "{err}"
+    );
+    let versions = || {
+        sql(
+            &db,
+            "SELECT version FROM schema_migrations ORDER BY version",
+        )
+    };
+    assert!(!versions().contains(&"8".to_string()), "not migrated");
+    // Up to date, it opens beside a running server.
+    sql(
+        &db,
+        "ALTER TABLE players ADD COLUMN known_ms bigint NOT NULL DEFAULT 0; \
+         INSERT INTO schema_migrations (version, name) VALUES (8, '0008_position_times')",
+    );
+    drop(PgStore::open_admin(&cfg, 8).unwrap());
+    sql(
+        &db,
+        "ALTER TABLE players DROP COLUMN known_ms; \
+         DELETE FROM schema_migrations WHERE version = 8",
+    );
+    // With the server gone, the tool migrates it.
+    drop(server);
+    let admin = PgStore::open_admin(&cfg, 8).unwrap();
+    assert!(versions().contains(&"8".to_string()));
+    assert_eq!(admin.player_positions().count(), 0);
+}
+
 /// A database `name` whose world was made by this build, then taken back
 /// by `statements` to what an older build left.
 fn as_an_older_build_left_it(name: &str, statements: &str) -> Option<PgDb> {

@@ -521,3 +521,41 @@ fn positions_keep_the_feet_record_older_builds_read() {
         1_790_000_000_000
     );
 }
+
+/// A starting server remembers the players known most recently, not the
+/// first by name, and a database reads only those.
+#[test]
+fn the_positions_a_server_starts_with_are_the_most_recent() {
+    use strata_server::store::StoredPosition;
+    use strata_terrain::edit::{Fixed, FixedVec3};
+    for place in crate::store_common::places("recent_positions") {
+        let store = place.open();
+        let at = |v: i32, known_ms: u64| StoredPosition {
+            feet: FixedVec3::new(Fixed(v), Fixed(v), Fixed(v)),
+            known_ms,
+        };
+        let saved = [
+            ("ana", at(1, 300)),
+            ("bo", at(2, 100)),
+            ("cy", at(3, 500)),
+            ("di", at(4, 300)),
+            ("ed", at(5, 0)),
+        ];
+        let named: Vec<(String, StoredPosition)> =
+            saved.iter().map(|(n, p)| (n.to_string(), *p)).collect();
+        store.save_positions(&named).unwrap();
+        let names = |max| -> Vec<String> {
+            store
+                .recent_player_positions(max)
+                .unwrap()
+                .into_iter()
+                .map(|(n, _)| n)
+                .collect()
+        };
+        assert_eq!(names(3), ["cy", "ana", "di"], "{}", place.backend());
+        assert_eq!(names(9), ["cy", "ana", "di", "bo", "ed"]);
+        assert_eq!(names(0), Vec::<String>::new());
+        let got = store.recent_player_positions(1).unwrap();
+        assert_eq!(got, [("cy".to_string(), at(3, 500))]);
+    }
+}

@@ -89,7 +89,7 @@ pub fn run(args: &StatusArgs) -> anyhow::Result<Vec<RegionStatus>> {
         bail!("--sample-ms {} is over {MAX_SAMPLE_MS}", args.sample_ms);
     }
     let cfg = load_config(args)?;
-    let store = PgStore::open(&cfg.store.postgres.for_admin(), cfg.sequencer.region_chunks)
+    let store = PgStore::open_admin(&cfg.store.postgres, cfg.sequencer.region_chunks)
         .context("opening the cluster's PostgreSQL store")?;
     let first = store.region_leases()?;
     let first_at = Instant::now();

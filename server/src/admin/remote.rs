@@ -22,7 +22,7 @@ use crate::admin::world_source::{world_generator_of, DATA_DIR_CONFIG_NAME};
 use crate::client_tls::client_config_pinned_with_alpn;
 use crate::config::ServerConfig;
 use crate::datadir::DataDir;
-use crate::store::{open_store, ChunkStore};
+use crate::store::{open_store, ChunkStore, PgStore, StoreBackend};
 
 /// How long connecting and each non-streaming answer may take.
 pub const REMOTE_TIMEOUT: Duration = Duration::from_secs(30);
@@ -126,19 +126,22 @@ pub fn open_offline_store(dir: &Path) -> anyhow::Result<Arc<dyn ChunkStore>> {
         .with_context(|| format!("opening data dir {}", dir.display()))?;
     let cfg = data_dir_config(dir)?;
     let world_db = dd.world_db_path();
-    // Named as an admin tool's on PostgreSQL (a forced restore refuses
-    // only running servers' sessions).
-    let store_cfg = crate::store::StoreConfig {
-        postgres: cfg.store.postgres.for_admin(),
-        ..cfg.store.clone()
+    // On PostgreSQL as an admin tool: its sessions are named so (a forced
+    // restore refuses only running servers' sessions), and it migrates
+    // only while no server uses the database.
+    let store: Result<Arc<dyn ChunkStore>, _> = match cfg.store.backend {
+        StoreBackend::Postgres => {
+            PgStore::open_admin(&cfg.store.postgres, cfg.sequencer.region_chunks)
+                .map(|s| Arc::new(s) as Arc<dyn ChunkStore>)
+        }
+        StoreBackend::Sled => open_store(&cfg.store, &world_db, cfg.sequencer.region_chunks, None),
     };
-    let store = open_store(&store_cfg, &world_db, cfg.sequencer.region_chunks, None)
-        .with_context(|| {
-            format!(
-                "opening the world store of {} (is the server still running? stop it or use --server)",
-                dir.display()
-            )
-        })?;
+    let store = store.with_context(|| {
+        format!(
+            "opening the world store of {} (is the server still running? stop it or use --server)",
+            dir.display()
+        )
+    })?;
     // Chunks stored as changes to generated terrain read through the
     // world's generator: the config's if the data dir has one, else the
     // one the store records. Without it those reads say what they need.

@@ -333,7 +333,8 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
             args.data_dir.display()
         );
     }
-    let (dd, _) = DataDir::open_or_init(&args.data_dir, &[])
+    let names = cfg.as_ref().map_or(&[][..], |c| &c.tls.extra_names[..]);
+    let (dd, _) = DataDir::open_or_init(&args.data_dir, names)
         .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
     let bar = progress(
         Some(report.chunks),
@@ -464,9 +465,9 @@ pub fn replace_world(
 
 /// `restore` into the PostgreSQL store `cfg` names.
 fn restore_postgres(args: &RestoreArgs, cfg: &ServerConfig, total: u64) -> anyhow::Result<u64> {
-    DataDir::open_or_init(&args.data_dir, &[])
+    DataDir::open_or_init(&args.data_dir, &cfg.tls.extra_names)
         .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
-    let store = PgStore::open(&cfg.store.postgres.for_admin(), cfg.sequencer.region_chunks)
+    let store = PgStore::open_admin(&cfg.store.postgres, cfg.sequencer.region_chunks)
         .context("opening the PostgreSQL store")?;
     if !args.force {
         if let Some(why) = store.holds_world()? {

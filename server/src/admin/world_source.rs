@@ -211,7 +211,7 @@ pub fn open_offline(
         let cfg = ServerConfig::load(Some(&path))?;
         if cfg.store.backend == StoreBackend::Postgres {
             let name = PathBuf::from(POSTGRES_STORE_NAME);
-            let store = PgStore::open(&cfg.store.postgres.for_admin(), cfg.sequencer.region_chunks)
+            let store = PgStore::open_admin(&cfg.store.postgres, cfg.sequencer.region_chunks)
                 .map_err(|source| WorldSourceError::Store {
                     path: name.clone(),
                     source,

@@ -61,8 +61,15 @@ fn main() -> anyhow::Result<()> {
         runtime.worker_threads(n);
     }
     let runtime = runtime.build().context("starting the async runtime")?;
-    runtime.block_on(serve(cfg))
+    let served = runtime.block_on(serve(cfg));
+    // Everything recovery needs is durable by now: blocking work still
+    // running (a snapshot reader ending) gets this long, not forever.
+    runtime.shutdown_timeout(EXIT_GRACE);
+    served
 }
+
+/// How long the exit waits for blocking work left once the server stopped.
+const EXIT_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 
 async fn serve(cfg: ServerConfig) -> anyhow::Result<()> {
     let metrics_connections = cfg.metrics.max_connections;
@@ -76,15 +83,18 @@ async fn serve(cfg: ServerConfig) -> anyhow::Result<()> {
         }
         None => None,
     };
-    let running = app::start(cfg).await?;
+    // Served from the start: `/healthz` answers 503 while the server starts
+    // (opening the store, replaying its log) instead of leaving probes hanging.
+    let health = std::sync::Arc::new(strata_server::health::Health::default());
     if let Some((listener, handle)) = metrics {
         tokio::spawn(strata_server::metrics::serve(
             listener,
             metrics_connections,
             handle,
-            running.health(),
+            health.clone(),
         ));
     }
+    let running = app::start_with_health(cfg, health).await?;
     // One machine-readable line on stdout: tests and scripts read the port
     // (and may close the pipe after it: nothing else is printed there).
     let console = running

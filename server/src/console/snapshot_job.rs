@@ -123,6 +123,8 @@ impl SnapshotJobs {
         let info = start.info;
         crate::durable::create_dir_all(&std::fs::DirBuilder::new(), &self.dir)
             .map_err(|e| format!("cannot create {}: {e}", self.dir.display()))?;
+        // None of this process's runs now (`busy`): any left was cut short.
+        remove_stale_partials(&self.dir);
         let file = self.dir.join(format!(
             "strata-seq{}-{}.snap",
             info.seq,
@@ -183,6 +185,55 @@ impl SnapshotJobs {
 /// Whether `name` is a console snapshot's file name.
 fn is_console_snapshot(name: &str) -> bool {
     name.starts_with("strata-seq") && name.ends_with(".snap")
+}
+
+/// The writer's process id, when `name` is a console snapshot's `.partial`
+/// file (`strata-seqS-T.snap.PID-N.partial`).
+fn partial_writer(name: &str) -> Option<u32> {
+    let rest = name.strip_suffix(".partial")?;
+    let (snap, tag) = rest.rsplit_once('.')?;
+    if !is_console_snapshot(snap) {
+        return None;
+    }
+    tag.split_once('-')?.0.parse().ok()
+}
+
+/// Whether the process `pid` may still be writing its `.partial` file:
+/// this process's own are not (none of its snapshots runs when this is
+/// called), others' are while they run. Where that cannot be told, yes.
+fn may_still_write(pid: u32) -> bool {
+    if pid == std::process::id() {
+        return false;
+    }
+    if cfg!(target_os = "linux") {
+        std::path::Path::new("/proc").join(pid.to_string()).exists()
+    } else {
+        true
+    }
+}
+
+/// Removes the `.partial` files of console snapshots cut short (the
+/// server killed while writing one): each is as large as a snapshot, and
+/// no finished one would ever prune it. Failures are logged.
+fn remove_stale_partials(dir: &std::path::Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.filter_map(Result::ok) {
+        let Some(pid) = e.file_name().to_str().and_then(partial_writer) else {
+            continue;
+        };
+        if may_still_write(pid) {
+            continue;
+        }
+        let path = e.path();
+        match std::fs::remove_file(&path) {
+            Ok(()) => info!(file = %path.display(), "an unfinished console snapshot removed"),
+            Err(e) => {
+                warn!(file = %path.display(), error = %e, "removing an unfinished console snapshot failed")
+            }
+        }
+    }
 }
 
 /// Removes the oldest console snapshots in `dir` beyond `keep` (oldest by
@@ -286,6 +337,34 @@ mod tests {
             }
         }
         None
+    }
+
+    #[test]
+    fn partial_files_of_snapshots_cut_short_are_removed_and_nothing_else() {
+        let dir = tempfile::tempdir().unwrap();
+        let ours = std::process::id();
+        // No such process (above Linux's largest pid), and one that runs.
+        let (gone, running) = (u32::MAX, 1);
+        let names = [
+            format!("strata-seq5-100.snap.{ours}-3.partial"),
+            format!("strata-seq7-200.snap.{gone}-0.partial"),
+            format!("strata-seq7-200.snap.{running}-0.partial"),
+            "strata-seq5-100.snap".to_string(),
+            format!("world.snap.{gone}-0.partial"),
+            "strata-seq5-100.snap.partial".to_string(),
+        ];
+        for n in &names {
+            std::fs::write(dir.path().join(n), b"x").unwrap();
+        }
+        remove_stale_partials(dir.path());
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        left.sort();
+        let mut want = names[2..].to_vec();
+        want.sort();
+        assert_eq!(left, want);
     }
 
     #[tokio::test]

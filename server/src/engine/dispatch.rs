@@ -1,5 +1,6 @@
 //! Serving one command from a session or an operator, between ticks.
 
+use bytes::Bytes;
 use strata_protocol::{ErrorCode, Refusal, ServerMessage, WorldUpdate};
 use tracing::{error, info, warn};
 
@@ -132,6 +133,12 @@ impl Engine {
             Command::Forget { session, chunks } => {
                 if let Some(p) = self.peers.get_mut(&session) {
                     p.forget(&mut self.holders, session, &chunks);
+                    // Confirmed at once, not with the session's next update
+                    // (which a quiet view may not get for long). A full
+                    // queue keeps it owed until the next batch.
+                    if p.owes_withdrawals() {
+                        let _ = p.send_update(Bytes::new(), false);
+                    }
                 }
             }
             Command::Arrive {

@@ -14,7 +14,7 @@ use super::holders::Holders;
 use super::ops;
 use super::peer::Peer;
 use crate::metrics as m;
-use crate::net::writer::SendRefused;
+use crate::net::writer::{Handed, SendRefused};
 use crate::sequencer::AppliedEdit;
 
 /// Encodes an updates-stream frame. Server messages are built from
@@ -324,6 +324,7 @@ fn send_tick(
     let batch = buf.freeze();
     match p.send_update(batch, direct) {
         Ok(how) => {
+            p.changes_queued |= how == Handed::Queued;
             counters.deltas_sent.increment(chunks.len() as u64);
             counters.batches[how as usize].increment(1);
         }
@@ -614,6 +615,60 @@ mod tests {
         assert_eq!(got, want);
         assert!(p.withdrawals_owed().is_empty());
         assert_eq!(p.held(b), Some(1));
+    }
+
+    #[test]
+    fn one_batch_of_changes_queued_does_not_hold_the_stream_back() {
+        let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
+        let (mut p, mut rx) = peer(&[(a, 4), (b, 0)]);
+        assert!(p.may_stream(), "idle");
+        let first = [applied(1, vec![change(a, 4)])];
+        let edits: Vec<TickEdit<'_>> = first.iter().map(|e| TickEdit::new(e, false)).collect();
+        let chains1 = chains(&first.iter().collect::<Vec<_>>());
+        let end = encode_update(&WorldUpdate::TickEnd { last_seq: 1 });
+        let counters = Counters::new();
+        send_tick(&mut p, &edits, &chains1, &[0], &end, &counters, false);
+        assert_eq!(p.updates.queued(), 1);
+        assert!(p.may_stream(), "behind this tick's changes only");
+        // A batch of chunks sent: the next changes wait behind it, and
+        // nothing more is streamed until the writer takes it.
+        p.changes_queued = false;
+        assert!(!p.may_stream());
+        let second = [applied(2, vec![change(b, 0)])];
+        let edits: Vec<TickEdit<'_>> = second.iter().map(|e| TickEdit::new(e, false)).collect();
+        let chains2 = chains(&second.iter().collect::<Vec<_>>());
+        let end = encode_update(&WorldUpdate::TickEnd { last_seq: 2 });
+        send_tick(&mut p, &edits, &chains2, &[0], &end, &counters, false);
+        assert_eq!(p.updates.queued(), 2);
+        assert!(!p.may_stream(), "two queued");
+        while rx.try_recv().is_ok() {}
+        assert!(p.may_stream(), "idle again");
+    }
+
+    #[test]
+    fn a_forget_of_chunks_sent_is_confirmed_on_the_updates_stream() {
+        let (a, b, c) = (
+            ChunkPos::new(0, 0, 0),
+            ChunkPos::new(1, 0, 0),
+            ChunkPos::new(0, 1, 0),
+        );
+        let mut holders = Holders::default();
+        // a and b were sent; c is queued, not sent.
+        let (mut p, mut rx) = listed_peer(&mut holders, 7, &[(a, 4), (b, 0)]);
+        p.pending.push_back(c);
+        // b's change was dropped on a full queue: already owed a withdrawal.
+        p.dropped(&[b]);
+        p.forget(&mut holders, 7, &[a, b, c]);
+        assert_eq!(p.withdrawals_owed(), &[b, a], "each sent chunk once");
+        assert!(holders.of(a).is_empty());
+        assert_eq!(p.pending.pop_front(), None);
+        assert!(p.send_update(Bytes::new(), false).is_ok());
+        let got = rx.try_recv().unwrap().to_vec();
+        let want = encode_update(&WorldUpdate::UnsubscribedMany { chunks: vec![b, a] });
+        assert_eq!(got, want.to_vec());
+        // Forgetting again (nothing held) owes nothing.
+        p.forget(&mut holders, 7, &[a, c]);
+        assert!(!p.owes_withdrawals());
     }
 
     #[test]

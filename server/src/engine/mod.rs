@@ -223,6 +223,15 @@ impl Engine {
     }
 
     fn run(mut self, rx: Inbox) -> anyhow::Result<()> {
+        let ended = self.serve(rx);
+        // However it ends: a snapshot still being read stops at its next
+        // chunk instead of holding the process's exit (or a console job's
+        // file) until the whole world is read.
+        self.abort_snapshots(snapshot::STOPPING);
+        ended
+    }
+
+    fn serve(&mut self, rx: Inbox) -> anyhow::Result<()> {
         match commit::Committer::spawn(self.store.clone(), self.pool.clone(), rx.waker()) {
             Ok(c) => self.committer = Some(c),
             Err(e) => warn!(error = %e, "no commit thread; ticks commit inline"),

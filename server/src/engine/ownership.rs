@@ -470,7 +470,14 @@ impl Engine {
         };
         let side = self.seq.region_chunks();
         for a in &out.applied {
-            let lost = region.filter(|r| a.changes.iter().any(|c| RegionId::of(c.pos, side) == *r));
+            // Written or read (the batch was fenced by both).
+            let lost = region.filter(|r| {
+                a.changes.iter().any(|c| RegionId::of(c.pos, side) == *r)
+                    || self
+                        .seq
+                        .edit_regions(&a.edit)
+                        .is_some_and(|rs| rs.contains(r))
+            });
             let reason = match lost {
                 Some(r) => RejectReason::RegionElsewhere {
                     region_x: r.x,
@@ -496,9 +503,13 @@ impl Engine {
         true
     }
 
-    /// The epoch each region `batch` writes was last reloaded under (0,
-    /// which no lease has, for one never reported): `None` alone on the
-    /// store.
+    /// The epoch each region `batch` writes or its edits read (their
+    /// footprints, as claimed for them: [`Sequencer::edit_regions`]) was
+    /// last reloaded under (0, which no lease has, for one never
+    /// reported): `None` alone on the store. The store fences them all, so
+    /// a batch built on a region another node took since is not committed.
+    ///
+    /// [`Sequencer::edit_regions`]: crate::sequencer::Sequencer::edit_regions
     pub(super) fn batch_epochs(
         &self,
         batch: &crate::store::CommitBatch,
@@ -509,10 +520,16 @@ impl Engine {
         let side = self.seq.region_chunks();
         let chunks = batch.chunks.iter().map(|c| c.0);
         let deltas = batch.deltas.iter().map(|d| d.pos);
+        let read = batch
+            .entries
+            .iter()
+            .filter_map(|e| self.seq.edit_regions(&e.edit))
+            .flatten();
         Some(
             chunks
                 .chain(deltas)
                 .map(|pos| RegionId::of(pos, side))
+                .chain(read)
                 .map(|r| (r, self.region_epochs.get(&r).copied().unwrap_or(0)))
                 .collect(),
         )

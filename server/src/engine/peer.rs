@@ -62,6 +62,10 @@ pub struct Peer {
     /// not held, so no chunk is listed twice and the list is bounded by
     /// the view.
     withdraw: Vec<ChunkPos>,
+    /// The fan-out queued a batch of changes since the stream last sent a
+    /// batch of chunks: one such batch queued does not hold the stream
+    /// back ([`Self::may_stream`]).
+    pub changes_queued: bool,
     kick: Option<oneshot::Sender<Kick>>,
 }
 
@@ -91,6 +95,7 @@ impl Peer {
             owners_told: Vec::new(),
             ticket_ms: None,
             withdraw: Vec::new(),
+            changes_queued: false,
             kick: Some(kick),
         }
     }
@@ -187,6 +192,11 @@ impl Peer {
     /// The client dropped `chunks`: those in view are no longer held (nor
     /// listed for session `id`), so no update of them is sent until a
     /// resync or until they leave the view and come back. Others are ignored.
+    /// Each one the client was sent is owed an `UnsubscribedMany` (see
+    /// [`Self::send_update`]): on the updates stream after everything sent
+    /// before, it tells the client nothing more of the chunk is on its way.
+    /// Without it a chunk sent again after a withdrawal the client read
+    /// before the server took its `Forget` would be held, and never updated.
     pub fn forget(&mut self, holders: &mut Holders, id: u64, chunks: &[ChunkPos]) {
         let dropped: HashSet<ChunkPos> = chunks
             .iter()
@@ -198,10 +208,27 @@ impl Peer {
         }
         // Work in proportion to the chunks named, never to the queue.
         for pos in &dropped {
-            self.known.remove(pos);
+            if self.known.remove(pos).is_some() && !self.withdraw.contains(pos) {
+                self.withdraw.push(*pos);
+            }
             holders.remove(*pos, id);
             self.pending.remove(*pos);
         }
+    }
+
+    /// Whether the stream may hand this session a batch of chunks now:
+    /// its writer has taken everything queued, or what it has not taken is
+    /// one batch of changes the fan-out queued since the stream's last
+    /// batch (queued at the tick's end, it would otherwise keep a session
+    /// that sees changes every tick from ever filling its view). Either
+    /// way a change queued next waits behind one batch of chunks at most.
+    pub fn may_stream(&self) -> bool {
+        self.updates.is_idle() || (self.changes_queued && self.updates.queued() == 1)
+    }
+
+    /// Whether withdrawals are owed ([`Self::send_update`] sends them first).
+    pub fn owes_withdrawals(&self) -> bool {
+        !self.withdraw.is_empty()
     }
 
     /// The changes of `chunks` (all held) were not sent: each is sent

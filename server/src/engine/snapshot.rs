@@ -32,6 +32,9 @@ pub const SNAPSHOT_PREIMAGE_BYTES_RANGE: (usize, usize) = (1 << 20, 64 << 30);
 /// Snapshots that may run at once.
 pub const MAX_CONCURRENT_SNAPSHOTS: usize = 2;
 
+/// Why a snapshot still running when the engine stops is aborted.
+pub const STOPPING: &str = "the server is stopping";
+
 /// Why the engine refuses to begin an online snapshot.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum SnapshotRefused {
@@ -172,6 +175,14 @@ impl Engine {
         let pre = Arc::new(PreImages::new(self.seq.last_seq(), limit, bytes));
         self.snapshots_running.push(pre.clone());
         Ok(pre)
+    }
+
+    /// Aborts every running snapshot (their readers stop at their next
+    /// chunk with `reason`).
+    pub(super) fn abort_snapshots(&mut self, reason: &str) {
+        for s in self.snapshots_running.drain(..) {
+            s.abort(reason.to_string());
+        }
     }
 
     /// Before a commit: saves the state at each running snapshot's seq of

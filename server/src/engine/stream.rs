@@ -129,7 +129,7 @@ impl Engine {
     /// snapshots, not many.
     fn open_batch(&self, id: u64) -> Option<OpenBatch> {
         let p = self.peers.get(&id)?;
-        (!p.failed && p.updates.is_idle()).then(|| OpenBatch {
+        (!p.failed && p.may_stream()).then(|| OpenBatch {
             id,
             bytes: BytesMut::new(),
             sent: Vec::new(),
@@ -204,6 +204,7 @@ impl Engine {
         }
         match p.send_update(batch.freeze(), false) {
             Ok(_) => {
+                p.changes_queued = false;
                 p.complete_due &= !completes;
                 for (pos, version, kind) in sent {
                     p.receive(&mut self.holders, id, pos, version);

@@ -167,6 +167,11 @@ impl FrameSender {
         self.queue.capacity()
     }
 
+    /// Batches queued and not yet taken by the writer.
+    pub fn queued(&self) -> usize {
+        self.queue.max_capacity() - self.queue.capacity()
+    }
+
     /// Whether every queued frame has been taken by the writer.
     pub fn is_idle(&self) -> bool {
         self.queue.capacity() == self.queue.max_capacity()

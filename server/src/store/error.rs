@@ -70,6 +70,14 @@ pub enum StoreError {
     /// The store was written by an unknown format version.
     #[error("store format version {found} is not supported (this build reads {supported})")]
     UnsupportedFormat { found: u32, supported: u32 },
+    /// An admin tool of a newer build met a database that running servers
+    /// of an older one use: it would have to migrate it under them.
+    #[error(
+        "the database's schema is at version {found} and this strata-admin needs {needed}, but a \
+         running server uses it: migrations run only when servers start or while none runs; \
+         use the strata-admin of the servers' build, or upgrade the servers first"
+    )]
+    SchemaBehind { found: u32, needed: u32 },
     /// A write needs the world metadata, which `init_meta` has not written.
     #[error("the store has no world metadata; call init_meta first")]
     NoMeta,

@@ -172,6 +172,21 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Every stored player position.
     fn player_positions(&self) -> StoreIter<'_, (String, StoredPosition)>;
 
+    /// The `max` positions known most recently (ties by name), newest
+    /// first: what a starting server remembers. Embedded stores read them
+    /// all; a database reads only these.
+    fn recent_player_positions(
+        &self,
+        max: usize,
+    ) -> Result<Vec<(String, StoredPosition)>, StoreError> {
+        let mut all = self
+            .player_positions()
+            .collect::<Result<Vec<_>, StoreError>>()?;
+        all.sort_by(|(a, p), (b, q)| q.known_ms.cmp(&p.known_ms).then_with(|| a.cmp(b)));
+        all.truncate(max);
+        Ok(all)
+    }
+
     /// One player's stored position (a cluster node joining a player reads
     /// what the node that last had it saved).
     fn player_position(&self, player: &str) -> Result<Option<StoredPosition>, StoreError>;

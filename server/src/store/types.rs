@@ -110,9 +110,10 @@ pub struct CommitBatch {
     /// The seq of the last entry.
     pub last_seq: u64,
     /// A cluster node's engine: the lease epoch under which it last loaded
-    /// each region the batch writes (`take_fresh_regions`). The commit is
-    /// fenced by these, so a batch built before the node took a region
-    /// back is refused. `None`: by the epochs the store holds now (one
+    /// each region the batch writes or its edits read (`take_fresh_regions`).
+    /// The commit is fenced by all of these, so a batch built before the
+    /// node took a region back, or on one another node took since, is
+    /// refused. `None`: by the epochs the store holds now (one
     /// node alone, tools, tests).
     pub epochs: Option<std::collections::BTreeMap<crate::sequencer::regions::RegionId, u64>>,
 }

@@ -215,9 +215,11 @@ pub fn pg_store(db: &PgDb) -> PgStore {
 }
 
 /// The rows of `pg_locks` for servers' serving locks (`SERVING_LOCK`,
-/// shared) in the test's own database: `SELECT count(*) ` it, say.
+/// shared; 91621622371393 is its key) in the test's own database:
+/// `SELECT count(*) ` it, say.
 pub const SERVING_LOCK_ROWS: &str = "FROM pg_locks WHERE locktype = 'advisory' \
     AND mode = 'ShareLock' \
+    AND (classid::int8 << 32) + objid::int8 = 91621622371393 \
     AND database = (SELECT oid FROM pg_database WHERE datname = current_database())";
 
 /// An empty store of every backend: sled, and PostgreSQL (a database of

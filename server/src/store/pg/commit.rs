@@ -177,7 +177,10 @@ impl PgStore {
             .sum();
         let fence = match &self.leases {
             Some(leases) => {
-                let regions = cols.regions();
+                // Those it writes, and those its edits read (the engine's
+                // epochs name them too).
+                let mut regions = cols.regions();
+                regions.extend(b.epochs.iter().flat_map(|e| e.keys().copied()));
                 let mut f = fence::prepare(&self.pool, leases, &regions, b.epochs.as_ref())?;
                 f.set_seqs(cols.first_seq, cols.last_seq);
                 f.count_edits(b.entries.iter().map(|e| {

@@ -42,6 +42,11 @@ const LOCKED_TABLES: &str = concat!(emptied_tables!(), ", blobs, regions");
 /// neither runs while the other does.
 pub const SERVING_LOCK: i64 = 0x5354_5241_5441; // "STRATA"
 
+/// The advisory lock a server without `[cluster]` holds alone while it
+/// serves, and a cluster's nodes hold shared: such a server's commits are
+/// not fenced, so it may share its database with no other server.
+pub const SOLO_LOCK: i64 = 0x5354_5241_534F; // "STRASO"
+
 /// What opening or serving a store says while a restore (or an offline
 /// snapshot) holds [`SERVING_LOCK`] alone.
 pub(super) fn restore_running() -> StoreError {

@@ -911,7 +911,11 @@ impl PgStore {
         // A transaction left open by a paused node is rolled back by the
         // server within the lease, so it never holds a takeover up.
         let idle = Duration::from_millis(cluster.lease_ms.min(cfg.statement_timeout_ms));
-        let mut store = Self::open_on(Pool::open_idle(cfg, idle)?, region_chunks)?;
+        let mut store = Self::open_on(
+            Pool::open_idle(cfg, idle)?,
+            region_chunks,
+            super::migrate::Migrator::Server,
+        )?;
         let leases = Arc::new(NodeLeases::new(cluster));
         // A connection of its own: renewals never wait behind commits or
         // scans for a pooled one.

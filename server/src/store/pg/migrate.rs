@@ -62,23 +62,29 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
 /// Key of the advisory lock migrations take ("strata" in ASCII).
 const MIGRATION_LOCK: i64 = 0x7374_7261_7461;
 
+/// Who opens the database, which decides when its migrations may run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Migrator {
+    /// A server starting: applies what the database lacks (nodes starting
+    /// together each apply it once).
+    Server,
+    /// An admin tool: applies what the database lacks only while no server
+    /// uses it. Running servers of an older build would otherwise find
+    /// their schema changed under them and could not start again.
+    Admin,
+}
+
 /// Applies the migrations the database lacks. Refuses a database that a
-/// newer build migrated further than this one knows.
-pub fn apply(pool: &Pool) -> Result<(), StoreError> {
+/// newer build migrated further than this one knows, and, for
+/// [`Migrator::Admin`], one behind this build that a server is using.
+pub fn apply(pool: &Pool, by: Migrator) -> Result<(), StoreError> {
     let known = MIGRATIONS.last().map_or(0, |m| m.0);
     pool.run_tx("applying migrations", "BEGIN", async |c: &mut Conn| {
         c.execute("SELECT pg_advisory_xact_lock($1)", &[&MIGRATION_LOCK])
             .await?;
         // A restore holds the world's tables: a migration would wait on
         // them until its statement timeout. Say why at once instead.
-        let free: bool = c
-            .query_opt(
-                "SELECT pg_try_advisory_xact_lock_shared($1)",
-                &[&super::import::SERVING_LOCK],
-            )
-            .await?
-            .is_some_and(|r| r.get(0));
-        if !free {
+        if !try_serving_lock(c, "SELECT pg_try_advisory_xact_lock_shared($1)").await? {
             return Err(super::import::restore_running());
         }
         c.batch(
@@ -104,6 +110,16 @@ pub fn apply(pool: &Pool) -> Result<(), StoreError> {
                 });
             }
         }
+        let missing = MIGRATIONS.iter().any(|m| !applied.contains(&m.0));
+        if missing && by == Migrator::Admin {
+            // Alone for this transaction: no server holds it shared.
+            if !try_serving_lock(c, "SELECT pg_try_advisory_xact_lock($1)").await? {
+                return Err(StoreError::SchemaBehind {
+                    found: applied.last().copied().unwrap_or(0).max(0) as u32,
+                    needed: known as u32,
+                });
+            }
+        }
         for &(version, name, sql) in MIGRATIONS {
             if applied.contains(&version) {
                 continue;
@@ -117,4 +133,12 @@ pub fn apply(pool: &Pool) -> Result<(), StoreError> {
         }
         Ok(())
     })
+}
+
+/// Runs `sql`, a try-lock of the serving lock for this transaction
+/// (`$1`), and says whether it was taken.
+async fn try_serving_lock(c: &mut Conn, sql: &'static str) -> Result<bool, StoreError> {
+    Ok(c.query_opt(sql, &[&super::import::SERVING_LOCK])
+        .await?
+        .is_some_and(|r| r.get(0)))
 }

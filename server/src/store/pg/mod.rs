@@ -90,25 +90,59 @@ impl PgStore {
     /// records `region_chunks`; an existing one must have been made with
     /// the same.
     pub fn open(cfg: &PgConfig, region_chunks: u32) -> Result<Self, StoreError> {
-        Self::open_on(Pool::open(cfg)?, region_chunks)
+        Self::open_on(Pool::open(cfg)?, region_chunks, migrate::Migrator::Server)
+    }
+
+    /// [`Self::open`] for an admin tool: it migrates the database only
+    /// while no server uses it ([`StoreError::SchemaBehind`] otherwise).
+    pub fn open_admin(cfg: &PgConfig, region_chunks: u32) -> Result<Self, StoreError> {
+        Self::open_on(
+            Pool::open(&cfg.for_admin())?,
+            region_chunks,
+            migrate::Migrator::Admin,
+        )
     }
 
     /// Takes [`import::SERVING_LOCK`] shared on a connection of its own,
-    /// kept while the store is open ([`ChunkStore::serve`]).
+    /// kept while the store is open ([`ChunkStore::serve`]), and with it
+    /// [`import::SOLO_LOCK`]: shared by a cluster's nodes, whose commits are
+    /// fenced; alone by a server without `[cluster]`, whose commits are not
+    /// (beside other servers it would write into their regions and seq
+    /// blocks).
     fn take_serving_lock(&self) -> Result<(), StoreError> {
-        let (conn, held) =
+        let solo = self.leases.is_none();
+        let (conn, (serving, alone)) =
             self.pool
                 .dedicated("marking the store served", async |c: &mut Conn| {
-                    let row = c
-                        .query_opt(
-                            "SELECT pg_try_advisory_lock_shared($1)",
-                            &[&import::SERVING_LOCK],
-                        )
+                    let sql = match solo {
+                        false => {
+                            "SELECT pg_try_advisory_lock_shared($1), \
+                             pg_try_advisory_lock_shared($2)"
+                        }
+                        true => "SELECT pg_try_advisory_lock_shared($1), pg_try_advisory_lock($2)",
+                    };
+                    let rows = c
+                        .query(sql, &[&import::SERVING_LOCK, &import::SOLO_LOCK])
                         .await?;
-                    Ok(row.is_some_and(|r| r.get::<_, bool>(0)))
+                    Ok(rows.first().map_or((false, false), |r| {
+                        (r.get::<_, bool>(0), r.get::<_, bool>(1))
+                    }))
                 })?;
-        if !held {
+        // Dropped, the connection lets go of whichever it took.
+        if !serving {
             return Err(import::restore_running());
+        }
+        if !alone {
+            return Err(StoreError::PgSetup {
+                reason: match solo {
+                    true => "other servers use this database (a cluster's nodes, or a server \
+                             without [cluster]): a server without [cluster] must be alone on it"
+                        .into(),
+                    false => "a server without [cluster] uses this database: a cluster's nodes \
+                              cannot share it (stop that server, then give it [cluster] too)"
+                        .into(),
+                },
+            });
         }
         self.keep_lock_connection(conn);
         Ok(())
@@ -163,8 +197,8 @@ impl PgStore {
     }
 
     /// [`Self::open`] on a pool already open.
-    fn open_on(pool: Pool, region_chunks: u32) -> Result<Self, StoreError> {
-        migrate::apply(&pool)?;
+    fn open_on(pool: Pool, region_chunks: u32, by: migrate::Migrator) -> Result<Self, StoreError> {
+        migrate::apply(&pool, by)?;
         let fsync: String = pool.run("reading fsync", async |c: &mut Conn| {
             Ok(c.query("SHOW fsync", &[]).await?[0].get(0))
         })?;
@@ -224,6 +258,14 @@ impl PgStore {
         })?;
         from_sql(n, "blob count", "blobs")
     }
+}
+
+/// A `players` row read as `name, x, y, z, known_ms`.
+fn position_row(r: &tokio_postgres::Row) -> Result<(String, StoredPosition), StoreError> {
+    let c = |i: usize| Fixed(r.get::<_, i32>(i));
+    let feet = FixedVec3::new(c(1), c(2), c(3));
+    let known_ms = from_sql(r.get(4), "known_ms", "players")?;
+    Ok((r.get::<_, String>(0), StoredPosition { feet, known_ms }))
 }
 
 /// A seq, version or count for a bigint column.
@@ -511,14 +553,27 @@ impl ChunkStore for PgStore {
             .await
         });
         match rows {
-            Ok(rows) => Box::new(rows.into_iter().map(|r| {
-                let c = |i: usize| Fixed(r.get::<_, i32>(i));
-                let feet = FixedVec3::new(c(1), c(2), c(3));
-                let known_ms = from_sql(r.get(4), "known_ms", "players")?;
-                Ok((r.get::<_, String>(0), StoredPosition { feet, known_ms }))
-            })),
+            Ok(rows) => Box::new(rows.into_iter().map(|r| position_row(&r))),
             Err(e) => Box::new(std::iter::once(Err(e))),
         }
+    }
+
+    fn recent_player_positions(
+        &self,
+        max: usize,
+    ) -> Result<Vec<(String, StoredPosition)>, StoreError> {
+        let limit = i64::try_from(max).unwrap_or(i64::MAX);
+        let rows = self
+            .pool
+            .run("reading recent positions", async |c: &mut Conn| {
+                c.query(
+                    "SELECT name, x, y, z, known_ms FROM players \
+                 ORDER BY known_ms DESC, name LIMIT $1",
+                    &[&limit],
+                )
+                .await
+            })?;
+        rows.iter().map(position_row).collect()
     }
 
     fn chunks_with_deltas(
