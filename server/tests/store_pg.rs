@@ -375,3 +375,61 @@ fn a_log_beyond_a_single_nodes_last_seq_is_damage() {
     );
     assert_eq!(sql(&db, "SELECT max(seq) FROM edit_log"), ["2"]);
 }
+
+/// Commits have a connection of their own: a pool taken up by slow reads
+/// (a login storm's position reads, console renders) does not make a
+/// commit wait for a connection and time out, which stops the engine.
+#[test]
+fn a_commit_does_not_wait_for_the_pool() {
+    let Some(db) = database("commit_beside_full_pool") else {
+        return;
+    };
+    let cfg = PgConfig {
+        url: db.url(),
+        max_connections: 1,
+        pool_wait_ms: 200,
+        ..PgConfig::default()
+    };
+    let store = Arc::new(PgStore::open(&cfg, 8).unwrap());
+    store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
+    let mut seq = Seq::default();
+    let pos = ChunkPos::new(0, 0, 0);
+    store
+        .commit_batch(&seq.batch(&[vec![(pos, terrain_chunk(1))]]))
+        .unwrap();
+    // The pool's one connection waits on a locked table.
+    let (release, holder) =
+        store_common::hold_until_told(&db, "LOCK TABLE players IN ACCESS EXCLUSIVE MODE");
+    let reader = {
+        let store = store.clone();
+        std::thread::spawn(move || store.player_positions().count())
+    };
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let committed = store.commit_batch(&seq.batch(&[vec![(pos, terrain_chunk(2))]]));
+    release.send(()).unwrap();
+    holder.join().unwrap();
+    assert_eq!(reader.join().unwrap(), 0);
+    committed.unwrap();
+    assert_eq!(store.load_chunk(pos).unwrap().unwrap().version, 2);
+}
+
+/// Migrations are not held to the statement timeout meant for a tick's
+/// statements (one may rewrite a whole table, once): a fresh database
+/// opens under a timeout shorter than applying them all takes.
+#[test]
+fn migrations_run_past_the_statement_timeout() {
+    let Some(db) = database("migrations_past_timeout") else {
+        return;
+    };
+    let cfg = PgConfig {
+        url: db.url(),
+        statement_timeout_ms: 40,
+        ..PgConfig::default()
+    };
+    let started = std::time::Instant::now();
+    let store = PgStore::open(&cfg, 8).unwrap();
+    eprintln!("opened and migrated in {:?}", started.elapsed());
+    let applied = sql(&db, "SELECT count(*) FROM schema_migrations");
+    assert_eq!(applied, [MIGRATIONS.len().to_string()]);
+    drop(store);
+}

@@ -164,6 +164,54 @@ fn claims_are_exclusive_and_renewals_extend_the_lease() {
     assert!(leases.lost().is_empty());
 }
 
+/// A commit holding one region's row (slow: a stalled disk, say) does not
+/// hold up the renewal of the node's other regions, nor make the renewal
+/// count the held one lost; the commit renews what it holds itself.
+#[test]
+fn a_slow_commit_holds_up_no_other_regions_renewal() {
+    let Some(db) = database("lease_renew_beside_commit") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let (r0, r1) = (region(0, 0), region(1, 0));
+    let mut world = Seq::default();
+    a.commit_batch(&edit(&mut world, &[chunk_in(r0, 0), chunk_in(r1, 0)], 1))
+        .unwrap();
+    let expiry = |r: RegionId| {
+        sql(
+            &db,
+            &format!(
+                "SELECT lease_expires FROM regions WHERE region_x = {} AND region_z = {}",
+                r.x, r.z
+            ),
+        )
+    };
+    let before = (expiry(r0), expiry(r1));
+    // As a commit of a's stuck inside its transaction holds it.
+    let (release, holder) = store_common::hold_until_told(
+        &db,
+        "SELECT 1 FROM regions WHERE region_x = 0 AND region_z = 0 FOR UPDATE",
+    );
+    std::thread::sleep(Duration::from_millis(20));
+    let started = std::time::Instant::now();
+    assert!(a.renew_leases().unwrap().is_empty(), "nothing lost");
+    assert!(
+        started.elapsed() < Duration::from_secs(5),
+        "the renewal waited {:?}",
+        started.elapsed()
+    );
+    assert!(expiry(r1) > before.1, "the other region was renewed");
+    assert_eq!(expiry(r0), before.0, "the held one was skipped");
+    assert_eq!(a.leases().unwrap().held().len(), 2);
+    release.send(()).unwrap();
+    holder.join().unwrap();
+    // A commit renews the regions it fences.
+    std::thread::sleep(Duration::from_millis(20));
+    a.commit_batch(&edit(&mut world, &[chunk_in(r0, 0)], 2))
+        .unwrap();
+    assert!(expiry(r0) > before.0, "the commit renewed its region");
+}
+
 #[test]
 fn an_expired_lease_goes_to_the_next_claimer_and_fences_the_old_owner() {
     let Some(db) = database("lease_takeover") else {

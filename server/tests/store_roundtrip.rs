@@ -559,3 +559,55 @@ fn the_positions_a_server_starts_with_are_the_most_recent() {
         assert_eq!(got, [("cy".to_string(), at(3, 500))]);
     }
 }
+
+/// Chunks read together say what each read alone says: records alone,
+/// records with deltas past them, chunks never stored, and a position
+/// named twice.
+#[test]
+fn chunks_read_together_are_each_as_read_alone() {
+    for (_place, store) in new_stores("chunks_read_together") {
+        let (a, b, c, never) = (
+            ChunkPos::new(0, 0, 0),
+            ChunkPos::new(1, -1, 2),
+            ChunkPos::new(-3, 0, 7),
+            ChunkPos::new(9, 9, 9),
+        );
+        let mut seq = Seq::default();
+        store
+            .commit_batch(&seq.batch(&[vec![(a, terrain_chunk(1)), (b, terrain_chunk(2))]]))
+            .unwrap();
+        // b and c then move on by deltas.
+        store
+            .commit_batch(&seq.delta_batch(&[
+                vec![(b, terrain_chunk(3))],
+                vec![(b, terrain_chunk(4)), (c, terrain_chunk(5))],
+            ]))
+            .unwrap();
+        store
+            .commit_batch(&seq.delta_batch(&[vec![(c, terrain_chunk(6))]]))
+            .unwrap();
+        let wanted = [c, never, a, b, c];
+        let together = store.load_chunks(&wanted).unwrap();
+        let alone: Vec<_> = wanted
+            .iter()
+            .map(|&p| store.load_chunk(p).unwrap())
+            .collect();
+        let show = |v: &[Option<strata_server::store::StoredChunk>]| -> Vec<Option<(u64, Chunk)>> {
+            v.iter()
+                .map(|s| s.as_ref().map(|s| (s.version, s.chunk.clone())))
+                .collect()
+        };
+        assert_eq!(show(&together), show(&alone));
+        assert_eq!(
+            show(&together),
+            [
+                Some((2, terrain_chunk(6))),
+                None,
+                Some((1, terrain_chunk(1))),
+                Some((3, terrain_chunk(4))),
+                Some((2, terrain_chunk(6))),
+            ]
+        );
+        assert!(store.load_chunks(&[]).unwrap().is_empty());
+    }
+}

@@ -351,23 +351,38 @@ impl Engine {
         region: RegionId,
         moved: &mut Vec<(ChunkPos, u64)>,
     ) -> Result<(), StoreError> {
+        let mut load = Vec::new();
         for (pos, version) in self.store.region_versions(region)? {
             if self.versions.get(&pos) == Some(&version) {
                 continue;
             }
-            // The version loaded, which another node may have moved past
-            // the one just listed.
-            let mut now = version;
             if self.seq.is_resident(pos) {
-                if let Some(stored) = self.store.load_chunk(pos)? {
-                    now = stored.version;
-                    self.seq
-                        .insert_stored_chunk(pos, stored.chunk, stored.version);
-                }
+                load.push((pos, version));
             } else {
                 // Not held here, but its neighbours' meshes read it.
                 self.seq.forget_meshes_around(pos);
+                self.versions.insert(pos, version);
+                moved.push((pos, version));
             }
+        }
+        if load.is_empty() {
+            return Ok(());
+        }
+        // Those held here, read together (a failure changes none of them:
+        // the retry finds them moved still).
+        let positions: Vec<ChunkPos> = load.iter().map(|&(p, _)| p).collect();
+        let stored = self.store.load_chunks(&positions)?;
+        for ((pos, listed), stored) in load.into_iter().zip(stored) {
+            // The version loaded, which another node may have moved past
+            // the one listed.
+            let now = match stored {
+                Some(s) => {
+                    let v = s.version;
+                    self.seq.insert_stored_chunk(pos, s.chunk, v);
+                    v
+                }
+                None => listed,
+            };
             self.versions.insert(pos, now);
             moved.push((pos, now));
         }

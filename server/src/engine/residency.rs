@@ -21,20 +21,28 @@ pub const EVICT_INTERVAL: Duration = Duration::from_secs(1);
 impl Engine {
     /// Makes every listed chunk resident: stored ones are loaded, the rest
     /// are marked as generated (version 0).
+    /// The stored ones are read together (one round trip to a database).
     pub(super) fn make_resident(&mut self, positions: &[ChunkPos]) -> Result<(), StoreError> {
+        let mut stored = Vec::new();
         for &pos in positions {
             if self.seq.is_resident(pos) {
                 continue;
             }
-            if !self.versions.contains_key(&pos) {
+            if self.versions.contains_key(&pos) {
+                stored.push(pos);
+            } else {
                 self.seq.mark_absent(pos);
-                continue;
             }
-            match self.store.load_chunk(pos)? {
-                Some(stored) => self
-                    .seq
-                    .insert_stored_chunk(pos, stored.chunk, stored.version),
-                None => self.seq.mark_absent(pos),
+        }
+        if stored.is_empty() {
+            return Ok(());
+        }
+        stored.sort_unstable();
+        stored.dedup();
+        for (pos, loaded) in stored.iter().zip(self.store.load_chunks(&stored)?) {
+            match loaded {
+                Some(s) => self.seq.insert_stored_chunk(*pos, s.chunk, s.version),
+                None => self.seq.mark_absent(*pos),
             }
         }
         Ok(())

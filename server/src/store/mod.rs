@@ -105,6 +105,13 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// deltas committed since), or `None` if it was never modified.
     fn load_chunk(&self, pos: ChunkPos) -> Result<Option<StoredChunk>, StoreError>;
 
+    /// [`Self::load_chunk`] of each of `positions`, in their order. A store
+    /// across a network reads them in few round trips (the engine thread
+    /// waits on these); embedded ones one by one.
+    fn load_chunks(&self, positions: &[ChunkPos]) -> Result<Vec<Option<StoredChunk>>, StoreError> {
+        positions.iter().map(|&p| self.load_chunk(p)).collect()
+    }
+
     /// Atomically writes one tick's edits, whole chunk states, deltas and
     /// `last_seq`, then flushes. Refuses (changing nothing) a batch whose seqs do not
     /// follow `last_seq`, whose chunk versions do not rise, or whose chunks

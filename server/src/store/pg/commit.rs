@@ -195,26 +195,30 @@ impl PgStore {
         };
         let encode = started.elapsed();
         let commit_sent = std::sync::atomic::AtomicBool::new(false);
-        let committed = self.pool.run("committing a batch", async |c: &mut Conn| {
-            c.batch("BEGIN").await.map_err(before_commit)?;
-            let applying = Instant::now();
-            match write(c, &cols, fence.as_ref()).await {
-                Ok(()) => {
-                    let apply = applying.elapsed();
-                    let committing = Instant::now();
-                    // From here a lost connection leaves the outcome unknown.
-                    commit_sent.store(true, std::sync::atomic::Ordering::Release);
-                    c.batch("COMMIT").await?;
-                    Ok((apply, committing.elapsed()))
-                }
-                Err(e) => {
-                    if !e.is_postgres() {
-                        c.batch("ROLLBACK").await?;
+        let committed = self.pool.run_own(
+            &self.commit_conn,
+            "committing a batch",
+            async |c: &mut Conn| {
+                c.batch("BEGIN").await.map_err(before_commit)?;
+                let applying = Instant::now();
+                match write(c, &cols, fence.as_ref()).await {
+                    Ok(()) => {
+                        let apply = applying.elapsed();
+                        let committing = Instant::now();
+                        // From here a lost connection leaves the outcome unknown.
+                        commit_sent.store(true, std::sync::atomic::Ordering::Release);
+                        c.batch("COMMIT").await?;
+                        Ok((apply, committing.elapsed()))
                     }
-                    Err(before_commit(e))
+                    Err(e) => {
+                        if !e.is_postgres() {
+                            c.batch("ROLLBACK").await?;
+                        }
+                        Err(before_commit(e))
+                    }
                 }
-            }
-        });
+            },
+        );
         // Timed out before COMMIT was sent (waiting on another node's row
         // locks, say): the connection was closed, so nothing was written.
         let committed = match committed {

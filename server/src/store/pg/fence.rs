@@ -28,6 +28,8 @@ use crate::store::StoreError;
 #[derive(Debug)]
 pub(super) struct Fence {
     node_id: String,
+    /// `[cluster] lease_ms`: a commit extends the leases it locks.
+    lease_ms: f64,
     held: BTreeMap<RegionId, u64>,
     /// Accepted edits of the batch that changed each region.
     edits: BTreeMap<RegionId, i64>,
@@ -72,6 +74,7 @@ pub(super) fn prepare(
     let lost = leases.lost();
     let mut fence = Fence {
         node_id: leases.node_id().to_string(),
+        lease_ms: leases.lease_ms(),
         held: BTreeMap::new(),
         edits: BTreeMap::new(),
         seqs: (0, 0),
@@ -167,11 +170,19 @@ pub(super) async fn check(c: &mut Conn, fence: &Fence) -> Result<(), StoreError>
             )));
         }
     }
+    // The renewal skips rows this transaction holds: it renews them itself
+    // (a slow commit would otherwise let them run out, and another node
+    // claim them, meanwhile). A lease already run out stays so: only the
+    // renewal takes it on again.
     c.execute(
-        "UPDATE regions AS r SET last_seq = GREATEST(r.last_seq, $3) \
+        "UPDATE regions AS r SET last_seq = GREATEST(r.last_seq, $3), \
+         lease_expires = CASE WHEN r.lease_expires > clock_timestamp() \
+             THEN GREATEST(r.lease_expires, \
+                 clock_timestamp() + $4::float8 * interval '1 millisecond') \
+             ELSE r.lease_expires END \
          FROM unnest($1::int4[], $2::int4[]) AS u(x, z) \
          WHERE r.region_x = u.x AND r.region_z = u.z",
-        &[&xs, &zs, &last],
+        &[&xs, &zs, &last, &fence.lease_ms],
     )
     .await?;
     if !fence.edits.is_empty() {

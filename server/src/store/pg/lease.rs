@@ -174,6 +174,11 @@ impl NodeLeases {
         self.book.lock().unwrap_or_else(|p| p.into_inner())
     }
 
+    /// `[cluster] lease_ms`.
+    pub(super) fn lease_ms(&self) -> f64 {
+        self.lease_ms
+    }
+
     pub fn node_id(&self) -> &str {
         &self.node_id
     }
@@ -656,8 +661,10 @@ pub(super) fn check_incarnation(pool: &Pool, leases: &NodeLeases) -> Result<(), 
 
 /// Extends every lease still this node's at the epoch it holds; those
 /// whose owner or epoch changed are lost. Returns the regions lost now.
-/// Rows are locked in key order, as a commit's fence locks them, so the
-/// two never deadlock.
+/// A row another transaction has locked (this node's commit, whose fence
+/// extends the lease itself) is skipped, not waited for: a slow commit
+/// must not hold up the renewal of every other region until their leases
+/// run out. It is lost only if it is no longer this node's as committed.
 pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
     let held = leases.held();
     if held.is_empty() {
@@ -665,31 +672,44 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
     }
     let (xs, zs, epochs) = held_columns(&held)?;
     let addr = leases.addr();
+    let region_of = |r: &tokio_postgres::Row| RegionId {
+        x: r.get(0),
+        z: r.get(1),
+    };
     let rows = pool.run("renewing leases", async |c: &mut Conn| {
         c.query(
             "WITH mine AS (SELECT r.region_x, r.region_z FROM regions r \
                  JOIN unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
                    ON r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e \
                  WHERE r.owner = $4 \
-                 ORDER BY r.region_x, r.region_z FOR UPDATE OF r) \
-             UPDATE regions AS r SET lease_expires = now() + $5::float8 * interval '1 millisecond', \
-                 renewed_at = now(), owner_addr = $6 \
+                 ORDER BY r.region_x, r.region_z FOR UPDATE OF r SKIP LOCKED) \
+             UPDATE regions AS r \
+                 SET lease_expires = clock_timestamp() + $5::float8 * interval '1 millisecond', \
+                 renewed_at = clock_timestamp(), owner_addr = $6 \
              FROM mine WHERE r.region_x = mine.region_x AND r.region_z = mine.region_z \
              RETURNING r.region_x, r.region_z",
             &[&xs, &zs, &epochs, &leases.node_id, &leases.lease_ms, &addr],
         )
         .await
     })?;
-    let renewed: BTreeSet<RegionId> = rows
-        .iter()
-        .map(|r| RegionId {
-            x: r.get(0),
-            z: r.get(1),
-        })
-        .collect();
+    let mut still: BTreeSet<RegionId> = rows.iter().map(region_of).collect();
+    if still.len() < held.len() {
+        // Those skipped (locked): this node's still, as last committed?
+        let rows = pool.run("reading leases being committed", async |c: &mut Conn| {
+            c.query(
+                "SELECT r.region_x, r.region_z FROM regions r \
+                 JOIN unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
+                   ON r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e \
+                 WHERE r.owner = $4",
+                &[&xs, &zs, &epochs, &leases.node_id],
+            )
+            .await
+        })?;
+        still.extend(rows.iter().map(region_of));
+    }
     let lost: Vec<RegionId> = held
         .keys()
-        .filter(|r| !renewed.contains(r))
+        .filter(|r| !still.contains(r))
         .copied()
         .collect();
     for &r in &lost {

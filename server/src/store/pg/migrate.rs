@@ -59,6 +59,10 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
     ),
 ];
 
+/// How long applying the migrations may take in all (waiting for another
+/// node's included).
+pub const MIGRATION_LIMIT: std::time::Duration = std::time::Duration::from_secs(600);
+
 /// Key of the advisory lock migrations take ("strata" in ASCII).
 const MIGRATION_LOCK: i64 = 0x7374_7261_7461;
 
@@ -79,60 +83,68 @@ pub enum Migrator {
 /// [`Migrator::Admin`], one behind this build that a server is using.
 pub fn apply(pool: &Pool, by: Migrator) -> Result<(), StoreError> {
     let known = MIGRATIONS.last().map_or(0, |m| m.0);
-    pool.run_tx("applying migrations", "BEGIN", async |c: &mut Conn| {
-        c.execute("SELECT pg_advisory_xact_lock($1)", &[&MIGRATION_LOCK])
-            .await?;
-        // A restore holds the world's tables: a migration would wait on
-        // them until its statement timeout. Say why at once instead.
-        if !try_serving_lock(c, "SELECT pg_try_advisory_xact_lock_shared($1)").await? {
-            return Err(super::import::restore_running());
-        }
-        c.batch(
-            "CREATE TABLE IF NOT EXISTS schema_migrations (\
+    // Not under the statement timeout meant for a tick's statements: a
+    // migration may rewrite whole tables, once.
+    let begin = "BEGIN; SET LOCAL statement_timeout = 0";
+    pool.run_tx_for(
+        "applying migrations",
+        begin,
+        MIGRATION_LIMIT,
+        async |c: &mut Conn| {
+            c.execute("SELECT pg_advisory_xact_lock($1)", &[&MIGRATION_LOCK])
+                .await?;
+            // A restore holds the world's tables: a migration would wait on
+            // them until its statement timeout. Say why at once instead.
+            if !try_serving_lock(c, "SELECT pg_try_advisory_xact_lock_shared($1)").await? {
+                return Err(super::import::restore_running());
+            }
+            c.batch(
+                "CREATE TABLE IF NOT EXISTS schema_migrations (\
              version integer PRIMARY KEY, name text NOT NULL, \
              applied_at timestamptz NOT NULL DEFAULT now())",
-        )
-        .await?;
-        let applied: Vec<i32> = c
-            .query(
-                "SELECT version FROM schema_migrations ORDER BY version",
-                &[],
-            )
-            .await?
-            .iter()
-            .map(|r| r.get(0))
-            .collect();
-        if let Some(&newest) = applied.last() {
-            if newest > known {
-                return Err(StoreError::UnsupportedFormat {
-                    found: newest as u32,
-                    supported: known as u32,
-                });
-            }
-        }
-        let missing = MIGRATIONS.iter().any(|m| !applied.contains(&m.0));
-        if missing && by == Migrator::Admin {
-            // Alone for this transaction: no server holds it shared.
-            if !try_serving_lock(c, "SELECT pg_try_advisory_xact_lock($1)").await? {
-                return Err(StoreError::SchemaBehind {
-                    found: applied.last().copied().unwrap_or(0).max(0) as u32,
-                    needed: known as u32,
-                });
-            }
-        }
-        for &(version, name, sql) in MIGRATIONS {
-            if applied.contains(&version) {
-                continue;
-            }
-            c.batch(sql).await?;
-            c.execute(
-                "INSERT INTO schema_migrations (version, name) VALUES ($1, $2)",
-                &[&version, &name],
             )
             .await?;
-        }
-        Ok(())
-    })
+            let applied: Vec<i32> = c
+                .query(
+                    "SELECT version FROM schema_migrations ORDER BY version",
+                    &[],
+                )
+                .await?
+                .iter()
+                .map(|r| r.get(0))
+                .collect();
+            if let Some(&newest) = applied.last() {
+                if newest > known {
+                    return Err(StoreError::UnsupportedFormat {
+                        found: newest as u32,
+                        supported: known as u32,
+                    });
+                }
+            }
+            let missing = MIGRATIONS.iter().any(|m| !applied.contains(&m.0));
+            if missing && by == Migrator::Admin {
+                // Alone for this transaction: no server holds it shared.
+                if !try_serving_lock(c, "SELECT pg_try_advisory_xact_lock($1)").await? {
+                    return Err(StoreError::SchemaBehind {
+                        found: applied.last().copied().unwrap_or(0).max(0) as u32,
+                        needed: known as u32,
+                    });
+                }
+            }
+            for &(version, name, sql) in MIGRATIONS {
+                if applied.contains(&version) {
+                    continue;
+                }
+                c.batch(sql).await?;
+                c.execute(
+                    "INSERT INTO schema_migrations (version, name) VALUES ($1, $2)",
+                    &[&version, &name],
+                )
+                .await?;
+            }
+            Ok(())
+        },
+    )
 }
 
 /// Runs `sql`, a try-lock of the serving lock for this transaction

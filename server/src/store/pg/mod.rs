@@ -82,6 +82,9 @@ pub struct PgStore {
     /// The connection holding [`import::SERVING_LOCK`] shared while a
     /// server uses this store ([`ChunkStore::serve`]).
     serving: std::sync::Mutex<Option<Box<Conn>>>,
+    /// The commits' own connection ([`Pool::run_own`]), opened at the
+    /// first commit.
+    commit_conn: std::sync::Mutex<Option<Box<Conn>>>,
 }
 
 impl PgStore {
@@ -238,6 +241,7 @@ impl PgStore {
             region_chunks: region_chunks.max(1),
             generator: std::sync::OnceLock::new(),
             serving: std::sync::Mutex::new(None),
+            commit_conn: std::sync::Mutex::new(None),
         })
     }
 
@@ -371,6 +375,14 @@ impl ChunkStore for PgStore {
         Ok(self
             .latest(pos)?
             .map(|(version, chunk)| StoredChunk { chunk, version }))
+    }
+
+    fn load_chunks(&self, positions: &[ChunkPos]) -> Result<Vec<Option<StoredChunk>>, StoreError> {
+        Ok(self
+            .latest_many(positions)?
+            .into_iter()
+            .map(|s| s.map(|(version, chunk)| StoredChunk { chunk, version }))
+            .collect())
     }
 
     fn commit_batch(&self, batch: &CommitBatch) -> Result<CommitStats, StoreError> {

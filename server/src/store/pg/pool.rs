@@ -148,12 +148,46 @@ impl Pool {
         what: &'static str,
         f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
     ) -> Result<T, StoreError> {
+        self.run_for(what, self.statement_timeout, f)
+    }
+
+    /// [`Pool::run`] given `limit` instead of the statement timeout (the
+    /// session's own timeout is the caller's to lift).
+    pub fn run_for<T>(
+        &self,
+        what: &'static str,
+        limit: Duration,
+        f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
         let mut conn = self.take()?;
-        let (result, late) = timed(what, self.statement_timeout, f(&mut conn));
+        let (result, late) = timed(what, limit, f(&mut conn));
         // Our own refusals leave the connection clean; a database error
         // may leave it mid-transaction.
         let keep = !late && result.as_ref().err().is_none_or(|e| !e.is_postgres());
         self.give(keep.then_some(conn));
+        result
+    }
+
+    /// [`Pool::run`] on a connection of the caller's own, kept in `slot`
+    /// between calls and outside the pool's limit: for the commits, which
+    /// must not wait behind the pool's other users (a login storm's reads,
+    /// console renders) and time out, which stops the engine.
+    pub fn run_own<T>(
+        &self,
+        slot: &Mutex<Option<Box<Conn>>>,
+        what: &'static str,
+        f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
+        let mut held = slot.lock().unwrap_or_else(|p| p.into_inner());
+        let mut conn = match held.take() {
+            Some(c) if !c.is_closed() => c,
+            _ => Box::new(self.connect()?),
+        };
+        let (result, late) = timed(what, self.statement_timeout, f(&mut conn));
+        // As `run`: one that failed or timed out is closed, not kept.
+        if !late && result.as_ref().err().is_none_or(|e| !e.is_postgres()) {
+            *held = Some(conn);
+        }
         result
     }
 
@@ -167,7 +201,18 @@ impl Pool {
         begin: &'static str,
         f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
     ) -> Result<T, StoreError> {
-        self.run(what, async |c: &mut Conn| {
+        self.run_tx_for(what, begin, self.statement_timeout, f)
+    }
+
+    /// [`Pool::run_tx`] within `limit` ([`Pool::run_for`]).
+    pub fn run_tx_for<T>(
+        &self,
+        what: &'static str,
+        begin: &'static str,
+        limit: Duration,
+        f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
+        self.run_for(what, limit, async |c: &mut Conn| {
             c.batch(begin).await?;
             match f(c).await {
                 Ok(v) => {

@@ -32,34 +32,67 @@ const SELECT_CHUNK: &str = "\
           coalesce((SELECT version FROM chunks WHERE x = $1 AND y = $2 AND z = $3), 0) \
     ORDER BY is_record DESC, version";
 
+/// [`SELECT_CHUNK`] for many chunks (`$1`, `$2`, `$3`: their x, y, z) in
+/// one statement, each chunk's rows together.
+const SELECT_CHUNKS: &str = "\
+    WITH want AS (SELECT DISTINCT * FROM unnest($1::int4[], $2::int4[], $3::int4[]) AS u(x, y, z)) \
+    SELECT c.x, c.y, c.z, true AS is_record, c.version, c.body FROM chunks c \
+    JOIN want w ON c.x = w.x AND c.y = w.y AND c.z = w.z \
+    UNION ALL \
+    SELECT d.x, d.y, d.z, false, d.to_version, d.body FROM chunk_deltas d \
+    JOIN want w ON d.x = w.x AND d.y = w.y AND d.z = w.z \
+    WHERE d.to_version > coalesce( \
+        (SELECT version FROM chunks c WHERE c.x = d.x AND c.y = d.y AND c.z = d.z), 0) \
+    ORDER BY 1, 2, 3, 4 DESC, 5";
+
+/// Chunks one [`SELECT_CHUNKS`] reads at most (their bodies come back
+/// together).
+const CHUNKS_PER_READ: usize = 256;
+
 impl PgStore {
+    /// Each of `positions`' newest durable state, in their order, in one
+    /// statement per [`CHUNKS_PER_READ`].
+    pub(super) fn latest_many(
+        &self,
+        positions: &[ChunkPos],
+    ) -> Result<Vec<Option<(u64, Chunk)>>, StoreError> {
+        let mut out = Vec::with_capacity(positions.len());
+        for part in positions.chunks(CHUNKS_PER_READ) {
+            let (xs, ys, zs): (Vec<i32>, Vec<i32>, Vec<i32>) =
+                part.iter().map(|p| (p.x, p.y, p.z)).collect();
+            let rows = self.pool.run("reading chunks", async |c: &mut Conn| {
+                c.query(SELECT_CHUNKS, &[&xs, &ys, &zs]).await
+            })?;
+            let mut found: std::collections::HashMap<ChunkPos, Vec<tokio_postgres::Row>> =
+                std::collections::HashMap::new();
+            for r in rows {
+                let pos = ChunkPos::new(r.get(0), r.get(1), r.get(2));
+                found.entry(pos).or_default().push(r);
+            }
+            for &pos in part {
+                let stored = match found.get(&pos) {
+                    Some(rows) => Some(stored_from(pos, rows, 3)?),
+                    None => None,
+                };
+                out.push(
+                    stored
+                        .map(|s| s.replayed(pos, self.generator()))
+                        .transpose()?,
+                );
+            }
+        }
+        Ok(out)
+    }
+
     /// `pos`'s record and deltas, or `None` when the store lacks it.
     pub(super) fn stored(&self, pos: ChunkPos) -> Result<Option<Stored>, StoreError> {
         let rows = self.pool.run("reading a chunk", async |c: &mut Conn| {
             c.query(SELECT_CHUNK, &[&pos.x, &pos.y, &pos.z]).await
         })?;
-        let mut rows = rows.into_iter();
-        let Some(first) = rows.next() else {
+        if rows.is_empty() {
             return Ok(None);
-        };
-        if !first.get::<_, bool>(0) {
-            return Err(StoreError::corrupt(
-                "deltas without a chunk record",
-                show_pos(pos),
-            ));
         }
-        let version = from_sql(first.get(1), "chunk version", show_pos(pos))?;
-        let deltas = rows
-            .map(|r| {
-                let to = from_sql(r.get(1), "delta version", show_pos(pos))?;
-                decode_delta(pos, to, r.get(2))
-            })
-            .collect::<Result<_, _>>()?;
-        Ok(Some(Stored {
-            version,
-            body: first.get(2),
-            deltas,
-        }))
+        stored_from(pos, &rows, 0).map(Some)
     }
 
     /// `pos`'s newest durable state: its record with the deltas past it.
@@ -89,6 +122,37 @@ impl PgStore {
             encoded: encode_chunk(&chunk),
         }))
     }
+}
+
+/// A chunk's rows (its record, then its deltas past it by version; the
+/// columns `is_record, version, body` from `at` on) as a [`Stored`].
+fn stored_from(
+    pos: ChunkPos,
+    rows: &[tokio_postgres::Row],
+    at: usize,
+) -> Result<Stored, StoreError> {
+    let Some((first, deltas)) = rows.split_first() else {
+        return Err(StoreError::corrupt("no chunk rows", show_pos(pos)));
+    };
+    if !first.get::<_, bool>(at) {
+        return Err(StoreError::corrupt(
+            "deltas without a chunk record",
+            show_pos(pos),
+        ));
+    }
+    let version = from_sql(first.get(at + 1), "chunk version", show_pos(pos))?;
+    let deltas = deltas
+        .iter()
+        .map(|r| {
+            let to = from_sql(r.get(at + 1), "delta version", show_pos(pos))?;
+            decode_delta(pos, to, r.get(at + 2))
+        })
+        .collect::<Result<_, _>>()?;
+    Ok(Stored {
+        version,
+        body: first.get(at + 2),
+        deltas,
+    })
 }
 
 impl Stored {
