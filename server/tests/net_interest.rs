@@ -288,8 +288,20 @@ async fn a_forgotten_chunk_gets_no_deltas_until_it_is_resynced() {
         assert!(watcher.take_arrivals().is_empty());
         watcher.subscribe(target, 1).await.unwrap();
         loaded(&watcher, target, 1).await;
+        // Nothing more streams to it (its view is complete).
+        assert!(eventually(Duration::from_secs(10), || watcher.view_loaded().is_some()).await);
         watcher.forget(&[target]).await.unwrap();
         assert!(watcher.replica().get(target).is_none(), "dropped at once");
+        // The server confirms it at once (nothing else reaches the
+        // watcher's updates stream): from then on nothing of it is on its
+        // way, and the client takes it in again when sent.
+        assert!(
+            eventually(Duration::from_secs(5), || !watcher
+                .replica()
+                .is_dropped(target))
+            .await,
+            "the Forget was confirmed"
+        );
         // Forgetting a chunk outside the view is ignored.
         watcher.forget(&[ChunkPos::new(90, 0, 0)]).await.unwrap();
         let mine = Edit::Mine {

@@ -94,7 +94,7 @@ fn an_admin_tool_migrates_a_database_only_while_no_server_uses_it() {
         matches!(
             err,
             StoreError::SchemaBehind {
-                found: 9,
+                found: 7,
                 needed: 9
             }
         ),
@@ -432,4 +432,25 @@ fn migrations_run_past_the_statement_timeout() {
     let applied = sql(&db, "SELECT count(*) FROM schema_migrations");
     assert_eq!(applied, [MIGRATIONS.len().to_string()]);
     drop(store);
+}
+
+/// A newer build's admin tool may migrate the database between a starting
+/// server's migrations and its serving lock (the tool migrates only while
+/// no server holds it): the server then refuses to serve, as it refuses to
+/// open a database migrated further than it knows.
+#[test]
+fn a_server_migrated_past_before_it_took_the_lock_refuses_to_serve() {
+    let Some(db) = database("migrated_before_serving") else {
+        return;
+    };
+    let store = pg_store(&db);
+    sql(
+        &db,
+        "INSERT INTO schema_migrations (version, name) VALUES (999, 'future')",
+    );
+    let err = store.serve().unwrap_err();
+    assert!(
+        matches!(err, StoreError::UnsupportedFormat { found: 999, .. }),
+        "{err}"
+    );
 }

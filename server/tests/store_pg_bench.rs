@@ -101,3 +101,50 @@ fn nodes_committing_side_by_side() {
         );
     }
 }
+
+/// Chunks an edit needs that are not in memory: read one statement each,
+/// as `make_resident` did, or in one (`load_chunks`). Each chunk has a
+/// record and two deltas past it; 27 chunks, an edit's neighbourhood.
+#[test]
+#[ignore = "benchmark: run by hand with --ignored --nocapture"]
+fn reading_chunks_one_by_one_and_together() {
+    let Some(db) = database("bench_read_together") else {
+        return;
+    };
+    let store = store_common::pg_store(&db);
+    store.init_meta(&WorldMeta::new(7, 1, "")).unwrap();
+    let positions: Vec<ChunkPos> = (0..27)
+        .map(|i| ChunkPos::new(i % 3, (i / 3) % 3, i / 9))
+        .collect();
+    let mut world = Seq::default();
+    for salt in 0..3u32 {
+        let changes = positions
+            .iter()
+            .map(|&p| {
+                (
+                    p,
+                    terrain_chunk(salt * 100 + p.x as u32 * 9 + p.y as u32 * 3),
+                )
+            })
+            .collect();
+        store.commit_batch(&world.delta_batch(&[changes])).unwrap();
+    }
+    const ROUNDS: usize = 200;
+    let (mut alone, mut together) = (Vec::new(), Vec::new());
+    for _ in 0..ROUNDS {
+        let t = Instant::now();
+        for &p in &positions {
+            store.load_chunk(p).unwrap().unwrap();
+        }
+        alone.push(t.elapsed());
+        let t = Instant::now();
+        let got = store.load_chunks(&positions).unwrap();
+        together.push(t.elapsed());
+        assert!(got.iter().all(Option::is_some));
+    }
+    println!(
+        "27 chunks (record + 2 deltas each), p50 of {ROUNDS}: one by one {:.2} ms, together {:.2} ms",
+        p50_ms(alone),
+        p50_ms(together)
+    );
+}

@@ -48,6 +48,16 @@ fn signal(server: &Server, sig: &str) {
 }
 
 /// Every acknowledged seq in a bots ack log.
+/// One secret and one certificate for the cluster: `from`'s (a node
+/// started once) copied into `to` before its node starts. A node with
+/// identity files of its own beside the cluster's world is refused.
+fn share_identity(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for f in ["auth.secret", "cert.der", "key.der"] {
+        std::fs::copy(from.join(f), to.join(f)).unwrap();
+    }
+}
+
 fn acked_seqs(path: &std::path::Path) -> Vec<u64> {
     let file = std::fs::File::open(path).unwrap();
     BufReader::new(file)
@@ -272,11 +282,7 @@ fn a_paused_nodes_players_are_told_the_new_owner_and_move_there() {
     };
     let a = Server::start_with(&da, "127.0.0.1:0", &config("node-a"));
     std::fs::write(da.join("strata.toml"), &store_config).unwrap();
-    // One secret and one certificate for the cluster.
-    std::fs::create_dir_all(&dbb).unwrap();
-    for f in ["auth.secret", "cert.der", "key.der"] {
-        std::fs::copy(da.join(f), dbb.join(f)).unwrap();
-    }
+    share_identity(&da, &dbb);
     let b = Server::start_with(&dbb, "127.0.0.1:0", &config("node-b"));
     // Bots on node-a, in the middle of region (2, 2): each edit touches
     // that region only.
@@ -536,6 +542,9 @@ fn three_nodes_write_one_world_and_a_killed_nodes_regions_are_adopted_within_the
             "{store_config}[cluster]\nnode_id = \"{name}\"\nlease_ms = {CLUSTER_LEASE_MS}\n\
              renew_ms = {CLUSTER_RENEW_MS}\n"
         );
+        if i > 0 {
+            share_identity(&tmp.path().join("node-0"), &data);
+        }
         let server = Server::start_with(&data, "127.0.0.1:0", &config);
         std::fs::write(data.join("strata.toml"), &store_config).unwrap();
         nodes.push((name, data, server, *origin));
@@ -651,6 +660,7 @@ fn a_second_process_with_the_same_node_id_stops_the_first_with_status_3() {
         "{store_config}[cluster]\nnode_id = \"node-a\"\nlease_ms = {LEASE_MS}\nrenew_ms = {RENEW_MS}\n"
     );
     let mut first = Server::start_with(&tmp.path().join("a"), "127.0.0.1:0", &config);
+    share_identity(&tmp.path().join("a"), &tmp.path().join("b"));
     let _second = Server::start_with(&tmp.path().join("b"), "127.0.0.1:0", &config);
     let status = first.proc.wait_timeout(Duration::from_secs(30));
     assert_eq!(

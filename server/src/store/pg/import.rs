@@ -51,8 +51,9 @@ pub const SOLO_LOCK: i64 = 0x5354_5241_534F; // "STRASO"
 /// snapshot) holds [`SERVING_LOCK`] alone.
 pub(super) fn restore_running() -> StoreError {
     StoreError::PgSetup {
-        reason: "a restore is replacing this database's world, or an offline snapshot is \
-                 reading it: start the server once it is done"
+        reason: "a restore is replacing this database's world, an offline snapshot is \
+                 reading it, or a newer strata-admin is migrating it: start the server once it \
+                 is done"
             .into(),
     }
 }

@@ -694,13 +694,15 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
     })?;
     let mut still: BTreeSet<RegionId> = rows.iter().map(region_of).collect();
     if still.len() < held.len() {
-        // Those skipped (locked): this node's still, as last committed?
+        // Those skipped (locked): this node's still, as last committed, and
+        // not run out (a commit that held one too long and then failed did
+        // not extend it)?
         let rows = pool.run("reading leases being committed", async |c: &mut Conn| {
             c.query(
                 "SELECT r.region_x, r.region_z FROM regions r \
                  JOIN unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
                    ON r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e \
-                 WHERE r.owner = $4",
+                 WHERE r.owner = $4 AND r.lease_expires > clock_timestamp()",
                 &[&xs, &zs, &epochs, &leases.node_id],
             )
             .await

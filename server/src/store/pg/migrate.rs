@@ -61,6 +61,7 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
 
 /// How long applying the migrations may take in all (waiting for another
 /// node's included).
+/// (`apply` sets the same as the transaction's statement timeout.)
 pub const MIGRATION_LIMIT: std::time::Duration = std::time::Duration::from_secs(600);
 
 /// Key of the advisory lock migrations take ("strata" in ASCII).
@@ -84,8 +85,9 @@ pub enum Migrator {
 pub fn apply(pool: &Pool, by: Migrator) -> Result<(), StoreError> {
     let known = MIGRATIONS.last().map_or(0, |m| m.0);
     // Not under the statement timeout meant for a tick's statements: a
-    // migration may rewrite whole tables, once.
-    let begin = "BEGIN; SET LOCAL statement_timeout = 0";
+    // migration may rewrite whole tables, once. The server's own limit is
+    // the client's, so nothing runs on once this client gave up.
+    let begin = "BEGIN; SET LOCAL statement_timeout = '600s'";
     pool.run_tx_for(
         "applying migrations",
         begin,
@@ -126,7 +128,7 @@ pub fn apply(pool: &Pool, by: Migrator) -> Result<(), StoreError> {
                 // Alone for this transaction: no server holds it shared.
                 if !try_serving_lock(c, "SELECT pg_try_advisory_xact_lock($1)").await? {
                     return Err(StoreError::SchemaBehind {
-                        found: applied.last().copied().unwrap_or(0).max(0) as u32,
+                        found: applied_through(&applied) as u32,
                         needed: known as u32,
                     });
                 }
@@ -153,4 +155,32 @@ async fn try_serving_lock(c: &mut Conn, sql: &'static str) -> Result<bool, Store
     Ok(c.query_opt(sql, &[&super::import::SERVING_LOCK])
         .await?
         .is_some_and(|r| r.get(0)))
+}
+
+/// The highest version up to which every migration is applied.
+fn applied_through(applied: &[i32]) -> i32 {
+    MIGRATIONS
+        .iter()
+        .take_while(|m| applied.contains(&m.0))
+        .last()
+        .map_or(0, |m| m.0)
+}
+
+/// The schema's version, checked again once a server holds the serving
+/// lock: a newer build's admin tool may have migrated it between this
+/// server's migrations and its lock (it migrates only while no server
+/// holds the lock).
+pub(super) async fn check_current(c: &mut Conn) -> Result<(), StoreError> {
+    let known = MIGRATIONS.last().map_or(0, |m| m.0);
+    let newest: Option<i32> = c
+        .query_opt("SELECT max(version) FROM schema_migrations", &[])
+        .await?
+        .and_then(|r| r.get(0));
+    match newest {
+        Some(v) if v > known => Err(StoreError::UnsupportedFormat {
+            found: v as u32,
+            supported: known as u32,
+        }),
+        _ => Ok(()),
+    }
 }

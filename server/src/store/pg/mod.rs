@@ -138,9 +138,12 @@ impl PgStore {
         if !alone {
             return Err(StoreError::PgSetup {
                 reason: match solo {
-                    true => "other servers use this database (a cluster's nodes, or a server \
-                             without [cluster]): a server without [cluster] must be alone on it"
-                        .into(),
+                    true => format!(
+                        "other servers use this database (a cluster's nodes, or a server \
+                         without [cluster]; one that died without closing its connection holds \
+                         on for about {} s more): a server without [cluster] must be alone on it",
+                        pool::KEEPALIVE_S
+                    ),
                     false => "a server without [cluster] uses this database: a cluster's nodes \
                               cannot share it (stop that server, then give it [cluster] too)"
                         .into(),
@@ -684,7 +687,10 @@ impl ChunkStore for PgStore {
     }
 
     fn serve(&self) -> Result<(), StoreError> {
-        self.take_serving_lock()
+        self.take_serving_lock()?;
+        self.pool.run("checking the schema", async |c: &mut Conn| {
+            migrate::check_current(c).await
+        })
     }
 
     fn hold_alone(&self) -> Result<(), StoreError> {

@@ -89,6 +89,15 @@ struct Idle {
     open: usize,
 }
 
+/// Seconds a connection idles before the server probes its client.
+const KEEPALIVE_IDLE_S: u32 = 10;
+/// Seconds between probes.
+const KEEPALIVE_INTERVAL_S: u32 = 5;
+/// Probes unanswered before the server ends the session.
+const KEEPALIVE_COUNT: u32 = 4;
+/// About how long a dead client's session holds its locks.
+pub const KEEPALIVE_S: u32 = KEEPALIVE_IDLE_S + KEEPALIVE_INTERVAL_S * KEEPALIVE_COUNT;
+
 /// The store's connections and the runtime that drives them.
 #[derive(Debug)]
 pub struct Pool {
@@ -343,10 +352,16 @@ impl Pool {
             client,
             statements: HashMap::new(),
         };
-        // Every commit waits for the WAL flush; no statement runs forever.
+        // Every commit waits for the WAL flush; no statement runs forever;
+        // the server probes an idle connection, so one whose client died
+        // without closing it (a crashed host) gives its locks up within
+        // about `KEEPALIVE_S` seconds, not the OS's two hours.
         let settings = format!(
             "SET synchronous_commit = on; SET statement_timeout = {}; \
-             SET idle_in_transaction_session_timeout = {}",
+             SET idle_in_transaction_session_timeout = {}; \
+             SET tcp_keepalives_idle = {KEEPALIVE_IDLE_S}; \
+             SET tcp_keepalives_interval = {KEEPALIVE_INTERVAL_S}; \
+             SET tcp_keepalives_count = {KEEPALIVE_COUNT}",
             self.statement_timeout.as_millis(),
             self.idle_in_transaction.as_millis()
         );
