@@ -139,13 +139,18 @@ pub struct Replica {
     /// the client asks for the chunk again ([`Replica::undrop`]) or it
     /// leaves the view.
     dropped: HashSet<ChunkPos>,
+    /// Chunks whose check ([`Self::expect_check`]) the server's withdrawal
+    /// of the held copy cancelled: [`Self::take_lost_checks`].
+    lost_checks: Vec<ChunkPos>,
 }
 
 impl Replica {
-    /// Drops a chunk that left the view.
+    /// Drops a chunk that left the view (or whose copy the server withdrew).
     fn forget(&mut self, pos: ChunkPos) {
         self.dropped.remove(&pos);
-        self.checks.remove(&pos);
+        if self.checks.remove(&pos) {
+            self.lost_checks.push(pos);
+        }
         self.chunks.remove(&pos);
         self.pending_mesh.remove(&pos);
     }
@@ -172,6 +177,7 @@ impl Replica {
             stats: ReplicaStats::default(),
             last_seq: 0,
             dropped: HashSet::default(),
+            lost_checks: Vec::new(),
         }
     }
 
@@ -231,6 +237,13 @@ impl Replica {
     /// Checks asked for and not answered yet.
     pub fn checks_pending(&self) -> usize {
         self.checks.len()
+    }
+
+    /// Checks cancelled since the last call: the server withdrew the held
+    /// copy (its changes dropped on a full queue, or the chunk left the
+    /// view) before answering. A copy sent again can be checked anew.
+    pub fn take_lost_checks(&mut self) -> Vec<ChunkPos> {
+        std::mem::take(&mut self.lost_checks)
     }
 
     /// Whether the check of `pos` is still waiting for the server.
@@ -750,6 +763,26 @@ mod tests {
         // Inside the world they are taken in.
         assert_eq!(r.try_apply(generated(0, 7, 0)), Ok(None));
         assert_eq!(r.len(), 1);
+    }
+
+    #[test]
+    fn a_check_the_servers_withdrawal_cancels_is_reported_lost() {
+        let mut r = Replica::new(Some(flat()));
+        let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
+        r.apply(generated(0, 0, 0));
+        r.apply(generated(1, 0, 0));
+        r.expect_check(a);
+        r.expect_check(b);
+        // a's copy is withdrawn before the server answers; b's is answered.
+        r.apply(WorldUpdate::UnsubscribedMany { chunks: vec![a] });
+        r.apply(generated(1, 0, 0));
+        assert_eq!(r.checks_pending(), 0);
+        assert_eq!((r.stats.checks_ok, r.stats.checks_failed), (1, 0));
+        assert_eq!(r.take_lost_checks(), vec![a]);
+        assert!(r.take_lost_checks().is_empty(), "taken once");
+        // A chunk left without a check pending is no lost check.
+        r.apply(WorldUpdate::Unsubscribed { pos: b });
+        assert!(r.take_lost_checks().is_empty());
     }
 
     #[test]

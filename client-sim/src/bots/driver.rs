@@ -745,10 +745,24 @@ impl Bot {
             }
         };
         let mut outstanding: Vec<(ChunkPos, Instant)> = Vec::new();
+        // Checks the server's withdrawal of the copy cancelled, until the
+        // chunk is held again (then checked anew).
+        let mut lost: Vec<ChunkPos> = Vec::new();
         let start = Instant::now();
         loop {
             {
-                let r = client.replica();
+                let mut r = client.replica();
+                lost.extend(r.take_lost_checks());
+                lost.retain(|&p| {
+                    let again = r
+                        .get(p)
+                        .is_some_and(|h| mode == VerifyMode::All || h.version > 0);
+                    if again {
+                        r.expect_check(p);
+                        queue.push(p);
+                    }
+                    !again
+                });
                 outstanding.retain(|(p, _)| r.is_checking(*p));
                 queue.retain(|p| r.is_checking(*p));
             }
@@ -775,6 +789,8 @@ impl Bot {
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
         self.out.unverified += client.replica().checks_pending() as u64;
+        // Withdrawn and not sent again by the end: not compared either.
+        self.out.unverified += lost.len() as u64;
         self.out.verified = true;
         Ok(())
     }
