@@ -1400,6 +1400,21 @@ async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
         let new = ticket::mint(west.data_dir.secret(), "ann", feet(WEST_X), recent);
         on_east.arrive(new).await.unwrap();
         assert!(eventually(Duration::from_secs(10), || on_east.arrived().is_some()).await);
+        // The tickets east mints for where ann arrived, a spot it never saw
+        // reported, keep the time ann was known there: not fresher at each
+        // refresh (one outdating reports ann makes elsewhere would take it
+        // back there). Told once it has a view.
+        on_east.subscribe(chunk_of(WEST_X), 1).await.unwrap();
+        assert!(
+            eventually(Duration::from_secs(10), || on_east
+                .region_owners()
+                .is_some_and(|o| o.ticket.is_some()))
+            .await,
+            "{:?}",
+            on_east.region_owners()
+        );
+        let minted = on_east.region_owners().unwrap().ticket.unwrap();
+        assert_eq!((minted.feet, minted.issued_ms), (feet(WEST_X), recent));
         finish(ann, west).await;
         finish(on_east, east).await;
     })

@@ -81,3 +81,42 @@ async fn tokens_versions_and_alpn() {
     .await
     .expect("test finished in time");
 }
+
+/// An admin-role session on the player protocol keeps its admin powers
+/// (every edit kind, protected zones) only while its token is good: it
+/// ends with `ExpiredToken` when the token expires, as an admin
+/// connection does. A player's session outlives its token.
+#[tokio::test]
+async fn an_admin_session_ends_when_its_token_expires_and_a_players_goes_on() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let short = |player: &str, role: Role| {
+            auth::issue(
+                server.data_dir.secret(),
+                player,
+                role,
+                Duration::from_secs(2),
+                auth::unix_now(),
+            )
+            .unwrap()
+        };
+        let admin = Client::connect(server.addr, &server.cert_der, &short("ops", Role::Admin))
+            .await
+            .unwrap();
+        let player = Client::connect(server.addr, &server.cert_der, &short("ana", Role::Player))
+            .await
+            .unwrap();
+        let ended = tokio::time::timeout(Duration::from_secs(6), admin.closed()).await;
+        match ended {
+            Ok(ClientError::Refused { code, .. }) => assert_eq!(code, ErrorCode::ExpiredToken),
+            other => panic!("the admin session went on, or ended otherwise: {other:?}"),
+        }
+        player.ping(1).await.unwrap();
+        assert!(!player.is_closed());
+        player.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

@@ -275,8 +275,7 @@ mod tests {
 
     use super::*;
     use crate::engine::admin::{AdminCommand, SnapshotStart};
-    use crate::engine::{inbox_channel, Command, Inbox};
-    use crate::validate::ratelimit::BucketConfig;
+    use crate::engine::{Command, Inbox};
 
     /// How long a start may wait on the engine before it is abandoned.
     const ABANDON_AFTER: Duration = Duration::from_millis(200);
@@ -293,34 +292,7 @@ mod tests {
 
     /// A context whose engine is the returned inbox (nobody serves it).
     fn context(dir: &std::path::Path) -> (Arc<SessionContext>, Inbox) {
-        let (engine, inbox) = inbox_channel(ENGINE_QUEUE, ENGINE_QUEUE);
-        let rate = BucketConfig {
-            capacity: 1,
-            per_second: 1,
-        };
-        let ctx = SessionContext {
-            secret: crate::auth::Secret::from_bytes([7; crate::auth::SECRET_LEN]),
-            engine,
-            store: Arc::new(crate::store::SledStore::open(dir).unwrap()),
-            world_seed: 1,
-            generator_version: 1,
-            generator_params: String::new(),
-            view_radius: 1,
-            writer_queue: 1,
-            control_writer_queue: 1,
-            send_interval: Duration::ZERO,
-            request_rate: rate,
-            request_buckets: crate::net::player_buckets::PlayerBuckets::new(1),
-            join_rate: rate,
-            join_buckets: crate::net::player_buckets::PlayerBuckets::new(1),
-            position_rate: rate,
-            position_reads: crate::net::position_reads::PositionReads::default(),
-            access: std::sync::RwLock::default(),
-            access_writes: tokio::sync::Mutex::new(()),
-            default_zones: Vec::new(),
-            zone_writes: tokio::sync::Mutex::new(()),
-        };
-        (Arc::new(ctx), inbox)
+        crate::net::session::test_context(dir, ENGINE_QUEUE)
     }
 
     /// The reply channel of the next snapshot start the engine is asked

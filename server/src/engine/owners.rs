@@ -115,7 +115,9 @@ impl Engine {
                 continue;
             };
             peer.owners_told = owners.clone();
-            peer.ticket_ms = ticket.as_ref().map(|t| t.issued_ms);
+            // When minted (a ticket of an unreported position keeps an
+            // older time).
+            peer.ticket_ms = ticket.as_ref().map(|_| now);
             self.send_control(
                 session,
                 &ServerMessage::RegionOwners {
@@ -128,12 +130,20 @@ impl Engine {
     }
 
     /// A ticket for the session's player where it stands now, if it has
-    /// a position.
+    /// a position. Timed now only for a position the player reported to
+    /// this node; one it arrived at or resumed keeps the time it was known
+    /// there. Else a session parked on this node, reporting nowhere, would
+    /// get a fresh ticket for an old spot every refresh, one that outdates
+    /// the positions it reports to another node: a teleport back there.
     fn ticket(&self, session: u64) -> Option<strata_protocol::Ticket> {
         let secret = self.ticket_secret.as_ref()?;
         let player = &self.seq.session(session)?.player;
-        let feet = self.seq.position(session)?.feet;
-        Some(crate::cluster::ticket::mint(secret, player, feet, now_ms()))
+        let p = self.seq.position(session)?;
+        let issued = match p.placement {
+            crate::validate::position::Placement::Reported => now_ms(),
+            _ => p.known_ms,
+        };
+        Some(crate::cluster::ticket::mint(secret, player, p.feet, issued))
     }
 }
 

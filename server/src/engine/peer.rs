@@ -53,7 +53,7 @@ pub struct Peer {
     pub refused_at: Option<u64>,
     /// The regions and holders last sent in `RegionOwners` (cluster only).
     pub owners_told: Vec<strata_protocol::RegionOwner>,
-    /// When (ms) the ticket last sent was issued.
+    /// When (ms) the ticket last sent was minted.
     pub ticket_ms: Option<u64>,
     /// Chunks whose changes were dropped on a full updates queue: the
     /// client's copies are stale, and it is told to drop them

@@ -260,7 +260,41 @@ pub(crate) async fn ask<T>(
     }
 }
 
+/// [`ask`] for a command that must not be dropped on a full queue: offered
+/// again until queued, for [`ENGINE_ANSWER_LIMIT`] at most.
+async fn ask_until_queued<T>(
+    ctx: &SessionContext,
+    make: impl FnOnce(oneshot::Sender<T>) -> AdminCommand,
+) -> Result<T, String> {
+    let (tx, rx) = oneshot::channel();
+    let mut cmd = Command::Admin(make(tx));
+    let deadline = tokio::time::Instant::now() + ENGINE_ANSWER_LIMIT;
+    loop {
+        match ctx.engine.offer(cmd) {
+            Ok(()) => break,
+            Err(TrySendError::Disconnected(_)) => return Err("server is shutting down".into()),
+            Err(TrySendError::Full(back)) if tokio::time::Instant::now() < deadline => cmd = back,
+            Err(TrySendError::Full(_)) => {
+                return Err(format!(
+                    "the engine took no command for {} s; the change is stored, but its sessions \
+                     were not ended",
+                    ENGINE_ANSWER_LIMIT.as_secs()
+                ))
+            }
+        }
+        tokio::time::sleep(crate::net::session::ENGINE_RETRY).await;
+    }
+    match tokio::time::timeout(ENGINE_ANSWER_LIMIT, rx).await {
+        Ok(answer) => answer.map_err(|_| "server is shutting down".to_string()),
+        Err(_) => Err(format!(
+            "the engine did not answer within {} s; the change is stored",
+            ENGINE_ANSWER_LIMIT.as_secs()
+        )),
+    }
+}
+
 use crate::stored_zones::ZoneChange;
+use std::sync::mpsc::TrySendError;
 
 fn refused(message: String) -> AdminResponse {
     AdminResponse::Refused { message }
@@ -383,8 +417,13 @@ async fn access_answer(
             }
             *ctx.access.write().unwrap_or_else(|e| e.into_inner()) = list.clone();
         }
+        // The change is stored: its kick must reach the engine (a full
+        // queue would leave the banned player playing, and the next reload
+        // finds nothing new to kick for).
         let kicked = match kick {
-            Some(player) => ask(ctx, |reply| AdminCommand::Kick { player, reply }).await?,
+            Some(player) => {
+                ask_until_queued(ctx, |reply| AdminCommand::Kick { player, reply }).await?
+            }
             None => 0,
         };
         return Ok(AdminResponse::Access(access_spec(&list, kicked)));
@@ -621,5 +660,49 @@ pub(crate) fn walk_snapshot(
     match pre.aborted() {
         Some(reason) => Err(reason),
         None => Ok(count),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A kick (the sessions of a player just banned) offered to a full
+    /// queue is offered again until the engine takes it, not dropped.
+    #[tokio::test]
+    async fn a_kick_waits_for_room_in_a_full_queue() {
+        let dir = tempfile::tempdir().unwrap();
+        let (ctx, inbox) = crate::net::session::test_context(dir.path(), 1);
+        let (filler, _) = oneshot::channel();
+        assert!(ctx
+            .engine
+            .try_send(Command::Admin(AdminCommand::Stats(filler))));
+        let engine = async {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            // The command that filled the queue, then the kick.
+            let first = inbox.recv_timeout(Duration::ZERO).unwrap();
+            assert!(matches!(first, Command::Admin(AdminCommand::Stats(_))));
+            let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+            loop {
+                match inbox.recv_timeout(Duration::ZERO) {
+                    Ok(Command::Admin(AdminCommand::Kick { player, reply })) => {
+                        assert_eq!(player, "mallory");
+                        let _ = reply.send(1);
+                        return;
+                    }
+                    Ok(other) => panic!("not a kick: {other:?}"),
+                    Err(_) => {
+                        assert!(tokio::time::Instant::now() < deadline, "no kick came");
+                        tokio::time::sleep(Duration::from_millis(5)).await;
+                    }
+                }
+            }
+        };
+        let ask = ask_until_queued(&ctx, |reply| AdminCommand::Kick {
+            player: "mallory".into(),
+            reply,
+        });
+        let (kicked, ()) = tokio::join!(ask, engine);
+        assert_eq!(kicked, Ok(1));
     }
 }

@@ -348,6 +348,7 @@ async fn joined(
         &mut shutdown,
         &mut kick_rx,
         &latest,
+        admin_until(&claims),
     )
     .await;
     leave(&ctx.engine, session).await;
@@ -422,6 +423,16 @@ pub(super) fn read_error_code(e: &ReadError) -> ErrorCode {
     }
 }
 
+/// When an admin-role session's token expires: its admin powers (every
+/// edit kind, protected zones) end with it, as an admin connection's do.
+/// A player's session outlives its token.
+fn admin_until(claims: &auth::Claims) -> Option<tokio::time::Instant> {
+    (claims.role == strata_protocol::Role::Admin).then(|| {
+        let left = claims.expires_at.saturating_sub(auth::unix_now());
+        tokio::time::Instant::now() + Duration::from_secs(left)
+    })
+}
+
 #[allow(clippy::too_many_arguments)]
 async fn serve(
     conn: &quinn::Connection,
@@ -432,6 +443,7 @@ async fn serve(
     shutdown: &mut Shutdown,
     kicked: &mut oneshot::Receiver<crate::engine::Kick>,
     latest: &LatestPosition,
+    admin_until: Option<tokio::time::Instant>,
 ) -> End {
     // The player's bucket, shared with its other sessions and kept after
     // this one ends.
@@ -488,6 +500,9 @@ async fn serve(
             }
             _ = shutdown.wait() => {
                 return End::Refused(ErrorCode::ShuttingDown, "server is shutting down".into());
+            }
+            _ = tokio::time::sleep_until(admin_until.unwrap_or_else(tokio::time::Instant::now)), if admin_until.is_some() => {
+                return End::Refused(ErrorCode::ExpiredToken, "the admin token expired".into());
             }
             kick = &mut *kicked => {
                 let (code, message) = kick.unwrap_or((ErrorCode::Internal, "the server ended this session".into()));
@@ -843,6 +858,43 @@ fn route(
         }
     };
     Ok(Some(cmd))
+}
+
+/// A context whose engine is the returned inbox, `queue` commands on each
+/// lane (a test's stand-in engine serves it, or nobody does).
+#[cfg(test)]
+pub(crate) fn test_context(
+    dir: &std::path::Path,
+    queue: usize,
+) -> (Arc<SessionContext>, crate::engine::Inbox) {
+    let (engine, inbox) = crate::engine::inbox_channel(queue, queue);
+    let rate = BucketConfig {
+        capacity: 1,
+        per_second: 1,
+    };
+    let ctx = SessionContext {
+        secret: crate::auth::Secret::from_bytes([7; crate::auth::SECRET_LEN]),
+        engine,
+        store: Arc::new(crate::store::SledStore::open(dir).unwrap()),
+        world_seed: 1,
+        generator_version: 1,
+        generator_params: String::new(),
+        view_radius: 1,
+        writer_queue: 1,
+        control_writer_queue: 1,
+        send_interval: Duration::ZERO,
+        request_rate: rate,
+        request_buckets: crate::net::player_buckets::PlayerBuckets::new(1),
+        join_rate: rate,
+        join_buckets: crate::net::player_buckets::PlayerBuckets::new(1),
+        position_rate: rate,
+        position_reads: crate::net::position_reads::PositionReads::default(),
+        access: std::sync::RwLock::default(),
+        access_writes: tokio::sync::Mutex::new(()),
+        default_zones: Vec::new(),
+        zone_writes: tokio::sync::Mutex::new(()),
+    };
+    (Arc::new(ctx), inbox)
 }
 
 #[cfg(test)]
