@@ -19,9 +19,9 @@ pub const HOT_RADIUS: u8 = 2;
 pub const EVICT_INTERVAL: Duration = Duration::from_secs(1);
 
 impl Engine {
-    /// Makes every listed chunk resident: stored ones are loaded, the rest
-    /// are marked as generated (version 0).
-    /// The stored ones are read together (one round trip to a database).
+    /// Makes every listed chunk resident: stored ones are loaded, all in
+    /// one read (one round trip to a database), the rest are marked as
+    /// generated (version 0).
     pub(super) fn make_resident(&mut self, positions: &[ChunkPos]) -> Result<(), StoreError> {
         let mut stored = Vec::new();
         for &pos in positions {
