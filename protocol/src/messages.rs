@@ -368,7 +368,8 @@ pub enum Refusal {
 /// Why an `Arrive` ticket was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum TicketRefusal {
-    /// Not signed with this cluster's secret.
+    /// Not signed with this cluster's secret for this world (another
+    /// cluster's, or this one's before a restore replaced the world).
     BadSignature,
     /// Issued for another player.
     OtherPlayer,
@@ -378,6 +379,8 @@ pub enum TicketRefusal {
     AlreadyPlaced,
     /// A position beyond 2^22 voxels.
     OutOfBounds,
+    /// This server is not a node of a cluster: it accepts no tickets.
+    NotClustered,
 }
 
 /// A chunk change, as broadcast after its edit is durable.

@@ -31,6 +31,10 @@ fn compile_c(out_dir: &std::path::Path, name: &str, link: &[String]) -> std::pat
 fn run_c(server: &Server, exe: &std::path::Path, player: &str) -> String {
     let out = run_bounded(
         Command::new(exe)
+            // Cargo's path lists target/debug first, where a libstrata.so of
+            // an older build may lie: the executable's rpath names the one
+            // just built.
+            .env_remove("LD_LIBRARY_PATH")
             .arg(server.address())
             .arg(server.cert_file())
             .arg(server.token(player)),

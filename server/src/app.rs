@@ -12,6 +12,7 @@ use strata_terrain::gen::{Generator, GENERATOR_VERSION};
 use strata_terrain::{MaterialTable, World};
 use tracing::info;
 
+use crate::cluster::ticket::TicketKey;
 use crate::config::ServerConfig;
 use crate::datadir::DataDir;
 use crate::engine::{Engine, EngineHandle, StreamPolicy};
@@ -52,6 +53,8 @@ pub struct Running {
     health: Arc<Health>,
     /// Becomes true when the engine thread ends.
     engine_exit: tokio::sync::watch::Receiver<bool>,
+    /// What signs and checks this node's tickets (a cluster's only).
+    pub tickets: Option<TicketKey>,
     /// The web console's address, when `[console] listen` is set.
     pub console_addr: Option<SocketAddr>,
     console: Option<crate::console::RunningConsole>,
@@ -206,6 +209,13 @@ pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow
         modified_chunks = versions.len(),
         "world loaded"
     );
+    // A cluster's tickets are signed for its world; a server alone on its
+    // store mints and accepts none.
+    let tickets = match (&cfg.cluster, store.world_id()) {
+        (None, _) => None,
+        (Some(_), Some(world)) => Some(TicketKey::new(data_dir.secret().clone(), world)),
+        (Some(_), None) => anyhow::bail!("a cluster node's store has no world id"),
+    };
     let engine = Engine::new(
         seq,
         store.clone(),
@@ -217,8 +227,11 @@ pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow
         cfg.interest,
         validation.bounds,
         versions,
-    )?
-    .with_ticket_secret(data_dir.secret().clone());
+    )?;
+    let engine = match &tickets {
+        Some(key) => engine.with_ticket_key(key.clone()),
+        None => engine,
+    };
     let (exit_tx, engine_exit) = tokio::sync::watch::channel(false);
     let on_exit = {
         let health = health.clone();
@@ -236,6 +249,7 @@ pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow
     store.bound_at(&addr.to_string());
     let ctx = SessionContext {
         secret: data_dir.secret().clone(),
+        tickets: tickets.clone(),
         engine: engine.clone(),
         store: store.clone(),
         world_seed: meta.seed,
@@ -328,6 +342,7 @@ pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow
         store,
         health,
         engine_exit,
+        tickets,
         console_addr: console.as_ref().map(|c| c.addr),
         console,
         reloads,

@@ -1354,8 +1354,9 @@ async fn a_node_joined_later_streams_the_view_asked() {
 
 /// A node that never saw a player reads, as the player joins, where another
 /// node last saved it: a ticket issued more than `STORED_TICKET_SLACK_MS`
-/// before then cannot take the player back, a more recent one can, and
-/// the player resumes where it was saved.
+/// before then cannot take the player back, a more recent one can (one
+/// signed for another world cannot), and the player resumes where it was
+/// saved.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
     use strata_protocol::{Refusal, Start, TicketRefusal};
@@ -1385,7 +1386,12 @@ async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
             "{:?}",
             on_east.welcome().start
         );
-        let old = ticket::mint(west.data_dir.secret(), "ann", feet(EAST_X), issued_before);
+        let old = ticket::mint(
+            west.tickets.as_ref().unwrap(),
+            "ann",
+            feet(EAST_X),
+            issued_before,
+        );
         let arrived = on_east.arrive_within(old, Duration::from_secs(10)).await;
         assert_eq!(arrived.unwrap(), None, "an older ticket moved ann");
         assert_eq!(
@@ -1395,9 +1401,23 @@ async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
             }]
         );
         // One issued a few seconds before the save (the player's latest) is
-        // taken.
+        // taken, if signed for this world: the nodes share its id, and a
+        // cluster of another world on the same secret signs for its own.
         let recent = seen - 5_000;
-        let new = ticket::mint(west.data_dir.secret(), "ann", feet(WEST_X), recent);
+        let world = west.tickets.as_ref().unwrap().world().to_string();
+        assert_eq!(east.tickets.as_ref().unwrap().world(), world);
+        let other = ticket::TicketKey::new(west.data_dir.secret().clone(), format!("{world}x"));
+        let elsewhere = ticket::mint(&other, "ann", feet(WEST_X), recent);
+        on_east.arrive(elsewhere).await.unwrap();
+        assert!(eventually(Duration::from_secs(10), || on_east.refusals().len() == 2).await);
+        assert_eq!(on_east.arrived(), None, "another world's ticket moved ann");
+        assert_eq!(
+            on_east.refusals()[1..],
+            [Refusal::BadTicket {
+                reason: TicketRefusal::BadSignature
+            }]
+        );
+        let new = ticket::mint(west.tickets.as_ref().unwrap(), "ann", feet(WEST_X), recent);
         on_east.arrive(new).await.unwrap();
         assert!(eventually(Duration::from_secs(10), || on_east.arrived().is_some()).await);
         // The tickets east mints for where ann arrived, a spot it never saw

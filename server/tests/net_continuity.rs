@@ -107,30 +107,54 @@ async fn a_restarted_server_resumes_players_where_they_stood_on(backend: Backend
     .expect("test finished in time");
 }
 
-on_both_backends!(
-    a_ticket_older_than_a_stored_position_is_refused_after_a_restart,
-    a_ticket_older_than_a_stored_position_is_refused_after_a_restart_on_postgres,
-    a_ticket_older_than_a_stored_position_is_refused_after_a_restart_on
-);
+/// A cluster node of its own on `db` (tickets are a cluster's).
+async fn start_node(
+    dir: &std::path::Path,
+    db: &strata_tests::postgres::PgDb,
+) -> strata_server::app::Running {
+    let mut cfg = test_config(dir);
+    cfg.store.backend = strata_server::store::StoreBackend::Postgres;
+    cfg.store.postgres.url = db.url();
+    cfg.cluster = Some(strata_server::cluster::ClusterConfig {
+        node_id: "solo".into(),
+        ..Default::default()
+    });
+    strata_server::app::start(cfg).await.expect("node starts")
+}
 
 /// When the server last knew a player where it stood is stored with the
 /// position: after a restart, a ticket (another node's word) issued before
 /// then still cannot move the player back in time, and a newer one can.
-async fn a_ticket_older_than_a_stored_position_is_refused_after_a_restart_on(backend: Backend) {
+#[tokio::test]
+async fn a_ticket_older_than_a_stored_position_is_refused_after_a_restart() {
     use strata_protocol::{Refusal, TicketRefusal};
     use strata_server::cluster::ticket;
     use strata_server::engine::now_ms;
+    let Some(db) = strata_tests::postgres::database("a_ticket_older_than_a_stored_position") else {
+        return;
+    };
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
+        let (home, home_ground) = spot(70, 40);
         let (near, _) = spot(74, 40);
         let issued_before = now_ms();
         tokio::time::sleep(Duration::from_millis(20)).await;
-        let home = ana_stood_home(dir.path(), &backend).await;
-        let server = start_on(dir.path(), &backend).await;
-        let secret = server.data_dir.secret();
+        let server = start_node(dir.path(), &db).await;
+        let ana = connect(&server, "ana", Role::Player).await;
+        assert!(matches!(
+            stand_and_mine(&ana, home, home_ground).await,
+            Verdict::Accepted { .. }
+        ));
+        ana.close().await;
+        server.shutdown().await.unwrap();
+        let server = start_node(dir.path(), &db).await;
+        let key = server
+            .tickets
+            .clone()
+            .expect("a cluster node signs tickets");
         let ana = connect(&server, "ana", Role::Player).await;
         assert_eq!(ana.welcome().start, Start::Resume { feet: home });
-        let old = ticket::mint(secret, "ana", near, issued_before);
+        let old = ticket::mint(&key, "ana", near, issued_before);
         let arrived = ana.arrive_within(old, Duration::from_secs(10)).await;
         assert_eq!(arrived.unwrap(), None, "an older ticket moved ana");
         assert_eq!(
@@ -139,11 +163,50 @@ async fn a_ticket_older_than_a_stored_position_is_refused_after_a_restart_on(bac
                 reason: TicketRefusal::AlreadyPlaced
             }]
         );
-        let new = ticket::mint(secret, "ana", near, now_ms());
+        let new = ticket::mint(&key, "ana", near, now_ms());
         ana.arrive(new).await.unwrap();
         assert!(eventually(Duration::from_secs(10), || ana.arrived().is_some()).await);
         assert_eq!(ana.arrived(), Some(near));
         assert_eq!(ana.refusals().len(), 1);
+        ana.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+on_both_backends!(
+    a_server_without_a_cluster_accepts_no_ticket,
+    a_server_without_a_cluster_accepts_no_ticket_on_postgres,
+    a_server_without_a_cluster_accepts_no_ticket_on
+);
+
+/// A server alone on its store mints no tickets, so none it could accept
+/// is its own: one signed with its secret (shared with a cluster, say) is
+/// refused, and the player stays where the server placed it.
+async fn a_server_without_a_cluster_accepts_no_ticket_on(backend: Backend) {
+    use strata_protocol::{Refusal, TicketRefusal};
+    use strata_server::cluster::ticket::{self, TicketKey};
+    use strata_server::engine::now_ms;
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let (far, _) = spot(5070, 40);
+        let server = start_on(dir.path(), &backend).await;
+        assert!(server.tickets.is_none());
+        let ana = connect(&server, "ana", Role::Player).await;
+        let start = ana.welcome().start;
+        // Signed as a cluster on this secret would sign it, for any world.
+        let key = TicketKey::new(server.data_dir.secret().clone(), "");
+        let t = ticket::mint(&key, "ana", far, now_ms());
+        let arrived = ana.arrive_within(t, Duration::from_secs(10)).await;
+        assert_eq!(arrived.unwrap(), None, "a ticket moved ana");
+        assert_eq!(
+            ana.refusals(),
+            [Refusal::BadTicket {
+                reason: TicketRefusal::NotClustered
+            }]
+        );
+        assert_eq!(ana.welcome().start, start);
         ana.close().await;
         server.shutdown().await.unwrap();
     })

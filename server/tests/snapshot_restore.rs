@@ -835,6 +835,7 @@ fn a_server_with_a_migration_pending_says_a_restore_is_running_at_once() {
     sql(
         &db,
         "DROP TABLE nodes; ALTER TABLE players DROP COLUMN known_ms; \
+         ALTER TABLE world DROP COLUMN generation; \
          DELETE FROM schema_migrations WHERE version >= 8",
     );
     // A forced restore's transaction: the lock alone, the tables locked.
@@ -906,4 +907,115 @@ fn a_server_whose_lock_connection_ended_takes_the_lock_again_at_its_next_commit(
         assert!(started.elapsed() < std::time::Duration::from_secs(10));
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
+}
+
+/// Ends every session on `db` but this test's own, and waits until they
+/// are gone.
+fn end_other_sessions(db: &strata_tests::postgres::PgDb) {
+    let others = format!(
+        "FROM pg_stat_activity WHERE datname = '{}' AND pid <> pg_backend_pid()",
+        db.name()
+    );
+    sql(db, &format!("SELECT pg_terminate_backend(pid) {others}"));
+    let started = std::time::Instant::now();
+    while sql(db, &format!("SELECT count(*) {others}")) != ["0"] {
+        assert!(started.elapsed() < std::time::Duration::from_secs(10));
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+/// A server alone on its database whose connections ended let a restore
+/// in: its next commit is refused, even where the restored world
+/// ends at the very seq the server is at (its seqs follow on), and writes
+/// nothing. The restored world has an id of its own.
+#[test]
+fn a_commit_into_a_world_restored_under_the_server_is_refused() {
+    let Some(db) = database("a_commit_into_a_world_restored_under_the_server") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    old_world_restored(&db, tmp.path());
+    let store = pg_store(&db);
+    store.serve().unwrap();
+    let meta = store.load_meta().unwrap().unwrap();
+    assert_eq!(meta.last_seq, 9);
+    // As a server gives it: the world it would make.
+    let meta = WorldMeta {
+        last_seq: 0,
+        ..meta
+    };
+    store.init_meta(&meta).unwrap();
+    let served = store.world_id().expect("read at init_meta");
+    // Every connection of the server's ended (a partition PostgreSQL
+    // timed out; the process itself went on), so a restore sees none.
+    end_other_sessions(&db);
+    // The same snapshot again: a world at seq 9, as the server's.
+    let old = tmp.path().join("old.snap");
+    assert_eq!(pg_restore(&db, tmp.path(), &old, true).unwrap(), 3);
+    let mut seq = store_common::Seq {
+        last_seq: 9,
+        ..Default::default()
+    };
+    let batch = seq.batch(&[vec![(ChunkPos::new(5, 1, 0), terrain_chunk(3))]]);
+    let err = store.commit_batch(&batch).unwrap_err();
+    assert!(matches!(err, StoreError::WorldReplaced { .. }), "{err}");
+    assert!(err.to_string().contains("restart the server"), "{err}");
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+    assert_eq!(sql(&db, "SELECT count(*) FROM edit_log"), ["0"]);
+    let restored = pg_store(&db);
+    restored.init_meta(&meta).unwrap();
+    assert_ne!(restored.world_id().unwrap(), served);
+}
+
+/// A cluster node cut off from the database across a restore commits
+/// nothing into the restored world, and is told the world was replaced
+/// (which stops its engine), not only that a region was taken (after
+/// which it would claim the region again and go on, its seqs, positions
+/// and zones those of the old world).
+#[test]
+fn a_cluster_nodes_commit_into_a_world_restored_under_it_is_refused() {
+    let Some(db) = database("a_cluster_nodes_commit_into_a_world_restored_under_it") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    old_world_restored(&db, tmp.path());
+    let pg = PgConfig {
+        url: db.url(),
+        ..PgConfig::default()
+    };
+    // No renewal within the test: the node is cut off from the database.
+    let cluster = ClusterConfig {
+        node_id: "a".into(),
+        lease_ms: 120_000,
+        renew_ms: 60_000,
+        ..ClusterConfig::default()
+    };
+    let node = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap();
+    node.serve().unwrap();
+    let meta = WorldMeta {
+        last_seq: 0,
+        ..node.load_meta().unwrap().unwrap()
+    };
+    node.init_meta(&meta).unwrap();
+    let mut seq = store_common::Seq {
+        last_seq: node.reserve_seqs(9).unwrap(),
+        ..Default::default()
+    };
+    let pos = ChunkPos::new(5, 1, 0);
+    node.commit_batch(&seq.batch(&[vec![(pos, terrain_chunk(3))]]))
+        .unwrap();
+    end_other_sessions(&db);
+    // Its lease ran out meanwhile.
+    sql(
+        &db,
+        "UPDATE regions SET lease_expires = now() - interval '1 second'",
+    );
+    let old = tmp.path().join("old.snap");
+    assert_eq!(pg_restore(&db, tmp.path(), &old, true).unwrap(), 3);
+    let err = node
+        .commit_batch(&seq.batch(&[vec![(pos, terrain_chunk(4))]]))
+        .unwrap_err();
+    assert!(matches!(err, StoreError::WorldReplaced { .. }), "{err}");
+    assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+    assert_eq!(sql(&db, "SELECT count(*) FROM edit_log"), ["0"]);
 }

@@ -93,10 +93,8 @@ fn an_admin_tool_migrates_a_database_only_while_no_server_uses_it() {
     assert!(
         matches!(
             err,
-            StoreError::SchemaBehind {
-                found: 7,
-                needed: 9
-            }
+            StoreError::SchemaBehind { found: 7, needed }
+                if needed as usize == MIGRATIONS.len()
         ),
         "{err}"
     );

@@ -110,8 +110,9 @@ pub struct Engine {
     durable_seq: u64,
     /// The `[engine] workers` threads.
     pool: Arc<rayon::ThreadPool>,
-    /// Signs `RegionOwners` tickets (the cluster's shared auth secret).
-    ticket_secret: Option<crate::auth::Secret>,
+    /// Signs `RegionOwners` tickets (the cluster's shared auth secret, for
+    /// its world).
+    ticket_key: Option<crate::cluster::ticket::TicketKey>,
     /// When the sessions' region holders are next looked at.
     owners_due: Instant,
     /// A cluster node's lease epoch for each region it last reloaded
@@ -188,7 +189,7 @@ impl Engine {
             snapshots_running: Vec::new(),
             deferred: Default::default(),
             committer: None,
-            ticket_secret: None,
+            ticket_key: None,
             owners_due: Instant::now(),
             region_epochs: HashMap::new(),
             reload_retry: Default::default(),
@@ -197,9 +198,9 @@ impl Engine {
         })
     }
 
-    /// Signs the tickets `RegionOwners` carries with `secret`.
-    pub fn with_ticket_secret(mut self, secret: crate::auth::Secret) -> Self {
-        self.ticket_secret = Some(secret);
+    /// Signs the tickets `RegionOwners` carries with `key`.
+    pub fn with_ticket_key(mut self, key: crate::cluster::ticket::TicketKey) -> Self {
+        self.ticket_key = Some(key);
         self
     }
 

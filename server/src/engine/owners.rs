@@ -136,14 +136,14 @@ impl Engine {
     /// get a fresh ticket for an old spot every refresh, one that outdates
     /// the positions it reports to another node: a teleport back there.
     fn ticket(&self, session: u64) -> Option<strata_protocol::Ticket> {
-        let secret = self.ticket_secret.as_ref()?;
+        let key = self.ticket_key.as_ref()?;
         let player = &self.seq.session(session)?.player;
         let p = self.seq.position(session)?;
         let issued = match p.placement {
             crate::validate::position::Placement::Reported => now_ms(),
             _ => p.known_ms,
         };
-        Some(crate::cluster::ticket::mint(secret, player, p.feet, issued))
+        Some(crate::cluster::ticket::mint(key, player, p.feet, issued))
     }
 }
 

@@ -43,6 +43,8 @@ pub const ENGINE_RETRY: Duration = Duration::from_millis(1);
 #[derive(Debug)]
 pub struct SessionContext {
     pub secret: Secret,
+    /// Checks `Arrive` tickets: a cluster node's only (`None` alone).
+    pub tickets: Option<crate::cluster::ticket::TicketKey>,
     pub engine: EngineHandle,
     /// Read-only use by admin sessions (snapshots, stats).
     pub store: std::sync::Arc<dyn crate::store::ChunkStore>,
@@ -835,7 +837,7 @@ fn route(
             // Signature, player and age here: a bad ticket never reaches
             // the engine.
             if let Err(reason) =
-                crate::cluster::ticket::verify(&ctx.secret, &ticket, player, now_ms())
+                crate::cluster::ticket::verify(ctx.tickets.as_ref(), &ticket, player, now_ms())
             {
                 let refusal = Refusal::BadTicket { reason };
                 reply(control, &ServerMessage::RequestRefused(refusal))?;
@@ -874,6 +876,7 @@ pub(crate) fn test_context(
     };
     let ctx = SessionContext {
         secret: crate::auth::Secret::from_bytes([7; crate::auth::SECRET_LEN]),
+        tickets: None,
         engine,
         store: Arc::new(crate::store::SledStore::open(dir).unwrap()),
         world_seed: 1,

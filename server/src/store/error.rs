@@ -101,6 +101,14 @@ pub enum StoreError {
         current_epoch: Option<u64>,
         owner: Option<String>,
     },
+    /// The store holds another world than the one this server started on
+    /// (a restore replaced it while the server's lock connection was
+    /// lost): the batch was refused and changed nothing.
+    #[error(
+        "the database's world was replaced while this server served it (world {expected} is now \
+         {found}, a restore): restart the server to serve the restored world"
+    )]
+    WorldReplaced { expected: String, found: String },
     /// Another process started under this node's `node_id` (a newer
     /// incarnation in the `nodes` table): this one claims nothing more and
     /// must stop.

@@ -323,6 +323,14 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(())
     }
 
+    /// The id of the world this store holds, as [`Self::init_meta`] found
+    /// it: one per world, new at every restore, and compared in every
+    /// commit after. PostgreSQL only (a cluster's tickets are signed for
+    /// it); an embedded store: `None`.
+    fn world_id(&self) -> Option<String> {
+        None
+    }
+
     /// Claims the cluster node id for this process (a newer incarnation
     /// supersedes any process still running under it). The server calls
     /// it once its ports are bound. Alone on its store: nothing.

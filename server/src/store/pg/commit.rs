@@ -201,7 +201,7 @@ impl PgStore {
             async |c: &mut Conn| {
                 c.batch("BEGIN").await.map_err(before_commit)?;
                 let applying = Instant::now();
-                match write(c, &cols, fence.as_ref()).await {
+                match write(c, &cols, fence.as_ref(), self.world_id.get()).await {
                     Ok(()) => {
                         let apply = applying.elapsed();
                         let committing = Instant::now();
@@ -253,12 +253,19 @@ impl PgStore {
 }
 
 /// The transaction's statements, between `BEGIN` and `COMMIT`.
-async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<(), StoreError> {
+/// `world`: the world's id the server started on, which the store must
+/// still hold (`None`: a tool's or a test's store, which never read it).
+async fn write(
+    c: &mut Conn,
+    cols: &Columns,
+    fence: Option<&Fence>,
+    world: Option<&String>,
+) -> Result<(), StoreError> {
     if fence.is_none() {
         let Some(row) = c
             .query_opt(
                 "SELECT last_seq, (SELECT COALESCE(max(seq), 0) FROM edit_log), \
-                     EXISTS (SELECT 1 FROM seq_blocks) \
+                     EXISTS (SELECT 1 FROM seq_blocks), generation \
                  FROM world WHERE id = 1 FOR UPDATE",
                 &[],
             )
@@ -266,6 +273,7 @@ async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<()
         else {
             return Err(StoreError::NoMeta);
         };
+        same_world(world, row.get(3))?;
         let (row_last, logged, clustered): (i64, i64, bool) = (row.get(0), row.get(1), row.get(2));
         // A cluster's fenced commits leave the row behind the log; a
         // store never clustered has nothing logged beyond it.
@@ -290,7 +298,7 @@ async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<()
         // a node paused in its commit stalls only its own regions. Their
         // rows are locked after the chunks', so a commit waiting on a
         // fold holds up no renewal or claim meanwhile.
-        fence::check(c, fence).await?;
+        fence::check(c, fence, world).await?;
     }
     for (pos, &lowest) in &cols.lowest {
         let head = heads.get(pos).copied();
@@ -380,6 +388,20 @@ async fn write(c: &mut Conn, cols: &Columns, fence: Option<&Fence>) -> Result<()
         .await?;
     }
     Ok(())
+}
+
+/// Refuses a commit into another world than the one the server started on
+/// (`expected`): one a restore wrote while the server's lock connection
+/// was lost. Its seqs may well follow on: the restored world can end at
+/// the very seq the server is at.
+pub(super) fn same_world(expected: Option<&String>, found: String) -> Result<(), StoreError> {
+    match expected {
+        Some(e) if *e != found => Err(StoreError::WorldReplaced {
+            expected: e.clone(),
+            found,
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// Locks the stored records of the batch's chunks (in key order, so two

@@ -131,17 +131,28 @@ fn current_holder(
 /// Inside the commit transaction: locks the fence's region rows and
 /// refuses the batch unless each still has this node's owner and epoch,
 /// then counts the batch's edits in them.
-pub(super) async fn check(c: &mut Conn, fence: &Fence) -> Result<(), StoreError> {
+/// `world`: the world's id the node started on; a restore since (which
+/// also frees every region at a higher epoch) refuses the batch.
+pub(super) async fn check(
+    c: &mut Conn,
+    fence: &Fence,
+    world: Option<&String>,
+) -> Result<(), StoreError> {
     let (xs, zs): (Vec<i32>, Vec<i32>) = fence.held.keys().map(|r| (r.x, r.z)).unzip();
     let rows = c
         .query(
-            "SELECT r.region_x, r.region_z, r.owner, r.epoch, r.last_seq FROM regions r \
+            "SELECT r.region_x, r.region_z, r.owner, r.epoch, r.last_seq, \
+                 (SELECT generation FROM world WHERE id = 1) FROM regions r \
              JOIN unnest($1::int4[], $2::int4[]) AS u(x, z) \
                ON r.region_x = u.x AND r.region_z = u.z \
              ORDER BY r.region_x, r.region_z FOR UPDATE OF r",
             &[&xs, &zs],
         )
         .await?;
+    if let Some(r) = rows.first() {
+        let found: Option<String> = r.get(5);
+        super::commit::same_world(world, found.unwrap_or_default())?;
+    }
     let mut current: BTreeMap<RegionId, (Option<String>, i64, i64)> = BTreeMap::new();
     for r in rows {
         current.insert(

@@ -57,6 +57,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0009_node_incarnations",
         include_str!("../../../migrations/0009_node_incarnations.sql"),
     ),
+    (
+        10,
+        "0010_world_generation",
+        include_str!("../../../migrations/0010_world_generation.sql"),
+    ),
 ];
 
 /// How long applying the migrations may take in all (waiting for another

@@ -85,6 +85,9 @@ pub struct PgStore {
     /// The commits' own connection ([`Pool::run_own`]), opened at the
     /// first commit.
     commit_conn: std::sync::Mutex<Option<Box<Conn>>>,
+    /// The world's id (`world.generation`) as [`ChunkStore::init_meta`]
+    /// found it; commits refuse a world replaced since.
+    world_id: std::sync::OnceLock<String>,
 }
 
 impl PgStore {
@@ -245,6 +248,7 @@ impl PgStore {
             generator: std::sync::OnceLock::new(),
             serving: std::sync::Mutex::new(None),
             commit_conn: std::sync::Mutex::new(None),
+            world_id: std::sync::OnceLock::new(),
         })
     }
 
@@ -360,7 +364,20 @@ impl ChunkStore for PgStore {
                 .into(),
         })?;
         compare_meta(&stored, meta)?;
+        let id = self
+            .pool
+            .run("reading the world's id", async |c: &mut Conn| {
+                c.query_opt("SELECT generation FROM world WHERE id = 1", &[])
+                    .await
+            })?;
+        if let Some(id) = id {
+            let _ = self.world_id.set(id.get(0));
+        }
         Ok(stored)
+    }
+
+    fn world_id(&self) -> Option<String> {
+        self.world_id.get().cloned()
     }
 
     fn last_seq(&self) -> Result<u64, StoreError> {
