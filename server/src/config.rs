@@ -814,6 +814,12 @@ impl ServerConfig {
         ] {
             range(field, value, 0.0, max)?;
         }
+        range(
+            "validation.max_move_ms",
+            v.max_move_ms,
+            1,
+            vc::MAX_MAX_MOVE_MS,
+        )?;
         let spawn = &self.validation.spawn;
         let max = crate::validate::spawn::MAX_SPAWN_COORD;
         range("validation.spawn.x", spawn.x, -max, max)?;

@@ -386,6 +386,11 @@ fn bad_values_name_their_field() {
             "[validation]\nspeed_slack_voxels = 5000.0",
             "validation.speed_slack_voxels",
         ),
+        ("[validation]\nmax_move_ms = 0", "validation.max_move_ms"),
+        (
+            "[validation]\nmax_move_ms = 60001",
+            "validation.max_move_ms",
+        ),
     ];
     for (text, field) in cases {
         assert_eq!(invalid_field(text), field, "config {text:?}");

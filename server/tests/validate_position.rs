@@ -152,6 +152,31 @@ fn speed_limit_with_slack() {
 }
 
 #[test]
+fn a_silence_buys_no_more_than_max_move_ms_of_walking() {
+    let mut s = fresh();
+    s.update_position(PLAYER, at(1, 0, 0, 0), 0).unwrap();
+    // A minute quiet: 20 voxels/s, +25 %, +2 voxels over 2 s (the cap),
+    // not over 60 s.
+    match s.update_position(PLAYER, at(2, 1_000, 0, 0), 60_000) {
+        Err(PositionReject::TooFast { distance, allowed }) => {
+            assert!((distance - 1_000.0).abs() < 1e-9);
+            assert!((allowed - 52.0).abs() < 1e-9, "{allowed}");
+        }
+        other => panic!("expected TooFast, got {other:?}"),
+    }
+    s.update_position(PLAYER, at(3, 52, 0, 0), 60_000).unwrap();
+    // Configurable.
+    let cfg = ValidationConfig {
+        max_move_ms: 10_000,
+        ..ValidationConfig::default()
+    };
+    let mut s = sequencer(SequencerConfig::default(), cfg);
+    s.session_joined(PLAYER, "p".into(), Role::Player);
+    s.update_position(PLAYER, at(1, 0, 0, 0), 0).unwrap();
+    s.update_position(PLAYER, at(2, 252, 0, 0), 60_000).unwrap();
+}
+
+#[test]
 fn reports_close_together_share_one_slack() {
     let mut s = fresh();
     s.update_position(PLAYER, at(1, 0, 0, 0), 0).unwrap();

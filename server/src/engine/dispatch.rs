@@ -1,6 +1,5 @@
 //! Serving one command from a session or an operator, between ticks.
 
-use bytes::Bytes;
 use strata_protocol::{ErrorCode, Refusal, ServerMessage, WorldUpdate};
 use tracing::{error, info, warn};
 
@@ -136,9 +135,7 @@ impl Engine {
                     // Confirmed at once, not with the session's next update
                     // (which a quiet view may not get for long). A full
                     // queue keeps it owed until the next batch.
-                    if p.owes_withdrawals() {
-                        let _ = p.send_update(Bytes::new(), false);
-                    }
+                    p.confirm_withdrawals();
                 }
             }
             Command::Arrive {

@@ -584,6 +584,29 @@ mod tests {
     }
 
     #[test]
+    fn a_forget_on_a_full_queue_encodes_nothing_and_stays_owed() {
+        let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
+        let (mut p, mut rx) = peer(&[(a, 4), (b, 2)]);
+        let mut holders = Holders::default();
+        let filler = Bytes::from_static(b"x");
+        while p.updates.try_send(filler.clone()).is_ok() {}
+        // A client that does not read, forgetting chunk after chunk (or
+        // the same one): no confirmation is encoded for a queue with no
+        // room, however many requests come.
+        for chunks in [[a], [b], [a], [b]] {
+            p.forget(&mut holders, 0, &chunks);
+            p.confirm_withdrawals();
+        }
+        assert_eq!(p.withdrawals_encoded, 0);
+        assert_eq!(p.withdrawals_owed(), &[a, b], "each once, in order");
+        // Once the writer takes a frame, the next confirmation goes.
+        rx.try_recv().unwrap();
+        p.confirm_withdrawals();
+        assert_eq!(p.withdrawals_encoded, 1);
+        assert!(!p.owes_withdrawals());
+    }
+
+    #[test]
     fn changes_dropped_on_a_full_queue_are_withdrawn_before_the_next_update() {
         let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
         let (mut p, mut rx) = peer(&[(a, 4), (b, 0)]);

@@ -62,6 +62,11 @@ pub struct Peer {
     /// not held, so no chunk is listed twice and the list is bounded by
     /// the view.
     withdraw: Vec<ChunkPos>,
+    /// The chunks of `withdraw`, for a membership test in constant time.
+    withdrawing: HashSet<ChunkPos>,
+    /// Times `withdraw` was encoded for the updates stream.
+    #[cfg(test)]
+    pub withdrawals_encoded: usize,
     /// The fan-out queued a batch of changes since the stream last sent a
     /// batch of chunks: one such batch queued does not hold the stream
     /// back ([`Self::may_stream`]).
@@ -95,6 +100,9 @@ impl Peer {
             owners_told: Vec::new(),
             ticket_ms: None,
             withdraw: Vec::new(),
+            withdrawing: HashSet::new(),
+            #[cfg(test)]
+            withdrawals_encoded: 0,
             changes_queued: false,
             kick: Some(kick),
         }
@@ -208,8 +216,8 @@ impl Peer {
         }
         // Work in proportion to the chunks named, never to the queue.
         for pos in &dropped {
-            if self.known.remove(pos).is_some() && !self.withdraw.contains(pos) {
-                self.withdraw.push(*pos);
+            if self.known.remove(pos).is_some() {
+                self.owe_withdrawal(*pos);
             }
             holders.remove(*pos, id);
             self.pending.remove(*pos);
@@ -231,6 +239,23 @@ impl Peer {
         !self.withdraw.is_empty()
     }
 
+    fn owe_withdrawal(&mut self, pos: ChunkPos) {
+        if self.withdrawing.insert(pos) {
+            self.withdraw.push(pos);
+        }
+    }
+
+    /// Sends the withdrawals owed now (a `Forget`'s confirmation), if the
+    /// updates queue has room. With none (a client that does not read)
+    /// they stay owed for the next batch, and nothing is encoded: else
+    /// each `Forget` of a client keeping its queue full would encode the
+    /// whole list again, work out of proportion to the request.
+    pub fn confirm_withdrawals(&mut self) {
+        if self.owes_withdrawals() && self.updates.capacity() > 0 {
+            let _ = self.send_update(Bytes::new(), false);
+        }
+    }
+
     /// The changes of `chunks` (all held) were not sent: each is sent
     /// again whole, after the client is told to drop its stale copy. Until
     /// then a neighbour's change would be meshed against it.
@@ -238,7 +263,7 @@ impl Peer {
         for &pos in chunks {
             if self.known.contains_key(&pos) {
                 self.resend(pos);
-                self.withdraw.push(pos);
+                self.owe_withdrawal(pos);
             }
         }
     }
@@ -260,6 +285,10 @@ impl Peer {
         let batch = if self.withdraw.is_empty() {
             batch
         } else {
+            #[cfg(test)]
+            {
+                self.withdrawals_encoded += 1;
+            }
             let mut buf = BytesMut::new();
             for part in self
                 .withdraw
@@ -280,6 +309,7 @@ impl Peer {
         };
         if sent.is_ok() {
             self.withdraw.clear();
+            self.withdrawing.clear();
         }
         sent
     }

@@ -100,11 +100,10 @@ impl SledStore {
                 ));
             };
             let (version, chunk) = decode_chunk_value(pos, &record, self.generator())?;
-            match replay(pos, version, chunk, &deltas)? {
-                // The deltas were scanned from this record only if no fold
-                // moved it during the scan.
-                Ok(state) if self.record_version(pos)? == Some(version) => return Ok(Some(state)),
-                Ok(_) | Err(Moved) => continue,
+            let replayed = replay(pos, version, chunk, &deltas);
+            let moved = self.record_version(pos)? != Some(version);
+            if let Some(state) = settle(replayed, moved)? {
+                return Ok(Some(state));
             }
         }
         Err(StoreError::corrupt(
@@ -235,10 +234,12 @@ impl SledStore {
             // Folded since it was listed.
             return Ok(None);
         }
-        let Ok((head, state)) = replay(pos, base, chunk, &deltas)? else {
+        let replayed = replay(pos, base, chunk, &deltas);
+        let moved = self.chunks.get(key)?.as_ref() != Some(&record);
+        let Some((head, state)) = settle(replayed, moved)? else {
             // Folded meanwhile (the record moved), or a chain that does not
             // start at the record: damage, reported and counted as skipped.
-            if self.chunks.get(key)?.as_ref() == Some(&record) {
+            if !moved {
                 return Err(StoreError::corrupt(
                     format!("deltas do not start at the record's version {base}"),
                     show_pos(pos),
@@ -278,6 +279,8 @@ impl SledStore {
 
 /// Applies the deltas past `version` to `chunk` in order. `Err(Moved)`
 /// when they do not start at `version` (a fold ran between the reads).
+/// A chain that breaks further on is damage, unless the reads were torn
+/// ([`settle`]).
 pub(super) fn replay(
     pos: ChunkPos,
     version: u64,
@@ -318,4 +321,56 @@ pub(super) fn replay(
         })?;
     }
     Ok(Ok((past.last().map_or(version, |d| d.to_version), state)))
+}
+
+/// What a read made of [`replay`]'s answer (`None`: read again), given
+/// whether the record `moved` since it was read. The deltas' scan is no
+/// snapshot: a fold that commits during it, and a commit after that, can
+/// show it deltas from both sides (the record's next delta, then one the
+/// fold's record continues from), a chain that seems to break. So any
+/// answer from a moved record is read again, and only a chain read
+/// around a record that stayed put is damage.
+pub(super) fn settle(
+    replayed: Result<Result<(u64, Chunk), Moved>, StoreError>,
+    moved: bool,
+) -> Result<Option<(u64, Chunk)>, StoreError> {
+    match replayed {
+        _ if moved => Ok(None),
+        Ok(Ok(state)) => Ok(Some(state)),
+        Ok(Err(Moved)) => Ok(None),
+        Err(e) => Err(e),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strata_terrain::material::ids;
+    use strata_terrain::Voxel;
+
+    fn chunk(density: u8) -> Chunk {
+        Chunk::uniform(Voxel::new(density, ids::STONE))
+    }
+
+    #[test]
+    fn a_chain_torn_by_a_fold_is_read_again_and_one_around_a_still_record_is_damage() {
+        let pos = ChunkPos::new(1, 2, 3);
+        let (v5, v6, v7, v8) = (chunk(10), chunk(20), chunk(30), chunk(40));
+        // The scan saw 5 -> 6 before a fold moved the record to 7 and
+        // removed it, then the 7 -> 8 a commit added after the fold.
+        let torn = [
+            ChunkDelta::encode(pos, 5, 6, &v5, &v6).unwrap(),
+            ChunkDelta::encode(pos, 7, 8, &v7, &v8).unwrap(),
+        ];
+        assert_eq!(
+            settle(replay(pos, 5, v5.clone(), &torn), true).unwrap(),
+            None
+        );
+        let err = settle(replay(pos, 5, v5.clone(), &torn), false).unwrap_err();
+        assert!(err.to_string().contains("delta chain breaks"), "{err}");
+        // A whole chain from a record that stayed put is the state.
+        let whole = [ChunkDelta::encode(pos, 5, 6, &v5, &v6).unwrap()];
+        let (version, state) = settle(replay(pos, 5, v5, &whole), false).unwrap().unwrap();
+        assert_eq!((version, state), (6, v6));
+    }
 }

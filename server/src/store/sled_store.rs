@@ -106,21 +106,42 @@ pub struct SledStore {
 }
 
 impl SledStore {
-    /// Makes a blob change durable; when that fails, puts `old` back (the
-    /// blob as it was: `None`, none), so a write reported failed is not
-    /// read afterwards (nor made durable by a later flush).
-    fn flush_or_undo(&self, name: &str, old: Option<sled::IVec>) -> Result<(), StoreError> {
+    /// Makes a blob change durable (`written`: the bytes this call wrote,
+    /// `None` for a delete); when that fails, undoes it ([`Self::undo_blob`]).
+    fn flush_or_undo(
+        &self,
+        name: &str,
+        written: Option<&[u8]>,
+        old: Option<sled::IVec>,
+    ) -> Result<(), StoreError> {
         let Err(e) = self.flush() else {
             return Ok(());
         };
-        let undone = match old {
-            Some(v) => self.blobs.insert(name.as_bytes(), v).map(|_| ()),
-            None => self.blobs.remove(name.as_bytes()).map(|_| ()),
-        };
-        if let Err(u) = undone {
+        if let Err(u) = self.undo_blob(name, written, old) {
             tracing::error!(error = %u, blob = name, "putting a blob back after a failed flush failed");
         }
         Err(e)
+    }
+
+    /// Puts `old` back (the blob as it was: `None`, none) where the blob
+    /// still holds what the failed write put there (`written`), so a write
+    /// reported failed is not read afterwards. A write of another caller
+    /// since (which read this one's, and may have been made durable and
+    /// answered meanwhile) is left alone: undoing over it would lose it.
+    fn undo_blob(
+        &self,
+        name: &str,
+        written: Option<&[u8]>,
+        old: Option<sled::IVec>,
+    ) -> Result<(), StoreError> {
+        let swapped = self.blobs.compare_and_swap(name.as_bytes(), written, old)?;
+        if swapped.is_err() {
+            tracing::warn!(
+                blob = name,
+                "a blob write whose flush failed was overwritten since; the newer write stays"
+            );
+        }
+        Ok(())
     }
 
     /// Opens (or creates) the store in `dir` with the default config.
@@ -538,7 +559,7 @@ impl ChunkStore for SledStore {
     fn put_blob(&self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
         check_blob(name, bytes)?;
         let old = self.blobs.insert(name.as_bytes(), bytes)?;
-        self.flush_or_undo(name, old)
+        self.flush_or_undo(name, Some(bytes), old)
     }
 
     fn swap_blob(
@@ -553,7 +574,7 @@ impl ChunkStore for SledStore {
             .compare_and_swap(name.as_bytes(), expected, Some(bytes))?
             .is_ok();
         if swapped {
-            self.flush_or_undo(name, expected.map(sled::IVec::from))?;
+            self.flush_or_undo(name, Some(bytes), expected.map(sled::IVec::from))?;
         }
         Ok(swapped)
     }
@@ -562,7 +583,7 @@ impl ChunkStore for SledStore {
         check_blob_name(name)?;
         let old = self.blobs.remove(name.as_bytes())?;
         let existed = old.is_some();
-        self.flush_or_undo(name, old)?;
+        self.flush_or_undo(name, None, old)?;
         Ok(existed)
     }
 
@@ -845,5 +866,30 @@ mod durable_seq_tests {
             waiter.join().unwrap().unwrap();
         });
         store.settle_reads(short).unwrap();
+    }
+}
+
+#[cfg(test)]
+mod blob_undo_tests {
+    use super::*;
+
+    #[test]
+    fn undoing_a_failed_blob_write_keeps_a_newer_write_over_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = SledStore::open(dir.path()).unwrap();
+        store.put_blob("zones", b"x").unwrap();
+        // A writes a; B reads a and swaps it for b; A's flush fails.
+        let old = store.blobs.insert(b"zones", &b"a"[..]).unwrap();
+        assert!(store.swap_blob("zones", Some(b"a"), b"b").unwrap());
+        store.undo_blob("zones", Some(b"a"), old.clone()).unwrap();
+        assert_eq!(store.get_blob("zones").unwrap().unwrap(), b"b");
+        // With no write since, the undo puts the old bytes back; a failed
+        // delete puts the blob back too.
+        store.blobs.insert(b"zones", &b"c"[..]).unwrap();
+        store.undo_blob("zones", Some(b"c"), old).unwrap();
+        assert_eq!(store.get_blob("zones").unwrap().unwrap(), b"x");
+        let old = store.blobs.remove(b"zones").unwrap();
+        store.undo_blob("zones", None, old).unwrap();
+        assert_eq!(store.get_blob("zones").unwrap().unwrap(), b"x");
     }
 }

@@ -26,6 +26,14 @@ pub const DEFAULT_MAX_SPEED: f64 = 20.0;
 pub const DEFAULT_SPEED_SLACK_FACTOR: f64 = 0.25;
 /// Extra voxels allowed on every move (datagram timing, rounding).
 pub const DEFAULT_SPEED_SLACK_VOXELS: f64 = 2.0;
+/// The most time a move is allowed for, in ms: a report after a longer
+/// silence is allowed only this much walking since the last one. Else a
+/// player who stays quiet for a minute could report a spot 1,500 voxels
+/// away, through any wall. Twice the longest stall a loaded server
+/// should show, so a moving player's next report still passes.
+pub const DEFAULT_MAX_MOVE_MS: u64 = 2_000;
+/// Largest allowed `max_move_ms`.
+pub const MAX_MAX_MOVE_MS: u64 = 60_000;
 /// Longest allowed `reach`: an edit's sight ray, the meshes it needs and
 /// the chunks it reads grow with it.
 pub const MAX_REACH: f64 = 128.0;
@@ -101,6 +109,8 @@ pub struct ValidationConfig {
     pub speed_slack_factor: f64,
     /// See [`DEFAULT_SPEED_SLACK_VOXELS`].
     pub speed_slack_voxels: f64,
+    /// See [`DEFAULT_MAX_MOVE_MS`].
+    pub max_move_ms: u64,
     /// Vertical world bounds for edits and positions.
     #[serde(skip)]
     pub bounds: WorldBounds,
@@ -163,6 +173,7 @@ impl Default for ValidationConfig {
             max_speed: DEFAULT_MAX_SPEED,
             speed_slack_factor: DEFAULT_SPEED_SLACK_FACTOR,
             speed_slack_voxels: DEFAULT_SPEED_SLACK_VOXELS,
+            max_move_ms: DEFAULT_MAX_MOVE_MS,
             bounds: WorldBounds::default(),
             spawn_protection_radius: DEFAULT_SPAWN_PROTECTION_RADIUS,
             spawn: SpawnArea::default(),

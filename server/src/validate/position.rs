@@ -209,7 +209,9 @@ pub fn check_motion(
         }
         return Ok(full_slack_milli(cfg));
     };
-    let elapsed = now_ms.saturating_sub(p.at_ms);
+    // A silence counts for `max_move_ms` at most: else a player could go
+    // quiet and then report a spot as far as the silence was long.
+    let elapsed = now_ms.saturating_sub(p.at_ms).min(cfg.max_move_ms);
     let d = to_dvec3(p.feet).distance(to_dvec3(upd.pos));
     let speed = speed_distance(elapsed, cfg);
     let slack = slack_available(p, elapsed, cfg);
