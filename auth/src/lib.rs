@@ -38,7 +38,7 @@ mod token;
 pub use duration::{format_duration, parse_duration, DurationError, HumanDuration, MAX_DURATION};
 pub use secret::{Secret, SecretError, SECRET_LEN};
 pub use token::{
-    issue, issue_with_max_ttl, unix_now, validate_player_name, verify, AuthError, Claims,
-    MAX_CLOCK_SKEW_SECS, MAX_PLAYER_NAME_LEN, MAX_TOKEN_LEN, MAX_TOKEN_TTL, NONCE_LEN,
+    issue, issue_with_max_ttl, unix_now, validate_player_name, verify, verify_within, AuthError,
+    Claims, MAX_CLOCK_SKEW_SECS, MAX_PLAYER_NAME_LEN, MAX_TOKEN_LEN, MAX_TOKEN_TTL, NONCE_LEN,
     TOKEN_VERSION,
 };

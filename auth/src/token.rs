@@ -159,6 +159,30 @@ fn sign(secret: &Secret, claims: &Claims) -> String {
     token
 }
 
+/// [`verify`] for a server whose `auth.token_max_ttl` is `max_ttl`: a
+/// token lives at most that long from its `issued_at`, whatever its
+/// `expires_at` says (the returned claims carry the earlier expiry). So
+/// lowering the setting shortens the tokens already out, such as those of
+/// an issuer that leaked, and not only those issued next.
+pub fn verify_within(
+    secret: &Secret,
+    token: &str,
+    now: u64,
+    max_ttl: Duration,
+) -> Result<Claims, AuthError> {
+    let mut claims = verify(secret, token, now)?;
+    let cap = claims
+        .issued_at
+        .saturating_add(max_ttl.min(MAX_TOKEN_TTL).as_secs());
+    if cap < claims.expires_at {
+        claims.expires_at = cap;
+        if now >= cap {
+            return Err(AuthError::Expired { expired_at: cap });
+        }
+    }
+    Ok(claims)
+}
+
 /// Verifies `token` at `now` (unix seconds) and returns its claims.
 /// The signature is checked (in constant time) before the payload is parsed,
 /// so unauthenticated bytes never reach the parser.
@@ -248,6 +272,35 @@ fn parse_payload(payload: &[u8]) -> Result<Claims, AuthError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_lowered_max_ttl_shortens_tokens_already_issued() {
+        let secret = Secret::from_bytes([7; 32]);
+        let day = 24 * 3600;
+        let t = issue(
+            &secret,
+            "ann",
+            Role::Player,
+            Duration::from_secs(90 * day),
+            1_000,
+        )
+        .unwrap();
+        let thirty = Duration::from_secs(30 * day);
+        // Within the cap: good, with the capped expiry.
+        let c = verify_within(&secret, &t, 1_000 + 29 * day, thirty).unwrap();
+        assert_eq!(c.expires_at, 1_000 + 30 * day);
+        // Past it, though the token itself runs 90 days.
+        assert_eq!(
+            verify_within(&secret, &t, 1_000 + 30 * day, thirty),
+            Err(AuthError::Expired {
+                expired_at: 1_000 + 30 * day
+            })
+        );
+        assert!(verify(&secret, &t, 1_000 + 30 * day).is_ok());
+        // A cap above the token's own life changes nothing.
+        let c = verify_within(&secret, &t, 1_000, MAX_TOKEN_TTL).unwrap();
+        assert_eq!(c.expires_at, 1_000 + 90 * day);
+    }
 
     // `sign` bypasses `issue`'s checks, so these tokens carry a valid
     // signature over payloads the parser must still refuse.

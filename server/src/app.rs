@@ -249,6 +249,7 @@ pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow
     store.bound_at(&addr.to_string());
     let ctx = SessionContext {
         secret: data_dir.secret().clone(),
+        token_max_ttl: cfg.auth.token_max_ttl.0,
         tickets: tickets.clone(),
         engine: engine.clone(),
         store: store.clone(),

@@ -95,9 +95,12 @@ pub const SNAPSHOTS_SENT: &str = "strata_snapshots_sent_total";
 pub const SESSIONS_KICKED: &str = "strata_sessions_kicked_total";
 pub const CONNECTIONS_REFUSED: &str = "strata_connections_refused_total";
 pub const CONNECTIONS_RETRIED: &str = "strata_connections_retried_total";
+pub const LOG_PRUNED_TOTAL: &str = "strata_log_pruned_total";
 
 /// How often the recorder's rolling summaries are advanced.
 pub const UPKEEP_EVERY: Duration = Duration::from_secs(5);
+/// The name of the thread that runs the upkeep.
+pub const UPKEEP_THREAD: &str = "strata-metrics";
 
 /// The process's Prometheus recorder, installed by the first call (the
 /// metrics listener and the web console read the same one).
@@ -116,7 +119,22 @@ pub fn shared() -> anyhow::Result<PrometheusHandle> {
 /// [`shared`] does so once per process).
 pub fn install() -> anyhow::Result<PrometheusHandle> {
     let handle = PrometheusBuilder::new().install_recorder()?;
+    // The recorder keeps every histogram sample until a render or an
+    // upkeep drains it: without the metrics endpoint (a console nobody
+    // watches) that is hundreds of MB a day. A thread of its own, so no
+    // runtime need be running.
+    let upkeep = handle.clone();
+    std::thread::Builder::new()
+        .name(UPKEEP_THREAD.into())
+        .spawn(move || loop {
+            std::thread::sleep(UPKEEP_EVERY);
+            upkeep.run_upkeep();
+        })?;
     metrics::describe_gauge!(CONNECTIONS, "Open QUIC connections");
+    metrics::describe_counter!(
+        LOG_PRUNED_TOTAL,
+        "Edit log entries removed as older than [store] log_retention"
+    );
     metrics::describe_counter!(SESSIONS_TOTAL, "Sessions that joined the world");
     metrics::describe_counter!(
         CONNECTIONS_REFUSED,
@@ -299,14 +317,6 @@ pub async fn serve(
     handle: PrometheusHandle,
     health: Arc<Health>,
 ) {
-    let upkeep = handle.clone();
-    tokio::spawn(async move {
-        let mut every = tokio::time::interval(UPKEEP_EVERY);
-        loop {
-            every.tick().await;
-            upkeep.run_upkeep();
-        }
-    });
     let app = axum::Router::new()
         .route("/metrics", get(move || std::future::ready(handle.render())))
         .route(
@@ -346,6 +356,22 @@ mod tests {
         let mut out = String::new();
         s.read_to_string(&mut out).await.unwrap();
         out
+    }
+
+    /// The recorder's samples are drained whether or not an endpoint
+    /// serves them (the console alone installs it too).
+    #[test]
+    fn the_shared_recorder_comes_with_its_upkeep_thread() {
+        let upkeep_threads = || {
+            std::fs::read_dir("/proc/self/task")
+                .unwrap()
+                .filter_map(|t| std::fs::read_to_string(t.unwrap().path().join("comm")).ok())
+                .filter(|name| name.trim_end() == UPKEEP_THREAD)
+                .count()
+        };
+        shared().unwrap();
+        shared().unwrap();
+        assert_eq!(upkeep_threads(), 1);
     }
 
     #[tokio::test]

@@ -307,6 +307,58 @@ async fn an_admin_session_ends_when_its_token_expires() {
     .expect("test finished in time");
 }
 
+/// A snapshot does not outlive its admin's token: the session checks the
+/// token while the snapshot streams, and ends with `ExpiredToken` even
+/// when the client reads nothing (the stream's write is held meanwhile).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_admin_snapshot_ends_with_its_token() {
+    use strata_server::admin::snapshot_cmd::{self, RestoreArgs};
+    const TTL: Duration = Duration::from_secs(3);
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let data = dir.path().join("data");
+        // About 5 MiB: more than the stream takes while nobody reads it.
+        let file = dir.path().join("noise.snap");
+        crate::snapshot_common::write_noise_snapshot(&file, &crate::snapshot_common::header(1), 80);
+        let restored = snapshot_cmd::restore(&RestoreArgs {
+            file,
+            data_dir: data.clone(),
+            force: false,
+            config: None,
+        })
+        .unwrap();
+        assert_eq!(restored, 80);
+        let server = start(&data).await;
+        let issued_at = auth::unix_now();
+        let short =
+            auth::issue(server.data_dir.secret(), "tmp", Role::Admin, TTL, issued_at).unwrap();
+        let mut tmp = admin_client(&server, &short).await;
+        tmp.send(&AdminRequest::Snapshot {
+            max_pending_chunks: 0,
+        })
+        .await
+        .unwrap();
+        assert!(matches!(
+            tmp.next().await.unwrap(),
+            AdminResponse::SnapshotBegin(_)
+        ));
+        // Nothing read until the token has run out and been seen to.
+        let seen = TTL + ADMIN_RECHECK_PERIOD + Duration::from_secs(2);
+        tokio::time::sleep(seen).await;
+        let e = loop {
+            match tmp.next().await {
+                Ok(AdminResponse::SnapshotChunk { .. }) => continue,
+                Ok(other) => panic!("the snapshot went on: {other:?}"),
+                Err(e) => break e.to_string(),
+            }
+        };
+        assert!(e.contains("(ExpiredToken)"), "{e}");
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
 /// How long the join test waits after its Hello for the server to check
 /// it and block on the updates stream (a local Hello takes milliseconds).
 const HELLO_CHECKED: Duration = Duration::from_millis(500);

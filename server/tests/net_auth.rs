@@ -120,3 +120,40 @@ async fn an_admin_session_ends_when_its_token_expires_and_a_players_goes_on() {
     .await
     .expect("test finished in time");
 }
+
+/// `[auth] token_max_ttl` bounds the life of every token the server takes,
+/// not only of those `strata-admin` issues next: lowered, it shortens the
+/// tokens already out (say, an issuer's that leaked).
+#[tokio::test]
+async fn a_lowered_token_max_ttl_shortens_tokens_already_issued() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.auth.token_max_ttl = auth::HumanDuration(Duration::from_secs(3600));
+        let server = strata_server::app::start(cfg).await.unwrap();
+        let day = Duration::from_secs(24 * 3600);
+        let issued = |ago: u64| {
+            auth::issue(
+                server.data_dir.secret(),
+                "ann",
+                Role::Player,
+                day,
+                auth::unix_now() - ago,
+            )
+            .unwrap()
+        };
+        match Client::connect(server.addr, &server.cert_der, &issued(7200)).await {
+            Err(ClientError::Refused { code, .. }) => assert_eq!(code, ErrorCode::ExpiredToken),
+            Err(e) => panic!("expected a refusal, got {e}"),
+            Ok(_) => panic!("a token two hours old was taken under a one-hour cap"),
+        }
+        let ann = Client::connect(server.addr, &server.cert_der, &issued(60))
+            .await
+            .unwrap();
+        ann.ping(1).await.unwrap();
+        ann.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

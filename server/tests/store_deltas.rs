@@ -104,6 +104,7 @@ fn paced_pass_on(place: &Place) {
         every: std::time::Duration::from_secs(60),
         max_chunks,
         slice_chunks,
+        log_retention: std::time::Duration::from_secs(3600),
     };
     // At most max_chunks a pass, in slices: 3 + 3 + 1.
     let first = pass_once(&*store, pace(7, 3), None).unwrap();
@@ -160,6 +161,7 @@ fn no_chunk_waits_behind_chunks_that_keep_changing() {
             every: std::time::Duration::from_secs(60),
             max_chunks: busy.len(),
             slice_chunks: busy.len(),
+            log_retention: std::time::Duration::from_secs(3600),
         };
         let mut after = None;
         let mut passes = 0;

@@ -611,3 +611,62 @@ fn chunks_read_together_are_each_as_read_alone() {
         assert!(store.load_chunks(&[]).unwrap().is_empty());
     }
 }
+
+/// The edit log's oldest entries go once older than the cut: whole
+/// commits' worth from its start, up to the first newer entry. The log
+/// base moves with them, the rest reads as before, the store checks clean
+/// and its last seq stays, and commits go on after a log pruned empty.
+/// The checkpoint thread's call, with `[store] log_retention`, prunes
+/// what is older than that.
+#[test]
+fn the_log_is_pruned_from_its_start_up_to_the_first_newer_entry() {
+    use strata_server::store::prune_log;
+    // `Seq` times entry n at T0 + n.
+    const T0: u64 = 1_700_000_000_000;
+    for (place, store) in new_stores("the_log_is_pruned") {
+        let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
+        let mut seq = Seq::default();
+        let commits: [Vec<Vec<(ChunkPos, Chunk)>>; 3] = [
+            vec![vec![(a, terrain_chunk(1))], vec![(b, terrain_chunk(2))]],
+            vec![vec![(a, terrain_chunk(3))]],
+            vec![vec![(b, terrain_chunk(4))], vec![(a, terrain_chunk(5))]],
+        ];
+        for edits in &commits {
+            store.commit_batch(&seq.delta_batch(edits)).unwrap();
+        }
+        let logged = |s: &dyn ChunkStore| -> Vec<u64> {
+            s.edit_log(1..=10).map(|e| e.unwrap().seq).collect()
+        };
+        assert_eq!(store.log_base().unwrap(), 0);
+        assert_eq!(store.prune_log(T0 + 1, 100).unwrap(), 0, "none older");
+        // Older than seq 4: the first two commits, seqs 1 to 3.
+        assert_eq!(
+            store.prune_log(T0 + 4, 100).unwrap(),
+            3,
+            "{}",
+            place.backend()
+        );
+        assert_eq!(store.log_base().unwrap(), 3);
+        assert_eq!(logged(&*store), [4, 5]);
+        assert_eq!(store.log_entry(2).unwrap(), None);
+        assert_eq!(store.last_seq().unwrap(), 5);
+        let report = store.check().unwrap();
+        assert!(report.is_ok(), "{}: {:?}", place.backend(), report.issues);
+        // The retention the checkpoint gives: these entries are from 2023.
+        let month = std::time::Duration::from_secs(30 * 24 * 3600);
+        assert_eq!(prune_log(&*store, month).unwrap(), 2);
+        assert_eq!(store.log_base().unwrap(), 5);
+        assert_eq!(logged(&*store), Vec::<u64>::new());
+        assert_eq!(store.last_seq().unwrap(), 5);
+        store
+            .commit_batch(&seq.delta_batch(&[vec![(b, terrain_chunk(6))]]))
+            .unwrap();
+        assert_eq!(logged(&*store), [6]);
+        assert_eq!(
+            store.load_chunk(a).unwrap().unwrap().chunk,
+            terrain_chunk(5)
+        );
+        let report = store.check().unwrap();
+        assert!(report.is_ok(), "{}: {:?}", place.backend(), report.issues);
+    }
+}

@@ -308,6 +308,70 @@ fn a_reconnect_resumes_where_the_player_left() {
     assert_eq!(s.position(8), None);
 }
 
+/// An arrival counts the ticket's age at arrival on top of the cap (the
+/// player walked on meanwhile, on the node that issued it), for the first
+/// move only; a silence after it buys no more than the cap.
+#[test]
+fn an_arrival_allows_the_tickets_age_and_no_silence_after_it() {
+    let spot = FixedVec3::from_voxels(HOME.0, 0, HOME.1);
+    let run = |s: &mut Sequencer, id: u64, taken: u64, report: u64, dx: i32| {
+        s.session_joined(id, "p".into(), Role::Player);
+        assert_eq!(
+            s.resume_position(id, taken, None),
+            SpawnArea::default().start()
+        );
+        assert!(s.arrive(id, spot, 1_000, taken).is_ok());
+        s.update_position(id, at(1, HOME.0 + dx, 0, HOME.1), report)
+    };
+    // Taken 10 s after its issue, reported at once: the 10 s since the
+    // issue count (20 voxels/s, +25 %) with the 2 voxels of slack, 252
+    // voxels, though above the 2 s cap.
+    let mut s = fresh();
+    s.session_left(PLAYER);
+    let r = run(&mut s, 7, 11_000, 11_000, 252);
+    assert!(r.is_ok(), "{r:?}");
+    let mut s = fresh();
+    s.session_left(PLAYER);
+    assert!(matches!(
+        run(&mut s, 7, 11_000, 11_000, 253),
+        Err(PositionReject::TooFast { .. })
+    ));
+    // Taken at once, then a minute quiet: 2 s, not 61 s.
+    let mut s = fresh();
+    s.session_left(PLAYER);
+    assert!(matches!(
+        run(&mut s, 7, 1_000, 61_000, 100),
+        Err(PositionReject::TooFast { .. })
+    ));
+}
+
+#[test]
+fn remembering_more_players_than_the_cap_forgets_those_known_longest_ago() {
+    let cfg = ValidationConfig {
+        remembered_players: 3,
+        ..ValidationConfig::default()
+    };
+    let mut s = sequencer(SequencerConfig::default(), cfg);
+    // Four players leave, known at 4, 1, 3 and 2 s: the one known at 1 s
+    // is forgotten when the fourth is remembered, whatever the map's order.
+    for (id, (name, t)) in [("a", 4_000), ("b", 1_000), ("c", 3_000), ("d", 2_000)]
+        .into_iter()
+        .enumerate()
+    {
+        let id = 100 + id as u64;
+        s.session_joined(id, name.into(), Role::Player);
+        s.update_position(id, at(1, 10 * id as i32, 40, 0), t)
+            .unwrap();
+        s.session_left(id);
+    }
+    for (id, name) in ["a", "b", "c", "d"].into_iter().enumerate() {
+        let again = 200 + id as u64;
+        s.session_joined(again, name.into(), Role::Player);
+        s.resume_position(again, 5_000, None);
+        assert_eq!(s.position(again).is_some(), name != "b", "{name}");
+    }
+}
+
 #[test]
 fn refusals_name_the_rule_and_stale_reports_get_none() {
     use strata_protocol::PositionRefusal;
@@ -375,7 +439,7 @@ fn an_older_ticket_never_rewinds_a_resumed_player() {
     );
     // The ticket for A would time the player from t = 0 and let it jump
     // ~600 voxels past A: refused, and the resume stands.
-    assert_eq!(s.arrive(again, a, 0), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(s.arrive(again, a, 0, 0), Err(TicketRefusal::AlreadyPlaced));
     assert_eq!(s.position(again).unwrap().feet, b);
     assert!(matches!(
         s.update_position(again, at(1, HOME.0 - 600, 0, HOME.1), 26_000),
@@ -386,13 +450,19 @@ fn an_older_ticket_never_rewinds_a_resumed_player() {
     s.session_left(again);
     s.session_joined(8, "p".into(), Role::Player);
     s.resume_position(8, 27_000, None);
-    assert_eq!(s.arrive(8, a, 0), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(s.arrive(8, a, 0, 0), Err(TicketRefusal::AlreadyPlaced));
     // A ticket newer than the last report (another node saw the player
     // since) is taken, once.
     let c = FixedVec3::from_voxels(HOME.0 + 520, 0, HOME.1);
-    assert_eq!(s.arrive(8, c, 26_000), Ok(Start::Resume { feet: c }));
+    assert_eq!(
+        s.arrive(8, c, 26_000, 26_000),
+        Ok(Start::Resume { feet: c })
+    );
     assert_eq!(s.position(8).unwrap().feet, c);
-    assert_eq!(s.arrive(8, c, 26_500), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(
+        s.arrive(8, c, 26_500, 26_500),
+        Err(TicketRefusal::AlreadyPlaced)
+    );
     s.update_position(8, at(1, HOME.0 + 530, 0, HOME.1), 27_000)
         .unwrap();
 }
@@ -414,14 +484,17 @@ fn a_stored_position_newer_than_this_nodes_bounds_tickets_and_resumes_there() {
         Start::Resume { feet: b }
     );
     // A ticket for A issued at t = 0 would rewind the player: refused.
-    assert_eq!(s.arrive(7, a, 0), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(s.arrive(7, a, 0, 0), Err(TicketRefusal::AlreadyPlaced));
     assert_eq!(s.position(7).unwrap().feet, b);
     // One issued shortly before the other node saved (the player walked
     // on a little after its latest ticket) is taken.
     s.session_joined(9, "q".into(), Role::Player);
     s.resume_position(9, 26_000, Some(stored));
     let issued = 25_000 - STORED_TICKET_SLACK_MS + 1;
-    assert_eq!(s.arrive(9, b, issued), Ok(Start::Resume { feet: b }));
+    assert_eq!(
+        s.arrive(9, b, issued, issued),
+        Ok(Start::Resume { feet: b })
+    );
     // A time from another node's clock running ahead counts as now.
     let ahead = StoredPosition {
         feet: b,
@@ -429,9 +502,12 @@ fn a_stored_position_newer_than_this_nodes_bounds_tickets_and_resumes_there() {
     };
     s.session_joined(10, "r".into(), Role::Player);
     s.resume_position(10, 26_000, Some(ahead));
-    assert_eq!(s.arrive(10, b, 0), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(s.arrive(10, b, 0, 0), Err(TicketRefusal::AlreadyPlaced));
     let issued = 26_000 - STORED_TICKET_SLACK_MS + 1;
-    assert_eq!(s.arrive(10, b, issued), Ok(Start::Resume { feet: b }));
+    assert_eq!(
+        s.arrive(10, b, issued, issued),
+        Ok(Start::Resume { feet: b })
+    );
     // An older stored position loses to what this node remembers.
     let mut s = fresh();
     s.update_position(PLAYER, at(1, HOME.0, 0, HOME.1), 30_000)
@@ -453,7 +529,7 @@ fn a_ticket_never_moves_a_player_that_reported() {
         .unwrap();
     // ...and still places the player: a ticket, even a newer one, is refused.
     assert_eq!(
-        s.arrive(PLAYER, far, 2_000),
+        s.arrive(PLAYER, far, 2_000, 2_000),
         Err(TicketRefusal::AlreadyPlaced)
     );
     // Another seq 0 after it is stale.
@@ -467,7 +543,10 @@ fn a_ticket_never_moves_a_player_that_reported() {
     s.resume_position(9, 3_000, None);
     s.update_position(9, at(1, HOME.0 + 2, 0, HOME.1), 3_100)
         .unwrap();
-    assert_eq!(s.arrive(9, far, 3_200), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(
+        s.arrive(9, far, 3_200, 3_200),
+        Err(TicketRefusal::AlreadyPlaced)
+    );
     assert_eq!(
         s.position(9).unwrap().feet,
         FixedVec3::from_voxels(HOME.0 + 2, 0, HOME.1)
@@ -485,10 +564,16 @@ fn a_ticket_older_than_another_sessions_report_is_refused() {
     s.resume_position(5, 1_000, None);
     walk_east(&mut s, PLAYER, HOME, 0, 5);
     let a = FixedVec3::from_voxels(HOME.0, 0, HOME.1);
-    assert_eq!(s.arrive(5, a, 1_000), Err(TicketRefusal::AlreadyPlaced));
-    assert_eq!(s.arrive(5, a, 4_999), Err(TicketRefusal::AlreadyPlaced));
+    assert_eq!(
+        s.arrive(5, a, 1_000, 1_000),
+        Err(TicketRefusal::AlreadyPlaced)
+    );
+    assert_eq!(
+        s.arrive(5, a, 4_999, 4_999),
+        Err(TicketRefusal::AlreadyPlaced)
+    );
     let b = FixedVec3::from_voxels(HOME.0 + 100, 0, HOME.1);
-    assert_eq!(s.arrive(5, b, 5_000), Ok(Start::Resume { feet: b }));
+    assert_eq!(s.arrive(5, b, 5_000, 5_000), Ok(Start::Resume { feet: b }));
 }
 
 /// A session with no position yet may claim any spot in the spawn square

@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use strata_auth::{Claims, MAX_CLOCK_SKEW_SECS};
+use strata_auth::{Claims, MAX_CLOCK_SKEW_SECS, MAX_TOKEN_TTL};
 
 /// Blob name under which the access list is stored.
 pub const ACCESS_BLOB: &str = "access";
@@ -84,10 +84,10 @@ impl AccessList {
     }
 
     /// Bans `player` until `until` (`None`: for good), replacing any ban.
-    /// Expired bans are dropped first.
+    /// What no longer refuses anyone is dropped first ([`Self::prune`]).
     pub fn ban(&mut self, player: &str, until: Option<u64>, now: u64) -> Result<(), AccessError> {
         valid_name(player)?;
-        self.bans.retain(|_, u| u.is_none_or(|u| u > now));
+        self.prune(now);
         if !self.bans.contains_key(player) && self.len() >= MAX_ACCESS_ENTRIES {
             return Err(AccessError::Full);
         }
@@ -107,6 +107,7 @@ impl AccessList {
     /// passes that time. A later revocation never shortens an earlier one.
     pub fn revoke(&mut self, player: &str, now: u64) -> Result<(), AccessError> {
         valid_name(player)?;
+        self.prune(now);
         if !self.revoked_before.contains_key(player) && self.len() >= MAX_ACCESS_ENTRIES {
             return Err(AccessError::Full);
         }
@@ -114,6 +115,18 @@ impl AccessList {
         let entry = self.revoked_before.entry(player.to_string()).or_default();
         *entry = (*entry).max(before);
         Ok(())
+    }
+
+    /// Drops what no longer refuses anyone at `now`: bans that ended, and
+    /// revocations older than the longest life a server gives a token
+    /// ([`MAX_TOKEN_TTL`] from its `issued_at`, `strata_auth::verify_within`):
+    /// every token they cover has expired. Else the list only grows, until
+    /// it is full and refuses every ban.
+    fn prune(&mut self, now: u64) {
+        self.bans.retain(|_, u| u.is_none_or(|u| u > now));
+        let life = MAX_TOKEN_TTL.as_secs();
+        self.revoked_before
+            .retain(|_, before| before.saturating_add(life) > now);
     }
 
     fn len(&self) -> usize {
@@ -171,6 +184,13 @@ mod tests {
         // An earlier revocation time (a clock stepped back) keeps the later one.
         a.revoke("eve", now - 60).unwrap();
         assert_eq!(a.revoked_before["eve"], fast);
+        // Once every token it covers has expired, the next change drops it.
+        let later = fast + MAX_TOKEN_TTL.as_secs();
+        a.revoke("bob", later - 1).unwrap();
+        assert!(a.revoked_before.contains_key("eve"), "still covers tokens");
+        a.revoke("bob", later).unwrap();
+        assert!(!a.revoked_before.contains_key("eve"));
+        assert!(a.revoked_before.contains_key("bob"));
         // Near the end of time it saturates instead of wrapping.
         a.revoke("max", u64::MAX - 1).unwrap();
         assert_eq!(a.revoked_before["max"], u64::MAX);

@@ -10,7 +10,7 @@ pub use strata_auth::{
     format_duration, parse_duration, DurationError, HumanDuration, MAX_DURATION,
 };
 pub use strata_auth::{
-    issue, issue_with_max_ttl, unix_now, validate_player_name, verify, AuthError, Claims, Secret,
-    SecretError, MAX_CLOCK_SKEW_SECS, MAX_PLAYER_NAME_LEN, MAX_TOKEN_LEN, MAX_TOKEN_TTL, NONCE_LEN,
-    SECRET_LEN, TOKEN_VERSION,
+    issue, issue_with_max_ttl, unix_now, validate_player_name, verify, verify_within, AuthError,
+    Claims, Secret, SecretError, MAX_CLOCK_SKEW_SECS, MAX_PLAYER_NAME_LEN, MAX_TOKEN_LEN,
+    MAX_TOKEN_TTL, NONCE_LEN, SECRET_LEN, TOKEN_VERSION,
 };

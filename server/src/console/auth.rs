@@ -61,7 +61,7 @@ pub fn check(ctx: &SessionContext, headers: &HeaderMap) -> Result<auth::Claims, 
         .map(str::trim)
         .filter(|t| !t.is_empty() && t.len() <= auth::MAX_TOKEN_LEN)
         .ok_or(Refused::NoToken)?;
-    let claims = auth::verify(&ctx.secret, token, auth::unix_now())?;
+    let claims = ctx.verify_token(token)?;
     if claims.role != Role::Admin {
         return Err(Refused::NotAdmin {
             player: claims.player,

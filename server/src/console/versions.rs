@@ -42,6 +42,12 @@ impl VersionIndex {
     /// first if needed); returns the seq it now reflects.
     pub fn catch_up(&self, store: &dyn ChunkStore) -> Result<u64, StoreError> {
         let mut guard = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        // Entries past the seq seen were pruned (`[store] log_retention`,
+        // a console unused that long): built again from the chunks.
+        let base = store.log_base()?;
+        if guard.as_ref().is_some_and(|s| s.seen_seq < base) {
+            *guard = None;
+        }
         let state = match &mut *guard {
             Some(s) => s,
             None => {

@@ -143,7 +143,7 @@ impl Engine {
                 feet,
                 issued_ms,
             } => {
-                let msg = match self.seq.arrive(session, feet, issued_ms) {
+                let msg = match self.seq.arrive(session, feet, issued_ms, now_ms()) {
                     Ok(start) => {
                         if let Some(p) = self.peers.get_mut(&session) {
                             p.start = start;

@@ -217,7 +217,16 @@ async fn serve(
                 return refuse(&conn, stream, ErrorCode::Malformed, msg).await;
             }
             AdminRequest::Snapshot { max_pending_chunks } => {
-                snapshot(&ctx, &mut stream, max_pending_chunks as usize).await
+                match snapshot(&ctx, &mut stream, max_pending_chunks as usize, &claims).await {
+                    Ok(Some((code, message))) => {
+                        warn!(reason = %message, "admin session ended mid-snapshot: its token no longer holds");
+                        // The stream may end in half a frame: the close says why.
+                        let _ = stream.reset(quinn::VarInt::from_u32(0));
+                        return conn.close(close_code(code), message.as_bytes());
+                    }
+                    Ok(None) => Ok(()),
+                    Err(e) => Err(e),
+                }
             }
             other => match answer(&ctx, other).await {
                 Ok(resp) => send_parts(&mut stream, resp).await,
@@ -575,17 +584,34 @@ pub(crate) async fn begin_snapshot(
     .await
 }
 
+/// Resolves once `claims` no longer hold ([`recheck`], every
+/// [`ADMIN_RECHECK_PERIOD`]), with the code and message to close with.
+async fn revoked(ctx: &SessionContext, claims: &Claims) -> (ErrorCode, String) {
+    let start = tokio::time::Instant::now() + ADMIN_RECHECK_PERIOD;
+    let mut tick = tokio::time::interval_at(start, ADMIN_RECHECK_PERIOD);
+    loop {
+        tick.tick().await;
+        if let Err(why) = recheck(ctx, claims) {
+            return why;
+        }
+    }
+}
+
 /// Streams a consistent snapshot: registers it with the engine, reads the
 /// store on a blocking thread through the pre-images, and writes each
 /// chunk as it comes (bounded queue). A refusal is a `Refused` response.
+/// The admin's claims are checked again while it runs (a whole world
+/// takes long, and a slow reader longer): `Some` is why the session must
+/// end, the snapshot cut short.
 async fn snapshot(
     ctx: &Arc<SessionContext>,
     stream: &mut Send,
     limit: usize,
-) -> Result<(), String> {
+    claims: &Claims,
+) -> Result<Option<(ErrorCode, String)>, String> {
     let start = match begin_snapshot(ctx, limit).await? {
         Ok(s) => s,
-        Err(m) => return send(stream, &refused(m)).await,
+        Err(m) => return send(stream, &refused(m)).await.map(|()| None),
     };
     send(stream, &AdminResponse::SnapshotBegin(start.info)).await?;
     let (tx, mut rx) = mpsc::channel::<Vec<u8>>(SNAPSHOT_STREAM_QUEUE);
@@ -593,15 +619,40 @@ async fn snapshot(
     let pre = start.preimages;
     let reader = tokio::task::spawn_blocking(move || read_snapshot(&*store, &pre, &tx));
     let mut write_error = None;
-    while let Some(bytes) = rx.recv().await {
-        if let Err(e) = stream.write_all(&bytes).await {
-            // Dropping the receiver stops the reader at its next send.
-            write_error = Some(e.to_string());
+    let mut ended = None;
+    let revoked = revoked(ctx, claims);
+    tokio::pin!(revoked);
+    loop {
+        let bytes = tokio::select! {
+            b = rx.recv() => b,
+            why = &mut revoked => {
+                ended = Some(why);
+                break;
+            }
+        };
+        let Some(bytes) = bytes else {
             break;
+        };
+        tokio::select! {
+            written = stream.write_all(&bytes) => {
+                if let Err(e) = written {
+                    // Dropping the receiver stops the reader at its next send.
+                    write_error = Some(e.to_string());
+                    break;
+                }
+            }
+            // A client that reads nothing holds the write: checked too.
+            why = &mut revoked => {
+                ended = Some(why);
+                break;
+            }
         }
     }
     drop(rx);
     let outcome = reader.await.map_err(|e| e.to_string())?;
+    if ended.is_some() {
+        return Ok(ended);
+    }
     if let Some(e) = write_error {
         return Err(e);
     }
@@ -615,6 +666,7 @@ async fn snapshot(
             send(stream, &refused(format!("snapshot aborted: {m}"))).await
         }
     }
+    .map(|()| None)
 }
 
 /// Walks the store's chunk records, resolving each through the pre-images,

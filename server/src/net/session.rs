@@ -43,6 +43,8 @@ pub const ENGINE_RETRY: Duration = Duration::from_millis(1);
 #[derive(Debug)]
 pub struct SessionContext {
     pub secret: Secret,
+    /// `[auth] token_max_ttl`: no token is good longer after its issue.
+    pub token_max_ttl: std::time::Duration,
     /// Checks `Arrive` tickets: a cluster node's only (`None` alone).
     pub tickets: Option<crate::cluster::ticket::TicketKey>,
     pub engine: EngineHandle,
@@ -86,6 +88,12 @@ pub struct SessionContext {
 }
 
 impl SessionContext {
+    /// Verifies `token` now, its life capped at `[auth] token_max_ttl`
+    /// from its issue ([`auth::verify_within`]).
+    pub fn verify_token(&self, token: &str) -> Result<auth::Claims, AuthError> {
+        auth::verify_within(&self.secret, token, auth::unix_now(), self.token_max_ttl)
+    }
+
     /// Whether verified `claims` may join now.
     pub fn admitted(&self, claims: &auth::Claims) -> Result<(), auth::Denied> {
         let list = self.access.read().unwrap_or_else(|e| e.into_inner());
@@ -405,7 +413,7 @@ pub(super) fn check_token(
     ctx: &SessionContext,
     token: &str,
 ) -> Result<auth::Claims, (ErrorCode, String)> {
-    auth::verify(&ctx.secret, token, auth::unix_now()).map_err(|e| {
+    ctx.verify_token(token).map_err(|e| {
         if let Some(refused) = TOKEN_REFUSALS.event() {
             warn!(error = %e, refused, "refused a token");
         }
@@ -876,6 +884,7 @@ pub(crate) fn test_context(
     };
     let ctx = SessionContext {
         secret: crate::auth::Secret::from_bytes([7; crate::auth::SECRET_LEN]),
+        token_max_ttl: crate::auth::MAX_TOKEN_TTL,
         tickets: None,
         engine,
         store: Arc::new(crate::store::SledStore::open(dir).unwrap()),

@@ -581,10 +581,7 @@ impl Sequencer {
         let Some(p) = position else { return };
         let cap = self.validation.remembered_players.max(1);
         if !self.last_positions.contains_key(player) && self.last_positions.len() >= cap {
-            // Full: forget one player (any) to keep the map bounded.
-            if let Some(k) = self.last_positions.keys().next().cloned() {
-                self.last_positions.remove(&k);
-            }
+            self.forget_oldest_positions(cap);
         }
         let remembered = Remembered {
             feet: p.feet,
@@ -592,6 +589,27 @@ impl Sequencer {
         };
         self.last_positions.insert(player.to_string(), remembered);
         self.moved.insert(player.to_string());
+    }
+
+    /// Full at `cap`: forgets the players known longest ago, a 64th of
+    /// them (at least one), so that the one who left a moment ago is not
+    /// the one forgotten (it would come back at the spawn) and the scan is
+    /// paid once per 64th of the map's players joining.
+    fn forget_oldest_positions(&mut self, cap: usize) {
+        let n = (cap / 64).max(1).min(self.last_positions.len());
+        if n == 0 {
+            return;
+        }
+        let mut ages: Vec<(u64, &String)> = self
+            .last_positions
+            .iter()
+            .map(|(player, r)| (r.known_ms, player))
+            .collect();
+        ages.select_nth_unstable(n - 1);
+        let oldest: Vec<String> = ages[..n].iter().map(|(_, p)| (*p).clone()).collect();
+        for player in oldest {
+            self.last_positions.remove(&player);
+        }
     }
 
     /// Starts a new session of a known player where the player last was:
@@ -667,6 +685,7 @@ impl Sequencer {
         session_id: u64,
         feet: FixedVec3,
         issued_ms: u64,
+        now_ms: u64,
     ) -> Result<Start, strata_protocol::TicketRefusal> {
         let refused = Err(strata_protocol::TicketRefusal::AlreadyPlaced);
         let Some(s) = self.sessions.get(&session_id) else {
@@ -688,7 +707,7 @@ impl Sequencer {
         if newest.is_some_and(|t| issued_ms < t) {
             return refused;
         }
-        let arrived = ValidatedPosition::arrived(feet, issued_ms, &self.validation);
+        let arrived = ValidatedPosition::arrived(feet, issued_ms, now_ms, &self.validation);
         if let Some(s) = self.sessions.get_mut(&session_id) {
             s.position = Some(arrived);
         }

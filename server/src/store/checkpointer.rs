@@ -54,6 +54,8 @@ pub struct CheckpointPace {
     pub max_chunks: usize,
     /// Chunks folded between two pauses.
     pub slice_chunks: usize,
+    /// `[store] log_retention`: each pass prunes log entries older.
+    pub log_retention: Duration,
 }
 
 /// What one paced pass did.
@@ -232,5 +234,28 @@ fn run(store: &dyn ChunkStore, stop: &Stop, pace: CheckpointPace) {
             Ok(r) => after = r.next,
             Err(e) => error!(error = %e, "checkpoint failed; deltas stay until the next pass"),
         }
+        if let Err(e) = prune_log(store, pace.log_retention) {
+            error!(error = %e, "pruning the edit log failed; it is tried again after the next pass");
+        }
     }
+}
+
+/// Entries one pass prunes from the edit log at most: a pass removes the
+/// log of about this many edits (a few hundred KiB), so it stays short,
+/// and at a checkpoint every 5 s keeps well ahead of any edit rate.
+pub const LOG_PRUNE_BATCH: usize = 4096;
+
+/// After a pass: removes log entries older than `retention`
+/// ([`ChunkStore::prune_log`]).
+pub fn prune_log(store: &dyn ChunkStore, retention: Duration) -> Result<u64, StoreError> {
+    let now_ms = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64);
+    let before = now_ms.saturating_sub(retention.as_millis() as u64);
+    let removed = store.prune_log(before, LOG_PRUNE_BATCH)?;
+    if removed > 0 {
+        metrics::counter!(m::LOG_PRUNED_TOTAL).increment(removed);
+        debug!(removed, "pruned the edit log");
+    }
+    Ok(removed)
 }

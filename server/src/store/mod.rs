@@ -51,7 +51,9 @@ use crate::sequencer::regions::RegionId;
 
 pub use batch::{MAX_BATCH_CHUNKS, MAX_BATCH_ENTRIES};
 pub use check::{CheckIssue, CheckReport, Checker, MAX_REPORTED_ISSUES};
-pub use checkpointer::{pass_once, CheckpointPace, Checkpointer, PassReport};
+pub use checkpointer::{
+    pass_once, prune_log, CheckpointPace, Checkpointer, PassReport, LOG_PRUNE_BATCH,
+};
 pub use config::{
     StoreBackend, StoreConfig, DEFAULT_CACHE_CAPACITY_BYTES, DEFAULT_CHECKPOINT_CHUNKS,
     DEFAULT_CHECKPOINT_MS, DEFAULT_FLUSH_EVERY_MS, DEFAULT_SEGMENT_SIZE_BYTES,
@@ -123,6 +125,23 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
 
     /// Log entries with seq in `seqs`, ascending.
     fn edit_log(&self, seqs: RangeInclusive<u64>) -> StoreIter<'_, LogEntry>;
+
+    /// The seq the log starts after: entries at or below it are gone (the
+    /// snapshot a world was restored from, or [`Self::prune_log`]).
+    fn log_base(&self) -> Result<u64, StoreError> {
+        Ok(0)
+    }
+
+    /// Removes the log's oldest entries accepted before `before_ms` (ms
+    /// since the Unix epoch): the longest run of them from the log's start,
+    /// in seq order (a newer entry ends it), at most about `max`, and moves
+    /// the log base to the last one removed. Returns the entries removed.
+    /// Recovery does not read the log (records and deltas hold the world):
+    /// it is the world's history, for the console's timeline and
+    /// `verify-acks`, and without this it grows with every edit for good.
+    fn prune_log(&self, _before_ms: u64, _max: usize) -> Result<u64, StoreError> {
+        Ok(0)
+    }
 
     /// A modified chunk's stored bytes, undecoded, or `None` if never modified.
     /// It may show a commit whose fsync is still running: a reader that

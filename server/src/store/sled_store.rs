@@ -488,6 +488,56 @@ impl ChunkStore for SledStore {
         Ok(None)
     }
 
+    fn log_base(&self) -> Result<u64, StoreError> {
+        self.meta
+            .get(META_LOG_BASE)?
+            .map_or(Ok(0), |v| decode_last_seq(&v))
+    }
+
+    fn prune_log(&self, before_ms: u64, max: usize) -> Result<u64, StoreError> {
+        // Whole pages (a commit's entries), from the first: a page with an
+        // entry too new, or one past `max`, ends the run.
+        let mut pages = Vec::new();
+        let (mut removed, mut base) = (0u64, 0u64);
+        for r in self.log.iter() {
+            let (k, v) = r?;
+            let entries = log_record_entries(&k, &v)?;
+            let n = entries.len() as u64;
+            if removed > 0 && removed + n > max as u64 {
+                break;
+            }
+            let mut old = true;
+            for (seq, record) in &entries {
+                old &= decode_log_entry(*seq, record)?.time_ms < before_ms;
+            }
+            let Some(&(last, _)) = entries.last().filter(|_| old) else {
+                break;
+            };
+            pages.push(k);
+            (removed, base) = (removed + n, last);
+        }
+        if pages.is_empty() {
+            return Ok(0);
+        }
+        (&self.log, &self.meta)
+            .transaction(|(log, meta)| {
+                for k in &pages {
+                    log.remove(k)?;
+                }
+                let was = match meta.get(META_LOG_BASE)? {
+                    Some(v) => decode_last_seq(&v).map_err(ConflictableTransactionError::Abort)?,
+                    None => 0,
+                };
+                meta.insert(META_LOG_BASE, &base.max(was).to_be_bytes()[..])?;
+                Ok(())
+            })
+            .map_err(|e| match e {
+                TransactionError::Abort(e) => e,
+                TransactionError::Storage(e) => e.into(),
+            })?;
+        Ok(removed)
+    }
+
     fn edit_log(&self, seqs: RangeInclusive<u64>) -> StoreIter<'_, LogEntry> {
         if seqs.is_empty() {
             return Box::new(std::iter::empty());

@@ -35,6 +35,10 @@ pub struct ValidatedPosition {
     /// resumed position's (0 when unknown). A ticket older than it would
     /// take the player back in time.
     pub known_ms: u64,
+    /// Time the next move may count beyond `[validation] max_move_ms`: for
+    /// an arrival, the ticket's age when it was taken (the player walked
+    /// on meanwhile, on the node that issued it); else 0.
+    pub grace_ms: u64,
 }
 
 impl ValidatedPosition {
@@ -48,12 +52,13 @@ impl ValidatedPosition {
             slack_milli: full_slack_milli(cfg),
             placement: Placement::Resumed,
             known_ms,
+            grace_ms: 0,
         }
     }
 
-    /// A position from a ticket issued at `issued_ms`, timed from it, with
-    /// its whole slack.
-    pub fn arrived(feet: FixedVec3, issued_ms: u64, cfg: &ValidationConfig) -> Self {
+    /// A position from a ticket issued at `issued_ms` and taken at
+    /// `now_ms`, timed from its issue, with its whole slack.
+    pub fn arrived(feet: FixedVec3, issued_ms: u64, now_ms: u64, cfg: &ValidationConfig) -> Self {
         Self {
             feet,
             at_ms: issued_ms,
@@ -61,6 +66,7 @@ impl ValidatedPosition {
             slack_milli: full_slack_milli(cfg),
             placement: Placement::Arrived,
             known_ms: issued_ms,
+            grace_ms: now_ms.saturating_sub(issued_ms),
         }
     }
 }
@@ -209,9 +215,11 @@ pub fn check_motion(
         }
         return Ok(full_slack_milli(cfg));
     };
-    // A silence counts for `max_move_ms` at most: else a player could go
-    // quiet and then report a spot as far as the silence was long.
-    let elapsed = now_ms.saturating_sub(p.at_ms).min(cfg.max_move_ms);
+    // A silence counts for `max_move_ms` at most (after an arrival, on
+    // top of the ticket's age then): else a player could go quiet and
+    // then report a spot as far as the silence was long.
+    let most = cfg.max_move_ms.saturating_add(p.grace_ms);
+    let elapsed = now_ms.saturating_sub(p.at_ms).min(most);
     let d = to_dvec3(p.feet).distance(to_dvec3(upd.pos));
     let speed = speed_distance(elapsed, cfg);
     let slack = slack_available(p, elapsed, cfg);
@@ -249,5 +257,6 @@ pub fn check(
         slack_milli,
         placement: Placement::Reported,
         known_ms: now_ms,
+        grace_ms: 0,
     })
 }

@@ -105,3 +105,25 @@ pub fn write_snapshot(path: &Path, header: &SnapshotHeader, chunks: &[(ChunkPos,
     }
     w.finish().unwrap();
 }
+
+/// Writes a snapshot of `header` holding `n` chunks of noise (each about
+/// 64 KiB encoded: zstd finds nothing to take), in a row along x.
+pub fn write_noise_snapshot(path: &Path, header: &SnapshotHeader, n: i32) {
+    use strata_terrain::{Chunk, Voxel};
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut w = SnapshotWriter::new(file, header).unwrap();
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    for x in 0..n {
+        let mut c = Chunk::uniform(Voxel::AIR);
+        for i in 0..strata_terrain::CHUNK_VOLUME {
+            // xorshift64
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            c.set_index(i, Voxel::new(state as u8, 1 + (state >> 8) as u8 % 4));
+        }
+        w.chunk(ChunkPos::new(x, 0, 0), 1, &encode_chunk(&c))
+            .unwrap();
+    }
+    w.finish().unwrap();
+}

@@ -426,6 +426,63 @@ impl ChunkStore for PgStore {
         self.log_pages(seqs)
     }
 
+    fn log_base(&self) -> Result<u64, StoreError> {
+        let row = self.pool.run("reading log_base", async |c: &mut Conn| {
+            c.query_opt("SELECT log_base FROM world WHERE id = 1", &[])
+                .await
+        })?;
+        row.map_or(Ok(0), |r| from_sql(r.get(0), "log_base", "world"))
+    }
+
+    /// A cluster's log is not pruned yet: its nodes number from seq blocks
+    /// 2^40 apart, so a run from the log's start stops at the first node's
+    /// newest entry and never reaches another's (that needs pruning by the
+    /// entries' time, per block). A store alone prunes as sled does.
+    fn prune_log(&self, before_ms: u64, max: usize) -> Result<u64, StoreError> {
+        if self.leases.is_some() {
+            return Ok(0);
+        }
+        let limit = i64::try_from(max.max(1)).unwrap_or(i64::MAX);
+        self.pool
+            .run_tx("pruning the edit log", "BEGIN", async |c: &mut Conn| {
+                let rows = c
+                    .query(
+                        "SELECT seq, entry FROM edit_log \
+                         WHERE seq > (SELECT log_base FROM world WHERE id = 1) \
+                         ORDER BY seq LIMIT $1",
+                        &[&limit],
+                    )
+                    .await?;
+                let mut cut = None;
+                for r in &rows {
+                    let seq: i64 = r.get(0);
+                    let entry = super::record::decode_log_entry(
+                        from_sql(seq, "seq", "edit_log")?,
+                        r.get(1),
+                    )?;
+                    if entry.time_ms >= before_ms {
+                        break;
+                    }
+                    cut = Some(seq);
+                }
+                let Some(cut) = cut else {
+                    return Ok(0);
+                };
+                let removed = c
+                    .execute("DELETE FROM edit_log WHERE seq <= $1", &[&cut])
+                    .await?;
+                // `last_seq` too: the log's newest entry may be among those
+                // removed, and the store's last seq reads it from there.
+                c.execute(
+                    "UPDATE world SET log_base = GREATEST(log_base, $1), \
+                     last_seq = GREATEST(last_seq, $1) WHERE id = 1",
+                    &[&cut],
+                )
+                .await?;
+                Ok(removed)
+            })
+    }
+
     fn raw_chunk(&self, pos: ChunkPos) -> Result<Option<RawChunk>, StoreError> {
         self.raw_latest(pos)
     }
