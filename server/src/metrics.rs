@@ -371,6 +371,11 @@ mod tests {
         };
         shared().unwrap();
         shared().unwrap();
+        // A thread names itself once it runs.
+        let started = std::time::Instant::now();
+        while upkeep_threads() == 0 && started.elapsed() < Duration::from_secs(10) {
+            std::thread::sleep(Duration::from_millis(10));
+        }
         assert_eq!(upkeep_threads(), 1);
     }
 

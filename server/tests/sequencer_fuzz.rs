@@ -162,13 +162,32 @@ fn any_position_report_is_refused_or_taken() {
             for (seq, pos, now) in reports {
                 for session in [PLAYER, 7] {
                     let update = strata_protocol::PositionUpdate { seq, pos };
+                    // Where and since when: what a refusal must leave (the
+                    // time credited to the next move may grow).
+                    let place =
+                        |p: Option<strata_server::validate::position::ValidatedPosition>| {
+                            p.map(|p| {
+                                (
+                                    p.feet,
+                                    p.at_ms,
+                                    p.seq,
+                                    p.slack_milli,
+                                    p.placement,
+                                    p.known_ms,
+                                )
+                            })
+                        };
                     let before = s.position(session);
                     let taken = s
                         .precheck_position(session, &update, now)
                         .and_then(|()| s.charge_placement(session, now))
                         .and_then(|()| s.update_position(session, update, now));
                     if taken.is_err() {
-                        prop_assert_eq!(s.position(session), before);
+                        prop_assert_eq!(place(s.position(session)), place(before));
+                    }
+                    if let Some(p) = s.position(session) {
+                        // Never more than the time since the position.
+                        prop_assert!(p.credit_ms <= p.heard_ms.saturating_sub(p.at_ms));
                     }
                 }
             }

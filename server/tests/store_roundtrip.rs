@@ -654,7 +654,8 @@ fn the_log_is_pruned_from_its_start_up_to_the_first_newer_entry() {
         assert!(report.is_ok(), "{}: {:?}", place.backend(), report.issues);
         // The retention the checkpoint gives: these entries are from 2023.
         let month = std::time::Duration::from_secs(30 * 24 * 3600);
-        assert_eq!(prune_log(&*store, month).unwrap(), 2);
+        let second = std::time::Duration::from_secs(1);
+        assert_eq!(prune_log(&*store, month, second).unwrap(), 2);
         assert_eq!(store.log_base().unwrap(), 5);
         assert_eq!(logged(&*store), Vec::<u64>::new());
         assert_eq!(store.last_seq().unwrap(), 5);
@@ -668,5 +669,28 @@ fn the_log_is_pruned_from_its_start_up_to_the_first_newer_entry() {
         );
         let report = store.check().unwrap();
         assert!(report.is_ok(), "{}: {:?}", place.backend(), report.issues);
+    }
+}
+
+/// A log longer than one prune's batch drains in one pass, batch after
+/// batch, within the pass's budget.
+#[test]
+fn a_log_longer_than_a_batch_drains_in_one_pass() {
+    use strata_server::store::{prune_log, LOG_PRUNE_BATCH};
+    for (place, store) in new_stores("a_log_longer_than_a_batch") {
+        let mut seq = Seq::default();
+        let a = ChunkPos::new(0, 0, 0);
+        let edits: Vec<Vec<(ChunkPos, Chunk)>> =
+            (0..1000).map(|i| vec![(a, terrain_chunk(i % 7))]).collect();
+        let commits = LOG_PRUNE_BATCH / 1000 + 2;
+        for _ in 0..commits {
+            store.commit_batch(&seq.batch(&edits)).unwrap();
+        }
+        let month = std::time::Duration::from_secs(30 * 24 * 3600);
+        let budget = std::time::Duration::from_secs(60);
+        let removed = prune_log(&*store, month, budget).unwrap();
+        assert_eq!(removed, 1000 * commits as u64, "{}", place.backend());
+        assert_eq!(store.log_base().unwrap(), 1000 * commits as u64);
+        assert_eq!(store.edit_log(1..=u64::MAX >> 2).count(), 0);
     }
 }

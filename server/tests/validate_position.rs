@@ -343,6 +343,52 @@ fn an_arrival_allows_the_tickets_age_and_no_silence_after_it() {
         run(&mut s, 7, 1_000, 61_000, 100),
         Err(PositionReject::TooFast { .. })
     ));
+    // A ticket 29 s old (they live 30 s): 12 s of its age at most, with
+    // the 2 s cap, 352 voxels.
+    let mut s = fresh();
+    s.session_left(PLAYER);
+    assert!(run(&mut s, 7, 30_000, 30_000, 352).is_ok());
+    let mut s = fresh();
+    s.session_left(PLAYER);
+    assert!(matches!(
+        run(&mut s, 7, 30_000, 30_000, 353),
+        Err(PositionReject::TooFast { .. })
+    ));
+}
+
+/// A player whose reports went unhandled for longer than the cap while it
+/// walked (a stall of the server, a burst of lost datagrams) is refused,
+/// keeps its position, and catches up as it reports on: each refused
+/// report is credited the time since the one before.
+#[test]
+fn a_player_refused_after_a_stall_catches_up_as_it_reports_on() {
+    let mut s = fresh();
+    // As the engine handles a report: the rules that read no terrain first.
+    let handle = |s: &mut Sequencer, report: PositionUpdate, now: u64| {
+        s.precheck_position(PLAYER, &report, now)
+            .and_then(|()| s.update_position(PLAYER, report, now))
+    };
+    handle(&mut s, at(1, 0, 0, 0), 0).unwrap();
+    // 3 s at 20 voxels/s: 60 voxels, 52 allowed (the 2 s cap).
+    assert!(matches!(
+        handle(&mut s, at(2, 60, 0, 0), 3_000),
+        Err(PositionReject::TooFast { .. })
+    ));
+    assert_eq!(
+        s.position(PLAYER).unwrap().feet,
+        FixedVec3::from_voxels(0, 0, 0)
+    );
+    // On at full speed, a report every 100 ms: 2.5 voxels more allowed
+    // each time for 2 walked, so 8 voxels behind take 16 reports.
+    let mut caught_up = None;
+    for i in 1..=20 {
+        let report = at(2 + i, 60 + 2 * i as i32, 0, 0);
+        if handle(&mut s, report, 3_000 + 100 * i as u64).is_ok() {
+            caught_up = Some(i);
+            break;
+        }
+    }
+    assert_eq!(caught_up, Some(16));
 }
 
 #[test]

@@ -98,6 +98,10 @@ pub struct VerifyReport {
     pub records: u64,
     pub chunks: u64,
     pub last_seq: u64,
+    /// Records at or below the log's base (pruned by `[store]
+    /// log_retention`, or before the snapshot the world was restored
+    /// from): their chunks are checked, their log entries are gone.
+    pub pruned: u64,
     /// Every failure counted; the first [`MAX_REPORTED_FAILURES`] listed.
     pub failure_count: u64,
     pub failures: Vec<AckFailure>,
@@ -165,6 +169,7 @@ pub fn read_ack_log(path: &Path) -> Result<Vec<AckRecord>, VerifyError> {
 /// Checks every record against a store.
 pub fn verify(store: &dyn ChunkStore, records: &[AckRecord]) -> Result<VerifyReport, StoreError> {
     let last_seq = store.last_seq()?;
+    let log_base = store.log_base()?;
     let mut report = VerifyReport {
         last_seq,
         ..Default::default()
@@ -176,20 +181,24 @@ pub fn verify(store: &dyn ChunkStore, records: &[AckRecord]) -> Result<VerifyRep
         if !acked.insert(rec.seq) {
             report.fail(AckFailure::AckedTwice { seq: rec.seq });
         }
-        let Some(entry) = store.log_entry(rec.seq)?.filter(|_| rec.seq <= last_seq) else {
-            report.fail(AckFailure::SeqNotLogged {
-                seq: rec.seq,
-                last_seq,
-            });
-            continue;
-        };
-        let mut logged = entry.changes.clone();
-        let mut acked: Vec<(ChunkPos, u64)> =
-            rec.chunks.iter().map(|c| (c.pos(), c.version)).collect();
-        logged.sort();
-        acked.sort();
-        if logged != acked || entry.seq != rec.seq {
-            report.fail(AckFailure::LogDiffers { seq: rec.seq });
+        if rec.seq <= log_base && rec.seq <= last_seq {
+            report.pruned += 1;
+        } else {
+            let Some(entry) = store.log_entry(rec.seq)?.filter(|_| rec.seq <= last_seq) else {
+                report.fail(AckFailure::SeqNotLogged {
+                    seq: rec.seq,
+                    last_seq,
+                });
+                continue;
+            };
+            let mut logged = entry.changes.clone();
+            let mut acked: Vec<(ChunkPos, u64)> =
+                rec.chunks.iter().map(|c| (c.pos(), c.version)).collect();
+            logged.sort();
+            acked.sort();
+            if logged != acked || entry.seq != rec.seq {
+                report.fail(AckFailure::LogDiffers { seq: rec.seq });
+            }
         }
         for c in &rec.chunks {
             let stored = store.load_chunk(c.pos())?.map_or(0, |s| s.version);
@@ -348,6 +357,16 @@ mod tests {
         let twice = verify(&store, &[ack(1, 1), ack(2, 2), ack(2, 2)]).unwrap();
         assert_eq!(twice.failures, vec![AckFailure::AckedTwice { seq: 2 }]);
         assert_eq!(twice.failure_count, 1);
+        // Pruned from the log: counted so, its chunks still checked.
+        assert_eq!(store.prune_log(2, 10).unwrap(), 2);
+        let pruned = verify(&store, &[ack(1, 1), ack(2, 2)]).unwrap();
+        assert!(pruned.ok(), "{pruned:?}");
+        assert_eq!(pruned.pruned, 2);
+        let behind = verify(&store, &[ack(2, 3)]).unwrap();
+        assert!(matches!(
+            behind.failures[..],
+            [AckFailure::ChunkBehind { seq: 2, .. }]
+        ));
     }
 
     #[test]

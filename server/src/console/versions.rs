@@ -42,41 +42,50 @@ impl VersionIndex {
     /// first if needed); returns the seq it now reflects.
     pub fn catch_up(&self, store: &dyn ChunkStore) -> Result<u64, StoreError> {
         let mut guard = self.state.lock().unwrap_or_else(|p| p.into_inner());
-        // Entries past the seq seen were pruned (`[store] log_retention`,
-        // a console unused that long): built again from the chunks.
-        let base = store.log_base()?;
-        if guard.as_ref().is_some_and(|s| s.seen_seq < base) {
+        loop {
+            // Entries past the seq seen were pruned (`[store]
+            // log_retention`, a console unused that long): built again
+            // from the chunks.
+            let base = store.log_base()?;
+            if guard.as_ref().is_some_and(|s| s.seen_seq < base) {
+                *guard = None;
+            }
+            let state = match &mut *guard {
+                Some(s) => s,
+                None => {
+                    // The seq first: chunks read after it are at least that
+                    // new, and versions only grow, so replaying later
+                    // entries is safe.
+                    let seen_seq = store.last_seq()?;
+                    let mut s = State {
+                        seen_seq,
+                        versions: HashMap::new(),
+                        columns: HashMap::new(),
+                    };
+                    for item in store.modified_chunks() {
+                        let (pos, version) = item?;
+                        s.set(pos, version);
+                    }
+                    guard.insert(s)
+                }
+            };
+            let from = state.seen_seq;
+            let last = store.last_seq()?;
+            if last > from {
+                for entry in store.edit_log(from + 1..=last) {
+                    let entry = entry?;
+                    for &(pos, version) in &entry.changes {
+                        state.set(pos, version);
+                    }
+                    state.seen_seq = state.seen_seq.max(entry.seq);
+                }
+            }
+            // A prune during the read may have taken entries it skipped.
+            if store.log_base()? <= from {
+                return Ok(state.seen_seq);
+            }
             *guard = None;
         }
-        let state = match &mut *guard {
-            Some(s) => s,
-            None => {
-                // The seq first: chunks read after it are at least that new,
-                // and versions only grow, so replaying later entries is safe.
-                let seen_seq = store.last_seq()?;
-                let mut s = State {
-                    seen_seq,
-                    versions: HashMap::new(),
-                    columns: HashMap::new(),
-                };
-                for item in store.modified_chunks() {
-                    let (pos, version) = item?;
-                    s.set(pos, version);
-                }
-                guard.insert(s)
-            }
-        };
-        let last = store.last_seq()?;
-        if last > state.seen_seq {
-            for entry in store.edit_log(state.seen_seq + 1..=last) {
-                let entry = entry?;
-                for &(pos, version) in &entry.changes {
-                    state.set(pos, version);
-                }
-                state.seen_seq = state.seen_seq.max(entry.seq);
-            }
-        }
-        Ok(state.seen_seq)
     }
 
     /// The stamp of the columns `x0..x0+n`, `z0..z0+n` (0 if never read).

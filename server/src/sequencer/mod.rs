@@ -755,13 +755,36 @@ impl Sequencer {
     /// The rules of [`Self::update_position`] that read no terrain (order,
     /// bounds, speed): the engine runs them before loading any chunk.
     pub fn precheck_position(
-        &self,
+        &mut self,
         session_id: u64,
         upd: &PositionUpdate,
         now_ms: u64,
     ) -> Result<(), PositionReject> {
         let prev = self.previous(session_id)?;
-        position::check_motion(prev.as_ref(), upd, now_ms, &self.validation).map(|_| ())
+        let checked = position::check_motion(prev.as_ref(), upd, now_ms, &self.validation);
+        if let Err(e) = &checked {
+            self.heard_refused(session_id, prev, e, now_ms);
+        }
+        checked.map(|_| ())
+    }
+
+    /// After a report past the order rule was refused: the session keeps
+    /// its position, and the time since the last report heard is credited
+    /// to its next move ([`ValidatedPosition::heard`]).
+    fn heard_refused(
+        &mut self,
+        session_id: u64,
+        prev: Option<ValidatedPosition>,
+        e: &PositionReject,
+        now_ms: u64,
+    ) {
+        let (Some(p), false) = (prev, matches!(e, PositionReject::Stale { .. })) else {
+            return;
+        };
+        let heard = p.heard(now_ms, &self.validation);
+        if let Some(s) = self.sessions.get_mut(&session_id) {
+            s.position = Some(heard);
+        }
     }
 
     /// Takes one of the player's placement tokens when the session has no
@@ -789,8 +812,9 @@ impl Sequencer {
     }
 
     /// Checks and records a position report. A rejected report changes
-    /// nothing; a stale one is rejected as [`PositionReject::Stale`] and the
-    /// shell should drop it silently.
+    /// no position (only the time the next move may count: see
+    /// [`ValidatedPosition::heard`]); a stale one is rejected as
+    /// [`PositionReject::Stale`] and the shell should drop it silently.
     pub fn update_position(
         &mut self,
         session_id: u64,
@@ -810,7 +834,14 @@ impl Sequencer {
         }
         let voxels = position::body_voxels(upd.pos, &self.validation);
         self.world.load(voxels.iter().map(|v| v.chunk()));
-        let ok = position::check(prev.as_ref(), &upd, now_ms, &self.validation, &self.world)?;
+        let checked = position::check(prev.as_ref(), &upd, now_ms, &self.validation, &self.world);
+        let ok = match checked {
+            Ok(ok) => ok,
+            Err(e) => {
+                self.heard_refused(session_id, prev, &e, now_ms);
+                return Err(e);
+            }
+        };
         if let Some(s) = self.sessions.get_mut(&session_id) {
             s.position = Some(ok);
             if !self.moved.contains(&s.player) {

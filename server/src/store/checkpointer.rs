@@ -234,28 +234,41 @@ fn run(store: &dyn ChunkStore, stop: &Stop, pace: CheckpointPace) {
             Ok(r) => after = r.next,
             Err(e) => error!(error = %e, "checkpoint failed; deltas stay until the next pass"),
         }
-        if let Err(e) = prune_log(store, pace.log_retention) {
+        // A quarter of the period at most, as the folds.
+        if let Err(e) = prune_log(store, pace.log_retention, pace.every / 4) {
             error!(error = %e, "pruning the edit log failed; it is tried again after the next pass");
         }
     }
 }
 
-/// Entries one pass prunes from the edit log at most: a pass removes the
-/// log of about this many edits (a few hundred KiB), so it stays short,
-/// and at a checkpoint every 5 s keeps well ahead of any edit rate.
+/// Entries one store call prunes from the edit log at most (a few hundred
+/// KiB of log): each call is one short transaction.
 pub const LOG_PRUNE_BATCH: usize = 4096;
 
 /// After a pass: removes log entries older than `retention`
-/// ([`ChunkStore::prune_log`]).
-pub fn prune_log(store: &dyn ChunkStore, retention: Duration) -> Result<u64, StoreError> {
+/// ([`ChunkStore::prune_log`]), batch after batch until none is left or
+/// `budget` is spent (a log years long drains over several passes).
+pub fn prune_log(
+    store: &dyn ChunkStore,
+    retention: Duration,
+    budget: Duration,
+) -> Result<u64, StoreError> {
+    let started = Instant::now();
     let now_ms = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_millis() as u64);
     let before = now_ms.saturating_sub(retention.as_millis() as u64);
-    let removed = store.prune_log(before, LOG_PRUNE_BATCH)?;
-    if removed > 0 {
+    let mut total = 0;
+    loop {
+        let removed = store.prune_log(before, LOG_PRUNE_BATCH)?;
         metrics::counter!(m::LOG_PRUNED_TOTAL).increment(removed);
-        debug!(removed, "pruned the edit log");
+        total += removed;
+        if removed == 0 || started.elapsed() >= budget {
+            break;
+        }
     }
-    Ok(removed)
+    if total > 0 {
+        debug!(removed = total, "pruned the edit log");
+    }
+    Ok(total)
 }

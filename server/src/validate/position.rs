@@ -35,11 +35,26 @@ pub struct ValidatedPosition {
     /// resumed position's (0 when unknown). A ticket older than it would
     /// take the player back in time.
     pub known_ms: u64,
-    /// Time the next move may count beyond `[validation] max_move_ms`: for
-    /// an arrival, the ticket's age when it was taken (the player walked
-    /// on meanwhile, on the node that issued it); else 0.
+    /// When the session's last report past the order rule was handled
+    /// (accepted or refused), or it was placed: the silence a move may
+    /// count runs from here ([`Self::credited_ms`]).
+    pub heard_ms: u64,
+    /// Time counted for reports refused since `at_ms` (each silence before
+    /// one capped): a player refused once (a stall, lost datagrams) is
+    /// allowed more with every report it goes on sending, and catches up.
+    pub credit_ms: u64,
+    /// Time the next silence may count beyond `[validation] max_move_ms`:
+    /// for an arrival, the ticket's age when it was taken (the player
+    /// walked on meanwhile, on the node that issued it), at most
+    /// [`MAX_ARRIVAL_GRACE_MS`]; else 0.
     pub grace_ms: u64,
 }
+
+/// Most of a ticket's age an arrival's first move may count beyond
+/// `max_move_ms`: nodes issue a ticket every 10 s, so an honest client's
+/// newest is at most that old, and 2 s more for its join. An older ticket
+/// (they live 30 s) gives no more.
+pub const MAX_ARRIVAL_GRACE_MS: u64 = 12_000;
 
 impl ValidatedPosition {
     /// A resumed position, timed from `at_ms`, with its whole slack; the
@@ -52,6 +67,8 @@ impl ValidatedPosition {
             slack_milli: full_slack_milli(cfg),
             placement: Placement::Resumed,
             known_ms,
+            heard_ms: at_ms,
+            credit_ms: 0,
             grace_ms: 0,
         }
     }
@@ -66,7 +83,30 @@ impl ValidatedPosition {
             slack_milli: full_slack_milli(cfg),
             placement: Placement::Arrived,
             known_ms: issued_ms,
-            grace_ms: now_ms.saturating_sub(issued_ms),
+            heard_ms: issued_ms,
+            credit_ms: 0,
+            grace_ms: now_ms.saturating_sub(issued_ms).min(MAX_ARRIVAL_GRACE_MS),
+        }
+    }
+
+    /// The time a move reported at `now_ms` may count since `at_ms`: what
+    /// refused reports earned, and the silence since the last one heard,
+    /// capped at `max_move_ms` (plus any grace). Else a player could go
+    /// quiet and then report a spot as far as the silence was long.
+    pub fn credited_ms(&self, now_ms: u64, cfg: &ValidationConfig) -> u64 {
+        let most = cfg.max_move_ms.saturating_add(self.grace_ms);
+        let silence = now_ms.saturating_sub(self.heard_ms).min(most);
+        self.credit_ms.saturating_add(silence)
+    }
+
+    /// This position still, after a report at `now_ms` was refused: the
+    /// time since the last report heard is credited.
+    pub fn heard(self, now_ms: u64, cfg: &ValidationConfig) -> Self {
+        Self {
+            credit_ms: self.credited_ms(now_ms, cfg),
+            heard_ms: now_ms.max(self.heard_ms),
+            grace_ms: 0,
+            ..self
         }
     }
 }
@@ -215,11 +255,7 @@ pub fn check_motion(
         }
         return Ok(full_slack_milli(cfg));
     };
-    // A silence counts for `max_move_ms` at most (after an arrival, on
-    // top of the ticket's age then): else a player could go quiet and
-    // then report a spot as far as the silence was long.
-    let most = cfg.max_move_ms.saturating_add(p.grace_ms);
-    let elapsed = now_ms.saturating_sub(p.at_ms).min(most);
+    let elapsed = p.credited_ms(now_ms, cfg);
     let d = to_dvec3(p.feet).distance(to_dvec3(upd.pos));
     let speed = speed_distance(elapsed, cfg);
     let slack = slack_available(p, elapsed, cfg);
@@ -257,6 +293,8 @@ pub fn check(
         slack_milli,
         placement: Placement::Reported,
         known_ms: now_ms,
+        heard_ms: now_ms,
+        credit_ms: 0,
         grace_ms: 0,
     })
 }
