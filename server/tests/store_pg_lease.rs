@@ -1208,3 +1208,62 @@ fn regions_claimed_for_a_refused_edit_are_let_go() {
     );
     assert_eq!(owners, ["0:-", "1:a"]);
 }
+
+/// A cluster's log is pruned in each node's seq block from the block's own
+/// start: the old entries of a block above another node's newer ones go
+/// too. What was pruned is told apart from what was never logged, and the
+/// store checks clean.
+#[test]
+fn a_clusters_log_is_pruned_block_by_block() {
+    let Some(db) = database("cluster_log_pruned") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let b = node(&db, "b");
+    let (fa, fb) = (a.reserve_seqs(0).unwrap(), b.reserve_seqs(0).unwrap());
+    assert!(fb > fa);
+    // Entries timed as given, whatever their seqs.
+    let timed = |seq: &mut Seq, pos: ChunkPos, salt: u32, time_ms: u64| {
+        let mut batch = edit(seq, &[pos], salt);
+        for e in &mut batch.entries {
+            e.time_ms = time_ms;
+        }
+        batch
+    };
+    let (old, new, cut) = (1_000, 9_000, 5_000);
+    let (pa, pb) = (chunk_in(region(1, 1), 0), chunk_in(region(5, 5), 0));
+    let mut on_a = Seq {
+        last_seq: fa,
+        ..Seq::default()
+    };
+    let mut on_b = Seq {
+        last_seq: fb,
+        ..Seq::default()
+    };
+    a.commit_batch(&timed(&mut on_a, pa, 1, old)).unwrap();
+    a.commit_batch(&timed(&mut on_a, pa, 2, new)).unwrap();
+    b.commit_batch(&timed(&mut on_b, pb, 3, old)).unwrap();
+    b.commit_batch(&timed(&mut on_b, pb, 4, old)).unwrap();
+    b.commit_batch(&timed(&mut on_b, pb, 5, new)).unwrap();
+    // a's newer entry (below b's block) does not hold b's old ones back.
+    assert_eq!(a.prune_log(cut, 100).unwrap(), 3);
+    let logged: Vec<u64> = a
+        .edit_log(0..=u64::MAX >> 2)
+        .map(|e| e.unwrap().seq)
+        .collect();
+    assert_eq!(logged, [fa + 2, fb + 3]);
+    assert_eq!(
+        sql(&db, "SELECT pruned_to FROM seq_blocks ORDER BY first_seq"),
+        [(fa + 1).to_string(), (fb + 2).to_string()]
+    );
+    assert!(a.log_pruned_at(fb + 1).unwrap() && a.log_pruned_at(fa + 1).unwrap());
+    assert!(!a.log_pruned_at(fb + 3).unwrap() && !a.log_pruned_at(fa + 2).unwrap());
+    assert!(a.log_pruned_after(fa + 2).unwrap(), "b's block, above");
+    assert!(!a.log_pruned_after(fb + 2).unwrap());
+    assert_eq!(a.prune_log(cut, 100).unwrap(), 0);
+    let report = a.check().unwrap();
+    assert!(report.is_ok(), "{:?}", report.issues);
+    // Both nodes' chunks read as committed.
+    assert_eq!(b.load_chunk(pb).unwrap().unwrap().version, 3);
+    assert_eq!(a.load_chunk(pa).unwrap().unwrap().version, 2);
+}

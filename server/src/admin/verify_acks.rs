@@ -98,9 +98,9 @@ pub struct VerifyReport {
     pub records: u64,
     pub chunks: u64,
     pub last_seq: u64,
-    /// Records at or below the log's base (pruned by `[store]
-    /// log_retention`, or before the snapshot the world was restored
-    /// from): their chunks are checked, their log entries are gone.
+    /// Records whose log entries are gone (pruned by `[store]
+    /// log_retention`, or from before the snapshot the world was restored
+    /// from): their chunks are checked.
     pub pruned: u64,
     /// Every failure counted; the first [`MAX_REPORTED_FAILURES`] listed.
     pub failure_count: u64,
@@ -169,7 +169,6 @@ pub fn read_ack_log(path: &Path) -> Result<Vec<AckRecord>, VerifyError> {
 /// Checks every record against a store.
 pub fn verify(store: &dyn ChunkStore, records: &[AckRecord]) -> Result<VerifyReport, StoreError> {
     let last_seq = store.last_seq()?;
-    let log_base = store.log_base()?;
     let mut report = VerifyReport {
         last_seq,
         ..Default::default()
@@ -181,7 +180,7 @@ pub fn verify(store: &dyn ChunkStore, records: &[AckRecord]) -> Result<VerifyRep
         if !acked.insert(rec.seq) {
             report.fail(AckFailure::AckedTwice { seq: rec.seq });
         }
-        if rec.seq <= log_base && rec.seq <= last_seq {
+        if rec.seq <= last_seq && store.log_pruned_at(rec.seq)? {
             report.pruned += 1;
         } else {
             let Some(entry) = store.log_entry(rec.seq)?.filter(|_| rec.seq <= last_seq) else {

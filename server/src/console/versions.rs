@@ -46,9 +46,10 @@ impl VersionIndex {
             // Entries past the seq seen were pruned (`[store]
             // log_retention`, a console unused that long): built again
             // from the chunks.
-            let base = store.log_base()?;
-            if guard.as_ref().is_some_and(|s| s.seen_seq < base) {
-                *guard = None;
+            if let Some(s) = guard.as_ref() {
+                if store.log_pruned_after(s.seen_seq)? {
+                    *guard = None;
+                }
             }
             let state = match &mut *guard {
                 Some(s) => s,
@@ -81,7 +82,7 @@ impl VersionIndex {
                 }
             }
             // A prune during the read may have taken entries it skipped.
-            if store.log_base()? <= from {
+            if !store.log_pruned_after(from)? {
                 return Ok(state.seen_seq);
             }
             *guard = None;

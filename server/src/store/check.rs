@@ -208,8 +208,12 @@ pub struct Checker {
     /// Seq of the snapshot the store was restored from (0: none).
     log_base: u64,
     /// Seqs the log may jump forward to: the first seqs of cluster nodes'
-    /// seq blocks (`store/pg/seqs.rs`).
+    /// seq blocks (`store/pg/seqs.rs`), and where a block's log was
+    /// pruned to.
     block_starts: std::collections::BTreeSet<u64>,
+    /// Entries were pruned from the log (`[store] log_retention`): a
+    /// chunk need not have one.
+    pruned: bool,
 }
 
 impl Checker {
@@ -231,6 +235,13 @@ impl Checker {
     /// a new block leaves the rest of its old one unused).
     pub fn allow_jumps_to(&mut self, starts: std::collections::BTreeSet<u64>) {
         self.block_starts = starts;
+    }
+
+    /// The log was pruned inside seq blocks too, to the seqs before
+    /// `starts` (a chunk last changed there has no entry left).
+    pub fn allow_pruned(&mut self, starts: std::collections::BTreeSet<u64>) {
+        self.pruned |= !starts.is_empty();
+        self.block_starts.extend(starts);
     }
 
     fn issue(&mut self, i: CheckIssue) {
@@ -375,7 +386,7 @@ impl Checker {
     pub fn finish(mut self, meta_last_seq: Option<u64>) -> CheckReport {
         for (pos, (version, _)) in std::mem::take(&mut self.stored) {
             match self.logged.remove(&pos) {
-                None if self.log_base > 0 => {}
+                None if self.log_base > 0 || self.pruned => {}
                 None => self.issue(CheckIssue::OrphanChunk { pos, version }),
                 Some((logged, seq)) if logged != version => {
                     self.issue(CheckIssue::VersionMismatch {

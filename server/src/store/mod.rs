@@ -132,10 +132,23 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(0)
     }
 
+    /// Whether entries with seqs above `seq` may have been pruned (on a
+    /// cluster's PostgreSQL log each seq block is pruned on its own).
+    fn log_pruned_after(&self, seq: u64) -> Result<bool, StoreError> {
+        Ok(self.log_base()? > seq)
+    }
+
+    /// Whether the entry of `seq`, if there was one, was pruned.
+    fn log_pruned_at(&self, seq: u64) -> Result<bool, StoreError> {
+        Ok(seq <= self.log_base()?)
+    }
+
     /// Removes the log's oldest entries accepted before `before_ms` (ms
     /// since the Unix epoch): the longest run of them from the log's start,
-    /// in seq order (a newer entry ends it), at most about `max`, and moves
-    /// the log base to the last one removed. Returns the entries removed.
+    /// in seq order (a newer entry ends it; on a cluster's PostgreSQL log,
+    /// from the start of each node's seq block), at most about `max`, and
+    /// moves the log base (a block's `pruned_to`) to the last one removed.
+    /// Returns the entries removed.
     /// Recovery does not read the log (records and deltas hold the world):
     /// it is the world's history, for the console's timeline and
     /// `verify-acks`, and without this it grows with every edit for good.

@@ -62,6 +62,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0010_world_generation",
         include_str!("../../../migrations/0010_world_generation.sql"),
     ),
+    (
+        11,
+        "0011_seq_block_pruning",
+        include_str!("../../../migrations/0011_seq_block_pruning.sql"),
+    ),
 ];
 
 /// How long applying the migrations may take in all (waiting for another

@@ -434,53 +434,130 @@ impl ChunkStore for PgStore {
         row.map_or(Ok(0), |r| from_sql(r.get(0), "log_base", "world"))
     }
 
-    /// A cluster's log is not pruned yet: its nodes number from seq blocks
-    /// 2^40 apart, so a run from the log's start stops at the first node's
-    /// newest entry and never reaches another's (that needs pruning by the
-    /// entries' time, per block). A store alone prunes as sled does.
+    /// Each range of the log from its own start: the seqs before the first
+    /// seq block (numbered by a store alone, from `world.log_base`), then
+    /// each block (a cluster node's, from its `pruned_to`). A cluster's
+    /// nodes number from blocks 2^40 apart: a run from the log's start
+    /// alone would stop at the first node's newest entry and never reach
+    /// another's.
     fn prune_log(&self, before_ms: u64, max: usize) -> Result<u64, StoreError> {
-        if self.leases.is_some() {
-            return Ok(0);
-        }
-        let limit = i64::try_from(max.max(1)).unwrap_or(i64::MAX);
-        self.pool
-            .run_tx("pruning the edit log", "BEGIN", async |c: &mut Conn| {
-                let rows = c
+        let ranges = self
+            .pool
+            .run("reading the log's ranges", async |c: &mut Conn| {
+                let base: i64 = c
+                    .query_opt("SELECT log_base FROM world WHERE id = 1", &[])
+                    .await?
+                    .map_or(0, |r| r.get(0));
+                let blocks = c
                     .query(
-                        "SELECT seq, entry FROM edit_log \
-                         WHERE seq > (SELECT log_base FROM world WHERE id = 1) \
-                         ORDER BY seq LIMIT $1",
-                        &[&limit],
+                        "SELECT first_seq, pruned_to FROM seq_blocks ORDER BY first_seq",
+                        &[],
                     )
                     .await?;
-                let mut cut = None;
-                for r in &rows {
-                    let seq: i64 = r.get(0);
-                    let entry = super::record::decode_log_entry(
-                        from_sql(seq, "seq", "edit_log")?,
-                        r.get(1),
-                    )?;
-                    if entry.time_ms >= before_ms {
-                        break;
-                    }
-                    cut = Some(seq);
+                // (the block, or none for the seqs before any; pruned up to;
+                // the next range's first seq).
+                let mut ranges: Vec<(Option<i64>, i64, i64)> = Vec::new();
+                let mut block = None;
+                let mut after = base;
+                for r in &blocks {
+                    let (first, pruned): (i64, i64) = (r.get(0), r.get(1));
+                    ranges.push((block, after, first));
+                    (block, after) = (Some(first), pruned.max(first - 1));
                 }
-                let Some(cut) = cut else {
-                    return Ok(0);
-                };
-                let removed = c
-                    .execute("DELETE FROM edit_log WHERE seq <= $1", &[&cut])
-                    .await?;
-                // `last_seq` too: the log's newest entry may be among those
-                // removed, and the store's last seq reads it from there.
-                c.execute(
-                    "UPDATE world SET log_base = GREATEST(log_base, $1), \
-                     last_seq = GREATEST(last_seq, $1) WHERE id = 1",
-                    &[&cut],
+                ranges.push((block, after, i64::MAX));
+                Ok(ranges)
+            })?;
+        let mut removed = 0u64;
+        for (block, after, end) in ranges {
+            let Some(left) = (max as u64).checked_sub(removed).filter(|&n| n > 0) else {
+                break;
+            };
+            let limit = i64::try_from(left).unwrap_or(i64::MAX);
+            removed +=
+                self.pool
+                    .run_tx("pruning the edit log", "BEGIN", async |c: &mut Conn| {
+                        let rows = c
+                            .query(
+                                "SELECT seq, entry FROM edit_log WHERE seq > $1 AND seq < $2 \
+                         ORDER BY seq LIMIT $3",
+                                &[&after, &end, &limit],
+                            )
+                            .await?;
+                        let mut cut = None;
+                        for r in &rows {
+                            let seq: i64 = r.get(0);
+                            let entry = super::record::decode_log_entry(
+                                from_sql(seq, "seq", "edit_log")?,
+                                r.get(1),
+                            )?;
+                            if entry.time_ms >= before_ms {
+                                break;
+                            }
+                            cut = Some(seq);
+                        }
+                        let Some(cut) = cut else {
+                            return Ok(0);
+                        };
+                        let n = c
+                            .execute(
+                                "DELETE FROM edit_log WHERE seq > $1 AND seq <= $2",
+                                &[&after, &cut],
+                            )
+                            .await?;
+                        if let Some(first) = block {
+                            c.execute(
+                                "UPDATE seq_blocks SET pruned_to = GREATEST(pruned_to, $2) \
+                         WHERE first_seq = $1",
+                                &[&first, &cut],
+                            )
+                            .await?;
+                        }
+                        // `last_seq` too: the log's newest entry may be among those
+                        // removed, and the store's last seq reads it from there.
+                        let base = if block.is_none() { cut } else { 0 };
+                        c.execute(
+                            "UPDATE world SET log_base = GREATEST(log_base, $1), \
+                     last_seq = GREATEST(last_seq, $2) WHERE id = 1",
+                            &[&base, &cut],
+                        )
+                        .await?;
+                        Ok(n)
+                    })?;
+        }
+        Ok(removed)
+    }
+
+    fn log_pruned_after(&self, seq: u64) -> Result<bool, StoreError> {
+        let seq = i64::try_from(seq).unwrap_or(i64::MAX);
+        let row = self.pool.run(
+            "reading how far the log was pruned",
+            async |c: &mut Conn| {
+                c.query_opt(
+                    "SELECT (SELECT log_base FROM world WHERE id = 1) > $1 \
+                     OR EXISTS (SELECT 1 FROM seq_blocks WHERE pruned_to > $1)",
+                    &[&seq],
                 )
-                .await?;
-                Ok(removed)
-            })
+                .await
+            },
+        )?;
+        Ok(row
+            .and_then(|r| r.get::<_, Option<bool>>(0))
+            .unwrap_or(false))
+    }
+
+    fn log_pruned_at(&self, seq: u64) -> Result<bool, StoreError> {
+        let seq = i64::try_from(seq).unwrap_or(i64::MAX);
+        let row = self.pool.run("reading how far the log was pruned", async |c: &mut Conn| {
+            c.query_opt(
+                "SELECT (SELECT log_base FROM world WHERE id = 1) >= $1 \
+                     OR EXISTS (SELECT 1 FROM seq_blocks WHERE first_seq <= $1 AND pruned_to >= $1)",
+                &[&seq],
+            )
+            .await
+        })?;
+        Ok(row
+            .and_then(|r| r.get::<_, Option<bool>>(0))
+            .unwrap_or(false))
     }
 
     fn raw_chunk(&self, pos: ChunkPos) -> Result<Option<RawChunk>, StoreError> {

@@ -58,6 +58,7 @@ impl PgStore {
             }
         }
         checker.allow_jumps_to(super::seqs::block_starts(&self.pool)?);
+        checker.allow_pruned(super::seqs::pruned_starts(&self.pool)?);
         self.check_tables(&mut checker)?;
         let mut seq = 0i64;
         loop {

@@ -62,3 +62,18 @@ pub(super) fn block_starts(pool: &Pool) -> Result<BTreeSet<u64>, StoreError> {
         .map(|r| from_sql(r.get(0), "first_seq", "seq_blocks"))
         .collect()
 }
+
+/// Where each block's log was pruned to: `pruned_to + 1` of every block
+/// whose start was pruned (the log may jump there).
+pub(super) fn pruned_starts(pool: &Pool) -> Result<BTreeSet<u64>, StoreError> {
+    let rows = pool.run("reading seq blocks", async |c: &mut Conn| {
+        c.query(
+            "SELECT pruned_to + 1 FROM seq_blocks WHERE pruned_to > 0",
+            &[],
+        )
+        .await
+    })?;
+    rows.iter()
+        .map(|r| from_sql(r.get(0), "pruned_to", "seq_blocks"))
+        .collect()
+}
