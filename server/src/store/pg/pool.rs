@@ -425,6 +425,19 @@ impl Held<'_> {
                 .err()
                 .is_some_and(|e| e.is_postgres() || !self.clean);
         if close {
+            // PostgreSQL sends an error before it has rolled the transaction
+            // back and let its locks go (a restore's serving lock): the
+            // answer to a ROLLBACK comes after, so a caller told of the
+            // failure finds them free.
+            let answered =
+                matches!(&result, Err(StoreError::Postgres(e)) if e.as_db_error().is_some());
+            if let (Some(conn), true, false) = (self.conn.as_mut(), answered, late) {
+                let _ = timed(
+                    "rolling back",
+                    self.pool.statement_timeout,
+                    conn.batch("ROLLBACK"),
+                );
+            }
             self.conn = None;
             self.pool.give(None);
         }
