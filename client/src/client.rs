@@ -1033,7 +1033,10 @@ async fn read_control(
                 region_chunks,
                 regions,
                 ticket,
-            })) if regions.len() <= strata_protocol::limits::MAX_REGION_OWNERS => {
+                node,
+            })) if regions.len() <= strata_protocol::limits::MAX_REGION_OWNERS
+                && node.len() <= strata_protocol::limits::MAX_NODE_ID_BYTES =>
+            {
                 let mut o = shared
                     .owners
                     .lock()
@@ -1044,6 +1047,7 @@ async fn read_control(
                     region_chunks,
                     regions,
                     ticket,
+                    node,
                 });
             }
             Ok(Some(ServerMessage::RegionOwners { regions, .. })) => {

@@ -142,6 +142,8 @@ pub struct RegionOwners {
     pub region_chunks: u32,
     pub regions: Vec<RegionOwner>,
     pub ticket: Option<Ticket>,
+    /// The sending node's id.
+    pub node: String,
 }
 
 /// Why the cluster client could not go on.
@@ -429,6 +431,15 @@ where
     Fut: Future<Output = Option<SocketAddr>>,
 {
     let mut out = Routing::default();
+    // The nodes connected, by their own ids: another node naming one of
+    // them at another address (a load balancer's, IPv6 for IPv4) means
+    // that connection, not a second session of the player there (which
+    // would end the first).
+    let connected: BTreeMap<&str, SocketAddr> = latest
+        .iter()
+        .filter(|(_, o)| !o.node.is_empty())
+        .map(|(from, o)| (o.node.as_str(), *from))
+        .collect();
     let mut looked: BTreeMap<&str, Option<SocketAddr>> = BTreeMap::new();
     let mut free = Vec::new();
     let valid = || {
@@ -440,6 +451,14 @@ where
         for r in &o.regions {
             let region = (r.region_x, r.region_z);
             let addr = match &r.holder {
+                RegionHolder::Node { node, .. } if connected.contains_key(node.as_str()) => {
+                    let a = connected[node.as_str()];
+                    out.routes.insert(region, a);
+                    if out.named.len() < MAX_CLUSTER_NODES && !out.named.contains(&a) {
+                        out.named.push(a);
+                    }
+                    continue;
+                }
                 RegionHolder::Node { addr, .. } if !addr.is_empty() => addr.as_str(),
                 RegionHolder::Free => {
                     free.push(region);
@@ -1101,6 +1120,7 @@ mod tests {
             region_chunks: 8,
             regions,
             ticket: None,
+            node: String::new(),
         }
     }
 
@@ -1135,6 +1155,32 @@ mod tests {
         })
         .await;
         (routing, calls.get())
+    }
+
+    /// A node another names at an address other than the one the client
+    /// reached it at is the same node, known by its id: no lookup, no
+    /// second session there.
+    #[tokio::test]
+    async fn a_connected_node_named_at_another_address_is_that_connection() {
+        let (home, east) = (addr(1), addr(2));
+        let from_home = RegionOwners {
+            node: "west".into(),
+            ..owners(vec![held(0, RegionHolder::Here)])
+        };
+        let west_elsewhere = RegionHolder::Node {
+            node: "west".into(),
+            addr: "127.0.0.1:9999".into(),
+        };
+        let from_east = RegionOwners {
+            node: "east".into(),
+            ..owners(vec![held(0, west_elsewhere), held(1, RegionHolder::Here)])
+        };
+        let latest = [(home, from_home), (east, from_east)];
+        let (routing, calls) = counted(&latest, &BTreeMap::new()).await;
+        assert_eq!(calls, 0);
+        assert_eq!(routing.routes[&(0, 0)], home);
+        assert_eq!(routing.routes[&(1, 0)], east);
+        assert_eq!(routing.named, vec![home]);
     }
 
     #[tokio::test]

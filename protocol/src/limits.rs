@@ -17,6 +17,9 @@ pub const MAX_FORGET_CHUNKS: usize = 1024;
 /// Most regions in one `RegionOwners` (a view of radius 32 chunks spans at
 /// most 10 x 10 regions of 8 chunks).
 pub const MAX_REGION_OWNERS: usize = 256;
+/// Longest node id a `RegionOwners` names (`[cluster] node_id`'s limit):
+/// a client keeps none longer.
+pub const MAX_NODE_ID_BYTES: usize = 64;
 /// How long an `Arrive` ticket is accepted after it was issued (ms).
 pub const TICKET_TTL_MS: u64 = 30_000;
 /// How far in the future a ticket's `issued_ms` may be (clock skew, ms).

@@ -320,11 +320,14 @@ pub enum ServerMessage {
     /// `region_chunks` chunks on a side; region (x, z) holds chunk columns
     /// `x * region_chunks ..` and `z * region_chunks ..`. `ticket`, when
     /// the session has a position, lets the player `Arrive` at another
-    /// node of the cluster.
+    /// node of the cluster. `node` is the sender's own node id: another
+    /// node naming it (`RegionHolder::Node`) at an address other than the
+    /// one the client reached it at is the same node.
     RegionOwners {
         region_chunks: u32,
         regions: Vec<RegionOwner>,
         ticket: Option<Ticket>,
+        node: String,
     },
     /// The `Arrive` ticket was accepted: the first position report must
     /// be a legal move from `feet`, timed from the ticket's `issued_ms`.

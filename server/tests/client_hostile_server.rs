@@ -185,6 +185,7 @@ async fn a_node_naming_new_addresses_gets_no_more_handshakes_than_the_join_rate(
                 region_chunks: 8,
                 regions,
                 ticket: None,
+                node: "hostile".into(),
             };
             let frame = encode_frame(&msg, Direction::ServerToClient).unwrap();
             if control.write_all(&frame).await.is_err() {

@@ -1433,6 +1433,7 @@ async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
             "{:?}",
             on_east.region_owners()
         );
+        assert_eq!(on_east.region_owners().unwrap().node, "east");
         let minted = on_east.region_owners().unwrap().ticket.unwrap();
         assert_eq!((minted.feet, minted.issued_ms), (feet(WEST_X), recent));
         finish(ann, west).await;

@@ -75,6 +75,7 @@ impl Engine {
         }
         self.owners_due = now + OWNERS_EVERY;
         let side = self.seq.region_chunks();
+        let node = self.store.node_id().unwrap_or_default();
         let views: Vec<(u64, BTreeSet<RegionId>)> = self
             .peers
             .iter()
@@ -124,6 +125,7 @@ impl Engine {
                     region_chunks: side,
                     regions: owners,
                     ticket,
+                    node: node.clone(),
                 },
             );
         }

@@ -363,6 +363,11 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         None
     }
 
+    /// This node's `[cluster] node_id` (`None` alone on its store).
+    fn node_id(&self) -> Option<String> {
+        None
+    }
+
     /// Claims the cluster node id for this process (a newer incarnation
     /// supersedes any process still running under it). The server calls
     /// it once its ports are bound. Alone on its store: nothing.

@@ -837,6 +837,10 @@ impl ChunkStore for PgStore {
         self.leases.as_ref().and_then(|l| l.superseded())
     }
 
+    fn node_id(&self) -> Option<String> {
+        self.leases.as_ref().map(|l| l.node_id().to_string())
+    }
+
     fn serve(&self) -> Result<(), StoreError> {
         self.take_serving_lock()?;
         self.pool.run("checking the schema", async |c: &mut Conn| {
