@@ -73,6 +73,28 @@ async fn acknowledged_edits_survive_sigkill_on(backend: Backend) {
         worker.abort();
         let _ = worker.await;
         let acked = acked.lock().unwrap().clone();
+        if let Backend::Postgres(db) = &backend {
+            // The killed server's sessions may still be ending: a COMMIT it
+            // sent before the kill may land yet. Read once they are gone.
+            let others = format!(
+                "SELECT count(*) FROM pg_stat_activity WHERE datname = '{}' \
+                 AND pid <> pg_backend_pid()",
+                db.name()
+            );
+            let started = std::time::Instant::now();
+            let count = |db: &strata_tests::postgres::PgDb| {
+                let (db_url, others) = (db.url(), others.clone());
+                std::thread::scope(|s| {
+                    s.spawn(|| crate::store_common::sql_url(&db_url, &others))
+                        .join()
+                        .unwrap()
+                })
+            };
+            while count(db) != ["0"] {
+                assert!(started.elapsed() < Duration::from_secs(30));
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        }
         let store = backend.open_store(&data);
         let last = store.last_seq().unwrap();
         for seq in &acked {

@@ -1267,3 +1267,32 @@ fn a_clusters_log_is_pruned_block_by_block() {
     assert_eq!(b.load_chunk(pb).unwrap().unwrap().version, 3);
     assert_eq!(a.load_chunk(pa).unwrap().unwrap().version, 2);
 }
+
+/// A node whose renewals do not get through (the database out of its
+/// reach, here its regions table locked) stops saying it writes its
+/// regions once their lease may have run out: another node may have taken
+/// them, and clients would route to both. A renewal that gets through
+/// says so again.
+#[test]
+fn a_node_cut_off_past_its_lease_no_longer_says_it_writes_its_regions() {
+    use strata_server::store::RegionHolder;
+    let Some(db) = database("lease_cut_off") else {
+        return;
+    };
+    let a = node_with(&db, "a", 1_000, 200);
+    let r = region(2, 2);
+    granted(&a, r);
+    let holder = |s: &PgStore| s.region_holders(&regions(&[r])).unwrap()[0].1.clone();
+    assert_eq!(holder(&a), RegionHolder::Here);
+    let (release, locker) =
+        store_common::hold_until_told(&db, "LOCK TABLE regions IN ACCESS EXCLUSIVE MODE");
+    std::thread::sleep(Duration::from_millis(1_500));
+    assert_eq!(holder(&a), RegionHolder::Free);
+    release.send(()).unwrap();
+    locker.join().unwrap();
+    let started = std::time::Instant::now();
+    while holder(&a) != RegionHolder::Here {
+        assert!(started.elapsed() < Duration::from_secs(10), "renewed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}

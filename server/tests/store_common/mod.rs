@@ -233,12 +233,17 @@ pub fn places(test: &str) -> Vec<Place> {
 /// Runs `sql` on `db` with a plain client; returns each row's first
 /// column as text.
 pub fn sql(db: &PgDb, sql: &str) -> Vec<String> {
+    sql_url(&db.url(), sql)
+}
+
+/// [`sql`] on the database at `url` (off any runtime: it starts one).
+pub fn sql_url(url: &str, sql: &str) -> Vec<String> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .unwrap();
     rt.block_on(async {
-        let (client, conn) = tokio_postgres::connect(&db.url(), tokio_postgres::NoTls)
+        let (client, conn) = tokio_postgres::connect(url, tokio_postgres::NoTls)
             .await
             .unwrap();
         let driver = tokio::spawn(conn);

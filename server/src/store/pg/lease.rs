@@ -87,6 +87,11 @@ struct Book {
     elsewhere: BTreeMap<RegionId, (String, String, Instant)>,
     /// Regions seen free ([`holders`]), and until when to believe it.
     free: BTreeMap<RegionId, Instant>,
+    /// Held regions: until when their lease surely runs (from before the
+    /// claim or the last renewal that kept it, plus `lease_ms`). Past it,
+    /// with renewals failing (the database out of reach), another node
+    /// may hold the region: [`holders`] no longer says `Here`.
+    sure_until: BTreeMap<RegionId, Instant>,
 }
 
 impl Book {
@@ -118,6 +123,11 @@ impl NodeLeases {
             registered: std::sync::atomic::AtomicBool::new(false),
             book: Mutex::new(Book::default()),
         }
+    }
+
+    /// `[cluster] lease_ms` as a duration.
+    fn lease(&self) -> Duration {
+        Duration::from_secs_f64(self.lease_ms / 1000.0)
     }
 
     /// Why this process must stop, once another took its node id.
@@ -286,6 +296,7 @@ pub(super) fn claim(
     lost: Lost,
 ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
     leases.not_superseded()?;
+    let started = Instant::now();
     let todo: Vec<RegionId> = {
         let book = leases.book();
         wanted
@@ -315,18 +326,21 @@ pub(super) fn claim(
         )
         .await
     })?;
-    took(pool, leases, rows, "region claimed")
+    took(pool, leases, rows, "region claimed", started)
 }
 
 /// Books regions a claim or adoption returned (x, z, epoch, last_seq):
 /// first a new seq block if one of them was written above this node's
 /// block (taking back a region it wrote itself costs none), then held and
 /// fresh.
+/// `started`: before the statement that took them (their leases surely
+/// run from then).
 fn took(
     pool: &Pool,
     leases: &NodeLeases,
     rows: Vec<tokio_postgres::Row>,
     what: &'static str,
+    started: Instant,
 ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
     let mut got = BTreeMap::new();
     let mut newest = 0;
@@ -352,6 +366,7 @@ fn took(
         info!(node = %leases.node_id, region_x = region.x, region_z = region.z, epoch, "{what}");
         book.used.insert(region, now);
         book.held.insert(region, epoch);
+        book.sure_until.insert(region, started + leases.lease());
         book.lost.remove(&region);
         book.fresh.insert(region);
         book.elsewhere.remove(&region);
@@ -366,6 +381,7 @@ fn took(
 /// rows. Returns what it adopted.
 pub(super) fn adopt(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
     leases.not_superseded()?;
+    let started = Instant::now();
     let (lx, lz, room) = {
         let book = leases.book();
         let (lx, lz) = columns(book.lost.keys());
@@ -396,6 +412,7 @@ pub(super) fn adopt(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
         leases,
         rows,
         "region adopted from a node whose lease ran out",
+        started,
     )?
     .into_keys()
     .collect())
@@ -484,7 +501,16 @@ pub(super) fn holders(
         let book = leases.book();
         for r in regions {
             if book.held.contains_key(r) {
-                out.push((*r, RegionHolder::Here));
+                // Renewals failing past the lease: another node may hold it.
+                let sure = book.sure_until.get(r).is_some_and(|until| *until > now);
+                out.push((
+                    *r,
+                    if sure {
+                        RegionHolder::Here
+                    } else {
+                        RegionHolder::Free
+                    },
+                ));
             } else if let Some((owner, addr, _)) = book
                 .elsewhere
                 .get(r)
@@ -666,6 +692,7 @@ pub(super) fn check_incarnation(pool: &Pool, leases: &NodeLeases) -> Result<(), 
 /// must not hold up the renewal of every other region until their leases
 /// run out. It is lost only if it is no longer this node's as committed.
 pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
+    let started = Instant::now();
     let held = leases.held();
     if held.is_empty() {
         return Ok(Vec::new());
@@ -714,9 +741,21 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
         .filter(|r| !still.contains(r))
         .copied()
         .collect();
+    {
+        let mut book = leases.book();
+        let sure = started + leases.lease();
+        for r in &still {
+            book.sure_until.insert(*r, sure);
+        }
+    }
     for &r in &lost {
         leases.lose(r);
     }
+    let mut book = leases.book();
+    let Book {
+        held, sure_until, ..
+    } = &mut *book;
+    sure_until.retain(|r, _| held.contains_key(r));
     Ok(lost)
 }
 
