@@ -7,5 +7,6 @@ pub const ALPN: &[u8] = b"strata/1";
 /// `WorldUpdate::Op`, `PositionRefused`, `Forget` and `InterestComplete`,
 /// 5 added `RegionElsewhere`, 6 added `RegionOwners`, `Arrive` and
 /// `Arrived`, 7 added `RejectReason::NodeFull`, 8 added
-/// `TicketRefusal::NotClustered`; tickets are bound to their world).
+/// `TicketRefusal::NotClustered` and `RegionOwners::node`; tickets are
+/// bound to their world).
 pub const PROTOCOL_VERSION: u32 = 8;

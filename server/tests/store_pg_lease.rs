@@ -1263,6 +1263,12 @@ fn a_clusters_log_is_pruned_block_by_block() {
     assert_eq!(a.prune_log(cut, 100).unwrap(), 0);
     let report = a.check().unwrap();
     assert!(report.is_ok(), "{:?}", report.issues);
+    // Every block pruned to its end: the store's last seq stays, and the
+    // store checks clean with no entry left above it.
+    assert_eq!(a.prune_log(new + 1, 100).unwrap(), 2);
+    assert_eq!(a.last_seq().unwrap(), fb + 3);
+    let report = a.check().unwrap();
+    assert!(report.is_ok(), "{:?}", report.issues);
     // Both nodes' chunks read as committed.
     assert_eq!(b.load_chunk(pb).unwrap().unwrap().version, 3);
     assert_eq!(a.load_chunk(pa).unwrap().unwrap().version, 2);

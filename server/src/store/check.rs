@@ -214,6 +214,9 @@ pub struct Checker {
     /// Entries were pruned from the log (`[store] log_retention`): a
     /// chunk need not have one.
     pruned: bool,
+    /// The highest seq a block's log was pruned to: the store's last seq
+    /// may be that, with no entry left above it.
+    pruned_to: u64,
 }
 
 impl Checker {
@@ -241,6 +244,9 @@ impl Checker {
     /// `starts` (a chunk last changed there has no entry left).
     pub fn allow_pruned(&mut self, starts: std::collections::BTreeSet<u64>) {
         self.pruned |= !starts.is_empty();
+        if let Some(&last) = starts.last() {
+            self.pruned_to = self.pruned_to.max(last - 1);
+        }
         self.block_starts.extend(starts);
     }
 
@@ -407,10 +413,13 @@ impl Checker {
             });
         }
         match meta_last_seq {
-            Some(meta) if meta != self.last_log_seq => self.issue(CheckIssue::LastSeqMismatch {
-                meta,
-                log: self.last_log_seq,
-            }),
+            // A block pruned to its end leaves the last seq above the log.
+            Some(meta) if meta != self.last_log_seq.max(self.pruned_to) => {
+                self.issue(CheckIssue::LastSeqMismatch {
+                    meta,
+                    log: self.last_log_seq,
+                })
+            }
             Some(_) => {}
             None if self.report.log_entries > 0 || self.report.chunks > 0 => {
                 self.issue(CheckIssue::MissingMeta)

@@ -719,14 +719,21 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
         )
         .await
     })?;
-    let mut still: BTreeSet<RegionId> = rows.iter().map(region_of).collect();
+    let renewed = started + leases.lease();
+    // Each region kept, with until when its lease surely runs.
+    let mut still: BTreeMap<RegionId, Instant> =
+        rows.iter().map(|r| (region_of(r), renewed)).collect();
     if still.len() < held.len() {
         // Those skipped (locked): this node's still, as last committed, and
         // not run out (a commit that held one too long and then failed did
-        // not extend it)?
+        // not extend it)? Sure only for the lease they have left: the
+        // commit holding them may yet fail.
+        let asked = Instant::now();
         let rows = pool.run("reading leases being committed", async |c: &mut Conn| {
             c.query(
-                "SELECT r.region_x, r.region_z FROM regions r \
+                "SELECT r.region_x, r.region_z, \
+                     (extract(epoch FROM r.lease_expires - clock_timestamp()) * 1000)::int8 \
+                 FROM regions r \
                  JOIN unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
                    ON r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e \
                  WHERE r.owner = $4 AND r.lease_expires > clock_timestamp()",
@@ -734,18 +741,20 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
             )
             .await
         })?;
-        still.extend(rows.iter().map(region_of));
+        for r in &rows {
+            let left = Duration::from_millis(r.get::<_, i64>(2).max(0) as u64);
+            still.insert(region_of(r), asked + left);
+        }
     }
     let lost: Vec<RegionId> = held
         .keys()
-        .filter(|r| !still.contains(r))
+        .filter(|r| !still.contains_key(r))
         .copied()
         .collect();
     {
         let mut book = leases.book();
-        let sure = started + leases.lease();
-        for r in &still {
-            book.sure_until.insert(*r, sure);
+        for (r, sure) in &still {
+            book.sure_until.insert(*r, *sure);
         }
     }
     for &r in &lost {

@@ -63,6 +63,10 @@ pub use migrate::{MIGRATIONS, MIGRATIONS_TABLE};
 use pool::{Conn, Pool};
 pub use seqs::SEQ_BLOCK;
 
+/// How long one [`ChunkStore::prune_log`] call goes on to further ranges
+/// of the log (a cluster's seq blocks): the next call goes on from there.
+const PRUNE_CALL_LIMIT: std::time::Duration = std::time::Duration::from_millis(250);
+
 /// Rows one page of a scan fetches (chunk bodies are a few KiB each).
 const PAGE_ROWS: i64 = 256;
 
@@ -85,6 +89,8 @@ pub struct PgStore {
     /// The commits' own connection ([`Pool::run_own`]), opened at the
     /// first commit.
     commit_conn: std::sync::Mutex<Option<Box<Conn>>>,
+    /// The log's range ([`ChunkStore::prune_log`]) the next prune starts at.
+    prune_cursor: std::sync::Mutex<usize>,
     /// The world's id (`world.generation`) as [`ChunkStore::init_meta`]
     /// found it; commits refuse a world replaced since.
     world_id: std::sync::OnceLock<String>,
@@ -248,6 +254,7 @@ impl PgStore {
             generator: std::sync::OnceLock::new(),
             serving: std::sync::Mutex::new(None),
             commit_conn: std::sync::Mutex::new(None),
+            prune_cursor: std::sync::Mutex::new(0),
             world_id: std::sync::OnceLock::new(),
         })
     }
@@ -467,37 +474,47 @@ impl ChunkStore for PgStore {
                 ranges.push((block, after, i64::MAX));
                 Ok(ranges)
             })?;
+        // From where the last call stopped: with many blocks (a node's
+        // every start reserves one), each gets its turn.
+        let mut cursor = self.prune_cursor.lock().unwrap_or_else(|p| p.into_inner());
+        let started = std::time::Instant::now();
         let mut removed = 0u64;
-        for (block, after, end) in ranges {
-            let Some(left) = (max as u64).checked_sub(removed).filter(|&n| n > 0) else {
-                break;
-            };
+        for i in 0..ranges.len() {
+            let at = (*cursor + i) % ranges.len();
+            let (block, after, end) = ranges[at];
+            let left = (max as u64).saturating_sub(removed);
+            if left == 0 || started.elapsed() >= PRUNE_CALL_LIMIT {
+                *cursor = at;
+                return Ok(removed);
+            }
             let limit = i64::try_from(left).unwrap_or(i64::MAX);
+            // Read outside a transaction: most ranges have nothing to go.
+            let rows = self
+                .pool
+                .run("reading the edit log's oldest", async |c: &mut Conn| {
+                    c.query(
+                        "SELECT seq, entry FROM edit_log WHERE seq > $1 AND seq < $2 \
+                     ORDER BY seq LIMIT $3",
+                        &[&after, &end, &limit],
+                    )
+                    .await
+                })?;
+            let mut cut = None;
+            for r in &rows {
+                let seq: i64 = r.get(0);
+                let entry =
+                    super::record::decode_log_entry(from_sql(seq, "seq", "edit_log")?, r.get(1))?;
+                if entry.time_ms >= before_ms {
+                    break;
+                }
+                cut = Some(seq);
+            }
+            let Some(cut) = cut else {
+                continue;
+            };
             removed +=
                 self.pool
                     .run_tx("pruning the edit log", "BEGIN", async |c: &mut Conn| {
-                        let rows = c
-                            .query(
-                                "SELECT seq, entry FROM edit_log WHERE seq > $1 AND seq < $2 \
-                         ORDER BY seq LIMIT $3",
-                                &[&after, &end, &limit],
-                            )
-                            .await?;
-                        let mut cut = None;
-                        for r in &rows {
-                            let seq: i64 = r.get(0);
-                            let entry = super::record::decode_log_entry(
-                                from_sql(seq, "seq", "edit_log")?,
-                                r.get(1),
-                            )?;
-                            if entry.time_ms >= before_ms {
-                                break;
-                            }
-                            cut = Some(seq);
-                        }
-                        let Some(cut) = cut else {
-                            return Ok(0);
-                        };
                         let n = c
                             .execute(
                                 "DELETE FROM edit_log WHERE seq > $1 AND seq <= $2",
@@ -507,23 +524,24 @@ impl ChunkStore for PgStore {
                         if let Some(first) = block {
                             c.execute(
                                 "UPDATE seq_blocks SET pruned_to = GREATEST(pruned_to, $2) \
-                         WHERE first_seq = $1",
+                             WHERE first_seq = $1",
                                 &[&first, &cut],
                             )
                             .await?;
                         }
-                        // `last_seq` too: the log's newest entry may be among those
-                        // removed, and the store's last seq reads it from there.
+                        // `last_seq` too: the log's newest entry may be among
+                        // those removed, and the store's last seq reads it there.
                         let base = if block.is_none() { cut } else { 0 };
                         c.execute(
                             "UPDATE world SET log_base = GREATEST(log_base, $1), \
-                     last_seq = GREATEST(last_seq, $2) WHERE id = 1",
+                         last_seq = GREATEST(last_seq, $2) WHERE id = 1",
                             &[&base, &cut],
                         )
                         .await?;
                         Ok(n)
                     })?;
         }
+        *cursor = 0;
         Ok(removed)
     }
 
