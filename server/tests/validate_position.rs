@@ -356,6 +356,33 @@ fn an_arrival_allows_the_tickets_age_and_no_silence_after_it() {
     ));
 }
 
+/// A join that arrives with an older ticket (retried after a failed one)
+/// finds the player farther than the ticket's capped age allows: refused
+/// at first, it catches up as it reports on.
+#[test]
+fn an_arrival_with_an_older_ticket_catches_up() {
+    let mut s = fresh();
+    s.session_left(PLAYER);
+    s.session_joined(7, "p".into(), Role::Player);
+    s.resume_position(7, 21_000, None);
+    let spot = FixedVec3::from_voxels(HOME.0, 0, HOME.1);
+    // Issued 20 s before it is taken: 12 s of it and the 2 s cap count,
+    // 352 voxels; the player walked 400 at 20 voxels/s.
+    s.arrive(7, spot, 1_000, 21_000).unwrap();
+    let report = |i: u32| at(1 + i, HOME.0 + 400 + 2 * i as i32, 0, HOME.1);
+    assert!(matches!(
+        s.update_position(7, report(0), 21_000),
+        Err(PositionReject::TooFast { .. })
+    ));
+    let caught_up = (1..=200).find(|&i| {
+        s.precheck_position(7, &report(i), 21_000 + 100 * u64::from(i))
+            .and_then(|()| s.update_position(7, report(i), 21_000 + 100 * u64::from(i)))
+            .is_ok()
+    });
+    // 48 voxels behind, 0.5 gained a report.
+    assert_eq!(caught_up, Some(96));
+}
+
 /// A player whose reports went unhandled for longer than the cap while it
 /// walked (a stall of the server, a burst of lost datagrams) is refused,
 /// keeps its position, and catches up as it reports on: each refused
