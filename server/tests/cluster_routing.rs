@@ -1443,6 +1443,36 @@ async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
     .expect("test finished in time");
 }
 
+/// A node's ticket for a position reported to it is timed when it was
+/// reported: a player that stops reporting to one node (walking on
+/// through another) gets no fresher ticket for its old spot at the next
+/// refresh, one that would outdate what it reports elsewhere.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ticket_is_timed_when_its_position_was_reported() {
+    let Some(db) = strata_tests::postgres::database("cluster_ticket_time") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let (_dirs, west, east) = west_and_east(&db).await;
+        let ann = standing(&west, "ann", WEST_X).await;
+        let told = || ann.region_owners().filter(|o| o.ticket.is_some());
+        assert!(eventually(Duration::from_secs(10), || told().is_some()).await);
+        let first = told().unwrap();
+        // The next refresh (every TICKET_REFRESH_MS) re-mints it.
+        assert!(
+            eventually(Duration::from_secs(20), || told()
+                .is_some_and(|o| o.serial > first.serial))
+            .await
+        );
+        let (a, b) = (first.ticket.unwrap(), told().unwrap().ticket.unwrap());
+        assert_eq!((b.feet, b.issued_ms), (a.feet, a.issued_ms));
+        finish(ann, west).await;
+        east.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
 /// Takes the players table from every other session (a plain `SELECT` of
 /// a stored position waits) until told; the holder thread comes second.
 fn lock_players(

@@ -132,20 +132,19 @@ impl Engine {
     }
 
     /// A ticket for the session's player where it stands now, if it has
-    /// a position. Timed now only for a position the player reported to
-    /// this node; one it arrived at or resumed keeps the time it was known
-    /// there. Else a session parked on this node, reporting nowhere, would
-    /// get a fresh ticket for an old spot every refresh, one that outdates
-    /// the positions it reports to another node: a teleport back there.
+    /// a position, timed when the player was known there: its report to
+    /// this node, or the ticket or resume that placed it. Never now: a
+    /// session parked on this node, reporting here no more while the
+    /// player walks on through another node, would get a fresh ticket for
+    /// its old spot at every refresh, one that outdates the positions it
+    /// reports there: a teleport back.
     fn ticket(&self, session: u64) -> Option<strata_protocol::Ticket> {
         let key = self.ticket_key.as_ref()?;
         let player = &self.seq.session(session)?.player;
         let p = self.seq.position(session)?;
-        let issued = match p.placement {
-            crate::validate::position::Placement::Reported => now_ms(),
-            _ => p.known_ms,
-        };
-        Some(crate::cluster::ticket::mint(key, player, p.feet, issued))
+        Some(crate::cluster::ticket::mint(
+            key, player, p.feet, p.known_ms,
+        ))
     }
 }
 
