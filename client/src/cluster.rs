@@ -530,6 +530,9 @@ pub struct ClusterClient {
     /// The last position sent when the view was asked for or last moved
     /// ([`view_to_follow`]).
     view_checked_at: Option<FixedVec3>,
+    /// Per node, the verdicts still awaited there ([`Self::hold`]): such a
+    /// node stays connected though no route uses it any more.
+    held: BTreeMap<SocketAddr, usize>,
 }
 
 /// Connects to node `addr` and arrives there with `ticket`.
@@ -581,6 +584,7 @@ impl ClusterClient {
             reroute_owed: false,
             asked_view: None,
             view_checked_at: None,
+            held: BTreeMap::new(),
         })
     }
 
@@ -602,6 +606,29 @@ impl ClusterClient {
     /// The connection to `addr`, if open.
     pub fn node(&self, addr: SocketAddr) -> Option<&Client> {
         self.view.nodes.get(&addr).map(|c| c.as_ref())
+    }
+
+    /// The connection to `addr`, if open, for a task of its own (one
+    /// awaiting a verdict there).
+    pub fn node_shared(&self, addr: SocketAddr) -> Option<Arc<Client>> {
+        self.view.nodes.get(&addr).cloned()
+    }
+
+    /// A verdict from `addr` is awaited: [`Self::follow`] keeps that
+    /// connection open, routes or not, until as many [`Self::release`]s.
+    /// Closing it would lose the verdict of an edit it may have applied.
+    pub fn hold(&mut self, addr: SocketAddr) {
+        *self.held.entry(addr).or_default() += 1;
+    }
+
+    /// One verdict [`Self::hold`] waited for came (or never will).
+    pub fn release(&mut self, addr: SocketAddr) {
+        if let Some(n) = self.held.get_mut(&addr) {
+            *n -= 1;
+            if *n == 0 {
+                self.held.remove(&addr);
+            }
+        }
     }
 
     /// Every connected node.
@@ -708,7 +735,14 @@ impl ClusterClient {
     fn let_go_unused(&mut self) {
         let home = self.view.home;
         let named = &self.named;
-        let used: BTreeSet<SocketAddr> = self.view.routes.values().chain(named).copied().collect();
+        let used: BTreeSet<SocketAddr> = self
+            .view
+            .routes
+            .values()
+            .chain(named)
+            .chain(self.held.keys())
+            .copied()
+            .collect();
         let unused: Vec<SocketAddr> = self
             .view
             .nodes
@@ -882,7 +916,8 @@ impl ClusterClient {
     /// several edits in flight should know that one [`Self::settle`] sends
     /// again reaches its new node after any submitted there since, and
     /// that [`Self::follow`] may close a node whose verdicts are still
-    /// awaited ([`Self::edit`] keeps one edit in flight and has neither).
+    /// awaited unless it is held ([`Self::hold`]; [`Self::edit`] keeps one
+    /// edit in flight and has neither).
     pub async fn submit(&self, edit: Edit) -> Result<(SocketAddr, SentEdit), ClusterError> {
         let to = self.route(edit_anchor(&edit).chunk());
         let sent = self.view.nodes[&to].submit(edit).await?;

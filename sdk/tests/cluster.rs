@@ -18,7 +18,7 @@ use strata_client::coords::{chunk_at, to_fixed};
 use strata_client::glam::DVec3;
 use strata_client::terrain::ChunkPos;
 use strata_client::{edits, ClientOptions, ClusterClient, Event, Session, SessionOptions};
-use strata_protocol::{Refusal, Role};
+use strata_protocol::{Refusal, RejectReason, Role};
 use strata_server::app::{self, Running};
 use strata_server::cluster::ClusterConfig;
 use strata_server::config::ServerConfig;
@@ -149,14 +149,55 @@ fn bob_claims_region_one(east: &Running) -> Session {
     bob
 }
 
+/// A database for `test`, the west and east nodes on it, and Bob, who
+/// claimed region 1 for the east node. `None` where PostgreSQL is missing
+/// outside CI.
+fn two_nodes(
+    test: &str,
+) -> Option<(
+    strata_tests::postgres::PgDb,
+    tokio::runtime::Runtime,
+    tempfile::TempDir,
+    Running,
+    Running,
+    Session,
+)> {
+    let db = strata_tests::postgres::database(test)?;
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let (dirs, west, east) = west_and_east(&runtime, &db);
+    let bob = bob_claims_region_one(&east);
+    Some((db, runtime, dirs, west, east, bob))
+}
+
+/// Ann on the cluster from the west node, her first edit claiming region
+/// 0; the events seen so far.
+fn ann_at_west(west: &Running, opts: SessionOptions) -> (Session, Vec<Event>) {
+    let ann =
+        Session::connect_cluster(west.addr, &west.cert_der, &token(west, "ann"), opts).unwrap();
+    ann.set_position(spot(WEST_X).0).unwrap();
+    assert!(eventually(|| ann.chunk(chunk_of(WEST_X)).is_some()));
+    let mut seen = Vec::new();
+    mine(&ann, &mut seen, WEST_X + 2);
+    (ann, seen)
+}
+
+/// Walks east from `x` while short of `until`, two voxels every 50 ms.
+fn walk_east(s: &Session, seen: &mut Vec<Event>, mut x: i32, until: i32) {
+    while x < until {
+        x += 2;
+        s.set_position(spot(x).0).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        while let Some(e) = s.poll() {
+            seen.push(e);
+        }
+    }
+}
+
 #[test]
 fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
-    let Some(db) = strata_tests::postgres::database("sdk_cluster") else {
+    let Some((_db, runtime, _dirs, west, east, bob)) = two_nodes("sdk_cluster") else {
         return;
     };
-    let runtime = tokio::runtime::Runtime::new().unwrap();
-    let (_dirs, west, east) = west_and_east(&runtime, &db);
-    let bob = bob_claims_region_one(&east);
 
     let opts = SessionOptions::default();
 
@@ -166,23 +207,10 @@ fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
         predict: true,
         ..opts
     };
-    let ann = Session::connect_cluster(west.addr, &west.cert_der, &token(&west, "ann"), predicting)
-        .unwrap();
-    ann.set_position(spot(WEST_X).0).unwrap();
-    assert!(eventually(|| ann.chunk(chunk_of(WEST_X)).is_some()));
-    let mut seen = Vec::new();
-    mine(&ann, &mut seen, WEST_X + 2);
+    let (ann, mut seen) = ann_at_west(&west, predicting);
 
     // She walks east across the border, two voxels every 50 ms.
-    let mut x = WEST_X;
-    while x < EAST_X - 4 {
-        x += 2;
-        ann.set_position(spot(x).0).unwrap();
-        std::thread::sleep(Duration::from_millis(50));
-        while let Some(e) = ann.poll() {
-            seen.push(e);
-        }
-    }
+    walk_east(&ann, &mut seen, WEST_X, EAST_X - 4);
     // Her edit beyond the border: the east node takes it (the west node
     // would refuse it), and the chunk is read from the east node's copy.
     let changes = mine(&ann, &mut seen, EAST_X - 2);
@@ -261,12 +289,9 @@ fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
 /// refuse that (`SubscribeTooFar`) and stream its own view instead.
 #[test]
 fn a_node_joined_after_the_view_moved_streams_it_where_it_is() {
-    let Some(db) = strata_tests::postgres::database("sdk_cluster_moved_view") else {
+    let Some((_db, runtime, _dirs, west, east, bob)) = two_nodes("sdk_cluster_moved_view") else {
         return;
     };
-    let runtime = tokio::runtime::Runtime::new().unwrap();
-    let (_dirs, west, east) = west_and_east(&runtime, &db);
-    let bob = bob_claims_region_one(&east);
     // View radius 2, hysteresis 2: a view of radius 1 may be centred 3
     // chunks from the player's.
     let feet = |x: i32| to_fixed(spot(x).0).unwrap();
@@ -342,6 +367,89 @@ fn a_node_joined_after_the_view_moved_streams_it_where_it_is() {
         }
         ann.close().await;
     });
+    bob.close();
+    runtime.block_on(async {
+        west.shutdown().await.unwrap();
+        east.shutdown().await.unwrap();
+    });
+}
+
+/// Mines a small hole at column `x` (radius 2: within one region), without
+/// waiting; returns its ticket.
+fn mine_small(s: &Session, x: i32) -> u64 {
+    s.edit(edits::mine(spot(x).1, 2.0, 60).unwrap()).unwrap()
+}
+
+/// A node that stops answering (here: its commits wait on a region row
+/// another transaction locked) holds up only the edits sent to it: the
+/// session sends the next edit, for another node's region, at once, and
+/// its verdict comes while the first still waits.
+#[test]
+fn a_node_that_stops_answering_holds_up_no_other_nodes_edits() {
+    let Some((db, runtime, _dirs, west, east, bob)) = two_nodes("sdk_cluster_stall") else {
+        return;
+    };
+    let (ann, mut seen) = ann_at_west(&west, SessionOptions::default());
+    // To the border (region 1 starts at x 256).
+    walk_east(&ann, &mut seen, WEST_X, 256);
+    let verdict = |ticket: u64| {
+        move |e: &Event| match e {
+            Event::EditAccepted { ticket: t, .. } if *t == ticket => Some(true),
+            Event::EditRejected { ticket: t, reason } if *t == ticket => {
+                panic!("edit {ticket} refused: {reason:?}")
+            }
+            Event::EditFailed { ticket: t, error } if *t == ticket => {
+                panic!("edit {ticket} failed: {error}")
+            }
+            _ => None,
+        }
+    };
+    // The east node takes her edits in region 1, once she is routed there
+    // (until then the west node refuses them, naming it).
+    let start = Instant::now();
+    loop {
+        let first = mine_small(&ann, 264);
+        let accepted = wait_for(&ann, &mut seen, |e| match e {
+            Event::EditAccepted { ticket, .. } if *ticket == first => Some(true),
+            Event::EditRejected {
+                ticket,
+                reason: RejectReason::RegionElsewhere { .. },
+            } if *ticket == first => Some(false),
+            _ => verdict(first)(e),
+        });
+        if accepted {
+            break;
+        }
+        assert!(start.elapsed() < WAIT, "{seen:?}");
+        std::thread::sleep(Duration::from_millis(300));
+    }
+
+    // East's next commit waits on region 1's row.
+    let held = db
+        .hold("SELECT 1 FROM regions WHERE region_x = 1 AND region_z = 0 FOR UPDATE")
+        .unwrap();
+    let stuck = mine_small(&ann, 265);
+    let west_edit = mine_small(&ann, 248);
+    let answered = wait_for(&ann, &mut seen, |e| match e {
+        Event::EditAccepted { ticket, .. } | Event::EditRejected { ticket, .. } => {
+            [stuck, west_edit].contains(ticket).then_some(*ticket)
+        }
+        Event::EditFailed { ticket, error } if [stuck, west_edit].contains(ticket) => {
+            panic!("edit {ticket} failed: {error}")
+        }
+        _ => None,
+    });
+    assert_eq!(answered, west_edit, "{seen:?}");
+    assert!(
+        seen.iter().any(|e| matches!(e,
+            Event::EditAccepted { ticket, .. } if *ticket == west_edit)),
+        "{seen:?}"
+    );
+    // Once the row is free the east node commits and answers.
+    held.release();
+    wait_for(&ann, &mut seen, verdict(stuck));
+
+    ann.close();
     bob.close();
     runtime.block_on(async {
         west.shutdown().await.unwrap();

@@ -564,8 +564,8 @@ async fn thief_takes_region(
     .unwrap()
 }
 
-/// An edit by a region's border writes one region and reads (its mesh
-/// apron, claimed for it) the next. Once another node took that next
+/// An edit by a region's border writes one region and reaches (its
+/// meshes' apron, claimed for it) the next. Once another node took that next
 /// region, unknown to this one, the edit's batch is fenced all the same:
 /// it was built on that region's chunks as this node last had them.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -578,9 +578,14 @@ async fn a_batch_reading_a_region_taken_over_is_fenced_too() {
         let dirs = tempfile::tempdir().unwrap();
         let (west, ann, (v, _)) = west_with_ann(&dirs.path().join("a"), &db).await;
         assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
-        // Region 0 ends at x = 256; the mesh apron reaches 32 voxels past.
+        // Region 0 ends at x = 256; what a mine of radius 3 at 251 changes
+        // stops short of it, and the meshes' apron reaches two voxels past.
         let bea = standing(&west, "bea", 230).await;
-        let (v, changes) = bea.edit_acked(mine_at(232)).await.unwrap();
+        for x in (232..=248).step_by(2) {
+            bea.send_position(feet(x)).unwrap();
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let (v, changes) = bea.edit_acked(mine_at(251)).await.unwrap();
         assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
         assert!(!changes.is_empty());
         assert!(
@@ -590,7 +595,7 @@ async fn a_batch_reading_a_region_taken_over_is_fenced_too() {
             "it writes region 0 alone: {changes:?}"
         );
         let _thief = thief_takes_region(&db, 1).await;
-        let (v, _) = bea.edit_acked(mine_at(232)).await.unwrap();
+        let (v, _) = bea.edit_acked(mine_at(251)).await.unwrap();
         assert_eq!(
             v,
             Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere {

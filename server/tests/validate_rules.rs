@@ -547,3 +547,30 @@ fn a_fenced_batch_takes_the_queued_edits_out_and_leaves_those_awaiting_sight() {
     // The edit token of the one taken out is back.
     s.admit(PLAYER, req(12, e), 0).unwrap();
 }
+
+/// The regions an edit needs are those of the chunks it changes and of the
+/// chunks whose collision meshes read what it changes (two voxels past a
+/// chunk border): an edit a few voxels from a region border needs its own
+/// region alone, so two nodes can both edit up to near their border; one
+/// at the border needs both.
+#[test]
+fn an_edit_needs_the_regions_its_meshes_read_and_no_more() {
+    use strata_server::sequencer::regions::RegionId;
+    let s = ready(ValidationConfig::default());
+    let border = s.region_chunks() as i32 * 32;
+    let regions = |x: i32| -> Vec<RegionId> {
+        s.edit_regions(&mine(x, -1, Z, 1))
+            .unwrap()
+            .into_iter()
+            .collect()
+    };
+    let (west, east) = (RegionId { x: 0, z: 0 }, RegionId { x: 1, z: 0 });
+    assert_eq!(regions(border - 8), vec![west]);
+    assert_eq!(regions(border + 8), vec![east]);
+    assert_eq!(regions(border), vec![west, east]);
+    assert_eq!(regions(border - 1), vec![west, east]);
+    // Mining radius 1 changes voxels within two of its centre: four from
+    // the border, the meshes it changes are on its side.
+    assert_eq!(regions(border + 5), vec![east]);
+    assert_eq!(regions(border - 6), vec![west]);
+}

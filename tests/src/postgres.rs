@@ -15,6 +15,7 @@
 //! ([`database`]) lives in a static, which Rust never drops, so a watchdog
 //! process stops it and removes its files once the test process is gone.
 
+use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -267,6 +268,67 @@ impl PgDb {
 
     pub fn cluster(&self) -> &'static PgCluster {
         self.cluster
+    }
+
+    /// Runs `statements` (ones taking row or table locks; the last needs
+    /// no `;`) in a transaction of their own, through `psql`, and returns once they ran; the locks
+    /// are held until the returned guard is released or dropped (then the
+    /// transaction rolls back).
+    pub fn hold(&self, statements: &str) -> Result<HeldLocks, String> {
+        let mut psql = self
+            .cluster
+            .client("psql")
+            .args(["-X", "-q", "-o", "/dev/null", "-v", "ON_ERROR_STOP=1"])
+            .args(["-d", &self.name])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .map_err(|e| format!("psql: {e}"))?;
+        let mut stdin = psql.stdin.take().ok_or("psql: no stdin")?;
+        let stdout = psql.stdout.take().ok_or("psql: no stdout")?;
+        writeln!(stdin, "BEGIN;\n{statements};\n\\echo held").map_err(|e| e.to_string())?;
+        // Query results go to /dev/null (`-o`); `\echo` still comes here.
+        let mut line = String::new();
+        std::io::BufReader::new(stdout)
+            .read_line(&mut line)
+            .map_err(|e| e.to_string())?;
+        if line.trim() != "held" {
+            let _ = psql.kill();
+            let _ = psql.wait();
+            return Err(format!("psql did not take the locks: {line:?}"));
+        }
+        Ok(HeldLocks {
+            psql,
+            stdin: Some(stdin),
+        })
+    }
+}
+
+/// Locks [`PgDb::hold`] took, in a `psql` transaction still open.
+#[derive(Debug)]
+pub struct HeldLocks {
+    psql: std::process::Child,
+    stdin: Option<std::process::ChildStdin>,
+}
+
+impl HeldLocks {
+    /// Rolls the transaction back and waits for `psql` to end.
+    pub fn release(mut self) {
+        self.end();
+    }
+
+    fn end(&mut self) {
+        if let Some(mut stdin) = self.stdin.take() {
+            let _ = writeln!(stdin, "ROLLBACK;\n\\q");
+        }
+        let _ = self.psql.wait();
+    }
+}
+
+impl Drop for HeldLocks {
+    fn drop(&mut self) {
+        self.end();
     }
 }
 

@@ -127,7 +127,8 @@ impl Session {
     /// Connects to node `home` of a cluster (its nodes share `server_cert`
     /// and the token's secret), as [`Self::connect`], then follows the
     /// nodes the cluster names: each edit goes to the node that writes its
-    /// region (one at a time: the next is sent once the last is answered),
+    /// region (in the order taken, each node's verdicts awaited apart: a
+    /// node that stopped answering holds up none of the others' edits),
     /// and each chunk is read from that node's replica. When a region's
     /// writer changes, its held chunks are reported changed.
     pub fn connect_cluster(

@@ -334,7 +334,9 @@ impl Engine {
     /// many had moved on.
     pub(super) fn reload_region(&mut self, region: RegionId) -> Result<usize, StoreError> {
         let mut moved = Vec::new();
-        let reloaded = self.reload_chunks(region, &mut moved);
+        let reloaded = self
+            .reload_chunks(region, &mut moved)
+            .and_then(|()| self.reload_border_neighbours(region, &mut moved));
         // What moved before a failure is withdrawn all the same: the retry
         // finds those chunks current and would never tell their holders.
         if !moved.is_empty() {
@@ -342,6 +344,36 @@ impl Engine {
         }
         self.withdraw_stale(&moved);
         reloaded.map(|()| moved.len())
+    }
+
+    /// Brings the chunks held here of the regions around `region` that
+    /// this node does not write up to their stored versions: the meshes of
+    /// `region`'s border chunks read their border voxels, which whoever
+    /// wrote `region` meanwhile may have changed (an edit within
+    /// [`MESH_REACH`] of a border needs both regions).
+    ///
+    /// [`MESH_REACH`]: crate::sequencer::residency::MESH_REACH
+    fn reload_border_neighbours(
+        &mut self,
+        region: RegionId,
+        moved: &mut Vec<(ChunkPos, u64)>,
+    ) -> Result<(), StoreError> {
+        let around: BTreeSet<RegionId> = (-1..=1)
+            .flat_map(|dz| (-1..=1).map(move |dx| (dx, dz)))
+            .filter(|&d| d != (0, 0))
+            .map(|(dx, dz)| RegionId {
+                x: region.x.saturating_add(dx),
+                z: region.z.saturating_add(dz),
+            })
+            .collect();
+        for (r, holder) in self.store.region_holders(&around)? {
+            // Held here: current, and maybe ahead of the store by a commit
+            // in flight.
+            if holder != RegionHolder::Here {
+                self.reload_chunks(r, moved)?;
+            }
+        }
+        Ok(())
     }
 
     /// Brings each chunk of `region` whose stored version moved to it,

@@ -197,14 +197,17 @@ impl Sequencer {
         self.cfg.region_chunks
     }
 
-    /// The regions `edit` writes or reads (its footprint: box, read margin
-    /// and mesh apron), or `None` if the terrain core refuses it.
+    /// The regions `edit` writes or reads, or whose collision meshes it
+    /// changes ([`residency::edit_mesh_reach`]: box, read margin and the
+    /// meshes' apron of two voxels), or `None` if the terrain core refuses
+    /// it. An edit further than that from a region border needs only its
+    /// own region, whoever writes the neighbour.
     pub fn edit_regions(
         &self,
         edit: &strata_terrain::Edit,
     ) -> Option<std::collections::BTreeSet<regions::RegionId>> {
         let bbox = edit.validate(&self.ctx()).ok()?;
-        let fp = residency::edit_footprint(&bbox, edit.read_margin());
+        let fp = residency::edit_mesh_reach(&bbox, edit.read_margin());
         let span =
             regions::RegionSpan::of_chunks(fp.min.chunk(), fp.max.chunk(), self.cfg.region_chunks);
         Some(span.regions().collect())

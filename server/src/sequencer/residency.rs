@@ -5,6 +5,7 @@
 
 use std::collections::HashSet;
 
+use strata_terrain::mesh::{APRON_HIGH, APRON_LOW};
 use strata_terrain::{ChunkPos, VoxelBox, VoxelPos, World, CHUNK_SIZE};
 
 /// The voxels an edit's box reads, grown by its read margin and one chunk
@@ -13,6 +14,22 @@ use strata_terrain::{ChunkPos, VoxelBox, VoxelPos, World, CHUNK_SIZE};
 pub fn edit_footprint(bbox: &VoxelBox, margin: i32) -> VoxelBox {
     grown(bbox, margin + CHUNK_SIZE)
 }
+
+/// The voxels whose chunks' data or collision meshes an edit may read or
+/// change: the box grown by its read margin and the meshes' apron (a
+/// chunk's mesh reads one sample below its first and two past its last on
+/// each axis, so a change within two voxels of a chunk border remeshes the
+/// chunk beyond). A cluster node must hold every region it reaches
+/// (`Sequencer::edit_regions`): the chunks themselves, not the whole
+/// neighbours [`edit_footprint`] loads.
+pub fn edit_mesh_reach(bbox: &VoxelBox, margin: i32) -> VoxelBox {
+    grown(bbox, margin + MESH_REACH)
+}
+
+/// How far past a changed voxel a mesh may change: [`APRON_HIGH`] + 1
+/// (the normal at the last sample past the border reads one further).
+pub const MESH_REACH: i32 = APRON_HIGH + 1;
+const _: () = assert!(MESH_REACH >= APRON_LOW);
 
 /// The voxels applying an edit reads or writes: the box grown by its read
 /// margin, without the mesh apron.
