@@ -146,6 +146,20 @@ pub struct RegionOwners {
     pub node: String,
 }
 
+/// What [`ClusterClient::next_hop`] makes of a node's answer to an edit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NextHop {
+    /// The answer stands.
+    Done,
+    /// Send the edit again, to this connected node.
+    Again(SocketAddr),
+}
+
+/// A `NodeFull` refusal: [`ClusterClient::next_hop`] passes the edit on.
+pub fn is_node_full(acked: &Acked) -> bool {
+    matches!(acked.0, Verdict::Rejected(RejectReason::NodeFull { .. }))
+}
+
 /// Why the cluster client could not go on.
 #[derive(Debug, Error)]
 pub enum ClusterError {
@@ -929,17 +943,64 @@ impl ClusterClient {
     /// hands since this client was told) is sent once more, there; naming
     /// one not connected, the client starts joining it and returns the
     /// refusal. One refused `NodeFull` (no node holds the region, and that
-    /// one may take no more) is sent to each other connected node in turn,
-    /// until one answers otherwise. Returns the node that answered last,
-    /// with its answer.
+    /// one may take no more) is sent to each other connected node in turn
+    /// (one it cannot be sent to is passed over), until one answers
+    /// otherwise; the one that accepts writes the region from then on.
+    /// Returns the node that answered last, with its answer.
     pub async fn settle(
         &mut self,
         to: SocketAddr,
         edit: Edit,
         acked: Acked,
     ) -> Result<(SocketAddr, Acked), ClusterError> {
-        if matches!(acked.0, Verdict::Rejected(RejectReason::NodeFull { .. })) {
-            return self.edit_past_full(to, edit, acked).await;
+        let (mut to, mut acked) = (to, acked);
+        let mut tried = vec![to];
+        loop {
+            let NextHop::Again(there) = self.next_hop(to, &edit, &acked, &tried).await else {
+                return Ok((to, acked));
+            };
+            tried.push(there);
+            let node = self.view.nodes[&there].clone();
+            match node.submit(edit.clone()).await {
+                Ok(sent) => {
+                    // One that took it but gave no verdict may have applied
+                    // it: its error is the answer.
+                    acked = node.verdict(sent).await?;
+                    to = there;
+                }
+                Err(_) if is_node_full(&acked) => {}
+                Err(e) => return Err(e.into()),
+            }
+        }
+    }
+
+    /// One step of [`Self::settle`], for a caller that sends and awaits
+    /// the edit itself (the game-loop session, which awaits each verdict
+    /// apart): node `to`'s answer to `edit`, sent to `tried` so far in
+    /// order (`to` among them), stands ([`NextHop::Done`]) or the edit goes
+    /// to another connected node ([`NextHop::Again`]; after `NodeFull`, if
+    /// it cannot be sent there, call this again with that node in
+    /// `tried` and the same answer). Routes the region to a node that
+    /// accepted it after another refused.
+    pub async fn next_hop(
+        &mut self,
+        to: SocketAddr,
+        edit: &Edit,
+        acked: &Acked,
+        tried: &[SocketAddr],
+    ) -> NextHop {
+        if is_node_full(acked) {
+            return match self.view.nodes.keys().find(|a| !tried.contains(a)).copied() {
+                Some(next) => NextHop::Again(next),
+                None => NextHop::Done,
+            };
+        }
+        if tried.len() > 1 {
+            if let (Verdict::Accepted { .. }, Some(side)) = (&acked.0, self.view.region_chunks) {
+                let region = region_of(edit_anchor(edit).chunk(), side);
+                self.view.routes.insert(region, to);
+            }
+            return NextHop::Done;
         }
         let Verdict::Rejected(RejectReason::RegionElsewhere {
             region_x,
@@ -948,20 +1009,20 @@ impl ClusterClient {
             ..
         }) = &acked.0
         else {
-            return Ok((to, acked));
+            return NextHop::Done;
         };
         if addr.is_empty() {
-            return Ok((to, acked));
+            return NextHop::Done;
         }
         let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
         let state = self.lookups();
         // Owed or not, only the edit sent again asks for this name again.
         let found = look_up(&state, addr.clone(), Instant::now(), until).await;
         let Some(there) = found else {
-            return Ok((to, acked));
+            return NextHop::Done;
         };
         if there == to {
-            return Ok((to, acked));
+            return NextHop::Done;
         }
         self.view.routes.insert((*region_x, *region_z), there);
         if !self.view.nodes.contains_key(&there) {
@@ -971,47 +1032,16 @@ impl ClusterClient {
                 self.named.push(there);
             }
             self.start_joins();
-            return Ok((to, acked));
+            return NextHop::Done;
         }
-        let again = self.view.nodes[&there].edit_acked(edit).await?;
-        Ok((there, again))
+        NextHop::Again(there)
     }
 
-    /// After `NodeFull` from `full`: the other connected nodes in address
-    /// order, until one answers something else (one the edit cannot be
-    /// sent to is passed over; one that took it but gave no verdict may
-    /// have applied it, so its error is returned). The node that accepts
-    /// writes the region from then on, and edits there are routed to it.
-    /// Returns the last answer.
-    async fn edit_past_full(
-        &mut self,
-        full: SocketAddr,
-        edit: Edit,
-        refused: Acked,
-    ) -> Result<(SocketAddr, Acked), ClusterError> {
-        let mut last = (full, refused);
-        let others: Vec<SocketAddr> = self
-            .view
-            .nodes
-            .keys()
-            .filter(|a| **a != full)
-            .copied()
-            .collect();
-        for a in others {
-            let c = &self.view.nodes[&a];
-            let Ok(sent) = c.submit(edit.clone()).await else {
-                continue;
-            };
-            last = (a, c.verdict(sent).await?);
-            if !matches!(last.1 .0, Verdict::Rejected(RejectReason::NodeFull { .. })) {
-                break;
-            }
-        }
-        if let (Verdict::Accepted { .. }, Some(side)) = (&last.1 .0, self.view.region_chunks) {
-            let region = region_of(edit_anchor(&edit).chunk(), side);
-            self.view.routes.insert(region, last.0);
-        }
-        Ok(last)
+    /// The region (x, z) of `pos`, once a node told the region size: the
+    /// unit whose edits keep their order ([`crate::Session`] sends one at a
+    /// time per region).
+    pub fn region_key(&self, pos: ChunkPos) -> Option<(i32, i32)> {
+        self.view.region_chunks.map(|side| region_of(pos, side))
     }
 
     /// Closes every connection.

@@ -140,8 +140,8 @@ pub unsafe extern "C" fn strata_connect_with(
 /// `strata_connect_with` for a cluster of servers sharing one world:
 /// `address` is any one node. The session connects to the other nodes that
 /// node names, sends the position to all of them, each edit to the node
-/// that writes its region (in the order given; a node that stops answering
-/// holds up only its own edits), and reads each chunk from that node's copy. When a region
+/// that writes its region (a region's edits in the order given; a node that
+/// stops answering holds up only its regions' edits), and reads each chunk from that node's copy. When a region
 /// moves to another node, its chunks come as CHUNK_CHANGED events. Every
 /// other call works as on one server.
 ///

@@ -181,10 +181,11 @@ fn ann_at_west(west: &Running, opts: SessionOptions) -> (Session, Vec<Event>) {
     (ann, seen)
 }
 
-/// Walks east from `x` while short of `until`, two voxels every 50 ms.
-fn walk_east(s: &Session, seen: &mut Vec<Event>, mut x: i32, until: i32) {
-    while x < until {
-        x += 2;
+/// Walks from `x` towards `until`, two voxels every 50 ms.
+fn walk(s: &Session, seen: &mut Vec<Event>, mut x: i32, until: i32) {
+    let step = if until < x { -2 } else { 2 };
+    while (until - x) * step > 0 {
+        x += step;
         s.set_position(spot(x).0).unwrap();
         std::thread::sleep(Duration::from_millis(50));
         while let Some(e) = s.poll() {
@@ -210,7 +211,7 @@ fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
     let (ann, mut seen) = ann_at_west(&west, predicting);
 
     // She walks east across the border, two voxels every 50 ms.
-    walk_east(&ann, &mut seen, WEST_X, EAST_X - 4);
+    walk(&ann, &mut seen, WEST_X, EAST_X - 4);
     // Her edit beyond the border: the east node takes it (the west node
     // would refuse it), and the chunk is read from the east node's copy.
     let changes = mine(&ann, &mut seen, EAST_X - 2);
@@ -391,7 +392,7 @@ fn a_node_that_stops_answering_holds_up_no_other_nodes_edits() {
     };
     let (ann, mut seen) = ann_at_west(&west, SessionOptions::default());
     // To the border (region 1 starts at x 256).
-    walk_east(&ann, &mut seen, WEST_X, 256);
+    walk(&ann, &mut seen, WEST_X, 256);
     let verdict = |ticket: u64| {
         move |e: &Event| match e {
             Event::EditAccepted { ticket: t, .. } if *t == ticket => Some(true),
@@ -429,7 +430,10 @@ fn a_node_that_stops_answering_holds_up_no_other_nodes_edits() {
         .hold("SELECT 1 FROM regions WHERE region_x = 1 AND region_z = 0 FOR UPDATE")
         .unwrap();
     let stuck = mine_small(&ann, 265);
-    let west_edit = mine_small(&ann, 248);
+    // Back in region 0 (her sight of region 0 from region 1 would need the
+    // east node to write both).
+    walk(&ann, &mut seen, 256, 250);
+    let west_edit = mine_small(&ann, 246);
     let answered = wait_for(&ann, &mut seen, |e| match e {
         Event::EditAccepted { ticket, .. } | Event::EditRejected { ticket, .. } => {
             [stuck, west_edit].contains(ticket).then_some(*ticket)

@@ -757,6 +757,141 @@ async fn a_fenced_batch_over_a_chunk_the_thief_changed_resyncs_the_players_copy(
     .expect("within the test timeout");
 }
 
+/// West on `db` (renewals far apart), no region claimed, and bea standing
+/// at x 230.
+async fn west_with_bea(
+    dir: &Path,
+    db: &strata_tests::postgres::PgDb,
+) -> (Running, strata_client_sim::Client) {
+    let west = node_leasing(dir, db, ("west", WEST_X), 60_000, 10_000).await;
+    let bea = standing(&west, "bea", 230).await;
+    (west, bea)
+}
+
+/// Reports each of `xs` in turn, 50 ms apart.
+async fn walk(c: &strata_client_sim::Client, xs: impl IntoIterator<Item = i32>) {
+    for x in xs {
+        c.send_position(feet(x)).unwrap();
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// A node taking a region brings the chunks it holds of the regions
+/// around it that it does not write up to their stored versions: the
+/// meshes of the region's border chunks read their border voxels, which
+/// another node may have changed meanwhile. Here the thief, holding region
+/// 0, changes chunk 7's last voxels (x = 255) while west streams its old
+/// copy to bea; bea's edit in region 1 makes west claim that region, and
+/// bea's copy of chunk 7 becomes the thief's.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_taking_a_region_reloads_the_neighbours_border_chunks_it_holds() {
+    use strata_server::store::{ChunkStore, CommitBatch, LogEntry};
+    use strata_terrain::{delta::ChunkDelta, hash::chunk_hash, ChunkGenerator, Voxel};
+    let Some(db) = strata_tests::postgres::database("cluster_border_reload") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        // Bea walks into region 1, where her edits will be.
+        let (west, bea) = west_with_bea(dir.path(), &db).await;
+        walk(&bea, (232..=258).step_by(2)).await;
+        let pos = chunk_of(255);
+        assert_eq!(pos.x, 7, "the last chunk of region 0");
+        assert!(eventually(TEST_TIMEOUT, || bea.replica().get(pos).is_some()).await);
+
+        let thief = thief_takes_region_zero(&db).await;
+        let (thief, theirs) = tokio::task::spawn_blocking(move || {
+            let (g, _) = strata_server::app::world_generator(&test_config(Path::new("."))).unwrap();
+            let generated = g.generate(pos);
+            let mut next = generated.clone();
+            for y in 0..32 {
+                for z in 0..32 {
+                    next.set(31, y, z, Voxel::new(255, 3));
+                }
+            }
+            let floor = thief.reserve_seqs(0).unwrap();
+            let batch = CommitBatch {
+                entries: vec![LogEntry {
+                    seq: floor + 1,
+                    player: "thief".into(),
+                    time_ms: 1,
+                    edit: mine_at(250),
+                    changes: vec![(pos, 1)],
+                }],
+                chunks: vec![(pos, 1, Arc::new(next.clone()))],
+                generated: vec![ChunkDelta::encode(pos, 0, 1, &generated, &next).unwrap()],
+                last_seq: floor + 1,
+                ..CommitBatch::default()
+            };
+            thief.commit_batch(&batch).unwrap();
+            (thief, next)
+        })
+        .await
+        .unwrap();
+        assert_eq!(
+            bea.replica().get(pos).unwrap().version,
+            0,
+            "west knows nothing"
+        );
+
+        // Far enough from the border that region 1 alone is claimed.
+        let (v, _) = bea.edit_acked(mine_at(262)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        assert!(
+            eventually(Duration::from_secs(20), || bea
+                .replica()
+                .get(pos)
+                .is_some_and(|h| h.version == 1))
+            .await,
+            "bea still holds {:?}",
+            bea.replica().get(pos).map(|h| h.version)
+        );
+        assert_eq!(bea.replica().get(pos).unwrap().hash, chunk_hash(&theirs));
+        assert!(bea.replica().mesh_mismatches().is_empty());
+        drop(thief);
+        bea.close().await;
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// An edit's sight is checked on this node's copy of the chunks its ray
+/// crosses, current only in regions it writes: a player standing in a
+/// region another node holds is refused an edit just across the border
+/// (naming that node), and makes it from her side.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_edit_whose_sight_crosses_another_nodes_region_is_refused() {
+    let Some(db) = strata_tests::postgres::database("cluster_sight_regions") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let (west, bea) = west_with_bea(dir.path(), &db).await;
+        // To region 1 (x from 256), which the thief holds.
+        walk(&bea, (232..=256).step_by(2)).await;
+        let _thief = thief_takes_region(&db, 1).await;
+        // Mining at 248 changes region 0 alone (its meshes too).
+        let (v, _) = bea.edit_acked(mine_at(248)).await.unwrap();
+        assert_eq!(
+            v,
+            Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere {
+                region_x: 1,
+                region_z: 0,
+                owner: "thief".into(),
+                addr: "127.0.0.1:9".into(),
+            })
+        );
+        walk(&bea, (242..=254).rev().step_by(2)).await;
+        let (v, _) = bea.edit_acked(mine_at(248)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        bea.close().await;
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
 /// `[cluster] release_idle_ms`: a node lets go of a region no edit asked
 /// for in that long (counted in `strata_cluster_regions_released_total`),
 /// and its player's next edit there claims it again.

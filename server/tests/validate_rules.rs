@@ -569,8 +569,10 @@ fn an_edit_needs_the_regions_its_meshes_read_and_no_more() {
     assert_eq!(regions(border + 8), vec![east]);
     assert_eq!(regions(border), vec![west, east]);
     assert_eq!(regions(border - 1), vec![west, east]);
-    // Mining radius 1 changes voxels within two of its centre: four from
-    // the border, the meshes it changes are on its side.
-    assert_eq!(regions(border + 5), vec![east]);
-    assert_eq!(regions(border - 6), vec![west]);
+    // Mining radius 1 changes voxels within one of its centre, and a
+    // change reaches meshes two voxels on: the edges are exact.
+    assert_eq!(regions(border + 2), vec![west, east]);
+    assert_eq!(regions(border + 3), vec![east]);
+    assert_eq!(regions(border - 3), vec![west, east]);
+    assert_eq!(regions(border - 4), vec![west]);
 }

@@ -4,6 +4,7 @@
 //! On a cluster one task owns the [`ClusterClient`]: it takes the game's
 //! commands and follows the nodes' word between them.
 
+use std::collections::{BTreeMap, VecDeque};
 use std::net::SocketAddr;
 use std::sync::{mpsc as std_mpsc, Arc, Mutex};
 use std::time::Duration;
@@ -15,7 +16,7 @@ use tokio::task::JoinSet;
 use super::event::Event;
 use super::links::Links;
 use crate::client::{Acked, Client, ClientError, Verdict};
-use crate::cluster::{ClusterClient, ClusterError};
+use crate::cluster::{edit_anchor, is_node_full, ClusterClient, NextHop};
 
 /// How often a cluster session takes in the nodes' `RegionOwners` (and
 /// joins the nodes they name).
@@ -66,12 +67,13 @@ pub(super) async fn dispatch(
 /// connected (a node joined later is asked for the view asked, where the
 /// cluster client moved it with the player; it may stream forgotten chunks
 /// again), a resync to the node the chunk is read from, each edit to the
-/// node that writes its region, in the order taken. Verdicts are awaited
-/// each in a task of its own, so a node that stopped answering holds up
-/// only its own edits; a verdict naming another writer is settled
-/// ([`ClusterClient::settle`]) here. After each command and verdict and
-/// every [`FOLLOW_EVERY`] the session's copy of the routes is brought up to
-/// date.
+/// node that writes its region. Edits keep their order per region: one of
+/// a region is sent once the last one there has its final answer (sent
+/// again where a refusal points, [`ClusterClient::next_hop`]); those of
+/// other regions go meanwhile, and every verdict is awaited in a task of
+/// its own, so a node that stopped answering holds up only its regions'
+/// edits. After each command and verdict and every [`FOLLOW_EVERY`] the
+/// session's copy of the routes is brought up to date.
 pub(super) async fn dispatch_cluster(
     mut cluster: ClusterClient,
     links: Arc<Links>,
@@ -80,70 +82,181 @@ pub(super) async fn dispatch_cluster(
 ) {
     let mut follow = tokio::time::interval(FOLLOW_EVERY);
     follow.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut awaited: JoinSet<Awaited> = JoinSet::new();
+    let mut edits = Edits {
+        cluster: &mut cluster,
+        events: &events,
+        awaited: JoinSet::new(),
+        lanes: BTreeMap::new(),
+    };
     loop {
         tokio::select! {
             command = commands.recv() => {
                 let Some(command) = command else { break };
-                run_on_cluster(&mut cluster, command, &events, &mut awaited).await;
+                match command {
+                    Command::Edit { ticket, edit } => edits.take(ticket, edit).await,
+                    other => run_on_cluster(edits.cluster, other).await,
+                }
             }
-            Some(done) = awaited.join_next(), if !awaited.is_empty() => {
+            Some(done) = edits.awaited.join_next(), if !edits.awaited.is_empty() => {
                 // The tasks neither panic nor are aborted while this runs.
                 if let Ok(done) = done {
-                    settle(&mut cluster, done, &events).await;
+                    edits.answered(done).await;
                 }
             }
             _ = follow.tick() => {
                 // A node that cannot be joined is retried later; the home
                 // connection's end is reported by `watch_close`.
-                let _ = cluster.follow().await;
+                let _ = edits.cluster.follow().await;
             }
         }
-        links.update(cluster.view());
+        links.update(edits.cluster.view());
     }
 }
 
-/// An edit whose verdict came from node `to` (or never will: `Err`).
-struct Awaited {
+/// A region's edits, in order: the first of them in flight (or being sent
+/// again), the others waiting. `None`: before any node told the region
+/// size.
+type Lane = Option<(i32, i32)>;
+
+/// An edit on its way: sent to `tried` in order, the last of them now;
+/// `last` is the answer before (kept for passing over a node after
+/// `NodeFull`).
+struct Flight {
     ticket: u64,
-    to: SocketAddr,
     edit: Edit,
+    lane: Lane,
+    tried: Vec<SocketAddr>,
+    last: Option<(SocketAddr, Acked)>,
+}
+
+/// A flight's verdict from `to` (or why none will come).
+struct Awaited {
+    flight: Flight,
+    to: SocketAddr,
     verdict: Result<Acked, ClientError>,
 }
 
-async fn run_on_cluster(
-    cluster: &mut ClusterClient,
-    command: Command,
-    events: &std_mpsc::Sender<Event>,
-    awaited: &mut JoinSet<Awaited>,
-) {
+/// The cluster session's edits in flight and waiting.
+struct Edits<'a> {
+    cluster: &'a mut ClusterClient,
+    events: &'a std_mpsc::Sender<Event>,
+    awaited: JoinSet<Awaited>,
+    lanes: BTreeMap<Lane, VecDeque<(u64, Edit)>>,
+}
+
+impl Edits<'_> {
+    /// An edit the game made: sent now, or after those of its region.
+    async fn take(&mut self, ticket: u64, edit: Edit) {
+        let lane = self.cluster.region_key(edit_anchor(&edit).chunk());
+        if let Some(waiting) = self.lanes.get_mut(&lane) {
+            waiting.push_back((ticket, edit));
+            return;
+        }
+        self.lanes.insert(lane, VecDeque::new());
+        self.start(ticket, edit, lane).await;
+    }
+
+    async fn start(&mut self, ticket: u64, edit: Edit, lane: Lane) {
+        let to = self.cluster.route(edit_anchor(&edit).chunk());
+        let flight = Flight {
+            ticket,
+            edit,
+            lane,
+            tried: Vec::new(),
+            last: None,
+        };
+        self.send(flight, to).await;
+    }
+
+    /// Sends the flight to `to` and awaits the verdict in a task.
+    async fn send(&mut self, mut flight: Flight, mut to: SocketAddr) {
+        loop {
+            flight.tried.push(to);
+            let sent = match self.cluster.node_shared(to) {
+                Some(node) => node.submit(flight.edit.clone()).await.map(|s| (node, s)),
+                None => Err(ClientError::Closed("node left".into())),
+            };
+            match sent {
+                Ok((node, sent)) => {
+                    self.cluster.hold(to);
+                    self.awaited.spawn(async move {
+                        let verdict = node.verdict(sent).await;
+                        Awaited {
+                            flight,
+                            to,
+                            verdict,
+                        }
+                    });
+                    return;
+                }
+                Err(e) => {
+                    // After `NodeFull` a node the edit cannot reach is
+                    // passed over (none left: that answer stands); else
+                    // the failure is the answer.
+                    let Some((from, acked)) = flight.last.clone().filter(|(_, a)| is_node_full(a))
+                    else {
+                        return self.finish(flight, Err(e)).await;
+                    };
+                    match self
+                        .cluster
+                        .next_hop(from, &flight.edit, &acked, &flight.tried)
+                        .await
+                    {
+                        NextHop::Again(next) => to = next,
+                        NextHop::Done => return self.finish(flight, Ok(acked)).await,
+                    }
+                }
+            }
+        }
+    }
+
+    /// A verdict came: it stands, or the edit goes on to another node.
+    async fn answered(&mut self, done: Awaited) {
+        let Awaited {
+            mut flight,
+            to,
+            verdict,
+        } = done;
+        self.cluster.release(to);
+        let acked = match verdict {
+            Ok(acked) => acked,
+            Err(e) => return self.finish(flight, Err(e)).await,
+        };
+        match self
+            .cluster
+            .next_hop(to, &flight.edit, &acked, &flight.tried)
+            .await
+        {
+            NextHop::Again(there) => {
+                flight.last = Some((to, acked));
+                self.send(flight, there).await;
+            }
+            NextHop::Done => self.finish(flight, Ok(acked)).await,
+        }
+    }
+
+    /// The flight's final answer goes to the game; the next edit of its
+    /// region is sent.
+    async fn finish(&mut self, flight: Flight, answer: Result<Acked, ClientError>) {
+        let _ = self.events.send(verdict_event(flight.ticket, answer));
+        let next = self
+            .lanes
+            .get_mut(&flight.lane)
+            .and_then(VecDeque::pop_front);
+        match next {
+            Some((ticket, edit)) => Box::pin(self.start(ticket, edit, flight.lane)).await,
+            None => {
+                self.lanes.remove(&flight.lane);
+            }
+        }
+    }
+}
+
+async fn run_on_cluster(cluster: &mut ClusterClient, command: Command) {
     let view = cluster.view();
     match command {
-        Command::Edit { ticket, edit } => match cluster.submit(edit.clone()).await {
-            Ok((to, sent)) => {
-                let Some(node) = cluster.node_shared(to) else {
-                    // `submit` just sent it there: not reached.
-                    let _ = events.send(verdict_event(
-                        ticket,
-                        Err(ClientError::Closed("node left".into())),
-                    ));
-                    return;
-                };
-                cluster.hold(to);
-                awaited.spawn(async move {
-                    let verdict = node.verdict(sent).await;
-                    Awaited {
-                        ticket,
-                        to,
-                        edit,
-                        verdict,
-                    }
-                });
-            }
-            Err(e) => {
-                let _ = events.send(failed_event(ticket, e));
-            }
-        },
+        // Taken by `Edits` before this.
+        Command::Edit { .. } => {}
         Command::Subscribe { center, radius } => {
             cluster.subscribe(center, radius).await;
         }
@@ -153,36 +266,6 @@ async fn run_on_cluster(
         Command::Resync { pos } => {
             let _ = view.client_for(pos).resync(pos).await;
         }
-    }
-}
-
-/// Turns a verdict into the game's event, once any refusal naming another
-/// writer was followed.
-async fn settle(cluster: &mut ClusterClient, done: Awaited, events: &std_mpsc::Sender<Event>) {
-    let Awaited {
-        ticket,
-        to,
-        edit,
-        verdict,
-    } = done;
-    cluster.release(to);
-    let event = match verdict {
-        Ok(acked) => match cluster.settle(to, edit, acked).await {
-            Ok((_, acked)) => verdict_event(ticket, Ok(acked)),
-            Err(e) => failed_event(ticket, e),
-        },
-        Err(e) => verdict_event(ticket, Err(e)),
-    };
-    let _ = events.send(event);
-}
-
-fn failed_event(ticket: u64, e: ClusterError) -> Event {
-    match e {
-        ClusterError::Client(e) => verdict_event(ticket, Err(e)),
-        e => Event::EditFailed {
-            ticket,
-            error: e.to_string(),
-        },
     }
 }
 

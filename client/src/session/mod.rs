@@ -127,8 +127,9 @@ impl Session {
     /// Connects to node `home` of a cluster (its nodes share `server_cert`
     /// and the token's secret), as [`Self::connect`], then follows the
     /// nodes the cluster names: each edit goes to the node that writes its
-    /// region (in the order taken, each node's verdicts awaited apart: a
-    /// node that stopped answering holds up none of the others' edits),
+    /// region (a region's edits one at a time, in the order taken, other
+    /// regions' meanwhile: a node that stopped answering holds up only its
+    /// regions' edits),
     /// and each chunk is read from that node's replica. When a region's
     /// writer changes, its held chunks are reported changed.
     pub fn connect_cluster(

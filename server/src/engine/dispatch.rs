@@ -168,7 +168,7 @@ impl Engine {
             .seq
             .precheck(session, &request.edit, now)
             .and_then(|pre| {
-                let claim = self.check_regions(session, &request.edit, now)?;
+                let claim = self.check_regions(session, &request.edit, pre.ray(), now)?;
                 if let Some(c) = &claim {
                     self.before_claiming(&c.free)?;
                 }

@@ -89,19 +89,29 @@ impl Engine {
     /// free regions it must claim first otherwise. Those are claimed only
     /// once the edit passed every rule, line of sight included
     /// ([`Self::claim_after_sight`]): a refused edit leaves no lease.
+    ///
+    /// Besides [`Sequencer::edit_regions`], the regions of the chunks its
+    /// sight ray crosses (`ray`): the sight is checked on this node's copy
+    /// of them, current only where it writes. A player mines across a
+    /// border only on a node that writes both sides.
+    ///
+    /// [`Sequencer::edit_regions`]: crate::sequencer::Sequencer::edit_regions
     pub(super) fn check_regions(
         &mut self,
         session: u64,
         edit: &Edit,
+        ray: &[ChunkPos],
         now: u64,
     ) -> Result<Option<Claim>, RejectReason> {
         if !self.store.clustered() {
             return Ok(None);
         }
         // An edit the terrain core refuses is refused by the rules next.
-        let Some(regions) = self.seq.edit_regions(edit) else {
+        let Some(mut regions) = self.seq.edit_regions(edit) else {
             return Ok(None);
         };
+        let side = self.seq.region_chunks();
+        regions.extend(ray.iter().map(|&p| RegionId::of(p, side)));
         let holders = match self.store.region_holders(&regions) {
             Ok(h) => h,
             Err(e) => {
@@ -334,23 +344,28 @@ impl Engine {
     /// many had moved on.
     pub(super) fn reload_region(&mut self, region: RegionId) -> Result<usize, StoreError> {
         let mut moved = Vec::new();
-        let reloaded = self
-            .reload_chunks(region, &mut moved)
-            .and_then(|()| self.reload_border_neighbours(region, &mut moved));
+        // Only the region's own chunks count as moved: its neighbours'
+        // border chunks do not refuse the edit that claimed it.
+        let mut own = 0;
+        let reloaded = self.reload_chunks(region, &mut moved).and_then(|()| {
+            own = moved.len();
+            self.reload_border_neighbours(region, &mut moved)
+        });
         // What moved before a failure is withdrawn all the same: the retry
         // finds those chunks current and would never tell their holders.
         if !moved.is_empty() {
             self.premesh.invalidate();
         }
         self.withdraw_stale(&moved);
-        reloaded.map(|()| moved.len())
+        reloaded.map(|()| own)
     }
 
-    /// Brings the chunks held here of the regions around `region` that
-    /// this node does not write up to their stored versions: the meshes of
-    /// `region`'s border chunks read their border voxels, which whoever
-    /// wrote `region` meanwhile may have changed (an edit within
-    /// [`MESH_REACH`] of a border needs both regions).
+    /// Brings the chunks held here next to `region` of the regions around
+    /// it that this node does not write up to their stored versions: the
+    /// meshes of `region`'s border chunks read their border voxels, which
+    /// whoever wrote `region` meanwhile may have changed (an edit within
+    /// [`MESH_REACH`] of a border needs both regions). Chunks not held here
+    /// are read from the store when next needed.
     ///
     /// [`MESH_REACH`]: crate::sequencer::residency::MESH_REACH
     fn reload_border_neighbours(
@@ -358,6 +373,14 @@ impl Engine {
         region: RegionId,
         moved: &mut Vec<(ChunkPos, u64)>,
     ) -> Result<(), StoreError> {
+        let side = i64::from(self.seq.region_chunks().max(1));
+        // `region`'s chunk columns, one more on each side.
+        let lo = |r: i32| i64::from(r) * side - 1;
+        let hi = |r: i32| (i64::from(r) + 1) * side;
+        let next_to = |p: ChunkPos| {
+            (lo(region.x)..=hi(region.x)).contains(&i64::from(p.x))
+                && (lo(region.z)..=hi(region.z)).contains(&i64::from(p.z))
+        };
         let around: BTreeSet<RegionId> = (-1..=1)
             .flat_map(|dz| (-1..=1).map(move |dx| (dx, dz)))
             .filter(|&d| d != (0, 0))
@@ -365,13 +388,23 @@ impl Engine {
                 x: region.x.saturating_add(dx),
                 z: region.z.saturating_add(dz),
             })
+            .filter(|r| !self.region_epochs.contains_key(r))
             .collect();
         for (r, holder) in self.store.region_holders(&around)? {
-            // Held here: current, and maybe ahead of the store by a commit
-            // in flight.
-            if holder != RegionHolder::Here {
-                self.reload_chunks(r, moved)?;
+            // Written here: current, and maybe ahead of the store by a
+            // commit in flight.
+            if holder == RegionHolder::Here {
+                continue;
             }
+            let stale: Vec<(ChunkPos, u64)> = self
+                .store
+                .region_versions(r)?
+                .into_iter()
+                .filter(|&(p, v)| {
+                    next_to(p) && self.seq.is_resident(p) && self.versions.get(&p) != Some(&v)
+                })
+                .collect();
+            self.load_listed(stale, moved)?;
         }
         Ok(())
     }
@@ -397,11 +430,22 @@ impl Engine {
                 moved.push((pos, version));
             }
         }
+        self.load_listed(load, moved)
+    }
+
+    /// Reads `load` (chunks held here, each with the version the store
+    /// listed) from the store and puts them in the world, listing each in
+    /// `moved` with the version read.
+    fn load_listed(
+        &mut self,
+        load: Vec<(ChunkPos, u64)>,
+        moved: &mut Vec<(ChunkPos, u64)>,
+    ) -> Result<(), StoreError> {
         if load.is_empty() {
             return Ok(());
         }
-        // Those held here, read together (a failure changes none of them:
-        // the retry finds them moved still).
+        // Read together (a failure changes none of them: the retry finds
+        // them moved still).
         let positions: Vec<ChunkPos> = load.iter().map(|&(p, _)| p).collect();
         let stored = self.store.load_chunks(&positions)?;
         for ((pos, listed), stored) in load.into_iter().zip(stored) {

@@ -35,6 +35,12 @@ impl Prechecked {
     pub fn reads(&self) -> &[ChunkPos] {
         &self.reads
     }
+
+    /// The chunks the sight ray crosses, whose collision meshes its check
+    /// reads.
+    pub fn ray(&self) -> &[ChunkPos] {
+        &self.ray
+    }
 }
 
 /// The chunks of the box `lo..=hi` and the 27 around each of `ray`'s,
