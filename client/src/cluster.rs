@@ -945,8 +945,9 @@ impl ClusterClient {
     /// refusal. One refused `NodeFull` (no node holds the region, and that
     /// one may take no more) is sent to each other connected node in turn
     /// (one it cannot be sent to is passed over), until one answers
-    /// otherwise; the one that accepts writes the region from then on.
-    /// Returns the node that answered last, with its answer.
+    /// otherwise; the one that accepts writes the region from then on (a
+    /// node named by `RegionElsewhere` that answers `NodeFull` starts that
+    /// round too). Returns the node that answered last, with its answer.
     pub async fn settle(
         &mut self,
         to: SocketAddr,

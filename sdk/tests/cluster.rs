@@ -430,6 +430,9 @@ fn a_node_that_stops_answering_holds_up_no_other_nodes_edits() {
         .hold("SELECT 1 FROM regions WHERE region_x = 1 AND region_z = 0 FOR UPDATE")
         .unwrap();
     let stuck = mine_small(&ann, 265);
+    // The next edit of that region waits behind it, on the client (sent
+    // once the first is answered, it is judged where Ann stands then).
+    let behind = mine_small(&ann, 266);
     // Back in region 0 (her sight of region 0 from region 1 would need the
     // east node to write both).
     walk(&ann, &mut seen, 256, 250);
@@ -452,6 +455,23 @@ fn a_node_that_stops_answering_holds_up_no_other_nodes_edits() {
     // Once the row is free the east node commits and answers.
     held.release();
     wait_for(&ann, &mut seen, verdict(stuck));
+    wait_for(&ann, &mut seen, |e| match e {
+        Event::EditAccepted { ticket, .. } | Event::EditRejected { ticket, .. } => {
+            (*ticket == behind).then_some(())
+        }
+        _ => None,
+    });
+    let order: Vec<u64> = seen
+        .iter()
+        .filter_map(|e| match e {
+            Event::EditAccepted { ticket, .. } | Event::EditRejected { ticket, .. } => {
+                Some(*ticket)
+            }
+            _ => None,
+        })
+        .filter(|t| [stuck, behind, west_edit].contains(t))
+        .collect();
+    assert_eq!(order, vec![west_edit, stuck, behind]);
 
     ann.close();
     bob.close();

@@ -321,6 +321,7 @@ async fn an_admin_snapshot_ends_with_its_token() {
         let file = dir.path().join("noise.snap");
         crate::snapshot_common::write_noise_snapshot(&file, &crate::snapshot_common::header(1), 80);
         let restored = snapshot_cmd::restore(&RestoreArgs {
+            drop_access: false,
             file,
             data_dir: data.clone(),
             force: false,

@@ -126,9 +126,9 @@ async fn online_snapshot_under_load_restores_the_world_at_its_seq() {
 
         // Restore into a new data dir; a server there serves exactly that world.
         let restored = tmp.path().join("restored");
-        let n = snapshot_cmd::restore(&RestoreArgs { file: file.clone(), data_dir: restored.clone(), force: false, config: None }).unwrap();
+        let n = snapshot_cmd::restore(&RestoreArgs { drop_access: false, file: file.clone(), data_dir: restored.clone(), force: false, config: None }).unwrap();
         assert_eq!(n, versions.len() as u64);
-        let again = snapshot_cmd::restore(&RestoreArgs { file: file.clone(), data_dir: restored.clone(), force: false, config: None });
+        let again = snapshot_cmd::restore(&RestoreArgs { drop_access: false, file: file.clone(), data_dir: restored.clone(), force: false, config: None });
         assert!(again.unwrap_err().to_string().contains("--force"));
         let server = start_fast(&restored).await;
         let c = connect(&server, "viewer", Role::Player).await;

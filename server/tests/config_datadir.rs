@@ -337,13 +337,14 @@ fn forced_restore_into_a_data_dir_keeps_its_identity() {
     let snap = tmp.path().join("w.snap");
     {
         let store = SledStore::open(&root.join(WORLD_DB_NAME)).unwrap();
-        snapshot_cmd::create_offline(&store, &snap).unwrap();
+        snapshot_cmd::create_offline(&store, &snap, &Default::default()).unwrap();
     }
     let identity = |root: &std::path::Path| {
         [CERT_NAME, KEY_NAME, SECRET_NAME].map(|n| std::fs::read(root.join(n)).unwrap())
     };
     let before = identity(&root);
     let args = RestoreArgs {
+        drop_access: false,
         file: snap,
         data_dir: root.clone(),
         force: true,
@@ -360,6 +361,73 @@ fn forced_restore_into_a_data_dir_keeps_its_identity() {
     assert!(!root.join(SECRET_NAME).exists());
     let store = SledStore::open(&root.join(WORLD_DB_NAME)).unwrap();
     assert_eq!(store.load_meta().unwrap().unwrap().seed, 7);
+}
+
+/// An offline snapshot of a world whose zones were never changed holds the
+/// spawn protection its server applies (the default zones), and a restore
+/// of it keeps that protection.
+#[test]
+fn an_offline_snapshot_keeps_the_default_spawn_protection() {
+    use strata_server::app::ZONES_BLOB;
+    use strata_server::sequencer::Sequencer;
+    use strata_server::validate::zones::Zone;
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("data");
+    data_dir_with_world(&root);
+    let snap = tmp.path().join("w.snap");
+    let cfg = ServerConfig::default();
+    {
+        let store = SledStore::open(&root.join(WORLD_DB_NAME)).unwrap();
+        assert_eq!(store.get_blob(ZONES_BLOB).unwrap(), None, "never changed");
+        snapshot_cmd::create_offline(&store, &snap, &cfg).unwrap();
+    }
+    let spawn = Sequencer::default_zones(&cfg.validation);
+    assert_eq!(spawn.len(), 1, "the spawn protection");
+    let header = strata_server::snapshot::SnapshotReader::open(&snap)
+        .unwrap()
+        .header()
+        .clone();
+    let names = |zones: &[String]| zones.to_vec();
+    assert_eq!(
+        names(
+            &header
+                .zones
+                .iter()
+                .map(|z| z.name.clone())
+                .collect::<Vec<_>>()
+        ),
+        names(&spawn.iter().map(|z| z.name.clone()).collect::<Vec<_>>())
+    );
+    let other = tmp.path().join("other");
+    snapshot_cmd::restore(&RestoreArgs {
+        drop_access: false,
+        file: snap,
+        data_dir: other.clone(),
+        force: false,
+        config: None,
+    })
+    .unwrap();
+    let store = SledStore::open(&other.join(WORLD_DB_NAME)).unwrap();
+    let stored: Vec<Zone> =
+        serde_json::from_slice(&store.get_blob(ZONES_BLOB).unwrap().unwrap()).unwrap();
+    assert_eq!(stored.len(), 1);
+    assert_eq!((stored[0].min, stored[0].max), (spawn[0].min, spawn[0].max));
+}
+
+/// The offline tools open a sled data dir's store only if a server made
+/// one: a data dir without `world.sled` (never started, or a PostgreSQL
+/// server's without its strata.toml) is refused, and none is created.
+#[test]
+fn offline_tools_make_no_store_in_a_data_dir_without_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("data");
+    DataDir::open_or_init(&root, &[]).unwrap();
+    let err = match strata_server::admin::remote::open_offline_store(&root) {
+        Ok(_) => panic!("opened a store that was not there"),
+        Err(e) => format!("{e:#}"),
+    };
+    assert!(err.contains("does not exist"), "{err}");
+    assert!(!root.join(WORLD_DB_NAME).exists());
 }
 
 #[test]

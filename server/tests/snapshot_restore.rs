@@ -48,6 +48,7 @@ fn snapshot(dir: &Path, name: &str, h: &SnapshotHeader, n: i32) -> PathBuf {
 
 fn restore(file: &Path, data: &Path, force: bool) -> anyhow::Result<u64> {
     snapshot_cmd::restore(&RestoreArgs {
+        drop_access: false,
         file: file.into(),
         data_dir: data.into(),
         force,
@@ -103,7 +104,7 @@ impl ImportTarget for CutBeforeMeta<'_> {
 
 /// The restore's swap with an import that fails part-way.
 fn restore_cut_short(db: &Path, file: &Path) -> String {
-    let err = replace_world(db, |store| {
+    let err = replace_world(db, false, |store| {
         Ok(import(file, &CutBeforeMeta(store), ZONES_BLOB, |_| {})?)
     })
     .unwrap_err();
@@ -217,6 +218,35 @@ fn a_restore_keeps_bans_and_answers_to_the_data_dirs_config() {
     assert_eq!(store.get_blob(ACCESS_BLOB).unwrap().unwrap(), b"bans");
     assert_eq!(store.get_blob("other").unwrap(), None);
     assert!(store.get_blob(ZONES_BLOB).unwrap().is_some());
+}
+
+/// A replaced world that does not read (a damaged store) cannot give its
+/// bans and revocations to the restored one: the restore refuses it, and
+/// `--drop-access` restores without them.
+#[test]
+fn a_restore_over_a_world_that_does_not_read_keeps_it_unless_told() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (new, data, db) = old_sled_world(tmp.path());
+    // sled's config file, damaged: the store no longer opens.
+    std::fs::write(db.join("conf"), b"\x00 not a sled config \xff").unwrap();
+    assert!(SledStore::open(&db).is_err(), "the damaged store opens");
+    let args = |drop_access| RestoreArgs {
+        file: new.clone(),
+        data_dir: data.clone(),
+        force: true,
+        drop_access,
+        config: None,
+    };
+    let err = format!("{:#}", snapshot_cmd::restore(&args(false)).unwrap_err());
+    assert!(err.contains("--drop-access"), "{err}");
+    assert!(
+        SledStore::open(&db).is_err(),
+        "the old world stays as it was"
+    );
+    assert_eq!(snapshot_cmd::restore(&args(true)).unwrap(), 5);
+    assert_eq!(world_of(&data), (20, 5));
+    let store = SledStore::open(&db).unwrap();
+    assert_eq!(store.get_blob(ACCESS_BLOB).unwrap(), None);
 }
 
 /// A store holding a chunk with no metadata: `init_meta` must refuse.
@@ -360,6 +390,7 @@ fn a_forced_postgres_restore_leaves_no_stale_seq_blocks() {
     let config = tmp.path().join("strata.toml");
     std::fs::write(&config, db.store_toml()).unwrap();
     let args = |force| RestoreArgs {
+        drop_access: false,
         file: file.clone(),
         data_dir: tmp.path().join("data"),
         force,
@@ -432,11 +463,43 @@ fn pg_restore(
     let config = tmp.join("strata.toml");
     std::fs::write(&config, db.store_toml()).unwrap();
     snapshot_cmd::restore(&RestoreArgs {
+        drop_access: false,
         file: file.into(),
         data_dir: tmp.join("data"),
         force,
         config: Some(config),
     })
+}
+
+/// A restore into a database that holds a world, through a data dir
+/// without that world's certificate and secret (a new node's), makes none:
+/// refused without `--force`, and with it refused for the missing files,
+/// which must be copied from a node of that world.
+#[test]
+fn a_postgres_restore_beside_a_world_makes_no_identity_of_its_own() {
+    let Some(db) = database("a_postgres_restore_beside_a_world_makes_no_identity") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let new = old_world_restored(&db, tmp.path());
+    let config = tmp.path().join("strata.toml");
+    let node = tmp.path().join("node2");
+    let restore = |force| {
+        snapshot_cmd::restore(&RestoreArgs {
+            drop_access: false,
+            file: new.clone(),
+            data_dir: node.clone(),
+            force,
+            config: Some(config.clone()),
+        })
+    };
+    let err = format!("{:#}", restore(false).unwrap_err());
+    assert!(err.contains("already holds a world"), "{err}");
+    assert!(!node.exists(), "nothing made");
+    let err = format!("{:#}", restore(true).unwrap_err());
+    assert!(err.contains("auth.secret is missing"), "{err}");
+    assert!(!node.join("auth.secret").exists() && !node.join("cert.der").exists());
+    assert_eq!(pg_world(&db).0, "9", "the old world stays");
 }
 
 #[test]
@@ -729,6 +792,7 @@ fn an_offline_postgres_snapshot_and_running_servers_keep_off_each_other() {
     std::fs::write(data.join("strata.toml"), db.store_toml()).unwrap();
     // The data dir's config names the database: the restore goes there.
     let args = RestoreArgs {
+        drop_access: false,
         file,
         data_dir: data.clone(),
         force: false,
@@ -797,7 +861,7 @@ fn an_offline_postgres_snapshot_that_lost_its_lock_is_refused() {
     store.hold_alone().unwrap();
     store.still_alone().unwrap();
     let out = tmp.path().join("held.snap");
-    snapshot_cmd::create_offline(&store, &out).unwrap();
+    snapshot_cmd::create_offline(&store, &out, &Default::default()).unwrap();
     sql(
         &db,
         &format!(
@@ -819,7 +883,7 @@ fn an_offline_postgres_snapshot_that_lost_its_lock_is_refused() {
     let lost = tmp.path().join("lost.snap");
     let err = format!(
         "{:#}",
-        snapshot_cmd::create_offline(&store, &lost).unwrap_err()
+        snapshot_cmd::create_offline(&store, &lost, &Default::default()).unwrap_err()
     );
     assert!(err.contains("keeping servers off"), "{err}");
     assert!(!lost.exists(), "no snapshot file");

@@ -4,7 +4,7 @@
 //! On a cluster one task owns the [`ClusterClient`]: it takes the game's
 //! commands and follows the nodes' word between them.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::net::SocketAddr;
 use std::sync::{mpsc as std_mpsc, Arc, Mutex};
 use std::time::Duration;
@@ -72,8 +72,10 @@ pub(super) async fn dispatch(
 /// again where a refusal points, [`ClusterClient::next_hop`]); those of
 /// other regions go meanwhile, and every verdict is awaited in a task of
 /// its own, so a node that stopped answering holds up only its regions'
-/// edits. After each command and verdict and every [`FOLLOW_EVERY`] the
-/// session's copy of the routes is brought up to date.
+/// edits, and once one of them gets no answer (a timeout, the connection's
+/// end) those waiting behind it fail with it. After each command and
+/// verdict and every [`FOLLOW_EVERY`] the session's copy of the routes is
+/// brought up to date.
 pub(super) async fn dispatch_cluster(
     mut cluster: ClusterClient,
     links: Arc<Links>,
@@ -86,6 +88,7 @@ pub(super) async fn dispatch_cluster(
         cluster: &mut cluster,
         events: &events,
         awaited: JoinSet::new(),
+        tasks: HashMap::new(),
         lanes: BTreeMap::new(),
     };
     loop {
@@ -97,11 +100,8 @@ pub(super) async fn dispatch_cluster(
                     other => run_on_cluster(edits.cluster, other).await,
                 }
             }
-            Some(done) = edits.awaited.join_next(), if !edits.awaited.is_empty() => {
-                // The tasks neither panic nor are aborted while this runs.
-                if let Ok(done) = done {
-                    edits.answered(done).await;
-                }
+            Some(done) = edits.awaited.join_next_with_id(), if !edits.awaited.is_empty() => {
+                edits.joined(done).await;
             }
             _ = follow.tick() => {
                 // A node that cannot be joined is retried later; the home
@@ -115,7 +115,8 @@ pub(super) async fn dispatch_cluster(
 
 /// A region's edits, in order: the first of them in flight (or being sent
 /// again), the others waiting. `None`: before any node told the region
-/// size.
+/// size; while edits wait there, new ones join them (sorted into regions,
+/// one sent before its region was known could be overtaken).
 type Lane = Option<(i32, i32)>;
 
 /// An edit on its way: sent to `tried` in order, the last of them now;
@@ -136,27 +137,40 @@ struct Awaited {
     verdict: Result<Acked, ClientError>,
 }
 
+/// A flight's final answer, for the game.
+type Answer = Result<Acked, ClientError>;
+
 /// The cluster session's edits in flight and waiting.
 struct Edits<'a> {
     cluster: &'a mut ClusterClient,
     events: &'a std_mpsc::Sender<Event>,
     awaited: JoinSet<Awaited>,
+    /// Each verdict task's flight (lane, ticket) and node, should the task
+    /// end without its value.
+    tasks: HashMap<tokio::task::Id, (Lane, u64, SocketAddr)>,
     lanes: BTreeMap<Lane, VecDeque<(u64, Edit)>>,
 }
 
 impl Edits<'_> {
     /// An edit the game made: sent now, or after those of its region.
     async fn take(&mut self, ticket: u64, edit: Edit) {
-        let lane = self.cluster.region_key(edit_anchor(&edit).chunk());
+        let lane = match self.lanes.contains_key(&None) {
+            true => None,
+            false => self.cluster.region_key(edit_anchor(&edit).chunk()),
+        };
         if let Some(waiting) = self.lanes.get_mut(&lane) {
             waiting.push_back((ticket, edit));
             return;
         }
         self.lanes.insert(lane, VecDeque::new());
-        self.start(ticket, edit, lane).await;
+        if let Some((ticket, answer)) = self.start(ticket, edit, lane).await {
+            self.finish(lane, ticket, answer).await;
+        }
     }
 
-    async fn start(&mut self, ticket: u64, edit: Edit, lane: Lane) {
+    /// Sends an edit to the node that writes its region. `Some`: it could
+    /// not be sent, with the answer.
+    async fn start(&mut self, ticket: u64, edit: Edit, lane: Lane) -> Option<(u64, Answer)> {
         let to = self.cluster.route(edit_anchor(&edit).chunk());
         let flight = Flight {
             ticket,
@@ -165,21 +179,23 @@ impl Edits<'_> {
             tried: Vec::new(),
             last: None,
         };
-        self.send(flight, to).await;
+        self.send(flight, to).await
     }
 
-    /// Sends the flight to `to` and awaits the verdict in a task.
-    async fn send(&mut self, mut flight: Flight, mut to: SocketAddr) {
+    /// Sends the flight to `to` and awaits the verdict in a task. `Some`:
+    /// it could not be sent anywhere, with the answer that stands.
+    async fn send(&mut self, mut flight: Flight, mut to: SocketAddr) -> Option<(u64, Answer)> {
         loop {
             flight.tried.push(to);
             let sent = match self.cluster.node_shared(to) {
                 Some(node) => node.submit(flight.edit.clone()).await.map(|s| (node, s)),
                 None => Err(ClientError::Closed("node left".into())),
             };
-            match sent {
+            let e = match sent {
                 Ok((node, sent)) => {
                     self.cluster.hold(to);
-                    self.awaited.spawn(async move {
+                    let (lane, ticket) = (flight.lane, flight.ticket);
+                    let task = self.awaited.spawn(async move {
                         let verdict = node.verdict(sent).await;
                         Awaited {
                             flight,
@@ -187,25 +203,44 @@ impl Edits<'_> {
                             verdict,
                         }
                     });
-                    return;
+                    self.tasks.insert(task.id(), (lane, ticket, to));
+                    return None;
                 }
-                Err(e) => {
-                    // After `NodeFull` a node the edit cannot reach is
-                    // passed over (none left: that answer stands); else
-                    // the failure is the answer.
-                    let Some((from, acked)) = flight.last.clone().filter(|(_, a)| is_node_full(a))
-                    else {
-                        return self.finish(flight, Err(e)).await;
-                    };
-                    match self
-                        .cluster
-                        .next_hop(from, &flight.edit, &acked, &flight.tried)
-                        .await
-                    {
-                        NextHop::Again(next) => to = next,
-                        NextHop::Done => return self.finish(flight, Ok(acked)).await,
-                    }
-                }
+                Err(e) => e,
+            };
+            // After `NodeFull` a node the edit cannot reach is passed over
+            // (none left: that answer stands); else the failure is the
+            // answer.
+            let Some((from, acked)) = flight.last.clone().filter(|(_, a)| is_node_full(a)) else {
+                return Some((flight.ticket, Err(e)));
+            };
+            match self
+                .cluster
+                .next_hop(from, &flight.edit, &acked, &flight.tried)
+                .await
+            {
+                NextHop::Again(next) => to = next,
+                NextHop::Done => return Some((flight.ticket, Ok(acked))),
+            }
+        }
+    }
+
+    /// A verdict task ended.
+    async fn joined(&mut self, done: Result<(tokio::task::Id, Awaited), tokio::task::JoinError>) {
+        let id = match &done {
+            Ok((id, _)) => *id,
+            Err(e) => e.id(),
+        };
+        let Some((lane, ticket, to)) = self.tasks.remove(&id) else {
+            return;
+        };
+        self.cluster.release(to);
+        match done {
+            Ok((_, done)) => self.answered(done).await,
+            // Panicked or aborted: no answer will come.
+            Err(e) => {
+                let why = ClientError::Closed(format!("awaiting the verdict ended: {e}"));
+                self.finish(lane, ticket, Err(why)).await
             }
         }
     }
@@ -217,10 +252,10 @@ impl Edits<'_> {
             to,
             verdict,
         } = done;
-        self.cluster.release(to);
+        let (lane, ticket) = (flight.lane, flight.ticket);
         let acked = match verdict {
             Ok(acked) => acked,
-            Err(e) => return self.finish(flight, Err(e)).await,
+            Err(e) => return self.finish(lane, ticket, Err(e)).await,
         };
         match self
             .cluster
@@ -229,24 +264,40 @@ impl Edits<'_> {
         {
             NextHop::Again(there) => {
                 flight.last = Some((to, acked));
-                self.send(flight, there).await;
+                if let Some((ticket, answer)) = self.send(flight, there).await {
+                    self.finish(lane, ticket, answer).await;
+                }
             }
-            NextHop::Done => self.finish(flight, Ok(acked)).await,
+            NextHop::Done => self.finish(lane, ticket, Ok(acked)).await,
         }
     }
 
-    /// The flight's final answer goes to the game; the next edit of its
-    /// region is sent.
-    async fn finish(&mut self, flight: Flight, answer: Result<Acked, ClientError>) {
-        let _ = self.events.send(verdict_event(flight.ticket, answer));
-        let next = self
-            .lanes
-            .get_mut(&flight.lane)
-            .and_then(VecDeque::pop_front);
-        match next {
-            Some((ticket, edit)) => Box::pin(self.start(ticket, edit, flight.lane)).await,
-            None => {
-                self.lanes.remove(&flight.lane);
+    /// An edit's final answer goes to the game, and the next edit of its
+    /// region is sent. An edit that got no answer takes those waiting
+    /// behind it along: they were for the same node.
+    async fn finish(&mut self, lane: Lane, ticket: u64, answer: Answer) {
+        let mut done = Some((ticket, answer));
+        while let Some((ticket, answer)) = done.take() {
+            if let Err(e @ (ClientError::Timeout(_) | ClientError::Closed(_))) = &answer {
+                let why = e.to_string();
+                for (t, _) in self
+                    .lanes
+                    .get_mut(&lane)
+                    .map(std::mem::take)
+                    .unwrap_or_default()
+                {
+                    let _ = self.events.send(Event::EditFailed {
+                        ticket: t,
+                        error: format!("an earlier edit of its region got no answer: {why}"),
+                    });
+                }
+            }
+            let _ = self.events.send(verdict_event(ticket, answer));
+            match self.lanes.get_mut(&lane).and_then(VecDeque::pop_front) {
+                Some((ticket, edit)) => done = self.start(ticket, edit, lane).await,
+                None => {
+                    self.lanes.remove(&lane);
+                }
             }
         }
     }

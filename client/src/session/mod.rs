@@ -239,7 +239,8 @@ impl Session {
 
     /// Sends an edit (build one with [`crate::edits`]) and returns its
     /// ticket at once; its verdict comes from [`Self::poll`]. Edits reach
-    /// the server in the order they were taken.
+    /// the server in the order they were taken (on a cluster, those of one
+    /// region; verdicts of different regions may come in another order).
     /// Once `Disconnected` was polled, refused with [`ClientError::Closed`].
     pub fn edit(&self, edit: Edit) -> Result<u64, SessionError> {
         // Held until the edit is counted: `poll` reports `Disconnected`

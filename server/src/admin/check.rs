@@ -21,7 +21,8 @@ use super::world_source::{open_offline, progress_bar, WorldSourceError};
 /// Arguments of `strata-admin check`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct CheckArgs {
-    /// Data directory of a STOPPED server (its world.sled is opened directly).
+    /// Data directory of a STOPPED server: the store its strata.toml (or
+    /// --config) names is opened directly, world.sled without one.
     #[arg(long, value_name = "DIR")]
     pub data_dir: PathBuf,
     /// Server config naming the store [default: DIR/strata.toml if

@@ -126,6 +126,17 @@ pub fn open_offline_store(dir: &Path) -> anyhow::Result<Arc<dyn ChunkStore>> {
         .with_context(|| format!("opening data dir {}", dir.display()))?;
     let cfg = data_dir_config(dir)?;
     let world_db = dd.world_db_path();
+    // Opening sled creates a store: a data dir without one (never started,
+    // or a PostgreSQL server's whose strata.toml is elsewhere) would get an
+    // empty one, and a ban or zone written there would reach no server.
+    if cfg.store.backend == StoreBackend::Sled && !world_db.exists() {
+        anyhow::bail!(
+            "{} does not exist: no server has stored a world in {} (on PostgreSQL, put the \
+             server's strata.toml in the data dir)",
+            world_db.display(),
+            dir.display()
+        );
+    }
     // On PostgreSQL as an admin tool: its sessions are named so (a forced
     // restore refuses only running servers' sessions), and it migrates
     // only while no server uses the database.

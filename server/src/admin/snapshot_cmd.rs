@@ -18,6 +18,7 @@ use crate::auth::ACCESS_BLOB;
 use crate::config::ServerConfig;
 use crate::datadir::DataDir;
 use crate::engine::admin::zone_spec;
+use crate::sequencer::Sequencer;
 use crate::snapshot::diff::{diff, DiffReport};
 use crate::snapshot::restore::import;
 use crate::snapshot::{verify, SnapshotHeader, SnapshotReader, SnapshotWriter, VerifyReport};
@@ -69,11 +70,18 @@ pub struct RestoreArgs {
     /// has one.
     #[arg(long)]
     pub force: bool,
+    /// With --force, replace a sled world that does not open even though
+    /// its bans and revocations are then lost (a restore keeps them: the
+    /// snapshot holds none).
+    #[arg(long)]
+    pub drop_access: bool,
     /// Server config naming the store to restore into. With `[store]
     /// backend = "postgres"` the world goes into that database in one
     /// transaction (every node stopped; `--force` replaces a world there,
     /// freeing its regions) and the data dir keeps only the certificate
-    /// and secret [default: the data dir's world.sled].
+    /// and secret. It is also checked that its server would start on the
+    /// snapshot's world [default: the data dir's strata.toml, else the
+    /// data dir's world.sled with nothing checked].
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
 }
@@ -149,19 +157,23 @@ fn settle(tmp: &Path, out: &Path, result: anyhow::Result<Created>) -> anyhow::Re
     }
 }
 
-/// Snapshot of a stopped server's store.
-pub fn create_offline(store: &dyn ChunkStore, out: &Path) -> anyhow::Result<Created> {
+/// Snapshot of a stopped server's store. A world whose zones were never
+/// changed has the default ones `cfg` gives (the spawn protection), as the
+/// server would: the snapshot holds those, so its restore keeps them.
+pub fn create_offline(
+    store: &dyn ChunkStore,
+    out: &Path,
+    cfg: &ServerConfig,
+) -> anyhow::Result<Created> {
     let Some(meta) = store.load_meta()? else {
         bail!("the store has no world yet (start the server once)");
     };
-    let zones: Vec<ZoneSpec> = match store.get_blob(ZONES_BLOB)? {
+    let zones: Vec<Zone> = match store.get_blob(ZONES_BLOB)? {
         Some(b) => serde_json::from_slice::<Vec<Zone>>(&b)
-            .context("stored protected zones do not parse")?
-            .iter()
-            .map(zone_spec)
-            .collect(),
-        None => Vec::new(),
+            .context("stored protected zones do not parse")?,
+        None => Sequencer::default_zones(&cfg.validation),
     };
+    let zones: Vec<ZoneSpec> = zones.iter().map(zone_spec).collect();
     let header = SnapshotHeader {
         seed: meta.seed,
         generator_version: meta.generator_version,
@@ -262,7 +274,7 @@ pub fn create(args: &CreateArgs) -> anyhow::Result<Created> {
             let store = open_offline_store(&dir)?;
             // One moment of the world: no server writes it meanwhile.
             store.hold_alone()?;
-            create_offline(&*store, &args.out)
+            create_offline(&*store, &args.out, &data_dir_config(&dir)?)
         }
         Target::Online {
             server,
@@ -321,6 +333,13 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
                 .transpose()?
         }
     };
+    if cfg.is_none() {
+        eprintln!(
+            "warning: no --config and no {} in the data dir: the snapshot's world is not checked \
+             against the server's config (seed, generator, store)",
+            DATA_DIR_CONFIG_NAME
+        );
+    }
     if let Some(cfg) = &cfg {
         refuse_other_generation(&args.file, cfg)?;
         if cfg.store.backend == StoreBackend::Postgres {
@@ -340,7 +359,7 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
         Some(report.chunks),
         "restore {bar:40} {pos}/{len} chunks {eta}",
     );
-    let n = replace_world(&dd.world_db_path(), |store| {
+    let n = replace_world(&dd.world_db_path(), args.drop_access, |store| {
         Ok(import(&args.file, store, ZONES_BLOB, |n| {
             bar.set_position(n)
         })?)
@@ -378,21 +397,29 @@ fn sync_tree(dir: &Path) -> std::io::Result<()> {
 /// half swapped. Returns what `fill` returned.
 /// The bans and revocations of the world at `db`, which a restore keeps
 /// (a snapshot holds none: restoring an old world must not let a banned
-/// player or a revoked token back in). A world that does not open keeps
-/// none, said on stderr: restoring is how such a world is mended.
-fn kept_access(db: &Path) -> Option<Vec<u8>> {
+/// player or a revoked token back in). A world that does not open is
+/// refused unless `drop_access` (restoring is how such a world is mended,
+/// once the operator knows its bans go; said on stderr).
+fn kept_access(db: &Path, drop_access: bool) -> anyhow::Result<Option<Vec<u8>>> {
     if !db.exists() {
-        return None;
+        return Ok(None);
     }
     match SledStore::open(db).and_then(|s| s.get_blob(ACCESS_BLOB)) {
-        Ok(access) => access,
-        Err(e) => {
+        Ok(access) => Ok(access),
+        Err(e) if drop_access => {
             eprintln!(
                 "warning: the replaced world's bans and revocations are not kept ({} does not read: {e})",
                 db.display()
             );
-            None
+            Ok(None)
         }
+        Err(e) => Err(e).with_context(|| {
+            format!(
+                "{} does not read, so its bans and revocations cannot be kept; nothing restored \
+                 (pass --drop-access to restore without them)",
+                db.display()
+            )
+        }),
     }
 }
 
@@ -420,6 +447,7 @@ fn refuse_other_generation(file: &Path, cfg: &ServerConfig) -> anyhow::Result<()
 
 pub fn replace_world(
     db: &Path,
+    drop_access: bool,
     fill: impl FnOnce(&SledStore) -> anyhow::Result<u64>,
 ) -> anyhow::Result<u64> {
     let _lock = WorldLock::take(db).with_context(|| format!("{} is unchanged", db.display()))?;
@@ -432,7 +460,7 @@ pub fn replace_world(
     }
     remove_dir_if_present(&staging)?;
     remove_dir_if_present(&old)?;
-    let access = kept_access(db);
+    let access = kept_access(db, drop_access)?;
     let filled = SledStore::open(&staging)
         .map_err(anyhow::Error::from)
         .and_then(|store| {
@@ -465,18 +493,20 @@ pub fn replace_world(
 
 /// `restore` into the PostgreSQL store `cfg` names.
 fn restore_postgres(args: &RestoreArgs, cfg: &ServerConfig, total: u64) -> anyhow::Result<u64> {
-    DataDir::open_or_init(&args.data_dir, &cfg.tls.extra_names)
-        .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
     let store = PgStore::open_admin(&cfg.store.postgres, cfg.sequencer.region_chunks)
         .context("opening the PostgreSQL store")?;
-    if !args.force {
-        if let Some(why) = store.holds_world()? {
-            bail!(
-                "the PostgreSQL store already holds a world ({why}); pass --force to replace it, \
-                 keeping its bans and revocations (stop every node first)"
-            );
-        }
+    let holds = store.holds_world()?;
+    if let (Some(why), false) = (&holds, args.force) {
+        bail!(
+            "the PostgreSQL store already holds a world ({why}); pass --force to replace it, \
+             keeping its bans and revocations (stop every node first)"
+        );
     }
+    // Beside a world already there, the data dir needs that world's
+    // certificate and secret (copied from another node): new ones would
+    // sign tokens and tickets the other nodes refuse.
+    DataDir::open_or_init_beside(&args.data_dir, &cfg.tls.extra_names, holds.as_deref())
+        .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
     // One transaction: cut short, the store keeps the world it had.
     let target = store.import_in_one_transaction(args.force);
     let bar = progress(Some(total), "restore {bar:40} {pos}/{len} chunks {eta}");

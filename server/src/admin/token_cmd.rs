@@ -24,7 +24,8 @@ pub struct TokenIssueArgs {
     /// Lifetime such as 30s, 15m, 12h or 7d.
     #[arg(long, default_value = "12h")]
     pub ttl: String,
-    /// Server config, for `auth.token_max_ttl` (defaults apply without it).
+    /// Server config, for `auth.token_max_ttl` [default: the data dir's
+    /// strata.toml, else the defaults].
     #[arg(long)]
     pub config: Option<PathBuf>,
 }
@@ -34,7 +35,11 @@ pub fn issue(args: &TokenIssueArgs) -> anyhow::Result<String> {
     let role = Role::from_name(&args.role)
         .with_context(|| format!("role must be player or admin, not {:?}", args.role))?;
     let ttl = parse_duration(&args.ttl).with_context(|| format!("--ttl {:?}", args.ttl))?;
-    let cfg = ServerConfig::load(args.config.as_deref())?;
+    // A token the server would refuse sooner than asked is refused here.
+    let cfg = match &args.config {
+        Some(path) => ServerConfig::load(Some(path))?,
+        None => crate::admin::remote::data_dir_config(&args.data_dir)?,
+    };
     let dir = DataDir::open_existing(&args.data_dir)
         .with_context(|| format!("opening data dir {}", args.data_dir.display()))?;
     let token = auth::issue_with_max_ttl(
@@ -73,6 +78,19 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("player or admin"));
+        // The data dir's own config caps it too.
+        args.role = "admin".into();
+        std::fs::write(
+            root.join(crate::admin::world_source::DATA_DIR_CONFIG_NAME),
+            "[auth]\ntoken_max_ttl = \"7d\"\n",
+        )
+        .unwrap();
+        args.ttl = "30d".into();
+        let err = issue(&args).unwrap_err().to_string();
+        assert!(err.contains("7d") || err.contains("604800"), "{err}");
+        args.ttl = "6d".into();
+        issue(&args).unwrap();
+        std::fs::remove_file(root.join(crate::admin::world_source::DATA_DIR_CONFIG_NAME)).unwrap();
         args.role = "player".into();
         args.ttl = "400d".into();
         assert!(

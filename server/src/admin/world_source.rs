@@ -40,7 +40,8 @@ pub const MAX_REGION_CHUNKS: i32 = crate::admin::generate::MAX_REGION_CHUNKS;
 /// Where the world lives: the data dir of a stopped server.
 #[derive(Debug, Clone, clap::Args)]
 pub struct OfflineArgs {
-    /// Data directory of a STOPPED server (its world.sled is opened directly).
+    /// Data directory of a STOPPED server: the store its strata.toml (or
+    /// --config) names is opened directly, world.sled without one.
     #[arg(long, value_name = "DIR")]
     pub data_dir: PathBuf,
     /// Server config naming the world generator and the store (sled, or

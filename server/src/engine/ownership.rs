@@ -364,8 +364,8 @@ impl Engine {
     /// it that this node does not write up to their stored versions: the
     /// meshes of `region`'s border chunks read their border voxels, which
     /// whoever wrote `region` meanwhile may have changed (an edit within
-    /// [`MESH_REACH`] of a border needs both regions). Chunks not held here
-    /// are read from the store when next needed.
+    /// [`MESH_REACH`] of a border needs both regions). One not held here is
+    /// noted at its stored version (read from the store when next needed).
     ///
     /// [`MESH_REACH`]: crate::sequencer::residency::MESH_REACH
     fn reload_border_neighbours(
@@ -396,15 +396,13 @@ impl Engine {
             if holder == RegionHolder::Here {
                 continue;
             }
-            let stale: Vec<(ChunkPos, u64)> = self
+            let listed: Vec<(ChunkPos, u64)> = self
                 .store
                 .region_versions(r)?
                 .into_iter()
-                .filter(|&(p, v)| {
-                    next_to(p) && self.seq.is_resident(p) && self.versions.get(&p) != Some(&v)
-                })
+                .filter(|&(p, _)| next_to(p))
                 .collect();
-            self.load_listed(stale, moved)?;
+            self.reload_listed(listed, moved)?;
         }
         Ok(())
     }
@@ -416,8 +414,20 @@ impl Engine {
         region: RegionId,
         moved: &mut Vec<(ChunkPos, u64)>,
     ) -> Result<(), StoreError> {
+        let listed = self.store.region_versions(region)?;
+        self.reload_listed(listed, moved)
+    }
+
+    /// Brings each chunk of `listed` (with its stored version) whose
+    /// version moved to it: read again where held here, else noted (its
+    /// neighbours' cached meshes dropped), listing in `moved` those done.
+    fn reload_listed(
+        &mut self,
+        listed: Vec<(ChunkPos, u64)>,
+        moved: &mut Vec<(ChunkPos, u64)>,
+    ) -> Result<(), StoreError> {
         let mut load = Vec::new();
-        for (pos, version) in self.store.region_versions(region)? {
+        for (pos, version) in listed {
             if self.versions.get(&pos) == Some(&version) {
                 continue;
             }
