@@ -391,8 +391,10 @@ fn a_node_that_stops_answering_holds_up_no_other_nodes_edits() {
         return;
     };
     let (ann, mut seen) = ann_at_west(&west, SessionOptions::default());
-    // To the border (region 1 starts at x 256).
-    walk(&ann, &mut seen, WEST_X, 256);
+    // Past the border (region 1 starts at x 256), her last position let
+    // reach both nodes.
+    walk(&ann, &mut seen, WEST_X, 258);
+    std::thread::sleep(Duration::from_millis(200));
     let verdict = |ticket: u64| {
         move |e: &Event| match e {
             Event::EditAccepted { ticket: t, .. } if *t == ticket => Some(true),
@@ -409,7 +411,7 @@ fn a_node_that_stops_answering_holds_up_no_other_nodes_edits() {
     // (until then the west node refuses them, naming it).
     let start = Instant::now();
     loop {
-        let first = mine_small(&ann, 264);
+        let first = mine_small(&ann, 261);
         let accepted = wait_for(&ann, &mut seen, |e| match e {
             Event::EditAccepted { ticket, .. } if *ticket == first => Some(true),
             Event::EditRejected {
@@ -429,13 +431,13 @@ fn a_node_that_stops_answering_holds_up_no_other_nodes_edits() {
     let held = db
         .hold("SELECT 1 FROM regions WHERE region_x = 1 AND region_z = 0 FOR UPDATE")
         .unwrap();
-    let stuck = mine_small(&ann, 265);
+    let stuck = mine_small(&ann, 262);
     // The next edit of that region waits behind it, on the client (sent
     // once the first is answered, it is judged where Ann stands then).
-    let behind = mine_small(&ann, 266);
+    let behind = mine_small(&ann, 263);
     // Back in region 0 (her sight of region 0 from region 1 would need the
     // east node to write both).
-    walk(&ann, &mut seen, 256, 250);
+    walk(&ann, &mut seen, 258, 250);
     let west_edit = mine_small(&ann, 246);
     let answered = wait_for(&ann, &mut seen, |e| match e {
         Event::EditAccepted { ticket, .. } | Event::EditRejected { ticket, .. } => {

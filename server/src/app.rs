@@ -232,6 +232,7 @@ pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow
         Some(key) => engine.with_ticket_key(key.clone()),
         None => engine,
     };
+    let engine = engine.with_health(health.clone());
     let (exit_tx, engine_exit) = tokio::sync::watch::channel(false);
     let on_exit = {
         let health = health.clone();

@@ -42,6 +42,20 @@ impl LogEvery {
     }
 }
 
+/// Store failures outside a commit: a store that stopped answering fails
+/// every player's read, so one line a second stands for them all.
+static STORE_ERRORS: LogEvery = LogEvery::new(LOG_EVERY);
+
+/// Counts a failed store operation (`op`: `read`, `regions`, `checkpoint`,
+/// `prune`; `strata_store_errors_total`) and logs `what` with `error`, at
+/// most one line a second for all of them.
+pub fn store_error(op: &'static str, what: &str, error: &dyn std::fmt::Display) {
+    metrics::counter!(crate::metrics::STORE_ERRORS, "op" => op).increment(1);
+    if let Some(folded) = STORE_ERRORS.event() {
+        tracing::error!(%error, folded, "{what}");
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

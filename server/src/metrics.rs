@@ -47,8 +47,8 @@ pub const COLLISION_REWARMS: &str = "strata_collision_rewarms_total";
 /// Generated-chunk cache lookups by `cache` (`premesh`, `patch_base`) and
 /// `outcome` (`hit`, or `generated` again).
 pub const GENERATED_CHUNKS: &str = "strata_generated_chunks_total";
-/// Snapshot-frame cache lookups by `outcome`: `hit`, `miss`, or `cleared`
-/// (entries dropped when it filled up).
+/// Snapshot-frame cache lookups by `outcome`: `hit`, `miss`, `evicted`
+/// (entries dropped when it filled up) or `evicted_requested`.
 pub const SNAPSHOT_CACHE: &str = "strata_snapshot_cache_total";
 /// Snapshot and patch frames built, by `on`: `workers` (ahead of the
 /// streaming loop, in parallel) or `engine` (by the loop itself).
@@ -96,6 +96,7 @@ pub const SESSIONS_KICKED: &str = "strata_sessions_kicked_total";
 pub const CONNECTIONS_REFUSED: &str = "strata_connections_refused_total";
 pub const CONNECTIONS_RETRIED: &str = "strata_connections_retried_total";
 pub const LOG_PRUNED_TOTAL: &str = "strata_log_pruned_total";
+pub const STORE_ERRORS: &str = "strata_store_errors_total";
 
 /// How often the recorder's rolling summaries are advanced.
 pub const UPKEEP_EVERY: Duration = Duration::from_secs(5);
@@ -135,10 +136,14 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
         LOG_PRUNED_TOTAL,
         "Edit log entries removed as older than [store] log_retention"
     );
+    metrics::describe_counter!(
+        STORE_ERRORS,
+        "Store operations that failed outside a commit, by op (read: chunks a player or the premesher needed; regions: a cluster node's claims and holders; checkpoint; prune)"
+    );
     metrics::describe_counter!(SESSIONS_TOTAL, "Sessions that joined the world");
     metrics::describe_counter!(
         CONNECTIONS_REFUSED,
-        "Connections turned away, by reason (handshakes, per_address, sessions, admin_sessions, join_rate; on a cluster node, logins whose stored position was not read: position_reads, no turn in [cluster] position_read_ms; position_read_slow, the read did not end in it; position_read_failed)"
+        "Connections turned away, by reason (handshakes, per_address, sessions, admin_sessions, join_rate; a token that does not verify: bad_token; a banned player or revoked token: denied; a player's token on the admin protocol: not_admin; on a cluster node, logins whose stored position was not read: position_reads, no turn in [cluster] position_read_ms; position_read_slow, the read did not end in it; position_read_failed)"
     );
     metrics::describe_counter!(
         CONNECTIONS_RETRIED,
@@ -246,7 +251,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_histogram!(
         TICK_PHASE_SECONDS,
-        "Tick time by phase: apply, commit, mesh_wait, finish (meshes in, acknowledgements), fanout, stream, evict"
+        "Tick time by phase: apply, apply_ahead (the next batch applied while one commits), commit, mesh_wait, finish (meshes in, acknowledgements), fanout, stream, evict"
     );
     metrics::describe_histogram!(
         APPLY_PART_SECONDS,

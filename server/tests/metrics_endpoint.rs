@@ -255,3 +255,44 @@ async fn wait_for_metric(addr: std::net::SocketAddr, name: &str, at_least: f64) 
         }
     }
 }
+
+/// The engine reports each tick it finishes to the server's health, which
+/// says not ready once none finished for `ENGINE_STALL` (the rule: unit
+/// test in `health.rs`); a refused login is counted by reason.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_engine_reports_its_ticks_and_refusals_are_counted() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        let health = server.health();
+        let fresh = || {
+            health
+                .since_tick()
+                .is_some_and(|d| d < Duration::from_secs(1))
+        };
+        let started = std::time::Instant::now();
+        while !fresh() {
+            assert!(
+                started.elapsed() < Duration::from_secs(5),
+                "no tick reported"
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert_eq!(health.check(), Ok(()));
+
+        let refused = |reason: &str| {
+            let text = strata_server::metrics::shared().unwrap().render();
+            let line = format!("strata_connections_refused_total{{reason=\"{reason}\"}} ");
+            text.lines()
+                .find_map(|l| l.strip_prefix(&line))
+                .map_or(0.0, |v| v.trim().parse::<f64>().unwrap())
+        };
+        let before = refused("bad_token");
+        let bad = strata_client_sim::Client::connect(server.addr, &server.cert_der, "not a token");
+        assert!(bad.await.is_err());
+        assert!(refused("bad_token") >= before + 1.0);
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}

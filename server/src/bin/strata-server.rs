@@ -45,10 +45,17 @@ async fn wait_for_signal() -> anyhow::Result<&'static str> {
     }
 }
 
+/// The log filter without `RUST_LOG`: QUIC's and TLS's own warnings are
+/// left out, as a peer with no login (even one faking its address) can
+/// draw one per packet it sends; Strata logs the refusals it makes itself,
+/// at most one line a second each.
+const DEFAULT_LOG_FILTER: &str = "info,quinn_proto=error,quinn=error,rustls=error";
+
 fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
-            EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")),
+            EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| EnvFilter::new(DEFAULT_LOG_FILTER)),
         )
         .with_writer(std::io::stderr)
         .with_ansi(std::io::stderr().is_terminal())

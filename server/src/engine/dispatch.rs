@@ -1,7 +1,7 @@
 //! Serving one command from a session or an operator, between ticks.
 
 use strata_protocol::{ErrorCode, Refusal, ServerMessage, WorldUpdate};
-use tracing::{error, info, warn};
+use tracing::{info, warn};
 
 use super::peer::Peer;
 use super::{fanout, now_ms, Command, Engine, JoinReply};
@@ -174,7 +174,7 @@ impl Engine {
                 }
                 let needed = self.seq.missing(pre.reads());
                 if let Err(e) = self.make_resident(&needed) {
-                    error!(error = %e, "store read failed");
+                    crate::log_every::store_error("read", "store read failed", &e);
                 }
                 // Line of sight is checked in a batch (`check_sighted`),
                 // at once for an edit whose regions are claimed for it.
@@ -244,7 +244,7 @@ impl Engine {
         }
         let needed = self.seq.chunks_needed_for_position(&update);
         if let Err(e) = self.make_resident(&needed) {
-            error!(error = %e, "store read failed");
+            crate::log_every::store_error("read", "store read failed", &e);
             return;
         }
         match self.seq.update_position(session, update, now) {

@@ -113,6 +113,9 @@ pub struct Engine {
     /// Signs `RegionOwners` tickets (the cluster's shared auth secret, for
     /// its world).
     ticket_key: Option<crate::cluster::ticket::TicketKey>,
+    /// Told after every tick (`/healthz`: an engine that stops ticking is
+    /// not ready).
+    health: Option<Arc<crate::health::Health>>,
     /// When the sessions' region holders are next looked at.
     owners_due: Instant,
     /// A cluster node's lease epoch for each region it last reloaded
@@ -190,6 +193,7 @@ impl Engine {
             deferred: Default::default(),
             committer: None,
             ticket_key: None,
+            health: None,
             owners_due: Instant::now(),
             region_epochs: HashMap::new(),
             reload_retry: Default::default(),
@@ -201,6 +205,12 @@ impl Engine {
     /// Signs the tickets `RegionOwners` carries with `key`.
     pub fn with_ticket_key(mut self, key: crate::cluster::ticket::TicketKey) -> Self {
         self.ticket_key = Some(key);
+        self
+    }
+
+    /// Reports each tick to `health`.
+    pub fn with_health(mut self, health: Arc<crate::health::Health>) -> Self {
+        self.health = Some(health);
         self
     }
 
@@ -273,6 +283,9 @@ impl Engine {
             let now = Instant::now();
             if now >= next_tick && !(handled && now < commands_until) {
                 self.tick(Some(&rx))?;
+                if let Some(h) = &self.health {
+                    h.ticked();
+                }
                 // A fixed rate: a long tick shortens the wait for the next
                 // one instead of adding to it (no catching up past now).
                 next_tick = (next_tick + period).max(now);

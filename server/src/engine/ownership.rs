@@ -77,7 +77,7 @@ fn access_refusal(access: Result<RegionAccess, StoreError>) -> Result<(), (Rejec
             Err((RejectReason::NodeFull { max_regions }, false))
         }
         Err(e) => {
-            error!(error = %e, "claiming regions failed");
+            crate::log_every::store_error("regions", "claiming regions failed", &e);
             Err((RejectReason::Busy, false))
         }
     }
@@ -115,7 +115,7 @@ impl Engine {
         let holders = match self.store.region_holders(&regions) {
             Ok(h) => h,
             Err(e) => {
-                error!(error = %e, "reading regions' holders failed");
+                crate::log_every::store_error("regions", "reading regions' holders failed", &e);
                 return Err(RejectReason::Busy);
             }
         };
@@ -193,7 +193,8 @@ impl Engine {
                 continue;
             }
             if let Err(e) = self.reload_region(r) {
-                error!(error = %e, region_x = r.x, region_z = r.z, "reading a free region failed");
+                let what = format!("reading free region ({}, {}) failed", r.x, r.z);
+                crate::log_every::store_error("regions", &what, &e);
                 return Err(RejectReason::Busy);
             }
             if self.free_read.len() >= MAX_FREE_READ {

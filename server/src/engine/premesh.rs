@@ -422,7 +422,7 @@ impl super::Engine {
         reads.sort();
         reads.dedup();
         if let Err(e) = self.make_resident(&reads) {
-            tracing::error!(error = %e, "store read failed");
+            crate::log_every::store_error("read", "store read failed (premesh)", &e);
             return;
         }
         // Each chunk read is stamped with the world's version of it, not the

@@ -34,6 +34,9 @@ use crate::store::{ChunkStore, RawChunk, StoreError};
 
 /// Encoded snapshot frames buffered between the store reader and the socket.
 pub const SNAPSHOT_STREAM_QUEUE: usize = 64;
+/// Admin logins refused for a player's token: any player can try at will.
+static NOT_ADMIN_REFUSALS: crate::log_every::LogEvery =
+    crate::log_every::LogEvery::new(crate::log_every::LOG_EVERY);
 /// How often an admin session checks its token again (expiry, bans,
 /// revocations) while it waits for a request; it also does before each one.
 pub const ADMIN_RECHECK_PERIOD: Duration = Duration::from_secs(2);
@@ -122,7 +125,10 @@ pub async fn run(
         Err((code, message)) => return refuse(&conn, stream, code, &message).await,
     };
     if claims.role != Role::Admin {
-        warn!(player = %claims.player, "refused a non-admin token on the admin protocol");
+        super::session::refused_login("not_admin");
+        if let Some(refused) = NOT_ADMIN_REFUSALS.event() {
+            warn!(player = %claims.player, refused, "refused a non-admin token on the admin protocol");
+        }
         let msg = format!(
             "{}'s token has role {}; the admin protocol needs role admin",
             claims.player,
@@ -131,7 +137,10 @@ pub async fn run(
         return refuse(&conn, stream, ErrorCode::Forbidden, &msg).await;
     }
     if let Err(denied) = ctx.admitted(&claims) {
-        warn!(admin = %claims.player, %denied, "refused a denied admin");
+        super::session::refused_login("denied");
+        if let Some(refused) = super::session::DENIED_REFUSALS.event() {
+            warn!(admin = %claims.player, %denied, refused, "refused a denied admin");
+        }
         return refuse(&conn, stream, ErrorCode::Forbidden, &denied.to_string()).await;
     }
     // Held until the session ends; players cannot take these.

@@ -219,7 +219,10 @@ pub async fn run(
         }
     };
     if let Err(denied) = ctx.admitted(&claims) {
-        warn!(player = %claims.player, %denied, "refused a denied player");
+        refused_login("denied");
+        if let Some(refused) = DENIED_REFUSALS.event() {
+            warn!(player = %claims.player, %denied, refused, "refused a denied player");
+        }
         let code = ErrorCode::Forbidden;
         return refuse(&conn, control, control_task, code, &denied.to_string()).await;
     }
@@ -382,6 +385,14 @@ enum End {
 
 /// Refused tokens, logged at most once a second (anyone can send them).
 static TOKEN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
+/// Logins refused for a valid token whose player or token is denied (a
+/// ban, a revocation): any holder of one can retry at will.
+pub(super) static DENIED_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
+
+/// Counts a login refused for `reason` (`strata_connections_refused_total`).
+pub(super) fn refused_login(reason: &'static str) {
+    metrics::counter!(crate::metrics::CONNECTIONS_REFUSED, "reason" => reason).increment(1);
+}
 /// Logins refused for their rate, logged likewise.
 static JOIN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
 /// Logins refused for want of their stored position, logged likewise.
@@ -414,6 +425,7 @@ pub(super) fn check_token(
     token: &str,
 ) -> Result<auth::Claims, (ErrorCode, String)> {
     ctx.verify_token(token).map_err(|e| {
+        refused_login("bad_token");
         if let Some(refused) = TOKEN_REFUSALS.event() {
             warn!(error = %e, refused, "refused a token");
         }

@@ -232,10 +232,14 @@ fn run(store: &dyn ChunkStore, stop: &Stop, pace: CheckpointPace) {
         match paced_pass(store, stop, pace, after) {
             Ok(r) if r.stopped => return,
             Ok(r) => after = r.next,
-            Err(e) => error!(error = %e, "checkpoint failed; deltas stay until the next pass"),
+            Err(e) => {
+                metrics::counter!(crate::metrics::STORE_ERRORS, "op" => "checkpoint").increment(1);
+                error!(error = %e, "checkpoint failed; deltas stay until the next pass")
+            }
         }
         // A quarter of the period at most, as the folds.
         if let Err(e) = prune_log(store, pace.log_retention, pace.every / 4) {
+            metrics::counter!(crate::metrics::STORE_ERRORS, "op" => "prune").increment(1);
             error!(error = %e, "pruning the edit log failed; it is tried again after the next pass");
         }
     }
