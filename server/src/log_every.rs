@@ -42,16 +42,26 @@ impl LogEvery {
     }
 }
 
-/// Store failures outside a commit: a store that stopped answering fails
-/// every player's read, so one line a second stands for them all.
-static STORE_ERRORS: LogEvery = LogEvery::new(LOG_EVERY);
+/// Store failures outside a commit, one limiter per op: a store that
+/// stopped answering fails every player's read, so one line a second
+/// stands for them all, without hiding another op's failure.
+static STORE_ERRORS: [LogEvery; 3] = [
+    LogEvery::new(LOG_EVERY),
+    LogEvery::new(LOG_EVERY),
+    LogEvery::new(LOG_EVERY),
+];
 
 /// Counts a failed store operation (`op`: `read`, `regions`, `checkpoint`,
 /// `prune`; `strata_store_errors_total`) and logs `what` with `error`, at
-/// most one line a second for all of them.
+/// most one line a second for each of `read`, `regions` and the rest.
 pub fn store_error(op: &'static str, what: &str, error: &dyn std::fmt::Display) {
     metrics::counter!(crate::metrics::STORE_ERRORS, "op" => op).increment(1);
-    if let Some(folded) = STORE_ERRORS.event() {
+    let limiter = match op {
+        "read" => &STORE_ERRORS[0],
+        "regions" => &STORE_ERRORS[1],
+        _ => &STORE_ERRORS[2],
+    };
+    if let Some(folded) = limiter.event() {
         tracing::error!(%error, folded, "{what}");
     }
 }

@@ -472,12 +472,12 @@ fn pg_restore(
 }
 
 /// A restore into a database that holds a world, through a data dir
-/// without that world's certificate and secret (a new node's), makes none:
-/// refused without `--force`, and with it refused for the missing files,
-/// which must be copied from a node of that world.
+/// without that world's certificate and secret (a new node's), is refused
+/// without `--force` before anything is made there; with it (a lost node's
+/// recovery) the world is replaced and the data dir gets new ones.
 #[test]
-fn a_postgres_restore_beside_a_world_makes_no_identity_of_its_own() {
-    let Some(db) = database("a_postgres_restore_beside_a_world_makes_no_identity") else {
+fn a_postgres_restore_beside_a_world_makes_nothing_unless_forced() {
+    let Some(db) = database("a_postgres_restore_beside_a_world_makes_nothing") else {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
@@ -496,10 +496,10 @@ fn a_postgres_restore_beside_a_world_makes_no_identity_of_its_own() {
     let err = format!("{:#}", restore(false).unwrap_err());
     assert!(err.contains("already holds a world"), "{err}");
     assert!(!node.exists(), "nothing made");
-    let err = format!("{:#}", restore(true).unwrap_err());
-    assert!(err.contains("auth.secret is missing"), "{err}");
-    assert!(!node.join("auth.secret").exists() && !node.join("cert.der").exists());
     assert_eq!(pg_world(&db).0, "9", "the old world stays");
+    assert_eq!(restore(true).unwrap(), 5);
+    assert!(node.join("auth.secret").exists() && node.join("cert.der").exists());
+    assert_eq!(pg_world(&db).0, "20");
 }
 
 #[test]
@@ -802,6 +802,7 @@ fn an_offline_postgres_snapshot_and_running_servers_keep_off_each_other() {
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
     let create = |out: &str| {
         snapshot_cmd::create(&snapshot_cmd::CreateArgs {
+            config: None,
             out: tmp.path().join(out),
             target: strata_server::admin::remote::TargetArgs {
                 data_dir: Some(data.clone()),

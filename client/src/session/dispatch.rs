@@ -90,6 +90,7 @@ pub(super) async fn dispatch_cluster(
         awaited: JoinSet::new(),
         tasks: HashMap::new(),
         lanes: BTreeMap::new(),
+        after_sizing: VecDeque::new(),
     };
     loop {
         tokio::select! {
@@ -115,8 +116,8 @@ pub(super) async fn dispatch_cluster(
 
 /// A region's edits, in order: the first of them in flight (or being sent
 /// again), the others waiting. `None`: before any node told the region
-/// size; while edits wait there, new ones join them (sorted into regions,
-/// one sent before its region was known could be overtaken).
+/// size; edits taken while those wait go by region once they are all
+/// answered (one sent before its region was known is not overtaken).
 type Lane = Option<(i32, i32)>;
 
 /// An edit on its way: sent to `tried` in order, the last of them now;
@@ -149,15 +150,20 @@ struct Edits<'a> {
     /// end without its value.
     tasks: HashMap<tokio::task::Id, (Lane, u64, SocketAddr)>,
     lanes: BTreeMap<Lane, VecDeque<(u64, Edit)>>,
+    /// Edits of known regions taken while the `None` lane was busy.
+    after_sizing: VecDeque<(u64, Edit)>,
 }
 
 impl Edits<'_> {
     /// An edit the game made: sent now, or after those of its region.
     async fn take(&mut self, ticket: u64, edit: Edit) {
-        let lane = match self.lanes.contains_key(&None) {
-            true => None,
-            false => self.cluster.region_key(edit_anchor(&edit).chunk()),
-        };
+        let lane = self.cluster.region_key(edit_anchor(&edit).chunk());
+        // Edits taken before the region size was known may be of any
+        // region: later ones wait until they are answered.
+        if lane.is_some() && (self.lanes.contains_key(&None) || !self.after_sizing.is_empty()) {
+            self.after_sizing.push_back((ticket, edit));
+            return;
+        }
         if let Some(waiting) = self.lanes.get_mut(&lane) {
             waiting.push_back((ticket, edit));
             return;
@@ -278,26 +284,32 @@ impl Edits<'_> {
     async fn finish(&mut self, lane: Lane, ticket: u64, answer: Answer) {
         let mut done = Some((ticket, answer));
         while let Some((ticket, answer)) = done.take() {
-            if let Err(e @ (ClientError::Timeout(_) | ClientError::Closed(_))) = &answer {
-                let why = e.to_string();
-                for (t, _) in self
-                    .lanes
-                    .get_mut(&lane)
-                    .map(std::mem::take)
-                    .unwrap_or_default()
-                {
+            let unanswered = match &answer {
+                Err(e @ (ClientError::Timeout(_) | ClientError::Closed(_))) => Some(e.to_string()),
+                _ => None,
+            };
+            let _ = self.events.send(verdict_event(ticket, answer));
+            if let Some(why) = unanswered {
+                let waiting = self.lanes.get_mut(&lane).map(std::mem::take);
+                for (t, _) in waiting.unwrap_or_default() {
                     let _ = self.events.send(Event::EditFailed {
                         ticket: t,
                         error: format!("an earlier edit of its region got no answer: {why}"),
                     });
                 }
             }
-            let _ = self.events.send(verdict_event(ticket, answer));
             match self.lanes.get_mut(&lane).and_then(VecDeque::pop_front) {
                 Some((ticket, edit)) => done = self.start(ticket, edit, lane).await,
                 None => {
                     self.lanes.remove(&lane);
                 }
+            }
+        }
+        if lane.is_none() && !self.lanes.contains_key(&None) {
+            // The edits taken before the region size was known are all
+            // answered: those taken since go, by region.
+            for (ticket, edit) in std::mem::take(&mut self.after_sizing) {
+                Box::pin(self.take(ticket, edit)).await;
             }
         }
     }

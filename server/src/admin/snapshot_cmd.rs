@@ -53,6 +53,11 @@ pub struct CreateArgs {
     /// runs (0: the server's default).
     #[arg(long, default_value_t = 0)]
     pub max_pending_chunks: u32,
+    /// Offline: the server's config, whose spawn protection a world whose
+    /// zones never changed has [default: the data dir's strata.toml, else
+    /// the defaults].
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -274,7 +279,12 @@ pub fn create(args: &CreateArgs) -> anyhow::Result<Created> {
             let store = open_offline_store(&dir)?;
             // One moment of the world: no server writes it meanwhile.
             store.hold_alone()?;
-            create_offline(&*store, &args.out, &data_dir_config(&dir)?)
+            let cfg = match &args.config {
+                Some(path) => ServerConfig::load(Some(path))
+                    .with_context(|| format!("loading {}", path.display()))?,
+                None => data_dir_config(&dir)?,
+            };
+            create_offline(&*store, &args.out, &cfg)
         }
         Target::Online {
             server,
@@ -502,11 +512,18 @@ fn restore_postgres(args: &RestoreArgs, cfg: &ServerConfig, total: u64) -> anyho
              keeping its bans and revocations (stop every node first)"
         );
     }
-    // Beside a world already there, the data dir needs that world's
-    // certificate and secret (copied from another node): new ones would
-    // sign tokens and tickets the other nodes refuse.
-    DataDir::open_or_init_beside(&args.data_dir, &cfg.tls.extra_names, holds.as_deref())
+    // Refused without --force, a world already there is replaced with it:
+    // a data dir without a certificate and secret gets new ones (a lost
+    // node's recovery), which every other node must then be given.
+    let (_, made) = DataDir::open_or_init(&args.data_dir, &cfg.tls.extra_names)
         .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
+    if made.created_anything() && holds.is_some() {
+        eprintln!(
+            "warning: {} had no certificate or secret; new ones were made: copy them to every \
+             other node of this world ({made})",
+            args.data_dir.display()
+        );
+    }
     // One transaction: cut short, the store keeps the world it had.
     let target = store.import_in_one_transaction(args.force);
     let bar = progress(Some(total), "restore {bar:40} {pos}/{len} chunks {eta}");

@@ -49,7 +49,7 @@ async fn wait_for_signal() -> anyhow::Result<&'static str> {
 /// left out, as a peer with no login (even one faking its address) can
 /// draw one per packet it sends; Strata logs the refusals it makes itself,
 /// at most one line a second each.
-const DEFAULT_LOG_FILTER: &str = "info,quinn_proto=error,quinn=error,rustls=error";
+const DEFAULT_LOG_FILTER: &str = "info,quinn_proto=error,quinn=error,quinn_udp=warn,rustls=error";
 
 fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()

@@ -37,6 +37,10 @@ pub const SNAPSHOT_STREAM_QUEUE: usize = 64;
 /// Admin logins refused for a player's token: any player can try at will.
 static NOT_ADMIN_REFUSALS: crate::log_every::LogEvery =
     crate::log_every::LogEvery::new(crate::log_every::LOG_EVERY);
+/// Admin logins refused for a ban or revocation: apart from players', so a
+/// flood of banned players hides no admin's.
+static DENIED_ADMIN_REFUSALS: crate::log_every::LogEvery =
+    crate::log_every::LogEvery::new(crate::log_every::LOG_EVERY);
 /// How often an admin session checks its token again (expiry, bans,
 /// revocations) while it waits for a request; it also does before each one.
 pub const ADMIN_RECHECK_PERIOD: Duration = Duration::from_secs(2);
@@ -138,7 +142,7 @@ pub async fn run(
     }
     if let Err(denied) = ctx.admitted(&claims) {
         super::session::refused_login("denied");
-        if let Some(refused) = super::session::DENIED_REFUSALS.event() {
+        if let Some(refused) = DENIED_ADMIN_REFUSALS.event() {
             warn!(admin = %claims.player, %denied, refused, "refused a denied admin");
         }
         return refuse(&conn, stream, ErrorCode::Forbidden, &denied.to_string()).await;

@@ -387,7 +387,7 @@ enum End {
 static TOKEN_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
 /// Logins refused for a valid token whose player or token is denied (a
 /// ban, a revocation): any holder of one can retry at will.
-pub(super) static DENIED_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
+static DENIED_REFUSALS: LogEvery = LogEvery::new(crate::log_every::LOG_EVERY);
 
 /// Counts a login refused for `reason` (`strata_connections_refused_total`).
 pub(super) fn refused_login(reason: &'static str) {
