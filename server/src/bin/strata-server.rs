@@ -12,9 +12,8 @@ use tracing_subscriber::EnvFilter;
 
 /// mimalloc: the tick's meshes, frames and QUIC buffers allocate and free
 /// across threads all the time, where glibc's malloc spent about 10 % of
-/// the server's CPU at 500 bots (BENCHMARKS.md). Built without its
-/// `madvise(MADV_HUGEPAGE)` (`no_thp`): zeroing huge pages on first touch
-/// cost more than their TLB savings at 500 bots.
+/// the server's CPU at 500 bots (BENCHMARKS.md). Its transparent huge
+/// pages stay: turning them off did not pay (BENCHMARKS.md, session 47).
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
