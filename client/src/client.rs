@@ -38,6 +38,11 @@ pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
 pub const EDIT_TIMEOUT: Duration = Duration::from_secs(30);
 /// Frames the client may queue on its control stream.
 pub const CONTROL_QUEUE: usize = 256;
+/// Longest a request (an edit, a subscription, a resync...) waits for room
+/// in the control queue: a server that stops reading it (no stream credit)
+/// fails the request with [`ClientError::Timeout`] instead of holding the
+/// caller, and the request is not sent.
+pub const SEND_TIMEOUT: Duration = Duration::from_secs(5);
 /// Delta arrival records kept for latency reports, when recording
 /// ([`ClientOptions::record_arrivals`]).
 pub const MAX_ARRIVALS: usize = 1 << 20;
@@ -483,12 +488,16 @@ impl Client {
     async fn send(&self, msg: &ClientMessage) -> Result<(), ClientError> {
         let frame = encode_frame(msg, Direction::ClientToServer)
             .map_err(|e| ClientError::Protocol(e.to_string()))?;
-        self.bytes_out
-            .fetch_add(frame.len() as u64, Ordering::Relaxed);
-        self.control
-            .send(Bytes::from(frame))
-            .await
-            .map_err(|_| self.gone())
+        let len = frame.len() as u64;
+        // A send cut short by the deadline queues nothing.
+        match tokio::time::timeout(SEND_TIMEOUT, self.control.send(Bytes::from(frame))).await {
+            Ok(Ok(())) => {
+                self.bytes_out.fetch_add(len, Ordering::Relaxed);
+                Ok(())
+            }
+            Ok(Err(_)) => Err(self.gone()),
+            Err(_) => Err(ClientError::Timeout("room on the control stream")),
+        }
     }
 
     fn gone(&self) -> ClientError {

@@ -55,9 +55,20 @@ struct Hostile {
 
 impl Hostile {
     fn start(greeting: ServerMessage, first: Vec<WorldUpdate>, then: Vec<WorldUpdate>) -> Self {
+        Self::start_with(&NetSection::default(), greeting, first, then)
+    }
+
+    /// [`Self::start`] with `net`'s transport settings. It reads nothing
+    /// on the control stream past the Hello.
+    fn start_with(
+        net: &NetSection,
+        greeting: ServerMessage,
+        first: Vec<WorldUpdate>,
+        then: Vec<WorldUpdate>,
+    ) -> Self {
         let runtime = tokio::runtime::Runtime::new().unwrap();
         let pair = CertPair::generate(&[]).unwrap();
-        let config = server_config(&pair, &NetSection::default(), &TlsSection::default()).unwrap();
+        let config = server_config(&pair, net, &TlsSection::default()).unwrap();
         let _guard = runtime.enter();
         let server = quinn::Endpoint::server(config, "127.0.0.1:0".parse().unwrap()).unwrap();
         let addr = server.local_addr().unwrap().to_string();
@@ -202,4 +213,51 @@ fn chunks_past_what_any_view_covers_end_the_session() {
     assert_eq!(stats(s).chunks_held, max as u64);
     // SAFETY: `s` is live and nothing else uses it.
     unsafe { strata_session_free(s) };
+}
+
+/// A server that stops reading the control stream (it grants no more
+/// stream credit) fails the client's requests once `SEND_TIMEOUT` passes,
+/// each unsent, instead of holding the caller for good (a cluster
+/// session's dispatcher, which serves every node, included).
+#[test]
+fn a_server_that_stops_reading_fails_requests_instead_of_holding_them() {
+    use strata_client::client::{ClientError, SEND_TIMEOUT};
+    let net = NetSection {
+        stream_receive_window: 1024,
+        ..NetSection::default()
+    };
+    let seed = 7;
+    let server = Hostile::start_with(
+        &net,
+        welcome(2, seed, format!("seed = {seed}\n")),
+        Vec::new(),
+        Vec::new(),
+    );
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    runtime.block_on(async {
+        let addr = server.addr.parse().unwrap();
+        let client = strata_client::Client::connect(addr, &server.cert, "token")
+            .await
+            .unwrap();
+        let edit =
+            strata_client::edits::mine(strata_client::glam::DVec3::new(0.0, 10.0, 0.0), 1.0, 60)
+                .unwrap();
+        let mut sent = 0;
+        let err = loop {
+            let started = Instant::now();
+            let submitted = tokio::time::timeout(WAIT, client.submit(edit.clone()))
+                .await
+                .expect("a request held past WAIT");
+            match submitted {
+                Ok(_) => sent += 1,
+                Err(e) => {
+                    assert!(started.elapsed() >= SEND_TIMEOUT);
+                    break e;
+                }
+            }
+            assert!(sent < 100_000, "the window never filled");
+        };
+        assert!(matches!(err, ClientError::Timeout(_)), "{err}");
+        assert!(sent >= strata_client::client::CONTROL_QUEUE, "{sent}");
+    });
 }
