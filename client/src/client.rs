@@ -1035,8 +1035,8 @@ async fn read_control(
                     all.push(r);
                 }
             }
-            Ok(Some(ServerMessage::PositionRefused { seq, reason })) => {
-                shared.notice(Notice::PositionRefused { seq, reason });
+            Ok(Some(ServerMessage::PositionRefused { seq, reason, at })) => {
+                shared.notice(Notice::PositionRefused { seq, reason, at });
             }
             Ok(Some(ServerMessage::RegionOwners {
                 region_chunks,

@@ -4,6 +4,7 @@
 use std::collections::VecDeque;
 
 use strata_protocol::PositionRefusal;
+use strata_terrain::edit::FixedVec3;
 use strata_terrain::ChunkPos;
 
 /// Notices a client keeps untaken; past it the oldest goes.
@@ -13,9 +14,15 @@ pub const MAX_NOTICES: usize = 1024;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Notice {
     /// Position report `seq` was refused; the server keeps the previous
-    /// position. Not every refused report is answered (the server bounds
-    /// the rate), and stale ones never are.
-    PositionRefused { seq: u32, reason: PositionRefusal },
+    /// position, `at` (none before the first). Not every refused report is
+    /// answered (the server bounds the rate), and stale ones never are. A
+    /// client whose reports go on being refused moves the player back to
+    /// `at`, or the server refuses every report as it walks on.
+    PositionRefused {
+        seq: u32,
+        reason: PositionRefusal,
+        at: Option<FixedVec3>,
+    },
     /// Every chunk of the view around `center` (chunk coordinates) at
     /// `radius` has arrived, except those the client forgot.
     ViewLoaded { center: ChunkPos, radius: u8 },

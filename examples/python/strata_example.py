@@ -38,6 +38,8 @@ class Event(C.Structure):
         ("message", C.c_char * 256),
         ("position_refusal", C.c_int),
         ("radius", C.c_uint8),
+        ("held", C.c_double * 3),
+        ("held_known", C.c_uint8),
     ]
 
 

@@ -18,7 +18,7 @@ pub use capabilities::{CAP_OP_REPLAY, CAP_SNAPSHOTS};
 pub use codec::{decode, encode, CodecError, Direction};
 pub use frame::{encode_frame, FrameBuffer, FrameError};
 pub use messages::*;
-pub use reject::reject_label;
+pub use reject::{refusal_label, reject_label};
 pub use version::{ALPN, PROTOCOL_VERSION};
 #[cfg(feature = "quic")]
 pub mod client_tls;

@@ -309,10 +309,13 @@ pub enum ServerMessage {
     RequestRefused(Refusal),
     /// The position report `seq` was refused; the previous position stays.
     /// Rate-bounded by the server: not every refused report is answered,
-    /// and stale (older-seq) reports never are.
+    /// and stale (older-seq) reports never are. `at` is the position the
+    /// server holds for the player (none before its first): a client whose
+    /// reports keep being refused moves the player back there.
     PositionRefused {
         seq: u32,
         reason: PositionRefusal,
+        at: Option<FixedVec3>,
     },
     /// Cluster nodes only: who writes each region the session's view
     /// overlaps (at most [`crate::limits::MAX_REGION_OWNERS`]). Sent when
@@ -349,6 +352,10 @@ pub enum PositionRefusal {
     /// A coordinate beyond 2^22 voxels, or a body voxel outside the
     /// world's vertical bounds.
     OutOfBounds,
+    /// Every way from the last accepted position to this one (straight,
+    /// or up or down first) passes the body through solid terrain;
+    /// `voxel` is where the straight one does.
+    PathBlocked { voxel: VoxelPos },
 }
 
 /// Why a request other than an edit was refused.

@@ -1,7 +1,19 @@
-//! Short stable names for edit rejection reasons: the server's metric
-//! labels and the load tester's counters use the same words.
+//! Short stable names for edit rejection reasons and position refusals:
+//! the server's metric labels and the load tester's counters use the same
+//! words.
 
-use crate::RejectReason;
+use crate::{PositionRefusal, RejectReason};
+
+/// Metric label for a position refusal.
+pub fn refusal_label(r: &PositionRefusal) -> &'static str {
+    match r {
+        PositionRefusal::TooFast { .. } => "too_fast",
+        PositionRefusal::InsideSolid { .. } => "inside_solid",
+        PositionRefusal::OutsideSpawn { .. } => "outside_spawn",
+        PositionRefusal::OutOfBounds => "bounds",
+        PositionRefusal::PathBlocked { .. } => "path_blocked",
+    }
+}
 
 /// Metric label for a rejection reason.
 pub fn reject_label(r: &RejectReason) -> &'static str {

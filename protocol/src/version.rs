@@ -8,5 +8,6 @@ pub const ALPN: &[u8] = b"strata/1";
 /// 5 added `RegionElsewhere`, 6 added `RegionOwners`, `Arrive` and
 /// `Arrived`, 7 added `RejectReason::NodeFull`, 8 added
 /// `TicketRefusal::NotClustered` and `RegionOwners::node`; tickets are
-/// bound to their world).
-pub const PROTOCOL_VERSION: u32 = 8;
+/// bound to their world; 9 added `PositionRefused::at` and
+/// `PositionRefusal::PathBlocked`).
+pub const PROTOCOL_VERSION: u32 = 9;

@@ -115,10 +115,19 @@ fn server_messages() -> Vec<ServerMessage> {
                 z: 4,
                 radius: 2048,
             },
+            at: None,
         },
         ServerMessage::PositionRefused {
             seq: 1,
             reason: PositionRefusal::OutOfBounds,
+            at: Some(FixedVec3::from_voxels(-3, 40, 7)),
+        },
+        ServerMessage::PositionRefused {
+            seq: 2,
+            reason: PositionRefusal::PathBlocked {
+                voxel: strata_terrain::VoxelPos::new(-1, 2, 3),
+            },
+            at: Some(FixedVec3::from_voxels(0, 1, 3)),
         },
     ]
 }
@@ -207,7 +216,7 @@ fn messages_round_trip() {
 #[test]
 fn golden_bytes_pin_the_wire_format() {
     // PROTOCOL.md walks through these bytes; changing them breaks clients.
-    assert_eq!(PROTOCOL_VERSION, 8, "PROTOCOL.md names version 8");
+    assert_eq!(PROTOCOL_VERSION, 9, "PROTOCOL.md names version 9");
     let hello = ClientMessage::Hello(Hello {
         protocol_version: PROTOCOL_VERSION,
         token: "t".into(),
@@ -216,7 +225,7 @@ fn golden_bytes_pin_the_wire_format() {
     // Capabilities come last: varint 3.
     assert_eq!(
         encode_frame(&hello, Direction::ClientToServer).unwrap(),
-        [5, 0, 0, 0, 0, 8, 1, b't', 3]
+        [5, 0, 0, 0, 0, 9, 1, b't', 3]
     );
     // Op: variant 7, seq, the edit as in `Edit`, then the chunk list.
     let op = WorldUpdate::Op(OpUpdate {
@@ -309,21 +318,37 @@ fn golden_bytes_of_version_4_messages() {
             distance: Fixed(2560),
             allowed: Fixed(768),
         },
+        at: None,
     };
-    // Variant 6, seq 9, TooFast (0), 2560 -> 5120 = fb 00 14, 768 -> 1536.
+    // Variant 6, seq 9, TooFast (0), 2560 -> 5120 = fb 00 14, 768 -> 1536,
+    // no position held (0).
     assert_eq!(
         encode(&too_fast, Direction::ServerToClient).unwrap(),
-        [6, 9, 0, 0xfb, 0x00, 0x14, 0xfb, 0x00, 0x06]
+        [6, 9, 0, 0xfb, 0x00, 0x14, 0xfb, 0x00, 0x06, 0]
     );
+    let feet = FixedVec3::new(Fixed(384), Fixed(10240), Fixed(-512));
     let solid = ServerMessage::PositionRefused {
         seq: 2,
         reason: PositionRefusal::InsideSolid {
             voxel: strata_terrain::VoxelPos::new(1, -1, 0),
         },
+        at: Some(feet),
     };
+    // ... then Some (1) and the feet as in `PositionUpdate`.
     assert_eq!(
         encode(&solid, Direction::ServerToClient).unwrap(),
-        [6, 2, 1, 2, 1, 0]
+        [6, 2, 1, 2, 1, 0, 1, 0xfb, 0x00, 0x03, 0xfb, 0x00, 0x50, 0xfb, 0xff, 0x03]
+    );
+    let blocked = ServerMessage::PositionRefused {
+        seq: 3,
+        reason: PositionRefusal::PathBlocked {
+            voxel: strata_terrain::VoxelPos::new(1, -1, 0),
+        },
+        at: None,
+    };
+    assert_eq!(
+        encode(&blocked, Direction::ServerToClient).unwrap(),
+        [6, 3, 4, 2, 1, 0, 0]
     );
     let too_large = ServerMessage::RequestRefused(Refusal::ForgetTooLarge {
         chunks: 2000,

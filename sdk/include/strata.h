@@ -160,6 +160,9 @@ typedef enum {
   STRATA_POSITION_REFUSAL_OUTSIDE_SPAWN = 3,
   // Outside the world's bounds.
   STRATA_POSITION_REFUSAL_OUT_OF_BOUNDS = 4,
+  // Every way from the held position passes the body through solid
+  // terrain (a wall): move the player back to `held`.
+  STRATA_POSITION_REFUSAL_PATH_BLOCKED = 5,
 } StrataPositionRefusal;
 
 // Kinds of `StrataEdit`.
@@ -291,6 +294,13 @@ typedef struct {
   StrataPositionRefusal position_refusal;
   // VIEW_LOADED: the view's radius in chunks (`chunk` is its centre).
   uint8_t radius;
+  // POSITION_REFUSED: the feet position (voxels) the server holds for
+  // the player and checks each report from. Move the player back there
+  // when reports go on being refused.
+  double held[3];
+  // POSITION_REFUSED: 1 when `held` is set; 0 before the server holds
+  // any position for the player.
+  uint8_t held_known;
 } StrataEvent;
 
 // The replica's counters, from `strata_stats`.

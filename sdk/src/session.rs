@@ -462,6 +462,7 @@ fn refusal_code(r: &PositionRefusal) -> StrataPositionRefusal {
         PositionRefusal::InsideSolid { .. } => StrataPositionRefusal::InsideSolid,
         PositionRefusal::OutsideSpawn { .. } => StrataPositionRefusal::OutsideSpawn,
         PositionRefusal::OutOfBounds => StrataPositionRefusal::OutOfBounds,
+        PositionRefusal::PathBlocked { .. } => StrataPositionRefusal::PathBlocked,
     }
 }
 
@@ -478,6 +479,8 @@ fn empty_event() -> StrataEvent {
         message: [0; STRATA_MESSAGE_LEN],
         position_refusal: StrataPositionRefusal::None,
         radius: 0,
+        held: [0.0; 3],
+        held_known: 0,
     }
 }
 
@@ -547,10 +550,13 @@ pub unsafe extern "C" fn strata_poll(
                 ev.kind = StrataEventKind::ChunkChanged;
                 ev.chunk = [pos.x, pos.y, pos.z];
             }
-            Some(Event::PositionRefused { seq, reason }) => {
+            Some(Event::PositionRefused { seq, reason, at }) => {
                 ev.kind = StrataEventKind::PositionRefused;
                 ev.seq = u64::from(seq);
                 ev.position_refusal = refusal_code(&reason);
+                if let Some(at) = at {
+                    (ev.held, ev.held_known) = (at.to_array(), 1);
+                }
                 set_message(&mut ev, &format!("{reason:?}"));
             }
             Some(Event::ViewLoaded { center, radius }) => {

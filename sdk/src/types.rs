@@ -49,6 +49,9 @@ pub enum StrataPositionRefusal {
     OutsideSpawn = 3,
     /// Outside the world's bounds.
     OutOfBounds = 4,
+    /// Every way from the held position passes the body through solid
+    /// terrain (a wall): move the player back to `held`.
+    PathBlocked = 5,
 }
 
 /// Why the server refused an edit.
@@ -108,6 +111,13 @@ pub struct StrataEvent {
     pub position_refusal: StrataPositionRefusal,
     /// VIEW_LOADED: the view's radius in chunks (`chunk` is its centre).
     pub radius: u8,
+    /// POSITION_REFUSED: the feet position (voxels) the server holds for
+    /// the player and checks each report from. Move the player back there
+    /// when reports go on being refused.
+    pub held: [f64; 3],
+    /// POSITION_REFUSED: 1 when `held` is set; 0 before the server holds
+    /// any position for the player.
+    pub held_known: u8,
 }
 
 /// Kinds of `StrataEdit`.

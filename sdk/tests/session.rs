@@ -157,6 +157,46 @@ fn a_session_edits_sees_its_changes_and_ends_with_disconnected() {
 /// `strata_connect_with` through the C ABI: a thin, op-replaying session
 /// loads its view as whole chunks (no generator) and takes another
 /// player's edit as an op, replayed and hash-checked.
+/// A refused position through the C ABI: the event names the rule and
+/// where the server holds the player, to move back to.
+#[test]
+fn a_refused_position_through_the_c_abi_says_where_the_player_is_held() {
+    use strata::*;
+
+    let server = Server::start();
+    let c = ffi::connect(&server, "c-walker");
+    // High in the air above the spawn square: accepted.
+    // SAFETY: `c` is the live session made above.
+    assert_eq!(
+        unsafe { strata_set_position(c, 3.5, 200.0, 3.5) },
+        StrataStatus::Ok
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    // 600 voxels on in 0.3 s: too fast.
+    // SAFETY: as above.
+    assert_eq!(
+        unsafe { strata_set_position(c, 3.5, 200.0, 603.5) },
+        StrataStatus::Ok
+    );
+    let start = Instant::now();
+    let ev = loop {
+        let ev = ffi::poll(c);
+        if ev.kind == StrataEventKind::PositionRefused {
+            break ev;
+        }
+        assert!(start.elapsed() < WAIT, "no refusal came");
+        if ev.kind == StrataEventKind::None {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    };
+    assert_eq!(ev.seq, 2, "the second report");
+    assert_eq!(ev.position_refusal, StrataPositionRefusal::TooFast);
+    assert_eq!(ev.held_known, 1);
+    assert_eq!(ev.held, [3.5, 200.0, 3.5]);
+    // SAFETY: `c` is live and nothing else uses it.
+    unsafe { strata_session_free(c) };
+}
+
 #[test]
 fn a_thin_op_replay_session_through_the_c_abi() {
     use strata::*;
@@ -234,7 +274,10 @@ fn a_session_hears_its_view_loaded_its_refused_positions_and_forgets_chunks() {
     // Far outside the spawn square: refused, and told why.
     s.set_position(DVec3::new(90_000.5, 40.0, 0.5)).unwrap();
     let reason = wait_for(&s, &mut seen, |e| match e {
-        Event::PositionRefused { seq: 1, reason } => Some(*reason),
+        Event::PositionRefused { seq: 1, reason, at } => {
+            assert_eq!(*at, None, "no position held before the first");
+            Some(*reason)
+        }
         _ => None,
     });
     assert!(

@@ -820,6 +820,17 @@ impl ServerConfig {
             1,
             vc::MAX_MAX_MOVE_MS,
         )?;
+        let longest = v.longest_move();
+        if longest > crate::validate::position::MAX_SWEPT_MOVE {
+            return Err(invalid(
+                "validation.max_move_ms",
+                format!(
+                    "with max_speed, speed_slack_factor and speed_slack_voxels it allows \
+                     moves of {longest:.0} voxels, more than the {} a move's path may be",
+                    crate::validate::position::MAX_SWEPT_MOVE
+                ),
+            ));
+        }
         let spawn = &self.validation.spawn;
         let max = crate::validate::spawn::MAX_SPAWN_COORD;
         range("validation.spawn.x", spawn.x, -max, max)?;

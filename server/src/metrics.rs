@@ -73,6 +73,7 @@ pub const DELTAS_SENT: &str = "strata_deltas_sent_total";
 pub const FANOUT_BATCHES: &str = "strata_fanout_batches_total";
 pub const OPS_SENT: &str = "strata_ops_sent_total";
 pub const POSITIONS_DROPPED: &str = "strata_positions_dropped_total";
+pub const POSITIONS_REFUSED: &str = "strata_positions_refused_total";
 pub const REQUESTS_THROTTLED: &str = "strata_requests_throttled_total";
 pub const SESSION_QUEUE_FULL: &str = "strata_session_queue_full_total";
 pub const RESYNCS: &str = "strata_resyncs_total";
@@ -164,6 +165,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         POSITIONS_DROPPED,
         "Position datagrams dropped: reason=rate past the session's [validation.position_rate], queue_full when the engine's queue was full, placement past the player's [validation.placement_rate] (reports of a session with no position yet)"
+    );
+    metrics::describe_counter!(
+        POSITIONS_REFUSED,
+        "Position reports refused by a rule, by reason: too_fast, inside_solid, path_blocked (a wall between the held position and the report), outside_spawn, bounds; stale ones are not counted"
     );
     metrics::describe_counter!(
         DELTAS_SENT,

@@ -391,6 +391,13 @@ fn bad_values_name_their_field() {
             "[validation]\nmax_move_ms = 60001",
             "validation.max_move_ms",
         ),
+        // In range each, but a move of 20 s at 20 voxels/s is longer than
+        // a path may be swept (502 voxels, 256 at most).
+        (
+            "[validation]\nmax_move_ms = 20000",
+            "validation.max_move_ms",
+        ),
+        ("[validation]\nmax_speed = 200.0", "validation.max_move_ms"),
     ];
     for (text, field) in cases {
         assert_eq!(invalid_field(text), field, "config {text:?}");

@@ -386,6 +386,38 @@ async fn the_send_interval_spaces_a_watchers_writes() {
     .expect("test finished in time");
 }
 
+/// A player ("ana") and an admin ("root") standing at [`spot`], and a
+/// brick wall three voxels ahead of them the admin built, from below the
+/// ground to `top` voxels above it. Returns their feet and the ground.
+async fn by_a_wall(
+    server: &strata_server::app::Running,
+    top: i32,
+) -> (Client, Client, FixedVec3, VoxelPos) {
+    let ana = connect(server, "ana", Role::Player).await;
+    let root = connect(server, "root", Role::Admin).await;
+    let (feet, ground) = spot();
+    ana.send_position(feet).unwrap();
+    root.send_position(feet).unwrap();
+    let (x, y, z) = (ground.x, ground.y, ground.z);
+    assert!(
+        eventually(Duration::from_secs(10), || ana
+            .replica()
+            .get(ground.chunk())
+            .is_some())
+        .await
+    );
+    let wall = Edit::FillBox {
+        min: VoxelPos::new(x - 6, y - 3, z + 3),
+        max: VoxelPos::new(x + 6, y + top, z + 3),
+        material: strata_terrain::material::ids::BRICK,
+    };
+    assert!(matches!(
+        root.edit(wall).await.unwrap(),
+        Verdict::Accepted { .. }
+    ));
+    (ana, root, feet, ground)
+}
+
 /// Line of sight over QUIC: checked on the workers for the edits the
 /// engine admitted, against the terrain as it stands then.
 #[tokio::test]
@@ -393,19 +425,8 @@ async fn an_edit_behind_a_wall_is_refused_for_line_of_sight() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
         let server = start(dir.path()).await;
-        let ana = connect(&server, "ana", Role::Player).await;
-        let root = connect(&server, "root", Role::Admin).await;
-        let (feet, ground) = spot();
-        ana.send_position(feet).unwrap();
-        root.send_position(feet).unwrap();
+        let (ana, root, _, ground) = by_a_wall(&server, 9).await;
         let (x, y, z) = (ground.x, ground.y, ground.z);
-        assert!(
-            eventually(Duration::from_secs(10), || ana
-                .replica()
-                .get(ground.chunk())
-                .is_some())
-            .await
-        );
         let g = Generator::fractal(GenParams::default()).unwrap();
         let behind = |dx: i32| {
             let (tx, tz) = (x + dx, z + 8);
@@ -415,17 +436,6 @@ async fn an_edit_behind_a_wall_is_refused_for_line_of_sight() {
                 strength: 255,
             }
         };
-        // A brick wall three voxels ahead, from below the ground to well
-        // above the eye.
-        let wall = Edit::FillBox {
-            min: VoxelPos::new(x - 6, y - 3, z + 3),
-            max: VoxelPos::new(x + 6, y + 9, z + 3),
-            material: strata_terrain::material::ids::BRICK,
-        };
-        assert!(matches!(
-            root.edit(wall).await.unwrap(),
-            Verdict::Accepted { .. }
-        ));
         for dx in [0, 1] {
             assert_eq!(
                 ana.edit(behind(dx)).await.unwrap(),
@@ -442,6 +452,55 @@ async fn an_edit_behind_a_wall_is_refused_for_line_of_sight() {
             ana.edit(near).await.unwrap(),
             Verdict::Accepted { .. }
         ));
+        ana.close().await;
+        root.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// A position beyond a wall, within a move's reach: refused for its path,
+/// and the answer says where the server holds the player, from where its
+/// next report is checked.
+#[tokio::test]
+async fn a_walk_through_a_wall_is_refused_with_where_the_player_stands() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = start(dir.path()).await;
+        // Higher than a hop over either end.
+        let (ana, root, feet, ground) = by_a_wall(&server, 16).await;
+        let (x, z) = (ground.x, ground.z);
+        // Standing on the ground six voxels on, past the wall.
+        let g = Generator::fractal(GenParams::default()).unwrap();
+        let past =
+            FixedVec3::from_f64([x as f64, g.surface_height(x, z + 6) + 1.0, (z + 6) as f64])
+                .unwrap();
+        // Long enough since the last report for the distance.
+        tokio::time::sleep(Duration::from_millis(600)).await;
+        ana.send_position(past).unwrap();
+        let mut told = None;
+        assert!(
+            eventually(Duration::from_secs(10), || {
+                told = told.or_else(|| {
+                    std::iter::from_fn(|| ana.pop_notice()).find_map(|n| match n {
+                        strata_client_sim::Notice::PositionRefused { reason, at, .. } => {
+                            Some((reason, at))
+                        }
+                        _ => None,
+                    })
+                });
+                told.is_some()
+            })
+            .await
+        );
+        let (reason, at) = told.unwrap();
+        assert!(
+            matches!(reason, strata_protocol::PositionRefusal::PathBlocked { voxel }
+                if voxel.z == z + 3),
+            "{reason:?}"
+        );
+        assert_eq!(at, Some(feet), "held where it stood");
         ana.close().await;
         root.close().await;
         server.shutdown().await.unwrap();

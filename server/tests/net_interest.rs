@@ -422,9 +422,11 @@ async fn a_players_own_view_stays_within_reach_of_where_it_walks() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
         // View radius 2, hysteresis 2: a view reaches at most 4 chunks
-        // from the player. Fast walking, so one report crosses chunks.
+        // from the player. Fast walking, so one report crosses chunks (a
+        // move of 252 voxels at most, within the 256 a path is swept).
         let mut cfg = test_config(dir.path());
         cfg.validation.max_speed = 1000.0;
+        cfg.validation.max_move_ms = 200;
         let server = app::start(cfg).await.expect("server starts");
         let (feet, _) = spot(16, 16);
         let walker = connect(&server, "walker", Role::Player).await;
@@ -476,7 +478,9 @@ async fn a_players_own_view_stays_within_reach_of_where_it_walks() {
         // from the feet: it moves to the feet's chunk (radius kept), which
         // no longer holds the target even with its hysteresis.
         tokio::time::sleep(Duration::from_millis(200)).await;
-        let (away, _) = spot(-3 * 32 + 16, 16);
+        // High above the ground: the way up, then across, is clear.
+        let (mut away, _) = spot(-3 * 32 + 16, 16);
+        away.y = strata_terrain::Fixed::from_voxels(away.y.floor_voxel() + 40);
         walker.send_position(away).unwrap();
         let there = strata_terrain::VoxelPos::new(-80, 0, 16).chunk().x;
         assert!(

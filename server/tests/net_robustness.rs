@@ -388,11 +388,14 @@ async fn every_session_end_reaches_a_busy_engine_and_its_tasks_end() {
     .expect("test finished in time");
 }
 
-/// Refused-position notices taken from `c`.
-fn refused(c: &Client) -> Vec<(u32, PositionRefusal)> {
+/// Refused-position notices taken from `c`: the report, why, and where
+/// the server holds the player.
+fn refused(c: &Client) -> Vec<(u32, PositionRefusal, Option<FixedVec3>)> {
     std::iter::from_fn(|| c.pop_notice())
         .filter_map(|n| match n {
-            strata_client_sim::Notice::PositionRefused { seq, reason } => Some((seq, reason)),
+            strata_client_sim::Notice::PositionRefused { seq, reason, at } => {
+                Some((seq, reason, at))
+            }
             _ => None,
         })
         .collect()
@@ -421,7 +424,7 @@ async fn refused_positions_are_answered_at_a_bounded_rate() {
             z: 0,
             radius: 2048,
         };
-        assert_eq!(got, vec![(1, spawn)]);
+        assert_eq!(got, vec![(1, spawn, None)], "no position held yet");
         // A flood of 3000 bad reports over about 0.6 s.
         let started = std::time::Instant::now();
         for _ in 0..60 {
@@ -438,7 +441,7 @@ async fn refused_positions_are_answered_at_a_bounded_rate() {
             "{} answers to 3000 refused reports (at most {most})",
             flood.len()
         );
-        assert!(flood.iter().all(|(_, r)| *r == spawn));
+        assert!(flood.iter().all(|(_, r, _)| *r == spawn));
         c.ping(1).await.unwrap();
         assert!(!c.is_closed(), "the flood cost the session nothing");
         // A legal position, then a jump far too fast for the time since.
@@ -458,9 +461,9 @@ async fn refused_positions_are_answered_at_a_bounded_rate() {
             .await
         );
         assert!(
-            matches!(late[..], [(_, PositionRefusal::TooFast { distance, allowed })]
-                if distance > allowed),
-            "{late:?}"
+            matches!(late[..], [(_, PositionRefusal::TooFast { distance, allowed }, Some(at))]
+                if distance > allowed && at == feet),
+            "{late:?}: told where it stands"
         );
         c.close().await;
         server.shutdown().await.unwrap();

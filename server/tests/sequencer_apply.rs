@@ -341,7 +341,7 @@ fn assert_applied_on_stored(s: &Sequencer, out: &TickOutput, home: ChunkPos, sto
 fn store_backed_chunks_must_be_resident() {
     let mut s = store_backed(10);
     let p = at(1, X, 0, Z);
-    let need = s.chunks_needed_for_position(&p);
+    let need = s.chunks_needed_for_position(PLAYER, &p);
     assert_eq!(need, vec![ChunkPos::new(3, 0, 3)]);
     assert!(s.update_position(PLAYER, p, 0).is_err());
     for c in need {
@@ -391,7 +391,7 @@ fn store_backed_chunks_must_be_resident() {
 fn evictable() -> (Sequencer, Edit, ChunkPos, ChunkPos, Chunk) {
     let mut s = store_backed(0);
     let p = at(1, X, 0, Z);
-    for c in s.chunks_needed_for_position(&p) {
+    for c in s.chunks_needed_for_position(PLAYER, &p) {
         s.mark_absent(c);
     }
     s.update_position(PLAYER, p, 0).unwrap();
@@ -478,7 +478,7 @@ fn eviction_keeps_what_edits_awaiting_their_sight_check_read() {
 fn a_stored_chunk_changed_twice_in_a_tick_is_committed_as_one_delta() {
     let mut s = store_backed(0);
     let p = at(1, X, 0, Z);
-    for c in s.chunks_needed_for_position(&p) {
+    for c in s.chunks_needed_for_position(PLAYER, &p) {
         s.mark_absent(c);
     }
     s.update_position(PLAYER, p, 0).unwrap();

@@ -357,10 +357,12 @@ fn an_arrival_allows_the_tickets_age_and_no_silence_after_it() {
 }
 
 /// A join that arrives with an older ticket (retried after a failed one)
-/// finds the player farther than the ticket's capped age allows: refused
-/// at first, it catches up as it reports on.
+/// finds the player farther than the ticket's capped age allows: refused,
+/// and refused however long it reports on from there (refusals earn no
+/// time past the cap), until it moves back near the ticket's spot (where
+/// `PositionRefused::at` tells a client it stands).
 #[test]
-fn an_arrival_with_an_older_ticket_catches_up() {
+fn an_arrival_with_an_older_ticket_moves_back_to_it() {
     let mut s = fresh();
     s.session_left(PLAYER);
     s.session_joined(7, "p".into(), Role::Player);
@@ -369,53 +371,232 @@ fn an_arrival_with_an_older_ticket_catches_up() {
     // Issued 20 s before it is taken: 12 s of it and the 2 s cap count,
     // 352 voxels; the player walked 400 at 20 voxels/s.
     s.arrive(7, spot, 1_000, 21_000).unwrap();
-    let report = |i: u32| at(1 + i, HOME.0 + 400 + 2 * i as i32, 0, HOME.1);
-    assert!(matches!(
-        s.update_position(7, report(0), 21_000),
-        Err(PositionReject::TooFast { .. })
-    ));
-    let caught_up = (1..=200).find(|&i| {
-        s.precheck_position(7, &report(i), 21_000 + 100 * u64::from(i))
-            .and_then(|()| s.update_position(7, report(i), 21_000 + 100 * u64::from(i)))
-            .is_ok()
-    });
-    // 48 voxels behind, 0.5 gained a report.
-    assert_eq!(caught_up, Some(96));
+    let handle = |s: &mut Sequencer, report: PositionUpdate, now: u64| {
+        s.precheck_position(7, &report, now)
+            .and_then(|()| s.update_position(7, report, now))
+    };
+    for i in 0..200u32 {
+        let report = at(1 + i, HOME.0 + 400 + 2 * i as i32, 0, HOME.1);
+        assert!(
+            matches!(
+                handle(&mut s, report, 21_000 + 100 * u64::from(i)),
+                Err(PositionReject::TooFast { .. })
+            ),
+            "report {i}"
+        );
+    }
+    assert_eq!(s.position(7).unwrap().feet, spot, "held where it arrived");
+    // Back at the spot, then on from there.
+    handle(&mut s, at(201, HOME.0 + 1, 0, HOME.1), 41_000).unwrap();
+    handle(&mut s, at(202, HOME.0 + 3, 0, HOME.1), 41_100).unwrap();
 }
 
-/// A player whose reports went unhandled for longer than the cap while it
-/// walked (a stall of the server, a burst of lost datagrams) is refused,
-/// keeps its position, and catches up as it reports on: each refused
-/// report is credited the time since the one before.
+/// A player whose reports went unhandled for a while (a stall of the
+/// server, a burst of lost datagrams) is refused and keeps its position.
+/// Within `max_move_ms` it catches up as it reports on: each refused
+/// report is credited the time since the one before. Past it, refusals
+/// earn nothing more, and the player moves back to where it is held.
 #[test]
-fn a_player_refused_after_a_stall_catches_up_as_it_reports_on() {
+fn a_player_refused_after_a_stall_catches_up_within_the_cap() {
     let mut s = fresh();
     // As the engine handles a report: the rules that read no terrain first.
     let handle = |s: &mut Sequencer, report: PositionUpdate, now: u64| {
         s.precheck_position(PLAYER, &report, now)
             .and_then(|()| s.update_position(PLAYER, report, now))
     };
-    handle(&mut s, at(1, 0, 0, 0), 0).unwrap();
-    // 3 s at 20 voxels/s: 60 voxels, 52 allowed (the 2 s cap).
+    handle(&mut s, at(1, 0, 40, 0), 0).unwrap();
+    // 1.01 s: 27.25 voxels allowed (20 a second, a quarter more, 2 of
+    // slack) for 30.
     assert!(matches!(
-        handle(&mut s, at(2, 60, 0, 0), 3_000),
+        handle(&mut s, at(2, 30, 40, 0), 1_010),
         Err(PositionReject::TooFast { .. })
     ));
-    assert_eq!(
-        s.position(PLAYER).unwrap().feet,
-        FixedVec3::from_voxels(0, 0, 0)
-    );
     // On at full speed, a report every 100 ms: 2.5 voxels more allowed
-    // each time for 2 walked, so 8 voxels behind take 16 reports.
-    let mut caught_up = None;
-    for i in 1..=20 {
-        let report = at(2 + i, 60 + 2 * i as i32, 0, 0);
-        if handle(&mut s, report, 3_000 + 100 * i as u64).is_ok() {
-            caught_up = Some(i);
-            break;
-        }
+    // each time for 2 walked, so 2.75 voxels behind take 6 reports.
+    let caught_up = (1..=20).find(|&i| {
+        let report = at(2 + i, 30 + 2 * i as i32, 40, 0);
+        handle(&mut s, report, 1_010 + 100 * u64::from(i)).is_ok()
+    });
+    assert_eq!(caught_up, Some(6));
+
+    // 3 s unheard: 60 voxels, 52 allowed (the 2 s cap), and never more
+    // however long it reports on.
+    let held = s.position(PLAYER).unwrap();
+    let t0 = held.at_ms;
+    let x0 = held.feet.x.floor_voxel();
+    for i in 0..50u32 {
+        let report = at(100 + i, x0 + 60 + 2 * i as i32, 40, 0);
+        let r = handle(&mut s, report, t0 + 3_000 + 100 * u64::from(i));
+        assert!(
+            matches!(r, Err(PositionReject::TooFast { allowed, .. }) if allowed <= 52.0),
+            "report {i}: {r:?}"
+        );
     }
-    assert_eq!(caught_up, Some(16));
+    assert_eq!(s.position(PLAYER).unwrap().feet, held.feet);
+    handle(&mut s, at(200, x0 + 2, 40, 0), t0 + 8_000).unwrap();
+}
+
+/// Refusals earn no more than `max_move_ms`: a minute of refused reports
+/// does not buy a move of a minute's walk (through any wall).
+#[test]
+fn a_minute_of_refused_reports_buys_no_far_move() {
+    let mut s = fresh();
+    s.update_position(PLAYER, at(1, 0, 40, 0), 0).unwrap();
+    for i in 0..600u32 {
+        let now = 100 * u64::from(i + 1);
+        // Far off, each refused.
+        let far = at(2 + i, 5_000, 40, 0);
+        assert!(s.precheck_position(PLAYER, &far, now).is_err());
+    }
+    let r = s.precheck_position(PLAYER, &at(700, 100, 40, 0), 60_100);
+    assert!(
+        matches!(r, Err(PositionReject::TooFast { allowed, .. }) if allowed <= 52.0),
+        "{r:?}"
+    );
+}
+
+/// A wall between the held position and a report within speed's reach:
+/// refused whichever way the body could have gone, and the position stays.
+#[test]
+fn a_report_beyond_a_wall_is_refused_for_its_path() {
+    for thickness in [1, 5] {
+        let mut s = ready(ValidationConfig::default());
+        let (x, z) = HOME;
+        s.submit(
+            ADMIN,
+            req(1, fill((x + 3, 0, z - 8), (x + 2 + thickness, 6, z + 8))),
+            0,
+        )
+        .unwrap();
+        s.tick(0);
+        let beyond = at(2, x + 4 + thickness, 0, z);
+        let r = s.update_position(PLAYER, beyond, 1_000);
+        assert!(
+            matches!(r, Err(PositionReject::PathBlocked { voxel })
+                if voxel.x == x + 3 && voxel.z == z),
+            "{thickness} thick: {r:?}"
+        );
+        assert_eq!(
+            s.position(PLAYER).unwrap().feet,
+            FixedVec3::from_voxels(x, 0, z)
+        );
+        assert_eq!(
+            r.unwrap_err().refusal(),
+            Some(strata_protocol::PositionRefusal::PathBlocked {
+                voxel: VoxelPos::new(x + 3, 1, z)
+            })
+        );
+        // Over the top of it (7 voxels up): the way up is clear, so is the
+        // way across above the wall.
+        s.update_position(PLAYER, at(3, x + 4 + thickness, 7, z), 1_000)
+            .unwrap();
+        // And down again, by the way across first.
+        s.update_position(PLAYER, at(4, x + 5 + thickness, 0, z), 1_500)
+            .unwrap();
+    }
+}
+
+/// Over a mound lower than [`HOP_VOXELS`] between two reports: the way up,
+/// across and down again; a higher one blocks.
+#[test]
+fn a_mound_is_stepped_over_between_two_reports() {
+    use strata_server::validate::sweep::HOP_VOXELS;
+    for (height, passes) in [(HOP_VOXELS as i32, true), (HOP_VOXELS as i32 + 2, false)] {
+        let mut s = ready(ValidationConfig::default());
+        let (x, z) = HOME;
+        // Solid from y = 0 to `height - 1`: the body (one voxel above the
+        // feet, the eye) clears it `HOP_VOXELS` above the ground.
+        s.submit(
+            ADMIN,
+            req(1, fill((x + 2, 0, z - 4), (x + 2, height - 1, z + 4))),
+            0,
+        )
+        .unwrap();
+        s.tick(0);
+        let r = s.update_position(PLAYER, at(2, x + 4, 0, z), 1_000);
+        assert_eq!(r.is_ok(), passes, "{height} high: {r:?}");
+    }
+}
+
+/// A cluster node sweeps a move only through the regions it writes: its
+/// copies of the others may be behind (the wall mined on their node), and
+/// their node sweeps them.
+#[test]
+fn a_cluster_node_sweeps_only_the_regions_it_writes() {
+    use strata_server::sequencer::regions::RegionId;
+    let (x, z) = HOME;
+    let wall = |s: &mut Sequencer| {
+        s.submit(ADMIN, req(1, fill((x + 3, 0, z - 8), (x + 5, 6, z + 8))), 0)
+            .unwrap();
+        s.tick(0);
+    };
+    let side = SequencerConfig::default().region_chunks;
+    let home = RegionId::of(VoxelPos::new(x + 4, 0, z).chunk(), side);
+    let mut s = ready(ValidationConfig::default());
+    wall(&mut s);
+    s.set_written_regions(Some([home].into_iter().collect()));
+    assert!(matches!(
+        s.update_position(PLAYER, at(2, x + 8, 0, z), 1_000),
+        Err(PositionReject::PathBlocked { .. })
+    ));
+    let mut s = ready(ValidationConfig::default());
+    wall(&mut s);
+    s.set_written_regions(Some(Default::default()));
+    s.update_position(PLAYER, at(2, x + 8, 0, z), 1_000)
+        .unwrap();
+}
+
+/// An arrival's first move is checked for its length only: the way from
+/// the ticket's spot was walked on the node that issued it.
+#[test]
+fn an_arrivals_first_move_is_not_swept() {
+    let mut s = ready(ValidationConfig::default());
+    let (x, z) = HOME;
+    s.submit(ADMIN, req(1, fill((x + 3, 0, z - 8), (x + 5, 6, z + 8))), 0)
+        .unwrap();
+    s.tick(0);
+    s.session_joined(7, "q".into(), Role::Player);
+    s.resume_position(7, 1_000, None);
+    s.arrive(7, FixedVec3::from_voxels(x, 0, z), 500, 1_000)
+        .unwrap();
+    s.update_position(7, at(1, x + 8, 0, z), 1_000).unwrap();
+    // Its next move is swept: back through the wall is refused.
+    assert!(matches!(
+        s.update_position(7, at(2, x + 1, 0, z), 1_500),
+        Err(PositionReject::PathBlocked { .. })
+    ));
+}
+
+/// A step onto a ledge and off it between two reports: the straight way
+/// cuts the ledge's corner, a bent one (up, then across; across, then
+/// down) does not.
+#[test]
+fn a_ledge_is_climbed_and_left_between_two_reports() {
+    let mut s = ready(ValidationConfig::default());
+    let (x, z) = HOME;
+    // A block 6 high from x + 1 on: its top is at y = 6.
+    s.submit(ADMIN, req(1, fill((x + 1, 0, z - 4), (x + 8, 5, z + 4))), 0)
+        .unwrap();
+    s.tick(0);
+    s.update_position(PLAYER, at(2, x + 2, 6, z), 500).unwrap();
+    s.update_position(PLAYER, at(3, x, 0, z), 1_000).unwrap();
+    // Straight through the block's body is not a way.
+    assert!(matches!(
+        s.update_position(PLAYER, at(4, x + 9, 0, z), 2_000),
+        Err(PositionReject::PathBlocked { .. })
+    ));
+}
+
+/// A player something was built around may walk out of it: the body's
+/// own voxels at the held position do not block its way.
+#[test]
+fn a_player_built_around_walks_out() {
+    let mut s = ready(ValidationConfig::default());
+    let (x, z) = HOME;
+    s.submit(ADMIN, req(1, fill((x, 1, z), (x, 2, z))), 0)
+        .unwrap();
+    s.tick(0);
+    s.update_position(PLAYER, at(2, x + 1, 0, z), 500).unwrap();
 }
 
 #[test]

@@ -24,6 +24,7 @@ use super::{Fleet, Phase, Role, VerifyMode};
 use crate::client::{Acked, Arrival, Client, ClientError, ClientOptions, Verdict};
 use crate::prediction::PredictionStats;
 use crate::replica::ReplicaStats;
+use crate::Notice;
 
 /// Time between a bot's steps.
 pub const STEP: Duration = Duration::from_millis(100);
@@ -415,6 +416,24 @@ impl Bot {
         }
     }
 
+    /// Counts the server's position refusals and moves the bot back to
+    /// where the server holds it, as a game client would: its walk went
+    /// somewhere the server did not follow (through a wall built since its
+    /// replica last heard, a stall), so reports from there stay refused.
+    fn take_refusals(&mut self, client: &Client) {
+        while let Some(n) = client.pop_notice() {
+            let Notice::PositionRefused { reason, at, .. } = n else {
+                continue;
+            };
+            self.fleet
+                .stats
+                .position_refused(strata_protocol::refusal_label(&reason));
+            if let (Some(at), Some(w)) = (at, self.walker.as_mut()) {
+                w.feet = at.to_f64();
+            }
+        }
+    }
+
     /// One connection: `Ok` when the run is done, `Err` when it was lost.
     async fn session(&mut self, client: &Client) -> Result<(), ClientError> {
         let radius = self.fleet.cfg.view_radius;
@@ -551,6 +570,7 @@ impl Bot {
             }
             Phase::Run if Instant::now() < st.active_from => {}
             Phase::Run => {
+                self.take_refusals(client);
                 let walker = self.walker.as_mut().expect("set by session");
                 walker.step(&client.replica(), STEP.as_secs_f64(), &mut self.rng);
                 if st.steps % POSITION_EVERY == 0 {

@@ -552,6 +552,7 @@ fn summarize(fleet: &Fleet, outcomes: &[BotOutcome], edit_time: Duration, quiet:
         edit_slots_skipped: Stats::get(&s.edit_slots_skipped),
         region_crossings: Stats::get(&s.region_crossings),
         handoffs: Stats::get(&s.handoffs),
+        positions_refused: s.positions_refused(),
         ack_latency_ms: s.ack.summary(),
         broadcast_latency_ms: s.broadcast.summary(),
         latency_by_second: summary::timeline(&s.ack, &s.broadcast),

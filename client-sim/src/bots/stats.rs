@@ -112,6 +112,8 @@ pub struct Stats {
     /// Moves to the node a `RegionElsewhere` named (`--follow-owners`).
     pub handoffs: AtomicU64,
     pub rejected: Mutex<BTreeMap<String, u64>>,
+    /// `PositionRefused` answers heard, by reason.
+    pub position_refusals: Mutex<BTreeMap<String, u64>>,
     pub ack: Latencies,
     pub broadcast: Latencies,
 }
@@ -136,6 +138,19 @@ impl Stats {
 
     pub fn rejected(&self) -> BTreeMap<String, u64> {
         self.rejected.lock().expect("not poisoned").clone()
+    }
+
+    pub fn position_refused(&self, reason: &str) {
+        *self
+            .position_refusals
+            .lock()
+            .expect("not poisoned")
+            .entry(reason.to_string())
+            .or_default() += 1;
+    }
+
+    pub fn positions_refused(&self) -> BTreeMap<String, u64> {
+        self.position_refusals.lock().expect("not poisoned").clone()
     }
 }
 

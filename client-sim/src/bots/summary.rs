@@ -62,6 +62,9 @@ pub struct Summary {
     /// Times a bot moved to the cluster node a `RegionElsewhere` named and
     /// arrived there with its ticket (`--follow-owners`).
     pub handoffs: u64,
+    /// `PositionRefused` answers the bots heard, by reason (snake_case);
+    /// each moved its bot back to where the server held it.
+    pub positions_refused: BTreeMap<String, u64>,
     pub edits_accepted_per_second: f64,
     /// From sending an edit to its `EditAccepted`: accepted edits only
     /// (refused ones are in `edits_rejected`, those never answered in

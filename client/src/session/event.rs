@@ -1,12 +1,13 @@
 //! What [`super::Session::poll`] hands the game loop.
 
+use glam::DVec3;
 use strata_protocol::{ChunkVersion, ErrorCode, PositionRefusal, RejectReason};
 use strata_terrain::ChunkPos;
 
 /// One thing that happened since the last poll. Every edit the session
 /// took gets exactly one of `EditAccepted`, `EditRejected` or
 /// `EditFailed`, and `Disconnected` comes once, last.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum Event {
     /// The server sequenced edit `ticket` as `seq`; `changes` are the
     /// chunk versions it made durable (empty when it changed nothing).
@@ -25,8 +26,14 @@ pub enum Event {
     /// neighbours' border voxels, so theirs may change too.
     ChunkChanged { pos: ChunkPos },
     /// The server refused position report `seq` and keeps the previous
-    /// position (rate-bounded: not every refused report is answered).
-    PositionRefused { seq: u32, reason: PositionRefusal },
+    /// position, `at` in voxels (none before the first); rate-bounded: not
+    /// every refused report is answered. Move the player back to `at`: the
+    /// server checks each report from there.
+    PositionRefused {
+        seq: u32,
+        reason: PositionRefusal,
+        at: Option<DVec3>,
+    },
     /// Every chunk of the view around chunk `center` at `radius` has
     /// arrived (except forgotten ones): the view is loaded. Its chunks are
     /// held now; their `ChunkChanged` events may still follow.

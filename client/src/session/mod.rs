@@ -304,8 +304,9 @@ impl Session {
             return Some(e);
         }
         match self.links.home.pop_notice() {
-            Some(Notice::PositionRefused { seq, reason }) => {
-                return Some(Event::PositionRefused { seq, reason })
+            Some(Notice::PositionRefused { seq, reason, at }) => {
+                let at = at.map(|f| DVec3::from_array(f.to_f64()));
+                return Some(Event::PositionRefused { seq, reason, at });
             }
             Some(Notice::ViewLoaded { center, radius }) => {
                 return Some(Event::ViewLoaded { center, radius })

@@ -242,7 +242,7 @@ impl Engine {
             metrics::counter!(m::POSITIONS_DROPPED, "reason" => "placement").increment(1);
             return self.refuse_position(session, update.seq, &reason, now);
         }
-        let needed = self.seq.chunks_needed_for_position(&update);
+        let needed = self.seq.chunks_needed_for_position(session, &update);
         if let Err(e) = self.make_resident(&needed) {
             crate::log_every::store_error("read", "store read failed", &e);
             return;

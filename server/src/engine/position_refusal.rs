@@ -4,10 +4,12 @@ use strata_protocol::ServerMessage;
 use tracing::debug;
 
 use super::{fanout, Engine};
+use crate::metrics as m;
 use crate::validate::position::PositionReject;
 
 impl Engine {
-    /// Tells the client its report was refused, at most once per
+    /// Tells the client its report was refused, and where the server holds
+    /// the player, at most once per
     /// `[validation] position_refusal_ms` per session, and only if its
     /// control queue has room: a flood of bad datagrams costs one frame
     /// an interval and never blocks or fails the session.
@@ -20,7 +22,13 @@ impl Engine {
     ) {
         debug!(session, ?reason, "position refused");
         let interval = self.seq.validation().position_refusal_ms;
-        let (Some(reason), Some(p)) = (reason.refusal(), self.peers.get_mut(&session)) else {
+        let at = self.seq.position(session).map(|p| p.feet);
+        let Some(reason) = reason.refusal() else {
+            return;
+        };
+        let label = strata_protocol::refusal_label(&reason);
+        metrics::counter!(m::POSITIONS_REFUSED, "reason" => label).increment(1);
+        let Some(p) = self.peers.get_mut(&session) else {
             return;
         };
         let quiet = p
@@ -29,7 +37,7 @@ impl Engine {
         if interval == 0 || quiet || p.failed {
             return;
         }
-        let msg = ServerMessage::PositionRefused { seq, reason };
+        let msg = ServerMessage::PositionRefused { seq, reason, at };
         if p.control.try_send(fanout::encode_control(&msg)).is_ok() {
             p.refused_at = Some(now);
         }

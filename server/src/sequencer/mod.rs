@@ -31,16 +31,17 @@ pub use sight::SightRefusal;
 pub use submit::Prechecked;
 pub use tick::{BuiltMeshes, PendingMeshes};
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
 use rayon::prelude::*;
 
 use strata_protocol::{EditRequest, PositionUpdate, Role, Start};
 use strata_terrain::edit::{EditContext, FixedVec3, StructureLibrary};
-use strata_terrain::{Chunk, ChunkPos, MaterialTable, World};
+use strata_terrain::{Chunk, ChunkPos, MaterialTable, Voxel, VoxelPos, VoxelRead, World};
 
 use crate::collision::{CollisionCache, CollisionMesh};
+use crate::sequencer::regions::RegionId;
 use crate::validate::position::{self, Placement, PositionReject, ValidatedPosition};
 use crate::validate::zones::{self, Zone, ZoneError};
 use crate::validate::ValidationConfig;
@@ -101,7 +102,9 @@ pub struct Sequencer {
     /// moves it ([`Self::arrive`]).
     last_positions: HashMap<String, Remembered>,
     /// Players whose position changed since [`Self::take_moved`].
-    moved: std::collections::HashSet<String>,
+    moved: HashSet<String>,
+    /// See [`Self::set_written_regions`].
+    written_regions: Option<HashSet<RegionId>>,
 }
 
 impl Sequencer {
@@ -136,6 +139,7 @@ impl Sequencer {
             disconnect: Vec::new(),
             last_positions: HashMap::new(),
             moved: Default::default(),
+            written_regions: None,
         }
     }
 
@@ -195,6 +199,19 @@ impl Sequencer {
     /// Region side in chunks (`[sequencer] region_chunks`).
     pub fn region_chunks(&self) -> u32 {
         self.cfg.region_chunks
+    }
+
+    /// The regions this node writes, on a cluster (`None`: every one, a
+    /// single server). A move's path is swept only through those: this
+    /// node's copies of the others may be behind their writer's.
+    pub fn set_written_regions(&mut self, regions: Option<HashSet<RegionId>>) {
+        self.written_regions = regions;
+    }
+
+    fn writes(&self, chunk: ChunkPos) -> bool {
+        self.written_regions
+            .as_ref()
+            .is_none_or(|w| w.contains(&RegionId::of(chunk, self.cfg.region_chunks)))
     }
 
     /// The regions `edit` writes or reads, or whose collision meshes it
@@ -432,10 +449,33 @@ impl Sequencer {
     }
 
     /// Chunks the shell must load before [`Self::update_position`] can check `upd`.
-    pub fn chunks_needed_for_position(&self, upd: &PositionUpdate) -> Vec<ChunkPos> {
-        let voxels = position::body_voxels(upd.pos, &self.validation);
+    pub fn chunks_needed_for_position(
+        &self,
+        session_id: u64,
+        upd: &PositionUpdate,
+    ) -> Vec<ChunkPos> {
         self.residency
-            .missing(&self.world, voxels.iter().map(|v| v.chunk()))
+            .missing(&self.world, self.position_reads(session_id, upd))
+    }
+
+    /// The chunks a report's check reads: the body's at the new spot, and
+    /// those along the ways from the last accepted position (none for a
+    /// first position or an arrival's first move).
+    fn position_reads(&self, session_id: u64, upd: &PositionUpdate) -> Vec<ChunkPos> {
+        let cfg = &self.validation;
+        let mut chunks: Vec<ChunkPos> = position::body_voxels(upd.pos, cfg)
+            .iter()
+            .map(|v| v.chunk())
+            .collect();
+        let prev = self.sessions.get(&session_id).and_then(|s| s.position);
+        if let Some(p) = prev.filter(|p| !p.arriving()) {
+            for c in crate::validate::sweep::chunks(p.feet, upd.pos, cfg) {
+                if self.writes(c) && !chunks.contains(&c) {
+                    chunks.push(c);
+                }
+            }
+        }
+        chunks
     }
 
     /// Drops unmodified chunks for which `keep` is false (they regenerate).
@@ -832,12 +872,28 @@ impl Sequencer {
                 last: p.seq,
             });
         }
-        if let Some(pos) = self.chunks_needed_for_position(&upd).first() {
+        let reads = self.position_reads(session_id, &upd);
+        if let Some(pos) = self
+            .residency
+            .missing(&self.world, reads.iter().copied())
+            .first()
+        {
             return Err(PositionReject::ChunkNotLoaded { pos: *pos });
         }
-        let voxels = position::body_voxels(upd.pos, &self.validation);
-        self.world.load(voxels.iter().map(|v| v.chunk()));
-        let checked = position::check(prev.as_ref(), &upd, now_ms, &self.validation, &self.world);
+        self.world.load(reads);
+        let path = WrittenHere {
+            world: &self.world,
+            regions: self.written_regions.as_ref(),
+            side: self.cfg.region_chunks,
+        };
+        let checked = position::check(
+            prev.as_ref(),
+            &upd,
+            now_ms,
+            &self.validation,
+            &self.world,
+            &path,
+        );
         let ok = match checked {
             Ok(ok) => ok,
             Err(e) => {
@@ -933,5 +989,27 @@ impl Sequencer {
     pub fn remove_zone(&mut self, name: &str) -> Option<Zone> {
         let i = self.zones.iter().position(|z| z.name == name)?;
         Some(self.zones.remove(i))
+    }
+}
+
+/// The terrain a move's path is swept through: this node's copy where it
+/// writes the region, air elsewhere (another node's region, whose copy
+/// here may be stale: that node sweeps it).
+struct WrittenHere<'a> {
+    world: &'a World,
+    regions: Option<&'a HashSet<RegionId>>,
+    side: u32,
+}
+
+impl VoxelRead for WrittenHere<'_> {
+    fn voxel(&self, p: VoxelPos) -> Voxel {
+        let here = self
+            .regions
+            .is_none_or(|w| w.contains(&RegionId::of(p.chunk(), self.side)));
+        if here {
+            self.world.voxel(p)
+        } else {
+            Voxel::AIR
+        }
     }
 }

@@ -32,7 +32,9 @@ pub const DEFAULT_SPEED_SLACK_VOXELS: f64 = 2.0;
 /// away, through any wall. Twice the longest stall a loaded server
 /// should show, so a moving player's next report still passes.
 pub const DEFAULT_MAX_MOVE_MS: u64 = 2_000;
-/// Largest allowed `max_move_ms`.
+/// Largest allowed `max_move_ms`; the longest move it allows with
+/// `max_speed` and the slack must be within
+/// [`super::position::MAX_SWEPT_MOVE`] too.
 pub const MAX_MAX_MOVE_MS: u64 = 60_000;
 /// Longest allowed `reach`: an edit's sight ray, the meshes it needs and
 /// the chunks it reads grow with it.
@@ -159,6 +161,15 @@ pub struct ValidationConfig {
     /// once per this many milliseconds per session
     /// ([`DEFAULT_POSITION_REFUSAL_MS`]); 0 never answers.
     pub position_refusal_ms: u64,
+}
+
+impl ValidationConfig {
+    /// The longest move speed allows after a silence of `max_move_ms`,
+    /// slack included, in voxels.
+    pub fn longest_move(&self) -> f64 {
+        self.max_speed * (self.max_move_ms as f64 / 1000.0) * (1.0 + self.speed_slack_factor)
+            + self.speed_slack_voxels
+    }
 }
 
 impl Default for ValidationConfig {

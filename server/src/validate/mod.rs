@@ -13,6 +13,7 @@ pub mod position;
 pub mod ratelimit;
 pub mod reach;
 pub mod spawn;
+pub mod sweep;
 pub mod zones;
 
 pub use bounds::WorldBounds;

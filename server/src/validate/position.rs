@@ -7,6 +7,13 @@ use strata_terrain::{ChunkPos, VoxelPos, VoxelRead};
 use thiserror::Error;
 
 use super::config::ValidationConfig;
+use super::sweep;
+
+/// The longest move whose path is swept, in voxels: a longer one is
+/// refused as too fast whatever `max_speed` and `max_move_ms` allow
+/// (the server's config check keeps them within it), so a move's path
+/// reads a bounded number of chunks.
+pub const MAX_SWEPT_MOVE: f64 = 256.0;
 
 /// How a session got its position.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -93,10 +100,15 @@ impl ValidatedPosition {
     /// refused reports earned, and the silence since the last one heard,
     /// capped at `max_move_ms` (plus any grace). Else a player could go
     /// quiet and then report a spot as far as the silence was long.
+    ///
+    /// The whole is capped at `max_move_ms` (plus any grace) as well: a
+    /// player refused for longer (a long stall, a path through a wall)
+    /// gains nothing by reporting on, and is told where the server holds
+    /// it (`PositionRefused::at`) to move back there.
     pub fn credited_ms(&self, now_ms: u64, cfg: &ValidationConfig) -> u64 {
         let most = cfg.max_move_ms.saturating_add(self.grace_ms);
         let silence = now_ms.saturating_sub(self.heard_ms).min(most);
-        self.credit_ms.saturating_add(silence)
+        self.credit_ms.saturating_add(silence).min(most)
     }
 
     /// This position still, after a report at `now_ms` was refused: the
@@ -105,9 +117,15 @@ impl ValidatedPosition {
         Self {
             credit_ms: self.credited_ms(now_ms, cfg),
             heard_ms: now_ms.max(self.heard_ms),
-            grace_ms: 0,
             ..self
         }
+    }
+
+    /// Whether the next move is an arrival's first: the way from the
+    /// ticket's spot was walked on another node, so only its length is
+    /// checked here, not its path.
+    pub fn arriving(&self) -> bool {
+        self.placement == Placement::Arrived && self.grace_ms > 0
     }
 }
 
@@ -139,6 +157,10 @@ pub enum PositionReject {
     TooFast { distance: f64, allowed: f64 },
     #[error("body inside solid terrain at {voxel:?}")]
     InsideSolid { voxel: VoxelPos },
+    #[error(
+        "every way from the last accepted position passes through solid terrain (at {voxel:?})"
+    )]
+    PathBlocked { voxel: VoxelPos },
     #[error("chunk {pos:?} must be loaded from the store first")]
     ChunkNotLoaded { pos: ChunkPos },
     #[error("past the player's [validation.placement_rate]; dropped before loading anything")]
@@ -160,6 +182,7 @@ impl PositionReject {
                 allowed: fixed(allowed),
             }),
             PositionReject::InsideSolid { voxel } => Some(PositionRefusal::InsideSolid { voxel }),
+            PositionReject::PathBlocked { voxel } => Some(PositionRefusal::PathBlocked { voxel }),
             PositionReject::UnknownSession
             | PositionReject::Stale { .. }
             | PositionReject::ChunkNotLoaded { .. }
@@ -195,9 +218,14 @@ pub fn eye(feet: FixedVec3, cfg: &ValidationConfig) -> DVec3 {
 
 /// The voxels the body occupies that must not be solid: one above the feet, and the eye.
 pub fn body_voxels(feet: FixedVec3, cfg: &ValidationConfig) -> [VoxelPos; 2] {
+    body_at(to_dvec3(feet), cfg)
+}
+
+/// [`body_voxels`] of feet at any point (a point of a move's path).
+pub fn body_at(feet: DVec3, cfg: &ValidationConfig) -> [VoxelPos; 2] {
     [
-        nearest_voxel(to_dvec3(feet) + DVec3::Y),
-        nearest_voxel(eye(feet, cfg)),
+        nearest_voxel(feet + DVec3::Y),
+        nearest_voxel(feet + DVec3::Y * cfg.eye_height),
     ]
 }
 
@@ -259,7 +287,11 @@ pub fn check_motion(
     let d = to_dvec3(p.feet).distance(to_dvec3(upd.pos));
     let speed = speed_distance(elapsed, cfg);
     let slack = slack_available(p, elapsed, cfg);
-    let allowed = speed + slack as f64 / 1000.0;
+    let mut allowed = speed + slack as f64 / 1000.0;
+    if !p.arriving() {
+        // Its path is swept: bounded whatever the config says.
+        allowed = allowed.min(MAX_SWEPT_MOVE);
+    }
     if d > allowed {
         return Err(PositionReject::TooFast {
             distance: d,
@@ -272,19 +304,25 @@ pub fn check_motion(
 
 /// Checks a report against the previous validated position (none when the
 /// server does not remember the player: then any in-bounds position in the
-/// spawn area not inside solid terrain is fine).
+/// spawn area not inside solid terrain is fine). `path` is the terrain the
+/// way there is swept through (`voxels`, or less of it where this node's
+/// copies may be stale).
 pub fn check(
     prev: Option<&ValidatedPosition>,
     upd: &PositionUpdate,
     now_ms: u64,
     cfg: &ValidationConfig,
     voxels: &impl VoxelRead,
+    path: &impl VoxelRead,
 ) -> Result<ValidatedPosition, PositionReject> {
     let slack_milli = check_motion(prev, upd, now_ms, cfg)?;
     for v in body_voxels(upd.pos, cfg) {
         if voxels.voxel(v).is_solid() {
             return Err(PositionReject::InsideSolid { voxel: v });
         }
+    }
+    if let Some(p) = prev.filter(|p| !p.arriving()) {
+        sweep::check(p.feet, upd.pos, cfg, path)?;
     }
     Ok(ValidatedPosition {
         feet: upd.pos,

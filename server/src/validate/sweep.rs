@@ -1,0 +1,96 @@
+//! A move's path: the body must not pass through solid terrain on its way
+//! from the last accepted position to the new one. Else a player reporting
+//! the far side of a wall within one move's reach walks through it.
+
+use glam::DVec3;
+use strata_terrain::edit::FixedVec3;
+use strata_terrain::{ChunkPos, VoxelPos, VoxelRead};
+
+use super::config::ValidationConfig;
+use super::position::{body_at, body_voxels, to_dvec3, PositionReject};
+
+/// Longest step between two points of a path that are checked, in voxels:
+/// a point crossing a voxel passes at least one sample inside it unless it
+/// only clips a corner, so no wall a voxel thick is stepped over.
+pub const SWEEP_STEP: f64 = 0.25;
+
+/// How far above the higher end a move may have gone over something in
+/// its way (a mound, a ledge's edge), in voxels. The server checks no
+/// gravity: a client could report its way up, across and down in three
+/// moves anyway, so this opens no wall; it spares an honest player who
+/// stepped up and down again between two reports.
+pub const HOP_VOXELS: f64 = 4.0;
+
+/// The ways a move may have gone: straight; up or down first, then across;
+/// across first, then up or down; up to [`HOP_VOXELS`] over the higher
+/// end, across, and down. A player stepping onto a ledge or off one
+/// between two reports takes a bent way (the straight one cuts the
+/// ledge's corner); a wall at every height from the lower end to the hop's
+/// blocks all four.
+fn routes(from: DVec3, to: DVec3) -> [[DVec3; 4]; 4] {
+    let vertical_first = DVec3::new(from.x, to.y, from.z);
+    let across_first = DVec3::new(to.x, from.y, to.z);
+    let top = from.y.max(to.y) + HOP_VOXELS;
+    let (up, over) = (DVec3::new(from.x, top, from.z), DVec3::new(to.x, top, to.z));
+    [
+        [from, to, to, to],
+        [from, vertical_first, to, to],
+        [from, across_first, to, to],
+        [from, up, over, to],
+    ]
+}
+
+/// The body's voxels at each point of leg `a` → `b`, `a` excluded, at
+/// most [`SWEEP_STEP`] apart (none when the leg is empty).
+fn leg_voxels(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> impl Iterator<Item = VoxelPos> + '_ {
+    let n = (a.distance(b) / SWEEP_STEP).ceil() as u32;
+    (1..=n).flat_map(move |i| body_at(a.lerp(b, f64::from(i) / f64::from(n)), cfg))
+}
+
+fn route_voxels<'a>(
+    route: &'a [DVec3; 4],
+    cfg: &'a ValidationConfig,
+) -> impl Iterator<Item = VoxelPos> + 'a {
+    route
+        .windows(2)
+        .flat_map(move |leg| leg_voxels(leg[0], leg[1], cfg))
+}
+
+/// Every chunk a sweep of `from` → `to` may read: what must be resident
+/// before [`check`].
+pub fn chunks(from: FixedVec3, to: FixedVec3, cfg: &ValidationConfig) -> Vec<ChunkPos> {
+    let mut out: Vec<ChunkPos> = Vec::new();
+    for route in routes(to_dvec3(from), to_dvec3(to)) {
+        for c in route_voxels(&route, cfg).map(|v| v.chunk()) {
+            if !out.contains(&c) {
+                out.push(c);
+            }
+        }
+    }
+    out
+}
+
+/// `Ok` when some way from `from` to `to` keeps the body out of solid
+/// terrain. The body's voxels at `from` do not count: a player something
+/// was built around may walk out of it.
+pub fn check(
+    from: FixedVec3,
+    to: FixedVec3,
+    cfg: &ValidationConfig,
+    voxels: &impl VoxelRead,
+) -> Result<(), PositionReject> {
+    let start = body_voxels(from, cfg);
+    let mut first = None;
+    for route in routes(to_dvec3(from), to_dvec3(to)) {
+        let hit =
+            route_voxels(&route, cfg).find(|v| !start.contains(v) && voxels.voxel(*v).is_solid());
+        match hit {
+            None => return Ok(()),
+            Some(v) => {
+                first.get_or_insert(v);
+            }
+        }
+    }
+    let voxel = first.expect("four routes were tried");
+    Err(PositionReject::PathBlocked { voxel })
+}
