@@ -353,8 +353,9 @@ pub enum PositionRefusal {
     /// world's vertical bounds.
     OutOfBounds,
     /// Every way from the last accepted position to this one (straight,
-    /// or up or down first) passes the body through solid terrain;
-    /// `voxel` is where the straight one does.
+    /// bent at a right angle, or a small hop over; PROTOCOL.md, rule 5)
+    /// passes the body through solid terrain; `voxel` is where the
+    /// straight one does.
     PathBlocked { voxel: VoxelPos },
 }
 

@@ -165,19 +165,16 @@ fn a_refused_position_through_the_c_abi_says_where_the_player_is_held() {
 
     let server = Server::start();
     let c = ffi::connect(&server, "c-walker");
+    let report = |x: f64, y: f64, z: f64| {
+        // SAFETY: `c` is the live session made above.
+        let st = unsafe { strata_set_position(c, x, y, z) };
+        assert_eq!(st, StrataStatus::Ok);
+    };
     // High in the air above the spawn square: accepted.
-    // SAFETY: `c` is the live session made above.
-    assert_eq!(
-        unsafe { strata_set_position(c, 3.5, 200.0, 3.5) },
-        StrataStatus::Ok
-    );
+    report(3.5, 200.0, 3.5);
     std::thread::sleep(Duration::from_millis(300));
     // 600 voxels on in 0.3 s: too fast.
-    // SAFETY: as above.
-    assert_eq!(
-        unsafe { strata_set_position(c, 3.5, 200.0, 603.5) },
-        StrataStatus::Ok
-    );
+    report(3.5, 200.0, 603.5);
     let start = Instant::now();
     let ev = loop {
         let ev = ffi::poll(c);

@@ -356,6 +356,32 @@ fn an_arrival_allows_the_tickets_age_and_no_silence_after_it() {
     ));
 }
 
+/// An arrival's grace covers the walk its player was seen on after the
+/// ticket (the issuing node saves it every second), not the ticket's whole
+/// age: a player silent since its ticket gets the hand-off's 3 s only.
+#[test]
+fn an_arrivals_grace_is_the_walk_seen_since_its_ticket() {
+    let spot = FixedVec3::from_voxels(HOME.0, 0, HOME.1);
+    let arrive_seen = |seen_ms: u64| {
+        let mut s = fresh();
+        s.session_left(PLAYER);
+        s.session_joined(7, "p".into(), Role::Player);
+        let stored = StoredPosition {
+            feet: spot,
+            known_ms: seen_ms,
+        };
+        s.resume_position(7, 13_000, Some(stored));
+        s.arrive(7, spot, 1_000, 13_000).unwrap();
+        // 200 voxels: 12 s of grace allow 352, 3 s allow 127.
+        s.update_position(7, at(1, HOME.0 + 200, 0, HOME.1), 13_000)
+    };
+    assert!(arrive_seen(11_000).is_ok(), "seen walking 10 s on");
+    assert!(matches!(
+        arrive_seen(1_000),
+        Err(PositionReject::TooFast { allowed, .. }) if allowed < 128.0
+    ));
+}
+
 /// A join that arrives with an older ticket (retried after a failed one)
 /// finds the player farther than the ticket's capped age allows: refused,
 /// and refused however long it reports on from there (refusals earn no
@@ -518,11 +544,10 @@ fn a_mound_is_stepped_over_between_two_reports() {
     }
 }
 
-/// A cluster node sweeps a move only through the regions it writes: its
-/// copies of the others may be behind (the wall mined on their node), and
-/// their node sweeps them.
+/// A cluster node does not sweep a move through the regions another node
+/// writes: its copies of them may be behind (the wall mined there).
 #[test]
-fn a_cluster_node_sweeps_only_the_regions_it_writes() {
+fn a_cluster_node_does_not_sweep_other_nodes_regions() {
     use strata_server::sequencer::regions::RegionId;
     let (x, z) = HOME;
     let wall = |s: &mut Sequencer| {
@@ -534,14 +559,15 @@ fn a_cluster_node_sweeps_only_the_regions_it_writes() {
     let home = RegionId::of(VoxelPos::new(x + 4, 0, z).chunk(), side);
     let mut s = ready(ValidationConfig::default());
     wall(&mut s);
-    s.set_written_regions(Some([home].into_iter().collect()));
+    let elsewhere = RegionId::of(VoxelPos::new(x + 4, 0, z + 1000).chunk(), side);
+    s.set_foreign_regions([elsewhere].into_iter().collect());
     assert!(matches!(
         s.update_position(PLAYER, at(2, x + 8, 0, z), 1_000),
         Err(PositionReject::PathBlocked { .. })
     ));
     let mut s = ready(ValidationConfig::default());
     wall(&mut s);
-    s.set_written_regions(Some(Default::default()));
+    s.set_foreign_regions([home].into_iter().collect());
     s.update_position(PLAYER, at(2, x + 8, 0, z), 1_000)
         .unwrap();
 }
@@ -565,6 +591,20 @@ fn an_arrivals_first_move_is_not_swept() {
         s.update_position(7, at(2, x + 1, 0, z), 1_500),
         Err(PositionReject::PathBlocked { .. })
     ));
+    // One try: a first report refused (inside the wall) takes the
+    // exemption with it, and the next one is swept from the ticket's spot.
+    s.session_joined(8, "r".into(), Role::Player);
+    s.resume_position(8, 1_000, None);
+    s.arrive(8, FixedVec3::from_voxels(x, 0, z), 500, 1_000)
+        .unwrap();
+    assert!(matches!(
+        s.update_position(8, at(1, x + 4, 0, z), 1_000),
+        Err(PositionReject::InsideSolid { .. })
+    ));
+    assert!(matches!(
+        s.update_position(8, at(2, x + 8, 0, z), 1_000),
+        Err(PositionReject::PathBlocked { .. })
+    ));
 }
 
 /// A step onto a ledge and off it between two reports: the straight way
@@ -585,6 +625,50 @@ fn a_ledge_is_climbed_and_left_between_two_reports() {
         s.update_position(PLAYER, at(4, x + 9, 0, z), 2_000),
         Err(PositionReject::PathBlocked { .. })
     ));
+}
+
+/// Round a corner between two reports: the straight way cuts it, the way
+/// along x first, then z, does not.
+#[test]
+fn a_corner_is_run_round_between_two_reports() {
+    let mut s = ready(ValidationConfig::default());
+    let (x, z) = HOME;
+    // Solid over x - 10 ..= x, z - 10 ..= z, 7 high: its corner at (x, z).
+    s.submit(ADMIN, req(1, fill((x - 10, 0, z - 10), (x, 6, z))), 0)
+        .unwrap();
+    s.tick(0);
+    s.update_position(PLAYER, at(2, x - 1, 0, z + 1), 500)
+        .unwrap();
+    s.update_position(PLAYER, at(3, x + 1, 0, z - 1), 1_000)
+        .unwrap();
+}
+
+/// A tall body (`eye_height` 4) does not slip through a slot a voxel high
+/// at its eye: every voxel between one above the feet and the eye is swept.
+#[test]
+fn a_tall_body_is_swept_whole() {
+    let cfg = ValidationConfig {
+        eye_height: 4.0,
+        ..ValidationConfig::default()
+    };
+    let mut s = ready(cfg);
+    let (x, z) = HOME;
+    // Solid at y 2..=3 and 5..=12, open at 0, 1 and 4.
+    s.submit(ADMIN, req(1, fill((x + 3, 2, z - 8), (x + 3, 3, z + 8))), 0)
+        .unwrap();
+    s.submit(
+        ADMIN,
+        req(2, fill((x + 3, 5, z - 8), (x + 3, 12, z + 8))),
+        0,
+    )
+    .unwrap();
+    s.tick(0);
+    assert_eq!(
+        s.update_position(PLAYER, at(2, x + 6, 0, z), 1_000),
+        Err(PositionReject::PathBlocked {
+            voxel: VoxelPos::new(x + 3, 2, z)
+        })
+    );
 }
 
 /// A player something was built around may walk out of it: the body's

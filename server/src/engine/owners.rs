@@ -94,6 +94,13 @@ impl Engine {
                 return;
             }
         };
+        // Positions are not swept through other nodes' regions.
+        let foreign = holders
+            .iter()
+            .filter(|(_, h)| matches!(h, RegionHolder::Node { .. }))
+            .map(|(r, _)| *r)
+            .collect();
+        self.seq.set_foreign_regions(foreign);
         for (session, regions) in views {
             let owners: Vec<RegionOwner> = regions
                 .iter()

@@ -330,9 +330,6 @@ impl Engine {
                 }
             }
         }
-        // Positions are swept through what this node writes.
-        let written = self.region_epochs.keys().copied().collect();
-        self.seq.set_written_regions(Some(written));
         // Edits queued in one (claimed for them, or adopted under them)
         // are refused now, not applied to be fenced.
         if !self.reload_retry.is_empty() {

@@ -16,6 +16,11 @@ pub use crate::store::{CommitBatch, LogEntry, StoredPosition};
 /// older ticket (a replay) is refused.
 pub const STORED_TICKET_SLACK_MS: u64 = strata_protocol::limits::TICKET_TTL_MS / 3 + 2_000;
 
+/// The most an arrival's grace may count past the time its player was
+/// last seen: the issuing node's save interval (1 s) and the client's
+/// connect to this one. A player silent since its ticket gets no more.
+pub const ARRIVAL_HANDOFF_MS: u64 = 3_000;
+
 pub mod config;
 mod reach;
 pub mod regions;
@@ -103,8 +108,8 @@ pub struct Sequencer {
     last_positions: HashMap<String, Remembered>,
     /// Players whose position changed since [`Self::take_moved`].
     moved: HashSet<String>,
-    /// See [`Self::set_written_regions`].
-    written_regions: Option<HashSet<RegionId>>,
+    /// See [`Self::set_foreign_regions`].
+    foreign_regions: HashSet<RegionId>,
 }
 
 impl Sequencer {
@@ -139,7 +144,7 @@ impl Sequencer {
             disconnect: Vec::new(),
             last_positions: HashMap::new(),
             moved: Default::default(),
-            written_regions: None,
+            foreign_regions: HashSet::new(),
         }
     }
 
@@ -201,17 +206,19 @@ impl Sequencer {
         self.cfg.region_chunks
     }
 
-    /// The regions this node writes, on a cluster (`None`: every one, a
-    /// single server). A move's path is swept only through those: this
-    /// node's copies of the others may be behind their writer's.
-    pub fn set_written_regions(&mut self, regions: Option<HashSet<RegionId>>) {
-        self.written_regions = regions;
+    /// The regions another node of the cluster writes, as this node last
+    /// read their holders. A move's path is not swept through them: this
+    /// node's copies of their chunks may be behind their writer's (a
+    /// tunnel dug there would refuse honest players). Every other region
+    /// (this node's, free ones, a single server's) is swept.
+    pub fn set_foreign_regions(&mut self, regions: HashSet<RegionId>) {
+        self.foreign_regions = regions;
     }
 
-    fn writes(&self, chunk: ChunkPos) -> bool {
-        self.written_regions
-            .as_ref()
-            .is_none_or(|w| w.contains(&RegionId::of(chunk, self.cfg.region_chunks)))
+    fn sweeps(&self, chunk: ChunkPos) -> bool {
+        !self
+            .foreign_regions
+            .contains(&RegionId::of(chunk, self.cfg.region_chunks))
     }
 
     /// The regions `edit` writes or reads, or whose collision meshes it
@@ -470,7 +477,7 @@ impl Sequencer {
         let prev = self.sessions.get(&session_id).and_then(|s| s.position);
         if let Some(p) = prev.filter(|p| !p.arriving()) {
             for c in crate::validate::sweep::chunks(p.feet, upd.pos, cfg) {
-                if self.writes(c) && !chunks.contains(&c) {
+                if self.sweeps(c) && !chunks.contains(&c) {
                     chunks.push(c);
                 }
             }
@@ -582,6 +589,7 @@ impl Sequencer {
                 player,
                 role,
                 position: None,
+                seen_ms: 0,
             },
         );
     }
@@ -705,9 +713,16 @@ impl Sequencer {
             .chain(stored.map(|r| r.known_ms.saturating_sub(STORED_TICKET_SLACK_MS)))
             .max()
             .unwrap_or(0);
+        let seen_ms = others
+            .iter()
+            .map(|p| p.known_ms)
+            .chain(remembered.map(|r| r.known_ms))
+            .max()
+            .unwrap_or(0);
         let Some(s) = self.sessions.get_mut(&session_id) else {
             return spawn;
         };
+        s.seen_ms = seen_ms;
         match feet {
             Some(feet) => {
                 let resumed = ValidatedPosition::resumed(feet, now_ms, known_ms, &self.validation);
@@ -750,7 +765,16 @@ impl Sequencer {
         if newest.is_some_and(|t| issued_ms < t) {
             return refused;
         }
-        let arrived = ValidatedPosition::arrived(feet, issued_ms, now_ms, &self.validation);
+        // The walk the ticket's age may stand for: until the player was
+        // last seen (its issuing node saves it every second), and the
+        // hand-off after; all of it when nothing is known.
+        let walked = match s.seen_ms {
+            0 => u64::MAX,
+            seen => seen
+                .saturating_sub(issued_ms)
+                .saturating_add(ARRIVAL_HANDOFF_MS),
+        };
+        let arrived = ValidatedPosition::arrived(feet, issued_ms, now_ms, walked, &self.validation);
         if let Some(s) = self.sessions.get_mut(&session_id) {
             s.position = Some(arrived);
         }
@@ -881,9 +905,9 @@ impl Sequencer {
             return Err(PositionReject::ChunkNotLoaded { pos: *pos });
         }
         self.world.load(reads);
-        let path = WrittenHere {
+        let path = Swept {
             world: &self.world,
-            regions: self.written_regions.as_ref(),
+            foreign: &self.foreign_regions,
             side: self.cfg.region_chunks,
         };
         let checked = position::check(
@@ -992,24 +1016,20 @@ impl Sequencer {
     }
 }
 
-/// The terrain a move's path is swept through: this node's copy where it
-/// writes the region, air elsewhere (another node's region, whose copy
-/// here may be stale: that node sweeps it).
-struct WrittenHere<'a> {
+/// The terrain a move's path is swept through: this node's copy, except
+/// in regions another node writes (air: the copy here may be stale).
+struct Swept<'a> {
     world: &'a World,
-    regions: Option<&'a HashSet<RegionId>>,
+    foreign: &'a HashSet<RegionId>,
     side: u32,
 }
 
-impl VoxelRead for WrittenHere<'_> {
+impl VoxelRead for Swept<'_> {
     fn voxel(&self, p: VoxelPos) -> Voxel {
-        let here = self
-            .regions
-            .is_none_or(|w| w.contains(&RegionId::of(p.chunk(), self.side)));
-        if here {
-            self.world.voxel(p)
-        } else {
+        if self.foreign.contains(&RegionId::of(p.chunk(), self.side)) {
             Voxel::AIR
+        } else {
+            self.world.voxel(p)
         }
     }
 }

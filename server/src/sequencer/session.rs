@@ -12,6 +12,11 @@ pub struct Session {
     pub role: Role,
     /// Last position that passed every rule; `None` until the first one.
     pub position: Option<ValidatedPosition>,
+    /// When the player was last seen anywhere, as its resume found it
+    /// (another session's report, this node's memory, the store's row, not
+    /// lessened for tickets' age); 0 when unknown. An arrival's grace
+    /// covers the walk seen since its ticket, not the ticket's whole age.
+    pub seen_ms: u64,
 }
 
 /// A player's rate limits, shared by all of the player's sessions so

@@ -81,8 +81,16 @@ impl ValidatedPosition {
     }
 
     /// A position from a ticket issued at `issued_ms` and taken at
-    /// `now_ms`, timed from its issue, with its whole slack.
-    pub fn arrived(feet: FixedVec3, issued_ms: u64, now_ms: u64, cfg: &ValidationConfig) -> Self {
+    /// `now_ms`, timed from its issue, with its whole slack; its grace is
+    /// the ticket's age, at most `walked` (how long after the issue the
+    /// player may have walked on) and [`MAX_ARRIVAL_GRACE_MS`].
+    pub fn arrived(
+        feet: FixedVec3,
+        issued_ms: u64,
+        now_ms: u64,
+        walked: u64,
+        cfg: &ValidationConfig,
+    ) -> Self {
         Self {
             feet,
             at_ms: issued_ms,
@@ -92,7 +100,10 @@ impl ValidatedPosition {
             known_ms: issued_ms,
             heard_ms: issued_ms,
             credit_ms: 0,
-            grace_ms: now_ms.saturating_sub(issued_ms).min(MAX_ARRIVAL_GRACE_MS),
+            grace_ms: now_ms
+                .saturating_sub(issued_ms)
+                .min(walked)
+                .min(MAX_ARRIVAL_GRACE_MS),
         }
     }
 
@@ -113,10 +124,15 @@ impl ValidatedPosition {
 
     /// This position still, after a report at `now_ms` was refused: the
     /// time since the last report heard is credited.
+    ///
+    /// An arrival's grace goes with its first report, refused or not: its
+    /// unswept move ([`Self::arriving`]) is one try, and the next ones are
+    /// checked from the ticket's spot, where the client is told it stands.
     pub fn heard(self, now_ms: u64, cfg: &ValidationConfig) -> Self {
         Self {
             credit_ms: self.credited_ms(now_ms, cfg),
             heard_ms: now_ms.max(self.heard_ms),
+            grace_ms: 0,
             ..self
         }
     }

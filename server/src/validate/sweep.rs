@@ -2,12 +2,14 @@
 //! from the last accepted position to the new one. Else a player reporting
 //! the far side of a wall within one move's reach walks through it.
 
+use std::collections::BTreeSet;
+
 use glam::DVec3;
 use strata_terrain::edit::FixedVec3;
 use strata_terrain::{ChunkPos, VoxelPos, VoxelRead};
 
 use super::config::ValidationConfig;
-use super::position::{body_at, body_voxels, to_dvec3, PositionReject};
+use super::position::{body_voxels, nearest_voxel, to_dvec3, PositionReject};
 
 /// Longest step between two points of a path that are checked, in voxels:
 /// a point crossing a voxel passes at least one sample inside it unless it
@@ -21,30 +23,48 @@ pub const SWEEP_STEP: f64 = 0.25;
 /// stepped up and down again between two reports.
 pub const HOP_VOXELS: f64 = 4.0;
 
-/// The ways a move may have gone: straight; up or down first, then across;
-/// across first, then up or down; up to [`HOP_VOXELS`] over the higher
-/// end, across, and down. A player stepping onto a ledge or off one
-/// between two reports takes a bent way (the straight one cuts the
-/// ledge's corner); a wall at every height from the lower end to the hop's
-/// blocks all four.
-fn routes(from: DVec3, to: DVec3) -> [[DVec3; 4]; 4] {
+/// The ways a move may have gone: straight; up or down first, then
+/// across; across first, then up or down; along x first, then z; along z
+/// first, then x; up to [`HOP_VOXELS`] over the higher end, across, and
+/// down. A player stepping onto a ledge or off one between two reports
+/// takes a bent way (the straight one cuts the ledge's corner), one
+/// running round a corner too; a wall across the whole move, at every
+/// height from the lower end to the hop's, blocks them all.
+fn routes(from: DVec3, to: DVec3) -> [[DVec3; 4]; 6] {
     let vertical_first = DVec3::new(from.x, to.y, from.z);
     let across_first = DVec3::new(to.x, from.y, to.z);
+    let x_first = DVec3::new(to.x, from.y, from.z);
+    let z_first = DVec3::new(from.x, from.y, to.z);
     let top = from.y.max(to.y) + HOP_VOXELS;
     let (up, over) = (DVec3::new(from.x, top, from.z), DVec3::new(to.x, top, to.z));
     [
         [from, to, to, to],
         [from, vertical_first, to, to],
         [from, across_first, to, to],
+        [from, x_first, to, to],
+        [from, z_first, to, to],
         [from, up, over, to],
     ]
+}
+
+/// The voxels a body with feet at `feet` passes through: nearest to one
+/// voxel above the feet, to each whole voxel above that below the eye, and
+/// to the eye (the position rule's two points, and what lies between
+/// them when `eye_height` is over 2).
+fn body_column(feet: DVec3, cfg: &ValidationConfig) -> impl Iterator<Item = VoxelPos> {
+    let eye = cfg.eye_height;
+    let steps = (2..).take_while(move |&k| f64::from(k) < eye);
+    std::iter::once(1.0)
+        .chain(steps.map(f64::from))
+        .chain(std::iter::once(eye))
+        .map(move |dy| nearest_voxel(feet + DVec3::Y * dy))
 }
 
 /// The body's voxels at each point of leg `a` → `b`, `a` excluded, at
 /// most [`SWEEP_STEP`] apart (none when the leg is empty).
 fn leg_voxels(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> impl Iterator<Item = VoxelPos> + '_ {
     let n = (a.distance(b) / SWEEP_STEP).ceil() as u32;
-    (1..=n).flat_map(move |i| body_at(a.lerp(b, f64::from(i) / f64::from(n)), cfg))
+    (1..=n).flat_map(move |i| body_column(a.lerp(b, f64::from(i) / f64::from(n)), cfg))
 }
 
 fn route_voxels<'a>(
@@ -54,16 +74,20 @@ fn route_voxels<'a>(
     route
         .windows(2)
         .flat_map(move |leg| leg_voxels(leg[0], leg[1], cfg))
+        // Above the world there is only air (the hop may go there).
+        .filter(move |v| cfg.bounds.contains_y(v.y))
 }
 
 /// Every chunk a sweep of `from` → `to` may read: what must be resident
 /// before [`check`].
-pub fn chunks(from: FixedVec3, to: FixedVec3, cfg: &ValidationConfig) -> Vec<ChunkPos> {
-    let mut out: Vec<ChunkPos> = Vec::new();
+pub fn chunks(from: FixedVec3, to: FixedVec3, cfg: &ValidationConfig) -> BTreeSet<ChunkPos> {
+    let mut out = BTreeSet::new();
     for route in routes(to_dvec3(from), to_dvec3(to)) {
+        let mut last = None;
         for c in route_voxels(&route, cfg).map(|v| v.chunk()) {
-            if !out.contains(&c) {
-                out.push(c);
+            // Consecutive voxels mostly share a chunk.
+            if last.replace(c) != Some(c) {
+                out.insert(c);
             }
         }
     }
@@ -91,6 +115,6 @@ pub fn check(
             }
         }
     }
-    let voxel = first.expect("four routes were tried");
+    let voxel = first.expect("six routes were tried");
     Err(PositionReject::PathBlocked { voxel })
 }
