@@ -1,5 +1,6 @@
 //! Readiness, for `/healthz` on the metrics listener: ready while the
-//! server accepts connections and its engine thread runs and ticks.
+//! server accepts connections, its engine thread runs and ticks, and its
+//! store answers.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::OnceLock;
@@ -10,6 +11,14 @@ use std::time::{Duration, Instant};
 /// hangs, a deadlock. Far above any tick seen under load (hundreds of ms).
 pub const ENGINE_STALL: Duration = Duration::from_secs(10);
 
+/// How long the engine's store operations (chunk reads, region reads,
+/// commits) may go on failing, none succeeding, before the server says it
+/// is not ready: a store that fails fast (a database gone, a disk
+/// refusing reads) leaves the engine ticking and every player's reads
+/// refused. Ready again once one succeeds, or once none has failed for
+/// this long (nothing tried it since).
+pub const STORE_FAILING: Duration = Duration::from_secs(5);
+
 #[derive(Debug, Default)]
 pub struct Health {
     accepting: AtomicBool,
@@ -17,6 +26,11 @@ pub struct Health {
     /// When the engine last finished a tick ([`clock_ms`]); 0 before its
     /// first.
     ticked_ms: AtomicU64,
+    /// When the first store failure since the last success came; 0 when
+    /// the last operation succeeded (or none failed).
+    store_failing_since_ms: AtomicU64,
+    /// When the last store failure came; 0 before any.
+    store_failed_ms: AtomicU64,
 }
 
 /// Milliseconds since this process first asked, at least 1: a monotonic
@@ -41,9 +55,38 @@ impl Health {
             Err("not accepting connections")
         } else if ticked > 0 && now_ms.saturating_sub(ticked) > ENGINE_STALL.as_millis() as u64 {
             Err("engine stalled: no tick finished lately")
+        } else if self.store_failing(now_ms) {
+            Err("store failing: its operations fail and none succeeds")
         } else {
             Ok(())
         }
+    }
+
+    fn store_failing(&self, now_ms: u64) -> bool {
+        let since = self.store_failing_since_ms.load(Ordering::Acquire);
+        let last = self.store_failed_ms.load(Ordering::Acquire);
+        let window = STORE_FAILING.as_millis() as u64;
+        since > 0 && now_ms.saturating_sub(since) >= window && now_ms.saturating_sub(last) < window
+    }
+
+    /// A store operation of the engine's failed.
+    pub fn store_failed(&self) {
+        self.store_failed_at(clock_ms());
+    }
+
+    fn store_failed_at(&self, now_ms: u64) {
+        let _ = self.store_failing_since_ms.compare_exchange(
+            0,
+            now_ms,
+            Ordering::AcqRel,
+            Ordering::Acquire,
+        );
+        self.store_failed_ms.store(now_ms, Ordering::Release);
+    }
+
+    /// A store operation of the engine's succeeded.
+    pub fn store_ok(&self) {
+        self.store_failing_since_ms.store(0, Ordering::Release);
     }
 
     pub fn set_accepting(&self, on: bool) {
@@ -89,5 +132,25 @@ mod tests {
         assert_eq!(h.check_at(1_001 + stall), Ok(()));
         h.engine_stopped();
         assert_eq!(h.check_at(1_001 + stall), Err("engine stopped"));
+    }
+
+    #[test]
+    fn a_store_that_keeps_failing_is_not_ready() {
+        let h = Health::default();
+        h.set_accepting(true);
+        let window = STORE_FAILING.as_millis() as u64;
+        h.store_failed_at(1_000);
+        assert_eq!(h.check_at(1_000 + window - 1), Ok(()), "a blip");
+        h.store_failed_at(1_000 + window - 1);
+        assert!(h.check_at(1_000 + window).unwrap_err().contains("store"));
+        // One success: ready again, and a later failure starts anew.
+        h.store_ok();
+        assert_eq!(h.check_at(1_000 + window), Ok(()));
+        h.store_failed_at(2_000 + window);
+        assert_eq!(h.check_at(2_000 + window), Ok(()));
+        // Failures that stop (nothing tries the store): ready after the window.
+        h.store_failed_at(2_000 + 2 * window);
+        assert!(h.check_at(2_000 + 2 * window).is_err());
+        assert_eq!(h.check_at(2_000 + 3 * window), Ok(()));
     }
 }

@@ -30,6 +30,7 @@ mod config_load;
 mod console_api;
 mod deploy_files;
 mod durability;
+mod health_store;
 mod mesh_cli;
 mod metrics_endpoint;
 mod net_admission;

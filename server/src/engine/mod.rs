@@ -208,10 +208,21 @@ impl Engine {
         self
     }
 
-    /// Reports each tick to `health`.
+    /// Reports each tick, and its store operations' outcomes, to `health`.
     pub fn with_health(mut self, health: Arc<crate::health::Health>) -> Self {
         self.health = Some(health);
         self
+    }
+
+    /// Tells `health` how a store operation went (`/healthz` turns unready
+    /// while they keep failing).
+    fn store_answered<T, E>(&self, result: &Result<T, E>) {
+        if let Some(h) = &self.health {
+            match result {
+                Ok(_) => h.store_ok(),
+                Err(_) => h.store_failed(),
+            }
+        }
     }
 
     /// Starts the engine thread. It stops on [`Command::Stop`] or when

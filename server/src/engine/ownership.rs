@@ -112,7 +112,9 @@ impl Engine {
         };
         let side = self.seq.region_chunks();
         regions.extend(ray.iter().map(|&p| RegionId::of(p, side)));
-        let holders = match self.store.region_holders(&regions) {
+        let holders = self.store.region_holders(&regions);
+        self.store_answered(&holders);
+        let holders = match holders {
             Ok(h) => h,
             Err(e) => {
                 crate::log_every::store_error("regions", "reading regions' holders failed", &e);

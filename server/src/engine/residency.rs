@@ -39,7 +39,9 @@ impl Engine {
         }
         stored.sort_unstable();
         stored.dedup();
-        for (pos, loaded) in stored.iter().zip(self.store.load_chunks(&stored)?) {
+        let loaded = self.store.load_chunks(&stored);
+        self.store_answered(&loaded);
+        for (pos, loaded) in stored.iter().zip(loaded?) {
             match loaded {
                 Some(s) => self.seq.insert_stored_chunk(*pos, s.chunk, s.version),
                 None => self.seq.mark_absent(*pos),

@@ -141,6 +141,7 @@ impl Engine {
         let flush = Instant::now();
         // Nothing is acknowledged or broadcast unless this succeeds.
         let (batch, committed, next) = self.commit_serving(std::mem::take(&mut out.batch), rx, due);
+        self.store_answered(&committed);
         out.batch = batch;
         let stats = match committed {
             Ok(stats) => stats,
