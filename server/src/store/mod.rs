@@ -213,17 +213,17 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
 
     /// The `max` positions known most recently (ties by name), newest
     /// first: what a starting server remembers. Embedded stores read them
-    /// all; a database reads only these.
+    /// all, keeping `max` at most in memory; a database reads only these.
     fn recent_player_positions(
         &self,
         max: usize,
     ) -> Result<Vec<(String, StoredPosition)>, StoreError> {
-        let mut all = self
-            .player_positions()
-            .collect::<Result<Vec<_>, StoreError>>()?;
-        all.sort_by(|(a, p), (b, q)| q.known_ms.cmp(&p.known_ms).then_with(|| a.cmp(b)));
-        all.truncate(max);
-        Ok(all)
+        let mut kept = positions::Newest::new(max);
+        for p in self.player_positions() {
+            let (name, pos) = p?;
+            kept.offer(name, pos);
+        }
+        Ok(kept.into_sorted())
     }
 
     /// One player's stored position (a cluster node joining a player reads

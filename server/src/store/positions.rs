@@ -39,6 +39,73 @@ pub(super) fn decode_position(feet: &[u8], time: Option<&[u8]>) -> Option<Stored
     Some(StoredPosition { feet: at, known_ms })
 }
 
+/// The `max` positions known most recently of those offered (ties by
+/// name), holding no more than `max` at once: a store read at start
+/// costs memory for what the server remembers, not for every player
+/// ever saved.
+pub(super) struct Newest {
+    max: usize,
+    /// The worst kept on top: oldest known, then last by name.
+    heap: std::collections::BinaryHeap<Ranked>,
+}
+
+struct Ranked(String, StoredPosition);
+
+impl Ranked {
+    /// Greater is worse: known longer ago, then later by name.
+    fn key(&self) -> (std::cmp::Reverse<u64>, &str) {
+        (std::cmp::Reverse(self.1.known_ms), &self.0)
+    }
+}
+
+impl PartialEq for Ranked {
+    fn eq(&self, other: &Self) -> bool {
+        self.key() == other.key()
+    }
+}
+
+impl Eq for Ranked {}
+
+impl PartialOrd for Ranked {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Ranked {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.key().cmp(&other.key())
+    }
+}
+
+impl Newest {
+    pub(super) fn new(max: usize) -> Self {
+        Self {
+            max,
+            heap: std::collections::BinaryHeap::new(),
+        }
+    }
+
+    pub(super) fn offer(&mut self, name: String, pos: StoredPosition) {
+        if self.max == 0 {
+            return;
+        }
+        self.heap.push(Ranked(name, pos));
+        if self.heap.len() > self.max {
+            self.heap.pop();
+        }
+    }
+
+    /// Newest first, ties by name.
+    pub(super) fn into_sorted(self) -> Vec<(String, StoredPosition)> {
+        self.heap
+            .into_sorted_vec()
+            .into_iter()
+            .map(|Ranked(name, pos)| (name, pos))
+            .collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
