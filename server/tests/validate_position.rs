@@ -544,10 +544,11 @@ fn a_mound_is_stepped_over_between_two_reports() {
     }
 }
 
-/// A cluster node does not sweep a move through the regions another node
-/// writes: its copies of them may be behind (the wall mined there).
+/// A cluster node sweeps a move only through the regions it names (its
+/// own and free ones): its copies of another node's may be behind (the
+/// wall mined there).
 #[test]
-fn a_cluster_node_does_not_sweep_other_nodes_regions() {
+fn a_cluster_node_sweeps_only_the_regions_it_names() {
     use strata_server::sequencer::regions::RegionId;
     let (x, z) = HOME;
     let wall = |s: &mut Sequencer| {
@@ -559,15 +560,15 @@ fn a_cluster_node_does_not_sweep_other_nodes_regions() {
     let home = RegionId::of(VoxelPos::new(x + 4, 0, z).chunk(), side);
     let mut s = ready(ValidationConfig::default());
     wall(&mut s);
-    let elsewhere = RegionId::of(VoxelPos::new(x + 4, 0, z + 1000).chunk(), side);
-    s.set_foreign_regions([elsewhere].into_iter().collect());
+    s.set_swept_regions(Some([home].into_iter().collect()));
     assert!(matches!(
         s.update_position(PLAYER, at(2, x + 8, 0, z), 1_000),
         Err(PositionReject::PathBlocked { .. })
     ));
     let mut s = ready(ValidationConfig::default());
     wall(&mut s);
-    s.set_foreign_regions([home].into_iter().collect());
+    let elsewhere = RegionId::of(VoxelPos::new(x + 4, 0, z + 1000).chunk(), side);
+    s.set_swept_regions(Some([elsewhere].into_iter().collect()));
     s.update_position(PLAYER, at(2, x + 8, 0, z), 1_000)
         .unwrap();
 }
@@ -669,6 +670,58 @@ fn a_tall_body_is_swept_whole() {
             voxel: VoxelPos::new(x + 3, 2, z)
         })
     );
+    // Built around at its middle (feet + 2): it walks out.
+    s.submit(ADMIN, req(3, fill((x, 2, z), (x, 2, z))), 0)
+        .unwrap();
+    s.tick(0);
+    s.update_position(PLAYER, at(3, x - 1, 0, z), 1_500)
+        .unwrap();
+}
+
+/// Over a bump in a low tunnel: the lowest hop that clears the bump stays
+/// under the ceiling.
+#[test]
+fn a_bump_under_a_low_ceiling_is_stepped_over() {
+    let mut s = ready(ValidationConfig::default());
+    let (x, z) = HOME;
+    // Ceiling from y = 5 up, a bump 2 high at x + 2.
+    s.submit(ADMIN, req(1, fill((x - 4, 5, z - 4), (x + 8, 8, z + 4))), 0)
+        .unwrap();
+    s.submit(ADMIN, req(2, fill((x + 2, 0, z - 4), (x + 2, 1, z + 4))), 0)
+        .unwrap();
+    s.tick(0);
+    s.update_position(PLAYER, at(2, x + 4, 0, z), 1_000)
+        .unwrap();
+}
+
+/// No hop leaves the world: a wall up to `max_y` is not passed over its
+/// top through voxels above the world.
+#[test]
+fn a_wall_up_to_the_top_of_the_world_is_not_hopped() {
+    let top = 10;
+    let cfg = ValidationConfig {
+        bounds: strata_server::validate::WorldBounds {
+            min_y: -128,
+            max_y: top,
+        },
+        ..ValidationConfig::default()
+    };
+    let mut s = ready(cfg);
+    let (x, z) = HOME;
+    s.submit(
+        ADMIN,
+        req(1, fill((x + 3, 0, z - 4), (x + 3, top, z + 4))),
+        0,
+    )
+    .unwrap();
+    s.tick(0);
+    // Feet 3 below the top: one voxel above them and the eye in the world.
+    s.update_position(PLAYER, at(2, x, top - 3, z), 1_000)
+        .unwrap();
+    assert!(matches!(
+        s.update_position(PLAYER, at(3, x + 6, top - 3, z), 2_000),
+        Err(PositionReject::PathBlocked { .. })
+    ));
 }
 
 /// A player something was built around may walk out of it: the body's

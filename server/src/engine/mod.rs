@@ -130,6 +130,10 @@ pub struct Engine {
     /// when: read again only after [`ownership::FREE_REREAD`] (at most
     /// [`ownership::MAX_FREE_READ`] kept).
     free_read: std::collections::BTreeMap<crate::sequencer::regions::RegionId, Instant>,
+    /// Regions of the sessions' views no node holds, as `tell_owners` last
+    /// read them (none after a failed read): a move is swept through
+    /// these and this node's own, not through others' copies here.
+    free_regions: std::collections::HashSet<crate::sequencer::regions::RegionId>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -150,6 +154,12 @@ impl Engine {
         bounds: WorldBounds,
         versions: HashMap<ChunkPos, u64>,
     ) -> std::io::Result<Self> {
+        let mut seq = seq;
+        if store.clustered() {
+            // Until this node knows a region is its own or free, a move is
+            // not swept through it (`ownership::follow_leases`).
+            seq.set_swept_regions(Some(Default::default()));
+        }
         let workers = match cfg.workers {
             0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
             n => n.min(MAX_WORKERS),
@@ -199,6 +209,7 @@ impl Engine {
             reload_retry: Default::default(),
             reload_retry_at: None,
             free_read: Default::default(),
+            free_regions: Default::default(),
         })
     }
 
@@ -214,14 +225,24 @@ impl Engine {
         self
     }
 
-    /// Tells `health` how a store operation went (`/healthz` turns unready
-    /// while they keep failing).
-    fn store_answered<T, E>(&self, result: &Result<T, E>) {
+    /// Tells `health` how an operation that reached the store went
+    /// (`/healthz` turns unready while they keep failing). A record that
+    /// does not decode is the data's fault, not the store's: neither.
+    fn store_answered<T>(&self, result: &Result<T, crate::store::StoreError>) {
         if let Some(h) = &self.health {
             match result {
                 Ok(_) => h.store_ok(),
+                Err(e) if e.is_chunk_local() => {}
                 Err(_) => h.store_failed(),
             }
+        }
+    }
+
+    /// [`Self::store_answered`] for a failure only: for calls that may be
+    /// answered from memory, whose success says nothing of the store.
+    fn store_failed(&self, error: &crate::store::StoreError) {
+        if let (Some(h), false) = (&self.health, error.is_chunk_local()) {
+            h.store_failed();
         }
     }
 

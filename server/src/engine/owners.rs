@@ -91,16 +91,16 @@ impl Engine {
             Ok(h) => h.into_iter().collect(),
             Err(e) => {
                 error!(error = %e, "reading region holders failed");
+                self.free_regions.clear();
                 return;
             }
         };
-        // Positions are not swept through other nodes' regions.
-        let foreign = holders
+        // Positions are swept through free regions (and this node's).
+        self.free_regions = holders
             .iter()
-            .filter(|(_, h)| matches!(h, RegionHolder::Node { .. }))
+            .filter(|(_, h)| matches!(h, RegionHolder::Free))
             .map(|(r, _)| *r)
             .collect();
-        self.seq.set_foreign_regions(foreign);
         for (session, regions) in views {
             let owners: Vec<RegionOwner> = regions
                 .iter()

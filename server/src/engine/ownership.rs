@@ -112,11 +112,12 @@ impl Engine {
         };
         let side = self.seq.region_chunks();
         regions.extend(ray.iter().map(|&p| RegionId::of(p, side)));
-        let holders = self.store.region_holders(&regions);
-        self.store_answered(&holders);
-        let holders = match holders {
+        let holders = match self.store.region_holders(&regions) {
             Ok(h) => h,
             Err(e) => {
+                // Held regions are answered from the lease book: only a
+                // failure tells of the store.
+                self.store_failed(&e);
                 crate::log_every::store_error("regions", "reading regions' holders failed", &e);
                 return Err(RejectReason::Busy);
             }
@@ -279,6 +280,9 @@ impl Engine {
         self.take_fresh_regions();
         metrics::gauge!(m::REGIONS_HELD).set(self.store.regions_held() as f64);
         self.tell_owners();
+        let mut swept = self.free_regions.clone();
+        swept.extend(self.region_epochs.keys().copied());
+        self.seq.set_swept_regions(Some(swept));
         Ok(())
     }
 

@@ -108,8 +108,8 @@ pub struct Sequencer {
     last_positions: HashMap<String, Remembered>,
     /// Players whose position changed since [`Self::take_moved`].
     moved: HashSet<String>,
-    /// See [`Self::set_foreign_regions`].
-    foreign_regions: HashSet<RegionId>,
+    /// See [`Self::set_swept_regions`].
+    swept_regions: Option<HashSet<RegionId>>,
 }
 
 impl Sequencer {
@@ -144,7 +144,7 @@ impl Sequencer {
             disconnect: Vec::new(),
             last_positions: HashMap::new(),
             moved: Default::default(),
-            foreign_regions: HashSet::new(),
+            swept_regions: None,
         }
     }
 
@@ -206,19 +206,19 @@ impl Sequencer {
         self.cfg.region_chunks
     }
 
-    /// The regions another node of the cluster writes, as this node last
-    /// read their holders. A move's path is not swept through them: this
-    /// node's copies of their chunks may be behind their writer's (a
-    /// tunnel dug there would refuse honest players). Every other region
-    /// (this node's, free ones, a single server's) is swept.
-    pub fn set_foreign_regions(&mut self, regions: HashSet<RegionId>) {
-        self.foreign_regions = regions;
+    /// The regions a move's path is swept through (`None`: every one, a
+    /// single server's). A cluster node names its own and those it read
+    /// as free: its copies of another node's chunks may be behind their
+    /// writer's (a tunnel dug there would refuse honest players), and of
+    /// a region whose holder it does not know, so may they.
+    pub fn set_swept_regions(&mut self, regions: Option<HashSet<RegionId>>) {
+        self.swept_regions = regions;
     }
 
     fn sweeps(&self, chunk: ChunkPos) -> bool {
-        !self
-            .foreign_regions
-            .contains(&RegionId::of(chunk, self.cfg.region_chunks))
+        self.swept_regions
+            .as_ref()
+            .is_none_or(|s| s.contains(&RegionId::of(chunk, self.cfg.region_chunks)))
     }
 
     /// The regions `edit` writes or reads, or whose collision meshes it
@@ -907,7 +907,7 @@ impl Sequencer {
         self.world.load(reads);
         let path = Swept {
             world: &self.world,
-            foreign: &self.foreign_regions,
+            regions: self.swept_regions.as_ref(),
             side: self.cfg.region_chunks,
         };
         let checked = position::check(
@@ -1016,20 +1016,23 @@ impl Sequencer {
     }
 }
 
-/// The terrain a move's path is swept through: this node's copy, except
-/// in regions another node writes (air: the copy here may be stale).
+/// The terrain a move's path is swept through: this node's copy in the
+/// regions it sweeps ([`Sequencer::set_swept_regions`]), air elsewhere.
 struct Swept<'a> {
     world: &'a World,
-    foreign: &'a HashSet<RegionId>,
+    regions: Option<&'a HashSet<RegionId>>,
     side: u32,
 }
 
 impl VoxelRead for Swept<'_> {
     fn voxel(&self, p: VoxelPos) -> Voxel {
-        if self.foreign.contains(&RegionId::of(p.chunk(), self.side)) {
-            Voxel::AIR
-        } else {
+        let swept = self
+            .regions
+            .is_none_or(|s| s.contains(&RegionId::of(p.chunk(), self.side)));
+        if swept {
             self.world.voxel(p)
+        } else {
+            Voxel::AIR
         }
     }
 }

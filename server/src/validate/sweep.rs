@@ -9,7 +9,7 @@ use strata_terrain::edit::FixedVec3;
 use strata_terrain::{ChunkPos, VoxelPos, VoxelRead};
 
 use super::config::ValidationConfig;
-use super::position::{body_voxels, nearest_voxel, to_dvec3, PositionReject};
+use super::position::{nearest_voxel, to_dvec3, PositionReject};
 
 /// Longest step between two points of a path that are checked, in voxels:
 /// a point crossing a voxel passes at least one sample inside it unless it
@@ -25,26 +25,36 @@ pub const HOP_VOXELS: f64 = 4.0;
 
 /// The ways a move may have gone: straight; up or down first, then
 /// across; across first, then up or down; along x first, then z; along z
-/// first, then x; up to [`HOP_VOXELS`] over the higher end, across, and
-/// down. A player stepping onto a ledge or off one between two reports
-/// takes a bent way (the straight one cuts the ledge's corner), one
-/// running round a corner too; a wall across the whole move, at every
-/// height from the lower end to the hop's, blocks them all.
-fn routes(from: DVec3, to: DVec3) -> [[DVec3; 4]; 6] {
+/// first, then x; 1 to [`HOP_VOXELS`] over the higher end (lowest first,
+/// so a bump under a low ceiling is cleared), across, and down; never so
+/// high that the eye leaves the world. A player stepping onto a ledge or
+/// off one between two reports takes a bent way (the straight one cuts
+/// the ledge's corner), one running round a corner too; a wall across the
+/// whole move, at every height from the lower end to the hop's, blocks
+/// them all.
+fn routes(from: DVec3, to: DVec3, cfg: &ValidationConfig) -> Vec<[DVec3; 4]> {
     let vertical_first = DVec3::new(from.x, to.y, from.z);
     let across_first = DVec3::new(to.x, from.y, to.z);
     let x_first = DVec3::new(to.x, from.y, from.z);
     let z_first = DVec3::new(from.x, from.y, to.z);
-    let top = from.y.max(to.y) + HOP_VOXELS;
-    let (up, over) = (DVec3::new(from.x, top, from.z), DVec3::new(to.x, top, to.z));
-    [
+    let mut out = vec![
         [from, to, to, to],
         [from, vertical_first, to, to],
         [from, across_first, to, to],
         [from, x_first, to, to],
         [from, z_first, to, to],
-        [from, up, over, to],
-    ]
+    ];
+    let highest = from.y.max(to.y);
+    let ceiling = f64::from(cfg.bounds.max_y) - cfg.eye_height;
+    for hop in 1..=HOP_VOXELS as u32 {
+        let top = highest + f64::from(hop);
+        if top > ceiling {
+            break;
+        }
+        let (up, over) = (DVec3::new(from.x, top, from.z), DVec3::new(to.x, top, to.z));
+        out.push([from, up, over, to]);
+    }
+    out
 }
 
 /// The voxels a body with feet at `feet` passes through: nearest to one
@@ -82,7 +92,7 @@ fn route_voxels<'a>(
 /// before [`check`].
 pub fn chunks(from: FixedVec3, to: FixedVec3, cfg: &ValidationConfig) -> BTreeSet<ChunkPos> {
     let mut out = BTreeSet::new();
-    for route in routes(to_dvec3(from), to_dvec3(to)) {
+    for route in routes(to_dvec3(from), to_dvec3(to), cfg) {
         let mut last = None;
         for c in route_voxels(&route, cfg).map(|v| v.chunk()) {
             // Consecutive voxels mostly share a chunk.
@@ -95,17 +105,18 @@ pub fn chunks(from: FixedVec3, to: FixedVec3, cfg: &ValidationConfig) -> BTreeSe
 }
 
 /// `Ok` when some way from `from` to `to` keeps the body out of solid
-/// terrain. The body's voxels at `from` do not count: a player something
-/// was built around may walk out of it.
+/// terrain. The body's voxels at `from` (its whole column) do not count:
+/// a player something was built around may walk out of it.
 pub fn check(
     from: FixedVec3,
     to: FixedVec3,
     cfg: &ValidationConfig,
     voxels: &impl VoxelRead,
 ) -> Result<(), PositionReject> {
-    let start = body_voxels(from, cfg);
+    let (a, b) = (to_dvec3(from), to_dvec3(to));
+    let start: Vec<VoxelPos> = body_column(a, cfg).collect();
     let mut first = None;
-    for route in routes(to_dvec3(from), to_dvec3(to)) {
+    for route in routes(a, b, cfg) {
         let hit =
             route_voxels(&route, cfg).find(|v| !start.contains(v) && voxels.voxel(*v).is_solid());
         match hit {
@@ -115,6 +126,6 @@ pub fn check(
             }
         }
     }
-    let voxel = first.expect("six routes were tried");
+    let voxel = first.expect("the straight way is always tried");
     Err(PositionReject::PathBlocked { voxel })
 }
