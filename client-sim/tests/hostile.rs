@@ -145,6 +145,17 @@ async fn teleport_by_reconnect_is_refused() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_walk_through_a_built_wall_is_refused() {
+    let (s, h) = run_attack(Attack::WallWalk, true).await;
+    assert_honest(&s);
+    assert!(n(&h, "walls_built") > 0 && n(&h, "walks") > 0, "{h:?}");
+    // The far side is refused for its path, and the edit only it reaches
+    // is out of reach of where the server holds the player.
+    assert!(n(&h, "path_blocked") > 0, "{h:?}");
+    assert_eq!(n(&h, "edits_accepted_beyond_wall"), 0, "{h:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_shared_token_holds_one_session() {
     let (s, h) = run_attack(Attack::TokenShare, true).await;
     assert_honest(&s);

@@ -66,9 +66,10 @@ use tracing_subscriber::EnvFilter;
 /// players reconnect), far-subscribe (subscriptions and full-chunk requests
 /// 150+ chunks away), teleport (edit, reconnect thousands of voxels away,
 /// edit), handshake-flood (--hostile-connections connections that never
-/// say Hello), token-share (--hostile-sessions sessions of one token) or
+/// say Hello), token-share (--hostile-sessions sessions of one token),
 /// subscribe-flood (subscriptions to its own view, the radius flipping,
-/// --hostile-rate per second).
+/// --hostile-rate per second) or wall-walk (builds a wall, reports the far
+/// side of it and edits where only that side reaches).
 /// The summary's "hostile" object holds their counters; every other field
 /// counts the honest bots only.
 #[derive(Debug, Parser)]
@@ -185,7 +186,8 @@ struct Args {
     #[arg(long, default_value_t = 0)]
     hostile: usize,
     /// position-flood, border-flip, rejected-edits, far-subscribe,
-    /// teleport, handshake-flood, token-share or subscribe-flood.
+    /// teleport, handshake-flood, token-share, subscribe-flood or
+    /// wall-walk.
     #[arg(long)]
     attack: Option<Attack>,
     /// Local address of every hostile connection [default: 127.0.0.2 for a

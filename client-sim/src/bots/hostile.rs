@@ -135,10 +135,22 @@ pub enum Attack {
     /// as the control stream takes them. `subscribes_sent` (written to the
     /// stream), `refusals`, `reconnects`.
     SubscribeFlood,
+    /// Walls its way east off with a stack of built blobs, then reports the
+    /// far side of the wall ([`WALL_WALK`] voxels on, within a move's
+    /// reach) and edits where only the far side reaches; back and again.
+    /// `walls_built`, `walks`, `path_blocked` (`PositionRefused` answers
+    /// naming the wall), `edits_sent`, `edits_accepted` (its walls
+    /// included), `edits_accepted_beyond_wall` (an edit out of reach of
+    /// the near side: a cheat), `reconnects`.
+    WallWalk,
 }
 
+/// How far past its spot a wall-walk player reports: beyond the wall it
+/// built 1 to 5 voxels on, well within a move's reach after a second.
+pub const WALL_WALK: i32 = 8;
+
 impl Attack {
-    pub const ALL: [Attack; 8] = [
+    pub const ALL: [Attack; 9] = [
         Attack::PositionFlood,
         Attack::BorderFlip,
         Attack::RejectedEdits,
@@ -147,6 +159,7 @@ impl Attack {
         Attack::HandshakeFlood,
         Attack::TokenShare,
         Attack::SubscribeFlood,
+        Attack::WallWalk,
     ];
 
     pub fn name(self) -> &'static str {
@@ -159,6 +172,7 @@ impl Attack {
             Attack::HandshakeFlood => "handshake-flood",
             Attack::TokenShare => "token-share",
             Attack::SubscribeFlood => "subscribe-flood",
+            Attack::WallWalk => "wall-walk",
         }
     }
 
@@ -212,6 +226,15 @@ impl Attack {
                 "edits_accepted_far_apart",
             ],
             Attack::SubscribeFlood => &["subscribes_sent", "refusals", "reconnects"],
+            Attack::WallWalk => &[
+                "walls_built",
+                "walks",
+                "path_blocked",
+                "edits_sent",
+                "edits_accepted",
+                "edits_accepted_beyond_wall",
+                "reconnects",
+            ],
         }
     }
 }
@@ -483,6 +506,7 @@ async fn attack(h: Arc<Hostile>) {
         Attack::HandshakeFlood => handshake_flood(&h).await,
         Attack::TokenShare => token_share(&h).await,
         Attack::SubscribeFlood => subscribe_flood(&h).await,
+        Attack::WallWalk => wall_walk(&h).await,
     }
 }
 
@@ -560,6 +584,31 @@ impl Hostile {
         FixedVec3::from_voxels(x, y, z)
     }
 
+    /// Sends `edit` and waits for its verdict: `true` when accepted (each
+    /// counted, refusals by reason).
+    async fn edit_accepted(
+        &self,
+        s: &mut RawSession,
+        verdicts: &mut mpsc::Receiver<(u64, Verdict)>,
+        edit: Edit,
+    ) -> bool {
+        let Ok(id) = s.edit(edit).await else {
+            return false;
+        };
+        self.stats.add("edits_sent", 1);
+        match verdict_for(verdicts, id).await {
+            Some(Verdict::Accepted { .. }) => {
+                self.stats.add("edits_accepted", 1);
+                true
+            }
+            Some(Verdict::Rejected(r)) => {
+                self.stats.reject(&r);
+                false
+            }
+            None => false,
+        }
+    }
+
     /// Reports `feet`, then builds a small blob above the head until a
     /// verdict that is not about the position or the server's load.
     async fn place(
@@ -585,13 +634,7 @@ impl Hostile {
             sleep(Duration::from_millis(150)).await;
             let id = s.edit(edit.clone()).await.ok()?;
             self.stats.add("edits_sent", 1);
-            let verdict = loop {
-                match timeout(VERDICT_TIMEOUT, verdicts.recv()).await {
-                    Ok(Some((got, v))) if got == id => break Some(v),
-                    Ok(Some(_)) => {}
-                    Ok(None) | Err(_) => break None,
-                }
-            }?;
+            let verdict = verdict_for(verdicts, id).await?;
             if let Verdict::Rejected(
                 r @ (RejectReason::NoPosition | RejectReason::Busy | RejectReason::RateLimited),
             ) = &verdict
@@ -623,9 +666,39 @@ fn error_name(e: &ClientError) -> String {
 }
 
 /// A control handler that forwards edit verdicts.
+/// The verdict on edit `id`, skipping others'; `None` past
+/// [`VERDICT_TIMEOUT`] or once the session ended.
+async fn verdict_for(verdicts: &mut mpsc::Receiver<(u64, Verdict)>, id: u64) -> Option<Verdict> {
+    loop {
+        match timeout(VERDICT_TIMEOUT, verdicts.recv()).await {
+            Ok(Some((got, v))) if got == id => return Some(v),
+            Ok(Some(_)) => {}
+            Ok(None) | Err(_) => return None,
+        }
+    }
+}
+
 fn verdict_handler() -> (OnControl, mpsc::Receiver<(u64, Verdict)>) {
+    verdict_handler_with(None)
+}
+
+/// [`verdict_handler`], counting `PositionRefused { PathBlocked }` answers
+/// in `blocked` when given.
+fn verdict_handler_with(
+    blocked: Option<Arc<AtomicU64>>,
+) -> (OnControl, mpsc::Receiver<(u64, Verdict)>) {
     let (tx, rx) = mpsc::channel(64);
     let on: OnControl = Arc::new(move |m: &ServerMessage| {
+        if let (
+            ServerMessage::PositionRefused {
+                reason: strata_protocol::PositionRefusal::PathBlocked { .. },
+                ..
+            },
+            Some(b),
+        ) = (m, &blocked)
+        {
+            b.fetch_add(1, Ordering::Relaxed);
+        }
         let v = match m {
             ServerMessage::EditAccepted {
                 client_edit_id,
@@ -938,6 +1011,87 @@ async fn teleport(h: &Hostile) {
             }
             Some(Verdict::Rejected(r)) => h.stats.reject(&r),
             None => {}
+        }
+        drop(s);
+        sleep(PAUSE).await;
+    }
+}
+
+/// Builds a wall east of home, reports the far side of it and edits where
+/// only the far side reaches; counts edits accepted there.
+async fn wall_walk(h: &Hostile) {
+    let mut first = true;
+    let mut n = 0u32;
+    while h.running() {
+        let blocked = Arc::new(AtomicU64::new(0));
+        let (on, mut verdicts) = verdict_handler_with(Some(blocked.clone()));
+        let Some(mut s) = h.connect(&mut first, Some(on), None).await else {
+            break;
+        };
+        let (x, z) = h.home;
+        let feet = h.feet(&s.welcome, x, z);
+        let y = feet.y.floor_voxel();
+        let chunk = VoxelPos::new(x, y, z).chunk();
+        if s.subscribe(chunk, 1).await.is_err() {
+            sleep(PAUSE).await;
+            continue;
+        }
+        n += 1;
+        if !matches!(
+            h.place(&mut s, &mut verdicts, feet, n).await,
+            Some(Verdict::Accepted { .. })
+        ) {
+            sleep(PAUSE).await;
+            continue;
+        }
+        h.stats.add("edits_accepted", 1);
+        // Top down, so each blob is in sight over the ones below. A blob
+        // is solid to half its radius: these overlap from y - 1 to y + 10.
+        let mut walled = true;
+        for dy in [9, 6, 3, 0] {
+            let blob = Edit::Build {
+                center: FixedVec3::from_voxels(x + 3, y + dy, z),
+                radius: Fixed::from_voxels(4),
+                material: BUILD_MATERIALS[0],
+                strength: 255,
+            };
+            walled &= h.edit_accepted(&mut s, &mut verdicts, blob).await;
+        }
+        if walled {
+            h.stats.add("walls_built", 1);
+        }
+        let far = h.feet(&s.welcome, x + WALL_WALK, z);
+        let [fx, fy, fz] = [
+            far.x.floor_voxel(),
+            far.y.floor_voxel(),
+            far.z.floor_voxel(),
+        ];
+        // Out of reach of the near side's eye (14 voxels and more), within
+        // reach of the far side's.
+        let beyond = Edit::Build {
+            center: FixedVec3::from_voxels(fx + 6, fy + 2, fz),
+            radius: Fixed::from_voxels(1),
+            material: BUILD_MATERIALS[0],
+            strength: 255,
+        };
+        let mut counted = 0;
+        while h.running() && s.close_reason().is_none() {
+            sleep(Duration::from_secs(1)).await;
+            if s.position(far).is_err() {
+                break;
+            }
+            h.stats.add("walks", 1);
+            sleep(Duration::from_millis(200)).await;
+            if h.edit_accepted(&mut s, &mut verdicts, beyond.clone()).await {
+                h.stats.add("edits_accepted_beyond_wall", 1);
+            }
+            let now = blocked.load(Ordering::Relaxed);
+            h.stats.add("path_blocked", now - counted);
+            counted = now;
+            // Back where the server holds it.
+            if s.position(feet).is_err() {
+                break;
+            }
         }
         drop(s);
         sleep(PAUSE).await;
