@@ -333,7 +333,8 @@ pub enum ServerMessage {
         node: String,
     },
     /// The `Arrive` ticket was accepted: the first position report must
-    /// be a legal move from `feet`, timed from the ticket's `issued_ms`.
+    /// be a legal move from `feet`, the ticket's spot timed from its
+    /// `issued_ms`, or where a node saved the player after it, timed then.
     Arrived {
         feet: FixedVec3,
     },

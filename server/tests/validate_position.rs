@@ -344,40 +344,50 @@ fn an_arrival_allows_the_tickets_age_and_no_silence_after_it() {
         Err(PositionReject::TooFast { .. })
     ));
     // A ticket 29 s old (they live 30 s): 12 s of its age at most, with
-    // the 2 s cap, 352 voxels.
+    // the 2 s cap, 352 voxels, but no move is longer than a path is swept
+    // (256 voxels).
     let mut s = fresh();
     s.session_left(PLAYER);
-    assert!(run(&mut s, 7, 30_000, 30_000, 352).is_ok());
+    assert!(run(&mut s, 7, 30_000, 30_000, 256).is_ok());
     let mut s = fresh();
     s.session_left(PLAYER);
     assert!(matches!(
-        run(&mut s, 7, 30_000, 30_000, 353),
-        Err(PositionReject::TooFast { .. })
+        run(&mut s, 7, 30_000, 30_000, 257),
+        Err(PositionReject::TooFast { allowed, .. }) if allowed == 256.0
     ));
 }
 
-/// An arrival's grace covers the walk its player was seen on after the
-/// ticket (the issuing node saves it every second), not the ticket's whole
-/// age: a player silent since its ticket gets the hand-off's 3 s only.
+/// An arrival starts where its player was seen last, the ticket's spot or
+/// a newer saved one (its issuing node saves it every second), and its
+/// grace covers no more than the hand-off since: a player silent since
+/// its ticket gets 3 s, not the ticket's age.
 #[test]
-fn an_arrivals_grace_is_the_walk_seen_since_its_ticket() {
+fn an_arrival_starts_where_its_player_was_seen_last() {
     let spot = FixedVec3::from_voxels(HOME.0, 0, HOME.1);
-    let arrive_seen = |seen_ms: u64| {
+    let walked_to = FixedVec3::from_voxels(HOME.0 + 190, 0, HOME.1);
+    let arrive_seen = |feet: FixedVec3, seen_ms: u64| {
         let mut s = fresh();
         s.session_left(PLAYER);
         s.session_joined(7, "p".into(), Role::Player);
         let stored = StoredPosition {
-            feet: spot,
+            feet,
             known_ms: seen_ms,
         };
         s.resume_position(7, 13_000, Some(stored));
-        s.arrive(7, spot, 1_000, 13_000).unwrap();
-        // 200 voxels: 12 s of grace allow 352, 3 s allow 127.
-        s.update_position(7, at(1, HOME.0 + 200, 0, HOME.1), 13_000)
+        let start = s.arrive(7, spot, 1_000, 13_000).unwrap();
+        let moved = s.update_position(7, at(1, HOME.0 + 200, 0, HOME.1), 13_000);
+        (start, moved)
     };
-    assert!(arrive_seen(11_000).is_ok(), "seen walking 10 s on");
+    // Saved 190 voxels on at 11 s: placed there, 10 voxels to go.
+    let (start, moved) = arrive_seen(walked_to, 11_000);
+    assert_eq!(start, Start::Resume { feet: walked_to });
+    assert!(moved.is_ok(), "{moved:?}");
+    // Saved at the ticket's own time: placed at the ticket's spot, and the
+    // 12 s since allow 3 s of walking (127 voxels), not 200.
+    let (start, moved) = arrive_seen(spot, 1_000);
+    assert_eq!(start, Start::Resume { feet: spot });
     assert!(matches!(
-        arrive_seen(1_000),
+        moved,
         Err(PositionReject::TooFast { allowed, .. }) if allowed < 128.0
     ));
 }
@@ -412,9 +422,15 @@ fn an_arrival_with_an_older_ticket_moves_back_to_it() {
         );
     }
     assert_eq!(s.position(7).unwrap().feet, spot, "held where it arrived");
+    // The ticket's age went with the first report: 200 voxels on is more
+    // than the 2 s cap allows.
+    assert!(matches!(
+        handle(&mut s, at(201, HOME.0 + 200, 0, HOME.1), 41_000),
+        Err(PositionReject::TooFast { .. })
+    ));
     // Back at the spot, then on from there.
-    handle(&mut s, at(201, HOME.0 + 1, 0, HOME.1), 41_000).unwrap();
-    handle(&mut s, at(202, HOME.0 + 3, 0, HOME.1), 41_100).unwrap();
+    handle(&mut s, at(202, HOME.0 + 1, 0, HOME.1), 41_000).unwrap();
+    handle(&mut s, at(203, HOME.0 + 3, 0, HOME.1), 41_100).unwrap();
 }
 
 /// A player whose reports went unhandled for a while (a stall of the
@@ -573,10 +589,10 @@ fn a_cluster_node_sweeps_only_the_regions_it_names() {
         .unwrap();
 }
 
-/// An arrival's first move is checked for its length only: the way from
-/// the ticket's spot was walked on the node that issued it.
+/// An arrival's first move is swept like any other, from where it was
+/// placed: a ticket carries no way through a wall.
 #[test]
-fn an_arrivals_first_move_is_not_swept() {
+fn an_arrivals_first_move_is_swept() {
     let mut s = ready(ValidationConfig::default());
     let (x, z) = HOME;
     s.submit(ADMIN, req(1, fill((x + 3, 0, z - 8), (x + 5, 6, z + 8))), 0)
@@ -586,26 +602,12 @@ fn an_arrivals_first_move_is_not_swept() {
     s.resume_position(7, 1_000, None);
     s.arrive(7, FixedVec3::from_voxels(x, 0, z), 500, 1_000)
         .unwrap();
-    s.update_position(7, at(1, x + 8, 0, z), 1_000).unwrap();
-    // Its next move is swept: back through the wall is refused.
     assert!(matches!(
-        s.update_position(7, at(2, x + 1, 0, z), 1_500),
+        s.update_position(7, at(1, x + 8, 0, z), 1_000),
         Err(PositionReject::PathBlocked { .. })
     ));
-    // One try: a first report refused (inside the wall) takes the
-    // exemption with it, and the next one is swept from the ticket's spot.
-    s.session_joined(8, "r".into(), Role::Player);
-    s.resume_position(8, 1_000, None);
-    s.arrive(8, FixedVec3::from_voxels(x, 0, z), 500, 1_000)
-        .unwrap();
-    assert!(matches!(
-        s.update_position(8, at(1, x + 4, 0, z), 1_000),
-        Err(PositionReject::InsideSolid { .. })
-    ));
-    assert!(matches!(
-        s.update_position(8, at(2, x + 8, 0, z), 1_000),
-        Err(PositionReject::PathBlocked { .. })
-    ));
+    // On its side of the wall it walks on.
+    s.update_position(7, at(2, x - 2, 0, z), 1_100).unwrap();
 }
 
 /// A step onto a ledge and off it between two reports: the straight way

@@ -475,7 +475,7 @@ impl Sequencer {
             .map(|v| v.chunk())
             .collect();
         let prev = self.sessions.get(&session_id).and_then(|s| s.position);
-        if let Some(p) = prev.filter(|p| !p.arriving()) {
+        if let Some(p) = prev {
             for c in crate::validate::sweep::chunks(p.feet, upd.pos, cfg) {
                 if self.sweeps(c) && !chunks.contains(&c) {
                     chunks.push(c);
@@ -765,16 +765,27 @@ impl Sequencer {
         if newest.is_some_and(|t| issued_ms < t) {
             return refused;
         }
-        // The walk the ticket's age may stand for: until the player was
-        // last seen (its issuing node saves it every second), and the
-        // hand-off after; all of it when nothing is known.
+        // Where the player starts: the ticket's spot, or where it was seen
+        // since (its issuing node saves it every second; the resume found
+        // it), whichever is newer. Its first move is swept from there like
+        // any other: a stale ticket carries no way through a wall.
+        let seen_since = s
+            .position
+            .filter(|p| p.placement == Placement::Resumed && s.seen_ms > issued_ms);
+        let (feet, at_ms) = match seen_since {
+            Some(p) => (p.feet, s.seen_ms),
+            None => (feet, issued_ms),
+        };
+        // The walk the start's age may stand for: until the player was
+        // last seen, and the hand-off after; all of it when nothing is
+        // known.
         let walked = match s.seen_ms {
             0 => u64::MAX,
             seen => seen
-                .saturating_sub(issued_ms)
+                .saturating_sub(at_ms)
                 .saturating_add(ARRIVAL_HANDOFF_MS),
         };
-        let arrived = ValidatedPosition::arrived(feet, issued_ms, now_ms, walked, &self.validation);
+        let arrived = ValidatedPosition::arrived(feet, at_ms, now_ms, walked, &self.validation);
         if let Some(s) = self.sessions.get_mut(&session_id) {
             s.position = Some(arrived);
         }

@@ -125,9 +125,9 @@ impl ValidatedPosition {
     /// This position still, after a report at `now_ms` was refused: the
     /// time since the last report heard is credited.
     ///
-    /// An arrival's grace goes with its first report, refused or not: its
-    /// unswept move ([`Self::arriving`]) is one try, and the next ones are
-    /// checked from the ticket's spot, where the client is told it stands.
+    /// An arrival's grace goes with its first report, refused or not: one
+    /// try, and the next ones are checked from where it was placed, where
+    /// the client is told it stands.
     pub fn heard(self, now_ms: u64, cfg: &ValidationConfig) -> Self {
         Self {
             credit_ms: self.credited_ms(now_ms, cfg),
@@ -135,13 +135,6 @@ impl ValidatedPosition {
             grace_ms: 0,
             ..self
         }
-    }
-
-    /// Whether the next move is an arrival's first: the way from the
-    /// ticket's spot was walked on another node, so only its length is
-    /// checked here, not its path.
-    pub fn arriving(&self) -> bool {
-        self.placement == Placement::Arrived && self.grace_ms > 0
     }
 }
 
@@ -303,11 +296,8 @@ pub fn check_motion(
     let d = to_dvec3(p.feet).distance(to_dvec3(upd.pos));
     let speed = speed_distance(elapsed, cfg);
     let slack = slack_available(p, elapsed, cfg);
-    let mut allowed = speed + slack as f64 / 1000.0;
-    if !p.arriving() {
-        // Its path is swept: bounded whatever the config says.
-        allowed = allowed.min(MAX_SWEPT_MOVE);
-    }
+    // Its path is swept: bounded whatever the config says.
+    let allowed = (speed + slack as f64 / 1000.0).min(MAX_SWEPT_MOVE);
     if d > allowed {
         return Err(PositionReject::TooFast {
             distance: d,
@@ -337,7 +327,7 @@ pub fn check(
             return Err(PositionReject::InsideSolid { voxel: v });
         }
     }
-    if let Some(p) = prev.filter(|p| !p.arriving()) {
+    if let Some(p) = prev {
         sweep::check(p.feet, upd.pos, cfg, path)?;
     }
     Ok(ValidatedPosition {
