@@ -334,7 +334,8 @@ pub enum ServerMessage {
     },
     /// The `Arrive` ticket was accepted: the first position report must
     /// be a legal move from `feet`, the ticket's spot timed from its
-    /// `issued_ms`, or where a node saved the player after it, timed then.
+    /// `issued_ms`, or where the player was seen more than
+    /// [`crate::limits::TICKET_SKEW_MS`] after it, timed then.
     Arrived {
         feet: FixedVec3,
     },

@@ -1557,9 +1557,17 @@ async fn a_ticket_older_than_another_nodes_stored_position_is_refused() {
                 reason: TicketRefusal::BadSignature
             }]
         );
-        let new = ticket::mint(west.tickets.as_ref().unwrap(), "ann", feet(WEST_X), recent);
+        // For a spot ann walked on from since: it is placed where it was
+        // saved, and told so.
+        let new = ticket::mint(
+            west.tickets.as_ref().unwrap(),
+            "ann",
+            feet(WEST_X + 3),
+            recent,
+        );
         on_east.arrive(new).await.unwrap();
         assert!(eventually(Duration::from_secs(10), || on_east.arrived().is_some()).await);
+        assert_eq!(on_east.arrived(), Some(feet(WEST_X)));
         // Ann arrives where it was seen last: the saved spot, newer than
         // the ticket. The tickets east mints for it, a spot east never saw
         // reported, keep the time ann was known there: not fresher at each

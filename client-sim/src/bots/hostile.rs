@@ -137,7 +137,8 @@ pub enum Attack {
     SubscribeFlood,
     /// Walls its way east off with a stack of built blobs, then reports the
     /// far side of the wall ([`WALL_WALK`] voxels on, within a move's
-    /// reach) and edits where only the far side reaches; back and again.
+    /// reach) and edits where only the far side reaches; back and again
+    /// (no wall, no try).
     /// `walls_built`, `walks`, `path_blocked` (`PositionRefused` answers
     /// naming the wall), `edits_sent`, `edits_accepted` (its walls
     /// included), `edits_accepted_beyond_wall` (an edit out of reach of
@@ -665,7 +666,6 @@ fn error_name(e: &ClientError) -> String {
     }
 }
 
-/// A control handler that forwards edit verdicts.
 /// The verdict on edit `id`, skipping others'; `None` past
 /// [`VERDICT_TIMEOUT`] or once the session ended.
 async fn verdict_for(verdicts: &mut mpsc::Receiver<(u64, Verdict)>, id: u64) -> Option<Verdict> {
@@ -678,6 +678,7 @@ async fn verdict_for(verdicts: &mut mpsc::Receiver<(u64, Verdict)>, id: u64) -> 
     }
 }
 
+/// A control handler that forwards edit verdicts.
 fn verdict_handler() -> (OnControl, mpsc::Receiver<(u64, Verdict)>) {
     verdict_handler_with(None)
 }
@@ -1046,37 +1047,41 @@ async fn wall_walk(h: &Hostile) {
         }
         h.stats.add("edits_accepted", 1);
         // Top down, so each blob is in sight over the ones below. A blob
-        // is solid to half its radius: these overlap from y - 1 to y + 10.
+        // is solid a voxel less than its radius (its rim is soft): these
+        // make a wall over x + 3 ..= x + 5 from y - 1 to y + 10, clear of
+        // the body at home and at the far side.
         let mut walled = true;
         for dy in [9, 6, 3, 0] {
             let blob = Edit::Build {
-                center: FixedVec3::from_voxels(x + 3, y + dy, z),
-                radius: Fixed::from_voxels(4),
+                center: FixedVec3::from_voxels(x + 4, y + dy, z),
+                radius: Fixed::from_voxels(3),
                 material: BUILD_MATERIALS[0],
                 strength: 255,
             };
             walled &= h.edit_accepted(&mut s, &mut verdicts, blob).await;
         }
-        if walled {
-            h.stats.add("walls_built", 1);
+        if !walled {
+            // No wall, no cheat to try: the far side is in reach.
+            drop(s);
+            sleep(PAUSE).await;
+            continue;
         }
+        h.stats.add("walls_built", 1);
         let far = h.feet(&s.welcome, x + WALL_WALK, z);
-        let [fx, fy, fz] = [
-            far.x.floor_voxel(),
-            far.y.floor_voxel(),
-            far.z.floor_voxel(),
-        ];
-        // Out of reach of the near side's eye (14 voxels and more), within
-        // reach of the far side's.
+        let (fx, fz) = (far.x.floor_voxel(), far.z.floor_voxel());
+        // Two above the ground 6 voxels past the far side: out of reach of
+        // the near side's eye (14 voxels and more), within the far side's.
+        let target = h.feet(&s.welcome, fx + 6, fz).y.floor_voxel();
         let beyond = Edit::Build {
-            center: FixedVec3::from_voxels(fx + 6, fy + 2, fz),
+            center: FixedVec3::from_voxels(fx + 6, target, fz),
             radius: Fixed::from_voxels(1),
             material: BUILD_MATERIALS[0],
             strength: 255,
         };
         let mut counted = 0;
         while h.running() && s.close_reason().is_none() {
-            sleep(Duration::from_secs(1)).await;
+            // Long enough for the distance (8 voxels, 20 a second).
+            sleep(Duration::from_millis(500)).await;
             if s.position(far).is_err() {
                 break;
             }

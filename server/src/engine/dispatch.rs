@@ -148,7 +148,13 @@ impl Engine {
                         if let Some(p) = self.peers.get_mut(&session) {
                             p.start = start;
                         }
-                        ServerMessage::Arrived { feet }
+                        // Where it was placed: the ticket's spot or a
+                        // newer saved one.
+                        let placed = match start {
+                            strata_protocol::Start::Resume { feet } => feet,
+                            strata_protocol::Start::Spawn { .. } => feet,
+                        };
+                        ServerMessage::Arrived { feet: placed }
                     }
                     Err(reason) => ServerMessage::RequestRefused(Refusal::BadTicket { reason }),
                 };

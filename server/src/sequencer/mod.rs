@@ -590,6 +590,7 @@ impl Sequencer {
                 role,
                 position: None,
                 seen_ms: 0,
+                seen_feet: None,
             },
         );
     }
@@ -713,16 +714,19 @@ impl Sequencer {
             .chain(stored.map(|r| r.known_ms.saturating_sub(STORED_TICKET_SLACK_MS)))
             .max()
             .unwrap_or(0);
-        let seen_ms = others
+        // The newest sighting, spot and time from one record.
+        let seen = others
             .iter()
-            .map(|p| p.known_ms)
-            .chain(remembered.map(|r| r.known_ms))
-            .max()
-            .unwrap_or(0);
+            .map(|p| (p.known_ms, p.feet))
+            .chain(remembered.map(|r| (r.known_ms, r.feet)))
+            .max_by_key(|&(t, _)| t);
         let Some(s) = self.sessions.get_mut(&session_id) else {
             return spawn;
         };
-        s.seen_ms = seen_ms;
+        (s.seen_ms, s.seen_feet) = match seen {
+            Some((t, f)) => (t, Some(f)),
+            None => (0, None),
+        };
         match feet {
             Some(feet) => {
                 let resumed = ValidatedPosition::resumed(feet, now_ms, known_ms, &self.validation);
@@ -769,11 +773,14 @@ impl Sequencer {
         // since (its issuing node saves it every second; the resume found
         // it), whichever is newer. Its first move is swept from there like
         // any other: a stale ticket carries no way through a wall.
+        // A sighting within the nodes' clock skew of the ticket is no
+        // newer than it (a node's clock may run ahead).
+        let skew = strata_protocol::limits::TICKET_SKEW_MS;
         let seen_since = s
-            .position
-            .filter(|p| p.placement == Placement::Resumed && s.seen_ms > issued_ms);
+            .seen_feet
+            .filter(|_| s.seen_ms > issued_ms.saturating_add(skew));
         let (feet, at_ms) = match seen_since {
-            Some(p) => (p.feet, s.seen_ms),
+            Some(f) => (f, s.seen_ms),
             None => (feet, issued_ms),
         };
         // The walk the start's age may stand for: until the player was

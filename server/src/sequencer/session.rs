@@ -17,6 +17,8 @@ pub struct Session {
     /// lessened for tickets' age); 0 when unknown. An arrival's grace
     /// covers the walk seen since its ticket, not the ticket's whole age.
     pub seen_ms: u64,
+    /// Where the player was seen at `seen_ms` (the same record).
+    pub seen_feet: Option<strata_terrain::edit::FixedVec3>,
 }
 
 /// A player's rate limits, shared by all of the player's sessions so

@@ -51,8 +51,9 @@ pub struct ValidatedPosition {
     /// allowed more with every report it goes on sending, and catches up.
     pub credit_ms: u64,
     /// Time the next silence may count beyond `[validation] max_move_ms`:
-    /// for an arrival, the ticket's age when it was taken (the player
-    /// walked on meanwhile, on the node that issued it), at most
+    /// for an arrival until its first report, the age of the spot it was
+    /// placed at when taken (the player walked on meanwhile, on another
+    /// node), as far as it was seen walking and at most
     /// [`MAX_ARRIVAL_GRACE_MS`]; else 0.
     pub grace_ms: u64,
 }
@@ -80,10 +81,11 @@ impl ValidatedPosition {
         }
     }
 
-    /// A position from a ticket issued at `issued_ms` and taken at
-    /// `now_ms`, timed from its issue, with its whole slack; its grace is
-    /// the ticket's age, at most `walked` (how long after the issue the
-    /// player may have walked on) and [`MAX_ARRIVAL_GRACE_MS`].
+    /// An arrival placed at `feet`, where the player was at `issued_ms`
+    /// (the ticket's spot and issue, or a newer sighting), taken at
+    /// `now_ms`, with its whole slack; its grace is that spot's age, at
+    /// most `walked` (how long after it the player may have walked on) and
+    /// [`MAX_ARRIVAL_GRACE_MS`].
     pub fn arrived(
         feet: FixedVec3,
         issued_ms: u64,
