@@ -34,6 +34,12 @@ pub(crate) struct Notices(VecDeque<Notice>);
 
 impl Notices {
     pub(crate) fn push(&mut self, n: Notice) {
+        // The newest refusal says where the server holds the player now:
+        // older ones would move it back further.
+        if matches!(n, Notice::PositionRefused { .. }) {
+            self.0
+                .retain(|m| !matches!(m, Notice::PositionRefused { .. }));
+        }
         if self.0.len() >= MAX_NOTICES {
             self.0.pop_front();
         }
@@ -42,5 +48,36 @@ impl Notices {
 
     pub(crate) fn pop(&mut self) -> Option<Notice> {
         self.0.pop_front()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strata_protocol::PositionRefusal;
+
+    fn refused(seq: u32) -> Notice {
+        Notice::PositionRefused {
+            seq,
+            reason: PositionRefusal::OutOfBounds,
+            at: Some(FixedVec3::from_voxels(seq as i32, 0, 0)),
+        }
+    }
+
+    /// Of refusals not yet taken only the newest is kept: an older one
+    /// would move the player back further than the server holds it.
+    #[test]
+    fn a_newer_refusal_replaces_an_older_one() {
+        let mut n = Notices::default();
+        let loaded = Notice::ViewLoaded {
+            center: ChunkPos::new(0, 0, 0),
+            radius: 2,
+        };
+        n.push(refused(1));
+        n.push(loaded);
+        n.push(refused(2));
+        assert_eq!(n.pop(), Some(loaded));
+        assert_eq!(n.pop(), Some(refused(2)));
+        assert_eq!(n.pop(), None);
     }
 }

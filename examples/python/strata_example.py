@@ -95,6 +95,13 @@ class Strata:
         self.lib.strata_last_error_message.restype = C.c_char_p
         self.lib.strata_set_position.argtypes = [C.c_void_p, C.c_double, C.c_double, C.c_double]
         self.lib.strata_chunk_of.argtypes = [C.c_double, C.c_double, C.c_double, C.POINTER(C.c_int32)]
+        self.lib.strata_event_size.restype = C.c_size_t
+        # strata_poll writes the library's whole StrataEvent into ours.
+        if self.lib.strata_event_size() != C.sizeof(Event):
+            raise RuntimeError(
+                f"StrataEvent is {self.lib.strata_event_size()} bytes in the library, "
+                f"{C.sizeof(Event)} here: update this mirror"
+            )
 
     def call(self, name, *args, allow=(OK,)):
         status = getattr(self.lib, name)(*args)

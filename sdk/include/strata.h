@@ -116,8 +116,9 @@ typedef enum {
   // Always the last event.
   STRATA_EVENT_KIND_DISCONNECTED = 5,
   // Position report `seq` was refused: `position_refusal` says why,
-  // `message` in words. The server keeps the previous position and
-  // answers at most a few refused reports a second.
+  // `message` in words, `held` where the server holds the player (move
+  // back there). The server keeps the previous position and answers at
+  // most a few refused reports a second.
   STRATA_EVENT_KIND_POSITION_REFUSED = 6,
   // Every chunk within `radius` of chunk `chunk` (the view's centre) has
   // arrived, except forgotten ones: the view is loaded.
@@ -496,6 +497,11 @@ StrataStatus strata_resync(const StrataSession *s, int32_t cx, int32_t cy, int32
 // `s` is a live session; `edit` points to a `StrataEdit`; `out_ticket`
 // is writable.
 StrataStatus strata_edit(const StrataSession *s, const StrataEdit *edit, uint64_t *out_ticket);
+
+// `sizeof(StrataEvent)` as this library was built: a binding that mirrors
+// the struct (C#, Python) checks its own against it before polling, since
+// `strata_poll` writes this many bytes.
+size_t strata_event_size(void);
 
 // Takes the next event into `*out_event`, or sets its kind to
 // STRATA_EVENT_KIND_NONE when nothing happened. Never waits: call it every

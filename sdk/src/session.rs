@@ -497,6 +497,14 @@ fn set_message(ev: &mut StrataEvent, text: &str) {
     ev.message[n] = 0;
 }
 
+/// `sizeof(StrataEvent)` as this library was built: a binding that mirrors
+/// the struct (C#, Python) checks its own against it before polling, since
+/// `strata_poll` writes this many bytes.
+#[no_mangle]
+pub extern "C" fn strata_event_size() -> usize {
+    std::mem::size_of::<StrataEvent>()
+}
+
 /// Takes the next event into `*out_event`, or sets its kind to
 /// STRATA_EVENT_KIND_NONE when nothing happened. Never waits: call it every
 /// frame until it returns NONE. An EDIT_ACCEPTED event's `changes` stay
@@ -555,7 +563,7 @@ pub unsafe extern "C" fn strata_poll(
                 ev.seq = u64::from(seq);
                 ev.position_refusal = refusal_code(&reason);
                 if let Some(at) = at {
-                    (ev.held, ev.held_known) = (at.to_array(), 1);
+                    (ev.held, ev.held_known) = (at.to_f64(), 1);
                 }
                 set_message(&mut ev, &format!("{reason:?}"));
             }

@@ -28,8 +28,9 @@ pub enum StrataEventKind {
     /// Always the last event.
     Disconnected = 5,
     /// Position report `seq` was refused: `position_refusal` says why,
-    /// `message` in words. The server keeps the previous position and
-    /// answers at most a few refused reports a second.
+    /// `message` in words, `held` where the server holds the player (move
+    /// back there). The server keeps the previous position and answers at
+    /// most a few refused reports a second.
     PositionRefused = 6,
     /// Every chunk within `radius` of chunk `chunk` (the view's centre) has
     /// arrived, except forgotten ones: the view is loaded.

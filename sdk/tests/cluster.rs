@@ -284,6 +284,57 @@ fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
     });
 }
 
+/// Each node checks the walls of its own regions: a wall the east node
+/// writes, which the west node (Ann's home) does not sweep, refuses her
+/// walk through it there, and the session reports that node's refusal
+/// with where it holds her.
+#[test]
+fn a_wall_in_another_nodes_region_is_refused_by_that_node() {
+    let Some((_db, runtime, _dirs, west, east, bob)) = two_nodes("sdk_cluster_wall") else {
+        return;
+    };
+    // Bob walls off x = 320 and about 2 each side (region 1), from the feet's height
+    // at x = 320 less 1 to 10 above (blobs are solid a voxel less than
+    // their radius), top down so each is in sight.
+    let mut bob_seen = Vec::new();
+    walk(&bob, &mut bob_seen, EAST_X, 324);
+    let feet_y = spot(320).0.y.floor();
+    for dy in [9.0, 6.0, 3.0, 0.0] {
+        let blob = edits::build(DVec3::new(320.0, feet_y + dy, f64::from(Z)), 3.0, 2, 255).unwrap();
+        let ticket = bob.edit(blob).unwrap();
+        wait_for(&bob, &mut bob_seen, |e| match e {
+            Event::EditAccepted { ticket: t, .. } if *t == ticket => Some(()),
+            Event::EditRejected { ticket: t, reason } if *t == ticket => {
+                panic!("bob's wall refused: {reason:?}")
+            }
+            _ => None,
+        });
+    }
+    let (ann, mut seen) = ann_at_west(&west, SessionOptions::default());
+    walk(&ann, &mut seen, WEST_X, 314);
+    std::thread::sleep(Duration::from_millis(300));
+    ann.set_position(spot(326).0).unwrap();
+    let at = wait_for(&ann, &mut seen, |e| match e {
+        Event::PositionRefused {
+            reason: strata_protocol::PositionRefusal::PathBlocked { voxel },
+            at,
+            ..
+        } => {
+            assert!((317..=323).contains(&voxel.x), "in the wall: {voxel:?}");
+            Some(*at)
+        }
+        _ => None,
+    });
+    let at = at.expect("east holds ann").to_f64();
+    assert!(at[0] < 317.0, "held on the near side: {at:?}");
+    ann.close();
+    bob.close();
+    runtime.block_on(async {
+        west.shutdown().await.unwrap();
+        east.shutdown().await.unwrap();
+    });
+}
+
 /// A view asked for (`subscribe`) follows the player on every node, and a
 /// node joined later is asked for it where it is then, not where it was
 /// first asked: out of the player's reach by then, the east node would

@@ -43,3 +43,17 @@ fn no_bool_crosses_the_boundary() {
     let python = std::fs::read_to_string(python).unwrap();
     assert!(!python.contains("c_bool"), "c_bool in the Python mirror");
 }
+
+/// `StrataEvent`'s layout is the ABI: a change must be deliberate (and
+/// said in docs/SDK.md), since `strata_poll` writes the whole struct into
+/// the caller's. Mirrors check theirs against `strata_event_size`.
+#[test]
+fn the_event_layout_is_pinned() {
+    use std::mem::{offset_of, size_of};
+    use strata::StrataEvent;
+    assert_eq!(strata::strata_event_size(), size_of::<StrataEvent>());
+    assert_eq!(size_of::<StrataEvent>(), 360);
+    assert_eq!(offset_of!(StrataEvent, radius), 320);
+    assert_eq!(offset_of!(StrataEvent, held), 328);
+    assert_eq!(offset_of!(StrataEvent, held_known), 352);
+}

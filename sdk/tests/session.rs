@@ -154,9 +154,6 @@ fn a_session_edits_sees_its_changes_and_ends_with_disconnected() {
     s.close();
 }
 
-/// `strata_connect_with` through the C ABI: a thin, op-replaying session
-/// loads its view as whole chunks (no generator) and takes another
-/// player's edit as an op, replayed and hash-checked.
 /// A refused position through the C ABI: the event names the rule and
 /// where the server holds the player, to move back to.
 #[test]
@@ -194,6 +191,9 @@ fn a_refused_position_through_the_c_abi_says_where_the_player_is_held() {
     unsafe { strata_session_free(c) };
 }
 
+/// `strata_connect_with` through the C ABI: a thin, op-replaying session
+/// loads its view as whole chunks (no generator) and takes another
+/// player's edit as an op, replayed and hash-checked.
 #[test]
 fn a_thin_op_replay_session_through_the_c_abi() {
     use strata::*;

@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use strata_protocol::reject_label;
-use strata_protocol::{ErrorCode, RejectReason, Start, PROTOCOL_VERSION};
+use strata_protocol::{ErrorCode, PositionRefusal, RejectReason, Start, PROTOCOL_VERSION};
 use strata_terrain::{ChunkPos, Edit, FixedVec3, VoxelPos};
 use tokio::sync::watch;
 use tracing::debug;
@@ -420,7 +420,9 @@ impl Bot {
     /// where the server holds it, as a game client would: its walk went
     /// somewhere the server did not follow (through a wall built since its
     /// replica last heard, a stall), so reports from there stay refused.
-    fn take_refusals(&mut self, client: &Client) {
+    /// Returns whether it moved the bot.
+    fn take_refusals(&mut self, client: &Client) -> bool {
+        let mut moved = false;
         while let Some(n) = client.pop_notice() {
             let Notice::PositionRefused { reason, at, .. } = n else {
                 continue;
@@ -430,8 +432,18 @@ impl Bot {
                 .position_refused(strata_protocol::refusal_label(&reason));
             if let (Some(at), Some(w)) = (at, self.walker.as_mut()) {
                 w.feet = at.to_f64();
+                moved = true;
+                // Terrain its replica had not seen yet: go elsewhere, not
+                // at the same wall again.
+                if matches!(
+                    reason,
+                    PositionRefusal::PathBlocked { .. } | PositionRefusal::InsideSolid { .. }
+                ) {
+                    w.new_waypoint(&mut self.rng);
+                }
             }
         }
+        moved
     }
 
     /// One connection: `Ok` when the run is done, `Err` when it was lost.
@@ -570,7 +582,10 @@ impl Bot {
             }
             Phase::Run if Instant::now() < st.active_from => {}
             Phase::Run => {
-                self.take_refusals(client);
+                if self.take_refusals(client) {
+                    // Moved back: not a walk into another region.
+                    st.region = None;
+                }
                 let walker = self.walker.as_mut().expect("set by session");
                 walker.step(&client.replica(), STEP.as_secs_f64(), &mut self.rng);
                 if st.steps % POSITION_EVERY == 0 {

@@ -1,13 +1,13 @@
 //! What [`super::Session::poll`] hands the game loop.
 
-use glam::DVec3;
 use strata_protocol::{ChunkVersion, ErrorCode, PositionRefusal, RejectReason};
+use strata_terrain::edit::FixedVec3;
 use strata_terrain::ChunkPos;
 
 /// One thing that happened since the last poll. Every edit the session
 /// took gets exactly one of `EditAccepted`, `EditRejected` or
 /// `EditFailed`, and `Disconnected` comes once, last.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Event {
     /// The server sequenced edit `ticket` as `seq`; `changes` are the
     /// chunk versions it made durable (empty when it changed nothing).
@@ -25,14 +25,17 @@ pub enum Event {
     /// [`super::Session::chunk`] returns `None`). A mesh reads its 26
     /// neighbours' border voxels, so theirs may change too.
     ChunkChanged { pos: ChunkPos },
-    /// The server refused position report `seq` and keeps the previous
-    /// position, `at` in voxels (none before the first); rate-bounded: not
-    /// every refused report is answered. Move the player back to `at`: the
-    /// server checks each report from there.
+    /// A server refused position report `seq` (as that node numbered it,
+    /// on a cluster) and keeps the previous position, `at` (none before the
+    /// first; `at.to_f64()` in voxels); rate-bounded: not every refused
+    /// report is answered, and only the newest refusal not yet polled is
+    /// kept. Move the player back to `at`: the server checks each report
+    /// from there. On a cluster every node checks the walls of its own
+    /// regions, so a refusal may come from any node connected.
     PositionRefused {
         seq: u32,
         reason: PositionRefusal,
-        at: Option<DVec3>,
+        at: Option<FixedVec3>,
     },
     /// Every chunk of the view around chunk `center` at `radius` has
     /// arrived (except forgotten ones): the view is loaded. Its chunks are

@@ -52,6 +52,11 @@ impl Links {
     }
 
     /// Every connection, the home one first.
+    /// Whether this session spans a cluster's nodes.
+    pub fn is_cluster(&self) -> bool {
+        self.cluster.is_some()
+    }
+
     pub fn all(&self) -> Vec<Arc<Client>> {
         let Some(v) = &self.cluster else {
             return vec![self.home.clone()];

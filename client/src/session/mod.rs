@@ -305,13 +305,23 @@ impl Session {
         }
         match self.links.home.pop_notice() {
             Some(Notice::PositionRefused { seq, reason, at }) => {
-                let at = at.map(|f| DVec3::from_array(f.to_f64()));
                 return Some(Event::PositionRefused { seq, reason, at });
             }
             Some(Notice::ViewLoaded { center, radius }) => {
                 return Some(Event::ViewLoaded { center, radius })
             }
             None => {}
+        }
+        // Other nodes' refusals too (each checks its own regions' walls);
+        // their views are the home node's to report.
+        if self.links.is_cluster() {
+            for c in self.links.all().iter().skip(1) {
+                while let Some(n) = c.pop_notice() {
+                    if let Notice::PositionRefused { seq, reason, at } = n {
+                        return Some(Event::PositionRefused { seq, reason, at });
+                    }
+                }
+            }
         }
         if let Some(pos) = self.links.pop_changed() {
             return Some(Event::ChunkChanged { pos });
