@@ -229,6 +229,17 @@ impl PgStore {
                     reason: e.to_string(),
                 })
             }
+            // COMMIT was sent and the connection ended before its answer
+            // (a node paused past its lease just then: the server ends a
+            // session idle in its transaction, COMMIT unread). The batch's
+            // first log row says whether the transaction took.
+            Err(StoreError::Postgres(e)) if e.is_closed() => match self.logged(cols.first_seq) {
+                Ok(true) => Ok((std::time::Duration::ZERO, std::time::Duration::ZERO)),
+                Ok(false) => Err(StoreError::Uncommitted {
+                    reason: format!("{e}; the log holds none of the batch"),
+                }),
+                Err(_) => Err(StoreError::Postgres(e)),
+            },
             other => other,
         };
         if let (
@@ -249,6 +260,20 @@ impl PgStore {
             // COMMIT returns after the WAL flush: that is the fsync.
             fsync: commit,
         })
+    }
+}
+
+impl PgStore {
+    /// Whether the edit log holds `seq`: a batch's transaction took when
+    /// its first entry is there (all of it or none is).
+    fn logged(&self, seq: i64) -> Result<bool, StoreError> {
+        self.pool
+            .run("checking a commit's outcome", async |c: &mut Conn| {
+                let row = c
+                    .query_opt("SELECT 1 FROM edit_log WHERE seq = $1", &[&seq])
+                    .await?;
+                Ok(row.is_some())
+            })
     }
 }
 
@@ -459,6 +484,29 @@ mod tests {
     use super::*;
     use crate::store::pg::pool::Pool;
     use crate::store::pg::PgConfig;
+
+    /// A commit whose COMMIT went unanswered is resolved by its first log
+    /// row: there, it took; absent, nothing of it was written.
+    #[test]
+    fn a_commits_outcome_is_read_from_its_log_row() {
+        let Some(db) = strata_tests::postgres::database("pg_commit_outcome") else {
+            return;
+        };
+        let cfg = PgConfig {
+            url: db.url(),
+            ..PgConfig::default()
+        };
+        let store = PgStore::open(&cfg, 8).unwrap();
+        store
+            .pool
+            .run("logging one entry", async |c: &mut Conn| {
+                c.batch("INSERT INTO edit_log (seq, entry) VALUES (5, '\\x00')")
+                    .await
+            })
+            .unwrap();
+        assert!(store.logged(5).unwrap());
+        assert!(!store.logged(6).unwrap());
+    }
 
     #[test]
     fn a_session_ended_idle_in_its_transaction_wrote_nothing() {
