@@ -385,6 +385,34 @@ fn store_backed_chunks_must_be_resident() {
     assert_eq!(s.world().peek(home).unwrap().chunk.get(0, 0, 0), Voxel::AIR);
 }
 
+/// A report inside solid terrain is refused on its body's chunks alone:
+/// none of its way's is loaded for it.
+#[test]
+fn a_report_inside_the_ground_loads_nothing_of_its_way() {
+    let mut s = store_backed(10);
+    let p = at(1, X, 0, Z);
+    for c in s.chunks_needed_for_position(PLAYER, &p) {
+        s.mark_absent(c);
+    }
+    s.update_position(PLAYER, p, 0).unwrap();
+    // 40 voxels on and 10 down, in the rock.
+    let buried = at(2, X + 40, -10, Z);
+    let body: Vec<ChunkPos> = vec![strata_terrain::VoxelPos::new(X + 40, -9, Z).chunk()];
+    let first = s.chunks_needed_for_position(PLAYER, &buried);
+    assert!(
+        first.len() > body.len(),
+        "its way too, while the body is unknown"
+    );
+    for c in &body {
+        s.mark_absent(*c);
+    }
+    assert_eq!(s.chunks_needed_for_position(PLAYER, &buried), vec![]);
+    assert!(matches!(
+        s.update_position(PLAYER, buried, 2_000),
+        Err(strata_server::validate::PositionReject::InsideSolid { .. })
+    ));
+}
+
 /// A store-backed sequencer with the player at home, a cold modified
 /// chunk `far`, and the chunks `edit` reads resident (`home` stored at
 /// version 5 as `stored`).

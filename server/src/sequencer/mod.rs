@@ -467,13 +467,17 @@ impl Sequencer {
 
     /// The chunks a report's check reads: the body's at the new spot, and
     /// those along the ways from the last accepted position (none for a
-    /// first position or an arrival's first move).
+    /// first position). A spot whose body is known to be in solid terrain
+    /// is refused before its way is read: none of the way's chunks.
     fn position_reads(&self, session_id: u64, upd: &PositionUpdate) -> Vec<ChunkPos> {
         let cfg = &self.validation;
-        let mut chunks: Vec<ChunkPos> = position::body_voxels(upd.pos, cfg)
-            .iter()
-            .map(|v| v.chunk())
-            .collect();
+        let body = position::body_voxels(upd.pos, cfg);
+        let mut chunks: Vec<ChunkPos> = body.iter().map(|v| v.chunk()).collect();
+        let buried = body.iter().all(|v| self.is_resident(v.chunk()))
+            && body.iter().any(|v| self.world.voxel(*v).is_solid());
+        if buried {
+            return chunks;
+        }
         let prev = self.sessions.get(&session_id).and_then(|s| s.position);
         if let Some(p) = prev {
             for c in crate::validate::sweep::chunks(p.feet, upd.pos, cfg) {
