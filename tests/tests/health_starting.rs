@@ -40,11 +40,21 @@ fn await_health(addr: &str, want: &str) -> String {
     panic!("no {want:?} from /healthz within {WITHIN:?}; last {last:?}");
 }
 
-#[test]
-fn healthz_says_not_ready_while_the_server_starts() {
-    let Some(db) = strata_tests::postgres::database("healthz_starting") else {
-        return;
-    };
+/// A server started again on `test`'s PostgreSQL world while a session
+/// holds the world's table locked, so it stays starting; its `/healthz`
+/// already answers 503. Release the lock by writing `COMMIT;` to the
+/// returned stdin.
+struct Starting {
+    _db: strata_tests::postgres::PgDb,
+    _tmp: tempfile::TempDir,
+    metrics: String,
+    sql: std::process::ChildStdin,
+    lock: Guard,
+    server: Guard,
+}
+
+fn starting_behind_a_lock(test: &str) -> Option<Starting> {
+    let db = strata_tests::postgres::database(test)?;
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     let metrics = free_local_addr();
@@ -72,7 +82,7 @@ fn healthz_says_not_ready_while_the_server_starts() {
         said.by_ref().any(|l| l.unwrap() == "LOCK TABLE"),
         "the lock was taken"
     );
-    let mut server = Guard(
+    let server = Guard(
         Command::new(binary("strata-server"))
             .arg("--config")
             .arg(data.with_extension("toml"))
@@ -84,14 +94,47 @@ fn healthz_says_not_ready_while_the_server_starts() {
             .spawn()
             .expect("strata-server starts"),
     );
+    let metrics = metrics.to_string();
     let starting = await_health(&metrics, "HTTP/1.1 503");
     eprintln!("while starting: {starting}");
+    Some(Starting {
+        _db: db,
+        _tmp: tmp,
+        metrics,
+        sql,
+        lock,
+        server,
+    })
+}
+
+#[test]
+fn healthz_says_not_ready_while_the_server_starts() {
+    let Some(mut s) = starting_behind_a_lock("healthz_starting") else {
+        return;
+    };
     // Let it go: the start finishes and the server is ready.
-    writeln!(sql, "COMMIT;").unwrap();
-    drop(sql);
-    let ready = await_health(&metrics, "HTTP/1.1 200");
+    writeln!(s.sql, "COMMIT;").unwrap();
+    drop(s.sql);
+    let ready = await_health(&s.metrics, "HTTP/1.1 200");
     eprintln!("started: {ready}");
-    server.terminate();
-    assert!(server.wait_timeout(Duration::from_secs(30)).success());
-    lock.wait_timeout(Duration::from_secs(10));
+    s.server.terminate();
+    assert!(s.server.wait_timeout(Duration::from_secs(30)).success());
+    s.lock.wait_timeout(Duration::from_secs(10));
+}
+
+/// SIGTERM while the server starts (a supervisor stopping it at once) is
+/// caught, not the default kill: the start finishes and the server shuts
+/// down cleanly, exit status 0.
+#[test]
+fn a_stop_while_starting_is_a_clean_shutdown() {
+    let Some(mut s) = starting_behind_a_lock("stop_while_starting") else {
+        return;
+    };
+    s.server.terminate();
+    std::thread::sleep(Duration::from_millis(300));
+    writeln!(s.sql, "COMMIT;").unwrap();
+    drop(s.sql);
+    let status = s.server.wait_timeout(Duration::from_secs(30));
+    assert!(status.success(), "strata-server exited with {status}");
+    s.lock.wait_timeout(Duration::from_secs(10));
 }

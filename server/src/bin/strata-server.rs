@@ -36,11 +36,28 @@ struct Args {
     listen: Option<SocketAddr>,
 }
 
-async fn wait_for_signal() -> anyhow::Result<&'static str> {
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-    tokio::select! {
-        r = tokio::signal::ctrl_c() => { r?; Ok("SIGINT") }
-        _ = term.recv() => Ok("SIGTERM"),
+/// SIGTERM and SIGINT, caught from the moment this is made: made before
+/// the server says it listens, so a supervisor that stops it right after
+/// still gets a graceful shutdown (the default action would kill it).
+struct Signals {
+    term: tokio::signal::unix::Signal,
+    int: tokio::signal::unix::Signal,
+}
+
+impl Signals {
+    fn catch() -> anyhow::Result<Self> {
+        use tokio::signal::unix::{signal, SignalKind};
+        Ok(Self {
+            term: signal(SignalKind::terminate())?,
+            int: signal(SignalKind::interrupt())?,
+        })
+    }
+
+    async fn next(&mut self) -> &'static str {
+        tokio::select! {
+            _ = self.int.recv() => "SIGINT",
+            _ = self.term.recv() => "SIGTERM",
+        }
     }
 }
 
@@ -102,6 +119,7 @@ async fn serve(cfg: ServerConfig) -> anyhow::Result<()> {
             health.clone(),
         ));
     }
+    let mut signals = Signals::catch()?;
     let running = app::start_with_health(cfg, health).await?;
     // One machine-readable line on stdout: tests and scripts read the port
     // (and may close the pipe after it: nothing else is printed there).
@@ -114,8 +132,8 @@ async fn serve(cfg: ServerConfig) -> anyhow::Result<()> {
         running.data_dir.cert_path().display()
     );
     tokio::select! {
-        signal = wait_for_signal() => {
-            tracing::info!(signal = signal?, "shutting down");
+        signal = signals.next() => {
+            tracing::info!(signal, "shutting down");
             running.shutdown().await
         }
         () = running.engine_stopped() => {
