@@ -88,11 +88,62 @@ fn route_voxels<'a>(
         .filter(move |v| cfg.bounds.contains_y(v.y))
 }
 
+/// Most chunks [`chunks`] lists from the box around a move's ways; a move
+/// whose box holds more (a long one) has its ways walked instead.
+pub const BOX_CHUNKS: usize = 8;
+
 /// Every chunk a sweep of `from` → `to` may read: what must be resident
-/// before [`check`].
+/// before [`check`]. Worked out from the box around every way when that is
+/// small (an honest report: no voxel walked), else along the ways.
 pub fn chunks(from: FixedVec3, to: FixedVec3, cfg: &ValidationConfig) -> BTreeSet<ChunkPos> {
+    let (a, b) = (to_dvec3(from), to_dvec3(to));
+    match box_chunks(a, b, cfg) {
+        Some(set) => set,
+        None => walked_chunks(a, b, cfg),
+    }
+}
+
+/// The chunks of the box that holds every voxel [`check`] may read for
+/// `a` → `b`, when there are at most [`BOX_CHUNKS`]: every way stays
+/// between the ends across, and between the lower end and the highest hop
+/// up and down, and the body reaches from the lower of one voxel and the
+/// eye above its feet to the higher.
+fn box_chunks(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> Option<BTreeSet<ChunkPos>> {
+    let (below, above) = (cfg.eye_height.min(1.0), cfg.eye_height.max(1.0));
+    let low = nearest_voxel(a.min(b) + DVec3::Y * below);
+    let top = a.y.max(b.y) + HOP_VOXELS + above;
+    let high = nearest_voxel(DVec3::new(a.x.max(b.x), top, a.z.max(b.z)));
+    // Above and below the world there is nothing to read.
+    let (y0, y1) = (low.y.max(cfg.bounds.min_y), high.y.min(cfg.bounds.max_y));
+    if y0 > y1 {
+        return Some(BTreeSet::new());
+    }
+    let (lo, hi) = (
+        VoxelPos::new(low.x, y0, low.z).chunk(),
+        VoxelPos::new(high.x, y1, high.z).chunk(),
+    );
+    let span = |l: i32, h: i32| usize::try_from(i64::from(h) - i64::from(l) + 1).unwrap_or(0);
+    let count = span(lo.x, hi.x)
+        .saturating_mul(span(lo.y, hi.y))
+        .saturating_mul(span(lo.z, hi.z));
+    if count > BOX_CHUNKS {
+        return None;
+    }
     let mut out = BTreeSet::new();
-    for route in routes(to_dvec3(from), to_dvec3(to), cfg) {
+    for x in lo.x..=hi.x {
+        for y in lo.y..=hi.y {
+            for z in lo.z..=hi.z {
+                out.insert(ChunkPos::new(x, y, z));
+            }
+        }
+    }
+    Some(out)
+}
+
+/// The chunks the ways' voxels fall in, walked one by one.
+fn walked_chunks(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> BTreeSet<ChunkPos> {
+    let mut out = BTreeSet::new();
+    for route in routes(a, b, cfg) {
         let mut last = None;
         for c in route_voxels(&route, cfg).map(|v| v.chunk()) {
             // Consecutive voxels mostly share a chunk.
@@ -128,4 +179,107 @@ pub fn check(
     }
     let voxel = first.expect("the straight way is always tried");
     Err(PositionReject::PathBlocked { voxel })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::cell::RefCell;
+
+    use proptest::prelude::*;
+    use strata_terrain::Voxel;
+
+    use super::*;
+
+    /// Solid at about one voxel in three, by a hash of its position: ways
+    /// get blocked at varied points, so [`check`] tries varied ways.
+    struct Speckled(RefCell<BTreeSet<ChunkPos>>);
+
+    impl VoxelRead for Speckled {
+        fn voxel(&self, p: VoxelPos) -> Voxel {
+            self.0.borrow_mut().insert(p.chunk());
+            let h = (p.x as u32).wrapping_mul(0x9E37_79B1)
+                ^ (p.y as u32).wrapping_mul(0x85EB_CA77)
+                ^ (p.z as u32).wrapping_mul(0xC2B2_AE3D);
+            if h.wrapping_mul(0x27D4_EB2F) >> 30 == 0 {
+                Voxel::solid(1)
+            } else {
+                Voxel::AIR
+            }
+        }
+    }
+
+    fn point(base: [f64; 3], d: [f64; 3]) -> FixedVec3 {
+        FixedVec3::from_f64([base[0] + d[0], base[1] + d[1], base[2] + d[2]]).unwrap()
+    }
+
+    /// Moves near chunk borders (every axis crosses one), short and long,
+    /// up and down, near the world's top and bottom.
+    fn moves() -> impl Strategy<Value = (FixedVec3, FixedVec3)> {
+        let base = prop_oneof![
+            Just([30.5, 10.0, -1.25]),
+            Just([-0.75, 62.0, 31.75]),
+            Just([64.0, -60.0, 0.0]),
+            Just([1.0, 508.0, 1.0]),
+            Just([1.0, -512.0, 1.0]),
+        ];
+        let offset = || -3.0f64..3.0;
+        let step = prop_oneof![4 => -3.0f64..3.0, 1 => -60.0f64..60.0];
+        (
+            base,
+            [offset(), offset(), offset()],
+            [step.clone(), step.clone(), step],
+        )
+            .prop_map(|(b, o, s)| {
+                (
+                    point(b, o),
+                    point(b, [o[0] + s[0], o[1] + s[1], o[2] + s[2]]),
+                )
+            })
+    }
+
+    proptest! {
+        /// The box is never less than the ways: every chunk a walk of them
+        /// meets is in it.
+        #[test]
+        fn the_box_holds_every_ways_chunks((from, to) in moves()) {
+            let cfg = ValidationConfig::default();
+            let (a, b) = (to_dvec3(from), to_dvec3(to));
+            if let Some(boxed) = box_chunks(a, b, &cfg) {
+                let walked = walked_chunks(a, b, &cfg);
+                prop_assert!(walked.is_subset(&boxed), "{walked:?} not in {boxed:?}");
+                prop_assert!(boxed.len() <= BOX_CHUNKS);
+            }
+        }
+
+        /// A sweep reads only chunks [`chunks`] listed, whichever ways it
+        /// tries, for eyes shorter and taller than a voxel.
+        #[test]
+        fn a_sweep_reads_only_the_chunks_listed(
+            (from, to) in moves(),
+            eye in prop_oneof![Just(1.6), Just(0.5), Just(3.5)],
+        ) {
+            let cfg = ValidationConfig { eye_height: eye, ..ValidationConfig::default() };
+            let listed = chunks(from, to, &cfg);
+            let world = Speckled(RefCell::default());
+            let _ = check(from, to, &cfg, &world);
+            let read = world.0.into_inner();
+            prop_assert!(read.is_subset(&listed), "{read:?} not in {listed:?}");
+        }
+    }
+
+    /// A short move is listed from its box; a long one along its ways.
+    #[test]
+    fn a_long_move_is_walked() {
+        let cfg = ValidationConfig::default();
+        let from = point([16.0, 10.0, 16.0], [0.0; 3]);
+        let near = point([16.0, 10.0, 16.0], [0.4, 0.0, -0.3]);
+        let far = point([16.0, 10.0, 16.0], [200.0, 0.0, 200.0]);
+        let (a, b) = (to_dvec3(from), to_dvec3(near));
+        assert_eq!(box_chunks(a, b, &cfg), Some(walked_chunks(a, b, &cfg)));
+        assert_eq!(box_chunks(a, to_dvec3(far), &cfg), None);
+        assert_eq!(
+            chunks(from, far, &cfg),
+            walked_chunks(a, to_dvec3(far), &cfg)
+        );
+    }
 }
