@@ -156,6 +156,17 @@ async fn a_walk_through_a_built_wall_is_refused() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_flight_over_a_built_wall_is_refused() {
+    let (s, h) = run_attack(Attack::FlyOver, true).await;
+    assert_honest(&s);
+    assert!(n(&h, "walls_built") > 0 && n(&h, "flights") > 0, "{h:?}");
+    // Gravity refuses the way up: the server holds the player at home, so
+    // the far side and the edit only it reaches are refused too.
+    assert!(n(&h, "too_high") > 0, "{h:?}");
+    assert_eq!(n(&h, "edits_accepted_beyond_wall"), 0, "{h:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_shared_token_holds_one_session() {
     let (s, h) = run_attack(Attack::TokenShare, true).await;
     assert_honest(&s);

@@ -359,6 +359,11 @@ pub enum PositionRefusal {
     /// passes the body through solid terrain; `voxel` is where the
     /// straight one does.
     PathBlocked { voxel: VoxelPos },
+    /// The feet are above `apex`: off the ground, the highest a jump
+    /// (`[validation.gravity] jump_voxels`) from where they last stood
+    /// reaches, or where a fall began; standing, a jump above the last
+    /// report that stood (PROTOCOL.md, rule 6).
+    TooHigh { apex: Fixed },
 }
 
 /// Why a request other than an edit was refused.

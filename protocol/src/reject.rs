@@ -12,6 +12,7 @@ pub fn refusal_label(r: &PositionRefusal) -> &'static str {
         PositionRefusal::OutsideSpawn { .. } => "outside_spawn",
         PositionRefusal::OutOfBounds => "bounds",
         PositionRefusal::PathBlocked { .. } => "path_blocked",
+        PositionRefusal::TooHigh { .. } => "too_high",
     }
 }
 

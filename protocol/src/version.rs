@@ -9,5 +9,5 @@ pub const ALPN: &[u8] = b"strata/1";
 /// `Arrived`, 7 added `RejectReason::NodeFull`, 8 added
 /// `TicketRefusal::NotClustered` and `RegionOwners::node`; tickets are
 /// bound to their world; 9 added `PositionRefused::at` and
-/// `PositionRefusal::PathBlocked`).
-pub const PROTOCOL_VERSION: u32 = 9;
+/// `PositionRefusal::PathBlocked`, 10 added `PositionRefusal::TooHigh`).
+pub const PROTOCOL_VERSION: u32 = 10;

@@ -129,6 +129,13 @@ fn server_messages() -> Vec<ServerMessage> {
             },
             at: Some(FixedVec3::from_voxels(0, 1, 3)),
         },
+        ServerMessage::PositionRefused {
+            seq: 3,
+            reason: PositionRefusal::TooHigh {
+                apex: Fixed::from_voxels(44),
+            },
+            at: Some(FixedVec3::from_voxels(0, 40, 3)),
+        },
     ]
 }
 
@@ -216,7 +223,7 @@ fn messages_round_trip() {
 #[test]
 fn golden_bytes_pin_the_wire_format() {
     // PROTOCOL.md walks through these bytes; changing them breaks clients.
-    assert_eq!(PROTOCOL_VERSION, 9, "PROTOCOL.md names version 9");
+    assert_eq!(PROTOCOL_VERSION, 10, "PROTOCOL.md names version 10");
     let hello = ClientMessage::Hello(Hello {
         protocol_version: PROTOCOL_VERSION,
         token: "t".into(),
@@ -225,7 +232,7 @@ fn golden_bytes_pin_the_wire_format() {
     // Capabilities come last: varint 3.
     assert_eq!(
         encode_frame(&hello, Direction::ClientToServer).unwrap(),
-        [5, 0, 0, 0, 0, 9, 1, b't', 3]
+        [5, 0, 0, 0, 0, 10, 1, b't', 3]
     );
     // Op: variant 7, seq, the edit as in `Edit`, then the chunk list.
     let op = WorldUpdate::Op(OpUpdate {
@@ -349,6 +356,19 @@ fn golden_bytes_of_version_4_messages() {
     assert_eq!(
         encode(&blocked, Direction::ServerToClient).unwrap(),
         [6, 3, 4, 2, 1, 0, 0]
+    );
+    // Gravity's refusal (version 10): variant 5, then a Fixed (44 * 256 =
+    // 11264, zigzag 22528 = fb 00 58).
+    let high = ServerMessage::PositionRefused {
+        seq: 4,
+        reason: PositionRefusal::TooHigh {
+            apex: Fixed::from_voxels(44),
+        },
+        at: None,
+    };
+    assert_eq!(
+        encode(&high, Direction::ServerToClient).unwrap(),
+        [6, 4, 5, 0xfb, 0x00, 0x58, 0]
     );
     let too_large = ServerMessage::RequestRefused(Refusal::ForgetTooLarge {
         chunks: 2000,

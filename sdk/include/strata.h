@@ -164,6 +164,9 @@ typedef enum {
   // Every way from the held position passes the body through solid
   // terrain (a wall): move the player back to `held`.
   STRATA_POSITION_REFUSAL_PATH_BLOCKED = 5,
+  // Higher than a jump from where the player last stood: move the
+  // player back to `held`.
+  STRATA_POSITION_REFUSAL_TOO_HIGH = 6,
 } StrataPositionRefusal;
 
 // Kinds of `StrataEdit`.

@@ -463,6 +463,7 @@ fn refusal_code(r: &PositionRefusal) -> StrataPositionRefusal {
         PositionRefusal::OutsideSpawn { .. } => StrataPositionRefusal::OutsideSpawn,
         PositionRefusal::OutOfBounds => StrataPositionRefusal::OutOfBounds,
         PositionRefusal::PathBlocked { .. } => StrataPositionRefusal::PathBlocked,
+        PositionRefusal::TooHigh { .. } => StrataPositionRefusal::TooHigh,
     }
 }
 

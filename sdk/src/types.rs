@@ -53,6 +53,9 @@ pub enum StrataPositionRefusal {
     /// Every way from the held position passes the body through solid
     /// terrain (a wall): move the player back to `held`.
     PathBlocked = 5,
+    /// Higher than a jump from where the player last stood: move the
+    /// player back to `held`.
+    TooHigh = 6,
 }
 
 /// Why the server refused an edit.

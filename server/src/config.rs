@@ -831,6 +831,14 @@ impl ServerConfig {
                 ),
             ));
         }
+        let g = &v.gravity;
+        use crate::validate::gravity as gr;
+        range(
+            "validation.gravity.jump_voxels",
+            g.jump_voxels,
+            0.0,
+            gr::MAX_JUMP_VOXELS,
+        )?;
         let spawn = &self.validation.spawn;
         let max = crate::validate::spawn::MAX_SPAWN_COORD;
         range("validation.spawn.x", spawn.x, -max, max)?;

@@ -168,7 +168,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_counter!(
         POSITIONS_REFUSED,
-        "Position reports refused by a rule, by reason: too_fast, inside_solid, path_blocked (a wall between the held position and the report), outside_spawn, bounds; stale ones are not counted"
+        "Position reports refused by a rule, by reason: too_fast, inside_solid, path_blocked (a wall between the held position and the report), too_high (gravity), outside_spawn, bounds; stale ones are not counted"
     );
     metrics::describe_counter!(
         DELTAS_SENT,

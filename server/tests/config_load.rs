@@ -398,6 +398,14 @@ fn bad_values_name_their_field() {
             "validation.max_move_ms",
         ),
         ("[validation]\nmax_speed = 200.0", "validation.max_move_ms"),
+        (
+            "[validation.gravity]\njump_voxels = -1.0",
+            "validation.gravity.jump_voxels",
+        ),
+        (
+            "[validation.gravity]\njump_voxels = nan",
+            "validation.gravity.jump_voxels",
+        ),
     ];
     for (text, field) in cases {
         assert_eq!(invalid_field(text), field, "config {text:?}");

@@ -418,6 +418,28 @@ async fn by_a_wall(
     (ana, root, feet, ground)
 }
 
+/// The first `PositionRefused` the client hears (within 10 s): why, and
+/// where the server holds the player.
+async fn first_refusal(client: &Client) -> (strata_protocol::PositionRefusal, Option<FixedVec3>) {
+    let mut told = None;
+    assert!(
+        eventually(Duration::from_secs(10), || {
+            told = told.or_else(|| {
+                std::iter::from_fn(|| client.pop_notice()).find_map(|n| match n {
+                    strata_client_sim::Notice::PositionRefused { reason, at, .. } => {
+                        Some((reason, at))
+                    }
+                    _ => None,
+                })
+            });
+            told.is_some()
+        })
+        .await,
+        "no position refused"
+    );
+    told.unwrap()
+}
+
 /// Line of sight over QUIC: checked on the workers for the edits the
 /// engine admitted, against the terrain as it stands then.
 #[tokio::test]
@@ -462,9 +484,11 @@ async fn an_edit_behind_a_wall_is_refused_for_line_of_sight() {
 
 /// A position beyond a wall, within a move's reach: refused for its path,
 /// and the answer says where the server holds the player, from where its
-/// next report is checked.
+/// next report is checked. Flying over it instead (a spot high above the
+/// ground) is refused by gravity, the answer naming the apex a jump
+/// reaches.
 #[tokio::test]
-async fn a_walk_through_a_wall_is_refused_with_where_the_player_stands() {
+async fn a_walk_through_or_a_flight_over_a_wall_is_refused_with_where_the_player_stands() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
         let server = start(dir.path()).await;
@@ -479,26 +503,24 @@ async fn a_walk_through_a_wall_is_refused_with_where_the_player_stands() {
         // Long enough since the last report for the distance.
         tokio::time::sleep(Duration::from_millis(600)).await;
         ana.send_position(past).unwrap();
-        let mut told = None;
-        assert!(
-            eventually(Duration::from_secs(10), || {
-                told = told.or_else(|| {
-                    std::iter::from_fn(|| ana.pop_notice()).find_map(|n| match n {
-                        strata_client_sim::Notice::PositionRefused { reason, at, .. } => {
-                            Some((reason, at))
-                        }
-                        _ => None,
-                    })
-                });
-                told.is_some()
-            })
-            .await
-        );
-        let (reason, at) = told.unwrap();
+        let (reason, at) = first_refusal(&ana).await;
         assert!(
             matches!(reason, strata_protocol::PositionRefusal::PathBlocked { voxel }
                 if voxel.z == z + 3),
             "{reason:?}"
+        );
+        assert_eq!(at, Some(feet), "held where it stood");
+        // Straight up, higher than the wall: past the refusals' interval.
+        let [fx, fy, fz] = feet.to_f64();
+        tokio::time::sleep(Duration::from_millis(600)).await;
+        ana.send_position(FixedVec3::from_f64([fx, fy + 8.0, fz]).unwrap())
+            .unwrap();
+        let (reason, at) = first_refusal(&ana).await;
+        let apex = strata_terrain::edit::Fixed::from_f64(fy + 4.0).unwrap();
+        assert_eq!(
+            reason,
+            strata_protocol::PositionRefusal::TooHigh { apex },
+            "a jump above where it stood"
         );
         assert_eq!(at, Some(feet), "held where it stood");
         ana.close().await;

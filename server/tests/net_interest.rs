@@ -427,6 +427,8 @@ async fn a_players_own_view_stays_within_reach_of_where_it_walks() {
         let mut cfg = test_config(dir.path());
         cfg.validation.max_speed = 1000.0;
         cfg.validation.max_move_ms = 200;
+        // It flies high over the hills between (no gravity).
+        cfg.validation.gravity.enabled = false;
         let server = app::start(cfg).await.expect("server starts");
         let (feet, _) = spot(16, 16);
         let walker = connect(&server, "walker", Role::Player).await;

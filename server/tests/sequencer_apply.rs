@@ -309,12 +309,20 @@ fn max_edits_per_tick_leaves_the_rest_queued() {
 }
 
 /// A sequencer with a store (nothing resident until loaded or marked
-/// absent), its next seq above `last_seq`, and the player joined.
+/// absent), its next seq above `last_seq`, and the player joined. Without
+/// gravity: a report then reads no chunk below the feet's, so the tests
+/// may store the one under home themselves.
 fn store_backed(last_seq: u64) -> Sequencer {
+    store_backed_with(last_seq, false)
+}
+
+fn store_backed_with(last_seq: u64, gravity: bool) -> Sequencer {
+    let mut v = ValidationConfig::default();
+    v.gravity.enabled = gravity;
     let mut s = Sequencer::new(
         world(),
         SequencerConfig::default(),
-        ValidationConfig::default(),
+        v,
         last_seq,
         MaterialTable::default(),
         StructureLibrary::default(),
@@ -383,6 +391,23 @@ fn store_backed_chunks_must_be_resident() {
     assert_eq!(out.applied[0].seq, 11);
     assert_applied_on_stored(&s, &out, home, &stored);
     assert_eq!(s.world().peek(home).unwrap().chunk.get(0, 0, 0), Voxel::AIR);
+}
+
+/// With gravity, a report reads the ground under the feet too (here, the
+/// chunk below theirs).
+#[test]
+fn a_report_loads_the_ground_under_it() {
+    let mut s = store_backed_with(10, true);
+    let p = at(1, X, 0, Z);
+    let need = s.chunks_needed_for_position(PLAYER, &p);
+    assert_eq!(need, vec![ChunkPos::new(3, -1, 3), ChunkPos::new(3, 0, 3)]);
+    s.mark_absent(ChunkPos::new(3, 0, 3));
+    assert!(matches!(
+        s.update_position(PLAYER, p, 0),
+        Err(strata_server::validate::PositionReject::ChunkNotLoaded { .. })
+    ));
+    s.mark_absent(ChunkPos::new(3, -1, 3));
+    s.update_position(PLAYER, p, 0).unwrap();
 }
 
 /// A report inside solid terrain is refused on its body's chunks alone:

@@ -12,9 +12,21 @@ use strata_terrain::edit::{Fixed, FixedVec3};
 use strata_terrain::VoxelPos;
 
 fn fresh() -> strata_server::sequencer::Sequencer {
-    let mut s = sequencer(SequencerConfig::default(), ValidationConfig::default());
+    fresh_with(ValidationConfig::default())
+}
+
+fn fresh_with(v: ValidationConfig) -> strata_server::sequencer::Sequencer {
+    let mut s = sequencer(SequencerConfig::default(), v);
     s.session_joined(PLAYER, "p".into(), Role::Player);
     s
+}
+
+/// The default rules without gravity: for tests of the other rules whose
+/// players stand in the air or go over walls.
+fn flying() -> ValidationConfig {
+    let mut v = ValidationConfig::default();
+    v.gravity.enabled = false;
+    v
 }
 
 #[test]
@@ -440,7 +452,8 @@ fn an_arrival_with_an_older_ticket_moves_back_to_it() {
 /// earn nothing more, and the player moves back to where it is held.
 #[test]
 fn a_player_refused_after_a_stall_catches_up_within_the_cap() {
-    let mut s = fresh();
+    // Reports 40 voxels up, without falling.
+    let mut s = fresh_with(flying());
     // As the engine handles a report: the rules that read no terrain first.
     let handle = |s: &mut Sequencer, report: PositionUpdate, now: u64| {
         s.precheck_position(PLAYER, &report, now)
@@ -502,7 +515,8 @@ fn a_minute_of_refused_reports_buys_no_far_move() {
 #[test]
 fn a_report_beyond_a_wall_is_refused_for_its_path() {
     for thickness in [1, 5] {
-        let mut s = ready(ValidationConfig::default());
+        // Gravity off: this is the path rule's test (over the top too).
+        let mut s = ready(flying());
         let (x, z) = HOME;
         s.submit(
             ADMIN,
@@ -617,17 +631,16 @@ fn an_arrivals_first_move_is_swept() {
 fn a_ledge_is_climbed_and_left_between_two_reports() {
     let mut s = ready(ValidationConfig::default());
     let (x, z) = HOME;
-    // A block 6 high from x + 1 on: its top is at y = 6.
-    s.submit(ADMIN, req(1, fill((x + 1, 0, z - 4), (x + 8, 5, z + 4))), 0)
+    // A block 4 high (a jump) from x + 1 on: its top is at y = 4.
+    s.submit(ADMIN, req(1, fill((x + 1, 0, z - 4), (x + 8, 3, z + 4))), 0)
         .unwrap();
     s.tick(0);
-    s.update_position(PLAYER, at(2, x + 2, 6, z), 500).unwrap();
+    s.update_position(PLAYER, at(2, x + 2, 4, z), 500).unwrap();
     s.update_position(PLAYER, at(3, x, 0, z), 1_000).unwrap();
-    // Straight through the block's body is not a way.
-    assert!(matches!(
-        s.update_position(PLAYER, at(4, x + 9, 0, z), 2_000),
-        Err(PositionReject::PathBlocked { .. })
-    ));
+    // Across the whole block: not through it, but a hop over its top (a
+    // jump high, within the apex).
+    s.update_position(PLAYER, at(4, x + 9, 0, z), 2_000)
+        .unwrap();
 }
 
 /// Round a corner between two reports: the straight way cuts it, the way
@@ -706,7 +719,7 @@ fn a_wall_up_to_the_top_of_the_world_is_not_hopped() {
             min_y: -128,
             max_y: top,
         },
-        ..ValidationConfig::default()
+        ..flying()
     };
     let mut s = ready(cfg);
     let (x, z) = HOME;
@@ -1001,4 +1014,107 @@ fn placements_of_a_player_with_no_position_are_bounded() {
         s.charge_placement(PLAYER, refill_ms).unwrap();
     }
     assert_eq!(PositionReject::PlacementLimited.refusal(), None);
+}
+
+/// A wall 12 voxels high (solid from the ground to y = 11) at x + 3.
+fn tall_wall(s: &mut Sequencer) {
+    let (x, z) = HOME;
+    s.submit(
+        ADMIN,
+        req(1, fill((x + 3, 0, z - 8), (x + 3, 11, z + 8))),
+        0,
+    )
+    .unwrap();
+    s.tick(0);
+}
+
+/// Gravity: a player may rise a jump above the ground, no higher, so a
+/// wall taller than that is no way across; an admin flies.
+#[test]
+fn a_player_rises_a_jump_and_no_more_an_admin_flies() {
+    use strata_server::validate::gravity::DEFAULT_JUMP_VOXELS;
+    let mut s = ready(ValidationConfig::default());
+    tall_wall(&mut s);
+    let (x, z) = HOME;
+    let jump = DEFAULT_JUMP_VOXELS as i32;
+    s.update_position(PLAYER, at(2, x, jump, z), 500).unwrap();
+    assert_eq!(
+        s.update_position(PLAYER, at(3, x, 13, z), 1_000),
+        Err(PositionReject::TooHigh {
+            apex: f64::from(jump)
+        })
+    );
+    assert_eq!(
+        s.position(PLAYER).map(|p| p.feet),
+        Some(at(2, x, jump, z).pos)
+    );
+    // The admin goes up and over, and down the far side.
+    let ax = x - 2;
+    s.update_position(ADMIN, at(2, ax, 13, z), 1_000).unwrap();
+    s.update_position(ADMIN, at(3, x + 6, 13, z), 1_500)
+        .unwrap();
+    s.update_position(ADMIN, at(4, x + 6, 0, z), 3_000).unwrap();
+}
+
+/// Standing on the top of a wall higher than a jump above the last report
+/// is refused too (it stood there in one move); a standing report a jump
+/// up passes. And no hop of the path goes above the apex.
+#[test]
+fn a_wall_top_beyond_a_jump_is_no_footing() {
+    let mut s = ready(ValidationConfig::default());
+    tall_wall(&mut s);
+    let (x, z) = HOME;
+    // The wall's top (solid to y = 11): feet at 12, standing.
+    assert_eq!(
+        s.update_position(PLAYER, at(2, x + 3, 12, z), 1_000),
+        Err(PositionReject::TooHigh { apex: 4.0 })
+    );
+    // A wall solid to y = 6 and a report past it at the apex: a hop over
+    // the wall would need the feet at 7 or more, above the apex 4.
+    let mut s = ready(ValidationConfig::default());
+    s.submit(ADMIN, req(1, fill((x + 3, 0, z - 8), (x + 3, 6, z + 8))), 0)
+        .unwrap();
+    s.tick(0);
+    assert!(matches!(
+        s.update_position(PLAYER, at(2, x + 6, 4, z), 1_000),
+        Err(PositionReject::PathBlocked { .. })
+    ));
+    // Standing on it, a jump up from the ground (feet 7, top 6): passes.
+    let mut s = ready(ValidationConfig::default());
+    s.submit(ADMIN, req(1, fill((x + 3, 0, z - 8), (x + 3, 2, z + 8))), 0)
+        .unwrap();
+    s.tick(0);
+    s.update_position(PLAYER, at(2, x + 3, 3, z), 1_000)
+        .unwrap();
+}
+
+/// `[validation.gravity] enabled = false`: players fly.
+#[test]
+fn with_gravity_off_players_fly() {
+    let mut v = ValidationConfig::default();
+    v.gravity.enabled = false;
+    let mut s = ready(v);
+    tall_wall(&mut s);
+    let (x, z) = HOME;
+    s.update_position(PLAYER, at(2, x, 13, z), 1_000).unwrap();
+    s.update_position(PLAYER, at(3, x + 6, 13, z), 1_500)
+        .unwrap();
+    s.update_position(PLAYER, at(4, x + 6, 13, z + 1), 9_000)
+        .unwrap();
+}
+
+/// A resumed player may fall or stand, not rise, until it stands: a
+/// reconnect is no fresh jump.
+#[test]
+fn a_resumed_player_in_the_air_may_not_rise() {
+    let mut s = fresh();
+    let (x, z) = HOME;
+    let feet = FixedVec3::from_voxels(x, 6, z);
+    s.resume_position(PLAYER, 0, Some(StoredPosition { feet, known_ms: 0 }));
+    assert!(matches!(
+        s.update_position(PLAYER, at(1, x, 7, z), 500),
+        Err(PositionReject::TooHigh { .. })
+    ));
+    s.update_position(PLAYER, at(2, x, 0, z), 1_000).unwrap();
+    s.update_position(PLAYER, at(3, x, 4, z), 1_200).unwrap();
 }

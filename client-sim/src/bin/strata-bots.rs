@@ -68,8 +68,9 @@ use tracing_subscriber::EnvFilter;
 /// edit), handshake-flood (--hostile-connections connections that never
 /// say Hello), token-share (--hostile-sessions sessions of one token),
 /// subscribe-flood (subscriptions to its own view, the radius flipping,
-/// --hostile-rate per second) or wall-walk (builds a wall, reports the far
-/// side of it and edits where only that side reaches).
+/// --hostile-rate per second), wall-walk (builds a wall, reports the far
+/// side of it and edits where only that side reaches) or fly-over (the
+/// same, reporting its way up over the wall first).
 /// The summary's "hostile" object holds their counters; every other field
 /// counts the honest bots only.
 #[derive(Debug, Parser)]
@@ -186,8 +187,8 @@ struct Args {
     #[arg(long, default_value_t = 0)]
     hostile: usize,
     /// position-flood, border-flip, rejected-edits, far-subscribe,
-    /// teleport, handshake-flood, token-share, subscribe-flood or
-    /// wall-walk.
+    /// teleport, handshake-flood, token-share, subscribe-flood, wall-walk
+    /// or fly-over.
     #[arg(long)]
     attack: Option<Attack>,
     /// Local address of every hostile connection [default: 127.0.0.2 for a

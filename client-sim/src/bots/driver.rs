@@ -437,7 +437,9 @@ impl Bot {
                 // at the same wall again.
                 if matches!(
                     reason,
-                    PositionRefusal::PathBlocked { .. } | PositionRefusal::InsideSolid { .. }
+                    PositionRefusal::PathBlocked { .. }
+                        | PositionRefusal::InsideSolid { .. }
+                        | PositionRefusal::TooHigh { .. }
                 ) {
                     w.new_waypoint(&mut self.rng);
                 }

@@ -144,6 +144,14 @@ pub enum Attack {
     /// included), `edits_accepted_beyond_wall` (an edit out of reach of
     /// the near side: a cheat), `reconnects`.
     WallWalk,
+    /// Walls its way east off as `WallWalk` does (a wall 12 voxels high),
+    /// then flies over it: reports a spot above home higher than the
+    /// wall, one above the far side, and the far side's ground, and edits
+    /// where only the far side reaches; back and again. `walls_built`,
+    /// `flights`, `too_high` (`PositionRefused` answers of gravity:
+    /// `TooHigh`), `edits_sent`, `edits_accepted`,
+    /// `edits_accepted_beyond_wall` (a cheat), `reconnects`.
+    FlyOver,
 }
 
 /// How far past its spot a wall-walk player reports: beyond the wall it
@@ -151,7 +159,7 @@ pub enum Attack {
 pub const WALL_WALK: i32 = 8;
 
 impl Attack {
-    pub const ALL: [Attack; 9] = [
+    pub const ALL: [Attack; 10] = [
         Attack::PositionFlood,
         Attack::BorderFlip,
         Attack::RejectedEdits,
@@ -161,6 +169,7 @@ impl Attack {
         Attack::TokenShare,
         Attack::SubscribeFlood,
         Attack::WallWalk,
+        Attack::FlyOver,
     ];
 
     pub fn name(self) -> &'static str {
@@ -174,6 +183,7 @@ impl Attack {
             Attack::TokenShare => "token-share",
             Attack::SubscribeFlood => "subscribe-flood",
             Attack::WallWalk => "wall-walk",
+            Attack::FlyOver => "fly-over",
         }
     }
 
@@ -231,6 +241,15 @@ impl Attack {
                 "walls_built",
                 "walks",
                 "path_blocked",
+                "edits_sent",
+                "edits_accepted",
+                "edits_accepted_beyond_wall",
+                "reconnects",
+            ],
+            Attack::FlyOver => &[
+                "walls_built",
+                "flights",
+                "too_high",
                 "edits_sent",
                 "edits_accepted",
                 "edits_accepted_beyond_wall",
@@ -507,7 +526,8 @@ async fn attack(h: Arc<Hostile>) {
         Attack::HandshakeFlood => handshake_flood(&h).await,
         Attack::TokenShare => token_share(&h).await,
         Attack::SubscribeFlood => subscribe_flood(&h).await,
-        Attack::WallWalk => wall_walk(&h).await,
+        Attack::WallWalk => wall_walk(&h, false).await,
+        Attack::FlyOver => wall_walk(&h, true).await,
     }
 }
 
@@ -680,25 +700,23 @@ async fn verdict_for(verdicts: &mut mpsc::Receiver<(u64, Verdict)>, id: u64) -> 
 
 /// A control handler that forwards edit verdicts.
 fn verdict_handler() -> (OnControl, mpsc::Receiver<(u64, Verdict)>) {
-    verdict_handler_with(None)
+    verdict_handler_with(None, |_| false)
 }
 
 /// [`verdict_handler`], counting `PositionRefused { PathBlocked }` answers
 /// in `blocked` when given.
+/// [`verdict_handler`], counting in `refused` the `PositionRefused`
+/// answers `counts` picks.
 fn verdict_handler_with(
-    blocked: Option<Arc<AtomicU64>>,
+    refused: Option<Arc<AtomicU64>>,
+    counts: fn(&strata_protocol::PositionRefusal) -> bool,
 ) -> (OnControl, mpsc::Receiver<(u64, Verdict)>) {
     let (tx, rx) = mpsc::channel(64);
     let on: OnControl = Arc::new(move |m: &ServerMessage| {
-        if let (
-            ServerMessage::PositionRefused {
-                reason: strata_protocol::PositionRefusal::PathBlocked { .. },
-                ..
-            },
-            Some(b),
-        ) = (m, &blocked)
-        {
-            b.fetch_add(1, Ordering::Relaxed);
+        if let (ServerMessage::PositionRefused { reason, .. }, Some(b)) = (m, &refused) {
+            if counts(reason) {
+                b.fetch_add(1, Ordering::Relaxed);
+            }
         }
         let v = match m {
             ServerMessage::EditAccepted {
@@ -1018,14 +1036,26 @@ async fn teleport(h: &Hostile) {
     }
 }
 
-/// Builds a wall east of home, reports the far side of it and edits where
-/// only the far side reaches; counts edits accepted there.
-async fn wall_walk(h: &Hostile) {
+/// Builds a wall east of home, reports the far side of it (walking
+/// through, or with `fly` over the top) and edits where only the far side
+/// reaches; counts edits accepted there.
+async fn wall_walk(h: &Hostile, fly: bool) {
+    use strata_protocol::PositionRefusal as R;
     let mut first = true;
     let mut n = 0u32;
+    let counts: fn(&R) -> bool = if fly {
+        |r| matches!(r, R::TooHigh { .. })
+    } else {
+        |r| matches!(r, R::PathBlocked { .. })
+    };
+    let (walked, refused_as) = if fly {
+        ("flights", "too_high")
+    } else {
+        ("walks", "path_blocked")
+    };
     while h.running() {
         let blocked = Arc::new(AtomicU64::new(0));
-        let (on, mut verdicts) = verdict_handler_with(Some(blocked.clone()));
+        let (on, mut verdicts) = verdict_handler_with(Some(blocked.clone()), counts);
         let Some(mut s) = h.connect(&mut first, Some(on), None).await else {
             break;
         };
@@ -1078,20 +1108,38 @@ async fn wall_walk(h: &Hostile) {
             material: BUILD_MATERIALS[0],
             strength: 255,
         };
+        // Over the wall's top (y + 11): above home, then above the far side.
+        let [hx, _, hz] = feet.to_f64();
+        let [ffx, _, ffz] = far.to_f64();
+        let flight = [
+            FixedVec3::from_f64([hx, f64::from(y) + 14.0, hz]),
+            FixedVec3::from_f64([ffx, f64::from(y) + 14.0, ffz]),
+        ];
         let mut counted = 0;
         while h.running() && s.close_reason().is_none() {
-            // Long enough for the distance (8 voxels, 20 a second).
-            sleep(Duration::from_millis(500)).await;
+            if fly {
+                let mut up = true;
+                for spot in flight.iter().flatten() {
+                    sleep(Duration::from_millis(700)).await;
+                    up &= s.position(*spot).is_ok();
+                }
+                if !up {
+                    break;
+                }
+            }
+            // Long enough for the distance (8 voxels, 20 a second; down
+            // from the flight, 14 or so).
+            sleep(Duration::from_millis(if fly { 900 } else { 500 })).await;
             if s.position(far).is_err() {
                 break;
             }
-            h.stats.add("walks", 1);
+            h.stats.add(walked, 1);
             sleep(Duration::from_millis(200)).await;
             if h.edit_accepted(&mut s, &mut verdicts, beyond.clone()).await {
                 h.stats.add("edits_accepted_beyond_wall", 1);
             }
             let now = blocked.load(Ordering::Relaxed);
-            h.stats.add("path_blocked", now - counted);
+            h.stats.add(refused_as, now - counted);
             counted = now;
             // Back where the server holds it.
             if s.position(feet).is_err() {

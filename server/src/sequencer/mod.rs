@@ -486,7 +486,24 @@ impl Sequencer {
                 }
             }
         }
+        if self.held_to_ground(session_id) {
+            for c in crate::validate::gravity::chunks(upd.pos) {
+                if !chunks.contains(&c) {
+                    chunks.push(c);
+                }
+            }
+        }
         chunks
+    }
+
+    /// Whether `[validation.gravity]` holds the session's player: on, and
+    /// not an admin.
+    fn held_to_ground(&self, session_id: u64) -> bool {
+        self.validation.gravity.enabled
+            && self
+                .sessions
+                .get(&session_id)
+                .is_some_and(|s| s.role != Role::Admin)
     }
 
     /// Drops unmodified chunks for which `keep` is false (they regenerate).
@@ -932,6 +949,12 @@ impl Sequencer {
             regions: self.swept_regions.as_ref(),
             side: self.cfg.region_chunks,
         };
+        // This node's copy everywhere: another node's ground changes
+        // little, and reads wrong either way only until it is reloaded.
+        let world = &self.world;
+        let ground = self
+            .held_to_ground(session_id)
+            .then_some(|v: VoxelPos| world.voxel(v).is_solid());
         let checked = position::check(
             prev.as_ref(),
             &upd,
@@ -939,6 +962,7 @@ impl Sequencer {
             &self.validation,
             &self.world,
             &path,
+            ground,
         );
         let ok = match checked {
             Ok(ok) => ok,

@@ -161,6 +161,8 @@ pub struct ValidationConfig {
     /// once per this many milliseconds per session
     /// ([`DEFAULT_POSITION_REFUSAL_MS`]); 0 never answers.
     pub position_refusal_ms: u64,
+    /// Players' feet held to the ground (`[validation.gravity]`).
+    pub gravity: super::gravity::GravityConfig,
 }
 
 impl ValidationConfig {
@@ -218,6 +220,7 @@ impl Default for ValidationConfig {
             },
             remembered_players: DEFAULT_REMEMBERED_PLAYERS,
             position_refusal_ms: DEFAULT_POSITION_REFUSAL_MS,
+            gravity: super::gravity::GravityConfig::default(),
         }
     }
 }

@@ -7,6 +7,7 @@
 pub mod bounds;
 pub mod caps;
 pub mod config;
+pub mod gravity;
 pub mod line_of_sight;
 pub mod permissions;
 pub mod position;

@@ -7,6 +7,7 @@ use strata_terrain::{ChunkPos, VoxelPos, VoxelRead};
 use thiserror::Error;
 
 use super::config::ValidationConfig;
+use super::gravity::{self, Air};
 use super::sweep;
 
 /// The longest move whose path is swept, in voxels: a longer one is
@@ -56,6 +57,9 @@ pub struct ValidatedPosition {
     /// node), as far as it was seen walking and at most
     /// [`MAX_ARRIVAL_GRACE_MS`]; else 0.
     pub grace_ms: u64,
+    /// Whether the feet stood, and how high they may rise
+    /// (`[validation.gravity]`).
+    pub air: Air,
 }
 
 /// Most of a ticket's age an arrival's first move may count beyond
@@ -78,6 +82,7 @@ impl ValidatedPosition {
             heard_ms: at_ms,
             credit_ms: 0,
             grace_ms: 0,
+            air: Air::placed(feet, 0.0, &cfg.gravity),
         }
     }
 
@@ -93,6 +98,10 @@ impl ValidatedPosition {
         walked: u64,
         cfg: &ValidationConfig,
     ) -> Self {
+        let grace_ms = now_ms
+            .saturating_sub(issued_ms)
+            .min(walked)
+            .min(MAX_ARRIVAL_GRACE_MS);
         Self {
             feet,
             at_ms: issued_ms,
@@ -102,10 +111,9 @@ impl ValidatedPosition {
             known_ms: issued_ms,
             heard_ms: issued_ms,
             credit_ms: 0,
-            grace_ms: now_ms
-                .saturating_sub(issued_ms)
-                .min(walked)
-                .min(MAX_ARRIVAL_GRACE_MS),
+            grace_ms,
+            // It may have walked up a slope meanwhile, as fast as it goes.
+            air: Air::placed(feet, cfg.max_speed * grace_ms as f64 / 1000.0, &cfg.gravity),
         }
     }
 
@@ -172,6 +180,8 @@ pub enum PositionReject {
         "every way from the last accepted position passes through solid terrain (at {voxel:?})"
     )]
     PathBlocked { voxel: VoxelPos },
+    #[error("feet above {apex:.2}, the highest a jump from the last ground reaches")]
+    TooHigh { apex: f64 },
     #[error("chunk {pos:?} must be loaded from the store first")]
     ChunkNotLoaded { pos: ChunkPos },
     #[error("past the player's [validation.placement_rate]; dropped before loading anything")]
@@ -194,6 +204,9 @@ impl PositionReject {
             }),
             PositionReject::InsideSolid { voxel } => Some(PositionRefusal::InsideSolid { voxel }),
             PositionReject::PathBlocked { voxel } => Some(PositionRefusal::PathBlocked { voxel }),
+            PositionReject::TooHigh { apex } => {
+                Some(PositionRefusal::TooHigh { apex: fixed(apex) })
+            }
             PositionReject::UnknownSession
             | PositionReject::Stale { .. }
             | PositionReject::ChunkNotLoaded { .. }
@@ -314,7 +327,9 @@ pub fn check_motion(
 /// server does not remember the player: then any in-bounds position in the
 /// spawn area not inside solid terrain is fine). `path` is the terrain the
 /// way there is swept through (`voxels`, or less of it where this node's
-/// copies may be stale).
+/// copies may be stale). `ground` says which voxels are solid for the
+/// gravity rule ([`gravity::stands`]), `None` when it does not hold the
+/// player (an admin, or `[validation.gravity]` off).
 pub fn check(
     prev: Option<&ValidatedPosition>,
     upd: &PositionUpdate,
@@ -322,6 +337,7 @@ pub fn check(
     cfg: &ValidationConfig,
     voxels: &impl VoxelRead,
     path: &impl VoxelRead,
+    ground: Option<impl Fn(VoxelPos) -> bool>,
 ) -> Result<ValidatedPosition, PositionReject> {
     let slack_milli = check_motion(prev, upd, now_ms, cfg)?;
     for v in body_voxels(upd.pos, cfg) {
@@ -330,8 +346,19 @@ pub fn check(
         }
     }
     if let Some(p) = prev {
-        sweep::check(p.feet, upd.pos, cfg, path)?;
+        // Held to the ground, no hop over a wall goes above the apex.
+        let apex = ground.is_some().then(|| p.air.apex.to_f64());
+        sweep::check(p.feet, upd.pos, cfg, path, apex)?;
     }
+    let air = match ground {
+        Some(solid) => gravity::check(
+            prev.map(|p| (p.air, p.feet)),
+            upd.pos,
+            gravity::stands(upd.pos, solid),
+            &cfg.gravity,
+        )?,
+        None => Air::FREE,
+    };
     Ok(ValidatedPosition {
         feet: upd.pos,
         at_ms: now_ms,
@@ -342,5 +369,6 @@ pub fn check(
         heard_ms: now_ms,
         credit_ms: 0,
         grace_ms: 0,
+        air,
     })
 }

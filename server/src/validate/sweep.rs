@@ -17,10 +17,11 @@ use super::position::{nearest_voxel, to_dvec3, PositionReject};
 pub const SWEEP_STEP: f64 = 0.25;
 
 /// How far above the higher end a move may have gone over something in
-/// its way (a mound, a ledge's edge), in voxels. The server checks no
-/// gravity: a client could report its way up, across and down in three
-/// moves anyway, so this opens no wall; it spares an honest player who
-/// stepped up and down again between two reports.
+/// its way (a mound, a ledge's edge), in voxels, and never above the
+/// apex of a player held to the ground (`gravity.rs`): no higher than it
+/// could report its way up, across and down in three moves, so this opens
+/// no wall; it spares an honest player who stepped up and down again
+/// between two reports.
 pub const HOP_VOXELS: f64 = 4.0;
 
 /// The ways a move may have gone: straight; up or down first, then
@@ -32,7 +33,7 @@ pub const HOP_VOXELS: f64 = 4.0;
 /// the ledge's corner), one running round a corner too; a wall across the
 /// whole move, at every height from the lower end to the hop's, blocks
 /// them all.
-fn routes(from: DVec3, to: DVec3, cfg: &ValidationConfig) -> Vec<[DVec3; 4]> {
+fn routes(from: DVec3, to: DVec3, cfg: &ValidationConfig, apex: Option<f64>) -> Vec<[DVec3; 4]> {
     let vertical_first = DVec3::new(from.x, to.y, from.z);
     let across_first = DVec3::new(to.x, from.y, to.z);
     let x_first = DVec3::new(to.x, from.y, from.z);
@@ -45,7 +46,7 @@ fn routes(from: DVec3, to: DVec3, cfg: &ValidationConfig) -> Vec<[DVec3; 4]> {
         [from, z_first, to, to],
     ];
     let highest = from.y.max(to.y);
-    let ceiling = f64::from(cfg.bounds.max_y) - cfg.eye_height;
+    let ceiling = (f64::from(cfg.bounds.max_y) - cfg.eye_height).min(apex.unwrap_or(f64::MAX));
     for hop in 1..=HOP_VOXELS as u32 {
         let top = highest + f64::from(hop);
         if top > ceiling {
@@ -92,6 +93,10 @@ fn route_voxels<'a>(
 /// whose box holds more (a long one) has its ways walked instead.
 pub const BOX_CHUNKS: usize = 8;
 
+/// How far the box reaches past the ways' ends, in voxels: far more than
+/// a rounding of coordinates below 2^22 voxels.
+const BOX_PAD: f64 = 1e-6;
+
 /// Every chunk a sweep of `from` → `to` may read: what must be resident
 /// before [`check`]. Worked out from the box around every way when that is
 /// small (an honest report: no voxel walked), else along the ways.
@@ -110,9 +115,13 @@ pub fn chunks(from: FixedVec3, to: FixedVec3, cfg: &ValidationConfig) -> BTreeSe
 /// eye above its feet to the higher.
 fn box_chunks(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> Option<BTreeSet<ChunkPos>> {
     let (below, above) = (cfg.eye_height.min(1.0), cfg.eye_height.max(1.0));
-    let low = nearest_voxel(a.min(b) + DVec3::Y * below);
+    // Padded: a point a way passes may be a rounding off the ends' range
+    // (`lerp` of two equal coordinates), on the other side of a voxel's
+    // half.
+    let pad = DVec3::splat(BOX_PAD);
+    let low = nearest_voxel(a.min(b) + DVec3::Y * below - pad);
     let top = a.y.max(b.y) + HOP_VOXELS + above;
-    let high = nearest_voxel(DVec3::new(a.x.max(b.x), top, a.z.max(b.z)));
+    let high = nearest_voxel(DVec3::new(a.x.max(b.x), top, a.z.max(b.z)) + pad);
     // Above and below the world there is nothing to read.
     let (y0, y1) = (low.y.max(cfg.bounds.min_y), high.y.min(cfg.bounds.max_y));
     if y0 > y1 {
@@ -143,7 +152,7 @@ fn box_chunks(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> Option<BTreeSet<Chu
 /// The chunks the ways' voxels fall in, walked one by one.
 fn walked_chunks(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> BTreeSet<ChunkPos> {
     let mut out = BTreeSet::new();
-    for route in routes(a, b, cfg) {
+    for route in routes(a, b, cfg, None) {
         let mut last = None;
         for c in route_voxels(&route, cfg).map(|v| v.chunk()) {
             // Consecutive voxels mostly share a chunk.
@@ -157,17 +166,19 @@ fn walked_chunks(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> BTreeSet<ChunkPo
 
 /// `Ok` when some way from `from` to `to` keeps the body out of solid
 /// terrain. The body's voxels at `from` (its whole column) do not count:
-/// a player something was built around may walk out of it.
+/// a player something was built around may walk out of it. No hop's
+/// feet go above `apex` (a player held to the ground: a jump's top).
 pub fn check(
     from: FixedVec3,
     to: FixedVec3,
     cfg: &ValidationConfig,
     voxels: &impl VoxelRead,
+    apex: Option<f64>,
 ) -> Result<(), PositionReject> {
     let (a, b) = (to_dvec3(from), to_dvec3(to));
     let start: Vec<VoxelPos> = body_column(a, cfg).collect();
     let mut first = None;
-    for route in routes(a, b, cfg) {
+    for route in routes(a, b, cfg, apex) {
         let hit =
             route_voxels(&route, cfg).find(|v| !start.contains(v) && voxels.voxel(*v).is_solid());
         match hit {
@@ -217,13 +228,16 @@ mod tests {
     fn moves() -> impl Strategy<Value = (FixedVec3, FixedVec3)> {
         let base = prop_oneof![
             Just([30.5, 10.0, -1.25]),
+            Just([16.5, 29.0, 31.5]),
+            Just([31.5, 31.5, -32.5]),
             Just([-0.75, 62.0, 31.75]),
             Just([64.0, -60.0, 0.0]),
             Just([1.0, 508.0, 1.0]),
             Just([1.0, -512.0, 1.0]),
         ];
-        let offset = || -3.0f64..3.0;
-        let step = prop_oneof![4 => -3.0f64..3.0, 1 => -60.0f64..60.0];
+        let offset = || prop_oneof![2 => -3.0f64..3.0, 1 => Just(0.0)];
+        let step =
+            prop_oneof![3 => -3.0f64..3.0, 1 => Just(0.0), 1 => Just(2.0), 1 => -60.0f64..60.0];
         (
             base,
             [offset(), offset(), offset()],
@@ -261,10 +275,22 @@ mod tests {
             let cfg = ValidationConfig { eye_height: eye, ..ValidationConfig::default() };
             let listed = chunks(from, to, &cfg);
             let world = Speckled(RefCell::default());
-            let _ = check(from, to, &cfg, &world);
+            let _ = check(from, to, &cfg, &world, None);
             let read = world.0.into_inner();
             prop_assert!(read.is_subset(&listed), "{read:?} not in {listed:?}");
         }
+    }
+
+    /// A way along a coordinate half a voxel below a chunk border: `lerp`
+    /// of the two equal ends may round it just under the half, into the
+    /// chunk below, which the box must hold too.
+    #[test]
+    fn a_way_along_a_half_voxel_below_a_chunk_border_is_in_the_box() {
+        let cfg = ValidationConfig::default();
+        let (a, b) = (DVec3::new(16.5, 29.0, 31.5), DVec3::new(18.5, 29.0, 31.5));
+        let boxed = box_chunks(a, b, &cfg).unwrap();
+        let walked = walked_chunks(a, b, &cfg);
+        assert!(walked.is_subset(&boxed), "{walked:?} not in {boxed:?}");
     }
 
     /// A short move is listed from its box; a long one along its ways.
