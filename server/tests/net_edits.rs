@@ -516,11 +516,12 @@ async fn a_walk_through_or_a_flight_over_a_wall_is_refused_with_where_the_player
         ana.send_position(FixedVec3::from_f64([fx, fy + 8.0, fz]).unwrap())
             .unwrap();
         let (reason, at) = first_refusal(&ana).await;
-        let apex = strata_terrain::edit::Fixed::from_f64(fy + 4.0).unwrap();
-        assert_eq!(
-            reason,
-            strata_protocol::PositionRefusal::TooHigh { apex },
-            "a jump above where it stood"
+        // A jump above the ground's surface under the feet (at most the
+        // feet, at least the ground's reach below them).
+        assert!(
+            matches!(reason, strata_protocol::PositionRefusal::TooHigh { apex }
+                if (fy + 1.5..=fy + 4.0).contains(&apex.to_f64())),
+            "a jump above the ground it stood on: {reason:?}"
         );
         assert_eq!(at, Some(feet), "held where it stood");
         ana.close().await;

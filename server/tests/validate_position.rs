@@ -1118,3 +1118,56 @@ fn a_resumed_player_in_the_air_may_not_rise() {
     s.update_position(PLAYER, at(2, x, 0, z), 1_000).unwrap();
     s.update_position(PLAYER, at(3, x, 4, z), 1_200).unwrap();
 }
+
+/// A jump counts from the ground's surface: feet reported up to the
+/// ground's reach above it (they still stand) gain no height.
+#[test]
+fn feet_reported_above_the_ground_gain_no_jump() {
+    let mut s = ready(ValidationConfig::default());
+    let (x, z) = HOME;
+    let up = |seq, y: f64| PositionUpdate {
+        seq,
+        pos: FixedVec3::from_f64([f64::from(x), y, f64::from(z)]).unwrap(),
+    };
+    // 1.5 above the surface (y = 0; the top voxel is at -1): standing,
+    // but the jump counts from 1 above the surface, to 5.
+    s.update_position(PLAYER, up(2, 1.5), 500).unwrap();
+    assert_eq!(
+        s.update_position(PLAYER, up(3, 5.5), 1_000),
+        Err(PositionReject::TooHigh { apex: 5.0 })
+    );
+}
+
+/// A reconnect while in the air is no fresh jump: the resumed spot is
+/// settled from the ground under it (none), so the player may not rise
+/// off the ground above it (it may stand a jump higher: a ledge).
+#[test]
+fn a_reconnect_in_the_air_gives_no_second_jump() {
+    let mut s = fresh();
+    let (x, z) = HOME;
+    let apex = FixedVec3::from_voxels(x, 4, z);
+    s.resume_position(
+        PLAYER,
+        0,
+        Some(StoredPosition {
+            feet: apex,
+            known_ms: 0,
+        }),
+    );
+    assert_eq!(
+        s.update_position(PLAYER, at(1, x + 1, 6, z), 500),
+        Err(PositionReject::TooHigh { apex: 4.0 })
+    );
+    // Resumed standing on the ground, a jump up is fine.
+    let mut s = fresh();
+    let ground = FixedVec3::from_voxels(x, 0, z);
+    s.resume_position(
+        PLAYER,
+        0,
+        Some(StoredPosition {
+            feet: ground,
+            known_ms: 0,
+        }),
+    );
+    s.update_position(PLAYER, at(1, x, 4, z), 500).unwrap();
+}

@@ -487,8 +487,12 @@ impl Sequencer {
             }
         }
         if self.held_to_ground(session_id) {
-            for c in crate::validate::gravity::chunks(upd.pos) {
-                if !chunks.contains(&c) {
+            // The ground under the new feet, and under the last ones when
+            // their state is not settled yet (a resume, an arrival).
+            let unsettled = prev.filter(|p| p.air == crate::validate::gravity::Air::Unsettled);
+            let spots = std::iter::once(upd.pos).chain(unsettled.map(|p| p.feet));
+            for c in spots.flat_map(crate::validate::gravity::chunks) {
+                if self.sweeps(c) && !chunks.contains(&c) {
                     chunks.push(c);
                 }
             }
@@ -949,12 +953,11 @@ impl Sequencer {
             regions: self.swept_regions.as_ref(),
             side: self.cfg.region_chunks,
         };
-        // This node's copy everywhere: another node's ground changes
-        // little, and reads wrong either way only until it is reloaded.
-        let world = &self.world;
+        // Another node's regions are that node's to judge (this node's
+        // copies may be behind).
         let ground = self
             .held_to_ground(session_id)
-            .then_some(|v: VoxelPos| world.voxel(v).is_solid());
+            .then_some(|v: VoxelPos| path.sweeps(v).then(|| self.world.voxel(v).is_solid()));
         let checked = position::check(
             prev.as_ref(),
             &upd,
@@ -1070,12 +1073,17 @@ struct Swept<'a> {
     side: u32,
 }
 
+impl Swept<'_> {
+    /// Whether this node judges `p`: its own regions and free ones.
+    fn sweeps(&self, p: VoxelPos) -> bool {
+        self.regions
+            .is_none_or(|s| s.contains(&RegionId::of(p.chunk(), self.side)))
+    }
+}
+
 impl VoxelRead for Swept<'_> {
     fn voxel(&self, p: VoxelPos) -> Voxel {
-        let swept = self
-            .regions
-            .is_none_or(|s| s.contains(&RegionId::of(p.chunk(), self.side)));
-        if swept {
+        if self.sweeps(p) {
             self.world.voxel(p)
         } else {
             Voxel::AIR

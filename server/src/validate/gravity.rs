@@ -22,6 +22,12 @@ pub const MAX_JUMP_VOXELS: f64 = 256.0;
 pub const GROUND_REACH: f64 = 2.5;
 /// How far into the ground the feet may have sunk, in voxels.
 pub const GROUND_SINK: f64 = 0.5;
+/// How far above the top voxel of the ground feet may stand and jump
+/// from there, in voxels: a client's feet on the surface between that
+/// voxel and the one above, or a voxel over it (the bots stand on the top
+/// voxel's top). Feet reported higher, within [`GROUND_REACH`], still
+/// stand but jump from here.
+pub const JUMP_BASE: i32 = 2;
 
 /// `[validation.gravity]`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -51,13 +57,31 @@ impl GravityConfig {
 
 /// How high a player's next report may be, after an accepted one.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Air {
-    /// The highest feet off the ground may be: a jump above where they
-    /// last stood, lowered to where a fall began.
-    pub apex: Fixed,
-    /// The highest feet standing on something may be: a jump above the
-    /// last report that stood, else the apex.
-    pub step: Fixed,
+pub enum Air {
+    /// Not held to the ground (an admin, or the rule off).
+    Free,
+    /// Placed without a report (a resume, an arrival), or last seen over
+    /// ground this node does not judge: settled at the next report from
+    /// the ground at the spot ([`check`]).
+    Unsettled,
+    Limits {
+        /// The highest feet off the ground may be: a jump above the ground
+        /// they last stood on, lowered to where a fall began.
+        apex: Fixed,
+        /// The highest feet standing on something may be: the apex, or a
+        /// jump above the spot when a jump was not known to be spent.
+        step: Fixed,
+    },
+}
+
+/// What lies under feet: the top of the ground (`y` of its highest solid
+/// voxel with a non-solid one above, within reach), none, or terrain this
+/// node does not judge (another cluster node's region).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ground {
+    Top(i32),
+    None,
+    Unknown,
 }
 
 fn add(y: Fixed, d: i32) -> Fixed {
@@ -65,32 +89,29 @@ fn add(y: Fixed, d: i32) -> Fixed {
 }
 
 impl Air {
-    /// Not held to the ground (an admin, or the rule off).
-    pub const FREE: Air = Air {
-        apex: Fixed(i32::MAX),
-        step: Fixed(i32::MAX),
-    };
-
-    /// Standing at `feet`: a jump from there either way.
-    pub fn stood(feet: FixedVec3, cfg: &GravityConfig) -> Self {
-        let top = add(feet.y, cfg.jump());
-        Self {
-            apex: top,
-            step: top,
-        }
+    /// Standing at `feet` on ground whose top is `top`: a jump above the
+    /// lower of the feet and [`JUMP_BASE`] above the top (feet reported
+    /// up to the ground's reach above it gain nothing more).
+    pub fn stood(feet: FixedVec3, top: i32, cfg: &GravityConfig) -> Self {
+        let y = jump_from(feet, top, cfg);
+        Air::Limits { apex: y, step: y }
     }
+}
 
-    /// A player placed at `feet` without a report (a resume, an arrival,
-    /// a first spot in the air): not known to stand, so it may not rise
-    /// off the ground; it may stand a jump higher (walking up a slope),
-    /// and `climb` voxels more (an arrival's walk since its spot).
-    pub fn placed(feet: FixedVec3, climb: f64, cfg: &GravityConfig) -> Self {
-        let more = Fixed::from_f64(climb.max(0.0)).map_or(i32::MAX, |f| f.0);
-        Self {
-            apex: feet.y,
-            step: add(add(feet.y, cfg.jump()), more),
-        }
+/// The highest the feet of a path's hop may go from `last` in state `air`:
+/// the apex, or a jump above an unsettled spot.
+pub fn hop_ceiling(air: Air, last: FixedVec3, cfg: &GravityConfig) -> f64 {
+    match air {
+        Air::Limits { apex, .. } => apex.to_f64(),
+        Air::Free | Air::Unsettled => add(last.y, cfg.jump()).to_f64(),
     }
+}
+
+/// A jump above the lower of `feet` and [`JUMP_BASE`] above `top`.
+fn jump_from(feet: FixedVec3, top: i32, cfg: &GravityConfig) -> Fixed {
+    let base = top.saturating_add(JUMP_BASE);
+    let base = Fixed(base.saturating_mul(strata_terrain::edit::fixed::ONE));
+    add(feet.y.min(base), cfg.jump())
 }
 
 /// The voxels whose solidity decides whether feet at `feet` stand: in the
@@ -106,18 +127,32 @@ fn columns(feet: FixedVec3) -> (std::ops::RangeInclusive<i32>, [(i32, i32); 4]) 
     (lowest..=highest, cols)
 }
 
-/// Whether feet at `feet` stand on the ground: some voxel near them (see
-/// [`columns`]) is solid with a non-solid one above it, the top of the
-/// ground; a wall's face is no ground.
-pub fn stands(feet: FixedVec3, solid: impl Fn(VoxelPos) -> bool) -> bool {
+/// The ground under feet at `feet` (see [`columns`]): the highest top of
+/// the ground among them (solid with non-solid above; a wall's face is no
+/// ground). `solid` answers `None` for a voxel this node does not judge:
+/// then the ground is [`Ground::Unknown`].
+pub fn ground(feet: FixedVec3, solid: impl Fn(VoxelPos) -> Option<bool>) -> Ground {
     let (ys, cols) = columns(feet);
-    cols.iter().any(|&(x, z)| {
-        ys.clone()
-            .any(|y| solid(VoxelPos::new(x, y, z)) && !solid(VoxelPos::new(x, y + 1, z)))
-    })
+    let mut top = None;
+    for (x, z) in cols {
+        let mut above = solid(VoxelPos::new(x, ys.end() + 1, z));
+        for y in ys.clone().rev() {
+            let here = solid(VoxelPos::new(x, y, z));
+            match (here, above) {
+                (None, _) | (_, None) => return Ground::Unknown,
+                (Some(true), Some(false)) => {
+                    top = top.max(Some(y));
+                    break;
+                }
+                _ => {}
+            }
+            above = here;
+        }
+    }
+    top.map_or(Ground::None, Ground::Top)
 }
 
-/// The chunks [`stands`] may read for feet at `feet`.
+/// The chunks [`ground`] may read for feet at `feet`.
 pub fn chunks(feet: FixedVec3) -> Vec<ChunkPos> {
     let (ys, cols) = columns(feet);
     let mut out: Vec<ChunkPos> = Vec::with_capacity(4);
@@ -132,40 +167,69 @@ pub fn chunks(feet: FixedVec3) -> Vec<ChunkPos> {
     out
 }
 
-/// Checks a report of `feet` against `prev`, the state after the last
-/// accepted one at `last` (none for a first position); `standing` is
-/// [`stands`] for the new feet. Standing, the feet may be up to the step
-/// (a jump above the last report that stood); off the ground, up to the
-/// apex, and a fall lowers the apex to where it began.
+/// Checks a report of `feet` over `under` against `prev`, the state after
+/// the last accepted report at `last` (none for a first position).
+/// `settle` is the ground at `last`, read only when `prev` is
+/// [`Air::Unsettled`]. Standing, the feet may be up to the step (`climb`
+/// more: an arrival's first report, for the slope it may have walked up);
+/// off the ground, up to the apex, and a fall lowers the apex to where it
+/// began. Over ground this node does not judge, nothing is checked and
+/// the state is unsettled again.
 pub fn check(
     prev: Option<(Air, FixedVec3)>,
     feet: FixedVec3,
-    standing: bool,
+    under: Ground,
+    settle: impl FnOnce() -> Ground,
+    climb: f64,
     cfg: &GravityConfig,
 ) -> Result<Air, PositionReject> {
-    let Some((air, last)) = prev else {
-        return Ok(if standing {
-            Air::stood(feet, cfg)
-        } else {
-            // A first position in the air: it may only fall.
-            Air::placed(feet, 0.0, cfg)
-        });
+    if under == Ground::Unknown {
+        return Ok(Air::Unsettled);
+    }
+    let (apex, step, last) = match prev {
+        // A first position: anywhere in the spawn square, then as placed.
+        None => match under {
+            Ground::Top(top) => return Ok(Air::stood(feet, top, cfg)),
+            _ => {
+                return Ok(Air::Limits {
+                    apex: feet.y,
+                    step: feet.y,
+                })
+            }
+        },
+        Some((Air::Limits { apex, step }, last)) => (apex, step, last),
+        Some((Air::Free | Air::Unsettled, last)) => match settle() {
+            Ground::Top(top) => {
+                let y = jump_from(last, top, cfg);
+                (y, y, last)
+            }
+            // In the air, or over ground another node judges: it may fall,
+            // or stand a jump higher (its ground may have been mined away
+            // since, or lie over there), not rise off the ground.
+            Ground::None | Ground::Unknown => (last.y, add(last.y, cfg.jump()), last),
+        },
     };
-    let limit = if standing { air.step } else { air.apex };
+    let more = Fixed::from_f64(climb.max(0.0)).map_or(i32::MAX, |f| f.0);
+    let limit = match under {
+        Ground::Top(_) => add(step, more),
+        _ => apex,
+    };
     if feet.y > limit {
         return Err(PositionReject::TooHigh {
             apex: limit.to_f64(),
         });
     }
-    if standing {
-        return Ok(Air::stood(feet, cfg));
-    }
-    let apex = if feet.y < last.y {
-        air.apex.min(last.y)
-    } else {
-        air.apex
-    };
-    Ok(Air { apex, step: apex })
+    Ok(match under {
+        Ground::Top(top) => Air::stood(feet, top, cfg),
+        _ => {
+            let apex = if feet.y < last.y {
+                apex.min(last.y)
+            } else {
+                apex
+            };
+            Air::Limits { apex, step: apex }
+        }
+    })
 }
 
 #[cfg(test)]
@@ -178,78 +242,159 @@ mod tests {
 
     /// Ground: solid at and below y = 0 in every column; a wall at x = 12
     /// up to y = 20.
-    fn ground(v: VoxelPos) -> bool {
-        v.y <= 0 || (v.x == 12 && v.y <= 20)
+    fn world(v: VoxelPos) -> Option<bool> {
+        Some(v.y <= 0 || (v.x == 12 && v.y <= 20))
+    }
+
+    fn none() -> Ground {
+        panic!("not read")
+    }
+
+    fn limits(apex: f64, step: f64) -> Air {
+        Air::Limits {
+            apex: Fixed::from_f64(apex).unwrap(),
+            step: Fixed::from_f64(step).unwrap(),
+        }
     }
 
     #[test]
-    fn feet_on_the_ground_stand_and_a_wall_is_no_ground() {
-        assert!(stands(at(1.0), ground));
-        assert!(stands(at(2.5), ground), "a little above the top");
-        assert!(!stands(at(3.0), ground));
-        assert!(stands(at(0.5), ground), "sunk half a voxel");
+    fn the_ground_is_the_top_of_solid_voxels_within_reach() {
+        assert_eq!(ground(at(1.0), world), Ground::Top(0));
+        assert_eq!(ground(at(2.5), world), Ground::Top(0), "a little above");
+        assert_eq!(ground(at(3.0), world), Ground::None);
+        assert_eq!(ground(at(0.5), world), Ground::Top(0), "sunk half a voxel");
         // Beside the wall (its column within a voxel), above the ground:
         // its face is no ground, its top is.
         let beside = |y| FixedVec3::from_f64([11.5, y, 10.5]).unwrap();
-        assert!(!stands(beside(10.0), ground));
-        assert!(stands(beside(21.0), ground));
+        assert_eq!(ground(beside(10.0), world), Ground::None);
+        assert_eq!(ground(beside(21.0), world), Ground::Top(20));
+        // A voxel this node does not judge.
+        let other = |v: VoxelPos| (v.x != 11).then_some(v.y <= 0);
+        assert_eq!(ground(at(1.0), other), Ground::Unknown);
     }
 
     #[test]
     fn off_the_ground_a_jump_high_and_no_climbing_back_after_a_fall() {
         let cfg = GravityConfig::default();
-        let stood = check(None, at(1.0), true, &cfg).unwrap();
-        assert_eq!(stood, Air::stood(at(1.0), &cfg));
+        let stood = check(None, at(1.0), Ground::Top(0), none, 0.0, &cfg).unwrap();
+        assert_eq!(stood, limits(5.0, 5.0));
         // Up to the apex, 4 above the feet; not past it.
-        let up = check(Some((stood, at(1.0))), at(5.0), false, &cfg).unwrap();
+        let up = check(
+            Some((stood, at(1.0))),
+            at(5.0),
+            Ground::None,
+            none,
+            0.0,
+            &cfg,
+        )
+        .unwrap();
         assert!(matches!(
-            check(Some((up, at(5.0))), at(5.5), false, &cfg),
+            check(Some((up, at(5.0))), at(5.5), Ground::None, none, 0.0, &cfg),
             Err(PositionReject::TooHigh { apex }) if apex == 5.0
         ));
         // Nor standing on a ledge above it.
-        assert!(check(Some((up, at(5.0))), at(5.5), true, &cfg).is_err());
+        assert!(check(
+            Some((up, at(5.0))),
+            at(5.5),
+            Ground::Top(4),
+            none,
+            0.0,
+            &cfg
+        )
+        .is_err());
         // A fall lowers the apex to where it began.
-        let down = check(Some((up, at(5.0))), at(3.0), false, &cfg).unwrap();
-        assert_eq!(down.apex, at(5.0).y);
-        let lower = check(Some((down, at(3.0))), at(2.8), false, &cfg).unwrap();
-        assert_eq!(lower.apex, at(3.0).y);
-        assert!(check(Some((lower, at(2.8))), at(3.5), false, &cfg).is_err());
+        let down = check(Some((up, at(5.0))), at(3.0), Ground::None, none, 0.0, &cfg).unwrap();
+        assert_eq!(down, limits(5.0, 5.0));
+        let lower = check(
+            Some((down, at(3.0))),
+            at(2.8),
+            Ground::None,
+            none,
+            0.0,
+            &cfg,
+        )
+        .unwrap();
+        assert_eq!(lower, limits(3.0, 3.0));
+        assert!(check(
+            Some((lower, at(2.8))),
+            at(3.5),
+            Ground::None,
+            none,
+            0.0,
+            &cfg
+        )
+        .is_err());
         // Standing again: a new jump.
-        let landed = check(Some((lower, at(2.8))), at(1.0), true, &cfg).unwrap();
-        assert_eq!(landed, Air::stood(at(1.0), &cfg));
+        let landed = check(
+            Some((lower, at(2.8))),
+            at(1.0),
+            Ground::Top(0),
+            none,
+            0.0,
+            &cfg,
+        );
+        assert_eq!(landed, Ok(limits(5.0, 5.0)));
     }
 
-    /// Standing reports climb a jump at a time: walking up a slope passes,
-    /// the top of a wall far above the last report does not.
+    /// A jump counts from the ground's surface, not from feet reported
+    /// up to the reach above it; standing reports climb a jump at a time.
     #[test]
-    fn a_standing_report_is_a_jump_above_the_last_at_most() {
+    fn a_jump_is_from_the_ground_and_standing_climbs_a_jump_at_a_time() {
         let cfg = GravityConfig::default();
-        let mut air = Air::stood(at(1.0), &cfg);
+        assert_eq!(
+            check(None, at(2.5), Ground::Top(0), none, 0.0, &cfg),
+            Ok(limits(6.0, 6.0))
+        );
+        let mut air = limits(5.0, 5.0);
         let mut last = at(1.0);
-        for y in [3.0, 6.5, 10.0, 13.5] {
-            air = check(Some((air, last)), at(y), true, &cfg).unwrap();
+        for (y, top) in [(3.0, 2), (6.5, 5), (10.0, 9), (13.5, 12)] {
+            air = check(Some((air, last)), at(y), Ground::Top(top), none, 0.0, &cfg).unwrap();
             last = at(y);
         }
         assert!(matches!(
-            check(Some((air, last)), at(25.0), true, &cfg),
+            check(Some((air, last)), at(25.0), Ground::Top(24), none, 0.0, &cfg),
             Err(PositionReject::TooHigh { apex }) if apex == 17.5
         ));
+        // An arrival's climb allowance.
+        assert!(check(
+            Some((air, last)),
+            at(25.0),
+            Ground::Top(24),
+            none,
+            8.0,
+            &cfg
+        )
+        .is_ok());
     }
 
+    /// A placed player's state is settled from the ground at its spot:
+    /// standing there, a jump; in the air or over ground another node
+    /// judges, it may fall or stand a jump higher, not rise.
     #[test]
-    fn a_player_placed_in_the_air_may_fall_or_stand_not_rise() {
+    fn a_placed_player_is_settled_from_the_ground_at_its_spot() {
         let cfg = GravityConfig::default();
-        let placed = Air::placed(at(30.0), 0.0, &cfg);
-        let prev = Some((placed, at(30.0)));
-        assert!(check(prev, at(30.5), false, &cfg).is_err());
-        assert!(check(prev, at(29.0), false, &cfg).is_ok());
-        assert!(check(prev, at(33.0), true, &cfg).is_ok(), "up a slope");
-        assert!(check(prev, at(34.5), true, &cfg).is_err());
-        // An arrival's walk since its spot counts.
-        let arrived = Some((Air::placed(at(30.0), 10.0, &cfg), at(30.0)));
-        assert!(check(arrived, at(44.0), true, &cfg).is_ok());
-        assert!(check(arrived, at(31.0), false, &cfg).is_err());
-        assert_eq!(check(None, at(30.0), false, &cfg), Ok(placed));
+        let placed = Some((Air::Unsettled, at(1.0)));
+        let settle = || Ground::Top(0);
+        assert!(check(placed, at(5.0), Ground::None, settle, 0.0, &cfg).is_ok());
+        let aloft = Some((Air::Unsettled, at(30.0)));
+        for under in [Ground::None, Ground::Unknown] {
+            let settle = || under;
+            assert!(check(aloft, at(30.5), Ground::None, settle, 0.0, &cfg).is_err());
+            assert!(check(aloft, at(29.0), Ground::None, settle, 0.0, &cfg).is_ok());
+            assert!(check(aloft, at(34.0), Ground::Top(33), settle, 0.0, &cfg).is_ok());
+            assert!(check(aloft, at(34.5), Ground::Top(33), settle, 0.0, &cfg).is_err());
+        }
+        // Over ground this node does not judge: nothing checked.
+        let air = || Ground::None;
+        assert_eq!(
+            check(aloft, at(99.0), Ground::Unknown, air, 0.0, &cfg),
+            Ok(Air::Unsettled)
+        );
+        // A first position in the air may only fall.
+        assert_eq!(
+            check(None, at(30.0), Ground::None, none, 0.0, &cfg),
+            Ok(limits(30.0, 30.0))
+        );
     }
 
     #[test]
@@ -258,9 +403,9 @@ mod tests {
             for x in [-0.5, 0.0, 30.9, 31.0, 31.5] {
                 let feet = FixedVec3::from_f64([x, y, x]).unwrap();
                 let listed = chunks(feet);
-                stands(feet, |v| {
+                ground(feet, |v| {
                     assert!(listed.contains(&v.chunk()), "{v:?} of {feet:?}");
-                    false
+                    Some(false)
                 });
             }
         }

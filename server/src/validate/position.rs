@@ -82,7 +82,7 @@ impl ValidatedPosition {
             heard_ms: at_ms,
             credit_ms: 0,
             grace_ms: 0,
-            air: Air::placed(feet, 0.0, &cfg.gravity),
+            air: Air::Unsettled,
         }
     }
 
@@ -112,8 +112,7 @@ impl ValidatedPosition {
             heard_ms: issued_ms,
             credit_ms: 0,
             grace_ms,
-            // It may have walked up a slope meanwhile, as fast as it goes.
-            air: Air::placed(feet, cfg.max_speed * grace_ms as f64 / 1000.0, &cfg.gravity),
+            air: Air::Unsettled,
         }
     }
 
@@ -328,8 +327,9 @@ pub fn check_motion(
 /// spawn area not inside solid terrain is fine). `path` is the terrain the
 /// way there is swept through (`voxels`, or less of it where this node's
 /// copies may be stale). `ground` says which voxels are solid for the
-/// gravity rule ([`gravity::stands`]), `None` when it does not hold the
-/// player (an admin, or `[validation.gravity]` off).
+/// gravity rule ([`gravity::ground`]; `None` for a voxel this node does not
+/// judge), `None` when the rule does not hold the player (an admin, or
+/// `[validation.gravity]` off).
 pub fn check(
     prev: Option<&ValidatedPosition>,
     upd: &PositionUpdate,
@@ -337,7 +337,7 @@ pub fn check(
     cfg: &ValidationConfig,
     voxels: &impl VoxelRead,
     path: &impl VoxelRead,
-    ground: Option<impl Fn(VoxelPos) -> bool>,
+    ground: Option<impl Fn(VoxelPos) -> Option<bool>>,
 ) -> Result<ValidatedPosition, PositionReject> {
     let slack_milli = check_motion(prev, upd, now_ms, cfg)?;
     for v in body_voxels(upd.pos, cfg) {
@@ -347,17 +347,29 @@ pub fn check(
     }
     if let Some(p) = prev {
         // Held to the ground, no hop over a wall goes above the apex.
-        let apex = ground.is_some().then(|| p.air.apex.to_f64());
+        let apex = ground
+            .is_some()
+            .then(|| gravity::hop_ceiling(p.air, p.feet, &cfg.gravity));
         sweep::check(p.feet, upd.pos, cfg, path, apex)?;
     }
     let air = match ground {
-        Some(solid) => gravity::check(
-            prev.map(|p| (p.air, p.feet)),
-            upd.pos,
-            gravity::stands(upd.pos, solid),
-            &cfg.gravity,
-        )?,
-        None => Air::FREE,
+        Some(solid) => {
+            // An arrival's first report may have walked up a slope since
+            // its spot: as far up as across.
+            let climb = prev.filter(|p| p.grace_ms > 0).map_or(0.0, |p| {
+                let d = to_dvec3(upd.pos) - to_dvec3(p.feet);
+                d.x.hypot(d.z)
+            });
+            gravity::check(
+                prev.map(|p| (p.air, p.feet)),
+                upd.pos,
+                gravity::ground(upd.pos, &solid),
+                || prev.map_or(gravity::Ground::None, |p| gravity::ground(p.feet, &solid)),
+                climb,
+                &cfg.gravity,
+            )?
+        }
+        None => Air::Free,
     };
     Ok(ValidatedPosition {
         feet: upd.pos,
