@@ -410,6 +410,28 @@ fn a_report_loads_the_ground_under_it() {
     s.update_position(PLAYER, p, 0).unwrap();
 }
 
+/// A standing report above the step reads the ground a catch-up walk
+/// may follow (here, under the way's corner across a chunk border that
+/// neither end's ground nor the sweep's box reaches); a level one does
+/// not.
+#[test]
+fn a_report_above_the_step_loads_the_ground_of_its_way() {
+    let mut s = store_backed_with(10, true);
+    for (i, p) in [at(1, X, 0, Z), at(2, 126, 0, 120)].into_iter().enumerate() {
+        for c in s.chunks_needed_for_position(PLAYER, &p) {
+            s.mark_absent(c);
+        }
+        s.update_position(PLAYER, p, 2_000 * i as u64).unwrap();
+    }
+    let corner = ChunkPos::new(4, -1, 3);
+    let level = at(3, 140, 0, 140);
+    assert!(!s
+        .chunks_needed_for_position(PLAYER, &level)
+        .contains(&corner));
+    let up = at(3, 140, 8, 140);
+    assert!(s.chunks_needed_for_position(PLAYER, &up).contains(&corner));
+}
+
 /// A report inside solid terrain is refused on its body's chunks alone:
 /// none of its way's is loaded for it.
 #[test]

@@ -1088,6 +1088,36 @@ fn a_wall_top_beyond_a_jump_is_no_footing() {
         .unwrap();
 }
 
+/// Reports lost on the way up: a standing report above the step passes
+/// when ground a jump at a time leads there from the last one (stairs 3
+/// high), not where no jump reaches the next step (7 high).
+#[test]
+fn a_climb_whose_reports_were_lost_is_caught_up_along_the_ground() {
+    let (x, z) = HOME;
+    let stairs = |rise: i32| {
+        let mut s = ready(ValidationConfig::default());
+        for k in 1..=4 {
+            let (x0, top) = (x + 2 * k - 1, rise * k - 1);
+            let steps = fill((x0, 0, z - 4), (x0 + 1, top, z + 4));
+            s.submit(ADMIN, req(k as u64, steps), 0).unwrap();
+        }
+        s.tick(0);
+        s
+    };
+    // The fourth step's top at 11: feet 12 up in one report.
+    let mut s = stairs(3);
+    s.update_position(PLAYER, at(2, x + 8, 12, z), 1_500)
+        .unwrap();
+    // And a jump from there (a new step).
+    s.update_position(PLAYER, at(3, x + 8, 16, z), 1_700)
+        .unwrap();
+    let mut s = stairs(7);
+    assert_eq!(
+        s.update_position(PLAYER, at(2, x + 8, 28, z), 1_500),
+        Err(PositionReject::TooHigh { apex: 4.0 })
+    );
+}
+
 /// `[validation.gravity] enabled = false`: players fly.
 #[test]
 fn with_gravity_off_players_fly() {

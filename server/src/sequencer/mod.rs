@@ -489,9 +489,17 @@ impl Sequencer {
         if self.held_to_ground(session_id) {
             // The ground under the new feet, and under the last ones when
             // their state is not settled yet (a resume, an arrival).
-            let unsettled = prev.filter(|p| p.air == crate::validate::gravity::Air::Unsettled);
+            use crate::validate::gravity;
+            let unsettled = prev.filter(|p| p.air == gravity::Air::Unsettled);
             let spots = std::iter::once(upd.pos).chain(unsettled.map(|p| p.feet));
-            for c in spots.flat_map(crate::validate::gravity::chunks) {
+            // And the ground a report above the step may have walked.
+            let walked = prev
+                .filter(|p| gravity::may_walk(p.air, p.feet, upd.pos))
+                .map(|p| gravity::walk_chunks(p.feet, upd.pos));
+            for c in spots
+                .flat_map(gravity::chunks)
+                .chain(walked.into_iter().flatten())
+            {
                 if self.sweeps(c) && !chunks.contains(&c) {
                     chunks.push(c);
                 }

@@ -133,13 +133,28 @@ fn columns(feet: FixedVec3) -> (std::ops::RangeInclusive<i32>, [(i32, i32); 4]) 
 /// then the ground is [`Ground::Unknown`].
 pub fn ground(feet: FixedVec3, solid: impl Fn(VoxelPos) -> Option<bool>) -> Ground {
     let (ys, cols) = columns(feet);
+    match highest_top(cols, ys, &solid) {
+        Some(Some(top)) => Ground::Top(top),
+        Some(None) => Ground::None,
+        None => Ground::Unknown,
+    }
+}
+
+/// The highest top of the ground in columns `cols` between `ys` (a solid
+/// voxel there with a non-solid one above), if any; `None` when a voxel
+/// read is one this node does not judge.
+fn highest_top(
+    cols: [(i32, i32); 4],
+    ys: std::ops::RangeInclusive<i32>,
+    solid: &impl Fn(VoxelPos) -> Option<bool>,
+) -> Option<Option<i32>> {
     let mut top = None;
     for (x, z) in cols {
-        let mut above = solid(VoxelPos::new(x, ys.end() + 1, z));
+        let mut above = solid(VoxelPos::new(x, ys.end().saturating_add(1), z));
         for y in ys.clone().rev() {
             let here = solid(VoxelPos::new(x, y, z));
             match (here, above) {
-                (None, _) | (_, None) => return Ground::Unknown,
+                (None, _) | (_, None) => return None,
                 (Some(true), Some(false)) => {
                     top = top.max(Some(y));
                     break;
@@ -149,7 +164,7 @@ pub fn ground(feet: FixedVec3, solid: impl Fn(VoxelPos) -> Option<bool>) -> Grou
             above = here;
         }
     }
-    top.map_or(Ground::None, Ground::Top)
+    Some(top)
 }
 
 /// The chunks [`ground`] may read for feet at `feet`.
@@ -167,14 +182,118 @@ pub fn chunks(feet: FixedVec3) -> Vec<ChunkPos> {
     out
 }
 
+/// Farthest a standing report above the step may be caught up along the
+/// ground ([`walked_base`]), across and up, in voxels: a client whose
+/// reports were lost for a few seconds while it climbed.
+pub const CATCH_UP_VOXELS: f64 = 32.0;
+/// Spacing of the points a catch-up walk stands at, in voxels: with the
+/// four columns around each, it skips no column of its way.
+const CATCH_UP_STEP: f64 = 0.5;
+/// How far below the lower end's ground a catch-up walk may go down, in
+/// voxels (a dip between two reports).
+pub const CATCH_UP_DIP: i32 = 4;
+
+/// A catch-up walk's points across (`x`, `z`; the ends left out) and the
+/// heights it may read there.
+type Walk = (Vec<(f64, f64)>, std::ops::RangeInclusive<i32>);
+
+/// The [`Walk`] from `from` to `to`, or `None` for a move too long to be
+/// caught up.
+fn walk_points(from: FixedVec3, to: FixedVec3) -> Option<Walk> {
+    let ([ax, ay, az], [bx, by, bz]) = (from.to_f64(), to.to_f64());
+    let across = (bx - ax).hypot(bz - az);
+    if !(across <= CATCH_UP_VOXELS && by - ay <= CATCH_UP_VOXELS) {
+        return None;
+    }
+    let n = (across / CATCH_UP_STEP).ceil().max(1.0) as u32;
+    let points = (1..n)
+        .map(|i| {
+            let t = f64::from(i) / f64::from(n);
+            (ax + (bx - ax) * t, az + (bz - az) * t)
+        })
+        .collect();
+    let lowest = (ay.min(by) - GROUND_REACH).ceil() as i32 - CATCH_UP_DIP;
+    let highest = (by + GROUND_SINK).floor() as i32;
+    Some((points, lowest..=highest))
+}
+
+fn point_columns(x: f64, z: f64) -> [(i32, i32); 4] {
+    let (x0, z0) = (x.floor() as i32, z.floor() as i32);
+    [(x0, z0), (x0 + 1, z0), (x0, z0 + 1), (x0 + 1, z0 + 1)]
+}
+
+/// Walks the ground from `from`, where a jump may start at `base`, toward
+/// `to`: at each point of the way, onto the highest top of the ground a
+/// jump reaches (never above `to`'s feet, down to [`CATCH_UP_DIP`] below
+/// the lower end). Returns where a jump may start at the last point before
+/// `to`, or `None` where the way has no ground a jump reaches, reads a
+/// voxel this node does not judge, or is too long ([`CATCH_UP_VOXELS`]).
+/// So a standing report no higher than a jump above that followed ground
+/// a player could have walked and jumped, each step at most a jump up.
+pub fn walked_base(
+    from: FixedVec3,
+    to: FixedVec3,
+    base: f64,
+    solid: impl Fn(VoxelPos) -> Option<bool>,
+    cfg: &GravityConfig,
+) -> Option<f64> {
+    let (points, ys) = walk_points(from, to)?;
+    let jump = cfg.jump_voxels;
+    let mut base = base;
+    for (x, z) in points {
+        let reach = ((base + jump + GROUND_SINK).floor() as i32).min(*ys.end());
+        let top = highest_top(point_columns(x, z), *ys.start()..=reach, &solid)??;
+        base = (base + jump).min(f64::from(top.saturating_add(JUMP_BASE)));
+    }
+    Some(base)
+}
+
+/// Whether a report at `feet` after one at `last` in state `air` may need
+/// a catch-up walk ([`walked_base`]): standing above the step.
+pub fn may_walk(air: Air, last: FixedVec3, feet: FixedVec3) -> bool {
+    match air {
+        Air::Limits { step, .. } => feet.y > step,
+        Air::Unsettled => feet.y > last.y,
+        Air::Free => false,
+    }
+}
+
+/// The chunks [`walked_base`] may read from `from` to `to`.
+pub fn walk_chunks(from: FixedVec3, to: FixedVec3) -> Vec<ChunkPos> {
+    let Some((points, ys)) = walk_points(from, to) else {
+        return Vec::new();
+    };
+    let (low, high) = (*ys.start(), ys.end().saturating_add(1));
+    let mut out: Vec<ChunkPos> = Vec::new();
+    for (x, z) in points {
+        for (cx, cz) in point_columns(x, z) {
+            let mut y = low;
+            loop {
+                let c = VoxelPos::new(cx, y.min(high), cz).chunk();
+                if !out.contains(&c) {
+                    out.push(c);
+                }
+                if y >= high {
+                    break;
+                }
+                y = y.saturating_add(strata_terrain::CHUNK_SIZE);
+            }
+        }
+    }
+    out
+}
+
 /// Checks a report of `feet` over `under` against `prev`, the state after
 /// the last accepted report at `last` (none for a first position).
 /// `settle` is the ground at `last`, read only when `prev` is
 /// [`Air::Unsettled`]. Standing, the feet may be up to the step (`climb`
 /// more: an arrival's first report, for the slope it may have walked up);
 /// off the ground, up to the apex, and a fall lowers the apex to where it
-/// began. Over ground this node does not judge, nothing is checked and
-/// the state is unsettled again.
+/// began. A standing report above the step is still fine when `walk`,
+/// given where the step's jump starts, finds ground the player could have
+/// walked to from there ([`walked_base`]) a jump below the feet: reports
+/// lost on the way up a slope. Over ground this node does not judge,
+/// nothing is checked and the state is unsettled again.
 pub fn check(
     prev: Option<(Air, FixedVec3)>,
     feet: FixedVec3,
@@ -182,6 +301,7 @@ pub fn check(
     settle: impl FnOnce() -> Ground,
     climb: f64,
     cfg: &GravityConfig,
+    walk: impl FnOnce(f64) -> Option<f64>,
 ) -> Result<Air, PositionReject> {
     if under == Ground::Unknown {
         return Ok(Air::Unsettled);
@@ -215,9 +335,14 @@ pub fn check(
         _ => apex,
     };
     if feet.y > limit {
-        return Err(PositionReject::TooHigh {
-            apex: limit.to_f64(),
-        });
+        let base = add(step, -cfg.jump()).to_f64();
+        let walked = matches!(under, Ground::Top(_))
+            && walk(base).is_some_and(|b| feet.y.to_f64() <= b + cfg.jump_voxels);
+        if !walked {
+            return Err(PositionReject::TooHigh {
+                apex: limit.to_f64(),
+            });
+        }
     }
     Ok(match under {
         Ground::Top(top) => Air::stood(feet, top, cfg),
@@ -250,6 +375,28 @@ mod tests {
         panic!("not read")
     }
 
+    fn no_walk(_: f64) -> Option<f64> {
+        None
+    }
+
+    /// [`check`] with the default config, nothing to settle, no climb and
+    /// no walk.
+    fn plain(
+        prev: Option<(Air, FixedVec3)>,
+        feet: FixedVec3,
+        under: Ground,
+    ) -> Result<Air, PositionReject> {
+        check(
+            prev,
+            feet,
+            under,
+            none,
+            0.0,
+            &GravityConfig::default(),
+            no_walk,
+        )
+    }
+
     fn limits(apex: f64, step: f64) -> Air {
         Air::Limits {
             apex: Fixed::from_f64(apex).unwrap(),
@@ -275,64 +422,24 @@ mod tests {
 
     #[test]
     fn off_the_ground_a_jump_high_and_no_climbing_back_after_a_fall() {
-        let cfg = GravityConfig::default();
-        let stood = check(None, at(1.0), Ground::Top(0), none, 0.0, &cfg).unwrap();
+        let stood = plain(None, at(1.0), Ground::Top(0)).unwrap();
         assert_eq!(stood, limits(5.0, 5.0));
         // Up to the apex, 4 above the feet; not past it.
-        let up = check(
-            Some((stood, at(1.0))),
-            at(5.0),
-            Ground::None,
-            none,
-            0.0,
-            &cfg,
-        )
-        .unwrap();
+        let up = plain(Some((stood, at(1.0))), at(5.0), Ground::None).unwrap();
         assert!(matches!(
-            check(Some((up, at(5.0))), at(5.5), Ground::None, none, 0.0, &cfg),
+            plain(Some((up, at(5.0))), at(5.5), Ground::None),
             Err(PositionReject::TooHigh { apex }) if apex == 5.0
         ));
         // Nor standing on a ledge above it.
-        assert!(check(
-            Some((up, at(5.0))),
-            at(5.5),
-            Ground::Top(4),
-            none,
-            0.0,
-            &cfg
-        )
-        .is_err());
+        assert!(plain(Some((up, at(5.0))), at(5.5), Ground::Top(4)).is_err());
         // A fall lowers the apex to where it began.
-        let down = check(Some((up, at(5.0))), at(3.0), Ground::None, none, 0.0, &cfg).unwrap();
+        let down = plain(Some((up, at(5.0))), at(3.0), Ground::None).unwrap();
         assert_eq!(down, limits(5.0, 5.0));
-        let lower = check(
-            Some((down, at(3.0))),
-            at(2.8),
-            Ground::None,
-            none,
-            0.0,
-            &cfg,
-        )
-        .unwrap();
+        let lower = plain(Some((down, at(3.0))), at(2.8), Ground::None).unwrap();
         assert_eq!(lower, limits(3.0, 3.0));
-        assert!(check(
-            Some((lower, at(2.8))),
-            at(3.5),
-            Ground::None,
-            none,
-            0.0,
-            &cfg
-        )
-        .is_err());
+        assert!(plain(Some((lower, at(2.8))), at(3.5), Ground::None).is_err());
         // Standing again: a new jump.
-        let landed = check(
-            Some((lower, at(2.8))),
-            at(1.0),
-            Ground::Top(0),
-            none,
-            0.0,
-            &cfg,
-        );
+        let landed = plain(Some((lower, at(2.8))), at(1.0), Ground::Top(0));
         assert_eq!(landed, Ok(limits(5.0, 5.0)));
     }
 
@@ -341,18 +448,15 @@ mod tests {
     #[test]
     fn a_jump_is_from_the_ground_and_standing_climbs_a_jump_at_a_time() {
         let cfg = GravityConfig::default();
-        assert_eq!(
-            check(None, at(2.5), Ground::Top(0), none, 0.0, &cfg),
-            Ok(limits(6.0, 6.0))
-        );
+        assert_eq!(plain(None, at(2.5), Ground::Top(0)), Ok(limits(6.0, 6.0)));
         let mut air = limits(5.0, 5.0);
         let mut last = at(1.0);
         for (y, top) in [(3.0, 2), (6.5, 5), (10.0, 9), (13.5, 12)] {
-            air = check(Some((air, last)), at(y), Ground::Top(top), none, 0.0, &cfg).unwrap();
+            air = plain(Some((air, last)), at(y), Ground::Top(top)).unwrap();
             last = at(y);
         }
         assert!(matches!(
-            check(Some((air, last)), at(25.0), Ground::Top(24), none, 0.0, &cfg),
+            plain(Some((air, last)), at(25.0), Ground::Top(24)),
             Err(PositionReject::TooHigh { apex }) if apex == 17.5
         ));
         // An arrival's climb allowance.
@@ -362,7 +466,8 @@ mod tests {
             Ground::Top(24),
             none,
             8.0,
-            &cfg
+            &cfg,
+            no_walk
         )
         .is_ok());
     }
@@ -375,26 +480,123 @@ mod tests {
         let cfg = GravityConfig::default();
         let placed = Some((Air::Unsettled, at(1.0)));
         let settle = || Ground::Top(0);
-        assert!(check(placed, at(5.0), Ground::None, settle, 0.0, &cfg).is_ok());
+        assert!(check(placed, at(5.0), Ground::None, settle, 0.0, &cfg, no_walk).is_ok());
         let aloft = Some((Air::Unsettled, at(30.0)));
         for under in [Ground::None, Ground::Unknown] {
             let settle = || under;
-            assert!(check(aloft, at(30.5), Ground::None, settle, 0.0, &cfg).is_err());
-            assert!(check(aloft, at(29.0), Ground::None, settle, 0.0, &cfg).is_ok());
-            assert!(check(aloft, at(34.0), Ground::Top(33), settle, 0.0, &cfg).is_ok());
-            assert!(check(aloft, at(34.5), Ground::Top(33), settle, 0.0, &cfg).is_err());
+            assert!(check(aloft, at(30.5), Ground::None, settle, 0.0, &cfg, no_walk).is_err());
+            assert!(check(aloft, at(29.0), Ground::None, settle, 0.0, &cfg, no_walk).is_ok());
+            assert!(check(aloft, at(34.0), Ground::Top(33), settle, 0.0, &cfg, no_walk).is_ok());
+            assert!(check(aloft, at(34.5), Ground::Top(33), settle, 0.0, &cfg, no_walk).is_err());
         }
         // Over ground this node does not judge: nothing checked.
         let air = || Ground::None;
         assert_eq!(
-            check(aloft, at(99.0), Ground::Unknown, air, 0.0, &cfg),
+            check(aloft, at(99.0), Ground::Unknown, air, 0.0, &cfg, no_walk),
             Ok(Air::Unsettled)
         );
         // A first position in the air may only fall.
+        assert_eq!(plain(None, at(30.0), Ground::None), Ok(limits(30.0, 30.0)));
+    }
+
+    /// Stairs east of x = 10: step `k` (x from 10 + 2k - 1 to 10 + 2k) is
+    /// solid up to `rise * k - 1`; flat ground (solid to y = 0) elsewhere.
+    fn stairs(rise: i32) -> impl Fn(VoxelPos) -> Option<bool> {
+        move |v| {
+            let k = (v.x - 9).div_euclid(2);
+            Some(v.y <= 0 || ((1..=6).contains(&k) && v.y < rise * k))
+        }
+    }
+
+    /// Reports lost on the way up: a standing report above the step is
+    /// caught up when ground a jump at a time leads there, not when a
+    /// step of the way is higher than a jump, or the way is too long.
+    #[test]
+    fn a_climb_is_caught_up_along_ground_a_jump_at_a_time() {
+        let cfg = GravityConfig::default();
+        let from = at(1.0);
+        let stood = plain(None, from, Ground::Top(0)).unwrap();
+        // Steps 3 high: the fourth's top is at 11.
+        let to = FixedVec3::from_f64([17.5, 12.0, 10.5]).unwrap();
+        let walk = |base| walked_base(from, to, base, stairs(3), &cfg);
+        assert_eq!(walk(1.0), Some(13.0), "onto the fourth step's top");
+        let report = |walk: &dyn Fn(f64) -> Option<f64>| {
+            check(
+                Some((stood, from)),
+                to,
+                Ground::Top(11),
+                none,
+                0.0,
+                &cfg,
+                walk,
+            )
+        };
+        assert_eq!(report(&walk), Ok(limits(16.0, 16.0)));
+        assert!(matches!(
+            report(&no_walk),
+            Err(PositionReject::TooHigh { apex }) if apex == 5.0
+        ));
+        // Steps 7 high: the first is out of a jump's reach. (Steps 6 high
+        // are not: feet may stand up to a voxel above a top and jump from
+        // there, as report by report.)
+        let to = FixedVec3::from_f64([17.5, 28.0, 10.5]).unwrap();
+        assert_eq!(walked_base(from, to, 1.0, stairs(7), &cfg), None);
+        assert_eq!(walked_base(from, to, 1.0, stairs(6), &cfg), Some(25.0));
+        // A wall's face is no ground: nothing leads to its top.
+        let top = FixedVec3::from_f64([12.5, 21.0, 10.5]).unwrap();
+        let walked = walked_base(from, top, 1.0, world, &cfg).unwrap();
+        assert!(walked + cfg.jump_voxels < 21.0, "{walked}");
+        // Down into a dip and up the far side.
+        let dip = |v: VoxelPos| Some(v.y <= if (12..=14).contains(&v.x) { -3 } else { 0 });
+        let far = FixedVec3::from_f64([17.5, 1.0, 10.5]).unwrap();
+        assert_eq!(walked_base(from, far, 1.0, dip, &cfg), Some(2.0));
+        let pit = |v: VoxelPos| Some(v.y <= if (12..=14).contains(&v.x) { -9 } else { 0 });
         assert_eq!(
-            check(None, at(30.0), Ground::None, none, 0.0, &cfg),
-            Ok(limits(30.0, 30.0))
+            walked_base(from, far, 1.0, pit, &cfg),
+            None,
+            "below the dip"
         );
+        // Too far across, or ground this node does not judge.
+        let beyond = FixedVec3::from_f64([10.5 + CATCH_UP_VOXELS + 1.0, 1.0, 10.5]).unwrap();
+        assert_eq!(walked_base(from, beyond, 1.0, world, &cfg), None);
+        assert!(walk_chunks(from, beyond).is_empty());
+        let other = |v: VoxelPos| (v.x != 14).then_some(v.y <= 0);
+        assert_eq!(walked_base(from, far, 1.0, other, &cfg), None);
+    }
+
+    #[test]
+    fn a_walks_chunks_hold_every_voxel_it_reads() {
+        let ends = [
+            [0.5, 1.0, 0.5],
+            [-3.2, 30.9, 31.5],
+            [31.0, 33.0, -0.5],
+            [40.0, 70.0, 20.0],
+            [20.0, -40.0, 3.0],
+        ];
+        for a in ends {
+            for b in ends {
+                let (a, b) = (
+                    FixedVec3::from_f64(a).unwrap(),
+                    FixedVec3::from_f64(b).unwrap(),
+                );
+                let listed = walk_chunks(a, b);
+                // Every point's whole window (the walk reads at most that).
+                let Some((points, ys)) = walk_points(a, b) else {
+                    assert!(listed.is_empty());
+                    continue;
+                };
+                for (x, z) in points {
+                    let read = |v: VoxelPos| {
+                        assert!(listed.contains(&v.chunk()), "{v:?} of {a:?} -> {b:?}");
+                        Some(false)
+                    };
+                    assert_eq!(
+                        highest_top(point_columns(x, z), ys.clone(), &read),
+                        Some(None)
+                    );
+                }
+            }
+        }
     }
 
     #[test]

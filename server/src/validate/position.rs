@@ -367,6 +367,10 @@ pub fn check(
                 || prev.map_or(gravity::Ground::None, |p| gravity::ground(p.feet, &solid)),
                 climb,
                 &cfg.gravity,
+                |base| {
+                    let p = prev?;
+                    gravity::walked_base(p.feet, upd.pos, base, &solid, &cfg.gravity)
+                },
             )?
         }
         None => Air::Free,
