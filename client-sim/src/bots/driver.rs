@@ -452,17 +452,9 @@ impl Bot {
     async fn session(&mut self, client: &Client) -> Result<(), ClientError> {
         let radius = self.fleet.cfg.view_radius;
         let (hx, hz) = self.fleet.cfg.home(self.id);
-        let (sx, sz, hint) = match (&self.walker, client.welcome().start) {
-            (Some(w), _) => (w.feet[0], w.feet[2], w.feet[1]),
-            // The server remembers this player: start where it stood.
-            (None, Start::Resume { feet }) => {
-                let [x, y, z] = feet.to_f64();
-                (x, z, y)
-            }
-            (None, Start::Spawn { .. }) => {
-                (hx, hz, self.fleet.surface_hint(client.welcome(), hx, hz))
-            }
-        };
+        let own = self.walker.as_ref().map(|w| w.feet);
+        let (sx, sz, hint) = start_spot(client.welcome().start, own)
+            .unwrap_or_else(|| (hx, hz, self.fleet.surface_hint(client.welcome(), hx, hz)));
         let start_chunk = VoxelPos::new(sx as i32, hint as i32, sz as i32).chunk();
         client.subscribe(start_chunk, radius).await?;
         let feet = self.await_footing(client, sx, sz, hint).await?;
@@ -833,6 +825,22 @@ impl Bot {
     }
 }
 
+/// Where a connection's bot starts (`x`, `z`, a height to look for
+/// footing near), or `None` for its home: where the server holds the
+/// player when it remembers it (after a reconnect too: a report it refused
+/// or never heard left the bot's own feet elsewhere), else where the bot
+/// last stood.
+fn start_spot(start: Start, own: Option<[f64; 3]>) -> Option<(f64, f64, f64)> {
+    match (start, own) {
+        (Start::Resume { feet }, _) => {
+            let [x, y, z] = feet.to_f64();
+            Some((x, z, y))
+        }
+        (Start::Spawn { .. }, Some([x, y, z])) => Some((x, z, y)),
+        (Start::Spawn { .. }, None) => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -861,6 +869,27 @@ mod tests {
             out.fold_history(history, hashes);
         }
         out.order_violations
+    }
+
+    #[test]
+    fn a_resumed_bot_starts_where_the_server_holds_it() {
+        let held = FixedVec3::from_f64([10.0, 5.0, 20.0]).unwrap();
+        let resume = Start::Resume { feet: held };
+        let spawn = Start::Spawn {
+            x: 0,
+            z: 0,
+            radius: 8,
+        };
+        assert_eq!(
+            start_spot(resume, Some([40.0, 9.0, 40.0])),
+            Some((10.0, 20.0, 5.0))
+        );
+        assert_eq!(start_spot(resume, None), Some((10.0, 20.0, 5.0)));
+        assert_eq!(
+            start_spot(spawn, Some([40.0, 9.0, 40.0])),
+            Some((40.0, 40.0, 9.0))
+        );
+        assert_eq!(start_spot(spawn, None), None);
     }
 
     #[test]
