@@ -1116,6 +1116,33 @@ fn a_climb_whose_reports_were_lost_is_caught_up_along_the_ground() {
         s.update_position(PLAYER, at(2, x + 8, 28, z), 1_500),
         Err(PositionReject::TooHigh { apex: 4.0 })
     );
+    // A tower without stairs (floors every 4 voxels, a roof, a wall on
+    // its far side): its roof is reached by no walk, though each floor
+    // is a jump above the last (the body cannot pass a floor), nor is
+    // the wall's top.
+    let mut s = ready(ValidationConfig::default());
+    let (z0, z1) = (z - 3, z + 3);
+    let parts = [
+        fill((x + 10, 0, z0), (x + 10, 19, z1)),
+        fill((x + 3, 3, z0), (x + 9, 3, z1)),
+        fill((x + 3, 7, z0), (x + 9, 7, z1)),
+        fill((x + 3, 11, z0), (x + 9, 11, z1)),
+        fill((x + 3, 15, z0), (x + 9, 15, z1)),
+        fill((x + 3, 19, z0), (x + 9, 19, z1)),
+    ];
+    // The admin flies up beside it to reach every part.
+    s.update_position(ADMIN, at(2, x + 1, 10, z - 4), 1_000)
+        .unwrap();
+    for (k, part) in parts.into_iter().enumerate() {
+        s.submit(ADMIN, req(k as u64 + 1, part), 1_000).unwrap();
+    }
+    s.tick(1_000);
+    for (seq, (dx, dz)) in [(5, 2), (10, 2)].into_iter().enumerate() {
+        assert_eq!(
+            s.update_position(PLAYER, at(seq as u32 + 2, x + dx, 20, z + dz), 2_000),
+            Err(PositionReject::TooHigh { apex: 4.0 })
+        );
+    }
 }
 
 /// `[validation.gravity] enabled = false`: players fly.

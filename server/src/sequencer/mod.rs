@@ -494,8 +494,8 @@ impl Sequencer {
             let spots = std::iter::once(upd.pos).chain(unsettled.map(|p| p.feet));
             // And the ground a report above the step may have walked.
             let walked = prev
-                .filter(|p| gravity::may_walk(p.air, p.feet, upd.pos))
-                .map(|p| gravity::walk_chunks(p.feet, upd.pos));
+                .filter(|p| gravity::may_walk(p.air, p.feet, upd.pos, &cfg.gravity))
+                .map(|p| gravity::walk_chunks(p.feet, upd.pos, cfg.eye_height));
             for c in spots
                 .flat_map(gravity::chunks)
                 .chain(walked.into_iter().flatten())

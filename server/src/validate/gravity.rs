@@ -186,90 +186,175 @@ pub fn chunks(feet: FixedVec3) -> Vec<ChunkPos> {
 /// ground ([`walked_base`]), across and up, in voxels: a client whose
 /// reports were lost for a few seconds while it climbed.
 pub const CATCH_UP_VOXELS: f64 = 32.0;
-/// Spacing of the points a catch-up walk stands at, in voxels: with the
-/// four columns around each, it skips no column of its way.
+/// Longest step between two points of a catch-up walk, in voxels: a point
+/// in each column the way crosses.
 const CATCH_UP_STEP: f64 = 0.5;
 /// How far below the lower end's ground a catch-up walk may go down, in
 /// voxels (a dip between two reports).
 pub const CATCH_UP_DIP: i32 = 4;
 
-/// A catch-up walk's points across (`x`, `z`; the ends left out) and the
-/// heights it may read there.
-type Walk = (Vec<(f64, f64)>, std::ops::RangeInclusive<i32>);
+type Column = (i32, i32);
 
-/// The [`Walk`] from `from` to `to`, or `None` for a move too long to be
-/// caught up.
-fn walk_points(from: FixedVec3, to: FixedVec3) -> Option<Walk> {
+/// A catch-up walk from one report to the next: the body's column at
+/// each point across (the start's first and the end's last, at most
+/// [`CATCH_UP_STEP`] apart), the heights it looks for ground in, and the
+/// highest voxel it may read.
+struct Walk {
+    columns: Vec<Column>,
+    ground: std::ops::RangeInclusive<i32>,
+    ceiling: i32,
+}
+
+/// The body's column at `x`, `z`: that of its voxels (nearest, as the
+/// position rule's).
+fn body_column(x: f64, z: f64) -> Column {
+    ((x + 0.5).floor() as i32, (z + 0.5).floor() as i32)
+}
+
+/// The [`Walk`] from `from` to `to` for a body `eye` high, or `None` for a
+/// move too long to be caught up.
+fn walk_points(from: FixedVec3, to: FixedVec3, eye: f64) -> Option<Walk> {
     let ([ax, ay, az], [bx, by, bz]) = (from.to_f64(), to.to_f64());
     let across = (bx - ax).hypot(bz - az);
     if !(across <= CATCH_UP_VOXELS && by - ay <= CATCH_UP_VOXELS) {
         return None;
     }
     let n = (across / CATCH_UP_STEP).ceil().max(1.0) as u32;
-    let points = (1..n)
+    let columns = (0..=n)
         .map(|i| {
             let t = f64::from(i) / f64::from(n);
-            (ax + (bx - ax) * t, az + (bz - az) * t)
+            body_column(ax + (bx - ax) * t, az + (bz - az) * t)
         })
         .collect();
     let lowest = (ay.min(by) - GROUND_REACH).ceil() as i32 - CATCH_UP_DIP;
     let highest = (by + GROUND_SINK).floor() as i32;
-    Some((points, lowest..=highest))
-}
-
-fn point_columns(x: f64, z: f64) -> [(i32, i32); 4] {
-    let (x0, z0) = (x.floor() as i32, z.floor() as i32);
-    [(x0, z0), (x0 + 1, z0), (x0, z0 + 1), (x0 + 1, z0 + 1)]
+    let ceiling = (ay.max(by) + GROUND_SINK).floor() as i32 + 2 + eye.max(0.0).ceil() as i32;
+    Some(Walk {
+        columns,
+        ground: lowest..=highest,
+        ceiling,
+    })
 }
 
 /// Walks the ground from `from`, where a jump may start at `base`, toward
-/// `to`: at each point of the way, onto the highest top of the ground a
-/// jump reaches (never above `to`'s feet, down to [`CATCH_UP_DIP`] below
-/// the lower end). Returns where a jump may start at the last point before
-/// `to`, or `None` where the way has no ground a jump reaches, reads a
-/// voxel this node does not judge, or is too long ([`CATCH_UP_VOXELS`]).
-/// So a standing report no higher than a jump above that followed ground
-/// a player could have walked and jumped, each step at most a jump up.
+/// `to` (feet over ground whose top is `top`), as a body `eye` high: at
+/// each point of the way, onto the highest top of the ground in the
+/// body's column that a jump reaches (never above `to`'s feet, down to
+/// [`CATCH_UP_DIP`] below the lower end) with room for the body above it
+/// and on its way there from the last (up in the last column, or across
+/// and down in this one; round a corner, through one of the two columns
+/// beside it). Returns where a jump may start at the last point before
+/// `to`, or `None` where the way has no such ground, the last leg to `to`
+/// no such room, a voxel read is one this node does not judge, or the way
+/// is too long ([`CATCH_UP_VOXELS`]). So a standing report no higher than
+/// a jump above that is one a player could have walked to and jumped,
+/// each step at most a jump up, never through a wall, floor or ceiling.
 pub fn walked_base(
     from: FixedVec3,
     to: FixedVec3,
+    top: i32,
     base: f64,
+    eye: f64,
     solid: impl Fn(VoxelPos) -> Option<bool>,
     cfg: &GravityConfig,
 ) -> Option<f64> {
-    let (points, ys) = walk_points(from, to)?;
+    let walk = walk_points(from, to, eye)?;
+    let (first, rest) = walk.columns.split_first()?;
+    let (last, between) = rest.split_last()?;
+    let step = Step {
+        solid: &solid,
+        head: eye.max(0.0).floor() as i32 + 1,
+    };
     let jump = cfg.jump_voxels;
-    let mut base = base;
-    for (x, z) in points {
-        let reach = ((base + jump + GROUND_SINK).floor() as i32).min(*ys.end());
-        let top = highest_top(point_columns(x, z), *ys.start()..=reach, &solid)??;
-        base = (base + jump).min(f64::from(top.saturating_add(JUMP_BASE)));
+    let (mut at, mut base) = ((*first, (base.floor() as i32).saturating_sub(1)), base);
+    for &col in between {
+        let reach = ((base + jump + GROUND_SINK).floor() as i32).min(*walk.ground.end());
+        let mut found = None;
+        let mut above = step.solid(col, reach.saturating_add(1))?;
+        for y in (*walk.ground.start()..=reach).rev() {
+            let here = step.solid(col, y)?;
+            if here && !above && step.passes(at, (col, y))? {
+                found = Some(y);
+                break;
+            }
+            above = here;
+        }
+        let t = found?;
+        base = (base + jump).min(f64::from(t.saturating_add(JUMP_BASE)));
+        at = (col, t);
     }
-    Some(base)
+    step.passes(at, (*last, top))?.then_some(base)
+}
+
+/// Room checks of a catch-up walk: `head` voxels above a top the body
+/// needs free.
+struct Step<'a, F> {
+    solid: &'a F,
+    head: i32,
+}
+
+impl<F: Fn(VoxelPos) -> Option<bool>> Step<'_, F> {
+    fn solid(&self, (x, z): Column, y: i32) -> Option<bool> {
+        (self.solid)(VoxelPos::new(x, y, z))
+    }
+
+    /// Whether column `col` is free from `low` to `high`.
+    fn free(&self, col: Column, low: i32, high: i32) -> Option<bool> {
+        for y in low..=high {
+            if self.solid(col, y)? {
+                return Some(false);
+            }
+        }
+        Some(true)
+    }
+
+    /// Whether a body standing on top `a.1` in column `a.0` may go to
+    /// stand on `b.1` in the next column `b.0`.
+    fn passes(&self, (ac, at): (Column, i32), (bc, bt): (Column, i32)) -> Option<bool> {
+        let up = at.max(bt);
+        let head = up.saturating_add(self.head);
+        let room = self.free(bc, bt.saturating_add(1), bt.saturating_add(self.head))?
+            && if bt > at {
+                self.free(ac, at.saturating_add(1), head)?
+            } else {
+                self.free(bc, bt.saturating_add(1), head)?
+            };
+        if !room || (ac.0 == bc.0 || ac.1 == bc.1) {
+            return Some(room);
+        }
+        // Round a corner: through one of the columns beside it, at the
+        // height the body crosses.
+        let low = up.saturating_add(1);
+        Some(self.free((ac.0, bc.1), low, head)? || self.free((bc.0, ac.1), low, head)?)
+    }
 }
 
 /// Whether a report at `feet` after one at `last` in state `air` may need
-/// a catch-up walk ([`walked_base`]): standing above the step.
-pub fn may_walk(air: Air, last: FixedVec3, feet: FixedVec3) -> bool {
+/// a catch-up walk ([`walked_base`]): above the step (for a placed
+/// player, at least a jump above its spot less the half voxel its feet
+/// may be above their ground's reach).
+pub fn may_walk(air: Air, last: FixedVec3, feet: FixedVec3, cfg: &GravityConfig) -> bool {
     match air {
         Air::Limits { step, .. } => feet.y > step,
-        Air::Unsettled => feet.y > last.y,
+        Air::Unsettled => feet.y > add(last.y, cfg.jump() - strata_terrain::edit::fixed::ONE),
         Air::Free => false,
     }
 }
 
-/// The chunks [`walked_base`] may read from `from` to `to`.
-pub fn walk_chunks(from: FixedVec3, to: FixedVec3) -> Vec<ChunkPos> {
-    let Some((points, ys)) = walk_points(from, to) else {
+/// The chunks [`walked_base`] may read from `from` to `to` for a body
+/// `eye` high.
+pub fn walk_chunks(from: FixedVec3, to: FixedVec3, eye: f64) -> Vec<ChunkPos> {
+    let Some(walk) = walk_points(from, to, eye) else {
         return Vec::new();
     };
-    let (low, high) = (*ys.start(), ys.end().saturating_add(1));
+    let (low, high) = (*walk.ground.start(), walk.ceiling);
     let mut out: Vec<ChunkPos> = Vec::new();
-    for (x, z) in points {
-        for (cx, cz) in point_columns(x, z) {
+    for pair in walk.columns.windows(2) {
+        let ((ax, az), (bx, bz)) = (pair[0], pair[1]);
+        for (x, z) in [(ax, az), (bx, bz), (ax, bz), (bx, az)] {
             let mut y = low;
             loop {
-                let c = VoxelPos::new(cx, y.min(high), cz).chunk();
+                let c = VoxelPos::new(x, y.min(high), z).chunk();
                 if !out.contains(&c) {
                     out.push(c);
                 }
@@ -508,18 +593,35 @@ mod tests {
         }
     }
 
+    fn feet(x: f64, y: f64, z: f64) -> FixedVec3 {
+        FixedVec3::from_f64([x, y, z]).unwrap()
+    }
+
+    const EYE: f64 = 1.6;
+
+    /// [`walked_base`] from feet 1 on flat ground at x 10.2 (its jump from
+    /// there), with the default config.
+    fn walk_to(to: FixedVec3, top: i32, world: impl Fn(VoxelPos) -> Option<bool>) -> Option<f64> {
+        let cfg = GravityConfig::default();
+        walked_base(feet(10.2, 1.0, 10.5), to, top, 1.0, EYE, world, &cfg)
+    }
+
     /// Reports lost on the way up: a standing report above the step is
     /// caught up when ground a jump at a time leads there, not when a
-    /// step of the way is higher than a jump, or the way is too long.
+    /// step of the way is higher than a jump.
     #[test]
     fn a_climb_is_caught_up_along_ground_a_jump_at_a_time() {
         let cfg = GravityConfig::default();
-        let from = at(1.0);
+        let from = feet(10.2, 1.0, 10.5);
         let stood = plain(None, from, Ground::Top(0)).unwrap();
         // Steps 3 high: the fourth's top is at 11.
-        let to = FixedVec3::from_f64([17.5, 12.0, 10.5]).unwrap();
-        let walk = |base| walked_base(from, to, base, stairs(3), &cfg);
-        assert_eq!(walk(1.0), Some(13.0), "onto the fourth step's top");
+        let to = feet(17.3, 12.0, 10.5);
+        assert_eq!(
+            walk_to(to, 11, stairs(3)),
+            Some(13.0),
+            "onto the fourth step"
+        );
+        let walk = |base| walked_base(from, to, 11, base, EYE, stairs(3), &cfg);
         let report = |walk: &dyn Fn(f64) -> Option<f64>| {
             check(
                 Some((stood, from)),
@@ -539,39 +641,93 @@ mod tests {
         // Steps 7 high: the first is out of a jump's reach. (Steps 6 high
         // are not: feet may stand up to a voxel above a top and jump from
         // there, as report by report.)
-        let to = FixedVec3::from_f64([17.5, 28.0, 10.5]).unwrap();
-        assert_eq!(walked_base(from, to, 1.0, stairs(7), &cfg), None);
-        assert_eq!(walked_base(from, to, 1.0, stairs(6), &cfg), Some(25.0));
-        // A wall's face is no ground: nothing leads to its top.
-        let top = FixedVec3::from_f64([12.5, 21.0, 10.5]).unwrap();
-        let walked = walked_base(from, top, 1.0, world, &cfg).unwrap();
-        assert!(walked + cfg.jump_voxels < 21.0, "{walked}");
-        // Down into a dip and up the far side.
+        let to = feet(17.3, 28.0, 10.5);
+        assert_eq!(walk_to(to, 27, stairs(7)), None);
+        assert_eq!(walk_to(feet(17.3, 24.0, 10.5), 23, stairs(6)), Some(23.0));
+        // Down into a dip and up the far side; not below the dip.
+        let far = feet(17.2, 1.0, 10.5);
         let dip = |v: VoxelPos| Some(v.y <= if (12..=14).contains(&v.x) { -3 } else { 0 });
-        let far = FixedVec3::from_f64([17.5, 1.0, 10.5]).unwrap();
-        assert_eq!(walked_base(from, far, 1.0, dip, &cfg), Some(2.0));
+        assert_eq!(walk_to(far, 0, dip), Some(2.0));
         let pit = |v: VoxelPos| Some(v.y <= if (12..=14).contains(&v.x) { -9 } else { 0 });
-        assert_eq!(
-            walked_base(from, far, 1.0, pit, &cfg),
-            None,
-            "below the dip"
-        );
+        assert_eq!(walk_to(far, 0, pit), None, "below the dip");
         // Too far across, or ground this node does not judge.
-        let beyond = FixedVec3::from_f64([10.5 + CATCH_UP_VOXELS + 1.0, 1.0, 10.5]).unwrap();
-        assert_eq!(walked_base(from, beyond, 1.0, world, &cfg), None);
-        assert!(walk_chunks(from, beyond).is_empty());
+        let beyond = feet(10.2 + CATCH_UP_VOXELS + 1.0, 1.0, 10.5);
+        assert_eq!(walk_to(beyond, 0, world), None);
+        assert!(walk_chunks(from, beyond, EYE).is_empty());
         let other = |v: VoxelPos| (v.x != 14).then_some(v.y <= 0);
-        assert_eq!(walked_base(from, far, 1.0, other, &cfg), None);
+        assert_eq!(walk_to(far, 0, other), None);
     }
 
     #[test]
+    fn a_walk_is_read_for_reports_above_the_step() {
+        let cfg = GravityConfig::default();
+        assert!(!may_walk(limits(5.0, 5.0), at(1.0), at(5.0), &cfg));
+        assert!(may_walk(limits(5.0, 5.0), at(1.0), at(5.1), &cfg));
+        assert!(!may_walk(Air::Unsettled, at(1.0), at(4.0), &cfg));
+        assert!(may_walk(Air::Unsettled, at(1.0), at(4.1), &cfg));
+        assert!(!may_walk(Air::Free, at(1.0), at(99.0), &cfg));
+    }
+
+    /// The walk needs room for the body: no ground is reached through a
+    /// floor above, inside a wall, or round a corner walled on both sides.
+    #[test]
+    fn a_walk_goes_through_no_floor_wall_or_corner() {
+        // A stairless tower's floors (x 13 to 16, at 3, 7, 11, 15): the
+        // first is a ledge a jump up, the rest are above it.
+        let floors = |v: VoxelPos| {
+            Some(v.y <= 0 || ((13..=16).contains(&v.x) && [3, 7, 11, 15].contains(&v.y)))
+        };
+        assert_eq!(walk_to(feet(16.3, 16.0, 10.5), 15, floors), None);
+        assert_eq!(walk_to(feet(16.3, 4.0, 10.5), 3, floors), Some(5.0));
+        // A wall (x = 12, up to 19) with rising ground behind it (x = 13):
+        // nothing reaches its top, whatever lies beside.
+        let rampart = |v: VoxelPos| {
+            let behind = v.x == 13 && v.y <= (2 * (v.z - 13)).min(18);
+            Some(v.y <= 0 || (v.x == 12 && v.y <= 19) || behind)
+        };
+        assert_eq!(walk_to(feet(12.3, 20.0, 26.5), 19, rampart), None);
+        // Round a corner (columns 10, 10 to 11, 11): walled on both sides,
+        // no way; on one side, a way.
+        let to = feet(11.2, 1.0, 11.2);
+        let cfg = GravityConfig::default();
+        let corner = |open: bool| {
+            move |v: VoxelPos| {
+                let wall = (v.x, v.z) == (10, 11) || (!open && (v.x, v.z) == (11, 10));
+                Some(v.y <= 0 || (wall && v.y <= 10))
+            }
+        };
+        let from = feet(10.2, 1.0, 10.2);
+        assert_eq!(
+            walked_base(from, to, 0, 1.0, EYE, corner(false), &cfg),
+            None
+        );
+        assert_eq!(
+            walked_base(from, to, 0, 1.0, EYE, corner(true), &cfg),
+            Some(2.0)
+        );
+    }
+
+    /// Every voxel a walk reads lies in the chunks [`walk_chunks`] lists:
+    /// on speckled terrain (many tops, many blocked rooms) and on flat
+    /// ground at either end's height (walks that get through), between
+    /// ends near chunk borders, from bases up to the start's feet.
+    #[test]
     fn a_walks_chunks_hold_every_voxel_it_reads() {
+        let cfg = GravityConfig::default();
+        let speckled = |v: VoxelPos| {
+            let h = (v.x as u32).wrapping_mul(73_856_093)
+                ^ (v.y as u32).wrapping_mul(19_349_663)
+                ^ (v.z as u32).wrapping_mul(83_492_791);
+            h % 7 < 3
+        };
         let ends = [
-            [0.5, 1.0, 0.5],
-            [-3.2, 30.9, 31.5],
+            [0.4, 1.0, 0.5],
+            [1.2, 30.0, 2.3],
+            [5.5, 30.2, 9.0],
+            [-3.2, 62.4, 31.5],
             [31.0, 33.0, -0.5],
-            [40.0, 70.0, 20.0],
-            [20.0, -40.0, 3.0],
+            [20.0, -20.0, 3.0],
+            [31.6, 0.5, 31.6],
         ];
         for a in ends {
             for b in ends {
@@ -579,21 +735,22 @@ mod tests {
                     FixedVec3::from_f64(a).unwrap(),
                     FixedVec3::from_f64(b).unwrap(),
                 );
-                let listed = walk_chunks(a, b);
-                // Every point's whole window (the walk reads at most that).
-                let Some((points, ys)) = walk_points(a, b) else {
-                    assert!(listed.is_empty());
-                    continue;
-                };
-                for (x, z) in points {
-                    let read = |v: VoxelPos| {
-                        assert!(listed.contains(&v.chunk()), "{v:?} of {a:?} -> {b:?}");
-                        Some(false)
-                    };
-                    assert_eq!(
-                        highest_top(point_columns(x, z), ys.clone(), &read),
-                        Some(None)
-                    );
+                let listed = walk_chunks(a, b, EYE);
+                let (ay, by) = (a.y.to_f64(), b.y.to_f64());
+                for base in [ay - 8.0, ay - 0.5, ay] {
+                    for top in [by.floor() as i32 - 1, (by + 0.5).floor() as i32] {
+                        for world in [0, 1, 2] {
+                            let read = |v: VoxelPos| {
+                                assert!(listed.contains(&v.chunk()), "{v:?} of {a:?} -> {b:?}");
+                                Some(match world {
+                                    0 => speckled(v),
+                                    1 => f64::from(v.y) < ay.floor(),
+                                    _ => f64::from(v.y) < by.floor(),
+                                })
+                            };
+                            walked_base(a, b, top, base, EYE, read, &cfg);
+                        }
+                    }
                 }
             }
         }

@@ -360,16 +360,20 @@ pub fn check(
                 let d = to_dvec3(upd.pos) - to_dvec3(p.feet);
                 d.x.hypot(d.z)
             });
+            let under = gravity::ground(upd.pos, &solid);
             gravity::check(
                 prev.map(|p| (p.air, p.feet)),
                 upd.pos,
-                gravity::ground(upd.pos, &solid),
+                under,
                 || prev.map_or(gravity::Ground::None, |p| gravity::ground(p.feet, &solid)),
                 climb,
                 &cfg.gravity,
                 |base| {
-                    let p = prev?;
-                    gravity::walked_base(p.feet, upd.pos, base, &solid, &cfg.gravity)
+                    let (Some(p), gravity::Ground::Top(top)) = (prev, under) else {
+                        return None;
+                    };
+                    let eye = cfg.eye_height;
+                    gravity::walked_base(p.feet, upd.pos, top, base, eye, &solid, &cfg.gravity)
                 },
             )?
         }
