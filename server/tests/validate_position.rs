@@ -9,7 +9,7 @@ use strata_server::sequencer::{
 };
 use strata_server::validate::{PositionReject, SpawnArea, ValidationConfig};
 use strata_terrain::edit::{Fixed, FixedVec3};
-use strata_terrain::VoxelPos;
+use strata_terrain::{Edit, VoxelPos};
 
 fn fresh() -> strata_server::sequencer::Sequencer {
     fresh_with(ValidationConfig::default())
@@ -1143,6 +1143,51 @@ fn a_climb_whose_reports_were_lost_is_caught_up_along_the_ground() {
             Err(PositionReject::TooHigh { apex: 4.0 })
         );
     }
+}
+
+/// A catch-up walk starts on the ground under the held feet: a player
+/// held in the air over a low wall is not walked from inside it through
+/// a door the wall seals, into a walled yard and up its steps; one on the
+/// ground before the door is.
+#[test]
+fn a_catch_up_walk_starts_on_the_ground_under_the_held_feet() {
+    let (x, z) = HOME;
+    let yard = |low_wall: bool| {
+        let mut s = ready(ValidationConfig::default());
+        let (z0, z1) = (z - 3, z + 3);
+        let mut parts = vec![
+            fill((x + 3, 0, z0), (x + 3, 19, z1)),
+            Edit::ClearBox {
+                min: VoxelPos::new(x + 3, 0, z),
+                max: VoxelPos::new(x + 3, 1, z),
+            },
+        ];
+        for k in 1..=5 {
+            parts.push(fill((x + 4 + k, 0, z0), (x + 4 + k, 4 * k - 1, z1)));
+        }
+        if low_wall {
+            parts.push(fill((x + 2, 0, z0), (x + 2, 1, z1)));
+        }
+        s.update_position(ADMIN, at(2, x + 1, 6, z - 4), 1_000)
+            .unwrap();
+        for (k, part) in parts.into_iter().enumerate() {
+            s.submit(ADMIN, req(k as u64 + 1, part), 1_000).unwrap();
+        }
+        s.tick(1_000);
+        s
+    };
+    let mut s = yard(true);
+    s.update_position(PLAYER, at(2, x + 2, 4, z), 1_200)
+        .unwrap();
+    assert_eq!(
+        s.update_position(PLAYER, at(3, x + 9, 20, z), 2_700),
+        Err(PositionReject::TooHigh { apex: 4.0 })
+    );
+    let mut s = yard(false);
+    s.update_position(PLAYER, at(2, x + 2, 0, z), 1_200)
+        .unwrap();
+    s.update_position(PLAYER, at(3, x + 9, 20, z), 2_700)
+        .unwrap();
 }
 
 /// `[validation.gravity] enabled = false`: players fly.

@@ -236,19 +236,26 @@ fn walk_points(from: FixedVec3, to: FixedVec3, eye: f64) -> Option<Walk> {
     })
 }
 
+/// Most tops of the ground a catch-up walk keeps at each point, the
+/// highest: the ways over and under a slab or a bridge are both followed.
+pub const CATCH_UP_TOPS: usize = 4;
+
 /// Walks the ground from `from`, where a jump may start at `base`, toward
-/// `to` (feet over ground whose top is `top`), as a body `eye` high: at
-/// each point of the way, onto the highest top of the ground in the
-/// body's column that a jump reaches (never above `to`'s feet, down to
-/// [`CATCH_UP_DIP`] below the lower end) with room for the body above it
-/// and on its way there from the last (up in the last column, or across
-/// and down in this one; round a corner, through one of the two columns
-/// beside it). Returns where a jump may start at the last point before
-/// `to`, or `None` where the way has no such ground, the last leg to `to`
-/// no such room, a voxel read is one this node does not judge, or the way
-/// is too long ([`CATCH_UP_VOXELS`]). So a standing report no higher than
-/// a jump above that is one a player could have walked to and jumped,
-/// each step at most a jump up, never through a wall, floor or ceiling.
+/// `to` (feet over ground whose top is `top`), as a body `eye` high. It
+/// starts on the highest top within the held feet's reach in the body's
+/// column with room for the body (none, in the air: no walk). At each
+/// point of the way it keeps the tops of the ground in the body's column
+/// (the highest [`CATCH_UP_TOPS`]; never above `to`'s feet, down to
+/// [`CATCH_UP_DIP`] below the lower end) with room for the body above,
+/// that a top kept at the last point reaches: a jump up at most, with
+/// room on the way (up in the last column, or across and down in this
+/// one; round a corner, through one of the two columns beside it). Returns
+/// where a jump may start at the last point, from the best of those that
+/// reach `to`'s ground the same way, or `None` where none does, a voxel
+/// read is one this node does not judge, or the way is too long
+/// ([`CATCH_UP_VOXELS`]). So a standing report no higher than a jump above
+/// that is one a player could have walked to and jumped, each step at most
+/// a jump up, never through a wall, floor or ceiling.
 pub fn walked_base(
     from: FixedVec3,
     to: FixedVec3,
@@ -266,24 +273,45 @@ pub fn walked_base(
         head: eye.max(0.0).floor() as i32 + 1,
     };
     let jump = cfg.jump_voxels;
-    let (mut at, mut base) = ((*first, (base.floor() as i32).saturating_sub(1)), base);
+    let reach = |b: f64| (b + jump + GROUND_SINK).floor() as i32;
+    let ay = from.y.to_f64();
+    let held = (ay - GROUND_REACH).ceil() as i32..=(ay + GROUND_SINK).floor() as i32;
+    let start = *step.tops(*first, held)?.first()?;
+    let (mut kept, mut prev) = (vec![(start, base)], *first);
     for &col in between {
-        let reach = ((base + jump + GROUND_SINK).floor() as i32).min(*walk.ground.end());
-        let mut found = None;
-        let mut above = step.solid(col, reach.saturating_add(1))?;
-        for y in (*walk.ground.start()..=reach).rev() {
-            let here = step.solid(col, y)?;
-            if here && !above && step.passes(at, (col, y))? {
-                found = Some(y);
-                break;
+        let highest = kept.iter().map(|&(_, b)| reach(b)).max()?;
+        let mut next = Vec::with_capacity(CATCH_UP_TOPS);
+        for t in step.tops(col, *walk.ground.start()..=highest.min(*walk.ground.end()))? {
+            let mut best: Option<f64> = None;
+            for &(s, b) in &kept {
+                if t <= reach(b) && step.moves((prev, s), (col, t))? {
+                    let b = (b + jump).min(f64::from(t.saturating_add(JUMP_BASE)));
+                    best = Some(best.map_or(b, |x| x.max(b)));
+                }
             }
-            above = here;
+            if let Some(b) = best {
+                next.push((t, b));
+                if next.len() == CATCH_UP_TOPS {
+                    break;
+                }
+            }
         }
-        let t = found?;
-        base = (base + jump).min(f64::from(t.saturating_add(JUMP_BASE)));
-        at = (col, t);
+        if next.is_empty() {
+            return None;
+        }
+        (kept, prev) = (next, col);
     }
-    step.passes(at, (*last, top))?.then_some(base)
+    // The last leg, onto the report's ground.
+    if !step.room(*last, top)? {
+        return None;
+    }
+    let mut best: Option<f64> = None;
+    for &(s, b) in &kept {
+        if step.moves((prev, s), (*last, top))? {
+            best = Some(best.map_or(b, |x| x.max(b)));
+        }
+    }
+    best
 }
 
 /// Room checks of a catch-up walk: `head` voxels above a top the body
@@ -308,17 +336,37 @@ impl<F: Fn(VoxelPos) -> Option<bool>> Step<'_, F> {
         Some(true)
     }
 
+    /// Whether a body standing on top `t` of column `col` has room.
+    fn room(&self, col: Column, t: i32) -> Option<bool> {
+        self.free(col, t.saturating_add(1), t.saturating_add(self.head))
+    }
+
+    /// The tops of the ground in `col` between `ys` with room for the
+    /// body above, the highest first.
+    fn tops(&self, col: Column, ys: std::ops::RangeInclusive<i32>) -> Option<Vec<i32>> {
+        let mut out = Vec::new();
+        let mut above = self.solid(col, ys.end().saturating_add(1))?;
+        for y in ys.rev() {
+            let here = self.solid(col, y)?;
+            if here && !above && self.room(col, y)? {
+                out.push(y);
+            }
+            above = here;
+        }
+        Some(out)
+    }
+
     /// Whether a body standing on top `a.1` in column `a.0` may go to
-    /// stand on `b.1` in the next column `b.0`.
-    fn passes(&self, (ac, at): (Column, i32), (bc, bt): (Column, i32)) -> Option<bool> {
+    /// top `b.1` in the next column `b.0` (which has room for it): up in
+    /// its own column first, or across at its height and down.
+    fn moves(&self, (ac, at): (Column, i32), (bc, bt): (Column, i32)) -> Option<bool> {
         let up = at.max(bt);
         let head = up.saturating_add(self.head);
-        let room = self.free(bc, bt.saturating_add(1), bt.saturating_add(self.head))?
-            && if bt > at {
-                self.free(ac, at.saturating_add(1), head)?
-            } else {
-                self.free(bc, bt.saturating_add(1), head)?
-            };
+        let room = if bt > at {
+            self.free(ac, at.saturating_add(1), head)?
+        } else {
+            self.free(bc, bt.saturating_add(1), head)?
+        };
         if !room || (ac.0 == bc.0 || ac.1 == bc.1) {
             return Some(room);
         }
@@ -705,6 +753,54 @@ mod tests {
             walked_base(from, to, 0, 1.0, EYE, corner(true), &cfg),
             Some(2.0)
         );
+    }
+
+    /// The walk starts on ground under the held feet, in their own
+    /// column: not from the air over a low wall, through a door the wall
+    /// seals (review 86: a 20-voxel wall crossed).
+    #[test]
+    fn a_walk_starts_on_the_ground_under_the_held_feet() {
+        let cfg = GravityConfig::default();
+        let world = |v: VoxelPos| {
+            let door = v.z == 10 && (1..=2).contains(&v.y);
+            let inside = match v.x {
+                12..=16 => 4 * (v.x - 11),
+                _ => 0,
+            };
+            Some(
+                v.y <= 0
+                    || (v.x == 9 && v.y <= 2)
+                    || (v.x == 10 && v.y <= 20 && !door)
+                    || (v.x >= 11 && v.y <= inside),
+            )
+        };
+        let to = feet(16.2, 21.0, 10.2);
+        let over_the_low_wall = feet(9.2, 4.9, 10.2);
+        assert_eq!(
+            walked_base(over_the_low_wall, to, 20, 1.0, EYE, world, &cfg),
+            None
+        );
+        // On the low wall's top: the high wall over the door is in the way.
+        let on_it = feet(9.2, 3.0, 10.2);
+        assert_eq!(walked_base(on_it, to, 20, 3.0, EYE, world, &cfg), None);
+        // In front of the door (the low wall gone): through it and up.
+        let open = |v: VoxelPos| Some(v.x != 9 && world(v) == Some(true) || v.y <= 0);
+        let before = feet(8.2, 1.0, 10.2);
+        assert!(walked_base(before, to, 20, 1.0, EYE, open, &cfg).is_some());
+    }
+
+    /// Ways over and under a slab are both followed: the one under it
+    /// leads on through a passage (review 86: the highest top alone was
+    /// followed onto the slab, and the way refused).
+    #[test]
+    fn a_walk_follows_the_way_under_a_slab_too() {
+        let world = |v: VoxelPos| {
+            let slab = (12..=14).contains(&v.x) && v.y == 3;
+            let building = (15..=16).contains(&v.x) && (3..=12).contains(&v.y);
+            let steps = (18..=24).contains(&v.x) && v.y <= 3 * (v.x - 17);
+            Some(v.y <= 0 || slab || building || steps)
+        };
+        assert_eq!(walk_to(feet(24.2, 22.0, 10.5), 21, world), Some(23.0));
     }
 
     /// Every voxel a walk reads lies in the chunks [`walk_chunks`] lists:
