@@ -92,7 +92,8 @@ pub struct EngineConfig {
     /// its request ([`snapshot::DEFAULT_SNAPSHOT_PREIMAGE_BYTES`]).
     pub snapshot_preimage_bytes: usize,
     /// Threads that apply region lanes, mesh, encode for the store and fan
-    /// deltas out; 0 means one per available core.
+    /// deltas out, the engine thread among them when 2 or more; 0 means
+    /// one per available core.
     pub workers: usize,
 }
 

@@ -24,6 +24,7 @@ mod owners;
 mod ownership;
 mod peer;
 mod pending;
+mod pool;
 mod position_refusal;
 mod prebuild;
 mod premesh;
@@ -108,7 +109,8 @@ pub struct Engine {
     /// The last seq the store holds durably. The sequencer's own runs
     /// ahead of it while a commit is in flight; clients are told only this.
     durable_seq: u64,
-    /// The `[engine] workers` threads.
+    /// The `[engine] workers` threads; on the engine's own thread, with
+    /// two or more, the engine thread is one of them ([`pool::build`]).
     pool: Arc<rayon::ThreadPool>,
     /// Signs `RegionOwners` tickets (the cluster's shared auth secret, for
     /// its world).
@@ -164,11 +166,7 @@ impl Engine {
             0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
             n => n.min(MAX_WORKERS),
         };
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(workers)
-            .thread_name(|i| format!("strata-worker-{i}"))
-            .build()
-            .map_err(std::io::Error::other)?;
+        let pool = pool::build(workers, false)?;
         Ok(Self {
             pool: Arc::new(pool),
             premesh: premesh::Premesher::new(premesh::PremeshLimits {
@@ -266,6 +264,13 @@ impl Engine {
     }
 
     fn run(mut self, rx: Inbox) -> anyhow::Result<()> {
+        let workers = self.pool.current_num_threads();
+        if workers >= 2 {
+            match pool::build(workers, true) {
+                Ok(pool) => self.pool = Arc::new(pool),
+                Err(e) => warn!(error = %e, "the engine thread works apart from its workers"),
+            }
+        }
         let ended = self.serve(rx);
         // However it ends: a snapshot still being read stops at its next
         // chunk instead of holding the process's exit (or a console job's

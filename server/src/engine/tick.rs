@@ -164,8 +164,7 @@ impl Engine {
         metrics::counter!(m::STORE_BYTES, "kind" => "commit").increment(stats.bytes_written);
         phase.end("commit");
         phase.commit = Some((stats, out.batch.chunks.len()));
-        let built = meshing
-            .recv()
+        let built = super::pool::help_until(&meshing)
             .map_err(|_| anyhow::anyhow!("collision meshing task panicked"))?;
         phase.end("mesh_wait");
         metrics::counter!(m::MESH_LAYERS, "how" => "meshed").increment(built.layers.meshed);
