@@ -29,7 +29,7 @@ use tracing::error;
 use super::inbox::Waker;
 use super::{Applied, Command, Engine, Inbox};
 use crate::metrics as m;
-use crate::store::{ChunkStore, CommitBatch, CommitStats, StoreError, PARALLEL_ENCODE_CHUNKS};
+use crate::store::{ChunkStore, CommitBatch, CommitStats, StoreError};
 
 /// Longest the engine sleeps between looks at a running commit, should a
 /// wake be lost (a full player queue skips it; draining that queue looks
@@ -77,13 +77,8 @@ pub struct Committer {
 }
 
 impl Committer {
-    /// Starts the thread; its chunk encoding runs on `pool`, and `waker`
-    /// wakes the engine after each result.
-    pub fn spawn(
-        store: Arc<dyn ChunkStore>,
-        pool: Arc<rayon::ThreadPool>,
-        waker: Waker,
-    ) -> std::io::Result<Self> {
+    /// Starts the thread; `waker` wakes the engine after each result.
+    pub fn spawn(store: Arc<dyn ChunkStore>, waker: Waker) -> std::io::Result<Self> {
         let (jobs, todo) = mpsc::channel::<Job>();
         let (finished, done) = mpsc::channel::<Done>();
         let thread = std::thread::Builder::new()
@@ -99,13 +94,9 @@ impl Committer {
                             continue;
                         }
                     };
-                    // On a worker only when the store encodes chunks in
-                    // parallel: the thread that runs it waits out the fsync.
-                    let result = if batch.chunks.len() >= PARALLEL_ENCODE_CHUNKS {
-                        pool.install(|| store.commit_batch(&batch))
-                    } else {
-                        store.commit_batch(&batch)
-                    };
+                    // Here, fsync included; a big batch's chunks are
+                    // encoded on the workers (`ChunkStore::encode_on`).
+                    let result = store.commit_batch(&batch);
                     if finished.send((batch, result)).is_err() {
                         return;
                     }

@@ -266,11 +266,11 @@ impl Engine {
     fn run(mut self, rx: Inbox) -> anyhow::Result<()> {
         let workers = self.pool.current_num_threads();
         if workers >= 2 {
-            match pool::build(workers, true) {
-                Ok(pool) => self.pool = Arc::new(pool),
-                Err(e) => warn!(error = %e, "the engine thread works apart from its workers"),
-            }
+            // A failure leaves this thread attached to a pool that is gone:
+            // no engine.
+            self.pool = Arc::new(pool::build(workers, true)?);
         }
+        self.store.encode_on(self.pool.clone());
         let ended = self.serve(rx);
         // However it ends: a snapshot still being read stops at its next
         // chunk instead of holding the process's exit (or a console job's
@@ -280,7 +280,7 @@ impl Engine {
     }
 
     fn serve(&mut self, rx: Inbox) -> anyhow::Result<()> {
-        match commit::Committer::spawn(self.store.clone(), self.pool.clone(), rx.waker()) {
+        match commit::Committer::spawn(self.store.clone(), rx.waker()) {
             Ok(c) => self.committer = Some(c),
             Err(e) => warn!(error = %e, "no commit thread; ticks commit inline"),
         }

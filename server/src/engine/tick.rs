@@ -148,7 +148,7 @@ impl Engine {
             // A region lost mid-flight: the batch is abandoned, the node
             // goes on (cluster nodes apply nothing ahead).
             Err(e) if self.abandon_fenced(&out, &e) => {
-                let _ = meshing.recv();
+                let _ = super::pool::help_until(&meshing);
                 phase.end("commit");
                 return Ok(next);
             }
@@ -257,7 +257,9 @@ fn spawn_meshing(pool: &rayon::ThreadPool, pending: PendingMeshes) -> Receiver<B
     } else {
         // A panic would abort the process inside a spawned job: caught, it
         // drops `tx`, and the engine stops cleanly on the closed channel.
-        pool.spawn(move || {
+        // First in, first out: a tick applied ahead does not build before
+        // the one waited for.
+        pool.spawn_fifo(move || {
             let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| pending.build()));
             if let Ok(built) = built {
                 let _ = tx.send(built);

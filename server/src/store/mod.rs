@@ -25,6 +25,7 @@ mod checkpointer;
 mod config;
 mod deltas;
 mod disk_sync;
+mod encode_pool;
 mod error;
 mod flush_watch;
 mod import;
@@ -61,6 +62,7 @@ pub use config::{
     MIN_CACHE_CAPACITY_BYTES, MIN_SEGMENT_SIZE_BYTES,
 };
 pub use disk_sync::MAX_TRACKED_BLOBS;
+pub use encode_pool::EncodePool;
 pub use error::StoreError;
 pub use import::ImportTarget;
 pub use open::open_store;
@@ -83,9 +85,8 @@ pub use world_lock::{with_suffix, WorldLock, LOCK_SUFFIX, REPLACED_SUFFIX, RESTO
 pub type StoreIter<'a, T> = Box<dyn Iterator<Item = Result<T, StoreError>> + Send + 'a>;
 
 /// Whole chunk states in a batch from which a store encodes them in
-/// parallel (on the rayon pool the commit runs in, see `engine/commit.rs`).
-/// Below it the committing thread encodes them alone, and no worker thread
-/// waits out the batch's flush and fsync.
+/// parallel (on its [`EncodePool`]); below it the committing thread
+/// encodes them alone.
 pub const PARALLEL_ENCODE_CHUNKS: usize = 4;
 
 /// Durable world storage. Every method that writes returns only once the
@@ -279,6 +280,10 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// store with one wrote is [`StoreError::NeedsGenerator`] until a
     /// checkpoint has folded it.
     fn attach_generator(&self, _generator: Arc<dyn ChunkGenerator>) {}
+
+    /// Encodes big batches' chunks on `pool` from now on (the engine's
+    /// workers; [`EncodePool`]).
+    fn encode_on(&self, _pool: Arc<rayon::ThreadPool>) {}
 
     /// Called once at shutdown, after the last commit and checkpoint: a
     /// cluster node gives up its region leases, so another node may take

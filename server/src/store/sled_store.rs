@@ -18,7 +18,6 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
 
-use rayon::prelude::*;
 use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
 use strata_terrain::delta::ChunkDelta;
 use strata_terrain::world::ChunkGenerator;
@@ -42,7 +41,7 @@ use super::types::{
     CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, StoredChunk, StoredPosition,
     WorldMeta, STORE_FORMAT_VERSION,
 };
-use super::{ChunkStore, StoreIter, PARALLEL_ENCODE_CHUNKS};
+use super::{ChunkStore, StoreIter};
 
 /// Tree of world metadata.
 pub const TREE_META: &str = "meta";
@@ -97,6 +96,8 @@ pub struct SledStore {
     /// The world's generator, once attached: chunks are then first stored
     /// as a "generated" record and deltas (`CommitBatch::generated`).
     pub(super) generator: std::sync::OnceLock<Arc<dyn ChunkGenerator>>,
+    /// Where big batches' chunks are encoded.
+    encode: super::EncodePool,
     /// The highest `last_seq` known on disk: sled shows a transaction's
     /// writes before its flush, and `last_seq` reads no further than this,
     /// so no reader (the console) sees an edit that is not durable yet.
@@ -177,6 +178,7 @@ impl SledStore {
             watch: FlushWatch::spawn(db.clone())?,
             db,
             generator: std::sync::OnceLock::new(),
+            encode: Default::default(),
             durable_seq: std::sync::atomic::AtomicU64::new(u64::MAX),
             held: None,
         };
@@ -369,11 +371,7 @@ impl ChunkStore for SledStore {
             .iter()
             .filter(|c| !as_delta.contains(&c.0))
             .collect();
-        let chunks: Vec<EncodedChunk> = if whole.len() >= PARALLEL_ENCODE_CHUNKS {
-            whole.par_iter().map(|c| encode(c)).collect()
-        } else {
-            whole.iter().map(|c| encode(c)).collect()
-        };
+        let chunks: Vec<EncodedChunk> = self.encode.map(&whole, |c| encode(c));
         let mut deltas = Vec::with_capacity(b.deltas.len());
         for d in &b.deltas {
             deltas.push((
@@ -699,6 +697,10 @@ impl ChunkStore for SledStore {
     fn attach_generator(&self, generator: Arc<dyn ChunkGenerator>) {
         // The first one stays: the world has one generator.
         let _ = self.generator.set(generator);
+    }
+
+    fn encode_on(&self, pool: Arc<rayon::ThreadPool>) {
+        self.encode.set(pool);
     }
 }
 

@@ -19,7 +19,6 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
 
-use rayon::prelude::*;
 use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::delta::ChunkDelta;
 use strata_terrain::ChunkPos;
@@ -32,7 +31,7 @@ use crate::store::batch;
 use crate::store::keys::show_pos;
 use crate::store::record::{encode_delta, encode_log_record, GENERATED_BODY};
 use crate::store::types::{CommitBatch, CommitStats};
-use crate::store::{StoreError, PARALLEL_ENCODE_CHUNKS};
+use crate::store::StoreError;
 use tokio_postgres::error::SqlState;
 
 /// A batch encoded as column arrays, ready for `unnest`.
@@ -152,11 +151,7 @@ impl PgStore {
             .filter(|c| !from_generated.contains_key(&c.0))
             .collect();
         // zstd dominates a big batch's cost; chunks compress independently.
-        let bodies: Vec<Vec<u8>> = if whole.len() >= PARALLEL_ENCODE_CHUNKS {
-            whole.par_iter().map(|c| encode_chunk(&c.2)).collect()
-        } else {
-            whole.iter().map(|c| encode_chunk(&c.2)).collect()
-        };
+        let bodies: Vec<Vec<u8>> = self.encode.map(&whole, |c| encode_chunk(&c.2));
         for ((pos, version, _), body) in whole.into_iter().zip(bodies) {
             cols.chunks
                 .push(self, *pos, to_sql(*version, "chunk version")?, body);

@@ -83,6 +83,8 @@ pub struct PgStore {
     /// The world's generator, once attached: new chunks are then stored
     /// as a "generated" record and deltas (`CommitBatch::generated`).
     generator: std::sync::OnceLock<std::sync::Arc<dyn strata_terrain::world::ChunkGenerator>>,
+    /// Where big batches' chunks are encoded.
+    encode: crate::store::EncodePool,
     /// The connection holding [`import::SERVING_LOCK`] shared while a
     /// server uses this store ([`ChunkStore::serve`]).
     serving: std::sync::Mutex<Option<Box<Conn>>>,
@@ -252,6 +254,7 @@ impl PgStore {
             leases: None,
             region_chunks: region_chunks.max(1),
             generator: std::sync::OnceLock::new(),
+            encode: Default::default(),
             serving: std::sync::Mutex::new(None),
             commit_conn: std::sync::Mutex::new(None),
             prune_cursor: std::sync::Mutex::new(0),
@@ -782,6 +785,10 @@ impl ChunkStore for PgStore {
     ) {
         // The first one stays: the world has one generator.
         let _ = self.generator.set(generator);
+    }
+
+    fn encode_on(&self, pool: std::sync::Arc<rayon::ThreadPool>) {
+        self.encode.set(pool);
     }
 
     fn close(&self) -> Result<(), StoreError> {
