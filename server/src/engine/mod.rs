@@ -270,8 +270,10 @@ impl Engine {
             // no engine.
             self.pool = Arc::new(pool::build(workers, true)?);
         }
-        self.store.encode_on(self.pool.clone());
+        self.store.encode_on(Some(self.pool.clone()));
         let ended = self.serve(rx);
+        // The pool's threads end with the engine, not with the store.
+        self.store.encode_on(None);
         // However it ends: a snapshot still being read stops at its next
         // chunk instead of holding the process's exit (or a console job's
         // file) until the whole world is read.

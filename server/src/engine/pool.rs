@@ -5,7 +5,9 @@
 /// is one of them (`use_current_thread`): a tick's parallel work (apply,
 /// sight checks, fan-out) starts on it instead of waking a worker and
 /// waiting, and it takes its share; `workers - 1` threads of their own run
-/// the rest and what is spawned (the tick's meshes). That halved the
+/// the rest and what is spawned (the tick's meshes, which the engine helps
+/// build while it waits for them; a job it spawned may so run on it, as
+/// may a share of a big batch's encoding while it waits in the pool). That halved the
 /// server's thread switches per edit (BENCHMARKS.md, session 50). With
 /// one worker, the engine only waits for it: some thread of the pool must
 /// run spawned jobs while the engine serves commands.

@@ -6,17 +6,19 @@ use rayon::prelude::*;
 
 use super::PARALLEL_ENCODE_CHUNKS;
 
-/// The engine's worker pool once it starts serving
+/// The engine's worker pool while it serves
 /// ([`super::ChunkStore::encode_on`]), else whatever pool the caller runs
 /// in. Only the encoding runs there: the commit's writes and fsync stay on
-/// the committing thread, so no pool thread (the engine thread is one)
-/// waits them out.
+/// the commit thread, so no pool thread waits them out (the engine thread,
+/// one of the pool's, may take a share of the encoding while it waits in
+/// the pool; it waits out an fsync only when it commits itself, with no
+/// commit thread).
 #[derive(Debug, Default)]
 pub struct EncodePool(RwLock<Option<Arc<rayon::ThreadPool>>>);
 
 impl EncodePool {
-    pub fn set(&self, pool: Arc<rayon::ThreadPool>) {
-        *self.0.write().unwrap_or_else(|p| p.into_inner()) = Some(pool);
+    pub fn set(&self, pool: Option<Arc<rayon::ThreadPool>>) {
+        *self.0.write().unwrap_or_else(|p| p.into_inner()) = pool;
     }
 
     /// `f` of each of `items`, in order: in parallel from
@@ -42,7 +44,10 @@ mod tests {
     fn a_big_batch_is_encoded_on_the_pool_set_in_order() {
         let encode = EncodePool::default();
         let items: Vec<u32> = (0..64).collect();
-        let on = |_: &u32| rayon::current_thread_index().is_some();
+        let on = |_: &u32| {
+            let me = std::thread::current();
+            me.name().is_some_and(|n| n.starts_with("encode-test"))
+        };
         assert!(
             encode.map(&items[..2], on).iter().all(|x| !x),
             "a small one here"
@@ -50,10 +55,11 @@ mod tests {
         let pool = Arc::new(
             rayon::ThreadPoolBuilder::new()
                 .num_threads(2)
+                .thread_name(|i| format!("encode-test-{i}"))
                 .build()
                 .unwrap(),
         );
-        encode.set(pool);
+        encode.set(Some(pool));
         assert!(
             encode.map(&items, on).iter().all(|x| *x),
             "a big one on the pool"
@@ -63,5 +69,7 @@ mod tests {
             encode.map(&items, |x| x * 2),
             (0..64).map(|x| x * 2).collect::<Vec<_>>()
         );
+        encode.set(None);
+        assert!(encode.map(&items, on).iter().all(|x| !x), "not on it again");
     }
 }

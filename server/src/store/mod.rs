@@ -282,8 +282,9 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     fn attach_generator(&self, _generator: Arc<dyn ChunkGenerator>) {}
 
     /// Encodes big batches' chunks on `pool` from now on (the engine's
-    /// workers; [`EncodePool`]).
-    fn encode_on(&self, _pool: Arc<rayon::ThreadPool>) {}
+    /// workers, while it runs; [`EncodePool`]), or on the caller's pool
+    /// again (`None`: the engine stopped, its threads may end).
+    fn encode_on(&self, _pool: Option<Arc<rayon::ThreadPool>>) {}
 
     /// Called once at shutdown, after the last commit and checkpoint: a
     /// cluster node gives up its region leases, so another node may take

@@ -699,7 +699,7 @@ impl ChunkStore for SledStore {
         let _ = self.generator.set(generator);
     }
 
-    fn encode_on(&self, pool: Arc<rayon::ThreadPool>) {
+    fn encode_on(&self, pool: Option<Arc<rayon::ThreadPool>>) {
         self.encode.set(pool);
     }
 }

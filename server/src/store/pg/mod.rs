@@ -787,7 +787,7 @@ impl ChunkStore for PgStore {
         let _ = self.generator.set(generator);
     }
 
-    fn encode_on(&self, pool: std::sync::Arc<rayon::ThreadPool>) {
+    fn encode_on(&self, pool: Option<std::sync::Arc<rayon::ThreadPool>>) {
         self.encode.set(pool);
     }
 
