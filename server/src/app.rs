@@ -242,7 +242,14 @@ pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow
         }
     };
     let (engine, engine_thread) = engine.spawn(on_exit)?;
-    let checkpointer = Checkpointer::spawn(store.clone(), cfg.store.checkpoint_pace())?;
+    // Background store work (checkpoints, a cluster node's lease renewals)
+    // tells readiness of its failures too.
+    store.report_to(health.clone());
+    let checkpointer = Checkpointer::spawn(
+        store.clone(),
+        cfg.store.checkpoint_pace(),
+        Some(health.clone()),
+    )?;
     let server_config = crate::tls::server_config(data_dir.cert(), &cfg.net, &cfg.tls)?;
     let endpoint = quinn::Endpoint::server(server_config, cfg.server.listen)
         .with_context(|| format!("binding {}", cfg.server.listen))?;

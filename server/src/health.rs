@@ -84,6 +84,19 @@ impl Health {
         self.store_failed_ms.store(now_ms, Ordering::Release);
     }
 
+    /// A store operation off the engine's path failed (a checkpoint pass, a
+    /// log prune, a position save, a lease renewal): counted as
+    /// [`Self::store_failed`] unless the error is one chunk's records (the
+    /// data's fault, not the store's). Those paths report no successes: a
+    /// read that works (a checkpoint listing nothing) says nothing of the
+    /// engine's writes, so only the engine's own operations make the
+    /// server ready again before `STORE_FAILING` without a failure passes.
+    pub fn store_error(&self, error: &crate::store::StoreError) {
+        if !error.is_chunk_local() {
+            self.store_failed();
+        }
+    }
+
     /// A store operation of the engine's succeeded.
     pub fn store_ok(&self) {
         self.store_failing_since_ms.store(0, Ordering::Release);

@@ -11,6 +11,7 @@ use common::*;
 use store_common::sql_url;
 use strata_client_sim::Verdict;
 use strata_protocol::Role;
+use strata_server::config::ServerConfig;
 use strata_server::health::STORE_FAILING;
 use strata_terrain::{Edit, FixedVec3};
 
@@ -50,16 +51,7 @@ async fn a_store_whose_reads_keep_failing_is_not_ready() {
         let server = start_on(dir.path(), &backend).await;
         let health = server.health();
         assert_eq!(health.check(), Ok(()));
-        let admin_url = db.cluster().url("postgres");
-        let name = db.name().to_string();
-        let close = format!(
-            "ALTER DATABASE \"{name}\" WITH ALLOW_CONNECTIONS false; \
-             SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = '{name}'"
-        );
-        let url = admin_url.clone();
-        tokio::task::spawn_blocking(move || sql_url(&url, &close))
-            .await
-            .unwrap();
+        let open = close_db(db).await;
         let c = connect(&server, "ana", Role::Player).await;
         c.send_position(feet).unwrap();
         // Each edit at the stored chunk reads it, and the read fails.
@@ -80,10 +72,7 @@ async fn a_store_whose_reads_keep_failing_is_not_ready() {
         assert!(refused > 0);
         let why = health.check().unwrap_err();
         assert!(why.contains("store"), "{why}");
-        let open = format!("ALTER DATABASE \"{name}\" WITH ALLOW_CONNECTIONS true");
-        tokio::task::spawn_blocking(move || sql_url(&admin_url, &open))
-            .await
-            .unwrap();
+        tokio::task::spawn_blocking(open).await.unwrap();
         // The next read succeeds: ready again, and the edit goes through.
         let started = Instant::now();
         loop {
@@ -98,6 +87,159 @@ async fn a_store_whose_reads_keep_failing_is_not_ready() {
             tokio::time::sleep(Duration::from_millis(250)).await;
         }
         assert_eq!(health.check(), Ok(()));
+        c.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// Closes `db` to the server's connections (theirs ended) and returns what
+/// opens it again.
+async fn close_db(db: &strata_tests::postgres::PgDb) -> impl FnOnce() -> Vec<String> {
+    let admin_url = db.cluster().url("postgres");
+    let name = db.name().to_string();
+    let close = format!(
+        "ALTER DATABASE \"{name}\" WITH ALLOW_CONNECTIONS false; \
+         SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = '{name}'"
+    );
+    let url = admin_url.clone();
+    tokio::task::spawn_blocking(move || sql_url(&url, &close))
+        .await
+        .unwrap();
+    let open = format!("ALTER DATABASE \"{name}\" WITH ALLOW_CONNECTIONS true");
+    move || sql_url(&admin_url, &open)
+}
+
+/// Waits until `health` says `ready`, at most `limit`; how long it took.
+async fn until_ready(
+    health: &strata_server::health::Health,
+    ready: bool,
+    limit: Duration,
+) -> Duration {
+    let started = Instant::now();
+    while health.check().is_ok() != ready {
+        assert!(
+            started.elapsed() < limit,
+            "readiness still {:?} after {:?}",
+            health.check(),
+            started.elapsed()
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    started.elapsed()
+}
+
+/// PostgreSQL for `test` (`None`: it does not run here), a data dir, and
+/// a config on them checkpointing every `checkpoint_ms` (0: never).
+fn on_postgres(
+    test: &str,
+    checkpoint_ms: u64,
+) -> Option<(
+    strata_tests::postgres::PgDb,
+    tempfile::TempDir,
+    ServerConfig,
+)> {
+    let backend = Backend::postgres(test)?;
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(dir.path());
+    backend.apply(&mut cfg);
+    cfg.store.checkpoint_ms = checkpoint_ms;
+    let Backend::Postgres(db) = backend else {
+        unreachable!("asked for PostgreSQL")
+    };
+    Some((db, dir, cfg))
+}
+
+/// Starts a server on `cfg` (PostgreSQL `db`) that nobody connects to,
+/// closes `db` to it: unready once failures have gone on for
+/// `STORE_FAILING`, not before; ready again once `db` is back.
+async fn unready_while_closed(db: &strata_tests::postgres::PgDb, cfg: ServerConfig) {
+    let server = strata_server::app::start(cfg).await.unwrap();
+    let health = server.health();
+    assert_eq!(health.check(), Ok(()));
+    let open = close_db(db).await;
+    let took = until_ready(&health, false, STORE_FAILING * 3).await;
+    assert!(took >= STORE_FAILING, "unready at once: {took:?}");
+    let why = health.check().unwrap_err();
+    assert!(why.contains("store"), "{why}");
+    tokio::task::spawn_blocking(open).await.unwrap();
+    until_ready(&health, true, STORE_FAILING * 3).await;
+    server.shutdown().await.unwrap();
+}
+
+/// Nobody connected, nothing edited: the engine never touches the store,
+/// but the checkpoint thread does, every pass. Its failures turn the
+/// server unready once they have gone on for `STORE_FAILING`; once they
+/// stop (the store back), ready again after `STORE_FAILING`.
+#[tokio::test]
+async fn an_idle_server_whose_store_fails_is_not_ready() {
+    let Some((db, _dir, cfg)) = on_postgres("an_idle_server_whose_store_fails_is_not_ready", 200)
+    else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, unready_while_closed(&db, cfg))
+        .await
+        .expect("test finished in time");
+}
+
+/// A cluster node with no checkpoint thread and nobody connected: only
+/// its lease renewals reach the store. Their failures turn it unready.
+#[tokio::test]
+async fn a_cluster_node_whose_renewals_fail_is_not_ready() {
+    let Some((db, _dir, mut cfg)) =
+        on_postgres("a_cluster_node_whose_renewals_fail_is_not_ready", 0)
+    else {
+        return;
+    };
+    cfg.cluster = Some(strata_server::cluster::ClusterConfig {
+        node_id: "node-a".into(),
+        lease_ms: 2_000,
+        renew_ms: 200,
+        ..Default::default()
+    });
+    tokio::time::timeout(TEST_TIMEOUT, unready_while_closed(&db, cfg))
+        .await
+        .expect("test finished in time");
+}
+
+/// A player walks on the spot and nobody edits, with no checkpoint
+/// thread: only the saves of its positions (every `POSITION_SAVE_EVERY`,
+/// on the commit thread) reach the store. Their failures turn the server
+/// unready.
+#[tokio::test]
+async fn a_server_whose_position_saves_fail_is_not_ready() {
+    let Some((db, _dir, cfg)) = on_postgres("a_server_whose_position_saves_fail_is_not_ready", 0)
+    else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let server = strata_server::app::start(cfg).await.unwrap();
+        let health = server.health();
+        let (feet, _) = spot(70, 40);
+        let c = connect(&server, "ana", Role::Player).await;
+        c.send_position(feet).unwrap();
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let open = close_db(&db).await;
+        let started = Instant::now();
+        let mut step = 0u32;
+        while health.check().is_ok() {
+            assert!(
+                started.elapsed() < STORE_FAILING * 3,
+                "still ready after {:?} of failed saves",
+                started.elapsed()
+            );
+            step += 1;
+            let dx = if step % 2 == 0 { 0.0 } else { 0.25 };
+            let p =
+                FixedVec3::from_f64([feet.to_f64()[0] + dx, feet.to_f64()[1], feet.to_f64()[2]])
+                    .unwrap();
+            c.send_position(p).unwrap();
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        assert!(started.elapsed() >= STORE_FAILING, "unready at once");
+        tokio::task::spawn_blocking(open).await.unwrap();
+        until_ready(&health, true, STORE_FAILING * 3).await;
         c.close().await;
         server.shutdown().await.unwrap();
     })

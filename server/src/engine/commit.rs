@@ -77,8 +77,14 @@ pub struct Committer {
 }
 
 impl Committer {
-    /// Starts the thread; `waker` wakes the engine after each result.
-    pub fn spawn(store: Arc<dyn ChunkStore>, waker: Waker) -> std::io::Result<Self> {
+    /// Starts the thread; `waker` wakes the engine after each result. A
+    /// position save that fails is reported to `health` (a commit's result
+    /// goes back to the engine, which reports it).
+    pub fn spawn(
+        store: Arc<dyn ChunkStore>,
+        waker: Waker,
+        health: Option<Arc<crate::health::Health>>,
+    ) -> std::io::Result<Self> {
         let (jobs, todo) = mpsc::channel::<Job>();
         let (finished, done) = mpsc::channel::<Done>();
         let thread = std::thread::Builder::new()
@@ -89,6 +95,9 @@ impl Committer {
                         Job::Commit(batch) => *batch,
                         Job::Positions(moved) => {
                             if let Err(e) = store.save_positions(&moved) {
+                                if let Some(h) = &health {
+                                    h.store_error(&e);
+                                }
                                 error!(error = %e, players = moved.len(), "saving player positions failed");
                             }
                             continue;

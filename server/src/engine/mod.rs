@@ -282,7 +282,7 @@ impl Engine {
     }
 
     fn serve(&mut self, rx: Inbox) -> anyhow::Result<()> {
-        match commit::Committer::spawn(self.store.clone(), rx.waker()) {
+        match commit::Committer::spawn(self.store.clone(), rx.waker(), self.health.clone()) {
             Ok(c) => self.committer = Some(c),
             Err(e) => warn!(error = %e, "no commit thread; ticks commit inline"),
         }
@@ -372,6 +372,7 @@ impl Engine {
             }
         }
         if let Err(e) = self.store.save_positions(&moved) {
+            self.store_failed(&e);
             error!(error = %e, players = moved.len(), "saving player positions failed");
         }
     }

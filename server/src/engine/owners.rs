@@ -90,6 +90,7 @@ impl Engine {
         let holders: BTreeMap<RegionId, RegionHolder> = match self.store.region_holders(&all) {
             Ok(h) => h.into_iter().collect(),
             Err(e) => {
+                self.store_failed(&e);
                 error!(error = %e, "reading region holders failed");
                 self.free_regions.clear();
                 return;

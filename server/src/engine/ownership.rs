@@ -155,13 +155,18 @@ impl Engine {
             }
             // The held ones are in use (kept from idle release).
             if !held.is_empty() {
-                let _ = self.store.acquire_regions(&held);
+                if let Err(e) = self.store.acquire_regions(&held) {
+                    self.store_failed(&e);
+                }
             }
             return Ok(Some(Claim { free, all: regions }));
         }
         // Held (marked in use), or more than this node may claim: the
         // store answers now, and claims nothing at capacity.
         let access = self.store.acquire_regions(&regions);
+        if let Err(e) = &access {
+            self.store_failed(e);
+        }
         self.take_fresh_regions();
         // Held, but not reloaded yet (a failed reload waits for its
         // retry): refused before anything is applied on stale chunks.
@@ -196,6 +201,7 @@ impl Engine {
                 continue;
             }
             if let Err(e) = self.reload_region(r) {
+                self.store_failed(&e);
                 let what = format!("reading free region ({}, {}) failed", r.x, r.z);
                 crate::log_every::store_error("regions", &what, &e);
                 return Err(RejectReason::Busy);
@@ -235,6 +241,9 @@ impl Engine {
             return Err(reason);
         }
         let access = self.store.acquire_regions(free);
+        if let Err(e) = &access {
+            self.store_failed(e);
+        }
         match access_refusal(access) {
             Ok(()) => {
                 // Reloaded, or its edits refused `Busy` if that failed. A
@@ -257,6 +266,7 @@ impl Engine {
                 // One claim takes what it can: what it took for this edit
                 // (another node had one of the others) goes back.
                 if let Err(e) = self.store.release_regions(free) {
+                    self.store_failed(&e);
                     warn!(error = %e, "letting go of a refused edit's regions failed; they idle out");
                 }
                 self.take_fresh_regions();
@@ -328,6 +338,7 @@ impl Engine {
                     )
                 }
                 Err(e) => {
+                    self.store_failed(&e);
                     self.region_epochs.remove(&r);
                     self.reload_retry.insert(r, epoch);
                     self.reload_retry_at = Some(std::time::Instant::now());
@@ -562,6 +573,7 @@ impl Engine {
         match self.store.reserve_seqs(self.seq.last_seq()) {
             Ok(floor) => self.seq.raise_next_seq(floor.saturating_add(1)),
             Err(e) => {
+                self.store_failed(&e);
                 error!(error = %e, "reserving a seq block after a fenced commit failed");
                 return false;
             }

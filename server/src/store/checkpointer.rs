@@ -22,6 +22,7 @@ use tracing::{debug, error};
 use strata_terrain::ChunkPos;
 
 use super::{CheckpointStats, ChunkStore, StoreError};
+use crate::health::Health;
 use crate::metrics as m;
 
 /// A pass pauses this many times each slice's own duration after it.
@@ -86,8 +87,13 @@ pub struct Checkpointer {
 
 impl Checkpointer {
     /// Starts a pass every `pace.every` (never, for zero: only at
-    /// [`Self::stop`]).
-    pub fn spawn(store: Arc<dyn ChunkStore>, pace: CheckpointPace) -> std::io::Result<Self> {
+    /// [`Self::stop`]). A pass or prune that fails is reported to `health`
+    /// (`/healthz`: a store failing while nothing edits still shows).
+    pub fn spawn(
+        store: Arc<dyn ChunkStore>,
+        pace: CheckpointPace,
+        health: Option<Arc<Health>>,
+    ) -> std::io::Result<Self> {
         let stop = Arc::new(Stop::default());
         let thread = if pace.every.is_zero() {
             None
@@ -96,7 +102,7 @@ impl Checkpointer {
             Some(
                 std::thread::Builder::new()
                     .name("strata-checkpoint".into())
-                    .spawn(move || run(&*store, &stop, pace))?,
+                    .spawn(move || run(&*store, &stop, pace, health.as_deref()))?,
             )
         };
         Ok(Self {
@@ -225,7 +231,12 @@ fn paced_pass(
     Ok(report)
 }
 
-fn run(store: &dyn ChunkStore, stop: &Stop, pace: CheckpointPace) {
+fn run(store: &dyn ChunkStore, stop: &Stop, pace: CheckpointPace, health: Option<&Health>) {
+    let failed = |e: &StoreError| {
+        if let Some(h) = health {
+            h.store_error(e);
+        }
+    };
     let mut after = None;
     while !stop.wait(pace.every) {
         // A failed pass changes nothing: the deltas stay and reads replay them.
@@ -233,12 +244,14 @@ fn run(store: &dyn ChunkStore, stop: &Stop, pace: CheckpointPace) {
             Ok(r) if r.stopped => return,
             Ok(r) => after = r.next,
             Err(e) => {
+                failed(&e);
                 metrics::counter!(crate::metrics::STORE_ERRORS, "op" => "checkpoint").increment(1);
                 error!(error = %e, "checkpoint failed; deltas stay until the next pass")
             }
         }
         // A quarter of the period at most, as the folds.
         if let Err(e) = prune_log(store, pace.log_retention, pace.every / 4) {
+            failed(&e);
             metrics::counter!(crate::metrics::STORE_ERRORS, "op" => "prune").increment(1);
             error!(error = %e, "pruning the edit log failed; it is tried again after the next pass");
         }

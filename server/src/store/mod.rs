@@ -281,6 +281,10 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// checkpoint has folded it.
     fn attach_generator(&self, _generator: Arc<dyn ChunkGenerator>) {}
 
+    /// Reports the failures of the store's own threads (a cluster node's
+    /// lease renewals) to `health` from now on.
+    fn report_to(&self, _health: Arc<crate::health::Health>) {}
+
     /// Encodes big batches' chunks on `pool` from now on (the engine's
     /// workers, while it runs; [`EncodePool`]), or on the caller's pool
     /// again (`None`: the engine stopped, its threads may end).

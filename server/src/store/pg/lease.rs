@@ -70,6 +70,8 @@ pub struct NodeLeases {
     /// row is still the previous process's).
     registered: std::sync::atomic::AtomicBool,
     book: Mutex<Book>,
+    /// Told of the renewal thread's failures (`ChunkStore::report_to`).
+    health: std::sync::OnceLock<Arc<crate::health::Health>>,
 }
 
 #[derive(Debug, Default)]
@@ -122,6 +124,20 @@ impl NodeLeases {
             superseded: Mutex::new(None),
             registered: std::sync::atomic::AtomicBool::new(false),
             book: Mutex::new(Book::default()),
+            health: std::sync::OnceLock::new(),
+        }
+    }
+
+    /// Tells `health` of the renewal thread's failures from now on (the
+    /// first call counts).
+    pub(super) fn report_to(&self, health: Arc<crate::health::Health>) {
+        let _ = self.health.set(health);
+    }
+
+    /// A renewal pass's store operation failed.
+    fn failed(&self, error: &StoreError) {
+        if let Some(h) = self.health.get() {
+            h.store_error(error);
         }
     }
 
@@ -922,18 +938,22 @@ impl Renewer {
                             // The engine stops at its next tick.
                             break;
                         }
+                        leases.failed(&e);
                         warn!(error = %e, "checking the node's incarnation failed; retrying");
                     }
                     if let Err(e) = renew(&pool, &leases) {
+                        leases.failed(&e);
                         warn!(error = %e, "renewing region leases failed; retrying");
                     }
                     if let Err(e) = release_idle(&pool, &leases) {
+                        leases.failed(&e);
                         warn!(error = %e, "releasing idle regions failed");
                     }
                     // A process still starting adopts nothing: its start
                     // may fail, and it has no address to name yet.
                     if leases.adopt && leases.registered.load(Ordering::Acquire) {
                         if let Err(e) = adopt(&pool, &leases) {
+                            leases.failed(&e);
                             warn!(error = %e, "adopting expired regions failed; retrying");
                         }
                     }

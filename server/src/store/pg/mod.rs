@@ -938,6 +938,12 @@ impl ChunkStore for PgStore {
         self.stored_versions(region)
     }
 
+    fn report_to(&self, health: std::sync::Arc<crate::health::Health>) {
+        if let Some(leases) = &self.leases {
+            leases.report_to(health);
+        }
+    }
+
     fn bound_at(&self, addr: &str) {
         if let Some(leases) = &self.leases {
             leases.set_addr_if_unset(addr);
