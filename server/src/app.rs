@@ -284,6 +284,7 @@ pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow
             ),
             None => PositionReads::default(),
         },
+        health: health.clone(),
     };
     let ctx = Arc::new(ctx);
     // Bound before anything is accepted, so a taken port fails the start.

@@ -11,13 +11,87 @@ use std::time::{Duration, Instant};
 /// hangs, a deadlock. Far above any tick seen under load (hundreds of ms).
 pub const ENGINE_STALL: Duration = Duration::from_secs(10);
 
-/// How long the engine's store operations (chunk reads, region reads,
-/// commits) may go on failing, none succeeding, before the server says it
-/// is not ready: a store that fails fast (a database gone, a disk
-/// refusing reads) leaves the engine ticking and every player's reads
-/// refused. Ready again once one succeeds, or once none has failed for
-/// this long (nothing tried it since).
+/// How long store operations of one kind ([`StoreWork`]) may go on
+/// failing, none of that kind succeeding, before the server says it is
+/// not ready: a store that fails fast (a database gone, a disk refusing
+/// reads) leaves the engine ticking and every player's reads refused.
+/// Ready again once one of that kind succeeds, or once none has failed
+/// for [`StoreWork::kept`] (nothing tried it since).
 pub const STORE_FAILING: Duration = Duration::from_secs(5);
+
+/// How long a failure of periodic background work counts, unless that
+/// work succeeds since (plus twice its period, [`Health::expect_every`]):
+/// longer than a pass's period and its store's timeouts, so a store that
+/// stays down keeps the server unready between two slow failures.
+pub const FAILURE_KEPT: Duration = Duration::from_secs(30);
+
+/// What a store operation was for. Each kind keeps its own run of
+/// failures and is ended only by its own success: a read that works (a
+/// checkpoint listing nothing) says nothing of another kind's writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StoreWork {
+    /// The engine's chunk reads and commits, and its region reads, claims
+    /// and reloads (those report failures only: held regions are answered
+    /// from the lease book).
+    Engine,
+    /// The checkpoint thread's passes.
+    Checkpoint,
+    /// The checkpoint thread's edit-log pruning.
+    Prune,
+    /// Saves of the players' positions.
+    PositionSaves,
+    /// A cluster node's lease renewals (and adoptions, releases).
+    Leases,
+    /// Reads of the stored access list (its reload, admin commands).
+    Access,
+    /// Reloads of the stored protected zones.
+    Zones,
+    /// A cluster node's reads of a joining player's stored position.
+    PositionReads,
+}
+
+impl StoreWork {
+    const ALL: [StoreWork; 8] = [
+        StoreWork::Engine,
+        StoreWork::Checkpoint,
+        StoreWork::Prune,
+        StoreWork::PositionSaves,
+        StoreWork::Leases,
+        StoreWork::Access,
+        StoreWork::Zones,
+        StoreWork::PositionReads,
+    ];
+
+    /// What `/healthz` answers while this kind is failing.
+    fn reason(self) -> &'static str {
+        match self {
+            StoreWork::Engine => {
+                "store failing: the engine's reads and commits fail, none succeeds"
+            }
+            StoreWork::Checkpoint => "store failing: checkpoints fail, none succeeds",
+            StoreWork::Prune => "store failing: pruning the edit log fails, none succeeds",
+            StoreWork::PositionSaves => "store failing: saving positions fails, none succeeds",
+            StoreWork::Leases => "store failing: renewing region leases fails, none succeeds",
+            StoreWork::Access => "store failing: reading the access list fails, none succeeds",
+            StoreWork::Zones => "store failing: reading protected zones fails, none succeeds",
+            StoreWork::PositionReads => {
+                "store failing: reading players' positions fails, none succeeds"
+            }
+        }
+    }
+}
+
+/// One kind's run of failures (ms on [`clock_ms`], 0 for none).
+#[derive(Debug, Default)]
+struct Run {
+    /// The first failure since the last success (or since a quiet spell
+    /// longer than `kept`).
+    since: AtomicU64,
+    /// The last failure.
+    last: AtomicU64,
+    /// The kind's period ([`Health::expect_every`]), 0 when it has none.
+    period: AtomicU64,
+}
 
 #[derive(Debug, Default)]
 pub struct Health {
@@ -26,11 +100,8 @@ pub struct Health {
     /// When the engine last finished a tick ([`clock_ms`]); 0 before its
     /// first.
     ticked_ms: AtomicU64,
-    /// When the first store failure since the last success came; 0 when
-    /// the last operation succeeded (or none failed).
-    store_failing_since_ms: AtomicU64,
-    /// When the last store failure came; 0 before any.
-    store_failed_ms: AtomicU64,
+    /// By [`StoreWork`], in [`StoreWork::ALL`]'s order.
+    store: [Run; 8],
 }
 
 /// Milliseconds since this process first asked, at least 1: a monotonic
@@ -50,56 +121,94 @@ impl Health {
     fn check_at(&self, now_ms: u64) -> Result<(), &'static str> {
         let ticked = self.ticked_ms.load(Ordering::Acquire);
         if self.engine_stopped.load(Ordering::Acquire) {
-            Err("engine stopped")
+            return Err("engine stopped");
         } else if !self.accepting.load(Ordering::Acquire) {
-            Err("not accepting connections")
+            return Err("not accepting connections");
         } else if ticked > 0 && now_ms.saturating_sub(ticked) > ENGINE_STALL.as_millis() as u64 {
-            Err("engine stalled: no tick finished lately")
-        } else if self.store_failing(now_ms) {
-            Err("store failing: its operations fail and none succeeds")
+            return Err("engine stalled: no tick finished lately");
+        }
+        match StoreWork::ALL
+            .into_iter()
+            .find(|&w| self.failing(w, now_ms))
+        {
+            Some(w) => Err(w.reason()),
+            None => Ok(()),
+        }
+    }
+
+    fn run(&self, work: StoreWork) -> &Run {
+        &self.store[work as usize]
+    }
+
+    /// How long a failure of `work` counts without another.
+    fn kept_ms(&self, work: StoreWork) -> u64 {
+        match work {
+            // Reads and commits come with players' actions: none lately
+            // says nothing tried the store.
+            StoreWork::Engine => STORE_FAILING.as_millis() as u64,
+            _ => {
+                let period = self.run(work).period.load(Ordering::Acquire);
+                FAILURE_KEPT.as_millis() as u64 + 2 * period
+            }
+        }
+    }
+
+    fn failing(&self, work: StoreWork, now_ms: u64) -> bool {
+        let run = self.run(work);
+        let since = run.since.load(Ordering::Acquire);
+        let last = run.last.load(Ordering::Acquire);
+        since > 0
+            && now_ms.saturating_sub(since) >= STORE_FAILING.as_millis() as u64
+            && now_ms.saturating_sub(last) < self.kept_ms(work)
+    }
+
+    /// `work` runs about every `period`: its failures count that much
+    /// longer ([`FAILURE_KEPT`]).
+    pub fn expect_every(&self, work: StoreWork, period: Duration) {
+        let ms = u64::try_from(period.as_millis()).unwrap_or(u64::MAX / 4);
+        self.run(work)
+            .period
+            .store(ms.min(u64::MAX / 4), Ordering::Release);
+    }
+
+    /// How a store operation for `work` went. Errors that are not the
+    /// store's ([`crate::store::StoreError::is_store_fault`]: one chunk's
+    /// records, a lease lost, a newer process) count as neither.
+    pub fn report<T>(&self, work: StoreWork, result: &Result<T, crate::store::StoreError>) {
+        match result {
+            Ok(_) => self.store_ok(work),
+            Err(e) => self.store_error(work, e),
+        }
+    }
+
+    /// A store operation for `work` failed ([`Self::report`]'s rule).
+    pub fn store_error(&self, work: StoreWork, error: &crate::store::StoreError) {
+        if error.is_store_fault() {
+            self.store_failed(work);
+        }
+    }
+
+    /// A store operation for `work` failed, the store's fault.
+    pub fn store_failed(&self, work: StoreWork) {
+        self.store_failed_at(work, clock_ms());
+    }
+
+    fn store_failed_at(&self, work: StoreWork, now_ms: u64) {
+        let run = self.run(work);
+        let last = run.last.swap(now_ms, Ordering::AcqRel);
+        if last > 0 && now_ms.saturating_sub(last) >= self.kept_ms(work) {
+            // A failure after a quiet spell starts a run of its own.
+            run.since.store(now_ms, Ordering::Release);
         } else {
-            Ok(())
+            let _ = run
+                .since
+                .compare_exchange(0, now_ms, Ordering::AcqRel, Ordering::Acquire);
         }
     }
 
-    fn store_failing(&self, now_ms: u64) -> bool {
-        let since = self.store_failing_since_ms.load(Ordering::Acquire);
-        let last = self.store_failed_ms.load(Ordering::Acquire);
-        let window = STORE_FAILING.as_millis() as u64;
-        since > 0 && now_ms.saturating_sub(since) >= window && now_ms.saturating_sub(last) < window
-    }
-
-    /// A store operation of the engine's failed.
-    pub fn store_failed(&self) {
-        self.store_failed_at(clock_ms());
-    }
-
-    fn store_failed_at(&self, now_ms: u64) {
-        let _ = self.store_failing_since_ms.compare_exchange(
-            0,
-            now_ms,
-            Ordering::AcqRel,
-            Ordering::Acquire,
-        );
-        self.store_failed_ms.store(now_ms, Ordering::Release);
-    }
-
-    /// A store operation off the engine's path failed (a checkpoint pass, a
-    /// log prune, a position save, a lease renewal): counted as
-    /// [`Self::store_failed`] unless the error is one chunk's records (the
-    /// data's fault, not the store's). Those paths report no successes: a
-    /// read that works (a checkpoint listing nothing) says nothing of the
-    /// engine's writes, so only the engine's own operations make the
-    /// server ready again before `STORE_FAILING` without a failure passes.
-    pub fn store_error(&self, error: &crate::store::StoreError) {
-        if !error.is_chunk_local() {
-            self.store_failed();
-        }
-    }
-
-    /// A store operation of the engine's succeeded.
-    pub fn store_ok(&self) {
-        self.store_failing_since_ms.store(0, Ordering::Release);
+    /// A store operation for `work` succeeded: its run of failures ends.
+    pub fn store_ok(&self, work: StoreWork) {
+        self.run(work).since.store(0, Ordering::Release);
     }
 
     pub fn set_accepting(&self, on: bool) {
@@ -151,19 +260,57 @@ mod tests {
     fn a_store_that_keeps_failing_is_not_ready() {
         let h = Health::default();
         h.set_accepting(true);
+        let engine = StoreWork::Engine;
         let window = STORE_FAILING.as_millis() as u64;
-        h.store_failed_at(1_000);
+        h.store_failed_at(engine, 1_000);
         assert_eq!(h.check_at(1_000 + window - 1), Ok(()), "a blip");
-        h.store_failed_at(1_000 + window - 1);
-        assert!(h.check_at(1_000 + window).unwrap_err().contains("store"));
+        h.store_failed_at(engine, 1_000 + window - 1);
+        let why = h.check_at(1_000 + window).unwrap_err();
+        assert!(why.contains("engine's reads"), "{why}");
         // One success: ready again, and a later failure starts anew.
-        h.store_ok();
+        h.store_ok(engine);
         assert_eq!(h.check_at(1_000 + window), Ok(()));
-        h.store_failed_at(2_000 + window);
-        assert_eq!(h.check_at(2_000 + window), Ok(()));
-        // Failures that stop (nothing tries the store): ready after the window.
-        h.store_failed_at(2_000 + 2 * window);
+        h.store_failed_at(engine, 2_000 + window);
+        h.store_failed_at(engine, 2_000 + 2 * window - 1);
         assert!(h.check_at(2_000 + 2 * window).is_err());
+        // Failures that stop (nothing tries the store): ready after the window.
+        assert_eq!(h.check_at(2_000 + 3 * window - 1), Ok(()));
+        // A failure after that quiet spell is a blip of its own.
+        h.store_failed_at(engine, 2_000 + 3 * window);
         assert_eq!(h.check_at(2_000 + 3 * window), Ok(()));
+    }
+
+    #[test]
+    fn background_work_fails_on_until_it_succeeds_itself() {
+        let h = Health::default();
+        h.set_accepting(true);
+        let (cp, saves) = (StoreWork::Checkpoint, StoreWork::PositionSaves);
+        let window = STORE_FAILING.as_millis() as u64;
+        let kept = FAILURE_KEPT.as_millis() as u64;
+        // Slow failures, further apart than the window: unready from the
+        // window on, between them too.
+        for t in (0..5).map(|i| 1_000 + i * 2 * window) {
+            h.store_failed_at(cp, t);
+        }
+        for t in [1_000 + window, 1_000 + 3 * window, 1_000 + 9 * window - 1] {
+            let why = h.check_at(t).unwrap_err();
+            assert!(why.contains("checkpoints"), "{why}");
+        }
+        // Another kind's success ends nothing; its own does.
+        h.store_ok(saves);
+        assert!(h.check_at(1_000 + 9 * window).is_err());
+        h.store_ok(cp);
+        assert_eq!(h.check_at(1_000 + 9 * window), Ok(()));
+        // One failure long after an old one is a blip, not a run.
+        h.store_failed_at(saves, 100_000);
+        h.store_failed_at(saves, 100_000 + kept);
+        assert_eq!(h.check_at(100_000 + kept + 1), Ok(()));
+        // A failure counts `FAILURE_KEPT` plus two periods.
+        h.store_failed_at(saves, 100_000 + kept + window);
+        assert!(h.check_at(100_000 + 2 * kept + window - 1).is_err());
+        assert_eq!(h.check_at(100_000 + 2 * kept + window), Ok(()));
+        h.expect_every(saves, Duration::from_secs(60));
+        assert!(h.check_at(100_000 + 2 * kept + window).is_err());
+        assert_eq!(h.check_at(100_000 + 2 * kept + window + 120_000), Ok(()));
     }
 }

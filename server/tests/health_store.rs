@@ -51,27 +51,30 @@ async fn a_store_whose_reads_keep_failing_is_not_ready() {
         let server = start_on(dir.path(), &backend).await;
         let health = server.health();
         assert_eq!(health.check(), Ok(()));
+        let closed = Instant::now();
         let open = close_db(db).await;
+        // Connected after: the stored chunk is not read yet.
         let c = connect(&server, "ana", Role::Player).await;
         c.send_position(feet).unwrap();
         // Each edit at the stored chunk reads it, and the read fails.
-        let started = Instant::now();
         let mut refused = 0;
-        while health.check().is_ok() {
+        while !health
+            .check()
+            .is_err_and(|why| why.contains("engine's reads"))
+        {
             assert!(
-                started.elapsed() < STORE_FAILING * 3,
-                "still ready after {:?} of failed reads",
-                started.elapsed()
+                closed.elapsed() < STORE_FAILING * 3,
+                "no failed reads reported after {:?}: {:?}",
+                closed.elapsed(),
+                health.check()
             );
             if !matches!(c.edit(dig(1)).await.unwrap(), Verdict::Accepted { .. }) {
                 refused += 1;
             }
             tokio::time::sleep(Duration::from_millis(250)).await;
         }
-        assert!(started.elapsed() >= STORE_FAILING, "unready at once");
+        assert!(closed.elapsed() >= STORE_FAILING, "unready at once");
         assert!(refused > 0);
-        let why = health.check().unwrap_err();
-        assert!(why.contains("store"), "{why}");
         tokio::task::spawn_blocking(open).await.unwrap();
         // The next read succeeds: ready again, and the edit goes through.
         let started = Instant::now();
@@ -86,7 +89,12 @@ async fn a_store_whose_reads_keep_failing_is_not_ready() {
             );
             tokio::time::sleep(Duration::from_millis(250)).await;
         }
-        assert_eq!(health.check(), Ok(()));
+        // The engine's reads are no longer failing; the reloads of the
+        // access list and zones succeed at their next pass.
+        assert!(!health
+            .check()
+            .is_err_and(|why| why.contains("engine's reads")));
+        until(&health, None, Instant::now(), STORE_FAILING * 3).await;
         c.close().await;
         server.shutdown().await.unwrap();
     })
@@ -111,23 +119,32 @@ async fn close_db(db: &strata_tests::postgres::PgDb) -> impl FnOnce() -> Vec<Str
     move || sql_url(&admin_url, &open)
 }
 
-/// Waits until `health` says `ready`, at most `limit`; how long it took.
-async fn until_ready(
+/// Waits until `health` answers ready (`None`) or unready for a reason
+/// that names `Some(what)`, at most `limit` after `from`; how long after
+/// `from` it came.
+async fn until(
     health: &strata_server::health::Health,
-    ready: bool,
+    want: Option<&str>,
+    from: Instant,
     limit: Duration,
 ) -> Duration {
-    let started = Instant::now();
-    while health.check().is_ok() != ready {
+    loop {
+        let now = health.check();
+        let matched = match (now, want) {
+            (Ok(()), None) => true,
+            (Err(why), Some(what)) => why.contains(what),
+            _ => false,
+        };
+        if matched {
+            return from.elapsed();
+        }
         assert!(
-            started.elapsed() < limit,
-            "readiness still {:?} after {:?}",
-            health.check(),
-            started.elapsed()
+            from.elapsed() < limit,
+            "readiness {now:?}, not {want:?}, after {:?}",
+            from.elapsed()
         );
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    started.elapsed()
 }
 
 /// PostgreSQL for `test` (`None`: it does not run here), a data dir, and
@@ -152,19 +169,19 @@ fn on_postgres(
 }
 
 /// Starts a server on `cfg` (PostgreSQL `db`) that nobody connects to,
-/// closes `db` to it: unready once failures have gone on for
-/// `STORE_FAILING`, not before; ready again once `db` is back.
-async fn unready_while_closed(db: &strata_tests::postgres::PgDb, cfg: ServerConfig) {
+/// closes `db` to it: unready for the failures of the work `what` names
+/// once they have gone on for `STORE_FAILING`, not before; ready again
+/// once `db` is back.
+async fn unready_while_closed(db: &strata_tests::postgres::PgDb, cfg: ServerConfig, what: &str) {
     let server = strata_server::app::start(cfg).await.unwrap();
     let health = server.health();
     assert_eq!(health.check(), Ok(()));
+    let closed = Instant::now();
     let open = close_db(db).await;
-    let took = until_ready(&health, false, STORE_FAILING * 3).await;
+    let took = until(&health, Some(what), closed, STORE_FAILING * 3).await;
     assert!(took >= STORE_FAILING, "unready at once: {took:?}");
-    let why = health.check().unwrap_err();
-    assert!(why.contains("store"), "{why}");
     tokio::task::spawn_blocking(open).await.unwrap();
-    until_ready(&health, true, STORE_FAILING * 3).await;
+    until(&health, None, Instant::now(), STORE_FAILING * 4).await;
     server.shutdown().await.unwrap();
 }
 
@@ -178,7 +195,21 @@ async fn an_idle_server_whose_store_fails_is_not_ready() {
     else {
         return;
     };
-    tokio::time::timeout(TEST_TIMEOUT, unready_while_closed(&db, cfg))
+    tokio::time::timeout(TEST_TIMEOUT, unready_while_closed(&db, cfg, "checkpoints"))
+        .await
+        .expect("test finished in time");
+}
+
+/// Nobody connected, no checkpoint thread, one node: the access list's
+/// reload (every `ACCESS_RELOAD_PERIOD`) still reads the store.
+#[tokio::test]
+async fn a_server_whose_access_list_reads_fail_is_not_ready() {
+    let Some((db, _dir, cfg)) =
+        on_postgres("a_server_whose_access_list_reads_fail_is_not_ready", 0)
+    else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, unready_while_closed(&db, cfg, "access list"))
         .await
         .expect("test finished in time");
 }
@@ -198,9 +229,12 @@ async fn a_cluster_node_whose_renewals_fail_is_not_ready() {
         renew_ms: 200,
         ..Default::default()
     });
-    tokio::time::timeout(TEST_TIMEOUT, unready_while_closed(&db, cfg))
-        .await
-        .expect("test finished in time");
+    tokio::time::timeout(
+        TEST_TIMEOUT,
+        unready_while_closed(&db, cfg, "renewing region leases"),
+    )
+    .await
+    .expect("test finished in time");
 }
 
 /// A player walks on the spot and nobody edits, with no checkpoint
@@ -220,26 +254,32 @@ async fn a_server_whose_position_saves_fail_is_not_ready() {
         let c = connect(&server, "ana", Role::Player).await;
         c.send_position(feet).unwrap();
         tokio::time::sleep(Duration::from_millis(500)).await;
+        let closed = Instant::now();
         let open = close_db(&db).await;
-        let started = Instant::now();
         let mut step = 0u32;
-        while health.check().is_ok() {
-            assert!(
-                started.elapsed() < STORE_FAILING * 3,
-                "still ready after {:?} of failed saves",
-                started.elapsed()
-            );
+        // Walking on the spot (each report a move), until `want`.
+        let mut walk_until = async |want: Option<&str>, from: Instant| loop {
+            match (health.check(), want) {
+                (Ok(()), None) => return from.elapsed(),
+                (Err(why), Some(what)) if why.contains(what) => return from.elapsed(),
+                (now, _) => assert!(
+                    from.elapsed() < STORE_FAILING * 4,
+                    "readiness {now:?}, not {want:?}, after {:?}",
+                    from.elapsed()
+                ),
+            }
             step += 1;
             let dx = if step % 2 == 0 { 0.0 } else { 0.25 };
-            let p =
-                FixedVec3::from_f64([feet.to_f64()[0] + dx, feet.to_f64()[1], feet.to_f64()[2]])
-                    .unwrap();
-            c.send_position(p).unwrap();
+            let [x, y, z] = feet.to_f64();
+            c.send_position(FixedVec3::from_f64([x + dx, y, z]).unwrap())
+                .unwrap();
             tokio::time::sleep(Duration::from_millis(100)).await;
-        }
-        assert!(started.elapsed() >= STORE_FAILING, "unready at once");
+        };
+        let took = walk_until(Some("saving positions"), closed).await;
+        assert!(took >= STORE_FAILING, "unready at once: {took:?}");
         tokio::task::spawn_blocking(open).await.unwrap();
-        until_ready(&health, true, STORE_FAILING * 3).await;
+        // Ready once a save succeeds (and the reloads read again).
+        walk_until(None, Instant::now()).await;
         c.close().await;
         server.shutdown().await.unwrap();
     })

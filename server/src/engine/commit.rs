@@ -94,10 +94,11 @@ impl Committer {
                     let batch = match job {
                         Job::Commit(batch) => *batch,
                         Job::Positions(moved) => {
-                            if let Err(e) = store.save_positions(&moved) {
-                                if let Some(h) = &health {
-                                    h.store_error(&e);
-                                }
+                            let saved = store.save_positions(&moved);
+                            if let Some(h) = &health {
+                                h.report(crate::health::StoreWork::PositionSaves, &saved);
+                            }
+                            if let Err(e) = saved {
                                 error!(error = %e, players = moved.len(), "saving player positions failed");
                             }
                             continue;

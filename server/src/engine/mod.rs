@@ -65,6 +65,7 @@ use strata_protocol::ErrorCode;
 use strata_terrain::ChunkPos;
 use tracing::{error, info, warn};
 
+use crate::health::StoreWork;
 use crate::interest::InterestConfig;
 use crate::sequencer::Sequencer;
 use crate::store::ChunkStore;
@@ -224,23 +225,20 @@ impl Engine {
     }
 
     /// Tells `health` how an operation that reached the store went
-    /// (`/healthz` turns unready while they keep failing). A record that
-    /// does not decode is the data's fault, not the store's: neither.
+    /// (`/healthz` turns unready while they keep failing). An error that is
+    /// not the store's (a record that does not decode, a lease lost) is
+    /// neither (`StoreError::is_store_fault`).
     fn store_answered<T>(&self, result: &Result<T, crate::store::StoreError>) {
         if let Some(h) = &self.health {
-            match result {
-                Ok(_) => h.store_ok(),
-                Err(e) if e.is_chunk_local() => {}
-                Err(_) => h.store_failed(),
-            }
+            h.report(StoreWork::Engine, result);
         }
     }
 
     /// [`Self::store_answered`] for a failure only: for calls that may be
     /// answered from memory, whose success says nothing of the store.
     fn store_failed(&self, error: &crate::store::StoreError) {
-        if let (Some(h), false) = (&self.health, error.is_chunk_local()) {
-            h.store_failed();
+        if let Some(h) = &self.health {
+            h.store_error(StoreWork::Engine, error);
         }
     }
 
@@ -282,6 +280,9 @@ impl Engine {
     }
 
     fn serve(&mut self, rx: Inbox) -> anyhow::Result<()> {
+        if let Some(h) = &self.health {
+            h.expect_every(StoreWork::PositionSaves, POSITION_SAVE_EVERY);
+        }
         match commit::Committer::spawn(self.store.clone(), rx.waker(), self.health.clone()) {
             Ok(c) => self.committer = Some(c),
             Err(e) => warn!(error = %e, "no commit thread; ticks commit inline"),
@@ -371,8 +372,11 @@ impl Engine {
                 Err(back) => moved = back,
             }
         }
-        if let Err(e) = self.store.save_positions(&moved) {
-            self.store_failed(&e);
+        let saved = self.store.save_positions(&moved);
+        if let Some(h) = &self.health {
+            h.report(StoreWork::PositionSaves, &saved);
+        }
+        if let Err(e) = saved {
             error!(error = %e, players = moved.len(), "saving player positions failed");
         }
     }

@@ -460,8 +460,9 @@ async fn stored_access(ctx: &SessionContext) -> Result<(Option<Vec<u8>>, AccessL
     let store = ctx.store.clone();
     let blob = tokio::task::spawn_blocking(move || store.get_blob(ACCESS_BLOB))
         .await
-        .map_err(|e| e.to_string())?
-        .map_err(|e| format!("store read failed: {e}"))?;
+        .map_err(|e| e.to_string())?;
+    ctx.health.report(crate::health::StoreWork::Access, &blob);
+    let blob = blob.map_err(|e| format!("store read failed: {e}"))?;
     let list = AccessList::from_blob(blob.as_deref()).map_err(|e| e.to_string())?;
     Ok((blob, list))
 }
@@ -525,6 +526,8 @@ fn renewed_players(old: &AccessList, new: &AccessList) -> BTreeSet<String> {
 /// Reads the stored access list every [`ACCESS_RELOAD_PERIOD`] and adopts
 /// it, until shutdown. A failed read keeps the current list.
 pub async fn reload_access(ctx: Arc<SessionContext>, mut shutdown: Shutdown) {
+    ctx.health
+        .expect_every(crate::health::StoreWork::Access, ACCESS_RELOAD_PERIOD);
     let start = tokio::time::Instant::now() + ACCESS_RELOAD_PERIOD;
     let mut tick = tokio::time::interval_at(start, ACCESS_RELOAD_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);

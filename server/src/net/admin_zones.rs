@@ -12,6 +12,7 @@ use tracing::{info, warn};
 use super::admin_session::ask;
 use super::session::SessionContext;
 use crate::engine::admin::{zone_spec, AdminCommand};
+use crate::health::StoreWork;
 use crate::shutdown::Shutdown;
 use crate::stored_zones::{self, ZoneChange, ZonesError, ZONES_RELOAD_PERIOD};
 use crate::validate::zones::Zone;
@@ -50,6 +51,8 @@ async fn install(ctx: &SessionContext, zones: Vec<Zone>) -> Result<Vec<ZoneSpec>
 /// the engine when they differ from its own, until shutdown. A failed read
 /// (or none stored) keeps the engine's.
 pub async fn reload(ctx: Arc<SessionContext>, mut shutdown: Shutdown) {
+    ctx.health
+        .expect_every(StoreWork::Zones, ZONES_RELOAD_PERIOD);
     let start = tokio::time::Instant::now() + ZONES_RELOAD_PERIOD;
     let mut tick = tokio::time::interval_at(start, ZONES_RELOAD_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -61,6 +64,12 @@ pub async fn reload(ctx: Arc<SessionContext>, mut shutdown: Shutdown) {
         let _one_writer = ctx.zone_writes.lock().await;
         let store = ctx.store.clone();
         let read = tokio::task::spawn_blocking(move || stored_zones::stored(&*store)).await;
+        // The store answered (zones that do not parse are the data's fault).
+        match &read {
+            Ok(Err(ZonesError::Store(e))) => ctx.health.store_error(StoreWork::Zones, e),
+            Ok(_) => ctx.health.store_ok(StoreWork::Zones),
+            Err(_) => {}
+        }
         let stored = match read {
             Ok(Ok(Some(zones))) => zones,
             Ok(Ok(None)) => continue,

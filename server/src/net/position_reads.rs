@@ -88,6 +88,7 @@ impl PositionReads {
         &self,
         store: &Arc<dyn ChunkStore>,
         player: &str,
+        health: &crate::health::Health,
     ) -> Result<Option<StoredPosition>, ReadRefused> {
         let deadline = tokio::time::Instant::now() + self.wait;
         let permit =
@@ -102,6 +103,13 @@ impl PositionReads {
             let _permit = permit;
             store.player_position(&name)
         });
+        let read = async {
+            let read = read.await;
+            if let Ok(result) = &read {
+                health.report(crate::health::StoreWork::PositionReads, result);
+            }
+            read
+        };
         match tokio::time::timeout_at(deadline, read).await {
             Ok(Ok(Ok(stored))) => Ok(stored),
             Ok(Ok(Err(e))) => Err(ReadRefused::Failed(e.to_string())),

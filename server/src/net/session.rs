@@ -85,6 +85,9 @@ pub struct SessionContext {
     /// On a cluster node, the logins' reads of stored positions: at most
     /// `[cluster] position_reads` at once, each within `position_read_ms`.
     pub position_reads: PositionReads,
+    /// Readiness: the store reads made here (the access list and zones
+    /// reloads, a cluster node's position reads) report how they went.
+    pub health: std::sync::Arc<crate::health::Health>,
 }
 
 impl SessionContext {
@@ -714,7 +717,11 @@ async fn stored_position(
     if !ctx.store.clustered() {
         return Ok(None);
     }
-    let refused = match ctx.position_reads.read(&ctx.store, player).await {
+    let refused = match ctx
+        .position_reads
+        .read(&ctx.store, player, &ctx.health)
+        .await
+    {
         Ok(stored) => return Ok(stored),
         Err(refused) => refused,
     };
@@ -917,6 +924,7 @@ pub(crate) fn test_context(
         access_writes: tokio::sync::Mutex::new(()),
         default_zones: Vec::new(),
         zone_writes: tokio::sync::Mutex::new(()),
+        health: Arc::default(),
     };
     (Arc::new(ctx), inbox)
 }

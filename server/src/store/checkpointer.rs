@@ -22,7 +22,7 @@ use tracing::{debug, error};
 use strata_terrain::ChunkPos;
 
 use super::{CheckpointStats, ChunkStore, StoreError};
-use crate::health::Health;
+use crate::health::{Health, StoreWork};
 use crate::metrics as m;
 
 /// A pass pauses this many times each slice's own duration after it.
@@ -232,26 +232,31 @@ fn paced_pass(
 }
 
 fn run(store: &dyn ChunkStore, stop: &Stop, pace: CheckpointPace, health: Option<&Health>) {
-    let failed = |e: &StoreError| {
-        if let Some(h) = health {
-            h.store_error(e);
-        }
-    };
+    if let Some(h) = health {
+        h.expect_every(StoreWork::Checkpoint, pace.every);
+        h.expect_every(StoreWork::Prune, pace.every);
+    }
     let mut after = None;
     while !stop.wait(pace.every) {
         // A failed pass changes nothing: the deltas stay and reads replay them.
-        match paced_pass(store, stop, pace, after) {
+        let pass = paced_pass(store, stop, pace, after);
+        if let Some(h) = health {
+            h.report(StoreWork::Checkpoint, &pass);
+        }
+        match pass {
             Ok(r) if r.stopped => return,
             Ok(r) => after = r.next,
             Err(e) => {
-                failed(&e);
                 metrics::counter!(crate::metrics::STORE_ERRORS, "op" => "checkpoint").increment(1);
                 error!(error = %e, "checkpoint failed; deltas stay until the next pass")
             }
         }
         // A quarter of the period at most, as the folds.
-        if let Err(e) = prune_log(store, pace.log_retention, pace.every / 4) {
-            failed(&e);
+        let pruned = prune_log(store, pace.log_retention, pace.every / 4);
+        if let Some(h) = health {
+            h.report(StoreWork::Prune, &pruned);
+        }
+        if let Err(e) = pruned {
             metrics::counter!(crate::metrics::STORE_ERRORS, "op" => "prune").increment(1);
             error!(error = %e, "pruning the edit log failed; it is tried again after the next pass");
         }

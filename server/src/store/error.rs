@@ -153,6 +153,23 @@ impl StoreError {
         )
     }
 
+    /// The store itself failed (a database or disk gone, a timeout), as
+    /// readiness counts it (`health.rs`): not one chunk's records, not a
+    /// lease lost or a newer process under this node's id, not a batch or
+    /// value of ours the store refused. (A world replaced under the server
+    /// counts: it must restart before it serves again.)
+    pub fn is_store_fault(&self) -> bool {
+        !(self.is_chunk_local()
+            || matches!(
+                self,
+                StoreError::Fenced { .. }
+                    | StoreError::Superseded { .. }
+                    | StoreError::InvalidBatch { .. }
+                    | StoreError::InvalidBlob { .. }
+                    | StoreError::Encode { .. }
+            ))
+    }
+
     /// An error from PostgreSQL itself (the connection may be unusable).
     pub fn is_postgres(&self) -> bool {
         matches!(

@@ -128,16 +128,17 @@ impl NodeLeases {
         }
     }
 
-    /// Tells `health` of the renewal thread's failures from now on (the
+    /// Tells `health` how the renewal thread's passes go from now on (the
     /// first call counts).
     pub(super) fn report_to(&self, health: Arc<crate::health::Health>) {
+        health.expect_every(crate::health::StoreWork::Leases, self.renew);
         let _ = self.health.set(health);
     }
 
-    /// A renewal pass's store operation failed.
-    fn failed(&self, error: &StoreError) {
+    /// How a renewal pass went: its first failure, if any.
+    fn report(&self, pass: &Result<(), StoreError>) {
         if let Some(h) = self.health.get() {
-            h.store_error(error);
+            h.report(crate::health::StoreWork::Leases, pass);
         }
     }
 
@@ -933,30 +934,32 @@ impl Renewer {
                         break;
                     }
                     drop(stopped);
+                    let mut pass = Ok(());
                     if let Err(e) = check_incarnation(&pool, &leases) {
                         if leases.superseded().is_some() {
                             // The engine stops at its next tick.
                             break;
                         }
-                        leases.failed(&e);
                         warn!(error = %e, "checking the node's incarnation failed; retrying");
+                        pass = pass.and(Err(e));
                     }
                     if let Err(e) = renew(&pool, &leases) {
-                        leases.failed(&e);
                         warn!(error = %e, "renewing region leases failed; retrying");
+                        pass = pass.and(Err(e));
                     }
                     if let Err(e) = release_idle(&pool, &leases) {
-                        leases.failed(&e);
                         warn!(error = %e, "releasing idle regions failed");
+                        pass = pass.and(Err(e));
                     }
                     // A process still starting adopts nothing: its start
                     // may fail, and it has no address to name yet.
                     if leases.adopt && leases.registered.load(Ordering::Acquire) {
                         if let Err(e) = adopt(&pool, &leases) {
-                            leases.failed(&e);
                             warn!(error = %e, "adopting expired regions failed; retrying");
+                            pass = pass.and(Err(e));
                         }
                     }
+                    leases.report(&pass);
                     stopped = flag.flag.lock().unwrap_or_else(|p| p.into_inner());
                 }
             })?;
