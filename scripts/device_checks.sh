@@ -16,8 +16,9 @@
 #   2. bots_bench.sh runs, server pinned to CPUs 0..K-1 and the bots to
 #      the rest, most wanted first: 1000 bots on 2 cores, 3000 on 8 with
 #      premesh_threads 1 and 2, 200 bots at view radius 8 on 2 cores, 500
-#      on 2, 2000 on 4, 1000 on 2 with net_threads 1, then 1000 on 2
-#      again, 3000 on 8 with premesh_threads 4, and with net_threads 4;
+#      on 2, 500 on 2 not editing (`--edit-rate 0`: what players online
+#      cost, against the 500-bot run's CPU per edit), 2000 on 4, 1000 on 2
+#      with net_threads 1, then 1000 on 2 again, 3000 on 8 with premesh_threads 4, and with net_threads 4;
 #      each run keeps its JSON lines, its stderr, its slow-tick lines and
 #      the server's last metrics scrape (a tag
 #      r<i>_<bots>b_<cores>c_p<premesh>_n<net threads>);
@@ -90,6 +91,7 @@ run 3000 8 1 0 --verify modified
 run 3000 8 2 0 --verify modified
 run 200 2 1 0 --view-radius 8 --verify modified
 run 500 2 1 0 --verify modified
+run 500 2 1 0 --verify modified --edit-rate 0
 run 2000 4 1 0 --verify modified
 run 1000 2 1 1 --verify modified
 run 1000 2 1 0 --verify modified

@@ -3,7 +3,7 @@
 //! store answers.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 /// How long the engine may go without finishing a tick before the server
@@ -14,15 +14,18 @@ pub const ENGINE_STALL: Duration = Duration::from_secs(10);
 /// How long store operations of one kind ([`StoreWork`]) may go on
 /// failing, none of that kind succeeding, before the server says it is
 /// not ready: a store that fails fast (a database gone, a disk refusing
-/// reads) leaves the engine ticking and every player's reads refused.
-/// Ready again once one of that kind succeeds, or once none has failed
-/// for [`StoreWork::kept`] (nothing tried it since).
+/// reads) leaves the engine ticking and every player's reads refused. The
+/// failures must span this long: one alone is a blip. Ready again once
+/// one of that kind succeeds, or once none has failed for as long as a
+/// failure of that kind counts (nothing tried it since).
 pub const STORE_FAILING: Duration = Duration::from_secs(5);
 
 /// How long a failure of periodic background work counts, unless that
 /// work succeeds since (plus twice its period, [`Health::expect_every`]):
 /// longer than a pass's period and its store's timeouts, so a store that
-/// stays down keeps the server unready between two slow failures.
+/// stays down keeps the server unready between two slow failures. Work
+/// that comes with players' traffic (the engine's, position saves and
+/// reads) may stop with it: its failures count [`STORE_FAILING`].
 pub const FAILURE_KEPT: Duration = Duration::from_secs(30);
 
 /// What a store operation was for. Each kind keeps its own run of
@@ -81,14 +84,21 @@ impl StoreWork {
     }
 }
 
-/// One kind's run of failures (ms on [`clock_ms`], 0 for none).
-#[derive(Debug, Default)]
+/// One kind's run of failures (ms on [`clock_ms`], 0 for none), read
+/// and written whole: reports of one kind may come from several threads.
+#[derive(Debug, Default, Clone, Copy)]
 struct Run {
     /// The first failure since the last success (or since a quiet spell
-    /// longer than `kept`).
-    since: AtomicU64,
+    /// longer than the kind's failures count).
+    since: u64,
     /// The last failure.
-    last: AtomicU64,
+    last: u64,
+}
+
+/// One kind's run and period.
+#[derive(Debug, Default)]
+struct Kind {
+    run: Mutex<Run>,
     /// The kind's period ([`Health::expect_every`]), 0 when it has none.
     period: AtomicU64,
 }
@@ -101,7 +111,7 @@ pub struct Health {
     /// first.
     ticked_ms: AtomicU64,
     /// By [`StoreWork`], in [`StoreWork::ALL`]'s order.
-    store: [Run; 8],
+    store: [Kind; 8],
 }
 
 /// Milliseconds since this process first asked, at least 1: a monotonic
@@ -136,29 +146,36 @@ impl Health {
         }
     }
 
-    fn run(&self, work: StoreWork) -> &Run {
+    fn kind(&self, work: StoreWork) -> &Kind {
         &self.store[work as usize]
+    }
+
+    fn run(&self, work: StoreWork) -> std::sync::MutexGuard<'_, Run> {
+        self.kind(work)
+            .run
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
     }
 
     /// How long a failure of `work` counts without another.
     fn kept_ms(&self, work: StoreWork) -> u64 {
         match work {
-            // Reads and commits come with players' actions: none lately
-            // says nothing tried the store.
-            StoreWork::Engine => STORE_FAILING.as_millis() as u64,
+            // These come with players' actions: none lately says nothing
+            // tried the store.
+            StoreWork::Engine | StoreWork::PositionSaves | StoreWork::PositionReads => {
+                STORE_FAILING.as_millis() as u64
+            }
             _ => {
-                let period = self.run(work).period.load(Ordering::Acquire);
+                let period = self.kind(work).period.load(Ordering::Acquire);
                 FAILURE_KEPT.as_millis() as u64 + 2 * period
             }
         }
     }
 
     fn failing(&self, work: StoreWork, now_ms: u64) -> bool {
-        let run = self.run(work);
-        let since = run.since.load(Ordering::Acquire);
-        let last = run.last.load(Ordering::Acquire);
+        let Run { since, last } = *self.run(work);
         since > 0
-            && now_ms.saturating_sub(since) >= STORE_FAILING.as_millis() as u64
+            && last.saturating_sub(since) >= STORE_FAILING.as_millis() as u64
             && now_ms.saturating_sub(last) < self.kept_ms(work)
     }
 
@@ -166,7 +183,7 @@ impl Health {
     /// longer ([`FAILURE_KEPT`]).
     pub fn expect_every(&self, work: StoreWork, period: Duration) {
         let ms = u64::try_from(period.as_millis()).unwrap_or(u64::MAX / 4);
-        self.run(work)
+        self.kind(work)
             .period
             .store(ms.min(u64::MAX / 4), Ordering::Release);
     }
@@ -194,21 +211,18 @@ impl Health {
     }
 
     fn store_failed_at(&self, work: StoreWork, now_ms: u64) {
-        let run = self.run(work);
-        let last = run.last.swap(now_ms, Ordering::AcqRel);
-        if last > 0 && now_ms.saturating_sub(last) >= self.kept_ms(work) {
-            // A failure after a quiet spell starts a run of its own.
-            run.since.store(now_ms, Ordering::Release);
-        } else {
-            let _ = run
-                .since
-                .compare_exchange(0, now_ms, Ordering::AcqRel, Ordering::Acquire);
+        let kept = self.kept_ms(work);
+        let mut run = self.run(work);
+        if run.since == 0 || now_ms.saturating_sub(run.last) >= kept {
+            // The first failure since a success, or after a quiet spell.
+            run.since = now_ms;
         }
+        run.last = now_ms;
     }
 
     /// A store operation for `work` succeeded: its run of failures ends.
     pub fn store_ok(&self, work: StoreWork) {
-        self.run(work).since.store(0, Ordering::Release);
+        self.run(work).since = 0;
     }
 
     pub fn set_accepting(&self, on: bool) {
@@ -263,53 +277,74 @@ mod tests {
         let engine = StoreWork::Engine;
         let window = STORE_FAILING.as_millis() as u64;
         h.store_failed_at(engine, 1_000);
-        assert_eq!(h.check_at(1_000 + window - 1), Ok(()), "a blip");
+        assert_eq!(h.check_at(1_000 + window), Ok(()), "one failure is a blip");
         h.store_failed_at(engine, 1_000 + window - 1);
+        assert_eq!(
+            h.check_at(1_000 + window),
+            Ok(()),
+            "not a window's span yet"
+        );
+        h.store_failed_at(engine, 1_000 + window);
         let why = h.check_at(1_000 + window).unwrap_err();
         assert!(why.contains("engine's reads"), "{why}");
         // One success: ready again, and a later failure starts anew.
         h.store_ok(engine);
         assert_eq!(h.check_at(1_000 + window), Ok(()));
-        h.store_failed_at(engine, 2_000 + window);
-        h.store_failed_at(engine, 2_000 + 2 * window - 1);
+        for t in [2_000 + window, 2_000 + window * 3 / 2, 2_000 + 2 * window] {
+            h.store_failed_at(engine, t);
+        }
         assert!(h.check_at(2_000 + 2 * window).is_err());
         // Failures that stop (nothing tries the store): ready after the window.
-        assert_eq!(h.check_at(2_000 + 3 * window - 1), Ok(()));
+        assert!(h.check_at(2_000 + 3 * window - 1).is_err());
+        assert_eq!(h.check_at(2_000 + 3 * window), Ok(()));
         // A failure after that quiet spell is a blip of its own.
         h.store_failed_at(engine, 2_000 + 3 * window);
         assert_eq!(h.check_at(2_000 + 3 * window), Ok(()));
+        // Position saves and reads come with traffic too: a window.
+        let saves = StoreWork::PositionSaves;
+        for t in [50_000, 50_000 + window / 2, 50_000 + window] {
+            h.store_failed_at(saves, t);
+        }
+        assert!(h.check_at(50_000 + 2 * window - 1).is_err());
+        assert_eq!(h.check_at(50_000 + 2 * window), Ok(()));
     }
 
     #[test]
     fn background_work_fails_on_until_it_succeeds_itself() {
         let h = Health::default();
         h.set_accepting(true);
-        let (cp, saves) = (StoreWork::Checkpoint, StoreWork::PositionSaves);
+        let (cp, zones) = (StoreWork::Checkpoint, StoreWork::Zones);
         let window = STORE_FAILING.as_millis() as u64;
         let kept = FAILURE_KEPT.as_millis() as u64;
         // Slow failures, further apart than the window: unready from the
-        // window on, between them too.
-        for t in (0..5).map(|i| 1_000 + i * 2 * window) {
+        // second on, between them too.
+        h.store_failed_at(cp, 1_000);
+        assert_eq!(h.check_at(1_000 + 2 * window - 1), Ok(()), "one is a blip");
+        for t in (1..5).map(|i| 1_000 + i * 2 * window) {
             h.store_failed_at(cp, t);
         }
-        for t in [1_000 + window, 1_000 + 3 * window, 1_000 + 9 * window - 1] {
+        for t in [
+            1_000 + 2 * window,
+            1_000 + 3 * window,
+            1_000 + 9 * window - 1,
+        ] {
             let why = h.check_at(t).unwrap_err();
             assert!(why.contains("checkpoints"), "{why}");
         }
         // Another kind's success ends nothing; its own does.
-        h.store_ok(saves);
+        h.store_ok(zones);
         assert!(h.check_at(1_000 + 9 * window).is_err());
         h.store_ok(cp);
         assert_eq!(h.check_at(1_000 + 9 * window), Ok(()));
-        // One failure long after an old one is a blip, not a run.
-        h.store_failed_at(saves, 100_000);
-        h.store_failed_at(saves, 100_000 + kept);
+        // One failure long after an old one starts a run of its own.
+        h.store_failed_at(zones, 100_000);
+        h.store_failed_at(zones, 100_000 + kept);
         assert_eq!(h.check_at(100_000 + kept + 1), Ok(()));
         // A failure counts `FAILURE_KEPT` plus two periods.
-        h.store_failed_at(saves, 100_000 + kept + window);
+        h.store_failed_at(zones, 100_000 + kept + window);
         assert!(h.check_at(100_000 + 2 * kept + window - 1).is_err());
         assert_eq!(h.check_at(100_000 + 2 * kept + window), Ok(()));
-        h.expect_every(saves, Duration::from_secs(60));
+        h.expect_every(zones, Duration::from_secs(60));
         assert!(h.check_at(100_000 + 2 * kept + window).is_err());
         assert_eq!(h.check_at(100_000 + 2 * kept + window + 120_000), Ok(()));
     }

@@ -90,7 +90,8 @@ async fn a_store_whose_reads_keep_failing_is_not_ready() {
             tokio::time::sleep(Duration::from_millis(250)).await;
         }
         // The engine's reads are no longer failing; the reloads of the
-        // access list and zones succeed at their next pass.
+        // access list and zones succeed at their next pass, and a failed
+        // position save counts no longer than `STORE_FAILING`.
         assert!(!health
             .check()
             .is_err_and(|why| why.contains("engine's reads")));
@@ -168,6 +169,26 @@ fn on_postgres(
     Some((db, dir, cfg))
 }
 
+/// [`on_postgres`] for cluster node `node-a`, no checkpoint thread.
+fn on_cluster_node(
+    test: &str,
+    lease_ms: u64,
+    renew_ms: u64,
+) -> Option<(
+    strata_tests::postgres::PgDb,
+    tempfile::TempDir,
+    ServerConfig,
+)> {
+    let (db, dir, mut cfg) = on_postgres(test, 0)?;
+    cfg.cluster = Some(strata_server::cluster::ClusterConfig {
+        node_id: "node-a".into(),
+        lease_ms,
+        renew_ms,
+        ..Default::default()
+    });
+    Some((db, dir, cfg))
+}
+
 /// Starts a server on `cfg` (PostgreSQL `db`) that nobody connects to,
 /// closes `db` to it: unready for the failures of the work `what` names
 /// once they have gone on for `STORE_FAILING`, not before; ready again
@@ -218,17 +239,13 @@ async fn a_server_whose_access_list_reads_fail_is_not_ready() {
 /// its lease renewals reach the store. Their failures turn it unready.
 #[tokio::test]
 async fn a_cluster_node_whose_renewals_fail_is_not_ready() {
-    let Some((db, _dir, mut cfg)) =
-        on_postgres("a_cluster_node_whose_renewals_fail_is_not_ready", 0)
-    else {
+    let Some((db, _dir, cfg)) = on_cluster_node(
+        "a_cluster_node_whose_renewals_fail_is_not_ready",
+        2_000,
+        200,
+    ) else {
         return;
     };
-    cfg.cluster = Some(strata_server::cluster::ClusterConfig {
-        node_id: "node-a".into(),
-        lease_ms: 2_000,
-        renew_ms: 200,
-        ..Default::default()
-    });
     tokio::time::timeout(
         TEST_TIMEOUT,
         unready_while_closed(&db, cfg, "renewing region leases"),
@@ -280,6 +297,53 @@ async fn a_server_whose_position_saves_fail_is_not_ready() {
         tokio::task::spawn_blocking(open).await.unwrap();
         // Ready once a save succeeds (and the reloads read again).
         walk_until(None, Instant::now()).await;
+        c.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// A cluster node reads a joining player's stored position before the
+/// login goes on; players keep trying to join while the store is down
+/// (leases renewed too seldom to fail first, no checkpoint thread).
+#[tokio::test]
+async fn a_cluster_node_whose_position_reads_fail_is_not_ready() {
+    let Some((db, _dir, cfg)) = on_cluster_node(
+        "a_cluster_node_whose_position_reads_fail_is_not_ready",
+        60_000,
+        20_000,
+    ) else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let server = strata_server::app::start(cfg).await.unwrap();
+        let health = server.health();
+        let closed = Instant::now();
+        let open = close_db(&db).await;
+        let mut tries = 0u32;
+        let took = loop {
+            if let Err(why) = health.check() {
+                if why.contains("players' positions") {
+                    break closed.elapsed();
+                }
+            }
+            assert!(
+                closed.elapsed() < STORE_FAILING * 3,
+                "readiness {:?} after {tries} logins",
+                health.check()
+            );
+            tries += 1;
+            let token = token(&server, &format!("p{tries}"), Role::Player);
+            let joined =
+                strata_client_sim::Client::connect(server.addr, &server.cert_der, &token).await;
+            assert!(joined.is_err(), "a login with no stored position read");
+            tokio::time::sleep(Duration::from_millis(250)).await;
+        };
+        assert!(took >= STORE_FAILING, "unready at once: {took:?}");
+        tokio::task::spawn_blocking(open).await.unwrap();
+        let c = connect(&server, "ana", Role::Player).await;
+        until(&health, None, Instant::now(), STORE_FAILING * 4).await;
         c.close().await;
         server.shutdown().await.unwrap();
     })

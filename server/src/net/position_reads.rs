@@ -88,7 +88,7 @@ impl PositionReads {
         &self,
         store: &Arc<dyn ChunkStore>,
         player: &str,
-        health: &crate::health::Health,
+        health: &Arc<crate::health::Health>,
     ) -> Result<Option<StoredPosition>, ReadRefused> {
         let deadline = tokio::time::Instant::now() + self.wait;
         let permit =
@@ -97,19 +97,16 @@ impl PositionReads {
                 // Never closed; a closed bound reads as a full one.
                 Ok(Err(_)) | Err(_) => return Err(ReadRefused::Busy),
             };
-        let (store, name) = (store.clone(), player.to_string());
+        let (store, name, health) = (store.clone(), player.to_string(), health.clone());
         let read = tokio::task::spawn_blocking(move || {
             // Held until the store call returns, whoever still waits.
             let _permit = permit;
-            store.player_position(&name)
-        });
-        let read = async {
-            let read = read.await;
-            if let Ok(result) = &read {
-                health.report(crate::health::StoreWork::PositionReads, result);
-            }
+            let read = store.player_position(&name);
+            // Reported however long it took: a login gone by then still
+            // tells of the store.
+            health.report(crate::health::StoreWork::PositionReads, &read);
             read
-        };
+        });
         match tokio::time::timeout_at(deadline, read).await {
             Ok(Ok(Ok(stored))) => Ok(stored),
             Ok(Ok(Err(e))) => Err(ReadRefused::Failed(e.to_string())),
