@@ -13,6 +13,7 @@ use strata_client_sim::Verdict;
 use strata_protocol::Role;
 use strata_server::config::ServerConfig;
 use strata_server::health::STORE_FAILING;
+use strata_server::store::ChunkStore;
 use strata_terrain::{Edit, FixedVec3};
 
 /// PostgreSQL stops taking the server's connections (its database closed
@@ -345,6 +346,42 @@ async fn a_cluster_node_whose_position_reads_fail_is_not_ready() {
         let c = connect(&server, "ana", Role::Player).await;
         until(&health, None, Instant::now(), STORE_FAILING * 4).await;
         c.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// A player moves and leaves while the store is down: the saves of its
+/// position fail, and once the store is back its last spot is saved (the
+/// players a failed save left are saved again), not the one before.
+#[tokio::test]
+async fn a_position_whose_save_failed_is_saved_once_the_store_is_back() {
+    let Some((db, _dir, cfg)) = on_postgres(
+        "a_position_whose_save_failed_is_saved_once_the_store_is_back",
+        0,
+    ) else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let server = strata_server::app::start(cfg).await.unwrap();
+        let store = store_common::pg_store(&db);
+        let (feet, _) = spot(70, 40);
+        let [x, y, z] = feet.to_f64();
+        let later = FixedVec3::from_f64([x + 0.5, y, z]).unwrap();
+        let stored = || store.player_position("ana").ok().flatten().map(|p| p.feet);
+        let c = connect(&server, "ana", Role::Player).await;
+        c.send_position(feet).unwrap();
+        assert!(eventually(Duration::from_secs(10), || stored() == Some(feet)).await);
+        let open = close_db(&db).await;
+        c.send_position(later).unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        c.close().await;
+        // A save or two fails (one a second while a player moved).
+        tokio::time::sleep(Duration::from_millis(2_500)).await;
+        tokio::task::spawn_blocking(open).await.unwrap();
+        let saved = eventually(Duration::from_secs(10), || stored() == Some(later)).await;
+        assert!(saved, "stored {:?}", store.player_position("ana"));
         server.shutdown().await.unwrap();
     })
     .await

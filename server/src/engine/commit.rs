@@ -62,9 +62,10 @@ enum Job {
     /// Written, flushed and fsynced; the result goes back to the engine.
     /// Boxed: a job moves through a channel, and a batch is large.
     Commit(Box<CommitBatch>),
-    /// Stored (flushed and fsynced); a failure is logged, as positions are
-    /// recoverable state. The engine hands one only while no commit runs,
-    /// at most once per `POSITION_SAVE_EVERY`, so at most two jobs wait.
+    /// Stored (flushed and fsynced); on a failure the players' names go
+    /// back ([`Committer::take_unsaved`]) to be saved again. The engine
+    /// hands one only while no commit runs, at most once per
+    /// `POSITION_SAVE_EVERY`, so at most two jobs wait.
     Positions(Positions),
 }
 
@@ -73,6 +74,9 @@ enum Job {
 pub struct Committer {
     jobs: Option<mpsc::Sender<Job>>,
     done: mpsc::Receiver<Done>,
+    /// Players whose positions a failed save left unsaved (one message a
+    /// failed job: at most the jobs handed).
+    unsaved: mpsc::Receiver<Vec<String>>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
@@ -87,6 +91,7 @@ impl Committer {
     ) -> std::io::Result<Self> {
         let (jobs, todo) = mpsc::channel::<Job>();
         let (finished, done) = mpsc::channel::<Done>();
+        let (failed, unsaved) = mpsc::channel::<Vec<String>>();
         let thread = std::thread::Builder::new()
             .name("strata-commit".into())
             .spawn(move || {
@@ -99,7 +104,8 @@ impl Committer {
                                 h.report(crate::health::StoreWork::PositionSaves, &saved);
                             }
                             if let Err(e) = saved {
-                                error!(error = %e, players = moved.len(), "saving player positions failed");
+                                error!(error = %e, players = moved.len(), "saving player positions failed; they are saved again next time");
+                                let _ = failed.send(moved.into_iter().map(|(p, _)| p).collect());
                             }
                             continue;
                         }
@@ -116,6 +122,7 @@ impl Committer {
         Ok(Self {
             jobs: Some(jobs),
             done,
+            unsaved,
             thread: Some(thread),
         })
     }
@@ -135,6 +142,11 @@ impl Committer {
             Err(Job::Positions(moved)) => Err(moved),
             _ => Ok(()),
         }
+    }
+
+    /// The players whose positions failed to save since the last call.
+    pub fn take_unsaved(&self) -> Vec<String> {
+        self.unsaved.try_iter().flatten().collect()
     }
 
     fn send(&self, job: Job) -> Result<(), Job> {

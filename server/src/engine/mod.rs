@@ -359,9 +359,16 @@ impl Engine {
 
     /// Stores the positions of players who moved since the last save: on
     /// the commit thread (no commit runs now, so it goes next), or here
-    /// without that thread. A failure is logged: positions are recoverable
-    /// state (the next save retries), unlike edits.
+    /// without that thread. A failure is logged, and those players are
+    /// saved again at the next save (where they are then): positions are
+    /// recoverable state, unlike edits, but a logout's spot is not lost to
+    /// a store that failed for a while.
     fn save_positions(&mut self) {
+        if let Some(committer) = &self.committer {
+            for player in committer.take_unsaved() {
+                self.seq.mark_moved(player);
+            }
+        }
         let mut moved = self.seq.take_moved();
         if moved.is_empty() {
             return;
@@ -377,7 +384,10 @@ impl Engine {
             h.report(StoreWork::PositionSaves, &saved);
         }
         if let Err(e) = saved {
-            error!(error = %e, players = moved.len(), "saving player positions failed");
+            error!(error = %e, players = moved.len(), "saving player positions failed; they are saved again next time");
+            for (player, _) in moved {
+                self.seq.mark_moved(player);
+            }
         }
     }
 

@@ -991,6 +991,12 @@ impl Sequencer {
         Ok(())
     }
 
+    /// Saves `player`'s position again at the next [`Self::take_moved`]
+    /// (a save that failed): where it is then, live or remembered.
+    pub fn mark_moved(&mut self, player: String) {
+        self.moved.insert(player);
+    }
+
     /// Players whose position changed since the last call, with it and
     /// when the player was last known there: the shell stores them
     /// durably.
