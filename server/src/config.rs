@@ -74,9 +74,10 @@ pub const DEFAULT_SEND_WINDOW: u64 = 4 * 1024 * 1024;
 /// Smallest send window: one maximal server frame must fit.
 pub const MIN_SEND_WINDOW: u64 = (MAX_SERVER_FRAME + FRAME_HEADER) as u64;
 pub const MAX_SEND_WINDOW: u64 = 256 * 1024 * 1024;
-/// Client-initiated unidirectional streams allowed at once (the protocol
-/// uses none today; a few leave room without inviting abuse).
-pub const DEFAULT_MAX_UNI_STREAMS: u32 = 4;
+/// Client-initiated unidirectional streams allowed at once. The protocol
+/// uses none, and the server never reads one: each a client opened would
+/// hold unread data up to the connection's receive window.
+pub const DEFAULT_MAX_UNI_STREAMS: u32 = 0;
 pub const MAX_UNI_STREAMS_CAP: u32 = 64;
 /// Client-initiated bidirectional streams: exactly the control stream.
 /// A protocol fact, hence not configurable.

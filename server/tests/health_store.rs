@@ -96,7 +96,7 @@ async fn a_store_whose_reads_keep_failing_is_not_ready() {
         assert!(!health
             .check()
             .is_err_and(|why| why.contains("engine's reads")));
-        until(&health, None, Instant::now(), STORE_FAILING * 3).await;
+        until(&health, None, Instant::now(), STORE_FAILING * 4).await;
         c.close().await;
         server.shutdown().await.unwrap();
     })
@@ -200,7 +200,10 @@ async fn unready_while_closed(db: &strata_tests::postgres::PgDb, cfg: ServerConf
     assert_eq!(health.check(), Ok(()));
     let closed = Instant::now();
     let open = close_db(db).await;
-    let took = until(&health, Some(what), closed, STORE_FAILING * 3).await;
+    // Work every 5 s (the reloads) may read once more before the close
+    // takes hold, then fail at +5 and +10 s, each read as slow as a loaded
+    // machine makes it.
+    let took = until(&health, Some(what), closed, STORE_FAILING * 5).await;
     assert!(took >= STORE_FAILING, "unready at once: {took:?}");
     tokio::task::spawn_blocking(open).await.unwrap();
     until(&health, None, Instant::now(), STORE_FAILING * 4).await;

@@ -106,8 +106,14 @@ struct RawSession {
 }
 
 async fn raw_session(server: &app::Running, player: &str) -> RawSession {
+    raw_session_window(server, player, 1024).await
+}
+
+/// [`raw_session`] with `window` bytes of credit per stream (0: the server
+/// can send nothing, not even a refusal).
+async fn raw_session_window(server: &app::Running, player: &str, window: u32) -> RawSession {
     let cfg = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
-    let (endpoint, conn) = connect_small_window(server.addr, cfg, 1024).await;
+    let (endpoint, conn) = connect_small_window(server.addr, cfg, window).await;
     let (mut send, recv) = conn.open_bi().await.unwrap();
     let hello = ClientMessage::Hello(Hello {
         protocol_version: PROTOCOL_VERSION,
@@ -679,6 +685,59 @@ async fn reconnecting_does_not_refill_the_request_bucket() {
         assert!(requests_throttled() > before, "the waits were counted");
         assert!(conn.close_reason().is_none(), "{:?}", conn.close_reason());
         drop(send);
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// A player past its logins is refused before it takes a session slot: a
+/// client that gives no credit for the refusal holds its connection for
+/// the drain, and another player still gets the only slot meanwhile.
+#[tokio::test]
+async fn a_login_refused_for_its_rate_holds_no_session_slot() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.server.max_connections = 1;
+        cfg.validation.join_rate.capacity = 1;
+        cfg.validation.join_rate.per_second = 0;
+        let server = app::start(cfg).await.unwrap();
+        let first = connect(&server, "ana", Role::Player).await;
+        first.close().await;
+        while live_sessions(&server).await > 0 {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        // Ana's second login: refused for its rate, the refusal undelivered.
+        let stalled = raw_session_window(&server, "ana", 0).await;
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let bo = Client::connect(
+            server.addr,
+            &server.cert_der,
+            &token(&server, "bo", Role::Player),
+        )
+        .await;
+        assert!(bo.is_ok(), "the only slot was held: {:?}", bo.err());
+        drop(stalled);
+        bo.unwrap().close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
+/// The protocol has no client-opened unidirectional streams, and the
+/// server grants none: such a stream never opens, so it holds no unread
+/// data on the server.
+#[tokio::test]
+async fn a_client_gets_no_unidirectional_streams() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let server = app::start(test_config(dir.path())).await.unwrap();
+        let raw = raw_session(&server, "ana").await;
+        let opened = tokio::time::timeout(Duration::from_millis(500), raw.conn.open_uni()).await;
+        assert!(opened.is_err(), "a uni stream opened");
+        drop(raw);
         server.shutdown().await.unwrap();
     })
     .await

@@ -157,6 +157,18 @@ impl Committer {
     }
 }
 
+impl Committer {
+    /// Ends the thread once it has done every job queued; returns the
+    /// players whose positions a failed save left, none read yet.
+    pub fn finish(mut self) -> Vec<String> {
+        self.jobs = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        self.take_unsaved()
+    }
+}
+
 impl Drop for Committer {
     fn drop(&mut self) {
         self.jobs = None;

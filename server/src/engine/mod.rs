@@ -309,8 +309,14 @@ impl Engine {
                     self.save_positions();
                     // Joins the commit thread once it has done every job
                     // queued: the last positions are stored, after the
-                    // earlier ones.
-                    drop(self.committer.take());
+                    // earlier ones. Those a failed save left are tried
+                    // once more here.
+                    if let Some(committer) = self.committer.take() {
+                        for player in committer.finish() {
+                            self.seq.mark_moved(player);
+                        }
+                        self.save_positions();
+                    }
                     return Ok(());
                 }
                 Ok(cmd) => {

@@ -109,6 +109,15 @@ pub fn close_code(code: ErrorCode) -> quinn::VarInt {
     quinn::VarInt::from_u32(code.close_code())
 }
 
+/// Closes its connection when dropped (a no-op once it is closed).
+struct CloseOnExit(quinn::Connection);
+
+impl Drop for CloseOnExit {
+    fn drop(&mut self) {
+        self.0.close(quinn::VarInt::from_u32(0), b"session over");
+    }
+}
+
 /// Sends `Error`, lets it drain, and closes the connection with the same code.
 async fn refuse(
     conn: &quinn::Connection,
@@ -160,6 +169,9 @@ pub async fn run(
     shutdown: Shutdown,
     handshake: Handshake,
 ) {
+    // However this ends: a connection whose session is over is closed,
+    // never left open by a stream a writer task still holds.
+    let _closing = CloseOnExit(conn.clone());
     let deadline = handshake.deadline;
     let Some((send, recv)) = accept_first_stream(&conn, "control stream", deadline).await else {
         return;
@@ -229,6 +241,18 @@ pub async fn run(
         let code = ErrorCode::Forbidden;
         return refuse(&conn, control, control_task, code, &denied.to_string()).await;
     }
+    // Cheap first, and before a session slot is taken (a refusal's drain
+    // holds only this handshake's slot): a player past its logins never
+    // reaches the engine (a Join ends the player's older session and,
+    // resumed, its first position re-centres a whole view).
+    let buckets = ctx.clone();
+    let _joins = match join_allowed(&buckets, &claims.player) {
+        Ok(hold) => hold,
+        Err(message) => {
+            let code = ErrorCode::TooManyConnections;
+            return refuse(&conn, control, control_task, code, &message).await;
+        }
+    };
     // Held until the session ends.
     let _slot = match handshake.admit(false) {
         Ok(slot) => slot,
@@ -266,16 +290,6 @@ async fn joined(
     claims: auth::Claims,
     capabilities: u32,
 ) {
-    // Cheap first: a player past its logins never reaches the engine (a
-    // Join ends the player's older session and, resumed, its first
-    // position re-centres a whole view).
-    let _joins = match join_allowed(&ctx, &claims.player) {
-        Ok(hold) => hold,
-        Err(message) => {
-            let code = ErrorCode::TooManyConnections;
-            return refuse(&conn, control, control_task, code, &message).await;
-        }
-    };
     // A client that grants no stream credit would hold its session slot
     // forever: the updates stream must open within the handshake's time.
     let uni = match tokio::time::timeout_at(deadline, conn.open_uni()).await {

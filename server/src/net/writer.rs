@@ -187,6 +187,10 @@ impl FrameSender {
 /// meanwhile share packets; then finishes the stream when every sender is
 /// dropped and ends once the peer has acknowledged all of it. With no
 /// interval, [`FrameSender::send_now`] may write to the stream too.
+/// How long a finished writer waits for the peer to acknowledge the
+/// stream's last bytes: a peer that never does holds no task longer.
+pub const FINISH_WAIT: Duration = Duration::from_secs(5);
+
 pub fn spawn_writer(
     stream: quinn::SendStream,
     capacity: usize,
@@ -217,7 +221,8 @@ pub fn spawn_writer(
                     // follows cannot drop the last frames (a refusal's
                     // Error) still in QUIC's send buffer.
                     if guard.stream.finish().is_ok() {
-                        let _ = guard.stream.stopped().await;
+                        let acked = guard.stream.stopped();
+                        let _ = tokio::time::timeout(FINISH_WAIT, acked).await;
                     }
                     return;
                 }

@@ -118,8 +118,17 @@ impl SledStore {
         let Err(e) = self.flush() else {
             return Ok(());
         };
-        if let Err(u) = self.undo_blob(name, written, old) {
-            tracing::error!(error = %u, blob = name, "putting a blob back after a failed flush failed");
+        match self.undo_blob(name, written, old) {
+            // The undo made durable too: sled's own flusher may have
+            // written the failed write by now, and a restart would find it.
+            Ok(()) => {
+                if let Err(f) = self.flush() {
+                    tracing::error!(error = %f, blob = name, "flushing a blob put back after a failed flush failed: after a restart the failed write may be found");
+                }
+            }
+            Err(u) => {
+                tracing::error!(error = %u, blob = name, "putting a blob back after a failed flush failed");
+            }
         }
         Err(e)
     }
