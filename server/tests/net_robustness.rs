@@ -743,3 +743,50 @@ async fn a_client_gets_no_unidirectional_streams() {
     .await
     .expect("test finished in time");
 }
+
+/// Connections that finish TLS and never say Hello, from four addresses,
+/// hold every handshake slot: a player from a fifth address still gets in,
+/// taking the oldest one's slot, and that connection is closed.
+#[tokio::test]
+async fn a_player_gets_in_while_silent_connections_hold_every_handshake_slot() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.server.max_handshakes = 4;
+        cfg.server.max_handshakes_per_address = 1;
+        cfg.server.retry_above_handshakes = 4;
+        cfg.server.handshake_timeout_ms = 30_000;
+        let server = app::start(cfg).await.unwrap();
+        let tls = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
+        let mut silent = Vec::new();
+        for n in 2..=5u8 {
+            let from = std::net::SocketAddr::from(([127, 0, 0, n], 0));
+            let mut endpoint = quinn::Endpoint::client(from).unwrap();
+            endpoint.set_default_client_config(tls.clone());
+            let conn = endpoint
+                .connect(server.addr, "localhost")
+                .unwrap()
+                .await
+                .unwrap();
+            silent.push((endpoint, conn));
+        }
+        // Slots held this long may be taken.
+        tokio::time::sleep(strata_server::net::admission::EVICTABLE_AFTER).await;
+        let ana = connect(&server, "ana", Role::Player).await;
+        let oldest = &silent[0].1;
+        let closed = tokio::time::timeout(Duration::from_secs(5), oldest.closed()).await;
+        assert!(
+            matches!(closed, Ok(quinn::ConnectionError::ApplicationClosed(_))),
+            "{closed:?}"
+        );
+        assert!(
+            silent[3].1.close_reason().is_none(),
+            "the newest kept its slot"
+        );
+        ana.close().await;
+        drop(silent);
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

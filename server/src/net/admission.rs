@@ -1,11 +1,16 @@
 //! Who gets in. A connection in its handshake (TLS, then `Hello` with a
 //! valid token) holds a handshake slot: few of them, a few per address,
-//! and only until a deadline. Only an authenticated session takes a session
-//! slot, players and admins from separate pools, so a flood of connections
-//! that never say Hello locks out neither players nor operators.
+//! and only until a deadline. When every slot is taken, a new connection
+//! (from an address with room) takes the oldest one's slot, and that
+//! handshake ends: a few addresses holding every slot with connections
+//! that never say Hello hold them for moments, not until their deadline.
+//! Only an authenticated session takes a session slot, players and
+//! admins from separate pools, so such a flood locks out neither players
+//! nor operators.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::net::IpAddr;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -29,7 +34,17 @@ pub struct Limits {
     pub retry_above: u32,
     /// From the first packet to a verified Hello.
     pub handshake_timeout: Duration,
+    /// A handshake in progress this long may lose its slot to a newer one
+    /// when every slot is taken ([`EVICTABLE_AFTER`]).
+    pub evictable_after: Duration,
 }
+
+/// How long a handshake has its slot for sure: one a newer connection
+/// takes when all are taken must have been in progress this long, so a
+/// crowd of honest logins arriving at once (after a restart) is refused
+/// at the door rather than undoing handshakes about to finish. An honest
+/// client over a slow link is done within it; a silent one is not.
+pub const EVICTABLE_AFTER: Duration = Duration::from_secs(1);
 
 /// Why a connection was turned away.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,6 +57,8 @@ pub enum Refused {
     Sessions,
     /// Every admin session slot is taken.
     AdminSessions,
+    /// A newer connection took this handshake's slot (every slot taken).
+    Evicted,
 }
 
 impl Refused {
@@ -52,13 +69,16 @@ impl Refused {
             Refused::PerAddress => "per_address",
             Refused::Sessions => "sessions",
             Refused::AdminSessions => "admin_sessions",
+            Refused::Evicted => "evicted",
         }
     }
 
     /// What the client is told.
     pub fn message(self) -> &'static str {
         match self {
-            Refused::Handshakes | Refused::PerAddress => "too many connections being set up",
+            Refused::Handshakes | Refused::PerAddress | Refused::Evicted => {
+                "too many connections being set up"
+            }
             Refused::Sessions => "server is full",
             Refused::AdminSessions => "every admin session slot is taken",
         }
@@ -72,6 +92,9 @@ pub struct Admission {
     /// Handshakes in progress by address; an entry exists only while it
     /// holds one, so it is bounded by `limits.handshakes`.
     per_address: Mutex<HashMap<IpAddr, u32>>,
+    /// Handshakes holding a slot, oldest first (by the order they began).
+    in_progress: Mutex<BTreeMap<u64, Arc<Slot>>>,
+    next_handshake: AtomicU64,
     players: Arc<Semaphore>,
     admins: Arc<Semaphore>,
     /// Refusals are logged at most once a second, with a count.
@@ -86,6 +109,8 @@ impl Admission {
             players: permits(limits.sessions),
             admins: permits(limits.admin_sessions),
             per_address: Mutex::new(HashMap::new()),
+            in_progress: Mutex::new(BTreeMap::new()),
+            next_handshake: AtomicU64::new(0),
             logged: LogEvery::new(LOG_EVERY),
             limits,
         })
@@ -111,16 +136,51 @@ impl Admission {
         if here >= self.limits.handshakes_per_address {
             return Err(self.refused(Refused::PerAddress, addr));
         }
-        let Ok(permit) = self.handshakes.clone().try_acquire_owned() else {
-            return Err(self.refused(Refused::Handshakes, addr));
+        let permit = match self.handshakes.clone().try_acquire_owned() {
+            Ok(p) => p,
+            Err(_) => match self.evict_oldest() {
+                Some(p) => p,
+                None => return Err(self.refused(Refused::Handshakes, addr)),
+            },
         };
         per.insert(addr, here + 1);
+        drop(per);
+        let slot = Arc::new(Slot {
+            started: std::time::Instant::now(),
+            permit: Mutex::new(Some(permit)),
+            evicted: AtomicBool::new(false),
+            wake: tokio::sync::Notify::new(),
+        });
+        let id = self.next_handshake.fetch_add(1, Ordering::Relaxed);
+        lock(&self.in_progress).insert(id, slot.clone());
         Ok(Handshake {
-            _permit: permit,
+            slot,
+            id,
             addr,
             deadline: tokio::time::Instant::now() + self.limits.handshake_timeout,
             admission: self.clone(),
         })
+    }
+
+    /// Takes the slot of the oldest handshake in progress and tells it it
+    /// is over; `None` when none holds one.
+    fn evict_oldest(&self) -> Option<OwnedSemaphorePermit> {
+        let mut in_progress = lock(&self.in_progress);
+        let oldest = in_progress.first_key_value()?.1;
+        if oldest.started.elapsed() < self.limits.evictable_after {
+            return None;
+        }
+        while let Some((_, slot)) = in_progress.pop_first() {
+            let Some(permit) = lock(&slot.permit).take() else {
+                continue;
+            };
+            slot.evicted.store(true, Ordering::Release);
+            slot.wake.notify_one();
+            metrics::counter!(crate::metrics::CONNECTIONS_REFUSED, "reason" => Refused::Evicted.label())
+                .increment(1);
+            return Some(permit);
+        }
+        None
     }
 
     /// Counts and (at most once per [`LOG_EVERY`]) logs a refusal.
@@ -166,10 +226,38 @@ pub fn sharing_limits(addr: IpAddr) -> IpAddr {
     }
 }
 
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A handshake's slot, which a newer connection may take.
+#[derive(Debug)]
+struct Slot {
+    started: std::time::Instant,
+    permit: Mutex<Option<OwnedSemaphorePermit>>,
+    evicted: AtomicBool,
+    wake: tokio::sync::Notify,
+}
+
+/// Resolves once the handshake it was taken from lost its slot
+/// ([`Handshake::eviction`]); never after the handshake was admitted.
+#[derive(Debug, Clone)]
+pub struct Eviction(Arc<Slot>);
+
+impl Eviction {
+    pub async fn wait(&self) {
+        while !self.0.evicted.load(Ordering::Acquire) {
+            self.0.wake.notified().await;
+        }
+    }
+}
+
 /// A connection in its handshake. Dropping it frees the slot.
 #[derive(Debug)]
 pub struct Handshake {
-    _permit: OwnedSemaphorePermit,
+    slot: Arc<Slot>,
+    /// Its place in `Admission::in_progress`.
+    id: u64,
     addr: IpAddr,
     /// The handshake must be done (Hello verified) by then.
     pub deadline: tokio::time::Instant,
@@ -180,6 +268,13 @@ impl Handshake {
     /// The client authenticated: trades the handshake slot for a session
     /// slot of its kind, held for the session's life.
     pub fn admit(self, admin: bool) -> Result<OwnedSemaphorePermit, Refused> {
+        // Out of the eviction order first: an admitted session keeps its
+        // connection; one evicted before is over.
+        if lock(&self.admission.in_progress).remove(&self.id).is_none()
+            || self.slot.evicted.load(Ordering::Acquire)
+        {
+            return Err(Refused::Evicted);
+        }
         let (pool, why) = match admin {
             true => (&self.admission.admins, Refused::AdminSessions),
             false => (&self.admission.players, Refused::Sessions),
@@ -190,19 +285,26 @@ impl Handshake {
     }
 }
 
+impl Handshake {
+    /// What resolves if a newer connection takes this handshake's slot
+    /// before it is admitted: its connection should then end.
+    pub fn eviction(&self) -> Eviction {
+        Eviction(self.slot.clone())
+    }
+}
+
 impl Drop for Handshake {
     fn drop(&mut self) {
-        let mut per = self
-            .admission
-            .per_address
-            .lock()
-            .unwrap_or_else(|e| e.into_inner());
-        if let Some(n) = per.get_mut(&self.addr) {
-            *n -= 1;
-            if *n == 0 {
-                per.remove(&self.addr);
+        {
+            let mut per = lock(&self.admission.per_address);
+            if let Some(n) = per.get_mut(&self.addr) {
+                *n -= 1;
+                if *n == 0 {
+                    per.remove(&self.addr);
+                }
             }
         }
+        lock(&self.admission.in_progress).remove(&self.id);
     }
 }
 
@@ -218,28 +320,75 @@ mod tests {
             handshakes_per_address: 2,
             retry_above: 2,
             handshake_timeout: Duration::from_secs(1),
+            evictable_after: Duration::ZERO,
         }
     }
 
     #[tokio::test]
     async fn handshakes_are_capped_per_address_and_in_all() {
         let a = Admission::new(limits());
-        let (x, y, z) = (
-            [127, 0, 0, 2].into(),
-            [127, 0, 0, 3].into(),
-            [127, 0, 0, 4].into(),
-        );
+        let (x, y): (IpAddr, IpAddr) = ([127, 0, 0, 2].into(), [127, 0, 0, 3].into());
         let x1 = a.begin(x).unwrap();
         let _x2 = a.begin(x).unwrap();
         assert_eq!(a.begin(x).unwrap_err(), Refused::PerAddress);
         let _y1 = a.begin(y).unwrap();
-        assert_eq!(a.begin(z).unwrap_err(), Refused::Handshakes);
         drop(x1);
-        assert!(
-            a.begin(x).is_ok(),
-            "a finished handshake frees both its slots"
-        );
+        let _x3 = a
+            .begin(x)
+            .expect("a finished handshake frees both its slots");
         assert_eq!(a.per_address.lock().unwrap().len(), 2);
+        assert_eq!(a.handshakes.available_permits(), 0);
+        assert_eq!(
+            a.begin(x).unwrap_err(),
+            Refused::PerAddress,
+            "even when full"
+        );
+    }
+
+    #[tokio::test]
+    async fn a_new_handshake_takes_the_oldest_ones_slot_when_all_are_taken() {
+        let a = Admission::new(limits());
+        let ip = |n: u8| IpAddr::from([127, 0, 0, n]);
+        let (old, mid, new) = (
+            a.begin(ip(2)).unwrap(),
+            a.begin(ip(3)).unwrap(),
+            a.begin(ip(4)).unwrap(),
+        );
+        let (lost, kept) = (old.eviction(), mid.eviction());
+        // Every slot taken: the next one takes the oldest's.
+        let newest = a.begin(ip(5)).unwrap();
+        tokio::time::timeout(Duration::from_secs(1), lost.wait())
+            .await
+            .expect("the oldest handshake is told");
+        assert_eq!(old.admit(false).unwrap_err(), Refused::Evicted);
+        assert_eq!(a.handshakes.available_permits(), 0, "still three in all");
+        // An admitted handshake is out of the order: never evicted.
+        let _session = mid.admit(false).unwrap();
+        let _next = a.begin(ip(6)).unwrap();
+        assert!(
+            tokio::time::timeout(Duration::from_millis(50), kept.wait())
+                .await
+                .is_err(),
+            "an admitted session lost its connection"
+        );
+        assert_eq!(
+            new.admit(false).unwrap_err(),
+            Refused::Evicted,
+            "the oldest left"
+        );
+        drop(newest);
+        assert!(a.per_address.lock().unwrap().len() <= 2);
+    }
+
+    #[tokio::test]
+    async fn a_handshake_keeps_its_slot_until_it_is_evictable() {
+        let a = Admission::new(Limits {
+            evictable_after: Duration::from_secs(3600),
+            ..limits()
+        });
+        let ip = |n: u8| IpAddr::from([127, 0, 0, n]);
+        let _held = [a.begin(ip(2)), a.begin(ip(3)), a.begin(ip(4))];
+        assert_eq!(a.begin(ip(5)).unwrap_err(), Refused::Handshakes);
     }
 
     #[tokio::test]

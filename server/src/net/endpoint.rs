@@ -67,19 +67,34 @@ impl Listener {
                     let ctx = self.ctx.clone();
                     let shutdown = shutdown.clone();
                     let span = tracing::info_span!("conn", %remote, session = id);
+                    let eviction = handshake.eviction();
                     tokio::spawn(async move {
                         metrics::gauge!(crate::metrics::CONNECTIONS).increment(1.0);
-                        match tokio::time::timeout_at(handshake.deadline, incoming).await {
-                            Ok(Ok(conn)) if is_admin(&conn) => {
-                                let run = admin_session::run(conn.clone(), id, ctx, shutdown, handshake);
-                                transport_stats::sampled(conn, run).await
+                        let tls = tokio::time::timeout_at(handshake.deadline, incoming);
+                        let tls = tokio::select! {
+                            tls = tls => Some(tls),
+                            _ = eviction.wait() => None,
+                        };
+                        match tls {
+                            Some(Ok(Ok(conn))) => {
+                                let run = async {
+                                    if is_admin(&conn) {
+                                        admin_session::run(conn.clone(), id, ctx, shutdown, handshake).await
+                                    } else {
+                                        session::run(conn.clone(), id, ctx, shutdown, handshake).await
+                                    }
+                                };
+                                let run = transport_stats::sampled(conn.clone(), run);
+                                // Never after an admission: only a handshake
+                                // still in progress loses its slot.
+                                tokio::select! {
+                                    _ = run => {}
+                                    _ = eviction.wait() => evicted(&conn),
+                                }
                             }
-                            Ok(Ok(conn)) => {
-                                let run = session::run(conn.clone(), id, ctx, shutdown, handshake);
-                                transport_stats::sampled(conn, run).await
-                            }
-                            Ok(Err(e)) => debug!(error = %e, "handshake failed"),
-                            Err(_) => debug!("TLS handshake timed out"),
+                            Some(Ok(Err(e))) => debug!(error = %e, "handshake failed"),
+                            Some(Err(_)) => debug!("TLS handshake timed out"),
+                            None => debug!("TLS handshake evicted: every slot taken"),
                         }
                         metrics::gauge!(crate::metrics::CONNECTIONS).decrement(1.0);
                     }.instrument(span));
@@ -92,6 +107,16 @@ impl Listener {
         self.admission.drained(SHUTDOWN_GRACE).await;
         let _ = tokio::time::timeout(SHUTDOWN_GRACE, self.endpoint.wait_idle()).await;
     }
+}
+
+/// Ends a connection whose handshake slot a newer connection took.
+fn evicted(conn: &quinn::Connection) {
+    debug!("handshake evicted: every slot taken");
+    let why = crate::net::admission::Refused::Evicted.message();
+    conn.close(
+        session::close_code(strata_protocol::ErrorCode::TooManyConnections),
+        why.as_bytes(),
+    );
 }
 
 /// Whether the client negotiated the admin ALPN (`strata-admin/1`).
