@@ -214,7 +214,7 @@ impl ServerSection {
             handshakes_per_address: self.max_handshakes_per_address,
             retry_above: self.retry_above_handshakes,
             handshake_timeout: std::time::Duration::from_millis(self.handshake_timeout_ms),
-            evictable_after: crate::net::admission::EVICTABLE_AFTER,
+            evictable_after: std::time::Duration::from_millis(self.handshake_timeout_ms / 2),
         }
     }
 }

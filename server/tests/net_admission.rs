@@ -220,7 +220,8 @@ async fn spoofed_initials_take_no_handshake_slot_once_retry_is_asked() {
             spoofed_initials(server.addr, &server.cert_der, 40);
             // The server has taken them in before the player comes, long
             // enough ago that their slots may be taken.
-            tokio::time::sleep(strata_server::net::admission::EVICTABLE_AFTER).await;
+            // (half `handshake_timeout_ms`, with room for a slow start).
+            tokio::time::sleep(Duration::from_millis(1_400)).await;
             let tls = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
             let mut endpoint = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
             endpoint.set_default_client_config(tls);

@@ -755,7 +755,8 @@ async fn a_player_gets_in_while_silent_connections_hold_every_handshake_slot() {
         cfg.server.max_handshakes = 4;
         cfg.server.max_handshakes_per_address = 1;
         cfg.server.retry_above_handshakes = 4;
-        cfg.server.handshake_timeout_ms = 30_000;
+        // Evictable after half of it: 2 s.
+        cfg.server.handshake_timeout_ms = 4_000;
         let server = app::start(cfg).await.unwrap();
         let tls = strata_client_sim::tls::client_config_pinned(&server.cert_der).unwrap();
         let mut silent = Vec::new();
@@ -771,12 +772,13 @@ async fn a_player_gets_in_while_silent_connections_hold_every_handshake_slot() {
             silent.push((endpoint, conn));
         }
         // Slots held this long may be taken.
-        tokio::time::sleep(strata_server::net::admission::EVICTABLE_AFTER).await;
+        tokio::time::sleep(Duration::from_millis(2_300)).await;
         let ana = connect(&server, "ana", Role::Player).await;
         let oldest = &silent[0].1;
         let closed = tokio::time::timeout(Duration::from_secs(5), oldest.closed()).await;
+        let code = strata_protocol::ErrorCode::TooManyConnections.close_code();
         assert!(
-            matches!(closed, Ok(quinn::ConnectionError::ApplicationClosed(_))),
+            matches!(&closed, Ok(quinn::ConnectionError::ApplicationClosed(c)) if c.error_code == quinn::VarInt::from_u32(code)),
             "{closed:?}"
         );
         assert!(

@@ -35,16 +35,13 @@ pub struct Limits {
     /// From the first packet to a verified Hello.
     pub handshake_timeout: Duration,
     /// A handshake in progress this long may lose its slot to a newer one
-    /// when every slot is taken ([`EVICTABLE_AFTER`]).
+    /// when every slot is taken: half `handshake_timeout` (2.5 s at the
+    /// default), so a crowd of honest logins arriving at once (after a
+    /// restart) is refused at the door rather than undoing handshakes
+    /// about to finish, and a client over a slow link, a lost packet or a
+    /// Retry included, is done within it.
     pub evictable_after: Duration,
 }
-
-/// How long a handshake has its slot for sure: one a newer connection
-/// takes when all are taken must have been in progress this long, so a
-/// crowd of honest logins arriving at once (after a restart) is refused
-/// at the door rather than undoing handshakes about to finish. An honest
-/// client over a slow link is done within it; a silent one is not.
-pub const EVICTABLE_AFTER: Duration = Duration::from_secs(1);
 
 /// Why a connection was turned away.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -90,7 +87,8 @@ pub struct Admission {
     limits: Limits,
     handshakes: Arc<Semaphore>,
     /// Handshakes in progress by address; an entry exists only while it
-    /// holds one, so it is bounded by `limits.handshakes`.
+    /// holds one (or a connection evicted from one has not ended yet), so
+    /// it is bounded by the connections being set up.
     per_address: Mutex<HashMap<IpAddr, u32>>,
     /// Handshakes holding a slot, oldest first (by the order they began).
     in_progress: Mutex<BTreeMap<u64, Arc<Slot>>>,
@@ -138,7 +136,7 @@ impl Admission {
         }
         let permit = match self.handshakes.clone().try_acquire_owned() {
             Ok(p) => p,
-            Err(_) => match self.evict_oldest() {
+            Err(_) => match self.evict(&per) {
                 Some(p) => p,
                 None => return Err(self.refused(Refused::Handshakes, addr)),
             },
@@ -146,6 +144,7 @@ impl Admission {
         per.insert(addr, here + 1);
         drop(per);
         let slot = Arc::new(Slot {
+            addr,
             started: std::time::Instant::now(),
             permit: Mutex::new(Some(permit)),
             evicted: AtomicBool::new(false),
@@ -162,25 +161,30 @@ impl Admission {
         })
     }
 
-    /// Takes the slot of the oldest handshake in progress and tells it it
-    /// is over; `None` when none holds one.
-    fn evict_oldest(&self) -> Option<OwnedSemaphorePermit> {
+    /// Takes a slot from a handshake in progress for `evictable_after` or
+    /// more and tells it it is over: the oldest of those from the address
+    /// (or IPv6 /64) with the most handshakes in progress (a flood's, not
+    /// an honest client's one); `None` when there is no such handshake.
+    fn evict(&self, per: &HashMap<IpAddr, u32>) -> Option<OwnedSemaphorePermit> {
         let mut in_progress = lock(&self.in_progress);
-        let oldest = in_progress.first_key_value()?.1;
-        if oldest.started.elapsed() < self.limits.evictable_after {
-            return None;
-        }
-        while let Some((_, slot)) = in_progress.pop_first() {
-            let Some(permit) = lock(&slot.permit).take() else {
-                continue;
-            };
-            slot.evicted.store(true, Ordering::Release);
-            slot.wake.notify_one();
-            metrics::counter!(crate::metrics::CONNECTIONS_REFUSED, "reason" => Refused::Evicted.label())
-                .increment(1);
-            return Some(permit);
-        }
-        None
+        let victim = in_progress
+            .iter()
+            .filter(|(_, s)| s.started.elapsed() >= self.limits.evictable_after)
+            // The most from one address; of those, the oldest (lowest id).
+            .max_by_key(|&(&id, s)| {
+                (
+                    per.get(&s.addr).copied().unwrap_or(0),
+                    std::cmp::Reverse(id),
+                )
+            })
+            .map(|(&id, _)| id)?;
+        let slot = in_progress.remove(&victim)?;
+        let permit = lock(&slot.permit).take()?;
+        slot.evicted.store(true, Ordering::Release);
+        slot.wake.notify_one();
+        metrics::counter!(crate::metrics::CONNECTIONS_REFUSED, "reason" => Refused::Evicted.label())
+            .increment(1);
+        Some(permit)
     }
 
     /// Counts and (at most once per [`LOG_EVERY`]) logs a refusal.
@@ -233,6 +237,8 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 /// A handshake's slot, which a newer connection may take.
 #[derive(Debug)]
 struct Slot {
+    /// Its address as the per-address count knows it.
+    addr: IpAddr,
     started: std::time::Instant,
     permit: Mutex<Option<OwnedSemaphorePermit>>,
     evicted: AtomicBool,
@@ -305,6 +311,9 @@ impl Drop for Handshake {
             }
         }
         lock(&self.admission.in_progress).remove(&self.id);
+        // The slot itself (an `Eviction` may outlive this): admitted, the
+        // connection holds a session slot instead; else it is done.
+        drop(lock(&self.slot.permit).take());
     }
 }
 
@@ -362,22 +371,40 @@ mod tests {
             .expect("the oldest handshake is told");
         assert_eq!(old.admit(false).unwrap_err(), Refused::Evicted);
         assert_eq!(a.handshakes.available_permits(), 0, "still three in all");
-        // An admitted handshake is out of the order: never evicted.
+        // Admitted, a handshake gives its slot back (however long its
+        // eviction handle lives) and is out of the order: never evicted.
         let _session = mid.admit(false).unwrap();
-        let _next = a.begin(ip(6)).unwrap();
+        assert_eq!(a.handshakes.available_permits(), 1);
+        let next = a.begin(ip(6)).unwrap();
         assert!(
             tokio::time::timeout(Duration::from_millis(50), kept.wait())
                 .await
                 .is_err(),
             "an admitted session lost its connection"
         );
-        assert_eq!(
-            new.admit(false).unwrap_err(),
-            Refused::Evicted,
-            "the oldest left"
+        assert!(new.admit(false).is_ok(), "a free slot was there");
+        drop((newest, next));
+        assert_eq!(a.handshakes.available_permits(), 3, "no slot leaked");
+        assert!(a.per_address.lock().unwrap().is_empty());
+    }
+
+    #[tokio::test]
+    async fn the_slot_taken_is_from_the_address_with_the_most_handshakes() {
+        let a = Admission::new(limits());
+        let (x, y): (IpAddr, IpAddr) = ([127, 0, 0, 2].into(), [127, 0, 0, 3].into());
+        let oldest = a.begin(y).unwrap();
+        let (x1, _x2) = (a.begin(x).unwrap(), a.begin(x).unwrap());
+        let (kept, lost) = (oldest.eviction(), x1.eviction());
+        let _z = a.begin([127, 0, 0, 4].into()).unwrap();
+        tokio::time::timeout(Duration::from_secs(1), lost.wait())
+            .await
+            .expect("the oldest of the address with two");
+        assert!(
+            tokio::time::timeout(Duration::from_millis(50), kept.wait())
+                .await
+                .is_err(),
+            "the oldest overall, alone from its address, kept its slot"
         );
-        drop(newest);
-        assert!(a.per_address.lock().unwrap().len() <= 2);
     }
 
     #[tokio::test]

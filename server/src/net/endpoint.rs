@@ -85,10 +85,13 @@ impl Listener {
                                     }
                                 };
                                 let run = transport_stats::sampled(conn.clone(), run);
+                                tokio::pin!(run);
                                 // Never after an admission: only a handshake
-                                // still in progress loses its slot.
+                                // still in progress loses its slot. Closed
+                                // with its reason before the session's
+                                // future (and its own close) is dropped.
                                 tokio::select! {
-                                    _ = run => {}
+                                    _ = &mut run => {}
                                     _ = eviction.wait() => evicted(&conn),
                                 }
                             }

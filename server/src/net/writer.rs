@@ -182,15 +182,16 @@ impl FrameSender {
     }
 }
 
-/// Spawns a task that writes queued frames to `stream` in order, waiting
-/// `interval` after each write (zero: none) so that the frames queued
-/// meanwhile share packets; then finishes the stream when every sender is
-/// dropped and ends once the peer has acknowledged all of it. With no
-/// interval, [`FrameSender::send_now`] may write to the stream too.
 /// How long a finished writer waits for the peer to acknowledge the
 /// stream's last bytes: a peer that never does holds no task longer.
 pub const FINISH_WAIT: Duration = Duration::from_secs(5);
 
+/// Spawns a task that writes queued frames to `stream` in order, waiting
+/// `interval` after each write (zero: none) so that the frames queued
+/// meanwhile share packets; then finishes the stream when every sender is
+/// dropped and ends once the peer has acknowledged all of it (at most
+/// [`FINISH_WAIT`]). With no interval, [`FrameSender::send_now`] may write
+/// to the stream too.
 pub fn spawn_writer(
     stream: quinn::SendStream,
     capacity: usize,
