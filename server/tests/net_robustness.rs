@@ -792,3 +792,39 @@ async fn a_player_gets_in_while_silent_connections_hold_every_handshake_slot() {
     .await
     .expect("test finished in time");
 }
+
+/// A login refused because the server is full costs the player none of
+/// its logins: once a slot frees, it gets in.
+#[tokio::test]
+async fn a_login_refused_for_a_full_server_spends_no_login() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.server.max_connections = 1;
+        cfg.validation.join_rate.capacity = 1;
+        cfg.validation.join_rate.per_second = 0;
+        let server = app::start(cfg).await.unwrap();
+        let bo = connect(&server, "bo", Role::Player).await;
+        let ana = || async {
+            Client::connect(
+                server.addr,
+                &server.cert_der,
+                &token(&server, "ana", Role::Player),
+            )
+            .await
+        };
+        for _ in 0..3 {
+            assert!(ana().await.is_err(), "the server is full");
+        }
+        bo.close().await;
+        while live_sessions(&server).await > 0 {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let ana = ana().await;
+        assert!(ana.is_ok(), "{:?}", ana.err());
+        ana.unwrap().close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

@@ -114,6 +114,12 @@ impl BucketHold<'_> {
         })
     }
 
+    /// Gives back `cost` tokens taken for something that did not happen
+    /// (at most up to the capacity).
+    pub fn give_back(&self, cost: u64, now_ms: u64) {
+        self.with(now_ms, |b| b.give(cost));
+    }
+
     /// Takes `cost` tokens, or takes none and says in how many
     /// milliseconds they would be there (`None`: never).
     pub fn try_take(&self, cost: u64, now_ms: u64) -> Result<(), Option<u64>> {

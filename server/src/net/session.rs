@@ -257,6 +257,9 @@ pub async fn run(
     let _slot = match handshake.admit(false) {
         Ok(slot) => slot,
         Err(why) => {
+            // No login happened: a player retrying at a full server keeps
+            // its logins for when a slot frees.
+            _joins.give_back(1, now_ms());
             let code = ErrorCode::TooManyConnections;
             return refuse(&conn, control, control_task, code, why.message()).await;
         }
