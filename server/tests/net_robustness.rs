@@ -691,6 +691,22 @@ async fn reconnecting_does_not_refill_the_request_bucket() {
     .expect("test finished in time");
 }
 
+/// A server with one player slot, where a player logs in once.
+async fn one_slot_one_login(dir: &std::path::Path) -> app::Running {
+    let mut cfg = test_config(dir);
+    cfg.server.max_connections = 1;
+    cfg.validation.join_rate.capacity = 1;
+    cfg.validation.join_rate.per_second = 0;
+    app::start(cfg).await.unwrap()
+}
+
+/// Waits until no session is live.
+async fn no_sessions(server: &app::Running) {
+    while live_sessions(server).await > 0 {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
 /// A player past its logins is refused before it takes a session slot: a
 /// client that gives no credit for the refusal holds its connection for
 /// the drain, and another player still gets the only slot meanwhile.
@@ -698,16 +714,10 @@ async fn reconnecting_does_not_refill_the_request_bucket() {
 async fn a_login_refused_for_its_rate_holds_no_session_slot() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        let mut cfg = test_config(dir.path());
-        cfg.server.max_connections = 1;
-        cfg.validation.join_rate.capacity = 1;
-        cfg.validation.join_rate.per_second = 0;
-        let server = app::start(cfg).await.unwrap();
+        let server = one_slot_one_login(dir.path()).await;
         let first = connect(&server, "ana", Role::Player).await;
         first.close().await;
-        while live_sessions(&server).await > 0 {
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
+        no_sessions(&server).await;
         // Ana's second login: refused for its rate, the refusal undelivered.
         let stalled = raw_session_window(&server, "ana", 0).await;
         tokio::time::sleep(Duration::from_millis(200)).await;
@@ -799,11 +809,7 @@ async fn a_player_gets_in_while_silent_connections_hold_every_handshake_slot() {
 async fn a_login_refused_for_a_full_server_spends_no_login() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        let mut cfg = test_config(dir.path());
-        cfg.server.max_connections = 1;
-        cfg.validation.join_rate.capacity = 1;
-        cfg.validation.join_rate.per_second = 0;
-        let server = app::start(cfg).await.unwrap();
+        let server = one_slot_one_login(dir.path()).await;
         let bo = connect(&server, "bo", Role::Player).await;
         let ana = || async {
             Client::connect(
@@ -817,9 +823,7 @@ async fn a_login_refused_for_a_full_server_spends_no_login() {
             assert!(ana().await.is_err(), "the server is full");
         }
         bo.close().await;
-        while live_sessions(&server).await > 0 {
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
+        no_sessions(&server).await;
         let ana = ana().await;
         assert!(ana.is_ok(), "{:?}", ana.err());
         ana.unwrap().close().await;
