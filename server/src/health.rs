@@ -111,7 +111,7 @@ pub struct Health {
     /// first.
     ticked_ms: AtomicU64,
     /// By [`StoreWork`], in [`StoreWork::ALL`]'s order.
-    store: [Kind; 8],
+    store: [Kind; StoreWork::ALL.len()],
 }
 
 /// Milliseconds since this process first asked, at least 1: a monotonic
