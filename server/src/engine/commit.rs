@@ -81,8 +81,8 @@ pub struct Committer {
 }
 
 impl Committer {
-    /// Starts the thread; `waker` wakes the engine after each result. A
-    /// position save that fails is reported to `health` (a commit's result
+    /// Starts the thread; `waker` wakes the engine after each result. How
+    /// each position save went is reported to `health` (a commit's result
     /// goes back to the engine, which reports it).
     pub fn spawn(
         store: Arc<dyn ChunkStore>,

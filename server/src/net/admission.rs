@@ -1,9 +1,10 @@
 //! Who gets in. A connection in its handshake (TLS, then `Hello` with a
 //! valid token) holds a handshake slot: few of them, a few per address,
 //! and only until a deadline. When every slot is taken, a new connection
-//! (from an address with room) takes the oldest one's slot, and that
+//! (from an address with room) takes the slot of a handshake in progress
+//! for half that deadline (the oldest from the busiest address), and that
 //! handshake ends: a few addresses holding every slot with connections
-//! that never say Hello hold them for moments, not until their deadline.
+//! that never say Hello cannot keep new logins out until their deadline.
 //! Only an authenticated session takes a session slot, players and
 //! admins from separate pools, so such a flood locks out neither players
 //! nor operators.
@@ -155,7 +156,6 @@ impl Admission {
         Ok(Handshake {
             slot,
             id,
-            addr,
             deadline: tokio::time::Instant::now() + self.limits.handshake_timeout,
             admission: self.clone(),
         })
@@ -264,7 +264,6 @@ pub struct Handshake {
     slot: Arc<Slot>,
     /// Its place in `Admission::in_progress`.
     id: u64,
-    addr: IpAddr,
     /// The handshake must be done (Hello verified) by then.
     pub deadline: tokio::time::Instant,
     admission: Arc<Admission>,
@@ -287,7 +286,7 @@ impl Handshake {
         };
         pool.clone()
             .try_acquire_owned()
-            .map_err(|_| self.admission.refused(why, self.addr))
+            .map_err(|_| self.admission.refused(why, self.slot.addr))
     }
 }
 
@@ -303,10 +302,10 @@ impl Drop for Handshake {
     fn drop(&mut self) {
         {
             let mut per = lock(&self.admission.per_address);
-            if let Some(n) = per.get_mut(&self.addr) {
+            if let Some(n) = per.get_mut(&self.slot.addr) {
                 *n -= 1;
                 if *n == 0 {
-                    per.remove(&self.addr);
+                    per.remove(&self.slot.addr);
                 }
             }
         }
