@@ -522,6 +522,45 @@ fn positions_keep_the_feet_record_older_builds_read() {
     );
 }
 
+/// A position read while it is saved again is one save's, feet and time
+/// together, whether read alone or in the walk over every player.
+#[test]
+fn a_position_read_during_saves_is_one_saves() {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use strata_server::store::StoredPosition;
+    use strata_terrain::edit::{Fixed, FixedVec3};
+    let dir = tempfile::tempdir().unwrap();
+    let store = SledStore::open(dir.path()).unwrap();
+    let at = |i: i32| StoredPosition {
+        feet: FixedVec3::new(Fixed(i), Fixed(0), Fixed(0)),
+        known_ms: i as u64,
+    };
+    let one_save = |p: StoredPosition| p.feet.x.0 as u64 == p.known_ms;
+    store.save_positions(&[("ana".into(), at(0))]).unwrap();
+    let done = AtomicBool::new(false);
+    let reads = std::thread::scope(|s| {
+        s.spawn(|| {
+            for i in 1..=150 {
+                store.save_positions(&[("ana".into(), at(i))]).unwrap();
+            }
+            done.store(true, Ordering::Release);
+        });
+        let mut reads = 0u64;
+        while !done.load(Ordering::Acquire) {
+            let p = store.player_position("ana").unwrap().unwrap();
+            assert!(one_save(p), "{p:?} after {reads} reads");
+            for r in store.player_positions() {
+                let (_, p) = r.unwrap();
+                assert!(one_save(p), "{p:?} in a walk after {reads} reads");
+            }
+            reads += 1;
+        }
+        reads
+    });
+    assert!(reads > 0);
+    assert_eq!(store.player_position("ana").unwrap(), Some(at(150)));
+}
+
 /// A starting server remembers the players known most recently, not the
 /// first by name, and a database reads only those.
 #[test]

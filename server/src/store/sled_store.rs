@@ -662,25 +662,20 @@ impl ChunkStore for SledStore {
     }
 
     fn player_positions(&self) -> StoreIter<'_, (String, StoredPosition)> {
-        Box::new(self.players.iter().map(|r| {
-            let (k, v) = r?;
-            let name = std::str::from_utf8(&k)
-                .map_err(|_| StoreError::corrupt("player name", show_raw(&k)))?;
-            let time = self.player_times.get(&k)?;
-            let p = decode_position(&v, time.as_deref())
-                .ok_or_else(|| StoreError::corrupt("player position", show_raw(&k)))?;
-            Ok((name.to_string(), p))
+        Box::new(self.players.iter().keys().filter_map(|k| {
+            let read = || {
+                let k = k?;
+                let name = std::str::from_utf8(&k)
+                    .map_err(|_| StoreError::corrupt("player name", show_raw(&k)))?;
+                // Gone since the walk passed it: nothing to report.
+                Ok(self.position_at(&k)?.map(|p| (name.to_string(), p)))
+            };
+            read().transpose()
         }))
     }
 
     fn player_position(&self, player: &str) -> Result<Option<StoredPosition>, StoreError> {
-        let Some(feet) = self.players.get(player.as_bytes())? else {
-            return Ok(None);
-        };
-        let time = self.player_times.get(player.as_bytes())?;
-        decode_position(&feet, time.as_deref())
-            .map(Some)
-            .ok_or_else(|| StoreError::corrupt("player position", show_raw(player.as_bytes())))
+        self.position_at(player.as_bytes())
     }
 
     fn chunks_with_deltas(
@@ -710,6 +705,25 @@ impl ChunkStore for SledStore {
 
     fn encode_on(&self, pool: Option<Arc<rayon::ThreadPool>>) {
         self.encode.set(pool);
+    }
+}
+
+impl SledStore {
+    /// A player's feet and time, read together: a save between two plain
+    /// gets would pair one save's feet with another's time.
+    fn position_at(&self, key: &[u8]) -> Result<Option<StoredPosition>, StoreError> {
+        let trees = (&self.players, &self.player_times);
+        let read = trees.transaction(|(feet, times)| Ok((feet.get(key)?, times.get(key)?)));
+        let (feet, time) = read.map_err(|e: TransactionError<StoreError>| match e {
+            TransactionError::Abort(e) => e,
+            TransactionError::Storage(e) => StoreError::Sled(e),
+        })?;
+        let Some(feet) = feet else {
+            return Ok(None);
+        };
+        decode_position(&feet, time.as_deref())
+            .map(Some)
+            .ok_or_else(|| StoreError::corrupt("player position", show_raw(key)))
     }
 }
 

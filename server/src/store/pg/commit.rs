@@ -190,11 +190,12 @@ impl PgStore {
         };
         let encode = started.elapsed();
         let commit_sent = std::sync::atomic::AtomicBool::new(false);
+        let named = std::sync::OnceLock::new();
         let committed = self.pool.run_own(
             &self.commit_conn,
             "committing a batch",
             async |c: &mut Conn| {
-                c.batch("BEGIN").await.map_err(before_commit)?;
+                let _ = named.set(begin(c).await.map_err(before_commit)?);
                 let applying = Instant::now();
                 match write(c, &cols, fence.as_ref(), self.world_id.get()).await {
                     Ok(()) => {
@@ -214,27 +215,27 @@ impl PgStore {
                 }
             },
         );
-        // Timed out before COMMIT was sent (waiting on another node's row
-        // locks, say): the connection was closed, so nothing was written.
+        // COMMIT was sent and went unanswered: the connection ended (a
+        // node paused past its lease just then: the server ends a session
+        // idle in its transaction, COMMIT unread) or the wait timed out.
+        // PostgreSQL says how the transaction ended, once it has.
+        let unanswered = |e: StoreError| match named.get().map(|&x| self.outcome(x)) {
+            Some(Ok(Some(true))) => Ok((std::time::Duration::ZERO, std::time::Duration::ZERO)),
+            Some(Ok(Some(false))) => Err(StoreError::Uncommitted {
+                reason: format!("{e}; PostgreSQL rolled the transaction back"),
+            }),
+            _ => Err(e),
+        };
+        let sent = commit_sent.load(std::sync::atomic::Ordering::Acquire);
         let committed = match committed {
-            Err(e @ StoreError::PgTimeout { .. })
-                if !commit_sent.load(std::sync::atomic::Ordering::Acquire) =>
-            {
-                Err(StoreError::Uncommitted {
-                    reason: e.to_string(),
-                })
-            }
-            // COMMIT was sent and the connection ended before its answer
-            // (a node paused past its lease just then: the server ends a
-            // session idle in its transaction, COMMIT unread). The batch's
-            // first log row says whether the transaction took.
-            Err(StoreError::Postgres(e)) if e.is_closed() => match self.logged(cols.first_seq) {
-                Ok(true) => Ok((std::time::Duration::ZERO, std::time::Duration::ZERO)),
-                Ok(false) => Err(StoreError::Uncommitted {
-                    reason: format!("{e}; the log holds none of the batch"),
-                }),
-                Err(_) => Err(StoreError::Postgres(e)),
-            },
+            // Timed out before COMMIT was sent (waiting on another node's
+            // row locks, say): the connection was closed, so nothing was
+            // written.
+            Err(e @ StoreError::PgTimeout { .. }) if !sent => Err(StoreError::Uncommitted {
+                reason: e.to_string(),
+            }),
+            Err(e @ StoreError::PgTimeout { .. }) => unanswered(e),
+            Err(StoreError::Postgres(e)) if e.is_closed() => unanswered(StoreError::Postgres(e)),
             other => other,
         };
         if let (
@@ -258,17 +259,77 @@ impl PgStore {
     }
 }
 
+/// A commit's transaction as PostgreSQL names it: enough for another
+/// session to learn how it ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Xact {
+    /// `pg_current_xact_id()`: epoch and xid, never reused.
+    xid: u64,
+    /// The session's backend process.
+    pid: i32,
+}
+
+/// Opens the commit's transaction and names it, in the one round trip
+/// `BEGIN` took alone.
+async fn begin(c: &mut Conn) -> Result<Xact, StoreError> {
+    let row = c
+        .simple_row("BEGIN; SELECT pg_current_xact_id()::text, pg_backend_pid()::text")
+        .await?
+        .unwrap_or_default();
+    let field = |i: usize| row.get(i).cloned().flatten().unwrap_or_default();
+    match (field(0).parse(), field(1).parse()) {
+        (Ok(xid), Ok(pid)) => Ok(Xact { xid, pid }),
+        _ => {
+            c.batch("ROLLBACK").await?;
+            Err(StoreError::corrupt("transaction id", format!("{row:?}")))
+        }
+    }
+}
+
+/// Between looks at a transaction whose session is being ended.
+const OUTCOME_POLL: std::time::Duration = std::time::Duration::from_millis(20);
+
 impl PgStore {
-    /// Whether the edit log holds `seq`: a batch's transaction took when
-    /// its first entry is there (all of it or none is).
-    fn logged(&self, seq: i64) -> Result<bool, StoreError> {
-        self.pool
-            .run("checking a commit's outcome", async |c: &mut Conn| {
-                let row = c
-                    .query_opt("SELECT 1 FROM edit_log WHERE seq = $1", &[&seq])
-                    .await?;
-                Ok(row.is_some())
-            })
+    /// Whether `x`, whose COMMIT went unanswered, committed: `None` when
+    /// PostgreSQL cannot say (unreachable, or the transaction still in
+    /// progress after the statement timeout). Its session may still be
+    /// alive (the connection only looked dead from here, its COMMIT
+    /// unread or under way): that session is ended first, which rolls
+    /// back a transaction whose COMMIT never arrived and lets one under
+    /// way finish, so the answer cannot change afterwards (the log row a
+    /// look used to read could still appear after it was found missing).
+    fn outcome(&self, x: Xact) -> Result<Option<bool>, StoreError> {
+        let deadline = Instant::now() + self.pool.statement_timeout();
+        let xid = x.xid.to_string();
+        // pg_stat_activity shows the 32-bit xid, without the epoch.
+        let short = (x.xid & 0xffff_ffff).to_string();
+        loop {
+            let status = self
+                .pool
+                .run("reading a commit's outcome", async |c: &mut Conn| {
+                    let row = c
+                        .query_opt("SELECT pg_xact_status($1::text::xid8)", &[&xid])
+                        .await?;
+                    Ok(row.and_then(|r| r.get::<_, Option<String>>(0)))
+                })?;
+            match status.as_deref() {
+                Some("committed") => return Ok(Some(true)),
+                Some("aborted") => return Ok(Some(false)),
+                Some("in progress") if Instant::now() < deadline => {
+                    self.pool
+                        .run("ending a commit's session", async |c: &mut Conn| {
+                            c.query_opt(
+                                "SELECT pg_terminate_backend(pid) FROM pg_stat_activity \
+                                 WHERE pid = $1 AND backend_xid::text = $2",
+                                &[&x.pid, &short],
+                            )
+                            .await
+                        })?;
+                    std::thread::sleep(OUTCOME_POLL);
+                }
+                _ => return Ok(None),
+            }
+        }
     }
 }
 
@@ -480,10 +541,13 @@ mod tests {
     use crate::store::pg::pool::Pool;
     use crate::store::pg::PgConfig;
 
-    /// A commit whose COMMIT went unanswered is resolved by its first log
-    /// row: there, it took; absent, nothing of it was written.
+    /// A commit whose COMMIT went unanswered is resolved by PostgreSQL's
+    /// record of its transaction: committed, rolled back, or, while its
+    /// session still holds it open (the connection only looked dead from
+    /// here), rolled back by ending that session, which can then no
+    /// longer commit it.
     #[test]
-    fn a_commits_outcome_is_read_from_its_log_row() {
+    fn a_commits_outcome_is_read_from_its_transaction() {
         let Some(db) = strata_tests::postgres::database("pg_commit_outcome") else {
             return;
         };
@@ -491,16 +555,53 @@ mod tests {
             url: db.url(),
             ..PgConfig::default()
         };
-        let store = PgStore::open(&cfg, 8).unwrap();
-        store
-            .pool
-            .run("logging one entry", async |c: &mut Conn| {
-                c.batch("INSERT INTO edit_log (seq, entry) VALUES (5, '\\x00')")
-                    .await
+        // The store waits 3 s at most; the open transaction's session is
+        // never ended by the server on its own meanwhile.
+        let store = PgStore::open(
+            &PgConfig {
+                statement_timeout_ms: 3_000,
+                ..cfg.clone()
+            },
+            8,
+        )
+        .unwrap();
+        let other = Pool::open_idle(&cfg, Duration::from_secs(600)).unwrap();
+        let log = |seq: i64, end: &'static str| {
+            other
+                .run("logging one entry", async move |c: &mut Conn| {
+                    let x = begin(c).await?;
+                    c.batch(&format!(
+                        "INSERT INTO edit_log (seq, entry) VALUES ({seq}, '\\x00'); {end}"
+                    ))
+                    .await?;
+                    Ok(x)
+                })
+                .unwrap()
+        };
+        assert_eq!(store.outcome(log(5, "COMMIT")).unwrap(), Some(true));
+        assert_eq!(store.outcome(log(6, "ROLLBACK")).unwrap(), Some(false));
+        let (mut open, x) = other
+            .dedicated("an open transaction", async |c: &mut Conn| {
+                let x = begin(c).await?;
+                c.batch("INSERT INTO edit_log (seq, entry) VALUES (7, '\\x00')")
+                    .await?;
+                Ok(x)
             })
             .unwrap();
-        assert!(store.logged(5).unwrap());
-        assert!(!store.logged(6).unwrap());
+        assert_eq!(store.outcome(x).unwrap(), Some(false));
+        let late = other.on_dedicated(&mut open, "committing late", async |c: &mut Conn| {
+            c.batch("COMMIT").await
+        });
+        assert!(late.is_err(), "{late:?}");
+        let logged = other
+            .run("reading the log", async |c: &mut Conn| {
+                let rows = c
+                    .query("SELECT seq FROM edit_log ORDER BY seq", &[])
+                    .await?;
+                Ok(rows.iter().map(|r| r.get::<_, i64>(0)).collect::<Vec<_>>())
+            })
+            .unwrap();
+        assert_eq!(logged, [5]);
     }
 
     #[test]

@@ -63,9 +63,23 @@ impl Conn {
     /// The first column of the first row of a statement built at run
     /// time (simple protocol: nothing is prepared or cached).
     pub async fn simple_value(&mut self, sql: &str) -> Result<Option<String>, StoreError> {
+        Ok(self
+            .simple_row(sql)
+            .await?
+            .and_then(|r| r.into_iter().next().flatten()))
+    }
+
+    /// The columns of the first row the statements return, as text, in
+    /// one round trip (simple protocol).
+    pub async fn simple_row(
+        &mut self,
+        sql: &str,
+    ) -> Result<Option<Vec<Option<String>>>, StoreError> {
         for m in self.client.simple_query(sql).await? {
             if let tokio_postgres::SimpleQueryMessage::Row(r) = m {
-                return Ok(r.get(0).map(str::to_string));
+                return Ok(Some(
+                    (0..r.len()).map(|i| r.get(i).map(str::to_string)).collect(),
+                ));
             }
         }
         Ok(None)
@@ -148,6 +162,11 @@ impl Pool {
         let first = pool.take()?;
         pool.give(Some(first));
         Ok(pool)
+    }
+
+    /// The statement timeout every connection runs under.
+    pub fn statement_timeout(&self) -> Duration {
+        self.statement_timeout
     }
 
     /// One call on a pooled connection, under the statement timeout. A
