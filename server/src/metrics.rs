@@ -320,7 +320,10 @@ pub const CONNECTION_DEADLINE: std::time::Duration = std::time::Duration::from_s
 
 /// Serves `GET /metrics` (Prometheus text) and `GET /healthz` (200 `ready`,
 /// or 503 with the reason) until the task is dropped, on at most
-/// `max_connections` connections at once.
+/// `max_connections` connections at once. When every one is taken, a new
+/// connection closes the oldest that is silent between requests (or has
+/// been sending one for over a second): connections opened and left
+/// silent cannot keep a readiness probe out until their deadline.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     max_connections: usize,
@@ -344,7 +347,8 @@ pub async fn serve(
         crate::console::Deadlines {
             idle: CONNECTION_DEADLINE,
             request: CONNECTION_DEADLINE,
-            unadmitted: None,
+            // No request here is ever admitted: each may be closed alike.
+            unadmitted: Some(CONNECTION_DEADLINE),
         },
     );
     if let Err(e) = axum::serve(limited, app).await {
@@ -418,24 +422,61 @@ mod tests {
         server.abort();
     }
 
+    /// A connection sending a request keeps its slot for a second at
+    /// least; a silent one, or one trickling a request for longer, makes
+    /// room for a new one: a readiness probe is answered while silent
+    /// connections hold every slot.
     #[tokio::test]
-    async fn the_endpoint_holds_at_most_its_connections() {
+    async fn the_endpoint_holds_at_most_its_connections_silent_ones_make_room() {
+        let handle = PrometheusBuilder::new().build_recorder().handle();
         let listener = bind("127.0.0.1:0".parse().unwrap()).await.unwrap();
         let addr = listener.local_addr().unwrap();
-        let handle = PrometheusBuilder::new().build_recorder().handle();
-        let server = tokio::spawn(serve(listener, 1, handle, Arc::new(Health::default())));
-        let idle = tokio::net::TcpStream::connect(addr).await.unwrap();
-        // Let the server take the idle one first: it holds the only slot.
+        let server = tokio::spawn(serve(listener, 2, handle.clone(), Arc::default()));
+        let connect = || tokio::net::TcpStream::connect(addr);
+        let (mut silent, mut trickling) = (connect().await.unwrap(), connect().await.unwrap());
+        trickling
+            .write_all(b"GET /metrics HTTP/1.1\r\n")
+            .await
+            .unwrap();
+        // Let the server take both first: they hold the two slots.
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+        let r = tokio::time::timeout(std::time::Duration::from_secs(5), get(addr, "/healthz"))
+            .await
+            .expect("answered past a silent connection");
+        assert!(r.starts_with("HTTP/1.1 503"), "{r}");
+        let mut buf = [0u8; 64];
+        assert_eq!(
+            silent.read(&mut buf).await.unwrap_or(0),
+            0,
+            "silent one closed"
+        );
+        drop(trickling);
+        server.abort();
+
+        // One slot, held by a request being sent: the next waits for its
+        // grace, then takes it.
+        let listener = bind("127.0.0.1:0".parse().unwrap()).await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let server = tokio::spawn(serve(listener, 1, handle, Arc::default()));
+        let mut trickling = tokio::net::TcpStream::connect(addr).await.unwrap();
+        trickling
+            .write_all(b"GET /metrics HTTP/1.1\r\n")
+            .await
+            .unwrap();
         tokio::time::sleep(std::time::Duration::from_millis(100)).await;
         let waiting = tokio::spawn(get(addr, "/metrics"));
         tokio::time::sleep(std::time::Duration::from_millis(300)).await;
         assert!(!waiting.is_finished(), "served beyond the cap");
-        drop(idle);
         let r = tokio::time::timeout(std::time::Duration::from_secs(10), waiting)
             .await
-            .expect("served once the slot is free")
+            .expect("served once the request's grace is over")
             .unwrap();
         assert!(r.starts_with("HTTP/1.1 200"), "{r}");
+        assert_eq!(
+            trickling.read(&mut buf).await.unwrap_or(0),
+            0,
+            "trickler closed"
+        );
         server.abort();
     }
 }

@@ -11,7 +11,8 @@
 //! full socket too, so a client that sends requests but never reads the
 //! answers cannot keep a slot.
 //!
-//! With [`Deadlines::unadmitted`] set (the console), a connection is
+//! With [`Deadlines::unadmitted`] set (the console; the metrics listener,
+//! which admits none, so each of its connections may be closed alike), a connection is
 //! unadmitted until a request on it passed the token check
 //! ([`ConnState::admit`]): it may stay silent only that long, and when
 //! every slot is taken a new connection closes the oldest unadmitted one,
@@ -270,7 +271,7 @@ impl LimitedStream {
         if self.state.is_evicted() {
             return Err(io::Error::new(
                 io::ErrorKind::ConnectionAborted,
-                "console connection closed for a new one (never admitted)",
+                "connection closed for a new one (never admitted)",
             ));
         }
         if self.deadlines.unadmitted.is_some() {
