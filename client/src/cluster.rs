@@ -215,17 +215,10 @@ fn region_of(pos: ChunkPos, side: u32) -> (i32, i32) {
     (div(pos.x), div(pos.z))
 }
 
-/// The voxel an edit is routed by: its centre, box corner or origin.
+/// The voxel an edit is routed by: its centre, box corner or origin
+/// ([`Edit::anchor`], which the nodes use too).
 pub fn edit_anchor(edit: &Edit) -> VoxelPos {
-    let at = |c: FixedVec3| VoxelPos::new(c.x.floor_voxel(), c.y.floor_voxel(), c.z.floor_voxel());
-    match edit {
-        Edit::Mine { center, .. }
-        | Edit::Explode { center, .. }
-        | Edit::Build { center, .. }
-        | Edit::Smooth { center, .. } => at(*center),
-        Edit::FillBox { min, .. } | Edit::ClearBox { min, .. } => *min,
-        Edit::PlaceStructure { origin, .. } => *origin,
-    }
+    edit.anchor()
 }
 
 /// Voxels the feet must be past where a view asked for may reach before
@@ -939,10 +932,13 @@ impl ClusterClient {
     }
 
     /// What to make of node `to`'s answer to `edit`. One refused
-    /// `RegionElsewhere` naming another connected node (the region changed
-    /// hands since this client was told) is sent once more, there; naming
-    /// one not connected, the client starts joining it and returns the
-    /// refusal. One refused `NodeFull` (no node holds the region, and that
+    /// `RegionElsewhere` naming the edit's own region held by another
+    /// connected node (the region changed hands since this client was
+    /// told) is sent once more, there; naming one not connected, the
+    /// client starts joining it and returns the refusal. One naming
+    /// another region (the edit reaches across a border into it) is
+    /// returned: that node asked the holder to hand it over, so the edit
+    /// may pass when sent again a moment later. One refused `NodeFull` (no node holds the region, and that
     /// one may take no more) is sent to each other connected node in turn
     /// (one it cannot be sent to is passed over), until one answers
     /// otherwise; the one that accepts writes the region from then on (a
@@ -1015,6 +1011,12 @@ impl ClusterClient {
         if addr.is_empty() {
             return NextHop::Done;
         }
+        // Another region than the edit's own: the edit was at the right
+        // node, which asked the holder to hand that region over. The other
+        // node would refuse it too; sent here again later, it may pass.
+        let beside = self.view.region_chunks.is_some_and(|side| {
+            region_of(edit_anchor(edit).chunk(), side) != (*region_x, *region_z)
+        });
         let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
         let state = self.lookups();
         // Owed or not, only the edit sent again asks for this name again.
@@ -1026,6 +1028,9 @@ impl ClusterClient {
             return NextHop::Done;
         }
         self.view.routes.insert((*region_x, *region_z), there);
+        if beside {
+            return NextHop::Done;
+        }
         if !self.view.nodes.contains_key(&there) {
             // Not connected yet: joined in the background, the refusal
             // goes back to the caller (it may send the edit again).

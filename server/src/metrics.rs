@@ -85,8 +85,9 @@ pub const REGIONS_HELD: &str = "strata_cluster_regions_held";
 /// `max_held_regions`.
 pub const REGION_CLAIMS_REFUSED: &str = "strata_cluster_claims_refused_total";
 /// Regions let go by a cluster node's renewals, by `why`: `idle` (no edit
-/// in `[cluster] release_idle_ms`) or `cap` (past half of
-/// `max_held_regions`).
+/// in `[cluster] release_idle_ms`), `cap` (past half of
+/// `max_held_regions`) or `handoff` (another node asked for it, and no
+/// edit here in `handoff_idle_ms`).
 pub const REGIONS_RELEASED: &str = "strata_cluster_regions_released_total";
 pub const PREMESH_BUILT: &str = "strata_premesh_meshes_total";
 pub const PREMESH_STALE: &str = "strata_premesh_stale_total";
@@ -288,7 +289,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_counter!(
         REGIONS_RELEASED,
-        "Regions let go by this cluster node's renewals, by why (idle, cap)"
+        "Regions let go by this cluster node's renewals, by why (idle, cap, handoff)"
     );
     metrics::describe_counter!(PREMESH_BUILT, "Collision meshes built ahead of need");
     metrics::describe_counter!(PREMESH_STALE, "Background meshes dropped as outdated");
@@ -321,9 +322,10 @@ pub const CONNECTION_DEADLINE: std::time::Duration = std::time::Duration::from_s
 /// Serves `GET /metrics` (Prometheus text) and `GET /healthz` (200 `ready`,
 /// or 503 with the reason) until the task is dropped, on at most
 /// `max_connections` connections at once. When every one is taken, a new
-/// connection closes the oldest that is silent between requests (or has
-/// been sending one for over a second): connections opened and left
-/// silent cannot keep a readiness probe out until their deadline.
+/// connection closes the oldest past its grace (a second since it was
+/// accepted, since its last byte either way, or since a request it is
+/// still sending began): connections opened and left silent cannot keep a
+/// readiness probe out until their deadline.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     max_connections: usize,

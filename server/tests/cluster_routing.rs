@@ -330,6 +330,101 @@ async fn a_player_walks_into_another_nodes_region_and_keeps_playing() {
     .expect("within the test timeout");
 }
 
+/// An edit reaching across the border into a region another node holds
+/// is refused by the node it belongs to, which asks for that region (the
+/// client library does not send it on to the holder, which would refuse it
+/// too). The holder keeps the region while its player edits there, and
+/// hands it over once he has left it alone for `handoff_idle_ms`: the edit
+/// sent again is applied across the border, and the old holder names the
+/// new one to its player.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_edit_across_a_border_is_applied_once_the_quiet_side_hands_its_region_over() {
+    let Some(db) = strata_tests::postgres::database("cluster_handoff") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dirs = tempfile::tempdir().unwrap();
+        let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
+        let start = |dir: &Path, id: &str, x: i32| {
+            let mut cfg = node_config(dir, &db, (id, x), 5_000, 200);
+            if let Some(c) = cfg.cluster.as_mut() {
+                c.handoff_idle_ms = 800;
+            }
+            app::start(cfg)
+        };
+        let west = start(&da, "west", WEST_X).await.expect("node starts");
+        share_keys(&da, &db_dir);
+        let east = start(&db_dir, "east", EAST_X).await.expect("node starts");
+        let (bob, mut ann) = bob_east_ann_west(&west, &east).await;
+        let mut x = WEST_X;
+        while x < 250 {
+            x += 2;
+            ann.send_position(feet(x)).unwrap();
+            ann.follow().await.unwrap();
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        // Centred in region 0, reaching past x = 256 into region 1.
+        let across = mine_at(254);
+        let refused = |v: &Verdict| {
+            matches!(v, Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere {
+                region_x: 1, region_z: 0, owner, ..
+            }) if owner == "east")
+        };
+        let epoch = || {
+            sql(
+                &db,
+                "SELECT epoch FROM regions WHERE region_x = 1 AND region_z = 0",
+            )
+        };
+        let before = epoch().await;
+        for i in 0..6 {
+            let (v, _) = bob.edit_acked(mine_at(EAST_X + 2 + i % 2)).await.unwrap();
+            assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+            let (to, (v, _)) = ann.edit(across.clone()).await.unwrap();
+            assert_eq!(to, west.addr, "sent on to the holder");
+            assert!(refused(&v), "while bob edits there: {v:?}");
+            tokio::time::sleep(Duration::from_millis(250)).await;
+        }
+        assert_eq!(epoch().await, before, "region 1 changed hands while in use");
+        let mut applied = None;
+        // Within her edit rate (5 a second).
+        for _ in 0..60 {
+            let (to, (v, changes)) = ann.edit(across.clone()).await.unwrap();
+            assert_eq!(to, west.addr);
+            if matches!(v, Verdict::Accepted { .. }) {
+                applied = Some(changes);
+                break;
+            }
+            assert!(refused(&v), "{v:?}");
+            tokio::time::sleep(Duration::from_millis(300)).await;
+        }
+        let changes = applied.expect("the quiet region was handed over");
+        let side = strata_server::sequencer::regions::DEFAULT_REGION_CHUNKS as i32;
+        assert!(
+            changes.iter().any(|c| c.pos.x >= side),
+            "no change in region 1: {changes:?}"
+        );
+        let (v, _) = bob.edit_acked(mine_at(EAST_X + 2)).await.unwrap();
+        assert!(
+            matches!(&v, Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere {
+                region_x: 1, owner, ..
+            }) if owner == "west"),
+            "{v:?}"
+        );
+        for (addr, c) in ann.nodes() {
+            assert!(!c.is_closed(), "ann's connection to {addr} closed");
+            assert_in_order(&format!("ann@{addr}"), c);
+        }
+        assert_in_order("bob", &bob);
+        bob.close().await;
+        ann.close().await;
+        east.shutdown().await.unwrap();
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bots_refused_for_another_nodes_region_move_there_and_keep_editing() {
     use strata_client_sim::bots::{self, BotsConfig, Profile, Tokens, VerifyMode};

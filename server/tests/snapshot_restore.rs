@@ -902,6 +902,7 @@ fn a_server_with_a_migration_pending_says_a_restore_is_running_at_once() {
         "DROP TABLE nodes; ALTER TABLE players DROP COLUMN known_ms; \
          ALTER TABLE world DROP COLUMN generation; \
          ALTER TABLE seq_blocks DROP COLUMN pruned_to; \
+         ALTER TABLE regions DROP COLUMN wanted_by, DROP COLUMN wanted_at; \
          DELETE FROM schema_migrations WHERE version >= 8",
     );
     // A forced restore's transaction: the lock alone, the tables locked.

@@ -444,6 +444,71 @@ fn a_region_idle_for_release_idle_ms_is_let_go_for_any_node_to_claim() {
     assert_eq!(b.leases().unwrap().held().len(), 1);
 }
 
+/// A region another node asks for (an edit of its own reaches into it)
+/// is handed over once this node's edits have left it alone for
+/// `handoff_idle_ms`: one in use is kept until then, the asker's claim
+/// clears the ask, an ask older than a lease counts for nothing, and a
+/// node asks for a region at most once a renewal period.
+#[test]
+fn a_region_asked_for_is_handed_over_once_left_alone() {
+    let Some(db) = database("lease_handoff") else {
+        return;
+    };
+    let cfg = |id: &str| ClusterConfig {
+        node_id: id.into(),
+        lease_ms: 60_000,
+        renew_ms: 10_000,
+        adopt: false,
+        handoff_idle_ms: 300,
+        ..ClusterConfig::default()
+    };
+    let (a, b) = (open_node(&db, &cfg("a")), open_node(&db, &cfg("b")));
+    let (busy, quiet) = (region(0, 0), region(1, 0));
+    for r in [busy, quiet] {
+        granted(&a, r);
+    }
+    a.take_fresh_regions();
+    let quiet_for = Duration::from_millis(400);
+    std::thread::sleep(quiet_for);
+    assert!(a.hand_over_regions().unwrap().is_empty(), "nobody asked");
+    let wanted = || {
+        sql(
+            &db,
+            "SELECT wanted_by FROM regions ORDER BY region_x, region_z",
+        )
+    };
+    b.want_regions(&regions(&[busy, quiet])).unwrap();
+    assert_eq!(wanted(), ["b", "b"]);
+
+    granted(&a, busy);
+    assert_eq!(a.hand_over_regions().unwrap(), [quiet], "the busy one kept");
+    assert!(a.take_fresh_regions().contains(&(quiet, None)));
+    assert!(!a.leases().unwrap().held().contains_key(&quiet));
+    granted(&b, quiet);
+    assert_eq!(wanted(), ["b"], "the claim cleared the ask");
+    std::thread::sleep(quiet_for);
+    assert_eq!(a.hand_over_regions().unwrap(), [busy]);
+    granted(&b, busy);
+
+    // Node a takes nothing back by asking twice within a renewal period.
+    a.want_regions(&regions(&[busy])).unwrap();
+    sql(&db, "UPDATE regions SET wanted_by = NULL, wanted_at = NULL");
+    a.want_regions(&regions(&[busy])).unwrap();
+    assert!(wanted().is_empty(), "asked again within a renewal period");
+    // An ask older than a lease is not acted on.
+    sql(
+        &db,
+        "UPDATE regions SET wanted_by = 'a', wanted_at = now() - interval '2 minutes' \
+         WHERE region_x = 0 AND region_z = 0",
+    );
+    std::thread::sleep(quiet_for);
+    assert!(
+        b.hand_over_regions().unwrap().is_empty(),
+        "a stale ask acted on"
+    );
+    assert_eq!(b.leases().unwrap().held().len(), 2);
+}
+
 #[test]
 fn a_region_another_node_holds_is_not_written() {
     let Some(db) = database("lease_live_other") else {

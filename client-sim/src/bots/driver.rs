@@ -696,8 +696,9 @@ impl Bot {
                 } = &reason
                 {
                     // Only for the region the bot stands in: an edit across
-                    // two nodes' regions is refused by both, and the bot
-                    // would bounce between them.
+                    // a border is refused by its own region's node until the
+                    // other hands its region over, and the other node would
+                    // refuse it too.
                     let side = self.fleet.cfg.region_chunks.max(1) as i32;
                     let here = self.walker.as_ref().map(|w| {
                         let c = w.chunk();

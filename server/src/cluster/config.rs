@@ -30,6 +30,14 @@ pub const MAX_HELD_REGIONS_CAP: usize = 1 << 20;
 pub const DEFAULT_RELEASE_IDLE_MS: u64 = 600_000;
 /// Longest allowed `release_idle_ms` (a week).
 pub const MAX_RELEASE_IDLE_MS: u64 = 7 * 24 * 3_600_000;
+/// How long this node's players must leave a region unedited before the
+/// node hands it to another node that asked for it (an edit there reached
+/// across the border into it): a border edit waits that long at most
+/// while the other side is quiet, and a region busy on both sides does not
+/// change hands back and forth faster.
+pub const DEFAULT_HANDOFF_IDLE_MS: u64 = 3_000;
+/// Longest allowed `handoff_idle_ms`.
+pub const MAX_HANDOFF_IDLE_MS: u64 = 3_600_000;
 /// Players' stored positions read at once by logins (each read holds one
 /// of the store's `[store.postgres] max_connections`, 8 by default): well
 /// under the pool, so a login storm leaves commits, chunk loads and
@@ -76,6 +84,10 @@ pub struct ClusterConfig {
     /// See [`DEFAULT_RELEASE_IDLE_MS`]; 0 keeps every region until
     /// `max_held_regions` presses, else at least `lease_ms`.
     pub release_idle_ms: u64,
+    /// See [`DEFAULT_HANDOFF_IDLE_MS`]; 0 never hands a region over (an
+    /// edit reaching into another node's region is then refused for as
+    /// long as that node holds it).
+    pub handoff_idle_ms: u64,
     /// Logins reading their player's stored position at once (see
     /// [`DEFAULT_POSITION_READS`]); the others wait their turn. At least
     /// 1, and below `[store.postgres] max_connections`.
@@ -96,6 +108,7 @@ impl Default for ClusterConfig {
             adopt: true,
             max_held_regions: DEFAULT_MAX_HELD_REGIONS,
             release_idle_ms: DEFAULT_RELEASE_IDLE_MS,
+            handoff_idle_ms: DEFAULT_HANDOFF_IDLE_MS,
             position_reads: DEFAULT_POSITION_READS,
             position_read_ms: DEFAULT_POSITION_READ_MS,
         }
@@ -154,6 +167,12 @@ impl ClusterConfig {
                 ),
             ));
         }
+        within(
+            "cluster.handoff_idle_ms",
+            self.handoff_idle_ms,
+            0,
+            MAX_HANDOFF_IDLE_MS,
+        )?;
         within(
             "cluster.position_reads",
             self.position_reads,

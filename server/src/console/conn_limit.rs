@@ -15,8 +15,10 @@
 //! which admits none, so each of its connections may be closed alike), a connection is
 //! unadmitted until a request on it passed the token check
 //! ([`ConnState::admit`]): it may stay silent only that long, and when
-//! every slot is taken a new connection closes the oldest unadmitted one,
-//! so anonymous connections can never lock the operators out. An
+//! every slot is taken a new connection closes the oldest unadmitted one
+//! past its grace ([`REQUEST_GRACE`] from its acceptance, its last byte
+//! either way, or the start of a request it is still sending), so
+//! anonymous connections can never lock the operators out. An
 //! admission lasts only while the token that made it stays good
 //! (unexpired, unrevoked, its admin not banned): with no unadmitted
 //! connection to close, a new one closes those whose admission lapsed, so
@@ -37,9 +39,11 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tokio::time::{Instant, Sleep};
 
-/// How long an unadmitted connection that is sending a request is safe
-/// from eviction: an operator's new connection gets this long to deliver
-/// its token while anonymous ones crowd in.
+/// How long an unadmitted connection is safe from eviction after it was
+/// accepted, while it sends a request, and after its last byte moved
+/// either way: an operator's (or a readiness probe's) new connection gets
+/// this long to deliver its request while anonymous ones crowd in, and an
+/// answer still being written is not cut off.
 const REQUEST_GRACE: Duration = Duration::from_secs(1);
 
 /// Pause after a failed accept (e.g. out of file descriptors).
@@ -78,6 +82,8 @@ pub struct ConnState {
     still: Mutex<Option<StillGood>>,
     /// When the request being received began, while one is.
     request_since: Mutex<Option<Instant>>,
+    /// When it was accepted, or a byte last moved either way.
+    active_at: Mutex<Option<Instant>>,
 }
 
 impl std::fmt::Debug for ConnState {
@@ -100,12 +106,29 @@ impl ConnState {
     }
 
     /// Whether it may be closed for a new connection now: never admitted,
-    /// and silent between requests, or sending one for over
-    /// [`REQUEST_GRACE`].
+    /// and sending a request for over [`REQUEST_GRACE`], or between
+    /// requests with nothing moved either way (nor accepted) for as long.
     fn evictable(&self, now: Instant) -> bool {
         let since = *self.request_since.lock().unwrap_or_else(|p| p.into_inner());
+        let active = *self.active_at.lock().unwrap_or_else(|p| p.into_inner());
+        let past = |t: Option<Instant>| t.is_none_or(|t| now.duration_since(t) >= REQUEST_GRACE);
         self.state.load(Ordering::Acquire) == NEW
-            && since.is_none_or(|t| now.duration_since(t) >= REQUEST_GRACE)
+            && match since {
+                Some(_) => past(since),
+                None => past(active),
+            }
+    }
+
+    fn set_active(&self, at: Instant) {
+        *self.active_at.lock().unwrap_or_else(|p| p.into_inner()) = Some(at);
+    }
+
+    /// Whether a request on it is being received.
+    fn is_sending(&self) -> bool {
+        self.request_since
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .is_some()
     }
 
     fn set_request_since(&self, since: Option<Instant>) {
@@ -209,12 +232,16 @@ impl LimitedListener {
         }
     }
 
-    /// Closes the oldest evictable unadmitted connection, or with none,
-    /// every one whose admission lapsed.
+    /// Closes the oldest evictable unadmitted connection, silent ones
+    /// before those still sending a request (an operator's slow one), or
+    /// with none, every one whose admission lapsed.
     fn evict_one(&self) {
         let now = Instant::now();
         let live = || self.conns.iter().filter_map(Weak::upgrade);
-        if !live().any(|c| c.evictable(now) && c.evict(NEW)) {
+        let evict = |sending: bool| {
+            live().any(|c| c.evictable(now) && c.is_sending() == sending && c.evict(NEW))
+        };
+        if !evict(false) && !evict(true) {
             for c in live() {
                 c.evict_if_lapsed();
             }
@@ -253,11 +280,13 @@ impl LimitedStream {
         let idle = deadlines
             .unadmitted
             .map_or(deadlines.idle, |u| u.min(deadlines.idle));
+        let state = ConnState::default();
+        state.set_active(now);
         Self {
             stream,
             _slot: slot,
             deadlines,
-            state: Arc::new(ConnState::default()),
+            state: Arc::new(state),
             last_active: now,
             request_since: None,
             deadline: Box::pin(tokio::time::sleep_until(now + idle)),
@@ -295,9 +324,9 @@ impl LimitedStream {
             Poll::Ready(()) => Err(io::Error::new(
                 io::ErrorKind::TimedOut,
                 if request == Some(due) {
-                    "console request too slow"
+                    "request too slow"
                 } else {
-                    "console connection idle"
+                    "connection idle"
                 },
             )),
             Poll::Pending => Ok(()),
@@ -338,7 +367,7 @@ impl axum::serve::Listener for LimitedListener {
                     return (conn, addr);
                 }
                 Err(e) => {
-                    tracing::debug!(error = %e, "console accept failed");
+                    tracing::debug!(error = %e, "accept failed");
                     tokio::time::sleep(ACCEPT_RETRY).await;
                 }
             }
@@ -365,6 +394,9 @@ impl AsyncRead for LimitedStream {
                 if buf.filled().len() > before {
                     let now = Instant::now();
                     self.last_active = now;
+                    if self.deadlines.unadmitted.is_some() {
+                        self.state.set_active(now);
+                    }
                     if self.request_since.is_none() {
                         self.request_since = Some(now);
                         self.state.set_request_since(Some(now));
@@ -390,7 +422,11 @@ impl AsyncWrite for LimitedStream {
         let r = Pin::new(&mut self.stream).poll_write(cx, buf);
         match r {
             Poll::Ready(Ok(n)) if n > 0 => {
-                self.last_active = Instant::now();
+                let now = Instant::now();
+                self.last_active = now;
+                if self.deadlines.unadmitted.is_some() {
+                    self.state.set_active(now);
+                }
                 // Answered: the next byte read starts the next request.
                 if self.request_since.take().is_some() {
                     self.state.set_request_since(None);
@@ -412,5 +448,41 @@ impl AsyncWrite for LimitedStream {
 
     fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
         Pin::new(&mut self.stream).poll_shutdown(cx)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A connection never admitted may be closed for a new one only past
+    /// its grace: not just accepted (a probe not read yet), not while an
+    /// answer is being written to it, and not in the first second of a
+    /// request; a request trickled for longer may be.
+    #[test]
+    fn an_unadmitted_connection_is_evictable_only_past_its_grace() {
+        let c = ConnState::default();
+        let t0 = Instant::now();
+        c.set_active(t0);
+        assert!(!c.evictable(t0 + REQUEST_GRACE / 2), "just accepted");
+        assert!(c.evictable(t0 + REQUEST_GRACE), "silent since accepted");
+        // A request begins, and trickles on past the grace.
+        let t1 = t0 + REQUEST_GRACE * 2;
+        c.set_request_since(Some(t1));
+        c.set_active(t1);
+        assert!(!c.evictable(t1 + REQUEST_GRACE / 2));
+        c.set_active(t1 + REQUEST_GRACE);
+        assert!(c.evictable(t1 + REQUEST_GRACE), "trickling past its grace");
+        // Answered: writing keeps it.
+        let t2 = t1 + REQUEST_GRACE * 2;
+        c.set_request_since(None);
+        c.set_active(t2);
+        assert!(
+            !c.evictable(t2 + REQUEST_GRACE / 2),
+            "an answer being written"
+        );
+        assert!(c.evictable(t2 + REQUEST_GRACE));
+        c.admit(Box::new(|| true));
+        assert!(!c.evictable(t2 + REQUEST_GRACE * 9), "admitted");
     }
 }

@@ -122,7 +122,8 @@ impl Engine {
                 return Err(RejectReason::Busy);
             }
         };
-        let (mut free, mut held) = (BTreeSet::new(), BTreeSet::new());
+        let anchor = RegionId::of(edit.anchor().chunk(), side);
+        let (mut free, mut held, mut elsewhere) = (BTreeSet::new(), BTreeSet::new(), Vec::new());
         for (r, h) in holders {
             match h {
                 RegionHolder::Here => {
@@ -131,16 +132,25 @@ impl Engine {
                 RegionHolder::Free => {
                     free.insert(r);
                 }
-                RegionHolder::Node { owner, addr } => {
-                    let reason = RejectReason::RegionElsewhere {
-                        region_x: r.x,
-                        region_z: r.z,
-                        owner,
-                        addr,
-                    };
-                    return Err(self.seq.charge_refusal(session, reason, now));
-                }
+                RegionHolder::Node { owner, addr } => elsewhere.push((r, owner, addr)),
             }
+        }
+        // The edit's own region first: its holder is where to send it.
+        elsewhere.sort_by_key(|(r, ..)| *r != anchor);
+        if let Some((r, owner, addr)) = elsewhere.first().cloned() {
+            if r != anchor {
+                // The edit is this node's to apply: the regions it reaches
+                // into are asked for.
+                let asked: BTreeSet<RegionId> = elsewhere.iter().map(|(r, ..)| *r).collect();
+                self.want_regions(&asked);
+            }
+            let reason = RejectReason::RegionElsewhere {
+                region_x: r.x,
+                region_z: r.z,
+                owner,
+                addr,
+            };
+            return Err(self.seq.charge_refusal(session, reason, now));
         }
         let room = self
             .store
@@ -164,8 +174,13 @@ impl Engine {
         // Held (marked in use), or more than this node may claim: the
         // store answers now, and claims nothing at capacity.
         let access = self.store.acquire_regions(&regions);
-        if let Err(e) = &access {
-            self.store_failed(e);
+        match &access {
+            Err(e) => self.store_failed(e),
+            // Taken by another node since the holders were read.
+            Ok(RegionAccess::Elsewhere { region, .. }) if *region != anchor => {
+                self.want_regions(&BTreeSet::from([*region]));
+            }
+            Ok(_) => {}
         }
         self.take_fresh_regions();
         // Held, but not reloaded yet (a failed reload waits for its
@@ -179,6 +194,15 @@ impl Engine {
             Ok(()) => Ok(None),
             Err((reason, true)) => Err(self.seq.charge_refusal(session, reason, now)),
             Err((reason, false)) => Err(reason),
+        }
+    }
+
+    /// Asks the nodes holding `regions` to hand them over (an edit whose
+    /// own region is held here or free reaches into them).
+    fn want_regions(&mut self, regions: &BTreeSet<RegionId>) {
+        if let Err(e) = self.store.want_regions(regions) {
+            self.store_failed(&e);
+            crate::log_every::store_error("regions", "asking for regions failed", &e);
         }
     }
 

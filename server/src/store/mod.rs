@@ -342,6 +342,13 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(RegionAccess::Granted)
     }
 
+    /// Asks the nodes holding `regions` to hand them over (a cluster node
+    /// whose edit reaches into them); they do once their own edits left
+    /// them alone for `[cluster] handoff_idle_ms`. Alone: nothing.
+    fn want_regions(&self, _regions: &BTreeSet<RegionId>) -> Result<(), StoreError> {
+        Ok(())
+    }
+
     /// Marks the store as one a running server uses, for as long as it is
     /// open: on PostgreSQL a forced restore then refuses the database, and
     /// a forced restore in progress refuses the server. The server calls it once,

@@ -114,6 +114,21 @@ impl EditKind {
 }
 
 impl Edit {
+    /// The voxel an edit belongs to: its centre, box corner or origin. A
+    /// cluster routes it to the node writing this voxel's region.
+    pub fn anchor(&self) -> VoxelPos {
+        let at =
+            |c: FixedVec3| VoxelPos::new(c.x.floor_voxel(), c.y.floor_voxel(), c.z.floor_voxel());
+        match self {
+            Edit::Mine { center, .. }
+            | Edit::Explode { center, .. }
+            | Edit::Build { center, .. }
+            | Edit::Smooth { center, .. } => at(*center),
+            Edit::FillBox { min, .. } | Edit::ClearBox { min, .. } => *min,
+            Edit::PlaceStructure { origin, .. } => *origin,
+        }
+    }
+
     pub fn kind(&self) -> EditKind {
         match self {
             Edit::Mine { .. } => EditKind::Mine,

@@ -219,7 +219,8 @@ impl PgStore {
         // node paused past its lease just then: the server ends a session
         // idle in its transaction, COMMIT unread) or the wait timed out.
         // PostgreSQL says how the transaction ended, once it has.
-        let unanswered = |e: StoreError| match named.get().map(|&x| self.outcome(x)) {
+        let unanswered = |e: StoreError| match named.get().map(|&x| self.outcome(x, cols.first_seq))
+        {
             Some(Ok(Some(true))) => Ok((std::time::Duration::ZERO, std::time::Duration::ZERO)),
             Some(Ok(Some(false))) => Err(StoreError::Uncommitted {
                 reason: format!("{e}; PostgreSQL rolled the transaction back"),
@@ -235,7 +236,10 @@ impl PgStore {
                 reason: e.to_string(),
             }),
             Err(e @ StoreError::PgTimeout { .. }) => unanswered(e),
-            Err(StoreError::Postgres(e)) if e.is_closed() => unanswered(StoreError::Postgres(e)),
+            // The connection closed, or an error came back (the session
+            // ended by the server before it read COMMIT, say): PostgreSQL's
+            // record says which.
+            Err(e @ StoreError::Postgres(_)) if sent => unanswered(e),
             other => other,
         };
         if let (
@@ -289,43 +293,70 @@ async fn begin(c: &mut Conn) -> Result<Xact, StoreError> {
 /// Between looks at a transaction whose session is being ended.
 const OUTCOME_POLL: std::time::Duration = std::time::Duration::from_millis(20);
 
+/// How PostgreSQL records transaction `xid`: `committed`, `aborted`,
+/// `in progress`, or `None` (too old, or never handed out).
+async fn xact_status(c: &mut Conn, xid: &str) -> Result<Option<String>, StoreError> {
+    let row = c
+        .query_opt("SELECT pg_xact_status($1::text::xid8)", &[&xid])
+        .await?;
+    Ok(row.and_then(|r| r.get::<_, Option<String>>(0)))
+}
+
 impl PgStore {
-    /// Whether `x`, whose COMMIT went unanswered, committed: `None` when
-    /// PostgreSQL cannot say (unreachable, or the transaction still in
-    /// progress after the statement timeout). Its session may still be
-    /// alive (the connection only looked dead from here, its COMMIT
-    /// unread or under way): that session is ended first, which rolls
-    /// back a transaction whose COMMIT never arrived and lets one under
-    /// way finish, so the answer cannot change afterwards (the log row a
-    /// look used to read could still appear after it was found missing).
-    fn outcome(&self, x: Xact) -> Result<Option<bool>, StoreError> {
+    /// Whether `x`, whose COMMIT went unanswered, committed the batch
+    /// whose first seq is `first_seq`: `None` when PostgreSQL cannot say
+    /// (unreachable, or the transaction still in progress after the
+    /// statement timeout). Its session may still be alive (the connection
+    /// only looked dead from here, its COMMIT unread or under way): that
+    /// session is ended first, which rolls back a transaction whose COMMIT
+    /// never arrived and lets one under way finish, so the answer cannot
+    /// change afterwards (the log row a look used to read could still
+    /// appear after it was found missing). On a connection of its own:
+    /// the pool's may all be lent out.
+    fn outcome(&self, x: Xact, first_seq: i64) -> Result<Option<bool>, StoreError> {
         let deadline = Instant::now() + self.pool.statement_timeout();
         let xid = x.xid.to_string();
         // pg_stat_activity shows the 32-bit xid, without the epoch.
         let short = (x.xid & 0xffff_ffff).to_string();
+        let what = "reading a commit's outcome";
+        let (mut conn, mut status) = self
+            .pool
+            .dedicated(what, async |c: &mut Conn| xact_status(c, &xid).await)?;
         loop {
-            let status = self
-                .pool
-                .run("reading a commit's outcome", async |c: &mut Conn| {
-                    let row = c
-                        .query_opt("SELECT pg_xact_status($1::text::xid8)", &[&xid])
-                        .await?;
-                    Ok(row.and_then(|r| r.get::<_, Option<String>>(0)))
-                })?;
             match status.as_deref() {
-                Some("committed") => return Ok(Some(true)),
+                // A server that lost the transaction (a crash before its
+                // WAL reached the disk) may have handed its id out again:
+                // the batch's own log row tells, now that nothing can add it.
+                Some("committed") => {
+                    return self
+                        .pool
+                        .on_dedicated(&mut conn, what, async |c: &mut Conn| {
+                            let row = c
+                                .query_opt("SELECT 1 FROM edit_log WHERE seq = $1", &[&first_seq])
+                                .await?;
+                            Ok(Some(row.is_some()))
+                        });
+                }
                 Some("aborted") => return Ok(Some(false)),
                 Some("in progress") if Instant::now() < deadline => {
-                    self.pool
-                        .run("ending a commit's session", async |c: &mut Conn| {
+                    self.pool.on_dedicated(
+                        &mut conn,
+                        "ending a commit's session",
+                        async |c: &mut Conn| {
                             c.query_opt(
                                 "SELECT pg_terminate_backend(pid) FROM pg_stat_activity \
                                  WHERE pid = $1 AND backend_xid::text = $2",
                                 &[&x.pid, &short],
                             )
                             .await
-                        })?;
+                        },
+                    )?;
                     std::thread::sleep(OUTCOME_POLL);
+                    status = self
+                        .pool
+                        .on_dedicated(&mut conn, what, async |c: &mut Conn| {
+                            xact_status(c, &xid).await
+                        })?;
                 }
                 _ => return Ok(None),
             }
@@ -578,8 +609,11 @@ mod tests {
                 })
                 .unwrap()
         };
-        assert_eq!(store.outcome(log(5, "COMMIT")).unwrap(), Some(true));
-        assert_eq!(store.outcome(log(6, "ROLLBACK")).unwrap(), Some(false));
+        assert_eq!(store.outcome(log(5, "COMMIT"), 5).unwrap(), Some(true));
+        // Committed, but not the batch starting at seq 4: a transaction
+        // the server lost, whose id it handed out again.
+        assert_eq!(store.outcome(log(6, "COMMIT"), 4).unwrap(), Some(false));
+        assert_eq!(store.outcome(log(8, "ROLLBACK"), 8).unwrap(), Some(false));
         let (mut open, x) = other
             .dedicated("an open transaction", async |c: &mut Conn| {
                 let x = begin(c).await?;
@@ -588,7 +622,7 @@ mod tests {
                 Ok(x)
             })
             .unwrap();
-        assert_eq!(store.outcome(x).unwrap(), Some(false));
+        assert_eq!(store.outcome(x, 7).unwrap(), Some(false));
         let late = other.on_dedicated(&mut open, "committing late", async |c: &mut Conn| {
             c.batch("COMMIT").await
         });
@@ -601,7 +635,7 @@ mod tests {
                 Ok(rows.iter().map(|r| r.get::<_, i64>(0)).collect::<Vec<_>>())
             })
             .unwrap();
-        assert_eq!(logged, [5]);
+        assert_eq!(logged, [5, 6]);
     }
 
     #[test]

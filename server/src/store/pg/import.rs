@@ -291,7 +291,8 @@ impl ImportTarget for PgImport<'_> {
                 "TRUNCATE {EMPTIED_TABLES}; \
                  DELETE FROM blobs WHERE name <> '{ACCESS_BLOB}'; \
                  UPDATE regions SET owner = NULL, owner_addr = NULL, epoch = epoch + 1, \
-                     last_seq = 0, edits = 0, lease_expires = now()"
+                     last_seq = 0, edits = 0, lease_expires = now(), \
+                     wanted_by = NULL, wanted_at = NULL"
             ))
             .await
         })?;

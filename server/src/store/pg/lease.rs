@@ -24,6 +24,14 @@
 //! Each renewal releases the regions no edit asked for in `[cluster]
 //! release_idle_ms`, and a node holds at most `max_held_regions`: past
 //! half of it, those no edit asked for in a whole lease ([`release_idle`]).
+//!
+//! Handoffs: an edit this node must apply (its own region is held here or
+//! free) that reaches into a region another node holds asks that node for
+//! it ([`want`]: the row's `wanted_by`, at most once a renewal period per
+//! region). The holder lets the region go at its next renewal once its own
+//! edits have left it alone for `[cluster] handoff_idle_ms`
+//! ([`hand_over`]), and the edit sent again claims it. A claim clears the
+//! ask; an ask older than a lease is ignored.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -54,6 +62,8 @@ pub struct NodeLeases {
     max_held: usize,
     /// `[cluster] release_idle_ms`: `None` for 0 (never by time alone).
     release_idle: Option<Duration>,
+    /// `[cluster] handoff_idle_ms`: `None` for 0 (never hands over).
+    handoff_idle: Option<Duration>,
     /// Where clients reach this node (`[cluster] advertise`, or the bound
     /// address), written into the rows it claims.
     addr: Mutex<String>,
@@ -89,6 +99,8 @@ struct Book {
     elsewhere: BTreeMap<RegionId, (String, String, Instant)>,
     /// Regions seen free ([`holders`]), and until when to believe it.
     free: BTreeMap<RegionId, Instant>,
+    /// Other nodes' regions this node asked for ([`want`]), and when.
+    asked: BTreeMap<RegionId, Instant>,
     /// Held regions: until when their lease surely runs (from before the
     /// claim or the last renewal that kept it, plus `lease_ms`). Past it,
     /// with renewals failing (the database out of reach), another node
@@ -117,6 +129,8 @@ impl NodeLeases {
             max_held: cfg.max_held_regions.max(1),
             release_idle: (cfg.release_idle_ms > 0)
                 .then(|| Duration::from_millis(cfg.release_idle_ms.max(cfg.lease_ms))),
+            handoff_idle: (cfg.handoff_idle_ms > 0)
+                .then(|| Duration::from_millis(cfg.handoff_idle_ms)),
             addr: Mutex::new(cfg.advertise.clone()),
             floor: AtomicU64::new(0),
             numbering: std::sync::atomic::AtomicBool::new(false),
@@ -336,7 +350,8 @@ pub(super) fn claim(
              FROM unnest($1::int4[], $2::int4[]) AS u(x, z) ORDER BY x, z \
              ON CONFLICT (region_x, region_z) DO UPDATE \
              SET owner = EXCLUDED.owner, epoch = r.epoch + 1, owner_addr = EXCLUDED.owner_addr, \
-                 lease_expires = EXCLUDED.lease_expires, renewed_at = now() \
+                 lease_expires = EXCLUDED.lease_expires, renewed_at = now(), \
+                 wanted_by = NULL, wanted_at = NULL \
              WHERE r.owner IS NULL OR r.owner = EXCLUDED.owner OR r.lease_expires < now() \
              RETURNING region_x, region_z, epoch, last_seq",
             &[&xs, &zs, &leases.node_id, &leases.lease_ms, &addr],
@@ -412,7 +427,8 @@ pub(super) fn adopt(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
     let rows = pool.run("adopting regions", async |c: &mut Conn| {
         c.query(
             "UPDATE regions AS r SET owner = $1, owner_addr = $2, epoch = r.epoch + 1, \
-                 lease_expires = now() + $3::float8 * interval '1 millisecond', renewed_at = now() \
+                 lease_expires = now() + $3::float8 * interval '1 millisecond', renewed_at = now(), \
+                 wanted_by = NULL, wanted_at = NULL \
              FROM (SELECT region_x, region_z FROM regions \
                    WHERE owner IS NOT NULL AND owner <> $1 AND lease_expires < now() \
                      AND (region_x, region_z) NOT IN \
@@ -897,6 +913,114 @@ pub(super) fn release_idle(pool: &Pool, leases: &NodeLeases) -> Result<Vec<Regio
     Ok(gone.into_keys().collect())
 }
 
+/// Asks the holders of `regions` (other nodes') to hand them over: an edit
+/// this node must apply reaches into them. Each region is asked for at
+/// most once a renewal period; the ask lasts a lease.
+pub(super) fn want(
+    pool: &Pool,
+    leases: &NodeLeases,
+    regions: &BTreeSet<RegionId>,
+) -> Result<(), StoreError> {
+    leases.not_superseded()?;
+    let now = Instant::now();
+    let todo: Vec<RegionId> = {
+        let mut book = leases.book();
+        let todo: Vec<RegionId> = regions
+            .iter()
+            .filter(|r| {
+                !book.held.contains_key(r)
+                    && book
+                        .asked
+                        .get(r)
+                        .is_none_or(|at| now.saturating_duration_since(*at) >= leases.renew)
+            })
+            .copied()
+            .collect();
+        if book.asked.len() + todo.len() > MAX_CACHED_HOLDERS {
+            book.asked.clear();
+        }
+        for r in &todo {
+            book.asked.insert(*r, now);
+        }
+        todo
+    };
+    if todo.is_empty() {
+        return Ok(());
+    }
+    let (xs, zs) = columns(todo.iter());
+    pool.run("asking for regions", async |c: &mut Conn| {
+        c.execute(
+            "UPDATE regions AS r SET wanted_by = $3, wanted_at = now() \
+             FROM unnest($1::int4[], $2::int4[]) AS u(x, z) \
+             WHERE r.region_x = u.x AND r.region_z = u.z \
+               AND r.owner IS NOT NULL AND r.owner <> $3",
+            &[&xs, &zs, &leases.node_id],
+        )
+        .await
+    })?;
+    for r in &todo {
+        info!(node = %leases.node_id, region_x = r.x, region_z = r.z, "region asked for");
+    }
+    Ok(())
+}
+
+/// Lets go of the held regions another node asked for within a lease that
+/// this node's edits have left alone for `handoff_idle_ms` (they leave the
+/// book first, as in [`release_idle`]). Returns those handed over.
+pub(super) fn hand_over(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
+    let Some(quiet) = leases.handoff_idle else {
+        return Ok(Vec::new());
+    };
+    if leases.book().held.is_empty() {
+        return Ok(Vec::new());
+    }
+    let rows = pool.run("reading regions asked for", async |c: &mut Conn| {
+        c.query(
+            "SELECT region_x, region_z, wanted_by FROM regions \
+             WHERE owner = $1 AND wanted_by IS NOT NULL AND wanted_by <> $1 \
+               AND wanted_at > now() - $2::float8 * interval '1 millisecond'",
+            &[&leases.node_id, &leases.lease_ms],
+        )
+        .await
+    })?;
+    let now = Instant::now();
+    let mut to = BTreeMap::new();
+    let gone: BTreeMap<RegionId, u64> = {
+        let mut book = leases.book();
+        let mut gone = BTreeMap::new();
+        for row in rows {
+            let r = RegionId {
+                x: row.get(0),
+                z: row.get(1),
+            };
+            let busy = book
+                .used
+                .get(&r)
+                .is_some_and(|at| now.saturating_duration_since(*at) < quiet);
+            if busy {
+                continue;
+            }
+            if let Some(epoch) = book.held.remove(&r) {
+                book.used.remove(&r);
+                book.fresh.insert(r);
+                gone.insert(r, epoch);
+                to.insert(r, row.get::<_, String>(2));
+            }
+        }
+        gone
+    };
+    if gone.is_empty() {
+        return Ok(Vec::new());
+    }
+    metrics::counter!(crate::metrics::REGIONS_RELEASED, "why" => "handoff")
+        .increment(gone.len() as u64);
+    let_go(pool, leases, &gone)?;
+    for (r, asker) in &to {
+        info!(node = %leases.node_id, region_x = r.x, region_z = r.z, to = %asker, "region handed over");
+    }
+    Ok(gone.into_keys().collect())
+}
+
 /// A region as error messages and logs name it.
 pub(super) fn show(r: RegionId) -> String {
     format!("region ({}, {})", r.x, r.z)
@@ -945,6 +1069,10 @@ impl Renewer {
                     }
                     if let Err(e) = renew(&pool, &leases) {
                         warn!(error = %e, "renewing region leases failed; retrying");
+                        pass = pass.and(Err(e));
+                    }
+                    if let Err(e) = hand_over(&pool, &leases) {
+                        warn!(error = %e, "handing regions over failed");
                         pass = pass.and(Err(e));
                     }
                     if let Err(e) = release_idle(&pool, &leases) {
@@ -1069,6 +1197,13 @@ impl PgStore {
     /// past half of `max_held_regions`, the regions idle for a lease.
     pub fn release_idle_regions(&self) -> Result<Vec<RegionId>, StoreError> {
         release_idle(&self.pool, self.cluster_leases()?)
+    }
+
+    /// Hands over now what the renewal thread hands over every
+    /// `renew_ms`: regions other nodes asked for, left alone here for
+    /// `handoff_idle_ms`.
+    pub fn hand_over_regions(&self) -> Result<Vec<RegionId>, StoreError> {
+        hand_over(&self.pool, self.cluster_leases()?)
     }
 
     /// Every region ever claimed, in key order.

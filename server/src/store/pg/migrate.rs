@@ -67,6 +67,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0011_seq_block_pruning",
         include_str!("../../../migrations/0011_seq_block_pruning.sql"),
     ),
+    (
+        12,
+        "0012_region_handoffs",
+        include_str!("../../../migrations/0012_region_handoffs.sql"),
+    ),
 ];
 
 /// How long applying the migrations may take in all (waiting for another
