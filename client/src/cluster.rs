@@ -215,6 +215,15 @@ fn region_of(pos: ChunkPos, side: u32) -> (i32, i32) {
     (div(pos.x), div(pos.z))
 }
 
+/// Whether `node`'s last `RegionOwners` says it holds `region` itself.
+fn holds_here(node: &Client, region: (i32, i32)) -> bool {
+    node.region_owners().is_some_and(|o| {
+        o.regions
+            .iter()
+            .any(|r| (r.region_x, r.region_z) == region && r.holder == RegionHolder::Here)
+    })
+}
+
 /// The voxel an edit is routed by: its centre, box corner or origin
 /// ([`Edit::anchor`], which the nodes use too).
 pub fn edit_anchor(edit: &Edit) -> VoxelPos {
@@ -936,9 +945,10 @@ impl ClusterClient {
     /// connected node (the region changed hands since this client was
     /// told) is sent once more, there; naming one not connected, the
     /// client starts joining it and returns the refusal. One naming
-    /// another region (the edit reaches across a border into it) is
-    /// returned: that node asked the holder to hand it over, so the edit
-    /// may pass when sent again a moment later. One refused `NodeFull` (no node holds the region, and that
+    /// another region (the edit reaches across a border into it) from the
+    /// node holding the edit's own region is returned: that node asked the
+    /// holder to hand it over, so the edit may pass when sent again a
+    /// moment later. One refused `NodeFull` (no node holds the region, and that
     /// one may take no more) is sent to each other connected node in turn
     /// (one it cannot be sent to is passed over), until one answers
     /// otherwise; the one that accepts writes the region from then on (a
@@ -1011,11 +1021,15 @@ impl ClusterClient {
         if addr.is_empty() {
             return NextHop::Done;
         }
-        // Another region than the edit's own: the edit was at the right
-        // node, which asked the holder to hand that region over. The other
-        // node would refuse it too; sent here again later, it may pass.
+        // Another region than the edit's own, which this node holds: the
+        // edit was at the right node, which asked the holder to hand that
+        // region over. The holder would refuse it too; sent here again
+        // later, it may pass. (With its own region free, the holder may
+        // claim that one and apply it.)
         let beside = self.view.region_chunks.is_some_and(|side| {
-            region_of(edit_anchor(edit).chunk(), side) != (*region_x, *region_z)
+            let own = region_of(edit_anchor(edit).chunk(), side);
+            own != (*region_x, *region_z)
+                && self.view.nodes.get(&to).is_some_and(|c| holds_here(c, own))
         });
         let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
         let state = self.lookups();

@@ -78,7 +78,9 @@ pub enum StrataReject {
     /// The server is busy: edit again.
     Busy = 12,
     /// Another server of the cluster holds the region: the message names
-    /// the node and its address.
+    /// the node and its address. An edit reaching across a border into
+    /// it (the region named is not the edit's own) may pass when edited
+    /// again a few seconds later: the server asked for the region.
     RegionElsewhere = 13,
     /// The cluster server holds as many regions as it may and no server
     /// holds this one: send the edit to another server, or here later.

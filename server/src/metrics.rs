@@ -323,9 +323,9 @@ pub const CONNECTION_DEADLINE: std::time::Duration = std::time::Duration::from_s
 /// or 503 with the reason) until the task is dropped, on at most
 /// `max_connections` connections at once. When every one is taken, a new
 /// connection closes the oldest past its grace (a second since it was
-/// accepted, since its last byte either way, or since a request it is
-/// still sending began): connections opened and left silent cannot keep a
-/// readiness probe out until their deadline.
+/// accepted, its last byte read, its answer's first byte, or the start of
+/// a request it is still sending): connections opened and left silent, or
+/// reading slowly, cannot keep a readiness probe out until their deadline.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     max_connections: usize,

@@ -175,6 +175,14 @@ async fn standing(node: &Running, name: &str, x: i32) -> strata_client_sim::Clie
     c
 }
 
+/// Bob on the east node, his first edit claiming region 1 for it.
+async fn bob_claims_region_one(east: &Running) -> strata_client_sim::Client {
+    let bob = standing(east, "bob", EAST_X).await;
+    let (v, _) = bob.edit_acked(mine_at(EAST_X + 2)).await.unwrap();
+    assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+    bob
+}
+
 fn mine_at(x: i32) -> Edit {
     let (_, v) = spot(x, Z);
     Edit::Mine {
@@ -348,7 +356,7 @@ async fn an_edit_across_a_border_is_applied_once_the_quiet_side_hands_its_region
         let start = |dir: &Path, id: &str, x: i32| {
             let mut cfg = node_config(dir, &db, (id, x), 5_000, 200);
             if let Some(c) = cfg.cluster.as_mut() {
-                c.handoff_idle_ms = 800;
+                c.handoff_idle_ms = 1_000;
             }
             app::start(cfg)
         };
@@ -416,6 +424,67 @@ async fn an_edit_across_a_border_is_applied_once_the_quiet_side_hands_its_region
             assert_in_order(&format!("ann@{addr}"), c);
         }
         assert_in_order("bob", &bob);
+        bob.close().await;
+        ann.close().await;
+        east.shutdown().await.unwrap();
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// An edit whose own region is free and which reaches into a region
+/// another node holds is no node's yet: the node it was sent to asks for
+/// nothing, and the client library sends it on to the holder, which
+/// claims the free region and applies it at once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_edit_from_a_free_region_across_a_border_goes_to_the_holder() {
+    let Some(db) = strata_tests::postgres::database("cluster_free_border") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let (_dirs, west, east) = west_and_east(&db).await;
+        let bob = bob_claims_region_one(&east).await;
+        let opts = ClientOptions::default();
+        let ann_token = token(&west, "ann", Role::Player);
+        let mut ann = ClusterClient::connect(west.addr, &west.cert_der, &ann_token, opts)
+            .await
+            .unwrap();
+        let mut x = WEST_X;
+        ann.send_position(feet(x)).unwrap();
+        while x < 250 {
+            x += 2;
+            ann.send_position(feet(x)).unwrap();
+            ann.follow().await.unwrap();
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        // Joined to the east node (named as region 1's holder), with the
+        // border chunk in hand there.
+        for _ in 0..500 {
+            ann.follow().await.unwrap();
+            if ann.node(east.addr).is_some() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .node(east.addr)
+                .is_some_and(|c| c.replica().get(chunk_of(254)).is_some()))
+            .await
+        );
+        let (to, (v, _)) = ann.edit(mine_at(254)).await.unwrap();
+        assert_eq!(to, east.addr, "{v:?}");
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        let asked = sql(
+            &db,
+            "SELECT count(*) FROM regions WHERE wanted_by IS NOT NULL",
+        )
+        .await;
+        assert_eq!(asked, ["0"], "a region was asked for");
+        let owners = sql(&db, "SELECT owner FROM regions ORDER BY region_x").await;
+        assert_eq!(owners, ["east", "east"]);
+        assert!(bob.replica().mesh_mismatches().is_empty());
         bob.close().await;
         ann.close().await;
         east.shutdown().await.unwrap();
@@ -1539,10 +1608,7 @@ async fn a_node_joined_later_streams_the_view_asked() {
     };
     tokio::time::timeout(TEST_TIMEOUT, async {
         let (_dirs, west, east) = west_and_east(&db).await;
-        // Bob on the east node claims region 1 for it.
-        let bob = standing(&east, "bob", EAST_X).await;
-        let (v, _) = bob.edit_acked(mine_at(EAST_X + 2)).await.unwrap();
-        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        let bob = bob_claims_region_one(&east).await;
 
         // Ann, at home on the west node, asks for a view in region 1,
         // beyond her own view radius of where she stands, before she

@@ -459,7 +459,7 @@ fn a_region_asked_for_is_handed_over_once_left_alone() {
         lease_ms: 60_000,
         renew_ms: 10_000,
         adopt: false,
-        handoff_idle_ms: 300,
+        handoff_idle_ms: 1_000,
         ..ClusterConfig::default()
     };
     let (a, b) = (open_node(&db, &cfg("a")), open_node(&db, &cfg("b")));
@@ -468,7 +468,7 @@ fn a_region_asked_for_is_handed_over_once_left_alone() {
         granted(&a, r);
     }
     a.take_fresh_regions();
-    let quiet_for = Duration::from_millis(400);
+    let quiet_for = Duration::from_millis(1_100);
     std::thread::sleep(quiet_for);
     assert!(a.hand_over_regions().unwrap().is_empty(), "nobody asked");
     let wanted = || {
@@ -837,6 +837,14 @@ fn open_node_refuses_bad_cluster_settings() {
                 ..ClusterConfig::default()
             },
             "cluster.release_idle_ms",
+        ),
+        (
+            ClusterConfig {
+                node_id: "a".into(),
+                handoff_idle_ms: 999,
+                ..ClusterConfig::default()
+            },
+            "cluster.handoff_idle_ms",
         ),
     ] {
         let err = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap_err();

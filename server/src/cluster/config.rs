@@ -36,6 +36,9 @@ pub const MAX_RELEASE_IDLE_MS: u64 = 7 * 24 * 3_600_000;
 /// while the other side is quiet, and a region busy on both sides does not
 /// change hands back and forth faster.
 pub const DEFAULT_HANDOFF_IDLE_MS: u64 = 3_000;
+/// Shortest allowed `handoff_idle_ms` but 0: a region whose players edit
+/// it every second or so is not handed back and forth.
+pub const MIN_HANDOFF_IDLE_MS: u64 = 1_000;
 /// Longest allowed `handoff_idle_ms`.
 pub const MAX_HANDOFF_IDLE_MS: u64 = 3_600_000;
 /// Players' stored positions read at once by logins (each read holds one
@@ -84,7 +87,8 @@ pub struct ClusterConfig {
     /// See [`DEFAULT_RELEASE_IDLE_MS`]; 0 keeps every region until
     /// `max_held_regions` presses, else at least `lease_ms`.
     pub release_idle_ms: u64,
-    /// See [`DEFAULT_HANDOFF_IDLE_MS`]; 0 never hands a region over (an
+    /// See [`DEFAULT_HANDOFF_IDLE_MS`]; 0 (or [`MIN_HANDOFF_IDLE_MS`]
+    /// ..=[`MAX_HANDOFF_IDLE_MS`]). 0 never hands a region over (an
     /// edit reaching into another node's region is then refused for as
     /// long as that node holds it).
     pub handoff_idle_ms: u64,
@@ -167,12 +171,14 @@ impl ClusterConfig {
                 ),
             ));
         }
-        within(
-            "cluster.handoff_idle_ms",
-            self.handoff_idle_ms,
-            0,
-            MAX_HANDOFF_IDLE_MS,
-        )?;
+        if self.handoff_idle_ms != 0 {
+            within(
+                "cluster.handoff_idle_ms",
+                self.handoff_idle_ms,
+                MIN_HANDOFF_IDLE_MS,
+                MAX_HANDOFF_IDLE_MS,
+            )?;
+        }
         within(
             "cluster.position_reads",
             self.position_reads,

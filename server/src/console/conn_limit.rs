@@ -17,7 +17,8 @@
 //! ([`ConnState::admit`]): it may stay silent only that long, and when
 //! every slot is taken a new connection closes the oldest unadmitted one
 //! past its grace ([`REQUEST_GRACE`] from its acceptance, its last byte
-//! either way, or the start of a request it is still sending), so
+//! read, the start of a request it is still sending or of the answer
+//! being written to it), so
 //! anonymous connections can never lock the operators out. An
 //! admission lasts only while the token that made it stays good
 //! (unexpired, unrevoked, its admin not banned): with no unadmitted
@@ -40,10 +41,10 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tokio::time::{Instant, Sleep};
 
 /// How long an unadmitted connection is safe from eviction after it was
-/// accepted, while it sends a request, and after its last byte moved
-/// either way: an operator's (or a readiness probe's) new connection gets
-/// this long to deliver its request while anonymous ones crowd in, and an
-/// answer still being written is not cut off.
+/// accepted, after the first byte of a request and of its answer, and
+/// after its last byte read: an operator's (or a readiness probe's) new
+/// connection gets this long to deliver its request while anonymous ones
+/// crowd in, and an answer this long to be written.
 const REQUEST_GRACE: Duration = Duration::from_secs(1);
 
 /// Pause after a failed accept (e.g. out of file descriptors).
@@ -82,7 +83,7 @@ pub struct ConnState {
     still: Mutex<Option<StillGood>>,
     /// When the request being received began, while one is.
     request_since: Mutex<Option<Instant>>,
-    /// When it was accepted, or a byte last moved either way.
+    /// When it was accepted, a byte last read, or an answer begun.
     active_at: Mutex<Option<Instant>>,
 }
 
@@ -106,8 +107,8 @@ impl ConnState {
     }
 
     /// Whether it may be closed for a new connection now: never admitted,
-    /// and sending a request for over [`REQUEST_GRACE`], or between
-    /// requests with nothing moved either way (nor accepted) for as long.
+    /// and sending a request for over [`REQUEST_GRACE`], or otherwise with
+    /// no byte read, no answer begun and no acceptance for as long.
     fn evictable(&self, now: Instant) -> bool {
         let since = *self.request_since.lock().unwrap_or_else(|p| p.into_inner());
         let active = *self.active_at.lock().unwrap_or_else(|p| p.into_inner());
@@ -424,12 +425,12 @@ impl AsyncWrite for LimitedStream {
             Poll::Ready(Ok(n)) if n > 0 => {
                 let now = Instant::now();
                 self.last_active = now;
-                if self.deadlines.unadmitted.is_some() {
-                    self.state.set_active(now);
-                }
-                // Answered: the next byte read starts the next request.
+                // Answered: the next byte read starts the next request. The
+                // answer's grace runs from its first byte only: a client
+                // reading it slowly is no safer than a silent one.
                 if self.request_since.take().is_some() {
                     self.state.set_request_since(None);
+                    self.state.set_active(now);
                 }
             }
             // A client that does not read fills the socket: time it out.
@@ -473,7 +474,7 @@ mod tests {
         assert!(!c.evictable(t1 + REQUEST_GRACE / 2));
         c.set_active(t1 + REQUEST_GRACE);
         assert!(c.evictable(t1 + REQUEST_GRACE), "trickling past its grace");
-        // Answered: writing keeps it.
+        // An answer begun keeps it for its grace, not for every byte.
         let t2 = t1 + REQUEST_GRACE * 2;
         c.set_request_since(None);
         c.set_active(t2);

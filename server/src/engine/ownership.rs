@@ -110,6 +110,9 @@ impl Engine {
         let Some(mut regions) = self.seq.edit_regions(edit) else {
             return Ok(None);
         };
+        // Those it writes (or whose meshes it changes): the only ones it
+        // may ask another node for, never one its sight ray just crosses.
+        let written = regions.clone();
         let side = self.seq.region_chunks();
         regions.extend(ray.iter().map(|&p| RegionId::of(p, side)));
         let holders = match self.store.region_holders(&regions) {
@@ -138,11 +141,21 @@ impl Engine {
         // The edit's own region first: its holder is where to send it.
         elsewhere.sort_by_key(|(r, ..)| *r != anchor);
         if let Some((r, owner, addr)) = elsewhere.first().cloned() {
-            if r != anchor {
-                // The edit is this node's to apply: the regions it reaches
-                // into are asked for.
-                let asked: BTreeSet<RegionId> = elsewhere.iter().map(|(r, ..)| *r).collect();
+            // The edit is this node's to apply (its own region is held
+            // here; a free one another node may claim at once, with the
+            // rest): the regions it writes into are asked for.
+            if r != anchor && held.contains(&anchor) {
+                let asked: BTreeSet<RegionId> = elsewhere
+                    .iter()
+                    .map(|(r, ..)| *r)
+                    .filter(|r| written.contains(r))
+                    .collect();
                 self.want_regions(&asked);
+                // Its own region is in use too: two nodes whose players
+                // edit across one border do not both hand theirs over.
+                if let Err(e) = self.store.acquire_regions(&BTreeSet::from([anchor])) {
+                    self.store_failed(&e);
+                }
             }
             let reason = RejectReason::RegionElsewhere {
                 region_x: r.x,
@@ -177,7 +190,9 @@ impl Engine {
         match &access {
             Err(e) => self.store_failed(e),
             // Taken by another node since the holders were read.
-            Ok(RegionAccess::Elsewhere { region, .. }) if *region != anchor => {
+            Ok(RegionAccess::Elsewhere { region, .. })
+                if *region != anchor && held.contains(&anchor) && written.contains(region) =>
+            {
                 self.want_regions(&BTreeSet::from([*region]));
             }
             Ok(_) => {}
@@ -198,7 +213,7 @@ impl Engine {
     }
 
     /// Asks the nodes holding `regions` to hand them over (an edit whose
-    /// own region is held here or free reaches into them).
+    /// own region is held here writes into them).
     fn want_regions(&mut self, regions: &BTreeSet<RegionId>) {
         if let Err(e) = self.store.want_regions(regions) {
             self.store_failed(&e);

@@ -820,7 +820,7 @@ pub(super) fn release_some(
         }
         gone
     };
-    let_go(pool, leases, &gone)
+    Ok(let_go(pool, leases, &gone)?.len() as u64)
 }
 
 /// Gives up every lease still this node's (owner set to NULL, epoch
@@ -831,7 +831,7 @@ pub(super) fn release(pool: &Pool, leases: &NodeLeases) -> Result<u64, StoreErro
         book.used.clear();
         std::mem::take(&mut book.held)
     };
-    let n = let_go(pool, leases, &held)?;
+    let n = let_go(pool, leases, &held)?.len() as u64;
     let mut book = leases.book();
     book.lost.extend(held);
     book.forget_lost_past(leases.max_held);
@@ -839,29 +839,37 @@ pub(super) fn release(pool: &Pool, leases: &NodeLeases) -> Result<u64, StoreErro
 }
 
 /// Sets the owner of `regions` to NULL where this node still holds them
-/// at those epochs; returns how many rows it changed.
+/// at those epochs; returns those it let go (not one claimed again since).
 fn let_go(
     pool: &Pool,
     leases: &NodeLeases,
     regions: &BTreeMap<RegionId, u64>,
-) -> Result<u64, StoreError> {
+) -> Result<BTreeSet<RegionId>, StoreError> {
     if regions.is_empty() {
-        return Ok(0);
+        return Ok(BTreeSet::new());
     }
     let (xs, zs, epochs) = held_columns(regions)?;
-    pool.run("releasing leases", async |c: &mut Conn| {
-        c.execute(
+    let rows = pool.run("releasing leases", async |c: &mut Conn| {
+        c.query(
             "WITH mine AS (SELECT r.region_x, r.region_z FROM regions r \
                  JOIN unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
                    ON r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e \
                  WHERE r.owner = $4 \
                  ORDER BY r.region_x, r.region_z FOR UPDATE OF r) \
              UPDATE regions AS r SET owner = NULL \
-             FROM mine WHERE r.region_x = mine.region_x AND r.region_z = mine.region_z",
+             FROM mine WHERE r.region_x = mine.region_x AND r.region_z = mine.region_z \
+             RETURNING r.region_x, r.region_z",
             &[&xs, &zs, &epochs, &leases.node_id],
         )
         .await
-    })
+    })?;
+    Ok(rows
+        .iter()
+        .map(|r| RegionId {
+            x: r.get(0),
+            z: r.get(1),
+        })
+        .collect())
 }
 
 /// Releases the held regions the engine has not asked for in
@@ -1012,13 +1020,15 @@ pub(super) fn hand_over(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId
     if gone.is_empty() {
         return Ok(Vec::new());
     }
+    // One an edit here claimed again meanwhile stays.
+    let released = let_go(pool, leases, &gone)?;
     metrics::counter!(crate::metrics::REGIONS_RELEASED, "why" => "handoff")
-        .increment(gone.len() as u64);
-    let_go(pool, leases, &gone)?;
-    for (r, asker) in &to {
+        .increment(released.len() as u64);
+    for r in &released {
+        let asker = to.get(r).map_or("", String::as_str);
         info!(node = %leases.node_id, region_x = r.x, region_z = r.z, to = %asker, "region handed over");
     }
-    Ok(gone.into_keys().collect())
+    Ok(released.into_iter().collect())
 }
 
 /// A region as error messages and logs name it.
