@@ -322,10 +322,11 @@ pub const CONNECTION_DEADLINE: std::time::Duration = std::time::Duration::from_s
 /// Serves `GET /metrics` (Prometheus text) and `GET /healthz` (200 `ready`,
 /// or 503 with the reason) until the task is dropped, on at most
 /// `max_connections` connections at once. When every one is taken, a new
-/// connection closes the oldest past its grace (a second since it was
-/// accepted, its last byte read, its answer's first byte, or the start of
-/// a request it is still sending): connections opened and left silent, or
-/// reading slowly, cannot keep a readiness probe out until their deadline.
+/// connection closes the oldest accepted over a second ago that is between
+/// requests, else one sending a request or held up writing its answer for
+/// over a second (`console::conn_limit`): connections left silent, sending
+/// request after request or reading slowly cannot keep a readiness probe
+/// out.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     max_connections: usize,

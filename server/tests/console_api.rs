@@ -673,6 +673,61 @@ async fn a_new_connection_closes_a_silent_one_before_one_sending_its_request() {
     .expect("test timed out");
 }
 
+/// Anonymous connections sending request after request (each answered
+/// 401 at once) hold no slot between them: an operator's new connection
+/// closes one and is served.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn anonymous_requests_that_come_and_go_keep_no_slot_from_an_operator() {
+    tokio::time::timeout(Duration::from_secs(60), async {
+        let dir = tempfile::tempdir().unwrap();
+        let (server, web) = start_console(dir.path(), |c| c.max_connections = 2).await;
+        let admin = token(&server, "ops", Role::Admin);
+        let anonymous = String::from_utf8(request_text("GET", "/api/world", None, b""))
+            .unwrap()
+            .replace("Connection: close", "Connection: keep-alive");
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let mut crowd = Vec::new();
+        for _ in 0..2 {
+            let (stop, anonymous) = (stop.clone(), anonymous.clone());
+            let mut c = TcpStream::connect(web).await.unwrap();
+            crowd.push(tokio::spawn(async move {
+                let mut buf = [0u8; 4096];
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    if c.write_all(anonymous.as_bytes()).await.is_err() {
+                        break;
+                    }
+                    match c.read(&mut buf).await {
+                        Ok(0) | Err(_) => break,
+                        Ok(_) => {}
+                    }
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                }
+            }));
+        }
+        // Past the crowd's first second (a connection just accepted keeps
+        // its slot that long).
+        tokio::time::sleep(Duration::from_millis(1_500)).await;
+        let mut operator = TcpStream::connect(web).await.unwrap();
+        operator
+            .write_all(&request_text("GET", "/api/world", Some(&admin), b""))
+            .await
+            .unwrap();
+        let mut buf = [0u8; 64];
+        let n = tokio::time::timeout(Duration::from_secs(10), operator.read(&mut buf))
+            .await
+            .expect("the operator is served")
+            .unwrap();
+        assert!(buf[..n].starts_with(b"HTTP/1.1 200"), "{:?}", &buf[..n]);
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for c in crowd {
+            let _ = c.await;
+        }
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test timed out");
+}
+
 /// Connections admitted by a token hold their slots only while it stays
 /// good: once it expired, a new connection closes them and is served.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -16,10 +16,10 @@
 //! unadmitted until a request on it passed the token check
 //! ([`ConnState::admit`]): it may stay silent only that long, and when
 //! every slot is taken a new connection closes the oldest unadmitted one
-//! past its grace ([`REQUEST_GRACE`] from its acceptance, its last byte
-//! read, the start of a request it is still sending or of the answer
-//! being written to it), so
-//! anonymous connections can never lock the operators out. An
+//! past its grace ([`REQUEST_GRACE`] from its acceptance, the start of a
+//! request it is still sending, or of an answer its reader holds up;
+//! none between requests), those between requests first, so anonymous
+//! connections can never lock the operators out. An
 //! admission lasts only while the token that made it stays good
 //! (unexpired, unrevoked, its admin not banned): with no unadmitted
 //! connection to close, a new one closes those whose admission lapsed, so
@@ -41,10 +41,11 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tokio::time::{Instant, Sleep};
 
 /// How long an unadmitted connection is safe from eviction after it was
-/// accepted, after the first byte of a request and of its answer, and
-/// after its last byte read: an operator's (or a readiness probe's) new
-/// connection gets this long to deliver its request while anonymous ones
-/// crowd in, and an answer this long to be written.
+/// accepted, after the first byte of a request it is sending, and after
+/// the first byte of an answer its reader holds up: an operator's (or a
+/// readiness probe's) new connection gets this long to deliver its request
+/// while anonymous ones crowd in, and an answer this long to be read.
+/// Between requests it has none, however often they come.
 const REQUEST_GRACE: Duration = Duration::from_secs(1);
 
 /// Pause after a failed accept (e.g. out of file descriptors).
@@ -83,8 +84,19 @@ pub struct ConnState {
     still: Mutex<Option<StillGood>>,
     /// When the request being received began, while one is.
     request_since: Mutex<Option<Instant>>,
-    /// When it was accepted, a byte last read, or an answer begun.
-    active_at: Mutex<Option<Instant>>,
+    /// Its acceptance and the answer being written.
+    times: Mutex<Times>,
+}
+
+/// When a connection was accepted, and its answer's progress.
+#[derive(Debug, Default, Clone, Copy)]
+struct Times {
+    accepted: Option<Instant>,
+    /// When the last answer's first byte was written.
+    answer: Option<Instant>,
+    /// Whether its last write waited for a full socket (the answer is
+    /// still being written).
+    blocked: bool,
 }
 
 impl std::fmt::Debug for ConnState {
@@ -107,29 +119,34 @@ impl ConnState {
     }
 
     /// Whether it may be closed for a new connection now: never admitted,
-    /// and sending a request for over [`REQUEST_GRACE`], or otherwise with
-    /// no byte read, no answer begun and no acceptance for as long.
+    /// accepted [`REQUEST_GRACE`] ago or more, and between requests, or
+    /// sending one for that long, or writing an answer (held up by the
+    /// client's reading) begun that long ago. Requests that come and go
+    /// keep no slot.
     fn evictable(&self, now: Instant) -> bool {
         let since = *self.request_since.lock().unwrap_or_else(|p| p.into_inner());
-        let active = *self.active_at.lock().unwrap_or_else(|p| p.into_inner());
+        let t = self.times();
         let past = |t: Option<Instant>| t.is_none_or(|t| now.duration_since(t) >= REQUEST_GRACE);
         self.state.load(Ordering::Acquire) == NEW
+            && past(t.accepted)
             && match since {
                 Some(_) => past(since),
-                None => past(active),
+                None => !t.blocked || past(t.answer),
             }
     }
 
-    fn set_active(&self, at: Instant) {
-        *self.active_at.lock().unwrap_or_else(|p| p.into_inner()) = Some(at);
+    fn times(&self) -> std::sync::MutexGuard<'_, Times> {
+        self.times.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// Whether a request on it is being received.
-    fn is_sending(&self) -> bool {
+    /// Whether a request on it is being received or an answer written:
+    /// such connections go after the idle ones.
+    fn is_busy(&self) -> bool {
         self.request_since
             .lock()
             .unwrap_or_else(|p| p.into_inner())
             .is_some()
+            || self.times().blocked
     }
 
     fn set_request_since(&self, since: Option<Instant>) {
@@ -239,9 +256,8 @@ impl LimitedListener {
     fn evict_one(&self) {
         let now = Instant::now();
         let live = || self.conns.iter().filter_map(Weak::upgrade);
-        let evict = |sending: bool| {
-            live().any(|c| c.evictable(now) && c.is_sending() == sending && c.evict(NEW))
-        };
+        let evict =
+            |busy: bool| live().any(|c| c.evictable(now) && c.is_busy() == busy && c.evict(NEW));
         if !evict(false) && !evict(true) {
             for c in live() {
                 c.evict_if_lapsed();
@@ -282,7 +298,7 @@ impl LimitedStream {
             .unadmitted
             .map_or(deadlines.idle, |u| u.min(deadlines.idle));
         let state = ConnState::default();
-        state.set_active(now);
+        state.times().accepted = Some(now);
         Self {
             stream,
             _slot: slot,
@@ -395,9 +411,6 @@ impl AsyncRead for LimitedStream {
                 if buf.filled().len() > before {
                     let now = Instant::now();
                     self.last_active = now;
-                    if self.deadlines.unadmitted.is_some() {
-                        self.state.set_active(now);
-                    }
                     if self.request_since.is_none() {
                         self.request_since = Some(now);
                         self.state.set_request_since(Some(now));
@@ -427,14 +440,22 @@ impl AsyncWrite for LimitedStream {
                 self.last_active = now;
                 // Answered: the next byte read starts the next request. The
                 // answer's grace runs from its first byte only: a client
-                // reading it slowly is no safer than a silent one.
-                if self.request_since.take().is_some() {
+                // reading it slowly keeps its slot no longer than that.
+                let answered = self.request_since.take().is_some();
+                if answered {
                     self.state.set_request_since(None);
-                    self.state.set_active(now);
+                }
+                let mut t = self.state.times();
+                t.blocked = false;
+                if answered {
+                    t.answer = Some(now);
                 }
             }
             // A client that does not read fills the socket: time it out.
-            Poll::Pending => return self.pending_or_timeout(cx),
+            Poll::Pending => {
+                self.state.times().blocked = true;
+                return self.pending_or_timeout(cx);
+            }
             _ => {}
         }
         r
@@ -457,33 +478,37 @@ mod tests {
     use super::*;
 
     /// A connection never admitted may be closed for a new one only past
-    /// its grace: not just accepted (a probe not read yet), not while an
-    /// answer is being written to it, and not in the first second of a
-    /// request; a request trickled for longer may be.
+    /// its grace: not just accepted (a probe not read yet), not in the
+    /// first second of a request, not in the first second of an answer
+    /// its reader holds up; but between requests at once, however often
+    /// they come, and a request trickled or an answer read slowly for
+    /// longer.
     #[test]
     fn an_unadmitted_connection_is_evictable_only_past_its_grace() {
+        let grace = REQUEST_GRACE;
         let c = ConnState::default();
         let t0 = Instant::now();
-        c.set_active(t0);
-        assert!(!c.evictable(t0 + REQUEST_GRACE / 2), "just accepted");
-        assert!(c.evictable(t0 + REQUEST_GRACE), "silent since accepted");
-        // A request begins, and trickles on past the grace.
-        let t1 = t0 + REQUEST_GRACE * 2;
+        c.times().accepted = Some(t0);
+        assert!(!c.evictable(t0 + grace / 2), "just accepted");
+        assert!(c.evictable(t0 + grace), "silent since accepted");
+        let t1 = t0 + grace * 2;
         c.set_request_since(Some(t1));
-        c.set_active(t1);
-        assert!(!c.evictable(t1 + REQUEST_GRACE / 2));
-        c.set_active(t1 + REQUEST_GRACE);
-        assert!(c.evictable(t1 + REQUEST_GRACE), "trickling past its grace");
-        // An answer begun keeps it for its grace, not for every byte.
-        let t2 = t1 + REQUEST_GRACE * 2;
+        assert!(!c.evictable(t1 + grace / 2), "a request just begun");
+        assert!(c.is_busy());
+        assert!(c.evictable(t1 + grace), "trickling past its grace");
+        // Answered at once: between requests it may go, though the next
+        // comes within the second.
+        let t2 = t1 + grace / 4;
         c.set_request_since(None);
-        c.set_active(t2);
-        assert!(
-            !c.evictable(t2 + REQUEST_GRACE / 2),
-            "an answer being written"
-        );
-        assert!(c.evictable(t2 + REQUEST_GRACE));
+        c.times().answer = Some(t2);
+        assert!(!c.is_busy());
+        assert!(c.evictable(t2 + grace / 8), "between requests");
+        // An answer held up by its reader keeps it from its first byte.
+        c.times().blocked = true;
+        assert!(c.is_busy());
+        assert!(!c.evictable(t2 + grace / 2), "an answer being written");
+        assert!(c.evictable(t2 + grace), "a slow reader past its grace");
         c.admit(Box::new(|| true));
-        assert!(!c.evictable(t2 + REQUEST_GRACE * 9), "admitted");
+        assert!(!c.evictable(t2 + grace * 9), "admitted");
     }
 }
