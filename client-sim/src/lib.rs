@@ -3,7 +3,7 @@
 
 pub mod bots;
 
-pub use strata_client::{client, pool, prediction, replica, tls};
+pub use strata_client::{client, cluster, pool, prediction, replica, tls};
 pub use strata_client::{
     Acked, Arrival, ChunkPool, Client, ClientError, ClientOptions, ClusterClient, ClusterError,
     JoinRate, MeshMismatch, Notice, Prediction, PredictionStats, Replica, ReplicaStats, Request,

@@ -1012,15 +1012,12 @@ impl ClusterClient {
         let Verdict::Rejected(RejectReason::RegionElsewhere {
             region_x,
             region_z,
+            owner,
             addr,
-            ..
         }) = &acked.0
         else {
             return NextHop::Done;
         };
-        if addr.is_empty() {
-            return NextHop::Done;
-        }
         // Another region than the edit's own, which this node holds: the
         // edit was at the right node, which asked the holder to hand that
         // region over. The holder would refuse it too; sent here again
@@ -1031,12 +1028,23 @@ impl ClusterClient {
             own != (*region_x, *region_z)
                 && self.view.nodes.get(&to).is_some_and(|c| holds_here(c, own))
         });
-        let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
-        let state = self.lookups();
-        // Owed or not, only the edit sent again asks for this name again.
-        let found = look_up(&state, addr.clone(), Instant::now(), until).await;
-        let Some(there) = found else {
-            return NextHop::Done;
+        // A node connected already, known by its own id, is that
+        // connection whatever address it is named at (a load balancer's,
+        // the bound one): a second session of the player there would end
+        // the first.
+        let there = match self.connected_as(owner) {
+            Some(a) => a,
+            None if addr.is_empty() => return NextHop::Done,
+            None => {
+                let until = tokio::time::Instant::now() + RESOLVE_TIMEOUT;
+                let state = self.lookups();
+                // Owed or not, only the edit sent again asks for this name again.
+                let found = look_up(&state, addr.clone(), Instant::now(), until).await;
+                let Some(there) = found else {
+                    return NextHop::Done;
+                };
+                there
+            }
         };
         if there == to {
             return NextHop::Done;
@@ -1055,6 +1063,18 @@ impl ClusterClient {
             return NextHop::Done;
         }
         NextHop::Again(there)
+    }
+
+    /// The connected node whose own `RegionOwners` names it `node_id`.
+    fn connected_as(&self, node_id: &str) -> Option<SocketAddr> {
+        if node_id.is_empty() {
+            return None;
+        }
+        self.view
+            .nodes
+            .iter()
+            .find(|(_, c)| c.region_owners().is_some_and(|o| o.node == node_id))
+            .map(|(a, _)| *a)
     }
 
     /// The region (x, z) of `pos`, once a node told the region size: the

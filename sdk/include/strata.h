@@ -145,7 +145,8 @@ typedef enum {
   // Another server of the cluster holds the region: the message names
   // the node and its address. An edit reaching across a border into
   // it (the region named is not the edit's own) may pass when edited
-  // again a few seconds later: the server asked for the region.
+  // again a few seconds later: the server asked for the region. One made
+  // while standing in the region named passes only from the edit's side.
   STRATA_REJECT_REGION_ELSEWHERE = 13,
   // The cluster server holds as many regions as it may and no server
   // holds this one: send the edit to another server, or here later.
@@ -495,7 +496,9 @@ StrataStatus strata_resync(const StrataSession *s, int32_t cx, int32_t cy, int32
 
 // Sends an edit without waiting: `*out_ticket` names it in the
 // EDIT_ACCEPTED, EDIT_REJECTED or EDIT_FAILED event that `strata_poll`
-// will return for it (exactly one). Edits reach the server in call order.
+// will return for it (exactly one). Edits reach the server in call order
+// (on a cluster, those of one region in call order: the region of each
+// edit's centre, box corner or origin).
 // After DISCONNECTED, STRATA_STATUS_CLOSED (no ticket).
 //
 // # Safety

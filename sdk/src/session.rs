@@ -411,7 +411,9 @@ fn to_edit(e: &StrataEdit) -> Result<Edit, Failure> {
 
 /// Sends an edit without waiting: `*out_ticket` names it in the
 /// EDIT_ACCEPTED, EDIT_REJECTED or EDIT_FAILED event that `strata_poll`
-/// will return for it (exactly one). Edits reach the server in call order.
+/// will return for it (exactly one). Edits reach the server in call order
+/// (on a cluster, those of one region in call order: the region of each
+/// edit's centre, box corner or origin).
 /// After DISCONNECTED, STRATA_STATUS_CLOSED (no ticket).
 ///
 /// # Safety

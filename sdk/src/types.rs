@@ -80,7 +80,8 @@ pub enum StrataReject {
     /// Another server of the cluster holds the region: the message names
     /// the node and its address. An edit reaching across a border into
     /// it (the region named is not the edit's own) may pass when edited
-    /// again a few seconds later: the server asked for the region.
+    /// again a few seconds later: the server asked for the region. One made
+    /// while standing in the region named passes only from the edit's side.
     RegionElsewhere = 13,
     /// The cluster server holds as many regions as it may and no server
     /// holds this one: send the edit to another server, or here later.

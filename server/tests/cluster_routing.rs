@@ -433,6 +433,50 @@ async fn an_edit_across_a_border_is_applied_once_the_quiet_side_hands_its_region
     .expect("within the test timeout");
 }
 
+/// A refusal naming a node the client is connected to, at another address
+/// than the connection's (a load balancer's, the address it advertises),
+/// sends the edit on over that connection: no second session is opened
+/// there (it would end the first).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_refusal_naming_a_connected_node_elsewhere_uses_its_connection() {
+    let Some(db) = strata_tests::postgres::database("cluster_named_elsewhere") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let (_dirs, west, east) = west_and_east(&db).await;
+        let (bob, mut ann) = bob_east_ann_west(&west, &east).await;
+        let refused = (
+            Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere {
+                region_x: 1,
+                region_z: 0,
+                owner: "east".into(),
+                addr: "127.0.0.2:9".into(),
+            }),
+            Vec::new(),
+        );
+        let edit = mine_at(EAST_X - 2);
+        // Known by its id once it has told its own (at a position).
+        ann.send_position(feet(WEST_X)).unwrap();
+        assert!(
+            eventually(TEST_TIMEOUT, || ann
+                .node(east.addr)
+                .and_then(|c| c.region_owners())
+                .is_some_and(|o| o.node == "east"))
+            .await
+        );
+        let next = ann.next_hop(west.addr, &edit, &refused, &[west.addr]).await;
+        assert_eq!(next, strata_client_sim::cluster::NextHop::Again(east.addr));
+        let addrs: Vec<SocketAddr> = ann.nodes().map(|(a, _)| a).collect();
+        assert_eq!(addrs.len(), 2, "{addrs:?}");
+        bob.close().await;
+        ann.close().await;
+        east.shutdown().await.unwrap();
+        west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
 /// An edit whose own region is free and which reaches into a region
 /// another node holds is no node's yet: the node it was sent to asks for
 /// nothing, and the client library sends it on to the holder, which
