@@ -201,15 +201,25 @@ struct NewEdits {
     edits: VecDeque<EditView>,
     skipped: u64,
     columns: Vec<(i32, i32)>,
+    /// More columns changed than a sample names: redraw them all.
+    all_changed: bool,
 }
 
-fn read_edits(store: &dyn ChunkStore, from: u64, limit: usize) -> Result<NewEdits, StoreError> {
+/// Past `max_columns` changed columns the list is dropped (`columns`
+/// empty, `all_changed`).
+fn read_edits(
+    store: &dyn ChunkStore,
+    from: u64,
+    limit: usize,
+    max_columns: usize,
+) -> Result<NewEdits, StoreError> {
     let last_seq = store.last_seq()?;
     let mut out = NewEdits {
         last_seq,
         edits: VecDeque::new(),
         skipped: 0,
         columns: Vec::new(),
+        all_changed: false,
     };
     if last_seq <= from {
         return Ok(out);
@@ -222,7 +232,17 @@ fn read_edits(store: &dyn ChunkStore, from: u64, limit: usize) -> Result<NewEdit
             edit,
             changes,
         } = entry?;
-        out.columns.extend(changes.iter().map(|(p, _)| (p.x, p.z)));
+        if !out.all_changed {
+            out.columns.extend(changes.iter().map(|(p, _)| (p.x, p.z)));
+            if out.columns.len() > max_columns {
+                out.columns.sort_unstable();
+                out.columns.dedup();
+                if out.columns.len() > max_columns {
+                    out.columns = Vec::new();
+                    out.all_changed = true;
+                }
+            }
+        }
         out.edits.push_back(EditView {
             seq,
             player,
@@ -260,6 +280,7 @@ async fn take_sample(
     let c = console.clone();
     let from = *cursor;
     let limit = console.cfg.edits_per_sample;
+    let max_columns = console.cfg.columns_per_sample;
     let edits = tokio::task::spawn_blocking(move || {
         let store = c.world.store().as_ref();
         c.versions.catch_up(store)?;
@@ -268,7 +289,7 @@ async fn take_sample(
             Some(seq) => seq,
             None => store.last_seq()?,
         };
-        read_edits(store, from, limit)
+        read_edits(store, from, limit, max_columns)
     })
     .await??;
     let players = ask_in_time(console, AdminCommand::Players).await?;
@@ -284,7 +305,7 @@ async fn take_sample(
             })
         })
         .collect();
-    let sample = json!({
+    let mut sample = json!({
         "time_ms": crate::engine::now_ms(),
         "seq": edits.last_seq,
         "players": players,
@@ -296,6 +317,9 @@ async fn take_sample(
         "snapshot": console.snapshots.status(),
         "watchers": console.hub.watchers(),
     });
+    if edits.all_changed {
+        sample["lagged"] = true.into();
+    }
     *cursor = Some(edits.last_seq);
     Ok(sample)
 }
@@ -303,6 +327,54 @@ async fn take_sample(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A sample names the columns its edits changed, up to its limit;
+    /// past it, none (the page redraws every tile).
+    #[test]
+    fn a_sample_names_changed_columns_up_to_its_limit() {
+        use crate::store::{CommitBatch, SledStore};
+        use strata_terrain::{Chunk, ChunkPos, FixedVec3, Voxel};
+        let tmp = tempfile::tempdir().unwrap();
+        let store = SledStore::open(tmp.path()).unwrap();
+        store
+            .init_meta(&crate::store::WorldMeta::new(1, 1, "seed = 1\n"))
+            .unwrap();
+        let positions: Vec<ChunkPos> = (0..3).map(|x| ChunkPos::new(x, 0, 7)).collect();
+        let entry = |seq: u64, pos: ChunkPos| LogEntry {
+            seq,
+            player: "ana".into(),
+            time_ms: 1,
+            edit: Edit::Mine {
+                center: FixedVec3::from_voxels(pos.x * 32, 5, 7 * 32),
+                radius: strata_terrain::Fixed::from_voxels(2),
+                strength: 255,
+            },
+            changes: vec![(pos, 1), (ChunkPos::new(pos.x, 1, 7), 1)],
+        };
+        let air = || std::sync::Arc::new(Chunk::uniform(Voxel::AIR));
+        store
+            .commit_batch(&CommitBatch {
+                entries: (1..=3)
+                    .map(|i| entry(i, positions[i as usize - 1]))
+                    .collect(),
+                chunks: positions
+                    .iter()
+                    .flat_map(|p| [(*p, 1, air()), (ChunkPos::new(p.x, 1, 7), 1, air())])
+                    .collect(),
+                deltas: Vec::new(),
+                generated: Vec::new(),
+                last_seq: 3,
+                epochs: None,
+            })
+            .unwrap();
+        let named = read_edits(&store, 0, 10, 3).unwrap();
+        assert_eq!(named.columns, [(0, 7), (1, 7), (2, 7)]);
+        assert!(!named.all_changed);
+        assert_eq!(named.edits.len(), 3);
+        let past = read_edits(&store, 0, 10, 2).unwrap();
+        assert!(past.columns.is_empty() && past.all_changed);
+        assert_eq!(past.edits.len(), 3, "the edits are listed all the same");
+    }
 
     #[test]
     fn a_watcher_that_missed_a_sample_is_told_so_in_the_next_it_takes() {

@@ -77,6 +77,10 @@ pub const DEFAULT_SCENE_MAX_CHUNKS: u64 = 1000;
 pub const DEFAULT_SAMPLE_MS: u64 = 500;
 /// Default edits one sample reports at most (the rest are counted).
 pub const DEFAULT_EDITS_PER_SAMPLE: usize = 256;
+/// Default chunk columns one sample names as changed at most; past it the
+/// sample names none and says `"lagged": true` (the page redraws every
+/// tile), as after a missed sample.
+pub const DEFAULT_COLUMNS_PER_SAMPLE: usize = 4096;
 /// Default console snapshots kept in `snapshot_dir` (older ones are
 /// removed once a new one is written).
 pub const DEFAULT_KEEP_SNAPSHOTS: usize = 8;
@@ -127,6 +131,9 @@ pub struct ConsoleConfig {
     pub sample_ms: u64,
     /// Edits one sample lists at most.
     pub edits_per_sample: usize,
+    /// Changed chunk columns one sample names at most (see
+    /// [`DEFAULT_COLUMNS_PER_SAMPLE`]).
+    pub columns_per_sample: usize,
     /// Where snapshots started from the console are written (default:
     /// `snapshots/` in the data dir).
     pub snapshot_dir: Option<PathBuf>,
@@ -150,6 +157,7 @@ impl Default for ConsoleConfig {
             scene_max_chunks: DEFAULT_SCENE_MAX_CHUNKS,
             sample_ms: DEFAULT_SAMPLE_MS,
             edits_per_sample: DEFAULT_EDITS_PER_SAMPLE,
+            columns_per_sample: DEFAULT_COLUMNS_PER_SAMPLE,
             snapshot_dir: None,
             keep_snapshots: DEFAULT_KEEP_SNAPSHOTS,
         }
@@ -163,7 +171,7 @@ impl ConsoleConfig {
     }
 
     /// Range checks: `(field, value, min, max)` for each limit.
-    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 11] {
+    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 12] {
         let cap = MAX_CONSOLE_LIMIT as u64;
         [
             ("console.max_watchers", self.max_watchers as u64, 1, cap),
@@ -214,6 +222,12 @@ impl ConsoleConfig {
             (
                 "console.edits_per_sample",
                 self.edits_per_sample as u64,
+                1,
+                cap,
+            ),
+            (
+                "console.columns_per_sample",
+                self.columns_per_sample as u64,
                 1,
                 cap,
             ),
