@@ -14,6 +14,8 @@ const StrataMap = (() => {
   const MAX_INFLIGHT = 4;
   const REGIONS_EVERY_MS = 2000;
   const MAX_REGIONS = 1024;
+  // Tiles kept (about 64 KB each); the least recently shown go first.
+  const MAX_TILES = 1024;
   let world, canvas, ctx;
   let cx = 0, cz = 0, scale = 1, follow = true;
   let view = "top", sliceY = 0;
@@ -65,12 +67,21 @@ const StrataMap = (() => {
 
   function loadTiles(list) {
     const now = Date.now();
+    const shown = new Set();
     for (const [tx, tz] of list) {
-      if (inflight >= MAX_INFLIGHT) return;
       const k = key(tx, tz);
+      shown.add(k);
       let e = tiles.get(k);
-      if (!e) { e = { gen: 0, drawn: -1 }; tiles.set(k, e); }
-      if (!e.loading && e.drawn !== e.gen && !(e.retryAt > now)) fetchTile(tx, tz, e);
+      if (e) tiles.delete(k); else e = { gen: 0, drawn: -1 };
+      tiles.set(k, e); // the newest shown last
+      if (inflight < MAX_INFLIGHT && !e.loading && e.drawn !== e.gen && !(e.retryAt > now))
+        fetchTile(tx, tz, e);
+    }
+    for (const [k, e] of tiles) {
+      if (tiles.size <= MAX_TILES) break;
+      if (shown.has(k) || e.loading) continue;
+      if (e.img) e.img.close();
+      tiles.delete(k);
     }
   }
 
