@@ -34,7 +34,7 @@ use crate::auth::{unix_now, Claims};
 use crate::engine::admin::AdminCommand;
 use crate::net::admin_session::ask;
 use crate::net::session::SessionContext;
-use crate::store::{ChunkStore, LogEntry, StoreError};
+use crate::store::{ChunkStore, LogCursor, LogEntry, StoreError};
 
 /// Longest wait for the engine's answer within a sample.
 const ENGINE_ANSWER_TIMEOUT: Duration = Duration::from_secs(2);
@@ -152,7 +152,7 @@ impl futures_core::Stream for EventStream {
 pub async fn run_hub(console: Arc<Console>) {
     let period = Duration::from_millis(console.cfg.sample_ms);
     // The hub's own place in the edit log; `None` while nobody watches.
-    let mut cursor: Option<u64> = None;
+    let mut cursor: Option<LogCursor> = None;
     loop {
         if console.hub.watchers() == 0 {
             cursor = None;
@@ -194,8 +194,8 @@ fn anchor(edit: &Edit) -> [f64; 3] {
     }
 }
 
-/// Edits since `cursor`: the newest `limit` of them, how many more there
-/// were, and every chunk column they changed.
+/// Edits past `cursor` (moved past them): the newest `limit` of them, how
+/// many more there were, and every chunk column they changed.
 struct NewEdits {
     last_seq: u64,
     edits: VecDeque<EditView>,
@@ -209,29 +209,25 @@ struct NewEdits {
 /// empty, `all_changed`).
 fn read_edits(
     store: &dyn ChunkStore,
-    from: u64,
+    cursor: &mut LogCursor,
     limit: usize,
     max_columns: usize,
 ) -> Result<NewEdits, StoreError> {
-    let last_seq = store.last_seq()?;
     let mut out = NewEdits {
-        last_seq,
+        last_seq: store.last_seq()?,
         edits: VecDeque::new(),
         skipped: 0,
         columns: Vec::new(),
         all_changed: false,
     };
-    if last_seq <= from {
-        return Ok(out);
-    }
-    for entry in store.edit_log(from + 1..=last_seq) {
+    cursor.read(store, |entry| {
         let LogEntry {
             seq,
             player,
             time_ms,
             edit,
             changes,
-        } = entry?;
+        } = entry;
         if !out.all_changed {
             out.columns.extend(changes.iter().map(|(p, _)| (p.x, p.z)));
             if out.columns.len() > max_columns {
@@ -254,7 +250,9 @@ fn read_edits(
             out.edits.pop_front();
             out.skipped += 1;
         }
-    }
+    })?;
+    // Segments read one after another: newest last.
+    out.edits.make_contiguous().sort_by_key(|e| e.seq);
     out.columns.sort_unstable();
     out.columns.dedup();
     Ok(out)
@@ -275,21 +273,22 @@ async fn ask_in_time<T>(
 /// taken whole.
 async fn take_sample(
     console: &Arc<Console>,
-    cursor: &mut Option<u64>,
+    cursor: &mut Option<LogCursor>,
 ) -> anyhow::Result<serde_json::Value> {
     let c = console.clone();
-    let from = *cursor;
+    let from = cursor.clone();
     let limit = console.cfg.edits_per_sample;
     let max_columns = console.cfg.columns_per_sample;
-    let edits = tokio::task::spawn_blocking(move || {
+    let (edits, next) = tokio::task::spawn_blocking(move || {
         let store = c.world.store().as_ref();
         c.versions.catch_up(store)?;
         // A new watcher starts from now.
-        let from = match from {
-            Some(seq) => seq,
-            None => store.last_seq()?,
+        let mut next = match from {
+            Some(cursor) => cursor,
+            None => LogCursor::at_end(store)?,
         };
-        read_edits(store, from, limit, max_columns)
+        let edits = read_edits(store, &mut next, limit, max_columns)?;
+        Ok::<_, StoreError>((edits, next))
     })
     .await??;
     let players = ask_in_time(console, AdminCommand::Players).await?;
@@ -320,7 +319,7 @@ async fn take_sample(
     if edits.all_changed {
         sample["lagged"] = true.into();
     }
-    *cursor = Some(edits.last_seq);
+    *cursor = Some(next);
     Ok(sample)
 }
 
@@ -367,11 +366,11 @@ mod tests {
                 epochs: None,
             })
             .unwrap();
-        let named = read_edits(&store, 0, 10, 3).unwrap();
+        let named = read_edits(&store, &mut LogCursor::default(), 10, 3).unwrap();
         assert_eq!(named.columns, [(0, 7), (1, 7), (2, 7)]);
         assert!(!named.all_changed);
         assert_eq!(named.edits.len(), 3);
-        let past = read_edits(&store, 0, 10, 2).unwrap();
+        let past = read_edits(&store, &mut LogCursor::default(), 10, 2).unwrap();
         assert!(past.columns.is_empty() && past.all_changed);
         assert_eq!(past.edits.len(), 3, "the edits are listed all the same");
     }

@@ -1,7 +1,9 @@
 //! Which chunk columns changed: a stamp per column (the sum of its stored
 //! chunks' versions, so it grows with every change), kept current by
-//! reading the store's edit log from the last seq seen. Tiles are cached
-//! under the stamps of their columns.
+//! reading the store's edit log past the place last read (a
+//! [`LogCursor`]: on a cluster, nodes' entries come in with seqs below
+//! others already read). Tiles are cached under the stamps of their
+//! columns.
 //!
 //! It is built on first use (one scan of the modified chunks) and caught up
 //! only when a tile is asked for or a watcher's sample is taken: with no
@@ -12,9 +14,9 @@ use std::sync::Mutex;
 
 use strata_terrain::ChunkPos;
 
-use crate::store::{ChunkStore, StoreError};
+use crate::store::{ChunkStore, LogCursor, StoreError};
 
-/// Column stamps and the log position they reflect.
+/// Column stamps and the log place they reflect.
 #[derive(Debug, Default)]
 pub struct VersionIndex {
     state: Mutex<Option<State>>,
@@ -22,7 +24,7 @@ pub struct VersionIndex {
 
 #[derive(Debug)]
 struct State {
-    seen_seq: u64,
+    cursor: LogCursor,
     versions: HashMap<ChunkPos, u64>,
     columns: HashMap<(i32, i32), u64>,
 }
@@ -38,28 +40,27 @@ impl State {
 }
 
 impl VersionIndex {
-    /// Applies the log entries past the last seen seq (building the index
-    /// first if needed); returns the seq it now reflects.
-    pub fn catch_up(&self, store: &dyn ChunkStore) -> Result<u64, StoreError> {
+    /// Applies the log entries past the place last read (building the
+    /// index first if needed).
+    pub fn catch_up(&self, store: &dyn ChunkStore) -> Result<(), StoreError> {
         let mut guard = self.state.lock().unwrap_or_else(|p| p.into_inner());
         loop {
-            // Entries past the seq seen were pruned (`[store]
+            // Entries past the place read were pruned (`[store]
             // log_retention`, a console unused that long): built again
             // from the chunks.
             if let Some(s) = guard.as_ref() {
-                if store.log_pruned_after(s.seen_seq)? {
+                if s.cursor.pruned(store)? {
                     *guard = None;
                 }
             }
             let state = match &mut *guard {
                 Some(s) => s,
                 None => {
-                    // The seq first: chunks read after it are at least that
-                    // new, and versions only grow, so replaying later
-                    // entries is safe.
-                    let seen_seq = store.last_seq()?;
+                    // The log's place first: chunks read after it are at
+                    // least that new, and versions only grow, so replaying
+                    // later entries is safe.
                     let mut s = State {
-                        seen_seq,
+                        cursor: LogCursor::at_end(store)?,
                         versions: HashMap::new(),
                         columns: HashMap::new(),
                     };
@@ -70,20 +71,17 @@ impl VersionIndex {
                     guard.insert(s)
                 }
             };
-            let from = state.seen_seq;
-            let last = store.last_seq()?;
-            if last > from {
-                for entry in store.edit_log(from + 1..=last) {
-                    let entry = entry?;
-                    for &(pos, version) in &entry.changes {
-                        state.set(pos, version);
-                    }
-                    state.seen_seq = state.seen_seq.max(entry.seq);
-                }
+            let before = state.cursor.clone();
+            let mut changes = Vec::new();
+            state
+                .cursor
+                .read(store, |entry| changes.extend(entry.changes))?;
+            for (pos, version) in changes {
+                state.set(pos, version);
             }
             // A prune during the read may have taken entries it skipped.
-            if !store.log_pruned_after(from)? {
-                return Ok(state.seen_seq);
+            if !before.pruned(store)? {
+                return Ok(());
             }
             *guard = None;
         }

@@ -30,6 +30,7 @@ mod error;
 mod flush_watch;
 mod import;
 pub mod keys;
+mod log_cursor;
 mod log_pages;
 mod open;
 pub mod pg;
@@ -65,6 +66,7 @@ pub use disk_sync::MAX_TRACKED_BLOBS;
 pub use encode_pool::EncodePool;
 pub use error::StoreError;
 pub use import::ImportTarget;
+pub use log_cursor::{LogCursor, LogSegment, DEAD_SEGMENT_KEPT};
 pub use open::open_store;
 pub use pg::PgStore;
 pub use positions::TREE_PLAYER_TIMES;
@@ -133,10 +135,15 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(0)
     }
 
-    /// Whether entries with seqs above `seq` may have been pruned (on a
-    /// cluster's PostgreSQL log each seq block is pruned on its own).
-    fn log_pruned_after(&self, seq: u64) -> Result<bool, StoreError> {
-        Ok(self.log_base()? > seq)
+    /// The parts of the edit log being written now, each in seq order
+    /// ([`LogCursor`]): one for a store one process writes; on a cluster's
+    /// PostgreSQL log each node's newest seq block.
+    fn log_segments(&self) -> Result<Vec<LogSegment>, StoreError> {
+        Ok(vec![LogSegment {
+            first: 1,
+            last: i64::MAX as u64,
+            head: self.last_seq()?,
+        }])
     }
 
     /// Whether the entry of `seq`, if there was one, was pruned.

@@ -563,22 +563,42 @@ impl ChunkStore for PgStore {
         Ok(removed)
     }
 
-    fn log_pruned_after(&self, seq: u64) -> Result<bool, StoreError> {
-        let seq = i64::try_from(seq).unwrap_or(i64::MAX);
-        let row = self.pool.run(
-            "reading how far the log was pruned",
-            async |c: &mut Conn| {
-                c.query_opt(
-                    "SELECT (SELECT log_base FROM world WHERE id = 1) > $1 \
-                     OR EXISTS (SELECT 1 FROM seq_blocks WHERE pruned_to > $1)",
-                    &[&seq],
+    fn log_segments(&self) -> Result<Vec<crate::store::LogSegment>, StoreError> {
+        let size = to_sql(seqs::SEQ_BLOCK, "seq block")?;
+        // Each node's newest block, and the highest seq logged in it.
+        let rows = self
+            .pool
+            .run("reading the log's segments", async |c: &mut Conn| {
+                c.query(
+                    "SELECT b.first_seq, \
+                     (SELECT max(e.seq) FROM edit_log e \
+                      WHERE e.seq >= b.first_seq AND e.seq < b.first_seq + $1) \
+                 FROM (SELECT max(first_seq) AS first_seq FROM seq_blocks GROUP BY node) b",
+                    &[&size],
                 )
                 .await
-            },
-        )?;
-        Ok(row
-            .and_then(|r| r.get::<_, Option<bool>>(0))
-            .unwrap_or(false))
+            })?;
+        if rows.is_empty() {
+            return Ok(vec![crate::store::LogSegment {
+                first: 1,
+                last: i64::MAX as u64,
+                head: self.last_seq()?,
+            }]);
+        }
+        rows.iter()
+            .map(|r| {
+                let first = from_sql(r.get(0), "first_seq", "seq_blocks")?;
+                let head = match r.get::<_, Option<i64>>(1) {
+                    Some(h) => from_sql(h, "seq", "edit_log")?,
+                    None => first - 1,
+                };
+                Ok(crate::store::LogSegment {
+                    first,
+                    last: first + (seqs::SEQ_BLOCK - 1),
+                    head,
+                })
+            })
+            .collect()
     }
 
     fn log_pruned_at(&self, seq: u64) -> Result<bool, StoreError> {

@@ -1,0 +1,122 @@
+//! A place in the edit log that misses no entry on a cluster.
+//!
+//! One process numbers its edits in the order it logs them, so a single
+//! seq is a place in its log. A cluster's nodes number from seq blocks of
+//! their own (`pg/seqs.rs`): an entry one node logs after another node's
+//! may have the lower seq, and a reader that kept only the highest seq it
+//! saw would skip it. So the cursor keeps the last seq it read in each
+//! segment being written ([`ChunkStore::log_segments`]: a node's newest
+//! block), each read in seq order.
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use super::{ChunkStore, LogEntry, StoreError};
+
+/// How long a segment no longer written (its node went on to a newer
+/// block, or stopped) is still read: a commit of its node's may have been
+/// under way, and is fenced or done well within this.
+pub const DEAD_SEGMENT_KEPT: Duration = Duration::from_secs(60);
+
+/// Part of the edit log written in seq order: seqs `first..=last`, of
+/// which `head` is the highest logged (`first - 1` while none is).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LogSegment {
+    pub first: u64,
+    pub last: u64,
+    pub head: u64,
+}
+
+#[derive(Debug, Clone)]
+struct Seg {
+    last: u64,
+    /// The highest seq read in it.
+    seen: u64,
+    /// Since when it is no longer written.
+    gone_since: Option<Instant>,
+}
+
+/// The last seq read in each segment of the log.
+#[derive(Debug, Clone, Default)]
+pub struct LogCursor {
+    segs: BTreeMap<u64, Seg>,
+}
+
+impl LogCursor {
+    /// At the log's end now: what is logged from now on is read.
+    pub fn at_end(store: &dyn ChunkStore) -> Result<Self, StoreError> {
+        let segs = store
+            .log_segments()?
+            .into_iter()
+            .map(|s| {
+                let seg = Seg {
+                    last: s.last,
+                    seen: s.head,
+                    gone_since: None,
+                };
+                (s.first, seg)
+            })
+            .collect();
+        Ok(Self { segs })
+    }
+
+    /// Calls `f` with each entry logged past the cursor (in seq order
+    /// within each segment) and moves past it. A segment begun since (a
+    /// node's new block) is read from its start; one no longer written is
+    /// read up to its end for [`DEAD_SEGMENT_KEPT`], then forgotten.
+    pub fn read(
+        &mut self,
+        store: &dyn ChunkStore,
+        mut f: impl FnMut(LogEntry),
+    ) -> Result<(), StoreError> {
+        let now = Instant::now();
+        let live: BTreeMap<u64, LogSegment> = store
+            .log_segments()?
+            .into_iter()
+            .map(|s| (s.first, s))
+            .collect();
+        for s in live.values() {
+            self.segs.entry(s.first).or_insert(Seg {
+                last: s.last,
+                seen: s.first.saturating_sub(1),
+                gone_since: None,
+            });
+        }
+        for (first, seg) in &mut self.segs {
+            let until = match live.get(first) {
+                Some(s) => {
+                    seg.gone_since = None;
+                    s.head
+                }
+                None => {
+                    seg.gone_since.get_or_insert(now);
+                    seg.last
+                }
+            };
+            if until <= seg.seen {
+                continue;
+            }
+            for entry in store.edit_log(seg.seen + 1..=until) {
+                let entry = entry?;
+                seg.seen = seg.seen.max(entry.seq);
+                f(entry);
+            }
+        }
+        self.segs.retain(|_, s| {
+            s.gone_since
+                .is_none_or(|t| now.duration_since(t) < DEAD_SEGMENT_KEPT)
+        });
+        Ok(())
+    }
+
+    /// Whether entries past the cursor in some segment were pruned
+    /// (`[store] log_retention`): they can no longer be read.
+    pub fn pruned(&self, store: &dyn ChunkStore) -> Result<bool, StoreError> {
+        for seg in self.segs.values() {
+            if seg.seen < seg.last && store.log_pruned_at(seg.seen + 1)? {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+}
