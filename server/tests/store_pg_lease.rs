@@ -1022,6 +1022,17 @@ fn a_log_cursor_misses_no_nodes_entries_on_a_cluster() {
         .unwrap();
     assert_eq!(read(&mut cursor), [floor + 1]);
     assert!(!cursor.pruned(&a).unwrap());
+    // Every block pruned to its end: a cursor at the end now has lost
+    // nothing (the heads count pruned entries), so readers do not start
+    // over and over.
+    assert_eq!(a.prune_log(u64::MAX >> 1, 100).unwrap(), 4);
+    let fresh = LogCursor::at_end(&a).unwrap();
+    assert!(!fresh.pruned(&a).unwrap() && !cursor.pruned(&a).unwrap());
+    // A server alone on the store reads the log whole, whatever blocks
+    // the cluster left.
+    let segments = plain(&db).log_segments().unwrap();
+    assert_eq!(segments.len(), 1);
+    assert_eq!(segments[0].first, 1);
 }
 
 /// A node paused inside its commit (here: a session holding what such a

@@ -18,7 +18,8 @@
 //! every slot is taken a new connection closes the oldest unadmitted one
 //! past its grace ([`REQUEST_GRACE`] from its acceptance, the start of a
 //! request it is still sending, or of an answer its reader holds up;
-//! none between requests), those between requests first, so anonymous
+//! none between requests, nor once it is open as long as
+//! [`Deadlines::unadmitted`]), those between requests first, so anonymous
 //! connections can never lock the operators out. An
 //! admission lasts only while the token that made it stays good
 //! (unexpired, unrevoked, its admin not banned): with no unadmitted
@@ -121,18 +122,20 @@ impl ConnState {
     /// Whether it may be closed for a new connection now: never admitted,
     /// accepted [`REQUEST_GRACE`] ago or more, and between requests, or
     /// sending one for that long, or writing an answer (held up by the
-    /// client's reading) begun that long ago. Requests that come and go
-    /// keep no slot.
-    fn evictable(&self, now: Instant) -> bool {
+    /// client's reading) begun that long ago; or, whatever it does, open
+    /// `max_age` or more. Requests that come and go keep no slot, nor do
+    /// requests trickled one after another for long.
+    fn evictable(&self, now: Instant, max_age: Duration) -> bool {
         let since = *self.request_since.lock().unwrap_or_else(|p| p.into_inner());
         let t = self.times();
-        let past = |t: Option<Instant>| t.is_none_or(|t| now.duration_since(t) >= REQUEST_GRACE);
+        let past = |t: Option<Instant>, d: Duration| t.is_none_or(|t| now.duration_since(t) >= d);
         self.state.load(Ordering::Acquire) == NEW
-            && past(t.accepted)
-            && match since {
-                Some(_) => past(since),
-                None => !t.blocked || past(t.answer),
-            }
+            && past(t.accepted, REQUEST_GRACE)
+            && (past(t.accepted, max_age)
+                || match since {
+                    Some(_) => past(since, REQUEST_GRACE),
+                    None => !t.blocked || past(t.answer, REQUEST_GRACE),
+                })
     }
 
     fn times(&self) -> std::sync::MutexGuard<'_, Times> {
@@ -255,9 +258,12 @@ impl LimitedListener {
     /// with none, every one whose admission lapsed.
     fn evict_one(&self) {
         let now = Instant::now();
+        // Set whenever eviction is on.
+        let max_age = self.deadlines.unadmitted.unwrap_or(Duration::MAX);
         let live = || self.conns.iter().filter_map(Weak::upgrade);
-        let evict =
-            |busy: bool| live().any(|c| c.evictable(now) && c.is_busy() == busy && c.evict(NEW));
+        let evict = |busy: bool| {
+            live().any(|c| c.evictable(now, max_age) && c.is_busy() == busy && c.evict(NEW))
+        };
         if !evict(false) && !evict(true) {
             for c in live() {
                 c.evict_if_lapsed();
@@ -486,29 +492,44 @@ mod tests {
     #[test]
     fn an_unadmitted_connection_is_evictable_only_past_its_grace() {
         let grace = REQUEST_GRACE;
+        let long = Duration::from_secs(3600);
         let c = ConnState::default();
         let t0 = Instant::now();
         c.times().accepted = Some(t0);
-        assert!(!c.evictable(t0 + grace / 2), "just accepted");
-        assert!(c.evictable(t0 + grace), "silent since accepted");
+        assert!(!c.evictable(t0 + grace / 2, long), "just accepted");
+        assert!(c.evictable(t0 + grace, long), "silent since accepted");
         let t1 = t0 + grace * 2;
         c.set_request_since(Some(t1));
-        assert!(!c.evictable(t1 + grace / 2), "a request just begun");
+        assert!(!c.evictable(t1 + grace / 2, long), "a request just begun");
         assert!(c.is_busy());
-        assert!(c.evictable(t1 + grace), "trickling past its grace");
+        assert!(c.evictable(t1 + grace, long), "trickling past its grace");
         // Answered at once: between requests it may go, though the next
         // comes within the second.
         let t2 = t1 + grace / 4;
         c.set_request_since(None);
         c.times().answer = Some(t2);
         assert!(!c.is_busy());
-        assert!(c.evictable(t2 + grace / 8), "between requests");
+        assert!(c.evictable(t2 + grace / 8, long), "between requests");
         // An answer held up by its reader keeps it from its first byte.
         c.times().blocked = true;
         assert!(c.is_busy());
-        assert!(!c.evictable(t2 + grace / 2), "an answer being written");
-        assert!(c.evictable(t2 + grace), "a slow reader past its grace");
+        assert!(
+            !c.evictable(t2 + grace / 2, long),
+            "an answer being written"
+        );
+        assert!(
+            c.evictable(t2 + grace, long),
+            "a slow reader past its grace"
+        );
+        // Whatever it does, past its age.
+        c.set_request_since(Some(t2 + grace * 3));
+        assert!(!c.evictable(t2 + grace * 3, long));
+        assert!(c.evictable(t2 + grace * 3, grace * 2), "open past its age");
         c.admit(Box::new(|| true));
-        assert!(!c.evictable(t2 + grace * 9), "admitted");
+        assert!(!c.evictable(t2 + grace * 9, long), "admitted");
+        assert!(
+            !c.evictable(t2 + grace * 9, grace),
+            "admitted, past its age"
+        );
     }
 }

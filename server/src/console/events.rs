@@ -15,7 +15,6 @@
 //! watcher's token is checked again before each sample it is given: once
 //! it has expired or been revoked, or its admin is banned, the stream ends.
 
-use std::collections::VecDeque;
 use std::convert::Infallible;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -198,7 +197,7 @@ fn anchor(edit: &Edit) -> [f64; 3] {
 /// many more there were, and every chunk column they changed.
 struct NewEdits {
     last_seq: u64,
-    edits: VecDeque<EditView>,
+    edits: Vec<EditView>,
     skipped: u64,
     columns: Vec<(i32, i32)>,
     /// More columns changed than a sample names: redraw them all.
@@ -215,7 +214,7 @@ fn read_edits(
 ) -> Result<NewEdits, StoreError> {
     let mut out = NewEdits {
         last_seq: store.last_seq()?,
-        edits: VecDeque::new(),
+        edits: Vec::new(),
         skipped: 0,
         columns: Vec::new(),
         all_changed: false,
@@ -239,7 +238,7 @@ fn read_edits(
                 }
             }
         }
-        out.edits.push_back(EditView {
+        out.edits.push(EditView {
             seq,
             player,
             kind: edit.kind().name(),
@@ -247,12 +246,18 @@ fn read_edits(
             time_ms,
         });
         if out.edits.len() > limit {
-            out.edits.pop_front();
+            // The oldest goes (segments are read one after another).
+            let oldest = (0..out.edits.len()).min_by_key(|&i| {
+                let e = &out.edits[i];
+                (e.time_ms, e.seq)
+            });
+            if let Some(i) = oldest {
+                out.edits.swap_remove(i);
+            }
             out.skipped += 1;
         }
     })?;
-    // Segments read one after another: newest last.
-    out.edits.make_contiguous().sort_by_key(|e| e.seq);
+    out.edits.sort_by_key(|e| (e.time_ms, e.seq));
     out.columns.sort_unstable();
     out.columns.dedup();
     Ok(out)

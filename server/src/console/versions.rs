@@ -73,12 +73,14 @@ impl VersionIndex {
             };
             let before = state.cursor.clone();
             let mut changes = Vec::new();
-            state
+            let read = state
                 .cursor
-                .read(store, |entry| changes.extend(entry.changes))?;
+                .read(store, |entry| changes.extend(entry.changes));
+            // What was read before a failure counts: the cursor is past it.
             for (pos, version) in changes {
                 state.set(pos, version);
             }
+            read?;
             // A prune during the read may have taken entries it skipped.
             if !before.pruned(store)? {
                 return Ok(());

@@ -15,8 +15,9 @@ use super::{ChunkStore, LogEntry, StoreError};
 
 /// How long a segment no longer written (its node went on to a newer
 /// block, or stopped) is still read: a commit of its node's may have been
-/// under way, and is fenced or done well within this.
-pub const DEAD_SEGMENT_KEPT: Duration = Duration::from_secs(60);
+/// under way, and is done or given up within this (past the longest
+/// `[store.postgres] statement_timeout_ms`, 600 s).
+pub const DEAD_SEGMENT_KEPT: Duration = Duration::from_secs(900);
 
 /// Part of the edit log written in seq order: seqs `first..=last`, of
 /// which `head` is the highest logged (`first - 1` while none is).
@@ -82,7 +83,8 @@ impl LogCursor {
                 gone_since: None,
             });
         }
-        for (first, seg) in &mut self.segs {
+        let firsts: Vec<u64> = self.segs.keys().copied().collect();
+        for (i, (first, seg)) in self.segs.iter_mut().enumerate() {
             let until = match live.get(first) {
                 Some(s) => {
                     seg.gone_since = None;
@@ -90,7 +92,10 @@ impl LogCursor {
                 }
                 None => {
                     seg.gone_since.get_or_insert(now);
-                    seg.last
+                    // Up to its end, below the next segment (the whole log's
+                    // one before a cluster's first block).
+                    let next = firsts.get(i + 1).map_or(u64::MAX, |n| n - 1);
+                    seg.last.min(next)
                 }
             };
             if until <= seg.seen {
@@ -112,11 +117,15 @@ impl LogCursor {
     /// Whether entries past the cursor in some segment were pruned
     /// (`[store] log_retention`): they can no longer be read.
     pub fn pruned(&self, store: &dyn ChunkStore) -> Result<bool, StoreError> {
-        for seg in self.segs.values() {
-            if seg.seen < seg.last && store.log_pruned_at(seg.seen + 1)? {
-                return Ok(true);
-            }
+        let next: Vec<u64> = self
+            .segs
+            .values()
+            .filter(|s| s.seen < s.last)
+            .map(|s| s.seen + 1)
+            .collect();
+        if next.is_empty() {
+            return Ok(false);
         }
-        Ok(false)
+        store.log_pruned_at_any(&next)
     }
 }

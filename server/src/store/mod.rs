@@ -137,7 +137,8 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
 
     /// The parts of the edit log being written now, each in seq order
     /// ([`LogCursor`]): one for a store one process writes; on a cluster's
-    /// PostgreSQL log each node's newest seq block.
+    /// PostgreSQL log each node's newest seq block. A segment's head counts
+    /// pruned entries too.
     fn log_segments(&self) -> Result<Vec<LogSegment>, StoreError> {
         Ok(vec![LogSegment {
             first: 1,
@@ -149,6 +150,16 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// Whether the entry of `seq`, if there was one, was pruned.
     fn log_pruned_at(&self, seq: u64) -> Result<bool, StoreError> {
         Ok(seq <= self.log_base()?)
+    }
+
+    /// Whether the entry of any of `seqs` was pruned.
+    fn log_pruned_at_any(&self, seqs: &[u64]) -> Result<bool, StoreError> {
+        for &seq in seqs {
+            if self.log_pruned_at(seq)? {
+                return Ok(true);
+            }
+        }
+        Ok(false)
     }
 
     /// Removes the log's oldest entries accepted before `before_ms` (ms

@@ -564,41 +564,69 @@ impl ChunkStore for PgStore {
     }
 
     fn log_segments(&self) -> Result<Vec<crate::store::LogSegment>, StoreError> {
+        let whole = || {
+            Ok(vec![crate::store::LogSegment {
+                first: 1,
+                last: i64::MAX as u64,
+                head: self.last_seq()?,
+            }])
+        };
+        // A server alone on the store numbers on from the log's last seq,
+        // whatever blocks a cluster left.
+        if self.leases.is_none() {
+            return whole();
+        }
         let size = to_sql(seqs::SEQ_BLOCK, "seq block")?;
-        // Each node's newest block, and the highest seq logged in it.
+        // Each node's newest block, and the highest seq logged in it
+        // (pruned ones included).
         let rows = self
             .pool
             .run("reading the log's segments", async |c: &mut Conn| {
                 c.query(
-                    "SELECT b.first_seq, \
-                     (SELECT max(e.seq) FROM edit_log e \
-                      WHERE e.seq >= b.first_seq AND e.seq < b.first_seq + $1) \
-                 FROM (SELECT max(first_seq) AS first_seq FROM seq_blocks GROUP BY node) b",
+                    "SELECT b.first_seq, GREATEST(b.first_seq - 1, b.pruned_to, \
+                         (SELECT max(e.seq) FROM edit_log e \
+                          WHERE e.seq >= b.first_seq AND e.seq < b.first_seq + $1)) \
+                     FROM seq_blocks b \
+                     WHERE b.first_seq IN (SELECT max(first_seq) FROM seq_blocks GROUP BY node)",
                     &[&size],
                 )
                 .await
             })?;
         if rows.is_empty() {
-            return Ok(vec![crate::store::LogSegment {
-                first: 1,
-                last: i64::MAX as u64,
-                head: self.last_seq()?,
-            }]);
+            return whole();
         }
         rows.iter()
             .map(|r| {
                 let first = from_sql(r.get(0), "first_seq", "seq_blocks")?;
-                let head = match r.get::<_, Option<i64>>(1) {
-                    Some(h) => from_sql(h, "seq", "edit_log")?,
-                    None => first - 1,
-                };
                 Ok(crate::store::LogSegment {
                     first,
                     last: first + (seqs::SEQ_BLOCK - 1),
-                    head,
+                    head: from_sql(r.get(1), "seq", "edit_log")?,
                 })
             })
             .collect()
+    }
+
+    fn log_pruned_at_any(&self, seqs: &[u64]) -> Result<bool, StoreError> {
+        let seqs: Vec<i64> = seqs
+            .iter()
+            .map(|&s| i64::try_from(s).unwrap_or(i64::MAX))
+            .collect();
+        let row = self.pool.run(
+            "reading how far the log was pruned",
+            async |c: &mut Conn| {
+                c.query_opt(
+                    "SELECT (SELECT log_base FROM world WHERE id = 1) >= ANY($1) \
+                     OR EXISTS (SELECT 1 FROM seq_blocks b, unnest($1::int8[]) AS s(seq) \
+                                WHERE b.first_seq <= s.seq AND b.pruned_to >= s.seq)",
+                    &[&seqs],
+                )
+                .await
+            },
+        )?;
+        Ok(row
+            .and_then(|r| r.get::<_, Option<bool>>(0))
+            .unwrap_or(false))
     }
 
     fn log_pruned_at(&self, seq: u64) -> Result<bool, StoreError> {
