@@ -337,6 +337,41 @@ fn a_commit_timed_out_before_commit_was_sent_wrote_nothing() {
     assert_eq!(store.last_seq().unwrap(), 1);
 }
 
+/// A commit whose `COMMIT` is not answered in time (here a deferred
+/// trigger makes `COMMIT` itself outlast the statement timeout) is
+/// resolved by PostgreSQL's record of its transaction: the session is
+/// ended, the transaction rolled back, and the commit is `Uncommitted`
+/// (nothing written), not an unknown outcome that stops the engine.
+#[test]
+fn a_commit_whose_commit_went_unanswered_is_resolved() {
+    let Some(db) = database("commit_unanswered") else {
+        return;
+    };
+    let cfg = PgConfig {
+        url: db.url(),
+        statement_timeout_ms: 1_000,
+        ..PgConfig::default()
+    };
+    let store = PgStore::open(&cfg, 8).unwrap();
+    store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
+    sql(
+        &db,
+        "CREATE FUNCTION slow_commit() RETURNS trigger LANGUAGE plpgsql AS \
+         $$ BEGIN PERFORM pg_sleep(30); RETURN NULL; END $$; \
+         CREATE CONSTRAINT TRIGGER slow AFTER INSERT ON edit_log \
+         DEFERRABLE INITIALLY DEFERRED FOR EACH ROW EXECUTE FUNCTION slow_commit()",
+    );
+    let pos = ChunkPos::new(1, 0, 1);
+    let batch = Seq::default().delta_batch(&[vec![(pos, terrain_chunk(1))]]);
+    let err = store.commit_batch(&batch).unwrap_err();
+    assert!(matches!(err, StoreError::Uncommitted { .. }), "{err}");
+    assert_eq!(sql(&db, "SELECT count(*) FROM edit_log"), ["0"]);
+    assert!(store.load_chunk(pos).unwrap().is_none());
+    sql(&db, "DROP TRIGGER slow ON edit_log");
+    store.commit_batch(&batch).unwrap();
+    assert_eq!(store.last_seq().unwrap(), 1);
+}
+
 /// On a store never clustered (no seq blocks) the world row's last seq
 /// stays exact: a log beyond it is damage that `check` names and that
 /// refuses the next commit, changing nothing (a cluster's fenced commits

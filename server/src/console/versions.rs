@@ -31,11 +31,21 @@ struct State {
 
 impl State {
     fn set(&mut self, pos: ChunkPos, version: u64) {
-        let old = self.versions.entry(pos).or_insert(0);
-        if version > *old {
-            *self.columns.entry((pos.x, pos.z)).or_insert(0) += version - *old;
-            *old = version;
-        }
+        set(&mut self.versions, &mut self.columns, pos, version);
+    }
+}
+
+/// Records `pos` at `version`, adding what it rose by to its column.
+fn set(
+    versions: &mut HashMap<ChunkPos, u64>,
+    columns: &mut HashMap<(i32, i32), u64>,
+    pos: ChunkPos,
+    version: u64,
+) {
+    let old = versions.entry(pos).or_insert(0);
+    if version > *old {
+        *columns.entry((pos.x, pos.z)).or_insert(0) += version - *old;
+        *old = version;
     }
 }
 
@@ -72,15 +82,18 @@ impl VersionIndex {
                 }
             };
             let before = state.cursor.clone();
-            let mut changes = Vec::new();
-            let read = state
-                .cursor
-                .read(store, |entry| changes.extend(entry.changes));
-            // What was read before a failure counts: the cursor is past it.
-            for (pos, version) in changes {
-                state.set(pos, version);
-            }
-            read?;
+            let State {
+                cursor,
+                versions,
+                columns,
+            } = state;
+            // Each entry as it comes (a console idle for weeks reads weeks
+            // of the log here); what was read before a failure counts.
+            cursor.read(store, |entry| {
+                for (pos, version) in entry.changes {
+                    set(versions, columns, pos, version);
+                }
+            })?;
             // A prune during the read may have taken entries it skipped.
             if !before.pruned(store)? {
                 return Ok(());

@@ -144,17 +144,22 @@ impl Engine {
             // The edit is this node's to apply (its own region is held
             // here; a free one another node may claim at once, with the
             // rest): the regions it writes into are asked for.
+            // A refused edit is no use of its own region: two nodes whose
+            // players only try edits across one border would otherwise
+            // keep both regions, each refusing the other's for good. And a
+            // node with no room to take them asks for nothing.
             if r != anchor && held.contains(&anchor) {
                 let asked: BTreeSet<RegionId> = elsewhere
                     .iter()
                     .map(|(r, ..)| *r)
                     .filter(|r| written.contains(r))
                     .collect();
-                self.want_regions(&asked);
-                // Its own region is in use too: two nodes whose players
-                // edit across one border do not both hand theirs over.
-                if let Err(e) = self.store.acquire_regions(&BTreeSet::from([anchor])) {
-                    self.store_failed(&e);
+                let room = self
+                    .store
+                    .max_held_regions()
+                    .saturating_sub(self.store.regions_held());
+                if asked.len() + free.len() <= room {
+                    self.want_regions(&asked);
                 }
             }
             let reason = RejectReason::RegionElsewhere {
@@ -191,7 +196,10 @@ impl Engine {
             Err(e) => self.store_failed(e),
             // Taken by another node since the holders were read.
             Ok(RegionAccess::Elsewhere { region, .. })
-                if *region != anchor && held.contains(&anchor) && written.contains(region) =>
+                if *region != anchor
+                    && held.contains(&anchor)
+                    && written.contains(region)
+                    && self.store.regions_held() < self.store.max_held_regions() =>
             {
                 self.want_regions(&BTreeSet::from([*region]));
             }

@@ -322,12 +322,36 @@ impl PgStore {
         let (mut conn, mut status) = self
             .pool
             .dedicated(what, async |c: &mut Conn| xact_status(c, &xid).await)?;
+        // Ends the session if it still runs the transaction; whether it did.
+        let end_session = |conn: &mut Conn| {
+            self.pool
+                .on_dedicated(conn, "ending a commit's session", async |c: &mut Conn| {
+                    let row = c
+                        .query_opt(
+                            "SELECT pg_terminate_backend(pid) FROM pg_stat_activity \
+                             WHERE pid = $1 AND backend_xid::text = $2",
+                            &[&x.pid, &short],
+                        )
+                        .await?;
+                    Ok(row.is_some())
+                })
+        };
         loop {
             match status.as_deref() {
-                // A server that lost the transaction (a crash before its
-                // WAL reached the disk) may have handed its id out again:
-                // the batch's own log row tells, now that nothing can add it.
+                // Committed, but its rows may not show yet while its session
+                // still runs it (a synchronous standby's word awaited): that
+                // session is ended and gone first. Then, since a server that
+                // lost the transaction (a crash before its WAL reached the
+                // disk) may have handed its id out again, the batch's own
+                // log row tells.
                 Some("committed") => {
+                    if end_session(&mut conn)? {
+                        if Instant::now() >= deadline {
+                            return Ok(None);
+                        }
+                        std::thread::sleep(OUTCOME_POLL);
+                        continue;
+                    }
                     return self
                         .pool
                         .on_dedicated(&mut conn, what, async |c: &mut Conn| {
@@ -339,18 +363,7 @@ impl PgStore {
                 }
                 Some("aborted") => return Ok(Some(false)),
                 Some("in progress") if Instant::now() < deadline => {
-                    self.pool.on_dedicated(
-                        &mut conn,
-                        "ending a commit's session",
-                        async |c: &mut Conn| {
-                            c.query_opt(
-                                "SELECT pg_terminate_backend(pid) FROM pg_stat_activity \
-                                 WHERE pid = $1 AND backend_xid::text = $2",
-                                &[&x.pid, &short],
-                            )
-                            .await
-                        },
-                    )?;
+                    end_session(&mut conn)?;
                     std::thread::sleep(OUTCOME_POLL);
                     status = self
                         .pool

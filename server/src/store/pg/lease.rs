@@ -25,9 +25,9 @@
 //! release_idle_ms`, and a node holds at most `max_held_regions`: past
 //! half of it, those no edit asked for in a whole lease ([`release_idle`]).
 //!
-//! Handoffs: an edit this node must apply (its own region is held here or
-//! free) that reaches into a region another node holds asks that node for
-//! it ([`want`]: the row's `wanted_by`, at most once a renewal period per
+//! Handoffs: an edit this node must apply (its own region is held here,
+//! and this node has room) that writes into a region another node holds
+//! asks that node for it ([`want`]: the row's `wanted_by`, at most once a renewal period per
 //! region). The holder lets the region go at its next renewal once its own
 //! edits have left it alone for `[cluster] handoff_idle_ms`
 //! ([`hand_over`]), and the edit sent again claims it. A claim clears the
