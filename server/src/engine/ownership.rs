@@ -141,13 +141,12 @@ impl Engine {
         // The edit's own region first: its holder is where to send it.
         elsewhere.sort_by_key(|(r, ..)| *r != anchor);
         if let Some((r, owner, addr)) = elsewhere.first().cloned() {
-            // The edit is this node's to apply (its own region is held
-            // here; a free one another node may claim at once, with the
-            // rest): the regions it writes into are asked for.
-            // A refused edit is no use of its own region: two nodes whose
-            // players only try edits across one border would otherwise
-            // keep both regions, each refusing the other's for good. And a
-            // node with no room to take them asks for nothing.
+            // The edit is this node's to apply when its own region is held
+            // here (a free one another node may claim at once, with the
+            // rest): the regions it writes into are asked for, if this
+            // node has room for them. The refusal is no use of its own
+            // region (two nodes whose players only try edits across one
+            // border would otherwise keep both, refusing each other).
             if r != anchor && held.contains(&anchor) {
                 let asked: BTreeSet<RegionId> = elsewhere
                     .iter()
