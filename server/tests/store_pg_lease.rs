@@ -497,10 +497,11 @@ fn a_region_asked_for_is_handed_over_once_left_alone() {
     sql(&db, "UPDATE regions SET wanted_by = NULL, wanted_at = NULL");
     a.want_regions(&regions(&[busy])).unwrap();
     assert!(wanted().is_empty(), "asked again within a renewal period");
-    // An ask older than a lease is not acted on.
+    // An ask older than two renewal periods (20 s here; the lease is a
+    // minute) is not acted on: its player has stopped trying.
     sql(
         &db,
-        "UPDATE regions SET wanted_by = 'a', wanted_at = now() - interval '2 minutes' \
+        "UPDATE regions SET wanted_by = 'a', wanted_at = now() - interval '30 seconds' \
          WHERE region_x = 0 AND region_z = 0",
     );
     std::thread::sleep(quiet_for);

@@ -31,7 +31,7 @@
 //! region). The holder lets the region go at its next renewal once its own
 //! edits have left it alone for `[cluster] handoff_idle_ms`
 //! ([`hand_over`]), and the edit sent again claims it. A claim clears the
-//! ask; an ask older than a lease is ignored.
+//! ask; an ask older than two renewal periods is ignored.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -972,9 +972,10 @@ pub(super) fn want(
     Ok(())
 }
 
-/// Lets go of the held regions another node asked for within a lease that
-/// this node's edits have left alone for `handoff_idle_ms` (they leave the
-/// book first, as in [`release_idle`]). Returns those handed over.
+/// Lets go of the held regions another node asked for within two renewal
+/// periods that this node's edits have left alone for `handoff_idle_ms`
+/// (they leave the book first, as in [`release_idle`]). Returns those
+/// handed over.
 pub(super) fn hand_over(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
     let Some(quiet) = leases.handoff_idle else {
         return Ok(Vec::new());
@@ -982,12 +983,16 @@ pub(super) fn hand_over(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId
     if leases.book().held.is_empty() {
         return Ok(Vec::new());
     }
+    // An ask counts two renewal periods: the asking node asks again once
+    // a period while its player still tries, so one whose player left
+    // moves no region.
+    let fresh_ms = leases.renew.as_secs_f64() * 2_000.0;
     let rows = pool.run("reading regions asked for", async |c: &mut Conn| {
         c.query(
             "SELECT region_x, region_z, wanted_by FROM regions \
              WHERE owner = $1 AND wanted_by IS NOT NULL AND wanted_by <> $1 \
                AND wanted_at > now() - $2::float8 * interval '1 millisecond'",
-            &[&leases.node_id, &leases.lease_ms],
+            &[&leases.node_id, &fresh_ms],
         )
         .await
     })?;
