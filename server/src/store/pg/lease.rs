@@ -923,7 +923,7 @@ pub(super) fn release_idle(pool: &Pool, leases: &NodeLeases) -> Result<Vec<Regio
 
 /// Asks the holders of `regions` (other nodes') to hand them over: an edit
 /// this node must apply reaches into them. Each region is asked for at
-/// most once a renewal period; the ask lasts a lease.
+/// most once a renewal period; the ask counts two renewal periods.
 pub(super) fn want(
     pool: &Pool,
     leases: &NodeLeases,
