@@ -56,6 +56,8 @@ pub enum Violation {
     UnaskedOp,
     #[error("{chunks} chunks in one UnsubscribedMany; at most {max}")]
     UnsubscribeTooLarge { chunks: usize, max: usize },
+    #[error("{chunks} chunk versions in one EditAccepted; at most {max}")]
+    EditChangesTooMany { chunks: usize, max: usize },
 }
 
 /// Where a server's chunks may lie and how many may be held at once.

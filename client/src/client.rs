@@ -266,9 +266,15 @@ impl Shared {
         let mut r = replica
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
+        // Only a chunk held before or after changed what the game sees:
+        // deltas and withdrawals naming others (a gap, a chunk never sent)
+        // queue no event, so the queue holds only chunks once held.
+        let held_before: Vec<bool> = touched.iter().map(|t| r.get(t.pos()).is_some()).collect();
         let request = r.try_apply(update)?;
-        for t in touched {
-            self.mark_changed(t.pos());
+        for (t, before) in touched.into_iter().zip(held_before) {
+            if before || r.get(t.pos()).is_some() {
+                self.mark_changed(t.pos());
+            }
             if let Some(mut p) = self.prediction() {
                 self.reshape_prediction(&mut p, |p| p.after_update(t, &r));
             }
@@ -455,7 +461,11 @@ impl Client {
         let (control, control_rx) = mpsc::channel(CONTROL_QUEUE);
         let tasks = vec![
             tokio::spawn(write_control(send, control_rx)),
-            tokio::spawn(read_control(reader, shared.clone(), replica.clone())),
+            tokio::spawn(read_control(
+                reader,
+                (conn.clone(), shared.clone()),
+                replica.clone(),
+            )),
             tokio::spawn(read_updates(
                 conn.clone(),
                 (replica.clone(), shared.clone()),
@@ -992,7 +1002,7 @@ async fn write_control(mut send: quinn::SendStream, mut rx: mpsc::Receiver<Bytes
 
 async fn read_control(
     mut reader: FramedReader<quinn::RecvStream>,
-    shared: Arc<Shared>,
+    (conn, shared): (quinn::Connection, Arc<Shared>),
     replica: Arc<Mutex<Replica>>,
 ) {
     loop {
@@ -1001,6 +1011,15 @@ async fn read_control(
             shared.heard();
         }
         match msg {
+            // More than any edit writes: the connection ends rather than
+            // the game being handed the list.
+            Ok(Some(ServerMessage::EditAccepted { changes, .. }))
+                if changes.len() > strata_protocol::limits::MAX_EDIT_CHANGES =>
+            {
+                let (chunks, max) = (changes.len(), strata_protocol::limits::MAX_EDIT_CHANGES);
+                shared.violated(&conn, Violation::EditChangesTooMany { chunks, max });
+                break;
+            }
             Ok(Some(ServerMessage::EditAccepted {
                 client_edit_id,
                 seq,
@@ -1202,6 +1221,54 @@ async fn read_updates(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use strata_protocol::DeltaUpdate;
+    use strata_terrain::delta::ChunkDelta;
+    use strata_terrain::material::ids;
+    use strata_terrain::world::FlatGenerator;
+    use strata_terrain::{Chunk, Voxel};
+
+    /// Only chunks held before or after an update are reported changed:
+    /// a delta for a chunk never sent (a gap) and withdrawals of chunks
+    /// never held queue nothing.
+    #[test]
+    fn only_chunks_held_are_reported_changed() {
+        let shared = Shared {
+            changed: Some(Mutex::default()),
+            ..Shared::default()
+        };
+        let flat = Arc::new(FlatGenerator {
+            ground: Voxel::solid(ids::STONE),
+        });
+        let replica = Mutex::new(Replica::new(Some(flat)));
+        let changed = || {
+            let mut q = shared.changed.as_ref().unwrap().lock().unwrap();
+            std::iter::from_fn(|| q.pop()).collect::<Vec<_>>()
+        };
+        let (held, never) = (ChunkPos::new(0, 0, 0), ChunkPos::new(5, 0, 0));
+        let air = Chunk::uniform(Voxel::AIR);
+        let delta =
+            ChunkDelta::encode(never, 0, 1, &air, &Chunk::uniform(Voxel::solid(1))).unwrap();
+        let gap = WorldUpdate::Delta(DeltaUpdate {
+            delta,
+            mesh_hash: 0,
+            seq: 1,
+        });
+        assert_eq!(
+            shared.apply(&replica, gap),
+            Ok(Some(Request::Resync(never)))
+        );
+        let gone = WorldUpdate::UnsubscribedMany {
+            chunks: vec![never, ChunkPos::new(6, 0, 0)],
+        };
+        assert_eq!(shared.apply(&replica, gone), Ok(None));
+        assert_eq!(changed(), vec![]);
+        let sent = WorldUpdate::Generated { pos: held };
+        assert_eq!(shared.apply(&replica, sent), Ok(None));
+        assert_eq!(changed(), vec![held]);
+        let withdrawn = WorldUpdate::Unsubscribed { pos: held };
+        assert_eq!(shared.apply(&replica, withdrawn), Ok(None));
+        assert_eq!(changed(), vec![held]);
+    }
 
     #[tokio::test]
     async fn endpoints_bind_loopback_only_for_a_loopback_server() {

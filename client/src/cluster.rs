@@ -49,6 +49,10 @@ pub const JOIN_BACKOFF: Duration = Duration::from_secs(2);
 /// Most distinct node addresses one reroute looks up, and most names the
 /// client keeps looked up.
 const MAX_LOOKUPS: usize = 2 * MAX_CLUSTER_NODES;
+/// Most routes kept: every node's `RegionOwners` at its limit, and as many
+/// again learned from refusals and acks between two of them. A node naming
+/// new regions in refusal after refusal adds none past it.
+pub const MAX_ROUTES: usize = 2 * MAX_CLUSTER_NODES * MAX_REGION_OWNERS;
 /// How long a name's lookup is used again (a failed one: [`JOIN_BACKOFF`]).
 pub const RESOLVED_TTL: Duration = Duration::from_secs(60);
 
@@ -427,6 +431,15 @@ struct Routing {
     routes: BTreeMap<(i32, i32), SocketAddr>,
     /// The nodes named, at most [`MAX_CLUSTER_NODES`].
     named: Vec<SocketAddr>,
+}
+
+/// Routes `region` to `to`: a region known already is routed anew; a new
+/// one only while fewer than [`MAX_ROUTES`] are kept (past it the edit
+/// still reaches its node, the route is not remembered).
+fn learn_route(routes: &mut BTreeMap<(i32, i32), SocketAddr>, region: (i32, i32), to: SocketAddr) {
+    if routes.len() < MAX_ROUTES || routes.contains_key(&region) {
+        routes.insert(region, to);
+    }
 }
 
 /// Builds the routes from `latest`: another node's word first, each
@@ -1005,7 +1018,7 @@ impl ClusterClient {
         if tried.len() > 1 {
             if let (Verdict::Accepted { .. }, Some(side)) = (&acked.0, self.view.region_chunks) {
                 let region = region_of(edit_anchor(edit).chunk(), side);
-                self.view.routes.insert(region, to);
+                learn_route(&mut self.view.routes, region, to);
             }
             return NextHop::Done;
         }
@@ -1049,7 +1062,7 @@ impl ClusterClient {
         if there == to {
             return NextHop::Done;
         }
-        self.view.routes.insert((*region_x, *region_z), there);
+        learn_route(&mut self.view.routes, (*region_x, *region_z), there);
         if beside {
             return NextHop::Done;
         }
@@ -1286,6 +1299,20 @@ mod tests {
         assert_eq!(routing.routes[&(0, 0)], home);
         assert_eq!(routing.routes[&(1, 0)], east);
         assert_eq!(routing.named, vec![home]);
+    }
+
+    /// Refusals naming ever new regions add routes up to the limit, and
+    /// known regions are still routed anew past it.
+    #[test]
+    fn routes_learned_from_refusals_stop_at_their_limit() {
+        let mut routes = BTreeMap::new();
+        for x in 0..MAX_ROUTES as i32 + 100 {
+            learn_route(&mut routes, (x, 7), addr(1));
+        }
+        assert_eq!(routes.len(), MAX_ROUTES);
+        learn_route(&mut routes, (0, 7), addr(2));
+        assert_eq!(routes[&(0, 7)], addr(2));
+        assert_eq!(routes.len(), MAX_ROUTES);
     }
 
     #[tokio::test]

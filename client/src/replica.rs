@@ -192,10 +192,17 @@ impl Replica {
 
     /// Drops a chunk the client no longer wants (it sends `Forget`): it is
     /// not held, and late deltas and whole chunks for it (sent before the
-    /// server handled the `Forget`) are ignored until [`Self::undrop`].
+    /// server handled the `Forget`) are ignored until [`Self::undrop`] or
+    /// the server's withdrawal. Only a chunk held is marked so: the server
+    /// withdraws only chunks it sent, and one not held either was never
+    /// sent (taken in when it is, once back in view), is on its way with
+    /// its withdrawal behind it, or was withdrawn already.
     pub fn drop_chunk(&mut self, pos: ChunkPos) {
+        let held = self.chunks.contains_key(&pos);
         self.forget(pos);
-        self.dropped.insert(pos);
+        if held {
+            self.dropped.insert(pos);
+        }
     }
 
     /// The client asks for a dropped chunk again (`ResyncRequest` or
@@ -763,6 +770,28 @@ mod tests {
         // Inside the world they are taken in.
         assert_eq!(r.try_apply(generated(0, 7, 0)), Ok(None));
         assert_eq!(r.len(), 1);
+    }
+
+    /// A chunk forgotten while not held (withdrawn already, or never in
+    /// view) is taken in when the server sends it later: the server
+    /// withdraws only chunks it sent, so nothing would ever clear a mark.
+    #[test]
+    fn a_chunk_forgotten_while_not_held_is_taken_in_when_sent() {
+        let mut r = Replica::new(Some(flat()));
+        let pos = ChunkPos::new(3, 0, 0);
+        r.drop_chunk(pos);
+        assert!(!r.is_dropped(pos));
+        r.apply(generated(3, 0, 0));
+        assert!(r.get(pos).is_some());
+        // Held, it is dropped: what the server sent before it took the
+        // `Forget` is ignored until the withdrawal.
+        r.drop_chunk(pos);
+        assert!(r.is_dropped(pos));
+        r.apply(generated(3, 0, 0));
+        assert!(r.get(pos).is_none());
+        r.apply(WorldUpdate::UnsubscribedMany { chunks: vec![pos] });
+        r.apply(generated(3, 0, 0));
+        assert!(r.get(pos).is_some());
     }
 
     #[test]

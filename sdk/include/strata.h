@@ -312,6 +312,9 @@ typedef struct {
 
 // The replica's counters, from `strata_stats`.
 typedef struct {
+  // Chunks held now (on a cluster, by the first node's connection: every
+  // connection holds the whole view). The others are summed over the
+  // connections.
   uint64_t chunks_held;
   // Deltas applied (after their version and hash checks).
   uint64_t deltas;
@@ -363,8 +366,10 @@ StrataStatus strata_chunk_of(double x, double y, double z, int32_t *out_chunk);
 // Meshes a held chunk as the player sees it, at `lod` (0..=3), with
 // transition cells on the faces set in `transition_faces` (bits -X, +X,
 // -Y, +Y, -Z, +Z from bit 0: faces bordering a chunk one LOD finer; 0 at
-// LOD 0). On success `*out_mesh` is a new mesh the caller owns.
-// STRATA_STATUS_NOT_HELD when the chunk is not held.
+// LOD 0). On success `*out_mesh` is a new mesh the caller owns; on any
+// other status it is NULL (when `out_mesh` itself is not), which
+// `strata_mesh_free` ignores. STRATA_STATUS_NOT_HELD when the chunk is not
+// held.
 //
 // # Safety
 // `s` is a live session; `out_mesh` is writable.
@@ -397,7 +402,8 @@ void strata_mesh_free(StrataMesh *mesh);
 // Blocks until the server welcomes the player (10 s at most for each
 // address the name resolves to: IPv4 ones first, the next tried only when
 // nothing answered at one, at most 4; name lookup comes on top). On success
-// `*out` is a new session the caller owns.
+// `*out` is a new session the caller owns; on any other status it is NULL
+// (when `out` itself is not), which `strata_session_free` ignores.
 //
 // # Safety
 // `address` and `token` are NUL-terminated strings, `cert_der` points to
@@ -454,7 +460,8 @@ void strata_session_free(StrataSession *s);
 StrataStatus strata_welcome(const StrataSession *s, StrataWelcome *out_welcome);
 
 // Reports the player's feet position in voxels (an unreliable datagram:
-// send it every frame or so). Interest follows it until `strata_subscribe`.
+// send it every frame or so). The view follows it; one `strata_subscribe`
+// asked moves with it once the feet pass its reach (see there).
 //
 // # Safety
 // `s` is a live session.

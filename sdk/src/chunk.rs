@@ -110,8 +110,10 @@ const _: () = {
 /// Meshes a held chunk as the player sees it, at `lod` (0..=3), with
 /// transition cells on the faces set in `transition_faces` (bits -X, +X,
 /// -Y, +Y, -Z, +Z from bit 0: faces bordering a chunk one LOD finer; 0 at
-/// LOD 0). On success `*out_mesh` is a new mesh the caller owns.
-/// STRATA_STATUS_NOT_HELD when the chunk is not held.
+/// LOD 0). On success `*out_mesh` is a new mesh the caller owns; on any
+/// other status it is NULL (when `out_mesh` itself is not), which
+/// `strata_mesh_free` ignores. STRATA_STATUS_NOT_HELD when the chunk is not
+/// held.
 ///
 /// # Safety
 /// `s` is a live session; `out_mesh` is writable.
@@ -127,7 +129,10 @@ pub unsafe extern "C" fn strata_mesh(
 ) -> StrataStatus {
     call(|| {
         // SAFETY: the caller's contract above.
-        let (session, dst) = unsafe { (session(s)?, writable(out_mesh, "out_mesh")?) };
+        let dst = unsafe { writable(out_mesh, "out_mesh") }?;
+        dst.write(std::ptr::null_mut());
+        // SAFETY: the caller's contract above.
+        let session = unsafe { session(s) }?;
         let pos = ChunkPos::new(cx, cy, cz);
         let mesh = session
             .mesh(pos, lod, transition_faces)?

@@ -1,6 +1,7 @@
 //! Sessions: connect, position, interest, edits, events, welcome, stats.
 
 use std::ffi::c_char;
+use std::mem::MaybeUninit;
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::sync::Mutex;
 
@@ -85,7 +86,8 @@ fn try_next(e: &SessionError) -> bool {
 /// Blocks until the server welcomes the player (10 s at most for each
 /// address the name resolves to: IPv4 ones first, the next tried only when
 /// nothing answered at one, at most 4; name lookup comes on top). On success
-/// `*out` is a new session the caller owns.
+/// `*out` is a new session the caller owns; on any other status it is NULL
+/// (when `out` itself is not), which `strata_session_free` ignores.
 ///
 /// # Safety
 /// `address` and `token` are NUL-terminated strings, `cert_der` points to
@@ -101,6 +103,8 @@ pub unsafe extern "C" fn strata_connect(
 ) -> StrataStatus {
     call(|| {
         // SAFETY: the caller's contract above.
+        let dst = unsafe { null_first(out_session) }?;
+        // SAFETY: the caller's contract above.
         let (address, cert, token) = unsafe {
             (
                 text(address, "address")?,
@@ -112,8 +116,7 @@ pub unsafe extern "C" fn strata_connect(
             predict: predict != 0,
             ..SessionOptions::default()
         };
-        // SAFETY: the caller's contract above.
-        unsafe { connect(address, cert, token, (opts, false), out_session) }
+        connect(address, cert, token, (opts, false), dst)
     })
 }
 
@@ -173,6 +176,8 @@ unsafe fn connect_options(
 ) -> StrataStatus {
     call(|| {
         // SAFETY: the caller's contract above.
+        let dst = unsafe { null_first(out_session) }?;
+        // SAFETY: the caller's contract above.
         let (address, cert, token, o) = unsafe {
             (
                 text(address, "address")?,
@@ -186,25 +191,33 @@ unsafe fn connect_options(
             capabilities: o.capabilities,
             ..SessionOptions::default()
         };
-        // SAFETY: the caller's contract above.
-        unsafe { connect(address, cert, token, (opts, cluster), out_session) }
+        connect(address, cert, token, (opts, cluster), dst)
     })
 }
 
-/// Connects (to a cluster when `cluster`) and hands the new session to
-/// `*out_session`.
+/// `*out_session`, set to NULL: it stays so unless the connect succeeds
+/// (a caller that frees it whatever the status frees nothing).
 ///
 /// # Safety
-/// `out_session` is null or writable.
-unsafe fn connect(
+/// `out_session` is null (refused) or writable.
+unsafe fn null_first<'a>(
+    out_session: *mut *mut StrataSession,
+) -> Result<&'a mut MaybeUninit<*mut StrataSession>, Failure> {
+    // SAFETY: forwarded from the caller.
+    let dst = unsafe { writable(out_session, "out_session") }?;
+    dst.write(std::ptr::null_mut());
+    Ok(dst)
+}
+
+/// Connects (to a cluster when `cluster`) and hands the new session to
+/// `*dst`.
+fn connect(
     address: &str,
     cert: &[u8],
     token: &str,
     (opts, cluster): (SessionOptions, bool),
-    out_session: *mut *mut StrataSession,
+    dst: &mut MaybeUninit<*mut StrataSession>,
 ) -> Result<(), Failure> {
-    // SAFETY: the caller's contract above.
-    let dst = unsafe { writable(out_session, "out_session") }?;
     let addrs = resolve(address)?;
     let mut result = Err(Failure::new(StrataStatus::Connect, "no address tried"));
     for (i, addr) in addrs.iter().enumerate() {
@@ -290,7 +303,8 @@ pub unsafe extern "C" fn strata_welcome(
 }
 
 /// Reports the player's feet position in voxels (an unreliable datagram:
-/// send it every frame or so). Interest follows it until `strata_subscribe`.
+/// send it every frame or so). The view follows it; one `strata_subscribe`
+/// asked moves with it once the feet pass its reach (see there).
 ///
 /// # Safety
 /// `s` is a live session.
@@ -627,6 +641,51 @@ mod tests {
         let bytes: Vec<u8> = ev.message.iter().map(|&c| c as u8).collect();
         let message = CStr::from_bytes_until_nul(&bytes).expect("NUL-terminated");
         assert_eq!(message.to_str(), Ok("é".repeat(127).as_str()));
+    }
+
+    /// A failed connect or mesh leaves NULL behind, whatever the caller's
+    /// variable held: freeing it whatever the status frees nothing.
+    #[test]
+    fn failures_leave_null_out_pointers() {
+        let garbage = std::ptr::NonNull::<u8>::dangling().as_ptr();
+        let mut session = garbage.cast::<StrataSession>();
+        let cert = [0u8; 4];
+        // SAFETY: valid strings, a 4-byte certificate, a writable out.
+        let status = unsafe {
+            strata_connect(
+                c"not an address".as_ptr(),
+                cert.as_ptr(),
+                cert.len(),
+                c"token".as_ptr(),
+                0,
+                &mut session,
+            )
+        };
+        assert_ne!(status, StrataStatus::Ok);
+        assert!(session.is_null());
+        // Refused before anything is read too (a null address).
+        session = garbage.cast();
+        // SAFETY: a null address is refused; the rest as above.
+        let status = unsafe {
+            strata_connect(
+                std::ptr::null(),
+                cert.as_ptr(),
+                4,
+                c"t".as_ptr(),
+                0,
+                &mut session,
+            )
+        };
+        assert_eq!(status, StrataStatus::InvalidArgument);
+        assert!(session.is_null());
+        // SAFETY: null, which it ignores.
+        unsafe { strata_session_free(session) };
+        let mut mesh = garbage.cast::<crate::chunk::StrataMesh>();
+        // SAFETY: a null session is refused; the out pointer is writable.
+        let status =
+            unsafe { crate::chunk::strata_mesh(std::ptr::null(), 0, 0, 0, 0, 0, &mut mesh) };
+        assert_eq!(status, StrataStatus::InvalidArgument);
+        assert!(mesh.is_null());
     }
 
     #[test]

@@ -191,6 +191,9 @@ pub struct StrataWelcome {
 #[repr(C)]
 #[derive(Debug, Clone, Copy)]
 pub struct StrataStats {
+    /// Chunks held now (on a cluster, by the first node's connection: every
+    /// connection holds the whole view). The others are summed over the
+    /// connections.
     pub chunks_held: u64,
     /// Deltas applied (after their version and hash checks).
     pub deltas: u64,

@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use strata_client_sim::{Client, ClientOptions, ClusterClient, JoinRate};
 use strata_protocol::{
-    encode_frame, Direction, OpUpdate, RegionHolder, RegionOwner, Role, ServerMessage, Start,
-    Welcome, WorldUpdate,
+    encode_frame, ChunkVersion, Direction, OpUpdate, RegionHolder, RegionOwner, Role,
+    ServerMessage, Start, Welcome, WorldUpdate,
 };
 use strata_server::config::{NetSection, TlsSection};
 use strata_server::tls::{server_config, CertPair};
@@ -62,10 +62,24 @@ async fn welcome(server: &quinn::Endpoint) -> (quinn::Connection, quinn::SendStr
 /// updates stream; returns whether the client closed the connection
 /// within `wait`.
 async fn hostile(updates: Vec<WorldUpdate>, opts: ClientOptions, wait: Duration) -> bool {
+    hostile_on(Vec::new(), updates, opts, wait).await
+}
+
+/// As [`hostile`], with `control` written on the control stream first.
+async fn hostile_on(
+    control: Vec<ServerMessage>,
+    updates: Vec<WorldUpdate>,
+    opts: ClientOptions,
+    wait: Duration,
+) -> bool {
     let (server, pair) = endpoint();
     let addr = server.local_addr().unwrap();
     let serving = tokio::spawn(async move {
-        let (conn, _control) = welcome(&server).await;
+        let (conn, mut control_stream) = welcome(&server).await;
+        for m in control {
+            let frame = encode_frame(&m, Direction::ServerToClient).unwrap();
+            control_stream.write_all(&frame).await.unwrap();
+        }
         let mut out = conn.open_uni().await.unwrap();
         for u in updates {
             let frame = encode_frame(&u, Direction::ServerToClient).unwrap();
@@ -118,6 +132,27 @@ async fn an_unsubscribe_past_the_protocol_cap_ends_the_connection() {
     };
     assert!(hostile(many(max + 1), ClientOptions::default(), LIMIT).await);
     assert!(!hostile(many(max), ClientOptions::default(), KEPT).await);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_verdict_listing_more_chunks_than_any_edit_writes_ends_the_connection() {
+    let max = strata_protocol::limits::MAX_EDIT_CHANGES;
+    let verdict = |n: usize| {
+        let changes = (0..n as i32)
+            .map(|i| ChunkVersion {
+                pos: ChunkPos::new(i, 0, 0),
+                version: 1,
+            })
+            .collect();
+        vec![ServerMessage::EditAccepted {
+            client_edit_id: 1,
+            seq: 1,
+            changes,
+        }]
+    };
+    let opts = ClientOptions::default;
+    assert!(hostile_on(verdict(max + 1), Vec::new(), opts(), LIMIT).await);
+    assert!(!hostile_on(verdict(max), Vec::new(), opts(), KEPT).await);
 }
 
 /// Local UDP sockets standing for hosts a hostile node names.

@@ -182,9 +182,16 @@ impl SnapshotJobs {
     }
 }
 
-/// Whether `name` is a console snapshot's file name.
+/// Whether `name` is a console snapshot's file name, exactly as
+/// [`SnapshotJobs::start`] names them (`strata-seqS-T.snap`, digits only):
+/// an operator's own `strata-seq5.snap` or `strata-seq5-old.snap` beside
+/// them is never pruned.
 fn is_console_snapshot(name: &str) -> bool {
-    name.starts_with("strata-seq") && name.ends_with(".snap")
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    name.strip_prefix("strata-seq")
+        .and_then(|n| n.strip_suffix(".snap"))
+        .and_then(|n| n.split_once('-'))
+        .is_some_and(|(seq, time)| digits(seq) && digits(time))
 }
 
 /// The writer's process id, when `name` is a console snapshot's `.partial`
@@ -309,6 +316,47 @@ mod tests {
             }
         }
         None
+    }
+
+    #[test]
+    fn only_console_snapshots_named_as_written_are_pruned() {
+        let dir = tempfile::tempdir().unwrap();
+        let console = [
+            "strata-seq5-100.snap",
+            "strata-seq9-300.snap",
+            "strata-seq7-200.snap",
+        ];
+        let operators = [
+            "strata-seq5.snap",
+            "strata-seq5-old.snap",
+            "strata-seq-100.snap",
+            "strata-seq5-.snap",
+            "strata-seq5-1-2.snap",
+        ];
+        for (i, n) in console.iter().chain(&operators).enumerate() {
+            let path = dir.path().join(n);
+            std::fs::write(&path, b"x").unwrap();
+            // Operators' files oldest: pruned by mistake, they would go first.
+            let secs = if operators.contains(n) { 0 } else { 1_000_000 };
+            let at = std::time::UNIX_EPOCH + Duration::from_secs(secs + i as u64);
+            std::fs::File::options()
+                .write(true)
+                .open(&path)
+                .unwrap()
+                .set_modified(at)
+                .unwrap();
+        }
+        prune(dir.path(), 1);
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        left.sort();
+        let mut want: Vec<String> = operators.iter().map(|s| s.to_string()).collect();
+        // The newest console snapshot is kept.
+        want.push("strata-seq7-200.snap".into());
+        want.sort();
+        assert_eq!(left, want);
     }
 
     #[test]
