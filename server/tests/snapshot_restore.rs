@@ -33,6 +33,17 @@ use strata_terrain::gen::GenParams;
 use strata_terrain::{ChunkPos, VoxelPos};
 use strata_tests::postgres::database;
 
+/// The offline target: the stopped server's data dir `data`.
+fn offline(data: &Path) -> strata_server::admin::remote::TargetArgs {
+    strata_server::admin::remote::TargetArgs {
+        data_dir: Some(data.to_path_buf()),
+        server: None,
+        cert: None,
+        token: None,
+        token_file: None,
+    }
+}
+
 /// `n` chunks in a row, at versions 1..=n.
 fn chunks(n: i32) -> Vec<(ChunkPos, u64)> {
     (0..n)
@@ -804,13 +815,7 @@ fn an_offline_postgres_snapshot_and_running_servers_keep_off_each_other() {
         snapshot_cmd::create(&snapshot_cmd::CreateArgs {
             config: None,
             out: tmp.path().join(out),
-            target: strata_server::admin::remote::TargetArgs {
-                data_dir: Some(data.clone()),
-                server: None,
-                cert: None,
-                token: None,
-                token_file: None,
-            },
+            target: offline(&data),
             max_pending_chunks: 0,
         })
     };
@@ -1085,4 +1090,71 @@ fn a_cluster_nodes_commit_into_a_world_restored_under_it_is_refused() {
     assert!(matches!(err, StoreError::WorldReplaced { .. }), "{err}");
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
     assert_eq!(sql(&db, "SELECT count(*) FROM edit_log"), ["0"]);
+}
+
+/// An offline snapshot with `--config` naming the database snapshots the
+/// database's world, not a `world.sled` left in the data dir from before a
+/// move to PostgreSQL; and a restore with no config into a data dir of a
+/// server's files but no sled world (a PostgreSQL node's) is refused, not
+/// made into a `world.sled` no server reads.
+#[test]
+fn offline_tools_take_the_store_the_config_names() {
+    let Some(db) = database("offline_tools_take_the_store_the_config_names") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    // The sled world it had (seq 9), then the database's (seq 20).
+    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
+    assert_eq!(restore(&old, &data, false).unwrap(), 3);
+    let new = snapshot(tmp.path(), "new.snap", &header(20), 5);
+    assert_eq!(pg_restore(&db, tmp.path(), &new, false).unwrap(), 5);
+    let config = tmp.path().join("strata.toml");
+    let out = tmp.path().join("backup.snap");
+    let created = snapshot_cmd::create(&snapshot_cmd::CreateArgs {
+        config: Some(config),
+        out: out.clone(),
+        target: offline(&data),
+        max_pending_chunks: 0,
+    })
+    .unwrap();
+    assert_eq!((created.seq, created.chunks), (20, 5));
+    // A PostgreSQL node's data dir: identity files, no world, no config.
+    std::fs::remove_dir_all(data.join(WORLD_DB_NAME)).unwrap();
+    let err = format!("{:#}", restore(&old, &data, true).unwrap_err());
+    assert!(err.contains("pass the server's --config"), "{err}");
+    assert!(!data.join(WORLD_DB_NAME).exists(), "nothing made");
+}
+
+/// Offline `zones add` with no `--config` starts from the zones the data
+/// dir's own `strata.toml` gives a world that never stored any (here: no
+/// spawn protection), as the server would, not from the built-in ones.
+#[test]
+fn offline_zones_start_from_the_data_dirs_config() {
+    use strata_server::admin::zones_cmd::{self, ZoneAddArgs, ZonesCommand};
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
+    assert_eq!(restore(&old, &data, false).unwrap(), 3);
+    // A world whose zones never changed: none stored.
+    let db = strata_server::store::open_raw(&data.join(WORLD_DB_NAME)).unwrap();
+    let blobs = db.open_tree(strata_server::store::TREE_BLOBS).unwrap();
+    blobs.remove(ZONES_BLOB.as_bytes()).unwrap();
+    db.flush().unwrap();
+    drop((blobs, db));
+    std::fs::write(
+        data.join("strata.toml"),
+        "[validation]\nspawn_protection_radius = 0\n",
+    )
+    .unwrap();
+    let add = ZonesCommand::Add(ZoneAddArgs {
+        name: "arena".into(),
+        min: vec![0, 0, 0],
+        max: vec![4, 4, 4],
+        target: offline(&data),
+        config: None,
+    });
+    let zones = zones_cmd::run(&add).unwrap();
+    let names: Vec<&str> = zones.iter().map(|z| z.name.as_str()).collect();
+    assert_eq!(names, ["arena"]);
 }

@@ -603,6 +603,46 @@ fn a_cluster_node_sweeps_only_the_regions_it_names() {
         .unwrap();
 }
 
+/// A spot in a region another node holds (air to this one) is taken, but
+/// what leaves the node, in tickets and stored positions, is the last
+/// spot it judged: the other node sweeps the way on from there.
+#[test]
+fn only_spots_a_cluster_node_judged_leave_it() {
+    use strata_server::sequencer::regions::RegionId;
+    let (x, z) = HOME;
+    let side = SequencerConfig::default().region_chunks;
+    let region = |x: i32| RegionId::of(VoxelPos::new(x, 0, z).chunk(), side);
+    let mut s = ready(ValidationConfig::default());
+    s.set_swept_regions(Some([region(x)].into_iter().collect()));
+    s.update_position(PLAYER, at(2, x + 2, 0, z), 1_000)
+        .unwrap();
+    let judged = FixedVec3::from_voxels(x + 2, 0, z);
+    assert_eq!(s.judged_position(PLAYER).unwrap().feet, judged);
+    // The region is another node's now.
+    let elsewhere = region(x + 1000);
+    s.set_swept_regions(Some([elsewhere].into_iter().collect()));
+    s.set_foreign_regions([region(x)].into_iter().collect());
+    s.update_position(PLAYER, at(3, x + 4, 0, z), 1_500)
+        .unwrap();
+    let taken = FixedVec3::from_voxels(x + 4, 0, z);
+    assert_eq!(s.position(PLAYER).unwrap().feet, taken);
+    assert_eq!(s.judged_position(PLAYER).unwrap().feet, judged);
+    let stored: Vec<FixedVec3> = s
+        .take_moved()
+        .into_iter()
+        .filter(|(player, _)| player == &format!("p{PLAYER}"))
+        .map(|(_, p)| p.feet)
+        .collect();
+    assert_eq!(stored, [judged]);
+    // A region whose holder it has not read (a node just started), or
+    // alone on its store: judged.
+    s.set_foreign_regions(Default::default());
+    s.update_position(PLAYER, at(4, x + 5, 0, z), 2_000)
+        .unwrap();
+    let here = FixedVec3::from_voxels(x + 5, 0, z);
+    assert_eq!(s.judged_position(PLAYER).unwrap().feet, here);
+}
+
 /// An arrival's first move is swept like any other, from where it was
 /// placed: a ticket carries no way through a wall.
 #[test]

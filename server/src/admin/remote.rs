@@ -122,9 +122,19 @@ impl TargetArgs {
 /// that `DIR/strata.toml` names, else sled's `DIR/world.sled`. It holds no
 /// leases (its writes are not fenced): a cluster's nodes must be stopped.
 pub fn open_offline_store(dir: &Path) -> anyhow::Result<Arc<dyn ChunkStore>> {
+    open_offline_store_as(dir, None)
+}
+
+/// [`open_offline_store`] with the server's config at `config` when given
+/// (its `[store]` names the store, not `DIR/strata.toml`: a data dir left
+/// with a `world.sled` after a move to PostgreSQL is not read by mistake).
+pub fn open_offline_store_as(
+    dir: &Path,
+    config: Option<&Path>,
+) -> anyhow::Result<Arc<dyn ChunkStore>> {
     let dd = DataDir::open_existing(dir)
         .with_context(|| format!("opening data dir {}", dir.display()))?;
-    let cfg = data_dir_config(dir)?;
+    let cfg = offline_config(dir, config)?;
     let world_db = dd.world_db_path();
     // Opening sled creates a store: a data dir without one (never started,
     // or a PostgreSQL server's whose strata.toml is elsewhere) would get an
@@ -157,13 +167,23 @@ pub fn open_offline_store(dir: &Path) -> anyhow::Result<Arc<dyn ChunkStore>> {
     // world's generator: the config's if the data dir has one, else the
     // one the store records. Without it those reads say what they need.
     if let Some(meta) = store.load_meta()? {
-        let has_config = dir.join(DATA_DIR_CONFIG_NAME).is_file();
+        let has_config = config.is_some() || dir.join(DATA_DIR_CONFIG_NAME).is_file();
         let generator = world_generator_of(has_config.then_some(&cfg), Some(&meta));
         if let Ok(g) = generator {
             store.attach_generator(Arc::new(g));
         }
     }
     Ok(store)
+}
+
+/// The config at `config` when given, else [`data_dir_config`].
+pub fn offline_config(dir: &Path, config: Option<&Path>) -> anyhow::Result<ServerConfig> {
+    match config {
+        Some(path) => {
+            ServerConfig::load(Some(path)).with_context(|| format!("loading {}", path.display()))
+        }
+        None => data_dir_config(dir),
+    }
 }
 
 /// `DIR/strata.toml` when the data dir has one, else the defaults.

@@ -9,7 +9,8 @@ use clap::{Args, Subcommand};
 use strata_protocol::admin::{AdminRequest, AdminResponse, SnapshotInfo, ZoneSpec};
 
 use super::remote::{
-    block_on, connect_target, data_dir_config, open_offline_store, progress, Target, TargetArgs,
+    block_on, connect_target, data_dir_config, offline_config, open_offline_store_as, progress,
+    Target, TargetArgs,
 };
 use super::world_source::DATA_DIR_CONFIG_NAME;
 use crate::app::ZONES_BLOB;
@@ -53,9 +54,9 @@ pub struct CreateArgs {
     /// runs (0: the server's default).
     #[arg(long, default_value_t = 0)]
     pub max_pending_chunks: u32,
-    /// Offline: the server's config, whose spawn protection a world whose
-    /// zones never changed has [default: the data dir's strata.toml, else
-    /// the defaults].
+    /// Offline: the server's config: its [store] is the one read, and its
+    /// spawn protection is a world's whose zones never changed [default:
+    /// the data dir's strata.toml, else the defaults].
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
 }
@@ -276,15 +277,12 @@ pub async fn create_online(
 pub fn create(args: &CreateArgs) -> anyhow::Result<Created> {
     match args.target.target()? {
         Target::Offline(dir) => {
-            let store = open_offline_store(&dir)?;
+            // The store `--config` names, if given, as for its zones.
+            let config = args.config.as_deref();
+            let store = open_offline_store_as(&dir, config)?;
             // One moment of the world: no server writes it meanwhile.
             store.hold_alone()?;
-            let cfg = match &args.config {
-                Some(path) => ServerConfig::load(Some(path))
-                    .with_context(|| format!("loading {}", path.display()))?,
-                None => data_dir_config(&dir)?,
-            };
-            create_offline(&*store, &args.out, &cfg)
+            create_offline(&*store, &args.out, &offline_config(&dir, config)?)
         }
         Target::Online {
             server,
@@ -362,6 +360,20 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
             args.data_dir.display()
         );
     }
+    // A data dir with a server's files but no sled world and no config (a
+    // PostgreSQL node's, its strata.toml kept elsewhere): a world.sled made
+    // here would be read by no server.
+    let sled_world = args.data_dir.join(crate::datadir::WORLD_DB_NAME);
+    let swapping = with_suffix(&sled_world, REPLACED_SUFFIX).exists();
+    if cfg.is_none() && !is_empty_dir(&args.data_dir)? && !sled_world.exists() && !swapping {
+        bail!(
+            "{} holds no {} and no {}: pass the server's --config (its [store] says where the \
+             world goes)",
+            args.data_dir.display(),
+            crate::datadir::WORLD_DB_NAME,
+            DATA_DIR_CONFIG_NAME
+        );
+    }
     let names = cfg.as_ref().map_or(&[][..], |c| &c.tls.extra_names[..]);
     let (dd, _) = DataDir::open_or_init(&args.data_dir, names)
         .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
@@ -414,7 +426,9 @@ fn kept_access(db: &Path, drop_access: bool) -> anyhow::Result<Option<Vec<u8>>> 
     if !db.exists() {
         return Ok(None);
     }
-    match SledStore::open(db).and_then(|s| s.get_blob(ACCESS_BLOB)) {
+    // Read as is: a failed restore leaves an older build's world one that
+    // build still opens.
+    match crate::store::read_blob_as_is(db, ACCESS_BLOB) {
         Ok(access) => Ok(access),
         Err(e) if drop_access => {
             eprintln!(

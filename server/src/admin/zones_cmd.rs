@@ -11,8 +11,7 @@ use clap::{Args, Subcommand};
 use strata_protocol::admin::{AdminRequest, AdminResponse, ZoneSpec};
 use strata_terrain::VoxelPos;
 
-use super::remote::{open_offline_store, Target, TargetArgs};
-use crate::config::ServerConfig;
+use super::remote::{offline_config, open_offline_store_as, Target, TargetArgs};
 use crate::engine::admin::zone_spec;
 use crate::sequencer::Sequencer;
 use crate::store::ChunkStore;
@@ -33,7 +32,8 @@ pub enum ZonesCommand {
 pub struct ZonesListArgs {
     #[command(flatten)]
     pub target: TargetArgs,
-    /// Offline: server config whose spawn protection applies when no zones are stored.
+    /// Offline: the server's config: its [store], and its spawn protection when no
+    /// zones are stored [default: the data dir's strata.toml, else the defaults].
     #[arg(long)]
     pub config: Option<PathBuf>,
 }
@@ -50,7 +50,8 @@ pub struct ZoneAddArgs {
     pub max: Vec<i32>,
     #[command(flatten)]
     pub target: TargetArgs,
-    /// Offline: server config whose spawn protection applies when no zones are stored.
+    /// Offline: the server's config: its [store], and its spawn protection when no
+    /// zones are stored [default: the data dir's strata.toml, else the defaults].
     #[arg(long)]
     pub config: Option<PathBuf>,
 }
@@ -60,7 +61,8 @@ pub struct ZoneRemoveArgs {
     pub name: String,
     #[command(flatten)]
     pub target: TargetArgs,
-    /// Offline: server config whose spawn protection applies when no zones are stored.
+    /// Offline: the server's config: its [store], and its spawn protection when no
+    /// zones are stored [default: the data dir's strata.toml, else the defaults].
     #[arg(long)]
     pub config: Option<PathBuf>,
 }
@@ -85,22 +87,14 @@ pub fn render(zones: &[ZoneSpec]) -> String {
     out
 }
 
-/// The zones a stopped server starts with when none are stored.
-fn defaults(config: Option<&std::path::Path>) -> anyhow::Result<Vec<Zone>> {
-    Ok(Sequencer::default_zones(
-        &ServerConfig::load(config)?.validation,
-    ))
-}
-
 /// Makes `change` to the stored zones (a cluster's running nodes may
 /// change them meanwhile, on a shared database: written only over what
-/// was read).
+/// was read); `defaults` are those a server starts with when none are.
 fn save(
-    store: &dyn ChunkStore,
-    config: Option<&std::path::Path>,
+    (store, defaults): (&dyn ChunkStore, Vec<Zone>),
     change: &ZoneChange,
 ) -> anyhow::Result<Vec<ZoneSpec>> {
-    let zones = stored_zones::change(store, &defaults(config)?, change)?;
+    let zones = stored_zones::change(store, &defaults, change)?;
     Ok(zones.iter().map(zone_spec).collect())
 }
 
@@ -112,11 +106,19 @@ fn online(target: &TargetArgs, req: AdminRequest) -> anyhow::Result<Option<Vec<Z
     }
 }
 
+/// A stopped server's store and the zones it starts with when none are
+/// stored: both from `config` when given, else from the data dir's own
+/// `strata.toml` (else the defaults), as the server would.
 fn offline_store(
     target: &TargetArgs,
-) -> anyhow::Result<std::sync::Arc<dyn crate::store::ChunkStore>> {
+    config: Option<&std::path::Path>,
+) -> anyhow::Result<(std::sync::Arc<dyn crate::store::ChunkStore>, Vec<Zone>)> {
     match target.target()? {
-        Target::Offline(dir) => open_offline_store(&dir),
+        Target::Offline(dir) => {
+            let cfg = offline_config(&dir, config)?;
+            let store = open_offline_store_as(&dir, config)?;
+            Ok((store, Sequencer::default_zones(&cfg.validation)))
+        }
         Target::Online { .. } => unreachable!("online handled first"),
     }
 }
@@ -128,10 +130,10 @@ pub fn run(cmd: &ZonesCommand) -> anyhow::Result<Vec<ZoneSpec>> {
             if let Some(z) = online(&a.target, AdminRequest::Zones)? {
                 return Ok(z);
             }
-            let store = offline_store(&a.target)?;
+            let (store, defaults) = offline_store(&a.target, a.config.as_deref())?;
             let zones = match stored_zones::stored(&*store)? {
                 Some(z) => z,
-                None => defaults(a.config.as_deref())?,
+                None => defaults,
             };
             Ok(zones.iter().map(zone_spec).collect())
         }
@@ -144,8 +146,8 @@ pub fn run(cmd: &ZonesCommand) -> anyhow::Result<Vec<ZoneSpec>> {
             if let Some(z) = online(&a.target, AdminRequest::ZoneAdd(zone_spec(&zone)))? {
                 return Ok(z);
             }
-            let store = offline_store(&a.target)?;
-            save(&*store, a.config.as_deref(), &ZoneChange::Add(zone))
+            let (store, defaults) = offline_store(&a.target, a.config.as_deref())?;
+            save((&*store, defaults), &ZoneChange::Add(zone))
         }
         ZonesCommand::Remove(a) => {
             let req = AdminRequest::ZoneRemove {
@@ -154,12 +156,8 @@ pub fn run(cmd: &ZonesCommand) -> anyhow::Result<Vec<ZoneSpec>> {
             if let Some(z) = online(&a.target, req)? {
                 return Ok(z);
             }
-            let store = offline_store(&a.target)?;
-            save(
-                &*store,
-                a.config.as_deref(),
-                &ZoneChange::Remove(a.name.clone()),
-            )
+            let (store, defaults) = offline_store(&a.target, a.config.as_deref())?;
+            save((&*store, defaults), &ZoneChange::Remove(a.name.clone()))
         }
     }
 }

@@ -96,12 +96,19 @@ impl Engine {
                 return;
             }
         };
-        // Positions are swept through free regions (and this node's).
+        // Positions are swept through free regions (and this node's);
+        // those taken in other nodes' are not judged here.
         self.free_regions = holders
             .iter()
             .filter(|(_, h)| matches!(h, RegionHolder::Free))
             .map(|(r, _)| *r)
             .collect();
+        let foreign = holders
+            .iter()
+            .filter(|(_, h)| matches!(h, RegionHolder::Node { .. }))
+            .map(|(r, _)| *r)
+            .collect();
+        self.seq.set_foreign_regions(foreign);
         for (session, regions) in views {
             let owners: Vec<RegionOwner> = regions
                 .iter()
@@ -139,8 +146,8 @@ impl Engine {
         }
     }
 
-    /// A ticket for the session's player where it stands now, if it has
-    /// a position, timed when the player was known there: its report to
+    /// A ticket for the session's player where this node last judged it
+    /// (see `Session::judged`), timed when the player was known there: its report to
     /// this node, or the ticket or resume that placed it. Never now: a
     /// session parked on this node, reporting here no more while the
     /// player walks on through another node, would get a fresh ticket for
@@ -149,7 +156,10 @@ impl Engine {
     fn ticket(&self, session: u64) -> Option<strata_protocol::Ticket> {
         let key = self.ticket_key.as_ref()?;
         let player = &self.seq.session(session)?.player;
-        let p = self.seq.position(session)?;
+        // Where this node last judged it: a player that walked on into
+        // another node's region (air to this one) is swept there from
+        // the border it crossed, not placed where it claims to be.
+        let p = self.seq.judged_position(session)?;
         Some(crate::cluster::ticket::mint(
             key, player, p.feet, p.known_ms,
         ))

@@ -505,6 +505,10 @@ async fn serve(
             .map_or_else(tokio::time::Instant::now, |(_, at)| *at);
         let view_wake = view.wake();
         let (m, waited) = tokio::select! {
+            // An end first: a kicked, expired or shut down session takes
+            // no more requests, however many its client has queued.
+            biased;
+            end = must_end(shutdown, kicked, admin_until) => return end,
             _ = tokio::time::sleep_until(view_wake), if view.is_waiting() => {
                 if view.charge(&requests, view_cost, true) {
                     queue_position(session, &ctx.engine, latest, &mut positions);
@@ -540,16 +544,6 @@ async fn serve(
                 }
                 continue;
             }
-            _ = shutdown.wait() => {
-                return End::Refused(ErrorCode::ShuttingDown, "server is shutting down".into());
-            }
-            _ = tokio::time::sleep_until(admin_until.unwrap_or_else(tokio::time::Instant::now)), if admin_until.is_some() => {
-                return End::Refused(ErrorCode::ExpiredToken, "the admin token expired".into());
-            }
-            kick = &mut *kicked => {
-                let (code, message) = kick.unwrap_or((ErrorCode::Internal, "the server ended this session".into()));
-                return End::Refused(code, message);
-            }
         };
         // Cheap first: a request the session has no tokens for waits before
         // anything is checked or queued.
@@ -564,7 +558,10 @@ async fn serve(
             continue;
         }
         let routed = match route((session, player), ctx, &share, control, m) {
-            Ok(Some(cmd)) => deliver(&ctx.engine, &share, cmd, WAITS).await,
+            Ok(Some(cmd)) => {
+                let ending = must_end(shutdown, kicked, admin_until);
+                deliver_unless(ending, &ctx.engine, &share, cmd, WAITS).await
+            }
             Ok(None) => Ok(()),
             Err(end) => Err(end),
         };
@@ -574,17 +571,45 @@ async fn serve(
     }
 }
 
+/// Resolves once the session must end, whatever it is doing: the server
+/// shutting down, its admin token expiring (an admin-role session), or
+/// the engine's kick.
+async fn must_end(
+    shutdown: &mut Shutdown,
+    kicked: &mut oneshot::Receiver<crate::engine::Kick>,
+    admin_until: Option<tokio::time::Instant>,
+) -> End {
+    let expiry = admin_until.unwrap_or_else(tokio::time::Instant::now);
+    tokio::select! {
+        biased;
+        _ = shutdown.wait() => {
+            End::Refused(ErrorCode::ShuttingDown, "server is shutting down".into())
+        }
+        kick = kicked => {
+            let internal = (ErrorCode::Internal, "the server ended this session".into());
+            let (code, message) = kick.unwrap_or(internal);
+            End::Refused(code, message)
+        }
+        _ = tokio::time::sleep_until(expiry), if admin_until.is_some() => {
+            End::Refused(ErrorCode::ExpiredToken, "the admin token expired".into())
+        }
+    }
+}
+
 /// What a request costs a player's bucket, in chunks it makes the engine
 /// touch: a subscription its whole view ((2r+1)^3, the radius capped at the
 /// server's view radius), a forget its list, a resync, snapshot request or
-/// ticket [`RESEND_COST`], an edit [`EDIT_COST`].
+/// ticket [`RESEND_COST`], an edit [`EDIT_COST`]; whatever reaches the
+/// engine at least [`COMMAND_COST`]; a ping 1.
 pub fn request_cost(m: &ClientMessage, view_radius: u8) -> u64 {
     match m {
         ClientMessage::Hello(_) => 0,
         ClientMessage::Edit(_) => EDIT_COST,
-        ClientMessage::Subscribe { radius, .. } => view_cost((*radius).min(view_radius)),
+        ClientMessage::Subscribe { radius, .. } => {
+            view_cost((*radius).min(view_radius)).max(COMMAND_COST)
+        }
         // Even an empty list is a command the engine serves.
-        ClientMessage::Forget { chunks } => (chunks.len() as u64).max(1),
+        ClientMessage::Forget { chunks } => (chunks.len() as u64).max(COMMAND_COST),
         ClientMessage::ResyncRequest { .. }
         | ClientMessage::FullSnapshotRequest { .. }
         | ClientMessage::Arrive(_) => RESEND_COST,
@@ -646,18 +671,25 @@ impl FirstView {
     }
 }
 
+/// The least a request the engine serves costs a player's bucket: each is
+/// a command the one engine thread takes (a channel receive, a handler, a
+/// gauge), whatever it names. With the default rate (10,000 a second) a
+/// player's empty forgets or radius-0 subscriptions reach the engine at
+/// most 1,250 times a second.
+pub const COMMAND_COST: u64 = 8;
+
 /// What a resync, a full-snapshot request or a ticket costs a session's
 /// request bucket, in chunks. The engine's work is a few set lookups and
 /// queueing one chunk; sending it again is paced by the session's stream
 /// budget like any snapshot. A client checking its whole radius-8 view
 /// (4,913 chunks) fits the default burst.
-pub const RESEND_COST: u64 = 4;
+pub const RESEND_COST: u64 = COMMAND_COST;
 
-/// What an edit costs a player's request bucket. The sequencer's
-/// per-player buckets (`edit_rate`, `reject_rate`) limit the edits it
-/// takes in; this bounds the ones refused before they charge those
-/// (`Busy`, `NodeFull`), which still cost prechecks and a queue slot.
-pub const EDIT_COST: u64 = 1;
+/// What an edit costs a player's request bucket: a command, as any. The
+/// sequencer's per-player buckets (`edit_rate`, `reject_rate`) limit the
+/// edits it takes in; this bounds the ones refused before they charge
+/// those (`Busy`, `NodeFull`), which still cost prechecks and a queue slot.
+pub const EDIT_COST: u64 = COMMAND_COST;
 
 /// Queues a reply on a session's control stream. A full queue ends the
 /// session, as it does for the engine's replies: a client that does not
@@ -794,6 +826,23 @@ async fn deliver(
             return Err(overloaded());
         }
         tokio::time::sleep(ENGINE_RETRY).await;
+    }
+}
+
+/// [`deliver`], unless `ending` resolves first: waiting for room in the
+/// engine's queue (up to 30 s), a session still ends when it must (a kick,
+/// shutdown, its admin token expiring), its command not queued.
+async fn deliver_unless(
+    ending: impl std::future::Future<Output = End>,
+    engine: &EngineHandle,
+    share: &SessionShare,
+    cmd: Command,
+    waits: Waits,
+) -> Result<(), End> {
+    tokio::select! {
+        biased;
+        end = ending => Err(end),
+        delivered = deliver(engine, share, cmd, waits) => delivered,
     }
 }
 
@@ -966,7 +1015,20 @@ mod tests {
         };
         assert_eq!(request_cost(&forget, 8), 40);
         let nothing = ClientMessage::Forget { chunks: Vec::new() };
-        assert_eq!(request_cost(&nothing, 8), 1, "an empty list is not free");
+        assert_eq!(
+            request_cost(&nothing, 8),
+            COMMAND_COST,
+            "an empty list is not free"
+        );
+        let one = ClientMessage::Forget {
+            chunks: vec![ChunkPos::new(1, 2, 3)],
+        };
+        assert_eq!(request_cost(&one, 8), COMMAND_COST);
+        assert_eq!(
+            request_cost(&sub(0), 8),
+            COMMAND_COST,
+            "nor is a view of one chunk"
+        );
         let resync = ClientMessage::ResyncRequest {
             pos: ChunkPos::new(0, 0, 0),
         };
@@ -981,7 +1043,8 @@ mod tests {
             },
         });
         assert_eq!(request_cost(&edit, 8), EDIT_COST);
-        assert_eq!(EDIT_COST, 1, "an edit is not free");
+        assert_eq!(EDIT_COST, COMMAND_COST, "an edit is a command as any");
+        assert_eq!(RESEND_COST, COMMAND_COST);
     }
 
     #[test]
@@ -1071,6 +1134,39 @@ mod tests {
             deliver(&engine, &share, resync(3), both(Duration::from_millis(50))).await,
             Err(End::Gone)
         ));
+    }
+
+    /// A session waiting for room in the engine's queue ends at once when
+    /// it must (here: shutdown), its command not queued and its slot free.
+    #[tokio::test]
+    async fn a_session_waiting_on_a_full_queue_still_ends_when_it_must() {
+        let (engine, rx) = crate::engine::inbox_channel(1, 1);
+        let share = engine.session_share();
+        assert!(engine.try_send(resync(1)), "the queue is full now");
+        let (trigger, mut shutdown) = crate::shutdown::channel();
+        let (_kick, mut kicked) = oneshot::channel();
+        let waits = both(Duration::from_secs(60));
+        let started = std::time::Instant::now();
+        let delivering = async {
+            let ending = must_end(&mut shutdown, &mut kicked, None);
+            deliver_unless(ending, &engine, &share, resync(2), waits).await
+        };
+        let stop = async {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            trigger.trigger();
+        };
+        let (delivered, ()) = tokio::join!(delivering, stop);
+        assert!(matches!(
+            delivered,
+            Err(End::Refused(ErrorCode::ShuttingDown, _))
+        ));
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "it did not wait the queue out"
+        );
+        assert_eq!(resynced(&rx, Duration::ZERO), Some(1));
+        assert!(rx.recv_timeout(Duration::ZERO).is_err(), "not queued");
+        assert_eq!(share.in_use(), 0, "nor holds its slot");
     }
 
     /// Both of [`deliver`]'s waits `d` long.

@@ -110,6 +110,8 @@ pub struct Sequencer {
     moved: HashSet<String>,
     /// See [`Self::set_swept_regions`].
     swept_regions: Option<HashSet<RegionId>>,
+    /// See [`Self::set_foreign_regions`].
+    foreign_regions: HashSet<RegionId>,
 }
 
 impl Sequencer {
@@ -145,6 +147,7 @@ impl Sequencer {
             last_positions: HashMap::new(),
             moved: Default::default(),
             swept_regions: None,
+            foreign_regions: HashSet::default(),
         }
     }
 
@@ -213,6 +216,15 @@ impl Sequencer {
     /// a region whose holder it does not know, so may they.
     pub fn set_swept_regions(&mut self, regions: Option<HashSet<RegionId>>) {
         self.swept_regions = regions;
+    }
+
+    /// The regions a cluster node read as other nodes'. A position taken
+    /// there (its terrain air to this node) is not judged: tickets and
+    /// saved positions stay at the session's last spot elsewhere
+    /// ([`Session::judged`]). Those whose holder is not known yet (a node
+    /// just started) are judged as its own.
+    pub fn set_foreign_regions(&mut self, regions: HashSet<RegionId>) {
+        self.foreign_regions = regions;
     }
 
     fn sweeps(&self, chunk: ChunkPos) -> bool {
@@ -622,6 +634,7 @@ impl Sequencer {
                 player,
                 role,
                 position: None,
+                judged: None,
                 seen_ms: 0,
                 seen_feet: None,
             },
@@ -632,7 +645,7 @@ impl Sequencer {
     pub fn session_left(&mut self, session_id: u64) {
         if let Some(old) = self.sessions.remove(&session_id) {
             self.unindex(&old.player, session_id);
-            self.remember_position(&old.player, old.position);
+            self.remember_position(&old.player, old.judged);
             self.release_limits(&old.player);
         }
     }
@@ -764,6 +777,7 @@ impl Sequencer {
             Some(feet) => {
                 let resumed = ValidatedPosition::resumed(feet, now_ms, known_ms, &self.validation);
                 s.position = Some(resumed);
+                s.judged = Some(resumed);
                 Start::Resume { feet }
             }
             None => spawn,
@@ -828,6 +842,7 @@ impl Sequencer {
         let arrived = ValidatedPosition::arrived(feet, at_ms, now_ms, walked, &self.validation);
         if let Some(s) = self.sessions.get_mut(&session_id) {
             s.position = Some(arrived);
+            s.judged = Some(arrived);
         }
         Ok(Start::Resume { feet })
     }
@@ -859,6 +874,12 @@ impl Sequencer {
     /// The session's last validated position.
     pub fn position(&self, session_id: u64) -> Option<ValidatedPosition> {
         self.sessions.get(&session_id)?.position
+    }
+
+    /// The session's last position this node judged whole (see
+    /// [`Session::judged`]): the one a ticket for another node carries.
+    pub fn judged_position(&self, session_id: u64) -> Option<ValidatedPosition> {
+        self.sessions.get(&session_id)?.judged
     }
 
     /// The session's last validated position, or `UnknownSession`.
@@ -982,8 +1003,14 @@ impl Sequencer {
                 return Err(e);
             }
         };
+        let side = self.cfg.region_chunks;
+        let feet_region = RegionId::of(position::feet_voxel(ok.feet).chunk(), side);
+        let judged = !self.foreign_regions.contains(&feet_region);
         if let Some(s) = self.sessions.get_mut(&session_id) {
             s.position = Some(ok);
+            if judged {
+                s.judged = Some(ok);
+            }
             if !self.moved.contains(&s.player) {
                 self.moved.insert(s.player.clone());
             }
@@ -1005,7 +1032,9 @@ impl Sequencer {
         // several sessions of a player, the one known there last.
         let mut live: HashMap<&str, StoredPosition> = HashMap::new();
         for s in self.sessions.values() {
-            let Some(p) = s.position.filter(|_| self.moved.contains(&s.player)) else {
+            // What this node judged: a spot in another node's region it
+            // took on trust (air to it) is not stored for others to resume.
+            let Some(p) = s.judged.filter(|_| self.moved.contains(&s.player)) else {
                 continue;
             };
             let stored = StoredPosition {

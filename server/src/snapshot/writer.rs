@@ -70,6 +70,15 @@ impl<W: Write> SnapshotWriter<W> {
                 pos.x, pos.y, pos.z
             )));
         }
+        // A stored body that does not decode (a corrupt row) fails the
+        // snapshot now: written, it would pass for a backup that `verify`
+        // and `restore` then refuse whole.
+        if let Err(e) = strata_terrain::chunk_codec::decode_chunk(payload) {
+            return Err(SnapshotError::Write(format!(
+                "chunk ({}, {}, {}) as stored does not decode: {e}",
+                pos.x, pos.y, pos.z
+            )));
+        }
         self.last = Some(pos);
         let record = encode_record(pos, version, payload)?;
         self.put(&record)?;
@@ -91,5 +100,34 @@ impl<W: Write> SnapshotWriter<W> {
         self.out.write_all(&sum.to_le_bytes())?;
         self.out.flush()?;
         Ok((self.out, self.bytes + 8))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use strata_terrain::chunk_codec::encode_chunk;
+    use strata_terrain::{Chunk, Voxel};
+
+    /// A stored body that does not decode fails the snapshot; nothing of
+    /// it is recorded.
+    #[test]
+    fn a_chunk_that_does_not_decode_is_refused() {
+        let header = SnapshotHeader {
+            seed: 1,
+            generator_version: 1,
+            seq: 1,
+            generator_params: String::new(),
+            zones: Vec::new(),
+        };
+        let mut w = SnapshotWriter::new(Vec::new(), &header).unwrap();
+        let good = encode_chunk(&Chunk::uniform(Voxel::AIR));
+        w.chunk(ChunkPos::new(0, 0, 0), 1, &good).unwrap();
+        let mut bad = good.clone();
+        bad.truncate(1);
+        bad.extend_from_slice(&[0xff; 7]);
+        let err = w.chunk(ChunkPos::new(1, 0, 0), 1, &bad).unwrap_err();
+        assert!(err.to_string().contains("does not decode"), "{err}");
+        assert_eq!(w.records(), 1);
     }
 }

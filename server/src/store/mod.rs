@@ -73,9 +73,9 @@ pub use positions::TREE_PLAYER_TIMES;
 pub use record::{encode_chunk_value, MAX_LOG_RECORD_BYTES, MAX_SEQ};
 pub use rules::compare_meta;
 pub use sled_store::{
-    open_raw, open_when_unlocked, persisted_segment_size, SledStore, MAX_BLOB_BYTES,
-    MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES, META_LAST_SEQ, META_LOG_BASE, META_WORLD,
-    TREE_BLOBS, TREE_CHUNKS, TREE_DELTAS, TREE_LOG, TREE_META, TREE_PLAYERS,
+    open_raw, open_when_unlocked, persisted_segment_size, read_blob_as_is, SledStore,
+    MAX_BLOB_BYTES, MAX_BLOB_NAME_BYTES, MAX_GENERATOR_PARAMS_BYTES, META_LAST_SEQ, META_LOG_BASE,
+    META_WORLD, TREE_BLOBS, TREE_CHUNKS, TREE_DELTAS, TREE_LOG, TREE_META, TREE_PLAYERS,
 };
 pub use types::{
     CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, RegionAccess, RegionHolder,

@@ -850,6 +850,16 @@ pub fn persisted_segment_size(dir: &Path) -> Option<usize> {
         .find_map(|l| l.strip_prefix("segment_size: ")?.trim().parse().ok())
 }
 
+/// The blob `name` of the store in `dir`, read without opening it as a
+/// store: its format record is left as it is (an open would upgrade an
+/// older one, which the build that wrote it then refuses).
+pub fn read_blob_as_is(dir: &Path, name: &str) -> Result<Option<Vec<u8>>, StoreError> {
+    check_blob_name(name)?;
+    let db = open_raw(dir)?;
+    let blobs = db.open_tree(TREE_BLOBS)?;
+    Ok(blobs.get(name.as_bytes())?.map(|v| v.to_vec()))
+}
+
 /// The raw sled database under a store, for tools and tests that look
 /// below [`ChunkStore`]: opened with the store's persisted segment size
 /// (sled refuses any other), waiting briefly for a released lock.
@@ -966,5 +976,38 @@ mod blob_undo_tests {
         let old = store.blobs.remove(b"zones").unwrap();
         store.undo_blob("zones", None, old).unwrap();
         assert_eq!(store.get_blob("zones").unwrap().unwrap(), b"x");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{ChunkStore, WorldMeta};
+
+    /// What a restore keeps of the world it replaces is read without the
+    /// open's upgrade: a world of an older format stays one its build
+    /// opens (a failed restore leaves it as it was).
+    #[test]
+    fn a_blob_read_as_is_leaves_an_older_format_as_it_was() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("world.sled");
+        {
+            let store = SledStore::open(&path).unwrap();
+            store.init_meta(&WorldMeta::new(1, 1, "p")).unwrap();
+            store.put_blob("access", b"bans").unwrap();
+            let mut m = store.load_meta().unwrap().unwrap();
+            m.format_version = 3;
+            store
+                .meta
+                .insert(META_WORLD, encode_meta(&m).unwrap())
+                .unwrap();
+            store.flush().unwrap();
+        }
+        let got = read_blob_as_is(&path, "access").unwrap();
+        assert_eq!(got.as_deref(), Some(&b"bans"[..]));
+        let db = open_raw(&path).unwrap();
+        let meta = db.open_tree(TREE_META).unwrap().get(META_WORLD).unwrap();
+        let format = decode_meta(&meta.unwrap(), 0).unwrap().format_version;
+        assert_eq!(format, 3, "not upgraded");
     }
 }
