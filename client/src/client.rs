@@ -270,6 +270,7 @@ impl Shared {
         // deltas and withdrawals naming others (a gap, a chunk never sent)
         // queue no event, so the queue holds only chunks once held.
         let held_before: Vec<bool> = touched.iter().map(|t| r.get(t.pos()).is_some()).collect();
+        let tick_end = matches!(update, WorldUpdate::TickEnd { .. });
         let request = r.try_apply(update)?;
         for (t, before) in touched.into_iter().zip(held_before) {
             if before || r.get(t.pos()).is_some() {
@@ -277,6 +278,19 @@ impl Shared {
             }
             if let Some(mut p) = self.prediction() {
                 self.reshape_prediction(&mut p, |p| p.after_update(t, &r));
+            }
+        }
+        if tick_end {
+            // The tick's meshes are checked with the replica free: the
+            // game reads and meshes chunks meanwhile.
+            let mut checks = r.take_mesh_checks();
+            drop(r);
+            if !checks.is_empty() {
+                checks.run();
+                replica
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .finish_mesh_checks(checks);
             }
         }
         Ok(request)
@@ -441,6 +455,9 @@ impl Client {
         let generator = if thin { None } else { generator_from(&welcome) };
         let mut replica = Replica::with_pool(generator, opts.pool);
         replica.limit(ChunkLimits::from_welcome(&welcome));
+        // Checked by the updates reader outside the replica's lock
+        // (`Shared::apply`): readers of the replica never wait for them.
+        replica.defer_mesh_checks();
         if opts.record_history {
             replica.record_history();
         }

@@ -19,6 +19,7 @@ pub mod coords;
 pub mod edits;
 pub mod link_delay;
 pub mod mesh;
+pub mod mesh_checks;
 pub mod notice;
 pub mod pool;
 pub mod prediction;

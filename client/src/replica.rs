@@ -9,10 +9,10 @@ use strata_protocol::{DeltaUpdate, OpUpdate, WorldUpdate};
 use strata_terrain::chunk_codec::decode_chunk;
 use strata_terrain::delta::{ChunkDelta, DeltaError};
 use strata_terrain::hash::chunk_hash;
-use strata_terrain::mesh::{mesh_chunk, MeshOptions, Neighborhood};
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, Voxel, VoxelPos};
 
 use crate::bounds::{ChunkLimits, Violation};
+use crate::mesh_checks::{MeshCheck, MeshChecks};
 use crate::pool::ChunkPool;
 use crate::replay::{replay, ReplayFailure};
 
@@ -142,6 +142,8 @@ pub struct Replica {
     /// Chunks whose check ([`Self::expect_check`]) the server's withdrawal
     /// of the held copy cancelled: [`Self::take_lost_checks`].
     lost_checks: Vec<ChunkPos>,
+    /// Set by [`Self::defer_mesh_checks`].
+    defer_checks: bool,
 }
 
 impl Replica {
@@ -178,6 +180,7 @@ impl Replica {
             last_seq: 0,
             dropped: HashSet::default(),
             lost_checks: Vec::new(),
+            defer_checks: false,
         }
     }
 
@@ -427,7 +430,9 @@ impl Replica {
             }
             WorldUpdate::TickEnd { last_seq } => {
                 self.last_seq = self.last_seq.max(last_seq);
-                self.verify_meshes();
+                if !self.defer_checks {
+                    self.verify_meshes();
+                }
                 None
             }
             WorldUpdate::InterestComplete { .. } => None,
@@ -625,36 +630,62 @@ impl Replica {
         }
     }
 
-    /// Meshes every chunk that changed this tick and compares hashes. A
-    /// chunk is checked only when the client holds its 26 neighbours, since
-    /// the mesh reads them.
+    /// Meshes every chunk that changed this tick and compares hashes
+    /// (unless [`Self::defer_mesh_checks`]). A chunk is checked only when
+    /// the client holds its 26 neighbours, since the mesh reads them.
     fn verify_meshes(&mut self) {
+        let mut checks = self.take_mesh_checks();
+        checks.run();
+        self.finish_mesh_checks(checks);
+    }
+
+    /// A tick's end leaves its mesh checks for the caller to take
+    /// ([`Self::take_mesh_checks`]), mesh without holding the replica, and
+    /// record ([`Self::finish_mesh_checks`]).
+    pub fn defer_mesh_checks(&mut self) {
+        self.defer_checks = true;
+    }
+
+    /// The checks of the chunks changed since the last ones taken: those
+    /// still held at the version the server hashed, with every neighbour
+    /// held (the others are counted unverifiable); hashes the pool knows
+    /// already come filled in.
+    pub fn take_mesh_checks(&mut self) -> MeshChecks {
         let pending: Vec<_> = self.pending_mesh.drain().collect();
-        for (
-            pos,
-            PendingMesh {
-                version,
-                hash: server,
-                ..
-            },
-        ) in pending
-        {
+        let mut items = Vec::with_capacity(pending.len());
+        for (pos, p) in pending {
             match self.chunks.get(&pos) {
-                Some(h) if h.version == version => {}
+                Some(h) if h.version == p.version => {}
                 _ => continue,
             }
-            let Some(client) = self.mesh_hash(pos) else {
+            let Some(check) = self.check_of(pos, p.version, p.hash) else {
                 self.stats.meshes_unverifiable += 1;
                 continue;
             };
+            items.push(check);
+        }
+        MeshChecks {
+            items,
+            pool: self.pool.clone(),
+        }
+    }
+
+    /// Records checks [`MeshChecks::run`] completed: each compared with
+    /// the server's hash, mismatches kept (the first
+    /// [`MAX_MESH_MISMATCHES_KEPT`]).
+    pub fn finish_mesh_checks(&mut self, checks: MeshChecks) {
+        for c in checks.items {
+            let Some(client) = c.client else {
+                continue;
+            };
             self.stats.meshes_checked += 1;
-            if client != server {
+            if client != c.server {
                 self.stats.mesh_mismatches += 1;
                 if self.mismatches.len() < MAX_MESH_MISMATCHES_KEPT {
                     self.mismatches.push(MeshMismatch {
-                        pos,
-                        version,
-                        server,
+                        pos: c.pos,
+                        version: c.version,
+                        server: c.server,
                         client,
                     });
                 } else {
@@ -664,10 +695,9 @@ impl Replica {
         }
     }
 
-    /// The LOD-0 mesh hash of a chunk from held chunks only (memoized in
-    /// the pool by the 27 chunk versions it reads).
-    pub fn mesh_hash(&self, pos: ChunkPos) -> Option<u64> {
-        // The 27 chunks around `pos`, x fastest then y then z.
+    /// The 27 chunks around `pos` (x fastest then y then z), when every
+    /// one is held.
+    fn around(&self, pos: ChunkPos) -> Option<[&Held; 27]> {
         let mut held: [Option<&Held>; 27] = [None; 27];
         let mut i = 0;
         for dz in -1..=1 {
@@ -678,18 +708,37 @@ impl Replica {
                 }
             }
         }
-        let key = (pos, held.map(|h| h.map_or(0, |h| h.version)));
-        if let Some(h) = self.pool.mesh_hash(&key) {
-            return Some(h);
-        }
-        let nb = Neighborhood::from_chunks(pos, |p| {
-            let d = |a: i32, b: i32| (a.wrapping_sub(b) + 1) as usize;
-            let i = d(p.x, pos.x) + 3 * d(p.y, pos.y) + 9 * d(p.z, pos.z);
-            held[i].map(|h| &*h.chunk)
-        });
-        let hash = mesh_chunk(&nb, &MeshOptions::default()).hash();
-        self.pool.put_mesh_hash(key, hash);
-        Some(hash)
+        let all: Vec<&Held> = held.into_iter().flatten().collect();
+        all.try_into().ok()
+    }
+
+    /// The check of `pos` at `version` (the server's hash `server`):
+    /// filled in from the pool, or holding the chunks to mesh.
+    fn check_of(&self, pos: ChunkPos, version: u64, server: u64) -> Option<MeshCheck> {
+        let around = self.around(pos)?;
+        let key = (pos, around.map(|h| h.version));
+        let client = self.pool.mesh_hash(&key);
+        Some(MeshCheck {
+            pos,
+            version,
+            server,
+            key,
+            around: client
+                .is_none()
+                .then(|| Box::new(around.map(|h| h.chunk.clone()))),
+            client,
+        })
+    }
+
+    /// The LOD-0 mesh hash of a chunk from held chunks only (memoized in
+    /// the pool by the 27 chunk versions it reads).
+    pub fn mesh_hash(&self, pos: ChunkPos) -> Option<u64> {
+        let mut checks = MeshChecks {
+            items: vec![self.check_of(pos, 0, 0)?],
+            pool: self.pool.clone(),
+        };
+        checks.run();
+        checks.items[0].client
     }
 
     /// One held voxel; `None` when its chunk is not held.
@@ -847,6 +896,51 @@ mod tests {
         // A replica without limits (fed by its caller) holds anything.
         let mut free = Replica::new(Some(flat()));
         assert_eq!(free.try_apply(generated(1 << 26, 0, 0)), Ok(None));
+    }
+
+    /// A replica deferring its checks leaves them at a tick's end; taken,
+    /// meshed apart and finished, they count as checks made at the tick
+    /// (a right hash, then a wrong one).
+    #[test]
+    fn deferred_mesh_checks_count_as_checks_at_the_tick() {
+        let feed = |r: &mut Replica| {
+            for dz in -1..=1 {
+                for dy in -2..=0 {
+                    for dx in -1..=1 {
+                        r.apply(generated(dx, dy, dz));
+                    }
+                }
+            }
+        };
+        let pos = ChunkPos::new(0, -1, 0);
+        let stone = Chunk::uniform(Voxel::solid(ids::STONE));
+        let mut probe = Replica::new(Some(flat()));
+        feed(&mut probe);
+        probe.apply(snapshot(pos, 1, &stone, 0));
+        let right = probe.mesh_hash(pos).unwrap();
+        let mut direct = Replica::new(Some(flat()));
+        let mut deferred = Replica::new(Some(flat()));
+        deferred.defer_mesh_checks();
+        for (v, server) in [(1, right), (2, !right)] {
+            for r in [&mut direct, &mut deferred] {
+                if v == 1 {
+                    feed(r);
+                }
+                r.apply(snapshot(pos, v, &stone, server));
+                r.apply(WorldUpdate::TickEnd { last_seq: v });
+            }
+            assert_eq!(deferred.stats.meshes_checked, v - 1, "left for the caller");
+            let mut checks = deferred.take_mesh_checks();
+            assert!(!checks.is_empty());
+            checks.run();
+            deferred.finish_mesh_checks(checks);
+            assert!(deferred.take_mesh_checks().is_empty(), "taken once");
+        }
+        assert_eq!(direct.stats.meshes_checked, 2, "{:?}", direct.stats);
+        assert_eq!(direct.stats.mesh_mismatches, 1);
+        assert_eq!(deferred.stats.meshes_checked, 2);
+        assert_eq!(deferred.stats.mesh_mismatches, 1);
+        assert_eq!(deferred.mesh_mismatches(), direct.mesh_mismatches());
     }
 
     #[test]

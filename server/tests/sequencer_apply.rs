@@ -345,12 +345,20 @@ fn assert_applied_on_stored(s: &Sequencer, out: &TickOutput, home: ChunkPos, sto
     assert_eq!(&c.delta.apply(stored).unwrap(), now);
 }
 
+/// Chunk column (3, 3) from row `from` up to the world's top row: what a
+/// first report there reads (the body, and the sky above it).
+fn sky_column(from: i32) -> Vec<ChunkPos> {
+    let (_, top) = strata_server::validate::WorldBounds::default().chunk_y_range();
+    (from..=top).map(|y| ChunkPos::new(3, y, 3)).collect()
+}
+
 #[test]
 fn store_backed_chunks_must_be_resident() {
     let mut s = store_backed(10);
     let p = at(1, X, 0, Z);
     let need = s.chunks_needed_for_position(PLAYER, &p);
-    assert_eq!(need, vec![ChunkPos::new(3, 0, 3)]);
+    // The body's chunk, and (a first report) the column up to the sky.
+    assert_eq!(need, sky_column(0));
     assert!(s.update_position(PLAYER, p, 0).is_err());
     for c in need {
         s.mark_absent(c);
@@ -400,8 +408,12 @@ fn a_report_loads_the_ground_under_it() {
     let mut s = store_backed_with(10, true);
     let p = at(1, X, 0, Z);
     let need = s.chunks_needed_for_position(PLAYER, &p);
-    assert_eq!(need, vec![ChunkPos::new(3, -1, 3), ChunkPos::new(3, 0, 3)]);
-    s.mark_absent(ChunkPos::new(3, 0, 3));
+    let mut want = vec![ChunkPos::new(3, -1, 3)];
+    want.extend(sky_column(0));
+    assert_eq!(need, want);
+    for c in sky_column(0) {
+        s.mark_absent(c);
+    }
     assert!(matches!(
         s.update_position(PLAYER, p, 0),
         Err(strata_server::validate::PositionReject::ChunkNotLoaded { .. })

@@ -593,6 +593,18 @@ fn a_forced_postgres_restore_waits_for_no_running_node() {
         "{err}"
     );
     assert_eq!(pg_world(&db), ("9".into(), "3".into()));
+    // Refused, a lost node's empty data dir gets no new identity (which
+    // would have to be copied to every node, voiding their tokens).
+    let lost = tmp.path().join("lost");
+    let refused = snapshot_cmd::restore(&RestoreArgs {
+        drop_access: false,
+        file: new.clone(),
+        data_dir: lost.clone(),
+        force: true,
+        config: Some(tmp.path().join("strata.toml")),
+    });
+    assert!(refused.is_err());
+    assert!(!lost.exists(), "nothing made in {}", lost.display());
     sql(
         &db,
         "UPDATE regions SET lease_expires = now() - interval '1 second'",
@@ -1157,4 +1169,27 @@ fn offline_zones_start_from_the_data_dirs_config() {
     let zones = zones_cmd::run(&add).unwrap();
     let names: Vec<&str> = zones.iter().map(|z| z.name.as_str()).collect();
     assert_eq!(names, ["arena"]);
+}
+
+/// A snapshot written whole but not renamed into place (`--out` names a
+/// directory) leaves no `.partial` file beside it.
+#[test]
+fn a_snapshot_not_renamed_into_place_leaves_no_partial_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let old = snapshot(tmp.path(), "old.snap", &header(9), 3);
+    assert_eq!(restore(&old, &data, false).unwrap(), 3);
+    let out = tmp.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    std::fs::write(out.join("keep"), b"x").unwrap();
+    let before = listing(tmp.path());
+    let err = snapshot_cmd::create(&snapshot_cmd::CreateArgs {
+        config: None,
+        out: out.clone(),
+        target: offline(&data),
+        max_pending_chunks: 0,
+    })
+    .unwrap_err();
+    assert!(format!("{err:#}").contains("renaming into"), "{err:#}");
+    assert_eq!(listing(tmp.path()), before);
 }

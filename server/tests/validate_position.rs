@@ -29,6 +29,41 @@ fn flying() -> ValidationConfig {
     v
 }
 
+/// A player the server does not know appears under the open sky: a
+/// room sealed under a roof (or a cave under the ground) refuses a first
+/// report, at the roof's lowest voxel above the eye; a resumed player, or
+/// one already placed, walks in as any other.
+#[test]
+fn a_first_position_is_open_to_the_sky() {
+    let mut s = ready(flying());
+    let (x, z) = (HOME.0 + 3, HOME.1);
+    // A roof of stone 6 voxels up, over the spot.
+    s.submit(ADMIN, req(1, fill((x - 2, 6, z - 2), (x + 2, 7, z + 2))), 0)
+        .unwrap();
+    s.tick(0);
+    s.session_joined(7, "new".into(), Role::Player);
+    let under = at(1, x, 0, z);
+    assert_eq!(
+        s.update_position(7, under, 0),
+        Err(PositionReject::PathBlocked {
+            voxel: VoxelPos::new(x, 6, z)
+        })
+    );
+    assert_eq!(s.position(7), None);
+    // Beside the roof, the sky is open.
+    s.update_position(7, at(2, x + 4, 0, z), 0).unwrap();
+    // Placed, the player walks under it.
+    s.update_position(7, at(3, x, 0, z), 1_000).unwrap();
+    // So does one the server resumes there.
+    s.session_joined(8, "back".into(), Role::Player);
+    let stored = strata_server::store::StoredPosition {
+        feet: FixedVec3::from_voxels(x, 0, z),
+        known_ms: 0,
+    };
+    s.resume_position(8, 0, Some(stored));
+    s.update_position(8, at(1, x, 0, z + 1), 500).unwrap();
+}
+
 #[test]
 fn first_position_in_the_spawn_area_not_solid() {
     let mut s = fresh();

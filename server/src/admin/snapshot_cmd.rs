@@ -151,11 +151,15 @@ pub(crate) fn write_atomically(
 /// directory, or removes a failed one.
 fn settle(tmp: &Path, out: &Path, result: anyhow::Result<Created>) -> anyhow::Result<Created> {
     match result {
-        Ok(created) => {
-            crate::durable::rename(tmp, out)
-                .with_context(|| format!("renaming into {}", out.display()))?;
-            Ok(created)
-        }
+        Ok(created) => match crate::durable::rename(tmp, out) {
+            Ok(()) => Ok(created),
+            Err(e) => {
+                // Not left beside it (`--out` a directory, say): a whole
+                // snapshot's size that no later run would remove.
+                let _ = std::fs::remove_file(tmp);
+                Err(e).with_context(|| format!("renaming into {}", out.display()))
+            }
+        },
         Err(e) => {
             let _ = std::fs::remove_file(tmp);
             Err(e)
@@ -504,14 +508,23 @@ pub fn replace_world(
         }
     };
     if db.exists() {
-        crate::durable::rename(db, &old)
-            .with_context(|| format!("moving {} aside", db.display()))?;
+        if let Err(e) = crate::durable::rename(db, &old) {
+            let _ = remove_dir_if_present(&staging);
+            return Err(e).with_context(|| format!("moving {} aside", db.display()));
+        }
     }
     if let Err(e) = crate::durable::rename(&staging, db) {
         let _ = crate::durable::rename(&old, db);
         return Err(e).with_context(|| format!("moving the restored world into {}", db.display()));
     }
-    remove_dir_if_present(&old)?;
+    // Restored: the old world's copy is only left over (the next restore
+    // removes it), not a failure.
+    if let Err(e) = remove_dir_if_present(&old) {
+        eprintln!(
+            "warning: the world was restored, but removing the old one at {} failed: {e:#}",
+            old.display()
+        );
+    }
     Ok(n)
 }
 
@@ -524,18 +537,6 @@ fn restore_postgres(args: &RestoreArgs, cfg: &ServerConfig, total: u64) -> anyho
         bail!(
             "the PostgreSQL store already holds a world ({why}); pass --force to replace it, \
              keeping its bans and revocations (stop every node first)"
-        );
-    }
-    // Refused without --force, a world already there is replaced with it:
-    // a data dir without a certificate and secret gets new ones (a lost
-    // node's recovery), which every other node must then be given.
-    let (_, made) = DataDir::open_or_init(&args.data_dir, &cfg.tls.extra_names)
-        .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
-    if made.created_anything() && holds.is_some() {
-        eprintln!(
-            "warning: {} had no certificate or secret; new ones were made: copy them to every \
-             other node of this world ({made})",
-            args.data_dir.display()
         );
     }
     // One transaction: cut short, the store keeps the world it had.
@@ -551,6 +552,24 @@ fn restore_postgres(args: &RestoreArgs, cfg: &ServerConfig, total: u64) -> anyho
             }
         })?;
     bar.finish_and_clear();
+    // Only once restored (a refused or failed restore makes nothing): a
+    // world already there was replaced with it, and a data dir without a
+    // certificate and secret gets new ones (a lost node's recovery), which
+    // every other node must then be given.
+    let (_, made) =
+        DataDir::open_or_init(&args.data_dir, &cfg.tls.extra_names).with_context(|| {
+            format!(
+                "the world was restored, but preparing data dir {} failed",
+                args.data_dir.display()
+            )
+        })?;
+    if made.created_anything() && holds.is_some() {
+        eprintln!(
+            "warning: {} had no certificate or secret; new ones were made: copy them to every \
+             other node of this world ({made})",
+            args.data_dir.display()
+        );
+    }
     Ok(n)
 }
 

@@ -497,6 +497,13 @@ impl Sequencer {
                     chunks.push(c);
                 }
             }
+        } else {
+            // A first report: the column above, up to the sky.
+            for c in position::sky_chunks(upd.pos, cfg) {
+                if self.sweeps(c) && !chunks.contains(&c) {
+                    chunks.push(c);
+                }
+            }
         }
         if self.held_to_ground(session_id) {
             // The ground under the new feet, and under the last ones when

@@ -252,6 +252,35 @@ pub fn body_at(feet: DVec3, cfg: &ValidationConfig) -> [VoxelPos; 2] {
     ]
 }
 
+/// A first report (a player the server does not remember) is open to the
+/// sky: no solid voxel above the eye up to the world's top, so a new
+/// player appears on the surface, never inside a sealed room or cave
+/// beneath it (`PathBlocked` at the lowest such voxel). `path` as for the
+/// sweep: a cluster node does not judge another node's regions.
+fn open_sky(
+    feet: FixedVec3,
+    cfg: &ValidationConfig,
+    path: &impl VoxelRead,
+) -> Result<(), PositionReject> {
+    let [_, eye] = body_voxels(feet, cfg);
+    for y in eye.y.saturating_add(1)..=cfg.bounds.max_y {
+        let v = VoxelPos::new(eye.x, y, eye.z);
+        if path.voxel(v).is_solid() {
+            return Err(PositionReject::PathBlocked { voxel: v });
+        }
+    }
+    Ok(())
+}
+
+/// The chunks [`open_sky`] reads above `feet`: the eye's column, up to the
+/// world's top row.
+pub fn sky_chunks(feet: FixedVec3, cfg: &ValidationConfig) -> impl Iterator<Item = ChunkPos> {
+    let [_, eye] = body_voxels(feet, cfg);
+    let from = eye.chunk();
+    let (_, top) = cfg.bounds.chunk_y_range();
+    (from.y..=top).map(move |y| ChunkPos::new(from.x, y, from.z))
+}
+
 fn in_bounds(feet: FixedVec3, cfg: &ValidationConfig) -> bool {
     feet.in_coord_range()
         && body_voxels(feet, cfg)
@@ -344,6 +373,9 @@ pub fn check(
         if voxels.voxel(v).is_solid() {
             return Err(PositionReject::InsideSolid { voxel: v });
         }
+    }
+    if prev.is_none() {
+        open_sky(upd.pos, cfg, path)?;
     }
     if let Some(p) = prev {
         // Held to the ground, no hop over a wall goes above the apex.
