@@ -1274,9 +1274,8 @@ mod tests {
             shared.apply(&replica, gap),
             Ok(Some(Request::Resync(never)))
         );
-        let gone = WorldUpdate::UnsubscribedMany {
-            chunks: vec![never, ChunkPos::new(6, 0, 0)],
-        };
+        // (The updates reader splits an `UnsubscribedMany` into these.)
+        let gone = WorldUpdate::Unsubscribed { pos: never };
         assert_eq!(shared.apply(&replica, gone), Ok(None));
         assert_eq!(changed(), vec![]);
         let sent = WorldUpdate::Generated { pos: held };

@@ -51,7 +51,9 @@ pub enum StrataPositionRefusal {
     /// Outside the world's bounds.
     OutOfBounds = 4,
     /// Every way from the held position passes the body through solid
-    /// terrain (a wall): move the player back to `held`.
+    /// terrain (a wall): move the player back to `held`. For a first
+    /// position (no held one): solid terrain above the eye, where a new
+    /// player may not appear: pick a spot under the open sky.
     PathBlocked = 5,
     /// Higher than a jump from where the player last stood: move the
     /// player back to `held`.
@@ -178,7 +180,8 @@ pub struct StrataWelcome {
     /// 1: the server remembers the player at `resume_feet`, and the first
     /// position must be a legal move from there. 0: the first position's
     /// column must lie within `spawn_radius` voxels of (`spawn_x`, `spawn_z`)
-    /// on both axes, at any height not inside terrain. A byte, not a
+    /// on both axes, not inside terrain, and (unless the server turned it
+    /// off) under the open sky: no solid voxel above the eye. A byte, not a
     /// `bool`: every language reads it as one (C#'s default `bool` is 4).
     pub resume: u8,
     pub resume_feet: [f64; 3],

@@ -46,6 +46,7 @@ fn node_config(
         x: spawn_x,
         z: Z,
         radius: 32,
+        ..SpawnArea::default()
     };
     cfg.interest.view_radius = 2;
     cfg.engine.tick_ms = 5;

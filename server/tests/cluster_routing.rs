@@ -95,6 +95,7 @@ fn node_config(
         x: spawn_x,
         z: Z,
         radius: 32,
+        ..SpawnArea::default()
     };
     cfg.validation.max_speed = 64.0;
     cfg

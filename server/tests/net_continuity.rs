@@ -225,6 +225,7 @@ async fn new_players_appear_at_the_configured_spawn() {
             x: 5000,
             z: 0,
             radius: 100,
+            ..SpawnArea::default()
         };
         let server = strata_server::app::start(cfg).await.unwrap();
         let cy = connect(&server, "cy", Role::Player).await;

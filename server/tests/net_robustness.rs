@@ -16,6 +16,7 @@ use strata_protocol::{
     PositionRefusal, PositionUpdate, RejectReason, Role, ServerMessage, PROTOCOL_VERSION,
 };
 use strata_server::app;
+use strata_server::net::session::EDIT_COST;
 use strata_terrain::gen::{GenParams, Generator};
 use strata_terrain::{Edit, FixedVec3};
 
@@ -588,10 +589,10 @@ async fn edits_wait_for_request_tokens_too() {
     tokio::time::timeout(TEST_TIMEOUT, async {
         let before = requests_throttled();
         let dir = tempfile::tempdir().unwrap();
-        // Ten requests at once, ten a second.
+        // Ten edits at once (8 tokens each), ten a second.
         let mut cfg = test_config(dir.path());
-        cfg.validation.request_rate.capacity = 10;
-        cfg.validation.request_rate.per_second = 10;
+        cfg.validation.request_rate.capacity = 10 * EDIT_COST;
+        cfg.validation.request_rate.per_second = 10 * EDIT_COST;
         let server = app::start(cfg).await.expect("server starts");
         let (_endpoint, conn, mut send, mut reader) = welcomed(&server, "flood").await;
         // Forty edits, refused for want of a position or past the edit rate
@@ -633,7 +634,8 @@ async fn edits_wait_for_request_tokens_too() {
                 other => panic!("expected verdicts and the Pong, got {other:?}"),
             }
         }
-        // 41 tokens, ten at once and ten a second: 3.1 s at the least.
+        // 40 edits and a ping, ten edits' tokens at once and ten edits' a
+        // second: 3.0 s at the least.
         let waited = sent.elapsed();
         assert!(waited >= Duration::from_millis(2_500), "{waited:?}");
         assert!(requests_throttled() > before, "the waits were counted");

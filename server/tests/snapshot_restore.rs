@@ -1106,9 +1106,7 @@ fn a_cluster_nodes_commit_into_a_world_restored_under_it_is_refused() {
 
 /// An offline snapshot with `--config` naming the database snapshots the
 /// database's world, not a `world.sled` left in the data dir from before a
-/// move to PostgreSQL; and a restore with no config into a data dir of a
-/// server's files but no sled world (a PostgreSQL node's) is refused, not
-/// made into a `world.sled` no server reads.
+/// move to PostgreSQL.
 #[test]
 fn offline_tools_take_the_store_the_config_names() {
     let Some(db) = database("offline_tools_take_the_store_the_config_names") else {
@@ -1131,11 +1129,6 @@ fn offline_tools_take_the_store_the_config_names() {
     })
     .unwrap();
     assert_eq!((created.seq, created.chunks), (20, 5));
-    // A PostgreSQL node's data dir: identity files, no world, no config.
-    std::fs::remove_dir_all(data.join(WORLD_DB_NAME)).unwrap();
-    let err = format!("{:#}", restore(&old, &data, true).unwrap_err());
-    assert!(err.contains("pass the server's --config"), "{err}");
-    assert!(!data.join(WORLD_DB_NAME).exists(), "nothing made");
 }
 
 /// Offline `zones add` with no `--config` starts from the zones the data
@@ -1192,4 +1185,15 @@ fn a_snapshot_not_renamed_into_place_leaves_no_partial_file() {
     .unwrap_err();
     assert!(format!("{err:#}").contains("renaming into"), "{err:#}");
     assert_eq!(listing(tmp.path()), before);
+}
+
+/// A restore cut short after the data dir got its certificate and secret
+/// (no world yet) is tried again with `--force` and no config: restored.
+#[test]
+fn a_restore_into_a_data_dir_without_its_world_is_tried_again() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (new, data, db) = old_sled_world(tmp.path());
+    std::fs::remove_dir_all(&db).unwrap();
+    assert_eq!(restore(&new, &data, true).unwrap(), 5);
+    assert_eq!(world_of(&data), (20, 5));
 }

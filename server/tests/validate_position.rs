@@ -62,6 +62,30 @@ fn a_first_position_is_open_to_the_sky() {
     };
     s.resume_position(8, 0, Some(stored));
     s.update_position(8, at(1, x, 0, z + 1), 500).unwrap();
+    // A world whose spawn lies under a roof turns the rule off.
+    let mut v = flying();
+    v.spawn.open_sky = false;
+    let mut s = ready(v);
+    s.submit(ADMIN, req(1, fill((x - 2, 6, z - 2), (x + 2, 7, z + 2))), 0)
+        .unwrap();
+    s.tick(0);
+    s.session_joined(7, "new".into(), Role::Player);
+    s.update_position(7, at(1, x, 0, z), 0).unwrap();
+}
+
+/// A tall world's first report reads no more than `MAX_SKY_CHUNKS` rows
+/// above the eye's; with the rule off, none.
+#[test]
+fn the_sky_a_first_report_reads_is_bounded() {
+    use strata_server::validate::position::sky_chunks;
+    use strata_server::validate::spawn::MAX_SKY_CHUNKS;
+    let mut v = ValidationConfig::default();
+    v.bounds.max_y = 1 << 20;
+    let feet = FixedVec3::from_voxels(3, 40, 5);
+    let rows: Vec<i32> = sky_chunks(feet, &v).map(|c| c.y).collect();
+    assert_eq!(rows, (1..=1 + MAX_SKY_CHUNKS).collect::<Vec<_>>());
+    v.spawn.open_sky = false;
+    assert_eq!(sky_chunks(feet, &v).count(), 0);
 }
 
 #[test]
@@ -114,6 +138,7 @@ fn the_spawn_area_is_configurable_and_reconnects_resume() {
             x: 5000,
             z: -7000,
             radius: 0,
+            ..SpawnArea::default()
         },
         ..ValidationConfig::default()
     };
@@ -653,10 +678,10 @@ fn only_spots_a_cluster_node_judged_leave_it() {
         .unwrap();
     let judged = FixedVec3::from_voxels(x + 2, 0, z);
     assert_eq!(s.judged_position(PLAYER).unwrap().feet, judged);
-    // The region is another node's now.
+    // The region is another node's now (or one whose holder this node
+    // has not read): not swept.
     let elsewhere = region(x + 1000);
     s.set_swept_regions(Some([elsewhere].into_iter().collect()));
-    s.set_foreign_regions([region(x)].into_iter().collect());
     s.update_position(PLAYER, at(3, x + 4, 0, z), 1_500)
         .unwrap();
     let taken = FixedVec3::from_voxels(x + 4, 0, z);
@@ -669,9 +694,14 @@ fn only_spots_a_cluster_node_judged_leave_it() {
         .map(|(_, p)| p.feet)
         .collect();
     assert_eq!(stored, [judged]);
-    // A region whose holder it has not read (a node just started), or
-    // alone on its store: judged.
-    s.set_foreign_regions(Default::default());
+    // A second session of the player on this node starts there too.
+    s.session_joined(9, format!("p{PLAYER}"), Role::Player);
+    assert_eq!(
+        s.resume_position(9, 1_600, None),
+        Start::Resume { feet: judged }
+    );
+    // Alone on its store, a node judges every spot.
+    s.set_swept_regions(None);
     s.update_position(PLAYER, at(4, x + 5, 0, z), 2_000)
         .unwrap();
     let here = FixedVec3::from_voxels(x + 5, 0, z);

@@ -705,12 +705,13 @@ impl Bot {
                         (c.x.div_euclid(side), c.z.div_euclid(side))
                     });
                     let to = addr.parse::<SocketAddr>().ok();
-                    // Without a ticket it would start over at the spawn.
+                    // Without a ticket (this node never judged the bot
+                    // where it stands: it appeared in the other node's
+                    // region) it starts over there as a new player would.
                     let ticket = client.region_owners().and_then(|o| o.ticket);
                     if self.fleet.cfg.follow_owners
                         && here == Some((*region_x, *region_z))
                         && to.is_some_and(|a| a != self.server)
-                        && ticket.is_some()
                     {
                         self.move_to = to;
                         self.ticket = ticket;

@@ -364,20 +364,15 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
             args.data_dir.display()
         );
     }
-    // A data dir with a server's files but no sled world and no config (a
-    // PostgreSQL node's, its strata.toml kept elsewhere): a world.sled made
-    // here would be read by no server.
+    // A data dir with a server's files but no sled world and no config:
+    // a PostgreSQL node's (its strata.toml kept elsewhere), or a sled one
+    // whose restore was cut short or whose world was removed. Restored
+    // all the same, with a warning (nothing tells the two apart).
     let sled_world = args.data_dir.join(crate::datadir::WORLD_DB_NAME);
-    let swapping = with_suffix(&sled_world, REPLACED_SUFFIX).exists();
-    if cfg.is_none() && !is_empty_dir(&args.data_dir)? && !sled_world.exists() && !swapping {
-        bail!(
-            "{} holds no {} and no {}: pass the server's --config (its [store] says where the \
-             world goes)",
-            args.data_dir.display(),
-            crate::datadir::WORLD_DB_NAME,
-            DATA_DIR_CONFIG_NAME
-        );
-    }
+    let no_world = cfg.is_none()
+        && !is_empty_dir(&args.data_dir)?
+        && !sled_world.exists()
+        && !with_suffix(&sled_world, REPLACED_SUFFIX).exists();
     let names = cfg.as_ref().map_or(&[][..], |c| &c.tls.extra_names[..]);
     let (dd, _) = DataDir::open_or_init(&args.data_dir, names)
         .with_context(|| format!("preparing data dir {}", args.data_dir.display()))?;
@@ -391,6 +386,15 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
         })?)
     })?;
     bar.finish_and_clear();
+    if no_world {
+        eprintln!(
+            "warning: {} held a server's files but no {}: restored there; if its server keeps \
+             its world in PostgreSQL, no server reads this one: restore again with the \
+             server's --config",
+            args.data_dir.display(),
+            crate::datadir::WORLD_DB_NAME
+        );
+    }
     Ok(n)
 }
 

@@ -248,6 +248,7 @@ impl Engine {
             metrics::counter!(m::POSITIONS_DROPPED, "reason" => "placement").increment(1);
             return self.refuse_position(session, update.seq, &reason, now);
         }
+        self.know_feet_region(update.pos);
         let needed = self.seq.chunks_needed_for_position(session, &update);
         if let Err(e) = self.make_resident(&needed) {
             crate::log_every::store_error("read", "store read failed", &e);

@@ -96,19 +96,12 @@ impl Engine {
                 return;
             }
         };
-        // Positions are swept through free regions (and this node's);
-        // those taken in other nodes' are not judged here.
+        // Positions are swept through free regions (and this node's).
         self.free_regions = holders
             .iter()
             .filter(|(_, h)| matches!(h, RegionHolder::Free))
             .map(|(r, _)| *r)
             .collect();
-        let foreign = holders
-            .iter()
-            .filter(|(_, h)| matches!(h, RegionHolder::Node { .. }))
-            .map(|(r, _)| *r)
-            .collect();
-        self.seq.set_foreign_regions(foreign);
         for (session, regions) in views {
             let owners: Vec<RegionOwner> = regions
                 .iter()

@@ -336,10 +336,44 @@ impl Engine {
         self.take_fresh_regions();
         metrics::gauge!(m::REGIONS_HELD).set(self.store.regions_held() as f64);
         self.tell_owners();
+        self.sweep_known();
+        Ok(())
+    }
+
+    /// Positions are swept through this node's regions and those it read
+    /// as free.
+    fn sweep_known(&mut self) {
         let mut swept = self.free_regions.clone();
         swept.extend(self.region_epochs.keys().copied());
         self.seq.set_swept_regions(Some(swept));
-        Ok(())
+    }
+
+    /// A report whose feet are in a region whose holder this node has not
+    /// read (a session's first report: no view overlapped it yet) reads it
+    /// now, so a free one is swept and the report judged as any
+    /// (`Session::judged`). Another node's stays unswept; the store
+    /// answers from its lease book while it knows the holder.
+    pub(super) fn know_feet_region(&mut self, feet: strata_terrain::FixedVec3) {
+        if !self.store.clustered() {
+            return;
+        }
+        let side = self.seq.region_chunks();
+        let region = RegionId::of(crate::validate::position::feet_voxel(feet).chunk(), side);
+        if self.free_regions.contains(&region) || self.region_epochs.contains_key(&region) {
+            return;
+        }
+        match self.store.region_holders(&BTreeSet::from([region])) {
+            Ok(holders) => {
+                if holders.iter().any(|(_, h)| *h == RegionHolder::Free) {
+                    self.free_regions.insert(region);
+                    self.sweep_known();
+                }
+            }
+            Err(e) => {
+                self.store_failed(&e);
+                crate::log_every::store_error("regions", "reading a region's holder failed", &e);
+            }
+        }
     }
 
     /// Reloads the regions claimed, lost or let go since the last call

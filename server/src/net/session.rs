@@ -504,24 +504,34 @@ async fn serve(
             .as_ref()
             .map_or_else(tokio::time::Instant::now, |(_, at)| *at);
         let view_wake = view.wake();
-        let (m, waited) = tokio::select! {
-            // An end first: a kicked, expired or shut down session takes
-            // no more requests, however many its client has queued.
+        // An end first: a kicked, expired or shut down session takes no
+        // more requests, however many its client has queued; the rest
+        // share the session fairly (a backlog of requests does not hold
+        // up its position reports, nor they it).
+        let woke = tokio::select! {
             biased;
             end = must_end(shutdown, kicked, admin_until) => return end,
-            _ = tokio::time::sleep_until(view_wake), if view.is_waiting() => {
+            woke = async {
+                tokio::select! {
+                    _ = tokio::time::sleep_until(view_wake), if view.is_waiting() => Woke::ViewDue,
+                    _ = tokio::time::sleep_until(wake), if throttled.is_some() => Woke::TokensDue,
+                    msg = reader.next::<ClientMessage>(), if throttled.is_none() => Woke::Read(msg),
+                    dg = conn.read_datagram() => Woke::Datagram(dg),
+                }
+            } => woke,
+        };
+        let (m, waited) = match woke {
+            Woke::ViewDue => {
                 if view.charge(&requests, view_cost, true) {
                     queue_position(session, &ctx.engine, latest, &mut positions);
                 }
                 continue;
             }
-            _ = tokio::time::sleep_until(wake), if throttled.is_some() => {
-                match throttled.take() {
-                    Some((m, _)) => (m, true),
-                    None => continue,
-                }
-            }
-            msg = reader.next::<ClientMessage>(), if throttled.is_none() => match msg {
+            Woke::TokensDue => match throttled.take() {
+                Some((m, _)) => (m, true),
+                None => continue,
+            },
+            Woke::Read(msg) => match msg {
                 Ok(Some(m)) => (m, false),
                 Ok(None) => return End::ClientClosed,
                 Err(ReadError::Io(e)) => {
@@ -530,19 +540,15 @@ async fn serve(
                 }
                 Err(e) => return End::Refused(read_error_code(&e), e.to_string()),
             },
-            dg = conn.read_datagram() => {
-                match dg {
-                    Ok(bytes) => {
-                        if offer_position(latest, &bytes) && view.charge(&requests, view_cost, false) {
-                            queue_position(session, &ctx.engine, latest, &mut positions);
-                        }
-                    }
-                    Err(e) => {
-                        debug!(error = %e, "connection ended");
-                        return End::Gone;
-                    }
+            Woke::Datagram(Ok(bytes)) => {
+                if offer_position(latest, &bytes) && view.charge(&requests, view_cost, false) {
+                    queue_position(session, &ctx.engine, latest, &mut positions);
                 }
                 continue;
+            }
+            Woke::Datagram(Err(e)) => {
+                debug!(error = %e, "connection ended");
+                return End::Gone;
             }
         };
         // Cheap first: a request the session has no tokens for waits before
@@ -569,6 +575,16 @@ async fn serve(
             return end;
         }
     }
+}
+
+/// What woke a session's loop, its end aside.
+enum Woke {
+    /// Its first view's tokens are there.
+    ViewDue,
+    /// The throttled request's tokens are there.
+    TokensDue,
+    Read(Result<Option<ClientMessage>, ReadError>),
+    Datagram(Result<bytes::Bytes, quinn::ConnectionError>),
 }
 
 /// Resolves once the session must end, whatever it is doing: the server

@@ -110,8 +110,6 @@ pub struct Sequencer {
     moved: HashSet<String>,
     /// See [`Self::set_swept_regions`].
     swept_regions: Option<HashSet<RegionId>>,
-    /// See [`Self::set_foreign_regions`].
-    foreign_regions: HashSet<RegionId>,
 }
 
 impl Sequencer {
@@ -147,7 +145,6 @@ impl Sequencer {
             last_positions: HashMap::new(),
             moved: Default::default(),
             swept_regions: None,
-            foreign_regions: HashSet::default(),
         }
     }
 
@@ -216,15 +213,6 @@ impl Sequencer {
     /// a region whose holder it does not know, so may they.
     pub fn set_swept_regions(&mut self, regions: Option<HashSet<RegionId>>) {
         self.swept_regions = regions;
-    }
-
-    /// The regions a cluster node read as other nodes'. A position taken
-    /// there (its terrain air to this node) is not judged: tickets and
-    /// saved positions stay at the session's last spot elsewhere
-    /// ([`Session::judged`]). Those whose holder is not known yet (a node
-    /// just started) are judged as its own.
-    pub fn set_foreign_regions(&mut self, regions: HashSet<RegionId>) {
-        self.foreign_regions = regions;
     }
 
     fn sweeps(&self, chunk: ChunkPos) -> bool {
@@ -734,11 +722,13 @@ impl Sequencer {
             return spawn;
         };
         // Another live session of the player (sessions_per_player > 1) knows
-        // a newer position than the remembered one.
+        // a newer position than the remembered one: the one it judged (a
+        // spot taken on trust in another node's region is not taken over).
         let others: Vec<ValidatedPosition> = self
-            .positions_of(&player)
-            .filter(|&(id, _)| id != session_id)
-            .map(|(_, p)| p)
+            .sessions_of(&player)
+            .iter()
+            .filter(|&&id| id != session_id)
+            .filter_map(|id| self.sessions.get(id)?.judged)
             .collect();
         let local = self.last_positions.get(&player).map(|r| StoredPosition {
             feet: r.feet,
@@ -1010,9 +1000,10 @@ impl Sequencer {
                 return Err(e);
             }
         };
-        let side = self.cfg.region_chunks;
-        let feet_region = RegionId::of(position::feet_voxel(ok.feet).chunk(), side);
-        let judged = !self.foreign_regions.contains(&feet_region);
+        // Judged whole only where its walls are checked: this node's
+        // regions and free ones (not another node's, nor one whose holder
+        // it has not read yet: both air to the sweep).
+        let judged = self.sweeps(position::feet_voxel(ok.feet).chunk());
         if let Some(s) = self.sessions.get_mut(&session_id) {
             s.position = Some(ok);
             if judged {

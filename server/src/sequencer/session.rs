@@ -12,11 +12,12 @@ pub struct Session {
     pub role: Role,
     /// Last position that passed every rule; `None` until the first one.
     pub position: Option<ValidatedPosition>,
-    /// Of those, the last this node judged: its feet not in a region it
-    /// read as another node's (alone on its store: every one), or a resume
-    /// or arrival. A cluster node treats other nodes' regions as air, so
-    /// only this one leaves it, in a ticket or a stored position: the
-    /// other node then sweeps the way on from there through its walls.
+    /// Of those, the last this node judged whole: its feet in a region it
+    /// sweeps, its own or one it read as free (alone on its store: every
+    /// one), or a resume or arrival. A cluster node treats other regions
+    /// as air, so only this one leaves it, in a ticket or a stored
+    /// position: the node holding the region sweeps the way on from there
+    /// through its walls.
     pub judged: Option<ValidatedPosition>,
     /// When the player was last seen anywhere, as its resume found it
     /// (another session's report, this node's memory, the store's row, not

@@ -856,6 +856,19 @@ pub fn persisted_segment_size(dir: &Path) -> Option<usize> {
 pub fn read_blob_as_is(dir: &Path, name: &str) -> Result<Option<Vec<u8>>, StoreError> {
     check_blob_name(name)?;
     let db = open_raw(dir)?;
+    // A store of a format this build does not know is refused, as by an
+    // open: its blobs may not read as this build's.
+    let world = db.open_tree(TREE_META)?.get(META_WORLD)?;
+    if let Some(Ok(m)) = world.map(|w| decode_meta(&w, 0)) {
+        let known = UPGRADABLE_FORMATS.contains(&m.format_version)
+            || m.format_version == STORE_FORMAT_VERSION;
+        if !known {
+            return Err(StoreError::UnsupportedFormat {
+                found: m.format_version,
+                supported: STORE_FORMAT_VERSION,
+            });
+        }
+    }
     let blobs = db.open_tree(TREE_BLOBS)?;
     Ok(blobs.get(name.as_bytes())?.map(|v| v.to_vec()))
 }
@@ -1009,5 +1022,26 @@ mod tests {
         let meta = db.open_tree(TREE_META).unwrap().get(META_WORLD).unwrap();
         let format = decode_meta(&meta.unwrap(), 0).unwrap().format_version;
         assert_eq!(format, 3, "not upgraded");
+        // One of a format this build does not know is refused.
+        let mut m = decode_meta(
+            &db.open_tree(TREE_META)
+                .unwrap()
+                .get(META_WORLD)
+                .unwrap()
+                .unwrap(),
+            0,
+        )
+        .unwrap();
+        m.format_version = STORE_FORMAT_VERSION + 1;
+        db.open_tree(TREE_META)
+            .unwrap()
+            .insert(META_WORLD, encode_meta(&m).unwrap())
+            .unwrap();
+        db.flush().unwrap();
+        drop(db);
+        assert!(matches!(
+            read_blob_as_is(&path, "access"),
+            Err(StoreError::UnsupportedFormat { .. })
+        ));
     }
 }

@@ -3,11 +3,12 @@
 use glam::DVec3;
 use strata_protocol::{PositionRefusal, PositionUpdate};
 use strata_terrain::edit::{Fixed, FixedVec3};
-use strata_terrain::{ChunkPos, VoxelPos, VoxelRead};
+use strata_terrain::{ChunkPos, VoxelPos, VoxelRead, CHUNK_SIZE};
 use thiserror::Error;
 
 use super::config::ValidationConfig;
 use super::gravity::{self, Air};
+use super::spawn::MAX_SKY_CHUNKS;
 use super::sweep;
 
 /// The longest move whose path is swept, in voxels: a longer one is
@@ -253,17 +254,19 @@ pub fn body_at(feet: DVec3, cfg: &ValidationConfig) -> [VoxelPos; 2] {
 }
 
 /// A first report (a player the server does not remember) is open to the
-/// sky: no solid voxel above the eye up to the world's top, so a new
-/// player appears on the surface, never inside a sealed room or cave
-/// beneath it (`PathBlocked` at the lowest such voxel). `path` as for the
-/// sweep: a cluster node does not judge another node's regions.
+/// sky: no solid voxel above the eye up to the world's top (at most
+/// [`MAX_SKY_CHUNKS`] rows above the eye's), so a new player appears on
+/// the surface, never inside a sealed room or cave beneath it
+/// (`PathBlocked` at the lowest such voxel). `path` as for the sweep: a
+/// cluster node does not judge another node's regions.
 fn open_sky(
     feet: FixedVec3,
     cfg: &ValidationConfig,
     path: &impl VoxelRead,
 ) -> Result<(), PositionReject> {
     let [_, eye] = body_voxels(feet, cfg);
-    for y in eye.y.saturating_add(1)..=cfg.bounds.max_y {
+    let top = sky_top(eye, cfg);
+    for y in eye.y.saturating_add(1)..=top {
         let v = VoxelPos::new(eye.x, y, eye.z);
         if path.voxel(v).is_solid() {
             return Err(PositionReject::PathBlocked { voxel: v });
@@ -272,12 +275,22 @@ fn open_sky(
     Ok(())
 }
 
+/// The highest voxel [`open_sky`] reads above `eye`.
+fn sky_top(eye: VoxelPos, cfg: &ValidationConfig) -> i32 {
+    let rows_up =
+        (eye.chunk().y + MAX_SKY_CHUNKS) as i64 * CHUNK_SIZE as i64 + CHUNK_SIZE as i64 - 1;
+    (cfg.bounds.max_y as i64).min(rows_up) as i32
+}
+
 /// The chunks [`open_sky`] reads above `feet`: the eye's column, up to the
-/// world's top row.
+/// world's top row (at most [`MAX_SKY_CHUNKS`] rows above the eye's).
 pub fn sky_chunks(feet: FixedVec3, cfg: &ValidationConfig) -> impl Iterator<Item = ChunkPos> {
     let [_, eye] = body_voxels(feet, cfg);
     let from = eye.chunk();
-    let (_, top) = cfg.bounds.chunk_y_range();
+    let top = match cfg.spawn.open_sky {
+        true => sky_top(eye, cfg).div_euclid(CHUNK_SIZE),
+        false => from.y - 1,
+    };
     (from.y..=top).map(move |y| ChunkPos::new(from.x, y, from.z))
 }
 
@@ -374,7 +387,7 @@ pub fn check(
             return Err(PositionReject::InsideSolid { voxel: v });
         }
     }
-    if prev.is_none() {
+    if prev.is_none() && cfg.spawn.open_sky {
         open_sky(upd.pos, cfg, path)?;
     }
     if let Some(p) = prev {
