@@ -296,6 +296,29 @@ impl Shared {
         Ok(request)
     }
 
+    /// The game dropped `chunks` (`Forget`): each leaves the replica (and
+    /// the prediction) as a withdrawal would, and one that was held is
+    /// marked dropped, so its deltas and whole copies still on their way
+    /// are ignored, not answered with a resync, until the server's
+    /// withdrawal ([`Replica::drop_chunk`]).
+    fn forget_chunks(&self, replica: &Mutex<Replica>, chunks: &[ChunkPos]) {
+        for &pos in chunks {
+            let held = replica
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .get(pos)
+                .is_some();
+            // An unsubscribe is never past the limits.
+            let _ = self.apply(replica, WorldUpdate::Unsubscribed { pos });
+            if held {
+                replica
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .mark_dropped(pos);
+            }
+        }
+    }
+
     fn violation(&self) -> Option<Violation> {
         self.violation
             .lock()
@@ -675,13 +698,7 @@ impl Client {
             });
         }
         // Dropped first: deltas arriving meanwhile are ignored, not resynced.
-        for &pos in chunks {
-            // An unsubscribe is never past the limits.
-            let _ = self
-                .shared
-                .apply(&self.replica, WorldUpdate::Unsubscribed { pos });
-            self.replica().drop_chunk(pos);
-        }
+        self.shared.forget_chunks(&self.replica, chunks);
         self.send(&ClientMessage::Forget {
             chunks: chunks.to_vec(),
         })
@@ -1284,6 +1301,42 @@ mod tests {
         let withdrawn = WorldUpdate::Unsubscribed { pos: held };
         assert_eq!(shared.apply(&replica, withdrawn), Ok(None));
         assert_eq!(changed(), vec![held]);
+    }
+
+    /// A chunk the game forgets while its deltas are on their way: they
+    /// are ignored, not answered with a resync (which would bring it
+    /// back), until the server's withdrawal.
+    #[test]
+    fn a_forgotten_chunks_late_delta_asks_for_nothing() {
+        let shared = Shared::default();
+        let flat = Arc::new(FlatGenerator {
+            ground: Voxel::solid(ids::STONE),
+        });
+        let replica = Mutex::new(Replica::new(Some(flat.clone())));
+        let pos = ChunkPos::new(2, 5, 0);
+        assert_eq!(
+            shared.apply(&replica, WorldUpdate::Generated { pos }),
+            Ok(None)
+        );
+        shared.forget_chunks(&replica, &[pos]);
+        assert!(replica.lock().unwrap().get(pos).is_none());
+        let air = Chunk::uniform(Voxel::AIR);
+        let delta = ChunkDelta::encode(pos, 0, 1, &air, &Chunk::uniform(Voxel::solid(1))).unwrap();
+        let late = WorldUpdate::Delta(DeltaUpdate {
+            delta,
+            mesh_hash: 0,
+            seq: 1,
+        });
+        assert_eq!(shared.apply(&replica, late), Ok(None));
+        assert_eq!(replica.lock().unwrap().stats.gaps, 0);
+        // The withdrawal ends it: sent again, it is taken in.
+        let gone = WorldUpdate::Unsubscribed { pos };
+        assert_eq!(shared.apply(&replica, gone), Ok(None));
+        assert_eq!(
+            shared.apply(&replica, WorldUpdate::Generated { pos }),
+            Ok(None)
+        );
+        assert!(replica.lock().unwrap().get(pos).is_some());
     }
 
     #[tokio::test]

@@ -208,6 +208,12 @@ impl Replica {
         }
     }
 
+    /// Marks `pos` dropped (the game forgot it while held, and it has left
+    /// the replica): see [`Self::drop_chunk`].
+    pub fn mark_dropped(&mut self, pos: ChunkPos) {
+        self.dropped.insert(pos);
+    }
+
     /// The client asks for a dropped chunk again (`ResyncRequest` or
     /// `FullSnapshotRequest`): the chunk sent in answer is taken in. Call
     /// before sending the request.

@@ -1,6 +1,6 @@
 //! Serving one command from a session or an operator, between ticks.
 
-use strata_protocol::{ErrorCode, Refusal, ServerMessage, WorldUpdate};
+use strata_protocol::{ErrorCode, Refusal, ServerMessage};
 use tracing::{info, warn};
 
 use super::peer::Peer;
@@ -267,21 +267,8 @@ impl Engine {
     }
 
     fn apply_interest(&mut self, session: u64, change: crate::interest::InterestChange) {
-        let Some(p) = self.peers.get_mut(&session) else {
-            return;
-        };
-        // One frame for a whole re-centring: per-chunk frames (thousands at
-        // view radius 8) would overflow the writer queue of a prompt client.
-        let gone = p.apply_interest(&mut self.holders, session, change);
-        for chunks in gone.chunks(strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE) {
-            let update = WorldUpdate::UnsubscribedMany {
-                chunks: chunks.to_vec(),
-            };
-            if p.send_update(fanout::encode_update(&update), false)
-                .is_err()
-            {
-                p.failed = true;
-            }
+        if let Some(p) = self.peers.get_mut(&session) {
+            p.apply_interest(&mut self.holders, session, change);
         }
     }
 

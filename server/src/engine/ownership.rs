@@ -588,18 +588,10 @@ impl Engine {
             }
         }
         for (id, chunks) in stale {
-            let Some(p) = self.peers.get_mut(&id) else {
-                continue;
-            };
-            for part in chunks.chunks(strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE) {
-                let update = strata_protocol::WorldUpdate::UnsubscribedMany {
-                    chunks: part.to_vec(),
-                };
-                if p.send_update(super::fanout::encode_update(&update), false)
-                    .is_err()
-                {
-                    p.failed = true;
-                }
+            // Owed, they go ahead of any later update (this tick's deltas
+            // included); a lagging client's wait for room.
+            if let Some(p) = self.peers.get_mut(&id) {
+                p.withdraw(chunks);
             }
         }
     }

@@ -160,20 +160,21 @@ impl Peer {
 
     /// Queues new chunks and forgets dropped ones (unlisting them for
     /// session `id`); the whole queue (chunks still waiting from earlier
-    /// views included) is then nearest first from the new centre. Returns
-    /// the chunks the client should be told to unload.
-    pub fn apply_interest(
-        &mut self,
-        holders: &mut Holders,
-        id: u64,
-        change: InterestChange,
-    ) -> Vec<ChunkPos> {
+    /// views included) is then nearest first from the new centre. Those
+    /// the client was sent are withdrawn ([`Self::withdraw`]): owed, and
+    /// sent now if the updates queue has room, else before its next
+    /// update (a lagging client is served late, not failed).
+    pub fn apply_interest(&mut self, holders: &mut Holders, id: u64, change: InterestChange) {
+        let mut sent = Vec::new();
         for &pos in &change.unsubscribe {
-            self.known.remove(&pos);
+            if self.known.remove(&pos).is_some() {
+                sent.push(pos);
+            }
             holders.remove(pos, id);
             self.full_data.remove(&pos);
             self.pending.remove(pos);
         }
+        self.withdraw(sent);
         for pos in change.subscribe {
             if !self.known.contains_key(&pos) {
                 self.pending.push_back(pos);
@@ -183,7 +184,16 @@ impl Peer {
             self.pending.sort_by_key(|p| nearest_first(*p, center));
             self.complete_due = true;
         }
-        change.unsubscribe
+    }
+
+    /// Tells the client to drop `chunks` it was sent (`UnsubscribedMany`):
+    /// owed, and sent ahead of any later update, now if the updates queue
+    /// has room ([`Self::confirm_withdrawals`]).
+    pub fn withdraw(&mut self, chunks: impl IntoIterator<Item = ChunkPos>) {
+        for pos in chunks {
+            self.owe_withdrawal(pos);
+        }
+        self.confirm_withdrawals();
     }
 
     /// Whether `pos` goes to the client whole even at version 0: it asked
