@@ -668,6 +668,37 @@ mod tests {
         assert!(p.may_stream(), "idle again");
     }
 
+    /// A view that moves on while the client lags (its updates queue
+    /// full): the chunks it was sent are owed a withdrawal, sent ahead of
+    /// its next update; the session is not failed. Chunks never sent are
+    /// owed nothing.
+    #[test]
+    fn a_recentre_on_a_full_queue_owes_its_withdrawals() {
+        let (a, b, c) = (
+            ChunkPos::new(0, 0, 0),
+            ChunkPos::new(1, 0, 0),
+            ChunkPos::new(0, 1, 0),
+        );
+        let mut holders = Holders::default();
+        let (mut p, mut rx) = listed_peer(&mut holders, 7, &[(a, 4), (b, 0)]);
+        p.pending.push_back(c);
+        let filler = Bytes::from_static(b"x");
+        while p.updates.try_send(filler.clone()).is_ok() {}
+        let change = crate::interest::InterestChange {
+            unsubscribe: vec![a, b, c],
+            ..Default::default()
+        };
+        p.apply_interest(&mut holders, 7, change);
+        assert!(!p.failed, "served late, not failed");
+        assert_eq!(p.withdrawals_owed(), &[a, b]);
+        assert!(holders.of(a).is_empty() && p.pending.pop_front().is_none());
+        while rx.try_recv().is_ok() {}
+        assert!(p.send_update(Bytes::new(), false).is_ok());
+        let got = rx.try_recv().unwrap().to_vec();
+        let want = encode_update(&WorldUpdate::UnsubscribedMany { chunks: vec![a, b] });
+        assert_eq!(got, want.to_vec());
+    }
+
     #[test]
     fn a_forget_of_chunks_sent_is_confirmed_on_the_updates_stream() {
         let (a, b, c) = (
