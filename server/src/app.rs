@@ -266,6 +266,7 @@ pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow
         generator_params: meta.generator_params.clone(),
         view_radius: cfg.interest.radius(),
         writer_queue: cfg.net.writer_queue,
+        writer_queue_bytes: cfg.net.writer_queue_bytes,
         control_writer_queue: cfg.net.control_writer_queue,
         send_interval: cfg.net.send_interval(),
         request_rate: cfg.validation.request_rate,

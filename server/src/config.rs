@@ -96,6 +96,14 @@ pub const MAX_DATAGRAM_BUFFER: usize = 16 * 1024 * 1024;
 /// too slow.
 pub const DEFAULT_WRITER_QUEUE: usize = 256;
 pub const MAX_WRITER_QUEUE: usize = 65_536;
+/// Bytes a connection's writer may hold queued (each stream's; frames
+/// taken and not yet written count): a client that stops reading pins at
+/// most this much besides QUIC's send window, however large the frames.
+/// 32 streamed batches of the default send budget.
+pub const DEFAULT_WRITER_QUEUE_BYTES: usize = 8 * 1024 * 1024;
+/// Bounds of `[net] writer_queue_bytes`.
+pub const MIN_WRITER_QUEUE_BYTES: usize = 64 * 1024;
+pub const MAX_WRITER_QUEUE_BYTES: usize = 1 << 30;
 /// Frames queued on a connection's control stream (acknowledgements,
 /// refusals, replies) before the session is dropped as not reading them.
 pub const DEFAULT_CONTROL_WRITER_QUEUE: usize = 1024;
@@ -246,6 +254,8 @@ pub struct NetSection {
     pub datagram_receive_buffer: usize,
     pub datagram_send_buffer: usize,
     pub writer_queue: usize,
+    /// See [`DEFAULT_WRITER_QUEUE_BYTES`].
+    pub writer_queue_bytes: usize,
     /// See [`DEFAULT_CONTROL_WRITER_QUEUE`].
     pub control_writer_queue: usize,
     pub send_budget_bytes_per_tick: usize,
@@ -336,6 +346,7 @@ impl Default for NetSection {
             datagram_receive_buffer: DEFAULT_DATAGRAM_RECEIVE_BUFFER,
             datagram_send_buffer: DEFAULT_DATAGRAM_SEND_BUFFER,
             writer_queue: DEFAULT_WRITER_QUEUE,
+            writer_queue_bytes: DEFAULT_WRITER_QUEUE_BYTES,
             control_writer_queue: DEFAULT_CONTROL_WRITER_QUEUE,
             send_budget_bytes_per_tick: DEFAULT_SEND_BUDGET_BYTES_PER_TICK,
             ack_delay_max_ms: DEFAULT_ACK_DELAY_MAX_MS,
@@ -525,6 +536,12 @@ impl ServerConfig {
             MAX_DATAGRAM_BUFFER,
         )?;
         range("net.writer_queue", n.writer_queue, 1, MAX_WRITER_QUEUE)?;
+        range(
+            "net.writer_queue_bytes",
+            n.writer_queue_bytes,
+            MIN_WRITER_QUEUE_BYTES,
+            MAX_WRITER_QUEUE_BYTES,
+        )?;
         range(
             "net.control_writer_queue",
             n.control_writer_queue,

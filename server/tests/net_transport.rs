@@ -126,7 +126,8 @@ async fn clients_acknowledge_less_when_the_server_asks() {
 async fn queued_frames(interval: Duration) -> Seen {
     let serve = move |conn: quinn::Connection, net: NetSection| async move {
         let uni = conn.open_uni().await.unwrap();
-        let (tx, task) = spawn_writer(uni, net.writer_queue, interval, "updates");
+        let queue = (net.writer_queue, net.writer_queue_bytes);
+        let (tx, task) = spawn_writer(uni, queue, interval, "updates");
         for i in 0..FRAMES {
             tx.try_send(Bytes::from(vec![i as u8; 32])).unwrap();
             tokio::time::sleep(FRAME_SPACING).await;

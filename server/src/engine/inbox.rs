@@ -166,7 +166,9 @@ impl EngineHandle {
     /// Queues a command without waiting, handing it back when its queue is
     /// full (or `Disconnected` when the engine is gone). A player command
     /// sent this way holds no slot of a session's share: sessions send
-    /// only position notices so.
+    /// only position notices so. (The refused command comes back whole,
+    /// as the channel hands it: no box for a path that is not hot.)
+    #[allow(clippy::result_large_err)]
     pub fn offer(&self, c: Command) -> Result<(), TrySendError<Command>> {
         if !is_control(&c) {
             let sent = self.player.try_send(Queued::free(c));

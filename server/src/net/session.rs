@@ -56,6 +56,9 @@ pub struct SessionContext {
     pub view_radius: u8,
     /// Per-connection queue of world updates.
     pub writer_queue: usize,
+    /// Bytes each of a connection's writers may hold (`[net]
+    /// writer_queue_bytes`).
+    pub writer_queue_bytes: usize,
     /// Per-connection queue of control frames (`[net] control_writer_queue`).
     pub control_writer_queue: usize,
     /// Shortest time between two writes of a session's updates (zero: none).
@@ -176,8 +179,12 @@ pub async fn run(
     let Some((send, recv)) = accept_first_stream(&conn, "control stream", deadline).await else {
         return;
     };
-    let (control, control_task) =
-        spawn_writer(send, ctx.control_writer_queue, Duration::ZERO, "control");
+    let (control, control_task) = spawn_writer(
+        send,
+        (ctx.control_writer_queue, ctx.writer_queue_bytes),
+        Duration::ZERO,
+        "control",
+    );
     let mut reader = FramedReader::new(recv, FrameBuffer::new(Direction::ClientToServer));
     let hello = match tokio::time::timeout_at(deadline, reader.next::<ClientMessage>()).await {
         Ok(Ok(Some(ClientMessage::Hello(h)))) => h,
@@ -304,7 +311,8 @@ async fn joined(
             return refuse(&conn, control, control_task, code, why).await;
         }
     };
-    let (updates, updates_task) = spawn_writer(uni, ctx.writer_queue, ctx.send_interval, "updates");
+    let queue = (ctx.writer_queue, ctx.writer_queue_bytes);
+    let (updates, updates_task) = spawn_writer(uni, queue, ctx.send_interval, "updates");
     let stored = match stored_position(&ctx, &claims.player).await {
         Ok(stored) => stored,
         Err(refused) => {
@@ -994,6 +1002,7 @@ pub(crate) fn test_context(
         generator_params: String::new(),
         view_radius: 1,
         writer_queue: 1,
+        writer_queue_bytes: crate::config::DEFAULT_WRITER_QUEUE_BYTES,
         control_writer_queue: 1,
         send_interval: Duration::ZERO,
         request_rate: rate,

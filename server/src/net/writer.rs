@@ -49,6 +49,35 @@ pub struct FrameSender {
     /// The stream, shared with its writer task, where frames may skip the
     /// queue (writers with no send interval).
     direct: Option<Arc<Direct>>,
+    /// Bytes queued and not yet written, with their bound.
+    bytes: Arc<ByteBound>,
+}
+
+/// The bytes of the frames in a writer's queue, or taken by the writer and
+/// not yet written (`[net] writer_queue_bytes`): a session that stops
+/// reading holds at most that much, whatever the frames' count.
+#[derive(Debug)]
+struct ByteBound {
+    queued: AtomicUsize,
+    max: usize,
+}
+
+impl ByteBound {
+    /// Counts `len` more bytes, or none when they would pass the bound
+    /// (a frame into an empty queue always fits: it is never refused for
+    /// its size alone).
+    fn take(&self, len: usize) -> bool {
+        let before = self.queued.fetch_add(len, Ordering::AcqRel);
+        if before > 0 && before.saturating_add(len) > self.max {
+            self.queued.fetch_sub(len, Ordering::AcqRel);
+            return false;
+        }
+        true
+    }
+
+    fn give_back(&self, len: usize) {
+        self.queued.fetch_sub(len, Ordering::AcqRel);
+    }
 }
 
 /// A stream both its writer task and [`FrameSender::send_now`] write to.
@@ -84,18 +113,28 @@ impl FrameSender {
         let sender = FrameSender {
             queue: tx,
             direct: None,
+            bytes: Arc::new(ByteBound {
+                queued: AtomicUsize::new(0),
+                max: usize::MAX,
+            }),
         };
         (sender, rx)
     }
 
-    /// Queues a frame without waiting.
+    /// Queues a frame without waiting: `Full` when the queue holds its
+    /// count of frames or its bytes.
     pub fn try_send(&self, frame: Bytes) -> Result<(), SendRefused> {
+        let len = frame.len();
+        if !self.bytes.take(len) {
+            return Err(SendRefused::Full);
+        }
         // Counted before the writer can see it, so that it never counts
         // below zero.
         if let Some(d) = &self.direct {
             d.queued.fetch_add(1, Ordering::AcqRel);
         }
         self.queue.try_send(frame).map_err(|e| {
+            self.bytes.give_back(len);
             if let Some(d) = &self.direct {
                 d.queued.fetch_sub(1, Ordering::AcqRel);
             }
@@ -194,11 +233,16 @@ pub const FINISH_WAIT: Duration = Duration::from_secs(5);
 /// to the stream too.
 pub fn spawn_writer(
     stream: quinn::SendStream,
-    capacity: usize,
+    (capacity, max_bytes): (usize, usize),
     interval: Duration,
     name: &'static str,
 ) -> (FrameSender, JoinHandle<()>) {
     let (tx, mut rx) = mpsc::channel::<Bytes>(capacity);
+    let bound = Arc::new(ByteBound {
+        queued: AtomicUsize::new(0),
+        max: max_bytes,
+    });
+    let written = bound.clone();
     let bytes_sent = metrics::counter!(BYTES_SENT);
     let direct = Arc::new(Direct {
         stream: Mutex::new(Locked { stream, rest: None }),
@@ -227,6 +271,8 @@ pub fn spawn_writer(
                     }
                     return;
                 }
+                // The queue's bytes, counted until written.
+                let queued: usize = batch.iter().map(Bytes::len).sum();
                 let Locked { stream, rest } = &mut *guard;
                 if let Some(rest) = rest.take() {
                     batch.insert(0, rest);
@@ -241,6 +287,7 @@ pub fn spawn_writer(
                 if counted {
                     shared.queued.fetch_sub(taken, Ordering::AcqRel);
                 }
+                written.give_back(queued);
                 drop(guard);
                 batch.clear();
                 bytes_sent.increment(bytes as u64);
@@ -255,6 +302,7 @@ pub fn spawn_writer(
     let sender = FrameSender {
         queue: tx,
         direct: counted.then_some(direct),
+        bytes: bound,
     };
     (sender, task)
 }
@@ -264,6 +312,32 @@ mod tests {
     use super::*;
     use crate::config::{NetSection, TlsSection};
     use crate::tls::{server_config, CertPair};
+
+    /// A queue holds at most its bytes (an empty one takes any frame);
+    /// a refused frame counts nothing, and written ones make room.
+    #[test]
+    fn a_queue_holds_at_most_its_bytes() {
+        let (tx, _rx) = mpsc::channel(16);
+        let bytes = Arc::new(ByteBound {
+            queued: AtomicUsize::new(0),
+            max: 100,
+        });
+        let sender = FrameSender {
+            queue: tx,
+            direct: None,
+            bytes: bytes.clone(),
+        };
+        let frame = |n: usize| Bytes::from(vec![7u8; n]);
+        assert_eq!(sender.try_send(frame(60)), Ok(()));
+        assert_eq!(sender.try_send(frame(40)), Ok(()));
+        assert_eq!(sender.try_send(frame(1)), Err(SendRefused::Full));
+        assert_eq!(bytes.queued.load(Ordering::Acquire), 100);
+        // Written by the writer: room again, and an empty queue takes a
+        // frame larger than the bound.
+        bytes.give_back(100);
+        assert_eq!(sender.try_send(frame(500)), Ok(()));
+        assert_eq!(sender.try_send(frame(1)), Err(SendRefused::Full));
+    }
 
     /// A frame: its length (4 bytes), producer, index (4 bytes), then
     /// filler, so that a frame cut or landing inside another shows.
@@ -336,7 +410,7 @@ mod tests {
             all
         });
         let uni = server_conn.open_uni().await.unwrap();
-        let (tx, task) = spawn_writer(uni, 64, interval, "test");
+        let (tx, task) = spawn_writer(uni, (64, usize::MAX), interval, "test");
         (tx, task, (go, reader), server)
     }
 
@@ -398,7 +472,10 @@ mod tests {
             .await
             .unwrap();
             let want: Vec<(u8, u32)> = (0..400).map(|i| (0, i)).collect();
+            let bytes = tx.bytes.clone();
             assert_eq!(received(tx, task, reader).await, want);
+            // Every queued byte was given back once written.
+            assert_eq!(bytes.queued.load(Ordering::Acquire), 0);
         })
         .await
         .expect("bounded");
