@@ -681,7 +681,11 @@ impl Client {
     /// Asks for a fresh snapshot of one chunk (taken in even if the chunk
     /// was forgotten).
     pub async fn resync(&self, pos: ChunkPos) -> Result<(), ClientError> {
-        self.replica().undrop(pos);
+        {
+            let mut r = self.replica();
+            r.undrop(pos);
+            r.expect_resync(pos);
+        }
         self.send(&ClientMessage::ResyncRequest { pos }).await
     }
 

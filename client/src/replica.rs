@@ -144,12 +144,17 @@ pub struct Replica {
     lost_checks: Vec<ChunkPos>,
     /// Set by [`Self::defer_mesh_checks`].
     defer_checks: bool,
+    /// Held chunks asked for again ([`Self::expect_resync`]) whose whole
+    /// copy has not come yet: the server sends no delta of them meanwhile,
+    /// so no mesh reading them is checked.
+    resyncing: HashSet<ChunkPos>,
 }
 
 impl Replica {
     /// Drops a chunk that left the view (or whose copy the server withdrew).
     fn forget(&mut self, pos: ChunkPos) {
         self.dropped.remove(&pos);
+        self.resyncing.remove(&pos);
         if self.checks.remove(&pos) {
             self.lost_checks.push(pos);
         }
@@ -181,6 +186,7 @@ impl Replica {
             dropped: HashSet::default(),
             lost_checks: Vec::new(),
             defer_checks: false,
+            resyncing: HashSet::default(),
         }
     }
 
@@ -219,6 +225,17 @@ impl Replica {
     /// before sending the request.
     pub fn undrop(&mut self, pos: ChunkPos) {
         self.dropped.remove(&pos);
+    }
+
+    /// The client asks for a fresh copy of `pos` (`ResyncRequest`): if it
+    /// holds one, the server stops its deltas until the copy is sent, so
+    /// meshes reading it are not checked meanwhile (a neighbour's change
+    /// would be meshed against the stale copy: a false mismatch). Call
+    /// before sending the request.
+    pub fn expect_resync(&mut self, pos: ChunkPos) {
+        if self.chunks.contains_key(&pos) {
+            self.resyncing.insert(pos);
+        }
     }
 
     /// Whether `pos` was dropped with [`Self::drop_chunk`] and not asked for
@@ -399,6 +416,7 @@ impl Replica {
                     let (chunk, hash) = self.generated(&g, pos);
                     self.stats.generated += 1;
                     self.hold(pos, chunk, 0, hash);
+                    self.resyncing.remove(&pos);
                     None
                 }
                 None => Some(Request::FullSnapshot(pos)),
@@ -534,6 +552,7 @@ impl Replica {
             return Some(Request::Resync(pos));
         };
         self.stats.snapshots += 1;
+        self.resyncing.remove(&pos);
         self.check(pos, version, Some(hash));
         if self.chunks.get(&pos).is_none_or(|h| h.version != version) {
             self.neighbour_changed(pos, None);
@@ -664,7 +683,11 @@ impl Replica {
                 Some(h) if h.version == p.version => {}
                 _ => continue,
             }
-            let Some(check) = self.check_of(pos, p.version, p.hash) else {
+            let check = match self.reads_resyncing(pos) {
+                true => None,
+                false => self.check_of(pos, p.version, p.hash),
+            };
+            let Some(check) = check else {
                 self.stats.meshes_unverifiable += 1;
                 continue;
             };
@@ -699,6 +722,20 @@ impl Replica {
                 }
             }
         }
+    }
+
+    /// Whether a mesh of `pos` reads a chunk whose fresh copy is awaited
+    /// ([`Self::expect_resync`]).
+    fn reads_resyncing(&self, pos: ChunkPos) -> bool {
+        !self.resyncing.is_empty()
+            && (-1..=1).any(|dz| {
+                (-1..=1).any(|dy| {
+                    (-1..=1).any(|dx| {
+                        pos.offset(dx, dy, dz)
+                            .is_some_and(|n| self.resyncing.contains(&n))
+                    })
+                })
+            })
     }
 
     /// The 27 chunks around `pos` (x fastest then y then z), when every
@@ -947,6 +984,37 @@ mod tests {
         assert_eq!(deferred.stats.meshes_checked, 2);
         assert_eq!(deferred.stats.mesh_mismatches, 1);
         assert_eq!(deferred.mesh_mismatches(), direct.mesh_mismatches());
+    }
+
+    /// While a held chunk's fresh copy is awaited, meshes reading it are
+    /// not checked (the server sends no delta of it meanwhile: a
+    /// neighbour's change meshed against it would mismatch); once the
+    /// copy comes, they are again.
+    #[test]
+    fn meshes_reading_a_chunk_being_resynced_are_not_checked() {
+        let mut r = Replica::new(Some(flat()));
+        for dz in -1..=1 {
+            for dy in -2..=0 {
+                for dx in -1..=1 {
+                    r.apply(generated(dx, dy, dz));
+                }
+            }
+        }
+        let (pos, beside) = (ChunkPos::new(0, -1, 0), ChunkPos::new(1, -1, 0));
+        let stone = Chunk::uniform(Voxel::solid(ids::STONE));
+        r.expect_resync(beside);
+        // The server meshed `pos` against a newer `beside`: no mismatch
+        // counted, only an unverifiable mesh.
+        r.apply(snapshot(pos, 1, &stone, 12345));
+        r.apply(WorldUpdate::TickEnd { last_seq: 1 });
+        assert_eq!((r.stats.meshes_checked, r.stats.mesh_mismatches), (0, 0));
+        assert_eq!(r.stats.meshes_unverifiable, 1);
+        // The fresh copy of `beside` ends it.
+        r.apply(snapshot(beside, 1, &stone, 0));
+        r.apply(WorldUpdate::TickEnd { last_seq: 2 });
+        r.apply(snapshot(pos, 2, &stone, 12345));
+        r.apply(WorldUpdate::TickEnd { last_seq: 3 });
+        assert_eq!(r.stats.mesh_mismatches, 1, "checked again");
     }
 
     #[test]
