@@ -250,36 +250,11 @@ impl Shared {
         replica: &Mutex<Replica>,
         update: WorldUpdate,
     ) -> Result<Option<Request>, Violation> {
-        let touched: Vec<Touched> = match &update {
-            // Each chunk an op lists, as if its delta had come.
-            WorldUpdate::Op(op) => op
-                .chunks
-                .iter()
-                .map(|c| Touched::Delta {
-                    pos: c.pos,
-                    seq: op.seq,
-                    to_version: c.version,
-                })
-                .collect(),
-            u => Touched::of(u).into_iter().collect(),
-        };
+        let tick_end = matches!(update, WorldUpdate::TickEnd { .. });
         let mut r = replica
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        // Only a chunk held before or after changed what the game sees:
-        // deltas and withdrawals naming others (a gap, a chunk never sent)
-        // queue no event, so the queue holds only chunks once held.
-        let held_before: Vec<bool> = touched.iter().map(|t| r.get(t.pos()).is_some()).collect();
-        let tick_end = matches!(update, WorldUpdate::TickEnd { .. });
-        let request = r.try_apply(update)?;
-        for (t, before) in touched.into_iter().zip(held_before) {
-            if before || r.get(t.pos()).is_some() {
-                self.mark_changed(t.pos());
-            }
-            if let Some(mut p) = self.prediction() {
-                self.reshape_prediction(&mut p, |p| p.after_update(t, &r));
-            }
-        }
+        let request = self.apply_held(&mut r, update)?;
         if tick_end {
             // The tick's meshes are checked with the replica free: the
             // game reads and meshes chunks meanwhile.
@@ -296,25 +271,58 @@ impl Shared {
         Ok(request)
     }
 
+    /// [`Self::apply`] on the replica `r` its caller holds locked (no
+    /// mesh checks run).
+    fn apply_held(
+        &self,
+        r: &mut Replica,
+        update: WorldUpdate,
+    ) -> Result<Option<Request>, Violation> {
+        let touched: Vec<Touched> = match &update {
+            // Each chunk an op lists, as if its delta had come.
+            WorldUpdate::Op(op) => op
+                .chunks
+                .iter()
+                .map(|c| Touched::Delta {
+                    pos: c.pos,
+                    seq: op.seq,
+                    to_version: c.version,
+                })
+                .collect(),
+            u => Touched::of(u).into_iter().collect(),
+        };
+        // Only a chunk held before or after changed what the game sees:
+        // deltas and withdrawals naming others (a gap, a chunk never sent)
+        // queue no event, so the queue holds only chunks once held.
+        let held_before: Vec<bool> = touched.iter().map(|t| r.get(t.pos()).is_some()).collect();
+        let request = r.try_apply(update)?;
+        for (t, before) in touched.into_iter().zip(held_before) {
+            if before || r.get(t.pos()).is_some() {
+                self.mark_changed(t.pos());
+            }
+            if let Some(mut p) = self.prediction() {
+                self.reshape_prediction(&mut p, |p| p.after_update(t, r));
+            }
+        }
+        Ok(request)
+    }
+
     /// The game dropped `chunks` (`Forget`): each leaves the replica (and
     /// the prediction) as a withdrawal would, and one that was held is
     /// marked dropped, so its deltas and whole copies still on their way
     /// are ignored, not answered with a resync, until the server's
-    /// withdrawal ([`Replica::drop_chunk`]).
+    /// withdrawal ([`Replica::drop_chunk`]). Under one lock: the server's
+    /// own withdrawal, applied between, would be spent before the mark.
     fn forget_chunks(&self, replica: &Mutex<Replica>, chunks: &[ChunkPos]) {
+        let mut r = replica
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         for &pos in chunks {
-            let held = replica
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .get(pos)
-                .is_some();
+            let held = r.get(pos).is_some();
             // An unsubscribe is never past the limits.
-            let _ = self.apply(replica, WorldUpdate::Unsubscribed { pos });
+            let _ = self.apply_held(&mut r, WorldUpdate::Unsubscribed { pos });
             if held {
-                replica
-                    .lock()
-                    .unwrap_or_else(std::sync::PoisonError::into_inner)
-                    .mark_dropped(pos);
+                r.mark_dropped(pos);
             }
         }
     }

@@ -699,6 +699,35 @@ mod tests {
         assert_eq!(got, want.to_vec());
     }
 
+    /// A chunk the client holds and asked for again (to be sent again,
+    /// no longer listed as held) that leaves the view, or that it then
+    /// forgets, before the new copy goes is still withdrawn: the client's
+    /// copy may be there.
+    #[test]
+    fn a_chunk_to_be_sent_again_is_withdrawn_when_it_goes() {
+        let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
+        let mut holders = Holders::default();
+        let (mut p, mut rx) = listed_peer(&mut holders, 7, &[(a, 4), (b, 2)]);
+        p.resend(a);
+        p.resend(b);
+        let change = crate::interest::InterestChange {
+            unsubscribe: vec![a],
+            ..Default::default()
+        };
+        p.apply_interest(&mut holders, 7, change);
+        p.forget(&mut holders, 7, &[b]);
+        let mut got = Vec::new();
+        while let Ok(f) = rx.try_recv() {
+            got.extend_from_slice(&f);
+        }
+        let mut want = encode_update(&WorldUpdate::UnsubscribedMany { chunks: vec![a] }).to_vec();
+        assert_eq!(&got[..], &want[..], "the re-centre's withdrawal");
+        p.confirm_withdrawals();
+        want = encode_update(&WorldUpdate::UnsubscribedMany { chunks: vec![b] }).to_vec();
+        assert_eq!(rx.try_recv().unwrap().to_vec(), want, "the forget's");
+        assert!(p.pending.pop_front().is_none(), "neither is sent again");
+    }
+
     #[test]
     fn a_forget_of_chunks_sent_is_confirmed_on_the_updates_stream() {
         let (a, b, c) = (

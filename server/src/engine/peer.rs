@@ -28,6 +28,12 @@ pub struct Peer {
     /// a chunk becomes held only through [`Self::receive`], which lists it
     /// in the engine's [`Holders`] too.
     known: FxHashMap<ChunkPos, u64>,
+    /// Chunks the client was sent that `known` no longer lists because
+    /// they are to be sent again ([`Self::resend`]: a resync, a
+    /// full-snapshot request): its copy may still be there, so one that
+    /// leaves the view or is forgotten before the new copy goes is owed a
+    /// withdrawal all the same. At most the view's chunks.
+    resent: HashSet<ChunkPos>,
     /// Chunks to send as snapshots, nearest first.
     pub pending: Pending,
     /// Chunks the client asked to receive as full data even at version 0.
@@ -88,6 +94,7 @@ impl Peer {
             updates,
             interest,
             known: FxHashMap::default(),
+            resent: HashSet::new(),
             pending: Pending::default(),
             full_data: HashSet::new(),
             failed: false,
@@ -139,7 +146,15 @@ impl Peer {
     /// `holders` lists it as session `id`'s.
     pub fn receive(&mut self, holders: &mut Holders, id: u64, pos: ChunkPos, version: u64) {
         self.known.insert(pos, version);
+        self.resent.remove(&pos);
         holders.add(pos, id);
+    }
+
+    /// Whether the client may hold `pos` (sent, or sent and to be sent
+    /// again): takes it off both lists.
+    fn take_sent(&mut self, pos: ChunkPos) -> bool {
+        let known = self.known.remove(&pos).is_some();
+        self.resent.remove(&pos) || known
     }
 
     /// The client was sent the changes of a chunk it holds, up to `version`.
@@ -167,7 +182,7 @@ impl Peer {
     pub fn apply_interest(&mut self, holders: &mut Holders, id: u64, change: InterestChange) {
         let mut sent = Vec::new();
         for &pos in &change.unsubscribe {
-            if self.known.remove(&pos).is_some() {
+            if self.take_sent(pos) {
                 sent.push(pos);
             }
             holders.remove(pos, id);
@@ -226,7 +241,7 @@ impl Peer {
         }
         // Work in proportion to the chunks named, never to the queue.
         for pos in &dropped {
-            if self.known.remove(pos).is_some() {
+            if self.take_sent(*pos) {
                 self.owe_withdrawal(*pos);
             }
             holders.remove(*pos, id);
@@ -250,6 +265,7 @@ impl Peer {
     }
 
     fn owe_withdrawal(&mut self, pos: ChunkPos) {
+        self.resent.remove(&pos);
         if self.withdrawing.insert(pos) {
             self.withdraw.push(pos);
         }
@@ -261,7 +277,7 @@ impl Peer {
     /// each `Forget` of a client keeping its queue full would encode the
     /// whole list again, work out of proportion to the request.
     pub fn confirm_withdrawals(&mut self) {
-        if self.owes_withdrawals() && self.updates.capacity() > 0 {
+        if self.owes_withdrawals() && self.updates.has_room() {
             let _ = self.send_update(Bytes::new(), false);
         }
     }
@@ -340,7 +356,9 @@ impl Peer {
     /// engine's [`Holders`] may still list it: the fan-out unlists it the
     /// next time it finds it not held.
     pub fn resend(&mut self, pos: ChunkPos) {
-        self.known.remove(&pos);
+        if self.known.remove(&pos).is_some() {
+            self.resent.insert(pos);
+        }
         self.pending.push_front(pos);
     }
 }

@@ -55,7 +55,8 @@ pub struct FrameSender {
 
 /// The bytes of the frames in a writer's queue, or taken by the writer and
 /// not yet written (`[net] writer_queue_bytes`): a session that stops
-/// reading holds at most that much, whatever the frames' count.
+/// reading holds at most that much, whatever the frames' count (and the
+/// rest of one frame [`FrameSender::send_now`] began).
 #[derive(Debug)]
 struct ByteBound {
     queued: AtomicUsize,
@@ -124,6 +125,10 @@ impl FrameSender {
     /// Queues a frame without waiting: `Full` when the queue holds its
     /// count of frames or its bytes.
     pub fn try_send(&self, frame: Bytes) -> Result<(), SendRefused> {
+        // A writer gone leaves its bytes counted: `Closed`, not `Full`.
+        if self.queue.is_closed() {
+            return Err(SendRefused::Closed);
+        }
         let len = frame.len();
         if !self.bytes.take(len) {
             return Err(SendRefused::Full);
@@ -199,6 +204,12 @@ impl FrameSender {
         } else {
             Handed::Begun
         })
+    }
+
+    /// Whether a small frame would be queued now: a free slot, and bytes
+    /// under the bound.
+    pub fn has_room(&self) -> bool {
+        self.queue.capacity() > 0 && self.bytes.queued.load(Ordering::Acquire) < self.bytes.max
     }
 
     /// Free slots in the queue.
