@@ -674,14 +674,8 @@ mod tests {
     /// owed nothing.
     #[test]
     fn a_recentre_on_a_full_queue_owes_its_withdrawals() {
-        let (a, b, c) = (
-            ChunkPos::new(0, 0, 0),
-            ChunkPos::new(1, 0, 0),
-            ChunkPos::new(0, 1, 0),
-        );
         let mut holders = Holders::default();
-        let (mut p, mut rx) = listed_peer(&mut holders, 7, &[(a, 4), (b, 0)]);
-        p.pending.push_back(c);
+        let ((mut p, mut rx), [a, b, c]) = two_sent_one_queued(&mut holders);
         let filler = Bytes::from_static(b"x");
         while p.updates.try_send(filler.clone()).is_ok() {}
         let change = crate::interest::InterestChange {
@@ -728,17 +722,24 @@ mod tests {
         assert!(p.pending.pop_front().is_none(), "neither is sent again");
     }
 
-    #[test]
-    fn a_forget_of_chunks_sent_is_confirmed_on_the_updates_stream() {
+    /// Session 7 sent chunks a (at 4) and b (at 0), c queued, not sent.
+    fn two_sent_one_queued(
+        holders: &mut Holders,
+    ) -> ((Peer, tokio::sync::mpsc::Receiver<Bytes>), [ChunkPos; 3]) {
         let (a, b, c) = (
             ChunkPos::new(0, 0, 0),
             ChunkPos::new(1, 0, 0),
             ChunkPos::new(0, 1, 0),
         );
-        let mut holders = Holders::default();
-        // a and b were sent; c is queued, not sent.
-        let (mut p, mut rx) = listed_peer(&mut holders, 7, &[(a, 4), (b, 0)]);
+        let (mut p, rx) = listed_peer(holders, 7, &[(a, 4), (b, 0)]);
         p.pending.push_back(c);
+        ((p, rx), [a, b, c])
+    }
+
+    #[test]
+    fn a_forget_of_chunks_sent_is_confirmed_on_the_updates_stream() {
+        let mut holders = Holders::default();
+        let ((mut p, mut rx), [a, b, c]) = two_sent_one_queued(&mut holders);
         // b's change was dropped on a full queue: already owed a withdrawal.
         p.dropped(&[b]);
         p.forget(&mut holders, 7, &[a, b, c]);
