@@ -610,6 +610,44 @@ fn structure_rotation_places_expected_voxels() {
     assert_eq!(w.voxel(VoxelPos::new(101, 42, -57)), Voxel::AIR);
 }
 
+/// A sphere whose box holds voxels, none of them inside the radius (where
+/// every brush's weight is 0), is refused `NoVoxel` like an empty box:
+/// accepted, it would change nothing and still be charged, numbered and
+/// logged.
+#[test]
+fn a_sphere_touching_no_voxel_inside_its_radius_is_refused() {
+    let setup = Setup::new();
+    let at = |x: i32, y: i32, z: i32| FixedVec3::new(Fixed(x), Fixed(y), Fixed(z));
+    let empty = [
+        Edit::Mine {
+            center: at(128, -256, 0),
+            radius: Fixed(128),
+            strength: 255,
+        },
+        Edit::Explode {
+            center: at(128, -128, 128),
+            radius: Fixed(182),
+            power: 255,
+        },
+    ];
+    for e in empty {
+        assert_eq!(e.validate(&setup.ctx()), Err(EditError::NoVoxel), "{e:?}");
+        let mut w = world();
+        assert_eq!(
+            e.apply(&mut w, &setup.ctx()).unwrap_err(),
+            EditError::NoVoxel
+        );
+    }
+    // A hair larger, the nearest voxel is inside: accepted, and it digs.
+    let dig = Edit::Mine {
+        center: at(128, -256, 0),
+        radius: Fixed(129),
+        strength: 255,
+    };
+    assert!(dig.validate(&setup.ctx()).is_ok());
+    check_equivalent(&dig);
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
     #[test]

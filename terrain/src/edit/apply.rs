@@ -3,8 +3,8 @@
 use std::sync::Arc;
 
 use super::error::EditError;
-use super::fixed::{Fixed, FixedVec3, COORD_LIMIT_VOXELS};
-use super::kernel::apply_voxel;
+use super::fixed::{Fixed, FixedVec3, COORD_LIMIT_VOXELS, ONE};
+use super::kernel::{apply_voxel, beyond};
 use super::limits::*;
 use super::region::Region;
 use super::structure::{Structure, StructureLibrary};
@@ -82,6 +82,18 @@ fn sphere_box(center: FixedVec3, radius: Fixed) -> Result<VoxelBox, EditError> {
     }
     check_coord(b.min)?;
     check_coord(b.max)?;
+    // Nor does one whose box's voxel nearest the centre lies at the radius
+    // or beyond, where every sphere brush's weight is 0: the edit would
+    // change nothing (and be charged, numbered and logged for it).
+    let near = |c: Fixed, lo: i32, hi: i32| Fixed(c.0 + ONE / 2).floor_voxel().clamp(lo, hi);
+    let nearest = VoxelPos::new(
+        near(center.x, b.min.x, b.max.x),
+        near(center.y, b.min.y, b.max.y),
+        near(center.z, b.min.z, b.max.z),
+    );
+    if beyond(center, nearest, radius) {
+        return Err(EditError::NoVoxel);
+    }
     Ok(b)
 }
 

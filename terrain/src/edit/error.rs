@@ -33,7 +33,7 @@ pub enum EditError {
     UnknownStructure(StructureId),
     #[error("rotation must be 0..=3 quarter turns, got {0}")]
     BadRotation(u8),
-    #[error("the sphere holds no voxel centre (a radius under half a voxel between centres)")]
+    #[error("the sphere holds no voxel centre strictly inside its radius")]
     NoVoxel,
     #[error("chunk ({}, {}, {}) is at the highest version a chunk may have", .pos.x, .pos.y, .pos.z)]
     VersionExhausted { pos: crate::ChunkPos },

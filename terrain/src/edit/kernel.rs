@@ -32,7 +32,7 @@ fn distance_q16(c: FixedVec3, p: VoxelPos) -> i64 {
 /// Whether voxel `p` lies at or beyond `radius` from `c`, where every
 /// sphere brush's weight is 0: exactly `distance_q16 >= radius` (the root
 /// is the floor), without the root.
-fn beyond(c: FixedVec3, p: VoxelPos, radius: Fixed) -> bool {
+pub(super) fn beyond(c: FixedVec3, p: VoxelPos, radius: Fixed) -> bool {
     let r = q8_to_q16(radius.0);
     r <= 0 || u128::from(distance_sq_q32(c, p)) >= (r as u128) * (r as u128)
 }
