@@ -787,14 +787,15 @@ async fn a_batch_reading_a_region_taken_over_is_fenced_too() {
         let dirs = tempfile::tempdir().unwrap();
         let (west, ann, (v, _)) = west_with_ann(&dirs.path().join("a"), &db).await;
         assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
-        // Region 0 ends at x = 256; what a mine of radius 3 at 251 changes
-        // stops short of it, and the meshes' apron reaches two voxels past.
+        // Region 0 ends at x = 256; what a mine of radius 3 at 252 changes
+        // (250..=254: 255 lies at the radius) stops short of it, and the
+        // meshes' apron reaches two voxels past.
         let bea = standing(&west, "bea", 230).await;
         for x in (232..=248).step_by(2) {
             bea.send_position(feet(x)).unwrap();
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
-        let (v, changes) = bea.edit_acked(mine_at(251)).await.unwrap();
+        let (v, changes) = bea.edit_acked(mine_at(252)).await.unwrap();
         assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
         assert!(!changes.is_empty());
         assert!(
@@ -804,7 +805,7 @@ async fn a_batch_reading_a_region_taken_over_is_fenced_too() {
             "it writes region 0 alone: {changes:?}"
         );
         let _thief = thief_takes_region(&db, 1).await;
-        let (v, _) = bea.edit_acked(mine_at(251)).await.unwrap();
+        let (v, _) = bea.edit_acked(mine_at(252)).await.unwrap();
         assert_eq!(
             v,
             Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere {

@@ -124,19 +124,31 @@ fn vertical_bounds() {
     let v = ValidationConfig {
         bounds: WorldBounds {
             min_y: -3,
-            max_y: 64,
+            max_y: 2,
         },
         ..Default::default()
     };
     let mut s = ready(v);
-    // A radius-2 sphere's box reaches y = -2 - 2 = -4, below the bottom.
+    // A radius-2 sphere's box is open: at y = -3 it reaches y = -4, below
+    // the bottom; at y = -2 it reaches -3 (voxels at -4 lie at the radius).
+    // At the top row, radius 2 leaves the world, radius 1 changes that row
+    // alone.
     rejects(
         &mut s,
         PLAYER,
-        mine(X, -2, Z + 3, 2),
+        mine(X, -3, Z + 3, 2),
         RejectReason::OutOfBounds,
     );
-    assert!(s.submit(PLAYER, req(1, mine(X, 0, Z + 3, 2)), 0).is_ok());
+    rejects(
+        &mut s,
+        PLAYER,
+        mine(X + 2, 2, Z + 3, 2),
+        RejectReason::OutOfBounds,
+    );
+    assert!(s.submit(PLAYER, req(1, mine(X, -2, Z + 3, 2)), 0).is_ok());
+    assert!(s
+        .submit(PLAYER, req(2, mine(X + 2, 2, Z + 3, 1)), 0)
+        .is_ok());
 }
 
 #[test]
@@ -225,8 +237,9 @@ fn volume_bucket_refills_with_time() {
         ..Default::default()
     };
     let mut s = ready(v);
-    // Radius 2: a 5³ = 125-voxel box.
-    let e = || mine(X, -1, Z + 4, 2);
+    // Radius 3: a 5³ = 125-voxel box (open: voxels 3 away along an axis
+    // lie at the radius).
+    let e = || mine(X, -1, Z + 4, 3);
     assert!(s.submit(PLAYER, req(1, e()), 0).is_ok());
     assert!(s.submit(PLAYER, req(2, e()), 0).is_ok());
     assert_eq!(
@@ -463,14 +476,14 @@ fn admitted_edits_wait_for_one_sight_check_in_arrival_order() {
 
 #[test]
 fn admission_takes_the_edit_token_and_a_refused_sight_gives_the_volume_back() {
-    // Three edit tokens, and volume for one radius-2 mine (a 5^3 box) at a time.
+    // Three edit tokens, and volume for one radius-2 mine (a 3^3 box) at a time.
     let v = ValidationConfig {
         edit_rate: BucketConfig {
             capacity: 3,
             per_second: 0,
         },
         volume_rate: BucketConfig {
-            capacity: 125,
+            capacity: 27,
             per_second: 0,
         },
         ..Default::default()
@@ -569,10 +582,11 @@ fn an_edit_needs_the_regions_its_meshes_read_and_no_more() {
     assert_eq!(regions(border + 8), vec![east]);
     assert_eq!(regions(border), vec![west, east]);
     assert_eq!(regions(border - 1), vec![west, east]);
-    // Mining radius 1 changes voxels within one of its centre, and a
-    // change reaches meshes two voxels on: the edges are exact.
-    assert_eq!(regions(border + 2), vec![west, east]);
-    assert_eq!(regions(border + 3), vec![east]);
-    assert_eq!(regions(border - 3), vec![west, east]);
-    assert_eq!(regions(border - 4), vec![west]);
+    // Mining radius 1 changes its centre's voxel alone (the others lie at
+    // the radius or beyond), and a change reaches meshes two voxels on:
+    // the edges are exact.
+    assert_eq!(regions(border + 1), vec![west, east]);
+    assert_eq!(regions(border + 2), vec![east]);
+    assert_eq!(regions(border - 2), vec![west, east]);
+    assert_eq!(regions(border - 3), vec![west]);
 }

@@ -230,7 +230,8 @@ fn chunked_equals_flat_across_borders_corners_and_negatives() {
 
 #[test]
 fn edits_reach_every_touched_chunk() {
-    // An explosion on a chunk corner changes all eight chunks around it.
+    // An explosion on a chunk corner reaches all eight chunks around it;
+    // its box is open: voxels 8 away along an axis lie at the radius.
     let setup = Setup::new();
     let ctx = setup.ctx();
     let mut w = flat(Voxel::solid(ids::DIRT));
@@ -242,7 +243,7 @@ fn edits_reach_every_touched_chunk() {
     let out = e.apply(&mut w, &ctx).unwrap();
     assert_eq!(
         out.bbox,
-        VoxelBox::from_corners(VoxelPos::new(-8, -8, -8), VoxelPos::new(8, 8, 8))
+        VoxelBox::from_corners(VoxelPos::new(-7, -7, -7), VoxelPos::new(7, 7, 7))
     );
     // Only the four chunks below y = 0 hold solid voxels to destroy.
     assert_eq!(out.changed.len(), 4);

@@ -70,8 +70,11 @@ fn sphere_box(center: FixedVec3, radius: Fixed) -> Result<VoxelBox, EditError> {
             max: MAX_RADIUS,
         });
     }
-    let lo = |c: Fixed| Fixed(c.0 - radius.0).ceil_voxel();
-    let hi = |c: Fixed| Fixed(c.0 + radius.0).floor_voxel();
+    // Open on every side: a voxel a whole radius from the centre along one
+    // axis lies at the radius or beyond, where no sphere brush changes it
+    // (so a radius-1 edit at the world's top row stays inside it).
+    let lo = |c: Fixed| Fixed(c.0 - radius.0).floor_voxel() + 1;
+    let hi = |c: Fixed| Fixed(c.0 + radius.0).ceil_voxel() - 1;
     let b = VoxelBox {
         min: VoxelPos::new(lo(center.x), lo(center.y), lo(center.z)),
         max: VoxelPos::new(hi(center.x), hi(center.y), hi(center.z)),
@@ -231,6 +234,9 @@ impl Edit {
             max: VoxelPos::new(bbox.max.x + m, bbox.max.y + m, bbox.max.z + m),
         };
         world.load(read_box.chunks());
+        // An edit that reads around the voxels it changes (Smooth: 27 reads
+        // each) reads a flat copy of its read box, not the chunk map.
+        let margin_copy = (m > 0).then(|| Region::from_loaded(world, read_box));
         let structure = self.structure(ctx);
         let mut pending = Vec::new();
         let mut voxels_changed = 0u64;
@@ -247,7 +253,11 @@ impl Edit {
             for_each_voxel(sub, |p| {
                 let (x, y, z) = p.local();
                 let old = before.get(x, y, z);
-                let new = apply_voxel(self, structure, ctx.materials, p, old, &*world, bbox.min);
+                let src: &dyn VoxelRead = match &margin_copy {
+                    Some(r) => r,
+                    None => &*world,
+                };
+                let new = apply_voxel(self, structure, ctx.materials, p, old, src, bbox.min);
                 if new != old {
                     after.set(x, y, z, new);
                     voxels.push(local_index(x, y, z) as u16);

@@ -160,29 +160,30 @@ fn smooth_voxel(
     materials: &MaterialTable,
     weight: i64,
 ) -> Voxel {
-    let mut sum = 0i64;
-    let mut counts = [0u16; 256];
-    for dz in -1..=1 {
-        for dy in -1..=1 {
-            for dx in -1..=1 {
-                let n = src.voxel(VoxelPos::new(p.x + dx, p.y + dy, p.z + dz));
-                sum += n.density as i64;
-                let placeable =
-                    materials.get(n.material).is_some() && !materials.is_indestructible(n.material);
-                if n.is_solid() && placeable {
-                    counts[n.material as usize] += 1;
-                }
-            }
-        }
-    }
+    let neighbours = || {
+        (-1..=1).flat_map(move |dz| {
+            (-1..=1).flat_map(move |dy| {
+                (-1..=1).map(move |dx| src.voxel(VoxelPos::new(p.x + dx, p.y + dy, p.z + dz)))
+            })
+        })
+    };
+    let sum: i64 = neighbours().map(|n| n.density as i64).sum();
     // Round the mean to nearest; truncate the step toward zero.
     let mean = (sum * 2 + 27) / 54;
-    let density =
+    let mut density =
         (old.density as i64 + (mean - old.density as i64) * weight / Q16).clamp(0, 255) as u8;
     let mut material = old.material;
-    let mut density = density;
     if !old.is_solid() && density >= crate::chunk::SOLID_THRESHOLD {
-        // Newly solid: take the most common solid neighbour material (lowest id on ties).
+        // Newly solid: take the most common placeable solid neighbour
+        // material (lowest id on ties), counted only here.
+        let mut counts = [0u8; 256];
+        for n in neighbours() {
+            let placeable =
+                materials.get(n.material).is_some() && !materials.is_indestructible(n.material);
+            if n.is_solid() && placeable {
+                counts[n.material as usize] += 1;
+            }
+        }
         match counts
             .iter()
             .enumerate()

@@ -2,7 +2,7 @@
 
 use crate::chunk::Voxel;
 use crate::pos::{VoxelBox, VoxelPos};
-use crate::world::VoxelRead;
+use crate::world::{VoxelRead, World};
 
 /// Voxels of one box in a single array (x fastest, then y, then z).
 /// Reads outside the box return `outside`.
@@ -35,6 +35,39 @@ impl Region {
             dims,
             voxels,
             outside,
+        }
+    }
+
+    /// Copies `bounds` out of a world whose chunks there are all loaded,
+    /// a chunk at a time (one lookup per chunk, not per voxel).
+    pub(crate) fn from_loaded(world: &World, bounds: VoxelBox) -> Self {
+        let dims = [
+            (bounds.max.x - bounds.min.x + 1) as usize,
+            (bounds.max.y - bounds.min.y + 1) as usize,
+            (bounds.max.z - bounds.min.z + 1) as usize,
+        ];
+        let mut voxels = vec![Voxel::AIR; dims.iter().product()];
+        for c in bounds.chunks() {
+            let Some(sub) = bounds.within_chunk(c) else {
+                continue;
+            };
+            let chunk = &world.peek(c).expect("loaded by the caller").chunk;
+            for z in sub.min.z..=sub.max.z {
+                for y in sub.min.y..=sub.max.y {
+                    let row = (y - bounds.min.y) as usize * dims[0]
+                        + (z - bounds.min.z) as usize * dims[0] * dims[1];
+                    for x in sub.min.x..=sub.max.x {
+                        let (lx, ly, lz) = VoxelPos::new(x, y, z).local();
+                        voxels[row + (x - bounds.min.x) as usize] = chunk.get(lx, ly, lz);
+                    }
+                }
+            }
+        }
+        Self {
+            bounds,
+            dims,
+            voxels,
+            outside: Voxel::AIR,
         }
     }
 

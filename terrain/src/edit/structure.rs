@@ -55,6 +55,9 @@ pub struct Structure {
     size: [u16; 3],
     density: Vec<u8>,
     material: Vec<u8>,
+    /// The distinct materials of its non-air cells, ascending: what an edit
+    /// placing it checks, without a scan of the template per edit.
+    placed: Vec<u8>,
 }
 
 impl Structure {
@@ -72,11 +75,19 @@ impl Structure {
         if density.len() != n || material.len() != n {
             return Err(StructureError::PlaneLength);
         }
+        let mut seen = [false; 256];
+        for (d, m) in density.iter().zip(&material) {
+            if *d > 0 {
+                seen[*m as usize] = true;
+            }
+        }
+        let placed = (0..=255u8).filter(|m| seen[*m as usize]).collect();
         Ok(Self {
             name: name.into(),
             size,
             density,
             material,
+            placed,
         })
     }
 
@@ -130,13 +141,10 @@ impl Structure {
         Voxel::new(self.density[i], self.material[i])
     }
 
-    /// Materials this template places.
+    /// The distinct materials this template places (of its non-air
+    /// cells), ascending.
     pub fn materials(&self) -> impl Iterator<Item = u8> + '_ {
-        self.density
-            .iter()
-            .zip(&self.material)
-            .filter(|(d, _)| **d > 0)
-            .map(|(_, m)| *m)
+        self.placed.iter().copied()
     }
 
     pub fn to_bytes(&self) -> Vec<u8> {
@@ -301,5 +309,19 @@ mod tests {
         assert_eq!(s.rotated_voxel(1, 0, 0, 2), s.rotated_voxel(0, 0, 0, 0));
         assert_eq!(s.rotated_voxel(1, 1, 0, 2), s.rotated_voxel(0, 0, 0, 1));
         assert_eq!(s.rotated_voxel(2, 2, 0, 1), s.rotated_voxel(0, 0, 0, 0));
+    }
+
+    #[test]
+    fn materials_are_the_distinct_ones_of_non_air_cells() {
+        // Air cells (density 0) carry material 9, which is never placed.
+        let s = Structure::from_fn("m", [4, 4, 4], |x, y, z| match (x + y + z) % 3 {
+            0 => Voxel::new(0, 9),
+            1 => Voxel::new(200, 5),
+            _ => Voxel::new(1, 2),
+        })
+        .unwrap();
+        assert_eq!(s.materials().collect::<Vec<_>>(), vec![2, 5]);
+        let back = Structure::from_bytes(&s.to_bytes()).unwrap();
+        assert_eq!(back.materials().collect::<Vec<_>>(), vec![2, 5]);
     }
 }
