@@ -230,3 +230,71 @@ async fn frames_are_built_on_the_workers_once_and_then_served_from_the_cache() {
     .await
     .expect("test finished in time");
 }
+
+/// A stored chunk that cannot be read leaves out only the frames that need
+/// it (its own and its neighbours', for their meshes): the workers still
+/// build every other frame of the view, and the engine thread none.
+#[tokio::test]
+async fn a_chunk_that_cannot_be_read_leaves_out_only_the_frames_that_need_it() {
+    use strata_server::store::keys::chunk_key;
+    use strata_server::store::{open_raw, TREE_CHUNKS};
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let root = tempfile::tempdir().unwrap();
+        let data = root.path().join("data");
+        let metrics = free_metrics_addr();
+        let config = format!(
+            "{FAST_EDITS}[interest]\nview_radius = 2\n[engine]\nworkers = 2\n[metrics]\nlisten = \"{metrics}\"\n"
+        );
+        let (feet, surface) = spot(70, 40);
+        let center = VoxelPos::new(70, surface.y + 1, 40).chunk();
+        let view = cube(center, 2);
+        let bad = ChunkPos::new(center.x + 2, center.y + 2, center.z + 2);
+        // A first start makes the data dir; the view's corner chunk then
+        // gets a stored body that does not decode.
+        let (mut child, _) = spawn_server(&data, &config);
+        child.kill().unwrap();
+        child.wait().unwrap();
+        {
+            let db = open_raw(&data.join(strata_server::datadir::WORLD_DB_NAME)).unwrap();
+            let chunks = db.open_tree(TREE_CHUNKS).unwrap();
+            let mut garbage = 1u64.to_be_bytes().to_vec();
+            garbage.extend_from_slice(b"\x28\xb5\x2f\xfd not zstd");
+            chunks.insert(chunk_key(bad), garbage).unwrap();
+            db.flush().unwrap();
+        }
+        let (mut child, addr) = spawn_server(&data, &config);
+        let thin = strata_client_sim::ClientOptions {
+            capabilities: strata_protocol::CAP_SNAPSHOTS,
+            ..Default::default()
+        };
+        let c = process_client_opts(&data, addr, "ana", thin).await;
+        c.send_position(feet).unwrap();
+        let near_bad = |p: &ChunkPos| {
+            (p.x - bad.x).abs() <= 1 && (p.y - bad.y).abs() <= 1 && (p.z - bad.z).abs() <= 1
+        };
+        let servable: Vec<ChunkPos> = view.iter().copied().filter(|p| !near_bad(p)).collect();
+        assert_eq!(servable.len(), view.len() - 8);
+        assert!(
+            eventually(Duration::from_secs(30), || c.replica().len() >= servable.len()).await,
+            "{} of {} chunks",
+            c.replica().len(),
+            servable.len()
+        );
+        {
+            let r = c.replica();
+            assert!(servable.iter().all(|p| r.get(*p).is_some()));
+            assert_eq!((r.stats.hash_mismatches, r.stats.mesh_mismatches), (0, 0));
+        }
+        let text = scrape(metrics);
+        let built = |on: &str| {
+            metric(&text, &format!("strata_snapshot_frames_built_total{{on=\"{on}\"}}"))
+        };
+        assert_eq!(built("workers"), Some(servable.len() as f64));
+        assert_eq!(built("engine"), None, "no frame built on the engine thread");
+        c.close().await;
+        child.kill().unwrap();
+        child.wait().unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}

@@ -23,7 +23,7 @@ use tracing::error;
 
 use super::fanout::encode_update;
 use super::frame_cache::FrameKey;
-use super::stream::frame_update;
+use super::stream::{frame_update, SNAPSHOT_ERRORS};
 use super::Engine;
 use crate::metrics as m;
 use crate::sequencer::residency::with_neighbours;
@@ -157,7 +157,7 @@ impl Engine {
     /// snapshot cache.
     pub(super) fn prebuild_frames(&mut self, due: &Due) {
         let began = Instant::now();
-        let due = &due.keys;
+        let mut due = due.keys.clone();
         let mut chunks: Vec<ChunkPos> = due.iter().map(|k| k.0).collect();
         chunks.sort_unstable();
         chunks.dedup();
@@ -165,9 +165,25 @@ impl Engine {
         around.sort_unstable();
         around.dedup();
         if let Err(e) = self.make_resident(&around) {
-            error!(error = %e, "cannot load chunks to stream");
-            return;
+            // One chunk that cannot be read leaves out the frames that need
+            // it (its own and its neighbours'), not every session's: the
+            // rest load one by one. Those left out are tried again on the
+            // engine thread (`stream.rs`), which reports them.
+            crate::log_every::store_error(
+                "read",
+                "cannot load chunks to stream; loading them one by one",
+                &e,
+            );
+            let unread: FxHashSet<ChunkPos> = around
+                .iter()
+                .copied()
+                .filter(|&p| self.make_resident(&[p]).is_err())
+                .collect();
+            let readable = |p: ChunkPos| with_neighbours(p).all(|n| !unread.contains(&n));
+            due.retain(|k| readable(k.0));
+            chunks.retain(|&p| readable(p));
         }
+        let due = &due;
         let pool = self.pool.clone();
         let seq = &mut self.seq;
         pool.install(|| seq.prepare_meshes(&chunks));
@@ -192,7 +208,9 @@ impl Engine {
                     Some((key, update, frame))
                 }
                 Err(e) => {
-                    error!(error = %e, ?pos, "cannot build a snapshot");
+                    if let Some(folded) = SNAPSHOT_ERRORS.event() {
+                        error!(error = %e, ?pos, folded, "cannot build a snapshot");
+                    }
                     None
                 }
             }

@@ -17,12 +17,17 @@ use tracing::error;
 use super::fanout::encode_update;
 use super::frame_cache::FrameKey;
 use super::Engine;
+use crate::log_every::{LogEvery, LOG_EVERY};
 use crate::metrics as m;
 use crate::net::writer::SendRefused;
 
 /// Default generated chunks kept as patch bases (at most 64 KiB each;
 /// `[engine] patch_base_chunks`).
 pub const DEFAULT_PATCH_BASE_CHUNKS: usize = 2048;
+
+/// Chunks whose frame cannot be built (a stored chunk that does not read)
+/// are tried again every tick: one line a second stands for them.
+pub(super) static SNAPSHOT_ERRORS: LogEvery = LogEvery::new(LOG_EVERY);
 
 /// The update that brings a client to `chunk` at `version`: the whole
 /// chunk, or, given its generated form `base`, a patch against that.
@@ -168,7 +173,10 @@ impl Engine {
                     break;
                 }
                 Err(e) => {
-                    error!(error = %e, ?pos, "cannot build a snapshot");
+                    // Each tick tries it again: a line a second at most.
+                    if let Some(folded) = SNAPSHOT_ERRORS.event() {
+                        error!(error = %e, ?pos, folded, "cannot build a snapshot");
+                    }
                     // Tried again after the session's other chunks.
                     if let Some(p) = self.peers.get_mut(&id) {
                         p.pending.push_back(pos);
