@@ -21,6 +21,11 @@ use crate::replay::{replay, ReplayFailure};
 /// mesh hashes must not grow the client without end.
 pub const MAX_MESH_MISMATCHES_KEPT: usize = 1024;
 
+/// Chunks a replica remembers having asked for again (a gap, a failed
+/// check) until their whole copy comes; past it, a late delta of one more
+/// asks again, as if not remembered.
+pub const MAX_ASKED_AGAIN: usize = 4096;
+
 /// A chunk as held by the client.
 #[derive(Debug, Clone)]
 pub struct Held {
@@ -148,6 +153,11 @@ pub struct Replica {
     /// copy has not come yet: the server sends no delta of them meanwhile,
     /// so no mesh reading them is checked.
     resyncing: HashSet<ChunkPos>,
+    /// Chunks dropped and asked for again after a gap or a failed check,
+    /// whose whole copy has not come yet: deltas and ops of them still in
+    /// flight from before the request are late, not another gap, and ask
+    /// nothing more. At most [`MAX_ASKED_AGAIN`].
+    asked: HashSet<ChunkPos>,
 }
 
 impl Replica {
@@ -155,6 +165,7 @@ impl Replica {
     fn forget(&mut self, pos: ChunkPos) {
         self.dropped.remove(&pos);
         self.resyncing.remove(&pos);
+        self.asked.remove(&pos);
         if self.checks.remove(&pos) {
             self.lost_checks.push(pos);
         }
@@ -187,6 +198,7 @@ impl Replica {
             lost_checks: Vec::new(),
             defer_checks: false,
             resyncing: HashSet::default(),
+            asked: HashSet::default(),
         }
     }
 
@@ -417,6 +429,7 @@ impl Replica {
                     self.stats.generated += 1;
                     self.hold(pos, chunk, 0, hash);
                     self.resyncing.remove(&pos);
+                    self.asked.remove(&pos);
                     None
                 }
                 None => Some(Request::FullSnapshot(pos)),
@@ -463,19 +476,31 @@ impl Replica {
         }
     }
 
+    /// Asks for `pos` again, remembering so until its whole copy comes.
+    fn ask_again(&mut self, pos: ChunkPos) -> Option<Request> {
+        self.remember_asked(pos);
+        Some(Request::Resync(pos))
+    }
+
+    fn remember_asked(&mut self, pos: ChunkPos) {
+        if self.asked.len() < MAX_ASKED_AGAIN {
+            self.asked.insert(pos);
+        }
+    }
+
     fn apply_delta(&mut self, d: DeltaUpdate) -> Option<Request> {
         let pos = d.delta.pos;
         let Some(held) = self.chunks.get(&pos) else {
-            if self.dropped.contains(&pos) {
+            if self.dropped.contains(&pos) || self.asked.contains(&pos) {
                 return None;
             }
             self.stats.gaps += 1;
-            return Some(Request::Resync(pos));
+            return self.ask_again(pos);
         };
         if held.version != d.delta.from_version {
             self.stats.gaps += 1;
             self.chunks.remove(&pos);
-            return Some(Request::Resync(pos));
+            return self.ask_again(pos);
         }
         match self.apply_checked(&d, held) {
             Ok(chunk) => {
@@ -495,7 +520,7 @@ impl Replica {
             Err(_) => {
                 self.stats.hash_mismatches += 1;
                 self.chunks.remove(&pos);
-                Some(Request::Resync(pos))
+                self.ask_again(pos)
             }
         }
     }
@@ -520,8 +545,9 @@ impl Replica {
                     };
                     self.pending_mesh.insert(c.pos, p);
                 }
-                // Forgotten: no resync, as for a delta.
-                Err(_) if self.dropped.contains(&c.pos) => {}
+                // Forgotten, or asked for again already: no resync, as
+                // for a delta.
+                Err(_) if self.dropped.contains(&c.pos) || self.asked.contains(&c.pos) => {}
                 Err(f) => {
                     match f {
                         ReplayFailure::MissingBase => self.stats.op_gaps += 1,
@@ -529,6 +555,7 @@ impl Replica {
                     }
                     self.chunks.remove(&c.pos);
                     self.pending_mesh.remove(&c.pos);
+                    self.remember_asked(c.pos);
                     resync.push(c.pos);
                 }
             }
@@ -546,10 +573,12 @@ impl Replica {
         mesh_hash: u64,
         chunk: Option<Arc<Chunk>>,
     ) -> Option<Request> {
+        // The answer to an earlier request, good or not.
+        self.asked.remove(&pos);
         let Some(chunk) = chunk else {
             self.stats.hash_mismatches += 1;
             self.chunks.remove(&pos);
-            return Some(Request::Resync(pos));
+            return self.ask_again(pos);
         };
         self.stats.snapshots += 1;
         self.resyncing.remove(&pos);
@@ -1041,5 +1070,49 @@ mod tests {
         assert_eq!(r.mesh_mismatches().len(), MAX_MESH_MISMATCHES_KEPT);
         assert_eq!(r.mesh_mismatches_dropped(), extra as u64);
         assert_eq!(r.mesh_mismatches()[0].version, 1, "the first ones are kept");
+    }
+
+    /// After a gap, the deltas still in flight from before the request are
+    /// late, not more gaps: the chunk is asked for once, until its whole
+    /// copy comes; a gap after that asks again.
+    #[test]
+    fn a_gap_asks_once_until_the_whole_copy_comes() {
+        let mut r = Replica::new(Some(flat()));
+        let pos = ChunkPos::new(0, 0, 0);
+        let v = |n: u8| Chunk::uniform(Voxel::new(n, ids::STONE));
+        let delta = |from: u64, a: u8, b: u8, seq: u64| {
+            WorldUpdate::Delta(DeltaUpdate {
+                delta: ChunkDelta::encode(pos, from, from + 1, &v(a), &v(b)).unwrap(),
+                mesh_hash: 0,
+                seq,
+            })
+        };
+        assert_eq!(r.apply(snapshot(pos, 1, &v(10), 0)), None);
+        // Version 2 went missing: 2 -> 3 is a gap, then 3 -> 4 is late.
+        assert_eq!(r.apply(delta(2, 20, 30, 2)), Some(Request::Resync(pos)));
+        assert_eq!(r.apply(delta(3, 30, 40, 3)), None);
+        assert_eq!(r.stats.gaps, 1);
+        // An op of the chunk, late as well, asks nothing.
+        let op = WorldUpdate::Op(OpUpdate {
+            seq: 4,
+            edit: strata_terrain::Edit::ClearBox {
+                min: VoxelPos::new(0, 0, 0),
+                max: VoxelPos::new(0, 0, 0),
+            },
+            chunks: vec![strata_protocol::OpChunk {
+                pos,
+                version: 5,
+                hash: 0,
+                mesh_hash: 0,
+            }],
+        });
+        assert_eq!(r.apply(op), None);
+        // The copy comes; the next gap asks again.
+        assert_eq!(r.apply(snapshot(pos, 5, &v(50), 0)), None);
+        assert_eq!(r.apply(delta(6, 60, 70, 6)), Some(Request::Resync(pos)));
+        assert_eq!(r.stats.gaps, 2);
+        // A chunk that leaves the view is not remembered as asked.
+        r.apply(WorldUpdate::Unsubscribed { pos });
+        assert_eq!(r.apply(delta(7, 70, 80, 7)), Some(Request::Resync(pos)));
     }
 }
