@@ -66,12 +66,23 @@ int main(int argc, char **argv) {
         fprintf(stderr, "usage: %s ADDRESS CERT_DER_FILE TOKEN\n", argv[0]);
         return 2;
     }
+    /* A library built from another header must not be called. */
+    if (strata_abi_version() != STRATA_ABI_VERSION) {
+        fprintf(stderr, "libstrata ABI %u, this program's %u\n",
+                strata_abi_version(), (unsigned)STRATA_ABI_VERSION);
+        return 2;
+    }
     size_t cert_len = 0;
     unsigned char *cert = read_file(argv[2], &cert_len);
     if (!cert) { perror(argv[2]); return 2; }
 
+    /* Zeroed, then sized: options a later library adds read as 0. */
+    StrataConnectOptions options;
+    memset(&options, 0, sizeof options);
+    options.size = sizeof options;
+    options.predict = 0;
     StrataSession *s = NULL;
-    StrataStatus st = strata_connect(argv[1], cert, cert_len, argv[3], false, &s);
+    StrataStatus st = strata_connect_with(argv[1], cert, cert_len, argv[3], &options, &s);
     free(cert);
     if (st != STRATA_STATUS_OK) return fail("connect", st);
     StrataWelcome w;

@@ -87,6 +87,10 @@ class MeshData(C.Structure):
     ]
 
 
+# STRATA_ABI_VERSION of the header this mirror follows.
+ABI_VERSION = 2
+
+
 class Strata:
     """The library, with a check on every call's status."""
 
@@ -96,6 +100,12 @@ class Strata:
         self.lib.strata_set_position.argtypes = [C.c_void_p, C.c_double, C.c_double, C.c_double]
         self.lib.strata_chunk_of.argtypes = [C.c_double, C.c_double, C.c_double, C.POINTER(C.c_int32)]
         self.lib.strata_event_size.restype = C.c_size_t
+        self.lib.strata_abi_version.restype = C.c_uint32
+        # This mirror follows the header's STRATA_ABI_VERSION.
+        if self.lib.strata_abi_version() != ABI_VERSION:
+            raise RuntimeError(
+                f"libstrata ABI {self.lib.strata_abi_version()}, this mirror's {ABI_VERSION}"
+            )
         # strata_poll writes the library's whole StrataEvent into ours.
         if self.lib.strata_event_size() != C.sizeof(Event):
             raise RuntimeError(

@@ -71,6 +71,11 @@
 // of per-chunk deltas.
 #define STRATA_CAP_OP_REPLAY 2
 
+// The ABI this header describes: raised whenever a struct's layout or a
+// function's signature changes incompatibly. A program checks at startup
+// that `strata_abi_version()` returns the value it was compiled with.
+#define STRATA_ABI_VERSION 2
+
 // What a call did.
 typedef enum {
   STRATA_STATUS_OK = 0,
@@ -226,8 +231,19 @@ typedef struct {
   uint64_t hash;
 } StrataMeshData;
 
-// Options of `strata_connect_with`.
+// Options of `strata_connect_with`. Set `size` to
+// `sizeof(StrataConnectOptions)` and zero the rest before setting what
+// you want: options added later go after the ones here, with 0 as their
+// default, so a program built against this header keeps working with a
+// later library.
 typedef struct {
+  // `sizeof(StrataConnectOptions)` in the caller's header: the library
+  // reads that many bytes. Options past it (a header older than the
+  // library) read as 0; bytes past the options this library knows (a
+  // newer header) must be 0, or the connect is refused: an option it
+  // cannot honour is never ignored. At least the size of this first
+  // layout, 12.
+  uint32_t size;
   // Show the player's own edits at once (as `strata_connect`'s
   // `predict`): nonzero for yes. A byte, not a `bool`: any value a
   // foreign caller puts there is sound.
@@ -447,6 +463,10 @@ StrataStatus strata_connect_cluster(const char *address,
                                     const char *token,
                                     const StrataConnectOptions *options,
                                     StrataSession **out_session);
+
+// The ABI this library was built with (`STRATA_ABI_VERSION` of its
+// header): a program built against another header must not call the rest.
+uint32_t strata_abi_version(void);
 
 // Closes the connection politely (waiting at most 2 s) and frees the
 // session. Null is ignored. No other call on the session may be running

@@ -183,7 +183,7 @@ unsafe fn connect_options(
                 text(address, "address")?,
                 bytes(cert_der, cert_len, "cert_der")?,
                 text(token, "token")?,
-                *shared(options, "options")?,
+                read_options(options)?,
             )
         };
         let opts = SessionOptions {
@@ -193,6 +193,58 @@ unsafe fn connect_options(
         };
         connect(address, cert, token, (opts, cluster), dst)
     })
+}
+
+/// The size of `StrataConnectOptions`' first layout (`size`, `predict`,
+/// `capabilities`): the least a caller's `size` may say.
+const OPTIONS_FIRST_SIZE: u32 = 12;
+/// The most bytes a caller's `size` may say: far past any options this
+/// library will have.
+const OPTIONS_MAX_SIZE: u32 = 4096;
+
+/// The caller's options as this library knows them: `options->size` bytes
+/// read, those past this library's options checked to be 0, and options
+/// past the caller's size left 0.
+///
+/// # Safety
+/// `options` is null, misaligned, or points to `options->size` readable
+/// bytes.
+unsafe fn read_options(
+    options: *const StrataConnectOptions,
+) -> Result<StrataConnectOptions, Failure> {
+    // SAFETY: forwarded from the caller; `size` is the first field.
+    let size = *unsafe { shared(options.cast::<u32>(), "options") }?;
+    if !(OPTIONS_FIRST_SIZE..=OPTIONS_MAX_SIZE).contains(&size) {
+        return Err(Failure::invalid(format!(
+            "options.size is {size}: set it to sizeof(StrataConnectOptions) \
+             ({OPTIONS_FIRST_SIZE} to {OPTIONS_MAX_SIZE})"
+        )));
+    }
+    // SAFETY: forwarded from the caller: `size` readable bytes.
+    let raw = unsafe { bytes(options.cast::<u8>(), size as usize, "options") }?;
+    let ours = size_of::<StrataConnectOptions>();
+    if raw.iter().skip(ours).any(|b| *b != 0) {
+        return Err(Failure::invalid(format!(
+            "options sets fields this library does not know (its options \
+             end at byte {ours}, the caller's at {size}): a newer header"
+        )));
+    }
+    let mut o = MaybeUninit::<StrataConnectOptions>::zeroed();
+    let n = raw.len().min(ours);
+    // SAFETY: `n` bytes fit both the caller's options and `o`; every
+    // field is an integer, for which any bytes are a value.
+    let o = unsafe {
+        std::ptr::copy_nonoverlapping(raw.as_ptr(), o.as_mut_ptr().cast::<u8>(), n);
+        o.assume_init()
+    };
+    Ok(o)
+}
+
+/// The ABI this library was built with (`STRATA_ABI_VERSION` of its
+/// header): a program built against another header must not call the rest.
+#[no_mangle]
+pub extern "C" fn strata_abi_version() -> u32 {
+    STRATA_ABI_VERSION
 }
 
 /// `*out_session`, set to NULL: it stays so unless the connect succeeds

@@ -225,10 +225,26 @@ pub const STRATA_CAP_SNAPSHOTS: u32 = 1;
 /// of per-chunk deltas.
 pub const STRATA_CAP_OP_REPLAY: u32 = 2;
 
-/// Options of `strata_connect_with`.
+/// The ABI this header describes: raised whenever a struct's layout or a
+/// function's signature changes incompatibly. A program checks at startup
+/// that `strata_abi_version()` returns the value it was compiled with.
+pub const STRATA_ABI_VERSION: u32 = 2;
+
+/// Options of `strata_connect_with`. Set `size` to
+/// `sizeof(StrataConnectOptions)` and zero the rest before setting what
+/// you want: options added later go after the ones here, with 0 as their
+/// default, so a program built against this header keeps working with a
+/// later library.
 #[repr(C)]
 #[derive(Debug, Clone, Copy)]
 pub struct StrataConnectOptions {
+    /// `sizeof(StrataConnectOptions)` in the caller's header: the library
+    /// reads that many bytes. Options past it (a header older than the
+    /// library) read as 0; bytes past the options this library knows (a
+    /// newer header) must be 0, or the connect is refused: an option it
+    /// cannot honour is never ignored. At least the size of this first
+    /// layout, 12.
+    pub size: u32,
     /// Show the player's own edits at once (as `strata_connect`'s
     /// `predict`): nonzero for yes. A byte, not a `bool`: any value a
     /// foreign caller puts there is sound.

@@ -138,6 +138,7 @@ fn misaligned_pointers_are_invalid_arguments() {
     assert_eq!(last_error(), "options is misaligned");
     // A misaligned out_session likewise.
     let options = StrataConnectOptions {
+        size: std::mem::size_of::<StrataConnectOptions>() as u32,
         predict: 0,
         capabilities: 0,
     };
@@ -147,4 +148,59 @@ fn misaligned_pointers_are_invalid_arguments() {
     assert_eq!(st, StrataStatus::InvalidArgument, "{}", last_error());
     assert_eq!(last_error(), "out_session is misaligned");
     assert_eq!(buf, [0; 8], "nothing was written");
+}
+
+/// `StrataConnectOptions.size` lets options grow without breaking callers:
+/// a size below the first layout (the layout before `size` existed reads
+/// so) and bytes set past the options this library knows are refused; a
+/// larger struct whose extra bytes are 0 is read as this library's own.
+#[test]
+fn options_are_read_as_long_as_the_caller_says() {
+    assert_eq!(strata_abi_version(), STRATA_ABI_VERSION);
+    let ours = std::mem::size_of::<StrataConnectOptions>();
+    // A newer header's options: ours, then 8 bytes of options unknown here.
+    #[repr(C, align(4))]
+    struct Newer([u8; 32]);
+    let newer = |size: usize, tail: u8| {
+        let mut n = Newer([0; 32]);
+        n.0[..4].copy_from_slice(&(size as u32).to_ne_bytes());
+        n.0[ours] = tail;
+        n
+    };
+    let connect = |o: &Newer| {
+        let mut s = null_mut();
+        // SAFETY: `o` holds `size` (at most 32) readable bytes, aligned
+        // as the options; `s` is writable.
+        unsafe { connect_with_junk((o as *const Newer).cast(), &mut s) }
+    };
+    for (size, tail, refused) in [
+        (0, 0, Some("options.size is 0")),
+        (1, 0, Some("options.size is 1")),
+        (11, 0, Some("options.size is 11")),
+        (5000, 0, Some("options.size is 5000")),
+        (
+            ours + 8,
+            7,
+            Some("options sets fields this library does not know"),
+        ),
+        // The byte past the caller's size is not read.
+        (ours, 7, None),
+        (ours + 8, 0, None),
+        (12, 0, None),
+    ] {
+        let st = connect(&newer(size, tail));
+        match refused {
+            Some(why) => {
+                assert_eq!(st, StrataStatus::InvalidArgument, "size {size}");
+                assert!(last_error().starts_with(why), "{}", last_error());
+            }
+            // Past the argument checks: the junk certificate fails.
+            None => assert_ne!(
+                st,
+                StrataStatus::InvalidArgument,
+                "size {size}: {}",
+                last_error()
+            ),
+        }
+    }
 }

@@ -250,6 +250,7 @@ fn a_cluster_session_walks_into_another_nodes_region_and_keeps_playing() {
     let address = CString::new(west.addr.to_string()).unwrap();
     let player = CString::new(token(&west, "cat")).unwrap();
     let options = StrataConnectOptions {
+        size: std::mem::size_of::<StrataConnectOptions>() as u32,
         predict: 0,
         capabilities: 0,
     };

@@ -105,6 +105,7 @@ impl Hostile {
 
     fn connect(&self) -> *mut StrataSession {
         let options = StrataConnectOptions {
+            size: std::mem::size_of::<StrataConnectOptions>() as u32,
             predict: 0,
             capabilities: 0,
         };

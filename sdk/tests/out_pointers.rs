@@ -94,6 +94,7 @@ fn a_connect_with_a_null_session_pointer_does_not_log_in() {
     let token = CString::new(server.token("null-session")).unwrap();
     let cert = &server.running.cert_der;
     let options = StrataConnectOptions {
+        size: std::mem::size_of::<StrataConnectOptions>() as u32,
         predict: 0,
         capabilities: 0,
     };

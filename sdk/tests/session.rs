@@ -201,6 +201,7 @@ fn a_thin_op_replay_session_through_the_c_abi() {
     let server = Server::start();
     let cert = &server.running.cert_der;
     let options = StrataConnectOptions {
+        size: std::mem::size_of::<StrataConnectOptions>() as u32,
         predict: 0,
         capabilities: STRATA_CAP_SNAPSHOTS | STRATA_CAP_OP_REPLAY,
     };
