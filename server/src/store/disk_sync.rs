@@ -1,13 +1,16 @@
 //! The fsyncs sled 0.34 leaves out.
 //!
-//! On Linux `sled::Db::flush` writes its log with `sync_file_range`, which
-//! saves neither the file's size nor the drive's write cache: a power cut
-//! can lose a "flushed" commit. sled also writes blob files (pages over a
-//! quarter segment) without any sync, and renames snapshot files without
-//! syncing the directory. [`DiskSync::sync`] runs after every flush:
+//! On Linux sled 0.34.7 as published writes its log with
+//! `sync_file_range`, which saves neither the file's size nor the drive's
+//! write cache: a power cut can lose a "flushed" commit. It also writes
+//! blob files (pages over a quarter segment) without any sync, and renames
+//! snapshot files without syncing the directory. The vendored copy
+//! (`vendor/sled/STRATA.md`) fdatasyncs its log writes and fsyncs each
+//! blob through the handle that wrote it, so a write-back error reaches
+//! sled; this stays as the barrier Strata owns, after every flush:
 //! `fdatasync` of the `db` file, of each blob file not yet synced at its
-//! current length, and an fsync of each directory whose entries changed.
-//! Only then is a write durable.
+//! current length, and an fsync of each directory whose entries changed
+//! (snapshot renames included). Only then is a write durable.
 
 use std::collections::{BTreeSet, HashMap};
 use std::ffi::OsString;
