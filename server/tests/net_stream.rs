@@ -233,7 +233,8 @@ async fn frames_are_built_on_the_workers_once_and_then_served_from_the_cache() {
 
 /// A stored chunk that cannot be read leaves out only the frames that need
 /// it (its own and its neighbours', for their meshes): the workers still
-/// build every other frame of the view, and the engine thread none.
+/// build every other frame of the view, and the engine thread none; and it
+/// is not read again every tick.
 #[tokio::test]
 async fn a_chunk_that_cannot_be_read_leaves_out_only_the_frames_that_need_it() {
     use strata_server::store::keys::chunk_key;
@@ -291,6 +292,17 @@ async fn a_chunk_that_cannot_be_read_leaves_out_only_the_frames_that_need_it() {
         };
         assert_eq!(built("workers"), Some(servable.len() as f64));
         assert_eq!(built("engine"), None, "no frame built on the engine thread");
+        // Found once, the bad record is left alone for a while: no tick
+        // reads it again (it would, and fail, a hundred times a second).
+        let read_errors = || {
+            let text = scrape(metrics);
+            metric(&text, "strata_store_errors_total{op=\"read\"}").unwrap_or(0.0)
+        };
+        let before = read_errors();
+        assert!(before >= 1.0, "the bad record was met");
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        assert_eq!(read_errors(), before, "read again within its retry period");
+        assert!(servable.iter().all(|p| c.replica().get(*p).is_some()));
         c.close().await;
         child.kill().unwrap();
         child.wait().unwrap();

@@ -33,6 +33,7 @@ mod session_share;
 pub mod snapshot;
 mod stream;
 mod tick;
+mod unreadable;
 
 pub use command::{Command, JoinReply, Kick};
 pub use config::{
@@ -98,6 +99,8 @@ pub struct Engine {
     patch_bases: generated::GeneratedCache,
     /// What a snapshot frame built ahead has cost lately.
     prebuild_cost: prebuild::PrebuildCost,
+    /// Stored chunks found unreadable lately: not streamed meanwhile.
+    unreadable: unreadable::Unreadable,
     premesh: premesh::Premesher,
     last_evict: Option<Instant>,
     /// Online snapshots in progress (their copy-on-write pre-images).
@@ -197,6 +200,7 @@ impl Engine {
                 generated::Use::PatchBase,
             ),
             prebuild_cost: Default::default(),
+            unreadable: Default::default(),
             last_evict: None,
             snapshots_running: Vec::new(),
             deferred: Default::default(),

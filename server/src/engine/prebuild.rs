@@ -157,31 +157,31 @@ impl Engine {
     /// snapshot cache.
     pub(super) fn prebuild_frames(&mut self, due: &Due) {
         let began = Instant::now();
-        let mut due = due.keys.clone();
+        // Frames that read a chunk found unreadable lately wait for its
+        // retry (`unreadable.rs`): the engine thread reports them.
+        let mut due: Vec<FrameKey> = due
+            .keys
+            .iter()
+            .copied()
+            .filter(|k| !self.unreadable.blocks(k.0, began))
+            .collect();
         let mut chunks: Vec<ChunkPos> = due.iter().map(|k| k.0).collect();
         chunks.sort_unstable();
         chunks.dedup();
         let mut around: Vec<ChunkPos> = chunks.iter().flat_map(|&p| with_neighbours(p)).collect();
         around.sort_unstable();
         around.dedup();
-        if let Err(e) = self.make_resident(&around) {
-            // One chunk that cannot be read leaves out the frames that need
-            // it (its own and its neighbours'), not every session's: the
-            // rest load one by one. Those left out are tried again on the
-            // engine thread (`stream.rs`), which reports them.
-            crate::log_every::store_error(
-                "read",
-                "cannot load chunks to stream; loading them one by one",
-                &e,
-            );
-            let unread: FxHashSet<ChunkPos> = around
-                .iter()
-                .copied()
-                .filter(|&p| self.make_resident(&[p]).is_err())
-                .collect();
-            let readable = |p: ChunkPos| with_neighbours(p).all(|n| !unread.contains(&n));
-            due.retain(|k| readable(k.0));
-            chunks.retain(|&p| readable(p));
+        // A bad record costs the frames that need it, not the tick's.
+        let found_bad = match self.make_resident_readable(&around, began) {
+            Ok(found) => found,
+            Err(e) => {
+                crate::log_every::store_error("read", "cannot load chunks to stream", &e);
+                return;
+            }
+        };
+        if found_bad {
+            due.retain(|k| !self.unreadable.blocks(k.0, began));
+            chunks.retain(|&p| !self.unreadable.blocks(p, began));
         }
         let due = &due;
         let pool = self.pool.clone();
@@ -224,7 +224,11 @@ impl Engine {
         for (key, update, frame) in built {
             self.snapshots.put(key, update, frame);
         }
-        self.prebuild_cost.record(began.elapsed(), due.len());
+        // Finding bad records is not a frame's usual cost: the plan's
+        // size is not judged by it.
+        if !found_bad {
+            self.prebuild_cost.record(began.elapsed(), due.len());
+        }
     }
 
     /// Whether sending `key` would build something: not a `Generated`

@@ -14,6 +14,7 @@
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::Instant;
 
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, FixedVec3};
 
@@ -396,9 +397,11 @@ impl super::Engine {
     /// first, as many as there is room for; the rest wait in the backlog.
     fn premesh_center(&mut self, center: ChunkPos) {
         let durable = |p: ChunkPos| self.versions.get(&p).copied().unwrap_or(0);
+        let now = Instant::now();
         let mut positions: Vec<ChunkPos> = around(center, self.cfg.premesh_radius)
             .into_iter()
             .filter(|p| !self.premesh.is_inflight(*p))
+            .filter(|p| !self.unreadable.blocks(*p, now))
             .filter(|p| self.seq.collision().get(*p, durable(*p)).is_none())
             .collect();
         if positions.is_empty() {
@@ -421,9 +424,15 @@ impl super::Engine {
             .collect();
         reads.sort();
         reads.dedup();
-        if let Err(e) = self.make_resident(&reads) {
-            crate::log_every::store_error("read", "store read failed (premesh)", &e);
-            return;
+        // A bad record costs the meshes that read it (their chunks are
+        // left out of `positions` below), not the whole view's.
+        match self.make_resident_readable(&reads, now) {
+            Ok(false) => {}
+            Ok(true) => positions.retain(|p| !self.unreadable.blocks(*p, now)),
+            Err(e) => {
+                crate::log_every::store_error("read", "store read failed (premesh)", &e);
+                return;
+            }
         }
         // Each chunk read is stamped with the world's version of it, not the
         // durable one: during a commit the world may hold a batch's

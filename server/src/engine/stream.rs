@@ -259,6 +259,9 @@ impl Engine {
         if !build {
             return Ok(Err(key));
         }
+        if self.unreadable.blocks(pos, Instant::now()) {
+            anyhow::bail!("the chunk or a neighbour does not read (tried again later)");
+        }
         let around: Vec<ChunkPos> = crate::sequencer::residency::with_neighbours(pos).collect();
         self.make_resident(&around)?;
         let mesh_hash = self.seq.mesh_hash(pos);

@@ -170,6 +170,12 @@ impl StoreError {
             ))
     }
 
+    /// A record that does not read (it does not decode, or has not the
+    /// layout this version writes): the store answered, the data is bad.
+    pub fn is_bad_record(&self) -> bool {
+        matches!(self, StoreError::Codec { .. } | StoreError::Corrupt { .. })
+    }
+
     /// An error from PostgreSQL itself (the connection may be unusable).
     pub fn is_postgres(&self) -> bool {
         matches!(
