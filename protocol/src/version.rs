@@ -9,5 +9,8 @@ pub const ALPN: &[u8] = b"strata/1";
 /// `Arrived`, 7 added `RejectReason::NodeFull`, 8 added
 /// `TicketRefusal::NotClustered` and `RegionOwners::node`; tickets are
 /// bound to their world; 9 added `PositionRefused::at` and
-/// `PositionRefusal::PathBlocked`, 10 added `PositionRefusal::TooHigh`).
-pub const PROTOCOL_VERSION: u32 = 10;
+/// `PositionRefusal::PathBlocked`, 10 added `PositionRefusal::TooHigh`,
+/// 11 made a sphere edit's box open: voxels a whole radius away along an
+/// axis are outside it, which decides `OutOfBounds`, the volume charged
+/// and the chunks an op replay reads).
+pub const PROTOCOL_VERSION: u32 = 11;

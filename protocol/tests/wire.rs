@@ -223,7 +223,7 @@ fn messages_round_trip() {
 #[test]
 fn golden_bytes_pin_the_wire_format() {
     // PROTOCOL.md walks through these bytes; changing them breaks clients.
-    assert_eq!(PROTOCOL_VERSION, 10, "PROTOCOL.md names version 10");
+    assert_eq!(PROTOCOL_VERSION, 11, "PROTOCOL.md names version 11");
     let hello = ClientMessage::Hello(Hello {
         protocol_version: PROTOCOL_VERSION,
         token: "t".into(),
@@ -232,7 +232,7 @@ fn golden_bytes_pin_the_wire_format() {
     // Capabilities come last: varint 3.
     assert_eq!(
         encode_frame(&hello, Direction::ClientToServer).unwrap(),
-        [5, 0, 0, 0, 0, 10, 1, b't', 3]
+        [5, 0, 0, 0, 0, 11, 1, b't', 3]
     );
     // Op: variant 7, seq, the edit as in `Edit`, then the chunk list.
     let op = WorldUpdate::Op(OpUpdate {

@@ -55,8 +55,9 @@ pub struct Structure {
     size: [u16; 3],
     density: Vec<u8>,
     material: Vec<u8>,
-    /// The distinct materials of its non-air cells, ascending: what an edit
-    /// placing it checks, without a scan of the template per edit.
+    /// The distinct materials of its non-air cells, in the order they first
+    /// occur: what an edit placing it checks (the first refused is the one
+    /// a scan of the cells would meet first), without a scan per edit.
     placed: Vec<u8>,
 }
 
@@ -76,12 +77,12 @@ impl Structure {
             return Err(StructureError::PlaneLength);
         }
         let mut seen = [false; 256];
+        let mut placed = Vec::new();
         for (d, m) in density.iter().zip(&material) {
-            if *d > 0 {
-                seen[*m as usize] = true;
+            if *d > 0 && !std::mem::replace(&mut seen[*m as usize], true) {
+                placed.push(*m);
             }
         }
-        let placed = (0..=255u8).filter(|m| seen[*m as usize]).collect();
         Ok(Self {
             name: name.into(),
             size,
@@ -142,7 +143,7 @@ impl Structure {
     }
 
     /// The distinct materials this template places (of its non-air
-    /// cells), ascending.
+    /// cells), in the order they first occur (x fastest, then y, then z).
     pub fn materials(&self) -> impl Iterator<Item = u8> + '_ {
         self.placed.iter().copied()
     }
@@ -320,8 +321,9 @@ mod tests {
             _ => Voxel::new(1, 2),
         })
         .unwrap();
-        assert_eq!(s.materials().collect::<Vec<_>>(), vec![2, 5]);
+        // Cell (0, 0, 0) is air, (1, 0, 0) material 5, (2, 0, 0) material 2.
+        assert_eq!(s.materials().collect::<Vec<_>>(), vec![5, 2]);
         let back = Structure::from_bytes(&s.to_bytes()).unwrap();
-        assert_eq!(back.materials().collect::<Vec<_>>(), vec![2, 5]);
+        assert_eq!(back.materials().collect::<Vec<_>>(), vec![5, 2]);
     }
 }
