@@ -125,7 +125,8 @@ pub unsafe extern "C" fn strata_connect(
 /// `STRATA_CAP_OP_REPLAY` to replay edits instead of taking deltas).
 ///
 /// # Safety
-/// As `strata_connect`; `options` points to a readable `StrataConnectOptions`.
+/// As `strata_connect`; `options` points to a `StrataConnectOptions`
+/// zeroed and then set, whose `size` bytes are readable.
 #[no_mangle]
 pub unsafe extern "C" fn strata_connect_with(
     address: *const c_char,
@@ -207,8 +208,8 @@ const OPTIONS_MAX_SIZE: u32 = 4096;
 /// past the caller's size left 0.
 ///
 /// # Safety
-/// `options` is null, misaligned, or points to `options->size` readable
-/// bytes.
+/// `options` is null, misaligned, or points to `options->size` readable,
+/// initialized bytes (the header's rule: zero the struct, then set it).
 unsafe fn read_options(
     options: *const StrataConnectOptions,
 ) -> Result<StrataConnectOptions, Failure> {
