@@ -439,7 +439,8 @@ StrataStatus strata_connect(const char *address,
 // `STRATA_CAP_OP_REPLAY` to replay edits instead of taking deltas).
 //
 // # Safety
-// As `strata_connect`; `options` points to a readable `StrataConnectOptions`.
+// As `strata_connect`; `options` points to a `StrataConnectOptions`
+// zeroed and then set, whose `size` bytes are readable.
 StrataStatus strata_connect_with(const char *address,
                                  const uint8_t *cert_der,
                                  size_t cert_len,
