@@ -1,5 +1,7 @@
 //! Serving one command from a session or an operator, between ticks.
 
+use std::time::Instant;
+
 use strata_protocol::{ErrorCode, Refusal, ServerMessage};
 use tracing::{info, warn};
 
@@ -179,8 +181,12 @@ impl Engine {
                     self.before_claiming(&c.free)?;
                 }
                 let needed = self.seq.missing(pre.reads());
-                if let Err(e) = self.make_resident(&needed) {
-                    crate::log_every::store_error("read", "store read failed", &e);
+                // A chunk found unreadable lately is not read again for
+                // each edit: the edit is `Busy` (free) below.
+                if !self.unreadable.holds_any(&needed, Instant::now()) {
+                    if let Err(e) = self.make_resident(&needed) {
+                        crate::log_every::store_error("read", "store read failed", &e);
+                    }
                 }
                 // Line of sight is checked in a batch (`check_sighted`),
                 // at once for an edit whose regions are claimed for it.
@@ -250,6 +256,11 @@ impl Engine {
         }
         self.know_feet_region(update.pos);
         let needed = self.seq.chunks_needed_for_position(session, &update);
+        // Nor for each position report: it is dropped, as on a failed read.
+        if self.unreadable.holds_any(&needed, Instant::now()) {
+            metrics::counter!(m::POSITIONS_DROPPED, "reason" => "unreadable").increment(1);
+            return;
+        }
         if let Err(e) = self.make_resident(&needed) {
             crate::log_every::store_error("read", "store read failed", &e);
             return;

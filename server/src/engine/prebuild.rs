@@ -24,6 +24,7 @@ use tracing::error;
 use super::fanout::encode_update;
 use super::frame_cache::FrameKey;
 use super::stream::{frame_update, SNAPSHOT_ERRORS};
+use super::unreadable::near_any;
 use super::Engine;
 use crate::metrics as m;
 use crate::sequencer::residency::with_neighbours;
@@ -154,8 +155,9 @@ impl Engine {
     }
 
     /// Builds the frames of `due` on the workers and puts them in the
-    /// snapshot cache.
-    pub(super) fn prebuild_frames(&mut self, due: &Due) {
+    /// snapshot cache. False when the store failed (not a bad record: the
+    /// store itself), and nothing was built.
+    pub(super) fn prebuild_frames(&mut self, due: &Due) -> bool {
         let began = Instant::now();
         // Frames that read a chunk found unreadable lately wait for its
         // retry (`unreadable.rs`): the engine thread reports them.
@@ -172,16 +174,17 @@ impl Engine {
         around.sort_unstable();
         around.dedup();
         // A bad record costs the frames that need it, not the tick's.
-        let found_bad = match self.make_resident_readable(&around, began) {
-            Ok(found) => found,
+        let bad = match self.make_resident_readable(&around, began) {
+            Ok(bad) => bad,
             Err(e) => {
                 crate::log_every::store_error("read", "cannot load chunks to stream", &e);
-                return;
+                return false;
             }
         };
+        let found_bad = !bad.is_empty();
         if found_bad {
-            due.retain(|k| !self.unreadable.blocks(k.0, began));
-            chunks.retain(|&p| !self.unreadable.blocks(p, began));
+            due.retain(|k| !near_any(k.0, &bad));
+            chunks.retain(|&p| !near_any(p, &bad));
         }
         let due = &due;
         let pool = self.pool.clone();
@@ -229,6 +232,7 @@ impl Engine {
         if !found_bad {
             self.prebuild_cost.record(began.elapsed(), due.len());
         }
+        true
     }
 
     /// Whether sending `key` would build something: not a `Generated`

@@ -427,8 +427,7 @@ impl super::Engine {
         // A bad record costs the meshes that read it (their chunks are
         // left out of `positions` below), not the whole view's.
         match self.make_resident_readable(&reads, now) {
-            Ok(false) => {}
-            Ok(true) => positions.retain(|p| !self.unreadable.blocks(*p, now)),
+            Ok(bad) => positions.retain(|p| !super::unreadable::near_any(*p, &bad)),
             Err(e) => {
                 crate::log_every::store_error("read", "store read failed (premesh)", &e);
                 return;

@@ -113,13 +113,15 @@ impl Engine {
             open.push(batch);
         }
         if !due.is_empty() {
-            self.prebuild_frames(&due);
+            // With the store failing, no frame is built here either: each
+            // session's would wait on it in turn.
+            let store_answers = self.prebuild_frames(&due);
             let deadline = Instant::now() + Duration::from_micros(self.cfg.stream_us);
             for batch in open.iter_mut() {
                 // A frame planned and still not built (its chunk could not
                 // be read) is built here, so the session moves on.
                 if let Some(key) = batch.waiting.take() {
-                    self.fill_batch(batch, deadline, due.contains(key));
+                    self.fill_batch(batch, deadline, store_answers && due.contains(key));
                 }
             }
         }

@@ -5,7 +5,7 @@
 
 use std::time::{Duration, Instant};
 
-use rustc_hash::FxHashMap;
+use rustc_hash::{FxHashMap, FxHashSet};
 use strata_terrain::ChunkPos;
 
 use super::Engine;
@@ -26,40 +26,64 @@ pub struct Unreadable {
 }
 
 impl Unreadable {
-    /// Remembers `pos` as unreadable from `now`.
+    /// Remembers `pos` as unreadable from `now`; when full, the expired
+    /// go, else the one found longest ago.
     pub fn note(&mut self, pos: ChunkPos, now: Instant) {
-        if self.since.len() >= MAX_UNREADABLE_CHUNKS {
-            self.since
-                .retain(|_, at| now.saturating_duration_since(*at) < UNREADABLE_RETRY);
+        if self.since.len() >= MAX_UNREADABLE_CHUNKS && !self.since.contains_key(&pos) {
+            self.since.retain(|_, at| !expired(*at, now));
+            if self.since.len() >= MAX_UNREADABLE_CHUNKS {
+                if let Some(oldest) = self
+                    .since
+                    .iter()
+                    .min_by_key(|(_, at)| **at)
+                    .map(|(p, _)| *p)
+                {
+                    self.since.remove(&oldest);
+                }
+            }
         }
-        if self.since.len() < MAX_UNREADABLE_CHUNKS || self.since.contains_key(&pos) {
-            self.since.insert(pos, now);
-        }
+        self.since.insert(pos, now);
     }
 
-    /// Whether `pos` or a neighbour was found unreadable less than
-    /// [`UNREADABLE_RETRY`] before `now`.
-    pub fn blocks(&self, pos: ChunkPos, now: Instant) -> bool {
-        !self.since.is_empty()
-            && with_neighbours(pos).any(|n| {
-                self.since
-                    .get(&n)
-                    .is_some_and(|at| now.saturating_duration_since(*at) < UNREADABLE_RETRY)
-            })
+    /// Whether `pos` was found unreadable less than [`UNREADABLE_RETRY`]
+    /// before `now`.
+    pub fn holds(&self, pos: ChunkPos, now: Instant) -> bool {
+        self.since.get(&pos).is_some_and(|at| !expired(*at, now))
     }
+
+    /// Whether any of `positions` [`Self::holds`].
+    pub fn holds_any(&self, positions: &[ChunkPos], now: Instant) -> bool {
+        !self.since.is_empty() && positions.iter().any(|p| self.holds(*p, now))
+    }
+
+    /// Whether `pos` or a neighbour (whose mesh reads it) [`Self::holds`].
+    pub fn blocks(&self, pos: ChunkPos, now: Instant) -> bool {
+        !self.since.is_empty() && with_neighbours(pos).any(|n| self.holds(n, now))
+    }
+}
+
+fn expired(at: Instant, now: Instant) -> bool {
+    now.saturating_duration_since(at) >= UNREADABLE_RETRY
+}
+
+/// Whether `pos` or a neighbour is one of `bad`.
+pub fn near_any(pos: ChunkPos, bad: &FxHashSet<ChunkPos>) -> bool {
+    !bad.is_empty() && with_neighbours(pos).any(|n| bad.contains(&n))
 }
 
 impl Engine {
     /// Makes `positions` resident, but those a bad record keeps out (found
-    /// by halves, counted and remembered from `now`): true if any was.
-    /// Fails only on an error of the store itself.
+    /// by halves, counted and remembered from `now`), which it returns:
+    /// callers leave out what reads them ([`near_any`]; the memory alone
+    /// may have had to forget some). Fails only on an error of the store
+    /// itself.
     pub(super) fn make_resident_readable(
         &mut self,
         positions: &[ChunkPos],
         now: Instant,
-    ) -> Result<bool, StoreError> {
+    ) -> Result<FxHashSet<ChunkPos>, StoreError> {
         let e = match self.make_resident(positions) {
-            Ok(()) => return Ok(false),
+            Ok(()) => return Ok(FxHashSet::default()),
             Err(e) if !e.is_bad_record() => return Err(e),
             Err(e) => e,
         };
@@ -69,7 +93,7 @@ impl Engine {
         for &p in &bad {
             self.unreadable.note(p, now);
         }
-        Ok(true)
+        Ok(bad.into_iter().collect())
     }
 
     /// Loads `positions`, halving each part that fails on a bad record
@@ -110,14 +134,18 @@ mod tests {
         assert!(u.blocks(ChunkPos::new(5, -1, 6), t), "a neighbour");
         assert!(!u.blocks(ChunkPos::new(6, -2, 7), t), "two away");
         assert!(!u.blocks(bad, t + UNREADABLE_RETRY), "read again later");
-        // Full: a new one is remembered once old ones expire.
+        // Full: a new one takes the place of the one found longest ago.
+        let later = t + std::time::Duration::from_millis(1);
         for i in 1..MAX_UNREADABLE_CHUNKS as i32 {
-            u.note(ChunkPos::new(100 * i, 0, 0), t);
+            u.note(ChunkPos::new(100 * i, 0, 0), later);
         }
         let late = ChunkPos::new(-50, 0, 0);
-        u.note(late, t);
-        assert!(!u.blocks(late, t), "no room");
-        u.note(late, t + UNREADABLE_RETRY);
-        assert!(u.blocks(late, t + UNREADABLE_RETRY));
+        u.note(late, later);
+        assert!(u.holds(late, later));
+        assert!(!u.holds(bad, later), "the oldest made room");
+        assert!(u.holds_any(&[bad, ChunkPos::new(100, 0, 0)], later));
+        let tick: FxHashSet<ChunkPos> = [bad].into_iter().collect();
+        assert!(near_any(ChunkPos::new(3, -3, 8), &tick));
+        assert!(!near_any(ChunkPos::new(2, -3, 8), &tick));
     }
 }
