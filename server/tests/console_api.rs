@@ -883,3 +883,78 @@ async fn on_a_cluster_node_the_console_names_each_regions_writer() {
     .await
     .expect("within the test timeout");
 }
+
+/// Threads of process `pid` named `prefix*`, with the CPU ticks (user and
+/// system) each has used, from `/proc`.
+fn threads_named(pid: u32, prefix: &str) -> Vec<u64> {
+    let mut out = Vec::new();
+    for t in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .unwrap()
+        .flatten()
+    {
+        let comm = std::fs::read_to_string(t.path().join("comm")).unwrap_or_default();
+        if !comm.starts_with(prefix) {
+            continue;
+        }
+        let stat = std::fs::read_to_string(t.path().join("stat")).unwrap_or_default();
+        // Fields after the name's closing parenthesis, from the state
+        // (field 3): utime and stime are fields 14 and 15.
+        let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+        let f: Vec<&str> = rest.split_whitespace().collect();
+        let field = |n: usize| {
+            f.get(n - 3)
+                .and_then(|v| v.parse::<u64>().ok())
+                .unwrap_or(0)
+        };
+        out.push(field(14) + field(15));
+    }
+    out
+}
+
+/// Renders run on the console's own pool of `render_threads`, not on
+/// threads the engine ticks on: a 3-D view's meshing is done by them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn renders_run_on_the_consoles_own_threads() {
+    tokio::time::timeout(Duration::from_secs(120), async {
+        let root = tempfile::tempdir().unwrap();
+        let data = root.path().join("data");
+        let web = free_metrics_addr();
+        let config = format!("[console]\nlisten = \"{web}\"\nrender_threads = 3\n");
+        let (child, _) = spawn_server(&data, &config);
+        let dd = strata_server::datadir::DataDir::open_existing(&data).unwrap();
+        let admin = strata_server::auth::issue(
+            dd.secret(),
+            "ops",
+            Role::Admin,
+            Duration::from_secs(600),
+            strata_server::auth::unix_now(),
+        )
+        .unwrap();
+        let pid = child.id();
+        assert_eq!(threads_named(pid, "strata-render-").len(), 3);
+        let before: u64 = threads_named(pid, "strata-render-").iter().sum();
+        // 8 x 3 x 8 chunks meshed, about the surface.
+        let y = spot(128, 128).1.chunk().y;
+        let path = format!(
+            "/api/scene.glb?x0=0&z0=0&x1=7&z1=7&y0={}&y1={}",
+            y - 1,
+            y + 1
+        );
+        let scene = get(web, &path, Some(&admin)).await;
+        assert_eq!(
+            scene.status,
+            200,
+            "{}",
+            String::from_utf8_lossy(&scene.body)
+        );
+        let glb = read_glb(&scene.body).unwrap();
+        assert!(glb.mesh.indices.len() >= 3 * 1000, "a surface was meshed");
+        let used: u64 = threads_named(pid, "strata-render-").iter().sum();
+        assert!(
+            used > before,
+            "the render threads did the work: {before} -> {used} ticks"
+        );
+    })
+    .await
+    .expect("test finished in time");
+}

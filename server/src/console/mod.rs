@@ -68,6 +68,8 @@ pub const DEFAULT_TILE_CACHE: usize = 1024;
 pub const DEFAULT_MAX_BODY_BYTES: usize = 4096;
 /// Default tile or scene renders at once.
 pub const DEFAULT_MAX_RENDERS: usize = 2;
+/// Default threads the console renders on (`[console] render_threads`).
+pub const DEFAULT_RENDER_THREADS: usize = 1;
 /// Fewest chunks a 3-D view cap may allow: one chunk with its border.
 pub const MIN_SCENE_CHUNKS: u64 = 27;
 /// Default chunks one 3-D view may read: an 8 x 8 x 8 box with its
@@ -124,6 +126,10 @@ pub struct ConsoleConfig {
     pub max_body_bytes: usize,
     /// Tile and 3-D scene renders at once; more are answered 503.
     pub max_renders: usize,
+    /// Threads the renders run on, a pool of the console's own (named
+    /// `strata-render-N`): a render's parallel work never takes the cores
+    /// of every thread the engine ticks on.
+    pub render_threads: usize,
     /// Chunks one 3-D scene request may read: the box it meshes with the
     /// one-chunk border around it its meshes need.
     pub scene_max_chunks: u64,
@@ -154,6 +160,7 @@ impl Default for ConsoleConfig {
             tile_cache: DEFAULT_TILE_CACHE,
             max_body_bytes: DEFAULT_MAX_BODY_BYTES,
             max_renders: DEFAULT_MAX_RENDERS,
+            render_threads: DEFAULT_RENDER_THREADS,
             scene_max_chunks: DEFAULT_SCENE_MAX_CHUNKS,
             sample_ms: DEFAULT_SAMPLE_MS,
             edits_per_sample: DEFAULT_EDITS_PER_SAMPLE,
@@ -171,7 +178,7 @@ impl ConsoleConfig {
     }
 
     /// Range checks: `(field, value, min, max)` for each limit.
-    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 12] {
+    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 13] {
         let cap = MAX_CONSOLE_LIMIT as u64;
         [
             ("console.max_watchers", self.max_watchers as u64, 1, cap),
@@ -189,6 +196,7 @@ impl ConsoleConfig {
                 1 << 20,
             ),
             ("console.max_renders", self.max_renders as u64, 1, 64),
+            ("console.render_threads", self.render_threads as u64, 1, 64),
             (
                 "console.keep_snapshots",
                 self.keep_snapshots as u64,
@@ -245,6 +253,8 @@ pub struct Console {
     versions: versions::VersionIndex,
     hub: events::Hub,
     renders: Arc<tokio::sync::Semaphore>,
+    /// Where renders run (`render_threads`).
+    render_pool: Arc<rayon::ThreadPool>,
     /// Held by the tile request whose work catches the version index up:
     /// one at a time, the others wait here, not on a blocking thread.
     catch_ups: Arc<tokio::sync::Mutex<()>>,
@@ -310,6 +320,12 @@ pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<Ru
         versions: versions::VersionIndex::default(),
         hub: events::Hub::new(),
         renders: Arc::new(tokio::sync::Semaphore::new(cfg.max_renders)),
+        render_pool: Arc::new(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(cfg.render_threads)
+                .thread_name(|i| format!("strata-render-{i}"))
+                .build()?,
+        ),
         catch_ups: Arc::new(tokio::sync::Mutex::new(())),
         snapshots: snapshot_job::SnapshotJobs::new(snapshot_dir, cfg.keep_snapshots),
         metrics: parts.metrics,

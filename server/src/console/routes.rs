@@ -224,10 +224,10 @@ async fn tile(State(c): State<Arc<Console>>, headers: HeaderMap, uri: Uri) -> Ap
             // The render owns its slot: `max_renders` bounds renders
             // running, not requests waiting on them.
             let slot = render_slot(&c).await?;
-            let world = c.world.clone();
+            let (world, pool) = (c.world.clone(), c.render_pool.clone());
             let png = tokio::task::spawn_blocking(move || {
                 let _slot = slot;
-                tiles::render(&world, key)
+                pool.install(|| tiles::render(&world, key))
             })
             .await
             .map_err(internal)?
@@ -270,10 +270,10 @@ async fn scene_glb(State(c): State<Arc<Console>>, headers: HeaderMap, uri: Uri) 
     let (min, max) = scene_box(&c, &uri)?;
     let bx = scene::check_box(&c.world, min, max, c.cfg.scene_max_chunks).map_err(bad)?;
     let slot = render_slot(&c).await?;
-    let world = c.world.clone();
+    let (world, pool) = (c.world.clone(), c.render_pool.clone());
     let glb = tokio::task::spawn_blocking(move || {
         let _slot = slot;
-        scene::build(&world, bx)
+        pool.install(|| scene::build(&world, bx))
     })
     .await
     .map_err(internal)?
