@@ -245,22 +245,25 @@ fn read_edits(
             at: anchor(&edit),
             time_ms,
         });
-        if out.edits.len() > limit {
-            // The oldest goes (segments are read one after another).
-            let oldest = (0..out.edits.len()).min_by_key(|&i| {
-                let e = &out.edits[i];
-                (e.time_ms, e.seq)
-            });
-            if let Some(i) = oldest {
-                out.edits.swap_remove(i);
-            }
-            out.skipped += 1;
+        // The oldest go (segments are read one after another), in batches:
+        // a long backlog costs a sort per `limit` edits, not a scan each.
+        if out.edits.len() >= limit.saturating_mul(2).max(2) {
+            keep_newest(&mut out, limit);
         }
     })?;
-    out.edits.sort_by_key(|e| (e.time_ms, e.seq));
+    keep_newest(&mut out, limit);
     out.columns.sort_unstable();
     out.columns.dedup();
     Ok(out)
+}
+
+/// Sorts the edits oldest first and drops all but the newest `limit`,
+/// counting those dropped as skipped.
+fn keep_newest(out: &mut NewEdits, limit: usize) {
+    out.edits.sort_by_key(|e| (e.time_ms, e.seq));
+    let extra = out.edits.len().saturating_sub(limit);
+    out.edits.drain(..extra);
+    out.skipped += extra as u64;
 }
 
 /// An engine admin request, given up after [`ENGINE_ANSWER_TIMEOUT`].
@@ -280,6 +283,11 @@ async fn take_sample(
     console: &Arc<Console>,
     cursor: &mut Option<LogCursor>,
 ) -> anyhow::Result<serde_json::Value> {
+    // The engine first: a sample it cannot answer reads no edits (an
+    // engine slow for a while leaves its backlog to be read once, not
+    // again by every sample given up meanwhile).
+    let players = ask_in_time(console, AdminCommand::Players).await?;
+    let zones = ask_in_time(console, AdminCommand::Zones).await?;
     let c = console.clone();
     let from = cursor.clone();
     let limit = console.cfg.edits_per_sample;
@@ -296,8 +304,6 @@ async fn take_sample(
         Ok::<_, StoreError>((edits, next))
     })
     .await??;
-    let players = ask_in_time(console, AdminCommand::Players).await?;
-    let zones = ask_in_time(console, AdminCommand::Zones).await?;
     let players: Vec<_> = players
         .into_iter()
         .map(|p| {
@@ -378,6 +384,13 @@ mod tests {
         let past = read_edits(&store, &mut LogCursor::default(), 10, 2).unwrap();
         assert!(past.columns.is_empty() && past.all_changed);
         assert_eq!(past.edits.len(), 3, "the edits are listed all the same");
+        // Past `limit` edits, the newest are kept and the rest counted.
+        let one = read_edits(&store, &mut LogCursor::default(), 1, 3).unwrap();
+        assert_eq!(one.edits.iter().map(|e| e.seq).collect::<Vec<_>>(), [3]);
+        assert_eq!(one.skipped, 2);
+        let two = read_edits(&store, &mut LogCursor::default(), 2, 3).unwrap();
+        assert_eq!(two.edits.iter().map(|e| e.seq).collect::<Vec<_>>(), [2, 3]);
+        assert_eq!(two.skipped, 1);
     }
 
     #[test]
