@@ -1422,3 +1422,39 @@ fn a_node_cut_off_past_its_lease_no_longer_says_it_writes_its_regions() {
         std::thread::sleep(Duration::from_millis(50));
     }
 }
+
+/// What a viewer looks up (`region_holders_read`, the console's map) is
+/// not cached: the engine's cache of other nodes' regions, which routes
+/// its edits, keeps what it had. The engine's own lookups are cached.
+#[test]
+fn a_viewers_lookups_leave_the_holders_cache_alone() {
+    use strata_server::store::RegionHolder;
+    let Some(db) = database("lease_viewer_lookups") else {
+        return;
+    };
+    let (a, b) = (node(&db, "a"), node(&db, "b"));
+    let (r, q) = (region(4, 4), region(5, 4));
+    granted(&b, r);
+    granted(&b, q);
+    let held_by_b = RegionHolder::Node {
+        owner: "b".into(),
+        addr: String::new(),
+    };
+    let first = |v: Vec<(RegionId, RegionHolder)>| v[0].1.clone();
+    // a looks r up as a viewer, q as the engine would; then both leases
+    // run out.
+    assert_eq!(
+        first(a.region_holders_read(&regions(&[r])).unwrap()),
+        held_by_b
+    );
+    assert_eq!(first(a.region_holders(&regions(&[q])).unwrap()), held_by_b);
+    expire(&db, r);
+    expire(&db, q);
+    // r was not cached: read again, it is free. q still answers from the
+    // cache (for up to a renewal period).
+    assert_eq!(
+        first(a.region_holders(&regions(&[r])).unwrap()),
+        RegionHolder::Free
+    );
+    assert_eq!(first(a.region_holders(&regions(&[q])).unwrap()), held_by_b);
+}

@@ -42,7 +42,7 @@ pub fn holders(
     }
     let wanted = span.regions().collect();
     let list: Vec<Value> = store
-        .region_holders(&wanted)?
+        .region_holders_read(&wanted)?
         .into_iter()
         .map(|(RegionId { x, z }, h)| match h {
             RegionHolder::Here => json!({ "x": x, "z": z, "holder": "here" }),

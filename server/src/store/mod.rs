@@ -427,6 +427,16 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(regions.iter().map(|r| (*r, RegionHolder::Here)).collect())
     }
 
+    /// [`Self::region_holders`] for a viewer (the console's map): it reads
+    /// the cache, but what it looks up is not cached, so looking over many
+    /// regions cannot push out the holders the engine routes edits by.
+    fn region_holders_read(
+        &self,
+        regions: &BTreeSet<RegionId>,
+    ) -> Result<Vec<(RegionId, RegionHolder)>, StoreError> {
+        self.region_holders(regions)
+    }
+
     /// Regions claimed since the last call (at the engine's request or
     /// adopted in the background), with the epoch held now, and regions
     /// lost or let go (`None`): their chunks may have changed, or may

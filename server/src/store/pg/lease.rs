@@ -526,6 +526,7 @@ pub(super) fn holders(
     pool: &Pool,
     leases: &NodeLeases,
     regions: &BTreeSet<RegionId>,
+    cache: bool,
 ) -> Result<Vec<(RegionId, RegionHolder)>, StoreError> {
     let now = Instant::now();
     let mut out = Vec::with_capacity(regions.len());
@@ -586,6 +587,16 @@ pub(super) fn holders(
                 live.insert(r, (owner, addr, left_ms as u64));
             }
         }
+        if !cache {
+            for r in todo {
+                out.push(match live.remove(&r) {
+                    Some((owner, addr, _)) => (r, RegionHolder::Node { owner, addr }),
+                    None => (r, RegionHolder::Free),
+                });
+            }
+            out.sort_by_key(|(r, _)| *r);
+            return Ok(out);
+        }
         let mut book = leases.book();
         if book.elsewhere.len() >= MAX_CACHED_HOLDERS {
             book.elsewhere.clear();
@@ -620,7 +631,7 @@ fn at_capacity(
     todo: &BTreeSet<RegionId>,
     held: usize,
 ) -> Result<RegionAccess, StoreError> {
-    for (r, h) in holders(pool, leases, todo)? {
+    for (r, h) in holders(pool, leases, todo, true)? {
         if let RegionHolder::Node { owner, addr } = h {
             return Ok(elsewhere(r, &owner, &addr));
         }

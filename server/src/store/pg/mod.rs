@@ -344,6 +344,24 @@ const SELECT_META: &str = concat!(
     " FROM world WHERE id = 1"
 );
 
+impl PgStore {
+    /// Who writes each of `regions`; what is looked up is cached when
+    /// `cache` ([`ChunkStore::region_holders_read`] does not).
+    fn holders(
+        &self,
+        regions: &std::collections::BTreeSet<RegionId>,
+        cache: bool,
+    ) -> Result<Vec<(RegionId, crate::store::RegionHolder)>, StoreError> {
+        match &self.leases {
+            Some(leases) => lease::holders(&self.pool, leases, regions, cache),
+            None => Ok(regions
+                .iter()
+                .map(|r| (*r, crate::store::RegionHolder::Here))
+                .collect()),
+        }
+    }
+}
+
 impl ChunkStore for PgStore {
     fn load_meta(&self) -> Result<Option<WorldMeta>, StoreError> {
         let row = self.pool.run("reading the world", async |c: &mut Conn| {
@@ -992,13 +1010,14 @@ impl ChunkStore for PgStore {
         &self,
         regions: &std::collections::BTreeSet<RegionId>,
     ) -> Result<Vec<(RegionId, crate::store::RegionHolder)>, StoreError> {
-        match &self.leases {
-            Some(leases) => lease::holders(&self.pool, leases, regions),
-            None => Ok(regions
-                .iter()
-                .map(|r| (*r, crate::store::RegionHolder::Here))
-                .collect()),
-        }
+        self.holders(regions, true)
+    }
+
+    fn region_holders_read(
+        &self,
+        regions: &std::collections::BTreeSet<RegionId>,
+    ) -> Result<Vec<(RegionId, crate::store::RegionHolder)>, StoreError> {
+        self.holders(regions, false)
     }
 
     fn take_fresh_regions(&self) -> Vec<(RegionId, Option<u64>)> {
