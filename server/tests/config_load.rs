@@ -361,6 +361,12 @@ fn bad_values_name_their_field() {
             "[console]\nedits_per_sample = 0",
             "console.edits_per_sample",
         ),
+        ("[console]\nrender_threads = 0", "console.render_threads"),
+        ("[console]\nevent_queue = 2000", "console.event_queue"),
+        (
+            "[console]\nregions_per_request = 0",
+            "console.regions_per_request",
+        ),
         (
             "[store]\nsegment_size_bytes = 65536",
             "store.segment_size_bytes",

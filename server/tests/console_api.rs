@@ -230,6 +230,7 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
             c.max_watchers = 2;
             c.sample_ms = 100;
             c.keep_snapshots = 1;
+            c.regions_per_request = 3;
         })
         .await;
         let admin = token(&server, "ops", Role::Admin);
@@ -277,6 +278,10 @@ async fn console_serves_admins_the_live_world_and_their_actions() {
             .map(|r| (r["x"].as_i64().unwrap(), r["holder"].as_str().unwrap()))
             .collect();
         assert_eq!(holders, [(-1, "here"), (0, "here"), (1, "here")]);
+        // Two rows of those three: past `regions_per_request`.
+        let many = get(web, "/api/regions?x0=-1&z0=0&x1=8&z1=8", Some(&admin)).await;
+        assert_eq!(many.status, 400);
+        assert!(String::from_utf8_lossy(&many.body).contains("6 regions; at most 3"));
         for bad in [
             "/api/regions?x0=1&z0=0&x1=0&z1=0",
             "/api/regions?x0=0&z0=0&x1=100000&z1=100000",
@@ -931,6 +936,18 @@ async fn renders_run_on_the_consoles_own_threads() {
         )
         .unwrap();
         let pid = child.id();
+        // The console may start after the address is printed: once it
+        // answers, its pool is there.
+        let started = Instant::now();
+        while TcpStream::connect(web).await.is_err()
+            || get(web, "/api/world", Some(&admin)).await.status != 200
+        {
+            assert!(
+                started.elapsed() < Duration::from_secs(30),
+                "the console answers"
+            );
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
         assert_eq!(threads_named(pid, "strata-render-").len(), 3);
         let before: u64 = threads_named(pid, "strata-render-").iter().sum();
         // 8 x 3 x 8 chunks meshed, about the surface.

@@ -28,7 +28,7 @@ use serde_json::json;
 use strata_terrain::Edit;
 use tokio::sync::{mpsc, oneshot, Notify};
 
-use super::{auth, stats, Console, EVENT_QUEUE};
+use super::{auth, stats, Console};
 use crate::auth::{unix_now, Claims};
 use crate::engine::admin::AdminCommand;
 use crate::net::admin_session::ask;
@@ -68,7 +68,7 @@ impl Hub {
     /// connected.
     pub fn subscribe(
         &self,
-        max: usize,
+        (max, queue): (usize, usize),
         ctx: Arc<SessionContext>,
         claims: Claims,
     ) -> Option<EventStream> {
@@ -77,7 +77,7 @@ impl Hub {
         if w.len() >= max {
             return None;
         }
-        let (tx, rx) = mpsc::channel(EVENT_QUEUE);
+        let (tx, rx) = mpsc::channel(queue);
         w.push(Watcher { tx, missed: false });
         drop(w);
         self.wake.notify_one();
@@ -396,10 +396,11 @@ mod tests {
     #[test]
     fn a_watcher_that_missed_a_sample_is_told_so_in_the_next_it_takes() {
         let hub = Hub::new();
-        let (tx, mut rx) = mpsc::channel(EVENT_QUEUE);
+        const QUEUE: usize = super::super::DEFAULT_EVENT_QUEUE;
+        let (tx, mut rx) = mpsc::channel(QUEUE);
         hub.lock().push(Watcher { tx, missed: false });
         let sample = |n: u64| json!({ "seq": n, "columns": [[n, 0]] });
-        for n in 0..EVENT_QUEUE as u64 {
+        for n in 0..QUEUE as u64 {
             hub.publish(sample(n));
         }
         // Full: this one is missed.
@@ -410,10 +411,10 @@ mod tests {
         assert!(!lagged(&first));
         hub.publish(sample(100));
         let taken: Vec<Arc<str>> = std::iter::from_fn(|| rx.try_recv().ok()).collect();
-        assert_eq!(taken.len(), EVENT_QUEUE);
+        assert_eq!(taken.len(), QUEUE);
         let last = taken.last().unwrap();
         assert!(last.contains("\"seq\":100") && lagged(last), "{last}");
-        assert!(taken[..EVENT_QUEUE - 1].iter().all(|d| !lagged(d)));
+        assert!(taken[..QUEUE - 1].iter().all(|d| !lagged(d)));
         // Told once: the next is plain again.
         hub.publish(sample(101));
         assert!(!lagged(&rx.try_recv().unwrap()));

@@ -20,7 +20,7 @@ mod events;
 mod live_world;
 mod query;
 mod regions;
-pub use regions::MAX_REGIONS_PER_REQUEST;
+pub use regions::DEFAULT_REGIONS_PER_REQUEST;
 mod routes;
 mod scene;
 mod snapshot_job;
@@ -91,9 +91,12 @@ pub const MAX_CONSOLE_LIMIT: usize = 65_536;
 pub const MAX_SCENE_CHUNKS: u64 = 16_384;
 pub const MIN_SAMPLE_MS: u64 = 100;
 pub const MAX_SAMPLE_MS: u64 = 60_000;
-/// Samples buffered per watcher before a slow one misses some (16 are
-/// 8 s at the default period; older samples are stale anyway).
-pub const EVENT_QUEUE: usize = 16;
+/// Default samples buffered per watcher before a slow one misses some
+/// (`[console] event_queue`; 16 are 8 s at the default period, and older
+/// samples are stale anyway).
+pub const DEFAULT_EVENT_QUEUE: usize = 16;
+/// Largest `[console] event_queue`.
+pub const MAX_EVENT_QUEUE: usize = 1024;
 /// Chunk columns along a map tile's side (128 voxels, one pixel each).
 pub const TILE_COLUMNS: i32 = 4;
 /// Largest tile coordinate asked for (keeps voxel coordinates in i32).
@@ -137,6 +140,11 @@ pub struct ConsoleConfig {
     pub sample_ms: u64,
     /// Edits one sample lists at most.
     pub edits_per_sample: usize,
+    /// Samples buffered for each watcher; a watcher further behind misses
+    /// samples (and is told so).
+    pub event_queue: usize,
+    /// Regions one `/api/regions` request may ask about.
+    pub regions_per_request: usize,
     /// Changed chunk columns one sample names at most (see
     /// [`DEFAULT_COLUMNS_PER_SAMPLE`]).
     pub columns_per_sample: usize,
@@ -164,6 +172,8 @@ impl Default for ConsoleConfig {
             scene_max_chunks: DEFAULT_SCENE_MAX_CHUNKS,
             sample_ms: DEFAULT_SAMPLE_MS,
             edits_per_sample: DEFAULT_EDITS_PER_SAMPLE,
+            event_queue: DEFAULT_EVENT_QUEUE,
+            regions_per_request: DEFAULT_REGIONS_PER_REQUEST,
             columns_per_sample: DEFAULT_COLUMNS_PER_SAMPLE,
             snapshot_dir: None,
             keep_snapshots: DEFAULT_KEEP_SNAPSHOTS,
@@ -178,7 +188,7 @@ impl ConsoleConfig {
     }
 
     /// Range checks: `(field, value, min, max)` for each limit.
-    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 13] {
+    pub fn limits(&self) -> [(&'static str, u64, u64, u64); 15] {
         let cap = MAX_CONSOLE_LIMIT as u64;
         [
             ("console.max_watchers", self.max_watchers as u64, 1, cap),
@@ -197,6 +207,18 @@ impl ConsoleConfig {
             ),
             ("console.max_renders", self.max_renders as u64, 1, 64),
             ("console.render_threads", self.render_threads as u64, 1, 64),
+            (
+                "console.event_queue",
+                self.event_queue as u64,
+                1,
+                MAX_EVENT_QUEUE as u64,
+            ),
+            (
+                "console.regions_per_request",
+                self.regions_per_request as u64,
+                1,
+                cap,
+            ),
             (
                 "console.keep_snapshots",
                 self.keep_snapshots as u64,

@@ -11,13 +11,14 @@ use crate::sequencer::regions::{RegionId, RegionSpan};
 use crate::store::{ChunkStore, RegionHolder, StoreError};
 use strata_terrain::ChunkPos;
 
-/// Most regions one request may ask about (a map view shows a few dozen).
-pub const MAX_REGIONS_PER_REQUEST: usize = 1024;
+/// Default most regions one request may ask about (`[console]
+/// regions_per_request`; a map view shows a few dozen).
+pub const DEFAULT_REGIONS_PER_REQUEST: usize = 1024;
 
 #[derive(Debug, Error)]
 pub enum RegionsError {
-    #[error("the box holds {regions} regions; at most {MAX_REGIONS_PER_REQUEST}")]
-    TooMany { regions: u64 },
+    #[error("the box holds {regions} regions; at most {max}")]
+    TooMany { regions: u64, max: usize },
     #[error("the box must have x0 <= x1 and z0 <= z1")]
     Inverted,
     #[error(transparent)]
@@ -28,8 +29,8 @@ pub enum RegionsError {
 pub fn holders(
     store: &dyn ChunkStore,
     side: u32,
-    (x0, z0): (i32, i32),
-    (x1, z1): (i32, i32),
+    ((x0, z0), (x1, z1)): ((i32, i32), (i32, i32)),
+    max: usize,
 ) -> Result<Value, RegionsError> {
     if x0 > x1 || z0 > z1 {
         return Err(RegionsError::Inverted);
@@ -37,8 +38,8 @@ pub fn holders(
     let span = RegionSpan::of_chunks(ChunkPos::new(x0, 0, z0), ChunkPos::new(x1, 0, z1), side);
     let count = |a: i32, b: i32| (i64::from(b) - i64::from(a) + 1) as u64;
     let regions = count(span.min.x, span.max.x) * count(span.min.z, span.max.z);
-    if regions > MAX_REGIONS_PER_REQUEST as u64 {
-        return Err(RegionsError::TooMany { regions });
+    if regions > max as u64 {
+        return Err(RegionsError::TooMany { regions, max });
     }
     let wanted = span.regions().collect();
     let list: Vec<Value> = store

@@ -301,9 +301,9 @@ async fn regions_route(State(c): State<Arc<Console>>, headers: HeaderMap, uri: U
     let x = |n| q.int(n, -lim, lim).map(|v| v as i32).map_err(bad);
     let (from, to) = ((x("x0")?, x("z0")?), (x("x1")?, x("z1")?));
     let c2 = c.clone();
-    let side = c.region_chunks;
+    let (side, max) = (c.region_chunks, c.cfg.regions_per_request);
     let answer = tokio::task::spawn_blocking(move || {
-        regions::holders(c2.world.store().as_ref(), side, from, to)
+        regions::holders(c2.world.store().as_ref(), side, (from, to), max)
     })
     .await
     .map_err(internal)?;
@@ -319,7 +319,11 @@ async fn events(State(c): State<Arc<Console>>, headers: HeaderMap) -> ApiResult 
     let admin = claims.player.clone();
     let stream = c
         .hub
-        .subscribe(c.cfg.max_watchers, c.ctx.clone(), claims)
+        .subscribe(
+            (c.cfg.max_watchers, c.cfg.event_queue),
+            c.ctx.clone(),
+            claims,
+        )
         .ok_or_else(|| {
             error(
                 StatusCode::SERVICE_UNAVAILABLE,
