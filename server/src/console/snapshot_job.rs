@@ -121,10 +121,18 @@ impl SnapshotJobs {
     ) -> Result<JobStatus, String> {
         let start = begin_snapshot(ctx, 0).await??;
         let info = start.info;
-        crate::durable::create_dir_all(&std::fs::DirBuilder::new(), &self.dir)
-            .map_err(|e| format!("cannot create {}: {e}", self.dir.display()))?;
-        // None of this process's runs now (`busy`): any left was cut short.
-        remove_stale_partials(&self.dir);
+        // Directory work (with its fsyncs) off the async threads.
+        let dir = self.dir.clone();
+        tokio::task::spawn_blocking(move || {
+            crate::durable::create_dir_all(&std::fs::DirBuilder::new(), &dir)
+                .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+            // None of this process's runs now (`busy`): any left was cut
+            // short.
+            remove_stale_partials(&dir);
+            Ok::<_, String>(())
+        })
+        .await
+        .map_err(|e| e.to_string())??;
         let file = self.dir.join(format!(
             "strata-seq{}-{}.snap",
             info.seq,
