@@ -603,7 +603,8 @@ const STREAM_ENDS_WITHIN: Duration = Duration::from_secs(10);
 const SHORT_TOKEN_TTL: Duration = Duration::from_secs(2);
 
 /// An event stream is checked at every sample, not only when it opens: it
-/// ends once its admin is banned, and once its token expires.
+/// ends once its admin is banned, and once its token expires; and the
+/// server's shutdown ends those still open.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_event_stream_ends_when_its_token_is_no_longer_good() {
     tokio::time::timeout(Duration::from_secs(60), async {
@@ -636,7 +637,9 @@ async fn an_event_stream_ends_when_its_token_is_no_longer_good() {
         .unwrap();
         let mut expiring = Events::open(web, &short).await;
         expiring.until_end(SHORT_TOKEN_TTL + STREAM_ENDS_WITHIN).await;
+        // The server's shutdown ends the streams still open.
         server.shutdown().await.unwrap();
+        kept.until_end(STREAM_ENDS_WITHIN).await;
     })
     .await
     .expect("test timed out");

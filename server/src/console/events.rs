@@ -50,6 +50,8 @@ struct Watcher {
 #[derive(Debug, Default)]
 pub struct Hub {
     watchers: Mutex<Vec<Watcher>>,
+    /// Set when the console stops: no stream is added after.
+    closed: std::sync::atomic::AtomicBool,
     wake: Notify,
     /// Samples taken since the start (none while nobody watches).
     samples: AtomicU64,
@@ -74,7 +76,7 @@ impl Hub {
     ) -> Option<EventStream> {
         let mut w = self.lock();
         w.retain(|s| !s.tx.is_closed());
-        if w.len() >= max {
+        if w.len() >= max || self.closed.load(Ordering::Acquire) {
             return None;
         }
         let (tx, rx) = mpsc::channel(queue);
@@ -82,6 +84,13 @@ impl Hub {
         drop(w);
         self.wake.notify_one();
         Some(EventStream { rx, ctx, claims })
+    }
+
+    /// Ends every event stream (their queues closed) and refuses new ones.
+    pub fn close(&self) {
+        let mut w = self.lock();
+        self.closed.store(true, Ordering::Release);
+        w.clear();
     }
 
     /// Samples taken so far.

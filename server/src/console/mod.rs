@@ -315,13 +315,16 @@ pub struct RunningConsole {
     pub addr: SocketAddr,
     server: tokio::task::JoinHandle<()>,
     hub: tokio::task::JoinHandle<()>,
+    console: Arc<Console>,
 }
 
 impl RunningConsole {
-    /// Stops serving and ends every event stream.
+    /// Stops serving and ends every event stream (their connections'
+    /// tasks outlive the listener's: closing the queues ends them).
     pub fn stop(self) {
         self.server.abort();
         self.hub.abort();
+        self.console.hub.close();
     }
 }
 
@@ -366,7 +369,8 @@ pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<Ru
             unadmitted: Some(UNADMITTED_IDLE),
         },
     );
-    let app = routes::router(console).into_make_service_with_connect_info::<conn_limit::ConnMark>();
+    let app = routes::router(console.clone())
+        .into_make_service_with_connect_info::<conn_limit::ConnMark>();
     let server = tokio::spawn(async move {
         if let Err(e) = axum::serve(limited, app).await {
             tracing::error!(error = %e, "console listener failed");
@@ -380,5 +384,10 @@ pub async fn start(cfg: ConsoleConfig, parts: ConsoleParts) -> anyhow::Result<Ru
             "the console listens beyond this machine over plain HTTP: admin tokens can be read on the way; bind it to 127.0.0.1 behind a TLS proxy (OPERATIONS.md)"
         );
     }
-    Ok(RunningConsole { addr, server, hub })
+    Ok(RunningConsole {
+        addr,
+        server,
+        hub,
+        console,
+    })
 }
