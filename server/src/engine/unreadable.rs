@@ -12,8 +12,8 @@ use super::Engine;
 use crate::sequencer::residency::with_neighbours;
 use crate::store::StoreError;
 
-/// Most chunks remembered as unreadable; past it, one more is not
-/// remembered (and found again when next needed).
+/// Most chunks remembered as unreadable; past it, the one found longest
+/// ago is forgotten (and found again when next needed).
 pub const MAX_UNREADABLE_CHUNKS: usize = 1024;
 /// How long a chunk found unreadable is left alone before it is read
 /// again (an operator may have restored it meanwhile).
