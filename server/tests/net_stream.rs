@@ -26,6 +26,22 @@ fn cube(c: ChunkPos, r: i32) -> Vec<ChunkPos> {
     v
 }
 
+/// A server process's config: view radius 2, two engine workers, metrics
+/// on `metrics`.
+fn two_workers_config(metrics: std::net::SocketAddr) -> String {
+    format!(
+        "{FAST_EDITS}[interest]\nview_radius = 2\n[engine]\nworkers = 2\n[metrics]\nlisten = \"{metrics}\"\n"
+    )
+}
+
+/// A thin client's options: every chunk comes whole, so each is built.
+fn thin() -> strata_client_sim::ClientOptions {
+    strata_client_sim::ClientOptions {
+        capabilities: strata_protocol::CAP_SNAPSHOTS,
+        ..Default::default()
+    }
+}
+
 #[tokio::test]
 async fn tiny_stream_budgets_serve_sessions_in_turn_and_deliver_every_chunk() {
     let dir = tempfile::tempdir().unwrap();
@@ -186,19 +202,16 @@ async fn frames_are_built_on_the_workers_once_and_then_served_from_the_cache() {
         let root = tempfile::tempdir().unwrap();
         let data = root.path().join("data");
         let metrics = free_metrics_addr();
-        let config = format!(
-            "{FAST_EDITS}[interest]\nview_radius = 2\n[engine]\nworkers = 2\n[metrics]\nlisten = \"{metrics}\"\n"
-        );
+        let config = two_workers_config(metrics);
         let (mut child, addr) = spawn_server(&data, &config);
         let (feet, surface) = spot(70, 40);
         let view = cube(VoxelPos::new(70, surface.y + 1, 40).chunk(), 2);
-        let thin = || strata_client_sim::ClientOptions {
-            capabilities: strata_protocol::CAP_SNAPSHOTS,
-            ..Default::default()
-        };
         let built = |on: &str| {
             let text = scrape(metrics);
-            metric(&text, &format!("strata_snapshot_frames_built_total{{on=\"{on}\"}}"))
+            metric(
+                &text,
+                &format!("strata_snapshot_frames_built_total{{on=\"{on}\"}}"),
+            )
         };
         let mut clients = Vec::new();
         for name in ["ana", "bo"] {
@@ -243,9 +256,7 @@ async fn a_chunk_that_cannot_be_read_leaves_out_only_the_frames_that_need_it() {
         let root = tempfile::tempdir().unwrap();
         let data = root.path().join("data");
         let metrics = free_metrics_addr();
-        let config = format!(
-            "{FAST_EDITS}[interest]\nview_radius = 2\n[engine]\nworkers = 2\n[metrics]\nlisten = \"{metrics}\"\n"
-        );
+        let config = two_workers_config(metrics);
         let (feet, surface) = spot(70, 40);
         let center = VoxelPos::new(70, surface.y + 1, 40).chunk();
         let view = cube(center, 2);
@@ -264,11 +275,7 @@ async fn a_chunk_that_cannot_be_read_leaves_out_only_the_frames_that_need_it() {
             db.flush().unwrap();
         }
         let (mut child, addr) = spawn_server(&data, &config);
-        let thin = strata_client_sim::ClientOptions {
-            capabilities: strata_protocol::CAP_SNAPSHOTS,
-            ..Default::default()
-        };
-        let c = process_client_opts(&data, addr, "ana", thin).await;
+        let c = process_client_opts(&data, addr, "ana", thin()).await;
         c.send_position(feet).unwrap();
         let near_bad = |p: &ChunkPos| {
             (p.x - bad.x).abs() <= 1 && (p.y - bad.y).abs() <= 1 && (p.z - bad.z).abs() <= 1
@@ -276,7 +283,9 @@ async fn a_chunk_that_cannot_be_read_leaves_out_only_the_frames_that_need_it() {
         let servable: Vec<ChunkPos> = view.iter().copied().filter(|p| !near_bad(p)).collect();
         assert_eq!(servable.len(), view.len() - 8);
         assert!(
-            eventually(Duration::from_secs(30), || c.replica().len() >= servable.len()).await,
+            eventually(Duration::from_secs(30), || c.replica().len()
+                >= servable.len())
+            .await,
             "{} of {} chunks",
             c.replica().len(),
             servable.len()
@@ -288,7 +297,10 @@ async fn a_chunk_that_cannot_be_read_leaves_out_only_the_frames_that_need_it() {
         }
         let text = scrape(metrics);
         let built = |on: &str| {
-            metric(&text, &format!("strata_snapshot_frames_built_total{{on=\"{on}\"}}"))
+            metric(
+                &text,
+                &format!("strata_snapshot_frames_built_total{{on=\"{on}\"}}"),
+            )
         };
         assert_eq!(built("workers"), Some(servable.len() as f64));
         assert_eq!(built("engine"), None, "no frame built on the engine thread");
