@@ -634,6 +634,14 @@ impl ServerConfig {
         ] {
             range(field, bucket.capacity, 1, u64::MAX)?;
         }
+        for (key, weight) in v.volume_weight.fields() {
+            range(
+                key,
+                weight,
+                1,
+                crate::validate::volume_weight::MAX_VOLUME_WEIGHT,
+            )?;
+        }
         range(
             "interest.hysteresis",
             self.interest.hysteresis,

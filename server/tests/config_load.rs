@@ -201,6 +201,14 @@ fn bad_values_name_their_field() {
             "[validation.volume_rate]\ncapacity = 0\nper_second = 0",
             "validation.volume_rate.capacity",
         ),
+        (
+            "[validation.volume_weight]\nsmooth = 0",
+            "validation.volume_weight.smooth",
+        ),
+        (
+            "[validation.volume_weight]\nexplode = 1001",
+            "validation.volume_weight.explode",
+        ),
         ("[interest]\nhysteresis = 17", "interest.hysteresis"),
         (
             "[validation.position_rate]\ncapacity = 0\nper_second = 5",

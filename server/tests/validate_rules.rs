@@ -263,6 +263,49 @@ fn volume_bucket_refills_with_time() {
 }
 
 #[test]
+fn a_smooth_takes_its_weight_from_the_volume_bucket() {
+    let v = ValidationConfig {
+        volume_rate: BucketConfig {
+            capacity: 100,
+            per_second: 0,
+        },
+        ..Default::default()
+    };
+    assert_eq!(v.volume_weight.smooth, 3);
+    let mut s = ready(v);
+    // Radius 2 on a voxel centre: a 3³ = 27-voxel box, 81 at weight 3.
+    let smooth = || Edit::Smooth {
+        center: FixedVec3::from_voxels(X, -1, Z + 4),
+        radius: Fixed::from_voxels(2),
+        strength: 255,
+    };
+    assert!(s.submit(PLAYER, req(1, smooth()), 0).is_ok());
+    // 19 voxels left: a Mine of the same box (27) does not fit either,
+    // though 27 + 27 would have at weight 1.
+    let before = snapshot(&s);
+    assert_eq!(
+        s.submit(PLAYER, req(2, mine(X, -1, Z + 4, 2)), 0),
+        Err(RejectReason::VolumeRateLimited)
+    );
+    assert_eq!(snapshot(&s), before);
+    // At weight 1 the two fit.
+    let v = ValidationConfig {
+        volume_rate: BucketConfig {
+            capacity: 100,
+            per_second: 0,
+        },
+        volume_weight: strata_server::validate::VolumeWeights {
+            smooth: 1,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let mut s = ready(v);
+    assert!(s.submit(PLAYER, req(1, smooth()), 0).is_ok());
+    assert!(s.submit(PLAYER, req(2, mine(X, -1, Z + 4, 2)), 0).is_ok());
+}
+
+#[test]
 fn full_queue_is_busy_and_keeps_tokens() {
     let cfg = SequencerConfig {
         queue_capacity: 2,

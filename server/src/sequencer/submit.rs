@@ -231,7 +231,9 @@ impl Sequencer {
         reach::check(eye, target, v.reach)?;
         v.bounds.check_box(&bbox)?;
         zones::check(&self.zones, role, &bbox)?;
-        let volume_cost = bbox.volume().min(v.volume_rate.capacity);
+        let volume_cost =
+            v.volume_weight
+                .charge(edit.kind(), bbox.volume(), v.volume_rate.capacity);
         let limits = self.limits_of(session_id, now_ms);
         if !limits.volume.can_take(volume_cost) {
             return Err(RejectReason::VolumeRateLimited);

@@ -123,8 +123,11 @@ pub struct ValidationConfig {
     /// Edits per player: burst and refill per second.
     pub edit_rate: BucketConfig,
     /// Edited voxels per player: burst and refill per second. An edit costs
-    /// its bounding-box volume, capped at the burst so any legal edit can pass.
+    /// its bounding-box volume times its kind's weight, capped at the burst
+    /// so any legal edit can pass.
     pub volume_rate: BucketConfig,
+    /// Bucket voxels per voxel of an edit's box, by kind.
+    pub volume_weight: super::VolumeWeights,
     /// Refused edits per player: burst and refill per second. Each refusal
     /// takes one token; a player with none left is disconnected and logged.
     pub reject_rate: BucketConfig,
@@ -198,6 +201,7 @@ impl Default for ValidationConfig {
                 capacity: DEFAULT_VOLUME_BURST,
                 per_second: DEFAULT_VOLUME_PER_SECOND,
             },
+            volume_weight: super::VolumeWeights::default(),
             reject_rate: BucketConfig {
                 capacity: DEFAULT_REJECT_BURST,
                 per_second: DEFAULT_REJECTS_PER_SECOND,

@@ -15,6 +15,7 @@ pub mod ratelimit;
 pub mod reach;
 pub mod spawn;
 pub mod sweep;
+pub mod volume_weight;
 pub mod zones;
 
 pub use bounds::WorldBounds;
@@ -22,4 +23,5 @@ pub use config::ValidationConfig;
 pub use position::{PositionReject, ValidatedPosition};
 pub use ratelimit::TokenBucket;
 pub use spawn::SpawnArea;
+pub use volume_weight::VolumeWeights;
 pub use zones::{Zone, ZoneError};
