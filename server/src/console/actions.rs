@@ -76,9 +76,10 @@ fn voxel([x, y, z]: [i32; 3]) -> VoxelPos {
 /// (or the snapshot's status) as JSON.
 pub async fn run(
     console: &Arc<Console>,
-    admin: &str,
+    claims: &crate::auth::Claims,
     req: ActionRequest,
 ) -> Result<Value, ActionError> {
+    let admin = claims.player.as_str();
     if !req.confirm {
         return Err(ActionError::NotConfirmed);
     }
@@ -87,7 +88,7 @@ pub async fn run(
         Action::Snapshot => {
             let status = console
                 .snapshots
-                .start(&console.ctx, admin)
+                .start(&console.ctx, claims)
                 .await
                 .map_err(ActionError::Refused)?;
             return serde_json::to_value(status)

@@ -340,7 +340,7 @@ async fn action(State(c): State<Arc<Console>>, req: Request) -> ApiResult {
     if req.method() != Method::POST {
         return Err(error(StatusCode::METHOD_NOT_ALLOWED, "POST only"));
     }
-    let admin = admin(&c, req.headers())?;
+    let claims = admin_claims(&c, req.headers())?;
     let body = axum::body::to_bytes(req.into_body(), c.cfg.max_body_bytes)
         .await
         .map_err(|_| {
@@ -351,7 +351,7 @@ async fn action(State(c): State<Arc<Console>>, req: Request) -> ApiResult {
         })?;
     let request: ActionRequest =
         serde_json::from_slice(&body).map_err(|e| bad(format!("bad action: {e}")))?;
-    match actions::run(&c, &admin, request).await {
+    match actions::run(&c, &claims, request).await {
         Ok(v) => Ok(json_ok(json!({ "ok": v }))),
         Err(e @ ActionError::NotConfirmed) => Err(bad(e)),
         Err(e @ ActionError::Refused(_)) => Err(error(StatusCode::CONFLICT, e)),

@@ -3,6 +3,9 @@
 //! (the admin session's `begin_snapshot` and `walk_snapshot`), written on
 //! the server into the console's snapshot directory through a `.partial`
 //! file renamed into place. One runs at a time; watchers see its progress.
+//! It stops, keeping no file, once its admin's token is no longer good
+//! (expired, revoked, the admin banned): checked before its first chunk,
+//! every [`ADMISSION_CHECK_CHUNKS`] and before the file is renamed.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -12,9 +15,14 @@ use serde::Serialize;
 use tracing::{info, warn};
 
 use crate::admin::snapshot_cmd::{write_atomically, Created};
+use crate::auth::Claims;
+use crate::console::auth::still_admitted;
 use crate::net::admin_session::{begin_snapshot, walk_snapshot};
 use crate::net::session::SessionContext;
 use crate::snapshot::{SnapshotHeader, SnapshotWriter};
+
+/// Chunks a console snapshot writes between two checks of its admin.
+pub const ADMISSION_CHECK_CHUNKS: u64 = 256;
 
 /// The console's snapshot, running or last finished.
 #[derive(Debug)]
@@ -101,24 +109,29 @@ impl SnapshotJobs {
         })
     }
 
-    /// Starts a snapshot for `admin`; refused while one runs. Dropped
-    /// before the job is handed to its writer (a client gone, a timeout),
-    /// it leaves none running.
-    pub async fn start(&self, ctx: &Arc<SessionContext>, admin: &str) -> Result<JobStatus, String> {
+    /// Starts a snapshot for the admin of `claims`; refused while one
+    /// runs. Dropped before the job is handed to its writer (a client
+    /// gone, a timeout), it leaves none running.
+    pub async fn start(
+        &self,
+        ctx: &Arc<SessionContext>,
+        claims: &Claims,
+    ) -> Result<JobStatus, String> {
         if self.busy.swap(true, Ordering::AcqRel) {
             return Err("a snapshot is already running".into());
         }
         let busy = Busy(self.busy.clone());
-        self.spawn(ctx, admin, busy).await
+        self.spawn(ctx, claims, busy).await
     }
 
     /// `busy` goes with the job to its writer, or is dropped on a failure.
     async fn spawn(
         &self,
         ctx: &Arc<SessionContext>,
-        admin: &str,
+        claims: &Claims,
         busy: Busy,
     ) -> Result<JobStatus, String> {
+        let admin = claims.player.as_str();
         let start = begin_snapshot(ctx, 0).await??;
         let info = start.info;
         // Directory work (with its fsyncs) off the async threads.
@@ -148,20 +161,30 @@ impl SnapshotJobs {
         });
         let header = SnapshotHeader::from(info);
         *self.last.lock().unwrap_or_else(|p| p.into_inner()) = Some(job.clone());
-        let store = ctx.store.clone();
+        let (ctx, claims) = (ctx.clone(), claims.clone());
         let pre = start.preimages;
         let j = job.clone();
         let (dir, keep) = (self.dir.clone(), self.keep);
         tokio::task::spawn_blocking(move || {
+            let admitted = || {
+                still_admitted(&ctx, &claims, crate::auth::unix_now())
+                    .map_err(|r| format!("stopped: {r}"))
+            };
             let result = write_atomically(&file, |out| {
+                admitted().map_err(anyhow::Error::msg)?;
                 let mut w = SnapshotWriter::new(out, &header)?;
-                walk_snapshot(&*store, &pre, |c| {
+                walk_snapshot(&*ctx.store, &pre, |c| {
                     w.chunk(c.pos, c.version, &c.encoded)
                         .map_err(|e| e.to_string())?;
-                    j.written.fetch_add(1, Ordering::Relaxed);
+                    let written = j.written.fetch_add(1, Ordering::Relaxed) + 1;
+                    if written % ADMISSION_CHECK_CHUNKS == 0 {
+                        admitted()?;
+                    }
                     Ok(())
                 })
                 .map_err(anyhow::Error::msg)?;
+                // Not renamed into place for an admin no longer let in.
+                admitted().map_err(anyhow::Error::msg)?;
                 let chunks = w.records();
                 let (out, bytes) = w.finish()?;
                 Ok((
@@ -305,6 +328,61 @@ mod tests {
 
     type Reply = oneshot::Sender<Result<SnapshotStart, String>>;
 
+    /// An admin's claims, good for an hour.
+    fn claims(player: &str) -> Claims {
+        let now = crate::auth::unix_now();
+        Claims {
+            player: player.into(),
+            role: strata_protocol::Role::Admin,
+            issued_at: now,
+            expires_at: now + 3_600,
+            nonce: Default::default(),
+        }
+    }
+
+    /// Starts a snapshot for `player`, the stand-in engine answering, and
+    /// waits for its end: its state and the files left in `snapshots`.
+    async fn snapshot_of(
+        jobs: &SnapshotJobs,
+        ctx: &Arc<SessionContext>,
+        inbox: &Inbox,
+        player: &str,
+    ) -> (JobStatus, Vec<String>) {
+        let engine = async {
+            let reply = snapshot_begin(inbox).await.expect("the engine was asked");
+            let start = SnapshotStart {
+                info: strata_protocol::admin::SnapshotInfo {
+                    seq: 0,
+                    world_seed: 1,
+                    generator_version: 1,
+                    generator_params: String::new(),
+                    zones: Vec::new(),
+                    modified_chunks: 0,
+                },
+                preimages: Arc::new(crate::engine::snapshot::PreImages::new(0, 16, 1 << 20)),
+            };
+            assert!(reply.send(Ok(start)).is_ok());
+        };
+        let admin = claims(player);
+        let (started, ()) = tokio::join!(jobs.start(ctx, &admin), engine);
+        started.unwrap();
+        let deadline = tokio::time::Instant::now() + ENGINE_WAIT;
+        let status = loop {
+            let status = jobs.status().unwrap();
+            if status.state != "running" {
+                break status;
+            }
+            assert!(tokio::time::Instant::now() < deadline, "still running");
+            tokio::time::sleep(ENGINE_POLL).await;
+        };
+        let mut files: Vec<String> = std::fs::read_dir(&jobs.dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        files.sort();
+        (status, files)
+    }
+
     /// A context whose engine is the returned inbox (nobody serves it).
     fn context(dir: &std::path::Path) -> (Arc<SessionContext>, Inbox) {
         crate::net::session::test_context(dir, ENGINE_QUEUE)
@@ -402,7 +480,7 @@ mod tests {
         let jobs = SnapshotJobs::new(dir.path().join("snapshots"), 8);
         // The engine is asked but does not answer, and the request goes
         // away (a client gone, a timeout).
-        let abandoned = tokio::time::timeout(ABANDON_AFTER, jobs.start(&ctx, "ops")).await;
+        let abandoned = tokio::time::timeout(ABANDON_AFTER, jobs.start(&ctx, &claims("ops"))).await;
         assert!(abandoned.is_err(), "{abandoned:?}");
         assert!(
             snapshot_begin(&inbox).await.is_some(),
@@ -414,9 +492,32 @@ mod tests {
             let reply = snapshot_begin(&inbox).await;
             reply.map(|r| r.send(Err(REFUSAL.into())).is_ok())
         };
-        let (second, answered) = tokio::join!(jobs.start(&ctx, "ops"), engine);
+        let ops = claims("ops");
+        let (second, answered) = tokio::join!(jobs.start(&ctx, &ops), engine);
         assert_eq!(second.unwrap_err(), REFUSAL);
         assert_eq!(answered, Some(true));
         assert!(jobs.status().is_none(), "no job was recorded");
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_snapshot_of_an_admin_no_longer_let_in_stops_and_keeps_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let (ctx, inbox) = context(&dir.path().join("store"));
+        let jobs = SnapshotJobs::new(dir.path().join("snapshots"), 8);
+        let now = crate::auth::unix_now();
+        ctx.access.write().unwrap().ban("eve", None, now).unwrap();
+        let (status, files) = snapshot_of(&jobs, &ctx, &inbox, "eve").await;
+        assert_eq!(status.state, "failed");
+        let error = status.error.unwrap();
+        assert!(
+            error.contains("stopped") && error.contains("banned"),
+            "{error}"
+        );
+        assert!(files.is_empty(), "{files:?}");
+        // Another admin's snapshot of the same world is written.
+        let (status, files) = snapshot_of(&jobs, &ctx, &inbox, "ops").await;
+        assert_eq!(status.state, "done", "{:?}", status.error);
+        assert_eq!(files.len(), 1, "{files:?}");
+        assert!(is_console_snapshot(&files[0]), "{files:?}");
     }
 }
