@@ -141,21 +141,7 @@ impl Server {
         config_text: &str,
         stderr: Stdio,
     ) -> Server {
-        let config = data_dir.with_extension("toml");
-        std::fs::write(&config, config_text).expect("write config");
-        let child = Command::new(binary("strata-server"))
-            .arg("--config")
-            .arg(&config)
-            .arg("--data-dir")
-            .arg(data_dir)
-            .arg("--listen")
-            .arg(listen)
-            .env("RUST_LOG", "warn")
-            .stdout(Stdio::piped())
-            .stderr(stderr)
-            .spawn()
-            .expect("strata-server starts");
-        let mut proc = Guard(child);
+        let mut proc = Self::spawn(data_dir, listen, config_text, stderr);
         let stdout = proc.0.stdout.take().expect("stdout");
         let (tx, rx) = std::sync::mpsc::channel();
         std::thread::spawn(move || {
@@ -175,6 +161,26 @@ impl Server {
             addr,
             data_dir: data_dir.to_path_buf(),
         }
+    }
+
+    /// The server's process, its stdout piped and not read: it may still
+    /// be opening its store (a test that kills it during recovery).
+    pub fn spawn(data_dir: &Path, listen: &str, config_text: &str, stderr: Stdio) -> Guard {
+        let config = data_dir.with_extension("toml");
+        std::fs::write(&config, config_text).expect("write config");
+        let child = Command::new(binary("strata-server"))
+            .arg("--config")
+            .arg(&config)
+            .arg("--data-dir")
+            .arg(data_dir)
+            .arg("--listen")
+            .arg(listen)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(stderr)
+            .spawn()
+            .expect("strata-server starts");
+        Guard(child)
     }
 
     /// SIGKILL: no shutdown, no final flush.

@@ -5,9 +5,13 @@
 //! the store checks clean, and the bots reconnect and converge.
 //!
 //! Each cycle runs sled's background thread differently (off, the
-//! default period, a long one): durability must not depend on it.
+//! default period, a long one): durability must not depend on it. Then
+//! power cuts while the server starts again (sled's recovery rewrites its
+//! log's tail, the engine reloads): what the next start finds still opens,
+//! and still holds every acknowledged edit.
 
-use std::process::Command;
+use std::process::{Command, Stdio};
+use std::time::Duration;
 
 use strata_tests::lazyfs::LazyFs;
 use strata_tests::{
@@ -23,6 +27,9 @@ const DEFAULT_CUTS: usize = 3;
 /// New acknowledgements each cycle waits for before its cut: the bots
 /// (6 at 4 edits a second) reconnected and edit again.
 const NEW_ACKS_PER_CYCLE: usize = 12;
+/// After the run, power cuts this long after a start, before or after the
+/// server has opened its store and printed its address.
+const STARTUP_CUTS_MS: [u64; 5] = [5, 40, 150, 400, 1_000];
 
 fn config(flush_every_ms: u64) -> String {
     format!("[engine]\ntick_ms = 10\n\n[store]\nflush_every_ms = {flush_every_ms}\n")
@@ -85,6 +92,15 @@ fn power_cuts_lose_no_acknowledged_edit_and_reuse_no_seq() {
     // A last cut after the run: the final acknowledgements must survive too.
     server.kill();
     fs.power_cut();
+    // Cuts during recovery, then a start that must get through it.
+    for ms in STARTUP_CUTS_MS {
+        let mut starting = Server::spawn(&data, &listen, &config(PERIODS[0]), Stdio::inherit());
+        std::thread::sleep(Duration::from_millis(ms));
+        starting.0.kill().expect("kill the starting server");
+        starting.0.wait().expect("reap the starting server");
+        fs.power_cut();
+    }
+    Server::start_with(&data, &listen, &config(PERIODS[1])).stop();
 
     // Durability first: the clients' acknowledgements against the store.
     let (verified, report) = verify_acks(&data, &acks);
@@ -100,8 +116,9 @@ fn power_cuts_lose_no_acknowledged_edit_and_reuse_no_seq() {
         "{report}"
     );
     eprintln!(
-        "power cuts: {} during the run and 1 after, {} acknowledged edits, none lost",
+        "power cuts: {} during the run, 1 after and {} while starting, {} acknowledged edits, none lost",
         cuts,
+        STARTUP_CUTS_MS.len(),
         num(&report, "records")
     );
     assert!(status.success(), "strata-bots exit {status}: {s}");
