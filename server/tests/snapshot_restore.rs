@@ -149,18 +149,30 @@ fn a_restore_cut_short_leaves_the_old_world() {
         "staging removed"
     );
 
-    // A crash between the swap's renames left the old world aside. No
-    // server or tool opens (nor makes) an empty world in its place...
+    // A crash between the swap's renames left the old world aside, no
+    // restored one beside it: the next open puts the old world back (it
+    // never makes an empty one in its place)...
     std::fs::rename(&db, with_suffix(&db, REPLACED_SUFFIX)).unwrap();
-    let err = open_store(&StoreConfig::default(), &db, DEFAULT_REGION_CHUNKS, None)
-        .map(|_| ())
-        .unwrap_err();
-    assert!(matches!(err, StoreError::RestoreCutShort { .. }), "{err}");
-    assert!(!db.exists());
-    // ...and the next restore puts it back before anything else.
-    restore_cut_short(&db, &new);
+    drop(open_store(&StoreConfig::default(), &db, DEFAULT_REGION_CHUNKS, None).unwrap());
     assert_eq!(world_of(&data), (9, 3));
     assert!(!with_suffix(&db, REPLACED_SUFFIX).exists());
+    // ...and with the restored world synced beside it, moves that into
+    // place and removes the old one, as the restore would have.
+    let other = tmp.path().join("other");
+    assert_eq!(restore(&new, &other, false).unwrap(), 5);
+    std::fs::rename(
+        other.join(WORLD_DB_NAME),
+        with_suffix(&db, RESTORING_SUFFIX),
+    )
+    .unwrap();
+    std::fs::rename(&db, with_suffix(&db, REPLACED_SUFFIX)).unwrap();
+    drop(open_store(&StoreConfig::default(), &db, DEFAULT_REGION_CHUNKS, None).unwrap());
+    assert_eq!(world_of(&data), (20, 5));
+    assert!(!with_suffix(&db, REPLACED_SUFFIX).exists());
+    assert!(!with_suffix(&db, RESTORING_SUFFIX).exists());
+    // The next restore (of the old world's snapshot) goes ahead as usual.
+    restore_cut_short(&db, &new);
+    assert_eq!(world_of(&data), (20, 5));
 
     // A whole restore replaces the world and leaves nothing beside it.
     let before = listing(&data);

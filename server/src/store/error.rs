@@ -32,14 +32,15 @@ pub enum StoreError {
         .world.display()
     )]
     WorldInUse { world: std::path::PathBuf },
-    /// A restore's swap was cut short: the world is beside its place.
+    /// A restore's swap was cut short and finishing it failed.
     #[error(
-        "a restore was cut short: the world is in {}, and {} is missing; run the restore again, or move it back",
-        .replaced.display(), .world.display()
+        "a restore was cut short: {} is missing and finishing the swap failed ({source}); move {} or the restored world beside it into its place",
+        .world.display(), .replaced.display()
     )]
     RestoreCutShort {
         world: std::path::PathBuf,
         replaced: std::path::PathBuf,
+        source: std::io::Error,
     },
     /// A read showed a commit that was not made durable in time (its
     /// fsync is slow, or failed).

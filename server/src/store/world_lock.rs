@@ -61,16 +61,33 @@ impl WorldLock {
         }
     }
 
-    /// Takes the lock, then refuses a world a restore left half swapped:
-    /// no world, and the replaced one still beside it.
+    /// Takes the lock, then finishes the swap of a restore cut short
+    /// between its renames (no world, the replaced one beside it): the
+    /// restored world goes into place when it is there (a restore syncs
+    /// it whole before it moves the old one aside), else the old one goes
+    /// back. Moved forward, the old world is removed, as the restore would
+    /// have. What was done is logged; a rename that fails is the error.
     pub fn take_whole(world: &Path) -> Result<Self, StoreError> {
         let lock = Self::take(world)?;
         let replaced = with_suffix(world, REPLACED_SUFFIX);
         if !world.exists() && replaced.exists() {
-            return Err(StoreError::RestoreCutShort {
+            let restored = with_suffix(world, RESTORING_SUFFIX);
+            let (from, done) = if restored.exists() {
+                (restored, "the restored world moved into place")
+            } else {
+                (replaced.clone(), "the replaced world moved back")
+            };
+            crate::durable::rename(&from, world).map_err(|source| StoreError::RestoreCutShort {
                 world: world.to_path_buf(),
-                replaced,
-            });
+                replaced: replaced.clone(),
+                source,
+            })?;
+            tracing::warn!(world = %world.display(), from = %from.display(), "a restore was cut short between its renames: {done}");
+            if from != replaced {
+                if let Err(e) = std::fs::remove_dir_all(&replaced) {
+                    tracing::warn!(dir = %replaced.display(), error = %e, "removing the replaced world failed");
+                }
+            }
         }
         Ok(lock)
     }
@@ -81,22 +98,50 @@ mod tests {
     use super::*;
 
     #[test]
-    fn one_holder_at_a_time_and_a_half_swapped_world_is_refused() {
+    fn one_holder_at_a_time() {
         let dir = tempfile::tempdir().unwrap();
         let world = dir.path().join("world.sled");
         let held = WorldLock::take_whole(&world).unwrap();
         let err = WorldLock::take(&world).unwrap_err();
         assert!(matches!(err, StoreError::WorldInUse { .. }), "{err}");
         drop(held);
-        let again = WorldLock::take(&world).unwrap();
-        drop(again);
-        // A swap cut short: the world moved aside, nothing in its place.
-        std::fs::create_dir(with_suffix(&world, REPLACED_SUFFIX)).unwrap();
-        let err = WorldLock::take_whole(&world).unwrap_err();
-        assert!(matches!(err, StoreError::RestoreCutShort { .. }), "{err}");
-        assert!(err.to_string().contains("world.sled.replaced"), "{err}");
-        // Back in place, it opens.
-        std::fs::rename(with_suffix(&world, REPLACED_SUFFIX), &world).unwrap();
-        WorldLock::take_whole(&world).unwrap();
+        WorldLock::take(&world).unwrap();
+    }
+
+    /// A world directory holding one file that names it.
+    fn world_named(path: &Path, name: &str) {
+        std::fs::create_dir(path).unwrap();
+        std::fs::write(path.join("name"), name).unwrap();
+    }
+
+    fn name_of(world: &Path) -> String {
+        std::fs::read_to_string(world.join("name")).unwrap()
+    }
+
+    #[test]
+    fn a_swap_cut_short_is_finished_forward_when_the_restored_world_is_there() {
+        let dir = tempfile::tempdir().unwrap();
+        let world = dir.path().join("world.sled");
+        world_named(&with_suffix(&world, REPLACED_SUFFIX), "old");
+        world_named(&with_suffix(&world, RESTORING_SUFFIX), "new");
+        drop(WorldLock::take_whole(&world).unwrap());
+        assert_eq!(name_of(&world), "new");
+        assert!(!with_suffix(&world, RESTORING_SUFFIX).exists());
+        assert!(!with_suffix(&world, REPLACED_SUFFIX).exists());
+    }
+
+    #[test]
+    fn a_swap_cut_short_with_no_restored_world_puts_the_old_one_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let world = dir.path().join("world.sled");
+        world_named(&with_suffix(&world, REPLACED_SUFFIX), "old");
+        drop(WorldLock::take_whole(&world).unwrap());
+        assert_eq!(name_of(&world), "old");
+        assert!(!with_suffix(&world, REPLACED_SUFFIX).exists());
+        // A world in place is never touched.
+        world_named(&with_suffix(&world, RESTORING_SUFFIX), "new");
+        world_named(&with_suffix(&world, REPLACED_SUFFIX), "older");
+        drop(WorldLock::take_whole(&world).unwrap());
+        assert_eq!(name_of(&world), "old");
     }
 }
