@@ -915,6 +915,23 @@ mod lock_tests {
         assert!(open_when_unlocked(|| sled::open(dir.path())).is_ok());
         releaser.join().unwrap();
     }
+
+    /// The vendored sled writes a new store's `conf` through a temporary
+    /// file renamed into place (vendor/sled/STRATA.md): none is left, and
+    /// the store opens again with the segment size it recorded.
+    #[test]
+    fn a_new_stores_conf_is_renamed_into_place_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = StoreConfig {
+            segment_size_bytes: 1 << 20,
+            ..StoreConfig::default()
+        };
+        drop(SledStore::open_with(dir.path(), &cfg).unwrap());
+        assert!(dir.path().join("conf").is_file());
+        assert!(!dir.path().join("conf.tmp").exists());
+        assert_eq!(persisted_segment_size(dir.path()), Some(1 << 20));
+        drop(SledStore::open(dir.path()).unwrap());
+    }
 }
 
 #[cfg(test)]

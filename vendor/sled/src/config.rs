@@ -669,14 +669,26 @@ impl Config {
         let crc_arr = u32_to_arr(crc);
 
         let path = self.config_path();
+        // Strata: written whole to a temporary file, synced, then renamed
+        // into place and the directory synced, so a power cut leaves either
+        // no `conf` (a new store writes it again) or the whole of it, never
+        // one of a file system's zero-filled tails, which fails every open.
+        let tmp = self.get_path().join("conf.tmp");
 
-        let mut f =
-            fs::OpenOptions::new().write(true).create(true).open(path)?;
+        let mut f = fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&tmp)?;
 
         io_fail!(self, "write_config bytes");
         f.write_all(&*bytes)?;
         io_fail!(self, "write_config crc");
         f.write_all(&crc_arr)?;
+        f.sync_all()?;
+        drop(f);
+        fs::rename(&tmp, &path)?;
+        fs::File::open(self.get_path())?.sync_all()?;
         io_fail!(self, "write_config post");
         Ok(())
     }
