@@ -32,17 +32,18 @@ impl SledStore {
         self.generator.get().map(|g| g.as_ref())
     }
 
-    /// `pos`'s deltas, in version order.
-    fn deltas_of(&self, pos: ChunkPos) -> Result<Vec<ChunkDelta>, StoreError> {
-        self.deltas
-            .scan_prefix(chunk_key(pos))
-            .map(|r| {
-                let (k, v) = r?;
-                let (p, to) = delta_from_key(&k)
-                    .ok_or_else(|| StoreError::corrupt("delta key", show_raw(&k)))?;
-                decode_delta(p, to, &v)
-            })
-            .collect()
+    /// `pos`'s deltas, in version order, decoded as the scan yields them:
+    /// a replay holds one at a time however long the chain.
+    fn deltas_of(
+        &self,
+        pos: ChunkPos,
+    ) -> impl Iterator<Item = Result<ChunkDelta, StoreError>> + '_ {
+        self.deltas.scan_prefix(chunk_key(pos)).map(|r| {
+            let (k, v) = r?;
+            let (p, to) =
+                delta_from_key(&k).ok_or_else(|| StoreError::corrupt("delta key", show_raw(&k)))?;
+            decode_delta(p, to, &v)
+        })
     }
 
     /// The version of `pos`'s record, `None` when the store lacks it.
@@ -89,9 +90,8 @@ impl SledStore {
     pub(super) fn latest(&self, pos: ChunkPos) -> Result<Option<(u64, Chunk)>, StoreError> {
         for _ in 0..READ_RETRIES {
             let record = self.chunks.get(chunk_key(pos))?;
-            let deltas = self.deltas_of(pos)?;
             let Some(record) = record else {
-                if deltas.is_empty() {
+                if self.deltas_of(pos).next().is_none() {
                     return Ok(None);
                 }
                 return Err(StoreError::corrupt(
@@ -100,10 +100,10 @@ impl SledStore {
                 ));
             };
             let (version, chunk) = decode_chunk_value(pos, &record, self.generator())?;
-            let replayed = replay(pos, version, chunk, &deltas);
+            let replayed = replay(pos, version, chunk, self.deltas_of(pos), usize::MAX);
             let moved = self.record_version(pos)? != Some(version);
-            if let Some(state) = settle(replayed, moved)? {
-                return Ok(Some(state));
+            if let Some(r) = settle(replayed, moved)? {
+                return Ok(Some((r.version, r.chunk)));
             }
         }
         Err(StoreError::corrupt(
@@ -229,14 +229,15 @@ impl SledStore {
             ));
         };
         let (base, chunk) = decode_chunk_value(pos, &record, self.generator())?;
-        let deltas = self.deltas_of(pos)?;
-        if deltas.is_empty() {
-            // Folded since it was listed.
-            return Ok(None);
-        }
-        let replayed = replay(pos, base, chunk, &deltas);
+        let replayed = replay(pos, base, chunk, self.deltas_of(pos), MAX_FOLD_DELTAS);
         let moved = self.chunks.get(key)?.as_ref() != Some(&record);
-        let Some((head, state)) = settle(replayed, moved)? else {
+        let Some(Replayed {
+            version: head,
+            chunk: state,
+            read,
+            ..
+        }) = settle(replayed, moved)?
+        else {
             // Folded meanwhile (the record moved), or a chain that does not
             // start at the record: damage, reported and counted as skipped.
             if !moved {
@@ -247,12 +248,12 @@ impl SledStore {
             }
             return Ok(None);
         };
+        if read.is_empty() {
+            // Folded since it was listed.
+            return Ok(None);
+        }
         let value = encode_chunk_value(head, &state);
-        let folded: Vec<_> = deltas
-            .iter()
-            .filter(|d| d.to_version <= head)
-            .map(|d| delta_key(pos, d.to_version))
-            .collect();
+        let folded: Vec<_> = read.iter().map(|&to| delta_key(pos, to)).collect();
         let result = (&self.chunks, &self.deltas).transaction(|(tchunks, tdeltas)| {
             // Only over the record this fold started from.
             let now = tchunks.get(key)?;
@@ -277,50 +278,87 @@ impl SledStore {
     }
 }
 
-/// Applies the deltas past `version` to `chunk` in order. `Err(Moved)`
-/// when they do not start at `version` (a fold ran between the reads).
-/// A chain that breaks further on is damage, unless the reads were torn
-/// ([`settle`]).
+/// Deltas one fold writes into a record at most: a chunk whose deltas
+/// piled up (checkpoints off, a crash before the shutdown's fold) is folded
+/// over several passes, each transaction and its list of keys bounded.
+pub(super) const MAX_FOLD_DELTAS: usize = 4096;
+
+/// A chunk's state after [`replay`].
+#[derive(Debug)]
+pub(super) struct Replayed {
+    pub version: u64,
+    pub chunk: Chunk,
+    /// The versions of the deltas read, all at or below `version`: those a
+    /// fold to `version` removes (stale ones below the record included).
+    pub read: Vec<u64>,
+}
+
+/// Applies the deltas past `version` to `chunk` in order, as `deltas`
+/// yields them (the store's scan, in version order), the first `limit` of
+/// them. `Err(Moved)` when they do not start at `version` (a fold ran
+/// between the reads). A chain that breaks further on is damage, unless
+/// the reads were torn ([`settle`]). Only a fold (a bounded `limit`) keeps
+/// the versions read.
 pub(super) fn replay(
     pos: ChunkPos,
     version: u64,
     chunk: Chunk,
-    deltas: &[ChunkDelta],
-) -> Result<Result<(u64, Chunk), Moved>, StoreError> {
-    let past: Vec<&ChunkDelta> = deltas.iter().filter(|d| d.to_version > version).collect();
-    let Some(first) = past.first() else {
-        return Ok(Ok((version, chunk)));
+    deltas: impl Iterator<Item = Result<ChunkDelta, StoreError>>,
+    limit: usize,
+) -> Result<Result<Replayed, Moved>, StoreError> {
+    let keep = limit != usize::MAX;
+    let mut out = Replayed {
+        version,
+        chunk,
+        read: Vec::new(),
     };
-    if first.from_version != version {
-        return Ok(Err(Moved));
-    }
-    let mut state = chunk;
-    for (i, d) in past.iter().enumerate() {
-        let next = match i.checked_sub(1).map(|j| past[j]) {
-            None => d.apply(&state),
+    // The last applied delta's target version and hash.
+    let mut prev: Option<(u64, u64)> = None;
+    let mut applied = 0;
+    for d in deltas {
+        if applied == limit {
+            break;
+        }
+        let d = d?;
+        if d.to_version <= version {
+            // Left behind by a whole-chunk write: a fold removes it.
+            if keep {
+                out.read.push(d.to_version);
+            }
+            continue;
+        }
+        let next = match prev {
+            None if d.from_version != version => return Ok(Err(Moved)),
+            None => d.apply(&out.chunk),
             // The previous delta's target hash was checked: the chain must
             // continue from it.
-            Some(prev) if prev.to_version == d.from_version && prev.target_hash == d.base_hash => {
-                d.apply_to_checked_base(&state)
+            Some((to, hash)) if to == d.from_version && hash == d.base_hash => {
+                d.apply_to_checked_base(&out.chunk)
             }
-            Some(prev) => {
+            Some((to, _)) => {
                 return Err(StoreError::corrupt(
                     format!(
-                        "delta chain breaks after version {} (next goes from {})",
-                        prev.to_version, d.from_version
+                        "delta chain breaks after version {to} (next goes from {})",
+                        d.from_version
                     ),
                     show_pos(pos),
                 ))
             }
         };
-        state = next.map_err(|e| {
+        out.chunk = next.map_err(|e| {
             StoreError::corrupt(
                 format!("delta to version {} does not apply ({e})", d.to_version),
                 show_pos(pos),
             )
         })?;
+        out.version = d.to_version;
+        prev = Some((d.to_version, d.target_hash));
+        applied += 1;
+        if keep {
+            out.read.push(d.to_version);
+        }
     }
-    Ok(Ok((past.last().map_or(version, |d| d.to_version), state)))
+    Ok(Ok(out))
 }
 
 /// What a read made of [`replay`]'s answer (`None`: read again), given
@@ -331,9 +369,9 @@ pub(super) fn replay(
 /// answer from a moved record is read again, and only a chain read
 /// around a record that stayed put is damage.
 pub(super) fn settle(
-    replayed: Result<Result<(u64, Chunk), Moved>, StoreError>,
+    replayed: Result<Result<Replayed, Moved>, StoreError>,
     moved: bool,
-) -> Result<Option<(u64, Chunk)>, StoreError> {
+) -> Result<Option<Replayed>, StoreError> {
     match replayed {
         _ if moved => Ok(None),
         Ok(Ok(state)) => Ok(Some(state)),
@@ -362,15 +400,46 @@ mod tests {
             ChunkDelta::encode(pos, 5, 6, &v5, &v6).unwrap(),
             ChunkDelta::encode(pos, 7, 8, &v7, &v8).unwrap(),
         ];
-        assert_eq!(
-            settle(replay(pos, 5, v5.clone(), &torn), true).unwrap(),
-            None
+        fn scan(d: &[ChunkDelta]) -> impl Iterator<Item = Result<ChunkDelta, StoreError>> + '_ {
+            d.iter().cloned().map(Ok)
+        }
+        assert!(
+            settle(replay(pos, 5, v5.clone(), scan(&torn), usize::MAX), true)
+                .unwrap()
+                .is_none()
         );
-        let err = settle(replay(pos, 5, v5.clone(), &torn), false).unwrap_err();
+        let err = settle(replay(pos, 5, v5.clone(), scan(&torn), usize::MAX), false).unwrap_err();
         assert!(err.to_string().contains("delta chain breaks"), "{err}");
         // A whole chain from a record that stayed put is the state.
         let whole = [ChunkDelta::encode(pos, 5, 6, &v5, &v6).unwrap()];
-        let (version, state) = settle(replay(pos, 5, v5, &whole), false).unwrap().unwrap();
-        assert_eq!((version, state), (6, v6));
+        let r = settle(replay(pos, 5, v5, scan(&whole), usize::MAX), false)
+            .unwrap()
+            .unwrap();
+        assert_eq!((r.version, r.chunk), (6, v6));
+    }
+
+    #[test]
+    fn a_bounded_replay_stops_after_its_limit_and_lists_what_it_read() {
+        let pos = ChunkPos::new(1, 2, 3);
+        let states: Vec<Chunk> = (0..6).map(|i| chunk(10 * i + 10)).collect();
+        // A stale delta (to 2, below the record at 3), then 3 -> 4 -> 5 -> 6.
+        let mut deltas = vec![ChunkDelta::encode(pos, 1, 2, &states[0], &states[1]).unwrap()];
+        for v in 3..6 {
+            let (a, b) = (&states[v - 3], &states[v - 2]);
+            deltas.push(ChunkDelta::encode(pos, v as u64, v as u64 + 1, a, b).unwrap());
+        }
+        let scan = || deltas.clone().into_iter().map(Ok);
+        let r = settle(replay(pos, 3, states[0].clone(), scan(), 2), false)
+            .unwrap()
+            .unwrap();
+        assert_eq!(
+            (r.version, &r.chunk, r.read),
+            (5, &states[2], vec![2, 4, 5])
+        );
+        let r = settle(replay(pos, 3, states[0].clone(), scan(), usize::MAX), false)
+            .unwrap()
+            .unwrap();
+        assert_eq!((r.version, &r.chunk), (6, &states[3]));
+        assert!(r.read.is_empty(), "a read keeps no list");
     }
 }

@@ -164,12 +164,14 @@ impl Stored {
         generator: Option<&dyn ChunkGenerator>,
     ) -> Result<(u64, Chunk), StoreError> {
         let chunk = decode_record(pos, self.version, &self.body, generator)?;
-        replay(pos, self.version, chunk, &self.deltas)?.map_err(|_| {
-            StoreError::corrupt(
+        let deltas = self.deltas.into_iter().map(Ok);
+        match replay(pos, self.version, chunk, deltas, usize::MAX)? {
+            Ok(r) => Ok((r.version, r.chunk)),
+            Err(_) => Err(StoreError::corrupt(
                 "delta chain does not start at the chunk record's version",
                 show_pos(pos),
-            )
-        })
+            )),
+        }
     }
 }
 
