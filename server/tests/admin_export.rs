@@ -188,6 +188,36 @@ fn bad_arguments_fail_without_output() {
         &["--rows", "2", "1"],
     );
     assert!(String::from_utf8_lossy(&out.stderr).contains("--rows"));
+    // Rows or columns whose arithmetic would overflow, or whose box could
+    // not be held, are refused before anything is read or allocated.
+    for rows in [
+        ["-100000000", "100000000"],
+        ["-2147483648", "2147483647"],
+        ["0", "256"],
+    ] {
+        let out = run(
+            ply.to_str().unwrap(),
+            &["0", "0", "0", "0"],
+            &[&["--rows"][..], &rows[..]].concat(),
+        );
+        assert_eq!(out.status.code(), Some(1), "{rows:?}");
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("--rows"),
+            "{rows:?}"
+        );
+    }
+    for region in [
+        ["2147483647", "0", "2147483647", "0"],
+        ["-2147483648", "0", "2147483647", "0"],
+        ["131073", "0", "131073", "0"],
+    ] {
+        let out = run(ply.to_str().unwrap(), &region, &[]);
+        assert_eq!(out.status.code(), Some(1), "{region:?}");
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("--region"),
+            "{region:?}"
+        );
+    }
     let out = run(
         ply.to_str().unwrap(),
         &["0", "0", "0", "0"],
@@ -206,4 +236,21 @@ fn bad_arguments_fail_without_output() {
         })
         .count();
     assert_eq!(strays, 0, "no temporary file left behind");
+    // What a killed run left (its process gone: no pid is that large) is
+    // removed by the next export beside it; a running writer's is kept.
+    let (gone, running) = (u32::MAX, std::process::id());
+    let stale = dir.join(format!(".strata-out-{gone}-AbC123"));
+    let live = dir.join(format!(".strata-out-{running}-AbC123"));
+    std::fs::write(&stale, b"half a mesh").unwrap();
+    std::fs::write(&live, b"a mesh being written").unwrap();
+    let out = run(ply.to_str().unwrap(), &["0", "0", "0", "0"], &[]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(ply.exists());
+    assert!(!stale.exists(), "a dead writer's staged file is removed");
+    assert!(live.exists(), "a running writer's is kept");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("left unfinished"));
 }

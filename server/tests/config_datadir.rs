@@ -335,10 +335,15 @@ fn forced_restore_into_a_data_dir_keeps_its_identity() {
     let root = tmp.path().join("data");
     data_dir_with_world(&root);
     let snap = tmp.path().join("w.snap");
+    // A killed run's unfinished snapshot of the same name (its process
+    // gone: no pid is that large) is removed by the next one.
+    let stale = tmp.path().join(format!("w.snap.{}-0.partial", u32::MAX));
+    std::fs::write(&stale, b"half a snapshot").unwrap();
     {
         let store = SledStore::open(&root.join(WORLD_DB_NAME)).unwrap();
         snapshot_cmd::create_offline(&store, &snap, &Default::default()).unwrap();
     }
+    assert!(!stale.exists());
     let identity = |root: &std::path::Path| {
         [CERT_NAME, KEY_NAME, SECRET_NAME].map(|n| std::fs::read(root.join(n)).unwrap())
     };

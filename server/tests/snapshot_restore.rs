@@ -11,7 +11,7 @@ use crate::store_common;
 
 use std::path::{Path, PathBuf};
 
-use snapshot_common::{header, write_snapshot};
+use snapshot_common::{header, write_noise_snapshot, write_snapshot};
 use store_common::{pg_store, sql, terrain_chunk};
 use strata_protocol::admin::ZoneSpec;
 use strata_server::admin::snapshot_cmd::{self, replace_world, RestoreArgs};
@@ -24,9 +24,9 @@ use strata_server::snapshot::restore::import;
 use strata_server::snapshot::{verify, SnapshotHeader};
 use strata_server::store::pg::{PgConfig, SERVING_LOCK};
 use strata_server::store::{
-    open_store, with_suffix, ChunkStore, ImportTarget, PgStore, RawChunk, RegionAccess, SledStore,
-    StoreConfig, StoreError, WorldMeta, MAX_GENERATOR_PARAMS_BYTES, REPLACED_SUFFIX,
-    RESTORING_SUFFIX,
+    open_store, persisted_segment_size, with_suffix, ChunkStore, ImportTarget, PgStore, RawChunk,
+    RegionAccess, SledStore, StoreConfig, StoreError, WorldMeta, MAX_GENERATOR_PARAMS_BYTES,
+    REPLACED_SUFFIX, RESTORING_SUFFIX,
 };
 use strata_terrain::chunk_codec::encode_chunk;
 use strata_terrain::gen::GenParams;
@@ -115,7 +115,7 @@ impl ImportTarget for CutBeforeMeta<'_> {
 
 /// The restore's swap with an import that fails part-way.
 fn restore_cut_short(db: &Path, file: &Path) -> String {
-    let err = replace_world(db, false, |store| {
+    let err = replace_world(db, &StoreConfig::default(), false, |store| {
         Ok(import(file, &CutBeforeMeta(store), ZONES_BLOB, |_| {})?)
     })
     .unwrap_err();
@@ -1208,4 +1208,94 @@ fn a_restore_into_a_data_dir_without_its_world_is_tried_again() {
     std::fs::remove_dir_all(&db).unwrap();
     assert_eq!(restore(&new, &data, true).unwrap(), 5);
     assert_eq!(world_of(&data), (20, 5));
+}
+
+/// How long a restore onto a full disk may take to fail.
+const FULL_DISK_FAILS_WITHIN: std::time::Duration = std::time::Duration::from_secs(60);
+
+/// A small tmpfs, unmounted when dropped; `None` where mounting is not
+/// allowed (not root, a container without the capability).
+struct SmallDisk(PathBuf);
+
+impl SmallDisk {
+    fn mount(dir: &Path, size: &str) -> Option<SmallDisk> {
+        let at = dir.join("small-disk");
+        std::fs::create_dir(&at).unwrap();
+        let mounted = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o"])
+            .arg(format!("size={size}"))
+            .arg("tmpfs")
+            .arg(&at)
+            .stderr(std::process::Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        mounted.then_some(SmallDisk(at))
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount")
+            .arg("-l")
+            .arg(&self.0)
+            .status();
+    }
+}
+
+/// A restore whose new store fills the disk fails with the disk's error
+/// and lets go of the world (sled 0.34 can leave a flush waiting forever
+/// after a write error, and dropping the store flushed), leaving the old
+/// world as it was.
+#[test]
+fn a_restore_onto_a_full_disk_fails_and_leaves_the_old_world() {
+    let tmp = tempfile::tempdir().unwrap();
+    let Some(disk) = SmallDisk::mount(tmp.path(), "3m") else {
+        eprintln!("a_restore_onto_a_full_disk_fails_and_leaves_the_old_world: not run (cannot mount a tmpfs)");
+        return;
+    };
+    let small = snapshot(tmp.path(), "small.snap", &header(9), 3);
+    let big = tmp.path().join("big.snap");
+    write_noise_snapshot(&big, &header(20), 60);
+    let data = disk.0.join("data");
+    assert_eq!(restore(&small, &data, false).unwrap(), 3);
+    let (tx, rx) = std::sync::mpsc::channel();
+    let d = data.clone();
+    std::thread::spawn(move || {
+        let _ = tx.send(restore(&big, &d, true).map_err(|e| format!("{e:#}")));
+    });
+    let result = rx
+        .recv_timeout(FULL_DISK_FAILS_WITHIN)
+        .expect("the restore returned");
+    let err = result.unwrap_err();
+    assert!(err.contains("is unchanged"), "{err}");
+    assert_eq!(world_of(&data), (9, 3));
+    assert!(!with_suffix(&data.join(WORLD_DB_NAME), RESTORING_SUFFIX).exists());
+}
+
+/// The restored store is made as the config's `[store]` says: its segment
+/// size (recorded for good when a store is made) is the config's.
+#[test]
+fn a_restore_makes_its_store_as_the_config_says() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = snapshot(tmp.path(), "s.snap", &header(9), 3);
+    let config = tmp.path().join("strata.toml");
+    let segment = 8 << 20;
+    std::fs::write(
+        &config,
+        format!("[store]\nsegment_size_bytes = {segment}\n"),
+    )
+    .unwrap();
+    let data = tmp.path().join("data");
+    let restored = snapshot_cmd::restore(&RestoreArgs {
+        drop_access: false,
+        file,
+        data_dir: data.clone(),
+        force: false,
+        config: Some(config),
+    });
+    assert_eq!(restored.unwrap(), 3);
+    let db = data.join(WORLD_DB_NAME);
+    assert_eq!(persisted_segment_size(&db), Some(segment));
+    assert_ne!(segment, StoreConfig::default().segment_size_bytes);
+    assert_eq!(world_of(&data), (9, 3));
 }

@@ -163,15 +163,18 @@ pub fn write_mesh(
 pub const OUTPUT_MODE: u32 = 0o644;
 
 /// A temporary file next to `out` (same directory, so it can be renamed
-/// onto `out` once complete): outputs never appear half-written.
+/// onto `out` once complete): outputs never appear half-written. Its name
+/// carries this process's id, and those a killed run left are removed
+/// first (`stale_outputs`).
 pub fn stage_output(out: &Path) -> std::io::Result<tempfile::NamedTempFile> {
-    let dir = match out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let tmp = tempfile::Builder::new()
-        .prefix(".strata-out-")
-        .tempfile_in(dir)?;
+    super::stale_outputs::clear_for(out);
+    let dir = super::stale_outputs::dir_of(out);
+    let prefix = format!(
+        "{}{}-",
+        super::stale_outputs::STAGED_PREFIX,
+        std::process::id()
+    );
+    let tmp = tempfile::Builder::new().prefix(&prefix).tempfile_in(dir)?;
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;

@@ -26,6 +26,7 @@ use thiserror::Error;
 use super::export::{stage_output, write_mesh, ExportError, ExportFormat, MeshRef};
 use super::world_source::{
     progress_bar, ChunkBox, OfflineArgs, OfflineWorld, RegionArgs, WorldSourceError, WorldView,
+    MAX_REGION_CHUNKS, MAX_REGION_COORD,
 };
 
 /// Arguments of `strata-admin export-mesh`.
@@ -61,7 +62,7 @@ pub enum ExportMeshError {
     World(#[from] WorldSourceError),
     #[error(transparent)]
     Export(#[from] ExportError),
-    #[error("--rows needs Y0 Y1 with Y0 <= Y1, got {0:?}")]
+    #[error("--rows needs Y0 Y1 with Y0 <= Y1, at most {MAX_REGION_CHUNKS} rows and each within ±{MAX_REGION_COORD}, got {0:?}")]
     BadRows(Vec<i32>),
     #[error("meshing: {0}")]
     Mesh(#[from] MeshError),
@@ -112,7 +113,14 @@ fn export_box(args: &ExportMeshArgs, world: &OfflineWorld) -> Result<ChunkBox, E
     let [x0, z0, x1, z1] = args.region.columns()?;
     let (y0, y1) = match &args.rows {
         Some(r) => match r.as_slice() {
-            &[a, b] if a <= b => (a, b),
+            &[a, b]
+                if a <= b
+                    && a.unsigned_abs().max(b.unsigned_abs())
+                        <= MAX_REGION_COORD.unsigned_abs()
+                    && b - a < MAX_REGION_CHUNKS =>
+            {
+                (a, b)
+            }
             _ => return Err(ExportMeshError::BadRows(r.clone())),
         },
         None => {

@@ -12,6 +12,31 @@ use strata_terrain::{ChunkGenerator, ChunkPos, MaterialTable, CHUNK_SIZE};
 
 /// Largest region edge in chunks, to keep a typo from running for hours.
 pub const MAX_REGION_CHUNKS: i32 = 256;
+/// Largest |chunk coordinate| of a region: the chunks of the voxels an
+/// edit may reach, far from overflowing any voxel coordinate.
+pub const MAX_REGION_COORD: i32 = strata_terrain::edit::fixed::COORD_LIMIT_VOXELS / CHUNK_SIZE;
+
+/// Checks a region `[x0, z0, x1, z1]` of chunk columns: ordered, at most
+/// [`MAX_REGION_CHUNKS`] a side, every coordinate within
+/// ±[`MAX_REGION_COORD`].
+pub fn check_region(region: [i32; 4]) -> anyhow::Result<()> {
+    let [x0, z0, x1, z1] = region;
+    anyhow::ensure!(
+        region
+            .iter()
+            .all(|c| c.unsigned_abs() <= MAX_REGION_COORD.unsigned_abs()),
+        "region coordinates must lie within ±{MAX_REGION_COORD} chunks"
+    );
+    anyhow::ensure!(
+        x0 <= x1 && z0 <= z1,
+        "region X0 Z0 X1 Z1 must have X0 <= X1 and Z0 <= Z1"
+    );
+    anyhow::ensure!(
+        x1 - x0 < MAX_REGION_CHUNKS && z1 - z0 < MAX_REGION_CHUNKS,
+        "region is larger than {MAX_REGION_CHUNKS} chunks on a side"
+    );
+    Ok(())
+}
 
 #[derive(Debug, Args)]
 pub struct GenerateArgs {
@@ -52,15 +77,8 @@ pub fn generate_region(
     threads: Option<usize>,
     progress: bool,
 ) -> anyhow::Result<RegionStats> {
+    check_region(region)?;
     let [x0, z0, x1, z1] = region;
-    anyhow::ensure!(
-        x0 <= x1 && z0 <= z1,
-        "region X0 Z0 X1 Z1 must have X0 <= X1 and Z0 <= Z1"
-    );
-    anyhow::ensure!(
-        x1 - x0 < MAX_REGION_CHUNKS && z1 - z0 < MAX_REGION_CHUNKS,
-        "region is larger than {MAX_REGION_CHUNKS} chunks on a side"
-    );
     let seed = params.seed;
     let generator = Generator::fractal(params.clone())?;
     let (y0, y1) = (
@@ -215,5 +233,22 @@ mod tests {
             false
         )
         .is_err());
+        // Coordinates past the edit limit, whose differences and voxel
+        // coordinates overflow i32, are refused before any arithmetic.
+        for region in [
+            [i32::MIN, 0, i32::MAX, 0],
+            [i32::MAX, 0, i32::MAX, 0],
+            [MAX_REGION_COORD + 1, 0, MAX_REGION_COORD + 1, 0],
+            [0, -MAX_REGION_COORD - 1, 0, -MAX_REGION_COORD - 1],
+        ] {
+            assert!(check_region(region).is_err(), "{region:?}");
+            let args = crate::admin::world_source::RegionArgs {
+                region: region.to_vec(),
+            };
+            assert!(args.columns().is_err(), "{region:?}");
+        }
+        let edge = [MAX_REGION_COORD; 4];
+        assert!(check_region(edge).is_ok());
+        assert!(check_region([-MAX_REGION_COORD, 0, -MAX_REGION_COORD + 1, 0]).is_ok());
     }
 }

@@ -17,6 +17,7 @@ pub mod ply;
 pub mod remote;
 pub mod render_map;
 pub mod snapshot_cmd;
+pub mod stale_outputs;
 pub mod stats;
 pub mod token_cmd;
 pub mod verify_acks;

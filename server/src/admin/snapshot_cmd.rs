@@ -123,6 +123,7 @@ pub struct Created {
 /// new (two runs writing the same `out` never share one).
 fn create_partial(out: &Path) -> anyhow::Result<(PathBuf, File)> {
     static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    super::stale_outputs::clear_for(out);
     loop {
         let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let tmp = with_suffix(out, &format!(".{}-{n}.partial", std::process::id()));
@@ -380,7 +381,10 @@ pub fn restore(args: &RestoreArgs) -> anyhow::Result<u64> {
         Some(report.chunks),
         "restore {bar:40} {pos}/{len} chunks {eta}",
     );
-    let n = replace_world(&dd.world_db_path(), args.drop_access, |store| {
+    // The new store is made as the server's config makes one (its segment
+    // size is recorded for good at creation).
+    let store_cfg = cfg.as_ref().map(|c| c.store.clone()).unwrap_or_default();
+    let n = replace_world(&dd.world_db_path(), &store_cfg, args.drop_access, |store| {
         Ok(import(&args.file, store, ZONES_BLOB, |n| {
             bar.set_position(n)
         })?)
@@ -479,6 +483,7 @@ fn refuse_other_generation(file: &Path, cfg: &ServerConfig) -> anyhow::Result<()
 
 pub fn replace_world(
     db: &Path,
+    store_cfg: &crate::store::StoreConfig,
     drop_access: bool,
     fill: impl FnOnce(&SledStore) -> anyhow::Result<u64>,
 ) -> anyhow::Result<u64> {
@@ -493,7 +498,7 @@ pub fn replace_world(
     remove_dir_if_present(&staging)?;
     remove_dir_if_present(&old)?;
     let access = kept_access(db, drop_access)?;
-    let filled = SledStore::open(&staging)
+    let filled = SledStore::open_with(&staging, store_cfg)
         .map_err(anyhow::Error::from)
         .and_then(|store| {
             let n = fill(&store)?;

@@ -36,6 +36,10 @@ use crate::store::{
 pub const DATA_DIR_CONFIG_NAME: &str = "strata.toml";
 /// Largest region edge, in chunks, an offline command accepts.
 pub const MAX_REGION_CHUNKS: i32 = crate::admin::generate::MAX_REGION_CHUNKS;
+/// Largest |chunk coordinate| an offline command accepts: the chunks of
+/// the voxels an edit may reach (`COORD_LIMIT_VOXELS`), so a box grown by
+/// its apron and its voxel coordinates stay far from `i32`'s ends.
+pub const MAX_REGION_COORD: i32 = crate::admin::generate::MAX_REGION_COORD;
 
 /// Where the world lives: the data dir of a stopped server.
 #[derive(Debug, Clone, clap::Args)]
@@ -92,7 +96,7 @@ pub enum WorldSourceError {
     RecordedParams(String),
     #[error("the world was generated from a heightmap; pass the server's --config so the map file can be read")]
     NeedsHeightmapConfig,
-    #[error("--region needs X0 Z0 X1 Z1 with X0 <= X1, Z0 <= Z1 and at most {MAX_REGION_CHUNKS} chunks a side, got {0:?}")]
+    #[error("--region needs X0 Z0 X1 Z1 with X0 <= X1, Z0 <= Z1, at most {MAX_REGION_CHUNKS} chunks a side and each within ±{MAX_REGION_COORD}, got {0:?}")]
     BadRegion(Vec<i32>),
     #[error("chunk ({}, {}, {}) in the world database does not decode: {reason}", pos.x, pos.y, pos.z)]
     BadChunk { pos: ChunkPos, reason: String },
@@ -146,16 +150,9 @@ impl RegionArgs {
     /// `[x0, z0, x1, z1]`, checked.
     pub fn columns(&self) -> Result<[i32; 4], WorldSourceError> {
         let bad = || WorldSourceError::BadRegion(self.region.clone());
-        let [x0, z0, x1, z1] = <[i32; 4]>::try_from(self.region.as_slice()).map_err(|_| bad())?;
-        let side = |a: i32, b: i32| i64::from(b) - i64::from(a);
-        if side(x0, x1) < 0
-            || side(z0, z1) < 0
-            || side(x0, x1) >= i64::from(MAX_REGION_CHUNKS)
-            || side(z0, z1) >= i64::from(MAX_REGION_CHUNKS)
-        {
-            return Err(bad());
-        }
-        Ok([x0, z0, x1, z1])
+        let region = <[i32; 4]>::try_from(self.region.as_slice()).map_err(|_| bad())?;
+        crate::admin::generate::check_region(region).map_err(|_| bad())?;
+        Ok(region)
     }
 }
 

@@ -15,6 +15,7 @@ use serde::Serialize;
 use tracing::{info, warn};
 
 use crate::admin::snapshot_cmd::{write_atomically, Created};
+use crate::admin::stale_outputs;
 use crate::auth::Claims;
 use crate::console::auth::still_admitted;
 use crate::net::admin_session::{begin_snapshot, walk_snapshot};
@@ -225,47 +226,17 @@ fn is_console_snapshot(name: &str) -> bool {
         .is_some_and(|(seq, time)| digits(seq) && digits(time))
 }
 
-/// The writer's process id, when `name` is a console snapshot's `.partial`
-/// file (`strata-seqS-T.snap.PID-N.partial`).
-fn partial_writer(name: &str) -> Option<u32> {
-    let rest = name.strip_suffix(".partial")?;
-    let (snap, tag) = rest.rsplit_once('.')?;
-    if !is_console_snapshot(snap) {
-        return None;
-    }
-    tag.split_once('-')?.0.parse().ok()
-}
-
-/// Whether the process `pid` may still be writing its `.partial` file:
-/// this process's own are not (none of its snapshots runs when this is
-/// called), others' are while they run. Where that cannot be told, yes.
-fn may_still_write(pid: u32) -> bool {
-    if pid == std::process::id() {
-        return false;
-    }
-    if cfg!(target_os = "linux") {
-        std::path::Path::new("/proc").join(pid.to_string()).exists()
-    } else {
-        true
-    }
-}
-
 /// Removes the `.partial` files of console snapshots cut short (the
 /// server killed while writing one): each is as large as a snapshot, and
 /// no finished one would ever prune it. Failures are logged.
 fn remove_stale_partials(dir: &std::path::Path) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
+    let console_partial = |name: &str| {
+        stale_outputs::partial_writer(name)
+            .filter(|(snap, _)| is_console_snapshot(snap))
+            .map(|(_, pid)| pid)
     };
-    for e in entries.filter_map(Result::ok) {
-        let Some(pid) = e.file_name().to_str().and_then(partial_writer) else {
-            continue;
-        };
-        if may_still_write(pid) {
-            continue;
-        }
-        let path = e.path();
-        match std::fs::remove_file(&path) {
+    for (path, result) in stale_outputs::remove_stale(dir, console_partial) {
+        match result {
             Ok(()) => info!(file = %path.display(), "an unfinished console snapshot removed"),
             Err(e) => {
                 warn!(file = %path.display(), error = %e, "removing an unfinished console snapshot failed")

@@ -104,19 +104,58 @@ fn watch(s: &Shared, db: &sled::Db) {
     }
 }
 
+/// How long dropping the watch waits for its thread. A thread still in a
+/// flush past it (one the failed disk never ends: sled 0.34 wakes no one)
+/// is left running, holding its `Db`, rather than hanging the drop, and
+/// with it a failed restore or a shutdown, forever.
+pub const STOP_WAIT: Duration = Duration::from_secs(5);
+
 impl Drop for FlushWatch {
     fn drop(&mut self) {
         *self.shared.stop.lock().unwrap_or_else(|p| p.into_inner()) = true;
         self.shared.wake.notify_all();
         if let Some(t) = self.thread.take() {
-            let _ = t.join();
+            if !join_within(t, STOP_WAIT) {
+                tracing::error!(
+                    waited_ms = STOP_WAIT.as_millis() as u64,
+                    "the store's flush watch is stuck in a flush (a failed disk?): left running"
+                );
+            }
         }
     }
+}
+
+/// Joins `thread` if it ends within `limit`; else leaves it running and
+/// says so (`false`).
+fn join_within(thread: JoinHandle<()>, limit: Duration) -> bool {
+    let deadline = Instant::now() + limit;
+    while !thread.is_finished() {
+        if Instant::now() >= deadline {
+            return false;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let _ = thread.join();
+    true
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_thread_that_does_not_end_in_time_is_left_running() {
+        let (tx, rx) = std::sync::mpsc::channel::<()>();
+        let stuck = std::thread::spawn(move || {
+            let _ = rx.recv();
+        });
+        let started = Instant::now();
+        assert!(!join_within(stuck, Duration::from_millis(50)));
+        assert!(started.elapsed() < STOP_WAIT);
+        drop(tx);
+        let quick = std::thread::spawn(|| ());
+        assert!(join_within(quick, STOP_WAIT));
+    }
 
     #[test]
     fn watched_flushes_write_and_a_dropped_watch_lets_go_of_the_db() {
