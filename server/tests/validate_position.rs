@@ -1347,7 +1347,7 @@ fn feet_reported_above_the_ground_gain_no_jump() {
 
 /// A reconnect while in the air is no fresh jump: the resumed spot is
 /// settled from the ground under it (none), so the player may not rise
-/// off the ground above it (it may stand a jump higher: a ledge).
+/// above it, hop over a wall on its way, nor stand higher.
 #[test]
 fn a_reconnect_in_the_air_gives_no_second_jump() {
     let mut s = fresh();
@@ -1365,6 +1365,33 @@ fn a_reconnect_in_the_air_gives_no_second_jump() {
         s.update_position(PLAYER, at(1, x + 1, 6, z), 500),
         Err(PositionReject::TooHigh { apex: 4.0 })
     );
+    // Nor a hop over a wall on the way (the way's hops are held to the
+    // settled state: no higher than the resumed feet), nor a step up onto
+    // a ledge a jump higher.
+    let mut s = fresh();
+    join_at(&mut s, ADMIN, Role::Admin, x - 2, z);
+    s.resume_position(
+        PLAYER,
+        0,
+        Some(StoredPosition {
+            feet: apex,
+            known_ms: 0,
+        }),
+    );
+    s.submit(ADMIN, req(1, fill((x + 2, 0, z - 4), (x + 2, 6, z + 4))), 0)
+        .unwrap();
+    s.submit(ADMIN, req(2, fill((x - 1, 0, z - 4), (x - 1, 7, z + 4))), 0)
+        .unwrap();
+    s.tick(0);
+    let r = s.update_position(PLAYER, at(1, x + 4, 4, z), 500);
+    assert!(
+        matches!(r, Err(PositionReject::PathBlocked { .. })),
+        "{r:?}"
+    );
+    assert!(matches!(
+        s.update_position(PLAYER, at(2, x - 1, 8, z), 1_000),
+        Err(PositionReject::TooHigh { .. })
+    ));
     // Resumed standing on the ground, a jump up is fine.
     let mut s = fresh();
     let ground = FixedVec3::from_voxels(x, 0, z);
@@ -1377,4 +1404,47 @@ fn a_reconnect_in_the_air_gives_no_second_jump() {
         }),
     );
     s.update_position(PLAYER, at(1, x, 4, z), 500).unwrap();
+}
+
+/// A body needs more than a one-voxel gap: feet sunk under a wall's lowest
+/// voxel (at most half a voxel into solid counts as standing) do not let
+/// a one-voxel-high window, or a gate raised one voxel, through.
+#[test]
+fn a_one_voxel_gap_is_no_way_through() {
+    let (x, z) = HOME;
+    let feet = |seq, x: i32, y: f64| PositionUpdate {
+        seq,
+        pos: FixedVec3::from_f64([f64::from(x), y, f64::from(z)]).unwrap(),
+    };
+    // The ground's top voxel is at y = -1. A window: solid at 0 and from
+    // 2 up, air at 1. A gate: air at 0, solid from 1 up.
+    for (name, gap, sunk) in [("window", 1, -0.25), ("gate", 0, -1.25)] {
+        let mut s = ready(ValidationConfig::default());
+        if gap > 0 {
+            s.submit(
+                ADMIN,
+                req(1, fill((x + 3, 0, z - 8), (x + 3, gap - 1, z + 8))),
+                0,
+            )
+            .unwrap();
+        }
+        s.submit(
+            ADMIN,
+            req(2, fill((x + 3, gap + 1, z - 8), (x + 3, 20, z + 8))),
+            0,
+        )
+        .unwrap();
+        s.tick(0);
+        // Through the window: the wall's lowest voxel is in the way. Under
+        // the gate: feet that low are in the ground, there or anywhere.
+        let r = s.update_position(PLAYER, feet(2, x + 6, sunk), 1_000);
+        let refused = match r {
+            Err(PositionReject::PathBlocked { voxel }) => voxel.x == x + 3,
+            Err(PositionReject::InsideSolid { voxel }) => gap == 0 && voxel.y == -1,
+            _ => false,
+        };
+        assert!(refused, "{name}: {r:?}");
+        let here = s.update_position(PLAYER, feet(3, x, sunk), 1_000);
+        assert_eq!(here.is_ok(), gap > 0, "{name}: {here:?}");
+    }
 }

@@ -98,6 +98,28 @@ impl Air {
     }
 }
 
+/// The limits of a player placed without a report (a resume, an
+/// arrival) at `last`, over `ground`: a jump above the ground it stands
+/// on; in the air, no higher than it is (a reconnect is no fresh jump, nor
+/// a step up onto a ledge); over ground another node judges, it may stand
+/// a jump higher (its ground may lie over there), not rise off the ground.
+pub fn settled(last: FixedVec3, ground: Ground, cfg: &GravityConfig) -> Air {
+    let (apex, step) = settled_limits(last, ground, cfg);
+    Air::Limits { apex, step }
+}
+
+/// [`settled`]'s apex and step.
+fn settled_limits(last: FixedVec3, ground: Ground, cfg: &GravityConfig) -> (Fixed, Fixed) {
+    match ground {
+        Ground::Top(top) => {
+            let y = jump_from(last, top, cfg);
+            (y, y)
+        }
+        Ground::None => (last.y, last.y),
+        Ground::Unknown => (last.y, add(last.y, cfg.jump())),
+    }
+}
+
 /// The highest the feet of a path's hop may go from `last` in state `air`:
 /// the apex, or a jump above an unsettled spot.
 pub fn hop_ceiling(air: Air, last: FixedVec3, cfg: &GravityConfig) -> f64 {
@@ -451,16 +473,10 @@ pub fn check(
             }
         },
         Some((Air::Limits { apex, step }, last)) => (apex, step, last),
-        Some((Air::Free | Air::Unsettled, last)) => match settle() {
-            Ground::Top(top) => {
-                let y = jump_from(last, top, cfg);
-                (y, y, last)
-            }
-            // In the air, or over ground another node judges: it may fall,
-            // or stand a jump higher (its ground may have been mined away
-            // since, or lie over there), not rise off the ground.
-            Ground::None | Ground::Unknown => (last.y, add(last.y, cfg.jump()), last),
-        },
+        Some((Air::Free | Air::Unsettled, last)) => {
+            let (apex, step) = settled_limits(last, settle(), cfg);
+            (apex, step, last)
+        }
     };
     let more = Fixed::from_f64(climb.max(0.0)).map_or(i32::MAX, |f| f.0);
     let limit = match under {
@@ -606,8 +622,9 @@ mod tests {
     }
 
     /// A placed player's state is settled from the ground at its spot:
-    /// standing there, a jump; in the air or over ground another node
-    /// judges, it may fall or stand a jump higher, not rise.
+    /// standing there, a jump; in the air, it may fall, not rise nor stand
+    /// higher; over ground another node judges, it may fall or stand a
+    /// jump higher, not rise.
     #[test]
     fn a_placed_player_is_settled_from_the_ground_at_its_spot() {
         let cfg = GravityConfig::default();
@@ -615,12 +632,17 @@ mod tests {
         let settle = || Ground::Top(0);
         assert!(check(placed, at(5.0), Ground::None, settle, 0.0, &cfg, no_walk).is_ok());
         let aloft = Some((Air::Unsettled, at(30.0)));
-        for under in [Ground::None, Ground::Unknown] {
+        for (under, stands_higher) in [(Ground::None, false), (Ground::Unknown, true)] {
             let settle = || under;
             assert!(check(aloft, at(30.5), Ground::None, settle, 0.0, &cfg, no_walk).is_err());
             assert!(check(aloft, at(29.0), Ground::None, settle, 0.0, &cfg, no_walk).is_ok());
-            assert!(check(aloft, at(34.0), Ground::Top(33), settle, 0.0, &cfg, no_walk).is_ok());
+            let ledge = check(aloft, at(34.0), Ground::Top(33), settle, 0.0, &cfg, no_walk);
+            assert_eq!(ledge.is_ok(), stands_higher, "{under:?}");
             assert!(check(aloft, at(34.5), Ground::Top(33), settle, 0.0, &cfg, no_walk).is_err());
+            assert_eq!(
+                settled(at(30.0), under, &cfg),
+                limits(30.0, if stands_higher { 34.0 } else { 30.0 })
+            );
         }
         // Over ground this node does not judge: nothing checked.
         let air = || Ground::None;

@@ -240,14 +240,23 @@ pub fn eye(feet: FixedVec3, cfg: &ValidationConfig) -> DVec3 {
     to_dvec3(feet) + DVec3::Y * cfg.eye_height
 }
 
-/// The voxels the body occupies that must not be solid: one above the feet, and the eye.
-pub fn body_voxels(feet: FixedVec3, cfg: &ValidationConfig) -> [VoxelPos; 2] {
+/// How far above the feet the body's lowest voxel is looked for, in
+/// voxels: the nearest to this point is the first voxel wholly above the
+/// feet, so the feet sink at most half a voxel into solid terrain (as
+/// `gravity::GROUND_SINK` lets them), and a one-voxel gap is never room
+/// for a body.
+pub const BODY_LOW: f64 = 0.5;
+
+/// The voxels the body occupies that must not be solid: the first above
+/// the feet, the one nearest a voxel above them, and the eye's.
+pub fn body_voxels(feet: FixedVec3, cfg: &ValidationConfig) -> [VoxelPos; 3] {
     body_at(to_dvec3(feet), cfg)
 }
 
 /// [`body_voxels`] of feet at any point (a point of a move's path).
-pub fn body_at(feet: DVec3, cfg: &ValidationConfig) -> [VoxelPos; 2] {
+pub fn body_at(feet: DVec3, cfg: &ValidationConfig) -> [VoxelPos; 3] {
     [
+        nearest_voxel(feet + DVec3::Y * BODY_LOW),
         nearest_voxel(feet + DVec3::Y),
         nearest_voxel(feet + DVec3::Y * cfg.eye_height),
     ]
@@ -264,7 +273,7 @@ fn open_sky(
     cfg: &ValidationConfig,
     path: &impl VoxelRead,
 ) -> Result<(), PositionReject> {
-    let [_, eye] = body_voxels(feet, cfg);
+    let [.., eye] = body_voxels(feet, cfg);
     let top = sky_top(eye, cfg);
     for y in eye.y.saturating_add(1)..=top {
         let v = VoxelPos::new(eye.x, y, eye.z);
@@ -285,7 +294,7 @@ fn sky_top(eye: VoxelPos, cfg: &ValidationConfig) -> i32 {
 /// The chunks [`open_sky`] reads above `feet`: the eye's column, up to the
 /// world's top row (at most [`MAX_SKY_CHUNKS`] rows above the eye's).
 pub fn sky_chunks(feet: FixedVec3, cfg: &ValidationConfig) -> impl Iterator<Item = ChunkPos> {
-    let [_, eye] = body_voxels(feet, cfg);
+    let [.., eye] = body_voxels(feet, cfg);
     let from = eye.chunk();
     let top = match cfg.spawn.open_sky {
         true => sky_top(eye, cfg).div_euclid(CHUNK_SIZE),
@@ -390,11 +399,20 @@ pub fn check(
     if prev.is_none() && cfg.spawn.open_sky {
         open_sky(upd.pos, cfg, path)?;
     }
+    // A state placed without a report (a resume, an arrival) is settled
+    // from the ground at its spot first: the way's hops are held to it too.
+    let prev_air = prev.map(|p| match (&ground, p.air) {
+        (Some(solid), Air::Unsettled) => {
+            gravity::settled(p.feet, gravity::ground(p.feet, solid), &cfg.gravity)
+        }
+        (_, air) => air,
+    });
     if let Some(p) = prev {
         // Held to the ground, no hop over a wall goes above the apex.
-        let apex = ground
-            .is_some()
-            .then(|| gravity::hop_ceiling(p.air, p.feet, &cfg.gravity));
+        let apex = ground.is_some().then(|| {
+            let air = prev_air.unwrap_or(p.air);
+            gravity::hop_ceiling(air, p.feet, &cfg.gravity)
+        });
         sweep::check(p.feet, upd.pos, cfg, path, apex)?;
     }
     let air = match ground {
@@ -407,7 +425,7 @@ pub fn check(
             });
             let under = gravity::ground(upd.pos, &solid);
             gravity::check(
-                prev.map(|p| (p.air, p.feet)),
+                prev.zip(prev_air).map(|(p, air)| (air, p.feet)),
                 upd.pos,
                 under,
                 || prev.map_or(gravity::Ground::None, |p| gravity::ground(p.feet, &solid)),

@@ -9,7 +9,7 @@ use strata_terrain::edit::FixedVec3;
 use strata_terrain::{ChunkPos, VoxelPos, VoxelRead};
 
 use super::config::ValidationConfig;
-use super::position::{nearest_voxel, to_dvec3, PositionReject};
+use super::position::{nearest_voxel, to_dvec3, PositionReject, BODY_LOW};
 
 /// Longest step between two points of a path that are checked, in voxels:
 /// a point crossing a voxel passes at least one sample inside it unless it
@@ -58,14 +58,15 @@ fn routes(from: DVec3, to: DVec3, cfg: &ValidationConfig, apex: Option<f64>) -> 
     out
 }
 
-/// The voxels a body with feet at `feet` passes through: nearest to one
-/// voxel above the feet, to each whole voxel above that below the eye, and
-/// to the eye (the position rule's two points, and what lies between
-/// them when `eye_height` is over 2).
+/// The voxels a body with feet at `feet` passes through: nearest to
+/// [`BODY_LOW`] and one voxel above the feet, to each whole voxel above
+/// that below the eye, and to the eye (the position rule's points, and
+/// what lies between them when `eye_height` is over 2).
 fn body_column(feet: DVec3, cfg: &ValidationConfig) -> impl Iterator<Item = VoxelPos> {
     let eye = cfg.eye_height;
     let steps = (2..).take_while(move |&k| f64::from(k) < eye);
-    std::iter::once(1.0)
+    [BODY_LOW, 1.0]
+        .into_iter()
         .chain(steps.map(f64::from))
         .chain(std::iter::once(eye))
         .map(move |dy| nearest_voxel(feet + DVec3::Y * dy))
@@ -111,10 +112,10 @@ pub fn chunks(from: FixedVec3, to: FixedVec3, cfg: &ValidationConfig) -> BTreeSe
 /// The chunks of the box that holds every voxel [`check`] may read for
 /// `a` → `b`, when there are at most [`BOX_CHUNKS`]: every way stays
 /// between the ends across, and between the lower end and the highest hop
-/// up and down, and the body reaches from the lower of one voxel and the
-/// eye above its feet to the higher.
+/// up and down, and the body reaches from the lower of [`BODY_LOW`] and the
+/// eye above its feet to the higher of one voxel and the eye.
 fn box_chunks(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> Option<BTreeSet<ChunkPos>> {
-    let (below, above) = (cfg.eye_height.min(1.0), cfg.eye_height.max(1.0));
+    let (below, above) = (cfg.eye_height.min(BODY_LOW), cfg.eye_height.max(1.0));
     // Padded: a point a way passes may be a rounding off the ends' range
     // (`lerp` of two equal coordinates), on the other side of a voxel's
     // half.
