@@ -866,6 +866,13 @@ impl ServerConfig {
             0.0,
             gr::MAX_JUMP_VOXELS,
         )?;
+        range("validation.gravity.hang_ms", g.hang_ms, 0, gr::MAX_HANG_MS)?;
+        range(
+            "validation.gravity.fall_voxels_per_s2",
+            g.fall_voxels_per_s2,
+            gr::FALL_RANGE.0,
+            gr::FALL_RANGE.1,
+        )?;
         let spawn = &self.validation.spawn;
         let max = crate::validate::spawn::MAX_SPAWN_COORD;
         range("validation.spawn.x", spawn.x, -max, max)?;

@@ -1448,3 +1448,41 @@ fn a_one_voxel_gap_is_no_way_through() {
         assert_eq!(here.is_ok(), gap > 0, "{name}: {here:?}");
     }
 }
+
+/// No one stays up: off the ground from the first report there, a player
+/// keeps its apex for `hang_ms`, then its limits sink as a fall would.
+/// Running on air at the apex is refused once the hang is over; coming
+/// down is not.
+#[test]
+fn a_player_off_the_ground_comes_down_after_the_hang() {
+    let mut s = ready(ValidationConfig::default());
+    let (x, z) = HOME;
+    let hang = ValidationConfig::default().gravity.hang_ms;
+    let t0 = 1_000;
+    // A jump: 4 above the feet (the ground's top voxel is at y = -1).
+    s.update_position(PLAYER, at(2, x, 4, z), t0).unwrap();
+    let mut refused = None;
+    for i in 1..40u32 {
+        let t = t0 + 100 * u64::from(i);
+        match s.update_position(PLAYER, at(2 + i, x + i as i32, 4, z), t) {
+            Ok(()) => assert!(t <= t0 + hang, "still up at {t}"),
+            Err(e) => {
+                assert!(matches!(e, PositionReject::TooHigh { .. }), "{e:?}");
+                refused = Some(t);
+                break;
+            }
+        }
+    }
+    let refused = refused.expect("refused at last");
+    assert!(
+        refused > t0 + hang && refused <= t0 + hang + 200,
+        "{refused}"
+    );
+    // Coming down (below the sunk limit) is fine, then standing again.
+    let held = s.position(PLAYER).unwrap().feet;
+    let down = PositionUpdate {
+        seq: 100,
+        pos: FixedVec3::from_f64([held.x.to_f64(), 0.0, held.z.to_f64()]).unwrap(),
+    };
+    s.update_position(PLAYER, down, refused + 100).unwrap();
+}

@@ -15,6 +15,19 @@ use super::position::PositionReject;
 pub const DEFAULT_JUMP_VOXELS: f64 = 4.0;
 /// Largest `jump_voxels` a config may set.
 pub const MAX_JUMP_VOXELS: f64 = 256.0;
+/// Default time a player may stay off the ground at its apex before it
+/// must sink, in ms: a whole jump, up and across, with room to spare.
+pub const DEFAULT_HANG_MS: u64 = 1_500;
+/// Largest `hang_ms` a config may set.
+pub const MAX_HANG_MS: u64 = 600_000;
+/// Default fall the limits assume past the hang, in voxels per second
+/// squared: well below any game's gravity (an honest fall is faster), so
+/// only a player that does not come down at all is refused.
+pub const DEFAULT_FALL_VOXELS_PER_S2: f64 = 8.0;
+/// Least and most `fall_voxels_per_s2` a config may set.
+pub const FALL_RANGE: (f64, f64) = (0.1, 1_000.0);
+/// Most a fall lowers the limits, in voxels: far below any world.
+const MAX_SINK_VOXELS: f64 = 1_048_576.0;
 
 /// How far below the feet a ground voxel may lie, in voxels: feet a
 /// little above the surface (a bot's stand on the top voxel's top, a
@@ -38,6 +51,10 @@ pub struct GravityConfig {
     pub enabled: bool,
     /// See [`DEFAULT_JUMP_VOXELS`].
     pub jump_voxels: f64,
+    /// See [`DEFAULT_HANG_MS`].
+    pub hang_ms: u64,
+    /// See [`DEFAULT_FALL_VOXELS_PER_S2`].
+    pub fall_voxels_per_s2: f64,
 }
 
 impl Default for GravityConfig {
@@ -45,6 +62,8 @@ impl Default for GravityConfig {
         Self {
             enabled: true,
             jump_voxels: DEFAULT_JUMP_VOXELS,
+            hang_ms: DEFAULT_HANG_MS,
+            fall_voxels_per_s2: DEFAULT_FALL_VOXELS_PER_S2,
         }
     }
 }
@@ -52,6 +71,16 @@ impl Default for GravityConfig {
 impl GravityConfig {
     fn jump(&self) -> i32 {
         Fixed::from_f64(self.jump_voxels).map_or(0, |f| f.0)
+    }
+
+    /// How far the limits of a player off the ground since `since` have
+    /// sunk at `now_ms` (raw fixed-point): nothing for [`Self::hang_ms`],
+    /// then a fall at [`Self::fall_voxels_per_s2`].
+    fn sink(&self, since: u64, now_ms: u64) -> i32 {
+        let falling = now_ms.saturating_sub(since).saturating_sub(self.hang_ms);
+        let t = falling as f64 / 1000.0;
+        let voxels = (0.5 * self.fall_voxels_per_s2 * t * t).min(MAX_SINK_VOXELS);
+        Fixed::from_f64(voxels).map_or(0, |f| f.0)
     }
 }
 
@@ -71,6 +100,10 @@ pub enum Air {
         /// The highest feet standing on something may be: the apex, or a
         /// jump above the spot when a jump was not known to be spent.
         step: Fixed,
+        /// When the first report off the ground came (ms), none while the
+        /// last report stood: from then on both limits sink as a fall would
+        /// after `hang_ms` (`GravityConfig::sink`), so no player hovers.
+        aloft_since: Option<u64>,
     },
 }
 
@@ -94,7 +127,11 @@ impl Air {
     /// up to the ground's reach above it gain nothing more).
     pub fn stood(feet: FixedVec3, top: i32, cfg: &GravityConfig) -> Self {
         let y = jump_from(feet, top, cfg);
-        Air::Limits { apex: y, step: y }
+        Air::Limits {
+            apex: y,
+            step: y,
+            aloft_since: None,
+        }
     }
 }
 
@@ -105,7 +142,11 @@ impl Air {
 /// a jump higher (its ground may lie over there), not rise off the ground.
 pub fn settled(last: FixedVec3, ground: Ground, cfg: &GravityConfig) -> Air {
     let (apex, step) = settled_limits(last, ground, cfg);
-    Air::Limits { apex, step }
+    Air::Limits {
+        apex,
+        step,
+        aloft_since: None,
+    }
 }
 
 /// [`settled`]'s apex and step.
@@ -120,11 +161,17 @@ fn settled_limits(last: FixedVec3, ground: Ground, cfg: &GravityConfig) -> (Fixe
     }
 }
 
-/// The highest the feet of a path's hop may go from `last` in state `air`:
-/// the apex, or a jump above an unsettled spot.
-pub fn hop_ceiling(air: Air, last: FixedVec3, cfg: &GravityConfig) -> f64 {
+/// The highest the feet of a path's hop may go from `last` in state `air`
+/// at `now_ms`: the apex (sunk, off the ground), or a jump above an
+/// unsettled spot.
+pub fn hop_ceiling(air: Air, last: FixedVec3, cfg: &GravityConfig, now_ms: u64) -> f64 {
     match air {
-        Air::Limits { apex, .. } => apex.to_f64(),
+        Air::Limits {
+            apex, aloft_since, ..
+        } => {
+            let sink = aloft_since.map_or(0, |since| cfg.sink(since, now_ms));
+            add(apex, -sink).to_f64()
+        }
         Air::Free | Air::Unsettled => add(last.y, cfg.jump()).to_f64(),
     }
 }
@@ -448,7 +495,11 @@ pub fn walk_chunks(from: FixedVec3, to: FixedVec3, eye: f64) -> Vec<ChunkPos> {
 /// given where the step's jump starts, finds ground the player could have
 /// walked to from there ([`walked_base`]) a jump below the feet: reports
 /// lost on the way up a slope. Over ground this node does not judge,
-/// nothing is checked and the state is unsettled again.
+/// nothing is checked and the state is unsettled again. Off the ground,
+/// both limits sink after the hang (`now_ms` against `aloft_since`).
+// The rule's inputs, each read lazily or not at all: no struct of them
+// would be reused.
+#[allow(clippy::too_many_arguments)]
 pub fn check(
     prev: Option<(Air, FixedVec3)>,
     feet: FixedVec3,
@@ -457,11 +508,12 @@ pub fn check(
     climb: f64,
     cfg: &GravityConfig,
     walk: impl FnOnce(f64) -> Option<f64>,
+    now_ms: u64,
 ) -> Result<Air, PositionReject> {
     if under == Ground::Unknown {
         return Ok(Air::Unsettled);
     }
-    let (apex, step, last) = match prev {
+    let (apex, step, last, aloft_since) = match prev {
         // A first position: anywhere in the spawn square, then as placed.
         None => match under {
             Ground::Top(top) => return Ok(Air::stood(feet, top, cfg)),
@@ -469,15 +521,27 @@ pub fn check(
                 return Ok(Air::Limits {
                     apex: feet.y,
                     step: feet.y,
+                    aloft_since: Some(now_ms),
                 })
             }
         },
-        Some((Air::Limits { apex, step }, last)) => (apex, step, last),
+        Some((
+            Air::Limits {
+                apex,
+                step,
+                aloft_since,
+            },
+            last,
+        )) => (apex, step, last, aloft_since),
         Some((Air::Free | Air::Unsettled, last)) => {
             let (apex, step) = settled_limits(last, settle(), cfg);
-            (apex, step, last)
+            (apex, step, last, None)
         }
     };
+    // Off the ground since the first report there (a player whose last
+    // report stood may have stood until now): the limits sink.
+    let sink = aloft_since.map_or(0, |since| cfg.sink(since, now_ms));
+    let (apex, step) = (add(apex, -sink), add(step, -sink));
     let more = Fixed::from_f64(climb.max(0.0)).map_or(i32::MAX, |f| f.0);
     let limit = match under {
         Ground::Top(_) => add(step, more),
@@ -496,12 +560,18 @@ pub fn check(
     Ok(match under {
         Ground::Top(top) => Air::stood(feet, top, cfg),
         _ => {
+            // Kept unsunk: the fall is counted from `aloft_since`.
+            let apex = add(apex, sink);
             let apex = if feet.y < last.y {
                 apex.min(last.y)
             } else {
                 apex
             };
-            Air::Limits { apex, step: apex }
+            Air::Limits {
+                apex,
+                step: apex,
+                aloft_since: Some(aloft_since.unwrap_or(now_ms)),
+            }
         }
     })
 }
@@ -543,6 +613,7 @@ mod tests {
             0.0,
             &GravityConfig::default(),
             no_walk,
+            0,
         )
     }
 
@@ -550,7 +621,68 @@ mod tests {
         Air::Limits {
             apex: Fixed::from_f64(apex).unwrap(),
             step: Fixed::from_f64(step).unwrap(),
+            aloft_since: None,
         }
+    }
+
+    /// [`limits`] off the ground since `since`.
+    fn aloft_since(apex: f64, step: f64, since: u64) -> Air {
+        match limits(apex, step) {
+            Air::Limits { apex, step, .. } => Air::Limits {
+                apex,
+                step,
+                aloft_since: Some(since),
+            },
+            other => other,
+        }
+    }
+
+    /// Off the ground, the limits hold for `hang_ms` from the first report
+    /// there, then sink as a fall: a player that stays up (hovering, or
+    /// running across a chasm on air) is refused; one that comes down, or
+    /// stands again, is not; standing, nothing sinks however long.
+    #[test]
+    fn off_the_ground_the_limits_sink_after_the_hang() {
+        let cfg = GravityConfig::default();
+        let (hang, g) = (cfg.hang_ms, cfg.fall_voxels_per_s2);
+        let report = |prev, y: f64, under, now| {
+            check(
+                Some((prev, at(4.0))),
+                at(y),
+                under,
+                none,
+                0.0,
+                &cfg,
+                no_walk,
+                now,
+            )
+        };
+        // Up from the ground at 1 to the apex at 5: the first report off
+        // the ground starts the clock.
+        let stood = limits(5.0, 5.0);
+        let up = report(stood, 5.0, Ground::None, 10_000).unwrap();
+        assert_eq!(up, aloft_since(5.0, 5.0, 10_000));
+        // At the apex to the end of the hang, not a moment past it.
+        assert!(report(up, 5.0, Ground::None, 10_000 + hang).is_ok());
+        let late = 10_000 + hang + 1_000;
+        let sunk = 5.0 - 0.5 * g;
+        assert_eq!(
+            report(up, 5.0, Ground::None, late),
+            Err(PositionReject::TooHigh { apex: sunk })
+        );
+        assert!(report(up, sunk, Ground::None, late).is_ok());
+        // Nor standing on a ledge at the apex, after hanging that long.
+        assert!(report(up, 5.0, Ground::Top(4), late).is_err());
+        // Standing again: nothing sinks, however long it stands.
+        let landed = report(up, 1.0, Ground::Top(0), late).unwrap();
+        assert_eq!(landed, limits(5.0, 5.0));
+        assert!(report(landed, 5.0, Ground::None, late + 60_000).is_ok());
+        // Falling, the state keeps the apex lowered to where the fall
+        // began, unsunk, and the clock's start.
+        assert_eq!(
+            report(up, 3.0, Ground::None, 10_000 + hang + 500),
+            Ok(aloft_since(4.0, 4.0, 10_000))
+        );
     }
 
     #[test]
@@ -583,9 +715,9 @@ mod tests {
         assert!(plain(Some((up, at(5.0))), at(5.5), Ground::Top(4)).is_err());
         // A fall lowers the apex to where it began.
         let down = plain(Some((up, at(5.0))), at(3.0), Ground::None).unwrap();
-        assert_eq!(down, limits(5.0, 5.0));
+        assert_eq!(down, aloft_since(5.0, 5.0, 0));
         let lower = plain(Some((down, at(3.0))), at(2.8), Ground::None).unwrap();
-        assert_eq!(lower, limits(3.0, 3.0));
+        assert_eq!(lower, aloft_since(3.0, 3.0, 0));
         assert!(plain(Some((lower, at(2.8))), at(3.5), Ground::None).is_err());
         // Standing again: a new jump.
         let landed = plain(Some((lower, at(2.8))), at(1.0), Ground::Top(0));
@@ -616,7 +748,8 @@ mod tests {
             none,
             8.0,
             &cfg,
-            no_walk
+            no_walk,
+            0
         )
         .is_ok());
     }
@@ -630,15 +763,34 @@ mod tests {
         let cfg = GravityConfig::default();
         let placed = Some((Air::Unsettled, at(1.0)));
         let settle = || Ground::Top(0);
-        assert!(check(placed, at(5.0), Ground::None, settle, 0.0, &cfg, no_walk).is_ok());
+        assert!(check(placed, at(5.0), Ground::None, settle, 0.0, &cfg, no_walk, 0).is_ok());
         let aloft = Some((Air::Unsettled, at(30.0)));
         for (under, stands_higher) in [(Ground::None, false), (Ground::Unknown, true)] {
             let settle = || under;
-            assert!(check(aloft, at(30.5), Ground::None, settle, 0.0, &cfg, no_walk).is_err());
-            assert!(check(aloft, at(29.0), Ground::None, settle, 0.0, &cfg, no_walk).is_ok());
-            let ledge = check(aloft, at(34.0), Ground::Top(33), settle, 0.0, &cfg, no_walk);
+            assert!(check(aloft, at(30.5), Ground::None, settle, 0.0, &cfg, no_walk, 0).is_err());
+            assert!(check(aloft, at(29.0), Ground::None, settle, 0.0, &cfg, no_walk, 0).is_ok());
+            let ledge = check(
+                aloft,
+                at(34.0),
+                Ground::Top(33),
+                settle,
+                0.0,
+                &cfg,
+                no_walk,
+                0,
+            );
             assert_eq!(ledge.is_ok(), stands_higher, "{under:?}");
-            assert!(check(aloft, at(34.5), Ground::Top(33), settle, 0.0, &cfg, no_walk).is_err());
+            assert!(check(
+                aloft,
+                at(34.5),
+                Ground::Top(33),
+                settle,
+                0.0,
+                &cfg,
+                no_walk,
+                0
+            )
+            .is_err());
             assert_eq!(
                 settled(at(30.0), under, &cfg),
                 limits(30.0, if stands_higher { 34.0 } else { 30.0 })
@@ -647,11 +799,14 @@ mod tests {
         // Over ground this node does not judge: nothing checked.
         let air = || Ground::None;
         assert_eq!(
-            check(aloft, at(99.0), Ground::Unknown, air, 0.0, &cfg, no_walk),
+            check(aloft, at(99.0), Ground::Unknown, air, 0.0, &cfg, no_walk, 0),
             Ok(Air::Unsettled)
         );
         // A first position in the air may only fall.
-        assert_eq!(plain(None, at(30.0), Ground::None), Ok(limits(30.0, 30.0)));
+        assert_eq!(
+            plain(None, at(30.0), Ground::None),
+            Ok(aloft_since(30.0, 30.0, 0))
+        );
     }
 
     /// Stairs east of x = 10: step `k` (x from 10 + 2k - 1 to 10 + 2k) is
@@ -701,6 +856,7 @@ mod tests {
                 0.0,
                 &cfg,
                 walk,
+                0,
             )
         };
         assert_eq!(report(&walk), Ok(limits(16.0, 16.0)));

@@ -411,7 +411,7 @@ pub fn check(
         // Held to the ground, no hop over a wall goes above the apex.
         let apex = ground.is_some().then(|| {
             let air = prev_air.unwrap_or(p.air);
-            gravity::hop_ceiling(air, p.feet, &cfg.gravity)
+            gravity::hop_ceiling(air, p.feet, &cfg.gravity, now_ms)
         });
         sweep::check(p.feet, upd.pos, cfg, path, apex)?;
     }
@@ -438,6 +438,7 @@ pub fn check(
                     let eye = cfg.eye_height;
                     gravity::walked_base(p.feet, upd.pos, top, base, eye, &solid, &cfg.gravity)
                 },
+                now_ms,
             )?
         }
         None => Air::Free,
