@@ -236,13 +236,15 @@ fn bad_arguments_fail_without_output() {
         })
         .count();
     assert_eq!(strays, 0, "no temporary file left behind");
-    // What a killed run left (its process gone: no pid is that large) is
-    // removed by the next export beside it; a running writer's is kept.
-    let (gone, running) = (u32::MAX, std::process::id());
-    let stale = dir.join(format!(".strata-out-{gone}-AbC123"));
-    let live = dir.join(format!(".strata-out-{running}-AbC123"));
+    // What a killed run left (nobody holds it) is removed by the next
+    // export beside it; a running writer's (held: `stale_outputs::hold`)
+    // is kept, whatever process id its name carries.
+    let stale = dir.join(".strata-out-7-AbC123");
+    let live = dir.join(".strata-out-7-XyZ789");
     std::fs::write(&stale, b"half a mesh").unwrap();
     std::fs::write(&live, b"a mesh being written").unwrap();
+    let writer = std::fs::File::options().write(true).open(&live).unwrap();
+    strata_server::admin::stale_outputs::hold(&writer).unwrap();
     let out = run(ply.to_str().unwrap(), &["0", "0", "0", "0"], &[]);
     assert!(
         out.status.success(),
@@ -253,4 +255,5 @@ fn bad_arguments_fail_without_output() {
     assert!(!stale.exists(), "a dead writer's staged file is removed");
     assert!(live.exists(), "a running writer's is kept");
     assert!(String::from_utf8_lossy(&out.stderr).contains("left unfinished"));
+    drop(writer);
 }

@@ -1214,7 +1214,8 @@ fn a_restore_into_a_data_dir_without_its_world_is_tried_again() {
 const FULL_DISK_FAILS_WITHIN: std::time::Duration = std::time::Duration::from_secs(60);
 
 /// A small tmpfs, unmounted when dropped; `None` where mounting is not
-/// allowed (not root, a container without the capability).
+/// allowed (not root, a container without the capability): the test then
+/// says it did not run, and fails under CI (`strata_tests::not_run`).
 struct SmallDisk(PathBuf);
 
 impl SmallDisk {
@@ -1250,7 +1251,11 @@ impl Drop for SmallDisk {
 fn a_restore_onto_a_full_disk_fails_and_leaves_the_old_world() {
     let tmp = tempfile::tempdir().unwrap();
     let Some(disk) = SmallDisk::mount(tmp.path(), "3m") else {
-        eprintln!("a_restore_onto_a_full_disk_fails_and_leaves_the_old_world: not run (cannot mount a tmpfs)");
+        let _: Option<()> = strata_tests::not_run(
+            "a_restore_onto_a_full_disk_fails_and_leaves_the_old_world",
+            "a 3 MiB tmpfs",
+            "mount -t tmpfs failed (it needs root)",
+        );
         return;
     };
     let small = snapshot(tmp.path(), "small.snap", &header(9), 3);

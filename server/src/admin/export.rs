@@ -163,9 +163,9 @@ pub fn write_mesh(
 pub const OUTPUT_MODE: u32 = 0o644;
 
 /// A temporary file next to `out` (same directory, so it can be renamed
-/// onto `out` once complete): outputs never appear half-written. Its name
-/// carries this process's id, and those a killed run left are removed
-/// first (`stale_outputs`).
+/// onto `out` once complete): outputs never appear half-written. It is
+/// held (`stale_outputs::hold`) while written, and those a killed run
+/// left, which nobody holds, are removed first.
 pub fn stage_output(out: &Path) -> std::io::Result<tempfile::NamedTempFile> {
     super::stale_outputs::clear_for(out);
     let dir = super::stale_outputs::dir_of(out);
@@ -175,6 +175,8 @@ pub fn stage_output(out: &Path) -> std::io::Result<tempfile::NamedTempFile> {
         std::process::id()
     );
     let tmp = tempfile::Builder::new().prefix(&prefix).tempfile_in(dir)?;
+    // Held until renamed into place: no other run takes it for a stale one.
+    super::stale_outputs::hold(tmp.as_file())?;
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;

@@ -128,7 +128,11 @@ fn create_partial(out: &Path) -> anyhow::Result<(PathBuf, File)> {
         let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let tmp = with_suffix(out, &format!(".{}-{n}.partial", std::process::id()));
         match File::create_new(&tmp) {
-            Ok(file) => return Ok((tmp, file)),
+            Ok(file) => {
+                super::stale_outputs::hold(&file)
+                    .with_context(|| format!("locking {}", tmp.display()))?;
+                return Ok((tmp, file));
+            }
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
             Err(e) => return Err(e).with_context(|| format!("creating {}", tmp.display())),
         }
@@ -142,10 +146,19 @@ pub(crate) fn write_atomically(
 ) -> anyhow::Result<Created> {
     let (tmp, file) = create_partial(out)?;
     let result = f(BufWriter::new(file)).and_then(|(w, created)| {
-        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-        Ok(created)
+        let file = w.into_inner().map_err(|e| e.into_error())?;
+        file.sync_all()?;
+        Ok((created, file))
     });
-    settle(&tmp, out, result)
+    // Held (`stale_outputs::hold`) until renamed into place or removed.
+    match result {
+        Ok((created, file)) => {
+            let settled = settle(&tmp, out, Ok(created));
+            drop(file);
+            settled
+        }
+        Err(e) => settle(&tmp, out, Err(e)),
+    }
 }
 
 /// Renames a complete (synced) `.partial` file into place and syncs its

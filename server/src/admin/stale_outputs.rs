@@ -1,13 +1,24 @@
 //! Output files a killed writer left unfinished: a snapshot's `.partial`
 //! (`OUT.PID-N.partial`, `snapshot_cmd::write_atomically`) and an export's
-//! staged file (`.strata-out-PID-*`, `export::stage_output`). Each names
-//! its writer's process id, so a later writer removes those whose process
-//! is gone: no run after a Ctrl-C or a kill ever finishes them.
+//! staged file (`.strata-out-PID-*`, `export::stage_output`). A writer
+//! holds an exclusive `flock` on its file until it is renamed into place,
+//! so a later writer removes those it can lock: no run after a Ctrl-C or
+//! a kill ever finishes them, and one still writing (in this process, or
+//! another, whatever its process id says: containers share ids) keeps its
+//! file.
 
+use std::fs::File;
 use std::path::{Path, PathBuf};
+
+use fs2::FileExt;
 
 /// Prefix of an export's staged output; the writer's id follows.
 pub const STAGED_PREFIX: &str = ".strata-out-";
+
+/// Marks `file` as being written: held until it is dropped.
+pub fn hold(file: &File) -> std::io::Result<()> {
+    file.try_lock_exclusive()
+}
 
 /// `(BASE, PID)` when `name` is `BASE.PID-N.partial`.
 pub fn partial_writer(name: &str) -> Option<(&str, u32)> {
@@ -24,24 +35,10 @@ pub fn staged_writer(name: &str) -> Option<u32> {
     pid.parse().ok()
 }
 
-/// Whether the process `pid` may still be writing its file: this process
-/// is not (a caller makes its own outputs one at a time, and calls this
-/// before it starts one), others are while they run. Where that cannot be
-/// told, yes.
-pub fn may_still_write(pid: u32) -> bool {
-    if pid == std::process::id() {
-        return false;
-    }
-    if cfg!(target_os = "linux") {
-        Path::new("/proc").join(pid.to_string()).exists()
-    } else {
-        true
-    }
-}
-
-/// Removes the files in `dir` that `writer_of` names as some process's
-/// unfinished output and whose process is gone; returns each with the
-/// outcome of its removal. A directory that does not list removes nothing.
+/// Removes the files in `dir` that `writer_of` names as some writer's
+/// unfinished output and that no writer holds ([`hold`]); returns each
+/// with the outcome of its removal. A directory that does not list
+/// removes nothing.
 pub fn remove_stale(
     dir: &Path,
     writer_of: impl Fn(&str) -> Option<u32>,
@@ -51,16 +48,15 @@ pub fn remove_stale(
     };
     entries
         .filter_map(Result::ok)
-        .filter(|e| {
-            e.file_name()
-                .to_str()
-                .and_then(&writer_of)
-                .is_some_and(|pid| !may_still_write(pid))
-        })
-        .map(|e| {
+        .filter(|e| e.file_name().to_str().and_then(&writer_of).is_some())
+        .filter_map(|e| {
             let path = e.path();
+            // Held while it is removed: a writer cannot take it meanwhile.
+            let file = File::options().read(true).open(&path).ok()?;
+            file.try_lock_exclusive().ok()?;
             let removed = std::fs::remove_file(&path);
-            (path, removed)
+            drop(file);
+            Some((path, removed))
         })
         .collect()
 }
@@ -119,32 +115,41 @@ mod tests {
     }
 
     #[test]
-    fn only_a_gone_writers_files_of_this_output_are_removed() {
+    fn only_unheld_files_of_this_output_are_removed() {
         let dir = tempfile::tempdir().unwrap();
-        let ours = std::process::id();
-        // No such process (above Linux's largest pid), and one that runs.
-        let (gone, running) = (u32::MAX, 1);
         let names = [
-            format!("w.snap.{gone}-0.partial"),
-            format!("w.snap.{ours}-3.partial"),
-            format!("{STAGED_PREFIX}{gone}-x1"),
-            format!("w.snap.{running}-0.partial"),
-            format!("other.snap.{gone}-0.partial"),
-            format!("{STAGED_PREFIX}{running}-x2"),
-            "w.snap".to_string(),
-            "w.snap.partial".to_string(),
+            "w.snap.7-0.partial",
+            ".strata-out-7-x1",
+            "w.snap.1-0.partial",
+            "other.snap.7-0.partial",
+            ".strata-out-1-x2",
+            "w.snap",
+            "w.snap.partial",
         ];
-        for n in &names {
+        for n in names {
             std::fs::write(dir.path().join(n), b"x").unwrap();
         }
+        // Two writers still at work (their process ids say nothing).
+        let held: Vec<File> = ["w.snap.1-0.partial", ".strata-out-1-x2"]
+            .iter()
+            .map(|n| {
+                let f = File::options()
+                    .write(true)
+                    .open(dir.path().join(n))
+                    .unwrap();
+                hold(&f).unwrap();
+                f
+            })
+            .collect();
         clear_for(&dir.path().join("w.snap"));
         let mut left: Vec<String> = std::fs::read_dir(dir.path())
             .unwrap()
             .map(|e| e.unwrap().file_name().into_string().unwrap())
             .collect();
         left.sort();
-        let mut want = names[3..].to_vec();
+        let mut want: Vec<String> = names[2..].iter().map(|s| s.to_string()).collect();
         want.sort();
         assert_eq!(left, want);
+        drop(held);
     }
 }

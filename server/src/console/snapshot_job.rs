@@ -419,29 +419,33 @@ mod tests {
     #[test]
     fn partial_files_of_snapshots_cut_short_are_removed_and_nothing_else() {
         let dir = tempfile::tempdir().unwrap();
-        let ours = std::process::id();
-        // No such process (above Linux's largest pid), and one that runs.
-        let (gone, running) = (u32::MAX, 1);
         let names = [
-            format!("strata-seq5-100.snap.{ours}-3.partial"),
-            format!("strata-seq7-200.snap.{gone}-0.partial"),
-            format!("strata-seq7-200.snap.{running}-0.partial"),
-            "strata-seq5-100.snap".to_string(),
-            format!("world.snap.{gone}-0.partial"),
-            "strata-seq5-100.snap.partial".to_string(),
+            "strata-seq5-100.snap.9-3.partial",
+            "strata-seq7-200.snap.9-0.partial",
+            "strata-seq7-300.snap.9-0.partial",
+            "strata-seq5-100.snap",
+            "world.snap.9-0.partial",
+            "strata-seq5-100.snap.partial",
         ];
-        for n in &names {
+        for n in names {
             std::fs::write(dir.path().join(n), b"x").unwrap();
         }
+        // One still being written: its writer holds it.
+        let held = std::fs::File::options()
+            .write(true)
+            .open(dir.path().join(names[2]))
+            .unwrap();
+        stale_outputs::hold(&held).unwrap();
         remove_stale_partials(dir.path());
         let mut left: Vec<String> = std::fs::read_dir(dir.path())
             .unwrap()
             .map(|e| e.unwrap().file_name().into_string().unwrap())
             .collect();
         left.sort();
-        let mut want = names[2..].to_vec();
+        let mut want: Vec<String> = names[2..].iter().map(|s| s.to_string()).collect();
         want.sort();
         assert_eq!(left, want);
+        drop(held);
     }
 
     #[tokio::test]

@@ -471,10 +471,10 @@ impl Sequencer {
     /// is refused before its way is read: none of the way's chunks.
     fn position_reads(&self, session_id: u64, upd: &PositionUpdate) -> Vec<ChunkPos> {
         let cfg = &self.validation;
-        let body = position::body_voxels(upd.pos, cfg);
+        let body = position::body_reads(upd.pos, cfg);
         let mut chunks: Vec<ChunkPos> = body.iter().map(|v| v.chunk()).collect();
         let buried = body.iter().all(|v| self.is_resident(v.chunk()))
-            && body.iter().any(|v| self.world.voxel(*v).is_solid());
+            && position::body_blocked(&self.world, upd.pos, cfg).is_some();
         if buried {
             return chunks;
         }

@@ -294,8 +294,8 @@ pub(super) struct Replayed {
 }
 
 /// Applies the deltas past `version` to `chunk` in order, as `deltas`
-/// yields them (the store's scan, in version order), the first `limit` of
-/// them. `Err(Moved)` when they do not start at `version` (a fold ran
+/// yields them (the store's scan, in version order), as far as the first
+/// `limit` of them (stale ones below `version` included). `Err(Moved)` when they do not start at `version` (a fold ran
 /// between the reads). A chain that breaks further on is damage, unless
 /// the reads were torn ([`settle`]). Only a fold (a bounded `limit`) keeps
 /// the versions read.
@@ -314,11 +314,8 @@ pub(super) fn replay(
     };
     // The last applied delta's target version and hash.
     let mut prev: Option<(u64, u64)> = None;
-    let mut applied = 0;
-    for d in deltas {
-        if applied == limit {
-            break;
-        }
+    // Stale ones count too: a fold's keys and transaction stay bounded.
+    for d in deltas.take(limit) {
         let d = d?;
         if d.to_version <= version {
             // Left behind by a whole-chunk write: a fold removes it.
@@ -353,7 +350,6 @@ pub(super) fn replay(
         })?;
         out.version = d.to_version;
         prev = Some((d.to_version, d.target_hash));
-        applied += 1;
         if keep {
             out.read.push(d.to_version);
         }
@@ -429,13 +425,18 @@ mod tests {
             deltas.push(ChunkDelta::encode(pos, v as u64, v as u64 + 1, a, b).unwrap());
         }
         let scan = || deltas.clone().into_iter().map(Ok);
-        let r = settle(replay(pos, 3, states[0].clone(), scan(), 2), false)
+        let r = settle(replay(pos, 3, states[0].clone(), scan(), 3), false)
             .unwrap()
             .unwrap();
         assert_eq!(
             (r.version, &r.chunk, r.read),
             (5, &states[2], vec![2, 4, 5])
         );
+        // The stale one counts: a limit of 1 reads only it.
+        let r = settle(replay(pos, 3, states[0].clone(), scan(), 1), false)
+            .unwrap()
+            .unwrap();
+        assert_eq!((r.version, r.read), (3, vec![2]));
         let r = settle(replay(pos, 3, states[0].clone(), scan(), usize::MAX), false)
             .unwrap()
             .unwrap();

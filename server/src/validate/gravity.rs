@@ -100,11 +100,29 @@ pub enum Air {
         /// The highest feet standing on something may be: the apex, or a
         /// jump above the spot when a jump was not known to be spent.
         step: Fixed,
-        /// When the first report off the ground came (ms), none while the
-        /// last report stood: from then on both limits sink as a fall would
-        /// after `hang_ms` (`GravityConfig::sink`), so no player hovers.
-        aloft_since: Option<u64>,
+        /// Off the ground: when the first report there came (ms), and the
+        /// apex then. Past `hang_ms` no report is higher than that apex
+        /// less a fall from it (`GravityConfig::sink`), so no player
+        /// hovers; `None` while the last report stood.
+        aloft: Option<Aloft>,
     },
+}
+
+/// When a player left the ground, as [`Air::Limits`] holds it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Aloft {
+    /// The first report off the ground (ms).
+    pub since: u64,
+    /// The apex then: the height a fall past the hang is counted from.
+    pub top: Fixed,
+}
+
+impl Aloft {
+    /// The highest feet may be at `now_ms`: `top` less the fall past the
+    /// hang.
+    fn ceiling(self, now_ms: u64, cfg: &GravityConfig) -> Fixed {
+        add(self.top, -cfg.sink(self.since, now_ms))
+    }
 }
 
 /// What lies under feet: the top of the ground (`y` of its highest solid
@@ -130,7 +148,7 @@ impl Air {
         Air::Limits {
             apex: y,
             step: y,
-            aloft_since: None,
+            aloft: None,
         }
     }
 }
@@ -145,7 +163,7 @@ pub fn settled(last: FixedVec3, ground: Ground, cfg: &GravityConfig) -> Air {
     Air::Limits {
         apex,
         step,
-        aloft_since: None,
+        aloft: None,
     }
 }
 
@@ -166,11 +184,9 @@ fn settled_limits(last: FixedVec3, ground: Ground, cfg: &GravityConfig) -> (Fixe
 /// unsettled spot.
 pub fn hop_ceiling(air: Air, last: FixedVec3, cfg: &GravityConfig, now_ms: u64) -> f64 {
     match air {
-        Air::Limits {
-            apex, aloft_since, ..
-        } => {
-            let sink = aloft_since.map_or(0, |since| cfg.sink(since, now_ms));
-            add(apex, -sink).to_f64()
+        Air::Limits { apex, aloft, .. } => {
+            let ceiling = aloft.map_or(apex, |a| a.ceiling(now_ms, cfg));
+            apex.min(ceiling).to_f64()
         }
         Air::Free | Air::Unsettled => add(last.y, cfg.jump()).to_f64(),
     }
@@ -496,7 +512,7 @@ pub fn walk_chunks(from: FixedVec3, to: FixedVec3, eye: f64) -> Vec<ChunkPos> {
 /// walked to from there ([`walked_base`]) a jump below the feet: reports
 /// lost on the way up a slope. Over ground this node does not judge,
 /// nothing is checked and the state is unsettled again. Off the ground,
-/// both limits sink after the hang (`now_ms` against `aloft_since`).
+/// both limits sink after the hang (`now_ms` against [`Aloft`]).
 // The rule's inputs, each read lazily or not at all: no struct of them
 // would be reused.
 #[allow(clippy::too_many_arguments)]
@@ -513,7 +529,7 @@ pub fn check(
     if under == Ground::Unknown {
         return Ok(Air::Unsettled);
     }
-    let (apex, step, last, aloft_since) = match prev {
+    let (apex, step, last, aloft) = match prev {
         // A first position: anywhere in the spawn square, then as placed.
         None => match under {
             Ground::Top(top) => return Ok(Air::stood(feet, top, cfg)),
@@ -521,31 +537,31 @@ pub fn check(
                 return Ok(Air::Limits {
                     apex: feet.y,
                     step: feet.y,
-                    aloft_since: Some(now_ms),
+                    aloft: Some(Aloft {
+                        since: now_ms,
+                        top: feet.y,
+                    }),
                 })
             }
         },
-        Some((
-            Air::Limits {
-                apex,
-                step,
-                aloft_since,
-            },
-            last,
-        )) => (apex, step, last, aloft_since),
+        Some((Air::Limits { apex, step, aloft }, last)) => (apex, step, last, aloft),
         Some((Air::Free | Air::Unsettled, last)) => {
             let (apex, step) = settled_limits(last, settle(), cfg);
             (apex, step, last, None)
         }
     };
     // Off the ground since the first report there (a player whose last
-    // report stood may have stood until now): the limits sink.
-    let sink = aloft_since.map_or(0, |since| cfg.sink(since, now_ms));
-    let (apex, step) = (add(apex, -sink), add(step, -sink));
+    // report stood may have stood until now): no higher than a fall from
+    // the apex then allows.
+    let ceiling = aloft.map(|a| a.ceiling(now_ms, cfg));
+    let (apex_now, step_now) = match ceiling {
+        Some(c) => (apex.min(c), step.min(c)),
+        None => (apex, step),
+    };
     let more = Fixed::from_f64(climb.max(0.0)).map_or(i32::MAX, |f| f.0);
     let limit = match under {
-        Ground::Top(_) => add(step, more),
-        _ => apex,
+        Ground::Top(_) => add(step_now, more),
+        _ => apex_now,
     };
     if feet.y > limit {
         let base = add(step, -cfg.jump()).to_f64();
@@ -560,8 +576,9 @@ pub fn check(
     Ok(match under {
         Ground::Top(top) => Air::stood(feet, top, cfg),
         _ => {
-            // Kept unsunk: the fall is counted from `aloft_since`.
-            let apex = add(apex, sink);
+            // A fall lowers the apex to where it began; the clock and the
+            // apex it counts a fall from stay as the first report off the
+            // ground set them.
             let apex = if feet.y < last.y {
                 apex.min(last.y)
             } else {
@@ -570,7 +587,10 @@ pub fn check(
             Air::Limits {
                 apex,
                 step: apex,
-                aloft_since: Some(aloft_since.unwrap_or(now_ms)),
+                aloft: Some(aloft.unwrap_or(Aloft {
+                    since: now_ms,
+                    top: apex,
+                })),
             }
         }
     })
@@ -621,17 +641,20 @@ mod tests {
         Air::Limits {
             apex: Fixed::from_f64(apex).unwrap(),
             step: Fixed::from_f64(step).unwrap(),
-            aloft_since: None,
+            aloft: None,
         }
     }
 
-    /// [`limits`] off the ground since `since`.
-    fn aloft_since(apex: f64, step: f64, since: u64) -> Air {
+    /// [`limits`] off the ground since `since`, a fall counted from `top`.
+    fn aloft_since(apex: f64, step: f64, since: u64, top: f64) -> Air {
         match limits(apex, step) {
             Air::Limits { apex, step, .. } => Air::Limits {
                 apex,
                 step,
-                aloft_since: Some(since),
+                aloft: Some(Aloft {
+                    since,
+                    top: Fixed::from_f64(top).unwrap(),
+                }),
             },
             other => other,
         }
@@ -661,7 +684,7 @@ mod tests {
         // the ground starts the clock.
         let stood = limits(5.0, 5.0);
         let up = report(stood, 5.0, Ground::None, 10_000).unwrap();
-        assert_eq!(up, aloft_since(5.0, 5.0, 10_000));
+        assert_eq!(up, aloft_since(5.0, 5.0, 10_000, 5.0));
         // At the apex to the end of the hang, not a moment past it.
         assert!(report(up, 5.0, Ground::None, 10_000 + hang).is_ok());
         let late = 10_000 + hang + 1_000;
@@ -681,8 +704,41 @@ mod tests {
         // began, unsunk, and the clock's start.
         assert_eq!(
             report(up, 3.0, Ground::None, 10_000 + hang + 500),
-            Ok(aloft_since(4.0, 4.0, 10_000))
+            Ok(aloft_since(4.0, 4.0, 10_000, 5.0))
         );
+    }
+
+    /// A long honest fall, slower than any game's, is never refused, nor
+    /// the landing and the reports after it: a fall is counted once, from
+    /// the apex when the player left the ground.
+    #[test]
+    fn a_long_fall_and_its_landing_are_never_refused() {
+        let cfg = GravityConfig::default();
+        let (g, start) = (9.8, 60.0);
+        let mut state = plain(None, at(start), Ground::None).unwrap();
+        let mut last = at(start);
+        let mut landed = false;
+        for i in 1..=200u64 {
+            let t = i as f64 * 0.05;
+            let y = (start - 0.5 * g * t * t).max(1.0);
+            let feet = at(y);
+            let under = ground(feet, world);
+            let r = check(
+                Some((state, last)),
+                feet,
+                under,
+                none,
+                0.0,
+                &cfg,
+                no_walk,
+                i * 50,
+            );
+            state = r.unwrap_or_else(|e| panic!("at {t:.2} s, y {y:.2}: {e:?}"));
+            last = feet;
+            landed |= matches!(under, Ground::Top(_));
+        }
+        assert!(landed);
+        assert_eq!(state, limits(5.0, 5.0));
     }
 
     #[test]
@@ -715,9 +771,9 @@ mod tests {
         assert!(plain(Some((up, at(5.0))), at(5.5), Ground::Top(4)).is_err());
         // A fall lowers the apex to where it began.
         let down = plain(Some((up, at(5.0))), at(3.0), Ground::None).unwrap();
-        assert_eq!(down, aloft_since(5.0, 5.0, 0));
+        assert_eq!(down, aloft_since(5.0, 5.0, 0, 5.0));
         let lower = plain(Some((down, at(3.0))), at(2.8), Ground::None).unwrap();
-        assert_eq!(lower, aloft_since(3.0, 3.0, 0));
+        assert_eq!(lower, aloft_since(3.0, 3.0, 0, 5.0));
         assert!(plain(Some((lower, at(2.8))), at(3.5), Ground::None).is_err());
         // Standing again: a new jump.
         let landed = plain(Some((lower, at(2.8))), at(1.0), Ground::Top(0));
@@ -805,7 +861,7 @@ mod tests {
         // A first position in the air may only fall.
         assert_eq!(
             plain(None, at(30.0), Ground::None),
-            Ok(aloft_since(30.0, 30.0, 0))
+            Ok(aloft_since(30.0, 30.0, 0, 30.0))
         );
     }
 

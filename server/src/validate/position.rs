@@ -242,13 +242,66 @@ pub fn eye(feet: FixedVec3, cfg: &ValidationConfig) -> DVec3 {
 
 /// How far above the feet the body's lowest voxel is looked for, in
 /// voxels: the nearest to this point is the first voxel wholly above the
-/// feet, so the feet sink at most half a voxel into solid terrain (as
-/// `gravity::GROUND_SINK` lets them), and a one-voxel gap is never room
-/// for a body.
+/// feet. It is judged by the surface in its column ([`low_blocks`]), so
+/// feet on a slope stand while feet sunk under a wall's lowest voxel do
+/// not: a one-voxel gap is never room for a body.
 pub const BODY_LOW: f64 = 0.5;
+/// How far the feet may be below the surface in the body's column, in
+/// voxels (as `gravity::GROUND_SINK` lets them stand).
+pub const BODY_SINK: f64 = 0.5;
 
-/// The voxels the body occupies that must not be solid: the first above
-/// the feet, the one nearest a voxel above them, and the eye's.
+/// Whether the body's lowest voxel `low` (the first wholly above feet at
+/// height `feet_y`) is in the way: solid, and the surface in its column,
+/// where the density crosses the threshold between it and the voxel above
+/// (as the mesh's surface does), more than [`BODY_SINK`] above the feet.
+/// Reads `low` and the voxel above it (air above `max_y`, the world's top).
+pub fn low_blocks(voxels: &impl VoxelRead, low: VoxelPos, feet_y: f64, max_y: i32) -> bool {
+    let here = voxels.voxel(low);
+    if !here.is_solid() {
+        return false;
+    }
+    let over = VoxelPos::new(low.x, low.y.saturating_add(1), low.z);
+    let above = match over.y > max_y {
+        true => strata_terrain::Voxel::AIR,
+        false => voxels.voxel(over),
+    };
+    if above.is_solid() {
+        return true;
+    }
+    let (d, up) = (f64::from(here.density), f64::from(above.density));
+    let surface = f64::from(low.y) + (d - SURFACE_DENSITY) / (d - up);
+    surface - feet_y > BODY_SINK
+}
+
+/// The density the surface passes through (between solid and air).
+const SURFACE_DENSITY: f64 = 127.5;
+
+/// The first of the body's voxels at `feet` in the way: the lowest judged
+/// by [`low_blocks`], the others solid.
+pub fn body_blocked(
+    voxels: &impl VoxelRead,
+    feet: FixedVec3,
+    cfg: &ValidationConfig,
+) -> Option<VoxelPos> {
+    let [low, mid, eye] = body_voxels(feet, cfg);
+    if low_blocks(voxels, low, feet.y.to_f64(), cfg.bounds.max_y) {
+        return Some(low);
+    }
+    [mid, eye].into_iter().find(|v| voxels.voxel(*v).is_solid())
+}
+
+/// The voxels [`body_blocked`] may read at `feet`: the body's and the one
+/// above its lowest (when in the world).
+pub fn body_reads(feet: FixedVec3, cfg: &ValidationConfig) -> Vec<VoxelPos> {
+    let [low, mid, eye] = body_voxels(feet, cfg);
+    let over = VoxelPos::new(low.x, low.y.saturating_add(1), low.z);
+    let over = (over.y <= cfg.bounds.max_y).then_some(over);
+    [low, mid, eye].into_iter().chain(over).collect()
+}
+
+/// The voxels the body occupies: the first wholly above the feet (judged
+/// by [`low_blocks`]), the one nearest a voxel above them, and the eye's
+/// (which must not be solid).
 pub fn body_voxels(feet: FixedVec3, cfg: &ValidationConfig) -> [VoxelPos; 3] {
     body_at(to_dvec3(feet), cfg)
 }
@@ -391,10 +444,8 @@ pub fn check(
     ground: Option<impl Fn(VoxelPos) -> Option<bool>>,
 ) -> Result<ValidatedPosition, PositionReject> {
     let slack_milli = check_motion(prev, upd, now_ms, cfg)?;
-    for v in body_voxels(upd.pos, cfg) {
-        if voxels.voxel(v).is_solid() {
-            return Err(PositionReject::InsideSolid { voxel: v });
-        }
+    if let Some(voxel) = body_blocked(voxels, upd.pos, cfg) {
+        return Err(PositionReject::InsideSolid { voxel });
     }
     if prev.is_none() && cfg.spawn.open_sky {
         open_sky(upd.pos, cfg, path)?;
@@ -455,4 +506,67 @@ pub fn check(
         grace_ms: 0,
         air,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use strata_terrain::Voxel;
+
+    use super::*;
+
+    /// Smooth terrain whose surface is `y = slope * x + 0.74` (a
+    /// generator's density ramp: 128 at the surface, 48 a voxel), and a
+    /// wall of whole voxels at x = 40 with a one-voxel window at y = 30.
+    struct Slope(f64);
+
+    impl VoxelRead for Slope {
+        fn voxel(&self, p: VoxelPos) -> Voxel {
+            if p.x == 40 {
+                return if p.y == 30 {
+                    Voxel::AIR
+                } else {
+                    Voxel::solid(1)
+                };
+            }
+            let h = self.0 * f64::from(p.x) + 0.74;
+            let d = (128.0 + 48.0 * (h - f64::from(p.y))).clamp(0.0, 255.0);
+            Voxel::new(d as u8, 1)
+        }
+    }
+
+    /// Feet on the surface of slopes up to 45° stand wherever they are
+    /// across a voxel (the body's column is the nearest, up to half a
+    /// voxel uphill); feet under a window's sill do not.
+    #[test]
+    fn feet_on_a_slope_stand_and_feet_sunk_under_a_sill_do_not() {
+        let cfg = ValidationConfig::default();
+        for slope in [0.18, 0.577, 1.0] {
+            let world = Slope(slope);
+            for i in 0..400 {
+                let x = 5.0 + f64::from(i) * 0.0625;
+                let y = slope * x + 0.74;
+                let feet = FixedVec3::from_f64([x, y, 0.3]).unwrap();
+                assert_eq!(
+                    body_blocked(&world, feet, &cfg),
+                    None,
+                    "slope {slope} at {x}, {y}"
+                );
+            }
+        }
+        // The wall: solid at y = 29 and from 31, air at 30. Feet 0.25
+        // under the sill's top voxel (its surface at 29.5) are 0.75 below
+        // it: the window is no room for a body.
+        let world = Slope(0.0);
+        let sunk = FixedVec3::from_f64([40.0, 28.75, 0.0]).unwrap();
+        assert_eq!(
+            body_blocked(&world, sunk, &cfg),
+            Some(VoxelPos::new(40, 29, 0))
+        );
+        // Standing on the sill, the head is in the wall above it.
+        let low = FixedVec3::from_f64([40.0, 29.0, 0.0]).unwrap();
+        assert_eq!(
+            body_blocked(&world, low, &cfg),
+            Some(VoxelPos::new(40, 31, 0))
+        );
+    }
 }

@@ -9,7 +9,7 @@ use strata_terrain::edit::FixedVec3;
 use strata_terrain::{ChunkPos, VoxelPos, VoxelRead};
 
 use super::config::ValidationConfig;
-use super::position::{nearest_voxel, to_dvec3, PositionReject, BODY_LOW};
+use super::position::{low_blocks, nearest_voxel, to_dvec3, PositionReject, BODY_LOW};
 
 /// Longest step between two points of a path that are checked, in voxels:
 /// a point crossing a voxel passes at least one sample inside it unless it
@@ -58,23 +58,48 @@ fn routes(from: DVec3, to: DVec3, cfg: &ValidationConfig, apex: Option<f64>) -> 
     out
 }
 
+/// One of the voxels a body passes through; `low` is the feet's height
+/// when it is the body's lowest, judged by [`low_blocks`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct BodyVoxel {
+    at: VoxelPos,
+    low: Option<f64>,
+}
+
+impl BodyVoxel {
+    fn blocks(self, voxels: &impl VoxelRead, cfg: &ValidationConfig) -> bool {
+        match self.low {
+            Some(feet_y) => low_blocks(voxels, self.at, feet_y, cfg.bounds.max_y),
+            None => voxels.voxel(self.at).is_solid(),
+        }
+    }
+}
+
 /// The voxels a body with feet at `feet` passes through: nearest to
 /// [`BODY_LOW`] and one voxel above the feet, to each whole voxel above
 /// that below the eye, and to the eye (the position rule's points, and
 /// what lies between them when `eye_height` is over 2).
-fn body_column(feet: DVec3, cfg: &ValidationConfig) -> impl Iterator<Item = VoxelPos> {
+fn body_column(feet: DVec3, cfg: &ValidationConfig) -> impl Iterator<Item = BodyVoxel> {
     let eye = cfg.eye_height;
     let steps = (2..).take_while(move |&k| f64::from(k) < eye);
-    [BODY_LOW, 1.0]
-        .into_iter()
-        .chain(steps.map(f64::from))
-        .chain(std::iter::once(eye))
-        .map(move |dy| nearest_voxel(feet + DVec3::Y * dy))
+    let low = BodyVoxel {
+        at: nearest_voxel(feet + DVec3::Y * BODY_LOW),
+        low: Some(feet.y),
+    };
+    std::iter::once(low).chain(
+        std::iter::once(1.0)
+            .chain(steps.map(f64::from))
+            .chain(std::iter::once(eye))
+            .map(move |dy| BodyVoxel {
+                at: nearest_voxel(feet + DVec3::Y * dy),
+                low: None,
+            }),
+    )
 }
 
 /// The body's voxels at each point of leg `a` → `b`, `a` excluded, at
 /// most [`SWEEP_STEP`] apart (none when the leg is empty).
-fn leg_voxels(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> impl Iterator<Item = VoxelPos> + '_ {
+fn leg_voxels(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> impl Iterator<Item = BodyVoxel> + '_ {
     let n = (a.distance(b) / SWEEP_STEP).ceil() as u32;
     (1..=n).flat_map(move |i| body_column(a.lerp(b, f64::from(i) / f64::from(n)), cfg))
 }
@@ -82,12 +107,12 @@ fn leg_voxels(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> impl Iterator<Item 
 fn route_voxels<'a>(
     route: &'a [DVec3; 4],
     cfg: &'a ValidationConfig,
-) -> impl Iterator<Item = VoxelPos> + 'a {
+) -> impl Iterator<Item = BodyVoxel> + 'a {
     route
         .windows(2)
         .flat_map(move |leg| leg_voxels(leg[0], leg[1], cfg))
         // Above the world there is only air (the hop may go there).
-        .filter(move |v| cfg.bounds.contains_y(v.y))
+        .filter(move |v| cfg.bounds.contains_y(v.at.y))
 }
 
 /// Most chunks [`chunks`] lists from the box around a move's ways; a move
@@ -115,7 +140,8 @@ pub fn chunks(from: FixedVec3, to: FixedVec3, cfg: &ValidationConfig) -> BTreeSe
 /// up and down, and the body reaches from the lower of [`BODY_LOW`] and the
 /// eye above its feet to the higher of one voxel and the eye.
 fn box_chunks(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> Option<BTreeSet<ChunkPos>> {
-    let (below, above) = (cfg.eye_height.min(BODY_LOW), cfg.eye_height.max(1.0));
+    // Up to the voxel over the body's lowest, which `low_blocks` reads.
+    let (below, above) = (cfg.eye_height.min(BODY_LOW), cfg.eye_height.max(2.0));
     // Padded: a point a way passes may be a rounding off the ends' range
     // (`lerp` of two equal coordinates), on the other side of a voxel's
     // half.
@@ -155,7 +181,14 @@ fn walked_chunks(a: DVec3, b: DVec3, cfg: &ValidationConfig) -> BTreeSet<ChunkPo
     let mut out = BTreeSet::new();
     for route in routes(a, b, cfg, None) {
         let mut last = None;
-        for c in route_voxels(&route, cfg).map(|v| v.chunk()) {
+        let reads = route_voxels(&route, cfg).flat_map(|v| {
+            let over = v
+                .low
+                .map(|_| VoxelPos::new(v.at.x, v.at.y.saturating_add(1), v.at.z))
+                .filter(|o| o.y <= cfg.bounds.max_y);
+            std::iter::once(v.at).chain(over)
+        });
+        for c in reads.map(|v| v.chunk()) {
             // Consecutive voxels mostly share a chunk.
             if last.replace(c) != Some(c) {
                 out.insert(c);
@@ -177,15 +210,15 @@ pub fn check(
     apex: Option<f64>,
 ) -> Result<(), PositionReject> {
     let (a, b) = (to_dvec3(from), to_dvec3(to));
-    let start: Vec<VoxelPos> = body_column(a, cfg).collect();
+    let start: Vec<VoxelPos> = body_column(a, cfg).map(|v| v.at).collect();
     let mut first = None;
     for route in routes(a, b, cfg, apex) {
         let hit =
-            route_voxels(&route, cfg).find(|v| !start.contains(v) && voxels.voxel(*v).is_solid());
+            route_voxels(&route, cfg).find(|v| !start.contains(&v.at) && v.blocks(voxels, cfg));
         match hit {
             None => return Ok(()),
             Some(v) => {
-                first.get_or_insert(v);
+                first.get_or_insert(v.at);
             }
         }
     }

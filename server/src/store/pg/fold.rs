@@ -104,7 +104,12 @@ impl PgStore {
     }
 }
 
-/// Folds `pos`'s deltas into its record: (deltas removed, bytes written).
+/// Deltas one fold reads and folds at most (`deltas::MAX_FOLD_DELTAS`): a
+/// longer backlog folds over several passes.
+const FOLD_LIMIT: i64 = crate::store::deltas::MAX_FOLD_DELTAS as i64;
+
+/// Folds `pos`'s deltas into its record, the first [`FOLD_LIMIT`] of
+/// them: (deltas removed, bytes written).
 async fn fold_one(
     c: &mut Conn,
     pos: ChunkPos,
@@ -127,8 +132,8 @@ async fn fold_one(
     for r in c
         .query(
             "SELECT to_version, body FROM chunk_deltas \
-             WHERE x = $1 AND y = $2 AND z = $3 ORDER BY to_version",
-            &[&pos.x, &pos.y, &pos.z],
+             WHERE x = $1 AND y = $2 AND z = $3 ORDER BY to_version LIMIT $4",
+            &[&pos.x, &pos.y, &pos.z, &FOLD_LIMIT],
         )
         .await?
     {
