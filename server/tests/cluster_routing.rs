@@ -1935,6 +1935,12 @@ async fn a_login_whose_stored_position_is_not_read_in_time_is_refused_and_the_no
         let dir = tempfile::tempdir().unwrap();
         let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 5_000, 500);
         cfg.cluster.as_mut().unwrap().position_read_ms = bound.as_millis() as u64;
+        // One login a player, never refilled: a login refused for the
+        // unread position is not charged, so bob still logs in after it.
+        cfg.validation.join_rate = strata_server::validate::ratelimit::BucketConfig {
+            capacity: 1,
+            per_second: 0,
+        };
         let west = app::start(cfg).await.expect("node starts");
         let seen = now_ms();
         let ann = standing(&west, "ann", WEST_X).await;

@@ -133,11 +133,13 @@ impl Engine {
             }
             Command::Forget { session, chunks } => {
                 if let Some(p) = self.peers.get_mut(&session) {
-                    p.forget(&mut self.holders, session, &chunks);
                     // Confirmed at once, not with the session's next update
                     // (which a quiet view may not get for long). A full
-                    // queue keeps it owed until the next batch.
-                    p.confirm_withdrawals();
+                    // queue keeps it owed until the next batch; a request
+                    // that owed nothing new encodes nothing.
+                    if p.forget(&mut self.holders, session, &chunks) {
+                        p.confirm_withdrawals();
+                    }
                 }
             }
             Command::Arrive {

@@ -606,6 +606,31 @@ mod tests {
         assert!(!p.owes_withdrawals());
     }
 
+    /// A client whose updates stream is gone (it stopped reading it) is
+    /// failed at its next withdrawal, which is not encoded: it does not
+    /// linger, each request encoding its whole list again. A request that
+    /// owes nothing new encodes nothing either.
+    #[test]
+    fn a_gone_writer_fails_the_session_and_nothing_is_encoded_for_it() {
+        let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));
+        let (mut p, rx) = peer(&[(a, 4), (b, 2)]);
+        let mut holders = Holders::default();
+        assert!(p.forget(&mut holders, 0, &[a]));
+        p.confirm_withdrawals();
+        assert_eq!(p.withdrawals_encoded, 1);
+        // Nothing new owed: nothing to confirm, nothing encoded.
+        assert!(!p.forget(&mut holders, 0, &[]));
+        assert!(!p.forget(&mut holders, 0, &[a]));
+        p.withdraw(std::iter::empty());
+        assert_eq!(p.withdrawals_encoded, 1);
+        assert!(!p.failed);
+        drop(rx);
+        assert!(p.forget(&mut holders, 0, &[b]));
+        p.confirm_withdrawals();
+        assert!(p.failed, "dropped at the tick's end");
+        assert_eq!(p.withdrawals_encoded, 1);
+    }
+
     #[test]
     fn changes_dropped_on_a_full_queue_are_withdrawn_before_the_next_update() {
         let (a, b) = (ChunkPos::new(0, 0, 0), ChunkPos::new(1, 0, 0));

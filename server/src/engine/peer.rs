@@ -19,6 +19,13 @@ use super::LatestPosition;
 use crate::interest::{nearest_first, Anchor, Interest, InterestChange};
 use crate::net::writer::{FrameSender, Handed, SendRefused};
 
+/// Most bytes one chunk position takes in an `UnsubscribedMany`: three
+/// varints of at most 5 bytes.
+const WITHDRAWN_POS_BYTES: usize = 15;
+/// Most bytes of an `UnsubscribedMany` frame besides its positions: the
+/// frame's header, the message's tags and the list's length.
+const WITHDRAWAL_FRAME_BYTES: usize = 32;
+
 #[derive(Debug)]
 pub struct Peer {
     pub control: FrameSender,
@@ -205,10 +212,15 @@ impl Peer {
     /// owed, and sent ahead of any later update, now if the updates queue
     /// has room ([`Self::confirm_withdrawals`]).
     pub fn withdraw(&mut self, chunks: impl IntoIterator<Item = ChunkPos>) {
+        let mut any = false;
         for pos in chunks {
             self.owe_withdrawal(pos);
+            any = true;
         }
-        self.confirm_withdrawals();
+        // Only for new ones: a request that withdrew nothing encodes nothing.
+        if any {
+            self.confirm_withdrawals();
+        }
     }
 
     /// Whether `pos` goes to the client whole even at version 0: it asked
@@ -230,23 +242,24 @@ impl Peer {
     /// before, it tells the client nothing more of the chunk is on its way.
     /// Without it a chunk sent again after a withdrawal the client read
     /// before the server took its `Forget` would be held, and never updated.
-    pub fn forget(&mut self, holders: &mut Holders, id: u64, chunks: &[ChunkPos]) {
+    /// Whether any withdrawal was owed for it (then the caller confirms).
+    pub fn forget(&mut self, holders: &mut Holders, id: u64, chunks: &[ChunkPos]) -> bool {
         let dropped: HashSet<ChunkPos> = chunks
             .iter()
             .copied()
             .filter(|p| self.interest.covers(*p))
             .collect();
-        if dropped.is_empty() {
-            return;
-        }
         // Work in proportion to the chunks named, never to the queue.
+        let mut owed = false;
         for pos in &dropped {
             if self.take_sent(*pos) {
                 self.owe_withdrawal(*pos);
+                owed = true;
             }
             holders.remove(*pos, id);
             self.pending.remove(*pos);
         }
+        owed
     }
 
     /// Whether the stream may hand this session a batch of chunks now:
@@ -276,10 +289,35 @@ impl Peer {
     /// they stay owed for the next batch, and nothing is encoded: else
     /// each `Forget` of a client keeping its queue full would encode the
     /// whole list again, work out of proportion to the request.
+    ///
+    /// The room asked for is the frames' size at most, so a queue whose
+    /// bytes are nearly at their bound encodes nothing either; a writer
+    /// gone fails the session (dropped at the tick's end) rather than
+    /// leaving it owed forever.
     pub fn confirm_withdrawals(&mut self) {
-        if self.owes_withdrawals() && self.updates.has_room() {
-            let _ = self.send_update(Bytes::new(), false);
+        if !self.owes_withdrawals() {
+            return;
         }
+        if self.updates.is_closed() {
+            self.failed = true;
+            return;
+        }
+        if self.updates.has_room_for(self.withdrawal_bytes()) {
+            if let Err(SendRefused::Closed) = self.send_update(Bytes::new(), false) {
+                self.failed = true;
+            }
+        }
+    }
+
+    /// At most the bytes the withdrawals owed encode to: a chunk position
+    /// is three varints, each 5 bytes at most, and each frame of them has
+    /// its header and tags.
+    fn withdrawal_bytes(&self) -> usize {
+        let frames = self
+            .withdraw
+            .len()
+            .div_ceil(strata_protocol::limits::MAX_UNSUBSCRIBED_PER_UPDATE);
+        self.withdraw.len() * WITHDRAWN_POS_BYTES + frames * WITHDRAWAL_FRAME_BYTES
     }
 
     /// The changes of `chunks` (all held) were not sent: each is sent

@@ -272,7 +272,7 @@ pub async fn run(
         }
     };
     let span = tracing::info_span!("session", id = session, player = %claims.player, role = claims.role.name());
-    joined(
+    let logged_in = joined(
         conn,
         (session, deadline),
         ctx,
@@ -285,9 +285,16 @@ pub async fn run(
         strata_protocol::capabilities::known(hello.capabilities),
     )
     .instrument(span)
-    .await
+    .await;
+    if !logged_in {
+        // Refused with "try again shortly" before any Join: its retries
+        // are not charged as logins.
+        _joins.give_back(1, now_ms());
+    }
 }
 
+/// Whether the player logged in (its Join reached the engine, or the
+/// client failed on its own): else its login is not charged.
 #[allow(clippy::too_many_arguments)]
 async fn joined(
     conn: quinn::Connection,
@@ -299,16 +306,20 @@ async fn joined(
     mut reader: FramedReader<quinn::RecvStream>,
     claims: auth::Claims,
     capabilities: u32,
-) {
+) -> bool {
     // A client that grants no stream credit would hold its session slot
     // forever: the updates stream must open within the handshake's time.
     let uni = match tokio::time::timeout_at(deadline, conn.open_uni()).await {
         Ok(Ok(u)) => u,
-        Ok(Err(e)) => return debug!(error = %e, "could not open the updates stream"),
+        Ok(Err(e)) => {
+            debug!(error = %e, "could not open the updates stream");
+            return true;
+        }
         Err(_) => {
             let code = ErrorCode::Malformed;
             let why = "no stream credit for the updates stream in time";
-            return refuse(&conn, control, control_task, code, why).await;
+            refuse(&conn, control, control_task, code, why).await;
+            return true;
         }
     };
     let queue = (ctx.writer_queue, ctx.writer_queue_bytes);
@@ -319,7 +330,8 @@ async fn joined(
             drop(updates);
             updates_task.abort();
             let code = ErrorCode::TooManyConnections;
-            return refuse(&conn, control, control_task, code, &refused.to_string()).await;
+            refuse(&conn, control, control_task, code, &refused.to_string()).await;
+            return false;
         }
     };
     let (reply_tx, reply_rx) = oneshot::channel();
@@ -338,7 +350,7 @@ async fn joined(
         stored: stored.map(Box::new),
     };
     if !ctx.engine.try_send(join) {
-        return refuse(
+        refuse(
             &conn,
             control,
             control_task,
@@ -346,9 +358,10 @@ async fn joined(
             "server is overloaded",
         )
         .await;
+        return false;
     }
     let Ok(joined) = reply_rx.await else {
-        return refuse(
+        refuse(
             &conn,
             control,
             control_task,
@@ -356,6 +369,7 @@ async fn joined(
             "server is shutting down",
         )
         .await;
+        return true;
     };
     // A ban between the Hello's check and the engine's Join found no session
     // to end; the engine knows this one now, so any later ban kicks it.
@@ -364,7 +378,8 @@ async fn joined(
         leave(&ctx.engine, session).await;
         updates_task.abort();
         let code = ErrorCode::Forbidden;
-        return refuse(&conn, control, control_task, code, &denied.to_string()).await;
+        refuse(&conn, control, control_task, code, &denied.to_string()).await;
+        return true;
     }
     let welcome = Welcome {
         session,
@@ -403,6 +418,7 @@ async fn joined(
     }
     updates_task.abort();
     info!("session ended");
+    true
 }
 
 enum End {
@@ -518,7 +534,7 @@ async fn serve(
         // up its position reports, nor they it).
         let woke = tokio::select! {
             biased;
-            end = must_end(shutdown, kicked, admin_until) => return end,
+            end = must_end(shutdown, kicked, admin_until, Some(conn)) => return end,
             woke = async {
                 tokio::select! {
                     _ = tokio::time::sleep_until(view_wake), if view.is_waiting() => Woke::ViewDue,
@@ -573,7 +589,7 @@ async fn serve(
         }
         let routed = match route((session, player), ctx, &share, control, m) {
             Ok(Some(cmd)) => {
-                let ending = must_end(shutdown, kicked, admin_until);
+                let ending = must_end(shutdown, kicked, admin_until, Some(conn));
                 deliver_unless(ending, &ctx.engine, &share, cmd, WAITS).await
             }
             Ok(None) => Ok(()),
@@ -595,17 +611,27 @@ enum Woke {
     Datagram(Result<bytes::Bytes, quinn::ConnectionError>),
 }
 
-/// Resolves once the session must end, whatever it is doing: the server
-/// shutting down, its admin token expiring (an admin-role session), or
-/// the engine's kick.
+/// Resolves once the session must end, whatever it is doing: its client
+/// closing the connection (`conn`), the server shutting down, its admin
+/// token expiring (an admin-role session), or the engine's kick.
 async fn must_end(
     shutdown: &mut Shutdown,
     kicked: &mut oneshot::Receiver<crate::engine::Kick>,
     admin_until: Option<tokio::time::Instant>,
+    conn: Option<&quinn::Connection>,
 ) -> End {
     let expiry = admin_until.unwrap_or_else(tokio::time::Instant::now);
+    let closed = async {
+        match conn {
+            Some(c) => drop(c.closed().await),
+            None => std::future::pending().await,
+        }
+    };
     tokio::select! {
         biased;
+        // The client gone: no request it left buffered reaches the
+        // engine, nor does one wait for room there on its behalf.
+        () = closed => End::ClientClosed,
         _ = shutdown.wait() => {
             End::Refused(ErrorCode::ShuttingDown, "server is shutting down".into())
         }
@@ -1173,7 +1199,7 @@ mod tests {
         let waits = both(Duration::from_secs(60));
         let started = std::time::Instant::now();
         let delivering = async {
-            let ending = must_end(&mut shutdown, &mut kicked, None);
+            let ending = must_end(&mut shutdown, &mut kicked, None, None);
             deliver_unless(ending, &engine, &share, resync(2), waits).await
         };
         let stop = async {

@@ -206,10 +206,20 @@ impl FrameSender {
         })
     }
 
-    /// Whether a small frame would be queued now: a free slot, and bytes
-    /// under the bound.
+    /// Whether a small frame would be queued now: the writer there, a free
+    /// slot, and bytes under the bound.
     pub fn has_room(&self) -> bool {
-        self.queue.capacity() > 0 && self.bytes.queued.load(Ordering::Acquire) < self.bytes.max
+        self.has_room_for(1)
+    }
+
+    /// Whether a frame of `len` bytes would be queued now (as
+    /// [`Self::try_send`] decides): the writer there, a free slot, and the
+    /// bytes within the bound (or none queued).
+    pub fn has_room_for(&self, len: usize) -> bool {
+        let queued = self.bytes.queued.load(Ordering::Acquire);
+        !self.queue.is_closed()
+            && self.queue.capacity() > 0
+            && (queued == 0 || queued.saturating_add(len) <= self.bytes.max)
     }
 
     /// Free slots in the queue.
