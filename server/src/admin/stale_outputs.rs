@@ -126,30 +126,47 @@ mod tests {
             "w.snap",
             "w.snap.partial",
         ];
-        for n in names {
-            std::fs::write(dir.path().join(n), b"x").unwrap();
-        }
         // Two writers still at work (their process ids say nothing).
-        let held: Vec<File> = ["w.snap.1-0.partial", ".strata-out-1-x2"]
-            .iter()
+        let held = testing::files(dir.path(), &names, &[names[2], names[4]]);
+        clear_for(&dir.path().join("w.snap"));
+        assert_eq!(testing::names_in(dir.path()), testing::sorted(&names[2..]));
+        drop(held);
+    }
+}
+
+/// Files of a test directory.
+#[cfg(test)]
+pub(crate) mod testing {
+    use super::*;
+
+    /// Writes each of `names` in `dir`, and holds those in `held` as
+    /// their writers would; the holds go when the files returned drop.
+    pub fn files(dir: &Path, names: &[&str], held: &[&str]) -> Vec<File> {
+        for n in names {
+            std::fs::write(dir.join(n), b"x").unwrap();
+        }
+        held.iter()
             .map(|n| {
-                let f = File::options()
-                    .write(true)
-                    .open(dir.path().join(n))
-                    .unwrap();
+                let f = File::options().write(true).open(dir.join(n)).unwrap();
                 hold(&f).unwrap();
                 f
             })
-            .collect();
-        clear_for(&dir.path().join("w.snap"));
-        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .collect()
+    }
+
+    /// The names in `dir`, sorted.
+    pub fn names_in(dir: &Path) -> Vec<String> {
+        let names: Vec<String> = std::fs::read_dir(dir)
             .unwrap()
             .map(|e| e.unwrap().file_name().into_string().unwrap())
             .collect();
-        left.sort();
-        let mut want: Vec<String> = names[2..].iter().map(|s| s.to_string()).collect();
-        want.sort();
-        assert_eq!(left, want);
-        drop(held);
+        sorted(&names)
+    }
+
+    /// `names` as owned strings, sorted.
+    pub fn sorted(names: &[impl AsRef<str>]) -> Vec<String> {
+        let mut out: Vec<String> = names.iter().map(|n| n.as_ref().to_string()).collect();
+        out.sort();
+        out
     }
 }

@@ -418,6 +418,7 @@ mod tests {
 
     #[test]
     fn partial_files_of_snapshots_cut_short_are_removed_and_nothing_else() {
+        use stale_outputs::testing;
         let dir = tempfile::tempdir().unwrap();
         let names = [
             "strata-seq5-100.snap.9-3.partial",
@@ -427,24 +428,10 @@ mod tests {
             "world.snap.9-0.partial",
             "strata-seq5-100.snap.partial",
         ];
-        for n in names {
-            std::fs::write(dir.path().join(n), b"x").unwrap();
-        }
         // One still being written: its writer holds it.
-        let held = std::fs::File::options()
-            .write(true)
-            .open(dir.path().join(names[2]))
-            .unwrap();
-        stale_outputs::hold(&held).unwrap();
+        let held = testing::files(dir.path(), &names, &[names[2]]);
         remove_stale_partials(dir.path());
-        let mut left: Vec<String> = std::fs::read_dir(dir.path())
-            .unwrap()
-            .map(|e| e.unwrap().file_name().into_string().unwrap())
-            .collect();
-        left.sort();
-        let mut want: Vec<String> = names[2..].iter().map(|s| s.to_string()).collect();
-        want.sort();
-        assert_eq!(left, want);
+        assert_eq!(testing::names_in(dir.path()), testing::sorted(&names[2..]));
         drop(held);
     }
 
