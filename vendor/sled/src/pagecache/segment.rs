@@ -1078,7 +1078,7 @@ impl SegmentAccountant {
 
     // truncate the file to the desired length
     fn truncate(&mut self, at: LogOffset) -> Result<()> {
-        trace!("asynchronously truncating file to length {}", at);
+        trace!("truncating file to length {}", at);
 
         assert_eq!(
             at % self.config.segment_size as LogOffset,
@@ -1090,28 +1090,15 @@ impl SegmentAccountant {
 
         assert!(!self.free.contains(&at), "double-free of a segment occurred");
 
-        let (completer, promise) = OneShot::pair();
-
-        let config = self.config.clone();
-
-        io_fail!(&config, "file truncation");
-        threadpool::spawn(move || {
-            debug!("truncating file to length {}", at);
-            let res = config
-                .file
-                .set_len(at)
-                .and_then(|_| config.file.sync_all())
-                .map_err(|e| e.into());
-            completer.fill(res);
-        })?;
-
-        if self.async_truncations.insert(at, promise).is_some() {
-            panic!(
-                "somehow segment {} was truncated before \
-                 the previous truncation completed",
-                at
-            );
-        }
+        // Strata: truncated here, not on the IO threadpool. This runs
+        // under the segment accountant's lock, and `bump_tip` (under it
+        // too) waited for the pool's truncation; with every pool thread
+        // blocked on that lock in `write_to_log`, the truncation never
+        // ran and the store hung for good.
+        io_fail!(&self.config, "file truncation");
+        debug!("truncating file to length {}", at);
+        self.config.file.set_len(at)?;
+        self.config.file.sync_all()?;
 
         Ok(())
     }
