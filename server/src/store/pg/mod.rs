@@ -103,6 +103,12 @@ pub struct PgStore {
     world_id: std::sync::OnceLock<String>,
 }
 
+impl Drop for PgStore {
+    fn drop(&mut self) {
+        self.let_go_of_serving();
+    }
+}
+
 impl PgStore {
     /// Connects, applies the migrations this build has and the database
     /// lacks, and checks that commits will be durable. A new database
@@ -195,6 +201,32 @@ impl PgStore {
     fn keep_lock_connection(&self, conn: Conn) {
         // Held while this connection lives: as long as the store.
         *self.serving.lock().unwrap_or_else(|p| p.into_inner()) = Some(Box::new(conn));
+    }
+
+    /// Unlocks what the serving lock's connection holds, then closes it.
+    /// Only closed, the connection's backend lets go when it has exited,
+    /// after this returns: an admin tool run at once could still find the
+    /// store served.
+    fn let_go_of_serving(&self) {
+        let conn = self
+            .serving
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take();
+        let Some(mut conn) = conn else {
+            return;
+        };
+        if conn.is_closed() {
+            return;
+        }
+        let unlocked = self.pool.on_dedicated(
+            &mut conn,
+            "releasing the serving lock",
+            async |c: &mut Conn| c.batch("SELECT pg_advisory_unlock_all()").await,
+        );
+        if let Err(e) = unlocked {
+            tracing::warn!(error = %e, "the serving lock goes with its connection instead");
+        }
     }
 
     /// Whether the connection holding the serving lock ended.
@@ -884,12 +916,7 @@ impl ChunkStore for PgStore {
             None => Ok(()),
         };
         // Last: a restore may go ahead once this server is gone.
-        drop(
-            self.serving
-                .lock()
-                .unwrap_or_else(|p| p.into_inner())
-                .take(),
-        );
+        self.let_go_of_serving();
         released
     }
 
