@@ -338,7 +338,11 @@ pub async fn start_with_health(cfg: ServerConfig, health: Arc<Health>) -> anyhow
             shutdown.clone(),
         )),
     ];
-    let listener = Listener::new(endpoint, ctx, cfg.server.admission());
+    let listener = Listener::new(
+        endpoint,
+        ctx,
+        cfg.server.admission(cfg.engine.sessions_per_player),
+    );
     let listener = tokio::spawn(listener.run(shutdown));
     health.set_accepting(true);
     Ok(Running {

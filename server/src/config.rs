@@ -214,10 +214,12 @@ impl ServerSection {
     }
 
     /// The connection limits for [`crate::net::admission`].
-    pub fn admission(&self) -> crate::net::admission::Limits {
+    /// `sessions_per_player` is `[engine]`'s.
+    pub fn admission(&self, sessions_per_player: usize) -> crate::net::admission::Limits {
         crate::net::admission::Limits {
             sessions: self.max_connections,
             admin_sessions: self.max_admin_connections,
+            sessions_per_player,
             handshakes: self.max_handshakes,
             handshakes_per_address: self.max_handshakes_per_address,
             retry_above: self.retry_above_handshakes,

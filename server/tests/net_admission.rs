@@ -120,6 +120,59 @@ async fn the_cap_counts_sessions_and_admins_have_their_own_room() {
     .expect("test finished in time");
 }
 
+/// Waits for `c`'s session to end for its player's newer login.
+async fn ended_by_a_newer_login(c: Client) {
+    match tokio::time::timeout(Duration::from_secs(5), c.closed()).await {
+        Ok(ClientError::Refused { code, message }) => {
+            assert_eq!(code, ErrorCode::Kicked);
+            assert!(message.contains("newer login"), "{message}");
+        }
+        other => panic!("expected the session to end, got {other:?}"),
+    }
+}
+
+/// A full server lets a player back in on the slot of its own session
+/// that its client left behind (not yet timed out), which the login ends;
+/// another player's slot is never taken.
+#[tokio::test]
+async fn a_full_server_lets_a_player_in_on_its_own_stale_session() {
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.server.max_connections = 2;
+        cfg.validation.join_rate.capacity = 8;
+        let server = app::start(cfg).await.expect("server starts");
+        let ana = token(&server, "ana", Role::Player);
+        let left_behind = Client::connect(server.addr, &server.cert_der, &ana)
+            .await
+            .unwrap();
+        let bo = connect(&server, "bo", Role::Player).await;
+        let cy = token(&server, "cy", Role::Player);
+        match Client::connect(server.addr, &server.cert_der, &cy).await {
+            Err(ClientError::Refused { code, .. }) => {
+                assert_eq!(code, ErrorCode::TooManyConnections)
+            }
+            other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
+        }
+        let back = Client::connect(server.addr, &server.cert_der, &ana)
+            .await
+            .expect("ana's own slot");
+        ended_by_a_newer_login(left_behind).await;
+        back.ping(1).await.unwrap();
+        bo.ping(1).await.unwrap();
+        assert_eq!(live_sessions(&server).await, 2);
+        // Still full for anyone else.
+        assert!(Client::connect(server.addr, &server.cert_der, &cy)
+            .await
+            .is_err());
+        back.close().await;
+        bo.close().await;
+        server.shutdown().await.unwrap();
+    })
+    .await
+    .expect("test finished in time");
+}
+
 #[tokio::test]
 async fn a_new_login_replaces_the_old_session_unless_more_are_allowed() {
     tokio::time::timeout(TEST_TIMEOUT, async {
@@ -136,13 +189,7 @@ async fn a_new_login_replaces_the_old_session_unless_more_are_allowed() {
         let second = Client::connect(server.addr, &server.cert_der, &shared)
             .await
             .unwrap();
-        match tokio::time::timeout(Duration::from_secs(5), first.closed()).await {
-            Ok(ClientError::Refused { code, message }) => {
-                assert_eq!(code, ErrorCode::Kicked);
-                assert!(message.contains("newer login"), "{message}");
-            }
-            other => panic!("expected the first session to end, got {other:?}"),
-        }
+        ended_by_a_newer_login(first).await;
         second.ping(1).await.unwrap();
         // 30 logins with one token leave exactly one session.
         let mut last = None;

@@ -148,7 +148,7 @@ pub async fn run(
         return refuse(&conn, stream, ErrorCode::Forbidden, &denied.to_string()).await;
     }
     // Held until the session ends; players cannot take these.
-    let _slot = match handshake.admit(true) {
+    let _slot = match handshake.admit_admin() {
         Ok(slot) => slot,
         Err(why) => {
             let code = ErrorCode::TooManyConnections;

@@ -18,6 +18,7 @@ use std::time::Duration;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tracing::warn;
 
+use super::player_slots::{PlayerSlot, PlayerSlots};
 use crate::log_every::{LogEvery, LOG_EVERY};
 
 /// The limits, from `[server]`.
@@ -27,6 +28,9 @@ pub struct Limits {
     pub sessions: u32,
     /// Authenticated admin sessions at once, beside the players'.
     pub admin_sessions: u32,
+    /// Live sessions one player may have (`[engine] sessions_per_player`):
+    /// at a full server, a login past it takes its oldest session's slot.
+    pub sessions_per_player: usize,
     /// Connections in their handshake at once.
     pub handshakes: u32,
     /// Connections in their handshake at once from one IP address.
@@ -95,6 +99,7 @@ pub struct Admission {
     in_progress: Mutex<BTreeMap<u64, Arc<Slot>>>,
     next_handshake: AtomicU64,
     players: Arc<Semaphore>,
+    player_slots: Arc<PlayerSlots>,
     admins: Arc<Semaphore>,
     /// Refusals are logged at most once a second, with a count.
     logged: LogEvery,
@@ -103,9 +108,11 @@ pub struct Admission {
 impl Admission {
     pub fn new(limits: Limits) -> Arc<Self> {
         let permits = |n: u32| Arc::new(Semaphore::new(n as usize));
+        let players = permits(limits.sessions);
         Arc::new(Self {
             handshakes: permits(limits.handshakes),
-            players: permits(limits.sessions),
+            player_slots: PlayerSlots::new(players.clone(), limits.sessions_per_player),
+            players,
             admins: permits(limits.admin_sessions),
             per_address: Mutex::new(HashMap::new()),
             in_progress: Mutex::new(BTreeMap::new()),
@@ -270,23 +277,38 @@ pub struct Handshake {
 }
 
 impl Handshake {
-    /// The client authenticated: trades the handshake slot for a session
-    /// slot of its kind, held for the session's life.
-    pub fn admit(self, admin: bool) -> Result<OwnedSemaphorePermit, Refused> {
-        // Out of the eviction order first: an admitted session keeps its
-        // connection; one evicted before is over.
+    /// An admin authenticated: trades the handshake slot for an admin
+    /// session slot, held for the session's life.
+    pub fn admit_admin(self) -> Result<OwnedSemaphorePermit, Refused> {
+        self.leave_eviction_order()?;
+        let why = Refused::AdminSessions;
+        self.admission
+            .admins
+            .clone()
+            .try_acquire_owned()
+            .map_err(|_| self.admission.refused(why, self.slot.addr))
+    }
+
+    /// `player` authenticated: trades the handshake slot for a player
+    /// session slot ([`PlayerSlots::take`]), held for the session's life.
+    pub fn admit_player(self, player: &str) -> Result<PlayerSlot, Refused> {
+        self.leave_eviction_order()?;
+        let why = Refused::Sessions;
+        self.admission
+            .player_slots
+            .take(player)
+            .ok_or_else(|| self.admission.refused(why, self.slot.addr))
+    }
+
+    /// Out of the eviction order first: an admitted session keeps its
+    /// connection; one evicted before is over.
+    fn leave_eviction_order(&self) -> Result<(), Refused> {
         if lock(&self.admission.in_progress).remove(&self.id).is_none()
             || self.slot.evicted.load(Ordering::Acquire)
         {
             return Err(Refused::Evicted);
         }
-        let (pool, why) = match admin {
-            true => (&self.admission.admins, Refused::AdminSessions),
-            false => (&self.admission.players, Refused::Sessions),
-        };
-        pool.clone()
-            .try_acquire_owned()
-            .map_err(|_| self.admission.refused(why, self.slot.addr))
+        Ok(())
     }
 }
 
@@ -324,6 +346,7 @@ mod tests {
         Limits {
             sessions: 2,
             admin_sessions: 1,
+            sessions_per_player: 1,
             handshakes: 3,
             handshakes_per_address: 2,
             retry_above: 2,
@@ -368,11 +391,11 @@ mod tests {
         tokio::time::timeout(Duration::from_secs(1), lost.wait())
             .await
             .expect("the oldest handshake is told");
-        assert_eq!(old.admit(false).unwrap_err(), Refused::Evicted);
+        assert_eq!(old.admit_player("old").unwrap_err(), Refused::Evicted);
         assert_eq!(a.handshakes.available_permits(), 0, "still three in all");
         // Admitted, a handshake gives its slot back (however long its
         // eviction handle lives) and is out of the order: never evicted.
-        let _session = mid.admit(false).unwrap();
+        let _session = mid.admit_player("mid").unwrap();
         assert_eq!(a.handshakes.available_permits(), 1);
         let next = a.begin(ip(6)).unwrap();
         assert!(
@@ -381,7 +404,7 @@ mod tests {
                 .is_err(),
             "an admitted session lost its connection"
         );
-        assert!(new.admit(false).is_ok(), "a free slot was there");
+        assert!(new.admit_player("new").is_ok(), "a free slot was there");
         drop((newest, next));
         assert_eq!(a.handshakes.available_permits(), 3, "no slot leaked");
         assert!(a.per_address.lock().unwrap().is_empty());
@@ -437,19 +460,19 @@ mod tests {
     async fn sessions_and_admin_sessions_have_their_own_room() {
         let a = Admission::new(limits());
         let ip: IpAddr = [127, 0, 0, 1].into();
-        let p1 = a.begin(ip).unwrap().admit(false).unwrap();
-        let _p2 = a.begin(ip).unwrap().admit(false).unwrap();
+        let p1 = a.begin(ip).unwrap().admit_player("ana").unwrap();
+        let _p2 = a.begin(ip).unwrap().admit_player("bo").unwrap();
         assert_eq!(
-            a.begin(ip).unwrap().admit(false).unwrap_err(),
+            a.begin(ip).unwrap().admit_player("cy").unwrap_err(),
             Refused::Sessions
         );
-        let _admin = a.begin(ip).unwrap().admit(true).unwrap();
+        let _admin = a.begin(ip).unwrap().admit_admin().unwrap();
         assert_eq!(
-            a.begin(ip).unwrap().admit(true).unwrap_err(),
+            a.begin(ip).unwrap().admit_admin().unwrap_err(),
             Refused::AdminSessions
         );
         drop(p1);
-        assert!(a.begin(ip).unwrap().admit(false).is_ok());
+        assert!(a.begin(ip).unwrap().admit_player("cy").is_ok());
         assert!(
             a.per_address.lock().unwrap().is_empty(),
             "no handshake left"

@@ -5,7 +5,10 @@ pub mod admin_session;
 pub mod admin_zones;
 pub mod admission;
 pub mod endpoint;
+#[cfg(test)]
+pub mod loopback;
 pub mod player_buckets;
+pub mod player_slots;
 pub mod position_reads;
 pub mod session;
 pub mod transport_stats;

@@ -17,6 +17,7 @@ use tracing::{debug, info, warn, Instrument};
 
 use super::admission::Handshake;
 use super::player_buckets::{BucketHold, PlayerBuckets};
+use super::player_slots::PlayerSlot;
 use super::position_reads::{PositionReads, ReadRefused};
 use super::writer::{spawn_writer, FrameSender, SendRefused};
 use crate::auth::{self, AuthError, Secret};
@@ -260,8 +261,8 @@ pub async fn run(
             return refuse(&conn, control, control_task, code, &message).await;
         }
     };
-    // Held until the session ends.
-    let _slot = match handshake.admit(false) {
+    // Held until the session ends, or a newer login of the player takes it.
+    let slot = match handshake.admit_player(&claims.player) {
         Ok(slot) => slot,
         Err(why) => {
             // No login happened: a player retrying at a full server keeps
@@ -276,6 +277,7 @@ pub async fn run(
         conn,
         (session, deadline),
         ctx,
+        &slot,
         shutdown,
         control,
         control_task,
@@ -300,6 +302,7 @@ async fn joined(
     conn: quinn::Connection,
     (session, deadline): (u64, tokio::time::Instant),
     ctx: Arc<SessionContext>,
+    slot: &PlayerSlot,
     mut shutdown: Shutdown,
     control: FrameSender,
     control_task: tokio::task::JoinHandle<()>,
@@ -349,6 +352,14 @@ async fn joined(
         capabilities,
         stored: stored.map(Box::new),
     };
+    // Its slot taken meanwhile: the newer login's Join must not be ended by
+    // this older one's.
+    if slot.is_replaced() {
+        drop(join);
+        updates_task.abort();
+        refuse(&conn, control, control_task, ErrorCode::Kicked, REPLACED).await;
+        return false;
+    }
     if !ctx.engine.try_send(join) {
         refuse(
             &conn,
@@ -402,7 +413,7 @@ async fn joined(
         &control,
         &mut reader,
         &mut shutdown,
-        &mut kick_rx,
+        (&mut kick_rx, slot),
         &latest,
         admin_until(&claims),
     )
@@ -420,6 +431,9 @@ async fn joined(
     info!("session ended");
     true
 }
+
+/// Why a player's older session ends for its newer login.
+pub const REPLACED: &str = "replaced by a newer login";
 
 enum End {
     ClientClosed,
@@ -507,7 +521,7 @@ async fn serve(
     control: &FrameSender,
     reader: &mut FramedReader<quinn::RecvStream>,
     shutdown: &mut Shutdown,
-    kicked: &mut oneshot::Receiver<crate::engine::Kick>,
+    (kicked, slot): (&mut oneshot::Receiver<crate::engine::Kick>, &PlayerSlot),
     latest: &LatestPosition,
     admin_until: Option<tokio::time::Instant>,
 ) -> End {
@@ -534,7 +548,7 @@ async fn serve(
         // up its position reports, nor they it).
         let woke = tokio::select! {
             biased;
-            end = must_end(shutdown, kicked, admin_until, Some(conn)) => return end,
+            end = must_end(shutdown, kicked, admin_until, Some((conn, slot))) => return end,
             woke = async {
                 tokio::select! {
                     _ = tokio::time::sleep_until(view_wake), if view.is_waiting() => Woke::ViewDue,
@@ -589,7 +603,7 @@ async fn serve(
         }
         let routed = match route((session, player), ctx, &share, control, m) {
             Ok(Some(cmd)) => {
-                let ending = must_end(shutdown, kicked, admin_until, Some(conn));
+                let ending = must_end(shutdown, kicked, admin_until, Some((conn, slot)));
                 deliver_unless(ending, &ctx.engine, &share, cmd, WAITS).await
             }
             Ok(None) => Ok(()),
@@ -618,12 +632,18 @@ async fn must_end(
     shutdown: &mut Shutdown,
     kicked: &mut oneshot::Receiver<crate::engine::Kick>,
     admin_until: Option<tokio::time::Instant>,
-    conn: Option<&quinn::Connection>,
+    session: Option<(&quinn::Connection, &PlayerSlot)>,
 ) -> End {
     let expiry = admin_until.unwrap_or_else(tokio::time::Instant::now);
     let closed = async {
-        match conn {
-            Some(c) => drop(c.closed().await),
+        match session {
+            Some((c, _)) => drop(c.closed().await),
+            None => std::future::pending().await,
+        }
+    };
+    let replaced = async {
+        match session {
+            Some((_, slot)) => slot.replaced().await,
             None => std::future::pending().await,
         }
     };
@@ -632,6 +652,9 @@ async fn must_end(
         // The client gone: no request it left buffered reaches the
         // engine, nor does one wait for room there on its behalf.
         () = closed => End::ClientClosed,
+        // Its slot is a newer login's (a full server): no later than its
+        // Join would end this session.
+        () = replaced => End::Refused(ErrorCode::Kicked, REPLACED.into()),
         _ = shutdown.wait() => {
             End::Refused(ErrorCode::ShuttingDown, "server is shutting down".into())
         }
@@ -1218,6 +1241,74 @@ mod tests {
         assert_eq!(resynced(&rx, Duration::ZERO), Some(1));
         assert!(rx.recv_timeout(Duration::ZERO).is_err(), "not queued");
         assert_eq!(share.in_use(), 0, "nor holds its slot");
+    }
+
+    /// A session waiting for room in the engine's queue ends at once when
+    /// its client closes, or when a newer login of its player takes its
+    /// slot: nothing it left buffered reaches the engine.
+    #[tokio::test]
+    async fn a_waiting_session_ends_when_its_client_closes_or_its_slot_is_taken() {
+        let (engine, rx) = crate::engine::inbox_channel(1, 1);
+        let share = engine.session_share();
+        assert!(engine.try_send(resync(1)), "the queue is full now");
+        let slots = super::super::player_slots::PlayerSlots::new(
+            Arc::new(tokio::sync::Semaphore::new(1)),
+            1,
+        );
+        let slot = slots.take("ana").unwrap();
+        let (server_side, client_side, _endpoints) = super::super::loopback::pair(None).await;
+        let close = async { client_side.close(0u32.into(), b"bye") };
+        let (ended, ()) = waiting_until(&engine, &share, (&server_side, &slot), close).await;
+        assert!(matches!(ended, Err(End::ClientClosed)));
+        // A session still connected, its slot taken by its player's newer login.
+        let (server_side, _client_side, _endpoints) = super::super::loopback::pair(None).await;
+        let newer = async { slots.take("ana").expect("its own slot") };
+        let (ended, _newer) = waiting_until(&engine, &share, (&server_side, &slot), newer).await;
+        assert!(
+            matches!(&ended, Err(End::Refused(ErrorCode::Kicked, m)) if m == REPLACED),
+            "ended as replaced"
+        );
+        assert_eq!(resynced(&rx, Duration::ZERO), Some(1));
+        assert!(
+            rx.recv_timeout(Duration::ZERO).is_err(),
+            "neither was queued"
+        );
+        assert_eq!(share.in_use(), 0, "nor holds its slot");
+    }
+
+    /// A session's resync waiting for room in a full queue, with `cause`
+    /// run 50 ms in: how the wait ended, well before its minute was up,
+    /// and what `cause` gave.
+    async fn waiting_until<T>(
+        engine: &EngineHandle,
+        share: &SessionShare,
+        session: (&quinn::Connection, &PlayerSlot),
+        cause: impl std::future::Future<Output = T>,
+    ) -> (Result<(), End>, T) {
+        let (_trigger, mut shutdown) = crate::shutdown::channel();
+        let (_kick, mut kicked) = oneshot::channel();
+        let started = std::time::Instant::now();
+        let delivering = async {
+            let ending = must_end(&mut shutdown, &mut kicked, None, Some(session));
+            deliver_unless(
+                ending,
+                engine,
+                share,
+                resync(2),
+                both(Duration::from_secs(60)),
+            )
+            .await
+        };
+        let cause = async {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            cause.await
+        };
+        let both = tokio::join!(delivering, cause);
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "it did not wait"
+        );
+        both
     }
 
     /// Both of [`deliver`]'s waits `d` long.

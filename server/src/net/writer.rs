@@ -331,8 +331,6 @@ pub fn spawn_writer(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::{NetSection, TlsSection};
-    use crate::tls::{server_config, CertPair};
 
     /// A queue holds at most its bytes (an empty one takes any frame);
     /// a refused frame counts nothing, and written ones make room.
@@ -402,26 +400,12 @@ mod tests {
         (tokio::sync::oneshot::Sender<()>, JoinHandle<Vec<u8>>),
         quinn::Endpoint,
     ) {
-        let pair = CertPair::generate(&[]).unwrap();
-        let config = server_config(&pair, &NetSection::default(), &TlsSection::default()).unwrap();
-        let server = quinn::Endpoint::server(config, "127.0.0.1:0".parse().unwrap()).unwrap();
-        let addr = server.local_addr().unwrap();
-        let mut client_cfg =
-            strata_protocol::client_tls::client_config_pinned(pair.cert_der()).unwrap();
         let mut transport = quinn::TransportConfig::default();
         transport
             .stream_receive_window(quinn::VarInt::from_u32(window))
             .receive_window(quinn::VarInt::from_u32(window));
-        client_cfg.transport_config(Arc::new(transport));
-        let mut client = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
-        client.set_default_client_config(client_cfg);
-        let connecting = client.connect(addr, "localhost").unwrap();
-        // The handshake goes on only once the server takes the attempt.
-        let (server_conn, conn) = tokio::join!(
-            async { server.accept().await.unwrap().await.unwrap() },
-            connecting
-        );
-        let conn = conn.unwrap();
+        let (server_conn, conn, (server, _client)) =
+            crate::net::loopback::pair(Some(transport)).await;
         let (go, wait) = tokio::sync::oneshot::channel::<()>();
         let reader = tokio::spawn(async move {
             let _ = wait.await;
