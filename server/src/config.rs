@@ -910,6 +910,12 @@ impl ServerConfig {
         ] {
             range(field, ms, 1, pg::MAX_PG_TIMEOUT_MS)?;
         }
+        range(
+            "store.postgres.commit_retry_ms",
+            p.commit_retry_ms,
+            0,
+            pg::MAX_PG_TIMEOUT_MS,
+        )?;
         if self.store.backend == crate::store::StoreBackend::Postgres {
             p.client_config()
                 .map_err(|reason| invalid("store.postgres.url", reason))?;

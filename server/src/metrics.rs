@@ -99,6 +99,7 @@ pub const CONNECTIONS_REFUSED: &str = "strata_connections_refused_total";
 pub const CONNECTIONS_RETRIED: &str = "strata_connections_retried_total";
 pub const LOG_PRUNED_TOTAL: &str = "strata_log_pruned_total";
 pub const STORE_ERRORS: &str = "strata_store_errors_total";
+pub const STORE_COMMIT_RETRIES: &str = "strata_store_commit_retries_total";
 
 /// How often the recorder's rolling summaries are advanced.
 pub const UPKEEP_EVERY: Duration = Duration::from_secs(5);
@@ -141,6 +142,10 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     metrics::describe_counter!(
         STORE_ERRORS,
         "Store operations that failed outside a commit, by op (read: chunks a player or the premesher needed; regions: a cluster node's claims and holders; checkpoint; prune)"
+    );
+    metrics::describe_counter!(
+        STORE_COMMIT_RETRIES,
+        "Commits tried again, or their outcome asked again, while PostgreSQL was unreachable (a server without [cluster], within [store.postgres] commit_retry_ms)"
     );
     metrics::describe_counter!(SESSIONS_TOTAL, "Sessions that joined the world");
     metrics::describe_counter!(

@@ -8,7 +8,7 @@ use crate::store_common;
 use std::time::{Duration, Instant};
 
 use common::*;
-use store_common::sql_url;
+use store_common::{close_db, on_postgres};
 use strata_client_sim::Verdict;
 use strata_protocol::Role;
 use strata_server::config::ServerConfig;
@@ -104,23 +104,6 @@ async fn a_store_whose_reads_keep_failing_is_not_ready() {
     .expect("test finished in time");
 }
 
-/// Closes `db` to the server's connections (theirs ended) and returns what
-/// opens it again.
-async fn close_db(db: &strata_tests::postgres::PgDb) -> impl FnOnce() -> Vec<String> {
-    let admin_url = db.cluster().url("postgres");
-    let name = db.name().to_string();
-    let close = format!(
-        "ALTER DATABASE \"{name}\" WITH ALLOW_CONNECTIONS false; \
-         SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = '{name}'"
-    );
-    let url = admin_url.clone();
-    tokio::task::spawn_blocking(move || sql_url(&url, &close))
-        .await
-        .unwrap();
-    let open = format!("ALTER DATABASE \"{name}\" WITH ALLOW_CONNECTIONS true");
-    move || sql_url(&admin_url, &open)
-}
-
 /// Waits until `health` answers ready (`None`) or unready for a reason
 /// that names `Some(what)`, at most `limit` after `from`; how long after
 /// `from` it came.
@@ -147,27 +130,6 @@ async fn until(
         );
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-}
-
-/// PostgreSQL for `test` (`None`: it does not run here), a data dir, and
-/// a config on them checkpointing every `checkpoint_ms` (0: never).
-fn on_postgres(
-    test: &str,
-    checkpoint_ms: u64,
-) -> Option<(
-    strata_tests::postgres::PgDb,
-    tempfile::TempDir,
-    ServerConfig,
-)> {
-    let backend = Backend::postgres(test)?;
-    let dir = tempfile::tempdir().unwrap();
-    let mut cfg = test_config(dir.path());
-    backend.apply(&mut cfg);
-    cfg.store.checkpoint_ms = checkpoint_ms;
-    let Backend::Postgres(db) = backend else {
-        unreachable!("asked for PostgreSQL")
-    };
-    Some((db, dir, cfg))
 }
 
 /// [`on_postgres`] for cluster node `node-a`, no checkpoint thread.

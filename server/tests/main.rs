@@ -63,6 +63,7 @@ mod store_generated;
 mod store_pg;
 mod store_pg_bench;
 mod store_pg_lease;
+mod store_pg_outage;
 mod store_power_cut;
 mod store_roundtrip;
 mod validate_config;

@@ -14,6 +14,9 @@ use strata_terrain::material::ids;
 use strata_terrain::{Chunk, ChunkGenerator, ChunkPos, Edit, Fixed, FixedVec3, Voxel, CHUNK_SIZE};
 use strata_tests::postgres::PgDb;
 
+use crate::common::{test_config, Backend};
+use strata_server::config::ServerConfig;
+
 /// A dense chunk with a rolling surface: grass over dirt over stone, a
 /// density ramp at the surface, varied by `salt` so chunks differ.
 pub fn terrain_chunk(salt: u32) -> Chunk {
@@ -335,4 +338,42 @@ pub fn hold_rows(
     });
     locked.recv().unwrap();
     holder
+}
+
+/// Closes `db` to the server's connections (theirs ended) and returns what
+/// opens it again.
+pub async fn close_db(db: &strata_tests::postgres::PgDb) -> impl FnOnce() -> Vec<String> {
+    let admin_url = db.cluster().url("postgres");
+    let name = db.name().to_string();
+    let close = format!(
+        "ALTER DATABASE \"{name}\" WITH ALLOW_CONNECTIONS false; \
+         SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = '{name}'"
+    );
+    let url = admin_url.clone();
+    tokio::task::spawn_blocking(move || sql_url(&url, &close))
+        .await
+        .unwrap();
+    let open = format!("ALTER DATABASE \"{name}\" WITH ALLOW_CONNECTIONS true");
+    move || sql_url(&admin_url, &open)
+}
+
+/// PostgreSQL for `test` (`None`: it does not run here), a data dir, and
+/// a config on them checkpointing every `checkpoint_ms` (0: never).
+pub fn on_postgres(
+    test: &str,
+    checkpoint_ms: u64,
+) -> Option<(
+    strata_tests::postgres::PgDb,
+    tempfile::TempDir,
+    ServerConfig,
+)> {
+    let backend = Backend::postgres(test)?;
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(dir.path());
+    backend.apply(&mut cfg);
+    cfg.store.checkpoint_ms = checkpoint_ms;
+    let Backend::Postgres(db) = backend else {
+        unreachable!("asked for PostgreSQL")
+    };
+    Some((db, dir, cfg))
 }

@@ -16,6 +16,7 @@
 //! `last_seq` alone: the store's last seq is the higher of it and the
 //! log's last (`last_seq_sql!`).
 
+use super::patience::Patience;
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
 
@@ -113,7 +114,13 @@ fn before_commit(e: StoreError) -> StoreError {
 }
 
 impl PgStore {
-    pub(super) fn commit(&self, b: &CommitBatch) -> Result<CommitStats, StoreError> {
+    /// One try at committing `b`; `patience` says how long an unanswered
+    /// `COMMIT`'s outcome is asked about again.
+    pub(super) fn commit(
+        &self,
+        b: &CommitBatch,
+        patience: &mut Patience,
+    ) -> Result<CommitStats, StoreError> {
         let lowest = batch::validate(b)?;
         let Some(first) = b.entries.first() else {
             return Ok(CommitStats::default());
@@ -219,13 +226,11 @@ impl PgStore {
         // node paused past its lease just then: the server ends a session
         // idle in its transaction, COMMIT unread) or the wait timed out.
         // PostgreSQL says how the transaction ended, once it has.
-        let unanswered = |e: StoreError| match named.get().map(|&x| self.outcome(x, cols.first_seq))
-        {
-            Some(Ok(Some(true))) => Ok((std::time::Duration::ZERO, std::time::Duration::ZERO)),
-            Some(Ok(Some(false))) => Err(StoreError::Uncommitted {
-                reason: format!("{e}; PostgreSQL rolled the transaction back"),
-            }),
-            _ => Err(e),
+        let mut unanswered = |e: StoreError| match named.get() {
+            Some(&x) => self
+                .settle(x, cols.first_seq, e, patience)
+                .map(|()| (std::time::Duration::ZERO, std::time::Duration::ZERO)),
+            None => Err(e),
         };
         let sent = commit_sent.load(std::sync::atomic::Ordering::Acquire);
         let committed = match committed {
@@ -240,6 +245,15 @@ impl PgStore {
             // ended by the server before it read COMMIT, say): PostgreSQL's
             // record says which.
             Err(e @ StoreError::Postgres(_)) if sent => unanswered(e),
+            // Any other failure of PostgreSQL's before COMMIT (its
+            // connection refused, say) wrote nothing either. (A cluster
+            // node abandons a batch that wrote nothing: only a server
+            // alone is told so, to try again.)
+            Err(e @ StoreError::Postgres(_)) if self.leases.is_none() => {
+                Err(StoreError::Uncommitted {
+                    reason: e.to_string(),
+                })
+            }
             other => other,
         };
         if let (
@@ -303,6 +317,31 @@ async fn xact_status(c: &mut Conn, xid: &str) -> Result<Option<String>, StoreErr
 }
 
 impl PgStore {
+    /// How `x`, whose COMMIT went unanswered (`e`), ended: `Ok` when it
+    /// committed the batch whose first seq is `first_seq`,
+    /// [`StoreError::Uncommitted`] when it did not; asked again while
+    /// PostgreSQL cannot say (unreachable), within `patience`, then `e`.
+    fn settle(
+        &self,
+        x: Xact,
+        first_seq: i64,
+        e: StoreError,
+        patience: &mut Patience,
+    ) -> Result<(), StoreError> {
+        loop {
+            match self.outcome(x, first_seq) {
+                Ok(Some(true)) => return Ok(()),
+                Ok(Some(false)) => {
+                    return Err(StoreError::Uncommitted {
+                        reason: format!("{e}; PostgreSQL rolled the transaction back"),
+                    })
+                }
+                Ok(None) | Err(_) if patience.again("a commit's outcome is unknown", &e) => {}
+                Ok(None) | Err(_) => return Err(e),
+            }
+        }
+    }
+
     /// Whether `x`, whose COMMIT went unanswered, committed the batch
     /// whose first seq is `first_seq`: `None` when PostgreSQL cannot say
     /// (unreachable, or the transaction still in progress after the
@@ -649,6 +688,72 @@ mod tests {
             })
             .unwrap();
         assert_eq!(logged, [5, 6]);
+    }
+
+    /// An unanswered COMMIT's outcome is asked again while PostgreSQL
+    /// cannot say, within the store's patience, and no longer.
+    #[test]
+    fn an_unanswered_commit_is_settled_once_postgres_is_back() {
+        let Some(db) = strata_tests::postgres::database("pg_commit_settled") else {
+            return;
+        };
+        let cfg = PgConfig {
+            url: db.url(),
+            connect_timeout_ms: 1_000,
+            ..PgConfig::default()
+        };
+        let store = PgStore::open(&cfg, 8).unwrap();
+        let other = Pool::open(&cfg).unwrap();
+        let x = other
+            .run("logging one entry", async |c: &mut Conn| {
+                let x = begin(c).await?;
+                c.batch("INSERT INTO edit_log (seq, entry) VALUES (3, '\\x00'); COMMIT")
+                    .await?;
+                Ok(x)
+            })
+            .unwrap();
+        drop(other);
+        let admin = Pool::open(&PgConfig {
+            url: db.cluster().url("postgres"),
+            ..PgConfig::default()
+        })
+        .unwrap();
+        let name = db.name().to_string();
+        let allow = |yes: bool| {
+            let sql = format!(
+                "ALTER DATABASE \"{name}\" WITH ALLOW_CONNECTIONS {yes}; \
+                 SELECT pg_terminate_backend(pid) FROM pg_stat_activity \
+                 WHERE datname = '{name}' AND pid <> pg_backend_pid()"
+            );
+            admin
+                .run("opening or closing the database", async |c: &mut Conn| {
+                    c.batch(&sql).await
+                })
+                .unwrap();
+        };
+        let unanswered = || StoreError::PgTimeout {
+            what: "committing a batch",
+            limit_ms: 1,
+        };
+        allow(false);
+        let gave_up = store.settle(x, 3, unanswered(), &mut Patience::new(Duration::ZERO));
+        assert!(
+            matches!(gave_up, Err(StoreError::PgTimeout { .. })),
+            "{gave_up:?}"
+        );
+        let settled = std::thread::scope(|s| {
+            s.spawn(|| {
+                std::thread::sleep(Duration::from_millis(800));
+                allow(true);
+            });
+            let mut patience = Patience::new(Duration::from_secs(20));
+            store.settle(x, 3, unanswered(), &mut patience)
+        });
+        assert!(settled.is_ok(), "{settled:?}");
+        assert!(matches!(
+            store.settle(x, 4, unanswered(), &mut Patience::new(Duration::ZERO)),
+            Err(StoreError::Uncommitted { .. })
+        ));
     }
 
     #[test]

@@ -15,6 +15,9 @@ pub const DEFAULT_PG_POOL_WAIT_MS: u64 = 5_000;
 /// How long one store call (one transaction) may run, enforced by the
 /// server (`statement_timeout`) and by the client's wait.
 pub const DEFAULT_PG_STATEMENT_TIMEOUT_MS: u64 = 30_000;
+/// How long a server without `[cluster]` keeps trying a commit while
+/// PostgreSQL is unreachable before it stops (0: it stops at once).
+pub const DEFAULT_PG_COMMIT_RETRY_MS: u64 = 30_000;
 /// Longest allowed timeout of each kind.
 pub const MAX_PG_TIMEOUT_MS: u64 = 600_000;
 
@@ -30,6 +33,8 @@ pub struct PgConfig {
     pub connect_timeout_ms: u64,
     pub pool_wait_ms: u64,
     pub statement_timeout_ms: u64,
+    /// See [`DEFAULT_PG_COMMIT_RETRY_MS`].
+    pub commit_retry_ms: u64,
     /// The `application_name` its connections give when the URL names
     /// none: [`SERVER_APPLICATION`] unless [`PgConfig::for_admin`] set it.
     #[serde(skip)]
@@ -49,6 +54,7 @@ impl Default for PgConfig {
             connect_timeout_ms: DEFAULT_PG_CONNECT_TIMEOUT_MS,
             pool_wait_ms: DEFAULT_PG_POOL_WAIT_MS,
             statement_timeout_ms: DEFAULT_PG_STATEMENT_TIMEOUT_MS,
+            commit_retry_ms: DEFAULT_PG_COMMIT_RETRY_MS,
             program: None,
         }
     }

@@ -32,6 +32,7 @@ mod import;
 mod lease;
 mod migrate;
 mod pages;
+mod patience;
 mod pool;
 mod read;
 mod scan_check;
@@ -481,8 +482,30 @@ impl ChunkStore for PgStore {
     }
 
     fn commit_batch(&self, batch: &CommitBatch) -> Result<CommitStats, StoreError> {
-        self.keep_serving()?;
-        self.commit(batch)
+        let window = match self.leases {
+            None => self.pool.commit_retry(),
+            Some(_) => std::time::Duration::ZERO,
+        };
+        let mut patience = patience::Patience::new(window);
+        loop {
+            let tried = self
+                .keep_serving()
+                .map_err(|e| match e {
+                    // Before the batch's transaction: nothing written.
+                    StoreError::Postgres(_) | StoreError::PgTimeout { .. } => {
+                        StoreError::Uncommitted {
+                            reason: format!("taking the serving lock again: {e}"),
+                        }
+                    }
+                    e => e,
+                })
+                .and_then(|()| self.commit(batch, &mut patience));
+            match tried {
+                Err(e @ StoreError::Uncommitted { .. })
+                    if patience.again("a commit wrote nothing", &e) => {}
+                done => return done,
+            }
+        }
     }
 
     fn log_entry(&self, seq: u64) -> Result<Option<LogEntry>, StoreError> {

@@ -125,6 +125,8 @@ pub struct Pool {
     connect_timeout: Duration,
     pool_wait: Duration,
     statement_timeout: Duration,
+    /// `[store.postgres] commit_retry_ms`.
+    commit_retry: Duration,
     /// The server ends a session left idle inside a transaction this long
     /// (a paused node), rolling it back and freeing its row locks.
     idle_in_transaction: Duration,
@@ -157,6 +159,7 @@ impl Pool {
             connect_timeout: Duration::from_millis(cfg.connect_timeout_ms),
             pool_wait: Duration::from_millis(cfg.pool_wait_ms),
             statement_timeout: Duration::from_millis(cfg.statement_timeout_ms),
+            commit_retry: Duration::from_millis(cfg.commit_retry_ms),
             idle_in_transaction: idle_in_transaction.max(Duration::from_millis(1)),
         };
         let first = pool.take()?;
@@ -167,6 +170,11 @@ impl Pool {
     /// The statement timeout every connection runs under.
     pub fn statement_timeout(&self) -> Duration {
         self.statement_timeout
+    }
+
+    /// How long a commit may wait out an outage ([`super::patience`]).
+    pub fn commit_retry(&self) -> Duration {
+        self.commit_retry
     }
 
     /// One call on a pooled connection, under the statement timeout. A
