@@ -42,6 +42,7 @@ mod net_eviction;
 mod net_frame_cache;
 mod net_heightmap;
 mod net_interest;
+mod net_join_order;
 mod net_mesh_hashes;
 mod net_queue_share;
 mod net_rejoin;

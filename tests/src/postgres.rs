@@ -222,6 +222,24 @@ impl PgCluster {
         )
     }
 
+    /// Stops the server as an operator's restart does (`-m fast`: sessions
+    /// ended, their transactions rolled back).
+    pub fn stop(&self) -> Result<(), String> {
+        run(self.as_owner("pg_ctl").arg("-D").arg(self.data()).args([
+            "-m",
+            "fast",
+            "-w",
+            "-t",
+            &PG_CTL_WAIT_S.to_string(),
+            "stop",
+        ]))
+    }
+
+    /// Starts a [`Self::stop`]ped server again, on its port.
+    pub fn start_again(&self) -> Result<(), String> {
+        self.pg_ctl_start()
+    }
+
     /// The server's log so far (for a failing test's message).
     pub fn log(&self) -> String {
         std::fs::read_to_string(self.root.path().join("server.log")).unwrap_or_default()
@@ -371,6 +389,15 @@ pub fn database(test: &str) -> Option<PgDb> {
         panic!("creating database {name}: {e}\n{}", cluster.log());
     }
     Some(PgDb { cluster, name })
+}
+
+/// A cluster of `test`'s own, for a test that stops it: `None` as for
+/// [`database`].
+pub fn private_cluster(test: &str) -> Option<PgCluster> {
+    match bin_dir().and_then(|bin| PgCluster::start(&bin)) {
+        Ok(c) => Some(c),
+        Err(why) => crate::not_run(test, "PostgreSQL 15 (apt-get install postgresql-15)", &why),
+    }
 }
 
 fn is_root() -> bool {

@@ -26,11 +26,18 @@ impl Engine {
                 capabilities,
                 stored,
             } => {
-                // A new login replaces the player's oldest sessions past the cap.
-                let mut older = self.sessions_of(&player);
-                older.sort_unstable();
-                let excess = (older.len() + 1).saturating_sub(self.cfg.sessions_per_player.max(1));
-                for &id in &older[..excess] {
+                // A new login replaces the player's oldest sessions past the
+                // cap, by id (the order their connections came, as the
+                // session slots go): this one too, when a newer login's
+                // Join came first.
+                let mut all = self.sessions_of(&player);
+                all.push(session);
+                all.sort_unstable();
+                let excess = all
+                    .len()
+                    .saturating_sub(self.cfg.sessions_per_player.max(1));
+                let replaced: Vec<u64> = all.drain(..excess).collect();
+                for &id in replaced.iter().filter(|&&id| id != session) {
                     info!(session = id, %player, "replaced by a newer login");
                     self.end_session(id, ErrorCode::Kicked, "replaced by a newer login");
                 }
@@ -52,6 +59,10 @@ impl Engine {
                     last_seq: self.durable_seq,
                     start,
                 });
+                if replaced.contains(&session) {
+                    info!(session, "replaced by a newer login before it joined");
+                    self.end_session(session, ErrorCode::Kicked, "replaced by a newer login");
+                }
             }
             Command::Leave { session } => {
                 self.seq.session_left(session);

@@ -291,12 +291,12 @@ impl Handshake {
 
     /// `player` authenticated: trades the handshake slot for a player
     /// session slot ([`PlayerSlots::take`]), held for the session's life.
-    pub fn admit_player(self, player: &str) -> Result<PlayerSlot, Refused> {
+    pub fn admit_player(self, player: &str, session: u64) -> Result<PlayerSlot, Refused> {
         self.leave_eviction_order()?;
         let why = Refused::Sessions;
         self.admission
             .player_slots
-            .take(player)
+            .take(player, session)
             .ok_or_else(|| self.admission.refused(why, self.slot.addr))
     }
 
@@ -391,11 +391,11 @@ mod tests {
         tokio::time::timeout(Duration::from_secs(1), lost.wait())
             .await
             .expect("the oldest handshake is told");
-        assert_eq!(old.admit_player("old").unwrap_err(), Refused::Evicted);
+        assert_eq!(old.admit_player("old", 1).unwrap_err(), Refused::Evicted);
         assert_eq!(a.handshakes.available_permits(), 0, "still three in all");
         // Admitted, a handshake gives its slot back (however long its
         // eviction handle lives) and is out of the order: never evicted.
-        let _session = mid.admit_player("mid").unwrap();
+        let _session = mid.admit_player("mid", 2).unwrap();
         assert_eq!(a.handshakes.available_permits(), 1);
         let next = a.begin(ip(6)).unwrap();
         assert!(
@@ -404,7 +404,7 @@ mod tests {
                 .is_err(),
             "an admitted session lost its connection"
         );
-        assert!(new.admit_player("new").is_ok(), "a free slot was there");
+        assert!(new.admit_player("new", 3).is_ok(), "a free slot was there");
         drop((newest, next));
         assert_eq!(a.handshakes.available_permits(), 3, "no slot leaked");
         assert!(a.per_address.lock().unwrap().is_empty());
@@ -460,10 +460,10 @@ mod tests {
     async fn sessions_and_admin_sessions_have_their_own_room() {
         let a = Admission::new(limits());
         let ip: IpAddr = [127, 0, 0, 1].into();
-        let p1 = a.begin(ip).unwrap().admit_player("ana").unwrap();
-        let _p2 = a.begin(ip).unwrap().admit_player("bo").unwrap();
+        let p1 = a.begin(ip).unwrap().admit_player("ana", 1).unwrap();
+        let _p2 = a.begin(ip).unwrap().admit_player("bo", 2).unwrap();
         assert_eq!(
-            a.begin(ip).unwrap().admit_player("cy").unwrap_err(),
+            a.begin(ip).unwrap().admit_player("cy", 3).unwrap_err(),
             Refused::Sessions
         );
         let _admin = a.begin(ip).unwrap().admit_admin().unwrap();
@@ -472,7 +472,7 @@ mod tests {
             Refused::AdminSessions
         );
         drop(p1);
-        assert!(a.begin(ip).unwrap().admit_player("cy").is_ok());
+        assert!(a.begin(ip).unwrap().admit_player("cy", 4).is_ok());
         assert!(
             a.per_address.lock().unwrap().is_empty(),
             "no handshake left"

@@ -17,12 +17,15 @@ pub struct PlayerSlots {
     pool: Arc<Semaphore>,
     /// Live sessions one player may have; a login past it ends the oldest.
     per_player: usize,
-    /// Each player's slots, oldest first.
+    /// Each player's slots.
     held: Mutex<HashMap<String, Vec<Arc<Held>>>>,
 }
 
 #[derive(Debug)]
 struct Held {
+    /// Its session's id: the order connections came in, which the engine
+    /// ends a player's sessions by.
+    session: u64,
     permit: Mutex<Option<OwnedSemaphorePermit>>,
     replaced: AtomicBool,
     wake: Notify,
@@ -37,11 +40,11 @@ impl PlayerSlots {
         })
     }
 
-    /// A slot for a session of `player`: a free one, or, with none free,
-    /// the one of `player`'s oldest session when `player` has all its
-    /// sessions already (that session is told, [`PlayerSlot::replaced`]).
-    /// `None`: the server is full.
-    pub fn take(self: &Arc<Self>, player: &str) -> Option<PlayerSlot> {
+    /// A slot for session `session` of `player`: a free one, or, with
+    /// none free, the one of `player`'s oldest session (lowest id) when
+    /// `player` has all its sessions already (that session is told,
+    /// [`PlayerSlot::replaced`]). `None`: the server is full.
+    pub fn take(self: &Arc<Self>, player: &str, session: u64) -> Option<PlayerSlot> {
         let mut held = lock(&self.held);
         let permit = match self.pool.clone().try_acquire_owned() {
             Ok(p) => p,
@@ -50,7 +53,8 @@ impl PlayerSlots {
                 if mine.len() < self.per_player {
                     return None;
                 }
-                let oldest = mine.remove(0);
+                let at = (0..mine.len()).min_by_key(|&i| mine[i].session)?;
+                let oldest = mine.remove(at);
                 let permit = lock(&oldest.permit).take()?;
                 oldest.replaced.store(true, Ordering::Release);
                 oldest.wake.notify_one();
@@ -58,6 +62,7 @@ impl PlayerSlots {
             }
         };
         let slot = Arc::new(Held {
+            session,
             permit: Mutex::new(Some(permit)),
             replaced: AtomicBool::new(false),
             wake: Notify::new(),
@@ -126,10 +131,10 @@ mod tests {
     #[tokio::test]
     async fn a_full_server_lets_a_player_in_on_its_own_oldest_slot_only() {
         let s = slots(2, 1);
-        let ana = s.take("ana").unwrap();
-        let _bo = s.take("bo").unwrap();
-        assert!(s.take("cy").is_none(), "full, and cy holds nothing");
-        let ana_again = s.take("ana").expect("ana's own slot");
+        let ana = s.take("ana", 1).unwrap();
+        let _bo = s.take("bo", 2).unwrap();
+        assert!(s.take("cy", 3).is_none(), "full, and cy holds nothing");
+        let ana_again = s.take("ana", 4).expect("ana's own slot");
         tokio::time::timeout(Duration::from_secs(1), ana.replaced())
             .await
             .expect("the older session is told");
@@ -137,29 +142,31 @@ mod tests {
         assert_eq!(s.pool.available_permits(), 0, "still two in all");
         // The replaced session's end frees nothing: its slot is ana's now.
         drop(ana);
-        assert!(s.take("cy").is_none());
+        assert!(s.take("cy", 5).is_none());
         drop(ana_again);
-        assert!(s.take("cy").is_some(), "a slot freed");
+        assert!(s.take("cy", 6).is_some(), "a slot freed");
         assert_eq!(lock(&s.held).len(), 1, "only bo's left");
     }
 
     #[tokio::test]
     async fn a_player_below_its_sessions_takes_no_slot_of_its_own() {
-        let s = slots(2, 2);
-        let first = s.take("ana").unwrap();
-        let _bo = s.take("bo").unwrap();
+        let s = slots(3, 2);
+        // Admitted out of their connections' order: 7 before 5.
+        let seventh = s.take("ana", 7).unwrap();
+        let fifth = s.take("ana", 5).unwrap();
+        let bo = s.take("bo", 6).unwrap();
         assert!(
-            s.take("ana").is_none(),
-            "a second session would end none: full"
+            s.take("bo", 8).is_none(),
+            "a second bo would end none: full"
         );
-        let second = {
-            drop(_bo);
-            s.take("ana").unwrap()
-        };
-        let third = s.take("ana").expect("past its two: the oldest's");
-        assert!(first.is_replaced() && !second.is_replaced() && !third.is_replaced());
-        drop((first, second, third));
-        assert_eq!(s.pool.available_permits(), 2, "no slot leaked");
+        let ninth = s.take("ana", 9).expect("past its two: the oldest's");
+        assert!(
+            fifth.is_replaced(),
+            "the lowest id, as the engine ends them"
+        );
+        assert!(!seventh.is_replaced() && !ninth.is_replaced() && !bo.is_replaced());
+        drop((fifth, seventh, ninth, bo));
+        assert_eq!(s.pool.available_permits(), 3, "no slot leaked");
         assert!(lock(&s.held).is_empty());
     }
 }

@@ -262,7 +262,7 @@ pub async fn run(
         }
     };
     // Held until the session ends, or a newer login of the player takes it.
-    let slot = match handshake.admit_player(&claims.player) {
+    let slot = match handshake.admit_player(&claims.player, session) {
         Ok(slot) => slot,
         Err(why) => {
             // No login happened: a player retrying at a full server keeps
@@ -1255,14 +1255,14 @@ mod tests {
             Arc::new(tokio::sync::Semaphore::new(1)),
             1,
         );
-        let slot = slots.take("ana").unwrap();
+        let slot = slots.take("ana", 1).unwrap();
         let (server_side, client_side, _endpoints) = super::super::loopback::pair(None).await;
         let close = async { client_side.close(0u32.into(), b"bye") };
         let (ended, ()) = waiting_until(&engine, &share, (&server_side, &slot), close).await;
         assert!(matches!(ended, Err(End::ClientClosed)));
         // A session still connected, its slot taken by its player's newer login.
         let (server_side, _client_side, _endpoints) = super::super::loopback::pair(None).await;
-        let newer = async { slots.take("ana").expect("its own slot") };
+        let newer = async { slots.take("ana", 2).expect("its own slot") };
         let (ended, _newer) = waiting_until(&engine, &share, (&server_side, &slot), newer).await;
         assert!(
             matches!(&ended, Err(End::Refused(ErrorCode::Kicked, m)) if m == REPLACED),

@@ -177,6 +177,32 @@ impl StoreError {
         matches!(self, StoreError::Codec { .. } | StoreError::Corrupt { .. })
     }
 
+    /// PostgreSQL unreachable rather than refusing: the connection failed,
+    /// closed or timed out, or the server is shutting down, starting up,
+    /// out of connections or (after a failover) read-only. What a server
+    /// alone on its database waits out ([`crate::store::pg`]'s patience).
+    pub fn is_pg_outage(&self) -> bool {
+        use tokio_postgres::error::SqlState;
+        let unreachable = [
+            SqlState::ADMIN_SHUTDOWN,
+            SqlState::CRASH_SHUTDOWN,
+            SqlState::CANNOT_CONNECT_NOW,
+            SqlState::TOO_MANY_CONNECTIONS,
+            SqlState::READ_ONLY_SQL_TRANSACTION,
+        ];
+        match self {
+            StoreError::PgTimeout { .. } => true,
+            StoreError::Postgres(e) => {
+                let io = std::error::Error::source(e).is_some_and(|s| s.is::<std::io::Error>());
+                e.is_closed()
+                    || io
+                    || e.code()
+                        .is_some_and(|c| unreachable.contains(c) || c.code().starts_with("08"))
+            }
+            _ => false,
+        }
+    }
+
     /// An error from PostgreSQL itself (the connection may be unusable).
     pub fn is_postgres(&self) -> bool {
         matches!(

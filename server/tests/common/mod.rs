@@ -349,3 +349,48 @@ pub async fn server_chunk(server: &Running, pos: strata_terrain::ChunkPos) -> (u
     admin.close().await;
     r
 }
+
+/// An engine on a flat stone world in a fresh sled store at `dir`, one
+/// worker, spawned: its handle and thread.
+pub fn flat_engine(
+    dir: &Path,
+) -> (
+    strata_server::engine::EngineHandle,
+    std::thread::JoinHandle<anyhow::Result<()>>,
+) {
+    use std::sync::Arc;
+    use strata_server::engine::{Engine, EngineConfig, StreamPolicy};
+    use strata_server::sequencer::{Sequencer, SequencerConfig};
+    use strata_server::store::{ChunkStore, SledStore, WorldMeta};
+    let store = Arc::new(SledStore::open(dir).unwrap());
+    store.init_meta(&WorldMeta::new(1, 1, "")).unwrap();
+    let world = strata_terrain::World::new(Arc::new(strata_terrain::world::FlatGenerator {
+        ground: strata_terrain::Voxel::solid(strata_terrain::material::ids::STONE),
+    }));
+    let seq = Sequencer::new(
+        world,
+        SequencerConfig::default(),
+        strata_server::validate::ValidationConfig::default(),
+        0,
+        strata_terrain::MaterialTable::default(),
+        strata_terrain::edit::StructureLibrary::default(),
+        Vec::new(),
+    );
+    let engine = Engine::new(
+        seq,
+        store,
+        EngineConfig {
+            workers: 1,
+            ..Default::default()
+        },
+        StreamPolicy {
+            send_budget: 1 << 20,
+            regenerable: true,
+        },
+        strata_server::interest::InterestConfig::default(),
+        strata_server::validate::bounds::WorldBounds::default(),
+        Default::default(),
+    )
+    .unwrap();
+    engine.spawn(|| {}).unwrap()
+}

@@ -245,15 +245,13 @@ impl PgStore {
             // ended by the server before it read COMMIT, say): PostgreSQL's
             // record says which.
             Err(e @ StoreError::Postgres(_)) if sent => unanswered(e),
-            // Any other failure of PostgreSQL's before COMMIT (its
-            // connection refused, say) wrote nothing either. (A cluster
-            // node abandons a batch that wrote nothing: only a server
-            // alone is told so, to try again.)
-            Err(e @ StoreError::Postgres(_)) if self.leases.is_none() => {
-                Err(StoreError::Uncommitted {
-                    reason: e.to_string(),
-                })
-            }
+            // PostgreSQL unreachable before COMMIT (its connection refused
+            // or ended, the server shutting down or starting up) wrote
+            // nothing either. (A cluster node abandons a batch that wrote
+            // nothing: only a server alone is told so, to try again.)
+            Err(e) if self.leases.is_none() && e.is_pg_outage() => Err(StoreError::Uncommitted {
+                reason: e.to_string(),
+            }),
             other => other,
         };
         if let (
@@ -336,6 +334,7 @@ impl PgStore {
                         reason: format!("{e}; PostgreSQL rolled the transaction back"),
                     })
                 }
+                Err(replaced @ StoreError::WorldReplaced { .. }) => return Err(replaced),
                 Ok(None) | Err(_) if patience.again("a commit's outcome is unknown", &e) => {}
                 Ok(None) | Err(_) => return Err(e),
             }
@@ -391,14 +390,26 @@ impl PgStore {
                         std::thread::sleep(OUTCOME_POLL);
                         continue;
                     }
-                    return self
-                        .pool
-                        .on_dedicated(&mut conn, what, async |c: &mut Conn| {
-                            let row = c
-                                .query_opt("SELECT 1 FROM edit_log WHERE seq = $1", &[&first_seq])
-                                .await?;
-                            Ok(Some(row.is_some()))
-                        });
+                    // In the world this server started on: a restore while
+                    // PostgreSQL was unreachable may have logged that seq.
+                    let (logged, world) =
+                        self.pool
+                            .on_dedicated(&mut conn, what, async |c: &mut Conn| {
+                                let row = c
+                                    .query_opt(
+                                        "SELECT EXISTS (SELECT 1 FROM edit_log WHERE seq = $1), \
+                                         (SELECT generation FROM world WHERE id = 1)",
+                                        &[&first_seq],
+                                    )
+                                    .await?;
+                                Ok(row.map_or((false, None), |r| {
+                                    (r.get::<_, bool>(0), r.get::<_, Option<String>>(1))
+                                }))
+                            })?;
+                    if let Some(found) = world {
+                        same_world(self.world_id.get(), found)?;
+                    }
+                    return Ok(Some(logged));
                 }
                 Some("aborted") => return Ok(Some(false)),
                 Some("in progress") if Instant::now() < deadline => {
@@ -623,6 +634,7 @@ mod tests {
     use super::*;
     use crate::store::pg::pool::Pool;
     use crate::store::pg::PgConfig;
+    use crate::store::ChunkStore;
 
     /// A commit whose COMMIT went unanswered is resolved by PostgreSQL's
     /// record of its transaction: committed, rolled back, or, while its
@@ -703,6 +715,9 @@ mod tests {
             ..PgConfig::default()
         };
         let store = PgStore::open(&cfg, 8).unwrap();
+        store
+            .init_meta(&crate::store::WorldMeta::new(1, 1, ""))
+            .unwrap();
         let other = Pool::open(&cfg).unwrap();
         let x = other
             .run("logging one entry", async |c: &mut Conn| {
@@ -712,7 +727,6 @@ mod tests {
                 Ok(x)
             })
             .unwrap();
-        drop(other);
         let admin = Pool::open(&PgConfig {
             url: db.cluster().url("postgres"),
             ..PgConfig::default()
@@ -754,6 +768,77 @@ mod tests {
             store.settle(x, 4, unanswered(), &mut Patience::new(Duration::ZERO)),
             Err(StoreError::Uncommitted { .. })
         ));
+        // Committed, but into a world a restore put in place meanwhile:
+        // never acknowledged, never asked again.
+        other
+            .run("replacing the world", async |c: &mut Conn| {
+                c.batch("UPDATE world SET generation = 'restored' WHERE id = 1")
+                    .await
+            })
+            .unwrap();
+        let mut patience = Patience::new(Duration::from_secs(20));
+        let replaced = store.settle(x, 3, unanswered(), &mut patience);
+        assert!(
+            matches!(replaced, Err(StoreError::WorldReplaced { .. })),
+            "{replaced:?}"
+        );
+    }
+
+    /// Before a commit is tried again, a serving lock connection whose
+    /// session no longer holds the lock (lost to a failover, it looked
+    /// open) is dropped, and the lock taken again on a new one.
+    #[test]
+    fn a_retry_takes_the_serving_lock_again_when_its_session_lost_it() {
+        let Some(db) = strata_tests::postgres::database("pg_retry_relocks") else {
+            return;
+        };
+        let cfg = PgConfig {
+            url: db.url(),
+            ..PgConfig::default()
+        };
+        let store = PgStore::open(&cfg, 8).unwrap();
+        store
+            .init_meta(&crate::store::WorldMeta::new(1, 1, ""))
+            .unwrap();
+        store.serve().unwrap();
+        let other = Pool::open(&cfg).unwrap();
+        let holder = || {
+            other
+                .run("who holds the serving lock", async |c: &mut Conn| {
+                    let rows = c
+                        .query(
+                            "SELECT pid FROM pg_locks WHERE locktype = 'advisory' \
+                             AND classid = ($1::bigint >> 32)::oid \
+                             AND objid = ($1::bigint & 4294967295)::oid AND granted \
+                             AND database = (SELECT oid FROM pg_database \
+                                             WHERE datname = current_database())",
+                            &[&super::super::import::SERVING_LOCK],
+                        )
+                        .await?;
+                    Ok(rows.iter().map(|r| r.get::<_, i32>(0)).collect::<Vec<_>>())
+                })
+                .unwrap()
+        };
+        let first = holder();
+        assert_eq!(first.len(), 1, "{first:?}");
+        assert!(
+            !store.recheck_serving(),
+            "a session still holding it is kept"
+        );
+        assert_eq!(holder(), first);
+        // The session lets go of its locks (as a new primary knows none).
+        other
+            .run("ending the lock", async |c: &mut Conn| {
+                c.execute("SELECT pg_terminate_backend($1, 5000)", &[&first[0]])
+                    .await
+                    .map(|_| ())
+            })
+            .unwrap();
+        assert!(store.recheck_serving(), "lost");
+        store.take_serving_lock().unwrap();
+        let now = holder();
+        assert_eq!(now.len(), 1, "{now:?}");
+        assert_ne!(now, first, "taken again on another session");
     }
 
     #[test]

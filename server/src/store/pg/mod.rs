@@ -104,8 +104,28 @@ pub struct PgStore {
     world_id: std::sync::OnceLock<String>,
 }
 
+/// How long a round trip on the serving lock's connection may take before
+/// a retry or an unlock gives up on it.
+const LOCK_CHECK_LIMIT: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Whether this connection's session holds an advisory lock.
+async fn holds_a_lock(c: &mut Conn) -> Result<bool, StoreError> {
+    let row = c
+        .query_opt(
+            "SELECT EXISTS (SELECT 1 FROM pg_locks WHERE locktype = 'advisory' \
+             AND pid = pg_backend_pid() AND granted)",
+            &[],
+        )
+        .await?;
+    Ok(row.is_some_and(|r| r.get::<_, bool>(0)))
+}
+
 impl Drop for PgStore {
     fn drop(&mut self) {
+        // As `close`: no renewal may follow the unlock.
+        if let Some(r) = &self.renewer {
+            r.stop();
+        }
         self.let_go_of_serving();
     }
 }
@@ -220,14 +240,37 @@ impl PgStore {
         if conn.is_closed() {
             return;
         }
-        let unlocked = self.pool.on_dedicated(
+        let what = "releasing the serving lock";
+        let unlocked = self.pool.on_dedicated_within(
             &mut conn,
-            "releasing the serving lock",
+            what,
+            LOCK_CHECK_LIMIT,
             async |c: &mut Conn| c.batch("SELECT pg_advisory_unlock_all()").await,
         );
         if let Err(e) = unlocked {
             tracing::warn!(error = %e, "the serving lock goes with its connection instead");
         }
+    }
+
+    /// Before a commit is tried again: a round trip on the serving lock's
+    /// connection, which looks open until used when it was lost to a
+    /// failover or a partition. Lost, or its session no longer holding
+    /// the lock, it is dropped, and whether it was: the lock must be taken
+    /// again (on a new primary, say) before anything is committed there.
+    fn recheck_serving(&self) -> bool {
+        let mut serving = self.serving.lock().unwrap_or_else(|p| p.into_inner());
+        let Some(conn) = serving.as_mut() else {
+            return false;
+        };
+        let what = "checking the serving lock";
+        let held = self
+            .pool
+            .on_dedicated_within(conn, what, LOCK_CHECK_LIMIT, holds_a_lock);
+        let lost = !matches!(held, Ok(true));
+        if lost {
+            *serving = None;
+        }
+        lost
     }
 
     /// Whether the connection holding the serving lock ended.
@@ -487,16 +530,18 @@ impl ChunkStore for PgStore {
             Some(_) => std::time::Duration::ZERO,
         };
         let mut patience = patience::Patience::new(window);
-        loop {
-            let tried = self
-                .keep_serving()
+        for tries in 0.. {
+            let relock = tries > 0 && self.recheck_serving();
+            let serving = match relock {
+                true => self.take_serving_lock(),
+                false => self.keep_serving(),
+            };
+            let tried = serving
                 .map_err(|e| match e {
                     // Before the batch's transaction: nothing written.
-                    StoreError::Postgres(_) | StoreError::PgTimeout { .. } => {
-                        StoreError::Uncommitted {
-                            reason: format!("taking the serving lock again: {e}"),
-                        }
-                    }
+                    e if e.is_pg_outage() => StoreError::Uncommitted {
+                        reason: format!("taking the serving lock again: {e}"),
+                    },
                     e => e,
                 })
                 .and_then(|()| self.commit(batch, &mut patience));
@@ -506,6 +551,7 @@ impl ChunkStore for PgStore {
                 done => return done,
             }
         }
+        unreachable!("the tries run until one returns")
     }
 
     fn log_entry(&self, seq: u64) -> Result<Option<LogEntry>, StoreError> {
@@ -1033,16 +1079,7 @@ impl ChunkStore for PgStore {
         };
         let held = self
             .pool
-            .on_dedicated(conn, "checking the lock", async |c: &mut Conn| {
-                let row = c
-                    .query_opt(
-                        "SELECT 1 FROM pg_locks WHERE locktype = 'advisory' \
-                     AND pid = pg_backend_pid() AND granted",
-                        &[],
-                    )
-                    .await?;
-                Ok(row.is_some())
-            });
+            .on_dedicated(conn, "checking the lock", holds_a_lock);
         match held {
             Ok(true) => Ok(()),
             Ok(false) | Err(_) => Err(lost()),

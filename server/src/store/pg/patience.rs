@@ -21,15 +21,20 @@ static TRIES: LogEvery = LogEvery::new(LOG_EVERY);
 /// How long one commit may still wait, and its next pause.
 #[derive(Debug)]
 pub(super) struct Patience {
+    window: Duration,
+    /// The window's end, from the first failure: a try that hung until
+    /// its statement timeout (a failover without a reset) still leaves the
+    /// whole window to the tries after it.
     until: Option<Instant>,
     pause: Duration,
 }
 
 impl Patience {
-    /// Waits for `window` at most (zero: never).
+    /// Waits for `window` at most (zero: never) after the first failure.
     pub fn new(window: Duration) -> Self {
         Self {
-            until: (!window.is_zero()).then(|| Instant::now() + window),
+            window,
+            until: None,
             pause: FIRST_PAUSE,
         }
     }
@@ -37,9 +42,12 @@ impl Patience {
     /// After `e` (`what` says what failed): pauses and says to try again,
     /// or, the window spent, says to give up without pausing.
     pub fn again(&mut self, what: &'static str, e: &StoreError) -> bool {
-        let Some(until) = self.until else {
+        if self.window.is_zero() {
             return false;
-        };
+        }
+        let until = *self
+            .until
+            .get_or_insert_with(|| Instant::now() + self.window);
         let left = until.saturating_duration_since(Instant::now());
         if left.is_zero() {
             tracing::error!(error = %e, "{what}; PostgreSQL did not come back within [store.postgres] commit_retry_ms");

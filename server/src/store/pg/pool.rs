@@ -286,7 +286,18 @@ impl Pool {
         what: &'static str,
         f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
     ) -> Result<T, StoreError> {
-        timed(what, self.statement_timeout, f(conn)).0
+        self.on_dedicated_within(conn, what, self.statement_timeout, f)
+    }
+
+    /// [`Pool::on_dedicated`] within `limit`.
+    pub fn on_dedicated_within<T>(
+        &self,
+        conn: &mut Conn,
+        what: &'static str,
+        limit: Duration,
+        f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
+        timed(what, limit, f(conn)).0
     }
 
     /// A connection of its own, for a transaction that spans several calls
