@@ -1092,6 +1092,41 @@ fn a_node_paused_in_its_commit_holds_up_no_other_nodes_commit() {
     );
 }
 
+/// A region row locked by a node paused mid-commit holds up no other
+/// node's engine: a claim of it (its lease run out) is answered
+/// `Contended` at once, and asking its holder for it is skipped, instead
+/// of waiting until PostgreSQL ends the paused session.
+#[test]
+fn a_region_row_locked_by_a_paused_commit_is_not_waited_for() {
+    let Some(db) = database("lease_contended_row") else {
+        return;
+    };
+    let (a, b, _, _) = two_nodes(&db);
+    let r = region(2, 0);
+    granted(&a, r);
+    expire(&db, r);
+    let lock = format!(
+        "SELECT 1 FROM regions WHERE region_x = {} AND region_z = {} FOR UPDATE",
+        r.x, r.z
+    );
+    let (release, holder) = store_common::hold_until_told(&db, &lock);
+    let started = std::time::Instant::now();
+    b.want_regions(&regions(&[r])).unwrap();
+    assert_eq!(
+        b.acquire_regions(&regions(&[r])).unwrap(),
+        RegionAccess::Contended
+    );
+    assert!(
+        started.elapsed() < std::time::Duration::from_secs(5),
+        "waited {:?}",
+        started.elapsed()
+    );
+    release.send(()).unwrap();
+    holder.join().unwrap();
+    // Once the row is free, the claim goes through.
+    granted(&b, r);
+}
+
 fn regions(rs: &[RegionId]) -> std::collections::BTreeSet<RegionId> {
     rs.iter().copied().collect()
 }

@@ -69,6 +69,8 @@ fn access_refusal(access: Result<RegionAccess, StoreError>) -> Result<(), (Rejec
             };
             Err((reason, true))
         }
+        // Another node's commit holds a region row: the player tries again.
+        Ok(RegionAccess::Contended) => Err((RejectReason::Busy, false)),
         Ok(RegionAccess::AtCapacity { held, max }) => {
             debug!(held, "edit refused: this node holds max_held_regions");
             metrics::counter!(m::REGION_CLAIMS_REFUSED).increment(1);

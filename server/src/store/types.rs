@@ -172,6 +172,8 @@ pub enum RegionAccess {
     /// Claiming them would pass `[cluster] max_held_regions` (`max`), and
     /// no other node holds any of them.
     AtCapacity { held: usize, max: usize },
+    /// A region row is locked by another node's commit: try again shortly.
+    Contended,
 }
 
 /// Who writes a region, as this node sees it

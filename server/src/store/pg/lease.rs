@@ -275,6 +275,19 @@ impl NodeLeases {
     }
 }
 
+/// Opens a lease transaction that waits at most [`LOCK_WAIT`] for a row
+/// lock: a region row another node's commit holds (fenced, it holds it to
+/// its end; a node paused mid-commit, until PostgreSQL ends its session)
+/// makes the statement fail at once ([`is_contended`]) instead of holding
+/// up the engine thread or the lease thread for seconds.
+const NO_LOCK_WAITS: &str = "BEGIN; SET LOCAL lock_timeout = '100ms'";
+
+/// Whether `e` is a lock wait [`NO_LOCK_WAITS`] cut short.
+pub(super) fn is_contended(e: &StoreError) -> bool {
+    matches!(e, StoreError::Postgres(pg)
+        if pg.code() == Some(&tokio_postgres::error::SqlState::LOCK_NOT_AVAILABLE))
+}
+
 /// Column arrays of regions for `unnest`.
 fn columns<'a>(regions: impl Iterator<Item = &'a RegionId>) -> (Vec<i32>, Vec<i32>) {
     regions.map(|r| (r.x, r.z)).unzip()
@@ -324,7 +337,7 @@ pub(super) fn claim(
     pool: &Pool,
     leases: &NodeLeases,
     wanted: &BTreeSet<RegionId>,
-    lost: Lost,
+    (lost, begin): (Lost, &'static str),
 ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
     leases.not_superseded()?;
     let started = Instant::now();
@@ -343,7 +356,7 @@ pub(super) fn claim(
     }
     let (xs, zs) = columns(todo.iter());
     let addr = leases.addr();
-    let rows = pool.run("claiming regions", async |c: &mut Conn| {
+    let rows = pool.run_tx("claiming regions", begin, async |c: &mut Conn| {
         c.query(
             "INSERT INTO regions AS r (region_x, region_z, owner, epoch, lease_expires, owner_addr) \
              SELECT x, z, $3, 1, now() + $4::float8 * interval '1 millisecond', $5 \
@@ -486,7 +499,12 @@ pub(super) fn acquire(
     if todo.is_empty() {
         return Ok(RegionAccess::Granted);
     }
-    claim(pool, leases, &todo, Lost::Retake)?;
+    // A row another node's commit holds (a node paused mid-commit holds it
+    // until its session is ended) is not waited for on the engine thread.
+    match claim(pool, leases, &todo, (Lost::Retake, NO_LOCK_WAITS)) {
+        Err(e) if is_contended(&e) => return Ok(RegionAccess::Contended),
+        claimed => claimed?,
+    };
     let Some(&refused) = todo.iter().find(|r| !leases.book().held.contains_key(r)) else {
         return Ok(RegionAccess::Granted);
     };
@@ -801,8 +819,10 @@ pub(super) fn renew(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
             book.sure_until.insert(*r, *sure);
         }
     }
+    // At the epoch this pass renewed: a region let go and claimed again
+    // meanwhile (a newer epoch) is held still.
     for &r in &lost {
-        leases.lose(r);
+        leases.lose_at(r, held.get(&r).copied());
     }
     let mut book = leases.book();
     let Book {
@@ -860,7 +880,7 @@ fn let_go(
         return Ok(BTreeSet::new());
     }
     let (xs, zs, epochs) = held_columns(regions)?;
-    let rows = pool.run("releasing leases", async |c: &mut Conn| {
+    let rows = pool.run_tx("releasing leases", NO_LOCK_WAITS, async |c: &mut Conn| {
         c.query(
             "WITH mine AS (SELECT r.region_x, r.region_z FROM regions r \
                  JOIN unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
@@ -873,7 +893,16 @@ fn let_go(
             &[&xs, &zs, &epochs, &leases.node_id],
         )
         .await
-    })?;
+    });
+    let rows = match rows {
+        // Held by this node's own commit (its fence extends the lease): not
+        // waited for, so renewals go on; out of the book, it runs out.
+        Err(e) if is_contended(&e) => {
+            tracing::debug!("a region being committed was not released; its lease runs out");
+            return Ok(BTreeSet::new());
+        }
+        rows => rows?,
+    };
     Ok(rows
         .iter()
         .map(|r| RegionId {
@@ -967,7 +996,7 @@ pub(super) fn want(
         return Ok(());
     }
     let (xs, zs) = columns(todo.iter());
-    pool.run("asking for regions", async |c: &mut Conn| {
+    let asked = pool.run_tx("asking for regions", NO_LOCK_WAITS, async |c: &mut Conn| {
         c.execute(
             "UPDATE regions AS r SET wanted_by = $3, wanted_at = now() \
              FROM unnest($1::int4[], $2::int4[]) AS u(x, z) \
@@ -976,7 +1005,19 @@ pub(super) fn want(
             &[&xs, &zs, &leases.node_id],
         )
         .await
-    })?;
+    });
+    match asked {
+        // Their holder is committing (or paused mid-commit): asked again
+        // at a later edit.
+        Err(e) if is_contended(&e) => {
+            let mut book = leases.book();
+            for r in &todo {
+                book.asked.remove(r);
+            }
+            return Ok(());
+        }
+        asked => asked?,
+    };
     for r in &todo {
         info!(node = %leases.node_id, region_x = r.x, region_z = r.z, "region asked for");
     }
@@ -1192,7 +1233,7 @@ impl PgStore {
     ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
         let leases = self.cluster_leases()?;
         let wanted: BTreeSet<RegionId> = regions.iter().copied().collect();
-        claim(&self.pool, leases, &wanted, Lost::Keep)?;
+        claim(&self.pool, leases, &wanted, (Lost::Keep, "BEGIN"))?;
         let held = leases.held();
         Ok(held
             .into_iter()
