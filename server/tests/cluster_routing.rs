@@ -1339,6 +1339,25 @@ fn holder_of(c: &strata_client_sim::Client, region_x: i32) -> Option<RegionHolde
         .map(|r| r.holder)
 }
 
+/// The west and east nodes, both spawning at the border, the east one
+/// letting regions go idle for `release_idle_ms`; the temp dir holding
+/// their data dirs comes first (keep it).
+async fn west_and_idle_east(
+    db: &strata_tests::postgres::PgDb,
+    release_idle_ms: u64,
+) -> (tempfile::TempDir, Running, Running) {
+    let dirs = tempfile::tempdir().unwrap();
+    let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
+    let west = node(&da, db, "west", BORDER_X).await;
+    share_keys(&da, &db_dir);
+    let mut cfg = node_config(&db_dir, db, ("east", BORDER_X), 1_000, 100);
+    if let Some(c) = cfg.cluster.as_mut() {
+        c.release_idle_ms = release_idle_ms;
+    }
+    let east = app::start(cfg).await.expect("node starts");
+    (dirs, west, east)
+}
+
 /// A region its writer lets go idle (`Free`) is still read from that
 /// writer's replica, not from the home node's older copy. Once another
 /// node takes it, the last writer, named by no node and routed to by no
@@ -1349,15 +1368,7 @@ async fn a_region_let_go_is_read_from_its_last_writer_until_another_takes_it() {
         return;
     };
     tokio::time::timeout(TEST_TIMEOUT, async {
-        let dirs = tempfile::tempdir().unwrap();
-        let (da, db_dir) = (dirs.path().join("a"), dirs.path().join("b"));
-        let west = node(&da, &db, "west", BORDER_X).await;
-        share_keys(&da, &db_dir);
-        let mut cfg = node_config(&db_dir, &db, ("east", BORDER_X), 1_000, 100);
-        if let Some(c) = cfg.cluster.as_mut() {
-            c.release_idle_ms = 3_000;
-        }
-        let east = app::start(cfg).await.expect("node starts");
+        let (_dirs, west, east) = west_and_idle_east(&db, 3_000).await;
 
         // Bob's edits claim region 1 for the east node and keep it there
         // until Ann, at home on the west node, has joined the east node.
@@ -1456,6 +1467,64 @@ async fn a_region_let_go_is_read_from_its_last_writer_until_another_takes_it() {
         ann.close().await;
         bob.close().await;
         carl.close().await;
+        west.shutdown().await.unwrap();
+        east.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// A region another node wrote and let go is read from this node as
+/// stored, not from the copy this node had before: a player at home here
+/// with no route to the last writer (a plain client) streams it from
+/// here, and it must not see the pristine or older chunk.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_region_another_node_wrote_and_let_go_is_served_as_stored() {
+    let Some(db) = strata_tests::postgres::database("cluster_free_current") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let (_dirs, west, east) = west_and_idle_east(&db, 1_000).await;
+        // The west node reads region 1's chunk first (as generated).
+        let pos = chunk_of(BORDER_X + 10);
+        let early = standing(&west, "early", BORDER_X + 10).await;
+        early.close().await;
+        // Bob, on the east node, changes it and leaves; the region is let go.
+        let bob = standing(&east, "bob", BORDER_X + 8).await;
+        let (v, changes) = bob.edit_acked(mine_at(BORDER_X + 10)).await.unwrap();
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        let edited = *changes.iter().find(|c| c.pos == pos).expect("changed");
+        bob.close().await;
+        let free = async {
+            loop {
+                let rows = sql(
+                    &db,
+                    "SELECT count(*) FROM regions WHERE region_x = 1 AND owner IS NULL",
+                )
+                .await;
+                if rows == ["1"] {
+                    break;
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        };
+        tokio::time::timeout(Duration::from_secs(20), free)
+            .await
+            .expect("region 1 let go");
+        // Dave, at home on the west node, reads it from there.
+        let dave = connect(&west, "dave", Role::Player).await;
+        dave.send_position(feet(BORDER_X + 10)).unwrap();
+        assert!(
+            eventually(TEST_TIMEOUT, || dave
+                .replica()
+                .get(pos)
+                .is_some_and(|c| c.version >= edited.version))
+            .await,
+            "served {:?}, stored {edited:?}",
+            dave.replica().get(pos).map(|c| c.version)
+        );
+        assert!(dave.replica().mesh_mismatches().is_empty());
+        dave.close().await;
         west.shutdown().await.unwrap();
         east.shutdown().await.unwrap();
     })

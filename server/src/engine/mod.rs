@@ -140,6 +140,9 @@ pub struct Engine {
     /// read them (none after a failed read): a move is swept through
     /// these and this node's own, not through others' copies here.
     free_regions: std::collections::HashSet<crate::sequencer::regions::RegionId>,
+    /// The epoch at which each free region's copies here were last brought
+    /// current (`Engine::bring_free_current`); held ones at their epoch.
+    free_seen: HashMap<crate::sequencer::regions::RegionId, u64>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -213,6 +216,7 @@ impl Engine {
             reload_retry_at: None,
             free_read: Default::default(),
             free_regions: Default::default(),
+            free_seen: Default::default(),
         })
     }
 

@@ -65,6 +65,66 @@ fn to_wire(region: RegionId, holder: RegionHolder) -> RegionOwner {
     }
 }
 
+/// Free regions a pass of [`Engine::bring_free_current`] reloads at most
+/// (the rest wait for the next pass, unswept).
+pub const FREE_RELOADS_PER_PASS: usize = 8;
+
+impl Engine {
+    /// Of `free` (regions no node holds), those whose copies here are
+    /// current, reloading those another node may have written since they
+    /// were last brought current (their epoch moved: every write comes
+    /// under a claim, which raises it): at most
+    /// [`FREE_RELOADS_PER_PASS`] a call. A player at home here reads a
+    /// free region from this node (its client has no route elsewhere), and
+    /// its positions there are swept on these copies.
+    pub(super) fn bring_free_current(&mut self, free: &BTreeSet<RegionId>) -> BTreeSet<RegionId> {
+        // This node's own regions are current at the epoch it holds: once
+        // let go, at that epoch, they need no reload.
+        for (r, e) in &self.region_epochs {
+            self.free_seen.insert(*r, *e);
+        }
+        let epochs = match self.store.free_region_epochs(free) {
+            Ok(e) => e,
+            Err(e) => {
+                self.store_failed(&e);
+                crate::log_every::store_error("regions", "reading free regions failed", &e);
+                return BTreeSet::new();
+            }
+        };
+        let mut current = BTreeSet::new();
+        let mut reloads = 0;
+        for (r, epoch) in epochs {
+            if self.free_seen.get(&r) == Some(&epoch) {
+                current.insert(r);
+                continue;
+            }
+            if reloads == FREE_RELOADS_PER_PASS {
+                continue;
+            }
+            reloads += 1;
+            match self.reload_region(r) {
+                Ok(moved) => {
+                    if moved > 0 {
+                        tracing::info!(
+                            region_x = r.x,
+                            region_z = r.z,
+                            chunks_changed = moved,
+                            "a free region's copies brought current"
+                        );
+                    }
+                    self.free_seen.insert(r, epoch);
+                    current.insert(r);
+                }
+                Err(e) => {
+                    self.store_failed(&e);
+                    crate::log_every::store_error("read", "reloading a free region failed", &e);
+                }
+            }
+        }
+        current
+    }
+}
+
 impl Engine {
     /// Sends `RegionOwners` to every session whose view's regions or
     /// their holders changed since it was last told.
@@ -96,12 +156,16 @@ impl Engine {
                 return;
             }
         };
-        // Positions are swept through free regions (and this node's).
-        self.free_regions = holders
+        // Positions are swept through free regions (and this node's), once
+        // this node's copies of them are current.
+        let free: BTreeSet<RegionId> = holders
             .iter()
             .filter(|(_, h)| matches!(h, RegionHolder::Free))
             .map(|(r, _)| *r)
             .collect();
+        self.free_seen
+            .retain(|r, _| all.contains(r) || self.region_epochs.contains_key(r));
+        self.free_regions = self.bring_free_current(&free).into_iter().collect();
         for (session, regions) in views {
             let owners: Vec<RegionOwner> = regions
                 .iter()

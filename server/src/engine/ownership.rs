@@ -366,7 +366,11 @@ impl Engine {
         }
         match self.store.region_holders(&BTreeSet::from([region])) {
             Ok(holders) => {
-                if holders.iter().any(|(_, h)| *h == RegionHolder::Free) {
+                if holders.iter().any(|(_, h)| *h == RegionHolder::Free)
+                    && !self
+                        .bring_free_current(&BTreeSet::from([region]))
+                        .is_empty()
+                {
                     self.free_regions.insert(region);
                     self.sweep_known();
                 }

@@ -427,6 +427,18 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
         Ok(regions.iter().map(|r| (*r, RegionHolder::Here)).collect())
     }
 
+    /// Of `regions`, those no node holds now (no live lease), each with
+    /// the epoch of its last claim (0: never claimed). Every write into a
+    /// region happens under a claim, which raises its epoch: a copy brought
+    /// current while a region was free at an epoch is current for as long
+    /// as that epoch is the one read here. Uncached: one query.
+    fn free_region_epochs(
+        &self,
+        _regions: &BTreeSet<RegionId>,
+    ) -> Result<Vec<(RegionId, u64)>, StoreError> {
+        Ok(Vec::new())
+    }
+
     /// [`Self::region_holders`] for a viewer (the console's map): it reads
     /// the cache, but what it looks up is not cached, so looking over many
     /// regions cannot push out the holders the engine routes edits by.

@@ -641,6 +641,37 @@ pub(super) fn holders(
     Ok(out)
 }
 
+/// [`crate::store::ChunkStore::free_region_epochs`]: a region with no row
+/// was never claimed (epoch 0).
+pub(super) fn free_epochs(
+    pool: &Pool,
+    regions: &BTreeSet<RegionId>,
+) -> Result<Vec<(RegionId, u64)>, StoreError> {
+    if regions.is_empty() {
+        return Ok(Vec::new());
+    }
+    let (xs, zs) = columns(regions.iter());
+    let rows = pool.run("reading free regions' epochs", async |c: &mut Conn| {
+        c.query(
+            "SELECT q.x, q.z, COALESCE(r.epoch, 0) \
+             FROM unnest($1::int4[], $2::int4[]) AS q(x, z) \
+             LEFT JOIN regions r ON r.region_x = q.x AND r.region_z = q.z \
+             WHERE r.region_x IS NULL OR r.owner IS NULL OR r.lease_expires <= now()",
+            &[&xs, &zs],
+        )
+        .await
+    })?;
+    rows.iter()
+        .map(|row| {
+            let region = RegionId {
+                x: row.get(0),
+                z: row.get(1),
+            };
+            Ok((region, from_sql(row.get(2), "epoch", show(region))?))
+        })
+        .collect()
+}
+
 /// A node that may claim no more: names the first of `todo` another node
 /// holds (so the edit goes there), else says it is full.
 fn at_capacity(

@@ -1107,6 +1107,16 @@ impl ChunkStore for PgStore {
         self.holders(regions, false)
     }
 
+    fn free_region_epochs(
+        &self,
+        regions: &std::collections::BTreeSet<RegionId>,
+    ) -> Result<Vec<(RegionId, u64)>, StoreError> {
+        match &self.leases {
+            Some(_) => lease::free_epochs(&self.pool, regions),
+            None => Ok(Vec::new()),
+        }
+    }
+
     fn take_fresh_regions(&self) -> Vec<(RegionId, Option<u64>)> {
         self.leases
             .as_ref()
