@@ -140,9 +140,14 @@ pub struct Engine {
     /// read them (none after a failed read): a move is swept through
     /// these and this node's own, not through others' copies here.
     free_regions: std::collections::HashSet<crate::sequencer::regions::RegionId>,
-    /// The epoch at which each free region's copies here were last brought
-    /// current (`Engine::bring_free_current`); held ones at their epoch.
-    free_seen: HashMap<crate::sequencer::regions::RegionId, u64>,
+    /// The mark (claim epoch, last seq) at which each free region's copies
+    /// here were last brought current (`Engine::bring_free_current`; at
+    /// most `owners::MAX_FREE_SEEN`).
+    free_seen: HashMap<crate::sequencer::regions::RegionId, crate::store::RegionMark>,
+    /// The free regions current here at the last check, and when it ran
+    /// (one every `owners::FREE_CHECK_EVERY`).
+    free_current: std::collections::HashSet<crate::sequencer::regions::RegionId>,
+    free_checked: Option<Instant>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -217,6 +222,8 @@ impl Engine {
             free_read: Default::default(),
             free_regions: Default::default(),
             free_seen: Default::default(),
+            free_current: Default::default(),
+            free_checked: None,
         })
     }
 

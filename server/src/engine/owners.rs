@@ -65,36 +65,42 @@ fn to_wire(region: RegionId, holder: RegionHolder) -> RegionOwner {
     }
 }
 
-/// Free regions a pass of [`Engine::bring_free_current`] reloads at most
-/// (the rest wait for the next pass, unswept).
+/// Free regions a check of [`Engine::bring_free_current`] reloads at
+/// most (the rest wait for the next check, unswept).
 pub const FREE_RELOADS_PER_PASS: usize = 8;
+/// How often the free regions of the sessions' views are checked against
+/// their marks (between checks, those found current stay so: a region
+/// another node claimed, wrote and let go within one is reloaded at the
+/// next).
+pub const FREE_CHECK_EVERY: Duration = Duration::from_secs(1);
+/// Most free regions whose marks are remembered (past it, all are
+/// forgotten and reloaded as they come up again).
+pub const MAX_FREE_SEEN: usize = 4096;
 
 impl Engine {
     /// Of `free` (regions no node holds), those whose copies here are
-    /// current, reloading those another node may have written since they
-    /// were last brought current (their epoch moved: every write comes
-    /// under a claim, which raises it): at most
-    /// [`FREE_RELOADS_PER_PASS`] a call. A player at home here reads a
-    /// free region from this node (its client has no route elsewhere), and
-    /// its positions there are swept on these copies.
+    /// current, reloading those another node wrote since they were last
+    /// brought current (their mark moved: every write raises the region's
+    /// last seq): at most [`FREE_RELOADS_PER_PASS`] a call. One never
+    /// claimed, (0, 0), nobody wrote. A player at home here reads a free
+    /// region from this node (its client has no route elsewhere), and its
+    /// positions there are swept on these copies.
     pub(super) fn bring_free_current(&mut self, free: &BTreeSet<RegionId>) -> BTreeSet<RegionId> {
-        // This node's own regions are current at the epoch it holds: once
-        // let go, at that epoch, they need no reload.
-        for (r, e) in &self.region_epochs {
-            self.free_seen.insert(*r, *e);
-        }
-        let epochs = match self.store.free_region_epochs(free) {
-            Ok(e) => e,
+        let marks = match self.store.free_region_marks(free) {
+            Ok(m) => m,
             Err(e) => {
                 self.store_failed(&e);
                 crate::log_every::store_error("regions", "reading free regions failed", &e);
                 return BTreeSet::new();
             }
         };
+        if self.free_seen.len() + marks.len() > MAX_FREE_SEEN {
+            self.free_seen.clear();
+        }
         let mut current = BTreeSet::new();
         let mut reloads = 0;
-        for (r, epoch) in epochs {
-            if self.free_seen.get(&r) == Some(&epoch) {
+        for (r, mark) in marks {
+            if mark == (0, 0) || self.free_seen.get(&r) == Some(&mark) {
                 current.insert(r);
                 continue;
             }
@@ -112,7 +118,7 @@ impl Engine {
                             "a free region's copies brought current"
                         );
                     }
-                    self.free_seen.insert(r, epoch);
+                    self.free_seen.insert(r, mark);
                     current.insert(r);
                 }
                 Err(e) => {
@@ -121,6 +127,25 @@ impl Engine {
                 }
             }
         }
+        current
+    }
+
+    /// Of `free`, those current here: checked against their marks once per
+    /// [`FREE_CHECK_EVERY`], else as the last check found them.
+    pub(super) fn current_free(&mut self, free: &BTreeSet<RegionId>) -> BTreeSet<RegionId> {
+        let due = self
+            .free_checked
+            .is_none_or(|at| at.elapsed() >= FREE_CHECK_EVERY);
+        if !due {
+            return free
+                .iter()
+                .filter(|r| self.free_current.contains(r))
+                .copied()
+                .collect();
+        }
+        let current = self.bring_free_current(free);
+        self.free_current = current.iter().copied().collect();
+        self.free_checked = Some(Instant::now());
         current
     }
 }
@@ -163,9 +188,7 @@ impl Engine {
             .filter(|(_, h)| matches!(h, RegionHolder::Free))
             .map(|(r, _)| *r)
             .collect();
-        self.free_seen
-            .retain(|r, _| all.contains(r) || self.region_epochs.contains_key(r));
-        self.free_regions = self.bring_free_current(&free).into_iter().collect();
+        self.free_regions = self.current_free(&free).into_iter().collect();
         for (session, regions) in views {
             let owners: Vec<RegionOwner> = regions
                 .iter()

@@ -366,11 +366,14 @@ impl Engine {
         }
         match self.store.region_holders(&BTreeSet::from([region])) {
             Ok(holders) => {
+                // Brought current first (a reload only when another node
+                // wrote it since: the next player there finds it seen).
                 if holders.iter().any(|(_, h)| *h == RegionHolder::Free)
                     && !self
                         .bring_free_current(&BTreeSet::from([region]))
                         .is_empty()
                 {
+                    self.free_current.insert(region);
                     self.free_regions.insert(region);
                     self.sweep_known();
                 }

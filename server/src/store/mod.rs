@@ -79,7 +79,7 @@ pub use sled_store::{
 };
 pub use types::{
     CheckpointStats, CommitBatch, CommitStats, LogEntry, RawChunk, RegionAccess, RegionHolder,
-    StoredChunk, StoredPosition, WorldMeta, STORE_FORMAT_VERSION,
+    RegionMark, StoredChunk, StoredPosition, WorldMeta, STORE_FORMAT_VERSION,
 };
 pub use world_lock::{with_suffix, WorldLock, LOCK_SUFFIX, REPLACED_SUFFIX, RESTORING_SUFFIX};
 
@@ -428,14 +428,15 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     }
 
     /// Of `regions`, those no node holds now (no live lease), each with
-    /// the epoch of its last claim (0: never claimed). Every write into a
-    /// region happens under a claim, which raises its epoch: a copy brought
-    /// current while a region was free at an epoch is current for as long
-    /// as that epoch is the one read here. Uncached: one query.
-    fn free_region_epochs(
+    /// its mark: the epoch of its last claim and the last seq committed
+    /// into it ((0, 0): never claimed). Every write into a region raises
+    /// its last seq (a fenced commit, under the region row's lock): a copy
+    /// brought current while a region was free at a mark is current for as
+    /// long as that mark is the one read here. Uncached: one query.
+    fn free_region_marks(
         &self,
         _regions: &BTreeSet<RegionId>,
-    ) -> Result<Vec<(RegionId, u64)>, StoreError> {
+    ) -> Result<Vec<(RegionId, RegionMark)>, StoreError> {
         Ok(Vec::new())
     }
 

@@ -176,6 +176,10 @@ pub enum RegionAccess {
     Contended,
 }
 
+/// A free region's mark: the epoch of its last claim and the last seq
+/// committed into it ([`crate::store::ChunkStore::free_region_marks`]).
+pub type RegionMark = (u64, u64);
+
 /// Who writes a region, as this node sees it
 /// ([`crate::store::ChunkStore::region_holders`]).
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -68,7 +68,7 @@ pub(super) fn prepare(
     // Another process runs under this node's id: this one writes nothing.
     leases.not_superseded()?;
     if built.is_none() {
-        claim(pool, leases, regions, (Lost::Keep, "BEGIN"))?;
+        claim(pool, leases, regions, Lost::Keep)?;
     }
     let held = leases.held();
     let lost = leases.lost();

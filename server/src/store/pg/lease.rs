@@ -101,6 +101,9 @@ struct Book {
     free: BTreeMap<RegionId, Instant>,
     /// Other nodes' regions this node asked for ([`want`]), and when.
     asked: BTreeMap<RegionId, Instant>,
+    /// Regions a claim found locked by another node's commit, and until
+    /// when that is the answer ([`CONTENDED_FOR`]).
+    contended: BTreeMap<RegionId, Instant>,
     /// Held regions: until when their lease surely runs (from before the
     /// claim or the last renewal that kept it, plus `lease_ms`). Past it,
     /// with renewals failing (the database out of reach), another node
@@ -275,17 +278,36 @@ impl NodeLeases {
     }
 }
 
-/// Opens a lease transaction that waits at most [`LOCK_WAIT`] for a row
-/// lock: a region row another node's commit holds (fenced, it holds it to
-/// its end; a node paused mid-commit, until PostgreSQL ends its session)
-/// makes the statement fail at once ([`is_contended`]) instead of holding
-/// up the engine thread or the lease thread for seconds.
-const NO_LOCK_WAITS: &str = "BEGIN; SET LOCAL lock_timeout = '100ms'";
+/// How long the engine thread's lease statements wait for a row lock.
+const LOCK_WAIT: &str = "SET lock_timeout = '100ms'";
+/// How long a region found [`RegionAccess::Contended`] is answered so
+/// without another try.
+const CONTENDED_FOR: Duration = Duration::from_millis(500);
 
-/// Whether `e` is a lock wait [`NO_LOCK_WAITS`] cut short.
-pub(super) fn is_contended(e: &StoreError) -> bool {
-    matches!(e, StoreError::Postgres(pg)
-        if pg.code() == Some(&tokio_postgres::error::SqlState::LOCK_NOT_AVAILABLE))
+/// Runs `f`, one statement (autocommit: no lock outlives it), waiting at
+/// most [`LOCK_WAIT`] for a row lock: a region row another node's commit
+/// holds (to its end; a node paused mid-commit, until PostgreSQL ends its
+/// session) answers `None` at once instead of holding up the engine
+/// thread for seconds. The connection is kept.
+fn without_lock_waits<T>(
+    pool: &Pool,
+    what: &'static str,
+    f: impl AsyncFnOnce(&mut Conn) -> Result<T, StoreError>,
+) -> Result<Option<T>, StoreError> {
+    pool.run(what, async |c: &mut Conn| {
+        c.batch(LOCK_WAIT).await?;
+        let out = match f(c).await {
+            Ok(v) => Some(v),
+            Err(StoreError::Postgres(e))
+                if e.code() == Some(&tokio_postgres::error::SqlState::LOCK_NOT_AVAILABLE) =>
+            {
+                None
+            }
+            Err(e) => return Err(e),
+        };
+        c.batch("RESET lock_timeout").await?;
+        Ok(out)
+    })
 }
 
 /// Column arrays of regions for `unnest`.
@@ -337,8 +359,19 @@ pub(super) fn claim(
     pool: &Pool,
     leases: &NodeLeases,
     wanted: &BTreeSet<RegionId>,
-    (lost, begin): (Lost, &'static str),
+    lost: Lost,
 ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
+    claim_waiting(pool, leases, wanted, (lost, true)).map(|claimed| claimed.unwrap_or_default())
+}
+
+/// [`claim`]; without `wait`, `None` when a row lock was not had within
+/// [`LOCK_WAIT`] (nothing claimed).
+fn claim_waiting(
+    pool: &Pool,
+    leases: &NodeLeases,
+    wanted: &BTreeSet<RegionId>,
+    (lost, wait): (Lost, bool),
+) -> Result<Option<BTreeMap<RegionId, u64>>, StoreError> {
     leases.not_superseded()?;
     let started = Instant::now();
     let todo: Vec<RegionId> = {
@@ -352,11 +385,11 @@ pub(super) fn claim(
             .collect()
     };
     if todo.is_empty() {
-        return Ok(BTreeMap::new());
+        return Ok(Some(BTreeMap::new()));
     }
     let (xs, zs) = columns(todo.iter());
     let addr = leases.addr();
-    let rows = pool.run_tx("claiming regions", begin, async |c: &mut Conn| {
+    let statement = async |c: &mut Conn| {
         c.query(
             "INSERT INTO regions AS r (region_x, region_z, owner, epoch, lease_expires, owner_addr) \
              SELECT x, z, $3, 1, now() + $4::float8 * interval '1 millisecond', $5 \
@@ -370,8 +403,15 @@ pub(super) fn claim(
             &[&xs, &zs, &leases.node_id, &leases.lease_ms, &addr],
         )
         .await
-    })?;
-    took(pool, leases, rows, "region claimed", started)
+    };
+    let rows = match wait {
+        true => pool.run("claiming regions", statement)?,
+        false => match without_lock_waits(pool, "claiming regions", statement)? {
+            Some(rows) => rows,
+            None => return Ok(None),
+        },
+    };
+    took(pool, leases, rows, "region claimed", started).map(Some)
 }
 
 /// Books regions a claim or adoption returned (x, z, epoch, last_seq):
@@ -500,11 +540,28 @@ pub(super) fn acquire(
         return Ok(RegionAccess::Granted);
     }
     // A row another node's commit holds (a node paused mid-commit holds it
-    // until its session is ended) is not waited for on the engine thread.
-    match claim(pool, leases, &todo, (Lost::Retake, NO_LOCK_WAITS)) {
-        Err(e) if is_contended(&e) => return Ok(RegionAccess::Contended),
-        claimed => claimed?,
-    };
+    // until its session is ended) is not waited for on the engine thread,
+    // nor tried again for a moment.
+    {
+        let mut book = leases.book();
+        if todo
+            .iter()
+            .any(|r| book.contended.get(r).is_some_and(|until| *until > now))
+        {
+            return Ok(RegionAccess::Contended);
+        }
+        book.contended.retain(|_, until| *until > now);
+    }
+    if claim_waiting(pool, leases, &todo, (Lost::Retake, false))?.is_none() {
+        let mut book = leases.book();
+        if book.contended.len() + todo.len() > MAX_CACHED_HOLDERS {
+            book.contended.clear();
+        }
+        for r in &todo {
+            book.contended.insert(*r, now + CONTENDED_FOR);
+        }
+        return Ok(RegionAccess::Contended);
+    }
     let Some(&refused) = todo.iter().find(|r| !leases.book().held.contains_key(r)) else {
         return Ok(RegionAccess::Granted);
     };
@@ -641,22 +698,23 @@ pub(super) fn holders(
     Ok(out)
 }
 
-/// [`crate::store::ChunkStore::free_region_epochs`]: a region with no row
-/// was never claimed (epoch 0).
-pub(super) fn free_epochs(
+/// [`crate::store::ChunkStore::free_region_marks`]: a region with no row
+/// was never claimed (0, 0).
+pub(super) fn free_marks(
     pool: &Pool,
     regions: &BTreeSet<RegionId>,
-) -> Result<Vec<(RegionId, u64)>, StoreError> {
+) -> Result<Vec<(RegionId, crate::store::RegionMark)>, StoreError> {
     if regions.is_empty() {
         return Ok(Vec::new());
     }
     let (xs, zs) = columns(regions.iter());
     let rows = pool.run("reading free regions' epochs", async |c: &mut Conn| {
         c.query(
-            "SELECT q.x, q.z, COALESCE(r.epoch, 0) \
+            "SELECT q.x, q.z, COALESCE(r.epoch, 0), COALESCE(r.last_seq, 0) \
              FROM unnest($1::int4[], $2::int4[]) AS q(x, z) \
              LEFT JOIN regions r ON r.region_x = q.x AND r.region_z = q.z \
-             WHERE r.region_x IS NULL OR r.owner IS NULL OR r.lease_expires <= now()",
+             WHERE r.region_x IS NULL OR r.owner IS NULL OR r.lease_expires <= now() \
+             ORDER BY q.x, q.z",
             &[&xs, &zs],
         )
         .await
@@ -667,7 +725,11 @@ pub(super) fn free_epochs(
                 x: row.get(0),
                 z: row.get(1),
             };
-            Ok((region, from_sql(row.get(2), "epoch", show(region))?))
+            let epoch = from_sql(row.get(2), "epoch", show(region))?;
+            Ok((
+                region,
+                (epoch, from_sql(row.get(3), "last_seq", show(region))?),
+            ))
         })
         .collect()
 }
@@ -911,7 +973,7 @@ fn let_go(
         return Ok(BTreeSet::new());
     }
     let (xs, zs, epochs) = held_columns(regions)?;
-    let rows = pool.run_tx("releasing leases", NO_LOCK_WAITS, async |c: &mut Conn| {
+    let rows = pool.run("releasing leases", async |c: &mut Conn| {
         c.query(
             "WITH mine AS (SELECT r.region_x, r.region_z FROM regions r \
                  JOIN unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
@@ -924,16 +986,7 @@ fn let_go(
             &[&xs, &zs, &epochs, &leases.node_id],
         )
         .await
-    });
-    let rows = match rows {
-        // Held by this node's own commit (its fence extends the lease): not
-        // waited for, so renewals go on; out of the book, it runs out.
-        Err(e) if is_contended(&e) => {
-            tracing::debug!("a region being committed was not released; its lease runs out");
-            return Ok(BTreeSet::new());
-        }
-        rows => rows?,
-    };
+    })?;
     Ok(rows
         .iter()
         .map(|r| RegionId {
@@ -1027,7 +1080,7 @@ pub(super) fn want(
         return Ok(());
     }
     let (xs, zs) = columns(todo.iter());
-    let asked = pool.run_tx("asking for regions", NO_LOCK_WAITS, async |c: &mut Conn| {
+    let asked = without_lock_waits(pool, "asking for regions", async |c: &mut Conn| {
         c.execute(
             "UPDATE regions AS r SET wanted_by = $3, wanted_at = now() \
              FROM unnest($1::int4[], $2::int4[]) AS u(x, z) \
@@ -1037,18 +1090,15 @@ pub(super) fn want(
         )
         .await
     });
-    match asked {
-        // Their holder is committing (or paused mid-commit): asked again
-        // at a later edit.
-        Err(e) if is_contended(&e) => {
-            let mut book = leases.book();
-            for r in &todo {
-                book.asked.remove(r);
-            }
-            return Ok(());
+    // Their holder is committing (or paused mid-commit): asked again at a
+    // later edit.
+    if asked?.is_none() {
+        let mut book = leases.book();
+        for r in &todo {
+            book.asked.remove(r);
         }
-        asked => asked?,
-    };
+        return Ok(());
+    }
     for r in &todo {
         info!(node = %leases.node_id, region_x = r.x, region_z = r.z, "region asked for");
     }
@@ -1264,7 +1314,7 @@ impl PgStore {
     ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
         let leases = self.cluster_leases()?;
         let wanted: BTreeSet<RegionId> = regions.iter().copied().collect();
-        claim(&self.pool, leases, &wanted, (Lost::Keep, "BEGIN"))?;
+        claim(&self.pool, leases, &wanted, Lost::Keep)?;
         let held = leases.held();
         Ok(held
             .into_iter()

@@ -1107,12 +1107,12 @@ impl ChunkStore for PgStore {
         self.holders(regions, false)
     }
 
-    fn free_region_epochs(
+    fn free_region_marks(
         &self,
         regions: &std::collections::BTreeSet<RegionId>,
-    ) -> Result<Vec<(RegionId, u64)>, StoreError> {
+    ) -> Result<Vec<(RegionId, crate::store::RegionMark)>, StoreError> {
         match &self.leases {
-            Some(_) => lease::free_epochs(&self.pool, regions),
+            Some(_) => lease::free_marks(&self.pool, regions),
             None => Ok(Vec::new()),
         }
     }
