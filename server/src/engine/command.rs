@@ -19,6 +19,10 @@ pub struct JoinReply {
 /// Why the engine ended a session; the session closes its connection with it.
 pub type Kick = (ErrorCode, String);
 
+/// Why a player's older session ends for its newer login (`Kicked`), by
+/// the engine at the Join or by the session when its slot was taken.
+pub const REPLACED: &str = "replaced by a newer login";
+
 /// A request to the engine. Sessions `try_send` these; a full engine
 /// queue means the server is overloaded.
 #[derive(Debug)]

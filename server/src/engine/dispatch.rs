@@ -39,7 +39,7 @@ impl Engine {
                 let replaced: Vec<u64> = all.drain(..excess).collect();
                 for &id in replaced.iter().filter(|&&id| id != session) {
                     info!(session = id, %player, "replaced by a newer login");
-                    self.end_session(id, ErrorCode::Kicked, "replaced by a newer login");
+                    self.end_session(id, ErrorCode::Kicked, super::REPLACED);
                 }
                 // A cluster node's session read where the player was last
                 // saved: a node that had it since knows a newer place and
@@ -61,7 +61,7 @@ impl Engine {
                 });
                 if replaced.contains(&session) {
                     info!(session, "replaced by a newer login before it joined");
-                    self.end_session(session, ErrorCode::Kicked, "replaced by a newer login");
+                    self.end_session(session, ErrorCode::Kicked, super::REPLACED);
                 }
             }
             Command::Leave { session } => {

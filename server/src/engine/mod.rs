@@ -35,7 +35,7 @@ mod stream;
 mod tick;
 mod unreadable;
 
-pub use command::{Command, JoinReply, Kick};
+pub use command::{Command, JoinReply, Kick, REPLACED};
 pub use config::{
     EngineConfig, StreamPolicy, DEFAULT_COMMAND_QUEUE, DEFAULT_CONTROL_QUEUE,
     DEFAULT_SESSIONS_PER_PLAYER, DEFAULT_STREAM_US, DEFAULT_TICK_MS, MAX_COMMAND_QUEUE,

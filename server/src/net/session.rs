@@ -22,7 +22,7 @@ use super::position_reads::{PositionReads, ReadRefused};
 use super::writer::{spawn_writer, FrameSender, SendRefused};
 use crate::auth::{self, AuthError, Secret};
 use crate::engine::{
-    fanout_control, now_ms, Command, EngineHandle, LatestPosition, Queued, SessionShare,
+    fanout_control, now_ms, Command, EngineHandle, LatestPosition, Queued, SessionShare, REPLACED,
 };
 use crate::log_every::LogEvery;
 use crate::shutdown::Shutdown;
@@ -431,9 +431,6 @@ async fn joined(
     info!("session ended");
     true
 }
-
-/// Why a player's older session ends for its newer login.
-pub const REPLACED: &str = "replaced by a newer login";
 
 enum End {
     ClientClosed,
