@@ -446,6 +446,55 @@ fn a_region_idle_for_release_idle_ms_is_let_go_for_any_node_to_claim() {
     assert_eq!(b.leases().unwrap().held().len(), 1);
 }
 
+/// A release that fails (the database out of reach) keeps the region in
+/// the book: renewals keep its lease and a later pass lets it go, where it
+/// used to stay leased to this node, unrenewed, until its lease ran out.
+#[test]
+fn a_release_that_fails_keeps_the_region_until_one_succeeds() {
+    let Some(db) = database("lease_release_fails") else {
+        return;
+    };
+    let a = open_node(
+        &db,
+        &ClusterConfig {
+            node_id: "a".into(),
+            lease_ms: 400,
+            renew_ms: 100,
+            adopt: false,
+            release_idle_ms: 400,
+            ..ClusterConfig::default()
+        },
+    );
+    let allow = |yes: bool| {
+        let name = db.name();
+        store_common::sql_url(
+            &db.cluster().url("postgres"),
+            &format!(
+                "ALTER DATABASE \"{name}\" WITH ALLOW_CONNECTIONS {yes}; \
+                 SELECT pg_terminate_backend(pid) FROM pg_stat_activity \
+                 WHERE datname = '{name}' AND pid <> pg_backend_pid()"
+            ),
+        )
+    };
+    let r = region(4, 0);
+    granted(&a, r);
+    a.take_fresh_regions();
+    // Closed before the region idles: every release (the renewal thread's,
+    // every 100 ms, and this one) fails.
+    allow(false);
+    std::thread::sleep(Duration::from_millis(800));
+    assert!(a.release_idle_regions().is_err(), "the database is closed");
+    assert!(a.leases().unwrap().held().contains_key(&r), "kept");
+    allow(true);
+    let owner = || region_text(&db, r, "owner");
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while owner() != [""] {
+        assert!(std::time::Instant::now() < deadline, "never released");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(!a.leases().unwrap().held().contains_key(&r));
+}
+
 /// A region another node asks for (an edit of its own reaches into it)
 /// is handed over once this node's edits have left it alone for
 /// `handoff_idle_ms`: one in use is kept until then, the asker's claim
@@ -1126,16 +1175,7 @@ fn a_region_row_locked_by_a_paused_commit_is_not_waited_for() {
     );
     release.send(()).unwrap();
     holder.join().unwrap();
-    let wanted_by = || {
-        sql(
-            &db,
-            &format!(
-                "SELECT COALESCE(wanted_by, '') FROM regions \
-                 WHERE region_x = {} AND region_z = {}",
-                r.x, r.z
-            ),
-        )
-    };
+    let wanted_by = || region_text(&db, r, "wanted_by");
     assert_eq!(wanted_by(), [""], "the ask was skipped");
     // The skipped ask is made at the next edit's.
     b.want_regions(&regions(&[r])).unwrap();
@@ -1172,6 +1212,17 @@ fn a_free_regions_mark_moves_with_every_write() {
     let (_, (epoch_now, seq_now)) = marks()[0];
     assert_eq!(epoch_now, epoch);
     assert!(seq_now > seq, "{seq_now} after {seq}");
+}
+
+/// Text column `column` of region `r`'s row ('' for NULL).
+fn region_text(db: &PgDb, r: RegionId, column: &str) -> Vec<String> {
+    sql(
+        db,
+        &format!(
+            "SELECT COALESCE({column}, '') FROM regions WHERE region_x = {} AND region_z = {}",
+            r.x, r.z
+        ),
+    )
 }
 
 fn regions(rs: &[RegionId]) -> std::collections::BTreeSet<RegionId> {

@@ -996,6 +996,33 @@ fn let_go(
         .collect())
 }
 
+/// [`let_go`] of regions already taken out of the book (`used_at`: when
+/// each was last used). Failing (the database out of reach), they go back
+/// into it at their epoch, unless claimed again meanwhile, and are
+/// reported fresh again: renewals keep them and a later pass lets them
+/// go, where their rows would otherwise stay leased to this node,
+/// unrenewed and refusing every other node, until they ran out.
+fn let_go_or_keep(
+    pool: &Pool,
+    leases: &NodeLeases,
+    gone: &BTreeMap<RegionId, u64>,
+    used_at: &BTreeMap<RegionId, Instant>,
+) -> Result<BTreeSet<RegionId>, StoreError> {
+    let_go(pool, leases, gone).inspect_err(|_| {
+        let mut book = leases.book();
+        for (r, epoch) in gone {
+            if book.held.contains_key(r) {
+                continue;
+            }
+            book.held.insert(*r, *epoch);
+            book.fresh.insert(*r);
+            if let Some(at) = used_at.get(r) {
+                book.used.insert(*r, *at);
+            }
+        }
+    })
+}
+
 /// Releases the held regions the engine has not asked for in
 /// `release_idle_ms`, and past half of `max_held_regions` those idle for
 /// a whole lease, least recently used first, down to half. They leave the
@@ -1004,6 +1031,7 @@ fn let_go(
 pub(super) fn release_idle(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, StoreError> {
     let keep = leases.max_held / 2;
     let idle_for = Duration::from_secs_f64(leases.lease_ms / 1000.0);
+    let mut used_at = BTreeMap::new();
     let gone: BTreeMap<RegionId, u64> = {
         let mut book = leases.book();
         if book.held.len() <= keep && leases.release_idle.is_none() {
@@ -1023,11 +1051,12 @@ pub(super) fn release_idle(pool: &Pool, leases: &NodeLeases) -> Result<Vec<Regio
         });
         let over = book.held.len().saturating_sub(keep).max(stale);
         let mut gone = BTreeMap::new();
-        for (_, r) in idle.into_iter().take(over) {
+        for (at, r) in idle.into_iter().take(over) {
             book.used.remove(&r);
             if let Some(epoch) = book.held.remove(&r) {
                 book.fresh.insert(r);
                 gone.insert(r, epoch);
+                used_at.insert(r, at);
             }
         }
         let idle = gone.len().min(stale);
@@ -1038,7 +1067,7 @@ pub(super) fn release_idle(pool: &Pool, leases: &NodeLeases) -> Result<Vec<Regio
         counter("cap", gone.len() - idle);
         gone
     };
-    let_go(pool, leases, &gone)?;
+    let_go_or_keep(pool, leases, &gone, &used_at)?;
     for r in gone.keys() {
         info!(node = %leases.node_id, region_x = r.x, region_z = r.z, "idle region released");
     }
@@ -1131,6 +1160,7 @@ pub(super) fn hand_over(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId
     })?;
     let now = Instant::now();
     let mut to = BTreeMap::new();
+    let mut used_at = BTreeMap::new();
     let gone: BTreeMap<RegionId, u64> = {
         let mut book = leases.book();
         let mut gone = BTreeMap::new();
@@ -1147,7 +1177,9 @@ pub(super) fn hand_over(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId
                 continue;
             }
             if let Some(epoch) = book.held.remove(&r) {
-                book.used.remove(&r);
+                if let Some(at) = book.used.remove(&r) {
+                    used_at.insert(r, at);
+                }
                 book.fresh.insert(r);
                 gone.insert(r, epoch);
                 to.insert(r, row.get::<_, String>(2));
@@ -1159,7 +1191,7 @@ pub(super) fn hand_over(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId
         return Ok(Vec::new());
     }
     // One an edit here claimed again meanwhile stays.
-    let released = let_go(pool, leases, &gone)?;
+    let released = let_go_or_keep(pool, leases, &gone, &used_at)?;
     metrics::counter!(crate::metrics::REGIONS_RELEASED, "why" => "handoff")
         .increment(released.len() as u64);
     for r in &released {
