@@ -919,6 +919,9 @@ fn threads_named(pid: u32, prefix: &str) -> Vec<u64> {
     out
 }
 
+/// Scenes asked for before the render threads must show CPU time.
+const RENDER_TRIES: usize = 20;
+
 /// Renders run on the console's own pool of `render_threads`, not on
 /// threads the engine ticks on: a 3-D view's meshing is done by them.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -960,19 +963,29 @@ async fn renders_run_on_the_consoles_own_threads() {
             y - 1,
             y + 1
         );
-        let scene = get(web, &path, Some(&admin)).await;
-        assert_eq!(
-            scene.status,
-            200,
-            "{}",
-            String::from_utf8_lossy(&scene.body)
-        );
-        let glb = read_glb(&scene.body).unwrap();
-        assert!(glb.mesh.indices.len() >= 3 * 1000, "a surface was meshed");
-        let used: u64 = threads_named(pid, "strata-render-").iter().sum();
+        // CPU time is counted in clock ticks (10 ms), and one scene may
+        // fall between them on a loaded machine: renders are asked again
+        // until the pool's threads show some, a bounded number of times.
+        let mut used = before;
+        for _ in 0..RENDER_TRIES {
+            let scene = get(web, &path, Some(&admin)).await;
+            assert_eq!(
+                scene.status,
+                200,
+                "{}",
+                String::from_utf8_lossy(&scene.body)
+            );
+            let glb = read_glb(&scene.body).unwrap();
+            assert!(glb.mesh.indices.len() >= 3 * 1000, "a surface was meshed");
+            used = threads_named(pid, "strata-render-").iter().sum();
+            if used > before {
+                break;
+            }
+        }
         assert!(
             used > before,
-            "the render threads did the work: {before} -> {used} ticks"
+            "the render threads did the work: {before} -> {used} ticks \
+             after {RENDER_TRIES} scenes"
         );
     })
     .await
