@@ -2165,3 +2165,138 @@ async fn a_login_whose_stored_position_read_fails_is_refused_not_let_in_unplaced
     .await
     .expect("within the test timeout");
 }
+
+/// A node numbers its edits from seq blocks of `[cluster] seq_block`
+/// seqs: it reserves the next block while a quarter of one is left, so a
+/// player's edits go on being acknowledged, in order, across many blocks.
+/// While no block can be reserved, edits past the block's end wait,
+/// numbered nowhere, and go on once one is. Every seq is inside one of
+/// the node's blocks, and the log checks out.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_moves_on_to_its_next_seq_block_before_one_runs_out() {
+    let Some(db) = strata_tests::postgres::database("cluster_seq_blocks") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 5_000, 500);
+        let block = strata_server::cluster::MIN_SEQ_BLOCK;
+        cfg.cluster.as_mut().unwrap().seq_block = block;
+        let loose = strata_server::validate::ratelimit::BucketConfig {
+            capacity: 1 << 20,
+            per_second: 1 << 20,
+        };
+        cfg.validation.edit_rate = loose;
+        cfg.validation.volume_rate = loose;
+        let west = app::start(cfg).await.expect("node starts");
+        let ann = Arc::new(standing(&west, "ann", WEST_X).await);
+        let seqs = Arc::new(std::sync::Mutex::new(Vec::new()));
+        edit_around(&ann, 4 * block as usize, &seqs).await;
+        let blocks = seq_blocks(&db).await;
+        assert!(blocks.len() >= 4, "{blocks:?}");
+        assert!(blocks.iter().all(|(f, l)| l - f + 1 == block), "{blocks:?}");
+        assert_within(&seqs.lock().unwrap(), &blocks);
+
+        // No block can be reserved (a check no new row passes): of two
+        // blocks' worth of edits, those past this block's end wait.
+        sql(
+            &db,
+            "ALTER TABLE seq_blocks ADD CONSTRAINT no_new_block CHECK (first_seq < 0) NOT VALID",
+        )
+        .await;
+        let done = seqs.lock().unwrap().len();
+        let editing = tokio::spawn({
+            let (ann, seqs) = (ann.clone(), seqs.clone());
+            async move { edit_around(&ann, 2 * block as usize, &seqs).await }
+        });
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        let waited = seqs.lock().unwrap().len() - done;
+        assert!(waited <= block as usize, "{waited} acknowledged");
+        assert_eq!(seq_blocks(&db).await, blocks, "no block reserved");
+        let last: u64 = sql(&db, "SELECT max(seq) FROM edit_log").await[0]
+            .parse()
+            .unwrap();
+        assert!(
+            last <= blocks.last().unwrap().1,
+            "seq {last} past {blocks:?}"
+        );
+        sql(&db, "ALTER TABLE seq_blocks DROP CONSTRAINT no_new_block").await;
+        editing.await.unwrap();
+        let seqs = seqs.lock().unwrap().clone();
+        assert_eq!(seqs.len(), done + 2 * block as usize, "all acknowledged");
+        let blocks = seq_blocks(&db).await;
+        assert_within(&seqs, &blocks);
+
+        let url = db.url();
+        let report = tokio::task::spawn_blocking(move || {
+            use strata_server::store::ChunkStore;
+            let pg = strata_server::store::pg::PgConfig {
+                url,
+                ..Default::default()
+            };
+            strata_server::store::PgStore::open(&pg, 8)
+                .unwrap()
+                .check()
+                .unwrap()
+        })
+        .await
+        .unwrap();
+        assert!(report.is_ok(), "{report:?}");
+        let ann = Arc::into_inner(ann).expect("the editing task is done");
+        finish(ann, west).await;
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// `n` mining edits around the feet of `c` (standing at `WEST_X`; within
+/// reach, none under them), 12 in flight at a time (a session may have
+/// 16): each must be accepted, its seq pushed onto `seqs`.
+async fn edit_around(c: &strata_client_sim::Client, n: usize, seqs: &std::sync::Mutex<Vec<u64>>) {
+    let around = [(-4, -4), (-4, 0), (-4, 4), (0, -4), (0, 4), (4, -4), (4, 0)];
+    let edits: Vec<Edit> = around
+        .iter()
+        .cycle()
+        .take(n)
+        .map(|(dx, dz)| mine_at_xz(WEST_X + dx, Z + dz))
+        .collect();
+    for burst in edits.chunks(12) {
+        let mut sent = Vec::new();
+        for e in burst {
+            sent.push(c.submit(e.clone()).await.unwrap());
+        }
+        for s in sent {
+            match c.verdict(s).await.unwrap().0 {
+                Verdict::Accepted { seq } => seqs.lock().unwrap().push(seq),
+                other => panic!("{other:?}"),
+            }
+        }
+    }
+}
+
+/// The west node's seq blocks: (first, last) in order.
+async fn seq_blocks(db: &strata_tests::postgres::PgDb) -> Vec<(u64, u64)> {
+    let rows = sql(
+        db,
+        "SELECT first_seq || ' ' || last_seq FROM seq_blocks \
+         WHERE node = 'west' ORDER BY first_seq",
+    )
+    .await;
+    rows.iter()
+        .map(|r| {
+            let (a, b) = r.split_once(' ').unwrap();
+            (a.parse().unwrap(), b.parse().unwrap())
+        })
+        .collect()
+}
+
+/// `seqs` rise, each inside one of `blocks`.
+fn assert_within(seqs: &[u64], blocks: &[(u64, u64)]) {
+    assert!(seqs.windows(2).all(|w| w[0] < w[1]), "in order: {seqs:?}");
+    for s in seqs {
+        assert!(
+            blocks.iter().any(|(f, l)| (f..=l).contains(&s)),
+            "seq {s} outside the node's blocks {blocks:?}"
+        );
+    }
+}

@@ -72,6 +72,39 @@ fn no_seq_is_handed_out_past_the_highest_a_store_holds() {
     assert_eq!((s.queued(), s.last_seq()), (1, MAX_SEQ));
 }
 
+/// A cluster node's seq block ends at the limit: a tick hands out seqs up
+/// to it and no further; the rest wait until the next block's floor and
+/// end are given, and are numbered from there.
+#[test]
+fn edits_past_the_seq_limit_wait_for_the_next_block() {
+    let mut s = Sequencer::new(
+        world(),
+        SequencerConfig::default(),
+        ValidationConfig::default(),
+        100,
+        MaterialTable::default(),
+        StructureLibrary::default(),
+        vec![],
+    )
+    .without_store();
+    s.limit_seqs(102);
+    assert_eq!(s.seqs_left(), 2);
+    join_at(&mut s, PLAYER, Role::Player, X, Z);
+    for i in 0..4 {
+        s.submit(PLAYER, req(i + 1, mine(X + i as i32, -1, Z + 4, 2)), 0)
+            .unwrap();
+    }
+    let seqs = |t: TickOutput| t.applied.iter().map(|a| a.seq).collect::<Vec<u64>>();
+    assert_eq!(seqs(s.tick(10)), [101, 102]);
+    assert_eq!((s.queued(), s.seqs_left()), (2, 0), "the others wait");
+    assert!(s.tick(20).applied.is_empty());
+    // The next block: 1000 above the last one's end.
+    s.raise_next_seq(1001);
+    s.limit_seqs(2000);
+    assert_eq!(seqs(s.tick(30)), [1001, 1002]);
+    assert_eq!(s.queued(), 0);
+}
+
 #[test]
 fn consecutive_seqs_rising_versions_and_delta_chains() {
     let mut s = Sequencer::new(

@@ -11,8 +11,9 @@ use std::time::Duration;
 
 use store_common::{sql, terrain_chunk, Seq};
 use strata_server::cluster::ClusterConfig;
+use strata_server::cluster::DEFAULT_SEQ_BLOCK as SEQ_BLOCK;
 use strata_server::sequencer::regions::{RegionId, DEFAULT_REGION_CHUNKS};
-use strata_server::store::pg::{PgConfig, SEQ_BLOCK};
+use strata_server::store::pg::PgConfig;
 use strata_server::store::{
     ChunkStore, CommitBatch, LogCursor, PgStore, RegionAccess, StoreError, WorldMeta,
 };
@@ -898,6 +899,14 @@ fn open_node_refuses_bad_cluster_settings() {
             },
             "cluster.handoff_idle_ms",
         ),
+        (
+            ClusterConfig {
+                node_id: "a".into(),
+                seq_block: strata_server::cluster::MIN_SEQ_BLOCK - 1,
+                ..ClusterConfig::default()
+            },
+            "cluster.seq_block",
+        ),
     ] {
         let err = PgStore::open_node(&pg, DEFAULT_REGION_CHUNKS, &cluster).unwrap_err();
         assert!(err.to_string().contains(field), "{err}");
@@ -1085,6 +1094,45 @@ fn a_log_cursor_misses_no_nodes_entries_on_a_cluster() {
     assert_eq!(segments[0].first, 1);
 }
 
+/// Blocks reserved before their last seqs were stored (migration 13)
+/// were 2^40 seqs long: a reader of the log reads such a block that far,
+/// and a block reserved since to its own end (`[cluster] seq_block`).
+#[test]
+fn blocks_reserved_before_their_ends_were_stored_read_as_two_to_the_forty() {
+    let Some(db) = database("lease_block_ends") else {
+        return;
+    };
+    let a = node(&db, "a");
+    let fa = a.reserve_seqs(0).unwrap();
+    drop(a);
+    sql(
+        &db,
+        "ALTER TABLE seq_blocks DROP COLUMN last_seq; \
+         DELETE FROM schema_migrations WHERE version = 13",
+    );
+    let b = open_node(
+        &db,
+        &ClusterConfig {
+            node_id: "b".into(),
+            seq_block: 1000,
+            adopt: false,
+            ..ClusterConfig::default()
+        },
+    );
+    let fb = b.reserve_seqs(0).unwrap();
+    assert_eq!(b.seq_bounds(), (fb, fb + 1000));
+    let ends: BTreeMap<u64, u64> = b
+        .log_segments()
+        .unwrap()
+        .iter()
+        .map(|s| (s.first, s.last))
+        .collect();
+    assert_eq!(
+        ends,
+        BTreeMap::from([(fa + 1, fa + (1 << 40)), (fb + 1, fb + 1000)])
+    );
+}
+
 /// A node paused inside its commit (here: a session holding what such a
 /// commit locks, the world row included, as builds before this one
 /// locked it) holds up no other node's commit: fenced commits lock only
@@ -1246,7 +1294,7 @@ fn nodes_writing_at_once_number_from_their_own_seq_blocks_in_order_per_region() 
     let (a, b, mut wa, mut wb) = two_nodes(&db);
     let (fa, fb) = (wa.last_seq, wb.last_seq);
     assert_eq!((fa, fb), (0, SEQ_BLOCK), "blocks one after the other");
-    assert_eq!((a.seq_floor(), b.seq_floor()), (fa, fb));
+    assert_eq!((a.seq_bounds().0, b.seq_bounds().0), (fa, fb));
     let (ra, rb) = (region(0, 0), region(1, 0));
     // Interleaved commits of two nodes, each in its own region.
     for i in 0..3 {
@@ -1337,7 +1385,7 @@ fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adop
     assert!(b.adopt_regions().unwrap().is_empty());
     assert_eq!(b.take_fresh_regions(), [(r, Some(2))]);
     assert_eq!(b.region_versions(r).unwrap(), [(pos, 2)]);
-    assert_eq!(b.seq_floor(), fb, "b's block is above a's seqs already");
+    assert_eq!(b.seq_bounds().0, fb, "b's block is above a's seqs already");
     // b goes on from the stored chain, with seqs from its block.
     world.last_seq = fb;
     b.commit_batch(&edit(&mut world, &[pos], 3)).unwrap();
@@ -1354,8 +1402,8 @@ fn an_edit_in_another_nodes_region_names_it_and_a_crashed_nodes_regions_are_adop
     b.commit_batch(&edit(&mut world, &[pos2], 5)).unwrap();
     expire(&db, r2);
     granted(&a, r2);
-    assert_eq!(a.seq_floor(), fb + SEQ_BLOCK);
-    world.last_seq = a.seq_floor();
+    assert_eq!(a.seq_bounds().0, fb + SEQ_BLOCK);
+    world.last_seq = a.seq_bounds().0;
     a.commit_batch(&edit(&mut world, &[pos2], 6)).unwrap();
     let report = plain(&db).check().unwrap();
     assert!(report.is_ok(), "{report:?}");
@@ -1400,7 +1448,7 @@ fn taking_back_a_region_written_from_ones_own_block_keeps_the_block() {
     a.commit_batch(&edit(&mut world, &[pos], 1)).unwrap();
     assert_eq!(a.release_leases().unwrap(), 1);
     granted(&a, r);
-    assert_eq!(a.seq_floor(), fa, "no new block for its own seqs");
+    assert_eq!(a.seq_bounds().0, fa, "no new block for its own seqs");
     a.commit_batch(&edit(&mut world, &[pos], 2)).unwrap();
     assert_eq!(
         sql(&db, "SELECT count(*) FROM seq_blocks"),

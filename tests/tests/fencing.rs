@@ -635,7 +635,7 @@ fn three_nodes_write_one_world_and_a_killed_nodes_regions_are_adopted_within_the
     }
     // Three seq blocks, and the log checks out with its jumps between them.
     let blocks: std::collections::BTreeSet<u64> = (0..3)
-        .map(|i| acked_seqs(&acks[i])[0] / strata_server::store::pg::SEQ_BLOCK)
+        .map(|i| acked_seqs(&acks[i])[0] / strata_server::cluster::DEFAULT_SEQ_BLOCK)
         .collect();
     assert_eq!(blocks.len(), 3, "one block per node: {blocks:?}");
     let (status, out) = admin(&["check", "--data-dir", nodes[0].1.to_str().unwrap()]);

@@ -46,6 +46,18 @@ pub const MAX_HANDOFF_IDLE_MS: u64 = 3_600_000;
 /// under the pool, so a login storm leaves commits, chunk loads and
 /// claims their connections.
 pub const DEFAULT_POSITION_READS: usize = 2;
+/// Seqs a node reserves at once (`store/pg/seqs.rs`): one `UPDATE` of
+/// the world row per block. A node takes a new one when a quarter of its
+/// block is left, and whenever it takes a region last written from a newer
+/// block: blocks are spent on handoffs too, so they are small, and 2^39 of
+/// them fit below 2^63. At 10,000 edits a second a block lasts 28 minutes.
+pub const DEFAULT_SEQ_BLOCK: u64 = 1 << 24;
+/// Smallest allowed `seq_block`. A tick hands out at most what its block
+/// has left (the rest of its edits wait for the next block), so a block
+/// smaller than a tick's edits slows the node; it never numbers past one.
+pub const MIN_SEQ_BLOCK: u64 = 64;
+/// Largest allowed `seq_block`.
+pub const MAX_SEQ_BLOCK: u64 = 1 << 40;
 /// Largest allowed `position_reads` (the pool's own cap; at most
 /// `[store.postgres] max_connections - 1` are used, see
 /// [`ClusterConfig::position_reads_with`]).
@@ -100,6 +112,8 @@ pub struct ClusterConfig {
     /// begun and ended in this long is refused (as is one whose read
     /// failed), never let in unplaced.
     pub position_read_ms: u64,
+    /// See [`DEFAULT_SEQ_BLOCK`]: [`MIN_SEQ_BLOCK`]..=[`MAX_SEQ_BLOCK`].
+    pub seq_block: u64,
 }
 
 impl Default for ClusterConfig {
@@ -115,6 +129,7 @@ impl Default for ClusterConfig {
             handoff_idle_ms: DEFAULT_HANDOFF_IDLE_MS,
             position_reads: DEFAULT_POSITION_READS,
             position_read_ms: DEFAULT_POSITION_READ_MS,
+            seq_block: DEFAULT_SEQ_BLOCK,
         }
     }
 }
@@ -190,6 +205,12 @@ impl ClusterConfig {
             self.position_read_ms,
             1,
             MAX_POSITION_READ_MS,
+        )?;
+        within(
+            "cluster.seq_block",
+            self.seq_block,
+            MIN_SEQ_BLOCK,
+            MAX_SEQ_BLOCK,
         )?;
         let most = self.lease_ms / 2;
         if !(MIN_RENEW_MS..=most).contains(&self.renew_ms) {

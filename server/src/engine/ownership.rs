@@ -22,10 +22,15 @@
 //! runs.
 
 use std::collections::BTreeSet;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Shortest time between two tries to reload regions whose reload failed.
 pub const RELOAD_RETRY: Duration = Duration::from_secs(1);
+/// A seq block is followed by the next once this part of it is left (a
+/// quarter: at the default 2^24 seqs, hours ahead of its end).
+pub const SEQ_REFILL_PART: u64 = 4;
+/// How often a failed reservation of the next seq block is tried again.
+pub const SEQ_REFILL_RETRY: Duration = Duration::from_secs(1);
 /// How long a free region read from the store for an edit's sight check
 /// is taken as current: edits aimed there meanwhile (a player refused
 /// again and again, say) cost no more reads.
@@ -333,13 +338,38 @@ impl Engine {
         if let Some(why) = self.store.superseded() {
             anyhow::bail!(why);
         }
-        self.seq
-            .raise_next_seq(self.store.seq_floor().saturating_add(1));
+        self.follow_seq_block();
         self.take_fresh_regions();
         metrics::gauge!(m::REGIONS_HELD).set(self.store.regions_held() as f64);
         self.tell_owners();
         self.sweep_known();
         Ok(())
+    }
+
+    /// Numbers the next edits in the store's current seq block: above its
+    /// floor, none past its end. A block with a quarter or less left is
+    /// followed by a new one (once a reservation fails, tried again every
+    /// [`SEQ_REFILL_RETRY`]; edits past the end wait meanwhile).
+    pub(super) fn follow_seq_block(&mut self) {
+        let (floor, last) = self.store.seq_bounds();
+        self.seq.raise_next_seq(floor.saturating_add(1));
+        let low = self.seq.seqs_left() <= last.saturating_sub(floor) / SEQ_REFILL_PART;
+        let now = Instant::now();
+        if low && self.seq_refill_at.is_none_or(|at| now >= at) {
+            match self.store.reserve_seqs(self.seq.last_seq()) {
+                Ok(_) => self.seq_refill_at = None,
+                Err(e) => {
+                    self.store_failed(&e);
+                    let what =
+                        "reserving the next seq block failed: edits past this one's end wait";
+                    crate::log_every::store_error("seqs", what, &e);
+                    self.seq_refill_at = Some(now + SEQ_REFILL_RETRY);
+                }
+            }
+        }
+        let (floor, last) = self.store.seq_bounds();
+        self.seq.raise_next_seq(floor.saturating_add(1));
+        self.seq.limit_seqs(last);
     }
 
     /// Positions are swept through this node's regions and those it read
@@ -652,7 +682,7 @@ impl Engine {
             self.refuse_edit(session, id, RejectReason::Busy);
         }
         match self.store.reserve_seqs(self.seq.last_seq()) {
-            Ok(floor) => self.seq.raise_next_seq(floor.saturating_add(1)),
+            Ok(_) => self.follow_seq_block(),
             Err(e) => {
                 self.store_failed(&e);
                 error!(error = %e, "reserving a seq block after a fenced commit failed");

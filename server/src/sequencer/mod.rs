@@ -97,6 +97,8 @@ pub struct Sequencer {
     /// [`Self::check_sighted`]; counted with `queue` against its capacity.
     sighting: Vec<sight::Sighted>,
     next_seq: u64,
+    /// The last seq a tick may hand out ([`Self::limit_seqs`]).
+    seq_limit: u64,
     collision: CollisionCache,
     residency: Residency,
     /// Sessions to disconnect for too many refused edits (see `submit`).
@@ -140,6 +142,7 @@ impl Sequencer {
             queue: VecDeque::new(),
             sighting: Vec::new(),
             next_seq: last_seq.saturating_add(1),
+            seq_limit: crate::store::MAX_SEQ,
             residency: Residency::default(),
             disconnect: Vec::new(),
             last_positions: HashMap::new(),
@@ -199,6 +202,18 @@ impl Sequencer {
     /// node moved to a new seq block (`store/pg/seqs.rs`). Between ticks.
     pub fn raise_next_seq(&mut self, next: u64) {
         self.next_seq = self.next_seq.max(next);
+    }
+
+    /// Hands out no seq past `last` (a cluster node's seq block ends
+    /// there; never past [`crate::store::MAX_SEQ`]): edits past it wait
+    /// in the queue for a higher limit. Between ticks.
+    pub fn limit_seqs(&mut self, last: u64) {
+        self.seq_limit = last.min(crate::store::MAX_SEQ);
+    }
+
+    /// Seqs left to hand out below the limit.
+    pub fn seqs_left(&self) -> u64 {
+        (self.seq_limit + 1).saturating_sub(self.next_seq)
     }
 
     /// Region side in chunks (`[sequencer] region_chunks`).

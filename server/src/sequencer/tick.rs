@@ -114,9 +114,10 @@ impl Sequencer {
     pub fn tick_apply(&mut self, now_ms: u64) -> (TickOutput, PendingMeshes) {
         let started = Instant::now();
         self.prune_limits(now_ms);
-        // No seq past `MAX_SEQ` (only a stored seq near it, hostile bytes,
-        // leaves fewer than a tick's): the rest wait, and the queue fills.
-        let seqs_left = (crate::store::MAX_SEQ + 1).saturating_sub(self.next_seq);
+        // No seq past the limit (a cluster node's block's end, or
+        // `MAX_SEQ`, which only a stored seq near it, hostile bytes, comes
+        // near): the rest wait, and the queue fills.
+        let seqs_left = self.seqs_left();
         let take = self
             .queue
             .len()

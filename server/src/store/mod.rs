@@ -343,16 +343,18 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     }
 
     /// The seq the engine continues after, given the store's `last_seq`:
-    /// that one, or in a cluster the seq below a block of seqs reserved for
-    /// this process (`store/pg/seqs.rs`). Called once, before the engine starts.
+    /// that one, or in a cluster the seq below a new block of seqs reserved
+    /// for this process (`store/pg/seqs.rs`). Called before the engine
+    /// starts, after a fenced commit, and when a block runs low.
     fn reserve_seqs(&self, last_seq: u64) -> Result<u64, StoreError> {
         Ok(last_seq)
     }
 
-    /// The engine's next seq must be above this (it rises when a claim
-    /// reserves a new block). Cheap: read at every tick.
-    fn seq_floor(&self) -> u64 {
-        0
+    /// The seqs the engine may hand out: above the first, up to the
+    /// second (a cluster node's block; both rise when a claim reserves a
+    /// new one). Cheap: read at every tick.
+    fn seq_bounds(&self) -> (u64, u64) {
+        (0, MAX_SEQ)
     }
 
     /// Whether this node may write `regions`; claims those it may take.

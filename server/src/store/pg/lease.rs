@@ -69,6 +69,8 @@ pub struct NodeLeases {
     addr: Mutex<String>,
     /// The seq below this process's current block.
     floor: AtomicU64,
+    /// Seqs in each block it reserves (`[cluster] seq_block`).
+    block: u64,
     /// Whether the engine has reserved a block (`reserve_seqs`): until then
     /// claims reserve none, the engine's first block is above them all.
     numbering: std::sync::atomic::AtomicBool,
@@ -136,6 +138,7 @@ impl NodeLeases {
                 .then(|| Duration::from_millis(cfg.handoff_idle_ms)),
             addr: Mutex::new(cfg.advertise.clone()),
             floor: AtomicU64::new(0),
+            block: cfg.seq_block.max(1),
             numbering: std::sync::atomic::AtomicBool::new(false),
             incarnation: new_incarnation(),
             superseded: Mutex::new(None),
@@ -184,6 +187,22 @@ impl NodeLeases {
     /// The seq below this process's current block.
     pub fn seq_floor(&self) -> u64 {
         self.floor.load(Ordering::Acquire)
+    }
+
+    /// The seq below this process's current block and the block's last
+    /// (from one read: a claim may move it to a new block meanwhile).
+    /// Before the engine's first block: none is reserved, no end.
+    pub fn seq_bounds(&self) -> (u64, u64) {
+        let floor = self.seq_floor();
+        match self.numbering.load(Ordering::Acquire) {
+            true => (floor, floor.saturating_add(self.block)),
+            false => (floor, crate::store::MAX_SEQ),
+        }
+    }
+
+    /// Seqs in each block this process reserves.
+    pub(super) fn block_size(&self) -> u64 {
+        self.block
     }
 
     pub(super) fn raise_floor(&self, floor: u64) {
@@ -439,9 +458,9 @@ fn took(
     }
     // Above this node's own block: a node with a newer block wrote there.
     // Within it only this node can have (each block is one node's).
-    let own_block_end = leases.seq_floor().saturating_add(seqs::SEQ_BLOCK);
+    let own_block_end = leases.seq_bounds().1;
     if leases.numbering.load(Ordering::Acquire) && newest > own_block_end {
-        let next = seqs::reserve(pool, &leases.node_id)?;
+        let next = seqs::reserve(pool, &leases.node_id, leases.block)?;
         info!(node = %leases.node_id, first_seq = next + 1, "seq block reserved");
         leases.raise_floor(next);
     }

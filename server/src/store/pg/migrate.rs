@@ -72,6 +72,11 @@ pub const MIGRATIONS: &[(i32, &str, &str)] = &[
         "0012_region_handoffs",
         include_str!("../../../migrations/0012_region_handoffs.sql"),
     ),
+    (
+        13,
+        "0013_seq_block_ends",
+        include_str!("../../../migrations/0013_seq_block_ends.sql"),
+    ),
 ];
 
 /// How long applying the migrations may take in all (waiting for another

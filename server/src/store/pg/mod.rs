@@ -62,7 +62,6 @@ pub use import::{PgImport, SERVING_LOCK};
 pub use lease::{NodeLeases, RegionLease, MAX_ADOPT_PER_RENEWAL, MAX_CACHED_HOLDERS};
 pub use migrate::{MIGRATIONS, MIGRATIONS_TABLE};
 use pool::{Conn, Pool};
-pub use seqs::SEQ_BLOCK;
 
 /// How long one [`ChunkStore::prune_log`] call goes on to further ranges
 /// of the log (a cluster's seq blocks): the next call goes on from there.
@@ -581,7 +580,7 @@ impl ChunkStore for PgStore {
     /// Each range of the log from its own start: the seqs before the first
     /// seq block (numbered by a store alone, from `world.log_base`), then
     /// each block (a cluster node's, from its `pruned_to`). A cluster's
-    /// nodes number from blocks 2^40 apart: a run from the log's start
+    /// nodes number from blocks far apart: a run from the log's start
     /// alone would stop at the first node's newest entry and never reach
     /// another's.
     fn prune_log(&self, before_ms: u64, max: usize) -> Result<u64, StoreError> {
@@ -695,19 +694,18 @@ impl ChunkStore for PgStore {
         if self.leases.is_none() {
             return whole();
         }
-        let size = to_sql(seqs::SEQ_BLOCK, "seq block")?;
         // Each node's newest block, and the highest seq logged in it
         // (pruned ones included).
         let rows = self
             .pool
             .run("reading the log's segments", async |c: &mut Conn| {
                 c.query(
-                    "SELECT b.first_seq, GREATEST(b.first_seq - 1, b.pruned_to, \
+                    "SELECT b.first_seq, b.last_seq, GREATEST(b.first_seq - 1, b.pruned_to, \
                          (SELECT max(e.seq) FROM edit_log e \
-                          WHERE e.seq >= b.first_seq AND e.seq < b.first_seq + $1)) \
+                          WHERE e.seq >= b.first_seq AND e.seq <= b.last_seq)) \
                      FROM seq_blocks b \
                      WHERE b.first_seq IN (SELECT max(first_seq) FROM seq_blocks GROUP BY node)",
-                    &[&size],
+                    &[],
                 )
                 .await
             })?;
@@ -716,11 +714,10 @@ impl ChunkStore for PgStore {
         }
         rows.iter()
             .map(|r| {
-                let first = from_sql(r.get(0), "first_seq", "seq_blocks")?;
                 Ok(crate::store::LogSegment {
-                    first,
-                    last: first + (seqs::SEQ_BLOCK - 1),
-                    head: from_sql(r.get(1), "seq", "edit_log")?,
+                    first: from_sql(r.get(0), "first_seq", "seq_blocks")?,
+                    last: from_sql(r.get(1), "last_seq", "seq_blocks")?,
+                    head: from_sql(r.get(2), "seq", "edit_log")?,
                 })
             })
             .collect()
@@ -1015,14 +1012,16 @@ impl ChunkStore for PgStore {
         let Some(leases) = &self.leases else {
             return Ok(last_seq);
         };
-        let floor = seqs::reserve(&self.pool, leases.node_id())?;
+        let floor = seqs::reserve(&self.pool, leases.node_id(), leases.block_size())?;
         leases.raise_floor(floor);
         tracing::info!(node = %leases.node_id(), first_seq = floor + 1, "seq block reserved");
         Ok(floor)
     }
 
-    fn seq_floor(&self) -> u64 {
-        self.leases.as_ref().map_or(0, |l| l.seq_floor())
+    fn seq_bounds(&self) -> (u64, u64) {
+        self.leases
+            .as_ref()
+            .map_or((0, crate::store::MAX_SEQ), |l| l.seq_bounds())
     }
 
     fn acquire_regions(

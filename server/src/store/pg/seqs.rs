@@ -1,15 +1,17 @@
 //! Seq blocks: how the nodes of a cluster number edits without sharing a
 //! counter on every edit.
 //!
-//! A node reserves a block of [`SEQ_BLOCK`] seqs (one `UPDATE` of the
-//! world row, above every seq reserved or committed before) when its
-//! engine starts, and again when it claims a region whose last edit has a
-//! seq above the start of its block (a region written by a node with a
-//! newer block). Its engine never hands out a seq below its block
-//! ([`crate::store::ChunkStore::seq_floor`]). So two nodes never use the
-//! same seq, and each region's seqs keep rising across owners, which
-//! every fenced commit checks (`fence.rs`). The log then has gaps, each
-//! ending at a block's first seq; `seq_blocks` records those for `check`.
+//! A node reserves a block of `[cluster] seq_block` seqs (one `UPDATE` of
+//! the world row, above every seq reserved or committed before) when its
+//! engine starts, when a quarter of its block is left, and when it claims
+//! a region whose last edit has a seq above its block (a region written by
+//! a node with a newer block). Its engine never hands out a seq outside
+//! its block ([`crate::store::ChunkStore::seq_bounds`]): edits past the
+//! block's end wait for the next one. So two nodes never use the same
+//! seq, and each region's seqs keep rising across owners, which every
+//! fenced commit checks (`fence.rs`). The log then has gaps, each ending
+//! at a block's first seq; `seq_blocks` records those for `check`, and
+//! each block's last seq for readers of the log (`log_cursor.rs`).
 
 use std::collections::BTreeSet;
 
@@ -17,21 +19,17 @@ use super::pool::{Conn, Pool};
 use super::{from_sql, to_sql};
 use crate::store::StoreError;
 
-/// Seqs in one block: at 1,000 edits a second a node takes 35 years to
-/// use one up, and 2^23 blocks fit below 2^63.
-pub const SEQ_BLOCK: u64 = 1 << 40;
-
-/// Reserves the next block for `node`. Returns the seq just below it:
-/// the node's edits are numbered from the one after.
-pub(super) fn reserve(pool: &Pool, node: &str) -> Result<u64, StoreError> {
-    let size = to_sql(SEQ_BLOCK, "seq block")?;
+/// Reserves the next block of `size` seqs for `node`. Returns the seq just
+/// below it: the node's edits are numbered from the one after.
+pub(super) fn reserve(pool: &Pool, node: &str, size: u64) -> Result<u64, StoreError> {
+    let size_sql = to_sql(size, "seq block")?;
     let end: Option<i64> = pool.run_tx("reserving seqs", "BEGIN", async |c: &mut Conn| {
         let Some(row) = c
             .query_opt(
                 "UPDATE world SET seq_reserved = GREATEST(seq_reserved, last_seq) + $1 \
                  WHERE id = 1 AND GREATEST(seq_reserved, last_seq) <= 9223372036854775807 - $1 \
                  RETURNING seq_reserved",
-                &[&size],
+                &[&size_sql],
             )
             .await?
         else {
@@ -39,8 +37,8 @@ pub(super) fn reserve(pool: &Pool, node: &str) -> Result<u64, StoreError> {
         };
         let end: i64 = row.get(0);
         c.execute(
-            "INSERT INTO seq_blocks (first_seq, node) VALUES ($1, $2)",
-            &[&(end - size + 1), &node],
+            "INSERT INTO seq_blocks (first_seq, last_seq, node) VALUES ($1, $2, $3)",
+            &[&(end - size_sql + 1), &end, &node],
         )
         .await?;
         Ok(Some(end))
@@ -50,7 +48,7 @@ pub(super) fn reserve(pool: &Pool, node: &str) -> Result<u64, StoreError> {
             "no seq block left below 2^63 (or no world row yet)".to_string(),
         ));
     };
-    Ok(from_sql(end, "seq_reserved", "world")? - SEQ_BLOCK)
+    Ok(from_sql(end, "seq_reserved", "world")? - size)
 }
 
 /// The first seq of every block ever reserved.
