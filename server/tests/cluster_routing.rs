@@ -1262,26 +1262,8 @@ async fn a_free_region_the_store_cannot_read_refuses_its_edits_until_it_can() {
                 .is_empty(),
             "claimed while unreadable"
         );
-        release.send(()).unwrap();
-        tokio::task::spawn_blocking(move || holder.join().unwrap())
-            .await
-            .unwrap();
-
         // Readable again: the next edit claims it and is taken.
-        let mut accepted = false;
-        for _ in 0..40 {
-            tokio::time::sleep(RELOAD_RETRY / 4).await;
-            let (verdict, _) = ann.edit_acked(mine_at(WEST_X)).await.unwrap();
-            if matches!(verdict, Verdict::Accepted { .. }) {
-                accepted = true;
-                break;
-            }
-            assert_eq!(
-                verdict,
-                Verdict::Rejected(strata_protocol::RejectReason::Busy)
-            );
-        }
-        assert!(accepted, "the region was never reloaded");
+        readable_again(release, holder, &ann).await;
         assert_eq!(
             sql(&db, "SELECT count(*) FROM seq_blocks").await,
             ["1"],
@@ -2299,4 +2281,97 @@ fn assert_within(seqs: &[u64], blocks: &[(u64, u64)]) {
             "seq {s} outside the node's blocks {blocks:?}"
         );
     }
+}
+
+/// A held region whose reload keeps failing (adopted while its chunks
+/// cannot be read) refuses its edits `Busy`, and those refusals do not
+/// count as using it: it is let go once idle for `release_idle_ms`, not
+/// kept by a player who keeps trying. Once readable, an edit claims it
+/// again and is taken.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_region_whose_reload_keeps_failing_is_let_go_once_idle() {
+    let Some(db) = strata_tests::postgres::database("cluster_reload_idle") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 1_000, 200);
+        cfg.store.postgres.statement_timeout_ms = 300;
+        cfg.cluster.as_mut().unwrap().release_idle_ms = 1_000;
+        let west = app::start(cfg).await.expect("node starts");
+        let ann = standing(&west, "ann", WEST_X).await;
+
+        // The deltas table held by another session: region 0's chunks
+        // cannot be read. A node that went away left region 0 leased;
+        // west adopts it, and its reload fails.
+        let lock = "LOCK TABLE chunk_deltas IN ACCESS EXCLUSIVE MODE";
+        let (release, holder) = crate::store_common::hold_until_told(&db, lock);
+        let thief = thief_takes_region_zero(&db).await;
+        tokio::task::spawn_blocking(move || drop(thief))
+            .await
+            .unwrap();
+        let owner = "SELECT owner FROM regions WHERE region_x = 0 AND region_z = 0";
+        sql(
+            &db,
+            "UPDATE regions SET lease_expires = now() - interval '1 second' \
+             WHERE region_x = 0 AND region_z = 0",
+        )
+        .await;
+        let adopted = async {
+            while sql(&db, owner).await != ["west"] {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        };
+        tokio::time::timeout(Duration::from_secs(10), adopted)
+            .await
+            .expect("west adopts region 0");
+
+        // Ann keeps trying: refused, and the region is let go all the same.
+        let tried = std::time::Instant::now();
+        let mut let_go = false;
+        while tried.elapsed() < Duration::from_secs(8) {
+            let (verdict, _) = ann.edit_acked(mine_at(WEST_X)).await.unwrap();
+            assert_eq!(
+                verdict,
+                Verdict::Rejected(strata_protocol::RejectReason::Busy)
+            );
+            if sql(&db, owner).await.is_empty() {
+                let_go = true;
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+        assert!(let_go, "region 0 kept by refused edits");
+
+        readable_again(release, holder, &ann).await;
+        assert_eq!(sql(&db, owner).await, ["west"]);
+        finish(ann, west).await;
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// Ends the lock `hold_until_told` took, then has `ann` mine at `WEST_X`
+/// until an edit is accepted (each refused one `Busy`), within 10 s.
+async fn readable_again(
+    release: std::sync::mpsc::Sender<()>,
+    holder: std::thread::JoinHandle<()>,
+    ann: &strata_client_sim::Client,
+) {
+    release.send(()).unwrap();
+    tokio::task::spawn_blocking(move || holder.join().unwrap())
+        .await
+        .unwrap();
+    for _ in 0..40 {
+        tokio::time::sleep(RELOAD_RETRY / 4).await;
+        let (verdict, _) = ann.edit_acked(mine_at(WEST_X)).await.unwrap();
+        if matches!(verdict, Verdict::Accepted { .. }) {
+            return;
+        }
+        assert_eq!(
+            verdict,
+            Verdict::Rejected(strata_protocol::RejectReason::Busy)
+        );
+    }
+    panic!("the region was never reloaded");
 }

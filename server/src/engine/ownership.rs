@@ -195,6 +195,13 @@ impl Engine {
             }
             return Ok(Some(Claim { free, all: regions }));
         }
+        // Held, but its reload failed (waiting for its retry): refused
+        // before the store marks it in use, so a region whose reload keeps
+        // failing is let go once idle, not kept by the edits it refuses.
+        self.take_fresh_regions();
+        if held.iter().any(|r| self.reload_retry.contains_key(r)) {
+            return Err(RejectReason::Busy);
+        }
         // Held (marked in use), or more than this node may claim: the
         // store answers now, and claims nothing at capacity.
         let access = self.store.acquire_regions(&regions);
