@@ -2161,7 +2161,8 @@ async fn a_node_moves_on_to_its_next_seq_block_before_one_runs_out() {
     };
     tokio::time::timeout(TEST_TIMEOUT, async {
         let dir = tempfile::tempdir().unwrap();
-        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 5_000, 500);
+        // Renewals (which reserve the next block) every 200 ms.
+        let mut cfg = node_config(dir.path(), &db, ("west", WEST_X), 5_000, 200);
         let block = strata_server::cluster::MIN_SEQ_BLOCK;
         cfg.cluster.as_mut().unwrap().seq_block = block;
         let loose = strata_server::validate::ratelimit::BucketConfig {
@@ -2186,14 +2187,19 @@ async fn a_node_moves_on_to_its_next_seq_block_before_one_runs_out() {
             "ALTER TABLE seq_blocks ADD CONSTRAINT no_new_block CHECK (first_seq < 0) NOT VALID",
         )
         .await;
+        let blocks = seq_blocks(&db).await;
         let done = seqs.lock().unwrap().len();
         let editing = tokio::spawn({
             let (ann, seqs) = (ann.clone(), seqs.clone());
             async move { edit_around(&ann, 2 * block as usize, &seqs).await }
         });
         tokio::time::sleep(Duration::from_secs(2)).await;
-        let waited = seqs.lock().unwrap().len() - done;
-        assert!(waited <= block as usize, "{waited} acknowledged");
+        let taken = seqs.lock().unwrap().len() - done;
+        assert!(
+            taken <= block as usize,
+            "{taken} of {} acknowledged",
+            2 * block
+        );
         assert_eq!(seq_blocks(&db).await, blocks, "no block reserved");
         let last: u64 = sql(&db, "SELECT max(seq) FROM edit_log").await[0]
             .parse()

@@ -459,10 +459,10 @@ fn a_release_that_fails_keeps_the_region_until_one_succeeds() {
         &db,
         &ClusterConfig {
             node_id: "a".into(),
-            lease_ms: 400,
+            lease_ms: 2_000,
             renew_ms: 100,
             adopt: false,
-            release_idle_ms: 400,
+            release_idle_ms: 2_000,
             ..ClusterConfig::default()
         },
     );
@@ -480,10 +480,11 @@ fn a_release_that_fails_keeps_the_region_until_one_succeeds() {
     let r = region(4, 0);
     granted(&a, r);
     a.take_fresh_regions();
-    // Closed before the region idles: every release (the renewal thread's,
-    // every 100 ms, and this one) fails.
+    // Closed before the region idles (well before: closing takes a while
+    // on a loaded machine): every release (the renewal thread's, every
+    // 100 ms, and this one) fails.
     allow(false);
-    std::thread::sleep(Duration::from_millis(800));
+    std::thread::sleep(Duration::from_millis(2_500));
     assert!(a.release_idle_regions().is_err(), "the database is closed");
     assert!(a.leases().unwrap().held().contains_key(&r), "kept");
     allow(true);
@@ -1081,34 +1082,66 @@ fn a_log_cursor_misses_no_nodes_entries_on_a_cluster() {
         .unwrap();
     assert_eq!(read(&mut cursor), [floor + 1]);
     assert!(!cursor.pruned(&a).unwrap());
-    // Every block pruned to its end: a cursor at the end now has lost
-    // nothing (the heads count pruned entries), so readers do not start
-    // over and over.
-    assert_eq!(a.prune_log(u64::MAX >> 1, 100).unwrap(), 4);
+    // Node a fills a block and moves on twice between two reads: the
+    // block in the middle, never a node's newest when read, is read too.
+    wa.last_seq = a.reserve_seqs(wa.last_seq).unwrap();
+    let middle = wa.last_seq + 1;
+    a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], 5))
+        .unwrap();
+    wa.last_seq = a.reserve_seqs(wa.last_seq).unwrap();
+    a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], 6))
+        .unwrap();
+    assert_eq!(read(&mut cursor), [middle, wa.last_seq]);
+    assert!(!cursor.pruned(&a).unwrap());
+    // One more block, not read yet when every block is pruned to its end:
+    // a cursor at the end now has lost nothing (the heads count pruned
+    // entries), so readers do not start over and over; this one has lost
+    // the new block's entry.
+    let behind = cursor;
+    wa.last_seq = a.reserve_seqs(wa.last_seq).unwrap();
+    a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], 7))
+        .unwrap();
+    assert!(!behind.pruned(&a).unwrap());
+    assert_eq!(a.prune_log(u64::MAX >> 1, 100).unwrap(), 7);
     let fresh = LogCursor::at_end(&a).unwrap();
-    assert!(!fresh.pruned(&a).unwrap() && !cursor.pruned(&a).unwrap());
+    assert!(!fresh.pruned(&a).unwrap());
+    assert!(behind.pruned(&a).unwrap(), "the new block's entry is gone");
     // A server alone on the store reads the log whole, whatever blocks
     // the cluster left.
-    let segments = plain(&db).log_segments().unwrap();
+    let segments = plain(&db).log_segments(0).unwrap();
     assert_eq!(segments.len(), 1);
     assert_eq!(segments[0].first, 1);
 }
 
 /// Blocks reserved before their last seqs were stored (migration 13)
 /// were 2^40 seqs long: a reader of the log reads such a block that far,
-/// and a block reserved since to its own end (`[cluster] seq_block`).
+/// and a block reserved since to its own end (`[cluster] seq_block`);
+/// `check` takes the log across both.
 #[test]
 fn blocks_reserved_before_their_ends_were_stored_read_as_two_to_the_forty() {
     let Some(db) = database("lease_block_ends") else {
         return;
     };
+    // As a build before migration 13 left it: node a's block of 2^40.
     let a = node(&db, "a");
     let fa = a.reserve_seqs(0).unwrap();
+    let mut wa = Seq {
+        last_seq: fa,
+        ..Seq::default()
+    };
+    let (ra, rb) = (region(0, 0), region(1, 0));
+    a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], 1))
+        .unwrap();
     drop(a);
     sql(
         &db,
-        "ALTER TABLE seq_blocks DROP COLUMN last_seq; \
-         DELETE FROM schema_migrations WHERE version = 13",
+        &format!(
+            "ALTER TABLE seq_blocks DROP COLUMN last_seq; \
+             DROP INDEX seq_blocks_node; \
+             UPDATE world SET seq_reserved = {}; \
+             DELETE FROM schema_migrations WHERE version = 13",
+            fa + (1 << 40)
+        ),
     );
     let b = open_node(
         &db,
@@ -1119,10 +1152,12 @@ fn blocks_reserved_before_their_ends_were_stored_read_as_two_to_the_forty() {
             ..ClusterConfig::default()
         },
     );
+    let mut cursor = LogCursor::default();
     let fb = b.reserve_seqs(0).unwrap();
+    assert_eq!(fb, fa + (1 << 40), "above the old block");
     assert_eq!(b.seq_bounds(), (fb, fb + 1000));
     let ends: BTreeMap<u64, u64> = b
-        .log_segments()
+        .log_segments(0)
         .unwrap()
         .iter()
         .map(|s| (s.first, s.last))
@@ -1131,6 +1166,17 @@ fn blocks_reserved_before_their_ends_were_stored_read_as_two_to_the_forty() {
         ends,
         BTreeMap::from([(fa + 1, fa + (1 << 40)), (fb + 1, fb + 1000)])
     );
+    let mut wb = Seq {
+        last_seq: fb,
+        ..Seq::default()
+    };
+    b.commit_batch(&edit(&mut wb, &[chunk_in(rb, 0)], 2))
+        .unwrap();
+    let mut seqs = Vec::new();
+    cursor.read(&b, |e| seqs.push(e.seq)).unwrap();
+    assert_eq!(seqs, [fa + 1, fb + 1]);
+    let report = plain(&db).check().unwrap();
+    assert!(report.is_ok(), "{report:?}");
 }
 
 /// A node paused inside its commit (here: a session holding what such a

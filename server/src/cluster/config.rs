@@ -47,14 +47,16 @@ pub const MAX_HANDOFF_IDLE_MS: u64 = 3_600_000;
 /// claims their connections.
 pub const DEFAULT_POSITION_READS: usize = 2;
 /// Seqs a node reserves at once (`store/pg/seqs.rs`): one `UPDATE` of
-/// the world row per block. A node takes a new one when a quarter of its
-/// block is left, and whenever it takes a region last written from a newer
-/// block: blocks are spent on handoffs too, so they are small, and 2^39 of
-/// them fit below 2^63. At 10,000 edits a second a block lasts 28 minutes.
+/// the world row and a `seq_blocks` row per block. A node takes a new one
+/// when a quarter of its block is left (the quarter goes unused), and
+/// whenever it takes a region last written from a newer block: blocks are
+/// spent on handoffs too, so they are small, and 2^39 of them fit below
+/// 2^63. At 10,000 edits a second a block lasts about 21 minutes.
 pub const DEFAULT_SEQ_BLOCK: u64 = 1 << 24;
-/// Smallest allowed `seq_block`. A tick hands out at most what its block
-/// has left (the rest of its edits wait for the next block), so a block
-/// smaller than a tick's edits slows the node; it never numbers past one.
+/// Smallest allowed `seq_block` (for tests: a small block costs a row and
+/// a wait for the lease thread every few edits). A tick hands out at most
+/// what its block has left, the rest of its edits waiting for the next
+/// block; it never numbers past one.
 pub const MIN_SEQ_BLOCK: u64 = 64;
 /// Largest allowed `seq_block`.
 pub const MAX_SEQ_BLOCK: u64 = 1 << 40;

@@ -132,9 +132,6 @@ pub struct Engine {
     /// fenced. Retried at most every [`ownership::RELOAD_RETRY`].
     reload_retry: std::collections::BTreeMap<crate::sequencer::regions::RegionId, Option<u64>>,
     reload_retry_at: Option<Instant>,
-    /// When a failed reservation of the next seq block is tried again
-    /// ([`ownership::SEQ_REFILL_RETRY`]).
-    seq_refill_at: Option<Instant>,
     /// Free regions read from the store for an edit's sight check, and
     /// when: read again only after [`ownership::FREE_REREAD`] (at most
     /// [`ownership::MAX_FREE_READ`] kept).
@@ -222,7 +219,6 @@ impl Engine {
             region_epochs: HashMap::new(),
             reload_retry: Default::default(),
             reload_retry_at: None,
-            seq_refill_at: None,
             free_read: Default::default(),
             free_regions: Default::default(),
             free_seen: Default::default(),

@@ -22,15 +22,10 @@
 //! runs.
 
 use std::collections::BTreeSet;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Shortest time between two tries to reload regions whose reload failed.
 pub const RELOAD_RETRY: Duration = Duration::from_secs(1);
-/// A seq block is followed by the next once this part of it is left (a
-/// quarter: at the default 2^24 seqs, hours ahead of its end).
-pub const SEQ_REFILL_PART: u64 = 4;
-/// How often a failed reservation of the next seq block is tried again.
-pub const SEQ_REFILL_RETRY: Duration = Duration::from_secs(1);
 /// How long a free region read from the store for an edit's sight check
 /// is taken as current: edits aimed there meanwhile (a player refused
 /// again and again, say) cost no more reads.
@@ -354,29 +349,14 @@ impl Engine {
     }
 
     /// Numbers the next edits in the store's current seq block: above its
-    /// floor, none past its end. A block with a quarter or less left is
-    /// followed by a new one (once a reservation fails, tried again every
-    /// [`SEQ_REFILL_RETRY`]; edits past the end wait meanwhile).
+    /// floor, none past its end (edits past it wait for the next block,
+    /// which the store reserves in the background once told how far the
+    /// engine is).
     pub(super) fn follow_seq_block(&mut self) {
         let (floor, last) = self.store.seq_bounds();
         self.seq.raise_next_seq(floor.saturating_add(1));
-        let low = self.seq.seqs_left() <= last.saturating_sub(floor) / SEQ_REFILL_PART;
-        let now = Instant::now();
-        if low && self.seq_refill_at.is_none_or(|at| now >= at) {
-            match self.store.reserve_seqs(self.seq.last_seq()) {
-                Ok(_) => self.seq_refill_at = None,
-                Err(e) => {
-                    self.store_failed(&e);
-                    let what =
-                        "reserving the next seq block failed: edits past this one's end wait";
-                    crate::log_every::store_error("seqs", what, &e);
-                    self.seq_refill_at = Some(now + SEQ_REFILL_RETRY);
-                }
-            }
-        }
-        let (floor, last) = self.store.seq_bounds();
-        self.seq.raise_next_seq(floor.saturating_add(1));
         self.seq.limit_seqs(last);
+        self.store.note_next_seq(self.seq.next_seq());
     }
 
     /// Positions are swept through this node's regions and those it read

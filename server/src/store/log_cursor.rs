@@ -5,8 +5,10 @@
 //! their own (`pg/seqs.rs`): an entry one node logs after another node's
 //! may have the lower seq, and a reader that kept only the highest seq it
 //! saw would skip it. So the cursor keeps the last seq it read in each
-//! segment being written ([`ChunkStore::log_segments`]: a node's newest
-//! block), each read in seq order.
+//! segment ([`ChunkStore::log_segments`]: a node's block), each read in
+//! seq order, and asks for every segment begun after the newest it knows
+//! (a node may fill blocks between two reads; blocks are reserved, and
+//! become visible, in seq order).
 
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
@@ -41,13 +43,16 @@ struct Seg {
 #[derive(Debug, Clone, Default)]
 pub struct LogCursor {
     segs: BTreeMap<u64, Seg>,
+    /// The first seq of the newest segment known (kept when a segment is
+    /// forgotten: one past it is never read again from its start).
+    newest: u64,
 }
 
 impl LogCursor {
     /// At the log's end now: what is logged from now on is read.
     pub fn at_end(store: &dyn ChunkStore) -> Result<Self, StoreError> {
-        let segs = store
-            .log_segments()?
+        let segs: BTreeMap<u64, Seg> = store
+            .log_segments(u64::MAX)?
             .into_iter()
             .map(|s| {
                 let seg = Seg {
@@ -58,7 +63,8 @@ impl LogCursor {
                 (s.first, seg)
             })
             .collect();
-        Ok(Self { segs })
+        let newest = segs.keys().next_back().copied().unwrap_or(0);
+        Ok(Self { segs, newest })
     }
 
     /// Calls `f` with each entry logged past the cursor (in seq order
@@ -72,16 +78,22 @@ impl LogCursor {
     ) -> Result<(), StoreError> {
         let now = Instant::now();
         let live: BTreeMap<u64, LogSegment> = store
-            .log_segments()?
+            .log_segments(self.newest)?
             .into_iter()
             .map(|s| (s.first, s))
             .collect();
         for s in live.values() {
+            // A segment forgotten (or never known, below the newest: begun
+            // before the cursor was) is not read again from its start.
+            if s.first <= self.newest && !self.segs.contains_key(&s.first) {
+                continue;
+            }
             self.segs.entry(s.first).or_insert(Seg {
                 last: s.last,
                 seen: s.first.saturating_sub(1),
                 gone_since: None,
             });
+            self.newest = self.newest.max(s.first);
         }
         let firsts: Vec<u64> = self.segs.keys().copied().collect();
         for (i, (first, seg)) in self.segs.iter_mut().enumerate() {
@@ -117,12 +129,22 @@ impl LogCursor {
     /// Whether entries past the cursor in some segment were pruned
     /// (`[store] log_retention`): they can no longer be read.
     pub fn pruned(&self, store: &dyn ChunkStore) -> Result<bool, StoreError> {
-        let next: Vec<u64> = self
+        let mut next: Vec<u64> = self
             .segs
             .values()
             .filter(|s| s.seen < s.last)
             .map(|s| s.seen + 1)
             .collect();
+        // Segments begun since, which the next read reads from their start.
+        if !self.segs.is_empty() {
+            next.extend(
+                store
+                    .log_segments(self.newest)?
+                    .iter()
+                    .filter(|s| s.first > self.newest)
+                    .map(|s| s.first),
+            );
+        }
         if next.is_empty() {
             return Ok(false);
         }

@@ -136,10 +136,12 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     }
 
     /// The parts of the edit log being written now, each in seq order
-    /// ([`LogCursor`]): one for a store one process writes; on a cluster's
-    /// PostgreSQL log each node's newest seq block. A segment's head counts
-    /// pruned entries too.
-    fn log_segments(&self) -> Result<Vec<LogSegment>, StoreError> {
+    /// ([`LogCursor`]), and those begun after `since` (a segment's first
+    /// seq): one for a store one process writes; on a cluster's PostgreSQL
+    /// log each node's newest seq block and every block starting above
+    /// `since` (a node may have filled some between two reads). A
+    /// segment's head counts pruned entries too.
+    fn log_segments(&self, _since: u64) -> Result<Vec<LogSegment>, StoreError> {
         Ok(vec![LogSegment {
             first: 1,
             last: i64::MAX as u64,
@@ -356,6 +358,10 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     fn seq_bounds(&self) -> (u64, u64) {
         (0, MAX_SEQ)
     }
+
+    /// The engine numbers its next edit `next` (a cluster node reserves
+    /// its next seq block in the background when its block runs low).
+    fn note_next_seq(&self, _next: u64) {}
 
     /// Whether this node may write `regions`; claims those it may take.
     fn acquire_regions(&self, _regions: &BTreeSet<RegionId>) -> Result<RegionAccess, StoreError> {

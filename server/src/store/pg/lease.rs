@@ -71,6 +71,9 @@ pub struct NodeLeases {
     floor: AtomicU64,
     /// Seqs in each block it reserves (`[cluster] seq_block`).
     block: u64,
+    /// The engine's next seq, as it last told ([`NodeLeases::note_next_seq`]):
+    /// the renewal thread reserves the next block when its block runs low.
+    next_seq: AtomicU64,
     /// Whether the engine has reserved a block (`reserve_seqs`): until then
     /// claims reserve none, the engine's first block is above them all.
     numbering: std::sync::atomic::AtomicBool,
@@ -139,6 +142,7 @@ impl NodeLeases {
             addr: Mutex::new(cfg.advertise.clone()),
             floor: AtomicU64::new(0),
             block: cfg.seq_block.max(1),
+            next_seq: AtomicU64::new(0),
             numbering: std::sync::atomic::AtomicBool::new(false),
             incarnation: new_incarnation(),
             superseded: Mutex::new(None),
@@ -203,6 +207,11 @@ impl NodeLeases {
     /// Seqs in each block this process reserves.
     pub(super) fn block_size(&self) -> u64 {
         self.block
+    }
+
+    /// The engine numbers its next edit `next` (between ticks).
+    pub fn note_next_seq(&self, next: u64) {
+        self.next_seq.store(next, Ordering::Release);
     }
 
     pub(super) fn raise_floor(&self, floor: u64) {
@@ -477,6 +486,31 @@ fn took(
         book.free.remove(&region);
     }
     Ok(got)
+}
+
+/// Reserves the next seq block once the engine, numbering in the current
+/// one, has [`seqs::REFILL_PART`] of it or less left: well before its end
+/// (past it the engine's edits wait), off the engine's thread, retried at
+/// every renewal while it fails. The rest of the block is left unused.
+fn refill_seqs(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreError> {
+    if !leases.numbering.load(Ordering::Acquire) {
+        return Ok(());
+    }
+    let (floor, last) = leases.seq_bounds();
+    let next = leases.next_seq.load(Ordering::Acquire);
+    // Not numbering in this block yet (a claim just moved it on): it is
+    // whole.
+    if next <= floor {
+        return Ok(());
+    }
+    let left = (last + 1).saturating_sub(next);
+    if left > leases.block / seqs::REFILL_PART {
+        return Ok(());
+    }
+    let next_floor = seqs::reserve(pool, &leases.node_id, leases.block)?;
+    info!(node = %leases.node_id, first_seq = next_floor + 1, left, "seq block reserved");
+    leases.raise_floor(next_floor);
+    Ok(())
 }
 
 /// Claims the regions whose owner let its lease run out (not ones this
@@ -1285,6 +1319,10 @@ impl Renewer {
                             warn!(error = %e, "adopting expired regions failed; retrying");
                             pass = pass.and(Err(e));
                         }
+                    }
+                    if let Err(e) = refill_seqs(&pool, &leases) {
+                        warn!(error = %e, "reserving the next seq block failed; retrying");
+                        pass = pass.and(Err(e));
                     }
                     leases.report(&pass);
                     stopped = flag.flag.lock().unwrap_or_else(|p| p.into_inner());

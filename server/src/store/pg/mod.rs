@@ -681,7 +681,7 @@ impl ChunkStore for PgStore {
         Ok(removed)
     }
 
-    fn log_segments(&self) -> Result<Vec<crate::store::LogSegment>, StoreError> {
+    fn log_segments(&self, since: u64) -> Result<Vec<crate::store::LogSegment>, StoreError> {
         let whole = || {
             Ok(vec![crate::store::LogSegment {
                 first: 1,
@@ -694,18 +694,32 @@ impl ChunkStore for PgStore {
         if self.leases.is_none() {
             return whole();
         }
-        // Each node's newest block, and the highest seq logged in it
-        // (pruned ones included).
+        let since = i64::try_from(since).unwrap_or(i64::MAX);
+        // Each node's newest block (the nodes found by a skip over the
+        // (node, first_seq) index, not a scan of every block), every block
+        // begun after `since`, and the highest seq logged in each (pruned
+        // ones included).
         let rows = self
             .pool
             .run("reading the log's segments", async |c: &mut Conn| {
                 c.query(
-                    "SELECT b.first_seq, b.last_seq, GREATEST(b.first_seq - 1, b.pruned_to, \
+                    "WITH RECURSIVE nodes AS ( \
+                         (SELECT node FROM seq_blocks ORDER BY node LIMIT 1) \
+                         UNION ALL \
+                         SELECT (SELECT s.node FROM seq_blocks s WHERE s.node > n.node \
+                                 ORDER BY s.node LIMIT 1) \
+                         FROM nodes n WHERE n.node IS NOT NULL), \
+                     newest AS ( \
+                         SELECT (SELECT max(s.first_seq) FROM seq_blocks s WHERE s.node = n.node) \
+                             AS first_seq \
+                         FROM nodes n WHERE n.node IS NOT NULL) \
+                     SELECT b.first_seq, b.last_seq, GREATEST(b.first_seq - 1, b.pruned_to, \
                          (SELECT max(e.seq) FROM edit_log e \
                           WHERE e.seq >= b.first_seq AND e.seq <= b.last_seq)) \
                      FROM seq_blocks b \
-                     WHERE b.first_seq IN (SELECT max(first_seq) FROM seq_blocks GROUP BY node)",
-                    &[],
+                     WHERE b.first_seq > $1 OR b.first_seq IN (SELECT first_seq FROM newest) \
+                     ORDER BY b.first_seq",
+                    &[&since],
                 )
                 .await
             })?;
@@ -1016,6 +1030,12 @@ impl ChunkStore for PgStore {
         leases.raise_floor(floor);
         tracing::info!(node = %leases.node_id(), first_seq = floor + 1, "seq block reserved");
         Ok(floor)
+    }
+
+    fn note_next_seq(&self, next: u64) {
+        if let Some(l) = &self.leases {
+            l.note_next_seq(next);
+        }
     }
 
     fn seq_bounds(&self) -> (u64, u64) {

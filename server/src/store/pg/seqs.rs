@@ -19,6 +19,11 @@ use super::pool::{Conn, Pool};
 use super::{from_sql, to_sql};
 use crate::store::StoreError;
 
+/// A node reserves its next block once this part of its block is left (a
+/// quarter: at the default 2^24 seqs, hours ahead of its end at most
+/// rates).
+pub const REFILL_PART: u64 = 4;
+
 /// Reserves the next block of `size` seqs for `node`. Returns the seq just
 /// below it: the node's edits are numbered from the one after.
 pub(super) fn reserve(pool: &Pool, node: &str, size: u64) -> Result<u64, StoreError> {
