@@ -45,20 +45,23 @@ impl LogEvery {
 /// Store failures outside a commit, one limiter per op: a store that
 /// stopped answering fails every player's read, so one line a second
 /// stands for them all, without hiding another op's failure.
-static STORE_ERRORS: [LogEvery; 3] = [
+static STORE_ERRORS: [LogEvery; 4] = [
+    LogEvery::new(LOG_EVERY),
     LogEvery::new(LOG_EVERY),
     LogEvery::new(LOG_EVERY),
     LogEvery::new(LOG_EVERY),
 ];
 
 /// Counts a failed store operation (`op`: `read`, `regions`, `checkpoint`,
-/// `prune`; `strata_store_errors_total`) and logs `what` with `error`, at
-/// most one line a second for each of `read`, `regions` and the rest.
+/// `prune`, `seqs`; `strata_store_errors_total`) and logs `what` with
+/// `error`, at most one line a second for each of `read`, `regions`,
+/// `seqs` and the rest.
 pub fn store_error(op: &'static str, what: &str, error: &dyn std::fmt::Display) {
     metrics::counter!(crate::metrics::STORE_ERRORS, "op" => op).increment(1);
     let limiter = match op {
         "read" => &STORE_ERRORS[0],
         "regions" => &STORE_ERRORS[1],
+        "seqs" => &STORE_ERRORS[3],
         _ => &STORE_ERRORS[2],
     };
     if let Some(folded) = limiter.event() {

@@ -141,7 +141,7 @@ pub fn install() -> anyhow::Result<PrometheusHandle> {
     );
     metrics::describe_counter!(
         STORE_ERRORS,
-        "Store operations that failed outside a commit, by op (read: chunks a player or the premesher needed; regions: a cluster node's claims and holders; checkpoint; prune)"
+        "Store operations that failed outside a commit, by op (read: chunks a player or the premesher needed; regions: a cluster node's claims and holders; checkpoint; prune; seqs: a cluster node's next seq block)"
     );
     metrics::describe_counter!(
         STORE_COMMIT_RETRIES,

@@ -930,7 +930,8 @@ fn a_server_with_a_migration_pending_says_a_restore_is_running_at_once() {
         &db,
         "DROP TABLE nodes; ALTER TABLE players DROP COLUMN known_ms; \
          ALTER TABLE world DROP COLUMN generation; \
-         ALTER TABLE seq_blocks DROP COLUMN pruned_to; \
+         ALTER TABLE seq_blocks DROP COLUMN pruned_to, DROP COLUMN last_seq; \
+         DROP INDEX seq_blocks_node, seq_blocks_reserved_at; \
          ALTER TABLE regions DROP COLUMN wanted_by, DROP COLUMN wanted_at; \
          DELETE FROM schema_migrations WHERE version >= 8",
     );

@@ -15,7 +15,7 @@ use strata_server::cluster::DEFAULT_SEQ_BLOCK as SEQ_BLOCK;
 use strata_server::sequencer::regions::{RegionId, DEFAULT_REGION_CHUNKS};
 use strata_server::store::pg::PgConfig;
 use strata_server::store::{
-    ChunkStore, CommitBatch, LogCursor, PgStore, RegionAccess, StoreError, WorldMeta,
+    ChunkStore, CommitBatch, LogCursor, PgStore, RegionAccess, SegmentsAlso, StoreError, WorldMeta,
 };
 use strata_terrain::ChunkPos;
 use strata_tests::postgres::{database, PgDb};
@@ -1093,6 +1093,16 @@ fn a_log_cursor_misses_no_nodes_entries_on_a_cluster() {
         .unwrap();
     assert_eq!(read(&mut cursor), [middle, wa.last_seq]);
     assert!(!cursor.pruned(&a).unwrap());
+    // A cursor begun at the end just after a's lease thread reserved its
+    // next block, while a's engine still finishes a tick in this one:
+    // that tick's entry is read.
+    let next = a.reserve_seqs(wa.last_seq).unwrap();
+    let mut late = LogCursor::at_end(&a).unwrap();
+    a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], 8))
+        .unwrap();
+    assert!(wa.last_seq < next);
+    assert_eq!(read(&mut late), [wa.last_seq]);
+    wa.last_seq = next;
     // One more block, not read yet when every block is pruned to its end:
     // a cursor at the end now has lost nothing (the heads count pruned
     // entries), so readers do not start over and over; this one has lost
@@ -1102,13 +1112,13 @@ fn a_log_cursor_misses_no_nodes_entries_on_a_cluster() {
     a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], 7))
         .unwrap();
     assert!(!behind.pruned(&a).unwrap());
-    assert_eq!(a.prune_log(u64::MAX >> 1, 100).unwrap(), 7);
+    assert_eq!(a.prune_log(u64::MAX >> 1, 100).unwrap(), 8);
     let fresh = LogCursor::at_end(&a).unwrap();
     assert!(!fresh.pruned(&a).unwrap());
     assert!(behind.pruned(&a).unwrap(), "the new block's entry is gone");
     // A server alone on the store reads the log whole, whatever blocks
     // the cluster left.
-    let segments = plain(&db).log_segments(0).unwrap();
+    let segments = plain(&db).log_segments(SegmentsAlso::After(0)).unwrap();
     assert_eq!(segments.len(), 1);
     assert_eq!(segments[0].first, 1);
 }
@@ -1137,7 +1147,7 @@ fn blocks_reserved_before_their_ends_were_stored_read_as_two_to_the_forty() {
         &db,
         &format!(
             "ALTER TABLE seq_blocks DROP COLUMN last_seq; \
-             DROP INDEX seq_blocks_node; \
+             DROP INDEX seq_blocks_node, seq_blocks_reserved_at; \
              UPDATE world SET seq_reserved = {}; \
              DELETE FROM schema_migrations WHERE version = 13",
             fa + (1 << 40)
@@ -1157,7 +1167,7 @@ fn blocks_reserved_before_their_ends_were_stored_read_as_two_to_the_forty() {
     assert_eq!(fb, fa + (1 << 40), "above the old block");
     assert_eq!(b.seq_bounds(), (fb, fb + 1000));
     let ends: BTreeMap<u64, u64> = b
-        .log_segments(0)
+        .log_segments(SegmentsAlso::After(0))
         .unwrap()
         .iter()
         .map(|s| (s.first, s.last))

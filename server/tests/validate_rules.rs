@@ -592,6 +592,51 @@ fn edits_taken_out_of_a_region_get_their_tokens_back() {
     s.admit(PLAYER, req(13, e), 0).unwrap();
 }
 
+/// A cluster node's region reloaded with chunks another node moved: the
+/// queued edits whose sight was checked on its old copies, because their
+/// box or only their sight ray reaches into it, are taken out and refused
+/// `Busy` at no cost; an edit awaiting its sight check stays for it (on the
+/// reloaded chunks), and edits seen elsewhere stay.
+#[test]
+fn edits_seen_through_a_reloaded_region_are_taken_out() {
+    use strata_server::sequencer::regions::RegionId;
+    let v = ValidationConfig {
+        edit_rate: BucketConfig {
+            capacity: 3,
+            per_second: 0,
+        },
+        ..Default::default()
+    };
+    // Regions of one chunk: x 96..128 is region 3, 128..160 region 4.
+    let cfg = SequencerConfig {
+        region_chunks: 1,
+        ..SequencerConfig::default()
+    };
+    let mut s = sequencer(cfg, v);
+    join_at(&mut s, PLAYER, Role::Player, 126, Z);
+    let (here, across) = (mine(124, -1, Z, 1), mine(133, -1, Z, 1));
+    let region = |x| RegionId { x, z: Z / 32 };
+    assert_eq!(s.edit_regions(&across).unwrap(), [region(4)].into());
+    s.admit(PLAYER, req(10, here.clone()), 0).unwrap();
+    s.admit(PLAYER, req(11, across), 0).unwrap();
+    assert!(s.check_sighted(0).is_empty());
+    s.admit(PLAYER, req(12, here), 0).unwrap();
+    assert_eq!((s.queued(), s.sighting()), (2, 1));
+
+    assert!(s.unqueue_seen_in(&[region(5)].into(), 0).is_empty());
+    // Region 3 holds edit 10's box and edit 11's eye.
+    assert_eq!(
+        s.unqueue_seen_in(&[region(3)].into(), 0),
+        vec![(PLAYER, 10), (PLAYER, 11)]
+    );
+    assert_eq!((s.queued(), s.sighting()), (0, 1));
+    // Both edit tokens are back.
+    s.admit(PLAYER, req(13, mine(124, -1, Z + 1, 1)), 0)
+        .unwrap();
+    s.admit(PLAYER, req(14, mine(124, -1, Z - 1, 1)), 0)
+        .unwrap();
+}
+
 /// After a fenced batch, the queued edits (their sight checked, perhaps on
 /// what the batch changed) are taken out and refused `Busy` at no cost;
 /// those still awaiting their check stay for it.

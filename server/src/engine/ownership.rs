@@ -307,8 +307,9 @@ impl Engine {
                 // the current copy.
                 let moved = self.take_fresh_regions();
                 if claim.all.iter().any(|r| moved.contains(r)) {
-                    // Not in the queue any more: a failed reload's
-                    // `unqueue_in` took it out and answered it.
+                    // Not in the queue any more: the reload took it out
+                    // and answered it (`unqueue_seen_in`, or a failed
+                    // reload's `unqueue_in`).
                     if !self.seq.take_back(session, client_edit_id, false, now) {
                         return Ok(());
                     }
@@ -451,6 +452,14 @@ impl Engine {
                     error!(error = %e, region_x = r.x, region_z = r.z,
                         "reloading a claimed region failed; its edits are refused until a retry succeeds")
                 }
+            }
+        }
+        // Edits queued before a reload that moved chunks had their sight
+        // checked on the old copies: refused `Busy` (free), to be sent
+        // again against the world as it is.
+        if !moved.is_empty() {
+            for (session, id) in self.seq.unqueue_seen_in(&moved, super::now_ms()) {
+                self.refuse_edit(session, id, RejectReason::Busy);
             }
         }
         // Edits queued in one (claimed for them, or adopted under them)

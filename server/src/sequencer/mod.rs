@@ -64,6 +64,9 @@ struct Queued {
     volume_cost: u64,
     /// When the engine took the request, for the edit latency metric.
     queued_at: std::time::Instant,
+    /// The chunks its sight ray crossed, checked on this node's copies
+    /// (none for an edit without a sight check).
+    ray: Vec<ChunkPos>,
 }
 
 /// Edits taken out unapplied: each one's player and volume tokens.
@@ -266,7 +269,7 @@ impl Sequencer {
         let hits = |s: &Self, e: &strata_terrain::Edit| {
             s.edit_regions(e).is_some_and(|rs| !rs.is_disjoint(regions))
         };
-        let (mut out, mut refunds) = self.unqueue_queued(|s, e| hits(s, e));
+        let (mut out, mut refunds) = self.unqueue_queued(|s, q| hits(s, &q.request.edit));
         for s in std::mem::take(&mut self.sighting) {
             if hits(self, &s.request.edit) {
                 out.push((s.session_id, s.request.client_edit_id));
@@ -290,16 +293,40 @@ impl Sequencer {
         out
     }
 
+    /// Takes the queued edits whose sight was checked on chunks of any of
+    /// `regions` (their boxes, or their sight rays, reach into them) out of
+    /// the queue: a cluster node's regions reloaded with chunks another
+    /// node moved. Returns each one's session and client edit id, to be
+    /// refused `Busy` (free) and sent again against the world as it is.
+    /// Edits still awaiting their sight check stay: it runs on the
+    /// reloaded chunks.
+    pub fn unqueue_seen_in(
+        &mut self,
+        regions: &std::collections::BTreeSet<regions::RegionId>,
+        now_ms: u64,
+    ) -> Vec<(u64, u64)> {
+        let side = self.cfg.region_chunks;
+        let (out, refunds) = self.unqueue_queued(|s, q| {
+            q.ray
+                .iter()
+                .any(|&p| regions.contains(&regions::RegionId::of(p, side)))
+                || s.edit_regions(&q.request.edit)
+                    .is_some_and(|rs| !rs.is_disjoint(regions))
+        });
+        self.refund_busy(refunds, now_ms);
+        out
+    }
+
     /// The queued edits `hits` picks, taken out: their ids and what each
     /// player is owed.
     fn unqueue_queued(
         &mut self,
-        hits: impl Fn(&Self, &strata_terrain::Edit) -> bool,
+        hits: impl Fn(&Self, &Queued) -> bool,
     ) -> (Vec<(u64, u64)>, Refunds) {
         let mut out = Vec::new();
         let mut refunds = Vec::new();
         for q in std::mem::take(&mut self.queue) {
-            if hits(self, &q.request.edit) {
+            if hits(self, &q) {
                 out.push((q.session_id, q.request.client_edit_id));
                 refunds.push((q.player, q.volume_cost));
             } else {

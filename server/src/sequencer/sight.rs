@@ -150,6 +150,7 @@ impl Sequencer {
                     request: s.request,
                     volume_cost: s.volume_cost,
                     queued_at: s.queued_at,
+                    ray: s.ray,
                 }),
                 Err(reason) => {
                     self.refuse_sighted(&s, now_ms);

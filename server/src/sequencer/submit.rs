@@ -312,6 +312,7 @@ impl Sequencer {
             request,
             volume_cost,
             queued_at: std::time::Instant::now(),
+            ray: Vec::new(),
         });
     }
 

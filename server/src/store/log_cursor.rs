@@ -21,6 +21,19 @@ use super::{ChunkStore, LogEntry, StoreError};
 /// `[store.postgres] statement_timeout_ms`, 600 s).
 pub const DEAD_SEGMENT_KEPT: Duration = Duration::from_secs(900);
 
+/// Which segments [`ChunkStore::log_segments`] lists besides each node's
+/// newest.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SegmentsAlso {
+    /// Those a cursor starting at the log's end may still see written:
+    /// begun within [`DEAD_SEGMENT_KEPT`] (a node's engine finishes a tick
+    /// in its block after its lease thread reserved the next).
+    Recent,
+    /// Those begun after this first seq (a node may fill blocks between
+    /// two reads).
+    After(u64),
+}
+
 /// Part of the edit log written in seq order: seqs `first..=last`, of
 /// which `head` is the highest logged (`first - 1` while none is).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -52,7 +65,7 @@ impl LogCursor {
     /// At the log's end now: what is logged from now on is read.
     pub fn at_end(store: &dyn ChunkStore) -> Result<Self, StoreError> {
         let segs: BTreeMap<u64, Seg> = store
-            .log_segments(u64::MAX)?
+            .log_segments(SegmentsAlso::Recent)?
             .into_iter()
             .map(|s| {
                 let seg = Seg {
@@ -78,13 +91,13 @@ impl LogCursor {
     ) -> Result<(), StoreError> {
         let now = Instant::now();
         let live: BTreeMap<u64, LogSegment> = store
-            .log_segments(self.newest)?
+            .log_segments(SegmentsAlso::After(self.newest))?
             .into_iter()
             .map(|s| (s.first, s))
             .collect();
         for s in live.values() {
-            // A segment forgotten (or never known, below the newest: begun
-            // before the cursor was) is not read again from its start.
+            // A segment forgotten (or never known, below the newest: done
+            // before the cursor began) is not read again from its start.
             if s.first <= self.newest && !self.segs.contains_key(&s.first) {
                 continue;
             }
@@ -139,7 +152,7 @@ impl LogCursor {
         if !self.segs.is_empty() {
             next.extend(
                 store
-                    .log_segments(self.newest)?
+                    .log_segments(SegmentsAlso::After(self.newest))?
                     .iter()
                     .filter(|s| s.first > self.newest)
                     .map(|s| s.first),

@@ -66,7 +66,7 @@ pub use disk_sync::MAX_TRACKED_BLOBS;
 pub use encode_pool::EncodePool;
 pub use error::StoreError;
 pub use import::ImportTarget;
-pub use log_cursor::{LogCursor, LogSegment, DEAD_SEGMENT_KEPT};
+pub use log_cursor::{LogCursor, LogSegment, SegmentsAlso, DEAD_SEGMENT_KEPT};
 pub use open::open_store;
 pub use pg::PgStore;
 pub use positions::TREE_PLAYER_TIMES;
@@ -136,12 +136,11 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     }
 
     /// The parts of the edit log being written now, each in seq order
-    /// ([`LogCursor`]), and those begun after `since` (a segment's first
-    /// seq): one for a store one process writes; on a cluster's PostgreSQL
-    /// log each node's newest seq block and every block starting above
-    /// `since` (a node may have filled some between two reads). A
-    /// segment's head counts pruned entries too.
-    fn log_segments(&self, _since: u64) -> Result<Vec<LogSegment>, StoreError> {
+    /// ([`LogCursor`]), and those `also` names: one for a store one process
+    /// writes; on a cluster's PostgreSQL log each node's newest seq block
+    /// and the others `also` names. A segment's head counts pruned entries
+    /// too.
+    fn log_segments(&self, _also: SegmentsAlso) -> Result<Vec<LogSegment>, StoreError> {
         Ok(vec![LogSegment {
             first: 1,
             last: i64::MAX as u64,

@@ -469,7 +469,7 @@ fn took(
     // Within it only this node can have (each block is one node's).
     let own_block_end = leases.seq_bounds().1;
     if leases.numbering.load(Ordering::Acquire) && newest > own_block_end {
-        let next = seqs::reserve(pool, &leases.node_id, leases.block)?;
+        let next = seqs::reserve(pool, &leases.node_id, leases.block, None)?;
         info!(node = %leases.node_id, first_seq = next + 1, "seq block reserved");
         leases.raise_floor(next);
     }
@@ -490,14 +490,18 @@ fn took(
 
 /// Reserves the next seq block once the engine, numbering in the current
 /// one, has [`seqs::REFILL_PART`] of it or less left: well before its end
-/// (past it the engine's edits wait), off the engine's thread, retried at
-/// every renewal while it fails. The rest of the block is left unused.
+/// (past it the engine's edits wait), off the engine's thread, tried again
+/// at every renewal while it fails. The rest of the block is left unused.
+/// It waits for the world row at most half a renewal period (a node
+/// paused mid-reservation holds it): renewals come first.
 fn refill_seqs(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreError> {
     if !leases.numbering.load(Ordering::Acquire) {
         return Ok(());
     }
-    let (floor, last) = leases.seq_bounds();
+    // The engine's seq first: the block read after it is at least as new
+    // (a claim that moved it on since leaves `next` below its floor).
     let next = leases.next_seq.load(Ordering::Acquire);
+    let (floor, last) = leases.seq_bounds();
     // Not numbering in this block yet (a claim just moved it on): it is
     // whole.
     if next <= floor {
@@ -507,7 +511,8 @@ fn refill_seqs(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreError> {
     if left > leases.block / seqs::REFILL_PART {
         return Ok(());
     }
-    let next_floor = seqs::reserve(pool, &leases.node_id, leases.block)?;
+    let wait = (leases.renew / 2).min(Duration::from_secs(1));
+    let next_floor = seqs::reserve(pool, &leases.node_id, leases.block, Some(wait))?;
     info!(node = %leases.node_id, first_seq = next_floor + 1, left, "seq block reserved");
     leases.raise_floor(next_floor);
     Ok(())
@@ -1320,11 +1325,14 @@ impl Renewer {
                             pass = pass.and(Err(e));
                         }
                     }
-                    if let Err(e) = refill_seqs(&pool, &leases) {
-                        warn!(error = %e, "reserving the next seq block failed; retrying");
-                        pass = pass.and(Err(e));
-                    }
                     leases.report(&pass);
+                    // Not a lease failure: the node's block has a quarter
+                    // left, or its edits wait (counted and logged apart).
+                    if let Err(e) = refill_seqs(&pool, &leases) {
+                        let what =
+                            "reserving the next seq block failed; trying again at the next renewal";
+                        crate::log_every::store_error("seqs", what, &e);
+                    }
                     stopped = flag.flag.lock().unwrap_or_else(|p| p.into_inner());
                 }
             })?;
@@ -1376,11 +1384,15 @@ impl PgStore {
         )?;
         let leases = Arc::new(NodeLeases::new(cluster));
         // A connection of its own: renewals never wait behind commits or
-        // scans for a pooled one.
-        let renewals = Pool::open(&super::PgConfig {
-            max_connections: 1,
-            ..cfg.clone()
-        })?;
+        // scans for a pooled one. Its transactions (a seq block's
+        // reservation) are ended within the lease too when it is paused.
+        let renewals = Pool::open_idle(
+            &super::PgConfig {
+                max_connections: 1,
+                ..cfg.clone()
+            },
+            idle,
+        )?;
         store.renewer = Some(Renewer::spawn(
             Arc::new(renewals),
             leases.clone(),

@@ -681,7 +681,10 @@ impl ChunkStore for PgStore {
         Ok(removed)
     }
 
-    fn log_segments(&self, since: u64) -> Result<Vec<crate::store::LogSegment>, StoreError> {
+    fn log_segments(
+        &self,
+        also: crate::store::SegmentsAlso,
+    ) -> Result<Vec<crate::store::LogSegment>, StoreError> {
         let whole = || {
             Ok(vec![crate::store::LogSegment {
                 first: 1,
@@ -694,34 +697,50 @@ impl ChunkStore for PgStore {
         if self.leases.is_none() {
             return whole();
         }
-        let since = i64::try_from(since).unwrap_or(i64::MAX);
         // Each node's newest block (the nodes found by a skip over the
-        // (node, first_seq) index, not a scan of every block), every block
-        // begun after `since`, and the highest seq logged in each (pruned
-        // ones included).
-        let rows = self
-            .pool
-            .run("reading the log's segments", async |c: &mut Conn| {
-                c.query(
+        // (node, first_seq) index, then one index probe each: no scan of
+        // every block), the others asked for, and the highest seq logged
+        // in each (pruned ones included).
+        macro_rules! segments {
+            ($others:literal) => {
+                concat!(
                     "WITH RECURSIVE nodes AS ( \
                          (SELECT node FROM seq_blocks ORDER BY node LIMIT 1) \
                          UNION ALL \
                          SELECT (SELECT s.node FROM seq_blocks s WHERE s.node > n.node \
                                  ORDER BY s.node LIMIT 1) \
                          FROM nodes n WHERE n.node IS NOT NULL), \
-                     newest AS ( \
-                         SELECT (SELECT max(s.first_seq) FROM seq_blocks s WHERE s.node = n.node) \
-                             AS first_seq \
-                         FROM nodes n WHERE n.node IS NOT NULL) \
+                     picked AS ( \
+                         SELECT l.first_seq FROM nodes n CROSS JOIN LATERAL ( \
+                             SELECT s.first_seq FROM seq_blocks s WHERE s.node = n.node \
+                             ORDER BY s.node DESC, s.first_seq DESC LIMIT 1) l \
+                         WHERE n.node IS NOT NULL \
+                         UNION \
+                         SELECT first_seq FROM seq_blocks WHERE ",
+                    $others,
+                    ") \
                      SELECT b.first_seq, b.last_seq, GREATEST(b.first_seq - 1, b.pruned_to, \
                          (SELECT max(e.seq) FROM edit_log e \
                           WHERE e.seq >= b.first_seq AND e.seq <= b.last_seq)) \
-                     FROM seq_blocks b \
-                     WHERE b.first_seq > $1 OR b.first_seq IN (SELECT first_seq FROM newest) \
-                     ORDER BY b.first_seq",
-                    &[&since],
+                     FROM picked p JOIN seq_blocks b ON b.first_seq = p.first_seq \
+                     ORDER BY b.first_seq"
                 )
-                .await
+            };
+        }
+        let (query, bound) = match also {
+            crate::store::SegmentsAlso::Recent => (
+                segments!("reserved_at > now() - $1::int8 * interval '1 millisecond'"),
+                crate::store::DEAD_SEGMENT_KEPT.as_millis() as i64,
+            ),
+            crate::store::SegmentsAlso::After(since) => (
+                segments!("first_seq > $1"),
+                i64::try_from(since).unwrap_or(i64::MAX),
+            ),
+        };
+        let rows = self
+            .pool
+            .run("reading the log's segments", async |c: &mut Conn| {
+                c.query(query, &[&bound]).await
             })?;
         if rows.is_empty() {
             return whole();
@@ -1026,7 +1045,7 @@ impl ChunkStore for PgStore {
         let Some(leases) = &self.leases else {
             return Ok(last_seq);
         };
-        let floor = seqs::reserve(&self.pool, leases.node_id(), leases.block_size())?;
+        let floor = seqs::reserve(&self.pool, leases.node_id(), leases.block_size(), None)?;
         leases.raise_floor(floor);
         tracing::info!(node = %leases.node_id(), first_seq = floor + 1, "seq block reserved");
         Ok(floor)
