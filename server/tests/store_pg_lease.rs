@@ -1094,8 +1094,12 @@ fn a_log_cursor_misses_no_nodes_entries_on_a_cluster() {
     assert_eq!(read(&mut cursor), [middle, wa.last_seq]);
     assert!(!cursor.pruned(&a).unwrap());
     // A cursor begun at the end just after a's lease thread reserved its
-    // next block, while a's engine still finishes a tick in this one:
-    // that tick's entry is read.
+    // next block, while a's engine still finishes a tick in this one
+    // (reserved an hour ago): that tick's entry is read.
+    sql(
+        &db,
+        "UPDATE seq_blocks SET reserved_at = now() - interval '1 hour'",
+    );
     let next = a.reserve_seqs(wa.last_seq).unwrap();
     let mut late = LogCursor::at_end(&a).unwrap();
     a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], 8))

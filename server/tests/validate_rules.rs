@@ -596,7 +596,8 @@ fn edits_taken_out_of_a_region_get_their_tokens_back() {
 /// queued edits whose sight was checked on its old copies, because their
 /// box or only their sight ray reaches into it, are taken out and refused
 /// `Busy` at no cost; an edit awaiting its sight check stays for it (on the
-/// reloaded chunks), and edits seen elsewhere stay.
+/// reloaded chunks), and edits seen elsewhere stay. A reload that failed
+/// takes out those awaiting their check there too, by box or by ray.
 #[test]
 fn edits_seen_through_a_reloaded_region_are_taken_out() {
     use strata_server::sequencer::regions::RegionId;
@@ -618,7 +619,7 @@ fn edits_seen_through_a_reloaded_region_are_taken_out() {
     let region = |x| RegionId { x, z: Z / 32 };
     assert_eq!(s.edit_regions(&across).unwrap(), [region(4)].into());
     s.admit(PLAYER, req(10, here.clone()), 0).unwrap();
-    s.admit(PLAYER, req(11, across), 0).unwrap();
+    s.admit(PLAYER, req(11, across.clone()), 0).unwrap();
     assert!(s.check_sighted(0).is_empty());
     s.admit(PLAYER, req(12, here), 0).unwrap();
     assert_eq!((s.queued(), s.sighting()), (2, 1));
@@ -630,11 +631,18 @@ fn edits_seen_through_a_reloaded_region_are_taken_out() {
         vec![(PLAYER, 10), (PLAYER, 11)]
     );
     assert_eq!((s.queued(), s.sighting()), (0, 1));
-    // Both edit tokens are back.
-    s.admit(PLAYER, req(13, mine(124, -1, Z + 1, 1)), 0)
-        .unwrap();
-    s.admit(PLAYER, req(14, mine(124, -1, Z - 1, 1)), 0)
-        .unwrap();
+    // A failed reload of region 3 takes out what awaits its sight check
+    // there too: edit 12's box, edit 13's ray.
+    s.admit(PLAYER, req(13, across.clone()), 0).unwrap();
+    assert_eq!(
+        s.unqueue_in(&[region(3)].into(), 0),
+        vec![(PLAYER, 12), (PLAYER, 13)]
+    );
+    assert_eq!((s.queued(), s.sighting()), (0, 0));
+    // Every edit token is back.
+    for id in 14..17 {
+        s.admit(PLAYER, req(id, across.clone()), 0).unwrap();
+    }
 }
 
 /// After a fenced batch, the queued edits (their sight checked, perhaps on

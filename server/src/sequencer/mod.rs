@@ -255,23 +255,38 @@ impl Sequencer {
         Some(span.regions().collect())
     }
 
-    /// Takes the edits touching any of `regions` out of the queue and
-    /// out of those awaiting their sight check (a cluster node's regions
-    /// whose reload failed: a batch writing them would be fenced); returns
-    /// each one's session and client edit id, to be refused `Busy`. Like
-    /// any `Busy`, that costs the player nothing: the edit and volume
-    /// tokens go back.
+    /// Whether `edit` (its box, read margin and mesh apron) or its sight
+    /// `ray` reaches into any of `regions`.
+    fn reaches(
+        &self,
+        edit: &strata_terrain::Edit,
+        ray: &[ChunkPos],
+        regions: &std::collections::BTreeSet<regions::RegionId>,
+    ) -> bool {
+        let side = self.cfg.region_chunks;
+        ray.iter()
+            .any(|&p| regions.contains(&regions::RegionId::of(p, side)))
+            || self
+                .edit_regions(edit)
+                .is_some_and(|rs| !rs.is_disjoint(regions))
+    }
+
+    /// Takes the edits whose box or sight ray reaches into any of
+    /// `regions` out of the queue and out of those awaiting their sight
+    /// check (a cluster node's regions whose reload failed: a batch
+    /// writing them would be fenced, and chunks already reloaded moved
+    /// under their sight); returns each one's session and client edit id,
+    /// to be refused `Busy`. Like any `Busy`, that costs the player
+    /// nothing: the edit and volume tokens go back.
     pub fn unqueue_in(
         &mut self,
         regions: &std::collections::BTreeSet<regions::RegionId>,
         now_ms: u64,
     ) -> Vec<(u64, u64)> {
-        let hits = |s: &Self, e: &strata_terrain::Edit| {
-            s.edit_regions(e).is_some_and(|rs| !rs.is_disjoint(regions))
-        };
-        let (mut out, mut refunds) = self.unqueue_queued(|s, q| hits(s, &q.request.edit));
+        let (mut out, mut refunds) =
+            self.unqueue_queued(|s, q| s.reaches(&q.request.edit, &q.ray, regions));
         for s in std::mem::take(&mut self.sighting) {
-            if hits(self, &s.request.edit) {
+            if self.reaches(&s.request.edit, &s.ray, regions) {
                 out.push((s.session_id, s.request.client_edit_id));
                 refunds.push((s.player.clone(), s.volume_cost));
             } else {
@@ -305,14 +320,8 @@ impl Sequencer {
         regions: &std::collections::BTreeSet<regions::RegionId>,
         now_ms: u64,
     ) -> Vec<(u64, u64)> {
-        let side = self.cfg.region_chunks;
-        let (out, refunds) = self.unqueue_queued(|s, q| {
-            q.ray
-                .iter()
-                .any(|&p| regions.contains(&regions::RegionId::of(p, side)))
-                || s.edit_regions(&q.request.edit)
-                    .is_some_and(|rs| !rs.is_disjoint(regions))
-        });
+        let (out, refunds) =
+            self.unqueue_queued(|s, q| s.reaches(&q.request.edit, &q.ray, regions));
         self.refund_busy(refunds, now_ms);
         out
     }

@@ -29,7 +29,7 @@ pub(super) struct Sighted {
     target: glam::DVec3,
     tolerance: f64,
     pub(super) volume_cost: u64,
-    ray: Vec<ChunkPos>,
+    pub(super) ray: Vec<ChunkPos>,
     queued_at: std::time::Instant,
 }
 

@@ -26,8 +26,9 @@ pub const DEAD_SEGMENT_KEPT: Duration = Duration::from_secs(900);
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SegmentsAlso {
     /// Those a cursor starting at the log's end may still see written:
-    /// begun within [`DEAD_SEGMENT_KEPT`] (a node's engine finishes a tick
-    /// in its block after its lease thread reserved the next).
+    /// no longer a node's newest for less than [`DEAD_SEGMENT_KEPT`] (a
+    /// node's engine finishes a tick in its block after its lease thread
+    /// reserved the next).
     Recent,
     /// Those begun after this first seq (a node may fill blocks between
     /// two reads).

@@ -209,6 +209,13 @@ impl NodeLeases {
         self.block
     }
 
+    /// How long the lease thread waits for the world row when it reserves
+    /// a seq block: half a renewal period, at most a second (a node paused
+    /// mid-reservation holds it; renewals come first).
+    fn lock_wait(&self) -> Option<Duration> {
+        Some((self.renew / 2).min(Duration::from_secs(1)))
+    }
+
     /// The engine numbers its next edit `next` (between ticks).
     pub fn note_next_seq(&self, next: u64) {
         self.next_seq.store(next, Ordering::Release);
@@ -439,7 +446,7 @@ fn claim_waiting(
             None => return Ok(None),
         },
     };
-    took(pool, leases, rows, "region claimed", started).map(Some)
+    took(pool, leases, rows, ("region claimed", None), started).map(Some)
 }
 
 /// Books regions a claim or adoption returned (x, z, epoch, last_seq):
@@ -448,11 +455,14 @@ fn claim_waiting(
 /// fresh.
 /// `started`: before the statement that took them (their leases surely
 /// run from then).
+/// `lock_wait`: how long its reservation may wait for the world row (the
+/// lease thread's: [`NodeLeases::lock_wait`]; the engine's: as long as any
+/// statement).
 fn took(
     pool: &Pool,
     leases: &NodeLeases,
     rows: Vec<tokio_postgres::Row>,
-    what: &'static str,
+    (what, lock_wait): (&'static str, Option<Duration>),
     started: Instant,
 ) -> Result<BTreeMap<RegionId, u64>, StoreError> {
     let mut got = BTreeMap::new();
@@ -469,7 +479,7 @@ fn took(
     // Within it only this node can have (each block is one node's).
     let own_block_end = leases.seq_bounds().1;
     if leases.numbering.load(Ordering::Acquire) && newest > own_block_end {
-        let next = seqs::reserve(pool, &leases.node_id, leases.block, None)?;
+        let next = seqs::reserve(pool, &leases.node_id, leases.block, lock_wait)?;
         info!(node = %leases.node_id, first_seq = next + 1, "seq block reserved");
         leases.raise_floor(next);
     }
@@ -492,8 +502,7 @@ fn took(
 /// one, has [`seqs::REFILL_PART`] of it or less left: well before its end
 /// (past it the engine's edits wait), off the engine's thread, tried again
 /// at every renewal while it fails. The rest of the block is left unused.
-/// It waits for the world row at most half a renewal period (a node
-/// paused mid-reservation holds it): renewals come first.
+/// It waits for the world row at most [`NodeLeases::lock_wait`].
 fn refill_seqs(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreError> {
     if !leases.numbering.load(Ordering::Acquire) {
         return Ok(());
@@ -511,8 +520,7 @@ fn refill_seqs(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreError> {
     if left > leases.block / seqs::REFILL_PART {
         return Ok(());
     }
-    let wait = (leases.renew / 2).min(Duration::from_secs(1));
-    let next_floor = seqs::reserve(pool, &leases.node_id, leases.block, Some(wait))?;
+    let next_floor = seqs::reserve(pool, &leases.node_id, leases.block, leases.lock_wait())?;
     info!(node = %leases.node_id, first_seq = next_floor + 1, left, "seq block reserved");
     leases.raise_floor(next_floor);
     Ok(())
@@ -555,7 +563,10 @@ pub(super) fn adopt(pool: &Pool, leases: &NodeLeases) -> Result<Vec<RegionId>, S
         pool,
         leases,
         rows,
-        "region adopted from a node whose lease ran out",
+        (
+            "region adopted from a node whose lease ran out",
+            leases.lock_wait(),
+        ),
         started,
     )?
     .into_keys()

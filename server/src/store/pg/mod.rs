@@ -698,9 +698,9 @@ impl ChunkStore for PgStore {
             return whole();
         }
         // Each node's newest block (the nodes found by a skip over the
-        // (node, first_seq) index, then one index probe each: no scan of
-        // every block), the others asked for, and the highest seq logged
-        // in each (pruned ones included).
+        // (node, first_seq) index, then one probe of it each), the others
+        // asked for (`$others`: a query of first seqs), and the highest seq
+        // logged in each (pruned ones included); no scan of every block.
         macro_rules! segments {
             ($others:literal) => {
                 concat!(
@@ -711,29 +711,35 @@ impl ChunkStore for PgStore {
                                  ORDER BY s.node LIMIT 1) \
                          FROM nodes n WHERE n.node IS NOT NULL), \
                      picked AS ( \
-                         SELECT l.first_seq FROM nodes n CROSS JOIN LATERAL ( \
-                             SELECT s.first_seq FROM seq_blocks s WHERE s.node = n.node \
-                             ORDER BY s.node DESC, s.first_seq DESC LIMIT 1) l \
-                         WHERE n.node IS NOT NULL \
-                         UNION \
-                         SELECT first_seq FROM seq_blocks WHERE ",
+                         SELECT (SELECT max(s.first_seq) FROM seq_blocks s WHERE s.node = n.node) \
+                             AS first_seq \
+                         FROM nodes n WHERE n.node IS NOT NULL \
+                         UNION ",
                     $others,
                     ") \
                      SELECT b.first_seq, b.last_seq, GREATEST(b.first_seq - 1, b.pruned_to, \
                          (SELECT max(e.seq) FROM edit_log e \
                           WHERE e.seq >= b.first_seq AND e.seq <= b.last_seq)) \
-                     FROM picked p JOIN seq_blocks b ON b.first_seq = p.first_seq \
+                     FROM seq_blocks b \
+                     WHERE b.first_seq = ANY(ARRAY(SELECT first_seq FROM picked)) \
                      ORDER BY b.first_seq"
                 )
             };
         }
         let (query, bound) = match also {
+            // The blocks superseded lately: each one reserved lately
+            // follows its node's previous block.
             crate::store::SegmentsAlso::Recent => (
-                segments!("reserved_at > now() - $1::int8 * interval '1 millisecond'"),
+                segments!(
+                    "SELECT (SELECT max(p.first_seq) FROM seq_blocks p \
+                             WHERE p.node = r.node AND p.first_seq < r.first_seq) \
+                     FROM seq_blocks r \
+                     WHERE r.reserved_at > now() - $1::int8 * interval '1 millisecond'"
+                ),
                 crate::store::DEAD_SEGMENT_KEPT.as_millis() as i64,
             ),
             crate::store::SegmentsAlso::After(since) => (
-                segments!("first_seq > $1"),
+                segments!("SELECT first_seq FROM seq_blocks WHERE first_seq > $1"),
                 i64::try_from(since).unwrap_or(i64::MAX),
             ),
         };

@@ -28,7 +28,8 @@ pub const REFILL_PART: u64 = 4;
 /// Reserves the next block of `size` seqs for `node`. Returns the seq just
 /// below it: the node's edits are numbered from the one after. With
 /// `lock_wait`, waits at most that long for the world row (another node
-/// reserving, perhaps paused): a lock timeout error past it.
+/// reserving, perhaps paused), and fails past it, the transaction rolled
+/// back and its connection kept.
 pub(super) fn reserve(
     pool: &Pool,
     node: &str,
@@ -42,15 +43,26 @@ pub(super) fn reserve(
             c.batch(&format!("SET LOCAL lock_timeout = '{ms}ms'"))
                 .await?;
         }
-        let Some(row) = c
+        let updated = c
             .query_opt(
                 "UPDATE world SET seq_reserved = GREATEST(seq_reserved, last_seq) + $1 \
                  WHERE id = 1 AND GREATEST(seq_reserved, last_seq) <= 9223372036854775807 - $1 \
                  RETURNING seq_reserved",
                 &[&size_sql],
             )
-            .await?
-        else {
+            .await;
+        let row = match updated {
+            Err(StoreError::Postgres(e))
+                if e.code() == Some(&tokio_postgres::error::SqlState::LOCK_NOT_AVAILABLE) =>
+            {
+                return Err(StoreError::batch(format!(
+                    "the world row stayed locked past {} ms (another node reserving seqs)",
+                    lock_wait.unwrap_or_default().as_millis()
+                )));
+            }
+            other => other?,
+        };
+        let Some(row) = row else {
             return Ok(None);
         };
         let end: i64 = row.get(0);
