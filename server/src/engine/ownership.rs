@@ -43,12 +43,10 @@ use crate::sequencer::batch::TickOutput;
 use crate::sequencer::regions::RegionId;
 use crate::store::{RegionAccess, RegionHolder, StoreError};
 
-/// Regions an edit needs that this node must claim first (`free`), and
-/// every region it touches (`all`).
+/// Regions an edit needs that this node must claim first.
 #[derive(Debug)]
 pub(super) struct Claim {
     pub(super) free: BTreeSet<RegionId>,
-    pub(super) all: BTreeSet<RegionId>,
 }
 
 /// The refusal for regions this node may not write now (`access`, what
@@ -188,7 +186,7 @@ impl Engine {
                     self.store_failed(&e);
                 }
             }
-            return Ok(Some(Claim { free, all: regions }));
+            return Ok(Some(Claim { free }));
         }
         // Held, but its reload failed (waiting for its retry): refused
         // before the store marks it in use, so a region whose reload keeps
@@ -303,18 +301,11 @@ impl Engine {
             Ok(()) => {
                 // Reloaded, or its edits refused `Busy` if that failed. A
                 // writer that got in since the read moved chunks its sight
-                // was checked on: refused `Busy` (free), tried again on
-                // the current copy.
-                let moved = self.take_fresh_regions();
-                if claim.all.iter().any(|r| moved.contains(r)) {
-                    // Not in the queue any more: the reload took it out
-                    // and answered it (`unqueue_seen_in`, or a failed
-                    // reload's `unqueue_in`).
-                    if !self.seq.take_back(session, client_edit_id, false, now) {
-                        return Ok(());
-                    }
-                    return Err(RejectReason::Busy);
-                }
+                // was checked on: the reload takes it out of the queue,
+                // refused `Busy` (free), to be tried again on the current
+                // copy (`unqueue_seen_in`, by its box's and its ray's
+                // regions: those it was checked for here).
+                self.take_fresh_regions();
                 Ok(())
             }
             Err((reason, charged)) => {
