@@ -791,10 +791,7 @@ async fn a_batch_reading_a_region_taken_over_is_fenced_too() {
         // (250..=254: 255 lies at the radius) stops short of it, and the
         // meshes' apron reaches two voxels past.
         let bea = standing(&west, "bea", 230).await;
-        for x in (232..=248).step_by(2) {
-            bea.send_position(feet(x)).unwrap();
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
+        walk(&bea, (232..=248).step_by(2)).await;
         let (v, changes) = bea.edit_acked(mine_at(252)).await.unwrap();
         assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
         assert!(!changes.is_empty());
@@ -874,6 +871,69 @@ async fn a_batch_fenced_after_a_takeover_is_refused_and_the_node_goes_on() {
         assert_eq!(stored, (Some(seq), Some(first[0].version)));
         ann.close().await;
         west.shutdown().await.unwrap();
+    })
+    .await
+    .expect("within the test timeout");
+}
+
+/// A fenced batch whose node cannot reserve a new seq block (the world
+/// row's block table refuses new rows) does not stop the node: it hands
+/// out no seq past the abandoned ones, and edits wait until its lease
+/// thread reserves the next block, numbered from that block's first seq.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fenced_batch_whose_next_seq_block_fails_leaves_edits_waiting_for_one() {
+    let Some(db) = strata_tests::postgres::database("cluster_fenced_no_block") else {
+        return;
+    };
+    tokio::time::timeout(TEST_TIMEOUT, async {
+        let dirs = tempfile::tempdir().unwrap();
+        let (west, ann, (v, _)) = west_with_ann(&dirs.path().join("a"), &db).await;
+        assert!(matches!(v, Verdict::Accepted { .. }), "{v:?}");
+        // Bea stands in region 1 (free) before region 0 is taken.
+        let bea = standing(&west, "bea", 230).await;
+        walk(&bea, (232..=270).step_by(2)).await;
+        let _thief = thief_takes_region_zero(&db).await;
+        sql(
+            &db,
+            "ALTER TABLE seq_blocks ADD CONSTRAINT no_new_block CHECK (first_seq < 0) NOT VALID",
+        )
+        .await;
+        let blocks = seq_blocks(&db).await;
+
+        let (v, _) = ann.edit_acked(mine_at(WEST_X + 2)).await.unwrap();
+        assert!(
+            matches!(
+                v,
+                Verdict::Rejected(strata_protocol::RejectReason::RegionElsewhere { .. })
+            ),
+            "{v:?}"
+        );
+        // The node goes on; bea's edit in region 1 waits for a seq.
+        let id = bea.submit(mine_at(272)).await.unwrap();
+        let bea = Arc::new(bea);
+        let mut waiting = tokio::spawn({
+            let bea = bea.clone();
+            async move { bea.verdict(id).await.unwrap().0 }
+        });
+        if let Ok(v) = tokio::time::timeout(Duration::from_millis(1500), &mut waiting).await {
+            panic!("answered without a seq block: {v:?}");
+        }
+        assert!(!ann.is_closed() && !bea.is_closed(), "the node stopped");
+        assert_eq!(seq_blocks(&db).await, blocks);
+
+        sql(&db, "ALTER TABLE seq_blocks DROP CONSTRAINT no_new_block").await;
+        let v = waiting.await.unwrap();
+        let Verdict::Accepted { seq } = v else {
+            panic!("bea's edit refused: {v:?}")
+        };
+        let now = seq_blocks(&db).await;
+        assert_eq!(now.len(), blocks.len() + 1, "{now:?}");
+        assert_eq!(seq, now.last().unwrap().0, "numbered from the new block");
+
+        checks_clean(&db).await;
+        ann.close().await;
+        let bea = Arc::into_inner(bea).expect("the verdict task is done");
+        finish(bea, west).await;
     })
     .await
     .expect("within the test timeout");
@@ -2215,26 +2275,31 @@ async fn a_node_moves_on_to_its_next_seq_block_before_one_runs_out() {
         let blocks = seq_blocks(&db).await;
         assert_within(&seqs, &blocks);
 
-        let url = db.url();
-        let report = tokio::task::spawn_blocking(move || {
-            use strata_server::store::ChunkStore;
-            let pg = strata_server::store::pg::PgConfig {
-                url,
-                ..Default::default()
-            };
-            strata_server::store::PgStore::open(&pg, 8)
-                .unwrap()
-                .check()
-                .unwrap()
-        })
-        .await
-        .unwrap();
-        assert!(report.is_ok(), "{report:?}");
+        checks_clean(&db).await;
         let ann = Arc::into_inner(ann).expect("the editing task is done");
         finish(ann, west).await;
     })
     .await
     .expect("within the test timeout");
+}
+
+/// `check` of the world on `db` finds nothing wrong.
+async fn checks_clean(db: &strata_tests::postgres::PgDb) {
+    let url = db.url();
+    let report = tokio::task::spawn_blocking(move || {
+        use strata_server::store::ChunkStore;
+        let pg = strata_server::store::pg::PgConfig {
+            url,
+            ..Default::default()
+        };
+        strata_server::store::PgStore::open(&pg, 8)
+            .unwrap()
+            .check()
+            .unwrap()
+    })
+    .await
+    .unwrap();
+    assert!(report.is_ok(), "{report:?}");
 }
 
 /// `n` mining edits around the feet of `c` (standing at `WEST_X`; within

@@ -1517,6 +1517,44 @@ fn taking_back_a_region_written_from_ones_own_block_keeps_the_block() {
     );
 }
 
+/// A claim of a region written from a newer block than the claimer's
+/// needs a new block; when none can be reserved, the claim is refused and
+/// the region let go again, at once free for any node (not leased to the
+/// claimer, unbooked, until its lease ran out).
+#[test]
+fn a_claim_whose_seq_block_cannot_be_reserved_lets_its_regions_go() {
+    let Some(db) = database("lease_claim_no_block") else {
+        return;
+    };
+    let (a, b, _, mut wb) = two_nodes(&db);
+    let r = region(3, 0);
+    b.commit_batch(&edit(&mut wb, &[chunk_in(r, 0)], 1))
+        .unwrap();
+    assert_eq!(b.release_leases().unwrap(), 1);
+    sql(
+        &db,
+        "ALTER TABLE seq_blocks ADD CONSTRAINT no_new_block CHECK (first_seq < 0) NOT VALID",
+    );
+    let err = a.acquire_regions(&regions(&[r])).unwrap_err();
+    assert!(err.to_string().contains("no_new_block"), "{err}");
+    assert_eq!(a.regions_held(), 0);
+    assert_eq!(
+        sql(
+            &db,
+            "SELECT coalesce(owner, '-') FROM regions WHERE region_x = 3"
+        ),
+        ["-"],
+        "let go again"
+    );
+    granted(&b, r);
+
+    // With blocks to be had again, the claim goes through.
+    sql(&db, "ALTER TABLE seq_blocks DROP CONSTRAINT no_new_block");
+    assert_eq!(b.release_leases().unwrap(), 1);
+    granted(&a, r);
+    assert!(a.seq_bounds().0 > wb.last_seq, "a block above b's");
+}
+
 /// A node's checkpoint folds only the regions it holds: another node's
 /// deltas are that node's to fold (every node folding every region would
 /// stall the owners' commits on the chunk rows, and a stopping node's last

@@ -627,8 +627,9 @@ impl Engine {
     /// A commit the store fenced, or whose session ended before COMMIT:
     /// nothing of `out` is durable. Puts its chunks back as the store holds
     /// them, refuses its edits (`RegionElsewhere` for those that changed a
-    /// lost region, `Busy` for the others), and reserves a new seq block so
-    /// the abandoned seqs leave no gap inside one. False for any other
+    /// lost region, `Busy` for the others), and moves to a new seq block so
+    /// the abandoned seqs leave no gap inside one (reserved now, or by the
+    /// lease thread, edits waiting until then). False for any other
     /// error, or when the chunks cannot be put back (the node must then
     /// stop).
     pub(super) fn abandon_fenced(&mut self, out: &TickOutput, e: &StoreError) -> bool {
@@ -668,14 +669,13 @@ impl Engine {
         for (session, id) in self.seq.unqueue_sighted(super::now_ms()) {
             self.refuse_edit(session, id, RejectReason::Busy);
         }
-        match self.store.reserve_seqs(self.seq.last_seq()) {
-            Ok(_) => self.follow_seq_block(),
-            Err(e) => {
-                self.store_failed(&e);
-                error!(error = %e, "reserving a seq block after a fenced commit failed");
-                return false;
-            }
+        // Failing, the store ends the block at the last seq handed out:
+        // edits wait for the block the lease thread reserves.
+        if let Err(e) = self.store.reserve_seqs(self.seq.last_seq()) {
+            self.store_failed(&e);
+            warn!(error = %e, "reserving a seq block after a fenced commit failed; edits wait for the next block");
         }
+        self.follow_seq_block();
         let holder = region
             .and_then(|r| self.store.region_holders(&BTreeSet::from([r])).ok())
             .and_then(|h| h.into_iter().next().map(|(_, h)| h));

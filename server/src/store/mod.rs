@@ -346,7 +346,9 @@ pub trait ChunkStore: Send + Sync + std::fmt::Debug {
     /// The seq the engine continues after, given the store's `last_seq`:
     /// that one, or in a cluster the seq below a new block of seqs reserved
     /// for this process (`store/pg/seqs.rs`). Called before the engine
-    /// starts, after a fenced commit, and when a block runs low.
+    /// starts and after a fenced commit. Failing, a cluster node hands out
+    /// no seq of its current block past `last_seq` ([`Self::seq_bounds`])
+    /// and reserves the next block in the background.
     fn reserve_seqs(&self, last_seq: u64) -> Result<u64, StoreError> {
         Ok(last_seq)
     }

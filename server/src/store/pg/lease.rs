@@ -67,16 +67,13 @@ pub struct NodeLeases {
     /// Where clients reach this node (`[cluster] advertise`, or the bound
     /// address), written into the rows it claims.
     addr: Mutex<String>,
-    /// The seq below this process's current block.
-    floor: AtomicU64,
+    /// This process's current seq block.
+    seqs: Mutex<SeqBlock>,
     /// Seqs in each block it reserves (`[cluster] seq_block`).
     block: u64,
     /// The engine's next seq, as it last told ([`NodeLeases::note_next_seq`]):
     /// the renewal thread reserves the next block when its block runs low.
     next_seq: AtomicU64,
-    /// Whether the engine has reserved a block (`reserve_seqs`): until then
-    /// claims reserve none, the engine's first block is above them all.
-    numbering: std::sync::atomic::AtomicBool,
     /// This process's incarnation (random, written into `nodes` at open).
     incarnation: i64,
     /// The incarnation a renewal found there instead, once one did.
@@ -87,6 +84,19 @@ pub struct NodeLeases {
     book: Mutex<Book>,
     /// Told of the renewal thread's failures (`ChunkStore::report_to`).
     health: std::sync::OnceLock<Arc<crate::health::Health>>,
+}
+
+/// The seq block a node numbers in.
+#[derive(Debug, Default, Clone, Copy)]
+struct SeqBlock {
+    /// The seq below it.
+    floor: u64,
+    /// Its last seq the engine may hand out: the block's end, or below
+    /// it once it was ended early ([`NodeLeases::end_block_at`]).
+    last: u64,
+    /// Whether the engine has reserved a block (`reserve_seqs`): until then
+    /// claims reserve none, the engine's first block is above them all.
+    numbering: bool,
 }
 
 #[derive(Debug, Default)]
@@ -140,10 +150,9 @@ impl NodeLeases {
             handoff_idle: (cfg.handoff_idle_ms > 0)
                 .then(|| Duration::from_millis(cfg.handoff_idle_ms)),
             addr: Mutex::new(cfg.advertise.clone()),
-            floor: AtomicU64::new(0),
+            seqs: Mutex::new(SeqBlock::default()),
             block: cfg.seq_block.max(1),
             next_seq: AtomicU64::new(0),
-            numbering: std::sync::atomic::AtomicBool::new(false),
             incarnation: new_incarnation(),
             superseded: Mutex::new(None),
             registered: std::sync::atomic::AtomicBool::new(false),
@@ -188,19 +197,18 @@ impl NodeLeases {
         }
     }
 
-    /// The seq below this process's current block.
-    pub fn seq_floor(&self) -> u64 {
-        self.floor.load(Ordering::Acquire)
+    fn seq_block(&self) -> SeqBlock {
+        *self.seqs.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// The seq below this process's current block and the block's last
-    /// (from one read: a claim may move it to a new block meanwhile).
+    /// The seq below this process's current block and the last it may
+    /// hand out (one read: a claim may move it to a new block meanwhile).
     /// Before the engine's first block: none is reserved, no end.
     pub fn seq_bounds(&self) -> (u64, u64) {
-        let floor = self.seq_floor();
-        match self.numbering.load(Ordering::Acquire) {
-            true => (floor, floor.saturating_add(self.block)),
-            false => (floor, crate::store::MAX_SEQ),
+        let b = self.seq_block();
+        match b.numbering {
+            true => (b.floor, b.last),
+            false => (b.floor, crate::store::MAX_SEQ),
         }
     }
 
@@ -221,9 +229,26 @@ impl NodeLeases {
         self.next_seq.store(next, Ordering::Release);
     }
 
+    /// Moves to the block above `floor`, unless a newer one was reserved
+    /// meanwhile.
     pub(super) fn raise_floor(&self, floor: u64) {
-        self.floor.fetch_max(floor, Ordering::AcqRel);
-        self.numbering.store(true, Ordering::Release);
+        let mut b = self.seqs.lock().unwrap_or_else(|p| p.into_inner());
+        if !b.numbering || floor > b.floor {
+            b.floor = floor;
+            b.last = floor.saturating_add(self.block);
+        }
+        b.numbering = true;
+    }
+
+    /// Hands out no seq of the current block past `last_used` (a fenced
+    /// batch's seqs were abandoned there and no new block could be
+    /// reserved: the log may not skip seqs inside a block). Edits wait
+    /// until the lease thread reserves the next ([`refill_seqs`]).
+    pub(super) fn end_block_at(&self, last_used: u64) {
+        let mut b = self.seqs.lock().unwrap_or_else(|p| p.into_inner());
+        if b.numbering && last_used > b.floor {
+            b.last = b.last.min(last_used);
+        }
     }
 
     /// Regions claimed, lost or let go since the last call, with the
@@ -452,7 +477,8 @@ fn claim_waiting(
 /// Books regions a claim or adoption returned (x, z, epoch, last_seq):
 /// first a new seq block if one of them was written above this node's
 /// block (taking back a region it wrote itself costs none), then held and
-/// fresh.
+/// fresh. When that block cannot be reserved, lets them go again and
+/// books none.
 /// `started`: before the statement that took them (their leases surely
 /// run from then).
 /// `lock_wait`: how long its reservation may wait for the world row (the
@@ -477,9 +503,19 @@ fn took(
     }
     // Above this node's own block: a node with a newer block wrote there.
     // Within it only this node can have (each block is one node's).
-    let own_block_end = leases.seq_bounds().1;
-    if leases.numbering.load(Ordering::Acquire) && newest > own_block_end {
-        let next = seqs::reserve(pool, &leases.node_id, leases.block, lock_wait)?;
+    let own = leases.seq_block();
+    if own.numbering && newest > own.floor.saturating_add(leases.block) {
+        let next = match seqs::reserve(pool, &leases.node_id, leases.block, lock_wait) {
+            Ok(next) => next,
+            Err(e) => {
+                // Unbooked, they would refuse every other node until
+                // their leases ran out.
+                if let Err(e) = let_go(pool, leases, &got) {
+                    warn!(error = %e, regions = got.len(), "letting go of regions claimed without a seq block failed; their leases run out");
+                }
+                return Err(e);
+            }
+        };
         info!(node = %leases.node_id, first_seq = next + 1, "seq block reserved");
         leases.raise_floor(next);
     }
@@ -502,22 +538,25 @@ fn took(
 /// one, has [`seqs::REFILL_PART`] of it or less left: well before its end
 /// (past it the engine's edits wait), off the engine's thread, tried again
 /// at every renewal while it fails. The rest of the block is left unused.
+/// A block ended early ([`NodeLeases::end_block_at`]) is replaced at once.
 /// It waits for the world row at most [`NodeLeases::lock_wait`].
 fn refill_seqs(pool: &Pool, leases: &NodeLeases) -> Result<(), StoreError> {
-    if !leases.numbering.load(Ordering::Acquire) {
-        return Ok(());
-    }
     // The engine's seq first: the block read after it is at least as new
     // (a claim that moved it on since leaves `next` below its floor).
     let next = leases.next_seq.load(Ordering::Acquire);
-    let (floor, last) = leases.seq_bounds();
-    // Not numbering in this block yet (a claim just moved it on): it is
-    // whole.
-    if next <= floor {
+    let own = leases.seq_block();
+    if !own.numbering {
         return Ok(());
     }
-    let left = (last + 1).saturating_sub(next);
-    if left > leases.block / seqs::REFILL_PART {
+    // Not numbering in this block yet (a claim just moved it on): it is
+    // whole.
+    if next <= own.floor {
+        return Ok(());
+    }
+    // Ended early: replaced whatever the engine last told.
+    let ended_early = own.last < own.floor.saturating_add(leases.block);
+    let left = (own.last + 1).saturating_sub(next);
+    if left > leases.block / seqs::REFILL_PART && !ended_early {
         return Ok(());
     }
     let next_floor = seqs::reserve(pool, &leases.node_id, leases.block, leases.lock_wait())?;

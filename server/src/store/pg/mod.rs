@@ -1051,7 +1051,15 @@ impl ChunkStore for PgStore {
         let Some(leases) = &self.leases else {
             return Ok(last_seq);
         };
-        let floor = seqs::reserve(&self.pool, leases.node_id(), leases.block_size(), None)?;
+        let floor = match seqs::reserve(&self.pool, leases.node_id(), leases.block_size(), None) {
+            Ok(floor) => floor,
+            Err(e) => {
+                // No seq above `last_seq` from this block: the lease
+                // thread reserves the next one.
+                leases.end_block_at(last_seq);
+                return Err(e);
+            }
+        };
         leases.raise_floor(floor);
         tracing::info!(node = %leases.node_id(), first_seq = floor + 1, "seq block reserved");
         Ok(floor)
