@@ -1737,3 +1737,77 @@ fn a_viewers_lookups_leave_the_holders_cache_alone() {
     );
     assert_eq!(first(a.region_holders(&regions(&[q])).unwrap()), held_by_b);
 }
+
+/// Seq blocks a handoff or refill left behind are merged once their log is
+/// pruned and their node moved on long ago (`seqs::compact`, at the end of
+/// a prune pass): the table stops growing, `check` and the pruned answers
+/// hold, log readers are not sent to the merged row, and a commit still
+/// numbered in a merged block (a node paused all that while) is refused,
+/// changing nothing.
+#[test]
+fn old_empty_seq_blocks_are_merged_and_a_commit_numbered_in_one_is_refused() {
+    let Some(db) = database("lease_blocks_compacted") else {
+        return;
+    };
+    let (a, b, mut wa, mut wb) = two_nodes(&db);
+    let (ra, rb) = (region(0, 0), region(1, 0));
+    a.commit_batch(&edit(&mut wa, &[chunk_in(ra, 0)], 1))
+        .unwrap();
+    b.commit_batch(&edit(&mut wb, &[chunk_in(rb, 0)], 2))
+        .unwrap();
+    let stale = fork(&wa);
+    // Blocks: a, b, a, b, a (each node's newest is the last of its own).
+    a.reserve_seqs(0).unwrap();
+    b.reserve_seqs(0).unwrap();
+    let fa = a.reserve_seqs(0).unwrap();
+    let prune_all = |s: &PgStore| while s.prune_log(u64::MAX, 1000).unwrap() > 0 {};
+    let blocks = || sql(&db, "SELECT node FROM seq_blocks ORDER BY first_seq");
+
+    // Superseded just now: kept (the engine may still finish a tick there,
+    // a reader starting at the log's end reads them).
+    prune_all(&a);
+    assert_eq!(blocks(), ["a", "b", "a", "b", "a"]);
+
+    sql(
+        &db,
+        "UPDATE seq_blocks SET reserved_at = now() - interval '1 hour'",
+    );
+    prune_all(&a);
+    // The first three merged: b's second block is its newest.
+    assert_eq!(blocks(), ["", "b", "a"]);
+    assert_eq!(
+        sql(
+            &db,
+            "SELECT first_seq || ':' || pruned_to FROM seq_blocks WHERE node = ''"
+        ),
+        [format!("1:{}", SEQ_BLOCK + 1)]
+    );
+    prune_all(&a);
+    assert_eq!(blocks(), ["", "b", "a"], "nothing more to merge");
+    let report = plain(&db).check().unwrap();
+    assert!(report.is_ok(), "{report:?}");
+    assert!(a.log_pruned_at(1).unwrap() && a.log_pruned_at(SEQ_BLOCK + 1).unwrap());
+    let segments = a.log_segments(SegmentsAlso::After(0)).unwrap();
+    assert!(
+        segments.iter().all(|s| s.first > 2 * SEQ_BLOCK),
+        "{segments:?}"
+    );
+    assert_eq!(segments.len(), 2);
+
+    // a's batch numbered in its first block: refused, nothing written.
+    let before = footprint(&db, &a);
+    let err = a
+        .commit_batch(&edit(&mut fork(&stale), &[chunk_in(ra, 1)], 3))
+        .unwrap_err();
+    assert!(matches!(err, StoreError::SeqsRetired { .. }), "{err}");
+    assert_eq!(footprint(&db, &a), before);
+    // Numbered in its newest block, it goes through.
+    let mut on_a = Seq {
+        last_seq: fa,
+        ..fork(&stale)
+    };
+    a.commit_batch(&edit(&mut on_a, &[chunk_in(ra, 1)], 4))
+        .unwrap();
+    let report = plain(&db).check().unwrap();
+    assert!(report.is_ok(), "{report:?}");
+}

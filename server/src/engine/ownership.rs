@@ -624,8 +624,9 @@ impl Engine {
 }
 
 impl Engine {
-    /// A commit the store fenced, or whose session ended before COMMIT:
-    /// nothing of `out` is durable. Puts its chunks back as the store holds
+    /// A commit the store fenced, whose session ended before COMMIT, or
+    /// numbered in a seq block compacted away: nothing of `out` is
+    /// durable. Puts its chunks back as the store holds
     /// them, refuses its edits (`RegionElsewhere` for those that changed a
     /// lost region, `Busy` for the others), and moves to a new seq block so
     /// the abandoned seqs leave no gap inside one (reserved now, or by the
@@ -637,7 +638,7 @@ impl Engine {
         // transaction past the lease: a paused node) wrote nothing either.
         let (region, owner) = match e {
             StoreError::Fenced { region, owner, .. } => (Some(*region), owner.clone()),
-            StoreError::Uncommitted { .. } => (None, None),
+            StoreError::Uncommitted { .. } | StoreError::SeqsRetired { .. } => (None, None),
             _ => return false,
         };
         if !self.store.clustered() {

@@ -102,6 +102,14 @@ pub enum StoreError {
         current_epoch: Option<u64>,
         owner: Option<String>,
     },
+    /// A fenced batch numbered from a seq block no longer this node's (a
+    /// node paused long past its block being superseded and compacted
+    /// away, `seqs.rs` `compact`): the batch was refused and changed
+    /// nothing.
+    #[error(
+        "seqs {first}..={last} are not in a seq block of this node (superseded and compacted);          nothing was written"
+    )]
+    SeqsRetired { first: u64, last: u64 },
     /// The store holds another world than the one this server started on
     /// (a restore replaced it while the server's lock connection was
     /// lost): the batch was refused and changed nothing.
@@ -164,6 +172,7 @@ impl StoreError {
             || matches!(
                 self,
                 StoreError::Fenced { .. }
+                    | StoreError::SeqsRetired { .. }
                     | StoreError::Superseded { .. }
                     | StoreError::InvalidBatch { .. }
                     | StoreError::InvalidBlob { .. }

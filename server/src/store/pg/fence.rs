@@ -181,6 +181,25 @@ pub(super) async fn check(
             )));
         }
     }
+    // The batch's seqs lie in a block of this node's, kept until the
+    // commit ends (a compaction waits for it, `seqs::compact`); seqs below
+    // every block are a node's that never reserved one (tools, tests).
+    let block = c
+        .query_opt(
+            "SELECT node, last_seq FROM seq_blocks WHERE first_seq <= $1 \
+             ORDER BY first_seq DESC LIMIT 1 FOR KEY SHARE",
+            &[&first],
+        )
+        .await?;
+    if let Some(b) = block {
+        let (node, block_last): (String, i64) = (b.get(0), b.get(1));
+        if node != fence.node_id || block_last < last {
+            return Err(StoreError::SeqsRetired {
+                first: from_sql(first, "first seq", "batch")?,
+                last: from_sql(last, "last seq", "batch")?,
+            });
+        }
+    }
     // The renewal skips rows this transaction holds: it renews them itself
     // (a slow commit would otherwise let them run out, and another node
     // claim them, meanwhile). A lease already run out stays so: only the

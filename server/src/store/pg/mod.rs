@@ -678,6 +678,14 @@ impl ChunkStore for PgStore {
                     })?;
         }
         *cursor = 0;
+        // The pass's last call (nothing left to prune): old empty seq
+        // blocks are merged, a failure only logged (the next pass tries).
+        if removed == 0 {
+            drop(cursor);
+            if let Err(e) = seqs::compact(&self.pool) {
+                crate::log_every::store_error("seqs", "compacting seq blocks failed", &e);
+            }
+        }
         Ok(removed)
     }
 
@@ -698,14 +706,15 @@ impl ChunkStore for PgStore {
             return whole();
         }
         // Each node's newest block (the nodes found by a skip over the
-        // (node, first_seq) index, then one probe of it each), the others
+        // (node, first_seq) index, then one probe of it each; not the
+        // compacted blocks' empty name, `seqs::compact`), the others
         // asked for (`$others`: a query of first seqs), and the highest seq
         // logged in each (pruned ones included); no scan of every block.
         macro_rules! segments {
             ($others:literal) => {
                 concat!(
                     "WITH RECURSIVE nodes AS ( \
-                         (SELECT node FROM seq_blocks ORDER BY node LIMIT 1) \
+                         (SELECT node FROM seq_blocks WHERE node > '' ORDER BY node LIMIT 1) \
                          UNION ALL \
                          SELECT (SELECT s.node FROM seq_blocks s WHERE s.node > n.node \
                                  ORDER BY s.node LIMIT 1) \
@@ -739,7 +748,7 @@ impl ChunkStore for PgStore {
                 crate::store::DEAD_SEGMENT_KEPT.as_millis() as i64,
             ),
             crate::store::SegmentsAlso::After(since) => (
-                segments!("SELECT first_seq FROM seq_blocks WHERE first_seq > $1"),
+                segments!("SELECT first_seq FROM seq_blocks WHERE first_seq > $1 AND node <> ''"),
                 i64::try_from(since).unwrap_or(i64::MAX),
             ),
         };
