@@ -107,7 +107,7 @@ pub enum StoreError {
     /// away, `seqs.rs` `compact`): the batch was refused and changed
     /// nothing.
     #[error(
-        "seqs {first}..={last} are not in a seq block of this node (superseded and compacted);          nothing was written"
+        "seqs {first}..={last} are not in a seq block of this node (superseded and compacted); nothing was written"
     )]
     SeqsRetired { first: u64, last: u64 },
     /// The store holds another world than the one this server started on
