@@ -54,13 +54,32 @@ fn a_session_edits_sees_its_changes_and_ends_with_disconnected() {
         std::thread::sleep(Duration::from_millis(10));
     };
     assert!(seen.iter().any(|e| matches!(e, Event::ChunkChanged { .. })));
+    // A second player who predicts nothing watches the same view; once it
+    // is loaded and every load reported, only later changes are reported.
+    let watcher = Session::connect(
+        server.running.addr,
+        &server.running.cert_der,
+        &server.token("rust-watcher"),
+        SessionOptions::default(),
+    )
+    .unwrap();
+    watcher.subscribe(IVec3::new(0, 1, 0), radius).unwrap();
+    let mut watched = Vec::new();
+    wait_for(&watcher, &mut watched, |e| {
+        matches!(e, Event::ViewLoaded { .. }).then_some(())
+    });
+    while let Some(e) = watcher.poll() {
+        watched.push(e);
+    }
+    let loaded = watched.len();
 
     // A far edit is refused with its own ticket.
     let feet = DVec3::new(3.5, f64::from(y) + 1.0, 3.5);
     let target = DVec3::new(3.5, f64::from(y) + 0.5, 3.5);
-    let (accepted, changes) = loop {
+    let (accepted, changes, sent_at, settled_by_verdict) = loop {
         s.set_position(feet).unwrap();
         std::thread::sleep(Duration::from_millis(20));
+        let sent_at = seen.len();
         let ticket = s.edit(edits::mine(target, 2.0, 255).unwrap()).unwrap();
         let verdict = wait_for(&s, &mut seen, |e| match e {
             Event::EditAccepted {
@@ -70,7 +89,14 @@ fn a_session_edits_sees_its_changes_and_ends_with_disconnected() {
             _ => None,
         });
         match verdict {
-            Ok(changes) => break (ticket, changes),
+            Ok(changes) => {
+                // The delta and the verdict travel apart: either may come
+                // first.
+                let settled = changes
+                    .first()
+                    .is_some_and(|c| s.chunk(c.pos).map(|d| d.version) == Some(c.version));
+                break (ticket, changes, sent_at, settled);
+            }
             Err(RejectReason::NoPosition) => continue,
             Err(other) => panic!("dig refused: {other:?}"),
         }
@@ -103,16 +129,38 @@ fn a_session_edits_sees_its_changes_and_ends_with_disconnected() {
     while let Some(e) = s.poll() {
         seen.push(e);
     }
+    // When the delta came after the verdict, its change is reported after
+    // the verdict too; else at least after the dig was sent.
     let verdict_at = seen
         .iter()
         .position(|e| matches!(e, Event::EditAccepted { ticket, .. } if *ticket == accepted))
         .unwrap();
+    let since = if settled_by_verdict {
+        sent_at
+    } else {
+        verdict_at
+    };
     assert!(
-        seen[verdict_at..].contains(&Event::ChunkChanged { pos: changed.pos }),
+        seen[since..].contains(&Event::ChunkChanged { pos: changed.pos }),
         "{seen:?}"
     );
     let data = s.chunk(changed.pos).unwrap();
     assert!(!data.predicted, "settled: the view is the server's");
+    // The watcher is told of the dig's delta and reaches its version.
+    wait_for(&watcher, &mut watched, |e| {
+        (*e == Event::ChunkChanged { pos: changed.pos }).then_some(())
+    });
+    let start = Instant::now();
+    while watcher.chunk(changed.pos).map(|c| c.version) != Some(changed.version) {
+        assert!(start.elapsed() < WAIT, "the watcher never saw the dig");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(
+        watched[loaded..]
+            .iter()
+            .all(|e| matches!(e, Event::ChunkChanged { .. })),
+        "{watched:?}"
+    );
     let mesh = s.mesh(changed.pos, 0, 0).unwrap().unwrap();
     assert!(mesh.triangle_count() > 0 && mesh.complete);
     let start = Instant::now();
