@@ -1811,3 +1811,118 @@ fn old_empty_seq_blocks_are_merged_and_a_commit_numbered_in_one_is_refused() {
     let report = plain(&db).check().unwrap();
     assert!(report.is_ok(), "{report:?}");
 }
+
+/// Blocks a, b, a, b, a with the log pruned, all superseded an hour ago
+/// (the next pass's compaction merges the first three), and each node's
+/// world as it was after its one commit (its next batch is numbered in
+/// its first block).
+fn old_blocks(db: &PgDb) -> (PgStore, PgStore, Seq, Seq) {
+    let (a, b, mut wa, mut wb) = two_nodes(db);
+    a.commit_batch(&edit(&mut wa, &[chunk_in(region(0, 0), 0)], 1))
+        .unwrap();
+    b.commit_batch(&edit(&mut wb, &[chunk_in(region(1, 0), 0)], 2))
+        .unwrap();
+    a.reserve_seqs(0).unwrap();
+    b.reserve_seqs(0).unwrap();
+    a.reserve_seqs(0).unwrap();
+    while a.prune_log(u64::MAX, 1000).unwrap() > 0 {}
+    sql(
+        db,
+        "UPDATE seq_blocks SET reserved_at = now() - interval '1 hour'",
+    );
+    (a, b, wa, wb)
+}
+
+/// Waits until `n` sessions of `db` wait for `what` (a `wait_event_type`).
+fn waiting(db: &PgDb, what: &str, n: usize) {
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let q = format!(
+        "SELECT count(*) FROM pg_stat_activity \
+         WHERE datname = current_database() AND wait_event_type = '{what}'"
+    );
+    while sql(db, &q)[0].parse::<usize>().unwrap() < n {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "no {n} waiting on {what}"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+fn seq_block_nodes(db: &PgDb) -> Vec<String> {
+    sql(db, "SELECT node FROM seq_blocks ORDER BY first_seq")
+}
+
+/// A commit past its fence holds its seq block's row: a compaction then
+/// gives up after its lock timeout and merges nothing, the commit lands,
+/// and the next pass (its entry pruned) merges.
+#[test]
+fn a_compaction_leaves_a_block_a_commit_holds() {
+    let Some(db) = database("lease_blocks_held") else {
+        return;
+    };
+    let (a, _b, wa, _wb) = old_blocks(&db);
+    // The commit stops at its first chunk write, after the fence.
+    let (release, holder) =
+        store_common::hold_until_told(&db, "LOCK TABLE chunks, chunk_deltas IN SHARE MODE");
+    std::thread::scope(|s| {
+        let commit =
+            s.spawn(|| a.commit_batch(&edit(&mut fork(&wa), &[chunk_in(region(0, 0), 1)], 3)));
+        waiting(&db, "Lock", 1);
+        assert_eq!(a.prune_log(u64::MAX, 1000).unwrap(), 0);
+        assert_eq!(seq_block_nodes(&db), ["a", "b", "a", "b", "a"]);
+        drop(release);
+        holder.join().unwrap();
+        commit.join().unwrap().unwrap();
+    });
+    assert_eq!(sql(&db, "SELECT seq FROM edit_log"), ["2"]);
+    while a.prune_log(u64::MAX, 1000).unwrap() > 0 {}
+    assert_eq!(seq_block_nodes(&db), ["", "b", "a"]);
+    let report = plain(&db).check().unwrap();
+    assert!(report.is_ok(), "{report:?}");
+}
+
+/// Commits that reach their seq block while a compaction merges it wait
+/// for the merge and are refused, whether their block's row was the one
+/// kept (a's) or one deleted (b's); nothing of theirs is written.
+#[test]
+fn a_commit_meeting_a_compaction_of_its_block_is_refused() {
+    let Some(db) = database("lease_blocks_merging") else {
+        return;
+    };
+    let (a, b, wa, wb) = old_blocks(&db);
+    // The compaction stops at its merge, its rows locked, until told.
+    sql(
+        &db,
+        "CREATE TABLE go (x int); \
+         CREATE FUNCTION hold_merge() RETURNS trigger AS $$ BEGIN \
+             WHILE NOT EXISTS (SELECT 1 FROM go) LOOP PERFORM pg_sleep(0.01); END LOOP; \
+             RETURN NEW; END $$ LANGUAGE plpgsql; \
+         CREATE TRIGGER hold_merge BEFORE UPDATE ON seq_blocks FOR EACH ROW \
+             WHEN (NEW.node = '') EXECUTE FUNCTION hold_merge()",
+    );
+    let before = footprint(&db, &a);
+    std::thread::scope(|s| {
+        let pass = s.spawn(|| a.prune_log(u64::MAX, 1000));
+        waiting(&db, "Timeout", 1);
+        let on_a =
+            s.spawn(|| a.commit_batch(&edit(&mut fork(&wa), &[chunk_in(region(0, 0), 1)], 3)));
+        let on_b =
+            s.spawn(|| b.commit_batch(&edit(&mut fork(&wb), &[chunk_in(region(1, 0), 1)], 4)));
+        waiting(&db, "Lock", 2);
+        sql(&db, "INSERT INTO go VALUES (1)");
+        assert_eq!(pass.join().unwrap().unwrap(), 0);
+        for err in [on_a.join().unwrap(), on_b.join().unwrap()] {
+            let err = err.unwrap_err();
+            assert!(matches!(err, StoreError::SeqsRetired { .. }), "{err}");
+        }
+    });
+    sql(
+        &db,
+        "DROP TRIGGER hold_merge ON seq_blocks; DROP FUNCTION hold_merge(); DROP TABLE go",
+    );
+    assert_eq!(seq_block_nodes(&db), ["", "b", "a"]);
+    assert_eq!(footprint(&db, &a), before);
+    let report = plain(&db).check().unwrap();
+    assert!(report.is_ok(), "{report:?}");
+}
