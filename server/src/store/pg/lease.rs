@@ -510,8 +510,14 @@ fn took(
             Err(e) => {
                 // Unbooked, they would refuse every other node until
                 // their leases ran out.
-                if let Err(e) = let_go(pool, leases, &got) {
-                    warn!(error = %e, regions = got.len(), "letting go of regions claimed without a seq block failed; their leases run out");
+                match let_go(pool, leases, &got) {
+                    Err(e) => {
+                        warn!(error = %e, regions = got.len(), "letting go of regions claimed without a seq block failed; their leases run out");
+                    }
+                    Ok((_, locked)) if !locked.is_empty() => {
+                        warn!(regions = locked.len(), "regions claimed without a seq block were locked by another session; their leases run out");
+                    }
+                    Ok(_) => {}
                 }
                 return Err(e);
             }
@@ -1040,19 +1046,22 @@ pub(super) fn release_some(
     leases: &NodeLeases,
     regions: &BTreeSet<RegionId>,
 ) -> Result<u64, StoreError> {
+    let mut used_at = BTreeMap::new();
     let gone: BTreeMap<RegionId, u64> = {
         let mut book = leases.book();
         let mut gone = BTreeMap::new();
         for r in regions {
             if let Some(epoch) = book.held.remove(r) {
-                book.used.remove(r);
+                if let Some(at) = book.used.remove(r) {
+                    used_at.insert(*r, at);
+                }
                 book.fresh.insert(*r);
                 gone.insert(*r, epoch);
             }
         }
         gone
     };
-    Ok(let_go(pool, leases, &gone)?.len() as u64)
+    Ok(let_go_or_keep(pool, leases, &gone, &used_at)?.len() as u64)
 }
 
 /// Gives up every lease still this node's (owner set to NULL, epoch
@@ -1063,7 +1072,12 @@ pub(super) fn release(pool: &Pool, leases: &NodeLeases) -> Result<u64, StoreErro
         book.used.clear();
         std::mem::take(&mut book.held)
     };
-    let n = let_go(pool, leases, &held)?.len() as u64;
+    let (released, locked) = let_go(pool, leases, &held)?;
+    if !locked.is_empty() {
+        warn!(node = %leases.node_id, regions = locked.len(),
+            "region rows another session holds were not let go; their leases run out");
+    }
+    let n = released.len() as u64;
     let mut book = leases.book();
     book.lost.extend(held);
     book.forget_lost_past(leases.max_held);
@@ -1071,64 +1085,99 @@ pub(super) fn release(pool: &Pool, leases: &NodeLeases) -> Result<u64, StoreErro
 }
 
 /// Sets the owner of `regions` to NULL where this node still holds them
-/// at those epochs; returns those it let go (not one claimed again since).
+/// at those epochs; returns those it let go (not one claimed again since)
+/// and those whose rows another session holds locked (a node paused in
+/// its commit): skipped, never waited for, still this node's.
 fn let_go(
     pool: &Pool,
     leases: &NodeLeases,
     regions: &BTreeMap<RegionId, u64>,
-) -> Result<BTreeSet<RegionId>, StoreError> {
+) -> Result<(BTreeSet<RegionId>, BTreeSet<RegionId>), StoreError> {
+    let (mut released, mut locked) = (BTreeSet::new(), BTreeSet::new());
     if regions.is_empty() {
-        return Ok(BTreeSet::new());
+        return Ok((released, locked));
     }
     let (xs, zs, epochs) = held_columns(regions)?;
+    // The last part reads the statement's snapshot: rows still this
+    // node's that `mine` did not lock were skipped.
     let rows = pool.run("releasing leases", async |c: &mut Conn| {
         c.query(
-            "WITH mine AS (SELECT r.region_x, r.region_z FROM regions r \
+            "WITH asked AS (SELECT r.region_x, r.region_z FROM regions r \
                  JOIN unnest($1::int4[], $2::int4[], $3::int8[]) AS u(x, z, e) \
                    ON r.region_x = u.x AND r.region_z = u.z AND r.epoch = u.e \
+                 WHERE r.owner = $4), \
+             mine AS (SELECT r.region_x, r.region_z FROM regions r \
+                 JOIN asked a ON r.region_x = a.region_x AND r.region_z = a.region_z \
                  WHERE r.owner = $4 \
-                 ORDER BY r.region_x, r.region_z FOR UPDATE OF r) \
-             UPDATE regions AS r SET owner = NULL \
-             FROM mine WHERE r.region_x = mine.region_x AND r.region_z = mine.region_z \
-             RETURNING r.region_x, r.region_z",
+                 ORDER BY r.region_x, r.region_z FOR UPDATE OF r SKIP LOCKED), \
+             gone AS (UPDATE regions AS r SET owner = NULL \
+                 FROM mine WHERE r.region_x = mine.region_x AND r.region_z = mine.region_z \
+                 RETURNING r.region_x, r.region_z) \
+             SELECT region_x, region_z, true FROM gone \
+             UNION ALL \
+             SELECT a.region_x, a.region_z, false FROM asked a WHERE NOT EXISTS \
+                 (SELECT 1 FROM mine m WHERE m.region_x = a.region_x AND m.region_z = a.region_z)",
             &[&xs, &zs, &epochs, &leases.node_id],
         )
         .await
     })?;
-    Ok(rows
-        .iter()
-        .map(|r| RegionId {
+    for r in rows {
+        let region = RegionId {
             x: r.get(0),
             z: r.get(1),
-        })
-        .collect())
+        };
+        if r.get::<_, bool>(2) {
+            released.insert(region);
+        } else {
+            locked.insert(region);
+        }
+    }
+    Ok((released, locked))
 }
 
 /// [`let_go`] of regions already taken out of the book (`used_at`: when
-/// each was last used). Failing (the database out of reach), they go back
-/// into it at their epoch, unless claimed again meanwhile, and are
-/// reported fresh again: renewals keep them and a later pass lets them
-/// go, where their rows would otherwise stay leased to this node,
-/// unrenewed and refusing every other node, until they ran out.
+/// each was last used). Those it could not let go (their rows locked by
+/// another session, or the database out of reach) go back into it at
+/// their epoch, unless claimed again meanwhile, and are reported fresh
+/// again: renewals keep them and a later pass lets them go, where their
+/// rows would otherwise stay leased to this node, unrenewed and refusing
+/// every other node, until they ran out.
 fn let_go_or_keep(
     pool: &Pool,
     leases: &NodeLeases,
     gone: &BTreeMap<RegionId, u64>,
     used_at: &BTreeMap<RegionId, Instant>,
 ) -> Result<BTreeSet<RegionId>, StoreError> {
-    let_go(pool, leases, gone).inspect_err(|_| {
+    let keep = |which: &mut dyn Iterator<Item = &RegionId>| {
         let mut book = leases.book();
-        for (r, epoch) in gone {
+        for r in which {
+            let Some(&epoch) = gone.get(r) else {
+                continue;
+            };
             if book.held.contains_key(r) {
                 continue;
             }
-            book.held.insert(*r, *epoch);
+            book.held.insert(*r, epoch);
             book.fresh.insert(*r);
             if let Some(at) = used_at.get(r) {
                 book.used.insert(*r, *at);
             }
         }
-    })
+    };
+    match let_go(pool, leases, gone) {
+        Ok((released, locked)) => {
+            if !locked.is_empty() {
+                warn!(node = %leases.node_id, regions = locked.len(),
+                    "region rows another session holds were kept; a later pass lets them go");
+                keep(&mut locked.iter());
+            }
+            Ok(released)
+        }
+        Err(e) => {
+            keep(&mut gone.keys());
+            Err(e)
+        }
+    }
 }
 
 /// Releases the held regions the engine has not asked for in
